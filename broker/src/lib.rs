@@ -1,0 +1,2 @@
+//! Courier's servers and tools. The IPC `central` server lands here.
+#![warn(missing_docs)]

@@ -1,0 +1,363 @@
+//! OMG CDR as DDS uses it: XCDR1 (plain CDR) and XCDR2, both byte orders.
+//!
+//! A serialized payload starts with the 4-byte encapsulation header
+//! (representation identifier, big-endian, then two option bytes);
+//! alignment is relative to the first byte *after* that header.
+//!
+//! | version | max alignment | appendable struct | mutable struct |
+//! |---|---|---|---|
+//! | XCDR1 | 8 | as final | parameter list (`PL_CDR`), `PID_SENTINEL` |
+//! | XCDR2 | 4 | `DHEADER` (u32 size) | `DHEADER` + `EMHEADER` per member |
+//!
+//! ```
+//! use courier_wire::cdr::{self, Encoding};
+//! let b = cdr::to_vec(&String::from("hi"), Encoding::Xcdr1Le);
+//! assert_eq!(b, [0x00, 0x01, 0, 0, 3, 0, 0, 0, b'h', b'i', 0]);
+//! ```
+
+mod codec;
+
+pub use codec::{MemberHeader, Reader, StructReader, StructWriter, Writer};
+
+use crate::IpcMessage;
+
+/// Byte order of CDR data.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Endianness {
+    /// Big-endian.
+    Big,
+    /// Little-endian.
+    Little,
+}
+
+/// XCDR version.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Version {
+    /// XCDR version 1 (classic CDR; `PL_CDR` for mutable types).
+    Xcdr1,
+    /// XCDR version 2 (DDS-XTypes 1.3 §7.4.3).
+    Xcdr2,
+}
+
+/// What a writer produces: XCDR version and byte order. The exact
+/// encapsulation id also depends on the type's [`Extensibility`]
+/// (see [`RepresentationId::for_type`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Encoding {
+    /// XCDR1, little-endian.
+    Xcdr1Le,
+    /// XCDR1, big-endian.
+    Xcdr1Be,
+    /// XCDR2, little-endian.
+    Xcdr2Le,
+    /// XCDR2, big-endian.
+    Xcdr2Be,
+}
+
+impl Encoding {
+    /// The XCDR version.
+    pub const fn version(self) -> Version {
+        match self {
+            Encoding::Xcdr1Le | Encoding::Xcdr1Be => Version::Xcdr1,
+            Encoding::Xcdr2Le | Encoding::Xcdr2Be => Version::Xcdr2,
+        }
+    }
+
+    /// The byte order.
+    pub const fn endianness(self) -> Endianness {
+        match self {
+            Encoding::Xcdr1Le | Encoding::Xcdr2Le => Endianness::Little,
+            Encoding::Xcdr1Be | Encoding::Xcdr2Be => Endianness::Big,
+        }
+    }
+
+    /// Builds an encoding from its parts.
+    pub const fn new(version: Version, endianness: Endianness) -> Self {
+        match (version, endianness) {
+            (Version::Xcdr1, Endianness::Little) => Encoding::Xcdr1Le,
+            (Version::Xcdr1, Endianness::Big) => Encoding::Xcdr1Be,
+            (Version::Xcdr2, Endianness::Little) => Encoding::Xcdr2Le,
+            (Version::Xcdr2, Endianness::Big) => Encoding::Xcdr2Be,
+        }
+    }
+}
+
+/// DDS-XTypes type extensibility (`@final`, `@appendable`, `@mutable`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum Extensibility {
+    /// Members in order, no headers (the default, as in Cyclone's idlc).
+    #[default]
+    Final,
+    /// XCDR2: a `DHEADER` with the byte size precedes the members.
+    Appendable,
+    /// Members identified by id: parameter list (XCDR1) or `EMHEADER`s (XCDR2).
+    Mutable,
+}
+
+/// The representation identifier of the encapsulation header (DDS-XTypes 1.3 §7.6.3.1.2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[repr(u16)]
+pub enum RepresentationId {
+    /// `CDR_BE` (XCDR1, final/appendable, big-endian).
+    CdrBe = 0x0000,
+    /// `CDR_LE`.
+    CdrLe = 0x0001,
+    /// `PL_CDR_BE` (XCDR1 mutable).
+    PlCdrBe = 0x0002,
+    /// `PL_CDR_LE`.
+    PlCdrLe = 0x0003,
+    /// `CDR2_BE` (XCDR2 final).
+    Cdr2Be = 0x0010,
+    /// `CDR2_LE`.
+    Cdr2Le = 0x0011,
+    /// `PL_CDR2_BE` (XCDR2 mutable).
+    PlCdr2Be = 0x0012,
+    /// `PL_CDR2_LE`.
+    PlCdr2Le = 0x0013,
+    /// `D_CDR2_BE` (XCDR2 appendable).
+    DCdr2Be = 0x0014,
+    /// `D_CDR2_LE`.
+    DCdr2Le = 0x0015,
+}
+
+impl RepresentationId {
+    /// The id to announce for a type of the given extensibility in the given encoding.
+    pub const fn for_type(encoding: Encoding, ext: Extensibility) -> Self {
+        use RepresentationId::*;
+        let le = matches!(encoding.endianness(), Endianness::Little);
+        match (encoding.version(), ext, le) {
+            (Version::Xcdr1, Extensibility::Mutable, true) => PlCdrLe,
+            (Version::Xcdr1, Extensibility::Mutable, false) => PlCdrBe,
+            (Version::Xcdr1, _, true) => CdrLe,
+            (Version::Xcdr1, _, false) => CdrBe,
+            (Version::Xcdr2, Extensibility::Final, true) => Cdr2Le,
+            (Version::Xcdr2, Extensibility::Final, false) => Cdr2Be,
+            (Version::Xcdr2, Extensibility::Appendable, true) => DCdr2Le,
+            (Version::Xcdr2, Extensibility::Appendable, false) => DCdr2Be,
+            (Version::Xcdr2, Extensibility::Mutable, true) => PlCdr2Le,
+            (Version::Xcdr2, Extensibility::Mutable, false) => PlCdr2Be,
+        }
+    }
+
+    /// Parses the 16-bit id of an encapsulation header.
+    pub const fn from_u16(v: u16) -> Option<Self> {
+        use RepresentationId::*;
+        Some(match v {
+            0x0000 => CdrBe,
+            0x0001 => CdrLe,
+            0x0002 => PlCdrBe,
+            0x0003 => PlCdrLe,
+            0x0010 => Cdr2Be,
+            0x0011 => Cdr2Le,
+            0x0012 => PlCdr2Be,
+            0x0013 => PlCdr2Le,
+            0x0014 => DCdr2Be,
+            0x0015 => DCdr2Le,
+            _ => return None,
+        })
+    }
+
+    /// The encoding (version and byte order) this id stands for.
+    pub const fn encoding(self) -> Encoding {
+        use RepresentationId::*;
+        match self {
+            CdrBe | PlCdrBe => Encoding::Xcdr1Be,
+            CdrLe | PlCdrLe => Encoding::Xcdr1Le,
+            Cdr2Be | PlCdr2Be | DCdr2Be => Encoding::Xcdr2Be,
+            Cdr2Le | PlCdr2Le | DCdr2Le => Encoding::Xcdr2Le,
+        }
+    }
+}
+
+/// Why CDR data could not be decoded. Offsets count from the start of the
+/// payload after the encapsulation header.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum DecodeError {
+    /// The payload is shorter than the 4-byte encapsulation header.
+    #[error("CDR payload of {0} byte(s) is shorter than the 4-byte encapsulation header")]
+    MissingHeader(usize),
+    /// The encapsulation id is unknown.
+    #[error("unknown CDR representation identifier 0x{0:04x}")]
+    UnknownRepresentation(u16),
+    /// The data ended before an item was complete.
+    #[error("CDR data ends at byte {offset}: {needed} more byte(s) needed, {remaining} left")]
+    UnexpectedEnd {
+        /// Offset of the incomplete item.
+        offset: usize,
+        /// Bytes needed.
+        needed: usize,
+        /// Bytes left.
+        remaining: usize,
+    },
+    /// A length or element count promised more data than the input holds.
+    #[error("count {count} at byte {offset} exceeds the {remaining} remaining byte(s)")]
+    CountTooLarge {
+        /// Offset of the count.
+        offset: usize,
+        /// The count read.
+        count: u64,
+        /// Bytes remaining.
+        remaining: usize,
+    },
+    /// A string lacked its terminating NUL or had length 0.
+    #[error("string at byte {offset} is not NUL-terminated")]
+    UnterminatedString {
+        /// Offset of the string's length.
+        offset: usize,
+    },
+    /// A string was not valid UTF-8.
+    #[error("string is not valid UTF-8 at byte {offset}")]
+    InvalidUtf8 {
+        /// Offset of the first invalid byte.
+        offset: usize,
+    },
+    /// A boolean was neither 0 nor 1.
+    #[error("invalid boolean 0x{byte:02x} at byte {offset}")]
+    InvalidBool {
+        /// Offset.
+        offset: usize,
+        /// Byte read.
+        byte: u8,
+    },
+    /// An enum value is outside the enum.
+    #[error("value {value} at byte {offset} is not a valid {type_name}")]
+    InvalidEnum {
+        /// Offset.
+        offset: usize,
+        /// Value read.
+        value: i64,
+        /// The type.
+        type_name: &'static str,
+    },
+    /// A `char` held a value the Rust type cannot hold.
+    #[error("invalid char 0x{byte:02x} at byte {offset}")]
+    InvalidChar {
+        /// Offset.
+        offset: usize,
+        /// Byte read.
+        byte: u8,
+    },
+    /// A DHEADER, EMHEADER or parameter length points past the enclosing data.
+    #[error("{what} at byte {offset} claims {len} byte(s), only {remaining} remain")]
+    BadLength {
+        /// Which header.
+        what: &'static str,
+        /// Offset of the header.
+        offset: usize,
+        /// The length claimed.
+        len: u64,
+        /// Bytes available.
+        remaining: usize,
+    },
+    /// A mutable struct lacked a member that the type requires.
+    #[error("member {member} (id {id}) of {type_name} is missing")]
+    MissingMember {
+        /// The type.
+        type_name: &'static str,
+        /// Member name.
+        member: &'static str,
+        /// Member id.
+        id: u32,
+    },
+    /// A member flagged must-understand is unknown to this type.
+    #[error("unknown must-understand member id {id} in {type_name} at byte {offset}")]
+    UnknownMustUnderstand {
+        /// The type.
+        type_name: &'static str,
+        /// Member id.
+        id: u32,
+        /// Offset of the member header.
+        offset: usize,
+    },
+    /// A fixed-size array held the wrong number of elements.
+    #[error("array at byte {offset} has {found} elements, expected {expected}")]
+    ArrayLength {
+        /// Offset.
+        offset: usize,
+        /// Expected element count.
+        expected: usize,
+        /// Found element count.
+        found: usize,
+    },
+    /// Nesting too deep.
+    #[error("data nested deeper than {max} levels at byte {offset}")]
+    TooDeep {
+        /// Offset.
+        offset: usize,
+        /// The limit.
+        max: usize,
+    },
+    /// Bytes were left over after the value.
+    #[error("{count} unexpected trailing byte(s) at byte {offset}")]
+    TrailingBytes {
+        /// Offset of the first unread byte.
+        offset: usize,
+        /// Number of unread bytes.
+        count: usize,
+    },
+    /// Something else was malformed.
+    #[error("malformed CDR at byte {offset}: {what}")]
+    Malformed {
+        /// Offset.
+        offset: usize,
+        /// What was wrong.
+        what: &'static str,
+    },
+}
+
+/// Serializes `value` with its encapsulation header.
+pub fn to_vec<T: IpcMessage>(value: &T, encoding: Encoding) -> Vec<u8> {
+    let mut w = Writer::with_header(encoding, T::EXTENSIBILITY);
+    value.cdr_encode(&mut w);
+    w.into_vec()
+}
+
+/// Serializes `value` without an encapsulation header (alignment origin at byte 0).
+pub fn to_vec_headerless<T: IpcMessage>(value: &T, encoding: Encoding) -> Vec<u8> {
+    let mut w = Writer::new(encoding);
+    value.cdr_encode(&mut w);
+    w.into_vec()
+}
+
+/// Deserializes a `T` from a payload that starts with an encapsulation
+/// header; the header decides version and byte order. Trailing bytes
+/// after the value are allowed only as padding (up to 3 bytes, as DDS
+/// writers pad payloads to a multiple of 4).
+pub fn from_slice<T: IpcMessage>(bytes: &[u8]) -> Result<T, DecodeError> {
+    let mut r = Reader::with_header(bytes)?;
+    let v = T::cdr_decode(&mut r)?;
+    r.finish_padding()?;
+    Ok(v)
+}
+
+/// Deserializes a `T` from a payload without an encapsulation header.
+pub fn from_slice_headerless<T: IpcMessage>(bytes: &[u8], encoding: Encoding) -> Result<T, DecodeError> {
+    let mut r = Reader::new(bytes, encoding);
+    let v = T::cdr_decode(&mut r)?;
+    r.finish_padding()?;
+    Ok(v)
+}
+
+/// Writes an optional value (`@optional` member of a final or appendable
+/// struct): a boolean "present" flag, then the value if present.
+pub fn write_optional<T: ?Sized>(w: &mut Writer, v: Option<&T>, enc: impl FnOnce(&T, &mut Writer)) {
+    w.write_bool(v.is_some());
+    if let Some(v) = v {
+        enc(v, w);
+    }
+}
+
+/// Reads an optional value written by [`write_optional`].
+pub fn read_optional<'a, T>(
+    r: &mut Reader<'a>,
+    dec: impl FnOnce(&mut Reader<'a>) -> Result<T, DecodeError>,
+) -> Result<Option<T>, DecodeError> {
+    if !r.read_bool()? {
+        return Ok(None);
+    }
+    r.enter()?;
+    let v = dec(r);
+    r.leave();
+    v.map(Some)
+}

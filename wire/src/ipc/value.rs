@@ -1,0 +1,1 @@
+//! A dynamically typed IPC value, marshalled through any parsed format.

@@ -1,0 +1,32 @@
+//! # courier-wire
+//!
+//! Every byte format and protocol state machine of Courier, with no I/O:
+//! no sockets, no clocks, no async runtime. Time, where it matters, is an
+//! argument.
+//!
+//! - [`format`]: the CMU IPC format-string language.
+//! - [`ipc`]: IPC marshalling, byte-identical to CMU IPC 3.9.
+//! - [`cdr`]: OMG CDR as DDS uses it (XCDR1 and XCDR2).
+//! - [`IpcMessage`]: the trait `#[derive(IpcMessage)]` implements.
+//!
+//! ```
+//! use courier_wire::{ipc, cdr, IpcMessage};
+//! assert_eq!(<f64 as IpcMessage>::FORMAT, "double");
+//! assert_eq!(ipc::to_vec(&1.5f64), 1.5f64.to_ne_bytes());
+//! let bytes = cdr::to_vec(&7u16, cdr::Encoding::Xcdr1Le);
+//! assert_eq!(bytes, [0, 1, 0, 0, 7, 0]);
+//! assert_eq!(cdr::from_slice::<u16>(&bytes).unwrap(), 7);
+//! ```
+#![warn(missing_docs)]
+#![forbid(unsafe_code)]
+
+pub mod cdr;
+pub mod const_str;
+pub mod format;
+pub mod ipc;
+mod message;
+
+#[doc(hidden)]
+pub use message::__private;
+
+pub use message::{IpcMessage, NamedFormats};

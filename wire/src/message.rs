@@ -1,0 +1,597 @@
+//! The [`IpcMessage`] trait and its implementations for primitives, strings,
+//! fixed arrays and pointers.
+
+use crate::cdr::{self, Extensibility};
+use crate::const_str::{array_format, ConstStr};
+use crate::ipc;
+
+/// A Rust type with an IPC format and IPC and CDR encodings.
+///
+/// Implemented for the primitives of the IPC format language and derived
+/// for structs and enums with `#[derive(IpcMessage)]`; the derive is the
+/// normal way to implement it. The methods are the building blocks the
+/// derive calls; users marshal with [`ipc::to_vec`] / [`cdr::to_vec`].
+///
+/// | IPC | Rust |
+/// |---|---|
+/// | `char` | `char` (Latin-1) |
+/// | `byte` / `ubyte` | `i8` / `u8` |
+/// | `short` / `ushort` | `i16` / `u16` |
+/// | `int` / `uint` | `i32` / `u32` |
+/// | `long` / `ulong` | `i64` / `u64` (8 bytes, as the 64-bit C library sends) |
+/// | `float` / `double` | `f32` / `f64` |
+/// | `boolean` | `bool` (4 bytes) |
+/// | `string` | `String`, `Option<String>` |
+/// | `[T:n]` | `[T; n]` |
+/// | `*T` | `Option<Box<T>>` |
+pub trait IpcMessage: Sized {
+    /// The IPC format string (manual §3), e.g. `"{int, {enum : 3}, [double:2,3], double}"`.
+    const FORMAT: &'static str;
+    /// How this type is written as a field of another format: its
+    /// [`FORMAT`](Self::FORMAT), or for a named struct its format name.
+    const FIELD_FORMAT: &'static str = Self::FORMAT;
+    /// The name under which [`FORMAT`](Self::FORMAT) is registered as a
+    /// named format (`IPC_defineFormat`), if the type is referenced by name.
+    const FORMAT_NAME: Option<&'static str> = None;
+    /// The DDS type name (`#[ipc(type_name = "...")]`).
+    const TYPE_NAME: &'static str;
+    /// DDS-XTypes extensibility of the CDR encoding.
+    const EXTENSIBILITY: Extensibility = Extensibility::Final;
+    /// Fewest bytes one value takes in IPC encoding (bounds allocations when decoding counts).
+    const IPC_MIN_SIZE: usize;
+    /// Fewest bytes one value takes in CDR encoding, ignoring alignment.
+    const CDR_MIN_SIZE: usize;
+    /// A CDR primitive (XCDR2 writes no `DHEADER` before sequences and arrays of it).
+    const CDR_PRIMITIVE: bool = false;
+    /// Names of the key fields (`#[ipc(key)]`), for keyed DDS topics.
+    const KEYS: &'static [&'static str] = &[];
+
+    /// Adds the named formats this type's format refers to (itself included
+    /// when it is named), so a session can register them (`IPC_defineFormat`)
+    /// before the format is used.
+    fn named_formats(out: &mut NamedFormats) {
+        let _ = out;
+    }
+
+    /// Appends the IPC encoding.
+    fn ipc_encode(&self, w: &mut ipc::Writer);
+    /// Reads one value from IPC data.
+    fn ipc_decode(r: &mut ipc::Reader<'_>) -> Result<Self, ipc::DecodeError>;
+
+    /// Appends the IPC encoding of every item (bulk copy for primitives).
+    fn ipc_encode_slice(items: &[Self], w: &mut ipc::Writer) {
+        for it in items {
+            it.ipc_encode(w);
+        }
+    }
+
+    /// Reads `n` values; `n` must already be checked against the input
+    /// (see [`ipc::Reader::read_count`]).
+    fn ipc_decode_vec(r: &mut ipc::Reader<'_>, n: usize) -> Result<Vec<Self>, ipc::DecodeError> {
+        let n = r.check_count(r.position(), n as i64, Self::IPC_MIN_SIZE)?;
+        let mut v = Vec::with_capacity(n);
+        for _ in 0..n {
+            v.push(Self::ipc_decode(r)?);
+        }
+        Ok(v)
+    }
+
+    /// Appends the CDR encoding.
+    fn cdr_encode(&self, w: &mut cdr::Writer);
+    /// Reads one value from CDR data.
+    fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError>;
+
+    /// Appends the CDR encoding of every item, without count or `DHEADER`.
+    fn cdr_encode_slice(items: &[Self], w: &mut cdr::Writer) {
+        for it in items {
+            it.cdr_encode(w);
+        }
+    }
+
+    /// Reads `n` values, without count or `DHEADER`.
+    fn cdr_decode_vec(r: &mut cdr::Reader<'_>, n: usize) -> Result<Vec<Self>, cdr::DecodeError> {
+        if n.saturating_mul(Self::CDR_MIN_SIZE.max(1)) > r.remaining() {
+            return Err(cdr::DecodeError::CountTooLarge {
+                offset: r.position(),
+                count: n as u64,
+                remaining: r.remaining(),
+            });
+        }
+        let mut v = Vec::with_capacity(n);
+        for _ in 0..n {
+            v.push(Self::cdr_decode(r)?);
+        }
+        Ok(v)
+    }
+
+    /// Appends the key fields only, in declaration order (DDS key hash and
+    /// dispose/unregister payloads). Types without keys write nothing.
+    fn cdr_encode_key(&self, w: &mut cdr::Writer) {
+        let _ = w;
+    }
+}
+
+/// The named formats a type depends on, collected by
+/// [`IpcMessage::named_formats`], each once, in discovery order.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct NamedFormats {
+    entries: Vec<(&'static str, &'static str)>,
+}
+
+impl NamedFormats {
+    /// An empty collection.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Collects the named formats of `T`.
+    pub fn of<T: IpcMessage>() -> Self {
+        let mut n = Self::new();
+        T::named_formats(&mut n);
+        n
+    }
+
+    /// Adds `name` ↦ `format`; returns false (and changes nothing) if the
+    /// name is already present, which also stops recursion through
+    /// mutually recursive types.
+    pub fn insert(&mut self, name: &'static str, format: &'static str) -> bool {
+        if self.contains(name) {
+            return false;
+        }
+        self.entries.push((name, format));
+        true
+    }
+
+    /// True if `name` was collected.
+    pub fn contains(&self, name: &str) -> bool {
+        self.entries.iter().any(|(n, _)| *n == name)
+    }
+
+    /// The format registered under `name`.
+    pub fn get(&self, name: &str) -> Option<&'static str> {
+        self.entries.iter().find(|(n, _)| *n == name).map(|(_, f)| *f)
+    }
+
+    /// `(name, format)` pairs in the order they were found.
+    pub fn iter(&self) -> impl Iterator<Item = (&'static str, &'static str)> + '_ {
+        self.entries.iter().copied()
+    }
+
+    /// Number of named formats.
+    pub fn len(&self) -> usize {
+        self.entries.len()
+    }
+
+    /// True if there are none.
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
+    }
+}
+
+macro_rules! numeric {
+    ($($t:ty => $fmt:literal, $idl:literal, $ipc_w:ident, $ipc_r:ident, $cdr_w:ident, $cdr_r:ident;)*) => {$(
+        impl IpcMessage for $t {
+            const FORMAT: &'static str = $fmt;
+            const TYPE_NAME: &'static str = $idl;
+            const IPC_MIN_SIZE: usize = core::mem::size_of::<$t>();
+            const CDR_MIN_SIZE: usize = core::mem::size_of::<$t>();
+            const CDR_PRIMITIVE: bool = true;
+
+            #[inline]
+            fn ipc_encode(&self, w: &mut ipc::Writer) {
+                w.$ipc_w(*self);
+            }
+            #[inline]
+            fn ipc_decode(r: &mut ipc::Reader<'_>) -> Result<Self, ipc::DecodeError> {
+                r.$ipc_r()
+            }
+            fn ipc_encode_slice(items: &[Self], w: &mut ipc::Writer) {
+                // IPC data is native order: one copy of the slice's memory.
+                w.write_bytes(bytemuck::cast_slice(items));
+            }
+            fn ipc_decode_vec(r: &mut ipc::Reader<'_>, n: usize) -> Result<Vec<Self>, ipc::DecodeError> {
+                let n = r.check_count(r.position(), n as i64, core::mem::size_of::<$t>())?;
+                let bytes = r.take(n * core::mem::size_of::<$t>())?;
+                let mut v: Vec<$t> = vec![Default::default(); n];
+                bytemuck::cast_slice_mut::<$t, u8>(&mut v).copy_from_slice(bytes);
+                if r.order() != ipc::ByteOrder::NATIVE {
+                    for x in &mut v {
+                        *x = <$t>::from_ne_bytes(x.to_ne_bytes().map_rev());
+                    }
+                }
+                Ok(v)
+            }
+            #[inline]
+            fn cdr_encode(&self, w: &mut cdr::Writer) {
+                w.$cdr_w(*self);
+            }
+            #[inline]
+            fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
+                r.$cdr_r()
+            }
+            fn cdr_encode_slice(items: &[Self], w: &mut cdr::Writer) {
+                if items.is_empty() {
+                    return;
+                }
+                w.align(core::mem::size_of::<$t>());
+                if w.is_little_endian() == cfg!(target_endian = "little") {
+                    w.write_bytes(bytemuck::cast_slice(items));
+                } else {
+                    w.reserve(items.len() * core::mem::size_of::<$t>());
+                    for x in items {
+                        w.write_bytes(&x.to_ne_bytes().map_rev());
+                    }
+                }
+            }
+            fn cdr_decode_vec(r: &mut cdr::Reader<'_>, n: usize) -> Result<Vec<Self>, cdr::DecodeError> {
+                if n == 0 {
+                    return Ok(Vec::new());
+                }
+                r.align(core::mem::size_of::<$t>())?;
+                let size = n.checked_mul(core::mem::size_of::<$t>()).filter(|s| *s <= r.remaining()).ok_or(
+                    cdr::DecodeError::CountTooLarge { offset: r.position(), count: n as u64, remaining: r.remaining() },
+                )?;
+                let bytes = r.take(size)?;
+                let mut v: Vec<$t> = vec![Default::default(); n];
+                bytemuck::cast_slice_mut::<$t, u8>(&mut v).copy_from_slice(bytes);
+                let little = matches!(r.encoding().endianness(), cdr::Endianness::Little);
+                if little != cfg!(target_endian = "little") {
+                    for x in &mut v {
+                        *x = <$t>::from_ne_bytes(x.to_ne_bytes().map_rev());
+                    }
+                }
+                Ok(v)
+            }
+            fn cdr_encode_key(&self, w: &mut cdr::Writer) {
+                self.cdr_encode(w);
+            }
+        }
+    )*};
+}
+
+/// Byte reversal of a fixed-size byte array (for swapping decoded numbers).
+trait MapRev {
+    fn map_rev(self) -> Self;
+}
+impl<const N: usize> MapRev for [u8; N] {
+    #[inline]
+    fn map_rev(mut self) -> Self {
+        self.reverse();
+        self
+    }
+}
+
+numeric! {
+    i8 => "byte", "int8", write_i8, read_i8, write_i8, read_i8;
+    u8 => "ubyte", "uint8", write_u8, read_u8, write_u8, read_u8;
+    i16 => "short", "int16", write_i16, read_i16, write_i16, read_i16;
+    u16 => "ushort", "uint16", write_u16, read_u16, write_u16, read_u16;
+    i32 => "int", "int32", write_i32, read_i32, write_i32, read_i32;
+    u32 => "uint", "uint32", write_u32, read_u32, write_u32, read_u32;
+    i64 => "long", "int64", write_i64, read_i64, write_i64, read_i64;
+    u64 => "ulong", "uint64", write_u64, read_u64, write_u64, read_u64;
+    f32 => "float", "float", write_f32, read_f32, write_f32, read_f32;
+    f64 => "double", "double", write_f64, read_f64, write_f64, read_f64;
+}
+
+impl IpcMessage for bool {
+    const FORMAT: &'static str = "boolean";
+    const TYPE_NAME: &'static str = "boolean";
+    const IPC_MIN_SIZE: usize = 4;
+    const CDR_MIN_SIZE: usize = 1;
+    const CDR_PRIMITIVE: bool = true;
+
+    fn ipc_encode(&self, w: &mut ipc::Writer) {
+        w.write_bool(*self);
+    }
+    fn ipc_decode(r: &mut ipc::Reader<'_>) -> Result<Self, ipc::DecodeError> {
+        r.read_bool()
+    }
+    fn cdr_encode(&self, w: &mut cdr::Writer) {
+        w.write_bool(*self);
+    }
+    fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
+        r.read_bool()
+    }
+    fn cdr_encode_key(&self, w: &mut cdr::Writer) {
+        self.cdr_encode(w);
+    }
+}
+
+/// IPC `char` is one byte. Rust `char`s map to Latin-1: U+0000–U+00FF
+/// travel as that byte; any other char is sent as `'?'` (the C side could
+/// not hold it). Use `u8` with `#[ipc(char)]` for exact bytes.
+impl IpcMessage for char {
+    const FORMAT: &'static str = "char";
+    const TYPE_NAME: &'static str = "char";
+    const IPC_MIN_SIZE: usize = 1;
+    const CDR_MIN_SIZE: usize = 1;
+    const CDR_PRIMITIVE: bool = true;
+
+    fn ipc_encode(&self, w: &mut ipc::Writer) {
+        w.write_u8(latin1(*self));
+    }
+    fn ipc_decode(r: &mut ipc::Reader<'_>) -> Result<Self, ipc::DecodeError> {
+        Ok(char::from(r.read_u8()?))
+    }
+    fn cdr_encode(&self, w: &mut cdr::Writer) {
+        w.write_u8(latin1(*self));
+    }
+    fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
+        Ok(char::from(r.read_u8()?))
+    }
+    fn cdr_encode_key(&self, w: &mut cdr::Writer) {
+        self.cdr_encode(w);
+    }
+}
+
+fn latin1(c: char) -> u8 {
+    u8::try_from(u32::from(c)).unwrap_or(b'?')
+}
+
+impl IpcMessage for String {
+    const FORMAT: &'static str = "string";
+    const TYPE_NAME: &'static str = "string";
+    const IPC_MIN_SIZE: usize = 5;
+    const CDR_MIN_SIZE: usize = 4;
+
+    fn ipc_encode(&self, w: &mut ipc::Writer) {
+        w.write_str(self);
+    }
+    fn ipc_decode(r: &mut ipc::Reader<'_>) -> Result<Self, ipc::DecodeError> {
+        r.read_str().map(str::to_owned)
+    }
+    fn cdr_encode(&self, w: &mut cdr::Writer) {
+        w.write_string(self);
+    }
+    fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
+        r.read_str().map(str::to_owned)
+    }
+    fn cdr_encode_key(&self, w: &mut cdr::Writer) {
+        self.cdr_encode(w);
+    }
+}
+
+/// `string` where NULL matters to the reader: `None` is sent as C's NULL,
+/// and both NULL and `""` decode to `None` (they are the same bytes).
+impl IpcMessage for Option<String> {
+    const FORMAT: &'static str = "string";
+    const TYPE_NAME: &'static str = "string";
+    const IPC_MIN_SIZE: usize = 5;
+    const CDR_MIN_SIZE: usize = 4;
+
+    fn ipc_encode(&self, w: &mut ipc::Writer) {
+        w.write_str(self.as_deref().unwrap_or(""));
+    }
+    fn ipc_decode(r: &mut ipc::Reader<'_>) -> Result<Self, ipc::DecodeError> {
+        let s = r.read_str()?;
+        Ok((!s.is_empty()).then(|| s.to_owned()))
+    }
+    fn cdr_encode(&self, w: &mut cdr::Writer) {
+        w.write_string(self.as_deref().unwrap_or(""));
+    }
+    fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
+        let s = r.read_str()?;
+        Ok((!s.is_empty()).then(|| s.to_owned()))
+    }
+}
+
+/// The empty message (`IPC_defineMsg(name, 0, NULL)`): no data at all.
+impl IpcMessage for () {
+    const FORMAT: &'static str = "";
+    const TYPE_NAME: &'static str = "Empty";
+    const IPC_MIN_SIZE: usize = 0;
+    const CDR_MIN_SIZE: usize = 0;
+
+    fn ipc_encode(&self, _: &mut ipc::Writer) {}
+    fn ipc_decode(_: &mut ipc::Reader<'_>) -> Result<Self, ipc::DecodeError> {
+        Ok(())
+    }
+    fn cdr_encode(&self, _: &mut cdr::Writer) {}
+    fn cdr_decode(_: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
+        Ok(())
+    }
+}
+
+/// Compile-time format strings of generic types.
+struct GenericFormat<T, const N: usize>(core::marker::PhantomData<T>);
+
+impl<T: IpcMessage, const N: usize> GenericFormat<T, N> {
+    const ARRAY: ConstStr = array_format(T::FIELD_FORMAT, N);
+    const ARRAY_REF: &'static ConstStr = &Self::ARRAY;
+    const ARRAY_STR: &'static str = Self::ARRAY_REF.as_str();
+    const POINTER: ConstStr = ConstStr::new().push_str("*").push_str(T::FIELD_FORMAT);
+    const POINTER_REF: &'static ConstStr = &Self::POINTER;
+    const POINTER_STR: &'static str = Self::POINTER_REF.as_str();
+}
+
+/// Fixed arrays `[T:n]`; nested arrays merge into `[T:n,m]`.
+impl<T: IpcMessage, const N: usize> IpcMessage for [T; N] {
+    const FORMAT: &'static str = GenericFormat::<T, N>::ARRAY_STR;
+    const TYPE_NAME: &'static str = T::TYPE_NAME;
+    const IPC_MIN_SIZE: usize = T::IPC_MIN_SIZE * N;
+    const CDR_MIN_SIZE: usize = T::CDR_MIN_SIZE * N;
+
+    fn named_formats(out: &mut NamedFormats) {
+        T::named_formats(out);
+    }
+    fn ipc_encode(&self, w: &mut ipc::Writer) {
+        T::ipc_encode_slice(self, w);
+    }
+    fn ipc_decode(r: &mut ipc::Reader<'_>) -> Result<Self, ipc::DecodeError> {
+        let v = T::ipc_decode_vec(r, N)?;
+        v.try_into().map_err(|_| ipc::DecodeError::Format("array length".into()))
+    }
+    fn cdr_encode(&self, w: &mut cdr::Writer) {
+        let d = if T::CDR_PRIMITIVE { None } else { w.begin_dheader() };
+        T::cdr_encode_slice(self, w);
+        w.end_dheader(d);
+    }
+    fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
+        let d = if T::CDR_PRIMITIVE { None } else { r.begin_dheader()? };
+        let offset = r.position();
+        let v = T::cdr_decode_vec(r, N)?;
+        r.end_dheader(d);
+        let found = v.len();
+        v.try_into().map_err(|_| cdr::DecodeError::ArrayLength { offset, expected: N, found })
+    }
+    fn cdr_encode_key(&self, w: &mut cdr::Writer) {
+        self.cdr_encode(w);
+    }
+}
+
+/// Pointers `*T`: a flag byte (`'Z'` or 0), then the pointee if present.
+impl<T: IpcMessage> IpcMessage for Option<Box<T>> {
+    const FORMAT: &'static str = GenericFormat::<T, 0>::POINTER_STR;
+    const TYPE_NAME: &'static str = T::TYPE_NAME;
+    const IPC_MIN_SIZE: usize = 1;
+    const CDR_MIN_SIZE: usize = 1;
+
+    fn named_formats(out: &mut NamedFormats) {
+        T::named_formats(out);
+    }
+    fn ipc_encode(&self, w: &mut ipc::Writer) {
+        w.write_ptr_flag(self.is_some());
+        if let Some(v) = self {
+            v.ipc_encode(w);
+        }
+    }
+    fn ipc_decode(r: &mut ipc::Reader<'_>) -> Result<Self, ipc::DecodeError> {
+        if !r.read_ptr_flag()? {
+            return Ok(None);
+        }
+        r.enter()?;
+        let v = T::ipc_decode(r);
+        r.leave();
+        Ok(Some(Box::new(v?)))
+    }
+    fn cdr_encode(&self, w: &mut cdr::Writer) {
+        cdr::write_optional(w, self.as_deref(), T::cdr_encode);
+    }
+    fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
+        Ok(cdr::read_optional(r, T::cdr_decode)?.map(Box::new))
+    }
+}
+
+/// `Box<T>` is encoded exactly as `T`.
+impl<T: IpcMessage> IpcMessage for Box<T> {
+    const FORMAT: &'static str = T::FORMAT;
+    const FIELD_FORMAT: &'static str = T::FIELD_FORMAT;
+    const FORMAT_NAME: Option<&'static str> = T::FORMAT_NAME;
+    const TYPE_NAME: &'static str = T::TYPE_NAME;
+    const EXTENSIBILITY: Extensibility = T::EXTENSIBILITY;
+    const IPC_MIN_SIZE: usize = T::IPC_MIN_SIZE;
+    const CDR_MIN_SIZE: usize = T::CDR_MIN_SIZE;
+    const CDR_PRIMITIVE: bool = T::CDR_PRIMITIVE;
+    const KEYS: &'static [&'static str] = T::KEYS;
+
+    fn named_formats(out: &mut NamedFormats) {
+        T::named_formats(out);
+    }
+    fn ipc_encode(&self, w: &mut ipc::Writer) {
+        (**self).ipc_encode(w);
+    }
+    fn ipc_decode(r: &mut ipc::Reader<'_>) -> Result<Self, ipc::DecodeError> {
+        T::ipc_decode(r).map(Box::new)
+    }
+    fn cdr_encode(&self, w: &mut cdr::Writer) {
+        (**self).cdr_encode(w);
+    }
+    fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
+        T::cdr_decode(r).map(Box::new)
+    }
+    fn cdr_encode_key(&self, w: &mut cdr::Writer) {
+        (**self).cdr_encode_key(w);
+    }
+}
+
+/// Helpers called by `#[derive(IpcMessage)]`-generated code. Not a stable API.
+#[doc(hidden)]
+pub mod __private {
+    pub use crate::const_str::ConstStr;
+    use super::*;
+
+    /// IPC variable array `<T:k>`: `int32` count, then the elements.
+    pub fn ipc_encode_vec<T: IpcMessage>(v: &[T], w: &mut ipc::Writer) {
+        w.write_len(v.len());
+        T::ipc_encode_slice(v, w);
+    }
+
+    /// Reads an IPC variable array.
+    pub fn ipc_decode_vec<T: IpcMessage>(r: &mut ipc::Reader<'_>) -> Result<Vec<T>, ipc::DecodeError> {
+        let n = r.read_count(T::IPC_MIN_SIZE)?;
+        T::ipc_decode_vec(r, n)
+    }
+
+    /// CDR sequence: (XCDR2 `DHEADER` for non-primitive elements), `u32` count, elements.
+    pub fn cdr_encode_seq<T: IpcMessage>(v: &[T], w: &mut cdr::Writer) {
+        let d = if T::CDR_PRIMITIVE { None } else { w.begin_dheader() };
+        w.write_len(v.len());
+        T::cdr_encode_slice(v, w);
+        w.end_dheader(d);
+    }
+
+    /// Reads a CDR sequence.
+    pub fn cdr_decode_seq<T: IpcMessage>(r: &mut cdr::Reader<'_>) -> Result<Vec<T>, cdr::DecodeError> {
+        let d = if T::CDR_PRIMITIVE { None } else { r.begin_dheader()? };
+        let n = r.read_len(T::CDR_MIN_SIZE)?;
+        let v = T::cdr_decode_vec(r, n)?;
+        r.end_dheader(d);
+        Ok(v)
+    }
+
+    /// Self pointer `*!`: flag byte, then the enclosing struct.
+    pub fn ipc_encode_self_ptr<T: IpcMessage>(v: &Option<Box<T>>, w: &mut ipc::Writer) {
+        w.write_ptr_flag(v.is_some());
+        if let Some(v) = v {
+            v.ipc_encode(w);
+        }
+    }
+
+    /// Reads a self pointer.
+    pub fn ipc_decode_self_ptr<T: IpcMessage>(
+        r: &mut ipc::Reader<'_>,
+    ) -> Result<Option<Box<T>>, ipc::DecodeError> {
+        <Option<Box<T>> as IpcMessage>::ipc_decode(r)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn generic_formats_are_built_at_compile_time() {
+        assert_eq!(<[[f64; 3]; 2]>::FORMAT, "[double:2,3]");
+        assert_eq!(<Option<Box<i32>>>::FORMAT, "*int");
+        assert_eq!(<Option<Box<[u8; 4]>>>::FORMAT, "*[ubyte:4]");
+        assert_eq!(<[Option<Box<i16>>; 2]>::FORMAT, "[*short:2]");
+    }
+
+    #[test]
+    fn e7_primitives() {
+        assert_eq!(ipc::to_vec(&String::new()), [0, 0, 0, 0, 0x5a]);
+        assert_eq!(ipc::to_vec(&None::<String>), [0, 0, 0, 0, 0x5a]);
+        assert_eq!(ipc::to_vec(&0x0102030405060708i64), [8, 7, 6, 5, 4, 3, 2, 1]);
+        assert_eq!(ipc::to_vec(&true), [1, 0, 0, 0]);
+        assert_eq!(ipc::to_vec(&Some(Box::new(9i32))), [0x5a, 9, 0, 0, 0]);
+        assert_eq!(ipc::to_vec(&None::<Box<i32>>), [0]);
+        assert_eq!(
+            ipc::to_vec(&[String::from("ab"), String::new()]),
+            [2, 0, 0, 0, b'a', b'b', 0, 0, 0, 0, 0x5a]
+        );
+    }
+
+    #[test]
+    fn bulk_arrays_swap_foreign_order() {
+        let v = [1.5f64, -2.0, 3.25];
+        let mut be = Vec::new();
+        for x in v {
+            be.extend_from_slice(&x.to_be_bytes());
+        }
+        let got: [f64; 3] = ipc::from_slice_with_order(&be, ipc::ByteOrder::Big).unwrap();
+        assert_eq!(got, v);
+        let le = ipc::to_vec(&v);
+        assert_eq!(ipc::from_slice::<[f64; 3]>(&le).unwrap(), v);
+    }
+}
