@@ -15,6 +15,7 @@
 //! ```
 
 mod codec;
+pub mod frame;
 pub mod value;
 
 pub use codec::{ByteOrder, Reader, Writer, PRESENT};

@@ -1,0 +1,333 @@
+//! The IPC data-message frame (ipc.md §2): a 28-byte header of seven
+//! big-endian `int32`s, then `classTotal` bytes of class data, then
+//! `msgTotal` bytes of message data.
+//!
+//! ```
+//! use courier_wire::ipc::frame::{Header, MsgClass};
+//! // E1 of ipc.md: module1 publishes message1 (id 116) = 42
+//! let bytes = [
+//!     0, 0, 0, 0, 0, 0, 0, 12, 0xff, 0xff, 0xff, 0xff, 0, 0, 0, 0x74,
+//!     0x22, 0, 0, 0x0f, 0xff, 0xff, 0xff, 0xff, 0, 0, 0, 0x38,
+//! ];
+//! let h = Header::decode(&bytes).unwrap();
+//! assert_eq!(h.msg_total, 12);
+//! assert_eq!(h.intent, 116);
+//! assert_eq!(h.class_id.class(), MsgClass::Broadcast as u16);
+//! assert_eq!(h.encode(), bytes);
+//! ```
+
+use super::ByteOrder;
+
+/// Size of the frame header in bytes.
+pub const HEADER_SIZE: usize = 28;
+
+/// `intent` of a reply travelling back to the querier (`QUERY_REPLY_INTENT`).
+pub const QUERY_REPLY_INTENT: i32 = -4;
+/// The "no reference" value of refs and intents.
+pub const NO_REF: i32 = -1;
+
+/// Message classes used by IPC 3.9 (`X_IPC_MSG_CLASS_TYPE`, ipc.md §3).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[repr(u16)]
+pub enum MsgClass {
+    /// Formatter messages at connect and replies central generates itself.
+    Unknown = 0,
+    /// Internal placeholder, never on the wire.
+    HandlerReg = 1,
+    /// Only its class-data format (`string`) is used.
+    ExecHnd = 2,
+    /// Queries.
+    Query = 3,
+    /// TCA goal (asked about at connect only).
+    Goal = 4,
+    /// TCA command.
+    Command = 5,
+    /// One-way internal requests to central.
+    Inform = 6,
+    /// TCA exception.
+    Exception = 7,
+    /// TCA polling monitor.
+    PollingMonitor = 8,
+    /// TCA point monitor.
+    PointMonitor = 9,
+    /// TCA demon monitor.
+    DemonMonitor = 10,
+    /// Answer to a user query.
+    Reply = 11,
+    /// "Handler finished" acknowledgement of a Broadcast/Inform.
+    Success = 12,
+    /// TCA failure.
+    Failure = 13,
+    /// TCA fire demon.
+    FireDemon = 14,
+    /// Published messages and central's notifications.
+    Broadcast = 15,
+    /// TCA multi-query.
+    MultiQuery = 16,
+}
+
+impl MsgClass {
+    /// The class with this number, if IPC defines one.
+    pub const fn from_u16(v: u16) -> Option<Self> {
+        use MsgClass::*;
+        Some(match v {
+            0 => Unknown,
+            1 => HandlerReg,
+            2 => ExecHnd,
+            3 => Query,
+            4 => Goal,
+            5 => Command,
+            6 => Inform,
+            7 => Exception,
+            8 => PollingMonitor,
+            9 => PointMonitor,
+            10 => DemonMonitor,
+            11 => Reply,
+            12 => Success,
+            13 => Failure,
+            14 => FireDemon,
+            15 => Broadcast,
+            16 => MultiQuery,
+            _ => return None,
+        })
+    }
+}
+
+/// The `classId` word: message class, alignment and the byte orders of
+/// class data and message data (ipc.md §2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct ClassId(pub u32);
+
+impl ClassId {
+    /// A class id as this machine's C library writes it: both byte orders
+    /// native, packed alignment.
+    pub const fn native(class: MsgClass) -> Self {
+        let n = ByteOrder::NATIVE.nibble() as u32;
+        ClassId((n << 28) | (n << 24) | class as u32)
+    }
+
+    /// The message class number (low 16 bits).
+    pub const fn class(self) -> u16 {
+        (self.0 & 0xffff) as u16
+    }
+
+    /// The message class, if known.
+    pub const fn msg_class(self) -> Option<MsgClass> {
+        MsgClass::from_u16(self.class())
+    }
+
+    /// The alignment byte; senders write 0 (packed), receivers reject anything else.
+    pub const fn alignment(self) -> u8 {
+        ((self.0 >> 16) & 0xff) as u8
+    }
+
+    /// Byte order of the message data (`None` for PDP or unknown).
+    pub const fn data_order(self) -> Option<ByteOrder> {
+        ByteOrder::from_nibble(((self.0 >> 24) & 0xf) as u8)
+    }
+
+    /// Byte order of the class data (`None` for PDP or unknown).
+    pub const fn class_order(self) -> Option<ByteOrder> {
+        ByteOrder::from_nibble(((self.0 >> 28) & 0xf) as u8)
+    }
+
+    /// This class id with the class number replaced.
+    pub const fn with_class(self, class: MsgClass) -> Self {
+        ClassId((self.0 & 0xffff_0000) | class as u32)
+    }
+}
+
+/// The 28-byte header of a data message.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Header {
+    /// Byte length of the class data.
+    pub class_total: i32,
+    /// Byte length of the message data.
+    pub msg_total: i32,
+    /// Ref of the message being handled when this one was sent, else -1.
+    pub parent_ref: i32,
+    /// Message id, handler id, -4 (reply) or -1.
+    pub intent: i32,
+    /// Class, alignment and byte orders.
+    pub class_id: ClassId,
+    /// -1 for a new message; central's dispatch id when answering one.
+    pub dispatch_ref: i32,
+    /// The sender's message reference number.
+    pub msg_ref: i32,
+}
+
+/// Why a frame header was rejected.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum FrameError {
+    /// Fewer than 28 bytes.
+    #[error("IPC frame header needs {HEADER_SIZE} bytes, got {0}")]
+    Short(usize),
+    /// `classTotal` or `msgTotal` is negative.
+    #[error("IPC frame has negative length (classTotal {class_total}, msgTotal {msg_total})")]
+    NegativeLength {
+        /// classTotal.
+        class_total: i32,
+        /// msgTotal.
+        msg_total: i32,
+    },
+    /// The frame is larger than the configured limit.
+    #[error("IPC frame of {size} bytes exceeds the limit of {limit} bytes")]
+    TooLarge {
+        /// classTotal + msgTotal.
+        size: u64,
+        /// The limit.
+        limit: u64,
+    },
+    /// The alignment byte is not 0 (packed).
+    #[error("IPC frame data is not packed (alignment byte {0}); the C library rejects it too")]
+    NotPacked(u8),
+}
+
+impl Header {
+    /// Decodes the header from the first 28 bytes of `b`.
+    pub fn decode(b: &[u8]) -> Result<Header, FrameError> {
+        if b.len() < HEADER_SIZE {
+            return Err(FrameError::Short(b.len()));
+        }
+        let w = |i: usize| i32::from_be_bytes([b[4 * i], b[4 * i + 1], b[4 * i + 2], b[4 * i + 3]]);
+        Ok(Header {
+            class_total: w(0),
+            msg_total: w(1),
+            parent_ref: w(2),
+            intent: w(3),
+            class_id: ClassId(w(4) as u32),
+            dispatch_ref: w(5),
+            msg_ref: w(6),
+        })
+    }
+
+    /// Encodes the header (big-endian words).
+    pub fn encode(&self) -> [u8; HEADER_SIZE] {
+        let mut out = [0u8; HEADER_SIZE];
+        let words = [
+            self.class_total,
+            self.msg_total,
+            self.parent_ref,
+            self.intent,
+            self.class_id.0 as i32,
+            self.dispatch_ref,
+            self.msg_ref,
+        ];
+        for (i, v) in words.iter().enumerate() {
+            out[4 * i..4 * i + 4].copy_from_slice(&v.to_be_bytes());
+        }
+        out
+    }
+
+    /// Checks the lengths and alignment before anyone allocates the body:
+    /// returns `classTotal + msgTotal`.
+    pub fn body_len(&self, limit: u64) -> Result<usize, FrameError> {
+        if self.class_total < 0 || self.msg_total < 0 {
+            return Err(FrameError::NegativeLength {
+                class_total: self.class_total,
+                msg_total: self.msg_total,
+            });
+        }
+        let size = self.class_total as u64 + self.msg_total as u64;
+        if size > limit {
+            return Err(FrameError::TooLarge { size, limit });
+        }
+        if self.class_id.alignment() != 0 {
+            return Err(FrameError::NotPacked(self.class_id.alignment()));
+        }
+        Ok(size as usize)
+    }
+}
+
+/// A whole data message: header, class data, message data.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Frame {
+    /// The header; its length fields are recomputed by [`Frame::encode`].
+    pub header: Header,
+    /// Class data (usually empty or a marshalled message name).
+    pub class_data: Vec<u8>,
+    /// Message data.
+    pub data: Vec<u8>,
+}
+
+impl Frame {
+    /// Splits a complete body (`classTotal + msgTotal` bytes) after its header.
+    pub fn from_parts(header: Header, body: &[u8]) -> Result<Frame, FrameError> {
+        let n = header.body_len(u64::MAX)?;
+        if body.len() < n {
+            return Err(FrameError::Short(HEADER_SIZE + body.len()));
+        }
+        let c = header.class_total as usize;
+        Ok(Frame {
+            header,
+            class_data: body[..c].to_vec(),
+            data: body[c..n].to_vec(),
+        })
+    }
+
+    /// Encodes header, class data and message data, with the length fields
+    /// set from the actual data.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut h = self.header;
+        h.class_total = self.class_data.len() as i32;
+        h.msg_total = self.data.len() as i32;
+        let mut out = Vec::with_capacity(HEADER_SIZE + self.class_data.len() + self.data.len());
+        out.extend_from_slice(&h.encode());
+        out.extend_from_slice(&self.class_data);
+        out.extend_from_slice(&self.data);
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn hex(s: &str) -> Vec<u8> {
+        let s: String = s.chars().filter(|c| c.is_ascii_hexdigit()).collect();
+        (0..s.len())
+            .step_by(2)
+            .map(|i| u8::from_str_radix(&s[i..i + 2], 16).unwrap())
+            .collect()
+    }
+
+    /// ipc.md E2: central delivers message1 to module2's handler 198 (demo-central capture).
+    #[test]
+    fn e2_delivery_with_class_data() {
+        let b = hex("0000000c 0000000c ffffffff 000000c6 2200000f ffffffff 00000001 | 08000000 6d657373 61676531 | 04000000 04000000 2a000000");
+        let h = Header::decode(&b).unwrap();
+        assert_eq!(h.body_len(1 << 20).unwrap(), 24);
+        assert_eq!(h.intent, 198);
+        assert_eq!(h.class_id, ClassId::native(MsgClass::Broadcast));
+        assert_eq!(h.class_id.data_order(), Some(ByteOrder::Little));
+        let f = Frame::from_parts(h, &b[HEADER_SIZE..]).unwrap();
+        assert_eq!(f.class_data, hex("08000000 6d657373 61676531"));
+        assert_eq!(f.data, hex("04000000 04000000 2a000000"));
+        assert_eq!(f.encode(), b);
+    }
+
+    /// The Success ack of E2.
+    #[test]
+    fn success_ack() {
+        let b = hex("00000000 00000000 00000001 ffffffff 2200000c 00000001 ffffffff");
+        let h = Header::decode(&b).unwrap();
+        assert_eq!(h.class_id.msg_class(), Some(MsgClass::Success));
+        assert_eq!((h.parent_ref, h.intent, h.dispatch_ref, h.msg_ref), (1, NO_REF, 1, NO_REF));
+    }
+
+    #[test]
+    fn hostile_headers_are_rejected_before_allocation() {
+        let mut h = Header::decode(&[0; 28]).unwrap();
+        h.msg_total = -5;
+        assert!(matches!(h.body_len(1 << 20), Err(FrameError::NegativeLength { .. })));
+        h.msg_total = i32::MAX;
+        h.class_total = i32::MAX;
+        assert!(matches!(h.body_len(1 << 20), Err(FrameError::TooLarge { .. })));
+        h.msg_total = 0;
+        h.class_total = 0;
+        h.class_id = ClassId(0x2201_000f);
+        assert_eq!(h.body_len(1 << 20), Err(FrameError::NotPacked(1)));
+        assert_eq!(Header::decode(&[0; 27]), Err(FrameError::Short(27)));
+    }
+}
