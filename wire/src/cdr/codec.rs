@@ -1,15 +1,65 @@
 //! CDR writer and reader: alignment, byte order, and the XCDR2 headers.
+//!
+//! Member framing follows what Cyclone DDS (`dds_cdrstream`) emits, byte for
+//! byte:
+//!
+//! - XCDR1 mutable members and XCDR1 `@optional` members of final/appendable
+//!   structs use the *extended* parameter header (`PID_EXTENDED | FLAG_MU`,
+//!   length 8, member id, u32 length); the value's alignment origin is the
+//!   start of the value. Mutable members are padded to a multiple of 4 (the
+//!   padding counts in the length); optional members are not. An absent
+//!   optional has length 0. The list ends with `PID_LIST_END | FLAG_MU`
+//!   (`0x7f02`).
+//! - XCDR2 `EMHEADER` length codes (LC) depend on the member's type: 1/2/4/8
+//!   byte primitives, enums and booleans use LC 0–3; strings, sequences of
+//!   1-byte primitives and sequences/arrays with a `DHEADER` use LC 5; sequences
+//!   of 4- and 8-byte primitives LC 6 and 7; everything else (structs, arrays of
+//!   primitives, sequences of 2-byte primitives) LC 4 with an explicit `NEXTINT`.
+//!   The writer learns the type from the first item written in the member.
+//! - XCDR2 optional members: a boolean flag then the value; in mutable structs
+//!   an absent optional member is left out.
 
 use super::{DecodeError, Encoding, Endianness, Extensibility, RepresentationId, Version};
 
-/// `PID_SENTINEL` that ends an XCDR1 parameter list.
+/// `PID_LIST_END` (sentinel) that ends an XCDR1 parameter list.
 const PID_SENTINEL: u16 = 0x3f02;
 /// `PID_EXTENDED`: the member id and length follow in 8 bytes.
 const PID_EXTENDED: u16 = 0x3f01;
-/// Flag bit of a short PID or EMHEADER meaning "must understand".
+/// `PID_IGNORE`: a parameter to skip.
+const PID_IGNORE: u16 = 0x3f03;
+/// Flag bit of a short PID meaning "must understand".
 const PID_MUST_UNDERSTAND: u16 = 0x4000;
-/// Deepest nesting the reader follows (pointers / recursive types).
-pub(crate) const MAX_DEPTH: usize = 10_000;
+/// Mask of the parameter id in a short PID.
+const PID_MASK: u16 = 0x3fff;
+/// Must-understand flag of the member id in an extended parameter header.
+const PL_LONG_MUST_UNDERSTAND: u32 = 0x4000_0000;
+/// Member id mask (28 bits) of EMHEADERs and extended parameter headers.
+const MEMBER_ID_MASK: u32 = 0x0fff_ffff;
+/// EMHEADER must-understand flag.
+const EM_MUST_UNDERSTAND: u32 = 0x8000_0000;
+/// EMHEADER length code 4: an explicit `NEXTINT` holds the length.
+const LC_NEXTINT: u32 = 4;
+/// Deepest struct / optional nesting the reader follows (recursive types).
+pub const MAX_DEPTH: usize = 500;
+
+/// Kind of member framing being written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum MemberKind {
+    /// Member of a final or appendable struct: no header.
+    Plain,
+    /// XCDR1 mutable member: extended parameter header.
+    Param,
+    /// XCDR2 mutable member: EMHEADER (+ NEXTINT placeholder until the LC is known).
+    Em,
+}
+
+/// A member whose first item has not been written yet.
+#[derive(Debug, Clone, Copy)]
+struct Pending {
+    id: u32,
+    must_understand: bool,
+    kind: MemberKind,
+}
 
 /// Appends CDR-encoded data to a buffer.
 #[derive(Debug, Clone)]
@@ -17,13 +67,20 @@ pub struct Writer {
     buf: Vec<u8>,
     origin: usize,
     encoding: Encoding,
+    /// The open member whose first item is still to come.
+    pending: Option<Pending>,
+    /// Length code chosen for the innermost open XCDR2 member.
+    member_lc: u32,
+    /// An absent optional value asked for the open mutable member to be dropped.
+    absent: bool,
 }
 
 macro_rules! put_num {
-    ($($name:ident: $t:ty),* $(,)?) => {$(
+    ($($name:ident: $t:ty, $lc:expr;)*) => {$(
         #[doc = concat!("Aligns, then appends a `", stringify!($t), "`.")]
         #[inline]
         pub fn $name(&mut self, v: $t) {
+            self.first($lc);
             self.align(core::mem::size_of::<$t>());
             match self.encoding.endianness() {
                 Endianness::Little => self.buf.extend_from_slice(&v.to_le_bytes()),
@@ -40,6 +97,9 @@ impl Writer {
             buf: Vec::new(),
             origin: 0,
             encoding,
+            pending: None,
+            member_lc: LC_NEXTINT,
+            absent: false,
         }
     }
 
@@ -53,7 +113,7 @@ impl Writer {
         Writer {
             buf,
             origin: 4,
-            encoding,
+            ..Writer::new(encoding)
         }
     }
 
@@ -108,48 +168,110 @@ impl Writer {
         }
     }
 
+    /// Called before the first byte of every item: if it is the first item of
+    /// an XCDR2 mutable member, `lc` (the length code Cyclone DDS uses for a
+    /// member of this item's type) becomes the member's length code, and the
+    /// `NEXTINT` placeholder goes when the code does not need it.
+    #[inline]
+    fn first(&mut self, lc: u32) {
+        if let Some(p) = self.pending.take() {
+            if p.kind == MemberKind::Em {
+                self.member_lc = lc;
+                if lc != LC_NEXTINT {
+                    // begin_member left EMHEADER + NEXTINT as the last 8 bytes
+                    self.buf.truncate(self.buf.len() - 4);
+                }
+            }
+        }
+    }
+
     put_num! {
-        write_i16: i16, write_u16: u16,
-        write_i32: i32, write_u32: u32,
-        write_i64: i64, write_u64: u64,
-        write_f32: f32, write_f64: f64,
+        write_i16: i16, 1;
+        write_u16: u16, 1;
+        write_i32: i32, 2;
+        write_u32: u32, 2;
+        write_i64: i64, 3;
+        write_u64: u64, 3;
+        write_f32: f32, 2;
+        write_f64: f64, 3;
     }
 
     /// Appends one octet.
     #[inline]
     pub fn write_u8(&mut self, v: u8) {
+        self.first(0);
         self.buf.push(v);
     }
 
     /// Appends one signed octet.
     #[inline]
     pub fn write_i8(&mut self, v: i8) {
+        self.first(0);
         self.buf.push(v as u8);
     }
 
     /// Appends a boolean (one octet, 0 or 1).
     #[inline]
     pub fn write_bool(&mut self, v: bool) {
+        self.first(0);
         self.buf.push(v as u8);
     }
 
     /// Appends raw bytes with no alignment.
     #[inline]
     pub fn write_bytes(&mut self, b: &[u8]) {
+        self.first(LC_NEXTINT);
         self.buf.extend_from_slice(b);
     }
 
-    /// Appends a sequence length or similar `u32` count.
+    /// Appends a sequence length or similar `u32` count. Prefer
+    /// [`Writer::begin_sequence`] for sequences: it also writes the XCDR2
+    /// `DHEADER` and picks the member length code Cyclone DDS uses.
     #[inline]
     pub fn write_len(&mut self, n: usize) {
+        self.first(LC_NEXTINT);
         self.write_u32(u32::try_from(n).unwrap_or(u32::MAX));
     }
 
     /// Appends a string: `u32` length including the NUL, the bytes, NUL.
     pub fn write_string(&mut self, s: &str) {
+        self.first(5);
         self.write_len(s.len() + 1);
         self.buf.extend_from_slice(s.as_bytes());
         self.buf.push(0);
+    }
+
+    /// Starts a sequence of `len` elements: in XCDR2 a `DHEADER` when the
+    /// elements are not primitive (`primitive_size` is `None`; strings, enums
+    /// and structs are not primitive), then the count. End it with
+    /// [`Writer::end_dheader`]. `primitive_size` is the element size of a
+    /// sequence of primitives (1 for `bool`, `char`, octets).
+    pub fn begin_sequence(&mut self, len: usize, primitive_size: Option<usize>) -> Option<usize> {
+        self.first(match primitive_size {
+            Some(1) | None => 5,
+            Some(4) => 6,
+            Some(8) => 7,
+            Some(_) => LC_NEXTINT,
+        });
+        let d = if primitive_size.is_none() {
+            self.begin_dheader()
+        } else {
+            None
+        };
+        self.write_len(len);
+        d
+    }
+
+    /// Starts a fixed-size array: in XCDR2 a `DHEADER` when the elements are
+    /// not primitive. End it with [`Writer::end_dheader`].
+    pub fn begin_array(&mut self, primitive: bool) -> Option<usize> {
+        if primitive {
+            self.first(LC_NEXTINT);
+            None
+        } else {
+            self.first(5);
+            self.begin_dheader()
+        }
     }
 
     /// XCDR2 only: reserves a `DHEADER`; pass the result to [`Writer::end_dheader`].
@@ -158,6 +280,7 @@ impl Writer {
         match self.version() {
             Version::Xcdr1 => None,
             Version::Xcdr2 => {
+                self.first(5);
                 self.write_u32(0);
                 Some(self.buf.len())
             }
@@ -180,16 +303,70 @@ impl Writer {
         self.buf[at..at + 4].copy_from_slice(&b);
     }
 
-    fn patch_u16(&mut self, at: usize, v: u16) {
-        let b = match self.encoding.endianness() {
-            Endianness::Little => v.to_le_bytes(),
-            Endianness::Big => v.to_be_bytes(),
+    fn read_u32_at(&self, at: usize) -> Option<u32> {
+        let b: [u8; 4] = self.buf.get(at..at + 4)?.try_into().ok()?;
+        Some(match self.encoding.endianness() {
+            Endianness::Little => u32::from_le_bytes(b),
+            Endianness::Big => u32::from_be_bytes(b),
+        })
+    }
+
+    /// Writes an XCDR1 extended parameter header (`PID_EXTENDED`, id, length
+    /// placeholder) and returns where the value starts.
+    fn write_param_header(&mut self, id: u32, must_understand: bool) -> usize {
+        self.align(4);
+        self.write_u16(PID_EXTENDED | PID_MUST_UNDERSTAND);
+        self.write_u16(8);
+        let mu = if must_understand {
+            PL_LONG_MUST_UNDERSTAND
+        } else {
+            0
         };
-        self.buf[at..at + 2].copy_from_slice(&b);
+        self.write_u32(mu | (id & MEMBER_ID_MASK));
+        self.write_u32(0);
+        self.buf.len()
+    }
+
+    /// Writes an optional value (`@optional` member): see [`super::write_optional`].
+    pub(super) fn write_optional_with<T: ?Sized>(
+        &mut self,
+        v: Option<&T>,
+        enc: impl FnOnce(&T, &mut Writer),
+    ) {
+        match self.pending.take() {
+            Some(p) if p.kind != MemberKind::Plain => {
+                // the whole member of a mutable struct: absent means left out
+                match v {
+                    None => self.absent = true,
+                    Some(v) => {
+                        self.pending = Some(p);
+                        enc(v, self);
+                    }
+                }
+            }
+            p if self.version() == Version::Xcdr1 => {
+                let (id, mu) = p.map_or((0, false), |p| (p.id, p.must_understand));
+                let start = self.write_param_header(id, mu);
+                if let Some(v) = v {
+                    let origin = core::mem::replace(&mut self.origin, start);
+                    enc(v, self);
+                    self.origin = origin;
+                    let len = (self.buf.len() - start) as u32;
+                    self.patch_u32(start - 4, len);
+                }
+            }
+            _ => {
+                self.write_bool(v.is_some());
+                if let Some(v) = v {
+                    enc(v, self);
+                }
+            }
+        }
     }
 
     /// Starts a struct of the given extensibility.
     pub fn begin_struct(&mut self, ext: Extensibility) -> StructWriter {
+        self.first(LC_NEXTINT);
         let dheader = match (self.version(), ext) {
             (Version::Xcdr2, Extensibility::Appendable | Extensibility::Mutable) => {
                 self.begin_dheader()
@@ -208,7 +385,8 @@ pub struct StructWriter {
     dheader: Option<usize>,
 }
 
-/// An open member of a mutable struct (where its length gets patched).
+/// A member of a struct: the header read by [`StructReader::next_member`],
+/// or the open member returned by [`StructWriter::begin_member`].
 #[derive(Debug)]
 #[must_use = "end the member with StructWriter::end_member"]
 pub struct MemberHeader {
@@ -218,78 +396,145 @@ pub struct MemberHeader {
     pub must_understand: bool,
     /// Offset of the member's data.
     pub start: usize,
-    /// Length of the member's data (reader side) .
+    /// Length of the member's data (reader side).
     pub len: usize,
-    /// Where the length field is (writer side), if any.
-    len_at: Option<(usize, bool)>,
+    /// Writer side: framing and the writer state to restore.
+    kind: MemberKind,
+    hdr_start: usize,
+    saved_pending: Option<Pending>,
+    saved_lc: u32,
+    saved_origin: usize,
 }
 
 impl StructWriter {
-    /// Starts member `id`. For final and appendable structs this writes nothing.
+    /// Starts member `id`. For final and appendable structs this writes
+    /// nothing (but an `@optional` member uses `id` in XCDR1). For mutable
+    /// structs it writes the parameter header (XCDR1) or `EMHEADER` (XCDR2).
+    /// `must_understand` sets the must-understand flag; Cyclone DDS sets it
+    /// only for `@must_understand` members, not for keys.
     pub fn begin_member(&self, w: &mut Writer, id: u32, must_understand: bool) -> MemberHeader {
-        let mut h = MemberHeader {
+        let saved_pending = w.pending.take();
+        let saved_lc = w.member_lc;
+        let saved_origin = w.origin;
+        let hdr_start = w.buf.len();
+        let kind = match (self.ext, w.version()) {
+            (Extensibility::Mutable, Version::Xcdr1) => {
+                let start = w.write_param_header(id, must_understand);
+                w.origin = start;
+                MemberKind::Param
+            }
+            (Extensibility::Mutable, Version::Xcdr2) => {
+                w.align(4);
+                w.write_u32(0); // EMHEADER, patched by end_member
+                w.write_u32(0); // NEXTINT, dropped unless LC 4
+                MemberKind::Em
+            }
+            _ => MemberKind::Plain,
+        };
+        w.pending = Some(Pending {
             id,
             must_understand,
-            start: 0,
+            kind,
+        });
+        w.member_lc = LC_NEXTINT;
+        MemberHeader {
+            id,
+            must_understand,
+            start: w.buf.len(),
             len: 0,
-            len_at: None,
-        };
-        if self.ext != Extensibility::Mutable {
-            h.start = w.buf.len();
-            return h;
+            kind,
+            hdr_start,
+            saved_pending,
+            saved_lc,
+            saved_origin,
         }
-        match w.version() {
-            Version::Xcdr1 => {
-                w.align(4);
-                if id < 0x3f00 {
-                    let pid = id as u16 | if must_understand { PID_MUST_UNDERSTAND } else { 0 };
-                    w.write_u16(pid);
-                    w.write_u16(0);
-                    h.len_at = Some((w.buf.len() - 2, false));
-                } else {
-                    w.write_u16(PID_EXTENDED | PID_MUST_UNDERSTAND);
-                    w.write_u16(8);
-                    let flags = if must_understand { 0x4000_0000 } else { 0 };
-                    w.write_u32(id | flags);
-                    w.write_u32(0);
-                    h.len_at = Some((w.buf.len() - 4, true));
-                }
-            }
-            Version::Xcdr2 => {
-                // EMHEADER1 with LC = 4: the length follows in NEXTINT.
-                let m = if must_understand { 0x8000_0000 } else { 0 };
-                w.write_u32(m | (4 << 28) | (id & 0x0fff_ffff));
-                w.write_u32(0);
-                h.len_at = Some((w.buf.len() - 4, true));
-            }
-        }
-        h.start = w.buf.len();
-        h
     }
 
     /// Ends a member started with [`StructWriter::begin_member`].
     pub fn end_member(&self, w: &mut Writer, h: MemberHeader) {
-        if let Some((at, wide)) = h.len_at {
-            let mut len = w.buf.len() - h.start;
-            if w.version() == Version::Xcdr1 {
-                // parameter values are padded to a multiple of 4
-                let pad = (4 - len % 4) % 4;
-                w.buf.resize(w.buf.len() + pad, 0);
-                len += pad;
+        let nothing_written = w.pending.take().is_some();
+        let absent = core::mem::take(&mut w.absent);
+        match h.kind {
+            MemberKind::Plain => {}
+            MemberKind::Param => {
+                if absent {
+                    w.buf.truncate(h.hdr_start);
+                } else {
+                    // XTypes 1.1 style, as Cyclone DDS writes: padded to 4
+                    w.align(4);
+                    let len = (w.buf.len() - h.start) as u32;
+                    w.patch_u32(h.start - 4, len);
+                }
             }
-            if wide {
-                w.patch_u32(at, len as u32);
-            } else {
-                w.patch_u16(at, len.min(u16::MAX as usize) as u16);
+            MemberKind::Em => {
+                if absent {
+                    w.buf.truncate(h.hdr_start);
+                } else {
+                    let mut lc = if nothing_written {
+                        LC_NEXTINT
+                    } else {
+                        w.member_lc
+                    };
+                    let data = if lc == LC_NEXTINT {
+                        h.start
+                    } else {
+                        h.start - 4
+                    };
+                    let len = w.buf.len() - data;
+                    let first = if len >= 4 {
+                        w.read_u32_at(data).map(|n| n as u64)
+                    } else {
+                        None
+                    };
+                    let rest = len.saturating_sub(4) as u64;
+                    let ok = match lc {
+                        0 => len == 1,
+                        1 => len == 2,
+                        2 => len == 4,
+                        3 => len == 8,
+                        5 => first == Some(rest),
+                        6 => first.map(|n| n * 4) == Some(rest),
+                        7 => first.map(|n| n * 8) == Some(rest),
+                        _ => true,
+                    };
+                    if !ok {
+                        // the value was not what its first item suggested:
+                        // fall back to an explicit NEXTINT (alignment is at
+                        // most 4 in XCDR2, so shifting by 4 keeps it)
+                        w.buf.splice(data..data, [0u8; 4]);
+                        lc = LC_NEXTINT;
+                    }
+                    let data = if lc == LC_NEXTINT {
+                        h.start
+                    } else {
+                        h.start - 4
+                    };
+                    let mu = if h.must_understand {
+                        EM_MUST_UNDERSTAND
+                    } else {
+                        0
+                    };
+                    let em = mu | (lc << 28) | (h.id & MEMBER_ID_MASK);
+                    if lc == LC_NEXTINT {
+                        let len = (w.buf.len() - data) as u32;
+                        w.patch_u32(data - 4, len);
+                        w.patch_u32(data - 8, em);
+                    } else {
+                        w.patch_u32(data - 4, em);
+                    }
+                }
             }
         }
+        w.origin = h.saved_origin;
+        w.pending = h.saved_pending;
+        w.member_lc = h.saved_lc;
     }
 
     /// Ends the struct (patches the `DHEADER`, writes the XCDR1 sentinel).
     pub fn end(self, w: &mut Writer) {
         if self.ext == Extensibility::Mutable && w.version() == Version::Xcdr1 {
             w.align(4);
-            w.write_u16(PID_SENTINEL);
+            w.write_u16(PID_SENTINEL | PID_MUST_UNDERSTAND);
             w.write_u16(0);
         }
         w.end_dheader(self.dheader);
@@ -306,6 +551,10 @@ pub struct Reader<'a> {
     limit: usize,
     encoding: Encoding,
     depth: usize,
+    /// Start of the data of the mutable member just returned by
+    /// [`StructReader::next_member`] (an optional member's value is there
+    /// without presence flag).
+    member_start: Option<usize>,
 }
 
 macro_rules! get_num {
@@ -336,6 +585,7 @@ impl<'a> Reader<'a> {
             limit: buf.len(),
             encoding,
             depth: 0,
+            member_start: None,
         }
     }
 
@@ -347,12 +597,9 @@ impl<'a> Reader<'a> {
         let id = u16::from_be_bytes([buf[0], buf[1]]);
         let rep = RepresentationId::from_u16(id).ok_or(DecodeError::UnknownRepresentation(id))?;
         Ok(Reader {
-            buf,
             pos: 4,
             origin: 4,
-            limit: buf.len(),
-            encoding: rep.encoding(),
-            depth: 0,
+            ..Reader::new(buf, rep.encoding())
         })
     }
 
@@ -366,7 +613,7 @@ impl<'a> Reader<'a> {
         self.encoding.version()
     }
 
-    /// Offset from the alignment origin (for error messages).
+    /// Offset from the current alignment origin (for error messages).
     pub fn position(&self) -> usize {
         self.pos - self.origin
     }
@@ -455,7 +702,11 @@ impl<'a> Reader<'a> {
                 remaining: self.remaining(),
             });
         }
-        Ok(n as usize)
+        usize::try_from(n).map_err(|_| DecodeError::CountTooLarge {
+            offset,
+            count: n,
+            remaining: self.remaining(),
+        })
     }
 
     /// Reads a string (length including NUL, bytes, NUL).
@@ -468,8 +719,10 @@ impl<'a> Reader<'a> {
             return Ok("");
         }
         let b = self.take(n)?;
-        let (last, body) = b.split_last().expect("n > 0");
-        if *last != 0 {
+        let Some((&last, body)) = b.split_last() else {
+            return Err(DecodeError::UnterminatedString { offset });
+        };
+        if last != 0 {
             return Err(DecodeError::UnterminatedString { offset });
         }
         core::str::from_utf8(body).map_err(|e| DecodeError::InvalidUtf8 {
@@ -477,7 +730,7 @@ impl<'a> Reader<'a> {
         })
     }
 
-    /// Enters a nested (pointer/recursive) level; fails past the depth limit.
+    /// Enters a nested level (struct, optional value); fails past [`MAX_DEPTH`].
     pub fn enter(&mut self) -> Result<(), DecodeError> {
         if self.depth >= MAX_DEPTH {
             return Err(DecodeError::TooDeep {
@@ -500,18 +753,19 @@ impl<'a> Reader<'a> {
         match self.version() {
             Version::Xcdr1 => Ok(None),
             Version::Xcdr2 => {
+                self.align(4)?;
                 let offset = self.position();
-                let len = self.read_u32()? as usize;
-                if len > self.remaining() {
+                let len = self.read_u32()? as u64;
+                if len > self.remaining() as u64 {
                     return Err(DecodeError::BadLength {
                         what: "DHEADER",
                         offset,
-                        len: len as u64,
+                        len,
                         remaining: self.remaining(),
                     });
                 }
                 let old = self.limit;
-                self.limit = self.pos + len;
+                self.limit = self.pos + len as usize;
                 Ok(Some((self.limit, old)))
             }
         }
@@ -521,13 +775,87 @@ impl<'a> Reader<'a> {
     /// appended) and restores the outer limit.
     pub fn end_dheader(&mut self, saved: Option<(usize, usize)>) {
         if let Some((end, old)) = saved {
-            self.pos = end;
+            self.pos = end.max(self.pos).min(old);
             self.limit = old;
+        }
+    }
+
+    /// Starts a fixed-size array: reads the XCDR2 `DHEADER` when the elements
+    /// are not primitive. End it with [`Reader::end_dheader`].
+    pub fn begin_array(&mut self, primitive: bool) -> Result<Option<(usize, usize)>, DecodeError> {
+        self.member_start = None;
+        if primitive {
+            Ok(None)
+        } else {
+            self.begin_dheader()
+        }
+    }
+
+    /// Reads an optional value: see [`super::read_optional`].
+    pub(super) fn read_optional_with<T>(
+        &mut self,
+        dec: impl FnOnce(&mut Reader<'a>) -> Result<T, DecodeError>,
+    ) -> Result<Option<T>, DecodeError> {
+        if self.member_start.take() == Some(self.pos) {
+            // an optional member of a mutable struct: present, no flag
+            self.enter()?;
+            let v = dec(self);
+            self.leave();
+            return v.map(Some);
+        }
+        match self.version() {
+            Version::Xcdr2 => {
+                if !self.read_bool()? {
+                    return Ok(None);
+                }
+                self.enter()?;
+                let v = dec(self);
+                self.leave();
+                v.map(Some)
+            }
+            Version::Xcdr1 => {
+                self.align(4)?;
+                let offset = self.position();
+                let pid = self.read_u16()?;
+                let slen = self.read_u16()?;
+                if pid & PID_MASK != PID_EXTENDED || slen != 8 {
+                    return Err(DecodeError::Malformed {
+                        offset,
+                        what: "XCDR1 optional member without extended parameter header",
+                    });
+                }
+                let _id = self.read_u32()?;
+                let len = self.read_u32()? as u64;
+                if len > self.remaining() as u64 {
+                    return Err(DecodeError::BadLength {
+                        what: "optional member",
+                        offset,
+                        len,
+                        remaining: self.remaining(),
+                    });
+                }
+                if len == 0 {
+                    return Ok(None);
+                }
+                let end = self.pos + len as usize;
+                let (limit, origin) = (self.limit, self.origin);
+                self.limit = end;
+                self.origin = self.pos;
+                self.enter()?;
+                let v = dec(self);
+                self.leave();
+                self.pos = end;
+                self.limit = limit;
+                self.origin = origin;
+                v.map(Some)
+            }
         }
     }
 
     /// Starts reading a struct of the given extensibility.
     pub fn begin_struct(&mut self, ext: Extensibility) -> Result<StructReader, DecodeError> {
+        self.member_start = None;
+        self.enter()?;
         let dheader = match (self.version(), ext) {
             (Version::Xcdr2, Extensibility::Appendable | Extensibility::Mutable) => {
                 self.begin_dheader()?
@@ -555,46 +883,82 @@ impl<'a> Reader<'a> {
     }
 }
 
+/// Saved reader state while a mutable member is being read.
+#[derive(Debug, Clone, Copy)]
+struct MemberRegion {
+    end: usize,
+    limit: usize,
+    origin: usize,
+}
+
 /// An open struct in a [`Reader`].
 #[derive(Debug)]
 #[must_use = "end the struct with StructReader::end"]
 pub struct StructReader {
     ext: Extensibility,
     dheader: Option<(usize, usize)>,
-    /// (end of current member, outer limit)
-    member_end: Option<(usize, usize)>,
+    member_end: Option<MemberRegion>,
     done: bool,
 }
 
 impl StructReader {
+    fn close_member(&mut self, r: &mut Reader<'_>) {
+        if let Some(m) = self.member_end.take() {
+            r.pos = m.end;
+            r.limit = m.limit;
+            r.origin = m.origin;
+        }
+        r.member_start = None;
+    }
+
     /// Mutable structs: the next member's header, or `None` at the end.
     /// The reader is narrowed to the member's data until the next call.
+    /// Callers skip members they do not know unless
+    /// [`MemberHeader::must_understand`] is set, which is an error
+    /// ([`DecodeError::UnknownMustUnderstand`]).
     pub fn next_member(&mut self, r: &mut Reader<'_>) -> Result<Option<MemberHeader>, DecodeError> {
-        if let Some((end, old)) = self.member_end.take() {
-            r.pos = end;
-            r.limit = old;
-        }
+        self.close_member(r);
         if self.done || self.ext != Extensibility::Mutable {
             return Ok(None);
         }
         let (id, must_understand, len, offset) = match r.version() {
-            Version::Xcdr1 => {
+            Version::Xcdr1 => loop {
                 r.align(4)?;
                 let offset = r.position();
                 let pid = r.read_u16()?;
                 let len = r.read_u16()? as usize;
-                if pid == PID_SENTINEL {
-                    self.done = true;
-                    return Ok(None);
+                match pid & PID_MASK {
+                    PID_SENTINEL => {
+                        self.done = true;
+                        return Ok(None);
+                    }
+                    PID_IGNORE => {
+                        r.take(len).map_err(|_| DecodeError::BadLength {
+                            what: "parameter",
+                            offset,
+                            len: len as u64,
+                            remaining: r.remaining(),
+                        })?;
+                    }
+                    PID_EXTENDED => {
+                        if len != 8 {
+                            return Err(DecodeError::Malformed {
+                                offset,
+                                what: "PID_EXTENDED with a length other than 8",
+                            });
+                        }
+                        let a = r.read_u32()?;
+                        let l = r.read_u32()? as usize;
+                        break (
+                            a & MEMBER_ID_MASK,
+                            a & PL_LONG_MUST_UNDERSTAND != 0,
+                            l,
+                            offset,
+                        );
+                    }
+                    p => break (p as u32, pid & PID_MUST_UNDERSTAND != 0, len, offset),
                 }
-                if pid & 0x3fff == PID_EXTENDED {
-                    let a = r.read_u32()?;
-                    let l = r.read_u32()? as usize;
-                    (a & 0x0fff_ffff, a & 0x4000_0000 != 0, l, offset)
-                } else {
-                    ((pid & 0x3fff) as u32, pid & PID_MUST_UNDERSTAND != 0, len, offset)
-                }
-            }
+            },
             Version::Xcdr2 => {
                 if r.remaining() == 0 {
                     self.done = true;
@@ -604,64 +968,85 @@ impl StructReader {
                 let offset = r.position();
                 let h = r.read_u32()?;
                 let lc = (h >> 28) & 0x7;
-                let len = match lc {
+                let len: u64 = match lc {
                     0 => 1,
                     1 => 2,
                     2 => 4,
                     3 => 8,
-                    4 => r.read_u32()? as usize,
+                    4 => r.read_u32()? as u64,
                     // LC 5..7: NEXTINT is also the first word of the member (a length or count)
-                    5..=7 => {
+                    _ => {
                         let at = r.pos;
-                        let n = r.read_u32()? as usize;
+                        let n = r.read_u32()? as u64;
                         r.pos = at;
                         let mult = match lc {
                             5 => 1,
                             6 => 4,
                             _ => 8,
                         };
-                        n.saturating_mul(mult).saturating_add(4)
+                        n * mult + 4
                     }
-                    _ => unreachable!("3-bit field"),
                 };
-                (h & 0x0fff_ffff, h & 0x8000_0000 != 0, len, offset)
+                if len > r.remaining() as u64 {
+                    return Err(DecodeError::BadLength {
+                        what: "EMHEADER",
+                        offset,
+                        len,
+                        remaining: r.remaining(),
+                    });
+                }
+                (
+                    h & MEMBER_ID_MASK,
+                    h & EM_MUST_UNDERSTAND != 0,
+                    len as usize,
+                    offset,
+                )
             }
         };
         if len > r.remaining() {
             return Err(DecodeError::BadLength {
-                what: "member header",
+                what: "parameter",
                 offset,
                 len: len as u64,
                 remaining: r.remaining(),
             });
         }
         let start = r.pos;
-        self.member_end = Some((start + len, r.limit));
+        self.member_end = Some(MemberRegion {
+            end: start + len,
+            limit: r.limit,
+            origin: r.origin,
+        });
         r.limit = start + len;
+        if r.version() == Version::Xcdr1 {
+            // XCDR1: the value is aligned relative to its own start
+            r.origin = start;
+        }
+        r.member_start = Some(start);
         Ok(Some(MemberHeader {
             id,
             must_understand,
             start,
             len,
-            len_at: None,
+            kind: MemberKind::Plain,
+            hdr_start: start,
+            saved_pending: None,
+            saved_lc: LC_NEXTINT,
+            saved_origin: 0,
         }))
     }
 
-    /// Ends the struct: skips unread appended members and restores limits.
+    /// Ends the struct: skips unread members (appended by a newer version of
+    /// the type, or unknown) and restores limits.
     pub fn end(mut self, r: &mut Reader<'_>) -> Result<(), DecodeError> {
-        if let Some((end, old)) = self.member_end.take() {
-            r.pos = end;
-            r.limit = old;
-        }
+        self.close_member(r);
         if self.ext == Extensibility::Mutable && r.version() == Version::Xcdr1 {
             // skip to the sentinel
             while self.next_member(r)?.is_some() {}
-            if let Some((end, old)) = self.member_end.take() {
-                r.pos = end;
-                r.limit = old;
-            }
+            self.close_member(r);
         }
         r.end_dheader(self.dheader);
+        r.leave();
         Ok(())
     }
 }
