@@ -423,12 +423,12 @@ impl<T: IpcMessage, const N: usize> IpcMessage for [T; N] {
         v.try_into().map_err(|_| ipc::DecodeError::Format("array length".into()))
     }
     fn cdr_encode(&self, w: &mut cdr::Writer) {
-        let d = if T::CDR_PRIMITIVE { None } else { w.begin_dheader() };
+        let d = w.begin_array(T::CDR_PRIMITIVE);
         T::cdr_encode_slice(self, w);
         w.end_dheader(d);
     }
     fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
-        let d = if T::CDR_PRIMITIVE { None } else { r.begin_dheader()? };
+        let d = r.begin_array(T::CDR_PRIMITIVE)?;
         let offset = r.position();
         let v = T::cdr_decode_vec(r, N)?;
         r.end_dheader(d);
@@ -525,8 +525,7 @@ pub mod __private {
 
     /// CDR sequence: (XCDR2 `DHEADER` for non-primitive elements), `u32` count, elements.
     pub fn cdr_encode_seq<T: IpcMessage>(v: &[T], w: &mut cdr::Writer) {
-        let d = if T::CDR_PRIMITIVE { None } else { w.begin_dheader() };
-        w.write_len(v.len());
+        let d = w.begin_sequence(v.len(), T::CDR_PRIMITIVE.then_some(T::CDR_MIN_SIZE));
         T::cdr_encode_slice(v, w);
         w.end_dheader(d);
     }
