@@ -1,0 +1,36 @@
+use std::collections::HashMap;
+
+use courier_derive::IpcMessage;
+
+#[derive(IpcMessage)]
+struct VecWithoutLen {
+    count: i32,
+    items: Vec<f64>,
+}
+
+#[derive(IpcMessage)]
+struct BadLen {
+    count: i32,
+    name: String,
+    #[ipc(len = "cnt")]
+    a: Vec<i32>,
+    #[ipc(len = "name")]
+    b: Vec<i32>,
+}
+
+#[derive(IpcMessage)]
+#[ipc(nmae = "X")]
+struct UnknownAttributes {
+    #[ipc(length = "n", key)]
+    n: i32,
+}
+
+#[derive(IpcMessage)]
+struct Unsupported {
+    map: HashMap<String, i32>,
+    size: usize,
+    maybe: Option<i32>,
+    text: &'static str,
+}
+
+fn main() {}

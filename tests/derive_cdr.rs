@@ -1,0 +1,400 @@
+//! `#[derive(IpcMessage)]`: CDR (XCDR1/XCDR2, both byte orders) for final,
+//! appendable and mutable structs, keyed types, and property-based round
+//! trips in IPC and CDR.
+
+use courier::cdr::{self, DecodeError, Encoding, Extensibility};
+use courier::{ipc, IpcMessage};
+use proptest::prelude::*;
+
+const ENCODINGS: [Encoding; 4] = [
+    Encoding::Xcdr1Le,
+    Encoding::Xcdr1Be,
+    Encoding::Xcdr2Le,
+    Encoding::Xcdr2Be,
+];
+
+#[derive(IpcMessage, Debug, Clone, Copy, PartialEq)]
+enum Mode {
+    Idle,
+    Run,
+    Stop,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct Inner {
+    a: u8,
+    b: f64,
+}
+
+/// The same members under each extensibility.
+macro_rules! sample {
+    ($name:ident, $ext:literal) => {
+        #[derive(IpcMessage, Debug, Clone, PartialEq)]
+        #[ipc(extensibility = $ext)]
+        struct $name {
+            #[ipc(key)]
+            id: i32,
+            name: String,
+            count: u16,
+            #[ipc(len = "count")]
+            items: Vec<Inner>,
+            n: i32,
+            #[ipc(len = "n")]
+            samples: Vec<f32>,
+            mode: Mode,
+            #[ipc(char)]
+            tag: u8,
+            flags: [bool; 3],
+            big: i64,
+            next: Option<Box<Inner>>,
+            note: Option<String>,
+            grid: [[i16; 2]; 2],
+            modes: [Mode; 2],
+        }
+
+        impl $name {
+            fn sample() -> Self {
+                $name {
+                    id: -7,
+                    name: "courier".into(),
+                    count: 2,
+                    items: vec![Inner { a: 1, b: 0.5 }, Inner { a: 2, b: -1.25 }],
+                    n: 3,
+                    samples: vec![1.0, 2.5, -3.0],
+                    mode: Mode::Stop,
+                    tag: b'q',
+                    flags: [true, false, true],
+                    big: i64::MIN + 1,
+                    next: Some(Box::new(Inner { a: 9, b: 9.5 })),
+                    note: None,
+                    grid: [[1, -2], [3, -4]],
+                    modes: [Mode::Run, Mode::Idle],
+                }
+            }
+        }
+    };
+}
+
+sample!(FinalS, "final");
+sample!(AppendableS, "appendable");
+sample!(MutableS, "mutable");
+
+fn round_trip<T: IpcMessage + PartialEq + std::fmt::Debug>(v: &T) {
+    for enc in ENCODINGS {
+        let bytes = cdr::to_vec(v, enc);
+        assert_eq!(
+            &cdr::from_slice::<T>(&bytes).unwrap_or_else(|e| panic!("{enc:?}: {e}")),
+            v,
+            "{enc:?}"
+        );
+        let bare = cdr::to_vec_headerless(v, enc);
+        assert_eq!(
+            &cdr::from_slice_headerless::<T>(&bare, enc).unwrap(),
+            v,
+            "{enc:?}"
+        );
+    }
+    assert_eq!(&ipc::from_slice::<T>(&ipc::to_vec(v)).unwrap(), v);
+}
+
+#[test]
+fn all_extensibilities_round_trip_in_all_encodings() {
+    assert_eq!(FinalS::EXTENSIBILITY, Extensibility::Final);
+    assert_eq!(AppendableS::EXTENSIBILITY, Extensibility::Appendable);
+    assert_eq!(MutableS::EXTENSIBILITY, Extensibility::Mutable);
+    assert_eq!(FinalS::KEYS, ["id"]);
+    round_trip(&FinalS::sample());
+    round_trip(&AppendableS::sample());
+    round_trip(&MutableS::sample());
+    round_trip(&Mode::Run);
+}
+
+#[test]
+fn final_xcdr1_golden() {
+    // int32 count then items: count field is its own member, the sequence has its own count.
+    let v = Inner { a: 3, b: 1.0 };
+    assert_eq!(
+        cdr::to_vec(&v, Encoding::Xcdr1Le),
+        [0, 1, 0, 0, 3, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0xf0, 0x3f]
+    );
+    let b = cdr::to_vec(&v, Encoding::Xcdr2Be);
+    let id = cdr::RepresentationId::for_type(Encoding::Xcdr2Be, Extensibility::Final) as u16;
+    assert_eq!(b[..2], id.to_be_bytes());
+    assert_eq!(b[2..], [0, 0, 3, 0, 0, 0, 0x3f, 0xf0, 0, 0, 0, 0, 0, 0]);
+    assert_eq!(
+        cdr::to_vec(&Mode::Stop, Encoding::Xcdr1Be),
+        [0, 0, 0, 0, 0, 0, 0, 2]
+    );
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(extensibility = "mutable")]
+struct Km {
+    #[ipc(key)]
+    id: i32,
+    v: u8,
+}
+
+/// Members in another order and with other ids: mutable decoding goes by id.
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(extensibility = "mutable")]
+struct KmReordered {
+    #[ipc(id = 1)]
+    v: u8,
+    #[ipc(id = 0, key)]
+    id: i32,
+    #[ipc(id = 5)]
+    extra: String,
+}
+
+/// Only member 0.
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(extensibility = "mutable")]
+struct KmShort {
+    #[ipc(key)]
+    id: i32,
+}
+
+/// Member 0 plus an unknown must-understand key member 9.
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(extensibility = "mutable")]
+struct KmMustUnderstand {
+    #[ipc(key)]
+    id: i32,
+    #[ipc(id = 9, key)]
+    other: i32,
+    #[ipc(id = 1)]
+    v: u8,
+}
+
+#[test]
+fn mutable_members_by_id() {
+    for enc in ENCODINGS {
+        let long = cdr::to_vec(
+            &KmReordered {
+                v: 4,
+                id: 5,
+                extra: "x".into(),
+            },
+            enc,
+        );
+        // unknown member 5 (not must-understand) is skipped
+        assert_eq!(
+            cdr::from_slice::<Km>(&long).unwrap(),
+            Km { id: 5, v: 4 },
+            "{enc:?}"
+        );
+
+        let short = cdr::to_vec(&KmShort { id: 1 }, enc);
+        match cdr::from_slice::<Km>(&short) {
+            Err(DecodeError::MissingMember {
+                member: "v",
+                id: 1,
+                type_name,
+            }) => assert!(type_name.ends_with("::Km")),
+            other => panic!("{enc:?}: {other:?}"),
+        }
+
+        let mu = cdr::to_vec(
+            &KmMustUnderstand {
+                id: 1,
+                other: 2,
+                v: 3,
+            },
+            enc,
+        );
+        match cdr::from_slice::<Km>(&mu) {
+            Err(DecodeError::UnknownMustUnderstand { id: 9, .. }) => {}
+            other => panic!("{enc:?}: {other:?}"),
+        }
+    }
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(extensibility = "appendable")]
+struct V1 {
+    a: i32,
+    s: String,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(extensibility = "appendable")]
+struct V2 {
+    a: i32,
+    s: String,
+    added: f64,
+}
+
+#[test]
+fn appendable_skips_appended_members_in_xcdr2() {
+    for enc in [Encoding::Xcdr2Le, Encoding::Xcdr2Be] {
+        let b = cdr::to_vec(
+            &V2 {
+                a: 1,
+                s: "s".into(),
+                added: 2.0,
+            },
+            enc,
+        );
+        assert_eq!(
+            cdr::from_slice::<V1>(&b).unwrap(),
+            V1 {
+                a: 1,
+                s: "s".into()
+            }
+        );
+    }
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "HelloWorldData::Msg")]
+struct Keyed {
+    #[ipc(key)]
+    user_id: i32,
+    message: String,
+    #[ipc(key)]
+    inner: Inner,
+    #[ipc(key)]
+    label: Option<String>,
+}
+
+#[test]
+fn keys() {
+    assert_eq!(Keyed::TYPE_NAME, "HelloWorldData::Msg");
+    assert_eq!(Keyed::KEYS, ["user_id", "inner", "label"]);
+    let k = Keyed {
+        user_id: 0x0102_0304,
+        message: "not in the key".into(),
+        inner: Inner { a: 5, b: 1.0 },
+        label: Some("k".into()),
+    };
+    let mut w = cdr::Writer::new(Encoding::Xcdr2Be);
+    k.cdr_encode_key(&mut w);
+    assert_eq!(
+        w.into_vec(),
+        [1, 2, 3, 4, 5, 0, 0, 0, 0x3f, 0xf0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 2, b'k', 0]
+    );
+    // A type without keys writes nothing.
+    let mut w = cdr::Writer::new(Encoding::Xcdr2Be);
+    V1 {
+        a: 1,
+        s: "s".into(),
+    }
+    .cdr_encode_key(&mut w);
+    assert!(w.into_vec().is_empty());
+    round_trip(&k);
+}
+
+// ---- property tests ----
+
+fn inner() -> impl Strategy<Value = Inner> {
+    (any::<u8>(), -1e9f64..1e9).prop_map(|(a, b)| Inner { a, b })
+}
+
+fn mode() -> impl Strategy<Value = Mode> {
+    prop_oneof![Just(Mode::Idle), Just(Mode::Run), Just(Mode::Stop)]
+}
+
+fn sample<T: std::fmt::Debug>(make: fn(FinalS) -> T) -> impl Strategy<Value = T> {
+    (
+        (
+            any::<i32>(),
+            "[a-zA-Z0-9 ]{0,12}",
+            prop::collection::vec(inner(), 0..4),
+        ),
+        (
+            prop::collection::vec(-1e6f32..1e6, 0..6),
+            mode(),
+            any::<u8>(),
+            any::<[bool; 3]>(),
+        ),
+        (
+            any::<i64>(),
+            prop::option::of(inner()),
+            prop::option::of("[a-z]{1,5}"),
+            any::<[[i16; 2]; 2]>(),
+            (mode(), mode()),
+        ),
+    )
+        .prop_map(
+            move |(
+                (id, name, items),
+                (samples, m, tag, flags),
+                (big, next, note, grid, (m1, m2)),
+            )| {
+                make(FinalS {
+                    id,
+                    name,
+                    count: items.len() as u16,
+                    items,
+                    n: samples.len() as i32,
+                    samples,
+                    mode: m,
+                    tag,
+                    flags,
+                    big,
+                    next: next.map(Box::new),
+                    note,
+                    grid,
+                    modes: [m1, m2],
+                })
+            },
+        )
+}
+
+macro_rules! convert {
+    ($to:ident) => {
+        |f: FinalS| $to {
+            id: f.id,
+            name: f.name,
+            count: f.count,
+            items: f.items,
+            n: f.n,
+            samples: f.samples,
+            mode: f.mode,
+            tag: f.tag,
+            flags: f.flags,
+            big: f.big,
+            next: f.next,
+            note: f.note,
+            grid: f.grid,
+            modes: f.modes,
+        }
+    };
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    #[test]
+    fn prop_final(v in sample(|f| f)) {
+        for enc in ENCODINGS {
+            prop_assert_eq!(cdr::from_slice::<FinalS>(&cdr::to_vec(&v, enc)).unwrap(), v.clone());
+        }
+        prop_assert_eq!(ipc::from_slice::<FinalS>(&ipc::to_vec(&v)).unwrap(), v);
+    }
+
+    #[test]
+    fn prop_mutable(v in sample(convert!(MutableS))) {
+        for enc in ENCODINGS {
+            prop_assert_eq!(cdr::from_slice::<MutableS>(&cdr::to_vec(&v, enc)).unwrap(), v.clone());
+        }
+        prop_assert_eq!(ipc::from_slice::<MutableS>(&ipc::to_vec(&v)).unwrap(), v);
+    }
+
+    #[test]
+    fn prop_appendable(v in sample(convert!(AppendableS))) {
+        for enc in ENCODINGS {
+            prop_assert_eq!(cdr::from_slice::<AppendableS>(&cdr::to_vec(&v, enc)).unwrap(), v.clone());
+        }
+    }
+
+    /// Arbitrary bytes never panic the generated decoders.
+    #[test]
+    fn prop_garbage(b in prop::collection::vec(any::<u8>(), 0..200)) {
+        let _ = ipc::from_slice::<FinalS>(&b);
+        let _ = cdr::from_slice::<FinalS>(&b);
+        let _ = cdr::from_slice::<MutableS>(&b);
+        let _ = cdr::from_slice::<AppendableS>(&b);
+    }
+}

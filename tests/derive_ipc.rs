@@ -1,0 +1,469 @@
+//! `#[derive(IpcMessage)]`: format strings and IPC marshalling, checked
+//! against the IPC manual's Appendix A types and the bytes the C library
+//! produces (ipc.md §10 E4, E5 and E7, captured from CMU IPC 3.9 on a
+//! little-endian host).
+
+use courier::ipc::{self, ByteOrder, DecodeError};
+use courier::{IpcMessage, NamedFormats};
+
+/// `typedef enum { WaitVal, SendVal, ReceiveVal, ListenVal } STATUS_ENUM`,
+/// written in T1 as `{enum : 3}`.
+#[derive(IpcMessage, Debug, Clone, Copy, PartialEq)]
+#[ipc(numeric)]
+enum Status {
+    Wait,
+    Send,
+    Receive,
+    Listen,
+}
+
+/// The same enum in its symbolic form, as T2 writes it.
+#[derive(IpcMessage, Debug, Clone, Copy, PartialEq)]
+#[allow(clippy::enum_variant_names)] // the manual's names: they are the format
+enum StatusEnum {
+    WaitVal,
+    SendVal,
+    ReceiveVal,
+    ListenVal,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct T1 {
+    i1: i32,
+    status: Status,
+    matrix: [[f64; 3]; 2],
+    d1: f64,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct T2 {
+    str1: String,
+    count: i32,
+    #[ipc(len = "count")]
+    t1: Vec<T1>,
+    status: StatusEnum,
+}
+
+fn hex(s: &str) -> Vec<u8> {
+    let s: String = s.split_whitespace().collect();
+    (0..s.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(&s[i..i + 2], 16).unwrap())
+        .collect()
+}
+
+fn t1() -> T1 {
+    T1 {
+        i1: 666,
+        status: Status::Send,
+        matrix: [[0.0, 1.0, 2.0], [1.0, 2.0, 3.0]],
+        d1: std::f64::consts::PI,
+    }
+}
+
+/// ipc.md §10 E4: the user bytes of query1 (after the two length words).
+const E4: &str = "9a020000 01000000
+    00000000 00000000  00000000 0000f03f  00000000 00000040
+    00000000 0000f03f  00000000 00000040  00000000 00000840
+    182d4454 fb210940";
+
+/// ipc.md §10 E5: the user bytes of response1 (after the two length words).
+fn e5() -> Vec<u8> {
+    let mut b = hex("0c000000 48656c6c 6f2c2077 6f726c64 01000000 01000000");
+    b.extend(hex(E4));
+    b.extend(hex("02000000"));
+    b
+}
+
+/// Checks encode (on little-endian hosts, where the captures come from) and
+/// decode (everywhere, reading the bytes as little-endian).
+fn golden<T: IpcMessage + PartialEq + std::fmt::Debug>(value: &T, bytes: &[u8]) {
+    if cfg!(target_endian = "little") {
+        assert_eq!(ipc::to_vec(value), bytes, "encoding of {value:?}");
+    }
+    assert_eq!(
+        &ipc::from_slice_with_order::<T>(bytes, ByteOrder::Little).unwrap(),
+        value
+    );
+    assert_eq!(&ipc::from_slice::<T>(&ipc::to_vec(value)).unwrap(), value);
+}
+
+#[test]
+fn appendix_a_formats() {
+    assert_eq!(Status::FORMAT, "{enum : 3}");
+    assert_eq!(
+        StatusEnum::FORMAT,
+        "{enum WaitVal, SendVal, ReceiveVal, ListenVal}"
+    );
+    assert_eq!(StatusEnum::FIELD_FORMAT, StatusEnum::FORMAT);
+    assert_eq!(StatusEnum::FORMAT_NAME, None);
+    assert_eq!(T1::FORMAT, "{int, {enum : 3}, [double:2,3], double}");
+    assert_eq!(T1::FIELD_FORMAT, "T1");
+    assert_eq!(T1::FORMAT_NAME, Some("T1"));
+    assert_eq!(
+        T2::FORMAT,
+        "{string, int, <T1:2>, {enum WaitVal, SendVal, ReceiveVal, ListenVal}}"
+    );
+    assert_eq!(T1::IPC_MIN_SIZE, 64);
+    assert_eq!(T2::IPC_MIN_SIZE, 5 + 4 + 4 + 4);
+    assert!(T1::TYPE_NAME.ends_with("::T1"), "{}", T1::TYPE_NAME);
+    assert_eq!(T1::KEYS, &[] as &[&str]);
+
+    let named = NamedFormats::of::<T2>();
+    assert_eq!(named.get("T1"), Some(T1::FORMAT));
+    assert_eq!(named.get("T2"), Some(T2::FORMAT));
+    assert_eq!(named.len(), 2);
+    assert_eq!(
+        NamedFormats::of::<T1>().iter().collect::<Vec<_>>(),
+        [("T1", T1::FORMAT)]
+    );
+}
+
+#[test]
+fn e4_t1_bytes() {
+    golden(&t1(), &hex(E4));
+    assert_eq!(hex(E4).len(), 64);
+}
+
+#[test]
+fn e5_t2_bytes() {
+    let t2 = T2 {
+        str1: "Hello, world".into(),
+        count: 1,
+        t1: vec![t1()],
+        status: StatusEnum::ReceiveVal,
+    };
+    golden(&t2, &e5());
+    assert_eq!(e5().len(), 92);
+}
+
+#[test]
+fn var_array_count_comes_from_the_vec() {
+    // The count field's own value is ignored on encode.
+    let t2 = T2 {
+        str1: "Hello, world".into(),
+        count: 99,
+        t1: vec![t1()],
+        status: StatusEnum::ReceiveVal,
+    };
+    if cfg!(target_endian = "little") {
+        assert_eq!(ipc::to_vec(&t2), e5());
+    }
+    let back = ipc::from_slice::<T2>(&ipc::to_vec(&t2)).unwrap();
+    assert_eq!(back.count, 1);
+}
+
+#[test]
+fn var_array_count_mismatch_is_an_error() {
+    let mut b = e5();
+    b[16] = 2; // the int field says 2, the array's own count says 1
+    match ipc::from_slice_with_order::<T2>(&b, ByteOrder::Little) {
+        Err(DecodeError::CountMismatch {
+            offset: 20,
+            expected: 2,
+            found: 1,
+        }) => {}
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn invalid_enum_names_the_type() {
+    let mut b = hex(E4);
+    b[4] = 4;
+    match ipc::from_slice_with_order::<T1>(&b, ByteOrder::Little) {
+        Err(DecodeError::InvalidEnum {
+            offset: 4,
+            value: 4,
+            type_name,
+        }) => assert!(type_name.ends_with("::Status"), "{type_name}"),
+        other => panic!("{other:?}"),
+    }
+}
+
+// ---- ipc.md §10 E7 rows that a derive can express ----
+//
+// `{int, int, <double:1,2>}` (a 2-dimensional variable array whose count is
+// the product of two fields) is not derivable: `#[ipc(len)]` names one field.
+
+/// `{char, double, short}`.
+#[derive(IpcMessage, Debug, PartialEq)]
+struct CharDoubleShort {
+    #[ipc(char)]
+    c: u8,
+    d: f64,
+    s: i16,
+}
+
+/// `{int, *!}`: a linked list.
+#[derive(IpcMessage, Debug, PartialEq)]
+struct List {
+    v: i32,
+    next: Option<Box<List>>,
+}
+
+/// The same list spelled with `Self`.
+#[derive(IpcMessage, Debug, PartialEq)]
+struct List2 {
+    v: i32,
+    next: Option<Box<Self>>,
+}
+
+#[derive(IpcMessage, Debug, PartialEq)]
+enum Color {
+    Red,
+    Green,
+    Blue,
+}
+
+/// `{string, int, <int:2>, {enum Red, Green, Blue}, boolean}`.
+#[derive(IpcMessage, Debug, PartialEq)]
+struct Mixed {
+    s: String,
+    n: i32,
+    #[ipc(len = "n")]
+    v: Vec<i32>,
+    color: Color,
+    ok: bool,
+}
+
+/// `{int, <byte:1>}` (IPC_VARIABLE_LENGTH).
+#[derive(IpcMessage, Debug, PartialEq)]
+struct VarBytes {
+    len: i32,
+    #[ipc(len = "len")]
+    data: Vec<i8>,
+}
+
+#[test]
+fn e7_char_double_short() {
+    assert_eq!(CharDoubleShort::FORMAT, "{char, double, short}");
+    golden(
+        &CharDoubleShort {
+            c: b'x',
+            d: 2.0,
+            s: 7,
+        },
+        &hex("78 00000000 00000040 0700"),
+    );
+}
+
+#[test]
+fn e7_self_pointer() {
+    assert_eq!(List::FORMAT, "{int, *!}");
+    assert_eq!(List2::FORMAT, "{int, *!}");
+    assert_eq!(List::IPC_MIN_SIZE, 5);
+    let list = List {
+        v: 1,
+        next: Some(Box::new(List { v: 2, next: None })),
+    };
+    golden(&list, &hex("01000000 5a 02000000 00"));
+    let list2 = List2 {
+        v: 1,
+        next: Some(Box::new(List2 { v: 2, next: None })),
+    };
+    golden(&list2, &hex("01000000 5a 02000000 00"));
+    assert_eq!(
+        NamedFormats::of::<List>().iter().collect::<Vec<_>>(),
+        [("List", "{int, *!}")]
+    );
+}
+
+#[test]
+fn e7_mixed() {
+    assert_eq!(
+        Mixed::FORMAT,
+        "{string, int, <int:2>, {enum Red, Green, Blue}, boolean}"
+    );
+    golden(
+        &Mixed {
+            s: "ab".into(),
+            n: 3,
+            v: vec![10, 20, 30],
+            color: Color::Green,
+            ok: true,
+        },
+        &hex("02000000 6162 03000000 03000000 0a000000 14000000 1e000000 01000000 01000000"),
+    );
+}
+
+#[test]
+fn e7_var_bytes() {
+    assert_eq!(VarBytes::FORMAT, "{int, <byte:1>}");
+    golden(
+        &VarBytes {
+            len: 3,
+            data: vec![1, 2, 3],
+        },
+        &hex("03000000 03000000 010203"),
+    );
+}
+
+// ---- the rest of the mapping ----
+
+/// A tuple struct: fields are named by index.
+#[derive(IpcMessage, Debug, PartialEq)]
+struct Pair(u32, #[ipc(len = "0")] Vec<u16>);
+
+/// The empty message.
+#[derive(IpcMessage, Debug, PartialEq)]
+struct Ping;
+
+/// Generic structs are written inline.
+#[derive(IpcMessage, Debug, PartialEq)]
+struct Stamped<T> {
+    t: f64,
+    v: T,
+}
+
+#[derive(IpcMessage, Debug, PartialEq, Clone, Copy)]
+#[ipc(name = "point_t", type_name = "geometry::Point")]
+struct Point {
+    x: f32,
+    y: f32,
+}
+
+/// Length field after the array, pointers, `Option<String>`, `char`, named formats.
+#[derive(IpcMessage, Debug, PartialEq)]
+struct Misc {
+    #[ipc(len = "n")]
+    pts: Vec<Point>,
+    n: u8,
+    origin: Option<Box<Point>>,
+    label: Option<String>,
+    initial: char,
+    corners: [Point; 2],
+    big: u64,
+}
+
+/// Explicit discriminants give the numeric form with the largest value.
+#[derive(IpcMessage, Debug, PartialEq)]
+enum Sparse {
+    A = 2,
+    B = 7,
+    C,
+}
+
+#[derive(IpcMessage, Debug, PartialEq)]
+struct Nested {
+    inner: Stamped<Point>,
+    #[ipc(len = "k")]
+    items: Vec<Stamped<i16>>,
+    k: i64,
+    sparse: Sparse,
+}
+
+#[test]
+fn tuple_and_unit_structs() {
+    assert_eq!(Pair::FORMAT, "{uint, <ushort:1>}");
+    golden(&Pair(2, vec![5, 6]), &hex("02000000 02000000 0500 0600"));
+    assert_eq!(Ping::FORMAT, "");
+    assert_eq!(Ping::FORMAT_NAME, None);
+    assert!(ipc::to_vec(&Ping).is_empty());
+    assert_eq!(ipc::from_slice::<Ping>(&[]).unwrap(), Ping);
+}
+
+#[test]
+fn generic_structs() {
+    assert_eq!(<Stamped<i32>>::FORMAT, "{double, int}");
+    assert_eq!(<Stamped<i32>>::FIELD_FORMAT, "{double, int}");
+    assert_eq!(<Stamped<i32>>::FORMAT_NAME, None);
+    assert!(
+        <Stamped<i32>>::TYPE_NAME.ends_with("::Stamped<int32>"),
+        "{}",
+        <Stamped<i32>>::TYPE_NAME
+    );
+    assert_eq!(<Stamped<T1>>::FORMAT, "{double, T1}");
+    assert_eq!(
+        NamedFormats::of::<Stamped<T1>>().get("T1"),
+        Some(T1::FORMAT)
+    );
+    let v = Stamped { t: 1.5, v: t1() };
+    assert_eq!(ipc::from_slice::<Stamped<T1>>(&ipc::to_vec(&v)).unwrap(), v);
+}
+
+#[test]
+fn names_pointers_and_trailing_length() {
+    assert_eq!(Point::FORMAT, "{float, float}");
+    assert_eq!(Point::FIELD_FORMAT, "point_t");
+    assert_eq!(Point::TYPE_NAME, "geometry::Point");
+    assert_eq!(
+        Misc::FORMAT,
+        "{<point_t:2>, ubyte, *point_t, string, char, [point_t:2], ulong}"
+    );
+    let named = NamedFormats::of::<Misc>();
+    assert_eq!(
+        named.iter().map(|(n, _)| n).collect::<Vec<_>>(),
+        ["Misc", "point_t"]
+    );
+    assert_eq!(
+        Nested::FORMAT,
+        "{{double, point_t}, <{double, short}:3>, long, {enum : 8}}"
+    );
+    assert!(NamedFormats::of::<Nested>().contains("point_t"));
+
+    let p = Point { x: 1.0, y: -2.0 };
+    let m = Misc {
+        pts: vec![p, p, p],
+        n: 0, // ignored on encode
+        origin: Some(Box::new(p)),
+        label: None,
+        initial: 'é',
+        corners: [p, Point { x: 0.5, y: 0.25 }],
+        big: u64::MAX,
+    };
+    let bytes = ipc::to_vec(&m);
+    assert_eq!(&bytes[..4], &3i32.to_ne_bytes());
+    assert_eq!(bytes[4 + 3 * 8], 3); // the u8 length field
+    let back = ipc::from_slice::<Misc>(&bytes).unwrap();
+    assert_eq!(back, Misc { n: 3, ..m });
+}
+
+#[test]
+fn explicit_discriminants() {
+    assert_eq!(Sparse::FORMAT, "{enum : 8}");
+    assert_eq!(ipc::to_vec(&Sparse::C), 8i32.to_ne_bytes());
+    assert_eq!(
+        ipc::from_slice::<Sparse>(&7i32.to_ne_bytes()).unwrap(),
+        Sparse::B
+    );
+    assert!(matches!(
+        ipc::from_slice::<Sparse>(&3i32.to_ne_bytes()),
+        Err(DecodeError::InvalidEnum { value: 3, .. })
+    ));
+    let n = Nested {
+        inner: Stamped {
+            t: 0.0,
+            v: Point { x: 1.0, y: 2.0 },
+        },
+        items: vec![Stamped { t: 1.0, v: -3 }],
+        k: 1,
+        sparse: Sparse::A,
+    };
+    assert_eq!(ipc::from_slice::<Nested>(&ipc::to_vec(&n)).unwrap(), n);
+}
+
+#[test]
+fn hostile_input_is_rejected() {
+    // A count that promises more than the input holds.
+    let b = hex("ffffff7f ffffff7f 00");
+    assert!(matches!(
+        ipc::from_slice_with_order::<VarBytes>(&b, ByteOrder::Little),
+        Err(DecodeError::CountTooLarge { .. })
+    ));
+    // A deep list is bounded by MAX_DEPTH, not by the stack.
+    let mut deep = Vec::new();
+    for _ in 0..(ipc::MAX_DEPTH + 5) {
+        deep.extend_from_slice(&1i32.to_ne_bytes());
+        deep.push(b'Z');
+    }
+    deep.extend_from_slice(&1i32.to_ne_bytes());
+    deep.push(0);
+    let r = std::thread::Builder::new()
+        .stack_size(256 << 20)
+        .spawn(move || ipc::from_slice::<List>(&deep).map(|_| ()))
+        .unwrap()
+        .join()
+        .unwrap();
+    assert!(matches!(r, Err(DecodeError::TooDeep { .. })), "{r:?}");
+}
