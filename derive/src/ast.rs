@@ -232,6 +232,9 @@ fn struct_fields<'a>(cx: &Ctxt, input: &'a DeriveInput, fields: &'a syn::Fields)
             continue; // reported in field_kind
         }
         let want = lit.value();
+        if want.contains(',') {
+            continue; // reported while parsing the attribute
+        }
         let Some(j) = out.iter().position(|f| f.name == want) else {
             let names: Vec<String> = out
                 .iter()

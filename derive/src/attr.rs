@@ -185,9 +185,8 @@ pub fn field(cx: &Ctxt, attrs: &[Attribute]) -> FieldAttrs {
                         &s,
                         "multi-dimensional variable arrays (`<T:k1,k2>`) are not supported: name one integer field",
                     );
-                } else {
-                    out.len = Some(s);
                 }
+                out.len = Some(s);
             } else if meta.path.is_ident("char") {
                 out.char_ = Some(meta.path.require_ident()?.span());
             } else if meta.path.is_ident("key") {

@@ -1,7 +1,8 @@
 //! Code generation: the format strings, IPC and CDR code, all from one AST.
 
 use proc_macro2::{Literal, TokenStream};
-use quote::{format_ident, quote};
+use quote::{format_ident, quote, quote_spanned};
+use syn::spanned::Spanned;
 
 use crate::ast::{Container, Data, Enum, Field, Kind};
 use crate::attr::Extensibility;
@@ -23,6 +24,8 @@ pub fn expand(c: &Container<'_>) -> TokenStream {
             unused_variables,
             unused_mut,
             unused_qualifications,
+            trivial_casts,
+            trivial_numeric_casts,
             clippy::all,
             clippy::pedantic,
             clippy::nursery
@@ -118,7 +121,7 @@ fn expand_struct(c: &Container<'_>, fields: &[Field<'_>]) -> TokenStream {
                     "field `{}` of `{}` has a type with an empty IPC format (an empty message such as `()` or a unit struct), which cannot be a field",
                     f.name, ident
                 );
-                checks.push(quote! {
+                checks.push(quote_spanned! {ty.span()=>
                     if <#ty as __wire::IpcMessage>::FIELD_FORMAT.is_empty() {
                         ::core::panic!(#msg);
                     }
