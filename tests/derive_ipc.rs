@@ -467,3 +467,42 @@ fn hostile_input_is_rejected() {
         .unwrap();
     assert!(matches!(r, Err(DecodeError::TooDeep { .. })), "{r:?}");
 }
+
+/// Mutually recursive named formats: referenced by name, collected once.
+#[derive(IpcMessage, Debug, PartialEq)]
+struct TreeA {
+    v: i16,
+    b: Option<Box<TreeB>>,
+}
+
+#[derive(IpcMessage, Debug, PartialEq)]
+struct TreeB {
+    a: Option<Box<TreeA>>,
+    w: f32,
+}
+
+#[test]
+fn mutual_recursion() {
+    assert_eq!(TreeA::FORMAT, "{short, *TreeB}");
+    assert_eq!(TreeB::FORMAT, "{*TreeA, float}");
+    let named = NamedFormats::of::<TreeA>();
+    assert_eq!(
+        named.iter().collect::<Vec<_>>(),
+        [("TreeA", TreeA::FORMAT), ("TreeB", TreeB::FORMAT)]
+    );
+    let t = TreeA {
+        v: 1,
+        b: Some(Box::new(TreeB {
+            a: Some(Box::new(TreeA { v: 2, b: None })),
+            w: 0.5,
+        })),
+    };
+    golden(&t, &hex("0100 5a 5a 0200 00 0000003f"));
+    for enc in [
+        courier::cdr::Encoding::Xcdr1Le,
+        courier::cdr::Encoding::Xcdr2Be,
+    ] {
+        let c = courier::cdr::to_vec(&t, enc);
+        assert_eq!(courier::cdr::from_slice::<TreeA>(&c).unwrap(), t);
+    }
+}

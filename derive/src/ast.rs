@@ -88,6 +88,22 @@ pub fn parse<'a>(cx: &Ctxt, input: &'a DeriveInput) -> Option<Container<'a>> {
         }
     }
 
+    if let (Some((_, span)), syn::Data::Struct(s)) = (&attrs.name, &input.data) {
+        if input.generics.type_params().next().is_some()
+            || input.generics.const_params().next().is_some()
+        {
+            cx.error_at(
+                *span,
+                "a generic struct has one format per instantiation and is written inline: it cannot have a format `name`",
+            );
+        } else if s.fields.is_empty() {
+            cx.error_at(
+                *span,
+                "a struct without fields is the empty message (format \"\") and has no format `name`",
+            );
+        }
+    }
+
     let data = match &input.data {
         syn::Data::Struct(s) => Data::Struct(struct_fields(cx, input, &s.fields)),
         syn::Data::Enum(e) => Data::Enum(enum_variants(cx, input, e, attrs.numeric.is_some())?),

@@ -95,8 +95,12 @@
 //!   a field of another struct fails at compile time.
 //! - **Generics.** Type parameters get an `IpcMessage` bound. A generic struct
 //!   has one format per instantiation, so it is written inline (no format
-//!   name); its default `TYPE_NAME` lists the type arguments' type names.
+//!   name, and `#[ipc(name)]` on it is an error); its default `TYPE_NAME`
+//!   lists the type arguments' type names (const parameters are not listed).
 //!   Lifetime parameters are a compile error.
+//! - **Format names** default to the Rust identifier, so two types with the
+//!   same identifier in different modules need `#[ipc(name = "...")]` to
+//!   register distinct formats.
 //! - **Enums** are int32 in IPC and CDR; an unknown value decodes to
 //!   `DecodeError::InvalidEnum` naming `TYPE_NAME`.
 //! - **CDR.** Members are framed by `cdr::Writer::begin_struct` /
