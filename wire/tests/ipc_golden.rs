@@ -329,7 +329,7 @@ fn every_captured_frame_round_trips() {
             }
         }
     }
-    assert!(frames >= 470, "{frames}");
+    assert!(frames >= 600, "{frames}");
     assert!(nulls <= 10, "{nulls}");
     assert_eq!(payloads, 14);
 }

@@ -267,6 +267,7 @@ pub fn encode_be(f: &Format, v: &Value, enclosing: Option<&Format>, out: &mut Ve
                 out.extend((b.len() as i32).to_be_bytes());
                 out.extend(b);
             }
+            Value::Format(f) => formatter_be(f.as_deref(), out),
             other => panic!("primitive {other:?}"),
         },
         (Format::Length(_), Value::Bytes(b)) => out.extend(b),
@@ -308,5 +309,97 @@ pub fn encode_be(f: &Format, v: &Value, enclosing: Option<&Format>, out: &mut Ve
         }
         (Format::Enum { .. }, Value::Enum(e)) => out.extend(e.to_be_bytes()),
         _ => panic!("encode_be: {f:?} / {v:?}"),
+    }
+}
+
+fn code(p: Primitive) -> i32 {
+    match p {
+        Primitive::Int => 1,
+        Primitive::Boolean => 2,
+        Primitive::Float => 3,
+        Primitive::Double => 4,
+        Primitive::Byte => 5,
+        Primitive::TwoByte => 6,
+        Primitive::String => 7,
+        Primitive::Format => 8,
+        Primitive::UByte => 9,
+        Primitive::Char => 16,
+        Primitive::Short => 17,
+        Primitive::Long => 18,
+        Primitive::UShort => 28,
+        Primitive::UInt => 29,
+        Primitive::ULong => 30,
+    }
+}
+
+/// The formatter encoding of ipc.md §9.7, big-endian (test oracle).
+pub fn formatter_be(f: Option<&Format>, out: &mut Vec<u8>) {
+    let int = |out: &mut Vec<u8>, x: i32| out.extend(x.to_be_bytes());
+    let Some(f) = f else {
+        return int(out, -1);
+    };
+    match f {
+        Format::Empty => int(out, -1),
+        Format::Primitive(p) => {
+            int(out, 0);
+            int(out, code(*p));
+        }
+        Format::Length(n) => {
+            int(out, 1);
+            int(out, *n as i32);
+        }
+        Format::Struct(fs) => {
+            int(out, 2);
+            int(out, fs.len() as i32 + 1);
+            for x in fs {
+                formatter_be(Some(x), out);
+            }
+        }
+        Format::Pointer(t) => {
+            int(out, 3);
+            out.push(b'Z');
+            formatter_be(Some(t), out);
+        }
+        Format::SelfPointer => {
+            int(out, 3);
+            out.push(0);
+        }
+        Format::FixedArray { elem, dims } | Format::VarArray { elem, dims } => {
+            int(
+                out,
+                if matches!(f, Format::FixedArray { .. }) {
+                    4
+                } else {
+                    5
+                },
+            );
+            int(out, dims.len() as i32 + 2);
+            formatter_be(Some(elem), out);
+            for d in dims {
+                int(out, *d as i32);
+            }
+        }
+        Format::Named(n) => {
+            int(out, 7);
+            encode_be(
+                &Format::Primitive(Primitive::String),
+                &Value::String(Some(n.clone())),
+                None,
+                out,
+            );
+        }
+        Format::Enum { names, max } => {
+            int(out, 8);
+            int(out, names.len() as i32 + 2);
+            int(out, *max);
+            for n in names {
+                encode_be(
+                    &Format::Primitive(Primitive::String),
+                    &Value::String(Some(n.clone())),
+                    None,
+                    out,
+                );
+            }
+        }
     }
 }

@@ -70,6 +70,7 @@ pub use print::{log_data, print_value, print_value_with, PrintOptions};
 /// | `<T:k1,k2,…>` | [`Value::VarArray`], flat, row-major: its length is the product of the size fields |
 /// | `*T`, `*!` | [`Value::Pointer`] |
 /// | `{enum …}` | [`Value::Enum`] (the ordinal; names come from the format) |
+/// | `format` | [`Value::Format`] |
 /// | named format | the value of its definition |
 ///
 /// Floating-point fields compare with IEEE semantics (`NaN != NaN`).
@@ -122,6 +123,9 @@ pub enum Value {
     /// `{enum A, B, C}` / `{enum : max}`: the ordinal. Values outside the enum
     /// are kept (and printed as numbers), as the C library does.
     Enum(i32),
+    /// `format`: a formatter tree (ipc.md §9.7), used by IPC's internal
+    /// messages; `None` is the NULL formatter.
+    Format(Option<Box<Format>>),
 }
 
 impl Value {
@@ -149,6 +153,7 @@ impl Value {
             Value::VarArray(_) => "variable array",
             Value::Pointer(_) => "pointer",
             Value::Enum(_) => "enum",
+            Value::Format(_) => "format",
         }
     }
 
@@ -285,7 +290,7 @@ pub enum EncodeError {
         max: usize,
     },
     /// The format cannot be used (unresolved named format, `*!` or `<…>`
-    /// outside a struct, bad size-field reference, `format` primitive).
+    /// outside a struct, bad size-field reference).
     #[error("{path}: {message}")]
     Format {
         /// Where.
@@ -627,10 +632,8 @@ impl<'a, 'r, 'f> Encoder<'a, 'r, 'f> {
                 write_cstr(w, s.as_deref().map(str::as_bytes).unwrap_or_default())?
             }
             (Primitive::String, Value::Bytes(b)) => write_cstr(w, b)?,
-            (Primitive::Format, _) => {
-                return Err(EncodeError::format(
-                    "`format` values are internal to IPC and not supported by Value",
-                ))
+            (Primitive::Format, Value::Format(x)) => {
+                crate::format::encode_formatter(x.as_deref(), w)
             }
             _ => return Err(mismatch(f, v)),
         }
@@ -788,6 +791,7 @@ pub fn decode_value(fmt: &Format, r: &mut Reader<'_>) -> Result<Value, DecodeErr
     Decoder {
         ctx: Ctx::new(None),
         depth: 0,
+        zero_sized_budget: MAX_ZERO_SIZED_ELEMENTS,
     }
     .dec(fmt, r)
 }
@@ -801,6 +805,7 @@ pub fn decode_value_with<'f>(
     Decoder {
         ctx: Ctx::new(Some(resolve)),
         depth: 0,
+        zero_sized_budget: MAX_ZERO_SIZED_ELEMENTS,
     }
     .dec(fmt, r)
 }
@@ -808,7 +813,13 @@ pub fn decode_value_with<'f>(
 struct Decoder<'r, 'f> {
     ctx: Ctx<'r, 'f>,
     depth: usize,
+    /// Elements that take no bytes on the wire (e.g. of format `0` or
+    /// `[int:0]`) still cost memory; this many may be decoded in total.
+    zero_sized_budget: usize,
 }
+
+/// How many elements that take no wire bytes one decode may create.
+const MAX_ZERO_SIZED_ELEMENTS: usize = 1 << 16;
 
 macro_rules! bulk {
     ($bytes:expr, $order:expr, $t:ty, $map:expr) => {{
@@ -854,6 +865,30 @@ fn bulk_prims(p: Primitive, n: usize, r: &mut Reader<'_>) -> Result<Vec<Value>, 
 }
 
 impl<'r, 'f> Decoder<'r, 'f> {
+    /// Checks that `n` elements of at least `min_size` wire bytes can follow
+    /// before they are allocated; zero-size elements draw on a fixed budget.
+    fn check_count(
+        &mut self,
+        r: &Reader<'_>,
+        n: usize,
+        min_size: usize,
+    ) -> Result<usize, DecodeError> {
+        if min_size > 0 {
+            return r.check_count(r.position(), n as i64, min_size);
+        }
+        match self.zero_sized_budget.checked_sub(n) {
+            Some(left) => {
+                self.zero_sized_budget = left;
+                Ok(n)
+            }
+            None => Err(DecodeError::CountTooLarge {
+                offset: r.position(),
+                count: n as u64,
+                remaining: r.remaining(),
+            }),
+        }
+    }
+
     /// Runs `f` one nesting level deeper, failing past [`MAX_VALUE_DEPTH`].
     fn nested<T>(
         &mut self,
@@ -929,11 +964,7 @@ impl<'r, 'f> Decoder<'r, 'f> {
                     }
                 }
             }
-            Primitive::Format => {
-                return Err(DecodeError::Format(
-                    "`format` values are internal to IPC and not supported by Value".into(),
-                ))
-            }
+            Primitive::Format => Value::Format(crate::format::decode_formatter(r)?.map(Box::new)),
         })
     }
 
@@ -959,7 +990,7 @@ impl<'r, 'f> Decoder<'r, 'f> {
                 return bulk_prims(*p, n, r);
             }
         }
-        let n = r.check_count(r.position(), n as i64, self.ctx.min_size(resolved, 0))?;
+        let n = self.check_count(r, n, self.ctx.min_size(resolved, 0))?;
         let mut out = Vec::with_capacity(n);
         for _ in 0..n {
             out.push(self.dec(resolved, r)?);
@@ -980,7 +1011,7 @@ impl<'r, 'f> Decoder<'r, 'f> {
                 let row = rest.iter().fold(self.ctx.min_size(elem, 0), |a, x| {
                     a.saturating_mul(*x as usize)
                 });
-                let n = r.check_count(r.position(), i64::from(*d), row)?;
+                let n = self.check_count(r, *d as usize, row)?;
                 let mut out = Vec::with_capacity(n);
                 for _ in 0..n {
                     out.push(self.nested(r, |d, r| d.fixed(elem, rest, r))?);

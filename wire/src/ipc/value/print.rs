@@ -18,7 +18,8 @@
 //!   a little-endian host: byte 5 prints `0x5000000`, 0 prints `0`; raw
 //!   bytes as `(0x1000000, 0x2000000)`;
 //! - enums by name when the format has names and the value is in range,
-//!   else as the number;
+//!   else as the number; `format` values as C prints formatters
+//!   (`{int, [double : 2, 3]}`, NULL as `NULLFormat`);
 //! - in the log layout ([`PrintOptions::CENTRAL_LOG`]): 4 spaces of indent,
 //!   lines wrapped at 80 columns (a token that would leave fewer than its
 //!   "keep" characters goes to the next line, indented one more), at most 5
@@ -225,9 +226,102 @@ impl Printer<'_> {
                 return self.quoted(s.as_deref().map(str::as_bytes), keep)
             }
             (Primitive::String, Value::Bytes(b)) => return self.quoted(Some(b), keep),
+            (Primitive::Format, Value::Format(None)) => "NULLFormat".into(),
+            (Primitive::Format, Value::Format(Some(f))) => return self.formatter(f, keep, 0),
             _ => "?".into(),
         };
         self.s(&text, keep);
+    }
+
+    /// `Print_Formatter1`: a format as the C log prints a `format` value
+    /// (`{int, [double : 2, 3]}`, `*!`, `{enum : 3}`).
+    fn formatter(&mut self, f: &Format, keep: usize, depth: usize) {
+        if self.truncated {
+            return;
+        }
+        if depth > MAX_VALUE_DEPTH {
+            return self.s("...", keep);
+        }
+        match f {
+            Format::Empty => self.s("NULLFormat", keep),
+            Format::Length(n) => self.s(&n.to_string(), keep),
+            Format::Primitive(p) => self.s(p.name(), keep),
+            Format::Pointer(inner) => {
+                self.s("*", DEFAULT_KEEP);
+                self.formatter(inner, keep, depth + 1);
+            }
+            Format::SelfPointer => {
+                self.s("*", DEFAULT_KEEP);
+                self.s("!", keep);
+            }
+            Format::Struct(fs) => {
+                self.s("{", DEFAULT_KEEP);
+                for (i, ff) in fs.iter().enumerate() {
+                    if self.truncated {
+                        return;
+                    }
+                    let last = i + 1 == fs.len();
+                    self.formatter(ff, if last { keep + 1 } else { 1 }, depth + 1);
+                    if last {
+                        self.s("}", keep);
+                    } else {
+                        self.comma_space();
+                    }
+                }
+            }
+            Format::FixedArray { elem, dims } => {
+                self.array_formatter("[", elem, dims, "]", keep, depth)
+            }
+            Format::VarArray { elem, dims } => {
+                self.array_formatter("<", elem, dims, ">", keep, depth)
+            }
+            Format::Named(n) => self.s(n, keep),
+            Format::Enum { names, max } => {
+                self.s("{enum ", DEFAULT_KEEP);
+                if names.is_empty() {
+                    self.s(": ", keep);
+                    self.s(&max.to_string(), keep);
+                } else {
+                    for (i, n) in names.iter().enumerate() {
+                        if self.truncated {
+                            return;
+                        }
+                        let last = i + 1 == names.len();
+                        self.s(n, if last { keep + 1 } else { 1 });
+                        if !last {
+                            self.comma_space();
+                        }
+                    }
+                }
+                self.s("}", keep);
+            }
+        }
+    }
+
+    fn array_formatter(
+        &mut self,
+        start: &str,
+        elem: &Format,
+        dims: &[u32],
+        end: &str,
+        keep: usize,
+        depth: usize,
+    ) {
+        self.s(start, DEFAULT_KEEP);
+        self.formatter(elem, keep, depth + 1);
+        self.s(" : ", DEFAULT_KEEP);
+        for (i, d) in dims.iter().enumerate() {
+            if self.truncated {
+                return;
+            }
+            let last = i + 1 == dims.len();
+            self.s(&d.to_string(), if last { keep + 1 } else { 1 });
+            if last {
+                self.s(end, keep);
+            } else {
+                self.comma_space();
+            }
+        }
     }
 
     fn data<'f>(
