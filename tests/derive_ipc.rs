@@ -506,3 +506,44 @@ fn mutual_recursion() {
         assert_eq!(courier::cdr::from_slice::<TreeA>(&c).unwrap(), t);
     }
 }
+
+/// Recursion through a variable array is bounded by the depth limit too.
+#[derive(IpcMessage, Debug, PartialEq)]
+struct Node {
+    n: i32,
+    #[ipc(len = "n")]
+    children: Vec<Node>,
+}
+
+#[test]
+fn recursion_through_vec_is_bounded() {
+    assert_eq!(Node::FORMAT, "{int, <Node:1>}");
+    let leaf = || Node {
+        n: 0,
+        children: vec![],
+    };
+    let tree = Node {
+        n: 2,
+        children: vec![
+            leaf(),
+            Node {
+                n: 1,
+                children: vec![leaf()],
+            },
+        ],
+    };
+    assert_eq!(ipc::from_slice::<Node>(&ipc::to_vec(&tree)).unwrap(), tree);
+    // Hostile: each level is `1, 1` (field, array count), nested past the limit.
+    let mut deep = Vec::new();
+    for _ in 0..(ipc::MAX_DEPTH + 5) {
+        deep.extend_from_slice(&1i32.to_ne_bytes());
+        deep.extend_from_slice(&1i32.to_ne_bytes());
+    }
+    let r = std::thread::Builder::new()
+        .stack_size(256 << 20)
+        .spawn(move || ipc::from_slice::<Node>(&deep).map(|_| ()))
+        .unwrap()
+        .join()
+        .unwrap();
+    assert!(matches!(r, Err(DecodeError::TooDeep { .. })), "{r:?}");
+}

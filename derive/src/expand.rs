@@ -469,7 +469,12 @@ fn expand_struct(c: &Container<'_>, fields: &[Field<'_>]) -> TokenStream {
             }
 
             fn ipc_decode(__r: &mut __wire::ipc::Reader<'_>) -> ::core::result::Result<Self, __wire::ipc::DecodeError> {
+                // Every struct level counts towards the reader's depth limit, so that
+                // recursion through `Vec<Self>` is bounded too (an error abandons the
+                // reader, so the early returns need not restore the depth).
+                __r.enter()?;
                 #(#ipc_dec)*
+                __r.leave();
                 ::core::result::Result::Ok(Self { #(#members: #vars),* })
             }
 
