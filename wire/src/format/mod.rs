@@ -48,7 +48,7 @@ mod size;
 mod wire;
 
 pub use parse::{parse, parse_with, ParseError, MAX_NESTING};
-pub use registry::{equivalent, FormatRegistry, ResolveError};
+pub use registry::{equivalent, FormatRegistry, ResolveError, MAX_EXPANDED_NODES};
 pub use wire::{decode_formatter, encode_formatter};
 
 /// A primitive IPC type (ipc.md §9.3), with its formatter code (§9.7).
