@@ -179,7 +179,7 @@ impl Writer {
                 self.member_lc = lc;
                 if lc != LC_NEXTINT {
                     // begin_member left EMHEADER + NEXTINT as the last 8 bytes
-                    self.buf.truncate(self.buf.len() - 4);
+                    self.buf.truncate(self.buf.len().saturating_sub(4));
                 }
             }
         }
@@ -413,6 +413,10 @@ impl StructWriter {
     /// `must_understand` sets the must-understand flag; Cyclone DDS sets it
     /// only for `@must_understand` members, not for keys.
     pub fn begin_member(&self, w: &mut Writer, id: u32, must_understand: bool) -> MemberHeader {
+        // A member started while the enclosing member has written nothing
+        // yet (only possible without begin_struct): frame the enclosing one
+        // with an explicit NEXTINT.
+        w.first(LC_NEXTINT);
         let saved_pending = w.pending.take();
         let saved_lc = w.member_lc;
         let saved_origin = w.origin;
