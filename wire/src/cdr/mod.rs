@@ -4,10 +4,17 @@
 //! (representation identifier, big-endian, then two option bytes);
 //! alignment is relative to the first byte *after* that header.
 //!
-//! | version | max alignment | appendable struct | mutable struct |
-//! |---|---|---|---|
-//! | XCDR1 | 8 | as final | parameter list (`PL_CDR`), `PID_SENTINEL` |
-//! | XCDR2 | 4 | `DHEADER` (u32 size) | `DHEADER` + `EMHEADER` per member |
+//! | version | max alignment | appendable struct | mutable struct | `@optional` member |
+//! |---|---|---|---|---|
+//! | XCDR1 | 8 | as final | parameter list (`PL_CDR`), `PID_LIST_END` | extended parameter header, length 0 if absent |
+//! | XCDR2 | 4 | `DHEADER` (u32 size) | `DHEADER` + `EMHEADER` per member | boolean flag (left out in mutable structs) |
+//!
+//! The bytes are those Cyclone DDS 11 writes, down to the `EMHEADER` length
+//! codes and the XCDR1 parameter headers (see the `cdr_golden` tests and
+//! `tools/cdr-golden`). XCDR2 puts a `DHEADER` before sequences and arrays
+//! whose elements are not primitive (strings, enums, structs, sequences).
+//! Payloads are not padded to a multiple of 4: DDS writers add that padding
+//! on the wire, and [`from_slice`] accepts up to 3 padding bytes.
 //!
 //! ```
 //! use courier_wire::cdr::{self, Encoding};
