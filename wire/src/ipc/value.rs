@@ -176,6 +176,31 @@ impl Value {
         })
     }
 
+    /// The text of a `string` value (`None` for NULL, non-UTF-8 bytes and other kinds).
+    pub fn as_str(&self) -> Option<&str> {
+        match self {
+            Value::String(Some(s)) => Some(s),
+            _ => None,
+        }
+    }
+
+    /// The value of a `float` or `double`, or of an integer kind converted to `f64`.
+    pub fn as_f64(&self) -> Option<f64> {
+        match *self {
+            Value::Float(x) => Some(x.into()),
+            Value::Double(x) => Some(x),
+            _ => self.as_integer().map(|n| n as f64),
+        }
+    }
+
+    /// The fields of a struct or the elements of an array or variable array.
+    pub fn as_slice(&self) -> Option<&[Value]> {
+        match self {
+            Value::Struct(v) | Value::Array(v) | Value::VarArray(v) => Some(v),
+            _ => None,
+        }
+    }
+
     /// Marshals the value through `fmt` as `IPC_marshall` does (native byte
     /// order, no header). Named formats are not resolved; use
     /// [`encode_value_with`] for formats that refer to names.
@@ -196,6 +221,36 @@ impl Value {
         let v = decode_value(fmt, &mut r)?;
         r.finish()?;
         Ok(v)
+    }
+}
+
+macro_rules! value_from {
+    ($($t:ty => $variant:ident),* $(,)?) => {$(
+        impl From<$t> for Value {
+            #[doc = concat!("`", stringify!($t), "` as [`Value::", stringify!($variant), "`].")]
+            fn from(v: $t) -> Value {
+                Value::$variant(v)
+            }
+        }
+    )*};
+}
+
+value_from! {
+    i8 => Byte, i16 => Short, u16 => UShort, i32 => Int, u32 => UInt,
+    i64 => Long, u64 => ULong, f32 => Float, f64 => Double, bool => Boolean,
+}
+
+impl From<&str> for Value {
+    /// A `string` value (`""` is sent as NULL).
+    fn from(s: &str) -> Value {
+        Value::String(Some(s.to_owned()))
+    }
+}
+
+impl From<String> for Value {
+    /// A `string` value (`""` is sent as NULL).
+    fn from(s: String) -> Value {
+        Value::String(Some(s))
     }
 }
 
@@ -714,8 +769,10 @@ impl<'a, 'r, 'f> Encoder<'a, 'r, 'f> {
                 found: v.kind(),
             });
         };
-        let expected =
-            var_count(dims, fields.len(), |k| vals[k].as_integer()).map_err(EncodeError::format)?;
+        let expected = var_count(dims, fields.len(), |k| {
+            vals.get(k).and_then(Value::as_integer)
+        })
+        .map_err(EncodeError::format)?;
         if items.len() as u64 != expected {
             return Err(EncodeError::CountMismatch {
                 path: ValuePath::default(),
@@ -1081,6 +1138,23 @@ mod tests {
 
     fn p(p: Primitive) -> Format {
         Format::Primitive(p)
+    }
+
+    #[test]
+    fn accessors_and_conversions() {
+        let v = Value::Struct(vec![
+            7i32.into(),
+            "ab".into(),
+            2.5f32.into(),
+            Value::Enum(3),
+        ]);
+        let f = v.as_slice().unwrap();
+        assert_eq!(f[0].as_integer(), Some(7));
+        assert_eq!(f[1].as_str(), Some("ab"));
+        assert_eq!(f[2].as_f64(), Some(2.5));
+        assert_eq!(f[3].as_f64(), Some(3.0));
+        assert_eq!(Value::from(u64::MAX).as_integer(), Some(u64::MAX.into()));
+        assert_eq!(Value::String(None).as_str(), None);
     }
 
     #[test]
