@@ -1,166 +1,17 @@
-//! Helpers shared by the `ipc_*` tests (included with `#[path]`): a small
-//! format-string parser for test data, an independent big-endian encoder
-//! used as an oracle, hex and fixture-file reading.
+//! Helpers shared by the `ipc_*` tests (included with `#[path]`): format
+//! strings, an independent big-endian encoder used as an oracle, hex and
+//! fixture-file reading.
 #![allow(dead_code)]
 
 use courier_wire::format::{Format, Primitive};
 use courier_wire::ipc::{ByteOrder, Value};
 
-/// Parses the IPC format grammar of ipc.md §9.6 (test data only; the real
-/// parser is `courier_wire::format::parse`).
+/// Parses a format string with `courier_wire::format::parse` ("" is the empty format).
 pub fn fmt(s: &str) -> Format {
-    let toks = lex(s);
-    let mut p = P { t: &toks, i: 0 };
-    if toks.is_empty() {
+    if s.trim().is_empty() {
         return Format::Empty;
     }
-    let f = p.fmt();
-    assert_eq!(p.i, toks.len(), "trailing tokens in {s:?}");
-    f
-}
-
-fn lex(s: &str) -> Vec<String> {
-    let mut out = Vec::new();
-    let mut cur = String::new();
-    for c in s.chars() {
-        if c.is_alphanumeric() || c == '_' {
-            cur.push(c);
-        } else {
-            if !cur.is_empty() {
-                out.push(std::mem::take(&mut cur));
-            }
-            if !c.is_whitespace() {
-                out.push(c.to_string());
-            }
-        }
-    }
-    if !cur.is_empty() {
-        out.push(cur);
-    }
-    out
-}
-
-struct P<'a> {
-    t: &'a [String],
-    i: usize,
-}
-
-impl P<'_> {
-    fn peek(&self) -> &str {
-        self.t.get(self.i).map(String::as_str).unwrap_or("")
-    }
-    fn next(&mut self) -> String {
-        let s = self.peek().to_string();
-        self.i += 1;
-        s
-    }
-    fn expect(&mut self, s: &str) {
-        let n = self.next();
-        assert_eq!(n, s);
-    }
-    fn ints(&mut self) -> Vec<u32> {
-        let mut v = vec![self.next().parse().unwrap()];
-        while self.peek() == "," {
-            self.next();
-            v.push(self.next().parse().unwrap());
-        }
-        v
-    }
-    fn fmt(&mut self) -> Format {
-        let t = self.next();
-        match t.as_str() {
-            "{" => {
-                if self.peek() == "enum" {
-                    self.next();
-                    if self.peek() == ":" {
-                        self.next();
-                        let max = self.next().parse().unwrap();
-                        self.expect("}");
-                        return Format::Enum { names: vec![], max };
-                    }
-                    let mut names = vec![self.next()];
-                    while self.peek() == "," {
-                        self.next();
-                        names.push(self.next());
-                    }
-                    self.expect("}");
-                    let max = names.len() as i32 - 1;
-                    return Format::Enum { names, max };
-                }
-                let mut fs = vec![self.fmt()];
-                while self.peek() == "," {
-                    self.next();
-                    fs.push(self.fmt());
-                }
-                self.expect("}");
-                Format::Struct(fs)
-            }
-            "[" => {
-                if self.peek().chars().all(|c| c.is_ascii_digit()) {
-                    let d = self.next().parse().unwrap();
-                    self.expect(":");
-                    let e = self.fmt();
-                    self.expect("]");
-                    return Format::FixedArray {
-                        elem: Box::new(e),
-                        dims: vec![d],
-                    };
-                }
-                let e = self.fmt();
-                self.expect(":");
-                let dims = self.ints();
-                self.expect("]");
-                Format::FixedArray {
-                    elem: Box::new(e),
-                    dims,
-                }
-            }
-            "<" => {
-                let e = self.fmt();
-                self.expect(":");
-                let dims = self.ints();
-                self.expect(">");
-                Format::VarArray {
-                    elem: Box::new(e),
-                    dims,
-                }
-            }
-            "*" => {
-                if self.peek() == "!" {
-                    self.next();
-                    Format::SelfPointer
-                } else {
-                    Format::Pointer(Box::new(self.fmt()))
-                }
-            }
-            s if s.chars().all(|c| c.is_ascii_digit()) => Format::Length(s.parse().unwrap()),
-            s => match prim(s) {
-                Some(p) => Format::Primitive(p),
-                None => Format::Named(s.to_string()),
-            },
-        }
-    }
-}
-
-fn prim(s: &str) -> Option<Primitive> {
-    Some(match s {
-        "char" => Primitive::Char,
-        "byte" => Primitive::Byte,
-        "ubyte" => Primitive::UByte,
-        "short" => Primitive::Short,
-        "ushort" => Primitive::UShort,
-        "twobyte" => Primitive::TwoByte,
-        "int" => Primitive::Int,
-        "uint" => Primitive::UInt,
-        "boolean" => Primitive::Boolean,
-        "float" => Primitive::Float,
-        "double" => Primitive::Double,
-        "long" => Primitive::Long,
-        "ulong" => Primitive::ULong,
-        "string" => Primitive::String,
-        "format" => Primitive::Format,
-        _ => return None,
-    })
+    courier_wire::format::parse(s).unwrap_or_else(|e| panic!("{s:?}: {e}"))
 }
 
 /// Hex with optional spaces/newlines to bytes.
