@@ -535,13 +535,14 @@ pub fn encode_value(fmt: &Format, v: &Value, w: &mut Writer) -> Result<(), Encod
 
 /// [`encode_value`] for formats that refer to named formats, which `resolve`
 /// looks up (e.g. `&|name| registry.get(name)`).
-pub fn encode_value_with<'f>(
+pub fn encode_value_with<'f, 'g: 'f>(
     fmt: &'f Format,
     v: &Value,
     w: &mut Writer,
-    resolve: &dyn Fn(&str) -> Option<&'f Format>,
+    resolve: &dyn Fn(&str) -> Option<&'g Format>,
 ) -> Result<(), EncodeError> {
-    encode_impl(fmt, v, w, Some(resolve))
+    let shorten = |n: &str| -> Option<&'f Format> { resolve(n) };
+    encode_impl(fmt, v, w, Some(&shorten))
 }
 
 fn encode_impl<'f>(
@@ -854,13 +855,14 @@ pub fn decode_value(fmt: &Format, r: &mut Reader<'_>) -> Result<Value, DecodeErr
 }
 
 /// [`decode_value`] for formats that refer to named formats, which `resolve` looks up.
-pub fn decode_value_with<'f>(
+pub fn decode_value_with<'f, 'g: 'f>(
     fmt: &'f Format,
     r: &mut Reader<'_>,
-    resolve: &dyn Fn(&str) -> Option<&'f Format>,
+    resolve: &dyn Fn(&str) -> Option<&'g Format>,
 ) -> Result<Value, DecodeError> {
+    let shorten = |n: &str| -> Option<&'f Format> { resolve(n) };
     Decoder {
-        ctx: Ctx::new(Some(resolve)),
+        ctx: Ctx::new(Some(&shorten)),
         depth: 0,
         zero_sized_budget: MAX_ZERO_SIZED_ELEMENTS,
     }

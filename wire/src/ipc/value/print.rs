@@ -88,11 +88,11 @@ pub fn log_data(fmt: &Format, v: &Value) -> String {
 ///
 /// The C central writes raw bytes; bytes that are not UTF-8 (in `char`
 /// fields or non-UTF-8 strings) are replaced by U+FFFD here.
-pub fn print_value_with<'f>(
+pub fn print_value_with<'f, 'g: 'f>(
     fmt: &'f Format,
     v: &Value,
     opts: &PrintOptions,
-    resolve: Option<Resolver<'_, 'f>>,
+    resolve: Option<Resolver<'_, 'g>>,
 ) -> String {
     let mut p = Printer {
         out: Vec::new(),
@@ -101,7 +101,8 @@ pub fn print_value_with<'f>(
         truncated: false,
         opts,
     };
-    let mut ctx = Ctx::new(resolve);
+    let shorten = resolve.map(|r| move |n: &str| -> Option<&'f Format> { r(n) });
+    let mut ctx = Ctx::new(shorten.as_ref().map(|s| s as Resolver<'_, 'f>));
     p.tab(opts.indent);
     p.data(&mut ctx, fmt, v, 0, 0);
     if opts.trailing_newline {
