@@ -21,6 +21,7 @@ enum Status {
 
 /// The same enum in its symbolic form, as T2 writes it.
 #[derive(IpcMessage, Debug, Clone, Copy, PartialEq)]
+#[allow(clippy::enum_variant_names)] // the manual's names
 enum StatusEnum {
     WaitVal,
     SendVal,

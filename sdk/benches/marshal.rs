@@ -23,6 +23,7 @@ enum Status {
 }
 
 #[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[allow(clippy::enum_variant_names)] // the manual's names
 enum StatusEnum {
     WaitVal,
     SendVal,
@@ -72,7 +73,9 @@ fn t1() -> T1 {
     }
 }
 
-fn cases() -> Vec<(&'static str, Box<dyn Fn(&mut Criterion)>)> {
+type Case = (&'static str, Box<dyn Fn(&mut Criterion)>);
+
+fn cases() -> Vec<Case> {
     vec![
         ("T1", Box::new(|c| bench_type(c, "T1", t1()))),
         (

@@ -104,6 +104,28 @@ pub trait IpcMessage: Sized {
         Ok(v)
     }
 
+    /// CDR: true for fixed arrays `[T; N]`. Nested arrays are one
+    /// multi-dimensional array to DDS: written flat, with one `DHEADER`.
+    #[doc(hidden)]
+    const CDR_IS_ARRAY: bool = false;
+    /// CDR: the innermost element of a (nested) array is a primitive, so
+    /// XCDR2 writes no `DHEADER` before the array.
+    #[doc(hidden)]
+    const CDR_FLAT_PRIMITIVE: bool = Self::CDR_PRIMITIVE;
+
+    /// Appends the elements of a (multi-dimensional) array without any
+    /// `DHEADER`; other types write themselves.
+    #[doc(hidden)]
+    fn cdr_encode_flat(&self, w: &mut cdr::Writer) {
+        self.cdr_encode(w);
+    }
+
+    /// Reads what [`IpcMessage::cdr_encode_flat`] wrote.
+    #[doc(hidden)]
+    fn cdr_decode_flat(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
+        Self::cdr_decode(r)
+    }
+
     /// Appends the key fields only, in declaration order (DDS key hash and
     /// dispose/unregister payloads). Types without keys write nothing.
     fn cdr_encode_key(&self, w: &mut cdr::Writer) {
@@ -422,16 +444,43 @@ impl<T: IpcMessage, const N: usize> IpcMessage for [T; N] {
         let v = T::ipc_decode_vec(r, N)?;
         v.try_into().map_err(|_| ipc::DecodeError::Format("array length".into()))
     }
+    const CDR_IS_ARRAY: bool = true;
+    const CDR_FLAT_PRIMITIVE: bool = T::CDR_FLAT_PRIMITIVE;
+
     fn cdr_encode(&self, w: &mut cdr::Writer) {
-        let d = w.begin_array(T::CDR_PRIMITIVE);
-        T::cdr_encode_slice(self, w);
+        let d = w.begin_array(Self::CDR_FLAT_PRIMITIVE);
+        self.cdr_encode_flat(w);
         w.end_dheader(d);
     }
     fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
-        let d = r.begin_array(T::CDR_PRIMITIVE)?;
-        let offset = r.position();
-        let v = T::cdr_decode_vec(r, N)?;
+        let d = r.begin_array(Self::CDR_FLAT_PRIMITIVE)?;
+        let v = Self::cdr_decode_flat(r)?;
         r.end_dheader(d);
+        Ok(v)
+    }
+    fn cdr_encode_flat(&self, w: &mut cdr::Writer) {
+        if T::CDR_IS_ARRAY {
+            for x in self {
+                x.cdr_encode_flat(w);
+            }
+        } else {
+            T::cdr_encode_slice(self, w);
+        }
+    }
+    fn cdr_decode_flat(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
+        let offset = r.position();
+        let v = if T::CDR_IS_ARRAY {
+            if N.saturating_mul(T::CDR_MIN_SIZE.max(1)) > r.remaining() {
+                return Err(cdr::DecodeError::CountTooLarge { offset, count: N as u64, remaining: r.remaining() });
+            }
+            let mut v = Vec::with_capacity(N);
+            for _ in 0..N {
+                v.push(T::cdr_decode_flat(r)?);
+            }
+            v
+        } else {
+            T::cdr_decode_vec(r, N)?
+        };
         let found = v.len();
         v.try_into().map_err(|_| cdr::DecodeError::ArrayLength { offset, expected: N, found })
     }
@@ -483,6 +532,7 @@ impl<T: IpcMessage> IpcMessage for Box<T> {
     const IPC_MIN_SIZE: usize = T::IPC_MIN_SIZE;
     const CDR_MIN_SIZE: usize = T::CDR_MIN_SIZE;
     const CDR_PRIMITIVE: bool = T::CDR_PRIMITIVE;
+    const CDR_FLAT_PRIMITIVE: bool = T::CDR_FLAT_PRIMITIVE;
     const KEYS: &'static [&'static str] = T::KEYS;
 
     fn named_formats(out: &mut NamedFormats) {

@@ -136,7 +136,6 @@ fn nested_structs_sequences_and_arrays_of_structs() {
 /// because `[i16; 3]` is not `CDR_PRIMITIVE`; needs the change to
 /// `wire/src/message.rs` described in the CDR report.
 #[test]
-#[ignore = "needs multi-dimensional array flattening in message.rs ([T; N] impl)"]
 fn multidim_array_of_primitives_as_cyclone() {
     let g = [[1i16, 2, 3], [4, 5, 6]];
     assert_eq!(

@@ -120,7 +120,7 @@ pub enum DecodeError {
 
 /// Deepest nesting of pointers (linked lists, trees) the decoders follow.
 /// Deeper data is rejected instead of overflowing the stack.
-pub const MAX_DEPTH: usize = 10_000;
+pub const MAX_DEPTH: usize = 1_000;
 
 /// Marshals `value` as the C library's `IPC_marshall` does: native byte
 /// order, no header, no length prefix.
