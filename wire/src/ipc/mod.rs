@@ -19,7 +19,10 @@ pub mod frame;
 pub mod value;
 
 pub use codec::{ByteOrder, Reader, Writer, PRESENT};
-pub use value::{decode_value, decode_value_with, encode_value, encode_value_with, log_data, print_value, print_value_with, EncodeError, PathSegment, PrintOptions, Resolver, Value, ValuePath};
+pub use value::{
+    decode_value, decode_value_with, encode_value, encode_value_with, log_data, print_value,
+    print_value_with, EncodeError, PathSegment, PrintOptions, Resolver, Value, ValuePath,
+};
 
 use crate::IpcMessage;
 
