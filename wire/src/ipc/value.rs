@@ -30,6 +30,20 @@
 //! assert_eq!(print_value(&t1, &v), "{666, 1, [[0.00, 1.00, 2.00], [1.00, 2.00, 3.00]], 3.14}");
 //! ```
 
+//!
+//! # Deviations from CMU IPC
+//!
+//! - Decoded data is normalised the way the C decoder normalises it: a
+//!   non-zero `boolean` is `true` (re-sent as 1), `""` is NULL, the byte after
+//!   a zero string length is ignored (re-sent as `'Z'`), an empty variable
+//!   array has no elements (C: a NULL pointer, printed `NULL`).
+//! - Stricter than C on input: a pointer flag other than `'Z'` or 0, a
+//!   variable-array count that disagrees with its size fields, a string that
+//!   runs past the data, nesting deeper than [`MAX_VALUE_DEPTH`], and counts
+//!   the remaining bytes cannot hold are errors (C would misread or crash).
+//! - `*!` refers to the innermost enclosing struct also from inside an
+//!   array (C has no enclosing struct there and crashes).
+
 use core::fmt;
 
 use super::{ByteOrder, DecodeError, Reader, Writer};
