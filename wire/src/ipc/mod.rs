@@ -15,6 +15,7 @@
 //! ```
 
 mod codec;
+pub mod central;
 pub mod frame;
 pub mod value;
 
