@@ -114,7 +114,14 @@ fn cases() -> Vec<Case> {
                 let v: Vec<f64> = (0..100_000).map(|i| i as f64 * 0.5).collect();
                 let raw: Vec<u8> = v.iter().flat_map(|x| x.to_ne_bytes()).collect();
                 bench_memcpy(c, "doubles_100k", &raw);
-                bench_type(c, "doubles_100k", Doubles { n: v.len() as i32, v })
+                bench_type(
+                    c,
+                    "doubles_100k",
+                    Doubles {
+                        n: v.len() as i32,
+                        v,
+                    },
+                )
             }),
         ),
     ]
@@ -132,7 +139,9 @@ fn bench_memcpy(c: &mut Criterion, name: &str, data: &[u8]) {
             black_box(&dst);
         })
     });
-    g.bench_function("memcpy_alloc", |b| b.iter(|| black_box(black_box(data).to_vec())));
+    g.bench_function("memcpy_alloc", |b| {
+        b.iter(|| black_box(black_box(data).to_vec()))
+    });
     g.finish();
 }
 
@@ -141,7 +150,9 @@ fn bench_type<T: IpcMessage + PartialEq + std::fmt::Debug>(c: &mut Criterion, na
     assert_eq!(ipc::from_slice::<T>(&ipc_bytes).unwrap(), v);
     let mut g = c.benchmark_group(name);
     g.throughput(Throughput::Bytes(ipc_bytes.len() as u64));
-    g.bench_function("ipc_encode", |b| b.iter(|| black_box(ipc::to_vec(black_box(&v)))));
+    g.bench_function("ipc_encode", |b| {
+        b.iter(|| black_box(ipc::to_vec(black_box(&v))))
+    });
     let mut w = ipc::Writer::with_capacity(ipc_bytes.len());
     g.bench_function("ipc_encode_reuse", |b| {
         b.iter(|| {
@@ -205,7 +216,9 @@ fn print_table(sizes: &[(&str, usize, usize, usize)]) {
     for &(group, ipc_len, cdr1_len, cdr2_len) in sizes {
         let memcpy = mean_ns(group, "memcpy").map(|ns| ipc_len as f64 / ns);
         for b in benches {
-            let Some(ns) = mean_ns(group, b) else { continue };
+            let Some(ns) = mean_ns(group, b) else {
+                continue;
+            };
             let len = if b.ends_with("xcdr1") {
                 cdr1_len
             } else if b.ends_with("xcdr2") {
@@ -214,7 +227,9 @@ fn print_table(sizes: &[(&str, usize, usize, usize)]) {
                 ipc_len
             };
             let gbs = len as f64 / ns;
-            let ratio = memcpy.map(|m| format!("{:.2}", gbs / m)).unwrap_or_else(|| "-".into());
+            let ratio = memcpy
+                .map(|m| format!("{:.2}", gbs / m))
+                .unwrap_or_else(|| "-".into());
             let time = if ns >= 1e6 {
                 format!("{:.2} ms", ns / 1e6)
             } else if ns >= 1e3 {

@@ -142,7 +142,10 @@ pub const fn array_format(elem: &str, n: usize) -> ConstStr {
 mod tests {
     use super::*;
 
-    const A: ConstStr = ConstStr::new().push_str("{int, ").push_usize(42).push_str("}");
+    const A: ConstStr = ConstStr::new()
+        .push_str("{int, ")
+        .push_usize(42)
+        .push_str("}");
     const A_REF: &ConstStr = &A;
     const A_STR: &str = A_REF.as_str();
 
@@ -163,6 +166,9 @@ mod tests {
             array_format("{[int:2], int}", 3).as_str(),
             "[{[int:2], int}:3]"
         );
-        assert_eq!(array_format("[{int, [int:2]}:3]", 4).as_str(), "[{int, [int:2]}:4,3]");
+        assert_eq!(
+            array_format("[{int, [int:2]}:3]", 4).as_str(),
+            "[{int, [int:2]}:4,3]"
+        );
     }
 }

@@ -171,7 +171,10 @@ impl NamedFormats {
 
     /// The format registered under `name`.
     pub fn get(&self, name: &str) -> Option<&'static str> {
-        self.entries.iter().find(|(n, _)| *n == name).map(|(_, f)| *f)
+        self.entries
+            .iter()
+            .find(|(n, _)| *n == name)
+            .map(|(_, f)| *f)
     }
 
     /// `(name, format)` pairs in the order they were found.
@@ -442,7 +445,8 @@ impl<T: IpcMessage, const N: usize> IpcMessage for [T; N] {
     }
     fn ipc_decode(r: &mut ipc::Reader<'_>) -> Result<Self, ipc::DecodeError> {
         let v = T::ipc_decode_vec(r, N)?;
-        v.try_into().map_err(|_| ipc::DecodeError::Format("array length".into()))
+        v.try_into()
+            .map_err(|_| ipc::DecodeError::Format("array length".into()))
     }
     const CDR_IS_ARRAY: bool = true;
     const CDR_FLAT_PRIMITIVE: bool = T::CDR_FLAT_PRIMITIVE;
@@ -471,7 +475,11 @@ impl<T: IpcMessage, const N: usize> IpcMessage for [T; N] {
         let offset = r.position();
         let v = if T::CDR_IS_ARRAY {
             if N.saturating_mul(T::CDR_MIN_SIZE.max(1)) > r.remaining() {
-                return Err(cdr::DecodeError::CountTooLarge { offset, count: N as u64, remaining: r.remaining() });
+                return Err(cdr::DecodeError::CountTooLarge {
+                    offset,
+                    count: N as u64,
+                    remaining: r.remaining(),
+                });
             }
             let mut v = Vec::with_capacity(N);
             for _ in 0..N {
@@ -482,7 +490,11 @@ impl<T: IpcMessage, const N: usize> IpcMessage for [T; N] {
             T::cdr_decode_vec(r, N)?
         };
         let found = v.len();
-        v.try_into().map_err(|_| cdr::DecodeError::ArrayLength { offset, expected: N, found })
+        v.try_into().map_err(|_| cdr::DecodeError::ArrayLength {
+            offset,
+            expected: N,
+            found,
+        })
     }
     fn cdr_encode_key(&self, w: &mut cdr::Writer) {
         self.cdr_encode(w);
@@ -558,8 +570,8 @@ impl<T: IpcMessage> IpcMessage for Box<T> {
 /// Helpers called by `#[derive(IpcMessage)]`-generated code. Not a stable API.
 #[doc(hidden)]
 pub mod __private {
-    pub use crate::const_str::ConstStr;
     use super::*;
+    pub use crate::const_str::ConstStr;
 
     /// IPC variable array `<T:k>`: `int32` count, then the elements.
     pub fn ipc_encode_vec<T: IpcMessage>(v: &[T], w: &mut ipc::Writer) {
@@ -568,7 +580,9 @@ pub mod __private {
     }
 
     /// Reads an IPC variable array.
-    pub fn ipc_decode_vec<T: IpcMessage>(r: &mut ipc::Reader<'_>) -> Result<Vec<T>, ipc::DecodeError> {
+    pub fn ipc_decode_vec<T: IpcMessage>(
+        r: &mut ipc::Reader<'_>,
+    ) -> Result<Vec<T>, ipc::DecodeError> {
         let n = r.read_count(T::IPC_MIN_SIZE)?;
         T::ipc_decode_vec(r, n)
     }
@@ -581,8 +595,14 @@ pub mod __private {
     }
 
     /// Reads a CDR sequence.
-    pub fn cdr_decode_seq<T: IpcMessage>(r: &mut cdr::Reader<'_>) -> Result<Vec<T>, cdr::DecodeError> {
-        let d = if T::CDR_PRIMITIVE { None } else { r.begin_dheader()? };
+    pub fn cdr_decode_seq<T: IpcMessage>(
+        r: &mut cdr::Reader<'_>,
+    ) -> Result<Vec<T>, cdr::DecodeError> {
+        let d = if T::CDR_PRIMITIVE {
+            None
+        } else {
+            r.begin_dheader()?
+        };
         let n = r.read_len(T::CDR_MIN_SIZE)?;
         let v = T::cdr_decode_vec(r, n)?;
         r.end_dheader(d);
@@ -621,7 +641,10 @@ mod tests {
     fn e7_primitives() {
         assert_eq!(ipc::to_vec(&String::new()), [0, 0, 0, 0, 0x5a]);
         assert_eq!(ipc::to_vec(&None::<String>), [0, 0, 0, 0, 0x5a]);
-        assert_eq!(ipc::to_vec(&0x0102030405060708i64), [8, 7, 6, 5, 4, 3, 2, 1]);
+        assert_eq!(
+            ipc::to_vec(&0x0102030405060708i64),
+            [8, 7, 6, 5, 4, 3, 2, 1]
+        );
         assert_eq!(ipc::to_vec(&true), [1, 0, 0, 0]);
         assert_eq!(ipc::to_vec(&Some(Box::new(9i32))), [0x5a, 9, 0, 0, 0]);
         assert_eq!(ipc::to_vec(&None::<Box<i32>>), [0]);

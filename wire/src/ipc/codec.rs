@@ -299,7 +299,12 @@ impl<'a> Reader<'a> {
     /// Checks that `n` elements of at least `min_size` bytes can follow.
     /// Elements of size 0 are limited to the remaining byte count, so that
     /// a hostile count can never make the decoder loop or allocate unboundedly.
-    pub fn check_count(&self, offset: usize, n: i64, min_size: usize) -> Result<usize, DecodeError> {
+    pub fn check_count(
+        &self,
+        offset: usize,
+        n: i64,
+        min_size: usize,
+    ) -> Result<usize, DecodeError> {
         if n < 0 {
             return Err(DecodeError::NegativeCount { offset, count: n });
         }

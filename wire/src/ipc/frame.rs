@@ -313,17 +313,26 @@ mod tests {
         let b = hex("00000000 00000000 00000001 ffffffff 2200000c 00000001 ffffffff");
         let h = Header::decode(&b).unwrap();
         assert_eq!(h.class_id.msg_class(), Some(MsgClass::Success));
-        assert_eq!((h.parent_ref, h.intent, h.dispatch_ref, h.msg_ref), (1, NO_REF, 1, NO_REF));
+        assert_eq!(
+            (h.parent_ref, h.intent, h.dispatch_ref, h.msg_ref),
+            (1, NO_REF, 1, NO_REF)
+        );
     }
 
     #[test]
     fn hostile_headers_are_rejected_before_allocation() {
         let mut h = Header::decode(&[0; 28]).unwrap();
         h.msg_total = -5;
-        assert!(matches!(h.body_len(1 << 20), Err(FrameError::NegativeLength { .. })));
+        assert!(matches!(
+            h.body_len(1 << 20),
+            Err(FrameError::NegativeLength { .. })
+        ));
         h.msg_total = i32::MAX;
         h.class_total = i32::MAX;
-        assert!(matches!(h.body_len(1 << 20), Err(FrameError::TooLarge { .. })));
+        assert!(matches!(
+            h.body_len(1 << 20),
+            Err(FrameError::TooLarge { .. })
+        ));
         h.msg_total = 0;
         h.class_total = 0;
         h.class_id = ClassId(0x2201_000f);

@@ -14,8 +14,8 @@
 //! assert_eq!(ipc::from_slice::<i32>(&bytes).unwrap(), 42);
 //! ```
 
-mod codec;
 pub mod central;
+mod codec;
 pub mod frame;
 pub mod value;
 
@@ -100,7 +100,9 @@ pub enum DecodeError {
         byte: u8,
     },
     /// A variable array's count disagrees with the struct fields that size it.
-    #[error("variable array at byte {offset} has {found} elements, but its size fields say {expected}")]
+    #[error(
+        "variable array at byte {offset} has {found} elements, but its size fields say {expected}"
+    )]
     CountMismatch {
         /// Offset of the array's count.
         offset: usize,
@@ -141,7 +143,10 @@ pub fn from_slice<T: IpcMessage>(bytes: &[u8]) -> Result<T, DecodeError> {
 
 /// Unmarshals a `T` from data written in `order` (the `classId` data-endian
 /// nibble of the frame that carried it); all bytes must be used.
-pub fn from_slice_with_order<T: IpcMessage>(bytes: &[u8], order: ByteOrder) -> Result<T, DecodeError> {
+pub fn from_slice_with_order<T: IpcMessage>(
+    bytes: &[u8],
+    order: ByteOrder,
+) -> Result<T, DecodeError> {
     let mut r = Reader::new(bytes, order);
     let v = T::ipc_decode(&mut r)?;
     r.finish()?;
