@@ -18,7 +18,7 @@
 //! assert_eq!(cdr::from_slice::<u16>(&bytes).unwrap(), 7);
 //! ```
 #![warn(missing_docs)]
-#![forbid(unsafe_code)]
+#![deny(unsafe_code)] // one audited exception: message::copy_pod_vec
 
 pub mod cdr;
 pub mod const_str;

@@ -193,6 +193,44 @@ impl NamedFormats {
     }
 }
 
+/// Copies packed numbers from (possibly unaligned) bytes into a new `Vec`
+/// in one pass. Safe alternatives either zero-fill first or copy element by
+/// element; both measured at ~0.7× memcpy (`cargo bench -p courier --bench
+/// marshal`), this one at memcpy speed.
+#[allow(unsafe_code)]
+fn copy_pod_vec<T: bytemuck::Pod>(bytes: &[u8]) -> Vec<T> {
+    let n = bytes.len() / core::mem::size_of::<T>();
+    let mut v = Vec::<T>::with_capacity(n);
+    // SAFETY: `v` has capacity for `n` elements, i.e. `n * size_of::<T>()`
+    // bytes, and is a fresh allocation, so the ranges cannot overlap; the
+    // source holds at least that many bytes. `T: Pod` has no padding and
+    // every bit pattern is a valid `T`, so after the copy the first `n`
+    // elements are initialised and `set_len(n)` is sound.
+    unsafe {
+        core::ptr::copy_nonoverlapping(
+            bytes.as_ptr(),
+            v.as_mut_ptr().cast::<u8>(),
+            n * core::mem::size_of::<T>(),
+        );
+        v.set_len(n);
+    }
+    v
+}
+
+/// Decodes a packed array of numbers: one copy, then a byte swap in place
+/// when the data is in the other byte order.
+macro_rules! bulk_decode {
+    ($t:ty, $bytes:expr, $native:expr) => {{
+        let mut v: Vec<$t> = copy_pod_vec($bytes);
+        if !$native {
+            for x in &mut v {
+                *x = <$t>::from_ne_bytes(x.to_ne_bytes().map_rev());
+            }
+        }
+        v
+    }};
+}
+
 macro_rules! numeric {
     ($($t:ty => $fmt:literal, $idl:literal, $ipc_w:ident, $ipc_r:ident, $cdr_w:ident, $cdr_r:ident;)*) => {$(
         impl IpcMessage for $t {
@@ -217,14 +255,7 @@ macro_rules! numeric {
             fn ipc_decode_vec(r: &mut ipc::Reader<'_>, n: usize) -> Result<Vec<Self>, ipc::DecodeError> {
                 let n = r.check_count(r.position(), n as i64, core::mem::size_of::<$t>())?;
                 let bytes = r.take(n * core::mem::size_of::<$t>())?;
-                let mut v: Vec<$t> = vec![Default::default(); n];
-                bytemuck::cast_slice_mut::<$t, u8>(&mut v).copy_from_slice(bytes);
-                if r.order() != ipc::ByteOrder::NATIVE {
-                    for x in &mut v {
-                        *x = <$t>::from_ne_bytes(x.to_ne_bytes().map_rev());
-                    }
-                }
-                Ok(v)
+                Ok(bulk_decode!($t, bytes, r.order() == ipc::ByteOrder::NATIVE))
             }
             #[inline]
             fn cdr_encode(&self, w: &mut cdr::Writer) {
@@ -257,15 +288,8 @@ macro_rules! numeric {
                     cdr::DecodeError::CountTooLarge { offset: r.position(), count: n as u64, remaining: r.remaining() },
                 )?;
                 let bytes = r.take(size)?;
-                let mut v: Vec<$t> = vec![Default::default(); n];
-                bytemuck::cast_slice_mut::<$t, u8>(&mut v).copy_from_slice(bytes);
                 let little = matches!(r.encoding().endianness(), cdr::Endianness::Little);
-                if little != cfg!(target_endian = "little") {
-                    for x in &mut v {
-                        *x = <$t>::from_ne_bytes(x.to_ne_bytes().map_rev());
-                    }
-                }
-                Ok(v)
+                Ok(bulk_decode!($t, bytes, little == cfg!(target_endian = "little")))
             }
             fn cdr_encode_key(&self, w: &mut cdr::Writer) {
                 self.cdr_encode(w);
@@ -665,5 +689,28 @@ mod tests {
         assert_eq!(got, v);
         let le = ipc::to_vec(&v);
         assert_eq!(ipc::from_slice::<[f64; 3]>(&le).unwrap(), v);
+    }
+}
+
+#[cfg(test)]
+mod bulk_tests {
+    use super::*;
+
+    /// `copy_pod_vec` on unaligned input, odd lengths and empty input.
+    #[test]
+    fn copy_pod_vec_handles_unaligned_input() {
+        let src: Vec<u8> = (0..41u8).collect();
+        for off in 0..8 {
+            let b = &src[off..off + 32];
+            let v: Vec<f64> = copy_pod_vec(b);
+            assert_eq!(v.len(), 4);
+            for (i, x) in v.iter().enumerate() {
+                assert_eq!(x.to_ne_bytes(), b[8 * i..8 * i + 8]);
+            }
+            let v: Vec<u16> = copy_pod_vec(&b[..31]);
+            assert_eq!(v.len(), 15);
+            assert_eq!(v[14].to_ne_bytes(), b[28..30]);
+        }
+        assert!(copy_pod_vec::<u32>(&[]).is_empty());
     }
 }
