@@ -176,7 +176,7 @@ impl Printer<'_> {
                 self.tab(self.opts.indent + 1);
             }
         }
-        if self.opts.max_lines.map_or(true, |m| self.line < m) {
+        if self.opts.max_lines.is_none_or(|m| self.line < m) {
             match s {
                 Some(s) => {
                     self.out.extend_from_slice(s);
