@@ -24,6 +24,7 @@ pub mod cdr;
 pub mod const_str;
 pub mod format;
 pub mod ipc;
+pub mod rtps;
 mod message;
 
 #[doc(hidden)]
