@@ -23,6 +23,15 @@ FRAMES = [
     ("fastdds_datafrag_last", "fastdds_pubsub.pcap", 304, "DATA_FRAG (last) + HEARTBEAT"),
     ("cyclone010_gap", "ddsperf010_gap.pcap", 81, "GAP"),
     ("fastdds_gap", "fastdds_gap.pcap", 222, "GAP"),
+    ("cyclone11_sedp_pub", "cyclone11_pubsub.pcap", 99, "SEDP publication"),
+    ("cyclone11_sedp_sub", "cyclone11_pubsub.pcap", 91, "SEDP subscription (DATA_REPRESENTATION)"),
+    ("fastdds_sedp_pub", "fastdds_pubsub.pcap", 269, "SEDP publication, every QoS"),
+    ("fastdds_sedp_sub", "fastdds_pubsub.pcap", 279, "SEDP subscription, every QoS"),
+    ("cyclone11_spdp_dispose", "cyclone11_pubsub.pcap", 125, "SPDP dispose: K+Q DATA, STATUS_INFO 3"),
+    ("fastdds_spdp_dispose", "fastdds_pubsub.pcap", 306, "SPDP dispose: Q-only DATA, KEY_HASH + STATUS_INFO"),
+    ("cyclone11_sedp_dispose", "cyclone11_pubsub.pcap", 124, "SEDP dispose: K+Q DATA"),
+    ("fastdds_sedp_dispose", "fastdds_pubsub.pcap", 305, "SEDP dispose: Q-only DATA"),
+    ("cyclone010_spdp", "ddsperf010_pingpong.pcap", 1, "SPDP of Cyclone 0.10.2 (RTPS 2.1)"),
 ]
 
 

@@ -21,6 +21,7 @@
 //! is checked against the datagram before use; unknown and vendor-specific
 //! submessages are kept as [`Submessage::Unknown`] and skipped by length.
 
+pub mod discovery;
 mod message;
 pub mod parameter;
 mod types;
