@@ -22,6 +22,7 @@
 //! submessages are kept as [`Submessage::Unknown`] and skipped by length.
 
 pub mod discovery;
+pub mod frag;
 mod message;
 pub mod parameter;
 mod types;

@@ -1,0 +1,320 @@
+//! Fragmentation and reassembly of large samples (§8.4.14.1, §8.3.7.3).
+//!
+//! Peers differ a lot (`shared/protocols/rtps.md` §3): Cyclone cuts samples
+//! into 1344-byte fragments and packs 10 per DATA_FRAG; Fast DDS sends one
+//! ~64 KB fragment per DATA_FRAG. [`Reassembler`] accepts any mix, in any
+//! order, with duplicates, and bounds its memory.
+
+use std::collections::BTreeMap;
+
+use super::message::DataFrag;
+use super::types::{EntityId, Guid, SequenceNumber};
+
+/// Splits a serialized sample into DATA_FRAG submessages of
+/// `frags_per_submessage` fragments of `fragment_size` bytes (the last
+/// fragment may be shorter).
+pub fn fragment<'a>(
+    reader_id: EntityId,
+    writer_id: EntityId,
+    writer_sn: SequenceNumber,
+    sample: &'a [u8],
+    fragment_size: u16,
+    frags_per_submessage: u16,
+) -> impl Iterator<Item = DataFrag<'a>> + 'a {
+    let fs = usize::from(fragment_size.max(1));
+    let per = usize::from(frags_per_submessage.max(1));
+    let total_frags = sample.len().div_ceil(fs).max(1);
+    (0..total_frags).step_by(per).map(move |first| {
+        let n = per.min(total_frags - first);
+        let start = first * fs;
+        let end = ((first + n) * fs).min(sample.len());
+        DataFrag {
+            reader_id,
+            writer_id,
+            writer_sn,
+            fragment_starting_num: first as u32 + 1,
+            fragments_in_submessage: n as u16,
+            fragment_size: fs as u16,
+            sample_size: sample.len() as u32,
+            inline_qos: None,
+            payload: &sample[start..end],
+            key: false,
+            non_standard: false,
+        }
+    })
+}
+
+/// Why a DATA_FRAG was not accepted.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum FragError {
+    /// The sample is larger than the configured limit.
+    #[error("sample of {size} bytes exceeds the reassembly limit of {limit} bytes")]
+    TooLarge {
+        /// Announced sample size.
+        size: u32,
+        /// The limit.
+        limit: usize,
+    },
+    /// Fragment numbers, sizes and payload length disagree.
+    #[error("inconsistent DATA_FRAG: {0}")]
+    Inconsistent(&'static str),
+}
+
+#[derive(Debug)]
+struct Partial {
+    sample_size: u32,
+    fragment_size: u16,
+    data: Vec<u8>,
+    have: Vec<bool>,
+    missing: usize,
+}
+
+/// Reassembles fragmented samples per (writer, sequence number).
+#[derive(Debug)]
+pub struct Reassembler {
+    max_sample: usize,
+    max_bytes: usize,
+    bytes: usize,
+    partial: BTreeMap<(Guid, SequenceNumber), Partial>,
+}
+
+impl Reassembler {
+    /// A reassembler that accepts samples up to `max_sample` bytes and
+    /// holds at most `max_bytes` of incomplete samples (the oldest
+    /// incomplete samples — lowest sequence numbers — are dropped first).
+    pub fn new(max_sample: usize, max_bytes: usize) -> Self {
+        Reassembler {
+            max_sample,
+            max_bytes,
+            bytes: 0,
+            partial: BTreeMap::new(),
+        }
+    }
+
+    /// Bytes held by incomplete samples.
+    pub fn buffered_bytes(&self) -> usize {
+        self.bytes
+    }
+
+    /// Fragment numbers (1-based) still missing for a sample being reassembled.
+    pub fn missing(&self, writer: Guid, sn: SequenceNumber) -> Vec<u32> {
+        self.partial
+            .get(&(writer, sn))
+            .map(|p| {
+                p.have
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, h)| !**h)
+                    .map(|(i, _)| i as u32 + 1)
+                    .collect()
+            })
+            .unwrap_or_default()
+    }
+
+    /// Drops every incomplete sample of `writer` below `sn` (the writer
+    /// gave up on them, or they were delivered another way).
+    pub fn forget_below(&mut self, writer: Guid, sn: SequenceNumber) {
+        let keys: Vec<_> = self
+            .partial
+            .range((writer, SequenceNumber(i64::MIN))..(writer, sn))
+            .map(|(k, _)| *k)
+            .collect();
+        for k in keys {
+            if let Some(p) = self.partial.remove(&k) {
+                self.bytes -= p.data.len();
+            }
+        }
+    }
+
+    /// Adds one DATA_FRAG from `writer`. Returns the whole sample when this
+    /// submessage completed it.
+    pub fn insert(&mut self, writer: Guid, f: &DataFrag<'_>) -> Result<Option<Vec<u8>>, FragError> {
+        let size = f.sample_size as usize;
+        if size > self.max_sample {
+            return Err(FragError::TooLarge {
+                size: f.sample_size,
+                limit: self.max_sample,
+            });
+        }
+        let fs = usize::from(f.fragment_size);
+        if fs == 0 {
+            return Err(FragError::Inconsistent("fragmentSize 0"));
+        }
+        let total = size.div_ceil(fs).max(1);
+        let first = f.fragment_starting_num as usize;
+        let n = usize::from(f.fragments_in_submessage);
+        if first == 0 || n == 0 || first - 1 + n > total {
+            return Err(FragError::Inconsistent(
+                "fragment numbers outside the sample",
+            ));
+        }
+        let start = (first - 1) * fs;
+        let end = ((first - 1 + n) * fs).min(size);
+        if f.payload.len() < end - start {
+            return Err(FragError::Inconsistent(
+                "payload shorter than its fragments",
+            ));
+        }
+        let key = (writer, f.writer_sn);
+        if !self.partial.contains_key(&key) {
+            // make room: drop the oldest incomplete samples
+            while self.bytes + size > self.max_bytes {
+                let Some((&oldest, _)) = self.partial.iter().next() else {
+                    break;
+                };
+                if let Some(p) = self.partial.remove(&oldest) {
+                    self.bytes -= p.data.len();
+                }
+            }
+            if self.bytes + size > self.max_bytes {
+                return Err(FragError::TooLarge {
+                    size: f.sample_size,
+                    limit: self.max_bytes,
+                });
+            }
+            self.bytes += size;
+            self.partial.insert(
+                key,
+                Partial {
+                    sample_size: f.sample_size,
+                    fragment_size: f.fragment_size,
+                    data: vec![0; size],
+                    have: vec![false; total],
+                    missing: total,
+                },
+            );
+        }
+        let p = self
+            .partial
+            .get_mut(&key)
+            .ok_or(FragError::Inconsistent("lost partial"))?;
+        if p.sample_size != f.sample_size || p.fragment_size != f.fragment_size {
+            return Err(FragError::Inconsistent(
+                "sample or fragment size changed between fragments",
+            ));
+        }
+        p.data[start..end].copy_from_slice(&f.payload[..end - start]);
+        for h in &mut p.have[first - 1..first - 1 + n] {
+            if !*h {
+                *h = true;
+                p.missing -= 1;
+            }
+        }
+        if p.missing > 0 {
+            return Ok(None);
+        }
+        let done = self
+            .partial
+            .remove(&key)
+            .ok_or(FragError::Inconsistent("lost partial"))?;
+        self.bytes -= done.data.len();
+        Ok(Some(done.data))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rtps::GuidPrefix;
+
+    fn w() -> Guid {
+        Guid {
+            prefix: GuidPrefix([1; 12]),
+            entity: EntityId([0, 0, 2, 3]),
+        }
+    }
+
+    fn sample(n: usize) -> Vec<u8> {
+        (0..n).map(|i| (i * 7 % 251) as u8).collect()
+    }
+
+    #[test]
+    fn cyclone_and_fast_dds_shapes_reassemble_in_any_order() {
+        let s = sample(102_416);
+        for (fs, per) in [(1344u16, 10u16), (65324, 1), (1000, 3), (1, 4000)] {
+            let mut frags: Vec<_> = fragment(
+                EntityId::UNKNOWN,
+                w().entity,
+                SequenceNumber(6),
+                &s,
+                fs,
+                per,
+            )
+            .collect();
+            assert_eq!(
+                frags.iter().map(|f| f.payload.len()).sum::<usize>(),
+                s.len()
+            );
+            // reverse order plus a duplicate of the first
+            frags.reverse();
+            let dup = frags[0].clone();
+            frags.insert(1, dup);
+            let mut r = Reassembler::new(1 << 20, 4 << 20);
+            let mut out = None;
+            for f in &frags {
+                if let Some(done) = r.insert(w(), f).unwrap() {
+                    assert!(out.is_none(), "completed twice");
+                    out = Some(done);
+                }
+            }
+            assert_eq!(out.as_deref(), Some(&s[..]), "fs {fs} per {per}");
+            assert_eq!(r.buffered_bytes(), 0);
+        }
+    }
+
+    #[test]
+    fn missing_fragments_are_reported() {
+        let s = sample(5000);
+        let frags: Vec<_> = fragment(
+            EntityId::UNKNOWN,
+            w().entity,
+            SequenceNumber(1),
+            &s,
+            1000,
+            1,
+        )
+        .collect();
+        let mut r = Reassembler::new(1 << 20, 1 << 20);
+        for f in frags.iter().filter(|f| f.fragment_starting_num != 3) {
+            assert!(r.insert(w(), f).unwrap().is_none());
+        }
+        assert_eq!(r.missing(w(), SequenceNumber(1)), [3]);
+        assert_eq!(r.insert(w(), &frags[2]).unwrap().unwrap(), s);
+    }
+
+    #[test]
+    fn hostile_fragments_are_bounded() {
+        let s = sample(10_000);
+        let good: Vec<_> = fragment(
+            EntityId::UNKNOWN,
+            w().entity,
+            SequenceNumber(1),
+            &s,
+            1000,
+            2,
+        )
+        .collect();
+        let mut r = Reassembler::new(50_000, 60_000);
+        let mut f = good[0].clone();
+        f.sample_size = 4_000_000_000;
+        assert!(matches!(r.insert(w(), &f), Err(FragError::TooLarge { .. })));
+        let mut f = good[0].clone();
+        f.fragment_starting_num = 20;
+        assert!(r.insert(w(), &f).is_err());
+        let mut f = good[0].clone();
+        f.payload = &f.payload[..10];
+        assert!(r.insert(w(), &f).is_err());
+        // many incomplete samples: memory stays under the limit, oldest dropped
+        for sn in 0..100 {
+            let mut f = good[0].clone();
+            f.writer_sn = SequenceNumber(sn);
+            r.insert(w(), &f).unwrap();
+            assert!(r.buffered_bytes() <= 60_000);
+        }
+        assert!(r.missing(w(), SequenceNumber(0)).is_empty());
+        assert_eq!(r.missing(w(), SequenceNumber(99)).len(), 8);
+        r.forget_below(w(), SequenceNumber(100));
+        assert_eq!(r.buffered_bytes(), 0);
+    }
+}
