@@ -23,6 +23,7 @@
 
 pub mod discovery;
 pub mod frag;
+pub mod reliability;
 mod message;
 pub mod parameter;
 mod types;
