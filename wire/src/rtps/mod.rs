@@ -23,6 +23,7 @@
 
 pub mod discovery;
 pub mod frag;
+pub mod matching;
 pub mod reliability;
 mod message;
 pub mod parameter;

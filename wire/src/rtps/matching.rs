@@ -1,0 +1,349 @@
+//! Endpoint matching (DDS 1.4 §2.2.3 "requested/offered" rules) and the
+//! table of discovered participants with lease expiry, sans-I/O.
+
+use std::collections::HashMap;
+use std::time::Instant;
+
+use super::discovery::{
+    Durability, EndpointData, EndpointQos, LivelinessKind, ParticipantData, Reliability,
+};
+use super::types::GuidPrefix;
+
+/// Why a writer and a reader on the same topic do not match.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum Incompatible {
+    /// Different topic names.
+    #[error("topic {writer:?} vs {reader:?}")]
+    Topic {
+        /// Writer's topic.
+        writer: String,
+        /// Reader's topic.
+        reader: String,
+    },
+    /// Different type names.
+    #[error("type {writer:?} vs {reader:?}")]
+    Type {
+        /// Writer's type.
+        writer: String,
+        /// Reader's type.
+        reader: String,
+    },
+    /// The reader wants reliable, the writer offers best effort.
+    #[error("reader requests RELIABLE, writer offers BEST_EFFORT")]
+    Reliability,
+    /// The reader wants more durability than the writer offers.
+    #[error("reader requests durability {requested:?}, writer offers {offered:?}")]
+    Durability {
+        /// Offered.
+        offered: Durability,
+        /// Requested.
+        requested: Durability,
+    },
+    /// The writer's deadline period is longer than the reader's.
+    #[error("writer deadline is longer than the reader's")]
+    Deadline,
+    /// Liveliness kind or lease incompatible.
+    #[error("liveliness: writer offers less than the reader requests")]
+    Liveliness,
+    /// Ownership kinds differ.
+    #[error("ownership: one side is EXCLUSIVE, the other SHARED")]
+    Ownership,
+    /// No common partition.
+    #[error("no common partition")]
+    Partition,
+    /// No data representation the reader accepts is offered.
+    #[error("data representation: writer offers {offered:?}, reader accepts {accepted:?}")]
+    DataRepresentation {
+        /// Writer's (first is what it uses).
+        offered: Vec<i16>,
+        /// Reader's.
+        accepted: Vec<i16>,
+    },
+}
+
+fn liveliness_rank(k: LivelinessKind) -> u8 {
+    match k {
+        LivelinessKind::Automatic => 0,
+        LivelinessKind::ManualByParticipant => 1,
+        LivelinessKind::ManualByTopic => 2,
+    }
+}
+
+/// fnmatch-style match used for partitions (`*`, `?`): linear-time greedy
+/// matching with backtracking to the last `*`, so names from the network
+/// cannot make it explode.
+fn wildcard(pattern: &str, name: &str) -> bool {
+    let (p, n) = (pattern.as_bytes(), name.as_bytes());
+    let (mut pi, mut ni) = (0, 0);
+    let mut star: Option<(usize, usize)> = None;
+    while ni < n.len() {
+        if pi < p.len() && (p[pi] == b'?' || p[pi] == n[ni]) {
+            pi += 1;
+            ni += 1;
+        } else if pi < p.len() && p[pi] == b'*' {
+            star = Some((pi, ni));
+            pi += 1;
+        } else if let Some((sp, sn)) = star {
+            pi = sp + 1;
+            ni = sn + 1;
+            star = Some((sp, sn + 1));
+        } else {
+            return false;
+        }
+    }
+    p[pi..].iter().all(|c| *c == b'*')
+}
+
+fn partitions_match(w: &[String], r: &[String]) -> bool {
+    let norm = |v: &[String]| -> Vec<String> {
+        if v.is_empty() {
+            vec![String::new()]
+        } else {
+            v.to_vec()
+        }
+    };
+    let (w, r) = (norm(w), norm(r));
+    w.iter()
+        .any(|a| r.iter().any(|b| a == b || wildcard(a, b) || wildcard(b, a)))
+}
+
+/// Checks the requested/offered QoS rules for a writer and a reader.
+pub fn check_qos(offered: &EndpointQos, requested: &EndpointQos) -> Result<(), Incompatible> {
+    if matches!(requested.reliability, Reliability::Reliable(_))
+        && matches!(offered.reliability, Reliability::BestEffort)
+    {
+        return Err(Incompatible::Reliability);
+    }
+    if offered.durability < requested.durability {
+        return Err(Incompatible::Durability {
+            offered: offered.durability,
+            requested: requested.durability,
+        });
+    }
+    if offered.deadline > requested.deadline {
+        return Err(Incompatible::Deadline);
+    }
+    if liveliness_rank(offered.liveliness.0) < liveliness_rank(requested.liveliness.0)
+        || offered.liveliness.1 > requested.liveliness.1
+    {
+        return Err(Incompatible::Liveliness);
+    }
+    if offered.exclusive_ownership != requested.exclusive_ownership {
+        return Err(Incompatible::Ownership);
+    }
+    if !partitions_match(&offered.partitions, &requested.partitions) {
+        return Err(Incompatible::Partition);
+    }
+    // The writer uses the first representation it offers; the reader must accept it.
+    let used = offered.data_representation.first().copied().unwrap_or(0);
+    let accepted = if requested.data_representation.is_empty() {
+        vec![0]
+    } else {
+        requested.data_representation.clone()
+    };
+    if !accepted.contains(&used) {
+        return Err(Incompatible::DataRepresentation {
+            offered: offered.data_representation.clone(),
+            accepted,
+        });
+    }
+    Ok(())
+}
+
+/// Checks topic, type and QoS of a writer against a reader.
+pub fn check_match(writer: &EndpointData, reader: &EndpointData) -> Result<(), Incompatible> {
+    if writer.topic_name != reader.topic_name {
+        return Err(Incompatible::Topic {
+            writer: writer.topic_name.clone(),
+            reader: reader.topic_name.clone(),
+        });
+    }
+    if writer.type_name != reader.type_name {
+        return Err(Incompatible::Type {
+            writer: writer.type_name.clone(),
+            reader: reader.type_name.clone(),
+        });
+    }
+    check_qos(&writer.qos, &reader.qos)
+}
+
+/// What changed in the participant table.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum ParticipantEvent {
+    /// First SPDP from this participant.
+    Found(GuidPrefix),
+    /// Its SPDP data changed.
+    Changed(GuidPrefix),
+    /// Disposed, or its lease expired.
+    Lost(GuidPrefix),
+}
+
+/// Discovered participants, with lease expiry driven by explicit time.
+#[derive(Debug, Default)]
+pub struct Participants {
+    table: HashMap<GuidPrefix, (ParticipantData, Instant)>,
+}
+
+impl Participants {
+    /// An empty table.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// An SPDP announcement arrived at `now`.
+    pub fn announce(&mut self, data: ParticipantData, now: Instant) -> Option<ParticipantEvent> {
+        let prefix = data.guid_prefix;
+        let expiry = now
+            + data
+                .lease_duration
+                .to_std()
+                .unwrap_or(std::time::Duration::from_secs(86_400 * 365));
+        match self.table.insert(prefix, (data.clone(), expiry)) {
+            None => Some(ParticipantEvent::Found(prefix)),
+            Some((old, _)) if old != data => Some(ParticipantEvent::Changed(prefix)),
+            Some(_) => None,
+        }
+    }
+
+    /// The participant said goodbye (SPDP dispose).
+    pub fn remove(&mut self, prefix: GuidPrefix) -> Option<ParticipantEvent> {
+        self.table
+            .remove(&prefix)
+            .map(|_| ParticipantEvent::Lost(prefix))
+    }
+
+    /// When the next lease expires.
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        self.table.values().map(|(_, t)| *t).min()
+    }
+
+    /// Removes participants whose lease expired by `now`.
+    pub fn handle_timeout(&mut self, now: Instant) -> Vec<ParticipantEvent> {
+        let gone: Vec<GuidPrefix> = self
+            .table
+            .iter()
+            .filter(|(_, (_, t))| *t <= now)
+            .map(|(p, _)| *p)
+            .collect();
+        gone.into_iter().filter_map(|p| self.remove(p)).collect()
+    }
+
+    /// A participant's data.
+    pub fn get(&self, prefix: &GuidPrefix) -> Option<&ParticipantData> {
+        self.table.get(prefix).map(|(d, _)| d)
+    }
+
+    /// Number of known participants.
+    pub fn len(&self) -> usize {
+        self.table.len()
+    }
+
+    /// True if none are known.
+    pub fn is_empty(&self) -> bool {
+        self.table.is_empty()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::discovery::{Duration, History};
+    use super::super::{ProtocolVersion, VendorId};
+    use super::*;
+
+    #[test]
+    fn requested_offered_rules() {
+        let w = EndpointQos::writer_default();
+        let r = EndpointQos::reader_default();
+        assert_eq!(check_qos(&w, &r), Ok(()));
+        let mut be = w.clone();
+        be.reliability = Reliability::BestEffort;
+        let mut rel = r.clone();
+        rel.reliability = Reliability::Reliable(Duration::ZERO);
+        assert_eq!(check_qos(&be, &rel), Err(Incompatible::Reliability));
+        assert_eq!(check_qos(&be, &r), Ok(()));
+        let mut tl = r.clone();
+        tl.durability = Durability::TransientLocal;
+        assert!(matches!(
+            check_qos(&w, &tl),
+            Err(Incompatible::Durability { .. })
+        ));
+        let mut wd = w.clone();
+        wd.durability = Durability::TransientLocal;
+        wd.history = History::KeepLast(10);
+        assert_eq!(check_qos(&wd, &tl), Ok(()));
+        let mut dl = r.clone();
+        dl.deadline = Duration {
+            seconds: 1,
+            fraction: 0,
+        };
+        assert_eq!(check_qos(&w, &dl), Err(Incompatible::Deadline));
+        let mut ex = w.clone();
+        ex.exclusive_ownership = true;
+        assert_eq!(check_qos(&ex, &r), Err(Incompatible::Ownership));
+        // Fast DDS 2.9 accepts only XCDR1: an XCDR2 writer does not match it
+        let mut x2 = w.clone();
+        x2.data_representation = vec![2];
+        assert!(matches!(
+            check_qos(&x2, &r),
+            Err(Incompatible::DataRepresentation { .. })
+        ));
+        let mut both = r.clone();
+        both.data_representation = vec![0, 2];
+        assert_eq!(check_qos(&x2, &both), Ok(()));
+    }
+
+    #[test]
+    fn partitions_use_wildcards() {
+        let s = |v: &[&str]| v.iter().map(|x| x.to_string()).collect::<Vec<_>>();
+        assert!(partitions_match(&[], &[]));
+        assert!(!partitions_match(&s(&["a"]), &[]));
+        assert!(partitions_match(&s(&["robot*"]), &s(&["robot1"])));
+        assert!(partitions_match(&s(&["x", "r?"]), &s(&["r2"])));
+        assert!(!partitions_match(&s(&["a"]), &s(&["b"])));
+        // hostile: many stars against a long name stays fast
+        let p = "*a".repeat(200) + "b";
+        assert!(!wildcard(&p, &"a".repeat(5000)));
+        assert!(wildcard("*", ""));
+        assert!(wildcard("a*b*c", "aXXbYYc"));
+        assert!(!wildcard("a*b*c", "aXXbYY"));
+    }
+
+    #[test]
+    fn leases_expire_on_explicit_time() {
+        let t0 = Instant::now();
+        let mut p = Participants::new();
+        let data = ParticipantData {
+            guid_prefix: GuidPrefix([9; 12]),
+            protocol_version: ProtocolVersion::V2_5,
+            vendor: VendorId::CYCLONE,
+            domain_id: Some(0),
+            default_unicast: vec![],
+            default_multicast: vec![],
+            metatraffic_unicast: vec![],
+            metatraffic_multicast: vec![],
+            lease_duration: Duration {
+                seconds: 10,
+                fraction: 0,
+            },
+            builtin_endpoints: 0,
+            entity_name: None,
+        };
+        assert_eq!(
+            p.announce(data.clone(), t0),
+            Some(ParticipantEvent::Found(data.guid_prefix))
+        );
+        assert_eq!(
+            p.announce(data.clone(), t0 + std::time::Duration::from_secs(5)),
+            None
+        );
+        assert!(p
+            .handle_timeout(t0 + std::time::Duration::from_secs(14))
+            .is_empty());
+        assert_eq!(
+            p.handle_timeout(t0 + std::time::Duration::from_secs(15)),
+            [ParticipantEvent::Lost(data.guid_prefix)]
+        );
+        assert!(p.is_empty());
+    }
+}
