@@ -17,6 +17,7 @@
 pub mod central;
 mod codec;
 pub mod frame;
+pub mod module;
 pub mod value;
 
 pub use codec::{ByteOrder, Reader, Writer, PRESENT};

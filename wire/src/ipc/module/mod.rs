@@ -1,0 +1,1488 @@
+//! Sans-I/O state machine of an IPC *module* (client) talking to a C CMU IPC
+//! 3.9 central (ipc.md §1–§8), quinn-proto style: no sockets, no clocks.
+//!
+//! The async shell feeds every byte read from central into
+//! [`Connection::receive`], writes whatever [`Connection::poll_transmit`]
+//! returns, and reacts to [`Connection::poll_event`].
+//!
+//! # Ordering model
+//! The C API is synchronous: a call that needs a query (a `msgInfo` lookup,
+//! `x_ipc_moduleConnectedQ`, …) blocks until its reply arrives. To keep the
+//! wire byte-identical (msgRefs are a per-connection counter) API operations
+//! are executed strictly in call order from one queue; an operation that
+//! needs a reply holds the queue until it arrives. User queries are the
+//! exception: like `IPC_queryNotify` they do not hold the queue; the reply is
+//! matched by msgRef and reported as [`Event::Reply`].
+//!
+//! Deliveries are handled as they arrive: the first delivery to a handler
+//! triggers the C module's `msgInfo(msg, handlerName)` lookup before the
+//! delivery is reported. Broadcast deliveries are *not* auto-acked: the
+//! shell calls [`Connection::ack`] once the user has taken the message
+//! (central keeps at most `capacity` deliveries outstanding until acks come
+//! back). Internal deliveries (`V_watch_*`, connect notifications) are acked
+//! by the state machine itself, after processing, as C does.
+//!
+//! Direct mode (§8) is not implemented: a connect reply with `direct = 1`
+//! is accepted but [`Event::DirectListenRequested`] is raised and sending a
+//! message whose id is negative fails with [`Error::DirectUnsupported`].
+
+mod proto;
+
+use std::collections::{HashMap, HashSet, VecDeque};
+use std::time::Instant;
+
+use super::frame::{
+    ClassId, Frame, FrameError, Header, MsgClass, HEADER_SIZE, NO_REF, QUERY_REPLY_INTENT,
+};
+use super::{ByteOrder, Reader, Writer};
+use crate::format::Format;
+
+pub use proto::MsgInfo;
+
+/// Largest frame body (class data + message data) accepted from central.
+pub const DEFAULT_MAX_FRAME: u64 = 64 * 1024 * 1024;
+
+/// Most deliveries buffered before the shell takes them with
+/// [`Connection::poll_event`]; central sends at most `capacity` outstanding
+/// deliveries plus notifications, so more means a misbehaving peer.
+pub const MAX_QUEUED_DELIVERIES: usize = 65_536;
+
+/// First handler id handed out (C's handler id table counts down from 199).
+pub const FIRST_HANDLER_ID: i32 = 199;
+
+/// Classes the C module asks central about during the handshake, in order.
+pub const HANDSHAKE_CLASSES: [i32; 10] = [4, 5, 7, 9, 8, 10, 2, 13, 14, 16];
+
+/// Configuration of a module connection.
+#[derive(Debug, Clone)]
+pub struct ModuleConfig {
+    /// Module name (`IPC_connect` argument).
+    pub name: String,
+    /// Host name reported to central (truncated to 32 bytes as C does).
+    pub host_name: String,
+    /// `false` = `IPC_connectNoListen`: publishes are not filtered by
+    /// `X_IPC_BROADCAST_MSG_VAR`.
+    pub listen: bool,
+    /// Largest frame body accepted from central.
+    pub max_frame: u64,
+}
+
+impl ModuleConfig {
+    /// A listening module with the default frame limit.
+    pub fn new(name: impl Into<String>, host_name: impl Into<String>) -> Self {
+        ModuleConfig {
+            name: name.into(),
+            host_name: host_name.into(),
+            listen: true,
+            max_frame: DEFAULT_MAX_FRAME,
+        }
+    }
+}
+
+/// Why an operation was refused or the connection failed.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum Error {
+    /// The connection is closed (or failed).
+    #[error("IPC connection is closed")]
+    Closed,
+    /// A frame header from central was invalid.
+    #[error("bad frame from central: {0}")]
+    Frame(#[from] FrameError),
+    /// Central sent data that could not be decoded.
+    #[error("undecodable {what} from central: {detail}")]
+    Protocol {
+        /// What was being decoded.
+        what: &'static str,
+        /// The decoder's message.
+        detail: String,
+    },
+    /// Central does not know a message name.
+    #[error("message {0:?} is not defined in central")]
+    UnknownMessage(String),
+    /// Central speaks another major protocol version.
+    #[error("central speaks IPC {major}.{minor}, this module 3.9")]
+    Version {
+        /// Central's major version.
+        major: i32,
+        /// Central's minor version.
+        minor: i32,
+    },
+    /// Direct mode (central `-c`) is not implemented yet.
+    #[error("direct message {0:?}: direct mode is not implemented")]
+    DirectUnsupported(String),
+    /// The user data does not fit the message's fixed length.
+    #[error("message {msg:?} has fixed length {expected}, got {got} bytes")]
+    WrongLength {
+        /// Message name.
+        msg: String,
+        /// Fixed length.
+        expected: usize,
+        /// Given length.
+        got: usize,
+    },
+    /// Unknown delivery or handler handle.
+    #[error("unknown handle {0}")]
+    UnknownHandle(u64),
+}
+
+/// Length discipline of a message (`IPC_defineMsg`'s length argument).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MsgLength {
+    /// `IPC_VARIABLE_LENGTH`: body `{int, <byte:1>}`.
+    Variable,
+    /// Fixed N bytes: body `[byte:N]`.
+    Fixed(u32),
+    /// No data.
+    Empty,
+}
+
+/// Handle of an API operation (publish, query, …), unique per connection.
+pub type OpId = u64;
+/// Handle of a delivery awaiting [`Connection::ack`] or [`Connection::respond`].
+pub type DeliveryId = u64;
+
+/// Class of a delivery.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DeliveryKind {
+    /// A published message (needs [`Connection::ack`]).
+    Broadcast,
+    /// A query (needs [`Connection::respond`]).
+    Query,
+}
+
+/// Something the shell must know about.
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub enum Event {
+    /// Central answered `newModuleConnect` with `direct = 1`: open a listener
+    /// and call [`Connection::announce_direct_port`].
+    DirectListenRequested,
+    /// The handshake is complete (`IPC_connect` returned).
+    Connected,
+    /// A message for one of our handlers.
+    Delivery {
+        /// Handle for [`Connection::ack`] / [`Connection::respond`].
+        delivery: DeliveryId,
+        /// Our handler id (the frame's intent).
+        handler: i32,
+        /// Message name.
+        msg: String,
+        /// Broadcast or query.
+        kind: DeliveryKind,
+        /// Central's dispatch id.
+        dispatch_ref: i32,
+        /// Parent ref of the frame.
+        parent_ref: i32,
+        /// Byte order of `data`.
+        order: ByteOrder,
+        /// User bytes, unwrapped from the message format.
+        data: Vec<u8>,
+    },
+    /// Reply to a [`Connection::query`].
+    Reply {
+        /// The query's handle.
+        query: OpId,
+        /// Reply message name (class data).
+        reply_msg: String,
+        /// Byte order of `data`.
+        order: ByteOrder,
+        /// User bytes, unwrapped according to the reply message's format
+        /// when it is known to this module, else the raw body.
+        data: Vec<u8>,
+    },
+    /// A publish was executed and sent to central.
+    Published {
+        /// The publish's handle.
+        op: OpId,
+    },
+    /// A publish was dropped because no module subscribes the message
+    /// (C's `x_ipcBroadcast` does this silently).
+    PublishDropped {
+        /// The publish's handle.
+        op: OpId,
+        /// Message name.
+        msg: String,
+    },
+    /// An operation failed (e.g. its message is unknown to central).
+    OpFailed {
+        /// The operation's handle.
+        op: OpId,
+        /// Why.
+        error: Error,
+    },
+    /// Answer of [`Connection::is_module_connected`].
+    ModuleConnected {
+        /// The operation's handle.
+        op: OpId,
+        /// Whether the module is connected.
+        connected: bool,
+    },
+    /// Answer of [`Connection::num_handlers`].
+    NumHandlers {
+        /// The operation's handle.
+        op: OpId,
+        /// Handler count.
+        count: i32,
+    },
+    /// `x_ipc_connectNotify`: a module connected.
+    ModuleConnect(String),
+    /// `x_ipc_disconnectNotify`: a module disconnected.
+    ModuleDisconnect(String),
+    /// `V_watch_<msg>`: the handler count of `msg` changed.
+    HandlerChange {
+        /// Message name.
+        msg: String,
+        /// New handler count.
+        count: i32,
+    },
+    /// The connection failed or was closed; nothing more will happen.
+    Closed(Option<Error>),
+}
+
+#[derive(Debug)]
+enum Stage {
+    /// Waiting for the raw 4-byte msgInfo id.
+    MsgInfoId,
+    /// Waiting for the two formatter frames.
+    Formatters(u8),
+    /// Handshake running through the op queue.
+    Handshake,
+    /// Connected.
+    Ready,
+    /// Closed.
+    Closed,
+}
+
+#[derive(Debug)]
+struct Handler {
+    msg: String,
+    name: String,
+    /// Central has been told (first delivery lookup done).
+    known: bool,
+    kind: HandlerKind,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+enum HandlerKind {
+    User,
+    BroadcastVar,
+    ConnectNotify,
+    DisconnectNotify,
+    Watch(String),
+}
+
+#[derive(Debug)]
+enum Op {
+    ClassInfo(i32),
+    NewModuleConnect,
+    WaitDirectPort,
+    DirectRes(i32),
+    VarGet(&'static str),
+    RegisterHandler {
+        id: i32,
+        msg: String,
+        hnd: String,
+    },
+    LimitPending {
+        msg: String,
+        limit: i32,
+    },
+    WaitMsg,
+    DefineFormat {
+        name: String,
+        fmt: String,
+    },
+    DefineMsg {
+        name: String,
+        len: MsgLength,
+        fmt: Option<String>,
+    },
+    Lookup(String),
+    Deregister {
+        msg: String,
+        hnd: String,
+    },
+    Publish {
+        op: OpId,
+        msg: String,
+        data: Vec<u8>,
+        parent: i32,
+    },
+    Query {
+        op: OpId,
+        msg: String,
+        data: Vec<u8>,
+        parent: i32,
+    },
+    Respond {
+        msg: String,
+        data: Vec<u8>,
+        dispatch: i32,
+        parent: i32,
+    },
+    Inform {
+        msg: &'static str,
+        data: Vec<u8>,
+    },
+    ModuleConnectedQ {
+        op: OpId,
+        module: String,
+    },
+    NumHandlers {
+        op: OpId,
+        msg: String,
+    },
+    NotifyHandlerChange {
+        msg: String,
+    },
+    Close,
+}
+
+#[derive(Debug)]
+enum Pending {
+    Lookup(String),
+    HandlerLookup(u64),
+    Internal(Op),
+    UserQuery(OpId),
+}
+
+#[derive(Debug)]
+struct PendingDelivery {
+    id: DeliveryId,
+    frame: Frame,
+    msg: String,
+    ready: bool,
+}
+
+/// The module side of one connection to central.
+#[derive(Debug)]
+pub struct Connection {
+    cfg: ModuleConfig,
+    stage: Stage,
+    inbuf: Vec<u8>,
+    msg_info_id: i32,
+    next_ref: i32,
+    next_handler: i32,
+    next_op: u64,
+    next_delivery: u64,
+    cache: HashMap<String, MsgInfo>,
+    ops: VecDeque<Op>,
+    blocked: Option<i32>,
+    pending: HashMap<i32, Pending>,
+    handlers: HashMap<i32, Handler>,
+    by_name: HashMap<(String, String), i32>,
+    deliveries: VecDeque<PendingDelivery>,
+    inbox: VecDeque<Frame>,
+    unacked: HashMap<DeliveryId, (DeliveryKind, i32, i32)>,
+    broadcast_var: Option<HashSet<String>>,
+    class_formats: Vec<(i32, Option<Format>)>,
+    direct: bool,
+    transmit: VecDeque<Vec<u8>>,
+    events: VecDeque<Event>,
+    connect_subscribed: bool,
+    disconnect_subscribed: bool,
+}
+
+impl Connection {
+    /// Starts a connection; central speaks first (§4), so nothing is sent
+    /// until [`receive`](Self::receive) got the msgInfo id and formatters.
+    pub fn new(mut cfg: ModuleConfig, _now: Instant) -> Self {
+        let mut cut = cfg.host_name.len().min(32);
+        while !cfg.host_name.is_char_boundary(cut) {
+            cut -= 1;
+        }
+        cfg.host_name.truncate(cut);
+        Connection {
+            cfg,
+            stage: Stage::MsgInfoId,
+            inbuf: Vec::new(),
+            msg_info_id: 0,
+            next_ref: 1,
+            next_handler: FIRST_HANDLER_ID,
+            next_op: 1,
+            next_delivery: 1,
+            cache: HashMap::new(),
+            ops: VecDeque::new(),
+            blocked: None,
+            pending: HashMap::new(),
+            handlers: HashMap::new(),
+            by_name: HashMap::new(),
+            deliveries: VecDeque::new(),
+            inbox: VecDeque::new(),
+            unacked: HashMap::new(),
+            broadcast_var: None,
+            class_formats: Vec::new(),
+            direct: false,
+            transmit: VecDeque::new(),
+            events: VecDeque::new(),
+            connect_subscribed: false,
+            disconnect_subscribed: false,
+        }
+    }
+
+    /// Whether the handshake has completed and the connection is open.
+    pub fn is_connected(&self) -> bool {
+        matches!(self.stage, Stage::Ready)
+    }
+
+    /// Whether central runs in direct mode (`central -c`).
+    pub fn is_direct(&self) -> bool {
+        self.direct
+    }
+
+    /// The cached `msgInfo` of a message, if looked up.
+    pub fn msg_info(&self, name: &str) -> Option<&MsgInfo> {
+        self.cache.get(name)
+    }
+
+    /// Class formats central reported during the handshake.
+    pub fn class_formats(&self) -> &[(i32, Option<Format>)] {
+        &self.class_formats
+    }
+
+    /// Whether the connection waits for input from central before it can
+    /// make progress (an internal query or a handler lookup is outstanding).
+    pub fn is_waiting(&self) -> bool {
+        self.blocked.is_some() || !self.deliveries.is_empty()
+    }
+
+    /// Whether deliveries wait to be processed by [`poll_event`](Self::poll_event).
+    pub fn has_pending_deliveries(&self) -> bool {
+        !self.inbox.is_empty()
+    }
+
+    /// Whether [`poll_transmit`](Self::poll_transmit) has bytes.
+    pub fn has_transmit(&self) -> bool {
+        !self.transmit.is_empty()
+    }
+
+    /// Next bytes to write to central.
+    pub fn poll_transmit(&mut self) -> Option<Vec<u8>> {
+        self.transmit.pop_front()
+    }
+
+    /// Next event for the shell.
+    ///
+    /// Deliveries are processed here, one at a time, as C's `IPC_listen`
+    /// does: the first delivery to a handler sends the `msgInfo(msg,
+    /// handler)` lookup and is reported once its reply arrived.
+    pub fn poll_event(&mut self) -> Option<Event> {
+        loop {
+            if let Some(e) = self.events.pop_front() {
+                return Some(e);
+            }
+            if !self.deliveries.is_empty() || matches!(self.stage, Stage::Closed) {
+                return None;
+            }
+            let f = self.inbox.pop_front()?;
+            if let Err(e) = self.start_delivery(f) {
+                self.fail(e);
+            }
+            self.pump();
+        }
+    }
+
+    /// No timers: query timeouts are the shell's job ([`cancel_query`](Self::cancel_query)).
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        None
+    }
+
+    /// Forgets a user query; a late reply is ignored.
+    pub fn cancel_query(&mut self, query: OpId) {
+        self.pending
+            .retain(|_, p| !matches!(p, Pending::UserQuery(q) if *q == query));
+    }
+
+    /// Feeds bytes read from central, in any split.
+    pub fn receive(&mut self, bytes: &[u8], _now: Instant) {
+        if matches!(self.stage, Stage::Closed) {
+            return;
+        }
+        self.inbuf.extend_from_slice(bytes);
+        if let Err(e) = self.drain_input() {
+            self.fail(e);
+        }
+    }
+
+    /// Central closed the stream (EOF).
+    pub fn handle_eof(&mut self) {
+        if !matches!(self.stage, Stage::Closed) {
+            self.stage = Stage::Closed;
+            self.events.push_back(Event::Closed(None));
+        }
+    }
+
+    fn fail(&mut self, e: Error) {
+        self.stage = Stage::Closed;
+        self.inbuf.clear();
+        self.ops.clear();
+        self.events.push_back(Event::Closed(Some(e)));
+    }
+
+    fn drain_input(&mut self) -> Result<(), Error> {
+        let mut pos = 0;
+        let res = loop {
+            if matches!(self.stage, Stage::Closed) {
+                break Ok(());
+            }
+            let rest = &self.inbuf[pos..];
+            if matches!(self.stage, Stage::MsgInfoId) {
+                if rest.len() < 4 {
+                    break Ok(());
+                }
+                self.msg_info_id = i32::from_be_bytes([rest[0], rest[1], rest[2], rest[3]]);
+                pos += 4;
+                self.stage = Stage::Formatters(0);
+                continue;
+            }
+            if rest.len() < HEADER_SIZE {
+                break Ok(());
+            }
+            let header = Header::decode(rest)?;
+            let n = header.body_len(self.cfg.max_frame)?;
+            if rest.len() < HEADER_SIZE + n {
+                break Ok(());
+            }
+            let frame = Frame::from_parts(header, &rest[HEADER_SIZE..HEADER_SIZE + n])?;
+            pos += HEADER_SIZE + n;
+            if let Err(e) = self.handle_frame(frame) {
+                break Err(e);
+            }
+        };
+        self.inbuf.drain(..pos.min(self.inbuf.len()));
+        res
+    }
+
+    fn handle_frame(&mut self, f: Frame) -> Result<(), Error> {
+        match self.stage {
+            Stage::Formatters(k) => {
+                // Contents are fixed by the protocol ({string, string} and
+                // *{int, string, int, format, format}); decode to validate.
+                let order = data_order(&f.header)?;
+                let mut r = Reader::new(&f.data, order);
+                crate::format::decode_formatter(&mut r).map_err(|e| proto_err("formatter", e))?;
+                if k == 0 {
+                    self.stage = Stage::Formatters(1);
+                } else {
+                    self.stage = Stage::Handshake;
+                    for c in HANDSHAKE_CLASSES {
+                        self.ops.push_back(Op::ClassInfo(c));
+                    }
+                    self.ops.push_back(Op::NewModuleConnect);
+                    self.pump();
+                }
+                Ok(())
+            }
+            _ => {
+                let h = f.header;
+                if h.intent == QUERY_REPLY_INTENT {
+                    self.handle_reply(f)
+                } else if h.intent >= 0 {
+                    self.handle_delivery(f)
+                } else {
+                    Err(Error::Protocol {
+                        what: "frame",
+                        detail: format!("unexpected intent {}", h.intent),
+                    })
+                }
+            }
+        }
+    }
+
+    // ---- outgoing frames -------------------------------------------------
+
+    fn next_msg_ref(&mut self) -> i32 {
+        let r = self.next_ref;
+        self.next_ref = self.next_ref.wrapping_add(1);
+        if self.next_ref < 1 {
+            self.next_ref = 1;
+        }
+        r
+    }
+
+    fn send(
+        &mut self,
+        intent: i32,
+        class: MsgClass,
+        parent: i32,
+        class_data: Vec<u8>,
+        data: Vec<u8>,
+    ) -> i32 {
+        self.send_ref(intent, class, parent, NO_REF, class_data, data, None)
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn send_ref(
+        &mut self,
+        intent: i32,
+        class: MsgClass,
+        parent: i32,
+        dispatch: i32,
+        class_data: Vec<u8>,
+        data: Vec<u8>,
+        msg_ref: Option<i32>,
+    ) -> i32 {
+        let msg_ref = msg_ref.unwrap_or_else(|| self.next_msg_ref());
+        let frame = Frame {
+            header: Header {
+                class_total: 0,
+                msg_total: 0,
+                parent_ref: parent,
+                intent,
+                class_id: ClassId::native(class),
+                dispatch_ref: dispatch,
+                msg_ref,
+            },
+            class_data,
+            data,
+        };
+        self.transmit.push_back(frame.encode());
+        msg_ref
+    }
+
+    fn send_lookup(&mut self, name: &str, hnd: Option<&str>, parent: i32) -> i32 {
+        let mut w = Writer::new();
+        w.write_str(name);
+        w.write_str(hnd.unwrap_or(""));
+        let id = self.msg_info_id;
+        self.send(id, MsgClass::Query, parent, Vec::new(), w.into_vec())
+    }
+
+    // ---- op queue --------------------------------------------------------
+
+    fn push_op(&mut self, op: Op) {
+        self.ops.push_back(op);
+        self.pump();
+    }
+
+    fn alloc_op(&mut self) -> OpId {
+        let id = self.next_op;
+        self.next_op += 1;
+        id
+    }
+
+    /// Runs queued operations until one waits for a reply.
+    fn pump(&mut self) {
+        // Like C, an internal handler that is still running (waiting for its
+        // msgInfo lookup) finishes before the next API operation runs.
+        while self.blocked.is_none() && self.deliveries.is_empty() {
+            if matches!(
+                self.stage,
+                Stage::Closed | Stage::MsgInfoId | Stage::Formatters(_)
+            ) {
+                return;
+            }
+            let Some(op) = self.ops.pop_front() else {
+                return;
+            };
+            // Every op needs the id of one message first.
+            let need = proto::op_message(&op);
+            if let Some(name) = need {
+                if !self.cache.contains_key(&name) {
+                    // C sends the lookup with the parentRef of the
+                    // operation (the dispatch being handled, if any).
+                    let parent = proto::op_parent(&op);
+                    let r = self.send_lookup(&name, None, parent);
+                    self.pending.insert(r, Pending::Lookup(name));
+                    self.blocked = Some(r);
+                    self.ops.push_front(op);
+                    return;
+                }
+            }
+            self.execute(op);
+        }
+    }
+
+    fn info(&self, name: &str) -> Option<MsgInfo> {
+        self.cache.get(name).cloned()
+    }
+
+    fn execute(&mut self, op: Op) {
+        let name = proto::op_message(&op).unwrap_or_default();
+        let Some(info) = self.info(&name).or(if name.is_empty() {
+            Some(MsgInfo::default())
+        } else {
+            None
+        }) else {
+            return;
+        };
+        if info.id == 0 && !name.is_empty() {
+            // Central does not know the message.
+            let err = Error::UnknownMessage(name.clone());
+            match op {
+                Op::Publish { op, .. }
+                | Op::Query { op, .. }
+                | Op::ModuleConnectedQ { op, .. }
+                | Op::NumHandlers { op, .. } => {
+                    self.events.push_back(Event::OpFailed { op, error: err })
+                }
+                _ => {
+                    if matches!(self.stage, Stage::Handshake) {
+                        self.fail(err);
+                    }
+                }
+            }
+            return;
+        }
+        let intent = info.id.abs();
+        match op {
+            Op::ClassInfo(c) => {
+                let mut w = Writer::new();
+                w.write_i32(c);
+                self.query_blocking(intent, w.into_vec(), Op::ClassInfo(c));
+            }
+            Op::NewModuleConnect => {
+                let mut w = Writer::new();
+                w.write_str(&self.cfg.name);
+                w.write_str(&self.cfg.host_name);
+                self.query_blocking(intent, w.into_vec(), Op::NewModuleConnect);
+            }
+            Op::WaitDirectPort => {
+                // Held until announce_direct_port.
+                self.ops.push_front(Op::WaitDirectPort);
+                self.blocked = Some(i32::MIN);
+            }
+            Op::DirectRes(port) => {
+                let mut w = Writer::new();
+                w.write_i32(port);
+                w.write_str(&self.cfg.name);
+                self.send(intent, MsgClass::Inform, NO_REF, Vec::new(), w.into_vec());
+            }
+            Op::VarGet(v) => self.query_blocking(intent, Vec::new(), Op::VarGet(v)),
+            Op::RegisterHandler { msg, hnd, id } => {
+                let mut w = Writer::new();
+                w.write_i32(id);
+                w.write_str(&msg);
+                w.write_str(&hnd);
+                self.send(intent, MsgClass::Inform, NO_REF, Vec::new(), w.into_vec());
+            }
+            Op::Deregister { msg, hnd } => {
+                let mut w = Writer::new();
+                w.write_i32(0);
+                w.write_str(&msg);
+                w.write_str(&hnd);
+                self.send(intent, MsgClass::Inform, NO_REF, Vec::new(), w.into_vec());
+            }
+            Op::LimitPending { msg, limit } => {
+                let mut w = Writer::new();
+                w.write_str(&msg);
+                w.write_str(&self.cfg.name);
+                w.write_i32(limit);
+                self.send(intent, MsgClass::Inform, NO_REF, Vec::new(), w.into_vec());
+            }
+            Op::WaitMsg => self.query_blocking(intent, Vec::new(), Op::WaitMsg),
+            Op::DefineFormat { name, fmt } => {
+                let mut w = Writer::new();
+                w.write_str(&name);
+                w.write_str(&fmt);
+                self.send(intent, MsgClass::Inform, NO_REF, Vec::new(), w.into_vec());
+            }
+            Op::DefineMsg { name, len, fmt } => {
+                let mut w = Writer::new();
+                w.write_str(&name);
+                w.write_i32(MsgClass::Broadcast as i32);
+                match len {
+                    MsgLength::Variable => w.write_str("{int, <byte:1>}"),
+                    MsgLength::Fixed(n) => w.write_str(&format!("[byte:{n}]")),
+                    MsgLength::Empty => w.write_str(""),
+                }
+                w.write_str(fmt.as_deref().unwrap_or(""));
+                self.send(intent, MsgClass::Inform, NO_REF, Vec::new(), w.into_vec());
+                // No lookup here (C defers it to the first use); a
+                // redefinition may change the formats, so forget the cache.
+                self.cache.remove(&name);
+            }
+            Op::Lookup(_) => {}
+            Op::Publish {
+                op,
+                msg,
+                data,
+                parent,
+            } => {
+                if info.id < 0 {
+                    self.events.push_back(Event::OpFailed {
+                        op,
+                        error: Error::DirectUnsupported(msg),
+                    });
+                    return;
+                }
+                if self.cfg.listen && info.class == MsgClass::Broadcast as i32 {
+                    if let Some(list) = &self.broadcast_var {
+                        if !list.contains(&msg) {
+                            self.events.push_back(Event::PublishDropped { op, msg });
+                            return;
+                        }
+                    }
+                }
+                match proto::wrap(&info, &msg, &data) {
+                    Ok(body) => {
+                        let class =
+                            MsgClass::from_u16(info.class as u16).unwrap_or(MsgClass::Broadcast);
+                        self.send(intent, class, parent, Vec::new(), body);
+                        self.events.push_back(Event::Published { op });
+                    }
+                    Err(error) => self.events.push_back(Event::OpFailed { op, error }),
+                }
+            }
+            Op::Query {
+                op,
+                msg,
+                data,
+                parent,
+            } => {
+                if info.id < 0 {
+                    self.events.push_back(Event::OpFailed {
+                        op,
+                        error: Error::DirectUnsupported(msg),
+                    });
+                    return;
+                }
+                match proto::wrap(&info, &msg, &data) {
+                    Ok(body) => {
+                        let r = self.send(intent, MsgClass::Query, parent, Vec::new(), body);
+                        self.pending.insert(r, Pending::UserQuery(op));
+                    }
+                    Err(error) => self.events.push_back(Event::OpFailed { op, error }),
+                }
+            }
+            Op::Respond {
+                msg,
+                data,
+                dispatch,
+                parent,
+            } => {
+                let body = proto::wrap(&info, &msg, &data).unwrap_or(data);
+                let mut cd = Writer::new();
+                cd.write_str(&msg);
+                self.send_ref(
+                    NO_REF,
+                    MsgClass::Reply,
+                    parent,
+                    dispatch,
+                    cd.into_vec(),
+                    body,
+                    Some(NO_REF),
+                );
+            }
+            Op::Inform { data, .. } => {
+                self.send(intent, MsgClass::Inform, NO_REF, Vec::new(), data);
+            }
+            Op::ModuleConnectedQ { op, module } => {
+                let mut w = Writer::new();
+                w.write_str(&module);
+                self.query_blocking(intent, w.into_vec(), Op::ModuleConnectedQ { op, module });
+            }
+            Op::NumHandlers { op, msg } => {
+                let mut w = Writer::new();
+                w.write_str(&msg);
+                self.query_blocking(intent, w.into_vec(), Op::NumHandlers { op, msg });
+            }
+            Op::NotifyHandlerChange { msg } => {
+                let mut w = Writer::new();
+                w.write_str(&msg);
+                self.send(intent, MsgClass::Inform, NO_REF, Vec::new(), w.into_vec());
+            }
+            Op::Close => {
+                self.send(intent, MsgClass::Inform, NO_REF, Vec::new(), Vec::new());
+                self.stage = Stage::Closed;
+                self.events.push_back(Event::Closed(None));
+            }
+        }
+    }
+
+    fn query_blocking(&mut self, intent: i32, data: Vec<u8>, op: Op) {
+        let r = self.send(intent, MsgClass::Query, NO_REF, Vec::new(), data);
+        self.pending.insert(r, Pending::Internal(op));
+        self.blocked = Some(r);
+    }
+
+    // ---- incoming --------------------------------------------------------
+
+    fn handle_reply(&mut self, f: Frame) -> Result<(), Error> {
+        let r = f.header.msg_ref;
+        let Some(p) = self.pending.remove(&r) else {
+            // Reply to a cancelled query: ignore.
+            return Ok(());
+        };
+        if self.blocked == Some(r) {
+            self.blocked = None;
+        }
+        let order = data_order(&f.header)?;
+        match p {
+            Pending::Lookup(name) => {
+                let info = proto::decode_msg_info(&f.data, order)?;
+                self.cache.insert(name, info.unwrap_or_default());
+            }
+            Pending::HandlerLookup(did) => {
+                let info = proto::decode_msg_info(&f.data, order)?;
+                if let Some(d) = self.deliveries.iter_mut().find(|d| d.id == did) {
+                    if let Some(info) = info {
+                        self.cache.entry(d.msg.clone()).or_insert(info);
+                    }
+                    d.ready = true;
+                }
+                self.flush_deliveries();
+            }
+            Pending::UserQuery(query) => {
+                let reply_msg = if f.class_data.is_empty() {
+                    String::new()
+                } else {
+                    let co = class_order(&f.header)?;
+                    let mut cr = Reader::new(&f.class_data, co);
+                    cr.read_str()
+                        .map_err(|e| proto_err("reply class data", e))?
+                        .to_string()
+                };
+                let data = match self.cache.get(&reply_msg) {
+                    Some(info) => proto::unwrap(info, &f.data, order)?,
+                    None => f.data.clone(),
+                };
+                self.events.push_back(Event::Reply {
+                    query,
+                    reply_msg,
+                    order,
+                    data,
+                });
+            }
+            Pending::Internal(op) => self.internal_reply(op, &f, order)?,
+        }
+        self.pump();
+        Ok(())
+    }
+
+    fn internal_reply(&mut self, op: Op, f: &Frame, order: ByteOrder) -> Result<(), Error> {
+        let mut rd = Reader::new(&f.data, order);
+        match op {
+            Op::ClassInfo(_)
+                if !f.data.is_empty()
+                    && rd.read_ptr_flag().map_err(|e| proto_err("classInfo", e))? =>
+            {
+                let c = rd.read_i32().map_err(|e| proto_err("classInfo", e))?;
+                let fmt = crate::format::decode_formatter(&mut rd)
+                    .map_err(|e| proto_err("classInfo", e))?;
+                self.class_formats.push((c, fmt));
+            }
+            Op::NewModuleConnect => {
+                let e = |e| proto_err("newModuleConnect reply", e);
+                let major = rd.read_i32().map_err(e)?;
+                let minor = rd.read_i32().map_err(e)?;
+                let direct = rd.read_i32().map_err(e)?;
+                if major != 3 {
+                    return Err(Error::Version { major, minor });
+                }
+                self.direct = direct != 0;
+                let mut next = Vec::new();
+                if self.direct {
+                    self.events.push_back(Event::DirectListenRequested);
+                    next.push(Op::WaitDirectPort);
+                }
+                for v in [
+                    "V_get_CENTRAL_TERMINAL_LOG_VAR",
+                    "V_get_CENTRAL_FILE_LOG_VAR",
+                    "V_get_X_IPC_TAPPED_MSG_VAR",
+                    "V_get_X_IPC_BROADCAST_MSG_VAR",
+                ] {
+                    next.push(Op::VarGet(v));
+                }
+                let id = self.alloc_handler(
+                    "V_watch_X_IPC_BROADCAST_MSG_VAR",
+                    "V_watch_X_IPC_BROADCAST_MSG_VAR",
+                    HandlerKind::BroadcastVar,
+                );
+                next.push(Op::RegisterHandler {
+                    id,
+                    msg: "V_watch_X_IPC_BROADCAST_MSG_VAR".into(),
+                    hnd: "V_watch_X_IPC_BROADCAST_MSG_VAR".into(),
+                });
+                next.push(Op::LimitPending {
+                    msg: "X_IPC_BROADCAST_MSG_VAR".into(),
+                    limit: 1,
+                });
+                next.push(Op::WaitMsg);
+                for op in next.into_iter().rev() {
+                    self.ops.push_front(op);
+                }
+            }
+            Op::VarGet("V_get_X_IPC_BROADCAST_MSG_VAR") => {
+                self.broadcast_var = Some(proto::decode_str_list(&f.data, order)?);
+            }
+            Op::WaitMsg => {
+                self.stage = Stage::Ready;
+                self.events.push_back(Event::Connected);
+            }
+            Op::ModuleConnectedQ { op, .. } => {
+                let v = rd
+                    .read_i32()
+                    .map_err(|e| proto_err("moduleConnectedQ reply", e))?;
+                self.events.push_back(Event::ModuleConnected {
+                    op,
+                    connected: v != 0,
+                });
+            }
+            Op::NumHandlers { op, .. } => {
+                let count = if f.data.is_empty() {
+                    0
+                } else {
+                    rd.read_i32()
+                        .map_err(|e| proto_err("directMsgQuery reply", e))?
+                };
+                self.events.push_back(Event::NumHandlers { op, count });
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    fn handle_delivery(&mut self, f: Frame) -> Result<(), Error> {
+        if self.inbox.len() >= MAX_QUEUED_DELIVERIES {
+            return Err(Error::Protocol {
+                what: "delivery",
+                detail: format!("more than {MAX_QUEUED_DELIVERIES} unprocessed deliveries"),
+            });
+        }
+        self.inbox.push_back(f);
+        Ok(())
+    }
+
+    fn start_delivery(&mut self, f: Frame) -> Result<(), Error> {
+        let hid = f.header.intent;
+        let Some(h) = self.handlers.get_mut(&hid) else {
+            return Err(Error::Protocol {
+                what: "delivery",
+                detail: format!("no handler {hid}"),
+            });
+        };
+        let msg = if f.class_data.is_empty() {
+            h.msg.clone()
+        } else {
+            let co = class_order(&f.header)?;
+            let mut cr = Reader::new(&f.class_data, co);
+            cr.read_str()
+                .map_err(|e| proto_err("delivery class data", e))?
+                .to_string()
+        };
+        let id = self.next_delivery;
+        self.next_delivery += 1;
+        let mut ready = true;
+        if !h.known {
+            h.known = true;
+            ready = false;
+            let hnd = h.name.clone();
+            let r = self.send_lookup(&msg, Some(&hnd), NO_REF);
+            self.pending.insert(r, Pending::HandlerLookup(id));
+        }
+        self.deliveries.push_back(PendingDelivery {
+            id,
+            frame: f,
+            msg,
+            ready,
+        });
+        self.flush_deliveries();
+        Ok(())
+    }
+
+    fn flush_deliveries(&mut self) {
+        while self.deliveries.front().is_some_and(|d| d.ready) {
+            let Some(d) = self.deliveries.pop_front() else {
+                return;
+            };
+            if let Err(e) = self.dispatch(d) {
+                self.fail(e);
+                return;
+            }
+        }
+    }
+
+    fn dispatch(&mut self, d: PendingDelivery) -> Result<(), Error> {
+        let h = d.frame.header;
+        let order = data_order(&h)?;
+        let kind = match h.class_id.msg_class() {
+            Some(MsgClass::Query) => DeliveryKind::Query,
+            _ => DeliveryKind::Broadcast,
+        };
+        let hk = self.handlers.get(&h.intent).map(|x| x.kind.clone());
+        let data = match self.cache.get(&d.msg) {
+            Some(info) => proto::unwrap(info, &d.frame.data, order)?,
+            None => d.frame.data.clone(),
+        };
+        match hk {
+            Some(HandlerKind::User) | None => {
+                self.unacked.insert(d.id, (kind, h.msg_ref, h.msg_ref));
+                self.events.push_back(Event::Delivery {
+                    delivery: d.id,
+                    handler: h.intent,
+                    msg: d.msg,
+                    kind,
+                    dispatch_ref: h.msg_ref,
+                    parent_ref: h.parent_ref,
+                    order,
+                    data,
+                });
+                return Ok(());
+            }
+            Some(HandlerKind::BroadcastVar) => {
+                self.broadcast_var = Some(proto::decode_str_list(&d.frame.data, order)?);
+            }
+            Some(HandlerKind::ConnectNotify) | Some(HandlerKind::DisconnectNotify) => {
+                let mut r = Reader::new(&d.frame.data, order);
+                let m = r
+                    .read_str()
+                    .map_err(|e| proto_err("connect notification", e))?
+                    .to_string();
+                self.events
+                    .push_back(if hk == Some(HandlerKind::ConnectNotify) {
+                        Event::ModuleConnect(m)
+                    } else {
+                        Event::ModuleDisconnect(m)
+                    });
+            }
+            Some(HandlerKind::Watch(msg)) => {
+                let mut r = Reader::new(&d.frame.data, order);
+                let count = if d.frame.data.is_empty() {
+                    0
+                } else {
+                    r.read_i32().map_err(|e| proto_err("V_watch", e))?
+                };
+                self.events.push_back(Event::HandlerChange { msg, count });
+            }
+        }
+        if kind == DeliveryKind::Broadcast {
+            self.send_success(h.msg_ref);
+        }
+        Ok(())
+    }
+
+    fn send_success(&mut self, dispatch: i32) {
+        self.send_ref(
+            NO_REF,
+            MsgClass::Success,
+            dispatch,
+            dispatch,
+            Vec::new(),
+            Vec::new(),
+            Some(NO_REF),
+        );
+    }
+
+    fn alloc_handler(&mut self, msg: &str, hnd: &str, kind: HandlerKind) -> i32 {
+        if let Some(id) = self.by_name.get(&(msg.to_string(), hnd.to_string())) {
+            return *id;
+        }
+        let mut id = self.next_handler;
+        while self.handlers.contains_key(&id) || id < 2 {
+            id = if id < 2 { i32::MAX } else { id - 1 };
+        }
+        self.next_handler = id - 1;
+        self.handlers.insert(
+            id,
+            Handler {
+                msg: msg.into(),
+                name: hnd.into(),
+                known: false,
+                kind,
+            },
+        );
+        self.by_name.insert((msg.into(), hnd.into()), id);
+        id
+    }
+
+    // ---- API -------------------------------------------------------------
+
+    fn check_open(&self) -> Result<(), Error> {
+        if matches!(self.stage, Stage::Closed) {
+            Err(Error::Closed)
+        } else {
+            Ok(())
+        }
+    }
+
+    /// Reports the direct listener's port (after [`Event::DirectListenRequested`]):
+    /// sends `x_ipc_directResMsg {port, name}` and continues the handshake.
+    pub fn announce_direct_port(&mut self, port: i32) {
+        if let Some(pos) = self
+            .ops
+            .iter()
+            .position(|o| matches!(o, Op::WaitDirectPort))
+        {
+            self.ops[pos] = Op::DirectRes(port);
+            if self.blocked == Some(i32::MIN) {
+                self.blocked = None;
+            }
+            self.pump();
+        }
+    }
+
+    /// `IPC_defineFormat`: `x_ipc_registerNamedFormMsg {name, fmt}`.
+    pub fn define_format(&mut self, name: &str, fmt: &str) -> Result<(), Error> {
+        self.check_open()?;
+        self.push_op(Op::DefineFormat {
+            name: name.into(),
+            fmt: fmt.into(),
+        });
+        Ok(())
+    }
+
+    /// `IPC_defineMsg`: `x_ipc_registerMessageMsg`, then a lookup.
+    pub fn define_msg(
+        &mut self,
+        name: &str,
+        len: MsgLength,
+        user_format: Option<&str>,
+    ) -> Result<(), Error> {
+        self.check_open()?;
+        self.push_op(Op::DefineMsg {
+            name: name.into(),
+            len,
+            fmt: user_format.map(Into::into),
+        });
+        Ok(())
+    }
+
+    /// `IPC_subscribe`: registers handler `handler_name` for `msg`; returns
+    /// its id (C's table: 199, 198, … descending). Re-subscribing the same
+    /// name returns the same id and sends nothing.
+    pub fn subscribe(&mut self, msg: &str, handler_name: &str) -> Result<i32, Error> {
+        self.check_open()?;
+        if let Some(id) = self
+            .by_name
+            .get(&(msg.to_string(), handler_name.to_string()))
+        {
+            return Ok(*id);
+        }
+        let id = self.alloc_handler(msg, handler_name, HandlerKind::User);
+        self.push_op(Op::RegisterHandler {
+            id,
+            msg: msg.into(),
+            hnd: handler_name.into(),
+        });
+        Ok(id)
+    }
+
+    /// `IPC_unsubscribe`: `x_ipc_deregisterHandlerMsg {0, msg, hnd}`.
+    pub fn unsubscribe(&mut self, msg: &str, handler_name: &str) -> Result<(), Error> {
+        self.check_open()?;
+        if let Some(id) = self
+            .by_name
+            .remove(&(msg.to_string(), handler_name.to_string()))
+        {
+            self.handlers.remove(&id);
+        }
+        self.push_op(Op::Deregister {
+            msg: msg.into(),
+            hnd: handler_name.into(),
+        });
+        Ok(())
+    }
+
+    /// `IPC_publish`: wraps `data` per the message's format; the outcome is
+    /// [`Event::Published`], [`Event::PublishDropped`] or [`Event::OpFailed`].
+    /// `parent_ref` is the dispatch being handled (or -1).
+    pub fn publish(&mut self, msg: &str, data: &[u8], parent_ref: i32) -> Result<OpId, Error> {
+        self.check_open()?;
+        let op = self.alloc_op();
+        self.push_op(Op::Publish {
+            op,
+            msg: msg.into(),
+            data: data.to_vec(),
+            parent: parent_ref,
+        });
+        Ok(op)
+    }
+
+    /// `IPC_queryNotify`/`IPC_queryResponse`: the answer comes as [`Event::Reply`].
+    pub fn query(&mut self, msg: &str, data: &[u8], parent_ref: i32) -> Result<OpId, Error> {
+        self.check_open()?;
+        let op = self.alloc_op();
+        self.push_op(Op::Query {
+            op,
+            msg: msg.into(),
+            data: data.to_vec(),
+            parent: parent_ref,
+        });
+        Ok(op)
+    }
+
+    /// `IPC_respond`: answers query delivery `delivery` with `reply_msg`
+    /// (any time later, in any order: `IPC_delayResponse`).
+    pub fn respond(
+        &mut self,
+        delivery: DeliveryId,
+        reply_msg: &str,
+        data: &[u8],
+    ) -> Result<(), Error> {
+        self.check_open()?;
+        let Some((kind, dispatch, _)) = self.unacked.get(&delivery).copied() else {
+            return Err(Error::UnknownHandle(delivery));
+        };
+        if kind != DeliveryKind::Query {
+            return Err(Error::UnknownHandle(delivery));
+        }
+        self.unacked.remove(&delivery);
+        self.push_op(Op::Respond {
+            msg: reply_msg.into(),
+            data: data.to_vec(),
+            dispatch,
+            parent: dispatch,
+        });
+        Ok(())
+    }
+
+    /// Sends the Success ack of a broadcast delivery ("handler returned"),
+    /// freeing a capacity slot in central.
+    pub fn ack(&mut self, delivery: DeliveryId) -> Result<(), Error> {
+        self.check_open()?;
+        match self.unacked.get(&delivery).copied() {
+            Some((DeliveryKind::Broadcast, dispatch, _)) => {
+                self.unacked.remove(&delivery);
+                self.send_success(dispatch);
+                Ok(())
+            }
+            _ => Err(Error::UnknownHandle(delivery)),
+        }
+    }
+
+    /// `IPC_setCapacity`: `x_ipc_registerResourceMsg {n, name}`.
+    pub fn set_capacity(&mut self, n: i32) -> Result<(), Error> {
+        self.check_open()?;
+        let mut w = Writer::new();
+        w.write_i32(n);
+        w.write_str(&self.cfg.name);
+        self.push_op(Op::Inform {
+            msg: "x_ipc_registerResourceMsg",
+            data: w.into_vec(),
+        });
+        Ok(())
+    }
+
+    /// `IPC_setMsgPriority`: `ipc_setMsgPriority {msg, p}`.
+    pub fn set_priority(&mut self, msg: &str, priority: i32) -> Result<(), Error> {
+        self.check_open()?;
+        let mut w = Writer::new();
+        w.write_str(msg);
+        w.write_i32(priority);
+        self.push_op(Op::Inform {
+            msg: "ipc_setMsgPriority",
+            data: w.into_vec(),
+        });
+        Ok(())
+    }
+
+    /// `IPC_setMsgQueueLength`: `x_ipc_limitPendingMsg {msg, name, n}`.
+    pub fn set_queue_length(&mut self, msg: &str, n: i32) -> Result<(), Error> {
+        self.check_open()?;
+        self.push_op(Op::LimitPending {
+            msg: msg.into(),
+            limit: n,
+        });
+        Ok(())
+    }
+
+    /// `IPC_isModuleConnected`: answer in [`Event::ModuleConnected`].
+    pub fn is_module_connected(&mut self, module: &str) -> Result<OpId, Error> {
+        self.check_open()?;
+        let op = self.alloc_op();
+        self.push_op(Op::ModuleConnectedQ {
+            op,
+            module: module.into(),
+        });
+        Ok(op)
+    }
+
+    /// `IPC_numHandlers`: answer in [`Event::NumHandlers`].
+    pub fn num_handlers(&mut self, msg: &str) -> Result<OpId, Error> {
+        self.check_open()?;
+        let op = self.alloc_op();
+        self.push_op(Op::NumHandlers {
+            op,
+            msg: msg.into(),
+        });
+        Ok(op)
+    }
+
+    /// `IPC_subscribeConnect`: [`Event::ModuleConnect`] for each module connecting.
+    pub fn subscribe_connect(&mut self) -> Result<(), Error> {
+        self.check_open()?;
+        if !self.connect_subscribed {
+            self.connect_subscribed = true;
+            let m = "x_ipc_connectNotify";
+            let id = self.alloc_handler(m, m, HandlerKind::ConnectNotify);
+            self.push_op(Op::RegisterHandler {
+                id,
+                msg: m.into(),
+                hnd: m.into(),
+            });
+        }
+        Ok(())
+    }
+
+    /// `IPC_subscribeDisconnect`: [`Event::ModuleDisconnect`] for each module leaving.
+    pub fn subscribe_disconnect(&mut self) -> Result<(), Error> {
+        self.check_open()?;
+        if !self.disconnect_subscribed {
+            self.disconnect_subscribed = true;
+            let m = "x_ipc_disconnectNotify";
+            let id = self.alloc_handler(m, m, HandlerKind::DisconnectNotify);
+            self.push_op(Op::RegisterHandler {
+                id,
+                msg: m.into(),
+                hnd: m.into(),
+            });
+        }
+        Ok(())
+    }
+
+    /// `IPC_subscribeHandlerChange`: `x_ipc_notifyHandlerChange msg`, a
+    /// `x_ipc_directMsgQuery` (reported as [`Event::NumHandlers`]) and a
+    /// `V_watch_<msg>` subscription ([`Event::HandlerChange`]).
+    pub fn subscribe_handler_change(&mut self, msg: &str) -> Result<OpId, Error> {
+        self.check_open()?;
+        let op = self.alloc_op();
+        self.push_op(Op::Lookup(msg.into()));
+        self.push_op(Op::NotifyHandlerChange { msg: msg.into() });
+        self.push_op(Op::NumHandlers {
+            op,
+            msg: msg.into(),
+        });
+        let w = format!("V_watch_{msg}");
+        let key = (w.clone(), w.clone());
+        if !self.by_name.contains_key(&key) {
+            let id = self.alloc_handler(&w, &w, HandlerKind::Watch(msg.into()));
+            self.push_op(Op::RegisterHandler {
+                id,
+                msg: w.clone(),
+                hnd: w,
+            });
+        }
+        Ok(op)
+    }
+
+    /// `IPC_disconnect`: `x_ipc_CloseMsg`, then the shell closes the socket
+    /// once [`poll_transmit`](Self::poll_transmit) is drained.
+    pub fn close(&mut self) -> Result<(), Error> {
+        self.check_open()?;
+        self.push_op(Op::Close);
+        Ok(())
+    }
+}
+
+fn data_order(h: &Header) -> Result<ByteOrder, Error> {
+    h.class_id.data_order().ok_or(Error::Protocol {
+        what: "classId",
+        detail: format!("unknown data byte order in 0x{:08x}", h.class_id.0),
+    })
+}
+
+fn class_order(h: &Header) -> Result<ByteOrder, Error> {
+    h.class_id.class_order().ok_or(Error::Protocol {
+        what: "classId",
+        detail: format!("unknown class byte order in 0x{:08x}", h.class_id.0),
+    })
+}
+
+fn proto_err(what: &'static str, e: impl std::fmt::Display) -> Error {
+    Error::Protocol {
+        what,
+        detail: e.to_string(),
+    }
+}
