@@ -1,9 +1,10 @@
 //! Fuzzes the RTPS message parser: any datagram either fails with an error
 //! or parses; a parsed message re-encodes to bytes that parse to the same
-//! message, and parameter lists in DATA payloads parse
-//! without panicking.
+//! message, and parameter lists, SPDP/SEDP data and disposals in DATA
+//! submessages parse without panicking.
 #![no_main]
 
+use courier_wire::rtps::discovery::{payload_params, Disposal, EndpointData, ParticipantData};
 use courier_wire::rtps::{Message, ParameterList, Submessage};
 use libfuzzer_sys::fuzz_target;
 
@@ -15,7 +16,12 @@ fuzz_target!(|data: &[u8]| {
                 if p.len() >= 4 {
                     let _ = ParameterList::parse(&p[4..], p[1] & 1 == 1);
                 }
+                if let Ok(list) = payload_params(p) {
+                    let _ = ParticipantData::from_params(&list);
+                    let _ = EndpointData::from_params(&list, true);
+                }
             }
+            let _ = Disposal::from_data(d.inline_qos, true, d.payload, d.key);
         }
     }
     let out = m.to_vec();
