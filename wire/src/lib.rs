@@ -24,8 +24,8 @@ pub mod cdr;
 pub mod const_str;
 pub mod format;
 pub mod ipc;
-pub mod rtps;
 mod message;
+pub mod rtps;
 
 #[doc(hidden)]
 pub use message::__private;

@@ -24,9 +24,9 @@
 pub mod discovery;
 pub mod frag;
 pub mod matching;
-pub mod reliability;
 mod message;
 pub mod parameter;
+pub mod reliability;
 mod types;
 
 pub use message::{
