@@ -1048,10 +1048,12 @@ impl Connection {
     fn start_delivery(&mut self, f: Frame) -> Result<(), Error> {
         let hid = f.header.intent;
         let Some(h) = self.handlers.get_mut(&hid) else {
-            return Err(Error::Protocol {
-                what: "delivery",
-                detail: format!("no handler {hid}"),
-            });
+            // A delivery racing an unsubscribe: drop it, but free central's
+            // capacity slot for a broadcast as the handler would have.
+            if f.header.class_id.msg_class() != Some(MsgClass::Query) {
+                self.send_success(f.header.msg_ref);
+            }
+            return Ok(());
         };
         let msg = if f.class_data.is_empty() {
             h.msg.clone()
