@@ -507,3 +507,39 @@ fn random_bytes_never_panic() {
         }
     }
 }
+
+#[test]
+fn define_msg_sends_the_c_msg_formats() {
+    let now = Instant::now();
+    let mut c = connected(true);
+    c.define_msg("fixedMsg", MsgLength::Fixed(8), Some("{int, int}"))
+        .unwrap();
+    c.define_msg("emptyMsg", MsgLength::Empty, None).unwrap();
+    let f = drain(&mut c);
+    assert_eq!(f.len(), 1);
+    assert_eq!(lookup_name(&f[0]), "x_ipc_registerMessageMsg");
+    c.receive(
+        &msg_info_reply(
+            f[0].header.msg_ref,
+            168,
+            "x_ipc_registerMessageMsg",
+            6,
+            "{string, int, string, string}",
+            "",
+        ),
+        now,
+    );
+    let f = drain(&mut c);
+    assert_eq!(f.len(), 2, "no lookup after the definitions (C defers it)");
+    let body = |name: &str, fmt: &str, res: &str| {
+        let mut w = Writer::new();
+        w.write_str(name);
+        w.write_i32(15);
+        w.write_str(fmt);
+        w.write_str(res);
+        w.into_vec()
+    };
+    assert_eq!(f[0].data, body("fixedMsg", "[byte:8]", "{int, int}"));
+    assert_eq!(f[1].data, body("emptyMsg", "", ""));
+    assert_eq!(f[1].header.class_id.class(), 6);
+}
