@@ -543,3 +543,23 @@ fn define_msg_sends_the_c_msg_formats() {
     assert_eq!(f[1].data, body("emptyMsg", "", ""));
     assert_eq!(f[1].header.class_id.class(), 6);
 }
+
+#[test]
+fn unknown_message_fails_the_op_and_is_asked_again() {
+    let now = Instant::now();
+    let mut c = connected(false);
+    let a = c.publish("nope", b"", -1).unwrap();
+    let f = drain(&mut c);
+    c.receive(
+        &frame(-4, MsgClass::Unknown, 0, f[0].header.msg_ref, &[], &[0]),
+        now,
+    );
+    assert!(matches!(
+        c.poll_event(),
+        Some(Event::OpFailed { op, error: Error::UnknownMessage(_) }) if op == a
+    ));
+    c.publish("nope", b"", -1).unwrap();
+    let f = drain(&mut c);
+    assert_eq!(f.len(), 1);
+    assert_eq!(lookup_name(&f[0]), "nope");
+}

@@ -374,6 +374,7 @@ pub struct Connection {
     by_name: HashMap<(String, String), i32>,
     deliveries: VecDeque<PendingDelivery>,
     inbox: VecDeque<Frame>,
+    unknown: HashSet<String>,
     unacked: HashMap<DeliveryId, (DeliveryKind, i32, i32)>,
     broadcast_var: Option<HashSet<String>>,
     class_formats: Vec<(i32, Option<Format>)>,
@@ -410,6 +411,7 @@ impl Connection {
             by_name: HashMap::new(),
             deliveries: VecDeque::new(),
             inbox: VecDeque::new(),
+            unknown: HashSet::new(),
             unacked: HashMap::new(),
             broadcast_var: None,
             class_formats: Vec::new(),
@@ -679,7 +681,7 @@ impl Connection {
             // Every op needs the id of one message first.
             let need = proto::op_message(&op);
             if let Some(name) = need {
-                if !self.cache.contains_key(&name) {
+                if !self.cache.contains_key(&name) && !self.unknown.contains(&name) {
                     // C sends the lookup with the parentRef of the
                     // operation (the dispatch being handled, if any).
                     let parent = proto::op_parent(&op);
@@ -700,14 +702,10 @@ impl Connection {
 
     fn execute(&mut self, op: Op) {
         let name = proto::op_message(&op).unwrap_or_default();
-        let Some(info) = self.info(&name).or(if name.is_empty() {
-            Some(MsgInfo::default())
-        } else {
-            None
-        }) else {
-            return;
-        };
-        if info.id == 0 && !name.is_empty() {
+        let known = self.info(&name);
+        let unknown = !name.is_empty() && known.is_none() && self.unknown.remove(&name);
+        let info = known.unwrap_or_default();
+        if unknown || (info.id == 0 && !name.is_empty()) {
             // Central does not know the message.
             let err = Error::UnknownMessage(name.clone());
             match op {
@@ -912,7 +910,16 @@ impl Connection {
         match p {
             Pending::Lookup(name) => {
                 let info = proto::decode_msg_info(&f.data, order)?;
-                self.cache.insert(name, info.unwrap_or_default());
+                // Unknown names are not cached (C asks again next time:
+                // another module may define the message meanwhile).
+                match info {
+                    Some(info) => {
+                        self.cache.insert(name, info);
+                    }
+                    None => {
+                        self.unknown.insert(name);
+                    }
+                }
             }
             Pending::HandlerLookup(did) => {
                 let info = proto::decode_msg_info(&f.data, order)?;
@@ -1434,11 +1441,19 @@ impl Connection {
         Ok(())
     }
 
-    /// `IPC_subscribeHandlerChange`: `x_ipc_notifyHandlerChange msg`, a
-    /// `x_ipc_directMsgQuery` (reported as [`Event::NumHandlers`]) and a
-    /// `V_watch_<msg>` subscription ([`Event::HandlerChange`]).
-    pub fn subscribe_handler_change(&mut self, msg: &str) -> Result<OpId, Error> {
+    /// `IPC_subscribeHandlerChange`: the first time for `msg`, sends
+    /// `x_ipc_notifyHandlerChange msg`, a `x_ipc_directMsgQuery` (its answer
+    /// is reported as [`Event::NumHandlers`] with the returned id) and a
+    /// `V_watch_<msg>` subscription (later changes: [`Event::HandlerChange`]).
+    /// Further calls for the same message send nothing and return `None`,
+    /// as in C.
+    pub fn subscribe_handler_change(&mut self, msg: &str) -> Result<Option<OpId>, Error> {
         self.check_open()?;
+        let w = format!("V_watch_{msg}");
+        let key = (w.clone(), w.clone());
+        if self.by_name.contains_key(&key) {
+            return Ok(None);
+        }
         let op = self.alloc_op();
         self.push_op(Op::Lookup(msg.into()));
         self.push_op(Op::NotifyHandlerChange { msg: msg.into() });
@@ -1446,17 +1461,13 @@ impl Connection {
             op,
             msg: msg.into(),
         });
-        let w = format!("V_watch_{msg}");
-        let key = (w.clone(), w.clone());
-        if !self.by_name.contains_key(&key) {
-            let id = self.alloc_handler(&w, &w, HandlerKind::Watch(msg.into()));
-            self.push_op(Op::RegisterHandler {
-                id,
-                msg: w.clone(),
-                hnd: w,
-            });
-        }
-        Ok(op)
+        let id = self.alloc_handler(&w, &w, HandlerKind::Watch(msg.into()));
+        self.push_op(Op::RegisterHandler {
+            id,
+            msg: w.clone(),
+            hnd: w,
+        });
+        Ok(Some(op))
     }
 
     /// `IPC_disconnect`: `x_ipc_CloseMsg`, then the shell closes the socket
