@@ -14,13 +14,18 @@
 //! exception: like `IPC_queryNotify` they do not hold the queue; the reply is
 //! matched by msgRef and reported as [`Event::Reply`].
 //!
-//! Deliveries are handled as they arrive: the first delivery to a handler
-//! triggers the C module's `msgInfo(msg, handlerName)` lookup before the
-//! delivery is reported. Broadcast deliveries are *not* auto-acked: the
-//! shell calls [`Connection::ack`] once the user has taken the message
-//! (central keeps at most `capacity` deliveries outstanding until acks come
-//! back). Internal deliveries (`V_watch_*`, connect notifications) are acked
-//! by the state machine itself, after processing, as C does.
+//! Deliveries are buffered on arrival and processed when the shell calls
+//! [`Connection::poll_event`] (C's `IPC_listen`), one at a time: the first
+//! delivery to a handler triggers the C module's `msgInfo(msg, handlerName)`
+//! lookup before the delivery is reported, and API operations wait until
+//! that internal "handler" has finished (C nests handlers the same way).
+//! Broadcast deliveries are *not* auto-acked: the shell calls
+//! [`Connection::ack`] once the user has taken the message (central keeps at
+//! most `capacity` deliveries outstanding until acks come back). Query
+//! deliveries are completed by [`Connection::respond`], at any time and in
+//! any order (`IPC_delayResponse`). Internal deliveries (`V_watch_*`,
+//! connect notifications) are acked by the state machine itself, after
+//! processing, as C does.
 //!
 //! Direct mode (§8) is not implemented: a connect reply with `direct = 1`
 //! is accepted but [`Event::DirectListenRequested`] is raised and sending a
