@@ -563,3 +563,98 @@ fn unknown_message_fails_the_op_and_is_asked_again() {
     assert_eq!(f.len(), 1);
     assert_eq!(lookup_name(&f[0]), "nope");
 }
+
+#[test]
+fn direct_publish_waits_for_receivers_and_links() {
+    use courier_wire::ipc::module::LinkId;
+    let now = Instant::now();
+    let mut c = connected(false);
+    let op = c.publish("dmsg", b"xy", -1).unwrap();
+    let f = drain(&mut c);
+    c.receive(
+        &msg_info_reply(
+            f[0].header.msg_ref,
+            -116,
+            "dmsg",
+            15,
+            "{int, <byte:1>}",
+            "string",
+        ),
+        now,
+    );
+    // lookup of x_ipc_directMsgQuery, then the query itself
+    let f = drain(&mut c);
+    assert_eq!(lookup_name(&f[0]), "x_ipc_directMsgQuery");
+    c.receive(
+        &msg_info_reply(
+            f[0].header.msg_ref,
+            147,
+            "x_ipc_directMsgQuery",
+            3,
+            "string",
+            "int",
+        ),
+        now,
+    );
+    let f = drain(&mut c);
+    assert_eq!(f.len(), 1);
+    assert_eq!(
+        (f[0].header.intent, f[0].data.clone()),
+        (147, str_data("dmsg"))
+    );
+    let mut w = Writer::new();
+    w.write_i32(2);
+    w.write_i32(2);
+    for (id, port, host) in [(198, 8000, "a"), (197, 8001, "b")] {
+        w.write_i32(id);
+        w.write_i32(0);
+        w.write_i32(0);
+        w.write_i32(port);
+        w.write_str(host);
+        w.write_str("mod");
+    }
+    c.receive(
+        &frame(
+            -4,
+            MsgClass::Unknown,
+            0,
+            f[0].header.msg_ref,
+            &[],
+            &w.into_vec(),
+        ),
+        now,
+    );
+    // V_watch_dmsg subscription (registerHandler was looked up at connect)
+    let f = drain(&mut c);
+    assert_eq!(f.len(), 1);
+    assert_eq!(f[0].header.intent, 166);
+    assert!(
+        c.poll_direct_transmit().is_none(),
+        "held until the links are up"
+    );
+    let mut links = Vec::new();
+    while let Some(e) = c.poll_event() {
+        if let Event::DirectConnect { link, port, .. } = e {
+            links.push((link, port));
+        }
+    }
+    assert_eq!(links, vec![(LinkId(1), 8000), (LinkId(2), 8001)]);
+    c.direct_link_up(LinkId(1));
+    assert!(c.poll_direct_transmit().is_none());
+    c.direct_link_up(LinkId(2));
+    let (l1, b1) = c.poll_direct_transmit().unwrap();
+    let (l2, b2) = c.poll_direct_transmit().unwrap();
+    assert_eq!((l1, l2), (LinkId(2), LinkId(1)), "last handler first");
+    let h1 = Header::decode(&b1).unwrap();
+    let h2 = Header::decode(&b2).unwrap();
+    assert_eq!((h1.intent, h2.intent), (197, 198));
+    assert_eq!(h1.msg_ref, h2.msg_ref);
+    let mut want = 2i32.to_ne_bytes().repeat(2);
+    want.extend_from_slice(b"xy");
+    assert_eq!(&b1[28..], &want[..]);
+    assert_eq!(c.poll_event(), Some(Event::Published { op }));
+    assert!(drain(&mut c).is_empty(), "nothing went to central");
+    // second publish: receivers known, links up: immediate
+    c.publish("dmsg", b"z", -1).unwrap();
+    assert!(c.poll_direct_transmit().is_some());
+}

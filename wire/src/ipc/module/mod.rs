@@ -27,9 +27,15 @@
 //! connect notifications) are acked by the state machine itself, after
 //! processing, as C does.
 //!
-//! Direct mode (§8) is not implemented: a connect reply with `direct = 1`
-//! is accepted but [`Event::DirectListenRequested`] is raised and sending a
-//! message whose id is negative fails with [`Error::DirectUnsupported`].
+//! Direct mode (§8), sending side: the first send of a direct message (negative
+//! id) runs `x_ipc_directMsgQuery`, raises [`Event::DirectConnect`] for each
+//! receiver without a link, subscribes `V_watch_<msg>` to follow changes, and
+//! holds the send (and the operations after it) until every link is up or
+//! failed — the message is never dropped for want of a receiver list.
+//! Frames for links come from [`Connection::poll_direct_transmit`].
+//! Not yet implemented: frames *arriving* on direct links (incoming direct
+//! deliveries and direct replies) and the extra log-var watches C adds in
+//! direct mode.
 
 mod proto;
 
@@ -51,6 +57,9 @@ pub const DEFAULT_MAX_FRAME: u64 = 64 * 1024 * 1024;
 /// [`Connection::poll_event`]; central sends at most `capacity` outstanding
 /// deliveries plus notifications, so more means a misbehaving peer.
 pub const MAX_QUEUED_DELIVERIES: usize = 65_536;
+
+/// `blocked` marker: a direct send waits for its links.
+const LINK_WAIT: i32 = i32::MIN + 1;
 
 /// First handler id handed out (C's handler id table counts down from 199).
 pub const FIRST_HANDLER_ID: i32 = 199;
@@ -113,9 +122,6 @@ pub enum Error {
         /// Central's minor version.
         minor: i32,
     },
-    /// Direct mode (central `-c`) is not implemented yet.
-    #[error("direct message {0:?}: direct mode is not implemented")]
-    DirectUnsupported(String),
     /// The user data does not fit the message's fixed length.
     #[error("message {msg:?} has fixed length {expected}, got {got} bytes")]
     WrongLength {
@@ -140,6 +146,23 @@ pub enum MsgLength {
     Fixed(u32),
     /// No data.
     Empty,
+}
+
+/// Handle of a direct (module-to-module) link, §8.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct LinkId(pub u64);
+
+/// One receiver of a direct message (`directMsgHandler`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct DirectHandler {
+    /// The receiver's handler id (intent of frames sent to it).
+    pub intent: i32,
+    /// The receiver's listen port.
+    pub port: i32,
+    /// The receiver's host name.
+    pub host: String,
+    /// The receiver's module name.
+    pub module: String,
 }
 
 /// Handle of an API operation (publish, query, …), unique per connection.
@@ -241,6 +264,20 @@ pub enum Event {
         /// New handler count.
         count: i32,
     },
+    /// Direct mode: connect to a receiver's listener (TCP, or the UNIX socket
+    /// `/tmp/x_ipc/<port>` when `host` is our host name), then call
+    /// [`Connection::direct_link_up`] or [`Connection::direct_link_failed`].
+    /// Sends of direct messages wait until then (nothing is lost).
+    DirectConnect {
+        /// The link's handle.
+        link: LinkId,
+        /// Receiver's reported host name.
+        host: String,
+        /// Receiver's listen port.
+        port: i32,
+        /// Receiver's module name.
+        module: String,
+    },
     /// The connection failed or was closed; nothing more will happen.
     Closed(Option<Error>),
 }
@@ -275,6 +312,7 @@ enum HandlerKind {
     ConnectNotify,
     DisconnectNotify,
     Watch(String),
+    DirectWatch(String),
 }
 
 #[derive(Debug)]
@@ -304,6 +342,9 @@ enum Op {
         fmt: Option<String>,
     },
     Lookup(String),
+    DirectQuery {
+        msg: String,
+    },
     Deregister {
         msg: String,
         hnd: String,
@@ -379,6 +420,10 @@ pub struct Connection {
     by_name: HashMap<(String, String), i32>,
     deliveries: VecDeque<PendingDelivery>,
     inbox: VecDeque<Frame>,
+    direct_handlers: HashMap<String, Vec<DirectHandler>>,
+    links: HashMap<(String, i32), (LinkId, bool)>,
+    next_link: u64,
+    direct_tx: VecDeque<(LinkId, Vec<u8>)>,
     unknown: HashSet<String>,
     unacked: HashMap<DeliveryId, (DeliveryKind, i32, i32)>,
     broadcast_var: Option<HashSet<String>>,
@@ -416,6 +461,10 @@ impl Connection {
             by_name: HashMap::new(),
             deliveries: VecDeque::new(),
             inbox: VecDeque::new(),
+            direct_handlers: HashMap::new(),
+            links: HashMap::new(),
+            next_link: 1,
+            direct_tx: VecDeque::new(),
             unknown: HashSet::new(),
             unacked: HashMap::new(),
             broadcast_var: None,
@@ -797,6 +846,11 @@ impl Connection {
                 self.cache.remove(&name);
             }
             Op::Lookup(_) => {}
+            Op::DirectQuery { msg } => {
+                let mut w = Writer::new();
+                w.write_str(&msg);
+                self.query_blocking(intent, w.into_vec(), Op::DirectQuery { msg });
+            }
             Op::Publish {
                 op,
                 msg,
@@ -804,10 +858,15 @@ impl Connection {
                 parent,
             } => {
                 if info.id < 0 {
-                    self.events.push_back(Event::OpFailed {
-                        op,
-                        error: Error::DirectUnsupported(msg),
-                    });
+                    self.direct_send(
+                        Op::Publish {
+                            op,
+                            msg,
+                            data,
+                            parent,
+                        },
+                        &info,
+                    );
                     return;
                 }
                 if self.cfg.listen && info.class == MsgClass::Broadcast as i32 {
@@ -835,10 +894,15 @@ impl Connection {
                 parent,
             } => {
                 if info.id < 0 {
-                    self.events.push_back(Event::OpFailed {
-                        op,
-                        error: Error::DirectUnsupported(msg),
-                    });
+                    self.direct_send(
+                        Op::Query {
+                            op,
+                            msg,
+                            data,
+                            parent,
+                        },
+                        &info,
+                    );
                     return;
                 }
                 match proto::wrap(&info, &msg, &data) {
@@ -1032,6 +1096,19 @@ impl Connection {
                     connected: v != 0,
                 });
             }
+            Op::DirectQuery { msg } => {
+                let list = proto::decode_direct_handlers(&f.data, order)?;
+                self.set_direct_handlers(&msg, list);
+                let w = format!("V_watch_{msg}");
+                if !self.by_name.contains_key(&(w.clone(), w.clone())) {
+                    let id = self.alloc_handler(&w, &w, HandlerKind::DirectWatch(msg));
+                    self.ops.push_front(Op::RegisterHandler {
+                        id,
+                        msg: w.clone(),
+                        hnd: w,
+                    });
+                }
+            }
             Op::NumHandlers { op, .. } => {
                 let count = if f.data.is_empty() {
                     0
@@ -1151,6 +1228,12 @@ impl Connection {
                         Event::ModuleDisconnect(m)
                     });
             }
+            Some(HandlerKind::DirectWatch(msg)) => {
+                let list = proto::decode_direct_handlers(&d.frame.data, order)?;
+                let count = list.len() as i32;
+                self.set_direct_handlers(&msg, list);
+                self.events.push_back(Event::HandlerChange { msg, count });
+            }
             Some(HandlerKind::Watch(msg)) => {
                 let mut r = Reader::new(&d.frame.data, order);
                 let count = if d.frame.data.is_empty() {
@@ -1224,6 +1307,164 @@ impl Connection {
                 self.blocked = None;
             }
             self.pump();
+        }
+    }
+
+    /// Bytes to write on a direct link (§8).
+    pub fn poll_direct_transmit(&mut self) -> Option<(LinkId, Vec<u8>)> {
+        self.direct_tx.pop_front()
+    }
+
+    /// The shell connected direct link `link`: queued sends proceed.
+    pub fn direct_link_up(&mut self, link: LinkId) {
+        for (id, up) in self.links.values_mut() {
+            if *id == link {
+                *up = true;
+            }
+        }
+        if self.blocked == Some(LINK_WAIT) {
+            self.blocked = None;
+            self.pump();
+        }
+    }
+
+    /// The shell could not connect `link`: its receivers are skipped (as C
+    /// does after a failed connect); queued sends proceed to the others.
+    pub fn direct_link_failed(&mut self, link: LinkId) {
+        let dead: Vec<(String, i32)> = self
+            .links
+            .iter()
+            .filter(|(_, (id, _))| *id == link)
+            .map(|(k, _)| k.clone())
+            .collect();
+        for k in &dead {
+            self.links.remove(k);
+            for list in self.direct_handlers.values_mut() {
+                list.retain(|h| (h.host.as_str(), h.port) != (k.0.as_str(), k.1));
+            }
+        }
+        self.direct_link_up(link);
+    }
+
+    fn set_direct_handlers(&mut self, msg: &str, list: Vec<DirectHandler>) {
+        for h in &list {
+            let key = (h.host.clone(), h.port);
+            if !self.links.contains_key(&key) {
+                let link = LinkId(self.next_link);
+                self.next_link += 1;
+                self.links.insert(key, (link, false));
+                self.events.push_back(Event::DirectConnect {
+                    link,
+                    host: h.host.clone(),
+                    port: h.port,
+                    module: h.module.clone(),
+                });
+            }
+        }
+        self.direct_handlers.insert(msg.to_string(), list);
+    }
+
+    /// Sends a direct publish/query, first learning the receivers and
+    /// waiting for their links, so that no message is lost.
+    fn direct_send(&mut self, op: Op, info: &MsgInfo) {
+        let (op_id, msg, data, parent, query) = match op {
+            Op::Publish {
+                op,
+                msg,
+                data,
+                parent,
+            } => (op, msg, data, parent, false),
+            Op::Query {
+                op,
+                msg,
+                data,
+                parent,
+            } => (op, msg, data, parent, true),
+            other => {
+                self.ops.push_front(other);
+                return;
+            }
+        };
+        let rebuild = |msg: String, data: Vec<u8>| {
+            if query {
+                Op::Query {
+                    op: op_id,
+                    msg,
+                    data,
+                    parent,
+                }
+            } else {
+                Op::Publish {
+                    op: op_id,
+                    msg,
+                    data,
+                    parent,
+                }
+            }
+        };
+        let Some(list) = self.direct_handlers.get(&msg).cloned() else {
+            self.ops.push_front(rebuild(msg.clone(), data));
+            self.ops.push_front(Op::DirectQuery { msg });
+            return;
+        };
+        let links: Vec<(LinkId, bool)> = list
+            .iter()
+            .filter_map(|h| self.links.get(&(h.host.clone(), h.port)).copied())
+            .collect();
+        if links.iter().any(|(_, up)| !up) {
+            self.ops.push_front(rebuild(msg, data));
+            self.blocked = Some(LINK_WAIT);
+            return;
+        }
+        if list.is_empty() {
+            // C: "No handlers for direct message"; reported, not silent.
+            self.events
+                .push_back(Event::PublishDropped { op: op_id, msg });
+            return;
+        }
+        let body = match proto::wrap(info, &msg, &data) {
+            Ok(b) => b,
+            Err(error) => {
+                self.events.push_back(Event::OpFailed { op: op_id, error });
+                return;
+            }
+        };
+        let msg_ref = self.next_msg_ref();
+        let class = if query {
+            MsgClass::Query
+        } else {
+            MsgClass::from_u16(info.class as u16).unwrap_or(MsgClass::Broadcast)
+        };
+        // Last handler first (C walks the list backwards); a query goes to
+        // the first handler only.
+        let targets: Vec<&DirectHandler> = if query {
+            list.iter().take(1).collect()
+        } else {
+            list.iter().rev().collect()
+        };
+        for h in targets {
+            let Some((link, _)) = self.links.get(&(h.host.clone(), h.port)).copied() else {
+                continue;
+            };
+            let frame = Frame {
+                header: Header {
+                    class_total: 0,
+                    msg_total: 0,
+                    parent_ref: parent,
+                    intent: h.intent,
+                    class_id: ClassId::native(class),
+                    dispatch_ref: NO_REF,
+                    msg_ref,
+                },
+                class_data: Vec::new(),
+                data: body.clone(),
+            };
+            self.direct_tx.push_back((link, frame.encode()));
+        }
+        if query {
+            self.pending.insert(msg_ref, Pending::UserQuery(op_id));
+        } else {
+            self.events.push_back(Event::Published { op: op_id });
         }
     }
 

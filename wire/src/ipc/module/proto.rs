@@ -3,7 +3,7 @@
 
 use std::collections::HashSet;
 
-use super::{proto_err, Error, Op};
+use super::{proto_err, DirectHandler, Error, Op};
 use crate::format::{decode_formatter, Format, Primitive};
 use crate::ipc::{ByteOrder, Reader, Writer};
 
@@ -36,6 +36,7 @@ pub(super) fn op_message(op: &Op) -> Option<String> {
         Op::DefineFormat { .. } => "x_ipc_registerNamedFormMsg",
         Op::DefineMsg { .. } => "x_ipc_registerMessageMsg",
         Op::Lookup(n) => n,
+        Op::DirectQuery { .. } => "x_ipc_directMsgQuery",
         Op::Deregister { .. } => "x_ipc_deregisterHandlerMsg",
         Op::Publish { msg, .. } | Op::Query { msg, .. } | Op::Respond { msg, .. } => msg,
         Op::Inform { msg, .. } => msg,
@@ -169,6 +170,36 @@ pub(super) fn decode_str_list(data: &[u8], order: ByteOrder) -> Result<HashSet<S
         if (i as i64) < length as i64 && !s.is_empty() {
             out.insert(s.to_string());
         }
+    }
+    Ok(out)
+}
+
+/// Decodes `{int n, <directMsgHandler:1>}` (or an empty reply = none).
+pub(super) fn decode_direct_handlers(
+    data: &[u8],
+    order: ByteOrder,
+) -> Result<Vec<DirectHandler>, Error> {
+    let e = |e| proto_err("direct handler list", e);
+    let mut out = Vec::new();
+    if data.is_empty() {
+        return Ok(out);
+    }
+    let mut r = Reader::new(data, order);
+    let _n = r.read_i32().map_err(e)?;
+    let count = r.read_count(4 * 4 + 5 + 5).map_err(e)?;
+    for _ in 0..count {
+        let intent = r.read_i32().map_err(e)?;
+        let _read_sd = r.read_i32().map_err(e)?;
+        let _write_sd = r.read_i32().map_err(e)?;
+        let port = r.read_i32().map_err(e)?;
+        let host = r.read_str().map_err(e)?.to_string();
+        let module = r.read_str().map_err(e)?.to_string();
+        out.push(DirectHandler {
+            intent,
+            port,
+            host,
+            module,
+        });
     }
     Ok(out)
 }
