@@ -658,3 +658,74 @@ fn direct_publish_waits_for_receivers_and_links() {
     c.publish("dmsg", b"z", -1).unwrap();
     assert!(c.poll_direct_transmit().is_some());
 }
+
+#[test]
+fn incoming_direct_query_is_answered_on_its_link_without_success() {
+    let now = Instant::now();
+    let mut c = connected(true);
+    c.subscribe("dq", "HND-dq").unwrap();
+    let f = drain(&mut c);
+    c.receive(
+        &msg_info_reply(
+            f[0].header.msg_ref,
+            166,
+            "x_ipc_registerHandlerMsg",
+            6,
+            "{int, string, string}",
+            "",
+        ),
+        now,
+    );
+    drain(&mut c);
+    let link = c.accept_direct();
+    let q = frame(198, MsgClass::Query, -1, 9, &[], &[0; 8]);
+    let b = frame(198, MsgClass::Broadcast, -1, 10, &[], &[0; 8]);
+    c.receive_direct(link, &q[..5]).unwrap();
+    let mut rest = q[5..].to_vec();
+    rest.extend_from_slice(&b);
+    c.receive_direct(link, &rest).unwrap();
+    assert_eq!(c.poll_event(), None);
+    let f = drain(&mut c);
+    assert_eq!(lookup_name(&f[0]), "dq", "handler lookup goes to central");
+    c.receive(
+        &msg_info_reply(
+            f[0].header.msg_ref,
+            -120,
+            "dq",
+            15,
+            "{int, <byte:1>}",
+            "int",
+        ),
+        now,
+    );
+    let Some(Event::Delivery {
+        delivery: dq,
+        kind: DeliveryKind::Query,
+        dispatch_ref: 9,
+        ..
+    }) = c.poll_event()
+    else {
+        panic!()
+    };
+    let Some(Event::Delivery {
+        delivery: db,
+        kind: DeliveryKind::Broadcast,
+        ..
+    }) = c.poll_event()
+    else {
+        panic!()
+    };
+    c.ack(db).unwrap();
+    assert!(drain(&mut c).is_empty(), "no Success for direct deliveries");
+    c.respond(dq, "dq", b"ok").unwrap();
+    let (l, bytes) = c.poll_direct_transmit().unwrap();
+    assert_eq!(l, link);
+    let h = Header::decode(&bytes).unwrap();
+    assert_eq!(
+        (h.intent, h.dispatch_ref, h.msg_ref, h.class_id.class()),
+        (-4, 9, 9, 11)
+    );
+    // garbage on a link is reported, the central connection stays up
+    assert!(c.receive_direct(link, &[0xff; 28]).is_err());
+    assert!(c.is_connected());
+}

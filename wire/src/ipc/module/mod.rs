@@ -32,10 +32,12 @@
 //! receiver without a link, subscribes `V_watch_<msg>` to follow changes, and
 //! holds the send (and the operations after it) until every link is up or
 //! failed — the message is never dropped for want of a receiver list.
-//! Frames for links come from [`Connection::poll_direct_transmit`].
-//! Not yet implemented: frames *arriving* on direct links (incoming direct
-//! deliveries and direct replies) and the extra log-var watches C adds in
-//! direct mode.
+//! Frames for links come from [`Connection::poll_direct_transmit`]; bytes
+//! read from links (ours or accepted with [`Connection::accept_direct`]) go
+//! to [`Connection::receive_direct`]: deliveries (no Success ack on links)
+//! and replies to direct queries; [`Connection::respond`] to a direct query
+//! answers on the same link. Not implemented: the extra log-var watches C
+//! adds in direct mode, and closing links nobody needs any more.
 
 mod proto;
 
@@ -366,6 +368,7 @@ enum Op {
         data: Vec<u8>,
         dispatch: i32,
         parent: i32,
+        link: Option<LinkId>,
     },
     Inform {
         msg: &'static str,
@@ -399,6 +402,7 @@ struct PendingDelivery {
     frame: Frame,
     msg: String,
     ready: bool,
+    link: Option<LinkId>,
 }
 
 /// The module side of one connection to central.
@@ -419,13 +423,14 @@ pub struct Connection {
     handlers: HashMap<i32, Handler>,
     by_name: HashMap<(String, String), i32>,
     deliveries: VecDeque<PendingDelivery>,
-    inbox: VecDeque<Frame>,
+    inbox: VecDeque<(Frame, Option<LinkId>)>,
+    link_in: HashMap<LinkId, Vec<u8>>,
     direct_handlers: HashMap<String, Vec<DirectHandler>>,
     links: HashMap<(String, i32), (LinkId, bool)>,
     next_link: u64,
     direct_tx: VecDeque<(LinkId, Vec<u8>)>,
     unknown: HashSet<String>,
-    unacked: HashMap<DeliveryId, (DeliveryKind, i32, i32)>,
+    unacked: HashMap<DeliveryId, (DeliveryKind, i32, Option<LinkId>)>,
     broadcast_var: Option<HashSet<String>>,
     class_formats: Vec<(i32, Option<Format>)>,
     direct: bool,
@@ -461,6 +466,7 @@ impl Connection {
             by_name: HashMap::new(),
             deliveries: VecDeque::new(),
             inbox: VecDeque::new(),
+            link_in: HashMap::new(),
             direct_handlers: HashMap::new(),
             links: HashMap::new(),
             next_link: 1,
@@ -531,8 +537,8 @@ impl Connection {
             if !self.deliveries.is_empty() || matches!(self.stage, Stage::Closed) {
                 return None;
             }
-            let f = self.inbox.pop_front()?;
-            if let Err(e) = self.start_delivery(f) {
+            let (f, link) = self.inbox.pop_front()?;
+            if let Err(e) = self.start_delivery(f, link) {
                 self.fail(e);
             }
             self.pump();
@@ -918,10 +924,30 @@ impl Connection {
                 data,
                 dispatch,
                 parent,
+                link,
             } => {
                 let body = proto::wrap(&info, &msg, &data).unwrap_or(data);
                 let mut cd = Writer::new();
                 cd.write_str(&msg);
+                if let Some(link) = link {
+                    // Direct reply: back on the same link, intent -4,
+                    // dispatchRef = msgRef = the query's msgRef (§8).
+                    let frame = Frame {
+                        header: Header {
+                            class_total: 0,
+                            msg_total: 0,
+                            parent_ref: NO_REF,
+                            intent: QUERY_REPLY_INTENT,
+                            class_id: ClassId::native(MsgClass::Reply),
+                            dispatch_ref: dispatch,
+                            msg_ref: dispatch,
+                        },
+                        class_data: cd.into_vec(),
+                        data: body,
+                    };
+                    self.direct_tx.push_back((link, frame.encode()));
+                    return;
+                }
                 self.send_ref(
                     NO_REF,
                     MsgClass::Reply,
@@ -1130,16 +1156,16 @@ impl Connection {
                 detail: format!("more than {MAX_QUEUED_DELIVERIES} unprocessed deliveries"),
             });
         }
-        self.inbox.push_back(f);
+        self.inbox.push_back((f, None));
         Ok(())
     }
 
-    fn start_delivery(&mut self, f: Frame) -> Result<(), Error> {
+    fn start_delivery(&mut self, f: Frame, link: Option<LinkId>) -> Result<(), Error> {
         let hid = f.header.intent;
         let Some(h) = self.handlers.get_mut(&hid) else {
             // A delivery racing an unsubscribe: drop it, but free central's
             // capacity slot for a broadcast as the handler would have.
-            if f.header.class_id.msg_class() != Some(MsgClass::Query) {
+            if link.is_none() && f.header.class_id.msg_class() != Some(MsgClass::Query) {
                 self.send_success(f.header.msg_ref);
             }
             return Ok(());
@@ -1168,6 +1194,7 @@ impl Connection {
             frame: f,
             msg,
             ready,
+            link,
         });
         self.flush_deliveries();
         Ok(())
@@ -1199,7 +1226,7 @@ impl Connection {
         };
         match hk {
             Some(HandlerKind::User) | None => {
-                self.unacked.insert(d.id, (kind, h.msg_ref, h.msg_ref));
+                self.unacked.insert(d.id, (kind, h.msg_ref, d.link));
                 self.events.push_back(Event::Delivery {
                     delivery: d.id,
                     handler: h.intent,
@@ -1244,7 +1271,7 @@ impl Connection {
                 self.events.push_back(Event::HandlerChange { msg, count });
             }
         }
-        if kind == DeliveryKind::Broadcast {
+        if kind == DeliveryKind::Broadcast && d.link.is_none() {
             self.send_success(h.msg_ref);
         }
         Ok(())
@@ -1313,6 +1340,64 @@ impl Connection {
     /// Bytes to write on a direct link (§8).
     pub fn poll_direct_transmit(&mut self) -> Option<(LinkId, Vec<u8>)> {
         self.direct_tx.pop_front()
+    }
+
+    /// A peer connected to our direct listener: returns the link's handle
+    /// for [`receive_direct`](Self::receive_direct).
+    pub fn accept_direct(&mut self) -> LinkId {
+        let link = LinkId(self.next_link);
+        self.next_link += 1;
+        self.link_in.insert(link, Vec::new());
+        link
+    }
+
+    /// Bytes read from a direct link (accepted or connected), in any split:
+    /// deliveries to our handlers (no Success ack is sent for them) and
+    /// replies to our direct queries. A malformed stream closes only the
+    /// link: the error is returned and the shell drops the socket.
+    pub fn receive_direct(&mut self, link: LinkId, bytes: &[u8]) -> Result<(), Error> {
+        let mut buf = self.link_in.remove(&link).unwrap_or_default();
+        buf.extend_from_slice(bytes);
+        let mut pos = 0;
+        let res = loop {
+            let rest = &buf[pos..];
+            if rest.len() < HEADER_SIZE {
+                break Ok(());
+            }
+            let header = match Header::decode(rest) {
+                Ok(h) => h,
+                Err(e) => break Err(Error::Frame(e)),
+            };
+            let n = match header.body_len(self.cfg.max_frame) {
+                Ok(n) => n,
+                Err(e) => break Err(Error::Frame(e)),
+            };
+            if rest.len() < HEADER_SIZE + n {
+                break Ok(());
+            }
+            let frame = match Frame::from_parts(header, &rest[HEADER_SIZE..HEADER_SIZE + n]) {
+                Ok(f) => f,
+                Err(e) => break Err(Error::Frame(e)),
+            };
+            pos += HEADER_SIZE + n;
+            if frame.header.intent == QUERY_REPLY_INTENT {
+                if let Err(e) = self.handle_reply(frame) {
+                    break Err(e);
+                }
+            } else if self.inbox.len() >= MAX_QUEUED_DELIVERIES {
+                break Err(Error::Protocol {
+                    what: "direct delivery",
+                    detail: format!("more than {MAX_QUEUED_DELIVERIES} unprocessed deliveries"),
+                });
+            } else {
+                self.inbox.push_back((frame, Some(link)));
+            }
+        };
+        if res.is_ok() {
+            buf.drain(..pos);
+            self.link_in.insert(link, buf);
+        }
+        res
     }
 
     /// The shell connected direct link `link`: queued sends proceed.
@@ -1567,7 +1652,7 @@ impl Connection {
         data: &[u8],
     ) -> Result<(), Error> {
         self.check_open()?;
-        let Some((kind, dispatch, _)) = self.unacked.get(&delivery).copied() else {
+        let Some((kind, dispatch, link)) = self.unacked.get(&delivery).copied() else {
             return Err(Error::UnknownHandle(delivery));
         };
         if kind != DeliveryKind::Query {
@@ -1579,6 +1664,7 @@ impl Connection {
             data: data.to_vec(),
             dispatch,
             parent: dispatch,
+            link,
         });
         Ok(())
     }
@@ -1588,9 +1674,12 @@ impl Connection {
     pub fn ack(&mut self, delivery: DeliveryId) -> Result<(), Error> {
         self.check_open()?;
         match self.unacked.get(&delivery).copied() {
-            Some((DeliveryKind::Broadcast, dispatch, _)) => {
+            Some((DeliveryKind::Broadcast, dispatch, link)) => {
                 self.unacked.remove(&delivery);
-                self.send_success(dispatch);
+                // No Success on direct links (§8).
+                if link.is_none() {
+                    self.send_success(dispatch);
+                }
                 Ok(())
             }
             _ => Err(Error::UnknownHandle(delivery)),
