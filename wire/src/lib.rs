@@ -4,7 +4,7 @@
 //! no sockets, no clocks, no async runtime. Time, where it matters, is an
 //! argument.
 //!
-//! - [`format`]: the CMU IPC format-string language.
+//! - [`format`](mod@format): the CMU IPC format-string language.
 //! - [`ipc`]: IPC marshalling, byte-identical to CMU IPC 3.9.
 //! - [`cdr`]: OMG CDR as DDS uses it (XCDR1 and XCDR2).
 //! - [`IpcMessage`]: the trait `#[derive(IpcMessage)]` implements.
