@@ -61,6 +61,78 @@ pub struct LogOptions {
     pub no_prompt: bool,
 }
 
+impl LogOptions {
+    /// No logging (`-lx`).
+    pub const NONE: LogOptions = LogOptions {
+        messages: false,
+        status: false,
+        time: false,
+        data: false,
+        ignore_internal: false,
+        handle_summary: false,
+        refs: false,
+        parent_refs: false,
+        no_flush: false,
+        no_prompt: false,
+    };
+
+    /// Parses the letters after `-l` (`file == false`) or `-L` (`file ==
+    /// true`), as the C central does: no letters = `mstdh`, `x` = none,
+    /// otherwise each letter turns one option on (`F` and `n` only for files).
+    pub fn parse(letters: &str, file: bool) -> Result<LogOptions, OptionError> {
+        let mut o = LogOptions::NONE;
+        if letters.is_empty() {
+            o.messages = true;
+            o.status = true;
+            o.time = true;
+            o.data = true;
+            o.handle_summary = true;
+            return Ok(o);
+        }
+        for c in letters.chars() {
+            match c {
+                'm' => o.messages = true,
+                's' => o.status = true,
+                't' => o.time = true,
+                'd' => o.data = true,
+                'i' => o.ignore_internal = true,
+                'h' => o.handle_summary = true,
+                'r' => o.refs = true,
+                'p' => o.parent_refs = true,
+                'x' => o = LogOptions::NONE,
+                'F' if file => o.no_flush = true,
+                'n' if file => o.no_prompt = true,
+                _ => {
+                    return Err(OptionError::UnknownLogOption {
+                        option: c,
+                        flag: if file { 'L' } else { 'l' },
+                    })
+                }
+            }
+        }
+        Ok(o)
+    }
+
+    /// True if anything at all is logged.
+    pub fn any(&self) -> bool {
+        self.messages || self.status || self.data || self.time || self.handle_summary
+    }
+}
+
+/// A bad option given to central (command line or console).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum OptionError {
+    /// A letter after `-l`/`-L` that is not a logging option.
+    #[error("unknown logging option '{option}' in -{flag} (options: m s t d i h r p x{})", if *flag == 'L' { " F n" } else { "" })]
+    UnknownLogOption {
+        /// The letter.
+        option: char,
+        /// `l` or `L`.
+        flag: char,
+    },
+}
+
 /// Configuration of a [`Central`].
 #[derive(Debug, Clone, PartialEq, Eq)]
 #[non_exhaustive]
