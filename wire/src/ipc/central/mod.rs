@@ -223,20 +223,216 @@ pub enum Output {
     },
 }
 
+mod internal;
+mod log;
+
+use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
+use std::sync::Arc;
+
+use self::internal::{Def, Internal};
+use self::log::Kind;
+use crate::format::{parse, parse_with, Format, FormatRegistry};
+use crate::ipc::frame::{ClassId, Header, MsgClass, HEADER_SIZE, NO_REF, QUERY_REPLY_INTENT};
+use crate::ipc::{ByteOrder, Reader, Writer};
+
+/// The module name central uses for itself in logs.
+const SERVER_NAME: &str = "X_IPC Server";
+/// `DEFAULT_PRIORITY` of `ipc_setMsgPriority`.
+const DEFAULT_PRIORITY: i32 = 1;
+/// IPC version central reports (`{{3, 9}, direct}`).
+const VERSION: (i32, i32) = (3, 9);
+/// Most handlers listed in a direct handler list (`MAX_DIRECT_HANDLERS`).
+const MAX_DIRECT_HANDLERS: usize = 100;
+
+/// Who sent a dispatch.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Org {
+    Central,
+    Module(ConnId),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Status {
+    /// Waiting for a handler to exist (a query or inform with none yet).
+    NoHandler,
+    /// In a module's pending queue.
+    Pending,
+    /// Delivered; waiting for Success or Reply.
+    Attending,
+}
+
+#[derive(Debug)]
+struct Dispatch {
+    msg: String,
+    /// The class the sender used (Broadcast, Query, Inform).
+    class: u16,
+    /// The sender's classId (keeps its byte-order flags for forwarding).
+    class_id: ClassId,
+    org: Org,
+    org_ref: i32,
+    parent_ref: i32,
+    data: Arc<[u8]>,
+    /// The handler: module and handler name.
+    hnd: Option<(ConnId, String)>,
+    status: Status,
+}
+
+#[derive(Debug)]
+struct Handler {
+    id: i32,
+    msg: String,
+    /// The module asked msgInfo with this handler's name: it knows the message.
+    knows_msg: bool,
+}
+
+#[derive(Debug)]
+struct Module {
+    peer: Peer,
+    /// Bytes received and not yet framed; `rx_pos` is where unread data starts.
+    rx: Vec<u8>,
+    rx_pos: usize,
+    name: Option<String>,
+    host: String,
+    /// `x_ipc_waitMsg` answered: deliveries may flow.
+    ready: bool,
+    capacity: usize,
+    attending: usize,
+    pending: VecDeque<i32>,
+    msg_limits: Vec<(String, i32)>,
+    pending_limit: Option<i32>,
+    /// Direct-mode listen port (-1 = none).
+    port: i32,
+    /// Handlers by name.
+    handlers: BTreeMap<String, Handler>,
+    paused: bool,
+    closed: bool,
+}
+
+#[derive(Debug)]
+struct Msg {
+    /// Central's id; 0 for a name only known from a subscription.
+    id: i32,
+    name: String,
+    class: MsgClass,
+    msg_format: Option<String>,
+    res_format: Option<String>,
+    /// Parsed (and named-format expanded) formats, cached.
+    parsed: Option<(Option<Format>, Option<Format>)>,
+    /// Handlers in subscription order (oldest first).
+    handlers: Vec<(ConnId, String)>,
+    /// Dispatches waiting for a first handler.
+    waiting: VecDeque<i32>,
+    priority: i32,
+    direct: bool,
+    notify_handler_change: bool,
+    internal: Option<Internal>,
+}
+
+#[derive(Debug)]
+struct Var {
+    format: Format,
+    value: Vec<u8>,
+}
+
+/// Counters for `memory` and tests.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct Stats {
+    /// Modules connected now.
+    pub modules: usize,
+    /// Dispatches alive (pending, attending or waiting for a handler).
+    pub dispatches: usize,
+    /// Bytes of message data held in pending queues.
+    pub queued_bytes: usize,
+    /// Most `queued_bytes` ever seen.
+    pub peak_queued_bytes: usize,
+    /// Messages dropped by queue limits (`limitPending`).
+    pub dropped: u64,
+    /// Frames received from modules.
+    pub frames_in: u64,
+}
+
 /// The IPC central server's state.
 #[derive(Debug)]
 pub struct Central {
     config: Config,
-    outputs: std::collections::VecDeque<Output>,
+    outputs: VecDeque<Output>,
+    modules: BTreeMap<ConnId, Module>,
+    msgs: HashMap<String, Msg>,
+    by_id: HashMap<i32, String>,
+    next_ids: Vec<i32>,
+    id_block: i32,
+    formats: FormatRegistry,
+    /// Named formats as registered (strings), for `getNamedForm`.
+    vars: BTreeMap<String, Var>,
+    broadcast_msgs: Vec<String>,
+    broadcast_size: usize,
+    dispatches: HashMap<i32, Dispatch>,
+    free_dispatch: Vec<i32>,
+    next_dispatch: i32,
+    ignore: HashSet<String>,
+    /// Dispatches kept for `-r`, by module name.
+    orphans: HashMap<String, Vec<i32>>,
+    stats: Stats,
+    memory_paused: HashSet<ConnId>,
+    msg_info_query: Format,
+    msg_info_reply: Format,
+}
+
+/// Why a frame from a module could not be handled.
+#[derive(Debug)]
+struct Bad(String);
+
+impl<E: std::fmt::Display> From<E> for Bad {
+    fn from(e: E) -> Bad {
+        Bad(e.to_string())
+    }
 }
 
 impl Central {
     /// A central with no modules.
     pub fn new(config: Config) -> Self {
-        Central {
+        let mut c = Central {
+            ignore: config.ignore.iter().cloned().collect(),
             config,
-            outputs: std::collections::VecDeque::new(),
+            outputs: VecDeque::new(),
+            modules: BTreeMap::new(),
+            msgs: HashMap::new(),
+            by_id: HashMap::new(),
+            next_ids: Vec::new(),
+            id_block: 0,
+            formats: FormatRegistry::new(),
+            vars: BTreeMap::new(),
+            broadcast_msgs: Vec::new(),
+            broadcast_size: 0,
+            dispatches: HashMap::new(),
+            free_dispatch: Vec::new(),
+            next_dispatch: 0,
+            orphans: HashMap::new(),
+            stats: Stats::default(),
+            memory_paused: HashSet::new(),
+            msg_info_query: internal::fixed(internal::MSG_INFO_QUERY_FORMAT),
+            msg_info_reply: internal::fixed(internal::MSG_INFO_REPLY_FORMAT),
+        };
+        let _ = c
+            .formats
+            .define("directMsgHandler", "{int, int, int, int, string, string}");
+        for d in internal::table() {
+            c.register_internal(d);
         }
+        for v in [
+            internal::TERMINAL_LOG_VAR,
+            internal::FILE_LOG_VAR,
+            internal::TAPPED_MSG_VAR,
+            internal::BROADCAST_MSG_VAR,
+        ] {
+            c.register_var(v);
+        }
+        c.update_log_vars();
+        let empty = c.str_list_value(&[], 0);
+        c.vars.get_mut(internal::TAPPED_MSG_VAR).unwrap().value = empty.clone();
+        c.vars.get_mut(internal::BROADCAST_MSG_VAR).unwrap().value = empty;
+        c
     }
 
     /// The configuration.
@@ -244,30 +440,1958 @@ impl Central {
         &self.config
     }
 
+    /// Counters (modules, dispatches, queued bytes and their peak, drops).
+    pub fn stats(&self) -> Stats {
+        let mut s = self.stats;
+        s.modules = self.modules.len();
+        s.dispatches = self.dispatches.len();
+        s
+    }
+
+    /// The names of the connected modules (those that completed the connect query).
+    pub fn module_names(&self) -> Vec<String> {
+        self.modules
+            .values()
+            .filter_map(|m| m.name.clone())
+            .collect()
+    }
+
+    // ----- ids ---------------------------------------------------------
+
+    fn alloc_msg_id(&mut self) -> i32 {
+        loop {
+            if let Some(id) = self.next_ids.pop() {
+                if id >= 2 {
+                    return id;
+                }
+                continue;
+            }
+            // C's id table grows by 200 and hands out the highest id first.
+            let lo = self.id_block * 200;
+            self.id_block += 1;
+            self.next_ids = (lo..lo + 200).collect();
+        }
+    }
+
+    fn alloc_dispatch(&mut self, d: Dispatch) -> i32 {
+        let id = self.free_dispatch.pop().unwrap_or_else(|| {
+            let id = self.next_dispatch;
+            self.next_dispatch += 1;
+            id
+        });
+        self.dispatches.insert(id, d);
+        id
+    }
+
+    fn free_dispatch_id(&mut self, id: i32) -> Option<Dispatch> {
+        let d = self.dispatches.remove(&id)?;
+        if d.status == Status::Pending {
+            self.stats.queued_bytes = self.stats.queued_bytes.saturating_sub(d.data.len());
+        }
+        self.free_dispatch.push(id);
+        Some(d)
+    }
+
+    // ----- message table -------------------------------------------------
+
+    fn register_internal(&mut self, d: Def) {
+        if !d.ignore_log || matches!(d.kind, Internal::Notify) {
+            // logged unless -I
+        }
+        if d.ignore_log {
+            self.ignore.insert(d.name.to_string());
+        }
+        self.insert_msg(
+            d.name.to_string(),
+            d.class,
+            d.msg_format.map(str::to_string),
+            d.res_format.map(str::to_string),
+            Some(d.kind),
+        );
+    }
+
+    fn insert_msg(
+        &mut self,
+        name: String,
+        class: MsgClass,
+        msg_format: Option<String>,
+        res_format: Option<String>,
+        internal: Option<Internal>,
+    ) -> i32 {
+        if let Some(m) = self.msgs.get_mut(&name) {
+            let id = if m.id == 0 { 0 } else { m.id };
+            let was_placeholder = m.class == MsgClass::HandlerReg;
+            m.class = class;
+            m.msg_format = msg_format;
+            m.res_format = res_format;
+            m.parsed = None;
+            if internal.is_some() {
+                m.internal = internal;
+            }
+            let id = if id == 0 {
+                let id = self.alloc_msg_id();
+                self.msgs.get_mut(&name).unwrap().id = id;
+                self.by_id.insert(id, name.clone());
+                id
+            } else {
+                id
+            };
+            if was_placeholder && class != MsgClass::Broadcast {
+                self.record_broadcast(&name, false);
+            }
+            return id;
+        }
+        let id = self.alloc_msg_id();
+        self.by_id.insert(id, name.clone());
+        self.msgs.insert(
+            name.clone(),
+            Msg {
+                id,
+                name,
+                class,
+                msg_format,
+                res_format,
+                parsed: None,
+                handlers: Vec::new(),
+                waiting: VecDeque::new(),
+                priority: DEFAULT_PRIORITY,
+                direct: false,
+                notify_handler_change: false,
+                internal,
+            },
+        );
+        id
+    }
+
+    fn placeholder(&mut self, name: &str) {
+        if !self.msgs.contains_key(name) {
+            self.msgs.insert(
+                name.to_string(),
+                Msg {
+                    id: 0,
+                    name: name.to_string(),
+                    class: MsgClass::HandlerReg,
+                    msg_format: None,
+                    res_format: None,
+                    parsed: None,
+                    handlers: Vec::new(),
+                    waiting: VecDeque::new(),
+                    priority: DEFAULT_PRIORITY,
+                    direct: false,
+                    notify_handler_change: false,
+                    internal: None,
+                },
+            );
+        }
+    }
+
+    fn register_var(&mut self, var: &str) {
+        if self.vars.contains_key(var) {
+            return;
+        }
+        let format = internal::fixed(&internal::var_format(var));
+        self.vars.insert(
+            var.to_string(),
+            Var {
+                format,
+                value: Vec::new(),
+            },
+        );
+        for (name, class, mf, rf, kind) in internal::var_defs(var) {
+            self.ignore.insert(name.clone());
+            self.insert_msg(name, class, mf, rf, Some(kind));
+        }
+    }
+
+    /// Parsed formats of a message (named formats expanded as C does when
+    /// it parses at lookup time; an unknown name stays `Named`).
+    fn parsed(&mut self, name: &str) -> (Option<Format>, Option<Format>) {
+        let reg = &self.formats;
+        let Some(m) = self.msgs.get_mut(name) else {
+            return (None, None);
+        };
+        if m.parsed.is_none() {
+            let p = |s: &Option<String>| -> Option<Format> {
+                let s = s.as_deref()?;
+                if s.is_empty() {
+                    return None;
+                }
+                parse_with(s, reg).or_else(|_| parse(s)).ok()
+            };
+            m.parsed = Some((p(&m.msg_format), p(&m.res_format)));
+        }
+        m.parsed.clone().unwrap_or((None, None))
+    }
+
+    // ----- output helpers --------------------------------------------------
+
+    fn transmit(&mut self, conn: ConnId, bytes: Vec<u8>) {
+        if self.modules.get(&conn).is_some_and(|m| !m.closed) {
+            self.outputs.push_back(Output::Transmit { conn, bytes });
+        }
+    }
+
+    fn frame(header: Header, class_data: &[u8], data: &[u8]) -> Vec<u8> {
+        let mut h = header;
+        h.class_total = class_data.len() as i32;
+        h.msg_total = data.len() as i32;
+        let mut out = Vec::with_capacity(HEADER_SIZE + class_data.len() + data.len());
+        out.extend_from_slice(&h.encode());
+        out.extend_from_slice(class_data);
+        out.extend_from_slice(data);
+        out
+    }
+
+    /// `centralReply`: parentRef 0, intent -4, class 0, dispatchRef 0.
+    fn reply(&mut self, conn: ConnId, msg_ref: i32, data: &[u8]) {
+        let h = Header {
+            class_total: 0,
+            msg_total: 0,
+            parent_ref: 0,
+            intent: QUERY_REPLY_INTENT,
+            class_id: ClassId::native(MsgClass::Unknown),
+            dispatch_ref: 0,
+            msg_ref,
+        };
+        let f = Self::frame(h, &[], data);
+        self.transmit(conn, f);
+    }
+
+    fn log_line(&mut self, kind: Kind, line: String) {
+        let target = LogTarget {
+            terminal: kind.enabled(&self.config.terminal_log),
+            file: kind.enabled(&self.config.file_log),
+        };
+        if target.terminal || target.file {
+            self.outputs.push_back(Output::Log { target, line });
+        }
+    }
+
+    /// Options of whichever log is the more verbose (ref/parent/time fields).
+    fn opts(&self) -> LogOptions {
+        if self.config.terminal_log.any() {
+            self.config.terminal_log
+        } else {
+            self.config.file_log
+        }
+    }
+
+    fn logged(&self, msg: &str) -> bool {
+        let o = self.opts();
+        !(self.ignore.contains(msg)
+            && (o.ignore_internal || self.config.ignore.iter().any(|n| n == msg)))
+    }
+
+    fn module_name(&self, org: Org) -> String {
+        match org {
+            Org::Central => SERVER_NAME.to_string(),
+            Org::Module(c) => self
+                .modules
+                .get(&c)
+                .and_then(|m| m.name.clone())
+                .unwrap_or_else(|| format!("<connection {}>", c.0)),
+        }
+    }
+
+    fn log_data(&mut self, msg: &str, class_id: ClassId, data: &[u8], reply_of: Option<&str>) {
+        if !Kind::Data.enabled(&self.config.terminal_log)
+            && !Kind::Data.enabled(&self.config.file_log)
+        {
+            return;
+        }
+        let name = reply_of.unwrap_or(msg).to_string();
+        let (mf, rf) = self.parsed(&name);
+        let order = class_id.data_order().unwrap_or(ByteOrder::NATIVE);
+        let text = match decode_user(&mf, &rf, data, order, &self.formats) {
+            Ok(Some(t)) => t,
+            Ok(None) => return,
+            Err(e) => format!("    <cannot decode {name}: {e}>"),
+        };
+        for line in text.trim_end_matches('\n').split('\n') {
+            self.log_line(Kind::Data, line.to_string());
+        }
+    }
+
+    // ----- connection events ---------------------------------------------
+
     /// A module connected: queues the 4-byte msgInfo id and the two
     /// formatter frames central speaks first (ipc.md §4).
     pub fn connect(&mut self, conn: ConnId, peer: Peer, now: SystemTime) {
-        let _ = (conn, peer, now);
+        let _ = now;
+        self.modules.insert(
+            conn,
+            Module {
+                peer,
+                rx: Vec::new(),
+                rx_pos: 0,
+                name: None,
+                host: String::new(),
+                ready: false,
+                capacity: 1,
+                attending: 0,
+                pending: VecDeque::new(),
+                msg_limits: Vec::new(),
+                pending_limit: None,
+                port: -1,
+                handlers: BTreeMap::new(),
+                paused: false,
+                closed: false,
+            },
+        );
+        let id = self.msgs.get(internal::MSG_INFO).map_or(0, |m| m.id);
+        self.transmit(conn, id.to_be_bytes().to_vec());
+        for f in [self.msg_info_query.clone(), self.msg_info_reply.clone()] {
+            let mut w = Writer::new();
+            internal::write_formatter(&mut w, Some(&f));
+            let h = Header {
+                class_total: 0,
+                msg_total: 0,
+                parent_ref: 0,
+                intent: 0,
+                class_id: ClassId::native(MsgClass::Unknown),
+                dispatch_ref: 0,
+                msg_ref: 0,
+            };
+            let fr = Self::frame(h, &[], w.as_bytes());
+            self.transmit(conn, fr);
+        }
     }
 
     /// Bytes arrived on a connection (any split of the stream).
     pub fn receive(&mut self, conn: ConnId, bytes: &[u8], now: SystemTime) {
-        let _ = (conn, bytes, now);
+        let Some(m) = self.modules.get_mut(&conn) else {
+            return;
+        };
+        if m.closed {
+            return;
+        }
+        m.rx.extend_from_slice(bytes);
+        loop {
+            let Some(m) = self.modules.get_mut(&conn) else {
+                return;
+            };
+            if m.closed {
+                return;
+            }
+            let avail = m.rx.len() - m.rx_pos;
+            if avail < HEADER_SIZE {
+                break;
+            }
+            let header = match Header::decode(&m.rx[m.rx_pos..]) {
+                Ok(h) => h,
+                Err(e) => return self.protocol_error(conn, e.to_string(), now),
+            };
+            let n = match header.body_len(self.config.max_frame) {
+                Ok(n) => n,
+                Err(e) => return self.protocol_error(conn, e.to_string(), now),
+            };
+            if avail < HEADER_SIZE + n {
+                let m = self.modules.get_mut(&conn).unwrap();
+                m.rx.reserve(HEADER_SIZE + n - avail);
+                break;
+            }
+            let start = m.rx_pos + HEADER_SIZE;
+            let c = header.class_total as usize;
+            let class_data = m.rx[start..start + c].to_vec();
+            let data: Arc<[u8]> = Arc::from(&m.rx[start + c..start + n]);
+            m.rx_pos = start + n;
+            self.stats.frames_in += 1;
+            if let Err(Bad(e)) = self.process(conn, header, &class_data, data, now) {
+                return self.protocol_error(conn, e, now);
+            }
+        }
+        if let Some(m) = self.modules.get_mut(&conn) {
+            if m.rx_pos == m.rx.len() {
+                m.rx.clear();
+                m.rx_pos = 0;
+                if m.rx.capacity() > 1 << 20 {
+                    m.rx.shrink_to(64 << 10);
+                }
+            } else if m.rx_pos > 0 {
+                m.rx.drain(..m.rx_pos);
+                m.rx_pos = 0;
+            }
+        }
+        self.check_memory(conn);
+    }
+
+    fn protocol_error(&mut self, conn: ConnId, why: String, now: SystemTime) {
+        let who = self.describe(conn);
+        self.log_line(
+            Kind::Always,
+            format!("ERROR: closing connection {who}: {why}"),
+        );
+        self.outputs.push_back(Output::Close { conn, reason: why });
+        self.close_module(conn, now);
+    }
+
+    fn describe(&self, conn: ConnId) -> String {
+        match self.modules.get(&conn) {
+            Some(m) => {
+                let peer = match &m.peer {
+                    Peer::Tcp(a) => a.clone(),
+                    Peer::Unix => "unix socket".into(),
+                    Peer::Other(s) => s.clone(),
+                };
+                match &m.name {
+                    Some(n) => format!("{} ({n} from {peer})", conn.0),
+                    None => format!("{} (from {peer})", conn.0),
+                }
+            }
+            None => conn.0.to_string(),
+        }
     }
 
     /// The connection ended (EOF, error, or after [`Output::Close`]).
     pub fn disconnect(&mut self, conn: ConnId, now: SystemTime) {
-        let _ = (conn, now);
+        if !self.modules.contains_key(&conn) {
+            return;
+        }
+        let partial = self.modules.get(&conn).map_or(0, |m| m.rx.len() - m.rx_pos);
+        if partial > 0 {
+            let who = self.describe(conn);
+            self.log_line(
+                Kind::Always,
+                format!("WARNING: connection {who} closed in the middle of a frame ({partial} byte(s) discarded)"),
+            );
+        }
+        self.close_module(conn, now);
     }
+
+    /// `x_ipcCloseMod`: forget a module, its handlers and its deliveries.
+    fn close_module(&mut self, conn: ConnId, now: SystemTime) {
+        let _ = now;
+        let Some(m) = self.modules.get_mut(&conn) else {
+            return;
+        };
+        if m.closed {
+            self.modules.remove(&conn);
+            return;
+        }
+        m.closed = true;
+        let name = m.name.clone();
+        let host = m.host.clone();
+        self.log_line(
+            Kind::Always,
+            format!(
+                "x_ipcClose: Closed Connection Detected from: sd: {}:",
+                conn.0
+            ),
+        );
+        if let Some(n) = &name {
+            self.log_line(Kind::Always, format!("x_ipcClose: Closing {n} on {host}"));
+            self.log_line(Kind::Always, format!("close Module: Closing {n}"));
+        }
+        // Its handlers go away.
+        let hnds: Vec<(String, String)> = self.modules[&conn]
+            .handlers
+            .iter()
+            .map(|(hn, h)| (hn.clone(), h.msg.clone()))
+            .collect();
+        let mut changed = Vec::new();
+        for (hn, msg) in &hnds {
+            if let Some(mm) = self.msgs.get_mut(msg) {
+                mm.handlers.retain(|(c, n)| !(*c == conn && n == hn));
+                changed.push(msg.clone());
+            }
+        }
+        // Deliveries it was handling or had pending.
+        let mine: Vec<i32> = self
+            .dispatches
+            .iter()
+            .filter(|(_, d)| d.hnd.as_ref().is_some_and(|(c, _)| *c == conn))
+            .map(|(id, _)| *id)
+            .collect();
+        let mut mine = mine;
+        mine.sort_unstable();
+        for id in mine {
+            let keep = self.config.resend_on_reconnect && name.is_some();
+            let d = self.dispatches.get_mut(&id).unwrap();
+            if d.status == Status::Pending {
+                self.stats.queued_bytes = self.stats.queued_bytes.saturating_sub(d.data.len());
+            }
+            if keep {
+                d.status = Status::NoHandler;
+                let msg = d.msg.clone();
+                self.orphans
+                    .entry(name.clone().unwrap())
+                    .or_default()
+                    .push(id);
+                self.log_line(
+                    Kind::Status,
+                    format!(
+                        "Keeping {msg} {{{id}}} to resend when {} reconnects",
+                        name.as_deref().unwrap_or("?")
+                    ),
+                );
+            } else {
+                let msg = d.msg.clone();
+                self.free_dispatch_id(id);
+                self.log_line(Kind::Always, format!("Clearing handler for message {msg}"));
+            }
+        }
+        // Queries it sent that are still out: their replies will be ignored.
+        for msg in changed {
+            self.handlers_changed(&msg);
+        }
+        self.clean_broadcast();
+        self.memory_paused.remove(&conn);
+        self.modules.remove(&conn);
+        if let Some(n) = name {
+            self.central_broadcast(internal::DISCONNECT_NOTIFY, |w| w.write_str(&n));
+        }
+    }
+
+    // ----- frame processing ----------------------------------------------
+
+    fn process(
+        &mut self,
+        conn: ConnId,
+        h: Header,
+        class_data: &[u8],
+        data: Arc<[u8]>,
+        now: SystemTime,
+    ) -> Result<(), Bad> {
+        if h.class_id.data_order().is_none() || h.class_id.class_order().is_none() {
+            return Err(Bad(format!(
+                "frame has an unknown byte-order flag (classId 0x{:08x})",
+                h.class_id.0
+            )));
+        }
+        match h.class_id.class() {
+            12 => return self.on_success(conn, h.dispatch_ref, now),
+            11 => return self.on_reply(conn, h, class_data, data, now),
+            _ => {}
+        }
+        let id = h.intent.checked_abs().unwrap_or(0);
+        let Some(name) = self.by_id.get(&id).cloned() else {
+            let who = self.describe(conn);
+            self.log_line(
+                Kind::Always,
+                format!(
+                    "WARNING: message with unknown id {} (class {}) from {who} ignored",
+                    h.intent,
+                    h.class_id.class()
+                ),
+            );
+            return Ok(());
+        };
+        let internal = self.msgs.get(&name).and_then(|m| m.internal.clone());
+        match internal {
+            Some(kind) => self.on_internal(conn, h, &name, kind, &data, now),
+            None => {
+                self.route(conn, h, name, data, now);
+                Ok(())
+            }
+        }
+    }
+
+    fn on_internal(
+        &mut self,
+        conn: ConnId,
+        h: Header,
+        name: &str,
+        kind: Internal,
+        data: &[u8],
+        now: SystemTime,
+    ) -> Result<(), Bad> {
+        let order = h.class_id.data_order().unwrap_or(ByteOrder::NATIVE);
+        let mut r = Reader::new(data, order);
+        let query = h.class_id.class() == MsgClass::Query as u16;
+        let logged = self.logged(name);
+        let org_name = self.module_name(Org::Module(conn));
+        let cls = log::class_name(h.class_id.class());
+        if logged {
+            let o = self.opts();
+            let line = format!(
+                "{:<9} {:>15}: {:>10}{} --> {:<15} (Sent){}",
+                cls,
+                name,
+                org_name,
+                log::parent_id(&o, h.parent_ref),
+                SERVER_NAME,
+                log::time(&o, now)
+            );
+            self.log_line(Kind::Message, line);
+            self.log_data(name, h.class_id, data, None);
+        }
+        let mut out = Writer::new();
+        let mut null_reply = false;
+        use Internal::*;
+        match kind {
+            MsgInfo | HndInfo => {
+                let msg = read_opt_str(&mut r)?;
+                let hnd = read_opt_str(&mut r)?;
+                self.msg_info(conn, msg.as_deref(), hnd.as_deref(), &mut out);
+            }
+            ClassInfo => {
+                let class = r.read_i32()?;
+                match internal::class_format(class) {
+                    Some(f) => {
+                        out.write_ptr_flag(true);
+                        out.write_i32(class);
+                        internal::write_formatter(&mut out, Some(&internal::fixed(f)));
+                    }
+                    None => out.write_ptr_flag(false),
+                }
+            }
+            Connect => {
+                let module = read_opt_str(&mut r)?.unwrap_or_default();
+                let host = read_opt_str(&mut r)?.unwrap_or_default();
+                self.on_connect(conn, module, host);
+                out.write_i32(VERSION.0);
+                out.write_i32(VERSION.1);
+                out.write_bool(self.config.direct);
+            }
+            Wait => {
+                out.write_i32(1);
+                if let Some(m) = self.modules.get_mut(&conn) {
+                    m.ready = true;
+                }
+                self.reply(conn, h.msg_ref, out.as_bytes());
+                self.process_pending(conn, now);
+                return Ok(());
+            }
+            RegisterMessage => {
+                let n = read_opt_str(&mut r)?.unwrap_or_default();
+                let class = r.read_i32()?;
+                let mf = read_opt_str(&mut r)?;
+                let rf = read_opt_str(&mut r)?;
+                self.register_message(n, class, mf, rf);
+            }
+            RegisterNamedForm => {
+                let n = read_opt_str(&mut r)?.unwrap_or_default();
+                let f = read_opt_str(&mut r)?.unwrap_or_default();
+                if let Err(e) = self.formats.define(&n, &f) {
+                    self.log_line(
+                        Kind::Always,
+                        format!("WARNING: bad named format {n} = \"{f}\" from {org_name}: {e}"),
+                    );
+                }
+                for m in self.msgs.values_mut() {
+                    m.parsed = None;
+                }
+            }
+            GetNamedForm => {
+                let n = read_opt_str(&mut r)?.unwrap_or_default();
+                match self.formats.get(&n).cloned() {
+                    Some(f) => {
+                        let f = self.formats.resolve(&f).unwrap_or(f);
+                        internal::write_formatter(&mut out, Some(&f));
+                    }
+                    None => {
+                        self.log_line(Kind::Always, format!("Unknown named format {n} used."));
+                        out.write_i32(6); // BadFormat
+                    }
+                }
+            }
+            RegisterHandler => {
+                let id = r.read_i32()?;
+                let msg = read_opt_str(&mut r)?.unwrap_or_default();
+                let hnd = read_opt_str(&mut r)?.unwrap_or_default();
+                self.register_handler(conn, id, msg, hnd, now);
+            }
+            DeregisterHandler => {
+                let _ = r.read_i32()?;
+                let msg = read_opt_str(&mut r)?.unwrap_or_default();
+                let hnd = read_opt_str(&mut r)?.unwrap_or_default();
+                self.deregister_handler(conn, &msg, &hnd);
+            }
+            DirectRes => {
+                let port = r.read_i32()?;
+                let n = read_opt_str(&mut r)?.unwrap_or_default();
+                let own = self.modules.get(&conn).and_then(|m| m.name.clone());
+                if own.as_deref() == Some(n.as_str()) {
+                    self.modules.get_mut(&conn).unwrap().port = port;
+                    self.log_line(
+                        Kind::Message,
+                        format!("Direct Connection Established For: {n} at {port}"),
+                    );
+                } else {
+                    self.log_line(
+                        Kind::Message,
+                        format!("Direct Connection: Not Made: {n} did not originate call."),
+                    );
+                }
+            }
+            DirectInfo => {
+                let n = read_opt_str(&mut r)?.unwrap_or_default();
+                let list = self.direct_handlers(&n);
+                match list.first() {
+                    Some(e) => write_direct_entry(&mut out, e),
+                    None => null_reply = true,
+                }
+            }
+            DirectMsg => {
+                let n = read_opt_str(&mut r)?.unwrap_or_default();
+                let list = self.direct_handlers(&n);
+                if list.is_empty() {
+                    null_reply = true;
+                } else {
+                    write_direct_list(&mut out, &list);
+                }
+            }
+            ModuleConnected => {
+                let n = read_opt_str(&mut r)?.unwrap_or_default();
+                let found = self
+                    .modules
+                    .values()
+                    .any(|m| !m.closed && m.name.as_deref() == Some(n.as_str()));
+                out.write_i32(found as i32);
+            }
+            NotifyHandlerChange => {
+                let n = read_opt_str(&mut r)?.unwrap_or_default();
+                match self.msgs.get_mut(&n) {
+                    Some(m) if m.class != MsgClass::HandlerReg => {
+                        let first = !m.direct && !m.notify_handler_change;
+                        m.notify_handler_change = true;
+                        if first {
+                            self.register_var(&n);
+                            self.update_direct_handlers(&n);
+                        }
+                    }
+                    _ => self.log_line(
+                        Kind::Always,
+                        format!("Cannot do handler notification before message defined ({n})"),
+                    ),
+                }
+            }
+            SetMsgPriority => {
+                let n = read_opt_str(&mut r)?.unwrap_or_default();
+                let p = r.read_i32()?;
+                self.placeholder(&n);
+                self.msgs.get_mut(&n).unwrap().priority = p;
+            }
+            RegisterResource => {
+                let cap = r.read_i32()?;
+                let res = read_opt_str(&mut r)?.unwrap_or_default();
+                self.set_capacity(conn, cap, &res, now);
+            }
+            LimitPending => {
+                let msg = read_opt_str(&mut r)?;
+                let res = read_opt_str(&mut r)?.unwrap_or_default();
+                let limit = r.read_i32()?;
+                self.limit_pending(conn, msg, &res, limit);
+            }
+            Close => {
+                self.outputs.push_back(Output::Close {
+                    conn,
+                    reason: "module sent x_ipc_CloseMsg".into(),
+                });
+                self.close_module(conn, now);
+                return Ok(());
+            }
+            IgnoreLogging => {
+                if let Some(n) = read_opt_str(&mut r)? {
+                    self.ignore.insert(n);
+                }
+            }
+            ResumeLogging => {
+                if let Some(n) = read_opt_str(&mut r)? {
+                    self.ignore.remove(&n);
+                }
+            }
+            GetMessages => {
+                let mut names: Vec<String> = self
+                    .msgs
+                    .values()
+                    .filter(|m| m.internal.is_none() && m.id != 0)
+                    .map(|m| m.name.clone())
+                    .collect();
+                names.sort();
+                let size = internal::str_list_size(names.len(), 0);
+                internal::encode_str_list(&names, size, &mut out);
+            }
+            Ignored | Notify | VarWatch(_) => {}
+            VarGet(v) => match self.vars.get(&v) {
+                Some(var) => out.write_bytes(&var.value.clone()),
+                None => null_reply = true,
+            },
+            VarSet(v) => self.set_var_from(&v, data, order)?,
+            VarGetSet(v) => {
+                if let Some(var) = self.vars.get(&v) {
+                    out.write_bytes(&var.value.clone());
+                }
+                self.set_var_from(&v, data, order)?;
+            }
+        }
+        if query {
+            let bytes = if null_reply {
+                Vec::new()
+            } else {
+                out.into_vec()
+            };
+            self.reply(conn, h.msg_ref, &bytes);
+            if logged {
+                let line = format!(
+                    "  Reply  {:>15}: {:>10} --> {:<15}",
+                    name, SERVER_NAME, org_name
+                );
+                self.log_line(Kind::Message, line);
+            }
+        } else if logged {
+            self.log_line(Kind::Message, format!("  Done    {name:>15}:"));
+        }
+        Ok(())
+    }
+
+    fn msg_info(&mut self, conn: ConnId, msg: Option<&str>, hnd: Option<&str>, out: &mut Writer) {
+        let Some(msg) = msg else {
+            out.write_ptr_flag(false);
+            return;
+        };
+        if !self.msgs.contains_key(msg) {
+            out.write_ptr_flag(false);
+            return;
+        }
+        let (mf, rf) = self.parsed(msg);
+        let m = &self.msgs[msg];
+        let id = if m.direct && direct_class(m.class) {
+            -m.id.abs()
+        } else {
+            m.id
+        };
+        out.write_ptr_flag(true);
+        out.write_i32(id);
+        out.write_str(&m.name);
+        out.write_i32(m.class as i32);
+        internal::write_formatter(out, mf.as_ref());
+        internal::write_formatter(out, rf.as_ref());
+        if let Some(hn) = hnd {
+            let found = self
+                .modules
+                .get_mut(&conn)
+                .and_then(|m| m.handlers.get_mut(hn))
+                .map(|h| h.knows_msg = true)
+                .is_some();
+            if !found {
+                self.log_line(Kind::Message, String::new());
+                self.log_line(
+                    Kind::Message,
+                    format!("WARNING: msgInfoHnd: Missing handler: {hn}"),
+                );
+            }
+        }
+    }
+
+    fn on_connect(&mut self, conn: ConnId, module: String, host: String) {
+        self.log_line(
+            Kind::Always,
+            format!(" Received a new connection: {}", conn.0),
+        );
+        self.log_line(Kind::Always, format!("   modName : {module}"));
+        self.log_line(Kind::Always, format!("   hostName: {host}"));
+        self.central_broadcast(internal::CONNECT_NOTIFY, |w| w.write_str(&module));
+        if let Some(m) = self.modules.get_mut(&conn) {
+            m.name = Some(module);
+            m.host = host;
+        }
+    }
+
+    fn register_message(
+        &mut self,
+        name: String,
+        class: i32,
+        mf: Option<String>,
+        rf: Option<String>,
+    ) {
+        let Some(class) = u16::try_from(class).ok().and_then(MsgClass::from_u16) else {
+            self.log_line(
+                Kind::Always,
+                format!("WARNING: message {name} registered with unknown class {class}; ignored"),
+            );
+            return;
+        };
+        if let Some(m) = self.msgs.get(&name) {
+            if m.internal.is_some() {
+                self.log_line(
+                    Kind::Always,
+                    format!(
+                        "WARNING: a module tried to redefine central's message {name}; ignored"
+                    ),
+                );
+                return;
+            }
+            if m.class != MsgClass::HandlerReg {
+                self.log_line(
+                    Kind::Status,
+                    format!("Registration: Message {name} Found. Updating."),
+                );
+            }
+        }
+        self.insert_msg(name.clone(), class, mf, rf, None);
+        let m = self.msgs.get_mut(&name).unwrap();
+        if m.class == MsgClass::Broadcast && !m.handlers.is_empty() {
+            self.record_broadcast(&name, true);
+        }
+        let m = self.msgs.get_mut(&name).unwrap();
+        if direct_class(m.class) {
+            m.direct = self.config.direct;
+            if m.direct || m.notify_handler_change {
+                self.register_var(&name);
+                self.update_direct_handlers(&name);
+            }
+        }
+    }
+
+    fn register_handler(
+        &mut self,
+        conn: ConnId,
+        id: i32,
+        msg: String,
+        hnd: String,
+        now: SystemTime,
+    ) {
+        let existed = self
+            .msgs
+            .get(&msg)
+            .is_some_and(|m| m.class != MsgClass::HandlerReg);
+        if existed && self.msgs[&msg].class == MsgClass::Broadcast {
+            self.record_broadcast(&msg, true);
+        }
+        self.placeholder(&msg);
+        let Some(module) = self.modules.get_mut(&conn) else {
+            return;
+        };
+        let mod_name = module.name.clone();
+        if let Some(old) = module.handlers.get_mut(&hnd) {
+            // Re-registering a handler name: C updates the id.
+            old.id = id;
+            return;
+        }
+        module.handlers.insert(
+            hnd.clone(),
+            Handler {
+                id,
+                msg: msg.clone(),
+                knows_msg: false,
+            },
+        );
+        self.msgs
+            .get_mut(&msg)
+            .unwrap()
+            .handlers
+            .push((conn, hnd.clone()));
+        if !existed {
+            self.record_broadcast(&msg, true);
+        }
+        let m = &self.msgs[&msg];
+        if m.direct || m.notify_handler_change {
+            self.update_direct_handlers(&msg);
+        }
+        // Queries and informs that waited for a handler.
+        let waiting: Vec<i32> = self.msgs.get_mut(&msg).unwrap().waiting.drain(..).collect();
+        for did in waiting {
+            if let Some(d) = self.dispatches.get_mut(&did) {
+                d.hnd = Some((conn, hnd.clone()));
+                self.deliver_or_pend(did, now);
+            }
+        }
+        // -r: deliveries this module had not finished before it crashed.
+        if let Some(n) = mod_name {
+            if let Some(list) = self.orphans.get_mut(&n) {
+                let (mine, rest): (Vec<i32>, Vec<i32>) = list
+                    .drain(..)
+                    .partition(|id| self.dispatches.get(id).is_some_and(|d| d.msg == msg));
+                *list = rest;
+                for did in mine {
+                    self.log_line(Kind::Always, format!("Resending {msg} {{{did}}} to {n}"));
+                    if let Some(d) = self.dispatches.get_mut(&did) {
+                        d.hnd = Some((conn, hnd.clone()));
+                        self.deliver_or_pend(did, now);
+                    }
+                }
+            }
+        }
+    }
+
+    fn deregister_handler(&mut self, conn: ConnId, msg: &str, hnd: &str) {
+        let removed = self
+            .modules
+            .get_mut(&conn)
+            .and_then(|m| m.handlers.remove(hnd))
+            .is_some();
+        if !removed {
+            return;
+        }
+        if let Some(m) = self.msgs.get_mut(msg) {
+            m.handlers.retain(|(c, n)| !(*c == conn && n == hnd));
+        }
+        // Deliveries queued for the handler cannot be handled any more.
+        let stale: Vec<i32> = self
+            .dispatches
+            .iter()
+            .filter(|(_, d)| {
+                d.status == Status::Pending
+                    && d.hnd.as_ref().is_some_and(|(c, n)| *c == conn && n == hnd)
+            })
+            .map(|(id, _)| *id)
+            .collect();
+        for id in stale {
+            if let Some(m) = self.modules.get_mut(&conn) {
+                m.pending.retain(|x| *x != id);
+            }
+            self.free_dispatch_id(id);
+            self.log_line(
+                Kind::Status,
+                format!("Deleted pending {msg} {{{id}}}: its handler {hnd} was unsubscribed"),
+            );
+        }
+        self.handlers_changed(msg);
+    }
+
+    /// After handlers of `msg` changed: broadcast list and watch variable.
+    fn handlers_changed(&mut self, msg: &str) {
+        let Some(m) = self.msgs.get(msg) else {
+            return;
+        };
+        if m.class == MsgClass::Broadcast && m.handlers.is_empty() {
+            self.record_broadcast(msg, false);
+        }
+        let m = &self.msgs[msg];
+        if m.direct || m.notify_handler_change {
+            self.update_direct_handlers(msg);
+        }
+    }
+
+    fn set_capacity(&mut self, conn: ConnId, cap: i32, res: &str, now: SystemTime) {
+        if !self.modules.contains_key(&conn) {
+            return;
+        }
+        let mut cap = cap;
+        if cap < 1 {
+            self.log_line(Kind::Status, String::new());
+            self.log_line(
+                Kind::Status,
+                format!("WARNING: Capacity of {}:{res} set to 1", conn.0),
+            );
+            cap = 1;
+        }
+        let m = self.modules.get_mut(&conn).unwrap();
+        if m.name.as_deref() != Some(res) {
+            self.log_line(
+                Kind::Status,
+                format!(
+                    "WARNING: resource {res} is not module {}; capacity applied to the module",
+                    conn.0
+                ),
+            );
+        }
+        let m = self.modules.get_mut(&conn).unwrap();
+        if m.capacity != cap as usize {
+            m.capacity = cap as usize;
+            self.log_line(Kind::Status, String::new());
+            self.log_line(
+                Kind::Status,
+                format!("WARNING: Capacity of {}:{res} changed to {cap}", conn.0),
+            );
+        }
+        self.process_pending(conn, now);
+    }
+
+    fn limit_pending(&mut self, conn: ConnId, msg: Option<String>, res: &str, limit: i32) {
+        // The resource is named after its module; prefer the sender's own.
+        let target = if self.modules.get(&conn).and_then(|m| m.name.as_deref()) == Some(res) {
+            Some(conn)
+        } else {
+            self.modules
+                .iter()
+                .find(|(_, m)| m.name.as_deref() == Some(res))
+                .map(|(c, _)| *c)
+        };
+        let Some(target) = target else {
+            self.log_line(
+                Kind::Status,
+                format!("ERROR: Non-existent resource {res}; Pending limit not applied"),
+            );
+            return;
+        };
+        let m = self.modules.get_mut(&target).unwrap();
+        match msg {
+            None => m.pending_limit = Some(limit),
+            Some(msg) => {
+                if let Some(e) = m.msg_limits.iter_mut().find(|(n, _)| *n == msg) {
+                    if e.1 != limit {
+                        let old = e.1;
+                        e.1 = limit;
+                        self.log_line(
+                            Kind::Status,
+                            format!("WARNING: Changing pending message limit of {msg} from {old} to {limit}"),
+                        );
+                    }
+                } else {
+                    m.msg_limits.push((msg, limit));
+                }
+            }
+        }
+    }
+
+    // ----- routing -----------------------------------------------------------
+
+    fn route(&mut self, conn: ConnId, h: Header, name: String, data: Arc<[u8]>, now: SystemTime) {
+        let class = h.class_id.class();
+        let org = Org::Module(conn);
+        match class {
+            15 => {
+                let hnds = self.msgs[&name].handlers.clone();
+                for hnd in hnds {
+                    let did = self.alloc_dispatch(Dispatch {
+                        msg: name.clone(),
+                        class,
+                        class_id: h.class_id,
+                        org,
+                        org_ref: h.msg_ref,
+                        parent_ref: h.parent_ref,
+                        data: data.clone(),
+                        hnd: Some(hnd),
+                        status: Status::NoHandler,
+                    });
+                    self.deliver_or_pend(did, now);
+                }
+            }
+            3 | 6 => {
+                let hnd = self.msgs[&name].handlers.last().cloned();
+                let did = self.alloc_dispatch(Dispatch {
+                    msg: name.clone(),
+                    class,
+                    class_id: h.class_id,
+                    org,
+                    org_ref: h.msg_ref,
+                    parent_ref: h.parent_ref,
+                    data,
+                    hnd: hnd.clone(),
+                    status: Status::NoHandler,
+                });
+                if hnd.is_some() {
+                    self.deliver_or_pend(did, now);
+                } else {
+                    self.msgs.get_mut(&name).unwrap().waiting.push_back(did);
+                    if self.logged(&name) {
+                        let o = self.opts();
+                        let line = format!(
+                            "{:<9} {:>15}{}: {:>10}{} --> Resource {:<6} (Pending){}",
+                            log::class_name(class),
+                            name,
+                            log::ref_id(&o, did),
+                            self.module_name(org),
+                            log::parent_id(&o, h.parent_ref),
+                            name,
+                            log::time(&o, now)
+                        );
+                        self.log_line(Kind::Message, line);
+                    }
+                }
+            }
+            other => {
+                let who = self.describe(conn);
+                self.log_line(
+                    Kind::Always,
+                    format!(
+                        "WARNING: {name} sent with class {} ({other}) by {who}: not supported by IPC; ignored",
+                        log::class_name(other)
+                    ),
+                );
+            }
+        }
+    }
+
+    /// Central's own broadcast (`centralBroadcast`): notifications and
+    /// `V_watch_*` updates.
+    fn central_broadcast(&mut self, name: &str, write: impl FnOnce(&mut Writer)) {
+        let mut w = Writer::new();
+        write(&mut w);
+        self.central_broadcast_bytes(name, w.into_vec());
+    }
+
+    fn central_broadcast_bytes(&mut self, name: &str, bytes: Vec<u8>) {
+        let Some(m) = self.msgs.get(name) else {
+            return;
+        };
+        let hnds = m.handlers.clone();
+        if hnds.is_empty() {
+            return;
+        }
+        let data: Arc<[u8]> = Arc::from(bytes);
+        let now = SystemTime::UNIX_EPOCH;
+        for hnd in hnds {
+            let did = self.alloc_dispatch(Dispatch {
+                msg: name.to_string(),
+                class: MsgClass::Broadcast as u16,
+                class_id: ClassId::native(MsgClass::Broadcast),
+                org: Org::Central,
+                org_ref: NO_REF,
+                parent_ref: NO_REF,
+                data: data.clone(),
+                hnd: Some(hnd),
+                status: Status::NoHandler,
+            });
+            self.deliver_or_pend(did, now);
+        }
+    }
+
+    fn deliver_or_pend(&mut self, did: i32, now: SystemTime) {
+        let Some(d) = self.dispatches.get(&did) else {
+            return;
+        };
+        let Some((conn, _)) = d.hnd.clone() else {
+            return;
+        };
+        let Some(m) = self.modules.get(&conn) else {
+            self.free_dispatch_id(did);
+            return;
+        };
+        if m.ready && m.attending < m.capacity && m.pending.is_empty() {
+            self.attend(did, false, now);
+        } else {
+            self.pend(did, now);
+        }
+    }
+
+    fn attend(&mut self, did: i32, from_pending: bool, now: SystemTime) {
+        let Some(d) = self.dispatches.get_mut(&did) else {
+            return;
+        };
+        let Some((conn, hnd_name)) = d.hnd.clone() else {
+            return;
+        };
+        if d.status == Status::Pending {
+            self.stats.queued_bytes = self.stats.queued_bytes.saturating_sub(d.data.len());
+        }
+        d.status = Status::Attending;
+        let (msg, class, class_id, org, parent_ref, data) = (
+            d.msg.clone(),
+            d.class,
+            d.class_id,
+            d.org,
+            d.parent_ref,
+            d.data.clone(),
+        );
+        let Some(m) = self.modules.get_mut(&conn) else {
+            return;
+        };
+        m.attending += 1;
+        let resume = m.paused;
+        let Some(hnd) = m.handlers.get(&hnd_name) else {
+            return;
+        };
+        let mut cd = Writer::new();
+        if !hnd.knows_msg {
+            cd.write_str(&msg);
+        }
+        let header = Header {
+            class_total: 0,
+            msg_total: 0,
+            parent_ref,
+            intent: hnd.id,
+            class_id: ClassId(
+                (class_id.0 & 0x0fff_0000)
+                    | (ClassId::native(MsgClass::Unknown).0 & 0xf000_0000)
+                    | class as u32,
+            ),
+            dispatch_ref: NO_REF,
+            msg_ref: did,
+        };
+        let dest = m.name.clone().unwrap_or_default();
+        let f = Self::frame(header, cd.as_bytes(), &data);
+        self.transmit(conn, f);
+        if resume {
+            // Its acknowledgements must be read.
+            self.modules.get_mut(&conn).unwrap().paused = false;
+            self.memory_paused.remove(&conn);
+            self.outputs.push_back(Output::ResumeRead { conn });
+        }
+        if self.logged(&msg) {
+            let o = self.opts();
+            let line = if from_pending {
+                format!(
+                    "{:<9} {:>15}{}: Resource {} --> {:<15} (Sent){}",
+                    log::class_name(class),
+                    msg,
+                    log::ref_id(&o, did),
+                    dest,
+                    dest,
+                    log::time(&o, now)
+                )
+            } else {
+                format!(
+                    "{:<9} {:>15}{}: {:>10}{} --> {:<15} (Sent){}",
+                    log::class_name(class),
+                    msg,
+                    log::ref_id(&o, did),
+                    self.module_name(org),
+                    log::parent_id(&o, parent_ref),
+                    dest,
+                    log::time(&o, now)
+                )
+            };
+            self.log_line(Kind::Message, line);
+            self.log_data(&msg, class_id, &data, None);
+        }
+    }
+
+    /// `resourcePending`: queue limits (dropping the oldest, with C's
+    /// fairness shuffle) and priority order.
+    fn pend(&mut self, did: i32, now: SystemTime) {
+        let Some(d) = self.dispatches.get(&did) else {
+            return;
+        };
+        let Some((conn, hnd_name)) = d.hnd.clone() else {
+            return;
+        };
+        let msg = d.msg.clone();
+        let len = d.data.len();
+        let Some(m) = self.modules.get(&conn) else {
+            return;
+        };
+        let hnd_msg = m
+            .handlers
+            .get(&hnd_name)
+            .map_or(msg.clone(), |h| h.msg.clone());
+        let limit = m
+            .msg_limits
+            .iter()
+            .find(|(n, _)| *n == hnd_msg)
+            .map(|x| x.1);
+        let same: Vec<usize> = m
+            .pending
+            .iter()
+            .enumerate()
+            .filter(|(_, id)| self.dispatches.get(id).is_some_and(|x| x.msg == hnd_msg))
+            .map(|(i, _)| i)
+            .collect();
+        let drop_oldest = match limit {
+            Some(l) if l as i64 <= same.len() as i64 => Some(same),
+            _ => match m.pending_limit {
+                Some(l) if l as i64 <= m.pending.len() as i64 => {
+                    Some((0..m.pending.len()).collect())
+                }
+                _ => None,
+            },
+        };
+        let priority = self.msgs.get(&msg).map_or(DEFAULT_PRIORITY, |x| x.priority);
+        let d = self.dispatches.get_mut(&did).unwrap();
+        d.status = Status::Pending;
+        self.stats.queued_bytes += len;
+        self.stats.peak_queued_bytes = self.stats.peak_queued_bytes.max(self.stats.queued_bytes);
+        let org = d.org;
+        let class = d.class;
+        let parent = d.parent_ref;
+        let m = self.modules.get_mut(&conn).unwrap();
+        let dest = m.name.clone().unwrap_or_default();
+        if let Some(slots) = drop_oldest {
+            if slots.is_empty() {
+                // A limit of 0: nothing may wait.
+                let _ = m;
+                self.drop_pending(did, &msg);
+                return;
+            }
+            // Shift every same-message entry up one slot; the new one takes the last.
+            let oldest = m.pending[slots[0]];
+            for w in slots.windows(2) {
+                m.pending[w[0]] = m.pending[w[1]];
+            }
+            m.pending[*slots.last().unwrap()] = did;
+            self.drop_pending(oldest, &msg);
+        } else if priority != DEFAULT_PRIORITY && !m.pending.is_empty() {
+            let pos = m
+                .pending
+                .iter()
+                .position(|id| {
+                    let p = self
+                        .dispatches
+                        .get(id)
+                        .and_then(|x| self.msgs.get(&x.msg))
+                        .map_or(DEFAULT_PRIORITY, |x| x.priority);
+                    priority > p
+                })
+                .unwrap_or(m.pending.len());
+            m.pending.insert(pos, did);
+        } else {
+            m.pending.push_back(did);
+        }
+        if self.logged(&msg) {
+            let o = self.opts();
+            let line = format!(
+                "{:<9} {:>15}{}: {:>10}{} --> Resource {:<6} (Pending){}",
+                log::class_name(class),
+                msg,
+                log::ref_id(&o, did),
+                self.module_name(org),
+                log::parent_id(&o, parent),
+                dest,
+                log::time(&o, now)
+            );
+            self.log_line(Kind::Message, line);
+        }
+    }
+
+    fn drop_pending(&mut self, did: i32, msg: &str) {
+        if let Some(d) = self.dispatches.get(&did) {
+            if let Some((conn, _)) = d.hnd {
+                if let Some(m) = self.modules.get_mut(&conn) {
+                    m.pending.retain(|x| *x != did);
+                }
+            }
+        }
+        self.free_dispatch_id(did);
+        self.stats.dropped += 1;
+        if self.logged(msg) {
+            self.log_line(
+                Kind::Status,
+                format!("PENDING LIMIT: Deleted message {msg} {{{did}}}"),
+            );
+        }
+    }
+
+    fn process_pending(&mut self, conn: ConnId, now: SystemTime) {
+        loop {
+            let Some(m) = self.modules.get_mut(&conn) else {
+                return;
+            };
+            if !m.ready || m.attending >= m.capacity {
+                return;
+            }
+            let Some(did) = m.pending.pop_front() else {
+                break;
+            };
+            self.attend(did, true, now);
+        }
+        self.check_memory_resume();
+    }
+
+    fn on_success(&mut self, conn: ConnId, did: i32, now: SystemTime) -> Result<(), Bad> {
+        let ok = self.dispatches.get(&did).is_some_and(|d| {
+            d.status == Status::Attending && d.hnd.as_ref().is_some_and(|(c, _)| *c == conn)
+        });
+        if !ok {
+            let who = self.describe(conn);
+            self.log_line(
+                Kind::Always,
+                format!(
+                    "WARNING: Success for unknown or foreign dispatch {did} from {who} ignored"
+                ),
+            );
+            return Ok(());
+        }
+        let d = self.free_dispatch_id(did).unwrap();
+        if self.logged(&d.msg) {
+            let word = if d.class == 6 || d.class == 15 {
+                "Done    "
+            } else {
+                "Success "
+            };
+            let o = self.opts();
+            let line = format!(
+                "  {word}{:>15}{}:{}",
+                d.msg,
+                log::ref_id(&o, did),
+                log::time(&o, now)
+            );
+            self.log_line(Kind::Message, line);
+        }
+        if let Some(m) = self.modules.get_mut(&conn) {
+            m.attending = m.attending.saturating_sub(1);
+        }
+        self.process_pending(conn, now);
+        Ok(())
+    }
+
+    fn on_reply(
+        &mut self,
+        conn: ConnId,
+        h: Header,
+        class_data: &[u8],
+        data: Arc<[u8]>,
+        now: SystemTime,
+    ) -> Result<(), Bad> {
+        let did = h.dispatch_ref;
+        let ok = self.dispatches.get(&did).is_some_and(|d| {
+            d.status == Status::Attending && d.hnd.as_ref().is_some_and(|(c, _)| *c == conn)
+        });
+        if !ok {
+            let who = self.describe(conn);
+            self.log_line(
+                Kind::Always,
+                format!("WARNING: Reply for unknown or foreign dispatch {did} from {who} ignored"),
+            );
+            return Ok(());
+        }
+        let d = self.free_dispatch_id(did).unwrap();
+        let reply_name = if class_data.is_empty() {
+            None
+        } else {
+            let order = h.class_id.class_order().unwrap_or(ByteOrder::NATIVE);
+            read_opt_str(&mut Reader::new(class_data, order))?
+        };
+        let responder = self.module_name(Org::Module(conn));
+        let org_alive = match d.org {
+            Org::Module(c) => self.modules.get(&c).is_some_and(|m| !m.closed),
+            Org::Central => false,
+        };
+        if let Org::Module(org) = d.org {
+            if org_alive {
+                let header = Header {
+                    class_total: 0,
+                    msg_total: 0,
+                    parent_ref: h.parent_ref,
+                    intent: QUERY_REPLY_INTENT,
+                    class_id: h.class_id,
+                    dispatch_ref: did,
+                    msg_ref: d.org_ref,
+                };
+                let f = Self::frame(header, class_data, &data);
+                self.transmit(org, f);
+            }
+        }
+        if self.logged(&d.msg) {
+            let o = self.opts();
+            let line = format!(
+                "  Reply  {:>15}{}: {:>10} --> {:<15}{}{}",
+                d.msg,
+                log::ref_id(&o, did),
+                responder,
+                self.module_name(d.org),
+                log::parent_id(&o, d.parent_ref),
+                log::time(&o, now)
+            );
+            self.log_line(Kind::Message, line);
+            if !org_alive {
+                let dead = self.module_name(d.org);
+                self.log_line(
+                    Kind::Message,
+                    format!("WARNING: Reply Ignored for dead module: {dead}"),
+                );
+            }
+            let rn = reply_name.clone().unwrap_or(d.msg.clone());
+            self.log_data(&d.msg, h.class_id, &data, Some(&rn));
+        }
+        if let Some(m) = self.modules.get_mut(&conn) {
+            m.attending = m.attending.saturating_sub(1);
+        }
+        self.process_pending(conn, now);
+        Ok(())
+    }
+
+    // ----- variables ---------------------------------------------------------
+
+    fn set_var_from(&mut self, var: &str, data: &[u8], order: ByteOrder) -> Result<(), Bad> {
+        let Some(v) = self.vars.get(var) else {
+            return Ok(());
+        };
+        // Validate, then store in central's own byte order.
+        let value = crate::ipc::decode_value(&v.format, &mut Reader::new(data, order))?;
+        let mut w = Writer::new();
+        crate::ipc::encode_value(&v.format, &value, &mut w)?;
+        self.set_var(var, w.into_vec());
+        Ok(())
+    }
+
+    fn set_var(&mut self, var: &str, bytes: Vec<u8>) {
+        if let Some(v) = self.vars.get_mut(var) {
+            v.value = bytes.clone();
+        }
+        self.central_broadcast_bytes(&format!("V_watch_{var}"), bytes);
+    }
+
+    fn str_list_value(&self, items: &[String], size: usize) -> Vec<u8> {
+        let mut w = Writer::new();
+        internal::encode_str_list(items, size, &mut w);
+        w.into_vec()
+    }
+
+    /// `recordBroadcast`: keep `X_IPC_BROADCAST_MSG_VAR` = names of
+    /// broadcast messages that have handlers, and tell everyone.
+    fn record_broadcast(&mut self, name: &str, active: bool) {
+        let present = self.broadcast_msgs.iter().any(|n| n == name);
+        if active == present {
+            return;
+        }
+        if active {
+            self.broadcast_msgs.push(name.to_string());
+            self.broadcast_size =
+                internal::str_list_size(self.broadcast_msgs.len(), self.broadcast_size);
+        } else {
+            self.broadcast_msgs.retain(|n| n != name);
+        }
+        let v = self.str_list_value(&self.broadcast_msgs.clone(), self.broadcast_size);
+        self.set_var(internal::BROADCAST_MSG_VAR, v);
+    }
+
+    fn clean_broadcast(&mut self) {
+        let names = self.broadcast_msgs.clone();
+        for n in names {
+            if self.msgs.get(&n).is_some_and(|m| m.handlers.is_empty()) {
+                self.record_broadcast(&n, false);
+            }
+        }
+    }
+
+    fn update_log_vars(&mut self) {
+        for (var, o, file) in [
+            (internal::TERMINAL_LOG_VAR, self.config.terminal_log, false),
+            (internal::FILE_LOG_VAR, self.config.file_log, true),
+        ] {
+            let mut w = Writer::new();
+            let on = o.any();
+            w.write_ptr_flag(on);
+            if on {
+                w.write_i32(0);
+            }
+            for b in [
+                o.messages,
+                o.status,
+                o.time,
+                o.data,
+                o.ignore_internal,
+                o.handle_summary,
+                o.refs,
+                o.parent_refs,
+                !(file && o.no_flush),
+                true,
+                false,
+            ] {
+                w.write_i32(b as i32);
+            }
+            if let Some(v) = self.vars.get_mut(var) {
+                v.value = w.into_vec();
+            }
+        }
+    }
+
+    // ----- direct mode ---------------------------------------------------------
+
+    fn direct_handlers(&self, msg: &str) -> Vec<DirectEntry> {
+        let Some(m) = self.msgs.get(msg) else {
+            return Vec::new();
+        };
+        if m.handlers.len() > MAX_DIRECT_HANDLERS {
+            return Vec::new();
+        }
+        let list: Vec<&(ConnId, String)> = if m.class == MsgClass::Broadcast {
+            m.handlers.iter().rev().collect()
+        } else {
+            m.handlers.last().into_iter().collect()
+        };
+        list.into_iter()
+            .filter_map(|(c, hn)| {
+                let md = self.modules.get(c)?;
+                Some(DirectEntry {
+                    intent: md.handlers.get(hn)?.id,
+                    port: md.port,
+                    host: md.host.clone(),
+                    module: md.name.clone().unwrap_or_default(),
+                })
+            })
+            .collect()
+    }
+
+    /// `updateDirectHandlers`: `V_watch_<msg>` = its handler list.
+    fn update_direct_handlers(&mut self, msg: &str) {
+        self.register_var(msg);
+        let list = self.direct_handlers(msg);
+        let mut w = Writer::new();
+        write_direct_list(&mut w, &list);
+        self.set_var(msg, w.into_vec());
+    }
+
+    // ----- back-pressure ---------------------------------------------------------
+
+    fn check_memory(&mut self, conn: ConnId) {
+        if self.stats.queued_bytes <= self.config.max_queued_bytes {
+            return;
+        }
+        if let Some(m) = self.modules.get_mut(&conn) {
+            if !m.paused && !m.closed && m.attending == 0 {
+                m.paused = true;
+                self.memory_paused.insert(conn);
+                self.outputs.push_back(Output::PauseRead { conn });
+            }
+        }
+    }
+
+    fn check_memory_resume(&mut self) {
+        if self.memory_paused.is_empty()
+            || self.stats.queued_bytes > self.config.max_queued_bytes / 2
+        {
+            return;
+        }
+        let paused: Vec<ConnId> = self.memory_paused.drain().collect();
+        for conn in paused {
+            if let Some(m) = self.modules.get_mut(&conn) {
+                if m.paused {
+                    m.paused = false;
+                    self.outputs.push_back(Output::ResumeRead { conn });
+                }
+            }
+        }
+    }
+
+    // ----- console -------------------------------------------------------------
 
     /// A console command line (`help`, `display`, `status`, `memory`,
     /// `close <module>`, `unlock <resource>`, or an option such as `-lmsd`).
     pub fn command(&mut self, line: &str, now: SystemTime) {
-        let _ = (line, now);
+        let mut words = line.split_whitespace();
+        let Some(cmd) = words.next() else {
+            return;
+        };
+        let arg = words.next();
+        let say = |c: &mut Central, s: String| {
+            c.outputs.push_back(Output::Log {
+                target: LogTarget {
+                    terminal: true,
+                    file: false,
+                },
+                line: s,
+            })
+        };
+        match (cmd, arg) {
+            ("help", _) | ("?", _) => {
+                for l in [
+                    "The following are central commands:",
+                    "  help: print this message",
+                    "  display: display the active and pending messages",
+                    "  status: display the known modules and their status",
+                    "  memory: display total memory usage",
+                    "  close <module>: close a connection to a module",
+                    "  unlock <resource>: unlock a locked resource",
+                    "The following command line options can also be used as commands:",
+                    "  -v: display server version information",
+                    "  -l<options>: logging onto terminal (m s t d i h r p x)",
+                    "  -L<options>: logging into file (as -l, plus F n)",
+                    "  -I<msgName>: ignore logging this message",
+                    "  -c: use direct connections for messages defined from now on",
+                    "  -r: resend non-completed messages when modules crash and reconnect",
+                ] {
+                    say(self, l.to_string());
+                }
+            }
+            ("display", _) => {
+                let mut ids: Vec<i32> = self.dispatches.keys().copied().collect();
+                ids.sort_unstable();
+                say(self, format!("{} message(s) active or pending:", ids.len()));
+                for id in ids {
+                    let d = &self.dispatches[&id];
+                    let dest = d
+                        .hnd
+                        .as_ref()
+                        .map(|(c, _)| self.module_name(Org::Module(*c)))
+                        .unwrap_or_else(|| "(no handler)".into());
+                    let st = match d.status {
+                        Status::Attending => "Active",
+                        Status::Pending => "Pending",
+                        Status::NoHandler => "Waiting for a handler",
+                    };
+                    let line = format!(
+                        "  {{{id}}} {:<9} {:>15}: {:>10} --> {:<15} {st}",
+                        log::class_name(d.class),
+                        d.msg,
+                        self.module_name(d.org),
+                        dest
+                    );
+                    say(self, line);
+                }
+            }
+            ("status", _) => {
+                let lines: Vec<String> = self
+                    .modules
+                    .iter()
+                    .map(|(c, m)| {
+                        format!(
+                            "  Module {} on {} (sd {}): capacity {}, active {}, pending {}{}",
+                            m.name.as_deref().unwrap_or("<connecting>"),
+                            if m.host.is_empty() { "?" } else { &m.host },
+                            c.0,
+                            m.capacity,
+                            m.attending,
+                            m.pending.len(),
+                            if m.port >= 0 {
+                                format!(", direct port {}", m.port)
+                            } else {
+                                String::new()
+                            }
+                        )
+                    })
+                    .collect();
+                say(self, format!("{} module(s) connected:", lines.len()));
+                for l in lines {
+                    say(self, l);
+                }
+            }
+            ("memory", _) => {
+                let s = self.stats();
+                say(self, "Cumulative Memory Usage:".into());
+                say(
+                    self,
+                    format!(
+                        "  Messages queued: {} dispatch(es), {} byte(s) pending (peak {})",
+                        s.dispatches, s.queued_bytes, s.peak_queued_bytes
+                    ),
+                );
+                say(
+                    self,
+                    format!(
+                        "  Modules: {}, messages defined: {}, frames received: {}, dropped by limits: {}",
+                        s.modules,
+                        self.msgs.len(),
+                        s.frames_in,
+                        s.dropped
+                    ),
+                );
+            }
+            ("close", Some(name)) => {
+                let conn = self
+                    .modules
+                    .iter()
+                    .find(|(_, m)| m.name.as_deref() == Some(name))
+                    .map(|(c, _)| *c);
+                match conn {
+                    Some(c) => {
+                        self.log_line(Kind::Always, format!("close Module: Closing {name}"));
+                        self.outputs.push_back(Output::Close {
+                            conn: c,
+                            reason: "closed from the console".into(),
+                        });
+                        self.close_module(c, now);
+                    }
+                    None => say(self, format!("Can not find {name} to close.")),
+                }
+            }
+            ("close", None) => say(self, "usage: close <module>".into()),
+            ("unlock", Some(name)) => say(
+                self,
+                format!("Resource {name} is not locked (IPC modules cannot lock resources)"),
+            ),
+            ("unlock", None) => say(self, "usage: unlock <resource>".into()),
+            ("quit", _) => say(self, "use Ctrl-C (SIGINT) to stop central".into()),
+            (opt, _) if opt.starts_with('-') => {
+                if let Err(e) = self.apply_option(line.trim()) {
+                    say(self, e);
+                }
+            }
+            (other, _) => say(self, format!("Unknown command '{other}' (type help)")),
+        }
+    }
+
+    /// An option given as a console command.
+    fn apply_option(&mut self, opt: &str) -> Result<(), String> {
+        let (flag, rest) = opt.split_at(opt.len().min(2));
+        match flag {
+            "-v" => {
+                let v = format!(
+                    "Task Control Server {}.{}.1 (Courier {})",
+                    VERSION.0,
+                    VERSION.1,
+                    env!("CARGO_PKG_VERSION")
+                );
+                self.outputs.push_back(Output::Log {
+                    target: LogTarget {
+                        terminal: true,
+                        file: false,
+                    },
+                    line: v,
+                });
+            }
+            "-l" => {
+                self.config.terminal_log =
+                    LogOptions::parse(rest, false).map_err(|e| e.to_string())?;
+                self.update_log_vars();
+            }
+            "-L" => {
+                self.config.file_log = LogOptions::parse(rest, true).map_err(|e| e.to_string())?;
+                self.update_log_vars();
+            }
+            "-I" if !rest.is_empty() => {
+                self.config.ignore.push(rest.to_string());
+                self.ignore.insert(rest.to_string());
+            }
+            "-c" => self.config.direct = true,
+            "-r" => self.config.resend_on_reconnect = true,
+            "-s" | "-u" | "-p" | "-f" => {
+                return Err(format!(
+                    "option {flag} can only be given on the command line"
+                ))
+            }
+            _ => return Err(format!("Unknown option '{opt}' (type help)")),
+        }
+        Ok(())
     }
 
     /// The next thing the shell must do, if any.
     pub fn poll_output(&mut self) -> Option<Output> {
         self.outputs.pop_front()
     }
+}
+
+/// One `directMsgHandler` entry.
+#[derive(Debug, Clone)]
+struct DirectEntry {
+    intent: i32,
+    port: i32,
+    host: String,
+    module: String,
+}
+
+fn write_direct_entry(w: &mut Writer, e: &DirectEntry) {
+    w.write_i32(e.intent);
+    w.write_i32(0);
+    w.write_i32(0);
+    w.write_i32(e.port);
+    w.write_str(&e.host);
+    w.write_str(&e.module);
+}
+
+fn write_direct_list(w: &mut Writer, list: &[DirectEntry]) {
+    w.write_i32(list.len() as i32);
+    w.write_len(list.len());
+    for e in list {
+        write_direct_entry(w, e);
+    }
+}
+
+/// `DIRECT_MSG(msg)`: classes that may go module to module.
+fn direct_class(c: MsgClass) -> bool {
+    matches!(c, MsgClass::Broadcast | MsgClass::Inform | MsgClass::Query)
+}
+
+/// A string that may be NULL (`n = 0`): `None` for NULL/empty.
+fn read_opt_str(r: &mut Reader<'_>) -> Result<Option<String>, Bad> {
+    let s = r.read_str()?;
+    Ok(if s.is_empty() {
+        None
+    } else {
+        Some(s.to_string())
+    })
+}
+
+/// Decodes a message body for the data log: the wire body (`{int,
+/// <byte:1>}`, `[byte:N]` or the format itself) and then the user format.
+fn decode_user(
+    msg_format: &Option<Format>,
+    res_format: &Option<Format>,
+    data: &[u8],
+    order: ByteOrder,
+    reg: &FormatRegistry,
+) -> Result<Option<String>, String> {
+    let Some(user) = res_format.as_ref().or(msg_format.as_ref()) else {
+        return Ok(None);
+    };
+    if *user == Format::Empty {
+        return Ok(None);
+    }
+    let inner: &[u8] = match msg_format {
+        Some(Format::Struct(f))
+            if f.len() == 2 && matches!(f[1], Format::VarArray { .. }) && res_format.is_some() =>
+        {
+            let mut r = Reader::new(data, order);
+            let _len = r.read_i32().map_err(|e| e.to_string())?;
+            let n = r.read_count(1).map_err(|e| e.to_string())?;
+            r.take(n).map_err(|e| e.to_string())?
+        }
+        _ => data,
+    };
+    let resolve = |n: &str| reg.get(n);
+    let mut r = Reader::new(inner, order);
+    let v = crate::ipc::decode_value_with(user, &mut r, &resolve).map_err(|e| e.to_string())?;
+    Ok(Some(crate::ipc::log_data(user, &v)))
 }
