@@ -353,9 +353,7 @@ pub(super) fn table() -> Vec<Def> {
 pub(super) type VarDef = (String, MsgClass, Option<String>, Option<String>, Internal);
 
 /// The messages of a global variable (`centralRegisterVar`, globalVar.c).
-pub(super) fn var_defs(
-    var: &str,
-) -> [VarDef; 4] {
+pub(super) fn var_defs(var: &str) -> [VarDef; 4] {
     let f = |s: &str| Some(s.to_string());
     let fmt = var_format(var);
     [

@@ -280,6 +280,8 @@ struct Dispatch {
 #[derive(Debug)]
 struct Handler {
     id: i32,
+    /// Registration order.
+    seq: u64,
     msg: String,
     /// The module asked msgInfo with this handler's name: it knows the message.
     knows_msg: bool,
@@ -375,6 +377,7 @@ pub struct Central {
     orphans: HashMap<String, Vec<i32>>,
     stats: Stats,
     memory_paused: HashSet<ConnId>,
+    handler_seq: u64,
     msg_info_query: Format,
     msg_info_reply: Format,
 }
@@ -411,6 +414,7 @@ impl Central {
             orphans: HashMap::new(),
             stats: Stats::default(),
             memory_paused: HashSet::new(),
+            handler_seq: 0,
             msg_info_query: internal::fixed(internal::MSG_INFO_QUERY_FORMAT),
             msg_info_reply: internal::fixed(internal::MSG_INFO_REPLY_FORMAT),
         };
@@ -882,17 +886,22 @@ impl Central {
             self.log_line(Kind::Always, format!("x_ipcClose: Closing {n} on {host}"));
             self.log_line(Kind::Always, format!("close Module: Closing {n}"));
         }
-        // Its handlers go away.
-        let hnds: Vec<(String, String)> = self.modules[&conn]
+        // Its handlers go away (`moduleClean`): watch variables of the
+        // affected messages are updated in subscription order, then the
+        // broadcast list is cleaned in its own order (`cleanBroadcast`).
+        let mut hnds: Vec<(u64, String, String)> = self.modules[&conn]
             .handlers
             .iter()
-            .map(|(hn, h)| (hn.clone(), h.msg.clone()))
+            .map(|(hn, h)| (h.seq, hn.clone(), h.msg.clone()))
             .collect();
-        let mut changed = Vec::new();
-        for (hn, msg) in &hnds {
+        hnds.sort();
+        let mut changed: Vec<String> = Vec::new();
+        for (_, hn, msg) in &hnds {
             if let Some(mm) = self.msgs.get_mut(msg) {
                 mm.handlers.retain(|(c, n)| !(*c == conn && n == hn));
-                changed.push(msg.clone());
+                if (mm.direct || mm.notify_handler_change) && !changed.contains(msg) {
+                    changed.push(msg.clone());
+                }
             }
         }
         // Deliveries it was handling or had pending.
@@ -927,12 +936,19 @@ impl Central {
             } else {
                 let msg = d.msg.clone();
                 self.free_dispatch_id(id);
-                self.log_line(Kind::Always, format!("Clearing handler for message {msg}"));
+                if self.logged(&msg) {
+                    self.log_line(
+                        Kind::Status,
+                        format!(
+                            "Clearing handler for message {msg} {{{id}}}: {} closed",
+                            name.as_deref().unwrap_or("module")
+                        ),
+                    );
+                }
             }
         }
-        // Queries it sent that are still out: their replies will be ignored.
         for msg in changed {
-            self.handlers_changed(&msg);
+            self.update_direct_handlers(&msg);
         }
         self.clean_broadcast();
         self.memory_paused.remove(&conn);
@@ -1363,6 +1379,10 @@ impl Central {
             hnd.clone(),
             Handler {
                 id,
+                seq: {
+                    self.handler_seq += 1;
+                    self.handler_seq
+                },
                 msg: msg.clone(),
                 knows_msg: false,
             },
@@ -1486,7 +1506,8 @@ impl Central {
                 format!("WARNING: Capacity of {}:{res} changed to {cap}", conn.0),
             );
         }
-        self.process_pending(conn, now);
+        // Like C, a larger capacity is used from the next completion on.
+        let _ = now;
     }
 
     fn limit_pending(&mut self, conn: ConnId, msg: Option<String>, res: &str, limit: i32) {

@@ -1,0 +1,381 @@
+//! Replays the exact module→central byte streams of the C modules in the
+//! captures (`fixtures/ipc-central/*.txt`, extracted from
+//! `../shared/fixtures/ipc` by `tools/ipc-fixtures/extract.py`) into our
+//! central and checks every central→module frame against what the C central
+//! sent, connection by connection, in order.
+//!
+//! Normalisation (fields that legitimately differ):
+//! - message ids: central numbers them freely (ipc.md §5). The ids the C
+//!   central handed out are mapped to ours as they are learned (the raw first
+//!   4 bytes and every msgInfo reply), both in the replayed module frames
+//!   (`intent`, keeping the sign that means "direct") and when comparing
+//!   msgInfo replies (the id field; everything else byte for byte);
+//! - dispatch ids (the `msgRef` of a delivery, `dispatchRef`/`parentRef` of
+//!   Success, Reply and frames sent inside a handler): mapped the same way,
+//!   learned from each delivery;
+//! - the values of the two log variables (`V_get_CENTRAL_*_LOG_VAR`): they
+//!   hold the C central's own `FILE` pointer and its log options.
+//! - the order *between* central's replies and its deliveries on one
+//!   connection: it depends on the order in which the C central happened to
+//!   read its sockets (a registration from one module that triggers a
+//!   `V_watch_*` delivery to another), which the capture timestamps do not
+//!   show. Replies must match in order, deliveries must match in order.
+//!
+//! Everything else — headers, class data, message data — must be identical.
+
+use std::collections::{HashMap, VecDeque};
+use std::time::SystemTime;
+
+use courier_wire::ipc::central::{Central, Config, ConnId, LogOptions, Output, Peer};
+use courier_wire::ipc::frame::Header;
+
+struct Line {
+    conn: u64,
+    central: bool,
+    bytes: Vec<u8>,
+    label: String,
+}
+
+fn load(name: &str) -> Vec<Line> {
+    let path = format!(
+        "{}/tests/fixtures/ipc-central/{name}.txt",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let text = std::fs::read_to_string(&path).unwrap();
+    text.lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .map(|l| {
+            let (body, label) = l.split_once("  # ").unwrap_or((l, ""));
+            let mut w = body.split_whitespace();
+            let _t = w.next().unwrap();
+            let conn = w.next().unwrap().parse().unwrap();
+            let central = w.next().unwrap() == "C";
+            let hex = w.next().unwrap_or("");
+            let bytes = (0..hex.len())
+                .step_by(2)
+                .map(|i| u8::from_str_radix(&hex[i..i + 2], 16).unwrap())
+                .collect();
+            Line {
+                conn,
+                central,
+                bytes,
+                label: label.to_string(),
+            }
+        })
+        .collect()
+}
+
+fn word(b: &[u8], i: usize) -> i32 {
+    i32::from_be_bytes(b[4 * i..4 * i + 4].try_into().unwrap())
+}
+
+fn set_word(b: &mut [u8], i: usize, v: i32) {
+    b[4 * i..4 * i + 4].copy_from_slice(&v.to_be_bytes());
+}
+
+fn le(b: &[u8], at: usize) -> i32 {
+    i32::from_le_bytes(b[at..at + 4].try_into().unwrap())
+}
+
+#[derive(Default)]
+struct Maps {
+    /// C message id -> ours.
+    ids: HashMap<i32, i32>,
+    /// C dispatch id -> ours.
+    dispatch: HashMap<i32, i32>,
+}
+
+impl Maps {
+    fn id(&self, c: i32) -> i32 {
+        let a = c.checked_abs().unwrap_or(0);
+        match self.ids.get(&a) {
+            Some(o) => o * c.signum(),
+            None => c,
+        }
+    }
+    fn did(&self, c: i32) -> i32 {
+        if c < 0 {
+            c
+        } else {
+            *self.dispatch.get(&c).unwrap_or(&c)
+        }
+    }
+}
+
+/// Rewrites a replayed module frame from C's numbering into ours.
+fn rewrite_module_frame(b: &mut [u8], maps: &Maps) {
+    let h = Header::decode(b).unwrap();
+    let class = h.class_id.class();
+    if class != 11 && class != 12 && h.intent != 0 {
+        set_word(b, 3, maps.id(h.intent));
+    }
+    set_word(b, 2, maps.did(h.parent_ref));
+    set_word(b, 5, maps.did(h.dispatch_ref));
+}
+
+fn check(name: &str, direct: bool) -> usize {
+    let lines = load(name);
+    let mut config = Config::default();
+    config.direct = direct;
+    let mut central = Central::new(config);
+    let now = SystemTime::UNIX_EPOCH;
+    let mut maps = Maps::default();
+    let mut actual: HashMap<u64, VecDeque<Vec<u8>>> = HashMap::new();
+    let mut connected = std::collections::HashSet::new();
+    let mut compared = 0;
+    let drain = |central: &mut Central, actual: &mut HashMap<u64, VecDeque<Vec<u8>>>| {
+        while let Some(o) = central.poll_output() {
+            if let Output::Transmit { conn, bytes } = o {
+                actual.entry(conn.0).or_default().push_back(bytes);
+            }
+        }
+    };
+    for (n, l) in lines.iter().enumerate() {
+        if connected.insert(l.conn) {
+            central.connect(
+                ConnId(l.conn),
+                Peer::Other(format!("capture {}", l.conn)),
+                now,
+            );
+            drain(&mut central, &mut actual);
+        }
+        let at = format!("{name} line {n} (conn {} {})", l.conn, l.label);
+        if !l.central {
+            let mut b = l.bytes.clone();
+            rewrite_module_frame(&mut b, &maps);
+            central.receive(ConnId(l.conn), &b, now);
+            drain(&mut central, &mut actual);
+            continue;
+        }
+        // Replies (and the handshake) and deliveries are two ordered streams.
+        let want_delivery = is_delivery(&l.bytes);
+        let got = actual
+            .get_mut(&l.conn)
+            .and_then(|q| {
+                let i = q.iter().position(|f| is_delivery(f) == want_delivery)?;
+                q.remove(i)
+            })
+            .unwrap_or_else(|| panic!("{at}: our central sent nothing; C sent {:02x?}", l.bytes));
+        compared += 1;
+        let want = &l.bytes;
+        if std::env::var_os("REPLAY_DEBUG").is_some() {
+            eprintln!("{at}\n  C   {}\n  us  {}", hex(want), hex(&got));
+        }
+        if want.len() == 4 {
+            assert_eq!(got.len(), 4, "{at}: raw id");
+            maps.ids.insert(word(want, 0), word(&got, 0));
+            continue;
+        }
+        let (hw, hg) = (Header::decode(want).unwrap(), Header::decode(&got).unwrap());
+        let mut got_n = got.clone();
+        // Deliveries carry a dispatch id in msgRef; forwarded replies in dispatchRef.
+        let delivery = hw.intent >= 0 && hw.class_id.class() != 0;
+        if delivery {
+            maps.dispatch.insert(hw.msg_ref, hg.msg_ref);
+            set_word(&mut got_n, 6, hw.msg_ref);
+        }
+        if hw.class_id.class() == 11 {
+            assert_eq!(
+                maps.did(hw.dispatch_ref),
+                hg.dispatch_ref,
+                "{at}: reply dispatchRef"
+            );
+            set_word(&mut got_n, 5, hw.dispatch_ref);
+        }
+        if hw.parent_ref > 0 {
+            assert_eq!(maps.did(hw.parent_ref), hg.parent_ref, "{at}: parentRef");
+            set_word(&mut got_n, 2, hw.parent_ref);
+        }
+        if l.label.starts_with("x_ipc_msgInfoMsg REPLY") && want.len() > 28 && want[28] == b'Z' {
+            // The id field right after the pointer flag.
+            assert_eq!(got_n.len(), want.len(), "{at}: msgInfo reply length");
+            let (cid, oid) = (le(want, 29), le(&got_n, 29));
+            let known = maps.ids.insert(cid.abs(), oid.abs());
+            assert!(
+                known.is_none() || known == Some(oid.abs()),
+                "{at}: id map changed"
+            );
+            assert_eq!(cid.signum(), oid.signum(), "{at}: direct sign of the id");
+            got_n[29..33].copy_from_slice(&cid.to_le_bytes());
+        }
+        if l.label.contains("REPLY to V_get_CENTRAL_") {
+            assert_eq!(got_n.len(), want.len(), "{at}: log variable length");
+            continue;
+        }
+        assert_eq!(
+            hex(&got_n),
+            hex(want),
+            "{at}: frame differs\n ours: {hg:?}\n    C: {hw:?}"
+        );
+    }
+    for (conn, q) in actual {
+        assert!(
+            q.is_empty(),
+            "{name}: our central sent {} more frame(s) to conn {conn} than C did: first {:02x?}",
+            q.len(),
+            q.front()
+        );
+    }
+    compared
+}
+
+/// A delivery to a handler (intent = handler id), as opposed to a reply
+/// (intent -4), the raw id or a handshake formatter (intent 0).
+fn is_delivery(b: &[u8]) -> bool {
+    b.len() >= 28 && word(b, 3) > 0
+}
+
+fn hex(b: &[u8]) -> String {
+    b.iter().map(|x| format!("{x:02x}")).collect()
+}
+
+#[test]
+fn demo_central() {
+    assert!(check("demo-central", false) > 100);
+}
+
+#[test]
+fn wiretest_central() {
+    assert!(check("wiretest-central", false) > 80);
+}
+
+#[test]
+fn flowcontrol_capacity1() {
+    assert!(check("flowcontrol-capacity1", false) > 50);
+}
+
+#[test]
+fn flowcontrol_capacity2() {
+    assert!(check("flowcontrol-capacity2", false) > 50);
+}
+
+#[test]
+fn demo_direct() {
+    assert!(check("demo-direct", true) > 100);
+}
+
+#[test]
+fn wiretest_direct() {
+    assert!(check("wiretest-direct", true) > 80);
+}
+
+/// Our terminal log for a replayed capture, with the connections numbered
+/// as the C central's socket descriptors were (5, 6, …).
+fn replay_log(name: &str, direct: bool, close_order: &[u64]) -> Vec<String> {
+    let lines = load(name);
+    let mut config = Config::default();
+    config.direct = direct;
+    config.terminal_log = LogOptions::parse("msid", false).unwrap();
+    let mut central = Central::new(config);
+    let now = SystemTime::UNIX_EPOCH;
+    let mut log = Vec::new();
+    let mut connected = std::collections::HashSet::new();
+    let mut maps = Maps::default();
+    let mut actual: HashMap<u64, VecDeque<Vec<u8>>> = HashMap::new();
+    for l in &lines {
+        let conn = ConnId(l.conn + 5);
+        if connected.insert(l.conn) {
+            central.connect(conn, Peer::Other("capture".into()), now);
+            drain_log(&mut central, &mut actual, &mut log);
+        }
+        if l.central {
+            // Learn the id mappings exactly as `check` does (it already
+            // proved the frames equal).
+            let want_delivery = is_delivery(&l.bytes);
+            let q = actual.entry(l.conn).or_default();
+            let i = q
+                .iter()
+                .position(|f| is_delivery(f) == want_delivery)
+                .unwrap();
+            let got = q.remove(i).unwrap();
+            if l.bytes.len() == 4 {
+                maps.ids.insert(word(&l.bytes, 0), word(&got, 0));
+            } else if want_delivery {
+                maps.dispatch.insert(word(&l.bytes, 6), word(&got, 6));
+            } else if l.label.starts_with("x_ipc_msgInfoMsg REPLY")
+                && l.bytes.len() > 33
+                && l.bytes[28] == b'Z'
+            {
+                maps.ids.insert(le(&l.bytes, 29).abs(), le(&got, 29).abs());
+            }
+        } else {
+            let mut b = l.bytes.clone();
+            rewrite_module_frame(&mut b, &maps);
+            central.receive(conn, &b, now);
+            drain_log(&mut central, &mut actual, &mut log);
+        }
+    }
+    // Modules close in the order the C central saw their connections end.
+    let _ = &connected;
+    for &c in close_order {
+        central.disconnect(ConnId(c + 5), now);
+    }
+    while let Some(o) = central.poll_output() {
+        if let Output::Log { target, line } = o {
+            if target.terminal {
+                log.push(line);
+            }
+        }
+    }
+    log
+}
+
+fn drain_log(
+    central: &mut Central,
+    actual: &mut HashMap<u64, VecDeque<Vec<u8>>>,
+    log: &mut Vec<String>,
+) {
+    while let Some(o) = central.poll_output() {
+        match o {
+            Output::Transmit { conn, bytes } => {
+                actual.entry(conn.0 - 5).or_default().push_back(bytes)
+            }
+            Output::Log { target, line } if target.terminal => log.push(line),
+            _ => {}
+        }
+    }
+}
+
+/// The C central's log between its banner and its exit report.
+fn c_log(name: &str) -> Vec<String> {
+    let path = format!(
+        "{}/tests/fixtures/ipc-central/{name}.central.log",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .skip(2)
+        .take_while(|l| !l.starts_with("Cumulative Memory Usage"))
+        .map(|l| l.trim_end().to_string())
+        .collect()
+}
+
+fn compare_logs(name: &str, direct: bool, close_order: &[u64]) {
+    let ours: Vec<String> = replay_log(name, direct, close_order)
+        .into_iter()
+        .map(|l| l.trim_end().to_string())
+        .collect();
+    let theirs = c_log(name);
+    assert_eq!(ours.join("\n"), theirs.join("\n"), "{name}: log differs");
+}
+
+#[test]
+fn demo_central_log_matches_c() {
+    compare_logs("demo-central", false, &[0, 1, 2]);
+}
+
+#[test]
+fn demo_direct_log_matches_c() {
+    compare_logs("demo-direct", true, &[0, 1, 2]);
+}
+
+#[test]
+fn wiretest_central_log_matches_c() {
+    compare_logs("wiretest-central", false, &[1, 0]);
+}
+
+#[test]
+fn wiretest_direct_log_matches_c() {
+    compare_logs("wiretest-direct", true, &[1, 0]);
+}
