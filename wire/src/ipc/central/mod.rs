@@ -904,15 +904,17 @@ impl Central {
                 }
             }
         }
-        // Deliveries it was handling or had pending.
-        let mine: Vec<i32> = self
+        // Deliveries it was handling, then those it had pending, in order.
+        let mut mine: Vec<i32> = self
             .dispatches
             .iter()
-            .filter(|(_, d)| d.hnd.as_ref().is_some_and(|(c, _)| *c == conn))
+            .filter(|(_, d)| {
+                d.status == Status::Attending && d.hnd.as_ref().is_some_and(|(c, _)| *c == conn)
+            })
             .map(|(id, _)| *id)
             .collect();
-        let mut mine = mine;
         mine.sort_unstable();
+        mine.extend(self.modules[&conn].pending.iter().copied());
         for id in mine {
             let keep = self.config.resend_on_reconnect && name.is_some();
             let d = self.dispatches.get_mut(&id).unwrap();
@@ -1773,22 +1775,24 @@ impl Central {
             .iter()
             .find(|(n, _)| *n == hnd_msg)
             .map(|x| x.1);
-        let same: Vec<usize> = m
-            .pending
-            .iter()
-            .enumerate()
-            .filter(|(_, id)| self.dispatches.get(id).is_some_and(|x| x.msg == hnd_msg))
-            .map(|(i, _)| i)
-            .collect();
+        // Only a queue with a limit needs scanning (keeps pending O(1)).
         let drop_oldest = match limit {
-            Some(l) if l as i64 <= same.len() as i64 => Some(same),
-            _ => match m.pending_limit {
-                Some(l) if l as i64 <= m.pending.len() as i64 => {
-                    Some((0..m.pending.len()).collect())
-                }
-                _ => None,
-            },
+            Some(l) => {
+                let same: Vec<usize> = m
+                    .pending
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, id)| self.dispatches.get(id).is_some_and(|x| x.msg == hnd_msg))
+                    .map(|(i, _)| i)
+                    .collect();
+                (l as i64 <= same.len() as i64).then_some(same)
+            }
+            None => None,
         };
+        let drop_oldest = drop_oldest.or_else(|| match m.pending_limit {
+            Some(l) if l as i64 <= m.pending.len() as i64 => Some((0..m.pending.len()).collect()),
+            _ => None,
+        });
         let priority = self.msgs.get(&msg).map_or(DEFAULT_PRIORITY, |x| x.priority);
         let d = self.dispatches.get_mut(&did).unwrap();
         d.status = Status::Pending;

@@ -1,0 +1,710 @@
+//! The central state machine driven by real module state machines
+//! (`ipc::module::Connection`) over an in-memory network: no sockets, no
+//! clocks, fully deterministic. Covers routing, capacity, priorities, queue
+//! limits, notifications, direct mode, `-r`, back-pressure and hostile input.
+
+use std::collections::{HashMap, HashSet, VecDeque};
+use std::time::{Instant, SystemTime};
+
+use courier_wire::ipc::central::{Central, Config, ConnId, Output, Peer};
+use courier_wire::ipc::frame::{ClassId, Header, MsgClass};
+use courier_wire::ipc::module::{Connection, DeliveryKind, Event, ModuleConfig, MsgLength};
+
+struct Module {
+    conn: Connection,
+    /// Frames the module wrote that central has not read (held while paused).
+    outbox: VecDeque<Vec<u8>>,
+    events: VecDeque<Event>,
+    closed_by_central: bool,
+}
+
+struct Sim {
+    central: Central,
+    mods: HashMap<u64, Module>,
+    paused: HashSet<u64>,
+    logs: Vec<String>,
+    closes: Vec<(u64, String)>,
+    now: Instant,
+    /// Most bytes ever held in module outboxes while paused (TCP buffers).
+    next: u64,
+}
+
+impl Sim {
+    fn new(config: Config) -> Sim {
+        Sim {
+            central: Central::new(config),
+            mods: HashMap::new(),
+            paused: HashSet::new(),
+            logs: Vec::new(),
+            closes: Vec::new(),
+            now: Instant::now(),
+            next: 1,
+        }
+    }
+
+    fn add(&mut self, name: &str) -> u64 {
+        let id = self.next;
+        self.next += 1;
+        self.central
+            .connect(ConnId(id), Peer::Other(name.into()), SystemTime::now());
+        let conn = Connection::new(ModuleConfig::new(name, "localhost"), self.now);
+        self.mods.insert(
+            id,
+            Module {
+                conn,
+                outbox: VecDeque::new(),
+                events: VecDeque::new(),
+                closed_by_central: false,
+            },
+        );
+        id
+    }
+
+    fn connect(&mut self, name: &str) -> u64 {
+        let id = self.add(name);
+        self.pump();
+        let ev = self.take_events(id);
+        assert!(
+            ev.iter().any(|e| matches!(e, Event::Connected)),
+            "{name} did not connect: {ev:?}\nlog: {:#?}",
+            self.logs
+        );
+        id
+    }
+
+    fn m(&mut self, id: u64) -> &mut Connection {
+        &mut self.mods.get_mut(&id).unwrap().conn
+    }
+
+    /// Moves bytes until nothing moves.
+    fn pump(&mut self) {
+        loop {
+            let mut moved = false;
+            let ids: Vec<u64> = self.mods.keys().copied().collect();
+            for id in ids {
+                let m = self.mods.get_mut(&id).unwrap();
+                while let Some(b) = m.conn.poll_transmit() {
+                    m.outbox.push_back(b);
+                }
+                while let Some(e) = m.conn.poll_event() {
+                    m.events.push_back(e);
+                    moved = true;
+                }
+                // Processing a delivery may have queued a lookup.
+                while let Some(b) = m.conn.poll_transmit() {
+                    m.outbox.push_back(b);
+                    moved = true;
+                }
+                while !self.paused.contains(&id) {
+                    let Some(m) = self.mods.get_mut(&id) else {
+                        break;
+                    };
+                    if m.closed_by_central {
+                        break;
+                    }
+                    let Some(b) = m.outbox.pop_front() else {
+                        break;
+                    };
+                    moved = true;
+                    self.central.receive(ConnId(id), &b, SystemTime::now());
+                    self.drain();
+                }
+            }
+            if self.drain() {
+                moved = true;
+            }
+            if !moved {
+                break;
+            }
+        }
+    }
+
+    /// Carries out central's outputs; true if anything reached a module.
+    fn drain(&mut self) -> bool {
+        let mut any = false;
+        while let Some(o) = self.central.poll_output() {
+            any = true;
+            match o {
+                Output::Transmit { conn, bytes } => {
+                    if let Some(m) = self.mods.get_mut(&conn.0) {
+                        m.conn.receive(&bytes, self.now);
+                    }
+                }
+                Output::Log { line, .. } => self.logs.push(line),
+                Output::PauseRead { conn } => {
+                    self.paused.insert(conn.0);
+                }
+                Output::ResumeRead { conn } => {
+                    self.paused.remove(&conn.0);
+                }
+                Output::Close { conn, reason } => {
+                    self.closes.push((conn.0, reason));
+                    if let Some(m) = self.mods.get_mut(&conn.0) {
+                        m.closed_by_central = true;
+                        m.conn.handle_eof();
+                    }
+                    self.central.disconnect(conn, SystemTime::now());
+                }
+                other => panic!("unexpected output {other:?}"),
+            }
+        }
+        any
+    }
+
+    fn take_events(&mut self, id: u64) -> Vec<Event> {
+        self.mods.get_mut(&id).unwrap().events.drain(..).collect()
+    }
+
+    /// User deliveries received by `id`: (delivery, msg, kind, data).
+    fn deliveries(&mut self, id: u64) -> Vec<(u64, String, DeliveryKind, Vec<u8>)> {
+        let m = self.mods.get_mut(&id).unwrap();
+        let mut out = Vec::new();
+        let mut rest = VecDeque::new();
+        for e in m.events.drain(..) {
+            match e {
+                Event::Delivery {
+                    delivery,
+                    msg,
+                    kind,
+                    data,
+                    ..
+                } => out.push((delivery, msg, kind, data)),
+                other => rest.push_back(other),
+            }
+        }
+        m.events = rest;
+        out
+    }
+
+    fn close(&mut self, id: u64) {
+        self.mods.remove(&id);
+        self.paused.remove(&id);
+        self.central.disconnect(ConnId(id), SystemTime::now());
+        self.drain();
+        self.pump();
+    }
+}
+
+fn define(sim: &mut Sim, id: u64, msg: &str, fmt: &str) {
+    sim.m(id)
+        .define_msg(msg, MsgLength::Variable, Some(fmt))
+        .unwrap();
+}
+
+#[test]
+fn publish_subscribe_and_query_through_central() {
+    let mut sim = Sim::new(Config::default());
+    let a = sim.connect("pub");
+    let b = sim.connect("sub");
+    define(&mut sim, a, "msg", "int");
+    define(&mut sim, a, "ask", "int");
+    define(&mut sim, a, "answer", "int");
+    sim.m(b).subscribe("msg", "HND-msg1").unwrap();
+    sim.m(b).subscribe("ask", "HND-ask1").unwrap();
+    sim.pump();
+    sim.m(a).publish("msg", &7i32.to_le_bytes(), -1).unwrap();
+    let q = sim.m(a).query("ask", &20i32.to_le_bytes(), -1).unwrap();
+    sim.pump();
+    let d = sim.deliveries(b);
+    assert_eq!(d.len(), 1, "capacity 1: the query waits for the ack: {d:?}");
+    assert_eq!(
+        (d[0].1.as_str(), d[0].3.clone()),
+        ("msg", 7i32.to_le_bytes().to_vec())
+    );
+    sim.m(b).ack(d[0].0).unwrap();
+    sim.pump();
+    let d = sim.deliveries(b);
+    assert_eq!(d.len(), 1);
+    assert_eq!(d[0].2, DeliveryKind::Query);
+    sim.m(b)
+        .respond(d[0].0, "answer", &40i32.to_le_bytes())
+        .unwrap();
+    sim.pump();
+    let ev = sim.take_events(a);
+    assert!(
+        // (The module unwraps the body only once it has looked up the reply
+        // message; either way the value is the last 4 bytes.)
+        ev.iter()
+            .any(|e| matches!(e, Event::Reply { query, reply_msg, data, .. }
+            if *query == q && reply_msg == "answer" && data.ends_with(&40i32.to_le_bytes()))),
+        "{ev:?}"
+    );
+    assert_eq!(
+        sim.central.stats().dispatches,
+        0,
+        "every dispatch completed"
+    );
+}
+
+#[test]
+fn capacity_priority_and_queue_limits() {
+    let mut sim = Sim::new(Config::default());
+    let a = sim.connect("pub");
+    let b = sim.connect("sub");
+    define(&mut sim, a, "low", "int");
+    define(&mut sim, a, "high", "int");
+    define(&mut sim, a, "limited", "int");
+    for m in ["low", "high", "limited"] {
+        sim.m(b).subscribe(m, &format!("HND-{m}")).unwrap();
+    }
+    sim.m(b).set_priority("high", 10).unwrap();
+    sim.m(b).set_queue_length("limited", 2).unwrap();
+    sim.pump();
+    // First one occupies the only slot; the rest queue in central.
+    for i in 0..3 {
+        sim.m(a)
+            .publish("low", &(i as i32).to_le_bytes(), -1)
+            .unwrap();
+    }
+    for i in 0..5 {
+        sim.m(a)
+            .publish("limited", &(100 + i as i32).to_le_bytes(), -1)
+            .unwrap();
+    }
+    sim.m(a).publish("high", &999i32.to_le_bytes(), -1).unwrap();
+    sim.pump();
+    let mut got = Vec::new();
+    loop {
+        let d = sim.deliveries(b);
+        if d.is_empty() {
+            break;
+        }
+        assert_eq!(d.len(), 1, "never more than capacity outstanding");
+        got.push((
+            d[0].1.clone(),
+            i32::from_le_bytes(d[0].3[..4].try_into().unwrap()),
+        ));
+        sim.m(b).ack(d[0].0).unwrap();
+        sim.pump();
+    }
+    let expect: Vec<(String, i32)> = [
+        ("low", 0),
+        ("high", 999),
+        ("low", 1),
+        ("low", 2),
+        ("limited", 103),
+        ("limited", 104),
+    ]
+    .iter()
+    .map(|(m, v)| (m.to_string(), *v))
+    .collect();
+    assert_eq!(got, expect);
+    assert_eq!(
+        sim.central.stats().dropped,
+        3,
+        "limit 2 dropped the three oldest"
+    );
+    assert!(
+        sim.logs.iter().any(|l| l.contains("PENDING LIMIT")),
+        "{:#?}",
+        sim.logs
+    );
+}
+
+#[test]
+fn larger_capacity_allows_concurrent_deliveries() {
+    let mut sim = Sim::new(Config::default());
+    let a = sim.connect("pub");
+    let b = sim.connect("sub");
+    define(&mut sim, a, "m", "int");
+    sim.m(b).subscribe("m", "HND-m").unwrap();
+    sim.m(b).set_capacity(3).unwrap();
+    sim.pump();
+    for i in 0..5i32 {
+        sim.m(a).publish("m", &i.to_le_bytes(), -1).unwrap();
+    }
+    sim.pump();
+    assert_eq!(sim.deliveries(b).len(), 3);
+}
+
+#[test]
+fn query_before_any_handler_waits_for_one() {
+    let mut sim = Sim::new(Config::default());
+    let a = sim.connect("asker");
+    define(&mut sim, a, "late", "int");
+    define(&mut sim, a, "late_reply", "int");
+    let q = sim.m(a).query("late", &1i32.to_le_bytes(), -1).unwrap();
+    sim.pump();
+    let b = sim.connect("server");
+    sim.m(b).subscribe("late", "HND-late").unwrap();
+    sim.pump();
+    let d = sim.deliveries(b);
+    assert_eq!(d.len(), 1, "the waiting query reaches the new handler");
+    sim.m(b)
+        .respond(d[0].0, "late_reply", &2i32.to_le_bytes())
+        .unwrap();
+    sim.pump();
+    assert!(sim
+        .take_events(a)
+        .iter()
+        .any(|e| matches!(e, Event::Reply { query, .. } if *query == q)));
+}
+
+#[test]
+fn connect_disconnect_and_handler_change_notifications() {
+    let mut sim = Sim::new(Config::default());
+    let w = sim.connect("watcher");
+    define(&mut sim, w, "topic", "int");
+    sim.m(w).subscribe_connect().unwrap();
+    sim.m(w).subscribe_disconnect().unwrap();
+    sim.m(w).subscribe_handler_change("topic").unwrap();
+    sim.pump();
+    sim.take_events(w);
+    let x = sim.connect("other");
+    sim.m(x).subscribe("topic", "HND-topic").unwrap();
+    sim.pump();
+    let ev = sim.take_events(w);
+    assert!(ev.contains(&Event::ModuleConnect("other".into())), "{ev:?}");
+    assert!(
+        ev.iter()
+            .any(|e| matches!(e, Event::HandlerChange { msg, count: 1 } if msg == "topic")),
+        "{ev:?}"
+    );
+    let op = sim.m(w).is_module_connected("other").unwrap();
+    let n = sim.m(w).num_handlers("topic").unwrap();
+    sim.pump();
+    let ev = sim.take_events(w);
+    assert!(
+        ev.contains(&Event::ModuleConnected {
+            op,
+            connected: true
+        }),
+        "{ev:?}"
+    );
+    assert!(
+        ev.contains(&Event::NumHandlers { op: n, count: 1 }),
+        "{ev:?}"
+    );
+    sim.close(x);
+    let ev = sim.take_events(w);
+    assert!(
+        ev.contains(&Event::ModuleDisconnect("other".into())),
+        "{ev:?}"
+    );
+    assert!(
+        ev.iter()
+            .any(|e| matches!(e, Event::HandlerChange { msg, count: 0 } if msg == "topic")),
+        "{ev:?}"
+    );
+    let op = sim.m(w).is_module_connected("other").unwrap();
+    sim.pump();
+    assert!(sim.take_events(w).contains(&Event::ModuleConnected {
+        op,
+        connected: false
+    }));
+}
+
+#[test]
+fn direct_mode_negates_ids_and_lists_listeners() {
+    let mut config = Config::default();
+    config.direct = true;
+    let mut sim = Sim::new(config);
+    let a = sim.add("a");
+    sim.pump();
+    assert!(sim
+        .take_events(a)
+        .iter()
+        .any(|e| matches!(e, Event::DirectListenRequested)));
+    sim.m(a).announce_direct_port(8123);
+    sim.pump();
+    assert!(sim
+        .take_events(a)
+        .iter()
+        .any(|e| matches!(e, Event::Connected)));
+    define(&mut sim, a, "d", "int");
+    sim.m(a).subscribe("d", "HND-d").unwrap();
+    sim.pump();
+    assert!(sim.m(a).msg_info("d").is_none_or(|i| i.id < 0));
+    let op = sim.m(a).num_handlers("d").unwrap();
+    sim.pump();
+    assert!(sim
+        .take_events(a)
+        .contains(&Event::NumHandlers { op, count: 1 }));
+    assert!(sim
+        .logs
+        .iter()
+        .any(|l| l == "Direct Connection Established For: a at 8123"));
+}
+
+#[test]
+fn resend_on_reconnect_redelivers_unfinished_messages() {
+    let mut config = Config::default();
+    config.resend_on_reconnect = true;
+    let mut sim = Sim::new(config);
+    let a = sim.connect("pub");
+    let b = sim.connect("worker");
+    define(&mut sim, a, "job", "int");
+    sim.m(b).subscribe("job", "HND-job").unwrap();
+    sim.pump();
+    sim.m(a).publish("job", &1i32.to_le_bytes(), -1).unwrap();
+    sim.m(a).publish("job", &2i32.to_le_bytes(), -1).unwrap();
+    sim.pump();
+    assert_eq!(sim.deliveries(b).len(), 1);
+    // The worker crashes without acknowledging, then comes back.
+    sim.close(b);
+    let b2 = sim.connect("worker");
+    sim.m(b2).subscribe("job", "HND-job").unwrap();
+    sim.pump();
+    let mut vals = Vec::new();
+    loop {
+        let d = sim.deliveries(b2);
+        if d.is_empty() {
+            break;
+        }
+        for (id, _, _, data) in d {
+            vals.push(i32::from_le_bytes(data[..4].try_into().unwrap()));
+            sim.m(b2).ack(id).unwrap();
+        }
+        sim.pump();
+    }
+    assert_eq!(vals, vec![1, 2]);
+    assert!(sim.logs.iter().any(|l| l.starts_with("Resending job")));
+}
+
+#[test]
+fn without_resend_unfinished_messages_are_cleared() {
+    let mut sim = Sim::new(Config::default());
+    let a = sim.connect("pub");
+    let b = sim.connect("worker");
+    define(&mut sim, a, "job", "int");
+    sim.m(b).subscribe("job", "HND-job").unwrap();
+    sim.pump();
+    sim.m(a).publish("job", &1i32.to_le_bytes(), -1).unwrap();
+    sim.pump();
+    sim.close(b);
+    assert_eq!(sim.central.stats().dispatches, 0);
+}
+
+#[test]
+fn two_hundred_modules_connect_at_once() {
+    let mut sim = Sim::new(Config::default());
+    let ids: Vec<u64> = (0..200).map(|i| sim.add(&format!("m{i}"))).collect();
+    sim.pump();
+    for &id in &ids {
+        assert!(sim
+            .take_events(id)
+            .iter()
+            .any(|e| matches!(e, Event::Connected)));
+    }
+    assert_eq!(sim.central.module_names().len(), 200);
+    define(&mut sim, ids[0], "all", "int");
+    for &id in &ids {
+        sim.m(id).subscribe("all", "HND-all").unwrap();
+    }
+    sim.pump();
+    // Settle the broadcast-list updates every subscription caused.
+    sim.m(ids[0])
+        .publish("all", &5i32.to_le_bytes(), -1)
+        .unwrap();
+    sim.pump();
+    let mut n = 0;
+    for &id in &ids {
+        n += sim.deliveries(id).iter().filter(|d| d.1 == "all").count();
+    }
+    assert_eq!(n, 200);
+}
+
+/// A publisher floods 100 000 messages at a subscriber with capacity 1 that
+/// acknowledges one message per round: central must pause reading from the
+/// publisher (TCP back-pressure) so its queue stays under the limit, and
+/// deliver everything in order.
+#[test]
+fn slow_subscriber_bounded_memory_nothing_lost() {
+    let mut config = Config::default();
+    config.max_queued_bytes = 256 << 10;
+    let mut sim = Sim::new(config);
+    let p = sim.connect("flood");
+    let s = sim.connect("slow");
+    define(&mut sim, p, "data", "[int:16]");
+    sim.m(s).subscribe("data", "HND-data").unwrap();
+    sim.pump();
+    const N: i32 = 100_000;
+    let mut sent = 0;
+    let mut next = 0;
+    let mut max_outbox = 0usize;
+    while next < N {
+        // The publisher writes as fast as its socket lets it.
+        while sent < N && sim.mods[&p].outbox.len() < 1000 {
+            let mut body = vec![0u8; 64];
+            body[..4].copy_from_slice(&sent.to_le_bytes());
+            sim.m(p).publish("data", &body, -1).unwrap();
+            sent += 1;
+        }
+        sim.pump();
+        max_outbox = max_outbox.max(sim.mods[&p].outbox.len());
+        for (id, _, _, data) in sim.deliveries(s) {
+            assert_eq!(i32::from_le_bytes(data[..4].try_into().unwrap()), next);
+            next += 1;
+            sim.m(s).ack(id).unwrap();
+        }
+    }
+    let st = sim.central.stats();
+    println!(
+        "100 000 messages, capacity 1: peak queued in central {} bytes (limit {}), dropped {}",
+        st.peak_queued_bytes,
+        256 << 10,
+        st.dropped
+    );
+    assert_eq!(st.dropped, 0);
+    assert!(
+        st.peak_queued_bytes <= (256 << 10) + 1024,
+        "peak {}",
+        st.peak_queued_bytes
+    );
+}
+
+fn raw_frame(class: MsgClass, intent: i32, body: &[u8]) -> Vec<u8> {
+    let h = Header {
+        class_total: 0,
+        msg_total: body.len() as i32,
+        parent_ref: -1,
+        intent,
+        class_id: ClassId::native(class),
+        dispatch_ref: -1,
+        msg_ref: 1,
+    };
+    let mut v = h.encode().to_vec();
+    v.extend_from_slice(body);
+    v
+}
+
+fn hostile(bytes: &[u8]) -> (Vec<String>, Vec<String>) {
+    let mut sim = Sim::new(Config::default());
+    let ok = sim.connect("bystander");
+    sim.central.connect(
+        ConnId(99),
+        Peer::Other("attacker".into()),
+        SystemTime::now(),
+    );
+    sim.central.receive(ConnId(99), bytes, SystemTime::now());
+    let mut closes = Vec::new();
+    let mut logs = Vec::new();
+    while let Some(o) = sim.central.poll_output() {
+        match o {
+            Output::Close { reason, .. } => closes.push(reason),
+            Output::Log { line, .. } => logs.push(line),
+            _ => {}
+        }
+    }
+    // Central is still fine for everyone else.
+    define(&mut sim, ok, "still", "int");
+    sim.pump();
+    let op = sim.m(ok).is_module_connected("bystander").unwrap();
+    sim.pump();
+    assert!(sim.take_events(ok).contains(&Event::ModuleConnected {
+        op,
+        connected: true
+    }));
+    (closes, logs)
+}
+
+#[test]
+fn hostile_frames_close_only_the_offender_with_a_log_line() {
+    // Negative length.
+    let mut f = raw_frame(MsgClass::Query, 5, &[]);
+    f[4..8].copy_from_slice(&(-8i32).to_be_bytes());
+    let (c, l) = hostile(&f);
+    assert!(c[0].contains("negative length"), "{c:?}");
+    assert!(l.iter().any(|x| x.contains("negative length")));
+    // Oversized.
+    let mut f = raw_frame(MsgClass::Query, 5, &[]);
+    f[4..8].copy_from_slice(&i32::MAX.to_be_bytes());
+    let (c, _) = hostile(&f);
+    assert!(c[0].contains("exceeds the limit"), "{c:?}");
+    // Not packed / bad byte order.
+    let mut f = raw_frame(MsgClass::Query, 5, &[]);
+    f[17] = 4;
+    assert!(hostile(&f).0[0].contains("not packed"));
+    let mut f = raw_frame(MsgClass::Query, 5, &[]);
+    f[16] = 0x77;
+    assert!(hostile(&f).0[0].contains("byte-order"));
+}
+
+#[test]
+fn truncated_internal_data_closes_with_the_reason() {
+    // x_ipc_msgInfoMsg with a string length running off the end.
+    let mut sim = Sim::new(Config::default());
+    sim.central
+        .connect(ConnId(7), Peer::Other("t".into()), SystemTime::now());
+    let mut id = [0u8; 4];
+    if let Some(Output::Transmit { bytes, .. }) = sim.central.poll_output() {
+        id.copy_from_slice(&bytes);
+    }
+    let msg_info = i32::from_be_bytes(id);
+    let mut body = 1000i32.to_le_bytes().to_vec();
+    body.extend_from_slice(b"abc");
+    let f = raw_frame(MsgClass::Query, msg_info, &body);
+    sim.central.receive(ConnId(7), &f, SystemTime::now());
+    let mut closes = Vec::new();
+    while let Some(o) = sim.central.poll_output() {
+        if let Output::Close { reason, .. } = o {
+            closes.push(reason);
+        }
+    }
+    assert_eq!(closes.len(), 1);
+    assert!(closes[0].contains("count 1000"), "{closes:?}");
+}
+
+#[test]
+fn unknown_ids_and_stray_acks_are_logged_not_fatal() {
+    let (c, l) = hostile(&raw_frame(MsgClass::Broadcast, 123_456, &[]));
+    assert!(c.is_empty());
+    assert!(l.iter().any(|x| x.contains("unknown id 123456")), "{l:?}");
+    let mut ack = raw_frame(MsgClass::Success, -1, &[]);
+    ack[20..24].copy_from_slice(&42i32.to_be_bytes());
+    let (c, l) = hostile(&ack);
+    assert!(c.is_empty());
+    assert!(l.iter().any(|x| x.contains("Success for unknown")), "{l:?}");
+}
+
+#[test]
+fn disconnect_mid_frame_is_logged() {
+    let mut sim = Sim::new(Config::default());
+    sim.central
+        .connect(ConnId(3), Peer::Other("t".into()), SystemTime::now());
+    let f = raw_frame(MsgClass::Query, 5, &[1, 2, 3, 4]);
+    sim.central.receive(ConnId(3), &f[..20], SystemTime::now());
+    sim.central.disconnect(ConnId(3), SystemTime::now());
+    let mut logs = Vec::new();
+    while let Some(o) = sim.central.poll_output() {
+        if let Output::Log { line, .. } = o {
+            logs.push(line);
+        }
+    }
+    assert!(
+        logs.iter()
+            .any(|l| l.contains("in the middle of a frame (20 byte(s)")),
+        "{logs:?}"
+    );
+    assert_eq!(sim.central.stats().modules, 0);
+}
+
+#[test]
+fn random_bytes_never_panic() {
+    // A cheap deterministic fuzz: xorshift bytes, sometimes with a valid header prefix.
+    let mut x: u64 = 0x9e37_79b9_7f4a_7c15;
+    for round in 0..2000 {
+        let mut central = Central::new(Config::default());
+        central.connect(ConnId(1), Peer::Other("fuzz".into()), SystemTime::now());
+        let n = (round % 200) + 1;
+        let mut b = Vec::with_capacity(n);
+        for _ in 0..n {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            b.push(x as u8);
+        }
+        if round % 2 == 0 && b.len() >= 28 {
+            let body = (b.len() - 28) as i32;
+            b[0..4].copy_from_slice(&0i32.to_be_bytes());
+            b[4..8].copy_from_slice(&body.to_be_bytes());
+            b[16..20].copy_from_slice(&ClassId::native(MsgClass::Query).0.to_be_bytes());
+            let id = [182i32, 171, 173, 166, 164, 168, 162, 147, 144, 199, 195][round % 11];
+            b[12..16].copy_from_slice(&id.to_be_bytes());
+        }
+        central.receive(ConnId(1), &b, SystemTime::now());
+        while central.poll_output().is_some() {}
+        central.disconnect(ConnId(1), SystemTime::now());
+        while central.poll_output().is_some() {}
+    }
+}
