@@ -251,14 +251,12 @@ fn capacity_priority_and_queue_limits() {
     sim.m(b).set_queue_length("limited", 2).unwrap();
     sim.pump();
     // First one occupies the only slot; the rest queue in central.
-    for i in 0..3 {
-        sim.m(a)
-            .publish("low", &(i as i32).to_le_bytes(), -1)
-            .unwrap();
+    for i in 0..3i32 {
+        sim.m(a).publish("low", &i.to_le_bytes(), -1).unwrap();
     }
-    for i in 0..5 {
+    for i in 0..5i32 {
         sim.m(a)
-            .publish("limited", &(100 + i as i32).to_le_bytes(), -1)
+            .publish("limited", &(100 + i).to_le_bytes(), -1)
             .unwrap();
     }
     sim.m(a).publish("high", &999i32.to_le_bytes(), -1).unwrap();

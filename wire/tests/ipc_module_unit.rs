@@ -342,6 +342,22 @@ fn queries_replies_out_of_order_and_cancel() {
     c.receive(&reply(f23[1].header.msg_ref), now);
     c.receive(&reply(f23[0].header.msg_ref), now);
     c.receive(&reply(f1[0].header.msg_ref), now);
+    // Like C, the module looks the reply message up before unmarshalling.
+    let lookups = drain(&mut c);
+    assert_eq!(lookups.len(), 2, "one lookup per reply not yet resolvable");
+    for l in lookups {
+        c.receive(
+            &msg_info_reply(
+                l.header.msg_ref,
+                112,
+                "response1",
+                15,
+                "[byte:3]",
+                "{char, char, char}",
+            ),
+            now,
+        );
+    }
     let got: Vec<_> = std::iter::from_fn(|| c.poll_event())
         .map(|e| match e {
             Event::Reply {

@@ -394,6 +394,13 @@ enum Pending {
     HandlerLookup(u64),
     Internal(Op),
     UserQuery(OpId),
+    /// A reply whose message must be looked up before it can be unwrapped.
+    ReplyLookup {
+        query: OpId,
+        reply_msg: String,
+        order: ByteOrder,
+        data: Vec<u8>,
+    },
 }
 
 #[derive(Debug)]
@@ -553,7 +560,7 @@ impl Connection {
     /// Forgets a user query; a late reply is ignored.
     pub fn cancel_query(&mut self, query: OpId) {
         self.pending
-            .retain(|_, p| !matches!(p, Pending::UserQuery(q) if *q == query));
+            .retain(|_, p| !matches!(p, Pending::UserQuery(q) | Pending::ReplyLookup { query: q, .. } if *q == query));
     }
 
     /// Feeds bytes read from central, in any split.
@@ -1036,14 +1043,49 @@ impl Connection {
                         .map_err(|e| proto_err("reply class data", e))?
                         .to_string()
                 };
+                if !reply_msg.is_empty() && !self.cache.contains_key(&reply_msg) {
+                    // Like C's msgFind: look the reply message up, then
+                    // unmarshall with its format.
+                    let r = self.send_lookup(&reply_msg, None, NO_REF);
+                    self.pending.insert(
+                        r,
+                        Pending::ReplyLookup {
+                            query,
+                            reply_msg,
+                            order,
+                            data: f.data.clone(),
+                        },
+                    );
+                } else {
+                    let data = match self.cache.get(&reply_msg) {
+                        Some(info) => proto::unwrap(info, &f.data, order)?,
+                        None => f.data.clone(),
+                    };
+                    self.events.push_back(Event::Reply {
+                        query,
+                        reply_msg,
+                        order,
+                        data,
+                    });
+                }
+            }
+            Pending::ReplyLookup {
+                query,
+                reply_msg,
+                order: data_order,
+                data,
+            } => {
+                if let Some(info) = proto::decode_msg_info(&f.data, order)? {
+                    self.cache.insert(reply_msg.clone(), info);
+                }
                 let data = match self.cache.get(&reply_msg) {
-                    Some(info) => proto::unwrap(info, &f.data, order)?,
-                    None => f.data.clone(),
+                    Some(info) => proto::unwrap(info, &data, data_order)?,
+                    None => data,
                 };
                 self.events.push_back(Event::Reply {
                     query,
                     reply_msg,
-                    order,
+                    order: data_order,
                     data,
                 });
             }
