@@ -15,7 +15,46 @@
 //! ```
 //!
 //! Framing is done here too: `receive` takes raw stream bytes in any
-//! split, so tests can replay captured byte streams exactly.
+//! split, so tests can replay captured byte streams exactly
+//! (`wire/tests/central_replay.rs` replays the C modules of every capture
+//! and matches each frame and the C central's log line for line).
+//!
+//! # Example
+//! ```
+//! use std::time::SystemTime;
+//! use courier_wire::ipc::central::{Central, Config, ConnId, Output, Peer};
+//!
+//! let mut central = Central::new(Config::default());
+//! central.connect(ConnId(5), Peer::Other("test".into()), SystemTime::now());
+//! // Central speaks first: the msgInfo id, then two formatter frames.
+//! let mut frames = 0;
+//! while let Some(out) = central.poll_output() {
+//!     if let Output::Transmit { conn, bytes } = out {
+//!         assert_eq!(conn, ConnId(5));
+//!         assert!(frames > 0 || bytes.len() == 4);
+//!         frames += 1;
+//!     }
+//! }
+//! assert_eq!(frames, 3);
+//! ```
+//!
+//! # Deviations from the C central
+//! - Message ids and dispatch ids are numbered like C (ids from 199 down,
+//!   never 0 or 1; dispatch ids reused last-freed first) but need not be the
+//!   same numbers: modules only learn them from replies.
+//! - `-r` resends a crashed module's unfinished messages automatically when
+//!   a module of the same name subscribes the same handler again (C asks
+//!   `Resend <msg> message?` on the terminal for each).
+//! - Back-pressure: when more than [`Config::max_queued_bytes`] of message
+//!   data wait in pending queues, central stops reading from the modules
+//!   that add to them (never from one whose acknowledgements it awaits)
+//!   until the queues drain to half; C grows without bound.
+//! - Malformed frames close only the offending connection, with a log line
+//!   naming the reason; C may abort.
+//! - Log times (`-lt`) are UTC; the `h` (handle summary) option is accepted
+//!   and prints nothing; `unlock` answers that IPC modules cannot lock.
+//! - The data log decodes internal messages with their own formats when
+//!   `-l` lacks `i` (C prints them the same way).
 
 use std::time::SystemTime;
 
@@ -686,6 +725,31 @@ impl Central {
             && (o.ignore_internal || self.config.ignore.iter().any(|n| n == msg)))
     }
 
+    /// `dispatchUpdateAndDisplay1`'s common layout:
+    /// `Class      msg {ref}:     origin {parent} --> <to><time>`.
+    #[allow(clippy::too_many_arguments)]
+    fn dispatch_line(
+        &self,
+        class: u16,
+        msg: &str,
+        did: Option<i32>,
+        org: &str,
+        parent: i32,
+        to: &str,
+        now: SystemTime,
+    ) -> String {
+        let o = self.opts();
+        format!(
+            "{:<9} {:>15}{}: {:>10}{} --> {to}{}",
+            log::class_name(class),
+            msg,
+            did.map(|d| log::ref_id(&o, d)).unwrap_or_default(),
+            org,
+            log::parent_id(&o, parent),
+            log::time(&o, now)
+        )
+    }
+
     fn module_name(&self, org: Org) -> String {
         match org {
             Org::Central => SERVER_NAME.to_string(),
@@ -1018,17 +1082,16 @@ impl Central {
         let query = h.class_id.class() == MsgClass::Query as u16;
         let logged = self.logged(name);
         let org_name = self.module_name(Org::Module(conn));
-        let cls = log::class_name(h.class_id.class());
         if logged {
-            let o = self.opts();
-            let line = format!(
-                "{:<9} {:>15}: {:>10}{} --> {:<15} (Sent){}",
-                cls,
+            let to = format!("{SERVER_NAME:<15} (Sent)");
+            let line = self.dispatch_line(
+                h.class_id.class(),
                 name,
-                org_name,
-                log::parent_id(&o, h.parent_ref),
-                SERVER_NAME,
-                log::time(&o, now)
+                None,
+                &org_name,
+                h.parent_ref,
+                &to,
+                now,
             );
             self.log_line(Kind::Message, line);
             self.log_data(name, h.class_id, data, None);
@@ -1590,16 +1653,16 @@ impl Central {
                 } else {
                     self.msgs.get_mut(&name).unwrap().waiting.push_back(did);
                     if self.logged(&name) {
-                        let o = self.opts();
-                        let line = format!(
-                            "{:<9} {:>15}{}: {:>10}{} --> Resource {:<6} (Pending){}",
-                            log::class_name(class),
-                            name,
-                            log::ref_id(&o, did),
-                            self.module_name(org),
-                            log::parent_id(&o, h.parent_ref),
-                            name,
-                            log::time(&o, now)
+                        let to = format!("Resource {name:<6} (Pending)");
+                        let org_name = self.module_name(org);
+                        let line = self.dispatch_line(
+                            class,
+                            &name,
+                            Some(did),
+                            &org_name,
+                            h.parent_ref,
+                            &to,
+                            now,
                         );
                         self.log_line(Kind::Message, line);
                     }
@@ -1736,16 +1799,9 @@ impl Central {
                     log::time(&o, now)
                 )
             } else {
-                format!(
-                    "{:<9} {:>15}{}: {:>10}{} --> {:<15} (Sent){}",
-                    log::class_name(class),
-                    msg,
-                    log::ref_id(&o, did),
-                    self.module_name(org),
-                    log::parent_id(&o, parent_ref),
-                    dest,
-                    log::time(&o, now)
-                )
+                let to = format!("{dest:<15} (Sent)");
+                let org_name = self.module_name(org);
+                self.dispatch_line(class, &msg, Some(did), &org_name, parent_ref, &to, now)
             };
             self.log_line(Kind::Message, line);
             self.log_data(&msg, class_id, &data, None);
@@ -1835,17 +1891,9 @@ impl Central {
             m.pending.push_back(did);
         }
         if self.logged(&msg) {
-            let o = self.opts();
-            let line = format!(
-                "{:<9} {:>15}{}: {:>10}{} --> Resource {:<6} (Pending){}",
-                log::class_name(class),
-                msg,
-                log::ref_id(&o, did),
-                self.module_name(org),
-                log::parent_id(&o, parent),
-                dest,
-                log::time(&o, now)
-            );
+            let to = format!("Resource {dest:<6} (Pending)");
+            let org_name = self.module_name(org);
+            let line = self.dispatch_line(class, &msg, Some(did), &org_name, parent, &to, now);
             self.log_line(Kind::Message, line);
         }
     }
@@ -2345,6 +2393,20 @@ impl Central {
     /// The next thing the shell must do, if any.
     pub fn poll_output(&mut self) -> Option<Output> {
         self.outputs.pop_front()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn message_ids_are_never_0_or_1() {
+        let mut c = Central::new(Config::default());
+        let ids: Vec<i32> = (0..1000).map(|_| c.alloc_msg_id()).collect();
+        assert!(ids.iter().all(|i| *i >= 2));
+        let unique: HashSet<i32> = ids.iter().copied().collect();
+        assert_eq!(unique.len(), ids.len());
     }
 }
 
