@@ -27,7 +27,7 @@ use std::collections::{HashMap, VecDeque};
 use std::time::SystemTime;
 
 use courier_wire::ipc::central::{Central, Config, ConnId, LogOptions, Output, Peer};
-use courier_wire::ipc::frame::Header;
+use courier_wire::ipc::frame::{ClassId, Header, MsgClass};
 
 struct Line {
     conn: u64,
@@ -307,7 +307,36 @@ fn replay_log(name: &str, direct: bool, close_order: &[u64]) -> Vec<String> {
     }
     // Modules close in the order the C central saw their connections end.
     let _ = &connected;
+    // The modules ended with IPC_disconnect (x_ipc_CloseMsg, then EOF);
+    // where the capture stops before that, send it as they did.
+    let close_id = central.message_id("x_ipc_CloseMsg").unwrap();
     for &c in close_order {
+        // Deliveries sent after the capture stopped: the module handled and
+        // acknowledged them before closing.
+        drain_log(&mut central, &mut actual, &mut log);
+        let late: Vec<Vec<u8>> = actual.entry(c).or_default().drain(..).collect();
+        for f in late.iter().filter(|f| is_delivery(f) && f[19] == 15) {
+            let ack = Header {
+                class_total: 0,
+                msg_total: 0,
+                parent_ref: word(f, 6),
+                intent: -1,
+                class_id: ClassId::native(MsgClass::Success),
+                dispatch_ref: word(f, 6),
+                msg_ref: -1,
+            };
+            central.receive(ConnId(c + 5), &ack.encode(), now);
+        }
+        let h = Header {
+            class_total: 0,
+            msg_total: 0,
+            parent_ref: -1,
+            intent: close_id,
+            class_id: ClassId::native(MsgClass::Inform),
+            dispatch_ref: -1,
+            msg_ref: 1000,
+        };
+        central.receive(ConnId(c + 5), &h.encode(), now);
         central.disconnect(ConnId(c + 5), now);
     }
     while let Some(o) = central.poll_output() {

@@ -491,6 +491,12 @@ impl Central {
         s
     }
 
+    /// Central's id for a message name (what `x_ipc_msgInfoMsg` answers,
+    /// without the direct-mode sign), if the message is known.
+    pub fn message_id(&self, name: &str) -> Option<i32> {
+        self.msgs.get(name).map(|m| m.id).filter(|id| *id != 0)
+    }
+
     /// The names of the connected modules (those that completed the connect query).
     pub fn module_names(&self) -> Vec<String> {
         self.modules
@@ -890,7 +896,7 @@ impl Central {
             format!("ERROR: closing connection {who}: {why}"),
         );
         self.outputs.push_back(Output::Close { conn, reason: why });
-        self.close_module(conn, now);
+        self.close_module(conn, false, now);
     }
 
     fn describe(&self, conn: ConnId) -> String {
@@ -923,11 +929,13 @@ impl Central {
                 format!("WARNING: connection {who} closed in the middle of a frame ({partial} byte(s) discarded)"),
             );
         }
-        self.close_module(conn, now);
+        self.close_module(conn, true, now);
     }
 
     /// `x_ipcCloseMod`: forget a module, its handlers and its deliveries.
-    fn close_module(&mut self, conn: ConnId, now: SystemTime) {
+    /// `eof`: the connection ended without `x_ipc_CloseMsg` (C logs that
+    /// path differently).
+    fn close_module(&mut self, conn: ConnId, eof: bool, now: SystemTime) {
         let _ = now;
         let Some(m) = self.modules.get_mut(&conn) else {
             return;
@@ -939,15 +947,29 @@ impl Central {
         m.closed = true;
         let name = m.name.clone();
         let host = m.host.clone();
-        self.log_line(
-            Kind::Always,
-            format!(
-                "x_ipcClose: Closed Connection Detected from: sd: {}:",
-                conn.0
-            ),
-        );
+        if eof {
+            // handleDataMsgRecv
+            self.log_line(
+                Kind::Status,
+                format!("Closed Connection Detected from: sd: {}: ", conn.0),
+            );
+            if let Some(n) = &name {
+                self.log_line(Kind::Always, format!(" Closing {n} on {host}"));
+            }
+        } else {
+            // x_ipcCloseHnd
+            self.log_line(
+                Kind::Always,
+                format!(
+                    "x_ipcClose: Closed Connection Detected from: sd: {}:",
+                    conn.0
+                ),
+            );
+            if let Some(n) = &name {
+                self.log_line(Kind::Always, format!("x_ipcClose: Closing {n} on {host}"));
+            }
+        }
         if let Some(n) = &name {
-            self.log_line(Kind::Always, format!("x_ipcClose: Closing {n} on {host}"));
             self.log_line(Kind::Always, format!("close Module: Closing {n}"));
         }
         // Its handlers go away (`moduleClean`): watch variables of the
@@ -978,6 +1000,8 @@ impl Central {
             .map(|(id, _)| *id)
             .collect();
         mine.sort_unstable();
+        // C (resourceDelete) only reports when something was being handled.
+        let report = !mine.is_empty();
         mine.extend(self.modules[&conn].pending.iter().copied());
         for id in mine {
             let keep = self.config.resend_on_reconnect && name.is_some();
@@ -1002,13 +1026,11 @@ impl Central {
             } else {
                 let msg = d.msg.clone();
                 self.free_dispatch_id(id);
-                if self.logged(&msg) {
+                if report {
+                    let o = self.opts();
                     self.log_line(
-                        Kind::Status,
-                        format!(
-                            "Clearing handler for message {msg} {{{id}}}: {} closed",
-                            name.as_deref().unwrap_or("module")
-                        ),
+                        Kind::Always,
+                        format!("Clearing handler for message {msg}{}", log::ref_id(&o, id)),
                     );
                 }
             }
@@ -1259,7 +1281,7 @@ impl Central {
                     conn,
                     reason: "module sent x_ipc_CloseMsg".into(),
                 });
-                self.close_module(conn, now);
+                self.close_module(conn, false, now);
                 return Ok(());
             }
             IgnoreLogging => {
@@ -2325,7 +2347,7 @@ impl Central {
                             conn: c,
                             reason: "closed from the console".into(),
                         });
-                        self.close_module(c, now);
+                        self.close_module(c, false, now);
                     }
                     None => say(self, format!("Can not find {name} to close.")),
                 }
