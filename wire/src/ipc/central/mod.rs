@@ -768,6 +768,19 @@ impl Central {
     }
 
     fn log_data(&mut self, msg: &str, class_id: ClassId, data: &[u8], reply_of: Option<&str>) {
+        self.log_data_as(msg, class_id, data, reply_of, false)
+    }
+
+    /// `internal`: the data is an internal message's own format (its
+    /// msgFormat), not a user message body.
+    fn log_data_as(
+        &mut self,
+        msg: &str,
+        class_id: ClassId,
+        data: &[u8],
+        reply_of: Option<&str>,
+        internal: bool,
+    ) {
         if !Kind::Data.enabled(&self.config.terminal_log)
             && !Kind::Data.enabled(&self.config.file_log)
         {
@@ -775,6 +788,7 @@ impl Central {
         }
         let name = reply_of.unwrap_or(msg).to_string();
         let (mf, rf) = self.parsed(&name);
+        let (mf, rf) = if internal { (None, mf) } else { (mf, rf) };
         let order = class_id.data_order().unwrap_or(ByteOrder::NATIVE);
         let text = match decode_user(&mf, &rf, data, order, &self.formats) {
             Ok(Some(t)) => t,
@@ -1116,7 +1130,7 @@ impl Central {
                 now,
             );
             self.log_line(Kind::Message, line);
-            self.log_data(name, h.class_id, data, None);
+            self.log_data_as(name, h.class_id, data, None, true);
         }
         let mut out = Writer::new();
         let mut null_reply = false;
