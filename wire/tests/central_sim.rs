@@ -706,3 +706,49 @@ fn random_bytes_never_panic() {
         while central.poll_output().is_some() {}
     }
 }
+
+/// A C module subscribing the same handler again (new client data) sends
+/// `registerHandler` with id 0: central keeps the first id and names the
+/// message again on the next delivery (ipcTest1 crashed when it did not).
+#[test]
+fn resubscribing_a_handler_keeps_its_id_and_renames_the_message() {
+    let mut sim = Sim::new(Config::default());
+    let a = sim.connect("a");
+    define(&mut sim, a, "m", "int");
+    let hid = sim.m(a).subscribe("m", "HND-m").unwrap();
+    sim.pump();
+    sim.m(a).publish("m", &1i32.to_le_bytes(), -1).unwrap();
+    sim.pump();
+    let d = sim.deliveries(a);
+    sim.m(a).ack(d[0].0).unwrap();
+    sim.pump();
+    // The raw re-registration, as the C library sends it.
+    let id = sim.central.message_id("x_ipc_registerHandlerMsg").unwrap();
+    let mut body = 0i32.to_le_bytes().to_vec();
+    for s in ["m", "HND-m"] {
+        body.extend_from_slice(&(s.len() as i32).to_le_bytes());
+        body.extend_from_slice(s.as_bytes());
+    }
+    let f = raw_frame(MsgClass::Inform, id, &body);
+    sim.central.receive(ConnId(a), &f, SystemTime::now());
+    sim.drain();
+    sim.m(a).publish("m", &2i32.to_le_bytes(), -1).unwrap();
+    // Look at the delivery frame central writes.
+    let now = SystemTime::now();
+    while let Some(b) = sim.m(a).poll_transmit() {
+        sim.central.receive(ConnId(a), &b, now);
+    }
+    let mut delivery = None;
+    while let Some(o) = sim.central.poll_output() {
+        if let Output::Transmit { bytes, .. } = o {
+            let h = Header::decode(&bytes).unwrap();
+            if h.class_id.class() == 15 && h.intent > 0 {
+                delivery = Some((h, bytes));
+            }
+        }
+    }
+    let (h, bytes) = delivery.expect("a delivery");
+    assert_eq!(h.intent, hid, "the first handler id is kept");
+    assert_eq!(h.class_total, 5, "class data names the message again");
+    assert_eq!(&bytes[28..33], b"\x01\x00\x00\x00m");
+}

@@ -1472,8 +1472,12 @@ impl Central {
         };
         let mod_name = module.name.clone();
         if let Some(old) = module.handlers.get_mut(&hnd) {
-            // Re-registering a handler name: C updates the id.
-            old.id = id;
+            // Re-registering a handler (a C module does it when the client
+            // data changes, with id 0): like x_ipc_selfRegisterHnd, keep
+            // the first id and forget that the module knows the message, so
+            // the next delivery names it again.
+            let _ = id;
+            old.knows_msg = false;
             return;
         }
         module.handlers.insert(
