@@ -1,34 +1,141 @@
-//! Access control in the style of `hosts_access(5)` (the manual's "Access
-//! Control" section): `/etc/hosts.allow` and `/etc/hosts.deny` hold lines
-//! `daemon_list : client_list [: options]`; the daemon name is `central`.
+//! Access control in the style of `hosts_access(5)`, as the C central does
+//! it when built with `ACCESS_CONTROL` (IPC manual, "Access Control").
 //!
-//! A connection is **allowed** if a rule in the allow file matches it,
-//! else **denied** if a rule in the deny file matches it, else allowed.
-//! Missing files hold no rules.
+//! Two files, by default `/etc/hosts.allow` and `/etc/hosts.deny`, hold
+//! lines `daemon_list : client_list [: options]`; the daemon name is
+//! `central`. A connection is **allowed** if a rule of the allow file
+//! matches it, else **denied** if a rule of the deny file matches it, else
+//! allowed. A missing file holds no rules. `#` starts a comment, a
+//! backslash at the end of a line continues it, list items are separated by
+//! commas and/or blanks, and the options field is ignored.
 //!
-//! Supported patterns (daemon and client lists alike): `ALL`, `LOCAL`
-//! (clients: local connections, i.e. loopback addresses and UNIX sockets),
-//! `EXCEPT` lists, literal IPv4/IPv6 addresses, `n.n.n.` address prefixes,
-//! `n.n.n.n/m.m.m.m` and `addr/len` networks, and `localhost`. Host *names*
-//! other than `localhost` (including `.domain` suffixes) would need a
-//! reverse DNS lookup for every connection; they are accepted in the files
-//! but never match, and [`AccessControl::warnings`] says so.
+//! Patterns (daemon and client lists alike may use `ALL` and `EXCEPT`):
+//!
+//! | pattern | matches |
+//! |---|---|
+//! | `ALL` | everything |
+//! | `a EXCEPT b` | what `a` matches and `b` does not (nests to the right) |
+//! | `localhost` | loopback addresses (127.0.0.0/8, `::1`) and UNIX-socket peers |
+//! | `LOCAL` | the same, and any peer whose (verified) host name has no dot |
+//! | `10.0.0.5`, `[::1]`, `::1` | that address (IPv4-mapped IPv6 peers count as IPv4) |
+//! | `10.0.0.` | addresses starting so (trailing dot: a prefix) |
+//! | `10.0.0.0/255.255.255.0`, `10.0.0.0/24`, `[fe80::]/10` | a network |
+//! | `.cs.cmu.edu` | peers whose verified host name ends so |
+//! | `host.example.org` | the addresses the name resolves to **when the rules are loaded** |
+//! | `KNOWN`, `UNKNOWN`, `PARANOID` | peers with a verified name, without one, and whose name does not map back to their address |
+//! | `10.0.*.1`, `*.example.org` | `*`/`?` wildcards over the address text or the verified name |
+//!
+//! **Host names.** A host name in a rule is resolved forward once, when the
+//! rules are loaded ([`AccessControl::load`]); the rule then matches the
+//! addresses it had then. A name that does not resolve matches nothing and
+//! gives a warning ([`AccessControl::warnings`]). Only domain suffixes,
+//! wildcards over names, `KNOWN`, `UNKNOWN`, `PARANOID` and `LOCAL` (for
+//! non-loopback peers) need the peer's own name; for those alone central
+//! looks the peer's address up (reverse DNS, then forward again to verify
+//! it, as tcpd's `PARANOID` mode does), off the accept path and bounded in
+//! time. Rules without such patterns never touch DNS.
+//!
+//! **UNIX-socket peers** are local: they are checked as if they came from
+//! the loopback address (127.0.0.1 or `::1`) with the host name
+//! `localhost`.
+//!
+//! **Errors.** A malformed rule for `central` (or `ALL`) is an error naming
+//! the file and line; a malformed rule that can only concern other daemons
+//! (whose syntax this parser need not know, e.g. NIS `@netgroups`) is
+//! skipped with a warning.
 //!
 //! ```
-//! use courier_broker::access::{AccessControl, Rules};
+//! use courier_broker::access::{AccessControl, Client, Rules};
 //! let allow = Rules::parse("central : localhost, 10.0.0.5\n", "hosts.allow").unwrap();
 //! let deny = Rules::parse("ALL : ALL\n", "hosts.deny").unwrap();
 //! let ac = AccessControl::new(allow, deny);
-//! assert!(ac.check(Some("127.0.0.1".parse().unwrap())).is_allowed());
-//! assert!(ac.check(Some("10.0.0.5".parse().unwrap())).is_allowed());
-//! assert!(!ac.check(Some("192.0.2.9".parse().unwrap())).is_allowed());
+//! assert!(ac.check(Client::Ip("127.0.0.1".parse().unwrap())).is_allowed());
+//! assert!(ac.check(Client::Ip("10.0.0.5".parse().unwrap())).is_allowed());
+//! assert!(ac.check(Client::Unix).is_allowed());
+//! let refused = ac.check(Client::Ip("192.0.2.9".parse().unwrap()));
+//! assert_eq!(refused.to_string(), "denied by hosts.deny:1");
 //! ```
 
-use std::net::IpAddr;
+use std::fmt;
+use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, ToSocketAddrs};
 use std::path::Path;
 
 /// The daemon name rules must name (or `ALL`).
 pub const DAEMON: &str = "central";
+
+/// The default allow file.
+pub const DEFAULT_ALLOW: &str = "/etc/hosts.allow";
+
+/// The default deny file.
+pub const DEFAULT_DENY: &str = "/etc/hosts.deny";
+
+/// Who is connecting.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Client {
+    /// A TCP peer with this address.
+    Ip(IpAddr),
+    /// A peer on the UNIX socket (a local client).
+    Unix,
+}
+
+impl From<IpAddr> for Client {
+    fn from(ip: IpAddr) -> Self {
+        Client::Ip(ip)
+    }
+}
+
+/// What a reverse lookup of a peer's address found.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum HostName {
+    /// A name whose forward lookup includes the address.
+    Verified(String),
+    /// A name whose forward lookup does not include the address (possibly
+    /// forged); it is never used to match names.
+    Unverified(String),
+    /// No name.
+    Unknown,
+}
+
+/// A rule's place: `file:line`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RuleRef {
+    /// The file, as given.
+    pub file: String,
+    /// 1-based line number (the first line of a continued line).
+    pub line: usize,
+}
+
+impl fmt::Display for RuleRef {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}:{}", self.file, self.line)
+    }
+}
+
+/// The decision for one connection.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Decision {
+    /// Allowed by a rule of the allow file, or by default (`None`).
+    Allowed(Option<RuleRef>),
+    /// Denied by this rule of the deny file.
+    Denied(RuleRef),
+}
+
+impl Decision {
+    /// True for [`Decision::Allowed`].
+    pub fn is_allowed(&self) -> bool {
+        matches!(self, Decision::Allowed(_))
+    }
+}
+
+impl fmt::Display for Decision {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Decision::Allowed(Some(r)) => write!(f, "allowed by {r}"),
+            Decision::Allowed(None) => f.write_str("allowed (no rule matched)"),
+            Decision::Denied(r) => write!(f, "denied by {r}"),
+        }
+    }
+}
 
 /// A malformed line in a hosts file.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -42,24 +149,86 @@ pub struct ParseError {
     pub what: String,
 }
 
+/// A hosts file could not be read or parsed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum LoadError {
+    /// The file exists but could not be read.
+    #[error("cannot read {file}: {source}")]
+    Io {
+        /// The file.
+        file: String,
+        /// Why.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A line is malformed.
+    #[error(transparent)]
+    Parse(#[from] ParseError),
+}
+
 #[derive(Debug, Clone, PartialEq)]
 enum Pattern {
     All,
     Local,
     Localhost,
+    Known,
+    Unknown,
+    Paranoid,
     Addr(IpAddr),
-    /// `10.0.0.` style prefix (text match on the dotted address).
+    /// `10.0.0.` (text prefix of the dotted address).
     Prefix(String),
     Net(IpAddr, u32),
+    /// `.domain` (lower case, with the dot).
+    Suffix(String),
+    /// A host name and the addresses it resolved to.
+    Name {
+        name: String,
+        addrs: Vec<IpAddr>,
+    },
+    /// Contains `*` or `?` (lower case).
+    Wildcard(String),
+    /// A daemon name.
     Daemon(String),
-    /// A host name: cannot match without DNS.
-    Name(String),
+}
+
+impl Pattern {
+    fn needs_host_name(&self) -> bool {
+        match self {
+            Pattern::Local | Pattern::Known | Pattern::Unknown | Pattern::Paranoid => true,
+            Pattern::Suffix(_) => true,
+            Pattern::Wildcard(w) => w.chars().any(|c| c.is_ascii_alphabetic()),
+            _ => false,
+        }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq)]
 struct List {
     include: Vec<Pattern>,
     except: Option<Box<List>>,
+}
+
+impl List {
+    fn matches(&self, m: &mut dyn FnMut(&Pattern) -> bool) -> bool {
+        self.include.iter().any(&mut *m) && !self.except.as_ref().is_some_and(|e| e.matches(m))
+    }
+
+    fn patterns(&self) -> Vec<&Pattern> {
+        let mut v: Vec<&Pattern> = self.include.iter().collect();
+        if let Some(e) = &self.except {
+            v.extend(e.patterns());
+        }
+        v
+    }
+
+    fn patterns_mut(&mut self) -> Vec<&mut Pattern> {
+        let mut v: Vec<&mut Pattern> = self.include.iter_mut().collect();
+        if let Some(e) = &mut self.except {
+            v.extend(e.patterns_mut());
+        }
+        v
+    }
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -77,19 +246,167 @@ pub struct Rules {
     warnings: Vec<String>,
 }
 
-/// The decision for one connection.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Decision {
-    /// Allowed by a rule (`file:line`), or by default (`None`).
-    Allowed(Option<String>),
-    /// Denied by the rule at `file:line`.
-    Denied(String),
-}
+impl Rules {
+    /// Reads and parses a file, then resolves the host names in it; a
+    /// missing file has no rules.
+    pub fn load(path: &Path) -> Result<Rules, LoadError> {
+        let name = path.display().to_string();
+        let mut rules = match std::fs::read_to_string(path) {
+            Ok(text) => Rules::parse(&text, &name)?,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Rules {
+                file: name,
+                ..Rules::default()
+            },
+            Err(source) => return Err(LoadError::Io { file: name, source }),
+        };
+        rules.resolve_names(&mut |name| {
+            (name, 0)
+                .to_socket_addrs()
+                .map(|a| a.map(|s| s.ip()).collect())
+                .unwrap_or_default()
+        });
+        Ok(rules)
+    }
 
-impl Decision {
-    /// True for [`Decision::Allowed`].
-    pub fn is_allowed(&self) -> bool {
-        matches!(self, Decision::Allowed(_))
+    /// Parses the text of a file called `file` (the name is for messages).
+    /// Host names stay unresolved (matching nothing) until
+    /// [`Rules::resolve_names`].
+    pub fn parse(text: &str, file: &str) -> Result<Rules, ParseError> {
+        let mut rules = Rules {
+            file: file.to_string(),
+            ..Rules::default()
+        };
+        let mut logical = String::new();
+        let mut start = 0;
+        for (i, raw) in text.lines().enumerate() {
+            if logical.is_empty() {
+                start = i + 1;
+            }
+            if let Some(cont) = raw.strip_suffix('\\') {
+                logical.push_str(cont);
+                logical.push(' ');
+                continue;
+            }
+            logical.push_str(raw);
+            let l = std::mem::take(&mut logical);
+            rules.parse_line(&l, start)?;
+        }
+        if !logical.is_empty() {
+            rules.parse_line(&logical.clone(), start)?;
+        }
+        Ok(rules)
+    }
+
+    /// Resolves every host name pattern with `resolve` (name → addresses);
+    /// a name without addresses gives a warning and matches nothing.
+    pub fn resolve_names(&mut self, resolve: &mut dyn FnMut(&str) -> Vec<IpAddr>) {
+        let file = self.file.clone();
+        let mut warnings = Vec::new();
+        for rule in &mut self.rules {
+            // Other daemons' names are none of central's business.
+            if !rule.daemons.matches(&mut daemon_matches) {
+                continue;
+            }
+            for p in rule.clients.patterns_mut() {
+                if let Pattern::Name { name, addrs } = p {
+                    *addrs = resolve(name).into_iter().map(unmap).collect();
+                    if addrs.is_empty() {
+                        warnings.push(format!(
+                            "{file}:{}: host name '{name}' does not resolve; the rule never matches it",
+                            rule.line
+                        ));
+                    }
+                }
+            }
+        }
+        self.warnings.extend(warnings);
+    }
+
+    /// Lines skipped or patterns that cannot match.
+    pub fn warnings(&self) -> &[String] {
+        &self.warnings
+    }
+
+    /// The file name given when loading or parsing.
+    pub fn file(&self) -> &str {
+        &self.file
+    }
+
+    /// Number of rules (lines with a daemon and a client list).
+    pub fn len(&self) -> usize {
+        self.rules.len()
+    }
+
+    /// True if there are no rules.
+    pub fn is_empty(&self) -> bool {
+        self.rules.is_empty()
+    }
+
+    fn parse_line(&mut self, line: &str, n: usize) -> Result<(), ParseError> {
+        let err = |what: String| ParseError {
+            file: self.file.clone(),
+            line: n,
+            what,
+        };
+        let line = line.split('#').next().unwrap_or("").trim();
+        if line.is_empty() {
+            return Ok(());
+        }
+        // Daemon names hold no colons: the first one ends the daemon list.
+        let Some((daemons, rest)) = line.split_once(':') else {
+            return Err(err(format!(
+                "expected 'daemon_list : client_list', found '{line}'"
+            )));
+        };
+        let daemons = daemons.trim();
+        if daemons.is_empty() {
+            return Err(err("empty daemon list".into()));
+        }
+        let daemons = parse_list(&words(daemons), true).map_err(&err)?;
+        let concerns_us = daemons.matches(&mut daemon_matches);
+        let clients = match client_words(rest) {
+            Ok(w) if w.is_empty() => Err("empty client list".to_string()),
+            Ok(w) => parse_list(&w, false),
+            Err(e) => Err(e),
+        };
+        let clients = match clients {
+            Ok(c) => c,
+            Err(e) if concerns_us => return Err(err(e)),
+            Err(e) => {
+                self.warnings.push(format!(
+                    "{}:{n}: rule skipped (it does not concern central): {e}",
+                    self.file
+                ));
+                return Ok(());
+            }
+        };
+        self.rules.push(Rule {
+            daemons,
+            clients,
+            line: n,
+        });
+        Ok(())
+    }
+
+    fn needs_host_name(&self) -> bool {
+        self.rules.iter().any(|r| {
+            r.daemons.matches(&mut daemon_matches)
+                && r.clients.patterns().iter().any(|p| p.needs_host_name())
+        })
+    }
+
+    /// The first rule matching `central` and this client.
+    fn matching(&self, client: Client, name: &mut Lazy<'_>) -> Option<RuleRef> {
+        self.rules
+            .iter()
+            .find(|r| {
+                r.daemons.matches(&mut daemon_matches)
+                    && r.clients.matches(&mut |p| client_matches(p, client, name))
+            })
+            .map(|r| RuleRef {
+                file: self.file.clone(),
+                line: r.line,
+            })
     }
 }
 
@@ -111,7 +428,7 @@ impl AccessControl {
         AccessControl { allow, deny }
     }
 
-    /// Reads the two files; a missing file has no rules.
+    /// Reads the two files ([`Rules::load`]); a missing file has no rules.
     pub fn load(allow: &Path, deny: &Path) -> Result<Self, LoadError> {
         Ok(AccessControl {
             allow: Rules::load(allow)?,
@@ -119,18 +436,41 @@ impl AccessControl {
         })
     }
 
-    /// Decides for a peer: `Some(ip)` for TCP, `None` for a UNIX socket.
-    pub fn check(&self, peer: Option<IpAddr>) -> Decision {
-        if let Some(line) = self.allow.matching(peer) {
-            return Decision::Allowed(Some(format!("{}:{line}", self.allow.file)));
+    /// Reads `/etc/hosts.allow` and `/etc/hosts.deny`.
+    pub fn load_default() -> Result<Self, LoadError> {
+        Self::load(Path::new(DEFAULT_ALLOW), Path::new(DEFAULT_DENY))
+    }
+
+    /// Decides for a client, looking its host name up (blocking, with the
+    /// system resolver) only if a rule it reaches needs one.
+    pub fn check(&self, client: Client) -> Decision {
+        self.check_with(client, &mut reverse_lookup)
+    }
+
+    /// Decides for a client with `lookup` as the reverse resolver (called at
+    /// most once, and only if a rule needs the host name).
+    pub fn check_with(
+        &self,
+        client: Client,
+        lookup: &mut dyn FnMut(IpAddr) -> HostName,
+    ) -> Decision {
+        let mut name = Lazy { lookup, got: None };
+        if let Some(r) = self.allow.matching(client, &mut name) {
+            return Decision::Allowed(Some(r));
         }
-        if let Some(line) = self.deny.matching(peer) {
-            return Decision::Denied(format!("{}:{line}", self.deny.file));
+        if let Some(r) = self.deny.matching(client, &mut name) {
+            return Decision::Denied(r);
         }
         Decision::Allowed(None)
     }
 
-    /// Things in the files that can never match (host names).
+    /// True if some rule for central needs the peer's host name (so a check
+    /// may do DNS lookups and should not run on the accept path).
+    pub fn needs_host_name(&self) -> bool {
+        self.allow.needs_host_name() || self.deny.needs_host_name()
+    }
+
+    /// Warnings from both files (skipped rules, names that did not resolve).
     pub fn warnings(&self) -> impl Iterator<Item = &str> {
         self.allow
             .warnings
@@ -140,172 +480,142 @@ impl AccessControl {
     }
 }
 
-/// A hosts file could not be read or parsed.
-#[derive(Debug, thiserror::Error)]
-#[non_exhaustive]
-pub enum LoadError {
-    /// The file exists but could not be read.
-    #[error("cannot read {file}: {source}")]
-    Io {
-        /// The file.
-        file: String,
-        /// Why.
-        source: std::io::Error,
-    },
-    /// A line is malformed.
-    #[error(transparent)]
-    Parse(#[from] ParseError),
+/// The peer's host name, looked up on first use.
+struct Lazy<'a> {
+    lookup: &'a mut dyn FnMut(IpAddr) -> HostName,
+    got: Option<HostName>,
 }
 
-impl Rules {
-    /// Reads and parses a file; a missing file has no rules.
-    pub fn load(path: &Path) -> Result<Rules, LoadError> {
-        let name = path.display().to_string();
-        match std::fs::read_to_string(path) {
-            Ok(text) => Ok(Rules::parse(&text, &name)?),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(Rules {
-                file: name,
-                ..Rules::default()
-            }),
-            Err(source) => Err(LoadError::Io { file: name, source }),
+impl Lazy<'_> {
+    fn get(&mut self, ip: IpAddr) -> &HostName {
+        if self.got.is_none() {
+            self.got = Some(if is_loopback(ip) {
+                HostName::Verified("localhost".into())
+            } else {
+                (self.lookup)(ip)
+            });
         }
+        self.got.as_ref().unwrap_or(&HostName::Unknown)
     }
+}
 
-    /// Parses the text of a file called `file` (for messages).
-    pub fn parse(text: &str, file: &str) -> Result<Rules, ParseError> {
-        let mut rules = Rules {
-            file: file.to_string(),
-            ..Rules::default()
+/// Reverse lookup with the system resolver (`getnameinfo`), verified by a
+/// forward lookup of the name, as tcpd does. Blocking.
+pub fn reverse_lookup(ip: IpAddr) -> HostName {
+    let Some(name) = getnameinfo(ip) else {
+        return HostName::Unknown;
+    };
+    let name = name.trim_end_matches('.').to_ascii_lowercase();
+    let back: Vec<IpAddr> = (name.as_str(), 0)
+        .to_socket_addrs()
+        .map(|a| a.map(|s| unmap(s.ip())).collect())
+        .unwrap_or_default();
+    if back.contains(&unmap(ip)) {
+        HostName::Verified(name)
+    } else {
+        HostName::Unverified(name)
+    }
+}
+
+fn getnameinfo(ip: IpAddr) -> Option<String> {
+    // SAFETY: the sockaddr structures are fully initialised (zeroed, then
+    // filled), the lengths passed are their sizes, and the host buffer is
+    // NI_MAXHOST bytes long and NUL-terminated by getnameinfo on success.
+    unsafe {
+        let mut host = [0 as libc::c_char; libc::NI_MAXHOST as usize];
+        let rc = match ip {
+            IpAddr::V4(v4) => {
+                let mut sa: libc::sockaddr_in = std::mem::zeroed();
+                sa.sin_family = libc::AF_INET as libc::sa_family_t;
+                sa.sin_addr.s_addr = u32::from_ne_bytes(v4.octets());
+                libc::getnameinfo(
+                    &sa as *const libc::sockaddr_in as *const libc::sockaddr,
+                    std::mem::size_of::<libc::sockaddr_in>() as libc::socklen_t,
+                    host.as_mut_ptr(),
+                    host.len() as libc::socklen_t,
+                    std::ptr::null_mut(),
+                    0,
+                    libc::NI_NAMEREQD,
+                )
+            }
+            IpAddr::V6(v6) => {
+                let mut sa: libc::sockaddr_in6 = std::mem::zeroed();
+                sa.sin6_family = libc::AF_INET6 as libc::sa_family_t;
+                sa.sin6_addr.s6_addr = v6.octets();
+                libc::getnameinfo(
+                    &sa as *const libc::sockaddr_in6 as *const libc::sockaddr,
+                    std::mem::size_of::<libc::sockaddr_in6>() as libc::socklen_t,
+                    host.as_mut_ptr(),
+                    host.len() as libc::socklen_t,
+                    std::ptr::null_mut(),
+                    0,
+                    libc::NI_NAMEREQD,
+                )
+            }
         };
-        let mut logical = String::new();
-        let mut start = 0;
-        for (i, raw) in text.lines().enumerate() {
-            if logical.is_empty() {
-                start = i + 1;
-            }
-            let line = raw.trim_end();
-            if let Some(cont) = line.strip_suffix('\\') {
-                logical.push_str(cont);
-                logical.push(' ');
-                continue;
-            }
-            logical.push_str(line);
-            let l = std::mem::take(&mut logical);
-            rules.parse_line(&l, start)?;
+        if rc != 0 {
+            return None;
         }
-        if !logical.is_empty() {
-            rules.parse_line(&logical.clone(), start)?;
-        }
-        Ok(rules)
-    }
-
-    fn parse_line(&mut self, line: &str, n: usize) -> Result<(), ParseError> {
-        let err = |what: String| ParseError {
-            file: self.file.clone(),
-            line: n,
-            what,
-        };
-        let line = line.split('#').next().unwrap_or("").trim();
-        if line.is_empty() {
-            return Ok(());
-        }
-        let mut fields = split_fields(line).into_iter();
-        let daemons = fields.next().unwrap_or("").trim();
-        let Some(clients) = fields.next().map(str::trim) else {
-            return Err(err(format!(
-                "expected 'daemon_list : client_list', found '{line}'"
-            )));
-        };
-        if daemons.is_empty() {
-            return Err(err("empty daemon list".into()));
-        }
-        if clients.is_empty() {
-            return Err(err("empty client list".into()));
-        }
-        let daemons = parse_list(daemons, true).map_err(&err)?;
-        let clients = parse_list(clients, false).map_err(&err)?;
-        for p in clients.patterns() {
-            if let Pattern::Name(name) = p {
-                self.warnings.push(format!(
-                    "{}:{n}: host name '{name}' is never matched (central does no DNS lookups); use addresses",
-                    self.file
-                ));
-            }
-        }
-        self.rules.push(Rule {
-            daemons,
-            clients,
-            line: n,
-        });
-        Ok(())
-    }
-
-    /// The line of the first rule matching `central` and this peer.
-    fn matching(&self, peer: Option<IpAddr>) -> Option<usize> {
-        self.rules
-            .iter()
-            .find(|r| {
-                r.daemons.matches(&|p| daemon_matches(p))
-                    && r.clients.matches(&|p| client_matches(p, peer))
-            })
-            .map(|r| r.line)
+        let s = std::ffi::CStr::from_ptr(host.as_ptr());
+        Some(s.to_string_lossy().into_owned())
     }
 }
 
-impl List {
-    fn matches(&self, m: &dyn Fn(&Pattern) -> bool) -> bool {
-        self.include.iter().any(m) && !self.except.as_ref().is_some_and(|e| e.matches(m))
-    }
-
-    fn patterns(&self) -> Vec<&Pattern> {
-        let mut v: Vec<&Pattern> = self.include.iter().collect();
-        if let Some(e) = &self.except {
-            v.extend(e.patterns());
-        }
-        v
-    }
-}
-
-/// Splits `daemons : clients : options` at colons outside `[...]` (IPv6).
-fn split_fields(line: &str) -> Vec<&str> {
-    let mut out = Vec::new();
-    let mut depth = 0;
-    let mut start = 0;
-    for (i, c) in line.char_indices() {
-        match c {
-            '[' => depth += 1,
-            ']' => depth -= 1,
-            ':' if depth == 0 && out.len() < 2 => {
-                out.push(&line[start..i]);
-                start = i + 1;
-            }
-            _ => {}
-        }
-    }
-    out.push(&line[start..]);
-    out
-}
-
-fn parse_list(s: &str, daemons: bool) -> Result<List, String> {
-    let words: Vec<&str> = s
-        .split(|c: char| c == ',' || c.is_whitespace())
+/// Splits a list at commas and blanks.
+fn words(s: &str) -> Vec<&str> {
+    s.split(|c: char| c == ',' || c.is_whitespace())
         .filter(|w| !w.is_empty())
-        .collect();
+        .collect()
+}
+
+/// The client list after the daemon list's colon: words up to the colon
+/// that starts the options field. A word that is an IPv6 address (or
+/// network) keeps its colons; any other colon ends the list.
+fn client_words(rest: &str) -> Result<Vec<&str>, String> {
+    let mut out = Vec::new();
+    for w in words(rest) {
+        if !w.contains(':') || is_ipv6_word(w) {
+            out.push(w);
+            continue;
+        }
+        // `a:b` or `a:` or `:b`: the list ends at the colon.
+        let (head, _) = w.split_once(':').unwrap_or((w, ""));
+        if !head.is_empty() {
+            out.push(head);
+        }
+        return Ok(out);
+    }
+    Ok(out)
+}
+
+fn is_ipv6_word(w: &str) -> bool {
+    let (addr, len) = match w.split_once('/') {
+        Some((a, l)) => (a, Some(l)),
+        None => (w, None),
+    };
+    let addr = addr
+        .strip_prefix('[')
+        .and_then(|a| a.strip_suffix(']'))
+        .unwrap_or(addr);
+    addr.parse::<Ipv6Addr>().is_ok() && len.is_none_or(|l| l.parse::<u32>().is_ok())
+}
+
+fn parse_list(words: &[&str], daemons: bool) -> Result<List, String> {
     let pos = words.iter().position(|w| *w == "EXCEPT");
     let (inc, exc) = match pos {
         Some(p) => (&words[..p], Some(&words[p + 1..])),
-        None => (&words[..], None),
+        None => (words, None),
     };
     if inc.is_empty() {
-        return Err(format!("nothing before EXCEPT in '{s}'"));
+        return Err(format!("nothing before EXCEPT in '{}'", words.join(" ")));
     }
     let include = inc
         .iter()
         .map(|w| parse_pattern(w, daemons))
         .collect::<Result<Vec<_>, _>>()?;
     let except = match exc {
-        Some([]) => return Err(format!("nothing after EXCEPT in '{s}'")),
-        Some(rest) => Some(Box::new(parse_list(&rest.join(" "), daemons)?)),
+        Some([]) => return Err(format!("nothing after EXCEPT in '{}'", words.join(" "))),
+        Some(rest) => Some(Box::new(parse_list(rest, daemons)?)),
         None => None,
     };
     Ok(List { include, except })
@@ -316,31 +626,35 @@ fn parse_pattern(w: &str, daemon: bool) -> Result<Pattern, String> {
         return Ok(Pattern::All);
     }
     if daemon {
-        return Ok(Pattern::Daemon(w.to_string()));
+        // `daemon@host` forms name a server address; central has one.
+        let name = w.split('@').next().unwrap_or(w);
+        return Ok(Pattern::Daemon(name.to_string()));
     }
-    if w == "LOCAL" {
-        return Ok(Pattern::Local);
+    match w {
+        "LOCAL" => return Ok(Pattern::Local),
+        "KNOWN" => return Ok(Pattern::Known),
+        "UNKNOWN" => return Ok(Pattern::Unknown),
+        "PARANOID" => return Ok(Pattern::Paranoid),
+        _ => {}
     }
     if w.eq_ignore_ascii_case("localhost") {
         return Ok(Pattern::Localhost);
     }
-    if matches!(w, "KNOWN" | "UNKNOWN" | "PARANOID") {
-        return Err(format!(
-            "pattern {w} needs DNS lookups and is not supported"
-        ));
+    if w.starts_with('@') {
+        return Err(format!("NIS netgroup '{w}' is not supported"));
     }
-    let w_ip = w.trim_start_matches('[').trim_end_matches(']');
-    if let Ok(ip) = w_ip.parse::<IpAddr>() {
-        return Ok(Pattern::Addr(ip));
+    if w.starts_with('/') {
+        return Err(format!("pattern files ('{w}') are not supported"));
     }
-    if let Some((a, m)) = w_ip.split_once('/') {
-        let ip: IpAddr = a
-            .trim_end_matches(']')
+    let unbracket = |a: &str| -> String { a.trim_start_matches('[').trim_end_matches(']').into() };
+    if let Some((a, m)) = w.split_once('/') {
+        let ip: IpAddr = unbracket(a)
             .parse()
             .map_err(|_| format!("bad network address in '{w}'"))?;
-        let bits = match (m.parse::<u32>(), m.parse::<IpAddr>()) {
+        let max = if ip.is_ipv4() { 32 } else { 128 };
+        let bits = match (m.parse::<u32>(), m.parse::<Ipv4Addr>()) {
             (Ok(b), _) => b,
-            (_, Ok(IpAddr::V4(mask))) => {
+            (_, Ok(mask)) if ip.is_ipv4() => {
                 let v = u32::from(mask);
                 if v.leading_ones() + v.trailing_zeros() != 32 {
                     return Err(format!("netmask {mask} in '{w}' is not contiguous"));
@@ -349,21 +663,50 @@ fn parse_pattern(w: &str, daemon: bool) -> Result<Pattern, String> {
             }
             _ => return Err(format!("bad netmask or prefix length in '{w}'")),
         };
-        let max = if ip.is_ipv4() { 32 } else { 128 };
         if bits > max {
             return Err(format!("prefix length {bits} too long in '{w}'"));
         }
-        return Ok(Pattern::Net(ip, bits));
+        return Ok(Pattern::Net(unmap(ip), bits));
     }
-    if w.ends_with('.') && w.chars().all(|c| c.is_ascii_digit() || c == '.') {
-        return Ok(Pattern::Prefix(w.to_string()));
+    if let Ok(ip) = unbracket(w).parse::<IpAddr>() {
+        if w.starts_with('[') != w.ends_with(']') {
+            return Err(format!("unbalanced brackets in '{w}'"));
+        }
+        return Ok(Pattern::Addr(unmap(ip)));
     }
-    if w.chars()
-        .all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '-' | '_'))
-    {
-        return Ok(Pattern::Name(w.to_string()));
+    let lower = w.to_ascii_lowercase();
+    let hostish = |s: &str| {
+        !s.is_empty()
+            && s.chars()
+                .all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '-' | '_' | '*' | '?'))
+    };
+    if !hostish(&lower) {
+        return Err(format!("unrecognised pattern '{w}'"));
     }
-    Err(format!("unrecognised pattern '{w}'"))
+    if lower.contains(['*', '?']) {
+        return Ok(Pattern::Wildcard(lower));
+    }
+    if lower.ends_with('.') {
+        if lower.chars().all(|c| c.is_ascii_digit() || c == '.') && !lower.starts_with('.') {
+            return Ok(Pattern::Prefix(lower));
+        }
+        return Err(format!(
+            "'{w}': a trailing dot is only for address prefixes like 10.0.0."
+        ));
+    }
+    if lower.starts_with('.') {
+        if lower.len() == 1 {
+            return Err("'.' alone is not a domain".into());
+        }
+        return Ok(Pattern::Suffix(lower));
+    }
+    if lower.chars().all(|c| c.is_ascii_digit() || c == '.') {
+        return Err(format!("'{w}' is not an IPv4 address"));
+    }
+    Ok(Pattern::Name {
+        name: lower,
+        addrs: Vec::new(),
+    })
 }
 
 fn daemon_matches(p: &Pattern) -> bool {
@@ -374,52 +717,93 @@ fn daemon_matches(p: &Pattern) -> bool {
     }
 }
 
-fn is_loopback(ip: IpAddr) -> bool {
+/// IPv4-mapped IPv6 addresses as IPv4.
+fn unmap(ip: IpAddr) -> IpAddr {
     match ip {
-        IpAddr::V4(v) => v.is_loopback(),
-        IpAddr::V6(v) => v.is_loopback() || v.to_ipv4_mapped().is_some_and(|m| m.is_loopback()),
+        IpAddr::V6(v6) => v6.to_ipv4_mapped().map_or(ip, IpAddr::V4),
+        v4 => v4,
     }
 }
 
-fn client_matches(p: &Pattern, peer: Option<IpAddr>) -> bool {
-    let Some(ip) = peer else {
-        // A UNIX-domain socket is a local client.
-        return matches!(p, Pattern::All | Pattern::Local | Pattern::Localhost);
-    };
-    let ip = match ip {
-        IpAddr::V6(v) => v.to_ipv4_mapped().map(IpAddr::V4).unwrap_or(ip),
-        v4 => v4,
-    };
+fn is_loopback(ip: IpAddr) -> bool {
+    unmap(ip).is_loopback()
+}
+
+fn client_matches(p: &Pattern, client: Client, name: &mut Lazy<'_>) -> bool {
+    match client {
+        Client::Ip(ip) => ip_matches(p, unmap(ip), name),
+        // A local client: as if from either loopback address.
+        Client::Unix => [
+            IpAddr::V4(Ipv4Addr::LOCALHOST),
+            IpAddr::V6(Ipv6Addr::LOCALHOST),
+        ]
+        .into_iter()
+        .any(|ip| ip_matches(p, ip, name)),
+    }
+}
+
+fn ip_matches(p: &Pattern, ip: IpAddr, name: &mut Lazy<'_>) -> bool {
     match p {
         Pattern::All => true,
-        Pattern::Local | Pattern::Localhost => is_loopback(ip),
+        Pattern::Localhost => is_loopback(ip),
+        Pattern::Local => {
+            is_loopback(ip) || matches!(name.get(ip), HostName::Verified(n) if !n.contains('.'))
+        }
+        Pattern::Known => matches!(name.get(ip), HostName::Verified(_)),
+        Pattern::Unknown => !matches!(name.get(ip), HostName::Verified(_)),
+        Pattern::Paranoid => matches!(name.get(ip), HostName::Unverified(_)),
         Pattern::Addr(a) => *a == ip,
         Pattern::Prefix(pre) => ip.is_ipv4() && ip.to_string().starts_with(pre.as_str()),
         Pattern::Net(net, bits) => in_net(ip, *net, *bits),
-        Pattern::Daemon(_) | Pattern::Name(_) => false,
+        Pattern::Suffix(s) => {
+            matches!(name.get(ip), HostName::Verified(n) if n.ends_with(s.as_str()))
+        }
+        Pattern::Name { addrs, .. } => addrs.contains(&ip),
+        Pattern::Wildcard(w) => {
+            glob(w, &ip.to_string())
+                || (w.chars().any(|c| c.is_ascii_alphabetic())
+                    && matches!(name.get(ip), HostName::Verified(n) if glob(w, n)))
+        }
+        Pattern::Daemon(_) => false,
     }
 }
 
 fn in_net(ip: IpAddr, net: IpAddr, bits: u32) -> bool {
     match (ip, net) {
         (IpAddr::V4(a), IpAddr::V4(n)) => {
-            let mask = if bits == 0 {
-                0
-            } else {
-                u32::MAX << (32 - bits)
-            };
+            let mask = u32::MAX.checked_shl(32 - bits).unwrap_or(0);
             u32::from(a) & mask == u32::from(n) & mask
         }
         (IpAddr::V6(a), IpAddr::V6(n)) => {
-            let mask = if bits == 0 {
-                0
-            } else {
-                u128::MAX << (128 - bits)
-            };
+            let mask = u128::MAX.checked_shl(128 - bits).unwrap_or(0);
             u128::from(a) & mask == u128::from(n) & mask
         }
         _ => false,
     }
+}
+
+/// `*` and `?` matching over ASCII text.
+fn glob(pat: &str, text: &str) -> bool {
+    let (p, t) = (pat.as_bytes(), text.as_bytes());
+    let (mut i, mut j) = (0, 0);
+    let (mut star, mut mark) = (None, 0);
+    while j < t.len() {
+        if i < p.len() && (p[i] == b'?' || p[i] == t[j]) {
+            i += 1;
+            j += 1;
+        } else if i < p.len() && p[i] == b'*' {
+            star = Some(i);
+            mark = j;
+            i += 1;
+        } else if let Some(s) = star {
+            i = s + 1;
+            mark += 1;
+            j = mark;
+        } else {
+            return false;
+        }
+    }
+    p[i..].iter().all(|c| *c == b'*')
 }
 
 #[cfg(test)]
@@ -433,8 +817,23 @@ mod tests {
         )
     }
 
-    fn ip(s: &str) -> Option<IpAddr> {
-        Some(s.parse().unwrap())
+    fn ip(s: &str) -> Client {
+        Client::Ip(s.parse().unwrap())
+    }
+
+    /// A fake DNS: names for some addresses of the documentation ranges.
+    fn fake_dns(ip: IpAddr) -> HostName {
+        match ip.to_string().as_str() {
+            "192.0.2.10" => HostName::Verified("robot1.cs.cmu.edu".into()),
+            "192.0.2.11" => HostName::Verified("robot2".into()),
+            "192.0.2.12" => HostName::Unverified("forged.cs.cmu.edu".into()),
+            "2001:db8::10" => HostName::Verified("ws.lab.example.org".into()),
+            _ => HostName::Unknown,
+        }
+    }
+
+    fn decide(a: &AccessControl, c: Client) -> bool {
+        a.check_with(c, &mut fake_dns).is_allowed()
     }
 
     #[test]
@@ -449,71 +848,228 @@ mod tests {
             (ip("::1"), true),
             (ip("::ffff:127.0.0.1"), true),
             (ip("10.0.0.5"), true),
+            (ip("::ffff:10.0.0.5"), true),
             (ip("10.0.0.6"), false),
-            (ip("192.0.2.1"), false),
-            (None, true),
+            (ip("192.0.2.10"), false),
+            (Client::Unix, true),
         ];
         for (peer, allowed) in cases {
-            assert_eq!(a.check(peer).is_allowed(), allowed, "{peer:?}");
+            assert_eq!(decide(&a, peer), allowed, "{peer:?}");
         }
         assert_eq!(
             a.check(ip("10.0.0.6")),
-            Decision::Denied("hosts.deny:1".into())
+            Decision::Denied(RuleRef {
+                file: "hosts.deny".into(),
+                line: 1
+            })
         );
         assert_eq!(
-            a.check(ip("10.0.0.5")),
-            Decision::Allowed(Some("hosts.allow:1".into()))
+            a.check(ip("10.0.0.5")).to_string(),
+            "allowed by hosts.allow:1"
         );
-        assert_eq!(
-            a.warnings().count(),
-            2,
-            "the .cs.cmu.edu names cannot match"
+        assert!(
+            !a.needs_host_name(),
+            "sshd's domain rules do not concern central"
         );
     }
 
     #[test]
-    fn patterns() {
-        let a = ac(
-            "central : 10.1. , 192.168.0.0/255.255.0.0, 172.16.0.0/12, [fe80::]/10 EXCEPT 10.1.2.3\n",
-            "central : ALL\n",
-        );
-        for (peer, allowed) in [
-            ("10.1.9.9", true),
-            ("10.1.2.3", false),
-            ("10.10.0.1", false),
-            ("192.168.44.1", true),
-            ("172.31.0.1", true),
-            ("172.32.0.1", false),
-            ("fe80::1", true),
-            ("2001:db8::1", false),
-        ] {
-            assert_eq!(a.check(ip(peer)).is_allowed(), allowed, "{peer}");
+    fn client_patterns() {
+        // (allow-file client list, peer, allowed?) with "ALL : ALL" denied.
+        let cases: &[(&str, &str, bool)] = &[
+            ("ALL", "192.0.2.1", true),
+            ("10.1.", "10.1.9.9", true),
+            ("10.1.", "10.10.0.1", false),
+            ("10.1. EXCEPT 10.1.2.3", "10.1.2.3", false),
+            ("10.1. EXCEPT 10.1.2.3", "10.1.2.4", true),
+            ("192.168.0.0/255.255.0.0", "192.168.44.1", true),
+            ("192.168.0.0/255.255.0.0", "192.169.0.1", false),
+            ("172.16.0.0/12", "172.31.0.1", true),
+            ("172.16.0.0/12", "172.32.0.1", false),
+            ("0.0.0.0/0", "203.0.113.1", true),
+            ("10.0.0.1/32", "10.0.0.1", true),
+            ("10.0.0.1/32", "10.0.0.2", false),
+            ("[fe80::]/10", "fe80::1", true),
+            ("[fe80::]/10", "2001:db8::1", false),
+            ("fe80::/10", "fe80::2", true),
+            ("[::1]", "::1", true),
+            ("::1", "::1", true),
+            ("2001:db8::10", "2001:db8::10", true),
+            ("2001:db8::10", "2001:db8::11", false),
+            ("10.0.0.5", "::ffff:10.0.0.5", true),
+            ("localhost", "127.0.0.53", true),
+            ("localhost", "::1", true),
+            ("localhost", "10.0.0.1", false),
+            ("LOCAL", "127.0.0.1", true),
+            ("LOCAL", "192.0.2.11", true),
+            ("LOCAL", "192.0.2.10", false),
+            (".cs.cmu.edu", "192.0.2.10", true),
+            (".CS.CMU.EDU", "192.0.2.10", true),
+            (".cs.cmu.edu", "192.0.2.12", false),
+            (".cmu.edu", "192.0.2.11", false),
+            (".example.org", "2001:db8::10", true),
+            ("KNOWN", "192.0.2.10", true),
+            ("KNOWN", "192.0.2.12", false),
+            ("UNKNOWN", "192.0.2.99", true),
+            ("UNKNOWN", "192.0.2.12", true),
+            ("PARANOID", "192.0.2.12", true),
+            ("PARANOID", "192.0.2.10", false),
+            ("192.0.2.1?", "192.0.2.10", true),
+            ("192.0.*.10", "192.0.2.10", true),
+            ("192.0.*.10", "192.0.2.11", false),
+            ("robot*.cs.cmu.edu", "192.0.2.10", true),
+            ("robot*.cs.cmu.edu", "192.0.2.11", false),
+            (
+                "ALL EXCEPT 192.0.2.0/24 EXCEPT 192.0.2.7",
+                "192.0.2.7",
+                true,
+            ),
+            (
+                "ALL EXCEPT 192.0.2.0/24 EXCEPT 192.0.2.7",
+                "192.0.2.8",
+                false,
+            ),
+            (
+                "ALL EXCEPT 192.0.2.0/24 EXCEPT 192.0.2.7",
+                "198.51.100.1",
+                true,
+            ),
+            ("10.0.0.1,10.0.0.2 10.0.0.3", "10.0.0.3", true),
+        ];
+        for (list, peer, allowed) in cases {
+            let a = ac(&format!("central : {list}\n"), "ALL : ALL\n");
+            assert_eq!(decide(&a, ip(peer)), *allowed, "'{list}' for {peer}");
         }
     }
 
     #[test]
-    fn other_daemons_and_defaults() {
-        let a = ac("", "sshd : ALL\n");
-        assert!(a.check(ip("192.0.2.1")).is_allowed());
-        let a = ac("", "ALL EXCEPT central : ALL\n");
-        assert!(a.check(ip("192.0.2.1")).is_allowed());
-        let a = ac("", "central : ALL EXCEPT LOCAL\n");
-        assert!(a.check(ip("127.0.0.1")).is_allowed());
-        assert!(!a.check(ip("192.0.2.1")).is_allowed());
+    fn unix_socket_peers_are_local() {
+        let cases: &[(&str, bool)] = &[
+            ("ALL", true),
+            ("localhost", true),
+            ("LOCAL", true),
+            ("127.0.0.1", true),
+            ("127.", true),
+            ("[::1]", true),
+            ("KNOWN", true),
+            ("10.0.0.1", false),
+            (".cs.cmu.edu", false),
+        ];
+        for (list, denied) in cases {
+            let a = ac("", &format!("central : {list}\n"));
+            let d = a.check_with(Client::Unix, &mut |_| panic!("no lookup for local peers"));
+            assert_eq!(!d.is_allowed(), *denied, "'{list}'");
+        }
+    }
+
+    #[test]
+    fn daemon_lists() {
+        let cases: &[(&str, bool)] = &[
+            ("central", true),
+            ("ALL", true),
+            ("sshd", false),
+            ("sshd, central", true),
+            ("sshd central", true),
+            ("ALL EXCEPT central", false),
+            ("ALL EXCEPT sshd", true),
+            ("central@192.0.2.1", true),
+            ("Central", false),
+        ];
+        for (daemons, denied) in cases {
+            let a = ac("", &format!("{daemons} : ALL\n"));
+            assert_eq!(
+                !a.check(ip("192.0.2.1")).is_allowed(),
+                *denied,
+                "'{daemons}'"
+            );
+        }
+    }
+
+    #[test]
+    fn allow_before_deny_and_default_allow() {
+        let a = ac("central : 10.0.0.1\n", "central : 10.0.0.0/8\n");
+        assert!(a.check(ip("10.0.0.1")).is_allowed());
+        assert!(!a.check(ip("10.0.0.2")).is_allowed());
+        assert_eq!(a.check(ip("192.0.2.1")), Decision::Allowed(None));
         assert!(AccessControl::open().check(ip("192.0.2.1")).is_allowed());
+        // The first matching line of a file is the one reported.
+        let a = ac("", "sshd : ALL\ncentral : 10.\ncentral : ALL\n");
+        assert_eq!(
+            a.check(ip("10.1.1.1")).to_string(),
+            "denied by hosts.deny:2"
+        );
+        assert_eq!(
+            a.check(ip("11.1.1.1")).to_string(),
+            "denied by hosts.deny:3"
+        );
     }
 
     #[test]
     fn comments_continuations_and_options() {
         let a = ac(
-            "# comment\n\ncentral : \\\n  127.0.0.1 : ALLOW\n",
+            "# comment\n\n  # indented comment\ncentral : \\\n  127.0.0.1, \\\n 10.0.0.1 : ALLOW\ncentral: 10.0.0.2:spawn (echo hi)\n",
             "central: ALL # everything else\n",
         );
         assert_eq!(
-            a.check(ip("127.0.0.1")),
-            Decision::Allowed(Some("hosts.allow:3".into()))
+            a.check(ip("127.0.0.1")).to_string(),
+            "allowed by hosts.allow:4"
+        );
+        assert_eq!(
+            a.check(ip("10.0.0.1")).to_string(),
+            "allowed by hosts.allow:4"
+        );
+        assert_eq!(
+            a.check(ip("10.0.0.2")).to_string(),
+            "allowed by hosts.allow:7"
         );
         assert!(!a.check(ip("127.0.0.2")).is_allowed());
+        let a = ac("", "central : [::1] : deny\n");
+        assert!(!a.check(ip("::1")).is_allowed());
+    }
+
+    #[test]
+    fn host_names_resolve_at_load_time() {
+        let mut r = Rules::parse(
+            "central : robot1.lab, ghost.lab\nsshd : nowhere.lab\n",
+            "hosts.allow",
+        )
+        .unwrap();
+        r.resolve_names(&mut |n| match n {
+            "robot1.lab" => vec![
+                "192.0.2.21".parse().unwrap(),
+                "::ffff:192.0.2.22".parse().unwrap(),
+            ],
+            _ => vec![],
+        });
+        let a = AccessControl::new(r, Rules::parse("ALL : ALL", "hosts.deny").unwrap());
+        assert!(a.check(ip("192.0.2.21")).is_allowed());
+        assert!(a.check(ip("192.0.2.22")).is_allowed());
+        assert!(!a.check(ip("192.0.2.23")).is_allowed());
+        let w: Vec<&str> = a.warnings().collect();
+        assert_eq!(
+            w,
+            ["hosts.allow:1: host name 'ghost.lab' does not resolve; the rule never matches it"]
+        );
+        assert!(!a.needs_host_name(), "names are matched by address");
+    }
+
+    #[test]
+    fn host_name_lookups_only_when_needed() {
+        let a = ac("central : 10.0.0.1, .cs.cmu.edu\n", "ALL : ALL\n");
+        assert!(a.needs_host_name());
+        let mut calls = 0;
+        let d = a.check_with(ip("10.0.0.1"), &mut |_| {
+            calls += 1;
+            HostName::Unknown
+        });
+        assert!(d.is_allowed());
+        assert_eq!(calls, 0, "the address matched first");
+        let d = a.check_with(ip("10.0.0.2"), &mut |_| {
+            calls += 1;
+            HostName::Unknown
+        });
+        assert!(!d.is_allowed());
+        assert_eq!(calls, 1, "looked up once for both files");
     }
 
     #[test]
@@ -523,23 +1079,43 @@ mod tests {
                 "central\n",
                 "hosts.x:1: expected 'daemon_list : client_list'",
             ),
-            ("ok : ALL\n : ALL\n", "hosts.x:2: empty daemon list"),
+            ("sshd : ALL\n : ALL\n", "hosts.x:2: empty daemon list"),
             ("central : \n", "hosts.x:1: empty client list"),
+            ("central : : spawn\n", "hosts.x:1: empty client list"),
             (
                 "central : EXCEPT 1.2.3.4\n",
                 "hosts.x:1: nothing before EXCEPT",
             ),
             ("central : ALL EXCEPT\n", "hosts.x:1: nothing after EXCEPT"),
+            ("EXCEPT central : ALL\n", "hosts.x:1: nothing before EXCEPT"),
             (
                 "central : 1.2.3.4/33\n",
                 "hosts.x:1: prefix length 33 too long",
             ),
             (
+                "central : [::]/129\n",
+                "hosts.x:1: prefix length 129 too long",
+            ),
+            (
                 "central : 1.2.3.4/255.0.255.0\n",
                 "hosts.x:1: netmask 255.0.255.0",
             ),
-            ("central : KNOWN\n", "hosts.x:1: pattern KNOWN needs DNS"),
+            ("central : 1.2.3.4/abc\n", "hosts.x:1: bad netmask"),
+            ("central : 1.2.3.400/8\n", "hosts.x:1: bad network address"),
+            (
+                "central : 1.2.3.400\n",
+                "hosts.x:1: '1.2.3.400' is not an IPv4 address",
+            ),
+            ("central : [::1\n", "hosts.x:1: unrecognised pattern"),
             ("central : a$b\n", "hosts.x:1: unrecognised pattern 'a$b'"),
+            ("central : @robots\n", "hosts.x:1: NIS netgroup '@robots'"),
+            ("central : /etc/robots\n", "hosts.x:1: pattern files"),
+            ("central : foo.\n", "hosts.x:1: 'foo.': a trailing dot"),
+            (
+                "# a\n\ncentral : \\\n  ALL EXCEPT\n",
+                "hosts.x:3: nothing after EXCEPT",
+            ),
+            ("ALL : 10.0.0.%\n", "hosts.x:1: unrecognised pattern"),
         ];
         for (text, want) in cases {
             let e = Rules::parse(text, "hosts.x").unwrap_err().to_string();
@@ -548,8 +1124,65 @@ mod tests {
     }
 
     #[test]
+    fn other_daemons_bad_rules_are_skipped_with_a_warning() {
+        let r = Rules::parse("sshd : @trusted\ncentral : 10.0.0.1\n", "hosts.allow").unwrap();
+        assert_eq!(r.len(), 1);
+        assert_eq!(
+            r.warnings(),
+            ["hosts.allow:1: rule skipped (it does not concern central): NIS netgroup '@trusted' is not supported"]
+        );
+    }
+
+    #[test]
     fn missing_file_is_empty() {
         let r = Rules::load(Path::new("/nonexistent/hosts.allow")).unwrap();
-        assert!(r.rules.is_empty());
+        assert!(r.is_empty());
+        assert_eq!(r.file(), "/nonexistent/hosts.allow");
+    }
+
+    #[test]
+    fn load_reads_files_and_reports_errors() {
+        let dir = std::env::temp_dir().join(format!("courier-access-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let allow = dir.join("hosts.allow");
+        let deny = dir.join("hosts.deny");
+        std::fs::write(&allow, "central : localhost\n").unwrap();
+        std::fs::write(&deny, "ALL : ALL\n").unwrap();
+        let a = AccessControl::load(&allow, &deny).unwrap();
+        assert!(a.check(ip("127.0.0.1")).is_allowed());
+        assert!(!a.check(ip("192.0.2.1")).is_allowed());
+        std::fs::write(&deny, "ALL : ALL\ncentral : 1.2.3.4/99\n").unwrap();
+        let e = AccessControl::load(&allow, &deny).unwrap_err().to_string();
+        assert_eq!(
+            e,
+            format!(
+                "{}:2: prefix length 99 too long in '1.2.3.4/99'",
+                deny.display()
+            )
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn glob_matching() {
+        for (p, t, m) in [
+            ("*", "", true),
+            ("a*c", "abbbc", true),
+            ("a*c", "abbb", false),
+            ("a?c", "abc", true),
+            ("a?c", "ac", false),
+            ("*.org", "x.example.org", true),
+            ("**x", "x", true),
+        ] {
+            assert_eq!(glob(p, t), m, "{p} {t}");
+        }
+    }
+
+    #[test]
+    fn reverse_lookup_of_loopback_is_not_needed() {
+        // Loopback peers are `localhost` without asking DNS.
+        let a = ac("", "central : KNOWN\n");
+        let d = a.check_with(ip("127.0.0.1"), &mut |_| panic!("no lookup for loopback"));
+        assert!(!d.is_allowed());
     }
 }

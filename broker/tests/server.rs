@@ -1,92 +1,26 @@
-//! The embedded central and the `central` binary over real sockets on
-//! 127.0.0.1 (and UNIX sockets), with Courier's IPC module state machine as
-//! the client. Every wait is bounded.
+//! The embedded central over real sockets on 127.0.0.1 and UNIX sockets,
+//! with Courier's IPC module state machine (or raw sockets) as clients.
+//! Every wait is bounded: async waits by `tokio::time::timeout`, blocking
+//! socket reads by read timeouts.
 
+use std::future::Future;
 use std::io::{Read, Write};
-use std::net::{SocketAddr, TcpStream};
-use std::process::{Command, Stdio};
+use std::net::TcpStream;
+use std::os::unix::net::UnixStream;
+use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use courier_broker::access::{AccessControl, Rules};
-use courier_broker::{CentralServer, Config, LogTarget};
-use courier_wire::ipc::module::{Connection, Event, ModuleConfig, MsgLength};
+use courier_broker::{BindError, CentralHandle, CentralServer, Config, LogSink};
+use courier_wire::ipc::module::{Event, MsgLength};
 
-const T: Duration = Duration::from_secs(20);
+mod common;
+use common::{read_to_eof, tcp, Client, T};
 
-/// A blocking module client on its own socket.
-struct Client<S: Read + Write> {
-    conn: Connection,
-    sock: S,
-    buf: Vec<u8>,
-}
-
-impl<S: Read + Write> Client<S> {
-    fn new(sock: S, name: &str) -> Self {
-        let mut c = Client {
-            conn: Connection::new(ModuleConfig::new(name, "localhost"), Instant::now()),
-            sock,
-            buf: vec![0; 1 << 16],
-        };
-        c.until(|e| matches!(e, Event::Connected));
-        c
-    }
-
-    fn flush(&mut self) {
-        while let Some(b) = self.conn.poll_transmit() {
-            self.sock.write_all(&b).unwrap();
-        }
-    }
-
-    /// Runs until an event satisfies `f` (returns it).
-    fn until(&mut self, mut f: impl FnMut(&Event) -> bool) -> Event {
-        let deadline = Instant::now() + T;
-        loop {
-            assert!(Instant::now() < deadline, "timed out");
-            let e = self.conn.poll_event();
-            self.flush();
-            if let Some(e) = e {
-                if std::env::var_os("TEST_DEBUG").is_some() {
-                    eprintln!("event {e:?}");
-                }
-                if f(&e) {
-                    return e;
-                }
-                if let Event::Closed(err) = &e {
-                    panic!("connection closed: {err:?}");
-                }
-                continue;
-            }
-            let n = self.sock.read(&mut self.buf).unwrap();
-            assert!(n > 0, "central closed the connection");
-            self.conn.receive(&self.buf[..n], Instant::now());
-        }
-    }
-
-    /// Reads until no operation waits for central (e.g. a respond that
-    /// first looks its reply message up).
-    fn settle(&mut self) {
-        self.flush();
-        while self.conn.is_waiting() {
-            let n = self.sock.read(&mut self.buf).unwrap();
-            assert!(n > 0, "central closed the connection");
-            self.conn.receive(&self.buf[..n], Instant::now());
-            while self.conn.poll_event().is_some() {}
-            self.flush();
-        }
-    }
-
-    fn sync(&mut self) {
-        let op = self.conn.is_module_connected("x").unwrap();
-        self.until(|e| matches!(e, Event::ModuleConnected { op: o, .. } if *o == op));
-    }
-}
-
-fn tcp(addr: SocketAddr) -> TcpStream {
-    let s = TcpStream::connect(addr).unwrap();
-    s.set_read_timeout(Some(T)).unwrap();
-    s.set_nodelay(true).unwrap();
-    s
+/// Runs `f` on `rt`, failing the test if it takes longer than [`T`].
+fn block<F: Future>(rt: &tokio::runtime::Runtime, f: F) -> F::Output {
+    rt.block_on(async { tokio::time::timeout(T, f).await.expect("timed out") })
 }
 
 fn rt() -> tokio::runtime::Runtime {
@@ -97,38 +31,55 @@ fn rt() -> tokio::runtime::Runtime {
         .unwrap()
 }
 
-fn capture_logs() -> (courier_broker::LogSink, Arc<Mutex<Vec<String>>>) {
+type Logs = Arc<Mutex<Vec<String>>>;
+
+fn capture_logs() -> (LogSink, Logs) {
     let logs = Arc::new(Mutex::new(Vec::new()));
     let l = logs.clone();
-    let sink: courier_broker::LogSink =
-        Arc::new(move |_: LogTarget, line: &str| l.lock().unwrap().push(line.to_string()));
+    let sink = LogSink::new(move |_, line| l.lock().unwrap().push(line.to_string()));
     (sink, logs)
 }
 
+/// Waits until a log line satisfies `f`.
+fn wait_log(logs: &Logs, f: impl Fn(&str) -> bool) -> String {
+    let deadline = Instant::now() + T;
+    loop {
+        if let Some(l) = logs.lock().unwrap().iter().find(|l| f(l)) {
+            return l.clone();
+        }
+        assert!(
+            Instant::now() < deadline,
+            "no such log line in {:?}",
+            logs.lock().unwrap()
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+fn local() -> courier_broker::Builder {
+    CentralServer::builder()
+        .bind("127.0.0.1".parse().unwrap())
+        .port(0)
+}
+
+fn start(rt: &tokio::runtime::Runtime, b: courier_broker::Builder) -> CentralHandle {
+    block(rt, b.spawn()).unwrap()
+}
+
 #[test]
-fn publish_and_query_over_tcp_then_clean_shutdown() {
+fn publish_and_query_over_tcp_then_shutdown_closes_clients() {
     let rt = rt();
     let (sink, logs) = capture_logs();
-    let central = rt
-        .block_on(
-            CentralServer::builder()
-                .bind("127.0.0.1".parse().unwrap())
-                .port(0)
-                .log_sink(sink)
-                .spawn(),
-        )
-        .unwrap();
+    let central = start(&rt, local().log_sink(sink));
     let addr = central.local_addr();
+    assert_eq!(addr.ip().to_string(), "127.0.0.1");
+    assert_ne!(addr.port(), 0);
     let mut b = Client::new(tcp(addr), "b");
-    b.conn
-        .define_msg("m", MsgLength::Variable, Some("int"))
-        .unwrap();
-    b.conn
-        .define_msg("q", MsgLength::Variable, Some("int"))
-        .unwrap();
-    b.conn
-        .define_msg("r", MsgLength::Variable, Some("int"))
-        .unwrap();
+    for m in ["m", "q", "r"] {
+        b.conn
+            .define_msg(m, MsgLength::Variable, Some("int"))
+            .unwrap();
+    }
     b.conn.subscribe("m", "HND-m").unwrap();
     b.conn.subscribe("q", "HND-q").unwrap();
     b.sync();
@@ -162,100 +113,265 @@ fn publish_and_query_over_tcp_then_clean_shutdown() {
         matches!(e, Event::Reply { query, data, .. } if query == q && data == 7i32.to_le_bytes())
     );
     let mut b = server.join().unwrap();
-    rt.block_on(async { tokio::time::timeout(T, central.shutdown()).await.unwrap() });
+    let stats = block(&rt, central.stats()).unwrap();
+    assert_eq!(stats.modules, 2);
+    block(&rt, central.shutdown());
     // Both clients see EOF after shutdown.
-    let mut one = [0u8; 1];
-    assert_eq!(a.sock.read(&mut one).unwrap(), 0);
-    assert_eq!(b.sock.read(&mut one).unwrap(), 0);
-    assert!(logs
-        .lock()
+    assert!(read_to_eof(&mut a.sock).is_empty());
+    assert!(read_to_eof(&mut b.sock).is_empty());
+    let logs = logs.lock().unwrap();
+    assert!(
+        logs.iter().any(|l| l == " Received a new connection: 5"),
+        "{logs:?}"
+    );
+    assert!(logs.iter().any(|l| l == "   modName : a"), "{logs:?}");
+}
+
+/// Start and stop leave no task behind (counted by the runtime) and no
+/// socket file.
+#[test]
+fn start_and_shutdown_leave_no_task_and_no_socket_file() {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    assert_eq!(rt.metrics().num_alive_tasks(), 0);
+    let central = start(&rt, local().unix_socket(true).log_sink(LogSink::discard()));
+    let path = central.unix_path().unwrap().to_path_buf();
+    assert_eq!(
+        path,
+        PathBuf::from(format!("/tmp/x_ipc/{}", central.local_addr().port()))
+    );
+    assert!(path.exists());
+    use std::os::unix::fs::PermissionsExt;
+    let mode = std::fs::metadata("/tmp/x_ipc")
         .unwrap()
-        .iter()
-        .any(|l| l == " Received a new connection: 6"));
+        .permissions()
+        .mode();
+    assert_eq!(mode & 0o777, 0o777, "/tmp/x_ipc is shared by every user");
+    // Connections over both transports, so per-connection tasks exist.
+    let mut t = tcp(central.local_addr());
+    let mut u = UnixStream::connect(&path).unwrap();
+    u.set_read_timeout(Some(T)).unwrap();
+    let mut first = [0u8; 4];
+    // The runtime runs only inside block_on: drive it while reading.
+    let reader = std::thread::spawn(move || {
+        t.read_exact(&mut first).unwrap();
+        u.read_exact(&mut first).unwrap();
+        (t, u)
+    });
+    block(&rt, async {
+        while !reader.is_finished() {
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+    });
+    let (mut t, mut u) = reader.join().unwrap();
+    assert!(rt.metrics().num_alive_tasks() >= 4);
+    block(&rt, central.shutdown());
+    assert_eq!(rt.metrics().num_alive_tasks(), 0, "every task ended");
+    assert!(!path.exists(), "socket file removed on shutdown");
+    assert!(read_to_eof(&mut t).len() < 4096);
+    assert!(read_to_eof(&mut u).len() < 4096);
 }
 
 #[test]
-fn unix_socket_is_served_and_removed() {
+fn dropping_the_handle_stops_central() {
     let rt = rt();
-    // A port of our own so /tmp/x_ipc/<port> is ours.
-    let central = rt
-        .block_on(
-            CentralServer::builder()
-                .bind("127.0.0.1".parse().unwrap())
-                .port(0)
-                .unix_socket(false)
-                .spawn(),
-        )
-        .unwrap();
-    let port = central.local_addr().port();
-    rt.block_on(central.shutdown());
-    let central = rt
-        .block_on(
-            CentralServer::builder()
-                .bind("127.0.0.1".parse().unwrap())
-                .port(port)
-                .unix_socket(true)
-                .spawn(),
-        )
-        .unwrap();
+    let central = start(&rt, local().unix_socket(true).log_sink(LogSink::discard()));
+    let addr = central.local_addr();
     let path = central.unix_path().unwrap().to_path_buf();
-    assert_eq!(path, std::path::PathBuf::from(format!("/tmp/x_ipc/{port}")));
-    let s = std::os::unix::net::UnixStream::connect(&path).unwrap();
+    let mut c = Client::new(tcp(addr), "dropped");
+    c.sync();
+    drop(central);
+    assert!(!path.exists(), "socket file removed at once");
+    read_to_eof(&mut c.sock);
+    // The listener is gone too.
+    let deadline = Instant::now() + T;
+    while TcpStream::connect(addr).is_ok() {
+        assert!(Instant::now() < deadline, "still accepting");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let deadline = Instant::now() + T;
+    while rt.metrics().num_alive_tasks() > 0 {
+        assert!(Instant::now() < deadline, "tasks left after drop");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+#[test]
+fn unix_socket_serves_modules_and_replaces_a_stale_file() {
+    let rt = rt();
+    // A free port whose socket path we then litter with a dead socket.
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let path = courier_broker::unix_path(port);
+    std::fs::create_dir_all("/tmp/x_ipc").unwrap();
+    let _ = std::fs::remove_file(&path);
+    drop(std::os::unix::net::UnixListener::bind(&path).unwrap());
+    assert!(path.exists(), "stale socket file in place");
+    let central = start(
+        &rt,
+        local()
+            .port(port)
+            .unix_socket(true)
+            .log_sink(LogSink::discard()),
+    );
+    assert_eq!(central.unix_path(), Some(path.as_path()));
+    // A second server on the same path is refused: someone answers there.
+    let second = block(
+        &rt,
+        CentralServer::builder()
+            .bind("127.0.0.2".parse().unwrap())
+            .port(port)
+            .unix_socket(true)
+            .spawn(),
+    );
+    match second {
+        Err(BindError::Unix { path: p, .. }) => assert_eq!(p, path),
+        // 127.0.0.2 may not be configured; then TCP fails first.
+        Err(BindError::Tcp { .. }) => {}
+        other => panic!("second server started: {other:?}"),
+    }
+    let s = UnixStream::connect(&path).unwrap();
     s.set_read_timeout(Some(T)).unwrap();
     let mut c = Client::new(s, "unix-client");
     c.sync();
-    rt.block_on(central.shutdown());
+    block(&rt, central.shutdown());
     assert!(!path.exists(), "socket file removed on shutdown");
+    read_to_eof(&mut c.sock);
 }
 
 #[test]
-fn denied_peer_gets_nothing_allowed_peer_gets_the_handshake() {
+fn denied_peer_gets_eof_before_any_byte_allowed_peer_is_served() {
     let rt = rt();
     let (sink, logs) = capture_logs();
     let deny = AccessControl::new(
         Rules::parse("", "hosts.allow").unwrap(),
-        Rules::parse("central : 127.0.0.1\n", "hosts.deny").unwrap(),
+        Rules::parse("# nobody from here\ncentral : 127.0.0.1\n", "hosts.deny").unwrap(),
     );
-    let central = rt
-        .block_on(
-            CentralServer::builder()
-                .bind("127.0.0.1".parse().unwrap())
-                .port(0)
-                .access(deny)
-                .log_sink(sink)
-                .spawn(),
-        )
-        .unwrap();
+    let central = start(&rt, local().access(deny).log_sink(sink));
     let mut s = tcp(central.local_addr());
-    let mut buf = [0u8; 64];
+    let port = s.local_addr().unwrap().port();
+    assert_eq!(read_to_eof(&mut s), b"", "closed before any protocol byte");
+    let line = wait_log(&logs, |l| l.contains("rejected"));
     assert_eq!(
-        s.read(&mut buf).unwrap(),
-        0,
-        "closed before any protocol byte"
+        line,
+        format!("WARNING: connection rejected from 127.0.0.1:{port} (denied by hosts.deny:2)")
     );
-    assert!(logs.lock().unwrap().iter().any(|l| l
-        .starts_with("Access denied: connection from 127.0.0.1:")
-        && l.ends_with("refused by hosts.deny:1")));
-    rt.block_on(central.shutdown());
+    block(&rt, central.shutdown());
 
     let allow = AccessControl::new(
         Rules::parse("central : 127.0.0.1\n", "hosts.allow").unwrap(),
         Rules::parse("ALL : ALL\n", "hosts.deny").unwrap(),
     );
-    let central = rt
-        .block_on(
-            CentralServer::builder()
-                .bind("127.0.0.1".parse().unwrap())
-                .port(0)
-                .access(allow)
-                .spawn(),
-        )
-        .unwrap();
+    let central = start(&rt, local().access(allow).log_sink(LogSink::discard()));
     let mut s = tcp(central.local_addr());
     let mut first = [0u8; 4];
     s.read_exact(&mut first).unwrap();
     assert!(i32::from_be_bytes(first) >= 2, "the msgInfo id comes first");
-    rt.block_on(central.shutdown());
+    // And the connection stays open: a whole module handshake works on it.
+    let mut c = Client::new(tcp(central.local_addr()), "allowed");
+    c.sync();
+    block(&rt, central.shutdown());
+}
+
+#[test]
+fn unix_socket_peers_are_checked_as_local() {
+    let rt = rt();
+    let (sink, logs) = capture_logs();
+    let deny = AccessControl::new(
+        Rules::default(),
+        Rules::parse("central : localhost\n", "hosts.deny").unwrap(),
+    );
+    let central = start(&rt, local().unix_socket(true).access(deny).log_sink(sink));
+    let mut u = UnixStream::connect(central.unix_path().unwrap()).unwrap();
+    u.set_read_timeout(Some(T)).unwrap();
+    assert_eq!(read_to_eof(&mut u), b"");
+    wait_log(&logs, |l| {
+        l == "WARNING: connection rejected from the UNIX socket (denied by hosts.deny:1)"
+    });
+    block(&rt, central.shutdown());
+}
+
+/// Garbage on one connection closes that connection only, with a log line;
+/// a module that disconnects in the middle of a frame is cleaned up.
+#[test]
+fn hostile_input_closes_only_the_offender() {
+    let rt = rt();
+    let (sink, logs) = capture_logs();
+    let central = start(&rt, local().log_sink(sink));
+    let addr = central.local_addr();
+    let mut good = Client::new(tcp(addr), "good");
+    good.sync();
+
+    // A header claiming a 2 GiB body.
+    let mut bad = tcp(addr);
+    let mut hdr = [0u8; 28];
+    hdr[0..4].copy_from_slice(&i32::MAX.to_be_bytes());
+    hdr[4..8].copy_from_slice(&i32::MAX.to_be_bytes());
+    bad.write_all(&hdr).unwrap();
+    read_to_eof(&mut bad);
+    wait_log(&logs, |l| l.starts_with("ERROR: closing connection"));
+
+    // Half a frame, then gone.
+    let mut half = tcp(addr);
+    half.write_all(&[0, 0, 0, 0, 0, 0, 0, 4, 0xff]).unwrap();
+    drop(half);
+    wait_log(&logs, |l| l.contains("in the middle of a frame"));
+
+    // Random bytes.
+    let mut noise = tcp(addr);
+    let junk: Vec<u8> = (0..10_000u32)
+        .map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8)
+        .collect();
+    let _ = noise.write_all(&junk);
+    drop(noise);
+
+    good.sync();
+    let deadline = Instant::now() + T;
+    while block(&rt, central.stats()).unwrap().modules != 1 {
+        assert!(Instant::now() < deadline, "only the good module is left");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    good.sync();
+    block(&rt, central.shutdown());
+}
+
+/// Many modules connecting at once all get central's greeting.
+#[test]
+fn two_hundred_connections_at_once() {
+    let rt = rt();
+    let central = start(&rt, local().log_sink(LogSink::discard()));
+    let addr = central.local_addr();
+    let socks: Vec<TcpStream> = (0..200).map(|_| tcp(addr)).collect();
+    for mut s in socks {
+        let mut first = [0u8; 4];
+        s.read_exact(&mut first).unwrap();
+        assert!(i32::from_be_bytes(first) >= 2);
+    }
+    block(&rt, central.shutdown());
+}
+
+#[test]
+fn console_commands_reach_the_state_machine() {
+    let rt = rt();
+    let (sink, logs) = capture_logs();
+    let central = start(&rt, local().log_sink(sink));
+    let mut c = Client::new(tcp(central.local_addr()), "console-test");
+    c.sync();
+    assert!(central.command("help"));
+    wait_log(&logs, |l| l.contains("close <module>"));
+    assert!(central.command("close console-test"));
+    read_to_eof(&mut c.sock);
+    let deadline = Instant::now() + T;
+    while block(&rt, central.stats()).unwrap().modules > 0 {
+        assert!(Instant::now() < deadline);
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    block(&rt, central.shutdown());
 }
 
 /// A publisher floods 100 000 messages of 1 KiB at a subscriber with
@@ -266,15 +382,7 @@ fn slow_subscriber_keeps_central_memory_bounded() {
     let rt = rt();
     let mut config = Config::default();
     config.max_queued_bytes = 1 << 20;
-    let central = rt
-        .block_on(
-            CentralServer::builder()
-                .bind("127.0.0.1".parse().unwrap())
-                .port(0)
-                .config(config)
-                .spawn(),
-        )
-        .unwrap();
+    let central = start(&rt, local().config(config).log_sink(LogSink::discard()));
     let addr = central.local_addr();
     let mut s = Client::new(tcp(addr), "slow");
     s.conn
@@ -314,102 +422,13 @@ fn slow_subscriber_keeps_central_memory_bounded() {
         assert!(start.elapsed() < Duration::from_secs(120));
     }
     let _p = publisher.join().unwrap();
-    let stats = central.stats();
+    let stats = block(&rt, central.stats()).unwrap();
     println!(
         "real sockets, 100 000 x 1 KiB, capacity 1: peak queued in central {} bytes (limit {})",
         stats.peak_queued_bytes,
         1 << 20
     );
-    assert!(stats.peak_queued_bytes <= (1 << 20) + 64 * 1024);
+    assert!(stats.peak_queued_bytes <= (1 << 20) + 128 * 1024);
     assert_eq!(stats.dropped, 0);
-    rt.block_on(central.shutdown());
-}
-
-#[test]
-fn central_binary_options_and_signals() {
-    let bin = env!("CARGO_BIN_EXE_central");
-    for (args, want) in [
-        (vec!["-pabc"], "option -p: 'abc' is not a port number"),
-        (vec!["-lq"], "unknown logging option 'q' in -l"),
-        (vec!["-z"], "unknown option '-z'"),
-        (
-            vec!["--bind", "bogus"],
-            "option --bind: 'bogus' is not an IP address",
-        ),
-    ] {
-        let out = Command::new(bin).args(&args).output().unwrap();
-        assert_eq!(out.status.code(), Some(2), "{args:?}");
-        let err = String::from_utf8_lossy(&out.stderr);
-        assert!(err.contains(want), "{args:?}: {err}");
-    }
-    let out = Command::new(bin)
-        .arg("-v")
-        .arg("-p1")
-        .arg("-s")
-        .arg("-u")
-        .arg("--bind")
-        .arg("256.0.0.1")
-        .output()
-        .unwrap();
-    assert_eq!(out.status.code(), Some(2));
-
-    // A free port, then the real binary on it.
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let mut child = Command::new(bin)
-        .args([
-            format!("-p{port}"),
-            "--bind".into(),
-            "127.0.0.1".into(),
-            "--no-unix-socket".into(),
-            "-u".into(),
-            "--hosts-allow".into(),
-            "/nonexistent/allow".into(),
-            "--hosts-deny".into(),
-            "/nonexistent/deny".into(),
-        ])
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let deadline = Instant::now() + T;
-    let sock = loop {
-        match TcpStream::connect(("127.0.0.1", port)) {
-            Ok(s) => break s,
-            Err(_) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(20)),
-            Err(e) => panic!("central did not start: {e}"),
-        }
-    };
-    sock.set_read_timeout(Some(T)).unwrap();
-    let mut c = Client::new(sock, "cli-test");
-    c.sync();
-    let status = Command::new("kill")
-        .args(["-TERM", &child.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(status.success());
-    let deadline = Instant::now() + T;
-    let code = loop {
-        if let Some(s) = child.try_wait().unwrap() {
-            break s;
-        }
-        assert!(Instant::now() < deadline, "central did not stop on SIGTERM");
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    assert!(code.success(), "{code:?}");
-    let mut out = String::new();
-    child
-        .stdout
-        .take()
-        .unwrap()
-        .read_to_string(&mut out)
-        .unwrap();
-    assert!(
-        out.contains(&format!("Expecting 1 on port {port}")),
-        "{out}"
-    );
-    assert!(out.contains(" Received a new connection: 5"), "{out}");
-    assert!(out.contains("   modName : cli-test"), "{out}");
+    block(&rt, central.shutdown());
 }

@@ -1,34 +1,72 @@
 //! `central`: a drop-in replacement for CMU IPC's central server.
 //!
-//! Options are those of the IPC manual §2, with their values glued to the
-//! flag as the C central expects (`-lmsd`, `-p1381`, `-fcentral.log`), plus
-//! `--bind`, `--hosts-allow`, `--hosts-deny` and `--no-unix-socket`.
+//! Options are those of the IPC manual §2 with their values glued to the
+//! flag, parsed as the C central parses them (`-lmsd`, `-Lx`, `-fname`,
+//! `-p1381`, `-Imsg` or `-Ifile`, `-v -s -u -r -c`, and a bare number for
+//! the expected module count), plus `--bind <addr>`, `--hosts-allow <file>`,
+//! `--hosts-deny <file>`, `--no-unix-socket` and `--help`.
+//!
+//! Where it differs from the C central on purpose:
+//! - unknown options and bad values are errors (exit status 2, one line on
+//!   stderr naming the flag and the value); C warns and goes on;
+//! - `-v` prints the version and exits 0 wherever it appears (C: only as the
+//!   first argument, exiting 1);
+//! - `-p0` listens on a free port (printed in `Expecting 1 on port <port>`);
+//! - without `-f`, the file log is `x_ipc.log.<seconds since 1970>` in the
+//!   working directory, as in C, and its header time is UTC;
+//! - the comment prompt of file logging (`-L` without `n`) is shown only
+//!   when standard input is a terminal, and only at start;
+//! - `-d` (C's debugging flag) turns on debug diagnostics on stderr;
+//! - SIGINT and SIGTERM stop central cleanly with exit status 0 (C aborts);
+//!   `quit` on the console does the same, as in C.
 
-use std::io::{BufRead, Write};
+use std::io::{BufRead, IsTerminal, Write};
 use std::net::IpAddr;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::{Arc, Mutex};
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
-use courier_broker::access::AccessControl;
-use courier_broker::{CentralServer, Config, LogOptions, LogTarget};
+use courier_broker::access::{AccessControl, DEFAULT_ALLOW, DEFAULT_DENY};
+use courier_broker::{CentralServer, Config, LogOptions, LogSink, LogTarget};
 
-const USAGE: &str = "usage: central [options]
-  -v               display server version information
-  -l<options>      logging onto terminal: m s t d i h r p x (-l alone = -lmstdh; default -lmsi)
-  -L<options>      logging into file: as -l, plus F (no flush) n (no prompt); default -Lx
-  -f<filename>     log file name (default: central-<date>-<time>.log)
-  -p<port>         port to listen on (default 1381)
-  -c               direct (module to module) connections when possible
-  -I<msgName>      do not log this message (may repeat); -I<file>: names in a file
-  -s               silent: print nothing on the terminal
-  -u               no terminal (stdin) commands
-  -r               resend non-completed messages when modules crash and reconnect
-  --bind <addr>    listen on this address only (default: all interfaces, as C)
-  --hosts-allow <file>, --hosts-deny <file>
-                   access rules (default /etc/hosts.allow, /etc/hosts.deny)
-  --no-unix-socket do not listen on /tmp/x_ipc/<port>
-  --help           this text";
+/// `X_IPC_VERSION_MAJOR.MINOR.MICRO` of the C central we stand in for.
+const IPC_VERSION: &str = "3.9.1";
+
+const USAGE: &str = "central command line options:
+ -v: display server version info.
+ -l: logging onto terminal.
+     options are: m (message traffic)
+                  s (status of IPC)
+                  t (time messages are handled)
+                  d (data associated with message)
+                  i (ignore logging registration and deregistration messages)
+                  h (incoming message handle time summary)
+                  r (log the reference Id as well as the msg name)
+                  p (log the reference Id of the message's parent)
+                  x (no logging)
+     -l is equivalent to -lmstdh; the default is -lmsi
+ -L: logging into file.
+     options are the same as above with the addition of F.
+                  F (don't flush file after each line)
+                  n (do not prompt the user for comments)
+     the default is -Lx
+ -f<fileName>: filename to use for logging (default x_ipc.log.<time>).
+ -p<port>: specify the server port - the default port is: 1381 (0: any free port)
+ -c: Use direct (not via central) conntections where possible.
+ -i<msgName>: Ignore logging this message (can occur multiple times).
+ -I<msgName or fileName>: Ignore logging this message, or the messages named
+     one per line in this file.
+ -s: silent running, don't print anything to stdout.
+ -u: Don't run the user interface (stdin).
+ -r: try resending non-completed messages when modules crash
+ -d: debugging diagnostics on stderr.
+ <number>: the number of modules expected (printed only).
+ --bind <addr>: listen on this address only (default: all interfaces).
+ --hosts-allow <file>, --hosts-deny <file>: access rules
+     (default /etc/hosts.allow and /etc/hosts.deny, daemon name 'central').
+ --no-unix-socket: do not listen on /tmp/x_ipc/<port>.
+ --help, -h: this text.";
 
 #[derive(Debug)]
 struct Options {
@@ -36,73 +74,128 @@ struct Options {
     port: u16,
     bind: IpAddr,
     log_file: Option<PathBuf>,
+    expected: u32,
     silent: bool,
     console: bool,
     version: bool,
+    help: bool,
+    debug: bool,
     unix: bool,
     allow: PathBuf,
     deny: PathBuf,
 }
 
-fn parse_args(args: Vec<String>) -> Result<Option<Options>, String> {
-    let mut o = Options {
-        config: Config::default(),
-        port: courier_broker::DEFAULT_PORT,
-        bind: "0.0.0.0".parse().unwrap(),
-        log_file: None,
-        silent: false,
-        console: true,
-        version: false,
-        unix: true,
-        allow: "/etc/hosts.allow".into(),
-        deny: "/etc/hosts.deny".into(),
-    };
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            config: Config::default(),
+            port: courier_broker::DEFAULT_PORT,
+            bind: IpAddr::from([0, 0, 0, 0]),
+            log_file: None,
+            expected: 1,
+            silent: false,
+            console: true,
+            version: false,
+            help: false,
+            debug: false,
+            unix: true,
+            allow: DEFAULT_ALLOW.into(),
+            deny: DEFAULT_DENY.into(),
+        }
+    }
+}
+
+/// Logging letters as C reads them: case does not matter (except `F`/`f`
+/// and `n`/`N` being file-only), and any `x` means no logging at all.
+fn log_options(letters: &str, file: bool) -> Result<LogOptions, String> {
+    let flag = if file { 'L' } else { 'l' };
+    let norm: String = letters
+        .chars()
+        .map(|c| match c {
+            'f' if file => 'F',
+            'N' if file => 'n',
+            'M' | 'S' | 'T' | 'D' | 'I' | 'H' | 'R' | 'P' | 'X' => c.to_ascii_lowercase(),
+            c => c,
+        })
+        .collect();
+    let parsed =
+        LogOptions::parse(&norm, file).map_err(|e| format!("option -{flag}{letters}: {e}"))?;
+    if norm.contains('x') {
+        return Ok(LogOptions::NONE);
+    }
+    Ok(parsed)
+}
+
+fn parse_args(args: Vec<String>) -> Result<Options, String> {
+    let mut o = Options::default();
     let mut it = args.into_iter();
     while let Some(a) = it.next() {
-        let mut long_value = |name: &str| -> Result<String, String> {
-            it.next()
-                .ok_or_else(|| format!("option {name} needs a value"))
-        };
-        match a.as_str() {
-            "--help" | "-h" => return Ok(None),
-            "--bind" => {
-                let v = long_value("--bind")?;
-                o.bind = v
-                    .parse()
-                    .map_err(|_| format!("option --bind: '{v}' is not an IP address"))?;
-                continue;
+        // Long options: `--name value` or `--name=value`.
+        if let Some(long) = a.strip_prefix("--") {
+            let (name, inline) = match long.split_once('=') {
+                Some((n, v)) => (n, Some(v.to_string())),
+                None => (long, None),
+            };
+            let mut value = |takes: bool| -> Result<String, String> {
+                match (&inline, takes) {
+                    (Some(v), true) => Ok(v.clone()),
+                    (None, true) => it
+                        .next()
+                        .ok_or_else(|| format!("option --{name} needs a value")),
+                    (Some(v), false) => Err(format!("option --{name} takes no value (got '{v}')")),
+                    (None, false) => Ok(String::new()),
+                }
+            };
+            match name {
+                "help" => {
+                    value(false)?;
+                    o.help = true;
+                }
+                "bind" => {
+                    let v = value(true)?;
+                    o.bind = v
+                        .parse()
+                        .map_err(|_| format!("option --bind: '{v}' is not an IP address"))?;
+                }
+                "hosts-allow" => o.allow = value(true)?.into(),
+                "hosts-deny" => o.deny = value(true)?.into(),
+                "no-unix-socket" => {
+                    value(false)?;
+                    o.unix = false;
+                }
+                _ => return Err(format!("unknown option '{a}' (see --help)")),
             }
-            "--hosts-allow" => {
-                o.allow = long_value("--hosts-allow")?.into();
-                continue;
-            }
-            "--hosts-deny" => {
-                o.deny = long_value("--hosts-deny")?.into();
-                continue;
-            }
-            "--no-unix-socket" => {
-                o.unix = false;
-                continue;
-            }
-            _ => {}
+            continue;
         }
         let Some(rest) = a.strip_prefix('-') else {
+            // C: a bare number is the number of modules expected.
+            if a.starts_with(|c: char| c.is_ascii_digit()) {
+                o.expected = a
+                    .parse::<u32>()
+                    .map_err(|_| format!("'{a}' is not a number of modules"))?
+                    .max(1);
+                continue;
+            }
             return Err(format!(
                 "unexpected argument '{a}' (options start with '-'; see --help)"
             ));
         };
         let mut chars = rest.chars();
-        let flag = chars.next().ok_or("empty option '-'")?;
-        let value: String = chars.collect();
+        let Some(flag) = chars.next() else {
+            return Err("empty option '-' (see --help)".into());
+        };
+        let value = chars.as_str();
+        let no_value = |set: &mut bool| -> Result<(), String> {
+            if value.is_empty() {
+                *set = true;
+                Ok(())
+            } else {
+                Err(format!("option -{flag} takes no value (got '{a}')"))
+            }
+        };
         match flag {
-            'v' if value.is_empty() => o.version = true,
-            'l' => {
-                o.config.terminal_log =
-                    LogOptions::parse(&value, false).map_err(|e| e.to_string())?
-            }
-            'L' => {
-                o.config.file_log = LogOptions::parse(&value, true).map_err(|e| e.to_string())?
-            }
+            'l' => o.config.terminal_log = log_options(value, false)?,
+            'L' => o.config.file_log = log_options(value, true)?,
             'f' => {
                 if value.is_empty() {
                     return Err("option -f needs a file name glued to it (-fcentral.log)".into());
@@ -112,43 +205,58 @@ fn parse_args(args: Vec<String>) -> Result<Option<Options>, String> {
             'p' => {
                 o.port = value
                     .parse::<u16>()
-                    .ok()
-                    .filter(|p| *p > 0)
-                    .ok_or_else(|| {
-                        format!("option -p: '{value}' is not a port number (1-65535)")
-                    })?;
+                    .map_err(|_| format!("option -p: '{value}' is not a port number (0-65535)"))?;
+            }
+            'i' => {
+                if value.is_empty() {
+                    return Err("option -i needs a message name glued to it (-imsgName)".into());
+                }
+                o.config.ignore.push(value.to_string());
             }
             'I' => {
                 if value.is_empty() {
-                    return Err("option -I needs a message name or file glued to it".into());
+                    return Err("option -I needs a message name or a file name glued to it".into());
                 }
-                let path = std::path::Path::new(&value);
+                let path = Path::new(value);
                 if path.is_file() {
                     let text = std::fs::read_to_string(path)
-                        .map_err(|e| format!("option -I: cannot read {value}: {e}"))?;
-                    o.config
-                        .ignore
-                        .extend(text.split_whitespace().map(str::to_string));
+                        .map_err(|e| format!("option -I: cannot read '{value}': {e}"))?;
+                    o.config.ignore.extend(
+                        text.lines()
+                            .map(str::trim)
+                            .filter(|l| !l.is_empty())
+                            .map(str::to_string),
+                    );
                 } else {
-                    o.config.ignore.push(value);
+                    o.config.ignore.push(value.to_string());
                 }
             }
-            'c' if value.is_empty() => o.config.direct = true,
-            'r' if value.is_empty() => o.config.resend_on_reconnect = true,
-            's' if value.is_empty() => o.silent = true,
-            'u' if value.is_empty() => o.console = false,
+            'v' => no_value(&mut o.version)?,
+            'h' => no_value(&mut o.help)?,
+            'c' => no_value(&mut o.config.direct)?,
+            'r' => no_value(&mut o.config.resend_on_reconnect)?,
+            's' => no_value(&mut o.silent)?,
+            'u' => {
+                let mut off = false;
+                no_value(&mut off)?;
+                o.console = false;
+            }
+            'd' => no_value(&mut o.debug)?,
             _ => return Err(format!("unknown option '{a}' (see --help)")),
         }
     }
-    Ok(Some(o))
+    Ok(o)
 }
 
-/// `central-YYYYMMDD-HHMMSS.log` (UTC).
-fn default_log_name() -> PathBuf {
-    let secs = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_secs())
-        .unwrap_or(0);
+/// C's automatic log file name: `x_ipc.log.<time(0)>`.
+fn default_log_name(now: SystemTime) -> PathBuf {
+    let secs = now.duration_since(UNIX_EPOCH).map_or(0, |d| d.as_secs());
+    PathBuf::from(format!("x_ipc.log.{secs}"))
+}
+
+/// `ctime()` layout, in UTC: `Sun Nov 22 17:10:24 2026`.
+fn ctime_utc(now: SystemTime) -> String {
+    let secs = now.duration_since(UNIX_EPOCH).map_or(0, |d| d.as_secs());
     let days = (secs / 86_400) as i64;
     let tod = secs % 86_400;
     // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
@@ -161,28 +269,142 @@ fn default_log_name() -> PathBuf {
     let d = doy - (153 * mp + 2) / 5 + 1;
     let m = if mp < 10 { mp + 3 } else { mp - 9 };
     let y = yoe + era * 400 + i64::from(m <= 2);
-    PathBuf::from(format!(
-        "central-{y:04}{m:02}{d:02}-{:02}{:02}{:02}.log",
+    const WD: [&str; 7] = ["Thu", "Fri", "Sat", "Sun", "Mon", "Tue", "Wed"];
+    const MON: [&str; 12] = [
+        "Jan", "Feb", "Mar", "Apr", "May", "Jun", "Jul", "Aug", "Sep", "Oct", "Nov", "Dec",
+    ];
+    format!(
+        "{} {} {d:>2} {:02}:{:02}:{:02} {y}",
+        WD[days.rem_euclid(7) as usize],
+        MON[(m - 1) as usize],
         tod / 3600,
         (tod / 60) % 60,
         tod % 60
-    ))
+    )
+}
+
+fn banner() -> String {
+    format!(
+        "Task Control Server {IPC_VERSION} (Courier {})",
+        env!("CARGO_PKG_VERSION")
+    )
+}
+
+/// The file log, opened when the first line for it comes (at start with
+/// `-L`, or later when the console turns file logging on, as C does).
+struct FileLog {
+    path: PathBuf,
+    file: Option<std::io::BufWriter<std::fs::File>>,
+    failed: bool,
+    flush: bool,
+}
+
+impl FileLog {
+    fn open(&mut self, now: SystemTime, silent: bool) -> std::io::Result<()> {
+        if self.file.is_some() {
+            return Ok(());
+        }
+        let f = std::fs::File::create(&self.path)?;
+        let mut w = std::io::BufWriter::new(f);
+        if !silent {
+            println!("Logging to {};", self.path.display());
+        }
+        writeln!(
+            w,
+            "Logging Task Control Server {IPC_VERSION} (Courier {}) on {}",
+            env!("CARGO_PKG_VERSION"),
+            ctime_utc(now)
+        )?;
+        w.flush()?;
+        self.file = Some(w);
+        Ok(())
+    }
+
+    fn line(&mut self, line: &str, silent: bool) {
+        if self.failed {
+            return;
+        }
+        if self.file.is_none() {
+            if let Err(e) = self.open(SystemTime::now(), silent) {
+                eprintln!("ERROR: Can not open file {}: {e}", self.path.display());
+                self.failed = true;
+                return;
+            }
+        }
+        if let Some(f) = self.file.as_mut() {
+            let _ = writeln!(f, "{line}");
+            if self.flush {
+                let _ = f.flush();
+            }
+        }
+    }
+
+    /// C's `add_comments_to_log_file`: lines up to a blank one, boxed.
+    fn add_comments(&mut self, input: &mut dyn BufRead) {
+        const STARS: &str =
+            "********************************************************************************";
+        const TITLE: &str =
+            "*                                   Comments                                   *";
+        const SPACER: &str =
+            "*                                                                              *";
+        let Some(f) = self.file.as_mut() else { return };
+        println!("Enter any comments in the log file (end with blank line)");
+        let _ = std::io::stdout().flush();
+        let mut any = false;
+        let mut line = String::new();
+        loop {
+            line.clear();
+            match input.read_line(&mut line) {
+                Ok(0) | Err(_) => break,
+                Ok(_) => {}
+            }
+            let text = line.trim_end_matches(['\n', '\r']);
+            if text.is_empty() {
+                break;
+            }
+            if !any {
+                let _ = write!(f, "\n{STARS}\n{TITLE}\n{SPACER}\n");
+                any = true;
+            }
+            let _ = writeln!(f, "* {text:<77}*");
+        }
+        if any {
+            let _ = write!(f, "{SPACER}\n{STARS}\n\n");
+        }
+        let _ = f.flush();
+    }
 }
 
 fn main() -> ExitCode {
     let opts = match parse_args(std::env::args().skip(1).collect()) {
-        Ok(Some(o)) => o,
-        Ok(None) => {
-            println!("{USAGE}");
-            return ExitCode::SUCCESS;
-        }
+        Ok(o) => o,
         Err(e) => {
             eprintln!("central: {e}");
             return ExitCode::from(2);
         }
     };
-    let rt = match tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
+    if opts.help {
+        println!("{USAGE}");
+        return ExitCode::SUCCESS;
+    }
+    if opts.version {
+        println!("{}", banner());
+        println!(" Implementation : Courier central (Rust), IPC protocol 3.9");
+        println!(" Released : Courier {}", env!("CARGO_PKG_VERSION"));
+        return ExitCode::SUCCESS;
+    }
+    let level = if opts.debug {
+        tracing::Level::DEBUG
+    } else {
+        tracing::Level::WARN
+    };
+    let _ = tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_max_level(level)
+        .try_init();
+    // One thread, like the C central's select loop: the state machine runs
+    // on one task anyway, and a single thread avoids cross-thread wake-ups.
+    let rt = match tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
     {
@@ -192,18 +414,13 @@ fn main() -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
-    rt.block_on(run(opts))
+    let code = rt.block_on(run(opts));
+    // Reverse DNS lookups still running must not hold the exit up.
+    rt.shutdown_timeout(Duration::from_millis(200));
+    code
 }
 
 async fn run(opts: Options) -> ExitCode {
-    let banner = format!(
-        "Task Control Server 3.9.1 (Courier {})",
-        env!("CARGO_PKG_VERSION")
-    );
-    if opts.version {
-        println!("{banner}");
-        println!("Courier central: a Rust implementation of the CMU IPC 3.9 central server");
-    }
     let access = match AccessControl::load(&opts.allow, &opts.deny) {
         Ok(a) => a,
         Err(e) => {
@@ -211,45 +428,45 @@ async fn run(opts: Options) -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    let file: Option<Arc<Mutex<std::io::BufWriter<std::fs::File>>>> = if opts.config.file_log.any()
-    {
-        let path = opts.log_file.clone().unwrap_or_else(default_log_name);
-        match std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(&path)
-        {
-            Ok(f) => {
-                let mut w = std::io::BufWriter::new(f);
-                let _ = writeln!(w, "{banner}");
-                Some(Arc::new(Mutex::new(w)))
-            }
-            Err(e) => {
-                eprintln!("central: cannot open log file {}: {e}", path.display());
-                return ExitCode::from(2);
-            }
-        }
-    } else {
-        None
-    };
     let silent = opts.silent;
-    let flush = !opts.config.file_log.no_flush;
-    let file_sink = file.clone();
-    let sink = Arc::new(move |target: LogTarget, line: &str| {
+    if let (Some(f), false) = (&opts.log_file, silent) {
+        println!("Logging File Name: {}", f.display());
+    }
+    let now = SystemTime::now();
+    let file = Arc::new(Mutex::new(FileLog {
+        path: opts
+            .log_file
+            .clone()
+            .unwrap_or_else(|| default_log_name(now)),
+        file: None,
+        failed: false,
+        flush: !opts.config.file_log.no_flush,
+    }));
+    if opts.config.file_log.any() {
+        let mut f = file.lock().unwrap_or_else(|e| e.into_inner());
+        if let Err(e) = f.open(now, silent) {
+            eprintln!("central: cannot open log file {}: {e}", f.path.display());
+            return ExitCode::from(2);
+        }
+        if !opts.config.file_log.no_prompt && std::io::stdin().is_terminal() {
+            f.add_comments(&mut std::io::stdin().lock());
+        }
+    }
+    let sink_file = file.clone();
+    let sink = LogSink::new(move |target: LogTarget, line: &str| {
         if target.terminal && !silent {
             let mut out = std::io::stdout().lock();
             let _ = writeln!(out, "{line}");
+            let _ = out.flush();
         }
         if target.file {
-            if let Some(f) = &file_sink {
-                let mut f = f.lock().unwrap();
-                let _ = writeln!(f, "{line}");
-                if flush {
-                    let _ = f.flush();
-                }
-            }
+            sink_file
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .line(line, silent);
         }
     });
+    let file_log_on = opts.config.file_log.any();
     let server = CentralServer::builder()
         .port(opts.port)
         .bind(opts.bind)
@@ -262,56 +479,80 @@ async fn run(opts: Options) -> ExitCode {
     let server = match server {
         Ok(s) => s,
         Err(e) => {
-            eprintln!("central: {e}");
+            eprintln!("ERROR: Unable to start server, Is one already running? ({e})");
             return ExitCode::FAILURE;
         }
     };
+    let expecting = format!(
+        "Expecting {} on port {}",
+        opts.expected,
+        server.local_addr().port()
+    );
     if !silent {
-        println!("{banner}");
-        println!("Expecting 1 on port {}", server.local_addr().port());
+        println!("{}", banner());
+        println!("{expecting}");
         let _ = std::io::stdout().flush();
     }
+    if file_log_on {
+        file.lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .line(&expecting, silent);
+    }
+    // The console: stdin lines are central commands; EOF ends the console
+    // only. A plain thread, since reading stdin blocks.
     let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<String>();
     if opts.console {
-        std::thread::spawn(move || {
-            for line in std::io::stdin().lock().lines() {
-                let Ok(line) = line else { break };
-                if tx.send(line).is_err() {
-                    break;
+        let spawned = std::thread::Builder::new()
+            .name("central-console".into())
+            .spawn(move || {
+                for line in std::io::stdin().lock().lines() {
+                    let Ok(line) = line else { break };
+                    if tx.send(line).is_err() {
+                        break;
+                    }
                 }
-            }
-        });
+            });
+        if let Err(e) = spawned {
+            eprintln!("central: no console: {e}");
+        }
     } else {
         drop(tx);
     }
-    let mut term = match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-        Ok(s) => s,
-        Err(e) => {
-            eprintln!("central: cannot watch SIGTERM: {e}");
+    use tokio::signal::unix::{signal, SignalKind};
+    let (mut term, mut int) = match (
+        signal(SignalKind::terminate()),
+        signal(SignalKind::interrupt()),
+    ) {
+        (Ok(t), Ok(i)) => (t, i),
+        (Err(e), _) | (_, Err(e)) => {
+            eprintln!("central: cannot watch signals: {e}");
             return ExitCode::FAILURE;
         }
     };
     let mut console_open = opts.console;
-    let signal = loop {
+    loop {
         tokio::select! {
-            _ = tokio::signal::ctrl_c() => break 2,
-            _ = term.recv() => break 15,
+            _ = int.recv() => break,
+            _ = term.recv() => break,
             line = rx.recv(), if console_open => match line {
-                Some(l) => server.command(&l),
+                Some(l) => {
+                    let l = l.trim();
+                    if l == "quit" {
+                        // As C: stop central, exit 0.
+                        eprintln!("Central Quit");
+                        break;
+                    } else if !server.command(l) {
+                        break;
+                    }
+                }
                 None => console_open = false,
             },
         }
-    };
-    let stats = server.stats();
-    server.shutdown().await;
-    if !silent {
-        println!(
-            "Central stopped by signal {signal} ({} module(s) connected; at most {} byte(s) were queued)",
-            stats.modules, stats.peak_queued_bytes
-        );
     }
-    if let Some(f) = file {
-        let _ = f.lock().unwrap().flush();
+    server.shutdown().await;
+    let mut f = file.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(w) = f.file.as_mut() {
+        let _ = w.flush();
     }
     ExitCode::SUCCESS
 }
@@ -320,55 +561,149 @@ async fn run(opts: Options) -> ExitCode {
 mod tests {
     use super::*;
 
-    fn parse(a: &[&str]) -> Result<Option<Options>, String> {
+    fn parse(a: &[&str]) -> Result<Options, String> {
         parse_args(a.iter().map(|s| s.to_string()).collect())
     }
 
     #[test]
     fn c_style_options() {
         let o = parse(&[
-            "-lmsd", "-Lx", "-p1400", "-c", "-r", "-s", "-u", "-Ifoo", "-fx.log",
+            "-lmsd", "-Lx", "-p1400", "-c", "-r", "-s", "-u", "-Ifoo", "-ibar", "-fx.log", "3",
         ])
-        .unwrap()
         .unwrap();
         assert!(o.config.terminal_log.messages && o.config.terminal_log.data);
+        assert!(!o.config.terminal_log.time);
         assert!(!o.config.file_log.any());
         assert_eq!(o.port, 1400);
         assert!(o.config.direct && o.config.resend_on_reconnect && o.silent && !o.console);
-        assert_eq!(o.config.ignore, vec!["foo".to_string()]);
+        assert_eq!(o.config.ignore, ["foo", "bar"]);
         assert_eq!(o.log_file, Some(PathBuf::from("x.log")));
-        let o = parse(&["-l"]).unwrap().unwrap();
-        assert!(o.config.terminal_log.time && o.config.terminal_log.handle_summary);
+        assert_eq!(o.expected, 3);
+        let o = parse(&["-l"]).unwrap();
+        let t = o.config.terminal_log;
+        assert!(t.messages && t.status && t.time && t.data && t.handle_summary);
+        assert!(!t.ignore_internal);
+        let o = parse(&[]).unwrap();
+        assert_eq!(o.port, 1381);
+        assert!(o.unix && o.console && !o.silent);
+        assert_eq!(o.allow, PathBuf::from("/etc/hosts.allow"));
+        assert_eq!(o.deny, PathBuf::from("/etc/hosts.deny"));
+        let t = o.config.terminal_log;
+        assert!(t.messages && t.status && t.ignore_internal && !t.data);
+    }
+
+    #[test]
+    fn logging_letters_like_c() {
+        let o = parse(&["-lMS", "-LmfN"]).unwrap();
+        assert!(o.config.terminal_log.messages && o.config.terminal_log.status);
+        let f = o.config.file_log;
+        assert!(f.messages && f.no_flush && f.no_prompt);
+        // Any x means no logging, wherever it is.
+        let o = parse(&["-lmx", "-Lxm"]).unwrap();
+        assert!(!o.config.terminal_log.any() && !o.config.file_log.any());
+    }
+
+    #[test]
+    fn long_options() {
+        let o = parse(&[
+            "--bind",
+            "127.0.0.1",
+            "--hosts-allow=/a",
+            "--hosts-deny",
+            "/d",
+            "--no-unix-socket",
+        ])
+        .unwrap();
+        assert_eq!(o.bind, IpAddr::from([127, 0, 0, 1]));
+        assert_eq!(
+            (o.allow.as_path(), o.deny.as_path()),
+            (Path::new("/a"), Path::new("/d"))
+        );
+        assert!(!o.unix);
+        assert_eq!(
+            parse(&["--bind=::1"]).unwrap().bind,
+            "::1".parse::<IpAddr>().unwrap()
+        );
+        assert!(parse(&["--help"]).unwrap().help);
+        assert!(parse(&["-h"]).unwrap().help);
+        assert!(parse(&["-v"]).unwrap().version);
+        assert_eq!(parse(&["-p0"]).unwrap().port, 0);
+    }
+
+    #[test]
+    fn ignore_file_one_name_per_line() {
+        let path = std::env::temp_dir().join(format!("central-ignore-{}", std::process::id()));
+        std::fs::write(&path, "msgA\n  msgB  \n\nmsgC").unwrap();
+        let o = parse(&[&format!("-I{}", path.display())]).unwrap();
+        assert_eq!(o.config.ignore, ["msgA", "msgB", "msgC"]);
+        std::fs::remove_file(&path).unwrap();
     }
 
     #[test]
     fn bad_options_say_what_is_wrong() {
         for (args, want) in [
             (&["-pabc"][..], "option -p: 'abc' is not a port number"),
-            (&["-p70000"][..], "option -p: '70000'"),
-            (&["-p"][..], "option -p: ''"),
-            (&["-lq"][..], "unknown logging option 'q' in -l"),
-            (&["-LZ"][..], "unknown logging option 'Z' in -L"),
-            (&["-lF"][..], "unknown logging option 'F' in -l"),
+            (&["-p70000"][..], "option -p: '70000' is not a port number"),
+            (&["-p"][..], "option -p: '' is not a port number"),
+            (&["-p-1"][..], "option -p: '-1'"),
+            (&["-lq"][..], "option -lq: unknown logging option 'q' in -l"),
+            (&["-LZ"][..], "option -LZ: unknown logging option 'Z' in -L"),
+            (&["-lF"][..], "option -lF: unknown logging option 'F' in -l"),
             (&["-x"][..], "unknown option '-x'"),
-            (&["-cc"][..], "unknown option '-cc'"),
+            (&["-t"][..], "unknown option '-t'"),
+            (&["-cc"][..], "option -c takes no value (got '-cc')"),
+            (&["-vv"][..], "option -v takes no value"),
+            (&["-u1"][..], "option -u takes no value"),
             (
                 &["--bind", "nowhere"][..],
                 "option --bind: 'nowhere' is not an IP address",
             ),
             (&["--bind"][..], "option --bind needs a value"),
+            (
+                &["--no-unix-socket=yes"][..],
+                "option --no-unix-socket takes no value",
+            ),
+            (&["--frobnicate"][..], "unknown option '--frobnicate'"),
             (&["-f"][..], "option -f needs a file name"),
+            (&["-I"][..], "option -I needs a message name or a file name"),
+            (&["-"][..], "empty option '-'"),
             (&["stray"][..], "unexpected argument 'stray'"),
+            (&["3x"][..], "'3x' is not a number of modules"),
         ] {
             let e = parse(args).unwrap_err();
             assert!(e.starts_with(want), "{args:?}: {e}");
+            assert!(!e.contains('\n'), "one line: {e}");
         }
     }
 
     #[test]
-    fn log_name_looks_like_a_date() {
-        let n = default_log_name().display().to_string();
-        assert!(n.starts_with("central-20") && n.ends_with(".log"), "{n}");
-        assert_eq!(n.len(), "central-20261122-170000.log".len());
+    fn log_name_and_time_like_c() {
+        let t = UNIX_EPOCH + Duration::from_secs(1_795_367_424);
+        assert_eq!(default_log_name(t), PathBuf::from("x_ipc.log.1795367424"));
+        assert_eq!(ctime_utc(t), "Sun Nov 22 17:10:24 2026");
+        assert_eq!(ctime_utc(UNIX_EPOCH), "Thu Jan  1 00:00:00 1970");
+    }
+
+    #[test]
+    fn comments_are_boxed() {
+        let path = std::env::temp_dir().join(format!("central-comments-{}", std::process::id()));
+        let mut f = FileLog {
+            path: path.clone(),
+            file: None,
+            failed: false,
+            flush: true,
+        };
+        f.open(UNIX_EPOCH, true).unwrap();
+        f.add_comments(&mut &b"first run\n\nignored\n"[..]);
+        f.line("Expecting 1 on port 1381", true);
+        drop(f);
+        let text = std::fs::read_to_string(&path).unwrap();
+        std::fs::remove_file(&path).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        assert!(lines[0].starts_with("Logging Task Control Server 3.9.1 (Courier "));
+        assert!(lines[0].ends_with(" on Thu Jan  1 00:00:00 1970"));
+        assert_eq!(lines[2].len(), 80);
+        assert_eq!(lines[5], format!("* {:<77}*", "first run"));
+        assert_eq!(lines.last(), Some(&"Expecting 1 on port 1381"));
     }
 }

@@ -1,0 +1,1103 @@
+//! The tokio shell around [`Central`]: listeners, per-connection reader and
+//! writer tasks, and the one task that owns the state machine.
+
+use std::collections::HashMap;
+use std::io::{self, IoSlice, Write};
+use std::net::{IpAddr, Ipv4Addr, SocketAddr};
+use std::panic::AssertUnwindSafe;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, SystemTime};
+
+use tokio::io::AsyncReadExt;
+use tokio::net::{TcpListener, TcpStream, UnixListener, UnixStream};
+use tokio::sync::{mpsc, oneshot, watch, Notify};
+use tokio::task::{JoinHandle, JoinSet};
+
+use courier_wire::ipc::central::{Central, Config, ConnId, LogTarget, Output, Peer, Stats};
+
+use crate::access::{AccessControl, Client, Decision, HostName, RuleRef};
+use crate::{unix_path, DEFAULT_PORT};
+
+/// Bytes read from a connection at a time (one buffer per connection).
+const READ_BUF: usize = 64 * 1024;
+/// Events handled before the frames they produced are written out.
+const BATCH: usize = 64;
+/// Slices per vectored write.
+const IOV: usize = 64;
+/// How long shutdown lets writers flush what central queued for them.
+const SHUTDOWN_GRACE: Duration = Duration::from_secs(2);
+/// How long a closed connection's writer may wait for a peer that does not
+/// read before giving its last bytes up.
+const CLOSE_LINGER: Duration = Duration::from_secs(10);
+/// How long a reverse DNS lookup for access control may take.
+const LOOKUP_TIMEOUT: Duration = Duration::from_secs(10);
+/// The first connection id, like the C central's first module socket.
+const FIRST_CONN: u64 = 5;
+
+/// Where central's log lines go.
+///
+/// Each [`Output::Log`] line comes with a [`LogTarget`] saying whether it
+/// belongs on the terminal (`-l`), in the log file (`-L`), or both. The sink
+/// is called from the task that runs the state machine, one line at a time
+/// (without a trailing newline), so it should be quick.
+pub struct LogSink(Box<SinkFn>);
+
+type SinkFn = dyn FnMut(LogTarget, &str) + Send;
+
+impl LogSink {
+    /// A sink that calls `f` for every line.
+    pub fn new(f: impl FnMut(LogTarget, &str) + Send + 'static) -> Self {
+        LogSink(Box::new(f))
+    }
+
+    /// The default: every line as a `tracing` event with target
+    /// `courier_broker::central` (terminal lines at `INFO`, file-only lines
+    /// at `DEBUG`).
+    pub fn tracing() -> Self {
+        LogSink::new(|target, line| {
+            if target.terminal {
+                tracing::info!(target: "courier_broker::central", "{line}");
+            } else {
+                tracing::debug!(target: "courier_broker::central", "{line}");
+            }
+        })
+    }
+
+    /// Drops every line.
+    pub fn discard() -> Self {
+        LogSink::new(|_, _| {})
+    }
+
+    /// Terminal lines to `terminal`, file lines to `file` (either may be
+    /// absent), one line each with a newline. The terminal is flushed after
+    /// every line; the file too when `flush_file` (the C central's default;
+    /// `-LF` turns it off). Write errors are ignored, as the C central does.
+    pub fn writers(
+        mut terminal: Option<Box<dyn Write + Send>>,
+        mut file: Option<Box<dyn Write + Send>>,
+        flush_file: bool,
+    ) -> Self {
+        LogSink::new(move |target, line| {
+            if target.terminal {
+                if let Some(t) = terminal.as_mut() {
+                    let _ = writeln!(t, "{line}");
+                    let _ = t.flush();
+                }
+            }
+            if target.file {
+                if let Some(f) = file.as_mut() {
+                    let _ = writeln!(f, "{line}");
+                    if flush_file {
+                        let _ = f.flush();
+                    }
+                }
+            }
+        })
+    }
+
+    fn line(&mut self, target: LogTarget, line: &str) {
+        (self.0)(target, line)
+    }
+}
+
+impl std::fmt::Debug for LogSink {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("LogSink(..)")
+    }
+}
+
+/// Why central could not start.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum BindError {
+    /// The TCP port could not be bound.
+    #[error("cannot listen on {addr}: {source}")]
+    Tcp {
+        /// The address.
+        addr: SocketAddr,
+        /// Why.
+        #[source]
+        source: io::Error,
+    },
+    /// The UNIX socket could not be bound.
+    #[error("cannot listen on {path}: {source}")]
+    Unix {
+        /// The socket path.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: io::Error,
+    },
+}
+
+/// Entry point of the embedding API: [`CentralServer::builder`].
+#[derive(Debug)]
+pub struct CentralServer;
+
+impl CentralServer {
+    /// A builder with the C central's defaults: port 1381 on all
+    /// interfaces, [`Config::default`], no access rules, log lines to
+    /// `tracing`, and **no** UNIX socket (turn it on with
+    /// [`Builder::unix_socket`]; the `central` binary does).
+    pub fn builder() -> Builder {
+        Builder {
+            port: DEFAULT_PORT,
+            bind: IpAddr::V4(Ipv4Addr::UNSPECIFIED),
+            unix_socket: false,
+            config: Config::default(),
+            access: AccessControl::open(),
+            sink: LogSink::tracing(),
+        }
+    }
+}
+
+/// Settings of an embedded central; [`Builder::spawn`] starts it.
+#[derive(Debug)]
+pub struct Builder {
+    port: u16,
+    bind: IpAddr,
+    unix_socket: bool,
+    config: Config,
+    access: AccessControl,
+    sink: LogSink,
+}
+
+impl Builder {
+    /// TCP port; 0 picks a free one (see [`CentralHandle::local_addr`]).
+    pub fn port(mut self, port: u16) -> Self {
+        self.port = port;
+        self
+    }
+
+    /// Address to listen on (default `0.0.0.0`, all interfaces, like C).
+    pub fn bind(mut self, addr: IpAddr) -> Self {
+        self.bind = addr;
+        self
+    }
+
+    /// Also listen on the UNIX socket `/tmp/x_ipc/<port>` (with the bound
+    /// port), as the C central does: C modules use it when `CENTRALHOST`
+    /// names the local host. `/tmp/x_ipc` is created with mode 0777 if
+    /// missing; a stale socket file nobody answers on is replaced; the file
+    /// is removed at shutdown. Off by default.
+    pub fn unix_socket(mut self, on: bool) -> Self {
+        self.unix_socket = on;
+        self
+    }
+
+    /// Protocol and logging options (`-c`, `-r`, `-l`, `-L`, `-I`, limits).
+    pub fn config(mut self, config: Config) -> Self {
+        self.config = config;
+        self
+    }
+
+    /// Allow/deny rules, checked before any byte is sent to a new
+    /// connection. A refused connection is closed at once and logged as
+    /// `WARNING: connection rejected from <peer> (denied by <file>:<line>)`,
+    /// to the logs that are on (terminal and/or file, like the C central's
+    /// own warnings) and as a `tracing` warning.
+    pub fn access(mut self, access: AccessControl) -> Self {
+        self.access = access;
+        self
+    }
+
+    /// Where log lines go (default [`LogSink::tracing`]).
+    pub fn log_sink(mut self, sink: LogSink) -> Self {
+        self.sink = sink;
+        self
+    }
+
+    /// Binds the listeners and starts serving on the current tokio runtime.
+    pub async fn spawn(self) -> Result<CentralHandle, BindError> {
+        let addr = SocketAddr::new(self.bind, self.port);
+        let tcp = bind_tcp(addr).map_err(|source| BindError::Tcp { addr, source })?;
+        let local = tcp
+            .local_addr()
+            .map_err(|source| BindError::Tcp { addr, source })?;
+        let unix = if self.unix_socket {
+            let path = unix_path(local.port());
+            match bind_unix(&path) {
+                Ok(l) => Some((l, path)),
+                Err(source) => return Err(BindError::Unix { path, source }),
+            }
+        } else {
+            None
+        };
+        let unix_path = unix.as_ref().map(|(_, p)| p.clone());
+
+        let (stop_tx, stop_rx) = watch::channel(false);
+        let (events_tx, events_rx) = mpsc::unbounded_channel();
+        let access = Arc::new(self.access);
+        let mut sink = self.sink;
+        let target = log_target(&self.config);
+        for w in access.warnings() {
+            tracing::warn!("{w}");
+            if target.terminal || target.file {
+                sink.line(target, &format!("WARNING: {w}"));
+            }
+        }
+        let mut tasks = Vec::new();
+        tasks.push(tokio::spawn(accept_loop(
+            Listener::Tcp(tcp),
+            access.clone(),
+            events_tx.clone(),
+            stop_rx.clone(),
+        )));
+        if let Some((l, _)) = unix {
+            tasks.push(tokio::spawn(accept_loop(
+                Listener::Unix(l),
+                access,
+                events_tx.clone(),
+                stop_rx.clone(),
+            )));
+        }
+        let core = Core {
+            central: Central::new(self.config),
+            conns: HashMap::new(),
+            next_id: FIRST_CONN,
+            sink,
+            events_tx: events_tx.clone(),
+            tasks: JoinSet::new(),
+            dirty: Vec::new(),
+            resumed: Vec::new(),
+        };
+        let central_task = tokio::spawn(core.run(events_rx, stop_rx));
+        Ok(CentralHandle {
+            local,
+            unix_path,
+            stop: stop_tx,
+            events: events_tx,
+            central_task: Some(central_task),
+            accept_tasks: tasks,
+        })
+    }
+}
+
+/// Where the shell's own lines go, like the C central's `LOG`: on the
+/// terminal if terminal logging is on at all, in the file if file logging is.
+fn log_target(c: &Config) -> LogTarget {
+    LogTarget {
+        terminal: c.terminal_log.any(),
+        file: c.file_log.any(),
+    }
+}
+
+fn bind_tcp(addr: SocketAddr) -> io::Result<TcpListener> {
+    let sock = if addr.is_ipv4() {
+        tokio::net::TcpSocket::new_v4()?
+    } else {
+        tokio::net::TcpSocket::new_v6()?
+    };
+    // As C: a restarted central can take the port while old connections
+    // linger in TIME_WAIT.
+    sock.set_reuseaddr(true)?;
+    sock.bind(addr)?;
+    sock.listen(1024)
+}
+
+fn bind_unix(path: &Path) -> io::Result<UnixListener> {
+    use std::os::unix::fs::PermissionsExt;
+    if let Some(dir) = path.parent() {
+        match std::fs::create_dir(dir) {
+            Ok(()) => {
+                // Every user's modules and centrals share the directory.
+                std::fs::set_permissions(dir, std::fs::Permissions::from_mode(0o777))?;
+            }
+            Err(e) if e.kind() == io::ErrorKind::AlreadyExists => {}
+            Err(e) => return Err(e),
+        }
+    }
+    // A socket file left by a dead central: remove it if nobody answers.
+    if std::fs::symlink_metadata(path).is_ok() {
+        if std::os::unix::net::UnixStream::connect(path).is_ok() {
+            return Err(io::Error::new(
+                io::ErrorKind::AddrInUse,
+                "another server is listening there (use --no-unix-socket to run without it)",
+            ));
+        }
+        std::fs::remove_file(path)?;
+    }
+    let l = UnixListener::bind(path)?;
+    // Like C (fchmod 0777): other users' modules may connect, and a later
+    // central run by someone else may remove a stale file.
+    let _ = std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o777));
+    Ok(l)
+}
+
+/// A running central.
+///
+/// [`CentralHandle::shutdown`] stops it and waits until everything has
+/// ended; dropping the handle stops it too, without waiting (the UNIX socket
+/// file is removed at once, the tasks end on their own).
+#[derive(Debug)]
+pub struct CentralHandle {
+    local: SocketAddr,
+    unix_path: Option<PathBuf>,
+    stop: watch::Sender<bool>,
+    events: mpsc::UnboundedSender<Event>,
+    central_task: Option<JoinHandle<()>>,
+    accept_tasks: Vec<JoinHandle<()>>,
+}
+
+impl CentralHandle {
+    /// The bound TCP address (with the real port when 0 was asked for).
+    pub fn local_addr(&self) -> SocketAddr {
+        self.local
+    }
+
+    /// The UNIX socket path, if one is served.
+    pub fn unix_path(&self) -> Option<&Path> {
+        self.unix_path.as_deref()
+    }
+
+    /// A console command, as typed on central's standard input (`status`,
+    /// `display`, `-lmsd`, `close <module>`, …); its output goes to the log
+    /// sink. Returns `false` if central has stopped.
+    pub fn command(&self, line: &str) -> bool {
+        self.events.send(Event::Command(line.to_string())).is_ok()
+    }
+
+    /// Counters of the state machine (modules, queued bytes and their
+    /// peak, …), or `None` if central has stopped.
+    pub async fn stats(&self) -> Option<Stats> {
+        let (tx, rx) = oneshot::channel();
+        self.events.send(Event::Stats(tx)).ok()?;
+        rx.await.ok()
+    }
+
+    /// Stops accepting, closes every connection (after writing what central
+    /// had queued for it, for at most two seconds), waits until every task
+    /// has ended and removes the UNIX socket file.
+    pub async fn shutdown(mut self) {
+        let _ = self.stop.send(true);
+        for t in self.accept_tasks.drain(..) {
+            let _ = t.await;
+        }
+        if let Some(t) = self.central_task.take() {
+            if let Err(e) = t.await {
+                if e.is_panic() {
+                    tracing::error!("central task panicked");
+                }
+            }
+        }
+        if let Some(p) = self.unix_path.take() {
+            let _ = std::fs::remove_file(p);
+        }
+    }
+}
+
+impl Drop for CentralHandle {
+    fn drop(&mut self) {
+        let _ = self.stop.send(true);
+        if let Some(p) = self.unix_path.take() {
+            let _ = std::fs::remove_file(p);
+        }
+    }
+}
+
+/// What the central task is told.
+#[derive(Debug)]
+enum Event {
+    /// A connection passed access control.
+    Accepted(Stream, Peer),
+    /// A connection was refused (already closed).
+    Refused { peer: String, rule: RuleRef },
+    /// Bytes read: `buf[..len]`; the buffer goes back to the reader.
+    Data {
+        conn: ConnId,
+        buf: Vec<u8>,
+        len: usize,
+    },
+    /// End of stream or a read error.
+    Eof {
+        conn: ConnId,
+        error: Option<io::Error>,
+    },
+    /// Writing failed: the connection is gone.
+    WriteFailed { conn: ConnId, error: io::Error },
+    /// A console line.
+    Command(String),
+    /// A request for counters.
+    Stats(oneshot::Sender<Stats>),
+}
+
+#[derive(Debug)]
+enum Stream {
+    Tcp(TcpStream),
+    Unix(UnixStream),
+}
+
+enum Listener {
+    Tcp(TcpListener),
+    Unix(UnixListener),
+}
+
+async fn accept_loop(
+    l: Listener,
+    access: Arc<AccessControl>,
+    events: mpsc::UnboundedSender<Event>,
+    mut stop: watch::Receiver<bool>,
+) {
+    // Access checks that need a host name run here, off the accept path.
+    let mut lookups = JoinSet::new();
+    loop {
+        let accepted = tokio::select! {
+            biased;
+            _ = stop.changed() => return,
+            Some(_) = lookups.join_next(), if !lookups.is_empty() => continue,
+            r = accept(&l) => r,
+        };
+        let (stream, client, peer) = match accepted {
+            Ok(a) => a,
+            Err(e) => {
+                // Out of descriptors and the like: do not spin.
+                tracing::warn!("accept failed: {e}");
+                tokio::time::sleep(Duration::from_millis(50)).await;
+                continue;
+            }
+        };
+        if access.needs_host_name() {
+            let access = access.clone();
+            let events = events.clone();
+            lookups.spawn(async move {
+                let a = access.clone();
+                let decision = match tokio::time::timeout(
+                    LOOKUP_TIMEOUT,
+                    tokio::task::spawn_blocking(move || a.check(client)),
+                )
+                .await
+                {
+                    Ok(Ok(d)) => d,
+                    // Too slow or failed: decide without a host name.
+                    _ => access.check_with(client, &mut |_| HostName::Unknown),
+                };
+                admit(decision, stream, peer, &events);
+            });
+        } else {
+            admit(access.check(client), stream, peer, &events);
+        }
+    }
+}
+
+async fn accept(l: &Listener) -> io::Result<(Stream, Client, Peer)> {
+    match l {
+        Listener::Tcp(l) => {
+            let (s, addr) = l.accept().await?;
+            let ip = match addr.ip() {
+                IpAddr::V6(v6) => v6.to_ipv4_mapped().map_or(addr.ip(), IpAddr::V4),
+                v4 => v4,
+            };
+            Ok((
+                Stream::Tcp(s),
+                Client::Ip(ip),
+                Peer::Tcp(SocketAddr::new(ip, addr.port()).to_string()),
+            ))
+        }
+        Listener::Unix(l) => {
+            let (s, _) = l.accept().await?;
+            Ok((Stream::Unix(s), Client::Unix, Peer::Unix))
+        }
+    }
+}
+
+fn admit(decision: Decision, stream: Stream, peer: Peer, events: &mpsc::UnboundedSender<Event>) {
+    match decision {
+        Decision::Denied(rule) => {
+            // Closed before any protocol byte: the peer reads EOF.
+            drop(stream);
+            let peer = match peer {
+                Peer::Tcp(a) => a,
+                Peer::Unix => "the UNIX socket".into(),
+                Peer::Other(s) => s,
+            };
+            let _ = events.send(Event::Refused { peer, rule });
+        }
+        Decision::Allowed(_) => {
+            if let Stream::Tcp(s) = &stream {
+                let _ = s.set_nodelay(true);
+            }
+            let _ = events.send(Event::Accepted(stream, peer));
+        }
+    }
+}
+
+/// Either kind of stream's write half.
+enum WriteHalf {
+    Tcp(tokio::net::tcp::OwnedWriteHalf),
+    Unix(tokio::net::unix::OwnedWriteHalf),
+}
+
+impl WriteHalf {
+    fn try_write_vectored(&self, bufs: &[IoSlice<'_>]) -> io::Result<usize> {
+        match self {
+            WriteHalf::Tcp(w) => w.try_write_vectored(bufs),
+            WriteHalf::Unix(w) => w.try_write_vectored(bufs),
+        }
+    }
+
+    async fn writable(&self) -> io::Result<()> {
+        match self {
+            WriteHalf::Tcp(w) => w.writable().await,
+            WriteHalf::Unix(w) => w.writable().await,
+        }
+    }
+}
+
+enum ReadHalf {
+    Tcp(tokio::net::tcp::OwnedReadHalf),
+    Unix(tokio::net::unix::OwnedReadHalf),
+}
+
+impl ReadHalf {
+    async fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        match self {
+            ReadHalf::Tcp(r) => r.read(buf).await,
+            ReadHalf::Unix(r) => r.read(buf).await,
+        }
+    }
+}
+
+/// The write side of a connection, shared by the central task (direct
+/// writes while nothing is queued) and the writer task.
+struct WriteSide {
+    half: WriteHalf,
+    /// Batches handed to the writer task and not yet completely written.
+    queued: AtomicUsize,
+    /// Signalled when central closes the connection, so that a writer
+    /// stuck on a peer that does not read gives up after [`CLOSE_LINGER`].
+    closing: Notify,
+}
+
+/// Frames to write: `bufs[idx][off..]` then the rest of `bufs`.
+struct Chunks {
+    bufs: Vec<Vec<u8>>,
+    idx: usize,
+    off: usize,
+}
+
+impl Chunks {
+    fn done(&self) -> bool {
+        self.idx >= self.bufs.len()
+    }
+
+    /// Writes as much as the socket takes now; `Ok(true)` when all is written.
+    fn try_write(&mut self, w: &WriteHalf) -> io::Result<bool> {
+        while !self.done() {
+            let mut iov = [IoSlice::new(&[]); IOV];
+            let mut n = 0;
+            for (i, b) in self.bufs[self.idx..].iter().take(IOV).enumerate() {
+                let s = if i == 0 { &b[self.off..] } else { &b[..] };
+                iov[n] = IoSlice::new(s);
+                n += 1;
+            }
+            match w.try_write_vectored(&iov[..n]) {
+                Ok(0) => return Err(io::ErrorKind::WriteZero.into()),
+                Ok(k) => self.advance(k),
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => return Ok(false),
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(e),
+            }
+        }
+        Ok(true)
+    }
+
+    fn advance(&mut self, mut k: usize) {
+        while k > 0 && !self.done() {
+            let rest = self.bufs[self.idx].len() - self.off;
+            if k >= rest {
+                k -= rest;
+                self.idx += 1;
+                self.off = 0;
+            } else {
+                self.off += k;
+                k = 0;
+            }
+        }
+        // Skip empty frames so `done` is exact.
+        while !self.done() && self.bufs[self.idx].len() == self.off {
+            self.idx += 1;
+            self.off = 0;
+        }
+    }
+}
+
+async fn writer_task(
+    conn: ConnId,
+    side: Arc<WriteSide>,
+    mut rx: mpsc::UnboundedReceiver<Chunks>,
+    events: mpsc::UnboundedSender<Event>,
+) {
+    // Ends when the central task drops its sender (the connection is
+    // closed) and everything queued before has been written.
+    let mut deadline: Option<tokio::time::Instant> = None;
+    while let Some(mut chunks) = rx.recv().await {
+        loop {
+            match chunks.try_write(&side.half) {
+                Ok(true) => break,
+                Ok(false) => {}
+                Err(error) => {
+                    let _ = events.send(Event::WriteFailed { conn, error });
+                    return;
+                }
+            }
+            let ready = match deadline {
+                None => tokio::select! {
+                    r = side.half.writable() => r,
+                    _ = side.closing.notified() => {
+                        deadline = Some(tokio::time::Instant::now() + CLOSE_LINGER);
+                        Ok(())
+                    }
+                },
+                Some(d) => match tokio::time::timeout_at(d, side.half.writable()).await {
+                    Ok(r) => r,
+                    Err(_) => {
+                        tracing::debug!(
+                            conn = conn.0,
+                            "closed connection not reading; dropped its last bytes"
+                        );
+                        return;
+                    }
+                },
+            };
+            if let Err(error) = ready {
+                let _ = events.send(Event::WriteFailed { conn, error });
+                return;
+            }
+        }
+        side.queued.fetch_sub(1, Ordering::AcqRel);
+    }
+    // Dropping the last write half sends FIN once the reader is gone too.
+}
+
+async fn reader_task(
+    conn: ConnId,
+    mut half: ReadHalf,
+    events: mpsc::UnboundedSender<Event>,
+    mut back: mpsc::Receiver<Vec<u8>>,
+) {
+    let mut buf = vec![0u8; READ_BUF];
+    loop {
+        // The central task closes the connection by dropping `back`'s sender.
+        let r = tokio::select! {
+            biased;
+            b = back.recv() => {
+                if b.is_none() {
+                    return;
+                }
+                continue;
+            }
+            r = half.read(&mut buf) => r,
+        };
+        match r {
+            Ok(0) => {
+                let _ = events.send(Event::Eof { conn, error: None });
+                return;
+            }
+            Ok(len) => {
+                if events.send(Event::Data { conn, buf, len }).is_err() {
+                    return;
+                }
+                // Wait for the buffer: the central task keeps it while the
+                // connection is paused, and so stops this reader.
+                buf = match back.recv().await {
+                    Some(b) => b,
+                    None => return,
+                };
+            }
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+            Err(error) => {
+                let _ = events.send(Event::Eof {
+                    conn,
+                    error: Some(error),
+                });
+                return;
+            }
+        }
+    }
+}
+
+/// The central task's view of one connection.
+struct ConnState {
+    side: Arc<WriteSide>,
+    to_writer: mpsc::UnboundedSender<Chunks>,
+    /// Frames produced in the current batch, not yet written.
+    batch: Vec<Vec<u8>>,
+    /// Hands the read buffer back to the reader.
+    back: mpsc::Sender<Vec<u8>>,
+    /// Central asked not to read from this connection.
+    paused: bool,
+    /// The reader's buffer, kept while paused, with the number of bytes in
+    /// it not yet given to central.
+    parked: Option<(Vec<u8>, usize)>,
+}
+
+struct Core {
+    central: Central,
+    conns: HashMap<ConnId, ConnState>,
+    next_id: u64,
+    sink: LogSink,
+    events_tx: mpsc::UnboundedSender<Event>,
+    tasks: JoinSet<()>,
+    /// Connections with frames in their batch.
+    dirty: Vec<ConnId>,
+    /// Connections resumed while handling outputs.
+    resumed: Vec<ConnId>,
+}
+
+impl Core {
+    async fn run(
+        mut self,
+        mut events: mpsc::UnboundedReceiver<Event>,
+        mut stop: watch::Receiver<bool>,
+    ) {
+        loop {
+            tokio::select! {
+                biased;
+                _ = stop.changed() => break,
+                ev = events.recv() => {
+                    let Some(ev) = ev else { break };
+                    self.handle(ev);
+                    // Take what else is ready, then write once per connection.
+                    for _ in 1..BATCH {
+                        match events.try_recv() {
+                            Ok(ev) => self.handle(ev),
+                            Err(_) => break,
+                        }
+                    }
+                    self.flush_all();
+                }
+                Some(r) = self.tasks.join_next(), if !self.tasks.is_empty() => {
+                    if let Err(e) = r {
+                        if e.is_panic() {
+                            tracing::error!("a connection task panicked");
+                        }
+                    }
+                }
+            }
+        }
+        self.shutdown().await;
+    }
+
+    async fn shutdown(mut self) {
+        self.flush_all();
+        // Dropping the states closes every connection: readers stop,
+        // writers write what is queued and end.
+        for (_, st) in self.conns.drain() {
+            st.side.closing.notify_one();
+        }
+        let tasks = &mut self.tasks;
+        let drained = tokio::time::timeout(SHUTDOWN_GRACE, async {
+            while tasks.join_next().await.is_some() {}
+        })
+        .await;
+        if drained.is_err() {
+            tracing::warn!("shutdown: some connections did not take their data in time");
+        }
+        self.tasks.shutdown().await;
+    }
+
+    fn handle(&mut self, ev: Event) {
+        let now = SystemTime::now();
+        match ev {
+            Event::Accepted(stream, peer) => self.accepted(stream, peer, now),
+            Event::Refused { peer, rule } => {
+                let line = format!("WARNING: connection rejected from {peer} (denied by {rule})");
+                tracing::warn!("{line}");
+                self.log(&line);
+            }
+            Event::Data { conn, buf, len } => self.data(conn, buf, len, now),
+            Event::Eof { conn, error } => {
+                if !self.conns.contains_key(&conn) {
+                    return;
+                }
+                if let Some(e) = error {
+                    if e.kind() != io::ErrorKind::ConnectionReset {
+                        self.log(&format!(
+                            "WARNING: read error on connection {}: {e}",
+                            conn.0
+                        ));
+                    }
+                }
+                self.gone(conn, now);
+            }
+            Event::WriteFailed { conn, error } => {
+                if !self.conns.contains_key(&conn) {
+                    return;
+                }
+                tracing::debug!(conn = conn.0, "write failed: {error}");
+                self.gone(conn, now);
+            }
+            Event::Command(line) => {
+                self.guarded(None, |c| c.command(&line, now));
+                self.drain();
+            }
+            Event::Stats(reply) => {
+                let _ = reply.send(self.central.stats());
+            }
+        }
+    }
+
+    fn accepted(&mut self, stream: Stream, peer: Peer, now: SystemTime) {
+        let conn = ConnId(self.next_id);
+        self.next_id += 1;
+        let (r, w) = match stream {
+            Stream::Tcp(s) => {
+                let (r, w) = s.into_split();
+                (ReadHalf::Tcp(r), WriteHalf::Tcp(w))
+            }
+            Stream::Unix(s) => {
+                let (r, w) = s.into_split();
+                (ReadHalf::Unix(r), WriteHalf::Unix(w))
+            }
+        };
+        let side = Arc::new(WriteSide {
+            half: w,
+            queued: AtomicUsize::new(0),
+            closing: Notify::new(),
+        });
+        let (to_writer, writer_rx) = mpsc::unbounded_channel();
+        let (back, back_rx) = mpsc::channel(1);
+        self.tasks.spawn(writer_task(
+            conn,
+            side.clone(),
+            writer_rx,
+            self.events_tx.clone(),
+        ));
+        self.tasks
+            .spawn(reader_task(conn, r, self.events_tx.clone(), back_rx));
+        self.conns.insert(
+            conn,
+            ConnState {
+                side,
+                to_writer,
+                batch: Vec::new(),
+                back,
+                paused: false,
+                parked: None,
+            },
+        );
+        self.guarded(Some(conn), |c| c.connect(conn, peer, now));
+        self.drain();
+    }
+
+    fn data(&mut self, conn: ConnId, buf: Vec<u8>, len: usize, now: SystemTime) {
+        let Some(st) = self.conns.get_mut(&conn) else {
+            return;
+        };
+        if st.paused {
+            // Read before the pause took effect: keep it for later.
+            st.parked = Some((buf, len));
+            return;
+        }
+        self.guarded(Some(conn), |c| c.receive(conn, &buf[..len], now));
+        self.drain();
+        self.give_back(conn, buf);
+    }
+
+    /// Returns the read buffer to the reader, or keeps it while paused.
+    fn give_back(&mut self, conn: ConnId, buf: Vec<u8>) {
+        if let Some(st) = self.conns.get_mut(&conn) {
+            if st.paused {
+                st.parked = Some((buf, 0));
+            } else {
+                let _ = st.back.try_send(buf);
+            }
+        }
+    }
+
+    /// EOF or a broken connection.
+    fn gone(&mut self, conn: ConnId, now: SystemTime) {
+        self.guarded(None, |c| c.disconnect(conn, now));
+        self.close(conn);
+        self.drain();
+    }
+
+    /// A line of the shell's own (refusals, read errors), to the logs that
+    /// are on now (see [`log_target`]).
+    fn log(&mut self, line: &str) {
+        let target = log_target(self.central.config());
+        if target.terminal || target.file {
+            self.sink.line(target, line);
+        }
+    }
+
+    /// Runs `f` on the state machine. A panic in it (a bug) must not take
+    /// the server down: the connection being handled is dropped instead.
+    fn guarded(&mut self, conn: Option<ConnId>, f: impl FnOnce(&mut Central)) {
+        let central = &mut self.central;
+        if std::panic::catch_unwind(AssertUnwindSafe(|| f(central))).is_err() {
+            let who = conn.map_or("console".to_string(), |c| c.0.to_string());
+            let line = format!("ERROR: internal error while handling connection {who}; closing it");
+            tracing::error!("{line}");
+            self.log(&line);
+            if let Some(conn) = conn {
+                self.close(conn);
+                let central = &mut self.central;
+                let _ = std::panic::catch_unwind(AssertUnwindSafe(|| {
+                    central.disconnect(conn, SystemTime::now())
+                }));
+            }
+        }
+    }
+
+    /// Carries out every output of the state machine, including the data
+    /// parked on connections it resumes.
+    fn drain(&mut self) {
+        loop {
+            while let Some(o) = self.central.poll_output() {
+                self.apply(o);
+            }
+            let Some(conn) = self.resumed.pop() else {
+                return;
+            };
+            let Some(st) = self.conns.get_mut(&conn) else {
+                continue;
+            };
+            if st.paused {
+                continue;
+            }
+            let Some((buf, len)) = st.parked.take() else {
+                continue;
+            };
+            if len > 0 {
+                let now = SystemTime::now();
+                self.guarded(Some(conn), |c| c.receive(conn, &buf[..len], now));
+            }
+            self.give_back(conn, buf);
+        }
+    }
+
+    fn apply(&mut self, o: Output) {
+        match o {
+            Output::Transmit { conn, bytes } => {
+                if let Some(st) = self.conns.get_mut(&conn) {
+                    if st.batch.is_empty() {
+                        self.dirty.push(conn);
+                    }
+                    st.batch.push(bytes);
+                }
+            }
+            Output::Close { conn, reason } => {
+                tracing::debug!(conn = conn.0, %reason, "closing connection");
+                self.close(conn);
+                // The state machine forgets the module on disconnect.
+                self.guarded(None, |c| c.disconnect(conn, SystemTime::now()));
+            }
+            Output::Log { target, line } => self.sink.line(target, &line),
+            Output::PauseRead { conn } => {
+                if let Some(st) = self.conns.get_mut(&conn) {
+                    st.paused = true;
+                }
+            }
+            Output::ResumeRead { conn } => {
+                if let Some(st) = self.conns.get_mut(&conn) {
+                    st.paused = false;
+                    self.resumed.push(conn);
+                }
+            }
+            other => tracing::warn!("unhandled central output {other:?}"),
+        }
+    }
+
+    /// Writes what is queued for `conn`, then forgets it: the writer task
+    /// finishes the queue and ends, the reader task ends.
+    fn close(&mut self, conn: ConnId) {
+        self.flush(conn);
+        if let Some(st) = self.conns.remove(&conn) {
+            st.side.closing.notify_one();
+        }
+    }
+
+    fn flush_all(&mut self) {
+        while let Some(conn) = self.dirty.pop() {
+            self.flush(conn);
+        }
+    }
+
+    fn flush(&mut self, conn: ConnId) {
+        let Some(st) = self.conns.get_mut(&conn) else {
+            return;
+        };
+        if st.batch.is_empty() {
+            return;
+        }
+        let mut chunks = Chunks {
+            bufs: std::mem::take(&mut st.batch),
+            idx: 0,
+            off: 0,
+        };
+        chunks.advance(0);
+        // Nothing queued at the writer: everything before is on the wire,
+        // so writing here keeps the order and saves a task wake-up.
+        if st.side.queued.load(Ordering::Acquire) == 0 {
+            match chunks.try_write(&st.side.half) {
+                Ok(true) => {
+                    chunks.bufs.clear();
+                    st.batch = chunks.bufs;
+                    return;
+                }
+                Ok(false) => {}
+                // The writer task meets the error again and reports it.
+                Err(_) => {}
+            }
+        }
+        st.side.queued.fetch_add(1, Ordering::AcqRel);
+        let _ = st.to_writer.send(chunks);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn chunks_advance_across_frames() {
+        let mut c = Chunks {
+            bufs: vec![vec![1, 2, 3], vec![], vec![4, 5]],
+            idx: 0,
+            off: 0,
+        };
+        c.advance(2);
+        assert_eq!((c.idx, c.off), (0, 2));
+        c.advance(1);
+        assert_eq!((c.idx, c.off), (2, 0), "the empty frame is skipped");
+        assert!(!c.done());
+        c.advance(2);
+        assert!(c.done());
+        let mut empty = Chunks {
+            bufs: vec![vec![]],
+            idx: 0,
+            off: 0,
+        };
+        empty.advance(0);
+        assert!(empty.done());
+    }
+
+    #[test]
+    fn writer_sink_routes_lines_by_target() {
+        #[derive(Clone, Default)]
+        struct Shared(Arc<std::sync::Mutex<Vec<u8>>>);
+        impl Write for Shared {
+            fn write(&mut self, b: &[u8]) -> io::Result<usize> {
+                self.0.lock().unwrap().extend_from_slice(b);
+                Ok(b.len())
+            }
+            fn flush(&mut self) -> io::Result<()> {
+                Ok(())
+            }
+        }
+        let (t, f) = (Shared::default(), Shared::default());
+        let mut sink = LogSink::writers(Some(Box::new(t.clone())), Some(Box::new(f.clone())), true);
+        let target = |terminal, file| LogTarget { terminal, file };
+        sink.line(target(true, false), "term");
+        sink.line(target(false, true), "file");
+        sink.line(target(true, true), "both");
+        assert_eq!(&*t.0.lock().unwrap(), b"term\nboth\n");
+        assert_eq!(&*f.0.lock().unwrap(), b"file\nboth\n");
+        // Absent writers drop their lines.
+        let mut sink = LogSink::writers(None, None, false);
+        sink.line(target(true, true), "nowhere");
+    }
+}

@@ -1,0 +1,489 @@
+//! The `central` binary: its flags, its startup lines, the console, file
+//! logging, access control files and signals. Every run listens on
+//! 127.0.0.1 only, without the UNIX socket, and every wait is bounded.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdout, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+mod common;
+use common::{read_to_eof, tcp, Client, T};
+
+const BIN: &str = env!("CARGO_BIN_EXE_central");
+
+/// A running `central` with its stdout read line by line on a thread.
+struct Central {
+    child: Child,
+    lines: mpsc::Receiver<String>,
+    seen: Vec<String>,
+    port: u16,
+}
+
+impl Central {
+    /// Starts central on a free port (`-p0`) with the given extra flags and
+    /// waits for `Expecting 1 on port <port>`.
+    fn start(extra: &[&str], stdin: Stdio) -> Central {
+        Central::start_in(&temp(""), extra, stdin)
+    }
+
+    /// The same in working directory `dir` (where automatic log files go).
+    fn start_in(dir: &Path, extra: &[&str], stdin: Stdio) -> Central {
+        let mut child = Command::new(BIN)
+            .current_dir(dir)
+            .args(["-p0", "--bind", "127.0.0.1", "--no-unix-socket"])
+            .args(extra)
+            .stdin(stdin)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let lines = spawn_reader(child.stdout.take().unwrap());
+        let mut c = Central {
+            child,
+            lines,
+            seen: Vec::new(),
+            port: 0,
+        };
+        let line = c.wait_line(|l| l.starts_with("Expecting "));
+        c.port = line.rsplit(' ').next().unwrap().parse().unwrap();
+        c
+    }
+
+    fn wait_line(&mut self, f: impl Fn(&str) -> bool) -> String {
+        if let Some(l) = self.seen.iter().find(|l| f(l)) {
+            return l.clone();
+        }
+        let deadline = Instant::now() + T;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.lines.recv_timeout(left) {
+                Ok(l) => {
+                    self.seen.push(l.clone());
+                    if f(&l) {
+                        return l;
+                    }
+                }
+                Err(e) => panic!("no such line ({e}); output so far: {:#?}", self.seen),
+            }
+        }
+    }
+
+    fn connect(&self) -> TcpStream {
+        tcp(([127, 0, 0, 1], self.port).into())
+    }
+
+    /// A module that has done the whole IPC handshake.
+    fn module(&self, name: &str) -> Client<TcpStream> {
+        let mut c = Client::new(self.connect(), name);
+        c.sync();
+        c
+    }
+
+    fn signal(&self, sig: libc::c_int) {
+        let pid = libc::pid_t::try_from(self.child.id()).unwrap();
+        // SAFETY: kill(2) on our own child's pid.
+        assert_eq!(unsafe { libc::kill(pid, sig) }, 0);
+    }
+
+    /// Waits for the exit; returns the status code and stderr.
+    fn wait_exit(mut self) -> (Option<i32>, String) {
+        let deadline = Instant::now() + T;
+        let status = loop {
+            if let Some(s) = self.child.try_wait().unwrap() {
+                break s;
+            }
+            if Instant::now() > deadline {
+                let _ = self.child.kill();
+                panic!("central did not exit; output: {:#?}", self.seen);
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        let mut err = String::new();
+        self.child
+            .stderr
+            .take()
+            .unwrap()
+            .read_to_string(&mut err)
+            .unwrap();
+        (status.code(), err)
+    }
+}
+
+impl Drop for Central {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn spawn_reader(out: ChildStdout) -> mpsc::Receiver<String> {
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(out).lines() {
+            let Ok(line) = line else { break };
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    rx
+}
+
+/// Runs the binary to completion (it must not wait for anything).
+fn run(args: &[&str]) -> (Option<i32>, String, String) {
+    let mut child = Command::new(BIN)
+        .current_dir(temp(""))
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let deadline = Instant::now() + T;
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            panic!("central {args:?} did not exit");
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    let mut out = String::new();
+    let mut err = String::new();
+    child
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut out)
+        .unwrap();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut err)
+        .unwrap();
+    (status.code(), out, err)
+}
+
+/// A path in this test process's scratch directory.
+fn temp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("central-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir.join(name)
+}
+
+#[test]
+fn bad_flags_exit_2_with_one_line_naming_them() {
+    for (args, want) in [
+        (
+            &["-pabc"][..],
+            "central: option -p: 'abc' is not a port number (0-65535)",
+        ),
+        (
+            &["-p70000"][..],
+            "central: option -p: '70000' is not a port number (0-65535)",
+        ),
+        (
+            &["-lq"][..],
+            "central: option -lq: unknown logging option 'q' in -l",
+        ),
+        (
+            &["-LmQ"][..],
+            "central: option -LmQ: unknown logging option 'Q' in -L",
+        ),
+        (&["-z"][..], "central: unknown option '-z' (see --help)"),
+        (
+            &["--frob"][..],
+            "central: unknown option '--frob' (see --help)",
+        ),
+        (
+            &["--bind", "bogus"][..],
+            "central: option --bind: 'bogus' is not an IP address",
+        ),
+        (&["--bind"][..], "central: option --bind needs a value"),
+        (
+            &["-s", "-u", "-f"][..],
+            "central: option -f needs a file name",
+        ),
+        (&["stray"][..], "central: unexpected argument 'stray'"),
+    ] {
+        let (code, out, err) = run(args);
+        assert_eq!(code, Some(2), "{args:?}: {err}");
+        assert!(out.is_empty(), "{args:?}: {out}");
+        assert_eq!(err.lines().count(), 1, "{args:?}: {err}");
+        assert!(err.starts_with(want), "{args:?}: {err}");
+    }
+}
+
+#[test]
+fn bad_hosts_file_exits_2_naming_file_and_line() {
+    let deny = temp("bad.deny");
+    std::fs::write(&deny, "# rules\ncentral : 10.0.0.0/40\n").unwrap();
+    let (code, _, err) = run(&[
+        "-p0",
+        "--bind",
+        "127.0.0.1",
+        "--no-unix-socket",
+        "-u",
+        "--hosts-allow",
+        "/nonexistent/allow",
+        "--hosts-deny",
+        deny.to_str().unwrap(),
+    ]);
+    assert_eq!(code, Some(2), "{err}");
+    assert_eq!(
+        err.trim_end(),
+        format!(
+            "central: {}:2: prefix length 40 too long in '10.0.0.0/40'",
+            deny.display()
+        )
+    );
+}
+
+#[test]
+fn version_and_help() {
+    let (code, out, _) = run(&["-v"]);
+    assert_eq!(code, Some(0));
+    let first = out.lines().next().unwrap();
+    assert_eq!(
+        first,
+        format!(
+            "Task Control Server 3.9.1 (Courier {})",
+            env!("CARGO_PKG_VERSION")
+        )
+    );
+    let (code, out, _) = run(&["--help"]);
+    assert_eq!(code, Some(0));
+    assert!(out.starts_with("central command line options:"), "{out}");
+    for flag in [
+        " -l:",
+        " -L:",
+        " -f",
+        " -p<port>",
+        " -c:",
+        " -I<",
+        " -s:",
+        " -u:",
+        " -r:",
+        "--bind",
+        "--hosts-allow",
+        "--no-unix-socket",
+    ] {
+        assert!(out.contains(flag), "{flag} missing from --help");
+    }
+}
+
+#[test]
+fn starts_accepts_and_exits_0_on_sigterm() {
+    let mut c = Central::start(
+        &[
+            "-u",
+            "--hosts-allow",
+            "/nonexistent/a",
+            "--hosts-deny",
+            "/nonexistent/d",
+        ],
+        Stdio::null(),
+    );
+    assert_eq!(
+        c.seen[0],
+        format!(
+            "Task Control Server 3.9.1 (Courier {})",
+            env!("CARGO_PKG_VERSION")
+        )
+    );
+    assert_eq!(c.seen[1], format!("Expecting 1 on port {}", c.port));
+    let mut s = c.connect();
+    let mut first = [0u8; 4];
+    s.read_exact(&mut first).unwrap();
+    assert!(i32::from_be_bytes(first) >= 2, "the msgInfo id");
+    let mut m = c.module("cli-test");
+    c.wait_line(|l| l == " Received a new connection: 6");
+    c.wait_line(|l| l == "   modName : cli-test");
+    c.signal(libc::SIGTERM);
+    let (code, err) = c.wait_exit();
+    assert_eq!(code, Some(0), "{err}");
+    // Central closed the modules' connections on the way out.
+    read_to_eof(&mut s);
+    read_to_eof(&mut m.sock);
+}
+
+#[test]
+fn sigint_stops_it_too_and_expected_count_is_printed() {
+    let mut c = Central::start(&["-u", "3"], Stdio::null());
+    let want = format!("Expecting 3 on port {}", c.port);
+    c.wait_line(|l| l == want);
+    c.signal(libc::SIGINT);
+    let (code, err) = c.wait_exit();
+    assert_eq!(code, Some(0), "{err}");
+}
+
+#[test]
+fn console_commands_and_end_of_input() {
+    let mut c = Central::start(&[], Stdio::piped());
+    let mut stdin = c.child.stdin.take().unwrap();
+    writeln!(stdin, "help").unwrap();
+    c.wait_line(|l| l.contains("close <module>"));
+    writeln!(stdin, "status").unwrap();
+    writeln!(stdin, "bogus").unwrap();
+    // End of input ends the console, not central.
+    drop(stdin);
+    let _m = c.module("after-eof");
+    c.wait_line(|l| l == "   modName : after-eof");
+    c.signal(libc::SIGTERM);
+    let (code, err) = c.wait_exit();
+    assert_eq!(code, Some(0), "{err}");
+}
+
+#[test]
+fn quit_on_the_console_stops_central() {
+    let mut c = Central::start(&[], Stdio::piped());
+    let mut stdin = c.child.stdin.take().unwrap();
+    writeln!(stdin, "quit").unwrap();
+    let (code, err) = c.wait_exit();
+    assert_eq!(code, Some(0));
+    assert!(err.contains("Central Quit"), "{err}");
+}
+
+#[test]
+fn silent_prints_nothing() {
+    let mut child = Command::new(BIN)
+        .args(["-p0", "--bind", "127.0.0.1", "--no-unix-socket", "-u", "-s"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    let pid = libc::pid_t::try_from(child.id()).unwrap();
+    // SAFETY: kill(2) on our own child.
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGTERM) }, 0);
+    let deadline = Instant::now() + T;
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        assert!(Instant::now() < deadline);
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert_eq!(status.code(), Some(0));
+    let mut out = String::new();
+    child
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut out)
+        .unwrap();
+    assert_eq!(out, "");
+}
+
+#[test]
+fn file_log_goes_to_the_named_file() {
+    let log = temp("central.log");
+    let _ = std::fs::remove_file(&log);
+    let f = format!("-f{}", log.display());
+    let c = Central::start(&["-u", "-lx", "-Lms", &f], Stdio::null());
+    assert_eq!(c.seen[0], format!("Logging File Name: {}", log.display()));
+    assert_eq!(c.seen[1], format!("Logging to {};", log.display()));
+    let _m = c.module("logged");
+    let deadline = Instant::now() + T;
+    loop {
+        let text = std::fs::read_to_string(&log).unwrap();
+        if text.contains("   modName : logged") {
+            let lines: Vec<&str> = text.lines().collect();
+            assert!(lines[0].starts_with("Logging Task Control Server 3.9.1 (Courier "));
+            assert_eq!(lines[1], format!("Expecting 1 on port {}", c.port));
+            break;
+        }
+        assert!(Instant::now() < deadline, "log file: {text}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // -lx: the terminal shows no log lines.
+    c.signal(libc::SIGTERM);
+    let seen = c.seen.clone();
+    let (code, _) = c.wait_exit();
+    assert_eq!(code, Some(0));
+    assert!(!seen.iter().any(|l| l.contains("Received")), "{seen:?}");
+    std::fs::remove_file(&log).unwrap();
+}
+
+#[test]
+fn hosts_deny_refuses_before_any_byte_and_says_why() {
+    let deny = temp("hosts.deny");
+    let allow = temp("hosts.allow");
+    std::fs::write(&allow, "sshd : ALL\n").unwrap();
+    std::fs::write(&deny, "central : localhost\n").unwrap();
+    let dir = temp("deny-cwd");
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut c = Central::start_in(
+        &dir,
+        &[
+            "-u",
+            "--hosts-allow",
+            allow.to_str().unwrap(),
+            "--hosts-deny",
+            deny.to_str().unwrap(),
+        ],
+        Stdio::null(),
+    );
+    let mut s = c.connect();
+    let port = s.local_addr().unwrap().port();
+    assert!(
+        read_to_eof(&mut s).is_empty(),
+        "no protocol byte for a denied peer"
+    );
+    c.wait_line(|l| {
+        l == format!(
+            "WARNING: connection rejected from 127.0.0.1:{port} (denied by {}:1)",
+            deny.display()
+        )
+    });
+    c.signal(libc::SIGTERM);
+    assert_eq!(c.wait_exit().0, Some(0));
+    let files: Vec<_> = std::fs::read_dir(&dir).unwrap().collect();
+    assert!(files.is_empty(), "no file log without -L: {files:?}");
+}
+
+#[test]
+fn file_log_without_f_gets_c_style_name_in_working_directory() {
+    let dir = temp("auto-log");
+    std::fs::create_dir_all(&dir).unwrap();
+    let c = Central::start_in(&dir, &["-u", "-Lsn"], Stdio::null());
+    let logging = c
+        .seen
+        .iter()
+        .find(|l| l.starts_with("Logging to "))
+        .unwrap()
+        .clone();
+    let name = logging
+        .strip_prefix("Logging to ")
+        .and_then(|n| n.strip_suffix(';'))
+        .unwrap()
+        .to_string();
+    let secs = name.strip_prefix("x_ipc.log.").unwrap();
+    assert!(secs.parse::<u64>().is_ok(), "{name}");
+    c.signal(libc::SIGTERM);
+    assert_eq!(c.wait_exit().0, Some(0));
+    let text = std::fs::read_to_string(dir.join(&name)).unwrap();
+    assert!(
+        text.starts_with("Logging Task Control Server 3.9.1"),
+        "{text}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn port_in_use_fails_clearly() {
+    let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = l.local_addr().unwrap().port();
+    let p = format!("-p{port}");
+    let (code, _, err) = run(&[&p, "--bind", "127.0.0.1", "--no-unix-socket", "-u"]);
+    assert_eq!(code, Some(1), "{err}");
+    assert!(err.contains("Unable to start server"), "{err}");
+    assert!(err.contains(&format!("127.0.0.1:{port}")), "{err}");
+}
