@@ -352,14 +352,26 @@ fn quit_on_the_console_stops_central() {
 
 #[test]
 fn silent_prints_nothing() {
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
     let mut child = Command::new(BIN)
-        .args(["-p0", "--bind", "127.0.0.1", "--no-unix-socket", "-u", "-s"])
+        .current_dir(temp(""))
+        .args(["--bind", "127.0.0.1", "--no-unix-socket", "-u", "-s"])
+        .arg(format!("-p{port}"))
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    std::thread::sleep(Duration::from_millis(300));
+    // Listening means running (signal handlers come before the listener).
+    let deadline = Instant::now() + T;
+    while TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(Instant::now() < deadline, "central did not start");
+        std::thread::sleep(Duration::from_millis(20));
+    }
     let pid = libc::pid_t::try_from(child.id()).unwrap();
     // SAFETY: kill(2) on our own child.
     assert_eq!(unsafe { libc::kill(pid, libc::SIGTERM) }, 0);

@@ -421,6 +421,19 @@ fn main() -> ExitCode {
 }
 
 async fn run(opts: Options) -> ExitCode {
+    // Signals first: from the moment central listens, SIGTERM and SIGINT
+    // mean a clean stop.
+    use tokio::signal::unix::{signal, SignalKind};
+    let (mut term, mut int) = match (
+        signal(SignalKind::terminate()),
+        signal(SignalKind::interrupt()),
+    ) {
+        (Ok(t), Ok(i)) => (t, i),
+        (Err(e), _) | (_, Err(e)) => {
+            eprintln!("central: cannot watch signals: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
     let access = match AccessControl::load(&opts.allow, &opts.deny) {
         Ok(a) => a,
         Err(e) => {
@@ -518,17 +531,6 @@ async fn run(opts: Options) -> ExitCode {
     } else {
         drop(tx);
     }
-    use tokio::signal::unix::{signal, SignalKind};
-    let (mut term, mut int) = match (
-        signal(SignalKind::terminate()),
-        signal(SignalKind::interrupt()),
-    ) {
-        (Ok(t), Ok(i)) => (t, i),
-        (Err(e), _) | (_, Err(e)) => {
-            eprintln!("central: cannot watch signals: {e}");
-            return ExitCode::FAILURE;
-        }
-    };
     let mut console_open = opts.console;
     loop {
         tokio::select! {
