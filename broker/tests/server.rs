@@ -432,3 +432,21 @@ fn slow_subscriber_keeps_central_memory_bounded() {
     assert_eq!(stats.dropped, 0);
     block(&rt, central.shutdown());
 }
+
+/// Rules that need the peer's host name are decided off the accept path
+/// (loopback peers are `localhost` without asking DNS).
+#[test]
+fn host_name_rules_are_checked_too() {
+    let rt = rt();
+    let (sink, logs) = capture_logs();
+    let deny = AccessControl::new(
+        Rules::default(),
+        Rules::parse("central : KNOWN\n", "hosts.deny").unwrap(),
+    );
+    assert!(deny.needs_host_name());
+    let central = start(&rt, local().access(deny).log_sink(sink));
+    let mut s = tcp(central.local_addr());
+    assert_eq!(read_to_eof(&mut s), b"");
+    wait_log(&logs, |l| l.ends_with("(denied by hosts.deny:1)"));
+    block(&rt, central.shutdown());
+}
