@@ -18,7 +18,9 @@
 //!   when standard input is a terminal, and only at start;
 //! - `-d` (C's debugging flag) turns on debug diagnostics on stderr;
 //! - SIGINT and SIGTERM stop central cleanly with exit status 0 (C aborts);
-//!   `quit` on the console does the same, as in C.
+//!   `quit` on the console does the same, as in C;
+//! - the console prints no `> ` prompt, and `-s` also silences the
+//!   `Logging File Name:` / `Logging to` lines.
 
 use std::io::{BufRead, IsTerminal, Write};
 use std::net::IpAddr;
