@@ -218,6 +218,49 @@ fn run(addr: &str, case: &Case) -> (f64, f64) {
     (per_op, bytes)
 }
 
+/// The floor for any relaying central: A -> relay -> B -> relay -> A with
+/// 4-byte messages over loopback TCP and no protocol at all (three threads,
+/// blocking sockets). Returns seconds per round trip.
+fn relay_floor(count: usize) -> f64 {
+    use std::net::TcpListener;
+    let l = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = l.local_addr().unwrap();
+    let relay = std::thread::spawn(move || {
+        let (mut a, _) = l.accept().unwrap();
+        let (mut b, _) = l.accept().unwrap();
+        a.set_nodelay(true).unwrap();
+        b.set_nodelay(true).unwrap();
+        let mut buf = [0u8; 4];
+        for _ in 0..count {
+            a.read_exact(&mut buf).unwrap();
+            b.write_all(&buf).unwrap();
+            b.read_exact(&mut buf).unwrap();
+            a.write_all(&buf).unwrap();
+        }
+    });
+    let mut a = TcpStream::connect(addr).unwrap();
+    let mut b = TcpStream::connect(addr).unwrap();
+    a.set_nodelay(true).unwrap();
+    b.set_nodelay(true).unwrap();
+    let echo = std::thread::spawn(move || {
+        let mut buf = [0u8; 4];
+        for _ in 0..count {
+            b.read_exact(&mut buf).unwrap();
+            b.write_all(&buf).unwrap();
+        }
+    });
+    let start = Instant::now();
+    let mut buf = [0u8; 4];
+    for _ in 0..count {
+        a.write_all(&buf).unwrap();
+        a.read_exact(&mut buf).unwrap();
+    }
+    let secs = start.elapsed().as_secs_f64();
+    echo.join().unwrap();
+    relay.join().unwrap();
+    secs / count as f64
+}
+
 fn main() {
     let mut targets: Vec<(String, String)> = Vec::new();
     let mut quick = false;
@@ -301,6 +344,12 @@ fn main() {
         print!("---|");
     }
     println!();
+    let mut floors: Vec<f64> = (0..3).map(|_| relay_floor(5000 / q)).collect();
+    floors.sort_by(f64::total_cmp);
+    println!(
+        "| raw TCP relay floor (no protocol: A->relay->B->relay->A), 4 B | {:.1} µs |",
+        floors[1] * 1e6
+    );
     let only = std::env::var("BENCH_ONLY").unwrap_or_default();
     for case in cases.iter().filter(|c| c.name.contains(only.as_str())) {
         print!("| {} |", case.name);
