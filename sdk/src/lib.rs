@@ -22,11 +22,86 @@
 //! let cdr = courier::cdr::to_vec(&t1, courier::cdr::Encoding::Xcdr1Le);
 //! assert_eq!(courier::cdr::from_slice::<T1>(&cdr).unwrap(), t1);
 //! ```
+//!
+//! # Sessions
+//!
+//! A [`Session`] is one module's connection; over CMU IPC it talks to a
+//! `central` (Courier's, see `courier-broker`, or the original C one):
+//!
+//! ```no_run
+//! # #[derive(courier::IpcMessage, Debug)] struct T1 { i1: i32 }
+//! # #[derive(courier::IpcMessage, Debug)] struct T2 { s: String }
+//! # async fn demo() -> Result<(), Box<dyn std::error::Error>> {
+//! use courier::Session;
+//! use futures::StreamExt;
+//! use std::time::Duration;
+//!
+//! let session = Session::builder("ipc://localhost:1381").name("module1").connect().await?;
+//! session.define::<i32>("message1").await?;
+//! session.publish("message1", &42i32).await?;
+//! let mut sub = session.subscribe::<String>("message2").await?;
+//! let r: T2 = session.query("query1", &T1 { i1: 666 }).timeout(Duration::from_secs(2)).await?;
+//! while let Some(s) = sub.next().await {
+//!     println!("{} on {}", s?.value, "message2");
+//! }
+//! # Ok(()) }
+//! ```
+//!
+//! ## The IPC API and its Courier equivalents (manual §4–§8)
+//!
+//! | IPC | Courier |
+//! |---|---|
+//! | `IPC_initialize`, `IPC_connect`, `IPC_connectModule` | `Session::builder(url).name(..).connect().await` |
+//! | `IPC_connectNoListen`, `IPC_connectModuleNoListen` | `SessionBuilder::no_listen` |
+//! | `IPC_disconnect` | `Session::close`, or dropping the last clone |
+//! | `IPC_isConnected` | a failed operation returns `SessionError::Disconnected`; `events()` yields `Disconnected` |
+//! | `IPC_isModuleConnected` | `Session::is_module_connected` |
+//! | `IPC_defineMsg`, `IPC_isMsgDefined` | `Session::define::<T>` (the format comes from the type) |
+//! | `IPC_defineFormat`, `IPC_checkMsgFormats` | `Session::define_format::<T>` (automatic in `define`); formats are checked at compile time by the derive |
+//! | `IPC_publish`, `IPC_publishData`, `IPC_publishVC`, `IPC_publishFixed` | `Session::publish` (typed) / `publish_raw` (bytes) |
+//! | `IPC_subscribe`, `IPC_subscribeData`, `IPC_unsubscribe` | `Session::subscribe::<T>` / `subscribe_raw`; dropping the `Subscriber` unsubscribes |
+//! | `IPC_numHandlers` | `Session::num_handlers` |
+//! | `IPC_subscribeConnect`, `IPC_subscribeDisconnect`, their `unsubscribe` | `Session::events()` (`ModuleConnected` / `ModuleDisconnected`); drop the stream |
+//! | `IPC_subscribeHandlerChange` | `Session::watch_handlers` + `events()` (`HandlersChanged`) |
+//! | `IPC_queryResponse`, `IPC_queryResponseData`, `IPC_queryNotify` | `Session::query(..).timeout(d).await` (spawn it for notify-style use) |
+//! | `IPC_respond`, `IPC_respondData`, `IPC_delayResponse` | `Session::serve` → `Request::reply`, callable later and from any task |
+//! | `IPC_listen`, `IPC_listenClear`, `IPC_listenWait`, `IPC_handleMessage`, `IPC_dispatch` | not needed: driving the `Stream`s (a tokio task reads the socket all the time) |
+//! | `IPC_subscribeFD`, `IPC_unsubscribeFD` | not needed: `tokio::select!` over your own I/O and the streams |
+//! | `IPC_setCapacity` | `Session::set_capacity` |
+//! | `IPC_setMsgPriority` | `Session::set_priority` |
+//! | `IPC_setMsgQueueLength` | `Session::set_queue_length` |
+//! | `IPC_setVerbosity`, `IPC_perror` | `tracing`; every error is a typed `Result` |
+//! | `IPC_marshall`, `IPC_unmarshall`, `IPC_freeData*`, `IPC_msgFormatter`, `IPC_parseFormat` | `courier::ipc::to_vec` / `from_slice`, `#[derive(IpcMessage)]`; Rust frees memory |
+//! | `IPC_getContext`, `IPC_setContext` | several `Session`s (each its own connection) |
+//! | `IPC_addTimer`, `IPC_addOneShotTimer`, `IPC_addPeriodicTimer`, `IPC_removeTimer` | `Session::every`, `after`, `times`: `Stream`s of `Tick { scheduled, fired }`; drop to remove |
+//! | `IPC_printData`, `IPC_readData` | `courier::ipc::print_value` / `decode_value` (dynamic values) |
+//!
+//! ## Deviations from CMU IPC
+//! - Publishing a message nobody subscribes is silently not sent, as in C
+//!   (the module filters by central's `X_IPC_BROADCAST_MSG_VAR`); use
+//!   `no_listen()` to send regardless. `publish` still returns `Ok`.
+//! - A delivery is acknowledged to central (C's "handler finished") when it
+//!   is queued for its `Subscriber` (1000 samples), not when the user reads
+//!   it; a full queue holds the acknowledgement, which is back-pressure to
+//!   central. A query counts until it is answered.
+//! - A query whose handler is being unsubscribed at that moment is lost, as
+//!   in C.
+//! - Direct mode (`central -c`) is refused at connect with a clear error
+//!   until the direct links are wired in (the module state machine already
+//!   implements them).
 #![warn(missing_docs)]
 #![forbid(unsafe_code)]
 
+pub mod ipc_backend;
+pub mod session;
+
 pub use courier_derive::IpcMessage;
 pub use courier_wire::{cdr, format, ipc, IpcMessage, NamedFormats};
+pub use session::{
+    Backend, ConnectError, Encoding, Events, Query, QueryError, RawRequest, RawSample, RecvError,
+    Request, Requests, Sample, Session, SessionBuilder, SessionError, SessionEvent, Subscriber,
+    Tick, Timer,
+};
 
 #[doc(hidden)]
 pub use courier_wire as __wire;

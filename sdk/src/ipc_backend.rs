@@ -1,0 +1,843 @@
+//! The CMU IPC backend: one tokio task drives the sans-I/O module state
+//! machine (`courier_wire::ipc::module`) over TCP or the UNIX socket
+//! `/tmp/x_ipc/<port>`; API calls reach it over a channel.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant, SystemTime};
+
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::sync::{mpsc, oneshot};
+
+use crate::session::{
+    Backend, ConnectError, Encoding, QueryError, RawReply, RawRequest, RawSample, SessionError,
+    SessionEvent,
+};
+use courier_wire::ipc::module::{
+    Connection, DeliveryKind, Error as ModError, Event, ModuleConfig, MsgLength, OpId,
+};
+use courier_wire::ipc::ByteOrder;
+
+/// The C library's default central port.
+pub const DEFAULT_PORT: u16 = 1381;
+
+/// Options of the IPC backend.
+#[derive(Debug, Clone)]
+pub struct IpcOptions {
+    /// `false` = `IPC_connectNoListen`.
+    pub listen: bool,
+    /// How long to keep trying to reach central.
+    pub connect_timeout: Duration,
+}
+
+impl Default for IpcOptions {
+    fn default() -> Self {
+        IpcOptions {
+            listen: true,
+            connect_timeout: Duration::from_secs(5),
+        }
+    }
+}
+
+trait Io: AsyncRead + AsyncWrite + Unpin + Send {}
+impl<T: AsyncRead + AsyncWrite + Unpin + Send> Io for T {}
+
+type Done<T> = oneshot::Sender<T>;
+
+enum Cmd {
+    DefineFormat(String, String, Done<Result<(), SessionError>>),
+    Define(String, Option<String>, Done<Result<(), SessionError>>),
+    Publish(String, Vec<u8>, Done<Result<(), SessionError>>),
+    Subscribe(
+        String,
+        mpsc::Sender<RawSample>,
+        Done<Result<(), SessionError>>,
+    ),
+    Serve(
+        String,
+        mpsc::Sender<RawRequest>,
+        Done<Result<(), SessionError>>,
+    ),
+    Query(u64, String, Vec<u8>, Done<Result<RawReply, QueryError>>),
+    CancelQuery(u64),
+    Ack(u64),
+    Respond(u64, String, Vec<u8>),
+    ModuleConnected(String, Done<Result<bool, SessionError>>),
+    NumHandlers(String, Done<Result<i32, SessionError>>),
+    Inform(InformOp, Done<Result<(), SessionError>>),
+    /// Subscribe central's connect/disconnect notifications (once).
+    WatchModules,
+    /// Subscribe handler-count changes of a message.
+    WatchHandlers(String, Done<Result<(), SessionError>>),
+    Close(Done<()>),
+}
+
+enum InformOp {
+    Capacity(i32),
+    Priority(String, i32),
+    QueueLength(String, i32),
+}
+
+/// A session's connection to an IPC central.
+pub struct IpcBackend {
+    cmd: mpsc::UnboundedSender<Cmd>,
+    addr: String,
+    events: Arc<Mutex<Vec<mpsc::UnboundedSender<SessionEvent>>>>,
+    next_query: std::sync::atomic::AtomicU64,
+}
+
+impl std::fmt::Debug for IpcBackend {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("IpcBackend")
+            .field("central", &self.addr)
+            .finish_non_exhaustive()
+    }
+}
+
+/// `(host, port)` from `ipc://host:port`, `ipc://host`, `ipc://` (then
+/// `CENTRALHOST`, then localhost:1381).
+pub fn parse_url(url: &str) -> Result<(String, u16), String> {
+    let rest = url
+        .strip_prefix("ipc://")
+        .ok_or_else(|| "expected ipc://host:port".to_string())?;
+    let rest = rest.trim_end_matches('/');
+    let spec = if rest.is_empty() {
+        std::env::var("CENTRALHOST").unwrap_or_else(|_| "localhost".into())
+    } else {
+        rest.to_string()
+    };
+    match spec.rsplit_once(':') {
+        Some((h, p)) => {
+            let port = p
+                .parse::<u16>()
+                .ok()
+                .filter(|p| *p > 0)
+                .ok_or_else(|| format!("'{p}' is not a port number"))?;
+            Ok((
+                if h.is_empty() {
+                    "localhost".into()
+                } else {
+                    h.into()
+                },
+                port,
+            ))
+        }
+        None => Ok((spec, DEFAULT_PORT)),
+    }
+}
+
+fn local_host_name() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|s| s.trim().to_string())
+        .unwrap_or_else(|_| "localhost".into())
+}
+
+/// C's rule: the UNIX socket is tried first when the host is this machine's
+/// name (exactly, or as a prefix followed by '.').
+fn is_local_name(host: &str, local: &str) -> bool {
+    host == local || local.strip_prefix(host).is_some_and(|r| r.starts_with('.'))
+}
+
+async fn open(host: &str, port: u16) -> std::io::Result<Box<dyn Io>> {
+    if is_local_name(host, &local_host_name()) {
+        if let Ok(s) = tokio::net::UnixStream::connect(format!("/tmp/x_ipc/{port}")).await {
+            return Ok(Box::new(s));
+        }
+    }
+    let s = tokio::net::TcpStream::connect((host, port)).await?;
+    s.set_nodelay(true)?;
+    Ok(Box::new(s))
+}
+
+impl IpcBackend {
+    /// Connects to central and completes the IPC handshake.
+    pub async fn connect(url: &str, name: &str, opts: IpcOptions) -> Result<Self, ConnectError> {
+        let (host, port) = parse_url(url).map_err(|why| ConnectError::BadUrl {
+            url: url.into(),
+            why,
+        })?;
+        let addr = format!("{host}:{port}");
+        let deadline = tokio::time::Instant::now() + opts.connect_timeout;
+        let mut attempts = 0;
+        let mut io = loop {
+            attempts += 1;
+            match open(&host, port).await {
+                Ok(io) => break io,
+                Err(e) if tokio::time::Instant::now() + Duration::from_millis(200) >= deadline => {
+                    return Err(ConnectError::Unreachable {
+                        addr,
+                        attempts,
+                        source: e,
+                    })
+                }
+                Err(_) => tokio::time::sleep(Duration::from_millis(200)).await,
+            }
+        };
+        let mut cfg = ModuleConfig::new(name, local_host_name());
+        cfg.listen = opts.listen;
+        let mut conn = Connection::new(cfg, Instant::now());
+        let mut buf = vec![0u8; 64 * 1024];
+        let hs = async {
+            loop {
+                while let Some(b) = conn.poll_transmit() {
+                    io.write_all(&b).await.map_err(|e| e.to_string())?;
+                }
+                match conn.poll_event() {
+                    Some(Event::Connected) => return Ok(()),
+                    Some(Event::Closed(e)) => {
+                        return Err(
+                            e.map_or("central closed the connection".into(), |e| e.to_string())
+                        )
+                    }
+                    Some(Event::DirectListenRequested) => return Err(
+                        "central runs in direct mode (-c), which this backend does not support yet"
+                            .into(),
+                    ),
+                    Some(_) => continue,
+                    None => {}
+                }
+                while let Some(b) = conn.poll_transmit() {
+                    io.write_all(&b).await.map_err(|e| e.to_string())?;
+                }
+                let n = io.read(&mut buf).await.map_err(|e| e.to_string())?;
+                if n == 0 {
+                    return Err("central closed the connection".into());
+                }
+                conn.receive(&buf[..n], Instant::now());
+            }
+        };
+        let res: Result<(), String> = match tokio::time::timeout_at(deadline, hs).await {
+            Ok(r) => r,
+            Err(_) => Err("no answer within the connect timeout".into()),
+        };
+        res.map_err(|why| ConnectError::Handshake {
+            addr: addr.clone(),
+            why,
+        })?;
+        let (tx, rx) = mpsc::unbounded_channel();
+        let events = Arc::new(Mutex::new(Vec::new()));
+        let driver = Driver {
+            conn,
+            io,
+            cmd_tx: tx.clone(),
+            addr: addr.clone(),
+            events: events.clone(),
+            subs: HashMap::new(),
+            servers: HashMap::new(),
+            publishes: HashMap::new(),
+            queries: HashMap::new(),
+            query_ops: HashMap::new(),
+            bools: HashMap::new(),
+            counts: HashMap::new(),
+            closing: None,
+            watching_modules: false,
+        };
+        tokio::spawn(driver.run(rx, buf));
+        Ok(IpcBackend {
+            cmd: tx,
+            addr,
+            events,
+            next_query: std::sync::atomic::AtomicU64::new(1),
+        })
+    }
+
+    async fn call<T>(&self, f: impl FnOnce(Done<T>) -> Cmd, gone: T) -> T {
+        let (tx, rx) = oneshot::channel();
+        if self.cmd.send(f(tx)).is_err() {
+            return gone;
+        }
+        rx.await.unwrap_or(gone)
+    }
+
+    fn gone(&self) -> SessionError {
+        SessionError::Disconnected(self.addr.clone())
+    }
+}
+
+#[async_trait::async_trait]
+impl Backend for IpcBackend {
+    fn encoding(&self) -> Encoding {
+        Encoding::Ipc
+    }
+
+    async fn define_format(&self, name: &str, format: &str) -> Result<(), SessionError> {
+        let g = Err(self.gone());
+        self.call(|d| Cmd::DefineFormat(name.into(), format.into(), d), g)
+            .await
+    }
+
+    async fn define(&self, msg: &str, format: Option<&str>) -> Result<(), SessionError> {
+        let g = Err(self.gone());
+        self.call(
+            |d| Cmd::Define(msg.into(), format.map(str::to_string), d),
+            g,
+        )
+        .await
+    }
+
+    async fn publish(&self, msg: &str, data: Vec<u8>) -> Result<(), SessionError> {
+        let g = Err(self.gone());
+        self.call(|d| Cmd::Publish(msg.into(), data, d), g).await
+    }
+
+    async fn subscribe(
+        &self,
+        msg: &str,
+        queue: usize,
+    ) -> Result<mpsc::Receiver<RawSample>, SessionError> {
+        let (tx, rx) = mpsc::channel(queue.max(1));
+        let g = Err(self.gone());
+        self.call(|d| Cmd::Subscribe(msg.into(), tx, d), g).await?;
+        Ok(rx)
+    }
+
+    async fn query(
+        &self,
+        msg: &str,
+        data: Vec<u8>,
+        timeout: Duration,
+    ) -> Result<RawReply, QueryError> {
+        let key = self
+            .next_query
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let (tx, rx) = oneshot::channel();
+        if self
+            .cmd
+            .send(Cmd::Query(key, msg.into(), data, tx))
+            .is_err()
+        {
+            return Err(QueryError::Disconnected(msg.into()));
+        }
+        match tokio::time::timeout(timeout, rx).await {
+            Ok(Ok(r)) => r,
+            Ok(Err(_)) => Err(QueryError::Disconnected(msg.into())),
+            Err(_) => {
+                let _ = self.cmd.send(Cmd::CancelQuery(key));
+                Err(QueryError::Timeout {
+                    msg: msg.into(),
+                    timeout,
+                })
+            }
+        }
+    }
+
+    async fn serve(
+        &self,
+        msg: &str,
+        queue: usize,
+    ) -> Result<mpsc::Receiver<RawRequest>, SessionError> {
+        let (tx, rx) = mpsc::channel(queue.max(1));
+        let g = Err(self.gone());
+        self.call(|d| Cmd::Serve(msg.into(), tx, d), g).await?;
+        Ok(rx)
+    }
+
+    fn events(&self) -> mpsc::UnboundedReceiver<SessionEvent> {
+        let (tx, rx) = mpsc::unbounded_channel();
+        if self.cmd.is_closed() {
+            let _ = tx.send(SessionEvent::Disconnected);
+        } else {
+            let mut ev = self.events.lock().unwrap();
+            if ev.is_empty() {
+                let _ = self.cmd.send(Cmd::WatchModules);
+            }
+            ev.push(tx);
+        }
+        rx
+    }
+
+    async fn is_module_connected(&self, module: &str) -> Result<bool, SessionError> {
+        let g = Err(self.gone());
+        self.call(|d| Cmd::ModuleConnected(module.into(), d), g)
+            .await
+    }
+
+    async fn num_handlers(&self, msg: &str) -> Result<i32, SessionError> {
+        let g = Err(self.gone());
+        self.call(|d| Cmd::NumHandlers(msg.into(), d), g).await
+    }
+
+    async fn set_capacity(&self, n: i32) -> Result<(), SessionError> {
+        let g = Err(self.gone());
+        self.call(|d| Cmd::Inform(InformOp::Capacity(n), d), g)
+            .await
+    }
+
+    async fn set_priority(&self, msg: &str, priority: i32) -> Result<(), SessionError> {
+        let g = Err(self.gone());
+        self.call(
+            |d| Cmd::Inform(InformOp::Priority(msg.into(), priority), d),
+            g,
+        )
+        .await
+    }
+
+    async fn set_queue_length(&self, msg: &str, n: i32) -> Result<(), SessionError> {
+        let g = Err(self.gone());
+        self.call(|d| Cmd::Inform(InformOp::QueueLength(msg.into(), n), d), g)
+            .await
+    }
+
+    async fn watch_handlers(&self, msg: &str) -> Result<(), SessionError> {
+        let g = Err(self.gone());
+        self.call(|d| Cmd::WatchHandlers(msg.into(), d), g).await
+    }
+
+    async fn close(&self) {
+        self.call(Cmd::Close, ()).await
+    }
+}
+
+impl Drop for IpcBackend {
+    fn drop(&mut self) {
+        let (tx, _) = oneshot::channel();
+        let _ = self.cmd.send(Cmd::Close(tx));
+    }
+}
+
+struct Sub {
+    msg: String,
+    hnd: String,
+    tx: mpsc::Sender<RawSample>,
+}
+
+struct Server {
+    msg: String,
+    hnd: String,
+    tx: mpsc::Sender<RawRequest>,
+}
+
+struct Driver {
+    conn: Connection,
+    io: Box<dyn Io>,
+    cmd_tx: mpsc::UnboundedSender<Cmd>,
+    addr: String,
+    events: Arc<Mutex<Vec<mpsc::UnboundedSender<SessionEvent>>>>,
+    subs: HashMap<i32, Sub>,
+    servers: HashMap<i32, Server>,
+    publishes: HashMap<OpId, Done<Result<(), SessionError>>>,
+    queries: HashMap<OpId, Done<Result<RawReply, QueryError>>>,
+    query_ops: HashMap<u64, OpId>,
+    bools: HashMap<OpId, Done<Result<bool, SessionError>>>,
+    counts: HashMap<OpId, Done<Result<i32, SessionError>>>,
+    closing: Option<Done<()>>,
+    watching_modules: bool,
+}
+
+fn refused(e: ModError) -> SessionError {
+    match e {
+        ModError::Closed => SessionError::Disconnected("central".into()),
+        other => SessionError::Refused(other.to_string()),
+    }
+}
+
+static HANDLER_SEQ: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+
+impl Driver {
+    async fn run(mut self, mut rx: mpsc::UnboundedReceiver<Cmd>, mut buf: Vec<u8>) {
+        let mut closed = false;
+        loop {
+            if self.flush().await.is_err() {
+                break;
+            }
+            self.drain_events();
+            if self.flush().await.is_err() {
+                break;
+            }
+            if self.closing.is_some() && !self.conn.is_waiting() {
+                break;
+            }
+            self.reap_dropped();
+            tokio::select! {
+                cmd = rx.recv() => match cmd {
+                    Some(c) => self.command(c),
+                    None => {
+                        let _ = self.conn.close();
+                        closed = true;
+                    }
+                },
+                n = self.io.read(&mut buf) => match n {
+                    Ok(0) | Err(_) => {
+                        self.conn.handle_eof();
+                        self.drain_events();
+                        break;
+                    }
+                    Ok(n) => self.conn.receive(&buf[..n], Instant::now()),
+                },
+            }
+            if closed && !self.conn.is_waiting() {
+                let _ = self.flush().await;
+                break;
+            }
+        }
+        let _ = self.io.shutdown().await;
+        self.fail_all();
+        if let Some(d) = self.closing.take() {
+            let _ = d.send(());
+        }
+    }
+
+    async fn flush(&mut self) -> std::io::Result<()> {
+        while let Some(b) = self.conn.poll_transmit() {
+            self.io.write_all(&b).await?;
+        }
+        Ok(())
+    }
+
+    /// Unsubscribes subscriptions whose `Subscriber` was dropped.
+    fn reap_dropped(&mut self) {
+        let gone: Vec<i32> = self
+            .subs
+            .iter()
+            .filter(|(_, s)| s.tx.is_closed())
+            .map(|(h, _)| *h)
+            .collect();
+        for h in gone {
+            if let Some(s) = self.subs.remove(&h) {
+                let _ = self.conn.unsubscribe(&s.msg, &s.hnd);
+            }
+        }
+        let gone: Vec<i32> = self
+            .servers
+            .iter()
+            .filter(|(_, s)| s.tx.is_closed())
+            .map(|(h, _)| *h)
+            .collect();
+        for h in gone {
+            if let Some(s) = self.servers.remove(&h) {
+                let _ = self.conn.unsubscribe(&s.msg, &s.hnd);
+            }
+        }
+    }
+
+    fn command(&mut self, c: Cmd) {
+        match c {
+            Cmd::DefineFormat(n, f, d) => {
+                let _ = d.send(self.conn.define_format(&n, &f).map_err(refused));
+            }
+            Cmd::Define(m, f, d) => {
+                let _ = d.send(
+                    self.conn
+                        .define_msg(&m, MsgLength::Variable, f.as_deref())
+                        .map_err(refused),
+                );
+            }
+            Cmd::Publish(m, data, d) => match self.conn.publish(&m, &data, -1) {
+                Ok(op) => {
+                    self.publishes.insert(op, d);
+                }
+                Err(e) => {
+                    let _ = d.send(Err(refused(e)));
+                }
+            },
+            Cmd::Subscribe(m, tx, d) => {
+                let hnd = format!(
+                    "HND-{m}-courier{}",
+                    HANDLER_SEQ.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+                );
+                let _ = d.send(match self.conn.subscribe(&m, &hnd) {
+                    Ok(h) => {
+                        self.subs.insert(h, Sub { msg: m, hnd, tx });
+                        Ok(())
+                    }
+                    Err(e) => Err(refused(e)),
+                });
+            }
+            Cmd::Serve(m, tx, d) => {
+                let hnd = format!(
+                    "HND-{m}-courier{}",
+                    HANDLER_SEQ.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+                );
+                let _ = d.send(match self.conn.subscribe(&m, &hnd) {
+                    Ok(h) => {
+                        self.servers.insert(h, Server { msg: m, hnd, tx });
+                        Ok(())
+                    }
+                    Err(e) => Err(refused(e)),
+                });
+            }
+            Cmd::Query(key, m, data, d) => match self.conn.query(&m, &data, -1) {
+                Ok(op) => {
+                    self.queries.insert(op, d);
+                    self.query_ops.insert(key, op);
+                }
+                Err(e) => {
+                    let _ = d.send(Err(QueryError::Refused {
+                        msg: m,
+                        detail: e.to_string(),
+                    }));
+                }
+            },
+            Cmd::CancelQuery(key) => {
+                if let Some(op) = self.query_ops.remove(&key) {
+                    self.queries.remove(&op);
+                    self.conn.cancel_query(op);
+                }
+            }
+            Cmd::Ack(delivery) => {
+                let _ = self.conn.ack(delivery);
+            }
+            Cmd::Respond(delivery, reply, data) => {
+                if let Err(e) = self.conn.respond(delivery, &reply, &data) {
+                    tracing::warn!("cannot respond with {reply}: {e}");
+                }
+            }
+            Cmd::ModuleConnected(m, d) => match self.conn.is_module_connected(&m) {
+                Ok(op) => {
+                    self.bools.insert(op, d);
+                }
+                Err(e) => {
+                    let _ = d.send(Err(refused(e)));
+                }
+            },
+            Cmd::NumHandlers(m, d) => match self.conn.num_handlers(&m) {
+                Ok(op) => {
+                    self.counts.insert(op, d);
+                }
+                Err(e) => {
+                    let _ = d.send(Err(refused(e)));
+                }
+            },
+            Cmd::Inform(op, d) => {
+                let r = match op {
+                    InformOp::Capacity(n) => self.conn.set_capacity(n),
+                    InformOp::Priority(m, p) => self.conn.set_priority(&m, p),
+                    InformOp::QueueLength(m, n) => self.conn.set_queue_length(&m, n),
+                };
+                let _ = d.send(r.map_err(refused));
+            }
+            Cmd::WatchModules => {
+                if !self.watching_modules {
+                    self.watching_modules = true;
+                    let _ = self.conn.subscribe_connect();
+                    let _ = self.conn.subscribe_disconnect();
+                }
+            }
+            Cmd::WatchHandlers(m, d) => {
+                let _ = d.send(
+                    self.conn
+                        .subscribe_handler_change(&m)
+                        .map(|_| ())
+                        .map_err(refused),
+                );
+            }
+            Cmd::Close(d) => {
+                let _ = self.conn.close();
+                self.closing = Some(d);
+            }
+        }
+    }
+
+    fn broadcast(&self, e: SessionEvent) {
+        self.events
+            .lock()
+            .unwrap()
+            .retain(|tx| tx.send(e.clone()).is_ok());
+    }
+
+    fn drain_events(&mut self) {
+        while let Some(e) = self.conn.poll_event() {
+            match e {
+                Event::Delivery {
+                    delivery,
+                    handler,
+                    msg,
+                    kind,
+                    order,
+                    data,
+                    ..
+                } => self.deliver(delivery, handler, msg, kind, order, data),
+                Event::Reply {
+                    query,
+                    reply_msg,
+                    order,
+                    data,
+                } => {
+                    self.query_ops.retain(|_, op| *op != query);
+                    if let Some(d) = self.queries.remove(&query) {
+                        let _ = d.send(Ok((reply_msg, data, order)));
+                    }
+                }
+                Event::Published { op } | Event::PublishDropped { op, .. } => {
+                    if let Some(d) = self.publishes.remove(&op) {
+                        let _ = d.send(Ok(()));
+                    }
+                }
+                Event::OpFailed { op, error } => {
+                    let e = refused(error);
+                    if let Some(d) = self.publishes.remove(&op) {
+                        let _ = d.send(Err(e.clone()));
+                    }
+                    if let Some(d) = self.queries.remove(&op) {
+                        let _ = d.send(Err(QueryError::Refused {
+                            msg: String::new(),
+                            detail: e.to_string(),
+                        }));
+                    }
+                    if let Some(d) = self.bools.remove(&op) {
+                        let _ = d.send(Err(e.clone()));
+                    }
+                    if let Some(d) = self.counts.remove(&op) {
+                        let _ = d.send(Err(e));
+                    }
+                }
+                Event::ModuleConnected { op, connected } => {
+                    if let Some(d) = self.bools.remove(&op) {
+                        let _ = d.send(Ok(connected));
+                    }
+                }
+                Event::NumHandlers { op, count } => {
+                    if let Some(d) = self.counts.remove(&op) {
+                        let _ = d.send(Ok(count));
+                    }
+                }
+                Event::ModuleConnect(m) => self.broadcast(SessionEvent::ModuleConnected(m)),
+                Event::ModuleDisconnect(m) => self.broadcast(SessionEvent::ModuleDisconnected(m)),
+                Event::HandlerChange { msg, count } => {
+                    self.broadcast(SessionEvent::HandlersChanged { msg, count })
+                }
+                Event::Closed(_) => {}
+                Event::DirectConnect { link, .. } => self.conn.direct_link_failed(link),
+                _ => {}
+            }
+        }
+    }
+
+    fn deliver(
+        &mut self,
+        delivery: u64,
+        handler: i32,
+        msg: String,
+        kind: DeliveryKind,
+        order: ByteOrder,
+        data: Vec<u8>,
+    ) {
+        match kind {
+            DeliveryKind::Broadcast => {
+                let Some(sub) = self.subs.get(&handler) else {
+                    let _ = self.conn.ack(delivery);
+                    return;
+                };
+                // Acknowledged once queued for the subscriber: central's
+                // capacity then counts what this module has not yet taken
+                // in, and one Subscriber the user does not poll does not
+                // stall the others. A full queue (keep-all) acknowledges
+                // only when there is room again: back-pressure to central.
+                let s = RawSample {
+                    msg,
+                    data,
+                    order,
+                    received: SystemTime::now(),
+                    done: None,
+                };
+                match sub.tx.try_send(s) {
+                    Ok(()) => {
+                        let _ = self.conn.ack(delivery);
+                    }
+                    Err(mpsc::error::TrySendError::Closed(_)) => {
+                        let _ = self.conn.ack(delivery);
+                    }
+                    Err(mpsc::error::TrySendError::Full(s)) => {
+                        let tx = sub.tx.clone();
+                        let cmd = self.cmd_tx.clone();
+                        tokio::spawn(async move {
+                            let _ = tx.send(s).await;
+                            let _ = cmd.send(Cmd::Ack(delivery));
+                        });
+                    }
+                }
+            }
+            DeliveryKind::Query => {
+                // A query that raced a re-`serve` goes to the live server.
+                let srv = self
+                    .servers
+                    .get(&handler)
+                    .or_else(|| self.servers.values().find(|s| s.msg == msg));
+                let Some(srv) = srv else {
+                    tracing::warn!("query {msg} for a handler that is gone: not answered");
+                    return;
+                };
+                let cmd = self.cmd_tx.clone();
+                let addr = self.addr.clone();
+                let r = RawRequest {
+                    msg,
+                    data,
+                    order,
+                    respond: Box::new(move |reply: &str, bytes: Vec<u8>| {
+                        cmd.send(Cmd::Respond(delivery, reply.to_string(), bytes))
+                            .map_err(|_| SessionError::Disconnected(addr))
+                    }),
+                };
+                let tx = srv.tx.clone();
+                if let Err(mpsc::error::TrySendError::Full(r)) = tx.try_send(r) {
+                    tokio::spawn(async move {
+                        let _ = tx.send(r).await;
+                    });
+                }
+            }
+        }
+    }
+
+    /// The connection is gone: every waiter learns it at once.
+    fn fail_all(&mut self) {
+        let gone = SessionError::Disconnected(self.addr.clone());
+        for (_, d) in self.publishes.drain() {
+            let _ = d.send(Err(gone.clone()));
+        }
+        for (_, d) in self.queries.drain() {
+            let _ = d.send(Err(QueryError::Disconnected(self.addr.clone())));
+        }
+        for (_, d) in self.bools.drain() {
+            let _ = d.send(Err(gone.clone()));
+        }
+        for (_, d) in self.counts.drain() {
+            let _ = d.send(Err(gone.clone()));
+        }
+        for (_, s) in self.subs.drain() {
+            let _ = s.tx.try_send(RawSample {
+                msg: String::new(),
+                data: Vec::new(),
+                order: ByteOrder::NATIVE,
+                received: SystemTime::now(),
+                done: None,
+            });
+        }
+        for (_, s) in self.servers.drain() {
+            let _ = s.tx.try_send(RawRequest {
+                msg: String::new(),
+                data: Vec::new(),
+                order: ByteOrder::NATIVE,
+                respond: Box::new(|_, _| Err(SessionError::Disconnected(String::new()))),
+            });
+        }
+        self.broadcast(SessionEvent::Disconnected);
+        self.events.lock().unwrap().clear();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn urls() {
+        assert_eq!(
+            parse_url("ipc://127.0.0.1:1400").unwrap(),
+            ("127.0.0.1".into(), 1400)
+        );
+        assert_eq!(parse_url("ipc://host").unwrap(), ("host".into(), 1381));
+        assert!(parse_url("tcp://x").unwrap_err().contains("ipc://"));
+        assert!(parse_url("ipc://h:0").unwrap_err().contains("not a port"));
+        assert!(parse_url("ipc://h:99999")
+            .unwrap_err()
+            .contains("not a port"));
+    }
+
+    #[test]
+    fn local_names() {
+        assert!(is_local_name("vm", "vm"));
+        assert!(is_local_name("vm", "vm.example.org"));
+        assert!(!is_local_name("v", "vm"));
+        assert!(!is_local_name("127.0.0.1", "vm"));
+    }
+}

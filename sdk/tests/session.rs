@@ -1,0 +1,292 @@
+//! The Session API against Courier's own central, embedded on a free port
+//! of 127.0.0.1. Every wait is bounded.
+
+use std::time::Duration;
+
+use courier::{IpcMessage, QueryError, RecvError, Session, SessionEvent};
+use courier_broker::{CentralHandle, CentralServer};
+use futures::StreamExt;
+
+const T: Duration = Duration::from_secs(20);
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct Point {
+    x: f64,
+    y: f64,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct Path {
+    name: String,
+    n: i32,
+    #[ipc(len = "n")]
+    points: Vec<Point>,
+}
+
+async fn central() -> (CentralHandle, String) {
+    let mut b = CentralServer::builder();
+    if std::env::var_os("CENTRAL_LOG").is_some() {
+        let mut cfg = courier_broker::Config::default();
+        cfg.terminal_log = courier_broker::LogOptions::parse("msr", false).unwrap();
+        b = b
+            .config(cfg)
+            .log_sink(courier_broker::LogSink::new(|_, l: &str| {
+                eprintln!("central| {l}")
+            }));
+    }
+    let c = b
+        .bind("127.0.0.1".parse().unwrap())
+        .port(0)
+        .spawn()
+        .await
+        .unwrap();
+    let url = format!("ipc://{}", c.local_addr());
+    (c, url)
+}
+
+async fn session(url: &str, name: &str) -> Session {
+    tokio::time::timeout(T, Session::builder(url).name(name).connect())
+        .await
+        .unwrap()
+        .unwrap()
+}
+
+#[tokio::test]
+async fn publish_subscribe_typed() {
+    let (c, url) = central().await;
+    let a = session(&url, "a").await;
+    let b = session(&url, "b").await;
+    a.define::<Path>("path").await.unwrap();
+    let mut sub = b.subscribe::<Path>("path").await.unwrap();
+    // Central confirms b's subscription reached it before a publishes.
+    assert_eq!(
+        tokio::time::timeout(T, b.num_handlers("path"))
+            .await
+            .unwrap()
+            .unwrap(),
+        1
+    );
+    // a learns the new subscriber through the broadcast list it watches.
+    let p = Path {
+        name: "square".into(),
+        n: 2,
+        points: vec![Point { x: 0.0, y: 1.0 }, Point { x: 2.0, y: 3.0 }],
+    };
+    let deadline = tokio::time::Instant::now() + T;
+    let got = loop {
+        a.publish("path", &p).await.unwrap();
+        if let Ok(Some(s)) = tokio::time::timeout(Duration::from_millis(200), sub.next()).await {
+            break s.unwrap();
+        }
+        assert!(tokio::time::Instant::now() < deadline);
+    };
+    assert_eq!(got.value, p);
+    assert_eq!(got.msg, "path");
+    // Raw bytes both ways.
+    let mut raw = b.subscribe_raw("path").await.unwrap();
+    a.publish_raw("path", &courier::ipc::to_vec(&p))
+        .await
+        .unwrap();
+    let r = tokio::time::timeout(T, raw.recv()).await.unwrap().unwrap();
+    assert_eq!(courier::ipc::from_slice::<Path>(&r.data).unwrap(), p);
+    drop(raw);
+    a.close().await;
+    b.close().await;
+    c.shutdown().await;
+}
+
+#[tokio::test]
+async fn query_serve_with_delayed_reply_and_many_concurrent_queries() {
+    let (c, url) = central().await;
+    let server = session(&url, "server").await;
+    let client = session(&url, "client").await;
+    server.define::<i32>("square").await.unwrap();
+    server.define::<i64>("squared").await.unwrap();
+    let mut reqs = server.serve::<i32, i64>("square", "squared").await.unwrap();
+    // Central hands a module at most `capacity` queries at once.
+    server.set_capacity(20).await.unwrap();
+    assert_eq!(
+        tokio::time::timeout(T, client.num_handlers("square"))
+            .await
+            .unwrap()
+            .unwrap(),
+        1
+    );
+    // The server answers from other tasks, in reverse order of arrival.
+    let srv = tokio::spawn(async move {
+        let mut held = Vec::new();
+        while let Some(r) = reqs.next().await {
+            held.push(r.unwrap());
+            if held.len() == 20 {
+                break;
+            }
+        }
+        let mut tasks = Vec::new();
+        for r in held.into_iter().rev() {
+            tasks.push(tokio::spawn(async move {
+                let v = r.value as i64;
+                r.reply(&(v * v)).await.unwrap();
+            }));
+        }
+        for t in tasks {
+            t.await.unwrap();
+        }
+        reqs
+    });
+    let mut qs = Vec::new();
+    for i in 0..20i32 {
+        let client = client.clone();
+        qs.push(tokio::spawn(async move {
+            let r: i64 = client.query("square", &i).timeout(T).await.unwrap();
+            assert_eq!(r, (i as i64) * (i as i64));
+        }));
+    }
+    for q in qs {
+        tokio::time::timeout(T, q).await.unwrap().unwrap();
+    }
+    let mut reqs = tokio::time::timeout(T, srv).await.unwrap().unwrap();
+    // A reply of the wrong type is an error, not a panic.
+    let bad = tokio::spawn(async move {
+        let r = reqs.next().await.unwrap().unwrap();
+        r.reply(&1i64).await.unwrap();
+    });
+    let e = client
+        .query::<i32, String>("square", &3)
+        .timeout(T)
+        .await
+        .unwrap_err();
+    assert!(matches!(e, QueryError::Decode { .. }), "{e}");
+    bad.await.unwrap();
+    client.close().await;
+    server.close().await;
+    c.shutdown().await;
+}
+
+#[tokio::test]
+async fn query_timeout_and_events() {
+    let (c, url) = central().await;
+    let a = session(&url, "watcher").await;
+    a.define::<i32>("nobody_serves").await.unwrap();
+    let e = a
+        .query::<i32, i32>("nobody_serves", &1)
+        .timeout(Duration::from_millis(200))
+        .await
+        .unwrap_err();
+    assert!(matches!(e, QueryError::Timeout { .. }), "{e}");
+    assert!(a.is_module_connected("watcher").await.unwrap());
+    assert!(!a.is_module_connected("ghost").await.unwrap());
+    a.set_capacity(2).await.unwrap();
+    a.set_priority("nobody_serves", 3).await.unwrap();
+    a.set_queue_length("nobody_serves", 5).await.unwrap();
+    c.shutdown().await;
+}
+
+#[tokio::test]
+async fn central_dying_ends_subscribers_and_fails_queries_at_once() {
+    let (c, url) = central().await;
+    let a = session(&url, "a").await;
+    a.define::<i32>("m").await.unwrap();
+    let mut sub = a.subscribe::<i32>("m").await.unwrap();
+    let mut events = a.events();
+    let q = {
+        let a = a.clone();
+        tokio::spawn(async move { a.query::<i32, i32>("m", &1).timeout(T).await })
+    };
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let started = std::time::Instant::now();
+    c.shutdown().await;
+    let first = tokio::time::timeout(T, sub.next()).await.unwrap();
+    assert!(
+        matches!(first, Some(Err(RecvError::Disconnected)) | Some(Ok(_))),
+        "{first:?}"
+    );
+    let e = tokio::time::timeout(T, q)
+        .await
+        .unwrap()
+        .unwrap()
+        .unwrap_err();
+    assert!(matches!(e, QueryError::Disconnected(_)), "{e}");
+    assert!(started.elapsed() < Duration::from_secs(5), "failed at once");
+    loop {
+        match tokio::time::timeout(T, events.next()).await.unwrap() {
+            Some(SessionEvent::Disconnected) | None => break,
+            Some(_) => {}
+        }
+    }
+    assert!(a.publish("m", &1).await.is_err());
+}
+
+#[tokio::test(start_paused = true)]
+async fn timers_tick_on_schedule() {
+    let (c, url) = central().await;
+    let a = session(&url, "timers").await;
+    let start = tokio::time::Instant::now();
+    let ticks: Vec<_> = a.times(3, Duration::from_millis(100)).collect().await;
+    assert_eq!(ticks.len(), 3);
+    for (i, t) in ticks.iter().enumerate() {
+        assert_eq!(
+            t.scheduled,
+            start + Duration::from_millis(100 * (i as u64 + 1))
+        );
+        assert!(t.fired >= t.scheduled);
+    }
+    let once: Vec<_> = a.after(Duration::from_secs(5)).collect().await;
+    assert_eq!(once.len(), 1);
+    let mut every = a.every(Duration::from_secs(1));
+    for _ in 0..5 {
+        every.next().await.unwrap();
+    }
+    c.shutdown().await;
+}
+
+#[tokio::test]
+async fn bad_url_and_unreachable_central_say_where() {
+    let e = Session::builder("tcp://x").connect().await.unwrap_err();
+    assert!(e.to_string().contains("bad session URL"), "{e}");
+    // A port nobody listens on.
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let e = Session::builder(format!("ipc://127.0.0.1:{port}"))
+        .connect_timeout(Duration::from_millis(500))
+        .connect()
+        .await
+        .unwrap_err();
+    assert!(e.to_string().contains(&format!("127.0.0.1:{port}")), "{e}");
+}
+
+#[tokio::test]
+async fn connect_disconnect_and_handler_events() {
+    let (c, url) = central().await;
+    let a = session(&url, "observer").await;
+    a.define::<i32>("topic").await.unwrap();
+    let mut ev = a.events();
+    a.watch_handlers("topic").await.unwrap();
+    // Make sure central has the subscriptions before the newcomer arrives.
+    a.is_module_connected("x").await.unwrap();
+    let b = session(&url, "newcomer").await;
+    let sub = b.subscribe::<i32>("topic").await.unwrap();
+    b.num_handlers("topic").await.unwrap();
+    drop(sub);
+    b.close().await;
+    let mut seen = Vec::new();
+    while !seen.contains(&SessionEvent::ModuleDisconnected("newcomer".into())) {
+        let e = tokio::time::timeout(T, ev.next()).await.unwrap().unwrap();
+        seen.push(e);
+    }
+    assert!(
+        seen.contains(&SessionEvent::ModuleConnected("newcomer".into())),
+        "{seen:?}"
+    );
+    assert!(
+        seen.contains(&SessionEvent::HandlersChanged {
+            msg: "topic".into(),
+            count: 1
+        }),
+        "{seen:?}"
+    );
+    a.close().await;
+    c.shutdown().await;
+}
