@@ -25,45 +25,9 @@ use courier_broker::{CentralServer, LogSink};
 mod client;
 use client::Client;
 
-/// `typedef enum { WaitVal, SendVal, ReceiveVal, ListenVal } STATUS_ENUM`,
-/// written in T1 as `{enum : 3}`.
-#[derive(IpcMessage, Debug, Clone, Copy, PartialEq)]
-#[ipc(numeric)]
-enum Status {
-    Wait,
-    Send,
-    Receive,
-    Listen,
-}
-
-/// The same enum in its symbolic form, as T2 writes it.
-#[derive(IpcMessage, Debug, Clone, Copy, PartialEq)]
-#[allow(clippy::enum_variant_names)] // the manual's names
-enum StatusEnum {
-    WaitVal,
-    SendVal,
-    ReceiveVal,
-    ListenVal,
-}
-
-/// `T1_TYPE`.
-#[derive(IpcMessage, Debug, Clone, PartialEq)]
-struct T1 {
-    i1: i32,
-    status: Status,
-    matrix: [[f64; 3]; 2],
-    d1: f64,
-}
-
-/// `T2_TYPE`: a string, a count, a variable array of T1 and a status.
-#[derive(IpcMessage, Debug, Clone, PartialEq)]
-struct T2 {
-    str1: String,
-    count: i32,
-    #[ipc(len = "count")]
-    t1: Vec<T1>,
-    status: StatusEnum,
-}
+#[path = "appendix_a.rs"]
+mod appendix;
+use appendix::{appendix_a, T1, T2};
 
 fn hex(b: &[u8]) -> String {
     b.chunks(4)
@@ -88,22 +52,6 @@ fn show<T: IpcMessage + std::fmt::Debug + PartialEq>(msg: &str, v: &T) {
         assert_eq!(&cdr::from_slice::<T>(&c).expect("round trip"), v);
     }
     println!();
-}
-
-fn appendix_a() -> (T1, T2) {
-    let t1 = T1 {
-        i1: 666,
-        status: Status::Send,
-        matrix: [[0.0, 1.0, 2.0], [1.0, 2.0, 3.0]],
-        d1: std::f64::consts::PI,
-    };
-    let t2 = T2 {
-        str1: "Hello, world".into(),
-        count: 1,
-        t1: vec![t1.clone()],
-        status: StatusEnum::ReceiveVal,
-    };
-    (t1, t2)
 }
 
 /// `IPC_defineFormat` for every named format `T` uses, then `IPC_defineMsg`.
