@@ -60,3 +60,14 @@ pub fn appendix_a() -> (T1, T2) {
     };
     (t1, t2)
 }
+
+/// Resolves after the number of seconds given as the first argument, or on
+/// Ctrl-C when there is none (how module2 and module3 end).
+pub async fn stop_signal() {
+    match std::env::args().nth(1).and_then(|a| a.parse::<u64>().ok()) {
+        Some(secs) => tokio::time::sleep(std::time::Duration::from_secs(secs)).await,
+        None => {
+            let _ = tokio::signal::ctrl_c().await;
+        }
+    }
+}

@@ -10,8 +10,6 @@
 #[path = "appendix_a.rs"]
 mod appendix;
 
-use std::time::Duration;
-
 use appendix::{appendix_a, T1, T2};
 use courier::Session;
 use futures::StreamExt;
@@ -24,18 +22,7 @@ async fn main() -> Result<(), Box<dyn std::error::Error>> {
     s.define::<T2>("response1").await?;
     let mut msg1 = s.subscribe::<i32>("message1").await?;
     let mut queries = s.serve::<T1, T2>("query1", "response1").await?;
-    let run_for = std::env::args()
-        .nth(1)
-        .and_then(|a| a.parse::<u64>().ok())
-        .map(Duration::from_secs);
-    let stop = async {
-        match run_for {
-            Some(d) => tokio::time::sleep(d).await,
-            None => {
-                let _ = tokio::signal::ctrl_c().await;
-            }
-        }
-    };
+    let stop = appendix::stop_signal();
     tokio::pin!(stop);
     loop {
         tokio::select! {

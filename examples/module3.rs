@@ -5,7 +5,8 @@
 //! CENTRALHOST=127.0.0.1:1381 cargo run -p courier-examples --bin module3 [-- SECONDS]
 //! ```
 
-use std::time::Duration;
+#[path = "appendix_a.rs"]
+mod appendix;
 
 use courier::Session;
 use futures::StreamExt;
@@ -16,18 +17,7 @@ async fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!("module3: connected");
     let mut msg1 = s.subscribe::<i32>("message1").await?;
     let mut msg2 = s.subscribe::<String>("message2").await?;
-    let run_for = std::env::args()
-        .nth(1)
-        .and_then(|a| a.parse::<u64>().ok())
-        .map(Duration::from_secs);
-    let stop = async {
-        match run_for {
-            Some(d) => tokio::time::sleep(d).await,
-            None => {
-                let _ = tokio::signal::ctrl_c().await;
-            }
-        }
-    };
+    let stop = appendix::stop_signal();
     tokio::pin!(stop);
     loop {
         tokio::select! {
