@@ -14,7 +14,7 @@ use crate::session::{
     SessionEvent,
 };
 use courier_wire::ipc::module::{
-    Connection, DeliveryKind, Error as ModError, Event, ModuleConfig, MsgLength, OpId,
+    Connection, DeliveryKind, Error as ModError, Event, LinkId, ModuleConfig, MsgLength, OpId,
 };
 use courier_wire::ipc::ByteOrder;
 
@@ -67,6 +67,12 @@ enum Cmd {
     Inform(InformOp, Done<Result<(), SessionError>>),
     /// Subscribe central's connect/disconnect notifications (once).
     WatchModules,
+    /// Direct mode: a peer connected to our listener.
+    LinkAccepted(tokio::net::TcpStream),
+    /// Direct mode: our connection to a receiver is up (or failed: None).
+    LinkConnected(LinkId, Option<tokio::net::TcpStream>),
+    /// Direct mode: bytes read from a link (empty = closed).
+    LinkData(LinkId, Vec<u8>),
     /// Subscribe handler-count changes of a message.
     WatchHandlers(String, Done<Result<(), SessionError>>),
     Close(Done<()>),
@@ -177,6 +183,7 @@ impl IpcBackend {
         cfg.listen = opts.listen;
         let mut conn = Connection::new(cfg, Instant::now());
         let mut buf = vec![0u8; 64 * 1024];
+        let mut listener: Option<tokio::net::TcpListener> = None;
         let hs = async {
             loop {
                 while let Some(b) = conn.poll_transmit() {
@@ -189,10 +196,25 @@ impl IpcBackend {
                             e.map_or("central closed the connection".into(), |e| e.to_string())
                         )
                     }
-                    Some(Event::DirectListenRequested) => return Err(
-                        "central runs in direct mode (-c), which this backend does not support yet"
-                            .into(),
-                    ),
+                    Some(Event::DirectListenRequested) => {
+                        // Like C: the first free port from 8000 (to 9000).
+                        let ip = if host == "localhost" || host.starts_with("127.") {
+                            "127.0.0.1"
+                        } else {
+                            "0.0.0.0"
+                        };
+                        let mut bound = None;
+                        for p in 8000..9000u16 {
+                            if let Ok(l) = tokio::net::TcpListener::bind((ip, p)).await {
+                                bound = Some((l, p));
+                                break;
+                            }
+                        }
+                        let (l, p) = bound.ok_or("no free port in 8000..9000 for direct links")?;
+                        conn.announce_direct_port(i32::from(p));
+                        listener = Some(l);
+                        continue;
+                    }
                     Some(_) => continue,
                     None => {}
                 }
@@ -231,7 +253,19 @@ impl IpcBackend {
             counts: HashMap::new(),
             closing: None,
             watching_modules: false,
+            links: HashMap::new(),
         };
+        if let Some(l) = listener {
+            let tx2 = tx.clone();
+            tokio::spawn(async move {
+                while let Ok((s, _)) = l.accept().await {
+                    let _ = s.set_nodelay(true);
+                    if tx2.send(Cmd::LinkAccepted(s)).is_err() {
+                        break;
+                    }
+                }
+            });
+        }
         tokio::spawn(driver.run(rx, buf));
         Ok(IpcBackend {
             cmd: tx,
@@ -422,6 +456,7 @@ struct Driver {
     counts: HashMap<OpId, Done<Result<i32, SessionError>>>,
     closing: Option<Done<()>>,
     watching_modules: bool,
+    links: HashMap<LinkId, tokio::net::tcp::OwnedWriteHalf>,
 }
 
 fn refused(e: ModError) -> SessionError {
@@ -481,7 +516,28 @@ impl Driver {
         while let Some(b) = self.conn.poll_transmit() {
             self.io.write_all(&b).await?;
         }
+        while let Some((link, b)) = self.conn.poll_direct_transmit() {
+            if let Some(w) = self.links.get_mut(&link) {
+                if w.write_all(&b).await.is_err() {
+                    self.links.remove(&link);
+                }
+            }
+        }
         Ok(())
+    }
+
+    /// Reads a direct link on its own task, feeding the driver.
+    fn spawn_link_reader(&self, link: LinkId, mut r: tokio::net::tcp::OwnedReadHalf) {
+        let tx = self.cmd_tx.clone();
+        tokio::spawn(async move {
+            let mut buf = vec![0u8; 64 * 1024];
+            loop {
+                let n = r.read(&mut buf).await.unwrap_or(0);
+                if tx.send(Cmd::LinkData(link, buf[..n].to_vec())).is_err() || n == 0 {
+                    break;
+                }
+            }
+        });
     }
 
     /// Unsubscribes subscriptions whose `Subscriber` was dropped.
@@ -606,6 +662,27 @@ impl Driver {
                 };
                 let _ = d.send(r.map_err(refused));
             }
+            Cmd::LinkAccepted(stream) => {
+                let link = self.conn.accept_direct();
+                let (r, w) = stream.into_split();
+                self.links.insert(link, w);
+                self.spawn_link_reader(link, r);
+            }
+            Cmd::LinkConnected(link, Some(stream)) => {
+                let (r, w) = stream.into_split();
+                self.links.insert(link, w);
+                self.spawn_link_reader(link, r);
+                self.conn.direct_link_up(link);
+            }
+            Cmd::LinkConnected(link, None) => self.conn.direct_link_failed(link),
+            Cmd::LinkData(link, bytes) => {
+                if bytes.is_empty() {
+                    self.links.remove(&link);
+                } else if let Err(e) = self.conn.receive_direct(link, &bytes) {
+                    tracing::warn!("direct link dropped: {e}");
+                    self.links.remove(&link);
+                }
+            }
             Cmd::WatchModules => {
                 if !self.watching_modules {
                     self.watching_modules = true;
@@ -697,7 +774,29 @@ impl Driver {
                     self.broadcast(SessionEvent::HandlersChanged { msg, count })
                 }
                 Event::Closed(_) => {}
-                Event::DirectConnect { link, .. } => self.conn.direct_link_failed(link),
+                Event::DirectConnect {
+                    link, host, port, ..
+                } => {
+                    // A receiver on this machine is reached over loopback.
+                    let host = if host == local_host_name() || host == "localhost" {
+                        "127.0.0.1".to_string()
+                    } else {
+                        host
+                    };
+                    let tx = self.cmd_tx.clone();
+                    tokio::spawn(async move {
+                        let s = match u16::try_from(port) {
+                            Ok(p) => tokio::net::TcpStream::connect((host.as_str(), p))
+                                .await
+                                .ok(),
+                            Err(_) => None,
+                        };
+                        if let Some(s) = &s {
+                            let _ = s.set_nodelay(true);
+                        }
+                        let _ = tx.send(Cmd::LinkConnected(link, s));
+                    });
+                }
                 _ => {}
             }
         }

@@ -86,9 +86,13 @@
 //!   central. A query counts until it is answered.
 //! - A query whose handler is being unsubscribed at that moment is lost, as
 //!   in C.
-//! - Direct mode (`central -c`) is refused at connect with a clear error
-//!   until the direct links are wired in (the module state machine already
-//!   implements them).
+//! - Direct mode (`central -c`): the session listens on the first free port
+//!   from 8000 (on 127.0.0.1 when central is on loopback, else on all
+//!   interfaces, like C) and links to receivers itself; unlike C, a message
+//!   is never lost because the receiver list is learned late (it waits for
+//!   the links). Peers on this host are reached over loopback TCP; the
+//!   `/tmp/x_ipc/<port>` socket is not offered for direct links (C peers
+//!   fall back to TCP).
 #![warn(missing_docs)]
 #![forbid(unsafe_code)]
 

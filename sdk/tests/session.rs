@@ -290,3 +290,47 @@ async fn connect_disconnect_and_handler_events() {
     a.close().await;
     c.shutdown().await;
 }
+
+/// Direct mode (`central -c`): messages go module to module over links
+/// the sessions open themselves; the first message after the subscriber
+/// appears is not lost.
+#[tokio::test]
+async fn direct_mode_publish_and_query() {
+    let mut cfg = courier_broker::Config::default();
+    cfg.direct = true;
+    let c = CentralServer::builder()
+        .bind("127.0.0.1".parse().unwrap())
+        .port(0)
+        .config(cfg)
+        .spawn()
+        .await
+        .unwrap();
+    let url = format!("ipc://{}", c.local_addr());
+    let a = session(&url, "direct-a").await;
+    let b = session(&url, "direct-b").await;
+    a.define::<i32>("d_msg").await.unwrap();
+    a.define::<i32>("d_ask").await.unwrap();
+    a.define::<i32>("d_answer").await.unwrap();
+    let mut sub = b.subscribe::<i32>("d_msg").await.unwrap();
+    let mut reqs = b.serve::<i32, i32>("d_ask", "d_answer").await.unwrap();
+    assert_eq!(b.num_handlers("d_msg").await.unwrap(), 1);
+    let srv = tokio::spawn(async move {
+        let r = reqs.next().await.unwrap().unwrap();
+        let v = r.value;
+        r.reply(&(v + 1)).await.unwrap();
+        reqs
+    });
+    a.publish("d_msg", &7).await.unwrap();
+    let got = tokio::time::timeout(T, sub.next())
+        .await
+        .unwrap()
+        .unwrap()
+        .unwrap();
+    assert_eq!(got.value, 7);
+    let r: i32 = a.query("d_ask", &41).timeout(T).await.unwrap();
+    assert_eq!(r, 42);
+    tokio::time::timeout(T, srv).await.unwrap().unwrap();
+    a.close().await;
+    b.close().await;
+    c.shutdown().await;
+}
