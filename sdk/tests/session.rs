@@ -334,3 +334,31 @@ async fn direct_mode_publish_and_query() {
     b.close().await;
     c.shutdown().await;
 }
+
+/// With the host given as this machine's name, the session prefers the UNIX
+/// socket `/tmp/x_ipc/<port>`, as the C library does.
+#[tokio::test]
+async fn unix_socket_when_central_is_this_host() {
+    let c = CentralServer::builder()
+        .bind("127.0.0.1".parse().unwrap())
+        .port(0)
+        .unix_socket(true)
+        .spawn()
+        .await
+        .unwrap();
+    let port = c.local_addr().port();
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .unwrap()
+        .trim()
+        .to_string();
+    // The TCP port is bound to 127.0.0.1 only, so reaching central through
+    // the host name works only over the UNIX socket (or loopback).
+    let a = session(&format!("ipc://{host}:{port}"), "unix-a").await;
+    a.define::<i32>("u").await.unwrap();
+    let mut sub = a.subscribe::<i32>("u").await.unwrap();
+    a.num_handlers("u").await.unwrap();
+    a.publish("u", &5).await.unwrap();
+    assert_eq!(tokio::time::timeout(T, sub.next()).await.unwrap().unwrap().unwrap().value, 5);
+    a.close().await;
+    c.shutdown().await;
+}
