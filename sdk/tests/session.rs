@@ -358,7 +358,15 @@ async fn unix_socket_when_central_is_this_host() {
     let mut sub = a.subscribe::<i32>("u").await.unwrap();
     a.num_handlers("u").await.unwrap();
     a.publish("u", &5).await.unwrap();
-    assert_eq!(tokio::time::timeout(T, sub.next()).await.unwrap().unwrap().unwrap().value, 5);
+    assert_eq!(
+        tokio::time::timeout(T, sub.next())
+            .await
+            .unwrap()
+            .unwrap()
+            .unwrap()
+            .value,
+        5
+    );
     a.close().await;
     c.shutdown().await;
 }
