@@ -386,6 +386,22 @@ impl Session {
         }
     }
 
+    /// A query with raw bytes; the reply's message name and bytes.
+    pub async fn query_raw(
+        &self,
+        msg: &str,
+        data: &[u8],
+        timeout: Duration,
+    ) -> Result<RawReply, QueryError> {
+        self.backend.query(msg, data.to_vec(), timeout).await
+    }
+
+    /// Serves queries of `msg` as raw requests (answer with
+    /// [`RawRequest::respond`]).
+    pub async fn serve_raw(&self, msg: &str) -> Result<mpsc::Receiver<RawRequest>, SessionError> {
+        self.backend.serve(msg, 1000).await
+    }
+
     /// Serves queries of `msg`, answering with `reply_msg` messages.
     pub async fn serve<Req: IpcMessage, Resp: IpcMessage>(
         &self,

@@ -370,3 +370,28 @@ async fn unix_socket_when_central_is_this_host() {
     a.close().await;
     c.shutdown().await;
 }
+
+#[tokio::test]
+async fn raw_query_and_serve() {
+    let (c, url) = central().await;
+    let a = session(&url, "raw-a").await;
+    let b = session(&url, "raw-b").await;
+    b.define::<i32>("raw_q").await.unwrap();
+    b.define::<i32>("raw_r").await.unwrap();
+    let mut reqs = b.serve_raw("raw_q").await.unwrap();
+    a.num_handlers("raw_q").await.unwrap();
+    let srv = tokio::spawn(async move {
+        let r = reqs.recv().await.unwrap();
+        assert_eq!(r.data, courier::ipc::to_vec(&9i32));
+        (r.respond)("raw_r", courier::ipc::to_vec(&10i32)).unwrap();
+        reqs
+    });
+    let (reply, data, _) = a
+        .query_raw("raw_q", &courier::ipc::to_vec(&9i32), T)
+        .await
+        .unwrap();
+    assert_eq!(reply, "raw_r");
+    assert_eq!(courier::ipc::from_slice::<i32>(&data).unwrap(), 10);
+    srv.await.unwrap();
+    c.shutdown().await;
+}
