@@ -10,8 +10,8 @@ use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::{mpsc, oneshot};
 
 use crate::session::{
-    Backend, ConnectError, Encoding, QueryError, RawReply, RawRequest, RawSample, SessionError,
-    SessionEvent,
+    Backend, ConnectError, Encoding, QueryError, RawReply, RawRequest, RawSample, SampleQueue,
+    SessionError, SessionEvent,
 };
 use courier_wire::ipc::module::{
     Connection, DeliveryKind, Error as ModError, Event, LinkId, ModuleConfig, MsgLength, OpId,
@@ -48,11 +48,7 @@ enum Cmd {
     DefineFormat(String, String, Done<Result<(), SessionError>>),
     Define(String, Option<String>, Done<Result<(), SessionError>>),
     Publish(String, Vec<u8>, Done<Result<(), SessionError>>),
-    Subscribe(
-        String,
-        mpsc::Sender<RawSample>,
-        Done<Result<(), SessionError>>,
-    ),
+    Subscribe(String, Arc<SampleQueue>, Done<Result<(), SessionError>>),
     Serve(
         String,
         mpsc::Sender<RawRequest>,
@@ -314,15 +310,9 @@ impl Backend for IpcBackend {
         self.call(|d| Cmd::Publish(msg.into(), data, d), g).await
     }
 
-    async fn subscribe(
-        &self,
-        msg: &str,
-        queue: usize,
-    ) -> Result<mpsc::Receiver<RawSample>, SessionError> {
-        let (tx, rx) = mpsc::channel(queue.max(1));
+    async fn subscribe(&self, msg: &str, queue: Arc<SampleQueue>) -> Result<(), SessionError> {
         let g = Err(self.gone());
-        self.call(|d| Cmd::Subscribe(msg.into(), tx, d), g).await?;
-        Ok(rx)
+        self.call(|d| Cmd::Subscribe(msg.into(), queue, d), g).await
     }
 
     async fn query(
@@ -432,7 +422,7 @@ impl Drop for IpcBackend {
 struct Sub {
     msg: String,
     hnd: String,
-    tx: mpsc::Sender<RawSample>,
+    queue: Arc<SampleQueue>,
 }
 
 struct Server {
@@ -545,7 +535,7 @@ impl Driver {
         let gone: Vec<i32> = self
             .subs
             .iter()
-            .filter(|(_, s)| s.tx.is_closed())
+            .filter(|(_, s)| s.queue.is_receiver_gone())
             .map(|(h, _)| *h)
             .collect();
         for h in gone {
@@ -586,14 +576,14 @@ impl Driver {
                     let _ = d.send(Err(refused(e)));
                 }
             },
-            Cmd::Subscribe(m, tx, d) => {
+            Cmd::Subscribe(m, queue, d) => {
                 let hnd = format!(
                     "HND-{m}-courier{}",
                     HANDLER_SEQ.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
                 );
                 let _ = d.send(match self.conn.subscribe(&m, &hnd) {
                     Ok(h) => {
-                        self.subs.insert(h, Sub { msg: m, hnd, tx });
+                        self.subs.insert(h, Sub { msg: m, hnd, queue });
                         Ok(())
                     }
                     Err(e) => Err(refused(e)),
@@ -829,18 +819,15 @@ impl Driver {
                     received: SystemTime::now(),
                     done: None,
                 };
-                match sub.tx.try_send(s) {
+                match sub.queue.push(s) {
                     Ok(()) => {
                         let _ = self.conn.ack(delivery);
                     }
-                    Err(mpsc::error::TrySendError::Closed(_)) => {
-                        let _ = self.conn.ack(delivery);
-                    }
-                    Err(mpsc::error::TrySendError::Full(s)) => {
-                        let tx = sub.tx.clone();
+                    Err(s) => {
+                        let q = sub.queue.clone();
                         let cmd = self.cmd_tx.clone();
                         tokio::spawn(async move {
-                            let _ = tx.send(s).await;
+                            q.push_wait(s).await;
                             let _ = cmd.send(Cmd::Ack(delivery));
                         });
                     }
@@ -893,13 +880,7 @@ impl Driver {
             let _ = d.send(Err(gone.clone()));
         }
         for (_, s) in self.subs.drain() {
-            let _ = s.tx.try_send(RawSample {
-                msg: String::new(),
-                data: Vec::new(),
-                order: ByteOrder::NATIVE,
-                received: SystemTime::now(),
-                done: None,
-            });
+            s.queue.close();
         }
         for (_, s) in self.servers.drain() {
             let _ = s.tx.try_send(RawRequest {

@@ -102,9 +102,9 @@ pub mod session;
 pub use courier_derive::IpcMessage;
 pub use courier_wire::{cdr, format, ipc, IpcMessage, NamedFormats};
 pub use session::{
-    Backend, ConnectError, Encoding, Events, Query, QueryError, RawReply, RawRequest, RawSample,
-    RecvError, Request, Requests, Responder, Sample, Session, SessionBuilder, SessionError,
-    SessionEvent, Subscriber, Tick, Timer,
+    Backend, ConnectError, Encoding, Events, Query, QueryError, QueuePolicy, RawReply, RawRequest,
+    RawSample, RawSubscriber, RecvError, Request, Requests, Responder, Sample, SampleQueue,
+    Session, SessionBuilder, SessionError, SessionEvent, Subscriber, Tick, Timer,
 };
 
 #[doc(hidden)]

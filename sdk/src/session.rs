@@ -53,6 +53,176 @@ impl std::fmt::Debug for RawSample {
     }
 }
 
+/// What a subscription does when its local queue is full.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum QueuePolicy {
+    /// Keep every sample; when `n` wait, stop acknowledging so central
+    /// holds the rest (back-pressure, where `set_queue_length` applies).
+    KeepAll(usize),
+    /// Keep the newest `n`; the oldest is dropped and counted
+    /// ([`Subscriber::dropped`]), as `IPC_setMsgQueueLength` does in central.
+    KeepLast(usize),
+}
+
+impl Default for QueuePolicy {
+    fn default() -> Self {
+        QueuePolicy::KeepAll(1000)
+    }
+}
+
+/// The queue between a backend and one subscription.
+#[derive(Debug)]
+pub struct SampleQueue {
+    state: std::sync::Mutex<QueueState>,
+    space: tokio::sync::Notify,
+}
+
+#[derive(Debug)]
+struct QueueState {
+    items: VecDeque<RawSample>,
+    cap: usize,
+    keep_last: bool,
+    dropped: u64,
+    closed: bool,
+    reported_close: bool,
+    receiver_gone: bool,
+    waker: Option<std::task::Waker>,
+}
+
+impl SampleQueue {
+    /// An empty queue with this policy.
+    pub fn new(policy: QueuePolicy) -> Arc<SampleQueue> {
+        let (cap, keep_last) = match policy {
+            QueuePolicy::KeepAll(n) => (n.max(1), false),
+            QueuePolicy::KeepLast(n) => (n.max(1), true),
+        };
+        Arc::new(SampleQueue {
+            state: std::sync::Mutex::new(QueueState {
+                items: VecDeque::new(),
+                cap,
+                keep_last,
+                dropped: 0,
+                closed: false,
+                reported_close: false,
+                receiver_gone: false,
+                waker: None,
+            }),
+            space: tokio::sync::Notify::new(),
+        })
+    }
+
+    /// Adds a sample; `Err` gives it back when the queue is full under
+    /// keep-all (wait with [`SampleQueue::push_wait`]).
+    pub fn push(&self, s: RawSample) -> Result<(), RawSample> {
+        let mut st = self.state.lock().unwrap();
+        if st.receiver_gone {
+            return Ok(());
+        }
+        if st.items.len() >= st.cap {
+            if !st.keep_last {
+                return Err(s);
+            }
+            st.items.pop_front();
+            st.dropped += 1;
+        }
+        st.items.push_back(s);
+        if let Some(w) = st.waker.take() {
+            w.wake();
+        }
+        Ok(())
+    }
+
+    /// Adds a sample, waiting for room.
+    pub async fn push_wait(&self, mut s: RawSample) {
+        loop {
+            let notified = self.space.notified();
+            match self.push(s) {
+                Ok(()) => return,
+                Err(back) => s = back,
+            }
+            notified.await;
+        }
+    }
+
+    /// No more samples will come (the connection ended).
+    pub fn close(&self) {
+        let mut st = self.state.lock().unwrap();
+        st.closed = true;
+        if let Some(w) = st.waker.take() {
+            w.wake();
+        }
+    }
+
+    /// Whether the subscription was dropped by the user.
+    pub fn is_receiver_gone(&self) -> bool {
+        self.state.lock().unwrap().receiver_gone
+    }
+
+    /// Samples dropped by keep-last.
+    pub fn dropped(&self) -> u64 {
+        self.state.lock().unwrap().dropped
+    }
+
+    fn receiver_dropped(&self) {
+        let mut st = self.state.lock().unwrap();
+        st.receiver_gone = true;
+        st.items.clear();
+        drop(st);
+        self.space.notify_waiters();
+    }
+
+    /// `Ready(Some(marker))` with an empty message name once after close.
+    fn poll_pop(&self, cx: &mut Context<'_>) -> Poll<Option<RawSample>> {
+        let mut st = self.state.lock().unwrap();
+        if let Some(s) = st.items.pop_front() {
+            drop(st);
+            self.space.notify_waiters();
+            return Poll::Ready(Some(s));
+        }
+        if st.closed {
+            if st.reported_close {
+                return Poll::Ready(None);
+            }
+            st.reported_close = true;
+            return Poll::Ready(Some(RawSample {
+                msg: String::new(),
+                data: Vec::new(),
+                order: ipc::ByteOrder::NATIVE,
+                received: SystemTime::now(),
+                done: None,
+            }));
+        }
+        st.waker = Some(cx.waker().clone());
+        Poll::Pending
+    }
+}
+
+/// Raw samples of one subscription (`Session::subscribe_raw`); dropping it
+/// unsubscribes.
+#[derive(Debug)]
+pub struct RawSubscriber {
+    queue: Arc<SampleQueue>,
+}
+
+impl RawSubscriber {
+    /// The next sample; `None` once the connection has ended.
+    pub async fn recv(&mut self) -> Option<RawSample> {
+        std::future::poll_fn(|cx| self.queue.poll_pop(cx)).await
+    }
+
+    /// Samples dropped by a keep-last policy.
+    pub fn dropped(&self) -> u64 {
+        self.queue.dropped()
+    }
+}
+
+impl Drop for RawSubscriber {
+    fn drop(&mut self) {
+        self.queue.receiver_dropped();
+    }
+}
+
 /// Sends a reply: the reply message's name and its bytes.
 pub type Responder = Box<dyn FnOnce(&str, Vec<u8>) -> Result<(), SessionError> + Send>;
 
@@ -205,11 +375,7 @@ pub trait Backend: Send + Sync + std::fmt::Debug {
     async fn publish(&self, msg: &str, data: Vec<u8>) -> Result<(), SessionError>;
     /// Subscribes; samples arrive on the returned channel until it is
     /// dropped (then the backend unsubscribes).
-    async fn subscribe(
-        &self,
-        msg: &str,
-        queue: usize,
-    ) -> Result<mpsc::Receiver<RawSample>, SessionError>;
+    async fn subscribe(&self, msg: &str, queue: Arc<SampleQueue>) -> Result<(), SessionError>;
     /// Sends a query; the reply's message name and bytes.
     async fn query(
         &self,
@@ -353,22 +519,33 @@ impl Session {
         self.backend.publish(msg, data.to_vec()).await
     }
 
-    /// Subscribes with the default queue (1000 samples, then back-pressure).
+    /// Subscribes with the default queue policy (keep all, 1000 samples,
+    /// then back-pressure).
     pub async fn subscribe<T: IpcMessage>(&self, msg: &str) -> Result<Subscriber<T>, SessionError> {
-        let rx = self.backend.subscribe(msg, 1000).await?;
+        self.subscribe_with(msg, QueuePolicy::default()).await
+    }
+
+    /// Subscribes with a queue policy.
+    pub async fn subscribe_with<T: IpcMessage>(
+        &self,
+        msg: &str,
+        policy: QueuePolicy,
+    ) -> Result<Subscriber<T>, SessionError> {
+        let queue = SampleQueue::new(policy);
+        self.backend.subscribe(msg, queue.clone()).await?;
         Ok(Subscriber {
-            rx,
+            raw: RawSubscriber { queue },
             msg: msg.to_string(),
+            decode_errors: 0,
             _t: PhantomData,
         })
     }
 
     /// Subscribes to raw samples.
-    pub async fn subscribe_raw(
-        &self,
-        msg: &str,
-    ) -> Result<mpsc::Receiver<RawSample>, SessionError> {
-        self.backend.subscribe(msg, 1000).await
+    pub async fn subscribe_raw(&self, msg: &str) -> Result<RawSubscriber, SessionError> {
+        let queue = SampleQueue::new(QueuePolicy::default());
+        self.backend.subscribe(msg, queue.clone()).await?;
+        Ok(RawSubscriber { queue })
     }
 
     /// A query; `.timeout(d)` bounds the wait (default 10 s).
@@ -509,8 +686,9 @@ pub enum RecvError {
 /// A typed subscription: a `Stream` of samples. Dropping it unsubscribes.
 #[derive(Debug)]
 pub struct Subscriber<T> {
-    rx: mpsc::Receiver<RawSample>,
+    raw: RawSubscriber,
     msg: String,
+    decode_errors: u64,
     _t: PhantomData<fn() -> T>,
 }
 
@@ -518,7 +696,7 @@ impl<T: IpcMessage> Stream for Subscriber<T> {
     type Item = Result<Sample<T>, RecvError>;
 
     fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Self::Item>> {
-        match self.rx.poll_recv(cx) {
+        match self.raw.queue.poll_pop(cx) {
             Poll::Ready(Some(mut s)) => {
                 if let Some(done) = s.done.take() {
                     done();
@@ -534,6 +712,9 @@ impl<T: IpcMessage> Stream for Subscriber<T> {
                         detail: e.to_string(),
                     }
                 });
+                if v.is_err() {
+                    self.decode_errors += 1;
+                }
                 Poll::Ready(Some(v.map(|value| Sample {
                     value,
                     msg: std::mem::take(&mut s.msg),
@@ -550,6 +731,17 @@ impl<T> Subscriber<T> {
     /// The message subscribed.
     pub fn msg(&self) -> &str {
         &self.msg
+    }
+
+    /// Samples dropped by a keep-last policy so far.
+    pub fn dropped(&self) -> u64 {
+        self.raw.dropped()
+    }
+
+    /// Samples that did not decode as `T` so far (each was yielded as a
+    /// [`RecvError::Decode`]).
+    pub fn decode_errors(&self) -> u64 {
+        self.decode_errors
     }
 }
 

@@ -395,3 +395,80 @@ async fn raw_query_and_serve() {
     srv.await.unwrap();
     c.shutdown().await;
 }
+
+/// A subscriber that does not read: keep-last keeps the newest and counts
+/// what it dropped.
+#[tokio::test]
+async fn keep_last_drops_the_oldest_and_counts() {
+    let (c, url) = central().await;
+    let p = session(&url, "kl-pub").await;
+    let s = session(&url, "kl-sub").await;
+    p.define::<i32>("kl").await.unwrap();
+    let mut sub = s
+        .subscribe_with::<i32>("kl", courier::QueuePolicy::KeepLast(3))
+        .await
+        .unwrap();
+    p.num_handlers("kl").await.unwrap();
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    for i in 0..10 {
+        p.publish("kl", &i).await.unwrap();
+    }
+    let deadline = tokio::time::Instant::now() + T;
+    while sub.dropped() < 7 {
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "dropped {}",
+            sub.dropped()
+        );
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    let mut got = Vec::new();
+    for _ in 0..3 {
+        got.push(
+            tokio::time::timeout(T, sub.next())
+                .await
+                .unwrap()
+                .unwrap()
+                .unwrap()
+                .value,
+        );
+    }
+    assert_eq!(got, vec![7, 8, 9]);
+    assert_eq!(sub.dropped(), 7);
+    c.shutdown().await;
+}
+
+/// A slow keep-all subscriber holds its acknowledgement, so central queues
+/// the rest and its queue length limit (IPC_setMsgQueueLength) applies.
+#[tokio::test]
+async fn slow_keep_all_subscriber_with_central_queue_limit() {
+    let (c, url) = central().await;
+    let p = session(&url, "ql-pub").await;
+    let s = session(&url, "ql-sub").await;
+    p.define::<i32>("ql").await.unwrap();
+    let mut sub = s
+        .subscribe_with::<i32>("ql", courier::QueuePolicy::KeepAll(2))
+        .await
+        .unwrap();
+    s.set_queue_length("ql", 3).await.unwrap();
+    p.num_handlers("ql").await.unwrap();
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    for i in 0..10 {
+        p.publish("ql", &i).await.unwrap();
+    }
+    // Everything published has reached central once this is answered.
+    p.is_module_connected("ql-sub").await.unwrap();
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let mut got = Vec::new();
+    while let Ok(Some(v)) = tokio::time::timeout(Duration::from_millis(500), sub.next()).await {
+        got.push(v.unwrap().value);
+    }
+    // Which middle ones survive depends on how the publishes and the
+    // acknowledgements interleave in central; the newest three always do,
+    // and at most 2 queued + 1 held + 3 limited ones arrive.
+    assert!(got.len() <= 6 && got.len() >= 4, "{got:?}");
+    assert!(got.windows(2).all(|w| w[0] < w[1]), "{got:?}");
+    assert_eq!(got[got.len() - 3..], [7, 8, 9], "{got:?}");
+    assert_eq!(got[0], 0, "{got:?}");
+    c.shutdown().await;
+}
