@@ -28,6 +28,8 @@ pub struct IpcOptions {
     pub listen: bool,
     /// How long to keep trying to reach central.
     pub connect_timeout: Duration,
+    /// Reconnect after losing central: first wait, doubling up to 5 s.
+    pub reconnect: Option<Duration>,
 }
 
 impl Default for IpcOptions {
@@ -35,6 +37,7 @@ impl Default for IpcOptions {
         IpcOptions {
             listen: true,
             connect_timeout: Duration::from_secs(5),
+            reconnect: None,
         }
     }
 }
@@ -151,13 +154,16 @@ async fn open(host: &str, port: u16) -> std::io::Result<Box<dyn Io>> {
     Ok(Box::new(s))
 }
 
-impl IpcBackend {
-    /// Connects to central and completes the IPC handshake.
-    pub async fn connect(url: &str, name: &str, opts: IpcOptions) -> Result<Self, ConnectError> {
-        let (host, port) = parse_url(url).map_err(|why| ConnectError::BadUrl {
-            url: url.into(),
-            why,
-        })?;
+/// Opens a connection to central and completes the IPC handshake (with a
+/// direct-link listener when central runs with `-c`).
+async fn handshake(
+    host: &str,
+    port: u16,
+    name: &str,
+    opts: &IpcOptions,
+) -> Result<(Connection, Box<dyn Io>, Option<tokio::net::TcpListener>), ConnectError> {
+    {
+        let host = host.to_string();
         let addr = format!("{host}:{port}");
         let deadline = tokio::time::Instant::now() + opts.connect_timeout;
         let mut attempts = 0;
@@ -232,11 +238,41 @@ impl IpcBackend {
             addr: addr.clone(),
             why,
         })?;
+        Ok((conn, io, listener))
+    }
+}
+
+fn spawn_accept(l: tokio::net::TcpListener, tx: mpsc::UnboundedSender<Cmd>) {
+    tokio::spawn(async move {
+        while let Ok((s, _)) = l.accept().await {
+            let _ = s.set_nodelay(true);
+            if tx.send(Cmd::LinkAccepted(s)).is_err() {
+                break;
+            }
+        }
+    });
+}
+
+impl IpcBackend {
+    /// Connects to central and completes the IPC handshake.
+    pub async fn connect(url: &str, name: &str, opts: IpcOptions) -> Result<Self, ConnectError> {
+        let (host, port) = parse_url(url).map_err(|why| ConnectError::BadUrl {
+            url: url.into(),
+            why,
+        })?;
+        let addr = format!("{host}:{port}");
+        let (conn, io, listener) = handshake(&host, port, name, &opts).await?;
+        let buf = vec![0u8; 64 * 1024];
         let (tx, rx) = mpsc::unbounded_channel();
         let events = Arc::new(Mutex::new(Vec::new()));
         let driver = Driver {
             conn,
             io,
+            host,
+            port,
+            name: name.to_string(),
+            opts,
+            defs: Vec::new(),
             cmd_tx: tx.clone(),
             addr: addr.clone(),
             events: events.clone(),
@@ -252,15 +288,7 @@ impl IpcBackend {
             links: HashMap::new(),
         };
         if let Some(l) = listener {
-            let tx2 = tx.clone();
-            tokio::spawn(async move {
-                while let Ok((s, _)) = l.accept().await {
-                    let _ = s.set_nodelay(true);
-                    if tx2.send(Cmd::LinkAccepted(s)).is_err() {
-                        break;
-                    }
-                }
-            });
+            spawn_accept(l, tx.clone());
         }
         tokio::spawn(driver.run(rx, buf));
         Ok(IpcBackend {
@@ -431,9 +459,20 @@ struct Server {
     tx: mpsc::Sender<RawRequest>,
 }
 
+/// A definition replayed after a reconnect.
+enum Def {
+    Format(String, String),
+    Msg(String, Option<String>),
+}
+
 struct Driver {
     conn: Connection,
     io: Box<dyn Io>,
+    host: String,
+    port: u16,
+    name: String,
+    opts: IpcOptions,
+    defs: Vec<Def>,
     cmd_tx: mpsc::UnboundedSender<Cmd>,
     addr: String,
     events: Arc<Mutex<Vec<mpsc::UnboundedSender<SessionEvent>>>>,
@@ -483,6 +522,11 @@ impl Driver {
                 },
                 n = self.io.read(&mut buf) => match n {
                     Ok(0) | Err(_) => {
+                        if let Some(first) = self.opts.reconnect.filter(|_| self.closing.is_none() && !closed) {
+                            if self.reconnect(first, &mut rx).await {
+                                continue;
+                            }
+                        }
                         self.conn.handle_eof();
                         self.drain_events();
                         break;
@@ -560,6 +604,7 @@ impl Driver {
         match c {
             Cmd::DefineFormat(n, f, d) => {
                 let _ = d.send(self.conn.define_format(&n, &f).map_err(refused));
+                self.defs.push(Def::Format(n, f));
             }
             Cmd::Define(m, f, d) => {
                 let _ = d.send(
@@ -567,6 +612,7 @@ impl Driver {
                         .define_msg(&m, MsgLength::Variable, f.as_deref())
                         .map_err(refused),
                 );
+                self.defs.push(Def::Msg(m, f));
             }
             Cmd::Publish(m, data, d) => match self.conn.publish(&m, &data, -1) {
                 Ok(op) => {
@@ -864,8 +910,109 @@ impl Driver {
         }
     }
 
-    /// The connection is gone: every waiter learns it at once.
-    fn fail_all(&mut self) {
+    /// Central went away: fail what waits, reconnect with backoff, then
+    /// define and subscribe everything again. `false` if the session was
+    /// closed meanwhile.
+    async fn reconnect(&mut self, first: Duration, rx: &mut mpsc::UnboundedReceiver<Cmd>) -> bool {
+        self.fail_pending();
+        self.links.clear();
+        self.broadcast(SessionEvent::Disconnected);
+        let mut wait = first;
+        loop {
+            let sleep = tokio::time::sleep(wait);
+            tokio::pin!(sleep);
+            loop {
+                tokio::select! {
+                    _ = &mut sleep => break,
+                    cmd = rx.recv() => match cmd {
+                        None => return false,
+                        Some(Cmd::Close(d)) => {
+                            self.closing = Some(d);
+                            return false;
+                        }
+                        Some(other) => self.reject(other),
+                    },
+                }
+            }
+            match handshake(&self.host, self.port, &self.name, &self.opts).await {
+                Ok((conn, io, listener)) => {
+                    self.conn = conn;
+                    self.io = io;
+                    if let Some(l) = listener {
+                        spawn_accept(l, self.cmd_tx.clone());
+                    }
+                    for d in &self.defs {
+                        let _ = match d {
+                            Def::Format(n, f) => self.conn.define_format(n, f),
+                            Def::Msg(m, f) => {
+                                self.conn.define_msg(m, MsgLength::Variable, f.as_deref())
+                            }
+                        };
+                    }
+                    for (_, sub) in std::mem::take(&mut self.subs) {
+                        if let Ok(h) = self.conn.subscribe(&sub.msg, &sub.hnd) {
+                            self.subs.insert(h, sub);
+                        }
+                    }
+                    for (_, srv) in std::mem::take(&mut self.servers) {
+                        if let Ok(h) = self.conn.subscribe(&srv.msg, &srv.hnd) {
+                            self.servers.insert(h, srv);
+                        }
+                    }
+                    if self.watching_modules {
+                        let _ = self.conn.subscribe_connect();
+                        let _ = self.conn.subscribe_disconnect();
+                    }
+                    self.broadcast(SessionEvent::Reconnected);
+                    return true;
+                }
+                Err(e) => {
+                    tracing::debug!("reconnect to {} failed: {e}", self.addr);
+                    wait = (wait * 2).min(Duration::from_secs(5));
+                }
+            }
+        }
+    }
+
+    /// A command while there is no connection.
+    fn reject(&mut self, c: Cmd) {
+        let gone = || SessionError::Disconnected(self.addr.clone());
+        match c {
+            Cmd::DefineFormat(n, f, d) => {
+                self.defs.push(Def::Format(n, f));
+                let _ = d.send(Ok(()));
+            }
+            Cmd::Define(m, f, d) => {
+                self.defs.push(Def::Msg(m, f));
+                let _ = d.send(Ok(()));
+            }
+            Cmd::Publish(_, _, d)
+            | Cmd::Subscribe(_, _, d)
+            | Cmd::Serve(_, _, d)
+            | Cmd::Inform(_, d) => {
+                let _ = d.send(Err(gone()));
+            }
+            Cmd::WatchHandlers(_, d) => {
+                let _ = d.send(Err(gone()));
+            }
+            Cmd::Query(_, m, _, d) => {
+                let _ = d.send(Err(QueryError::Disconnected(m)));
+            }
+            Cmd::ModuleConnected(_, d) => {
+                let _ = d.send(Err(gone()));
+            }
+            Cmd::NumHandlers(_, d) => {
+                let _ = d.send(Err(gone()));
+            }
+            Cmd::WatchModules => self.watching_modules = true,
+            Cmd::Close(d) => self.closing = Some(d),
+            Cmd::CancelQuery(_) | Cmd::Ack(_) | Cmd::Respond(..) | Cmd::LinkAccepted(_) => {}
+            Cmd::LinkConnected(..) | Cmd::LinkData(..) => {}
+        }
+    }
+
+    /// Operations waiting for central fail at once.
+    fn fail_pending(&mut self) {
         let gone = SessionError::Disconnected(self.addr.clone());
         for (_, d) in self.publishes.drain() {
             let _ = d.send(Err(gone.clone()));
@@ -873,12 +1020,18 @@ impl Driver {
         for (_, d) in self.queries.drain() {
             let _ = d.send(Err(QueryError::Disconnected(self.addr.clone())));
         }
+        self.query_ops.clear();
         for (_, d) in self.bools.drain() {
             let _ = d.send(Err(gone.clone()));
         }
         for (_, d) in self.counts.drain() {
             let _ = d.send(Err(gone.clone()));
         }
+    }
+
+    /// The connection is gone: every waiter learns it at once.
+    fn fail_all(&mut self) {
+        self.fail_pending();
         for (_, s) in self.subs.drain() {
             s.queue.close();
         }

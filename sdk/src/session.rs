@@ -266,8 +266,12 @@ pub enum SessionEvent {
         /// Handlers now.
         count: i32,
     },
-    /// This session lost its connection; nothing more will arrive.
+    /// This session lost its connection (with reconnect on, a
+    /// [`SessionEvent::Reconnected`] follows once central is back).
     Disconnected,
+    /// The session reached central again and defined and subscribed
+    /// everything anew (see [`SessionBuilder::reconnect`]).
+    Reconnected,
 }
 
 /// What can go wrong with a session operation.
@@ -433,6 +437,14 @@ impl SessionBuilder {
     /// one-second retries).
     pub fn connect_timeout(mut self, d: Duration) -> Self {
         self.opts.connect_timeout = d;
+        self
+    }
+
+    /// After losing central, keep trying to reach it (first after `backoff`,
+    /// doubling up to 5 s), then define and subscribe everything again;
+    /// subscribers stay open meanwhile. Operations fail while disconnected.
+    pub fn reconnect(mut self, backoff: Duration) -> Self {
+        self.opts.reconnect = Some(backoff);
         self
     }
 

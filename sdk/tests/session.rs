@@ -472,3 +472,54 @@ async fn slow_keep_all_subscriber_with_central_queue_limit() {
     assert_eq!(got[0], 0, "{got:?}");
     c.shutdown().await;
 }
+
+/// With reconnect on, a session survives central restarting on the same
+/// port: it defines and subscribes again and the same Subscriber goes on.
+#[tokio::test]
+async fn reconnects_and_resubscribes_after_central_restarts() {
+    let (c, url) = central().await;
+    let port = c.local_addr().port();
+    let s = tokio::time::timeout(
+        T,
+        Session::builder(&url)
+            .name("survivor")
+            .reconnect(Duration::from_millis(50))
+            .connect(),
+    )
+    .await
+    .unwrap()
+    .unwrap();
+    s.define::<i32>("again").await.unwrap();
+    let mut sub = s.subscribe::<i32>("again").await.unwrap();
+    let mut ev = s.events();
+    c.shutdown().await;
+    loop {
+        match tokio::time::timeout(T, ev.next()).await.unwrap().unwrap() {
+            SessionEvent::Disconnected => break,
+            _ => continue,
+        }
+    }
+    let c2 = CentralServer::builder()
+        .bind("127.0.0.1".parse().unwrap())
+        .port(port)
+        .spawn()
+        .await
+        .unwrap();
+    loop {
+        match tokio::time::timeout(T, ev.next()).await.unwrap().unwrap() {
+            SessionEvent::Reconnected => break,
+            _ => continue,
+        }
+    }
+    let p = session(&url, "publisher").await;
+    assert_eq!(p.num_handlers("again").await.unwrap(), 1, "re-subscribed");
+    p.publish("again", &5).await.unwrap();
+    let v = tokio::time::timeout(T, sub.next())
+        .await
+        .unwrap()
+        .unwrap()
+        .unwrap();
+    assert_eq!(v.value, 5);
+    s.close().await;
+    c2.shutdown().await;
+}
