@@ -4,26 +4,18 @@
 //!    (generated at compile time by `#[derive(IpcMessage)]`), their IPC
 //!    bytes (identical to what the C library marshals) and their CDR bytes.
 //! 2. Starts Courier's `central` in-process on a free port of 127.0.0.1 and
-//!    runs module1 and module2 of Appendix A against it, each on its own
-//!    thread: module1 publishes `message1` and queries `query1`; module2
-//!    handles them, publishes `message2` from inside its query handler and
-//!    responds with `response1`. Central's own log (the C central's format)
-//!    is printed as it happens.
-//!
-//! (The modules use Courier's IPC module state machine directly; the async
-//! `Session` API will replace that here.)
+//!    runs Appendix A's module1 and module2 against it as two `Session`s:
+//!    module1 publishes `message1` and queries `query1`; module2 handles
+//!    them, publishes `message2` while answering and replies `response1`.
+//!    Central's own log (in the C central's format) is printed as it
+//!    happens.
 
-use std::sync::mpsc;
 use std::time::Duration;
 
 use courier::cdr::{self, Encoding};
-use courier::ipc::module::{Event, MsgLength};
-use courier::{ipc, IpcMessage, NamedFormats};
+use courier::{ipc, IpcMessage, NamedFormats, Session};
 use courier_broker::{CentralServer, LogSink};
-
-#[path = "client.rs"]
-mod client;
-use client::Client;
+use futures::StreamExt;
 
 #[path = "appendix_a.rs"]
 mod appendix;
@@ -54,115 +46,69 @@ fn show<T: IpcMessage + std::fmt::Debug + PartialEq>(msg: &str, v: &T) {
     println!();
 }
 
-/// `IPC_defineFormat` for every named format `T` uses, then `IPC_defineMsg`.
-fn define<T: IpcMessage>(c: &mut Client, msg: &str) {
-    for (name, fmt) in NamedFormats::of::<T>().iter() {
-        c.conn.define_format(name, fmt).unwrap();
-    }
-    c.conn
-        .define_msg(msg, MsgLength::Variable, Some(T::FORMAT))
-        .unwrap();
-}
-
-/// Appendix A's module2: handles message1 and query1.
-fn module2(addr: String, ready: mpsc::Sender<()>) {
-    let mut m = Client::connect(&addr, "module2");
+/// Appendix A's module2: handles message1 and query1 (three messages).
+async fn module2(
+    url: String,
+    ready: tokio::sync::oneshot::Sender<()>,
+) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
+    let s = Session::builder(url).name("module2").connect().await?;
     println!("module2 | connected");
-    define::<String>(&mut m, "message2");
-    define::<T2>(&mut m, "response1");
-    m.conn.subscribe("message1", "HND-message1").unwrap();
-    m.conn.subscribe("query1", "HND-query1").unwrap();
-    m.sync();
-    ready.send(()).unwrap();
+    s.define::<String>("message2").await?;
+    s.define::<T2>("response1").await?;
+    let mut msg1 = s.subscribe::<i32>("message1").await?;
+    let mut queries = s.serve::<T1, T2>("query1", "response1").await?;
+    s.num_handlers("query1").await?; // central has both subscriptions now
+    let _ = ready.send(());
     let mut handled = 0;
     while handled < 3 {
-        if let Event::Delivery {
-            delivery,
-            msg,
-            dispatch_ref,
-            data,
-            ..
-        } = m.next_event()
-        {
-            handled += 1;
-            match msg.as_str() {
-                "message1" => {
-                    let v: i32 = ipc::from_slice(&data).expect("message1 is an int");
-                    println!("module2 | msg1Handler: Receiving message1 ({v})");
-                    m.conn.ack(delivery).unwrap();
-                }
-                "query1" => {
-                    let t1: T1 = ipc::from_slice(&data).expect("query1 is a T1");
-                    println!("module2 | queryHandler: Receiving query1 {t1:?}");
-                    println!("module2 |   IPC_publishData(message2, \"Hello, world\")");
-                    let s = ipc::to_vec(&String::from("Hello, world"));
-                    m.conn.publish("message2", &s, dispatch_ref).unwrap();
-                    let (_, t2) = appendix_a();
-                    println!("module2 |   IPC_respondData(response1, T2)");
-                    m.conn
-                        .respond(delivery, "response1", &ipc::to_vec(&t2))
-                        .unwrap();
-                }
-                other => println!("module2 | unexpected {other}"),
+        tokio::select! {
+            Some(m) = msg1.next() => {
+                println!("module2 | msg1Handler: Receiving message1 ({})", m?.value);
+                handled += 1;
             }
-            m.settle();
+            Some(q) = queries.next() => {
+                let req = q?;
+                println!("module2 | queryHandler: Receiving query1 {:?}", req.value);
+                println!("module2 |   publish(message2, \"Hello, world\")");
+                s.publish("message2", &String::from("Hello, world")).await?;
+                println!("module2 |   reply(response1, T2)");
+                req.reply(&appendix_a().1).await?;
+                handled += 1;
+            }
         }
     }
-    m.close();
+    s.close().await;
     println!("module2 | disconnected");
+    Ok(())
 }
 
 /// Appendix A's module1: publishes message1, queries query1.
-fn module1(addr: String) {
-    let mut m = Client::connect(&addr, "module1");
+async fn module1(url: String) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
+    let s = Session::builder(url).name("module1").connect().await?;
     println!("module1 | connected");
-    define::<i32>(&mut m, "message1");
-    define::<T1>(&mut m, "query1");
-    m.conn.subscribe("message2", "HND-message2").unwrap();
-    m.sync();
+    s.define_format::<T2>().await?;
+    s.define::<i32>("message1").await?;
+    s.define::<T1>("query1").await?;
+    let mut msg2 = s.subscribe::<String>("message2").await?;
     let (t1, t2) = appendix_a();
-    println!("module1 | IPC_publishData(message1, 42)");
-    m.conn
-        .publish("message1", &ipc::to_vec(&42i32), -1)
-        .unwrap();
-    m.settle();
-    println!("module1 | IPC_queryResponseData(query1, {t1:?})");
-    let q = m.conn.query("query1", &ipc::to_vec(&t1), -1).unwrap();
-    let (mut got_reply, mut got_msg2) = (false, false);
-    while !(got_reply && got_msg2) {
-        match m.next_event() {
-            Event::Delivery {
-                delivery,
-                msg,
-                data,
-                ..
-            } if msg == "message2" => {
-                let s: String = ipc::from_slice(&data).expect("message2 is a string");
-                println!("module1 | msg2Handler: Receiving message2 ({s})");
-                m.conn.ack(delivery).unwrap();
-                got_msg2 = true;
-            }
-            Event::Reply {
-                query,
-                reply_msg,
-                data,
-                ..
-            } if query == q => {
-                let r: T2 = ipc::from_slice(&data).expect("the reply is a T2");
-                println!("module1 | Received response ({reply_msg}): {r:?}");
-                assert_eq!(r, t2);
-                got_reply = true;
-            }
-            _ => {}
-        }
-    }
-    println!("module1 | IPC_publishData(message1, 42)");
-    m.conn
-        .publish("message1", &ipc::to_vec(&42i32), -1)
-        .unwrap();
-    m.settle();
-    m.close();
+    println!("module1 | publish(message1, 42)");
+    s.publish("message1", &42i32).await?;
+    println!("module1 | query(query1, {t1:?})");
+    let r: T2 = s
+        .query("query1", &t1)
+        .timeout(Duration::from_secs(10))
+        .await?;
+    println!("module1 | Received response: {r:?}");
+    assert_eq!(r, t2);
+    let m = tokio::time::timeout(Duration::from_secs(10), msg2.next())
+        .await?
+        .ok_or("message2 stream ended")??;
+    println!("module1 | msg2Handler: Receiving message2 ({})", m.value);
+    println!("module1 | publish(message1, 42)");
+    s.publish("message1", &42i32).await?;
+    s.close().await;
     println!("module1 | disconnected");
+    Ok(())
 }
 
 fn main() {
@@ -173,51 +119,43 @@ fn main() {
     show("query1 (T1)", &t1);
     show("response1 (T2)", &t2);
 
-    println!("Appendix A live: Courier's central in-process, module1 and module2 on threads\n");
+    println!("Appendix A live: Courier's central in-process, module1 and module2 as Sessions\n");
     live();
 }
 
-/// Central in-process plus module1 and module2 on threads, until both finish.
+/// Central in-process plus module1 and module2, until both finish.
 fn live() {
-    let rt = tokio::runtime::Builder::new_current_thread()
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
         .enable_all()
         .build()
         .expect("tokio runtime");
-    let mut config = courier_broker::Config::default();
-    config.terminal_log = courier_broker::LogOptions::parse("msid", false).expect("log options");
-    let central = rt
-        .block_on(
-            CentralServer::builder()
-                .bind([127, 0, 0, 1].into())
-                .port(0)
-                .config(config)
-                .log_sink(LogSink::new(|target, line: &str| {
-                    if target.terminal {
-                        println!("central | {line}");
-                    }
-                }))
-                .spawn(),
-        )
-        .expect("start central");
-    let addr = central.local_addr().to_string();
-    println!("central | listening on {addr}");
-    // Central runs on this thread's runtime while the modules run.
-    let (ready_tx, ready_rx) = mpsc::channel();
-    let a2 = addr.clone();
-    let m2 = std::thread::spawn(move || module2(a2, ready_tx));
-    let m1 = std::thread::spawn(move || {
-        ready_rx.recv().expect("module2 ready");
-        module1(addr)
-    });
     rt.block_on(async {
-        while !(m1.is_finished() && m2.is_finished()) {
-            tokio::time::sleep(Duration::from_millis(10)).await;
-        }
+        let mut config = courier_broker::Config::default();
+        config.terminal_log =
+            courier_broker::LogOptions::parse("msid", false).expect("log options");
+        let central = CentralServer::builder()
+            .bind([127, 0, 0, 1].into())
+            .port(0)
+            .config(config)
+            .log_sink(LogSink::new(|target, line: &str| {
+                if target.terminal {
+                    println!("central | {line}");
+                }
+            }))
+            .spawn()
+            .await
+            .expect("start central");
+        let url = format!("ipc://{}", central.local_addr());
+        println!("central | listening on {}", central.local_addr());
+        let (ready_tx, ready_rx) = tokio::sync::oneshot::channel();
+        let m2 = tokio::spawn(module2(url.clone(), ready_tx));
+        ready_rx.await.expect("module2 ready");
+        module1(url).await.expect("module1");
+        m2.await.expect("module2 task").expect("module2");
+        central.shutdown().await;
+        println!("central | stopped");
     });
-    m1.join().expect("module1");
-    m2.join().expect("module2");
-    rt.block_on(central.shutdown());
-    println!("central | stopped");
 }
 
 #[cfg(test)]
