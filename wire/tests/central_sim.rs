@@ -752,3 +752,32 @@ fn resubscribing_a_handler_keeps_its_id_and_renames_the_message() {
     assert_eq!(h.class_total, 5, "class data names the message again");
     assert_eq!(&bytes[28..33], b"\x01\x00\x00\x00m");
 }
+
+#[test]
+fn log_options_parse_like_c() {
+    use courier_wire::ipc::central::LogOptions;
+    let o = LogOptions::parse("MSD", false).unwrap();
+    assert!(o.messages && o.status && o.data && !o.time);
+    assert!(
+        !LogOptions::parse("mxs", false).unwrap().any(),
+        "any x turns the log off"
+    );
+    let f = LogOptions::parse("mF", true).unwrap();
+    assert!(f.messages && f.no_flush);
+    let e = LogOptions::parse("mq", false).unwrap_err().to_string();
+    assert!(e.contains("unknown logging option 'q' in -l"), "{e}");
+    assert!(
+        LogOptions::parse("F", false).is_err(),
+        "F is for the file log only"
+    );
+}
+
+#[test]
+fn console_line_with_several_options() {
+    let mut c = Central::new(Config::default());
+    c.command("-lmd -Lx -Ifoo", SystemTime::now());
+    assert!(c.config().terminal_log.data && c.config().terminal_log.messages);
+    assert!(!c.config().file_log.any());
+    assert!(c.config().ignore.contains(&"foo".to_string()));
+    while c.poll_output().is_some() {}
+}

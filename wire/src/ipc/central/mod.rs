@@ -128,8 +128,11 @@ impl LogOptions {
             o.handle_summary = true;
             return Ok(o);
         }
+        // Like the C central: letters in either case; an `x` anywhere
+        // turns the log off.
+        let mut off = false;
         for c in letters.chars() {
-            match c {
+            match c.to_ascii_lowercase() {
                 'm' => o.messages = true,
                 's' => o.status = true,
                 't' => o.time = true,
@@ -138,8 +141,8 @@ impl LogOptions {
                 'h' => o.handle_summary = true,
                 'r' => o.refs = true,
                 'p' => o.parent_refs = true,
-                'x' => o = LogOptions::NONE,
-                'F' if file => o.no_flush = true,
+                'x' => off = true,
+                'f' if file => o.no_flush = true,
                 'n' if file => o.no_prompt = true,
                 _ => {
                     return Err(OptionError::UnknownLogOption {
@@ -148,6 +151,9 @@ impl LogOptions {
                     })
                 }
             }
+        }
+        if off {
+            o = LogOptions::NONE;
         }
         Ok(o)
     }
@@ -2378,8 +2384,11 @@ impl Central {
             ("unlock", None) => say(self, "usage: unlock <resource>".into()),
             ("quit", _) => say(self, "use Ctrl-C (SIGINT) to stop central".into()),
             (opt, _) if opt.starts_with('-') => {
-                if let Err(e) = self.apply_option(line.trim()) {
-                    say(self, e);
+                // A line may hold several options (`-lm -Lx`), as in C.
+                for word in line.split_whitespace() {
+                    if let Err(e) = self.apply_option(word) {
+                        say(self, e);
+                    }
                 }
             }
             (other, _) => say(self, format!("Unknown command '{other}' (type help)")),
