@@ -396,23 +396,36 @@ async fn raw_query_and_serve() {
     c.shutdown().await;
 }
 
+/// A central, a publisher, and a subscriber (with `policy`, and central's
+/// queue length for it when given) that 0..10 were published to before it
+/// read anything.
+async fn flood_a_subscriber(
+    msg: &str,
+    policy: courier::QueuePolicy,
+    central_limit: Option<i32>,
+) -> (CentralHandle, [Session; 2], courier::Subscriber<i32>) {
+    let (c, url) = central().await;
+    let p = session(&url, &format!("{msg}-pub")).await;
+    let s = session(&url, &format!("{msg}-sub")).await;
+    p.define::<i32>(msg).await.unwrap();
+    let sub = s.subscribe_with::<i32>(msg, policy).await.unwrap();
+    if let Some(n) = central_limit {
+        s.set_queue_length(msg, n).await.unwrap();
+    }
+    p.num_handlers(msg).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    for i in 0..10 {
+        p.publish(msg, &i).await.unwrap();
+    }
+    (c, [p, s], sub)
+}
+
 /// A subscriber that does not read: keep-last keeps the newest and counts
 /// what it dropped.
 #[tokio::test]
 async fn keep_last_drops_the_oldest_and_counts() {
-    let (c, url) = central().await;
-    let p = session(&url, "kl-pub").await;
-    let s = session(&url, "kl-sub").await;
-    p.define::<i32>("kl").await.unwrap();
-    let mut sub = s
-        .subscribe_with::<i32>("kl", courier::QueuePolicy::KeepLast(3))
-        .await
-        .unwrap();
-    p.num_handlers("kl").await.unwrap();
-    tokio::time::sleep(Duration::from_millis(100)).await;
-    for i in 0..10 {
-        p.publish("kl", &i).await.unwrap();
-    }
+    let (c, _sessions, mut sub) =
+        flood_a_subscriber("kl", courier::QueuePolicy::KeepLast(3), None).await;
     let deadline = tokio::time::Instant::now() + T;
     while sub.dropped() < 7 {
         assert!(
@@ -442,22 +455,10 @@ async fn keep_last_drops_the_oldest_and_counts() {
 /// the rest and its queue length limit (IPC_setMsgQueueLength) applies.
 #[tokio::test]
 async fn slow_keep_all_subscriber_with_central_queue_limit() {
-    let (c, url) = central().await;
-    let p = session(&url, "ql-pub").await;
-    let s = session(&url, "ql-sub").await;
-    p.define::<i32>("ql").await.unwrap();
-    let mut sub = s
-        .subscribe_with::<i32>("ql", courier::QueuePolicy::KeepAll(2))
-        .await
-        .unwrap();
-    s.set_queue_length("ql", 3).await.unwrap();
-    p.num_handlers("ql").await.unwrap();
-    tokio::time::sleep(Duration::from_millis(100)).await;
-    for i in 0..10 {
-        p.publish("ql", &i).await.unwrap();
-    }
+    let (c, [p, _s], mut sub) =
+        flood_a_subscriber("ql", courier::QueuePolicy::KeepAll(2), Some(3)).await;
     // Everything published has reached central once this is answered.
-    p.is_module_connected("ql-sub").await.unwrap();
+    p.is_module_connected("nobody").await.unwrap();
     tokio::time::sleep(Duration::from_millis(100)).await;
     let mut got = Vec::new();
     while let Ok(Some(v)) = tokio::time::timeout(Duration::from_millis(500), sub.next()).await {
