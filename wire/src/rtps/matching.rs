@@ -194,16 +194,41 @@ impl Participants {
     /// An SPDP announcement arrived at `now`.
     pub fn announce(&mut self, data: ParticipantData, now: Instant) -> Option<ParticipantEvent> {
         let prefix = data.guid_prefix;
+        let lease = data
+            .lease_duration
+            .to_std()
+            .unwrap_or(std::time::Duration::from_secs(86_400 * 365));
+        // a lease from the network must not overflow the clock
         let expiry = now
-            + data
-                .lease_duration
-                .to_std()
-                .unwrap_or(std::time::Duration::from_secs(86_400 * 365));
+            .checked_add(lease)
+            .or_else(|| now.checked_add(std::time::Duration::from_secs(86_400 * 365)))
+            .unwrap_or(now);
         match self.table.insert(prefix, (data.clone(), expiry)) {
             None => Some(ParticipantEvent::Found(prefix)),
             Some((old, _)) if old != data => Some(ParticipantEvent::Changed(prefix)),
             Some(_) => None,
         }
+    }
+
+    /// Any message from the participant arrived at `now`: its lease starts
+    /// over, as Cyclone DDS does. Returns false if it is unknown.
+    pub fn renew(&mut self, prefix: GuidPrefix, now: Instant) -> bool {
+        let Some((data, expiry)) = self.table.get_mut(&prefix) else {
+            return false;
+        };
+        let lease = data
+            .lease_duration
+            .to_std()
+            .unwrap_or(std::time::Duration::from_secs(86_400 * 365));
+        if let Some(t) = now.checked_add(lease) {
+            *expiry = (*expiry).max(t);
+        }
+        true
+    }
+
+    /// The participants known, in no particular order.
+    pub fn iter(&self) -> impl Iterator<Item = &ParticipantData> + '_ {
+        self.table.values().map(|(d, _)| d)
     }
 
     /// The participant said goodbye (SPDP dispose).

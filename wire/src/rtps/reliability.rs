@@ -65,6 +65,9 @@ pub enum Transmit {
 struct ReaderProxy {
     /// Everything below this is acknowledged.
     acked_below: i64,
+    /// First sequence number relevant to this reader: a volatile late
+    /// joiner gets a GAP, not the data, for anything written before it matched.
+    start: i64,
     /// Sequence numbers the reader asked for again.
     requested: BTreeSet<i64>,
     last_acknack_count: Option<i32>,
@@ -84,6 +87,8 @@ pub struct Writer {
     heartbeat_period: Duration,
     next_heartbeat: Option<Instant>,
     hb_count: i32,
+    /// Keep acknowledged samples (transient-local keep-all writers).
+    retain_acked: bool,
     out: VecDeque<Transmit>,
 }
 
@@ -107,8 +112,16 @@ impl Writer {
             heartbeat_period,
             next_heartbeat: None,
             hb_count: 0,
+            retain_acked: false,
             out: VecDeque::new(),
         }
+    }
+
+    /// Keeps samples every reader acknowledged (default: a keep-all writer
+    /// drops them). Transient-local writers need them for late joiners.
+    pub fn retain_acked(mut self, yes: bool) -> Self {
+        self.retain_acked = yes;
+        self
     }
 
     /// The writer's GUID.
@@ -125,9 +138,19 @@ impl Writer {
             reader,
             ReaderProxy {
                 acked_below,
+                start: acked_below,
                 ..ReaderProxy::default()
             },
         );
+        if self.reliable && !replay && first < self.next_sn {
+            // what is already written is irrelevant to a volatile late
+            // joiner: say so at once, as Fast DDS does
+            self.out.push_back(Transmit::Gap {
+                to: reader,
+                start: SequenceNumber(first),
+                list: SequenceNumberSet::empty(SequenceNumber(self.next_sn)),
+            });
+        }
         if self.reliable {
             // announce what we have so the reader can ask
             self.push_heartbeat(Some(reader), false);
@@ -143,6 +166,45 @@ impl Writer {
 
     fn first_sn(&self) -> i64 {
         self.history.keys().next().copied().unwrap_or(self.next_sn)
+    }
+
+    /// A sample still in the history.
+    pub fn get(&self, sn: SequenceNumber) -> Option<&Arc<[u8]>> {
+        self.history.get(&sn.0)
+    }
+
+    /// The samples in the history, ascending.
+    pub fn samples(&self) -> impl Iterator<Item = (SequenceNumber, &Arc<[u8]>)> + '_ {
+        self.history.iter().map(|(sn, p)| (SequenceNumber(*sn), p))
+    }
+
+    /// Removes one sample from the history (per-instance keep-last
+    /// bookkeeping, or a replaced announcement). Readers that ask for it
+    /// later get a GAP.
+    pub fn remove(&mut self, sn: SequenceNumber) -> bool {
+        self.history.remove(&sn.0).is_some()
+    }
+
+    /// The last sequence number written (0 before the first write).
+    pub fn last_sn(&self) -> SequenceNumber {
+        SequenceNumber(self.next_sn - 1)
+    }
+
+    /// Highest sequence number every matched reader acknowledged, with
+    /// everything before it ([`Writer::last_sn`] when no reader is matched).
+    pub fn acked_by_all(&self) -> SequenceNumber {
+        let below = self
+            .readers
+            .values()
+            .map(|r| r.acked_below)
+            .min()
+            .unwrap_or(self.next_sn);
+        SequenceNumber(below.min(self.next_sn) - 1)
+    }
+
+    /// Number of matched readers.
+    pub fn reader_count(&self) -> usize {
+        self.readers.len()
     }
 
     /// Writes a sample; returns its sequence number. Keep-all writers refuse
@@ -178,6 +240,9 @@ impl Writer {
 
     /// Drops samples every reader acknowledged (keep-all writers).
     fn release_acked(&mut self) {
+        if self.retain_acked {
+            return;
+        }
         let min_acked = self
             .readers
             .values()
@@ -227,23 +292,30 @@ impl Writer {
         for sn in a.reader_sn_state.iter() {
             p.requested.insert(sn.0);
         }
+        let start = p.start;
         let requested: Vec<i64> = std::mem::take(&mut p.requested).into_iter().collect();
-        let mut gaps = Vec::new();
+        let mut gaps: Vec<(i64, i64)> = Vec::new();
         for sn in requested {
             if sn >= self.next_sn {
                 continue;
             }
-            match self.history.get(&sn) {
+            match self.history.get(&sn).filter(|_| sn >= start) {
                 Some(payload) => self.out.push_back(Transmit::Data {
                     to: Some(reader),
                     sn: SequenceNumber(sn),
                     payload: payload.clone(),
                 }),
-                None => gaps.push(sn),
+                // consecutive runs only: a GAP must never cover a sample
+                // that is being resent
+                None => match gaps.last_mut() {
+                    Some((_, hi)) if *hi + 1 == sn => *hi = sn,
+                    _ => gaps.push((sn, sn)),
+                },
             }
         }
-        // samples that fell out of the history are irrelevant now: say so
-        if let (Some(&lo), Some(&hi)) = (gaps.first(), gaps.last()) {
+        // samples that fell out of the history (or predate a volatile
+        // reader) are irrelevant now: say so
+        for (lo, hi) in gaps {
             self.out.push_back(Transmit::Gap {
                 to: reader,
                 start: SequenceNumber(lo),
@@ -335,6 +407,32 @@ impl Reader {
         self.writers.remove(&writer);
     }
 
+    /// The next sequence number this reader will deliver from a matched
+    /// writer (anything below is delivered or given up); `None` if not matched.
+    pub fn next_expected(&self, writer: Guid) -> Option<SequenceNumber> {
+        self.writers.get(&writer).map(|w| SequenceNumber(w.next))
+    }
+
+    /// Delivers what is buffered below `to` in order and moves the next
+    /// expected sequence number there: the writer says the rest is gone.
+    fn skip_to(
+        w: &mut WriterProxy,
+        writer: Guid,
+        to: i64,
+        samples: &mut VecDeque<(Guid, SequenceNumber, Arc<[u8]>)>,
+    ) {
+        if to <= w.next {
+            return;
+        }
+        let keep = w.pending.split_off(&to);
+        for (sn, p) in std::mem::replace(&mut w.pending, keep) {
+            if let Some(p) = p {
+                samples.push_back((writer, SequenceNumber(sn), p));
+            }
+        }
+        w.next = to;
+    }
+
     /// A DATA (or a reassembled DATA_FRAG sample) from a matched writer.
     pub fn handle_data(&mut self, writer: Guid, sn: SequenceNumber, payload: Arc<[u8]>) {
         let Some(w) = self.writers.get_mut(&writer) else {
@@ -375,9 +473,17 @@ impl Reader {
         let Some(w) = self.writers.get_mut(&writer) else {
             return;
         };
-        let end = g.gap_list.base.0.min(g.gap_start.0.saturating_add(1 << 20));
-        for sn in g.gap_start.0.max(w.next)..end {
-            w.pending.entry(sn).or_insert(None);
+        if g.gap_start.0 <= w.next {
+            // the gap starts at (or before) what we wait for: jump over it
+            Self::skip_to(w, writer, g.gap_list.base.0, &mut self.samples);
+        } else {
+            // a gap further on: remember (a bounded part of) it; the rest
+            // is asked for again and gapped again later
+            let room = self.max_pending.saturating_sub(w.pending.len()) as i64;
+            let end = g.gap_list.base.0.min(g.gap_start.0.saturating_add(room));
+            for sn in g.gap_start.0..end {
+                w.pending.entry(sn).or_insert(None);
+            }
         }
         for sn in g.gap_list.iter() {
             if sn.0 >= w.next {
@@ -404,9 +510,7 @@ impl Reader {
         w.last_available = w.last_available.max(h.last_sn.0);
         if h.first_sn.0 > w.next {
             // the writer dropped those: they are lost for us, deliver on
-            for sn in w.next..h.first_sn.0 {
-                w.pending.entry(sn).or_insert(None);
-            }
+            Self::skip_to(w, writer, h.first_sn.0, &mut self.samples);
             Self::drain(w, writer, &mut self.samples);
         }
         if !h.final_flag || w.next <= w.last_available {
@@ -621,6 +725,90 @@ mod tests {
             assert!(got.windows(2).all(|w| w[0] < w[1]), "seed {seed}: {got:?}");
             assert_eq!(got.last(), Some(&300), "seed {seed}");
         }
+    }
+
+    fn hb(first: i64, last: i64, count: i32) -> Heartbeat {
+        Heartbeat {
+            reader_id: EntityId::UNKNOWN,
+            writer_id: guid(1).entity,
+            first_sn: SequenceNumber(first),
+            last_sn: SequenceNumber(last),
+            count,
+            final_flag: false,
+            liveliness: false,
+        }
+    }
+
+    #[test]
+    fn hostile_heartbeats_and_gaps_stay_bounded() {
+        let wg = guid(1);
+        let mut r = Reader::new(true, 16);
+        r.add_writer(wg);
+        r.handle_data(wg, SequenceNumber(3), Arc::from(vec![3u8]));
+        // a heartbeat far ahead skips at once (no per-number work), and what
+        // was buffered before that point is still delivered
+        r.handle_heartbeat(wg, &hb(1 << 62, 1 << 62, 1));
+        assert_eq!(r.next_expected(wg), Some(SequenceNumber(1 << 62)));
+        assert_eq!(r.poll_sample().map(|s| s.1), Some(SequenceNumber(3)));
+        let gap = |start: i64, base: i64| Gap {
+            reader_id: EntityId::UNKNOWN,
+            writer_id: wg.entity,
+            gap_start: SequenceNumber(start),
+            gap_list: SequenceNumberSet::empty(SequenceNumber(base)),
+            extra: vec![],
+        };
+        // a huge gap further on buffers at most max_pending entries
+        r.handle_gap(wg, &gap((1 << 62) + 10, i64::MAX));
+        assert!(r.writers[&wg].pending.len() <= 16);
+        // a huge gap at the front jumps
+        r.handle_gap(wg, &gap(1 << 62, i64::MAX - 1));
+        assert_eq!(r.next_expected(wg), Some(SequenceNumber(i64::MAX - 1)));
+    }
+
+    #[test]
+    fn gaps_never_cover_resent_samples_and_volatile_joiners_get_a_gap() {
+        let (wg, rg, late) = (guid(1), guid(2), guid(3));
+        let t0 = Instant::now();
+        let mut w = Writer::new(wg, true, None, 64, Duration::from_millis(10)).retain_acked(true);
+        w.add_reader(rg, true, t0);
+        for i in 1..=6u8 {
+            w.write(Arc::from(vec![i]), t0).unwrap();
+        }
+        // samples 2 and 4 replaced (per-instance keep-last), 1..=6 requested
+        assert!(w.remove(SequenceNumber(2)) && w.remove(SequenceNumber(4)));
+        while w.poll_transmit().is_some() {}
+        w.handle_acknack(
+            rg,
+            &AckNack {
+                reader_id: rg.entity,
+                writer_id: wg.entity,
+                reader_sn_state: SequenceNumberSet::from_members(
+                    SequenceNumber(1),
+                    6,
+                    (1..=6).map(SequenceNumber),
+                ),
+                count: 1,
+                final_flag: false,
+            },
+        );
+        let mut data = vec![];
+        let mut gaps = vec![];
+        while let Some(t) = w.poll_transmit() {
+            match t {
+                Transmit::Data { sn, .. } => data.push(sn.0),
+                Transmit::Gap { start, list, .. } => gaps.push((start.0, list.base.0)),
+                _ => {}
+            }
+        }
+        assert_eq!(data, [1, 3, 5, 6]);
+        assert_eq!(gaps, [(2, 3), (4, 5)]);
+        // a volatile late joiner: GAP for what predates it, also on request
+        w.add_reader(late, false, t0);
+        assert!(matches!(
+            w.poll_transmit(),
+            Some(Transmit::Gap { start: SequenceNumber(1), list, .. }) if list.base == SequenceNumber(7)
+        ));
+        assert_eq!(w.acked_by_all(), SequenceNumber(0));
     }
 
     #[test]
