@@ -674,6 +674,10 @@ impl Disposal {
         if let Some(q) = inline_qos {
             let (list, _) = ParameterList::parse(q, little)?;
             for p in &list.params {
+                // vendor PIDs (0x8000 bit) never mean KEY_HASH or STATUS_INFO
+                if p.pid & PID_VENDOR_SPECIFIC != 0 {
+                    continue;
+                }
                 match p.pid & 0x3fff {
                     pid::STATUS_INFO => status = StatusInfo::parse(p.value),
                     pid::KEY_HASH => {
@@ -692,7 +696,10 @@ impl Disposal {
                 key_hash = list
                     .params
                     .iter()
-                    .find(|x| matches!(x.pid & 0x3fff, pid::PARTICIPANT_GUID | pid::ENDPOINT_GUID))
+                    .find(|x| {
+                        x.pid & PID_VENDOR_SPECIFIC == 0
+                            && matches!(x.pid & 0x3fff, pid::PARTICIPANT_GUID | pid::ENDPOINT_GUID)
+                    })
                     .and_then(|x| x.value.get(..16))
                     .and_then(|s| s.try_into().ok());
             }

@@ -26,6 +26,7 @@ pub mod frag;
 pub mod matching;
 mod message;
 pub mod parameter;
+pub mod participant;
 pub mod reliability;
 mod types;
 

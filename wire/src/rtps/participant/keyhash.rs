@@ -1,0 +1,153 @@
+//! Key hashes (DDSI-RTPS 2.5 §9.6.4.8) and the MD5 they need (RFC 1321).
+//!
+//! The key hash of an instance is computed from its key fields serialized
+//! as big-endian XCDR2 (`PLAIN_CDR2` BE, no encapsulation header): when the
+//! largest possible serialization of the key fits in 16 bytes, the hash is
+//! those bytes zero-padded to 16; otherwise it is their MD5 digest. Strings
+//! and sequences have no upper bound unless declared bounded, so any key
+//! holding one always takes the MD5 path, even when the actual value is short.
+//!
+//! ```
+//! use courier_wire::rtps::participant::KeyHash;
+//! // `long id` as key: 4 bytes, zero-padded
+//! let k = KeyHash::from_key(&7i32.to_be_bytes(), false);
+//! assert_eq!(k.0[..4], [0, 0, 0, 7]);
+//! assert_eq!(k.0[4..], [0; 12]);
+//! // `string name` as key: unbounded, so MD5 of "\0\0\0\x03ab\0"
+//! let k = KeyHash::from_key(b"\0\0\0\x03ab\0", true);
+//! assert_ne!(k.0[4..], [0; 12]);
+//! ```
+//!
+//! Cyclone DDS 11 computes key hashes this way (XCDR2 BE); Fast DDS 2.9
+//! serializes the key as XCDR1 BE, which gives the same bytes unless a key
+//! holds an 8-byte member that XCDR1 would align to 8 instead of 4.
+
+/// A 16-byte instance key hash (`PID_KEY_HASH`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Default)]
+pub struct KeyHash(pub [u8; 16]);
+
+impl KeyHash {
+    /// The key hash of a key serialized as big-endian XCDR2 (without
+    /// encapsulation header). `may_exceed_16` says whether the type's key
+    /// *can* serialize to more than 16 bytes (any unbounded string or
+    /// sequence in the key); a key that actually is longer than 16 bytes is
+    /// always hashed.
+    pub fn from_key(key_be: &[u8], may_exceed_16: bool) -> Self {
+        if may_exceed_16 || key_be.len() > 16 {
+            KeyHash(md5(key_be))
+        } else {
+            let mut h = [0; 16];
+            h[..key_be.len()].copy_from_slice(key_be);
+            KeyHash(h)
+        }
+    }
+}
+
+const S: [u32; 64] = [
+    7, 12, 17, 22, 7, 12, 17, 22, 7, 12, 17, 22, 7, 12, 17, 22, 5, 9, 14, 20, 5, 9, 14, 20, 5, 9,
+    14, 20, 5, 9, 14, 20, 4, 11, 16, 23, 4, 11, 16, 23, 4, 11, 16, 23, 4, 11, 16, 23, 6, 10, 15,
+    21, 6, 10, 15, 21, 6, 10, 15, 21, 6, 10, 15, 21,
+];
+
+/// `floor(abs(sin(i + 1)) * 2^32)`.
+const K: [u32; 64] = [
+    0xd76aa478, 0xe8c7b756, 0x242070db, 0xc1bdceee, 0xf57c0faf, 0x4787c62a, 0xa8304613, 0xfd469501,
+    0x698098d8, 0x8b44f7af, 0xffff5bb1, 0x895cd7be, 0x6b901122, 0xfd987193, 0xa679438e, 0x49b40821,
+    0xf61e2562, 0xc040b340, 0x265e5a51, 0xe9b6c7aa, 0xd62f105d, 0x02441453, 0xd8a1e681, 0xe7d3fbc8,
+    0x21e1cde6, 0xc33707d6, 0xf4d50d87, 0x455a14ed, 0xa9e3e905, 0xfcefa3f8, 0x676f02d9, 0x8d2a4c8a,
+    0xfffa3942, 0x8771f681, 0x6d9d6122, 0xfde5380c, 0xa4beea44, 0x4bdecfa9, 0xf6bb4b60, 0xbebfbc70,
+    0x289b7ec6, 0xeaa127fa, 0xd4ef3085, 0x04881d05, 0xd9d4d039, 0xe6db99e5, 0x1fa27cf8, 0xc4ac5665,
+    0xf4292244, 0x432aff97, 0xab9423a7, 0xfc93a039, 0x655b59c3, 0x8f0ccc92, 0xffeff47d, 0x85845dd1,
+    0x6fa87e4f, 0xfe2ce6e0, 0xa3014314, 0x4e0811a1, 0xf7537e82, 0xbd3af235, 0x2ad7d2bb, 0xeb86d391,
+];
+
+/// The MD5 digest of `data` (RFC 1321). Only for key hashes: MD5 is no
+/// longer a secure hash.
+pub fn md5(data: &[u8]) -> [u8; 16] {
+    let mut st: [u32; 4] = [0x67452301, 0xefcdab89, 0x98badcfe, 0x10325476];
+    let bit_len = (data.len() as u64).wrapping_mul(8);
+    let mut tail = Vec::with_capacity(128);
+    let full = data.len() / 64 * 64;
+    tail.extend_from_slice(&data[full..]);
+    tail.push(0x80);
+    while tail.len() % 64 != 56 {
+        tail.push(0);
+    }
+    tail.extend_from_slice(&bit_len.to_le_bytes());
+    for block in data[..full].chunks_exact(64).chain(tail.chunks_exact(64)) {
+        let mut m = [0u32; 16];
+        for (i, w) in block.chunks_exact(4).enumerate() {
+            m[i] = u32::from_le_bytes([w[0], w[1], w[2], w[3]]);
+        }
+        let [mut a, mut b, mut c, mut d] = st;
+        for i in 0..64 {
+            let (f, g) = match i / 16 {
+                0 => ((b & c) | (!b & d), i),
+                1 => ((d & b) | (!d & c), (5 * i + 1) % 16),
+                2 => (b ^ c ^ d, (3 * i + 5) % 16),
+                _ => (c ^ (b | !d), (7 * i) % 16),
+            };
+            let f = f.wrapping_add(a).wrapping_add(K[i]).wrapping_add(m[g]);
+            a = d;
+            d = c;
+            c = b;
+            b = b.wrapping_add(f.rotate_left(S[i]));
+        }
+        st[0] = st[0].wrapping_add(a);
+        st[1] = st[1].wrapping_add(b);
+        st[2] = st[2].wrapping_add(c);
+        st[3] = st[3].wrapping_add(d);
+    }
+    let mut out = [0; 16];
+    for (i, w) in st.iter().enumerate() {
+        out[i * 4..i * 4 + 4].copy_from_slice(&w.to_le_bytes());
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn hex(b: &[u8]) -> String {
+        b.iter().map(|x| format!("{x:02x}")).collect()
+    }
+
+    #[test]
+    fn rfc1321_test_suite() {
+        for (input, digest) in [
+            ("", "d41d8cd98f00b204e9800998ecf8427e"),
+            ("a", "0cc175b9c0f1b6a831c399e269772661"),
+            ("abc", "900150983cd24fb0d6963f7d28e17f72"),
+            ("message digest", "f96b697d7cb7938d525a2f31aaf161d0"),
+            (
+                "abcdefghijklmnopqrstuvwxyz",
+                "c3fcd3d76192e4007dfb496cca67e13b",
+            ),
+            (
+                "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789",
+                "d174ab98d277d9f5a5611c2c9f419d9f",
+            ),
+            (
+                "12345678901234567890123456789012345678901234567890123456789012345678901234567890",
+                "57edf4a22be3c955ac49da2e2107b67a",
+            ),
+        ] {
+            assert_eq!(hex(&md5(input.as_bytes())), digest, "{input:?}");
+        }
+        // block-boundary lengths
+        for n in [55, 56, 63, 64, 65, 119, 120, 128] {
+            let d = md5(&vec![b'x'; n]);
+            assert_ne!(d, [0; 16], "{n}");
+        }
+    }
+
+    #[test]
+    fn short_keys_pad_long_keys_hash() {
+        let k = KeyHash::from_key(&[1, 2, 3], false);
+        assert_eq!(k.0, [1, 2, 3, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]);
+        let long = [9u8; 17];
+        assert_eq!(KeyHash::from_key(&long, false).0, md5(&long));
+        assert_eq!(KeyHash::from_key(&[1, 2, 3], true).0, md5(&[1, 2, 3]));
+    }
+}

@@ -1,0 +1,898 @@
+//! The sans-I/O RTPS participant on a simulated network: discovery through
+//! unicast peer lists, matching, reliable and best-effort delivery under
+//! loss, duplication and reordering, fragmentation, dispose, transient-local
+//! late joiners, lease expiry and QoS mismatches. Deterministic: seeded
+//! xorshift, simulated time, no sockets, no sleeps.
+
+use std::time::{Duration, Instant, SystemTime};
+
+use courier_wire::rtps::discovery::{
+    Durability, Duration as RtpsDuration, EndpointQos, History, Reliability,
+};
+use courier_wire::rtps::matching::Incompatible;
+use courier_wire::rtps::participant::{
+    guid_prefix, Change, ChangeKind, Config, Datagram, EndpointConfig, Event, KeyHash, LostReason,
+    Participant, ReceivedSample,
+};
+use courier_wire::rtps::{Guid, Locator, Message, SequenceNumber, Submessage};
+
+const LO: [u8; 4] = [127, 0, 0, 1];
+
+/// A participant on the simulated network.
+struct Node {
+    p: Participant,
+    events: Vec<Event>,
+    /// A node that is down neither sends nor receives (a crashed process).
+    up: bool,
+}
+
+/// A lossy network of participants: every datagram may be dropped,
+/// duplicated and delayed (which reorders), decided by a seeded xorshift.
+struct Net {
+    nodes: Vec<Node>,
+    seed: u64,
+    loss: u32,
+    dup: u32,
+    max_delay_ms: u64,
+    queue: Vec<(Instant, u64, Locator, Vec<u8>)>,
+    serial: u64,
+    t0: Instant,
+    now: Instant,
+    /// Every datagram sent, for inspecting the wire.
+    tap: Vec<Datagram>,
+    tapping: bool,
+}
+
+fn rel() -> Reliability {
+    Reliability::Reliable(RtpsDuration::ZERO)
+}
+
+impl Net {
+    fn new(n: usize, seed: u64, loss: u32) -> Net {
+        let t0 = Instant::now();
+        let wall = SystemTime::UNIX_EPOCH + Duration::from_secs(1_700_000_000);
+        let nodes = (0..n)
+            .map(|i| {
+                let cfg = Config::udpv4(0, i as u32, guid_prefix([i as u8 + 1; 10]), LO)
+                    .unwrap()
+                    .with_unicast_peers(&[LO], 9);
+                Node {
+                    p: Participant::new(cfg, t0, wall),
+                    events: Vec::new(),
+                    up: true,
+                }
+            })
+            .collect();
+        let mut net = Net {
+            nodes,
+            seed: seed | 1,
+            loss,
+            dup: if loss > 0 { 5 } else { 0 },
+            max_delay_ms: if loss > 0 { 20 } else { 1 },
+            queue: Vec::new(),
+            serial: 0,
+            t0,
+            now: t0,
+            tap: Vec::new(),
+            tapping: false,
+        };
+        net.pump();
+        net
+    }
+
+    fn rand(&mut self) -> u32 {
+        self.seed ^= self.seed << 13;
+        self.seed ^= self.seed >> 7;
+        self.seed ^= self.seed << 17;
+        (self.seed >> 32) as u32
+    }
+
+    fn send(&mut self, d: Datagram) {
+        if self.tapping {
+            self.tap.push(d.clone());
+        }
+        if self.rand() % 100 < self.loss {
+            return;
+        }
+        let copies = if self.rand() % 100 < self.dup { 2 } else { 1 };
+        for _ in 0..copies {
+            let delay = 1 + u64::from(self.rand()) % self.max_delay_ms;
+            self.serial += 1;
+            self.queue.push((
+                self.now + Duration::from_millis(delay),
+                self.serial,
+                d.destination,
+                d.payload.clone(),
+            ));
+        }
+    }
+
+    /// Takes every node's datagrams and events.
+    fn pump(&mut self) {
+        for i in 0..self.nodes.len() {
+            while let Some(d) = self.nodes[i].p.poll_transmit() {
+                if self.nodes[i].up {
+                    self.send(d);
+                }
+            }
+            while let Some(e) = self.nodes[i].p.poll_event() {
+                self.nodes[i].events.push(e);
+            }
+        }
+    }
+
+    /// Advances 1 ms: deliveries, timers, outputs.
+    fn step(&mut self) {
+        self.now += Duration::from_millis(1);
+        let now = self.now;
+        let mut due: Vec<_> = Vec::new();
+        self.queue.retain(|q| {
+            if q.0 <= now {
+                due.push(q.clone());
+                false
+            } else {
+                true
+            }
+        });
+        due.sort_by_key(|q| (q.0, q.1));
+        for (_, _, to, bytes) in due {
+            for n in self.nodes.iter_mut().filter(|n| n.up) {
+                let c = n.p.config();
+                if c.metatraffic_unicast.contains(&to) || c.default_unicast.contains(&to) {
+                    n.p.handle_datagram(Locator::udpv4(LO, 40000), &bytes, now);
+                }
+            }
+        }
+        for n in self.nodes.iter_mut().filter(|n| n.up) {
+            if n.p.poll_timeout().is_some_and(|t| t <= now) {
+                n.p.handle_timeout(now);
+            }
+        }
+        self.pump();
+    }
+
+    fn run_until(&mut self, limit: Duration, mut done: impl FnMut(&Net) -> bool) -> bool {
+        let end = self.now + limit;
+        while self.now < end {
+            if done(self) {
+                return true;
+            }
+            self.step();
+        }
+        done(self)
+    }
+
+    fn run_for(&mut self, d: Duration) {
+        self.run_until(d, |_| false);
+    }
+
+    fn guid(&self, i: usize) -> courier_wire::rtps::GuidPrefix {
+        self.nodes[i].p.guid_prefix()
+    }
+
+    fn samples(&self, i: usize) -> Vec<&ReceivedSample> {
+        self.nodes[i]
+            .events
+            .iter()
+            .filter_map(|e| match e {
+                Event::SampleReceived(s) => Some(s),
+                _ => None,
+            })
+            .collect()
+    }
+
+    fn has(&self, i: usize, f: impl Fn(&Event) -> bool) -> bool {
+        self.nodes[i].events.iter().any(f)
+    }
+
+    fn elapsed(&self) -> Duration {
+        self.now - self.t0
+    }
+}
+
+fn reliable_reader(topic: &str, ty: &str) -> EndpointConfig {
+    let mut q = EndpointQos::reader_default();
+    q.reliability = rel();
+    q.history = History::KeepAll;
+    EndpointConfig::reader(topic, ty).qos(q)
+}
+
+fn keyed_writer(topic: &str, ty: &str) -> EndpointConfig {
+    let mut q = EndpointQos::writer_default();
+    q.history = History::KeepAll;
+    EndpointConfig::writer(topic, ty).keyed(true).qos(q)
+}
+
+/// A CDR_LE sample of `struct { long id; long n; }` with key `id`.
+fn sample(id: i32, n: i32) -> (Vec<u8>, KeyHash) {
+    let mut b = vec![0, 1, 0, 0];
+    b.extend_from_slice(&id.to_le_bytes());
+    b.extend_from_slice(&n.to_le_bytes());
+    (b, KeyHash::from_key(&id.to_be_bytes(), false))
+}
+
+fn matched(net: &Net, w_node: usize, w: Guid, r_node: usize, r: Guid) -> bool {
+    net.has(
+        w_node,
+        |e| matches!(e, Event::WriterMatched { writer, reader } if *writer == w && *reader == r),
+    ) && net.has(
+        r_node,
+        |e| matches!(e, Event::ReaderMatched { reader, writer } if *writer == w && *reader == r),
+    )
+}
+
+/// Writes `count` keyed samples (5 instances) as fast as the writer's
+/// keep-all history allows, then runs until every reader has them all.
+fn write_all(net: &mut Net, w: Guid, readers: &[usize], count: i32, limit: Duration) -> bool {
+    let mut next = 0;
+    let end = net.now + limit;
+    while net.now < end {
+        while next < count {
+            let (b, k) = sample(next % 5, next);
+            let now = net.now;
+            match net.nodes[0]
+                .p
+                .write(w, Change::alive(&b).with_key_hash(k), now)
+            {
+                Ok(_) => next += 1,
+                Err(_) => break,
+            }
+            if next % 7 == 0 {
+                break; // a few per millisecond
+            }
+        }
+        net.pump();
+        if next == count
+            && readers
+                .iter()
+                .all(|r| net.samples(*r).len() >= count as usize)
+        {
+            return true;
+        }
+        net.step();
+    }
+    false
+}
+
+fn check_in_order(net: &Net, r: usize, count: i32) {
+    let got = net.samples(r);
+    assert_eq!(got.len(), count as usize, "node {r}: every sample once");
+    for (i, s) in got.iter().enumerate() {
+        let (b, k) = sample(i as i32 % 5, i as i32);
+        assert_eq!(
+            s.sequence_number,
+            SequenceNumber(i as i64 + 1),
+            "node {r}: in order"
+        );
+        assert_eq!(s.data(), &b[..]);
+        assert_eq!(s.key_hash, Some(k));
+        assert_eq!(s.kind, ChangeKind::Alive);
+        assert!(s
+            .source_timestamp
+            .is_some_and(|t| t.seconds >= 1_700_000_000));
+    }
+}
+
+#[test]
+fn two_participants_discover_by_unicast_peers_and_deliver_reliably_under_30_percent_loss() {
+    for seed in [1u64, 42, 7777] {
+        let mut net = Net::new(2, seed, 30);
+        let (p0, p1) = (net.guid(0), net.guid(1));
+        let now = net.now;
+        let w = net.nodes[0]
+            .p
+            .create_writer(keyed_writer("Robot", "Pose"), now)
+            .unwrap();
+        let r = net.nodes[1]
+            .p
+            .create_reader(reliable_reader("Robot", "Pose").keyed(true), now)
+            .unwrap();
+        assert!(
+            net.run_until(Duration::from_secs(30), |n| matched(n, 0, w, 1, r)),
+            "seed {seed}: no match after {:?}",
+            net.elapsed()
+        );
+        assert!(net.has(
+            0,
+            |e| matches!(e, Event::ParticipantFound(d) if d.guid_prefix == p1)
+        ));
+        assert!(net.has(
+            1,
+            |e| matches!(e, Event::ParticipantFound(d) if d.guid_prefix == p0)
+        ));
+        assert!(net.has(
+            1,
+            |e| matches!(e, Event::PublicationFound(d) if d.guid == w && d.topic_name == "Robot")
+        ));
+        assert!(net.has(
+            0,
+            |e| matches!(e, Event::SubscriptionFound(d) if d.guid == r)
+        ));
+        assert!(
+            write_all(&mut net, w, &[1], 300, Duration::from_secs(120)),
+            "seed {seed}: only {} of 300 after {:?}",
+            net.samples(1).len(),
+            net.elapsed()
+        );
+        check_in_order(&net, 1, 300);
+        eprintln!("seed {seed}: 300 samples delivered at {:?}", net.elapsed());
+        // and the writer learns that everything was acknowledged
+        assert!(
+            net.run_until(Duration::from_secs(30), |n| n.has(0, |e| matches!(
+                e,
+                Event::AckedByAll { writer, up_to } if *writer == w && up_to.0 == 300
+            )))
+        );
+        assert!(net.nodes[0].p.is_acked_by_all(w, SequenceNumber(300)));
+    }
+}
+
+#[test]
+fn three_participants_each_reader_gets_everything_in_order() {
+    let mut net = Net::new(3, 99, 30);
+    let now = net.now;
+    let w = net.nodes[0]
+        .p
+        .create_writer(keyed_writer("T", "Ty"), now)
+        .unwrap();
+    let r1 = net.nodes[1]
+        .p
+        .create_reader(reliable_reader("T", "Ty").keyed(true), now)
+        .unwrap();
+    let r2 = net.nodes[2]
+        .p
+        .create_reader(reliable_reader("T", "Ty").keyed(true), now)
+        .unwrap();
+    assert!(
+        net.run_until(Duration::from_secs(30), |n| matched(n, 0, w, 1, r1)
+            && matched(n, 0, w, 2, r2))
+    );
+    // everybody knows everybody
+    for i in 0..3 {
+        assert_eq!(net.nodes[i].p.participants().count(), 2, "node {i}");
+    }
+    assert!(write_all(
+        &mut net,
+        w,
+        &[1, 2],
+        200,
+        Duration::from_secs(120)
+    ));
+    check_in_order(&net, 1, 200);
+    check_in_order(&net, 2, 200);
+    assert_eq!(net.nodes[0].p.matched_readers(w), vec![r1, r2]);
+}
+
+#[test]
+fn best_effort_delivers_in_order_without_repair() {
+    // lossless: everything arrives
+    let mut net = Net::new(2, 5, 0);
+    let now = net.now;
+    let mut wq = EndpointQos::writer_default();
+    wq.reliability = Reliability::BestEffort;
+    let w = net.nodes[0]
+        .p
+        .create_writer(EndpointConfig::writer("B", "T").qos(wq.clone()), now)
+        .unwrap();
+    let r = net.nodes[1]
+        .p
+        .create_reader(EndpointConfig::reader("B", "T"), now)
+        .unwrap();
+    assert!(net.run_until(Duration::from_secs(10), |n| matched(n, 0, w, 1, r)));
+    for i in 0..50 {
+        let (b, _) = sample(0, i);
+        let now = net.now;
+        net.nodes[0].p.write(w, Change::alive(&b), now).unwrap();
+        net.step();
+    }
+    net.run_for(Duration::from_millis(100));
+    assert_eq!(net.samples(1).len(), 50);
+    // lossy: what arrives is in order, once, and nothing is repaired
+    let mut net = Net::new(2, 6, 30);
+    let now = net.now;
+    let w = net.nodes[0]
+        .p
+        .create_writer(EndpointConfig::writer("B", "T").qos(wq), now)
+        .unwrap();
+    let r = net.nodes[1]
+        .p
+        .create_reader(EndpointConfig::reader("B", "T"), now)
+        .unwrap();
+    assert!(net.run_until(Duration::from_secs(30), |n| matched(n, 0, w, 1, r)));
+    for i in 0..200 {
+        let (b, _) = sample(0, i);
+        let now = net.now;
+        net.nodes[0].p.write(w, Change::alive(&b), now).unwrap();
+        // slower than the network reorders: a late sample would be dropped
+        net.run_for(Duration::from_millis(25));
+    }
+    net.run_for(Duration::from_secs(1));
+    let sns: Vec<i64> = net.samples(1).iter().map(|s| s.sequence_number.0).collect();
+    assert!(sns.len() > 100 && sns.len() < 200, "{}", sns.len());
+    assert!(sns.windows(2).all(|w| w[0] < w[1]));
+    assert!(!net.has(0, |e| matches!(e, Event::AckedByAll { .. })));
+}
+
+#[test]
+fn a_200_kib_sample_is_fragmented_and_reassembled_under_loss() {
+    let big: Vec<u8> = [0u8, 1, 0, 0]
+        .into_iter()
+        .chain((0..200 * 1024).map(|i| (i * 31 % 251) as u8))
+        .collect();
+    for (seed, loss) in [(3u64, 0u32), (11, 30), (12, 30)] {
+        let mut net = Net::new(2, seed, loss);
+        let now = net.now;
+        let w = net.nodes[0]
+            .p
+            .create_writer(EndpointConfig::writer("Big", "Blob"), now)
+            .unwrap();
+        let r = net.nodes[1]
+            .p
+            .create_reader(reliable_reader("Big", "Blob"), now)
+            .unwrap();
+        assert!(net.run_until(Duration::from_secs(30), |n| matched(n, 0, w, 1, r)));
+        net.tapping = true;
+        let now = net.now;
+        net.nodes[0].p.write(w, Change::alive(&big), now).unwrap();
+        net.pump();
+        assert!(
+            net.run_until(Duration::from_secs(60), |n| !n.samples(1).is_empty()),
+            "seed {seed}"
+        );
+        assert_eq!(net.samples(1)[0].data(), &big[..]);
+        // on the wire: DATA_FRAGs of 1344-byte fragments, 10 per submessage,
+        // in datagrams no larger than 14720 bytes (Cyclone's shape)
+        let mut frags = 0;
+        let mut nack_frags = 0;
+        for d in &net.tap {
+            assert!(d.payload.len() <= 14_720);
+            for s in Message::parse(&d.payload).unwrap().submessages {
+                match s {
+                    Submessage::DataFrag(f) => {
+                        frags += 1;
+                        assert_eq!(f.fragment_size, 1344);
+                        assert_eq!(f.sample_size as usize, big.len());
+                        assert!(
+                            f.fragments_in_submessage == 10
+                                || loss > 0
+                                || f.fragment_starting_num > 150
+                        );
+                    }
+                    Submessage::NackFrag(_) => nack_frags += 1,
+                    _ => {}
+                }
+            }
+        }
+        assert!(frags >= 16, "{frags}");
+        if loss > 0 {
+            assert!(
+                nack_frags > 0,
+                "the reader asked for missing fragments only"
+            );
+        }
+    }
+}
+
+#[test]
+fn dispose_and_unregister_are_events_and_go_out_both_ways() {
+    let mut net = Net::new(2, 8, 0);
+    let now = net.now;
+    let w = net.nodes[0]
+        .p
+        .create_writer(keyed_writer("K", "T"), now)
+        .unwrap();
+    let r = net.nodes[1]
+        .p
+        .create_reader(reliable_reader("K", "T").keyed(true), now)
+        .unwrap();
+    assert!(net.run_until(Duration::from_secs(10), |n| matched(n, 0, w, 1, r)));
+    net.tapping = true;
+    let (b, k) = sample(7, 1);
+    let key = [0u8, 1, 0, 0, 7, 0, 0, 0];
+    let now = net.now;
+    net.nodes[0]
+        .p
+        .write(w, Change::alive(&b).with_key_hash(k), now)
+        .unwrap();
+    net.nodes[0]
+        .p
+        .write(w, Change::dispose(&key, k), now)
+        .unwrap();
+    net.nodes[0]
+        .p
+        .write(w, Change::unregister(&[], k), now)
+        .unwrap();
+    net.pump();
+    assert!(net.run_until(Duration::from_secs(5), |n| n.samples(1).len() == 3));
+    let got = net.samples(1);
+    assert_eq!(
+        got.iter().map(|s| (s.kind, s.key_hash)).collect::<Vec<_>>(),
+        [
+            (ChangeKind::Alive, Some(k)),
+            (ChangeKind::Disposed, Some(k)),
+            (ChangeKind::Unregistered, Some(k))
+        ]
+    );
+    assert_eq!(got[1].data(), &key);
+    assert_eq!(got[2].data(), b"");
+    // the dispose DATA carries inline KEY_HASH + STATUS_INFO (Fast DDS's
+    // way) and the serialized key with the K flag (Cyclone's way)
+    let dispose = net
+        .tap
+        .iter()
+        .flat_map(|d| {
+            let m = Message::parse(&d.payload).unwrap();
+            m.submessages
+                .into_iter()
+                .filter_map(|s| match s {
+                    Submessage::Data(d)
+                        if d.writer_sn == SequenceNumber(2) && d.writer_id == w.entity =>
+                    {
+                        Some((
+                            d.key,
+                            d.payload.map(<[u8]>::to_vec),
+                            d.inline_qos.map(<[u8]>::to_vec),
+                        ))
+                    }
+                    _ => None,
+                })
+                .collect::<Vec<_>>()
+        })
+        .next()
+        .unwrap();
+    assert!(dispose.0, "K flag");
+    assert_eq!(dispose.1.as_deref(), Some(&key[..]));
+    let q = dispose.2.unwrap();
+    let d = courier_wire::rtps::discovery::Disposal::from_data(Some(&q), true, None, false)
+        .unwrap()
+        .unwrap();
+    assert_eq!(d.key_hash, k.0);
+    assert!(d.status.disposed && !d.status.unregistered);
+}
+
+fn tl_writer(depth: i32) -> EndpointConfig {
+    let mut q = EndpointQos::writer_default();
+    q.durability = Durability::TransientLocal;
+    q.history = History::KeepLast(depth);
+    EndpointConfig::writer("Late", "T").keyed(true).qos(q)
+}
+
+fn tl_reader(durability: Durability) -> EndpointConfig {
+    let mut q = EndpointQos::reader_default();
+    q.reliability = rel();
+    q.durability = durability;
+    q.history = History::KeepAll;
+    EndpointConfig::reader("Late", "T").keyed(true).qos(q)
+}
+
+#[test]
+fn transient_local_late_joiner_gets_the_history_per_instance_and_volatile_does_not() {
+    let mut net = Net::new(3, 21, 20);
+    let now = net.now;
+    let w = net.nodes[0].p.create_writer(tl_writer(2), now).unwrap();
+    // 3 instances × 4 samples, written before anybody listens
+    for n in 0..12 {
+        let (b, k) = sample(n % 3, n);
+        let now = net.now;
+        net.nodes[0]
+            .p
+            .write(w, Change::alive(&b).with_key_hash(k), now)
+            .unwrap();
+    }
+    net.run_for(Duration::from_secs(2));
+    let now = net.now;
+    let late = net.nodes[1]
+        .p
+        .create_reader(tl_reader(Durability::TransientLocal), now)
+        .unwrap();
+    let vol = net.nodes[2]
+        .p
+        .create_reader(tl_reader(Durability::Volatile), now)
+        .unwrap();
+    assert!(
+        net.run_until(Duration::from_secs(30), |n| matched(n, 0, w, 1, late)
+            && matched(n, 0, w, 2, vol)
+            && n.samples(1).len() >= 6)
+    );
+    net.run_for(Duration::from_secs(2));
+    // keep-last 2 per instance: samples 6..=11 remain, the rest was gapped
+    let got: Vec<i64> = net.samples(1).iter().map(|s| s.sequence_number.0).collect();
+    assert_eq!(got, [7, 8, 9, 10, 11, 12]);
+    assert!(
+        net.samples(2).is_empty(),
+        "a volatile reader gets no history"
+    );
+    // both get what comes next
+    let (b, k) = sample(1, 99);
+    let now = net.now;
+    net.nodes[0]
+        .p
+        .write(w, Change::alive(&b).with_key_hash(k), now)
+        .unwrap();
+    net.pump();
+    assert!(
+        net.run_until(Duration::from_secs(10), |n| n.samples(1).len() == 7
+            && n.samples(2).len() == 1)
+    );
+    assert_eq!(net.samples(2)[0].sequence_number, SequenceNumber(13));
+}
+
+#[test]
+fn a_silent_participant_is_lost_after_its_lease_and_a_closed_one_at_once() {
+    let mut net = Net::new(3, 31, 0);
+    let (p1, p2) = (net.guid(1), net.guid(2));
+    let now = net.now;
+    let w = net.nodes[0]
+        .p
+        .create_writer(EndpointConfig::writer("L", "T"), now)
+        .unwrap();
+    let r = net.nodes[1]
+        .p
+        .create_reader(reliable_reader("L", "T"), now)
+        .unwrap();
+    assert!(
+        net.run_until(Duration::from_secs(10), |n| matched(n, 0, w, 1, r)
+            && n.nodes[0].p.participants().count() == 2)
+    );
+    // node 1 crashes: no goodbye
+    net.nodes[1].up = false;
+    let crash = net.now;
+    assert!(
+        net.run_until(Duration::from_secs(30), |n| n.has(0, |e| matches!(
+            e,
+            Event::ParticipantLost { prefix, reason: LostReason::LeaseExpired } if *prefix == p1
+        )))
+    );
+    let after = net.now - crash;
+    assert!(
+        after >= Duration::from_secs(7) && after <= Duration::from_secs(11),
+        "lost after {after:?} (lease 10 s, last announcement up to 3 s before the crash)"
+    );
+    let ev = &net.nodes[0].events;
+    let pos = |f: &dyn Fn(&Event) -> bool| ev.iter().position(f).unwrap();
+    let unmatched = pos(
+        &|e| matches!(e, Event::WriterUnmatched { writer, reader } if *writer == w && *reader == r),
+    );
+    let sub_lost = pos(&|e| matches!(e, Event::SubscriptionLost(g) if *g == r));
+    let lost = pos(&|e| matches!(e, Event::ParticipantLost { prefix, .. } if *prefix == p1));
+    assert!(
+        unmatched < sub_lost && sub_lost < lost,
+        "endpoints go first"
+    );
+    assert!(net.nodes[0].p.matched_readers(w).is_empty());
+    // node 2 leaves properly: lost at once, as disposed
+    let now = net.now;
+    net.nodes[2].p.close(now);
+    net.pump();
+    assert!(
+        net.run_until(Duration::from_millis(100), |n| n.has(0, |e| matches!(
+            e,
+            Event::ParticipantLost { prefix, reason: LostReason::Disposed } if *prefix == p2
+        )))
+    );
+}
+
+#[test]
+fn qos_mismatch_gives_an_incompatibility_and_no_match() {
+    let mut net = Net::new(2, 41, 0);
+    let now = net.now;
+    let mut be = EndpointQos::writer_default();
+    be.reliability = Reliability::BestEffort;
+    let w = net.nodes[0]
+        .p
+        .create_writer(EndpointConfig::writer("Q", "T").qos(be), now)
+        .unwrap();
+    let r = net.nodes[1]
+        .p
+        .create_reader(reliable_reader("Q", "T"), now)
+        .unwrap();
+    // a partition mismatch and an XCDR2-only writer on other topics
+    let mut part = EndpointQos::writer_default();
+    part.partitions = vec!["a".into()];
+    let wp = net.nodes[0]
+        .p
+        .create_writer(EndpointConfig::writer("P", "T").qos(part), now)
+        .unwrap();
+    let mut rp = EndpointQos::reader_default();
+    rp.partitions = vec!["b*".into()];
+    net.nodes[1]
+        .p
+        .create_reader(EndpointConfig::reader("P", "T").qos(rp), now)
+        .unwrap();
+    let mut x2 = EndpointQos::writer_default();
+    x2.data_representation = vec![2];
+    let wx = net.nodes[0]
+        .p
+        .create_writer(EndpointConfig::writer("X", "T").qos(x2), now)
+        .unwrap();
+    net.nodes[1]
+        .p
+        .create_reader(EndpointConfig::reader("X", "T"), now)
+        .unwrap();
+    // different type, same topic
+    let wt = net.nodes[0]
+        .p
+        .create_writer(EndpointConfig::writer("Ty", "A"), now)
+        .unwrap();
+    net.nodes[1]
+        .p
+        .create_reader(EndpointConfig::reader("Ty", "B"), now)
+        .unwrap();
+    net.run_for(Duration::from_secs(3));
+    let incompatible =
+        |node: usize, local: Option<Guid>, remote: Option<Guid>| -> Vec<Incompatible> {
+            net.nodes[node]
+                .events
+                .iter()
+                .filter_map(|e| match e {
+                    Event::IncompatibleQos {
+                        local: l,
+                        remote: rm,
+                        reason,
+                    } if local.is_none_or(|x| x == *l) && remote.is_none_or(|x| x == *rm) => {
+                        Some(reason.clone())
+                    }
+                    _ => None,
+                })
+                .collect()
+        };
+    assert_eq!(
+        incompatible(0, Some(w), Some(r)),
+        [Incompatible::Reliability]
+    );
+    assert_eq!(
+        incompatible(1, Some(r), Some(w)),
+        [Incompatible::Reliability]
+    );
+    assert_eq!(incompatible(0, Some(wp), None), [Incompatible::Partition]);
+    assert!(matches!(
+        incompatible(0, Some(wx), None)[..],
+        [Incompatible::DataRepresentation { .. }]
+    ));
+    assert!(matches!(
+        incompatible(0, Some(wt), None)[..],
+        [Incompatible::Type { .. }]
+    ));
+    assert!(!net.has(0, |e| matches!(e, Event::WriterMatched { .. })));
+    assert!(!net.has(1, |e| matches!(e, Event::ReaderMatched { .. })));
+    // and no user data flows
+    let now = net.now;
+    net.nodes[0]
+        .p
+        .write(w, Change::alive(b"\0\x01\0\0x"), now)
+        .unwrap();
+    net.run_for(Duration::from_millis(100));
+    assert!(net.samples(1).is_empty());
+}
+
+#[test]
+fn local_writer_and_reader_match_in_process() {
+    let mut net = Net::new(1, 1, 0);
+    let now = net.now;
+    let mut q = EndpointQos::writer_default();
+    q.durability = Durability::TransientLocal;
+    q.history = History::KeepLast(3);
+    let w = net.nodes[0]
+        .p
+        .create_writer(EndpointConfig::writer("Self", "T").qos(q), now)
+        .unwrap();
+    for i in 0..5 {
+        let (b, _) = sample(0, i);
+        net.nodes[0].p.write(w, Change::alive(&b), now).unwrap();
+    }
+    let mut rq = EndpointQos::reader_default();
+    rq.durability = Durability::TransientLocal;
+    let r = net.nodes[0]
+        .p
+        .create_reader(EndpointConfig::reader("Self", "T").qos(rq), now)
+        .unwrap();
+    let (b, _) = sample(0, 5);
+    net.nodes[0].p.write(w, Change::alive(&b), now).unwrap();
+    net.pump();
+    assert!(matched(&net, 0, w, 0, r));
+    let sns: Vec<i64> = net.samples(0).iter().map(|s| s.sequence_number.0).collect();
+    assert_eq!(sns, [3, 4, 5, 6]);
+    assert!(net.nodes[0].p.delete_reader(r, now));
+    net.pump();
+    assert!(net.has(
+        0,
+        |e| matches!(e, Event::ReaderUnmatched { reader, .. } if *reader == r)
+    ));
+}
+
+#[test]
+fn deleted_endpoints_are_lost_remotely() {
+    let mut net = Net::new(2, 51, 10);
+    let now = net.now;
+    let w = net.nodes[0]
+        .p
+        .create_writer(EndpointConfig::writer("D", "T"), now)
+        .unwrap();
+    let r = net.nodes[1]
+        .p
+        .create_reader(reliable_reader("D", "T"), now)
+        .unwrap();
+    assert!(net.run_until(Duration::from_secs(30), |n| matched(n, 0, w, 1, r)));
+    let now = net.now;
+    assert!(net.nodes[0].p.delete_writer(w, now));
+    net.pump();
+    assert!(net.run_until(Duration::from_secs(10), |n| n
+        .has(1, |e| matches!(e, Event::PublicationLost(g) if *g == w))));
+    assert!(net.has(
+        1,
+        |e| matches!(e, Event::ReaderUnmatched { reader, writer } if *reader == r && *writer == w)
+    ));
+    // a participant that joins now does not learn of the deleted writer
+    let mut net2 = net;
+    let now = net2.now;
+    let w2 = net2.nodes[0]
+        .p
+        .create_writer(EndpointConfig::writer("D2", "T"), now)
+        .unwrap();
+    net2.run_for(Duration::from_secs(1));
+    assert!(net2.has(
+        1,
+        |e| matches!(e, Event::PublicationFound(d) if d.guid == w2)
+    ));
+    assert_eq!(net2.nodes[1].p.publications().count(), 1);
+}
+
+#[test]
+fn hostile_datagrams_do_not_hurt() {
+    let mut net = Net::new(2, 61, 0);
+    let now = net.now;
+    let w = net.nodes[0]
+        .p
+        .create_writer(keyed_writer("H", "T"), now)
+        .unwrap();
+    let r = net.nodes[1]
+        .p
+        .create_reader(reliable_reader("H", "T").keyed(true), now)
+        .unwrap();
+    net.tapping = true;
+    assert!(net.run_until(Duration::from_secs(10), |n| matched(n, 0, w, 1, r)));
+    let (b, k) = sample(1, 1);
+    let now = net.now;
+    net.nodes[0]
+        .p
+        .write(w, Change::alive(&b).with_key_hash(k), now)
+        .unwrap();
+    net.run_for(Duration::from_millis(50));
+    let corpus: Vec<Vec<u8>> = net.tap.iter().map(|d| d.payload.clone()).collect();
+    assert!(!corpus.is_empty());
+    // mutate real datagrams byte by byte and feed them to a fresh participant
+    let mut victim = Net::new(1, 62, 0);
+    let now = victim.now;
+    victim.nodes[0]
+        .p
+        .create_reader(reliable_reader("H", "T").keyed(true), now)
+        .unwrap();
+    let mut seed = 0x1234_5678_9abc_def0u64;
+    let mut rnd = || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        seed
+    };
+    for round in 0..20_000 {
+        let mut d = corpus[round % corpus.len()].clone();
+        for _ in 0..1 + rnd() % 4 {
+            let i = (rnd() as usize) % d.len();
+            d[i] = rnd() as u8;
+        }
+        if rnd() % 8 == 0 {
+            d.truncate((rnd() as usize) % d.len());
+        }
+        let now = victim.now;
+        victim.nodes[0]
+            .p
+            .handle_datagram(Locator::udpv4(LO, 1), &d, now);
+        if round % 100 == 0 {
+            victim.step();
+        }
+    }
+    victim.run_for(Duration::from_secs(30));
+    let s = victim.nodes[0].p.stats();
+    assert_eq!(s.datagrams_received, 20_000);
+    assert!(s.datagrams_malformed > 0);
+}
