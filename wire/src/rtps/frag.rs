@@ -8,7 +8,7 @@
 use std::collections::BTreeMap;
 
 use super::message::DataFrag;
-use super::types::{EntityId, Guid, SequenceNumber};
+use super::types::{EntityId, Guid, SequenceNumber, Time};
 
 /// Splits a serialized sample into DATA_FRAG submessages of
 /// `frags_per_submessage` fragments of `fragment_size` bytes (the last
@@ -68,7 +68,13 @@ struct Partial {
     data: Vec<u8>,
     have: Vec<bool>,
     missing: usize,
+    /// The first source timestamp (INFO_TS) seen with any fragment: vendors
+    /// send INFO_TS once before the first fragment, not before every one.
+    ts: Option<Time>,
 }
+
+/// A completed sample and the first source timestamp its fragments carried.
+pub type Reassembled = (Vec<u8>, Option<Time>);
 
 /// Reassembles fragmented samples per (writer, sequence number).
 #[derive(Debug)]
@@ -130,6 +136,18 @@ impl Reassembler {
     /// Adds one DATA_FRAG from `writer`. Returns the whole sample when this
     /// submessage completed it.
     pub fn insert(&mut self, writer: Guid, f: &DataFrag<'_>) -> Result<Option<Vec<u8>>, FragError> {
+        Ok(self.insert_timed(writer, f, None)?.map(|(data, _)| data))
+    }
+
+    /// As [`insert`](Self::insert), with the source timestamp in force for
+    /// this DATA_FRAG; the completed sample comes with the first timestamp
+    /// any of its fragments carried.
+    pub fn insert_timed(
+        &mut self,
+        writer: Guid,
+        f: &DataFrag<'_>,
+        ts: Option<Time>,
+    ) -> Result<Option<Reassembled>, FragError> {
         let size = f.sample_size as usize;
         if size > self.max_sample {
             return Err(FragError::TooLarge {
@@ -182,6 +200,7 @@ impl Reassembler {
                     data: vec![0; size],
                     have: vec![false; total],
                     missing: total,
+                    ts: None,
                 },
             );
         }
@@ -195,6 +214,7 @@ impl Reassembler {
             ));
         }
         p.data[start..end].copy_from_slice(&f.payload[..end - start]);
+        p.ts = p.ts.or(ts);
         for h in &mut p.have[first - 1..first - 1 + n] {
             if !*h {
                 *h = true;
@@ -209,7 +229,7 @@ impl Reassembler {
             .remove(&key)
             .ok_or(FragError::Inconsistent("lost partial"))?;
         self.bytes -= done.data.len();
-        Ok(Some(done.data))
+        Ok(Some((done.data, done.ts)))
     }
 }
 

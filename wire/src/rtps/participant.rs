@@ -755,6 +755,7 @@ struct LocalReader {
 }
 
 /// The receiver state of one message (§8.3.4).
+#[derive(Clone, Copy)]
 struct Rx {
     src: GuidPrefix,
     dst: GuidPrefix,
@@ -2328,9 +2329,9 @@ impl Participant {
         if !self.wants(writer, f.reader_id, f.writer_sn) {
             return;
         }
-        match self.reassembler.insert(writer, f) {
-            Ok(Some(sample)) => self.on_data(
-                rx,
+        match self.reassembler.insert_timed(writer, f, rx.ts) {
+            Ok(Some((sample, ts))) => self.on_data(
+                &Rx { ts, ..*rx },
                 f.reader_id,
                 f.writer_id,
                 f.writer_sn,
