@@ -161,22 +161,45 @@ fn expand_struct(c: &Container<'_>, fields: &[Field<'_>]) -> TokenStream {
     // ---- sizes ----
     let mut ipc_min = vec![quote!(0usize)];
     let mut cdr_min = vec![quote!(0usize)];
+    let mut bounded = vec![quote!(true)];
+    let mut key_bounded = vec![quote!(true)];
     for f in fields {
         let ty = f.ty;
-        match &f.kind {
+        let b = match &f.kind {
             Kind::Plain => {
                 ipc_min.push(quote!(<#ty as __wire::IpcMessage>::IPC_MIN_SIZE));
                 cdr_min.push(quote!(<#ty as __wire::IpcMessage>::CDR_MIN_SIZE));
+                quote!(<#ty as __wire::IpcMessage>::CDR_BOUNDED)
             }
-            Kind::Char | Kind::SelfPtr => {
+            Kind::Char => {
                 ipc_min.push(quote!(1usize));
                 cdr_min.push(quote!(1usize));
+                quote!(true)
+            }
+            Kind::SelfPtr => {
+                ipc_min.push(quote!(1usize));
+                cdr_min.push(quote!(1usize));
+                quote!(false)
             }
             Kind::Vec { .. } => {
                 ipc_min.push(quote!(4usize));
                 cdr_min.push(quote!(4usize));
+                quote!(false)
             }
+        };
+        if f.attrs.key {
+            key_bounded.push(match (&f.kind, f.count_for) {
+                (Kind::Plain, None) => quote! {
+                    (if <#ty as __wire::IpcMessage>::KEYS.is_empty() {
+                        <#ty as __wire::IpcMessage>::CDR_BOUNDED
+                    } else {
+                        <#ty as __wire::IpcMessage>::CDR_KEY_BOUNDED
+                    })
+                },
+                _ => b.clone(),
+            });
         }
+        bounded.push(b);
     }
 
     // ---- named formats ----
@@ -457,6 +480,8 @@ fn expand_struct(c: &Container<'_>, fields: &[Field<'_>]) -> TokenStream {
             const EXTENSIBILITY: __wire::cdr::Extensibility = #ext;
             const IPC_MIN_SIZE: usize = #(#ipc_min)+*;
             const CDR_MIN_SIZE: usize = #(#cdr_min)+*;
+            const CDR_BOUNDED: bool = #(#bounded)&&*;
+            const CDR_KEY_BOUNDED: bool = #(#key_bounded)&&*;
             const KEYS: &'static [&'static str] = &[#(#keys),*];
 
             fn named_formats(__out: &mut __wire::NamedFormats) {
@@ -530,6 +555,7 @@ fn expand_enum(c: &Container<'_>, e: &Enum<'_>) -> TokenStream {
             const TYPE_NAME: &'static str = #type_name;
             const IPC_MIN_SIZE: usize = 4;
             const CDR_MIN_SIZE: usize = 4;
+            const CDR_BOUNDED: bool = true;
             const CDR_PRIMITIVE: bool = true;
 
             fn ipc_encode(&self, __w: &mut __wire::ipc::Writer) {

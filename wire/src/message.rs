@@ -43,6 +43,12 @@ pub trait IpcMessage: Sized {
     const CDR_MIN_SIZE: usize;
     /// A CDR primitive (XCDR2 writes no `DHEADER` before sequences and arrays of it).
     const CDR_PRIMITIVE: bool = false;
+    /// The CDR serialization has a fixed upper size (no string, sequence or
+    /// pointer inside).
+    const CDR_BOUNDED: bool = false;
+    /// The key fields serialize to a bounded size (decides whether a DDS key
+    /// hash is the key itself or its MD5, DDSI-RTPS §9.6.4.8).
+    const CDR_KEY_BOUNDED: bool = Self::CDR_BOUNDED;
     /// Names of the key fields (`#[ipc(key)]`), for keyed DDS topics.
     const KEYS: &'static [&'static str] = &[];
 
@@ -239,6 +245,7 @@ macro_rules! numeric {
             const IPC_MIN_SIZE: usize = core::mem::size_of::<$t>();
             const CDR_MIN_SIZE: usize = core::mem::size_of::<$t>();
             const CDR_PRIMITIVE: bool = true;
+            const CDR_BOUNDED: bool = true;
 
             #[inline]
             fn ipc_encode(&self, w: &mut ipc::Writer) {
@@ -329,6 +336,7 @@ impl IpcMessage for bool {
     const IPC_MIN_SIZE: usize = 4;
     const CDR_MIN_SIZE: usize = 1;
     const CDR_PRIMITIVE: bool = true;
+    const CDR_BOUNDED: bool = true;
 
     fn ipc_encode(&self, w: &mut ipc::Writer) {
         w.write_bool(*self);
@@ -356,6 +364,7 @@ impl IpcMessage for char {
     const IPC_MIN_SIZE: usize = 1;
     const CDR_MIN_SIZE: usize = 1;
     const CDR_PRIMITIVE: bool = true;
+    const CDR_BOUNDED: bool = true;
 
     fn ipc_encode(&self, w: &mut ipc::Writer) {
         w.write_u8(latin1(*self));
@@ -473,6 +482,8 @@ impl<T: IpcMessage, const N: usize> IpcMessage for [T; N] {
             .map_err(|_| ipc::DecodeError::Format("array length".into()))
     }
     const CDR_IS_ARRAY: bool = true;
+    const CDR_BOUNDED: bool = T::CDR_BOUNDED;
+    const CDR_KEY_BOUNDED: bool = T::CDR_KEY_BOUNDED;
     const CDR_FLAT_PRIMITIVE: bool = T::CDR_FLAT_PRIMITIVE;
 
     fn cdr_encode(&self, w: &mut cdr::Writer) {
@@ -570,6 +581,8 @@ impl<T: IpcMessage> IpcMessage for Box<T> {
     const CDR_PRIMITIVE: bool = T::CDR_PRIMITIVE;
     const CDR_FLAT_PRIMITIVE: bool = T::CDR_FLAT_PRIMITIVE;
     const KEYS: &'static [&'static str] = T::KEYS;
+    const CDR_BOUNDED: bool = T::CDR_BOUNDED;
+    const CDR_KEY_BOUNDED: bool = T::CDR_KEY_BOUNDED;
 
     fn named_formats(out: &mut NamedFormats) {
         T::named_formats(out);
