@@ -4,7 +4,7 @@
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant, SystemTime};
+use std::time::{Duration, Instant};
 
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::{mpsc, oneshot};
@@ -858,13 +858,8 @@ impl Driver {
                 // in, and one Subscriber the user does not poll does not
                 // stall the others. A full queue (keep-all) acknowledges
                 // only when there is room again: back-pressure to central.
-                let s = RawSample {
-                    msg,
-                    data,
-                    order,
-                    received: SystemTime::now(),
-                    done: None,
-                };
+                let mut s = RawSample::new(msg, data);
+                s.order = order;
                 match sub.queue.push(s) {
                     Ok(()) => {
                         let _ = self.conn.ack(delivery);

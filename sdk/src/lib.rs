@@ -94,17 +94,23 @@
 //!   `/tmp/x_ipc/<port>` socket is not offered for direct links (C peers
 //!   fall back to TCP).
 #![warn(missing_docs)]
-#![forbid(unsafe_code)]
+#![deny(unsafe_code)]
 
 pub mod ipc_backend;
+pub mod qos;
+pub mod rtps_backend;
 pub mod session;
 
 pub use courier_derive::IpcMessage;
-pub use courier_wire::{cdr, format, ipc, IpcMessage, NamedFormats};
+pub use courier_wire::{cdr, format, ipc, rtps, IpcMessage, NamedFormats};
+pub use qos::{Durability, History, Reliability};
+pub use rtps_backend::RtpsOptions;
 pub use session::{
-    Backend, ConnectError, Encoding, Events, Query, QueryError, QueuePolicy, RawReply, RawRequest,
+    Backend, ConnectError, Encoding, Events, InstanceState, PeriodicPublication, PublicationQos,
+    Publish, Publisher, PublisherBuilder, Query, QueryError, QueuePolicy, RawReply, RawRequest,
     RawSample, RawSubscriber, RecvError, Request, Requests, Responder, Sample, SampleQueue,
-    Session, SessionBuilder, SessionError, SessionEvent, Subscriber, Tick, Timer,
+    Session, SessionBuilder, SessionError, SessionEvent, Subscriber, SubscriberBuilder,
+    SubscriptionQos, Tick, Timer, TypeInfo, WriteOptions,
 };
 
 #[doc(hidden)]

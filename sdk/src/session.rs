@@ -16,7 +16,12 @@ use futures::Stream;
 use tokio::sync::mpsc;
 
 use crate::ipc_backend::{IpcBackend, IpcOptions};
-use courier_wire::{ipc, IpcMessage, NamedFormats};
+use crate::qos::{Durability, History, Reliability};
+pub use crate::qos::{InstanceState, PublicationQos, SubscriptionQos, TypeInfo};
+use crate::rtps_backend::{RtpsBackend, RtpsOptions};
+use courier_wire::rtps::discovery::{EndpointData, ParticipantData};
+use courier_wire::rtps::{Guid, GuidPrefix};
+use courier_wire::{cdr, ipc, IpcMessage, NamedFormats};
 
 /// How a backend wants typed values encoded.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -30,17 +35,47 @@ pub enum Encoding {
 
 /// One message as a backend delivers it.
 pub struct RawSample {
-    /// Message name.
+    /// Message name (DDS: topic name).
     pub msg: String,
-    /// The bytes, as the sender marshalled them.
+    /// The bytes, as the sender marshalled them (DDS: CDR with its
+    /// encapsulation header; for a dispose or unregister, the serialized
+    /// key if the writer sent one).
     pub data: Vec<u8>,
-    /// Byte order of `data`.
+    /// Byte order of `data` (IPC).
     pub order: ipc::ByteOrder,
     /// When this process received it.
     pub received: SystemTime,
+    /// Who sent it, when the backend knows (DDS: the writer's GUID in hex).
+    pub source: Option<String>,
+    /// The sender's type name, when the backend knows (DDS).
+    pub type_name: Option<String>,
+    /// Sample, dispose or unregister (always `Alive` on IPC).
+    pub state: InstanceState,
+    /// The instance's key hash (keyed DDS topics), when sent.
+    pub key_hash: Option<[u8; 16]>,
+    /// The writer's source timestamp, when sent (DDS `INFO_TS`).
+    pub source_time: Option<SystemTime>,
     /// Called once the user has taken the sample (IPC: the Success ack that
     /// frees central's capacity slot).
     pub done: Option<Box<dyn FnOnce() + Send>>,
+}
+
+impl RawSample {
+    /// A live sample of `msg`, received now, with no other metadata.
+    pub fn new(msg: impl Into<String>, data: Vec<u8>) -> Self {
+        RawSample {
+            msg: msg.into(),
+            data,
+            order: ipc::ByteOrder::NATIVE,
+            received: SystemTime::now(),
+            source: None,
+            type_name: None,
+            state: InstanceState::Alive,
+            key_hash: None,
+            source_time: None,
+            done: None,
+        }
+    }
 }
 
 impl std::fmt::Debug for RawSample {
@@ -49,6 +84,8 @@ impl std::fmt::Debug for RawSample {
             .field("msg", &self.msg)
             .field("data", &self.data.len())
             .field("received", &self.received)
+            .field("source", &self.source)
+            .field("state", &self.state)
             .finish_non_exhaustive()
     }
 }
@@ -114,6 +151,7 @@ impl SampleQueue {
 
     /// Adds a sample; `Err` gives it back when the queue is full under
     /// keep-all (wait with [`SampleQueue::push_wait`]).
+    #[allow(clippy::result_large_err)] // handed straight back, never stored
     pub fn push(&self, s: RawSample) -> Result<(), RawSample> {
         let mut st = self.state.lock().unwrap();
         if st.receiver_gone {
@@ -145,6 +183,39 @@ impl SampleQueue {
         }
     }
 
+    /// Adds a sample even beyond the capacity (for backends that cannot
+    /// wait; they stop reading until [`SampleQueue::is_full`] turns false).
+    /// Keep-last still drops the oldest.
+    pub fn push_over(&self, s: RawSample) {
+        if let Err(s) = self.push(s) {
+            let mut st = self.state.lock().unwrap();
+            st.items.push_back(s);
+            if let Some(w) = st.waker.take() {
+                w.wake();
+            }
+        }
+    }
+
+    /// Whether a keep-all queue holds its capacity or more.
+    pub fn is_full(&self) -> bool {
+        let st = self.state.lock().unwrap();
+        !st.keep_last && !st.receiver_gone && st.items.len() >= st.cap
+    }
+
+    /// Resolves after the next sample is taken out (room may have appeared).
+    pub async fn space(&self) {
+        let n = self.space.notified();
+        if !self.is_full() {
+            return;
+        }
+        n.await
+    }
+
+    /// Counts a sample dropped by a filter of the backend (e.g. minimum separation).
+    pub fn count_dropped(&self) {
+        self.state.lock().unwrap().dropped += 1;
+    }
+
     /// No more samples will come (the connection ended).
     pub fn close(&self) {
         let mut st = self.state.lock().unwrap();
@@ -172,6 +243,20 @@ impl SampleQueue {
         self.space.notify_waiters();
     }
 
+    fn try_pop(&self) -> Option<RawSample> {
+        let mut st = self.state.lock().unwrap();
+        let s = st.items.pop_front();
+        if s.is_none() && st.closed && !st.reported_close {
+            st.reported_close = true;
+            return Some(RawSample::new(String::new(), Vec::new()));
+        }
+        drop(st);
+        if s.is_some() {
+            self.space.notify_waiters();
+        }
+        s
+    }
+
     /// `Ready(Some(marker))` with an empty message name once after close.
     fn poll_pop(&self, cx: &mut Context<'_>) -> Poll<Option<RawSample>> {
         let mut st = self.state.lock().unwrap();
@@ -185,13 +270,7 @@ impl SampleQueue {
                 return Poll::Ready(None);
             }
             st.reported_close = true;
-            return Poll::Ready(Some(RawSample {
-                msg: String::new(),
-                data: Vec::new(),
-                order: ipc::ByteOrder::NATIVE,
-                received: SystemTime::now(),
-                done: None,
-            }));
+            return Poll::Ready(Some(RawSample::new(String::new(), Vec::new())));
         }
         st.waker = Some(cx.waker().clone());
         Poll::Pending
@@ -211,7 +290,14 @@ impl RawSubscriber {
         std::future::poll_fn(|cx| self.queue.poll_pop(cx)).await
     }
 
-    /// Samples dropped by a keep-last policy.
+    /// Pulled delivery (ORTE's `ORTEAppSubscriptionPull`): the next sample
+    /// if one is waiting, without waiting. After the end of the connection,
+    /// `None` forever (check [`RawSubscriber::recv`] for the end marker).
+    pub fn try_recv(&mut self) -> Option<RawSample> {
+        self.queue.try_pop().filter(|s| !s.msg.is_empty())
+    }
+
+    /// Samples dropped by a keep-last policy or a backend filter.
     pub fn dropped(&self) -> u64 {
         self.queue.dropped()
     }
@@ -272,6 +358,45 @@ pub enum SessionEvent {
     /// The session reached central again and defined and subscribed
     /// everything anew (see [`SessionBuilder::reconnect`]).
     Reconnected,
+    /// DDS: a participant announced itself for the first time.
+    ParticipantFound(Box<ParticipantData>),
+    /// DDS: a known participant announced different data.
+    ParticipantChanged(Box<ParticipantData>),
+    /// DDS: a participant left (`disposed`) or its lease expired.
+    ParticipantLost {
+        /// Its GUID prefix.
+        guid_prefix: GuidPrefix,
+        /// True if it said goodbye, false if it went silent.
+        disposed: bool,
+    },
+    /// DDS: a remote publication (DataWriter) was announced.
+    PublicationFound(Box<EndpointData>),
+    /// DDS: a remote publication changed its QoS.
+    PublicationChanged(Box<EndpointData>),
+    /// DDS: a remote publication is gone.
+    PublicationLost(Guid),
+    /// DDS: a remote subscription (DataReader) was announced.
+    SubscriptionFound(Box<EndpointData>),
+    /// DDS: a remote subscription changed its QoS.
+    SubscriptionChanged(Box<EndpointData>),
+    /// DDS: a remote subscription is gone.
+    SubscriptionLost(Guid),
+    /// DDS: a subscription with a deadline got no sample within it.
+    DeadlineMissed {
+        /// Topic.
+        msg: String,
+        /// Misses on this subscription so far.
+        total: u64,
+    },
+    /// DDS: an endpoint on one of our topics does not match ours.
+    IncompatibleQos {
+        /// Topic.
+        msg: String,
+        /// The other endpoint.
+        remote: Guid,
+        /// The first rule that failed.
+        reason: String,
+    },
 }
 
 /// What can go wrong with a session operation.
@@ -284,6 +409,14 @@ pub enum SessionError {
     /// The messaging system refused the operation.
     #[error("{0}")]
     Refused(String),
+    /// A bounded wait ran out (e.g. a confirmed publish).
+    #[error("{what} did not complete within {after:?}")]
+    Timeout {
+        /// What was waited for.
+        what: String,
+        /// The bound.
+        after: Duration,
+    },
     /// A value could not be decoded as the expected type.
     #[error("cannot decode {msg} as {ty}: {detail}")]
     Decode {
@@ -355,6 +488,15 @@ pub enum ConnectError {
         /// The last error.
         source: std::io::Error,
     },
+    /// A DDS participant could not join the network (no such interface,
+    /// no free participant index, a socket error).
+    #[error("cannot join {url}: {why}")]
+    Network {
+        /// The session URL.
+        url: String,
+        /// Why.
+        why: String,
+    },
     /// The handshake failed.
     #[error("handshake with central at {addr} failed: {why}")]
     Handshake {
@@ -409,6 +551,111 @@ pub trait Backend: Send + Sync + std::fmt::Debug {
     async fn watch_handlers(&self, msg: &str) -> Result<(), SessionError>;
     /// Disconnects cleanly.
     async fn close(&self);
+
+    /// Creates the publication of `msg` with its type and QoS (DDS: a
+    /// DataWriter). The default defines the message.
+    async fn create_publication(
+        &self,
+        msg: &str,
+        ty: &TypeInfo,
+        qos: &PublicationQos,
+    ) -> Result<(), SessionError> {
+        let _ = qos;
+        self.define(msg, ty.format).await
+    }
+
+    /// Subscribes with a type and QoS (DDS: a DataReader). The default
+    /// subscribes and ignores both.
+    async fn create_subscription(
+        &self,
+        msg: &str,
+        ty: Option<&TypeInfo>,
+        qos: &SubscriptionQos,
+        queue: Arc<SampleQueue>,
+    ) -> Result<(), SessionError> {
+        let _ = (ty, qos);
+        self.subscribe(msg, queue).await
+    }
+
+    /// Subscribes to every topic whose name and type name match the fnmatch
+    /// patterns (ORTE's pattern subscriptions), now and as they are discovered.
+    async fn subscribe_pattern(
+        &self,
+        topic: &str,
+        type_name: &str,
+        queue: Arc<SampleQueue>,
+    ) -> Result<(), SessionError> {
+        let _ = (topic, type_name, queue);
+        Err(SessionError::Refused(
+            "pattern subscriptions need a DDS backend".into(),
+        ))
+    }
+
+    /// Publishes with options: the instance's key hash (keyed DDS topics)
+    /// and/or waiting until every matched reader has acknowledged the
+    /// sample. The default publishes and refuses to confirm.
+    async fn write(
+        &self,
+        msg: &str,
+        data: Vec<u8>,
+        opts: WriteOptions,
+    ) -> Result<(), SessionError> {
+        if opts.confirm.is_some() {
+            return Err(SessionError::Refused(
+                "confirmed publishing needs a DDS backend".into(),
+            ));
+        }
+        self.publish(msg, data).await
+    }
+
+    /// Disposes or unregisters an instance of a keyed topic; `key` is the
+    /// serialized key (CDR with its encapsulation header).
+    async fn end_instance(
+        &self,
+        msg: &str,
+        state: InstanceState,
+        key: Vec<u8>,
+        key_hash: [u8; 16],
+    ) -> Result<(), SessionError> {
+        let _ = (msg, state, key, key_hash);
+        Err(SessionError::Refused("instances need a DDS backend".into()))
+    }
+
+    /// Sends a typed query: like [`Backend::query`], with the types (DDS
+    /// needs them for the request and reply topics).
+    async fn query_typed(
+        &self,
+        msg: &str,
+        req: &TypeInfo,
+        resp: &TypeInfo,
+        data: Vec<u8>,
+        timeout: Duration,
+    ) -> Result<RawReply, QueryError> {
+        let _ = (req, resp);
+        self.query(msg, data, timeout).await
+    }
+
+    /// Serves typed queries: like [`Backend::serve`], with the types.
+    async fn serve_typed(
+        &self,
+        msg: &str,
+        req: &TypeInfo,
+        resp: &TypeInfo,
+        queue: usize,
+    ) -> Result<mpsc::Receiver<RawRequest>, SessionError> {
+        let _ = (req, resp);
+        self.serve(msg, queue).await
+    }
+}
+
+/// How [`Backend::write`] publishes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[non_exhaustive]
+pub struct WriteOptions {
+    /// The instance's key hash (keyed DDS topics).
+    pub key_hash: Option<[u8; 16]>,
+    /// Wait at most this long for every matched reader's acknowledgement.
+    pub confirm: Option<Duration>,
 }
 
 /// Builds a [`Session`].
@@ -417,10 +664,12 @@ pub struct SessionBuilder {
     url: String,
     name: Option<String>,
     opts: IpcOptions,
+    rtps: crate::rtps_backend::RtpsOverrides,
 }
 
 impl SessionBuilder {
-    /// The module name (default: `courier-<pid>`).
+    /// The module name (default: `courier-<pid>`; DDS: the participant's
+    /// entity name).
     pub fn name(mut self, name: impl Into<String>) -> Self {
         self.name = Some(name.into());
         self
@@ -448,13 +697,68 @@ impl SessionBuilder {
         self
     }
 
-    /// Connects.
+    /// RTPS: the network interface, by name (`lo`) or IPv4 address
+    /// (URL: `interface=`).
+    pub fn interface(mut self, interface: impl Into<String>) -> Self {
+        self.rtps.interface = Some(interface.into());
+        self
+    }
+
+    /// RTPS: unicast discovery peers, `ip` or `ip:port` (URL: `peers=`);
+    /// a peer list alone turns multicast off.
+    pub fn peers<I: IntoIterator<Item = S>, S: Into<String>>(mut self, peers: I) -> Self {
+        self.rtps.peers = Some(peers.into_iter().map(Into::into).collect());
+        self
+    }
+
+    /// RTPS: standard SPDP multicast discovery on or off (URL: `multicast=`).
+    pub fn multicast(mut self, on: bool) -> Self {
+        self.rtps.multicast = Some(on);
+        self
+    }
+
+    /// RTPS: a fixed participant index instead of probing (URL: `index=`).
+    pub fn participant_index(mut self, index: u32) -> Self {
+        self.rtps.participant_index = Some(index);
+        self
+    }
+
+    /// RTPS: socket receive and send buffer sizes in bytes (URL:
+    /// `recv_buffer=`, `send_buffer=`).
+    pub fn socket_buffers(mut self, recv: usize, send: usize) -> Self {
+        self.rtps.recv_buffer = Some(recv);
+        self.rtps.send_buffer = Some(send);
+        self
+    }
+
+    /// Connects: `ipc://…` reaches a central, `rtps://<domain>?…` joins a
+    /// DDS domain.
     pub async fn connect(self) -> Result<Session, ConnectError> {
         let name = self
             .name
             .unwrap_or_else(|| format!("courier-{}", std::process::id()));
+        if self.url.starts_with("rtps:") {
+            let mut o = RtpsOptions::from_url(&self.url)?;
+            self.rtps.apply(&mut o);
+            let backend = RtpsBackend::start(o, &name).await?;
+            return Ok(Session::with_backend(Arc::new(backend), name));
+        }
         let backend = IpcBackend::connect(&self.url, &name, self.opts).await?;
         Ok(Session::with_backend(Arc::new(backend), name))
+    }
+}
+
+fn encode<T: IpcMessage>(enc: Encoding, value: &T) -> Vec<u8> {
+    match enc {
+        Encoding::Ipc => ipc::to_vec(value),
+        Encoding::Cdr => cdr::to_vec(value, cdr::Encoding::Xcdr1Le),
+    }
+}
+
+fn decode<T: IpcMessage>(enc: Encoding, data: &[u8], order: ipc::ByteOrder) -> Result<T, String> {
+    match enc {
+        Encoding::Ipc => ipc::from_slice_with_order::<T>(data, order).map_err(|e| e.to_string()),
+        Encoding::Cdr => cdr::from_slice::<T>(data).map_err(|e| e.to_string()),
     }
 }
 
@@ -480,12 +784,14 @@ pub struct Session {
 
 impl Session {
     /// A builder for `url`: `ipc://host:port` (`ipc://` alone: `CENTRALHOST`,
-    /// then localhost:1381).
+    /// then localhost:1381) or `rtps://<domain>` with options as a query
+    /// string (see [`RtpsOptions::from_url`]).
     pub fn builder(url: impl Into<String>) -> SessionBuilder {
         SessionBuilder {
             url: url.into(),
             name: None,
             opts: IpcOptions::default(),
+            rtps: Default::default(),
         }
     }
 
@@ -507,23 +813,55 @@ impl Session {
         &self.backend
     }
 
+    fn enc(&self) -> Encoding {
+        self.backend.encoding()
+    }
+
     /// Registers `T`'s named formats (`IPC_defineFormat`).
     pub async fn define_format<T: IpcMessage>(&self) -> Result<(), SessionError> {
+        if self.enc() != Encoding::Ipc {
+            return Ok(());
+        }
         for (name, fmt) in NamedFormats::of::<T>().iter() {
             self.backend.define_format(name, fmt).await?;
         }
         Ok(())
     }
 
-    /// Defines `msg` carrying `T` (its named formats first).
+    /// Defines `msg` carrying `T` (its named formats first). On DDS this
+    /// creates the topic's writer with the default [`PublicationQos`]
+    /// (reliable, volatile, keep-all); use [`Session::publisher`] for others.
     pub async fn define<T: IpcMessage>(&self, msg: &str) -> Result<(), SessionError> {
         self.define_format::<T>().await?;
-        self.backend.define(msg, Some(T::FORMAT)).await
+        self.backend
+            .create_publication(msg, &TypeInfo::of::<T>(), &PublicationQos::default())
+            .await
     }
 
-    /// Publishes a value. Like C, a message nobody subscribes is not sent.
-    pub async fn publish<T: IpcMessage>(&self, msg: &str, value: &T) -> Result<(), SessionError> {
-        self.backend.publish(msg, ipc::to_vec(value)).await
+    /// A publication of `msg` with QoS (ORTE's `ORTEPublicationCreate`);
+    /// `.build().await` creates it.
+    pub fn publisher<T: IpcMessage>(&self, msg: &str) -> PublisherBuilder<T> {
+        PublisherBuilder {
+            session: self.clone(),
+            msg: msg.to_string(),
+            qos: PublicationQos::default(),
+            _t: PhantomData,
+        }
+    }
+
+    /// Publishes a value; `.confirmed()` also waits for every matched reader
+    /// to acknowledge it (DDS, reliable). On IPC, like C, a message nobody
+    /// subscribes is not sent.
+    pub fn publish<'a, T: IpcMessage>(&'a self, msg: &'a str, value: &T) -> Publish<'a> {
+        let key_hash = (self.enc() == Encoding::Cdr && !T::KEYS.is_empty())
+            .then(|| crate::rtps_backend::key_hash_of(value));
+        Publish {
+            session: self,
+            msg,
+            data: encode(self.enc(), value),
+            confirm: None,
+            key_hash,
+        }
     }
 
     /// Publishes raw bytes.
@@ -543,20 +881,43 @@ impl Session {
         msg: &str,
         policy: QueuePolicy,
     ) -> Result<Subscriber<T>, SessionError> {
-        let queue = SampleQueue::new(policy);
-        self.backend.subscribe(msg, queue.clone()).await?;
-        Ok(Subscriber {
-            raw: RawSubscriber { queue },
+        self.subscriber::<T>(msg).queue(policy).build().await
+    }
+
+    /// A subscription of `msg` with QoS (ORTE's `ORTESubscriptionCreate`);
+    /// `.build().await` creates it.
+    pub fn subscriber<T: IpcMessage>(&self, msg: &str) -> SubscriberBuilder<T> {
+        SubscriberBuilder {
+            session: self.clone(),
             msg: msg.to_string(),
-            decode_errors: 0,
+            qos: SubscriptionQos::default(),
+            policy: None,
             _t: PhantomData,
-        })
+        }
     }
 
     /// Subscribes to raw samples.
     pub async fn subscribe_raw(&self, msg: &str) -> Result<RawSubscriber, SessionError> {
         let queue = SampleQueue::new(QueuePolicy::default());
-        self.backend.subscribe(msg, queue.clone()).await?;
+        self.backend
+            .create_subscription(msg, None, &SubscriptionQos::default(), queue.clone())
+            .await?;
+        Ok(RawSubscriber { queue })
+    }
+
+    /// Subscribes to every topic whose name matches `topic` and whose type
+    /// name matches `type_name` (fnmatch patterns: `*`, `?`, `[…]`), as
+    /// ORTEDomainAppSubscriptionPatternAdd: existing topics and those
+    /// discovered later, best effort, as raw samples carrying topic and type.
+    pub async fn subscribe_pattern(
+        &self,
+        topic: &str,
+        type_name: &str,
+    ) -> Result<RawSubscriber, SessionError> {
+        let queue = SampleQueue::new(QueuePolicy::KeepLast(10_000));
+        self.backend
+            .subscribe_pattern(topic, type_name, queue.clone())
+            .await?;
         Ok(RawSubscriber { queue })
     }
 
@@ -569,7 +930,8 @@ impl Session {
         Query {
             session: self,
             msg,
-            data: ipc::to_vec(req),
+            req: TypeInfo::of::<Req>(),
+            data: encode(self.enc(), req),
             timeout: Duration::from_secs(10),
             _t: PhantomData,
         }
@@ -597,10 +959,14 @@ impl Session {
         msg: &str,
         reply_msg: &str,
     ) -> Result<Requests<Req, Resp>, SessionError> {
-        let rx = self.backend.serve(msg, 1000).await?;
+        let rx = self
+            .backend
+            .serve_typed(msg, &TypeInfo::of::<Req>(), &TypeInfo::of::<Resp>(), 1000)
+            .await?;
         Ok(Requests {
             rx,
             reply_msg: reply_msg.to_string(),
+            enc: self.enc(),
             _t: PhantomData,
         })
     }
@@ -620,8 +986,9 @@ impl Session {
         Timer::new(period, Some(n))
     }
 
-    /// System events (module connect/disconnect, handler counts, loss of
-    /// the connection).
+    /// System events: module connect/disconnect, handler counts and loss of
+    /// the connection (IPC); participants, publications and subscriptions
+    /// found, changed and lost, deadline misses and QoS mismatches (DDS).
     pub fn events(&self) -> Events {
         Events {
             rx: self.backend.events(),
@@ -629,17 +996,18 @@ impl Session {
     }
 
     /// Reports [`SessionEvent::HandlersChanged`] for `msg`
-    /// (IPC_subscribeHandlerChange).
+    /// (IPC_subscribeHandlerChange; DDS: matched readers of our writer).
     pub async fn watch_handlers(&self, msg: &str) -> Result<(), SessionError> {
         self.backend.watch_handlers(msg).await
     }
 
-    /// Whether a module of that name is connected to central.
+    /// Whether a module of that name is connected to central (DDS: a
+    /// participant with that entity name is known).
     pub async fn is_module_connected(&self, module: &str) -> Result<bool, SessionError> {
         self.backend.is_module_connected(module).await
     }
 
-    /// How many handlers subscribe `msg`.
+    /// How many handlers subscribe `msg` (DDS: readers matched with our writer).
     pub async fn num_handlers(&self, msg: &str) -> Result<i32, SessionError> {
         self.backend.num_handlers(msg).await
     }
@@ -665,15 +1033,339 @@ impl Session {
     }
 }
 
+/// A publish being built; `.await` it.
+#[derive(Debug)]
+#[must_use = "a publish does nothing until awaited"]
+pub struct Publish<'a> {
+    session: &'a Session,
+    msg: &'a str,
+    data: Vec<u8>,
+    confirm: Option<Duration>,
+    key_hash: Option<[u8; 16]>,
+}
+
+impl<'a> Publish<'a> {
+    /// Resolve only once every matched reader has acknowledged the sample
+    /// (reliable DDS writers), waiting at most 10 s unless `.timeout(d)`.
+    pub fn confirmed(mut self) -> Self {
+        self.confirm.get_or_insert(Duration::from_secs(10));
+        self
+    }
+
+    /// Bounds the wait of a confirmed publish (implies `.confirmed()`).
+    pub fn timeout(mut self, d: Duration) -> Self {
+        self.confirm = Some(d);
+        self
+    }
+}
+
+impl<'a> std::future::IntoFuture for Publish<'a> {
+    type Output = Result<(), SessionError>;
+    type IntoFuture = Pin<Box<dyn std::future::Future<Output = Self::Output> + Send + 'a>>;
+
+    fn into_future(self) -> Self::IntoFuture {
+        Box::pin(async move {
+            if self.confirm.is_none() && self.key_hash.is_none() {
+                return self.session.backend.publish(self.msg, self.data).await;
+            }
+            let opts = WriteOptions {
+                key_hash: self.key_hash,
+                confirm: self.confirm,
+            };
+            self.session.backend.write(self.msg, self.data, opts).await
+        })
+    }
+}
+
+/// Builds a [`Publisher`]: ORTE's publication parameters as DDS QoS.
+#[derive(Debug)]
+pub struct PublisherBuilder<T> {
+    session: Session,
+    msg: String,
+    qos: PublicationQos,
+    _t: PhantomData<fn(T)>,
+}
+
+impl<T: IpcMessage> PublisherBuilder<T> {
+    /// Best effort: nothing is repaired.
+    pub fn best_effort(mut self) -> Self {
+        self.qos.reliability = Reliability::BestEffort;
+        self
+    }
+
+    /// Strict reliable (the default).
+    pub fn reliable(mut self) -> Self {
+        self.qos.reliability = Reliability::Reliable;
+        self
+    }
+
+    /// Keep the history for late-joining transient-local readers.
+    pub fn transient_local(mut self) -> Self {
+        self.qos.durability = Durability::TransientLocal;
+        self
+    }
+
+    /// Keep only the newest `n` samples per instance.
+    pub fn keep_last(mut self, n: u32) -> Self {
+        self.qos.history = History::KeepLast(n.max(1));
+        self
+    }
+
+    /// Keep every sample until acknowledged (the default).
+    pub fn keep_all(mut self) -> Self {
+        self.qos.history = History::KeepAll;
+        self
+    }
+
+    /// ORTE's strength: exclusive ownership with this strength.
+    pub fn strength(mut self, strength: i32) -> Self {
+        self.qos.strength = Some(strength);
+        self
+    }
+
+    /// ORTE's persistence: how long each sample stays valid (DDS lifespan).
+    pub fn persistence(mut self, d: Duration) -> Self {
+        self.qos.persistence = Some(d);
+        self
+    }
+
+    /// The offered deadline.
+    pub fn deadline(mut self, d: Duration) -> Self {
+        self.qos.deadline = Some(d);
+        self
+    }
+
+    /// Adds a DDS partition.
+    pub fn partition(mut self, p: impl Into<String>) -> Self {
+        self.qos.partitions.push(p.into());
+        self
+    }
+
+    /// Replaces the whole QoS.
+    pub fn qos(mut self, qos: PublicationQos) -> Self {
+        self.qos = qos;
+        self
+    }
+
+    /// Creates the publication.
+    pub async fn build(self) -> Result<Publisher<T>, SessionError> {
+        self.session.define_format::<T>().await?;
+        self.session
+            .backend
+            .create_publication(&self.msg, &TypeInfo::of::<T>(), &self.qos)
+            .await?;
+        Ok(Publisher {
+            session: self.session,
+            msg: self.msg,
+            _t: PhantomData,
+        })
+    }
+}
+
+/// A typed publication handle (DDS: a DataWriter).
+#[derive(Debug)]
+pub struct Publisher<T> {
+    session: Session,
+    msg: String,
+    _t: PhantomData<fn(T)>,
+}
+
+impl<T> Clone for Publisher<T> {
+    fn clone(&self) -> Self {
+        Publisher {
+            session: self.session.clone(),
+            msg: self.msg.clone(),
+            _t: PhantomData,
+        }
+    }
+}
+
+impl<T: IpcMessage> Publisher<T> {
+    /// The topic.
+    pub fn msg(&self) -> &str {
+        &self.msg
+    }
+
+    /// Publishes a value (`.confirmed()` to wait for acknowledgements).
+    pub fn publish(&self, value: &T) -> Publish<'_> {
+        self.session.publish(&self.msg, value)
+    }
+
+    /// Disposes the instance that `value`'s key fields name (keyed topics).
+    pub async fn dispose(&self, value: &T) -> Result<(), SessionError> {
+        self.end(value, InstanceState::Disposed).await
+    }
+
+    /// Unregisters the instance that `value`'s key fields name (keyed topics).
+    pub async fn unregister(&self, value: &T) -> Result<(), SessionError> {
+        self.end(value, InstanceState::Unregistered).await
+    }
+
+    async fn end(&self, value: &T, state: InstanceState) -> Result<(), SessionError> {
+        if T::KEYS.is_empty() {
+            return Err(SessionError::Refused(format!(
+                "{} has no key fields: only keyed topics have instances to dispose",
+                T::TYPE_NAME
+            )));
+        }
+        let key = cdr::key_to_vec(value, cdr::Encoding::Xcdr1Le);
+        let hash = crate::rtps_backend::key_hash_of(value);
+        self.session
+            .backend
+            .end_instance(&self.msg, state, key, hash)
+            .await
+    }
+
+    /// ORTE's send callback: every `period`, `f` is asked for a value to
+    /// publish (`None` skips that tick). Runs on a task until the returned
+    /// handle is dropped or stopped, or publishing fails.
+    pub fn send_every<F>(&self, period: Duration, mut f: F) -> PeriodicPublication
+    where
+        T: Send + 'static,
+        F: FnMut(Tick) -> Option<T> + Send + 'static,
+    {
+        let p = self.clone();
+        let task = tokio::spawn(async move {
+            use futures::StreamExt;
+            let mut timer = p.session.every(period);
+            while let Some(tick) = timer.next().await {
+                if let Some(v) = f(tick) {
+                    p.publish(&v).await?;
+                }
+            }
+            Ok(())
+        });
+        PeriodicPublication { task }
+    }
+}
+
+/// A publication driven by a timer ([`Publisher::send_every`]); dropping it stops it.
+#[derive(Debug)]
+pub struct PeriodicPublication {
+    task: tokio::task::JoinHandle<Result<(), SessionError>>,
+}
+
+impl PeriodicPublication {
+    /// Stops it and returns why it ended, if it ended by itself.
+    pub async fn stop(mut self) -> Result<(), SessionError> {
+        self.task.abort();
+        (&mut self.task).await.unwrap_or(Ok(()))
+    }
+}
+
+impl Drop for PeriodicPublication {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
+/// Builds a [`Subscriber`]: ORTE's subscription parameters as DDS QoS.
+#[derive(Debug)]
+pub struct SubscriberBuilder<T> {
+    session: Session,
+    msg: String,
+    qos: SubscriptionQos,
+    policy: Option<QueuePolicy>,
+    _t: PhantomData<fn() -> T>,
+}
+
+impl<T: IpcMessage> SubscriberBuilder<T> {
+    /// Best effort: matches every writer; nothing is repaired.
+    pub fn best_effort(mut self) -> Self {
+        self.qos.reliability = Reliability::BestEffort;
+        self
+    }
+
+    /// Strict reliable (the default).
+    pub fn reliable(mut self) -> Self {
+        self.qos.reliability = Reliability::Reliable;
+        self
+    }
+
+    /// Ask writers for their history when joining late.
+    pub fn transient_local(mut self) -> Self {
+        self.qos.durability = Durability::TransientLocal;
+        self
+    }
+
+    /// Keep the newest `n` samples (also the local queue policy).
+    pub fn keep_last(mut self, n: u32) -> Self {
+        self.qos.history = History::KeepLast(n.max(1));
+        self.policy = Some(QueuePolicy::KeepLast(n.max(1) as usize));
+        self
+    }
+
+    /// A [`SessionEvent::DeadlineMissed`] whenever no sample came for `d`.
+    pub fn deadline(mut self, d: Duration) -> Self {
+        self.qos.deadline = Some(d);
+        self
+    }
+
+    /// ORTE's minimum separation: at most one sample per instance per `d`.
+    pub fn minimum_separation(mut self, d: Duration) -> Self {
+        self.qos.minimum_separation = Some(d);
+        self
+    }
+
+    /// Take each instance from the strongest writer only (exclusive ownership).
+    pub fn exclusive(mut self) -> Self {
+        self.qos.exclusive = true;
+        self
+    }
+
+    /// Adds a DDS partition.
+    pub fn partition(mut self, p: impl Into<String>) -> Self {
+        self.qos.partitions.push(p.into());
+        self
+    }
+
+    /// The local queue policy.
+    pub fn queue(mut self, policy: QueuePolicy) -> Self {
+        self.policy = Some(policy);
+        self
+    }
+
+    /// Replaces the whole QoS.
+    pub fn qos(mut self, qos: SubscriptionQos) -> Self {
+        self.qos = qos;
+        self
+    }
+
+    /// Creates the subscription.
+    pub async fn build(self) -> Result<Subscriber<T>, SessionError> {
+        let queue = SampleQueue::new(self.policy.unwrap_or_default());
+        self.session
+            .backend
+            .create_subscription(
+                &self.msg,
+                Some(&TypeInfo::of::<T>()),
+                &self.qos,
+                queue.clone(),
+            )
+            .await?;
+        Ok(Subscriber {
+            raw: RawSubscriber { queue },
+            msg: self.msg,
+            enc: self.session.enc(),
+            decode_errors: 0,
+            _t: PhantomData,
+        })
+    }
+}
+
 /// A received value with its metadata.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Sample<T> {
     /// The value.
     pub value: T,
-    /// Message name.
+    /// Message name (DDS: topic).
     pub msg: String,
     /// When it was received.
     pub received: SystemTime,
+    /// Who sent it, when the backend knows (DDS: the writer's GUID in hex).
+    pub source: Option<String>,
+    /// The writer's timestamp, when sent (DDS).
+    pub source_time: Option<SystemTime>,
 }
 
 /// Why a subscriber yielded an error.
@@ -693,6 +1385,19 @@ pub enum RecvError {
     /// The session lost its connection; the stream ends after this.
     #[error("disconnected")]
     Disconnected,
+    /// Not a failure: an instance of a keyed topic was disposed or
+    /// unregistered (the change carries no value); the stream goes on.
+    #[error("instance of {msg} {state:?}")]
+    Instance {
+        /// Topic.
+        msg: String,
+        /// Disposed or unregistered.
+        state: InstanceState,
+        /// The instance's key hash, when known.
+        key_hash: Option<[u8; 16]>,
+        /// The serialized key, if the writer sent it.
+        key: Vec<u8>,
+    },
 }
 
 /// A typed subscription: a `Stream` of samples. Dropping it unsubscribes.
@@ -700,8 +1405,53 @@ pub enum RecvError {
 pub struct Subscriber<T> {
     raw: RawSubscriber,
     msg: String,
+    enc: Encoding,
     decode_errors: u64,
     _t: PhantomData<fn() -> T>,
+}
+
+impl<T: IpcMessage> Subscriber<T> {
+    fn convert(&mut self, mut s: RawSample) -> Result<Sample<T>, RecvError> {
+        if let Some(done) = s.done.take() {
+            done();
+        }
+        if s.msg.is_empty() {
+            // The backend's end-of-connection marker.
+            return Err(RecvError::Disconnected);
+        }
+        if s.state != InstanceState::Alive {
+            return Err(RecvError::Instance {
+                msg: s.msg,
+                state: s.state,
+                key_hash: s.key_hash,
+                key: s.data,
+            });
+        }
+        match decode::<T>(self.enc, &s.data, s.order) {
+            Ok(value) => Ok(Sample {
+                value,
+                msg: s.msg,
+                received: s.received,
+                source: s.source,
+                source_time: s.source_time,
+            }),
+            Err(detail) => {
+                self.decode_errors += 1;
+                Err(RecvError::Decode {
+                    msg: s.msg,
+                    ty: std::any::type_name::<T>(),
+                    detail,
+                })
+            }
+        }
+    }
+
+    /// Pulled delivery (ORTE's `ORTEAppSubscriptionPull`): the next sample
+    /// if one is waiting, without waiting.
+    pub fn try_next(&mut self) -> Option<Result<Sample<T>, RecvError>> {
+        let s = self.raw.queue.try_pop()?;
+        Some(self.convert(s))
+    }
 }
 
 impl<T: IpcMessage> Stream for Subscriber<T> {
@@ -709,30 +1459,7 @@ impl<T: IpcMessage> Stream for Subscriber<T> {
 
     fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Self::Item>> {
         match self.raw.queue.poll_pop(cx) {
-            Poll::Ready(Some(mut s)) => {
-                if let Some(done) = s.done.take() {
-                    done();
-                }
-                if s.msg.is_empty() {
-                    // The backend's end-of-connection marker.
-                    return Poll::Ready(Some(Err(RecvError::Disconnected)));
-                }
-                let v = ipc::from_slice_with_order::<T>(&s.data, s.order).map_err(|e| {
-                    RecvError::Decode {
-                        msg: s.msg.clone(),
-                        ty: std::any::type_name::<T>(),
-                        detail: e.to_string(),
-                    }
-                });
-                if v.is_err() {
-                    self.decode_errors += 1;
-                }
-                Poll::Ready(Some(v.map(|value| Sample {
-                    value,
-                    msg: std::mem::take(&mut s.msg),
-                    received: s.received,
-                })))
-            }
+            Poll::Ready(Some(s)) => Poll::Ready(Some(self.convert(s))),
             Poll::Ready(None) => Poll::Ready(None),
             Poll::Pending => Poll::Pending,
         }
@@ -762,6 +1489,7 @@ impl<T> Subscriber<T> {
 pub struct Query<'a, Resp> {
     session: &'a Session,
     msg: &'a str,
+    req: TypeInfo,
     data: Vec<u8>,
     timeout: Duration,
     _t: PhantomData<fn() -> Resp>,
@@ -778,13 +1506,19 @@ impl<'a, Resp: IpcMessage + 'a> Query<'a, Resp> {
         let (reply, data, order) = self
             .session
             .backend
-            .query(self.msg, self.data, self.timeout)
+            .query_typed(
+                self.msg,
+                &self.req,
+                &TypeInfo::of::<Resp>(),
+                self.data,
+                self.timeout,
+            )
             .await?;
-        ipc::from_slice_with_order::<Resp>(&data, order).map_err(|e| QueryError::Decode {
+        decode::<Resp>(self.session.enc(), &data, order).map_err(|detail| QueryError::Decode {
             msg: self.msg.to_string(),
             reply,
             ty: std::any::type_name::<Resp>(),
-            detail: e.to_string(),
+            detail,
         })
     }
 }
@@ -803,6 +1537,7 @@ pub struct Request<Req, Resp> {
     /// The request.
     pub value: Req,
     reply_msg: String,
+    enc: Encoding,
     respond: Option<Responder>,
     _t: PhantomData<fn(Resp)>,
 }
@@ -822,7 +1557,7 @@ impl<Req, Resp: IpcMessage> Request<Req, Resp> {
             .respond
             .take()
             .ok_or_else(|| SessionError::Refused("already answered".into()))?;
-        f(&self.reply_msg, ipc::to_vec(resp))
+        f(&self.reply_msg, encode(self.enc, resp))
     }
 }
 
@@ -831,6 +1566,7 @@ impl<Req, Resp: IpcMessage> Request<Req, Resp> {
 pub struct Requests<Req, Resp> {
     rx: mpsc::Receiver<RawRequest>,
     reply_msg: String,
+    enc: Encoding,
     _t: PhantomData<fn() -> (Req, Resp)>,
 }
 
@@ -843,18 +1579,19 @@ impl<Req: IpcMessage, Resp: IpcMessage> Stream for Requests<Req, Resp> {
                 if r.msg.is_empty() {
                     return Poll::Ready(Some(Err(RecvError::Disconnected)));
                 }
-                let v = ipc::from_slice_with_order::<Req>(&r.data, r.order);
+                let v = decode::<Req>(self.enc, &r.data, r.order);
                 Poll::Ready(Some(match v {
                     Ok(value) => Ok(Request {
                         value,
                         reply_msg: self.reply_msg.clone(),
+                        enc: self.enc,
                         respond: Some(r.respond),
                         _t: PhantomData,
                     }),
                     Err(e) => Err(RecvError::Decode {
                         msg: r.msg,
                         ty: std::any::type_name::<Req>(),
-                        detail: e.to_string(),
+                        detail: e,
                     }),
                 }))
             }

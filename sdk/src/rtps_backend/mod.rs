@@ -1,0 +1,1427 @@
+//! The RTPS backend (`rtps://<domain>`): a DDSI-RTPS 2.x participant that
+//! Cyclone DDS, Fast DDS and the other DDS implementations see as one of
+//! theirs.
+//!
+//! The protocol is [`courier_wire::rtps::participant::Participant`], a
+//! sans-I/O state machine; this module gives it sockets and a clock. One
+//! driver task per session owns the participant and its sockets; the
+//! [`Backend`] methods send it commands. Everything else — matching, QoS
+//! compatibility, reliability, fragmentation, discovery — is in `wire`.
+//!
+//! What the driver adds on top of the protocol, per subscription:
+//!
+//! - **exclusive ownership** (ORTE's strength): with
+//!   [`SubscriptionQos::exclusive`], each instance is taken only from the
+//!   strongest live writer (ties: the lower GUID), as DDS specifies;
+//! - **minimum separation** (DDS time-based filter): samples of an instance
+//!   closer than this to the last delivered one are dropped and counted;
+//! - **lifespan** (ORTE's persistence): samples older than their writer's
+//!   lifespan (by source timestamp) are dropped and counted;
+//! - **deadline**: an instance without a sample for the period gives
+//!   [`SessionEvent::DeadlineMissed`], again every period until one comes;
+//! - **back-pressure**: a reliable keep-all subscription whose queue is full
+//!   stops the reading of user data until the application takes a sample;
+//!   what the kernel drops meanwhile the writers repair. A best-effort one
+//!   drops and counts.
+//!
+//! Network safety: when the chosen interface is a loopback one, datagrams
+//! to any other address are not sent (counted, never leaked), and without
+//! `multicast` no multicast datagram leaves, whatever peers announce.
+
+mod net;
+mod options;
+
+use std::collections::{HashMap, HashSet, VecDeque};
+use std::net::{Ipv4Addr, SocketAddr};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant, SystemTime};
+
+use courier_wire::rtps::discovery::{
+    Durability as WireDurability, Duration as RtpsDuration, EndpointQos, History as WireHistory,
+    Reliability as WireReliability,
+};
+use courier_wire::rtps::participant::{
+    self, Change, ChangeKind, Config, EndpointConfig, Event, KeyHash, LostReason, Participant,
+    ReceivedSample, WriteError,
+};
+use courier_wire::rtps::{Guid, GuidPrefix, Locator, SequenceNumber, Time};
+use courier_wire::{cdr, IpcMessage};
+use tokio::net::UdpSocket;
+use tokio::sync::{mpsc, oneshot};
+
+use crate::qos::{
+    Durability, History, InstanceState, PublicationQos, Reliability, SubscriptionQos, TypeInfo,
+};
+use crate::session::{
+    Backend, ConnectError, Encoding, QueryError, RawReply, RawRequest, RawSample, SampleQueue,
+    SessionError, SessionEvent, WriteOptions,
+};
+
+pub(crate) use options::fnmatch;
+pub use options::RtpsOptions;
+pub(crate) use options::RtpsOverrides;
+
+/// The DDS key hash of `value` (DDSI-RTPS §9.6.4.8): its key fields as
+/// big-endian XCDR2, zero-padded when the key can never exceed 16 bytes,
+/// else their MD5.
+pub(crate) fn key_hash_of<T: IpcMessage>(value: &T) -> [u8; 16] {
+    let mut w = cdr::Writer::new(cdr::Encoding::Xcdr2Be);
+    value.cdr_encode_key(&mut w);
+    KeyHash::from_key(&w.into_vec(), !T::CDR_KEY_BOUNDED).0
+}
+
+/// A GUID as 32 hex digits (prefix, then entity id).
+pub fn guid_hex(g: Guid) -> String {
+    g.to_bytes().iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// An RTPS `Time_t` as a `SystemTime`.
+fn system_time(t: Time) -> Option<SystemTime> {
+    let secs = u64::try_from(t.seconds).ok()?;
+    let nanos = (u64::from(t.fraction) * 1_000_000_000) >> 32;
+    SystemTime::UNIX_EPOCH.checked_add(Duration::new(secs, nanos as u32))
+}
+
+fn disconnected() -> SessionError {
+    SessionError::Disconnected("the RTPS participant (session closed)".into())
+}
+
+type Reply<T> = oneshot::Sender<Result<T, SessionError>>;
+
+enum Cmd {
+    Publication {
+        topic: String,
+        ty: TypeInfo,
+        qos: PublicationQos,
+        reply: Reply<()>,
+    },
+    Subscription {
+        topic: String,
+        ty: Option<TypeInfo>,
+        qos: SubscriptionQos,
+        queue: Arc<SampleQueue>,
+        reply: Reply<()>,
+    },
+    Pattern {
+        topic: String,
+        type_name: String,
+        queue: Arc<SampleQueue>,
+        reply: Reply<()>,
+    },
+    Write {
+        topic: String,
+        kind: ChangeKind,
+        data: Vec<u8>,
+        key_hash: Option<[u8; 16]>,
+        confirm: Option<Duration>,
+        reply: Reply<()>,
+    },
+    ModuleConnected {
+        name: String,
+        reply: Reply<bool>,
+    },
+    NumHandlers {
+        topic: String,
+        reply: Reply<i32>,
+    },
+    Watch {
+        topic: String,
+    },
+    Close {
+        reply: oneshot::Sender<()>,
+    },
+}
+
+/// A Courier session's DDS participant (see the [module docs](self)).
+#[derive(Debug)]
+pub struct RtpsBackend {
+    cmd: mpsc::UnboundedSender<Cmd>,
+    listeners: Listeners,
+    guid_prefix: GuidPrefix,
+    locator: SocketAddr,
+    participant_index: u32,
+}
+
+type Listeners = Arc<Mutex<Vec<mpsc::UnboundedSender<SessionEvent>>>>;
+
+impl RtpsBackend {
+    /// Joins the domain: binds the sockets (probing participant indices),
+    /// starts the driver task and announces the participant.
+    pub async fn start(opts: RtpsOptions, name: &str) -> Result<Self, ConnectError> {
+        let url = format!("rtps://{}", opts.domain);
+        let fail = |why: String| ConnectError::Network {
+            url: url.clone(),
+            why,
+        };
+        let address = net::interface_address(&opts).map_err(fail)?;
+        let mut peers: Vec<Locator> = Vec::new();
+        let mut peer_hosts: Vec<[u8; 4]> = Vec::new();
+        for p in &opts.peers {
+            let (ip, port) = options::parse_peer(p).map_err(fail)?;
+            match port {
+                Some(port) => peers.push(Locator::udpv4(ip.octets(), port)),
+                None => peer_hosts.push(ip.octets()),
+            }
+        }
+        if opts.peers.is_empty() && !opts.multicast {
+            // no way to find anyone else: at least this host's participants
+            peer_hosts.push(address.octets());
+        }
+        let socks = net::open(&opts, address).map_err(fail)?;
+        let prefix = participant::guid_prefix(entropy());
+        let mut cfg = Config::udpv4(opts.domain, socks.index, prefix, address.octets())
+            .ok_or_else(|| fail(format!("no ports for participant index {}", socks.index)))?
+            .with_unicast_peers(&peer_hosts, opts.max_participant_index);
+        for l in peers {
+            if !cfg.spdp_destinations.contains(&l) {
+                cfg.spdp_destinations.push(l);
+            }
+        }
+        if opts.multicast {
+            cfg = cfg.with_multicast();
+        }
+        cfg.lease_duration = opts.lease;
+        cfg.entity_name = Some(name.to_string());
+        let locator = SocketAddr::from((address, socks.meta.local_addr().map_or(0, |a| a.port())));
+        let index = socks.index;
+        let now = Instant::now();
+        let p = Participant::new(cfg, now, SystemTime::now());
+        let (tx, rx) = mpsc::unbounded_channel();
+        let listeners: Listeners = Arc::default();
+        let driver = Driver {
+            io: Io::new(socks, address.is_loopback(), opts.multicast),
+            st: State {
+                p,
+                name: name.to_string(),
+                listeners: listeners.clone(),
+                writers: HashMap::new(),
+                readers: HashMap::new(),
+                patterns: Vec::new(),
+                watched: HashSet::new(),
+                remote_writers: HashMap::new(),
+                confirms: Vec::new(),
+                next_housekeeping: now,
+            },
+            cmd: rx,
+        };
+        tokio::spawn(driver.run());
+        Ok(RtpsBackend {
+            cmd: tx,
+            listeners,
+            guid_prefix: prefix,
+            locator,
+            participant_index: index,
+        })
+    }
+
+    /// This participant's GUID prefix.
+    pub fn guid_prefix(&self) -> GuidPrefix {
+        self.guid_prefix
+    }
+
+    /// The metatraffic unicast address (interface address and 7410 + 2i).
+    pub fn locator(&self) -> SocketAddr {
+        self.locator
+    }
+
+    /// The participant index claimed.
+    pub fn participant_index(&self) -> u32 {
+        self.participant_index
+    }
+
+    async fn ask<T>(&self, make: impl FnOnce(Reply<T>) -> Cmd) -> Result<T, SessionError> {
+        let (tx, rx) = oneshot::channel();
+        self.cmd.send(make(tx)).map_err(|_| disconnected())?;
+        rx.await.map_err(|_| disconnected())?
+    }
+}
+
+fn entropy() -> [u8; 10] {
+    use std::hash::{BuildHasher, Hasher};
+    let mut out = [0; 10];
+    let t = SystemTime::now()
+        .duration_since(SystemTime::UNIX_EPOCH)
+        .unwrap_or_default();
+    for (i, chunk) in out.chunks_mut(8).enumerate() {
+        let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+        h.write_u32(std::process::id());
+        h.write_u128(t.as_nanos());
+        h.write_usize(i);
+        let v = h.finish().to_le_bytes();
+        chunk.copy_from_slice(&v[..chunk.len()]);
+    }
+    out
+}
+
+#[async_trait::async_trait]
+impl Backend for RtpsBackend {
+    fn encoding(&self) -> Encoding {
+        Encoding::Cdr
+    }
+
+    async fn define_format(&self, _name: &str, _format: &str) -> Result<(), SessionError> {
+        Ok(())
+    }
+
+    async fn define(&self, msg: &str, _format: Option<&str>) -> Result<(), SessionError> {
+        Err(SessionError::Refused(format!(
+            "a DDS publication of {msg} needs a type: use Session::define::<T>() or \
+             Session::publisher::<T>()"
+        )))
+    }
+
+    async fn publish(&self, msg: &str, data: Vec<u8>) -> Result<(), SessionError> {
+        self.write(msg, data, WriteOptions::default()).await
+    }
+
+    async fn subscribe(&self, msg: &str, queue: Arc<SampleQueue>) -> Result<(), SessionError> {
+        self.create_subscription(msg, None, &SubscriptionQos::default(), queue)
+            .await
+    }
+
+    async fn query(
+        &self,
+        msg: &str,
+        _data: Vec<u8>,
+        _timeout: Duration,
+    ) -> Result<RawReply, QueryError> {
+        Err(QueryError::Refused {
+            msg: msg.into(),
+            detail: "queries over RTPS are not implemented yet".into(),
+        })
+    }
+
+    async fn serve(
+        &self,
+        msg: &str,
+        _queue: usize,
+    ) -> Result<mpsc::Receiver<RawRequest>, SessionError> {
+        Err(SessionError::Refused(format!(
+            "serving {msg} over RTPS is not implemented yet"
+        )))
+    }
+
+    fn events(&self) -> mpsc::UnboundedReceiver<SessionEvent> {
+        let (tx, rx) = mpsc::unbounded_channel();
+        if self.cmd.is_closed() {
+            let _ = tx.send(SessionEvent::Disconnected);
+        } else {
+            self.listeners.lock().unwrap().push(tx);
+        }
+        rx
+    }
+
+    async fn is_module_connected(&self, module: &str) -> Result<bool, SessionError> {
+        let name = module.to_string();
+        self.ask(|reply| Cmd::ModuleConnected { name, reply }).await
+    }
+
+    async fn num_handlers(&self, msg: &str) -> Result<i32, SessionError> {
+        let topic = msg.to_string();
+        self.ask(|reply| Cmd::NumHandlers { topic, reply }).await
+    }
+
+    async fn set_capacity(&self, _n: i32) -> Result<(), SessionError> {
+        Err(SessionError::Refused(
+            "IPC_setCapacity has no DDS equivalent: bound a subscription with its queue policy"
+                .into(),
+        ))
+    }
+
+    async fn set_priority(&self, msg: &str, _priority: i32) -> Result<(), SessionError> {
+        Err(SessionError::Refused(format!(
+            "IPC_setMsgPriority ({msg}) has no DDS equivalent: use ownership strength"
+        )))
+    }
+
+    async fn set_queue_length(&self, msg: &str, _n: i32) -> Result<(), SessionError> {
+        Err(SessionError::Refused(format!(
+            "IPC_setMsgQueueLength ({msg}) has no DDS equivalent: use History::KeepLast"
+        )))
+    }
+
+    async fn watch_handlers(&self, msg: &str) -> Result<(), SessionError> {
+        self.cmd
+            .send(Cmd::Watch { topic: msg.into() })
+            .map_err(|_| disconnected())
+    }
+
+    async fn close(&self) {
+        let (tx, rx) = oneshot::channel();
+        if self.cmd.send(Cmd::Close { reply: tx }).is_ok() {
+            let _ = rx.await;
+        }
+    }
+
+    async fn create_publication(
+        &self,
+        msg: &str,
+        ty: &TypeInfo,
+        qos: &PublicationQos,
+    ) -> Result<(), SessionError> {
+        let (topic, ty, qos) = (msg.to_string(), ty.clone(), qos.clone());
+        self.ask(|reply| Cmd::Publication {
+            topic,
+            ty,
+            qos,
+            reply,
+        })
+        .await
+    }
+
+    async fn create_subscription(
+        &self,
+        msg: &str,
+        ty: Option<&TypeInfo>,
+        qos: &SubscriptionQos,
+        queue: Arc<SampleQueue>,
+    ) -> Result<(), SessionError> {
+        let (topic, ty, qos) = (msg.to_string(), ty.cloned(), qos.clone());
+        self.ask(|reply| Cmd::Subscription {
+            topic,
+            ty,
+            qos,
+            queue,
+            reply,
+        })
+        .await
+    }
+
+    async fn subscribe_pattern(
+        &self,
+        topic: &str,
+        type_name: &str,
+        queue: Arc<SampleQueue>,
+    ) -> Result<(), SessionError> {
+        let (topic, type_name) = (topic.to_string(), type_name.to_string());
+        self.ask(|reply| Cmd::Pattern {
+            topic,
+            type_name,
+            queue,
+            reply,
+        })
+        .await
+    }
+
+    async fn write(
+        &self,
+        msg: &str,
+        data: Vec<u8>,
+        opts: WriteOptions,
+    ) -> Result<(), SessionError> {
+        let topic = msg.to_string();
+        self.ask(|reply| Cmd::Write {
+            topic,
+            kind: ChangeKind::Alive,
+            data,
+            key_hash: opts.key_hash,
+            confirm: opts.confirm,
+            reply,
+        })
+        .await
+    }
+
+    async fn end_instance(
+        &self,
+        msg: &str,
+        state: InstanceState,
+        key: Vec<u8>,
+        key_hash: [u8; 16],
+    ) -> Result<(), SessionError> {
+        let kind = match state {
+            InstanceState::Alive => {
+                return Err(SessionError::Refused(
+                    "end_instance takes Disposed or Unregistered".into(),
+                ))
+            }
+            InstanceState::Disposed => ChangeKind::Disposed,
+            InstanceState::Unregistered => ChangeKind::Unregistered,
+        };
+        let topic = msg.to_string();
+        self.ask(|reply| Cmd::Write {
+            topic,
+            kind,
+            data: key,
+            key_hash: Some(key_hash),
+            confirm: None,
+            reply,
+        })
+        .await
+    }
+}
+
+impl Drop for RtpsBackend {
+    fn drop(&mut self) {
+        // the driver leaves the domain (disposes everything) and ends
+        let (tx, _rx) = oneshot::channel();
+        let _ = self.cmd.send(Cmd::Close { reply: tx });
+    }
+}
+
+// ---------------------------------------------------------------------------
+// QoS mapping
+
+fn wire_duration(d: Option<Duration>) -> RtpsDuration {
+    d.map_or(RtpsDuration::INFINITE, RtpsDuration::from_std)
+}
+
+fn wire_history(h: History) -> WireHistory {
+    match h {
+        History::KeepLast(n) => WireHistory::KeepLast(i32::try_from(n.max(1)).unwrap_or(i32::MAX)),
+        History::KeepAll => WireHistory::KeepAll,
+    }
+}
+
+fn wire_reliability(r: Reliability) -> WireReliability {
+    match r {
+        Reliability::BestEffort => WireReliability::BestEffort,
+        Reliability::Reliable => {
+            WireReliability::Reliable(RtpsDuration::from_std(Duration::from_millis(100)))
+        }
+    }
+}
+
+fn wire_durability(d: Durability) -> WireDurability {
+    match d {
+        Durability::Volatile => WireDurability::Volatile,
+        Durability::TransientLocal => WireDurability::TransientLocal,
+    }
+}
+
+fn publication_qos(q: &PublicationQos) -> EndpointQos {
+    let mut e = EndpointQos::writer_default();
+    e.reliability = wire_reliability(q.reliability);
+    e.durability = wire_durability(q.durability);
+    e.history = wire_history(q.history);
+    e.deadline = wire_duration(q.deadline);
+    e.lifespan = wire_duration(q.persistence);
+    if let Some(s) = q.strength {
+        e.exclusive_ownership = true;
+        e.ownership_strength = s;
+    }
+    e.partitions = q.partitions.clone();
+    e
+}
+
+fn subscription_qos(q: &SubscriptionQos) -> EndpointQos {
+    let mut e = EndpointQos::reader_default();
+    e.reliability = wire_reliability(q.reliability);
+    e.durability = wire_durability(q.durability);
+    e.history = wire_history(q.history);
+    e.deadline = wire_duration(q.deadline);
+    e.time_based_filter = q
+        .minimum_separation
+        .map_or(RtpsDuration::ZERO, RtpsDuration::from_std);
+    e.exclusive_ownership = q.exclusive;
+    e.partitions = q.partitions.clone();
+    e
+}
+
+fn is_keyed_entity(g: Guid) -> bool {
+    matches!(g.entity.0[3], 0x02 | 0x07)
+}
+
+// ---------------------------------------------------------------------------
+// The driver
+
+struct Io {
+    meta: UdpSocket,
+    user: UdpSocket,
+    meta_mc: Option<UdpSocket>,
+    user_mc: Option<UdpSocket>,
+    bufs: [Vec<u8>; 4],
+    loopback_only: bool,
+    multicast: bool,
+    /// Datagrams not sent because of the loopback/multicast rules.
+    refused: u64,
+    send_errors: u64,
+}
+
+const MAX_DATAGRAM: usize = 65_536;
+
+impl Io {
+    fn new(s: net::Sockets, loopback_only: bool, multicast: bool) -> Self {
+        Io {
+            meta: s.meta,
+            user: s.user,
+            meta_mc: s.meta_mc,
+            user_mc: s.user_mc,
+            bufs: std::array::from_fn(|_| vec![0; MAX_DATAGRAM]),
+            loopback_only,
+            multicast,
+            refused: 0,
+            send_errors: 0,
+        }
+    }
+
+    fn allowed(&self, to: SocketAddr) -> bool {
+        match to {
+            SocketAddr::V4(a) => {
+                let ip: Ipv4Addr = *a.ip();
+                if ip.is_multicast() {
+                    self.multicast && !self.loopback_only
+                } else {
+                    !self.loopback_only || ip.is_loopback()
+                }
+            }
+            SocketAddr::V6(_) => false,
+        }
+    }
+
+    async fn send(&mut self, to: Locator, payload: &[u8]) {
+        let Some(addr) = to.socket_addr().filter(|a| self.allowed(*a)) else {
+            self.refused += 1;
+            return;
+        };
+        match self.user.try_send_to(payload, addr) {
+            Ok(_) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                if self.user.send_to(payload, addr).await.is_err() {
+                    self.send_errors += 1;
+                }
+            }
+            Err(_) => self.send_errors += 1,
+        }
+    }
+}
+
+async fn recv_opt(s: &Option<UdpSocket>, buf: &mut [u8]) -> std::io::Result<(usize, SocketAddr)> {
+    match s {
+        Some(s) => s.recv_from(buf).await,
+        None => std::future::pending().await,
+    }
+}
+
+enum Wake {
+    Cmd(Option<Cmd>),
+    Datagram(usize, std::io::Result<(usize, SocketAddr)>),
+    Space,
+    Timer,
+}
+
+struct Driver {
+    io: Io,
+    st: State,
+    cmd: mpsc::UnboundedReceiver<Cmd>,
+}
+
+impl Driver {
+    async fn run(mut self) {
+        loop {
+            self.st.pump(Instant::now());
+            while let Some(d) = self.st.p.poll_transmit() {
+                self.io.send(d.destination, &d.payload).await;
+            }
+            let wake_at = self.st.next_wakeup();
+            let paused = self.st.full_reliable_queue();
+            let io = &mut self.io;
+            let [b0, b1, b2, b3] = &mut io.bufs;
+            let wake = tokio::select! {
+                biased;
+                c = self.cmd.recv() => Wake::Cmd(c),
+                r = io.meta.recv_from(b0) => Wake::Datagram(0, r),
+                r = io.user.recv_from(b1), if paused.is_none() => Wake::Datagram(1, r),
+                r = recv_opt(&io.meta_mc, b2) => Wake::Datagram(2, r),
+                r = recv_opt(&io.user_mc, b3), if paused.is_none() => Wake::Datagram(3, r),
+                _ = async { if let Some(q) = &paused { q.space().await } }, if paused.is_some() => Wake::Space,
+                _ = tokio::time::sleep_until(wake_at.into()) => Wake::Timer,
+            };
+            let now = Instant::now();
+            match wake {
+                Wake::Cmd(None) => break,
+                Wake::Cmd(Some(Cmd::Close { reply })) => {
+                    self.close(now).await;
+                    let _ = reply.send(());
+                    return;
+                }
+                Wake::Cmd(Some(c)) => {
+                    self.st.command(c, now);
+                    // take every command already queued before flushing
+                    while let Ok(c) = self.cmd.try_recv() {
+                        if let Cmd::Close { reply } = c {
+                            self.close(Instant::now()).await;
+                            let _ = reply.send(());
+                            return;
+                        }
+                        self.st.command(c, now);
+                    }
+                }
+                Wake::Datagram(i, Ok((n, from))) => {
+                    let src = locator_of(from);
+                    self.st.p.handle_datagram(src, &self.io.bufs[i][..n], now);
+                    self.drain(i, now);
+                }
+                Wake::Datagram(_, Err(_)) => {
+                    // ICMP port unreachable and the like: nothing to do
+                }
+                Wake::Space => {}
+                Wake::Timer => {}
+            }
+            self.st.tick(Instant::now());
+        }
+        self.close(Instant::now()).await;
+    }
+
+    /// Reads what else is already waiting on socket `i`, up to a batch.
+    fn drain(&mut self, i: usize, now: Instant) {
+        for _ in 0..64 {
+            if i % 2 == 1 && self.st.full_reliable_queue().is_some() {
+                return;
+            }
+            let sock = match i {
+                0 => Some(&self.io.meta),
+                1 => Some(&self.io.user),
+                2 => self.io.meta_mc.as_ref(),
+                _ => self.io.user_mc.as_ref(),
+            };
+            let Some(sock) = sock else { return };
+            match sock.try_recv_from(&mut self.io.bufs[i]) {
+                Ok((n, from)) => {
+                    let src = locator_of(from);
+                    self.st.p.handle_datagram(src, &self.io.bufs[i][..n], now);
+                    // deliver as we go so that back-pressure is seen
+                    self.st.pump(now);
+                }
+                Err(_) => return,
+            }
+        }
+    }
+
+    async fn close(&mut self, now: Instant) {
+        self.st.p.close(now);
+        while let Some(d) = self.st.p.poll_transmit() {
+            self.io.send(d.destination, &d.payload).await;
+        }
+        self.st.pump(now);
+        for r in self.st.readers.values() {
+            r.queue.close();
+        }
+        for p in &self.st.patterns {
+            p.queue.close();
+        }
+        for w in self.st.writers.values_mut() {
+            for pw in w.pending.drain(..) {
+                let _ = pw.reply.send(Err(disconnected()));
+            }
+        }
+        for c in self.st.confirms.drain(..) {
+            let _ = c.reply.send(Err(disconnected()));
+        }
+        let mut l = self.st.listeners.lock().unwrap();
+        for tx in l.iter() {
+            let _ = tx.send(SessionEvent::Disconnected);
+        }
+        l.clear();
+    }
+}
+
+fn locator_of(a: SocketAddr) -> Locator {
+    match a {
+        SocketAddr::V4(v) => Locator::udpv4(v.ip().octets(), v.port()),
+        SocketAddr::V6(v) => Locator {
+            kind: Locator::KIND_UDPV6,
+            port: u32::from(v.port()),
+            address: v.ip().octets(),
+        },
+    }
+}
+
+struct PendingWrite {
+    kind: ChangeKind,
+    data: Vec<u8>,
+    key_hash: Option<[u8; 16]>,
+    confirm: Option<Duration>,
+    reply: Reply<()>,
+}
+
+struct LocalWriter {
+    guid: Guid,
+    type_name: String,
+    /// Writes waiting for room in a full keep-all history, in order.
+    pending: VecDeque<PendingWrite>,
+}
+
+struct Confirm {
+    writer: Guid,
+    sn: SequenceNumber,
+    deadline: Instant,
+    after: Duration,
+    topic: String,
+    reply: Reply<()>,
+}
+
+struct LocalReader {
+    topic: String,
+    type_name: String,
+    queue: Arc<SampleQueue>,
+    reliable: bool,
+    exclusive: bool,
+    minimum_separation: Option<Duration>,
+    deadline: Option<Duration>,
+    /// Per instance: owner (exclusive ownership) and strength.
+    owners: HashMap<[u8; 16], (Guid, i32)>,
+    /// Per instance: when the last sample was delivered.
+    last: HashMap<[u8; 16], Instant>,
+    /// Per instance: when the deadline is next checked.
+    due: HashMap<[u8; 16], Instant>,
+    misses: u64,
+}
+
+/// A pattern subscription (or a subscription to a topic whose type is not
+/// known yet): readers are created as matching publications appear.
+struct Pattern {
+    topic: String,
+    type_name: String,
+    qos: EndpointQos,
+    queue: Arc<SampleQueue>,
+    /// (topic, type) pairs that have a reader already.
+    have: HashSet<(String, String)>,
+    readers: Vec<Guid>,
+}
+
+/// What is known about a writer, for the reader-side filters.
+#[derive(Clone, Copy)]
+struct WriterInfo {
+    strength: i32,
+    lifespan: Option<Duration>,
+}
+
+struct State {
+    p: Participant,
+    name: String,
+    listeners: Listeners,
+    writers: HashMap<String, LocalWriter>,
+    readers: HashMap<Guid, LocalReader>,
+    patterns: Vec<Pattern>,
+    watched: HashSet<String>,
+    remote_writers: HashMap<Guid, WriterInfo>,
+    confirms: Vec<Confirm>,
+    next_housekeeping: Instant,
+}
+
+const HOUSEKEEPING: Duration = Duration::from_millis(200);
+
+impl State {
+    fn emit(&self, e: SessionEvent) {
+        let mut l = self.listeners.lock().unwrap();
+        l.retain(|tx| tx.send(e.clone()).is_ok());
+    }
+
+    fn next_wakeup(&self) -> Instant {
+        let mut t = self.next_housekeeping;
+        if let Some(p) = self.p.poll_timeout() {
+            t = t.min(p);
+        }
+        for c in &self.confirms {
+            t = t.min(c.deadline);
+        }
+        for r in self.readers.values() {
+            for d in r.due.values() {
+                t = t.min(*d);
+            }
+        }
+        t
+    }
+
+    /// A reliable keep-all subscription whose queue is full, if any.
+    fn full_reliable_queue(&self) -> Option<Arc<SampleQueue>> {
+        self.readers
+            .values()
+            .find(|r| r.reliable && r.queue.is_full())
+            .map(|r| r.queue.clone())
+    }
+
+    fn tick(&mut self, now: Instant) {
+        if self.p.poll_timeout().is_some_and(|t| t <= now) {
+            self.p.handle_timeout(now);
+        }
+        // confirmations that ran out of time
+        let mut i = 0;
+        while i < self.confirms.len() {
+            if self.confirms[i].deadline <= now {
+                let c = self.confirms.swap_remove(i);
+                let _ = c.reply.send(Err(SessionError::Timeout {
+                    what: format!("acknowledgement of a sample of {} by every reader", c.topic),
+                    after: c.after,
+                }));
+            } else {
+                i += 1;
+            }
+        }
+        self.check_deadlines(now);
+        if now >= self.next_housekeeping {
+            self.next_housekeeping = now + HOUSEKEEPING;
+            self.drop_abandoned(now);
+            self.retry_pending(now);
+        }
+    }
+
+    fn check_deadlines(&mut self, now: Instant) {
+        let mut missed = Vec::new();
+        for r in self.readers.values_mut() {
+            let Some(period) = r.deadline else { continue };
+            for due in r.due.values_mut() {
+                if *due <= now {
+                    r.misses += 1;
+                    *due = now + period;
+                    missed.push(SessionEvent::DeadlineMissed {
+                        msg: r.topic.clone(),
+                        total: r.misses,
+                    });
+                }
+            }
+        }
+        for e in missed {
+            self.emit(e);
+        }
+    }
+
+    /// Deletes the readers of subscriptions the application dropped.
+    fn drop_abandoned(&mut self, now: Instant) {
+        let gone: Vec<Guid> = self
+            .readers
+            .iter()
+            .filter(|(_, r)| r.queue.is_receiver_gone())
+            .map(|(g, _)| *g)
+            .collect();
+        for g in gone {
+            self.readers.remove(&g);
+            self.p.delete_reader(g, now);
+        }
+        let mut i = 0;
+        while i < self.patterns.len() {
+            if self.patterns[i].queue.is_receiver_gone() {
+                let pat = self.patterns.swap_remove(i);
+                for g in pat.readers {
+                    self.readers.remove(&g);
+                    self.p.delete_reader(g, now);
+                }
+            } else {
+                i += 1;
+            }
+        }
+    }
+
+    fn command(&mut self, c: Cmd, now: Instant) {
+        match c {
+            Cmd::Publication {
+                topic,
+                ty,
+                qos,
+                reply,
+            } => {
+                let _ = reply.send(self.create_writer(topic, &ty, &qos, now));
+            }
+            Cmd::Subscription {
+                topic,
+                ty,
+                qos,
+                queue,
+                reply,
+            } => {
+                let r = match ty {
+                    Some(ty) => self
+                        .create_reader(
+                            &topic,
+                            ty.type_name,
+                            ty.keyed,
+                            subscription_qos(&qos),
+                            &qos,
+                            queue,
+                            now,
+                        )
+                        .map(|_| ()),
+                    None => {
+                        // the type is learned from the first publication seen
+                        self.add_pattern(
+                            topic.clone(),
+                            "*".into(),
+                            subscription_qos(&qos),
+                            queue,
+                            now,
+                        );
+                        Ok(())
+                    }
+                };
+                let _ = reply.send(r);
+            }
+            Cmd::Pattern {
+                topic,
+                type_name,
+                queue,
+                reply,
+            } => {
+                let mut q = EndpointQos::reader_default();
+                q.history = WireHistory::KeepAll;
+                self.add_pattern(topic, type_name, q, queue, now);
+                let _ = reply.send(Ok(()));
+            }
+            Cmd::Write {
+                topic,
+                kind,
+                data,
+                key_hash,
+                confirm,
+                reply,
+            } => {
+                let Some(w) = self.writers.get_mut(&topic) else {
+                    let _ = reply.send(Err(SessionError::Refused(format!(
+                        "{topic} has no publication in this session: call define::<T>() or \
+                         publisher::<T>() first"
+                    ))));
+                    return;
+                };
+                let pw = PendingWrite {
+                    kind,
+                    data,
+                    key_hash,
+                    confirm,
+                    reply,
+                };
+                if !w.pending.is_empty() {
+                    w.pending.push_back(pw);
+                    return;
+                }
+                if let Some(pw) = self.try_write(&topic, pw, now) {
+                    if let Some(w) = self.writers.get_mut(&topic) {
+                        w.pending.push_back(pw);
+                    }
+                }
+            }
+            Cmd::ModuleConnected { name, reply } => {
+                let known = name == self.name
+                    || self
+                        .p
+                        .participants()
+                        .any(|d| d.entity_name.as_deref() == Some(name.as_str()));
+                let _ = reply.send(Ok(known));
+            }
+            Cmd::NumHandlers { topic, reply } => {
+                let _ = reply.send(Ok(self.handlers(&topic)));
+            }
+            Cmd::Watch { topic } => {
+                self.watched.insert(topic);
+            }
+            Cmd::Close { .. } => {}
+        }
+    }
+
+    /// Readers of `topic`: those matched with our writer, else every
+    /// known remote reader of it plus our own.
+    fn handlers(&self, topic: &str) -> i32 {
+        let n = match self.writers.get(topic) {
+            Some(w) => self.p.matched_readers(w.guid).len(),
+            None => {
+                self.p
+                    .subscriptions()
+                    .filter(|s| s.topic_name == topic)
+                    .count()
+                    + self.readers.values().filter(|r| r.topic == topic).count()
+            }
+        };
+        i32::try_from(n).unwrap_or(i32::MAX)
+    }
+
+    fn create_writer(
+        &mut self,
+        topic: String,
+        ty: &TypeInfo,
+        qos: &PublicationQos,
+        now: Instant,
+    ) -> Result<(), SessionError> {
+        if let Some(w) = self.writers.get(&topic) {
+            if w.type_name == ty.type_name {
+                return Ok(());
+            }
+            return Err(SessionError::Refused(format!(
+                "{topic} is already published in this session with type {}, not {}",
+                w.type_name, ty.type_name
+            )));
+        }
+        let cfg = EndpointConfig::writer(&topic, ty.type_name)
+            .keyed(ty.keyed)
+            .qos(publication_qos(qos));
+        let guid = self
+            .p
+            .create_writer(cfg, now)
+            .map_err(|e| SessionError::Refused(format!("cannot publish {topic}: {e}")))?;
+        self.remote_writers.insert(
+            guid,
+            WriterInfo {
+                strength: qos.strength.unwrap_or(0),
+                lifespan: qos.persistence,
+            },
+        );
+        self.writers.insert(
+            topic,
+            LocalWriter {
+                guid,
+                type_name: ty.type_name.to_string(),
+                pending: VecDeque::new(),
+            },
+        );
+        Ok(())
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn create_reader(
+        &mut self,
+        topic: &str,
+        type_name: &str,
+        keyed: bool,
+        wire_qos: EndpointQos,
+        qos: &SubscriptionQos,
+        queue: Arc<SampleQueue>,
+        now: Instant,
+    ) -> Result<Guid, SessionError> {
+        let reliable = matches!(wire_qos.reliability, WireReliability::Reliable(_));
+        let exclusive = wire_qos.exclusive_ownership;
+        let cfg = EndpointConfig::reader(topic, type_name)
+            .keyed(keyed)
+            .qos(wire_qos);
+        let guid = self
+            .p
+            .create_reader(cfg, now)
+            .map_err(|e| SessionError::Refused(format!("cannot subscribe {topic}: {e}")))?;
+        let mut due = HashMap::new();
+        if let Some(d) = qos.deadline {
+            if !keyed {
+                due.insert([0; 16], now + d);
+            }
+        }
+        self.readers.insert(
+            guid,
+            LocalReader {
+                topic: topic.to_string(),
+                type_name: type_name.to_string(),
+                queue,
+                reliable,
+                exclusive,
+                minimum_separation: qos.minimum_separation.filter(|d| !d.is_zero()),
+                deadline: qos.deadline,
+                owners: HashMap::new(),
+                last: HashMap::new(),
+                due,
+                misses: 0,
+            },
+        );
+        Ok(guid)
+    }
+
+    fn add_pattern(
+        &mut self,
+        topic: String,
+        type_name: String,
+        qos: EndpointQos,
+        queue: Arc<SampleQueue>,
+        now: Instant,
+    ) {
+        self.patterns.push(Pattern {
+            topic,
+            type_name,
+            qos,
+            queue,
+            have: HashSet::new(),
+            readers: Vec::new(),
+        });
+        let idx = self.patterns.len() - 1;
+        let mut known: Vec<(String, String, bool)> = self
+            .p
+            .publications()
+            .map(|e| {
+                (
+                    e.topic_name.clone(),
+                    e.type_name.clone(),
+                    is_keyed_entity(e.guid),
+                )
+            })
+            .collect();
+        for w in self.writers.iter() {
+            known.push((
+                w.0.clone(),
+                w.1.type_name.clone(),
+                is_keyed_entity(w.1.guid),
+            ));
+        }
+        for (t, ty, keyed) in known {
+            self.pattern_match(idx, &t, &ty, keyed, now);
+        }
+    }
+
+    fn pattern_match(
+        &mut self,
+        idx: usize,
+        topic: &str,
+        type_name: &str,
+        keyed: bool,
+        now: Instant,
+    ) {
+        let pat = &self.patterns[idx];
+        if !fnmatch(&pat.topic, topic) || !fnmatch(&pat.type_name, type_name) {
+            return;
+        }
+        let key = (topic.to_string(), type_name.to_string());
+        if pat.have.contains(&key) {
+            return;
+        }
+        let (qos, queue) = (pat.qos.clone(), pat.queue.clone());
+        let sq = SubscriptionQos::default();
+        if let Ok(g) = self.create_reader(topic, type_name, keyed, qos, &sq, queue, now) {
+            let pat = &mut self.patterns[idx];
+            pat.have.insert(key);
+            pat.readers.push(g);
+        }
+    }
+
+    /// Writes now, or gives the write back when the history is full.
+    fn try_write(&mut self, topic: &str, pw: PendingWrite, now: Instant) -> Option<PendingWrite> {
+        let Some(w) = self.writers.get(topic) else {
+            let _ = pw.reply.send(Err(disconnected()));
+            return None;
+        };
+        let guid = w.guid;
+        let mut change = Change::alive(&pw.data);
+        change.kind = pw.kind;
+        change.key_hash = pw.key_hash.map(KeyHash);
+        match self.p.write(guid, change, now) {
+            Ok(sn) => {
+                match pw.confirm {
+                    Some(after) if !self.p.is_acked_by_all(guid, sn) => {
+                        self.confirms.push(Confirm {
+                            writer: guid,
+                            sn,
+                            deadline: now + after,
+                            after,
+                            topic: topic.to_string(),
+                            reply: pw.reply,
+                        });
+                    }
+                    _ => {
+                        let _ = pw.reply.send(Ok(()));
+                    }
+                }
+                None
+            }
+            Err(WriteError::HistoryFull(_)) => Some(pw),
+            Err(e) => {
+                let _ = pw.reply.send(Err(SessionError::Refused(format!(
+                    "cannot publish {topic}: {e}"
+                ))));
+                None
+            }
+        }
+    }
+
+    /// Retries writes that waited for room in a full history.
+    fn retry_pending(&mut self, now: Instant) {
+        let topics: Vec<String> = self
+            .writers
+            .iter()
+            .filter(|(_, w)| !w.pending.is_empty())
+            .map(|(t, _)| t.clone())
+            .collect();
+        for t in topics {
+            while let Some(pw) = self.writers.get_mut(&t).and_then(|w| w.pending.pop_front()) {
+                if let Some(back) = self.try_write(&t, pw, now) {
+                    if let Some(w) = self.writers.get_mut(&t) {
+                        w.pending.push_front(back);
+                    }
+                    break;
+                }
+            }
+        }
+    }
+
+    fn resolve_confirms(&mut self, writer: Guid) {
+        let mut i = 0;
+        while i < self.confirms.len() {
+            let c = &self.confirms[i];
+            if c.writer == writer && self.p.is_acked_by_all(writer, c.sn) {
+                let c = self.confirms.swap_remove(i);
+                let _ = c.reply.send(Ok(()));
+            } else {
+                i += 1;
+            }
+        }
+    }
+
+    fn writer_topic(&self, writer: Guid) -> Option<String> {
+        self.writers
+            .iter()
+            .find(|(_, w)| w.guid == writer)
+            .map(|(t, _)| t.clone())
+    }
+
+    /// Handles every event the participant has.
+    fn pump(&mut self, now: Instant) {
+        while let Some(e) = self.p.poll_event() {
+            self.event(e, now);
+        }
+    }
+
+    fn event(&mut self, e: Event, now: Instant) {
+        match e {
+            Event::SampleReceived(s) => self.sample(s, now),
+            Event::AckedByAll { writer, .. } => {
+                self.resolve_confirms(writer);
+                self.retry_pending(now);
+            }
+            Event::ParticipantFound(d) => self.emit(SessionEvent::ParticipantFound(Box::new(d))),
+            Event::ParticipantChanged(d) => {
+                self.emit(SessionEvent::ParticipantChanged(Box::new(d)))
+            }
+            Event::ParticipantLost { prefix, reason } => self.emit(SessionEvent::ParticipantLost {
+                guid_prefix: prefix,
+                disposed: reason == LostReason::Disposed,
+            }),
+            Event::PublicationFound(d) => {
+                self.remote_writers.insert(
+                    d.guid,
+                    WriterInfo {
+                        strength: d.qos.ownership_strength,
+                        lifespan: d.qos.lifespan.to_std(),
+                    },
+                );
+                for i in 0..self.patterns.len() {
+                    self.pattern_match(
+                        i,
+                        &d.topic_name,
+                        &d.type_name,
+                        is_keyed_entity(d.guid),
+                        now,
+                    );
+                }
+                self.emit(SessionEvent::PublicationFound(Box::new(d)));
+            }
+            Event::PublicationChanged(d) => {
+                self.remote_writers.insert(
+                    d.guid,
+                    WriterInfo {
+                        strength: d.qos.ownership_strength,
+                        lifespan: d.qos.lifespan.to_std(),
+                    },
+                );
+                self.emit(SessionEvent::PublicationChanged(Box::new(d)));
+            }
+            Event::PublicationLost(g) => {
+                self.remote_writers.remove(&g);
+                self.emit(SessionEvent::PublicationLost(g));
+            }
+            Event::SubscriptionFound(d) => self.emit(SessionEvent::SubscriptionFound(Box::new(d))),
+            Event::SubscriptionChanged(d) => {
+                self.emit(SessionEvent::SubscriptionChanged(Box::new(d)))
+            }
+            Event::SubscriptionLost(g) => self.emit(SessionEvent::SubscriptionLost(g)),
+            Event::WriterMatched { writer, .. } => self.handlers_changed(writer),
+            Event::WriterUnmatched { writer, .. } => {
+                self.handlers_changed(writer);
+                // a reader that left may have been what kept the history full
+                self.resolve_confirms(writer);
+                self.retry_pending(now);
+            }
+            Event::ReaderMatched { .. } => {}
+            Event::ReaderUnmatched { reader, writer } => {
+                if let Some(r) = self.readers.get_mut(&reader) {
+                    r.owners.retain(|_, (w, _)| *w != writer);
+                }
+            }
+            Event::IncompatibleQos {
+                local,
+                remote,
+                reason,
+            } => {
+                let msg = self
+                    .readers
+                    .get(&local)
+                    .map(|r| r.topic.clone())
+                    .or_else(|| self.writer_topic(local))
+                    .unwrap_or_default();
+                self.emit(SessionEvent::IncompatibleQos {
+                    msg,
+                    remote,
+                    reason: reason.to_string(),
+                });
+            }
+            _ => {}
+        }
+    }
+
+    fn handlers_changed(&self, writer: Guid) {
+        if let Some(topic) = self.writer_topic(writer) {
+            if self.watched.contains(&topic) {
+                let count = self.handlers(&topic);
+                self.emit(SessionEvent::HandlersChanged { msg: topic, count });
+            }
+        }
+    }
+
+    fn sample(&mut self, s: ReceivedSample, now: Instant) {
+        let info = self.remote_writers.get(&s.writer).copied();
+        let Some(r) = self.readers.get_mut(&s.reader) else {
+            return;
+        };
+        let instance = s.key_hash.map_or([0; 16], |k| k.0);
+        let alive = s.kind == ChangeKind::Alive;
+        if alive {
+            if let (Some(life), Some(ts)) = (
+                info.and_then(|i| i.lifespan),
+                s.source_timestamp.and_then(system_time),
+            ) {
+                if SystemTime::now()
+                    .duration_since(ts)
+                    .is_ok_and(|age| age > life)
+                {
+                    r.queue.count_dropped();
+                    return;
+                }
+            }
+            if r.exclusive {
+                let strength = info.map_or(0, |i| i.strength);
+                match r.owners.get(&instance) {
+                    Some(&(owner, os))
+                        if owner != s.writer
+                            && (os > strength || (os == strength && owner < s.writer)) =>
+                    {
+                        return;
+                    }
+                    _ => {
+                        r.owners.insert(instance, (s.writer, strength));
+                    }
+                }
+            }
+            if let Some(sep) = r.minimum_separation {
+                if r.last
+                    .get(&instance)
+                    .is_some_and(|t| now.saturating_duration_since(*t) < sep)
+                {
+                    r.queue.count_dropped();
+                    return;
+                }
+            }
+            r.last.insert(instance, now);
+            if let Some(d) = r.deadline {
+                r.due.insert(instance, now + d);
+            }
+        } else {
+            r.due.remove(&instance);
+            r.owners.remove(&instance);
+        }
+        let mut raw = RawSample::new(r.topic.clone(), s.data().to_vec());
+        raw.source = Some(guid_hex(s.writer));
+        raw.type_name = Some(r.type_name.clone());
+        raw.state = match s.kind {
+            ChangeKind::Alive => InstanceState::Alive,
+            ChangeKind::Unregistered => InstanceState::Unregistered,
+            ChangeKind::Disposed | ChangeKind::DisposedUnregistered => InstanceState::Disposed,
+        };
+        raw.key_hash = s.key_hash.map(|k| k.0);
+        raw.source_time = s.source_timestamp.and_then(system_time);
+        if r.reliable {
+            // may exceed the capacity by what one datagram carried; reading
+            // stops until the application catches up
+            r.queue.push_over(raw);
+        } else if r.queue.push(raw).is_err() {
+            r.queue.count_dropped();
+        }
+    }
+}

@@ -1,0 +1,197 @@
+//! Sockets for an RTPS participant: interface selection, participant index
+//! probing, multicast membership, buffer sizes.
+
+use std::io;
+use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4};
+
+use courier_wire::rtps::participant::{PortMapping, SPDP_MULTICAST_ADDRESS};
+use socket2::{Domain, Protocol, Socket, Type};
+use tokio::net::UdpSocket;
+
+use super::options::RtpsOptions;
+
+/// An IPv4 interface as getifaddrs reports it.
+#[derive(Debug, Clone)]
+pub(crate) struct Interface {
+    pub(crate) name: String,
+    pub(crate) addr: Ipv4Addr,
+    pub(crate) up: bool,
+    pub(crate) loopback: bool,
+    pub(crate) multicast: bool,
+}
+
+/// Every IPv4 interface address of this machine.
+#[allow(unsafe_code)]
+pub(crate) fn interfaces() -> io::Result<Vec<Interface>> {
+    let mut out = Vec::new();
+    // SAFETY: getifaddrs fills a linked list that we walk read-only and free
+    // with freeifaddrs; every pointer is checked for null before use.
+    unsafe {
+        let mut head: *mut libc::ifaddrs = std::ptr::null_mut();
+        if libc::getifaddrs(&mut head) != 0 {
+            return Err(io::Error::last_os_error());
+        }
+        let mut cur = head;
+        while !cur.is_null() {
+            let ifa = &*cur;
+            if !ifa.ifa_addr.is_null() && i32::from((*ifa.ifa_addr).sa_family) == libc::AF_INET {
+                let sin = &*(ifa.ifa_addr as *const libc::sockaddr_in);
+                let addr = Ipv4Addr::from(u32::from_be(sin.sin_addr.s_addr));
+                let name = std::ffi::CStr::from_ptr(ifa.ifa_name)
+                    .to_string_lossy()
+                    .into_owned();
+                let f = ifa.ifa_flags;
+                out.push(Interface {
+                    name,
+                    addr,
+                    up: f & libc::IFF_UP as u32 != 0,
+                    loopback: f & libc::IFF_LOOPBACK as u32 != 0,
+                    multicast: f & libc::IFF_MULTICAST as u32 != 0,
+                });
+            }
+            cur = ifa.ifa_next;
+        }
+        libc::freeifaddrs(head);
+    }
+    Ok(out)
+}
+
+/// The address to use: the named interface's, a literal address, or the
+/// default choice.
+pub(crate) fn interface_address(o: &RtpsOptions) -> Result<Ipv4Addr, String> {
+    let ifs = interfaces().map_err(|e| format!("cannot list network interfaces: {e}"))?;
+    match &o.interface {
+        Some(name) => {
+            if let Ok(a) = name.parse::<Ipv4Addr>() {
+                if ifs.iter().any(|i| i.addr == a) {
+                    return Ok(a);
+                }
+                return Err(format!("no interface has the address {a}"));
+            }
+            ifs.iter()
+                .find(|i| &i.name == name)
+                .map(|i| i.addr)
+                .ok_or_else(|| {
+                    let names: Vec<&str> = ifs.iter().map(|i| i.name.as_str()).collect();
+                    format!(
+                        "no IPv4 interface named {name:?} (there are: {})",
+                        names.join(", ")
+                    )
+                })
+        }
+        None => Ok(ifs
+            .iter()
+            .find(|i| i.up && !i.loopback && i.multicast)
+            .map(|i| i.addr)
+            .unwrap_or(Ipv4Addr::LOCALHOST)),
+    }
+}
+
+/// Receive buffer asked for when none is configured.
+pub(crate) const DEFAULT_RECV_BUFFER: usize = 1 << 20;
+
+fn udp(bind: SocketAddrV4, reuse: bool, o: &RtpsOptions) -> io::Result<Socket> {
+    let s = Socket::new(Domain::IPV4, Type::DGRAM, Some(Protocol::UDP))?;
+    if reuse {
+        s.set_reuse_address(true)?;
+        s.set_reuse_port(true)?;
+    }
+    // like Cyclone DDS: ask for 1 MiB unless told otherwise (the kernel caps
+    // it at net.core.rmem_max); the default ~208 KiB loses a 200 KiB sample
+    // sent as one burst of fragments
+    s.set_recv_buffer_size(o.recv_buffer.unwrap_or(DEFAULT_RECV_BUFFER))?;
+    if let Some(n) = o.send_buffer {
+        s.set_send_buffer_size(n)?;
+    }
+    s.set_nonblocking(true)?;
+    s.bind(&SocketAddr::V4(bind).into())?;
+    Ok(s)
+}
+
+fn tokio_socket(s: Socket) -> io::Result<UdpSocket> {
+    UdpSocket::from_std(s.into())
+}
+
+/// The sockets of one participant.
+#[derive(Debug)]
+pub(crate) struct Sockets {
+    pub(crate) index: u32,
+    /// SPDP/SEDP unicast (7410 + 2i).
+    pub(crate) meta: UdpSocket,
+    /// User data unicast (7411 + 2i); also the sending socket.
+    pub(crate) user: UdpSocket,
+    /// SPDP multicast (7400), when multicast is on.
+    pub(crate) meta_mc: Option<UdpSocket>,
+    /// User data multicast (7401), when multicast is on.
+    pub(crate) user_mc: Option<UdpSocket>,
+}
+
+/// Binds the unicast pair at the first free participant index (or the
+/// fixed one), and the multicast sockets when asked.
+pub(crate) fn open(o: &RtpsOptions, address: Ipv4Addr) -> Result<Sockets, String> {
+    let m = PortMapping::STANDARD;
+    let indices: Vec<u32> = match o.participant_index {
+        Some(i) => vec![i],
+        None => (0..=o.max_participant_index).collect(),
+    };
+    let mut last_err = String::from("no participant index to try");
+    let mut found = None;
+    for i in indices {
+        let (Some(mp), Some(up)) = (
+            m.metatraffic_unicast(o.domain, i),
+            m.user_unicast(o.domain, i),
+        ) else {
+            last_err = format!("participant index {i} has no port in domain {}", o.domain);
+            break;
+        };
+        let meta = match udp(SocketAddrV4::new(address, mp), false, o) {
+            Ok(s) => s,
+            Err(e) => {
+                last_err = format!("{address}:{mp}: {e}");
+                continue;
+            }
+        };
+        match udp(SocketAddrV4::new(address, up), false, o) {
+            Ok(user) => {
+                found = Some((i, meta, user));
+                break;
+            }
+            Err(e) => last_err = format!("{address}:{up}: {e}"),
+        }
+    }
+    let (index, meta, user) = found.ok_or_else(|| {
+        format!(
+            "no free participant index in domain {} on {address} ({last_err})",
+            o.domain
+        )
+    })?;
+    let mut meta_mc = None;
+    let mut user_mc = None;
+    if o.multicast {
+        let group = Ipv4Addr::from(SPDP_MULTICAST_ADDRESS);
+        let mk = |port: u16| -> io::Result<Socket> {
+            let s = udp(SocketAddrV4::new(Ipv4Addr::UNSPECIFIED, port), true, o)?;
+            s.join_multicast_v4(&group, &address)?;
+            s.set_multicast_loop_v4(true)?;
+            Ok(s)
+        };
+        let (sp, dp) = (
+            m.spdp_multicast(o.domain).ok_or("no SPDP multicast port")?,
+            m.user_multicast(o.domain).ok_or("no user multicast port")?,
+        );
+        meta_mc = Some(mk(sp).map_err(|e| format!("multicast {group}:{sp} on {address}: {e}"))?);
+        user_mc = Some(mk(dp).map_err(|e| format!("multicast {group}:{dp} on {address}: {e}"))?);
+        user.set_multicast_if_v4(&address)
+            .map_err(|e| format!("IP_MULTICAST_IF {address}: {e}"))?;
+        user.set_multicast_loop_v4(true)
+            .map_err(|e| format!("IP_MULTICAST_LOOP: {e}"))?;
+    }
+    let t = |s: Socket| tokio_socket(s).map_err(|e| format!("socket: {e}"));
+    Ok(Sockets {
+        index,
+        meta: t(meta)?,
+        user: t(user)?,
+        meta_mc: meta_mc.map(t).transpose()?,
+        user_mc: user_mc.map(t).transpose()?,
+    })
+}

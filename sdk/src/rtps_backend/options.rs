@@ -1,0 +1,359 @@
+//! `rtps://` URLs and the options they carry.
+
+use std::net::{Ipv4Addr, SocketAddrV4};
+use std::time::Duration;
+
+use crate::session::ConnectError;
+
+/// Options of the RTPS backend. The defaults follow the DDS standard
+/// (multicast discovery on the default interface); tests and loopback-only
+/// machines pass `interface=lo&peers=127.0.0.1`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct RtpsOptions {
+    /// DDS domain id (0..=232 with the standard port mapping).
+    pub domain: u32,
+    /// Network interface by name (`lo`) or IPv4 address; `None`: the first
+    /// up, multicast-capable, non-loopback IPv4 interface, else loopback.
+    pub interface: Option<String>,
+    /// Unicast discovery peers: `ip` (every participant index
+    /// 0..=[`RtpsOptions::max_participant_index`] there) or `ip:port`.
+    pub peers: Vec<String>,
+    /// Standard SPDP multicast discovery (239.255.0.1). Default on, unless
+    /// peers are given.
+    pub multicast: bool,
+    /// A fixed participant index; `None` probes 0, 1, 2, … for free ports.
+    pub participant_index: Option<u32>,
+    /// Highest participant index probed and expanded for peers (default 20).
+    pub max_participant_index: u32,
+    /// `SO_RCVBUF` in bytes (default 1 MiB, as Cyclone DDS; capped by the
+    /// kernel at `net.core.rmem_max`).
+    pub recv_buffer: Option<usize>,
+    /// `SO_SNDBUF` in bytes (default: the system's).
+    pub send_buffer: Option<usize>,
+    /// Lease announced to peers (default 10 s).
+    pub lease: Duration,
+}
+
+impl Default for RtpsOptions {
+    fn default() -> Self {
+        RtpsOptions {
+            domain: 0,
+            interface: None,
+            peers: Vec::new(),
+            multicast: true,
+            participant_index: None,
+            max_participant_index: 20,
+            recv_buffer: None,
+            send_buffer: None,
+            lease: Duration::from_secs(10),
+        }
+    }
+}
+
+fn bad(url: &str, why: impl Into<String>) -> ConnectError {
+    ConnectError::BadUrl {
+        url: url.to_string(),
+        why: why.into(),
+    }
+}
+
+fn parse_bool(url: &str, key: &str, v: &str) -> Result<bool, ConnectError> {
+    match v {
+        "1" | "true" | "on" | "yes" => Ok(true),
+        "0" | "false" | "off" | "no" => Ok(false),
+        _ => Err(bad(url, format!("{key}={v:?}: expected true or false"))),
+    }
+}
+
+fn parse_num<T: std::str::FromStr>(url: &str, key: &str, v: &str) -> Result<T, ConnectError> {
+    v.parse()
+        .map_err(|_| bad(url, format!("{key}={v:?}: expected a number")))
+}
+
+impl RtpsOptions {
+    /// Parses `rtps://<domain>?key=value&…`. Keys: `interface`, `peers`
+    /// (comma-separated `ip` or `ip:port`), `multicast` (true/false),
+    /// `index` (participant index), `max_index`, `recv_buffer`,
+    /// `send_buffer` (bytes), `lease_ms`. `peers` without `multicast` turns
+    /// multicast off. Anything else is an error naming the key.
+    ///
+    /// ```
+    /// use courier::rtps_backend::RtpsOptions;
+    /// let o = RtpsOptions::from_url("rtps://7?interface=lo&peers=127.0.0.1").unwrap();
+    /// assert_eq!((o.domain, o.multicast), (7, false));
+    /// assert!(RtpsOptions::from_url("rtps://0?colour=blue").is_err());
+    /// ```
+    pub fn from_url(url: &str) -> Result<Self, ConnectError> {
+        let rest = url
+            .strip_prefix("rtps://")
+            .or_else(|| url.strip_prefix("rtps:"))
+            .ok_or_else(|| bad(url, "an RTPS URL starts with rtps://"))?;
+        let (domain, query) = rest.split_once('?').unwrap_or((rest, ""));
+        let domain = domain.trim_end_matches('/');
+        let mut o = RtpsOptions::default();
+        if !domain.is_empty() {
+            o.domain = domain
+                .parse()
+                .map_err(|_| bad(url, format!("domain {domain:?} is not a number")))?;
+        }
+        if o.domain > 232 {
+            return Err(bad(
+                url,
+                format!(
+                    "domain {} is above 232, the highest the standard port mapping allows",
+                    o.domain
+                ),
+            ));
+        }
+        let mut multicast_set = false;
+        for pair in query.split('&').filter(|p| !p.is_empty()) {
+            let (k, v) = pair
+                .split_once('=')
+                .ok_or_else(|| bad(url, format!("option {pair:?} has no value")))?;
+            match k {
+                "interface" => o.interface = Some(v.to_string()),
+                "peers" => {
+                    o.peers = v
+                        .split(',')
+                        .filter(|p| !p.is_empty())
+                        .map(str::to_string)
+                        .collect()
+                }
+                "multicast" => {
+                    o.multicast = parse_bool(url, k, v)?;
+                    multicast_set = true;
+                }
+                "index" => o.participant_index = Some(parse_num(url, k, v)?),
+                "max_index" => o.max_participant_index = parse_num(url, k, v)?,
+                "recv_buffer" => o.recv_buffer = Some(parse_num(url, k, v)?),
+                "send_buffer" => o.send_buffer = Some(parse_num(url, k, v)?),
+                "lease_ms" => o.lease = Duration::from_millis(parse_num(url, k, v)?),
+                _ => {
+                    return Err(bad(
+                        url,
+                        format!(
+                            "unknown option {k:?} (known: interface, peers, multicast, index, \
+                             max_index, recv_buffer, send_buffer, lease_ms)"
+                        ),
+                    ))
+                }
+            }
+        }
+        if !o.peers.is_empty() && !multicast_set {
+            o.multicast = false;
+        }
+        for p in &o.peers {
+            parse_peer(p).map_err(|e| bad(url, e))?;
+        }
+        Ok(o)
+    }
+}
+
+/// A peer: an address (all participant indices) or an address and port.
+pub(crate) fn parse_peer(p: &str) -> Result<(Ipv4Addr, Option<u16>), String> {
+    let p = p.trim();
+    if let Ok(a) = p.parse::<SocketAddrV4>() {
+        return Ok((*a.ip(), Some(a.port())));
+    }
+    if let Ok(a) = p.parse::<Ipv4Addr>() {
+        return Ok((a, None));
+    }
+    if p == "localhost" {
+        return Ok((Ipv4Addr::LOCALHOST, None));
+    }
+    Err(format!("peer {p:?} is not an IPv4 address or address:port"))
+}
+
+/// Builder-level overrides, applied over the URL's options.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct RtpsOverrides {
+    pub(crate) interface: Option<String>,
+    pub(crate) peers: Option<Vec<String>>,
+    pub(crate) multicast: Option<bool>,
+    pub(crate) participant_index: Option<u32>,
+    pub(crate) recv_buffer: Option<usize>,
+    pub(crate) send_buffer: Option<usize>,
+}
+
+impl RtpsOverrides {
+    pub(crate) fn apply(&self, o: &mut RtpsOptions) {
+        if let Some(i) = &self.interface {
+            o.interface = Some(i.clone());
+        }
+        if let Some(p) = &self.peers {
+            o.peers = p.clone();
+            if self.multicast.is_none() && !p.is_empty() {
+                o.multicast = false;
+            }
+        }
+        if let Some(m) = self.multicast {
+            o.multicast = m;
+        }
+        if let Some(i) = self.participant_index {
+            o.participant_index = Some(i);
+        }
+        if let Some(n) = self.recv_buffer {
+            o.recv_buffer = Some(n);
+        }
+        if let Some(n) = self.send_buffer {
+            o.send_buffer = Some(n);
+        }
+    }
+}
+
+/// fnmatch(3)-style matching: `*`, `?`, `[abc]`, `[a-z]`, `[!x]`, `\` escapes.
+pub(crate) fn fnmatch(pattern: &str, name: &str) -> bool {
+    let p: Vec<char> = pattern.chars().collect();
+    let n: Vec<char> = name.chars().collect();
+    // iterative matcher with backtracking to the last `*`
+    let (mut pi, mut ni) = (0, 0);
+    let mut star: Option<(usize, usize)> = None;
+    while ni < n.len() {
+        if pi < p.len() {
+            match p[pi] {
+                '*' => {
+                    star = Some((pi, ni));
+                    pi += 1;
+                    continue;
+                }
+                '?' => {
+                    pi += 1;
+                    ni += 1;
+                    continue;
+                }
+                '[' => {
+                    if let Some((ok, next)) = class(&p, pi, n[ni]) {
+                        if ok {
+                            pi = next;
+                            ni += 1;
+                            continue;
+                        }
+                    } else if n[ni] == '[' {
+                        pi += 1;
+                        ni += 1;
+                        continue;
+                    }
+                }
+                '\\' if pi + 1 < p.len() => {
+                    if p[pi + 1] == n[ni] {
+                        pi += 2;
+                        ni += 1;
+                        continue;
+                    }
+                }
+                c => {
+                    if c == n[ni] {
+                        pi += 1;
+                        ni += 1;
+                        continue;
+                    }
+                }
+            }
+        }
+        match star {
+            Some((sp, sn)) => {
+                pi = sp + 1;
+                ni = sn + 1;
+                star = Some((sp, sn + 1));
+            }
+            None => return false,
+        }
+    }
+    p[pi..].iter().all(|c| *c == '*')
+}
+
+/// A bracket expression at `p[i]`: whether `c` is in it, and the index after it.
+fn class(p: &[char], i: usize, c: char) -> Option<(bool, usize)> {
+    let mut j = i + 1;
+    let negate = matches!(p.get(j), Some('!') | Some('^'));
+    if negate {
+        j += 1;
+    }
+    let mut hit = false;
+    let mut first = true;
+    while j < p.len() {
+        if p[j] == ']' && !first {
+            return Some((hit != negate, j + 1));
+        }
+        first = false;
+        if j + 2 < p.len() && p[j + 1] == '-' && p[j + 2] != ']' {
+            if p[j] <= c && c <= p[j + 2] {
+                hit = true;
+            }
+            j += 3;
+        } else {
+            if p[j] == c {
+                hit = true;
+            }
+            j += 1;
+        }
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn urls() {
+        let o =
+            RtpsOptions::from_url("rtps://0?interface=lo&peers=127.0.0.1&multicast=false").unwrap();
+        assert_eq!(o.interface.as_deref(), Some("lo"));
+        assert_eq!(o.peers, ["127.0.0.1"]);
+        assert!(!o.multicast);
+        let o = RtpsOptions::from_url("rtps://3").unwrap();
+        assert_eq!(o.domain, 3);
+        assert!(o.multicast, "the standard default");
+        let o = RtpsOptions::from_url("rtps://1?peers=127.0.0.1:7410,127.0.0.2&multicast=true")
+            .unwrap();
+        assert!(o.multicast);
+        assert_eq!(o.peers.len(), 2);
+        let o = RtpsOptions::from_url(
+            "rtps://0?index=4&max_index=9&recv_buffer=1000000&send_buffer=2000&lease_ms=500",
+        )
+        .unwrap();
+        assert_eq!(o.participant_index, Some(4));
+        assert_eq!(o.max_participant_index, 9);
+        assert_eq!(o.recv_buffer, Some(1_000_000));
+        assert_eq!(o.send_buffer, Some(2000));
+        assert_eq!(o.lease, Duration::from_millis(500));
+        for (u, needle) in [
+            ("rtps://x", "domain"),
+            ("rtps://233", "232"),
+            ("rtps://0?colour=blue", "colour"),
+            ("rtps://0?multicast=maybe", "multicast"),
+            ("rtps://0?peers=not-an-ip", "not-an-ip"),
+            ("rtps://0?index", "index"),
+            ("ipc://x", "rtps://"),
+        ] {
+            let e = RtpsOptions::from_url(u).unwrap_err().to_string();
+            assert!(e.contains(needle), "{u}: {e}");
+        }
+    }
+
+    #[test]
+    fn fnmatch_like_libc() {
+        for (p, n, m) in [
+            ("*", "", true),
+            ("*", "anything", true),
+            ("Hello*", "HelloWorld", true),
+            ("Hello*", "Hell", false),
+            ("rq/*Request", "rq/add_two_intsRequest", true),
+            ("?ello", "Hello", true),
+            ("?ello", "ello", false),
+            ("[HJ]ello", "Jello", true),
+            ("[!HJ]ello", "Jello", false),
+            ("[a-c]x", "bx", true),
+            ("[a-c]x", "dx", false),
+            ("a\\*b", "a*b", true),
+            ("a\\*b", "axb", false),
+            ("*a*b*c", "xxaxxbxxc", true),
+            ("*a*b*c", "xxaxxcxxb", false),
+            ("[", "[", true),
+        ] {
+            assert_eq!(fnmatch(p, n), m, "{p} ~ {n}");
+        }
+    }
+}

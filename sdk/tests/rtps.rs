@@ -1,0 +1,562 @@
+//! The RTPS backend, Courier against Courier: two sessions (two DDS
+//! participants) in one process, on loopback only, with unicast discovery
+//! (`interface=lo&peers=127.0.0.1`). Each test has its own domain id, so
+//! tests running in parallel never see each other. Every wait is bounded.
+
+use std::time::Duration;
+
+use courier::{
+    ConnectError, InstanceState, IpcMessage, RecvError, Session, SessionError, SessionEvent,
+};
+use futures::StreamExt;
+
+const T: Duration = Duration::from_secs(20);
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "courier::test::Msg")]
+struct Msg {
+    seq: u32,
+    text: String,
+    n: u32,
+    #[ipc(len = "n")]
+    payload: Vec<u8>,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "courier::test::Keyed")]
+struct Keyed {
+    #[ipc(key)]
+    id: i32,
+    seq: u32,
+    text: String,
+}
+
+fn url(domain: u32) -> String {
+    format!("rtps://{domain}?interface=lo&peers=127.0.0.1")
+}
+
+async fn session(domain: u32, name: &str) -> Session {
+    tokio::time::timeout(T, Session::builder(url(domain)).name(name).connect())
+        .await
+        .expect("connect in time")
+        .expect("connect")
+}
+
+fn msg(seq: u32) -> Msg {
+    Msg {
+        seq,
+        text: format!("hello {seq}"),
+        n: 0,
+        payload: Vec::new(),
+    }
+}
+
+/// Waits until `s` sees `n` handlers of `topic` (readers matched with its writer).
+async fn await_handlers(s: &Session, topic: &str, n: i32) {
+    tokio::time::timeout(T, async {
+        while s.num_handlers(topic).await.unwrap() < n {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    })
+    .await
+    .unwrap_or_else(|_| panic!("{topic}: {n} reader(s) never matched"));
+}
+
+async fn next<T: IpcMessage>(
+    sub: &mut courier::Subscriber<T>,
+) -> Result<courier::Sample<T>, RecvError> {
+    tokio::time::timeout(T, sub.next())
+        .await
+        .expect("a sample in time")
+        .expect("stream open")
+}
+
+#[tokio::test]
+async fn reliable_publish_subscribe_in_order() {
+    let a = session(150, "a").await;
+    let b = session(150, "b").await;
+    a.define::<Msg>("chatter").await.unwrap();
+    let mut sub = b.subscribe::<Msg>("chatter").await.unwrap();
+    await_handlers(&a, "chatter", 1).await;
+    for i in 0..500 {
+        a.publish("chatter", &msg(i)).await.unwrap();
+    }
+    for i in 0..500 {
+        let s = next(&mut sub).await.unwrap();
+        assert_eq!(s.value, msg(i));
+        assert_eq!(s.msg, "chatter");
+        assert!(s.source.as_deref().is_some_and(|g| g.len() == 32));
+        assert!(s.source_time.is_some());
+    }
+    a.close().await;
+    b.close().await;
+}
+
+#[tokio::test]
+async fn fragmented_200_kib_sample_both_reliabilities() {
+    let a = session(151, "a").await;
+    let b = session(151, "b").await;
+    let p = a.publisher::<Msg>("big").build().await.unwrap();
+    let be = a
+        .publisher::<Msg>("big_be")
+        .best_effort()
+        .build()
+        .await
+        .unwrap();
+    let mut sub = b.subscribe::<Msg>("big").await.unwrap();
+    let mut sub_be = b
+        .subscriber::<Msg>("big_be")
+        .best_effort()
+        .build()
+        .await
+        .unwrap();
+    await_handlers(&a, "big", 1).await;
+    await_handlers(&a, "big_be", 1).await;
+    let payload: Vec<u8> = (0..200 * 1024).map(|i| (i * 7 % 251) as u8).collect();
+    let m = Msg {
+        seq: 1,
+        text: "big".into(),
+        n: payload.len() as u32,
+        payload,
+    };
+    p.publish(&m).await.unwrap();
+    assert_eq!(next(&mut sub).await.unwrap().value, m);
+    be.publish(&m).await.unwrap();
+    assert_eq!(next(&mut sub_be).await.unwrap().value, m);
+}
+
+#[tokio::test]
+async fn keyed_topic_dispose_reaches_the_subscriber() {
+    let a = session(152, "a").await;
+    let b = session(152, "b").await;
+    let p = a.publisher::<Keyed>("robots").build().await.unwrap();
+    let mut sub = b.subscribe::<Keyed>("robots").await.unwrap();
+    await_handlers(&a, "robots", 1).await;
+    let k = |id, seq| Keyed {
+        id,
+        seq,
+        text: format!("robot {id}"),
+    };
+    p.publish(&k(1, 1)).await.unwrap();
+    p.publish(&k(2, 1)).await.unwrap();
+    p.dispose(&k(1, 0)).await.unwrap();
+    assert_eq!(next(&mut sub).await.unwrap().value, k(1, 1));
+    assert_eq!(next(&mut sub).await.unwrap().value, k(2, 1));
+    match next(&mut sub).await {
+        Err(RecvError::Instance {
+            msg,
+            state,
+            key_hash,
+            key,
+        }) => {
+            assert_eq!(msg, "robots");
+            assert_eq!(state, InstanceState::Disposed);
+            // key hash of `long id = 1`: big-endian, zero-padded
+            let mut want = [0u8; 16];
+            want[3] = 1;
+            assert_eq!(key_hash, Some(want));
+            // the serialized key: XCDR1 LE header and the id
+            assert_eq!(key, [0, 1, 0, 0, 1, 0, 0, 0]);
+        }
+        other => panic!("expected a dispose, got {other:?}"),
+    }
+}
+
+#[tokio::test]
+async fn transient_local_late_joiner_gets_the_history() {
+    let a = session(153, "a").await;
+    let p = a
+        .publisher::<Msg>("state")
+        .transient_local()
+        .keep_last(5)
+        .build()
+        .await
+        .unwrap();
+    for i in 0..8 {
+        p.publish(&msg(i)).await.unwrap();
+    }
+    // joins after everything was written
+    let b = session(153, "b").await;
+    let mut sub = b
+        .subscriber::<Msg>("state")
+        .transient_local()
+        .build()
+        .await
+        .unwrap();
+    for i in 3..8 {
+        assert_eq!(next(&mut sub).await.unwrap().value, msg(i), "keep last 5");
+    }
+    p.publish(&msg(8)).await.unwrap();
+    assert_eq!(next(&mut sub).await.unwrap().value, msg(8));
+}
+
+#[tokio::test]
+async fn confirmed_publish_waits_for_acknowledgement() {
+    let a = session(154, "a").await;
+    let b = session(154, "b").await;
+    a.define::<Msg>("acked").await.unwrap();
+    let mut sub = b.subscribe::<Msg>("acked").await.unwrap();
+    await_handlers(&a, "acked", 1).await;
+    a.publish("acked", &msg(1))
+        .confirmed()
+        .timeout(T)
+        .await
+        .unwrap();
+    // acknowledged means received: it is in the subscriber's queue already
+    assert_eq!(sub.try_next().expect("already here").unwrap().value, msg(1));
+    assert!(sub.try_next().is_none(), "pulled delivery: nothing more");
+    // a reader whose keep-all queue is full stops reading (and so stops
+    // acknowledging) until its application takes a sample
+    b.close().await;
+    drop(sub);
+    let c = session(154, "c").await;
+    let mut slow = c
+        .subscriber::<Msg>("acked")
+        .queue(courier::QueuePolicy::KeepAll(1))
+        .build()
+        .await
+        .unwrap();
+    await_handlers(&a, "acked", 1).await;
+    tokio::time::timeout(T, async {
+        while a.num_handlers("acked").await.unwrap() != 1 {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    })
+    .await
+    .unwrap();
+    a.publish("acked", &msg(2)).timeout(T).await.unwrap();
+    let r = a
+        .publish("acked", &msg(3))
+        .timeout(Duration::from_millis(300))
+        .await;
+    match r {
+        Err(SessionError::Timeout { what, after }) => {
+            assert!(what.contains("acked"), "{what}");
+            assert_eq!(after, Duration::from_millis(300));
+        }
+        other => panic!("expected a timeout, got {other:?}"),
+    }
+    assert_eq!(next(&mut slow).await.unwrap().value, msg(2));
+    assert_eq!(next(&mut slow).await.unwrap().value, msg(3));
+    a.publish("acked", &msg(4)).timeout(T).await.unwrap();
+    assert_eq!(next(&mut slow).await.unwrap().value, msg(4));
+}
+
+#[tokio::test]
+async fn publishing_without_a_publication_is_a_clear_error() {
+    let a = session(155, "a").await;
+    let e = a.publish("nowhere", &msg(0)).await.unwrap_err();
+    assert!(e.to_string().contains("nowhere has no publication"), "{e}");
+    let e = a.set_capacity(1).await.unwrap_err();
+    assert!(e.to_string().contains("no DDS equivalent"), "{e}");
+}
+
+#[tokio::test]
+async fn pattern_subscription_sees_matching_topics_with_their_types() {
+    let a = session(156, "a").await;
+    let b = session(156, "b").await;
+    let mut pat = b
+        .subscribe_pattern("sensor/*", "courier::test::*")
+        .await
+        .unwrap();
+    a.define::<Msg>("sensor/left").await.unwrap();
+    a.define::<Keyed>("sensor/right").await.unwrap();
+    a.define::<Msg>("actuator/arm").await.unwrap();
+    await_handlers(&a, "sensor/left", 1).await;
+    await_handlers(&a, "sensor/right", 1).await;
+    a.publish("actuator/arm", &msg(9)).await.unwrap();
+    a.publish("sensor/left", &msg(1)).await.unwrap();
+    a.publish(
+        "sensor/right",
+        &Keyed {
+            id: 4,
+            seq: 2,
+            text: "r".into(),
+        },
+    )
+    .await
+    .unwrap();
+    let mut seen = Vec::new();
+    for _ in 0..2 {
+        let s = tokio::time::timeout(T, pat.recv()).await.unwrap().unwrap();
+        seen.push((s.msg.clone(), s.type_name.clone().unwrap()));
+        if s.msg == "sensor/left" {
+            let v: Msg = courier::cdr::from_slice(&s.data).unwrap();
+            assert_eq!(v, msg(1));
+        }
+    }
+    seen.sort();
+    assert_eq!(
+        seen,
+        [
+            ("sensor/left".to_string(), "courier::test::Msg".to_string()),
+            (
+                "sensor/right".to_string(),
+                "courier::test::Keyed".to_string()
+            )
+        ]
+    );
+    assert_eq!(a.num_handlers("actuator/arm").await.unwrap(), 0);
+}
+
+#[tokio::test]
+async fn discovery_events_found_and_lost() {
+    let a = session(157, "watcher").await;
+    let mut ev = a.events();
+    let b = session(157, "robot-7").await;
+    b.define::<Msg>("odom").await.unwrap();
+    let mut found_participant = false;
+    let mut found_publication = false;
+    tokio::time::timeout(T, async {
+        while !(found_participant && found_publication) {
+            match ev.next().await.unwrap() {
+                SessionEvent::ParticipantFound(p) => {
+                    found_participant |= p.entity_name.as_deref() == Some("robot-7")
+                }
+                SessionEvent::PublicationFound(e) => {
+                    found_publication |=
+                        e.topic_name == "odom" && e.type_name == "courier::test::Msg"
+                }
+                _ => {}
+            }
+        }
+    })
+    .await
+    .expect("participant and publication found");
+    assert!(a.is_module_connected("robot-7").await.unwrap());
+    b.close().await;
+    tokio::time::timeout(T, async {
+        loop {
+            if let SessionEvent::ParticipantLost { disposed, .. } = ev.next().await.unwrap() {
+                assert!(disposed, "a clean close says goodbye");
+                break;
+            }
+        }
+    })
+    .await
+    .expect("participant lost");
+    assert!(!a.is_module_connected("robot-7").await.unwrap());
+}
+
+#[tokio::test]
+async fn a_silent_participant_is_lost_when_its_lease_expires() {
+    use courier::rtps::participant::{guid_prefix, Config, Participant};
+    use std::time::{Instant, SystemTime};
+    let a = session(158, "watcher").await;
+    let mut ev = a.events();
+    // a participant that announces itself once, with a 500 ms lease, and
+    // then falls silent (no goodbye): driven by hand from the wire crate
+    let prefix = guid_prefix([7; 10]);
+    let mut cfg = Config::udpv4(158, 15, prefix, [127, 0, 0, 1])
+        .unwrap()
+        .with_unicast_peers(&[[127, 0, 0, 1]], 5);
+    cfg.lease_duration = Duration::from_millis(500);
+    cfg.entity_name = Some("ghost".into());
+    let mut ghost = Participant::new(cfg, Instant::now(), SystemTime::now());
+    let sock = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    while let Some(d) = ghost.poll_transmit() {
+        let to = d.destination.socket_addr().unwrap();
+        assert!(to.ip().is_loopback());
+        let _ = sock.send_to(&d.payload, to);
+    }
+    let found = tokio::time::timeout(T, async {
+        loop {
+            if let SessionEvent::ParticipantFound(p) = ev.next().await.unwrap() {
+                if p.guid_prefix == prefix {
+                    return Instant::now();
+                }
+            }
+        }
+    })
+    .await
+    .expect("the ghost is found");
+    assert!(a.is_module_connected("ghost").await.unwrap());
+    tokio::time::timeout(T, async {
+        loop {
+            if let SessionEvent::ParticipantLost {
+                guid_prefix,
+                disposed,
+            } = ev.next().await.unwrap()
+            {
+                if guid_prefix == prefix {
+                    assert!(!disposed, "it went silent, it did not say goodbye");
+                    break;
+                }
+            }
+        }
+    })
+    .await
+    .expect("the ghost's lease expires");
+    assert!(
+        found.elapsed() >= Duration::from_millis(400),
+        "not before its lease"
+    );
+    assert!(!a.is_module_connected("ghost").await.unwrap());
+}
+
+#[tokio::test]
+async fn exclusive_ownership_takes_the_strongest_writer() {
+    let a = session(159, "weak").await;
+    let b = session(159, "strong").await;
+    let c = session(159, "reader").await;
+    let weak = a.publisher::<Msg>("cmd").strength(1).build().await.unwrap();
+    let strong = b.publisher::<Msg>("cmd").strength(5).build().await.unwrap();
+    let mut sub = c
+        .subscriber::<Msg>("cmd")
+        .exclusive()
+        .build()
+        .await
+        .unwrap();
+    await_handlers(&a, "cmd", 1).await;
+    await_handlers(&b, "cmd", 1).await;
+    strong.publish(&msg(100)).confirmed().await.unwrap();
+    weak.publish(&msg(1)).confirmed().await.unwrap();
+    strong.publish(&msg(101)).confirmed().await.unwrap();
+    assert_eq!(next(&mut sub).await.unwrap().value, msg(100));
+    assert_eq!(next(&mut sub).await.unwrap().value, msg(101));
+    assert!(
+        sub.try_next().is_none(),
+        "the weak writer's sample was not taken"
+    );
+    // the strong writer goes away: the weak one takes over
+    b.close().await;
+    tokio::time::timeout(T, async {
+        while c.num_handlers("cmd").await.unwrap() > 1 {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    })
+    .await
+    .unwrap();
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    weak.publish(&msg(2)).confirmed().await.unwrap();
+    assert_eq!(next(&mut sub).await.unwrap().value, msg(2));
+}
+
+#[tokio::test]
+async fn deadline_misses_are_events() {
+    let a = session(160, "a").await;
+    let b = session(160, "b").await;
+    // the writer must promise at least as often as the reader asks
+    let p = a
+        .publisher::<Msg>("beat")
+        .deadline(Duration::from_millis(100))
+        .build()
+        .await
+        .unwrap();
+    let mut ev = b.events();
+    let mut sub = b
+        .subscriber::<Msg>("beat")
+        .deadline(Duration::from_millis(150))
+        .build()
+        .await
+        .unwrap();
+    await_handlers(&a, "beat", 1).await;
+    p.publish(&msg(0)).await.unwrap();
+    next(&mut sub).await.unwrap();
+    // then silence: a miss every 150 ms
+    let total = tokio::time::timeout(T, async {
+        loop {
+            if let SessionEvent::DeadlineMissed { msg, total } = ev.next().await.unwrap() {
+                assert_eq!(msg, "beat");
+                if total >= 2 {
+                    break total;
+                }
+            }
+        }
+    })
+    .await
+    .unwrap();
+    assert!(total >= 2);
+}
+
+#[tokio::test]
+async fn minimum_separation_drops_and_counts() {
+    let a = session(161, "a").await;
+    let b = session(161, "b").await;
+    let p = a.publisher::<Msg>("fast").build().await.unwrap();
+    let mut sub = b
+        .subscriber::<Msg>("fast")
+        .minimum_separation(Duration::from_secs(30))
+        .build()
+        .await
+        .unwrap();
+    await_handlers(&a, "fast", 1).await;
+    for i in 0..10 {
+        p.publish(&msg(i)).confirmed().await.unwrap();
+    }
+    assert_eq!(next(&mut sub).await.unwrap().value, msg(0));
+    assert!(sub.try_next().is_none());
+    assert_eq!(sub.dropped(), 9);
+}
+
+#[tokio::test]
+async fn send_every_publishes_from_a_timer_callback() {
+    let a = session(162, "a").await;
+    let b = session(162, "b").await;
+    let p = a.publisher::<Msg>("tick").build().await.unwrap();
+    let mut sub = b.subscribe::<Msg>("tick").await.unwrap();
+    await_handlers(&a, "tick", 1).await;
+    let mut n = 0;
+    let job = p.send_every(Duration::from_millis(10), move |_tick| {
+        n += 1;
+        (n <= 3).then(|| msg(n))
+    });
+    for i in 1..=3 {
+        assert_eq!(next(&mut sub).await.unwrap().value, msg(i));
+    }
+    job.stop().await.unwrap();
+}
+
+#[tokio::test]
+async fn slow_keep_all_subscriber_loses_nothing() {
+    let a = session(163, "a").await;
+    let b = session(163, "b").await;
+    let p = a.publisher::<Msg>("flood").build().await.unwrap();
+    let mut sub = b
+        .subscriber::<Msg>("flood")
+        .queue(courier::QueuePolicy::KeepAll(8))
+        .build()
+        .await
+        .unwrap();
+    await_handlers(&a, "flood", 1).await;
+    let n = 3000u32;
+    let writer = tokio::spawn(async move {
+        for i in 0..n {
+            p.publish(&Msg {
+                seq: i,
+                text: String::new(),
+                n: 1000,
+                payload: vec![0; 1000],
+            })
+            .await
+            .unwrap();
+        }
+        p
+    });
+    for i in 0..n {
+        let s = next(&mut sub).await.unwrap();
+        assert_eq!(s.value.seq, i);
+        if i % 500 == 0 {
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    }
+    writer.await.unwrap();
+    assert_eq!(sub.dropped(), 0);
+}
+
+#[tokio::test]
+async fn bad_urls_and_interfaces_are_clear_errors() {
+    let e = Session::builder("rtps://0?interface=nosuchif0&peers=127.0.0.1")
+        .connect()
+        .await
+        .unwrap_err();
+    assert!(matches!(e, ConnectError::Network { .. }), "{e}");
+    assert!(e.to_string().contains("nosuchif0"), "{e}");
+    let e = Session::builder("rtps://999").connect().await.unwrap_err();
+    assert!(e.to_string().contains("232"), "{e}");
+    let e = Session::builder("rtps://0?peers=banana")
+        .connect()
+        .await
+        .unwrap_err();
+    assert!(e.to_string().contains("banana"), "{e}");
+}
