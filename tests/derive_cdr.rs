@@ -476,3 +476,38 @@ fn generics() {
         items: vec![Mode::Idle, Mode::Stop, Mode::Run],
     });
 }
+
+/// A `Vec` without `len` is a DDS `sequence<T>` (IDL `struct Msg { unsigned
+/// long seq; string text; sequence<octet> payload; }`), as ROS 2 and the
+/// RTPS interop peers use it. It has no C IPC form: its format names count
+/// field 0, which the IPC format parser refuses with a clear error.
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "courier::test::Msg")]
+struct SeqMsg {
+    seq: u32,
+    text: String,
+    payload: Vec<u8>,
+}
+
+#[test]
+fn vec_without_len_is_a_cdr_sequence() {
+    let m = SeqMsg {
+        seq: 7,
+        text: "hi".into(),
+        payload: vec![1, 2, 3],
+    };
+    let b = cdr::to_vec(&m, cdr::Encoding::Xcdr1Le);
+    #[rustfmt::skip]
+    let want = [
+        0, 1, 0, 0, // CDR_LE
+        7, 0, 0, 0, // seq
+        3, 0, 0, 0, b'h', b'i', 0, // text with NUL
+        0, // pad to 4
+        3, 0, 0, 0, 1, 2, 3, // sequence<octet>
+    ];
+    assert_eq!(b, want);
+    assert_eq!(cdr::from_slice::<SeqMsg>(&b).unwrap(), m);
+    assert_eq!(SeqMsg::FORMAT, "{uint, string, <ubyte:0>}");
+    let e = courier::format::parse(SeqMsg::FORMAT).unwrap_err();
+    assert!(e.to_string().contains("dimension 0"), "{e}");
+}

@@ -372,12 +372,8 @@ fn field_kind<'a>(
         match elem {
             Some(elem) => {
                 check_type(cx, input, elem);
-                if attrs.len.is_none() {
-                    cx.error_spanned_by(
-                        ty,
-                        "a `Vec` field is an IPC variable array `<T:k>` whose length lives in another field: add `#[ipc(len = \"count\")]` naming an integer field of this struct",
-                    );
-                }
+                // without `len`: a DDS `sequence<T>` (CDR only: its IPC
+                // format `<T:0>` names no count field, so IPC refuses it)
                 kind = Kind::Vec { elem, len: None };
             }
             None => cx.error_spanned_by(ty, "`Vec` needs its element type"),

@@ -287,8 +287,11 @@ fn expand_struct(c: &Container<'_>, fields: &[Field<'_>]) -> TokenStream {
             }
             Kind::Vec { elem, len } => {
                 let n = len_var(i);
-                ipc_enc
-                    .push(quote!(__wire::__private::ipc_encode_vec::<#elem>(&self.#m[..#n], __w);));
+                ipc_enc.push(if len.is_some() {
+                    quote!(__wire::__private::ipc_encode_vec::<#elem>(&self.#m[..#n], __w);)
+                } else {
+                    quote!(__wire::__private::ipc_encode_vec::<#elem>(&self.#m[..], __w);)
+                });
                 match len {
                     Some(j) if *j < i => {
                         let cv = var(*j);
@@ -328,9 +331,12 @@ fn expand_struct(c: &Container<'_>, fields: &[Field<'_>]) -> TokenStream {
         match &f.kind {
             Kind::Plain | Kind::SelfPtr => quote!(__wire::IpcMessage::cdr_encode(&self.#m, __w);),
             Kind::Char => quote!(__w.write_u8(self.#m);),
-            Kind::Vec { elem, .. } => {
+            Kind::Vec { elem, len: Some(_) } => {
                 let n = len_var(i);
                 quote!(__wire::__private::cdr_encode_seq::<#elem>(&self.#m[..#n], __w);)
+            }
+            Kind::Vec { elem, len: None } => {
+                quote!(__wire::__private::cdr_encode_seq::<#elem>(&self.#m[..], __w);)
             }
         }
     };

@@ -17,8 +17,6 @@ const T: Duration = Duration::from_secs(20);
 struct Msg {
     seq: u32,
     text: String,
-    n: u32,
-    #[ipc(len = "n")]
     payload: Vec<u8>,
 }
 
@@ -46,7 +44,6 @@ fn msg(seq: u32) -> Msg {
     Msg {
         seq,
         text: format!("hello {seq}"),
-        n: 0,
         payload: Vec::new(),
     }
 }
@@ -116,7 +113,6 @@ async fn fragmented_200_kib_sample_both_reliabilities() {
     let m = Msg {
         seq: 1,
         text: "big".into(),
-        n: payload.len() as u32,
         payload,
     };
     p.publish(&m).await.unwrap();
@@ -525,7 +521,6 @@ async fn slow_keep_all_subscriber_loses_nothing() {
             p.publish(&Msg {
                 seq: i,
                 text: String::new(),
-                n: 1000,
                 payload: vec![0; 1000],
             })
             .await

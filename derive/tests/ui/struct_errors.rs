@@ -3,12 +3,6 @@ use std::collections::HashMap;
 use courier_derive::IpcMessage;
 
 #[derive(IpcMessage)]
-struct VecWithoutLen {
-    count: i32,
-    items: Vec<f64>,
-}
-
-#[derive(IpcMessage)]
 struct BadLen {
     count: i32,
     name: String,
