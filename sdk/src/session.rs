@@ -1208,7 +1208,15 @@ impl<T: IpcMessage> Publisher<T> {
                 T::TYPE_NAME
             )));
         }
-        let key = cdr::key_to_vec(value, cdr::Encoding::Xcdr1Le);
+        // A key that always fits in the key hash travels only as the inline
+        // KEY_HASH (as Fast DDS sends it, and the only form Fast DDS 2.9
+        // acts on); a longer key also as the serialized key (K flag), which
+        // Cyclone needs to find the instance behind an MD5 hash.
+        let key = if T::CDR_KEY_BOUNDED {
+            Vec::new()
+        } else {
+            cdr::key_to_vec(value, cdr::Encoding::Xcdr1Le)
+        };
         let hash = crate::rtps_backend::key_hash_of(value);
         self.session
             .backend

@@ -151,8 +151,8 @@ async fn keyed_topic_dispose_reaches_the_subscriber() {
             let mut want = [0u8; 16];
             want[3] = 1;
             assert_eq!(key_hash, Some(want));
-            // the serialized key: XCDR1 LE header and the id
-            assert_eq!(key, [0, 1, 0, 0, 1, 0, 0, 0]);
+            // a key that fits in the key hash travels only as the hash
+            assert!(key.is_empty(), "{key:?}");
         }
         other => panic!("expected a dispose, got {other:?}"),
     }

@@ -1,0 +1,1266 @@
+// fastdds_peer: a Fast DDS 2.9 publisher/subscriber that Courier's interop
+// tests run against Courier's own RTPS backend.
+//
+// Loopback only: the participant QoS is built here and nowhere else (no XML
+// profiles, no environment): a single UDPv4 transport whitelisted to
+// 127.0.0.1, no built-in transports (so no shared memory), metatraffic and
+// user unicast locators on 127.0.0.1, no multicast locators, unicast SPDP to
+// the initial peer 127.0.0.1. The profile/discovery-server environment
+// variables Fast DDS would otherwise read are removed before Fast DDS starts.
+//
+// The two IDL types (types.idl) are written by hand as TopicDataType
+// subclasses serialized with Fast CDR as plain CDR (XCDR1), as Fast DDS 2.9
+// does; there is no fastddsgen here.
+//
+// Command line and output: see usage() and tests/peers/rtps/README.md; the
+// same as cyclone_peer.c.
+//
+// Build (tests/src/peers.rs does this):
+//   c++ -std=c++17 -O2 fastdds_peer.cpp -lfastrtps -lfastcdr -pthread
+
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdarg>
+#include <cstdint>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <unistd.h>
+
+#include <fastcdr/Cdr.h>
+#include <fastcdr/FastBuffer.h>
+#include <fastcdr/exceptions/Exception.h>
+#include <fastdds/dds/domain/DomainParticipant.hpp>
+#include <fastdds/dds/domain/DomainParticipantFactory.hpp>
+#include <fastdds/dds/common/InstanceHandle.hpp>
+#include <fastdds/dds/domain/qos/DomainParticipantQos.hpp>
+#include <fastdds/dds/log/Log.hpp>
+#include <fastdds/dds/log/StdoutErrConsumer.hpp>
+#include <fastdds/dds/publisher/DataWriter.hpp>
+#include <fastdds/dds/publisher/DataWriterListener.hpp>
+#include <fastdds/dds/publisher/Publisher.hpp>
+#include <fastdds/dds/publisher/qos/DataWriterQos.hpp>
+#include <fastdds/dds/subscriber/DataReader.hpp>
+#include <fastdds/dds/subscriber/DataReaderListener.hpp>
+#include <fastdds/dds/subscriber/SampleInfo.hpp>
+#include <fastdds/dds/subscriber/Subscriber.hpp>
+#include <fastdds/dds/subscriber/qos/DataReaderQos.hpp>
+#include <fastdds/dds/topic/Topic.hpp>
+#include <fastdds/dds/topic/TopicDataType.hpp>
+#include <fastdds/dds/topic/TypeSupport.hpp>
+#include <fastdds/rtps/common/Locator.h>
+#include <fastdds/rtps/common/SerializedPayload.h>
+#include <fastdds/rtps/transport/UDPv4TransportDescriptor.h>
+#include <fastrtps/utils/IPLocator.h>
+#include <fastrtps/utils/md5.h>
+
+namespace fdds = eprosima::fastdds::dds;
+namespace frtps = eprosima::fastrtps::rtps;
+namespace fcdr = eprosima::fastcdr;
+using eprosima::fastrtps::types::ReturnCode_t;
+
+namespace {
+
+constexpr int EXIT_RUNTIME = 1;
+constexpr int EXIT_TIMEOUT = 2;
+constexpr int EXIT_ORPHANED = 3;
+constexpr int EXIT_USAGE = 64;
+constexpr long MAX_DOMAIN = 232; // 7400 + 250 * d + 61 must stay below 65536
+constexpr const char* PROG = "fastdds_peer";
+
+// ---- the two IDL types ----
+
+struct Msg
+{
+    uint32_t seq = 0;
+    std::string text;
+    std::vector<uint8_t> payload;
+};
+
+struct Keyed
+{
+    int32_t id = 0;
+    uint32_t seq = 0;
+    std::string text;
+};
+
+// Size of plain CDR data, with alignment relative to the first byte after the
+// 4-byte encapsulation header.
+struct CdrSize
+{
+    size_t n = 0;
+
+    void align(size_t a)
+    {
+        n = (n + a - 1) / a * a;
+    }
+
+    void u32()
+    {
+        align(4);
+        n += 4;
+    }
+
+    void str(const std::string& s)
+    {
+        u32();
+        n += s.size() + 1;
+    }
+
+    void octets(const std::vector<uint8_t>& v)
+    {
+        u32();
+        n += v.size();
+    }
+
+    uint32_t total() const
+    {
+        // encapsulation header + body + up to 3 bytes of final padding
+        return static_cast<uint32_t>(4 + n + 3);
+    }
+};
+
+void begin_serialize(fcdr::Cdr& ser, frtps::SerializedPayload_t* payload)
+{
+    payload->encapsulation =
+            ser.endianness() == fcdr::Cdr::BIG_ENDIANNESS ? CDR_BE : CDR_LE;
+    ser.serialize_encapsulation();
+}
+
+void begin_deserialize(fcdr::Cdr& de, frtps::SerializedPayload_t* payload)
+{
+    de.read_encapsulation();
+    payload->encapsulation =
+            de.endianness() == fcdr::Cdr::BIG_ENDIANNESS ? CDR_BE : CDR_LE;
+}
+
+class MsgType : public fdds::TopicDataType
+{
+public:
+
+    MsgType()
+    {
+        setName("courier::test::Msg");
+        m_typeSize = 4 + 4 + 4 + 256 + 4 + 1024; // a first guess; payloads grow as needed
+        m_isGetKeyDefined = false;
+        auto_fill_type_object(false);
+        auto_fill_type_information(false);
+    }
+
+    bool serialize(void* data, frtps::SerializedPayload_t* payload) override
+    {
+        const Msg* m = static_cast<const Msg*>(data);
+        fcdr::FastBuffer buf(reinterpret_cast<char*>(payload->data), payload->max_size);
+        fcdr::Cdr ser(buf, fcdr::Cdr::DEFAULT_ENDIAN, fcdr::Cdr::DDS_CDR);
+        try
+        {
+            begin_serialize(ser, payload);
+            ser.serialize(m->seq);
+            ser.serialize(m->text);
+            ser.serialize(m->payload);
+        }
+        catch (fcdr::exception::Exception& e)
+        {
+            std::fprintf(stderr, "%s: serialize Msg: %s\n", PROG, e.what());
+            return false;
+        }
+        payload->length = static_cast<uint32_t>(ser.getSerializedDataLength());
+        return true;
+    }
+
+    bool deserialize(frtps::SerializedPayload_t* payload, void* data) override
+    {
+        Msg* m = static_cast<Msg*>(data);
+        fcdr::FastBuffer buf(reinterpret_cast<char*>(payload->data), payload->length);
+        fcdr::Cdr de(buf, fcdr::Cdr::DEFAULT_ENDIAN, fcdr::Cdr::DDS_CDR);
+        try
+        {
+            begin_deserialize(de, payload);
+            de.deserialize(m->seq);
+            de.deserialize(m->text);
+            de.deserialize(m->payload);
+        }
+        catch (fcdr::exception::Exception& e)
+        {
+            std::fprintf(stderr, "%s: deserialize Msg (%u bytes): %s\n", PROG, payload->length,
+                    e.what());
+            return false;
+        }
+        return true;
+    }
+
+    std::function<uint32_t()> getSerializedSizeProvider(void* data) override
+    {
+        return [data]() -> uint32_t
+               {
+                   const Msg* m = static_cast<const Msg*>(data);
+                   CdrSize s;
+                   s.u32();
+                   s.str(m->text);
+                   s.octets(m->payload);
+                   return s.total();
+               };
+    }
+
+    void* createData() override
+    {
+        return new Msg();
+    }
+
+    void deleteData(void* data) override
+    {
+        delete static_cast<Msg*>(data);
+    }
+
+    bool getKey(void*, frtps::InstanceHandle_t*, bool) override
+    {
+        return false;
+    }
+
+};
+
+class KeyedType : public fdds::TopicDataType
+{
+public:
+
+    KeyedType()
+    {
+        setName("courier::test::Keyed");
+        m_typeSize = 4 + 4 + 4 + 4 + 256;
+        m_isGetKeyDefined = true;
+        auto_fill_type_object(false);
+        auto_fill_type_information(false);
+    }
+
+    bool serialize(void* data, frtps::SerializedPayload_t* payload) override
+    {
+        const Keyed* k = static_cast<const Keyed*>(data);
+        fcdr::FastBuffer buf(reinterpret_cast<char*>(payload->data), payload->max_size);
+        fcdr::Cdr ser(buf, fcdr::Cdr::DEFAULT_ENDIAN, fcdr::Cdr::DDS_CDR);
+        try
+        {
+            begin_serialize(ser, payload);
+            ser.serialize(k->id);
+            ser.serialize(k->seq);
+            ser.serialize(k->text);
+        }
+        catch (fcdr::exception::Exception& e)
+        {
+            std::fprintf(stderr, "%s: serialize Keyed: %s\n", PROG, e.what());
+            return false;
+        }
+        payload->length = static_cast<uint32_t>(ser.getSerializedDataLength());
+        return true;
+    }
+
+    // Also accepts a key-only payload (just `id`), which is what a dispose or
+    // unregister DATA with a serialized key carries.
+    bool deserialize(frtps::SerializedPayload_t* payload, void* data) override
+    {
+        Keyed* k = static_cast<Keyed*>(data);
+        fcdr::FastBuffer buf(reinterpret_cast<char*>(payload->data), payload->length);
+        fcdr::Cdr de(buf, fcdr::Cdr::DEFAULT_ENDIAN, fcdr::Cdr::DDS_CDR);
+        try
+        {
+            begin_deserialize(de, payload);
+            de.deserialize(k->id);
+            k->seq = 0;
+            k->text.clear();
+            size_t used = static_cast<size_t>(de.getCurrentPosition() - de.getBufferPointer());
+            if (used + 4 > payload->length)
+            {
+                return true; // key only (at most padding follows)
+            }
+            de.deserialize(k->seq);
+            de.deserialize(k->text);
+        }
+        catch (fcdr::exception::Exception& e)
+        {
+            std::fprintf(stderr, "%s: deserialize Keyed (%u bytes): %s\n", PROG, payload->length,
+                    e.what());
+            return false;
+        }
+        return true;
+    }
+
+    std::function<uint32_t()> getSerializedSizeProvider(void* data) override
+    {
+        return [data]() -> uint32_t
+               {
+                   const Keyed* k = static_cast<const Keyed*>(data);
+                   CdrSize s;
+                   s.u32();
+                   s.u32();
+                   s.str(k->text);
+                   return s.total();
+               };
+    }
+
+    void* createData() override
+    {
+        return new Keyed();
+    }
+
+    void deleteData(void* data) override
+    {
+        delete static_cast<Keyed*>(data);
+    }
+
+    // The key hash (RTPS 9.6.3.8): the key members serialized as big-endian
+    // CDR; the key's maximum serialized size (4 bytes for one int32) is not
+    // over 16, so the hash is those bytes zero-padded to 16, unless MD5 is
+    // forced (secure key), then MD5 of the same bytes.
+    bool getKey(void* data, frtps::InstanceHandle_t* handle, bool force_md5) override
+    {
+        const Keyed* k = static_cast<const Keyed*>(data);
+        unsigned char key[4];
+        uint32_t u = static_cast<uint32_t>(k->id);
+        key[0] = static_cast<unsigned char>(u >> 24);
+        key[1] = static_cast<unsigned char>(u >> 16);
+        key[2] = static_cast<unsigned char>(u >> 8);
+        key[3] = static_cast<unsigned char>(u);
+        if (force_md5)
+        {
+            MD5 md5;
+            md5.init();
+            md5.update(key, sizeof key);
+            md5.finalize();
+            for (size_t i = 0; i < 16; i++)
+            {
+                handle->value[i] = md5.digest[i];
+            }
+        }
+        else
+        {
+            for (size_t i = 0; i < 16; i++)
+            {
+                handle->value[i] = i < sizeof key ? key[i] : 0;
+            }
+        }
+        return true;
+    }
+
+};
+
+// ---- options ----
+
+enum class Kind { None, Msg, Keyed };
+
+struct Options
+{
+    long domain = -1;
+    std::string topic;
+    Kind type = Kind::None;
+    int role = 0;        // 1 pub, 2 sub
+    int reliability = 0; // 1 reliable, 2 best effort
+    bool transient_local = false;
+    long depth = 10;
+    bool depth_set = false;
+    bool keep_all = false;
+    long count = 0;
+    bool count_set = false;
+    std::vector<long> sizes;
+    long period_ms = 0;
+    long dispose_every = 0;
+    long wait_match = 0;
+    long timeout_s = 60;
+    long linger_ms = 0;
+    long settle_ms = 250;
+    bool settle_set = false;
+    long keys = 0;
+    bool autodispose = true;
+    std::string text;
+    bool text_set = false;
+    std::string trace;
+};
+
+void usage(FILE* out)
+{
+    std::fprintf(out,
+            "usage: %s --domain N --topic NAME --type msg|keyed --pub|--sub\n"
+            "          --reliable|--best-effort [--transient-local]\n"
+            "          [--depth N (keep last, default 10) | --keep-all] [--count N]\n"
+            "          [--size BYTES[,BYTES...]] [--period-ms N] [--dispose-every N]\n"
+            "          [--wait-match N] [--settle-ms N] [--timeout-s N] [--linger-ms N]\n"
+            "          [--keys N] [--no-autodispose] [--text PREFIX] [--trace FILE]\n"
+            "Loopback only (UDPv4 on 127.0.0.1, unicast discovery, no shared memory).\n"
+            "Output lines: ready | matched <n> | sent <seq> | sent <id> <seq> | dispose <id>\n"
+            "  | acked | sample <seq> <text> <len> <fnv1a32> | sample <id> <seq> <text>\n"
+            "  | disposed <id> | unregistered <id> | done | timeout\n"
+            "Exit: 0 done, 1 DDS error, 2 timeout, 3 parent gone, 64 usage.\n",
+            PROG);
+}
+
+[[noreturn]] void usage_error(const char* fmt, ...)
+{
+    va_list ap;
+    std::fprintf(stderr, "%s: usage error: ", PROG);
+    va_start(ap, fmt);
+    std::vfprintf(stderr, fmt, ap);
+    va_end(ap);
+    std::fputc('\n', stderr);
+    usage(stderr);
+    std::exit(EXIT_USAGE);
+}
+
+[[noreturn]] void fail(const std::string& what)
+{
+    fdds::Log::Flush();
+    std::fprintf(stderr, "%s: error: %s\n", PROG, what.c_str());
+    std::fflush(stdout);
+    std::_Exit(EXIT_RUNTIME);
+}
+
+std::mutex out_mutex;
+
+void emit(const char* fmt, ...)
+{
+    std::lock_guard<std::mutex> lock(out_mutex);
+    va_list ap;
+    va_start(ap, fmt);
+    std::vfprintf(stdout, fmt, ap);
+    va_end(ap);
+    std::fputc('\n', stdout);
+    std::fflush(stdout);
+}
+
+long parse_num(const char* flag, const char* arg, long min, long max)
+{
+    if (arg == nullptr)
+    {
+        usage_error("%s needs a value", flag);
+    }
+    char* end = nullptr;
+    errno = 0;
+    long v = std::strtol(arg, &end, 10);
+    if (errno != 0 || end == arg || *end != '\0' || v < min || v > max)
+    {
+        usage_error("%s: '%s' is not an integer in %ld..%ld", flag, arg, min, max);
+    }
+    return v;
+}
+
+void parse_sizes(Options& o, const char* arg)
+{
+    if (arg == nullptr)
+    {
+        usage_error("--size needs a value");
+    }
+    std::string s(arg);
+    o.sizes.clear();
+    size_t pos = 0;
+    for (;;)
+    {
+        size_t comma = s.find(',', pos);
+        std::string item = s.substr(pos, comma == std::string::npos ? std::string::npos : comma - pos);
+        if (item.empty() || o.sizes.size() == 64)
+        {
+            usage_error("--size: bad list '%s'", arg);
+        }
+        o.sizes.push_back(parse_num("--size", item.c_str(), 0, 64L * 1024 * 1024));
+        if (comma == std::string::npos)
+        {
+            break;
+        }
+        pos = comma + 1;
+    }
+}
+
+Options parse_args(int argc, char** argv)
+{
+    Options o;
+    for (int i = 1; i < argc; i++)
+    {
+        std::string a = argv[i];
+        const char* v = (i + 1 < argc) ? argv[i + 1] : nullptr;
+        auto value = [&]() -> const char*
+                {
+                    i++;
+                    return v;
+                };
+        if (a == "--help" || a == "-h")
+        {
+            usage(stdout);
+            std::exit(0);
+        }
+        else if (a == "--domain")
+        {
+            o.domain = parse_num("--domain", value(), 0, MAX_DOMAIN);
+        }
+        else if (a == "--topic")
+        {
+            const char* t = value();
+            if (t == nullptr || *t == '\0')
+            {
+                usage_error("--topic needs a non-empty name");
+            }
+            o.topic = t;
+        }
+        else if (a == "--type")
+        {
+            const char* t = value();
+            if (t == nullptr)
+            {
+                usage_error("--type needs a value");
+            }
+            if (std::strcmp(t, "msg") == 0)
+            {
+                o.type = Kind::Msg;
+            }
+            else if (std::strcmp(t, "keyed") == 0)
+            {
+                o.type = Kind::Keyed;
+            }
+            else
+            {
+                usage_error("--type must be msg or keyed, not '%s'", t);
+            }
+        }
+        else if (a == "--pub" || a == "--sub")
+        {
+            int r = a == "--pub" ? 1 : 2;
+            if (o.role != 0 && o.role != r)
+            {
+                usage_error("--pub and --sub are exclusive");
+            }
+            o.role = r;
+        }
+        else if (a == "--reliable" || a == "--best-effort")
+        {
+            int r = a == "--reliable" ? 1 : 2;
+            if (o.reliability != 0 && o.reliability != r)
+            {
+                usage_error("--reliable and --best-effort are exclusive");
+            }
+            o.reliability = r;
+        }
+        else if (a == "--transient-local")
+        {
+            o.transient_local = true;
+        }
+        else if (a == "--depth")
+        {
+            o.depth = parse_num("--depth", value(), 1, 100000);
+            o.depth_set = true;
+        }
+        else if (a == "--keep-all")
+        {
+            o.keep_all = true;
+        }
+        else if (a == "--count")
+        {
+            o.count = parse_num("--count", value(), 0, INT32_MAX);
+            o.count_set = true;
+        }
+        else if (a == "--size")
+        {
+            parse_sizes(o, value());
+        }
+        else if (a == "--period-ms")
+        {
+            o.period_ms = parse_num("--period-ms", value(), 0, 3600000);
+        }
+        else if (a == "--dispose-every")
+        {
+            o.dispose_every = parse_num("--dispose-every", value(), 1, INT32_MAX);
+        }
+        else if (a == "--wait-match")
+        {
+            o.wait_match = parse_num("--wait-match", value(), 0, 1000);
+        }
+        else if (a == "--settle-ms")
+        {
+            o.settle_ms = parse_num("--settle-ms", value(), 0, 3600000);
+            o.settle_set = true;
+        }
+        else if (a == "--timeout-s")
+        {
+            o.timeout_s = parse_num("--timeout-s", value(), 1, 86400);
+        }
+        else if (a == "--linger-ms")
+        {
+            o.linger_ms = parse_num("--linger-ms", value(), 0, 3600000);
+        }
+        else if (a == "--keys")
+        {
+            o.keys = parse_num("--keys", value(), 1, INT32_MAX);
+        }
+        else if (a == "--no-autodispose")
+        {
+            o.autodispose = false;
+        }
+        else if (a == "--text")
+        {
+            const char* t = value();
+            if (t == nullptr)
+            {
+                usage_error("--text needs a value");
+            }
+            o.text = t;
+            o.text_set = true;
+        }
+        else if (a == "--trace")
+        {
+            const char* t = value();
+            if (t == nullptr || *t == '\0')
+            {
+                usage_error("--trace needs a file name");
+            }
+            o.trace = t;
+        }
+        else
+        {
+            usage_error("unknown argument '%s'", a.c_str());
+        }
+    }
+    if (o.domain < 0)
+    {
+        usage_error("--domain is required");
+    }
+    if (o.topic.empty())
+    {
+        usage_error("--topic is required");
+    }
+    if (o.type == Kind::None)
+    {
+        usage_error("--type is required");
+    }
+    if (o.role == 0)
+    {
+        usage_error("one of --pub or --sub is required");
+    }
+    if (o.reliability == 0)
+    {
+        usage_error("one of --reliable or --best-effort is required");
+    }
+    if (o.keep_all && o.depth_set)
+    {
+        usage_error("--depth and --keep-all are exclusive");
+    }
+    if (o.role == 2)
+    {
+        if (!o.sizes.empty() || o.period_ms || o.dispose_every || o.wait_match || o.linger_ms ||
+                o.settle_set || o.keys || o.text_set || !o.autodispose)
+        {
+            usage_error("--size, --period-ms, --dispose-every, --wait-match, --settle-ms, "
+                    "--linger-ms, --keys, --no-autodispose and --text are publisher options");
+        }
+    }
+    else if (!o.count_set)
+    {
+        o.count = 1;
+    }
+    if (o.type == Kind::Keyed && !o.sizes.empty())
+    {
+        usage_error("--size is for --type msg");
+    }
+    if (o.type == Kind::Msg && (o.dispose_every || o.keys || !o.autodispose))
+    {
+        usage_error("--dispose-every, --keys and --no-autodispose are for --type keyed");
+    }
+    if (o.sizes.empty())
+    {
+        o.sizes.push_back(0);
+    }
+    if (!o.text_set)
+    {
+        o.text = "fastdds";
+    }
+    return o;
+}
+
+// ---- time and lifetime ----
+
+const auto start_time = std::chrono::steady_clock::now();
+pid_t initial_ppid;
+long timeout_ms_total;
+
+int64_t elapsed_ms()
+{
+    return std::chrono::duration_cast<std::chrono::milliseconds>(
+        std::chrono::steady_clock::now() - start_time).count();
+}
+
+// Milliseconds left before --timeout-s; exits with 2 when none are left and
+// with 3 when the parent process has gone.
+int64_t remaining_ms()
+{
+    if (getppid() != initial_ppid)
+    {
+        std::fprintf(stderr, "%s: parent process gone, exiting\n", PROG);
+        std::_Exit(EXIT_ORPHANED);
+    }
+    int64_t left = timeout_ms_total - elapsed_ms();
+    if (left <= 0)
+    {
+        emit("timeout");
+        std::_Exit(EXIT_TIMEOUT);
+    }
+    return left;
+}
+
+// Wakes the main loop from Fast DDS's listener threads.
+struct Wakeup
+{
+    std::mutex m;
+    std::condition_variable cv;
+    bool flag = false;
+
+    void notify()
+    {
+        {
+            std::lock_guard<std::mutex> lock(m);
+            flag = true;
+        }
+        cv.notify_all();
+    }
+
+    // Waits for a notification, at most `ms` (bounded by 50 ms and the timeout).
+    void wait(int64_t ms)
+    {
+        int64_t left = remaining_ms();
+        if (ms > left)
+        {
+            ms = left;
+        }
+        if (ms > 50)
+        {
+            ms = 50;
+        }
+        std::unique_lock<std::mutex> lock(m);
+        cv.wait_for(lock, std::chrono::milliseconds(ms), [this]
+                {
+                    return flag;
+                });
+        flag = false;
+    }
+
+};
+
+Wakeup wakeup;
+
+class WriterListener : public fdds::DataWriterListener
+{
+public:
+
+    void on_publication_matched(fdds::DataWriter*, const fdds::PublicationMatchedStatus&) override
+    {
+        wakeup.notify();
+    }
+
+};
+
+class ReaderListener : public fdds::DataReaderListener
+{
+public:
+
+    void on_data_available(fdds::DataReader*) override
+    {
+        wakeup.notify();
+    }
+
+    void on_subscription_matched(fdds::DataReader*, const fdds::SubscriptionMatchedStatus&) override
+    {
+        wakeup.notify();
+    }
+
+};
+
+void sleep_ms(int64_t ms)
+{
+    int64_t until = elapsed_ms() + ms;
+    while (elapsed_ms() < until)
+    {
+        int64_t left = until - elapsed_ms();
+        std::this_thread::sleep_for(std::chrono::milliseconds(std::min<int64_t>(
+                    std::min<int64_t>(left, 50), remaining_ms())));
+    }
+    (void)remaining_ms();
+}
+
+// ---- payload and output helpers ----
+
+uint8_t payload_byte(size_t i, uint32_t seq)
+{
+    return static_cast<uint8_t>((i * 7u + seq) & 0xffu);
+}
+
+uint32_t fnv1a32(const std::vector<uint8_t>& v)
+{
+    uint32_t h = 0x811c9dc5u;
+    for (uint8_t b : v)
+    {
+        h ^= b;
+        h *= 0x01000193u;
+    }
+    return h;
+}
+
+// Text as one whitespace-free token: bytes outside 0x21..0x7e and the
+// characters % and " become %XX; the empty string is printed as "".
+std::string escape_text(const std::string& s)
+{
+    if (s.empty())
+    {
+        return "\"\"";
+    }
+    std::string out;
+    char hex[4];
+    for (unsigned char c : s)
+    {
+        if (c <= 0x20 || c >= 0x7f || c == '%' || c == '"')
+        {
+            std::snprintf(hex, sizeof hex, "%%%02X", c);
+            out += hex;
+        }
+        else
+        {
+            out += static_cast<char>(c);
+        }
+    }
+    return out;
+}
+
+std::string rc_name(const ReturnCode_t& rc)
+{
+    return "return code " + std::to_string(rc());
+}
+
+// ---- DDS setup ----
+
+void quiet_environment()
+{
+    // Anything that could give Fast DDS another configuration.
+    static const char* vars[] = {
+        "FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE", "ROS_DISCOVERY_SERVER",
+        "FASTDDS_ENVIRONMENT_FILE", "FASTDDS_STATISTICS",
+    };
+    for (const char* v : vars)
+    {
+        unsetenv(v);
+    }
+    // and no DEFAULT_FASTRTPS_PROFILES.xml from the working directory
+    setenv("SKIP_DEFAULT_XML_FILE", "1", 1);
+}
+
+fdds::DomainParticipantQos loopback_participant_qos()
+{
+    fdds::DomainParticipantQos qos; // built from scratch: no XML profile involved
+    qos.name("courier-fastdds-peer");
+
+    auto udp = std::make_shared<eprosima::fastdds::rtps::UDPv4TransportDescriptor>();
+    udp->interfaceWhiteList.clear();
+    udp->interfaceWhiteList.emplace_back("127.0.0.1");
+    // SPDP goes to the metatraffic ports of participant indices 0..range-1 on
+    // 127.0.0.1; Cyclone's config allows indices up to 20.
+    udp->maxInitialPeersRange = 21;
+    qos.transport().user_transports.clear();
+    qos.transport().user_transports.push_back(udp);
+    qos.transport().use_builtin_transports = false; // no SHM, no default UDP
+
+    frtps::Locator_t lo;
+    lo.kind = LOCATOR_KIND_UDPv4;
+    lo.port = 0; // 0: the well-known port for this domain and participant index
+    frtps::IPLocator::setIPv4(lo, 127, 0, 0, 1);
+
+    auto& wire = qos.wire_protocol();
+    wire.builtin.discovery_config.discoveryProtocol = frtps::DiscoveryProtocol_t::SIMPLE;
+    wire.builtin.metatrafficUnicastLocatorList.clear();
+    wire.builtin.metatrafficUnicastLocatorList.push_back(lo);
+    wire.builtin.metatrafficMulticastLocatorList.clear();
+    wire.builtin.initialPeersList.clear();
+    wire.builtin.initialPeersList.push_back(lo);
+    wire.default_unicast_locator_list.clear();
+    wire.default_unicast_locator_list.push_back(lo);
+    wire.default_multicast_locator_list.clear();
+    return qos;
+}
+
+template<typename Q>
+void apply_endpoint_qos(Q& q, const Options& o)
+{
+    q.reliability().kind = o.reliability == 1 ? fdds::RELIABLE_RELIABILITY_QOS :
+            fdds::BEST_EFFORT_RELIABILITY_QOS;
+    q.reliability().max_blocking_time = eprosima::fastrtps::Duration_t(1, 0);
+    q.durability().kind = o.transient_local ? fdds::TRANSIENT_LOCAL_DURABILITY_QOS :
+            fdds::VOLATILE_DURABILITY_QOS;
+    q.history().kind = o.keep_all ? fdds::KEEP_ALL_HISTORY_QOS : fdds::KEEP_LAST_HISTORY_QOS;
+    q.history().depth = o.keep_all ? 1 : static_cast<int32_t>(o.depth);
+    // Room for deep histories and many instances.
+    // (Fast DDS requires max_samples >= max_instances * max_samples_per_instance.)
+    auto& rl = q.resource_limits();
+    rl.max_instances = 1000;
+    rl.max_samples_per_instance = std::max<int32_t>(1000, static_cast<int32_t>(o.depth));
+    rl.max_samples = rl.max_instances * rl.max_samples_per_instance;
+    rl.allocated_samples = 100;
+}
+
+int32_t last_matched = 0;
+
+void report_matched(int32_t cur)
+{
+    if (cur != last_matched)
+    {
+        last_matched = cur;
+        emit("matched %d", cur);
+    }
+}
+
+void check_matched(fdds::DataWriter* w)
+{
+    fdds::PublicationMatchedStatus st;
+    ReturnCode_t rc = w->get_publication_matched_status(st);
+    if (rc != ReturnCode_t::RETCODE_OK)
+    {
+        fail("get_publication_matched_status: " + rc_name(rc));
+    }
+    report_matched(st.current_count);
+}
+
+void check_matched(fdds::DataReader* r)
+{
+    fdds::SubscriptionMatchedStatus st;
+    ReturnCode_t rc = r->get_subscription_matched_status(st);
+    if (rc != ReturnCode_t::RETCODE_OK)
+    {
+        fail("get_subscription_matched_status: " + rc_name(rc));
+    }
+    report_matched(st.current_count);
+}
+
+void write_retrying(fdds::DataWriter* w, void* sample)
+{
+    for (;;)
+    {
+        ReturnCode_t rc = w->write(sample, fdds::HANDLE_NIL);
+        if (rc == ReturnCode_t::RETCODE_OK)
+        {
+            return;
+        }
+        if (rc != ReturnCode_t::RETCODE_TIMEOUT && rc != ReturnCode_t::RETCODE_OUT_OF_RESOURCES)
+        {
+            fail("write: " + rc_name(rc));
+        }
+        (void)remaining_ms(); // history full (keep-all): again until --timeout-s
+    }
+}
+
+void run_pub(const Options& o, fdds::DataWriter* w)
+{
+    if (o.wait_match > 0)
+    {
+        while (last_matched < o.wait_match)
+        {
+            wakeup.wait(50);
+            check_matched(w);
+        }
+        sleep_ms(o.settle_ms);
+    }
+
+    Msg m;
+    Keyed k;
+    for (long n = 1; n <= o.count; n++)
+    {
+        uint32_t seq = static_cast<uint32_t>(n);
+        (void)remaining_ms();
+        check_matched(w);
+        std::string text = o.text + "-" + std::to_string(seq);
+        if (o.type == Kind::Msg)
+        {
+            size_t size = static_cast<size_t>(o.sizes[static_cast<size_t>(n - 1) % o.sizes.size()]);
+            m.seq = seq;
+            m.text = text;
+            m.payload.resize(size);
+            for (size_t i = 0; i < size; i++)
+            {
+                m.payload[i] = payload_byte(i, seq);
+            }
+            write_retrying(w, &m);
+            emit("sent %u", seq);
+        }
+        else
+        {
+            k.id = o.keys ? static_cast<int32_t>(n % o.keys) : static_cast<int32_t>(n);
+            k.seq = seq;
+            k.text = text;
+            write_retrying(w, &k);
+            emit("sent %d %u", k.id, seq);
+            if (o.dispose_every && n % o.dispose_every == 0)
+            {
+                ReturnCode_t rc = w->dispose(&k, fdds::HANDLE_NIL);
+                if (rc != ReturnCode_t::RETCODE_OK)
+                {
+                    fail("dispose: " + rc_name(rc));
+                }
+                emit("dispose %d", k.id);
+            }
+        }
+        if (o.period_ms && n < o.count)
+        {
+            sleep_ms(o.period_ms);
+        }
+    }
+
+    if (o.reliability == 1 && o.count > 0)
+    {
+        for (;;)
+        {
+            int64_t left = remaining_ms();
+            int64_t step = std::min<int64_t>(left, 100);
+            ReturnCode_t rc = w->wait_for_acknowledgments(eprosima::fastrtps::Duration_t(
+                        0, static_cast<uint32_t>(step * 1000000)));
+            if (rc == ReturnCode_t::RETCODE_OK)
+            {
+                emit("acked");
+                break;
+            }
+            // Fast DDS 2.9 reports a timeout here as RETCODE_ERROR, not
+            // RETCODE_TIMEOUT: both mean "not yet"; --timeout-s bounds the loop
+            if (rc != ReturnCode_t::RETCODE_TIMEOUT && rc != ReturnCode_t::RETCODE_ERROR)
+            {
+                fail("wait_for_acknowledgments: " + rc_name(rc));
+            }
+            check_matched(w);
+        }
+    }
+    if (o.linger_ms)
+    {
+        int64_t until = elapsed_ms() + o.linger_ms;
+        while (elapsed_ms() < until)
+        {
+            wakeup.wait(until - elapsed_ms());
+            check_matched(w);
+        }
+    }
+    emit("done");
+}
+
+// Reports a disposed/unregistered instance once per transition out of ALIVE.
+struct InstanceTracker
+{
+    std::map<frtps::InstanceHandle_t, int32_t> ids;
+    std::map<int32_t, fdds::InstanceStateKind> states;
+
+    void learn(const frtps::InstanceHandle_t& h, int32_t id)
+    {
+        ids[h] = id;
+    }
+
+    int32_t id_of(const frtps::InstanceHandle_t& h) const
+    {
+        auto it = ids.find(h);
+        if (it != ids.end())
+        {
+            return it->second;
+        }
+        // Not seen with data yet: the handle is the key hash, i.e. the id as
+        // big-endian bytes (see KeyedType::getKey).
+        return static_cast<int32_t>((static_cast<uint32_t>(h.value[0]) << 24) |
+                       (static_cast<uint32_t>(h.value[1]) << 16) |
+                       (static_cast<uint32_t>(h.value[2]) << 8) | h.value[3]);
+    }
+
+    void update(int32_t id, fdds::InstanceStateKind st)
+    {
+        auto it = states.find(id);
+        fdds::InstanceStateKind prev = it == states.end() ? fdds::ALIVE_INSTANCE_STATE : it->second;
+        states[id] = st;
+        if (st == prev)
+        {
+            return;
+        }
+        if (st == fdds::NOT_ALIVE_DISPOSED_INSTANCE_STATE)
+        {
+            emit("disposed %d", id);
+        }
+        else if (st == fdds::NOT_ALIVE_NO_WRITERS_INSTANCE_STATE)
+        {
+            emit("unregistered %d", id);
+        }
+    }
+
+};
+
+void run_sub(const Options& o, fdds::DataReader* r)
+{
+    long received = 0;
+    InstanceTracker tracker;
+    Msg m;
+    Keyed k;
+    for (;;)
+    {
+        (void)remaining_ms();
+        check_matched(r);
+        bool any = false;
+        for (;;)
+        {
+            fdds::SampleInfo info;
+            void* data = o.type == Kind::Msg ? static_cast<void*>(&m) : static_cast<void*>(&k);
+            ReturnCode_t rc = r->take_next_sample(data, &info);
+            if (rc == ReturnCode_t::RETCODE_NO_DATA)
+            {
+                break;
+            }
+            if (rc != ReturnCode_t::RETCODE_OK)
+            {
+                fail("take_next_sample: " + rc_name(rc));
+            }
+            any = true;
+            if (o.type == Kind::Msg)
+            {
+                if (info.valid_data)
+                {
+                    emit("sample %u %s %zu %08x", m.seq, escape_text(m.text).c_str(),
+                            m.payload.size(), fnv1a32(m.payload));
+                    received++;
+                }
+            }
+            else
+            {
+                int32_t id;
+                if (info.valid_data)
+                {
+                    emit("sample %d %u %s", k.id, k.seq, escape_text(k.text).c_str());
+                    received++;
+                    tracker.learn(info.instance_handle, k.id);
+                    id = k.id;
+                }
+                else
+                {
+                    id = tracker.id_of(info.instance_handle);
+                }
+                tracker.update(id, info.instance_state);
+            }
+            if (o.count_set && received >= o.count)
+            {
+                emit("done");
+                return;
+            }
+        }
+        if (o.count_set && received >= o.count)
+        {
+            emit("done");
+            return;
+        }
+        if (!any)
+        {
+            wakeup.wait(50);
+        }
+    }
+}
+
+} // namespace
+
+int main(int argc, char** argv)
+{
+    initial_ppid = getppid();
+    Options o = parse_args(argc, argv);
+    timeout_ms_total = o.timeout_s * 1000;
+    quiet_environment();
+
+    // Fast DDS logs to stdout by default: keep stdout for our lines only.
+    fdds::Log::ClearConsumers();
+    {
+        auto consumer = new fdds::StdoutErrConsumer();
+        consumer->stderr_threshold(fdds::Log::Kind::Info);
+        fdds::Log::RegisterConsumer(std::unique_ptr<fdds::LogConsumer>(consumer));
+    }
+    fdds::Log::SetVerbosity(o.trace.empty() ? fdds::Log::Kind::Warning : fdds::Log::Kind::Info);
+    if (!o.trace.empty())
+    {
+        std::fprintf(stderr, "%s: --trace: Fast DDS log goes to stderr (file %s unused)\n", PROG,
+                o.trace.c_str());
+    }
+
+    auto factory = fdds::DomainParticipantFactory::get_instance();
+    fdds::DomainParticipant* participant = factory->create_participant(
+        static_cast<fdds::DomainId_t>(o.domain), loopback_participant_qos());
+    if (participant == nullptr)
+    {
+        fail("create_participant failed");
+    }
+
+    fdds::TypeSupport type(o.type == Kind::Msg ? static_cast<fdds::TopicDataType*>(new MsgType()) :
+            static_cast<fdds::TopicDataType*>(new KeyedType()));
+    if (type.register_type(participant) != ReturnCode_t::RETCODE_OK)
+    {
+        fail("register_type failed");
+    }
+    fdds::Topic* topic = participant->create_topic(o.topic, type.get_type_name(), fdds::TopicQos());
+    if (topic == nullptr)
+    {
+        fail("create_topic failed");
+    }
+
+    WriterListener wlistener;
+    ReaderListener rlistener;
+    fdds::Publisher* publisher = nullptr;
+    fdds::Subscriber* subscriber = nullptr;
+    fdds::DataWriter* writer = nullptr;
+    fdds::DataReader* reader = nullptr;
+    if (o.role == 1)
+    {
+        publisher = participant->create_publisher(fdds::PublisherQos());
+        if (publisher == nullptr)
+        {
+            fail("create_publisher failed");
+        }
+        fdds::DataWriterQos wq;
+        apply_endpoint_qos(wq, o);
+        if (o.transient_local)
+        {
+            wq.durability_service().history_kind = wq.history().kind;
+            wq.durability_service().history_depth = wq.history().depth;
+        }
+        wq.writer_data_lifecycle().autodispose_unregistered_instances = o.autodispose;
+        writer = publisher->create_datawriter(topic, wq, &wlistener,
+                        fdds::StatusMask::publication_matched());
+        if (writer == nullptr)
+        {
+            fail("create_datawriter failed");
+        }
+    }
+    else
+    {
+        subscriber = participant->create_subscriber(fdds::SubscriberQos());
+        if (subscriber == nullptr)
+        {
+            fail("create_subscriber failed");
+        }
+        fdds::DataReaderQos rq;
+        apply_endpoint_qos(rq, o);
+        reader = subscriber->create_datareader(topic, rq, &rlistener,
+                        fdds::StatusMask::data_available() << fdds::StatusMask::subscription_matched());
+        if (reader == nullptr)
+        {
+            fail("create_datareader failed");
+        }
+    }
+
+    emit("ready");
+    if (writer != nullptr)
+    {
+        check_matched(writer);
+        run_pub(o, writer);
+    }
+    else
+    {
+        check_matched(reader);
+        run_sub(o, reader);
+    }
+
+    if (participant->delete_contained_entities() != ReturnCode_t::RETCODE_OK ||
+            factory->delete_participant(participant) != ReturnCode_t::RETCODE_OK)
+    {
+        fail("delete participant failed");
+    }
+    return 0;
+}
