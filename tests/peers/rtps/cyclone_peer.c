@@ -7,11 +7,11 @@
  * 127.0.0.1), passed to dds_create_domain(); CYCLONEDDS_URI is ignored and
  * unset. There is no way to run it with any other network configuration.
  *
- * Command line and output: see usage() and tests/peers/rtps/README.md. The
+ * Command line and output: see usage(). The
  * Fast DDS peer (fastdds_peer.cpp) takes the same flags and prints the same
  * lines.
  *
- * Build (tests/src/peers.rs does this): idlc -x final types.idl, then
+ * Build (sdk/tests/rtps_interop.rs does this): idlc -x final types.idl, then
  *   cc -std=gnu11 -O2 cyclone_peer.c types.c $(pkg-config --cflags --libs CycloneDDS)
  */
 #define _GNU_SOURCE

@@ -12,10 +12,10 @@
 // subclasses serialized with Fast CDR as plain CDR (XCDR1), as Fast DDS 2.9
 // does; there is no fastddsgen here.
 //
-// Command line and output: see usage() and tests/peers/rtps/README.md; the
+// Command line and output: see usage(); the
 // same as cyclone_peer.c.
 //
-// Build (tests/src/peers.rs does this):
+// Build (sdk/tests/rtps_interop.rs does this):
 //   c++ -std=c++17 -O2 fastdds_peer.cpp -lfastrtps -lfastcdr -pthread
 
 #include <atomic>
