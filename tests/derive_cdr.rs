@@ -504,7 +504,6 @@ fn vec_without_len_is_a_cdr_sequence() {
         3, 0, 0, 0, b'h', b'i', 0, // text with NUL
         0, // pad to 4
         3, 0, 0, 0, 1, 2, 3, // sequence<octet>
-        0, // body padded to a multiple of 4, as DDS writers do
     ];
     assert_eq!(b, want);
     assert_eq!(cdr::from_slice::<SeqMsg>(&b).unwrap(), m);

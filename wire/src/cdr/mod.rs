@@ -314,19 +314,11 @@ pub enum DecodeError {
     },
 }
 
-/// Serializes `value` with its encapsulation header, the body padded with
-/// zeros to a multiple of 4 bytes as Cyclone DDS and Fast DDS do (the
-/// padding is not recorded in the options field, as neither records it;
-/// Cyclone drops user DATA whose payload is not a multiple of 4).
+/// Serializes `value` with its encapsulation header.
 pub fn to_vec<T: IpcMessage>(value: &T, encoding: Encoding) -> Vec<u8> {
     let mut w = Writer::with_header(encoding, T::EXTENSIBILITY);
     value.cdr_encode(&mut w);
-    pad4(w.into_vec())
-}
-
-fn pad4(mut v: Vec<u8>) -> Vec<u8> {
-    v.resize(v.len().next_multiple_of(4), 0);
-    v
+    w.into_vec()
 }
 
 /// Serializes `value` without an encapsulation header (alignment origin at byte 0).
@@ -364,7 +356,7 @@ pub fn from_slice_headerless<T: IpcMessage>(
 pub fn key_to_vec<T: IpcMessage>(value: &T, encoding: Encoding) -> Vec<u8> {
     let mut w = Writer::with_header(encoding, T::EXTENSIBILITY);
     value.cdr_encode_key(&mut w);
-    pad4(w.into_vec())
+    w.into_vec()
 }
 
 /// Writes an optional value (an `@optional` member, `Option<Box<T>>`), as
