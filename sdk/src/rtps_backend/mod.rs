@@ -971,6 +971,11 @@ impl State {
                     ))));
                     return;
                 };
+                // the serialized payload goes out padded with zeros to a
+                // multiple of 4, as Cyclone DDS and Fast DDS send theirs;
+                // Cyclone 0.10 drops user DATA whose payload is not
+                let mut data = data;
+                data.resize(data.len().next_multiple_of(4), 0);
                 let pw = PendingWrite {
                     kind,
                     data,
