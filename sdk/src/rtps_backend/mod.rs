@@ -734,9 +734,28 @@ struct PendingWrite {
     reply: Reply<()>,
 }
 
+/// What a publication offers that a pattern reader must copy to match it.
+#[derive(Clone)]
+struct Offer {
+    keyed: bool,
+    exclusive: bool,
+    partitions: Vec<String>,
+}
+
+impl Offer {
+    fn of(e: &courier_wire::rtps::discovery::EndpointData) -> Self {
+        Offer {
+            keyed: is_keyed_entity(e.guid),
+            exclusive: e.qos.exclusive_ownership,
+            partitions: e.qos.partitions.clone(),
+        }
+    }
+}
+
 struct LocalWriter {
     guid: Guid,
     type_name: String,
+    offer: Offer,
     /// Writes waiting for room in a full keep-all history, in order.
     pending: VecDeque<PendingWrite>,
 }
@@ -1062,6 +1081,11 @@ impl State {
             LocalWriter {
                 guid,
                 type_name: ty.type_name.to_string(),
+                offer: Offer {
+                    keyed: ty.keyed,
+                    exclusive: qos.strength.is_some(),
+                    partitions: qos.partitions.clone(),
+                },
                 pending: VecDeque::new(),
             },
         );
@@ -1130,35 +1154,28 @@ impl State {
             readers: Vec::new(),
         });
         let idx = self.patterns.len() - 1;
-        let mut known: Vec<(String, String, bool)> = self
+        let mut known: Vec<(String, String, Offer)> = self
             .p
             .publications()
-            .map(|e| {
-                (
-                    e.topic_name.clone(),
-                    e.type_name.clone(),
-                    is_keyed_entity(e.guid),
-                )
-            })
+            .map(|e| (e.topic_name.clone(), e.type_name.clone(), Offer::of(e)))
             .collect();
-        for w in self.writers.iter() {
-            known.push((
-                w.0.clone(),
-                w.1.type_name.clone(),
-                is_keyed_entity(w.1.guid),
-            ));
+        for (t, w) in self.writers.iter() {
+            known.push((t.clone(), w.type_name.clone(), w.offer.clone()));
         }
-        for (t, ty, keyed) in known {
-            self.pattern_match(idx, &t, &ty, keyed, now);
+        for (t, ty, offer) in known {
+            self.pattern_match(idx, &t, &ty, &offer, now);
         }
     }
 
+    /// Creates the reader of pattern `idx` for a publication of `topic` if
+    /// it matches; the reader takes the publication's ownership kind and
+    /// partitions, which must be equal for DDS to match them.
     fn pattern_match(
         &mut self,
         idx: usize,
         topic: &str,
         type_name: &str,
-        keyed: bool,
+        offer: &Offer,
         now: Instant,
     ) {
         let pat = &self.patterns[idx];
@@ -1169,9 +1186,11 @@ impl State {
         if pat.have.contains(&key) {
             return;
         }
-        let (qos, queue) = (pat.qos.clone(), pat.queue.clone());
+        let (mut qos, queue) = (pat.qos.clone(), pat.queue.clone());
+        qos.exclusive_ownership = offer.exclusive;
+        qos.partitions = offer.partitions.clone();
         let sq = SubscriptionQos::default();
-        if let Ok(g) = self.create_reader(topic, type_name, keyed, qos, &sq, queue, now) {
+        if let Ok(g) = self.create_reader(topic, type_name, offer.keyed, qos, &sq, queue, now) {
             let pat = &mut self.patterns[idx];
             pat.have.insert(key);
             pat.readers.push(g);
@@ -1287,14 +1306,9 @@ impl State {
                         lifespan: d.qos.lifespan.to_std(),
                     },
                 );
+                let offer = Offer::of(&d);
                 for i in 0..self.patterns.len() {
-                    self.pattern_match(
-                        i,
-                        &d.topic_name,
-                        &d.type_name,
-                        is_keyed_entity(d.guid),
-                        now,
-                    );
+                    self.pattern_match(i, &d.topic_name, &d.type_name, &offer, now);
                 }
                 self.emit(SessionEvent::PublicationFound(Box::new(d)));
             }

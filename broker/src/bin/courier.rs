@@ -1,0 +1,543 @@
+//! `courier`: command-line tools over any session URL.
+//!
+//! - `courier ping <url> --publish|--subscribe …` — like ORTE's `orteping`:
+//!   publishes `courier::Ping` samples every period, or subscribes and
+//!   reports what arrives and every missed deadline;
+//! - `courier spy <url> …` — like ORTE's `ortespy`: prints every discovered
+//!   participant, publication and subscription with topic, type and QoS, and
+//!   every sample of the matching topics (decoded when the type is known,
+//!   hex otherwise).
+//!
+//! Output is one event per line, flushed, so that tests and scripts can
+//! read it. Exit codes: 0 done, 1 runtime error, 64 usage error.
+
+use std::io::Write;
+use std::process::ExitCode;
+use std::time::{Duration, Instant, SystemTime};
+
+use courier::rtps::discovery::{Durability, EndpointData, History, Reliability};
+use courier::{IpcMessage, RecvError, Session, SessionEvent};
+use futures::StreamExt;
+
+/// The sample `courier ping` sends (DDS type `courier::Ping`).
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "courier::Ping")]
+struct Ping {
+    seq: u32,
+    /// Nanoseconds since the Unix epoch when sent.
+    stamp_ns: u64,
+    text: String,
+}
+
+const USAGE: &str = "\
+usage: courier <command> <url> [options]
+
+commands:
+  ping <url> --publish|--subscribe   send or receive courier::Ping samples (like orteping)
+  spy <url>                          print discovery and samples (like ortespy)
+  help                               this text
+
+<url> is any session URL: rtps://<domain>?interface=lo&peers=127.0.0.1, ipc://host:port.
+`courier <command> --help` describes the command's options.";
+
+const PING_USAGE: &str = "\
+usage: courier ping <url> (--publish | --subscribe) [options]
+  --topic NAME         topic (default ping)
+  --period MS          publishing period (default 1000)
+  --count N            stop after N samples sent or received (default: run until Ctrl-C)
+  --size BYTES         text length of each sample (default 0)
+  --strength N         publication strength (exclusive ownership)
+  --deadline MS        publisher: offered deadline; subscriber: requested deadline,
+                       each miss prints `deadline missed <total>`
+  --min-separation MS  subscriber: minimum separation between samples
+  --best-effort | --reliable   reliability (default reliable)
+  --name NAME          participant / module name (default courier-ping)
+output: ready | matched <readers> | sent <seq> | received <seq> from <source> <bytes> B
+        | deadline missed <total> | done";
+
+const SPY_USAGE: &str = "\
+usage: courier spy <url> [options]
+  --topic PATTERN   fnmatch pattern of topics to print samples of (default *)
+  --type PATTERN    fnmatch pattern of type names (default *)
+  --count N         exit after N samples
+  --duration SECS   exit after this long
+  --name NAME       participant name (default courier-spy)
+output: participant found|changed <guid prefix> name=<name> unicast=<locators>
+        participant lost <guid prefix> goodbye|lease-expired
+        publication|subscription found|changed <guid> topic=<t> type=<t> <qos>
+        publication|subscription lost <guid>
+        sample <topic> <type> from <writer> <bytes> B: <decoded or hex>";
+
+/// A usage error: printed with the usage text, exit 64.
+struct Usage(String);
+
+fn out(line: impl std::fmt::Display) {
+    let mut o = std::io::stdout().lock();
+    let _ = writeln!(o, "{line}");
+    let _ = o.flush();
+}
+
+fn main() -> ExitCode {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let Some(cmd) = args.first() else {
+        eprintln!("courier: no command given\n{USAGE}");
+        return ExitCode::from(64);
+    };
+    let rest = &args[1..];
+    let run = match cmd.as_str() {
+        "help" | "--help" | "-h" => {
+            out(USAGE);
+            return ExitCode::SUCCESS;
+        }
+        "ping" => parse_ping(rest),
+        "spy" => parse_spy(rest),
+        other => Err(Usage(format!("unknown command {other:?}"))),
+    };
+    let cmd = match run {
+        Ok(Cmd::Help(text)) => {
+            out(text);
+            return ExitCode::SUCCESS;
+        }
+        Ok(c) => c,
+        Err(Usage(why)) => {
+            eprintln!("courier: {why}\n{}", usage_of(cmd));
+            return ExitCode::from(64);
+        }
+    };
+    let rt = match tokio::runtime::Runtime::new() {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("courier: cannot start the runtime: {e}");
+            return ExitCode::from(1);
+        }
+    };
+    let r = rt.block_on(async {
+        tokio::select! {
+            r = async {
+                match cmd {
+                    Cmd::Ping(o) => ping(o).await,
+                    Cmd::Spy(o) => spy(o).await,
+                    Cmd::Help(_) => Ok(()),
+                }
+            } => r,
+            _ = tokio::signal::ctrl_c() => Ok(()),
+        }
+    });
+    match r {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("courier: {e}");
+            ExitCode::from(1)
+        }
+    }
+}
+
+fn usage_of(cmd: &str) -> &'static str {
+    match cmd {
+        "ping" => PING_USAGE,
+        "spy" => SPY_USAGE,
+        _ => USAGE,
+    }
+}
+
+enum Cmd {
+    Ping(PingOpts),
+    Spy(SpyOpts),
+    Help(&'static str),
+}
+
+#[derive(Debug)]
+struct PingOpts {
+    url: String,
+    publish: bool,
+    topic: String,
+    period: Duration,
+    count: Option<u64>,
+    size: usize,
+    strength: Option<i32>,
+    deadline: Option<Duration>,
+    min_separation: Option<Duration>,
+    best_effort: bool,
+    name: String,
+}
+
+#[derive(Debug)]
+struct SpyOpts {
+    url: String,
+    topic: String,
+    type_name: String,
+    count: Option<u64>,
+    duration: Option<Duration>,
+    name: String,
+}
+
+/// Walks `--flag value` pairs.
+struct Args<'a> {
+    it: std::slice::Iter<'a, String>,
+}
+
+impl<'a> Args<'a> {
+    fn value(&mut self, flag: &str) -> Result<&'a str, Usage> {
+        self.it
+            .next()
+            .map(String::as_str)
+            .ok_or_else(|| Usage(format!("{flag} needs a value")))
+    }
+
+    fn num<T: std::str::FromStr>(&mut self, flag: &str) -> Result<T, Usage> {
+        let v = self.value(flag)?;
+        v.parse()
+            .map_err(|_| Usage(format!("{flag} {v:?}: not a valid number")))
+    }
+
+    fn millis(&mut self, flag: &str) -> Result<Duration, Usage> {
+        Ok(Duration::from_millis(self.num(flag)?))
+    }
+}
+
+fn parse_ping(a: &[String]) -> Result<Cmd, Usage> {
+    if a.iter().any(|s| s == "--help" || s == "-h") {
+        return Ok(Cmd::Help(PING_USAGE));
+    }
+    let mut o = PingOpts {
+        url: String::new(),
+        publish: false,
+        topic: "ping".into(),
+        period: Duration::from_secs(1),
+        count: None,
+        size: 0,
+        strength: None,
+        deadline: None,
+        min_separation: None,
+        best_effort: false,
+        name: "courier-ping".into(),
+    };
+    let (mut publish, mut subscribe) = (false, false);
+    let mut args = Args { it: a.iter() };
+    while let Some(arg) = args.it.next() {
+        match arg.as_str() {
+            "--publish" => publish = true,
+            "--subscribe" => subscribe = true,
+            "--topic" => o.topic = args.value(arg)?.into(),
+            "--period" => o.period = args.millis(arg)?,
+            "--count" => o.count = Some(args.num(arg)?),
+            "--size" => o.size = args.num(arg)?,
+            "--strength" => o.strength = Some(args.num(arg)?),
+            "--deadline" => o.deadline = Some(args.millis(arg)?),
+            "--min-separation" => o.min_separation = Some(args.millis(arg)?),
+            "--best-effort" => o.best_effort = true,
+            "--reliable" => o.best_effort = false,
+            "--name" => o.name = args.value(arg)?.into(),
+            f if f.starts_with('-') => return Err(Usage(format!("unknown option {f:?}"))),
+            url if o.url.is_empty() => o.url = url.into(),
+            extra => return Err(Usage(format!("unexpected argument {extra:?}"))),
+        }
+    }
+    if o.url.is_empty() {
+        return Err(Usage("no session URL given".into()));
+    }
+    match (publish, subscribe) {
+        (true, false) => o.publish = true,
+        (false, true) => o.publish = false,
+        _ => {
+            return Err(Usage(
+                "give exactly one of --publish and --subscribe".into(),
+            ))
+        }
+    }
+    if o.period.is_zero() {
+        return Err(Usage("--period must be at least 1 ms".into()));
+    }
+    Ok(Cmd::Ping(o))
+}
+
+fn parse_spy(a: &[String]) -> Result<Cmd, Usage> {
+    if a.iter().any(|s| s == "--help" || s == "-h") {
+        return Ok(Cmd::Help(SPY_USAGE));
+    }
+    let mut o = SpyOpts {
+        url: String::new(),
+        topic: "*".into(),
+        type_name: "*".into(),
+        count: None,
+        duration: None,
+        name: "courier-spy".into(),
+    };
+    let mut args = Args { it: a.iter() };
+    while let Some(arg) = args.it.next() {
+        match arg.as_str() {
+            "--topic" => o.topic = args.value(arg)?.into(),
+            "--type" => o.type_name = args.value(arg)?.into(),
+            "--count" => o.count = Some(args.num(arg)?),
+            "--duration" => o.duration = Some(Duration::from_secs(args.num(arg)?)),
+            "--name" => o.name = args.value(arg)?.into(),
+            f if f.starts_with('-') => return Err(Usage(format!("unknown option {f:?}"))),
+            url if o.url.is_empty() => o.url = url.into(),
+            extra => return Err(Usage(format!("unexpected argument {extra:?}"))),
+        }
+    }
+    if o.url.is_empty() {
+        return Err(Usage("no session URL given".into()));
+    }
+    Ok(Cmd::Spy(o))
+}
+
+type Error = Box<dyn std::error::Error>;
+
+fn now_ns() -> u64 {
+    SystemTime::now()
+        .duration_since(SystemTime::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+}
+
+async fn ping(o: PingOpts) -> Result<(), Error> {
+    let s = Session::builder(&o.url).name(&o.name).connect().await?;
+    let mut ev = s.events();
+    let r = if o.publish {
+        ping_publish(&s, &o, &mut ev).await
+    } else {
+        ping_subscribe(&s, &o, &mut ev).await
+    };
+    s.close().await;
+    r
+}
+
+async fn ping_publish(s: &Session, o: &PingOpts, ev: &mut courier::Events) -> Result<(), Error> {
+    let mut b = s.publisher::<Ping>(&o.topic);
+    if o.best_effort {
+        b = b.best_effort();
+    }
+    if let Some(n) = o.strength {
+        b = b.strength(n);
+    }
+    if let Some(d) = o.deadline {
+        b = b.deadline(d);
+    }
+    let p = b.build().await?;
+    s.watch_handlers(&o.topic).await?;
+    out("ready");
+    // readers already matched when the publication was created
+    let n = s.num_handlers(&o.topic).await?;
+    if n > 0 {
+        out(format_args!("matched {n}"));
+    }
+    let mut tick = tokio::time::interval(o.period);
+    let mut seq = 0u32;
+    loop {
+        tokio::select! {
+            _ = tick.tick() => {
+                seq = seq.wrapping_add(1);
+                let v = Ping { seq, stamp_ns: now_ns(), text: "x".repeat(o.size) };
+                p.publish(&v).await?;
+                out(format_args!("sent {seq}"));
+                if o.count.is_some_and(|n| u64::from(seq) >= n) {
+                    break;
+                }
+            }
+            Some(e) = ev.next() => {
+                if let SessionEvent::HandlersChanged { count, .. } = e {
+                    out(format_args!("matched {count}"));
+                }
+            }
+        }
+    }
+    out("done");
+    Ok(())
+}
+
+async fn ping_subscribe(s: &Session, o: &PingOpts, ev: &mut courier::Events) -> Result<(), Error> {
+    let mut b = s.subscriber::<Ping>(&o.topic);
+    if o.best_effort {
+        b = b.best_effort();
+    }
+    if let Some(d) = o.deadline {
+        b = b.deadline(d);
+    }
+    if let Some(d) = o.min_separation {
+        b = b.minimum_separation(d);
+    }
+    if o.strength.is_some() {
+        b = b.exclusive();
+    }
+    let mut sub = b.build().await?;
+    out("ready");
+    let mut n = 0u64;
+    loop {
+        tokio::select! {
+            r = sub.next() => match r {
+                None | Some(Err(RecvError::Disconnected)) => return Err("the session ended".into()),
+                Some(Ok(smp)) => {
+                    n += 1;
+                    out(format_args!(
+                        "received {} from {} {} B",
+                        smp.value.seq,
+                        smp.source.as_deref().unwrap_or("?"),
+                        smp.value.text.len()
+                    ));
+                    if o.count.is_some_and(|c| n >= c) {
+                        break;
+                    }
+                }
+                Some(Err(e)) => out(format_args!("issue: {e}")),
+            },
+            Some(e) = ev.next() => match e {
+                SessionEvent::DeadlineMissed { total, .. } => {
+                    out(format_args!("deadline missed {total}"))
+                }
+                SessionEvent::IncompatibleQos { remote, reason, .. } => {
+                    out(format_args!("incompatible {} {reason}", courier::rtps_backend::guid_hex(remote)))
+                }
+                _ => {}
+            },
+        }
+    }
+    out("done");
+    Ok(())
+}
+
+fn prefix_hex(p: courier::rtps::GuidPrefix) -> String {
+    p.0.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+fn qos_text(e: &EndpointData) -> String {
+    let q = &e.qos;
+    let rel = match q.reliability {
+        Reliability::BestEffort => "best-effort",
+        Reliability::Reliable(_) => "reliable",
+    };
+    let dur = match q.durability {
+        Durability::Volatile => "volatile",
+        Durability::TransientLocal => "transient-local",
+        Durability::Transient => "transient",
+        Durability::Persistent => "persistent",
+    };
+    let hist = match q.history {
+        History::KeepLast(n) => format!("keep-last({n})"),
+        History::KeepAll => "keep-all".into(),
+    };
+    let dl = q
+        .deadline
+        .to_std()
+        .map_or("infinite".into(), |d| format!("{}ms", d.as_millis()));
+    let own = if q.exclusive_ownership {
+        format!("exclusive({})", q.ownership_strength)
+    } else {
+        "shared".into()
+    };
+    format!(
+        "reliability={rel} durability={dur} history={hist} deadline={dl} ownership={own} \
+         partitions=[{}]",
+        q.partitions.join(",")
+    )
+}
+
+fn endpoint_line(kind: &str, what: &str, e: &EndpointData) -> String {
+    format!(
+        "{kind} {what} {} topic={} type={} {}",
+        courier::rtps_backend::guid_hex(e.guid),
+        e.topic_name,
+        e.type_name,
+        qos_text(e)
+    )
+}
+
+fn sample_text(type_name: &str, data: &[u8]) -> String {
+    if type_name == Ping::TYPE_NAME {
+        if let Ok(p) = courier::cdr::from_slice::<Ping>(data) {
+            return format!(
+                "courier::Ping {{ seq: {}, stamp_ns: {}, text: {:?} }}",
+                p.seq, p.stamp_ns, p.text
+            );
+        }
+    }
+    let hex: String = data.iter().take(64).map(|b| format!("{b:02x}")).collect();
+    if data.len() > 64 {
+        format!("{hex}…")
+    } else {
+        hex
+    }
+}
+
+async fn spy(o: SpyOpts) -> Result<(), Error> {
+    let s = Session::builder(&o.url).name(&o.name).connect().await?;
+    let mut ev = s.events();
+    let mut samples = match s.subscribe_pattern(&o.topic, &o.type_name).await {
+        Ok(r) => r,
+        Err(e) => {
+            s.close().await;
+            return Err(format!("spy needs pattern subscriptions: {e}").into());
+        }
+    };
+    out("ready");
+    let until = o.duration.map(|d| Instant::now() + d);
+    let mut n = 0u64;
+    loop {
+        let sleep = async {
+            match until {
+                Some(t) => tokio::time::sleep_until(t.into()).await,
+                None => std::future::pending().await,
+            }
+        };
+        tokio::select! {
+            _ = sleep => break,
+            smp = samples.recv() => {
+                let Some(smp) = smp else { break };
+                if smp.msg.is_empty() {
+                    break; // the session ended
+                }
+                let ty = smp.type_name.clone().unwrap_or_default();
+                let state = match smp.state {
+                    courier::InstanceState::Alive => String::new(),
+                    st => format!(" ({st:?})"),
+                };
+                out(format_args!(
+                    "sample {} {} from {} {} B{state}: {}",
+                    smp.msg,
+                    ty,
+                    smp.source.as_deref().unwrap_or("?"),
+                    smp.data.len(),
+                    sample_text(&ty, &smp.data)
+                ));
+                n += 1;
+                if o.count.is_some_and(|c| n >= c) {
+                    break;
+                }
+            }
+            Some(e) = ev.next() => match e {
+                SessionEvent::ParticipantFound(p) | SessionEvent::ParticipantChanged(p) => {
+                    let locs: Vec<String> = p
+                        .metatraffic_unicast
+                        .iter()
+                        .chain(&p.default_unicast)
+                        .filter_map(|l| l.socket_addr())
+                        .map(|a| a.to_string())
+                        .collect();
+                    out(format_args!(
+                        "participant found {} name={} unicast={}",
+                        prefix_hex(p.guid_prefix),
+                        p.entity_name.as_deref().unwrap_or("-"),
+                        locs.join(",")
+                    ))
+                }
+                SessionEvent::ParticipantLost { guid_prefix, disposed } => out(format_args!(
+                    "participant lost {} {}",
+                    prefix_hex(guid_prefix),
+                    if disposed { "goodbye" } else { "lease-expired" }
+                )),
+                SessionEvent::PublicationFound(e) => out(endpoint_line("publication", "found", &e)),
+                SessionEvent::PublicationChanged(e) => out(endpoint_line("publication", "changed", &e)),
+                SessionEvent::PublicationLost(g) => {
+                    out(format_args!("publication lost {}", courier::rtps_backend::guid_hex(g)))
+                }
+                SessionEvent::SubscriptionFound(e) => out(endpoint_line("subscription", "found", &e)),
+                SessionEvent::SubscriptionChanged(e) => out(endpoint_line("subscription", "changed", &e)),
+                SessionEvent::SubscriptionLost(g) => {
+                    out(format_args!("subscription lost {}", courier::rtps_backend::guid_hex(g)))
+                }
+                _ => {}
+            },
+        }
+    }
+    s.close().await;
+    Ok(())
+}
