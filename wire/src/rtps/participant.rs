@@ -440,7 +440,63 @@ pub struct Change<'a> {
     pub key_hash: Option<KeyHash>,
     /// Source timestamp for INFO_TS; `None` takes the participant's clock at `now`.
     pub source_timestamp: Option<Time>,
+    /// The request this change answers (request/reply): sent inline as
+    /// `PID_RELATED_SAMPLE_IDENTITY`.
+    pub related_sample_identity: Option<SampleIdentity>,
 }
+
+/// A sample's identity: its writer and sequence number (DDS-RPC
+/// `SampleIdentity`), 24 bytes on the wire: GUID, then the sequence number
+/// as high `i32` and low `u32` in the submessage's byte order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct SampleIdentity {
+    /// The writer.
+    pub writer: Guid,
+    /// Its sequence number there.
+    pub sequence_number: SequenceNumber,
+}
+
+impl SampleIdentity {
+    /// The 24-byte form.
+    pub fn to_bytes(self, little: bool) -> [u8; 24] {
+        let mut b = [0; 24];
+        b[..16].copy_from_slice(&self.writer.to_bytes());
+        let sn = self.sequence_number.0;
+        let (high, low) = ((sn >> 32) as i32, sn as u32);
+        if little {
+            b[16..20].copy_from_slice(&high.to_le_bytes());
+            b[20..].copy_from_slice(&low.to_le_bytes());
+        } else {
+            b[16..20].copy_from_slice(&high.to_be_bytes());
+            b[20..].copy_from_slice(&low.to_be_bytes());
+        }
+        b
+    }
+
+    /// From the 24-byte form; `None` if shorter.
+    pub fn from_bytes(b: &[u8], little: bool) -> Option<Self> {
+        let g: [u8; 16] = b.get(..16)?.try_into().ok()?;
+        let h: [u8; 4] = b.get(16..20)?.try_into().ok()?;
+        let l: [u8; 4] = b.get(20..24)?.try_into().ok()?;
+        let (high, low) = if little {
+            (i32::from_le_bytes(h), u32::from_le_bytes(l))
+        } else {
+            (i32::from_be_bytes(h), u32::from_be_bytes(l))
+        };
+        Some(SampleIdentity {
+            writer: Guid::from_bytes(g),
+            sequence_number: SequenceNumber((i64::from(high) << 32) | i64::from(low)),
+        })
+    }
+}
+
+/// `PID_RELATED_SAMPLE_IDENTITY` of DDS-RPC.
+pub const PID_RELATED_SAMPLE_IDENTITY: u16 = 0x0083;
+/// Fast DDS's own (vendor 01.0f) `PID_CUSTOM_RELATED_SAMPLE_IDENTITY`, what
+/// rmw_fastrtps services read; Courier writes both.
+pub const PID_FASTDDS_RELATED_SAMPLE_IDENTITY: u16 = 0x800f;
+/// eProsima's vendor id.
+const VENDOR_EPROSIMA: VendorId = VendorId([0x01, 0x0f]);
 
 impl<'a> Change<'a> {
     /// A sample.
@@ -450,6 +506,7 @@ impl<'a> Change<'a> {
             data,
             key_hash: None,
             source_timestamp: None,
+            related_sample_identity: None,
         }
     }
 
@@ -460,6 +517,7 @@ impl<'a> Change<'a> {
             data: key,
             key_hash: Some(key_hash),
             source_timestamp: None,
+            related_sample_identity: None,
         }
     }
 
@@ -482,6 +540,12 @@ impl<'a> Change<'a> {
         self.source_timestamp = Some(t);
         self
     }
+
+    /// Marks this change as the reply to the sample `request`.
+    pub fn with_related_sample_identity(mut self, request: SampleIdentity) -> Self {
+        self.related_sample_identity = Some(request);
+        self
+    }
 }
 
 /// Bytes before the data in an [`envelope`]: kind, flags, key hash, timestamp.
@@ -496,30 +560,60 @@ fn envelope(
     ts: Option<Time>,
     data: &[u8],
 ) -> Arc<[u8]> {
-    let mut v = Vec::with_capacity(ENV + data.len());
+    envelope_with(kind, key_hash, ts, None, data)
+}
+
+/// An envelope that may also carry a related sample identity (24 more
+/// bytes before the data, flag bit 2).
+fn envelope_with(
+    kind: ChangeKind,
+    key_hash: Option<KeyHash>,
+    ts: Option<Time>,
+    related: Option<SampleIdentity>,
+    data: &[u8],
+) -> Arc<[u8]> {
+    let mut v = Vec::with_capacity(ENV + 24 + data.len());
     v.push(kind.bits());
-    v.push(u8::from(key_hash.is_some()) | (u8::from(ts.is_some()) << 1));
+    v.push(
+        u8::from(key_hash.is_some())
+            | (u8::from(ts.is_some()) << 1)
+            | (u8::from(related.is_some()) << 2),
+    );
     v.extend_from_slice(&key_hash.unwrap_or_default().0);
     let t = ts.unwrap_or_default();
     v.extend_from_slice(&t.seconds.to_le_bytes());
     v.extend_from_slice(&t.fraction.to_le_bytes());
+    if let Some(r) = related {
+        v.extend_from_slice(&r.to_bytes(true));
+    }
     v.extend_from_slice(data);
     Arc::from(v)
+}
+
+/// Where the data starts in an envelope.
+fn data_offset(b: &[u8]) -> usize {
+    if b.len() > 1 && b[1] & 4 != 0 {
+        ENV + 24
+    } else {
+        ENV
+    }
 }
 
 struct Env<'a> {
     kind: ChangeKind,
     key_hash: Option<KeyHash>,
     ts: Option<Time>,
+    related: Option<SampleIdentity>,
     data: &'a [u8],
 }
 
 fn open(b: &[u8]) -> Env<'_> {
-    if b.len() < ENV {
+    if b.len() < data_offset(b) {
         return Env {
             kind: ChangeKind::Alive,
             key_hash: None,
             ts: None,
+            related: None,
             data: &[],
         };
     }
@@ -533,7 +627,10 @@ fn open(b: &[u8]) -> Env<'_> {
             seconds: i32::from_le_bytes(w(18)),
             fraction: u32::from_le_bytes(w(22)),
         }),
-        data: &b[ENV..],
+        related: (b[1] & 4 != 0)
+            .then(|| SampleIdentity::from_bytes(&b[ENV..ENV + 24], true))
+            .flatten(),
+        data: &b[data_offset(b)..],
     }
 }
 
@@ -553,6 +650,9 @@ pub struct ReceivedSample {
     pub key_hash: Option<KeyHash>,
     /// Sample, or dispose/unregister.
     pub kind: ChangeKind,
+    /// The request this sample answers, if the writer sent
+    /// `PID_RELATED_SAMPLE_IDENTITY` (request/reply).
+    pub related_sample_identity: Option<SampleIdentity>,
     envelope: Arc<[u8]>,
 }
 
@@ -566,7 +666,16 @@ impl ReceivedSample {
             source_timestamp: e.ts,
             key_hash: e.key_hash,
             kind: e.kind,
+            related_sample_identity: e.related,
             envelope,
+        }
+    }
+
+    /// This sample's own identity (what a reply names as related).
+    pub fn identity(&self) -> SampleIdentity {
+        SampleIdentity {
+            writer: self.writer,
+            sequence_number: self.sequence_number,
         }
     }
 
@@ -574,7 +683,9 @@ impl ReceivedSample {
     /// [`ChangeKind::Alive`]; otherwise the serialized key if the writer sent
     /// one (K flag), else empty.
     pub fn data(&self) -> &[u8] {
-        self.envelope.get(ENV..).unwrap_or(&[])
+        self.envelope
+            .get(data_offset(&self.envelope)..)
+            .unwrap_or(&[])
     }
 }
 
@@ -760,6 +871,7 @@ struct Rx {
     src: GuidPrefix,
     dst: GuidPrefix,
     ts: Option<Time>,
+    vendor: VendorId,
 }
 
 /// One or more submessages that travel together, after an INFO_TS if `ts` is set.
@@ -917,17 +1029,22 @@ impl Route<'_> {
 }
 
 fn inline_qos(e: &Env<'_>) -> Option<Vec<u8>> {
-    if e.key_hash.is_none() && e.kind == ChangeKind::Alive {
+    if e.key_hash.is_none() && e.kind == ChangeKind::Alive && e.related.is_none() {
         return None;
     }
     let kh = e.key_hash.map(|k| k.0);
     let si = e.kind.status_info().to_bytes();
+    let rsi = e.related.map(|r| r.to_bytes(true));
     let mut params: Vec<(u16, &[u8])> = Vec::new();
     if let Some(k) = &kh {
         params.push((pid::KEY_HASH, k));
     }
     if e.kind != ChangeKind::Alive {
         params.push((pid::STATUS_INFO, &si));
+    }
+    if let Some(r) = &rsi {
+        params.push((PID_RELATED_SAMPLE_IDENTITY, r));
+        params.push((PID_FASTDDS_RELATED_SAMPLE_IDENTITY, r));
     }
     let mut out = Vec::new();
     ParameterList::write(&params, true, &mut out);
@@ -1414,6 +1531,7 @@ impl Participant {
             src: msg.header.guid_prefix,
             dst: GuidPrefix::UNKNOWN,
             ts: None,
+            vendor: msg.header.vendor,
         };
         for (i, sm) in msg.submessages.iter().enumerate() {
             let little = msg.little_endian.get(i).copied().unwrap_or(true);
@@ -1656,7 +1774,13 @@ impl Participant {
             .writers
             .get_mut(&writer.entity)
             .ok_or(WriteError::UnknownWriter)?;
-        let env = envelope(change.kind, change.key_hash, Some(ts), change.data);
+        let env = envelope_with(
+            change.kind,
+            change.key_hash,
+            Some(ts),
+            change.related_sample_identity,
+            change.data,
+        );
         let key = change.key_hash.unwrap_or_default().0;
         if let Some(depth) = lw.keep_last {
             // per-instance keep-last: the oldest sample of this instance goes
@@ -2265,7 +2389,7 @@ impl Participant {
             }
             e if e.is_builtin() => {}
             _ => {
-                let (key_hash, status) = inline_info(qos, little);
+                let (key_hash, status, related) = inline_info(qos, little, rx.vendor);
                 let kind = match status {
                     Some(s) => ChangeKind::from_status(s),
                     // a serialized key without status: an old-style dispose
@@ -2276,7 +2400,7 @@ impl Participant {
                     (ChangeKind::Alive, None) => return,
                     (_, p) => p.unwrap_or(&[]),
                 };
-                let env = envelope(kind, key_hash, rx.ts, data);
+                let env = envelope_with(kind, key_hash, rx.ts, related, data);
                 let mut delivered = false;
                 for (e, lr) in self.readers.iter_mut() {
                     if (reader_id == EntityId::UNKNOWN || reader_id == *e)
@@ -2589,17 +2713,32 @@ impl Participant {
     }
 }
 
-/// `PID_KEY_HASH` and `PID_STATUS_INFO` from inline QoS (vendor PIDs skipped).
-fn inline_info(qos: Option<&[u8]>, little: bool) -> (Option<KeyHash>, Option<StatusInfo>) {
+/// What a user sample's inline QoS says: key hash, status, related sample.
+type InlineInfo = (Option<KeyHash>, Option<StatusInfo>, Option<SampleIdentity>);
+
+/// `PID_KEY_HASH`, `PID_STATUS_INFO` and `PID_RELATED_SAMPLE_IDENTITY` from
+/// inline QoS (vendor PIDs skipped, except Fast DDS's related sample
+/// identity when the sender is eProsima's).
+fn inline_info(qos: Option<&[u8]>, little: bool, vendor: VendorId) -> InlineInfo {
     let Some(list) = qos
         .and_then(|q| ParameterList::parse(q, little).ok())
         .map(|l| l.0)
     else {
-        return (None, None);
+        return (None, None, None);
     };
-    let (mut key, mut status) = (None, None);
+    let (mut key, mut status, mut related) = (None, None, None);
     for p in &list.params {
+        if p.pid & !PID_MUST_UNDERSTAND == PID_FASTDDS_RELATED_SAMPLE_IDENTITY
+            && vendor == VENDOR_EPROSIMA
+        {
+            related = related.or_else(|| SampleIdentity::from_bytes(p.value, little));
+            continue;
+        }
         if p.pid & PID_VENDOR_SPECIFIC != 0 {
+            continue;
+        }
+        if p.pid & !PID_MUST_UNDERSTAND == PID_RELATED_SAMPLE_IDENTITY {
+            related = SampleIdentity::from_bytes(p.value, little).or(related);
             continue;
         }
         match p.pid & !PID_MUST_UNDERSTAND {
@@ -2614,7 +2753,7 @@ fn inline_info(qos: Option<&[u8]>, little: bool) -> (Option<KeyHash>, Option<Sta
             _ => {}
         }
     }
-    (key, status)
+    (key, status, related)
 }
 
 #[cfg(test)]
