@@ -555,3 +555,92 @@ async fn bad_urls_and_interfaces_are_clear_errors() {
         .unwrap_err();
     assert!(e.to_string().contains("banana"), "{e}");
 }
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "courier::test::AddTwoInts_Request")]
+struct AddReq {
+    a: i64,
+    b: i64,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "courier::test::AddTwoInts_Response")]
+struct AddResp {
+    sum: i64,
+}
+
+/// A server that answers each request from a task of its own, after a
+/// delay that makes later requests finish first.
+async fn adder(s: &Session) {
+    let mut reqs = s
+        .serve::<AddReq, AddResp>("add", "add_reply")
+        .await
+        .unwrap();
+    tokio::spawn(async move {
+        while let Some(r) = reqs.next().await {
+            let r = r.unwrap();
+            tokio::spawn(async move {
+                let delay = 50u64.saturating_sub(r.value.a as u64 % 50);
+                tokio::time::sleep(Duration::from_millis(delay)).await;
+                let sum = r.value.a + r.value.b;
+                r.reply(&AddResp { sum }).await.unwrap();
+            });
+        }
+    });
+}
+
+#[tokio::test]
+async fn queries_are_answered_with_the_related_sample_identity() {
+    let server = session(165, "server").await;
+    let c1 = session(165, "client-1").await;
+    let c2 = session(165, "client-2").await;
+    adder(&server).await;
+    // many concurrent queries from two clients, answered out of order:
+    // each gets its own reply
+    let mut all = Vec::new();
+    for (k, c) in [&c1, &c2].into_iter().enumerate() {
+        for i in 0..20i64 {
+            let c = c.clone();
+            all.push(tokio::spawn(async move {
+                let a = i * 7 + k as i64 * 1000;
+                let r: AddResp = c
+                    .query("add", &AddReq { a, b: 1 })
+                    .timeout(T)
+                    .await
+                    .unwrap();
+                assert_eq!(r.sum, a + 1);
+            }));
+        }
+    }
+    for h in all {
+        h.await.unwrap();
+    }
+}
+
+#[tokio::test]
+async fn a_query_nobody_serves_times_out_and_close_fails_pending_ones() {
+    let a = session(166, "a").await;
+    let e = a
+        .query::<AddReq, AddResp>("nobody", &AddReq { a: 1, b: 2 })
+        .timeout(Duration::from_millis(300))
+        .await
+        .unwrap_err();
+    assert!(
+        matches!(&e, courier::QueryError::Timeout { msg, .. } if msg == "nobody"),
+        "{e}"
+    );
+    let a2 = a.clone();
+    let pending = tokio::spawn(async move {
+        a2.query::<AddReq, AddResp>("nobody", &AddReq { a: 1, b: 2 })
+            .timeout(T)
+            .await
+    });
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    a.close().await;
+    let e = tokio::time::timeout(Duration::from_secs(2), pending)
+        .await
+        .expect("fails at once")
+        .unwrap()
+        .unwrap_err();
+    assert!(matches!(e, courier::QueryError::Disconnected(_)), "{e}");
+}

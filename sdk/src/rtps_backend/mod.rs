@@ -42,7 +42,7 @@ use courier_wire::rtps::discovery::{
 };
 use courier_wire::rtps::participant::{
     self, Change, ChangeKind, Config, EndpointConfig, Event, KeyHash, LostReason, Participant,
-    ReceivedSample, WriteError,
+    ReceivedSample, SampleIdentity, WriteError,
 };
 use courier_wire::rtps::{Guid, GuidPrefix, Locator, SequenceNumber, Time};
 use courier_wire::{cdr, IpcMessage};
@@ -130,6 +130,35 @@ enum Cmd {
     Close {
         reply: oneshot::Sender<()>,
     },
+    Query {
+        name: String,
+        req: TypeInfo,
+        resp: TypeInfo,
+        data: Vec<u8>,
+        timeout: Duration,
+        reply: oneshot::Sender<Result<RawReply, QueryError>>,
+    },
+    Serve {
+        name: String,
+        req: TypeInfo,
+        resp: TypeInfo,
+        tx: mpsc::Sender<RawRequest>,
+        reply: Reply<()>,
+    },
+    Respond {
+        name: String,
+        data: Vec<u8>,
+        request: SampleIdentity,
+    },
+}
+
+/// ROS 2's service topics: `rq/<name>Request` and `rr/<name>Reply`.
+fn request_topic(name: &str) -> String {
+    format!("rq/{name}Request")
+}
+
+fn reply_topic(name: &str) -> String {
+    format!("rr/{name}Reply")
 }
 
 /// A Courier session's DDS participant (see the [module docs](self)).
@@ -188,6 +217,7 @@ impl RtpsBackend {
         let p = Participant::new(cfg, now, SystemTime::now());
         let (tx, rx) = mpsc::unbounded_channel();
         let listeners: Listeners = Arc::default();
+        let responder = tx.downgrade();
         let driver = Driver {
             io: Io::new(socks, address.is_loopback(), opts.multicast),
             st: State {
@@ -201,6 +231,12 @@ impl RtpsBackend {
                 remote_writers: HashMap::new(),
                 confirms: Vec::new(),
                 next_housekeeping: now,
+                servers: HashMap::new(),
+                clients: HashMap::new(),
+                client_readers: HashMap::new(),
+                waiting: Vec::new(),
+                inflight: HashMap::new(),
+                responder,
             },
             cmd: rx,
         };
@@ -287,7 +323,7 @@ impl Backend for RtpsBackend {
     ) -> Result<RawReply, QueryError> {
         Err(QueryError::Refused {
             msg: msg.into(),
-            detail: "queries over RTPS are not implemented yet".into(),
+            detail: "a DDS request topic needs its types: use Session::query".into(),
         })
     }
 
@@ -297,8 +333,51 @@ impl Backend for RtpsBackend {
         _queue: usize,
     ) -> Result<mpsc::Receiver<RawRequest>, SessionError> {
         Err(SessionError::Refused(format!(
-            "serving {msg} over RTPS is not implemented yet"
+            "the DDS request topic of {msg} needs its types: use Session::serve"
         )))
+    }
+
+    async fn query_typed(
+        &self,
+        msg: &str,
+        req: &TypeInfo,
+        resp: &TypeInfo,
+        data: Vec<u8>,
+        timeout: Duration,
+    ) -> Result<RawReply, QueryError> {
+        let (tx, rx) = oneshot::channel();
+        let gone = || QueryError::Disconnected(msg.to_string());
+        self.cmd
+            .send(Cmd::Query {
+                name: msg.to_string(),
+                req: req.clone(),
+                resp: resp.clone(),
+                data,
+                timeout,
+                reply: tx,
+            })
+            .map_err(|_| gone())?;
+        rx.await.map_err(|_| gone())?
+    }
+
+    async fn serve_typed(
+        &self,
+        msg: &str,
+        req: &TypeInfo,
+        resp: &TypeInfo,
+        queue: usize,
+    ) -> Result<mpsc::Receiver<RawRequest>, SessionError> {
+        let (tx, rx) = mpsc::channel(queue.max(1));
+        let (name, req, resp) = (msg.to_string(), req.clone(), resp.clone());
+        self.ask(|reply| Cmd::Serve {
+            name,
+            req,
+            resp,
+            tx,
+            reply,
+        })
+        .await?;
+        Ok(rx)
     }
 
     fn events(&self) -> mpsc::UnboundedReceiver<SessionEvent> {
@@ -707,6 +786,13 @@ impl Driver {
         for c in self.st.confirms.drain(..) {
             let _ = c.reply.send(Err(disconnected()));
         }
+        for q in self.st.waiting.drain(..) {
+            let _ = q.reply.send(Err(QueryError::Disconnected(q.name)));
+        }
+        for (_, q) in self.st.inflight.drain() {
+            let _ = q.reply.send(Err(QueryError::Disconnected(q.name)));
+        }
+        self.st.servers.clear(); // ends every Requests stream
         let mut l = self.st.listeners.lock().unwrap();
         for tx in l.iter() {
             let _ = tx.send(SessionEvent::Disconnected);
@@ -816,6 +902,45 @@ struct State {
     remote_writers: HashMap<Guid, WriterInfo>,
     confirms: Vec<Confirm>,
     next_housekeeping: Instant,
+    /// Request readers of `serve`, by reader GUID: service name and where
+    /// requests go.
+    servers: HashMap<Guid, Server>,
+    /// Request writer and reply reader of each service queried.
+    clients: HashMap<String, Client>,
+    /// Reply readers of clients → service name.
+    client_readers: HashMap<Guid, String>,
+    /// Queries waiting for the service's endpoints to match.
+    waiting: Vec<WaitingQuery>,
+    /// Queries sent, by the request's identity.
+    inflight: HashMap<SampleIdentity, InflightQuery>,
+    /// For responders: replies come back to the driver as commands.
+    responder: mpsc::WeakUnboundedSender<Cmd>,
+}
+
+struct Server {
+    name: String,
+    tx: mpsc::Sender<RawRequest>,
+    dropped: u64,
+}
+
+struct Client {
+    writer: Guid,
+    reader: Guid,
+}
+
+struct WaitingQuery {
+    name: String,
+    data: Vec<u8>,
+    deadline: Instant,
+    timeout: Duration,
+    reply: oneshot::Sender<Result<RawReply, QueryError>>,
+}
+
+struct InflightQuery {
+    name: String,
+    deadline: Instant,
+    timeout: Duration,
+    reply: oneshot::Sender<Result<RawReply, QueryError>>,
 }
 
 const HOUSEKEEPING: Duration = Duration::from_millis(200);
@@ -833,6 +958,12 @@ impl State {
         }
         for c in &self.confirms {
             t = t.min(c.deadline);
+        }
+        for q in &self.waiting {
+            t = t.min(q.deadline);
+        }
+        for q in self.inflight.values() {
+            t = t.min(q.deadline);
         }
         for r in self.readers.values() {
             for d in r.due.values() {
@@ -868,6 +999,7 @@ impl State {
             }
         }
         self.check_deadlines(now);
+        self.expire_queries(now);
         if now >= self.next_housekeeping {
             self.next_housekeeping = now + HOUSEKEEPING;
             self.drop_abandoned(now);
@@ -1027,7 +1159,239 @@ impl State {
                 self.watched.insert(topic);
             }
             Cmd::Close { .. } => {}
+            Cmd::Serve {
+                name,
+                req,
+                resp,
+                tx,
+                reply,
+            } => {
+                let _ = reply.send(self.serve(name, &req, &resp, tx, now));
+            }
+            Cmd::Respond {
+                name,
+                data,
+                request,
+            } => self.respond(&name, data, request, now),
+            Cmd::Query {
+                name,
+                req,
+                resp,
+                data,
+                timeout,
+                reply,
+            } => {
+                if let Err(e) = self.client(&name, &req, &resp, now) {
+                    let _ = reply.send(Err(QueryError::Refused {
+                        msg: name,
+                        detail: e.to_string(),
+                    }));
+                    return;
+                }
+                self.waiting.push(WaitingQuery {
+                    name,
+                    data,
+                    deadline: now + timeout,
+                    timeout,
+                    reply,
+                });
+                self.send_waiting(now);
+            }
         }
+    }
+
+    /// Serves `name`: a reader of its request topic and a writer of its
+    /// reply topic.
+    fn serve(
+        &mut self,
+        name: String,
+        req: &TypeInfo,
+        resp: &TypeInfo,
+        tx: mpsc::Sender<RawRequest>,
+        now: Instant,
+    ) -> Result<(), SessionError> {
+        if self.servers.values().any(|s| s.name == name) {
+            return Err(SessionError::Refused(format!(
+                "{name} is already served by this session"
+            )));
+        }
+        self.create_writer(reply_topic(&name), resp, &PublicationQos::default(), now)?;
+        let cfg = EndpointConfig::reader(&request_topic(&name), req.type_name)
+            .keyed(req.keyed)
+            .qos(subscription_qos(&SubscriptionQos::default()));
+        let g = self
+            .p
+            .create_reader(cfg, now)
+            .map_err(|e| SessionError::Refused(format!("cannot serve {name}: {e}")))?;
+        self.servers.insert(
+            g,
+            Server {
+                name,
+                tx,
+                dropped: 0,
+            },
+        );
+        Ok(())
+    }
+
+    fn respond(&mut self, name: &str, data: Vec<u8>, request: SampleIdentity, now: Instant) {
+        let Some(w) = self.writers.get(&reply_topic(name)) else {
+            return;
+        };
+        let mut data = data;
+        data.resize(data.len().next_multiple_of(4), 0);
+        let change = Change::alive(&data).with_related_sample_identity(request);
+        // a reliable keep-all reply writer only refuses when thousands of
+        // replies are unacknowledged; the client then times out
+        let _ = self.p.write(w.guid, change, now);
+    }
+
+    /// The request writer and reply reader for querying `name`.
+    fn client(
+        &mut self,
+        name: &str,
+        req: &TypeInfo,
+        resp: &TypeInfo,
+        now: Instant,
+    ) -> Result<(), SessionError> {
+        if self.clients.contains_key(name) {
+            return Ok(());
+        }
+        self.create_writer(request_topic(name), req, &PublicationQos::default(), now)?;
+        let writer = self.writers[&request_topic(name)].guid;
+        let cfg = EndpointConfig::reader(&reply_topic(name), resp.type_name)
+            .keyed(resp.keyed)
+            .qos(subscription_qos(&SubscriptionQos::default()));
+        let reader = self
+            .p
+            .create_reader(cfg, now)
+            .map_err(|e| SessionError::Refused(format!("cannot query {name}: {e}")))?;
+        self.clients
+            .insert(name.to_string(), Client { writer, reader });
+        self.client_readers.insert(reader, name.to_string());
+        Ok(())
+    }
+
+    /// Sends the queries whose service is matched both ways (a request
+    /// reader for our request writer, a reply writer for our reply reader).
+    fn send_waiting(&mut self, now: Instant) {
+        let mut i = 0;
+        while i < self.waiting.len() {
+            let name = &self.waiting[i].name;
+            let Some(c) = self.clients.get(name) else {
+                i += 1;
+                continue;
+            };
+            let ready = !self.p.matched_readers(c.writer).is_empty()
+                && !self.p.matched_writers(c.reader).is_empty();
+            if !ready {
+                i += 1;
+                continue;
+            }
+            let q = self.waiting.swap_remove(i);
+            let writer = c.writer;
+            let mut data = q.data;
+            data.resize(data.len().next_multiple_of(4), 0);
+            match self.p.write(writer, Change::alive(&data), now) {
+                Ok(sn) => {
+                    self.inflight.insert(
+                        SampleIdentity {
+                            writer,
+                            sequence_number: sn,
+                        },
+                        InflightQuery {
+                            name: q.name,
+                            deadline: q.deadline,
+                            timeout: q.timeout,
+                            reply: q.reply,
+                        },
+                    );
+                }
+                Err(e) => {
+                    let _ = q.reply.send(Err(QueryError::Refused {
+                        msg: q.name,
+                        detail: e.to_string(),
+                    }));
+                }
+            }
+        }
+    }
+
+    /// Queries whose time ran out, waiting or sent.
+    fn expire_queries(&mut self, now: Instant) {
+        let mut i = 0;
+        while i < self.waiting.len() {
+            if self.waiting[i].deadline <= now {
+                let q = self.waiting.swap_remove(i);
+                let _ = q.reply.send(Err(QueryError::Timeout {
+                    msg: q.name,
+                    timeout: q.timeout,
+                }));
+            } else {
+                i += 1;
+            }
+        }
+        let late: Vec<SampleIdentity> = self
+            .inflight
+            .iter()
+            .filter(|(_, q)| q.deadline <= now)
+            .map(|(k, _)| *k)
+            .collect();
+        for k in late {
+            if let Some(q) = self.inflight.remove(&k) {
+                let _ = q.reply.send(Err(QueryError::Timeout {
+                    msg: q.name,
+                    timeout: q.timeout,
+                }));
+            }
+        }
+    }
+
+    /// A request for one of our services, or a reply to one of our queries.
+    fn rpc_sample(&mut self, s: &ReceivedSample) -> bool {
+        if let Some(srv) = self.servers.get_mut(&s.reader) {
+            if s.kind != ChangeKind::Alive {
+                return true;
+            }
+            let (name, request) = (srv.name.clone(), s.identity());
+            let cmd = self.responder.clone();
+            let respond: crate::session::Responder = Box::new(move |_reply_msg, data| {
+                let tx = cmd.upgrade().ok_or_else(disconnected)?;
+                tx.send(Cmd::Respond {
+                    name,
+                    data,
+                    request,
+                })
+                .map_err(|_| disconnected())
+            });
+            let r = RawRequest {
+                msg: srv.name.clone(),
+                data: s.data().to_vec(),
+                order: courier_wire::ipc::ByteOrder::NATIVE,
+                respond,
+            };
+            if srv.tx.try_send(r).is_err() {
+                // the server's queue is full (or it stopped serving): the
+                // client times out; counted
+                srv.dropped += 1;
+            }
+            return true;
+        }
+        if let Some(name) = self.client_readers.get(&s.reader) {
+            if let Some(q) = s
+                .related_sample_identity
+                .and_then(|id| self.inflight.remove(&id))
+            {
+                let _ = q.reply.send(Ok((
+                    reply_topic(name),
+                    s.data().to_vec(),
+                    courier_wire::ipc::ByteOrder::NATIVE,
+                )));
+            }
+            // replies to other clients of the same service are not ours
+            return true;
+        }
+        false
     }
 
     /// Readers of `topic`: those matched with our writer, else every
@@ -1331,14 +1695,17 @@ impl State {
                 self.emit(SessionEvent::SubscriptionChanged(Box::new(d)))
             }
             Event::SubscriptionLost(g) => self.emit(SessionEvent::SubscriptionLost(g)),
-            Event::WriterMatched { writer, .. } => self.handlers_changed(writer),
+            Event::WriterMatched { writer, .. } => {
+                self.handlers_changed(writer);
+                self.send_waiting(now);
+            }
             Event::WriterUnmatched { writer, .. } => {
                 self.handlers_changed(writer);
                 // a reader that left may have been what kept the history full
                 self.resolve_confirms(writer);
                 self.retry_pending(now);
             }
-            Event::ReaderMatched { .. } => {}
+            Event::ReaderMatched { .. } => self.send_waiting(now),
             Event::ReaderUnmatched { reader, writer } => {
                 if let Some(r) = self.readers.get_mut(&reader) {
                     r.owners.retain(|_, (w, _)| *w != writer);
@@ -1375,6 +1742,9 @@ impl State {
     }
 
     fn sample(&mut self, s: ReceivedSample, now: Instant) {
+        if self.rpc_sample(&s) {
+            return;
+        }
         let info = self.remote_writers.get(&s.writer).copied();
         let Some(r) = self.readers.get_mut(&s.reader) else {
             return;
