@@ -765,3 +765,101 @@ async fn discovery_and_loss_of_cyclone() {
 async fn discovery_and_loss_of_fastdds() {
     discovery_events(Vendor::FastDds, 187).await;
 }
+
+// ---------------------------------------------------------------------------
+// ROS 2-style services (rq/<name>Request, rr/<name>Reply) with Fast DDS,
+// matched by related sample identity as rmw_fastrtps does
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn courier_queries_a_fastdds_service() {
+    let s = session(188).await;
+    let mut peer = Peer::start(
+        Vendor::FastDds,
+        &[
+            "--domain",
+            "188",
+            "--topic",
+            "echo",
+            "--type",
+            "msg",
+            "--serve",
+            "--reliable",
+            "--count",
+            "3",
+            "--timeout-s",
+            "20",
+        ],
+    );
+    for seq in 1..=3u32 {
+        let req = Msg {
+            seq,
+            text: format!("q{seq}"),
+            payload: payload(seq, 100),
+        };
+        let r: Msg = s.query("echo", &req).timeout(T).await.unwrap();
+        assert_eq!(r.seq, seq);
+        assert_eq!(r.text, format!("re:q{seq}"));
+        assert_eq!(r.payload, req.payload);
+    }
+    let lines = blocking(move || {
+        let v: Vec<String> = (0..3).map(|_| peer.expect("request ")).collect();
+        peer.expect("done");
+        v
+    })
+    .await;
+    assert_eq!(lines, ["request 1 q1", "request 2 q2", "request 3 q3"]);
+    s.close().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_fastdds_client_queries_a_courier_service() {
+    let s = session(189).await;
+    let mut reqs = s.serve::<Msg, Msg>("echo", "echo_reply").await.unwrap();
+    let server = tokio::spawn(async move {
+        for _ in 0..3 {
+            let r = tokio::time::timeout(T, reqs.next())
+                .await
+                .expect("a request in time")
+                .expect("open")
+                .expect("decodes");
+            let mut v = r.value.clone();
+            v.text = format!("re:{}", v.text);
+            r.reply(&v).await.unwrap();
+        }
+    });
+    let mut peer = Peer::start(
+        Vendor::FastDds,
+        &[
+            "--domain",
+            "189",
+            "--topic",
+            "echo",
+            "--type",
+            "msg",
+            "--request",
+            "--reliable",
+            "--count",
+            "3",
+            "--text",
+            "ros",
+            "--timeout-s",
+            "20",
+        ],
+    );
+    let lines = blocking(move || {
+        let v: Vec<String> = (0..3).map(|_| peer.expect("reply ")).collect();
+        peer.expect("done");
+        v
+    })
+    .await;
+    assert_eq!(
+        lines,
+        [
+            "reply 1 re:ros-1 related",
+            "reply 2 re:ros-2 related",
+            "reply 3 re:ros-3 related"
+        ]
+    );
+    server.await.unwrap();
+    s.close().await;
+}

@@ -58,6 +58,7 @@
 #include <fastdds/dds/topic/TypeSupport.hpp>
 #include <fastdds/rtps/common/Locator.h>
 #include <fastdds/rtps/common/SerializedPayload.h>
+#include <fastdds/rtps/common/WriteParams.h>
 #include <fastdds/rtps/transport/UDPv4TransportDescriptor.h>
 #include <fastrtps/utils/IPLocator.h>
 #include <fastrtps/utils/md5.h>
@@ -359,7 +360,7 @@ struct Options
     long domain = -1;
     std::string topic;
     Kind type = Kind::None;
-    int role = 0;        // 1 pub, 2 sub
+    int role = 0;        // 1 pub, 2 sub, 3 serve, 4 request
     int reliability = 0; // 1 reliable, 2 best effort
     bool transient_local = false;
     long depth = 10;
@@ -524,12 +525,12 @@ Options parse_args(int argc, char** argv)
                 usage_error("--type must be msg or keyed, not '%s'", t);
             }
         }
-        else if (a == "--pub" || a == "--sub")
+        else if (a == "--pub" || a == "--sub" || a == "--serve" || a == "--request")
         {
-            int r = a == "--pub" ? 1 : 2;
+            int r = a == "--pub" ? 1 : a == "--sub" ? 2 : a == "--serve" ? 3 : 4;
             if (o.role != 0 && o.role != r)
             {
-                usage_error("--pub and --sub are exclusive");
+                usage_error("--pub, --sub, --serve and --request are exclusive");
             }
             o.role = r;
         }
@@ -635,7 +636,11 @@ Options parse_args(int argc, char** argv)
     }
     if (o.role == 0)
     {
-        usage_error("one of --pub or --sub is required");
+        usage_error("one of --pub, --sub, --serve or --request is required");
+    }
+    if (o.role >= 3 && o.type != Kind::Msg)
+    {
+        usage_error("--serve and --request take --type msg");
     }
     if (o.reliability == 0)
     {
@@ -1157,6 +1162,113 @@ void run_sub(const Options& o, fdds::DataReader* r)
     }
 }
 
+/* ROS 2-style service over rq/<topic>Request and rr/<topic>Reply, the way
+ * rmw_fastrtps does it: a reply names its request with WriteParams'
+ * related_sample_identity (PID 0x800f on the wire). */
+void run_serve(const Options& o, fdds::DataReader* r, fdds::DataWriter* w)
+{
+    long served = 0;
+    Msg m;
+    while (served < o.count)
+    {
+        (void)remaining_ms();
+        fdds::SampleInfo info;
+        ReturnCode_t rc = r->take_next_sample(&m, &info);
+        if (rc == ReturnCode_t::RETCODE_NO_DATA)
+        {
+            wakeup.wait(20);
+            continue;
+        }
+        if (rc != ReturnCode_t::RETCODE_OK)
+        {
+            fail("take_next_sample: " + rc_name(rc));
+        }
+        if (!info.valid_data)
+        {
+            continue;
+        }
+        emit("request %u %s", m.seq, escape_text(m.text).c_str());
+        Msg reply = m;
+        reply.text = "re:" + m.text;
+        eprosima::fastrtps::rtps::WriteParams wp;
+        wp.related_sample_identity(info.sample_identity);
+        if (!w->write(&reply, wp))
+        {
+            fail("write reply");
+        }
+        served++;
+    }
+    for (;;)
+    {
+        int64_t left = remaining_ms();
+        ReturnCode_t rc = w->wait_for_acknowledgments(eprosima::fastrtps::Duration_t(
+                    0, static_cast<uint32_t>(std::min<int64_t>(left, 100) * 1000000)));
+        if (rc == ReturnCode_t::RETCODE_OK)
+        {
+            break;
+        }
+    }
+    emit("done");
+}
+
+void run_request(const Options& o, fdds::DataWriter* w, fdds::DataReader* r)
+{
+    for (;;)
+    {
+        (void)remaining_ms();
+        fdds::PublicationMatchedStatus ps;
+        fdds::SubscriptionMatchedStatus ss;
+        w->get_publication_matched_status(ps);
+        r->get_subscription_matched_status(ss);
+        if (ps.current_count > 0 && ss.current_count > 0)
+        {
+            break;
+        }
+        wakeup.wait(20);
+    }
+    emit("matched 1");
+    sleep_ms(o.settle_ms);
+    Msg m;
+    for (long n = 1; n <= o.count; n++)
+    {
+        Msg req;
+        req.seq = static_cast<uint32_t>(n);
+        req.text = (o.text_set ? o.text : std::string("fastdds")) + "-" + std::to_string(n);
+        eprosima::fastrtps::rtps::WriteParams wp;
+        if (!w->write(&req, wp))
+        {
+            fail("write request");
+        }
+        const eprosima::fastrtps::rtps::SampleIdentity id = wp.sample_identity();
+        for (;;)
+        {
+            (void)remaining_ms();
+            fdds::SampleInfo info;
+            ReturnCode_t rc = r->take_next_sample(&m, &info);
+            if (rc == ReturnCode_t::RETCODE_NO_DATA)
+            {
+                wakeup.wait(20);
+                continue;
+            }
+            if (rc != ReturnCode_t::RETCODE_OK)
+            {
+                fail("take_next_sample: " + rc_name(rc));
+            }
+            if (!info.valid_data)
+            {
+                continue;
+            }
+            bool ours = info.related_sample_identity == id;
+            emit("reply %u %s %s", m.seq, escape_text(m.text).c_str(), ours ? "related" : "unrelated");
+            if (ours)
+            {
+                break;
+            }
+        }
+    }
+    emit("done");
+}
+
 } // namespace
 
 int main(int argc, char** argv)
@@ -1193,6 +1305,41 @@ int main(int argc, char** argv)
     if (type.register_type(participant) != ReturnCode_t::RETCODE_OK)
     {
         fail("register_type failed");
+    }
+    if (o.role >= 3)
+    {
+        fdds::Topic* rq = participant->create_topic("rq/" + o.topic + "Request",
+                        type.get_type_name(), fdds::TopicQos());
+        fdds::Topic* rr = participant->create_topic("rr/" + o.topic + "Reply",
+                        type.get_type_name(), fdds::TopicQos());
+        fdds::Publisher* pub = participant->create_publisher(fdds::PublisherQos());
+        fdds::Subscriber* sub = participant->create_subscriber(fdds::SubscriberQos());
+        if (rq == nullptr || rr == nullptr || pub == nullptr || sub == nullptr)
+        {
+            fail("service entities");
+        }
+        fdds::DataWriterQos wq;
+        apply_endpoint_qos(wq, o);
+        fdds::DataReaderQos rdq;
+        apply_endpoint_qos(rdq, o);
+        fdds::DataWriter* w = pub->create_datawriter(o.role == 3 ? rr : rq, wq);
+        fdds::DataReader* r = sub->create_datareader(o.role == 3 ? rq : rr, rdq);
+        if (w == nullptr || r == nullptr)
+        {
+            fail("service reader/writer");
+        }
+        emit("ready");
+        if (o.role == 3)
+        {
+            run_serve(o, r, w);
+        }
+        else
+        {
+            run_request(o, w, r);
+        }
+        participant->delete_contained_entities();
+        factory->delete_participant(participant);
+        return 0;
     }
     fdds::Topic* topic = participant->create_topic(o.topic, type.get_type_name(), fdds::TopicQos());
     if (topic == nullptr)
