@@ -169,7 +169,9 @@ async fn reliable_delivery_through_30_percent_loss_in_a_network_namespace() {
     assert!(text.contains("1 passed"), "the child ran the test:\n{text}");
     // and the loss was real: the DROP rule's packet counter
     let rules = Command::new("ip")
-        .args(["netns", "exec", &ns.0, "iptables", "-L", "INPUT", "-v", "-x", "-n"])
+        .args([
+            "netns", "exec", &ns.0, "iptables", "-L", "INPUT", "-v", "-x", "-n",
+        ])
         .output()
         .unwrap();
     let rules = String::from_utf8_lossy(&rules.stdout);
