@@ -1571,6 +1571,9 @@ impl State {
         let mut change = Change::alive(&pw.data);
         change.kind = pw.kind;
         change.key_hash = pw.key_hash.map(KeyHash);
+        if pw.confirm.is_some() {
+            self.p.request_ack(guid);
+        }
         match self.p.write(guid, change, now) {
             Ok(sn) => {
                 match pw.confirm {

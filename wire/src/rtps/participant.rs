@@ -1816,6 +1816,18 @@ impl Participant {
         Ok(sn)
     }
 
+    /// Makes the next [`Participant::write`] of a reliable local writer ask
+    /// its readers to acknowledge at once (writes normally ask only every
+    /// few samples); for confirmed writes.
+    pub fn request_ack(&mut self, writer: Guid) {
+        if !self.is_local(writer) {
+            return;
+        }
+        if let Some(w) = self.writers.get_mut(&writer.entity) {
+            w.writer.request_ack_with_next_write();
+        }
+    }
+
     /// Leaves the domain: every local endpoint and then the participant
     /// itself are disposed (sent now, see [`Participant::poll_transmit`]);
     /// afterwards nothing is sent or received.

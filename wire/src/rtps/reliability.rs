@@ -86,6 +86,8 @@ pub struct Writer {
     readers: HashMap<Guid, ReaderProxy>,
     heartbeat_period: Duration,
     next_heartbeat: Option<Instant>,
+    /// The next write's heartbeat asks for an acknowledgement.
+    ack_next: bool,
     hb_count: i32,
     /// Keep acknowledged samples (transient-local keep-all writers).
     retain_acked: bool,
@@ -111,6 +113,7 @@ impl Writer {
             readers: HashMap::new(),
             heartbeat_period,
             next_heartbeat: None,
+            ack_next: false,
             hb_count: 0,
             retain_acked: false,
             out: VecDeque::new(),
@@ -230,8 +233,15 @@ impl Writer {
             payload,
         });
         if self.reliable {
-            // piggyback a heartbeat, as Cyclone does
-            self.push_heartbeat(None, false);
+            // piggyback a heartbeat, as Cyclone does; it asks for an
+            // acknowledgement only every ACK_EVERY samples (and when a
+            // keep-all history is half full), so that readers do not answer
+            // every sample: a reader missing something answers any heartbeat,
+            // and the periodic heartbeat asks until everything is acked
+            let want_ack = std::mem::take(&mut self.ack_next)
+                || sn % ACK_EVERY == 0
+                || (self.depth.is_none() && self.history.len() * 2 >= self.max_samples);
+            self.push_heartbeat(None, !want_ack);
             self.next_heartbeat
                 .get_or_insert(now + self.heartbeat_period);
         }
@@ -260,6 +270,14 @@ impl Writer {
     /// True when every matched reader acknowledged `sn` (for `publish().confirmed()`).
     pub fn is_acked_by_all(&self, sn: SequenceNumber) -> bool {
         self.readers.values().all(|r| r.acked_below > sn.0)
+    }
+
+    /// Makes the heartbeat piggybacked on the next write ask every reader
+    /// for an acknowledgement (e.g. for a confirmed write): in the same
+    /// datagram as the data, so that a reader that stops reading right
+    /// after it (back-pressure) still acknowledges it.
+    pub fn request_ack_with_next_write(&mut self) {
+        self.ack_next = true;
     }
 
     fn push_heartbeat(&mut self, to: Option<Guid>, final_flag: bool) {
@@ -352,6 +370,9 @@ impl Writer {
         self.out.pop_front()
     }
 }
+
+/// A piggybacked heartbeat asks for an acknowledgement every this many samples.
+const ACK_EVERY: i64 = 16;
 
 #[derive(Debug)]
 struct WriterProxy {
