@@ -71,10 +71,37 @@ struct Partial {
     /// The first source timestamp (INFO_TS) seen with any fragment: vendors
     /// send INFO_TS once before the first fragment, not before every one.
     ts: Option<Time>,
+    /// The first inline QoS seen with any fragment and its byte order:
+    /// Cyclone sends inline QoS only with the DATA_FRAG that holds fragment
+    /// 1; Fast DDS and Courier send it with every DATA_FRAG.
+    qos: Option<(Vec<u8>, bool)>,
+}
+
+impl Partial {
+    /// Bytes this partial sample holds (counted against the limit).
+    fn held(&self) -> usize {
+        self.data.len() + self.qos.as_ref().map_or(0, |q| q.0.len())
+    }
 }
 
 /// A completed sample and the first source timestamp its fragments carried.
 pub type Reassembled = (Vec<u8>, Option<Time>);
+
+/// A completed sample with what its fragments carried besides the data.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct Completed {
+    /// The whole serialized sample.
+    pub data: Vec<u8>,
+    /// The first source timestamp any of its fragments carried.
+    pub ts: Option<Time>,
+    /// The first inline QoS any of its fragments carried (Cyclone puts it
+    /// only on the DATA_FRAG with fragment 1), in the byte order of
+    /// [`Completed::little_endian`].
+    pub inline_qos: Option<Vec<u8>>,
+    /// Byte order of `inline_qos` (the E flag of the DATA_FRAG it came in).
+    pub little_endian: bool,
+}
 
 /// Reassembles fragmented samples per (writer, sequence number).
 #[derive(Debug)]
@@ -128,7 +155,7 @@ impl Reassembler {
             .collect();
         for k in keys {
             if let Some(p) = self.partial.remove(&k) {
-                self.bytes -= p.data.len();
+                self.bytes -= p.held();
             }
         }
     }
@@ -148,6 +175,21 @@ impl Reassembler {
         f: &DataFrag<'_>,
         ts: Option<Time>,
     ) -> Result<Option<Reassembled>, FragError> {
+        Ok(self
+            .insert_with_qos(writer, f, ts, true)?
+            .map(|c| (c.data, c.ts)))
+    }
+
+    /// As [`insert_timed`](Self::insert_timed), also keeping the first
+    /// inline QoS the fragments carried (`little`: the DATA_FRAG's E flag).
+    /// Its bytes count against the limit like the sample's.
+    pub fn insert_with_qos(
+        &mut self,
+        writer: Guid,
+        f: &DataFrag<'_>,
+        ts: Option<Time>,
+        little: bool,
+    ) -> Result<Option<Completed>, FragError> {
         let size = f.sample_size as usize;
         if size > self.max_sample {
             return Err(FragError::TooLarge {
@@ -175,14 +217,15 @@ impl Reassembler {
             ));
         }
         let key = (writer, f.writer_sn);
+        let qlen = f.inline_qos.map_or(0, <[u8]>::len);
         if !self.partial.contains_key(&key) {
             // make room: drop the oldest incomplete samples
-            while self.bytes + size > self.max_bytes {
+            while self.bytes + size + qlen > self.max_bytes {
                 let Some((&oldest, _)) = self.partial.iter().next() else {
                     break;
                 };
                 if let Some(p) = self.partial.remove(&oldest) {
-                    self.bytes -= p.data.len();
+                    self.bytes -= p.held();
                 }
             }
             if self.bytes + size > self.max_bytes {
@@ -201,6 +244,7 @@ impl Reassembler {
                     have: vec![false; total],
                     missing: total,
                     ts: None,
+                    qos: None,
                 },
             );
         }
@@ -215,6 +259,12 @@ impl Reassembler {
         }
         p.data[start..end].copy_from_slice(&f.payload[..end - start]);
         p.ts = p.ts.or(ts);
+        if let (None, Some(q)) = (&p.qos, f.inline_qos) {
+            if self.bytes + q.len() <= self.max_bytes {
+                self.bytes += q.len();
+                p.qos = Some((q.to_vec(), little));
+            }
+        }
         for h in &mut p.have[first - 1..first - 1 + n] {
             if !*h {
                 *h = true;
@@ -228,8 +278,17 @@ impl Reassembler {
             .partial
             .remove(&key)
             .ok_or(FragError::Inconsistent("lost partial"))?;
-        self.bytes -= done.data.len();
-        Ok(Some((done.data, done.ts)))
+        self.bytes -= done.held();
+        let (inline_qos, little_endian) = match done.qos {
+            Some((q, l)) => (Some(q), l),
+            None => (None, little),
+        };
+        Ok(Some(Completed {
+            data: done.data,
+            ts: done.ts,
+            inline_qos,
+            little_endian,
+        }))
     }
 }
 
@@ -301,6 +360,64 @@ mod tests {
         }
         assert_eq!(r.missing(w(), SequenceNumber(1)), [3]);
         assert_eq!(r.insert(w(), &frags[2]).unwrap().unwrap(), s);
+    }
+
+    #[test]
+    fn inline_qos_of_the_first_fragment_survives_any_order() {
+        // Cyclone's shape: inline QoS only with fragment 1, big-endian here
+        let s = sample(5000);
+        let qos = [0x00u8, 0x71, 0x00, 0x04, 0, 0, 0, 1, 0x00, 0x01, 0x00, 0x00];
+        let mut frags: Vec<_> = fragment(
+            EntityId::UNKNOWN,
+            w().entity,
+            SequenceNumber(4),
+            &s,
+            1000,
+            2,
+        )
+        .collect();
+        frags[0].inline_qos = Some(&qos);
+        frags.reverse();
+        let mut r = Reassembler::new(1 << 20, 1 << 20);
+        let mut out = None;
+        for f in &frags {
+            // the E flag of the later (unrelated) fragments does not matter
+            let little = f.inline_qos.is_none();
+            if let Some(c) = r.insert_with_qos(w(), f, None, little).unwrap() {
+                out = Some(c);
+            } else {
+                assert!(r.buffered_bytes() <= s.len() + qos.len());
+            }
+        }
+        let c = out.unwrap();
+        assert_eq!(c.data, s);
+        assert_eq!(c.inline_qos.as_deref(), Some(&qos[..]));
+        assert!(!c.little_endian);
+        assert_eq!(r.buffered_bytes(), 0);
+        // without any inline QoS: none, and the byte order of the last one
+        let frags: Vec<_> = fragment(
+            EntityId::UNKNOWN,
+            w().entity,
+            SequenceNumber(5),
+            &s,
+            1000,
+            3,
+        )
+        .collect();
+        let mut out = None;
+        for f in &frags {
+            out = r.insert_with_qos(w(), f, None, true).unwrap().or(out);
+        }
+        let c = out.unwrap();
+        assert_eq!((c.inline_qos, c.little_endian), (None, true));
+        // a partial sample's inline QoS is counted and released
+        let mut f = frags[0].clone();
+        f.writer_sn = SequenceNumber(6);
+        f.inline_qos = Some(&qos);
+        assert!(r.insert_with_qos(w(), &f, None, true).unwrap().is_none());
+        assert_eq!(r.buffered_bytes(), s.len() + qos.len());
+        r.forget_below(w(), SequenceNumber(7));
+        assert_eq!(r.buffered_bytes(), 0);
     }
 
     #[test]

@@ -2465,15 +2465,17 @@ impl Participant {
         if !self.wants(writer, f.reader_id, f.writer_sn) {
             return;
         }
-        match self.reassembler.insert_timed(writer, f, rx.ts) {
-            Ok(Some((sample, ts))) => self.on_data(
-                &Rx { ts, ..*rx },
+        // the inline QoS of the first fragment that had one: Cyclone sends
+        // it only with fragment 1, which need not be the last to arrive
+        match self.reassembler.insert_with_qos(writer, f, rx.ts, little) {
+            Ok(Some(c)) => self.on_data(
+                &Rx { ts: c.ts, ..*rx },
                 f.reader_id,
                 f.writer_id,
                 f.writer_sn,
-                f.inline_qos,
-                little,
-                Some(&sample),
+                c.inline_qos.as_deref(),
+                c.little_endian,
+                Some(&c.data),
                 f.key,
                 source,
                 now,
