@@ -1289,10 +1289,17 @@ impl State {
                 continue;
             }
             let q = self.waiting.swap_remove(i);
-            let writer = c.writer;
+            let (writer, reader) = (c.writer, c.reader);
             let mut data = q.data;
             data.resize(data.len().next_multiple_of(4), 0);
-            match self.p.write(writer, Change::alive(&data), now) {
+            // as rmw_fastrtps clients do: the request names the reader its
+            // reply should go to (sequence number unknown)
+            let to = SampleIdentity {
+                writer: reader,
+                sequence_number: SequenceNumber(-1 << 32),
+            };
+            let change = Change::alive(&data).with_related_sample_identity(to);
+            match self.p.write(writer, change, now) {
                 Ok(sn) => {
                     self.inflight.insert(
                         SampleIdentity {
@@ -1353,7 +1360,17 @@ impl State {
             if s.kind != ChangeKind::Alive {
                 return true;
             }
-            let (name, request) = (srv.name.clone(), s.identity());
+            // as rmw_fastrtps: a request that names a reply reader (its
+            // related identity's GUID) is answered for that GUID with the
+            // request's sequence number; otherwise for the request itself
+            let request = match s.related_sample_identity {
+                Some(r) if r.writer.prefix != GuidPrefix::UNKNOWN => SampleIdentity {
+                    writer: r.writer,
+                    sequence_number: s.sequence_number,
+                },
+                _ => s.identity(),
+            };
+            let name = srv.name.clone();
             let cmd = self.responder.clone();
             let respond: crate::session::Responder = Box::new(move |_reply_msg, data| {
                 let tx = cmd.upgrade().ok_or_else(disconnected)?;
@@ -1378,10 +1395,18 @@ impl State {
             return true;
         }
         if let Some(name) = self.client_readers.get(&s.reader) {
-            if let Some(q) = s
+            // a reply names our request writer (Courier, Fast DDS) or our
+            // reply reader (rmw_fastrtps) with the request's sequence number
+            let key = s
                 .related_sample_identity
-                .and_then(|id| self.inflight.remove(&id))
-            {
+                .map(|id| match self.clients.get(name) {
+                    Some(c) if id.writer == c.reader => SampleIdentity {
+                        writer: c.writer,
+                        sequence_number: id.sequence_number,
+                    },
+                    _ => id,
+                });
+            if let Some(q) = key.and_then(|id| self.inflight.remove(&id)) {
                 let _ = q.reply.send(Ok((
                     reply_topic(name),
                     s.data().to_vec(),
