@@ -10,35 +10,8 @@ use courier::{
 };
 use futures::StreamExt;
 
-const T: Duration = Duration::from_secs(20);
-
-#[derive(IpcMessage, Debug, Clone, PartialEq)]
-#[ipc(type_name = "courier::test::Msg")]
-struct Msg {
-    seq: u32,
-    text: String,
-    payload: Vec<u8>,
-}
-
-#[derive(IpcMessage, Debug, Clone, PartialEq)]
-#[ipc(type_name = "courier::test::Keyed")]
-struct Keyed {
-    #[ipc(key)]
-    id: i32,
-    seq: u32,
-    text: String,
-}
-
-fn url(domain: u32) -> String {
-    format!("rtps://{domain}?interface=lo&peers=127.0.0.1")
-}
-
-async fn session(domain: u32, name: &str) -> Session {
-    tokio::time::timeout(T, Session::builder(url(domain)).name(name).connect())
-        .await
-        .expect("connect in time")
-        .expect("connect")
-}
+mod common;
+use common::{await_handlers, next, session, Keyed, Msg, T};
 
 fn msg(seq: u32) -> Msg {
     Msg {
@@ -46,26 +19,6 @@ fn msg(seq: u32) -> Msg {
         text: format!("hello {seq}"),
         payload: Vec::new(),
     }
-}
-
-/// Waits until `s` sees `n` handlers of `topic` (readers matched with its writer).
-async fn await_handlers(s: &Session, topic: &str, n: i32) {
-    tokio::time::timeout(T, async {
-        while s.num_handlers(topic).await.unwrap() < n {
-            tokio::time::sleep(Duration::from_millis(10)).await;
-        }
-    })
-    .await
-    .unwrap_or_else(|_| panic!("{topic}: {n} reader(s) never matched"));
-}
-
-async fn next<T: IpcMessage>(
-    sub: &mut courier::Subscriber<T>,
-) -> Result<courier::Sample<T>, RecvError> {
-    tokio::time::timeout(T, sub.next())
-        .await
-        .expect("a sample in time")
-        .expect("stream open")
 }
 
 #[tokio::test]

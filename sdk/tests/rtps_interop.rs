@@ -16,27 +16,11 @@ use std::process::{Child, Command, Stdio};
 use std::sync::{mpsc, OnceLock};
 use std::time::{Duration, Instant};
 
-use courier::{InstanceState, IpcMessage, RecvError, Session, SessionEvent};
+use courier::{InstanceState, RecvError, Session, SessionEvent};
 use futures::StreamExt;
 
-const T: Duration = Duration::from_secs(20);
-
-#[derive(IpcMessage, Debug, Clone, PartialEq)]
-#[ipc(type_name = "courier::test::Msg")]
-struct Msg {
-    seq: u32,
-    text: String,
-    payload: Vec<u8>,
-}
-
-#[derive(IpcMessage, Debug, Clone, PartialEq)]
-#[ipc(type_name = "courier::test::Keyed")]
-struct Keyed {
-    #[ipc(key)]
-    id: i32,
-    seq: u32,
-    text: String,
-}
+mod common;
+use common::{next, Keyed, Msg, T};
 
 /// The peers' payload: byte i of sample seq.
 fn payload(seq: u32, size: usize) -> Vec<u8> {
@@ -221,34 +205,11 @@ async fn blocking<R: Send + 'static>(f: impl FnOnce() -> R + Send + 'static) -> 
 }
 
 async fn session(domain: u32) -> Session {
-    tokio::time::timeout(
-        T,
-        Session::builder(format!("rtps://{domain}?interface=lo&peers=127.0.0.1"))
-            .name("courier")
-            .connect(),
-    )
-    .await
-    .expect("connect in time")
-    .expect("connect")
-}
-
-async fn next<T: IpcMessage>(
-    sub: &mut courier::Subscriber<T>,
-) -> Result<courier::Sample<T>, RecvError> {
-    tokio::time::timeout(T, sub.next())
-        .await
-        .expect("a sample in time")
-        .expect("stream open")
+    common::session(domain, "courier").await
 }
 
 async fn await_handlers(s: &Session, topic: &str) {
-    tokio::time::timeout(T, async {
-        while s.num_handlers(topic).await.unwrap() < 1 {
-            tokio::time::sleep(Duration::from_millis(10)).await;
-        }
-    })
-    .await
-    .expect("the peer's reader matched");
+    common::await_handlers(s, topic, 1).await
 }
 
 fn domain_arg(d: u32) -> String {

@@ -11,16 +11,11 @@
 use std::process::Command;
 use std::time::Duration;
 
-use courier::{IpcMessage, Session};
+use courier::Session;
 use futures::StreamExt;
 
-#[derive(IpcMessage, Debug, Clone, PartialEq)]
-#[ipc(type_name = "courier::test::Msg")]
-struct Msg {
-    seq: u32,
-    text: String,
-    payload: Vec<u8>,
-}
+mod common;
+use common::Msg;
 
 const CHILD: &str = "COURIER_NETNS_CHILD";
 const N: u32 = 400;

@@ -1,0 +1,62 @@
+//! What the RTPS test files share: the interop peers' types (IDL
+//! `courier::test::Msg` and `Keyed` in tests/peers/rtps/types.idl), loopback
+//! sessions and bounded waits.
+
+#![allow(dead_code)] // each test file uses its own part
+
+use std::time::Duration;
+
+use courier::{IpcMessage, RecvError, Session};
+use futures::StreamExt;
+
+/// The bound on every wait.
+pub const T: Duration = Duration::from_secs(20);
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "courier::test::Msg")]
+pub struct Msg {
+    pub seq: u32,
+    pub text: String,
+    pub payload: Vec<u8>,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "courier::test::Keyed")]
+pub struct Keyed {
+    #[ipc(key)]
+    pub id: i32,
+    pub seq: u32,
+    pub text: String,
+}
+
+/// Loopback only, unicast discovery.
+pub fn url(domain: u32) -> String {
+    format!("rtps://{domain}?interface=lo&peers=127.0.0.1")
+}
+
+pub async fn session(domain: u32, name: &str) -> Session {
+    tokio::time::timeout(T, Session::builder(url(domain)).name(name).connect())
+        .await
+        .expect("connect in time")
+        .expect("connect")
+}
+
+/// Waits until `s` sees `n` handlers of `topic` (readers matched with its writer).
+pub async fn await_handlers(s: &Session, topic: &str, n: i32) {
+    tokio::time::timeout(T, async {
+        while s.num_handlers(topic).await.unwrap() < n {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    })
+    .await
+    .unwrap_or_else(|_| panic!("{topic}: {n} reader(s) never matched"));
+}
+
+pub async fn next<M: IpcMessage>(
+    sub: &mut courier::Subscriber<M>,
+) -> Result<courier::Sample<M>, RecvError> {
+    tokio::time::timeout(T, sub.next())
+        .await
+        .expect("a sample in time")
+        .expect("stream open")
+}
