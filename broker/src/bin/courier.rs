@@ -9,7 +9,9 @@
 //!   hex otherwise).
 //!
 //! Output is one event per line, flushed, so that tests and scripts can
-//! read it. Exit codes: 0 done, 1 runtime error, 64 usage error.
+//! read it. Exit codes: 0 done, 1 runtime error, 64 usage error. Ctrl-C
+//! (SIGINT) or SIGTERM prints `interrupted`, closes the session (DDS: the
+//! participant says goodbye) and exits 0.
 
 use std::io::Write;
 use std::process::ExitCode;
@@ -112,15 +114,14 @@ fn main() -> ExitCode {
         }
     };
     let r = rt.block_on(async {
-        tokio::select! {
-            r = async {
-                match cmd {
-                    Cmd::Ping(o) => ping(o).await,
-                    Cmd::Spy(o) => spy(o).await,
-                    Cmd::Help(_) => Ok(()),
-                }
-            } => r,
-            _ = tokio::signal::ctrl_c() => Ok(()),
+        let stop = match Stop::watch() {
+            Ok(s) => s,
+            Err(e) => return Err(format!("cannot watch signals: {e}").into()),
+        };
+        match cmd {
+            Cmd::Ping(o) => ping(o, stop).await,
+            Cmd::Spy(o) => spy(o, stop).await,
+            Cmd::Help(_) => Ok(()),
         }
     });
     match r {
@@ -130,6 +131,66 @@ fn main() -> ExitCode {
             ExitCode::from(1)
         }
     }
+}
+
+/// SIGINT (Ctrl-C) or SIGTERM: the command stops what it does and closes its
+/// session (DDS: the participant says goodbye and disposes its endpoints)
+/// instead of dying with the process.
+#[derive(Clone)]
+struct Stop(tokio::sync::watch::Receiver<bool>);
+
+impl Stop {
+    /// Installs the handlers once, for the whole run: a signal that comes
+    /// between two waits is not lost.
+    fn watch() -> std::io::Result<Stop> {
+        use tokio::signal::unix::{signal, SignalKind};
+        let (mut int, mut term) = (
+            signal(SignalKind::interrupt())?,
+            signal(SignalKind::terminate())?,
+        );
+        let (tx, rx) = tokio::sync::watch::channel(false);
+        tokio::spawn(async move {
+            tokio::select! {
+                _ = int.recv() => {}
+                _ = term.recv() => {}
+            }
+            let _ = tx.send(true);
+        });
+        Ok(Stop(rx))
+    }
+
+    /// Resolves once a signal came.
+    async fn wait(&mut self) {
+        let _ = self.0.wait_for(|s| *s).await;
+    }
+}
+
+/// How long closing may take after a signal before the process just exits.
+const CLOSE_BOUND: Duration = Duration::from_secs(3);
+
+/// Connects, or gives up quietly when a signal comes first.
+async fn connect(url: &str, name: &str, stop: &mut Stop) -> Result<Option<Session>, Error> {
+    tokio::select! {
+        s = Session::builder(url).name(name).connect() => Ok(Some(s?)),
+        _ = stop.wait() => Ok(None),
+    }
+}
+
+/// Runs `body` on the session until it ends or a signal comes (then prints
+/// `interrupted`), and closes the session either way.
+async fn run_session<F>(s: Session, stop: &mut Stop, body: F) -> Result<(), Error>
+where
+    F: std::future::Future<Output = Result<(), Error>>,
+{
+    let r = tokio::select! {
+        r = body => r,
+        _ = stop.wait() => {
+            out("interrupted");
+            Ok(())
+        }
+    };
+    let _ = tokio::time::timeout(CLOSE_BOUND, s.close()).await;
+    r
 }
 
 fn usage_of(cmd: &str) -> &'static str {
@@ -290,16 +351,16 @@ fn now_ns() -> u64 {
         .map_or(0, |d| d.as_nanos() as u64)
 }
 
-async fn ping(o: PingOpts) -> Result<(), Error> {
-    let s = Session::builder(&o.url).name(&o.name).connect().await?;
-    let mut ev = s.events();
-    let r = if o.publish {
-        ping_publish(&s, &o, &mut ev).await
-    } else {
-        ping_subscribe(&s, &o, &mut ev).await
+async fn ping(o: PingOpts, mut stop: Stop) -> Result<(), Error> {
+    let Some(s) = connect(&o.url, &o.name, &mut stop).await? else {
+        return Ok(());
     };
-    s.close().await;
-    r
+    let mut ev = s.events();
+    if o.publish {
+        run_session(s.clone(), &mut stop, ping_publish(&s, &o, &mut ev)).await
+    } else {
+        run_session(s.clone(), &mut stop, ping_subscribe(&s, &o, &mut ev)).await
+    }
 }
 
 async fn ping_publish(s: &Session, o: &PingOpts, ev: &mut courier::Events) -> Result<(), Error> {
@@ -458,16 +519,19 @@ fn sample_text(type_name: &str, data: &[u8]) -> String {
     }
 }
 
-async fn spy(o: SpyOpts) -> Result<(), Error> {
-    let s = Session::builder(&o.url).name(&o.name).connect().await?;
-    let mut ev = s.events();
-    let mut samples = match s.subscribe_pattern(&o.topic, &o.type_name).await {
-        Ok(r) => r,
-        Err(e) => {
-            s.close().await;
-            return Err(format!("spy needs pattern subscriptions: {e}").into());
-        }
+async fn spy(o: SpyOpts, mut stop: Stop) -> Result<(), Error> {
+    let Some(s) = connect(&o.url, &o.name, &mut stop).await? else {
+        return Ok(());
     };
+    run_session(s.clone(), &mut stop, spy_session(&s, &o)).await
+}
+
+async fn spy_session(s: &Session, o: &SpyOpts) -> Result<(), Error> {
+    let mut ev = s.events();
+    let mut samples = s
+        .subscribe_pattern(&o.topic, &o.type_name)
+        .await
+        .map_err(|e| format!("spy needs pattern subscriptions: {e}"))?;
     out("ready");
     let until = o.duration.map(|d| Instant::now() + d);
     let mut n = 0u64;
@@ -538,6 +602,5 @@ async fn spy(o: SpyOpts) -> Result<(), Error> {
             },
         }
     }
-    s.close().await;
     Ok(())
 }
