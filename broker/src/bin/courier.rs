@@ -48,12 +48,16 @@ usage: courier ping <url> (--publish | --subscribe) [options]
   --period MS          publishing period (default 1000)
   --count N            stop after N samples sent or received (default: run until Ctrl-C)
   --size BYTES         text length of each sample (default 0)
-  --strength N         publication strength (exclusive ownership)
+  --name NAME          participant / module name (default courier-ping)
+DDS QoS (rtps:// only; refused on ipc://, which has none):
+  --strength N         publisher: exclusive ownership with this strength;
+                       subscriber: same as --exclusive
+  --exclusive          subscriber: take samples from the strongest publisher only
   --deadline MS        publisher: offered deadline; subscriber: requested deadline,
                        each miss prints `deadline missed <total>`
   --min-separation MS  subscriber: minimum separation between samples
   --best-effort | --reliable   reliability (default reliable)
-  --name NAME          participant / module name (default courier-ping)
+options also take --flag=value.
 output: ready | matched <readers> | sent <seq> | received <seq> from <source> <bytes> B
         | deadline missed <total> | done";
 
@@ -73,16 +77,26 @@ output: participant found|changed <guid prefix> name=<name> unicast=<locators>
 /// A usage error: printed with the usage text, exit 64.
 struct Usage(String);
 
+/// Prints one line on stdout, flushed. When stdout is gone (`| head`), the
+/// command stops as on a signal: it closes its session and exits.
 fn out(line: impl std::fmt::Display) {
     let mut o = std::io::stdout().lock();
-    let _ = writeln!(o, "{line}");
-    let _ = o.flush();
+    if writeln!(o, "{line}").and_then(|()| o.flush()).is_err() {
+        if let Some(tx) = STOP.get() {
+            tx.send_replace(true);
+        }
+    }
+}
+
+/// Prints a diagnostic on stderr; a closed stderr is no reason to panic.
+fn err(line: impl std::fmt::Display) {
+    let _ = writeln!(std::io::stderr().lock(), "{line}");
 }
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let Some(cmd) = args.first() else {
-        eprintln!("courier: no command given\n{USAGE}");
+        err(format_args!("courier: no command given\n{USAGE}"));
         return ExitCode::from(64);
     };
     let rest = &args[1..];
@@ -102,14 +116,14 @@ fn main() -> ExitCode {
         }
         Ok(c) => c,
         Err(Usage(why)) => {
-            eprintln!("courier: {why}\n{}", usage_of(cmd));
+            err(format_args!("courier: {why}\n{}", usage_of(cmd)));
             return ExitCode::from(64);
         }
     };
     let rt = match tokio::runtime::Runtime::new() {
         Ok(rt) => rt,
         Err(e) => {
-            eprintln!("courier: cannot start the runtime: {e}");
+            err(format_args!("courier: cannot start the runtime: {e}"));
             return ExitCode::from(1);
         }
     };
@@ -127,13 +141,16 @@ fn main() -> ExitCode {
     match r {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("courier: {e}");
+            err(format_args!("courier: {e}"));
             ExitCode::from(1)
         }
     }
 }
 
-/// SIGINT (Ctrl-C) or SIGTERM: the command stops what it does and closes its
+/// Set once the command is to stop (a signal, or stdout gone).
+static STOP: std::sync::OnceLock<tokio::sync::watch::Sender<bool>> = std::sync::OnceLock::new();
+
+/// SIGINT (Ctrl-C) or SIGTERM (or stdout gone): the command stops what it does and closes its
 /// session (DDS: the participant says goodbye and disposes its endpoints)
 /// instead of dying with the process.
 #[derive(Clone)]
@@ -148,18 +165,22 @@ impl Stop {
             signal(SignalKind::interrupt())?,
             signal(SignalKind::terminate())?,
         );
-        let (tx, rx) = tokio::sync::watch::channel(false);
+        let rx = STOP
+            .get_or_init(|| tokio::sync::watch::channel(false).0)
+            .subscribe();
         tokio::spawn(async move {
             tokio::select! {
                 _ = int.recv() => {}
                 _ = term.recv() => {}
             }
-            let _ = tx.send(true);
+            if let Some(tx) = STOP.get() {
+                tx.send_replace(true);
+            }
         });
         Ok(Stop(rx))
     }
 
-    /// Resolves once a signal came.
+    /// Resolves once a signal came (or stdout went).
     async fn wait(&mut self) {
         let _ = self.0.wait_for(|s| *s).await;
     }
@@ -216,6 +237,8 @@ struct PingOpts {
     count: Option<u64>,
     size: usize,
     strength: Option<i32>,
+    /// Subscriber: exclusive ownership (also implied by `--strength`).
+    exclusive: bool,
     deadline: Option<Duration>,
     min_separation: Option<Duration>,
     best_effort: bool,
@@ -232,13 +255,63 @@ struct SpyOpts {
     name: String,
 }
 
-/// Walks `--flag value` pairs.
+/// Walks the arguments: options as `--flag value` or `--flag=value`, and
+/// positionals.
 struct Args<'a> {
     it: std::slice::Iter<'a, String>,
+    /// The value given after `=` in the current option.
+    inline: Option<&'a str>,
+}
+
+/// One argument.
+enum Arg<'a> {
+    Flag(&'a str),
+    Positional(&'a str),
 }
 
 impl<'a> Args<'a> {
+    fn new(a: &'a [String]) -> Self {
+        Args {
+            it: a.iter(),
+            inline: None,
+        }
+    }
+
+    /// The next argument; an option that takes no value but got one with
+    /// `=` is an error.
+    fn next(&mut self) -> Result<Option<Arg<'a>>, Usage> {
+        if let Some(v) = self.inline.take() {
+            return Err(Usage(format!(
+                "an option got a value it takes none of: {v:?}"
+            )));
+        }
+        let Some(a) = self.it.next() else {
+            return Ok(None);
+        };
+        if !a.starts_with('-') || a == "-" {
+            return Ok(Some(Arg::Positional(a)));
+        }
+        match a.split_once('=') {
+            Some((f, v)) if f.starts_with("--") => {
+                self.inline = Some(v);
+                Ok(Some(Arg::Flag(f)))
+            }
+            _ => Ok(Some(Arg::Flag(a))),
+        }
+    }
+
+    /// A flag without a value: refuses `--flag=value`.
+    fn switch(&mut self, flag: &str) -> Result<(), Usage> {
+        match self.inline.take() {
+            Some(v) => Err(Usage(format!("{flag} takes no value (got {v:?})"))),
+            None => Ok(()),
+        }
+    }
+
     fn value(&mut self, flag: &str) -> Result<&'a str, Usage> {
+        if let Some(v) = self.inline.take() {
+            return Ok(v);
+        }
         self.it
             .next()
             .map(String::as_str)
@@ -251,8 +324,38 @@ impl<'a> Args<'a> {
             .map_err(|_| Usage(format!("{flag} {v:?}: not a valid number")))
     }
 
+    /// A count: at least 1.
+    fn count(&mut self, flag: &str) -> Result<u64, Usage> {
+        match self.num(flag)? {
+            0 => Err(Usage(format!("{flag} must be at least 1"))),
+            n => Ok(n),
+        }
+    }
+
     fn millis(&mut self, flag: &str) -> Result<Duration, Usage> {
         Ok(Duration::from_millis(self.num(flag)?))
+    }
+
+    /// A period or deadline: at least 1 ms.
+    fn positive_millis(&mut self, flag: &str) -> Result<Duration, Usage> {
+        match self.millis(flag)? {
+            d if d.is_zero() => Err(Usage(format!("{flag} must be at least 1 ms"))),
+            d => Ok(d),
+        }
+    }
+}
+
+/// Whether `url` names a DDS session (the SDK takes every other URL as IPC).
+fn is_dds(url: &str) -> bool {
+    url.starts_with("rtps:")
+}
+
+fn positional(url: &mut String, a: &str) -> Result<(), Usage> {
+    if url.is_empty() {
+        *url = a.into();
+        Ok(())
+    } else {
+        Err(Usage(format!("unexpected argument {a:?}")))
     }
 }
 
@@ -268,30 +371,60 @@ fn parse_ping(a: &[String]) -> Result<Cmd, Usage> {
         count: None,
         size: 0,
         strength: None,
+        exclusive: false,
         deadline: None,
         min_separation: None,
         best_effort: false,
         name: "courier-ping".into(),
     };
     let (mut publish, mut subscribe) = (false, false);
-    let mut args = Args { it: a.iter() };
-    while let Some(arg) = args.it.next() {
-        match arg.as_str() {
-            "--publish" => publish = true,
-            "--subscribe" => subscribe = true,
-            "--topic" => o.topic = args.value(arg)?.into(),
-            "--period" => o.period = args.millis(arg)?,
-            "--count" => o.count = Some(args.num(arg)?),
-            "--size" => o.size = args.num(arg)?,
-            "--strength" => o.strength = Some(args.num(arg)?),
-            "--deadline" => o.deadline = Some(args.millis(arg)?),
-            "--min-separation" => o.min_separation = Some(args.millis(arg)?),
-            "--best-effort" => o.best_effort = true,
-            "--reliable" => o.best_effort = false,
-            "--name" => o.name = args.value(arg)?.into(),
-            f if f.starts_with('-') => return Err(Usage(format!("unknown option {f:?}"))),
-            url if o.url.is_empty() => o.url = url.into(),
-            extra => return Err(Usage(format!("unexpected argument {extra:?}"))),
+    // QoS options given, which only a DDS session has
+    let mut qos: Vec<&str> = Vec::new();
+    let mut args = Args::new(a);
+    while let Some(arg) = args.next()? {
+        let f = match arg {
+            Arg::Positional(p) => {
+                positional(&mut o.url, p)?;
+                continue;
+            }
+            Arg::Flag(f) => f,
+        };
+        match f {
+            "--publish" => {
+                args.switch(f)?;
+                publish = true
+            }
+            "--subscribe" => {
+                args.switch(f)?;
+                subscribe = true
+            }
+            "--topic" => o.topic = args.value(f)?.into(),
+            "--period" => o.period = args.positive_millis(f)?,
+            "--count" => o.count = Some(args.count(f)?),
+            "--size" => o.size = args.num(f)?,
+            "--strength" => o.strength = Some(args.num(f)?),
+            "--exclusive" => {
+                args.switch(f)?;
+                o.exclusive = true
+            }
+            "--deadline" => o.deadline = Some(args.positive_millis(f)?),
+            "--min-separation" => o.min_separation = Some(args.millis(f)?),
+            "--best-effort" => {
+                args.switch(f)?;
+                o.best_effort = true
+            }
+            "--reliable" => {
+                args.switch(f)?;
+                o.best_effort = false
+            }
+            "--name" => o.name = args.value(f)?.into(),
+            _ => return Err(Usage(format!("unknown option {f:?}"))),
+        }
+        if matches!(
+            f,
+            "--strength" | "--exclusive" | "--deadline" | "--min-separation" | "--best-effort"
+        ) {
+            qos.push(f);
         }
     }
     if o.url.is_empty() {
@@ -306,8 +439,21 @@ fn parse_ping(a: &[String]) -> Result<Cmd, Usage> {
             ))
         }
     }
-    if o.period.is_zero() {
-        return Err(Usage("--period must be at least 1 ms".into()));
+    if o.publish {
+        if let Some(f) = qos
+            .iter()
+            .find(|f| matches!(**f, "--min-separation" | "--exclusive"))
+        {
+            return Err(Usage(format!("{f} is for --subscribe")));
+        }
+    }
+    // The IPC backend takes no QoS and would ignore these silently: a
+    // publisher that is not exclusive, a deadline that is never watched.
+    if let Some(f) = qos.first().filter(|_| !is_dds(&o.url)) {
+        return Err(Usage(format!(
+            "{f} is DDS QoS and needs an rtps:// session; {} is IPC, which has no QoS",
+            o.url
+        )));
     }
     Ok(Cmd::Ping(o))
 }
@@ -324,17 +470,22 @@ fn parse_spy(a: &[String]) -> Result<Cmd, Usage> {
         duration: None,
         name: "courier-spy".into(),
     };
-    let mut args = Args { it: a.iter() };
-    while let Some(arg) = args.it.next() {
-        match arg.as_str() {
-            "--topic" => o.topic = args.value(arg)?.into(),
-            "--type" => o.type_name = args.value(arg)?.into(),
-            "--count" => o.count = Some(args.num(arg)?),
-            "--duration" => o.duration = Some(Duration::from_secs(args.num(arg)?)),
-            "--name" => o.name = args.value(arg)?.into(),
-            f if f.starts_with('-') => return Err(Usage(format!("unknown option {f:?}"))),
-            url if o.url.is_empty() => o.url = url.into(),
-            extra => return Err(Usage(format!("unexpected argument {extra:?}"))),
+    let mut args = Args::new(a);
+    while let Some(arg) = args.next()? {
+        let f = match arg {
+            Arg::Positional(p) => {
+                positional(&mut o.url, p)?;
+                continue;
+            }
+            Arg::Flag(f) => f,
+        };
+        match f {
+            "--topic" => o.topic = args.value(f)?.into(),
+            "--type" => o.type_name = args.value(f)?.into(),
+            "--count" => o.count = Some(args.count(f)?),
+            "--duration" => o.duration = Some(Duration::from_secs(args.count(f)?)),
+            "--name" => o.name = args.value(f)?.into(),
+            _ => return Err(Usage(format!("unknown option {f:?}"))),
         }
     }
     if o.url.is_empty() {
@@ -417,7 +568,7 @@ async fn ping_subscribe(s: &Session, o: &PingOpts, ev: &mut courier::Events) -> 
     if let Some(d) = o.min_separation {
         b = b.minimum_separation(d);
     }
-    if o.strength.is_some() {
+    if o.exclusive || o.strength.is_some() {
         b = b.exclusive();
     }
     let mut sub = b.build().await?;
