@@ -13,6 +13,7 @@
 //! (SIGINT) or SIGTERM prints `interrupted`, closes the session (DDS: the
 //! participant says goodbye) and exits 0.
 
+use std::collections::HashSet;
 use std::io::Write;
 use std::process::ExitCode;
 use std::time::{Duration, Instant, SystemTime};
@@ -58,8 +59,17 @@ DDS QoS (rtps:// only; refused on ipc://, which has none):
   --min-separation MS  subscriber: minimum separation between samples
   --best-effort | --reliable   reliability (default reliable)
 options also take --flag=value.
-output: ready | matched <readers> | sent <seq> | received <seq> from <source> <bytes> B
-        | deadline missed <total> | done";
+output, one event a line:
+  ready                               the publication / subscription exists
+  matched <n>                         publisher: readers now matched (DDS and IPC);
+                                      subscriber: publications now matched (DDS)
+  incompatible <guid> <reason>        an endpoint of the topic whose QoS does not match (DDS)
+  sent <seq>
+  received <seq> from <source> <bytes> B   <source>: writer GUID (DDS), ? (IPC)
+  deadline missed <total>             subscriber with --deadline (DDS)
+  skipped <reason>                    a sample that did not decode
+  done                                --count reached (exit 0)
+  interrupted                         Ctrl-C / SIGTERM: session closed (exit 0)";
 
 const SPY_USAGE: &str = "\
 usage: courier spy <url> [options]
@@ -514,6 +524,33 @@ async fn ping(o: PingOpts, mut stop: Stop) -> Result<(), Error> {
     }
 }
 
+/// How long the last of `--count` samples may wait for every matched
+/// reliable reader to acknowledge it.
+const LAST_ACK_BOUND: Duration = Duration::from_secs(5);
+
+/// How long `ping --subscribe` lets discovery settle before it counts the
+/// publications it matches.
+const SETTLE: Duration = Duration::from_millis(50);
+
+/// Prints `matched <n>` when `n` differs from what was printed last.
+struct Matched(Option<usize>);
+
+impl Matched {
+    fn set(&mut self, n: usize) {
+        if self.0 != Some(n) {
+            self.0 = Some(n);
+            out(format_args!("matched {n}"));
+        }
+    }
+}
+
+fn incompatible_line(remote: courier::rtps::Guid, reason: &str) -> String {
+    format!(
+        "incompatible {} {reason}",
+        courier::rtps_backend::guid_hex(remote)
+    )
+}
+
 async fn ping_publish(s: &Session, o: &PingOpts, ev: &mut courier::Events) -> Result<(), Error> {
     let mut b = s.publisher::<Ping>(&o.topic);
     if o.best_effort {
@@ -528,29 +565,48 @@ async fn ping_publish(s: &Session, o: &PingOpts, ev: &mut courier::Events) -> Re
     let p = b.build().await?;
     s.watch_handlers(&o.topic).await?;
     out("ready");
-    // readers already matched when the publication was created
+    // readers already matched when the publication was created (DDS: the
+    // readers matched with our writer; IPC: the modules subscribing)
+    let mut matched = Matched(None);
     let n = s.num_handlers(&o.topic).await?;
     if n > 0 {
-        out(format_args!("matched {n}"));
+        matched.set(n.unsigned_abs() as usize);
     }
     let mut tick = tokio::time::interval(o.period);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut seq = 0u32;
     loop {
         tokio::select! {
             _ = tick.tick() => {
                 seq = seq.wrapping_add(1);
                 let v = Ping { seq, stamp_ns: now_ns(), text: "x".repeat(o.size) };
-                p.publish(&v).await?;
+                let last = o.count.is_some_and(|n| u64::from(seq) >= n);
+                if last && is_dds(&o.url) && !o.best_effort {
+                    // exiting right after the write could leave a reader
+                    // without the last sample: wait for its acknowledgement
+                    match p.publish(&v).timeout(LAST_ACK_BOUND).await {
+                        Err(courier::SessionError::Timeout { after, .. }) => err(format_args!(
+                            "courier: sample {seq} not acknowledged by every reader within {after:?}"
+                        )),
+                        r => r?,
+                    }
+                } else {
+                    p.publish(&v).await?;
+                }
                 out(format_args!("sent {seq}"));
-                if o.count.is_some_and(|n| u64::from(seq) >= n) {
+                if last {
                     break;
                 }
             }
-            Some(e) = ev.next() => {
-                if let SessionEvent::HandlersChanged { count, .. } = e {
-                    out(format_args!("matched {count}"));
+            Some(e) = ev.next() => match e {
+                SessionEvent::HandlersChanged { msg, count } if msg == o.topic => {
+                    matched.set(count.unsigned_abs() as usize)
                 }
-            }
+                SessionEvent::IncompatibleQos { msg, remote, reason } if msg == o.topic => {
+                    out(incompatible_line(remote, &reason))
+                }
+                _ => {}
+            },
         }
     }
     out("done");
@@ -573,6 +629,12 @@ async fn ping_subscribe(s: &Session, o: &PingOpts, ev: &mut courier::Events) -> 
     }
     let mut sub = b.build().await?;
     out("ready");
+    // DDS: publications of our topic and type, less those whose QoS does not
+    // match ours (the SDK reports no reader matches, only mismatches)
+    let mut found = HashSet::new();
+    let mut refused = HashSet::new();
+    let mut matched = Matched(None);
+    let mut recount: Option<tokio::time::Instant> = None;
     let mut n = 0u64;
     loop {
         tokio::select! {
@@ -590,21 +652,60 @@ async fn ping_subscribe(s: &Session, o: &PingOpts, ev: &mut courier::Events) -> 
                         break;
                     }
                 }
-                Some(Err(e)) => out(format_args!("issue: {e}")),
+                Some(Err(e)) => out(format_args!("skipped {e}")),
             },
-            Some(e) = ev.next() => match e {
-                SessionEvent::DeadlineMissed { total, .. } => {
-                    out(format_args!("deadline missed {total}"))
+            Some(e) = ev.next() => {
+                if pub_event(e, o, &mut found, &mut refused) && is_dds(&o.url) {
+                    // a publication's mismatch comes right after its
+                    // discovery: count once both are in, not to print a
+                    // match that is none
+                    recount.get_or_insert_with(|| tokio::time::Instant::now() + SETTLE);
                 }
-                SessionEvent::IncompatibleQos { remote, reason, .. } => {
-                    out(format_args!("incompatible {} {reason}", courier::rtps_backend::guid_hex(remote)))
-                }
-                _ => {}
-            },
+            }
+            _ = async { tokio::time::sleep_until(recount.unwrap()).await }, if recount.is_some() => {
+                recount = None;
+                matched.set(found.difference(&refused).count());
+            }
         }
     }
     out("done");
     Ok(())
+}
+
+/// A session event for `ping --subscribe`: prints deadline misses and QoS
+/// mismatches, follows the publications of the topic; whether the number of
+/// matched publications may have changed.
+fn pub_event(
+    e: SessionEvent,
+    o: &PingOpts,
+    found: &mut HashSet<courier::rtps::Guid>,
+    refused: &mut HashSet<courier::rtps::Guid>,
+) -> bool {
+    match e {
+        SessionEvent::DeadlineMissed { msg, total } if msg == o.topic => {
+            out(format_args!("deadline missed {total}"));
+            false
+        }
+        SessionEvent::IncompatibleQos {
+            msg,
+            remote,
+            reason,
+        } if msg == o.topic => {
+            refused.insert(remote);
+            out(incompatible_line(remote, &reason));
+            true
+        }
+        SessionEvent::PublicationFound(e) | SessionEvent::PublicationChanged(e)
+            if e.topic_name == o.topic && e.type_name == Ping::TYPE_NAME =>
+        {
+            // a change is matched anew: a mismatch is reported again
+            refused.remove(&e.guid);
+            found.insert(e.guid);
+            true
+        }
+        SessionEvent::PublicationLost(g) => found.remove(&g) | refused.remove(&g),
+        _ => false,
+    }
 }
 
 fn prefix_hex(p: courier::rtps::GuidPrefix) -> String {
