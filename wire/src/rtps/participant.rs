@@ -2287,9 +2287,15 @@ impl Participant {
         match res {
             Some(Ok(())) if !was => {
                 let replay = lw.durable && rr.qos.durability >= Durability::TransientLocal;
+                let reliable = matches!(rr.qos.reliability, Reliability::Reliable(_));
                 lw.matched.insert(g);
-                lw.writer.add_reader(g, replay, now);
-                if replay && !lw.reliable {
+                if reliable {
+                    lw.writer.add_reader(g, replay, now);
+                } else {
+                    // it never acknowledges: nothing may wait for it
+                    lw.writer.add_best_effort_reader(g);
+                }
+                if replay && !(lw.reliable && reliable) {
                     // best effort has no repair: push the history once
                     for (sn, p) in lw.writer.samples() {
                         self.replays.push((writer, g, sn, p.clone()));

@@ -63,6 +63,10 @@ pub enum Transmit {
 
 #[derive(Debug, Default)]
 struct ReaderProxy {
+    /// A reliable reader: it acknowledges, and the writer keeps and repairs
+    /// for it. A best-effort reader never sends an ACKNACK, so waiting for
+    /// one would hold a keep-all history until it is full (and block).
+    reliable: bool,
     /// Everything below this is acknowledged.
     acked_below: i64,
     /// First sequence number relevant to this reader: a volatile late
@@ -140,6 +144,7 @@ impl Writer {
         self.readers.insert(
             reader,
             ReaderProxy {
+                reliable: true,
                 acked_below,
                 start: acked_below,
                 ..ReaderProxy::default()
@@ -160,6 +165,21 @@ impl Writer {
             self.next_heartbeat
                 .get_or_insert(now + self.heartbeat_period);
         }
+    }
+
+    /// A best-effort reader matched: it gets every sample as written, but it
+    /// never acknowledges, so neither the history, nor heartbeats, nor
+    /// [`Writer::acked_by_all`] wait for it.
+    pub fn add_best_effort_reader(&mut self, reader: Guid) {
+        self.readers.insert(
+            reader,
+            ReaderProxy {
+                reliable: false,
+                acked_below: self.next_sn,
+                start: self.next_sn,
+                ..ReaderProxy::default()
+            },
+        );
     }
 
     /// A reader went away.
@@ -199,6 +219,7 @@ impl Writer {
         let below = self
             .readers
             .values()
+            .filter(|r| r.reliable)
             .map(|r| r.acked_below)
             .min()
             .unwrap_or(self.next_sn);
@@ -256,6 +277,7 @@ impl Writer {
         let min_acked = self
             .readers
             .values()
+            .filter(|r| r.reliable)
             .map(|r| r.acked_below)
             .min()
             .unwrap_or(self.next_sn);
@@ -269,7 +291,9 @@ impl Writer {
 
     /// True when every matched reader acknowledged `sn` (for `publish().confirmed()`).
     pub fn is_acked_by_all(&self, sn: SequenceNumber) -> bool {
-        self.readers.values().all(|r| r.acked_below > sn.0)
+        self.readers
+            .values()
+            .all(|r| !r.reliable || r.acked_below > sn.0)
     }
 
     /// Makes the heartbeat piggybacked on the next write ask every reader
@@ -354,7 +378,10 @@ impl Writer {
     pub fn handle_timeout(&mut self, now: Instant) {
         if let Some(t) = self.next_heartbeat {
             if now >= t {
-                let unacked = self.readers.values().any(|r| r.acked_below < self.next_sn);
+                let unacked = self
+                    .readers
+                    .values()
+                    .any(|r| r.reliable && r.acked_below < self.next_sn);
                 if unacked {
                     self.push_heartbeat(None, false);
                     self.next_heartbeat = Some(now + self.heartbeat_period);
@@ -830,6 +857,31 @@ mod tests {
             Some(Transmit::Gap { start: SequenceNumber(1), list, .. }) if list.base == SequenceNumber(7)
         ));
         assert_eq!(w.acked_by_all(), SequenceNumber(0));
+    }
+
+    #[test]
+    fn best_effort_readers_never_hold_a_reliable_history() {
+        let (wg, be, rel) = (guid(1), guid(2), guid(3));
+        let t0 = Instant::now();
+        let mut w = Writer::new(wg, true, None, 4, Duration::from_millis(10));
+        w.add_best_effort_reader(be);
+        // keep-all with room for 4: a reader that never acknowledges must
+        // not fill it (it did, and the writer blocked for good)
+        for i in 1..=10u8 {
+            let sn = w.write(Arc::from(vec![i]), t0).expect("room");
+            assert!(w.is_acked_by_all(sn));
+        }
+        assert_eq!(w.acked_by_all(), SequenceNumber(10));
+        // no periodic heartbeat for it either
+        w.handle_timeout(t0 + Duration::from_secs(1));
+        assert_eq!(w.poll_timeout(), None);
+        // a reliable reader still holds what it has not acknowledged
+        w.add_reader(rel, false, t0);
+        for i in 11..=14u8 {
+            w.write(Arc::from(vec![i]), t0).expect("room");
+        }
+        assert_eq!(w.write(Arc::from(vec![15u8]), t0), None);
+        assert_eq!(w.acked_by_all(), SequenceNumber(10));
     }
 
     #[test]
