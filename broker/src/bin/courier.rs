@@ -78,11 +78,22 @@ usage: courier spy <url> [options]
   --count N         exit after N samples
   --duration SECS   exit after this long
   --name NAME       participant name (default courier-spy)
-output: participant found|changed <guid prefix> name=<name> unicast=<locators>
-        participant lost <guid prefix> goodbye|lease-expired
-        publication|subscription found|changed <guid> topic=<t> type=<t> <qos>
-        publication|subscription lost <guid>
-        sample <topic> <type> from <writer> <bytes> B: <decoded or hex>";
+<url> must be rtps://... (pattern subscriptions need DDS; ipc:// is refused, exit 1).
+options also take --flag=value.
+output, one event a line (a name with blanks is quoted; an empty list is -):
+  ready
+  participant found|changed <guid prefix> name=<name> unicast=<addrs> multicast=<addrs>
+  participant lost <guid prefix> goodbye|lease-expired
+  publication|subscription found|changed <guid> topic=<topic> type=<type>
+      reliability=reliable|best-effort durability=volatile|transient-local|transient|persistent
+      history=keep-last(<n>)|keep-all deadline=<n>ms|infinite
+      ownership=shared|exclusive(<strength>) partitions=[<p>,...]
+  publication|subscription lost <guid>
+  incompatible <guid> <reason>
+  sample <topic> <type> from <writer guid> <bytes> B[ (disposed)|(unregistered)]: <value>
+      <value>: courier::Ping { seq: <n>, stamp_ns: <n>, text: \"...\" }, or the first
+      64 bytes in hex (… when more), or - when none
+  interrupted                   Ctrl-C / SIGTERM: session closed (exit 0)";
 
 /// A usage error: printed with the usage text, exit 64.
 struct Usage(String);
@@ -748,12 +759,15 @@ fn endpoint_line(kind: &str, what: &str, e: &EndpointData) -> String {
     format!(
         "{kind} {what} {} topic={} type={} {}",
         courier::rtps_backend::guid_hex(e.guid),
-        e.topic_name,
-        e.type_name,
+        word(&e.topic_name),
+        word(&e.type_name),
         qos_text(e)
     )
 }
 
+/// A sample's bytes for `spy`: decoded when the type is known
+/// (`courier::Ping`), else the first 64 bytes in hex (`…` when there are
+/// more), `-` when there are none.
 fn sample_text(type_name: &str, data: &[u8]) -> String {
     if type_name == Ping::TYPE_NAME {
         if let Ok(p) = courier::cdr::from_slice::<Ping>(data) {
@@ -763,6 +777,9 @@ fn sample_text(type_name: &str, data: &[u8]) -> String {
             );
         }
     }
+    if data.is_empty() {
+        return "-".into();
+    }
     let hex: String = data.iter().take(64).map(|b| format!("{b:02x}")).collect();
     if data.len() > 64 {
         format!("{hex}…")
@@ -771,7 +788,51 @@ fn sample_text(type_name: &str, data: &[u8]) -> String {
     }
 }
 
+/// A word of a line: as is, or quoted when it would not stay one word.
+fn word(s: &str) -> String {
+    if s.is_empty() || s.contains(|c: char| c.is_whitespace() || c == '"') {
+        format!("{s:?}")
+    } else {
+        s.to_string()
+    }
+}
+
+/// Socket addresses of locators, each once, or `-`.
+fn locators<'a>(ls: impl IntoIterator<Item = &'a courier::rtps::Locator>) -> String {
+    let mut v: Vec<String> = Vec::new();
+    for a in ls.into_iter().filter_map(|l| l.socket_addr()) {
+        let a = a.to_string();
+        if !v.contains(&a) {
+            v.push(a);
+        }
+    }
+    if v.is_empty() {
+        "-".into()
+    } else {
+        v.join(",")
+    }
+}
+
+fn participant_line(what: &str, p: &courier::rtps::discovery::ParticipantData) -> String {
+    format!(
+        "participant {what} {} name={} unicast={} multicast={}",
+        prefix_hex(p.guid_prefix),
+        p.entity_name.as_deref().map_or("-".into(), word),
+        locators(p.metatraffic_unicast.iter().chain(&p.default_unicast)),
+        locators(p.metatraffic_multicast.iter().chain(&p.default_multicast)),
+    )
+}
+
 async fn spy(o: SpyOpts, mut stop: Stop) -> Result<(), Error> {
+    // every other URL is IPC, which refuses pattern subscriptions: say so
+    // without connecting (central need not even run)
+    if !is_dds(&o.url) {
+        return Err(format!(
+            "spy needs pattern subscriptions, which need a DDS session (rtps://...); {} is IPC",
+            o.url
+        )
+        .into());
+    }
     let Some(s) = connect(&o.url, &o.name, &mut stop).await? else {
         return Ok(());
     };
@@ -801,18 +862,18 @@ async fn spy_session(s: &Session, o: &SpyOpts) -> Result<(), Error> {
                 if smp.msg.is_empty() {
                     break; // the session ended
                 }
-                let ty = smp.type_name.clone().unwrap_or_default();
+                let ty = smp.type_name.as_deref().unwrap_or("?");
                 let state = match smp.state {
-                    courier::InstanceState::Alive => String::new(),
-                    st => format!(" ({st:?})"),
+                    courier::InstanceState::Alive => "",
+                    courier::InstanceState::Disposed => " (disposed)",
+                    courier::InstanceState::Unregistered => " (unregistered)",
                 };
                 out(format_args!(
-                    "sample {} {} from {} {} B{state}: {}",
+                    "sample {} {ty} from {} {} B{state}: {}",
                     smp.msg,
-                    ty,
                     smp.source.as_deref().unwrap_or("?"),
                     smp.data.len(),
-                    sample_text(&ty, &smp.data)
+                    sample_text(ty, &smp.data)
                 ));
                 n += 1;
                 if o.count.is_some_and(|c| n >= c) {
@@ -820,21 +881,8 @@ async fn spy_session(s: &Session, o: &SpyOpts) -> Result<(), Error> {
                 }
             }
             Some(e) = ev.next() => match e {
-                SessionEvent::ParticipantFound(p) | SessionEvent::ParticipantChanged(p) => {
-                    let locs: Vec<String> = p
-                        .metatraffic_unicast
-                        .iter()
-                        .chain(&p.default_unicast)
-                        .filter_map(|l| l.socket_addr())
-                        .map(|a| a.to_string())
-                        .collect();
-                    out(format_args!(
-                        "participant found {} name={} unicast={}",
-                        prefix_hex(p.guid_prefix),
-                        p.entity_name.as_deref().unwrap_or("-"),
-                        locs.join(",")
-                    ))
-                }
+                SessionEvent::ParticipantFound(p) => out(participant_line("found", &p)),
+                SessionEvent::ParticipantChanged(p) => out(participant_line("changed", &p)),
                 SessionEvent::ParticipantLost { guid_prefix, disposed } => out(format_args!(
                     "participant lost {} {}",
                     prefix_hex(guid_prefix),
@@ -849,6 +897,9 @@ async fn spy_session(s: &Session, o: &SpyOpts) -> Result<(), Error> {
                 SessionEvent::SubscriptionChanged(e) => out(endpoint_line("subscription", "changed", &e)),
                 SessionEvent::SubscriptionLost(g) => {
                     out(format_args!("subscription lost {}", courier::rtps_backend::guid_hex(g)))
+                }
+                SessionEvent::IncompatibleQos { remote, reason, .. } => {
+                    out(incompatible_line(remote, &reason))
                 }
                 _ => {}
             },
