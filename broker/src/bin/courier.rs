@@ -20,7 +20,7 @@ use std::time::{Duration, Instant, SystemTime};
 
 use courier::rtps::discovery::{Durability, EndpointData, History, Reliability};
 use courier::{IpcMessage, RecvError, Session, SessionEvent};
-use futures::StreamExt;
+use futures::{FutureExt, StreamExt};
 
 /// The sample `courier ping` sends (DDS type `courier::Ping`).
 #[derive(IpcMessage, Debug, Clone, PartialEq)]
@@ -652,6 +652,17 @@ async fn ping_subscribe(s: &Session, o: &PingOpts, ev: &mut courier::Events) -> 
             r = sub.next() => match r {
                 None | Some(Err(RecvError::Disconnected)) => return Err("the session ended".into()),
                 Some(Ok(smp)) => {
+                    // a sample shows its publication matched: take the
+                    // discovery events already in and count before printing
+                    // it, so that `matched` comes first
+                    while let Some(Some(e)) = ev.next().now_or_never() {
+                        if pub_event(e, o, &mut found, &mut refused) && is_dds(&o.url) {
+                            recount.get_or_insert_with(|| tokio::time::Instant::now() + SETTLE);
+                        }
+                    }
+                    if recount.take().is_some() {
+                        matched.set(found.difference(&refused).count());
+                    }
                     n += 1;
                     out(format_args!(
                         "received {} from {} {} B",
