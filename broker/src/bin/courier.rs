@@ -48,7 +48,7 @@ usage: courier ping <url> (--publish | --subscribe) [options]
   --topic NAME         topic (default ping)
   --period MS          publishing period (default 1000)
   --count N            stop after N samples sent or received (default: run until Ctrl-C)
-  --size BYTES         text length of each sample (default 0)
+  --size BYTES         text length of each sample (default 0, at most 16 MiB)
   --name NAME          participant / module name (default courier-ping)
 DDS QoS (rtps:// only; refused on ipc://, which has none):
   --strength N         publisher: exclusive ownership with this strength;
@@ -171,10 +171,9 @@ fn main() -> ExitCode {
 /// Set once the command is to stop (a signal, or stdout gone).
 static STOP: std::sync::OnceLock<tokio::sync::watch::Sender<bool>> = std::sync::OnceLock::new();
 
-/// SIGINT (Ctrl-C) or SIGTERM (or stdout gone): the command stops what it does and closes its
-/// session (DDS: the participant says goodbye and disposes its endpoints)
-/// instead of dying with the process.
-#[derive(Clone)]
+/// SIGINT (Ctrl-C) or SIGTERM (or stdout gone): the command stops what it
+/// does and closes its session (DDS: the participant says goodbye and
+/// disposes its endpoints) instead of dying with the process.
 struct Stop(tokio::sync::watch::Receiver<bool>);
 
 impl Stop {
@@ -380,6 +379,10 @@ fn positional(url: &mut String, a: &str) -> Result<(), Usage> {
     }
 }
 
+/// Largest `--size`: big enough to exercise fragmentation, small enough not
+/// to exhaust memory by a typo.
+const MAX_SIZE: usize = 16 << 20;
+
 fn parse_ping(a: &[String]) -> Result<Cmd, Usage> {
     if a.iter().any(|s| s == "--help" || s == "-h") {
         return Ok(Cmd::Help(PING_USAGE));
@@ -422,7 +425,12 @@ fn parse_ping(a: &[String]) -> Result<Cmd, Usage> {
             "--topic" => o.topic = args.value(f)?.into(),
             "--period" => o.period = args.positive_millis(f)?,
             "--count" => o.count = Some(args.count(f)?),
-            "--size" => o.size = args.num(f)?,
+            "--size" => {
+                o.size = args.num(f)?;
+                if o.size > MAX_SIZE {
+                    return Err(Usage(format!("{f} must be at most {MAX_SIZE}")));
+                }
+            }
             "--strength" => o.strength = Some(args.num(f)?),
             "--exclusive" => {
                 args.switch(f)?;
@@ -917,4 +925,63 @@ async fn spy_session(s: &Session, o: &SpyOpts) -> Result<(), Error> {
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn samples_print_decoded_or_as_bounded_hex() {
+        let p = Ping {
+            seq: 7,
+            stamp_ns: 9,
+            text: "hi".into(),
+        };
+        let data = courier::cdr::to_vec(&p, courier::cdr::Encoding::Xcdr1Le);
+        assert_eq!(
+            sample_text("courier::Ping", &data),
+            "courier::Ping { seq: 7, stamp_ns: 9, text: \"hi\" }"
+        );
+        // an unknown type (or one that does not decode): hex, 64 bytes at most
+        assert_eq!(sample_text("x::Y", &[0xab, 0x01]), "ab01");
+        assert_eq!(sample_text("courier::Ping", &[0xab]), "ab");
+        let long = sample_text("x::Y", &[0x5a; 65]);
+        assert_eq!(long, format!("{}…", "5a".repeat(64)));
+        assert_eq!(sample_text("x::Y", &[]), "-");
+    }
+
+    #[test]
+    fn words_stay_words() {
+        assert_eq!(word("talker"), "talker");
+        assert_eq!(word("my rx"), "\"my rx\"");
+        assert_eq!(word(""), "\"\"");
+    }
+
+    fn args(a: &[&str]) -> Vec<String> {
+        a.iter().map(|s| s.to_string()).collect()
+    }
+
+    #[test]
+    fn ping_options_in_both_spellings() {
+        let u = "rtps://205?interface=lo&peers=127.0.0.1";
+        let Ok(Cmd::Ping(o)) = parse_ping(&args(&[
+            u,
+            "--subscribe",
+            "--topic=t",
+            "--deadline",
+            "250",
+            "--count=4",
+            "--strength",
+            "-2",
+            "--best-effort",
+        ])) else {
+            panic!("parse")
+        };
+        assert_eq!(o.url, u);
+        assert!(!o.publish && o.best_effort);
+        assert_eq!(o.topic, "t");
+        assert_eq!(o.deadline, Some(Duration::from_millis(250)));
+        assert_eq!((o.count, o.strength), (Some(4), Some(-2)));
+    }
 }
