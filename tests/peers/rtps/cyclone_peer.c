@@ -11,7 +11,8 @@
  * Fast DDS peer (fastdds_peer.cpp) takes the same flags and prints the same
  * lines.
  *
- * Build (sdk/tests/rtps_interop.rs does this): idlc -x final types.idl, then
+ * Build (tests/peers.rs and sdk/tests/rtps_interop.rs do this; README.md
+ * beside this file documents it): idlc -x final types.idl, then
  *   cc -std=gnu11 -O2 cyclone_peer.c types.c $(pkg-config --cflags --libs CycloneDDS)
  */
 #define _GNU_SOURCE
@@ -75,6 +76,8 @@ struct options {
   long settle_ms;
   bool settle_set;
   long keys;
+  long disposed;
+  bool disposed_set;
   const char *text;
   const char *trace;
 };
@@ -91,8 +94,10 @@ static void usage(FILE *out)
       "          [--depth N (keep last, default 10) | --keep-all] [--count N]\n"
       "          [--size BYTES[,BYTES...]] [--period-ms N] [--dispose-every N]\n"
       "          [--wait-match N] [--settle-ms N] [--timeout-s N] [--linger-ms N]\n"
-      "          [--keys N] [--text PREFIX] [--trace FILE]\n"
+      "          [--keys N] [--disposed N] [--text PREFIX] [--trace FILE]\n"
       "Loopback only (interface lo, unicast discovery to 127.0.0.1).\n"
+      "A subscriber is done after --count samples and --disposed disposals (both when\n"
+      "given, otherwise it runs until --timeout-s); either role then stays --linger-ms.\n"
       "Output lines: ready | matched <n> | sent <seq> | sent <id> <seq> | dispose <id>\n"
       "  | acked | sample <seq> <text> <len> <fnv1a32> | sample <id> <seq> <text>\n"
       "  | disposed <id> | unregistered <id> | done | timeout\n"
@@ -233,6 +238,9 @@ static void parse_args(int argc, char **argv, struct options *o)
       o->linger_ms = parse_num(a, TAKES_VALUE(), 0, 3600000);
     } else if (strcmp(a, "--keys") == 0) {
       o->keys = parse_num(a, TAKES_VALUE(), 1, INT32_MAX);
+    } else if (strcmp(a, "--disposed") == 0) {
+      o->disposed = parse_num(a, TAKES_VALUE(), 0, INT32_MAX);
+      o->disposed_set = true;
     } else if (strcmp(a, "--text") == 0) {
       o->text = TAKES_VALUE();
       if (o->text == NULL)
@@ -259,11 +267,15 @@ static void parse_args(int argc, char **argv, struct options *o)
   if (o->keep_all && o->depth_set)
     usage_error("--depth and --keep-all are exclusive");
   if (o->role == 2) {
-    if (o->nsizes || o->period_ms || o->dispose_every || o->wait_match || o->linger_ms ||
-        o->settle_set || o->keys || o->text)
+    if (o->nsizes || o->period_ms || o->dispose_every || o->wait_match || o->settle_set ||
+        o->keys || o->text)
       usage_error("--size, --period-ms, --dispose-every, --wait-match, --settle-ms, "
-                  "--linger-ms, --keys and --text are publisher options");
+                  "--keys and --text are publisher options");
+    if (o->disposed_set && o->type != TYPE_KEYED)
+      usage_error("--disposed is for --type keyed");
   } else {
+    if (o->disposed_set)
+      usage_error("--disposed is a subscriber option");
     if (!o->count_set)
       o->count = 1;
   }
@@ -542,8 +554,9 @@ struct inst_state {
 static struct inst_state tracked[MAX_TRACKED];
 static size_t ntracked;
 
-/* Reports a disposed/unregistered instance once per transition out of ALIVE. */
-static void track_instance(int32_t id, dds_instance_state_t st)
+/* Reports a disposed/unregistered instance once per transition out of ALIVE;
+ * returns true when it reported a disposal. */
+static bool track_instance(int32_t id, dds_instance_state_t st)
 {
   size_t i;
   for (i = 0; i < ntracked; i++)
@@ -558,19 +571,22 @@ static void track_instance(int32_t id, dds_instance_state_t st)
     tracked[i].state = DDS_IST_ALIVE;
   }
   if (st == tracked[i].state)
-    return;
+    return false;
   tracked[i].state = st;
-  if (st == DDS_IST_NOT_ALIVE_DISPOSED)
+  if (st == DDS_IST_NOT_ALIVE_DISPOSED) {
     emit("disposed %" PRId32, id);
-  else if (st == DDS_IST_NOT_ALIVE_NO_WRITERS)
+    return true;
+  }
+  if (st == DDS_IST_NOT_ALIVE_NO_WRITERS)
     emit("unregistered %" PRId32, id);
+  return false;
 }
 
 #define TAKE_BATCH 16
 
 static void run_sub(const struct options *o, dds_entity_t rd, dds_entity_t ws)
 {
-  long received = 0;
+  long received = 0, disposed = 0;
   void *samples[TAKE_BATCH];
   dds_sample_info_t infos[TAKE_BATCH];
   for (;;) {
@@ -593,7 +609,8 @@ static void run_sub(const struct options *o, dds_entity_t rd, dds_entity_t ws)
           print_sample_keyed(k);
           received++;
         }
-        track_instance(k->id, infos[i].instance_state);
+        if (track_instance(k->id, infos[i].instance_state))
+          disposed++;
       }
     }
     if (n > 0) {
@@ -601,13 +618,24 @@ static void run_sub(const struct options *o, dds_entity_t rd, dds_entity_t ws)
       if (rc != DDS_RETCODE_OK)
         fail("return loan", rc);
     }
-    if (o->count_set && received >= o->count) {
-      emit("done");
-      return;
-    }
+    if ((o->count_set || o->disposed_set) && (!o->count_set || received >= o->count) &&
+        (!o->disposed_set || disposed >= o->disposed))
+      break;
     if (n == 0)
       dds_waitset_wait(ws, NULL, 0, DDS_MSECS(left < 50 ? left : 50));
   }
+  /* Stay a while so that the writer sees this reader's acknowledgements
+   * (Fast DDS 2.9 does not understand Cyclone's dispose of a leaving
+   * endpoint and would otherwise wait for it until its lease expires). */
+  if (o->linger_ms) {
+    int64_t until = elapsed_ms() + o->linger_ms;
+    while (elapsed_ms() < until) {
+      int64_t left = until - elapsed_ms();
+      sleep_ms(left < 50 ? left : 50); /* not the waitset: data may stay available */
+      check_matched(rd, false);
+    }
+  }
+  emit("done");
 }
 
 int main(int argc, char **argv)

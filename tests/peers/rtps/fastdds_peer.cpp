@@ -15,7 +15,8 @@
 // Command line and output: see usage(); the
 // same as cyclone_peer.c.
 //
-// Build (sdk/tests/rtps_interop.rs does this):
+// Build (tests/peers.rs and sdk/tests/rtps_interop.rs do this; README.md
+// beside this file documents it):
 //   c++ -std=c++17 -O2 fastdds_peer.cpp -lfastrtps -lfastcdr -pthread
 
 #include <atomic>
@@ -43,7 +44,6 @@
 #include <fastdds/dds/common/InstanceHandle.hpp>
 #include <fastdds/dds/domain/qos/DomainParticipantQos.hpp>
 #include <fastdds/dds/log/Log.hpp>
-#include <fastdds/dds/log/StdoutErrConsumer.hpp>
 #include <fastdds/dds/publisher/DataWriter.hpp>
 #include <fastdds/dds/publisher/DataWriterListener.hpp>
 #include <fastdds/dds/publisher/Publisher.hpp>
@@ -377,6 +377,8 @@ struct Options
     long settle_ms = 250;
     bool settle_set = false;
     long keys = 0;
+    long disposed = 0;
+    bool disposed_set = false;
     bool autodispose = true;
     std::string text;
     bool text_set = false;
@@ -391,8 +393,10 @@ void usage(FILE* out)
             "          [--depth N (keep last, default 10) | --keep-all] [--count N]\n"
             "          [--size BYTES[,BYTES...]] [--period-ms N] [--dispose-every N]\n"
             "          [--wait-match N] [--settle-ms N] [--timeout-s N] [--linger-ms N]\n"
-            "          [--keys N] [--no-autodispose] [--text PREFIX] [--trace FILE]\n"
+            "          [--keys N] [--disposed N] [--no-autodispose] [--text PREFIX] [--trace FILE]\n"
             "Loopback only (UDPv4 on 127.0.0.1, unicast discovery, no shared memory).\n"
+            "A subscriber is done after --count samples and --disposed disposals (both when\n"
+            "given, otherwise it runs until --timeout-s); either role then stays --linger-ms.\n"
             "Output lines: ready | matched <n> | sent <seq> | sent <id> <seq> | dispose <id>\n"
             "  | acked | sample <seq> <text> <len> <fnv1a32> | sample <id> <seq> <text>\n"
             "  | disposed <id> | unregistered <id> | done | timeout\n"
@@ -594,6 +598,11 @@ Options parse_args(int argc, char** argv)
         {
             o.keys = parse_num("--keys", value(), 1, INT32_MAX);
         }
+        else if (a == "--disposed")
+        {
+            o.disposed = parse_num("--disposed", value(), 0, INT32_MAX);
+            o.disposed_set = true;
+        }
         else if (a == "--no-autodispose")
         {
             o.autodispose = false;
@@ -652,16 +661,27 @@ Options parse_args(int argc, char** argv)
     }
     if (o.role == 2)
     {
-        if (!o.sizes.empty() || o.period_ms || o.dispose_every || o.wait_match || o.linger_ms ||
-                o.settle_set || o.keys || o.text_set || !o.autodispose)
+        if (!o.sizes.empty() || o.period_ms || o.dispose_every || o.wait_match || o.settle_set ||
+                o.keys || o.text_set || !o.autodispose)
         {
             usage_error("--size, --period-ms, --dispose-every, --wait-match, --settle-ms, "
-                    "--linger-ms, --keys, --no-autodispose and --text are publisher options");
+                    "--keys, --no-autodispose and --text are publisher options");
+        }
+        if (o.disposed_set && o.type != Kind::Keyed)
+        {
+            usage_error("--disposed is for --type keyed");
         }
     }
-    else if (!o.count_set)
+    else
     {
-        o.count = 1;
+        if (o.disposed_set)
+        {
+            usage_error("--disposed is a subscriber option");
+        }
+        if (!o.count_set)
+        {
+            o.count = 1;
+        }
     }
     if (o.type == Kind::Keyed && !o.sizes.empty())
     {
@@ -841,6 +861,21 @@ std::string rc_name(const ReturnCode_t& rc)
 
 // ---- DDS setup ----
 
+// Fast DDS's log on stderr as plain lines (its own consumers add colours).
+class StderrLog : public fdds::LogConsumer
+{
+public:
+
+    void Consume(const fdds::Log::Entry& e) override
+    {
+        const char* kind = e.kind == fdds::Log::Kind::Error ? "error" :
+                e.kind == fdds::Log::Kind::Warning ? "warning" : "info";
+        std::fprintf(stderr, "%s: fastdds %s [%s] %s\n", PROG, kind,
+                e.context.category ? e.context.category : "", e.message.c_str());
+    }
+
+};
+
 void quiet_environment()
 {
     // Anything that could give Fast DDS another configuration.
@@ -906,6 +941,16 @@ void apply_endpoint_qos(Q& q, const Options& o)
     rl.max_samples_per_instance = std::max<int32_t>(1000, static_cast<int32_t>(o.depth));
     rl.max_samples = rl.max_instances * rl.max_samples_per_instance;
     rl.allocated_samples = 100;
+}
+
+// Reliable writers announce their history every 100 ms instead of Fast DDS's
+// default 3 s, so a lost fragment of a large sample (a burst of 200 KiB
+// overflows the default socket buffer) is repaired in a tenth of a second
+// instead of stalling the test for 3.
+void apply_writer_qos(fdds::DataWriterQos& q, const Options& o)
+{
+    apply_endpoint_qos(q, o);
+    q.reliable_writer_qos().times.heartbeatPeriod = eprosima::fastrtps::Duration_t(0, 100000000);
 }
 
 int32_t last_matched = 0;
@@ -1053,43 +1098,113 @@ struct InstanceTracker
 {
     std::map<frtps::InstanceHandle_t, int32_t> ids;
     std::map<int32_t, fdds::InstanceStateKind> states;
+    bool noted_serialized_key = false;
 
     void learn(const frtps::InstanceHandle_t& h, int32_t id)
     {
         ids[h] = id;
     }
 
-    int32_t id_of(const frtps::InstanceHandle_t& h) const
+    static int32_t be32(const frtps::InstanceHandle_t& h, size_t at)
+    {
+        return static_cast<int32_t>((static_cast<uint32_t>(h.value[at]) << 24) |
+                       (static_cast<uint32_t>(h.value[at + 1]) << 16) |
+                       (static_cast<uint32_t>(h.value[at + 2]) << 8) | h.value[at + 3]);
+    }
+
+    static bool zero(const frtps::InstanceHandle_t& h, size_t from)
+    {
+        for (size_t i = from; i < 16; i++)
+        {
+            if (h.value[i] != 0)
+            {
+                return false;
+            }
+        }
+        return true;
+    }
+
+    // The id of an instance not seen with data (a dispose or unregister of an
+    // instance this reader never saw alive). Two forms reach us:
+    //  - the key hash (KeyedType::getKey): the id as 4 big-endian bytes, then
+    //    12 zero bytes; what Fast DDS and Courier send;
+    //  - the serialized key: Fast DDS 2.9 copies the payload of a key-only
+    //    DATA (what Cyclone DDS sends for a dispose) into the instance handle,
+    //    over any KEY_HASH in its inline QoS: a 4-byte CDR encapsulation
+    //    header (00 00 big-endian or 00 01 little-endian, options 00 00), the
+    //    id in that byte order, then 8 zero bytes. Fast DDS then tracks that
+    //    dispose as an instance of its own, so a real Fast DDS application
+    //    would not see its instance disposed; this peer reports the id on the
+    //    wire and says so on stderr.
+    int32_t id_of(const frtps::InstanceHandle_t& h)
     {
         auto it = ids.find(h);
         if (it != ids.end())
         {
             return it->second;
         }
-        // Not seen with data yet: the handle is the key hash, i.e. the id as
-        // big-endian bytes (see KeyedType::getKey).
-        return static_cast<int32_t>((static_cast<uint32_t>(h.value[0]) << 24) |
-                       (static_cast<uint32_t>(h.value[1]) << 16) |
-                       (static_cast<uint32_t>(h.value[2]) << 8) | h.value[3]);
+        bool hash_form = zero(h, 4);
+        bool ser_form = h.value[0] == 0 && h.value[1] <= 1 && h.value[2] == 0 &&
+                h.value[3] == 0 && zero(h, 8);
+        int32_t hash_id = be32(h, 0);
+        int32_t ser_id = be32(h, 4);
+        if (ser_form && h.value[1] == 1)
+        {
+            ser_id = static_cast<int32_t>(__builtin_bswap32(static_cast<uint32_t>(ser_id)));
+        }
+        // Both forms fit only 00 0x 00 00 00..: then the id seen before wins,
+        // and the key hash when neither or both were.
+        if (ser_form && (!hash_form || (states.count(ser_id) && !states.count(hash_id))))
+        {
+            if (!noted_serialized_key)
+            {
+                noted_serialized_key = true;
+                std::fprintf(stderr, "%s: note: instance handle of a key-only DATA holds the "
+                        "serialized key (Fast DDS 2.9 ignores its KEY_HASH); decoded id %d\n",
+                        PROG, ser_id);
+            }
+            return ser_id;
+        }
+        if (!hash_form)
+        {
+            std::fprintf(stderr, "%s: note: instance handle %s is neither a key hash nor a "
+                    "serialized key\n", PROG, hex(h).c_str());
+        }
+        return hash_id;
     }
 
-    void update(int32_t id, fdds::InstanceStateKind st)
+    static std::string hex(const frtps::InstanceHandle_t& h)
+    {
+        std::string out;
+        char b[3];
+        for (size_t i = 0; i < 16; i++)
+        {
+            std::snprintf(b, sizeof b, "%02x", h.value[i]);
+            out += b;
+        }
+        return out;
+    }
+
+    // Returns true when it reported a disposal.
+    bool update(int32_t id, fdds::InstanceStateKind st)
     {
         auto it = states.find(id);
         fdds::InstanceStateKind prev = it == states.end() ? fdds::ALIVE_INSTANCE_STATE : it->second;
         states[id] = st;
         if (st == prev)
         {
-            return;
+            return false;
         }
         if (st == fdds::NOT_ALIVE_DISPOSED_INSTANCE_STATE)
         {
             emit("disposed %d", id);
+            return true;
         }
-        else if (st == fdds::NOT_ALIVE_NO_WRITERS_INSTANCE_STATE)
+        if (st == fdds::NOT_ALIVE_NO_WRITERS_INSTANCE_STATE)
         {
             emit("unregistered %d", id);
         }
+        return false;
     }
 
 };
@@ -1097,15 +1212,21 @@ struct InstanceTracker
 void run_sub(const Options& o, fdds::DataReader* r)
 {
     long received = 0;
+    long disposed = 0;
     InstanceTracker tracker;
     Msg m;
     Keyed k;
-    for (;;)
+    auto finished = [&]()
+            {
+                return (o.count_set || o.disposed_set) && (!o.count_set || received >= o.count) &&
+                       (!o.disposed_set || disposed >= o.disposed);
+            };
+    while (!finished())
     {
         (void)remaining_ms();
         check_matched(r);
         bool any = false;
-        for (;;)
+        while (!finished())
         {
             fdds::SampleInfo info;
             void* data = o.type == Kind::Msg ? static_cast<void*>(&m) : static_cast<void*>(&k);
@@ -1142,24 +1263,28 @@ void run_sub(const Options& o, fdds::DataReader* r)
                 {
                     id = tracker.id_of(info.instance_handle);
                 }
-                tracker.update(id, info.instance_state);
-            }
-            if (o.count_set && received >= o.count)
-            {
-                emit("done");
-                return;
+                if (tracker.update(id, info.instance_state))
+                {
+                    disposed++;
+                }
             }
         }
-        if (o.count_set && received >= o.count)
-        {
-            emit("done");
-            return;
-        }
-        if (!any)
+        if (!any && !finished())
         {
             wakeup.wait(50);
         }
     }
+    // Stay a while so that the writer sees this reader's acknowledgements.
+    if (o.linger_ms)
+    {
+        int64_t until = elapsed_ms() + o.linger_ms;
+        while (elapsed_ms() < until)
+        {
+            sleep_ms(std::min<int64_t>(until - elapsed_ms(), 50));
+            check_matched(r);
+        }
+    }
+    emit("done");
 }
 
 /* ROS 2-style service over rq/<topic>Request and rr/<topic>Reply, the way
@@ -1280,11 +1405,7 @@ int main(int argc, char** argv)
 
     // Fast DDS logs to stdout by default: keep stdout for our lines only.
     fdds::Log::ClearConsumers();
-    {
-        auto consumer = new fdds::StdoutErrConsumer();
-        consumer->stderr_threshold(fdds::Log::Kind::Info);
-        fdds::Log::RegisterConsumer(std::unique_ptr<fdds::LogConsumer>(consumer));
-    }
+    fdds::Log::RegisterConsumer(std::unique_ptr<fdds::LogConsumer>(new StderrLog()));
     fdds::Log::SetVerbosity(o.trace.empty() ? fdds::Log::Kind::Warning : fdds::Log::Kind::Info);
     if (!o.trace.empty())
     {
@@ -1319,7 +1440,7 @@ int main(int argc, char** argv)
             fail("service entities");
         }
         fdds::DataWriterQos wq;
-        apply_endpoint_qos(wq, o);
+        apply_writer_qos(wq, o);
         fdds::DataReaderQos rdq;
         apply_endpoint_qos(rdq, o);
         fdds::DataWriter* w = pub->create_datawriter(o.role == 3 ? rr : rq, wq);
@@ -1361,7 +1482,7 @@ int main(int argc, char** argv)
             fail("create_publisher failed");
         }
         fdds::DataWriterQos wq;
-        apply_endpoint_qos(wq, o);
+        apply_writer_qos(wq, o);
         if (o.transient_local)
         {
             wq.durability_service().history_kind = wq.history().kind;
