@@ -19,6 +19,7 @@
 #include <errno.h>
 #include <inttypes.h>
 #include <limits.h>
+#include <poll.h>
 #include <stdarg.h>
 #include <stdbool.h>
 #include <stdint.h>
@@ -71,11 +72,13 @@ struct options {
   long period_ms;
   long dispose_every;
   long wait_match;
+  bool wait_stdin;
   long timeout_s;
   long linger_ms;
   long settle_ms;
   bool settle_set;
   long keys;
+  bool no_autodispose;
   long disposed;
   bool disposed_set;
   const char *text;
@@ -93,8 +96,8 @@ static void usage(FILE *out)
       "          --reliable|--best-effort [--transient-local]\n"
       "          [--depth N (keep last, default 10) | --keep-all] [--count N]\n"
       "          [--size BYTES[,BYTES...]] [--period-ms N] [--dispose-every N]\n"
-      "          [--wait-match N] [--settle-ms N] [--timeout-s N] [--linger-ms N]\n"
-      "          [--keys N] [--disposed N] [--text PREFIX] [--trace FILE]\n"
+      "          [--wait-match N] [--wait-stdin] [--settle-ms N] [--timeout-s N] [--linger-ms N]\n"
+      "          [--keys N] [--disposed N] [--no-autodispose] [--text PREFIX] [--trace FILE]\n"
       "Loopback only (interface lo, unicast discovery to 127.0.0.1).\n"
       "A subscriber is done after --count samples and --disposed disposals (both when\n"
       "given, otherwise it runs until --timeout-s); either role then stays --linger-ms.\n"
@@ -229,6 +232,8 @@ static void parse_args(int argc, char **argv, struct options *o)
       o->dispose_every = parse_num(a, TAKES_VALUE(), 1, INT32_MAX);
     } else if (strcmp(a, "--wait-match") == 0) {
       o->wait_match = parse_num(a, TAKES_VALUE(), 0, 1000);
+    } else if (strcmp(a, "--wait-stdin") == 0) {
+      o->wait_stdin = true;
     } else if (strcmp(a, "--settle-ms") == 0) {
       o->settle_ms = parse_num(a, TAKES_VALUE(), 0, 3600000);
       o->settle_set = true;
@@ -238,6 +243,8 @@ static void parse_args(int argc, char **argv, struct options *o)
       o->linger_ms = parse_num(a, TAKES_VALUE(), 0, 3600000);
     } else if (strcmp(a, "--keys") == 0) {
       o->keys = parse_num(a, TAKES_VALUE(), 1, INT32_MAX);
+    } else if (strcmp(a, "--no-autodispose") == 0) {
+      o->no_autodispose = true;
     } else if (strcmp(a, "--disposed") == 0) {
       o->disposed = parse_num(a, TAKES_VALUE(), 0, INT32_MAX);
       o->disposed_set = true;
@@ -267,10 +274,10 @@ static void parse_args(int argc, char **argv, struct options *o)
   if (o->keep_all && o->depth_set)
     usage_error("--depth and --keep-all are exclusive");
   if (o->role == 2) {
-    if (o->nsizes || o->period_ms || o->dispose_every || o->wait_match || o->settle_set ||
-        o->keys || o->text)
-      usage_error("--size, --period-ms, --dispose-every, --wait-match, --settle-ms, "
-                  "--keys and --text are publisher options");
+    if (o->nsizes || o->period_ms || o->dispose_every || o->wait_match || o->wait_stdin ||
+        o->settle_set || o->keys || o->no_autodispose || o->text)
+      usage_error("--size, --period-ms, --dispose-every, --wait-match, --wait-stdin, "
+                  "--settle-ms, --keys, --no-autodispose and --text are publisher options");
     if (o->disposed_set && o->type != TYPE_KEYED)
       usage_error("--disposed is for --type keyed");
   } else {
@@ -281,8 +288,8 @@ static void parse_args(int argc, char **argv, struct options *o)
   }
   if (o->type == TYPE_KEYED && o->nsizes)
     usage_error("--size is for --type msg");
-  if (o->type == TYPE_MSG && (o->dispose_every || o->keys))
-    usage_error("--dispose-every and --keys are for --type keyed");
+  if (o->type == TYPE_MSG && (o->dispose_every || o->keys || o->no_autodispose))
+    usage_error("--dispose-every, --keys and --no-autodispose are for --type keyed");
   if (o->nsizes == 0) {
     o->nsizes = 1;
     o->sizes[0] = 0;
@@ -438,6 +445,36 @@ static void check_matched(dds_entity_t ep, bool is_writer)
 
 /* ---- publisher ---- */
 
+/* --wait-stdin: waits for a line on standard input, the test's signal that
+ * the subscriber has matched too (a writer matching a reader does not mean
+ * the reader knows the writer yet). End of input before it is an error. */
+static void wait_stdin_line(void)
+{
+  for (;;) {
+    struct pollfd p = {.fd = STDIN_FILENO, .events = POLLIN};
+    int64_t left = remaining_ms();
+    int r = poll(&p, 1, left < 50 ? (int)left : 50);
+    if (r < 0 && errno != EINTR) {
+      fprintf(stderr, "%s: error: poll stdin: %s\n", prog, strerror(errno));
+      exit(EXIT_RUNTIME);
+    }
+    if (r > 0) {
+      char c;
+      ssize_t n = read(STDIN_FILENO, &c, 1);
+      if (n == 0) {
+        fprintf(stderr, "%s: error: --wait-stdin: standard input ended before a line\n", prog);
+        exit(EXIT_RUNTIME);
+      }
+      if (n < 0 && errno != EINTR && errno != EAGAIN) {
+        fprintf(stderr, "%s: error: read stdin: %s\n", prog, strerror(errno));
+        exit(EXIT_RUNTIME);
+      }
+      if (n == 1 && c == '\n')
+        return;
+    }
+  }
+}
+
 static void fill_msg(courier_test_Msg *m, uint32_t seq, size_t size, const char *prefix, char *text,
     size_t textcap)
 {
@@ -482,8 +519,11 @@ static void run_pub(const struct options *o, dds_entity_t wr, dds_entity_t ws)
       dds_waitset_wait(ws, NULL, 0, DDS_MSECS(left < 50 ? left : 50));
       check_matched(wr, true);
     }
-    sleep_ms(o->settle_ms);
   }
+  if (o->wait_stdin)
+    wait_stdin_line();
+  if (o->wait_match > 0)
+    sleep_ms(o->settle_ms);
 
   for (long n = 1; n <= o->count; n++) {
     uint32_t seq = (uint32_t)n;
@@ -685,10 +725,14 @@ int main(int argc, char **argv)
       o.topic, qos, NULL);
   if (tp < 0)
     fail("create topic", tp);
-  if (o.role == 1)
+  if (o.role == 1) {
+    /* --no-autodispose: deleting the writer unregisters its instances
+     * instead of disposing them */
+    dds_qset_writer_data_lifecycle(qos, !o.no_autodispose);
     ep = dds_create_writer(pp, tp, qos, NULL);
-  else
+  } else {
     ep = dds_create_reader(pp, tp, qos, NULL);
+  }
   if (ep < 0)
     fail(o.role == 1 ? "create writer" : "create reader", ep);
   dds_delete_qos(qos);

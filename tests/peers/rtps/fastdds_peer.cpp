@@ -20,6 +20,7 @@
 //   c++ -std=c++17 -O2 fastdds_peer.cpp -lfastrtps -lfastcdr -pthread
 
 #include <atomic>
+#include <cerrno>
 #include <chrono>
 #include <condition_variable>
 #include <cstdarg>
@@ -34,6 +35,7 @@
 #include <thread>
 #include <vector>
 
+#include <poll.h>
 #include <unistd.h>
 
 #include <fastcdr/Cdr.h>
@@ -372,6 +374,7 @@ struct Options
     long period_ms = 0;
     long dispose_every = 0;
     long wait_match = 0;
+    bool wait_stdin = false;
     long timeout_s = 60;
     long linger_ms = 0;
     long settle_ms = 250;
@@ -380,6 +383,7 @@ struct Options
     long disposed = 0;
     bool disposed_set = false;
     bool autodispose = true;
+    bool hb_piggyback = true;
     std::string text;
     bool text_set = false;
     std::string trace;
@@ -392,8 +396,9 @@ void usage(FILE* out)
             "          --reliable|--best-effort [--transient-local]\n"
             "          [--depth N (keep last, default 10) | --keep-all] [--count N]\n"
             "          [--size BYTES[,BYTES...]] [--period-ms N] [--dispose-every N]\n"
-            "          [--wait-match N] [--settle-ms N] [--timeout-s N] [--linger-ms N]\n"
-            "          [--keys N] [--disposed N] [--no-autodispose] [--text PREFIX] [--trace FILE]\n"
+            "          [--wait-match N] [--wait-stdin] [--settle-ms N] [--timeout-s N] [--linger-ms N]\n"
+            "          [--keys N] [--disposed N] [--no-autodispose] [--no-hb-piggyback]\n"
+            "          [--text PREFIX] [--trace FILE]\n"
             "Loopback only (UDPv4 on 127.0.0.1, unicast discovery, no shared memory).\n"
             "A subscriber is done after --count samples and --disposed disposals (both when\n"
             "given, otherwise it runs until --timeout-s); either role then stays --linger-ms.\n"
@@ -581,6 +586,10 @@ Options parse_args(int argc, char** argv)
         {
             o.wait_match = parse_num("--wait-match", value(), 0, 1000);
         }
+        else if (a == "--wait-stdin")
+        {
+            o.wait_stdin = true;
+        }
         else if (a == "--settle-ms")
         {
             o.settle_ms = parse_num("--settle-ms", value(), 0, 3600000);
@@ -606,6 +615,10 @@ Options parse_args(int argc, char** argv)
         else if (a == "--no-autodispose")
         {
             o.autodispose = false;
+        }
+        else if (a == "--no-hb-piggyback")
+        {
+            o.hb_piggyback = false;
         }
         else if (a == "--text")
         {
@@ -661,11 +674,12 @@ Options parse_args(int argc, char** argv)
     }
     if (o.role == 2)
     {
-        if (!o.sizes.empty() || o.period_ms || o.dispose_every || o.wait_match || o.settle_set ||
-                o.keys || o.text_set || !o.autodispose)
+        if (!o.sizes.empty() || o.period_ms || o.dispose_every || o.wait_match || o.wait_stdin ||
+                o.settle_set || o.keys || o.text_set || !o.autodispose || !o.hb_piggyback)
         {
-            usage_error("--size, --period-ms, --dispose-every, --wait-match, --settle-ms, "
-                    "--keys, --no-autodispose and --text are publisher options");
+            usage_error("--size, --period-ms, --dispose-every, --wait-match, --wait-stdin, "
+                    "--settle-ms, --keys, --no-autodispose, --no-hb-piggyback and --text are "
+                    "publisher options");
         }
         if (o.disposed_set && o.type != Kind::Keyed)
         {
@@ -951,6 +965,14 @@ void apply_writer_qos(fdds::DataWriterQos& q, const Options& o)
 {
     apply_endpoint_qos(q, o);
     q.reliable_writer_qos().times.heartbeatPeriod = eprosima::fastrtps::Duration_t(0, 100000000);
+    // --no-hb-piggyback: heartbeats only every 100 ms, none inside a burst of
+    // data. A Cyclone DDS 0.10 volatile reader takes the last sequence number
+    // of the first heartbeat it processes as its starting point and drops
+    // older data; Fast DDS's one heartbeat at match time can reach it before
+    // it knows this writer (and is ignored), so the first one it processes
+    // may be a piggybacked one in the middle of sample 1's fragments, and
+    // sample 1 is lost.
+    q.reliable_writer_qos().disable_heartbeat_piggyback = !o.hb_piggyback;
 }
 
 int32_t last_matched = 0;
@@ -1003,6 +1025,42 @@ void write_retrying(fdds::DataWriter* w, void* sample)
     }
 }
 
+// --wait-stdin: waits for a line on standard input, the test's signal that
+// the subscriber has matched too (a writer matching a reader does not mean
+// the reader knows the writer yet). End of input before it is an error.
+void wait_stdin_line()
+{
+    for (;;)
+    {
+        struct pollfd p = {};
+        p.fd = STDIN_FILENO;
+        p.events = POLLIN;
+        int64_t left = remaining_ms();
+        int r = poll(&p, 1, static_cast<int>(std::min<int64_t>(left, 50)));
+        if (r < 0 && errno != EINTR)
+        {
+            fail(std::string("poll stdin: ") + std::strerror(errno));
+        }
+        if (r > 0)
+        {
+            char c;
+            ssize_t n = read(STDIN_FILENO, &c, 1);
+            if (n == 0)
+            {
+                fail("--wait-stdin: standard input ended before a line");
+            }
+            if (n < 0 && errno != EINTR && errno != EAGAIN)
+            {
+                fail(std::string("read stdin: ") + std::strerror(errno));
+            }
+            if (n == 1 && c == '\n')
+            {
+                return;
+            }
+        }
+    }
+}
+
 void run_pub(const Options& o, fdds::DataWriter* w)
 {
     if (o.wait_match > 0)
@@ -1012,6 +1070,13 @@ void run_pub(const Options& o, fdds::DataWriter* w)
             wakeup.wait(50);
             check_matched(w);
         }
+    }
+    if (o.wait_stdin)
+    {
+        wait_stdin_line();
+    }
+    if (o.wait_match > 0)
+    {
         sleep_ms(o.settle_ms);
     }
 
