@@ -1,1 +1,3 @@
 //! Shared helpers for Courier integration tests.
+
+pub mod peers;
