@@ -392,7 +392,7 @@ struct Options
 void usage(FILE* out)
 {
     std::fprintf(out,
-            "usage: %s --domain N --topic NAME --type msg|keyed --pub|--sub\n"
+            "usage: %s --domain N --topic NAME --type msg|keyed --pub|--sub|--serve|--request\n"
             "          --reliable|--best-effort [--transient-local]\n"
             "          [--depth N (keep last, default 10) | --keep-all] [--count N]\n"
             "          [--size BYTES[,BYTES...]] [--period-ms N] [--dispose-every N]\n"
@@ -405,6 +405,9 @@ void usage(FILE* out)
             "Output lines: ready | matched <n> | sent <seq> | sent <id> <seq> | dispose <id>\n"
             "  | acked | sample <seq> <text> <len> <fnv1a32> | sample <id> <seq> <text>\n"
             "  | disposed <id> | unregistered <id> | done | timeout\n"
+            "  | request <seq> <text> (--serve) | reply <seq> <text> related|unrelated (--request)\n"
+            "--serve/--request: a ROS 2-style service on rq/NAMERequest and rr/NAMEReply\n"
+            "  (type msg); --serve answers --count requests, --request sends --count.\n"
             "Exit: 0 done, 1 DDS error, 2 timeout, 3 parent gone, 64 usage.\n",
             PROG);
 }
