@@ -1,7 +1,6 @@
 //! Courier's RTPS backend against the real thing: Cyclone DDS 0.10 and
 //! Fast DDS 2.9 (the Debian packages), through the peer programs in
-//! `tests/peers/rtps/` (built here on first use with `idlc`, `cc` and
-//! `g++`). Both directions, best effort and reliable, a 200 KiB sample,
+//! `tests/peers/rtps/`, built and run by `courier_tests::peers`. Both directions, best effort and reliable, a 200 KiB sample,
 //! a keyed topic with dispose, transient-local late joiners, discovery and
 //! loss of a peer.
 //!
@@ -10,11 +9,7 @@
 //! use `interface=lo&peers=127.0.0.1`. Each test has its own domain id.
 //! Missing tools or libraries fail the tests (`.ci/run` installs them).
 
-use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::sync::{mpsc, OnceLock};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use courier::{InstanceState, RecvError, Session, SessionEvent};
 use futures::StreamExt;
@@ -22,21 +17,7 @@ use futures::StreamExt;
 mod common;
 use common::{next, Keyed, Msg, T};
 
-/// The peers' payload: byte i of sample seq.
-fn payload(seq: u32, size: usize) -> Vec<u8> {
-    (0..size)
-        .map(|i| ((i as u32 * 7 + seq) & 0xff) as u8)
-        .collect()
-}
-
-fn fnv1a32(b: &[u8]) -> u32 {
-    b.iter().fold(0x811c_9dc5u32, |h, &x| {
-        (h ^ u32::from(x)).wrapping_mul(0x0100_0193)
-    })
-}
-
-// ---------------------------------------------------------------------------
-// Building and running the peers
+use courier_tests::peers::{cyclone_peer, fastdds_peer, fnv1a32, payload, PeerProcess};
 
 #[derive(Clone, Copy, Debug)]
 enum Vendor {
@@ -44,159 +25,30 @@ enum Vendor {
     FastDds,
 }
 
-fn sources() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/peers/rtps")
-}
-
-fn run(cmd: &mut Command, what: &str) -> Result<(), String> {
-    let out = cmd
-        .output()
-        .map_err(|e| format!("{what}: cannot run {:?}: {e}", cmd.get_program()))?;
-    if !out.status.success() {
-        return Err(format!(
-            "{what} failed ({}):\n{}{}",
-            out.status,
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        ));
-    }
-    Ok(())
-}
-
-fn build(vendor: Vendor) -> Result<PathBuf, String> {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("courier-peers");
-    std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
-    let src = sources();
-    match vendor {
-        Vendor::Cyclone => {
-            let exe = dir.join("cyclone_peer");
-            run(
-                Command::new("idlc")
-                    .args(["-x", "final"])
-                    .arg(src.join("types.idl"))
-                    .current_dir(&dir),
-                "idlc (Debian package cyclonedds-tools)",
-            )?;
-            let flags = Command::new("pkg-config")
-                .args(["--cflags", "--libs", "CycloneDDS"])
-                .output()
-                .map_err(|e| format!("pkg-config: {e}"))?;
-            if !flags.status.success() {
-                return Err("pkg-config CycloneDDS failed: install cyclonedds-dev".into());
-            }
-            let flags = String::from_utf8_lossy(&flags.stdout).to_string();
-            run(
-                Command::new("cc")
-                    .args(["-std=gnu11", "-O2", "-o"])
-                    .arg(&exe)
-                    .arg(src.join("cyclone_peer.c"))
-                    .arg(dir.join("types.c"))
-                    .arg("-I")
-                    .arg(&dir)
-                    .args(flags.split_whitespace()),
-                "cc cyclone_peer.c",
-            )?;
-            Ok(exe)
-        }
-        Vendor::FastDds => {
-            let exe = dir.join("fastdds_peer");
-            run(
-                Command::new("g++")
-                    .args(["-std=c++17", "-O2", "-o"])
-                    .arg(&exe)
-                    .arg(src.join("fastdds_peer.cpp"))
-                    .args(["-lfastrtps", "-lfastcdr"]),
-                "g++ fastdds_peer.cpp (Debian packages libfastrtps-dev libfastcdr-dev)",
-            )?;
-            Ok(exe)
-        }
-    }
-}
-
-fn peer_exe(vendor: Vendor) -> PathBuf {
-    static CYCLONE: OnceLock<Result<PathBuf, String>> = OnceLock::new();
-    static FASTDDS: OnceLock<Result<PathBuf, String>> = OnceLock::new();
-    let cell = match vendor {
-        Vendor::Cyclone => &CYCLONE,
-        Vendor::FastDds => &FASTDDS,
-    };
-    match cell.get_or_init(|| build(vendor)) {
-        Ok(p) => p.clone(),
-        Err(e) => panic!("cannot build the {vendor:?} interop peer: {e}"),
-    }
-}
-
-/// A running peer; killed and reaped when dropped.
-struct Peer {
-    child: Child,
-    lines: mpsc::Receiver<String>,
-    seen: Vec<String>,
-    name: String,
-}
+/// A running peer (`courier_tests::peers`), killed and reaped when dropped;
+/// every wait is bounded by `T` and a miss panics with what the peer said.
+struct Peer(PeerProcess);
 
 impl Peer {
     fn start(vendor: Vendor, args: &[&str]) -> Peer {
-        let mut child = Command::new(peer_exe(vendor))
-            .args(args)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("spawn peer");
-        let out = child.stdout.take().expect("stdout");
-        let (tx, rx) = mpsc::channel();
-        std::thread::spawn(move || {
-            for l in BufReader::new(out).lines() {
-                let Ok(l) = l else { break };
-                if tx.send(l).is_err() {
-                    break;
-                }
-            }
-        });
-        Peer {
-            child,
-            lines: rx,
-            seen: Vec::new(),
-            name: format!("{vendor:?} {}", args.join(" ")),
+        let exe = match vendor {
+            Vendor::Cyclone => cyclone_peer(),
+            Vendor::FastDds => fastdds_peer(),
         }
+        .unwrap_or_else(|e| panic!("cannot build the {vendor:?} interop peer: {e}"));
+        Peer(PeerProcess::spawn(exe, args).unwrap_or_else(|e| panic!("{e}")))
     }
 
-    /// The next line starting with `prefix` (blocking; call from spawn_blocking
-    /// or while the runtime has other threads).
+    /// The next line starting with `prefix` (blocking: call from
+    /// `blocking`).
     fn expect(&mut self, prefix: &str) -> String {
-        let deadline = Instant::now() + T;
-        loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            match self.lines.recv_timeout(left) {
-                Ok(l) => {
-                    self.seen.push(l.clone());
-                    if l.starts_with(prefix) {
-                        return l;
-                    }
-                }
-                Err(_) => panic!(
-                    "{}: no line {prefix:?} within {T:?}; saw {:?}",
-                    self.name, self.seen
-                ),
-            }
-        }
+        self.0
+            .expect_line(prefix, T)
+            .unwrap_or_else(|e| panic!("{e}"))
     }
 
     fn exit_code(&mut self) -> Option<i32> {
-        let deadline = Instant::now() + T;
-        while Instant::now() < deadline {
-            if let Ok(Some(st)) = self.child.try_wait() {
-                return st.code();
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        None
-    }
-}
-
-impl Drop for Peer {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+        self.0.wait(T).unwrap_or_else(|e| panic!("{e}")).code()
     }
 }
 
@@ -631,7 +483,7 @@ async fn late_courier_reader(vendor: Vendor, domain: u32) {
     }
     drop(sub);
     s.close().await;
-    let _ = peer.child.kill();
+    peer.0.kill();
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
