@@ -998,3 +998,146 @@ fn sample_identity_bytes_in_both_byte_orders() {
         "truncated"
     );
 }
+
+/// The user-data DATA and HEARTBEAT submessages of writer `w` in one datagram.
+fn user_submessages(payload: &[u8], w: Guid) -> (Vec<i64>, Vec<(i64, bool)>) {
+    let (mut data, mut hbs) = (Vec::new(), Vec::new());
+    for s in Message::parse(payload).unwrap().submessages {
+        match s {
+            Submessage::Data(d) if d.writer_id == w.entity => data.push(d.writer_sn.0),
+            Submessage::Heartbeat(h) if h.writer_id == w.entity => {
+                hbs.push((h.last_sn.0, h.final_flag))
+            }
+            _ => {}
+        }
+    }
+    (data, hbs)
+}
+
+#[test]
+fn writes_made_before_polling_share_datagrams_and_one_heartbeat() {
+    let mut net = Net::new(2, 11, 0);
+    let now = net.now;
+    let w = net.nodes[0]
+        .p
+        .create_writer(keyed_writer("Burst", "T"), now)
+        .unwrap();
+    let r = net.nodes[1]
+        .p
+        .create_reader(reliable_reader("Burst", "T").keyed(true), now)
+        .unwrap();
+    assert!(net.run_until(Duration::from_secs(10), |n| matched(n, 0, w, 1, r)));
+    net.run_for(Duration::from_millis(50));
+    // 100 small samples written back to back, then polled once
+    let now = net.now;
+    for i in 0..100 {
+        let (b, k) = sample(i % 5, i);
+        net.nodes[0]
+            .p
+            .write(w, Change::alive(&b).with_key_hash(k), now)
+            .unwrap();
+    }
+    let mut burst = Vec::new();
+    while let Some(d) = net.nodes[0].p.poll_transmit() {
+        burst.push(d);
+    }
+    let mut sns = Vec::new();
+    let mut hbs = Vec::new();
+    for d in &burst {
+        assert!(d.payload.len() <= 14_720);
+        let (data, hb) = user_submessages(&d.payload, w);
+        sns.extend(data);
+        hbs.extend(hb);
+    }
+    assert_eq!(sns, (1..=100).collect::<Vec<_>>(), "every sample, in order");
+    assert!(
+        burst.len() <= 2,
+        "100 samples of ~60 bytes fit in one or two datagrams, not {}",
+        burst.len()
+    );
+    // one heartbeat after the last sample; it asks for an acknowledgement
+    // because sample 16 (and 32, …) wanted one
+    assert_eq!(hbs, vec![(100, false)]);
+    for d in burst {
+        net.send(d);
+    }
+    net.run_for(Duration::from_millis(50));
+    check_in_order(&net, 1, 100);
+    assert!(net.nodes[0].p.is_acked_by_all(w, SequenceNumber(100)));
+    // a single write still goes out at the next poll, with a final
+    // heartbeat (sample 101 wants no acknowledgement)
+    let (b, k) = sample(1, 100);
+    let now = net.now;
+    net.nodes[0]
+        .p
+        .write(w, Change::alive(&b).with_key_hash(k), now)
+        .unwrap();
+    let d = net.nodes[0].p.poll_transmit().unwrap();
+    assert_eq!(
+        user_submessages(&d.payload, w),
+        (vec![101], vec![(101, true)])
+    );
+}
+
+#[test]
+fn a_keep_all_writer_stops_at_its_unacknowledged_bytes_limit_and_resumes_on_acknowledgement() {
+    let t0 = Instant::now();
+    let wall = SystemTime::UNIX_EPOCH + Duration::from_secs(1_700_000_000);
+    let mut net = Net::new(2, 13, 0);
+    // node 0 again, with a 64 KiB high-water mark
+    let mut cfg = Config::udpv4(0, 0, guid_prefix([1; 10]), LO)
+        .unwrap()
+        .with_unicast_peers(&[LO], 9);
+    cfg.max_unacked_bytes = 64 << 10;
+    net.nodes[0].p = Participant::new(cfg, t0, wall);
+    let now = net.now;
+    let mut wq = EndpointQos::writer_default();
+    wq.history = History::KeepAll;
+    let w = net.nodes[0]
+        .p
+        .create_writer(EndpointConfig::writer("Big", "T").qos(wq), now)
+        .unwrap();
+    let r = net.nodes[1]
+        .p
+        .create_reader(reliable_reader("Big", "T"), now)
+        .unwrap();
+    assert!(net.run_until(Duration::from_secs(10), |n| matched(n, 0, w, 1, r)));
+    net.run_for(Duration::from_millis(50));
+    // 10 KiB samples: the seventh would put 70 KiB in flight
+    let mut big = vec![0u8, 1, 0, 0];
+    big.resize(10 << 10, 7);
+    let now = net.now;
+    let mut written = 0;
+    let refused = loop {
+        match net.nodes[0].p.write(w, Change::alive(&big), now) {
+            Ok(_) => written += 1,
+            Err(e) => break e,
+        }
+        assert!(written < 100, "no limit");
+    };
+    assert_eq!(written, 6, "64 KiB / ~10 KiB samples");
+    assert!(
+        refused.to_string().contains("max_unacked_bytes"),
+        "{refused}"
+    );
+    // the reader acknowledges (the burst asked for it: over half the
+    // limit), and the writer takes more
+    net.pump();
+    assert!(net.run_until(Duration::from_secs(1), |n| n.nodes[0]
+        .p
+        .is_acked_by_all(w, SequenceNumber(6))));
+    let now = net.now;
+    net.nodes[0].p.write(w, Change::alive(&big), now).unwrap();
+    // one sample larger than the whole limit is still accepted when
+    // nothing else is in flight
+    assert!(net.run_until(Duration::from_secs(1), |n| n.nodes[0]
+        .p
+        .is_acked_by_all(w, SequenceNumber(7))));
+    let mut huge = vec![0u8, 1, 0, 0];
+    huge.resize(100 << 10, 9);
+    let now = net.now;
+    net.nodes[0].p.write(w, Change::alive(&huge), now).unwrap();
+    assert!(net.nodes[0].p.write(w, Change::alive(&big), now).is_err());
+    net.run_for(Duration::from_millis(200));
+    assert_eq!(net.samples(1).len(), 8);
+}

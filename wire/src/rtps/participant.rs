@@ -243,6 +243,12 @@ pub struct Config {
     pub reassembly_limit: usize,
     /// Samples a writer holds at most (keep-all history, keyed keep-last).
     pub max_history: usize,
+    /// Unacknowledged payload bytes a reliable keep-all writer holds at
+    /// most before [`Participant::write`] answers
+    /// [`WriteError::HistoryFull`] (a high-water mark, like Cyclone's
+    /// `WhcHigh`, 500 kB): a writer must not overrun its readers' socket
+    /// buffers when they share a CPU. Default 512 KiB.
+    pub max_unacked_bytes: usize,
     /// Out-of-order samples a reliable reader buffers per writer.
     pub max_out_of_order: usize,
     /// Remote participants tracked at most.
@@ -274,6 +280,7 @@ impl Config {
             max_sample_size: 16 << 20,
             reassembly_limit: 64 << 20,
             max_history: 4096,
+            max_unacked_bytes: 512 << 10,
             max_out_of_order: 1024,
             max_participants: 1024,
             max_remote_endpoints: 65_536,
@@ -833,9 +840,10 @@ pub enum WriteError {
     /// No such local writer.
     #[error("no such writer")]
     UnknownWriter,
-    /// Keep-all history full of unacknowledged samples: wait for
+    /// Keep-all history full of unacknowledged samples ([`Config::max_history`]
+    /// samples or [`Config::max_unacked_bytes`] bytes): wait for
     /// [`Event::AckedByAll`] and try again.
-    #[error("history full: {0} samples await acknowledgement")]
+    #[error("history full: {0} samples or max_unacked_bytes of data await acknowledgement")]
     HistoryFull(usize),
     /// The sample is larger than RTPS can describe (4 GiB).
     #[error("sample of {0} bytes is too large")]
@@ -1458,7 +1466,15 @@ impl Participant {
     }
 
     /// The next datagram to send.
+    ///
+    /// Writes are packed: every submessage produced since the last call
+    /// that emptied the queue goes out in as few datagrams per destination
+    /// as [`Config::max_message_size`] allows, so a caller that makes
+    /// several [`Participant::write`]s before polling sends them together.
     pub fn poll_transmit(&mut self) -> Option<Datagram> {
+        if self.out.is_empty() {
+            self.gather();
+        }
         self.out.pop_front()
     }
 
@@ -1604,7 +1620,8 @@ impl Participant {
             History::KeepAll => (None, None),
         };
         let writer = Writer::new(guid, reliable, depth, max, self.cfg.heartbeat_period)
-            .retain_acked(durable);
+            .retain_acked(durable)
+            .max_unacked_bytes(self.cfg.max_unacked_bytes);
         self.announce_endpoint(&data, true, now);
         self.writers.insert(
             guid.entity,
@@ -1812,7 +1829,8 @@ impl Participant {
             let s = ReceivedSample::new(self.guid(r), writer, sn, env.clone());
             self.events.push_back(Event::SampleReceived(s));
         }
-        self.flush(now);
+        // sent by the next poll_transmit, packed with whatever else is
+        // written before it
         Ok(sn)
     }
 
@@ -2635,8 +2653,31 @@ impl Participant {
                 true
             }
         });
-        let shape = self.shape();
+        self.gather();
         let prefix = self.cfg.guid_prefix;
+        for (e, lw) in self.writers.iter_mut() {
+            if lw.reliable {
+                let acked = lw.writer.acked_by_all();
+                if acked.0 > lw.acked_reported {
+                    lw.acked_reported = acked.0;
+                    self.events.push_back(Event::AckedByAll {
+                        writer: Guid { prefix, entity: *e },
+                        up_to: acked,
+                    });
+                }
+            }
+        }
+        for (e, lr) in self.readers.iter_mut() {
+            while let Some((w, sn, env)) = lr.reader.poll_sample() {
+                let s = ReceivedSample::new(Guid { prefix, entity: *e }, w, sn, env);
+                self.events.push_back(Event::SampleReceived(s));
+            }
+        }
+    }
+
+    /// Moves what the writers and readers want sent into datagrams.
+    fn gather(&mut self) {
+        let shape = self.shape();
         let route = Route {
             participants: &self.participants,
             remote_writers: &self.remote_writers,
@@ -2697,16 +2738,6 @@ impl Participant {
             while let Some(t) = lw.writer.poll_transmit() {
                 emit_writer(&route, shape, outbox, *e, &lw.matched, t);
             }
-            if lw.reliable {
-                let acked = lw.writer.acked_by_all();
-                if acked.0 > lw.acked_reported {
-                    lw.acked_reported = acked.0;
-                    self.events.push_back(Event::AckedByAll {
-                        writer: Guid { prefix, entity: *e },
-                        up_to: acked,
-                    });
-                }
-            }
         }
         for (e, lr) in self.readers.iter_mut() {
             while let Some(t) = lr.reader.poll_transmit() {
@@ -2718,10 +2749,6 @@ impl Participant {
                     *e,
                     t,
                 );
-            }
-            while let Some((w, sn, env)) = lr.reader.poll_sample() {
-                let s = ReceivedSample::new(Guid { prefix, entity: *e }, w, sn, env);
-                self.events.push_back(Event::SampleReceived(s));
             }
         }
         self.outbox.drain(

@@ -86,12 +86,21 @@ pub struct Writer {
     depth: Option<usize>,
     max_samples: usize,
     history: BTreeMap<i64, Arc<[u8]>>,
+    /// Payload bytes in `history`.
+    history_bytes: usize,
+    /// A reliable keep-all writer refuses a write while this many payload
+    /// bytes are unacknowledged (a high-water mark: it keeps a writer on
+    /// the same CPU from overrunning its readers' socket buffers).
+    max_unacked_bytes: usize,
     next_sn: i64,
     readers: HashMap<Guid, ReaderProxy>,
     heartbeat_period: Duration,
     next_heartbeat: Option<Instant>,
     /// The next write's heartbeat asks for an acknowledgement.
     ack_next: bool,
+    /// The heartbeat that follows the writes queued in `out`: one for a
+    /// burst of writes, sent after them (`Some(final_flag)`).
+    hb_after_writes: Option<bool>,
     hb_count: i32,
     /// Keep acknowledged samples (transient-local keep-all writers).
     retain_acked: bool,
@@ -113,11 +122,14 @@ impl Writer {
             depth,
             max_samples: max_samples.max(1),
             history: BTreeMap::new(),
+            history_bytes: 0,
+            max_unacked_bytes: usize::MAX,
             next_sn: 1,
             readers: HashMap::new(),
             heartbeat_period,
             next_heartbeat: None,
             ack_next: false,
+            hb_after_writes: None,
             hb_count: 0,
             retain_acked: false,
             out: VecDeque::new(),
@@ -128,6 +140,14 @@ impl Writer {
     /// drops them). Transient-local writers need them for late joiners.
     pub fn retain_acked(mut self, yes: bool) -> Self {
         self.retain_acked = yes;
+        self
+    }
+
+    /// Bounds the unacknowledged payload bytes of a reliable keep-all
+    /// writer: [`Writer::write`] refuses while `max` bytes wait for an
+    /// acknowledgement (one sample is always accepted, whatever its size).
+    pub fn max_unacked_bytes(mut self, max: usize) -> Self {
+        self.max_unacked_bytes = max.max(1);
         self
     }
 
@@ -205,7 +225,38 @@ impl Writer {
     /// bookkeeping, or a replaced announcement). Readers that ask for it
     /// later get a GAP.
     pub fn remove(&mut self, sn: SequenceNumber) -> bool {
-        self.history.remove(&sn.0).is_some()
+        match self.history.remove(&sn.0) {
+            Some(p) => {
+                self.history_bytes -= p.len();
+                true
+            }
+            None => false,
+        }
+    }
+
+    fn pop_oldest(&mut self) {
+        if let Some((_, p)) = self.history.pop_first() {
+            self.history_bytes -= p.len();
+        }
+    }
+
+    /// Payload bytes no reliable reader has acknowledged yet (all of the
+    /// history unless acknowledged samples are retained).
+    pub fn unacked_bytes(&self) -> usize {
+        if !self.retain_acked {
+            return self.history_bytes;
+        }
+        let below = self.min_acked_below();
+        self.history.range(below..).map(|(_, p)| p.len()).sum()
+    }
+
+    fn min_acked_below(&self) -> i64 {
+        self.readers
+            .values()
+            .filter(|r| r.reliable)
+            .map(|r| r.acked_below)
+            .min()
+            .unwrap_or(self.next_sn)
     }
 
     /// The last sequence number written (0 before the first write).
@@ -231,22 +282,33 @@ impl Writer {
         self.readers.len()
     }
 
-    /// Writes a sample; returns its sequence number. Keep-all writers refuse
-    /// (return `None`) when `max_samples` unacknowledged samples are held:
-    /// the caller applies back-pressure instead of losing data.
+    /// Writes a sample; returns its sequence number. Reliable keep-all
+    /// writers refuse (return `None`) while `max_samples` unacknowledged
+    /// samples or the unacknowledged-bytes limit are held: the caller
+    /// applies back-pressure instead of losing data.
+    ///
+    /// The sample is queued for [`Writer::poll_transmit`]; a reliable
+    /// writer's heartbeat follows the last of the samples queued together,
+    /// so that a burst of writes costs one heartbeat.
     pub fn write(&mut self, payload: Arc<[u8]>, now: Instant) -> Option<SequenceNumber> {
-        if self.depth.is_none() && self.reliable {
+        let keep_all_reliable = self.depth.is_none() && self.reliable;
+        if keep_all_reliable {
             self.release_acked();
             if self.history.len() >= self.max_samples {
+                return None;
+            }
+            let unacked = self.unacked_bytes();
+            if unacked > 0 && unacked + payload.len() > self.max_unacked_bytes {
                 return None;
             }
         }
         let sn = self.next_sn;
         self.next_sn += 1;
+        self.history_bytes += payload.len();
         self.history.insert(sn, payload.clone());
         let limit = self.depth.unwrap_or(self.max_samples);
         while self.history.len() > limit {
-            self.history.pop_first();
+            self.pop_oldest();
         }
         self.out.push_back(Transmit::Data {
             to: None,
@@ -256,13 +318,17 @@ impl Writer {
         if self.reliable {
             // piggyback a heartbeat, as Cyclone does; it asks for an
             // acknowledgement only every ACK_EVERY samples (and when a
-            // keep-all history is half full), so that readers do not answer
-            // every sample: a reader missing something answers any heartbeat,
-            // and the periodic heartbeat asks until everything is acked
+            // keep-all history is half full, by count or by bytes), so that
+            // readers do not answer every sample: a reader missing something
+            // answers any heartbeat, and the periodic heartbeat asks until
+            // everything is acked
             let want_ack = std::mem::take(&mut self.ack_next)
                 || sn % ACK_EVERY == 0
-                || (self.depth.is_none() && self.history.len() * 2 >= self.max_samples);
-            self.push_heartbeat(None, !want_ack);
+                || (keep_all_reliable
+                    && (self.history.len() * 2 >= self.max_samples
+                        || self.unacked_bytes().saturating_mul(2) >= self.max_unacked_bytes));
+            let final_flag = self.hb_after_writes.unwrap_or(true) && !want_ack;
+            self.hb_after_writes = Some(final_flag);
             self.next_heartbeat
                 .get_or_insert(now + self.heartbeat_period);
         }
@@ -274,18 +340,12 @@ impl Writer {
         if self.retain_acked {
             return;
         }
-        let min_acked = self
-            .readers
-            .values()
-            .filter(|r| r.reliable)
-            .map(|r| r.acked_below)
-            .min()
-            .unwrap_or(self.next_sn);
+        let min_acked = self.min_acked_below();
         while let Some((&sn, _)) = self.history.first_key_value() {
             if sn >= min_acked {
                 break;
             }
-            self.history.pop_first();
+            self.pop_oldest();
         }
     }
 
@@ -394,6 +454,11 @@ impl Writer {
 
     /// The next thing to send.
     pub fn poll_transmit(&mut self) -> Option<Transmit> {
+        if let Some(t) = self.out.pop_front() {
+            return Some(t);
+        }
+        let final_flag = self.hb_after_writes.take()?;
+        self.push_heartbeat(None, final_flag);
         self.out.pop_front()
     }
 }
