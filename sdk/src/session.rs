@@ -852,6 +852,13 @@ impl Session {
     /// Publishes a value; `.confirmed()` also waits for every matched reader
     /// to acknowledge it (DDS, reliable). On IPC, like C, a message nobody
     /// subscribes is not sent.
+    ///
+    /// On DDS the future resolves once the sample is queued for the
+    /// session's participant (on a topic this session defined; otherwise
+    /// the error comes back), so that a burst of publishes goes out packed
+    /// into shared datagrams. What is queued is bounded (1 MiB per session, plus
+    /// 512 KiB unacknowledged per reliable keep-all writer): when readers
+    /// fall behind, `publish().await` waits: back-pressure, not loss.
     pub fn publish<'a, T: IpcMessage>(&'a self, msg: &'a str, value: &T) -> Publish<'a> {
         let key_hash = (self.enc() == Encoding::Cdr && !T::KEYS.is_empty())
             .then(|| crate::rtps_backend::key_hash_of(value));

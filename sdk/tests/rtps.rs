@@ -492,6 +492,69 @@ async fn slow_keep_all_subscriber_loses_nothing() {
     assert_eq!(sub.dropped(), 0);
 }
 
+/// `publish().await` returns once the write is queued (so that the
+/// driver packs bursts into shared datagrams), but what it may queue is
+/// bounded: a subscriber that stops reading stops the publisher after the
+/// writer's unacknowledged-bytes limit (512 KiB) plus the session's write
+/// queue (1 MiB), not after the 4096-sample history.
+#[tokio::test]
+async fn a_subscriber_that_stops_reading_stops_the_publisher_within_bounded_memory() {
+    let a = session(167, "a").await;
+    let b = session(167, "b").await;
+    let p = a.publisher::<Msg>("stall").build().await.unwrap();
+    let mut sub = b
+        .subscriber::<Msg>("stall")
+        .queue(courier::QueuePolicy::KeepAll(8))
+        .build()
+        .await
+        .unwrap();
+    await_handlers(&a, "stall", 1).await;
+    let done = std::sync::Arc::new(std::sync::atomic::AtomicU32::new(0));
+    let n = 4000u32;
+    let writer = tokio::spawn({
+        let done = done.clone();
+        async move {
+            for i in 0..n {
+                p.publish(&Msg {
+                    seq: i,
+                    text: String::new(),
+                    payload: vec![7; 1024],
+                })
+                .await
+                .unwrap();
+                done.store(i + 1, std::sync::atomic::Ordering::SeqCst);
+            }
+        }
+    });
+    // nobody reads: the publisher gets stuck, and not at once
+    let mut last = 0;
+    for _ in 0..50 {
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        let now = done.load(std::sync::atomic::Ordering::SeqCst);
+        if now == last && now > 0 {
+            break;
+        }
+        last = now;
+    }
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let stuck = done.load(std::sync::atomic::Ordering::SeqCst);
+    assert!(
+        stuck > 100 && stuck < 2200,
+        "the publisher went on to {stuck} of {n} 1 KiB samples with nobody reading"
+    );
+    eprintln!("publisher stopped after {stuck} samples");
+    assert!(!writer.is_finished());
+    // reading again releases it, and nothing was lost or reordered
+    for i in 0..n {
+        let s = next(&mut sub).await.unwrap();
+        assert_eq!(s.value.seq, i);
+    }
+    writer.await.unwrap();
+    assert_eq!(sub.dropped(), 0);
+    a.close().await;
+    b.close().await;
+}
+
 #[tokio::test]
 async fn bad_urls_and_interfaces_are_clear_errors() {
     let e = Session::builder("rtps://0?interface=nosuchif0&peers=127.0.0.1")

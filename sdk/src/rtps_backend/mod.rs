@@ -42,12 +42,12 @@ use courier_wire::rtps::discovery::{
 };
 use courier_wire::rtps::participant::{
     self, Change, ChangeKind, Config, EndpointConfig, Event, KeyHash, LostReason, Participant,
-    ReceivedSample, SampleIdentity, WriteError,
+    ReceivedSample, SampleIdentity, WriteError, MAX_WRITE_SIZE,
 };
 use courier_wire::rtps::{Guid, GuidPrefix, Locator, SequenceNumber, Time};
 use courier_wire::{cdr, IpcMessage};
 use tokio::net::UdpSocket;
-use tokio::sync::{mpsc, oneshot};
+use tokio::sync::{mpsc, oneshot, OwnedSemaphorePermit, Semaphore};
 
 use crate::qos::{
     Durability, History, InstanceState, PublicationQos, Reliability, SubscriptionQos, TypeInfo,
@@ -88,6 +88,45 @@ fn disconnected() -> SessionError {
 
 type Reply<T> = oneshot::Sender<Result<T, SessionError>>;
 
+/// How the driver tells a publisher that a write is done.
+enum Done {
+    /// The publisher waits for the result (confirmed writes, first writes).
+    Reply(Reply<()>),
+    /// The publisher went on once the write was queued; the permit it holds
+    /// is its share of [`QUEUED_WRITE_UNITS`], given back when the write
+    /// enters the writer's history.
+    Queued(OwnedSemaphorePermit),
+}
+
+impl Done {
+    fn send(self, r: Result<(), SessionError>) {
+        match self {
+            Done::Reply(tx) => {
+                let _ = tx.send(r);
+            }
+            Done::Queued(_permit) => {
+                if let Err(e) = r {
+                    tracing::warn!("a queued write failed: {e}");
+                }
+            }
+        }
+    }
+}
+
+/// Bytes of writes queued for the driver (not yet in a writer's history)
+/// at most, in units of [`QUEUED_WRITE_UNIT`] bytes: `publish().await`
+/// returns as soon as its write is queued, so that the driver can pack a
+/// burst of writes into one datagram, and waits while this much is queued
+/// (back-pressure from a full keep-all history reaches the publisher here).
+const QUEUED_WRITE_UNITS: usize = 16 * 1024;
+const QUEUED_WRITE_UNIT: usize = 64;
+
+/// A write's share of the queue budget (at least one unit, at most all).
+fn queued_units(len: usize) -> u32 {
+    let units = len.div_ceil(QUEUED_WRITE_UNIT).clamp(1, QUEUED_WRITE_UNITS);
+    u32::try_from(units).unwrap_or(u32::MAX)
+}
+
 enum Cmd {
     Publication {
         topic: String,
@@ -114,7 +153,7 @@ enum Cmd {
         data: Vec<u8>,
         key_hash: Option<[u8; 16]>,
         confirm: Option<Duration>,
-        reply: Reply<()>,
+        done: Done,
     },
     ModuleConnected {
         name: String,
@@ -165,6 +204,10 @@ fn reply_topic(name: &str) -> String {
 #[derive(Debug)]
 pub struct RtpsBackend {
     cmd: mpsc::UnboundedSender<Cmd>,
+    /// Topics this session publishes (publications are never deleted): a
+    /// write to one of them cannot be refused, so it need not wait.
+    published: Mutex<HashSet<String>>,
+    queue_budget: Arc<Semaphore>,
     listeners: Listeners,
     guid_prefix: GuidPrefix,
     locator: SocketAddr,
@@ -243,6 +286,8 @@ impl RtpsBackend {
         tokio::spawn(driver.run());
         Ok(RtpsBackend {
             cmd: tx,
+            published: Mutex::default(),
+            queue_budget: Arc::new(Semaphore::new(QUEUED_WRITE_UNITS)),
             listeners,
             guid_prefix: prefix,
             locator,
@@ -445,7 +490,12 @@ impl Backend for RtpsBackend {
             qos,
             reply,
         })
-        .await
+        .await?;
+        self.published
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .insert(msg.to_string());
+        Ok(())
     }
 
     async fn create_subscription(
@@ -489,13 +539,44 @@ impl Backend for RtpsBackend {
         opts: WriteOptions,
     ) -> Result<(), SessionError> {
         let topic = msg.to_string();
+        let known = self
+            .published
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .contains(msg);
+        if opts.confirm.is_none() && known {
+            if data.len() > MAX_WRITE_SIZE {
+                return Err(SessionError::Refused(format!(
+                    "cannot publish {topic}: a sample of {} bytes is larger than {MAX_WRITE_SIZE}",
+                    data.len()
+                )));
+            }
+            // returns once queued: the driver packs what is queued
+            let permit = self
+                .queue_budget
+                .clone()
+                .acquire_many_owned(queued_units(data.len()))
+                .await
+                .map_err(|_| disconnected())?;
+            return self
+                .cmd
+                .send(Cmd::Write {
+                    topic,
+                    kind: ChangeKind::Alive,
+                    data,
+                    key_hash: opts.key_hash,
+                    confirm: None,
+                    done: Done::Queued(permit),
+                })
+                .map_err(|_| disconnected());
+        }
         self.ask(|reply| Cmd::Write {
             topic,
             kind: ChangeKind::Alive,
             data,
             key_hash: opts.key_hash,
             confirm: opts.confirm,
-            reply,
+            done: Done::Reply(reply),
         })
         .await
     }
@@ -523,7 +604,7 @@ impl Backend for RtpsBackend {
             data: key,
             key_hash: Some(key_hash),
             confirm: None,
-            reply,
+            done: Done::Reply(reply),
         })
         .await
     }
@@ -692,7 +773,7 @@ impl Driver {
                 self.io.send(d.destination, &d.payload).await;
             }
             let wake_at = self.st.next_wakeup();
-            let paused = self.st.full_reliable_queue();
+            let paused = self.st.full_queue();
             let io = &mut self.io;
             let [b0, b1, b2, b3] = &mut io.bufs;
             let wake = tokio::select! {
@@ -744,7 +825,7 @@ impl Driver {
     /// Reads what else is already waiting on socket `i`, up to a batch.
     fn drain(&mut self, i: usize, now: Instant) {
         for _ in 0..64 {
-            if i % 2 == 1 && self.st.full_reliable_queue().is_some() {
+            if i % 2 == 1 && self.st.full_queue().is_some() {
                 return;
             }
             let sock = match i {
@@ -780,7 +861,7 @@ impl Driver {
         }
         for w in self.st.writers.values_mut() {
             for pw in w.pending.drain(..) {
-                let _ = pw.reply.send(Err(disconnected()));
+                pw.done.send(Err(disconnected()));
             }
         }
         for c in self.st.confirms.drain(..) {
@@ -817,7 +898,7 @@ struct PendingWrite {
     data: Vec<u8>,
     key_hash: Option<[u8; 16]>,
     confirm: Option<Duration>,
-    reply: Reply<()>,
+    done: Done,
 }
 
 /// What a publication offers that a pattern reader must copy to match it.
@@ -859,7 +940,6 @@ struct LocalReader {
     topic: String,
     type_name: String,
     queue: Arc<SampleQueue>,
-    reliable: bool,
     exclusive: bool,
     minimum_separation: Option<Duration>,
     deadline: Option<Duration>,
@@ -974,10 +1054,15 @@ impl State {
     }
 
     /// A reliable keep-all subscription whose queue is full, if any.
-    fn full_reliable_queue(&self) -> Option<Arc<SampleQueue>> {
+    /// A keep-all subscription queue the application has not emptied:
+    /// user data is not read until it has room. A reliable writer then
+    /// waits for acknowledgements; a best-effort burst waits in the socket
+    /// buffer (where the kernel drops what does not fit) instead of being
+    /// read and thrown away here.
+    fn full_queue(&self) -> Option<Arc<SampleQueue>> {
         self.readers
             .values()
-            .find(|r| r.reliable && r.queue.is_full())
+            .find(|r| r.queue.is_full())
             .map(|r| r.queue.clone())
     }
 
@@ -1113,10 +1198,10 @@ impl State {
                 data,
                 key_hash,
                 confirm,
-                reply,
+                done,
             } => {
                 let Some(w) = self.writers.get_mut(&topic) else {
-                    let _ = reply.send(Err(SessionError::Refused(format!(
+                    done.send(Err(SessionError::Refused(format!(
                         "{topic} has no publication in this session: call define::<T>() or \
                          publisher::<T>() first"
                     ))));
@@ -1132,7 +1217,7 @@ impl State {
                     data,
                     key_hash,
                     confirm,
-                    reply,
+                    done,
                 };
                 if !w.pending.is_empty() {
                     w.pending.push_back(pw);
@@ -1492,7 +1577,6 @@ impl State {
         queue: Arc<SampleQueue>,
         now: Instant,
     ) -> Result<Guid, SessionError> {
-        let reliable = matches!(wire_qos.reliability, WireReliability::Reliable(_));
         let exclusive = wire_qos.exclusive_ownership;
         let cfg = EndpointConfig::reader(topic, type_name)
             .keyed(keyed)
@@ -1513,7 +1597,6 @@ impl State {
                 topic: topic.to_string(),
                 type_name: type_name.to_string(),
                 queue,
-                reliable,
                 exclusive,
                 minimum_separation: qos.minimum_separation.filter(|d| !d.is_zero()),
                 deadline: qos.deadline,
@@ -1589,7 +1672,7 @@ impl State {
     /// Writes now, or gives the write back when the history is full.
     fn try_write(&mut self, topic: &str, pw: PendingWrite, now: Instant) -> Option<PendingWrite> {
         let Some(w) = self.writers.get(topic) else {
-            let _ = pw.reply.send(Err(disconnected()));
+            pw.done.send(Err(disconnected()));
             return None;
         };
         let guid = w.guid;
@@ -1601,26 +1684,24 @@ impl State {
         }
         match self.p.write(guid, change, now) {
             Ok(sn) => {
-                match pw.confirm {
-                    Some(after) if !self.p.is_acked_by_all(guid, sn) => {
+                match (pw.confirm, pw.done) {
+                    (Some(after), Done::Reply(reply)) if !self.p.is_acked_by_all(guid, sn) => {
                         self.confirms.push(Confirm {
                             writer: guid,
                             sn,
                             deadline: now + after,
                             after,
                             topic: topic.to_string(),
-                            reply: pw.reply,
+                            reply,
                         });
                     }
-                    _ => {
-                        let _ = pw.reply.send(Ok(()));
-                    }
+                    (_, done) => done.send(Ok(())),
                 }
                 None
             }
             Err(WriteError::HistoryFull(_)) => Some(pw),
             Err(e) => {
-                let _ = pw.reply.send(Err(SessionError::Refused(format!(
+                pw.done.send(Err(SessionError::Refused(format!(
                     "cannot publish {topic}: {e}"
                 ))));
                 None
@@ -1833,12 +1914,8 @@ impl State {
         };
         raw.key_hash = s.key_hash.map(|k| k.0);
         raw.source_time = s.source_timestamp.and_then(system_time);
-        if r.reliable {
-            // may exceed the capacity by what one datagram carried; reading
-            // stops until the application catches up
-            r.queue.push_over(raw);
-        } else if r.queue.push(raw).is_err() {
-            r.queue.count_dropped();
-        }
+        // may exceed the capacity by what one datagram carried; reading
+        // stops until the application catches up (see `full_queue`)
+        r.queue.push_over(raw);
     }
 }

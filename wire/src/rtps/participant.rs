@@ -833,6 +833,9 @@ pub enum CreateError {
     Closed,
 }
 
+/// Largest change [`Participant::write`] accepts (RTPS sample sizes are 32-bit).
+pub const MAX_WRITE_SIZE: usize = u32::MAX as usize - 64;
+
 /// Why a change could not be written.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[non_exhaustive]
@@ -1782,7 +1785,7 @@ impl Participant {
         if !self.is_local(writer) {
             return Err(WriteError::UnknownWriter);
         }
-        if change.data.len() > u32::MAX as usize - 64 {
+        if change.data.len() > MAX_WRITE_SIZE {
             return Err(WriteError::TooLarge(change.data.len()));
         }
         let ts = change.source_timestamp.unwrap_or_else(|| self.wall(now));
