@@ -72,7 +72,14 @@ pub(crate) fn key_hash_of<T: IpcMessage>(value: &T) -> [u8; 16] {
 
 /// A GUID as 32 hex digits (prefix, then entity id).
 pub fn guid_hex(g: Guid) -> String {
-    g.to_bytes().iter().map(|b| format!("{b:02x}")).collect()
+    const HEX: &[u8; 16] = b"0123456789abcdef";
+    // once per received sample: no formatting machinery
+    let mut s = String::with_capacity(32);
+    for b in g.to_bytes() {
+        s.push(char::from(HEX[usize::from(b >> 4)]));
+        s.push(char::from(HEX[usize::from(b & 15)]));
+    }
+    s
 }
 
 /// An RTPS `Time_t` as a `SystemTime`.
@@ -1751,14 +1758,22 @@ impl State {
 
     /// Handles every event the participant has.
     fn pump(&mut self, now: Instant) {
+        let mut wall = None;
         while let Some(e) = self.p.poll_event() {
-            self.event(e, now);
+            match e {
+                // one clock reading for every sample of a datagram
+                Event::SampleReceived(s) => {
+                    let wall = *wall.get_or_insert_with(SystemTime::now);
+                    self.sample(s, now, wall)
+                }
+                e => self.event(e, now),
+            }
         }
     }
 
     fn event(&mut self, e: Event, now: Instant) {
         match e {
-            Event::SampleReceived(s) => self.sample(s, now),
+            Event::SampleReceived(s) => self.sample(s, now, SystemTime::now()),
             Event::AckedByAll { writer, .. } => {
                 self.resolve_confirms(writer);
                 self.retry_pending(now);
@@ -1850,7 +1865,7 @@ impl State {
         }
     }
 
-    fn sample(&mut self, s: ReceivedSample, now: Instant) {
+    fn sample(&mut self, s: ReceivedSample, now: Instant, received: SystemTime) {
         if self.rpc_sample(&s) {
             return;
         }
@@ -1865,10 +1880,7 @@ impl State {
                 info.and_then(|i| i.lifespan),
                 s.source_timestamp.and_then(system_time),
             ) {
-                if SystemTime::now()
-                    .duration_since(ts)
-                    .is_ok_and(|age| age > life)
-                {
+                if received.duration_since(ts).is_ok_and(|age| age > life) {
                     r.queue.count_dropped();
                     return;
                 }
@@ -1896,7 +1908,9 @@ impl State {
                     return;
                 }
             }
-            r.last.insert(instance, now);
+            if r.minimum_separation.is_some() {
+                r.last.insert(instance, now);
+            }
             if let Some(d) = r.deadline {
                 r.due.insert(instance, now + d);
             }
@@ -1904,18 +1918,42 @@ impl State {
             r.due.remove(&instance);
             r.owners.remove(&instance);
         }
-        let mut raw = RawSample::new(r.topic.clone(), s.data().to_vec());
-        raw.source = Some(guid_hex(s.writer));
-        raw.type_name = Some(r.type_name.clone());
-        raw.state = match s.kind {
-            ChangeKind::Alive => InstanceState::Alive,
-            ChangeKind::Unregistered => InstanceState::Unregistered,
-            ChangeKind::Disposed | ChangeKind::DisposedUnregistered => InstanceState::Disposed,
+        let raw = RawSample {
+            msg: r.topic.clone(),
+            data: s.data().to_vec(),
+            order: courier_wire::ipc::ByteOrder::NATIVE,
+            received,
+            source: Some(guid_hex(s.writer)),
+            type_name: Some(r.type_name.clone()),
+            state: match s.kind {
+                ChangeKind::Alive => InstanceState::Alive,
+                ChangeKind::Unregistered => InstanceState::Unregistered,
+                ChangeKind::Disposed | ChangeKind::DisposedUnregistered => InstanceState::Disposed,
+            },
+            key_hash: s.key_hash.map(|k| k.0),
+            source_time: s.source_timestamp.and_then(system_time),
+            done: None,
         };
-        raw.key_hash = s.key_hash.map(|k| k.0);
-        raw.source_time = s.source_timestamp.and_then(system_time);
         // may exceed the capacity by what one datagram carried; reading
         // stops until the application catches up (see `full_queue`)
         r.queue.push_over(raw);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn guid_hex_is_the_16_bytes_in_lower_case_hex() {
+        let mut b = [0u8; 16];
+        for (i, x) in b.iter_mut().enumerate() {
+            *x = (i as u8) * 17;
+        }
+        b[15] = 0xc2;
+        assert_eq!(
+            guid_hex(Guid::from_bytes(b)),
+            "00112233445566778899aabbccddeec2"
+        );
     }
 }
