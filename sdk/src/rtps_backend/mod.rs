@@ -696,15 +696,13 @@ struct Io {
     user: UdpSocket,
     meta_mc: Option<UdpSocket>,
     user_mc: Option<UdpSocket>,
-    bufs: [Vec<u8>; 4],
+    batch: net::RecvBatch,
     loopback_only: bool,
     multicast: bool,
     /// Datagrams not sent because of the loopback/multicast rules.
     refused: u64,
     send_errors: u64,
 }
-
-const MAX_DATAGRAM: usize = 65_536;
 
 impl Io {
     fn new(s: net::Sockets, loopback_only: bool, multicast: bool) -> Self {
@@ -713,7 +711,7 @@ impl Io {
             user: s.user,
             meta_mc: s.meta_mc,
             user_mc: s.user_mc,
-            bufs: std::array::from_fn(|_| vec![0; MAX_DATAGRAM]),
+            batch: net::RecvBatch::new(),
             loopback_only,
             multicast,
             refused: 0,
@@ -752,16 +750,17 @@ impl Io {
     }
 }
 
-async fn recv_opt(s: &Option<UdpSocket>, buf: &mut [u8]) -> std::io::Result<(usize, SocketAddr)> {
+async fn readable_opt(s: &Option<UdpSocket>) -> std::io::Result<()> {
     match s {
-        Some(s) => s.recv_from(buf).await,
+        Some(s) => s.readable().await,
         None => std::future::pending().await,
     }
 }
 
 enum Wake {
     Cmd(Option<Cmd>),
-    Datagram(usize, std::io::Result<(usize, SocketAddr)>),
+    /// Socket `i` (meta, user, meta multicast, user multicast) has data.
+    Readable(usize),
     Space,
     Timer,
 }
@@ -781,15 +780,14 @@ impl Driver {
             }
             let wake_at = self.st.next_wakeup();
             let paused = self.st.full_queue();
-            let io = &mut self.io;
-            let [b0, b1, b2, b3] = &mut io.bufs;
+            let io = &self.io;
             let wake = tokio::select! {
                 biased;
                 c = self.cmd.recv() => Wake::Cmd(c),
-                r = io.meta.recv_from(b0) => Wake::Datagram(0, r),
-                r = io.user.recv_from(b1), if paused.is_none() => Wake::Datagram(1, r),
-                r = recv_opt(&io.meta_mc, b2) => Wake::Datagram(2, r),
-                r = recv_opt(&io.user_mc, b3), if paused.is_none() => Wake::Datagram(3, r),
+                _ = io.meta.readable() => Wake::Readable(0),
+                _ = io.user.readable(), if paused.is_none() => Wake::Readable(1),
+                _ = readable_opt(&io.meta_mc) => Wake::Readable(2),
+                _ = readable_opt(&io.user_mc), if paused.is_none() => Wake::Readable(3),
                 _ = async { if let Some(q) = &paused { q.space().await } }, if paused.is_some() => Wake::Space,
                 _ = tokio::time::sleep_until(wake_at.into()) => Wake::Timer,
             };
@@ -813,14 +811,7 @@ impl Driver {
                         self.st.command(c, now);
                     }
                 }
-                Wake::Datagram(i, Ok((n, from))) => {
-                    let src = locator_of(from);
-                    self.st.p.handle_datagram(src, &self.io.bufs[i][..n], now);
-                    self.drain(i, now);
-                }
-                Wake::Datagram(_, Err(_)) => {
-                    // ICMP port unreachable and the like: nothing to do
-                }
+                Wake::Readable(i) => self.drain(i, now),
                 Wake::Space => {}
                 Wake::Timer => {}
             }
@@ -829,9 +820,10 @@ impl Driver {
         self.close(Instant::now()).await;
     }
 
-    /// Reads what else is already waiting on socket `i`, up to a batch.
+    /// Reads what is waiting on socket `i`, a batch per system call, up
+    /// to a limit (so that commands and timers are not starved).
     fn drain(&mut self, i: usize, now: Instant) {
-        for _ in 0..64 {
+        for _ in 0..8 {
             if i % 2 == 1 && self.st.full_queue().is_some() {
                 return;
             }
@@ -842,14 +834,19 @@ impl Driver {
                 _ => self.io.user_mc.as_ref(),
             };
             let Some(sock) = sock else { return };
-            match sock.try_recv_from(&mut self.io.bufs[i]) {
-                Ok((n, from)) => {
-                    let src = locator_of(from);
-                    self.st.p.handle_datagram(src, &self.io.bufs[i][..n], now);
-                    // deliver as we go so that back-pressure is seen
-                    self.st.pump(now);
-                }
-                Err(_) => return,
+            let n = match net::recv_batch(sock, &mut self.io.batch) {
+                Ok(n) => n,
+                // ICMP port unreachable and the like: reported once, nothing to do
+                Err(_) => continue,
+            };
+            for k in 0..n {
+                let (bytes, from) = self.io.batch.get(k);
+                self.st.p.handle_datagram(locator_of(from), bytes, now);
+                // deliver as we go so that back-pressure is seen
+                self.st.pump(now);
+            }
+            if n < net::RECV_SLOTS {
+                return; // the socket was emptied
             }
         }
     }

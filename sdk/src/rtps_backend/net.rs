@@ -195,3 +195,139 @@ pub(crate) fn open(o: &RtpsOptions, address: Ipv4Addr) -> Result<Sockets, String
         user_mc: user_mc.map(t).transpose()?,
     })
 }
+
+/// Largest UDP datagram received.
+pub(crate) const MAX_DATAGRAM: usize = 65_536;
+
+/// Datagrams taken from a socket per system call at most.
+pub(crate) const RECV_SLOTS: usize = 8;
+
+/// Buffers for receiving up to [`RECV_SLOTS`] datagrams with one system
+/// call (`recvmmsg` on Linux).
+pub(crate) struct RecvBatch {
+    bufs: Vec<Vec<u8>>,
+    lens: [usize; RECV_SLOTS],
+    from: [SocketAddr; RECV_SLOTS],
+    n: usize,
+}
+
+impl RecvBatch {
+    pub(crate) fn new() -> Self {
+        RecvBatch {
+            bufs: (0..RECV_SLOTS).map(|_| vec![0; MAX_DATAGRAM]).collect(),
+            lens: [0; RECV_SLOTS],
+            from: [SocketAddr::from(([0, 0, 0, 0], 0)); RECV_SLOTS],
+            n: 0,
+        }
+    }
+
+    /// Datagram `i` of the last [`recv_batch`] and its sender.
+    pub(crate) fn get(&self, i: usize) -> (&[u8], SocketAddr) {
+        (&self.bufs[i][..self.lens[i]], self.from[i])
+    }
+}
+
+/// Takes the datagrams waiting on `sock`, up to [`RECV_SLOTS`], without
+/// blocking; `Ok(0)` when none was waiting. When fewer than a full batch
+/// were waiting the socket's readiness is cleared at once (the queue was
+/// seen empty), so that a lone datagram costs one receive call, not a
+/// second one that answers `EAGAIN`.
+#[cfg(target_os = "linux")]
+#[allow(unsafe_code)]
+pub(crate) fn recv_batch(sock: &UdpSocket, b: &mut RecvBatch) -> io::Result<usize> {
+    use std::os::fd::AsRawFd;
+    b.n = 0;
+    let fd = sock.as_raw_fd();
+    let RecvBatch {
+        bufs,
+        lens,
+        from,
+        n: got,
+    } = b;
+    let r = sock.try_io(tokio::io::Interest::READABLE, || {
+        // SAFETY: all-zero is a valid value of these plain C structs
+        let mut addrs: [libc::sockaddr_storage; RECV_SLOTS] = unsafe { std::mem::zeroed() };
+        let mut iov: [libc::iovec; RECV_SLOTS] = unsafe { std::mem::zeroed() };
+        let mut hdrs: [libc::mmsghdr; RECV_SLOTS] = unsafe { std::mem::zeroed() };
+        for i in 0..RECV_SLOTS {
+            iov[i] = libc::iovec {
+                iov_base: bufs[i].as_mut_ptr().cast(),
+                iov_len: bufs[i].len(),
+            };
+            let h = &mut hdrs[i].msg_hdr;
+            h.msg_name = std::ptr::from_mut(&mut addrs[i]).cast();
+            h.msg_namelen = std::mem::size_of::<libc::sockaddr_storage>() as libc::socklen_t;
+            h.msg_iov = std::ptr::from_mut(&mut iov[i]);
+            h.msg_iovlen = 1;
+        }
+        // SAFETY: every header points at a live buffer of the stated length
+        // and at a sockaddr_storage, all of which outlive the call
+        let n = unsafe {
+            libc::recvmmsg(
+                fd,
+                hdrs.as_mut_ptr(),
+                RECV_SLOTS as libc::c_uint,
+                libc::MSG_DONTWAIT,
+                std::ptr::null_mut(),
+            )
+        };
+        if n < 0 {
+            return Err(io::Error::last_os_error());
+        }
+        let n = usize::try_from(n).unwrap_or(0).min(RECV_SLOTS);
+        for i in 0..n {
+            lens[i] = (hdrs[i].msg_len as usize).min(bufs[i].len());
+            from[i] = sockaddr_v4(&addrs[i]);
+        }
+        *got = n;
+        if n < RECV_SLOTS {
+            // the queue was empty after these: let tokio wait for the next
+            // arrival (edge-triggered; a datagram that came meanwhile has
+            // already made a newer readiness event, which this does not clear)
+            Err(io::ErrorKind::WouldBlock.into())
+        } else {
+            Ok(())
+        }
+    });
+    match r {
+        Ok(()) => Ok(b.n),
+        Err(e) if e.kind() == io::ErrorKind::WouldBlock => Ok(b.n),
+        Err(e) => Err(e),
+    }
+}
+
+/// The IPv4 sender in a `sockaddr_storage` (0.0.0.0:0 for anything else:
+/// these sockets are IPv4).
+#[cfg(target_os = "linux")]
+#[allow(unsafe_code)]
+fn sockaddr_v4(a: &libc::sockaddr_storage) -> SocketAddr {
+    if i32::from(a.ss_family) != libc::AF_INET {
+        return SocketAddr::from(([0, 0, 0, 0], 0));
+    }
+    // SAFETY: ss_family says this storage holds a sockaddr_in
+    let sin = unsafe { &*std::ptr::from_ref(a).cast::<libc::sockaddr_in>() };
+    SocketAddr::V4(SocketAddrV4::new(
+        Ipv4Addr::from(u32::from_be(sin.sin_addr.s_addr)),
+        u16::from_be(sin.sin_port),
+    ))
+}
+
+/// Takes the datagrams waiting on `sock`, up to [`RECV_SLOTS`], without
+/// blocking (one `recvfrom` each); `Ok(0)` when none was waiting.
+#[cfg(not(target_os = "linux"))]
+pub(crate) fn recv_batch(sock: &UdpSocket, b: &mut RecvBatch) -> io::Result<usize> {
+    b.n = 0;
+    while b.n < RECV_SLOTS {
+        match sock.try_recv_from(&mut b.bufs[b.n]) {
+            Ok((len, from)) => {
+                b.lens[b.n] = len;
+                b.from[b.n] = from;
+                b.n += 1;
+            }
+            Err(e) if e.kind() == io::ErrorKind::WouldBlock => break,
+            Err(e) if b.n == 0 => return Err(e),
+            Err(_) => break,
+        }
+    }
+    Ok(b.n)
+}
