@@ -245,13 +245,14 @@ impl SampleQueue {
 
     fn try_pop(&self) -> Option<RawSample> {
         let mut st = self.state.lock().unwrap();
+        let was_full = st.items.len() >= st.cap;
         let s = st.items.pop_front();
         if s.is_none() && st.closed && !st.reported_close {
             st.reported_close = true;
             return Some(RawSample::new(String::new(), Vec::new()));
         }
         drop(st);
-        if s.is_some() {
+        if s.is_some() && was_full {
             self.space.notify_waiters();
         }
         s
@@ -260,9 +261,13 @@ impl SampleQueue {
     /// `Ready(Some(marker))` with an empty message name once after close.
     fn poll_pop(&self, cx: &mut Context<'_>) -> Poll<Option<RawSample>> {
         let mut st = self.state.lock().unwrap();
+        let was_full = st.items.len() >= st.cap;
         if let Some(s) = st.items.pop_front() {
             drop(st);
-            self.space.notify_waiters();
+            if was_full {
+                // only a full queue has anyone waiting for room
+                self.space.notify_waiters();
+            }
             return Poll::Ready(Some(s));
         }
         if st.closed {

@@ -279,6 +279,7 @@ impl RtpsBackend {
                 patterns: Vec::new(),
                 watched: HashSet::new(),
                 remote_writers: HashMap::new(),
+                source_names: HashMap::new(),
                 confirms: Vec::new(),
                 next_housekeeping: now,
                 servers: HashMap::new(),
@@ -984,6 +985,9 @@ struct State {
     patterns: Vec<Pattern>,
     watched: HashSet<String>,
     remote_writers: HashMap<Guid, WriterInfo>,
+    /// `Sample::source` of the writers that delivered samples (their GUID
+    /// in hex), made once per writer.
+    source_names: HashMap<Guid, String>,
     confirms: Vec<Confirm>,
     next_housekeeping: Instant,
     /// Request readers of `serve`, by reader GUID: service name and where
@@ -1809,6 +1813,7 @@ impl State {
             }
             Event::PublicationLost(g) => {
                 self.remote_writers.remove(&g);
+                self.source_names.remove(&g);
                 self.emit(SessionEvent::PublicationLost(g));
             }
             Event::SubscriptionFound(d) => self.emit(SessionEvent::SubscriptionFound(Box::new(d))),
@@ -1915,12 +1920,16 @@ impl State {
             r.due.remove(&instance);
             r.owners.remove(&instance);
         }
+        let source = self
+            .source_names
+            .entry(s.writer)
+            .or_insert_with(|| guid_hex(s.writer));
         let raw = RawSample {
             msg: r.topic.clone(),
             data: s.data().to_vec(),
             order: courier_wire::ipc::ByteOrder::NATIVE,
             received,
-            source: Some(guid_hex(s.writer)),
+            source: Some(source.clone()),
             type_name: Some(r.type_name.clone()),
             state: match s.kind {
                 ChangeKind::Alive => InstanceState::Alive,

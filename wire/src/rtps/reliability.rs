@@ -558,6 +558,12 @@ impl Reader {
             }
             return;
         }
+        if sn.0 == w.next && w.pending.is_empty() {
+            // the common case: the next one, nothing held back
+            w.next += 1;
+            self.samples.push_back((writer, sn, payload));
+            return;
+        }
         if sn.0 < w.next || w.pending.contains_key(&sn.0) {
             return; // duplicate
         }

@@ -39,8 +39,18 @@ impl VendorId {
 }
 
 /// The 12-byte GUID prefix of a participant.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Default)]
 pub struct GuidPrefix(pub [u8; 12]);
+
+// Hashed as two words, not as a length-prefixed byte slice: GUIDs key the
+// maps looked up for every received sample.
+impl std::hash::Hash for GuidPrefix {
+    fn hash<H: std::hash::Hasher>(&self, state: &mut H) {
+        let [a0, a1, a2, a3, a4, a5, a6, a7, b0, b1, b2, b3] = self.0;
+        state.write_u64(u64::from_ne_bytes([a0, a1, a2, a3, a4, a5, a6, a7]));
+        state.write_u32(u32::from_ne_bytes([b0, b1, b2, b3]));
+    }
+}
 
 impl GuidPrefix {
     /// The all-zero prefix ("unknown", or "any participant" in INFO_DST).
@@ -99,12 +109,23 @@ impl EntityId {
 }
 
 /// A GUID: participant prefix plus entity id.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Default)]
 pub struct Guid {
     /// Participant.
     pub prefix: GuidPrefix,
     /// Entity within it.
     pub entity: EntityId,
+}
+
+// Two words (see GuidPrefix).
+impl std::hash::Hash for Guid {
+    fn hash<H: std::hash::Hasher>(&self, state: &mut H) {
+        let b = self.to_bytes();
+        let (a, c) = b.split_at(8);
+        let word = |s: &[u8]| u64::from_ne_bytes(s.try_into().unwrap_or_default());
+        state.write_u64(word(a));
+        state.write_u64(word(c));
+    }
 }
 
 impl Guid {
