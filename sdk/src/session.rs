@@ -862,7 +862,7 @@ impl Session {
     /// session's participant (on a topic this session defined; otherwise
     /// the error comes back), so that a burst of publishes goes out packed
     /// into shared datagrams. What is queued is bounded (1 MiB per session, plus
-    /// 512 KiB unacknowledged per reliable keep-all writer): when readers
+    /// 1 MiB unacknowledged per reliable keep-all writer): when readers
     /// fall behind, `publish().await` waits: back-pressure, not loss.
     pub fn publish<'a, T: IpcMessage>(&'a self, msg: &'a str, value: &T) -> Publish<'a> {
         let key_hash = (self.enc() == Encoding::Cdr && !T::KEYS.is_empty())

@@ -495,7 +495,7 @@ async fn slow_keep_all_subscriber_loses_nothing() {
 /// `publish().await` returns once the write is queued (so that the
 /// driver packs bursts into shared datagrams), but what it may queue is
 /// bounded: a subscriber that stops reading stops the publisher after the
-/// writer's unacknowledged-bytes limit (512 KiB) plus the session's write
+/// writer's unacknowledged-bytes limit (1 MiB) plus the session's write
 /// queue (1 MiB), not after the 4096-sample history.
 #[tokio::test]
 async fn a_subscriber_that_stops_reading_stops_the_publisher_within_bounded_memory() {
@@ -539,7 +539,7 @@ async fn a_subscriber_that_stops_reading_stops_the_publisher_within_bounded_memo
     tokio::time::sleep(Duration::from_millis(200)).await;
     let stuck = done.load(std::sync::atomic::Ordering::SeqCst);
     assert!(
-        stuck > 100 && stuck < 2200,
+        stuck > 100 && stuck < 3000,
         "the publisher went on to {stuck} of {n} 1 KiB samples with nobody reading"
     );
     eprintln!("publisher stopped after {stuck} samples");
