@@ -1940,7 +1940,7 @@ impl State {
             source_time: s.source_timestamp.and_then(system_time),
             done: None,
         };
-        // may exceed the capacity by what one datagram carried; reading
+        // may exceed the capacity by what one receive batch (8 datagrams) carried; reading
         // stops until the application catches up (see `full_queue`)
         r.queue.push_over(raw);
     }
