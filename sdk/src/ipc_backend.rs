@@ -67,9 +67,9 @@ enum Cmd {
     /// Subscribe central's connect/disconnect notifications (once).
     WatchModules,
     /// Direct mode: a peer connected to our listener.
-    LinkAccepted(tokio::net::TcpStream),
+    LinkAccepted(Box<dyn Io>),
     /// Direct mode: our connection to a receiver is up (or failed: None).
-    LinkConnected(LinkId, Option<tokio::net::TcpStream>),
+    LinkConnected(LinkId, Option<Box<dyn Io>>),
     /// Direct mode: bytes read from a link (empty = closed).
     LinkData(LinkId, Vec<u8>),
     /// Subscribe handler-count changes of a message.
@@ -161,7 +161,7 @@ async fn handshake(
     port: u16,
     name: &str,
     opts: &IpcOptions,
-) -> Result<(Connection, Box<dyn Io>, Option<tokio::net::TcpListener>), ConnectError> {
+) -> Result<(Connection, Box<dyn Io>, Option<DirectListener>), ConnectError> {
     {
         let host = host.to_string();
         let addr = format!("{host}:{port}");
@@ -185,7 +185,7 @@ async fn handshake(
         cfg.listen = opts.listen;
         let mut conn = Connection::new(cfg, Instant::now());
         let mut buf = vec![0u8; 64 * 1024];
-        let mut listener: Option<tokio::net::TcpListener> = None;
+        let mut listener: Option<DirectListener> = None;
         let hs = async {
             loop {
                 while let Some(b) = conn.poll_transmit() {
@@ -214,7 +214,10 @@ async fn handshake(
                         }
                         let (l, p) = bound.ok_or("no free port in 8000..9000 for direct links")?;
                         conn.announce_direct_port(i32::from(p));
-                        listener = Some(l);
+                        listener = Some(DirectListener {
+                            tcp: l,
+                            unix: UnixListenerFile::bind(p),
+                        });
                         continue;
                     }
                     Some(_) => continue,
@@ -242,15 +245,109 @@ async fn handshake(
     }
 }
 
-fn spawn_accept(l: tokio::net::TcpListener, tx: mpsc::UnboundedSender<Cmd>) {
+/// Where this module takes direct links: the TCP port it announced and,
+/// as C's `x_ipcDirectResource` does, the UNIX socket `/tmp/x_ipc/<port>`.
+struct DirectListener {
+    tcp: tokio::net::TcpListener,
+    unix: Option<UnixListenerFile>,
+}
+
+/// A listening UNIX socket whose file is removed when it is dropped.
+struct UnixListenerFile {
+    listener: tokio::net::UnixListener,
+    path: std::path::PathBuf,
+}
+
+impl UnixListenerFile {
+    /// Listens at `/tmp/x_ipc/<port>`. Like C (`x_ipc_listenAtSocket`) the
+    /// directory is created world-writable and a leftover file is replaced;
+    /// unlike C a file somebody still answers on is left alone (then only
+    /// TCP is offered). `None` (with a warning) when that is not possible:
+    /// peers then use TCP, as C ones do when the socket is missing.
+    fn bind(port: u16) -> Option<Self> {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = std::path::Path::new(UNIX_SOCKET_DIR);
+        if std::fs::create_dir(dir).is_ok() {
+            let _ = std::fs::set_permissions(dir, std::fs::Permissions::from_mode(0o777));
+        }
+        let path = dir.join(port.to_string());
+        if std::os::unix::net::UnixStream::connect(&path).is_ok() {
+            tracing::warn!(
+                "{} is in use by another process: direct links over TCP only",
+                path.display()
+            );
+            return None;
+        }
+        let _ = std::fs::remove_file(&path); // stale, from a process that died
+        match tokio::net::UnixListener::bind(&path) {
+            Ok(listener) => Some(UnixListenerFile { listener, path }),
+            Err(e) => {
+                tracing::warn!(
+                    "cannot listen at {}: {e}; direct links over TCP only",
+                    path.display()
+                );
+                None
+            }
+        }
+    }
+}
+
+impl Drop for UnixListenerFile {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// Directory of C IPC's UNIX sockets (`UNIX_DIR_NAME`).
+const UNIX_SOCKET_DIR: &str = "/tmp/x_ipc";
+
+/// Accepts direct links on both sockets until the session's driver is gone
+/// (which drops the listeners and removes the UNIX socket's file).
+fn spawn_accept(l: DirectListener, tx: mpsc::UnboundedSender<Cmd>) {
     tokio::spawn(async move {
-        while let Ok((s, _)) = l.accept().await {
-            let _ = s.set_nodelay(true);
-            if tx.send(Cmd::LinkAccepted(s)).is_err() {
+        let DirectListener { tcp, unix } = l;
+        loop {
+            let accepted: Box<dyn Io> = tokio::select! {
+                _ = tx.closed() => break,
+                r = tcp.accept() => match r {
+                    Ok((s, _)) => {
+                        let _ = s.set_nodelay(true);
+                        Box::new(s)
+                    }
+                    Err(_) => break,
+                },
+                r = async {
+                    match &unix {
+                        Some(u) => u.listener.accept().await,
+                        None => std::future::pending().await,
+                    }
+                } => match r {
+                    Ok((s, _)) => Box::new(s),
+                    Err(_) => break,
+                },
+            };
+            if tx.send(Cmd::LinkAccepted(accepted)).is_err() {
                 break;
             }
         }
+        drop(unix);
     });
+}
+
+/// Connects to a direct-link receiver as C's `x_ipc_connectAt` does: its
+/// UNIX socket first when the host is this machine, else (or when that
+/// fails) TCP.
+async fn connect_direct(host: &str, port: u16) -> Option<Box<dyn Io>> {
+    let local = host == "localhost" || is_local_name(host, &local_host_name());
+    if local {
+        if let Ok(s) = tokio::net::UnixStream::connect(format!("{UNIX_SOCKET_DIR}/{port}")).await {
+            return Some(Box::new(s));
+        }
+    }
+    let host = if local { "127.0.0.1" } else { host };
+    let s = tokio::net::TcpStream::connect((host, port)).await.ok()?;
+    let _ = s.set_nodelay(true);
+    Some(Box::new(s))
 }
 
 impl IpcBackend {
@@ -485,7 +582,7 @@ struct Driver {
     counts: HashMap<OpId, Done<Result<i32, SessionError>>>,
     closing: Option<Done<()>>,
     watching_modules: bool,
-    links: HashMap<LinkId, tokio::net::tcp::OwnedWriteHalf>,
+    links: HashMap<LinkId, tokio::io::WriteHalf<Box<dyn Io>>>,
 }
 
 fn refused(e: ModError) -> SessionError {
@@ -561,7 +658,7 @@ impl Driver {
     }
 
     /// Reads a direct link on its own task, feeding the driver.
-    fn spawn_link_reader(&self, link: LinkId, mut r: tokio::net::tcp::OwnedReadHalf) {
+    fn spawn_link_reader(&self, link: LinkId, mut r: tokio::io::ReadHalf<Box<dyn Io>>) {
         let tx = self.cmd_tx.clone();
         tokio::spawn(async move {
             let mut buf = vec![0u8; 64 * 1024];
@@ -700,12 +797,12 @@ impl Driver {
             }
             Cmd::LinkAccepted(stream) => {
                 let link = self.conn.accept_direct();
-                let (r, w) = stream.into_split();
+                let (r, w) = tokio::io::split(stream);
                 self.links.insert(link, w);
                 self.spawn_link_reader(link, r);
             }
             Cmd::LinkConnected(link, Some(stream)) => {
-                let (r, w) = stream.into_split();
+                let (r, w) = tokio::io::split(stream);
                 self.links.insert(link, w);
                 self.spawn_link_reader(link, r);
                 self.conn.direct_link_up(link);
@@ -813,23 +910,12 @@ impl Driver {
                 Event::DirectConnect {
                     link, host, port, ..
                 } => {
-                    // A receiver on this machine is reached over loopback.
-                    let host = if host == local_host_name() || host == "localhost" {
-                        "127.0.0.1".to_string()
-                    } else {
-                        host
-                    };
                     let tx = self.cmd_tx.clone();
                     tokio::spawn(async move {
                         let s = match u16::try_from(port) {
-                            Ok(p) => tokio::net::TcpStream::connect((host.as_str(), p))
-                                .await
-                                .ok(),
+                            Ok(p) => connect_direct(&host, p).await,
                             Err(_) => None,
                         };
-                        if let Some(s) = &s {
-                            let _ = s.set_nodelay(true);
-                        }
                         let _ = tx.send(Cmd::LinkConnected(link, s));
                     });
                 }

@@ -90,9 +90,11 @@
 //!   from 8000 (on 127.0.0.1 when central is on loopback, else on all
 //!   interfaces, like C) and links to receivers itself; unlike C, a message
 //!   is never lost because the receiver list is learned late (it waits for
-//!   the links). Peers on this host are reached over loopback TCP; the
-//!   `/tmp/x_ipc/<port>` socket is not offered for direct links (C peers
-//!   fall back to TCP).
+//!   the links). As in C (`x_ipcDirectResource`, `x_ipc_connectAt`) the
+//!   session also listens at `/tmp/x_ipc/<port>` (removed when it closes;
+//!   a leftover file is replaced, one somebody still answers on is left
+//!   alone), and reaches a receiver whose host is this machine's name over
+//!   that UNIX socket first, TCP otherwise.
 #![warn(missing_docs)]
 #![deny(unsafe_code)]
 

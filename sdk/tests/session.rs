@@ -306,8 +306,20 @@ async fn direct_mode_publish_and_query() {
         .await
         .unwrap();
     let url = format!("ipc://{}", c.local_addr());
+    // (the only direct-mode test of this binary: the /tmp/x_ipc files that
+    // appear are these two sessions')
+    let before = x_ipc_direct_files();
     let a = session(&url, "direct-a").await;
     let b = session(&url, "direct-b").await;
+    let ours: Vec<String> = x_ipc_direct_files()
+        .into_iter()
+        .filter(|f| !before.contains(f))
+        .collect();
+    assert_eq!(
+        ours.len(),
+        2,
+        "each module listens at /tmp/x_ipc/<its direct port>, as C does: {ours:?}"
+    );
     a.define::<i32>("d_msg").await.unwrap();
     a.define::<i32>("d_ask").await.unwrap();
     a.define::<i32>("d_answer").await.unwrap();
@@ -330,9 +342,65 @@ async fn direct_mode_publish_and_query() {
     let r: i32 = a.query("d_ask", &41).timeout(T).await.unwrap();
     assert_eq!(r, 42);
     tokio::time::timeout(T, srv).await.unwrap().unwrap();
+    // the link a -> b is a UNIX socket: /proc/net/unix lists the accepted
+    // end under the listener's path besides the two listeners
+    let unix_ends = unix_sockets_at(&ours);
+    assert!(
+        unix_ends >= 3,
+        "{unix_ends} UNIX sockets at {ours:?}: the direct link is not over the UNIX socket"
+    );
     a.close().await;
     b.close().await;
+    // closing removes the socket files
+    let gone = tokio::time::timeout(T, async {
+        while ours.iter().any(|f| std::path::Path::new(f).exists()) {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await;
+    assert!(gone.is_ok(), "{ours:?} left behind after close");
+
+    // a stale socket file (its process died) at the port the next module
+    // will take does not stop it: it is replaced by a live listener
+    let port = (8000..9000u16)
+        .find(|p| std::net::TcpListener::bind(("127.0.0.1", *p)).is_ok())
+        .unwrap();
+    let stale = format!("/tmp/x_ipc/{port}");
+    let _ = std::fs::remove_file(&stale);
+    drop(std::os::unix::net::UnixListener::bind(&stale).unwrap());
+    assert!(std::os::unix::net::UnixStream::connect(&stale).is_err());
+    let d = session(&url, "direct-d").await;
+    assert!(
+        std::os::unix::net::UnixStream::connect(&stale).is_ok(),
+        "the stale {stale} was not replaced by the module's listener"
+    );
+    d.close().await;
     c.shutdown().await;
+}
+
+/// `/tmp/x_ipc/<port>` files of the direct-link port range.
+fn x_ipc_direct_files() -> Vec<String> {
+    let Ok(dir) = std::fs::read_dir("/tmp/x_ipc") else {
+        return Vec::new();
+    };
+    dir.filter_map(|e| e.ok())
+        .filter_map(|e| e.file_name().into_string().ok())
+        .filter(|n| n.parse::<u16>().is_ok_and(|p| (8000..9000).contains(&p)))
+        .map(|n| format!("/tmp/x_ipc/{n}"))
+        .collect()
+}
+
+/// How many UNIX sockets (listening or connected) carry one of `paths`.
+fn unix_sockets_at(paths: &[String]) -> usize {
+    std::fs::read_to_string("/proc/net/unix")
+        .unwrap()
+        .lines()
+        .filter(|l| {
+            l.split_whitespace()
+                .nth(7)
+                .is_some_and(|p| paths.iter().any(|x| x == p))
+        })
+        .count()
 }
 
 /// With the host given as this machine's name, the session prefers the UNIX
