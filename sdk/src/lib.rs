@@ -75,6 +75,7 @@
 //! | `IPC_getContext`, `IPC_setContext` | several `Session`s (each its own connection) |
 //! | `IPC_addTimer`, `IPC_addOneShotTimer`, `IPC_addPeriodicTimer`, `IPC_removeTimer` | `Session::every`, `after`, `times`: `Stream`s of `Tick { scheduled, fired }`; drop to remove |
 //! | `IPC_printData`, `IPC_readData` | `courier::ipc::print_value` / `decode_value` (dynamic values) |
+//! | `IPC_msgInstanceName`, `IPC_dataLength` | `Sample::msg`, `RawSample::data.len()`; `Sample::source` (the sender) stays `None` on IPC: no IPC frame carries it |
 //!
 //! ## Deviations from CMU IPC
 //! - Publishing a message nobody subscribes is silently not sent, as in C

@@ -1383,6 +1383,13 @@ pub struct Sample<T> {
     /// When it was received.
     pub received: SystemTime,
     /// Who sent it, when the backend knows (DDS: the writer's GUID in hex).
+    ///
+    /// Always `None` on IPC: a delivery frame's header (`classTotal`,
+    /// `msgTotal`, `parentRef`, `intent`, `classId`, `dispatchRef`,
+    /// `msgRef`) names no sender, central adds none, and a direct link
+    /// starts without a handshake, so its receiving end does not learn who
+    /// opened it either (CMU IPC has no such call for the same reason). Put
+    /// the sender in the message if the receiver needs it.
     pub source: Option<String>,
     /// The writer's timestamp, when sent (DDS).
     pub source_time: Option<SystemTime>,
