@@ -292,6 +292,9 @@ impl Writer {
     /// so that a burst of writes costs one heartbeat.
     pub fn write(&mut self, payload: Arc<[u8]>, now: Instant) -> Option<SequenceNumber> {
         let keep_all_reliable = self.depth.is_none() && self.reliable;
+        // unacknowledged bytes once this sample is in (keep-all reliable only;
+        // a sum over the history when acknowledged samples are retained)
+        let mut unacked_after = 0;
         if keep_all_reliable {
             self.release_acked();
             if self.history.len() >= self.max_samples {
@@ -301,6 +304,7 @@ impl Writer {
             if unacked > 0 && unacked + payload.len() > self.max_unacked_bytes {
                 return None;
             }
+            unacked_after = unacked + payload.len();
         }
         let sn = self.next_sn;
         self.next_sn += 1;
@@ -326,7 +330,7 @@ impl Writer {
                 || sn % ACK_EVERY == 0
                 || (keep_all_reliable
                     && (self.history.len() * 2 >= self.max_samples
-                        || self.unacked_bytes().saturating_mul(2) >= self.max_unacked_bytes));
+                        || unacked_after.saturating_mul(2) >= self.max_unacked_bytes));
             let final_flag = self.hb_after_writes.unwrap_or(true) && !want_ack;
             self.hb_after_writes = Some(final_flag);
             self.next_heartbeat
