@@ -9,6 +9,32 @@
 //! With `--url` the given central is used for the routed column only (start
 //! a second one with `-c` and pass `--direct-url` for the direct column).
 //! Every number is the median of three runs after a warm-up.
+//!
+//! As separate processes, each a current-thread runtime (z_ping/z_pong):
+//!
+//! ```text
+//! session-bench pong --url ipc://127.0.0.1:1381 [--busy-poll <us>]
+//! session-bench ping --url ipc://127.0.0.1:1381 [--busy-poll <us>] [--publish] [--size 4] [--count 20000]
+//! ```
+//! `pong` answers queries on `rtt_ask` with `rtt_answer` and republishes
+//! `rtt_ping` as `rtt_pong` (format `{int, <ubyte:1>}`, the same names as
+//! the C measuring programs use) until its standard input closes; `ping`
+//! times `--count` query round trips (or publish→pong round trips with
+//! `--publish`) after a tenth as many for warm-up and prints one line:
+//! `query_rtt size=4 n=20000 median_us=.. p99_us=.. mean_us=..`.
+//!
+//! `session-bench processes` runs those roles as processes through
+//! `central` processes and prints a table of 4 B round trips: clients
+//! (Courier, Courier with `--busy-poll`, and the C library's when
+//! `--c-rtt DIR` names its measuring programs) × centrals (Courier's,
+//! Courier's with `--busy-poll`, and the C one with `--c-central PATH`) ×
+//! transport (TCP, and the UNIX socket `/tmp/x_ipc/<port>`, which C and
+//! Courier modules use when the host is the machine's own name):
+//!
+//! ```text
+//! session-bench processes [--central PATH] [--c-central PATH] [--c-rtt DIR]
+//!                         [--publish] [--count N] [--reps R] [--busy-poll US]
+//! ```
 
 #[path = "appendix_a.rs"]
 mod appendix;
@@ -183,12 +209,159 @@ async fn median(p: &Pair, kind: Kind, size: usize, count: usize) -> f64 {
     v[1]
 }
 
+/// A session of the `ping`/`pong` roles.
+async fn role_session(url: &str, name: &str, spin: Option<Duration>) -> Session {
+    let mut b = Session::builder(url).name(name);
+    if let Some(w) = spin {
+        b = b.busy_poll(w);
+    }
+    let s = b.connect().await.expect("connect");
+    for m in ["rtt_ask", "rtt_answer", "rtt_ping", "rtt_pong"] {
+        s.define::<Blob>(m).await.expect("define");
+    }
+    s
+}
+
+async fn pong(url: &str, spin: Option<Duration>) {
+    let s = role_session(url, "rtt_pong", spin).await;
+    let mut reqs = s
+        .serve::<Blob, Blob>("rtt_ask", "rtt_answer")
+        .await
+        .unwrap();
+    let mut pings = s.subscribe::<Blob>("rtt_ping").await.unwrap();
+    println!("ready");
+    // Ends when standard input closes (the parent went away).
+    let (tx, mut stdin_closed) = tokio::sync::oneshot::channel::<()>();
+    std::thread::spawn(move || {
+        use std::io::Read;
+        let mut b = [0u8; 64];
+        while matches!(std::io::stdin().read(&mut b), Ok(n) if n > 0) {}
+        let _ = tx.send(());
+    });
+    loop {
+        tokio::select! {
+            r = reqs.next() => match r {
+                Some(Ok(r)) => {
+                    let v = r.value.clone();
+                    r.reply(&v).await.unwrap();
+                }
+                _ => break,
+            },
+            p = pings.next() => match p {
+                Some(Ok(p)) => s.publish("rtt_pong", &p.value).await.unwrap(),
+                _ => break,
+            },
+            _ = &mut stdin_closed => break,
+        }
+    }
+    s.close().await;
+}
+
+async fn ping(url: &str, spin: Option<Duration>, publish: bool, size: usize, count: usize) {
+    let s = role_session(url, "rtt_ping", spin).await;
+    let target = if publish { "rtt_ping" } else { "rtt_ask" };
+    let mut pongs = s.subscribe::<Blob>("rtt_pong").await.unwrap();
+    let t0 = Instant::now();
+    while s.num_handlers(target).await.unwrap() < 1 {
+        assert!(
+            t0.elapsed() < T,
+            "nobody handles {target}: is `pong` running?"
+        );
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    let payload = Blob {
+        n: size as i32,
+        data: vec![7u8; size],
+    };
+    let mut rtts = Vec::with_capacity(count);
+    for i in 0..count / 10 + count {
+        let start = Instant::now();
+        if publish {
+            s.publish("rtt_ping", &payload).await.unwrap();
+            tokio::time::timeout(T, pongs.next())
+                .await
+                .expect("pong within 30 s")
+                .unwrap()
+                .unwrap();
+        } else {
+            let r: Blob = s.query("rtt_ask", &payload).timeout(T).await.unwrap();
+            assert_eq!(r.data.len(), size);
+        }
+        if i >= count / 10 {
+            rtts.push(start.elapsed().as_secs_f64() * 1e6);
+        }
+    }
+    rtts.sort_by(f64::total_cmp);
+    let mean = rtts.iter().sum::<f64>() / rtts.len() as f64;
+    println!(
+        "{} size={size} n={count} median_us={:.1} p99_us={:.1} mean_us={mean:.1}",
+        if publish { "publish_rtt" } else { "query_rtt" },
+        rtts[rtts.len() / 2],
+        rtts[rtts.len() * 99 / 100],
+    );
+    s.close().await;
+}
+
+/// `ping`/`pong`: a role per process, each on a current-thread runtime.
+fn role(role: &str, mut args: impl Iterator<Item = String>) {
+    let mut url = String::from("ipc://127.0.0.1:1381");
+    let mut spin = None;
+    let mut publish = false;
+    let mut size = 4usize;
+    let mut count = 20_000usize;
+    let num = |flag: &str, v: Option<String>| -> u64 {
+        match v.as_deref().map(str::parse::<u64>) {
+            Some(Ok(n)) if n > 0 => n,
+            _ => {
+                eprintln!("{flag} needs a positive number (got {v:?})");
+                std::process::exit(2)
+            }
+        }
+    };
+    while let Some(a) = args.next() {
+        match a.as_str() {
+            "--url" => url = args.next().unwrap_or_default(),
+            "--busy-poll" => spin = Some(Duration::from_micros(num(&a, args.next()))),
+            "--publish" if role == "ping" => publish = true,
+            "--size" if role == "ping" => size = num(&a, args.next()) as usize,
+            "--count" if role == "ping" => count = num(&a, args.next()) as usize,
+            other => {
+                eprintln!("{role}: unknown argument {other:?} (try --help)");
+                std::process::exit(2);
+            }
+        }
+    }
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    match role {
+        "pong" => rt.block_on(pong(&url, spin)),
+        _ => rt.block_on(ping(&url, spin, publish, size, count)),
+    }
+    rt.shutdown_background();
+}
+
+fn main() {
+    let mut args = std::env::args().skip(1);
+    match std::env::args().nth(1).as_deref() {
+        Some(r @ ("ping" | "pong")) => {
+            args.next();
+            role(r, args)
+        }
+        Some("processes") => {
+            args.next();
+            processes::table(args)
+        }
+        _ => tables(args),
+    }
+}
+
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]
-async fn main() {
+async fn tables(mut args: impl Iterator<Item = String>) {
     let mut url = None;
     let mut direct_url = None;
     let mut quick = false;
-    let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         match a.as_str() {
             "--url" => url = args.next(),
@@ -196,7 +369,9 @@ async fn main() {
             "--quick" => quick = true,
             "-h" | "--help" => {
                 println!(
-                    "usage: session-bench [--url ipc://H:P] [--direct-url ipc://H:P] [--quick]"
+                    "usage: session-bench [--url ipc://H:P] [--direct-url ipc://H:P] [--quick]\n\
+                     \x20      session-bench pong [--url ipc://H:P] [--busy-poll US]\n\
+                     \x20      session-bench ping [--url ipc://H:P] [--busy-poll US] [--publish] [--size S] [--count N]"
                 );
                 return;
             }
@@ -280,4 +455,285 @@ async fn main() {
         c.shutdown().await;
     }
     let _ = appendix::appendix_a;
+}
+
+/// `session-bench processes`: every module and central its own process.
+mod processes {
+    use std::io::Read;
+    use std::net::{Ipv4Addr, TcpListener, TcpStream};
+    use std::path::{Path, PathBuf};
+    use std::process::{Child, Command, Stdio};
+    use std::time::{Duration, Instant};
+
+    /// A child process that is killed and reaped when dropped.
+    struct Proc(Child);
+
+    impl Drop for Proc {
+        fn drop(&mut self) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+
+    fn free_port() -> u16 {
+        let l = TcpListener::bind((Ipv4Addr::LOCALHOST, 0)).expect("bind a free port");
+        l.local_addr().unwrap().port()
+    }
+
+    #[derive(Clone, Copy, PartialEq)]
+    enum Clients {
+        Courier,
+        CourierSpin,
+        C,
+    }
+
+    #[derive(Clone, Copy, PartialEq)]
+    enum Centrals {
+        Courier,
+        CourierSpin,
+        C,
+    }
+
+    struct Setup {
+        central: PathBuf,
+        c_central: Option<PathBuf>,
+        c_rtt: Option<PathBuf>,
+        publish: bool,
+        count: usize,
+        spin_us: u64,
+    }
+
+    fn start_central(s: &Setup, which: Centrals, port: u16) -> Proc {
+        let (bin, spin) = match which {
+            Centrals::Courier => (&s.central, false),
+            Centrals::CourierSpin => (&s.central, true),
+            Centrals::C => (s.c_central.as_ref().unwrap(), false),
+        };
+        let mut cmd = Command::new(bin);
+        cmd.arg(format!("-p{port}")).args(["-lx", "-s", "-u"]);
+        if which != Centrals::C {
+            cmd.args(["--bind", "127.0.0.1"]);
+        }
+        if spin {
+            cmd.arg(format!("--busy-poll={}", s.spin_us));
+        }
+        let child = cmd
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start {}: {e}", bin.display()));
+        let p = Proc(child);
+        let t0 = Instant::now();
+        while TcpStream::connect((Ipv4Addr::LOCALHOST, port)).is_err() {
+            assert!(
+                t0.elapsed() < Duration::from_secs(5),
+                "central did not listen on {port}"
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        p
+    }
+
+    fn median_of(out: &str) -> Option<f64> {
+        out.split_whitespace()
+            .find_map(|w| w.strip_prefix("median_us="))
+            .and_then(|v| v.parse().ok())
+    }
+
+    /// One run: the median round trip in µs.
+    fn run(s: &Setup, central: Centrals, clients: Clients, host: &str) -> Option<f64> {
+        let port = free_port();
+        let _central = start_central(s, central, port);
+        let me = std::env::current_exe().unwrap();
+        let url = format!("ipc://{host}:{port}");
+        let spin = format!("{}", s.spin_us);
+        let count = s.count.to_string();
+        let (server, client) = match clients {
+            Clients::Courier | Clients::CourierSpin => {
+                let mut pong = Command::new(&me);
+                pong.args(["pong", "--url", &url]);
+                let mut ping = Command::new(&me);
+                ping.args(["ping", "--url", &url, "--count", &count]);
+                if s.publish {
+                    ping.arg("--publish");
+                }
+                if clients == Clients::CourierSpin {
+                    pong.args(["--busy-poll", &spin]);
+                    ping.args(["--busy-poll", &spin]);
+                }
+                (pong, ping)
+            }
+            Clients::C => {
+                let dir = s.c_rtt.as_ref().unwrap();
+                let (mut srv, mut cli) = if s.publish {
+                    let mut b = Command::new(dir.join("prtt"));
+                    b.arg("b");
+                    let mut a = Command::new(dir.join("prtt"));
+                    a.args(["a", &count, "4"]);
+                    (b, a)
+                } else {
+                    let mut a = Command::new(dir.join("qrtt_client"));
+                    a.args([&count, "4"]);
+                    (Command::new(dir.join("qrtt_server")), a)
+                };
+                srv.env("CENTRALHOST", format!("{host}:{port}"));
+                cli.env("CENTRALHOST", format!("{host}:{port}"));
+                (srv, cli)
+            }
+        };
+        let mut server = server;
+        let _server = Proc(
+            server
+                .stdin(Stdio::piped())
+                .stdout(Stdio::null())
+                .stderr(Stdio::null())
+                .spawn()
+                .expect("start the answering module"),
+        );
+        let mut client = client;
+        let mut c = client
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start the timing module");
+        let mut out = String::new();
+        let _ = c.stdout.take().unwrap().read_to_string(&mut out);
+        let _ = c.wait();
+        median_of(&out)
+    }
+
+    fn hostname() -> String {
+        std::fs::read_to_string("/proc/sys/kernel/hostname")
+            .map(|h| h.trim().to_string())
+            .unwrap_or_else(|_| "localhost".into())
+    }
+
+    pub fn table(mut args: impl Iterator<Item = String>) {
+        let mut s = Setup {
+            central: std::env::current_exe().unwrap().with_file_name("central"),
+            c_central: None,
+            c_rtt: None,
+            publish: false,
+            count: 5000,
+            spin_us: 200,
+        };
+        let mut reps = 5usize;
+        let usage = "usage: session-bench processes [--central PATH] [--c-central PATH] \
+                     [--c-rtt DIR] [--publish] [--count N] [--reps R] [--busy-poll US]";
+        let num = |v: Option<String>| -> usize {
+            match v.as_deref().map(str::parse::<usize>) {
+                Some(Ok(n)) if n > 0 => n,
+                _ => {
+                    eprintln!("a positive number is needed (got {v:?}); {usage}");
+                    std::process::exit(2)
+                }
+            }
+        };
+        while let Some(a) = args.next() {
+            match a.as_str() {
+                "--central" => s.central = args.next().unwrap_or_default().into(),
+                "--c-central" => s.c_central = args.next().map(PathBuf::from),
+                "--c-rtt" => s.c_rtt = args.next().map(PathBuf::from),
+                "--publish" => s.publish = true,
+                "--count" => s.count = num(args.next()),
+                "--reps" => reps = num(args.next()),
+                "--busy-poll" => s.spin_us = num(args.next()) as u64,
+                "-h" | "--help" => {
+                    println!("{usage}");
+                    return;
+                }
+                other => {
+                    eprintln!("unknown argument {other:?}; {usage}");
+                    std::process::exit(2);
+                }
+            }
+        }
+        for p in [Some(&s.central), s.c_central.as_ref()]
+            .into_iter()
+            .flatten()
+        {
+            if !Path::new(p).is_file() {
+                eprintln!(
+                    "no central at {} (build it: cargo build --release -p courier-broker)",
+                    p.display()
+                );
+                std::process::exit(2);
+            }
+        }
+        let mut centrals = vec![Centrals::Courier, Centrals::CourierSpin];
+        if s.c_central.is_some() {
+            centrals.push(Centrals::C);
+        }
+        let mut clients = vec![Clients::Courier, Clients::CourierSpin];
+        if s.c_rtt.is_some() {
+            clients.push(Clients::C);
+        }
+        let host = hostname();
+        let what = if s.publish {
+            "publish->handler->publish"
+        } else {
+            "query->reply"
+        };
+        println!(
+            "{what} round trip, 4 B, separate processes, unpinned; median of {reps} runs of {} round trips each\n",
+            s.count
+        );
+        let name_c = |c: Centrals| match c {
+            Centrals::Courier => "Courier central".to_string(),
+            Centrals::CourierSpin => format!("Courier central --busy-poll {}", s.spin_us),
+            Centrals::C => "C central".to_string(),
+        };
+        let name_m = |c: Clients| match c {
+            Clients::Courier => "Courier".to_string(),
+            Clients::CourierSpin => format!("Courier, busy_poll {} µs", s.spin_us),
+            Clients::C => "C library".to_string(),
+        };
+        print!("| clients | transport |");
+        for c in &centrals {
+            print!(" {} |", name_c(*c));
+        }
+        println!();
+        println!("|---|---|{}", "---|".repeat(centrals.len()));
+        for (transport, h) in [("TCP", "127.0.0.1"), ("UNIX socket", host.as_str())] {
+            // Runs alternate between the cells, so drift hits all alike.
+            let cells: Vec<(Clients, Centrals)> = clients
+                .iter()
+                .flat_map(|m| centrals.iter().map(move |c| (*m, *c)))
+                .collect();
+            let mut got: Vec<Vec<f64>> = vec![Vec::new(); cells.len()];
+            for _ in 0..reps {
+                for (i, (m, c)) in cells.iter().enumerate() {
+                    if let Some(v) = run(&s, *c, *m, h) {
+                        got[i].push(v);
+                    }
+                }
+            }
+            let med = |v: &mut Vec<f64>| {
+                v.sort_by(f64::total_cmp);
+                v.get(v.len() / 2).copied()
+            };
+            let meds: Vec<Option<f64>> = got.iter_mut().map(med).collect();
+            let reference = cells
+                .iter()
+                .position(|&(m, c)| m == Clients::C && c == Centrals::C)
+                .and_then(|i| meds[i]);
+            for m in &clients {
+                print!("| {} | {transport} |", name_m(*m));
+                for c in &centrals {
+                    let i = cells.iter().position(|x| *x == (*m, *c)).unwrap();
+                    match (meds[i], reference) {
+                        (Some(v), Some(r)) => print!(" {v:.1} µs ({:.2}×) |", v / r),
+                        (Some(v), None) => print!(" {v:.1} µs |"),
+                        (None, _) => print!(" failed |"),
+                    }
+                }
+                println!();
+            }
+        }
+        if s.c_central.is_some() && s.c_rtt.is_some() {
+            println!("\n(×: against C clients through the C central on the same transport)");
+        }
+    }
 }

@@ -9,6 +9,7 @@ use std::time::{Duration, Instant};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::{mpsc, oneshot};
 
+use crate::busy_poll::BusyPoll;
 use crate::session::{
     Backend, ConnectError, Encoding, QueryError, RawReply, RawRequest, RawSample, SampleQueue,
     SessionError, SessionEvent,
@@ -30,6 +31,9 @@ pub struct IpcOptions {
     pub connect_timeout: Duration,
     /// Reconnect after losing central: first wait, doubling up to 5 s.
     pub reconnect: Option<Duration>,
+    /// Keep polling for this long after each message instead of sleeping
+    /// (see [`crate::busy_poll`]); `None` (the default) never spins.
+    pub busy_poll: Option<Duration>,
 }
 
 impl Default for IpcOptions {
@@ -38,6 +42,7 @@ impl Default for IpcOptions {
             listen: true,
             connect_timeout: Duration::from_secs(5),
             reconnect: None,
+            busy_poll: None,
         }
     }
 }
@@ -387,7 +392,8 @@ impl IpcBackend {
         if let Some(l) = listener {
             spawn_accept(l, tx.clone());
         }
-        tokio::spawn(driver.run(rx, buf));
+        let spin = driver.opts.busy_poll.map(BusyPoll::start);
+        tokio::spawn(driver.run(rx, buf, spin));
         Ok(IpcBackend {
             cmd: tx,
             addr,
@@ -595,9 +601,17 @@ fn refused(e: ModError) -> SessionError {
 static HANDLER_SEQ: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
 
 impl Driver {
-    async fn run(mut self, mut rx: mpsc::UnboundedReceiver<Cmd>, mut buf: Vec<u8>) {
+    async fn run(
+        mut self,
+        mut rx: mpsc::UnboundedReceiver<Cmd>,
+        mut buf: Vec<u8>,
+        spin: Option<BusyPoll>,
+    ) {
         let mut closed = false;
         loop {
+            if let Some(s) = &spin {
+                s.activity();
+            }
             if self.flush().await.is_err() {
                 break;
             }

@@ -99,6 +99,7 @@
 #![warn(missing_docs)]
 #![deny(unsafe_code)]
 
+pub mod busy_poll;
 pub mod ipc_backend;
 pub mod qos;
 pub mod rtps_backend;

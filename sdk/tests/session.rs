@@ -592,3 +592,74 @@ async fn reconnects_and_resubscribes_after_central_restarts() {
     s.close().await;
     c2.shutdown().await;
 }
+
+/// CPU time of the calling thread.
+fn thread_cpu() -> Duration {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: a valid clock id and a pointer to a live timespec.
+    let r = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    assert_eq!(r, 0);
+    Duration::new(ts.tv_sec as u64, ts.tv_nsec as u32)
+}
+
+/// Busy-polling sessions and a busy-polling central answer queries like any
+/// other, and stop spending CPU once traffic stops: everything runs on this
+/// test's one thread, so its CPU time over an idle stretch shows spinning.
+#[tokio::test(flavor = "current_thread")]
+async fn busy_polling_answers_queries_and_goes_quiet_when_idle() {
+    let window = Duration::from_millis(20);
+    let c = CentralServer::builder()
+        .bind("127.0.0.1".parse().unwrap())
+        .port(0)
+        .busy_poll(window)
+        .spawn()
+        .await
+        .unwrap();
+    let url = format!("ipc://{}", c.local_addr());
+    let connect = |name: &'static str| {
+        Session::builder(url.clone())
+            .name(name)
+            .busy_poll(window)
+            .connect()
+    };
+    let a = tokio::time::timeout(T, connect("spin-a"))
+        .await
+        .unwrap()
+        .unwrap();
+    let b = tokio::time::timeout(T, connect("spin-b"))
+        .await
+        .unwrap()
+        .unwrap();
+    a.define::<i32>("spin_q").await.unwrap();
+    a.define::<i32>("spin_r").await.unwrap();
+    let mut reqs = b.serve::<i32, i32>("spin_q", "spin_r").await.unwrap();
+    let srv = tokio::spawn(async move {
+        while let Some(Ok(r)) = reqs.next().await {
+            let v = r.value;
+            r.reply(&(v * 2)).await.unwrap();
+        }
+    });
+    for i in 0..200 {
+        let r: i32 = a.query("spin_q", &i).timeout(T).await.unwrap();
+        assert_eq!(r, i * 2);
+    }
+    // Idle: after the window nothing spins.
+    tokio::time::sleep(window * 3).await;
+    let (cpu, wall) = (thread_cpu(), std::time::Instant::now());
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let (cpu, wall) = (thread_cpu() - cpu, wall.elapsed());
+    assert!(
+        cpu < wall / 4,
+        "idle busy-polling thread used {cpu:?} of CPU in {wall:?}"
+    );
+    // Traffic again: still answered.
+    let r: i32 = a.query("spin_q", &21).timeout(T).await.unwrap();
+    assert_eq!(r, 42);
+    a.close().await;
+    b.close().await;
+    srv.await.unwrap();
+    c.shutdown().await;
+}

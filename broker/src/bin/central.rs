@@ -68,6 +68,8 @@ const USAGE: &str = "central command line options:
  --hosts-allow <file>, --hosts-deny <file>: access rules
      (default /etc/hosts.allow and /etc/hosts.deny, daemon name 'central').
  --no-unix-socket: do not listen on /tmp/x_ipc/<port>.
+ --busy-poll <us>: after each frame keep polling for <us> microseconds
+     (1..=1000000) instead of sleeping: lower latency for CPU (default off).
  --help, -h: this text.";
 
 #[derive(Debug)]
@@ -85,6 +87,7 @@ struct Options {
     unix: bool,
     allow: PathBuf,
     deny: PathBuf,
+    busy_poll: Option<std::time::Duration>,
 }
 
 impl Default for Options {
@@ -103,6 +106,7 @@ impl Default for Options {
             unix: true,
             allow: DEFAULT_ALLOW.into(),
             deny: DEFAULT_DENY.into(),
+            busy_poll: None,
         }
     }
 }
@@ -158,6 +162,20 @@ fn parse_args(args: Vec<String>) -> Result<Options, String> {
                     o.bind = v
                         .parse()
                         .map_err(|_| format!("option --bind: '{v}' is not an IP address"))?;
+                }
+                "busy-poll" => {
+                    let v = value(true)?;
+                    let us = v
+                        .parse::<u64>()
+                        .ok()
+                        .filter(|us| (1..=1_000_000).contains(us))
+                        .ok_or_else(|| {
+                            format!(
+                                "option --busy-poll: '{v}' is not a number of microseconds \
+                                 from 1 to 1000000"
+                            )
+                        })?;
+                    o.busy_poll = Some(std::time::Duration::from_micros(us));
                 }
                 "hosts-allow" => o.allow = value(true)?.into(),
                 "hosts-deny" => o.deny = value(true)?.into(),
@@ -482,7 +500,11 @@ async fn run(opts: Options) -> ExitCode {
         }
     });
     let file_log_on = opts.config.file_log.any();
-    let server = CentralServer::builder()
+    let mut server = CentralServer::builder();
+    if let Some(w) = opts.busy_poll {
+        server = server.busy_poll(w);
+    }
+    let server = server
         .port(opts.port)
         .bind(opts.bind)
         .unix_socket(opts.unix)
@@ -616,8 +638,10 @@ mod tests {
             "--hosts-deny",
             "/d",
             "--no-unix-socket",
+            "--busy-poll=50",
         ])
         .unwrap();
+        assert_eq!(o.busy_poll, Some(std::time::Duration::from_micros(50)));
         assert_eq!(o.bind, IpAddr::from([127, 0, 0, 1]));
         assert_eq!(
             (o.allow.as_path(), o.deny.as_path()),
@@ -663,6 +687,14 @@ mod tests {
                 "option --bind: 'nowhere' is not an IP address",
             ),
             (&["--bind"][..], "option --bind needs a value"),
+            (
+                &["--busy-poll", "0"][..],
+                "option --busy-poll: '0' is not a number of microseconds",
+            ),
+            (
+                &["--busy-poll=2s"][..],
+                "option --busy-poll: '2s' is not a number of microseconds",
+            ),
             (
                 &["--no-unix-socket=yes"][..],
                 "option --no-unix-socket takes no value",
