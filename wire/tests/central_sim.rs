@@ -781,3 +781,62 @@ fn console_line_with_several_options() {
     assert!(c.config().ignore.contains(&"foo".to_string()));
     while c.poll_output().is_some() {}
 }
+
+/// The race of a C module's start (ipc.md §4): it reads
+/// `X_IPC_BROADCAST_MSG_VAR` with `V_get_…`, then subscribes
+/// `V_watch_…`. A subscription made by another module between the two
+/// changes the list after the read and before the watch, and the C central
+/// tells the new module nothing: it then drops every publication of that
+/// message for good (seen as a hung `prtt`, 2 runs in 20, against the C
+/// central). Courier's central sends the watcher the current value when it
+/// changed since that module read it.
+#[test]
+fn a_subscription_between_a_modules_var_read_and_its_watch_is_not_missed() {
+    let mut sim = Sim::new(Config::default());
+    let a = sim.connect("a");
+    define(&mut sim, a, "pong", "int");
+    sim.pump();
+    let b = sim.add("b");
+    // Move b's frames one at a time until the next one subscribes the watch.
+    let watch = b"V_watch_X_IPC_BROADCAST_MSG_VAR";
+    for step in 0.. {
+        assert!(step < 100, "b never subscribed the watch");
+        sim.drain();
+        let m = sim.mods.get_mut(&b).unwrap();
+        loop {
+            while let Some(x) = m.conn.poll_transmit() {
+                m.outbox.push_back(x);
+            }
+            let Some(e) = m.conn.poll_event() else { break };
+            m.events.push_back(e);
+        }
+        let next = m.outbox.front().cloned().unwrap_or_default();
+        if next.windows(watch.len()).any(|w| w == watch) {
+            break;
+        }
+        if let Some(x) = m.outbox.pop_front() {
+            sim.central.receive(ConnId(b), &x, SystemTime::now());
+            sim.drain();
+        }
+    }
+    // Now a subscribes: the list changes while b is between read and watch.
+    sim.m(a).subscribe("pong", "HND-pong").unwrap();
+    sim.paused.insert(b);
+    sim.pump();
+    sim.paused.remove(&b);
+    sim.pump();
+    assert!(sim
+        .take_events(b)
+        .iter()
+        .any(|e| matches!(e, Event::Connected)));
+    sim.m(b).publish("pong", &5i32.to_le_bytes(), -1).unwrap();
+    sim.pump();
+    let ev = sim.take_events(b);
+    assert!(
+        !ev.iter().any(|e| matches!(e, Event::PublishDropped { .. })),
+        "b thinks nobody subscribes pong: {ev:?}"
+    );
+    let d = sim.deliveries(a);
+    assert_eq!(d.len(), 1, "{d:?}");
+    assert_eq!(d[0].3, 5i32.to_le_bytes());
+}

@@ -351,6 +351,9 @@ struct Module {
     port: i32,
     /// Handlers by name.
     handlers: BTreeMap<String, Handler>,
+    /// The version of each variable this module last read (`V_get_…`) or
+    /// was sent (`V_watch_…`).
+    vars_read: BTreeMap<String, u64>,
     paused: bool,
     closed: bool,
 }
@@ -379,6 +382,9 @@ struct Msg {
 struct Var {
     format: Format,
     value: Vec<u8>,
+    /// Bumped at every change, so a module's watch can tell whether the
+    /// value it read is still current.
+    version: u64,
 }
 
 /// Counters for `memory` and tests.
@@ -650,6 +656,7 @@ impl Central {
             Var {
                 format,
                 value: Vec::new(),
+                version: 0,
             },
         );
         for (name, class, mf, rf, kind) in internal::var_defs(var) {
@@ -828,6 +835,7 @@ impl Central {
                 pending_limit: None,
                 port: -1,
                 handlers: BTreeMap::new(),
+                vars_read: BTreeMap::new(),
                 paused: false,
                 closed: false,
             },
@@ -1327,7 +1335,10 @@ impl Central {
             }
             Ignored | Notify | VarWatch(_) => {}
             VarGet(v) => match self.vars.get(&v) {
-                Some(var) => out.write_bytes(&var.value.clone()),
+                Some(var) => {
+                    out.write_bytes(&var.value.clone());
+                    self.note_var_read(conn, &v);
+                }
                 None => null_reply = true,
             },
             VarSet(v) => self.set_var_from(&v, data, order)?,
@@ -1336,6 +1347,7 @@ impl Central {
                     out.write_bytes(&var.value.clone());
                 }
                 self.set_var_from(&v, data, order)?;
+                self.note_var_read(conn, &v);
             }
         }
         if query {
@@ -1465,6 +1477,8 @@ impl Central {
         hnd: String,
         now: SystemTime,
     ) {
+        // The broadcast list before this registration changes it.
+        let list_before = self.var_version(internal::BROADCAST_MSG_VAR);
         let existed = self
             .msgs
             .get(&msg)
@@ -1506,6 +1520,20 @@ impl Central {
         if !existed {
             self.record_broadcast(&msg, true);
         }
+        // A module's own registrations change the broadcast list it read
+        // (the C central sends it none of those changes either); only
+        // changes made by others in the meantime make its copy stale.
+        let list_after = self.var_version(internal::BROADCAST_MSG_VAR);
+        if let (Some(b), Some(a)) = (list_before, list_after) {
+            if let Some(m) = self.modules.get_mut(&conn) {
+                if let Some(r) = m.vars_read.get_mut(internal::BROADCAST_MSG_VAR) {
+                    if *r == b {
+                        *r = a;
+                    }
+                }
+            }
+        }
+        self.catch_up_watch(conn, &msg, &hnd);
         let m = &self.msgs[&msg];
         if m.direct || m.notify_handler_change {
             self.update_direct_handlers(&msg);
@@ -1742,6 +1770,16 @@ impl Central {
         let hnds = m.handlers.clone();
         if hnds.is_empty() {
             return;
+        }
+        // Watchers of a variable now know its current value.
+        if let Some(var) = name.strip_prefix("V_watch_") {
+            if let Some(version) = self.vars.get(var).map(|v| v.version) {
+                for (conn, _) in &hnds {
+                    if let Some(m) = self.modules.get_mut(conn) {
+                        m.vars_read.insert(var.to_string(), version);
+                    }
+                }
+            }
         }
         let data: Arc<[u8]> = Arc::from(bytes);
         let now = SystemTime::UNIX_EPOCH;
@@ -2108,8 +2146,54 @@ impl Central {
     fn set_var(&mut self, var: &str, bytes: Vec<u8>) {
         if let Some(v) = self.vars.get_mut(var) {
             v.value = bytes.clone();
+            v.version += 1;
         }
         self.central_broadcast_bytes(&format!("V_watch_{var}"), bytes);
+    }
+
+    fn var_version(&self, var: &str) -> Option<u64> {
+        self.vars.get(var).map(|v| v.version)
+    }
+
+    fn note_var_read(&mut self, conn: ConnId, var: &str) {
+        let version = self.vars.get(var).map_or(0, |v| v.version);
+        if let Some(m) = self.modules.get_mut(&conn) {
+            m.vars_read.insert(var.to_string(), version);
+        }
+    }
+
+    /// A module subscribed `V_watch_<var>` (handler `hnd`) after reading
+    /// `<var>`: if others changed the value in between, the change was
+    /// broadcast before the module watched, so it gets the current value
+    /// now. A C
+    /// module starts exactly so (`V_get_X_IPC_BROADCAST_MSG_VAR`, then the
+    /// watch), and the C central leaves the gap open: a message subscribed
+    /// by another module in it stays unknown to the new module, whose C
+    /// library then never publishes it.
+    fn catch_up_watch(&mut self, conn: ConnId, watch: &str, hnd: &str) {
+        let Some(var) = watch.strip_prefix("V_watch_") else {
+            return;
+        };
+        let Some(v) = self.vars.get(var) else {
+            return;
+        };
+        let read = self.modules.get(&conn).and_then(|m| m.vars_read.get(var));
+        if read.is_none_or(|r| *r == v.version) {
+            return;
+        }
+        let data: Arc<[u8]> = Arc::from(v.value.clone());
+        let did = self.alloc_dispatch(Dispatch {
+            msg: watch.to_string(),
+            class: MsgClass::Broadcast as u16,
+            class_id: ClassId::native(MsgClass::Broadcast),
+            org: Org::Central,
+            org_ref: NO_REF,
+            parent_ref: NO_REF,
+            data,
+            hnd: Some((conn, hnd.to_string())),
+            status: Status::NoHandler,
+        });
+        self.deliver_or_pend(did, SystemTime::UNIX_EPOCH);
     }
 
     fn str_list_value(&self, items: &[String], size: usize) -> Vec<u8> {
