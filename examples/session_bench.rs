@@ -33,7 +33,8 @@
 //!
 //! ```text
 //! session-bench processes [--central PATH] [--c-central PATH] [--c-rtt DIR]
-//!                         [--publish] [--count N] [--reps R] [--busy-poll US]
+//!                         [--publish | --throughput] [--size S] [--count N]
+//!                         [--reps R] [--busy-poll US]
 //! ```
 
 #[path = "appendix_a.rs"]
@@ -216,7 +217,7 @@ async fn role_session(url: &str, name: &str, spin: Option<Duration>) -> Session 
         b = b.busy_poll(w);
     }
     let s = b.connect().await.expect("connect");
-    for m in ["rtt_ask", "rtt_answer", "rtt_ping", "rtt_pong"] {
+    for m in ["rtt_ask", "rtt_answer", "rtt_ping", "rtt_pong", "rtt_flood"] {
         s.define::<Blob>(m).await.expect("define");
     }
     s
@@ -229,6 +230,7 @@ async fn pong(url: &str, spin: Option<Duration>) {
         .await
         .unwrap();
     let mut pings = s.subscribe::<Blob>("rtt_ping").await.unwrap();
+    let mut flood = s.subscribe::<Blob>("rtt_flood").await.unwrap();
     println!("ready");
     // Ends when standard input closes (the parent went away).
     let (tx, mut stdin_closed) = tokio::sync::oneshot::channel::<()>();
@@ -247,6 +249,7 @@ async fn pong(url: &str, spin: Option<Duration>) {
                 }
                 _ => break,
             },
+            f = flood.next() => if f.is_none() { break },
             p = pings.next() => match p {
                 Some(Ok(p)) => s.publish("rtt_pong", &p.value).await.unwrap(),
                 _ => break,
@@ -254,6 +257,42 @@ async fn pong(url: &str, spin: Option<Duration>) {
             _ = &mut stdin_closed => break,
         }
     }
+    s.close().await;
+}
+
+/// One-way throughput: `count` messages on `rtt_flood` (which `pong`
+/// takes at capacity 1, each acknowledged to central), then one query: its
+/// answer comes after central delivered every message before it.
+async fn flood(url: &str, spin: Option<Duration>, size: usize, count: usize) {
+    let s = role_session(url, "rtt_flood", spin).await;
+    let t0 = Instant::now();
+    while s.num_handlers("rtt_flood").await.unwrap() < 1
+        || s.num_handlers("rtt_ask").await.unwrap() < 1
+    {
+        assert!(
+            t0.elapsed() < T,
+            "nobody handles rtt_flood: is `pong` running?"
+        );
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    let payload = Blob {
+        n: size as i32,
+        data: vec![7u8; size],
+    };
+    let mut rates = Vec::new();
+    for round in 0..2 {
+        let n = if round == 0 { count / 10 } else { count };
+        let start = Instant::now();
+        for _ in 0..n {
+            s.publish("rtt_flood", &payload).await.unwrap();
+        }
+        let _: Blob = s.query("rtt_ask", &payload).timeout(T).await.unwrap();
+        rates.push(n as f64 / start.elapsed().as_secs_f64());
+    }
+    println!(
+        "throughput size={size} n={count} msgs_per_s={:.0}",
+        rates[1]
+    );
     s.close().await;
 }
 
@@ -307,6 +346,7 @@ fn role(role: &str, mut args: impl Iterator<Item = String>) {
     let mut url = String::from("ipc://127.0.0.1:1381");
     let mut spin = None;
     let mut publish = false;
+    let mut throughput = false;
     let mut size = 4usize;
     let mut count = 20_000usize;
     let num = |flag: &str, v: Option<String>| -> u64 {
@@ -323,6 +363,7 @@ fn role(role: &str, mut args: impl Iterator<Item = String>) {
             "--url" => url = args.next().unwrap_or_default(),
             "--busy-poll" => spin = Some(Duration::from_micros(num(&a, args.next()))),
             "--publish" if role == "ping" => publish = true,
+            "--throughput" if role == "ping" => throughput = true,
             "--size" if role == "ping" => size = num(&a, args.next()) as usize,
             "--count" if role == "ping" => count = num(&a, args.next()) as usize,
             other => {
@@ -337,6 +378,7 @@ fn role(role: &str, mut args: impl Iterator<Item = String>) {
         .unwrap();
     match role {
         "pong" => rt.block_on(pong(&url, spin)),
+        _ if throughput => rt.block_on(flood(&url, spin, size, count)),
         _ => rt.block_on(ping(&url, spin, publish, size, count)),
     }
     rt.shutdown_background();
@@ -499,6 +541,8 @@ mod processes {
         c_central: Option<PathBuf>,
         c_rtt: Option<PathBuf>,
         publish: bool,
+        throughput: bool,
+        size: usize,
         count: usize,
         spin_us: u64,
     }
@@ -535,9 +579,13 @@ mod processes {
         p
     }
 
+    /// The round trip's median (µs) or the throughput (messages/s).
     fn median_of(out: &str) -> Option<f64> {
         out.split_whitespace()
-            .find_map(|w| w.strip_prefix("median_us="))
+            .find_map(|w| {
+                w.strip_prefix("median_us=")
+                    .or_else(|| w.strip_prefix("msgs_per_s="))
+            })
             .and_then(|v| v.parse().ok())
     }
 
@@ -554,9 +602,13 @@ mod processes {
                 let mut pong = Command::new(&me);
                 pong.args(["pong", "--url", &url]);
                 let mut ping = Command::new(&me);
-                ping.args(["ping", "--url", &url, "--count", &count]);
+                let size = s.size.to_string();
+                ping.args(["ping", "--url", &url, "--count", &count, "--size", &size]);
                 if s.publish {
                     ping.arg("--publish");
+                }
+                if s.throughput {
+                    ping.arg("--throughput");
                 }
                 if clients == Clients::CourierSpin {
                     pong.args(["--busy-poll", &spin]);
@@ -598,9 +650,27 @@ mod processes {
             .stderr(Stdio::null())
             .spawn()
             .expect("start the timing module");
+        // The C library can miss the first update of the list of
+        // subscribed messages (a broadcast that arrives while it waits for a
+        // reply is applied only by a later IPC_listen), and then never
+        // publishes: such a run hangs and is given up.
+        let t0 = Instant::now();
+        loop {
+            match c.try_wait() {
+                Ok(Some(_)) => break,
+                Ok(None) if t0.elapsed() < Duration::from_secs(30) => {
+                    std::thread::sleep(Duration::from_millis(20))
+                }
+                _ => {
+                    let _ = c.kill();
+                    let _ = c.wait();
+                    eprintln!("a run did not finish in 30 s; left out");
+                    return None;
+                }
+            }
+        }
         let mut out = String::new();
         let _ = c.stdout.take().unwrap().read_to_string(&mut out);
-        let _ = c.wait();
         median_of(&out)
     }
 
@@ -616,12 +686,15 @@ mod processes {
             c_central: None,
             c_rtt: None,
             publish: false,
+            throughput: false,
+            size: 4,
             count: 5000,
             spin_us: 200,
         };
         let mut reps = 5usize;
         let usage = "usage: session-bench processes [--central PATH] [--c-central PATH] \
-                     [--c-rtt DIR] [--publish] [--count N] [--reps R] [--busy-poll US]";
+                     [--c-rtt DIR] [--publish | --throughput] [--size S] [--count N] \
+                     [--reps R] [--busy-poll US]";
         let num = |v: Option<String>| -> usize {
             match v.as_deref().map(str::parse::<usize>) {
                 Some(Ok(n)) if n > 0 => n,
@@ -637,6 +710,8 @@ mod processes {
                 "--c-central" => s.c_central = args.next().map(PathBuf::from),
                 "--c-rtt" => s.c_rtt = args.next().map(PathBuf::from),
                 "--publish" => s.publish = true,
+                "--throughput" => s.throughput = true,
+                "--size" => s.size = num(args.next()),
                 "--count" => s.count = num(args.next()),
                 "--reps" => reps = num(args.next()),
                 "--busy-poll" => s.spin_us = num(args.next()) as u64,
@@ -667,18 +742,21 @@ mod processes {
             centrals.push(Centrals::C);
         }
         let mut clients = vec![Clients::Courier, Clients::CourierSpin];
-        if s.c_rtt.is_some() {
+        // The C measuring programs time round trips only.
+        if s.c_rtt.is_some() && !s.throughput {
             clients.push(Clients::C);
         }
         let host = hostname();
-        let what = if s.publish {
-            "publish->handler->publish"
+        let what = if s.throughput {
+            "one-way throughput (messages/s) at capacity 1"
+        } else if s.publish {
+            "publish->handler->publish round trip"
         } else {
-            "query->reply"
+            "query->reply round trip"
         };
         println!(
-            "{what} round trip, 4 B, separate processes, unpinned; median of {reps} runs of {} round trips each\n",
-            s.count
+            "{what}, {} B, separate processes, unpinned; median of {reps} runs of {} messages each\n",
+            s.size, s.count
         );
         let name_c = |c: Centrals| match c {
             Centrals::Courier => "Courier central".to_string(),
@@ -721,9 +799,22 @@ mod processes {
                 .and_then(|i| meds[i]);
             for m in &clients {
                 print!("| {} | {transport} |", name_m(*m));
+                // Throughput: against the C central with the same clients.
+                let reference = if s.throughput {
+                    cells
+                        .iter()
+                        .position(|&x| x == (*m, Centrals::C))
+                        .and_then(|i| meds[i])
+                } else {
+                    reference
+                };
                 for c in &centrals {
                     let i = cells.iter().position(|x| *x == (*m, *c)).unwrap();
                     match (meds[i], reference) {
+                        (Some(v), Some(r)) if s.throughput => {
+                            print!(" {v:.0} msg/s ({:.2}×) |", v / r)
+                        }
+                        (Some(v), None) if s.throughput => print!(" {v:.0} msg/s |"),
                         (Some(v), Some(r)) => print!(" {v:.1} µs ({:.2}×) |", v / r),
                         (Some(v), None) => print!(" {v:.1} µs |"),
                         (None, _) => print!(" failed |"),
@@ -732,7 +823,9 @@ mod processes {
                 println!();
             }
         }
-        if s.c_central.is_some() && s.c_rtt.is_some() {
+        if s.throughput && s.c_central.is_some() {
+            println!("\n(×: against the same clients through the C central on the same transport)");
+        } else if s.c_central.is_some() && s.c_rtt.is_some() {
             println!("\n(×: against C clients through the C central on the same transport)");
         }
     }
