@@ -73,8 +73,12 @@ const END: u32 = u32::MAX;
 /// happens while discovery settles).
 const PING_RETRY: Duration = Duration::from_millis(200);
 
-fn url(domain: u32) -> String {
-    format!("rtps://{domain}?interface=lo&peers=127.0.0.1")
+fn url(domain: u32, busy_poll_us: u64) -> String {
+    let mut u = format!("rtps://{domain}?interface=lo&peers=127.0.0.1");
+    if busy_poll_us > 0 {
+        u += &format!("&busy_poll_us={busy_poll_us}");
+    }
+    u
 }
 
 // ---------------------------------------------------------------------------
@@ -88,6 +92,7 @@ struct Opts {
     best_effort: bool,
     threads: usize,
     queue: usize,
+    busy_poll_us: u64,
 }
 
 impl Default for Opts {
@@ -100,16 +105,17 @@ impl Default for Opts {
             best_effort: false,
             threads: 1,
             queue: 4096,
+            busy_poll_us: 0,
         }
     }
 }
 
 fn usage() -> ! {
     println!(
-        "usage:\n  rtps_bench [--quick] [--no-ddsperf] [--filter TEXT] [--threads N]   \
+        "usage:\n  rtps_bench [--quick] [--no-ddsperf] [--filter TEXT] [--threads N] [--busy-poll US]   \
          whole table (both CPU placements, Courier and ddsperf)\n  \
          rtps_bench ping|pong|pub|sub [--domain D] [--size BYTES] [--secs S] [--warmup S] \
-         [--best-effort] [--threads N] [--queue N]\n\n\
+         [--best-effort] [--threads N] [--queue N] [--busy-poll US]\n\n\
          Roles print one RESULT line. ping/pub take --size and --secs (measured time after \
          --warmup); pong runs until ping's last sample; sub until pub's final count \
          (give it pub's --secs/--warmup for the steady-state window).\n\
@@ -135,6 +141,7 @@ fn parse_role_opts(args: &[String]) -> Opts {
             "--warmup" => o.warmup = num(it.next(), "--warmup"),
             "--threads" => o.threads = num(it.next(), "--threads") as usize,
             "--queue" => o.queue = num(it.next(), "--queue") as usize,
+            "--busy-poll" => o.busy_poll_us = num(it.next(), "--busy-poll") as u64,
             "--best-effort" => o.best_effort = true,
             "--reliable" => o.best_effort = false,
             "-h" | "--help" => usage(),
@@ -163,13 +170,22 @@ fn main() {
                     .build()
             }
             .expect("tokio runtime");
-            let r = rt.block_on(async {
-                match role {
-                    "ping" => ping(&o).await,
-                    "pong" => pong(&o).await,
-                    "pub" => publish(&o).await,
-                    _ => subscribe(&o).await,
-                }
+            // The role runs as a spawned task, not as the `block_on` future:
+            // a current-thread runtime polls its I/O driver once more
+            // (`epoll_wait(.., 0)`) before it resumes a woken `block_on`
+            // future, but runs a woken task straight from its queue.
+            let role_name = role.to_string();
+            let r = rt.block_on(async move {
+                tokio::spawn(async move {
+                    match role_name.as_str() {
+                        "ping" => ping(&o).await,
+                        "pong" => pong(&o).await,
+                        "pub" => publish(&o).await,
+                        _ => subscribe(&o).await,
+                    }
+                })
+                .await
+                .expect("the role's task")
             });
             if let Err(e) = r {
                 println!("RESULT role={role} error={e:?}");
@@ -188,7 +204,7 @@ type Res = Result<(), String>;
 async fn connect(o: &Opts, name: &str) -> Result<Session, String> {
     tokio::time::timeout(
         Duration::from_secs(20),
-        Session::builder(url(o.domain))
+        Session::builder(url(o.domain, o.busy_poll_us))
             .name(format!("{name}-{}", std::process::id()))
             .connect(),
     )
@@ -603,6 +619,7 @@ struct Orchestrator {
     ddsperf: Result<String, String>,
     domain: u32,
     threads: usize,
+    busy_poll_us: u64,
 }
 
 /// Domains 220..=230, in turn: every run gets one the run before did not use.
@@ -718,7 +735,8 @@ impl Orchestrator {
                 .args(["--size", &case.size.to_string()])
                 .args(["--secs", &secs.to_string()])
                 .args(["--warmup", &warmup.to_string()])
-                .args(["--threads", &self.threads.to_string()]);
+                .args(["--threads", &self.threads.to_string()])
+                .args(["--busy-poll", &self.busy_poll_us.to_string()]);
             if matches!(case.kind, Kind::Thr { best_effort: true }) {
                 c.arg("--best-effort");
             }
@@ -1030,10 +1048,17 @@ fn orchestrate(args: &[String]) {
     let mut no_ddsperf = false;
     let mut filter: Option<String> = None;
     let mut threads = 1;
+    let mut busy_poll_us = 0;
     let mut it = args.iter();
     while let Some(a) = it.next() {
         match a.as_str() {
             "--quick" => quick = true,
+            "--busy-poll" => {
+                busy_poll_us = it
+                    .next()
+                    .and_then(|s| s.parse().ok())
+                    .unwrap_or_else(|| usage())
+            }
             "--no-ddsperf" => no_ddsperf = true,
             "--filter" => filter = it.next().cloned(),
             "--threads" => {
@@ -1061,6 +1086,7 @@ fn orchestrate(args: &[String]) {
         ddsperf,
         domain: 229,
         threads,
+        busy_poll_us,
     };
     let cases = [
         Case {

@@ -643,6 +643,8 @@ mod processes {
                 .spawn()
                 .expect("start the answering module"),
         );
+        // Subscribed before the timing side starts (see below).
+        std::thread::sleep(Duration::from_millis(300));
         let mut client = client;
         let mut c = client
             .stdin(Stdio::null())

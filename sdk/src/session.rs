@@ -706,9 +706,10 @@ impl SessionBuilder {
     /// instead of sleeping until the next one (see [`crate::busy_poll`]).
     /// Off by default. Effective on a current-thread tokio runtime; on this
     /// project's 2-vCPU VM a 4 B query through central went from ~60 µs to
-    /// ~25 µs (BENCHMARKS.md). IPC backend only for now.
+    /// ~45 µs (BENCHMARKS.md). RTPS: also `busy_poll_us=` in the URL.
     pub fn busy_poll(mut self, window: Duration) -> Self {
         self.opts.busy_poll = Some(window);
+        self.rtps.busy_poll = Some(window);
         self
     }
 

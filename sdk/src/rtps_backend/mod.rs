@@ -49,6 +49,7 @@ use courier_wire::{cdr, IpcMessage};
 use tokio::net::UdpSocket;
 use tokio::sync::{mpsc, oneshot, OwnedSemaphorePermit, Semaphore};
 
+use crate::busy_poll::BusyPoll;
 use crate::qos::{
     Durability, History, InstanceState, PublicationQos, Reliability, SubscriptionQos, TypeInfo,
 };
@@ -269,6 +270,7 @@ impl RtpsBackend {
         let listeners: Listeners = Arc::default();
         let responder = tx.downgrade();
         let driver = Driver {
+            spin: opts.busy_poll.map(BusyPoll::start),
             io: Io::new(socks, address.is_loopback(), opts.multicast),
             st: State {
                 p,
@@ -767,6 +769,8 @@ enum Wake {
 }
 
 struct Driver {
+    /// Busy polling after activity, when configured.
+    spin: Option<BusyPoll>,
     io: Io,
     st: State,
     cmd: mpsc::UnboundedReceiver<Cmd>,
@@ -793,6 +797,9 @@ impl Driver {
                 _ = tokio::time::sleep_until(wake_at.into()) => Wake::Timer,
             };
             let now = Instant::now();
+            if let (Some(s), Wake::Cmd(_) | Wake::Readable(_)) = (&self.spin, &wake) {
+                s.activity();
+            }
             match wake {
                 Wake::Cmd(None) => break,
                 Wake::Cmd(Some(Cmd::Close { reply })) => {

@@ -33,6 +33,9 @@ pub struct RtpsOptions {
     pub send_buffer: Option<usize>,
     /// Lease announced to peers (default 10 s).
     pub lease: Duration,
+    /// Keep polling for this long after each datagram or command instead of
+    /// sleeping ([`crate::busy_poll`]); `None` (the default) never spins.
+    pub busy_poll: Option<Duration>,
 }
 
 impl Default for RtpsOptions {
@@ -47,6 +50,7 @@ impl Default for RtpsOptions {
             recv_buffer: None,
             send_buffer: None,
             lease: Duration::from_secs(10),
+            busy_poll: None,
         }
     }
 }
@@ -75,8 +79,9 @@ impl RtpsOptions {
     /// Parses `rtps://<domain>?key=value&…`. Keys: `interface`, `peers`
     /// (comma-separated `ip` or `ip:port`), `multicast` (true/false),
     /// `index` (participant index), `max_index`, `recv_buffer`,
-    /// `send_buffer` (bytes), `lease_ms`. `peers` without `multicast` turns
-    /// multicast off. Anything else is an error naming the key.
+    /// `send_buffer` (bytes), `lease_ms`, `busy_poll_us`. `peers` without
+    /// `multicast` turns multicast off. Anything else is an error naming the
+    /// key.
     ///
     /// ```
     /// use courier::rtps_backend::RtpsOptions;
@@ -129,12 +134,16 @@ impl RtpsOptions {
                 "recv_buffer" => o.recv_buffer = Some(parse_num(url, k, v)?),
                 "send_buffer" => o.send_buffer = Some(parse_num(url, k, v)?),
                 "lease_ms" => o.lease = Duration::from_millis(parse_num(url, k, v)?),
+                "busy_poll_us" => {
+                    o.busy_poll =
+                        Some(Duration::from_micros(parse_num(url, k, v)?)).filter(|d| !d.is_zero())
+                }
                 _ => {
                     return Err(bad(
                         url,
                         format!(
                             "unknown option {k:?} (known: interface, peers, multicast, index, \
-                             max_index, recv_buffer, send_buffer, lease_ms)"
+                             max_index, recv_buffer, send_buffer, lease_ms, busy_poll_us)"
                         ),
                     ))
                 }
@@ -174,6 +183,7 @@ pub(crate) struct RtpsOverrides {
     pub(crate) participant_index: Option<u32>,
     pub(crate) recv_buffer: Option<usize>,
     pub(crate) send_buffer: Option<usize>,
+    pub(crate) busy_poll: Option<Duration>,
 }
 
 impl RtpsOverrides {
@@ -198,6 +208,9 @@ impl RtpsOverrides {
         }
         if let Some(n) = self.send_buffer {
             o.send_buffer = Some(n);
+        }
+        if let Some(d) = self.busy_poll {
+            o.busy_poll = Some(d);
         }
     }
 }
@@ -311,7 +324,7 @@ mod tests {
         assert!(o.multicast);
         assert_eq!(o.peers.len(), 2);
         let o = RtpsOptions::from_url(
-            "rtps://0?index=4&max_index=9&recv_buffer=1000000&send_buffer=2000&lease_ms=500",
+            "rtps://0?index=4&max_index=9&recv_buffer=1000000&send_buffer=2000&lease_ms=500&busy_poll_us=50",
         )
         .unwrap();
         assert_eq!(o.participant_index, Some(4));
@@ -319,6 +332,7 @@ mod tests {
         assert_eq!(o.recv_buffer, Some(1_000_000));
         assert_eq!(o.send_buffer, Some(2000));
         assert_eq!(o.lease, Duration::from_millis(500));
+        assert_eq!(o.busy_poll, Some(Duration::from_micros(50)));
         for (u, needle) in [
             ("rtps://x", "domain"),
             ("rtps://233", "232"),
