@@ -32,6 +32,8 @@ mod net;
 mod options;
 
 use std::collections::{HashMap, HashSet, VecDeque};
+
+use rustc_hash::FxHashMap;
 use std::net::{Ipv4Addr, SocketAddr};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime};
@@ -136,16 +138,17 @@ fn queued_units(len: usize) -> u32 {
 }
 
 enum Cmd {
+    // (the rare commands box their bulk: every write moves a `Cmd`)
     Publication {
         topic: String,
-        ty: TypeInfo,
-        qos: PublicationQos,
+        ty: Box<TypeInfo>,
+        qos: Box<PublicationQos>,
         reply: Reply<()>,
     },
     Subscription {
         topic: String,
-        ty: Option<TypeInfo>,
-        qos: SubscriptionQos,
+        ty: Option<Box<TypeInfo>>,
+        qos: Box<SubscriptionQos>,
         queue: Arc<SampleQueue>,
         reply: Reply<()>,
     },
@@ -156,7 +159,7 @@ enum Cmd {
         reply: Reply<()>,
     },
     Write {
-        topic: String,
+        topic: Arc<str>,
         kind: ChangeKind,
         data: Vec<u8>,
         key_hash: Option<[u8; 16]>,
@@ -179,16 +182,16 @@ enum Cmd {
     },
     Query {
         name: String,
-        req: TypeInfo,
-        resp: TypeInfo,
+        req: Box<TypeInfo>,
+        resp: Box<TypeInfo>,
         data: Vec<u8>,
         timeout: Duration,
         reply: oneshot::Sender<Result<RawReply, QueryError>>,
     },
     Serve {
         name: String,
-        req: TypeInfo,
-        resp: TypeInfo,
+        req: Box<TypeInfo>,
+        resp: Box<TypeInfo>,
         tx: mpsc::Sender<RawRequest>,
         reply: Reply<()>,
     },
@@ -214,7 +217,7 @@ pub struct RtpsBackend {
     cmd: mpsc::UnboundedSender<Cmd>,
     /// Topics this session publishes (publications are never deleted): a
     /// write to one of them cannot be refused, so it need not wait.
-    published: Mutex<HashSet<String>>,
+    published: Mutex<FxHashMap<String, Arc<str>>>,
     queue_budget: Arc<Semaphore>,
     listeners: Listeners,
     guid_prefix: GuidPrefix,
@@ -276,7 +279,7 @@ impl RtpsBackend {
                 p,
                 name: name.to_string(),
                 listeners: listeners.clone(),
-                writers: HashMap::new(),
+                writers: FxHashMap::default(),
                 readers: HashMap::new(),
                 patterns: Vec::new(),
                 watched: HashSet::new(),
@@ -405,8 +408,8 @@ impl Backend for RtpsBackend {
         self.cmd
             .send(Cmd::Query {
                 name: msg.to_string(),
-                req: req.clone(),
-                resp: resp.clone(),
+                req: Box::new(req.clone()),
+                resp: Box::new(resp.clone()),
                 data,
                 timeout,
                 reply: tx,
@@ -423,7 +426,11 @@ impl Backend for RtpsBackend {
         queue: usize,
     ) -> Result<mpsc::Receiver<RawRequest>, SessionError> {
         let (tx, rx) = mpsc::channel(queue.max(1));
-        let (name, req, resp) = (msg.to_string(), req.clone(), resp.clone());
+        let (name, req, resp) = (
+            msg.to_string(),
+            Box::new(req.clone()),
+            Box::new(resp.clone()),
+        );
         self.ask(|reply| Cmd::Serve {
             name,
             req,
@@ -493,7 +500,7 @@ impl Backend for RtpsBackend {
         ty: &TypeInfo,
         qos: &PublicationQos,
     ) -> Result<(), SessionError> {
-        let (topic, ty, qos) = (msg.to_string(), ty.clone(), qos.clone());
+        let (topic, ty, qos) = (msg.to_string(), Box::new(ty.clone()), Box::new(qos.clone()));
         self.ask(|reply| Cmd::Publication {
             topic,
             ty,
@@ -504,7 +511,7 @@ impl Backend for RtpsBackend {
         self.published
             .lock()
             .unwrap_or_else(|p| p.into_inner())
-            .insert(msg.to_string());
+            .insert(msg.to_string(), Arc::from(msg));
         Ok(())
     }
 
@@ -515,7 +522,11 @@ impl Backend for RtpsBackend {
         qos: &SubscriptionQos,
         queue: Arc<SampleQueue>,
     ) -> Result<(), SessionError> {
-        let (topic, ty, qos) = (msg.to_string(), ty.cloned(), qos.clone());
+        let (topic, ty, qos) = (
+            msg.to_string(),
+            ty.cloned().map(Box::new),
+            Box::new(qos.clone()),
+        );
         self.ask(|reply| Cmd::Subscription {
             topic,
             ty,
@@ -548,13 +559,15 @@ impl Backend for RtpsBackend {
         data: Vec<u8>,
         opts: WriteOptions,
     ) -> Result<(), SessionError> {
-        let topic = msg.to_string();
+        // a publication's name is shared, not copied, by each write
         let known = self
             .published
             .lock()
             .unwrap_or_else(|p| p.into_inner())
-            .contains(msg);
-        if opts.confirm.is_none() && known {
+            .get(msg)
+            .cloned();
+        let topic = known.clone().unwrap_or_else(|| Arc::from(msg));
+        if let (None, Some(topic)) = (opts.confirm, known) {
             if data.len() > MAX_WRITE_SIZE {
                 return Err(SessionError::Refused(format!(
                     "cannot publish {topic}: a sample of {} bytes is larger than {MAX_WRITE_SIZE}",
@@ -607,7 +620,7 @@ impl Backend for RtpsBackend {
             InstanceState::Disposed => ChangeKind::Disposed,
             InstanceState::Unregistered => ChangeKind::Unregistered,
         };
-        let topic = msg.to_string();
+        let topic = Arc::from(msg);
         self.ask(|reply| Cmd::Write {
             topic,
             kind,
@@ -987,7 +1000,7 @@ struct State {
     p: Participant,
     name: String,
     listeners: Listeners,
-    writers: HashMap<String, LocalWriter>,
+    writers: FxHashMap<String, LocalWriter>,
     readers: HashMap<Guid, LocalReader>,
     patterns: Vec<Pattern>,
     watched: HashSet<String>,
@@ -1215,7 +1228,7 @@ impl State {
                 confirm,
                 done,
             } => {
-                let Some(w) = self.writers.get_mut(&topic) else {
+                let Some(w) = self.writers.get_mut(&*topic) else {
                     done.send(Err(SessionError::Refused(format!(
                         "{topic} has no publication in this session: call define::<T>() or \
                          publisher::<T>() first"
@@ -1239,7 +1252,7 @@ impl State {
                     return;
                 }
                 if let Some(pw) = self.try_write(&topic, pw, now) {
-                    if let Some(w) = self.writers.get_mut(&topic) {
+                    if let Some(w) = self.writers.get_mut(&*topic) {
                         w.pending.push_back(pw);
                     }
                 }
