@@ -99,15 +99,18 @@ async fn child(domain: u32) {
     assert_eq!(sub.dropped(), 0);
 }
 
-/// The iptables rule dropping 30 % of the UDP datagrams arriving on `lo`.
+/// An iptables rule for the UDP datagrams arriving on `lo`: `then` says
+/// what happens to them.
+fn udp_in(then: &[&str]) -> Vec<String> {
+    ["iptables", "-A", "INPUT", "-i", "lo", "-p", "udp"]
+        .iter()
+        .chain(then)
+        .map(|s| s.to_string())
+        .collect()
+}
+
+/// Drops 30 % of them.
 const LOSS: &[&str] = &[
-    "iptables",
-    "-A",
-    "INPUT",
-    "-i",
-    "lo",
-    "-p",
-    "udp",
     "-m",
     "statistic",
     "--mode",
@@ -191,10 +194,6 @@ fn dropped(ns: &Netns) -> u64 {
     dropped
 }
 
-fn owned(r: &[&str]) -> Vec<String> {
-    r.iter().map(|s| s.to_string()).collect()
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn reliable_delivery_through_30_percent_loss_in_a_network_namespace() {
     if std::env::var_os(CHILD).is_some() {
@@ -203,7 +202,7 @@ async fn reliable_delivery_through_30_percent_loss_in_a_network_namespace() {
     let (_, ns) = run_in_netns(
         "loss",
         "reliable_delivery_through_30_percent_loss_in_a_network_namespace",
-        &[owned(LOSS)],
+        &[udp_in(LOSS)],
     )
     .await;
     dropped(&ns);
@@ -228,21 +227,8 @@ async fn reliable_delivery_through_loss_and_reordering_in_a_network_namespace() 
         "reorder",
         "reliable_delivery_through_loss_and_reordering_in_a_network_namespace",
         &[
-            owned(LOSS),
-            owned(&[
-                "iptables",
-                "-A",
-                "INPUT",
-                "-i",
-                "lo",
-                "-p",
-                "udp",
-                "-j",
-                "NFQUEUE",
-                "--queue-num",
-                &queue,
-                "--queue-bypass",
-            ]),
+            udp_in(LOSS),
+            udp_in(&["-j", "NFQUEUE", "--queue-num", &queue, "--queue-bypass"]),
         ],
     )
     .await;

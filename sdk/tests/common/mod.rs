@@ -60,3 +60,24 @@ pub async fn next<M: IpcMessage>(
         .expect("a sample in time")
         .expect("stream open")
 }
+
+/// CPU time of the calling thread.
+pub fn thread_cpu() -> Duration {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: a valid clock id and a pointer to a live timespec.
+    let r = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    assert_eq!(r, 0);
+    Duration::new(ts.tv_sec as u64, ts.tv_nsec as u32)
+}
+
+/// Over 300 ms of sleep, this thread (a current-thread runtime running
+/// `what`) uses under a quarter of the time: nothing spins.
+pub async fn assert_quiet(what: &str) {
+    let (cpu, wall) = (thread_cpu(), std::time::Instant::now());
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let (cpu, wall) = (thread_cpu() - cpu, wall.elapsed());
+    assert!(cpu < wall / 4, "{what} used {cpu:?} of CPU in {wall:?}");
+}

@@ -1782,21 +1782,25 @@ impl Central {
             }
         }
         let data: Arc<[u8]> = Arc::from(bytes);
-        let now = SystemTime::UNIX_EPOCH;
         for hnd in hnds {
-            let did = self.alloc_dispatch(Dispatch {
-                msg: name.to_string(),
-                class: MsgClass::Broadcast as u16,
-                class_id: ClassId::native(MsgClass::Broadcast),
-                org: Org::Central,
-                org_ref: NO_REF,
-                parent_ref: NO_REF,
-                data: data.clone(),
-                hnd: Some(hnd),
-                status: Status::NoHandler,
-            });
-            self.deliver_or_pend(did, now);
+            self.central_deliver(name, data.clone(), hnd);
         }
+    }
+
+    /// One delivery of central's own broadcast `name` to handler `hnd`.
+    fn central_deliver(&mut self, name: &str, data: Arc<[u8]>, hnd: (ConnId, String)) {
+        let did = self.alloc_dispatch(Dispatch {
+            msg: name.to_string(),
+            class: MsgClass::Broadcast as u16,
+            class_id: ClassId::native(MsgClass::Broadcast),
+            org: Org::Central,
+            org_ref: NO_REF,
+            parent_ref: NO_REF,
+            data,
+            hnd: Some(hnd),
+            status: Status::NoHandler,
+        });
+        self.deliver_or_pend(did, SystemTime::UNIX_EPOCH);
     }
 
     fn deliver_or_pend(&mut self, did: i32, now: SystemTime) {
@@ -2182,18 +2186,7 @@ impl Central {
             return;
         }
         let data: Arc<[u8]> = Arc::from(v.value.clone());
-        let did = self.alloc_dispatch(Dispatch {
-            msg: watch.to_string(),
-            class: MsgClass::Broadcast as u16,
-            class_id: ClassId::native(MsgClass::Broadcast),
-            org: Org::Central,
-            org_ref: NO_REF,
-            parent_ref: NO_REF,
-            data,
-            hnd: Some((conn, hnd.to_string())),
-            status: Status::NoHandler,
-        });
-        self.deliver_or_pend(did, SystemTime::UNIX_EPOCH);
+        self.central_deliver(watch, data, (conn, hnd.to_string()));
     }
 
     fn str_list_value(&self, items: &[String], size: usize) -> Vec<u8> {
