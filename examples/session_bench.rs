@@ -376,11 +376,21 @@ fn role(role: &str, mut args: impl Iterator<Item = String>) {
         .enable_all()
         .build()
         .unwrap();
-    match role {
-        "pong" => rt.block_on(pong(&url, spin)),
-        _ if throughput => rt.block_on(flood(&url, spin, size, count)),
-        _ => rt.block_on(ping(&url, spin, publish, size, count)),
-    }
+    // Spawned, not run as the `block_on` future: a current-thread runtime
+    // polls its I/O driver once more (`epoll_wait(.., 0)`) before it
+    // resumes a woken `block_on` future, but runs a woken task at once.
+    let role = role.to_string();
+    rt.block_on(async move {
+        tokio::spawn(async move {
+            match role.as_str() {
+                "pong" => pong(&url, spin).await,
+                _ if throughput => flood(&url, spin, size, count).await,
+                _ => ping(&url, spin, publish, size, count).await,
+            }
+        })
+        .await
+        .expect("the role's task")
+    });
     rt.shutdown_background();
 }
 
