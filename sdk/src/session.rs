@@ -45,10 +45,12 @@ pub struct RawSample {
     pub order: ipc::ByteOrder,
     /// When this process received it.
     pub received: SystemTime,
-    /// Who sent it, when the backend knows (DDS: the writer's GUID in hex).
-    pub source: Option<String>,
-    /// The sender's type name, when the backend knows (DDS).
-    pub type_name: Option<String>,
+    /// Who sent it, when the backend knows (DDS: the writer's GUID in hex;
+    /// shared by every sample of that writer).
+    pub source: Option<Arc<str>>,
+    /// The sender's type name, when the backend knows (DDS; shared by every
+    /// sample of the subscription).
+    pub type_name: Option<Arc<str>>,
     /// Sample, dispose or unregister (always `Alive` on IPC).
     pub state: InstanceState,
     /// The instance's key hash (keyed DDS topics), when sent.
@@ -1403,7 +1405,7 @@ pub struct Sample<T> {
     /// starts without a handshake, so its receiving end does not learn who
     /// opened it either (CMU IPC has no such call for the same reason). Put
     /// the sender in the message if the receiver needs it.
-    pub source: Option<String>,
+    pub source: Option<Arc<str>>,
     /// The writer's timestamp, when sent (DDS).
     pub source_time: Option<SystemTime>,
 }

@@ -228,7 +228,7 @@ async fn pattern_subscription_sees_matching_topics_with_their_types() {
     let mut seen = Vec::new();
     for _ in 0..2 {
         let s = tokio::time::timeout(T, pat.recv()).await.unwrap().unwrap();
-        seen.push((s.msg.clone(), s.type_name.clone().unwrap()));
+        seen.push((s.msg.clone(), s.type_name.as_deref().unwrap().to_string()));
         if s.msg == "sensor/left" {
             let v: Msg = courier::cdr::from_slice(&s.data).unwrap();
             assert_eq!(v, msg(1));

@@ -963,7 +963,7 @@ struct Confirm {
 
 struct LocalReader {
     topic: String,
-    type_name: String,
+    type_name: Arc<str>,
     queue: Arc<SampleQueue>,
     exclusive: bool,
     minimum_separation: Option<Duration>,
@@ -1007,7 +1007,7 @@ struct State {
     remote_writers: HashMap<Guid, WriterInfo>,
     /// `Sample::source` of the writers that delivered samples (their GUID
     /// in hex), made once per writer.
-    source_names: HashMap<Guid, String>,
+    source_names: HashMap<Guid, Arc<str>>,
     confirms: Vec<Confirm>,
     next_housekeeping: Instant,
     /// Request readers of `serve`, by reader GUID: service name and where
@@ -1623,7 +1623,7 @@ impl State {
             guid,
             LocalReader {
                 topic: topic.to_string(),
-                type_name: type_name.to_string(),
+                type_name: Arc::from(type_name),
                 queue,
                 exclusive,
                 minimum_separation: qos.minimum_separation.filter(|d| !d.is_zero()),
@@ -1943,7 +1943,7 @@ impl State {
         let source = self
             .source_names
             .entry(s.writer)
-            .or_insert_with(|| guid_hex(s.writer));
+            .or_insert_with(|| Arc::from(guid_hex(s.writer)));
         let raw = RawSample {
             msg: r.topic.clone(),
             data: s.data().to_vec(),
