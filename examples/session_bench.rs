@@ -521,7 +521,20 @@ mod processes {
     struct Proc(Child);
 
     impl Drop for Proc {
+        /// SIGTERM first (Courier's central then removes its UNIX socket
+        /// file), SIGKILL after a second.
         fn drop(&mut self) {
+            let _ = Command::new("kill")
+                .args(["-TERM", &self.0.id().to_string()])
+                .stderr(Stdio::null())
+                .status();
+            let t0 = Instant::now();
+            while t0.elapsed() < Duration::from_secs(1) {
+                if let Ok(Some(_)) = self.0.try_wait() {
+                    return;
+                }
+                std::thread::sleep(Duration::from_millis(10));
+            }
             let _ = self.0.kill();
             let _ = self.0.wait();
         }
@@ -602,6 +615,19 @@ mod processes {
     /// One run: the median round trip in µs.
     fn run(s: &Setup, central: Centrals, clients: Clients, host: &str) -> Option<f64> {
         let port = free_port();
+        let r = run_on(s, central, clients, host, port);
+        // the C central leaves its socket file behind
+        let _ = std::fs::remove_file(format!("/tmp/x_ipc/{port}"));
+        r
+    }
+
+    fn run_on(
+        s: &Setup,
+        central: Centrals,
+        clients: Clients,
+        host: &str,
+        port: u16,
+    ) -> Option<f64> {
         let _central = start_central(s, central, port);
         let me = std::env::current_exe().unwrap();
         let url = format!("ipc://{host}:{port}");
