@@ -90,6 +90,15 @@ impl BusyPoll {
     /// Starts spinning for `window` after every activity. Must be called
     /// within a tokio runtime.
     pub fn start(window: Duration) -> BusyPoll {
+        if tokio::runtime::Handle::current().runtime_flavor()
+            != tokio::runtime::RuntimeFlavor::CurrentThread
+        {
+            tracing::warn!(
+                "busy polling on a multi-thread runtime: an idle worker still sleeps in the \
+                 I/O driver, so expect little gain for the CPU it spends; use a current-thread \
+                 runtime"
+            );
+        }
         let shared = Arc::new(Shared {
             window_ns: window.as_nanos().min(u64::MAX as u128) as u64,
             epoch: Instant::now(),
