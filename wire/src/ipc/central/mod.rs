@@ -1773,12 +1773,8 @@ impl Central {
         }
         // Watchers of a variable now know its current value.
         if let Some(var) = name.strip_prefix("V_watch_") {
-            if let Some(version) = self.vars.get(var).map(|v| v.version) {
-                for (conn, _) in &hnds {
-                    if let Some(m) = self.modules.get_mut(conn) {
-                        m.vars_read.insert(var.to_string(), version);
-                    }
-                }
+            for (conn, _) in &hnds {
+                self.note_var_read(*conn, var);
             }
         }
         let data: Arc<[u8]> = Arc::from(bytes);
@@ -2159,6 +2155,7 @@ impl Central {
         self.vars.get(var).map(|v| v.version)
     }
 
+    /// `conn` now has the current value of `var` (read or sent to it).
     fn note_var_read(&mut self, conn: ConnId, var: &str) {
         let version = self.vars.get(var).map_or(0, |v| v.version);
         if let Some(m) = self.modules.get_mut(&conn) {
@@ -2169,11 +2166,10 @@ impl Central {
     /// A module subscribed `V_watch_<var>` (handler `hnd`) after reading
     /// `<var>`: if others changed the value in between, the change was
     /// broadcast before the module watched, so it gets the current value
-    /// now. A C
-    /// module starts exactly so (`V_get_X_IPC_BROADCAST_MSG_VAR`, then the
-    /// watch), and the C central leaves the gap open: a message subscribed
-    /// by another module in it stays unknown to the new module, whose C
-    /// library then never publishes it.
+    /// now. A C module starts exactly so (`V_get_X_IPC_BROADCAST_MSG_VAR`,
+    /// then the watch), and the C central leaves the gap open: a message
+    /// subscribed by another module in it stays unknown to the new module,
+    /// whose C library then never publishes it.
     fn catch_up_watch(&mut self, conn: ConnId, watch: &str, hnd: &str) {
         let Some(var) = watch.strip_prefix("V_watch_") else {
             return;
