@@ -31,9 +31,10 @@
 mod net;
 mod options;
 
-use std::collections::{HashMap, HashSet, VecDeque};
+use std::collections::VecDeque;
 
-use rustc_hash::FxHashMap;
+// seeded per process: several of these maps are keyed by GUIDs off the network
+use foldhash::{HashMap, HashMapExt, HashSet, HashSetExt};
 use std::net::{Ipv4Addr, SocketAddr};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime};
@@ -217,7 +218,7 @@ pub struct RtpsBackend {
     cmd: mpsc::UnboundedSender<Cmd>,
     /// Topics this session publishes (publications are never deleted): a
     /// write to one of them cannot be refused, so it need not wait.
-    published: Mutex<FxHashMap<String, Arc<str>>>,
+    published: Mutex<HashMap<String, Arc<str>>>,
     queue_budget: Arc<Semaphore>,
     listeners: Listeners,
     guid_prefix: GuidPrefix,
@@ -279,7 +280,7 @@ impl RtpsBackend {
                 p,
                 name: name.to_string(),
                 listeners: listeners.clone(),
-                writers: FxHashMap::default(),
+                writers: HashMap::default(),
                 readers: HashMap::new(),
                 patterns: Vec::new(),
                 watched: HashSet::new(),
@@ -1000,7 +1001,7 @@ struct State {
     p: Participant,
     name: String,
     listeners: Listeners,
-    writers: FxHashMap<String, LocalWriter>,
+    writers: HashMap<String, LocalWriter>,
     readers: HashMap<Guid, LocalReader>,
     patterns: Vec<Pattern>,
     watched: HashSet<String>,

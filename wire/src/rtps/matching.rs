@@ -1,7 +1,7 @@
 //! Endpoint matching (DDS 1.4 §2.2.3 "requested/offered" rules) and the
 //! table of discovered participants with lease expiry, sans-I/O.
 
-use std::collections::HashMap;
+use foldhash::HashMap;
 use std::time::Instant;
 
 use super::discovery::{

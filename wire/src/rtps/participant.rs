@@ -119,7 +119,10 @@ mod ports;
 pub use keyhash::{md5, KeyHash};
 pub use ports::{PortMapping, SPDP_MULTICAST_ADDRESS};
 
-use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+
+// seeded per process: keyed by GUIDs and key hashes off the network
+use foldhash::{HashMap, HashMapExt};
 use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 

@@ -6,7 +6,10 @@
 //! reported by `poll_timeout` and fired by `handle_timeout(now)`. No clock
 //! is read here.
 
-use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+
+// seeded per process: keyed by GUIDs off the network
+use foldhash::{HashMap, HashMapExt};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
