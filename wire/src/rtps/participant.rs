@@ -904,23 +904,58 @@ impl Unit {
     }
 }
 
-/// Submessages queued per destination (locator + INFO_DST prefix), packed
-/// into datagrams at the end of each call.
+/// The submessages queued for one destination (locator + INFO_DST prefix):
+/// serialized back to back into one buffer, each unit remembered by its
+/// end offset and INFO_TS, so queueing a sample allocates nothing once the
+/// buffers have grown.
+struct Queue {
+    to: Locator,
+    dst: GuidPrefix,
+    bytes: Vec<u8>,
+    units: Vec<(Option<Time>, usize)>,
+}
+
+/// Submessages queued per destination, packed into datagrams at the end of
+/// each call.
 #[derive(Default)]
 struct Outbox {
-    queues: Vec<(Locator, GuidPrefix, Vec<Unit>)>,
+    queues: Vec<Queue>,
+    /// Scratch for [`Route::group`], kept for its capacity.
+    targets: Vec<(Locator, GuidPrefix, EntityId)>,
 }
 
 impl Outbox {
     fn push(&mut self, to: Locator, dst: GuidPrefix, unit: Unit) {
-        match self
-            .queues
-            .iter_mut()
-            .find(|(l, p, _)| *l == to && *p == dst)
-        {
-            Some((_, _, q)) => q.push(unit),
-            None => self.queues.push((to, dst, vec![unit])),
-        }
+        self.push_with(to, dst, unit.ts, |b| b.extend_from_slice(&unit.bytes));
+    }
+
+    /// Queues one submessage, serialized in place.
+    fn push_sm(&mut self, to: Locator, dst: GuidPrefix, ts: Option<Time>, sm: &Submessage<'_>) {
+        self.push_with(to, dst, ts, |b| sm.write(b, true));
+    }
+
+    fn push_with(
+        &mut self,
+        to: Locator,
+        dst: GuidPrefix,
+        ts: Option<Time>,
+        write: impl FnOnce(&mut Vec<u8>),
+    ) {
+        let i = match self.queues.iter().position(|q| q.to == to && q.dst == dst) {
+            Some(i) => i,
+            None => {
+                self.queues.push(Queue {
+                    to,
+                    dst,
+                    bytes: Vec::new(),
+                    units: Vec::new(),
+                });
+                self.queues.len() - 1
+            }
+        };
+        let q = &mut self.queues[i];
+        write(&mut q.bytes);
+        q.units.push((ts, q.bytes.len()));
     }
 
     fn drain(
@@ -930,7 +965,11 @@ impl Outbox {
         out: &mut VecDeque<Datagram>,
         stats: &mut Stats,
     ) {
-        for (to, dst, units) in self.queues.drain(..) {
+        // a destination with nothing queued since the last drain is
+        // forgotten; the others keep their buffers
+        self.queues.retain(|q| !q.units.is_empty());
+        for q in &mut self.queues {
+            let (to, dst) = (q.to, q.dst);
             let start = || {
                 let mut b = Vec::with_capacity(max.min(1500));
                 header.write(&mut b);
@@ -950,27 +989,28 @@ impl Outbox {
                     payload: buf,
                 });
             };
-            for u in units {
-                let ts_len = if u.ts.is_some() && u.ts != cur_ts {
-                    12
-                } else {
-                    0
-                };
-                if buf.len() > base && buf.len() + ts_len + u.bytes.len() > max {
+            let mut from = 0;
+            for &(ts, end) in &q.units {
+                let bytes = &q.bytes[from..end];
+                from = end;
+                let ts_len = if ts.is_some() && ts != cur_ts { 12 } else { 0 };
+                if buf.len() > base && buf.len() + ts_len + bytes.len() > max {
                     emit(std::mem::replace(&mut buf, start()));
                     cur_ts = None;
                 }
-                if let Some(t) = u.ts {
+                if let Some(t) = ts {
                     if cur_ts != Some(t) {
                         Submessage::InfoTs(Some(t)).write(&mut buf, true);
                         cur_ts = Some(t);
                     }
                 }
-                buf.extend_from_slice(&u.bytes);
+                buf.extend_from_slice(bytes);
             }
             if buf.len() > base {
                 emit(buf);
             }
+            q.bytes.clear();
+            q.units.clear();
         }
     }
 }
@@ -1028,8 +1068,8 @@ impl Route<'_> {
 
     /// Destinations for "every matched reader": one per (locator,
     /// participant); the reader's entity id when it is alone there.
-    fn group(&self, readers: &BTreeSet<Guid>) -> Vec<(Locator, GuidPrefix, EntityId)> {
-        let mut groups: Vec<(Locator, GuidPrefix, EntityId)> = Vec::new();
+    fn group(&self, readers: &BTreeSet<Guid>, groups: &mut Vec<(Locator, GuidPrefix, EntityId)>) {
+        groups.clear();
         for r in readers {
             let Some(l) = self.reader(*r) else { continue };
             match groups
@@ -1040,7 +1080,6 @@ impl Route<'_> {
                 None => groups.push((l, r.prefix, r.entity)),
             }
         }
-        groups
     }
 }
 
@@ -1067,8 +1106,9 @@ fn inline_qos(e: &Env<'_>) -> Option<Vec<u8>> {
     Some(out)
 }
 
-/// The DATA or DATA_FRAG units for one change; `only` restricts DATA_FRAGs
-/// to those fragment numbers (a NACK_FRAG answer).
+/// The DATA or DATA_FRAG submessages for one change, each handed to `emit`
+/// with the change's timestamp; `only` restricts DATA_FRAGs to those
+/// fragment numbers (a NACK_FRAG answer).
 fn data_units(
     shape: Shape,
     reader_id: EntityId,
@@ -1076,7 +1116,8 @@ fn data_units(
     sn: SequenceNumber,
     e: &Env<'_>,
     only: Option<&BTreeSet<u32>>,
-) -> Vec<Unit> {
+    mut emit: impl FnMut(Option<Time>, &Submessage<'_>),
+) {
     let q = inline_qos(e);
     let qlen = q.as_ref().map_or(0, Vec::len);
     let key = e.kind != ChangeKind::Alive;
@@ -1095,7 +1136,8 @@ fn data_units(
             key: key && payload.is_some(),
             non_standard: false,
         };
-        return vec![Unit::new(e.ts, &Submessage::Data(d))];
+        emit(e.ts, &Submessage::Data(d));
+        return;
     }
     let fs = shape.fragment_size.max(1);
     let per = if only.is_some() {
@@ -1103,17 +1145,32 @@ fn data_units(
     } else {
         (shape.max.saturating_sub(OVERHEAD + qlen) / usize::from(fs)).clamp(1, 0xffff) as u16
     };
-    frag::fragment(reader_id, writer_id, sn, e.data, fs, per)
+    for f in frag::fragment(reader_id, writer_id, sn, e.data, fs, per)
         .filter(|f| only.is_none_or(|o| o.contains(&f.fragment_starting_num)))
-        .map(|f| {
-            let f = DataFrag {
-                inline_qos: q.as_deref(),
-                key,
-                ..f
-            };
-            Unit::new(e.ts, &Submessage::DataFrag(f))
-        })
-        .collect()
+    {
+        let f = DataFrag {
+            inline_qos: q.as_deref(),
+            key,
+            ..f
+        };
+        emit(e.ts, &Submessage::DataFrag(f));
+    }
+}
+
+/// [`data_units`] collected, for a change sent to several destinations
+/// outside the per-sample path.
+fn data_unit_list(
+    shape: Shape,
+    reader_id: EntityId,
+    writer_id: EntityId,
+    sn: SequenceNumber,
+    e: &Env<'_>,
+) -> Vec<Unit> {
+    let mut units = Vec::new();
+    data_units(shape, reader_id, writer_id, sn, e, None, |ts, sm| {
+        units.push(Unit::new(ts, sm))
+    });
+    units
 }
 
 /// Sends what a writer (built-in or user) asked for.
@@ -1125,21 +1182,28 @@ fn emit_writer(
     matched: &BTreeSet<Guid>,
     t: Transmit,
 ) {
-    let targets = |to: Option<Guid>| match to {
-        Some(r) => route
-            .reader(r)
-            .map(|l| vec![(l, r.prefix, r.entity)])
-            .unwrap_or_default(),
-        None => route.group(matched),
+    // the destinations, in the outbox's scratch vector
+    let targets = |to: Option<Guid>, outbox: &mut Outbox| {
+        let mut t = std::mem::take(&mut outbox.targets);
+        match to {
+            Some(r) => {
+                t.clear();
+                t.extend(route.reader(r).map(|l| (l, r.prefix, r.entity)));
+            }
+            None => route.group(matched, &mut t),
+        }
+        t
     };
     match t {
         Transmit::Data { to, sn, payload } => {
             let e = open(&payload);
-            for (l, p, rid) in targets(to) {
-                for u in data_units(shape, rid, writer_id, sn, &e, None) {
-                    outbox.push(l, p, u);
-                }
+            let t = targets(to, outbox);
+            for &(l, p, rid) in &t {
+                data_units(shape, rid, writer_id, sn, &e, None, |ts, sm| {
+                    outbox.push_sm(l, p, ts, sm)
+                });
             }
+            outbox.targets = t;
         }
         Transmit::Gap { to, start, list } => {
             if let Some(l) = route.reader(to) {
@@ -1150,7 +1214,7 @@ fn emit_writer(
                     gap_list: list,
                     extra: Vec::new(),
                 };
-                outbox.push(l, to.prefix, Unit::new(None, &Submessage::Gap(g)));
+                outbox.push_sm(l, to.prefix, None, &Submessage::Gap(g));
             }
         }
         Transmit::Heartbeat {
@@ -1160,7 +1224,8 @@ fn emit_writer(
             count,
             final_flag,
         } => {
-            for (l, p, rid) in targets(to) {
+            let t = targets(to, outbox);
+            for &(l, p, rid) in &t {
                 let h = Heartbeat {
                     reader_id: rid,
                     writer_id,
@@ -1170,8 +1235,9 @@ fn emit_writer(
                     final_flag,
                     liveliness: false,
                 };
-                outbox.push(l, p, Unit::new(None, &Submessage::Heartbeat(h)));
+                outbox.push_sm(l, p, None, &Submessage::Heartbeat(h));
             }
+            outbox.targets = t;
         }
         Transmit::AckNack { .. } => {}
     }
@@ -1220,7 +1286,7 @@ fn emit_reader(
         count,
         final_flag,
     };
-    outbox.push(l, to.prefix, Unit::new(None, &Submessage::AckNack(a)));
+    outbox.push_sm(l, to.prefix, None, &Submessage::AckNack(a));
     for (sn, missing) in partial {
         let base = missing[0];
         let last = missing
@@ -1247,7 +1313,7 @@ fn emit_reader(
             },
             count: *nackfrag_count,
         };
-        outbox.push(l, to.prefix, Unit::new(None, &Submessage::NackFrag(n)));
+        outbox.push_sm(l, to.prefix, None, &Submessage::NackFrag(n));
     }
 }
 
@@ -1876,13 +1942,12 @@ impl Participant {
             Some(self.wall(now)),
             &key,
         );
-        let units = data_units(
+        let units = data_unit_list(
             self.shape(),
             EntityId::SPDP_READER,
             EntityId::SPDP_WRITER,
             SequenceNumber(2),
             &open(&env),
-            None,
         );
         for (l, p) in self.spdp_targets() {
             for u in &units {
@@ -2611,16 +2676,16 @@ impl Participant {
             max: self.cfg.max_message_size,
             fragment_size: self.cfg.fragment_size,
         };
-        for u in data_units(
+        let outbox = &mut self.outbox;
+        data_units(
             shape,
             n.reader_id,
             n.writer_id,
             n.writer_sn,
             &open(&sample),
             Some(&frags),
-        ) {
-            self.outbox.push(l, reader.prefix, u);
-        }
+            |ts, sm| outbox.push_sm(l, reader.prefix, ts, sm),
+        );
     }
 
     // ---- output ----
