@@ -4,8 +4,9 @@
 //! values are tshark's decodes of the same frames).
 
 use courier_wire::rtps::{
-    id, EntityId, Error, Message, ParameterList, SequenceNumber, SequenceNumberSet, Submessage,
-    VendorId,
+    id, AckNack, Data, DataFrag, EntityId, Error, FragmentNumberSet, Gap, GuidPrefix,
+    HeartbeatFrag, InfoReply, InfoSrc, Locator, Message, NackFrag, ParameterList, ProtocolVersion,
+    SequenceNumber, SequenceNumberSet, Submessage, Time, VendorId,
 };
 
 fn fixture(name: &str) -> Vec<u8> {
@@ -60,6 +61,127 @@ fn captured_messages_round_trip() {
         let b = fixture(name);
         let m = Message::parse(&b).unwrap_or_else(|e| panic!("{name}: {e}"));
         assert_eq!(m.to_vec(), b, "{name} did not re-encode identically");
+    }
+}
+
+/// `encoded_len` is what `write` appends: for every submessage the peers
+/// sent, and for the kinds the captures lack.
+#[test]
+fn encoded_len_is_the_written_length() {
+    let check = |sm: &Submessage<'_>| {
+        let mut out = vec![0xaa; 3];
+        sm.write(&mut out, true);
+        assert_eq!(sm.encoded_len(), out.len() - 3, "{sm:?}");
+    };
+    let mut n = 0;
+    for name in ALL {
+        let b = fixture(name);
+        for sm in &Message::parse(&b).unwrap().submessages {
+            check(sm);
+            n += 1;
+        }
+    }
+    assert!(n >= 40, "only {n} submessages in the captures");
+    let (r, w) = (eid(0x1007), eid(0x1002));
+    let sn = SequenceNumber(7);
+    let short = SequenceNumberSet {
+        base: sn,
+        num_bits: 64,
+        bitmap: vec![1], // fewer words than num_bits asks for: written as given
+    };
+    let loc = Locator::udpv4([127, 0, 0, 1], 7411);
+    let qos = [0u8, 0x70, 4, 0, 1, 2, 3, 4, 1, 0, 0, 0];
+    for sm in [
+        Submessage::Data(Data {
+            reader_id: r,
+            writer_id: w,
+            writer_sn: sn,
+            inline_qos: Some(&qos),
+            payload: Some(b"\0\x01\0\0abc"),
+            key: false,
+            non_standard: false,
+        }),
+        Submessage::Data(Data {
+            reader_id: r,
+            writer_id: w,
+            writer_sn: sn,
+            inline_qos: None,
+            payload: None,
+            key: false,
+            non_standard: false,
+        }),
+        Submessage::DataFrag(DataFrag {
+            reader_id: r,
+            writer_id: w,
+            writer_sn: sn,
+            fragment_starting_num: 3,
+            fragments_in_submessage: 2,
+            fragment_size: 8,
+            sample_size: 40,
+            inline_qos: Some(&qos),
+            payload: &[5; 16],
+            key: false,
+            non_standard: false,
+        }),
+        Submessage::HeartbeatFrag(HeartbeatFrag {
+            reader_id: r,
+            writer_id: w,
+            writer_sn: sn,
+            last_fragment_num: 9,
+            count: 1,
+        }),
+        Submessage::NackFrag(NackFrag {
+            reader_id: r,
+            writer_id: w,
+            writer_sn: sn,
+            fragment_number_state: FragmentNumberSet {
+                base: 1,
+                num_bits: 40,
+                bitmap: vec![u32::MAX, 1],
+            },
+            count: 2,
+        }),
+        Submessage::AckNack(AckNack {
+            reader_id: r,
+            writer_id: w,
+            reader_sn_state: short.clone(),
+            count: 3,
+            final_flag: true,
+        }),
+        Submessage::Gap(Gap {
+            reader_id: r,
+            writer_id: w,
+            gap_start: sn,
+            gap_list: short,
+            extra: vec![0; 4],
+        }),
+        Submessage::InfoTs(Some(Time {
+            seconds: 1,
+            fraction: 2,
+        })),
+        Submessage::InfoTs(None),
+        Submessage::InfoDst(GuidPrefix([3; 12])),
+        Submessage::InfoSrc(InfoSrc {
+            version: ProtocolVersion { major: 2, minor: 3 },
+            vendor: VendorId([1, 16]),
+            guid_prefix: GuidPrefix([4; 12]),
+        }),
+        Submessage::InfoReply(InfoReply {
+            unicast: vec![loc, loc],
+            multicast: Some(vec![loc]),
+        }),
+        Submessage::InfoReply(InfoReply {
+            unicast: vec![],
+            multicast: None,
+        }),
+        Submessage::Pad,
+        Submessage::Unknown {
+            id: 0x80,
+            flags: 1,
+            body: &[1, 2, 3, 4, 5, 6, 7, 8],
+        },
+    ] {
+        check(&sm);
     }
 }
 

@@ -551,6 +551,44 @@ fn locator_list(c: &mut Cursor<'_>) -> Result<Vec<Locator>, Error> {
 }
 
 impl Submessage<'_> {
+    /// The number of bytes [`Submessage::write`] appends (header included),
+    /// without writing them: lets a sender decide whether a submessage still
+    /// fits in the datagram it is filling.
+    pub fn encoded_len(&self) -> usize {
+        let words =
+            |num_bits: u32, bitmap: &[u32]| 4 * bitmap.len().min(num_bits.div_ceil(32) as usize);
+        let opt = |b: Option<&[u8]>| b.map_or(0, <[u8]>::len);
+        4 + match self {
+            Submessage::Data(d) => 20 + opt(d.inline_qos) + opt(d.payload),
+            Submessage::DataFrag(d) => 32 + opt(d.inline_qos) + d.payload.len(),
+            Submessage::Heartbeat(_) => 28,
+            Submessage::HeartbeatFrag(_) => 24,
+            Submessage::AckNack(a) => {
+                8 + 12 + words(a.reader_sn_state.num_bits, &a.reader_sn_state.bitmap) + 4
+            }
+            Submessage::NackFrag(n) => {
+                8 + 8
+                    + 8
+                    + words(
+                        n.fragment_number_state.num_bits,
+                        &n.fragment_number_state.bitmap,
+                    )
+                    + 4
+            }
+            Submessage::Gap(g) => {
+                8 + 8 + 12 + words(g.gap_list.num_bits, &g.gap_list.bitmap) + g.extra.len()
+            }
+            Submessage::InfoTs(Some(_)) => 8,
+            Submessage::InfoTs(None) | Submessage::Pad => 0,
+            Submessage::InfoDst(_) => 12,
+            Submessage::InfoSrc(_) => 20,
+            Submessage::InfoReply(r) => {
+                4 + 24 * r.unicast.len() + r.multicast.as_ref().map_or(0, |m| 4 + 24 * m.len())
+            }
+            Submessage::Unknown { body, .. } => body.len(),
+        }
+    }
+
     /// Appends the submessage (header and body) in the given byte order.
     /// Opaque parts (inline QoS bytes, [`Submessage::Unknown`] bodies) are
     /// copied as they are: they must already be in that byte order.

@@ -904,41 +904,59 @@ impl Unit {
     }
 }
 
-/// The submessages queued for one destination (locator + INFO_DST prefix):
-/// serialized back to back into one buffer, each unit remembered by its
-/// end offset and INFO_TS, so queueing a sample allocates nothing once the
-/// buffers have grown.
+/// The datagram being filled for one destination (locator + INFO_DST
+/// prefix).
 struct Queue {
     to: Locator,
     dst: GuidPrefix,
-    bytes: Vec<u8>,
-    units: Vec<(Option<Time>, usize)>,
+    buf: Vec<u8>,
+    /// The INFO_TS in force at the end of `buf`.
+    ts: Option<Time>,
 }
 
-/// Submessages queued per destination, packed into datagrams at the end of
-/// each call.
-#[derive(Default)]
+/// Submessages for each destination, serialized straight into the datagrams
+/// that carry them: a datagram that cannot take the next submessage is
+/// closed and a new one started, so nothing is copied after serializing.
 struct Outbox {
+    header: Header,
+    max: usize,
     queues: Vec<Queue>,
+    /// Closed datagrams, in the order they filled.
+    full: Vec<Datagram>,
     /// Scratch for [`Route::group`], kept for its capacity.
     targets: Vec<(Locator, GuidPrefix, EntityId)>,
 }
 
 impl Outbox {
+    fn new(header: Header, max: usize) -> Self {
+        Outbox {
+            header,
+            max,
+            queues: Vec::new(),
+            full: Vec::new(),
+            targets: Vec::new(),
+        }
+    }
+
     fn push(&mut self, to: Locator, dst: GuidPrefix, unit: Unit) {
-        self.push_with(to, dst, unit.ts, |b| b.extend_from_slice(&unit.bytes));
+        self.push_with(to, dst, unit.ts, unit.bytes.len(), |b| {
+            b.extend_from_slice(&unit.bytes)
+        });
     }
 
     /// Queues one submessage, serialized in place.
     fn push_sm(&mut self, to: Locator, dst: GuidPrefix, ts: Option<Time>, sm: &Submessage<'_>) {
-        self.push_with(to, dst, ts, |b| sm.write(b, true));
+        self.push_with(to, dst, ts, sm.encoded_len(), |b| sm.write(b, true));
     }
 
+    /// Queues `len` bytes that `write` appends, after an INFO_TS if `ts`
+    /// differs from the one in force.
     fn push_with(
         &mut self,
         to: Locator,
         dst: GuidPrefix,
         ts: Option<Time>,
+        len: usize,
         write: impl FnOnce(&mut Vec<u8>),
     ) {
         let i = match self.queues.iter().position(|q| q.to == to && q.dst == dst) {
@@ -947,70 +965,60 @@ impl Outbox {
                 self.queues.push(Queue {
                     to,
                     dst,
-                    bytes: Vec::new(),
-                    units: Vec::new(),
+                    buf: Vec::new(),
+                    ts: None,
                 });
                 self.queues.len() - 1
             }
         };
         let q = &mut self.queues[i];
-        write(&mut q.bytes);
-        q.units.push((ts, q.bytes.len()));
+        let base = super::HEADER_SIZE + if dst == GuidPrefix::UNKNOWN { 0 } else { 16 };
+        let ts_len = |q: &Queue| if ts.is_some() && ts != q.ts { 12 } else { 0 };
+        if q.buf.len() > base && q.buf.len() + ts_len(q) + len > self.max {
+            let payload = std::mem::take(&mut q.buf);
+            self.full.push(Datagram {
+                destination: to,
+                payload,
+            });
+        }
+        if q.buf.is_empty() {
+            // most datagrams carry a few small submessages; a big one (a
+            // fragment) gets its size at once instead of growing into it
+            let want = base + 12 + len;
+            q.buf = Vec::with_capacity(if want > 1500 {
+                want.min(self.max)
+            } else {
+                1500
+            });
+            self.header.write(&mut q.buf);
+            if dst != GuidPrefix::UNKNOWN {
+                Submessage::InfoDst(dst).write(&mut q.buf, true);
+            }
+            q.ts = None;
+        }
+        if let Some(t) = ts {
+            if q.ts != Some(t) {
+                Submessage::InfoTs(Some(t)).write(&mut q.buf, true);
+                q.ts = Some(t);
+            }
+        }
+        write(&mut q.buf);
     }
 
-    fn drain(
-        &mut self,
-        header: &Header,
-        max: usize,
-        out: &mut VecDeque<Datagram>,
-        stats: &mut Stats,
-    ) {
-        // a destination with nothing queued since the last drain is
-        // forgotten; the others keep their buffers
-        self.queues.retain(|q| !q.units.is_empty());
-        for q in &mut self.queues {
-            let (to, dst) = (q.to, q.dst);
-            let start = || {
-                let mut b = Vec::with_capacity(max.min(1500));
-                header.write(&mut b);
-                if dst != GuidPrefix::UNKNOWN {
-                    Submessage::InfoDst(dst).write(&mut b, true);
-                }
-                b
-            };
-            let mut buf = start();
-            let base = buf.len();
-            let mut cur_ts = None;
-            let mut emit = |buf: Vec<u8>| {
-                stats.datagrams_sent += 1;
-                stats.bytes_sent += buf.len() as u64;
-                out.push_back(Datagram {
-                    destination: to,
-                    payload: buf,
-                });
-            };
-            let mut from = 0;
-            for &(ts, end) in &q.units {
-                let bytes = &q.bytes[from..end];
-                from = end;
-                let ts_len = if ts.is_some() && ts != cur_ts { 12 } else { 0 };
-                if buf.len() > base && buf.len() + ts_len + bytes.len() > max {
-                    emit(std::mem::replace(&mut buf, start()));
-                    cur_ts = None;
-                }
-                if let Some(t) = ts {
-                    if cur_ts != Some(t) {
-                        Submessage::InfoTs(Some(t)).write(&mut buf, true);
-                        cur_ts = Some(t);
-                    }
-                }
-                buf.extend_from_slice(bytes);
-            }
-            if buf.len() > base {
-                emit(buf);
-            }
-            q.bytes.clear();
-            q.units.clear();
+    /// Moves every datagram, closed or still filling, to `out`.
+    fn drain(&mut self, out: &mut VecDeque<Datagram>, stats: &mut Stats) {
+        let open = self
+            .queues
+            .drain(..)
+            .filter(|q| !q.buf.is_empty())
+            .map(|q| Datagram {
+                destination: q.to,
+                payload: q.buf,
+            });
+        for d in self.full.drain(..).chain(open) {
+            stats.datagrams_sent += 1;
+            stats.bytes_sent += d.payload.len() as u64;
+            out.push_back(d);
         }
     }
 }
@@ -1331,7 +1339,6 @@ fn valid_name(s: &str) -> bool {
 /// A sans-I/O DDS domain participant. See the [module docs](self).
 pub struct Participant {
     cfg: Config,
-    header: Header,
     start: Instant,
     wall_start: Duration,
     spdp_payload: Vec<u8>,
@@ -1402,12 +1409,12 @@ impl Participant {
         let g = |entity| Guid { prefix, entity };
         let hb = cfg.heartbeat_period;
         let sedp_writer = |e| Writer::new(g(e), true, None, 1 << 16, hb).retain_acked(true);
+        let header = Header {
+            version: PROTOCOL_VERSION,
+            vendor: VENDOR_ID,
+            guid_prefix: prefix,
+        };
         let mut p = Participant {
-            header: Header {
-                version: PROTOCOL_VERSION,
-                vendor: VENDOR_ID,
-                guid_prefix: prefix,
-            },
             start: now,
             wall_start: wall_clock.duration_since(UNIX_EPOCH).unwrap_or_default(),
             spdp_payload: spdp.to_payload(),
@@ -1431,7 +1438,7 @@ impl Participant {
             reassembler: Reassembler::new(cfg.max_sample_size, cfg.reassembly_limit),
             next_key: 1,
             nackfrag_count: 0,
-            outbox: Outbox::default(),
+            outbox: Outbox::new(header, cfg.max_message_size),
             out: VecDeque::new(),
             events: VecDeque::new(),
             stats: Stats::default(),
@@ -2824,12 +2831,7 @@ impl Participant {
                 );
             }
         }
-        self.outbox.drain(
-            &self.header,
-            self.cfg.max_message_size,
-            &mut self.out,
-            &mut self.stats,
-        );
+        self.outbox.drain(&mut self.out, &mut self.stats);
     }
 }
 
@@ -2950,7 +2952,7 @@ mod tests {
             seconds: 1,
             fraction: 0,
         };
-        let mut o = Outbox::default();
+        let mut o = Outbox::new(h, 512);
         for _ in 0..3 {
             o.push(
                 a,
@@ -2974,7 +2976,7 @@ mod tests {
         );
         let mut out = VecDeque::new();
         let mut stats = Stats::default();
-        o.drain(&h, 512, &mut out, &mut stats);
+        o.drain(&mut out, &mut stats);
         // 20 header + 16 INFO_DST + 12 INFO_TS + 2×200 fit in 512, the third does not
         assert_eq!(out.len(), 3);
         assert_eq!(out[0].destination, a);
