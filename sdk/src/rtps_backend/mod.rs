@@ -1699,13 +1699,24 @@ impl State {
     }
 
     /// Writes now, or gives the write back when the history is full.
-    fn try_write(&mut self, topic: &str, pw: PendingWrite, now: Instant) -> Option<PendingWrite> {
+    fn try_write(
+        &mut self,
+        topic: &str,
+        mut pw: PendingWrite,
+        now: Instant,
+    ) -> Option<PendingWrite> {
         let Some(w) = self.writers.get(topic) else {
             pw.done.send(Err(disconnected()));
             return None;
         };
         let guid = w.guid;
-        let mut change = Change::alive(&pw.data);
+        // the sample's buffer becomes the history's when it surely fits;
+        // otherwise it is lent, and kept for a retry if the history is full
+        let mut change = if self.p.has_room(guid, pw.data.len()) {
+            Change::alive(std::mem::take(&mut pw.data))
+        } else {
+            Change::alive(&pw.data[..])
+        };
         change.kind = pw.kind;
         change.key_hash = pw.key_hash.map(KeyHash);
         if pw.confirm.is_some() {
@@ -1947,7 +1958,6 @@ impl State {
             .or_insert_with(|| Arc::from(guid_hex(s.writer)));
         let raw = RawSample {
             msg: r.topic.clone(),
-            data: s.data().to_vec(),
             order: courier_wire::ipc::ByteOrder::NATIVE,
             received,
             source: Some(source.clone()),
@@ -1960,6 +1970,8 @@ impl State {
             key_hash: s.key_hash.map(|k| k.0),
             source_time: s.source_timestamp.and_then(system_time),
             done: None,
+            // last: the received buffer itself, not a copy
+            data: s.into_data(),
         };
         // may exceed the capacity by what one receive batch (8 datagrams) carried; reading
         // stops until the application catches up (see `full_queue`)

@@ -80,7 +80,7 @@ struct Partial {
 impl Partial {
     /// Bytes this partial sample holds (counted against the limit).
     fn held(&self) -> usize {
-        self.data.len() + self.qos.as_ref().map_or(0, |q| q.0.len())
+        self.sample_size as usize + self.qos.as_ref().map_or(0, |q| q.0.len())
     }
 }
 
@@ -240,7 +240,9 @@ impl Reassembler {
                 Partial {
                     sample_size: f.sample_size,
                     fragment_size: f.fragment_size,
-                    data: vec![0; size],
+                    // room for the envelope's trailer (see
+                    // Participant::on_data), so the sample is never moved
+                    data: Vec::with_capacity(size + super::participant::ENVELOPE_ROOM),
                     have: vec![false; total],
                     missing: total,
                     ts: None,
@@ -257,7 +259,15 @@ impl Reassembler {
                 "sample or fragment size changed between fragments",
             ));
         }
-        p.data[start..end].copy_from_slice(&f.payload[..end - start]);
+        // written where it belongs; the buffer grows as fragments arrive
+        // (in order, the usual case, nothing is zeroed first)
+        let bytes = &f.payload[..end - start];
+        if p.data.len() < start {
+            p.data.resize(start, 0);
+        }
+        let overlap = (p.data.len() - start).min(bytes.len());
+        p.data[start..start + overlap].copy_from_slice(&bytes[..overlap]);
+        p.data.extend_from_slice(&bytes[overlap..]);
         p.ts = p.ts.or(ts);
         if let (None, Some(q)) = (&p.qos, f.inline_qos) {
             if self.bytes + q.len() <= self.max_bytes {

@@ -119,6 +119,7 @@ mod ports;
 pub use keyhash::{md5, KeyHash};
 pub use ports::{PortMapping, SPDP_MULTICAST_ADDRESS};
 
+use std::borrow::Cow;
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 
 // seeded per process: keyed by GUIDs and key hashes off the network
@@ -438,15 +439,16 @@ impl ChangeKind {
 }
 
 /// A change to write: a sample, or a dispose/unregister of an instance.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Change<'a> {
     /// Sample or dispose/unregister.
     pub kind: ChangeKind,
     /// For [`ChangeKind::Alive`]: the serialized sample, starting with its
     /// encapsulation header. Otherwise: the serialized key with its
     /// encapsulation header (sent with the K flag), or empty (then only the
-    /// key hash identifies the instance).
-    pub data: &'a [u8],
+    /// key hash identifies the instance). Given as a `Vec`, the buffer
+    /// becomes the writer history's own, without a copy.
+    pub data: Cow<'a, [u8]>,
     /// The instance's key hash (keyed topics): sent inline and used for the
     /// per-instance keep-last history.
     pub key_hash: Option<KeyHash>,
@@ -512,10 +514,10 @@ const VENDOR_EPROSIMA: VendorId = VendorId([0x01, 0x0f]);
 
 impl<'a> Change<'a> {
     /// A sample.
-    pub fn alive(data: &'a [u8]) -> Self {
+    pub fn alive(data: impl Into<Cow<'a, [u8]>>) -> Self {
         Change {
             kind: ChangeKind::Alive,
-            data,
+            data: data.into(),
             key_hash: None,
             source_timestamp: None,
             related_sample_identity: None,
@@ -523,10 +525,10 @@ impl<'a> Change<'a> {
     }
 
     /// Disposes the instance with this serialized key (may be empty) and key hash.
-    pub fn dispose(key: &'a [u8], key_hash: KeyHash) -> Self {
+    pub fn dispose(key: impl Into<Cow<'a, [u8]>>, key_hash: KeyHash) -> Self {
         Change {
             kind: ChangeKind::Disposed,
-            data: key,
+            data: key.into(),
             key_hash: Some(key_hash),
             source_timestamp: None,
             related_sample_identity: None,
@@ -534,7 +536,7 @@ impl<'a> Change<'a> {
     }
 
     /// Unregisters the instance with this serialized key (may be empty) and key hash.
-    pub fn unregister(key: &'a [u8], key_hash: KeyHash) -> Self {
+    pub fn unregister(key: impl Into<Cow<'a, [u8]>>, key_hash: KeyHash) -> Self {
         Change {
             kind: ChangeKind::Unregistered,
             ..Self::dispose(key, key_hash)
@@ -560,55 +562,74 @@ impl<'a> Change<'a> {
     }
 }
 
-/// Bytes before the data in an [`envelope`]: kind, flags, key hash, timestamp.
+/// A change as the writer history and the reader queues keep it: the data,
+/// then a small trailer (key hash, timestamp, flags, kind), so that one
+/// allocation carries everything through the reliability layer and the
+/// data can leave it as a `Vec` without being copied (see
+/// [`ReceivedSample::into_data`]).
+pub type Envelope = super::reliability::Payload;
+
+/// Bytes after the data in an [`Envelope`]: key hash, timestamp, flags, kind.
 const ENV: usize = 26;
 
-/// A change as the writer history and the reader queues keep it: a small
-/// header (kind, key hash, timestamp) in front of the data, so that one
-/// `Arc` carries everything through the reliability layer.
+/// Room a buffer needs past its data to become an [`Envelope`] in place.
+pub(crate) const ENVELOPE_ROOM: usize = ENV + 24;
+
 fn envelope(
     kind: ChangeKind,
     key_hash: Option<KeyHash>,
     ts: Option<Time>,
     data: &[u8],
-) -> Arc<[u8]> {
+) -> Envelope {
     envelope_with(kind, key_hash, ts, None, data)
 }
 
 /// An envelope that may also carry a related sample identity (24 more
-/// bytes before the data, flag bit 2).
+/// bytes before the trailer, flag bit 2).
 fn envelope_with(
     kind: ChangeKind,
     key_hash: Option<KeyHash>,
     ts: Option<Time>,
     related: Option<SampleIdentity>,
     data: &[u8],
-) -> Arc<[u8]> {
-    let mut v = Vec::with_capacity(ENV + 24 + data.len());
-    v.push(kind.bits());
+) -> Envelope {
+    let mut v = Vec::with_capacity(data.len() + ENVELOPE_ROOM);
+    v.extend_from_slice(data);
+    envelope_from_vec(v, kind, key_hash, ts, related)
+}
+
+/// An envelope around data the caller owns: the trailer is appended to it.
+fn envelope_from_vec(
+    mut v: Vec<u8>,
+    kind: ChangeKind,
+    key_hash: Option<KeyHash>,
+    ts: Option<Time>,
+    related: Option<SampleIdentity>,
+) -> Envelope {
+    v.reserve_exact(ENVELOPE_ROOM);
+    if let Some(r) = related {
+        v.extend_from_slice(&r.to_bytes(true));
+    }
+    v.extend_from_slice(&key_hash.unwrap_or_default().0);
+    let t = ts.unwrap_or_default();
+    v.extend_from_slice(&t.seconds.to_le_bytes());
+    v.extend_from_slice(&t.fraction.to_le_bytes());
     v.push(
         u8::from(key_hash.is_some())
             | (u8::from(ts.is_some()) << 1)
             | (u8::from(related.is_some()) << 2),
     );
-    v.extend_from_slice(&key_hash.unwrap_or_default().0);
-    let t = ts.unwrap_or_default();
-    v.extend_from_slice(&t.seconds.to_le_bytes());
-    v.extend_from_slice(&t.fraction.to_le_bytes());
-    if let Some(r) = related {
-        v.extend_from_slice(&r.to_bytes(true));
-    }
-    v.extend_from_slice(data);
-    Arc::from(v)
+    v.push(kind.bits());
+    Arc::new(v)
 }
 
-/// Where the data starts in an envelope.
-fn data_offset(b: &[u8]) -> usize {
-    if b.len() > 1 && b[1] & 4 != 0 {
-        ENV + 24
-    } else {
-        ENV
-    }
+/// Where the data ends in an envelope (0 for a malformed one).
+fn data_len(b: &[u8]) -> usize {
+    let trailer = match b.len().checked_sub(2).map(|i| b[i]) {
+        Some(flags) if flags & 4 != 0 => ENV + 24,
+        _ => ENV,
+    };
+    b.len().saturating_sub(trailer)
 }
 
 struct Env<'a> {
@@ -620,7 +641,7 @@ struct Env<'a> {
 }
 
 fn open(b: &[u8]) -> Env<'_> {
-    if b.len() < data_offset(b) {
+    if b.len() < ENV {
         return Env {
             kind: ChangeKind::Alive,
             key_hash: None,
@@ -629,20 +650,24 @@ fn open(b: &[u8]) -> Env<'_> {
             data: &[],
         };
     }
+    let n = b.len();
+    let (kind, flags) = (b[n - 1], b[n - 2]);
+    let t = n - ENV; // start of the fixed trailer
     let mut k = [0; 16];
-    k.copy_from_slice(&b[2..18]);
+    k.copy_from_slice(&b[t..t + 16]);
     let w = |i: usize| [b[i], b[i + 1], b[i + 2], b[i + 3]];
+    let len = data_len(b);
     Env {
-        kind: ChangeKind::from_bits(b[0]),
-        key_hash: (b[1] & 1 != 0).then_some(KeyHash(k)),
-        ts: (b[1] & 2 != 0).then(|| Time {
-            seconds: i32::from_le_bytes(w(18)),
-            fraction: u32::from_le_bytes(w(22)),
+        kind: ChangeKind::from_bits(kind),
+        key_hash: (flags & 1 != 0).then_some(KeyHash(k)),
+        ts: (flags & 2 != 0).then(|| Time {
+            seconds: i32::from_le_bytes(w(t + 16)),
+            fraction: u32::from_le_bytes(w(t + 20)),
         }),
-        related: (b[1] & 4 != 0)
-            .then(|| SampleIdentity::from_bytes(&b[ENV..ENV + 24], true))
+        related: (flags & 4 != 0)
+            .then(|| SampleIdentity::from_bytes(b.get(len..t)?, true))
             .flatten(),
-        data: &b[data_offset(b)..],
+        data: &b[..len],
     }
 }
 
@@ -665,11 +690,11 @@ pub struct ReceivedSample {
     /// The request this sample answers, if the writer sent
     /// `PID_RELATED_SAMPLE_IDENTITY` (request/reply).
     pub related_sample_identity: Option<SampleIdentity>,
-    envelope: Arc<[u8]>,
+    envelope: Envelope,
 }
 
 impl ReceivedSample {
-    fn new(reader: Guid, writer: Guid, sn: SequenceNumber, envelope: Arc<[u8]>) -> Self {
+    fn new(reader: Guid, writer: Guid, sn: SequenceNumber, envelope: Envelope) -> Self {
         let e = open(&envelope);
         ReceivedSample {
             reader,
@@ -695,9 +720,20 @@ impl ReceivedSample {
     /// [`ChangeKind::Alive`]; otherwise the serialized key if the writer sent
     /// one (K flag), else empty.
     pub fn data(&self) -> &[u8] {
-        self.envelope
-            .get(data_offset(&self.envelope)..)
-            .unwrap_or(&[])
+        &self.envelope[..data_len(&self.envelope)]
+    }
+
+    /// [`ReceivedSample::data`] as an owned buffer: without a copy when no
+    /// other reader shares this sample (the usual case).
+    pub fn into_data(self) -> Vec<u8> {
+        let len = data_len(&self.envelope);
+        match Arc::try_unwrap(self.envelope) {
+            Ok(mut v) => {
+                v.truncate(len);
+                v
+            }
+            Err(shared) => shared[..len].to_vec(),
+        }
     }
 }
 
@@ -1358,7 +1394,7 @@ pub struct Participant {
     readers: BTreeMap<EntityId, LocalReader>,
     remote_writers: BTreeMap<Guid, EndpointData>,
     remote_readers: BTreeMap<Guid, EndpointData>,
-    replays: Vec<(EntityId, Guid, SequenceNumber, Arc<[u8]>)>,
+    replays: Vec<(EntityId, Guid, SequenceNumber, Envelope)>,
     reassembler: Reassembler,
     next_key: u32,
     nackfrag_count: i32,
@@ -1660,7 +1696,7 @@ impl Participant {
                     d.writer_sn,
                     d.inline_qos,
                     little,
-                    d.payload,
+                    d.payload.map(Cow::Borrowed),
                     d.key,
                     source,
                     now,
@@ -1872,13 +1908,22 @@ impl Participant {
             .writers
             .get_mut(&writer.entity)
             .ok_or(WriteError::UnknownWriter)?;
-        let env = envelope_with(
-            change.kind,
-            change.key_hash,
-            Some(ts),
-            change.related_sample_identity,
-            change.data,
-        );
+        let env = match change.data {
+            Cow::Owned(v) => envelope_from_vec(
+                v,
+                change.kind,
+                change.key_hash,
+                Some(ts),
+                change.related_sample_identity,
+            ),
+            Cow::Borrowed(b) => envelope_with(
+                change.kind,
+                change.key_hash,
+                Some(ts),
+                change.related_sample_identity,
+                b,
+            ),
+        };
         let key = change.key_hash.unwrap_or_default().0;
         if let Some(depth) = lw.keep_last {
             // per-instance keep-last: the oldest sample of this instance goes
@@ -1913,6 +1958,21 @@ impl Participant {
         // sent by the next poll_transmit, packed with whatever else is
         // written before it
         Ok(sn)
+    }
+
+    /// Whether a [`Participant::write`] of `len` bytes of data to this local
+    /// writer is accepted as it stands (`false` for an unknown writer, and
+    /// possibly for a keep-last one that would first make room by dropping
+    /// an instance's oldest sample). A caller that gives its buffer away
+    /// ([`Change::data`] as a `Vec`) asks first, so that a full history
+    /// does not take the buffer with it.
+    pub fn has_room(&mut self, writer: Guid, len: usize) -> bool {
+        if self.closed || !self.is_local(writer) {
+            return false;
+        }
+        self.writers
+            .get_mut(&writer.entity)
+            .is_some_and(|lw| lw.writer.has_room(len + ENVELOPE_ROOM))
     }
 
     /// Makes the next [`Participant::write`] of a reliable local writer ask
@@ -2470,7 +2530,7 @@ impl Participant {
         sn: SequenceNumber,
         qos: Option<&[u8]>,
         little: bool,
-        payload: Option<&[u8]>,
+        payload: Option<Cow<'_, [u8]>>,
         key: bool,
         source: Locator,
         now: Instant,
@@ -2480,8 +2540,11 @@ impl Participant {
             entity: writer_id,
         };
         match writer_id {
-            EntityId::SPDP_WRITER => self.on_spdp(qos, little, payload, key, source, now),
+            EntityId::SPDP_WRITER => {
+                self.on_spdp(qos, little, payload.as_deref(), key, source, now)
+            }
             EntityId::SEDP_PUBLICATIONS_WRITER | EntityId::SEDP_SUBSCRIPTIONS_WRITER => {
+                let payload = payload.as_deref();
                 let (kind, key_hash) = match Disposal::from_data(qos, little, payload, key) {
                     Ok(Some(d)) => (ChangeKind::from_status(d.status), Some(KeyHash(d.key_hash))),
                     Ok(None) => (ChangeKind::Alive, None),
@@ -2512,11 +2575,15 @@ impl Participant {
                     None if key => ChangeKind::Disposed,
                     None => ChangeKind::Alive,
                 };
-                let data = match (kind, payload) {
+                let env = match (kind, payload) {
                     (ChangeKind::Alive, None) => return,
-                    (_, p) => p.unwrap_or(&[]),
+                    (_, Some(Cow::Owned(v))) => {
+                        envelope_from_vec(v, kind, key_hash, rx.ts, related)
+                    }
+                    (_, p) => {
+                        envelope_with(kind, key_hash, rx.ts, related, p.as_deref().unwrap_or(&[]))
+                    }
                 };
-                let env = envelope_with(kind, key_hash, rx.ts, related, data);
                 let mut delivered = false;
                 for (e, lr) in self.readers.iter_mut() {
                     if (reader_id == EntityId::UNKNOWN || reader_id == *e)
@@ -2579,7 +2646,7 @@ impl Participant {
                 f.writer_sn,
                 c.inline_qos.as_deref(),
                 c.little_endian,
-                Some(&c.data),
+                Some(Cow::Owned(c.data)),
                 f.key,
                 source,
                 now,

@@ -14,6 +14,11 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use super::message::{AckNack, Gap, Heartbeat};
+
+/// A sample as the writer history and reader queues hold it: opaque bytes,
+/// shared between the history and what is in flight, and still a `Vec`
+/// inside so that the last holder can take it without a copy.
+pub type Payload = Arc<Vec<u8>>;
 use super::types::{Guid, SequenceNumber, SequenceNumberSet};
 
 /// What a writer or reader wants sent. Addressed to one remote endpoint
@@ -27,7 +32,7 @@ pub enum Transmit {
         /// Its sequence number.
         sn: SequenceNumber,
         /// Serialized payload (with encapsulation header).
-        payload: Arc<[u8]>,
+        payload: Payload,
     },
     /// Sequence numbers the reader will never get.
     Gap {
@@ -87,7 +92,7 @@ struct ReaderProxy {
 #[derive(Debug, Default)]
 struct History {
     base: i64,
-    slots: VecDeque<Option<Arc<[u8]>>>,
+    slots: VecDeque<Option<Payload>>,
     count: usize,
 }
 
@@ -97,7 +102,7 @@ impl History {
     }
 
     /// Appends `sn`, which must follow every sequence number held.
-    fn push(&mut self, sn: i64, payload: Arc<[u8]>) {
+    fn push(&mut self, sn: i64, payload: Payload) {
         if self.slots.is_empty() {
             self.base = sn;
         }
@@ -109,12 +114,12 @@ impl History {
         self.count += 1;
     }
 
-    fn get(&self, sn: i64) -> Option<&Arc<[u8]>> {
+    fn get(&self, sn: i64) -> Option<&Payload> {
         let i = usize::try_from(sn.checked_sub(self.base)?).ok()?;
         self.slots.get(i)?.as_ref()
     }
 
-    fn remove(&mut self, sn: i64) -> Option<Arc<[u8]>> {
+    fn remove(&mut self, sn: i64) -> Option<Payload> {
         let i = usize::try_from(sn.checked_sub(self.base)?).ok()?;
         let p = self.slots.get_mut(i)?.take()?;
         self.count -= 1;
@@ -123,12 +128,12 @@ impl History {
     }
 
     /// The oldest sample.
-    fn first(&self) -> Option<(i64, &Arc<[u8]>)> {
+    fn first(&self) -> Option<(i64, &Payload)> {
         // `trim` keeps the front slot full
         self.slots.front()?.as_ref().map(|p| (self.base, p))
     }
 
-    fn pop_first(&mut self) -> Option<(i64, Arc<[u8]>)> {
+    fn pop_first(&mut self) -> Option<(i64, Payload)> {
         self.trim();
         let sn = self.base;
         let p = self.slots.pop_front()?;
@@ -148,7 +153,7 @@ impl History {
     }
 
     /// The samples from `from` on, ascending.
-    fn iter_from(&self, from: i64) -> impl Iterator<Item = (i64, &Arc<[u8]>)> + '_ {
+    fn iter_from(&self, from: i64) -> impl Iterator<Item = (i64, &Payload)> + '_ {
         let skip = usize::try_from(from.saturating_sub(self.base)).unwrap_or(0);
         self.slots
             .iter()
@@ -293,12 +298,12 @@ impl Writer {
     }
 
     /// A sample still in the history.
-    pub fn get(&self, sn: SequenceNumber) -> Option<&Arc<[u8]>> {
+    pub fn get(&self, sn: SequenceNumber) -> Option<&Payload> {
         self.history.get(sn.0)
     }
 
     /// The samples in the history, ascending.
-    pub fn samples(&self) -> impl Iterator<Item = (SequenceNumber, &Arc<[u8]>)> + '_ {
+    pub fn samples(&self) -> impl Iterator<Item = (SequenceNumber, &Payload)> + '_ {
         self.history
             .iter_from(i64::MIN)
             .map(|(sn, p)| (SequenceNumber(sn), p))
@@ -365,6 +370,17 @@ impl Writer {
         self.readers.len()
     }
 
+    /// Whether [`Writer::write`] accepts a payload of `len` bytes now.
+    pub fn has_room(&mut self, len: usize) -> bool {
+        if !(self.depth.is_none() && self.reliable) {
+            return true;
+        }
+        self.release_acked();
+        let unacked = self.unacked_bytes();
+        self.history.len() < self.max_samples
+            && (unacked == 0 || unacked + len <= self.max_unacked_bytes)
+    }
+
     /// Writes a sample; returns its sequence number. Reliable keep-all
     /// writers refuse (return `None`) while `max_samples` unacknowledged
     /// samples or the unacknowledged-bytes limit are held: the caller
@@ -373,7 +389,7 @@ impl Writer {
     /// The sample is queued for [`Writer::poll_transmit`]; a reliable
     /// writer's heartbeat follows the last of the samples queued together,
     /// so that a burst of writes costs one heartbeat.
-    pub fn write(&mut self, payload: Arc<[u8]>, now: Instant) -> Option<SequenceNumber> {
+    pub fn write(&mut self, payload: Payload, now: Instant) -> Option<SequenceNumber> {
         let keep_all_reliable = self.depth.is_none() && self.reliable;
         // unacknowledged bytes once this sample is in (keep-all reliable only;
         // a sum over the history when acknowledged samples are retained)
@@ -558,7 +574,7 @@ struct WriterProxy {
     /// Next sequence number to deliver.
     next: i64,
     /// Received out of order, waiting for the gap before them to fill.
-    pending: BTreeMap<i64, Option<Arc<[u8]>>>,
+    pending: BTreeMap<i64, Option<Payload>>,
     /// Highest sequence number the writer says it has.
     last_available: i64,
     last_hb_count: Option<i32>,
@@ -574,7 +590,7 @@ pub struct Reader {
     /// Most out-of-order samples buffered per writer.
     max_pending: usize,
     writers: HashMap<Guid, WriterProxy>,
-    samples: VecDeque<(Guid, SequenceNumber, Arc<[u8]>)>,
+    samples: VecDeque<(Guid, SequenceNumber, Payload)>,
     out: VecDeque<Transmit>,
 }
 
@@ -619,7 +635,7 @@ impl Reader {
         w: &mut WriterProxy,
         writer: Guid,
         to: i64,
-        samples: &mut VecDeque<(Guid, SequenceNumber, Arc<[u8]>)>,
+        samples: &mut VecDeque<(Guid, SequenceNumber, Payload)>,
     ) {
         if to <= w.next {
             return;
@@ -634,7 +650,7 @@ impl Reader {
     }
 
     /// A DATA (or a reassembled DATA_FRAG sample) from a matched writer.
-    pub fn handle_data(&mut self, writer: Guid, sn: SequenceNumber, payload: Arc<[u8]>) {
+    pub fn handle_data(&mut self, writer: Guid, sn: SequenceNumber, payload: Payload) {
         let Some(w) = self.writers.get_mut(&writer) else {
             return;
         };
@@ -664,7 +680,7 @@ impl Reader {
     fn drain(
         w: &mut WriterProxy,
         writer: Guid,
-        samples: &mut VecDeque<(Guid, SequenceNumber, Arc<[u8]>)>,
+        samples: &mut VecDeque<(Guid, SequenceNumber, Payload)>,
     ) {
         while let Some(entry) = w.pending.remove(&w.next) {
             if let Some(p) = entry {
@@ -749,7 +765,7 @@ impl Reader {
     }
 
     /// The next sample to hand to the application, in order per writer.
-    pub fn poll_sample(&mut self) -> Option<(Guid, SequenceNumber, Arc<[u8]>)> {
+    pub fn poll_sample(&mut self) -> Option<(Guid, SequenceNumber, Payload)> {
         self.samples.pop_front()
     }
 
@@ -1019,13 +1035,13 @@ mod tests {
 
     #[test]
     fn history_keeps_order_through_removals_in_the_middle() {
-        let p = |n: u8| -> Arc<[u8]> { Arc::from(vec![n; usize::from(n)]) };
+        let p = |n: u8| -> Payload { Arc::new(vec![n; usize::from(n)]) };
         let mut h = History::default();
         for sn in 5..10 {
             h.push(sn, p(sn as u8));
         }
         assert_eq!(h.len(), 5);
-        assert_eq!(h.remove(7).as_deref(), Some(&[7u8; 7][..]));
+        assert_eq!(h.remove(7).as_deref(), Some(&vec![7u8; 7]));
         assert!(h.remove(7).is_none() && h.get(7).is_none());
         assert_eq!(h.get(8).map(|p| p.len()), Some(8));
         assert!(h.get(4).is_none() && h.get(10).is_none() && h.get(i64::MIN).is_none());
