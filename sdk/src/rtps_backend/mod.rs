@@ -1699,24 +1699,13 @@ impl State {
     }
 
     /// Writes now, or gives the write back when the history is full.
-    fn try_write(
-        &mut self,
-        topic: &str,
-        mut pw: PendingWrite,
-        now: Instant,
-    ) -> Option<PendingWrite> {
+    fn try_write(&mut self, topic: &str, pw: PendingWrite, now: Instant) -> Option<PendingWrite> {
         let Some(w) = self.writers.get(topic) else {
             pw.done.send(Err(disconnected()));
             return None;
         };
         let guid = w.guid;
-        // the sample's buffer becomes the history's when it surely fits;
-        // otherwise it is lent, and kept for a retry if the history is full
-        let mut change = if self.p.has_room(guid, pw.data.len()) {
-            Change::alive(std::mem::take(&mut pw.data))
-        } else {
-            Change::alive(&pw.data[..])
-        };
+        let mut change = Change::alive(&pw.data);
         change.kind = pw.kind;
         change.key_hash = pw.key_hash.map(KeyHash);
         if pw.confirm.is_some() {

@@ -439,16 +439,15 @@ impl ChangeKind {
 }
 
 /// A change to write: a sample, or a dispose/unregister of an instance.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Change<'a> {
     /// Sample or dispose/unregister.
     pub kind: ChangeKind,
     /// For [`ChangeKind::Alive`]: the serialized sample, starting with its
     /// encapsulation header. Otherwise: the serialized key with its
     /// encapsulation header (sent with the K flag), or empty (then only the
-    /// key hash identifies the instance). Given as a `Vec`, the buffer
-    /// becomes the writer history's own, without a copy.
-    pub data: Cow<'a, [u8]>,
+    /// key hash identifies the instance).
+    pub data: &'a [u8],
     /// The instance's key hash (keyed topics): sent inline and used for the
     /// per-instance keep-last history.
     pub key_hash: Option<KeyHash>,
@@ -514,10 +513,10 @@ const VENDOR_EPROSIMA: VendorId = VendorId([0x01, 0x0f]);
 
 impl<'a> Change<'a> {
     /// A sample.
-    pub fn alive(data: impl Into<Cow<'a, [u8]>>) -> Self {
+    pub fn alive(data: &'a [u8]) -> Self {
         Change {
             kind: ChangeKind::Alive,
-            data: data.into(),
+            data,
             key_hash: None,
             source_timestamp: None,
             related_sample_identity: None,
@@ -525,10 +524,10 @@ impl<'a> Change<'a> {
     }
 
     /// Disposes the instance with this serialized key (may be empty) and key hash.
-    pub fn dispose(key: impl Into<Cow<'a, [u8]>>, key_hash: KeyHash) -> Self {
+    pub fn dispose(key: &'a [u8], key_hash: KeyHash) -> Self {
         Change {
             kind: ChangeKind::Disposed,
-            data: key.into(),
+            data: key,
             key_hash: Some(key_hash),
             source_timestamp: None,
             related_sample_identity: None,
@@ -536,7 +535,7 @@ impl<'a> Change<'a> {
     }
 
     /// Unregisters the instance with this serialized key (may be empty) and key hash.
-    pub fn unregister(key: impl Into<Cow<'a, [u8]>>, key_hash: KeyHash) -> Self {
+    pub fn unregister(key: &'a [u8], key_hash: KeyHash) -> Self {
         Change {
             kind: ChangeKind::Unregistered,
             ..Self::dispose(key, key_hash)
@@ -1908,22 +1907,13 @@ impl Participant {
             .writers
             .get_mut(&writer.entity)
             .ok_or(WriteError::UnknownWriter)?;
-        let env = match change.data {
-            Cow::Owned(v) => envelope_from_vec(
-                v,
-                change.kind,
-                change.key_hash,
-                Some(ts),
-                change.related_sample_identity,
-            ),
-            Cow::Borrowed(b) => envelope_with(
-                change.kind,
-                change.key_hash,
-                Some(ts),
-                change.related_sample_identity,
-                b,
-            ),
-        };
+        let env = envelope_with(
+            change.kind,
+            change.key_hash,
+            Some(ts),
+            change.related_sample_identity,
+            change.data,
+        );
         let key = change.key_hash.unwrap_or_default().0;
         if let Some(depth) = lw.keep_last {
             // per-instance keep-last: the oldest sample of this instance goes
@@ -1958,21 +1948,6 @@ impl Participant {
         // sent by the next poll_transmit, packed with whatever else is
         // written before it
         Ok(sn)
-    }
-
-    /// Whether a [`Participant::write`] of `len` bytes of data to this local
-    /// writer is accepted as it stands (`false` for an unknown writer, and
-    /// possibly for a keep-last one that would first make room by dropping
-    /// an instance's oldest sample). A caller that gives its buffer away
-    /// ([`Change::data`] as a `Vec`) asks first, so that a full history
-    /// does not take the buffer with it.
-    pub fn has_room(&mut self, writer: Guid, len: usize) -> bool {
-        if self.closed || !self.is_local(writer) {
-            return false;
-        }
-        self.writers
-            .get_mut(&writer.entity)
-            .is_some_and(|lw| lw.writer.has_room(len + ENVELOPE_ROOM))
     }
 
     /// Makes the next [`Participant::write`] of a reliable local writer ask

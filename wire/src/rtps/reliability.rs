@@ -370,17 +370,6 @@ impl Writer {
         self.readers.len()
     }
 
-    /// Whether [`Writer::write`] accepts a payload of `len` bytes now.
-    pub fn has_room(&mut self, len: usize) -> bool {
-        if !(self.depth.is_none() && self.reliable) {
-            return true;
-        }
-        self.release_acked();
-        let unacked = self.unacked_bytes();
-        self.history.len() < self.max_samples
-            && (unacked == 0 || unacked + len <= self.max_unacked_bytes)
-    }
-
     /// Writes a sample; returns its sequence number. Reliable keep-all
     /// writers refuse (return `None`) while `max_samples` unacknowledged
     /// samples or the unacknowledged-bytes limit are held: the caller
