@@ -45,10 +45,12 @@ use courier_wire::rtps::discovery::{
 };
 use courier_wire::rtps::participant::{
     self, Change, ChangeKind, Config, EndpointConfig, Event, KeyHash, LostReason, Participant,
-    ReceivedSample, SampleIdentity, WriteError, MAX_WRITE_SIZE,
+    ReceivedSample, SampleIdentity, Transmission, WriteError, MAX_WRITE_SIZE,
 };
 use courier_wire::rtps::{Guid, GuidPrefix, Locator, SequenceNumber, Time};
 use courier_wire::{cdr, IpcMessage};
+use std::io::IoSlice;
+use tokio::io::Interest;
 use tokio::net::UdpSocket;
 use tokio::sync::{mpsc, oneshot, OwnedSemaphorePermit, Semaphore};
 
@@ -708,6 +710,10 @@ fn is_keyed_entity(g: Guid) -> bool {
 // ---------------------------------------------------------------------------
 // The driver
 
+/// Slices one vectored send takes at most: far more than a message of at
+/// most 64 KiB made of parts of at least 1 KiB needs.
+const MAX_PARTS: usize = 160;
+
 struct Io {
     meta: UdpSocket,
     user: UdpSocket,
@@ -750,19 +756,63 @@ impl Io {
         }
     }
 
-    async fn send(&mut self, to: Locator, payload: &[u8]) {
-        let Some(addr) = to.socket_addr().filter(|a| self.allowed(*a)) else {
+    /// Sends one message; large sample data goes from the writer's history
+    /// to the kernel without a copy, with one vectored `sendmsg`.
+    async fn send(&mut self, t: &Transmission) {
+        let Some(addr) = t.destination().socket_addr().filter(|a| self.allowed(*a)) else {
             self.refused += 1;
             return;
         };
-        match self.user.try_send_to(payload, addr) {
-            Ok(_) => {}
-            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
-                if self.user.send_to(payload, addr).await.is_err() {
+        if let Some(d) = t.as_slice() {
+            // one piece (small samples): a plain sendto
+            match self.user.try_send_to(d, addr) {
+                Ok(_) => {}
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                    if self.user.send_to(d, addr).await.is_err() {
+                        self.send_errors += 1;
+                    }
+                }
+                Err(_) => self.send_errors += 1,
+            }
+            return;
+        }
+        let mut parts: [IoSlice<'_>; MAX_PARTS] = [IoSlice::new(&[]); MAX_PARTS];
+        let mut n = 0;
+        for p in t.parts() {
+            if n == MAX_PARTS {
+                break;
+            }
+            parts[n] = IoSlice::new(p);
+            n += 1;
+        }
+        if n == MAX_PARTS {
+            // more pieces than one call takes (never, with the message
+            // sizes allowed): send a copy
+            let d = t.clone().into_datagram();
+            return self.send_one(&[IoSlice::new(&d.payload)], addr).await;
+        }
+        self.send_one(&parts[..n], addr).await;
+    }
+
+    async fn send_one(&mut self, parts: &[IoSlice<'_>], addr: SocketAddr) {
+        let to = socket2::SockAddr::from(addr);
+        loop {
+            let sent = self.user.try_io(Interest::WRITABLE, || {
+                socket2::SockRef::from(&self.user).send_to_vectored(parts, &to)
+            });
+            match sent {
+                Ok(_) => return,
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                    if self.user.writable().await.is_err() {
+                        self.send_errors += 1;
+                        return;
+                    }
+                }
+                Err(_) => {
                     self.send_errors += 1;
+                    return;
                 }
             }
-            Err(_) => self.send_errors += 1,
         }
     }
 }
@@ -794,8 +844,8 @@ impl Driver {
     async fn run(mut self) {
         loop {
             self.st.pump(Instant::now());
-            while let Some(d) = self.st.p.poll_transmit() {
-                self.io.send(d.destination, &d.payload).await;
+            while let Some(t) = self.st.p.poll_transmission() {
+                self.io.send(&t).await;
             }
             let wake_at = self.st.next_wakeup();
             let paused = self.st.full_queue();
@@ -875,8 +925,8 @@ impl Driver {
 
     async fn close(&mut self, now: Instant) {
         self.st.p.close(now);
-        while let Some(d) = self.st.p.poll_transmit() {
-            self.io.send(d.destination, &d.payload).await;
+        while let Some(t) = self.st.p.poll_transmission() {
+            self.io.send(&t).await;
         }
         self.st.pump(now);
         for r in self.st.readers.values() {

@@ -121,6 +121,9 @@ pub use ports::{PortMapping, SPDP_MULTICAST_ADDRESS};
 
 use std::borrow::Cow;
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::ops::Range;
+
+use super::reliability::Payload;
 
 // seeded per process: keyed by GUIDs and key hashes off the network
 use foldhash::{HashMap, HashMapExt};
@@ -830,6 +833,78 @@ pub struct Datagram {
     pub payload: Vec<u8>,
 }
 
+/// A datagram to send whose large sample data is carried by reference to
+/// the writer's history instead of being copied into it: send its
+/// [`Transmission::parts`] with one vectored system call (`sendmsg`), or
+/// make it a [`Datagram`].
+#[derive(Debug, Clone)]
+pub struct Transmission {
+    destination: Locator,
+    /// The message's own bytes; the shared parts go in between.
+    head: Vec<u8>,
+    /// Shared parts: where in `head` each goes, and its bytes, by position.
+    shared: Vec<(usize, Payload, Range<usize>)>,
+}
+
+impl Transmission {
+    /// Where to send it.
+    pub fn destination(&self) -> Locator {
+        self.destination
+    }
+
+    /// Its length in bytes.
+    pub fn len(&self) -> usize {
+        self.head.len() + self.shared.iter().map(|(_, _, r)| r.len()).sum::<usize>()
+    }
+
+    /// Whether it is empty (never, for a transmission from a participant).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Its bytes in one slice, when nothing is carried by reference.
+    pub fn as_slice(&self) -> Option<&[u8]> {
+        self.shared.is_empty().then_some(&self.head[..])
+    }
+
+    /// Its bytes, in order, as a few slices (at most `2 × shared + 1`).
+    pub fn parts(&self) -> impl Iterator<Item = &[u8]> + '_ {
+        let mut from = 0;
+        self.shared
+            .iter()
+            .flat_map(move |(at, p, r)| {
+                let own = &self.head[from..*at];
+                from = *at;
+                [own, &p[r.clone()]]
+            })
+            .chain(std::iter::once(
+                &self.head[self.shared.last().map_or(0, |(at, _, _)| *at)..],
+            ))
+            .filter(|b| !b.is_empty())
+    }
+
+    /// The whole message in one buffer (copies the shared parts, if any).
+    pub fn into_datagram(self) -> Datagram {
+        let payload = if self.shared.is_empty() {
+            self.head
+        } else {
+            let mut b = Vec::with_capacity(self.len());
+            for part in self.parts() {
+                b.extend_from_slice(part);
+            }
+            b
+        };
+        Datagram {
+            destination: self.destination,
+            payload,
+        }
+    }
+}
+
+/// Data parts at least this long are sent by reference (see
+/// [`Transmission`]); shorter ones are cheaper to copy than to describe.
+const SHARE_MIN: usize = 1024;
+
 /// Counters: nothing is dropped silently.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[non_exhaustive]
@@ -945,8 +1020,23 @@ struct Queue {
     to: Locator,
     dst: GuidPrefix,
     buf: Vec<u8>,
-    /// The INFO_TS in force at the end of `buf`.
+    /// Sample data carried by reference (see [`Transmission`]).
+    shared: Vec<(usize, Payload, Range<usize>)>,
+    /// Bytes in `shared`.
+    shared_len: usize,
+    /// The INFO_TS in force at the end of the datagram.
     ts: Option<Time>,
+}
+
+impl Queue {
+    fn take(&mut self) -> Transmission {
+        self.shared_len = 0;
+        Transmission {
+            destination: self.to,
+            head: std::mem::take(&mut self.buf),
+            shared: std::mem::take(&mut self.shared),
+        }
+    }
 }
 
 /// Submessages for each destination, serialized straight into the datagrams
@@ -957,7 +1047,7 @@ struct Outbox {
     max: usize,
     queues: Vec<Queue>,
     /// Closed datagrams, in the order they filled.
-    full: Vec<Datagram>,
+    full: Vec<Transmission>,
     /// Scratch for [`Route::group`], kept for its capacity.
     targets: Vec<(Locator, GuidPrefix, EntityId)>,
 }
@@ -974,14 +1064,58 @@ impl Outbox {
     }
 
     fn push(&mut self, to: Locator, dst: GuidPrefix, unit: Unit) {
-        self.push_with(to, dst, unit.ts, unit.bytes.len(), |b| {
+        self.push_with(to, dst, unit.ts, unit.bytes.len(), None, |b| {
             b.extend_from_slice(&unit.bytes)
         });
     }
 
     /// Queues one submessage, serialized in place.
     fn push_sm(&mut self, to: Locator, dst: GuidPrefix, ts: Option<Time>, sm: &Submessage<'_>) {
-        self.push_with(to, dst, ts, sm.encoded_len(), |b| sm.write(b, true));
+        self.push_with(to, dst, ts, sm.encoded_len(), None, |b| sm.write(b, true));
+    }
+
+    /// Queues a DATA or DATA_FRAG whose data lies in `env`: a large part is
+    /// carried by reference to `env` instead of copied.
+    fn push_sample(
+        &mut self,
+        to: Locator,
+        dst: GuidPrefix,
+        ts: Option<Time>,
+        sm: &Submessage<'_>,
+        env: &Payload,
+    ) {
+        let (data, head) = match sm {
+            Submessage::Data(d) => (
+                d.payload.unwrap_or(&[]),
+                Submessage::Data(Data {
+                    payload: d.payload.map(|_| &[][..]),
+                    ..d.clone()
+                }),
+            ),
+            Submessage::DataFrag(f) => (
+                f.payload,
+                Submessage::DataFrag(DataFrag {
+                    payload: &[],
+                    ..f.clone()
+                }),
+            ),
+            _ => return self.push_sm(to, dst, ts, sm),
+        };
+        let (base, at) = (env.as_ptr() as usize, data.as_ptr() as usize);
+        if data.len() < SHARE_MIN || at < base || at + data.len() > base + env.len() {
+            return self.push_sm(to, dst, ts, sm);
+        }
+        let range = at - base..at - base + data.len();
+        let len = sm.encoded_len();
+        let share = Some((env.clone(), range));
+        self.push_with(to, dst, ts, len, share, |b| {
+            // the submessage without its data (the data comes last in
+            // both), with the length it has with it
+            let start = b.len();
+            head.write(b, true);
+            let n = u16::try_from(len - 4).unwrap_or(0);
+            b[start + 2..start + 4].copy_from_slice(&n.to_le_bytes());
+        });
     }
 
     /// Queues `len` bytes that `write` appends, after an INFO_TS if `ts`
@@ -992,6 +1126,7 @@ impl Outbox {
         dst: GuidPrefix,
         ts: Option<Time>,
         len: usize,
+        share: Option<(Payload, Range<usize>)>,
         write: impl FnOnce(&mut Vec<u8>),
     ) {
         let i = match self.queues.iter().position(|q| q.to == to && q.dst == dst) {
@@ -1001,6 +1136,8 @@ impl Outbox {
                     to,
                     dst,
                     buf: Vec::new(),
+                    shared: Vec::new(),
+                    shared_len: 0,
                     ts: None,
                 });
                 self.queues.len() - 1
@@ -1009,17 +1146,16 @@ impl Outbox {
         let q = &mut self.queues[i];
         let base = super::HEADER_SIZE + if dst == GuidPrefix::UNKNOWN { 0 } else { 16 };
         let ts_len = |q: &Queue| if ts.is_some() && ts != q.ts { 12 } else { 0 };
-        if q.buf.len() > base && q.buf.len() + ts_len(q) + len > self.max {
-            let payload = std::mem::take(&mut q.buf);
-            self.full.push(Datagram {
-                destination: to,
-                payload,
-            });
+        let filled = q.buf.len() + q.shared_len;
+        if filled > base && filled + ts_len(q) + len > self.max {
+            let t = q.take();
+            self.full.push(t);
         }
         if q.buf.is_empty() {
             // most datagrams carry a few small submessages; a big one (a
             // fragment) gets its size at once instead of growing into it
-            let want = base + 12 + len;
+            let own = len - share.as_ref().map_or(0, |(_, r)| r.len());
+            let want = base + 12 + own;
             q.buf = Vec::with_capacity(if want > 1500 {
                 want.min(self.max)
             } else {
@@ -1038,22 +1174,23 @@ impl Outbox {
             }
         }
         write(&mut q.buf);
+        if let Some((p, r)) = share {
+            q.shared_len += r.len();
+            q.shared.push((q.buf.len(), p, r));
+        }
     }
 
     /// Moves every datagram, closed or still filling, to `out`.
-    fn drain(&mut self, out: &mut VecDeque<Datagram>, stats: &mut Stats) {
+    fn drain(&mut self, out: &mut VecDeque<Transmission>, stats: &mut Stats) {
         let open = self
             .queues
             .drain(..)
             .filter(|q| !q.buf.is_empty())
-            .map(|q| Datagram {
-                destination: q.to,
-                payload: q.buf,
-            });
-        for d in self.full.drain(..).chain(open) {
+            .map(|mut q| q.take());
+        for t in self.full.drain(..).chain(open) {
             stats.datagrams_sent += 1;
-            stats.bytes_sent += d.payload.len() as u64;
-            out.push_back(d);
+            stats.bytes_sent += t.len() as u64;
+            out.push_back(t);
         }
     }
 }
@@ -1243,7 +1380,7 @@ fn emit_writer(
             let t = targets(to, outbox);
             for &(l, p, rid) in &t {
                 data_units(shape, rid, writer_id, sn, &e, None, |ts, sm| {
-                    outbox.push_sm(l, p, ts, sm)
+                    outbox.push_sample(l, p, ts, sm, &payload)
                 });
             }
             outbox.targets = t;
@@ -1398,7 +1535,7 @@ pub struct Participant {
     next_key: u32,
     nackfrag_count: i32,
     outbox: Outbox,
-    out: VecDeque<Datagram>,
+    out: VecDeque<Transmission>,
     events: VecDeque<Event>,
     stats: Stats,
 }
@@ -1588,6 +1725,13 @@ impl Participant {
     /// as [`Config::max_message_size`] allows, so a caller that makes
     /// several [`Participant::write`]s before polling sends them together.
     pub fn poll_transmit(&mut self) -> Option<Datagram> {
+        self.poll_transmission().map(Transmission::into_datagram)
+    }
+
+    /// [`Participant::poll_transmit`] without copying large sample data
+    /// into the datagram: for a sender that can send a [`Transmission`]'s
+    /// parts with one vectored call.
+    pub fn poll_transmission(&mut self) -> Option<Transmission> {
         if self.out.is_empty() {
             self.gather();
         }
@@ -2733,7 +2877,7 @@ impl Participant {
             n.writer_sn,
             &open(&sample),
             Some(&frags),
-            |ts, sm| outbox.push_sm(l, reader.prefix, ts, sm),
+            |ts, sm| outbox.push_sample(l, reader.prefix, ts, sm, &sample),
         );
     }
 
@@ -3019,6 +3163,7 @@ mod tests {
         let mut out = VecDeque::new();
         let mut stats = Stats::default();
         o.drain(&mut out, &mut stats);
+        let out: Vec<Datagram> = out.into_iter().map(Transmission::into_datagram).collect();
         // 20 header + 16 INFO_DST + 12 INFO_TS + 2×200 fit in 512, the third does not
         assert_eq!(out.len(), 3);
         assert_eq!(out[0].destination, a);
@@ -3029,5 +3174,67 @@ mod tests {
             Message::parse(&d.payload).unwrap();
         }
         assert_eq!(stats.datagrams_sent, 3);
+    }
+
+    /// Large sample data goes by reference; the parts, joined, are the
+    /// bytes the submessages serialized in place would have been.
+    #[test]
+    fn large_sample_data_is_carried_by_reference() {
+        let h = Header {
+            version: PROTOCOL_VERSION,
+            vendor: VENDOR_ID,
+            guid_prefix: GuidPrefix([1; 12]),
+        };
+        let to = Locator::udpv4([127, 0, 0, 1], 7410);
+        let dst = GuidPrefix([2; 12]);
+        let ts = Some(Time {
+            seconds: 3,
+            fraction: 4,
+        });
+        let data: Vec<u8> = (0..5000u32).map(|i| (i % 251) as u8).collect();
+        let env = envelope(ChangeKind::Alive, None, ts, &data);
+        let e = open(&env);
+        let shape = Shape {
+            max: 4096,
+            fragment_size: 1000,
+        };
+        let (w, r) = (EntityId([0, 0, 1, 2]), EntityId([0, 0, 1, 7]));
+        let mut by_ref = Outbox::new(h, 4096);
+        let mut copied = Outbox::new(h, 4096);
+        data_units(shape, r, w, SequenceNumber(9), &e, None, |ts, sm| {
+            by_ref.push_sample(to, dst, ts, sm, &env);
+            copied.push_sm(to, dst, ts, sm);
+        });
+        // a small DATA is copied even when offered by reference
+        let small = envelope(ChangeKind::Alive, None, ts, b"\0\x01\0\0tiny");
+        data_units(
+            shape,
+            r,
+            w,
+            SequenceNumber(10),
+            &open(&small),
+            None,
+            |ts, sm| {
+                by_ref.push_sample(to, dst, ts, sm, &small);
+                copied.push_sm(to, dst, ts, sm);
+            },
+        );
+        let (mut a, mut b) = (VecDeque::new(), VecDeque::new());
+        let mut stats = Stats::default();
+        by_ref.drain(&mut a, &mut stats);
+        copied.drain(&mut b, &mut stats);
+        assert_eq!(a.len(), b.len());
+        assert!(a.len() >= 2, "{} datagrams", a.len());
+        assert!(a.iter().any(|t| !t.shared.is_empty()));
+        assert!(a.iter().all(|t| t.len() <= 4096));
+        for (t, c) in a.into_iter().zip(b) {
+            assert!(c.shared.is_empty());
+            let joined: Vec<u8> = t.parts().flatten().copied().collect();
+            assert_eq!(joined.len(), t.len());
+            let d = t.into_datagram();
+            assert_eq!(d.payload, joined);
+            assert_eq!(d, c.into_datagram());
+            Message::parse(&d.payload).unwrap();
+        }
     }
 }
