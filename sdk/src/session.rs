@@ -1091,10 +1091,11 @@ impl<'a> std::future::IntoFuture for Publish<'a> {
     type IntoFuture = Pin<Box<dyn std::future::Future<Output = Self::Output> + Send + 'a>>;
 
     fn into_future(self) -> Self::IntoFuture {
+        if self.confirm.is_none() && self.key_hash.is_none() {
+            // the backend's own (boxed) future, not a box around it
+            return self.session.backend.publish(self.msg, self.data);
+        }
         Box::pin(async move {
-            if self.confirm.is_none() && self.key_hash.is_none() {
-                return self.session.backend.publish(self.msg, self.data).await;
-            }
             let opts = WriteOptions {
                 key_hash: self.key_hash,
                 confirm: self.confirm,

@@ -326,6 +326,97 @@ impl RtpsBackend {
         self.participant_index
     }
 
+    /// Queues an unconfirmed write of a known publication without
+    /// waiting, when the queue budget has room; otherwise gives the data
+    /// back for [`RtpsBackend::write_slow`].
+    fn try_queue(
+        &self,
+        msg: &str,
+        data: Vec<u8>,
+        key_hash: Option<[u8; 16]>,
+    ) -> Result<Result<(), SessionError>, Vec<u8>> {
+        let topic = self
+            .published
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .get(msg)
+            .cloned();
+        let Some(topic) = topic.filter(|_| data.len() <= MAX_WRITE_SIZE) else {
+            return Err(data);
+        };
+        let Ok(permit) = self
+            .queue_budget
+            .clone()
+            .try_acquire_many_owned(queued_units(data.len()))
+        else {
+            return Err(data);
+        };
+        Ok(self
+            .cmd
+            .send(Cmd::Write {
+                topic,
+                kind: ChangeKind::Alive,
+                data,
+                key_hash,
+                confirm: None,
+                done: Done::Queued(permit),
+            })
+            .map_err(|_| disconnected()))
+    }
+
+    /// A write that may wait: for room in the queue budget, or for the
+    /// driver's answer (confirmed writes, unknown publications).
+    async fn write_slow(
+        &self,
+        msg: &str,
+        data: Vec<u8>,
+        opts: WriteOptions,
+    ) -> Result<(), SessionError> {
+        // a publication's name is shared, not copied, by each write
+        let known = self
+            .published
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .get(msg)
+            .cloned();
+        let topic = known.clone().unwrap_or_else(|| Arc::from(msg));
+        if let (None, Some(topic)) = (opts.confirm, known) {
+            if data.len() > MAX_WRITE_SIZE {
+                return Err(SessionError::Refused(format!(
+                    "cannot publish {topic}: a sample of {} bytes is larger than {MAX_WRITE_SIZE}",
+                    data.len()
+                )));
+            }
+            // returns once queued: the driver packs what is queued
+            let permit = self
+                .queue_budget
+                .clone()
+                .acquire_many_owned(queued_units(data.len()))
+                .await
+                .map_err(|_| disconnected())?;
+            return self
+                .cmd
+                .send(Cmd::Write {
+                    topic,
+                    kind: ChangeKind::Alive,
+                    data,
+                    key_hash: opts.key_hash,
+                    confirm: None,
+                    done: Done::Queued(permit),
+                })
+                .map_err(|_| disconnected());
+        }
+        self.ask(|reply| Cmd::Write {
+            topic,
+            kind: ChangeKind::Alive,
+            data,
+            key_hash: opts.key_hash,
+            confirm: opts.confirm,
+            done: Done::Reply(reply),
+        })
+        .await
+    }
+
     async fn ask<T>(&self, make: impl FnOnce(Reply<T>) -> Cmd) -> Result<T, SessionError> {
         let (tx, rx) = oneshot::channel();
         self.cmd.send(make(tx)).map_err(|_| disconnected())?;
@@ -368,7 +459,15 @@ impl Backend for RtpsBackend {
     }
 
     async fn publish(&self, msg: &str, data: Vec<u8>) -> Result<(), SessionError> {
-        self.write(msg, data, WriteOptions::default()).await
+        // the usual case without a second boxed future: a known publication
+        // and room in the queue budget
+        // a write that never waits still counts against tokio's cooperative
+        // budget, so a publishing loop lets the driver and other tasks run
+        tokio::task::consume_budget().await;
+        match self.try_queue(msg, data, None) {
+            Ok(done) => done,
+            Err(data) => self.write_slow(msg, data, WriteOptions::default()).await,
+        }
     }
 
     async fn subscribe(&self, msg: &str, queue: Arc<SampleQueue>) -> Result<(), SessionError> {
@@ -562,49 +661,14 @@ impl Backend for RtpsBackend {
         data: Vec<u8>,
         opts: WriteOptions,
     ) -> Result<(), SessionError> {
-        // a publication's name is shared, not copied, by each write
-        let known = self
-            .published
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .get(msg)
-            .cloned();
-        let topic = known.clone().unwrap_or_else(|| Arc::from(msg));
-        if let (None, Some(topic)) = (opts.confirm, known) {
-            if data.len() > MAX_WRITE_SIZE {
-                return Err(SessionError::Refused(format!(
-                    "cannot publish {topic}: a sample of {} bytes is larger than {MAX_WRITE_SIZE}",
-                    data.len()
-                )));
-            }
-            // returns once queued: the driver packs what is queued
-            let permit = self
-                .queue_budget
-                .clone()
-                .acquire_many_owned(queued_units(data.len()))
-                .await
-                .map_err(|_| disconnected())?;
-            return self
-                .cmd
-                .send(Cmd::Write {
-                    topic,
-                    kind: ChangeKind::Alive,
-                    data,
-                    key_hash: opts.key_hash,
-                    confirm: None,
-                    done: Done::Queued(permit),
-                })
-                .map_err(|_| disconnected());
+        if opts.confirm.is_some() {
+            return self.write_slow(msg, data, opts).await;
         }
-        self.ask(|reply| Cmd::Write {
-            topic,
-            kind: ChangeKind::Alive,
-            data,
-            key_hash: opts.key_hash,
-            confirm: opts.confirm,
-            done: Done::Reply(reply),
-        })
-        .await
+        tokio::task::consume_budget().await;
+        match self.try_queue(msg, data, opts.key_hash) {
+            Ok(done) => done,
+            Err(data) => self.write_slow(msg, data, opts).await,
+        }
     }
 
     async fn end_instance(
