@@ -112,7 +112,7 @@ impl Default for Opts {
 
 fn usage() -> ! {
     println!(
-        "usage:\n  rtps_bench [--quick] [--no-ddsperf] [--filter TEXT] [--threads N] [--busy-poll US]   \
+        "usage:\n  rtps_bench [--quick] [--no-ddsperf] [--filter TEXT] [--reps R] [--threads N] [--busy-poll US]   \
          whole table (both CPU placements, Courier and ddsperf)\n  \
          rtps_bench ping|pong|pub|sub [--domain D] [--size BYTES] [--secs S] [--warmup S] \
          [--best-effort] [--threads N] [--queue N] [--busy-poll US]\n\n\
@@ -611,6 +611,33 @@ struct Outcome {
     lost: Option<(u64, u64)>,
     /// Why there is no number.
     note: Option<String>,
+    /// Lowest and highest value over the runs (with `--reps` > 1).
+    range: Option<(f64, f64)>,
+}
+
+/// The run with the median value (the lower middle one of an even count);
+/// with several runs it carries the range of all of them, and a reliable
+/// row's lost count is the largest any run saw. A failed run makes the
+/// whole cell failed.
+fn median_outcome(kind: Kind, mut runs: Vec<Outcome>) -> Outcome {
+    if let Some(failed) = runs.iter().find(|o| o.note.is_some() || o.value.is_none()) {
+        return failed.clone();
+    }
+    runs.sort_by(|a, b| {
+        a.value
+            .partial_cmp(&b.value)
+            .unwrap_or(std::cmp::Ordering::Equal)
+    });
+    let values: Vec<f64> = runs.iter().filter_map(|o| o.value).collect();
+    let worst_lost = runs.iter().filter_map(|o| o.lost).max_by_key(|l| l.0);
+    let mut m = runs[(runs.len() - 1) / 2].clone();
+    if runs.len() > 1 {
+        m.range = Some((values[0], values[values.len() - 1]));
+        if !matches!(kind, Kind::Thr { best_effort: true }) {
+            m.lost = worst_lost;
+        }
+    }
+    m
 }
 
 struct Orchestrator {
@@ -781,6 +808,7 @@ impl Orchestrator {
                         num(&m, "n").unwrap_or(0.0) as u64,
                     )),
                     note: None,
+                    range: None,
                 }
             }
             Kind::Thr { .. } => {
@@ -799,6 +827,7 @@ impl Orchestrator {
                     second: num(&m, "mbps"),
                     lost,
                     note: None,
+                    range: None,
                 }
             }
         }
@@ -922,6 +951,7 @@ fn parse_ddsperf_ping(out: &str, from: f64, to: f64) -> Option<Outcome> {
         second: Some(med(&mut p99)),
         lost: Some((0, cnt)),
         note: None,
+        range: None,
     })
 }
 
@@ -964,6 +994,7 @@ fn parse_ddsperf_sub(out: &str, from: f64, to: f64, payload: usize) -> Option<Ou
         second: Some(rate * payload as f64 / 1e6),
         lost: Some((lost, total + lost)),
         note: None,
+        range: None,
     })
 }
 
@@ -1024,9 +1055,16 @@ fn cell(kind: Kind, o: &Outcome) -> String {
     if let Some(n) = &o.note {
         return n.clone();
     }
+    let range = match (kind, o.range) {
+        (_, None) => String::new(),
+        (Kind::Rtt, Some((lo, hi))) => format!(" [runs {lo:.1}–{hi:.1}]"),
+        (Kind::Thr { .. }, Some((lo, hi))) => format!(" [runs {}–{}]", fmt_rate(lo), fmt_rate(hi)),
+    };
     match (kind, o.value, o.second) {
-        (Kind::Rtt, Some(m), Some(p)) => format!("{m:.1} µs (p99 {p:.1})"),
-        (Kind::Thr { .. }, Some(r), Some(mb)) => format!("{} = {mb:.1} MB/s", fmt_rate(r)),
+        (Kind::Rtt, Some(m), Some(p)) => format!("{m:.1} µs (p99 {p:.1}){range}"),
+        (Kind::Thr { .. }, Some(r), Some(mb)) => {
+            format!("{} = {mb:.1} MB/s{range}", fmt_rate(r))
+        }
         _ => "–".into(),
     }
 }
@@ -1049,10 +1087,18 @@ fn orchestrate(args: &[String]) {
     let mut filter: Option<String> = None;
     let mut threads = 1;
     let mut busy_poll_us = 0;
+    let mut reps: usize = 1;
     let mut it = args.iter();
     while let Some(a) = it.next() {
         match a.as_str() {
             "--quick" => quick = true,
+            "--reps" => {
+                reps = it
+                    .next()
+                    .and_then(|s| s.parse().ok())
+                    .filter(|&r| r >= 1)
+                    .unwrap_or_else(|| usage())
+            }
             "--busy-poll" => {
                 busy_poll_us = it
                     .next()
@@ -1122,25 +1168,35 @@ fn orchestrate(args: &[String]) {
             if filter.as_ref().is_some_and(|f| !name.contains(f.as_str())) {
                 continue;
             }
-            let t = Instant::now();
-            let s0 = cpu_ticks();
-            let c = orch.courier(case, pl);
-            let tc = t.elapsed().as_secs_f64();
-            let s1 = cpu_ticks();
-            let d = orch.ddsperf(case, pl);
-            let td = t.elapsed().as_secs_f64() - tc;
-            let s2 = cpu_ticks();
-            // the busier of the two phases
-            let foreign = match (foreign_load(s0, s1, tc), foreign_load(s1, s2, td)) {
-                (Some(a), Some(b)) => Some(a.max(b)),
-                (a, b) => a.or(b),
-            };
-            eprintln!(
-                "{name}: Courier {} in {tc:.1} s, ddsperf {} in {td:.1} s; other processes: {}",
-                cell(case.kind, &c),
-                cell(case.kind, &d),
-                foreign.map_or("?".into(), |f| format!("{f:.2} CPU")),
-            );
+            // Courier and ddsperf alternate, `reps` runs each
+            let (mut cs, mut ds) = (Vec::new(), Vec::new());
+            let mut foreign: Option<f64> = None;
+            for _ in 0..reps {
+                let t = Instant::now();
+                let s0 = cpu_ticks();
+                let c = orch.courier(case, pl);
+                let tc = t.elapsed().as_secs_f64();
+                let s1 = cpu_ticks();
+                let d = orch.ddsperf(case, pl);
+                let td = t.elapsed().as_secs_f64() - tc;
+                let s2 = cpu_ticks();
+                // the busiest phase of all
+                for f in [foreign_load(s0, s1, tc), foreign_load(s1, s2, td)]
+                    .into_iter()
+                    .flatten()
+                {
+                    foreign = Some(foreign.map_or(f, |g| g.max(f)));
+                }
+                eprintln!(
+                    "{name}: Courier {} in {tc:.1} s, ddsperf {} in {td:.1} s; other processes: {}",
+                    cell(case.kind, &c),
+                    cell(case.kind, &d),
+                    foreign.map_or("?".into(), |f| format!("{f:.2} CPU")),
+                );
+                cs.push(c);
+                ds.push(d);
+            }
+            let (c, d) = (median_outcome(case.kind, cs), median_outcome(case.kind, ds));
             let name = if foreign.is_some_and(|f| f > BUSY) {
                 format!("{name} ⚠")
             } else {
@@ -1150,12 +1206,17 @@ fn orchestrate(args: &[String]) {
         }
     }
     println!(
-        "\nRTPS on loopback, Courier ↔ Courier vs Cyclone ddsperf ↔ ddsperf ({}; {} CPUs online; \
+        "\nRTPS on loopback, Courier ↔ Courier vs Cyclone ddsperf ↔ ddsperf ({}; {}; {} CPUs online; \
          {:.0} s)\n",
         if quick {
             "--quick: short smoke run, not for comparison"
         } else {
             "default durations"
+        },
+        if reps > 1 {
+            format!("median of {reps} alternating runs, their range in brackets")
+        } else {
+            "one run each".to_string()
         },
         std::thread::available_parallelism().map_or(0, |n| n.get()),
         started.elapsed().as_secs_f64()

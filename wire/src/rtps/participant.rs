@@ -5,7 +5,9 @@
 //! received datagrams with [`Participant::handle_datagram`] and explicit time
 //! with [`Participant::handle_timeout`] (when [`Participant::poll_timeout`]
 //! says so), and takes out datagrams to send ([`Participant::poll_transmit`],
-//! each with its destination [`Locator`]) and [`Event`]s
+//! each with its destination [`Locator`]; or [`Participant::poll_transmission`],
+//! whose large sample data stays in the writer's history for a vectored
+//! send) and [`Event`]s
 //! ([`Participant::poll_event`]). Writing a sample, creating or deleting an
 //! endpoint and closing are method calls that take `now` too.
 //!
