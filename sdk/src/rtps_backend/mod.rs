@@ -459,10 +459,10 @@ impl Backend for RtpsBackend {
     }
 
     async fn publish(&self, msg: &str, data: Vec<u8>) -> Result<(), SessionError> {
-        // the usual case without a second boxed future: a known publication
-        // and room in the queue budget
-        // a write that never waits still counts against tokio's cooperative
-        // budget, so a publishing loop lets the driver and other tasks run
+        // The usual case (a known publication, room in the queue budget)
+        // needs no second boxed future. A write that never waits still
+        // counts against tokio's cooperative budget, so that a publishing
+        // loop lets the driver and other tasks run.
         tokio::task::consume_budget().await;
         match self.try_queue(msg, data, None) {
             Ok(done) => done,
