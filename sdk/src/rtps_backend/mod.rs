@@ -326,6 +326,16 @@ impl RtpsBackend {
         self.participant_index
     }
 
+    /// The shared name of this session's publication `msg`, if it has one
+    /// (each write shares it instead of copying the name).
+    fn publication(&self, msg: &str) -> Option<Arc<str>> {
+        self.published
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .get(msg)
+            .cloned()
+    }
+
     /// Queues an unconfirmed write of a known publication without
     /// waiting, when the queue budget has room; otherwise gives the data
     /// back for [`RtpsBackend::write_slow`].
@@ -335,13 +345,10 @@ impl RtpsBackend {
         data: Vec<u8>,
         key_hash: Option<[u8; 16]>,
     ) -> Result<Result<(), SessionError>, Vec<u8>> {
-        let topic = self
-            .published
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .get(msg)
-            .cloned();
-        let Some(topic) = topic.filter(|_| data.len() <= MAX_WRITE_SIZE) else {
+        let Some(topic) = self
+            .publication(msg)
+            .filter(|_| data.len() <= MAX_WRITE_SIZE)
+        else {
             return Err(data);
         };
         let Ok(permit) = self
@@ -372,13 +379,7 @@ impl RtpsBackend {
         data: Vec<u8>,
         opts: WriteOptions,
     ) -> Result<(), SessionError> {
-        // a publication's name is shared, not copied, by each write
-        let known = self
-            .published
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .get(msg)
-            .cloned();
+        let known = self.publication(msg);
         let topic = known.clone().unwrap_or_else(|| Arc::from(msg));
         if let (None, Some(topic)) = (opts.confirm, known) {
             if data.len() > MAX_WRITE_SIZE {
