@@ -34,7 +34,7 @@
 //!   per-instance keep-last or keep-all history, transient-local replay for
 //!   late joiners, GAP for what a reader will never get, INFO_TS source
 //!   timestamps and INFO_DST addressing. Large samples are cut with
-//!   [`frag`](super::frag) and reassembled with its [`Reassembler`];
+//!   [`frag`] and reassembled with its [`Reassembler`];
 //!   a reliable reader asks for missing fragments with NACK_FRAG and a writer
 //!   answers NACK_FRAG with just those fragments.
 //! - Dispose and unregister both ways on the wire: a DATA with inline
