@@ -3121,10 +3121,42 @@ mod tests {
             (ChangeKind::Alive, None, None, &b""[..])
         );
         assert!(open(b"short").data.is_empty());
+        // with a related sample identity (a reply): the longer trailer
+        let r = SampleIdentity {
+            writer: Guid::from_bytes([9; 16]),
+            sequence_number: SequenceNumber(1 << 33 | 5),
+        };
+        let e = envelope_with(ChangeKind::Alive, Some(k), Some(t), Some(r), b"reply");
+        let o = open(&e);
+        assert_eq!(
+            (o.related, o.key_hash, o.data),
+            (Some(r), Some(k), &b"reply"[..])
+        );
         for b in 0..4 {
             let k = ChangeKind::from_bits(b);
             assert_eq!(ChangeKind::from_status(k.status_info()), k);
         }
+    }
+
+    /// A received sample leaves as the buffer it arrived in when nothing
+    /// else holds it (the large-sample path copies nothing here), and as a
+    /// copy when another reader shares it.
+    #[test]
+    fn into_data_hands_the_buffer_on() {
+        let mut data = Vec::with_capacity(5000 + ENVELOPE_ROOM);
+        data.extend((0..5000u32).map(|i| i as u8));
+        let at = data.as_ptr();
+        let env = envelope_from_vec(data, ChangeKind::Alive, None, None, None);
+        let g = Guid::from_bytes([1; 16]);
+        let s = ReceivedSample::new(g, g, SequenceNumber(1), env);
+        assert_eq!(s.data().len(), 5000);
+        let shared = s.clone();
+        let copy = shared.into_data();
+        assert_ne!(copy.as_ptr(), at);
+        let own = s.into_data();
+        assert_eq!(own.as_ptr(), at, "the buffer was copied");
+        assert_eq!(own, copy);
+        assert_eq!(own[4999], (4999u32 as u8));
     }
 
     #[test]
