@@ -260,21 +260,23 @@ async fn pong(url: &str, spin: Option<Duration>) {
     s.close().await;
 }
 
+/// Waits until every message in `msgs` has a handler (`pong` subscribed).
+async fn wait_for_handlers(s: &Session, msgs: &[&str]) {
+    let t0 = Instant::now();
+    for msg in msgs {
+        while s.num_handlers(msg).await.unwrap() < 1 {
+            assert!(t0.elapsed() < T, "nobody handles {msg}: is `pong` running?");
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    }
+}
+
 /// One-way throughput: `count` messages on `rtt_flood` (which `pong`
 /// takes at capacity 1, each acknowledged to central), then one query: its
 /// answer comes after central delivered every message before it.
 async fn flood(url: &str, spin: Option<Duration>, size: usize, count: usize) {
     let s = role_session(url, "rtt_flood", spin).await;
-    let t0 = Instant::now();
-    while s.num_handlers("rtt_flood").await.unwrap() < 1
-        || s.num_handlers("rtt_ask").await.unwrap() < 1
-    {
-        assert!(
-            t0.elapsed() < T,
-            "nobody handles rtt_flood: is `pong` running?"
-        );
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    }
+    wait_for_handlers(&s, &["rtt_flood", "rtt_ask"]).await;
     let payload = Blob {
         n: size as i32,
         data: vec![7u8; size],
@@ -300,14 +302,7 @@ async fn ping(url: &str, spin: Option<Duration>, publish: bool, size: usize, cou
     let s = role_session(url, "rtt_ping", spin).await;
     let target = if publish { "rtt_ping" } else { "rtt_ask" };
     let mut pongs = s.subscribe::<Blob>("rtt_pong").await.unwrap();
-    let t0 = Instant::now();
-    while s.num_handlers(target).await.unwrap() < 1 {
-        assert!(
-            t0.elapsed() < T,
-            "nobody handles {target}: is `pong` running?"
-        );
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    }
+    wait_for_handlers(&s, &[target]).await;
     let payload = Blob {
         n: size as i32,
         data: vec![7u8; size],

@@ -3159,13 +3159,18 @@ mod tests {
         assert_eq!(own[4999], (4999u32 as u8));
     }
 
-    #[test]
-    fn outbox_packs_by_destination_and_size() {
-        let h = Header {
+    /// The header of the outbox tests' participant.
+    fn test_header() -> Header {
+        Header {
             version: PROTOCOL_VERSION,
             vendor: VENDOR_ID,
             guid_prefix: GuidPrefix([1; 12]),
-        };
+        }
+    }
+
+    #[test]
+    fn outbox_packs_by_destination_and_size() {
+        let h = test_header();
         let a = Locator::udpv4([127, 0, 0, 1], 7410);
         let b = Locator::udpv4([127, 0, 0, 1], 7412);
         let t = Time {
@@ -3214,11 +3219,7 @@ mod tests {
     /// bytes the submessages serialized in place would have been.
     #[test]
     fn large_sample_data_is_carried_by_reference() {
-        let h = Header {
-            version: PROTOCOL_VERSION,
-            vendor: VENDOR_ID,
-            guid_prefix: GuidPrefix([1; 12]),
-        };
+        let h = test_header();
         let to = Locator::udpv4([127, 0, 0, 1], 7410);
         let dst = GuidPrefix([2; 12]);
         let ts = Some(Time {
