@@ -16,8 +16,8 @@
 //! whose scheduler then polls the I/O driver without blocking
 //! (`epoll_wait(.., 0)`), and every few turns calls `sched_yield(2)` too, so
 //! that other processes on the same CPU still run: three spinning processes
-//! on two vCPUs take turns instead of waiting out a scheduler time slice. This works on a
-//! **current-thread** runtime, where the spinning task and the I/O driver
+//! on two vCPUs take turns instead of waiting out a scheduler time slice.
+//! This works on a **current-thread** runtime, where the spinning task and the I/O driver
 //! share the thread. On a multi-thread runtime an idle worker sleeps in the
 //! I/O driver and still has to be woken, so busy polling brings little
 //! there.

@@ -775,10 +775,6 @@ fn is_keyed_entity(g: Guid) -> bool {
 // ---------------------------------------------------------------------------
 // The driver
 
-/// Slices one vectored send takes at most: far more than a message of at
-/// most 64 KiB made of parts of at least 1 KiB needs.
-const MAX_PARTS: usize = 160;
-
 struct Io {
     meta: UdpSocket,
     user: UdpSocket,
@@ -828,43 +824,27 @@ impl Io {
             self.refused += 1;
             return;
         };
-        if let Some(d) = t.as_slice() {
-            // one piece (small samples): a plain sendto
-            match self.user.try_send_to(d, addr) {
-                Ok(_) => {}
-                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
-                    if self.user.send_to(d, addr).await.is_err() {
-                        self.send_errors += 1;
-                    }
-                }
-                Err(_) => self.send_errors += 1,
+        match t.as_slice() {
+            Some(d) => self.send_parts(&[IoSlice::new(d)], addr).await,
+            None => {
+                let parts: Vec<IoSlice<'_>> = t.parts().map(IoSlice::new).collect();
+                self.send_parts(&parts, addr).await
             }
-            return;
         }
-        let mut parts: [IoSlice<'_>; MAX_PARTS] = [IoSlice::new(&[]); MAX_PARTS];
-        let mut n = 0;
-        for p in t.parts() {
-            if n == MAX_PARTS {
-                break;
-            }
-            parts[n] = IoSlice::new(p);
-            n += 1;
-        }
-        if n == MAX_PARTS {
-            // more pieces than one call takes (never, with the message
-            // sizes allowed): send a copy
-            let d = t.clone().into_datagram();
-            return self.send_one(&[IoSlice::new(&d.payload)], addr).await;
-        }
-        self.send_one(&parts[..n], addr).await;
     }
 
-    async fn send_one(&mut self, parts: &[IoSlice<'_>], addr: SocketAddr) {
-        let to = socket2::SockAddr::from(addr);
+    /// One datagram made of `parts`: a plain `sendto` for one piece (small
+    /// samples), `sendmsg` for several; waits while the socket is full.
+    async fn send_parts(&mut self, parts: &[IoSlice<'_>], addr: SocketAddr) {
+        let to = (parts.len() > 1).then(|| socket2::SockAddr::from(addr));
         loop {
-            let sent = self.user.try_io(Interest::WRITABLE, || {
-                socket2::SockRef::from(&self.user).send_to_vectored(parts, &to)
-            });
+            let sent = match (parts, &to) {
+                ([one], _) => self.user.try_send_to(one, addr),
+                (_, Some(to)) => self.user.try_io(Interest::WRITABLE, || {
+                    socket2::SockRef::from(&self.user).send_to_vectored(parts, to)
+                }),
+                (_, None) => return, // no parts: nothing to send
+            };
             match sent {
                 Ok(_) => return,
                 Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
