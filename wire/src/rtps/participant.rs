@@ -1019,25 +1019,21 @@ impl Unit {
 /// The datagram being filled for one destination (locator + INFO_DST
 /// prefix).
 struct Queue {
-    to: Locator,
     dst: GuidPrefix,
-    buf: Vec<u8>,
-    /// Sample data carried by reference (see [`Transmission`]).
-    shared: Vec<(usize, Payload, Range<usize>)>,
-    /// Bytes in `shared`.
-    shared_len: usize,
+    /// The datagram so far (empty: none begun).
+    t: Transmission,
     /// The INFO_TS in force at the end of the datagram.
     ts: Option<Time>,
 }
 
 impl Queue {
     fn take(&mut self) -> Transmission {
-        self.shared_len = 0;
-        Transmission {
-            destination: self.to,
-            head: std::mem::take(&mut self.buf),
-            shared: std::mem::take(&mut self.shared),
-        }
+        let empty = Transmission {
+            destination: self.t.destination,
+            head: Vec::new(),
+            shared: Vec::new(),
+        };
+        std::mem::replace(&mut self.t, empty)
     }
 }
 
@@ -1131,15 +1127,20 @@ impl Outbox {
         share: Option<(Payload, Range<usize>)>,
         write: impl FnOnce(&mut Vec<u8>),
     ) {
-        let i = match self.queues.iter().position(|q| q.to == to && q.dst == dst) {
+        let i = match self
+            .queues
+            .iter()
+            .position(|q| q.t.destination == to && q.dst == dst)
+        {
             Some(i) => i,
             None => {
                 self.queues.push(Queue {
-                    to,
                     dst,
-                    buf: Vec::new(),
-                    shared: Vec::new(),
-                    shared_len: 0,
+                    t: Transmission {
+                        destination: to,
+                        head: Vec::new(),
+                        shared: Vec::new(),
+                    },
                     ts: None,
                 });
                 self.queues.len() - 1
@@ -1148,37 +1149,37 @@ impl Outbox {
         let q = &mut self.queues[i];
         let base = super::HEADER_SIZE + if dst == GuidPrefix::UNKNOWN { 0 } else { 16 };
         let ts_len = |q: &Queue| if ts.is_some() && ts != q.ts { 12 } else { 0 };
-        let filled = q.buf.len() + q.shared_len;
+        let filled = q.t.len();
         if filled > base && filled + ts_len(q) + len > self.max {
             let t = q.take();
             self.full.push(t);
         }
-        if q.buf.is_empty() {
+        let buf = &mut q.t.head;
+        if buf.is_empty() {
             // most datagrams carry a few small submessages; a big one (a
             // fragment) gets its size at once instead of growing into it
             let own = len - share.as_ref().map_or(0, |(_, r)| r.len());
             let want = base + 12 + own;
-            q.buf = Vec::with_capacity(if want > 1500 {
+            *buf = Vec::with_capacity(if want > 1500 {
                 want.min(self.max)
             } else {
                 1500
             });
-            self.header.write(&mut q.buf);
+            self.header.write(buf);
             if dst != GuidPrefix::UNKNOWN {
-                Submessage::InfoDst(dst).write(&mut q.buf, true);
+                Submessage::InfoDst(dst).write(buf, true);
             }
             q.ts = None;
         }
         if let Some(t) = ts {
             if q.ts != Some(t) {
-                Submessage::InfoTs(Some(t)).write(&mut q.buf, true);
+                Submessage::InfoTs(Some(t)).write(buf, true);
                 q.ts = Some(t);
             }
         }
-        write(&mut q.buf);
+        write(buf);
         if let Some((p, r)) = share {
-            q.shared_len += r.len();
-            q.shared.push((q.buf.len(), p, r));
+            q.t.shared.push((buf.len(), p, r));
         }
     }
 
@@ -1187,8 +1188,8 @@ impl Outbox {
         let open = self
             .queues
             .drain(..)
-            .filter(|q| !q.buf.is_empty())
-            .map(|mut q| q.take());
+            .filter(|q| !q.t.head.is_empty())
+            .map(|q| q.t);
         for t in self.full.drain(..).chain(open) {
             stats.datagrams_sent += 1;
             stats.bytes_sent += t.len() as u64;
