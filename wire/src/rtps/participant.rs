@@ -1539,6 +1539,11 @@ pub struct Participant {
     nackfrag_count: i32,
     outbox: Outbox,
     out: VecDeque<Transmission>,
+    /// Something may have queued a transmission since the last
+    /// [`Participant::gather`]: set by every `&mut` entry point that can
+    /// change what the writers and readers want sent, so that asking for
+    /// the next datagram when nothing changed costs no walk over them.
+    gather_due: bool,
     events: VecDeque<Event>,
     stats: Stats,
 }
@@ -1615,6 +1620,7 @@ impl Participant {
             nackfrag_count: 0,
             outbox: Outbox::new(header, cfg.max_message_size),
             out: VecDeque::new(),
+            gather_due: true,
             events: VecDeque::new(),
             stats: Stats::default(),
             cfg,
@@ -1735,7 +1741,7 @@ impl Participant {
     /// into the datagram: for a sender that can send a [`Transmission`]'s
     /// parts with one vectored call.
     pub fn poll_transmission(&mut self) -> Option<Transmission> {
-        if self.out.is_empty() {
+        if self.out.is_empty() && self.gather_due {
             self.gather();
         }
         self.out.pop_front()
@@ -1766,6 +1772,7 @@ impl Participant {
     /// Fires what is due at `now`: SPDP announcements, lease expiry,
     /// heartbeats.
     pub fn handle_timeout(&mut self, now: Instant) {
+        self.gather_due = true;
         if self.closed {
             return;
         }
@@ -1788,6 +1795,7 @@ impl Participant {
     /// A datagram arrived from `source` at `now`. Any bytes are accepted:
     /// what does not parse is counted in [`Stats`] and otherwise ignored.
     pub fn handle_datagram(&mut self, source: Locator, datagram: &[u8], now: Instant) {
+        self.gather_due = true;
         self.stats.datagrams_received += 1;
         if self.closed {
             self.stats.datagrams_ignored += 1;
@@ -1865,6 +1873,7 @@ impl Participant {
         config: EndpointConfig,
         now: Instant,
     ) -> Result<Guid, CreateError> {
+        self.gather_due = true;
         let (guid, data) = self.new_endpoint(config, EndpointKind::Writer)?;
         let keyed = guid.entity.kind() == 0x02;
         let q = &data.qos;
@@ -1919,6 +1928,7 @@ impl Participant {
         config: EndpointConfig,
         now: Instant,
     ) -> Result<Guid, CreateError> {
+        self.gather_due = true;
         let (guid, data) = self.new_endpoint(config, EndpointKind::Reader)?;
         let reliable = matches!(data.qos.reliability, Reliability::Reliable(_));
         self.announce_endpoint(&data, false, now);
@@ -1978,6 +1988,7 @@ impl Participant {
     /// Deletes a local writer: its readers are unmatched and a dispose is
     /// announced. Returns false if there is no such writer.
     pub fn delete_writer(&mut self, writer: Guid, now: Instant) -> bool {
+        self.gather_due = true;
         if !self.is_local(writer) {
             return false;
         }
@@ -2006,6 +2017,7 @@ impl Participant {
     /// Deletes a local reader: its writers are unmatched and a dispose is
     /// announced. Returns false if there is no such reader.
     pub fn delete_reader(&mut self, reader: Guid, now: Instant) -> bool {
+        self.gather_due = true;
         if !self.is_local(reader) {
             return false;
         }
@@ -2039,6 +2051,7 @@ impl Participant {
         change: Change<'_>,
         now: Instant,
     ) -> Result<SequenceNumber, WriteError> {
+        self.gather_due = true;
         if self.closed {
             return Err(WriteError::Closed);
         }
@@ -2101,6 +2114,7 @@ impl Participant {
     /// its readers to acknowledge at once (writes normally ask only every
     /// few samples); for confirmed writes.
     pub fn request_ack(&mut self, writer: Guid) {
+        self.gather_due = true;
         if !self.is_local(writer) {
             return;
         }
@@ -2113,6 +2127,7 @@ impl Participant {
     /// itself are disposed (sent now, see [`Participant::poll_transmit`]);
     /// afterwards nothing is sent or received.
     pub fn close(&mut self, now: Instant) {
+        self.gather_due = true;
         if self.closed {
             return;
         }
@@ -2946,6 +2961,8 @@ impl Participant {
 
     /// Moves what the writers and readers want sent into datagrams.
     fn gather(&mut self) {
+        // everything pending goes into `out` below
+        self.gather_due = false;
         let shape = self.shape();
         let route = Route {
             participants: &self.participants,
