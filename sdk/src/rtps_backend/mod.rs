@@ -862,9 +862,16 @@ impl Io {
     }
 }
 
-async fn readable_opt(s: &Option<UdpSocket>) -> std::io::Result<()> {
+/// The socket has data. The driver is its only reader, so it waits in the
+/// socket's one receive-waker slot (`poll_recv_ready`), not in the list of
+/// waiters that `readable()` joins and leaves on every turn.
+async fn recv_ready(s: &UdpSocket) -> std::io::Result<()> {
+    std::future::poll_fn(|cx| s.poll_recv_ready(cx)).await
+}
+
+async fn recv_ready_opt(s: &Option<UdpSocket>) -> std::io::Result<()> {
     match s {
-        Some(s) => s.readable().await,
+        Some(s) => recv_ready(s).await,
         None => std::future::pending().await,
     }
 }
@@ -887,23 +894,31 @@ struct Driver {
 
 impl Driver {
     async fn run(mut self) {
+        // one timer for the driver's life, moved only when the next
+        // wake-up changes (a fresh `sleep_until` per turn registered and
+        // removed a timer entry every time)
+        let sleep = tokio::time::sleep_until(self.st.next_wakeup().into());
+        tokio::pin!(sleep);
         loop {
             self.st.pump(Instant::now());
             while let Some(t) = self.st.p.poll_transmission() {
                 self.io.send(&t).await;
             }
-            let wake_at = self.st.next_wakeup();
+            let wake_at = tokio::time::Instant::from(self.st.next_wakeup());
+            if sleep.deadline() != wake_at {
+                sleep.as_mut().reset(wake_at);
+            }
             let paused = self.st.full_queue();
             let io = &self.io;
             let wake = tokio::select! {
                 biased;
                 c = self.cmd.recv() => Wake::Cmd(c),
-                _ = io.meta.readable() => Wake::Readable(0),
-                _ = io.user.readable(), if paused.is_none() => Wake::Readable(1),
-                _ = readable_opt(&io.meta_mc) => Wake::Readable(2),
-                _ = readable_opt(&io.user_mc), if paused.is_none() => Wake::Readable(3),
+                _ = recv_ready(&io.meta) => Wake::Readable(0),
+                _ = recv_ready(&io.user), if paused.is_none() => Wake::Readable(1),
+                _ = recv_ready_opt(&io.meta_mc) => Wake::Readable(2),
+                _ = recv_ready_opt(&io.user_mc), if paused.is_none() => Wake::Readable(3),
                 _ = async { if let Some(q) = &paused { q.space().await } }, if paused.is_some() => Wake::Space,
-                _ = tokio::time::sleep_until(wake_at.into()) => Wake::Timer,
+                _ = &mut sleep => Wake::Timer,
             };
             let now = Instant::now();
             if let (Some(s), Wake::Cmd(_) | Wake::Readable(_)) = (&self.spin, &wake) {
