@@ -1544,6 +1544,11 @@ pub struct Participant {
     /// change what the writers and readers want sent, so that asking for
     /// the next datagram when nothing changed costs no walk over them.
     gather_due: bool,
+    /// [`Participant::poll_timeout`]'s answer, until an entry point
+    /// changes something (the driver asks several times per turn).
+    /// Gathering does not move a timeout: the writers' `poll_transmit`
+    /// leaves their heartbeat timers alone.
+    next_timeout: std::cell::Cell<Option<Option<Instant>>>,
     events: VecDeque<Event>,
     stats: Stats,
 }
@@ -1621,6 +1626,7 @@ impl Participant {
             outbox: Outbox::new(header, cfg.max_message_size),
             out: VecDeque::new(),
             gather_due: true,
+            next_timeout: std::cell::Cell::new(None),
             events: VecDeque::new(),
             stats: Stats::default(),
             cfg,
@@ -1754,6 +1760,15 @@ impl Participant {
 
     /// When [`Participant::handle_timeout`] must be called next.
     pub fn poll_timeout(&self) -> Option<Instant> {
+        if let Some(t) = self.next_timeout.get() {
+            return t;
+        }
+        let t = self.compute_timeout();
+        self.next_timeout.set(Some(t));
+        t
+    }
+
+    fn compute_timeout(&self) -> Option<Instant> {
         if self.closed {
             return None;
         }
@@ -1772,7 +1787,7 @@ impl Participant {
     /// Fires what is due at `now`: SPDP announcements, lease expiry,
     /// heartbeats.
     pub fn handle_timeout(&mut self, now: Instant) {
-        self.gather_due = true;
+        self.touch();
         if self.closed {
             return;
         }
@@ -1795,7 +1810,7 @@ impl Participant {
     /// A datagram arrived from `source` at `now`. Any bytes are accepted:
     /// what does not parse is counted in [`Stats`] and otherwise ignored.
     pub fn handle_datagram(&mut self, source: Locator, datagram: &[u8], now: Instant) {
-        self.gather_due = true;
+        self.touch();
         self.stats.datagrams_received += 1;
         if self.closed {
             self.stats.datagrams_ignored += 1;
@@ -1873,7 +1888,7 @@ impl Participant {
         config: EndpointConfig,
         now: Instant,
     ) -> Result<Guid, CreateError> {
-        self.gather_due = true;
+        self.touch();
         let (guid, data) = self.new_endpoint(config, EndpointKind::Writer)?;
         let keyed = guid.entity.kind() == 0x02;
         let q = &data.qos;
@@ -1928,7 +1943,7 @@ impl Participant {
         config: EndpointConfig,
         now: Instant,
     ) -> Result<Guid, CreateError> {
-        self.gather_due = true;
+        self.touch();
         let (guid, data) = self.new_endpoint(config, EndpointKind::Reader)?;
         let reliable = matches!(data.qos.reliability, Reliability::Reliable(_));
         self.announce_endpoint(&data, false, now);
@@ -1988,7 +2003,7 @@ impl Participant {
     /// Deletes a local writer: its readers are unmatched and a dispose is
     /// announced. Returns false if there is no such writer.
     pub fn delete_writer(&mut self, writer: Guid, now: Instant) -> bool {
-        self.gather_due = true;
+        self.touch();
         if !self.is_local(writer) {
             return false;
         }
@@ -2017,7 +2032,7 @@ impl Participant {
     /// Deletes a local reader: its writers are unmatched and a dispose is
     /// announced. Returns false if there is no such reader.
     pub fn delete_reader(&mut self, reader: Guid, now: Instant) -> bool {
-        self.gather_due = true;
+        self.touch();
         if !self.is_local(reader) {
             return false;
         }
@@ -2051,7 +2066,7 @@ impl Participant {
         change: Change<'_>,
         now: Instant,
     ) -> Result<SequenceNumber, WriteError> {
-        self.gather_due = true;
+        self.touch();
         if self.closed {
             return Err(WriteError::Closed);
         }
@@ -2114,7 +2129,7 @@ impl Participant {
     /// its readers to acknowledge at once (writes normally ask only every
     /// few samples); for confirmed writes.
     pub fn request_ack(&mut self, writer: Guid) {
-        self.gather_due = true;
+        self.touch();
         if !self.is_local(writer) {
             return;
         }
@@ -2127,7 +2142,7 @@ impl Participant {
     /// itself are disposed (sent now, see [`Participant::poll_transmit`]);
     /// afterwards nothing is sent or received.
     pub fn close(&mut self, now: Instant) {
-        self.gather_due = true;
+        self.touch();
         if self.closed {
             return;
         }
@@ -2957,6 +2972,13 @@ impl Participant {
                 self.events.push_back(Event::SampleReceived(s));
             }
         }
+    }
+
+    /// An entry point may change what is to be sent and when the next
+    /// timeout is due.
+    fn touch(&mut self) {
+        self.gather_due = true;
+        self.next_timeout.set(None);
     }
 
     /// Moves what the writers and readers want sent into datagrams.
