@@ -49,9 +49,8 @@ use courier_wire::rtps::participant::{
 };
 use courier_wire::rtps::{Guid, GuidPrefix, Locator, SequenceNumber, Time};
 use courier_wire::{cdr, IpcMessage};
+use net::UdpSocket;
 use std::io::IoSlice;
-use tokio::io::Interest;
-use tokio::net::UdpSocket;
 use tokio::sync::{mpsc, oneshot, OwnedSemaphorePermit, Semaphore};
 
 use crate::busy_poll::BusyPoll;
@@ -268,7 +267,10 @@ impl RtpsBackend {
         }
         cfg.lease_duration = opts.lease;
         cfg.entity_name = Some(name.to_string());
-        let locator = SocketAddr::from((address, socks.meta.local_addr().map_or(0, |a| a.port())));
+        let locator = SocketAddr::from((
+            address,
+            socks.meta.get_ref().local_addr().map_or(0, |a| a.port()),
+        ));
         let index = socks.index;
         let now = Instant::now();
         let p = Participant::new(cfg, now, SystemTime::now());
@@ -839,16 +841,16 @@ impl Io {
         let to = (parts.len() > 1).then(|| socket2::SockAddr::from(addr));
         loop {
             let sent = match (parts, &to) {
-                ([one], _) => self.user.try_send_to(one, addr),
-                (_, Some(to)) => self.user.try_io(Interest::WRITABLE, || {
-                    socket2::SockRef::from(&self.user).send_to_vectored(parts, to)
-                }),
+                ([one], _) => self.user.get_ref().send_to(one, addr),
+                (_, Some(to)) => {
+                    socket2::SockRef::from(self.user.get_ref()).send_to_vectored(parts, to)
+                }
                 (_, None) => return, // no parts: nothing to send
             };
             match sent {
                 Ok(_) => return,
                 Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
-                    if self.user.writable().await.is_err() {
+                    if net::wait_writable(&self.user).await.is_err() {
                         self.send_errors += 1;
                         return;
                     }
@@ -863,10 +865,12 @@ impl Io {
 }
 
 /// The socket has data. The driver is its only reader, so it waits in the
-/// socket's one receive-waker slot (`poll_recv_ready`), not in the list of
+/// socket's one read-waker slot (`poll_read_ready`), not in the list of
 /// waiters that `readable()` joins and leaves on every turn.
 async fn recv_ready(s: &UdpSocket) -> std::io::Result<()> {
-    std::future::poll_fn(|cx| s.poll_recv_ready(cx)).await
+    // the guard is dropped without clearing: `recv_batch` clears readiness
+    // when it finds the queue empty
+    std::future::poll_fn(|cx| s.poll_read_ready(cx).map_ok(drop)).await
 }
 
 async fn recv_ready_opt(s: &Option<UdpSocket>) -> std::io::Result<()> {

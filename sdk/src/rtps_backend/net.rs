@@ -6,7 +6,17 @@ use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4};
 
 use courier_wire::rtps::participant::{PortMapping, SPDP_MULTICAST_ADDRESS};
 use socket2::{Domain, Protocol, Socket, Type};
-use tokio::net::UdpSocket;
+use tokio::io::unix::AsyncFd;
+use tokio::io::Interest;
+
+/// A participant's UDP socket, registered with tokio for reading only.
+///
+/// A socket registered for writability too is woken by the kernel (an
+/// `EPOLLOUT` callback, then an event for tokio to process) every time a
+/// sent datagram's buffer is freed, which on loopback is every send. Sends
+/// go straight to the nonblocking socket instead; only a full send buffer
+/// waits for room, through [`wait_writable`].
+pub(crate) type UdpSocket = AsyncFd<std::net::UdpSocket>;
 
 use super::options::RtpsOptions;
 
@@ -109,7 +119,25 @@ fn udp(bind: SocketAddrV4, reuse: bool, o: &RtpsOptions) -> io::Result<Socket> {
 }
 
 fn tokio_socket(s: Socket) -> io::Result<UdpSocket> {
-    UdpSocket::from_std(s.into())
+    register(s.into(), Interest::READABLE)
+}
+
+#[allow(unsafe_code)]
+fn register(s: std::net::UdpSocket, interest: Interest) -> io::Result<UdpSocket> {
+    // SAFETY: the `AsyncFd` owns the socket, whose descriptor stays open
+    // and the same until the `AsyncFd` is dropped (nothing hands it out
+    // mutably or swaps it)
+    unsafe { AsyncFd::register_with_interest(s, interest) }.map_err(|e| e.into_parts().1)
+}
+
+/// Waits until `sock` can take another datagram. The socket is registered
+/// for reading only, so a duplicate of its descriptor is registered for
+/// writing for as long as the wait lasts (rare: a UDP send buffer is full
+/// only while a NIC's queue is).
+pub(crate) async fn wait_writable(sock: &UdpSocket) -> io::Result<()> {
+    let dup = register(sock.get_ref().try_clone()?, Interest::WRITABLE)?;
+    let _ready = dup.writable().await?;
+    Ok(())
 }
 
 /// The sockets of one participant.
@@ -244,7 +272,7 @@ pub(crate) fn recv_batch(sock: &UdpSocket, b: &mut RecvBatch) -> io::Result<usiz
         from,
         n: got,
     } = b;
-    let r = sock.try_io(tokio::io::Interest::READABLE, || {
+    let r = sock.try_io(Interest::READABLE, |_| {
         // SAFETY: all-zero is a valid value of these plain C structs
         let mut addrs: [libc::sockaddr_storage; RECV_SLOTS] = unsafe { std::mem::zeroed() };
         let mut iov: [libc::iovec; RECV_SLOTS] = unsafe { std::mem::zeroed() };
@@ -318,7 +346,7 @@ fn sockaddr_v4(a: &libc::sockaddr_storage) -> SocketAddr {
 pub(crate) fn recv_batch(sock: &UdpSocket, b: &mut RecvBatch) -> io::Result<usize> {
     b.n = 0;
     while b.n < RECV_SLOTS {
-        match sock.try_recv_from(&mut b.bufs[b.n]) {
+        match sock.try_io(Interest::READABLE, |s| s.recv_from(&mut b.bufs[b.n])) {
             Ok((len, from)) => {
                 b.lens[b.n] = len;
                 b.from[b.n] = from;
@@ -330,4 +358,57 @@ pub(crate) fn recv_batch(sock: &UdpSocket, b: &mut RecvBatch) -> io::Result<usiz
         }
     }
     Ok(b.n)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    fn bound() -> UdpSocket {
+        let s = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+        s.set_nonblocking(true).unwrap();
+        register(s, Interest::READABLE).unwrap()
+    }
+
+    /// A socket registered for reading only can still wait for room to
+    /// send (through a registered duplicate), again and again.
+    #[tokio::test]
+    async fn a_read_only_socket_waits_for_room_to_send() {
+        let s = bound();
+        for _ in 0..3 {
+            tokio::time::timeout(Duration::from_secs(5), wait_writable(&s))
+                .await
+                .expect("an empty send buffer has room")
+                .unwrap();
+        }
+    }
+
+    /// Datagrams sent past tokio arrive through the read-only registration:
+    /// a batch read takes them, and once the queue is seen empty the
+    /// socket waits for the next one.
+    #[tokio::test]
+    async fn datagrams_arrive_through_the_read_only_registration() {
+        let rx = bound();
+        let tx = bound();
+        let to = rx.get_ref().local_addr().unwrap();
+        let mut b = RecvBatch::new();
+        for round in 0..3u8 {
+            for i in 0..3u8 {
+                tx.get_ref().send_to(&[round, i], to).unwrap();
+            }
+            let mut got = Vec::new();
+            while got.len() < 3 {
+                tokio::time::timeout(Duration::from_secs(5), async {
+                    let _ready = rx.readable().await.unwrap();
+                })
+                .await
+                .expect("readable");
+                let n = recv_batch(&rx, &mut b).unwrap();
+                got.extend((0..n).map(|k| b.get(k).0.to_vec()));
+            }
+            assert_eq!(got, vec![vec![round, 0], vec![round, 1], vec![round, 2]]);
+            assert_eq!(recv_batch(&rx, &mut b).unwrap(), 0, "nothing left");
+        }
+    }
 }
