@@ -264,6 +264,11 @@ async fn ping(o: &Opts) -> Res {
     let mut retries = 0u64;
     let mut measuring_from: Option<Instant> = None;
     let give_up = Instant::now() + Duration::from_secs_f64(o.warmup + o.secs + 30.0);
+    // one timer, moved forward for each ping (a `timeout` per ping would
+    // put a timer-wheel entry in and take it out every round trip: tokio's
+    // cost, not the library's)
+    let retry = tokio::time::sleep(PING_RETRY);
+    tokio::pin!(retry);
     loop {
         let now = Instant::now();
         match measuring_from {
@@ -280,21 +285,26 @@ async fn ping(o: &Opts) -> Res {
         }
         v.seq = v.seq.wrapping_add(1) % END;
         v.ts_ns = clock.elapsed().as_nanos() as u64;
+        retry.as_mut().reset((now + PING_RETRY).into());
         p.publish(&v).await.map_err(|e| e.to_string())?;
         loop {
-            match tokio::time::timeout(PING_RETRY, pongs.next()).await {
-                Err(_) => {
+            let next = tokio::select! {
+                biased;
+                r = pongs.next() => r,
+                _ = &mut retry => {
                     retries += 1;
                     break;
                 }
-                Ok(None) => return Err("ping: session closed".into()),
-                Ok(Some(Err(e))) => return Err(format!("ping: {e}")),
-                Ok(Some(Ok(r))) if r.value.seq == v.seq => {
+            };
+            match next {
+                None => return Err("ping: session closed".into()),
+                Some(Err(e)) => return Err(format!("ping: {e}")),
+                Some(Ok(r)) if r.value.seq == v.seq => {
                     let rtt = (clock.elapsed().as_nanos() as u64).saturating_sub(r.value.ts_ns);
                     rtts.push(rtt);
                     break;
                 }
-                Ok(Some(Ok(_))) => {} // a late answer to a retried ping
+                Some(Ok(_)) => {} // a late answer to a retried ping
             }
         }
     }
@@ -346,13 +356,20 @@ async fn pong(o: &Opts) -> Res {
     let mut n = 0u64;
     // ping gives up after warm-up + secs + 30 s; so does pong, a bit later
     let idle = Duration::from_secs_f64(o.warmup + o.secs + 40.0);
+    let quiet = tokio::time::sleep(idle);
+    tokio::pin!(quiet);
     loop {
-        match tokio::time::timeout(idle, pings.next()).await {
-            Err(_) => return Err("pong: no ping for too long".into()),
-            Ok(None) => return Err("pong: session closed".into()),
-            Ok(Some(Err(e))) => return Err(format!("pong: {e}")),
-            Ok(Some(Ok(v))) => {
+        let next = tokio::select! {
+            biased;
+            r = pings.next() => r,
+            _ = &mut quiet => return Err("pong: no ping for too long".into()),
+        };
+        match next {
+            None => return Err("pong: session closed".into()),
+            Some(Err(e)) => return Err(format!("pong: {e}")),
+            Some(Ok(v)) => {
                 p.publish(&v.value).await.map_err(|e| e.to_string())?;
+                quiet.as_mut().reset(tokio::time::Instant::now() + idle);
                 n += 1;
                 if v.value.seq == END {
                     break;
