@@ -297,9 +297,29 @@ impl<'a> Message<'a> {
     /// Parses a datagram. Every length is checked against the datagram;
     /// unknown submessages are skipped by length.
     pub fn parse(b: &'a [u8]) -> Result<Message<'a>, Error> {
-        let header = Header::parse(b)?;
         let mut submessages = Vec::new();
         let mut little_endian = Vec::new();
+        let header = Self::parse_each(b, |little, sm| {
+            submessages.push(sm);
+            little_endian.push(little);
+        })?;
+        Ok(Message {
+            header,
+            submessages,
+            little_endian,
+        })
+    }
+
+    /// [`Message::parse`] without building a `Message`: each submessage is
+    /// handed to `each` with its byte order (true: little-endian) as it is
+    /// parsed, so the caller chooses where they go. An error can come after
+    /// some submessages were handed over: a caller that must not act on a
+    /// malformed datagram collects them and acts once this returns `Ok`.
+    pub fn parse_each(
+        b: &'a [u8],
+        mut each: impl FnMut(bool, Submessage<'a>),
+    ) -> Result<Header, Error> {
+        let header = Header::parse(b)?;
         let mut pos = HEADER_SIZE;
         while pos < b.len() {
             if b.len() - pos < 4 {
@@ -334,15 +354,10 @@ impl<'a> Message<'a> {
                 });
             }
             let body = &b[body_start..body_end];
-            submessages.push(parse_submessage(id, flags, body, body_start)?);
-            little_endian.push(little);
+            each(little, parse_submessage(id, flags, body, body_start)?);
             pos = body_end;
         }
-        Ok(Message {
-            header,
-            submessages,
-            little_endian,
-        })
+        Ok(header)
     }
 
     /// A message to send: submessages written little-endian.

@@ -129,6 +129,7 @@ use super::reliability::Payload;
 
 // seeded per process: keyed by GUIDs and key hashes off the network
 use foldhash::{HashMap, HashMapExt};
+use smallvec::SmallVec;
 use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
@@ -1816,27 +1817,30 @@ impl Participant {
             self.stats.datagrams_ignored += 1;
             return;
         }
-        let msg = match Message::parse(datagram) {
-            Ok(m) => m,
+        // the whole datagram is checked before any of it is acted on; a
+        // datagram's few submessages stay off the heap
+        let mut sms: SmallVec<[(bool, Submessage<'_>); 8]> = SmallVec::new();
+        let header = match Message::parse_each(datagram, |little, sm| sms.push((little, sm))) {
+            Ok(h) => h,
             Err(_) => {
                 self.stats.datagrams_malformed += 1;
                 return;
             }
         };
         let ours = self.cfg.guid_prefix;
-        if msg.header.guid_prefix == ours {
+        if header.guid_prefix == ours {
             self.stats.datagrams_ignored += 1;
             return;
         }
-        self.participants.renew(msg.header.guid_prefix, now);
+        self.participants.renew(header.guid_prefix, now);
         let mut rx = Rx {
-            src: msg.header.guid_prefix,
+            src: header.guid_prefix,
             dst: GuidPrefix::UNKNOWN,
             ts: None,
-            vendor: msg.header.vendor,
+            vendor: header.vendor,
         };
-        for (i, sm) in msg.submessages.iter().enumerate() {
-            let little = msg.little_endian.get(i).copied().unwrap_or(true);
+        for (little, sm) in &sms {
+            let little = *little;
             match sm {
                 Submessage::InfoTs(t) => {
                     rx.ts = *t;
