@@ -903,8 +903,10 @@ impl Driver {
         // removed a timer entry every time)
         let sleep = tokio::time::sleep_until(self.st.next_wakeup().into());
         tokio::pin!(sleep);
+        // one clock reading per turn, taken when the driver wakes
+        let mut now = Instant::now();
         loop {
-            self.st.pump(Instant::now());
+            self.st.pump(now);
             while let Some(t) = self.st.p.poll_transmission() {
                 self.io.send(&t).await;
             }
@@ -924,7 +926,7 @@ impl Driver {
                 _ = async { if let Some(q) = &paused { q.space().await } }, if paused.is_some() => Wake::Space,
                 _ = &mut sleep => Wake::Timer,
             };
-            let now = Instant::now();
+            now = Instant::now();
             if let (Some(s), Wake::Cmd(_) | Wake::Readable(_)) = (&self.spin, &wake) {
                 s.activity();
             }
@@ -951,7 +953,7 @@ impl Driver {
                 Wake::Space => {}
                 Wake::Timer => {}
             }
-            self.st.tick(Instant::now());
+            self.st.tick(now);
         }
         self.close(Instant::now()).await;
     }
