@@ -45,7 +45,7 @@ use courier_wire::rtps::discovery::{
 };
 use courier_wire::rtps::participant::{
     self, Change, ChangeKind, Config, EndpointConfig, Event, KeyHash, LostReason, Participant,
-    ReceivedSample, SampleIdentity, Transmission, WriteError, MAX_WRITE_SIZE,
+    ReceivedSample, SampleIdentity, Transmission, MAX_WRITE_SIZE,
 };
 use courier_wire::rtps::{Guid, GuidPrefix, Locator, SequenceNumber, Time};
 use courier_wire::{cdr, IpcMessage};
@@ -1815,13 +1815,23 @@ impl State {
     }
 
     /// Writes now, or gives the write back when the history is full.
-    fn try_write(&mut self, topic: &str, pw: PendingWrite, now: Instant) -> Option<PendingWrite> {
+    fn try_write(
+        &mut self,
+        topic: &str,
+        mut pw: PendingWrite,
+        now: Instant,
+    ) -> Option<PendingWrite> {
         let Some(w) = self.writers.get(topic) else {
             pw.done.send(Err(disconnected()));
             return None;
         };
         let guid = w.guid;
-        let mut change = Change::alive(&pw.data);
+        if !self.p.has_room(guid, pw.data.len()) {
+            return Some(pw); // a full keep-all history: wait for acknowledgements
+        }
+        // the encoded sample becomes the history's copy (the CDR writer
+        // left room for its envelope)
+        let mut change = Change::alive_owned(std::mem::take(&mut pw.data));
         change.kind = pw.kind;
         change.key_hash = pw.key_hash.map(KeyHash);
         if pw.confirm.is_some() {
@@ -1844,7 +1854,6 @@ impl State {
                 }
                 None
             }
-            Err(WriteError::HistoryFull(_)) => Some(pw),
             Err(e) => {
                 pw.done.send(Err(SessionError::Refused(format!(
                     "cannot publish {topic}: {e}"

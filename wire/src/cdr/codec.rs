@@ -61,6 +61,12 @@ struct Pending {
     kind: MemberKind,
 }
 
+/// Spare capacity a [`Writer`] keeps after its data when it grows for a
+/// large write, so that a transport can append its framing to the encoded
+/// buffer (the RTPS writer history appends a sample's envelope) without
+/// reallocating and copying a large sample.
+pub const TAIL_ROOM: usize = 64;
+
 /// Appends CDR-encoded data to a buffer.
 #[derive(Debug, Clone)]
 pub struct Writer {
@@ -107,7 +113,8 @@ impl Writer {
     /// extensibility `ext`; alignment is relative to the byte after it.
     pub fn with_header(encoding: Encoding, ext: Extensibility) -> Self {
         let id = RepresentationId::for_type(encoding, ext) as u16;
-        let mut buf = Vec::with_capacity(64);
+        // a small sample and TAIL_ROOM fit without growing
+        let mut buf = Vec::with_capacity(64 + TAIL_ROOM);
         buf.extend_from_slice(&id.to_be_bytes());
         buf.extend_from_slice(&[0, 0]);
         Writer {
@@ -142,9 +149,9 @@ impl Writer {
         self.buf
     }
 
-    /// Reserves room for `n` more bytes.
+    /// Reserves room for `n` more bytes (and [`TAIL_ROOM`] after them).
     pub fn reserve(&mut self, n: usize) {
-        self.buf.reserve(n);
+        self.buf.reserve(n + TAIL_ROOM);
     }
 
     /// Effective alignment for an item of natural alignment `n` (XCDR2 caps it at 4).
@@ -221,6 +228,11 @@ impl Writer {
     #[inline]
     pub fn write_bytes(&mut self, b: &[u8]) {
         self.first(LC_NEXTINT);
+        if self.buf.capacity() - self.buf.len() < b.len() {
+            // a large write grows the buffer to fit it exactly; keep room
+            // for what a transport appends (see TAIL_ROOM)
+            self.buf.reserve(b.len() + TAIL_ROOM);
+        }
         self.buf.extend_from_slice(b);
     }
 

@@ -24,7 +24,7 @@
 
 mod codec;
 
-pub use codec::{MemberHeader, Reader, StructReader, StructWriter, Writer, MAX_DEPTH};
+pub use codec::{MemberHeader, Reader, StructReader, StructWriter, Writer, MAX_DEPTH, TAIL_ROOM};
 
 use crate::IpcMessage;
 

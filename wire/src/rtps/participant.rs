@@ -445,7 +445,7 @@ impl ChangeKind {
 }
 
 /// A change to write: a sample, or a dispose/unregister of an instance.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Change<'a> {
     /// Sample or dispose/unregister.
     pub kind: ChangeKind,
@@ -453,7 +453,10 @@ pub struct Change<'a> {
     /// encapsulation header. Otherwise: the serialized key with its
     /// encapsulation header (sent with the K flag), or empty (then only the
     /// key hash identifies the instance).
-    pub data: &'a [u8],
+    /// Owned data becomes the writer history's copy without another copy
+    /// when it has [`ENVELOPE_ROOM`] spare capacity (what
+    /// [`crate::cdr::Writer`] leaves).
+    pub data: Cow<'a, [u8]>,
     /// The instance's key hash (keyed topics): sent inline and used for the
     /// per-instance keep-last history.
     pub key_hash: Option<KeyHash>,
@@ -520,6 +523,15 @@ const VENDOR_EPROSIMA: VendorId = VendorId([0x01, 0x0f]);
 impl<'a> Change<'a> {
     /// A sample.
     pub fn alive(data: &'a [u8]) -> Self {
+        Change::alive_owned_or_borrowed(Cow::Borrowed(data))
+    }
+
+    /// A sample whose serialized data the participant takes.
+    pub fn alive_owned(data: Vec<u8>) -> Change<'static> {
+        Change::alive_owned_or_borrowed(Cow::Owned(data))
+    }
+
+    fn alive_owned_or_borrowed(data: Cow<'a, [u8]>) -> Self {
         Change {
             kind: ChangeKind::Alive,
             data,
@@ -533,7 +545,7 @@ impl<'a> Change<'a> {
     pub fn dispose(key: &'a [u8], key_hash: KeyHash) -> Self {
         Change {
             kind: ChangeKind::Disposed,
-            data: key,
+            data: Cow::Borrowed(key),
             key_hash: Some(key_hash),
             source_timestamp: None,
             related_sample_identity: None,
@@ -586,22 +598,32 @@ fn envelope(
     ts: Option<Time>,
     data: &[u8],
 ) -> Envelope {
-    envelope_with(kind, key_hash, ts, None, data)
+    envelope_with(kind, key_hash, ts, None, Cow::Borrowed(data))
 }
 
 /// An envelope that may also carry a related sample identity (24 more
-/// bytes before the trailer, flag bit 2).
+/// bytes before the trailer, flag bit 2). Owned data with room for the
+/// trailer is used as it is.
 fn envelope_with(
     kind: ChangeKind,
     key_hash: Option<KeyHash>,
     ts: Option<Time>,
     related: Option<SampleIdentity>,
-    data: &[u8],
+    data: Cow<'_, [u8]>,
 ) -> Envelope {
-    let mut v = Vec::with_capacity(data.len() + ENVELOPE_ROOM);
-    v.extend_from_slice(data);
+    let v = match data {
+        Cow::Owned(v) if v.capacity() - v.len() >= ENVELOPE_ROOM => v,
+        data => {
+            let mut v = Vec::with_capacity(data.len() + ENVELOPE_ROOM);
+            v.extend_from_slice(&data);
+            v
+        }
+    };
     envelope_from_vec(v, kind, key_hash, ts, related)
 }
+
+// the CDR writer's spare capacity takes an envelope's trailer
+const _: () = assert!(ENVELOPE_ROOM <= crate::cdr::TAIL_ROOM);
 
 /// An envelope around data the caller owns: the trailer is appended to it.
 fn envelope_from_vec(
@@ -2129,6 +2151,18 @@ impl Participant {
         Ok(sn)
     }
 
+    /// True when [`Participant::write`] of `len` bytes to this local writer
+    /// would not fail with [`WriteError::HistoryFull`]: a caller handing
+    /// over owned data can keep it instead when it would.
+    pub fn has_room(&mut self, writer: Guid, len: usize) -> bool {
+        if !self.is_local(writer) {
+            return true; // write answers UnknownWriter
+        }
+        self.writers
+            .get_mut(&writer.entity)
+            .is_none_or(|lw| lw.writer.has_room(len + ENVELOPE_ROOM))
+    }
+
     /// Makes the next [`Participant::write`] of a reliable local writer ask
     /// its readers to acknowledge at once (writes normally ask only every
     /// few samples); for confirmed writes.
@@ -2736,9 +2770,13 @@ impl Participant {
                     (_, Some(Cow::Owned(v))) => {
                         envelope_from_vec(v, kind, key_hash, rx.ts, related)
                     }
-                    (_, p) => {
-                        envelope_with(kind, key_hash, rx.ts, related, p.as_deref().unwrap_or(&[]))
-                    }
+                    (_, p) => envelope_with(
+                        kind,
+                        key_hash,
+                        rx.ts,
+                        related,
+                        Cow::Borrowed(p.as_deref().unwrap_or(&[])),
+                    ),
                 };
                 let mut delivered = false;
                 for (e, lr) in self.readers.iter_mut() {
@@ -3170,7 +3208,13 @@ mod tests {
             writer: Guid::from_bytes([9; 16]),
             sequence_number: SequenceNumber(1 << 33 | 5),
         };
-        let e = envelope_with(ChangeKind::Alive, Some(k), Some(t), Some(r), b"reply");
+        let e = envelope_with(
+            ChangeKind::Alive,
+            Some(k),
+            Some(t),
+            Some(r),
+            Cow::Borrowed(b"reply"),
+        );
         let o = open(&e);
         assert_eq!(
             (o.related, o.key_hash, o.data),
@@ -3180,6 +3224,28 @@ mod tests {
             let k = ChangeKind::from_bits(b);
             assert_eq!(ChangeKind::from_status(k.status_info()), k);
         }
+    }
+
+    /// Owned data with room for the trailer becomes the envelope as it is
+    /// (what a publisher's CDR buffer gives); without room it is copied.
+    #[test]
+    fn owned_data_with_room_becomes_the_envelope() {
+        use crate::cdr::{Encoding, Extensibility, Writer};
+        let mut w = Writer::with_header(Encoding::Xcdr1Le, Extensibility::Final);
+        w.write_u32(70_000);
+        w.write_bytes(&[7; 70_000]);
+        let sample = w.into_vec();
+        assert!(sample.capacity() - sample.len() >= ENVELOPE_ROOM);
+        let (at, len) = (sample.as_ptr(), sample.len());
+        let e = envelope_with(ChangeKind::Alive, None, None, None, Cow::Owned(sample));
+        assert_eq!(e.as_ptr(), at, "not copied");
+        assert_eq!(data_len(&e), len);
+        let mut exact = vec![1u8, 2, 3];
+        exact.shrink_to_fit();
+        let at = exact.as_ptr();
+        let e = envelope_with(ChangeKind::Alive, None, None, None, Cow::Owned(exact));
+        assert_ne!(e.as_ptr(), at);
+        assert_eq!(open(&e).data, &[1, 2, 3][..]);
     }
 
     /// A received sample leaves as the buffer it arrived in when nothing

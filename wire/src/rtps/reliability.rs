@@ -379,21 +379,10 @@ impl Writer {
     /// writer's heartbeat follows the last of the samples queued together,
     /// so that a burst of writes costs one heartbeat.
     pub fn write(&mut self, payload: Payload, now: Instant) -> Option<SequenceNumber> {
-        let keep_all_reliable = self.depth.is_none() && self.reliable;
         // unacknowledged bytes once this sample is in (keep-all reliable only;
         // a sum over the history when acknowledged samples are retained)
-        let mut unacked_after = 0;
-        if keep_all_reliable {
-            self.release_acked();
-            if self.history.len() >= self.max_samples {
-                return None;
-            }
-            let unacked = self.unacked_bytes();
-            if unacked > 0 && unacked + payload.len() > self.max_unacked_bytes {
-                return None;
-            }
-            unacked_after = unacked + payload.len();
-        }
+        let keep_all_reliable = self.depth.is_none() && self.reliable;
+        let unacked_after = self.unacked_after(payload.len())?;
         let sn = self.next_sn;
         self.next_sn += 1;
         self.history_bytes += payload.len();
@@ -542,6 +531,31 @@ impl Writer {
                 }
             }
         }
+    }
+
+    /// True when [`Writer::write`] would take a sample of `len` bytes now
+    /// (a keep-all reliable history can be full, in samples or in
+    /// unacknowledged bytes).
+    pub fn has_room(&mut self, len: usize) -> bool {
+        self.unacked_after(len).is_some()
+    }
+
+    /// The unacknowledged bytes once a sample of `len` bytes is in (0 when
+    /// the writer does not count them), or `None` when it does not fit.
+    fn unacked_after(&mut self, len: usize) -> Option<usize> {
+        let keep_all_reliable = self.depth.is_none() && self.reliable;
+        if !keep_all_reliable {
+            return Some(0);
+        }
+        self.release_acked();
+        if self.history.len() >= self.max_samples {
+            return None;
+        }
+        let unacked = self.unacked_bytes();
+        if unacked > 0 && unacked + len > self.max_unacked_bytes {
+            return None;
+        }
+        Some(unacked + len)
     }
 
     /// The next thing to send.
