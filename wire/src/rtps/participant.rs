@@ -454,8 +454,8 @@ pub struct Change<'a> {
     /// encapsulation header (sent with the K flag), or empty (then only the
     /// key hash identifies the instance).
     /// Owned data becomes the writer history's copy without another copy
-    /// when it has [`ENVELOPE_ROOM`] spare capacity (what
-    /// [`crate::cdr::Writer`] leaves).
+    /// when it has spare capacity for the history's bookkeeping, as a
+    /// buffer from [`crate::cdr::Writer`] has ([`crate::cdr::TAIL_ROOM`]).
     pub data: Cow<'a, [u8]>,
     /// The instance's key hash (keyed topics): sent inline and used for the
     /// per-instance keep-last history.
