@@ -1091,6 +1091,33 @@ mod tests {
         assert_eq!(w.acked_by_all(), SequenceNumber(10));
     }
 
+    /// `has_room` says beforehand what `write` will do, at the sample
+    /// limit and at the unacknowledged-bytes limit, so that a caller can
+    /// keep data it would otherwise hand over to a refused write.
+    #[test]
+    fn has_room_agrees_with_write_at_both_limits() {
+        let t0 = Instant::now();
+        let mut w = Writer::new(guid(1), true, None, 4, Duration::from_millis(10));
+        w.add_reader(guid(2), false, t0);
+        for i in 0..4u8 {
+            assert!(w.has_room(1));
+            assert!(w.write(Arc::from(vec![i]), t0).is_some());
+        }
+        assert!(!w.has_room(1));
+        assert_eq!(w.write(Arc::from(vec![9u8]), t0), None);
+
+        let mut w =
+            Writer::new(guid(1), true, None, 100, Duration::from_millis(10)).max_unacked_bytes(250);
+        w.add_reader(guid(2), false, t0);
+        // the first sample always fits; then up to 250 unacknowledged bytes
+        assert!(w.has_room(1000));
+        assert!(w.write(Arc::from(vec![0u8; 100]), t0).is_some());
+        assert!(w.has_room(150) && !w.has_room(151));
+        assert!(w.write(Arc::from(vec![0u8; 151]), t0).is_none());
+        assert!(w.write(Arc::from(vec![0u8; 150]), t0).is_some());
+        assert!(!w.has_room(1));
+    }
+
     #[test]
     fn best_effort_reader_drops_old_and_duplicates() {
         let wg = guid(1);
