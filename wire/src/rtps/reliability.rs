@@ -387,7 +387,15 @@ impl Writer {
         self.next_sn += 1;
         self.history_bytes += payload.len();
         self.history.push(sn, payload.clone());
-        let limit = self.depth.unwrap_or(self.max_samples);
+        // A best-effort writer resends nothing, so unless it keeps samples
+        // for late joiners (transient-local) a sample needs no place in the
+        // history once it is queued: a keep-all history of 64 KiB samples
+        // held 256 MiB that nothing would read.
+        let limit = if self.reliable || self.retain_acked {
+            self.depth.unwrap_or(self.max_samples)
+        } else {
+            0
+        };
         while self.history.len() > limit {
             self.pop_oldest();
         }
@@ -435,6 +443,11 @@ impl Writer {
         self.readers
             .values()
             .all(|r| !r.reliable || r.acked_below > sn.0)
+    }
+
+    /// Samples in the history.
+    pub fn history_len(&self) -> usize {
+        self.history.len()
     }
 
     /// Makes the heartbeat piggybacked on the next write ask every reader
@@ -1089,6 +1102,38 @@ mod tests {
         }
         assert_eq!(w.write(Arc::from(vec![15u8]), t0), None);
         assert_eq!(w.acked_by_all(), SequenceNumber(10));
+    }
+
+    /// A volatile best-effort writer keeps nothing once a sample is queued
+    /// (it resends nothing); a transient-local one keeps its depth for
+    /// late joiners; a reliable one keeps what is unacknowledged.
+    #[test]
+    fn only_writers_that_may_resend_keep_a_history() {
+        let t0 = Instant::now();
+        let mut be = Writer::new(guid(1), false, None, 4096, Duration::from_millis(10));
+        be.add_best_effort_reader(guid(2));
+        for i in 0..100u8 {
+            let sn = be.write(Arc::from(vec![i; 1000]), t0).expect("room");
+            assert_eq!(be.history_len(), 0);
+            match be.poll_transmit() {
+                Some(Transmit::Data { sn: s, payload, .. }) => {
+                    assert_eq!((s, payload[0]), (sn, i), "the queued sample still goes out");
+                }
+                t => panic!("expected the sample, got {t:?}"),
+            }
+        }
+        let mut durable = Writer::new(guid(1), false, Some(3), 4096, Duration::from_millis(10))
+            .retain_acked(true);
+        for i in 0..10u8 {
+            durable.write(Arc::from(vec![i]), t0).expect("room");
+        }
+        assert_eq!(durable.history_len(), 3);
+        let mut rel = Writer::new(guid(1), true, None, 4096, Duration::from_millis(10));
+        rel.add_reader(guid(2), false, t0);
+        for i in 0..10u8 {
+            rel.write(Arc::from(vec![i]), t0).expect("room");
+        }
+        assert_eq!(rel.history_len(), 10, "unacknowledged: kept for repair");
     }
 
     /// `has_room` says beforehand what `write` will do, at the sample
