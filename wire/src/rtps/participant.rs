@@ -523,15 +523,15 @@ const VENDOR_EPROSIMA: VendorId = VendorId([0x01, 0x0f]);
 impl<'a> Change<'a> {
     /// A sample.
     pub fn alive(data: &'a [u8]) -> Self {
-        Change::alive_owned_or_borrowed(Cow::Borrowed(data))
+        Change::alive_with(Cow::Borrowed(data))
     }
 
     /// A sample whose serialized data the participant takes.
     pub fn alive_owned(data: Vec<u8>) -> Change<'static> {
-        Change::alive_owned_or_borrowed(Cow::Owned(data))
+        Change::alive_with(Cow::Owned(data))
     }
 
-    fn alive_owned_or_borrowed(data: Cow<'a, [u8]>) -> Self {
+    fn alive_with(data: Cow<'a, [u8]>) -> Self {
         Change {
             kind: ChangeKind::Alive,
             data,
