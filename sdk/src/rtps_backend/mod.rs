@@ -50,6 +50,7 @@ use courier_wire::rtps::participant::{
 use courier_wire::rtps::{Guid, GuidPrefix, Locator, SequenceNumber, Time};
 use courier_wire::{cdr, IpcMessage};
 use net::UdpSocket;
+use smallvec::SmallVec;
 use std::io::IoSlice;
 use tokio::sync::{mpsc, oneshot, OwnedSemaphorePermit, Semaphore};
 
@@ -373,6 +374,27 @@ impl RtpsBackend {
             .map_err(|_| disconnected()))
     }
 
+    /// A write: queued at once in the usual case (a known publication, no
+    /// confirmation, room in the queue budget), with no boxed future of its
+    /// own; else [`RtpsBackend::write_slow`]. A write that never waits still
+    /// counts against tokio's cooperative budget, so that a publishing loop
+    /// lets the driver and other tasks run.
+    async fn queue_write(
+        &self,
+        msg: &str,
+        data: Vec<u8>,
+        opts: WriteOptions,
+    ) -> Result<(), SessionError> {
+        if opts.confirm.is_some() {
+            return self.write_slow(msg, data, opts).await;
+        }
+        tokio::task::consume_budget().await;
+        match self.try_queue(msg, data, opts.key_hash) {
+            Ok(done) => done,
+            Err(data) => self.write_slow(msg, data, opts).await,
+        }
+    }
+
     /// A write that may wait: for room in the queue budget, or for the
     /// driver's answer (confirmed writes, unknown publications).
     async fn write_slow(
@@ -462,15 +484,7 @@ impl Backend for RtpsBackend {
     }
 
     async fn publish(&self, msg: &str, data: Vec<u8>) -> Result<(), SessionError> {
-        // The usual case (a known publication, room in the queue budget)
-        // needs no second boxed future. A write that never waits still
-        // counts against tokio's cooperative budget, so that a publishing
-        // loop lets the driver and other tasks run.
-        tokio::task::consume_budget().await;
-        match self.try_queue(msg, data, None) {
-            Ok(done) => done,
-            Err(data) => self.write_slow(msg, data, WriteOptions::default()).await,
-        }
+        self.queue_write(msg, data, WriteOptions::default()).await
     }
 
     async fn subscribe(&self, msg: &str, queue: Arc<SampleQueue>) -> Result<(), SessionError> {
@@ -664,14 +678,7 @@ impl Backend for RtpsBackend {
         data: Vec<u8>,
         opts: WriteOptions,
     ) -> Result<(), SessionError> {
-        if opts.confirm.is_some() {
-            return self.write_slow(msg, data, opts).await;
-        }
-        tokio::task::consume_budget().await;
-        match self.try_queue(msg, data, opts.key_hash) {
-            Ok(done) => done,
-            Err(data) => self.write_slow(msg, data, opts).await,
-        }
+        self.queue_write(msg, data, opts).await
     }
 
     async fn end_instance(
@@ -826,13 +833,9 @@ impl Io {
             self.refused += 1;
             return;
         };
-        match t.as_slice() {
-            Some(d) => self.send_parts(&[IoSlice::new(d)], addr).await,
-            None => {
-                let parts: Vec<IoSlice<'_>> = t.parts().map(IoSlice::new).collect();
-                self.send_parts(&parts, addr).await
-            }
-        }
+        // a few parts (2 per shared piece + 1), kept off the heap
+        let parts: SmallVec<[IoSlice<'_>; 8]> = t.parts().map(IoSlice::new).collect();
+        self.send_parts(&parts, addr).await
     }
 
     /// One datagram made of `parts`: a plain `sendto` for one piece (small

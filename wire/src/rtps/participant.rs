@@ -602,8 +602,9 @@ fn envelope(
 }
 
 /// An envelope that may also carry a related sample identity (24 more
-/// bytes before the trailer, flag bit 2). Owned data with room for the
-/// trailer is used as it is.
+/// bytes before the trailer, flag bit 2). Owned data is used as it is: in
+/// place when it has [`ENVELOPE_ROOM`] to spare (a reassembled sample, a
+/// CDR writer's buffer), else grown once.
 fn envelope_with(
     kind: ChangeKind,
     key_hash: Option<KeyHash>,
@@ -612,10 +613,10 @@ fn envelope_with(
     data: Cow<'_, [u8]>,
 ) -> Envelope {
     let v = match data {
-        Cow::Owned(v) if v.capacity() - v.len() >= ENVELOPE_ROOM => v,
-        data => {
-            let mut v = Vec::with_capacity(data.len() + ENVELOPE_ROOM);
-            v.extend_from_slice(&data);
+        Cow::Owned(v) => v,
+        Cow::Borrowed(d) => {
+            let mut v = Vec::with_capacity(d.len() + ENVELOPE_ROOM);
+            v.extend_from_slice(d);
             v
         }
     };
@@ -885,11 +886,6 @@ impl Transmission {
     /// Whether it is empty (never, for a transmission from a participant).
     pub fn is_empty(&self) -> bool {
         self.len() == 0
-    }
-
-    /// Its bytes in one slice, when nothing is carried by reference.
-    pub fn as_slice(&self) -> Option<&[u8]> {
-        self.shared.is_empty().then_some(&self.head[..])
     }
 
     /// Its bytes, in order, as a few slices (at most `2 × shared + 1`).
@@ -2767,16 +2763,7 @@ impl Participant {
                 };
                 let env = match (kind, payload) {
                     (ChangeKind::Alive, None) => return,
-                    (_, Some(Cow::Owned(v))) => {
-                        envelope_from_vec(v, kind, key_hash, rx.ts, related)
-                    }
-                    (_, p) => envelope_with(
-                        kind,
-                        key_hash,
-                        rx.ts,
-                        related,
-                        Cow::Borrowed(p.as_deref().unwrap_or(&[])),
-                    ),
+                    (_, p) => envelope_with(kind, key_hash, rx.ts, related, p.unwrap_or_default()),
                 };
                 let mut delivered = false;
                 for (e, lr) in self.readers.iter_mut() {
@@ -3227,7 +3214,8 @@ mod tests {
     }
 
     /// Owned data with room for the trailer becomes the envelope as it is
-    /// (what a publisher's CDR buffer gives); without room it is copied.
+    /// (what a publisher's CDR buffer gives); without room it still opens
+    /// to the same data.
     #[test]
     fn owned_data_with_room_becomes_the_envelope() {
         use crate::cdr::{Encoding, Extensibility, Writer};
@@ -3242,9 +3230,7 @@ mod tests {
         assert_eq!(data_len(&e), len);
         let mut exact = vec![1u8, 2, 3];
         exact.shrink_to_fit();
-        let at = exact.as_ptr();
         let e = envelope_with(ChangeKind::Alive, None, None, None, Cow::Owned(exact));
-        assert_ne!(e.as_ptr(), at);
         assert_eq!(open(&e).data, &[1, 2, 3][..]);
     }
 

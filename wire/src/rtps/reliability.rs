@@ -381,7 +381,7 @@ impl Writer {
     pub fn write(&mut self, payload: Payload, now: Instant) -> Option<SequenceNumber> {
         // unacknowledged bytes once this sample is in (keep-all reliable only;
         // a sum over the history when acknowledged samples are retained)
-        let keep_all_reliable = self.depth.is_none() && self.reliable;
+        let keep_all_reliable = self.keep_all_reliable();
         let unacked_after = self.unacked_after(payload.len())?;
         let sn = self.next_sn;
         self.next_sn += 1;
@@ -443,11 +443,6 @@ impl Writer {
         self.readers
             .values()
             .all(|r| !r.reliable || r.acked_below > sn.0)
-    }
-
-    /// Samples in the history.
-    pub fn history_len(&self) -> usize {
-        self.history.len()
     }
 
     /// Makes the heartbeat piggybacked on the next write ask every reader
@@ -546,6 +541,12 @@ impl Writer {
         }
     }
 
+    /// A keep-all reliable writer keeps what is unacknowledged, bounded in
+    /// samples and in bytes.
+    fn keep_all_reliable(&self) -> bool {
+        self.depth.is_none() && self.reliable
+    }
+
     /// True when [`Writer::write`] would take a sample of `len` bytes now
     /// (a keep-all reliable history can be full, in samples or in
     /// unacknowledged bytes).
@@ -556,8 +557,7 @@ impl Writer {
     /// The unacknowledged bytes once a sample of `len` bytes is in (0 when
     /// the writer does not count them), or `None` when it does not fit.
     fn unacked_after(&mut self, len: usize) -> Option<usize> {
-        let keep_all_reliable = self.depth.is_none() && self.reliable;
-        if !keep_all_reliable {
+        if !self.keep_all_reliable() {
             return Some(0);
         }
         self.release_acked();
@@ -1114,7 +1114,7 @@ mod tests {
         be.add_best_effort_reader(guid(2));
         for i in 0..100u8 {
             let sn = be.write(Arc::from(vec![i; 1000]), t0).expect("room");
-            assert_eq!(be.history_len(), 0);
+            assert_eq!(be.samples().count(), 0);
             match be.poll_transmit() {
                 Some(Transmit::Data { sn: s, payload, .. }) => {
                     assert_eq!((s, payload[0]), (sn, i), "the queued sample still goes out");
@@ -1127,13 +1127,13 @@ mod tests {
         for i in 0..10u8 {
             durable.write(Arc::from(vec![i]), t0).expect("room");
         }
-        assert_eq!(durable.history_len(), 3);
+        assert_eq!(durable.samples().count(), 3);
         let mut rel = Writer::new(guid(1), true, None, 4096, Duration::from_millis(10));
         rel.add_reader(guid(2), false, t0);
         for i in 0..10u8 {
             rel.write(Arc::from(vec![i]), t0).expect("room");
         }
-        assert_eq!(rel.history_len(), 10, "unacknowledged: kept for repair");
+        assert_eq!(rel.samples().count(), 10, "unacknowledged: kept for repair");
     }
 
     /// `has_room` says beforehand what `write` will do, at the sample
