@@ -110,11 +110,49 @@ impl Default for QueuePolicy {
     }
 }
 
+/// Sample buffers a [`Subscriber`] has decoded, on their way back to the
+/// backend that filled them (RTPS: to be reassembled into again).
+#[derive(Debug, Default)]
+pub(crate) struct ReturnedBuffers {
+    bufs: std::sync::Mutex<Vec<Vec<u8>>>,
+    /// Set with every buffer given, cleared by the taker: the taker's
+    /// check costs no lock while nothing comes back.
+    any: std::sync::atomic::AtomicBool,
+}
+
+impl ReturnedBuffers {
+    /// Most buffers waiting to be taken; the rest are freed.
+    const MAX: usize = 64;
+
+    fn give(&self, b: Vec<u8>) {
+        use std::sync::atomic::Ordering;
+        let mut g = self.bufs.lock().unwrap();
+        if g.len() < Self::MAX {
+            g.push(b);
+            self.any.store(true, Ordering::Release);
+        }
+    }
+
+    /// Hands every buffer given back so far to `f`.
+    pub(crate) fn take(&self, mut f: impl FnMut(Vec<u8>)) {
+        use std::sync::atomic::Ordering;
+        if !self.any.swap(false, Ordering::Acquire) {
+            return;
+        }
+        for b in self.bufs.lock().unwrap().drain(..) {
+            f(b);
+        }
+    }
+}
+
 /// The queue between a backend and one subscription.
 #[derive(Debug)]
 pub struct SampleQueue {
     state: std::sync::Mutex<QueueState>,
     space: tokio::sync::Notify,
+    /// Where a typed subscriber puts decoded sample buffers, if the backend
+    /// reuses them.
+    returns: std::sync::OnceLock<Arc<ReturnedBuffers>>,
 }
 
 #[derive(Debug)]
@@ -148,7 +186,24 @@ impl SampleQueue {
                 waker: None,
             }),
             space: tokio::sync::Notify::new(),
+            returns: std::sync::OnceLock::new(),
         })
+    }
+
+    /// Decoded sample buffers of this queue go back to `to` (once set, for
+    /// the queue's life).
+    pub(crate) fn return_buffers_to(&self, to: &Arc<ReturnedBuffers>) {
+        let _ = self.returns.set(to.clone());
+    }
+
+    /// A sample buffer the subscriber is done with.
+    fn give_back(&self, buf: Vec<u8>) {
+        // small buffers are the allocator's business
+        if buf.capacity() >= courier_wire::rtps::frag::SPARE_MIN {
+            if let Some(r) = self.returns.get() {
+                r.give(buf);
+            }
+        }
     }
 
     /// Adds a sample; `Err` gives it back when the queue is full under
@@ -1470,7 +1525,9 @@ impl<T: IpcMessage> Subscriber<T> {
                 key: s.data,
             });
         }
-        match decode::<T>(self.enc, &s.data, s.order) {
+        let decoded = decode::<T>(self.enc, &s.data, s.order);
+        self.raw.queue.give_back(s.data);
+        match decoded {
             Ok(value) => Ok(Sample {
                 value,
                 msg: s.msg,
@@ -1708,5 +1765,60 @@ impl Stream for Timer {
             }
             Poll::Pending => Poll::Pending,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn subscriber<T>(queue: &Arc<SampleQueue>) -> Subscriber<T> {
+        Subscriber {
+            raw: RawSubscriber {
+                queue: queue.clone(),
+            },
+            msg: "m".into(),
+            enc: Encoding::Cdr,
+            decode_errors: 0,
+            _t: PhantomData,
+        }
+    }
+
+    #[test]
+    fn decoded_sample_buffers_go_back_to_the_backend() {
+        let returns = Arc::<ReturnedBuffers>::default();
+        let queue = SampleQueue::new(QueuePolicy::default());
+        queue.return_buffers_to(&returns);
+        let mut sub = subscriber::<String>(&queue);
+        let big = cdr::to_vec(&"x".repeat(10_000), cdr::Encoding::Xcdr1Le);
+        let (at, small) = (
+            big.as_ptr(),
+            cdr::to_vec(&"y".to_string(), cdr::Encoding::Xcdr1Le),
+        );
+        queue.push(RawSample::new("m", big)).unwrap();
+        queue.push(RawSample::new("m", small)).unwrap();
+        // a buffer that does not decode goes back too
+        queue.push(RawSample::new("m", vec![0xff; 5000])).unwrap();
+        assert_eq!(sub.try_next().unwrap().unwrap().value, "x".repeat(10_000));
+        assert_eq!(sub.try_next().unwrap().unwrap().value, "y");
+        assert!(matches!(
+            sub.try_next(),
+            Some(Err(RecvError::Decode { .. }))
+        ));
+        let mut back = Vec::new();
+        returns.take(|b| back.push(b));
+        assert_eq!(back.len(), 2, "the small buffer is left to the allocator");
+        assert_eq!(back[0].as_ptr(), at);
+        returns.take(|_| panic!("taken already"));
+    }
+
+    #[test]
+    fn without_a_backend_that_reuses_them_buffers_are_freed() {
+        let queue = SampleQueue::new(QueuePolicy::default());
+        let mut sub = subscriber::<String>(&queue);
+        let big = cdr::to_vec(&"x".repeat(10_000), cdr::Encoding::Xcdr1Le);
+        queue.push(RawSample::new("m", big)).unwrap();
+        assert_eq!(sub.try_next().unwrap().unwrap().value.len(), 10_000);
+        assert!(queue.returns.get().is_none());
     }
 }

@@ -473,6 +473,61 @@ fn a_200_kib_sample_is_fragmented_and_reassembled_under_loss() {
     }
 }
 
+/// Takes the samples node `i` has received so far, as owned values.
+fn take_samples(net: &mut Net, i: usize) -> Vec<ReceivedSample> {
+    std::mem::take(&mut net.nodes[i].events)
+        .into_iter()
+        .filter_map(|e| match e {
+            Event::SampleReceived(s) => Some(s),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn sample_buffers_handed_back_are_received_into_again() {
+    let mut net = Net::new(2, 5, 0);
+    let now = net.now;
+    let w = net.nodes[0]
+        .p
+        .create_writer(EndpointConfig::writer("Big", "Blob"), now)
+        .unwrap();
+    let r = net.nodes[1]
+        .p
+        .create_reader(reliable_reader("Big", "Blob"), now)
+        .unwrap();
+    assert!(net.run_until(Duration::from_secs(30), |n| matched(n, 0, w, 1, r)));
+    take_samples(&mut net, 1);
+    // one DATA (10 kB) and one sample in DATA_FRAGs (40 kB)
+    for size in [10_000usize, 40_000] {
+        let mut last = None;
+        // (a spare of the other size stays: it does not fit)
+        let other = net.nodes[1].p.spare_bytes();
+        for round in 0..3u8 {
+            let data: Vec<u8> = [0u8, 1, 0, 0]
+                .into_iter()
+                .chain((0..size).map(|i| (i as u8) ^ round))
+                .collect();
+            let now = net.now;
+            net.nodes[0].p.write(w, Change::alive(&data), now).unwrap();
+            net.pump();
+            assert!(net.run_until(Duration::from_secs(5), |n| !n.samples(1).is_empty()));
+            let got = take_samples(&mut net, 1);
+            assert_eq!(got.len(), 1);
+            let buf = got.into_iter().next().unwrap().into_data();
+            assert_eq!(buf, data, "size {size} round {round}");
+            if let Some(at) = last {
+                assert_eq!(buf.as_ptr(), at, "size {size} round {round}: a new buffer");
+            }
+            // the spare was taken for this sample
+            assert_eq!(net.nodes[1].p.spare_bytes(), other);
+            last = Some(buf.as_ptr());
+            net.nodes[1].p.recycle(buf);
+            assert!(net.nodes[1].p.spare_bytes() > size);
+        }
+    }
+}
+
 #[test]
 fn dispose_and_unregister_are_events_and_go_out_both_ways() {
     let mut net = Net::new(2, 8, 0);

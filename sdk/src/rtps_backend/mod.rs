@@ -59,8 +59,8 @@ use crate::qos::{
     Durability, History, InstanceState, PublicationQos, Reliability, SubscriptionQos, TypeInfo,
 };
 use crate::session::{
-    Backend, ConnectError, Encoding, QueryError, RawReply, RawRequest, RawSample, SampleQueue,
-    SessionError, SessionEvent, WriteOptions,
+    Backend, ConnectError, Encoding, QueryError, RawReply, RawRequest, RawSample, ReturnedBuffers,
+    SampleQueue, SessionError, SessionEvent, WriteOptions,
 };
 
 pub(crate) use options::fnmatch;
@@ -299,6 +299,7 @@ impl RtpsBackend {
                 waiting: Vec::new(),
                 inflight: HashMap::new(),
                 responder,
+                returns: Arc::default(),
             },
             cmd: rx,
         };
@@ -975,6 +976,10 @@ impl Driver {
                 _ => self.io.user_mc.as_ref(),
             };
             let Some(sock) = sock else { return };
+            // buffers of samples the application has taken, reused by the
+            // samples about to be read
+            let p = &mut self.st.p;
+            self.st.returns.take(|b| p.recycle(b));
             let n = match net::recv_batch(sock, &mut self.io.batch) {
                 Ok(n) => n,
                 // ICMP port unreachable and the like: reported once, nothing to do
@@ -1143,6 +1148,8 @@ struct State {
     inflight: HashMap<SampleIdentity, InflightQuery>,
     /// For responders: replies come back to the driver as commands.
     responder: mpsc::WeakUnboundedSender<Cmd>,
+    /// Sample buffers subscribers have decoded, for the participant to reuse.
+    returns: Arc<ReturnedBuffers>,
 }
 
 struct Server {
@@ -1303,6 +1310,7 @@ impl State {
                 queue,
                 reply,
             } => {
+                queue.return_buffers_to(&self.returns);
                 let r = match ty {
                     Some(ty) => self
                         .create_reader(
@@ -1335,6 +1343,7 @@ impl State {
                 queue,
                 reply,
             } => {
+                queue.return_buffers_to(&self.returns);
                 let mut q = EndpointQos::reader_default();
                 q.history = WireHistory::KeepAll;
                 self.add_pattern(topic, type_name, q, queue, now);

@@ -251,6 +251,10 @@ pub struct Config {
     pub max_sample_size: usize,
     /// Bytes of incomplete fragmented samples held at most.
     pub reassembly_limit: usize,
+    /// Bytes of received-sample buffers kept for reuse once the application
+    /// hands them back ([`Participant::recycle`]). Default 2 MiB: the
+    /// unacknowledged bytes a Courier writer lets out plus as much again.
+    pub spare_buffer_bytes: usize,
     /// Samples a writer holds at most (keep-all history, keyed keep-last).
     pub max_history: usize,
     /// Unacknowledged payload bytes a reliable keep-all writer holds at
@@ -291,6 +295,7 @@ impl Config {
             fragment_size: 1344,
             max_sample_size: 16 << 20,
             reassembly_limit: 64 << 20,
+            spare_buffer_bytes: 2 << 20,
             max_history: 4096,
             max_unacked_bytes: 1 << 20,
             max_out_of_order: 1024,
@@ -1639,7 +1644,8 @@ impl Participant {
             remote_writers: BTreeMap::new(),
             remote_readers: BTreeMap::new(),
             replays: Vec::new(),
-            reassembler: Reassembler::new(cfg.max_sample_size, cfg.reassembly_limit),
+            reassembler: Reassembler::new(cfg.max_sample_size, cfg.reassembly_limit)
+                .with_spare_limit(cfg.spare_buffer_bytes),
             next_key: 1,
             nackfrag_count: 0,
             outbox: Outbox::new(header, cfg.max_message_size),
@@ -2145,6 +2151,19 @@ impl Participant {
         // sent by the next poll_transmit, packed with whatever else is
         // written before it
         Ok(sn)
+    }
+
+    /// Hands back the buffer of a received sample ([`ReceivedSample::into_data`])
+    /// once the application is done with it: the next large sample received
+    /// is stored in it instead of a fresh allocation. Up to
+    /// [`Config::spare_buffer_bytes`] are kept; the rest is dropped.
+    pub fn recycle(&mut self, buf: Vec<u8>) {
+        self.reassembler.recycle(buf);
+    }
+
+    /// Bytes of buffers held for reuse ([`Participant::recycle`]).
+    pub fn spare_bytes(&self) -> usize {
+        self.reassembler.spare_bytes()
     }
 
     /// True when [`Participant::write`] of `len` bytes to this local writer
@@ -2760,6 +2779,15 @@ impl Participant {
                     // a serialized key without status: an old-style dispose
                     None if key => ChangeKind::Disposed,
                     None => ChangeKind::Alive,
+                };
+                let payload = match payload {
+                    // large samples go into a recycled buffer when there is one
+                    Some(Cow::Borrowed(d)) if d.len() >= frag::SPARE_MIN => {
+                        let mut v = self.reassembler.spare(d.len() + ENVELOPE_ROOM);
+                        v.extend_from_slice(d);
+                        Some(Cow::Owned(v))
+                    }
+                    p => p,
                 };
                 let env = match (kind, payload) {
                     (ChangeKind::Alive, None) => return,
