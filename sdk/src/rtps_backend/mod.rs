@@ -64,8 +64,8 @@ use crate::session::{
 };
 
 pub(crate) use options::fnmatch;
-pub use options::RtpsOptions;
 pub(crate) use options::RtpsOverrides;
+pub use options::{RtpsOptions, LOOPBACK_MAX_MESSAGE_SIZE};
 
 /// The DDS key hash of `value` (DDSI-RTPS §9.6.4.8): its key fields as
 /// big-endian XCDR2, zero-padded when the key can never exceed 16 bytes,
@@ -267,6 +267,10 @@ impl RtpsBackend {
             cfg = cfg.with_multicast();
         }
         cfg.lease_duration = opts.lease;
+        cfg.max_message_size = opts.max_message_size_on(address);
+        if let Some(n) = opts.fragment_size {
+            cfg.fragment_size = n;
+        }
         cfg.entity_name = Some(name.to_string());
         let locator = SocketAddr::from((
             address,

@@ -5,6 +5,15 @@ use std::time::Duration;
 
 use crate::session::ConnectError;
 
+/// Largest datagram a participant on the loopback interface sends by
+/// default: Fast DDS's default `maxMessageSize` (it accepts no more), below
+/// both the 65 507-byte UDP limit and the 64 KiB MTU of `lo`, so nothing is
+/// fragmented by IP. A 64 KiB sample then takes 2 datagrams instead of 5,
+/// and each datagram costs a system call and a wake-up on each side
+/// (BENCHMARKS.md: 64 KiB throughput about doubles). Other interfaces keep
+/// Cyclone's 14720, which stays within IP reassembly's comfort on real links.
+pub const LOOPBACK_MAX_MESSAGE_SIZE: usize = 65_500;
+
 /// Options of the RTPS backend. The defaults follow the DDS standard
 /// (multicast discovery on the default interface); tests and loopback-only
 /// machines pass `interface=lo&peers=127.0.0.1`.
@@ -36,6 +45,12 @@ pub struct RtpsOptions {
     /// Keep polling for this long after each datagram or command instead of
     /// sleeping ([`crate::busy_poll`]); `None` (the default) never spins.
     pub busy_poll: Option<Duration>,
+    /// Largest datagram sent (Cyclone's `MaxMessageSize`, Fast DDS's
+    /// `maxMessageSize`); `None`: [`LOOPBACK_MAX_MESSAGE_SIZE`] on the
+    /// loopback interface, else Cyclone's 14720.
+    pub max_message_size: Option<usize>,
+    /// Fragment size of large samples (Cyclone's `FragmentSize`); `None`: 1344.
+    pub fragment_size: Option<u16>,
 }
 
 impl Default for RtpsOptions {
@@ -51,6 +66,8 @@ impl Default for RtpsOptions {
             send_buffer: None,
             lease: Duration::from_secs(10),
             busy_poll: None,
+            max_message_size: None,
+            fragment_size: None,
         }
     }
 }
@@ -79,7 +96,8 @@ impl RtpsOptions {
     /// Parses `rtps://<domain>?key=value&…`. Keys: `interface`, `peers`
     /// (comma-separated `ip` or `ip:port`), `multicast` (true/false),
     /// `index` (participant index), `max_index`, `recv_buffer`,
-    /// `send_buffer` (bytes), `lease_ms`, `busy_poll_us`. `peers` without
+    /// `send_buffer` (bytes), `lease_ms`, `busy_poll_us`, `max_message_size`,
+    /// `fragment_size` (bytes). `peers` without
     /// `multicast` turns multicast off. Anything else is an error naming the
     /// key.
     ///
@@ -134,6 +152,23 @@ impl RtpsOptions {
                 "recv_buffer" => o.recv_buffer = Some(parse_num(url, k, v)?),
                 "send_buffer" => o.send_buffer = Some(parse_num(url, k, v)?),
                 "lease_ms" => o.lease = Duration::from_millis(parse_num(url, k, v)?),
+                "max_message_size" => {
+                    let n: usize = parse_num(url, k, v)?;
+                    if !(512..=65_507).contains(&n) {
+                        return Err(bad(
+                            url,
+                            format!("{k}={n}: a UDP datagram carries 512 to 65507 bytes here"),
+                        ));
+                    }
+                    o.max_message_size = Some(n);
+                }
+                "fragment_size" => {
+                    let n: u16 = parse_num(url, k, v)?;
+                    if !(64..=65_000).contains(&n) {
+                        return Err(bad(url, format!("{k}={n}: expected 64 to 65000 bytes")));
+                    }
+                    o.fragment_size = Some(n);
+                }
                 "busy_poll_us" => {
                     o.busy_poll =
                         Some(Duration::from_micros(parse_num(url, k, v)?)).filter(|d| !d.is_zero())
@@ -143,7 +178,8 @@ impl RtpsOptions {
                         url,
                         format!(
                             "unknown option {k:?} (known: interface, peers, multicast, index, \
-                             max_index, recv_buffer, send_buffer, lease_ms, busy_poll_us)"
+                             max_index, recv_buffer, send_buffer, lease_ms, busy_poll_us, \
+                             max_message_size, fragment_size)"
                         ),
                     ))
                 }
@@ -156,6 +192,17 @@ impl RtpsOptions {
             parse_peer(p).map_err(|e| bad(url, e))?;
         }
         Ok(o)
+    }
+}
+
+impl RtpsOptions {
+    /// The largest datagram a participant bound to `address` sends.
+    pub(crate) fn max_message_size_on(&self, address: Ipv4Addr) -> usize {
+        match self.max_message_size {
+            Some(n) => n,
+            None if address.is_loopback() => LOOPBACK_MAX_MESSAGE_SIZE,
+            None => courier_wire::rtps::participant::DEFAULT_MAX_MESSAGE_SIZE,
+        }
     }
 }
 
@@ -333,7 +380,16 @@ mod tests {
         assert_eq!(o.send_buffer, Some(2000));
         assert_eq!(o.lease, Duration::from_millis(500));
         assert_eq!(o.busy_poll, Some(Duration::from_micros(50)));
+        let o = RtpsOptions::from_url("rtps://0?max_message_size=9000&fragment_size=1400").unwrap();
+        assert_eq!(
+            (o.max_message_size, o.fragment_size),
+            (Some(9000), Some(1400))
+        );
         for (u, needle) in [
+            ("rtps://0?max_message_size=70000", "65507"),
+            ("rtps://0?max_message_size=100", "512"),
+            ("rtps://0?fragment_size=70000", "fragment_size"),
+            ("rtps://0?fragment_size=10", "64 to 65000"),
             ("rtps://x", "domain"),
             ("rtps://233", "232"),
             ("rtps://0?colour=blue", "colour"),
@@ -345,6 +401,20 @@ mod tests {
             let e = RtpsOptions::from_url(u).unwrap_err().to_string();
             assert!(e.contains(needle), "{u}: {e}");
         }
+    }
+
+    #[test]
+    fn loopback_participants_send_datagrams_as_large_as_fast_dds_takes() {
+        let lo = Ipv4Addr::LOCALHOST;
+        let eth = Ipv4Addr::new(192, 168, 1, 20);
+        let o = RtpsOptions::default();
+        assert_eq!(o.max_message_size_on(lo), 65_500);
+        assert_eq!(o.max_message_size_on(eth), 14_720, "Cyclone's default");
+        let o = RtpsOptions::from_url("rtps://0?max_message_size=1400").unwrap();
+        assert_eq!(
+            (o.max_message_size_on(lo), o.max_message_size_on(eth)),
+            (1400, 1400)
+        );
     }
 
     #[test]

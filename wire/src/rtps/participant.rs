@@ -50,7 +50,7 @@
 //! | vendor id | 01.10 | 01.0f | 01.c0 ([`VENDOR_ID`], unregistered) |
 //! | lease | 10 s | 20 s | 10 s, announced every 3 s |
 //! | user DATA addressing | INFO_TS, DATA to ENTITYID_UNKNOWN, HEARTBEAT piggybacked | INFO_DST + INFO_TS + DATA to the reader's entity id | INFO_DST per participant; the reader's entity id when one reader there is matched, else UNKNOWN; HEARTBEAT piggybacked |
-//! | fragments | 1344 B, 10 per DATA_FRAG, only above 14720 B messages | one ~64 KB fragment per datagram | as Cyclone: [`Config::max_message_size`] 14720, [`Config::fragment_size`] 1344 |
+//! | fragments | 1344 B, 10 per DATA_FRAG, only above 14720 B messages | one ~64 KB fragment per datagram | 1344 B fragments as Cyclone ([`Config::fragment_size`]); datagrams up to [`Config::max_message_size`], 14720 as Cyclone, which the sdk raises to Fast DDS's 65500 on the loopback interface |
 //! | builtin endpoint set | 0xfc3f | 0x0c3f0c3f | 0x3f (SPDP + SEDP only); unknown bits of peers are ignored |
 //!
 //! # Vendor id
@@ -275,6 +275,9 @@ pub struct Config {
     pub entity_name: Option<String>,
 }
 
+/// [`Config::max_message_size`] by default: Cyclone's `MaxMessageSize`.
+pub const DEFAULT_MAX_MESSAGE_SIZE: usize = 14_720;
+
 impl Config {
     /// A configuration with no locators and the default timing and limits.
     pub fn new(domain_id: u32, guid_prefix: GuidPrefix) -> Self {
@@ -291,7 +294,7 @@ impl Config {
             initial_announcements: 5,
             initial_announce_period: Duration::from_millis(100),
             heartbeat_period: Duration::from_millis(100),
-            max_message_size: 14_720,
+            max_message_size: DEFAULT_MAX_MESSAGE_SIZE,
             fragment_size: 1344,
             max_sample_size: 16 << 20,
             reassembly_limit: 64 << 20,
