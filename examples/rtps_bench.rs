@@ -73,12 +73,27 @@ const END: u32 = u32::MAX;
 /// happens while discovery settles).
 const PING_RETRY: Duration = Duration::from_millis(200);
 
-fn url(domain: u32, busy_poll_us: u64) -> String {
-    let mut u = format!("rtps://{domain}?interface=lo&peers=127.0.0.1");
-    if busy_poll_us > 0 {
-        u += &format!("&busy_poll_us={busy_poll_us}");
+fn url(o: &Opts) -> String {
+    let mut u = format!("rtps://{}?interface=lo&peers=127.0.0.1", o.domain);
+    if o.busy_poll_us > 0 {
+        u += &format!("&busy_poll_us={}", o.busy_poll_us);
+    }
+    if let Some(n) = o.max_message_size {
+        u += &format!("&max_message_size={n}");
     }
     u
+}
+
+/// [`CYCLONE_URI`], with Cyclone's `MaxMessageSize` set when given.
+fn cyclone_uri(max_message_size: Option<usize>) -> String {
+    match max_message_size {
+        None => CYCLONE_URI.to_string(),
+        Some(n) => CYCLONE_URI.replacen(
+            "</General>",
+            &format!("<MaxMessageSize>{n}B</MaxMessageSize></General>"),
+            1,
+        ),
+    }
 }
 
 // ---------------------------------------------------------------------------
@@ -93,6 +108,7 @@ struct Opts {
     threads: usize,
     queue: usize,
     busy_poll_us: u64,
+    max_message_size: Option<usize>,
 }
 
 impl Default for Opts {
@@ -106,19 +122,22 @@ impl Default for Opts {
             threads: 1,
             queue: 4096,
             busy_poll_us: 0,
+            max_message_size: None,
         }
     }
 }
 
 fn usage() -> ! {
     println!(
-        "usage:\n  rtps_bench [--quick] [--no-ddsperf] [--filter TEXT] [--reps R] [--threads N] [--busy-poll US]   \
-         whole table (both CPU placements, Courier and ddsperf)\n  \
+        "usage:\n  rtps_bench [--quick] [--no-ddsperf] [--filter TEXT] [--reps R] [--threads N] [--busy-poll US] \
+         [--max-message-size BYTES]   whole table (both CPU placements, Courier and ddsperf)\n  \
          rtps_bench ping|pong|pub|sub [--domain D] [--size BYTES] [--secs S] [--warmup S] \
-         [--best-effort] [--threads N] [--queue N] [--busy-poll US]\n\n\
+         [--best-effort] [--threads N] [--queue N] [--busy-poll US] [--max-message-size BYTES]\n\n\
          Roles print one RESULT line. ping/pub take --size and --secs (measured time after \
          --warmup); pong runs until ping's last sample; sub until pub's final count \
          (give it pub's --secs/--warmup for the steady-state window).\n\
+         --max-message-size sets the largest datagram of Courier and of ddsperf (default: \
+         each one's own, 65500 for Courier on loopback and 14720 for Cyclone).\n\
          Domains 0..=232; sessions use rtps://D?interface=lo&peers=127.0.0.1."
     );
     std::process::exit(2)
@@ -142,6 +161,9 @@ fn parse_role_opts(args: &[String]) -> Opts {
             "--threads" => o.threads = num(it.next(), "--threads") as usize,
             "--queue" => o.queue = num(it.next(), "--queue") as usize,
             "--busy-poll" => o.busy_poll_us = num(it.next(), "--busy-poll") as u64,
+            "--max-message-size" => {
+                o.max_message_size = Some(num(it.next(), "--max-message-size") as usize)
+            }
             "--best-effort" => o.best_effort = true,
             "--reliable" => o.best_effort = false,
             "-h" | "--help" => usage(),
@@ -204,7 +226,7 @@ type Res = Result<(), String>;
 async fn connect(o: &Opts, name: &str) -> Result<Session, String> {
     tokio::time::timeout(
         Duration::from_secs(20),
-        Session::builder(url(o.domain, o.busy_poll_us))
+        Session::builder(url(o))
             .name(format!("{name}-{}", std::process::id()))
             .connect(),
     )
@@ -664,6 +686,8 @@ struct Orchestrator {
     domain: u32,
     threads: usize,
     busy_poll_us: u64,
+    /// Largest datagram, for both Courier and Cyclone; `None`: each one's default.
+    max_message_size: Option<usize>,
 }
 
 /// Domains 220..=230, in turn: every run gets one the run before did not use.
@@ -781,6 +805,9 @@ impl Orchestrator {
                 .args(["--warmup", &warmup.to_string()])
                 .args(["--threads", &self.threads.to_string()])
                 .args(["--busy-poll", &self.busy_poll_us.to_string()]);
+            if let Some(n) = self.max_message_size {
+                c.args(["--max-message-size", &n.to_string()]);
+            }
             if matches!(case.kind, Kind::Thr { best_effort: true }) {
                 c.arg("--best-effort");
             }
@@ -878,7 +905,7 @@ impl Orchestrator {
         let size = (case.size + 12).to_string();
         let cmd = |cpu: &str, dur: f64, mode: &[&str]| {
             let mut c = self.taskset(cpu, std::path::Path::new(&bin));
-            c.env("CYCLONEDDS_URI", CYCLONE_URI)
+            c.env("CYCLONEDDS_URI", cyclone_uri(self.max_message_size))
                 .args(["-i", &domain.to_string()])
                 .args(["-D", &format!("{dur:.2}")]);
             if matches!(case.kind, Kind::Thr { best_effort: true }) {
@@ -1105,6 +1132,7 @@ fn orchestrate(args: &[String]) {
     let mut threads = 1;
     let mut busy_poll_us = 0;
     let mut reps: usize = 1;
+    let mut max_message_size = None;
     let mut it = args.iter();
     while let Some(a) = it.next() {
         match a.as_str() {
@@ -1121,6 +1149,13 @@ fn orchestrate(args: &[String]) {
                     .next()
                     .and_then(|s| s.parse().ok())
                     .unwrap_or_else(|| usage())
+            }
+            "--max-message-size" => {
+                max_message_size = Some(
+                    it.next()
+                        .and_then(|s| s.parse().ok())
+                        .unwrap_or_else(|| usage()),
+                )
             }
             "--no-ddsperf" => no_ddsperf = true,
             "--filter" => filter = it.next().cloned(),
@@ -1150,6 +1185,7 @@ fn orchestrate(args: &[String]) {
         domain: 229,
         threads,
         busy_poll_us,
+        max_message_size,
     };
     let cases = [
         Case {
@@ -1223,8 +1259,14 @@ fn orchestrate(args: &[String]) {
         }
     }
     println!(
-        "\nRTPS on loopback, Courier ↔ Courier vs Cyclone ddsperf ↔ ddsperf ({}; {}; {} CPUs online; \
-         {:.0} s)\n",
+        "\nRTPS on loopback, Courier ↔ Courier vs Cyclone ddsperf ↔ ddsperf ({}; {}; {}; {} CPUs \
+         online; {:.0} s)\n",
+        match max_message_size {
+            Some(n) => format!("datagrams of at most {n} B for both"),
+            None => "each one's default datagram size (Courier 65500 B on loopback, \
+                     Cyclone 14720 B)"
+                .to_string(),
+        },
         if quick {
             "--quick: short smoke run, not for comparison"
         } else {
