@@ -114,7 +114,8 @@ impl Default for QueuePolicy {
 /// backend that filled them (RTPS: to be reassembled into again).
 #[derive(Debug, Default)]
 pub(crate) struct ReturnedBuffers {
-    bufs: std::sync::Mutex<Vec<Vec<u8>>>,
+    /// The buffers and their total capacity.
+    bufs: std::sync::Mutex<(Vec<Vec<u8>>, usize)>,
     /// Set with every buffer given, cleared by the taker: the taker's
     /// check costs no lock while nothing comes back.
     any: std::sync::atomic::AtomicBool,
@@ -123,12 +124,17 @@ pub(crate) struct ReturnedBuffers {
 impl ReturnedBuffers {
     /// Most buffers waiting to be taken; the rest are freed.
     const MAX: usize = 64;
+    /// Most bytes waiting to be taken (a subscriber can drain a long queue
+    /// while the backend takes nothing); the rest are freed.
+    const MAX_BYTES: usize = 4 << 20;
 
     fn give(&self, b: Vec<u8>) {
         use std::sync::atomic::Ordering;
         let mut g = self.bufs.lock().unwrap();
-        if g.len() < Self::MAX {
-            g.push(b);
+        let (bufs, bytes) = &mut *g;
+        if bufs.len() < Self::MAX && *bytes + b.capacity() <= Self::MAX_BYTES {
+            *bytes += b.capacity();
+            bufs.push(b);
             self.any.store(true, Ordering::Release);
         }
     }
@@ -139,7 +145,9 @@ impl ReturnedBuffers {
         if !self.any.swap(false, Ordering::Acquire) {
             return;
         }
-        for b in self.bufs.lock().unwrap().drain(..) {
+        let mut g = self.bufs.lock().unwrap();
+        g.1 = 0;
+        for b in g.0.drain(..) {
             f(b);
         }
     }
@@ -1810,6 +1818,22 @@ mod tests {
         assert_eq!(back.len(), 2, "the small buffer is left to the allocator");
         assert_eq!(back[0].as_ptr(), at);
         returns.take(|_| panic!("taken already"));
+    }
+
+    #[test]
+    fn buffers_waiting_to_go_back_are_bounded() {
+        let returns = ReturnedBuffers::default();
+        for _ in 0..10 {
+            returns.give(Vec::with_capacity(1 << 20));
+        }
+        let mut n = 0;
+        returns.take(|_| n += 1);
+        assert_eq!(n, 4, "4 MiB at most");
+        for _ in 0..100 {
+            returns.give(Vec::with_capacity(8192));
+        }
+        returns.take(|_| n += 1);
+        assert_eq!(n, 4 + ReturnedBuffers::MAX);
     }
 
     #[test]
