@@ -211,6 +211,21 @@ fn sample(id: i32, n: i32) -> (Vec<u8>, KeyHash) {
     (b, KeyHash::from_key(&id.to_be_bytes(), false))
 }
 
+/// Two participants on a network with `loss` % loss, a writer on the first
+/// and a reader on the second, run until both sides have matched.
+fn matched_pair(seed: u64, loss: u32, w: EndpointConfig, r: EndpointConfig) -> (Net, Guid, Guid) {
+    let mut net = Net::new(2, seed, loss);
+    let now = net.now;
+    let w = net.nodes[0].p.create_writer(w, now).unwrap();
+    let r = net.nodes[1].p.create_reader(r, now).unwrap();
+    assert!(
+        net.run_until(Duration::from_secs(30), |n| matched(n, 0, w, 1, r)),
+        "seed {seed}: no match after {:?}",
+        net.elapsed()
+    );
+    (net, w, r)
+}
+
 fn matched(net: &Net, w_node: usize, w: Guid, r_node: usize, r: Guid) -> bool {
     net.has(
         w_node,
@@ -388,17 +403,12 @@ fn best_effort_delivers_in_order_without_repair() {
     net.run_for(Duration::from_millis(100));
     assert_eq!(net.samples(1).len(), 50);
     // lossy: what arrives is in order, once, and nothing is repaired
-    let mut net = Net::new(2, 6, 30);
-    let now = net.now;
-    let w = net.nodes[0]
-        .p
-        .create_writer(EndpointConfig::writer("B", "T").qos(wq), now)
-        .unwrap();
-    let r = net.nodes[1]
-        .p
-        .create_reader(EndpointConfig::reader("B", "T"), now)
-        .unwrap();
-    assert!(net.run_until(Duration::from_secs(30), |n| matched(n, 0, w, 1, r)));
+    let (mut net, w, _) = matched_pair(
+        6,
+        30,
+        EndpointConfig::writer("B", "T").qos(wq),
+        EndpointConfig::reader("B", "T"),
+    );
     for i in 0..200 {
         let (b, _) = sample(0, i);
         let now = net.now;
@@ -420,17 +430,12 @@ fn a_200_kib_sample_is_fragmented_and_reassembled_under_loss() {
         .chain((0..200 * 1024).map(|i| (i * 31 % 251) as u8))
         .collect();
     for (seed, loss) in [(3u64, 0u32), (11, 30), (12, 30)] {
-        let mut net = Net::new(2, seed, loss);
-        let now = net.now;
-        let w = net.nodes[0]
-            .p
-            .create_writer(EndpointConfig::writer("Big", "Blob"), now)
-            .unwrap();
-        let r = net.nodes[1]
-            .p
-            .create_reader(reliable_reader("Big", "Blob"), now)
-            .unwrap();
-        assert!(net.run_until(Duration::from_secs(30), |n| matched(n, 0, w, 1, r)));
+        let (mut net, w, _) = matched_pair(
+            seed,
+            loss,
+            EndpointConfig::writer("Big", "Blob"),
+            reliable_reader("Big", "Blob"),
+        );
         net.tapping = true;
         let now = net.now;
         net.nodes[0].p.write(w, Change::alive(&big), now).unwrap();
@@ -486,17 +491,12 @@ fn take_samples(net: &mut Net, i: usize) -> Vec<ReceivedSample> {
 
 #[test]
 fn sample_buffers_handed_back_are_received_into_again() {
-    let mut net = Net::new(2, 5, 0);
-    let now = net.now;
-    let w = net.nodes[0]
-        .p
-        .create_writer(EndpointConfig::writer("Big", "Blob"), now)
-        .unwrap();
-    let r = net.nodes[1]
-        .p
-        .create_reader(reliable_reader("Big", "Blob"), now)
-        .unwrap();
-    assert!(net.run_until(Duration::from_secs(30), |n| matched(n, 0, w, 1, r)));
+    let (mut net, w, _) = matched_pair(
+        5,
+        0,
+        EndpointConfig::writer("Big", "Blob"),
+        reliable_reader("Big", "Blob"),
+    );
     take_samples(&mut net, 1);
     // one DATA (10 kB) and one sample in DATA_FRAGs (40 kB)
     for size in [10_000usize, 40_000] {
@@ -857,17 +857,12 @@ fn local_writer_and_reader_match_in_process() {
 
 #[test]
 fn deleted_endpoints_are_lost_remotely() {
-    let mut net = Net::new(2, 51, 10);
-    let now = net.now;
-    let w = net.nodes[0]
-        .p
-        .create_writer(EndpointConfig::writer("D", "T"), now)
-        .unwrap();
-    let r = net.nodes[1]
-        .p
-        .create_reader(reliable_reader("D", "T"), now)
-        .unwrap();
-    assert!(net.run_until(Duration::from_secs(30), |n| matched(n, 0, w, 1, r)));
+    let (mut net, w, r) = matched_pair(
+        51,
+        10,
+        EndpointConfig::writer("D", "T"),
+        reliable_reader("D", "T"),
+    );
     let now = net.now;
     assert!(net.nodes[0].p.delete_writer(w, now));
     net.pump();
