@@ -49,7 +49,9 @@ pub struct RtpsOptions {
     /// `maxMessageSize`); `None`: [`LOOPBACK_MAX_MESSAGE_SIZE`] on the
     /// loopback interface, else Cyclone's 14720.
     pub max_message_size: Option<usize>,
-    /// Fragment size of large samples (Cyclone's `FragmentSize`); `None`: 1344.
+    /// Fragment size of large samples (Cyclone's `FragmentSize`); `None`:
+    /// 1344. A size that does not fit in one datagram with its headers is
+    /// lowered to the largest that does.
     pub fragment_size: Option<u16>,
 }
 
