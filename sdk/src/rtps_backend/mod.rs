@@ -976,6 +976,10 @@ impl Driver {
     /// Reads what is waiting on socket `i`, a batch per system call, up
     /// to a limit (so that commands and timers are not starved).
     fn drain(&mut self, i: usize, now: Instant) {
+        // buffers of samples the application has taken, reused by the
+        // samples about to be read
+        let p = &mut self.st.p;
+        self.st.returns.take(|b| p.recycle(b));
         for _ in 0..8 {
             if i % 2 == 1 && self.st.full_queue().is_some() {
                 return;
@@ -987,10 +991,6 @@ impl Driver {
                 _ => self.io.user_mc.as_ref(),
             };
             let Some(sock) = sock else { return };
-            // buffers of samples the application has taken, reused by the
-            // samples about to be read
-            let p = &mut self.st.p;
-            self.st.returns.take(|b| p.recycle(b));
             let n = match net::recv_batch(sock, &mut self.io.batch) {
                 Ok(n) => n,
                 // ICMP port unreachable and the like: reported once, nothing to do

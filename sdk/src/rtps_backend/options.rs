@@ -195,9 +195,7 @@ impl RtpsOptions {
         }
         Ok(o)
     }
-}
 
-impl RtpsOptions {
     /// The largest datagram a participant bound to `address` sends.
     pub(crate) fn max_message_size_on(&self, address: Ipv4Addr) -> usize {
         match self.max_message_size {
