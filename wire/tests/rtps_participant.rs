@@ -1191,3 +1191,93 @@ fn a_keep_all_writer_stops_at_its_unacknowledged_bytes_limit_and_resumes_on_ackn
     net.run_for(Duration::from_millis(200));
     assert_eq!(net.samples(1).len(), 8);
 }
+
+/// Entities (writer, reader) of the user submessages in one datagram:
+/// DATA by writer, ACKNACK by the writer it acknowledges.
+fn data_and_acks(payload: &[u8]) -> (Vec<[u8; 4]>, Vec<[u8; 4]>) {
+    let (mut data, mut acks) = (Vec::new(), Vec::new());
+    for s in Message::parse(payload).unwrap().submessages {
+        match s {
+            Submessage::Data(d) => data.push(d.writer_id.0),
+            Submessage::AckNack(a) => acks.push(a.writer_id.0),
+            _ => {}
+        }
+    }
+    (data, acks)
+}
+
+#[test]
+fn an_answer_written_before_polling_carries_the_acknowledgement_its_request_asked_for() {
+    // node 0 asks on "Rq", node 1 answers on "Rp", both reliable
+    let mut net = Net::new(2, 21, 0);
+    let now = net.now;
+    let rq_w = net.nodes[0]
+        .p
+        .create_writer(keyed_writer("Rq", "T"), now)
+        .unwrap();
+    let rq_r = net.nodes[1]
+        .p
+        .create_reader(reliable_reader("Rq", "T").keyed(true), now)
+        .unwrap();
+    let rp_w = net.nodes[1]
+        .p
+        .create_writer(keyed_writer("Rp", "T"), now)
+        .unwrap();
+    let rp_r = net.nodes[0]
+        .p
+        .create_reader(reliable_reader("Rp", "T").keyed(true), now)
+        .unwrap();
+    assert!(net.run_until(Duration::from_secs(10), |n| {
+        matched(n, 0, rq_w, 1, rq_r) && matched(n, 1, rp_w, 0, rp_r)
+    }));
+    net.run_for(Duration::from_millis(50));
+    // requests 1..=15 want no acknowledgement; 16 does (every 16th asks)
+    for i in 1..=16 {
+        let now = net.now;
+        let (b, k) = sample(1, i);
+        net.nodes[0]
+            .p
+            .write(rq_w, Change::alive(&b).with_key_hash(k), now)
+            .unwrap();
+        let mut request = Vec::new();
+        while let Some(d) = net.nodes[0].p.poll_transmit() {
+            request.push(d);
+        }
+        // node 1 receives the request and, before it polls, writes its answer
+        for d in &request {
+            net.nodes[1]
+                .p
+                .handle_datagram(Locator::udpv4(LO, 40000), &d.payload, now);
+        }
+        net.nodes[1]
+            .p
+            .write(rp_w, Change::alive(&b).with_key_hash(k), now)
+            .unwrap();
+        let mut answer = Vec::new();
+        while let Some(d) = net.nodes[1].p.poll_transmit() {
+            answer.push(d);
+        }
+        assert_eq!(
+            answer.len(),
+            1,
+            "request {i}: one datagram, not {}",
+            answer.len()
+        );
+        let (data, acks) = data_and_acks(&answer[0].payload);
+        assert_eq!(data, vec![rp_w.entity.0], "request {i}: the answer");
+        if i < 16 {
+            assert!(acks.is_empty(), "request {i} asked for no acknowledgement");
+        } else {
+            assert_eq!(
+                acks,
+                vec![rq_w.entity.0],
+                "the acknowledgement rides with the answer"
+            );
+        }
+        for d in answer {
+            net.send(d);
+        }
+        net.run_for(Duration::from_millis(5));
+    }
+    assert!(net.nodes[0].p.is_acked_by_all(rq_w, SequenceNumber(16)));
+}
