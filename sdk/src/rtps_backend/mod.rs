@@ -37,6 +37,7 @@
 
 mod net;
 mod options;
+mod timer;
 
 use std::collections::VecDeque;
 
@@ -913,22 +914,17 @@ struct Driver {
 
 impl Driver {
     async fn run(mut self) {
-        // one timer for the driver's life, moved only when the next
-        // wake-up changes (a fresh `sleep_until` per turn registered and
-        // removed a timer entry every time)
-        let sleep = tokio::time::sleep_until(self.st.next_wakeup().into());
-        tokio::pin!(sleep);
         // one clock reading per turn, taken when the driver wakes
         let mut now = Instant::now();
+        // one timer for the driver's life, moved only when the next
+        // wake-up moves (see `timer` for why it is not a tokio timer)
+        let mut timer = timer::DriverTimer::new(self.st.next_wakeup(), now);
         loop {
             self.st.pump(now);
             while let Some(t) = self.st.p.poll_transmission() {
                 self.io.send(&t).await;
             }
-            let wake_at = tokio::time::Instant::from(self.st.next_wakeup());
-            if sleep.deadline() != wake_at {
-                sleep.as_mut().reset(wake_at);
-            }
+            timer.set(self.st.next_wakeup(), now);
             let paused = self.st.full_queue();
             let io = &self.io;
             let wake = tokio::select! {
@@ -939,7 +935,7 @@ impl Driver {
                 _ = recv_ready_opt(&io.meta_mc) => Wake::Readable(2),
                 _ = recv_ready_opt(&io.user_mc), if paused.is_none() => Wake::Readable(3),
                 _ = async { if let Some(q) = &paused { q.space().await } }, if paused.is_some() => Wake::Space,
-                _ = &mut sleep => Wake::Timer,
+                _ = timer.fired() => Wake::Timer,
             };
             now = Instant::now();
             if let (Some(s), Wake::Cmd(_) | Wake::Readable(_)) = (&self.spin, &wake) {

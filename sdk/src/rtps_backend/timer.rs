@@ -1,0 +1,234 @@
+//! The driver's one timer.
+//!
+//! A tokio timer makes the runtime wait in `epoll_wait` with a timeout, and
+//! the kernel arms and cancels a high-resolution timer for every such wait:
+//! on the 2-vCPU VM of BENCHMARKS.md that cost ~0.6 µs per wake-up, 1.2 µs
+//! per same-core round trip (21.4 → 20.2 µs without it). The driver's
+//! deadlines (heartbeats, housekeeping, leases) are tens of milliseconds
+//! away and rarely move closer, so on Linux the driver keeps them in a
+//! `timerfd` that sits in the runtime's epoll set like a socket: armed when
+//! the deadline moves earlier, and left alone when it moves later (it then
+//! fires early once, the driver finds nothing due and arms it again). A
+//! runtime with no timers of its own then waits with no timeout at all.
+//!
+//! Elsewhere, or when a `timerfd` cannot be made, it is a tokio `Sleep`.
+
+use std::future::{poll_fn, Future as _};
+use std::pin::Pin;
+use std::task::{ready, Context, Poll};
+use std::time::Instant;
+
+pub(super) struct DriverTimer {
+    inner: Inner,
+}
+
+enum Inner {
+    #[cfg(target_os = "linux")]
+    Fd(fd::TimerFd),
+    Sleep(Pin<Box<tokio::time::Sleep>>),
+}
+
+impl DriverTimer {
+    /// A timer that fires at `at` (or a little after).
+    pub(super) fn new(at: Instant, now: Instant) -> Self {
+        #[cfg(target_os = "linux")]
+        if let Ok(mut t) = fd::TimerFd::new() {
+            t.set(at, now);
+            return DriverTimer {
+                inner: Inner::Fd(t),
+            };
+        }
+        let _ = now;
+        DriverTimer {
+            inner: Inner::Sleep(Box::pin(tokio::time::sleep_until(at.into()))),
+        }
+    }
+
+    /// Fires no later than `at`; may fire earlier (after an earlier
+    /// deadline that was since given up), so the caller checks what is due.
+    pub(super) fn set(&mut self, at: Instant, now: Instant) {
+        match &mut self.inner {
+            #[cfg(target_os = "linux")]
+            Inner::Fd(t) => t.set(at, now),
+            Inner::Sleep(s) => {
+                let at = tokio::time::Instant::from(at);
+                if s.deadline() != at {
+                    s.as_mut().reset(at);
+                }
+            }
+        }
+    }
+
+    pub(super) fn poll_fired(&mut self, cx: &mut Context<'_>) -> Poll<()> {
+        match &mut self.inner {
+            #[cfg(target_os = "linux")]
+            Inner::Fd(t) => t.poll_fired(cx),
+            Inner::Sleep(s) => {
+                ready!(s.as_mut().poll(cx));
+                // fired: stays ready until set again, as the timerfd does not
+                // (the driver always sets it before waiting)
+                Poll::Ready(())
+            }
+        }
+    }
+
+    pub(super) async fn fired(&mut self) {
+        poll_fn(|cx| self.poll_fired(cx)).await
+    }
+}
+
+#[cfg(target_os = "linux")]
+#[allow(unsafe_code)] // three system calls libc has and std does not
+mod fd {
+    use std::io;
+    use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
+    use std::task::{ready, Context, Poll};
+    use std::time::{Duration, Instant};
+
+    use tokio::io::unix::AsyncFd;
+    use tokio::io::Interest;
+
+    /// A monotonic `timerfd`, non-blocking, registered for readability.
+    pub(super) struct TimerFd {
+        fd: AsyncFd<OwnedFd>,
+        /// The expiry the kernel holds, while it has not fired.
+        armed: Option<Instant>,
+    }
+
+    impl TimerFd {
+        pub(super) fn new() -> io::Result<Self> {
+            // SAFETY: plain system call; the descriptor is owned below.
+            let raw = unsafe {
+                libc::timerfd_create(
+                    libc::CLOCK_MONOTONIC,
+                    libc::TFD_NONBLOCK | libc::TFD_CLOEXEC,
+                )
+            };
+            if raw < 0 {
+                return Err(io::Error::last_os_error());
+            }
+            // SAFETY: `raw` is a fresh descriptor nothing else owns.
+            let owned = unsafe { OwnedFd::from_raw_fd(raw) };
+            // SAFETY: the `AsyncFd` owns the descriptor, which stays open and
+            // the same until it is dropped (nothing hands it out).
+            let fd = unsafe { AsyncFd::register_with_interest(owned, Interest::READABLE) }
+                .map_err(|e| e.into_parts().1)?;
+            Ok(TimerFd { fd, armed: None })
+        }
+
+        /// Arms the timer for `at` unless it already fires at or before it.
+        pub(super) fn set(&mut self, at: Instant, now: Instant) {
+            if self.armed.is_some_and(|armed| armed <= at) {
+                return;
+            }
+            // relative to `now`: std's `Instant` is CLOCK_MONOTONIC here, but
+            // its value is not exposed; a zero value would disarm, so at
+            // least 1 ns
+            let d = at
+                .saturating_duration_since(now)
+                .max(Duration::from_nanos(1));
+            let spec = libc::itimerspec {
+                it_interval: libc::timespec {
+                    tv_sec: 0,
+                    tv_nsec: 0,
+                },
+                it_value: libc::timespec {
+                    tv_sec: d.as_secs().min(i64::MAX as u64) as libc::time_t,
+                    tv_nsec: libc::c_long::from(d.subsec_nanos() as i32),
+                },
+            };
+            // SAFETY: valid descriptor and pointers for the call's duration.
+            let r = unsafe {
+                libc::timerfd_settime(self.fd.as_raw_fd(), 0, &spec, std::ptr::null_mut())
+            };
+            // cannot fail with a valid descriptor and value; if it did, the
+            // driver would wake early (never late), as with `armed = None`
+            self.armed = (r == 0).then_some(at);
+        }
+
+        pub(super) fn poll_fired(&mut self, cx: &mut Context<'_>) -> Poll<()> {
+            loop {
+                let mut guard = match ready!(self.fd.poll_read_ready(cx)) {
+                    Ok(g) => g,
+                    // only while the runtime shuts down, which drops the
+                    // driver next
+                    Err(_) => return Poll::Pending,
+                };
+                let mut n = [0u8; 8];
+                // SAFETY: reads 8 bytes into a buffer of 8.
+                let r = unsafe { libc::read(self.fd.as_raw_fd(), n.as_mut_ptr().cast(), n.len()) };
+                if r == 8 {
+                    self.armed = None;
+                    return Poll::Ready(());
+                }
+                // EAGAIN: not expired yet (readiness was stale)
+                guard.clear_ready();
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    const MS: Duration = Duration::from_millis(1);
+
+    #[tokio::test]
+    async fn fires_at_its_deadline_and_not_before() {
+        let t0 = Instant::now();
+        let mut t = DriverTimer::new(t0 + 30 * MS, t0);
+        t.fired().await;
+        assert!(t0.elapsed() >= 30 * MS, "fired after {:?}", t0.elapsed());
+    }
+
+    #[tokio::test]
+    async fn an_earlier_deadline_is_armed_at_once() {
+        let t0 = Instant::now();
+        let mut t = DriverTimer::new(t0 + Duration::from_secs(60), t0);
+        t.set(t0 + 20 * MS, Instant::now());
+        tokio::time::timeout(Duration::from_secs(5), t.fired())
+            .await
+            .expect("the earlier deadline fired");
+        assert!(t0.elapsed() >= 20 * MS);
+    }
+
+    #[tokio::test]
+    async fn a_later_deadline_never_makes_it_late() {
+        // moving the deadline later may wake the driver early (it then finds
+        // nothing due and sets the timer again), never after the deadline
+        let t0 = Instant::now();
+        let mut t = DriverTimer::new(t0 + 10 * MS, t0);
+        t.set(t0 + 40 * MS, t0);
+        t.fired().await;
+        let first = t0.elapsed();
+        assert!(first >= 10 * MS);
+        if first < 40 * MS {
+            t.set(t0 + 40 * MS, Instant::now());
+            t.fired().await;
+        }
+        assert!(t0.elapsed() >= 40 * MS);
+    }
+
+    #[tokio::test]
+    async fn a_deadline_already_past_fires_at_once_and_again_when_set_again() {
+        let t0 = Instant::now();
+        let mut t = DriverTimer::new(t0, t0 + MS);
+        tokio::time::timeout(Duration::from_secs(5), t.fired())
+            .await
+            .expect("fired");
+        t.set(Instant::now(), Instant::now());
+        tokio::time::timeout(Duration::from_secs(5), t.fired())
+            .await
+            .expect("fired again");
+    }
+
+    #[cfg(target_os = "linux")]
+    #[tokio::test]
+    async fn on_linux_it_is_a_timerfd_not_a_tokio_timer() {
+        let now = Instant::now();
+        let t = DriverTimer::new(now + Duration::from_secs(1), now);
+        assert!(matches!(t.inner, Inner::Fd(_)));
+    }
+}
