@@ -255,6 +255,83 @@ fn percentile(sorted: &[u64], p: f64) -> f64 {
     sorted[i] as f64
 }
 
+/// A timeout for the round-trip roles, kept off the measured runtime.
+///
+/// A tokio timer would be measured with the library: while one is pending
+/// the runtime waits in `epoll_wait` with a timeout, and the kernel arms and
+/// cancels a timer for each wait (~0.6 µs per wake-up on the VM of
+/// BENCHMARKS.md). ddsperf keeps its timers on threads of their own too.
+/// Here a thread checks every quarter of `limit` whether [`Watchdog::kick`]
+/// was called since its last look; after `limit` without one,
+/// [`Watchdog::expired`] completes (once per expiry).
+struct Watchdog {
+    shared: std::sync::Arc<WatchdogShared>,
+}
+
+#[derive(Default)]
+struct WatchdogShared {
+    kicks: std::sync::atomic::AtomicU64,
+    fired: std::sync::atomic::AtomicBool,
+    stop: std::sync::atomic::AtomicBool,
+    waker: futures::task::AtomicWaker,
+}
+
+impl Watchdog {
+    fn start(limit: Duration) -> Self {
+        use std::sync::atomic::Ordering::Relaxed;
+        let shared = std::sync::Arc::new(WatchdogShared::default());
+        let s = shared.clone();
+        std::thread::spawn(move || {
+            let step = limit / 4;
+            let mut seen = s.kicks.load(Relaxed);
+            let mut quiet_since = Instant::now();
+            while !s.stop.load(Relaxed) {
+                std::thread::sleep(step);
+                let k = s.kicks.load(Relaxed);
+                if k != seen {
+                    seen = k;
+                    quiet_since = Instant::now();
+                } else if quiet_since.elapsed() >= limit {
+                    quiet_since = Instant::now();
+                    s.fired.store(true, Relaxed);
+                    s.waker.wake();
+                }
+            }
+        });
+        Watchdog { shared }
+    }
+
+    fn kick(&self) {
+        self.shared
+            .kicks
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    async fn expired(&self) {
+        std::future::poll_fn(|cx| {
+            self.shared.waker.register(cx.waker());
+            if self
+                .shared
+                .fired
+                .swap(false, std::sync::atomic::Ordering::Relaxed)
+            {
+                std::task::Poll::Ready(())
+            } else {
+                std::task::Poll::Pending
+            }
+        })
+        .await
+    }
+}
+
+impl Drop for Watchdog {
+    fn drop(&mut self) {
+        self.shared
+            .stop
+            .store(true, std::sync::atomic::Ordering::Relaxed);
+    }
+}
+
 /// Round trips: publish on `PING`, wait for the echo on `PONG`, one at a
 /// time; RTT = now − the echoed `ts_ns` (the ping's own clock).
 async fn ping(o: &Opts) -> Res {
@@ -286,11 +363,9 @@ async fn ping(o: &Opts) -> Res {
     let mut retries = 0u64;
     let mut measuring_from: Option<Instant> = None;
     let give_up = Instant::now() + Duration::from_secs_f64(o.warmup + o.secs + 30.0);
-    // one timer, moved forward for each ping (a `timeout` per ping would
-    // put a timer-wheel entry in and take it out every round trip: tokio's
-    // cost, not the library's)
-    let retry = tokio::time::sleep(PING_RETRY);
-    tokio::pin!(retry);
+    // re-send a ping that got no answer; kept off the measured runtime (see
+    // `Watchdog`)
+    let retry = Watchdog::start(PING_RETRY);
     loop {
         let now = Instant::now();
         match measuring_from {
@@ -307,13 +382,13 @@ async fn ping(o: &Opts) -> Res {
         }
         v.seq = v.seq.wrapping_add(1) % END;
         v.ts_ns = clock.elapsed().as_nanos() as u64;
-        retry.as_mut().reset((now + PING_RETRY).into());
+        retry.kick();
         p.publish(&v).await.map_err(|e| e.to_string())?;
         loop {
             let next = tokio::select! {
                 biased;
                 r = pongs.next() => r,
-                _ = &mut retry => {
+                _ = retry.expired() => {
                     retries += 1;
                     break;
                 }
@@ -378,20 +453,19 @@ async fn pong(o: &Opts) -> Res {
     let mut n = 0u64;
     // ping gives up after warm-up + secs + 30 s; so does pong, a bit later
     let idle = Duration::from_secs_f64(o.warmup + o.secs + 40.0);
-    let quiet = tokio::time::sleep(idle);
-    tokio::pin!(quiet);
+    let quiet = Watchdog::start(idle);
     loop {
         let next = tokio::select! {
             biased;
             r = pings.next() => r,
-            _ = &mut quiet => return Err("pong: no ping for too long".into()),
+            _ = quiet.expired() => return Err("pong: no ping for too long".into()),
         };
         match next {
             None => return Err("pong: session closed".into()),
             Some(Err(e)) => return Err(format!("pong: {e}")),
             Some(Ok(v)) => {
                 p.publish(&v.value).await.map_err(|e| e.to_string())?;
-                quiet.as_mut().reset(tokio::time::Instant::now() + idle);
+                quiet.kick();
                 n += 1;
                 if v.value.seq == END {
                     break;
