@@ -312,7 +312,6 @@ impl RtpsBackend {
                 inflight: HashMap::new(),
                 responder,
                 returns: Arc::default(),
-                delivered: false,
             },
             cmd: rx,
         };
@@ -881,23 +880,6 @@ impl Io {
     }
 }
 
-/// Lets the tasks woken so far run before the caller goes on: returns
-/// `Pending` once, having woken its own task, which the runtime then queues
-/// behind them. (`tokio::task::yield_now` defers its wake-up until the
-/// runtime has looked at its I/O driver: one `epoll_wait` more.)
-async fn yield_to_woken_tasks() {
-    let mut yielded = false;
-    std::future::poll_fn(|cx| {
-        if std::mem::replace(&mut yielded, true) {
-            std::task::Poll::Ready(())
-        } else {
-            cx.waker().wake_by_ref();
-            std::task::Poll::Pending
-        }
-    })
-    .await
-}
-
 /// The socket has data. The driver is its only reader, so it waits in the
 /// socket's one read-waker slot (`poll_read_ready`), not in the list of
 /// waiters that `readable()` joins and leaves on every turn.
@@ -938,15 +920,11 @@ impl Driver {
         // wake-up moves (see `timer` for why it is not a tokio timer)
         let mut timer = timer::DriverTimer::new(self.st.next_wakeup(), now);
         loop {
-            // what the last turn produced goes out first; then what is due
-            self.flush(now).await;
-            let mut next = self.st.next_wakeup();
-            if next <= now {
-                self.st.tick(now);
-                self.flush(now).await;
-                next = self.st.next_wakeup();
+            self.st.pump(now);
+            while let Some(t) = self.st.p.poll_transmission() {
+                self.io.send(&t).await;
             }
-            timer.set(next, now);
+            timer.set(self.st.next_wakeup(), now);
             let paused = self.st.full_queue();
             let io = &self.io;
             let wake = tokio::select! {
@@ -973,53 +951,22 @@ impl Driver {
                 Wake::Cmd(Some(c)) => {
                     self.st.command(c, now);
                     // take every command already queued before flushing
-                    if self.take_commands(now).await {
-                        return;
-                    }
-                }
-                Wake::Readable(i) => {
-                    self.drain(i, now);
-                    if std::mem::take(&mut self.st.delivered) {
-                        // The application's tasks just woken run before
-                        // anything is sent: an answer they write then goes
-                        // out at once, and in the same datagram as the
-                        // acknowledgement the received data asked for,
-                        // instead of after it (a same-core round trip
-                        // 20.7 → 19.9 µs, BENCHMARKS.md).
-                        yield_to_woken_tasks().await;
-                        if self.take_commands(now).await {
+                    while let Ok(c) = self.cmd.try_recv() {
+                        if let Cmd::Close { reply } = c {
+                            self.close(Instant::now()).await;
+                            let _ = reply.send(());
                             return;
                         }
+                        self.st.command(c, now);
                     }
                 }
+                Wake::Readable(i) => self.drain(i, now),
                 Wake::Space => {}
                 Wake::Timer => {}
             }
+            self.st.tick(now);
         }
         self.close(Instant::now()).await;
-    }
-
-    /// Hands received samples and events to the application and sends
-    /// what the participant has to send.
-    async fn flush(&mut self, now: Instant) {
-        self.st.pump(now);
-        while let Some(t) = self.st.p.poll_transmission() {
-            self.io.send(&t).await;
-        }
-    }
-
-    /// Carries out the commands already queued; true when one closed the
-    /// session (the driver is done).
-    async fn take_commands(&mut self, now: Instant) -> bool {
-        while let Ok(c) = self.cmd.try_recv() {
-            if let Cmd::Close { reply } = c {
-                self.close(Instant::now()).await;
-                let _ = reply.send(());
-                return true;
-            }
-            self.st.command(c, now);
-        }
-        false
     }
 
     /// Reads what is waiting on socket `i`, a batch per system call, up
@@ -1210,9 +1157,6 @@ struct State {
     responder: mpsc::WeakUnboundedSender<Cmd>,
     /// Sample buffers subscribers have decoded, for the participant to reuse.
     returns: Arc<ReturnedBuffers>,
-    /// Received samples went to the application since the driver last
-    /// looked (it then lets the tasks they woke run first).
-    delivered: bool,
 }
 
 struct Server {
@@ -1286,10 +1230,13 @@ impl State {
 
     /// Runs what is due: the participant's timers, confirmations and
     /// queries that ran out of time, missed deadlines, housekeeping.
-    /// Whatever is due at `now` (the driver calls it when
-    /// [`State::next_wakeup`], the earliest of exactly these deadlines, has
-    /// come).
     fn tick(&mut self, now: Instant) {
+        // `next_wakeup` is the earliest of exactly these deadlines: a cheap
+        // walk that spares the work below on the turns (most of them) when
+        // nothing is due
+        if self.next_wakeup() > now {
+            return;
+        }
         if self.p.poll_timeout().is_some_and(|t| t <= now) {
             self.p.handle_timeout(now);
         }
@@ -1990,7 +1937,6 @@ impl State {
             match e {
                 // one clock reading for every sample of a datagram
                 Event::SampleReceived(s) => {
-                    self.delivered = true;
                     let wall = *wall.get_or_insert_with(SystemTime::now);
                     self.sample(s, now, wall)
                 }
