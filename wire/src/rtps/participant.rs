@@ -3012,10 +3012,7 @@ impl Participant {
                 true
             }
         });
-        // what the readers and writers want sent is packed into datagrams by
-        // the next poll: acknowledgements asked for by received data then go
-        // out with what the application writes in answer before it
-        self.gather_due = true;
+        self.gather();
         let prefix = self.cfg.guid_prefix;
         for (e, lw) in self.writers.iter_mut() {
             if lw.reliable {
