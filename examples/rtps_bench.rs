@@ -133,6 +133,8 @@ fn usage() -> ! {
          [--max-message-size BYTES]   whole table (both CPU placements, Courier and ddsperf)\n  \
          rtps_bench ping|pong|pub|sub [--domain D] [--size BYTES] [--secs S] [--warmup S] \
          [--best-effort] [--threads N] [--queue N] [--busy-poll US] [--max-message-size BYTES]\n\n\
+         rtps_bench floor [--quick] [--reps R]   bare UDP round trips: blocking recv vs tokio (see udp_floor.rs)\n  \
+         rtps_bench udp-ping|udp-pong --port P [--tokio|--tokio-readiness] [--secs S] [--warmup S]\n\n\
          Roles print one RESULT line. ping/pub take --size and --secs (measured time after \
          --warmup); pong runs until ping's last sample; sub until pub's final count \
          (give it pub's --secs/--warmup for the steady-state window).\n\
@@ -176,8 +178,18 @@ fn parse_role_opts(args: &[String]) -> Opts {
     o
 }
 
+#[path = "udp_floor.rs"]
+mod floor;
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
+    if let Some(r) = args.first().and_then(|role| floor::role(role, &args[1..])) {
+        if let Err(e) = r {
+            println!("RESULT error={e:?}");
+            std::process::exit(1);
+        }
+        return;
+    }
     match args.first().map(String::as_str) {
         Some(role @ ("ping" | "pong" | "pub" | "sub")) => {
             let o = parse_role_opts(&args[1..]);
@@ -1200,6 +1212,10 @@ fn lost_cell(kind: Kind, o: &Outcome) -> String {
 }
 
 fn orchestrate(args: &[String]) {
+    let (floor_only, args) = match args.first().map(String::as_str) {
+        Some("floor") => (true, &args[1..]),
+        _ => (false, args),
+    };
     let mut quick = false;
     let mut no_ddsperf = false;
     let mut filter: Option<String> = None;
@@ -1252,6 +1268,10 @@ fn orchestrate(args: &[String]) {
         std::process::exit(1);
     }
     let exe = std::env::current_exe().expect("own path");
+    if floor_only {
+        floor::table(&exe, reps, quick);
+        return;
+    }
     let mut orch = Orchestrator {
         exe,
         quick,
