@@ -918,13 +918,13 @@ impl Driver {
         let mut now = Instant::now();
         // one timer for the driver's life, moved only when the next
         // wake-up moves (see `timer` for why it is not a tokio timer)
-        let mut timer = timer::DriverTimer::new(self.st.next_wakeup(), now);
+        let mut timer = timer::DriverTimer::new(self.st.next_wakeup());
         loop {
             self.st.pump(now);
             while let Some(t) = self.st.p.poll_transmission() {
                 self.io.send(&t).await;
             }
-            timer.set(self.st.next_wakeup(), now);
+            timer.set(self.st.next_wakeup());
             let paused = self.st.full_queue();
             let io = &self.io;
             let wake = tokio::select! {

@@ -30,15 +30,17 @@ enum Inner {
 
 impl DriverTimer {
     /// A timer that fires at `at` (or a little after).
-    pub(super) fn new(at: Instant, now: Instant) -> Self {
+    pub(super) fn new(at: Instant) -> Self {
         #[cfg(target_os = "linux")]
-        if let Ok(mut t) = fd::TimerFd::new() {
-            t.set(at, now);
-            return DriverTimer {
-                inner: Inner::Fd(t),
-            };
+        match fd::TimerFd::new() {
+            Ok(mut t) => {
+                t.set(at);
+                return DriverTimer {
+                    inner: Inner::Fd(t),
+                };
+            }
+            Err(e) => tracing::debug!("no timerfd ({e}): the RTPS driver uses a tokio timer"),
         }
-        let _ = now;
         DriverTimer {
             inner: Inner::Sleep(Box::pin(tokio::time::sleep_until(at.into()))),
         }
@@ -46,10 +48,10 @@ impl DriverTimer {
 
     /// Fires no later than `at`; may fire earlier (after an earlier
     /// deadline that was since given up), so the caller checks what is due.
-    pub(super) fn set(&mut self, at: Instant, now: Instant) {
+    pub(super) fn set(&mut self, at: Instant) {
         match &mut self.inner {
             #[cfg(target_os = "linux")]
-            Inner::Fd(t) => t.set(at, now),
+            Inner::Fd(t) => t.set(at),
             Inner::Sleep(s) => {
                 let at = tokio::time::Instant::from(at);
                 if s.deadline() != at {
@@ -117,15 +119,15 @@ mod fd {
         }
 
         /// Arms the timer for `at` unless it already fires at or before it.
-        pub(super) fn set(&mut self, at: Instant, now: Instant) {
+        pub(super) fn set(&mut self, at: Instant) {
             if self.armed.is_some_and(|armed| armed <= at) {
                 return;
             }
-            // relative to `now`: std's `Instant` is CLOCK_MONOTONIC here, but
-            // its value is not exposed; a zero value would disarm, so at
-            // least 1 ns
+            // relative to the clock now (read only when arming): std's
+            // `Instant` is CLOCK_MONOTONIC here, but its value is not
+            // exposed; a zero value would disarm, so at least 1 ns
             let d = at
-                .saturating_duration_since(now)
+                .saturating_duration_since(Instant::now())
                 .max(Duration::from_nanos(1));
             let spec = libc::itimerspec {
                 it_interval: libc::timespec {
@@ -178,7 +180,7 @@ mod tests {
     #[tokio::test]
     async fn fires_at_its_deadline_and_not_before() {
         let t0 = Instant::now();
-        let mut t = DriverTimer::new(t0 + 30 * MS, t0);
+        let mut t = DriverTimer::new(t0 + 30 * MS);
         t.fired().await;
         assert!(t0.elapsed() >= 30 * MS, "fired after {:?}", t0.elapsed());
     }
@@ -186,8 +188,8 @@ mod tests {
     #[tokio::test]
     async fn an_earlier_deadline_is_armed_at_once() {
         let t0 = Instant::now();
-        let mut t = DriverTimer::new(t0 + Duration::from_secs(60), t0);
-        t.set(t0 + 20 * MS, Instant::now());
+        let mut t = DriverTimer::new(t0 + Duration::from_secs(60));
+        t.set(t0 + 20 * MS);
         tokio::time::timeout(Duration::from_secs(5), t.fired())
             .await
             .expect("the earlier deadline fired");
@@ -199,13 +201,13 @@ mod tests {
         // moving the deadline later may wake the driver early (it then finds
         // nothing due and sets the timer again), never after the deadline
         let t0 = Instant::now();
-        let mut t = DriverTimer::new(t0 + 10 * MS, t0);
-        t.set(t0 + 40 * MS, t0);
+        let mut t = DriverTimer::new(t0 + 10 * MS);
+        t.set(t0 + 40 * MS);
         t.fired().await;
         let first = t0.elapsed();
         assert!(first >= 10 * MS);
         if first < 40 * MS {
-            t.set(t0 + 40 * MS, Instant::now());
+            t.set(t0 + 40 * MS);
             t.fired().await;
         }
         assert!(t0.elapsed() >= 40 * MS);
@@ -214,11 +216,11 @@ mod tests {
     #[tokio::test]
     async fn a_deadline_already_past_fires_at_once_and_again_when_set_again() {
         let t0 = Instant::now();
-        let mut t = DriverTimer::new(t0, t0 + MS);
+        let mut t = DriverTimer::new(t0);
         tokio::time::timeout(Duration::from_secs(5), t.fired())
             .await
             .expect("fired");
-        t.set(Instant::now(), Instant::now());
+        t.set(Instant::now());
         tokio::time::timeout(Duration::from_secs(5), t.fired())
             .await
             .expect("fired again");
@@ -227,8 +229,7 @@ mod tests {
     #[cfg(target_os = "linux")]
     #[tokio::test]
     async fn on_linux_it_is_a_timerfd_not_a_tokio_timer() {
-        let now = Instant::now();
-        let t = DriverTimer::new(now + Duration::from_secs(1), now);
+        let t = DriverTimer::new(Instant::now() + Duration::from_secs(1));
         assert!(matches!(t.inner, Inner::Fd(_)));
     }
 }
