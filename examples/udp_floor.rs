@@ -1,6 +1,6 @@
 //! `rtps_bench floor`: the round trip of bare UDP datagrams on loopback, no
-//! protocol at all, with the same CPU placements as the RTPS table. Two ways
-//! to wait for a datagram:
+//! protocol at all, with the same CPU placements as the RTPS table. Three
+//! ways to wait for a datagram:
 //!
 //! - **blocking**: `recv_from` on a plain socket, as ddsperf's receive
 //!   thread does, answering from the same thread;
@@ -15,7 +15,7 @@
 //! Datagrams are 148 bytes, the size of Courier's 16 B sample.
 //!
 //! ```text
-//! rtps_bench floor [--reps R]
+//! rtps_bench floor [--quick] [--reps R]
 //! rtps_bench udp-pong --port P [--tokio|--tokio-readiness] &
 //! rtps_bench udp-ping --port P [--tokio|--tokio-readiness] --secs 3
 //! ```
