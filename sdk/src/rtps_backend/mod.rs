@@ -920,11 +920,15 @@ impl Driver {
         // wake-up moves (see `timer` for why it is not a tokio timer)
         let mut timer = timer::DriverTimer::new(self.st.next_wakeup());
         loop {
-            self.st.pump(now);
-            while let Some(t) = self.st.p.poll_transmission() {
-                self.io.send(&t).await;
+            // what the last turn produced goes out first; then what is due
+            self.flush(now).await;
+            let mut next = self.st.next_wakeup();
+            if next <= now {
+                self.st.tick(now);
+                self.flush(now).await;
+                next = self.st.next_wakeup();
             }
-            timer.set(self.st.next_wakeup());
+            timer.set(next);
             let paused = self.st.full_queue();
             let io = &self.io;
             let wake = tokio::select! {
@@ -964,9 +968,17 @@ impl Driver {
                 Wake::Space => {}
                 Wake::Timer => {}
             }
-            self.st.tick(now);
         }
         self.close(Instant::now()).await;
+    }
+
+    /// Hands received samples and events to the application and sends
+    /// what the participant has to send.
+    async fn flush(&mut self, now: Instant) {
+        self.st.pump(now);
+        while let Some(t) = self.st.p.poll_transmission() {
+            self.io.send(&t).await;
+        }
     }
 
     /// Reads what is waiting on socket `i`, a batch per system call, up
@@ -1230,13 +1242,10 @@ impl State {
 
     /// Runs what is due: the participant's timers, confirmations and
     /// queries that ran out of time, missed deadlines, housekeeping.
+    /// Whatever is due at `now`; the driver calls it once
+    /// [`State::next_wakeup`], the earliest of exactly these deadlines, has
+    /// come.
     fn tick(&mut self, now: Instant) {
-        // `next_wakeup` is the earliest of exactly these deadlines: a cheap
-        // walk that spares the work below on the turns (most of them) when
-        // nothing is due
-        if self.next_wakeup() > now {
-            return;
-        }
         if self.p.poll_timeout().is_some_and(|t| t <= now) {
             self.p.handle_timeout(now);
         }
