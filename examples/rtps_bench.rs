@@ -183,7 +183,9 @@ mod floor;
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    if let Some(r) = args.first().and_then(|role| floor::role(role, &args[1..])) {
+    if let Some(r) = args.first().and_then(|role| {
+        floor::role(role, &args[1..]).or_else(|| floor::sync_role(role, &args[1..]))
+    }) {
         if let Err(e) = r {
             println!("RESULT error={e:?}");
             std::process::exit(1);

@@ -359,33 +359,55 @@ fn free_port() -> Result<u16, String> {
     Ok(s.local_addr().map_err(|e| e.to_string())?.port())
 }
 
-/// `rtps_bench floor`: both ways of waiting, both placements, `reps`
+/// `rtps_bench floor`: every way of waiting, both placements, `reps`
 /// alternating runs each; prints the table.
 pub fn table(exe: &std::path::Path, reps: usize, quick: bool) {
     let (secs, warmup) = if quick { (0.3, 0.2) } else { (3.0, 0.5) };
-    let modes = [
-        ("a blocking `recv_from` (as ddsperf)", None),
+    // (label, roles, the flag that picks the way of waiting)
+    let rows: [(&str, (&str, &str), Option<&str>); 4] = [
+        (
+            "a blocking `recv_from` (as ddsperf)",
+            ("udp-ping", "udp-pong"),
+            None,
+        ),
         (
             "tokio, `epoll_wait` + one `recvmmsg` (as Courier's driver)",
+            ("udp-ping", "udp-pong"),
             Some("--tokio-readiness"),
         ),
-        ("tokio, `UdpSocket::recv_from`", Some("--tokio")),
+        (
+            "tokio, `UdpSocket::recv_from`",
+            ("udp-ping", "udp-pong"),
+            Some("--tokio"),
+        ),
+        (
+            "Courier's RTPS ping/pong (16 B sample) in a blocking loop, no runtime",
+            ("sync-ping", "sync-pong"),
+            None,
+        ),
     ];
-    let mut cells = vec![vec![Vec::new(); PLACEMENTS.len()]; modes.len()];
+    let mut cells = vec![vec![Vec::new(); PLACEMENTS.len()]; rows.len()];
+    let mut domain = 200;
     for _ in 0..reps {
         for (p, pl) in PLACEMENTS.iter().enumerate() {
-            for (m, (_, flag)) in modes.iter().enumerate() {
-                let port = match free_port() {
-                    Ok(p) => p,
-                    Err(e) => {
-                        eprintln!("floor: no free port: {e}");
-                        continue;
+            for (m, (_, (ping, pong), flag)) in rows.iter().enumerate() {
+                // a free port for the bare UDP pong, a fresh domain for RTPS
+                let at = if ping.starts_with("sync") {
+                    domain = if domain >= 210 { 200 } else { domain + 1 };
+                    ["--domain".to_string(), domain.to_string()]
+                } else {
+                    match free_port() {
+                        Ok(port) => ["--port".to_string(), port.to_string()],
+                        Err(e) => {
+                            eprintln!("floor: no free port: {e}");
+                            continue;
+                        }
                     }
                 };
                 let cmd = |cpu: &str, role: &str| {
                     let mut c = Command::new("taskset");
                     c.arg("-c").arg(cpu).arg(exe).arg(role);
-                    c.args(["--port", &port.to_string()])
+                    c.args(&at)
                         .args(["--secs", &secs.to_string()])
                         .args(["--warmup", &warmup.to_string()]);
                     if let Some(f) = flag {
@@ -394,32 +416,29 @@ pub fn table(exe: &std::path::Path, reps: usize, quick: bool) {
                     c
                 };
                 let limit = Duration::from_secs_f64(secs + warmup + 30.0);
-                match run_pair(
-                    cmd(pl.cpus.1, "udp-pong"),
-                    cmd(pl.cpus.0, "udp-ping"),
-                    limit,
-                ) {
+                match run_pair(cmd(pl.cpus.1, pong), cmd(pl.cpus.0, ping), limit) {
                     Ok((a, _)) => match result_line(&a)
                         .and_then(|m| m.get("median_us").and_then(|v| v.parse::<f64>().ok()))
                     {
                         Some(v) => cells[m][p].push(v),
-                        None => eprintln!("floor {}: no result:\n{a}", pl.name),
+                        None => eprintln!("floor {} {}: no result:\n{a}", ping, pl.name),
                     },
-                    Err(e) => eprintln!("floor {}: {e}", pl.name),
+                    Err(e) => eprintln!("floor {} {}: {e}", ping, pl.name),
                 }
             }
         }
     }
     println!(
-        "\nUDP round trip on loopback, {DATAGRAM}-byte datagrams, no protocol; \
-         median of {reps} alternating runs (their range in brackets)\n"
+        "\nRound trips on loopback with no runtime or no protocol: bare UDP, \
+         {DATAGRAM}-byte datagrams, three ways of waiting; and Courier's RTPS code \
+         waiting as ddsperf does. Median of {reps} alternating runs (their range in brackets)\n"
     );
     println!(
         "| waiting in | {} |",
         PLACEMENTS.map(|p| p.name).join(" | ")
     );
     println!("|---|{}", "---|".repeat(PLACEMENTS.len()));
-    for (m, (name, _)) in modes.iter().enumerate() {
+    for (m, (name, _, _)) in rows.iter().enumerate() {
         let row: Vec<String> = cells[m]
             .iter_mut()
             .map(|v| {
@@ -436,5 +455,313 @@ pub fn table(exe: &std::path::Path, reps: usize, quick: bool) {
             })
             .collect();
         println!("| {name} | {} |", row.join(" | "));
+    }
+}
+
+// ---------------------------------------------------------------------------
+// Courier's RTPS protocol in a blocking loop
+
+/// `sync-ping` / `sync-pong`: the same ping/pong as the RTPS table (topics,
+/// types, QoS, CDR encode and decode of [`super::Data`]), but driven the way
+/// ddsperf is: `courier_wire`'s sans-I/O participant in a plain loop that
+/// blocks in `recv_from` on the user-data socket and answers from there,
+/// with no runtime. Not a library feature: a measurement of what the
+/// protocol code costs when the waiting is done as Cyclone does it.
+pub fn sync_role(name: &str, args: &[String]) -> Option<Result<(), String>> {
+    let ping = match name {
+        "sync-ping" => true,
+        "sync-pong" => false,
+        _ => return None,
+    };
+    Some(parse_sync(args).and_then(|o| sync::run(ping, &o)))
+}
+
+struct SyncOpts {
+    domain: u32,
+    size: usize,
+    secs: f64,
+    warmup: f64,
+}
+
+fn parse_sync(args: &[String]) -> Result<SyncOpts, String> {
+    let mut o = SyncOpts {
+        domain: 0,
+        size: 16,
+        secs: 3.0,
+        warmup: 0.5,
+    };
+    let mut it = args.iter();
+    let num = |v: Option<&String>, what: &str| -> Result<f64, String> {
+        v.and_then(|s| s.parse::<f64>().ok())
+            .ok_or_else(|| format!("{what} needs a number"))
+    };
+    while let Some(a) = it.next() {
+        match a.as_str() {
+            "--domain" => o.domain = num(it.next(), "--domain")? as u32,
+            "--size" => o.size = num(it.next(), "--size")? as usize,
+            "--secs" => o.secs = num(it.next(), "--secs")?,
+            "--warmup" => o.warmup = num(it.next(), "--warmup")?,
+            other => return Err(format!("unknown argument {other:?}")),
+        }
+    }
+    if o.domain > 232 {
+        return Err("--domain must be 0..=232".into());
+    }
+    Ok(o)
+}
+
+mod sync {
+    use std::net::UdpSocket;
+    use std::time::{Duration, Instant, SystemTime};
+
+    use courier::cdr;
+    use courier::rtps::discovery::{Duration as RtpsDuration, EndpointQos, History, Reliability};
+    use courier::rtps::participant::{
+        guid_prefix, Change, Config, EndpointConfig, Event, Participant,
+    };
+    use courier::rtps::{Guid, Locator};
+
+    use super::super::{percentile, Data, END, PING, PONG};
+    use super::SyncOpts;
+
+    const LO: [u8; 4] = [127, 0, 0, 1];
+    const TYPE: &str = "courier::bench::Data";
+
+    struct Node {
+        p: Participant,
+        meta: UdpSocket,
+        user: UdpSocket,
+        buf: Vec<u8>,
+    }
+
+    impl Node {
+        /// A participant on the first free participant index.
+        fn new(domain: u32, seed: u8) -> Result<Node, String> {
+            for index in 0..20 {
+                let mut entropy = [seed; 10];
+                entropy[..4].copy_from_slice(&std::process::id().to_le_bytes());
+                let cfg = Config::udpv4(domain, index, guid_prefix(entropy), LO)
+                    .ok_or("no ports for this domain")?
+                    .with_unicast_peers(&[LO], 9);
+                let port = |l: &Locator| l.socket_addr().map(|a| a.port());
+                let (Some(mp), Some(up)) = (
+                    cfg.metatraffic_unicast.first().and_then(port),
+                    cfg.default_unicast.first().and_then(port),
+                ) else {
+                    return Err("no unicast locators".into());
+                };
+                let (Ok(meta), Ok(user)) = (
+                    UdpSocket::bind(("127.0.0.1", mp)),
+                    UdpSocket::bind(("127.0.0.1", up)),
+                ) else {
+                    continue; // index taken
+                };
+                meta.set_nonblocking(true).map_err(|e| e.to_string())?;
+                return Ok(Node {
+                    p: Participant::new(cfg, Instant::now(), SystemTime::now()),
+                    meta,
+                    user,
+                    buf: vec![0; 65_536],
+                });
+            }
+            Err("no free participant index".into())
+        }
+
+        fn send_all(&mut self) {
+            while let Some(d) = self.p.poll_transmit() {
+                if let Some(a) = d.destination.socket_addr().filter(|a| a.ip().is_loopback()) {
+                    let _ = self.user.send_to(&d.payload, a);
+                }
+            }
+        }
+
+        fn timeouts(&mut self) {
+            let now = Instant::now();
+            if self.p.poll_timeout().is_some_and(|t| t <= now) {
+                self.p.handle_timeout(now);
+            }
+        }
+
+        /// Discovery traffic waiting on the metatraffic socket (not blocking).
+        fn meta(&mut self) {
+            while let Ok((n, from)) = self.meta.recv_from(&mut self.buf) {
+                let src = match from {
+                    std::net::SocketAddr::V4(a) => Locator::udpv4(a.ip().octets(), from.port()),
+                    _ => continue,
+                };
+                self.p.handle_datagram(src, &self.buf[..n], Instant::now());
+            }
+        }
+
+        /// One datagram from the user socket, blocking up to `wait`.
+        fn user(&mut self, wait: Duration) -> bool {
+            let _ = self
+                .user
+                .set_read_timeout(Some(wait.max(Duration::from_micros(100))));
+            match self.user.recv_from(&mut self.buf) {
+                Ok((n, from)) => {
+                    let src = match from {
+                        std::net::SocketAddr::V4(a) => Locator::udpv4(a.ip().octets(), from.port()),
+                        _ => return false,
+                    };
+                    self.p.handle_datagram(src, &self.buf[..n], Instant::now());
+                    true
+                }
+                Err(_) => false,
+            }
+        }
+    }
+
+    pub(super) fn run(ping: bool, o: &SyncOpts) -> Result<(), String> {
+        let mut n = Node::new(o.domain, if ping { 1 } else { 2 })?;
+        let now = Instant::now();
+        let mut wq = EndpointQos::writer_default();
+        wq.reliability = Reliability::Reliable(RtpsDuration::ZERO);
+        wq.history = History::KeepLast(1);
+        let mut rq = EndpointQos::reader_default();
+        rq.reliability = Reliability::Reliable(RtpsDuration::ZERO);
+        let (out, inp) = if ping { (PING, PONG) } else { (PONG, PING) };
+        let w =
+            n.p.create_writer(EndpointConfig::writer(out, TYPE).qos(wq), now)
+                .map_err(|e| e.to_string())?;
+        let r =
+            n.p.create_reader(EndpointConfig::reader(inp, TYPE).qos(rq), now)
+                .map_err(|e| e.to_string())?;
+        // discovery: both matches, both ways, within 20 s
+        let (mut wm, mut rm) = (false, false);
+        let give_up = Instant::now() + Duration::from_secs(20);
+        while !(wm && rm) {
+            if Instant::now() > give_up {
+                return Err("no match within 20 s".into());
+            }
+            n.send_all();
+            n.meta();
+            n.user(Duration::from_millis(1));
+            n.timeouts();
+            while let Some(e) = n.p.poll_event() {
+                match e {
+                    Event::WriterMatched { writer, .. } if writer == w => wm = true,
+                    Event::ReaderMatched { reader, .. } if reader == r => rm = true,
+                    _ => {}
+                }
+            }
+        }
+        if ping {
+            ping_loop(&mut n, w, o)
+        } else {
+            pong_loop(&mut n, w)
+        }
+    }
+
+    /// Samples received, decoded.
+    fn received(n: &mut Node) -> Vec<Data> {
+        let mut v = Vec::new();
+        while let Some(e) = n.p.poll_event() {
+            if let Event::SampleReceived(s) = e {
+                if let Ok(d) = cdr::from_slice::<Data>(s.data()) {
+                    v.push(d);
+                }
+            }
+        }
+        v
+    }
+
+    fn write(n: &mut Node, w: Guid, d: &Data) {
+        let bytes = cdr::to_vec(d, cdr::Encoding::Xcdr1Le);
+        let _ = n.p.write(w, Change::alive(&bytes), Instant::now());
+        n.send_all();
+    }
+
+    fn pong_loop(n: &mut Node, w: Guid) -> Result<(), String> {
+        let mut echoed = 0u64;
+        let mut quiet_since = Instant::now();
+        let mut turns = 0u32;
+        loop {
+            turns = turns.wrapping_add(1);
+            let got = n.user(Duration::from_millis(10));
+            for d in received(n) {
+                write(n, w, &d);
+                echoed += 1;
+                quiet_since = Instant::now();
+                if d.seq == END {
+                    n.send_all();
+                    println!("RESULT role=sync-pong echoed={echoed}");
+                    return Ok(());
+                }
+            }
+            n.send_all();
+            if !got || turns % 1024 == 0 {
+                n.meta();
+                n.timeouts();
+                n.send_all();
+                if quiet_since.elapsed() > Duration::from_secs(60) {
+                    return Err("sync-pong: no ping for 60 s".into());
+                }
+            }
+        }
+    }
+
+    fn ping_loop(n: &mut Node, w: Guid, o: &SyncOpts) -> Result<(), String> {
+        let clock = Instant::now();
+        let mut v = Data {
+            seq: 0,
+            ts_ns: 0,
+            n: o.size as u32,
+            payload: vec![0x5a; o.size],
+        };
+        let mut rtts: Vec<u64> = Vec::with_capacity(1 << 20);
+        let mut retries = 0u64;
+        let warmup = Duration::from_secs_f64(o.warmup);
+        let total = Duration::from_secs_f64(o.warmup + o.secs);
+        let mut turns = 0u32;
+        while clock.elapsed() < total {
+            v.seq = (v.seq + 1) % END;
+            v.ts_ns = clock.elapsed().as_nanos() as u64;
+            write(n, w, &v);
+            let sent = Instant::now();
+            'wait: loop {
+                turns = turns.wrapping_add(1);
+                let got = n.user(Duration::from_millis(10));
+                for d in received(n) {
+                    if d.seq == v.seq {
+                        let rtt = (clock.elapsed().as_nanos() as u64).saturating_sub(d.ts_ns);
+                        if clock.elapsed() >= warmup {
+                            rtts.push(rtt);
+                        }
+                        n.send_all();
+                        break 'wait;
+                    }
+                }
+                n.send_all();
+                if !got || turns % 1024 == 0 {
+                    n.meta();
+                    n.timeouts();
+                    n.send_all();
+                }
+                if sent.elapsed() > Duration::from_millis(200) {
+                    retries += 1;
+                    break;
+                }
+            }
+        }
+        v.seq = END;
+        write(n, w, &v);
+        // let pong's last answer come (and acknowledge it)
+        let end = Instant::now() + Duration::from_millis(500);
+        while Instant::now() < end {
+            n.user(Duration::from_millis(10));
+            if received(n).iter().any(|d| d.seq == END) {
+                break;
+            }
+            n.send_all();
+        }
+        rtts.sort_unstable();
+        println!(
+            "RESULT role=sync-ping n={} median_us={:.2} p99_us={:.2} retries={retries}",
+            rtts.len(),
+            percentile(&rtts, 0.5) / 1e3,
+            percentile(&rtts, 0.99) / 1e3,
+        );
+        Ok(())
     }
 }
