@@ -57,6 +57,18 @@ const CYCLONE_URI: &str = "<CycloneDDS><Domain id=\"any\"><General><Interfaces>\
 
 /// Topics: ping → pong on `PING`, back on `PONG`; throughput on `DATA`,
 /// and the publisher's final count on `CTL` (reliable).
+impl Data {
+    /// The first ping: `size` bytes of payload.
+    fn ping(size: usize) -> Data {
+        Data {
+            seq: 0,
+            ts_ns: 0,
+            n: size as u32,
+            payload: vec![0x5a; size],
+        }
+    }
+}
+
 const PING: &str = "bench_ping";
 const PONG: &str = "bench_pong";
 const DATA: &str = "bench_data";
@@ -367,12 +379,7 @@ async fn ping(o: &Opts) -> Res {
     await_reader(&s, PING, Duration::from_secs(20)).await?;
     let setup_ms = t_setup.elapsed().as_secs_f64() * 1e3;
     let clock = Instant::now();
-    let mut v = Data {
-        seq: 0,
-        ts_ns: 0,
-        n: o.size as u32,
-        payload: vec![0x5a; o.size],
-    };
+    let mut v = Data::ping(o.size);
     let mut rtts: Vec<u64> = Vec::with_capacity(1 << 20);
     let mut retries = 0u64;
     let mut measuring_from: Option<Instant> = None;

@@ -46,8 +46,12 @@ enum Wait {
     TokioReadiness,
 }
 
+/// Options of the roles here: `udp-*` take `--port` and a way of waiting,
+/// `sync-*` take `--domain` and `--size`.
 struct Opts {
     port: u16,
+    domain: u32,
+    size: usize,
     wait: Wait,
     secs: f64,
     warmup: f64,
@@ -56,6 +60,8 @@ struct Opts {
 fn parse(args: &[String]) -> Result<Opts, String> {
     let mut o = Opts {
         port: 0,
+        domain: 0,
+        size: 16,
         wait: Wait::Blocking,
         secs: 3.0,
         warmup: 0.5,
@@ -68,15 +74,14 @@ fn parse(args: &[String]) -> Result<Opts, String> {
     while let Some(a) = it.next() {
         match a.as_str() {
             "--port" => o.port = num(it.next(), "--port")? as u16,
+            "--domain" => o.domain = num(it.next(), "--domain")? as u32,
+            "--size" => o.size = num(it.next(), "--size")? as usize,
             "--secs" => o.secs = num(it.next(), "--secs")?,
             "--warmup" => o.warmup = num(it.next(), "--warmup")?,
             "--tokio" => o.wait = Wait::Tokio,
             "--tokio-readiness" => o.wait = Wait::TokioReadiness,
             other => return Err(format!("unknown argument {other:?}")),
         }
-    }
-    if o.port == 0 {
-        return Err("--port P is required".into());
     }
     Ok(o)
 }
@@ -88,7 +93,12 @@ pub fn role(name: &str, args: &[String]) -> Option<Result<(), String>> {
         "udp-pong" => pong,
         _ => return None,
     };
-    Some(parse(args).and_then(|o| f(&o)))
+    Some(parse(args).and_then(|o| {
+        if o.port == 0 {
+            return Err("--port P is required".into());
+        }
+        f(&o)
+    }))
 }
 
 /// A socket in one of the two tokio ways of waiting.
@@ -343,14 +353,19 @@ fn ping(o: &Opts) -> Result<(), String> {
             Ok(())
         })?;
     }
+    print_rtts("udp-ping", rtts, retries);
+    Ok(())
+}
+
+/// The ping roles' RESULT line.
+fn print_rtts(role: &str, mut rtts: Vec<u64>, retries: u64) {
     rtts.sort_unstable();
     println!(
-        "RESULT role=udp-ping n={} median_us={:.2} p99_us={:.2} retries={retries}",
+        "RESULT role={role} n={} median_us={:.2} p99_us={:.2} retries={retries}",
         rtts.len(),
         percentile(&rtts, 0.5) / 1e3,
         percentile(&rtts, 0.99) / 1e3,
     );
-    Ok(())
 }
 
 /// A port no one holds on 127.0.0.1 right now.
@@ -473,41 +488,12 @@ pub fn sync_role(name: &str, args: &[String]) -> Option<Result<(), String>> {
         "sync-pong" => false,
         _ => return None,
     };
-    Some(parse_sync(args).and_then(|o| sync::run(ping, &o)))
-}
-
-struct SyncOpts {
-    domain: u32,
-    size: usize,
-    secs: f64,
-    warmup: f64,
-}
-
-fn parse_sync(args: &[String]) -> Result<SyncOpts, String> {
-    let mut o = SyncOpts {
-        domain: 0,
-        size: 16,
-        secs: 3.0,
-        warmup: 0.5,
-    };
-    let mut it = args.iter();
-    let num = |v: Option<&String>, what: &str| -> Result<f64, String> {
-        v.and_then(|s| s.parse::<f64>().ok())
-            .ok_or_else(|| format!("{what} needs a number"))
-    };
-    while let Some(a) = it.next() {
-        match a.as_str() {
-            "--domain" => o.domain = num(it.next(), "--domain")? as u32,
-            "--size" => o.size = num(it.next(), "--size")? as usize,
-            "--secs" => o.secs = num(it.next(), "--secs")?,
-            "--warmup" => o.warmup = num(it.next(), "--warmup")?,
-            other => return Err(format!("unknown argument {other:?}")),
+    Some(parse(args).and_then(|o| {
+        if o.domain > 232 {
+            return Err("--domain must be 0..=232".into());
         }
-    }
-    if o.domain > 232 {
-        return Err("--domain must be 0..=232".into());
-    }
-    Ok(o)
+        sync::run(ping, &o)
+    }))
 }
 
 mod sync {
@@ -521,8 +507,8 @@ mod sync {
     };
     use courier::rtps::{Guid, Locator};
 
-    use super::super::{percentile, Data, END, PING, PONG};
-    use super::SyncOpts;
+    use super::super::{Data, END, PING, PONG};
+    use super::Opts;
 
     const LO: [u8; 4] = [127, 0, 0, 1];
     const TYPE: &str = "courier::bench::Data";
@@ -532,6 +518,7 @@ mod sync {
         meta: UdpSocket,
         user: UdpSocket,
         buf: Vec<u8>,
+        turns: u32,
     }
 
     impl Node {
@@ -562,6 +549,7 @@ mod sync {
                     meta,
                     user,
                     buf: vec![0; 65_536],
+                    turns: 0,
                 });
             }
             Err("no free participant index".into())
@@ -573,6 +561,21 @@ mod sync {
                     let _ = self.user.send_to(&d.payload, a);
                 }
             }
+        }
+
+        /// After a turn of the loop: sends what is pending; after a
+        /// receive that timed out, and every 1024 turns, also reads the
+        /// discovery socket and fires timeouts (true then).
+        fn between_turns(&mut self, got: bool) -> bool {
+            self.send_all();
+            self.turns = self.turns.wrapping_add(1);
+            if got && self.turns % 1024 != 0 {
+                return false;
+            }
+            self.meta();
+            self.timeouts();
+            self.send_all();
+            true
         }
 
         fn timeouts(&mut self) {
@@ -612,7 +615,7 @@ mod sync {
         }
     }
 
-    pub(super) fn run(ping: bool, o: &SyncOpts) -> Result<(), String> {
+    pub(super) fn run(ping: bool, o: &Opts) -> Result<(), String> {
         let mut n = Node::new(o.domain, if ping { 1 } else { 2 })?;
         let now = Instant::now();
         let mut wq = EndpointQos::writer_default();
@@ -675,9 +678,7 @@ mod sync {
     fn pong_loop(n: &mut Node, w: Guid) -> Result<(), String> {
         let mut echoed = 0u64;
         let mut quiet_since = Instant::now();
-        let mut turns = 0u32;
         loop {
-            turns = turns.wrapping_add(1);
             let got = n.user(Duration::from_millis(10));
             for d in received(n) {
                 write(n, w, &d);
@@ -689,38 +690,25 @@ mod sync {
                     return Ok(());
                 }
             }
-            n.send_all();
-            if !got || turns % 1024 == 0 {
-                n.meta();
-                n.timeouts();
-                n.send_all();
-                if quiet_since.elapsed() > Duration::from_secs(60) {
-                    return Err("sync-pong: no ping for 60 s".into());
-                }
+            if n.between_turns(got) && quiet_since.elapsed() > Duration::from_secs(60) {
+                return Err("sync-pong: no ping for 60 s".into());
             }
         }
     }
 
-    fn ping_loop(n: &mut Node, w: Guid, o: &SyncOpts) -> Result<(), String> {
+    fn ping_loop(n: &mut Node, w: Guid, o: &Opts) -> Result<(), String> {
         let clock = Instant::now();
-        let mut v = Data {
-            seq: 0,
-            ts_ns: 0,
-            n: o.size as u32,
-            payload: vec![0x5a; o.size],
-        };
+        let mut v = Data::ping(o.size);
         let mut rtts: Vec<u64> = Vec::with_capacity(1 << 20);
         let mut retries = 0u64;
         let warmup = Duration::from_secs_f64(o.warmup);
         let total = Duration::from_secs_f64(o.warmup + o.secs);
-        let mut turns = 0u32;
         while clock.elapsed() < total {
             v.seq = (v.seq + 1) % END;
             v.ts_ns = clock.elapsed().as_nanos() as u64;
             write(n, w, &v);
             let sent = Instant::now();
             'wait: loop {
-                turns = turns.wrapping_add(1);
                 let got = n.user(Duration::from_millis(10));
                 for d in received(n) {
                     if d.seq == v.seq {
@@ -732,12 +720,7 @@ mod sync {
                         break 'wait;
                     }
                 }
-                n.send_all();
-                if !got || turns % 1024 == 0 {
-                    n.meta();
-                    n.timeouts();
-                    n.send_all();
-                }
+                n.between_turns(got);
                 if sent.elapsed() > Duration::from_millis(200) {
                     retries += 1;
                     break;
@@ -755,13 +738,7 @@ mod sync {
             }
             n.send_all();
         }
-        rtts.sort_unstable();
-        println!(
-            "RESULT role=sync-ping n={} median_us={:.2} p99_us={:.2} retries={retries}",
-            rtts.len(),
-            percentile(&rtts, 0.5) / 1e3,
-            percentile(&rtts, 0.99) / 1e3,
-        );
+        super::print_rtts("sync-ping", rtts, retries);
         Ok(())
     }
 }
