@@ -519,6 +519,8 @@ mod sync {
         user: UdpSocket,
         buf: Vec<u8>,
         turns: u32,
+        /// The user socket's receive time limit.
+        timeout: Duration,
     }
 
     impl Node {
@@ -550,6 +552,7 @@ mod sync {
                     user,
                     buf: vec![0; 65_536],
                     turns: 0,
+                    timeout: Duration::ZERO,
                 });
             }
             Err("no free participant index".into())
@@ -598,9 +601,12 @@ mod sync {
 
         /// One datagram from the user socket, blocking up to `wait`.
         fn user(&mut self, wait: Duration) -> bool {
-            let _ = self
-                .user
-                .set_read_timeout(Some(wait.max(Duration::from_micros(100))));
+            let wait = wait.max(Duration::from_micros(100));
+            if self.timeout != wait {
+                // a system call: only when the limit changes
+                let _ = self.user.set_read_timeout(Some(wait));
+                self.timeout = wait;
+            }
             match self.user.recv_from(&mut self.buf) {
                 Ok((n, from)) => {
                     let src = match from {
