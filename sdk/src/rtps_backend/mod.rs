@@ -1240,11 +1240,10 @@ impl State {
             .map(|r| r.queue.clone())
     }
 
-    /// Runs what is due: the participant's timers, confirmations and
-    /// queries that ran out of time, missed deadlines, housekeeping.
-    /// Whatever is due at `now`; the driver calls it once
-    /// [`State::next_wakeup`], the earliest of exactly these deadlines, has
-    /// come.
+    /// Runs what is due at `now`: the participant's timers, confirmations
+    /// and queries that ran out of time, missed deadlines, housekeeping. The
+    /// driver calls it once [`State::next_wakeup`], the earliest of exactly
+    /// these deadlines, has come.
     fn tick(&mut self, now: Instant) {
         if self.p.poll_timeout().is_some_and(|t| t <= now) {
             self.p.handle_timeout(now);
