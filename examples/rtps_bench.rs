@@ -93,6 +93,9 @@ fn url(o: &Opts) -> String {
     if let Some(n) = o.max_message_size {
         u += &format!("&max_message_size={n}");
     }
+    if o.listener {
+        u += "&receive_thread=true";
+    }
     u
 }
 
@@ -121,6 +124,9 @@ struct Opts {
     queue: usize,
     busy_poll_us: u64,
     max_message_size: Option<usize>,
+    /// ping/pong answer from a callback on the receive thread
+    /// (`listen` + `try_publish`), as ddsperf's default listener mode does.
+    listener: bool,
 }
 
 impl Default for Opts {
@@ -135,6 +141,7 @@ impl Default for Opts {
             queue: 4096,
             busy_poll_us: 0,
             max_message_size: None,
+            listener: false,
         }
     }
 }
@@ -180,6 +187,7 @@ fn parse_role_opts(args: &[String]) -> Opts {
             }
             "--best-effort" => o.best_effort = true,
             "--reliable" => o.best_effort = false,
+            "--listener" => o.listener = true,
             "-h" | "--help" => usage(),
             other => {
                 eprintln!("unknown argument {other:?} (try --help)");
@@ -226,6 +234,8 @@ fn main() {
             let r = rt.block_on(async move {
                 tokio::spawn(async move {
                     match role_name.as_str() {
+                        "ping" if o.listener => ping_listener(&o).await,
+                        "pong" if o.listener => pong_listener(&o).await,
                         "ping" => ping(&o).await,
                         "pong" => pong(&o).await,
                         "pub" => publish(&o).await,
@@ -451,6 +461,219 @@ async fn ping(o: &Opts) -> Res {
         percentile(&rtts, 0.0) / 1e3,
         percentile(&rtts, 1.0) / 1e3,
     );
+    s.close().await;
+    Ok(())
+}
+
+/// The round trips of [`ping`], answered from a callback: each pong's
+/// callback, on the session's receive thread, records the round trip and
+/// sends the next ping with `try_publish`; the task only starts, retries
+/// (while discovery settles) and stops.
+async fn ping_listener(o: &Opts) -> Res {
+    use std::sync::{Arc, Mutex};
+    struct Run {
+        v: Data,
+        rtts: Vec<u64>,
+        measuring_from: Option<Instant>,
+        secs: f64,
+        finished: bool,
+        error: Option<String>,
+    }
+    let t_setup = Instant::now();
+    let s = connect(o, "ping").await?;
+    let p = s
+        .publisher::<Data>(PING)
+        .reliable()
+        .keep_last(1)
+        .build()
+        .await
+        .map_err(|e| e.to_string())?;
+    let clock = Instant::now();
+    let run = Arc::new(Mutex::new(Run {
+        v: Data::ping(o.size),
+        rtts: Vec::with_capacity(1 << 20),
+        measuring_from: None,
+        secs: 0.0,
+        finished: false,
+        error: None,
+    }));
+    let done = Arc::new(tokio::sync::Notify::new());
+    let retry = Arc::new(Watchdog::start(PING_RETRY));
+    let (warmup, measure) = (o.warmup, o.secs);
+    let end_seen = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let on_pong = {
+        let (run, done, retry, p, end_seen) = (
+            run.clone(),
+            done.clone(),
+            retry.clone(),
+            p.clone(),
+            end_seen.clone(),
+        );
+        move |r: Result<courier::Sample<Data>, courier::RecvError>| {
+            let Ok(r) = r else { return };
+            if r.value.seq == END {
+                end_seen.store(true, std::sync::atomic::Ordering::Relaxed);
+                done.notify_one();
+                return;
+            }
+            let mut g = run.lock().unwrap();
+            if g.finished || r.value.seq != g.v.seq {
+                return; // a late answer to a retried ping
+            }
+            let t = clock.elapsed().as_nanos() as u64;
+            g.rtts.push(t.saturating_sub(r.value.ts_ns));
+            let now = Instant::now();
+            match g.measuring_from {
+                None if g.rtts.len() > 10 && now.duration_since(clock).as_secs_f64() >= warmup => {
+                    g.rtts.clear();
+                    g.measuring_from = Some(now);
+                }
+                Some(t0) if now.duration_since(t0).as_secs_f64() >= measure => {
+                    g.secs = now.duration_since(t0).as_secs_f64();
+                    g.finished = true;
+                    done.notify_one();
+                    return;
+                }
+                _ => {}
+            }
+            g.v.seq = g.v.seq.wrapping_add(1) % END;
+            g.v.ts_ns = clock.elapsed().as_nanos() as u64;
+            retry.kick();
+            if let Err(e) = p.try_publish(&g.v) {
+                g.error = Some(e.to_string());
+                g.finished = true;
+                done.notify_one();
+            }
+        }
+    };
+    let pongs = s
+        .subscriber::<Data>(PONG)
+        .reliable()
+        .listen(on_pong)
+        .await
+        .map_err(|e| e.to_string())?;
+    await_reader(&s, PING, Duration::from_secs(20)).await?;
+    let setup_ms = t_setup.elapsed().as_secs_f64() * 1e3;
+    let give_up = Instant::now() + Duration::from_secs_f64(o.warmup + o.secs + 30.0);
+    let mut retries = 0u64;
+    loop {
+        {
+            let mut g = run.lock().unwrap();
+            if g.finished {
+                break;
+            }
+            if Instant::now() > give_up {
+                return Err("ping: out of time (pong not answering?)".into());
+            }
+            // the first ping, or again one that got no answer
+            g.v.seq = g.v.seq.wrapping_add(1) % END;
+            g.v.ts_ns = clock.elapsed().as_nanos() as u64;
+            retry.kick();
+            p.try_publish(&g.v).map_err(|e| e.to_string())?;
+        }
+        tokio::select! {
+            _ = done.notified() => {}
+            _ = retry.expired() => retries += 1,
+        }
+    }
+    let (mut rtts, secs) = {
+        let mut g = run.lock().unwrap();
+        if let Some(e) = g.error.take() {
+            return Err(format!("ping: {e}"));
+        }
+        (std::mem::take(&mut g.rtts), g.secs)
+    };
+    // tell pong to stop (and wait for its answer, so it is sent)
+    let mut v = Data::ping(o.size);
+    v.seq = END;
+    p.publish(&v).await.map_err(|e| e.to_string())?;
+    let _ = tokio::time::timeout(Duration::from_secs(2), async {
+        while !end_seen.load(std::sync::atomic::Ordering::Relaxed) {
+            done.notified().await;
+        }
+    })
+    .await;
+    drop(pongs);
+    rtts.sort_unstable();
+    let n = rtts.len();
+    let mean = rtts.iter().sum::<u64>() as f64 / n.max(1) as f64;
+    println!(
+        "RESULT role=ping size={} n={n} secs={secs:.3} median_us={:.2} p99_us={:.2} \
+         mean_us={:.2} min_us={:.2} max_us={:.2} retries={retries} setup_ms={setup_ms:.0}",
+        o.size,
+        percentile(&rtts, 0.5) / 1e3,
+        percentile(&rtts, 0.99) / 1e3,
+        mean / 1e3,
+        percentile(&rtts, 0.0) / 1e3,
+        percentile(&rtts, 1.0) / 1e3,
+    );
+    s.close().await;
+    Ok(())
+}
+
+/// [`pong`] from a callback: each ping is echoed from the receive thread
+/// with `try_publish`.
+async fn pong_listener(o: &Opts) -> Res {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    use std::sync::Arc;
+    let s = connect(o, "pong").await?;
+    let p = s
+        .publisher::<Data>(PONG)
+        .reliable()
+        .keep_last(1)
+        .build()
+        .await
+        .map_err(|e| e.to_string())?;
+    let idle = Duration::from_secs_f64(o.warmup + o.secs + 40.0);
+    let quiet = Arc::new(Watchdog::start(idle));
+    let done = Arc::new(tokio::sync::Notify::new());
+    let echoed = Arc::new(AtomicU64::new(0));
+    let failed = Arc::new(std::sync::Mutex::new(None::<String>));
+    let on_ping = {
+        let (p, quiet, done, echoed, failed) = (
+            p.clone(),
+            quiet.clone(),
+            done.clone(),
+            echoed.clone(),
+            failed.clone(),
+        );
+        move |r: Result<courier::Sample<Data>, courier::RecvError>| {
+            let v = match r {
+                Ok(v) => v,
+                Err(e) => {
+                    *failed.lock().unwrap() = Some(e.to_string());
+                    done.notify_one();
+                    return;
+                }
+            };
+            if let Err(e) = p.try_publish(&v.value) {
+                *failed.lock().unwrap() = Some(e.to_string());
+                done.notify_one();
+            }
+            quiet.kick();
+            echoed.fetch_add(1, Ordering::Relaxed);
+            if v.value.seq == END {
+                done.notify_one();
+            }
+        }
+    };
+    let pings = s
+        .subscriber::<Data>(PING)
+        .reliable()
+        .listen(on_ping)
+        .await
+        .map_err(|e| e.to_string())?;
+    tokio::select! {
+        _ = done.notified() => {}
+        _ = quiet.expired() => return Err("pong: no ping for too long".into()),
+    }
+    if let Some(e) = failed.lock().unwrap().take() {
+        return Err(format!("pong: {e}"));
+    }
+    // let the last answer go out before leaving
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    drop(pings);
+    println!("RESULT role=pong echoed={}", echoed.load(Ordering::Relaxed));
     s.close().await;
     Ok(())
 }

@@ -110,11 +110,11 @@ pub use courier_wire::{cdr, format, ipc, rtps, IpcMessage, NamedFormats};
 pub use qos::{Durability, History, Reliability};
 pub use rtps_backend::RtpsOptions;
 pub use session::{
-    Backend, ConnectError, Encoding, Events, InstanceState, PeriodicPublication, PublicationQos,
-    Publish, Publisher, PublisherBuilder, Query, QueryError, QueuePolicy, RawReply, RawRequest,
-    RawSample, RawSubscriber, RecvError, Request, Requests, Responder, Sample, SampleQueue,
-    Session, SessionBuilder, SessionError, SessionEvent, Subscriber, SubscriberBuilder,
-    SubscriptionQos, Tick, Timer, TypeInfo, WriteOptions,
+    Backend, ConnectError, Encoding, Events, InstanceState, Listener, PeriodicPublication,
+    PublicationQos, Publish, Publisher, PublisherBuilder, Query, QueryError, QueuePolicy, RawReply,
+    RawRequest, RawSample, RawSubscriber, RecvError, Request, Requests, Responder, Sample,
+    SampleQueue, Session, SessionBuilder, SessionError, SessionEvent, Subscriber,
+    SubscriberBuilder, SubscriptionQos, Tick, Timer, TypeInfo, WriteOptions,
 };
 
 #[doc(hidden)]

@@ -161,6 +161,21 @@ pub struct SampleQueue {
     /// Where a typed subscriber puts decoded sample buffers, if the backend
     /// reuses them.
     returns: std::sync::OnceLock<Arc<ReturnedBuffers>>,
+    /// Immediate delivery: the callback every sample goes to.
+    handler: std::sync::OnceLock<Handler>,
+}
+
+/// The callback of an immediate-delivery subscription (ORTE's IMMEDIATE
+/// mode, a DDS listener): called with the queue and one sample, in order,
+/// by one thread at a time.
+struct Handler(std::sync::Mutex<HandlerFn>);
+
+type HandlerFn = Box<dyn FnMut(&SampleQueue, RawSample) + Send>;
+
+impl std::fmt::Debug for Handler {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Handler")
+    }
 }
 
 #[derive(Debug)]
@@ -195,7 +210,55 @@ impl SampleQueue {
             }),
             space: tokio::sync::Notify::new(),
             returns: std::sync::OnceLock::new(),
+            handler: std::sync::OnceLock::new(),
         })
+    }
+
+    /// Makes this an immediate-delivery queue: its samples go to `f` (once
+    /// set, for the queue's life) when [`SampleQueue::run_handler`] runs.
+    pub fn set_handler(&self, f: impl FnMut(&SampleQueue, RawSample) + Send + 'static) {
+        let _ = self
+            .handler
+            .set(Handler(std::sync::Mutex::new(Box::new(f))));
+    }
+
+    /// Whether the queue has a handler (see [`SampleQueue::set_handler`]).
+    pub fn has_handler(&self) -> bool {
+        self.handler.get().is_some()
+    }
+
+    /// Hands every waiting sample to the queue's handler, in order, on the
+    /// calling thread; `false` if it has none. Backends that deliver
+    /// immediately ([`Backend::delivers_immediately`]) call it after
+    /// pushing, holding none of their own locks: the handler may publish.
+    /// A handler that panics loses that sample, not the subscription.
+    pub fn run_handler(&self) -> bool {
+        let Some(h) = self.handler.get() else {
+            return false;
+        };
+        let mut f = h.0.lock().unwrap_or_else(|p| p.into_inner());
+        while let Some(s) = self.try_pop() {
+            let call = std::panic::AssertUnwindSafe(|| f(self, s));
+            if std::panic::catch_unwind(call).is_err() {
+                tracing::error!("a subscription callback panicked; its sample is lost");
+            }
+        }
+        true
+    }
+
+    /// Ready with `true` when a sample (or the end marker) waits, `false`
+    /// once nothing more will come to the handler (the end was taken, or
+    /// the subscription was dropped).
+    fn poll_waiting(&self, cx: &mut Context<'_>) -> Poll<bool> {
+        let mut st = self.state.lock().unwrap();
+        if st.receiver_gone || (st.closed && st.reported_close && st.items.is_empty()) {
+            return Poll::Ready(false);
+        }
+        if !st.items.is_empty() || st.closed {
+            return Poll::Ready(true);
+        }
+        st.waker = Some(cx.waker().clone());
+        Poll::Pending
     }
 
     /// Decoded sample buffers of this queue go back to `to` (once set, for
@@ -304,8 +367,12 @@ impl SampleQueue {
         let mut st = self.state.lock().unwrap();
         st.receiver_gone = true;
         st.items.clear();
+        let waker = st.waker.take();
         drop(st);
         self.space.notify_waiters();
+        if let Some(w) = waker {
+            w.wake(); // a handler task (see `Session::run_handler_task`) ends
+        }
     }
 
     fn try_pop(&self) -> Option<RawSample> {
@@ -678,6 +745,28 @@ pub trait Backend: Send + Sync + std::fmt::Debug {
         self.publish(msg, data).await
     }
 
+    /// Whether the backend runs the handlers of immediate-delivery queues
+    /// itself ([`SampleQueue::run_handler`]) as it delivers; otherwise the
+    /// session runs each on a task of its own.
+    fn delivers_immediately(&self) -> bool {
+        false
+    }
+
+    /// Publishes without waiting, from any thread (a subscription callback
+    /// among them): queued or sent before it returns, or an error. The
+    /// default refuses.
+    fn try_write(
+        &self,
+        msg: &str,
+        data: Vec<u8>,
+        key_hash: Option<[u8; 16]>,
+    ) -> Result<(), SessionError> {
+        let _ = (data, key_hash);
+        Err(SessionError::Refused(format!(
+            "cannot publish {msg} without waiting on this backend: use publish().await"
+        )))
+    }
+
     /// Disposes or unregisters an instance of a keyed topic; `key` is the
     /// serialized key (CDR with its encapsulation header).
     async fn end_instance(
@@ -777,6 +866,15 @@ impl SessionBuilder {
     pub fn busy_poll(mut self, window: Duration) -> Self {
         self.opts.busy_poll = Some(window);
         self.rtps.busy_poll = Some(window);
+        self
+    }
+
+    /// RTPS: read user data on a receive thread of its own, which also runs
+    /// the callbacks of [`SubscriberBuilder::listen`] (see
+    /// [`RtpsOptions::receive_thread`]). Also `receive_thread=true` in the
+    /// URL. Other backends ignore it.
+    pub fn receive_thread(mut self, on: bool) -> Self {
+        self.rtps.receive_thread = Some(on);
         self
     }
 
@@ -1282,6 +1380,18 @@ impl<T: IpcMessage> Publisher<T> {
         self.session.publish(&self.msg, value)
     }
 
+    /// Publishes without waiting and from any thread, a subscription
+    /// callback's among them (ORTE's `ORTEPublicationSend`): the sample is
+    /// queued or sent when this returns. Fails where `publish().await`
+    /// would wait (the session's write queue is full) and on backends that
+    /// cannot (IPC: use `publish().await`). Inside a callback of an
+    /// immediate subscription the datagram goes out when the callback
+    /// returns, packed with the callback's other writes.
+    pub fn try_publish(&self, value: &T) -> Result<(), SessionError> {
+        let p = self.session.publish(&self.msg, value);
+        self.session.backend.try_write(p.msg, p.data, p.key_hash)
+    }
+
     /// Disposes the instance that `value`'s key fields name (keyed topics).
     pub async fn dispose(&self, value: &T) -> Result<(), SessionError> {
         self.end(value, InstanceState::Disposed).await
@@ -1430,6 +1540,44 @@ impl<T: IpcMessage> SubscriberBuilder<T> {
         self
     }
 
+    /// Creates the subscription with immediate delivery (ORTE's IMMEDIATE
+    /// mode, a DDS listener): `f` gets every sample, in order, as soon as
+    /// the backend has it, and `Err(RecvError::Disconnected)` once at the
+    /// end. On RTPS it runs where the datagram was read: the participant's
+    /// receive thread (`receive_thread`), or else its driver task; keep it
+    /// short and never block in it (it holds up reception). It can answer
+    /// at once with [`Publisher::try_publish`]. Other backends call it from
+    /// a task of its own. Dropping the [`Listener`] unsubscribes.
+    pub async fn listen<F>(self, mut f: F) -> Result<Listener, SessionError>
+    where
+        F: FnMut(Result<Sample<T>, RecvError>) + Send + 'static,
+    {
+        let queue = SampleQueue::new(self.policy.unwrap_or_default());
+        let enc = self.session.enc();
+        queue.set_handler(move |q, s| f(convert::<T>(enc, q, s)));
+        let backend = &self.session.backend;
+        backend
+            .create_subscription(
+                &self.msg,
+                Some(&TypeInfo::of::<T>()),
+                &self.qos,
+                queue.clone(),
+            )
+            .await?;
+        if !backend.delivers_immediately() {
+            let q = queue.clone();
+            tokio::spawn(async move {
+                while std::future::poll_fn(|cx| q.poll_waiting(cx)).await {
+                    q.run_handler();
+                }
+            });
+        }
+        Ok(Listener {
+            raw: RawSubscriber { queue },
+            msg: self.msg,
+        })
+    }
+
     /// Creates the subscription.
     pub async fn build(self) -> Result<Subscriber<T>, SessionError> {
         let queue = SampleQueue::new(self.policy.unwrap_or_default());
@@ -1449,6 +1597,27 @@ impl<T: IpcMessage> SubscriberBuilder<T> {
             decode_errors: 0,
             _t: PhantomData,
         })
+    }
+}
+
+/// An immediate-delivery subscription
+/// ([`SubscriberBuilder::listen`]); dropping it unsubscribes (a callback
+/// already running finishes).
+#[derive(Debug)]
+pub struct Listener {
+    raw: RawSubscriber,
+    msg: String,
+}
+
+impl Listener {
+    /// The message subscribed.
+    pub fn msg(&self) -> &str {
+        &self.msg
+    }
+
+    /// Samples dropped by a keep-last policy or a backend filter so far.
+    pub fn dropped(&self) -> u64 {
+        self.raw.dropped()
     }
 }
 
@@ -1516,42 +1685,53 @@ pub struct Subscriber<T> {
     _t: PhantomData<fn() -> T>,
 }
 
+/// A raw sample as the typed `Sample` (or why not): what both a
+/// [`Subscriber`] and a [`Listener`]'s callback see.
+fn convert<T: IpcMessage>(
+    enc: Encoding,
+    queue: &SampleQueue,
+    mut s: RawSample,
+) -> Result<Sample<T>, RecvError> {
+    if let Some(done) = s.done.take() {
+        done();
+    }
+    if s.msg.is_empty() {
+        // The backend's end-of-connection marker.
+        return Err(RecvError::Disconnected);
+    }
+    if s.state != InstanceState::Alive {
+        return Err(RecvError::Instance {
+            msg: s.msg,
+            state: s.state,
+            key_hash: s.key_hash,
+            key: s.data,
+        });
+    }
+    let decoded = decode::<T>(enc, &s.data, s.order);
+    queue.give_back(s.data);
+    match decoded {
+        Ok(value) => Ok(Sample {
+            value,
+            msg: s.msg,
+            received: s.received,
+            source: s.source,
+            source_time: s.source_time,
+        }),
+        Err(detail) => Err(RecvError::Decode {
+            msg: s.msg,
+            ty: std::any::type_name::<T>(),
+            detail,
+        }),
+    }
+}
+
 impl<T: IpcMessage> Subscriber<T> {
-    fn convert(&mut self, mut s: RawSample) -> Result<Sample<T>, RecvError> {
-        if let Some(done) = s.done.take() {
-            done();
+    fn convert(&mut self, s: RawSample) -> Result<Sample<T>, RecvError> {
+        let r = convert(self.enc, &self.raw.queue, s);
+        if matches!(r, Err(RecvError::Decode { .. })) {
+            self.decode_errors += 1;
         }
-        if s.msg.is_empty() {
-            // The backend's end-of-connection marker.
-            return Err(RecvError::Disconnected);
-        }
-        if s.state != InstanceState::Alive {
-            return Err(RecvError::Instance {
-                msg: s.msg,
-                state: s.state,
-                key_hash: s.key_hash,
-                key: s.data,
-            });
-        }
-        let decoded = decode::<T>(self.enc, &s.data, s.order);
-        self.raw.queue.give_back(s.data);
-        match decoded {
-            Ok(value) => Ok(Sample {
-                value,
-                msg: s.msg,
-                received: s.received,
-                source: s.source,
-                source_time: s.source_time,
-            }),
-            Err(detail) => {
-                self.decode_errors += 1;
-                Err(RecvError::Decode {
-                    msg: s.msg,
-                    ty: std::any::type_name::<T>(),
-                    detail,
-                })
-            }
-        }
+        r
     }
 
     /// Pulled delivery (ORTE's `ORTEAppSubscriptionPull`): the next sample

@@ -97,6 +97,60 @@ async fn publish_subscribe_typed() {
     c.shutdown().await;
 }
 
+/// Immediate subscriptions work on IPC too: the session runs the callback
+/// on a task of its own, in order, and ends it with the connection.
+/// Publishing without waiting is refused with the way to do it.
+#[tokio::test]
+async fn listen_callbacks_on_ipc_and_try_publish_refused() {
+    let (c, url) = central().await;
+    let a = session(&url, "a").await;
+    let b = session(&url, "b").await;
+    let (tx, rx) = std::sync::mpsc::channel();
+    let l = b
+        .subscriber::<Point>("point")
+        .listen(move |s| drop(tx.send(s)))
+        .await
+        .unwrap();
+    assert_eq!(l.msg(), "point");
+    let p = a.publisher::<Point>("point").build().await.unwrap();
+    tokio::time::timeout(T, async {
+        while a.num_handlers("point").await.unwrap() < 1 {
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+    })
+    .await
+    .unwrap();
+    for i in 0..100 {
+        p.publish(&Point {
+            x: f64::from(i),
+            y: 0.0,
+        })
+        .await
+        .unwrap();
+    }
+    let got = tokio::task::spawn_blocking(move || {
+        let mut got = Vec::new();
+        while got.len() < 100 {
+            let s = rx.recv_timeout(T).expect("a callback in time");
+            got.push(s.unwrap().value.x as i32);
+        }
+        (got, rx)
+    })
+    .await
+    .unwrap();
+    assert_eq!(got.0, (0..100).collect::<Vec<_>>());
+    let e = p.try_publish(&Point { x: 0.0, y: 0.0 }).unwrap_err();
+    assert!(e.to_string().contains("publish().await"), "{e}");
+    b.close().await;
+    let end = tokio::task::spawn_blocking(move || got.1.recv_timeout(T))
+        .await
+        .unwrap()
+        .expect("the end of the connection reaches the callback");
+    assert_eq!(end.unwrap_err(), RecvError::Disconnected);
+    a.close().await;
+    c.shutdown().await;
+}
+
 #[tokio::test]
 async fn query_serve_with_delayed_reply_and_many_concurrent_queries() {
     let (c, url) = central().await;

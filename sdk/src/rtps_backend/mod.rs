@@ -225,6 +225,9 @@ fn reply_topic(name: &str) -> String {
 /// A Courier session's DDS participant (see the [module docs](self)).
 #[derive(Debug)]
 pub struct RtpsBackend {
+    /// The participant, shared with the driver task (and the receive
+    /// thread): for writes that do not wait.
+    shared: Arc<Shared>,
     cmd: mpsc::UnboundedSender<Cmd>,
     /// Topics this session publishes (publications are never deleted): a
     /// write to one of them cannot be refused, so it need not wait.
@@ -290,33 +293,72 @@ impl RtpsBackend {
         let (tx, rx) = mpsc::unbounded_channel();
         let listeners: Listeners = Arc::default();
         let responder = tx.downgrade();
+        let st = State {
+            p,
+            name: name.to_string(),
+            listeners: listeners.clone(),
+            writers: HashMap::default(),
+            readers: HashMap::new(),
+            patterns: Vec::new(),
+            watched: HashSet::new(),
+            remote_writers: HashMap::new(),
+            source_names: HashMap::new(),
+            confirms: Vec::new(),
+            next_housekeeping: now,
+            servers: HashMap::new(),
+            clients: HashMap::new(),
+            client_readers: HashMap::new(),
+            waiting: Vec::new(),
+            inflight: HashMap::new(),
+            responder,
+            returns: Arc::default(),
+            immediate: Vec::new(),
+        };
+        let sock_err = |e: std::io::Error| fail(format!("user data socket: {e}"));
+        let out = Out {
+            sock: socks.user.try_clone().map_err(sock_err)?,
+            loopback_only: address.is_loopback(),
+            multicast: opts.multicast,
+            refused: 0,
+            send_errors: 0,
+        };
+        let timer = timer::DriverTimer::new(st.next_wakeup());
+        let shared = Arc::new(Shared {
+            core: Mutex::new(Core {
+                st,
+                out,
+                cmd: rx,
+                timer,
+                stalled: None,
+                close: None,
+            }),
+            attention: tokio::sync::Notify::new(),
+            closing: std::sync::atomic::AtomicBool::new(false),
+        });
+        let send_sock = socks.user.try_clone().map_err(sock_err)?;
+        let (user, receiver) = if opts.receive_thread {
+            let t = ReceiveThread::start(shared.clone(), socks.user, name).map_err(sock_err)?;
+            (None, Some(t))
+        } else {
+            (
+                Some(net::register_readable(socks.user).map_err(sock_err)?),
+                None,
+            )
+        };
         let driver = Driver {
             spin: opts.busy_poll.map(BusyPoll::start),
-            io: Io::new(socks, address.is_loopback(), opts.multicast),
-            st: State {
-                p,
-                name: name.to_string(),
-                listeners: listeners.clone(),
-                writers: HashMap::default(),
-                readers: HashMap::new(),
-                patterns: Vec::new(),
-                watched: HashSet::new(),
-                remote_writers: HashMap::new(),
-                source_names: HashMap::new(),
-                confirms: Vec::new(),
-                next_housekeeping: now,
-                servers: HashMap::new(),
-                clients: HashMap::new(),
-                client_readers: HashMap::new(),
-                waiting: Vec::new(),
-                inflight: HashMap::new(),
-                responder,
-                returns: Arc::default(),
-            },
-            cmd: rx,
+            shared: shared.clone(),
+            meta: socks.meta,
+            user,
+            meta_mc: socks.meta_mc,
+            user_mc: socks.user_mc,
+            batch: net::RecvBatch::new(),
+            send_sock,
+            receiver,
         };
         tokio::spawn(driver.run());
         Ok(RtpsBackend {
+            shared,
             cmd: tx,
             published: Mutex::default(),
             queue_budget: Arc::new(Semaphore::new(QUEUED_WRITE_UNITS)),
@@ -694,6 +736,76 @@ impl Backend for RtpsBackend {
         self.queue_write(msg, data, opts).await
     }
 
+    fn delivers_immediately(&self) -> bool {
+        true
+    }
+
+    fn try_write(
+        &self,
+        msg: &str,
+        data: Vec<u8>,
+        key_hash: Option<[u8; 16]>,
+    ) -> Result<(), SessionError> {
+        let refused = |why: String| {
+            Err(SessionError::Refused(format!(
+                "cannot publish {msg} without waiting: {why}"
+            )))
+        };
+        let Some(topic) = self.publication(msg) else {
+            return refused(
+                "this session has no publication of it (create one with \
+                 Session::publisher::<T>(..).build().await)"
+                    .into(),
+            );
+        };
+        if data.len() > MAX_WRITE_SIZE {
+            return refused(format!(
+                "a sample of {} bytes is larger than {MAX_WRITE_SIZE}",
+                data.len()
+            ));
+        }
+        let Ok(permit) = self
+            .queue_budget
+            .clone()
+            .try_acquire_many_owned(queued_units(data.len()))
+        else {
+            return refused(format!(
+                "the session's write queue is full ({} bytes wait for the participant)",
+                QUEUED_WRITE_UNITS * QUEUED_WRITE_UNIT
+            ));
+        };
+        let now = Instant::now();
+        let mut c = self.shared.lock();
+        if c.close.is_some() {
+            return Err(disconnected());
+        }
+        // what was queued before goes first
+        c.take_commands(now);
+        c.st.command(
+            Cmd::Write {
+                topic,
+                kind: ChangeKind::Alive,
+                data,
+                key_hash,
+                confirm: None,
+                done: Done::Queued(permit),
+            },
+            now,
+        );
+        if IN_CALLBACK.with(|t| t.get()) == self.shared.id() {
+            // sent, packed with the callbacks' other writes, when they return
+            return Ok(());
+        }
+        let full = c.flush(now).is_err();
+        c.rearm();
+        let close = c.close.is_some();
+        drop(c);
+        if full || close {
+            self.shared.attention.notify_one();
+        }
+        Ok(())
+    }
+
     async fn end_instance(
         &self,
         msg: &str,
@@ -797,12 +909,10 @@ fn is_keyed_entity(g: Guid) -> bool {
 // ---------------------------------------------------------------------------
 // The driver
 
-struct Io {
-    meta: UdpSocket,
-    user: UdpSocket,
-    meta_mc: Option<UdpSocket>,
-    user_mc: Option<UdpSocket>,
-    batch: net::RecvBatch,
+/// The sending side: the user-data unicast socket (every datagram goes
+/// out from it) and the rules on where datagrams may go.
+struct Out {
+    sock: std::net::UdpSocket,
     loopback_only: bool,
     multicast: bool,
     /// Datagrams not sent because of the loopback/multicast rules.
@@ -810,21 +920,10 @@ struct Io {
     send_errors: u64,
 }
 
-impl Io {
-    fn new(s: net::Sockets, loopback_only: bool, multicast: bool) -> Self {
-        Io {
-            meta: s.meta,
-            user: s.user,
-            meta_mc: s.meta_mc,
-            user_mc: s.user_mc,
-            batch: net::RecvBatch::new(),
-            loopback_only,
-            multicast,
-            refused: 0,
-            send_errors: 0,
-        }
-    }
+/// A datagram that found the socket's send buffer full.
+struct Full;
 
+impl Out {
     fn allowed(&self, to: SocketAddr) -> bool {
         match to {
             SocketAddr::V4(a) => {
@@ -839,46 +938,40 @@ impl Io {
         }
     }
 
-    /// Sends one message; large sample data goes from the writer's history
-    /// to the kernel without a copy, with one vectored `sendmsg`.
-    async fn send(&mut self, t: &Transmission) {
+    /// Sends one message without waiting (the socket may be in blocking
+    /// mode for a receive thread: every send says `MSG_DONTWAIT`); large
+    /// sample data goes from the writer's history to the kernel without a
+    /// copy, with one vectored `sendmsg`. `Err(Full)` when the send buffer
+    /// is full: send it again once the socket is writable.
+    fn try_send(&mut self, t: &Transmission) -> Result<(), Full> {
         let Some(addr) = t.destination().socket_addr().filter(|a| self.allowed(*a)) else {
             self.refused += 1;
-            return;
+            return Ok(());
         };
         // a few parts (2 per shared piece + 1), kept off the heap
         let parts: SmallVec<[IoSlice<'_>; 8]> = t.parts().map(IoSlice::new).collect();
-        self.send_parts(&parts, addr).await
-    }
-
-    /// One datagram made of `parts`: a plain `sendto` for one piece (small
-    /// samples), `sendmsg` for several; waits while the socket is full.
-    async fn send_parts(&mut self, parts: &[IoSlice<'_>], addr: SocketAddr) {
-        let to = (parts.len() > 1).then(|| socket2::SockAddr::from(addr));
-        loop {
-            let sent = match (parts, &to) {
-                ([one], _) => self.user.get_ref().send_to(one, addr),
-                (_, Some(to)) => {
-                    socket2::SockRef::from(self.user.get_ref()).send_to_vectored(parts, to)
-                }
-                (_, None) => return, // no parts: nothing to send
-            };
-            match sent {
-                Ok(_) => return,
-                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
-                    if net::wait_writable(&self.user).await.is_err() {
-                        self.send_errors += 1;
-                        return;
-                    }
-                }
-                Err(_) => {
-                    self.send_errors += 1;
-                    return;
-                }
+        let to = socket2::SockAddr::from(addr);
+        let sock = socket2::SockRef::from(&self.sock);
+        let sent = match &parts[..] {
+            [] => return Ok(()),
+            [one] => sock.send_to_with_flags(one, &to, DONTWAIT),
+            _ => sock.send_to_vectored_with_flags(&parts, &to, DONTWAIT),
+        };
+        match sent {
+            Ok(_) => Ok(()),
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => Err(Full),
+            Err(_) => {
+                self.send_errors += 1;
+                Ok(())
             }
         }
     }
 }
+
+#[cfg(unix)]
+const DONTWAIT: libc::c_int = libc::MSG_DONTWAIT;
+#[cfg(not(unix))]
+const DONTWAIT: std::ffi::c_int = 0;
 
 /// The socket has data. The driver is its only reader, so it waits in the
 /// socket's one read-waker slot (`poll_read_ready`), not in the list of
@@ -902,50 +995,193 @@ enum Wake {
     Readable(usize),
     Space,
     Timer,
+    /// Someone else changed the core: a send found the socket full, or a
+    /// close was found among the commands.
+    Attention,
+}
+
+/// What the driver task, a receive thread and `try_publish` share: the
+/// participant and everything around it, one at a time.
+struct Shared {
+    core: Mutex<Core>,
+    /// The driver should look at the core (see [`Wake::Attention`]).
+    attention: tokio::sync::Notify,
+    /// The receive thread stops (set before it is woken).
+    closing: std::sync::atomic::AtomicBool,
+}
+
+impl std::fmt::Debug for Shared {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Shared")
+    }
+}
+
+impl Shared {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Core> {
+        // a panic while locked leaves the state as consistent as any
+        // protocol error would: go on
+        self.core.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    fn id(&self) -> usize {
+        std::ptr::from_ref(self) as usize
+    }
+
+    /// Hands the samples of immediate-delivery subscriptions to their
+    /// callbacks, holding no lock, then sends what the callbacks wrote.
+    /// `Err(Full)` when that found the send buffer full.
+    fn run_callbacks(&self, mut queues: Vec<Arc<SampleQueue>>) -> Result<(), Full> {
+        while !queues.is_empty() {
+            IN_CALLBACK.with(|c| c.set(self.id()));
+            for q in &queues {
+                q.run_handler();
+            }
+            IN_CALLBACK.with(|c| c.set(0));
+            let now = Instant::now();
+            let mut c = self.lock();
+            c.flush(now)?;
+            c.rearm();
+            queues = std::mem::take(&mut c.st.immediate);
+        }
+        Ok(())
+    }
+}
+
+thread_local! {
+    /// The [`Shared`] whose subscription callback this thread is running
+    /// (0: none): its writes are sent when the callbacks are done.
+    static IN_CALLBACK: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+}
+
+struct Core {
+    st: State,
+    out: Out,
+    cmd: mpsc::UnboundedReceiver<Cmd>,
+    /// The driver's deadlines (see [`timer`]).
+    timer: timer::DriverTimer,
+    /// A datagram that found the send buffer full: it goes first.
+    stalled: Option<Transmission>,
+    /// A close taken from the commands by someone other than the driver
+    /// (`None` inside: every sender was dropped).
+    close: Option<Option<oneshot::Sender<()>>>,
+}
+
+impl Core {
+    /// Hands received samples and events to the application and sends
+    /// what the participant has to send, until the socket is full.
+    fn flush(&mut self, now: Instant) -> Result<(), Full> {
+        self.st.pump(now);
+        if let Some(t) = self.stalled.take() {
+            if let Err(full) = self.out.try_send(&t) {
+                self.stalled = Some(t);
+                return Err(full);
+            }
+        }
+        while let Some(t) = self.st.p.poll_transmission() {
+            if let Err(full) = self.out.try_send(&t) {
+                self.stalled = Some(t);
+                return Err(full);
+            }
+        }
+        Ok(())
+    }
+
+    /// Arms the timer for the next deadline, if that moved earlier.
+    fn rearm(&mut self) {
+        self.timer.set(self.st.next_wakeup());
+    }
+
+    /// Takes the commands already queued, in order (so that a write made
+    /// without waiting comes after the `publish().await`s before it).
+    fn take_commands(&mut self, now: Instant) {
+        while self.close.is_none() {
+            match self.cmd.try_recv() {
+                Ok(Cmd::Close { reply }) => self.close = Some(Some(reply)),
+                Ok(c) => self.st.command(c, now),
+                Err(mpsc::error::TryRecvError::Empty) => return,
+                Err(mpsc::error::TryRecvError::Disconnected) => self.close = Some(None),
+            }
+        }
+    }
+
+    /// Reads one batch from `sock` into the participant; the number of
+    /// datagrams read.
+    fn receive(&mut self, batch: &net::RecvBatch, n: usize, now: Instant) {
+        for k in 0..n {
+            let (bytes, from) = batch.get(k);
+            self.st.p.handle_datagram(locator_of(from), bytes, now);
+            // deliver as we go so that back-pressure is seen
+            self.st.pump(now);
+        }
+    }
 }
 
 struct Driver {
     /// Busy polling after activity, when configured.
     spin: Option<BusyPoll>,
-    io: Io,
-    st: State,
-    cmd: mpsc::UnboundedReceiver<Cmd>,
+    shared: Arc<Shared>,
+    meta: UdpSocket,
+    /// User data, when the driver reads it (no receive thread).
+    user: Option<UdpSocket>,
+    meta_mc: Option<UdpSocket>,
+    user_mc: Option<UdpSocket>,
+    batch: net::RecvBatch,
+    /// A duplicate of the sending socket, to wait for room.
+    send_sock: std::net::UdpSocket,
+    receiver: Option<ReceiveThread>,
 }
 
 impl Driver {
     async fn run(mut self) {
         // one clock reading per turn, taken when the driver wakes
         let mut now = Instant::now();
-        // one timer for the driver's life, moved only when the next
-        // wake-up moves (see `timer` for why it is not a tokio timer)
-        let mut timer = timer::DriverTimer::new(self.st.next_wakeup());
+        let shared = self.shared.clone();
         loop {
             // what the last turn produced goes out first; then what is due
-            self.flush(now).await;
-            let mut next = self.st.next_wakeup();
-            if next <= now {
-                self.st.tick(now);
-                self.flush(now).await;
-                next = self.st.next_wakeup();
+            let (paused, flushed, close) = {
+                let mut c = shared.lock();
+                let mut flushed = c.flush(now);
+                let next = c.st.next_wakeup();
+                if next <= now && flushed.is_ok() {
+                    c.st.tick(now);
+                    flushed = c.flush(now);
+                }
+                c.rearm();
+                (c.st.full_queue(), flushed, c.close.take())
+            };
+            if let Some(reply) = close {
+                self.close(Instant::now()).await;
+                if let Some(reply) = reply {
+                    let _ = reply.send(());
+                }
+                return;
             }
-            timer.set(next);
-            let paused = self.st.full_queue();
-            let io = &self.io;
+            if flushed.is_err() {
+                if net::wait_writable(&self.send_sock).await.is_err() {
+                    // cannot wait: drop the datagram (reliable writers repair)
+                    let mut c = shared.lock();
+                    c.stalled = None;
+                    c.out.send_errors += 1;
+                }
+                now = Instant::now();
+                continue;
+            }
             let wake = tokio::select! {
                 biased;
-                c = self.cmd.recv() => Wake::Cmd(c),
-                _ = recv_ready(&io.meta) => Wake::Readable(0),
-                _ = recv_ready(&io.user), if paused.is_none() => Wake::Readable(1),
-                _ = recv_ready_opt(&io.meta_mc) => Wake::Readable(2),
-                _ = recv_ready_opt(&io.user_mc), if paused.is_none() => Wake::Readable(3),
+                c = std::future::poll_fn(|cx| shared.lock().cmd.poll_recv(cx)) => Wake::Cmd(c),
+                _ = recv_ready(&self.meta) => Wake::Readable(0),
+                _ = recv_ready_opt(&self.user), if paused.is_none() => Wake::Readable(1),
+                _ = recv_ready_opt(&self.meta_mc) => Wake::Readable(2),
+                _ = recv_ready_opt(&self.user_mc), if paused.is_none() => Wake::Readable(3),
                 _ = async { if let Some(q) = &paused { q.space().await } }, if paused.is_some() => Wake::Space,
-                _ = timer.fired() => Wake::Timer,
+                _ = std::future::poll_fn(|cx| shared.lock().timer.poll_fired(cx)) => Wake::Timer,
+                _ = shared.attention.notified() => Wake::Attention,
             };
             now = Instant::now();
             if let (Some(s), Wake::Cmd(_) | Wake::Readable(_)) = (&self.spin, &wake) {
                 s.activity();
             }
-            match wake {
+            let immediate = match wake {
                 Wake::Cmd(None) => break,
                 Wake::Cmd(Some(Cmd::Close { reply })) => {
                     self.close(now).await;
@@ -953,101 +1189,214 @@ impl Driver {
                     return;
                 }
                 Wake::Cmd(Some(c)) => {
-                    self.st.command(c, now);
+                    let mut core = shared.lock();
+                    core.st.command(c, now);
                     // take every command already queued before flushing
-                    while let Ok(c) = self.cmd.try_recv() {
-                        if let Cmd::Close { reply } = c {
-                            self.close(Instant::now()).await;
-                            let _ = reply.send(());
-                            return;
-                        }
-                        self.st.command(c, now);
-                    }
+                    core.take_commands(now);
+                    std::mem::take(&mut core.st.immediate)
                 }
                 Wake::Readable(i) => self.drain(i, now),
-                Wake::Space => {}
-                Wake::Timer => {}
+                Wake::Space | Wake::Timer | Wake::Attention => Vec::new(),
+            };
+            if !immediate.is_empty() {
+                // a full send buffer is seen by the next turn's flush
+                let _ = shared.run_callbacks(immediate);
             }
         }
         self.close(Instant::now()).await;
     }
 
-    /// Hands received samples and events to the application and sends
-    /// what the participant has to send.
-    async fn flush(&mut self, now: Instant) {
-        self.st.pump(now);
-        while let Some(t) = self.st.p.poll_transmission() {
-            self.io.send(&t).await;
-        }
-    }
-
     /// Reads what is waiting on socket `i`, a batch per system call, up
-    /// to a limit (so that commands and timers are not starved).
-    fn drain(&mut self, i: usize, now: Instant) {
+    /// to a limit (so that commands and timers are not starved); the
+    /// immediate-delivery subscriptions that got samples.
+    fn drain(&mut self, i: usize, now: Instant) -> Vec<Arc<SampleQueue>> {
+        let mut c = self.shared.lock();
         // buffers of samples the application has taken, reused by the
         // samples about to be read
-        let p = &mut self.st.p;
-        self.st.returns.take(|b| p.recycle(b));
-        for _ in 0..8 {
-            if i % 2 == 1 && self.st.full_queue().is_some() {
-                return;
-            }
-            let sock = match i {
-                0 => Some(&self.io.meta),
-                1 => Some(&self.io.user),
-                2 => self.io.meta_mc.as_ref(),
-                _ => self.io.user_mc.as_ref(),
-            };
-            let Some(sock) = sock else { return };
-            let n = match net::recv_batch(sock, &mut self.io.batch) {
-                Ok(n) => n,
-                // ICMP port unreachable and the like: reported once, nothing to do
-                Err(_) => continue,
-            };
-            for k in 0..n {
-                let (bytes, from) = self.io.batch.get(k);
-                self.st.p.handle_datagram(locator_of(from), bytes, now);
-                // deliver as we go so that back-pressure is seen
-                self.st.pump(now);
-            }
-            if n < net::RECV_SLOTS {
-                return; // the socket was emptied
+        let Core { st, .. } = &mut *c;
+        st.returns.take(|b| st.p.recycle(b));
+        let sock = match i {
+            0 => Some(&self.meta),
+            1 => self.user.as_ref(),
+            2 => self.meta_mc.as_ref(),
+            _ => self.user_mc.as_ref(),
+        };
+        if let Some(sock) = sock {
+            for _ in 0..8 {
+                if i % 2 == 1 && c.st.full_queue().is_some() {
+                    break;
+                }
+                let n = match net::recv_batch(sock, &mut self.batch) {
+                    Ok(n) => n,
+                    // ICMP port unreachable and the like: reported once, nothing to do
+                    Err(_) => continue,
+                };
+                c.receive(&self.batch, n, now);
+                if n < net::RECV_SLOTS {
+                    break; // the socket was emptied
+                }
             }
         }
+        std::mem::take(&mut c.st.immediate)
     }
 
     async fn close(&mut self, now: Instant) {
-        self.st.p.close(now);
-        while let Some(t) = self.st.p.poll_transmission() {
-            self.io.send(&t).await;
+        if let Some(r) = self.receiver.take() {
+            r.stop(&self.shared).await;
         }
-        self.st.pump(now);
-        for r in self.st.readers.values() {
+        let stalled = {
+            let mut c = self.shared.lock();
+            c.st.p.close(now);
+            c.flush(now).is_err()
+        };
+        if stalled {
+            // the goodbyes, once there is room (a bounded wait)
+            let room = net::wait_writable(&self.send_sock);
+            if let Ok(Ok(())) = tokio::time::timeout(Duration::from_millis(100), room).await {
+                let _ = self.shared.lock().flush(now);
+            }
+        }
+        let mut c = self.shared.lock();
+        let st = &mut c.st;
+        st.pump(now);
+        for r in st.readers.values() {
             r.queue.close();
         }
-        for p in &self.st.patterns {
+        for p in &st.patterns {
             p.queue.close();
         }
-        for w in self.st.writers.values_mut() {
+        for w in st.writers.values_mut() {
             for pw in w.pending.drain(..) {
                 pw.done.send(Err(disconnected()));
             }
         }
-        for c in self.st.confirms.drain(..) {
+        for c in st.confirms.drain(..) {
             let _ = c.reply.send(Err(disconnected()));
         }
-        for q in self.st.waiting.drain(..) {
+        for q in st.waiting.drain(..) {
             let _ = q.reply.send(Err(QueryError::Disconnected(q.name)));
         }
-        for (_, q) in self.st.inflight.drain() {
+        for (_, q) in st.inflight.drain() {
             let _ = q.reply.send(Err(QueryError::Disconnected(q.name)));
         }
-        self.st.servers.clear(); // ends every Requests stream
-        let mut l = self.st.listeners.lock().unwrap();
-        for tx in l.iter() {
-            let _ = tx.send(SessionEvent::Disconnected);
+        st.servers.clear(); // ends every Requests stream
+        {
+            let mut l = st.listeners.lock().unwrap();
+            for tx in l.iter() {
+                let _ = tx.send(SessionEvent::Disconnected);
+            }
+            l.clear();
         }
-        l.clear();
+        // later commands fail at once (an `ask` gets its reply dropped),
+        // and so do writes that do not wait
+        c.cmd.close();
+        while let Ok(cmd) = c.cmd.try_recv() {
+            if let Cmd::Write { done, .. } = cmd {
+                done.send(Err(disconnected()));
+            }
+        }
+        c.close = Some(None);
+        let st = &mut c.st;
+        // the end markers go to immediate subscriptions' callbacks too
+        let immediate = std::mem::take(&mut st.immediate);
+        let queues: Vec<Arc<SampleQueue>> = st
+            .readers
+            .values()
+            .map(|r| r.queue.clone())
+            .chain(st.patterns.iter().map(|p| p.queue.clone()))
+            .filter(|q| q.has_handler())
+            .chain(immediate)
+            .collect();
+        drop(c);
+        for q in queues {
+            q.run_handler();
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------
+// The receive thread
+
+/// A thread that blocks in `recvmmsg` on the user-data socket and handles
+/// what arrives right there: the participant under the [`Shared`] lock,
+/// then the callbacks of immediate subscriptions, which can answer at
+/// once ([`Publisher::try_publish`](crate::Publisher::try_publish)). This
+/// is how ORTE, Cyclone DDS (listeners) and ddsperf receive; it saves the
+/// wake-up of a task in a tokio runtime per datagram.
+struct ReceiveThread {
+    handle: std::thread::JoinHandle<()>,
+    /// Where a datagram wakes the thread to stop.
+    addr: SocketAddr,
+}
+
+impl ReceiveThread {
+    fn start(shared: Arc<Shared>, sock: std::net::UdpSocket, name: &str) -> std::io::Result<Self> {
+        sock.set_nonblocking(false)?;
+        let addr = sock.local_addr()?;
+        let rt = tokio::runtime::Handle::current();
+        let handle = std::thread::Builder::new()
+            .name(format!("rtps-rx {name}"))
+            .spawn(move || receive_loop(&shared, &sock, &rt))?;
+        Ok(ReceiveThread { handle, addr })
+    }
+
+    /// Stops the thread and waits for it.
+    async fn stop(self, shared: &Shared) {
+        use std::sync::atomic::Ordering;
+        shared.closing.store(true, Ordering::SeqCst);
+        // a datagram to its own socket wakes the blocking receive
+        let woken =
+            std::net::UdpSocket::bind((self.addr.ip(), 0)).and_then(|s| s.send_to(&[], self.addr));
+        if let Err(e) = woken {
+            tracing::warn!("cannot wake the RTPS receive thread ({e}); it ends with the process");
+            return;
+        }
+        let h = self.handle;
+        let _ = tokio::task::spawn_blocking(move || h.join()).await;
+    }
+}
+
+fn receive_loop(shared: &Shared, sock: &std::net::UdpSocket, rt: &tokio::runtime::Handle) {
+    use std::sync::atomic::Ordering;
+    let mut batch = net::RecvBatch::new();
+    loop {
+        // an error (ICMP port unreachable and the like) reads nothing
+        let n = net::recv_batch_blocking(sock, &mut batch).unwrap_or_default();
+        if shared.closing.load(Ordering::SeqCst) {
+            return;
+        }
+        let now = Instant::now();
+        let (immediate, full, paused) = {
+            let mut c = shared.lock();
+            let Core { st, .. } = &mut *c;
+            st.returns.take(|b| st.p.recycle(b));
+            c.receive(&batch, n, now);
+            let immediate = std::mem::take(&mut c.st.immediate);
+            // with callbacks to run, what this produced (acknowledgements)
+            // goes out after them, packed with their answers
+            let full = immediate.is_empty() && c.flush(now).is_err();
+            if immediate.is_empty() {
+                c.rearm();
+            }
+            (immediate, full, c.st.full_queue())
+        };
+        let full = full || (!immediate.is_empty() && shared.run_callbacks(immediate).is_err());
+        if full {
+            // the driver waits for room and sends the rest
+            shared.attention.notify_one();
+        }
+        let mut paused = paused;
+        while let Some(q) = paused {
+            // a Stream subscriber has not caught up: stop reading until it
+            // has (the socket buffer, then the writer, hold the rest)
+            if shared.closing.load(Ordering::SeqCst) {
+                return;
+            }
+            rt.block_on(async {
+                let _ = tokio::time::timeout(Duration::from_millis(50), q.space()).await;
+            });
+            paused = shared.lock().st.full_queue();
+        }
     }
 }
 
@@ -1169,6 +1518,9 @@ struct State {
     responder: mpsc::WeakUnboundedSender<Cmd>,
     /// Sample buffers subscribers have decoded, for the participant to reuse.
     returns: Arc<ReturnedBuffers>,
+    /// Immediate-delivery subscriptions that got samples since they were
+    /// last handed to their callbacks (see [`Shared::run_callbacks`]).
+    immediate: Vec<Arc<SampleQueue>>,
 }
 
 struct Server {
@@ -2125,6 +2477,9 @@ impl State {
         // may exceed the capacity by what one receive batch (8 datagrams) carried; reading
         // stops until the application catches up (see `full_queue`)
         r.queue.push_over(raw);
+        if r.queue.has_handler() && !self.immediate.iter().any(|q| Arc::ptr_eq(q, &r.queue)) {
+            self.immediate.push(r.queue.clone());
+        }
     }
 }
 

@@ -122,6 +122,11 @@ fn tokio_socket(s: Socket) -> io::Result<UdpSocket> {
     register(s.into(), Interest::READABLE)
 }
 
+/// Registers a socket with tokio for reading (only).
+pub(crate) fn register_readable(s: std::net::UdpSocket) -> io::Result<UdpSocket> {
+    register(s, Interest::READABLE)
+}
+
 #[allow(unsafe_code)]
 fn register(s: std::net::UdpSocket, interest: Interest) -> io::Result<UdpSocket> {
     // SAFETY: the `AsyncFd` owns the socket, whose descriptor stays open
@@ -134,8 +139,8 @@ fn register(s: std::net::UdpSocket, interest: Interest) -> io::Result<UdpSocket>
 /// for reading only, so a duplicate of its descriptor is registered for
 /// writing for as long as the wait lasts (rare: a UDP send buffer is full
 /// only while a NIC's queue is).
-pub(crate) async fn wait_writable(sock: &UdpSocket) -> io::Result<()> {
-    let dup = register(sock.get_ref().try_clone()?, Interest::WRITABLE)?;
+pub(crate) async fn wait_writable(sock: &std::net::UdpSocket) -> io::Result<()> {
+    let dup = register(sock.try_clone()?, Interest::WRITABLE)?;
     let _ready = dup.writable().await?;
     Ok(())
 }
@@ -146,8 +151,10 @@ pub(crate) struct Sockets {
     pub(crate) index: u32,
     /// SPDP/SEDP unicast (7410 + 2i).
     pub(crate) meta: UdpSocket,
-    /// User data unicast (7411 + 2i); also the sending socket.
-    pub(crate) user: UdpSocket,
+    /// User data unicast (7411 + 2i); also the sending socket. Not
+    /// registered with tokio yet: read by the driver
+    /// ([`register_readable`]) or by a receive thread of its own.
+    pub(crate) user: std::net::UdpSocket,
     /// SPDP multicast (7400), when multicast is on.
     pub(crate) meta_mc: Option<UdpSocket>,
     /// User data multicast (7401), when multicast is on.
@@ -218,7 +225,7 @@ pub(crate) fn open(o: &RtpsOptions, address: Ipv4Addr) -> Result<Sockets, String
     Ok(Sockets {
         index,
         meta: t(meta)?,
-        user: t(user)?,
+        user: user.into(),
         meta_mc: meta_mc.map(t).transpose()?,
         user_mc: user_mc.map(t).transpose()?,
     })
@@ -263,51 +270,9 @@ impl RecvBatch {
 #[cfg(target_os = "linux")]
 #[allow(unsafe_code)]
 pub(crate) fn recv_batch(sock: &UdpSocket, b: &mut RecvBatch) -> io::Result<usize> {
-    use std::os::fd::AsRawFd;
     b.n = 0;
-    let fd = sock.as_raw_fd();
-    let RecvBatch {
-        bufs,
-        lens,
-        from,
-        n: got,
-    } = b;
-    let r = sock.try_io(Interest::READABLE, |_| {
-        // SAFETY: all-zero is a valid value of these plain C structs
-        let mut addrs: [libc::sockaddr_storage; RECV_SLOTS] = unsafe { std::mem::zeroed() };
-        let mut iov: [libc::iovec; RECV_SLOTS] = unsafe { std::mem::zeroed() };
-        let mut hdrs: [libc::mmsghdr; RECV_SLOTS] = unsafe { std::mem::zeroed() };
-        for i in 0..RECV_SLOTS {
-            iov[i] = libc::iovec {
-                iov_base: bufs[i].as_mut_ptr().cast(),
-                iov_len: bufs[i].len(),
-            };
-            let h = &mut hdrs[i].msg_hdr;
-            h.msg_name = std::ptr::from_mut(&mut addrs[i]).cast();
-            h.msg_namelen = std::mem::size_of::<libc::sockaddr_storage>() as libc::socklen_t;
-            h.msg_iov = std::ptr::from_mut(&mut iov[i]);
-            h.msg_iovlen = 1;
-        }
-        // SAFETY: every header points at a live buffer of the stated length
-        // and at a sockaddr_storage, all of which outlive the call
-        let n = unsafe {
-            libc::recvmmsg(
-                fd,
-                hdrs.as_mut_ptr(),
-                RECV_SLOTS as libc::c_uint,
-                libc::MSG_DONTWAIT,
-                std::ptr::null_mut(),
-            )
-        };
-        if n < 0 {
-            return Err(io::Error::last_os_error());
-        }
-        let n = usize::try_from(n).unwrap_or(0).min(RECV_SLOTS);
-        for i in 0..n {
-            lens[i] = (hdrs[i].msg_len as usize).min(bufs[i].len());
-            from[i] = sockaddr_v4(&addrs[i]);
-        }
-        *got = n;
+    let r = sock.try_io(Interest::READABLE, |s| {
+        let n = recvmmsg(s, b, libc::MSG_DONTWAIT)?;
         if n < RECV_SLOTS {
             // the queue was empty after these: let tokio wait for the next
             // arrival (edge-triggered; a datagram that came meanwhile has
@@ -322,6 +287,76 @@ pub(crate) fn recv_batch(sock: &UdpSocket, b: &mut RecvBatch) -> io::Result<usiz
         Err(e) if e.kind() == io::ErrorKind::WouldBlock => Ok(b.n),
         Err(e) => Err(e),
     }
+}
+
+/// Waits for at least one datagram on a blocking socket, then takes what
+/// else is waiting, up to [`RECV_SLOTS`] (one `recvmmsg` with
+/// `MSG_WAITFORONE`).
+#[cfg(target_os = "linux")]
+pub(crate) fn recv_batch_blocking(
+    sock: &std::net::UdpSocket,
+    b: &mut RecvBatch,
+) -> io::Result<usize> {
+    b.n = 0;
+    loop {
+        match recvmmsg(sock, b, libc::MSG_WAITFORONE) {
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+            r => return r,
+        }
+    }
+}
+
+/// One `recvmmsg` into `b`'s buffers; sets `b.n`.
+#[cfg(target_os = "linux")]
+#[allow(unsafe_code)]
+fn recvmmsg(
+    sock: &std::net::UdpSocket,
+    b: &mut RecvBatch,
+    flags: libc::c_int,
+) -> io::Result<usize> {
+    use std::os::fd::AsRawFd;
+    let RecvBatch {
+        bufs,
+        lens,
+        from,
+        n: got,
+    } = b;
+    // SAFETY: all-zero is a valid value of these plain C structs
+    let mut addrs: [libc::sockaddr_storage; RECV_SLOTS] = unsafe { std::mem::zeroed() };
+    let mut iov: [libc::iovec; RECV_SLOTS] = unsafe { std::mem::zeroed() };
+    let mut hdrs: [libc::mmsghdr; RECV_SLOTS] = unsafe { std::mem::zeroed() };
+    for i in 0..RECV_SLOTS {
+        iov[i] = libc::iovec {
+            iov_base: bufs[i].as_mut_ptr().cast(),
+            iov_len: bufs[i].len(),
+        };
+        let h = &mut hdrs[i].msg_hdr;
+        h.msg_name = std::ptr::from_mut(&mut addrs[i]).cast();
+        h.msg_namelen = std::mem::size_of::<libc::sockaddr_storage>() as libc::socklen_t;
+        h.msg_iov = std::ptr::from_mut(&mut iov[i]);
+        h.msg_iovlen = 1;
+    }
+    // SAFETY: every header points at a live buffer of the stated length
+    // and at a sockaddr_storage, all of which outlive the call
+    let n = unsafe {
+        libc::recvmmsg(
+            sock.as_raw_fd(),
+            hdrs.as_mut_ptr(),
+            RECV_SLOTS as libc::c_uint,
+            flags,
+            std::ptr::null_mut(),
+        )
+    };
+    if n < 0 {
+        return Err(io::Error::last_os_error());
+    }
+    let n = usize::try_from(n).unwrap_or(0).min(RECV_SLOTS);
+    for i in 0..n {
+        lens[i] = (hdrs[i].msg_len as usize).min(bufs[i].len());
+        from[i] = sockaddr_v4(&addrs[i]);
+    }
+    *got = n;
+    Ok(n)
 }
 
 /// The IPv4 sender in a `sockaddr_storage` (0.0.0.0:0 for anything else:
@@ -360,6 +395,19 @@ pub(crate) fn recv_batch(sock: &UdpSocket, b: &mut RecvBatch) -> io::Result<usiz
     Ok(b.n)
 }
 
+/// Waits for one datagram on a blocking socket.
+#[cfg(not(target_os = "linux"))]
+pub(crate) fn recv_batch_blocking(
+    sock: &std::net::UdpSocket,
+    b: &mut RecvBatch,
+) -> io::Result<usize> {
+    let (len, from) = sock.recv_from(&mut b.bufs[0])?;
+    b.lens[0] = len;
+    b.from[0] = from;
+    b.n = 1;
+    Ok(1)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -377,7 +425,7 @@ mod tests {
     async fn a_read_only_socket_waits_for_room_to_send() {
         let s = bound();
         for _ in 0..3 {
-            tokio::time::timeout(Duration::from_secs(5), wait_writable(&s))
+            tokio::time::timeout(Duration::from_secs(5), wait_writable(s.get_ref()))
                 .await
                 .expect("an empty send buffer has room")
                 .unwrap();

@@ -53,6 +53,13 @@ pub struct RtpsOptions {
     /// 1344. A size that does not fit in one datagram with its headers is
     /// lowered to the largest that does.
     pub fragment_size: Option<u16>,
+    /// Read user data on a thread of its own that blocks in `recvmmsg` and
+    /// runs immediate subscriptions' callbacks
+    /// ([`SubscriberBuilder::listen`](crate::SubscriberBuilder::listen))
+    /// as each datagram arrives, as ORTE and Cyclone DDS do; default off:
+    /// the driver task reads it. It saves a tokio wake-up per datagram
+    /// (BENCHMARKS.md: round trips); `Subscriber` streams are fed from it too.
+    pub receive_thread: bool,
 }
 
 impl Default for RtpsOptions {
@@ -70,6 +77,7 @@ impl Default for RtpsOptions {
             busy_poll: None,
             max_message_size: None,
             fragment_size: None,
+            receive_thread: false,
         }
     }
 }
@@ -99,7 +107,7 @@ impl RtpsOptions {
     /// (comma-separated `ip` or `ip:port`), `multicast` (true/false),
     /// `index` (participant index), `max_index`, `recv_buffer`,
     /// `send_buffer` (bytes), `lease_ms`, `busy_poll_us`, `max_message_size`,
-    /// `fragment_size` (bytes). `peers` without
+    /// `fragment_size` (bytes), `receive_thread` (true/false). `peers` without
     /// `multicast` turns multicast off. Anything else is an error naming the
     /// key.
     ///
@@ -171,6 +179,7 @@ impl RtpsOptions {
                     }
                     o.fragment_size = Some(n);
                 }
+                "receive_thread" => o.receive_thread = parse_bool(url, k, v)?,
                 "busy_poll_us" => {
                     o.busy_poll =
                         Some(Duration::from_micros(parse_num(url, k, v)?)).filter(|d| !d.is_zero())
@@ -181,7 +190,7 @@ impl RtpsOptions {
                         format!(
                             "unknown option {k:?} (known: interface, peers, multicast, index, \
                              max_index, recv_buffer, send_buffer, lease_ms, busy_poll_us, \
-                             max_message_size, fragment_size)"
+                             max_message_size, fragment_size, receive_thread)"
                         ),
                     ))
                 }
@@ -231,6 +240,7 @@ pub(crate) struct RtpsOverrides {
     pub(crate) recv_buffer: Option<usize>,
     pub(crate) send_buffer: Option<usize>,
     pub(crate) busy_poll: Option<Duration>,
+    pub(crate) receive_thread: Option<bool>,
 }
 
 impl RtpsOverrides {
@@ -258,6 +268,9 @@ impl RtpsOverrides {
         }
         if let Some(d) = self.busy_poll {
             o.busy_poll = Some(d);
+        }
+        if let Some(on) = self.receive_thread {
+            o.receive_thread = on;
         }
     }
 }
@@ -380,6 +393,12 @@ mod tests {
         assert_eq!(o.send_buffer, Some(2000));
         assert_eq!(o.lease, Duration::from_millis(500));
         assert_eq!(o.busy_poll, Some(Duration::from_micros(50)));
+        assert!(!o.receive_thread);
+        assert!(
+            RtpsOptions::from_url("rtps://0?receive_thread=true")
+                .unwrap()
+                .receive_thread
+        );
         let o = RtpsOptions::from_url("rtps://0?max_message_size=9000&fragment_size=1400").unwrap();
         assert_eq!(
             (o.max_message_size, o.fragment_size),
@@ -394,6 +413,7 @@ mod tests {
             ("rtps://233", "232"),
             ("rtps://0?colour=blue", "colour"),
             ("rtps://0?multicast=maybe", "multicast"),
+            ("rtps://0?receive_thread=2", "receive_thread"),
             ("rtps://0?peers=not-an-ip", "not-an-ip"),
             ("rtps://0?index", "index"),
             ("ipc://x", "rtps://"),

@@ -13,7 +13,7 @@
 //!
 //! Elsewhere, or when a `timerfd` cannot be made, it is a tokio `Sleep`.
 
-use std::future::{poll_fn, Future as _};
+use std::future::Future as _;
 use std::pin::Pin;
 use std::task::{ready, Context, Poll};
 use std::time::Instant;
@@ -74,8 +74,9 @@ impl DriverTimer {
         }
     }
 
+    #[cfg(test)]
     pub(super) async fn fired(&mut self) {
-        poll_fn(|cx| self.poll_fired(cx)).await
+        std::future::poll_fn(|cx| self.poll_fired(cx)).await
     }
 }
 

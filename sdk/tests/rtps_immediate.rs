@@ -1,0 +1,303 @@
+//! Immediate delivery on RTPS (ORTE's IMMEDIATE mode, DDS listeners):
+//! `SubscriberBuilder::listen` callbacks, `Publisher::try_publish`, and the
+//! participant's receive thread (`receive_thread=true`). Courier against
+//! Courier on loopback only, with unicast discovery; each test has its own
+//! domain id. Every wait is bounded.
+
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::{mpsc, Arc};
+use std::time::Duration;
+
+use courier::{RecvError, Sample, Session, SessionError};
+
+mod common;
+use common::{await_handlers, next, session, url, Msg, T};
+
+fn msg(seq: u32) -> Msg {
+    Msg {
+        seq,
+        text: format!("hello {seq}"),
+        payload: Vec::new(),
+    }
+}
+
+/// A session with the receive thread on.
+async fn threaded(domain: u32, name: &str) -> Session {
+    tokio::time::timeout(
+        T,
+        Session::builder(url(domain))
+            .name(name)
+            .receive_thread(true)
+            .connect(),
+    )
+    .await
+    .expect("connect in time")
+    .expect("connect")
+}
+
+type Got = Result<Sample<Msg>, RecvError>;
+
+/// A callback that forwards what it gets to a channel.
+fn forward() -> (impl FnMut(Got) + Send + 'static, mpsc::Receiver<Got>) {
+    let (tx, rx) = mpsc::channel();
+    (move |s| drop(tx.send(s)), rx)
+}
+
+async fn recv(rx: &mpsc::Receiver<Got>) -> Got {
+    let t0 = std::time::Instant::now();
+    loop {
+        if let Ok(s) = rx.try_recv() {
+            return s;
+        }
+        assert!(t0.elapsed() < T, "no callback within {T:?}");
+        tokio::time::sleep(Duration::from_millis(1)).await;
+    }
+}
+
+/// The names of this process's threads.
+fn thread_names() -> Vec<String> {
+    std::fs::read_dir("/proc/self/task")
+        .map(|d| {
+            d.filter_map(|e| std::fs::read_to_string(e.ok()?.path().join("comm")).ok())
+                .map(|s| s.trim().to_string())
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// Receive threads of sessions named `name` (`rtps-rx <name>`, cut to
+/// the 15 bytes Linux keeps).
+fn receive_threads(name: &str) -> usize {
+    let want: String = format!("rtps-rx {name}").chars().take(15).collect();
+    thread_names().iter().filter(|n| **n == want).count()
+}
+
+/// Every sample reaches the callback once, in order, then the end of the
+/// connection: with the receive thread and with the driver task reading.
+#[tokio::test]
+async fn callbacks_get_every_sample_in_order_then_the_end() {
+    for (domain, on_thread) in [(170, true), (171, false)] {
+        let a = session(domain, "a").await;
+        let b = if on_thread {
+            threaded(domain, "b").await
+        } else {
+            session(domain, "b").await
+        };
+        let p = a.publisher::<Msg>("chatter").build().await.unwrap();
+        let (f, rx) = forward();
+        let l = b.subscriber::<Msg>("chatter").listen(f).await.unwrap();
+        assert_eq!(l.msg(), "chatter");
+        await_handlers(&a, "chatter", 1).await;
+        for i in 0..500 {
+            p.publish(&msg(i)).await.unwrap();
+        }
+        for i in 0..500 {
+            let s = recv(&rx).await.unwrap();
+            assert_eq!(s.value, msg(i), "receive thread: {on_thread}");
+            assert_eq!(s.msg, "chatter");
+            assert!(s.source.is_some() && s.source_time.is_some());
+        }
+        b.close().await;
+        assert_eq!(recv(&rx).await.unwrap_err(), RecvError::Disconnected);
+        a.close().await;
+    }
+}
+
+/// A callback answers on the spot with `try_publish` (the receive thread
+/// sends the answer itself): every request is echoed, in order.
+#[tokio::test]
+async fn a_callback_answers_at_once_with_try_publish() {
+    let server = threaded(172, "server").await;
+    let client = session(172, "client").await;
+    let answers = server.publisher::<Msg>("pong").build().await.unwrap();
+    let echo = {
+        let answers = answers.clone();
+        move |s: Got| {
+            if let Ok(s) = s {
+                let mut v = s.value;
+                v.text = format!("echo {}", v.seq);
+                answers.try_publish(&v).expect("try_publish in a callback");
+            }
+        }
+    };
+    let _l = server.subscriber::<Msg>("ping").listen(echo).await.unwrap();
+    let ask = client.publisher::<Msg>("ping").build().await.unwrap();
+    let mut pongs = client.subscribe::<Msg>("pong").await.unwrap();
+    await_handlers(&client, "ping", 1).await;
+    await_handlers(&server, "pong", 1).await;
+    for i in 0..200 {
+        ask.publish(&msg(i)).await.unwrap();
+        // one at a time, as a ping does
+        let s = next(&mut pongs).await.unwrap();
+        assert_eq!(s.value.seq, i);
+        assert_eq!(s.value.text, format!("echo {i}"));
+    }
+    // and a burst: the answers of one callback batch share datagrams
+    for i in 200..1200 {
+        ask.publish(&msg(i)).await.unwrap();
+    }
+    for i in 200..1200 {
+        assert_eq!(next(&mut pongs).await.unwrap().value.seq, i);
+    }
+    client.close().await;
+    server.close().await;
+}
+
+/// `try_publish` from a task comes after the `publish().await`s before it,
+/// and says clearly why it cannot publish.
+#[tokio::test]
+async fn try_publish_keeps_order_and_refuses_clearly() {
+    let a = session(173, "a").await;
+    let b = session(173, "b").await;
+    let p = a.publisher::<Msg>("mixed").build().await.unwrap();
+    let mut sub = b.subscribe::<Msg>("mixed").await.unwrap();
+    await_handlers(&a, "mixed", 1).await;
+    for i in 0..300 {
+        if i % 3 == 0 {
+            p.try_publish(&msg(i)).unwrap();
+        } else {
+            p.publish(&msg(i)).await.unwrap();
+        }
+    }
+    for i in 0..300 {
+        assert_eq!(next(&mut sub).await.unwrap().value.seq, i);
+    }
+    // a topic this session has no publication of
+    let err = b
+        .backend()
+        .try_write("nobody", vec![0, 1, 0, 0], None)
+        .unwrap_err();
+    match err {
+        SessionError::Refused(why) => {
+            assert!(
+                why.contains("nobody") && why.contains("no publication"),
+                "{why}"
+            )
+        }
+        e => panic!("unexpected {e:?}"),
+    }
+    a.close().await;
+    let err = p.try_publish(&msg(0)).unwrap_err();
+    assert!(
+        matches!(err, SessionError::Disconnected(_)),
+        "after close: {err:?}"
+    );
+    b.close().await;
+}
+
+/// Dropping the `Listener` deletes the reader: the writer sees no handler.
+#[tokio::test]
+async fn dropping_a_listener_unsubscribes() {
+    let a = session(174, "a").await;
+    let b = threaded(174, "b").await;
+    let p = a.publisher::<Msg>("gone").build().await.unwrap();
+    let count = Arc::new(AtomicU32::new(0));
+    let l = {
+        let count = count.clone();
+        b.subscriber::<Msg>("gone")
+            .listen(move |_| {
+                count.fetch_add(1, Ordering::SeqCst);
+            })
+            .await
+            .unwrap()
+    };
+    await_handlers(&a, "gone", 1).await;
+    p.publish(&msg(1)).await.unwrap();
+    tokio::time::timeout(T, async {
+        while count.load(Ordering::SeqCst) == 0 {
+            tokio::time::sleep(Duration::from_millis(2)).await;
+        }
+    })
+    .await
+    .expect("the first sample");
+    drop(l);
+    tokio::time::timeout(T, async {
+        while a.num_handlers("gone").await.unwrap() > 0 {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    })
+    .await
+    .expect("the reader is deleted");
+    let before = count.load(Ordering::SeqCst);
+    p.publish(&msg(2)).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    assert_eq!(
+        count.load(Ordering::SeqCst),
+        before,
+        "no callback after drop"
+    );
+    a.close().await;
+    b.close().await;
+}
+
+/// A callback that panics loses the sample it was given, not the
+/// subscription, and not the receive thread.
+#[tokio::test]
+async fn a_panicking_callback_loses_its_sample_not_the_subscription() {
+    let a = session(175, "a").await;
+    let b = threaded(175, "b").await;
+    let p = a.publisher::<Msg>("fragile").build().await.unwrap();
+    let (tx, rx) = mpsc::channel();
+    let _l = b
+        .subscriber::<Msg>("fragile")
+        .listen(move |s: Got| {
+            let s = s.unwrap();
+            assert_ne!(s.value.seq, 3, "the test's deliberate panic");
+            let _ = tx.send(Ok(s));
+        })
+        .await
+        .unwrap();
+    await_handlers(&a, "fragile", 1).await;
+    for i in 0..6 {
+        p.publish(&msg(i)).await.unwrap();
+    }
+    let mut got = Vec::new();
+    while got.len() < 5 {
+        got.push(recv(&rx).await.unwrap().value.seq);
+    }
+    assert_eq!(got, [0, 1, 2, 4, 5]);
+    a.close().await;
+    b.close().await;
+}
+
+/// The receive thread ends with its session, and a keep-all `Subscriber`
+/// fed by it is back-pressured without loss.
+#[tokio::test]
+async fn the_receive_thread_feeds_streams_and_ends_with_the_session() {
+    let a = session(176, "a").await;
+    let b = threaded(176, "rx176").await;
+    assert_eq!(receive_threads("rx176"), 1, "{:?}", thread_names());
+    let p = a.publisher::<Msg>("flood").build().await.unwrap();
+    let mut sub = b
+        .subscriber::<Msg>("flood")
+        .queue(courier::QueuePolicy::KeepAll(8))
+        .build()
+        .await
+        .unwrap();
+    await_handlers(&a, "flood", 1).await;
+    let n = 2000u32;
+    let writer = tokio::spawn(async move {
+        for i in 0..n {
+            let mut m = msg(i);
+            m.payload = vec![0; 1000];
+            p.publish(&m).await.unwrap();
+        }
+    });
+    for i in 0..n {
+        assert_eq!(next(&mut sub).await.unwrap().value.seq, i);
+        if i % 500 == 0 {
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    }
+    writer.await.unwrap();
+    assert_eq!(sub.dropped(), 0);
+    b.close().await;
+    tokio::time::timeout(T, async {
+        while receive_threads("rx176") > 0 {
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+    })
+    .await
+    .expect("the receive thread ended");
+    a.close().await;
+}
