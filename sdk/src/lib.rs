@@ -59,7 +59,7 @@
 //! | `IPC_defineMsg`, `IPC_isMsgDefined` | `Session::define::<T>` (the format comes from the type) |
 //! | `IPC_defineFormat`, `IPC_checkMsgFormats` | `Session::define_format::<T>` (automatic in `define`); formats are checked at compile time by the derive |
 //! | `IPC_publish`, `IPC_publishData`, `IPC_publishVC`, `IPC_publishFixed` | `Session::publish` (typed) / `publish_raw` (bytes) |
-//! | `IPC_subscribe`, `IPC_subscribeData`, `IPC_unsubscribe` | `Session::subscribe::<T>` / `subscribe_raw`; dropping the `Subscriber` unsubscribes |
+//! | `IPC_subscribe`, `IPC_subscribeData`, `IPC_unsubscribe` | `Session::subscribe::<T>` / `subscribe_raw`; dropping the `Subscriber` unsubscribes. A handler-style callback: `session.subscriber::<T>(msg).listen(f)` (run on a task of its own on IPC; on RTPS where the datagram is read) |
 //! | `IPC_numHandlers` | `Session::num_handlers` |
 //! | `IPC_subscribeConnect`, `IPC_subscribeDisconnect`, their `unsubscribe` | `Session::events()` (`ModuleConnected` / `ModuleDisconnected`); drop the stream |
 //! | `IPC_subscribeHandlerChange` | `Session::watch_handlers` + `events()` (`HandlersChanged`) |

@@ -4,9 +4,23 @@
 //!
 //! The protocol is [`courier_wire::rtps::participant::Participant`], a
 //! sans-I/O state machine; this module gives it sockets and a clock. One
-//! driver task per session owns the participant and its sockets; the
+//! driver task per session reads the sockets and keeps the timers; the
 //! [`Backend`] methods send it commands. Everything else — matching, QoS
 //! compatibility, reliability, fragmentation, discovery — is in `wire`.
+//!
+//! Delivery comes in ORTE's two kinds. A [`crate::Subscriber`] is a
+//! `Stream` (pulled with `try_next`, or awaited by a task). A subscription
+//! made with [`SubscriberBuilder::listen`](crate::SubscriberBuilder::listen)
+//! is *immediate*: its callback runs where the datagram was read, right
+//! after the participant has taken it, and can answer on the spot with
+//! [`Publisher::try_publish`](crate::Publisher::try_publish); the answers
+//! go out together when the callbacks return. With `receive_thread` user
+//! data is read by a thread of its own blocked in `recvmmsg` (ORTE's and
+//! Cyclone DDS's way), which saves the wake-up of a tokio task per
+//! datagram; otherwise the driver task reads it and runs the callbacks.
+//! The participant and what surrounds it (`State`) sit behind one lock
+//! shared by the driver, the receive thread and `try_publish`; callbacks
+//! run with no lock held.
 //!
 //! What the driver adds on top of the protocol, per subscription:
 //!
@@ -355,6 +369,7 @@ impl RtpsBackend {
             batch: net::RecvBatch::new(),
             send_sock,
             receiver,
+            immediate: Vec::new(),
         };
         tokio::spawn(driver.run());
         Ok(RtpsBackend {
@@ -1028,20 +1043,23 @@ impl Shared {
     }
 
     /// Hands the samples of immediate-delivery subscriptions to their
-    /// callbacks, holding no lock, then sends what the callbacks wrote.
-    /// `Err(Full)` when that found the send buffer full.
-    fn run_callbacks(&self, mut queues: Vec<Arc<SampleQueue>>) -> Result<(), Full> {
+    /// callbacks, holding no lock, then sends what the callbacks wrote;
+    /// leaves `queues` empty (its allocation is passed around, not
+    /// renewed per datagram). `Err(Full)` when that found the send buffer
+    /// full.
+    fn run_callbacks(&self, queues: &mut Vec<Arc<SampleQueue>>) -> Result<(), Full> {
         while !queues.is_empty() {
             IN_CALLBACK.with(|c| c.set(self.id()));
-            for q in &queues {
+            for q in queues.iter() {
                 q.run_handler();
             }
             IN_CALLBACK.with(|c| c.set(0));
+            queues.clear();
             let now = Instant::now();
             let mut c = self.lock();
+            std::mem::swap(queues, &mut c.st.immediate);
             c.flush(now)?;
             c.rearm();
-            queues = std::mem::take(&mut c.st.immediate);
         }
         Ok(())
     }
@@ -1129,6 +1147,8 @@ struct Driver {
     /// A duplicate of the sending socket, to wait for room.
     send_sock: std::net::UdpSocket,
     receiver: Option<ReceiveThread>,
+    /// Immediate subscriptions with samples for their callbacks.
+    immediate: Vec<Arc<SampleQueue>>,
 }
 
 impl Driver {
@@ -1181,7 +1201,7 @@ impl Driver {
             if let (Some(s), Wake::Cmd(_) | Wake::Readable(_)) = (&self.spin, &wake) {
                 s.activity();
             }
-            let immediate = match wake {
+            match wake {
                 Wake::Cmd(None) => break,
                 Wake::Cmd(Some(Cmd::Close { reply })) => {
                     self.close(now).await;
@@ -1193,23 +1213,23 @@ impl Driver {
                     core.st.command(c, now);
                     // take every command already queued before flushing
                     core.take_commands(now);
-                    std::mem::take(&mut core.st.immediate)
+                    std::mem::swap(&mut self.immediate, &mut core.st.immediate);
                 }
                 Wake::Readable(i) => self.drain(i, now),
-                Wake::Space | Wake::Timer | Wake::Attention => Vec::new(),
-            };
-            if !immediate.is_empty() {
+                Wake::Space | Wake::Timer | Wake::Attention => {}
+            }
+            if !self.immediate.is_empty() {
                 // a full send buffer is seen by the next turn's flush
-                let _ = shared.run_callbacks(immediate);
+                let _ = shared.run_callbacks(&mut self.immediate);
             }
         }
         self.close(Instant::now()).await;
     }
 
     /// Reads what is waiting on socket `i`, a batch per system call, up
-    /// to a limit (so that commands and timers are not starved); the
+    /// to a limit (so that commands and timers are not starved); takes the
     /// immediate-delivery subscriptions that got samples.
-    fn drain(&mut self, i: usize, now: Instant) -> Vec<Arc<SampleQueue>> {
+    fn drain(&mut self, i: usize, now: Instant) {
         let mut c = self.shared.lock();
         // buffers of samples the application has taken, reused by the
         // samples about to be read
@@ -1237,7 +1257,7 @@ impl Driver {
                 }
             }
         }
-        std::mem::take(&mut c.st.immediate)
+        std::mem::swap(&mut self.immediate, &mut c.st.immediate);
     }
 
     async fn close(&mut self, now: Instant) {
@@ -1359,6 +1379,7 @@ impl ReceiveThread {
 fn receive_loop(shared: &Shared, sock: &std::net::UdpSocket, rt: &tokio::runtime::Handle) {
     use std::sync::atomic::Ordering;
     let mut batch = net::RecvBatch::new();
+    let mut immediate = Vec::new();
     loop {
         // an error (ICMP port unreachable and the like) reads nothing
         let n = net::recv_batch_blocking(sock, &mut batch).unwrap_or_default();
@@ -1366,21 +1387,21 @@ fn receive_loop(shared: &Shared, sock: &std::net::UdpSocket, rt: &tokio::runtime
             return;
         }
         let now = Instant::now();
-        let (immediate, full, paused) = {
+        let (full, paused) = {
             let mut c = shared.lock();
             let Core { st, .. } = &mut *c;
             st.returns.take(|b| st.p.recycle(b));
             c.receive(&batch, n, now);
-            let immediate = std::mem::take(&mut c.st.immediate);
+            std::mem::swap(&mut immediate, &mut c.st.immediate);
             // with callbacks to run, what this produced (acknowledgements)
             // goes out after them, packed with their answers
             let full = immediate.is_empty() && c.flush(now).is_err();
             if immediate.is_empty() {
                 c.rearm();
             }
-            (immediate, full, c.st.full_queue())
+            (full, c.st.full_queue())
         };
-        let full = full || (!immediate.is_empty() && shared.run_callbacks(immediate).is_err());
+        let full = full || shared.run_callbacks(&mut immediate).is_err();
         if full {
             // the driver waits for room and sends the rest
             shared.attention.notify_one();
