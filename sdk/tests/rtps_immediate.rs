@@ -266,7 +266,14 @@ async fn a_panicking_callback_loses_its_sample_not_the_subscription() {
 async fn the_receive_thread_feeds_streams_and_ends_with_the_session() {
     let a = session(176, "a").await;
     let b = threaded(176, "rx176").await;
-    assert_eq!(receive_threads("rx176"), 1, "{:?}", thread_names());
+    // (a new thread names itself once it runs)
+    tokio::time::timeout(T, async {
+        while receive_threads("rx176") != 1 {
+            tokio::time::sleep(Duration::from_millis(2)).await;
+        }
+    })
+    .await
+    .unwrap_or_else(|_| panic!("no receive thread: {:?}", thread_names()));
     let p = a.publisher::<Msg>("flood").build().await.unwrap();
     let mut sub = b
         .subscriber::<Msg>("flood")
