@@ -15,10 +15,18 @@
 //! usable by hand as a tool:
 //!
 //! ```text
-//! rtps_bench pong --domain 221 &  rtps_bench ping --domain 221 --size 16 --secs 3
+//! rtps_bench pong --domain 221 [--listener] &
+//! rtps_bench ping --domain 221 --size 16 --secs 3 [--listener]
 //! rtps_bench sub --domain 222 --secs 3 [--best-effort] &
 //! rtps_bench pub --domain 222 --size 65536 --secs 3 [--best-effort]
 //! ```
+//!
+//! Round trips are measured in two modes, each against its ddsperf
+//! counterpart. "callback" rows: ping and pong get `--listener` and answer
+//! from a `listen` callback on Courier's receive thread, next to ddsperf's
+//! `listener` mode (its default). "stream" rows: ping and pong await a
+//! `Subscriber` stream in a tokio task, next to ddsperf's `waitset` mode
+//! (an application thread woken by the receive thread).
 //!
 //! Each role prints one `RESULT key=value …` line on stdout. Every session
 //! is `rtps://<domain>?interface=lo&peers=127.0.0.1` and every `ddsperf`
@@ -151,12 +159,17 @@ fn usage() -> ! {
         "usage:\n  rtps_bench [--quick] [--no-ddsperf] [--filter TEXT] [--reps R] [--threads N] [--busy-poll US] \
          [--max-message-size BYTES]   whole table (both CPU placements, Courier and ddsperf)\n  \
          rtps_bench ping|pong|pub|sub [--domain D] [--size BYTES] [--secs S] [--warmup S] \
-         [--best-effort] [--threads N] [--queue N] [--busy-poll US] [--max-message-size BYTES]\n\n\
+         [--best-effort] [--threads N] [--queue N] [--busy-poll US] [--max-message-size BYTES] \
+         [--listener]\n\n\
          rtps_bench floor [--quick] [--reps R]   bare UDP round trips: blocking recv vs tokio (see udp_floor.rs)\n  \
          rtps_bench udp-ping|udp-pong --port P [--tokio|--tokio-readiness] [--secs S] [--warmup S]\n\n\
          Roles print one RESULT line. ping/pub take --size and --secs (measured time after \
          --warmup); pong runs until ping's last sample; sub until pub's final count \
          (give it pub's --secs/--warmup for the steady-state window).\n\
+         ping/pong --listener: answer from a `listen` callback on the session's receive thread \
+         (default: await a Subscriber stream in a tokio task). The table's rtt \"callback\" rows \
+         pair --listener with ddsperf's listener mode, its \"stream\" rows the default with \
+         ddsperf's waitset mode.\n\
          --max-message-size sets the largest datagram of Courier and of ddsperf (default: \
          each one's own, 65500 for Courier on loopback and 14720 for Cyclone).\n\
          Domains 0..=232; sessions use rtps://D?interface=lo&peers=127.0.0.1."
@@ -914,8 +927,16 @@ async fn subscribe(o: &Opts) -> Res {
 
 #[derive(Clone, Copy, PartialEq)]
 enum Kind {
-    Rtt,
-    Thr { best_effort: bool },
+    /// Round trips. `listener`: Courier's ping/pong answer from a `listen`
+    /// callback on the receive thread (`--listener`) and ddsperf runs in
+    /// `listener` mode; otherwise Courier awaits a `Subscriber` stream in a
+    /// tokio task and ddsperf runs in `waitset` mode.
+    Rtt {
+        listener: bool,
+    },
+    Thr {
+        best_effort: bool,
+    },
 }
 
 #[derive(Clone, Copy)]
@@ -932,7 +953,8 @@ impl Case {
             format!("{} B", self.size)
         };
         match self.kind {
-            Kind::Rtt => format!("rtt {sz}"),
+            Kind::Rtt { listener: true } => format!("rtt {sz} callback"),
+            Kind::Rtt { listener: false } => format!("rtt {sz} stream"),
             Kind::Thr { best_effort: false } => format!("thr {sz} reliable"),
             Kind::Thr { best_effort: true } => format!("thr {sz} best effort"),
         }
@@ -1126,14 +1148,20 @@ impl Orchestrator {
             if let Some(n) = self.max_message_size {
                 c.args(["--max-message-size", &n.to_string()]);
             }
-            if matches!(case.kind, Kind::Thr { best_effort: true }) {
-                c.arg("--best-effort");
+            match case.kind {
+                Kind::Thr { best_effort: true } => {
+                    c.arg("--best-effort");
+                }
+                Kind::Rtt { listener: true } => {
+                    c.arg("--listener");
+                }
+                Kind::Rtt { listener: false } | Kind::Thr { best_effort: false } => {}
             }
             c
         };
         let limit = Duration::from_secs_f64(secs + warmup + 60.0);
         let (first, second) = match case.kind {
-            Kind::Rtt => (role("ping"), role("pong")),
+            Kind::Rtt { .. } => (role("ping"), role("pong")),
             Kind::Thr { .. } => (role("pub"), role("sub")),
         };
         let (a, b) = match run_pair(second, first, limit) {
@@ -1158,7 +1186,7 @@ impl Orchestrator {
             }
         };
         match case.kind {
-            Kind::Rtt => {
+            Kind::Rtt { .. } => {
                 let Some(m) = result_line(&a).filter(|m| !m.contains_key("error")) else {
                     return fail("ping", &a);
                 };
@@ -1212,8 +1240,8 @@ impl Orchestrator {
         // (round trips) and 2..=4 s (throughput). Quick: the single line
         // at 2 s (round trips) and 1 s (throughput, discovery included).
         let (dur, from): (f64, f64) = match (case.kind, self.quick) {
-            (Kind::Rtt, false) => (5.0, 3.0),
-            (Kind::Rtt, true) => (2.0, 2.0),
+            (Kind::Rtt { .. }, false) => (5.0, 3.0),
+            (Kind::Rtt { .. }, true) => (2.0, 2.0),
             (Kind::Thr { .. }, false) => (4.0, 2.0),
             (Kind::Thr { .. }, true) => (1.0, 1.0),
         };
@@ -1235,10 +1263,14 @@ impl Orchestrator {
         // The second process starts 50 ms before the first: pong outlives
         // ping and pub outlives sub, so the intervals used are complete.
         let (first, second) = match case.kind {
-            Kind::Rtt => (
-                cmd(pl.cpus.0, dur + 0.05, &["ping", "size", &size]),
-                cmd(pl.cpus.1, dur + 0.15, &["pong"]),
-            ),
+            // triggering mode, given explicitly to both sides
+            Kind::Rtt { listener } => {
+                let trigger = if listener { "listener" } else { "waitset" };
+                (
+                    cmd(pl.cpus.0, dur + 0.05, &["ping", "size", &size, trigger]),
+                    cmd(pl.cpus.1, dur + 0.15, &["pong", trigger]),
+                )
+            }
             Kind::Thr { .. } => (
                 cmd(pl.cpus.0, dur + 0.1, &["pub", "size", &size]),
                 cmd(pl.cpus.1, dur + 0.05, &["sub"]),
@@ -1255,7 +1287,7 @@ impl Orchestrator {
             }
         };
         let parsed = match case.kind {
-            Kind::Rtt => parse_ddsperf_ping(&a, from, dur),
+            Kind::Rtt { .. } => parse_ddsperf_ping(&a, from, dur),
             Kind::Thr { .. } => parse_ddsperf_sub(&b, from, dur, case.size),
         };
         parsed.unwrap_or_else(|| {
@@ -1419,11 +1451,11 @@ fn cell(kind: Kind, o: &Outcome) -> String {
     }
     let range = match (kind, o.range) {
         (_, None) => String::new(),
-        (Kind::Rtt, Some((lo, hi))) => format!(" [runs {lo:.1}–{hi:.1}]"),
+        (Kind::Rtt { .. }, Some((lo, hi))) => format!(" [runs {lo:.1}–{hi:.1}]"),
         (Kind::Thr { .. }, Some((lo, hi))) => format!(" [runs {}–{}]", fmt_rate(lo), fmt_rate(hi)),
     };
     match (kind, o.value, o.second) {
-        (Kind::Rtt, Some(m), Some(p)) => format!("{m:.1} µs (p99 {p:.1}){range}"),
+        (Kind::Rtt { .. }, Some(m), Some(p)) => format!("{m:.1} µs (p99 {p:.1}){range}"),
         (Kind::Thr { .. }, Some(r), Some(mb)) => {
             format!("{} = {mb:.1} MB/s{range}", fmt_rate(r))
         }
@@ -1434,8 +1466,8 @@ fn cell(kind: Kind, o: &Outcome) -> String {
 fn lost_cell(kind: Kind, o: &Outcome) -> String {
     match (kind, o.lost, &o.note) {
         (_, _, Some(_)) | (_, None, _) => "–".into(),
-        (Kind::Rtt, Some((retries, _)), _) if retries > 0 => format!("{retries} retries"),
-        (Kind::Rtt, Some(_), _) => "0".into(),
+        (Kind::Rtt { .. }, Some((retries, _)), _) if retries > 0 => format!("{retries} retries"),
+        (Kind::Rtt { .. }, Some(_), _) => "0".into(),
         (Kind::Thr { best_effort: false }, Some((l, _)), _) => l.to_string(),
         (Kind::Thr { best_effort: true }, Some((l, t)), _) => {
             format!("{l} ({:.1} %)", 100.0 * l as f64 / t.max(1) as f64)
@@ -1515,11 +1547,19 @@ fn orchestrate(args: &[String]) {
     };
     let cases = [
         Case {
-            kind: Kind::Rtt,
+            kind: Kind::Rtt { listener: true },
             size: 16,
         },
         Case {
-            kind: Kind::Rtt,
+            kind: Kind::Rtt { listener: true },
+            size: 4096,
+        },
+        Case {
+            kind: Kind::Rtt { listener: false },
+            size: 16,
+        },
+        Case {
+            kind: Kind::Rtt { listener: false },
             size: 4096,
         },
         Case {
@@ -1614,7 +1654,7 @@ fn orchestrate(args: &[String]) {
             (Some(cv), Some(dv), true) => {
                 let r = cv / dv;
                 match kind {
-                    Kind::Rtt => (
+                    Kind::Rtt { .. } => (
                         format!("{r:.2}×"),
                         format!("≤ 1.0× {}", if r <= 1.0 { "met" } else { "NOT met" }),
                     ),
@@ -1627,7 +1667,7 @@ fn orchestrate(args: &[String]) {
             _ => (
                 "–".into(),
                 match kind {
-                    Kind::Rtt => "≤ 1.0× (no comparison)".into(),
+                    Kind::Rtt { .. } => "≤ 1.0× (no comparison)".into(),
                     Kind::Thr { .. } => "≥ 1.0× (no comparison)".into(),
                 },
             ),
@@ -1641,7 +1681,9 @@ fn orchestrate(args: &[String]) {
         );
     }
     println!(
-        "\nrtt: median round trip (p99), one request in flight. thr: samples/s received \
+        "\nrtt: median round trip (p99), one request in flight; callback: Courier answers \
+         from `listen` callbacks on its receive thread (--listener), ddsperf in listener mode; \
+         stream: Courier awaits a Subscriber stream in a tokio task, ddsperf in waitset mode. thr: samples/s received \
          in steady state, MB/s = samples/s × payload bytes. ratio = Courier / ddsperf. \
          lost (thr): samples sent but never received (best effort: % of sent); \
          lost (rtt): pings re-sent after {} ms without an answer.",
