@@ -308,3 +308,56 @@ async fn the_receive_thread_feeds_streams_and_ends_with_the_session() {
     .expect("the receive thread ended");
     a.close().await;
 }
+
+/// A runtime dropped without closing its session takes the driver task
+/// with it; the receive thread still ends.
+#[test]
+fn the_receive_thread_ends_when_the_runtime_goes_away() {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let s = rt.block_on(threaded(177, "rx177"));
+    let wait_for = |n: usize| {
+        let t0 = std::time::Instant::now();
+        while receive_threads("rx177") != n {
+            assert!(t0.elapsed() < T, "{:?}", thread_names());
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    };
+    wait_for(1);
+    drop(rt);
+    wait_for(0);
+    drop(s);
+}
+
+/// A receive thread that stopped reading because a keep-all `Subscriber`
+/// is full still ends when the session closes.
+#[tokio::test]
+async fn a_receive_thread_held_by_a_full_queue_ends_with_the_session() {
+    let a = session(178, "a").await;
+    let b = threaded(178, "rx178").await;
+    let p = a.publisher::<Msg>("held").build().await.unwrap();
+    let mut sub = b
+        .subscriber::<Msg>("held")
+        .queue(courier::QueuePolicy::KeepAll(2))
+        .build()
+        .await
+        .unwrap();
+    await_handlers(&a, "held", 1).await;
+    for i in 0..50 {
+        p.publish(&msg(i)).await.unwrap();
+    }
+    // the queue fills; nobody reads
+    assert_eq!(next(&mut sub).await.unwrap().value.seq, 0);
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    b.close().await;
+    tokio::time::timeout(T, async {
+        while receive_threads("rx178") > 0 {
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+    })
+    .await
+    .unwrap_or_else(|_| panic!("the receive thread is still there: {:?}", thread_names()));
+    a.close().await;
+}

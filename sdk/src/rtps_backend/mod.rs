@@ -348,6 +348,7 @@ impl RtpsBackend {
             }),
             attention: tokio::sync::Notify::new(),
             closing: std::sync::atomic::AtomicBool::new(false),
+            stopping: tokio::sync::Notify::new(),
         });
         let send_sock = socks.user.try_clone().map_err(sock_err)?;
         let (user, receiver) = if opts.receive_thread {
@@ -1023,6 +1024,8 @@ struct Shared {
     attention: tokio::sync::Notify,
     /// The receive thread stops (set before it is woken).
     closing: std::sync::atomic::AtomicBool,
+    /// Wakes the receive thread where it waits for room in a queue.
+    stopping: tokio::sync::Notify,
 }
 
 impl std::fmt::Debug for Shared {
@@ -1262,7 +1265,7 @@ impl Driver {
 
     async fn close(&mut self, now: Instant) {
         if let Some(r) = self.receiver.take() {
-            r.stop(&self.shared).await;
+            r.stop().await;
         }
         let stalled = {
             let mut c = self.shared.lock();
@@ -1344,39 +1347,61 @@ impl Driver {
 /// is how ORTE, Cyclone DDS (listeners) and ddsperf receive; it saves the
 /// wake-up of a task in a tokio runtime per datagram.
 struct ReceiveThread {
-    handle: std::thread::JoinHandle<()>,
+    /// `None` once joined.
+    handle: Option<std::thread::JoinHandle<()>>,
     /// Where a datagram wakes the thread to stop.
     addr: SocketAddr,
+    shared: Arc<Shared>,
 }
 
 impl ReceiveThread {
     fn start(shared: Arc<Shared>, sock: std::net::UdpSocket, name: &str) -> std::io::Result<Self> {
         sock.set_nonblocking(false)?;
         let addr = sock.local_addr()?;
-        let rt = tokio::runtime::Handle::current();
+        let s = shared.clone();
         let handle = std::thread::Builder::new()
             .name(format!("rtps-rx {name}"))
-            .spawn(move || receive_loop(&shared, &sock, &rt))?;
-        Ok(ReceiveThread { handle, addr })
+            .spawn(move || receive_loop(&s, &sock))?;
+        Ok(ReceiveThread {
+            handle: Some(handle),
+            addr,
+            shared,
+        })
     }
 
-    /// Stops the thread and waits for it.
-    async fn stop(self, shared: &Shared) {
+    /// Tells the thread to stop, wherever it waits.
+    fn signal(&self) {
         use std::sync::atomic::Ordering;
-        shared.closing.store(true, Ordering::SeqCst);
+        self.shared.closing.store(true, Ordering::SeqCst);
+        self.shared.stopping.notify_waiters();
         // a datagram to its own socket wakes the blocking receive
         let woken =
             std::net::UdpSocket::bind((self.addr.ip(), 0)).and_then(|s| s.send_to(&[], self.addr));
         if let Err(e) = woken {
             tracing::warn!("cannot wake the RTPS receive thread ({e}); it ends with the process");
-            return;
         }
-        let h = self.handle;
-        let _ = tokio::task::spawn_blocking(move || h.join()).await;
+    }
+
+    /// Stops the thread and waits for it.
+    async fn stop(mut self) {
+        self.signal();
+        if let Some(h) = self.handle.take() {
+            let _ = tokio::task::spawn_blocking(move || h.join()).await;
+        }
     }
 }
 
-fn receive_loop(shared: &Shared, sock: &std::net::UdpSocket, rt: &tokio::runtime::Handle) {
+impl Drop for ReceiveThread {
+    /// Without [`ReceiveThread::stop`] (the runtime went away with the
+    /// driver task): the thread still ends, unwaited.
+    fn drop(&mut self) {
+        if self.handle.is_some() {
+            self.signal();
+        }
+    }
+}
+
+fn receive_loop(shared: &Shared, sock: &std::net::UdpSocket) {
     use std::sync::atomic::Ordering;
     let mut batch = net::RecvBatch::new();
     let mut immediate = Vec::new();
@@ -1410,11 +1435,18 @@ fn receive_loop(shared: &Shared, sock: &std::net::UdpSocket, rt: &tokio::runtime
         while let Some(q) = paused {
             // a Stream subscriber has not caught up: stop reading until it
             // has (the socket buffer, then the writer, hold the rest)
+            let stopping = shared.stopping.notified();
+            let mut stopping = std::pin::pin!(stopping);
+            stopping.as_mut().enable(); // from here on no stop is missed
             if shared.closing.load(Ordering::SeqCst) {
                 return;
             }
-            rt.block_on(async {
-                let _ = tokio::time::timeout(Duration::from_millis(50), q.space()).await;
+            // no runtime needed: both are woken by whoever acts
+            futures::executor::block_on(async {
+                tokio::select! {
+                    _ = q.space() => {}
+                    _ = stopping => {}
+                }
             });
             paused = shared.lock().st.full_queue();
         }
