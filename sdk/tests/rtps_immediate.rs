@@ -76,7 +76,7 @@ fn receive_threads(name: &str) -> usize {
 /// connection: with the receive thread and with the driver task reading.
 #[tokio::test]
 async fn callbacks_get_every_sample_in_order_then_the_end() {
-    for (domain, on_thread) in [(170, true), (171, false)] {
+    for (domain, on_thread) in [(140, true), (141, false)] {
         let a = session(domain, "a").await;
         let b = if on_thread {
             threaded(domain, "b").await
@@ -107,8 +107,8 @@ async fn callbacks_get_every_sample_in_order_then_the_end() {
 /// sends the answer itself): every request is echoed, in order.
 #[tokio::test]
 async fn a_callback_answers_at_once_with_try_publish() {
-    let server = threaded(172, "server").await;
-    let client = session(172, "client").await;
+    let server = threaded(142, "server").await;
+    let client = session(142, "client").await;
     let answers = server.publisher::<Msg>("pong").build().await.unwrap();
     let echo = {
         let answers = answers.clone();
@@ -147,8 +147,8 @@ async fn a_callback_answers_at_once_with_try_publish() {
 /// and says clearly why it cannot publish.
 #[tokio::test]
 async fn try_publish_keeps_order_and_refuses_clearly() {
-    let a = session(173, "a").await;
-    let b = session(173, "b").await;
+    let a = session(143, "a").await;
+    let b = session(143, "b").await;
     let p = a.publisher::<Msg>("mixed").build().await.unwrap();
     let mut sub = b.subscribe::<Msg>("mixed").await.unwrap();
     await_handlers(&a, "mixed", 1).await;
@@ -188,8 +188,8 @@ async fn try_publish_keeps_order_and_refuses_clearly() {
 /// Dropping the `Listener` deletes the reader: the writer sees no handler.
 #[tokio::test]
 async fn dropping_a_listener_unsubscribes() {
-    let a = session(174, "a").await;
-    let b = threaded(174, "b").await;
+    let a = session(144, "a").await;
+    let b = threaded(144, "b").await;
     let p = a.publisher::<Msg>("gone").build().await.unwrap();
     let count = Arc::new(AtomicU32::new(0));
     let l = {
@@ -234,8 +234,8 @@ async fn dropping_a_listener_unsubscribes() {
 /// subscription, and not the receive thread.
 #[tokio::test]
 async fn a_panicking_callback_loses_its_sample_not_the_subscription() {
-    let a = session(175, "a").await;
-    let b = threaded(175, "b").await;
+    let a = session(145, "a").await;
+    let b = threaded(145, "b").await;
     let p = a.publisher::<Msg>("fragile").build().await.unwrap();
     let (tx, rx) = mpsc::channel();
     let _l = b
@@ -264,8 +264,8 @@ async fn a_panicking_callback_loses_its_sample_not_the_subscription() {
 /// fed by it is back-pressured without loss.
 #[tokio::test]
 async fn the_receive_thread_feeds_streams_and_ends_with_the_session() {
-    let a = session(176, "a").await;
-    let b = threaded(176, "rx176").await;
+    let a = session(146, "a").await;
+    let b = threaded(146, "rx176").await;
     // (a new thread names itself once it runs)
     tokio::time::timeout(T, async {
         while receive_threads("rx176") != 1 {
@@ -317,7 +317,7 @@ fn the_receive_thread_ends_when_the_runtime_goes_away() {
         .enable_all()
         .build()
         .unwrap();
-    let s = rt.block_on(threaded(177, "rx177"));
+    let s = rt.block_on(threaded(147, "rx177"));
     let wait_for = |n: usize| {
         let t0 = std::time::Instant::now();
         while receive_threads("rx177") != n {
@@ -335,8 +335,8 @@ fn the_receive_thread_ends_when_the_runtime_goes_away() {
 /// is full still ends when the session closes.
 #[tokio::test]
 async fn a_receive_thread_held_by_a_full_queue_ends_with_the_session() {
-    let a = session(178, "a").await;
-    let b = threaded(178, "rx178").await;
+    let a = session(149, "a").await;
+    let b = threaded(149, "rx178").await;
     let p = a.publisher::<Msg>("held").build().await.unwrap();
     let mut sub = b
         .subscriber::<Msg>("held")

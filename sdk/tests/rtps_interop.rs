@@ -207,6 +207,89 @@ async fn courier_to_peer(vendor: Vendor, domain: u32, reliable: bool) {
     s.close().await;
 }
 
+/// The peer publishes to a Courier session that reads on its receive
+/// thread and takes the samples in a `listen` callback.
+async fn peer_to_courier_callback(vendor: Vendor, domain: u32) {
+    let s = tokio::time::timeout(
+        T,
+        Session::builder(common::url(domain))
+            .name("courier")
+            .receive_thread(true)
+            .connect(),
+    )
+    .await
+    .expect("connect in time")
+    .expect("connect");
+    let (tx, rx) = std::sync::mpsc::channel();
+    let _l = s
+        .subscriber::<Msg>("interop")
+        .listen(move |r| drop(tx.send(r)))
+        .await
+        .unwrap();
+    let d = domain_arg(domain);
+    let mut peer = Peer::start(
+        vendor,
+        &[
+            "--domain",
+            &d,
+            "--topic",
+            "interop",
+            "--type",
+            "msg",
+            "--pub",
+            "--reliable",
+            "--count",
+            "3",
+            "--size",
+            "16,204800,16",
+            "--wait-match",
+            "1",
+            "--settle-ms",
+            "300",
+            "--text",
+            "peer",
+            "--linger-ms",
+            "300",
+            "--timeout-s",
+            "20",
+        ],
+    );
+    let got = blocking(move || {
+        (1..=3u32)
+            .map(|_| {
+                rx.recv_timeout(T)
+                    .expect("a callback in time")
+                    .unwrap()
+                    .value
+            })
+            .collect::<Vec<_>>()
+    })
+    .await;
+    for (v, seq) in got.iter().zip(1..=3u32) {
+        let size = if seq == 2 { 204_800 } else { 16 };
+        assert_eq!(v.seq, seq, "{vendor:?}: in order");
+        assert_eq!(v.text, format!("peer-{seq}"));
+        assert_eq!(v.payload, payload(seq, size), "{vendor:?}: sample {seq}");
+    }
+    let code = blocking(move || {
+        peer.expect("done");
+        peer.exit_code()
+    })
+    .await;
+    assert_eq!(code, Some(0), "{vendor:?} publisher exit");
+    s.close().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cyclone_to_courier_callback_on_the_receive_thread() {
+    peer_to_courier_callback(Vendor::Cyclone, 190).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn fastdds_to_courier_callback_on_the_receive_thread() {
+    peer_to_courier_callback(Vendor::FastDds, 191).await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn cyclone_to_courier_reliable_with_200_kib() {
     peer_to_courier(Vendor::Cyclone, 170, true).await;
