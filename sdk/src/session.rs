@@ -371,7 +371,7 @@ impl SampleQueue {
         drop(st);
         self.space.notify_waiters();
         if let Some(w) = waker {
-            w.wake(); // a handler task (see `Session::run_handler_task`) ends
+            w.wake(); // the task running a `listen` callback ends
         }
     }
 
