@@ -304,6 +304,22 @@ fn percentile(sorted: &[u64], p: f64) -> f64 {
     sorted[i] as f64
 }
 
+/// ping's RESULT line: the round trips' median, p99, mean, min and max.
+fn print_ping_result(size: usize, rtts: &mut [u64], secs: f64, retries: u64, setup_ms: f64) {
+    rtts.sort_unstable();
+    let n = rtts.len();
+    let mean = rtts.iter().sum::<u64>() as f64 / n.max(1) as f64;
+    println!(
+        "RESULT role=ping size={size} n={n} secs={secs:.3} median_us={:.2} p99_us={:.2} \
+         mean_us={:.2} min_us={:.2} max_us={:.2} retries={retries} setup_ms={setup_ms:.0}",
+        percentile(rtts, 0.5) / 1e3,
+        percentile(rtts, 0.99) / 1e3,
+        mean / 1e3,
+        percentile(rtts, 0.0) / 1e3,
+        percentile(rtts, 1.0) / 1e3,
+    );
+}
+
 /// A timeout for the round-trip roles, kept off the measured runtime.
 ///
 /// A tokio timer would be measured with the library: while one is pending
@@ -461,19 +477,7 @@ async fn ping(o: &Opts) -> Res {
         }
     })
     .await;
-    rtts.sort_unstable();
-    let n = rtts.len();
-    let mean = rtts.iter().sum::<u64>() as f64 / n.max(1) as f64;
-    println!(
-        "RESULT role=ping size={} n={n} secs={secs:.3} median_us={:.2} p99_us={:.2} \
-         mean_us={:.2} min_us={:.2} max_us={:.2} retries={retries} setup_ms={setup_ms:.0}",
-        o.size,
-        percentile(&rtts, 0.5) / 1e3,
-        percentile(&rtts, 0.99) / 1e3,
-        mean / 1e3,
-        percentile(&rtts, 0.0) / 1e3,
-        percentile(&rtts, 1.0) / 1e3,
-    );
+    print_ping_result(o.size, &mut rtts, secs, retries, setup_ms);
     s.close().await;
     Ok(())
 }
@@ -607,19 +611,7 @@ async fn ping_listener(o: &Opts) -> Res {
     })
     .await;
     drop(pongs);
-    rtts.sort_unstable();
-    let n = rtts.len();
-    let mean = rtts.iter().sum::<u64>() as f64 / n.max(1) as f64;
-    println!(
-        "RESULT role=ping size={} n={n} secs={secs:.3} median_us={:.2} p99_us={:.2} \
-         mean_us={:.2} min_us={:.2} max_us={:.2} retries={retries} setup_ms={setup_ms:.0}",
-        o.size,
-        percentile(&rtts, 0.5) / 1e3,
-        percentile(&rtts, 0.99) / 1e3,
-        mean / 1e3,
-        percentile(&rtts, 0.0) / 1e3,
-        percentile(&rtts, 1.0) / 1e3,
-    );
+    print_ping_result(o.size, &mut rtts, secs, retries, setup_ms);
     s.close().await;
     Ok(())
 }

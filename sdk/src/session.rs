@@ -1540,6 +1540,19 @@ impl<T: IpcMessage> SubscriberBuilder<T> {
         self
     }
 
+    /// The backend's subscription of this type and QoS, into `queue`.
+    async fn create(&self, queue: &Arc<SampleQueue>) -> Result<(), SessionError> {
+        self.session
+            .backend
+            .create_subscription(
+                &self.msg,
+                Some(&TypeInfo::of::<T>()),
+                &self.qos,
+                queue.clone(),
+            )
+            .await
+    }
+
     /// Creates the subscription with immediate delivery (ORTE's IMMEDIATE
     /// mode, a DDS listener): `f` gets every sample, in order, as soon as
     /// the backend has it, and `Err(RecvError::Disconnected)` once at the
@@ -1555,16 +1568,8 @@ impl<T: IpcMessage> SubscriberBuilder<T> {
         let queue = SampleQueue::new(self.policy.unwrap_or_default());
         let enc = self.session.enc();
         queue.set_handler(move |q, s| f(convert::<T>(enc, q, s)));
-        let backend = &self.session.backend;
-        backend
-            .create_subscription(
-                &self.msg,
-                Some(&TypeInfo::of::<T>()),
-                &self.qos,
-                queue.clone(),
-            )
-            .await?;
-        if !backend.delivers_immediately() {
+        self.create(&queue).await?;
+        if !self.session.backend.delivers_immediately() {
             let q = queue.clone();
             tokio::spawn(async move {
                 while std::future::poll_fn(|cx| q.poll_waiting(cx)).await {
@@ -1581,15 +1586,7 @@ impl<T: IpcMessage> SubscriberBuilder<T> {
     /// Creates the subscription.
     pub async fn build(self) -> Result<Subscriber<T>, SessionError> {
         let queue = SampleQueue::new(self.policy.unwrap_or_default());
-        self.session
-            .backend
-            .create_subscription(
-                &self.msg,
-                Some(&TypeInfo::of::<T>()),
-                &self.qos,
-                queue.clone(),
-            )
-            .await?;
+        self.create(&queue).await?;
         Ok(Subscriber {
             raw: RawSubscriber { queue },
             msg: self.msg,

@@ -227,6 +227,26 @@ enum Cmd {
     },
 }
 
+impl Cmd {
+    /// A write that is not confirmed and holds its share of the queue
+    /// budget until it enters the writer's history.
+    fn queued_write(
+        topic: Arc<str>,
+        data: Vec<u8>,
+        key_hash: Option<[u8; 16]>,
+        permit: OwnedSemaphorePermit,
+    ) -> Cmd {
+        Cmd::Write {
+            topic,
+            kind: ChangeKind::Alive,
+            data,
+            key_hash,
+            confirm: None,
+            done: Done::Queued(permit),
+        }
+    }
+}
+
 /// ROS 2's service topics: `rq/<name>Request` and `rr/<name>Reply`.
 fn request_topic(name: &str) -> String {
     format!("rq/{name}Request")
@@ -434,14 +454,7 @@ impl RtpsBackend {
         };
         Ok(self
             .cmd
-            .send(Cmd::Write {
-                topic,
-                kind: ChangeKind::Alive,
-                data,
-                key_hash,
-                confirm: None,
-                done: Done::Queued(permit),
-            })
+            .send(Cmd::queued_write(topic, data, key_hash, permit))
             .map_err(|_| disconnected()))
     }
 
@@ -797,17 +810,7 @@ impl Backend for RtpsBackend {
         }
         // what was queued before goes first
         c.take_commands(now);
-        c.st.command(
-            Cmd::Write {
-                topic,
-                kind: ChangeKind::Alive,
-                data,
-                key_hash,
-                confirm: None,
-                done: Done::Queued(permit),
-            },
-            now,
-        );
+        c.st.command(Cmd::queued_write(topic, data, key_hash, permit), now);
         if IN_CALLBACK.with(|t| t.get()) == self.shared.id() {
             // sent, packed with the callbacks' other writes, when they return
             return Ok(());
