@@ -1561,6 +1561,25 @@ impl<T: IpcMessage> SubscriberBuilder<T> {
     /// short and never block in it (it holds up reception). It can answer
     /// at once with [`Publisher::try_publish`]. Other backends call it from
     /// a task of its own. Dropping the [`Listener`] unsubscribes.
+    ///
+    /// ```no_run
+    /// # async fn demo() -> Result<(), Box<dyn std::error::Error>> {
+    /// use courier::Session;
+    /// let s = Session::builder("rtps://0?interface=lo&peers=127.0.0.1&receive_thread=true")
+    ///     .connect()
+    ///     .await?;
+    /// let pong = s.publisher::<u32>("pong").build().await?;
+    /// // answered on the receive thread, without a task in between
+    /// let _ping = s
+    ///     .subscriber::<u32>("ping")
+    ///     .listen(move |sample| {
+    ///         if let Ok(sample) = sample {
+    ///             let _ = pong.try_publish(&sample.value);
+    ///         }
+    ///     })
+    ///     .await?;
+    /// # Ok(()) }
+    /// ```
     pub async fn listen<F>(self, mut f: F) -> Result<Listener, SessionError>
     where
         F: FnMut(Result<Sample<T>, RecvError>) + Send + 'static,
