@@ -304,6 +304,17 @@ fn percentile(sorted: &[u64], p: f64) -> f64 {
     sorted[i] as f64
 }
 
+/// The round-trip roles' writer of `topic`: reliable, keep-last 1 (as
+/// ddsperf's ping and pong).
+async fn rtt_publisher(s: &Session, topic: &str) -> Result<courier::Publisher<Data>, String> {
+    s.publisher::<Data>(topic)
+        .reliable()
+        .keep_last(1)
+        .build()
+        .await
+        .map_err(|e| e.to_string())
+}
+
 /// ping's RESULT line: the round trips' median, p99, mean, min and max.
 fn print_ping_result(size: usize, rtts: &mut [u64], secs: f64, retries: u64, setup_ms: f64) {
     rtts.sort_unstable();
@@ -402,13 +413,7 @@ impl Drop for Watchdog {
 async fn ping(o: &Opts) -> Res {
     let t_setup = Instant::now();
     let s = connect(o, "ping").await?;
-    let p = s
-        .publisher::<Data>(PING)
-        .reliable()
-        .keep_last(1)
-        .build()
-        .await
-        .map_err(|e| e.to_string())?;
+    let p = rtt_publisher(&s, PING).await?;
     let mut pongs = s
         .subscriber::<Data>(PONG)
         .reliable()
@@ -498,13 +503,7 @@ async fn ping_listener(o: &Opts) -> Res {
     }
     let t_setup = Instant::now();
     let s = connect(o, "ping").await?;
-    let p = s
-        .publisher::<Data>(PING)
-        .reliable()
-        .keep_last(1)
-        .build()
-        .await
-        .map_err(|e| e.to_string())?;
+    let p = rtt_publisher(&s, PING).await?;
     let clock = Instant::now();
     let run = Arc::new(Mutex::new(Run {
         v: Data::ping(o.size),
@@ -622,13 +621,7 @@ async fn pong_listener(o: &Opts) -> Res {
     use std::sync::atomic::{AtomicU64, Ordering};
     use std::sync::Arc;
     let s = connect(o, "pong").await?;
-    let p = s
-        .publisher::<Data>(PONG)
-        .reliable()
-        .keep_last(1)
-        .build()
-        .await
-        .map_err(|e| e.to_string())?;
+    let p = rtt_publisher(&s, PONG).await?;
     let idle = Duration::from_secs_f64(o.warmup + o.secs + 40.0);
     let quiet = Arc::new(Watchdog::start(idle));
     let done = Arc::new(tokio::sync::Notify::new());
@@ -686,13 +679,7 @@ async fn pong_listener(o: &Opts) -> Res {
 /// Echoes every sample of `PING` on `PONG` until the end marker.
 async fn pong(o: &Opts) -> Res {
     let s = connect(o, "pong").await?;
-    let p = s
-        .publisher::<Data>(PONG)
-        .reliable()
-        .keep_last(1)
-        .build()
-        .await
-        .map_err(|e| e.to_string())?;
+    let p = rtt_publisher(&s, PONG).await?;
     let mut pings = s
         .subscriber::<Data>(PING)
         .reliable()

@@ -460,36 +460,7 @@ async fn send_every_publishes_from_a_timer_callback() {
 async fn slow_keep_all_subscriber_loses_nothing() {
     let a = session(163, "a").await;
     let b = session(163, "b").await;
-    let p = a.publisher::<Msg>("flood").build().await.unwrap();
-    let mut sub = b
-        .subscriber::<Msg>("flood")
-        .queue(courier::QueuePolicy::KeepAll(8))
-        .build()
-        .await
-        .unwrap();
-    await_handlers(&a, "flood", 1).await;
-    let n = 3000u32;
-    let writer = tokio::spawn(async move {
-        for i in 0..n {
-            p.publish(&Msg {
-                seq: i,
-                text: String::new(),
-                payload: vec![0; 1000],
-            })
-            .await
-            .unwrap();
-        }
-        p
-    });
-    for i in 0..n {
-        let s = next(&mut sub).await.unwrap();
-        assert_eq!(s.value.seq, i);
-        if i % 500 == 0 {
-            tokio::time::sleep(Duration::from_millis(50)).await;
-        }
-    }
-    writer.await.unwrap();
-    assert_eq!(sub.dropped(), 0);
+    common::slow_keep_all_subscriber(&a, &b, 3000).await;
 }
 
 /// `publish().await` returns once the write is queued (so that the

@@ -274,30 +274,7 @@ async fn the_receive_thread_feeds_streams_and_ends_with_the_session() {
     })
     .await
     .unwrap_or_else(|_| panic!("no receive thread: {:?}", thread_names()));
-    let p = a.publisher::<Msg>("flood").build().await.unwrap();
-    let mut sub = b
-        .subscriber::<Msg>("flood")
-        .queue(courier::QueuePolicy::KeepAll(8))
-        .build()
-        .await
-        .unwrap();
-    await_handlers(&a, "flood", 1).await;
-    let n = 2000u32;
-    let writer = tokio::spawn(async move {
-        for i in 0..n {
-            let mut m = msg(i);
-            m.payload = vec![0; 1000];
-            p.publish(&m).await.unwrap();
-        }
-    });
-    for i in 0..n {
-        assert_eq!(next(&mut sub).await.unwrap().value.seq, i);
-        if i % 500 == 0 {
-            tokio::time::sleep(Duration::from_millis(50)).await;
-        }
-    }
-    writer.await.unwrap();
-    assert_eq!(sub.dropped(), 0);
+    common::slow_keep_all_subscriber(&a, &b, 2000).await;
     b.close().await;
     tokio::time::timeout(T, async {
         while receive_threads("rx176") > 0 {

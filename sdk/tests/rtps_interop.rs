@@ -71,11 +71,9 @@ fn domain_arg(d: u32) -> String {
 // ---------------------------------------------------------------------------
 // Peer publishes, Courier subscribes
 
-async fn peer_to_courier(vendor: Vendor, domain: u32, reliable: bool) {
-    let s = session(domain).await;
-    let b = s.subscriber::<Msg>("interop");
-    let b = if reliable { b } else { b.best_effort() };
-    let mut sub = b.build().await.unwrap();
+/// The peer publishes 3 samples on `interop` once a reader matched:
+/// `peer-1..3`, 16 B each, or 16 B, 200 KiB, 16 B when reliable.
+fn start_publisher(vendor: Vendor, domain: u32, reliable: bool) -> Peer {
     let d = domain_arg(domain);
     let rel = if reliable {
         "--reliable"
@@ -83,7 +81,7 @@ async fn peer_to_courier(vendor: Vendor, domain: u32, reliable: bool) {
         "--best-effort"
     };
     let sizes = if reliable { "16,204800,16" } else { "16" };
-    let mut peer = Peer::start(
+    Peer::start(
         vendor,
         &[
             "--domain",
@@ -109,7 +107,15 @@ async fn peer_to_courier(vendor: Vendor, domain: u32, reliable: bool) {
             "--timeout-s",
             "20",
         ],
-    );
+    )
+}
+
+async fn peer_to_courier(vendor: Vendor, domain: u32, reliable: bool) {
+    let s = session(domain).await;
+    let b = s.subscriber::<Msg>("interop");
+    let b = if reliable { b } else { b.best_effort() };
+    let mut sub = b.build().await.unwrap();
+    let mut peer = start_publisher(vendor, domain, reliable);
     for seq in 1..=3u32 {
         let v = next(&mut sub).await.unwrap().value;
         let size = if reliable && seq == 2 { 204_800 } else { 16 };
@@ -226,34 +232,7 @@ async fn peer_to_courier_callback(vendor: Vendor, domain: u32) {
         .listen(move |r| drop(tx.send(r)))
         .await
         .unwrap();
-    let d = domain_arg(domain);
-    let mut peer = Peer::start(
-        vendor,
-        &[
-            "--domain",
-            &d,
-            "--topic",
-            "interop",
-            "--type",
-            "msg",
-            "--pub",
-            "--reliable",
-            "--count",
-            "3",
-            "--size",
-            "16,204800,16",
-            "--wait-match",
-            "1",
-            "--settle-ms",
-            "300",
-            "--text",
-            "peer",
-            "--linger-ms",
-            "300",
-            "--timeout-s",
-            "20",
-        ],
-    );
+    let mut peer = start_publisher(vendor, domain, true);
     let got = blocking(move || {
         (1..=3u32)
             .map(|_| {

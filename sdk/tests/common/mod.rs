@@ -81,3 +81,37 @@ pub async fn assert_quiet(what: &str) {
     let (cpu, wall) = (thread_cpu() - cpu, wall.elapsed());
     assert!(cpu < wall / 4, "{what} used {cpu:?} of CPU in {wall:?}");
 }
+
+/// `a` publishes `n` 1000-byte samples on `flood` to `b`'s keep-all
+/// subscriber of 8, which stops reading for 50 ms every 500: back-pressure
+/// holds the publisher, and every sample arrives once, in order.
+pub async fn slow_keep_all_subscriber(a: &Session, b: &Session, n: u32) {
+    let p = a.publisher::<Msg>("flood").build().await.unwrap();
+    let mut sub = b
+        .subscriber::<Msg>("flood")
+        .queue(courier::QueuePolicy::KeepAll(8))
+        .build()
+        .await
+        .unwrap();
+    await_handlers(a, "flood", 1).await;
+    let writer = tokio::spawn(async move {
+        for i in 0..n {
+            p.publish(&Msg {
+                seq: i,
+                text: String::new(),
+                payload: vec![0; 1000],
+            })
+            .await
+            .unwrap();
+        }
+    });
+    for i in 0..n {
+        let s = next(&mut sub).await.unwrap();
+        assert_eq!(s.value.seq, i);
+        if i % 500 == 0 {
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    }
+    writer.await.unwrap();
+    assert_eq!(sub.dropped(), 0);
+}
