@@ -430,6 +430,33 @@ impl RtpsBackend {
             .cloned()
     }
 
+    /// What a write of `len` bytes to `msg` needs to go without waiting:
+    /// the publication's shared name and a share of the queue budget; or
+    /// why it cannot.
+    fn reserve(&self, msg: &str, len: usize) -> Result<(Arc<str>, OwnedSemaphorePermit), String> {
+        let topic = self.publication(msg).ok_or_else(|| {
+            "this session has no publication of it (create one with \
+             Session::publisher::<T>(..).build().await)"
+                .to_string()
+        })?;
+        if len > MAX_WRITE_SIZE {
+            return Err(format!(
+                "a sample of {len} bytes is larger than {MAX_WRITE_SIZE}"
+            ));
+        }
+        let permit = self
+            .queue_budget
+            .clone()
+            .try_acquire_many_owned(queued_units(len))
+            .map_err(|_| {
+                format!(
+                    "the session's write queue is full ({} bytes wait for the participant)",
+                    QUEUED_WRITE_UNITS * QUEUED_WRITE_UNIT
+                )
+            })?;
+        Ok((topic, permit))
+    }
+
     /// Queues an unconfirmed write of a known publication without
     /// waiting, when the queue budget has room; otherwise gives the data
     /// back for [`RtpsBackend::write_slow`].
@@ -439,17 +466,7 @@ impl RtpsBackend {
         data: Vec<u8>,
         key_hash: Option<[u8; 16]>,
     ) -> Result<Result<(), SessionError>, Vec<u8>> {
-        let Some(topic) = self
-            .publication(msg)
-            .filter(|_| data.len() <= MAX_WRITE_SIZE)
-        else {
-            return Err(data);
-        };
-        let Ok(permit) = self
-            .queue_budget
-            .clone()
-            .try_acquire_many_owned(queued_units(data.len()))
-        else {
+        let Ok((topic, permit)) = self.reserve(msg, data.len()) else {
             return Err(data);
         };
         Ok(self
@@ -775,34 +792,9 @@ impl Backend for RtpsBackend {
         data: Vec<u8>,
         key_hash: Option<[u8; 16]>,
     ) -> Result<(), SessionError> {
-        let refused = |why: String| {
-            Err(SessionError::Refused(format!(
-                "cannot publish {msg} without waiting: {why}"
-            )))
-        };
-        let Some(topic) = self.publication(msg) else {
-            return refused(
-                "this session has no publication of it (create one with \
-                 Session::publisher::<T>(..).build().await)"
-                    .into(),
-            );
-        };
-        if data.len() > MAX_WRITE_SIZE {
-            return refused(format!(
-                "a sample of {} bytes is larger than {MAX_WRITE_SIZE}",
-                data.len()
-            ));
-        }
-        let Ok(permit) = self
-            .queue_budget
-            .clone()
-            .try_acquire_many_owned(queued_units(data.len()))
-        else {
-            return refused(format!(
-                "the session's write queue is full ({} bytes wait for the participant)",
-                QUEUED_WRITE_UNITS * QUEUED_WRITE_UNIT
-            ));
-        };
+        let (topic, permit) = self.reserve(msg, data.len()).map_err(|why| {
+            SessionError::Refused(format!("cannot publish {msg} without waiting: {why}"))
+        })?;
         let now = Instant::now();
         let mut c = self.shared.lock();
         if c.close.is_some() {
@@ -1054,6 +1046,7 @@ impl Shared {
     /// renewed per datagram). `Err(Full)` when that found the send buffer
     /// full.
     fn run_callbacks(&self, queues: &mut Vec<Arc<SampleQueue>>) -> Result<(), Full> {
+        let mut full = false;
         while !queues.is_empty() {
             IN_CALLBACK.with(|c| c.set(self.id()));
             for q in queues.iter() {
@@ -1063,11 +1056,17 @@ impl Shared {
             queues.clear();
             let now = Instant::now();
             let mut c = self.lock();
-            std::mem::swap(queues, &mut c.st.immediate);
-            c.flush(now)?;
+            // a full socket does not hold up callbacks: what they write
+            // waits in the participant for the driver
+            full |= c.flush(now).is_err();
             c.rearm();
+            std::mem::swap(queues, &mut c.st.immediate);
         }
-        Ok(())
+        if full {
+            Err(Full)
+        } else {
+            Ok(())
+        }
     }
 }
 
@@ -1128,9 +1127,12 @@ impl Core {
         }
     }
 
-    /// Reads one batch from `sock` into the participant; the number of
-    /// datagrams read.
+    /// Hands the first `n` datagrams of `batch` to the participant, and
+    /// what they deliver to the subscriptions; sample buffers the
+    /// application has given back are reused first.
     fn receive(&mut self, batch: &net::RecvBatch, n: usize, now: Instant) {
+        let st = &mut self.st;
+        st.returns.take(|b| st.p.recycle(b));
         for k in 0..n {
             let (bytes, from) = batch.get(k);
             self.st.p.handle_datagram(locator_of(from), bytes, now);
@@ -1237,10 +1239,6 @@ impl Driver {
     /// immediate-delivery subscriptions that got samples.
     fn drain(&mut self, i: usize, now: Instant) {
         let mut c = self.shared.lock();
-        // buffers of samples the application has taken, reused by the
-        // samples about to be read
-        let Core { st, .. } = &mut *c;
-        st.returns.take(|b| st.p.recycle(b));
         let sock = match i {
             0 => Some(&self.meta),
             1 => self.user.as_ref(),
@@ -1417,8 +1415,6 @@ fn receive_loop(shared: &Shared, sock: &std::net::UdpSocket) {
         let now = Instant::now();
         let (full, paused) = {
             let mut c = shared.lock();
-            let Core { st, .. } = &mut *c;
-            st.returns.take(|b| st.p.recycle(b));
             c.receive(&batch, n, now);
             std::mem::swap(&mut immediate, &mut c.st.immediate);
             // with callbacks to run, what this produced (acknowledgements)
