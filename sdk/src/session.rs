@@ -1041,12 +1041,28 @@ impl Session {
     /// 1 MiB unacknowledged per reliable keep-all writer): when readers
     /// fall behind, `publish().await` waits: back-pressure, not loss.
     pub fn publish<'a, T: IpcMessage>(&'a self, msg: &'a str, value: &T) -> Publish<'a> {
+        self.publish_sized(msg, value, 0)
+    }
+
+    /// [`Session::publish`], encoding into a buffer of `size_hint` bytes.
+    fn publish_sized<'a, T: IpcMessage>(
+        &'a self,
+        msg: &'a str,
+        value: &T,
+        size_hint: usize,
+    ) -> Publish<'a> {
         let key_hash = (self.enc() == Encoding::Cdr && !T::KEYS.is_empty())
             .then(|| crate::rtps_backend::key_hash_of(value));
+        let data = match self.enc() {
+            Encoding::Cdr if size_hint > 0 => {
+                cdr::to_vec_with_capacity(value, cdr::Encoding::Xcdr1Le, size_hint)
+            }
+            enc => encode(enc, value),
+        };
         Publish {
             session: self,
             msg,
-            data: encode(self.enc(), value),
+            data,
             confirm: None,
             key_hash,
         }
@@ -1346,6 +1362,7 @@ impl<T: IpcMessage> PublisherBuilder<T> {
         Ok(Publisher {
             session: self.session,
             msg: self.msg,
+            last_len: Arc::default(),
             _t: PhantomData,
         })
     }
@@ -1356,6 +1373,10 @@ impl<T: IpcMessage> PublisherBuilder<T> {
 pub struct Publisher<T> {
     session: Session,
     msg: String,
+    /// Encoded size of the last sample, shared by the clones: the next
+    /// one is encoded into a buffer that size, so a large sample is not
+    /// reallocated while it is written.
+    last_len: Arc<std::sync::atomic::AtomicUsize>,
     _t: PhantomData<fn(T)>,
 }
 
@@ -1364,6 +1385,7 @@ impl<T> Clone for Publisher<T> {
         Publisher {
             session: self.session.clone(),
             msg: self.msg.clone(),
+            last_len: self.last_len.clone(),
             _t: PhantomData,
         }
     }
@@ -1377,7 +1399,13 @@ impl<T: IpcMessage> Publisher<T> {
 
     /// Publishes a value (`.confirmed()` to wait for acknowledgements).
     pub fn publish(&self, value: &T) -> Publish<'_> {
-        self.session.publish(&self.msg, value)
+        use std::sync::atomic::Ordering::Relaxed;
+        let hint = self.last_len.load(Relaxed);
+        let p = self.session.publish_sized(&self.msg, value, hint);
+        if p.data.len() != hint {
+            self.last_len.store(p.data.len(), Relaxed);
+        }
+        p
     }
 
     /// Publishes without waiting and from any thread, a subscription
@@ -1388,7 +1416,7 @@ impl<T: IpcMessage> Publisher<T> {
     /// immediate subscription the datagram goes out when the callback
     /// returns, packed with the callback's other writes.
     pub fn try_publish(&self, value: &T) -> Result<(), SessionError> {
-        let p = self.session.publish(&self.msg, value);
+        let p = self.publish(value);
         self.session.backend.try_write(p.msg, p.data, p.key_hash)
     }
 

@@ -25,6 +25,15 @@ fn round_trip<T: IpcMessage + PartialEq + std::fmt::Debug>(v: &T) -> Result<(), 
         let mut padded = b.clone();
         padded.resize(b.len().div_ceil(4) * 4, 0);
         prop_assert_eq!(&cdr::from_slice::<T>(&padded).unwrap(), v);
+        // a buffer sized in advance changes nothing in the bytes, whatever the hint
+        for hint in [0, 1, b.len(), 4 * b.len()] {
+            prop_assert_eq!(
+                &cdr::to_vec_with_capacity(v, enc, hint),
+                &b,
+                "hint {}",
+                hint
+            );
+        }
         let h = cdr::to_vec_headerless(v, enc);
         prop_assert_eq!(&h[..], &b[4..], "headerless bytes, {:?}", enc);
         prop_assert_eq!(&cdr::from_slice_headerless::<T>(&h, enc).unwrap(), v);
@@ -240,4 +249,21 @@ proptest! {
         round_trip(&n)?;
         round_trip(&t)?;
     }
+}
+
+/// With the size of the last sample as the hint, a large sample is
+/// written without growing its buffer (room for the envelope included).
+#[test]
+fn a_sized_buffer_takes_the_sample_and_its_tail_room_without_growing() {
+    let v: String = "x".repeat(4096);
+    let first = cdr::to_vec(&v, Encoding::Xcdr1Le);
+    let again = cdr::to_vec_with_capacity(&v, Encoding::Xcdr1Le, first.len());
+    assert_eq!(again, first);
+    assert!(
+        again.capacity() >= first.len() + cdr::TAIL_ROOM
+            && again.capacity() < first.len() + 2 * cdr::TAIL_ROOM,
+        "capacity {} for {} bytes",
+        again.capacity(),
+        first.len()
+    );
 }

@@ -112,9 +112,16 @@ impl Writer {
     /// A writer that starts with the encapsulation header for a type of
     /// extensibility `ext`; alignment is relative to the byte after it.
     pub fn with_header(encoding: Encoding, ext: Extensibility) -> Self {
-        let id = RepresentationId::for_type(encoding, ext) as u16;
         // a small sample and TAIL_ROOM fit without growing
-        let mut buf = Vec::with_capacity(64 + TAIL_ROOM);
+        Self::with_header_capacity(encoding, ext, 64)
+    }
+
+    /// [`Writer::with_header`] with room for `capacity` bytes (and
+    /// [`TAIL_ROOM`]) before it grows: for a caller that knows about how
+    /// large its samples are.
+    pub fn with_header_capacity(encoding: Encoding, ext: Extensibility, capacity: usize) -> Self {
+        let id = RepresentationId::for_type(encoding, ext) as u16;
+        let mut buf = Vec::with_capacity(capacity.max(4) + TAIL_ROOM);
         buf.extend_from_slice(&id.to_be_bytes());
         buf.extend_from_slice(&[0, 0]);
         Writer {

@@ -321,6 +321,19 @@ pub fn to_vec<T: IpcMessage>(value: &T, encoding: Encoding) -> Vec<u8> {
     w.into_vec()
 }
 
+/// [`to_vec`] into a buffer with room for `capacity` bytes from the start
+/// (e.g. the size of the last sample of the same topic): a large sample
+/// then needs no reallocation while it is written.
+pub fn to_vec_with_capacity<T: IpcMessage>(
+    value: &T,
+    encoding: Encoding,
+    capacity: usize,
+) -> Vec<u8> {
+    let mut w = Writer::with_header_capacity(encoding, T::EXTENSIBILITY, capacity);
+    value.cdr_encode(&mut w);
+    w.into_vec()
+}
+
 /// Serializes `value` without an encapsulation header (alignment origin at byte 0).
 pub fn to_vec_headerless<T: IpcMessage>(value: &T, encoding: Encoding) -> Vec<u8> {
     let mut w = Writer::new(encoding);
