@@ -119,7 +119,7 @@ fn udp(bind: SocketAddrV4, reuse: bool, o: &RtpsOptions) -> io::Result<Socket> {
 }
 
 fn tokio_socket(s: Socket) -> io::Result<UdpSocket> {
-    register(s.into(), Interest::READABLE)
+    register_readable(s.into())
 }
 
 /// Registers a socket with tokio for reading (only).
@@ -268,7 +268,6 @@ impl RecvBatch {
 /// seen empty), so that a lone datagram costs one receive call, not a
 /// second one that answers `EAGAIN`.
 #[cfg(target_os = "linux")]
-#[allow(unsafe_code)]
 pub(crate) fn recv_batch(sock: &UdpSocket, b: &mut RecvBatch) -> io::Result<usize> {
     b.n = 0;
     let r = sock.try_io(Interest::READABLE, |s| {
