@@ -83,6 +83,18 @@ struct ReaderProxy {
     /// Sequence numbers the reader asked for again.
     requested: BTreeSet<i64>,
     last_acknack_count: Option<i32>,
+    /// A volatile reliable reader that has not yet answered one of our
+    /// heartbeats: every heartbeat it gets says "nothing from `start` on".
+    ///
+    /// A reader may start a volatile match at the last sequence number of
+    /// the first heartbeat it processes (Cyclone DDS does: that is its only
+    /// way to tell history from live data), and it may drop DATA that
+    /// arrives before its own matching is complete. A heartbeat naming a
+    /// sample the reader dropped that way would make the sample lost for
+    /// good, so the real range is announced only once the reader answered
+    /// a heartbeat (an ACKNACK with a non-zero count: Cyclone's pre-emptive
+    /// ACKNACKs, sent before any heartbeat, count 0).
+    fresh: bool,
 }
 
 /// A writer's history: samples by sequence number. Sequence numbers are
@@ -253,6 +265,7 @@ impl Writer {
                 reliable: true,
                 acked_below,
                 start: acked_below,
+                fresh: !replay,
                 ..ReaderProxy::default()
             },
         );
@@ -453,15 +466,56 @@ impl Writer {
         self.ack_next = true;
     }
 
+    /// Queues a heartbeat for one reader, or for all of them. A fresh
+    /// reader (see [`ReaderProxy::fresh`]) gets its own, announcing nothing
+    /// from its start on and asking for an answer.
     fn push_heartbeat(&mut self, to: Option<Guid>, final_flag: bool) {
         self.hb_count = self.hb_count.wrapping_add(1);
-        self.out.push_back(Transmit::Heartbeat {
+        let count = self.hb_count;
+        let range = (
+            SequenceNumber(self.first_sn()),
+            SequenceNumber(self.next_sn - 1),
+        );
+        let of = |p: &ReaderProxy| {
+            if p.fresh {
+                (SequenceNumber(p.start), SequenceNumber(p.start - 1), false)
+            } else {
+                (range.0, range.1, final_flag)
+            }
+        };
+        let heartbeat = |to, (first, last, final_flag)| Transmit::Heartbeat {
             to,
-            first: SequenceNumber(self.first_sn()),
-            last: SequenceNumber(self.next_sn - 1),
-            count: self.hb_count,
+            first,
+            last,
+            count,
             final_flag,
-        });
+        };
+        match to {
+            Some(r) => {
+                let h = self
+                    .readers
+                    .get(&r)
+                    .map_or((range.0, range.1, final_flag), of);
+                self.out.push_back(heartbeat(Some(r), h));
+            }
+            None if !self.readers.values().any(|p| p.fresh) => {
+                self.out
+                    .push_back(heartbeat(None, (range.0, range.1, final_flag)));
+            }
+            None => {
+                // one each while some reader is fresh, in a stable order
+                let mut each: Vec<(Guid, (SequenceNumber, SequenceNumber, bool))> = self
+                    .readers
+                    .iter()
+                    .filter(|(_, p)| p.reliable)
+                    .map(|(g, p)| (*g, of(p)))
+                    .collect();
+                each.sort_unstable_by_key(|(g, _)| *g);
+                for (g, h) in each {
+                    self.out.push_back(heartbeat(Some(g), h));
+                }
+            }
+        }
     }
 
     /// An ACKNACK from a matched reader: record the acknowledgement and
@@ -476,6 +530,10 @@ impl Writer {
             return; // duplicate or stale
         }
         p.last_acknack_count = Some(a.count);
+        // an answer to a heartbeat: from now on it hears the real range,
+        // at once if something is unacknowledged
+        let answered = p.fresh && a.count != 0;
+        p.fresh &= !answered;
         let base = a.reader_sn_state.base.0;
         if base > p.acked_below {
             p.acked_below = base.min(self.next_sn);
@@ -513,7 +571,7 @@ impl Writer {
                 list: SequenceNumberSet::empty(SequenceNumber(hi + 1)),
             });
         }
-        if !a.final_flag && a.reader_sn_state.num_bits == 0 && base < self.next_sn {
+        if (answered || (!a.final_flag && a.reader_sn_state.num_bits == 0)) && base < self.next_sn {
             self.push_heartbeat(Some(reader), false);
         }
     }
@@ -1047,6 +1105,133 @@ mod tests {
             Some(Transmit::Gap { start: SequenceNumber(1), list, .. }) if list.base == SequenceNumber(7)
         ));
         assert_eq!(w.acked_by_all(), SequenceNumber(0));
+    }
+
+    /// Cyclone DDS's reader, as far as its start point goes: DATA that
+    /// arrives while its own matching is in progress is dropped, and the
+    /// first heartbeat it processes moves its start past that heartbeat's
+    /// last sequence number (ddsi_receive.c, handle_Heartbeat).
+    #[derive(Default)]
+    struct StartsAtFirstHeartbeat {
+        next: i64,
+        seen_heartbeat: bool,
+        last_available: i64,
+        held: BTreeSet<i64>,
+        got: Vec<i64>,
+        count: i32,
+    }
+
+    impl StartsAtFirstHeartbeat {
+        fn deliver(&mut self) {
+            while self.held.remove(&self.next) {
+                self.got.push(self.next);
+                self.next += 1;
+            }
+        }
+
+        /// Takes one transmit; returns its ACKNACK, if it sends one.
+        fn take(&mut self, me: Guid, w: Guid, t: Transmit, matching: bool) -> Option<AckNack> {
+            match t {
+                Transmit::Data { sn, .. } if !matching && sn.0 >= self.next => {
+                    self.held.insert(sn.0);
+                }
+                Transmit::Gap { list, .. } => {
+                    self.next = self.next.max(list.base.0);
+                }
+                Transmit::Heartbeat {
+                    first,
+                    last,
+                    final_flag,
+                    ..
+                } => {
+                    let start = if self.seen_heartbeat {
+                        first.0
+                    } else {
+                        last.0 + 1
+                    };
+                    self.seen_heartbeat = true;
+                    self.next = self.next.max(start);
+                    self.held.retain(|&sn| sn >= start);
+                    self.last_available = self.last_available.max(last.0);
+                    self.deliver();
+                    if !final_flag || self.next <= self.last_available {
+                        self.count += 1;
+                        let span = (self.last_available - self.next + 1).max(0) as u32;
+                        let missing = (self.next..self.next + i64::from(span))
+                            .filter(|sn| !self.held.contains(sn))
+                            .map(SequenceNumber);
+                        return Some(AckNack {
+                            reader_id: me.entity,
+                            writer_id: w.entity,
+                            reader_sn_state: SequenceNumberSet::from_members(
+                                SequenceNumber(self.next),
+                                span,
+                                missing,
+                            ),
+                            count: self.count,
+                            final_flag: false,
+                        });
+                    }
+                }
+                _ => {}
+            }
+            self.deliver();
+            None
+        }
+    }
+
+    #[test]
+    fn a_reader_that_starts_at_its_first_heartbeat_loses_nothing_written_after_the_match() {
+        let (wg, rg) = (guid(1), guid(2));
+        let t0 = Instant::now();
+        let mut w = Writer::new(wg, true, Some(16), 64, Duration::from_millis(100));
+        w.write(Arc::from(vec![0u8]), t0).unwrap(); // before the match
+        while w.poll_transmit().is_some() {}
+        let mut r = StartsAtFirstHeartbeat {
+            next: 1,
+            ..Default::default()
+        };
+        // the match's heartbeat reaches the reader before it knows the writer
+        w.add_reader(rg, false, t0);
+        let mut before = Vec::new();
+        while let Some(t) = w.poll_transmit() {
+            before.push(t);
+        }
+        assert!(before
+            .iter()
+            .any(|t| matches!(t, Transmit::Heartbeat { .. })));
+        // sample 2 arrives while the reader's matching is still in progress:
+        // the DATA is dropped, its piggybacked heartbeat is the first one seen
+        w.write(Arc::from(vec![2u8]), t0).unwrap();
+        let mut acks = Vec::new();
+        while let Some(t) = w.poll_transmit() {
+            if let Transmit::Heartbeat { last, .. } = t {
+                assert!(last.0 < 2, "a fresh reader hears nothing of sample 2 yet");
+            }
+            acks.extend(r.take(rg, wg, t, true));
+        }
+        // from now on the network works; later writes go out as usual
+        w.write(Arc::from(vec![3u8]), t0).unwrap();
+        for i in 1..=10 {
+            for a in acks.drain(..) {
+                w.handle_acknack(rg, &a);
+            }
+            w.handle_timeout(t0 + Duration::from_millis(100 * i));
+            while let Some(t) = w.poll_transmit() {
+                acks.extend(r.take(rg, wg, t, false));
+            }
+        }
+        assert_eq!(r.got, [2, 3], "sample 1 predates the match; 2 is resent");
+        assert_eq!(w.acked_by_all(), SequenceNumber(3));
+        // once it answered, heartbeats go to all readers at once again
+        w.write(Arc::from(vec![4u8]), t0).unwrap();
+        let hbs: Vec<_> = std::iter::from_fn(|| w.poll_transmit())
+            .filter_map(|t| match t {
+                Transmit::Heartbeat { to, last, .. } => Some((to, last.0)),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(hbs, [(None, 4)]);
     }
 
     #[test]
