@@ -2,7 +2,7 @@
 //! Fast DDS 2.9 (the Debian packages), through the peer programs in
 //! `tests/peers/rtps/`, built and run by `courier_tests::peers`. Both directions, best effort and reliable, a 200 KiB sample,
 //! a keyed topic with dispose, transient-local late joiners, discovery and
-//! loss of a peer.
+//! loss of a peer, reliable samples written before the peer matched us.
 //!
 //! Loopback only: the peers embed a loopback-only unicast configuration
 //! (interface `lo`, no multicast, SPDP to 127.0.0.1) and Courier's sessions
@@ -139,7 +139,21 @@ async fn peer_to_courier(vendor: Vendor, domain: u32, reliable: bool) {
 // ---------------------------------------------------------------------------
 // Courier publishes, peer subscribes
 
-async fn courier_to_peer(vendor: Vendor, domain: u32, reliable: bool) {
+/// How [`courier_to_peer`] publishes.
+#[derive(Clone, Copy, PartialEq)]
+enum Publish {
+    /// Best effort, paced, once both sides matched.
+    BestEffort,
+    /// Reliable, once both sides matched.
+    Reliable,
+    /// Reliable, as soon as Courier matched the peer's reader, which may
+    /// not have matched Courier's writer yet (Cyclone drops such DATA and
+    /// starts a volatile reader at the first heartbeat it sees).
+    ReliableBeforePeerMatched,
+}
+
+async fn courier_to_peer(vendor: Vendor, domain: u32, publish: Publish) {
+    let reliable = publish != Publish::BestEffort;
     let s = session(domain).await;
     let b = s.publisher::<Msg>("interop");
     let p = if reliable { b } else { b.best_effort() }
@@ -171,11 +185,13 @@ async fn courier_to_peer(vendor: Vendor, domain: u32, reliable: bool) {
         ],
     );
     await_handlers(&s, "interop").await;
-    let mut peer = blocking(move || {
-        peer.expect("matched 1");
-        peer
-    })
-    .await;
+    if publish != Publish::ReliableBeforePeerMatched {
+        peer = blocking(move || {
+            peer.expect("matched 1");
+            peer
+        })
+        .await;
+    }
     let sizes = if reliable {
         [16, 204_800, 16]
     } else {
@@ -203,6 +219,9 @@ async fn courier_to_peer(vendor: Vendor, domain: u32, reliable: bool) {
         }
     }
     let (got, code) = blocking(move || {
+        if publish == Publish::ReliableBeforePeerMatched {
+            peer.expect("matched 1");
+        }
         let got: Vec<String> = (0..3).map(|_| peer.expect("sample ")).collect();
         peer.expect("done");
         (got, peer.exit_code())
@@ -291,22 +310,32 @@ async fn fastdds_to_courier_best_effort() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn courier_to_cyclone_reliable_with_200_kib() {
-    courier_to_peer(Vendor::Cyclone, 174, true).await;
+    courier_to_peer(Vendor::Cyclone, 174, Publish::Reliable).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn courier_to_cyclone_reliable_before_cyclone_matched() {
+    courier_to_peer(Vendor::Cyclone, 192, Publish::ReliableBeforePeerMatched).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn courier_to_fastdds_reliable_before_fastdds_matched() {
+    courier_to_peer(Vendor::FastDds, 193, Publish::ReliableBeforePeerMatched).await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn courier_to_cyclone_best_effort() {
-    courier_to_peer(Vendor::Cyclone, 175, false).await;
+    courier_to_peer(Vendor::Cyclone, 175, Publish::BestEffort).await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn courier_to_fastdds_reliable_with_200_kib() {
-    courier_to_peer(Vendor::FastDds, 176, true).await;
+    courier_to_peer(Vendor::FastDds, 176, Publish::Reliable).await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn courier_to_fastdds_best_effort() {
-    courier_to_peer(Vendor::FastDds, 177, false).await;
+    courier_to_peer(Vendor::FastDds, 177, Publish::BestEffort).await;
 }
 
 // ---------------------------------------------------------------------------
