@@ -293,7 +293,11 @@ impl SampleQueue {
             st.dropped += 1;
         }
         st.items.push_back(s);
-        if let Some(w) = st.waker.take() {
+        let waker = st.waker.take();
+        drop(st);
+        // woken outside the lock: the woken task takes it at once, and on
+        // the pusher's CPU it may run before the pusher gets further
+        if let Some(w) = waker {
             w.wake();
         }
         Ok(())
@@ -315,13 +319,25 @@ impl SampleQueue {
     /// wait; they stop reading until [`SampleQueue::is_full`] turns false).
     /// Keep-last still drops the oldest.
     pub fn push_over(&self, s: RawSample) {
-        if let Err(s) = self.push(s) {
-            let mut st = self.state.lock().unwrap();
-            st.items.push_back(s);
-            if let Some(w) = st.waker.take() {
-                w.wake();
-            }
+        if let Some(w) = self.push_over_deferred(s) {
+            w.wake();
         }
+    }
+
+    /// [`SampleQueue::push_over`], but the waker of a waiting receiver is
+    /// returned instead of woken: a backend that delivers a batch under
+    /// its own lock wakes receivers once, after the batch and the lock.
+    pub fn push_over_deferred(&self, s: RawSample) -> Option<std::task::Waker> {
+        let mut st = self.state.lock().unwrap();
+        if st.receiver_gone {
+            return None;
+        }
+        if st.keep_last && st.items.len() >= st.cap {
+            st.items.pop_front();
+            st.dropped += 1;
+        }
+        st.items.push_back(s);
+        st.waker.take()
     }
 
     /// Whether a keep-all queue holds its capacity or more.
@@ -2042,6 +2058,48 @@ mod tests {
         assert_eq!(back.len(), 2, "the small buffer is left to the allocator");
         assert_eq!(back[0].as_ptr(), at);
         returns.take(|_| panic!("taken already"));
+    }
+
+    #[test]
+    fn a_deferred_push_hands_the_waker_back_instead_of_waking() {
+        use futures::task::ArcWake;
+        use futures::StreamExt;
+        use std::sync::atomic::{AtomicUsize, Ordering};
+        struct Count(AtomicUsize);
+        impl ArcWake for Count {
+            fn wake_by_ref(c: &Arc<Self>) {
+                c.0.fetch_add(1, Ordering::SeqCst);
+            }
+        }
+        let count = Arc::new(Count(AtomicUsize::new(0)));
+        let waker = futures::task::waker(count.clone());
+        let mut cx = Context::from_waker(&waker);
+        let woken = || count.0.load(Ordering::SeqCst);
+        let sample =
+            |v: &str| RawSample::new("m", cdr::to_vec(&v.to_string(), cdr::Encoding::Xcdr1Le));
+        let queue = SampleQueue::new(QueuePolicy::KeepLast(2));
+        let mut sub = subscriber::<String>(&queue);
+        assert!(sub.poll_next_unpin(&mut cx).is_pending());
+        let w = queue
+            .push_over_deferred(sample("a"))
+            .expect("the waiting receiver's waker");
+        assert!(
+            queue.push_over_deferred(sample("b")).is_none(),
+            "taken once"
+        );
+        assert!(queue.push_over_deferred(sample("c")).is_none());
+        assert_eq!(woken(), 0, "nobody woken by the pushes");
+        w.wake();
+        assert_eq!(woken(), 1);
+        // keep-last 2: "a" made room for "c"
+        let got: Vec<String> = std::iter::from_fn(|| sub.try_next())
+            .map(|s| s.unwrap().value)
+            .collect();
+        assert_eq!(got, ["b", "c"]);
+        assert_eq!(queue.dropped(), 1);
+        drop(sub);
+        assert!(queue.push_over_deferred(sample("d")).is_none());
+        assert!(!queue.is_full());
     }
 
     #[test]

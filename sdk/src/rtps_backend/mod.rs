@@ -347,6 +347,7 @@ impl RtpsBackend {
             responder,
             returns: Arc::default(),
             immediate: Vec::new(),
+            wakes: None,
         };
         let sock_err = |e: std::io::Error| fail(format!("user data socket: {e}"));
         let out = Out {
@@ -1406,6 +1407,7 @@ fn receive_loop(shared: &Shared, sock: &std::net::UdpSocket) {
     use std::sync::atomic::Ordering;
     let mut batch = net::RecvBatch::new();
     let mut immediate = Vec::new();
+    let mut wakes = Vec::new();
     loop {
         // an error (ICMP port unreachable and the like) reads nothing
         let n = net::recv_batch_blocking(sock, &mut batch).unwrap_or_default();
@@ -1415,6 +1417,7 @@ fn receive_loop(shared: &Shared, sock: &std::net::UdpSocket) {
         let now = Instant::now();
         let (full, paused) = {
             let mut c = shared.lock();
+            c.st.wakes = Some(std::mem::take(&mut wakes));
             c.receive(&batch, n, now);
             std::mem::swap(&mut immediate, &mut c.st.immediate);
             // with callbacks to run, what this produced (acknowledgements)
@@ -1423,8 +1426,14 @@ fn receive_loop(shared: &Shared, sock: &std::net::UdpSocket) {
             if immediate.is_empty() {
                 c.rearm();
             }
+            wakes = c.st.wakes.take().unwrap_or_default();
             (full, c.st.full_queue())
         };
+        // a woken Subscriber's task (often on this CPU) runs once per batch,
+        // and does not find the lock held
+        for w in wakes.drain(..) {
+            w.wake();
+        }
         let full = full || shared.run_callbacks(&mut immediate).is_err();
         if full {
             // the driver waits for room and sends the rest
@@ -1573,6 +1582,10 @@ struct State {
     /// Immediate-delivery subscriptions that got samples since they were
     /// last handed to their callbacks (see [`Shared::run_callbacks`]).
     immediate: Vec<Arc<SampleQueue>>,
+    /// While the receive thread handles a batch: the wakers of the
+    /// `Subscriber`s it delivered to, woken once the batch is done and the
+    /// lock released (woken at once otherwise).
+    wakes: Option<Vec<std::task::Waker>>,
 }
 
 struct Server {
@@ -2528,7 +2541,10 @@ impl State {
         };
         // may exceed the capacity by what one receive batch (8 datagrams) carried; reading
         // stops until the application catches up (see `full_queue`)
-        r.queue.push_over(raw);
+        match &mut self.wakes {
+            Some(wakes) => wakes.extend(r.queue.push_over_deferred(raw)),
+            None => r.queue.push_over(raw),
+        }
         if r.queue.has_handler() && !self.immediate.iter().any(|q| Arc::ptr_eq(q, &r.queue)) {
             self.immediate.push(r.queue.clone());
         }
