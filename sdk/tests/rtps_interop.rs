@@ -213,9 +213,11 @@ async fn courier_to_peer(vendor: Vendor, domain: u32, publish: Publish) {
             p.publish(&v).await.unwrap();
         } else {
             // best effort: a sample in flight before the peer's reader is
-            // ready is legitimately lost, so pace them
-            p.publish(&v).await.unwrap();
+            // ready is legitimately lost, so pace them, the first one too
+            // (Cyclone reports the match a moment before it accepts data:
+            // ddsi_new_proxy_writer's local_matching_inprogress)
             tokio::time::sleep(Duration::from_millis(50)).await;
+            p.publish(&v).await.unwrap();
         }
     }
     let (got, code) = blocking(move || {
