@@ -281,26 +281,33 @@ impl SampleQueue {
     /// keep-all (wait with [`SampleQueue::push_wait`]).
     #[allow(clippy::result_large_err)] // handed straight back, never stored
     pub fn push(&self, s: RawSample) -> Result<(), RawSample> {
-        let mut st = self.state.lock().unwrap();
-        if st.receiver_gone {
-            return Ok(());
-        }
-        if st.items.len() >= st.cap {
-            if !st.keep_last {
-                return Err(s);
-            }
-            st.items.pop_front();
-            st.dropped += 1;
-        }
-        st.items.push_back(s);
-        let waker = st.waker.take();
-        drop(st);
         // woken outside the lock: the woken task takes it at once, and on
         // the pusher's CPU it may run before the pusher gets further
-        if let Some(w) = waker {
+        if let Some(w) = self.insert(s, false)? {
             w.wake();
         }
         Ok(())
+    }
+
+    /// Adds a sample under the lock (beyond a keep-all capacity if `over`,
+    /// else giving it back); keep-last drops the oldest. Returns the waker
+    /// of a waiting receiver, for the caller to wake after the lock.
+    #[allow(clippy::result_large_err)] // handed straight back, never stored
+    fn insert(&self, s: RawSample, over: bool) -> Result<Option<std::task::Waker>, RawSample> {
+        let mut st = self.state.lock().unwrap();
+        if st.receiver_gone {
+            return Ok(None);
+        }
+        if st.items.len() >= st.cap {
+            if st.keep_last {
+                st.items.pop_front();
+                st.dropped += 1;
+            } else if !over {
+                return Err(s);
+            }
+        }
+        st.items.push_back(s);
+        Ok(st.waker.take())
     }
 
     /// Adds a sample, waiting for room.
@@ -328,16 +335,8 @@ impl SampleQueue {
     /// returned instead of woken: a backend that delivers a batch under
     /// its own lock wakes receivers once, after the batch and the lock.
     pub fn push_over_deferred(&self, s: RawSample) -> Option<std::task::Waker> {
-        let mut st = self.state.lock().unwrap();
-        if st.receiver_gone {
-            return None;
-        }
-        if st.keep_last && st.items.len() >= st.cap {
-            st.items.pop_front();
-            st.dropped += 1;
-        }
-        st.items.push_back(s);
-        st.waker.take()
+        // with `over` nothing is given back
+        self.insert(s, true).unwrap_or_default()
     }
 
     /// Whether a keep-all queue holds its capacity or more.

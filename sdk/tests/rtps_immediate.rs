@@ -314,14 +314,7 @@ fn the_receive_thread_ends_when_the_runtime_goes_away() {
 async fn a_receive_thread_held_by_a_full_queue_ends_with_the_session() {
     let a = session(149, "a").await;
     let b = threaded(149, "rx178").await;
-    let p = a.publisher::<Msg>("held").build().await.unwrap();
-    let mut sub = b
-        .subscriber::<Msg>("held")
-        .queue(courier::QueuePolicy::KeepAll(2))
-        .build()
-        .await
-        .unwrap();
-    await_handlers(&a, "held", 1).await;
+    let (p, mut sub) = common::keep_all_pair(&a, &b, "held", 2).await;
     for i in 0..50 {
         p.publish(&msg(i)).await.unwrap();
     }

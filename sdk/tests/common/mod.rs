@@ -82,18 +82,30 @@ pub async fn assert_quiet(what: &str) {
     assert!(cpu < wall / 4, "{what} used {cpu:?} of CPU in {wall:?}");
 }
 
+/// A publisher of `topic` on `a` and a keep-all subscriber of `depth` on
+/// `b`, matched.
+pub async fn keep_all_pair(
+    a: &Session,
+    b: &Session,
+    topic: &str,
+    depth: usize,
+) -> (courier::Publisher<Msg>, courier::Subscriber<Msg>) {
+    let p = a.publisher::<Msg>(topic).build().await.unwrap();
+    let sub = b
+        .subscriber::<Msg>(topic)
+        .queue(courier::QueuePolicy::KeepAll(depth))
+        .build()
+        .await
+        .unwrap();
+    await_handlers(a, topic, 1).await;
+    (p, sub)
+}
+
 /// `a` publishes `n` 1000-byte samples on `flood` to `b`'s keep-all
 /// subscriber of 8, which stops reading for 50 ms every 500: back-pressure
 /// holds the publisher, and every sample arrives once, in order.
 pub async fn slow_keep_all_subscriber(a: &Session, b: &Session, n: u32) {
-    let p = a.publisher::<Msg>("flood").build().await.unwrap();
-    let mut sub = b
-        .subscriber::<Msg>("flood")
-        .queue(courier::QueuePolicy::KeepAll(8))
-        .build()
-        .await
-        .unwrap();
-    await_handlers(a, "flood", 1).await;
+    let (p, mut sub) = keep_all_pair(a, b, "flood", 8).await;
     let writer = tokio::spawn(async move {
         for i in 0..n {
             p.publish(&Msg {
