@@ -13,9 +13,12 @@
 //! As separate processes, each a current-thread runtime (z_ping/z_pong):
 //!
 //! ```text
-//! session-bench pong --url ipc://127.0.0.1:1381 [--busy-poll <us>]
-//! session-bench ping --url ipc://127.0.0.1:1381 [--busy-poll <us>] [--publish] [--size 4] [--count 20000]
+//! session-bench pong --url ipc://127.0.0.1:1381 [--busy-poll <us>] [--embed]
+//! session-bench ping --url ipc://127.0.0.1:1381 [--busy-poll <us>] [--embed] [--publish] [--size 4] [--count 20000]
 //! ```
+//! With `--embed` the role hosts central itself, on the URL's port (and
+//! its UNIX socket), and reaches it over an in-process link
+//! (`CentralHandle::session`); the other role connects to it as usual.
 //! `pong` answers queries on `rtt_ask` with `rtt_answer` and republishes
 //! `rtt_ping` as `rtt_pong` (format `{int, <ubyte:1>}`, the same names as
 //! the C measuring programs use) until its standard input closes; `ping`
@@ -27,7 +30,8 @@
 //! `central` processes and prints a table of 4 B round trips: clients
 //! (Courier, Courier with `--busy-poll`, and the C library's when
 //! `--c-rtt DIR` names its measuring programs) × centrals (Courier's,
-//! Courier's with `--busy-poll`, and the C one with `--c-central PATH`) ×
+//! Courier's with `--busy-poll`, the C one with `--c-central PATH`, and
+//! Courier's hosted by the answering module with `pong --embed`) ×
 //! transport (TCP, and the UNIX socket `/tmp/x_ipc/<port>`, which C and
 //! Courier modules use when the host is the machine's own name):
 //!
@@ -43,7 +47,7 @@ mod appendix;
 use std::time::{Duration, Instant};
 
 use courier::{IpcMessage, Session};
-use courier_broker::{CentralServer, Config};
+use courier_broker::{CentralHandle, CentralServer, Config};
 use futures::StreamExt;
 
 const T: Duration = Duration::from_secs(30);
@@ -211,20 +215,45 @@ async fn median(p: &Pair, kind: Kind, size: usize, count: usize) -> f64 {
 }
 
 /// A session of the `ping`/`pong` roles.
-async fn role_session(url: &str, name: &str, spin: Option<Duration>) -> Session {
-    let mut b = Session::builder(url).name(name);
-    if let Some(w) = spin {
+/// How a role's process runs.
+#[derive(Clone, Copy)]
+struct RoleOpts {
+    /// Busy polling of the session (and of the embedded central).
+    spin: Option<Duration>,
+    /// Host central in this process, on the URL's port, and reach it over
+    /// an in-process link (`CentralHandle::session`).
+    embed: bool,
+}
+
+/// The role's session, and the central it hosts with `--embed` (dropping
+/// it stops central).
+async fn role_session(url: &str, name: &str, o: RoleOpts) -> (Session, Option<CentralHandle>) {
+    let (mut b, central) = if o.embed {
+        let (_, port) = courier::ipc_backend::parse_url(url).expect("an ipc:// URL");
+        let mut c = CentralServer::builder()
+            .bind([127, 0, 0, 1].into())
+            .port(port)
+            .log_sink(courier_broker::LogSink::discard());
+        if let Some(w) = o.spin {
+            c = c.busy_poll(w);
+        }
+        let c = c.spawn().await.expect("start the embedded central");
+        (c.session(name), Some(c))
+    } else {
+        (Session::builder(url).name(name), None)
+    };
+    if let Some(w) = o.spin {
         b = b.busy_poll(w);
     }
     let s = b.connect().await.expect("connect");
     for m in ["rtt_ask", "rtt_answer", "rtt_ping", "rtt_pong", "rtt_flood"] {
         s.define::<Blob>(m).await.expect("define");
     }
-    s
+    (s, central)
 }
 
-async fn pong(url: &str, spin: Option<Duration>) {
-    let s = role_session(url, "rtt_pong", spin).await;
+async fn pong(url: &str, o: RoleOpts) {
+    let (s, _central) = role_session(url, "rtt_pong", o).await;
     let mut reqs = s
         .serve::<Blob, Blob>("rtt_ask", "rtt_answer")
         .await
@@ -274,8 +303,8 @@ async fn wait_for_handlers(s: &Session, msgs: &[&str]) {
 /// One-way throughput: `count` messages on `rtt_flood` (which `pong`
 /// takes at capacity 1, each acknowledged to central), then one query: its
 /// answer comes after central delivered every message before it.
-async fn flood(url: &str, spin: Option<Duration>, size: usize, count: usize) {
-    let s = role_session(url, "rtt_flood", spin).await;
+async fn flood(url: &str, o: RoleOpts, size: usize, count: usize) {
+    let (s, _central) = role_session(url, "rtt_flood", o).await;
     wait_for_handlers(&s, &["rtt_flood", "rtt_ask"]).await;
     let payload = Blob {
         n: size as i32,
@@ -298,8 +327,8 @@ async fn flood(url: &str, spin: Option<Duration>, size: usize, count: usize) {
     s.close().await;
 }
 
-async fn ping(url: &str, spin: Option<Duration>, publish: bool, size: usize, count: usize) {
-    let s = role_session(url, "rtt_ping", spin).await;
+async fn ping(url: &str, o: RoleOpts, publish: bool, size: usize, count: usize) {
+    let (s, _central) = role_session(url, "rtt_ping", o).await;
     let target = if publish { "rtt_ping" } else { "rtt_ask" };
     let mut pongs = s.subscribe::<Blob>("rtt_pong").await.unwrap();
     wait_for_handlers(&s, &[target]).await;
@@ -340,6 +369,7 @@ async fn ping(url: &str, spin: Option<Duration>, publish: bool, size: usize, cou
 fn role(role: &str, mut args: impl Iterator<Item = String>) {
     let mut url = String::from("ipc://127.0.0.1:1381");
     let mut spin = None;
+    let mut embed = false;
     let mut publish = false;
     let mut throughput = false;
     let mut size = 4usize;
@@ -357,6 +387,7 @@ fn role(role: &str, mut args: impl Iterator<Item = String>) {
         match a.as_str() {
             "--url" => url = args.next().unwrap_or_default(),
             "--busy-poll" => spin = Some(Duration::from_micros(num(&a, args.next()))),
+            "--embed" => embed = true,
             "--publish" if role == "ping" => publish = true,
             "--throughput" if role == "ping" => throughput = true,
             "--size" if role == "ping" => size = num(&a, args.next()) as usize,
@@ -375,12 +406,13 @@ fn role(role: &str, mut args: impl Iterator<Item = String>) {
     // polls its I/O driver once more (`epoll_wait(.., 0)`) before it
     // resumes a woken `block_on` future, but runs a woken task at once.
     let role = role.to_string();
+    let o = RoleOpts { spin, embed };
     rt.block_on(async move {
         tokio::spawn(async move {
             match role.as_str() {
-                "pong" => pong(&url, spin).await,
-                _ if throughput => flood(&url, spin, size, count).await,
-                _ => ping(&url, spin, publish, size, count).await,
+                "pong" => pong(&url, o).await,
+                _ if throughput => flood(&url, o, size, count).await,
+                _ => ping(&url, o, publish, size, count).await,
             }
         })
         .await
@@ -417,8 +449,8 @@ async fn tables(mut args: impl Iterator<Item = String>) {
             "-h" | "--help" => {
                 println!(
                     "usage: session-bench [--url ipc://H:P] [--direct-url ipc://H:P] [--quick]\n\
-                     \x20      session-bench pong [--url ipc://H:P] [--busy-poll US]\n\
-                     \x20      session-bench ping [--url ipc://H:P] [--busy-poll US] [--publish] [--size S] [--count N]"
+                     \x20      session-bench pong [--url ipc://H:P] [--busy-poll US] [--embed]\n\
+                     \x20      session-bench ping [--url ipc://H:P] [--busy-poll US] [--embed] [--publish] [--size S] [--count N]"
                 );
                 return;
             }
@@ -552,6 +584,9 @@ mod processes {
         Courier,
         CourierSpin,
         C,
+        /// Courier's central embedded in the answering module's process
+        /// (`pong --embed`), which reaches it over an in-process link.
+        Hosted,
     }
 
     struct Setup {
@@ -565,11 +600,12 @@ mod processes {
         spin_us: u64,
     }
 
-    fn start_central(s: &Setup, which: Centrals, port: u16) -> Proc {
+    fn start_central(s: &Setup, which: Centrals, port: u16) -> Option<Proc> {
         let (bin, spin) = match which {
             Centrals::Courier => (&s.central, false),
             Centrals::CourierSpin => (&s.central, true),
             Centrals::C => (s.c_central.as_ref().unwrap(), false),
+            Centrals::Hosted => return None,
         };
         let mut cmd = Command::new(bin);
         cmd.arg(format!("-p{port}")).args(["-lx", "-s", "-u"]);
@@ -586,6 +622,11 @@ mod processes {
             .spawn()
             .unwrap_or_else(|e| panic!("cannot start {}: {e}", bin.display()));
         let p = Proc(child);
+        wait_listening(port);
+        Some(p)
+    }
+
+    fn wait_listening(port: u16) {
         let t0 = Instant::now();
         while TcpStream::connect((Ipv4Addr::LOCALHOST, port)).is_err() {
             assert!(
@@ -594,7 +635,6 @@ mod processes {
             );
             std::thread::sleep(Duration::from_millis(10));
         }
-        p
     }
 
     /// The round trip's median (µs) or the throughput (messages/s).
@@ -631,7 +671,12 @@ mod processes {
         let (server, client) = match clients {
             Clients::Courier | Clients::CourierSpin => {
                 let mut pong = Command::new(&me);
-                pong.args(["pong", "--url", &url]);
+                if central == Centrals::Hosted {
+                    let url = format!("ipc://127.0.0.1:{port}");
+                    pong.args(["pong", "--url", &url, "--embed"]);
+                } else {
+                    pong.args(["pong", "--url", &url]);
+                }
                 let mut ping = Command::new(&me);
                 let size = s.size.to_string();
                 ping.args(["ping", "--url", &url, "--count", &count, "--size", &size]);
@@ -674,6 +719,9 @@ mod processes {
                 .spawn()
                 .expect("start the answering module"),
         );
+        if central == Centrals::Hosted {
+            wait_listening(port);
+        }
         // Subscribed before the timing side starts (see below).
         std::thread::sleep(Duration::from_millis(300));
         let mut client = client;
@@ -774,6 +822,7 @@ mod processes {
         if s.c_central.is_some() {
             centrals.push(Centrals::C);
         }
+        centrals.push(Centrals::Hosted);
         let mut clients = vec![Clients::Courier, Clients::CourierSpin];
         // The C measuring programs time round trips only.
         if s.c_rtt.is_some() && !s.throughput {
@@ -795,6 +844,7 @@ mod processes {
             Centrals::Courier => "Courier central".to_string(),
             Centrals::CourierSpin => format!("Courier central --busy-poll {}", s.spin_us),
             Centrals::C => "C central".to_string(),
+            Centrals::Hosted => "Courier central in the handler's process".to_string(),
         };
         let name_m = |c: Clients| match c {
             Clients::Courier => "Courier".to_string(),
@@ -809,9 +859,11 @@ mod processes {
         println!("|---|---|{}", "---|".repeat(centrals.len()));
         for (transport, h) in [("TCP", "127.0.0.1"), ("UNIX socket", host.as_str())] {
             // Runs alternate between the cells, so drift hits all alike.
+            // Only a Courier module can host central.
             let cells: Vec<(Clients, Centrals)> = clients
                 .iter()
                 .flat_map(|m| centrals.iter().map(move |c| (*m, *c)))
+                .filter(|&(m, c)| !(m == Clients::C && c == Centrals::Hosted))
                 .collect();
             let mut got: Vec<Vec<f64>> = vec![Vec::new(); cells.len()];
             for _ in 0..reps {
@@ -842,7 +894,10 @@ mod processes {
                     reference
                 };
                 for c in &centrals {
-                    let i = cells.iter().position(|x| *x == (*m, *c)).unwrap();
+                    let Some(i) = cells.iter().position(|x| *x == (*m, *c)) else {
+                        print!(" — |");
+                        continue;
+                    };
                     match (meds[i], reference) {
                         (Some(v), Some(r)) if s.throughput => {
                             print!(" {v:.0} msg/s ({:.2}×) |", v / r)

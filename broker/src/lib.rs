@@ -63,11 +63,13 @@
 #![warn(missing_docs)]
 
 pub mod access;
+mod inproc;
 mod server;
 
 pub use courier_wire::ipc::central::{
     Central, Config, ConnId, LogOptions, LogTarget, OptionError, Output, Peer, Stats,
 };
+pub use inproc::InProcessStream;
 pub use server::{BindError, Builder, CentralHandle, CentralServer, LogSink};
 
 /// The C central's port (`SERVER_PORT`).

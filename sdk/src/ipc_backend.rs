@@ -6,6 +6,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use futures::future::BoxFuture;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::{mpsc, oneshot};
 
@@ -24,6 +25,7 @@ pub const DEFAULT_PORT: u16 = 1381;
 
 /// Options of the IPC backend.
 #[derive(Debug, Clone)]
+#[non_exhaustive]
 pub struct IpcOptions {
     /// `false` = `IPC_connectNoListen`.
     pub listen: bool,
@@ -34,6 +36,42 @@ pub struct IpcOptions {
     /// Keep polling for this long after each message instead of sleeping
     /// (see [`crate::busy_poll`]); `None` (the default) never spins.
     pub busy_poll: Option<Duration>,
+    /// Opens the connection to central instead of a socket (an in-process
+    /// link to an embedded central); `None` = TCP or the UNIX socket.
+    pub dial: Option<Dial>,
+}
+
+/// A byte stream to central: what a connected socket offers.
+pub trait IpcStream: AsyncRead + AsyncWrite + Unpin + Send {}
+impl<T: AsyncRead + AsyncWrite + Unpin + Send> IpcStream for T {}
+
+/// The future of a [`Dial`] call.
+pub type DialFuture = BoxFuture<'static, std::io::Result<Box<dyn IpcStream>>>;
+
+/// Opens a new connection to central; called for the first connection and
+/// for every reconnect.
+#[derive(Clone)]
+pub struct Dial(Arc<dyn Fn() -> DialFuture + Send + Sync>);
+
+impl Dial {
+    /// Wraps a function that opens a stream to central.
+    pub fn new<F, Fut>(f: F) -> Self
+    where
+        F: Fn() -> Fut + Send + Sync + 'static,
+        Fut: std::future::Future<Output = std::io::Result<Box<dyn IpcStream>>> + Send + 'static,
+    {
+        Dial(Arc::new(move || Box::pin(f())))
+    }
+
+    fn open(&self) -> DialFuture {
+        (self.0)()
+    }
+}
+
+impl std::fmt::Debug for Dial {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Dial(..)")
+    }
 }
 
 impl Default for IpcOptions {
@@ -43,12 +81,12 @@ impl Default for IpcOptions {
             connect_timeout: Duration::from_secs(5),
             reconnect: None,
             busy_poll: None,
+            dial: None,
         }
     }
 }
 
-trait Io: AsyncRead + AsyncWrite + Unpin + Send {}
-impl<T: AsyncRead + AsyncWrite + Unpin + Send> Io for T {}
+use IpcStream as Io;
 
 type Done<T> = oneshot::Sender<T>;
 
@@ -174,7 +212,11 @@ async fn handshake(
         let mut attempts = 0;
         let mut io = loop {
             attempts += 1;
-            match open(&host, port).await {
+            let opened = match &opts.dial {
+                Some(d) => d.open().await,
+                None => open(&host, port).await,
+            };
+            match opened {
                 Ok(io) => break io,
                 Err(e) if tokio::time::Instant::now() + Duration::from_millis(200) >= deadline => {
                     return Err(ConnectError::Unreachable {

@@ -107,6 +107,7 @@ pub mod session;
 
 pub use courier_derive::IpcMessage;
 pub use courier_wire::{cdr, format, ipc, rtps, IpcMessage, NamedFormats};
+pub use ipc_backend::IpcStream;
 pub use qos::{Durability, History, Reliability};
 pub use rtps_backend::RtpsOptions;
 pub use session::{

@@ -884,6 +884,24 @@ impl SessionBuilder {
         self
     }
 
+    /// IPC: reach central through `dial` instead of a socket; it is called
+    /// for the first connection and for every reconnect. The URL still
+    /// names central (error messages, direct mode's listening address).
+    /// [`CentralHandle::session`] uses it for an in-process link to an
+    /// embedded central.
+    ///
+    /// [`CentralHandle::session`]: https://docs.rs/courier-broker/latest/courier_broker/struct.CentralHandle.html#method.session
+    pub fn dial<F, Fut>(mut self, dial: F) -> Self
+    where
+        F: Fn() -> Fut + Send + Sync + 'static,
+        Fut: std::future::Future<Output = std::io::Result<Box<dyn crate::ipc_backend::IpcStream>>>
+            + Send
+            + 'static,
+    {
+        self.opts.dial = Some(crate::ipc_backend::Dial::new(dial));
+        self
+    }
+
     /// RTPS: read user data on a receive thread of its own, which also runs
     /// the callbacks of [`SubscriberBuilder::listen`] (see
     /// [`RtpsOptions::receive_thread`]). Also `receive_thread=true` in the
