@@ -51,6 +51,11 @@
 //! central task when the connection's writer has nothing queued (otherwise
 //! the bytes are queued to the writer task, in order).
 //!
+//! A module of the hosting process can skip the sockets:
+//! [`CentralHandle::session`] connects a `Session` over an in-process link,
+//! a pair of bounded byte pipes served by the same reader and writer tasks
+//! (see [`InProcessStream`]).
+//!
 //! # Deviations from the C central
 //! - `--bind` chooses the listening address; C always listens on all
 //!   interfaces.

@@ -388,7 +388,9 @@ impl CentralHandle {
 
     /// A [`Session`](courier::Session) builder for a module of this process,
     /// connected to this central over [`connect_in_process`](Self::connect_in_process)
-    /// links (a reconnect opens a new one). Everything else is as for
+    /// links. The session lives no longer than this central: once it has
+    /// stopped, connecting (or reconnecting) fails with "central has
+    /// stopped". Everything else is as for
     /// `Session::builder(url)` with this central's address: direct mode,
     /// options, and how other modules see it.
     ///
