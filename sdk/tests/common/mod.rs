@@ -1,6 +1,6 @@
-//! What the RTPS test files share: the interop peers' types (IDL
+//! What the test files share: the RTPS interop peers' types (IDL
 //! `courier::test::Msg` and `Keyed` in tests/peers/rtps/types.idl), loopback
-//! sessions and bounded waits.
+//! sessions, bounded waits, and what losing central must do.
 
 #![allow(dead_code)] // each test file uses its own part
 
@@ -126,4 +126,26 @@ pub async fn slow_keep_all_subscriber(a: &Session, b: &Session, n: u32) {
     }
     writer.await.unwrap();
     assert_eq!(sub.dropped(), 0);
+}
+
+/// Central stopped at `since`: the subscriber ends with `Disconnected`
+/// (after what was already in flight, if anything) and the pending query
+/// fails, at once rather than at its timeout.
+pub async fn ended_by_central(
+    sub: &mut courier::Subscriber<i32>,
+    query: tokio::task::JoinHandle<Result<i32, courier::QueryError>>,
+    since: std::time::Instant,
+) {
+    let first = tokio::time::timeout(T, sub.next()).await.unwrap();
+    assert!(
+        matches!(first, Some(Err(RecvError::Disconnected)) | Some(Ok(_))),
+        "{first:?}"
+    );
+    let e = tokio::time::timeout(T, query)
+        .await
+        .unwrap()
+        .unwrap()
+        .unwrap_err();
+    assert!(matches!(e, courier::QueryError::Disconnected(_)), "{e}");
+    assert!(since.elapsed() < Duration::from_secs(5), "failed at once");
 }
