@@ -738,10 +738,15 @@ impl Central {
         }
     }
 
-    fn logged(&self, msg: &str) -> bool {
+    /// Whether a `kind` line about `msg` goes anywhere: its kind is on in
+    /// some log, and `msg` is not ignored (`-i` / `-I`). Checked before a
+    /// line is formatted, so that a central with logging off (`-lx`) does
+    /// no formatting work per message.
+    fn logs(&self, kind: Kind, msg: &str) -> bool {
         let o = self.opts();
-        !(self.ignore.contains(msg)
-            && (o.ignore_internal || self.config.ignore.iter().any(|n| n == msg)))
+        (kind.enabled(&self.config.terminal_log) || kind.enabled(&self.config.file_log))
+            && !(self.ignore.contains(msg)
+                && (o.ignore_internal || self.config.ignore.iter().any(|n| n == msg)))
     }
 
     /// `dispatchUpdateAndDisplay1`'s common layout:
@@ -1130,7 +1135,7 @@ impl Central {
         let order = h.class_id.data_order().unwrap_or(ByteOrder::NATIVE);
         let mut r = Reader::new(data, order);
         let query = h.class_id.class() == MsgClass::Query as u16;
-        let logged = self.logged(name);
+        let logged = self.logs(Kind::Message, name);
         let org_name = self.module_name(Org::Module(conn));
         if logged {
             let to = format!("{SERVER_NAME:<15} (Sent)");
@@ -1726,7 +1731,7 @@ impl Central {
                     self.deliver_or_pend(did, now);
                 } else {
                     self.msgs.get_mut(&name).unwrap().waiting.push_back(did);
-                    if self.logged(&name) {
+                    if self.logs(Kind::Message, &name) {
                         let to = format!("Resource {name:<6} (Pending)");
                         let org_name = self.module_name(org);
                         let line = self.dispatch_line(
@@ -1870,7 +1875,7 @@ impl Central {
             self.memory_paused.remove(&conn);
             self.outputs.push_back(Output::ResumeRead { conn });
         }
-        if self.logged(&msg) {
+        if self.logs(Kind::Message, &msg) {
             let o = self.opts();
             let line = if from_pending {
                 format!(
@@ -1974,7 +1979,7 @@ impl Central {
         } else {
             m.pending.push_back(did);
         }
-        if self.logged(&msg) {
+        if self.logs(Kind::Message, &msg) {
             let to = format!("Resource {dest:<6} (Pending)");
             let org_name = self.module_name(org);
             let line = self.dispatch_line(class, &msg, Some(did), &org_name, parent, &to, now);
@@ -1992,7 +1997,7 @@ impl Central {
         }
         self.free_dispatch_id(did);
         self.stats.dropped += 1;
-        if self.logged(msg) {
+        if self.logs(Kind::Status, msg) {
             self.log_line(
                 Kind::Status,
                 format!("PENDING LIMIT: Deleted message {msg} {{{did}}}"),
@@ -2031,7 +2036,7 @@ impl Central {
             return Ok(());
         }
         let d = self.free_dispatch_id(did).unwrap();
-        if self.logged(&d.msg) {
+        if self.logs(Kind::Message, &d.msg) {
             let word = if d.class == 6 || d.class == 15 {
                 "Done    "
             } else {
@@ -2100,7 +2105,7 @@ impl Central {
                 self.transmit(org, f);
             }
         }
-        if self.logged(&d.msg) {
+        if self.logs(Kind::Message, &d.msg) {
             let o = self.opts();
             let line = format!(
                 "  Reply  {:>15}{}: {:>10} --> {:<15}{}{}",
