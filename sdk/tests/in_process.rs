@@ -232,3 +232,74 @@ async fn central_stopping_disconnects_in_process_modules() {
         Ok(_) => panic!("connected to a stopped central"),
     }
 }
+
+/// A hosted subscriber that stops reading: its keep-all queue fills, it
+/// holds its acknowledgement, and central queues for it only up to
+/// `max_queued_bytes` before it stops reading the publisher (the rest
+/// waits in the publisher's socket: TCP back-pressure). Memory stays
+/// bounded; once the subscriber reads again, every message arrives, in
+/// order.
+#[tokio::test]
+async fn a_stalled_in_process_subscriber_bounds_central_and_loses_nothing() {
+    const LIMIT: usize = 256 << 10;
+    let mut cfg = Config::default();
+    cfg.max_queued_bytes = LIMIT;
+    let c = CentralServer::builder()
+        .bind("127.0.0.1".parse().unwrap())
+        .port(0)
+        .config(cfg)
+        .log_sink(courier_broker::LogSink::discard())
+        .spawn()
+        .await
+        .unwrap();
+    let sub_side = in_process(&c, "stalled").await;
+    let pub_side = on_tcp(&c, "flooder").await;
+    pub_side.define::<Blob>("flood").await.unwrap();
+    let mut sub = sub_side
+        .subscribe_with::<Blob>("flood", courier::QueuePolicy::KeepAll(2))
+        .await
+        .unwrap();
+    handlers(&pub_side, "flood", 1).await;
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    const N: usize = 2000;
+    let publisher = {
+        let p = pub_side.clone();
+        tokio::spawn(async move {
+            for i in 0..N {
+                p.publish("flood", &blob(1024, i as u8)).await.unwrap();
+            }
+        })
+    };
+    // Not reading: 2 MiB are published against a 256 KiB limit. The
+    // messages wait in central (the subscriber holds its acknowledgement),
+    // not in the subscriber's process.
+    tokio::time::timeout(T, async {
+        while c.stats().await.unwrap().queued_bytes < LIMIT / 2 {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    })
+    .await
+    .expect("central queues for the stalled subscriber");
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let stats = c.stats().await.unwrap();
+    assert!(
+        stats.peak_queued_bytes <= LIMIT + 64 * 1024,
+        "central queued {} bytes for a stalled subscriber (limit {LIMIT} plus one read)",
+        stats.peak_queued_bytes
+    );
+    for i in 0..N {
+        let got = tokio::time::timeout(T, sub.next())
+            .await
+            .unwrap()
+            .unwrap()
+            .unwrap();
+        assert_eq!(got.value, blob(1024, i as u8), "message {i}");
+    }
+    tokio::time::timeout(T, publisher).await.unwrap().unwrap();
+    let stats = c.stats().await.unwrap();
+    assert_eq!(stats.dropped, 0);
+    println!("peak queued in central: {} bytes", stats.peak_queued_bytes);
+    sub_side.close().await;
+    pub_side.close().await;
+    c.shutdown().await;
+}
