@@ -4,7 +4,8 @@
 //!    (generated at compile time by `#[derive(IpcMessage)]`), their IPC
 //!    bytes (identical to what the C library marshals) and their CDR bytes.
 //! 2. Starts Courier's `central` in-process on a free port of 127.0.0.1 and
-//!    runs Appendix A's module1 and module2 against it as two `Session`s:
+//!    runs Appendix A's module1 and module2 against it as two `Session`s
+//!    (module1 over TCP, module2 over an in-process link to central):
 //!    module1 publishes `message1` and queries `query1`; module2 handles
 //!    them, publishes `message2` while answering and replies `response1`.
 //!    Central's own log (in the C central's format) is printed as it
@@ -47,12 +48,14 @@ fn show<T: IpcMessage + std::fmt::Debug + PartialEq>(msg: &str, v: &T) {
 }
 
 /// Appendix A's module2: handles message1 and query1 (three messages).
+/// It runs in the process that hosts central, so it connects over an
+/// in-process link (`CentralHandle::session`) instead of a socket.
 async fn module2(
-    url: String,
+    session: courier::SessionBuilder,
     ready: tokio::sync::oneshot::Sender<()>,
 ) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
-    let s = Session::builder(url).name("module2").connect().await?;
-    println!("module2 | connected");
+    let s = session.connect().await?;
+    println!("module2 | connected (in-process link to central)");
     s.define::<String>("message2").await?;
     s.define::<T2>("response1").await?;
     let mut msg1 = s.subscribe::<i32>("message1").await?;
@@ -85,7 +88,7 @@ async fn module2(
 /// Appendix A's module1: publishes message1, queries query1.
 async fn module1(url: String) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
     let s = Session::builder(url).name("module1").connect().await?;
-    println!("module1 | connected");
+    println!("module1 | connected (TCP, as a C module would)");
     s.define_format::<T2>().await?;
     s.define::<i32>("message1").await?;
     s.define::<T1>("query1").await?;
@@ -149,7 +152,7 @@ fn live() {
         let url = format!("ipc://{}", central.local_addr());
         println!("central | listening on {}", central.local_addr());
         let (ready_tx, ready_rx) = tokio::sync::oneshot::channel();
-        let m2 = tokio::spawn(module2(url.clone(), ready_tx));
+        let m2 = tokio::spawn(module2(central.session("module2"), ready_tx));
         ready_rx.await.expect("module2 ready");
         module1(url).await.expect("module1");
         m2.await.expect("module2 task").expect("module2");
