@@ -31,6 +31,10 @@ fn blob(len: usize, seed: u8) -> Blob {
 async fn central(direct: bool) -> CentralHandle {
     let mut cfg = Config::default();
     cfg.direct = direct;
+    central_with(cfg).await
+}
+
+async fn central_with(cfg: Config) -> CentralHandle {
     CentralServer::builder()
         .bind("127.0.0.1".parse().unwrap())
         .port(0)
@@ -90,6 +94,25 @@ async fn publish_until_received(
     }
 }
 
+/// Once `msg` has a subscriber, publishes `value(0..n)` on a task of its
+/// own.
+async fn publish_when_subscribed<V: IpcMessage + Send + 'static>(
+    p: &Session,
+    msg: &'static str,
+    n: usize,
+    value: impl Fn(usize) -> V + Send + 'static,
+) -> tokio::task::JoinHandle<()> {
+    handlers(p, msg, 1).await;
+    // The publisher's broadcast list may lag its num_handlers answer.
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let p = p.clone();
+    tokio::spawn(async move {
+        for i in 0..n {
+            p.publish(msg, &value(i)).await.unwrap();
+        }
+    })
+}
+
 async fn serve_echo(s: &Session, ask: &str, answer: &str) -> tokio::task::JoinHandle<()> {
     let mut reqs = s.serve::<Blob, Blob>(ask, answer).await.unwrap();
     tokio::spawn(async move {
@@ -147,18 +170,8 @@ async fn a_capacity_one_in_process_subscriber_gets_everything_in_order() {
     sub_side.set_capacity(1).await.unwrap();
     pub_side.define::<i32>("seq").await.unwrap();
     let mut sub = sub_side.subscribe::<i32>("seq").await.unwrap();
-    handlers(&pub_side, "seq", 1).await;
-    // The publisher's broadcast list may lag its num_handlers answer.
-    tokio::time::sleep(Duration::from_millis(100)).await;
     const N: i32 = 5000;
-    let publisher = {
-        let p = pub_side.clone();
-        tokio::spawn(async move {
-            for i in 0..N {
-                p.publish("seq", &i).await.unwrap();
-            }
-        })
-    };
+    let publisher = publish_when_subscribed(&pub_side, "seq", N as usize, |i| i as i32).await;
     for want in 0..N {
         let got = tokio::time::timeout(T, sub.next())
             .await
@@ -244,14 +257,7 @@ async fn a_stalled_in_process_subscriber_bounds_central_and_loses_nothing() {
     const LIMIT: usize = 256 << 10;
     let mut cfg = Config::default();
     cfg.max_queued_bytes = LIMIT;
-    let c = CentralServer::builder()
-        .bind("127.0.0.1".parse().unwrap())
-        .port(0)
-        .config(cfg)
-        .log_sink(courier_broker::LogSink::discard())
-        .spawn()
-        .await
-        .unwrap();
+    let c = central_with(cfg).await;
     let sub_side = in_process(&c, "stalled").await;
     let pub_side = on_tcp(&c, "flooder").await;
     pub_side.define::<Blob>("flood").await.unwrap();
@@ -259,17 +265,8 @@ async fn a_stalled_in_process_subscriber_bounds_central_and_loses_nothing() {
         .subscribe_with::<Blob>("flood", courier::QueuePolicy::KeepAll(2))
         .await
         .unwrap();
-    handlers(&pub_side, "flood", 1).await;
-    tokio::time::sleep(Duration::from_millis(100)).await;
     const N: usize = 2000;
-    let publisher = {
-        let p = pub_side.clone();
-        tokio::spawn(async move {
-            for i in 0..N {
-                p.publish("flood", &blob(1024, i as u8)).await.unwrap();
-            }
-        })
-    };
+    let publisher = publish_when_subscribed(&pub_side, "flood", N, |i| blob(1024, i as u8)).await;
     // Not reading: 2 MiB are published against a 256 KiB limit. The
     // messages wait in central (the subscriber holds its acknowledgement),
     // not in the subscriber's process.
