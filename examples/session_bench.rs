@@ -214,7 +214,6 @@ async fn median(p: &Pair, kind: Kind, size: usize, count: usize) -> f64 {
     v[1]
 }
 
-/// A session of the `ping`/`pong` roles.
 /// How a role's process runs.
 #[derive(Clone, Copy)]
 struct RoleOpts {

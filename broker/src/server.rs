@@ -16,7 +16,9 @@ use tokio::sync::{mpsc, oneshot, watch, Notify};
 use tokio::task::{JoinHandle, JoinSet};
 
 use courier::busy_poll::BusyPoll;
-use courier_wire::ipc::central::{Central, Config, ConnId, LogTarget, Output, Peer, Stats};
+use courier_wire::ipc::central::{
+    Central, Config, ConnId, LogOptions, LogTarget, Output, Peer, Stats,
+};
 
 use crate::access::{AccessControl, Client, Decision, HostName, RuleRef};
 use crate::inproc::{self, InProcessStream, ServerEnd, ServerReader, ServerWriter};
@@ -44,14 +46,21 @@ const FIRST_CONN: u64 = 5;
 /// belongs on the terminal (`-l`), in the log file (`-L`), or both. The sink
 /// is called from the task that runs the state machine, one line at a time
 /// (without a trailing newline), so it should be quick.
-pub struct LogSink(Box<SinkFn>);
+pub struct LogSink {
+    f: Box<SinkFn>,
+    /// Built by [`LogSink::discard`]: nothing will ever see a line.
+    discards: bool,
+}
 
 type SinkFn = dyn FnMut(LogTarget, &str) + Send;
 
 impl LogSink {
     /// A sink that calls `f` for every line.
     pub fn new(f: impl FnMut(LogTarget, &str) + Send + 'static) -> Self {
-        LogSink(Box::new(f))
+        LogSink {
+            f: Box::new(f),
+            discards: false,
+        }
     }
 
     /// The default: every line as a `tracing` event with target
@@ -67,9 +76,14 @@ impl LogSink {
         })
     }
 
-    /// Drops every line.
+    /// Drops every line. Central then does not produce them at all: its
+    /// logs start switched off (as with `-lx`), so no line is formatted
+    /// per message for nobody.
     pub fn discard() -> Self {
-        LogSink::new(|_, _| {})
+        LogSink {
+            discards: true,
+            ..LogSink::new(|_, _| {})
+        }
     }
 
     /// Terminal lines to `terminal`, file lines to `file` (either may be
@@ -100,7 +114,7 @@ impl LogSink {
     }
 
     fn line(&mut self, target: LogTarget, line: &str) {
-        (self.0)(target, line)
+        (self.f)(target, line)
     }
 }
 
@@ -245,7 +259,12 @@ impl Builder {
         let (events_tx, events_rx) = mpsc::unbounded_channel();
         let access = Arc::new(self.access);
         let mut sink = self.sink;
-        let target = log_target(&self.config);
+        let mut config = self.config;
+        if sink.discards {
+            config.terminal_log = LogOptions::default();
+            config.file_log = LogOptions::default();
+        }
+        let target = log_target(&config);
         for w in access.warnings() {
             tracing::warn!("{w}");
             if target.terminal || target.file {
@@ -268,7 +287,7 @@ impl Builder {
             )));
         }
         let core = Core {
-            central: Central::new(self.config),
+            central: Central::new(config),
             conns: HashMap::new(),
             next_id: FIRST_CONN,
             sink,
