@@ -744,7 +744,20 @@ mod processes {
                 _ => {
                     let _ = c.kill();
                     let _ = c.wait();
-                    eprintln!("a run did not finish in 30 s; left out");
+                    eprintln!(
+                        "a run did not finish in 30 s; left out ({} clients, {} central, {url})",
+                        match clients {
+                            Clients::Courier => "Courier",
+                            Clients::CourierSpin => "busy-polling Courier",
+                            Clients::C => "C",
+                        },
+                        match central {
+                            Centrals::Courier => "Courier",
+                            Centrals::CourierSpin => "busy-polling Courier",
+                            Centrals::C => "C",
+                            Centrals::Hosted => "hosted Courier",
+                        },
+                    );
                     return None;
                 }
             }
