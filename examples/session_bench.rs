@@ -767,12 +767,6 @@ mod processes {
         median_of(&out)
     }
 
-    fn hostname() -> String {
-        std::fs::read_to_string("/proc/sys/kernel/hostname")
-            .map(|h| h.trim().to_string())
-            .unwrap_or_else(|_| "localhost".into())
-    }
-
     pub fn table(mut args: impl Iterator<Item = String>) {
         let mut s = Setup {
             central: std::env::current_exe().unwrap().with_file_name("central"),
@@ -840,7 +834,7 @@ mod processes {
         if s.c_rtt.is_some() && !s.throughput {
             clients.push(Clients::C);
         }
-        let host = hostname();
+        let host = courier::ipc_backend::local_host_name();
         let what = if s.throughput {
             "one-way throughput (messages/s) at capacity 1"
         } else if s.publish {

@@ -432,9 +432,7 @@ impl CentralHandle {
     /// ```
     pub fn session(&self, name: impl Into<String>) -> courier::SessionBuilder {
         let host = if self.local.ip().is_unspecified() {
-            std::fs::read_to_string("/proc/sys/kernel/hostname")
-                .map(|h| h.trim().to_string())
-                .unwrap_or_else(|_| "localhost".into())
+            courier::ipc_backend::local_host_name()
         } else {
             self.local.ip().to_string()
         };

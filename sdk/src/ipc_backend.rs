@@ -86,8 +86,6 @@ impl Default for IpcOptions {
     }
 }
 
-use IpcStream as Io;
-
 type Done<T> = oneshot::Sender<T>;
 
 enum Cmd {
@@ -110,9 +108,9 @@ enum Cmd {
     /// Subscribe central's connect/disconnect notifications (once).
     WatchModules,
     /// Direct mode: a peer connected to our listener.
-    LinkAccepted(Box<dyn Io>),
+    LinkAccepted(Box<dyn IpcStream>),
     /// Direct mode: our connection to a receiver is up (or failed: None).
-    LinkConnected(LinkId, Option<Box<dyn Io>>),
+    LinkConnected(LinkId, Option<Box<dyn IpcStream>>),
     /// Direct mode: bytes read from a link (empty = closed).
     LinkData(LinkId, Vec<u8>),
     /// Subscribe handler-count changes of a message.
@@ -174,7 +172,9 @@ pub fn parse_url(url: &str) -> Result<(String, u16), String> {
     }
 }
 
-fn local_host_name() -> String {
+/// This machine's name, as the C library takes it for the module's host
+/// and for choosing the UNIX socket (`localhost` if it cannot be read).
+pub fn local_host_name() -> String {
     std::fs::read_to_string("/proc/sys/kernel/hostname")
         .map(|s| s.trim().to_string())
         .unwrap_or_else(|_| "localhost".into())
@@ -186,7 +186,7 @@ fn is_local_name(host: &str, local: &str) -> bool {
     host == local || local.strip_prefix(host).is_some_and(|r| r.starts_with('.'))
 }
 
-async fn open(host: &str, port: u16) -> std::io::Result<Box<dyn Io>> {
+async fn open(host: &str, port: u16) -> std::io::Result<Box<dyn IpcStream>> {
     if is_local_name(host, &local_host_name()) {
         if let Ok(s) = tokio::net::UnixStream::connect(format!("/tmp/x_ipc/{port}")).await {
             return Ok(Box::new(s));
@@ -204,7 +204,7 @@ async fn handshake(
     port: u16,
     name: &str,
     opts: &IpcOptions,
-) -> Result<(Connection, Box<dyn Io>, Option<DirectListener>), ConnectError> {
+) -> Result<(Connection, Box<dyn IpcStream>, Option<DirectListener>), ConnectError> {
     {
         let host = host.to_string();
         let addr = format!("{host}:{port}");
@@ -354,7 +354,7 @@ fn spawn_accept(l: DirectListener, tx: mpsc::UnboundedSender<Cmd>) {
     tokio::spawn(async move {
         let DirectListener { tcp, unix } = l;
         loop {
-            let accepted: Box<dyn Io> = tokio::select! {
+            let accepted: Box<dyn IpcStream> = tokio::select! {
                 _ = tx.closed() => break,
                 r = tcp.accept() => match r {
                     Ok((s, _)) => {
@@ -384,7 +384,7 @@ fn spawn_accept(l: DirectListener, tx: mpsc::UnboundedSender<Cmd>) {
 /// Connects to a direct-link receiver as C's `x_ipc_connectAt` does: its
 /// UNIX socket first when the host is this machine, else (or when that
 /// fails) TCP.
-async fn connect_direct(host: &str, port: u16) -> Option<Box<dyn Io>> {
+async fn connect_direct(host: &str, port: u16) -> Option<Box<dyn IpcStream>> {
     let local = host == "localhost" || is_local_name(host, &local_host_name());
     if local {
         if let Ok(s) = tokio::net::UnixStream::connect(format!("{UNIX_SOCKET_DIR}/{port}")).await {
@@ -612,7 +612,7 @@ enum Def {
 
 struct Driver {
     conn: Connection,
-    io: Box<dyn Io>,
+    io: Box<dyn IpcStream>,
     host: String,
     port: u16,
     name: String,
@@ -630,7 +630,7 @@ struct Driver {
     counts: HashMap<OpId, Done<Result<i32, SessionError>>>,
     closing: Option<Done<()>>,
     watching_modules: bool,
-    links: HashMap<LinkId, tokio::io::WriteHalf<Box<dyn Io>>>,
+    links: HashMap<LinkId, tokio::io::WriteHalf<Box<dyn IpcStream>>>,
 }
 
 fn refused(e: ModError) -> SessionError {
@@ -714,7 +714,7 @@ impl Driver {
     }
 
     /// Reads a direct link on its own task, feeding the driver.
-    fn spawn_link_reader(&self, link: LinkId, mut r: tokio::io::ReadHalf<Box<dyn Io>>) {
+    fn spawn_link_reader(&self, link: LinkId, mut r: tokio::io::ReadHalf<Box<dyn IpcStream>>) {
         let tx = self.cmd_tx.clone();
         tokio::spawn(async move {
             let mut buf = vec![0u8; 64 * 1024];
