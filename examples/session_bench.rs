@@ -40,6 +40,14 @@
 //!                         [--publish | --throughput] [--size S] [--count N]
 //!                         [--reps R] [--busy-poll US]
 //! ```
+//! The C measuring programs in `--c-rtt DIR` are built outside the
+//! repository against the C library: `qrtt_server` / `qrtt_client COUNT
+//! SIZE` (query round trips on `rtt_ask`), `prtt b` / `prtt a COUNT SIZE`
+//! (publish round trips, `rtt_ping` → `rtt_pong`), `tput_pub COUNT SIZE` /
+//! `tput_sub COUNT` (capacity-1 throughput on `tput_data`, timed by the
+//! subscriber from its first delivery to its last). The timing one prints a
+//! line in the format of `ping`'s; the other runs until its standard input
+//! closes.
 
 #[path = "appendix_a.rs"]
 mod appendix;
@@ -693,7 +701,15 @@ mod processes {
             }
             Clients::C => {
                 let dir = s.c_rtt.as_ref().unwrap();
-                let (mut srv, mut cli) = if s.publish {
+                let (mut srv, mut cli) = if s.throughput {
+                    // The publisher waits for the subscriber, which times
+                    // from its first delivery to its last.
+                    let mut p = Command::new(dir.join("tput_pub"));
+                    p.args([&count, &s.size.to_string()]);
+                    let mut t = Command::new(dir.join("tput_sub"));
+                    t.arg(&count);
+                    (p, t)
+                } else if s.publish {
                     let mut b = Command::new(dir.join("prtt"));
                     b.arg("b");
                     let mut a = Command::new(dir.join("prtt"));
@@ -830,8 +846,7 @@ mod processes {
         }
         centrals.push(Centrals::Hosted);
         let mut clients = vec![Clients::Courier, Clients::CourierSpin];
-        // The C measuring programs time round trips only.
-        if s.c_rtt.is_some() && !s.throughput {
+        if s.c_rtt.is_some() {
             clients.push(Clients::C);
         }
         let host = courier::ipc_backend::local_host_name();
