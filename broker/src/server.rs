@@ -408,8 +408,9 @@ impl CentralHandle {
     /// A [`Session`](courier::Session) builder for a module of this process,
     /// connected to this central over [`connect_in_process`](Self::connect_in_process)
     /// links. The session lives no longer than this central: once it has
-    /// stopped, connecting (or reconnecting) fails with "central has
-    /// stopped". Everything else is as for
+    /// stopped, connecting fails at once with "central has stopped", and a
+    /// session built with `reconnect` ends instead of retrying. Everything
+    /// else is as for
     /// `Session::builder(url)` with this central's address: direct mode,
     /// options, and how other modules see it.
     ///

@@ -50,6 +50,11 @@ pub type DialFuture = BoxFuture<'static, std::io::Result<Box<dyn IpcStream>>>;
 
 /// Opens a new connection to central; called for the first connection and
 /// for every reconnect.
+///
+/// A dial that fails with [`std::io::ErrorKind::NotConnected`] says that
+/// central is gone for good (an embedded central that has stopped): the
+/// session does not retry it, neither while connecting nor to reconnect.
+/// Any other error is retried as a refused socket connection is.
 #[derive(Clone)]
 pub struct Dial(Arc<dyn Fn() -> DialFuture + Send + Sync>);
 
@@ -199,6 +204,11 @@ async fn open(host: &str, port: u16) -> std::io::Result<Box<dyn IpcStream>> {
 
 /// Opens a connection to central and completes the IPC handshake (with a
 /// direct-link listener when central runs with `-c`).
+/// A dial error that no retry can mend (see [`Dial`]).
+fn gone_for_good(opts: &IpcOptions, e: &std::io::Error) -> bool {
+    opts.dial.is_some() && e.kind() == std::io::ErrorKind::NotConnected
+}
+
 async fn handshake(
     host: &str,
     port: u16,
@@ -218,7 +228,10 @@ async fn handshake(
             };
             match opened {
                 Ok(io) => break io,
-                Err(e) if tokio::time::Instant::now() + Duration::from_millis(200) >= deadline => {
+                Err(e)
+                    if gone_for_good(opts, &e)
+                        || tokio::time::Instant::now() + Duration::from_millis(200) >= deadline =>
+                {
                     return Err(ConnectError::Unreachable {
                         addr,
                         attempts,
@@ -1049,7 +1062,7 @@ impl Driver {
 
     /// Central went away: fail what waits, reconnect with backoff, then
     /// define and subscribe everything again. `false` if the session was
-    /// closed meanwhile.
+    /// closed meanwhile or central is gone for good (see [`Dial`]).
     async fn reconnect(&mut self, first: Duration, rx: &mut mpsc::UnboundedReceiver<Cmd>) -> bool {
         self.fail_pending();
         self.links.clear();
@@ -1102,6 +1115,15 @@ impl Driver {
                     }
                     self.broadcast(SessionEvent::Reconnected);
                     return true;
+                }
+                Err(ConnectError::Unreachable { source, .. })
+                    if gone_for_good(&self.opts, &source) =>
+                {
+                    tracing::warn!(
+                        "central {} is gone for good ({source}); not reconnecting",
+                        self.addr
+                    );
+                    return false;
                 }
                 Err(e) => {
                     tracing::debug!("reconnect to {} failed: {e}", self.addr);

@@ -866,6 +866,8 @@ impl SessionBuilder {
     /// After losing central, keep trying to reach it (first after `backoff`,
     /// doubling up to 5 s), then define and subscribe everything again;
     /// subscribers stay open meanwhile. Operations fail while disconnected.
+    /// An embedded central reached through [`SessionBuilder::dial`] that has
+    /// stopped is not retried: the session ends as without reconnect.
     pub fn reconnect(mut self, backoff: Duration) -> Self {
         self.opts.reconnect = Some(backoff);
         self

@@ -5,7 +5,7 @@
 
 use std::time::Duration;
 
-use courier::{ConnectError, IpcMessage, Session};
+use courier::{ConnectError, IpcMessage, RecvError, Session};
 use courier_broker::{CentralHandle, CentralServer, Config};
 use futures::StreamExt;
 
@@ -231,12 +231,12 @@ async fn central_stopping_disconnects_in_process_modules() {
         tokio::spawn(async move { a.query::<i32, i32>("m", &1).timeout(T).await })
     };
     tokio::time::sleep(Duration::from_millis(100)).await;
-    let late = c
-        .session("late")
-        .connect_timeout(Duration::from_millis(300));
+    // Longer than the test allows: a stopped central must not be retried.
+    let late = c.session("late").connect_timeout(Duration::from_secs(60));
     let started = std::time::Instant::now();
     c.shutdown().await;
     common::ended_by_central(&mut sub, q, started).await;
+    let asked = std::time::Instant::now();
     match tokio::time::timeout(T, late.connect()).await.unwrap() {
         Err(e @ ConnectError::Unreachable { .. }) => {
             assert!(e.to_string().contains("central has stopped"), "{e}")
@@ -244,6 +244,50 @@ async fn central_stopping_disconnects_in_process_modules() {
         Err(e) => panic!("unexpected error: {e}"),
         Ok(_) => panic!("connected to a stopped central"),
     }
+    assert!(
+        asked.elapsed() < Duration::from_millis(150),
+        "{:?}",
+        asked.elapsed()
+    );
+}
+
+/// A hosted session with `reconnect` does not retry a central that has
+/// stopped (it cannot come back): its subscriber and pending query end as
+/// without reconnect, and later calls fail instead of waiting.
+#[tokio::test]
+async fn a_reconnecting_in_process_module_ends_with_its_stopped_central() {
+    let c = central(false).await;
+    let a = tokio::time::timeout(
+        T,
+        c.session("a")
+            .reconnect(Duration::from_millis(10))
+            .connect(),
+    )
+    .await
+    .unwrap()
+    .unwrap();
+    a.define::<i32>("m").await.unwrap();
+    let mut sub = a.subscribe::<i32>("m").await.unwrap();
+    let q = {
+        let a = a.clone();
+        tokio::spawn(async move { a.query::<i32, i32>("m", &1).timeout(T).await })
+    };
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let started = std::time::Instant::now();
+    c.shutdown().await;
+    common::ended_by_central(&mut sub, q, started).await;
+    // Retrying would leave the stream open (it stays open across reconnects).
+    let end = tokio::time::timeout(T, async {
+        while let Some(item) = sub.next().await {
+            assert!(matches!(item, Err(RecvError::Disconnected)), "{item:?}");
+        }
+    })
+    .await;
+    assert!(
+        end.is_ok(),
+        "the subscriber stayed open: the session is still retrying"
+    );
+    assert!(a.publish("m", &2).await.is_err());
 }
 
 /// A hosted subscriber that stops reading: its keep-all queue fills, it
