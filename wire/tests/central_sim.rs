@@ -24,6 +24,8 @@ struct Sim {
     paused: HashSet<u64>,
     logs: Vec<String>,
     closes: Vec<(u64, String)>,
+    /// Headers of the frames central wrote, by module.
+    sent: Vec<(u64, Header)>,
     now: Instant,
     /// Most bytes ever held in module outboxes while paused (TCP buffers).
     next: u64,
@@ -37,6 +39,7 @@ impl Sim {
             paused: HashSet::new(),
             logs: Vec::new(),
             closes: Vec::new(),
+            sent: Vec::new(),
             now: Instant::now(),
             next: 1,
         }
@@ -126,6 +129,9 @@ impl Sim {
             any = true;
             match o {
                 Output::Transmit { conn, bytes } => {
+                    if let Ok(h) = Header::decode(&bytes) {
+                        self.sent.push((conn.0, h));
+                    }
                     if let Some(m) = self.mods.get_mut(&conn.0) {
                         m.conn.receive(&bytes, self.now);
                     }
@@ -751,6 +757,107 @@ fn resubscribing_a_handler_keeps_its_id_and_renames_the_message() {
     assert_eq!(h.intent, hid, "the first handler id is kept");
     assert_eq!(h.class_total, 5, "class data names the message again");
     assert_eq!(&bytes[28..33], b"\x01\x00\x00\x00m");
+}
+
+/// `x_ipc_registerHandlerMsg {0, msg, hnd}`, raw, as the C library sends
+/// it when it subscribes a handler it subscribed before.
+fn register_again(sim: &mut Sim, conn: u64, msg: &str, hnd: &str) {
+    register_raw(sim, conn, 0, msg, hnd)
+}
+
+fn register_raw(sim: &mut Sim, conn: u64, hid: i32, msg: &str, hnd: &str) {
+    let id = sim.central.message_id("x_ipc_registerHandlerMsg").unwrap();
+    let mut body = hid.to_le_bytes().to_vec();
+    for s in [msg, hnd] {
+        body.extend_from_slice(&(s.len() as i32).to_le_bytes());
+        body.extend_from_slice(s.as_bytes());
+    }
+    let f = raw_frame(MsgClass::Inform, id, &body);
+    sim.central.receive(ConnId(conn), &f, SystemTime::now());
+    sim.drain();
+}
+
+/// Subscribe, unsubscribe, subscribe again: the C library sends id 0 the
+/// second time and dispatches on the id of the first registration, as the
+/// C central (which keeps the handler's record) delivers. Delivering with
+/// intent 0 made the C module crash (SIGSEGV in its dispatch), found by
+/// running the C library's own programs against this central.
+#[test]
+fn a_handler_subscribed_again_after_an_unsubscribe_keeps_its_first_id() {
+    let mut sim = Sim::new(Config::default());
+    let a = sim.connect("a");
+    let b = sim.connect("b");
+    define(&mut sim, a, "m", "int");
+    let hid = sim.m(a).subscribe("m", "HND-m").unwrap();
+    sim.pump();
+    sim.m(a).unsubscribe("m", "HND-m").unwrap();
+    sim.pump();
+    register_again(&mut sim, a, "m", "HND-m");
+    sim.pump();
+    // Courier's module state machine, subscribing the same handler again,
+    // uses the first id too (and so works with either central).
+    assert_eq!(sim.m(a).subscribe("m", "HND-m").unwrap(), hid);
+    sim.pump();
+    sim.sent.clear();
+    sim.m(b).publish("m", &7i32.to_le_bytes(), -1).unwrap();
+    sim.pump();
+    let intents: Vec<i32> = sim
+        .sent
+        .iter()
+        .filter(|(to, h)| *to == a && h.class_id.class() == 15 && h.intent >= 0)
+        .map(|(_, h)| h.intent)
+        .collect();
+    assert_eq!(intents, vec![hid], "one delivery, to the first id");
+    assert_eq!(sim.deliveries(a).len(), 1, "the module dispatched it");
+}
+
+/// Direct mode: the handler lists central broadcasts (`V_watch_<msg>`)
+/// carry the first id after an unsubscribe and subscribe, and a handler
+/// subscribed again while still subscribed has the list announced again,
+/// as the C central does (`registerHandlerHnd` → `updateDirectHandlers`).
+#[test]
+fn direct_handler_lists_keep_the_first_id_and_are_announced_again() {
+    let mut config = Config::default();
+    config.direct = true;
+    config.terminal_log = courier_wire::ipc::central::LogOptions::parse("md", false).unwrap();
+    let mut sim = Sim::new(config);
+    let a = sim.add("a");
+    sim.pump();
+    sim.m(a).announce_direct_port(8123);
+    sim.pump();
+    define(&mut sim, a, "d", "int");
+    let hid = sim.m(a).subscribe("d", "HND-d").unwrap();
+    sim.pump();
+    // Follow the handler list, as a C module does before its first
+    // direct send of d.
+    register_raw(&mut sim, a, 500, "V_watch_d", "V_watch_d");
+    sim.pump();
+    // The data line logged after each broadcast of the list.
+    let lists = |sim: &mut Sim| -> Vec<String> {
+        let logs = std::mem::take(&mut sim.logs);
+        logs.iter()
+            .zip(logs.iter().skip(1))
+            .filter(|(l, _)| l.starts_with("Broadcast") && l.contains(" V_watch_d: "))
+            .map(|(_, data)| data.clone())
+            .collect()
+    };
+    lists(&mut sim);
+    let first = format!("{{{hid}, 0, 0, 8123, ");
+
+    register_again(&mut sim, a, "d", "HND-d");
+    sim.pump();
+    let again = lists(&mut sim);
+    assert_eq!(again.len(), 1, "announced again: {again:#?}");
+    assert!(again[0].contains(&first), "{}", again[0]);
+
+    sim.m(a).unsubscribe("d", "HND-d").unwrap();
+    sim.pump();
+    register_again(&mut sim, a, "d", "HND-d");
+    sim.pump();
+    let after = lists(&mut sim);
+    let last = after.last().expect("a list after subscribing again");
+    assert!(last.contains(&first), "{last}");
+    assert!(!last.contains("{0, 0, 0,"), "{last}");
 }
 
 #[test]

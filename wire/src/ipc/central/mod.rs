@@ -351,6 +351,11 @@ struct Module {
     port: i32,
     /// Handlers by name.
     handlers: BTreeMap<String, Handler>,
+    /// Ids of handlers this module unsubscribed, by name. A C module
+    /// subscribes the same handler again with id 0 and expects deliveries
+    /// under the id it registered first (`x_ipc_deregisterHnd` keeps the
+    /// record; `x_ipc_selfRegisterHnd` finds it and keeps its id).
+    retired: BTreeMap<String, i32>,
     /// The version of each variable this module last read (`V_get_…`) or
     /// was sent (`V_watch_…`).
     vars_read: BTreeMap<String, u64>,
@@ -840,6 +845,7 @@ impl Central {
                 pending_limit: None,
                 port: -1,
                 handlers: BTreeMap::new(),
+                retired: BTreeMap::new(),
                 vars_read: BTreeMap::new(),
                 paused: false,
                 closed: false,
@@ -1500,11 +1506,18 @@ impl Central {
             // Re-registering a handler (a C module does it when the client
             // data changes, with id 0): like x_ipc_selfRegisterHnd, keep
             // the first id and forget that the module knows the message, so
-            // the next delivery names it again.
-            let _ = id;
+            // the next delivery names it again. The C central announces the
+            // handler list again all the same (registerHandlerHnd).
             old.knows_msg = false;
+            let m = &self.msgs[&msg];
+            if m.direct || m.notify_handler_change {
+                self.update_direct_handlers(&msg);
+            }
             return;
         }
+        // Subscribed again after an unsubscribe: the first id, not the 0
+        // the C library sends this time.
+        let id = module.retired.remove(&hnd).unwrap_or(id);
         module.handlers.insert(
             hnd.clone(),
             Handler {
@@ -1570,14 +1583,13 @@ impl Central {
     }
 
     fn deregister_handler(&mut self, conn: ConnId, msg: &str, hnd: &str) {
-        let removed = self
-            .modules
-            .get_mut(&conn)
-            .and_then(|m| m.handlers.remove(hnd))
-            .is_some();
-        if !removed {
+        let Some(module) = self.modules.get_mut(&conn) else {
             return;
-        }
+        };
+        let Some(old) = module.handlers.remove(hnd) else {
+            return;
+        };
+        module.retired.insert(hnd.to_string(), old.id);
         if let Some(m) = self.msgs.get_mut(msg) {
             m.handlers.retain(|(c, n)| !(*c == conn && n == hnd));
         }

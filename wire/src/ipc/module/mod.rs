@@ -429,6 +429,12 @@ pub struct Connection {
     pending: HashMap<i32, Pending>,
     handlers: HashMap<i32, Handler>,
     by_name: HashMap<(String, String), i32>,
+    /// Ids of unsubscribed handlers, kept for the same (message, handler
+    /// name): central keeps a handler's record and its first id, and
+    /// delivers to that id if it is subscribed again (`x_ipc_deregisterHnd`
+    /// only unlinks it). Never given to another handler.
+    retired: HashMap<(String, String), i32>,
+    retired_ids: HashSet<i32>,
     deliveries: VecDeque<PendingDelivery>,
     inbox: VecDeque<(Frame, Option<LinkId>)>,
     link_in: HashMap<LinkId, Vec<u8>>,
@@ -471,6 +477,8 @@ impl Connection {
             pending: HashMap::new(),
             handlers: HashMap::new(),
             by_name: HashMap::new(),
+            retired: HashMap::new(),
+            retired_ids: HashSet::new(),
             deliveries: VecDeque::new(),
             inbox: VecDeque::new(),
             link_in: HashMap::new(),
@@ -1332,14 +1340,24 @@ impl Connection {
     }
 
     fn alloc_handler(&mut self, msg: &str, hnd: &str, kind: HandlerKind) -> i32 {
-        if let Some(id) = self.by_name.get(&(msg.to_string(), hnd.to_string())) {
+        let key = (msg.to_string(), hnd.to_string());
+        if let Some(id) = self.by_name.get(&key) {
             return *id;
         }
-        let mut id = self.next_handler;
-        while self.handlers.contains_key(&id) || id < 2 {
-            id = if id < 2 { i32::MAX } else { id - 1 };
-        }
-        self.next_handler = id - 1;
+        let id = match self.retired.remove(&key) {
+            Some(id) => {
+                self.retired_ids.remove(&id);
+                id
+            }
+            None => {
+                let mut id = self.next_handler;
+                while self.handlers.contains_key(&id) || self.retired_ids.contains(&id) || id < 2 {
+                    id = if id < 2 { i32::MAX } else { id - 1 };
+                }
+                self.next_handler = id - 1;
+                id
+            }
+        };
         self.handlers.insert(
             id,
             Handler {
@@ -1644,11 +1662,11 @@ impl Connection {
     /// `IPC_unsubscribe`: `x_ipc_deregisterHandlerMsg {0, msg, hnd}`.
     pub fn unsubscribe(&mut self, msg: &str, handler_name: &str) -> Result<(), Error> {
         self.check_open()?;
-        if let Some(id) = self
-            .by_name
-            .remove(&(msg.to_string(), handler_name.to_string()))
-        {
+        let key = (msg.to_string(), handler_name.to_string());
+        if let Some(id) = self.by_name.remove(&key) {
             self.handlers.remove(&id);
+            self.retired.insert(key, id);
+            self.retired_ids.insert(id);
         }
         self.push_op(Op::Deregister {
             msg: msg.into(),
