@@ -215,6 +215,18 @@ proptest! {
         let _ = print_value(&f, &v);
     }
 
+    /// Keeping only the first few array elements steps over the rest
+    /// exactly: the reader ends where a full decode ends.
+    #[test]
+    fn a_prefix_decode_ends_where_a_full_decode_does((f, v) in format_and_value(), keep in 0usize..6) {
+        let bytes = v.to_ipc_bytes(&f).unwrap();
+        let mut r = Reader::new(&bytes, ByteOrder::NATIVE);
+        let none = |_: &str| None;
+        courier_wire::ipc::decode_value_prefix(&f, &mut r, &none, keep).unwrap();
+        prop_assert_eq!(r.position(), bytes.len());
+        let _ = print_value(&f, &v);
+    }
+
     #[test]
     fn random_bytes_never_panic(f in format(), bytes in prop::collection::vec(any::<u8>(), 0..64), big in any::<bool>()) {
         let order = if big { ByteOrder::Big } else { ByteOrder::Little };
@@ -252,4 +264,66 @@ fn formatter_values_print_like_c() {
         Value::from_ipc_bytes(&f, &bytes, ByteOrder::NATIVE).unwrap(),
         v
     );
+}
+
+/// The central's data log decodes only the first 4096 array elements of a
+/// message: what it prints (five lines, then `...`) is the same as from the
+/// whole value, even with 400 elements, for large arrays of every kind of
+/// element.
+#[test]
+fn a_logged_prefix_prints_like_the_whole_value() {
+    let cases: Vec<(&str, Value)> = vec![
+        (
+            "[float:262144]",
+            Value::Array((0..262_144).map(|i| Value::Float(i as f32)).collect()),
+        ),
+        (
+            "[char:100000]",
+            Value::Array(
+                (0..100_000)
+                    .map(|i| Value::Char(b'a' + (i % 26) as u8))
+                    .collect(),
+            ),
+        ),
+        (
+            "{int, <double:1>}",
+            Value::Struct(vec![
+                Value::Int(50_000),
+                Value::VarArray((0..50_000).map(|i| Value::Double(i as f64)).collect()),
+            ]),
+        ),
+        (
+            "[{int, string}:5000]",
+            Value::Array(
+                (0..5000)
+                    .map(|i| Value::Struct(vec![Value::Int(i), Value::String(None)]))
+                    .collect(),
+            ),
+        ),
+        (
+            "[int:1000, 1000]",
+            Value::Array(
+                (0..1000)
+                    .map(|_| Value::Array((0..1000).map(Value::Int).collect()))
+                    .collect(),
+            ),
+        ),
+    ];
+    for (fs, v) in cases {
+        let f = support::fmt(fs);
+        let bytes = v.to_ipc_bytes(&f).unwrap();
+        let full = courier_wire::ipc::log_data(&f, &v);
+        assert!(full.ends_with("...\n"), "{fs}: not cut short:\n{full}");
+        for keep in [400, 4096] {
+            let mut r = Reader::new(&bytes, ByteOrder::NATIVE);
+            let none = |_: &str| None;
+            let p = courier_wire::ipc::decode_value_prefix(&f, &mut r, &none, keep).unwrap();
+            assert_eq!(r.position(), bytes.len(), "{fs}");
+            assert_eq!(
+                courier_wire::ipc::log_data(&f, &p),
+                full,
+                "{fs}, {keep} elements"
+            );
+        }
+    }
 }

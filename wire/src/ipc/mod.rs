@@ -22,8 +22,9 @@ pub mod value;
 
 pub use codec::{ByteOrder, Reader, Writer, PRESENT};
 pub use value::{
-    decode_value, decode_value_with, encode_value, encode_value_with, log_data, print_value,
-    print_value_with, EncodeError, PathSegment, PrintOptions, Resolver, Value, ValuePath,
+    decode_value, decode_value_prefix, decode_value_with, encode_value, encode_value_with,
+    log_data, print_value, print_value_with, EncodeError, PathSegment, PrintOptions, Resolver,
+    Value, ValuePath,
 };
 
 use crate::IpcMessage;

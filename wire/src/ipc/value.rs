@@ -864,6 +864,30 @@ pub fn decode_value(fmt: &Format, r: &mut Reader<'_>) -> Result<Value, DecodeErr
         ctx: Ctx::new(None),
         depth: 0,
         zero_sized_budget: MAX_ZERO_SIZED_ELEMENTS,
+        kept_elements: usize::MAX,
+    }
+    .dec(fmt, r)
+}
+
+/// [`decode_value_with`] that keeps only the first `max_elements` array
+/// elements of the whole value and steps over the others: arrays come out
+/// shorter than on the wire. For printing a value that is cut short anyway,
+/// as [`log_data`] does after five lines (each element prints at least one
+/// character, so 400 elements fill them): a 1 MiB array then costs no
+/// more than its first elements. The reader ends where a full decode
+/// would, and malformed input fails as it would.
+pub fn decode_value_prefix<'f, 'g: 'f>(
+    fmt: &'f Format,
+    r: &mut Reader<'_>,
+    resolve: &dyn Fn(&str) -> Option<&'g Format>,
+    max_elements: usize,
+) -> Result<Value, DecodeError> {
+    let shorten = |n: &str| -> Option<&'f Format> { resolve(n) };
+    Decoder {
+        ctx: Ctx::new(Some(&shorten)),
+        depth: 0,
+        zero_sized_budget: MAX_ZERO_SIZED_ELEMENTS,
+        kept_elements: max_elements,
     }
     .dec(fmt, r)
 }
@@ -879,6 +903,7 @@ pub fn decode_value_with<'f, 'g: 'f>(
         ctx: Ctx::new(Some(&shorten)),
         depth: 0,
         zero_sized_budget: MAX_ZERO_SIZED_ELEMENTS,
+        kept_elements: usize::MAX,
     }
     .dec(fmt, r)
 }
@@ -889,6 +914,9 @@ struct Decoder<'r, 'f> {
     /// Elements that take no bytes on the wire (e.g. of format `0` or
     /// `[int:0]`) still cost memory; this many may be decoded in total.
     zero_sized_budget: usize,
+    /// Array elements still to keep; later ones are stepped over
+    /// ([`decode_value_prefix`]).
+    kept_elements: usize,
 }
 
 /// How many elements that take no wire bytes one decode may create.
@@ -1058,15 +1086,23 @@ impl<'r, 'f> Decoder<'r, 'f> {
         r: &mut Reader<'_>,
     ) -> Result<Vec<Value>, DecodeError> {
         let resolved = self.ctx.resolve_named(elem).map_err(DecodeError::Format)?;
+        let keep = n.min(self.kept_elements);
+        self.kept_elements -= keep;
         if let Format::Primitive(p) = resolved {
-            if prim_size(*p).is_some() {
-                return bulk_prims(*p, n, r);
+            if let Some(size) = prim_size(*p) {
+                r.check_count(r.position(), n as i64, size)?;
+                let out = bulk_prims(*p, keep, r)?;
+                r.take((n - keep) * size)?;
+                return Ok(out);
             }
         }
         let n = self.check_count(r, n, self.ctx.min_size(resolved, 0))?;
-        let mut out = Vec::with_capacity(n);
-        for _ in 0..n {
-            out.push(self.dec(resolved, r)?);
+        let mut out = Vec::with_capacity(keep);
+        for i in 0..n {
+            let v = self.dec(resolved, r)?;
+            if i < keep {
+                out.push(v);
+            }
         }
         Ok(out)
     }

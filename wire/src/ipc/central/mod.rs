@@ -2592,6 +2592,10 @@ fn read_opt_str(r: &mut Reader<'_>) -> Result<Option<String>, Bad> {
 
 /// Decodes a message body for the data log: the wire body (`{int,
 /// <byte:1>}`, `[byte:N]` or the format itself) and then the user format.
+/// Array elements decoded for a data log line: more than its five lines
+/// of at most 80 columns can show (each element takes a character).
+const LOGGED_ELEMENTS: usize = 4096;
+
 fn decode_user(
     msg_format: &Option<Format>,
     res_format: &Option<Format>,
@@ -2618,6 +2622,8 @@ fn decode_user(
     };
     let resolve = |n: &str| reg.get(n);
     let mut r = Reader::new(inner, order);
-    let v = crate::ipc::decode_value_with(user, &mut r, &resolve).map_err(|e| e.to_string())?;
+    // The log shows five lines: the first elements of a large array do.
+    let v = crate::ipc::decode_value_prefix(user, &mut r, &resolve, LOGGED_ELEMENTS)
+        .map_err(|e| e.to_string())?;
     Ok(Some(crate::ipc::log_data(user, &v)))
 }
