@@ -26,6 +26,8 @@ struct Sim {
     closes: Vec<(u64, String)>,
     /// Headers of the frames central wrote, by module.
     sent: Vec<(u64, Header)>,
+    /// The wall clock central is given.
+    wall: SystemTime,
     now: Instant,
     /// Most bytes ever held in module outboxes while paused (TCP buffers).
     next: u64,
@@ -40,6 +42,7 @@ impl Sim {
             logs: Vec::new(),
             closes: Vec::new(),
             sent: Vec::new(),
+            wall: SystemTime::now(),
             now: Instant::now(),
             next: 1,
         }
@@ -49,7 +52,7 @@ impl Sim {
         let id = self.next;
         self.next += 1;
         self.central
-            .connect(ConnId(id), Peer::Other(name.into()), SystemTime::now());
+            .connect(ConnId(id), Peer::Other(name.into()), self.wall);
         let conn = Connection::new(ModuleConfig::new(name, "localhost"), self.now);
         self.mods.insert(
             id,
@@ -109,7 +112,7 @@ impl Sim {
                         break;
                     };
                     moved = true;
-                    self.central.receive(ConnId(id), &b, SystemTime::now());
+                    self.central.receive(ConnId(id), &b, self.wall);
                     self.drain();
                 }
             }
@@ -149,7 +152,7 @@ impl Sim {
                         m.closed_by_central = true;
                         m.conn.handle_eof();
                     }
-                    self.central.disconnect(conn, SystemTime::now());
+                    self.central.disconnect(conn, self.wall);
                 }
                 other => panic!("unexpected output {other:?}"),
             }
@@ -185,7 +188,7 @@ impl Sim {
     fn close(&mut self, id: u64) {
         self.mods.remove(&id);
         self.paused.remove(&id);
-        self.central.disconnect(ConnId(id), SystemTime::now());
+        self.central.disconnect(ConnId(id), self.wall);
         self.drain();
         self.pump();
     }
@@ -858,6 +861,48 @@ fn direct_handler_lists_keep_the_first_id_and_are_announced_again() {
     let last = after.last().expect("a list after subscribing again");
     assert!(last.contains(&first), "{last}");
     assert!(!last.contains("{0, 0, 0,"), "{last}");
+}
+
+/// With `-t` every message line carries the time, central's own variable
+/// broadcasts and the replies and completions of internal messages
+/// included, as in the C central's log.
+#[test]
+fn timed_log_lines_all_carry_the_time() {
+    let mut config = Config::default();
+    config.terminal_log = courier_wire::ipc::central::LogOptions::parse("mt", false).unwrap();
+    let mut sim = Sim::new(config);
+    sim.wall = SystemTime::UNIX_EPOCH + std::time::Duration::from_millis(3_723_450);
+    let a = sim.connect("a");
+    let b = sim.connect("b");
+    define(&mut sim, a, "m", "int");
+    sim.m(b).subscribe("m", "HND-m").unwrap();
+    sim.pump();
+    sim.m(a).publish("m", &1i32.to_le_bytes(), -1).unwrap();
+    sim.pump();
+    let message_lines: Vec<&String> = sim
+        .logs
+        .iter()
+        .filter(|l| {
+            ["Query", "Inform", "Broadcast", "  Reply", "  Done"]
+                .iter()
+                .any(|p| l.starts_with(p))
+        })
+        .collect();
+    assert!(
+        message_lines
+            .iter()
+            .any(|l| l.starts_with("Broadcast") && l.contains("V_watch_")),
+        "{message_lines:#?}"
+    );
+    assert!(message_lines
+        .iter()
+        .any(|l| l.starts_with("  Done    x_ipc_registerHandlerMsg:")));
+    assert!(message_lines
+        .iter()
+        .any(|l| l.starts_with("  Reply  x_ipc_msgInfoMsg:")));
+    for l in message_lines {
+        assert!(l.ends_with("  1:02:03.45"), "no time on {l:?}");
+    }
 }
 
 #[test]

@@ -436,6 +436,9 @@ pub struct Central {
     handler_seq: u64,
     msg_info_query: Format,
     msg_info_reply: Format,
+    /// The time of the event being handled, for what central sends of
+    /// its own accord (variable broadcasts) and logs with `-t`.
+    clock: SystemTime,
 }
 
 /// Why a frame from a module could not be handled.
@@ -473,6 +476,7 @@ impl Central {
             handler_seq: 0,
             msg_info_query: internal::fixed(internal::MSG_INFO_QUERY_FORMAT),
             msg_info_reply: internal::fixed(internal::MSG_INFO_REPLY_FORMAT),
+            clock: SystemTime::UNIX_EPOCH,
         };
         let _ = c
             .formats
@@ -828,6 +832,7 @@ impl Central {
     /// A module connected: queues the 4-byte msgInfo id and the two
     /// formatter frames central speaks first (ipc.md §4).
     pub fn connect(&mut self, conn: ConnId, peer: Peer, now: SystemTime) {
+        self.clock = now;
         let _ = now;
         self.modules.insert(
             conn,
@@ -872,6 +877,7 @@ impl Central {
 
     /// Bytes arrived on a connection (any split of the stream).
     pub fn receive(&mut self, conn: ConnId, bytes: &[u8], now: SystemTime) {
+        self.clock = now;
         let Some(m) = self.modules.get_mut(&conn) else {
             return;
         };
@@ -957,6 +963,7 @@ impl Central {
 
     /// The connection ended (EOF, error, or after [`Output::Close`]).
     pub fn disconnect(&mut self, conn: ConnId, now: SystemTime) {
+        self.clock = now;
         if !self.modules.contains_key(&conn) {
             return;
         }
@@ -1370,13 +1377,17 @@ impl Central {
             self.reply(conn, h.msg_ref, &bytes);
             if logged {
                 let line = format!(
-                    "  Reply  {:>15}: {:>10} --> {:<15}",
-                    name, SERVER_NAME, org_name
+                    "  Reply  {:>15}: {:>10} --> {:<15}{}",
+                    name,
+                    SERVER_NAME,
+                    org_name,
+                    log::time(&self.opts(), now)
                 );
                 self.log_line(Kind::Message, line);
             }
         } else if logged {
-            self.log_line(Kind::Message, format!("  Done    {name:>15}:"));
+            let t = log::time(&self.opts(), now);
+            self.log_line(Kind::Message, format!("  Done    {name:>15}:{t}"));
         }
         Ok(())
     }
@@ -1813,7 +1824,7 @@ impl Central {
             hnd: Some(hnd),
             status: Status::NoHandler,
         });
-        self.deliver_or_pend(did, SystemTime::UNIX_EPOCH);
+        self.deliver_or_pend(did, self.clock);
     }
 
     fn deliver_or_pend(&mut self, did: i32, now: SystemTime) {
@@ -2340,6 +2351,7 @@ impl Central {
     /// A console command line (`help`, `display`, `status`, `memory`,
     /// `close <module>`, `unlock <resource>`, or an option such as `-lmsd`).
     pub fn command(&mut self, line: &str, now: SystemTime) {
+        self.clock = now;
         let mut words = line.split_whitespace();
         let Some(cmd) = words.next() else {
             return;
