@@ -905,6 +905,56 @@ fn timed_log_lines_all_carry_the_time() {
     }
 }
 
+/// Internal messages logged as the C central logs them when `i` is not
+/// among the options: a module not named yet is `**NEWMOD**`, the connect
+/// reply names it, replies carry their data (`x_ipc_waitMsg`'s `1`
+/// included) and `x_ipc_CloseMsg` completes with a Done line.
+#[test]
+fn internal_messages_are_logged_like_c() {
+    let mut config = Config::default();
+    config.terminal_log = courier_wire::ipc::central::LogOptions::parse("md", false).unwrap();
+    let mut sim = Sim::new(config);
+    let a = sim.connect("a");
+    let logs = std::mem::take(&mut sim.logs);
+    let at = |p: &str| {
+        logs.iter()
+            .position(|l| l.starts_with(p))
+            .unwrap_or_else(|| panic!("no line {p:?} in {logs:#?}"))
+    };
+    assert!(logs[at("Query     x_ipc_msgInfoMsg:")].contains(" **NEWMOD** --> X_IPC Server"));
+    assert!(logs[at("  Reply  x_ipc_newModuleConnectMsg:")].contains("X_IPC Server --> a "));
+    let info = at("  Reply  x_ipc_msgInfoMsg:");
+    assert!(logs[info + 1].starts_with("    *{"), "{}", logs[info + 1]);
+    let wait = at("  Reply    x_ipc_waitMsg:");
+    assert_eq!(logs[wait + 1], "    1");
+    // A subscription changes the broadcast list: central's own V_set
+    // around the broadcast to the list's watchers.
+    define(&mut sim, a, "m", "int");
+    sim.m(a).subscribe("m", "HND-m").unwrap();
+    sim.pump();
+    let logs = std::mem::take(&mut sim.logs);
+    let at = |p: &str| {
+        logs.iter()
+            .position(|l| l.starts_with(p))
+            .unwrap_or_else(|| panic!("no line {p:?} in {logs:#?}"))
+    };
+    let set =
+        at("Inform    V_set_X_IPC_BROADCAST_MSG_VAR: X_IPC Server --> X_IPC Server    (Sent)");
+    assert!(logs[set + 1].starts_with("    {"), "{}", logs[set + 1]);
+    let watch = at("Broadcast V_watch_X_IPC_BROADCAST_MSG_VAR: X_IPC Server --> a");
+    let done = at("  Done    V_set_X_IPC_BROADCAST_MSG_VAR:");
+    assert!(set < watch && watch < done, "{logs:#?}");
+    sim.m(a).close().unwrap();
+    sim.pump();
+    assert!(
+        sim.logs
+            .iter()
+            .any(|l| l.starts_with("  Done     x_ipc_CloseMsg:")),
+        "{:#?}",
+        sim.logs
+    );
+}
+
 #[test]
 fn log_options_parse_like_c() {
     use courier_wire::ipc::central::LogOptions;

@@ -440,7 +440,7 @@ fn main() -> ExitCode {
     code
 }
 
-async fn run(opts: Options) -> ExitCode {
+async fn run(mut opts: Options) -> ExitCode {
     // Signals first: from the moment central listens, SIGTERM and SIGINT
     // mean a clean stop.
     use tokio::signal::unix::{signal, SignalKind};
@@ -462,6 +462,7 @@ async fn run(opts: Options) -> ExitCode {
         }
     };
     let silent = opts.silent;
+    opts.config.quiet = silent;
     if let (Some(f), false) = (&opts.log_file, silent) {
         println!("Logging File Name: {}", f.display());
     }

@@ -192,6 +192,9 @@ pub struct Config {
     pub file_log: LogOptions,
     /// `-I`: message names not to log.
     pub ignore: Vec<String>,
+    /// `-s`: silent running. The shell prints nothing; modules see it as the
+    /// terminal log's `quiet` field of `CENTRAL_TERMINAL_LOG_VAR`.
+    pub quiet: bool,
     /// Largest frame body (`classTotal + msgTotal`) accepted from a module;
     /// a larger header closes the connection with a log line.
     pub max_frame: u64,
@@ -215,6 +218,7 @@ impl Default for Config {
             },
             file_log: LogOptions::default(),
             ignore: Vec::new(),
+            quiet: false,
             max_frame: 256 << 20,
             max_queued_bytes: 64 << 20,
         }
@@ -790,7 +794,8 @@ impl Central {
                 .modules
                 .get(&c)
                 .and_then(|m| m.name.clone())
-                .unwrap_or_else(|| format!("<connection {}>", c.0)),
+                // A module not named yet (before its connect query).
+                .unwrap_or_else(|| "**NEWMOD**".to_string()),
         }
     }
 
@@ -1198,6 +1203,9 @@ impl Central {
                     m.ready = true;
                 }
                 self.reply(conn, h.msg_ref, out.as_bytes());
+                if logged {
+                    self.log_internal_reply(name, &org_name, h.class_id, out.as_bytes(), now);
+                }
                 self.process_pending(conn, now);
                 return Ok(());
             }
@@ -1328,6 +1336,10 @@ impl Central {
                     reason: "module sent x_ipc_CloseMsg".into(),
                 });
                 self.close_module(conn, false, now);
+                if logged {
+                    let t = log::time(&self.opts(), now);
+                    self.log_line(Kind::Message, format!("  Done    {name:>15}:{t}"));
+                }
                 return Ok(());
             }
             IgnoreLogging => {
@@ -1376,20 +1388,48 @@ impl Central {
             };
             self.reply(conn, h.msg_ref, &bytes);
             if logged {
-                let line = format!(
-                    "  Reply  {:>15}: {:>10} --> {:<15}{}",
-                    name,
-                    SERVER_NAME,
-                    org_name,
-                    log::time(&self.opts(), now)
-                );
-                self.log_line(Kind::Message, line);
+                // Named now if this was its connect query.
+                let to = self.module_name(Org::Module(conn));
+                self.log_internal_reply(name, &to, h.class_id, &bytes, now);
             }
         } else if logged {
             let t = log::time(&self.opts(), now);
             self.log_line(Kind::Message, format!("  Done    {name:>15}:{t}"));
         }
         Ok(())
+    }
+
+    /// `  Reply  <msg>: X_IPC Server --> <module>  <time>` and the reply's
+    /// data, decoded with the internal message's reply format.
+    fn log_internal_reply(
+        &mut self,
+        name: &str,
+        to: &str,
+        class_id: ClassId,
+        reply: &[u8],
+        now: SystemTime,
+    ) {
+        let line = format!(
+            "  Reply  {:>15}: {:>10} --> {:<15}{}",
+            name,
+            SERVER_NAME,
+            to,
+            log::time(&self.opts(), now)
+        );
+        self.log_line(Kind::Message, line);
+        if reply.is_empty() || !self.logs(Kind::Data, name) {
+            return;
+        }
+        let (_, rf) = self.parsed(name);
+        let order = class_id.data_order().unwrap_or(ByteOrder::NATIVE);
+        let text = match decode_user(&None, &rf, reply, order, &self.formats) {
+            Ok(Some(t)) => t,
+            Ok(None) => return,
+            Err(e) => format!("    <cannot decode the reply of {name}: {e}>"),
+        };
+        for line in text.trim_end_matches('\n').split('\n') {
+            self.log_line(Kind::Data, line.to_string());
+        }
     }
 
     fn msg_info(&mut self, conn: ConnId, msg: Option<&str>, hnd: Option<&str>, out: &mut Writer) {
@@ -2171,6 +2211,26 @@ impl Central {
         Ok(())
     }
 
+    /// Central setting a variable of its own accord (the broadcast list, a
+    /// direct handler list): the C central sends itself `V_set_<var>` and
+    /// logs it like a module's, around the broadcasts it causes.
+    fn set_var_by_central(&mut self, var: &str, bytes: Vec<u8>) {
+        let name = format!("V_set_{var}");
+        let logged = self.logs(Kind::Message, &name);
+        if logged {
+            let to = format!("{SERVER_NAME:<15} (Sent)");
+            let class = MsgClass::Inform as u16;
+            let line = self.dispatch_line(class, &name, None, SERVER_NAME, NO_REF, &to, self.clock);
+            self.log_line(Kind::Message, line);
+            self.log_data_as(&name, ClassId::native(MsgClass::Inform), &bytes, None, true);
+        }
+        self.set_var(var, bytes);
+        if logged {
+            let t = log::time(&self.opts(), self.clock);
+            self.log_line(Kind::Message, format!("  Done    {name:>15}:{t}"));
+        }
+    }
+
     fn set_var(&mut self, var: &str, bytes: Vec<u8>) {
         if let Some(v) = self.vars.get_mut(var) {
             v.value = bytes.clone();
@@ -2234,7 +2294,7 @@ impl Central {
             self.broadcast_msgs.retain(|n| n != name);
         }
         let v = self.str_list_value(&self.broadcast_msgs.clone(), self.broadcast_size);
-        self.set_var(internal::BROADCAST_MSG_VAR, v);
+        self.set_var_by_central(internal::BROADCAST_MSG_VAR, v);
     }
 
     fn clean_broadcast(&mut self) {
@@ -2257,17 +2317,21 @@ impl Central {
             if on {
                 w.write_i32(0);
             }
+            // The fields of the C central's LOG_TYPE after its FILE pointer:
+            // messages, status, time, data, summary, refId, parentId,
+            // quiet, flush, ignore, ignoreNow.
             for b in [
                 o.messages,
                 o.status,
                 o.time,
                 o.data,
-                o.ignore_internal,
                 o.handle_summary,
                 o.refs,
                 o.parent_refs,
+                !file && self.config.quiet,
                 !(file && o.no_flush),
-                true,
+                // A log that is off keeps C's default (ignore on).
+                o.ignore_internal || !on,
                 false,
             ] {
                 w.write_i32(b as i32);
@@ -2311,7 +2375,7 @@ impl Central {
         let list = self.direct_handlers(msg);
         let mut w = Writer::new();
         write_direct_list(&mut w, &list);
-        self.set_var(msg, w.into_vec());
+        self.set_var_by_central(msg, w.into_vec());
     }
 
     // ----- back-pressure ---------------------------------------------------------
