@@ -118,10 +118,25 @@ fn run(addr: &str, case: &Case) -> (f64, f64) {
     (per_op, bytes)
 }
 
+/// Reads exactly `buf.len()` bytes, polling a non-blocking socket without
+/// ever sleeping (a busy-polling central's way of waiting).
+fn spin_read(s: &mut TcpStream, buf: &mut [u8]) {
+    let mut got = 0;
+    while got < buf.len() {
+        match s.read(&mut buf[got..]) {
+            Ok(0) => panic!("relay floor: peer closed"),
+            Ok(n) => got += n,
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => std::hint::spin_loop(),
+            Err(e) => panic!("relay floor: {e}"),
+        }
+    }
+}
+
 /// The floor for any relaying central: A -> relay -> B -> relay -> A with
-/// 4-byte messages over loopback TCP and no protocol at all (three threads,
-/// blocking sockets). Returns seconds per round trip.
-fn relay_floor(count: usize) -> f64 {
+/// 4-byte messages over loopback TCP and no protocol at all (three threads;
+/// A and B block, the relay blocks too or, with `spin`, polls without
+/// sleeping as `central --busy-poll` does). Returns seconds per round trip.
+fn relay_floor(count: usize, spin: bool) -> f64 {
     use std::net::TcpListener;
     let l = TcpListener::bind("127.0.0.1:0").unwrap();
     let addr = l.local_addr().unwrap();
@@ -130,11 +145,20 @@ fn relay_floor(count: usize) -> f64 {
         let (mut b, _) = l.accept().unwrap();
         a.set_nodelay(true).unwrap();
         b.set_nodelay(true).unwrap();
+        a.set_nonblocking(spin).unwrap();
+        b.set_nonblocking(spin).unwrap();
         let mut buf = [0u8; 4];
+        let read = |s: &mut TcpStream, buf: &mut [u8; 4]| {
+            if spin {
+                spin_read(s, buf)
+            } else {
+                s.read_exact(buf).unwrap()
+            }
+        };
         for _ in 0..count {
-            a.read_exact(&mut buf).unwrap();
+            read(&mut a, &mut buf);
             b.write_all(&buf).unwrap();
-            b.read_exact(&mut buf).unwrap();
+            read(&mut b, &mut buf);
             a.write_all(&buf).unwrap();
         }
     });
@@ -244,12 +268,14 @@ fn main() {
         print!("---|");
     }
     println!();
-    let mut floors: Vec<f64> = (0..3).map(|_| relay_floor(5000 / q)).collect();
-    floors.sort_by(f64::total_cmp);
-    println!(
-        "| raw TCP relay floor (no protocol: A->relay->B->relay->A), 4 B | {:.1} µs |",
-        floors[1] * 1e6
-    );
+    for (spin, what) in [(false, "blocking"), (true, "busy-polling")] {
+        let mut floors: Vec<f64> = (0..3).map(|_| relay_floor(5000 / q, spin)).collect();
+        floors.sort_by(f64::total_cmp);
+        println!(
+            "| raw TCP relay floor, {what} relay (no protocol: A->relay->B->relay->A), 4 B | {:.1} µs |",
+            floors[1] * 1e6
+        );
+    }
     let only = std::env::var("BENCH_ONLY").unwrap_or_default();
     for case in cases.iter().filter(|c| c.name.contains(only.as_str())) {
         print!("| {} |", case.name);

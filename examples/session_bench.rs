@@ -701,11 +701,12 @@ mod processes {
             }
             Clients::C => {
                 let dir = s.c_rtt.as_ref().unwrap();
+                let size = s.size.to_string();
                 let (mut srv, mut cli) = if s.throughput {
                     // The publisher waits for the subscriber, which times
                     // from its first delivery to its last.
                     let mut p = Command::new(dir.join("tput_pub"));
-                    p.args([&count, &s.size.to_string()]);
+                    p.args([&count, &size]);
                     let mut t = Command::new(dir.join("tput_sub"));
                     t.arg(&count);
                     (p, t)
@@ -713,11 +714,11 @@ mod processes {
                     let mut b = Command::new(dir.join("prtt"));
                     b.arg("b");
                     let mut a = Command::new(dir.join("prtt"));
-                    a.args(["a", &count, "4"]);
+                    a.args(["a", &count, &size]);
                     (b, a)
                 } else {
                     let mut a = Command::new(dir.join("qrtt_client"));
-                    a.args([&count, "4"]);
+                    a.args([&count, &size]);
                     (Command::new(dir.join("qrtt_server")), a)
                 };
                 srv.env("CENTRALHOST", format!("{host}:{port}"));
