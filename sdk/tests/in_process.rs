@@ -5,7 +5,7 @@
 
 use std::time::Duration;
 
-use courier::{ConnectError, IpcMessage, RecvError, Session};
+use courier::{ConnectError, IpcMessage, RecvError, Session, Subscriber};
 use courier_broker::{CentralHandle, CentralServer, Config};
 use futures::StreamExt;
 
@@ -220,10 +220,9 @@ async fn an_in_process_module_links_directly_in_direct_mode() {
 /// Central stopping ends the in-process module as a dying central ends a
 /// socket module: subscribers end with `Disconnected`, a pending query
 /// fails at once; a later connect says central has stopped.
-#[tokio::test]
-async fn central_stopping_disconnects_in_process_modules() {
-    let c = central(false).await;
-    let a = in_process(&c, "a").await;
+/// `a` subscribed to `m` with a query of it pending when `c` stops: both
+/// end at once; the subscriber is returned for what the test checks next.
+async fn stop_under_a_subscriber_and_a_query(c: CentralHandle, a: &Session) -> Subscriber<i32> {
     a.define::<i32>("m").await.unwrap();
     let mut sub = a.subscribe::<i32>("m").await.unwrap();
     let q = {
@@ -231,11 +230,19 @@ async fn central_stopping_disconnects_in_process_modules() {
         tokio::spawn(async move { a.query::<i32, i32>("m", &1).timeout(T).await })
     };
     tokio::time::sleep(Duration::from_millis(100)).await;
-    // Longer than the test allows: a stopped central must not be retried.
-    let late = c.session("late").connect_timeout(Duration::from_secs(60));
     let started = std::time::Instant::now();
     c.shutdown().await;
     common::ended_by_central(&mut sub, q, started).await;
+    sub
+}
+
+#[tokio::test]
+async fn central_stopping_disconnects_in_process_modules() {
+    let c = central(false).await;
+    let a = in_process(&c, "a").await;
+    // Longer than the test allows: a stopped central must not be retried.
+    let late = c.session("late").connect_timeout(Duration::from_secs(60));
+    stop_under_a_subscriber_and_a_query(c, &a).await;
     let asked = std::time::Instant::now();
     match tokio::time::timeout(T, late.connect()).await.unwrap() {
         Err(e @ ConnectError::Unreachable { .. }) => {
@@ -266,16 +273,7 @@ async fn a_reconnecting_in_process_module_ends_with_its_stopped_central() {
     .await
     .unwrap()
     .unwrap();
-    a.define::<i32>("m").await.unwrap();
-    let mut sub = a.subscribe::<i32>("m").await.unwrap();
-    let q = {
-        let a = a.clone();
-        tokio::spawn(async move { a.query::<i32, i32>("m", &1).timeout(T).await })
-    };
-    tokio::time::sleep(Duration::from_millis(100)).await;
-    let started = std::time::Instant::now();
-    c.shutdown().await;
-    common::ended_by_central(&mut sub, q, started).await;
+    let mut sub = stop_under_a_subscriber_and_a_query(c, &a).await;
     // Retrying would leave the stream open (it stays open across reconnects).
     let end = tokio::time::timeout(T, async {
         while let Some(item) = sub.next().await {

@@ -898,14 +898,7 @@ pub fn decode_value_with<'f, 'g: 'f>(
     r: &mut Reader<'_>,
     resolve: &dyn Fn(&str) -> Option<&'g Format>,
 ) -> Result<Value, DecodeError> {
-    let shorten = |n: &str| -> Option<&'f Format> { resolve(n) };
-    Decoder {
-        ctx: Ctx::new(Some(&shorten)),
-        depth: 0,
-        zero_sized_budget: MAX_ZERO_SIZED_ELEMENTS,
-        kept_elements: usize::MAX,
-    }
-    .dec(fmt, r)
+    decode_value_prefix(fmt, r, resolve, usize::MAX)
 }
 
 struct Decoder<'r, 'f> {

@@ -821,8 +821,20 @@ impl Central {
         let name = reply_of.unwrap_or(msg).to_string();
         let (mf, rf) = self.parsed(&name);
         let (mf, rf) = if internal { (None, mf) } else { (mf, rf) };
+        self.log_decoded(&name, &mf, &rf, data, class_id);
+    }
+
+    /// The data lines of `data`, decoded as [`decode_user`] does.
+    fn log_decoded(
+        &mut self,
+        name: &str,
+        mf: &Option<Format>,
+        rf: &Option<Format>,
+        data: &[u8],
+        class_id: ClassId,
+    ) {
         let order = class_id.data_order().unwrap_or(ByteOrder::NATIVE);
-        let text = match decode_user(&mf, &rf, data, order, &self.formats) {
+        let text = match decode_user(mf, rf, data, order, &self.formats) {
             Ok(Some(t)) => t,
             Ok(None) => return,
             Err(e) => format!("    <cannot decode {name}: {e}>"),
@@ -1421,15 +1433,7 @@ impl Central {
             return;
         }
         let (_, rf) = self.parsed(name);
-        let order = class_id.data_order().unwrap_or(ByteOrder::NATIVE);
-        let text = match decode_user(&None, &rf, reply, order, &self.formats) {
-            Ok(Some(t)) => t,
-            Ok(None) => return,
-            Err(e) => format!("    <cannot decode the reply of {name}: {e}>"),
-        };
-        for line in text.trim_end_matches('\n').split('\n') {
-            self.log_line(Kind::Data, line.to_string());
-        }
+        self.log_decoded(name, &None, &rf, reply, class_id);
     }
 
     fn msg_info(&mut self, conn: ConnId, msg: Option<&str>, hnd: Option<&str>, out: &mut Writer) {
