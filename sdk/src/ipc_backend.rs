@@ -202,13 +202,13 @@ async fn open(host: &str, port: u16) -> std::io::Result<Box<dyn IpcStream>> {
     Ok(Box::new(s))
 }
 
-/// Opens a connection to central and completes the IPC handshake (with a
-/// direct-link listener when central runs with `-c`).
 /// A dial error that no retry can mend (see [`Dial`]).
 fn gone_for_good(opts: &IpcOptions, e: &std::io::Error) -> bool {
     opts.dial.is_some() && e.kind() == std::io::ErrorKind::NotConnected
 }
 
+/// Opens a connection to central and completes the IPC handshake (with a
+/// direct-link listener when central runs with `-c`).
 async fn handshake(
     host: &str,
     port: u16,

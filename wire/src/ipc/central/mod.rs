@@ -850,7 +850,6 @@ impl Central {
     /// formatter frames central speaks first (ipc.md §4).
     pub fn connect(&mut self, conn: ConnId, peer: Peer, now: SystemTime) {
         self.clock = now;
-        let _ = now;
         self.modules.insert(
             conn,
             Module {
