@@ -79,7 +79,6 @@ struct Options {
     bind: IpAddr,
     log_file: Option<PathBuf>,
     expected: u32,
-    silent: bool,
     console: bool,
     version: bool,
     help: bool,
@@ -98,7 +97,6 @@ impl Default for Options {
             bind: IpAddr::from([0, 0, 0, 0]),
             log_file: None,
             expected: 1,
-            silent: false,
             console: true,
             version: false,
             help: false,
@@ -255,7 +253,7 @@ fn parse_args(args: Vec<String>) -> Result<Options, String> {
             'h' => no_value(&mut o.help)?,
             'c' => no_value(&mut o.config.direct)?,
             'r' => no_value(&mut o.config.resend_on_reconnect)?,
-            's' => no_value(&mut o.silent)?,
+            's' => no_value(&mut o.config.quiet)?,
             'u' => {
                 let mut off = false;
                 no_value(&mut off)?;
@@ -440,7 +438,7 @@ fn main() -> ExitCode {
     code
 }
 
-async fn run(mut opts: Options) -> ExitCode {
+async fn run(opts: Options) -> ExitCode {
     // Signals first: from the moment central listens, SIGTERM and SIGINT
     // mean a clean stop.
     use tokio::signal::unix::{signal, SignalKind};
@@ -461,8 +459,7 @@ async fn run(mut opts: Options) -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    let silent = opts.silent;
-    opts.config.quiet = silent;
+    let silent = opts.config.quiet;
     if let (Some(f), false) = (&opts.log_file, silent) {
         println!("Logging File Name: {}", f.display());
     }
@@ -602,7 +599,7 @@ mod tests {
         assert!(!o.config.terminal_log.time);
         assert!(!o.config.file_log.any());
         assert_eq!(o.port, 1400);
-        assert!(o.config.direct && o.config.resend_on_reconnect && o.silent && !o.console);
+        assert!(o.config.direct && o.config.resend_on_reconnect && o.config.quiet && !o.console);
         assert_eq!(o.config.ignore, ["foo", "bar"]);
         assert_eq!(o.log_file, Some(PathBuf::from("x.log")));
         assert_eq!(o.expected, 3);
@@ -612,7 +609,7 @@ mod tests {
         assert!(!t.ignore_internal);
         let o = parse(&[]).unwrap();
         assert_eq!(o.port, 1381);
-        assert!(o.unix && o.console && !o.silent);
+        assert!(o.unix && o.console && !o.config.quiet);
         assert_eq!(o.allow, PathBuf::from("/etc/hosts.allow"));
         assert_eq!(o.deny, PathBuf::from("/etc/hosts.deny"));
         let t = o.config.terminal_log;

@@ -1348,8 +1348,7 @@ impl Central {
                 });
                 self.close_module(conn, false, now);
                 if logged {
-                    let t = log::time(&self.opts(), now);
-                    self.log_line(Kind::Message, format!("  Done    {name:>15}:{t}"));
+                    self.log_done(name, now);
                 }
                 return Ok(());
             }
@@ -1404,10 +1403,15 @@ impl Central {
                 self.log_internal_reply(name, &to, h.class_id, &bytes, now);
             }
         } else if logged {
-            let t = log::time(&self.opts(), now);
-            self.log_line(Kind::Message, format!("  Done    {name:>15}:{t}"));
+            self.log_done(name, now);
         }
         Ok(())
+    }
+
+    /// `  Done    <msg>:<time>`: an internal message handled.
+    fn log_done(&mut self, name: &str, now: SystemTime) {
+        let t = log::time(&self.opts(), now);
+        self.log_line(Kind::Message, format!("  Done    {name:>15}:{t}"));
     }
 
     /// `  Reply  <msg>: X_IPC Server --> <module>  <time>` and the reply's
@@ -2229,8 +2233,7 @@ impl Central {
         }
         self.set_var(var, bytes);
         if logged {
-            let t = log::time(&self.opts(), self.clock);
-            self.log_line(Kind::Message, format!("  Done    {name:>15}:{t}"));
+            self.log_done(&name, self.clock);
         }
     }
 
@@ -2669,11 +2672,12 @@ fn read_opt_str(r: &mut Reader<'_>) -> Result<Option<String>, Bad> {
     })
 }
 
-/// Decodes a message body for the data log: the wire body (`{int,
-/// <byte:1>}`, `[byte:N]` or the format itself) and then the user format.
 /// Array elements decoded for a data log line: more than its five lines
 /// of at most 80 columns can show (each element takes a character).
 const LOGGED_ELEMENTS: usize = 4096;
+
+/// Decodes a message body for the data log: the wire body (`{int,
+/// <byte:1>}`, `[byte:N]` or the format itself) and then the user format.
 
 fn decode_user(
     msg_format: &Option<Format>,

@@ -434,7 +434,6 @@ pub struct Connection {
     /// delivers to that id if it is subscribed again (`x_ipc_deregisterHnd`
     /// only unlinks it). Never given to another handler.
     retired: HashMap<(String, String), i32>,
-    retired_ids: HashSet<i32>,
     deliveries: VecDeque<PendingDelivery>,
     inbox: VecDeque<(Frame, Option<LinkId>)>,
     link_in: HashMap<LinkId, Vec<u8>>,
@@ -478,7 +477,6 @@ impl Connection {
             handlers: HashMap::new(),
             by_name: HashMap::new(),
             retired: HashMap::new(),
-            retired_ids: HashSet::new(),
             deliveries: VecDeque::new(),
             inbox: VecDeque::new(),
             link_in: HashMap::new(),
@@ -1345,13 +1343,13 @@ impl Connection {
             return *id;
         }
         let id = match self.retired.remove(&key) {
-            Some(id) => {
-                self.retired_ids.remove(&id);
-                id
-            }
+            Some(id) => id,
             None => {
                 let mut id = self.next_handler;
-                while self.handlers.contains_key(&id) || self.retired_ids.contains(&id) || id < 2 {
+                while self.handlers.contains_key(&id)
+                    || self.retired.values().any(|&r| r == id)
+                    || id < 2
+                {
                     id = if id < 2 { i32::MAX } else { id - 1 };
                 }
                 self.next_handler = id - 1;
@@ -1666,7 +1664,6 @@ impl Connection {
         if let Some(id) = self.by_name.remove(&key) {
             self.handlers.remove(&id);
             self.retired.insert(key, id);
-            self.retired_ids.insert(id);
         }
         self.push_op(Op::Deregister {
             msg: msg.into(),
