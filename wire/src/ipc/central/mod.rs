@@ -2678,7 +2678,6 @@ const LOGGED_ELEMENTS: usize = 4096;
 
 /// Decodes a message body for the data log: the wire body (`{int,
 /// <byte:1>}`, `[byte:N]` or the format itself) and then the user format.
-
 fn decode_user(
     msg_format: &Option<Format>,
     res_format: &Option<Format>,
