@@ -31,6 +31,13 @@ struct Sim {
     now: Instant,
     /// Most bytes ever held in module outboxes while paused (TCP buffers).
     next: u64,
+    /// Central reads a module's bytes this many at a time (a socket's
+    /// reads), instead of one frame at a time.
+    read_size: Option<usize>,
+    /// Every byte central wrote, by module, in order.
+    wire: HashMap<u64, Vec<u8>>,
+    /// The size of every write central made, by module.
+    writes: HashMap<u64, Vec<usize>>,
 }
 
 impl Sim {
@@ -45,6 +52,9 @@ impl Sim {
             wall: SystemTime::now(),
             now: Instant::now(),
             next: 1,
+            read_size: None,
+            wire: HashMap::new(),
+            writes: HashMap::new(),
         }
     }
 
@@ -112,8 +122,11 @@ impl Sim {
                         break;
                     };
                     moved = true;
-                    self.central.receive(ConnId(id), &b, self.wall);
-                    self.drain();
+                    let step = self.read_size.unwrap_or(b.len()).max(1);
+                    for piece in b.chunks(step) {
+                        self.central.receive(ConnId(id), piece, self.wall);
+                        self.drain();
+                    }
                 }
             }
             if self.drain() {
@@ -132,6 +145,11 @@ impl Sim {
             any = true;
             match o {
                 Output::Transmit { conn, bytes } => {
+                    self.wire
+                        .entry(conn.0)
+                        .or_default()
+                        .extend_from_slice(&bytes);
+                    self.writes.entry(conn.0).or_default().push(bytes.len());
                     if let Ok(h) = Header::decode(&bytes) {
                         self.sent.push((conn.0, h));
                     }
@@ -1041,4 +1059,287 @@ fn a_subscription_between_a_modules_var_read_and_its_watch_is_not_missed() {
     let d = sim.deliveries(a);
     assert_eq!(d.len(), 1, "{d:?}");
     assert_eq!(d[0].3, 5i32.to_le_bytes());
+}
+
+// ----- cut-through (Config::cut_through) --------------------------------------
+
+/// A module that asks a large query and one that answers it, with central
+/// reading 4 KiB at a time: returns the sim and both modules' ids.
+fn large_query_pair(cut_through: Option<usize>) -> (Sim, u64, u64) {
+    let mut config = Config::default();
+    config.cut_through = cut_through;
+    let mut sim = Sim::new(config);
+    sim.read_size = Some(4096);
+    let a = sim.connect("asker");
+    let b = sim.connect("answerer");
+    define(&mut sim, a, "ask", "{int, <ubyte:1>}");
+    define(&mut sim, a, "answer", "{int, <ubyte:1>}");
+    sim.m(b).subscribe("ask", "HND-ask").unwrap();
+    sim.pump();
+    // Both learn the messages' ids, so later frames go out at once.
+    sim.m(a).query("ask", &blob(1, 0), -1).unwrap();
+    sim.pump();
+    let d = sim.deliveries(b);
+    sim.m(b).respond(d[0].0, "answer", &blob(1, 0)).unwrap();
+    sim.pump();
+    sim.take_events(a);
+    (sim, a, b)
+}
+
+/// The frames module `id` has written, as one byte string.
+fn written(sim: &mut Sim, id: u64) -> Vec<u8> {
+    std::iter::from_fn(|| sim.m(id).poll_transmit())
+        .flatten()
+        .collect()
+}
+
+/// `rest` waits in `id`'s socket, ahead of anything it writes later, and
+/// central does not read it until `id` leaves `sim.paused`.
+fn hold_rest(sim: &mut Sim, id: u64, rest: &[u8]) {
+    sim.mods
+        .get_mut(&id)
+        .unwrap()
+        .outbox
+        .push_front(rest.to_vec());
+    sim.paused.insert(id);
+}
+
+/// The largest single write central made to `id` since write number `from`.
+fn largest_write(sim: &Sim, id: u64, from: usize) -> usize {
+    sim.writes[&id][from..].iter().copied().max().unwrap_or(0)
+}
+
+fn blob(n: usize, seed: u8) -> Vec<u8> {
+    let mut v = (n as i32).to_le_bytes().to_vec();
+    v.extend((0..n).map(|i| (i as u8).wrapping_mul(31).wrapping_add(seed)));
+    v
+}
+
+/// Runs `rounds` large queries and returns every byte central wrote to each
+/// of the two modules, and the replies' data.
+fn large_queries(cut_through: Option<usize>, rounds: usize) -> (Vec<u8>, Vec<u8>, Sim) {
+    let (mut sim, a, b) = large_query_pair(cut_through);
+    let start_a = sim.wire.get(&a).map_or(0, Vec::len);
+    let start_b = sim.wire.get(&b).map_or(0, Vec::len);
+    for r in 0..rounds {
+        let q = sim.m(a).query("ask", &blob(100_000, r as u8), -1).unwrap();
+        sim.pump();
+        let d = sim.deliveries(b);
+        assert_eq!(d.len(), 1, "round {r}");
+        assert_eq!(d[0].3, blob(100_000, r as u8), "the query arrives whole");
+        sim.m(b)
+            .respond(d[0].0, "answer", &blob(200_000, 100 + r as u8))
+            .unwrap();
+        sim.pump();
+        let ev = sim.take_events(a);
+        assert!(
+            ev.iter()
+                .any(|e| matches!(e, Event::Reply { query, data, .. }
+                if *query == q && data.ends_with(&blob(200_000, 100 + r as u8)[4..]))),
+            "round {r}: {ev:?}"
+        );
+    }
+    assert_eq!(
+        sim.central.stats().dispatches,
+        0,
+        "every dispatch completed"
+    );
+    let wa = sim.wire[&a][start_a..].to_vec();
+    let wb = sim.wire[&b][start_b..].to_vec();
+    (wa, wb, sim)
+}
+
+#[test]
+fn cut_through_sends_the_same_bytes_as_store_and_forward() {
+    let (a_whole, b_whole, whole) = large_queries(None, 3);
+    let (a_cut, b_cut, cut) = large_queries(Some(64 << 10), 3);
+    assert_eq!(a_cut, a_whole, "the asker's byte stream");
+    assert_eq!(b_cut, b_whole, "the answerer's byte stream");
+    // ... in pieces as they arrived (4 KiB reads), where store-and-forward
+    // writes each frame whole.
+    let (a, b) = (1, 2);
+    assert!(largest_write(&whole, b, 0) > 100_000);
+    assert!(largest_write(&whole, a, 0) > 200_000);
+    assert!(
+        largest_write(&cut, b, 0) <= 4096 + 64,
+        "{:?}",
+        cut.writes[&b]
+    );
+    assert!(
+        largest_write(&cut, a, 0) <= 4096 + 64,
+        "{:?}",
+        cut.writes[&a]
+    );
+    assert_eq!(
+        cut.central.stats().frames_in,
+        whole.central.stats().frames_in
+    );
+}
+
+#[test]
+fn cut_through_forwards_before_the_last_byte_arrives() {
+    let (mut sim, a, b) = large_query_pair(Some(64 << 10));
+    sim.m(a).query("ask", &blob(100_000, 1), -1).unwrap();
+    let frame = written(&mut sim, a);
+    let before = sim.wire[&b].len();
+    // All but the last byte: the answerer already has all but the last byte
+    // (the header is central's own; the module knows the message's name).
+    sim.central
+        .receive(ConnId(a), &frame[..frame.len() - 1], sim.wall);
+    sim.drain();
+    assert_eq!(sim.wire[&b].len() - before, frame.len() - 1);
+    assert!(sim.deliveries(b).is_empty(), "not complete yet");
+    sim.central
+        .receive(ConnId(a), &frame[frame.len() - 1..], sim.wall);
+    sim.drain();
+    sim.pump();
+    let d = sim.deliveries(b);
+    assert_eq!(d.len(), 1);
+    assert_eq!(d[0].3, blob(100_000, 1));
+}
+
+#[test]
+fn cut_through_holds_other_frames_until_the_relayed_one_is_complete() {
+    let (mut sim, a, b) = large_query_pair(Some(64 << 10));
+    sim.m(a).query("ask", &blob(100_000, 2), -1).unwrap();
+    let frame = written(&mut sim, a);
+    sim.central.receive(ConnId(a), &frame[..50_000], sim.wall);
+    sim.drain();
+    // The rest is in the asker's socket, not yet read.
+    hold_rest(&mut sim, a, &frame[50_000..]);
+    // The answerer asks central something while the query is half through:
+    // central's answer must not land inside the query's bytes.
+    let op = sim.m(b).is_module_connected("asker").unwrap();
+    let before = sim.wire[&b].len();
+    sim.pump();
+    assert_eq!(
+        sim.wire[&b].len(),
+        before,
+        "the answer waits for the query's end"
+    );
+    assert!(sim.take_events(b).is_empty());
+    sim.paused.remove(&a);
+    sim.pump();
+    let ev = sim.take_events(b);
+    let q = ev
+        .iter()
+        .position(|e| matches!(e, Event::Delivery { data, .. } if *data == blob(100_000, 2)));
+    let answer = ev.iter().position(|e| {
+        *e == Event::ModuleConnected {
+            op,
+            connected: true,
+        }
+    });
+    assert!(q.is_some() && answer.is_some(), "{ev:?}");
+}
+
+#[test]
+fn cut_through_sender_dying_midway_completes_the_frame_with_zeros() {
+    let (mut sim, a, b) = large_query_pair(Some(64 << 10));
+    sim.m(a).query("ask", &blob(100_000, 3), -1).unwrap();
+    let frame = written(&mut sim, a);
+    sim.central.receive(ConnId(a), &frame[..30_000], sim.wall);
+    sim.drain();
+    sim.close(a);
+    assert!(
+        sim.logs
+            .iter()
+            .any(|l| l.contains("ended in the middle of ask")
+                && l.contains("bytes forwarded); the rest went to")
+                && l.contains("answerer")),
+        "{:#?}",
+        sim.logs
+    );
+    let d = sim.deliveries(b);
+    assert_eq!(d.len(), 1, "the answerer's stream stays whole");
+    let body = &d[0].3;
+    assert_eq!(body.len(), 100_004);
+    assert!(body[body.len() - 1000..].iter().all(|&x| x == 0));
+    // Its answer goes nowhere, and central is fine for everyone else.
+    sim.m(b).respond(d[0].0, "answer", &blob(10, 0)).unwrap();
+    sim.pump();
+    assert_eq!(sim.central.stats().dispatches, 0);
+    let e = sim.connect("after");
+    define(&mut sim, e, "ask", "{int, <ubyte:1>}");
+    sim.m(e).query("ask", &blob(70_000, 4), -1).unwrap();
+    sim.pump();
+    let d = sim.deliveries(b);
+    assert_eq!(d.len(), 1);
+    assert_eq!(d[0].3, blob(70_000, 4));
+}
+
+#[test]
+fn cut_through_receiver_dying_midway_leaves_the_sender_in_step() {
+    let (mut sim, a, b) = large_query_pair(Some(64 << 10));
+    let b2 = sim.connect("answerer2");
+    sim.m(a).query("ask", &blob(100_000, 5), -1).unwrap();
+    let frame = written(&mut sim, a);
+    sim.central.receive(ConnId(a), &frame[..30_000], sim.wall);
+    sim.drain();
+    hold_rest(&mut sim, a, &frame[30_000..]);
+    sim.close(b);
+    sim.paused.remove(&a);
+    sim.pump();
+    // The sender's next frame is read as a frame, not as the rest of the body.
+    sim.m(b2).subscribe("ask", "HND-ask").unwrap();
+    sim.pump();
+    sim.m(a).query("ask", &blob(80_000, 6), -1).unwrap();
+    sim.pump();
+    let d = sim.deliveries(b2);
+    assert_eq!(d.len(), 1, "{:#?}", sim.logs);
+    assert_eq!(d[0].3, blob(80_000, 6));
+    assert!(sim.closes.is_empty(), "{:?}", sim.closes);
+}
+
+#[test]
+fn cut_through_waits_for_a_busy_receiver_and_skips_small_frames() {
+    let (mut sim, a, b) = large_query_pair(Some(64 << 10));
+    // Busy: the first query is being handled, the second must wait whole.
+    sim.m(a).query("ask", &blob(100, 7), -1).unwrap();
+    sim.pump();
+    let first = sim.deliveries(b);
+    assert_eq!(first.len(), 1);
+    let writes = sim.writes[&b].len();
+    sim.m(a).query("ask", &blob(100_000, 8), -1).unwrap();
+    sim.pump();
+    assert_eq!(
+        sim.writes[&b].len(),
+        writes,
+        "nothing forwarded to a busy handler"
+    );
+    sim.m(b).respond(first[0].0, "answer", &blob(1, 0)).unwrap();
+    sim.pump();
+    assert!(
+        largest_write(&sim, b, writes) > 100_000,
+        "stored, then sent in one piece"
+    );
+    let d = sim.deliveries(b);
+    assert_eq!(d[0].3, blob(100_000, 8));
+}
+
+#[test]
+fn cut_through_is_off_with_data_logging() {
+    let mut config = Config::default();
+    config.cut_through = Some(1024);
+    config.terminal_log = courier_wire::ipc::central::LogOptions::parse("md", false).unwrap();
+    let mut sim = Sim::new(config);
+    sim.read_size = Some(4096);
+    let a = sim.connect("asker");
+    let b = sim.connect("answerer");
+    define(&mut sim, a, "ask", "{int, <ubyte:1>}");
+    sim.m(b).subscribe("ask", "HND-ask").unwrap();
+    sim.pump();
+    let writes = sim.writes[&b].len();
+    sim.m(a).query("ask", &blob(50_000, 9), -1).unwrap();
+    sim.pump();
+    assert!(
+        largest_write(&sim, b, writes) > 50_000,
+        "the whole message, logged, then sent"
+    );
+    assert!(
+        sim.logs.iter().any(|l| l.contains("ask")),
+        "{:#?}",
+        sim.logs
+    );
+    assert_eq!(sim.deliveries(b)[0].3, blob(50_000, 9));
 }

@@ -70,6 +70,11 @@ const USAGE: &str = "central command line options:
  --no-unix-socket: do not listen on /tmp/x_ipc/<port>.
  --busy-poll <us>: after each frame keep polling for <us> microseconds
      (1..=1000000) instead of sleeping: lower latency for CPU (default off).
+ --cut-through <bytes>: forward a message or reply of at least <bytes>
+     (1..=2147483647) while it still arrives, when its receiver can take it
+     at once, instead of after its last byte (default off, as in C; not with
+     data logging or -r). If its sender dies in the middle, the receiver
+     gets the rest as zero bytes.
  --help, -h: this text.";
 
 #[derive(Debug)]
@@ -174,6 +179,20 @@ fn parse_args(args: Vec<String>) -> Result<Options, String> {
                             )
                         })?;
                     o.busy_poll = Some(std::time::Duration::from_micros(us));
+                }
+                "cut-through" => {
+                    let v = value(true)?;
+                    let n = v
+                        .parse::<u64>()
+                        .ok()
+                        .filter(|n| (1..=i32::MAX as u64).contains(n))
+                        .ok_or_else(|| {
+                            format!(
+                                "option --cut-through: '{v}' is not a number of bytes \
+                                 from 1 to 2147483647"
+                            )
+                        })?;
+                    o.config.cut_through = Some(n as usize);
                 }
                 "hosts-allow" => o.allow = value(true)?.into(),
                 "hosts-deny" => o.deny = value(true)?.into(),
@@ -637,9 +656,13 @@ mod tests {
             "/d",
             "--no-unix-socket",
             "--busy-poll=50",
+            "--cut-through",
+            "65536",
         ])
         .unwrap();
         assert_eq!(o.busy_poll, Some(std::time::Duration::from_micros(50)));
+        assert_eq!(o.config.cut_through, Some(65536));
+        assert_eq!(parse(&[]).unwrap().config.cut_through, None);
         assert_eq!(o.bind, IpAddr::from([127, 0, 0, 1]));
         assert_eq!(
             (o.allow.as_path(), o.deny.as_path()),
@@ -693,6 +716,15 @@ mod tests {
                 &["--busy-poll=2s"][..],
                 "option --busy-poll: '2s' is not a number of microseconds",
             ),
+            (
+                &["--cut-through", "0"][..],
+                "option --cut-through: '0' is not a number of bytes",
+            ),
+            (
+                &["--cut-through=1MiB"][..],
+                "option --cut-through: '1MiB' is not a number of bytes",
+            ),
+            (&["--cut-through"][..], "option --cut-through needs a value"),
             (
                 &["--no-unix-socket=yes"][..],
                 "option --no-unix-socket takes no value",

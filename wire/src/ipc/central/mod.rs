@@ -55,6 +55,11 @@
 //!   and prints nothing; `unlock` answers that IPC modules cannot lock.
 //! - The data log decodes internal messages with their own formats when
 //!   `-l` lacks `i` (C prints them the same way).
+//! - Cut-through ([`Config::cut_through`], off by default): a large message
+//!   whose handler can take it at once is forwarded while it still arrives
+//!   instead of after its last byte, as C does. If the sender dies in the
+//!   middle, the receiver's frame is completed with zero bytes (it already
+//!   has the start), and a warning names both modules.
 
 use std::time::SystemTime;
 
@@ -203,6 +208,15 @@ pub struct Config {
     /// ([`Output::PauseRead`]) until the queues drain: memory stays bounded
     /// and nothing is dropped (TCP back-pressure reaches the publisher).
     pub max_queued_bytes: usize,
+    /// Cut-through: a message or reply whose body is at least this many
+    /// bytes is forwarded while it still arrives, when its receiver can take
+    /// it at once (ready, below its capacity, nothing pending). A routed
+    /// round trip then moves each large message once instead of twice in a
+    /// row, and central holds no copy of it. `None` (the default, as in C):
+    /// every frame is stored whole before it is forwarded. Not used with
+    /// data logging or `-r` (both need the whole message), and see the
+    /// module docs for a sender that dies in the middle.
+    pub cut_through: Option<usize>,
 }
 
 impl Default for Config {
@@ -221,6 +235,7 @@ impl Default for Config {
             quiet: false,
             max_frame: 256 << 20,
             max_queued_bytes: 64 << 20,
+            cut_through: None,
         }
     }
 }
@@ -365,6 +380,26 @@ struct Module {
     vars_read: BTreeMap<String, u64>,
     paused: bool,
     closed: bool,
+    /// A frame from this module being forwarded while it arrives.
+    relay: Option<Relay>,
+    /// The module whose frame is being forwarded to this one: every other
+    /// frame for this module waits in `held` until that one is complete.
+    relay_from: Option<ConnId>,
+    held: Vec<Vec<u8>>,
+}
+
+/// A frame body passing through central as it arrives (cut-through).
+#[derive(Debug)]
+struct Relay {
+    /// Where the body goes.
+    to: ConnId,
+    /// Body bytes still to come from the sender.
+    remaining: usize,
+    /// Body bytes in all.
+    total: usize,
+    msg: String,
+    /// A reply: its bookkeeping (`on_reply`) is done once it has passed.
+    reply: Option<(Header, Option<String>)>,
 }
 
 #[derive(Debug)]
@@ -701,20 +736,41 @@ impl Central {
     // ----- output helpers --------------------------------------------------
 
     fn transmit(&mut self, conn: ConnId, bytes: Vec<u8>) {
+        let Some(m) = self.modules.get_mut(&conn) else {
+            return;
+        };
+        if m.closed {
+            return;
+        }
+        if m.relay_from.is_some() {
+            // Not in the middle of the frame being forwarded to it.
+            m.held.push(bytes);
+        } else {
+            self.outputs.push_back(Output::Transmit { conn, bytes });
+        }
+    }
+
+    /// Bytes of the frame being forwarded to `conn` (never held).
+    fn transmit_relayed(&mut self, conn: ConnId, bytes: Vec<u8>) {
         if self.modules.get(&conn).is_some_and(|m| !m.closed) {
             self.outputs.push_back(Output::Transmit { conn, bytes });
         }
     }
 
     fn frame(header: Header, class_data: &[u8], data: &[u8]) -> Vec<u8> {
-        let mut h = header;
-        h.class_total = class_data.len() as i32;
-        h.msg_total = data.len() as i32;
-        let mut out = Vec::with_capacity(HEADER_SIZE + class_data.len() + data.len());
-        out.extend_from_slice(&h.encode());
+        let mut out = Self::head(header, class_data.len(), data.len());
+        out.reserve_exact(class_data.len() + data.len());
         out.extend_from_slice(class_data);
         out.extend_from_slice(data);
         out
+    }
+
+    /// The encoded header of a frame with these lengths.
+    fn head(header: Header, class_len: usize, data_len: usize) -> Vec<u8> {
+        let mut h = header;
+        h.class_total = class_len as i32;
+        h.msg_total = data_len as i32;
+        h.encode().to_vec()
     }
 
     /// `centralReply`: parentRef 0, intent -4, class 0, dispatchRef 0.
@@ -870,6 +926,9 @@ impl Central {
                 vars_read: BTreeMap::new(),
                 paused: false,
                 closed: false,
+                relay: None,
+                relay_from: None,
+                held: Vec::new(),
             },
         );
         let id = self.msgs.get(internal::MSG_INFO).map_or(0, |m| m.id);
@@ -900,6 +959,10 @@ impl Central {
         if m.closed {
             return;
         }
+        let bytes = self.relay_bytes(conn, bytes);
+        let Some(m) = self.modules.get_mut(&conn) else {
+            return;
+        };
         m.rx.extend_from_slice(bytes);
         loop {
             let Some(m) = self.modules.get_mut(&conn) else {
@@ -921,6 +984,10 @@ impl Central {
                 Err(e) => return self.protocol_error(conn, e.to_string(), now),
             };
             if avail < HEADER_SIZE + n {
+                if self.try_relay(conn, header, n, now) {
+                    // Everything read so far belonged to the frame.
+                    break;
+                }
                 let m = self.modules.get_mut(&conn).unwrap();
                 m.rx.reserve(HEADER_SIZE + n - avail);
                 break;
@@ -948,6 +1015,239 @@ impl Central {
             }
         }
         self.check_memory(conn);
+    }
+
+    // ----- cut-through ---------------------------------------------------------
+
+    /// Passes the start of `bytes` on if a frame from `conn` is being
+    /// forwarded; returns what follows that frame.
+    fn relay_bytes<'a>(&mut self, conn: ConnId, bytes: &'a [u8]) -> &'a [u8] {
+        let Some(r) = self.modules.get_mut(&conn).and_then(|m| m.relay.as_mut()) else {
+            return bytes;
+        };
+        let k = r.remaining.min(bytes.len());
+        r.remaining -= k;
+        let (to, done) = (r.to, r.remaining == 0);
+        if k > 0 {
+            self.transmit_relayed(to, bytes[..k].to_vec());
+        }
+        if done {
+            self.finish_relay(conn);
+        }
+        &bytes[k..]
+    }
+
+    /// Starts forwarding the frame whose header (and class data) is at the
+    /// front of `conn`'s receive buffer, if [`Config::cut_through`] allows it
+    /// and its receiver can take it now. True if it did: the buffer's bytes
+    /// have gone out with the frame's new header.
+    fn try_relay(&mut self, conn: ConnId, h: Header, n: usize, now: SystemTime) -> bool {
+        let Some(min) = self.config.cut_through else {
+            return false;
+        };
+        let data_log = Kind::Data.enabled(&self.config.terminal_log)
+            || Kind::Data.enabled(&self.config.file_log);
+        if n < min || data_log || self.config.resend_on_reconnect {
+            return false;
+        }
+        let Some(m) = self.modules.get(&conn) else {
+            return false;
+        };
+        let c = h.class_total as usize;
+        let avail = m.rx.len() - m.rx_pos;
+        if m.relay.is_some() || avail < HEADER_SIZE + c {
+            return false;
+        }
+        if h.class_id.data_order().is_none() || h.class_id.class_order().is_none() {
+            // `process` closes the connection once the frame is whole.
+            return false;
+        }
+        let start = m.rx_pos + HEADER_SIZE;
+        let class_data = m.rx[start..start + c].to_vec();
+        let first = m.rx[start + c..].to_vec();
+        let total = n - c;
+        let class = h.class_id.class();
+        let started = match class {
+            11 => self.relay_reply(conn, h, &class_data, &first, total, now),
+            3 | 6 | 15 => self.relay_delivery(conn, h, &first, total, now),
+            _ => false,
+        };
+        if started {
+            let m = self.modules.get_mut(&conn).unwrap();
+            m.rx_pos = m.rx.len();
+            self.stats.frames_in += 1;
+        }
+        started
+    }
+
+    /// A receiver that can take a relayed frame now.
+    fn can_take_relay(&self, from: ConnId, to: ConnId) -> bool {
+        from != to
+            && self
+                .modules
+                .get(&to)
+                .is_some_and(|m| !m.closed && m.relay_from.is_none())
+    }
+
+    fn relay_delivery(
+        &mut self,
+        conn: ConnId,
+        h: Header,
+        first: &[u8],
+        total: usize,
+        now: SystemTime,
+    ) -> bool {
+        let class = h.class_id.class();
+        let Some(name) = h
+            .intent
+            .checked_abs()
+            .and_then(|id| self.by_id.get(&id))
+            .cloned()
+        else {
+            return false;
+        };
+        let Some(msg) = self.msgs.get(&name) else {
+            return false;
+        };
+        let hnd = match (class, msg.handlers.as_slice()) {
+            (_, _) if msg.internal.is_some() => return false,
+            (15, [only]) => only.clone(),
+            (3 | 6, [.., last]) => last.clone(),
+            _ => return false,
+        };
+        let Some(to) = self.modules.get(&hnd.0) else {
+            return false;
+        };
+        let free = to.ready
+            && to.attending < to.capacity
+            && to.pending.is_empty()
+            && to.handlers.contains_key(&hnd.1);
+        if !free || !self.can_take_relay(conn, hnd.0) {
+            return false;
+        }
+        let did = self.alloc_dispatch(Dispatch {
+            msg: name.clone(),
+            class,
+            class_id: h.class_id,
+            org: Org::Module(conn),
+            org_ref: h.msg_ref,
+            parent_ref: h.parent_ref,
+            // Never stored: it passes through.
+            data: Arc::from(&[][..]),
+            hnd: Some(hnd.clone()),
+            status: Status::NoHandler,
+        });
+        self.start_relay(conn, hnd.0, name, total - first.len(), total, None);
+        self.attend_as(did, false, now, Some((first, total)));
+        true
+    }
+
+    fn relay_reply(
+        &mut self,
+        conn: ConnId,
+        h: Header,
+        class_data: &[u8],
+        first: &[u8],
+        total: usize,
+        now: SystemTime,
+    ) -> bool {
+        let _ = now;
+        let did = h.dispatch_ref;
+        let Some(d) = self.dispatches.get(&did) else {
+            return false;
+        };
+        if d.status != Status::Attending || !d.hnd.as_ref().is_some_and(|(c, _)| *c == conn) {
+            return false;
+        }
+        let Org::Module(org) = d.org else {
+            return false;
+        };
+        if !self.can_take_relay(conn, org) {
+            return false;
+        }
+        let reply_name = if class_data.is_empty() {
+            None
+        } else {
+            let order = h.class_id.class_order().unwrap_or(ByteOrder::NATIVE);
+            match read_opt_str(&mut Reader::new(class_data, order)) {
+                Ok(n) => n,
+                // `on_reply` reports it once the frame is whole.
+                Err(_) => return false,
+            }
+        };
+        let msg = d.msg.clone();
+        let header = Self::reply_header(&h, did, d.org_ref);
+        let mut head = Self::head(header, class_data.len(), total);
+        head.extend_from_slice(class_data);
+        head.extend_from_slice(first);
+        let remaining = total - first.len();
+        self.start_relay(conn, org, msg, remaining, total, Some((h, reply_name)));
+        self.transmit_relayed(org, head);
+        true
+    }
+
+    fn start_relay(
+        &mut self,
+        from: ConnId,
+        to: ConnId,
+        msg: String,
+        remaining: usize,
+        total: usize,
+        reply: Option<(Header, Option<String>)>,
+    ) {
+        self.modules.get_mut(&to).unwrap().relay_from = Some(from);
+        self.modules.get_mut(&from).unwrap().relay = Some(Relay {
+            to,
+            remaining,
+            total,
+            msg,
+            reply,
+        });
+    }
+
+    /// The relayed frame from `conn` has passed: frames held for its
+    /// receiver go out, and a reply's bookkeeping is done.
+    fn finish_relay(&mut self, conn: ConnId) {
+        let Some(r) = self.modules.get_mut(&conn).and_then(|m| m.relay.take()) else {
+            return;
+        };
+        if let Some(to) = self.modules.get_mut(&r.to) {
+            to.relay_from = None;
+            let held = std::mem::take(&mut to.held);
+            for bytes in held {
+                self.transmit(r.to, bytes);
+            }
+        }
+        if let Some((h, reply_name)) = r.reply {
+            let now = self.clock;
+            self.reply_done(conn, h, reply_name, None, now);
+        }
+    }
+
+    /// The sender of a relayed frame is gone: its receiver already has the
+    /// start, so the frame is completed with zeros to keep the stream whole.
+    fn abandon_relay(&mut self, conn: ConnId) {
+        let Some(r) = self.modules.get(&conn).and_then(|m| m.relay.as_ref()) else {
+            return;
+        };
+        let (to, remaining, total, msg) = (r.to, r.remaining, r.total, r.msg.clone());
+        let from = self.describe(conn);
+        let dest = self.describe(to);
+        self.log_line(
+            Kind::Always,
+            format!(
+                "WARNING: connection {from} ended in the middle of {msg} ({} of {total} bytes \
+                 forwarded); the rest went to {dest} as zero bytes",
+                total - remaining
+            ),
+        );
+        if remaining > 0 {
+            self.transmit_relayed(to, vec![0; remaining]);
+        }
+        if let Some(r) = self.modules.get_mut(&conn).and_then(|m| m.relay.as_mut()) {
+            r.remaining = 0;
+        }
+        self.finish_relay(conn);
     }
 
     fn protocol_error(&mut self, conn: ConnId, why: String, now: SystemTime) {
@@ -1009,6 +1309,8 @@ impl Central {
         m.closed = true;
         let name = m.name.clone();
         let host = m.host.clone();
+        // A frame it was sending through: its receiver needs the rest.
+        self.abandon_relay(conn);
         if eof {
             // handleDataMsgRecv
             self.log_line(
@@ -1893,6 +2195,18 @@ impl Central {
     }
 
     fn attend(&mut self, did: i32, from_pending: bool, now: SystemTime) {
+        self.attend_as(did, from_pending, now, None)
+    }
+
+    /// `relayed`: the body's first bytes and its whole length, for a frame
+    /// forwarded while it arrives (the rest follows by [`Self::relay_bytes`]).
+    fn attend_as(
+        &mut self,
+        did: i32,
+        from_pending: bool,
+        now: SystemTime,
+        relayed: Option<(&[u8], usize)>,
+    ) {
         let Some(d) = self.dispatches.get_mut(&did) else {
             return;
         };
@@ -1937,8 +2251,18 @@ impl Central {
             msg_ref: did,
         };
         let dest = m.name.clone().unwrap_or_default();
-        let f = Self::frame(header, cd.as_bytes(), &data);
-        self.transmit(conn, f);
+        match relayed {
+            None => {
+                let f = Self::frame(header, cd.as_bytes(), &data);
+                self.transmit(conn, f);
+            }
+            Some((first, total)) => {
+                let mut f = Self::head(header, cd.as_bytes().len(), total);
+                f.extend_from_slice(cd.as_bytes());
+                f.extend_from_slice(first);
+                self.transmit_relayed(conn, f);
+            }
+        }
         if resume {
             // Its acknowledgements must be read.
             self.modules.get_mut(&conn).unwrap().paused = false;
@@ -2148,33 +2472,58 @@ impl Central {
             );
             return Ok(());
         }
-        let d = self.free_dispatch_id(did).unwrap();
         let reply_name = if class_data.is_empty() {
             None
         } else {
             let order = h.class_id.class_order().unwrap_or(ByteOrder::NATIVE);
             read_opt_str(&mut Reader::new(class_data, order))?
         };
+        let d = &self.dispatches[&did];
+        if let Org::Module(org) = d.org {
+            if self.modules.get(&org).is_some_and(|m| !m.closed) {
+                let header = Self::reply_header(&h, did, d.org_ref);
+                let f = Self::frame(header, class_data, &data);
+                self.transmit(org, f);
+            }
+        }
+        self.reply_done(conn, h, reply_name, Some(&data), now);
+        Ok(())
+    }
+
+    /// The header of a reply forwarded to the module that asked.
+    fn reply_header(h: &Header, did: i32, org_ref: i32) -> Header {
+        Header {
+            class_total: 0,
+            msg_total: 0,
+            parent_ref: h.parent_ref,
+            intent: QUERY_REPLY_INTENT,
+            class_id: h.class_id,
+            dispatch_ref: did,
+            msg_ref: org_ref,
+        }
+    }
+
+    /// What follows a reply once it has gone to the asking module: the
+    /// query is complete, its log lines, and the responder takes its next.
+    /// `data`: the reply's body, for the data log (`None` when it was
+    /// forwarded while it arrived, which data logging rules out).
+    fn reply_done(
+        &mut self,
+        conn: ConnId,
+        h: Header,
+        reply_name: Option<String>,
+        data: Option<&[u8]>,
+        now: SystemTime,
+    ) {
+        let did = h.dispatch_ref;
+        let Some(d) = self.free_dispatch_id(did) else {
+            return;
+        };
         let responder = self.module_name(Org::Module(conn));
         let org_alive = match d.org {
             Org::Module(c) => self.modules.get(&c).is_some_and(|m| !m.closed),
             Org::Central => false,
         };
-        if let Org::Module(org) = d.org {
-            if org_alive {
-                let header = Header {
-                    class_total: 0,
-                    msg_total: 0,
-                    parent_ref: h.parent_ref,
-                    intent: QUERY_REPLY_INTENT,
-                    class_id: h.class_id,
-                    dispatch_ref: did,
-                    msg_ref: d.org_ref,
-                };
-                let f = Self::frame(header, class_data, &data);
-                self.transmit(org, f);
-            }
-        }
         if self.logs(Kind::Message, &d.msg) {
             let o = self.opts();
             let line = format!(
@@ -2194,14 +2543,15 @@ impl Central {
                     format!("WARNING: Reply Ignored for dead module: {dead}"),
                 );
             }
-            let rn = reply_name.clone().unwrap_or(d.msg.clone());
-            self.log_data(&d.msg, h.class_id, &data, Some(&rn));
+            if let Some(data) = data {
+                let rn = reply_name.clone().unwrap_or(d.msg.clone());
+                self.log_data(&d.msg, h.class_id, data, Some(&rn));
+            }
         }
         if let Some(m) = self.modules.get_mut(&conn) {
             m.attending = m.attending.saturating_sub(1);
         }
         self.process_pending(conn, now);
-        Ok(())
     }
 
     // ----- variables ---------------------------------------------------------
