@@ -450,3 +450,58 @@ fn host_name_rules_are_checked_too() {
     wait_log(&logs, |l| l.ends_with("(denied by hosts.deny:1)"));
     block(&rt, central.shutdown());
 }
+
+/// Large queries and replies through a central that forwards them while
+/// they arrive (`Config::cut_through`), over real sockets: every byte
+/// arrives, in order, several rounds in a row.
+#[test]
+fn cut_through_relays_large_queries_and_replies_over_tcp() {
+    let rt = rt();
+    let mut config = Config::default();
+    config.cut_through = Some(64 << 10);
+    let central = start(&rt, local().config(config).log_sink(LogSink::discard()));
+    let addr = central.local_addr();
+    let blob = |n: usize, seed: u8| -> Vec<u8> {
+        let mut v = (n as i32).to_le_bytes().to_vec();
+        v.extend((0..n).map(|i| (i as u8).wrapping_mul(7).wrapping_add(seed)));
+        v
+    };
+    let mut b = Client::new(tcp(addr), "answerer");
+    for m in ["ask", "answer"] {
+        b.conn
+            .define_msg(m, MsgLength::Variable, Some("{int, <ubyte:1>}"))
+            .unwrap();
+    }
+    b.conn.subscribe("ask", "HND-ask").unwrap();
+    b.sync();
+    const ROUNDS: u8 = 4;
+    let server = std::thread::spawn(move || {
+        for r in 0..ROUNDS {
+            let e = b.until(|e| matches!(e, Event::Delivery { .. }));
+            let Event::Delivery { delivery, data, .. } = e else {
+                unreachable!()
+            };
+            assert_eq!(data, blob(1 << 20, r), "query {r}");
+            b.conn
+                .respond(delivery, "answer", &blob(2 << 20, 100 + r))
+                .unwrap();
+            b.settle();
+        }
+        b
+    });
+    let mut a = Client::new(tcp(addr), "asker");
+    for r in 0..ROUNDS {
+        let q = a.conn.query("ask", &blob(1 << 20, r), -1).unwrap();
+        a.flush();
+        let e = a.until(|e| matches!(e, Event::Reply { .. }));
+        let Event::Reply { query, data, .. } = e else {
+            unreachable!()
+        };
+        assert_eq!(query, q);
+        assert!(data.ends_with(&blob(2 << 20, 100 + r)[4..]), "reply {r}");
+    }
+    let _b = server.join().unwrap();
+    let stats = block(&rt, central.stats()).unwrap();
+    assert_eq!(stats.dispatches, 0);
+    block(&rt, central.shutdown());
+}
