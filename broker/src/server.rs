@@ -4,13 +4,15 @@
 use std::collections::HashMap;
 use std::io::{self, IoSlice, Write};
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
+use std::os::fd::{AsRawFd, OwnedFd, RawFd};
 use std::panic::AssertUnwindSafe;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, SystemTime};
 
-use tokio::io::AsyncReadExt;
+use tokio::io::unix::AsyncFd;
+use tokio::io::Interest;
 use tokio::net::{TcpListener, TcpStream, UnixListener, UnixStream};
 use tokio::sync::{mpsc, oneshot, watch, Notify};
 use tokio::task::{JoinHandle, JoinSet};
@@ -623,48 +625,128 @@ fn admit(decision: Decision, stream: Stream, peer: Peer, events: &mpsc::Unbounde
     }
 }
 
+/// A module's socket (TCP or UNIX), shared by its reader and writer.
+///
+/// Registered for read readiness only. tokio's stream types register read
+/// and write readiness together, and then every time a module reads what
+/// central wrote (freeing send-buffer space) the kernel wakes central for
+/// nothing: a wake-up per delivery, on whichever CPU central last ran,
+/// between every module and central. Write readiness is asked for only
+/// while a write waits for room ([`WriteHalf::writable`]).
+struct Sock {
+    fd: AsyncFd<OwnedFd>,
+    /// TCP (for [`quickack`]).
+    tcp: bool,
+}
+
+impl Sock {
+    fn new(fd: OwnedFd, tcp: bool) -> io::Result<Arc<Sock>> {
+        Ok(Arc::new(Sock {
+            fd: register(fd, Interest::READABLE)?,
+            tcp,
+        }))
+    }
+
+    fn raw(&self) -> RawFd {
+        self.fd.get_ref().as_raw_fd()
+    }
+
+    async fn read(&self, buf: &mut [u8]) -> io::Result<usize> {
+        loop {
+            let mut ready = self.fd.readable().await?;
+            // SAFETY: `buf` is valid for `buf.len()` bytes of writes and
+            // the descriptor stays open while `self` lives.
+            let n = unsafe { libc::recv(self.raw(), buf.as_mut_ptr().cast(), buf.len(), 0) };
+            if n < 0 {
+                let e = io::Error::last_os_error();
+                if e.kind() == io::ErrorKind::WouldBlock {
+                    ready.clear_ready();
+                    continue;
+                }
+                return Err(e);
+            }
+            let n = n as usize;
+            if n > 0 && n < buf.len() {
+                // A short read emptied the socket: wait for the next event
+                // instead of asking again and hearing EAGAIN (as tokio's
+                // own streams do). Data that came since raises a new one.
+                ready.clear_ready();
+            }
+            if self.tcp && n >= QUICKACK_MIN {
+                quickack(self.raw());
+            }
+            return Ok(n);
+        }
+    }
+
+    /// One non-blocking vectored write (`MSG_NOSIGNAL`: a peer that went
+    /// away is an error, not a signal).
+    fn try_write_vectored(&self, bufs: &[IoSlice<'_>]) -> io::Result<usize> {
+        // SAFETY: `IoSlice` is ABI-compatible with `iovec` on Unix, the
+        // slices outlive the call, and `msg` points only at them.
+        let n = unsafe {
+            let mut msg: libc::msghdr = std::mem::zeroed();
+            msg.msg_iov = bufs.as_ptr() as *mut libc::iovec;
+            msg.msg_iovlen = bufs.len() as _;
+            libc::sendmsg(self.raw(), &msg, libc::MSG_NOSIGNAL | libc::MSG_DONTWAIT)
+        };
+        if n < 0 {
+            Err(io::Error::last_os_error())
+        } else {
+            Ok(n as usize)
+        }
+    }
+
+    /// Waits until the socket has room, through a registration for write
+    /// readiness that lives only as long as the wait (on a duplicate of the
+    /// descriptor, since one descriptor has one registration). The kernel
+    /// reports readiness at registration, so room that appeared since the
+    /// last write is not missed.
+    async fn writable(&self) -> io::Result<()> {
+        let dup = self.fd.get_ref().try_clone()?;
+        let w = register(dup, Interest::WRITABLE)?;
+        let _ready = w.writable().await?;
+        Ok(())
+    }
+}
+
+fn register(fd: OwnedFd, interest: Interest) -> io::Result<AsyncFd<OwnedFd>> {
+    // SAFETY: the `AsyncFd` owns `fd`, which is open and names the same
+    // socket for as long as it lives.
+    unsafe { AsyncFd::register_with_interest(fd, interest) }.map_err(|e| e.into_parts().1)
+}
+
 /// Any kind of stream's write half.
 enum WriteHalf {
-    Tcp(tokio::net::tcp::OwnedWriteHalf),
-    Unix(tokio::net::unix::OwnedWriteHalf),
+    Sock(Arc<Sock>),
     InProcess(ServerWriter),
 }
 
 impl WriteHalf {
     fn try_write_vectored(&self, bufs: &[IoSlice<'_>]) -> io::Result<usize> {
         match self {
-            WriteHalf::Tcp(w) => w.try_write_vectored(bufs),
-            WriteHalf::Unix(w) => w.try_write_vectored(bufs),
+            WriteHalf::Sock(s) => s.try_write_vectored(bufs),
             WriteHalf::InProcess(w) => w.try_write_vectored(bufs),
         }
     }
 
     async fn writable(&self) -> io::Result<()> {
         match self {
-            WriteHalf::Tcp(w) => w.writable().await,
-            WriteHalf::Unix(w) => w.writable().await,
+            WriteHalf::Sock(s) => s.writable().await,
             WriteHalf::InProcess(w) => w.writable().await,
         }
     }
 }
 
 enum ReadHalf {
-    Tcp(tokio::net::tcp::OwnedReadHalf),
-    Unix(tokio::net::unix::OwnedReadHalf),
+    Sock(Arc<Sock>),
     InProcess(ServerReader),
 }
 
 impl ReadHalf {
     async fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
         match self {
-            ReadHalf::Tcp(r) => {
-                let n = r.read(buf).await?;
-                if n >= QUICKACK_MIN {
-                    quickack(r.as_ref());
-                }
-                Ok(n)
-            }
-            ReadHalf::Unix(r) => r.read(buf).await,
+            ReadHalf::Sock(s) => s.read(buf).await,
             ReadHalf::InProcess(r) => r.read(buf).await,
         }
     }
@@ -683,14 +765,13 @@ const QUICKACK_MIN: usize = 2048;
 /// `throughput1` sent 8 messages/s of 256 KiB through central instead of
 /// ~2 500). Linux clears the flag again by itself, so it is set after every
 /// read of [`QUICKACK_MIN`] bytes or more (one cheap syscall).
-fn quickack(s: &TcpStream) {
-    use std::os::fd::AsRawFd;
+fn quickack(fd: RawFd) {
     let one: libc::c_int = 1;
-    // SAFETY: `s` owns a valid socket descriptor for the duration of the
-    // call, and the option value is a correctly sized `c_int`.
+    // SAFETY: the caller's socket stays open for the duration of the call,
+    // and the option value is a correctly sized `c_int`.
     let _ = unsafe {
         libc::setsockopt(
-            s.as_raw_fd(),
+            fd,
             libc::IPPROTO_TCP,
             libc::TCP_QUICKACK,
             &one as *const libc::c_int as *const libc::c_void,
@@ -987,20 +1068,38 @@ impl Core {
     fn accepted(&mut self, stream: Stream, peer: Peer, now: SystemTime) {
         let conn = ConnId(self.next_id);
         self.next_id += 1;
-        let (r, w) = match stream {
-            Stream::Tcp(s) => {
-                let (r, w) = s.into_split();
-                (ReadHalf::Tcp(r), WriteHalf::Tcp(w))
+        let fd = match stream {
+            Stream::Tcp(s) => s.into_std().map(|s| (OwnedFd::from(s), true)),
+            Stream::Unix(s) => s.into_std().map(|s| (OwnedFd::from(s), false)),
+            Stream::InProcess(e) => {
+                return self.serve(
+                    conn,
+                    ReadHalf::InProcess(e.reader),
+                    WriteHalf::InProcess(e.writer),
+                    peer,
+                    now,
+                );
             }
-            Stream::Unix(s) => {
-                let (r, w) = s.into_split();
-                (ReadHalf::Unix(r), WriteHalf::Unix(w))
-            }
-            Stream::InProcess(e) => (
-                ReadHalf::InProcess(e.reader),
-                WriteHalf::InProcess(e.writer),
-            ),
         };
+        match fd.and_then(|(fd, tcp)| Sock::new(fd, tcp)) {
+            Ok(sock) => self.serve(
+                conn,
+                ReadHalf::Sock(sock.clone()),
+                WriteHalf::Sock(sock),
+                peer,
+                now,
+            ),
+            Err(e) => {
+                let line = format!("WARNING: cannot serve a new connection: {e}");
+                tracing::warn!("{line}");
+                self.log(&line);
+            }
+        }
+    }
+
+    /// Starts the reader and writer tasks of an accepted connection and
+    /// hands it to the state machine.
+    fn serve(&mut self, conn: ConnId, r: ReadHalf, w: WriteHalf, peer: Peer, now: SystemTime) {
         let side = Arc::new(WriteSide {
             half: w,
             queued: AtomicUsize::new(0),
