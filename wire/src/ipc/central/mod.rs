@@ -1156,7 +1156,9 @@ impl Central {
         let Some(d) = self.dispatches.get(&did) else {
             return false;
         };
-        if d.status != Status::Attending || !d.hnd.as_ref().is_some_and(|(c, _)| *c == conn) {
+        let attending_here =
+            d.status == Status::Attending && d.hnd.as_ref().is_some_and(|(c, _)| *c == conn);
+        if !attending_here {
             return false;
         }
         let Org::Module(org) = d.org else {
