@@ -13,7 +13,7 @@
 //! As separate processes, each a current-thread runtime (z_ping/z_pong):
 //!
 //! ```text
-//! session-bench pong --url ipc://127.0.0.1:1381 [--busy-poll <us>] [--embed]
+//! session-bench pong --url ipc://127.0.0.1:1381 [--busy-poll <us>] [--embed] [--cut-through <bytes>]
 //! session-bench ping --url ipc://127.0.0.1:1381 [--busy-poll <us>] [--embed] [--publish] [--size 4] [--count 20000]
 //! ```
 //! With `--embed` the role hosts central itself, on the URL's port (and
@@ -38,8 +38,10 @@
 //! ```text
 //! session-bench processes [--central PATH] [--c-central PATH] [--c-rtt DIR]
 //!                         [--publish | --throughput] [--size S] [--count N]
-//!                         [--reps R] [--busy-poll US]
+//!                         [--reps R] [--busy-poll US] [--cut-through BYTES]
 //! ```
+//! `--cut-through` starts Courier's centrals (and the hosted one) with
+//! `--cut-through BYTES`.
 //! The C measuring programs in `--c-rtt DIR` are built outside the
 //! repository against the C library: `qrtt_server` / `qrtt_client COUNT
 //! SIZE` (query round trips on `rtt_ask`), `prtt b` / `prtt a COUNT SIZE`
@@ -230,6 +232,8 @@ struct RoleOpts {
     /// Host central in this process, on the URL's port, and reach it over
     /// an in-process link (`CentralHandle::session`).
     embed: bool,
+    /// The embedded central's `Config::cut_through`.
+    cut_through: Option<usize>,
 }
 
 /// The role's session, and the central it hosts with `--embed` (dropping
@@ -237,9 +241,12 @@ struct RoleOpts {
 async fn role_session(url: &str, name: &str, o: RoleOpts) -> (Session, Option<CentralHandle>) {
     let (mut b, central) = if o.embed {
         let (_, port) = courier::ipc_backend::parse_url(url).expect("an ipc:// URL");
+        let mut config = Config::default();
+        config.cut_through = o.cut_through;
         let mut c = CentralServer::builder()
             .bind([127, 0, 0, 1].into())
             .port(port)
+            .config(config)
             .log_sink(courier_broker::LogSink::discard());
         if let Some(w) = o.spin {
             c = c.busy_poll(w);
@@ -377,6 +384,7 @@ fn role(role: &str, mut args: impl Iterator<Item = String>) {
     let mut url = String::from("ipc://127.0.0.1:1381");
     let mut spin = None;
     let mut embed = false;
+    let mut cut_through = None;
     let mut publish = false;
     let mut throughput = false;
     let mut size = 4usize;
@@ -395,6 +403,7 @@ fn role(role: &str, mut args: impl Iterator<Item = String>) {
             "--url" => url = args.next().unwrap_or_default(),
             "--busy-poll" => spin = Some(Duration::from_micros(num(&a, args.next()))),
             "--embed" => embed = true,
+            "--cut-through" => cut_through = Some(num(&a, args.next()) as usize),
             "--publish" if role == "ping" => publish = true,
             "--throughput" if role == "ping" => throughput = true,
             "--size" if role == "ping" => size = num(&a, args.next()) as usize,
@@ -413,7 +422,11 @@ fn role(role: &str, mut args: impl Iterator<Item = String>) {
     // polls its I/O driver once more (`epoll_wait(.., 0)`) before it
     // resumes a woken `block_on` future, but runs a woken task at once.
     let role = role.to_string();
-    let o = RoleOpts { spin, embed };
+    let o = RoleOpts {
+        spin,
+        embed,
+        cut_through,
+    };
     rt.block_on(async move {
         tokio::spawn(async move {
             match role.as_str() {
@@ -456,7 +469,7 @@ async fn tables(mut args: impl Iterator<Item = String>) {
             "-h" | "--help" => {
                 println!(
                     "usage: session-bench [--url ipc://H:P] [--direct-url ipc://H:P] [--quick]\n\
-                     \x20      session-bench pong [--url ipc://H:P] [--busy-poll US] [--embed]\n\
+                     \x20      session-bench pong [--url ipc://H:P] [--busy-poll US] [--embed] [--cut-through BYTES]\n\
                      \x20      session-bench ping [--url ipc://H:P] [--busy-poll US] [--embed] [--publish] [--size S] [--count N]"
                 );
                 return;
@@ -605,6 +618,8 @@ mod processes {
         size: usize,
         count: usize,
         spin_us: u64,
+        /// `--cut-through` for Courier's centrals.
+        cut_through: Option<usize>,
     }
 
     fn start_central(s: &Setup, which: Centrals, port: u16) -> Option<Proc> {
@@ -621,6 +636,9 @@ mod processes {
         }
         if spin {
             cmd.arg(format!("--busy-poll={}", s.spin_us));
+        }
+        if let (Some(n), true) = (s.cut_through, which != Centrals::C) {
+            cmd.arg(format!("--cut-through={n}"));
         }
         let child = cmd
             .stdin(Stdio::null())
@@ -681,6 +699,9 @@ mod processes {
                 if central == Centrals::Hosted {
                     let url = format!("ipc://127.0.0.1:{port}");
                     pong.args(["pong", "--url", &url, "--embed"]);
+                    if let Some(n) = s.cut_through {
+                        pong.args(["--cut-through", &n.to_string()]);
+                    }
                 } else {
                     pong.args(["pong", "--url", &url]);
                 }
@@ -794,11 +815,12 @@ mod processes {
             size: 4,
             count: 5000,
             spin_us: 200,
+            cut_through: None,
         };
         let mut reps = 5usize;
         let usage = "usage: session-bench processes [--central PATH] [--c-central PATH] \
                      [--c-rtt DIR] [--publish | --throughput] [--size S] [--count N] \
-                     [--reps R] [--busy-poll US]";
+                     [--reps R] [--busy-poll US] [--cut-through BYTES]";
         let num = |v: Option<String>| -> usize {
             match v.as_deref().map(str::parse::<usize>) {
                 Some(Ok(n)) if n > 0 => n,
@@ -819,6 +841,7 @@ mod processes {
                 "--count" => s.count = num(args.next()),
                 "--reps" => reps = num(args.next()),
                 "--busy-poll" => s.spin_us = num(args.next()) as u64,
+                "--cut-through" => s.cut_through = Some(num(args.next())),
                 "-h" | "--help" => {
                     println!("{usage}");
                     return;
@@ -858,8 +881,12 @@ mod processes {
         } else {
             "query->reply round trip"
         };
+        let cut = s
+            .cut_through
+            .map(|n| format!("; Courier's centrals with --cut-through {n}"))
+            .unwrap_or_default();
         println!(
-            "{what}, {} B, separate processes, unpinned; median of {reps} runs of {} messages each\n",
+            "{what}, {} B, separate processes, unpinned; median of {reps} runs of {} messages each{cut}\n",
             s.size, s.count
         );
         let name_c = |c: Centrals| match c {

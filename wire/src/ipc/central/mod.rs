@@ -214,8 +214,12 @@ pub struct Config {
     /// round trip then moves each large message once instead of twice in a
     /// row, and central holds no copy of it. `None` (the default, as in C):
     /// every frame is stored whole before it is forwarded. Not used with
-    /// data logging or `-r` (both need the whole message), and see the
-    /// module docs for a sender that dies in the middle.
+    /// data logging or `-r` (both need the whole message). The receiver's
+    /// stream follows the sender's: while a sender is slow in the middle of
+    /// a relayed message, central's other frames for that receiver wait
+    /// behind it, and a sender that dies in the middle leaves the receiver
+    /// a frame completed with zero bytes (logged). Use it between modules
+    /// that are trusted to send whole messages.
     pub cut_through: Option<usize>,
 }
 
