@@ -1093,6 +1093,24 @@ fn written(sim: &mut Sim, id: u64) -> Vec<u8> {
         .collect()
 }
 
+/// `a` asks a 100 kB query (`blob(100_000, seed)`) of which central has
+/// read the first `upto` bytes; returns the rest of its bytes.
+fn half_sent_query(sim: &mut Sim, a: u64, seed: u8, upto: usize) -> Vec<u8> {
+    sim.m(a).query("ask", &blob(100_000, seed), -1).unwrap();
+    let frame = written(sim, a);
+    sim.central.receive(ConnId(a), &frame[..upto], sim.wall);
+    sim.drain();
+    frame[upto..].to_vec()
+}
+
+/// The one delivery `id` has received: its id and data.
+fn only_delivery(sim: &mut Sim, id: u64) -> (u64, Vec<u8>) {
+    let mut d = sim.deliveries(id);
+    assert_eq!(d.len(), 1, "{d:?}");
+    let (delivery, _, _, data) = d.remove(0);
+    (delivery, data)
+}
+
 /// `rest` waits in `id`'s socket, ahead of anything it writes later, and
 /// central does not read it until `id` leaves `sim.paused`.
 fn hold_rest(sim: &mut Sim, id: u64, rest: &[u8]) {
@@ -1124,11 +1142,10 @@ fn large_queries(cut_through: Option<usize>, rounds: usize) -> (Vec<u8>, Vec<u8>
     for r in 0..rounds {
         let q = sim.m(a).query("ask", &blob(100_000, r as u8), -1).unwrap();
         sim.pump();
-        let d = sim.deliveries(b);
-        assert_eq!(d.len(), 1, "round {r}");
-        assert_eq!(d[0].3, blob(100_000, r as u8), "the query arrives whole");
+        let (delivery, data) = only_delivery(&mut sim, b);
+        assert_eq!(data, blob(100_000, r as u8), "the query arrives whole");
         sim.m(b)
-            .respond(d[0].0, "answer", &blob(200_000, 100 + r as u8))
+            .respond(delivery, "answer", &blob(200_000, 100 + r as u8))
             .unwrap();
         sim.pump();
         let ev = sim.take_events(a);
@@ -1193,20 +1210,15 @@ fn cut_through_forwards_before_the_last_byte_arrives() {
         .receive(ConnId(a), &frame[frame.len() - 1..], sim.wall);
     sim.drain();
     sim.pump();
-    let d = sim.deliveries(b);
-    assert_eq!(d.len(), 1);
-    assert_eq!(d[0].3, blob(100_000, 1));
+    assert_eq!(only_delivery(&mut sim, b).1, blob(100_000, 1));
 }
 
 #[test]
 fn cut_through_holds_other_frames_until_the_relayed_one_is_complete() {
     let (mut sim, a, b) = large_query_pair(Some(64 << 10));
-    sim.m(a).query("ask", &blob(100_000, 2), -1).unwrap();
-    let frame = written(&mut sim, a);
-    sim.central.receive(ConnId(a), &frame[..50_000], sim.wall);
-    sim.drain();
+    let rest = half_sent_query(&mut sim, a, 2, 50_000);
     // The rest is in the asker's socket, not yet read.
-    hold_rest(&mut sim, a, &frame[50_000..]);
+    hold_rest(&mut sim, a, &rest);
     // The answerer asks central something while the query is half through:
     // central's answer must not land inside the query's bytes.
     let op = sim.m(b).is_module_connected("asker").unwrap();
@@ -1236,10 +1248,8 @@ fn cut_through_holds_other_frames_until_the_relayed_one_is_complete() {
 #[test]
 fn cut_through_sender_dying_midway_completes_the_frame_with_zeros() {
     let (mut sim, a, b) = large_query_pair(Some(64 << 10));
-    sim.m(a).query("ask", &blob(100_000, 3), -1).unwrap();
-    let frame = written(&mut sim, a);
-    sim.central.receive(ConnId(a), &frame[..30_000], sim.wall);
-    sim.drain();
+    // The asker dies with the rest of its query unsent.
+    half_sent_query(&mut sim, a, 3, 30_000);
     sim.close(a);
     assert!(
         sim.logs
@@ -1250,33 +1260,27 @@ fn cut_through_sender_dying_midway_completes_the_frame_with_zeros() {
         "{:#?}",
         sim.logs
     );
-    let d = sim.deliveries(b);
-    assert_eq!(d.len(), 1, "the answerer's stream stays whole");
-    let body = &d[0].3;
+    // The answerer's stream stays whole: one delivery, its tail zeros.
+    let (delivery, body) = only_delivery(&mut sim, b);
     assert_eq!(body.len(), 100_004);
     assert!(body[body.len() - 1000..].iter().all(|&x| x == 0));
     // Its answer goes nowhere, and central is fine for everyone else.
-    sim.m(b).respond(d[0].0, "answer", &blob(10, 0)).unwrap();
+    sim.m(b).respond(delivery, "answer", &blob(10, 0)).unwrap();
     sim.pump();
     assert_eq!(sim.central.stats().dispatches, 0);
     let e = sim.connect("after");
     define(&mut sim, e, "ask", "{int, <ubyte:1>}");
     sim.m(e).query("ask", &blob(70_000, 4), -1).unwrap();
     sim.pump();
-    let d = sim.deliveries(b);
-    assert_eq!(d.len(), 1);
-    assert_eq!(d[0].3, blob(70_000, 4));
+    assert_eq!(only_delivery(&mut sim, b).1, blob(70_000, 4));
 }
 
 #[test]
 fn cut_through_receiver_dying_midway_leaves_the_sender_in_step() {
     let (mut sim, a, b) = large_query_pair(Some(64 << 10));
     let b2 = sim.connect("answerer2");
-    sim.m(a).query("ask", &blob(100_000, 5), -1).unwrap();
-    let frame = written(&mut sim, a);
-    sim.central.receive(ConnId(a), &frame[..30_000], sim.wall);
-    sim.drain();
-    hold_rest(&mut sim, a, &frame[30_000..]);
+    let rest = half_sent_query(&mut sim, a, 5, 30_000);
+    hold_rest(&mut sim, a, &rest);
     sim.close(b);
     sim.paused.remove(&a);
     sim.pump();
@@ -1285,9 +1289,7 @@ fn cut_through_receiver_dying_midway_leaves_the_sender_in_step() {
     sim.pump();
     sim.m(a).query("ask", &blob(80_000, 6), -1).unwrap();
     sim.pump();
-    let d = sim.deliveries(b2);
-    assert_eq!(d.len(), 1, "{:#?}", sim.logs);
-    assert_eq!(d[0].3, blob(80_000, 6));
+    assert_eq!(only_delivery(&mut sim, b2).1, blob(80_000, 6));
     assert!(sim.closes.is_empty(), "{:?}", sim.closes);
 }
 
@@ -1313,8 +1315,7 @@ fn cut_through_waits_for_a_busy_receiver_and_skips_small_frames() {
         largest_write(&sim, b, writes) > 100_000,
         "stored, then sent in one piece"
     );
-    let d = sim.deliveries(b);
-    assert_eq!(d[0].3, blob(100_000, 8));
+    assert_eq!(only_delivery(&mut sim, b).1, blob(100_000, 8));
 }
 
 #[test]
