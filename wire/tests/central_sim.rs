@@ -1103,6 +1103,13 @@ fn half_sent_query(sim: &mut Sim, a: u64, seed: u8, upto: usize) -> Vec<u8> {
     frame[upto..].to_vec()
 }
 
+/// `{int, <ubyte:1>}` data holding `payload`.
+fn blob_of(payload: &[u8]) -> Vec<u8> {
+    let mut v = (payload.len() as i32).to_le_bytes().to_vec();
+    v.extend_from_slice(payload);
+    v
+}
+
 /// The one delivery `id` has received: its id and data.
 fn only_delivery(sim: &mut Sim, id: u64) -> (u64, Vec<u8>) {
     let mut d = sim.deliveries(id);
@@ -1343,4 +1350,97 @@ fn cut_through_is_off_with_data_logging() {
         sim.logs
     );
     assert_eq!(sim.deliveries(b)[0].3, blob(50_000, 9));
+}
+
+/// Hostile senders against a cut-through central: frames aimed at a real
+/// handler with random classes, lengths, dispatch refs and bodies, read in
+/// random pieces, the sender vanishing at random points. Central must not
+/// panic, and the handler's stream must stay whole: it keeps parsing,
+/// stays connected, and can finish every delivery it is given.
+#[test]
+fn cut_through_survives_hostile_senders() {
+    let (mut sim, a, b) = large_query_pair(Some(16));
+    let ask = sim.central.message_id("ask").expect("ask is registered");
+    let mut x: u64 = 0x2545_f491_4f6c_dd1d;
+    let mut rnd = move |n: u64| {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        x % n
+    };
+    const HEADER: usize = 28;
+    let mut relayed = 0;
+    for round in 0..300u64 {
+        let hostile = ConnId(1000 + round);
+        sim.central
+            .connect(hostile, Peer::Other("hostile".into()), sim.wall);
+        let class = [3u16, 6, 11, 15, 12, 7][rnd(6) as usize];
+        let class_total = rnd(9) as usize;
+        // A body the handler can read (as the asker's module marshals
+        // it), of random bytes: what is tested is the stream, not the content.
+        let n = rnd(6000) as usize;
+        let payload: Vec<u8> = (0..n).map(|_| rnd(256) as u8).collect();
+        sim.m(a).publish("ask", &blob_of(&payload), -1).unwrap();
+        let real = written(&mut sim, a);
+        let real_h = Header::decode(&real).unwrap();
+        let body = real[HEADER + real_h.class_total as usize..].to_vec();
+        let h = Header {
+            class_total: class_total as i32,
+            msg_total: body.len() as i32,
+            parent_ref: -1,
+            intent: if rnd(4) == 0 { rnd(300) as i32 } else { ask },
+            class_id: ClassId((ClassId::native(MsgClass::Unknown).0 & 0xffff_0000) | class as u32),
+            dispatch_ref: rnd(8) as i32 - 1,
+            msg_ref: 1,
+        };
+        let mut bytes = h.encode().to_vec();
+        bytes.extend((0..class_total).map(|_| rnd(256) as u8));
+        bytes.extend_from_slice(&body);
+        // Sometimes the sender dies before the end (after the body's count:
+        // zeros then complete an array, which the format can still read).
+        let sent = if rnd(3) == 0 {
+            let from = HEADER + class_total + 8;
+            from + rnd((bytes.len() - from) as u64) as usize
+        } else {
+            bytes.len()
+        };
+        let mut at = 0;
+        while at < sent {
+            let k = (1 + rnd(700) as usize).min(sent - at);
+            sim.central.receive(hostile, &bytes[at..at + k], sim.wall);
+            sim.drain();
+            at += k;
+        }
+        sim.central.disconnect(hostile, sim.wall);
+        sim.drain();
+        sim.pump();
+        // The handler finishes what it was given, whatever its content.
+        for (delivery, _, kind, _) in sim.deliveries(b) {
+            match kind {
+                DeliveryKind::Query => sim.m(b).respond(delivery, "answer", &blob(1, 0)).unwrap(),
+                DeliveryKind::Broadcast => sim.m(b).ack(delivery).unwrap(),
+            }
+        }
+        sim.pump();
+        if !sim.m(b).is_connected() {
+            let ev = sim.take_events(b);
+            panic!("round {round}: {:#?} {ev:?}", sim.logs);
+        }
+        relayed += sim
+            .logs
+            .iter()
+            .filter(|l| l.contains("as zero bytes"))
+            .count();
+        sim.logs.clear();
+    }
+    assert!(
+        relayed > 10,
+        "senders died in the middle of relays: {relayed}"
+    );
+    // And still serves real traffic, whole.
+    sim.m(a).query("ask", &blob(100_000, 42), -1).unwrap();
+    sim.pump();
+    assert_eq!(only_delivery(&mut sim, b).1, blob(100_000, 42));
+    // Central closed only hostile connections (bad class data and the like).
+    assert!(sim.closes.iter().all(|(c, _)| *c >= 1000), "{:?}", sim.closes);
 }
