@@ -1442,5 +1442,9 @@ fn cut_through_survives_hostile_senders() {
     sim.pump();
     assert_eq!(only_delivery(&mut sim, b).1, blob(100_000, 42));
     // Central closed only hostile connections (bad class data and the like).
-    assert!(sim.closes.iter().all(|(c, _)| *c >= 1000), "{:?}", sim.closes);
+    assert!(
+        sim.closes.iter().all(|(c, _)| *c >= 1000),
+        "{:?}",
+        sim.closes
+    );
 }
