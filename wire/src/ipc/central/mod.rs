@@ -56,8 +56,8 @@
 //! - The data log decodes internal messages with their own formats when
 //!   `-l` lacks `i` (C prints them the same way).
 //! - Cut-through ([`Config::cut_through`], off by default): a large message
-//!   whose handler can take it at once is forwarded while it still arrives
-//!   instead of after its last byte, as C does. If the sender dies in the
+//!   whose handler can take it at once is forwarded while it still arrives,
+//!   instead of after its last byte (C's way). If the sender dies in the
 //!   middle, the receiver's frame is completed with zero bytes (it already
 //!   has the start), and a warning names both modules.
 
@@ -762,19 +762,20 @@ impl Central {
     }
 
     fn frame(header: Header, class_data: &[u8], data: &[u8]) -> Vec<u8> {
-        let mut out = Self::head(header, class_data.len(), data.len());
-        out.reserve_exact(class_data.len() + data.len());
+        Self::head(header, class_data, data, data.len())
+    }
+
+    /// A frame's header and class data followed by `data`, which is the
+    /// whole body (`data_len` bytes) or, for a relayed frame, its start.
+    fn head(header: Header, class_data: &[u8], data: &[u8], data_len: usize) -> Vec<u8> {
+        let mut h = header;
+        h.class_total = class_data.len() as i32;
+        h.msg_total = data_len as i32;
+        let mut out = Vec::with_capacity(HEADER_SIZE + class_data.len() + data.len());
+        out.extend_from_slice(&h.encode());
         out.extend_from_slice(class_data);
         out.extend_from_slice(data);
         out
-    }
-
-    /// The encoded header of a frame with these lengths.
-    fn head(header: Header, class_len: usize, data_len: usize) -> Vec<u8> {
-        let mut h = header;
-        h.class_total = class_len as i32;
-        h.msg_total = data_len as i32;
-        h.encode().to_vec()
     }
 
     /// `centralReply`: parentRef 0, intent -4, class 0, dispatchRef 0.
@@ -1183,9 +1184,7 @@ impl Central {
         };
         let msg = d.msg.clone();
         let header = Self::reply_header(&h, did, d.org_ref);
-        let mut head = Self::head(header, class_data.len(), total);
-        head.extend_from_slice(class_data);
-        head.extend_from_slice(first);
+        let head = Self::head(header, class_data, first, total);
         let remaining = total - first.len();
         self.start_relay(conn, org, msg, remaining, total, Some((h, reply_name)));
         self.transmit_relayed(org, head);
@@ -2263,9 +2262,7 @@ impl Central {
                 self.transmit(conn, f);
             }
             Some((first, total)) => {
-                let mut f = Self::head(header, cd.as_bytes().len(), total);
-                f.extend_from_slice(cd.as_bytes());
-                f.extend_from_slice(first);
+                let f = Self::head(header, cd.as_bytes(), first, total);
                 self.transmit_relayed(conn, f);
             }
         }
