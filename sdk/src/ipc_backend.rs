@@ -975,6 +975,22 @@ impl Driver {
                 Event::HandlerChange { msg, count } => {
                     self.broadcast(SessionEvent::HandlersChanged { msg, count })
                 }
+                Event::Undeliverable {
+                    handler,
+                    msg,
+                    kind,
+                    error,
+                } => {
+                    // Counted where the user looks for lost samples.
+                    if let Some(sub) = self.subs.get(&handler) {
+                        sub.queue.count_dropped();
+                    }
+                    tracing::warn!(
+                        msg = %msg,
+                        ?kind,
+                        "dropped a message whose body does not hold together: {error}"
+                    );
+                }
                 Event::Closed(_) => {}
                 Event::DirectConnect {
                     link, host, port, ..

@@ -449,7 +449,8 @@ impl RawSubscriber {
         self.queue.try_pop().filter(|s| !s.msg.is_empty())
     }
 
-    /// Samples dropped by a keep-last policy or a backend filter.
+    /// Samples dropped by a keep-last policy or a backend filter, and (IPC)
+    /// messages whose body did not hold together.
     pub fn dropped(&self) -> u64 {
         self.queue.dropped()
     }
@@ -1694,7 +1695,8 @@ impl Listener {
         &self.msg
     }
 
-    /// Samples dropped by a keep-last policy or a backend filter so far.
+    /// Samples dropped by a keep-last policy or a backend filter so far, and
+    /// (IPC) messages whose body did not hold together.
     pub fn dropped(&self) -> u64 {
         self.raw.dropped()
     }
@@ -1839,7 +1841,8 @@ impl<T> Subscriber<T> {
         &self.msg
     }
 
-    /// Samples dropped by a keep-last policy so far.
+    /// Samples dropped by a keep-last policy or a backend filter so far, and
+    /// (IPC) messages whose body did not hold together.
     pub fn dropped(&self) -> u64 {
         self.raw.dropped()
     }

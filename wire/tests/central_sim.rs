@@ -1448,3 +1448,38 @@ fn cut_through_survives_hostile_senders() {
         sim.closes
     );
 }
+
+/// A message whose variable-length wrapper disagrees with itself is
+/// dropped by the receiving module, which tells central it is done and
+/// stays connected; what comes next is delivered as usual.
+#[test]
+fn a_malformed_body_costs_the_receiver_one_message_not_its_connection() {
+    let (mut sim, a, b) = large_query_pair(None);
+    let ask = sim.central.message_id("ask").expect("ask is registered");
+    let mut body = 5i32.to_le_bytes().to_vec();
+    body.extend_from_slice(&3i32.to_le_bytes()); // a count that disagrees
+    body.extend_from_slice(&[1, 2, 3]);
+    let rogue = ConnId(500);
+    sim.central
+        .connect(rogue, Peer::Other("rogue".into()), sim.wall);
+    sim.central
+        .receive(rogue, &raw_frame(MsgClass::Broadcast, ask, &body), sim.wall);
+    sim.drain();
+    sim.pump();
+    let ev = sim.take_events(b);
+    assert!(
+        ev.iter().any(|e| matches!(e,
+            Event::Undeliverable { msg, kind: DeliveryKind::Broadcast, error, .. }
+                if msg == "ask" && error.to_string().contains("disagrees"))),
+        "{ev:?}"
+    );
+    assert!(sim.m(b).is_connected());
+    assert_eq!(
+        sim.central.stats().dispatches,
+        0,
+        "the Success freed central"
+    );
+    sim.m(a).query("ask", &blob(10, 1), -1).unwrap();
+    sim.pump();
+    assert_eq!(only_delivery(&mut sim, b).1, blob(10, 1));
+}

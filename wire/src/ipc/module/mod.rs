@@ -234,6 +234,21 @@ pub enum Event {
         /// Message name.
         msg: String,
     },
+    /// A message for one of our handlers whose body does not hold together
+    /// (its variable-length wrapper disagrees with itself). It was not
+    /// delivered; central was told it is done (a Success), so the sender of
+    /// a query gets no reply. The connection is unharmed: one bad sender
+    /// must not cut a module off from everyone else.
+    Undeliverable {
+        /// Our handler id.
+        handler: i32,
+        /// Message name.
+        msg: String,
+        /// Published or queried.
+        kind: DeliveryKind,
+        /// What was wrong with it.
+        error: Error,
+    },
     /// An operation failed (e.g. its message is unknown to central).
     OpFailed {
         /// The operation's handle.
@@ -1269,8 +1284,26 @@ impl Connection {
         };
         let hk = self.handlers.get(&h.intent).map(|x| x.kind.clone());
         let data = match self.cache.get(&d.msg) {
-            Some(info) => proto::unwrap(info, &d.frame.data, order)?,
-            None => d.frame.data.clone(),
+            Some(info) => proto::unwrap(info, &d.frame.data, order),
+            None => Ok(d.frame.data.clone()),
+        };
+        let data = match (data, &hk) {
+            (Ok(data), _) => data,
+            (Err(error), Some(HandlerKind::User) | None) => {
+                // No Success on direct links (§8).
+                if d.link.is_none() {
+                    self.send_success(h.msg_ref);
+                }
+                self.events.push_back(Event::Undeliverable {
+                    handler: h.intent,
+                    msg: d.msg,
+                    kind,
+                    error,
+                });
+                return Ok(());
+            }
+            // Central's own messages must be right.
+            (Err(e), _) => return Err(e),
         };
         match hk {
             Some(HandlerKind::User) | None => {
