@@ -345,6 +345,13 @@ struct Dispatch {
     status: Status,
 }
 
+impl Dispatch {
+    /// Delivered to `conn` and awaiting its Success or Reply.
+    fn attending_at(&self, conn: ConnId) -> bool {
+        self.status == Status::Attending && self.hnd.as_ref().is_some_and(|(c, _)| *c == conn)
+    }
+}
+
 #[derive(Debug)]
 struct Handler {
     id: i32,
@@ -404,6 +411,13 @@ struct Relay {
     msg: String,
     /// A reply: its bookkeeping (`on_reply`) is done once it has passed.
     reply: Option<(Header, Option<String>)>,
+}
+
+impl Module {
+    /// A delivery would go out now rather than wait in `pending`.
+    fn takes_delivery_now(&self) -> bool {
+        self.ready && self.attending < self.capacity && self.pending.is_empty()
+    }
 }
 
 #[derive(Debug)]
@@ -1073,7 +1087,7 @@ impl Central {
         let total = n - c;
         let class = h.class_id.class();
         let started = match class {
-            11 => self.relay_reply(conn, h, &class_data, &first, total, now),
+            11 => self.relay_reply(conn, h, &class_data, &first, total),
             3 | 6 | 15 => self.relay_delivery(conn, h, &first, total, now),
             _ => false,
         };
@@ -1114,8 +1128,10 @@ impl Central {
         let Some(msg) = self.msgs.get(&name) else {
             return false;
         };
+        if msg.internal.is_some() {
+            return false;
+        }
         let hnd = match (class, msg.handlers.as_slice()) {
-            (_, _) if msg.internal.is_some() => return false,
             (15, [only]) => only.clone(),
             (3 | 6, [.., last]) => last.clone(),
             _ => return false,
@@ -1123,10 +1139,7 @@ impl Central {
         let Some(to) = self.modules.get(&hnd.0) else {
             return false;
         };
-        let free = to.ready
-            && to.attending < to.capacity
-            && to.pending.is_empty()
-            && to.handlers.contains_key(&hnd.1);
+        let free = to.takes_delivery_now() && to.handlers.contains_key(&hnd.1);
         if !free || !self.can_take_relay(conn, hnd.0) {
             return false;
         }
@@ -1154,18 +1167,11 @@ impl Central {
         class_data: &[u8],
         first: &[u8],
         total: usize,
-        now: SystemTime,
     ) -> bool {
-        let _ = now;
         let did = h.dispatch_ref;
-        let Some(d) = self.dispatches.get(&did) else {
+        let Some(d) = self.dispatches.get(&did).filter(|d| d.attending_at(conn)) else {
             return false;
         };
-        let attending_here =
-            d.status == Status::Attending && d.hnd.as_ref().is_some_and(|(c, _)| *c == conn);
-        if !attending_here {
-            return false;
-        }
         let Org::Module(org) = d.org else {
             return false;
         };
@@ -1363,9 +1369,7 @@ impl Central {
         let mut mine: Vec<i32> = self
             .dispatches
             .iter()
-            .filter(|(_, d)| {
-                d.status == Status::Attending && d.hnd.as_ref().is_some_and(|(c, _)| *c == conn)
-            })
+            .filter(|(_, d)| d.attending_at(conn))
             .map(|(id, _)| *id)
             .collect();
         mine.sort_unstable();
@@ -2192,7 +2196,7 @@ impl Central {
             self.free_dispatch_id(did);
             return;
         };
-        if m.ready && m.attending < m.capacity && m.pending.is_empty() {
+        if m.takes_delivery_now() {
             self.attend(did, false, now);
         } else {
             self.pend(did, now);
@@ -2419,9 +2423,10 @@ impl Central {
     }
 
     fn on_success(&mut self, conn: ConnId, did: i32, now: SystemTime) -> Result<(), Bad> {
-        let ok = self.dispatches.get(&did).is_some_and(|d| {
-            d.status == Status::Attending && d.hnd.as_ref().is_some_and(|(c, _)| *c == conn)
-        });
+        let ok = self
+            .dispatches
+            .get(&did)
+            .is_some_and(|d| d.attending_at(conn));
         if !ok {
             let who = self.describe(conn);
             self.log_line(
@@ -2464,9 +2469,10 @@ impl Central {
         now: SystemTime,
     ) -> Result<(), Bad> {
         let did = h.dispatch_ref;
-        let ok = self.dispatches.get(&did).is_some_and(|d| {
-            d.status == Status::Attending && d.hnd.as_ref().is_some_and(|(c, _)| *c == conn)
-        });
+        let ok = self
+            .dispatches
+            .get(&did)
+            .is_some_and(|d| d.attending_at(conn));
         if !ok {
             let who = self.describe(conn);
             self.log_line(
