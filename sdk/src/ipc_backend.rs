@@ -45,6 +45,104 @@ pub struct IpcOptions {
 pub trait IpcStream: AsyncRead + AsyncWrite + Unpin + Send {}
 impl<T: AsyncRead + AsyncWrite + Unpin + Send> IpcStream for T {}
 
+/// A TCP connection of the IPC backend: `TCP_NODELAY`, and what it reads
+/// is acknowledged at once every [`QUICK_ACK_EVERY`] bytes
+/// (`TCP_QUICKACK`).
+///
+/// Why the acknowledgement: the C library (central and modules alike) sets
+/// 16 KiB socket buffers on its TCP connections, so a C peer sending a large
+/// message has at most ~32 KiB unacknowledged before it must wait for an
+/// ACK. Our receive buffer is the system's (autotuned, large), so reading
+/// that data never opens the window "significantly", and once this side
+/// has sent anything (a Success, a reply) Linux treats the connection as
+/// interactive and delays the ACK by its 40 ms minimum: each ~32 KiB of a
+/// large message from a C peer cost 40 ms (a stream of 64 KiB messages
+/// from the C central ran at 23 msg/s, a 1 MiB query took 660 ms).
+///
+/// Small messages do not need it (the ACK rides on the answer), and an ACK
+/// of its own for each of them would cost a packet per message, hence the
+/// byte count: a peer can only be stalled with at least its send buffer
+/// unacknowledged, and Linux's smallest is 4608 bytes.
+struct Tcp {
+    s: tokio::net::TcpStream,
+    /// Bytes read since the last `TCP_QUICKACK`.
+    unacked: usize,
+}
+
+/// See [`Tcp`].
+const QUICK_ACK_EVERY: usize = 4096;
+
+impl Tcp {
+    fn new(s: tokio::net::TcpStream) -> std::io::Result<Tcp> {
+        s.set_nodelay(true)?;
+        Ok(Tcp { s, unacked: 0 })
+    }
+}
+
+impl AsyncRead for Tcp {
+    fn poll_read(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &mut tokio::io::ReadBuf<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        let before = buf.filled().len();
+        let r = std::pin::Pin::new(&mut self.s).poll_read(cx, buf);
+        if let std::task::Poll::Ready(Ok(())) = r {
+            self.unacked += buf.filled().len() - before;
+            if self.unacked >= QUICK_ACK_EVERY {
+                self.unacked = 0;
+                quick_ack(&self.s);
+            }
+        }
+        r
+    }
+}
+
+#[cfg(any(target_os = "linux", target_os = "android"))]
+fn quick_ack(s: &tokio::net::TcpStream) {
+    // Best effort: failing costs only the delay this avoids.
+    let _ = socket2::SockRef::from(s).set_tcp_quickack(true);
+}
+
+#[cfg(not(any(target_os = "linux", target_os = "android")))]
+fn quick_ack(_: &tokio::net::TcpStream) {}
+
+impl AsyncWrite for Tcp {
+    fn poll_write(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &[u8],
+    ) -> std::task::Poll<std::io::Result<usize>> {
+        std::pin::Pin::new(&mut self.s).poll_write(cx, buf)
+    }
+
+    fn poll_write_vectored(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        bufs: &[std::io::IoSlice<'_>],
+    ) -> std::task::Poll<std::io::Result<usize>> {
+        std::pin::Pin::new(&mut self.s).poll_write_vectored(cx, bufs)
+    }
+
+    fn is_write_vectored(&self) -> bool {
+        self.s.is_write_vectored()
+    }
+
+    fn poll_flush(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.s).poll_flush(cx)
+    }
+
+    fn poll_shutdown(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.s).poll_shutdown(cx)
+    }
+}
+
 /// The future of a [`Dial`] call.
 pub type DialFuture = BoxFuture<'static, std::io::Result<Box<dyn IpcStream>>>;
 
@@ -198,8 +296,7 @@ async fn open(host: &str, port: u16) -> std::io::Result<Box<dyn IpcStream>> {
         }
     }
     let s = tokio::net::TcpStream::connect((host, port)).await?;
-    s.set_nodelay(true)?;
-    Ok(Box::new(s))
+    Ok(Box::new(Tcp::new(s)?))
 }
 
 /// A dial error that no retry can mend (see [`Dial`]).
@@ -370,10 +467,10 @@ fn spawn_accept(l: DirectListener, tx: mpsc::UnboundedSender<Cmd>) {
             let accepted: Box<dyn IpcStream> = tokio::select! {
                 _ = tx.closed() => break,
                 r = tcp.accept() => match r {
-                    Ok((s, _)) => {
-                        let _ = s.set_nodelay(true);
-                        Box::new(s)
-                    }
+                    Ok((s, _)) => match Tcp::new(s) {
+                        Ok(s) => Box::new(s),
+                        Err(_) => continue,
+                    },
                     Err(_) => break,
                 },
                 r = async {
@@ -406,8 +503,7 @@ async fn connect_direct(host: &str, port: u16) -> Option<Box<dyn IpcStream>> {
     }
     let host = if local { "127.0.0.1" } else { host };
     let s = tokio::net::TcpStream::connect((host, port)).await.ok()?;
-    let _ = s.set_nodelay(true);
-    Some(Box::new(s))
+    Some(Box::new(Tcp::new(s).ok()?))
 }
 
 impl IpcBackend {
@@ -1226,6 +1322,76 @@ impl Driver {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Whether the kernel would acknowledge at once (`TCP_QUICKACK` read
+    /// back: not in its "interactive" delayed-ACK mode).
+    #[cfg(target_os = "linux")]
+    fn acks_at_once(s: &tokio::net::TcpStream) -> bool {
+        socket2::SockRef::from(s).tcp_quickack().unwrap()
+    }
+
+    /// Drives `ours` (read through `read`) into Linux's interactive mode
+    /// with a few small exchanges, then has the peer send `big` bytes and
+    /// reads them; returns whether `ours` acknowledges at once afterwards,
+    /// and whether it did after the small exchanges.
+    #[cfg(target_os = "linux")]
+    async fn after_exchanges<S: AsyncRead + AsyncWrite + Unpin>(
+        ours: &mut S,
+        peer: &mut tokio::net::TcpStream,
+        big: usize,
+        probe: impl Fn(&S) -> bool,
+    ) -> (bool, bool) {
+        let mut buf = vec![0u8; 64 * 1024];
+        for _ in 0..5 {
+            peer.write_all(&[1; 48]).await.unwrap();
+            ours.read_exact(&mut buf[..48]).await.unwrap();
+            ours.write_all(&[2; 28]).await.unwrap();
+            peer.read_exact(&mut buf[..28]).await.unwrap();
+        }
+        let small = probe(ours);
+        peer.write_all(&vec![3; big]).await.unwrap();
+        ours.read_exact(&mut buf[..big]).await.unwrap();
+        (small, probe(ours))
+    }
+
+    /// The C library's 16 KiB send buffers stall on our delayed ACKs (see
+    /// [`Tcp`]); the exchange below puts a plain socket in the mode that
+    /// delays them, so that the check on `Tcp` cannot pass vacuously.
+    #[cfg(target_os = "linux")]
+    #[tokio::test]
+    async fn tcp_reads_of_bulk_data_are_acknowledged_at_once() {
+        let l = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = l.local_addr().unwrap();
+        let pair = || async {
+            let s = tokio::net::TcpStream::connect(addr).await.unwrap();
+            let (peer, _) = l.accept().await.unwrap();
+            peer.set_nodelay(true).unwrap();
+            (s, peer)
+        };
+        // The kernel leaves the delayed-ACK mode by itself when its 40 ms
+        // timer fires; a test thread descheduled that long on a loaded
+        // machine would see that, so a few attempts are allowed.
+        for _ in 0..5 {
+            let (plain, mut peer) = pair().await;
+            plain.set_nodelay(true).unwrap();
+            let mut plain = plain;
+            let (_, plain_after) = after_exchanges(&mut plain, &mut peer, 8192, acks_at_once).await;
+
+            let (s, mut peer) = pair().await;
+            let mut ours = Tcp::new(s).unwrap();
+            let (small, after) =
+                after_exchanges(&mut ours, &mut peer, 8192, |t: &Tcp| acks_at_once(&t.s)).await;
+            if plain_after || small {
+                continue;
+            }
+            assert!(after, "bulk data read through Tcp left the ACK delayed");
+            return;
+        }
+        panic!(
+            "the exchange never left a plain socket (or Tcp after small messages) in \
+             delayed-ACK mode: this test would check nothing"
+        );
+    }
 
     #[test]
     fn urls() {
