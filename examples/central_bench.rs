@@ -59,10 +59,10 @@ fn run(addr: &str, case: &Case) -> (f64, f64) {
             let (d, k, data) = b.delivery();
             match (kind, k) {
                 (Kind::PubRoundTrip, _) => {
-                    b.conn.publish("pong", &data, -1).unwrap();
+                    b.conn.publish("pong", data.clone(), -1).unwrap();
                     b.conn.ack(d).unwrap();
                 }
-                (Kind::QueryRoundTrip, _) => b.conn.respond(d, "answer", &data).unwrap(),
+                (Kind::QueryRoundTrip, _) => b.conn.respond(d, "answer", data.clone()).unwrap(),
                 (Kind::Throughput, _) => b.conn.ack(d).unwrap(),
             }
             b.flush();
@@ -80,7 +80,7 @@ fn run(addr: &str, case: &Case) -> (f64, f64) {
     match kind {
         Kind::PubRoundTrip => {
             for _ in 0..count {
-                a.conn.publish("ping", &payload, -1).unwrap();
+                a.conn.publish("ping", payload.clone(), -1).unwrap();
                 let (d, _, data) = a.delivery();
                 assert_eq!(data.len(), size);
                 a.conn.ack(d).unwrap();
@@ -88,14 +88,14 @@ fn run(addr: &str, case: &Case) -> (f64, f64) {
         }
         Kind::QueryRoundTrip => {
             for _ in 0..count {
-                a.conn.query("ask", &payload, -1).unwrap();
+                a.conn.query("ask", payload.clone(), -1).unwrap();
                 let data = a.reply();
                 assert_eq!(data.len(), size);
             }
         }
         Kind::Throughput => {
             for _ in 0..count {
-                a.conn.publish("ping", &payload, -1).unwrap();
+                a.conn.publish("ping", payload.clone(), -1).unwrap();
                 a.settle();
             }
         }

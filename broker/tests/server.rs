@@ -84,8 +84,8 @@ fn publish_and_query_over_tcp_then_shutdown_closes_clients() {
     b.conn.subscribe("q", "HND-q").unwrap();
     b.sync();
     let mut a = Client::new(tcp(addr), "a");
-    a.conn.publish("m", &5i32.to_le_bytes(), -1).unwrap();
-    let q = a.conn.query("q", &6i32.to_le_bytes(), -1).unwrap();
+    a.conn.publish("m", 5i32.to_le_bytes(), -1).unwrap();
+    let q = a.conn.query("q", 6i32.to_le_bytes(), -1).unwrap();
     a.flush();
     let server = std::thread::spawn(move || {
         for _ in 0..2 {
@@ -101,7 +101,7 @@ fn publish_and_query_over_tcp_then_shutdown_closes_clients() {
                     assert_eq!(data, 5i32.to_le_bytes());
                     b.conn.ack(delivery).unwrap();
                 } else {
-                    b.conn.respond(delivery, "r", &7i32.to_le_bytes()).unwrap();
+                    b.conn.respond(delivery, "r", 7i32.to_le_bytes()).unwrap();
                 }
                 b.settle();
             }
@@ -397,7 +397,7 @@ fn slow_subscriber_keeps_central_memory_bounded() {
         for i in 0..N {
             let mut b = body.clone();
             b[..4].copy_from_slice(&i.to_le_bytes());
-            p.conn.publish("flood", &b, -1).unwrap();
+            p.conn.publish("flood", b.clone(), -1).unwrap();
             if i == 0 {
                 // The first publish looks the message up.
                 p.until(|e| matches!(e, Event::Published { .. }));
@@ -483,7 +483,7 @@ fn cut_through_relays_large_queries_and_replies_over_tcp() {
             };
             assert_eq!(data, blob(1 << 20, r), "query {r}");
             b.conn
-                .respond(delivery, "answer", &blob(2 << 20, 100 + r))
+                .respond(delivery, "answer", blob(2 << 20, 100 + r))
                 .unwrap();
             b.settle();
         }
@@ -491,7 +491,7 @@ fn cut_through_relays_large_queries_and_replies_over_tcp() {
     });
     let mut a = Client::new(tcp(addr), "asker");
     for r in 0..ROUNDS {
-        let q = a.conn.query("ask", &blob(1 << 20, r), -1).unwrap();
+        let q = a.conn.query("ask", blob(1 << 20, r), -1).unwrap();
         a.flush();
         let e = a.until(|e| matches!(e, Event::Reply { .. }));
         let Event::Reply { query, data, .. } = e else {

@@ -229,8 +229,8 @@ fn publish_subscribe_and_query_through_central() {
     sim.m(b).subscribe("msg", "HND-msg1").unwrap();
     sim.m(b).subscribe("ask", "HND-ask1").unwrap();
     sim.pump();
-    sim.m(a).publish("msg", &7i32.to_le_bytes(), -1).unwrap();
-    let q = sim.m(a).query("ask", &20i32.to_le_bytes(), -1).unwrap();
+    sim.m(a).publish("msg", 7i32.to_le_bytes(), -1).unwrap();
+    let q = sim.m(a).query("ask", 20i32.to_le_bytes(), -1).unwrap();
     sim.pump();
     let d = sim.deliveries(b);
     assert_eq!(d.len(), 1, "capacity 1: the query waits for the ack: {d:?}");
@@ -244,7 +244,7 @@ fn publish_subscribe_and_query_through_central() {
     assert_eq!(d.len(), 1);
     assert_eq!(d[0].2, DeliveryKind::Query);
     sim.m(b)
-        .respond(d[0].0, "answer", &40i32.to_le_bytes())
+        .respond(d[0].0, "answer", 40i32.to_le_bytes())
         .unwrap();
     sim.pump();
     let ev = sim.take_events(a);
@@ -279,14 +279,14 @@ fn capacity_priority_and_queue_limits() {
     sim.pump();
     // First one occupies the only slot; the rest queue in central.
     for i in 0..3i32 {
-        sim.m(a).publish("low", &i.to_le_bytes(), -1).unwrap();
+        sim.m(a).publish("low", i.to_le_bytes(), -1).unwrap();
     }
     for i in 0..5i32 {
         sim.m(a)
-            .publish("limited", &(100 + i).to_le_bytes(), -1)
+            .publish("limited", (100 + i).to_le_bytes(), -1)
             .unwrap();
     }
-    sim.m(a).publish("high", &999i32.to_le_bytes(), -1).unwrap();
+    sim.m(a).publish("high", 999i32.to_le_bytes(), -1).unwrap();
     sim.pump();
     let mut got = Vec::new();
     loop {
@@ -336,7 +336,7 @@ fn larger_capacity_allows_concurrent_deliveries() {
     sim.m(b).set_capacity(3).unwrap();
     sim.pump();
     for i in 0..5i32 {
-        sim.m(a).publish("m", &i.to_le_bytes(), -1).unwrap();
+        sim.m(a).publish("m", i.to_le_bytes(), -1).unwrap();
     }
     sim.pump();
     assert_eq!(sim.deliveries(b).len(), 3);
@@ -348,7 +348,7 @@ fn query_before_any_handler_waits_for_one() {
     let a = sim.connect("asker");
     define(&mut sim, a, "late", "int");
     define(&mut sim, a, "late_reply", "int");
-    let q = sim.m(a).query("late", &1i32.to_le_bytes(), -1).unwrap();
+    let q = sim.m(a).query("late", 1i32.to_le_bytes(), -1).unwrap();
     sim.pump();
     let b = sim.connect("server");
     sim.m(b).subscribe("late", "HND-late").unwrap();
@@ -356,7 +356,7 @@ fn query_before_any_handler_waits_for_one() {
     let d = sim.deliveries(b);
     assert_eq!(d.len(), 1, "the waiting query reaches the new handler");
     sim.m(b)
-        .respond(d[0].0, "late_reply", &2i32.to_le_bytes())
+        .respond(d[0].0, "late_reply", 2i32.to_le_bytes())
         .unwrap();
     sim.pump();
     assert!(sim
@@ -461,8 +461,8 @@ fn resend_on_reconnect_redelivers_unfinished_messages() {
     define(&mut sim, a, "job", "int");
     sim.m(b).subscribe("job", "HND-job").unwrap();
     sim.pump();
-    sim.m(a).publish("job", &1i32.to_le_bytes(), -1).unwrap();
-    sim.m(a).publish("job", &2i32.to_le_bytes(), -1).unwrap();
+    sim.m(a).publish("job", 1i32.to_le_bytes(), -1).unwrap();
+    sim.m(a).publish("job", 2i32.to_le_bytes(), -1).unwrap();
     sim.pump();
     assert_eq!(sim.deliveries(b).len(), 1);
     // The worker crashes without acknowledging, then comes back.
@@ -494,7 +494,7 @@ fn without_resend_unfinished_messages_are_cleared() {
     define(&mut sim, a, "job", "int");
     sim.m(b).subscribe("job", "HND-job").unwrap();
     sim.pump();
-    sim.m(a).publish("job", &1i32.to_le_bytes(), -1).unwrap();
+    sim.m(a).publish("job", 1i32.to_le_bytes(), -1).unwrap();
     sim.pump();
     sim.close(b);
     assert_eq!(sim.central.stats().dispatches, 0);
@@ -519,7 +519,7 @@ fn two_hundred_modules_connect_at_once() {
     sim.pump();
     // Settle the broadcast-list updates every subscription caused.
     sim.m(ids[0])
-        .publish("all", &5i32.to_le_bytes(), -1)
+        .publish("all", 5i32.to_le_bytes(), -1)
         .unwrap();
     sim.pump();
     let mut n = 0;
@@ -552,7 +552,7 @@ fn slow_subscriber_bounded_memory_nothing_lost() {
         while sent < N && sim.mods[&p].outbox.len() < 1000 {
             let mut body = vec![0u8; 64];
             body[..4].copy_from_slice(&sent.to_le_bytes());
-            sim.m(p).publish("data", &body, -1).unwrap();
+            sim.m(p).publish("data", body.clone(), -1).unwrap();
             sent += 1;
         }
         sim.pump();
@@ -744,7 +744,7 @@ fn resubscribing_a_handler_keeps_its_id_and_renames_the_message() {
     define(&mut sim, a, "m", "int");
     let hid = sim.m(a).subscribe("m", "HND-m").unwrap();
     sim.pump();
-    sim.m(a).publish("m", &1i32.to_le_bytes(), -1).unwrap();
+    sim.m(a).publish("m", 1i32.to_le_bytes(), -1).unwrap();
     sim.pump();
     let d = sim.deliveries(a);
     sim.m(a).ack(d[0].0).unwrap();
@@ -759,7 +759,7 @@ fn resubscribing_a_handler_keeps_its_id_and_renames_the_message() {
     let f = raw_frame(MsgClass::Inform, id, &body);
     sim.central.receive(ConnId(a), &f, SystemTime::now());
     sim.drain();
-    sim.m(a).publish("m", &2i32.to_le_bytes(), -1).unwrap();
+    sim.m(a).publish("m", 2i32.to_le_bytes(), -1).unwrap();
     // Look at the delivery frame central writes.
     let now = SystemTime::now();
     while let Some(b) = sim.m(a).poll_transmit() {
@@ -820,7 +820,7 @@ fn a_handler_subscribed_again_after_an_unsubscribe_keeps_its_first_id() {
     assert_eq!(sim.m(a).subscribe("m", "HND-m").unwrap(), hid);
     sim.pump();
     sim.sent.clear();
-    sim.m(b).publish("m", &7i32.to_le_bytes(), -1).unwrap();
+    sim.m(b).publish("m", 7i32.to_le_bytes(), -1).unwrap();
     sim.pump();
     let intents: Vec<i32> = sim
         .sent
@@ -895,7 +895,7 @@ fn timed_log_lines_all_carry_the_time() {
     define(&mut sim, a, "m", "int");
     sim.m(b).subscribe("m", "HND-m").unwrap();
     sim.pump();
-    sim.m(a).publish("m", &1i32.to_le_bytes(), -1).unwrap();
+    sim.m(a).publish("m", 1i32.to_le_bytes(), -1).unwrap();
     sim.pump();
     let message_lines: Vec<&String> = sim
         .logs
@@ -1049,7 +1049,7 @@ fn a_subscription_between_a_modules_var_read_and_its_watch_is_not_missed() {
         .take_events(b)
         .iter()
         .any(|e| matches!(e, Event::Connected)));
-    sim.m(b).publish("pong", &5i32.to_le_bytes(), -1).unwrap();
+    sim.m(b).publish("pong", 5i32.to_le_bytes(), -1).unwrap();
     sim.pump();
     let ev = sim.take_events(b);
     assert!(
@@ -1077,10 +1077,10 @@ fn large_query_pair(cut_through: Option<usize>) -> (Sim, u64, u64) {
     sim.m(b).subscribe("ask", "HND-ask").unwrap();
     sim.pump();
     // Both learn the messages' ids, so later frames go out at once.
-    sim.m(a).query("ask", &blob(1, 0), -1).unwrap();
+    sim.m(a).query("ask", blob(1, 0), -1).unwrap();
     sim.pump();
     let d = sim.deliveries(b);
-    sim.m(b).respond(d[0].0, "answer", &blob(1, 0)).unwrap();
+    sim.m(b).respond(d[0].0, "answer", blob(1, 0)).unwrap();
     sim.pump();
     sim.take_events(a);
     (sim, a, b)
@@ -1096,7 +1096,7 @@ fn written(sim: &mut Sim, id: u64) -> Vec<u8> {
 /// `a` asks a 100 kB query (`blob(100_000, seed)`) of which central has
 /// read the first `upto` bytes; returns the rest of its bytes.
 fn half_sent_query(sim: &mut Sim, a: u64, seed: u8, upto: usize) -> Vec<u8> {
-    sim.m(a).query("ask", &blob(100_000, seed), -1).unwrap();
+    sim.m(a).query("ask", blob(100_000, seed), -1).unwrap();
     let frame = written(sim, a);
     sim.central.receive(ConnId(a), &frame[..upto], sim.wall);
     sim.drain();
@@ -1147,12 +1147,12 @@ fn large_queries(cut_through: Option<usize>, rounds: usize) -> (Vec<u8>, Vec<u8>
     let start_a = sim.wire.get(&a).map_or(0, Vec::len);
     let start_b = sim.wire.get(&b).map_or(0, Vec::len);
     for r in 0..rounds {
-        let q = sim.m(a).query("ask", &blob(100_000, r as u8), -1).unwrap();
+        let q = sim.m(a).query("ask", blob(100_000, r as u8), -1).unwrap();
         sim.pump();
         let (delivery, data) = only_delivery(&mut sim, b);
         assert_eq!(data, blob(100_000, r as u8), "the query arrives whole");
         sim.m(b)
-            .respond(delivery, "answer", &blob(200_000, 100 + r as u8))
+            .respond(delivery, "answer", blob(200_000, 100 + r as u8))
             .unwrap();
         sim.pump();
         let ev = sim.take_events(a);
@@ -1203,7 +1203,7 @@ fn cut_through_sends_the_same_bytes_as_store_and_forward() {
 #[test]
 fn cut_through_forwards_before_the_last_byte_arrives() {
     let (mut sim, a, b) = large_query_pair(Some(64 << 10));
-    sim.m(a).query("ask", &blob(100_000, 1), -1).unwrap();
+    sim.m(a).query("ask", blob(100_000, 1), -1).unwrap();
     let frame = written(&mut sim, a);
     let before = sim.wire[&b].len();
     // All but the last byte: the answerer already has all but the last byte
@@ -1272,12 +1272,12 @@ fn cut_through_sender_dying_midway_completes_the_frame_with_zeros() {
     assert_eq!(body.len(), 100_004);
     assert!(body[body.len() - 1000..].iter().all(|&x| x == 0));
     // Its answer goes nowhere, and central is fine for everyone else.
-    sim.m(b).respond(delivery, "answer", &blob(10, 0)).unwrap();
+    sim.m(b).respond(delivery, "answer", blob(10, 0)).unwrap();
     sim.pump();
     assert_eq!(sim.central.stats().dispatches, 0);
     let e = sim.connect("after");
     define(&mut sim, e, "ask", "{int, <ubyte:1>}");
-    sim.m(e).query("ask", &blob(70_000, 4), -1).unwrap();
+    sim.m(e).query("ask", blob(70_000, 4), -1).unwrap();
     sim.pump();
     assert_eq!(only_delivery(&mut sim, b).1, blob(70_000, 4));
 }
@@ -1294,7 +1294,7 @@ fn cut_through_receiver_dying_midway_leaves_the_sender_in_step() {
     // The sender's next frame is read as a frame, not as the rest of the body.
     sim.m(b2).subscribe("ask", "HND-ask").unwrap();
     sim.pump();
-    sim.m(a).query("ask", &blob(80_000, 6), -1).unwrap();
+    sim.m(a).query("ask", blob(80_000, 6), -1).unwrap();
     sim.pump();
     assert_eq!(only_delivery(&mut sim, b2).1, blob(80_000, 6));
     assert!(sim.closes.is_empty(), "{:?}", sim.closes);
@@ -1304,19 +1304,19 @@ fn cut_through_receiver_dying_midway_leaves_the_sender_in_step() {
 fn cut_through_waits_for_a_busy_receiver_and_skips_small_frames() {
     let (mut sim, a, b) = large_query_pair(Some(64 << 10));
     // Busy: the first query is being handled, the second must wait whole.
-    sim.m(a).query("ask", &blob(100, 7), -1).unwrap();
+    sim.m(a).query("ask", blob(100, 7), -1).unwrap();
     sim.pump();
     let first = sim.deliveries(b);
     assert_eq!(first.len(), 1);
     let writes = sim.writes[&b].len();
-    sim.m(a).query("ask", &blob(100_000, 8), -1).unwrap();
+    sim.m(a).query("ask", blob(100_000, 8), -1).unwrap();
     sim.pump();
     assert_eq!(
         sim.writes[&b].len(),
         writes,
         "nothing forwarded to a busy handler"
     );
-    sim.m(b).respond(first[0].0, "answer", &blob(1, 0)).unwrap();
+    sim.m(b).respond(first[0].0, "answer", blob(1, 0)).unwrap();
     sim.pump();
     assert!(
         largest_write(&sim, b, writes) > 100_000,
@@ -1338,7 +1338,7 @@ fn cut_through_is_off_with_data_logging() {
     sim.m(b).subscribe("ask", "HND-ask").unwrap();
     sim.pump();
     let writes = sim.writes[&b].len();
-    sim.m(a).query("ask", &blob(50_000, 9), -1).unwrap();
+    sim.m(a).query("ask", blob(50_000, 9), -1).unwrap();
     sim.pump();
     assert!(
         largest_write(&sim, b, writes) > 50_000,
@@ -1380,7 +1380,7 @@ fn cut_through_survives_hostile_senders() {
         // it), of random bytes: what is tested is the stream, not the content.
         let n = rnd(6000) as usize;
         let payload: Vec<u8> = (0..n).map(|_| rnd(256) as u8).collect();
-        sim.m(a).publish("ask", &blob_of(&payload), -1).unwrap();
+        sim.m(a).publish("ask", blob_of(&payload), -1).unwrap();
         let real = written(&mut sim, a);
         let real_h = Header::decode(&real).unwrap();
         let body = real[HEADER + real_h.class_total as usize..].to_vec();
@@ -1417,7 +1417,7 @@ fn cut_through_survives_hostile_senders() {
         // The handler finishes what it was given, whatever its content.
         for (delivery, _, kind, _) in sim.deliveries(b) {
             match kind {
-                DeliveryKind::Query => sim.m(b).respond(delivery, "answer", &blob(1, 0)).unwrap(),
+                DeliveryKind::Query => sim.m(b).respond(delivery, "answer", blob(1, 0)).unwrap(),
                 DeliveryKind::Broadcast => sim.m(b).ack(delivery).unwrap(),
             }
         }
@@ -1438,7 +1438,7 @@ fn cut_through_survives_hostile_senders() {
         "senders died in the middle of relays: {relayed}"
     );
     // And still serves real traffic, whole.
-    sim.m(a).query("ask", &blob(100_000, 42), -1).unwrap();
+    sim.m(a).query("ask", blob(100_000, 42), -1).unwrap();
     sim.pump();
     assert_eq!(only_delivery(&mut sim, b).1, blob(100_000, 42));
     // Central closed only hostile connections (bad class data and the like).
@@ -1479,7 +1479,7 @@ fn a_malformed_body_costs_the_receiver_one_message_not_its_connection() {
         0,
         "the Success freed central"
     );
-    sim.m(a).query("ask", &blob(10, 1), -1).unwrap();
+    sim.m(a).query("ask", blob(10, 1), -1).unwrap();
     sim.pump();
     assert_eq!(only_delivery(&mut sim, b).1, blob(10, 1));
 }

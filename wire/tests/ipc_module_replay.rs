@@ -218,13 +218,13 @@ fn module2_whole_session_matches_c() {
             assert_eq!(data.len(), 64);
             let mut s = 12i32.to_le_bytes().to_vec();
             s.extend_from_slice(b"Hello, world");
-            c.publish("message2", &s, dispatch_ref).unwrap();
+            c.publish("message2", s.clone(), dispatch_ref).unwrap();
             let mut r = s.clone();
             r.extend_from_slice(&1i32.to_le_bytes());
             r.extend_from_slice(&1i32.to_le_bytes());
             r.extend_from_slice(&data);
             r.extend_from_slice(&2i32.to_le_bytes());
-            c.respond(delivery, "response1", &r).unwrap();
+            c.respond(delivery, "response1", r.clone()).unwrap();
         }
         _ => {}
     });

@@ -180,7 +180,7 @@ fn publish_of_unsubscribed_message_is_reported_not_sent() {
 fn fixed_and_empty_messages() {
     let now = Instant::now();
     let mut c = connected(false);
-    let a = c.publish("fixedMsg", &[1, 2, 3], -1).unwrap();
+    let a = c.publish("fixedMsg", [1, 2, 3], -1).unwrap();
     let f = drain(&mut c);
     c.receive(
         &msg_info_reply(
@@ -198,7 +198,7 @@ fn fixed_and_empty_messages() {
         c.poll_event(),
         Some(Event::OpFailed { op, error: Error::WrongLength { expected: 8, got: 3, .. } }) if op == a
     ));
-    c.publish("fixedMsg", &[7; 8], -1).unwrap();
+    c.publish("fixedMsg", [7; 8], -1).unwrap();
     assert_eq!(drain(&mut c)[0].data, [7; 8]);
     c.publish("emptyMsg", b"", -1).unwrap();
     let f = drain(&mut c);

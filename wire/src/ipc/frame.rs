@@ -240,6 +240,10 @@ impl Header {
     }
 }
 
+/// Message data of at least this many bytes is handed on rather than
+/// copied behind its header ([`Frame::into_parts`]).
+pub const SPLIT_AT: usize = 16 * 1024;
+
 /// A whole data message: header, class data, message data.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Frame {
@@ -266,6 +270,24 @@ impl Frame {
         })
     }
 
+    /// Encodes the frame as [`encode`](Self::encode) does, without copying
+    /// a large message: header and class data come in the first buffer and,
+    /// when the message data has at least [`SPLIT_AT`] bytes, the data
+    /// itself is the second, as it was. Written one after the other (or
+    /// with one vectored write) they are the same bytes.
+    pub fn into_parts(self) -> (Vec<u8>, Option<Vec<u8>>) {
+        if self.data.len() < SPLIT_AT {
+            return (self.encode(), None);
+        }
+        let mut h = self.header;
+        h.class_total = self.class_data.len() as i32;
+        h.msg_total = self.data.len() as i32;
+        let mut head = Vec::with_capacity(HEADER_SIZE + self.class_data.len());
+        head.extend_from_slice(&h.encode());
+        head.extend_from_slice(&self.class_data);
+        (head, Some(self.data))
+    }
+
     /// Encodes header, class data and message data, with the length fields
     /// set from the actual data.
     pub fn encode(&self) -> Vec<u8> {
@@ -280,9 +302,251 @@ impl Frame {
     }
 }
 
+/// Splits a byte stream into [`Frame`]s, copying each byte once: from the
+/// caller's read buffer into the frame's own `class_data` and `data`.
+///
+/// A large message is therefore never gathered in a stream buffer first and
+/// copied out of it afterwards. Its buffer grows with what has arrived
+/// (doubling from 64 KiB up to the size the header announces), so a header
+/// announcing a large frame costs nothing until its bytes come.
+///
+/// ```
+/// use courier_wire::ipc::frame::{Deframer, Frame, Header, ClassId, MsgClass};
+/// let f = Frame {
+///     header: Header {
+///         class_total: 0, msg_total: 0, parent_ref: -1, intent: 116,
+///         class_id: ClassId::native(MsgClass::Broadcast), dispatch_ref: -1, msg_ref: 56,
+///     },
+///     class_data: Vec::new(),
+///     data: vec![0, 0, 0, 42],
+/// };
+/// let bytes = f.encode();
+/// let mut d = Deframer::new(1 << 20);
+/// let (mut first, mut second) = bytes.split_at(10);
+/// assert_eq!(d.next(&mut first).unwrap(), None);
+/// let got = d.next(&mut second).unwrap().unwrap();
+/// assert_eq!(got.data, f.data);
+/// assert!(second.is_empty());
+/// ```
+#[derive(Debug)]
+pub struct Deframer {
+    limit: u64,
+    /// The header being collected.
+    head: Vec<u8>,
+    /// The frame being filled, once its header is known.
+    cur: Option<Partial>,
+}
+
+#[derive(Debug)]
+struct Partial {
+    header: Header,
+    class_len: usize,
+    data_len: usize,
+    class_data: Vec<u8>,
+    data: Vec<u8>,
+}
+
+/// A body buffer starts at most this large and doubles as bytes arrive.
+const FIRST_RESERVE: usize = 64 * 1024;
+
+/// Appends `bytes` to `v`, which will hold `total` bytes in the end:
+/// capacity grows by doubling (from [`FIRST_RESERVE`]) but never past
+/// `total`, so a frame's buffer ends exactly its size.
+fn fill(v: &mut Vec<u8>, total: usize, bytes: &[u8]) {
+    let need = v.len() + bytes.len();
+    if need > v.capacity() {
+        let want = (v.len() * 2).max(need).max(FIRST_RESERVE).min(total);
+        v.reserve_exact(want - v.len());
+    }
+    v.extend_from_slice(bytes);
+}
+
+impl Deframer {
+    /// Frames larger than `limit` bytes (class and message data) are refused.
+    pub fn new(limit: u64) -> Deframer {
+        Deframer {
+            limit,
+            head: Vec::with_capacity(HEADER_SIZE),
+            cur: None,
+        }
+    }
+
+    /// Takes bytes from the front of `input` until a frame is complete (and
+    /// returns it) or `input` is used up (`None`: the rest is kept for the
+    /// next call). An error leaves the stream unusable.
+    pub fn next(&mut self, input: &mut &[u8]) -> Result<Option<Frame>, FrameError> {
+        loop {
+            let Some(p) = &mut self.cur else {
+                let take = (HEADER_SIZE - self.head.len()).min(input.len());
+                self.head.extend_from_slice(&input[..take]);
+                *input = &input[take..];
+                if self.head.len() < HEADER_SIZE {
+                    return Ok(None);
+                }
+                let header = Header::decode(&self.head)?;
+                let n = header.body_len(self.limit)?;
+                self.head.clear();
+                let class_len = header.class_total as usize;
+                self.cur = Some(Partial {
+                    header,
+                    class_len,
+                    data_len: n - class_len,
+                    class_data: Vec::new(),
+                    data: Vec::new(),
+                });
+                continue;
+            };
+            let c = (p.class_len - p.class_data.len()).min(input.len());
+            fill(&mut p.class_data, p.class_len, &input[..c]);
+            *input = &input[c..];
+            let d = (p.data_len - p.data.len()).min(input.len());
+            fill(&mut p.data, p.data_len, &input[..d]);
+            *input = &input[d..];
+            if p.class_data.len() < p.class_len || p.data.len() < p.data_len {
+                return Ok(None);
+            }
+            let Some(p) = self.cur.take() else {
+                unreachable!("checked above")
+            };
+            return Ok(Some(Frame {
+                header: p.header,
+                class_data: p.class_data,
+                data: p.data,
+            }));
+        }
+    }
+
+    /// Whether a frame is partly received.
+    pub fn is_mid_frame(&self) -> bool {
+        !self.head.is_empty() || self.cur.is_some()
+    }
+
+    /// Forgets any partly received frame.
+    pub fn reset(&mut self) {
+        self.head.clear();
+        self.cur = None;
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    fn frame(intent: i32, class_data: Vec<u8>, data: Vec<u8>) -> Frame {
+        Frame {
+            header: Header {
+                class_total: class_data.len() as i32,
+                msg_total: data.len() as i32,
+                parent_ref: NO_REF,
+                intent,
+                class_id: ClassId::native(MsgClass::Broadcast),
+                dispatch_ref: NO_REF,
+                msg_ref: 7,
+            },
+            class_data,
+            data,
+        }
+    }
+
+    /// Feeds `stream` cut at `cuts` and collects the frames.
+    fn deframe(stream: &[u8], cuts: &[usize], limit: u64) -> Result<Vec<Frame>, FrameError> {
+        let mut d = Deframer::new(limit);
+        let mut out = Vec::new();
+        let mut start = 0;
+        let mut ends: Vec<usize> = cuts.iter().map(|c| c % (stream.len() + 1)).collect();
+        ends.push(stream.len());
+        ends.sort();
+        for end in ends {
+            let mut chunk = &stream[start..end.max(start)];
+            start = end.max(start);
+            while let Some(f) = d.next(&mut chunk)? {
+                out.push(f);
+            }
+            assert!(chunk.is_empty(), "next returned None with input left");
+        }
+        assert!(!d.is_mid_frame(), "bytes left over after the last frame");
+        Ok(out)
+    }
+
+    proptest! {
+        /// However the stream is cut, the frames come out whole and equal.
+        #[test]
+        fn deframer_splits_any_cut_into_the_same_frames(
+            frames in proptest::collection::vec(
+                (any::<i32>(), proptest::collection::vec(any::<u8>(), 0..40),
+                 prop_oneof![
+                     proptest::collection::vec(any::<u8>(), 0..100),
+                     (0usize..300_000).prop_map(|n| vec![0xa5; n]),
+                 ]),
+                0..6),
+            cuts in proptest::collection::vec(any::<usize>(), 0..12),
+        ) {
+            let frames: Vec<Frame> = frames.into_iter().map(|(i, c, d)| frame(i, c, d)).collect();
+            let stream: Vec<u8> = frames.iter().flat_map(|f| f.encode()).collect();
+            let got = deframe(&stream, &cuts, u64::MAX).unwrap();
+            prop_assert_eq!(got, frames);
+        }
+    }
+
+    #[test]
+    fn into_parts_is_encode_without_copying_large_data() {
+        let small = frame(3, b"ab".to_vec(), vec![4; SPLIT_AT - 1]);
+        assert_eq!(small.clone().into_parts(), (small.encode(), None));
+        let big = frame(3, b"ab".to_vec(), vec![4; SPLIT_AT]);
+        let at = big.data.as_ptr();
+        let whole = big.encode();
+        let (head, data) = big.into_parts();
+        let data = data.unwrap();
+        assert_eq!(data.as_ptr(), at, "the data was copied");
+        assert_eq!([head, data].concat(), whole);
+    }
+
+    #[test]
+    fn deframer_buffers_end_exactly_the_frame_size() {
+        let f = frame(5, b"abc".to_vec(), vec![1; 1_000_003]);
+        let bytes = f.encode();
+        let got = deframe(&bytes, &[100, 70_000, 300_000], u64::MAX).unwrap();
+        assert_eq!(got[0].data.capacity(), 1_000_003);
+        assert_eq!(got[0].class_data.capacity(), 3);
+    }
+
+    /// A header announcing a large frame reserves memory only as its bytes
+    /// arrive.
+    #[test]
+    fn deframer_reserves_with_what_arrived_not_with_what_was_announced() {
+        let mut h = frame(5, Vec::new(), Vec::new()).header;
+        h.msg_total = i32::MAX;
+        let mut d = Deframer::new(u64::MAX);
+        let head = h.encode();
+        assert_eq!(d.next(&mut &head[..]).unwrap(), None);
+        assert_eq!(d.next(&mut &[9u8; 10][..]).unwrap(), None);
+        let p = d.cur.as_ref().unwrap();
+        assert!(p.data.capacity() <= FIRST_RESERVE, "{}", p.data.capacity());
+        assert!(d.is_mid_frame());
+        d.reset();
+        assert!(!d.is_mid_frame());
+    }
+
+    #[test]
+    fn deframer_refuses_bad_headers() {
+        let mut h = frame(5, Vec::new(), vec![0; 100]).header;
+        h.msg_total = 100;
+        let big = h.encode();
+        assert!(matches!(
+            Deframer::new(99).next(&mut &big[..]),
+            Err(FrameError::TooLarge {
+                size: 100,
+                limit: 99
+            })
+        ));
+        h.class_total = -1;
+        let neg = h.encode();
+        assert!(matches!(
+            Deframer::new(1000).next(&mut &neg[..]),
+            Err(FrameError::NegativeLength { .. })
+        ));
+    }
 
     fn hex(s: &str) -> Vec<u8> {
         let s: String = s.chars().filter(|c| c.is_ascii_hexdigit()).collect();

@@ -45,7 +45,7 @@ use std::collections::{HashMap, HashSet, VecDeque};
 use std::time::Instant;
 
 use super::frame::{
-    ClassId, Frame, FrameError, Header, MsgClass, HEADER_SIZE, NO_REF, QUERY_REPLY_INTENT,
+    ClassId, Deframer, Frame, FrameError, Header, MsgClass, NO_REF, QUERY_REPLY_INTENT,
 };
 use super::{ByteOrder, Reader, Writer};
 use crate::format::Format;
@@ -432,7 +432,10 @@ struct PendingDelivery {
 pub struct Connection {
     cfg: ModuleConfig,
     stage: Stage,
-    inbuf: Vec<u8>,
+    /// The 4-byte msgInfo id that opens central's stream, as it arrives.
+    prefix: Vec<u8>,
+    /// Central's frames.
+    deframer: Deframer,
     msg_info_id: i32,
     next_ref: i32,
     next_handler: i32,
@@ -451,7 +454,7 @@ pub struct Connection {
     retired: HashMap<(String, String), i32>,
     deliveries: VecDeque<PendingDelivery>,
     inbox: VecDeque<(Frame, Option<LinkId>)>,
-    link_in: HashMap<LinkId, Vec<u8>>,
+    link_in: HashMap<LinkId, Deframer>,
     direct_handlers: HashMap<String, Vec<DirectHandler>>,
     links: HashMap<(String, i32), (LinkId, bool)>,
     next_link: u64,
@@ -476,10 +479,12 @@ impl Connection {
             cut -= 1;
         }
         cfg.host_name.truncate(cut);
+        let max_frame = cfg.max_frame;
         Connection {
             cfg,
             stage: Stage::MsgInfoId,
-            inbuf: Vec::new(),
+            prefix: Vec::with_capacity(4),
+            deframer: Deframer::new(max_frame),
             msg_info_id: 0,
             next_ref: 1,
             next_handler: FIRST_HANDLER_ID,
@@ -547,7 +552,10 @@ impl Connection {
         !self.transmit.is_empty()
     }
 
-    /// Next bytes to write to central.
+    /// Next bytes to write to central, in order. A large message's data
+    /// comes as a buffer of its own after its header's (it is not copied
+    /// behind it, see [`Frame::into_parts`]): a vectored write sends them
+    /// together.
     pub fn poll_transmit(&mut self) -> Option<Vec<u8>> {
         self.transmit.pop_front()
     }
@@ -585,13 +593,26 @@ impl Connection {
     }
 
     /// Feeds bytes read from central, in any split.
-    pub fn receive(&mut self, bytes: &[u8], _now: Instant) {
-        if matches!(self.stage, Stage::Closed) {
-            return;
+    pub fn receive(&mut self, mut bytes: &[u8], _now: Instant) {
+        if matches!(self.stage, Stage::MsgInfoId) {
+            let take = (4 - self.prefix.len()).min(bytes.len());
+            self.prefix.extend_from_slice(&bytes[..take]);
+            bytes = &bytes[take..];
+            let Ok(id) = <[u8; 4]>::try_from(&self.prefix[..]) else {
+                return;
+            };
+            self.msg_info_id = i32::from_be_bytes(id);
+            self.stage = Stage::Formatters(0);
         }
-        self.inbuf.extend_from_slice(bytes);
-        if let Err(e) = self.drain_input() {
-            self.fail(e);
+        while !matches!(self.stage, Stage::Closed) {
+            let res = match self.deframer.next(&mut bytes) {
+                Ok(Some(frame)) => self.handle_frame(frame),
+                Ok(None) => return,
+                Err(e) => Err(e.into()),
+            };
+            if let Err(e) = res {
+                self.fail(e);
+            }
         }
     }
 
@@ -605,43 +626,9 @@ impl Connection {
 
     fn fail(&mut self, e: Error) {
         self.stage = Stage::Closed;
-        self.inbuf.clear();
+        self.deframer.reset();
         self.ops.clear();
         self.events.push_back(Event::Closed(Some(e)));
-    }
-
-    fn drain_input(&mut self) -> Result<(), Error> {
-        let mut pos = 0;
-        let res = loop {
-            if matches!(self.stage, Stage::Closed) {
-                break Ok(());
-            }
-            let rest = &self.inbuf[pos..];
-            if matches!(self.stage, Stage::MsgInfoId) {
-                if rest.len() < 4 {
-                    break Ok(());
-                }
-                self.msg_info_id = i32::from_be_bytes([rest[0], rest[1], rest[2], rest[3]]);
-                pos += 4;
-                self.stage = Stage::Formatters(0);
-                continue;
-            }
-            if rest.len() < HEADER_SIZE {
-                break Ok(());
-            }
-            let header = Header::decode(rest)?;
-            let n = header.body_len(self.cfg.max_frame)?;
-            if rest.len() < HEADER_SIZE + n {
-                break Ok(());
-            }
-            let frame = Frame::from_parts(header, &rest[HEADER_SIZE..HEADER_SIZE + n])?;
-            pos += HEADER_SIZE + n;
-            if let Err(e) = self.handle_frame(frame) {
-                break Err(e);
-            }
-        };
-        self.inbuf.drain(..pos.min(self.inbuf.len()));
-        res
     }
 
     fn handle_frame(&mut self, f: Frame) -> Result<(), Error> {
@@ -727,7 +714,9 @@ impl Connection {
             class_data,
             data,
         };
-        self.transmit.push_back(frame.encode());
+        let (head, data) = frame.into_parts();
+        self.transmit.push_back(head);
+        self.transmit.extend(data);
         msg_ref
     }
 
@@ -911,14 +900,14 @@ impl Connection {
                         }
                     }
                 }
-                match proto::wrap(&info, &msg, &data) {
+                match proto::wrap(&info, &msg, data) {
                     Ok(body) => {
                         let class =
                             MsgClass::from_u16(info.class as u16).unwrap_or(MsgClass::Broadcast);
                         self.send(intent, class, parent, Vec::new(), body);
                         self.events.push_back(Event::Published { op });
                     }
-                    Err(error) => self.events.push_back(Event::OpFailed { op, error }),
+                    Err((error, _)) => self.events.push_back(Event::OpFailed { op, error }),
                 }
             }
             Op::Query {
@@ -939,12 +928,12 @@ impl Connection {
                     );
                     return;
                 }
-                match proto::wrap(&info, &msg, &data) {
+                match proto::wrap(&info, &msg, data) {
                     Ok(body) => {
                         let r = self.send(intent, MsgClass::Query, parent, Vec::new(), body);
                         self.pending.insert(r, Pending::UserQuery(op));
                     }
-                    Err(error) => self.events.push_back(Event::OpFailed { op, error }),
+                    Err((error, _)) => self.events.push_back(Event::OpFailed { op, error }),
                 }
             }
             Op::Respond {
@@ -954,7 +943,7 @@ impl Connection {
                 parent,
                 link,
             } => {
-                let body = proto::wrap(&info, &msg, &data).unwrap_or(data);
+                let body = proto::wrap(&info, &msg, data).unwrap_or_else(|(_, data)| data);
                 let mut cd = Writer::new();
                 cd.write_str(&msg);
                 if let Some(link) = link {
@@ -973,7 +962,7 @@ impl Connection {
                         class_data: cd.into_vec(),
                         data: body,
                     };
-                    self.direct_tx.push_back((link, frame.encode()));
+                    self.push_direct(link, frame);
                     return;
                 }
                 self.send_ref(
@@ -1074,13 +1063,13 @@ impl Connection {
                             query,
                             reply_msg,
                             order,
-                            data: f.data.clone(),
+                            data: f.data,
                         },
                     );
                 } else {
                     let data = match self.cache.get(&reply_msg) {
-                        Some(info) => proto::unwrap(info, &f.data, order)?,
-                        None => f.data.clone(),
+                        Some(info) => proto::unwrap(info, f.data, order)?,
+                        None => f.data,
                     };
                     self.events.push_back(Event::Reply {
                         query,
@@ -1100,7 +1089,7 @@ impl Connection {
                     self.cache.insert(reply_msg.clone(), info);
                 }
                 let data = match self.cache.get(&reply_msg) {
-                    Some(info) => proto::unwrap(info, &data, data_order)?,
+                    Some(info) => proto::unwrap(info, data, data_order)?,
                     None => data,
                 };
                 self.events.push_back(Event::Reply {
@@ -1275,7 +1264,7 @@ impl Connection {
         }
     }
 
-    fn dispatch(&mut self, d: PendingDelivery) -> Result<(), Error> {
+    fn dispatch(&mut self, mut d: PendingDelivery) -> Result<(), Error> {
         let h = d.frame.header;
         let order = data_order(&h)?;
         let kind = match h.class_id.msg_class() {
@@ -1283,9 +1272,16 @@ impl Connection {
             _ => DeliveryKind::Broadcast,
         };
         let hk = self.handlers.get(&h.intent).map(|x| x.kind.clone());
+        // A user handler gets the body itself; central's own messages are
+        // small and read from the frame below.
+        let body = if matches!(hk, Some(HandlerKind::User) | None) {
+            std::mem::take(&mut d.frame.data)
+        } else {
+            d.frame.data.clone()
+        };
         let data = match self.cache.get(&d.msg) {
-            Some(info) => proto::unwrap(info, &d.frame.data, order),
-            None => Ok(d.frame.data.clone()),
+            Some(info) => proto::unwrap(info, body, order),
+            None => Ok(body),
         };
         let data = match (data, &hk) {
             (Ok(data), _) => data,
@@ -1433,12 +1429,20 @@ impl Connection {
         self.direct_tx.pop_front()
     }
 
+    fn push_direct(&mut self, link: LinkId, frame: Frame) {
+        let (head, data) = frame.into_parts();
+        self.direct_tx.push_back((link, head));
+        if let Some(data) = data {
+            self.direct_tx.push_back((link, data));
+        }
+    }
+
     /// A peer connected to our direct listener: returns the link's handle
     /// for [`receive_direct`](Self::receive_direct).
     pub fn accept_direct(&mut self) -> LinkId {
         let link = LinkId(self.next_link);
         self.next_link += 1;
-        self.link_in.insert(link, Vec::new());
+        self.link_in.insert(link, Deframer::new(self.cfg.max_frame));
         link
     }
 
@@ -1446,49 +1450,30 @@ impl Connection {
     /// deliveries to our handlers (no Success ack is sent for them) and
     /// replies to our direct queries. A malformed stream closes only the
     /// link: the error is returned and the shell drops the socket.
-    pub fn receive_direct(&mut self, link: LinkId, bytes: &[u8]) -> Result<(), Error> {
-        let mut buf = self.link_in.remove(&link).unwrap_or_default();
-        buf.extend_from_slice(bytes);
-        let mut pos = 0;
-        let res = loop {
-            let rest = &buf[pos..];
-            if rest.len() < HEADER_SIZE {
-                break Ok(());
-            }
-            let header = match Header::decode(rest) {
-                Ok(h) => h,
-                Err(e) => break Err(Error::Frame(e)),
+    pub fn receive_direct(&mut self, link: LinkId, mut bytes: &[u8]) -> Result<(), Error> {
+        let mut d = self
+            .link_in
+            .remove(&link)
+            .unwrap_or_else(|| Deframer::new(self.cfg.max_frame));
+        loop {
+            let frame = match d.next(&mut bytes) {
+                Ok(Some(f)) => f,
+                Ok(None) => break,
+                Err(e) => return Err(Error::Frame(e)),
             };
-            let n = match header.body_len(self.cfg.max_frame) {
-                Ok(n) => n,
-                Err(e) => break Err(Error::Frame(e)),
-            };
-            if rest.len() < HEADER_SIZE + n {
-                break Ok(());
-            }
-            let frame = match Frame::from_parts(header, &rest[HEADER_SIZE..HEADER_SIZE + n]) {
-                Ok(f) => f,
-                Err(e) => break Err(Error::Frame(e)),
-            };
-            pos += HEADER_SIZE + n;
             if frame.header.intent == QUERY_REPLY_INTENT {
-                if let Err(e) = self.handle_reply(frame) {
-                    break Err(e);
-                }
+                self.handle_reply(frame)?;
             } else if self.inbox.len() >= MAX_QUEUED_DELIVERIES {
-                break Err(Error::Protocol {
+                return Err(Error::Protocol {
                     what: "direct delivery",
                     detail: format!("more than {MAX_QUEUED_DELIVERIES} unprocessed deliveries"),
                 });
             } else {
                 self.inbox.push_back((frame, Some(link)));
             }
-        };
-        if res.is_ok() {
-            buf.drain(..pos);
-            self.link_in.insert(link, buf);
         }
-        res
+        self.link_in.insert(link, d);
+        Ok(())
     }
 
     /// The shell connected direct link `link`: queued sends proceed.
@@ -1598,9 +1583,9 @@ impl Connection {
                 .push_back(Event::PublishDropped { op: op_id, msg });
             return;
         }
-        let body = match proto::wrap(info, &msg, &data) {
+        let body = match proto::wrap(info, &msg, data) {
             Ok(b) => b,
-            Err(error) => {
+            Err((error, _)) => {
                 self.events.push_back(Event::OpFailed { op: op_id, error });
                 return;
             }
@@ -1635,7 +1620,7 @@ impl Connection {
                 class_data: Vec::new(),
                 data: body.clone(),
             };
-            self.direct_tx.push_back((link, frame.encode()));
+            self.push_direct(link, frame);
         }
         if query {
             self.pending.insert(msg_ref, Pending::UserQuery(op_id));
@@ -1707,27 +1692,39 @@ impl Connection {
 
     /// `IPC_publish`: wraps `data` per the message's format; the outcome is
     /// [`Event::Published`], [`Event::PublishDropped`] or [`Event::OpFailed`].
-    /// `parent_ref` is the dispatch being handled (or -1).
-    pub fn publish(&mut self, msg: &str, data: &[u8], parent_ref: i32) -> Result<OpId, Error> {
+    /// `parent_ref` is the dispatch being handled (or -1). An owned `data`
+    /// (a `Vec<u8>`) goes into the frame without being copied.
+    pub fn publish(
+        &mut self,
+        msg: &str,
+        data: impl Into<Vec<u8>>,
+        parent_ref: i32,
+    ) -> Result<OpId, Error> {
         self.check_open()?;
         let op = self.alloc_op();
         self.push_op(Op::Publish {
             op,
             msg: msg.into(),
-            data: data.to_vec(),
+            data: data.into(),
             parent: parent_ref,
         });
         Ok(op)
     }
 
-    /// `IPC_queryNotify`/`IPC_queryResponse`: the answer comes as [`Event::Reply`].
-    pub fn query(&mut self, msg: &str, data: &[u8], parent_ref: i32) -> Result<OpId, Error> {
+    /// `IPC_queryNotify`/`IPC_queryResponse`: the answer comes as
+    /// [`Event::Reply`]. `data` as in [`publish`](Self::publish).
+    pub fn query(
+        &mut self,
+        msg: &str,
+        data: impl Into<Vec<u8>>,
+        parent_ref: i32,
+    ) -> Result<OpId, Error> {
         self.check_open()?;
         let op = self.alloc_op();
         self.push_op(Op::Query {
             op,
             msg: msg.into(),
-            data: data.to_vec(),
+            data: data.into(),
             parent: parent_ref,
         });
         Ok(op)
@@ -1739,7 +1736,7 @@ impl Connection {
         &mut self,
         delivery: DeliveryId,
         reply_msg: &str,
-        data: &[u8],
+        data: impl Into<Vec<u8>>,
     ) -> Result<(), Error> {
         self.check_open()?;
         let Some((kind, dispatch, link)) = self.unacked.get(&delivery).copied() else {
@@ -1751,7 +1748,7 @@ impl Connection {
         self.unacked.remove(&delivery);
         self.push_op(Op::Respond {
             msg: reply_msg.into(),
-            data: data.to_vec(),
+            data: data.into(),
             dispatch,
             parent: dispatch,
             link,

@@ -85,37 +85,46 @@ fn body_kind(info: &MsgInfo) -> Body {
     }
 }
 
-/// Wraps user bytes into the message body (§9.1).
-pub(super) fn wrap(info: &MsgInfo, msg: &str, data: &[u8]) -> Result<Vec<u8>, Error> {
+/// Wraps user bytes into the message body (§9.1), moving them when the
+/// body is the bytes themselves; an error gives them back.
+pub(super) fn wrap(info: &MsgInfo, msg: &str, data: Vec<u8>) -> Result<Vec<u8>, (Error, Vec<u8>)> {
     Ok(match body_kind(info) {
         Body::Empty => Vec::new(),
         Body::Variable => {
             let mut w = Writer::with_capacity(8 + data.len());
             w.write_len(data.len());
             w.write_len(data.len());
-            w.write_bytes(data);
+            w.write_bytes(&data);
             w.into_vec()
         }
         Body::Fixed(n) => {
             if data.len() != n {
-                return Err(Error::WrongLength {
-                    msg: msg.into(),
-                    expected: n,
-                    got: data.len(),
-                });
+                let got = data.len();
+                return Err((
+                    Error::WrongLength {
+                        msg: msg.into(),
+                        expected: n,
+                        got,
+                    },
+                    data,
+                ));
             }
-            data.to_vec()
+            data
         }
-        Body::Raw => data.to_vec(),
+        Body::Raw => data,
     })
 }
 
-/// Unwraps a received body into the user bytes.
-pub(super) fn unwrap(info: &MsgInfo, body: &[u8], order: ByteOrder) -> Result<Vec<u8>, Error> {
+/// Unwraps a received body into the user bytes, in place.
+pub(super) fn unwrap(
+    info: &MsgInfo,
+    mut body: Vec<u8>,
+    order: ByteOrder,
+) -> Result<Vec<u8>, Error> {
     match body_kind(info) {
         Body::Variable => {
             let e = |e| proto_err("variable-length body", e);
-            let mut r = Reader::new(body, order);
+            let mut r = Reader::new(&body, order);
             let len = r.read_i32().map_err(e)?;
             let count = r.read_count(1).map_err(e)?;
             if len < 0 || len as usize != count {
@@ -124,11 +133,13 @@ pub(super) fn unwrap(info: &MsgInfo, body: &[u8], order: ByteOrder) -> Result<Ve
                     detail: format!("length {len} disagrees with count {count}"),
                 });
             }
-            let b = r.take(count).map_err(e)?.to_vec();
+            r.take(count).map_err(e)?;
             r.finish().map_err(e)?;
-            Ok(b)
+            // What is left is exactly the `count` bytes after the two ints.
+            body.drain(..8);
+            Ok(body)
         }
-        _ => Ok(body.to_vec()),
+        _ => Ok(body),
     }
 }
 
