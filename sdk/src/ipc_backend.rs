@@ -1064,7 +1064,14 @@ impl Driver {
                         let _ = d.send(Ok((reply_msg, data, order)));
                     }
                 }
-                Event::Published { op } | Event::PublishDropped { op, .. } => {
+                Event::Published { op } => {
+                    if let Some(d) = self.publishes.remove(&op) {
+                        let _ = d.send(Ok(()));
+                    }
+                }
+                Event::PublishDropped { op, msg } => {
+                    // As C: a broadcast nobody subscribes to is not sent.
+                    tracing::debug!(%msg, "not sent: central lists no subscriber for it");
                     if let Some(d) = self.publishes.remove(&op) {
                         let _ = d.send(Ok(()));
                     }

@@ -462,6 +462,9 @@ pub struct Connection {
     unknown: HashSet<String>,
     unacked: HashMap<DeliveryId, (DeliveryKind, i32, Option<LinkId>)>,
     broadcast_var: Option<HashSet<String>>,
+    /// Messages central counted handlers for that no list from it has
+    /// named yet (see [`Connection::set_broadcast_list`]).
+    counted: HashSet<String>,
     class_formats: Vec<(i32, Option<Format>)>,
     direct: bool,
     transmit: VecDeque<Vec<u8>>,
@@ -507,6 +510,7 @@ impl Connection {
             unknown: HashSet::new(),
             unacked: HashMap::new(),
             broadcast_var: None,
+            counted: HashSet::new(),
             class_formats: Vec::new(),
             direct: false,
             transmit: VecDeque::new(),
@@ -1159,7 +1163,7 @@ impl Connection {
                 }
             }
             Op::VarGet("V_get_X_IPC_BROADCAST_MSG_VAR") => {
-                self.broadcast_var = Some(proto::decode_str_list(&f.data, order)?);
+                self.set_broadcast_list(proto::decode_str_list(&f.data, order)?);
             }
             Op::WaitMsg => {
                 self.stage = Stage::Ready;
@@ -1187,13 +1191,21 @@ impl Connection {
                     });
                 }
             }
-            Op::NumHandlers { op, .. } => {
+            Op::NumHandlers { op, msg } => {
                 let count = if f.data.is_empty() {
                     0
                 } else {
                     rd.read_i32()
                         .map_err(|e| proto_err("directMsgQuery reply", e))?
                 };
+                if count > 0 {
+                    if let Some(list) = &mut self.broadcast_var {
+                        list.insert(msg.clone());
+                    }
+                    self.counted.insert(msg);
+                } else {
+                    self.counted.remove(&msg);
+                }
                 self.events.push_back(Event::NumHandlers { op, count });
             }
             _ => {}
@@ -1317,7 +1329,7 @@ impl Connection {
                 return Ok(());
             }
             Some(HandlerKind::BroadcastVar) => {
-                self.broadcast_var = Some(proto::decode_str_list(&d.frame.data, order)?);
+                self.set_broadcast_list(proto::decode_str_list(&d.frame.data, order)?);
             }
             Some(HandlerKind::ConnectNotify) | Some(HandlerKind::DisconnectNotify) => {
                 let mut r = Reader::new(&d.frame.data, order);
@@ -1427,6 +1439,22 @@ impl Connection {
     /// Bytes to write on a direct link (§8).
     pub fn poll_direct_transmit(&mut self) -> Option<(LinkId, Vec<u8>)> {
         self.direct_tx.pop_front()
+    }
+
+    /// Takes central's list of subscribed broadcasts, keeping the messages
+    /// it counted handlers for ([`num_handlers`](Self::num_handlers)) until
+    /// a list names them.
+    ///
+    /// Central sends us its list updates one at a time, each after we
+    /// acknowledged the previous one, while it answers a count at once: a
+    /// count can be newer than the lists still on their way. A publish that
+    /// trusted such a list after being told "1 handler" was dropped
+    /// unsent. Keeping a counted message costs at worst broadcasts central
+    /// discards, until a count of 0 or a list naming it ends the keeping.
+    fn set_broadcast_list(&mut self, mut list: HashSet<String>) {
+        self.counted.retain(|m| !list.contains(m));
+        list.extend(self.counted.iter().cloned());
+        self.broadcast_var = Some(list);
     }
 
     fn push_direct(&mut self, link: LinkId, frame: Frame) {
