@@ -103,6 +103,25 @@ fn msg_info_reply(
     frame(-4, MsgClass::Unknown, 0, msg_ref, &[], &w.into_vec())
 }
 
+/// Answers the msgInfo lookup of `x_ipc_directMsgQuery` (id 147) that
+/// num_handlers and direct sends start with; returns what follows it.
+fn answer_direct_msg_query_lookup(c: &mut Connection) -> Vec<Frame> {
+    let f = drain(c);
+    assert_eq!(lookup_name(&f[0]), "x_ipc_directMsgQuery");
+    c.receive(
+        &msg_info_reply(
+            f[0].header.msg_ref,
+            147,
+            "x_ipc_directMsgQuery",
+            3,
+            "string",
+            "int",
+        ),
+        Instant::now(),
+    );
+    drain(c)
+}
+
 fn lookup_name(f: &Frame) -> String {
     let mut r = courier_wire::ipc::Reader::native(&f.data);
     r.read_str().unwrap().to_string()
@@ -599,20 +618,7 @@ fn direct_publish_waits_for_receivers_and_links() {
         now,
     );
     // lookup of x_ipc_directMsgQuery, then the query itself
-    let f = drain(&mut c);
-    assert_eq!(lookup_name(&f[0]), "x_ipc_directMsgQuery");
-    c.receive(
-        &msg_info_reply(
-            f[0].header.msg_ref,
-            147,
-            "x_ipc_directMsgQuery",
-            3,
-            "string",
-            "int",
-        ),
-        now,
-    );
-    let f = drain(&mut c);
+    let f = answer_direct_msg_query_lookup(&mut c);
     assert_eq!(f.len(), 1);
     assert_eq!(
         (f[0].header.intent, f[0].data.clone()),
@@ -756,22 +762,9 @@ fn a_handler_count_from_central_outranks_a_stale_broadcast_list() {
     let now = Instant::now();
     let mut c = connected(true);
     let n = c.num_handlers("message9").unwrap();
-    let f = drain(&mut c);
-    assert_eq!(lookup_name(&f[0]), "x_ipc_directMsgQuery");
-    c.receive(
-        &msg_info_reply(
-            f[0].header.msg_ref,
-            30,
-            "x_ipc_directMsgQuery",
-            3,
-            "string",
-            "{int, int, int, int, string, string}",
-        ),
-        now,
-    );
-    let f = drain(&mut c);
+    let f = answer_direct_msg_query_lookup(&mut c);
     assert_eq!(f.len(), 1);
-    assert_eq!(f[0].header.intent, 30);
+    assert_eq!(f[0].header.intent, 147);
     c.receive(
         &frame(
             -4,
