@@ -19,7 +19,7 @@ use tokio::task::{JoinHandle, JoinSet};
 
 use courier::busy_poll::BusyPoll;
 use courier_wire::ipc::central::{
-    Central, Config, ConnId, LogOptions, LogTarget, Output, Peer, Stats,
+    Body, Central, Config, ConnId, LogOptions, LogTarget, Output, Peer, Stats,
 };
 
 use crate::access::{AccessControl, Client, Decision, HostName, RuleRef};
@@ -791,9 +791,27 @@ struct WriteSide {
     closing: Notify,
 }
 
+/// Bytes to write: a frame, or a frame's header, or a large message's
+/// data shared with central's queues.
+enum Buf {
+    Own(Vec<u8>),
+    Shared(Body),
+}
+
+impl std::ops::Deref for Buf {
+    type Target = [u8];
+
+    fn deref(&self) -> &[u8] {
+        match self {
+            Buf::Own(v) => v,
+            Buf::Shared(b) => b,
+        }
+    }
+}
+
 /// Frames to write: `bufs[idx][off..]` then the rest of `bufs`.
 struct Chunks {
-    bufs: Vec<Vec<u8>>,
+    bufs: Vec<Buf>,
     idx: usize,
     off: usize,
 }
@@ -944,7 +962,7 @@ struct ConnState {
     side: Arc<WriteSide>,
     to_writer: mpsc::UnboundedSender<Chunks>,
     /// Frames produced in the current batch, not yet written.
-    batch: Vec<Vec<u8>>,
+    batch: Vec<Buf>,
     /// Hands the read buffer back to the reader.
     back: mpsc::Sender<Vec<u8>>,
     /// Central asked not to read from this connection.
@@ -1219,14 +1237,8 @@ impl Core {
 
     fn apply(&mut self, o: Output) {
         match o {
-            Output::Transmit { conn, bytes } => {
-                if let Some(st) = self.conns.get_mut(&conn) {
-                    if st.batch.is_empty() {
-                        self.dirty.push(conn);
-                    }
-                    st.batch.push(bytes);
-                }
-            }
+            Output::Transmit { conn, bytes } => self.queue(conn, bytes, None),
+            Output::TransmitBody { conn, head, body } => self.queue(conn, head, Some(body)),
             Output::Close { conn, reason } => {
                 tracing::debug!(conn = conn.0, %reason, "closing connection");
                 self.close(conn);
@@ -1246,6 +1258,17 @@ impl Core {
                 }
             }
             other => tracing::warn!("unhandled central output {other:?}"),
+        }
+    }
+
+    /// Adds a frame to `conn`'s batch.
+    fn queue(&mut self, conn: ConnId, head: Vec<u8>, body: Option<Body>) {
+        if let Some(st) = self.conns.get_mut(&conn) {
+            if st.batch.is_empty() {
+                self.dirty.push(conn);
+            }
+            st.batch.push(Buf::Own(head));
+            st.batch.extend(body.map(Buf::Shared));
         }
     }
 
@@ -1303,7 +1326,11 @@ mod tests {
     #[test]
     fn chunks_advance_across_frames() {
         let mut c = Chunks {
-            bufs: vec![vec![1, 2, 3], vec![], vec![4, 5]],
+            bufs: vec![
+                Buf::Own(vec![1, 2, 3]),
+                Buf::Own(vec![]),
+                Buf::Shared(Body::from(vec![4, 5])),
+            ],
             idx: 0,
             off: 0,
         };
@@ -1315,7 +1342,7 @@ mod tests {
         c.advance(2);
         assert!(c.done());
         let mut empty = Chunks {
-            bufs: vec![vec![]],
+            bufs: vec![Buf::Own(vec![])],
             idx: 0,
             off: 0,
         };

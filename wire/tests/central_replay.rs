@@ -133,7 +133,7 @@ fn check(name: &str, direct: bool) -> usize {
     let mut compared = 0;
     let drain = |central: &mut Central, actual: &mut HashMap<u64, VecDeque<Vec<u8>>>| {
         while let Some(o) = central.poll_output() {
-            if let Output::Transmit { conn, bytes } = o {
+            if let Some((conn, bytes)) = o.transmitted() {
                 actual.entry(conn.0).or_default().push_back(bytes);
             }
         }
@@ -367,7 +367,8 @@ fn drain_log(
 ) {
     while let Some(o) = central.poll_output() {
         match o {
-            Output::Transmit { conn, bytes } => {
+            Output::Transmit { .. } | Output::TransmitBody { .. } => {
+                let (conn, bytes) = o.transmitted().unwrap();
                 actual.entry(conn.0 - 5).or_default().push_back(bytes)
             }
             Output::Log { target, line } if target.terminal => log.push(line),

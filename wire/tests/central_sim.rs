@@ -38,6 +38,8 @@ struct Sim {
     wire: HashMap<u64, Vec<u8>>,
     /// The size of every write central made, by module.
     writes: HashMap<u64, Vec<usize>>,
+    /// Frames written as a header plus a shared body.
+    shared_bodies: usize,
 }
 
 impl Sim {
@@ -55,6 +57,7 @@ impl Sim {
             read_size: None,
             wire: HashMap::new(),
             writes: HashMap::new(),
+            shared_bodies: 0,
         }
     }
 
@@ -144,7 +147,11 @@ impl Sim {
         while let Some(o) = self.central.poll_output() {
             any = true;
             match o {
-                Output::Transmit { conn, bytes } => {
+                o @ (Output::Transmit { .. } | Output::TransmitBody { .. }) => {
+                    if matches!(o, Output::TransmitBody { .. }) {
+                        self.shared_bodies += 1;
+                    }
+                    let (conn, bytes) = o.transmitted().unwrap();
                     self.wire
                         .entry(conn.0)
                         .or_default()
@@ -1482,4 +1489,65 @@ fn a_malformed_body_costs_the_receiver_one_message_not_its_connection() {
     sim.m(a).query("ask", blob(10, 1), -1).unwrap();
     sim.pump();
     assert_eq!(only_delivery(&mut sim, b).1, blob(10, 1));
+}
+
+// ----- large messages kept in the buffer they arrived in ----------------------
+
+/// Five broadcasts, two of them large, written back to back by one module
+/// and read by central in pieces of `read`: what the subscriber receives,
+/// every byte central wrote to it, and how many frames went out with a
+/// shared body.
+fn mixed_sizes_read_in(read: usize) -> (Vec<Vec<u8>>, Vec<u8>, usize) {
+    let mut sim = Sim::new(Config::default());
+    let a = sim.connect("pub");
+    let b = sim.connect("sub");
+    define(&mut sim, a, "m", "{int, <ubyte:1>}");
+    sim.m(b).subscribe("m", "HND-m").unwrap();
+    sim.pump();
+    let start = sim.wire[&b].len();
+    let sizes = [10, 70_000, 3, 20_000, 5];
+    for (i, n) in sizes.iter().enumerate() {
+        sim.m(a).publish("m", blob(*n, i as u8), -1).unwrap();
+    }
+    let stream = written(&mut sim, a);
+    for piece in stream.chunks(read) {
+        sim.central.receive(ConnId(a), piece, sim.wall);
+        sim.drain();
+    }
+    let mut got = Vec::new();
+    while got.len() < sizes.len() {
+        sim.pump();
+        let d = sim.deliveries(b);
+        assert!(!d.is_empty(), "read {read}: stalled after {}", got.len());
+        for (id, _, _, data) in d {
+            sim.m(b).ack(id).unwrap();
+            got.push(data);
+        }
+    }
+    for (i, (data, n)) in got.iter().zip(sizes).enumerate() {
+        assert_eq!(*data, blob(n, i as u8), "read {read}: message {i}");
+    }
+    (got, sim.wire[&b][start..].to_vec(), sim.shared_bodies)
+}
+
+#[test]
+fn large_messages_go_out_in_the_buffer_they_arrived_in_whatever_the_reads() {
+    let (data, wire, shared) = mixed_sizes_read_in(usize::MAX);
+    // The two messages of 16 KiB or more.
+    assert_eq!(shared, 2);
+    for read in [1, 7, 4096, 16 << 10, 20_031, 70_030, 70_100, 100_000] {
+        let (d, w, s) = mixed_sizes_read_in(read);
+        assert_eq!(d, data, "read {read}");
+        assert_eq!(w, wire, "read {read}: central's bytes to the subscriber");
+        assert_eq!(s, 2, "read {read}");
+    }
+}
+
+#[test]
+fn store_and_forward_shares_large_queries_and_replies_and_cut_through_copies_none() {
+    let (_, _, whole) = large_queries(None, 3);
+    // Three 100 kB queries and three 200 kB replies.
+    assert_eq!(whole.shared_bodies, 6);
+    let (_, _, cut) = large_queries(Some(64 << 10), 3);
+    assert_eq!(cut.shared_bodies, 0, "relayed frames pass in pieces");
 }

@@ -11,7 +11,8 @@
 //!   bytes read  -> central.receive(conn, &bytes, now)
 //!   EOF / error -> central.disconnect(conn, now)
 //!   stdin line  -> central.command(line, now)
-//!   loop { match central.poll_output() { Transmit / Close / Log / PauseRead / ResumeRead } }
+//!   loop { match central.poll_output() {
+//!       Transmit / TransmitBody / Close / Log / PauseRead / ResumeRead } }
 //! ```
 //!
 //! Framing is done here too: `receive` takes raw stream bytes in any
@@ -264,6 +265,18 @@ pub enum Output {
         /// Bytes to write.
         bytes: Vec<u8>,
     },
+    /// Write `head` and then `body` to the connection: one frame whose
+    /// message data (at least [`SPLIT_AT`] bytes) is shared with central's
+    /// queues instead of copied into the frame. In order with
+    /// [`Output::Transmit`].
+    TransmitBody {
+        /// The connection.
+        conn: ConnId,
+        /// The frame's header and class data.
+        head: Vec<u8>,
+        /// The frame's message data.
+        body: Body,
+    },
     /// Close the connection (after writing what was queued before).
     Close {
         /// The connection.
@@ -291,16 +304,40 @@ pub enum Output {
     },
 }
 
+impl Output {
+    /// The connection and bytes of a [`Transmit`](Output::Transmit) or
+    /// [`TransmitBody`](Output::TransmitBody), as one buffer (a shared body
+    /// is copied): for shells that write one buffer at a time, and tests.
+    pub fn transmitted(self) -> Option<(ConnId, Vec<u8>)> {
+        match self {
+            Output::Transmit { conn, bytes } => Some((conn, bytes)),
+            Output::TransmitBody {
+                conn,
+                mut head,
+                body,
+            } => {
+                head.extend_from_slice(&body);
+                Some((conn, head))
+            }
+            _ => None,
+        }
+    }
+}
+
+mod body;
 mod internal;
 mod log;
 
+pub use self::body::Body;
+
 use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
-use std::sync::Arc;
 
 use self::internal::{Def, Internal};
 use self::log::Kind;
 use crate::format::{parse, parse_with, Format, FormatRegistry};
-use crate::ipc::frame::{ClassId, Header, MsgClass, HEADER_SIZE, NO_REF, QUERY_REPLY_INTENT};
+use crate::ipc::frame::{
+    ClassId, Header, MsgClass, HEADER_SIZE, NO_REF, QUERY_REPLY_INTENT, SPLIT_AT,
+};
 use crate::ipc::{ByteOrder, Reader, Writer};
 
 /// The module name central uses for itself in logs.
@@ -339,7 +376,7 @@ struct Dispatch {
     org: Org,
     org_ref: i32,
     parent_ref: i32,
-    data: Arc<[u8]>,
+    data: Body,
     /// The handler: module and handler name.
     hnd: Option<(ConnId, String)>,
     status: Status,
@@ -396,7 +433,11 @@ struct Module {
     /// The module whose frame is being forwarded to this one: every other
     /// frame for this module waits in `held` until that one is complete.
     relay_from: Option<ConnId>,
-    held: Vec<Vec<u8>>,
+    held: Vec<(Vec<u8>, Option<Body>)>,
+    /// A large frame is being received into `rx` (from its start, with
+    /// `rx_pos` 0) and ends at this length: `rx` takes no bytes beyond it,
+    /// so that the frame's buffer becomes its [`Body`] without a copy.
+    big_end: Option<usize>,
 }
 
 /// A frame body passing through central as it arrives (cut-through).
@@ -754,6 +795,11 @@ impl Central {
     // ----- output helpers --------------------------------------------------
 
     fn transmit(&mut self, conn: ConnId, bytes: Vec<u8>) {
+        self.transmit_parts(conn, bytes, None);
+    }
+
+    /// A frame: `head`, then `body` if any.
+    fn transmit_parts(&mut self, conn: ConnId, head: Vec<u8>, body: Option<Body>) {
         let Some(m) = self.modules.get_mut(&conn) else {
             return;
         };
@@ -762,9 +808,24 @@ impl Central {
         }
         if m.relay_from.is_some() {
             // Not in the middle of the frame being forwarded to it.
-            m.held.push(bytes);
+            m.held.push((head, body));
         } else {
-            self.outputs.push_back(Output::Transmit { conn, bytes });
+            self.outputs.push_back(match body {
+                None => Output::Transmit { conn, bytes: head },
+                Some(body) => Output::TransmitBody { conn, head, body },
+            });
+        }
+    }
+
+    /// A frame carrying `data`: a large one shares it
+    /// ([`Output::TransmitBody`]), a small one is one buffer.
+    fn transmit_frame(&mut self, conn: ConnId, header: Header, class_data: &[u8], data: &Body) {
+        if data.len() >= SPLIT_AT {
+            let head = Self::head(header, class_data, &[], data.len());
+            self.transmit_parts(conn, head, Some(data.clone()));
+        } else {
+            let f = Self::frame(header, class_data, data);
+            self.transmit(conn, f);
         }
     }
 
@@ -948,6 +1009,7 @@ impl Central {
                 relay: None,
                 relay_from: None,
                 held: Vec::new(),
+                big_end: None,
             },
         );
         let id = self.msgs.get(internal::MSG_INFO).map_or(0, |m| m.id);
@@ -978,47 +1040,31 @@ impl Central {
         if m.closed {
             return;
         }
-        let bytes = self.relay_bytes(conn, bytes);
-        let Some(m) = self.modules.get_mut(&conn) else {
-            return;
-        };
-        m.rx.extend_from_slice(bytes);
+        let mut bytes = self.relay_bytes(conn, bytes);
         loop {
             let Some(m) = self.modules.get_mut(&conn) else {
                 return;
             };
-            if m.closed {
+            match m.big_end {
+                // A large frame's buffer takes its own bytes only.
+                Some(end) => {
+                    let k = (end - m.rx.len()).min(bytes.len());
+                    m.rx.extend_from_slice(&bytes[..k]);
+                    bytes = &bytes[k..];
+                    if m.rx.len() == end {
+                        m.big_end = None;
+                    }
+                }
+                None => {
+                    m.rx.extend_from_slice(bytes);
+                    bytes = &[];
+                }
+            }
+            if !self.take_frames(conn, now) {
                 return;
             }
-            let avail = m.rx.len() - m.rx_pos;
-            if avail < HEADER_SIZE {
+            if bytes.is_empty() {
                 break;
-            }
-            let header = match Header::decode(&m.rx[m.rx_pos..]) {
-                Ok(h) => h,
-                Err(e) => return self.protocol_error(conn, e.to_string(), now),
-            };
-            let n = match header.body_len(self.config.max_frame) {
-                Ok(n) => n,
-                Err(e) => return self.protocol_error(conn, e.to_string(), now),
-            };
-            if avail < HEADER_SIZE + n {
-                if self.try_relay(conn, header, n, now) {
-                    // Everything read so far belonged to the frame.
-                    break;
-                }
-                let m = self.modules.get_mut(&conn).unwrap();
-                m.rx.reserve(HEADER_SIZE + n - avail);
-                break;
-            }
-            let start = m.rx_pos + HEADER_SIZE;
-            let c = header.class_total as usize;
-            let class_data = m.rx[start..start + c].to_vec();
-            let data: Arc<[u8]> = Arc::from(&m.rx[start + c..start + n]);
-            m.rx_pos = start + n;
-            self.stats.frames_in += 1;
-            if let Err(Bad(e)) = self.process(conn, header, &class_data, data, now) {
-                return self.protocol_error(conn, e, now);
             }
         }
         if let Some(m) = self.modules.get_mut(&conn) {
@@ -1034,6 +1080,71 @@ impl Central {
             }
         }
         self.check_memory(conn);
+    }
+
+    /// Processes the whole frames at the front of `conn`'s receive buffer.
+    /// False if the connection was closed.
+    fn take_frames(&mut self, conn: ConnId, now: SystemTime) -> bool {
+        loop {
+            let Some(m) = self.modules.get_mut(&conn) else {
+                return false;
+            };
+            if m.closed {
+                return false;
+            }
+            let avail = m.rx.len() - m.rx_pos;
+            if avail < HEADER_SIZE {
+                return true;
+            }
+            let header = match Header::decode(&m.rx[m.rx_pos..]) {
+                Ok(h) => h,
+                Err(e) => {
+                    self.protocol_error(conn, e.to_string(), now);
+                    return false;
+                }
+            };
+            let n = match header.body_len(self.config.max_frame) {
+                Ok(n) => n,
+                Err(e) => {
+                    self.protocol_error(conn, e.to_string(), now);
+                    return false;
+                }
+            };
+            if avail < HEADER_SIZE + n {
+                if self.try_relay(conn, header, n, now) {
+                    // Everything read so far belonged to the frame.
+                    self.modules.get_mut(&conn).unwrap().big_end = None;
+                    return true;
+                }
+                let m = self.modules.get_mut(&conn).unwrap();
+                if n < SPLIT_AT {
+                    m.rx.reserve(HEADER_SIZE + n - avail);
+                } else if m.big_end.is_none() {
+                    // Its own buffer, of its exact size (`max_frame` bounds it).
+                    let mut frame = Vec::with_capacity(HEADER_SIZE + n);
+                    frame.extend_from_slice(&m.rx[m.rx_pos..]);
+                    m.rx = frame;
+                    m.rx_pos = 0;
+                    m.big_end = Some(HEADER_SIZE + n);
+                }
+                return true;
+            }
+            let start = m.rx_pos + HEADER_SIZE;
+            let c = header.class_total as usize;
+            let class_data = m.rx[start..start + c].to_vec();
+            let data = if m.rx_pos == 0 && start + n == m.rx.len() && n - c >= SPLIT_AT {
+                // The frame is the whole buffer: its data stays where it is.
+                Body::in_frame(std::mem::take(&mut m.rx), start + c..start + n)
+            } else {
+                m.rx_pos = start + n;
+                Body::from(&m.rx[start + c..start + n])
+            };
+            self.stats.frames_in += 1;
+            if let Err(Bad(e)) = self.process(conn, header, &class_data, data, now) {
+                self.protocol_error(conn, e, now);
+                return false;
+            }
+        }
     }
 
     // ----- cut-through ---------------------------------------------------------
@@ -1151,7 +1262,7 @@ impl Central {
             org_ref: h.msg_ref,
             parent_ref: h.parent_ref,
             // Never stored: it passes through.
-            data: Arc::from(&[][..]),
+            data: Body::empty(),
             hnd: Some(hnd.clone()),
             status: Status::NoHandler,
         });
@@ -1225,8 +1336,8 @@ impl Central {
         if let Some(to) = self.modules.get_mut(&r.to) {
             to.relay_from = None;
             let held = std::mem::take(&mut to.held);
-            for bytes in held {
-                self.transmit(r.to, bytes);
+            for (head, body) in held {
+                self.transmit_parts(r.to, head, body);
             }
         }
         if let Some((h, reply_name)) = r.reply {
@@ -1426,7 +1537,7 @@ impl Central {
         conn: ConnId,
         h: Header,
         class_data: &[u8],
-        data: Arc<[u8]>,
+        data: Body,
         now: SystemTime,
     ) -> Result<(), Bad> {
         if h.class_id.data_order().is_none() || h.class_id.class_order().is_none() {
@@ -2074,7 +2185,7 @@ impl Central {
 
     // ----- routing -----------------------------------------------------------
 
-    fn route(&mut self, conn: ConnId, h: Header, name: String, data: Arc<[u8]>, now: SystemTime) {
+    fn route(&mut self, conn: ConnId, h: Header, name: String, data: Body, now: SystemTime) {
         let class = h.class_id.class();
         let org = Org::Module(conn);
         match class {
@@ -2163,14 +2274,14 @@ impl Central {
                 self.note_var_read(*conn, var);
             }
         }
-        let data: Arc<[u8]> = Arc::from(bytes);
+        let data = Body::from(bytes);
         for hnd in hnds {
             self.central_deliver(name, data.clone(), hnd);
         }
     }
 
     /// One delivery of central's own broadcast `name` to handler `hnd`.
-    fn central_deliver(&mut self, name: &str, data: Arc<[u8]>, hnd: (ConnId, String)) {
+    fn central_deliver(&mut self, name: &str, data: Body, hnd: (ConnId, String)) {
         let did = self.alloc_dispatch(Dispatch {
             msg: name.to_string(),
             class: MsgClass::Broadcast as u16,
@@ -2261,10 +2372,7 @@ impl Central {
         };
         let dest = m.name.clone().unwrap_or_default();
         match relayed {
-            None => {
-                let f = Self::frame(header, cd.as_bytes(), &data);
-                self.transmit(conn, f);
-            }
+            None => self.transmit_frame(conn, header, cd.as_bytes(), &data),
             Some((first, total)) => {
                 let f = Self::head(header, cd.as_bytes(), first, total);
                 self.transmit_relayed(conn, f);
@@ -2465,7 +2573,7 @@ impl Central {
         conn: ConnId,
         h: Header,
         class_data: &[u8],
-        data: Arc<[u8]>,
+        data: Body,
         now: SystemTime,
     ) -> Result<(), Bad> {
         let did = h.dispatch_ref;
@@ -2491,8 +2599,7 @@ impl Central {
         if let Org::Module(org) = d.org {
             if self.modules.get(&org).is_some_and(|m| !m.closed) {
                 let header = Self::reply_header(&h, did, d.org_ref);
-                let f = Self::frame(header, class_data, &data);
-                self.transmit(org, f);
+                self.transmit_frame(org, header, class_data, &data);
             }
         }
         self.reply_done(conn, h, reply_name, Some(&data), now);
@@ -2634,7 +2741,7 @@ impl Central {
         if read.is_none_or(|r| *r == v.version) {
             return;
         }
-        let data: Arc<[u8]> = Arc::from(v.value.clone());
+        let data = Body::from(&v.value[..]);
         self.central_deliver(watch, data, (conn, hnd.to_string()));
     }
 
