@@ -122,6 +122,25 @@ fn answer_direct_msg_query_lookup(c: &mut Connection) -> Vec<Frame> {
     drain(c)
 }
 
+/// Answers the msgInfo lookup a first publish of message9 starts with
+/// (id 106, a broadcast).
+fn answer_message9_lookup(c: &mut Connection) {
+    let f = drain(c);
+    assert_eq!(f.len(), 1);
+    assert_eq!(lookup_name(&f[0]), "message9");
+    c.receive(
+        &msg_info_reply(
+            f[0].header.msg_ref,
+            106,
+            "message9",
+            15,
+            "{int, <byte:1>}",
+            "string",
+        ),
+        Instant::now(),
+    );
+}
+
 fn lookup_name(f: &Frame) -> String {
     let mut r = courier_wire::ipc::Reader::native(&f.data);
     r.read_str().unwrap().to_string()
@@ -147,20 +166,7 @@ fn publish_of_unsubscribed_message_is_reported_not_sent() {
     let mut c = connected(true);
     // The broadcast list from the handshake does not name message9.
     let op = c.publish("message9", b"hi", -1).unwrap();
-    let f = drain(&mut c);
-    assert_eq!(f.len(), 1);
-    assert_eq!(lookup_name(&f[0]), "message9");
-    c.receive(
-        &msg_info_reply(
-            f[0].header.msg_ref,
-            106,
-            "message9",
-            15,
-            "{int, <byte:1>}",
-            "string",
-        ),
-        now,
-    );
+    answer_message9_lookup(&mut c);
     assert!(drain(&mut c).is_empty());
     assert_eq!(
         c.poll_event(),
@@ -810,19 +816,7 @@ fn a_handler_count_from_central_outranks_a_stale_broadcast_list() {
     assert_eq!(f.len(), 1, "the update was not acknowledged");
     assert_eq!(f[0].header.class_id.class(), MsgClass::Success as u16);
     let op = c.publish("message9", b"hi", -1).unwrap();
-    let f = drain(&mut c);
-    assert_eq!(lookup_name(&f[0]), "message9");
-    c.receive(
-        &msg_info_reply(
-            f[0].header.msg_ref,
-            106,
-            "message9",
-            15,
-            "{int, <byte:1>}",
-            "string",
-        ),
-        now,
-    );
+    answer_message9_lookup(&mut c);
     let f = drain(&mut c);
     assert_eq!(f.len(), 1, "the publish was not sent");
     assert_eq!(f[0].header.intent, 106);
