@@ -39,9 +39,11 @@
 //! session-bench processes [--central PATH] [--c-central PATH] [--c-rtt DIR]
 //!                         [--publish | --throughput] [--size S] [--count N]
 //!                         [--reps R] [--busy-poll US] [--cut-through BYTES]
+//!                         [--send-ahead N]
 //! ```
-//! `--cut-through` starts Courier's centrals (and the hosted one) with
-//! `--cut-through BYTES`.
+//! `--cut-through` starts Courier's centrals (and the hosted one) with that
+//! option; `--send-ahead N` sends up to N broadcasts ahead to the two
+//! subscribers of the throughput runs (`rtt_pong` and the C `tput_sub`).
 //! The C measuring programs in `--c-rtt DIR` are built outside the
 //! repository against the C library: `qrtt_server` / `qrtt_client COUNT
 //! SIZE` (query round trips on `rtt_ask`), `prtt b` / `prtt a COUNT SIZE`
@@ -234,6 +236,8 @@ struct RoleOpts {
     embed: bool,
     /// The embedded central's `Config::cut_through`.
     cut_through: Option<usize>,
+    /// The embedded central's `Config::send_ahead` for the subscribers.
+    send_ahead: usize,
 }
 
 /// The role's session, and the central it hosts with `--embed` (dropping
@@ -243,6 +247,12 @@ async fn role_session(url: &str, name: &str, o: RoleOpts) -> (Session, Option<Ce
         let (_, port) = courier::ipc_backend::parse_url(url).expect("an ipc:// URL");
         let mut config = Config::default();
         config.cut_through = o.cut_through;
+        if o.send_ahead > 0 {
+            config.send_ahead = SUBSCRIBERS
+                .iter()
+                .map(|m| (m.to_string(), o.send_ahead))
+                .collect();
+        }
         let mut c = CentralServer::builder()
             .bind([127, 0, 0, 1].into())
             .port(port)
@@ -379,12 +389,17 @@ async fn ping(url: &str, o: RoleOpts, publish: bool, size: usize, count: usize) 
     s.close().await;
 }
 
+/// The subscribers of the throughput runs: Courier's `pong` and the C
+/// library's `tput_sub` (`--send-ahead`).
+const SUBSCRIBERS: [&str; 2] = ["rtt_pong", "tput_sub"];
+
 /// `ping`/`pong`: a role per process, each on a current-thread runtime.
 fn role(role: &str, mut args: impl Iterator<Item = String>) {
     let mut url = String::from("ipc://127.0.0.1:1381");
     let mut spin = None;
     let mut embed = false;
     let mut cut_through = None;
+    let mut send_ahead = 0;
     let mut publish = false;
     let mut throughput = false;
     let mut size = 4usize;
@@ -404,6 +419,7 @@ fn role(role: &str, mut args: impl Iterator<Item = String>) {
             "--busy-poll" => spin = Some(Duration::from_micros(num(&a, args.next()))),
             "--embed" => embed = true,
             "--cut-through" => cut_through = Some(num(&a, args.next()) as usize),
+            "--send-ahead" => send_ahead = num(&a, args.next()) as usize,
             "--publish" if role == "ping" => publish = true,
             "--throughput" if role == "ping" => throughput = true,
             "--size" if role == "ping" => size = num(&a, args.next()) as usize,
@@ -426,6 +442,7 @@ fn role(role: &str, mut args: impl Iterator<Item = String>) {
         spin,
         embed,
         cut_through,
+        send_ahead,
     };
     rt.block_on(async move {
         tokio::spawn(async move {
@@ -469,7 +486,7 @@ async fn tables(mut args: impl Iterator<Item = String>) {
             "-h" | "--help" => {
                 println!(
                     "usage: session-bench [--url ipc://H:P] [--direct-url ipc://H:P] [--quick]\n\
-                     \x20      session-bench pong [--url ipc://H:P] [--busy-poll US] [--embed] [--cut-through BYTES]\n\
+                     \x20      session-bench pong [--url ipc://H:P] [--busy-poll US] [--embed] [--cut-through BYTES] [--send-ahead N]\n\
                      \x20      session-bench ping [--url ipc://H:P] [--busy-poll US] [--embed] [--publish] [--size S] [--count N]"
                 );
                 return;
@@ -620,6 +637,8 @@ mod processes {
         spin_us: u64,
         /// `--cut-through` for Courier's centrals.
         cut_through: Option<usize>,
+        /// `--send-ahead` for Courier's centrals.
+        send_ahead: Option<usize>,
     }
 
     fn start_central(s: &Setup, which: Centrals, port: u16) -> Option<Proc> {
@@ -639,6 +658,11 @@ mod processes {
         }
         if let (Some(n), true) = (s.cut_through, which != Centrals::C) {
             cmd.arg(format!("--cut-through={n}"));
+        }
+        if let (Some(n), true) = (s.send_ahead, which != Centrals::C) {
+            for m in super::SUBSCRIBERS {
+                cmd.arg(format!("--send-ahead={m}={n}"));
+            }
         }
         let child = cmd
             .stdin(Stdio::null())
@@ -701,6 +725,9 @@ mod processes {
                     pong.args(["pong", "--url", &url, "--embed"]);
                     if let Some(n) = s.cut_through {
                         pong.args(["--cut-through", &n.to_string()]);
+                    }
+                    if let Some(n) = s.send_ahead {
+                        pong.args(["--send-ahead", &n.to_string()]);
                     }
                 } else {
                     pong.args(["pong", "--url", &url]);
@@ -816,11 +843,12 @@ mod processes {
             count: 5000,
             spin_us: 200,
             cut_through: None,
+            send_ahead: None,
         };
         let mut reps = 5usize;
         let usage = "usage: session-bench processes [--central PATH] [--c-central PATH] \
                      [--c-rtt DIR] [--publish | --throughput] [--size S] [--count N] \
-                     [--reps R] [--busy-poll US] [--cut-through BYTES]";
+                     [--reps R] [--busy-poll US] [--cut-through BYTES] [--send-ahead N]";
         let num = |v: Option<String>| -> usize {
             match v.as_deref().map(str::parse::<usize>) {
                 Some(Ok(n)) if n > 0 => n,
@@ -842,6 +870,7 @@ mod processes {
                 "--reps" => reps = num(args.next()),
                 "--busy-poll" => s.spin_us = num(args.next()) as u64,
                 "--cut-through" => s.cut_through = Some(num(args.next())),
+                "--send-ahead" => s.send_ahead = Some(num(args.next())),
                 "-h" | "--help" => {
                     println!("{usage}");
                     return;

@@ -379,9 +379,24 @@ fn console_commands_reach_the_state_machine() {
 /// publisher (TCP back-pressure) and its queues stay bounded; nothing is lost.
 #[test]
 fn slow_subscriber_keeps_central_memory_bounded() {
+    flood_a_slow_subscriber(0, 100_000);
+}
+
+/// The same with broadcasts sent ahead of their turn
+/// (`Config::send_ahead`): everything arrives once, in order, within the
+/// same memory bound.
+#[test]
+fn messages_sent_ahead_arrive_once_in_order_over_tcp() {
+    flood_a_slow_subscriber(8, 30_000);
+}
+
+fn flood_a_slow_subscriber(send_ahead: usize, n: u32) {
     let rt = rt();
     let mut config = Config::default();
     config.max_queued_bytes = 1 << 20;
+    if send_ahead > 0 {
+        config.send_ahead = [("slow".to_string(), send_ahead)].into();
+    }
     let central = start(&rt, local().config(config).log_sink(LogSink::discard()));
     let addr = central.local_addr();
     let mut s = Client::new(tcp(addr), "slow");
@@ -390,11 +405,10 @@ fn slow_subscriber_keeps_central_memory_bounded() {
         .unwrap();
     s.conn.subscribe("flood", "HND-flood").unwrap();
     s.sync();
-    const N: u32 = 100_000;
     let publisher = std::thread::spawn(move || {
         let mut p = Client::new(tcp(addr), "flood");
         let body = vec![1u8; 1024];
-        for i in 0..N {
+        for i in 0..n {
             let mut b = body.clone();
             b[..4].copy_from_slice(&i.to_le_bytes());
             p.conn.publish("flood", b.clone(), -1).unwrap();
@@ -408,7 +422,7 @@ fn slow_subscriber_keeps_central_memory_bounded() {
     });
     let mut next = 0u32;
     let start = Instant::now();
-    while next < N {
+    while next < n {
         let e = s.until(|e| matches!(e, Event::Delivery { .. }));
         if let Event::Delivery { delivery, data, .. } = e {
             assert_eq!(u32::from_le_bytes(data[..4].try_into().unwrap()), next);
@@ -422,14 +436,26 @@ fn slow_subscriber_keeps_central_memory_bounded() {
         assert!(start.elapsed() < Duration::from_secs(120));
     }
     let _p = publisher.join().unwrap();
-    let stats = block(&rt, central.stats()).unwrap();
+    // The last acknowledgement is on its way: every dispatch is finished
+    // once central has read it.
+    let deadline = Instant::now() + T;
+    let stats = loop {
+        let stats = block(&rt, central.stats()).unwrap();
+        if stats.dispatches == 0 || Instant::now() > deadline {
+            break stats;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    };
     println!(
-        "real sockets, 100 000 x 1 KiB, capacity 1: peak queued in central {} bytes (limit {})",
+        "real sockets, {n} x 1 KiB, capacity 1, send-ahead {send_ahead}: \
+         peak queued in central {} bytes (limit {})",
         stats.peak_queued_bytes,
         1 << 20
     );
     assert!(stats.peak_queued_bytes <= (1 << 20) + 128 * 1024);
     assert_eq!(stats.dropped, 0);
+    assert_eq!(stats.dispatches, 0);
+    assert_eq!(stats.queued_bytes, 0);
     block(&rt, central.shutdown());
 }
 

@@ -1551,3 +1551,310 @@ fn store_and_forward_shares_large_queries_and_replies_and_cut_through_copies_non
     let (_, _, cut) = large_queries(Some(64 << 10), 3);
     assert_eq!(cut.shared_bodies, 0, "relayed frames pass in pieces");
 }
+
+// ----- send-ahead ------------------------------------------------------------
+
+/// Send-ahead of `n` to the modules named `sub` and `worker`.
+fn ahead_config(n: usize) -> Config {
+    let mut c = Config::default();
+    c.send_ahead = [("sub".to_string(), n), ("worker".to_string(), n)].into();
+    c
+}
+
+fn value(data: &[u8]) -> i32 {
+    i32::from_le_bytes(data[data.len() - 4..].try_into().unwrap())
+}
+
+/// A publisher sends `n` broadcasts to a capacity-1 subscriber that handles
+/// them one at a time (acknowledging the oldest it holds, as a C module's
+/// handler returns). Returns what the subscriber handled, in order, the
+/// most deliveries it ever held unacknowledged, and the simulation.
+fn one_at_a_time(config: Config, n: i32) -> (Vec<i32>, usize, Sim) {
+    let mut sim = Sim::new(config);
+    let a = sim.connect("pub");
+    let b = sim.connect("sub");
+    define(&mut sim, a, "tick", "int");
+    sim.m(b).subscribe("tick", "HND-tick").unwrap();
+    sim.pump();
+    for i in 0..n {
+        sim.m(a).publish("tick", i.to_le_bytes(), -1).unwrap();
+    }
+    sim.pump();
+    let mut held: VecDeque<(u64, i32)> = VecDeque::new();
+    let mut handled = Vec::new();
+    let mut most = 0;
+    loop {
+        held.extend(sim.deliveries(b).into_iter().map(|d| (d.0, value(&d.3))));
+        most = most.max(held.len());
+        let Some((id, v)) = held.pop_front() else {
+            break;
+        };
+        handled.push(v);
+        sim.m(b).ack(id).unwrap();
+        sim.pump();
+    }
+    (handled, most, sim)
+}
+
+#[test]
+fn send_ahead_changes_when_a_module_receives_not_what_it_receives_or_what_central_logs() {
+    let (plain, plain_most, mut plain_sim) = one_at_a_time(Config::default(), 20);
+    let (ahead, ahead_most, mut ahead_sim) = one_at_a_time(ahead_config(2), 20);
+    assert_eq!(plain, (0..20).collect::<Vec<_>>());
+    assert_eq!(ahead, plain);
+    assert_eq!(plain_most, 1, "without send-ahead, one message at a time");
+    assert_eq!(
+        ahead_most, 3,
+        "with send-ahead 2, the one being handled and the next two"
+    );
+    // The same deliveries (same dispatch ids, handler ids, classes and
+    // data), and the same log, line for line. Only the class data may
+    // differ: a message written before the module looked its handler up
+    // carries the message name, as a handler's first delivery does.
+    let handled = |sim: &Sim| -> Vec<(i32, i32, u32, i32)> {
+        sim.sent
+            .iter()
+            .filter(|(to, h)| *to == 2 && h.intent > 0)
+            .map(|(_, h)| (h.intent, h.msg_ref, h.class_id.0, h.msg_total))
+            .collect()
+    };
+    assert_eq!(
+        handled(&ahead_sim).len(),
+        21,
+        "20 ticks and the broadcast-list watch"
+    );
+    assert_eq!(handled(&ahead_sim), handled(&plain_sim));
+    for (i, (x, y)) in ahead_sim.logs.iter().zip(&plain_sim.logs).enumerate() {
+        assert_eq!(x, y, "log line {i}");
+    }
+    assert_eq!(ahead_sim.logs.len(), plain_sim.logs.len());
+    assert!(
+        ahead_sim
+            .logs
+            .iter()
+            .any(|l| l.contains("Resource sub") && l.contains("(Sent)")),
+        "{:#?}",
+        ahead_sim.logs
+    );
+    for sim in [&mut plain_sim, &mut ahead_sim] {
+        assert_eq!(sim.central.stats().dispatches, 0);
+        assert_eq!(sim.central.stats().queued_bytes, 0);
+    }
+}
+
+#[test]
+fn only_the_modules_named_get_messages_ahead() {
+    let mut sim = Sim::new(ahead_config(2));
+    let a = sim.connect("pub");
+    let b = sim.connect("sub");
+    let c = sim.connect("other");
+    define(&mut sim, a, "tick", "int");
+    for m in [b, c] {
+        sim.m(m).subscribe("tick", "HND-tick").unwrap();
+    }
+    sim.pump();
+    for i in 0..5i32 {
+        sim.m(a).publish("tick", i.to_le_bytes(), -1).unwrap();
+    }
+    sim.pump();
+    assert_eq!(sim.deliveries(b).len(), 3, "sub: one handled, two ahead");
+    assert_eq!(sim.deliveries(c).len(), 1, "other: one at a time, as in C");
+}
+
+#[test]
+fn messages_sent_ahead_still_count_as_pending() {
+    let mut sim = Sim::new(ahead_config(2));
+    let a = sim.connect("pub");
+    let b = sim.connect("sub");
+    define(&mut sim, a, "tick", "int");
+    sim.m(b).subscribe("tick", "HND-tick").unwrap();
+    sim.pump();
+    for i in 0..5i32 {
+        sim.m(a).publish("tick", i.to_le_bytes(), -1).unwrap();
+    }
+    sim.pump();
+    assert_eq!(sim.deliveries(b).len(), 3, "one handled, two ahead");
+    let before = sim.logs.len();
+    sim.central.command("status", sim.wall);
+    sim.central.command("display", sim.wall);
+    sim.drain();
+    let out = sim.logs[before..].join("\n");
+    assert!(
+        out.contains("Module sub on localhost (sd 2): capacity 1, active 1, pending 4"),
+        "{out}"
+    );
+    assert_eq!(out.matches("Pending (sent ahead)").count(), 2, "{out}");
+    assert_eq!(out.matches(" Active").count(), 1, "{out}");
+    // Two are written; the other two are held in central and only they
+    // count as queued bytes (each message is 12 bytes of data here).
+    assert_eq!(sim.central.stats().queued_bytes, 2 * 12);
+}
+
+#[test]
+fn nothing_is_sent_ahead_where_priorities_or_queue_limits_decide() {
+    // The same scenario and expectations as `capacity_priority_and_queue_limits`.
+    let mut sim = Sim::new(ahead_config(8));
+    let a = sim.connect("pub");
+    let b = sim.connect("sub");
+    define(&mut sim, a, "low", "int");
+    define(&mut sim, a, "high", "int");
+    define(&mut sim, a, "limited", "int");
+    for m in ["low", "high", "limited"] {
+        sim.m(b).subscribe(m, &format!("HND-{m}")).unwrap();
+    }
+    sim.m(b).set_priority("high", 10).unwrap();
+    sim.m(b).set_queue_length("limited", 2).unwrap();
+    sim.pump();
+    for i in 0..3i32 {
+        sim.m(a).publish("low", i.to_le_bytes(), -1).unwrap();
+    }
+    for i in 0..5i32 {
+        sim.m(a)
+            .publish("limited", (100 + i).to_le_bytes(), -1)
+            .unwrap();
+    }
+    sim.m(a).publish("high", 999i32.to_le_bytes(), -1).unwrap();
+    sim.pump();
+    let mut got = Vec::new();
+    loop {
+        let d = sim.deliveries(b);
+        if d.is_empty() {
+            break;
+        }
+        assert_eq!(d.len(), 1, "nothing sent ahead");
+        got.push((d[0].1.clone(), value(&d[0].3)));
+        sim.m(b).ack(d[0].0).unwrap();
+        sim.pump();
+    }
+    let expect: Vec<(String, i32)> = [
+        ("low", 0),
+        ("high", 999),
+        ("low", 1),
+        ("low", 2),
+        ("limited", 103),
+        ("limited", 104),
+    ]
+    .iter()
+    .map(|(m, v)| (m.to_string(), *v))
+    .collect();
+    assert_eq!(got, expect);
+    assert_eq!(sim.central.stats().dropped, 3);
+}
+
+#[test]
+fn a_query_is_not_sent_ahead_nor_anything_behind_it() {
+    let mut sim = Sim::new(ahead_config(4));
+    let a = sim.connect("pub");
+    let b = sim.connect("sub");
+    define(&mut sim, a, "tick", "int");
+    define(&mut sim, a, "ask", "int");
+    define(&mut sim, a, "answer", "int");
+    sim.m(b).subscribe("tick", "HND-tick").unwrap();
+    sim.m(b).subscribe("ask", "HND-ask").unwrap();
+    sim.pump();
+    sim.m(a).publish("tick", 1i32.to_le_bytes(), -1).unwrap();
+    sim.m(a).query("ask", 2i32.to_le_bytes(), -1).unwrap();
+    sim.m(a).publish("tick", 3i32.to_le_bytes(), -1).unwrap();
+    sim.pump();
+    let d = sim.deliveries(b);
+    assert_eq!(d.len(), 1, "the query heads the queue: {d:?}");
+    sim.m(b).ack(d[0].0).unwrap();
+    sim.pump();
+    // The query takes the slot; the broadcast behind it may now go ahead.
+    let d = sim.deliveries(b);
+    assert_eq!(
+        d.iter().map(|x| (x.2, value(&x.3))).collect::<Vec<_>>(),
+        vec![(DeliveryKind::Query, 2), (DeliveryKind::Broadcast, 3)]
+    );
+    sim.m(b)
+        .respond(d[0].0, "answer", 4i32.to_le_bytes())
+        .unwrap();
+    sim.m(b).ack(d[1].0).unwrap();
+    sim.pump();
+    assert_eq!(sim.central.stats().dispatches, 0);
+}
+
+#[test]
+fn a_message_sent_ahead_may_be_finished_first() {
+    let mut sim = Sim::new(ahead_config(1));
+    let a = sim.connect("pub");
+    let b = sim.connect("sub");
+    define(&mut sim, a, "tick", "int");
+    sim.m(b).subscribe("tick", "HND-tick").unwrap();
+    sim.pump();
+    for i in 0..3i32 {
+        sim.m(a).publish("tick", i.to_le_bytes(), -1).unwrap();
+    }
+    sim.pump();
+    let d = sim.deliveries(b);
+    assert_eq!(d.iter().map(|x| value(&x.3)).collect::<Vec<_>>(), [0, 1]);
+    // A module handling concurrently acknowledges the later one first.
+    sim.m(b).ack(d[1].0).unwrap();
+    sim.pump();
+    assert!(
+        !sim.logs.iter().any(|l| l.contains("WARNING")),
+        "{:#?}",
+        sim.logs
+    );
+    // It was logged as sent before it was done; the first one still holds
+    // the slot and the last one goes ahead.
+    let sent = sim.logs.iter().filter(|l| l.contains("(Sent)")).count();
+    assert_eq!(sent, 2, "{:#?}", sim.logs);
+    assert!(sim.logs.last().unwrap().contains("Done"), "{:#?}", sim.logs);
+    let d2 = sim.deliveries(b);
+    assert_eq!(d2.iter().map(|x| value(&x.3)).collect::<Vec<_>>(), [2]);
+    sim.m(b).ack(d[0].0).unwrap();
+    sim.m(b).ack(d2[0].0).unwrap();
+    sim.pump();
+    assert_eq!(sim.central.stats().dispatches, 0);
+    assert!(
+        !sim.logs.iter().any(|l| l.contains("WARNING")),
+        "{:#?}",
+        sim.logs
+    );
+}
+
+#[test]
+fn messages_sent_ahead_are_resent_after_a_crash_or_cleared() {
+    for resend in [true, false] {
+        let mut config = ahead_config(2);
+        config.resend_on_reconnect = resend;
+        let mut sim = Sim::new(config);
+        let a = sim.connect("pub");
+        let b = sim.connect("worker");
+        define(&mut sim, a, "job", "int");
+        sim.m(b).subscribe("job", "HND-job").unwrap();
+        sim.pump();
+        for i in 1..=4i32 {
+            sim.m(a).publish("job", i.to_le_bytes(), -1).unwrap();
+        }
+        sim.pump();
+        assert_eq!(sim.deliveries(b).len(), 3);
+        // The worker crashes holding one message and two sent ahead.
+        sim.close(b);
+        if !resend {
+            assert_eq!(sim.central.stats().dispatches, 0);
+            assert_eq!(sim.central.stats().queued_bytes, 0);
+            continue;
+        }
+        let (vals, _, _) = {
+            let b2 = sim.connect("worker");
+            sim.m(b2).subscribe("job", "HND-job").unwrap();
+            sim.pump();
+            let mut held: VecDeque<(u64, i32)> = VecDeque::new();
+            let mut vals = Vec::new();
+            loop {
+                held.extend(sim.deliveries(b2).into_iter().map(|d| (d.0, value(&d.3))));
+                let Some((id, v)) = held.pop_front() else {
+                    break;
+                };
+                vals.push(v);
+                sim.m(b2).ack(id).unwrap();
+                sim.pump();
+            }
+            (vals, (), ())
+        };
+        assert_eq!(vals, vec![1, 2, 3, 4]);
+        assert_eq!(sim.central.stats().dispatches, 0);
+    }
+}

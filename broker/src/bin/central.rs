@@ -34,6 +34,8 @@ use courier_broker::{CentralServer, Config, LogOptions, LogSink, LogTarget};
 
 /// `X_IPC_VERSION_MAJOR.MINOR.MICRO` of the C central we stand in for.
 const IPC_VERSION: &str = "3.9.1";
+/// `--send-ahead <module>` without a depth.
+const DEFAULT_SEND_AHEAD: usize = 8;
 
 const USAGE: &str = "central command line options:
  -v: display server version info.
@@ -75,6 +77,12 @@ const USAGE: &str = "central command line options:
      at once, instead of after its last byte (default off, as in C; not with
      data logging or -r). If its sender dies in the middle, the receiver
      gets the rest as zero bytes.
+ --send-ahead <module>[=<n>]: while that module handles as many
+     broadcasts as its capacity allows, write up to <n> (1..=1024, default
+     8) of those queued for it to its socket already, so it finds the next
+     one waiting (default: none, as in C). Repeat for more modules. Only for
+     modules that consume without waiting in their handlers (no queries, no
+     IPC_listen): a C module handles queued messages while it waits.
  --help, -h: this text.";
 
 #[derive(Debug)]
@@ -193,6 +201,30 @@ fn parse_args(args: Vec<String>) -> Result<Options, String> {
                             )
                         })?;
                     o.config.cut_through = Some(n as usize);
+                }
+                "send-ahead" => {
+                    let v = value(true)?;
+                    let (module, n) = match v.split_once('=') {
+                        Some((m, n)) => (m, Some(n)),
+                        None => (v.as_str(), None),
+                    };
+                    if module.is_empty() {
+                        return Err(format!("option --send-ahead: '{v}' names no module"));
+                    }
+                    let n = match n {
+                        None => DEFAULT_SEND_AHEAD,
+                        Some(n) => n
+                            .parse::<usize>()
+                            .ok()
+                            .filter(|n| (1..=1024).contains(n))
+                            .ok_or_else(|| {
+                                format!(
+                                    "option --send-ahead: '{n}' is not a number of messages \
+                                     from 1 to 1024"
+                                )
+                            })?,
+                    };
+                    o.config.send_ahead.insert(module.to_string(), n);
                 }
                 "hosts-allow" => o.allow = value(true)?.into(),
                 "hosts-deny" => o.deny = value(true)?.into(),
@@ -681,8 +713,20 @@ mod tests {
             "--busy-poll=50",
             "--cut-through",
             "65536",
+            "--send-ahead=logger=4",
+            "--send-ahead",
+            "recorder",
         ])
         .unwrap();
+        assert_eq!(
+            o.config.send_ahead,
+            [
+                ("logger".into(), 4),
+                ("recorder".into(), DEFAULT_SEND_AHEAD)
+            ]
+            .into()
+        );
+        assert!(parse(&[]).unwrap().config.send_ahead.is_empty());
         assert_eq!(o.busy_poll, Some(std::time::Duration::from_micros(50)));
         assert_eq!(o.config.cut_through, Some(65536));
         assert_eq!(parse(&[]).unwrap().config.cut_through, None);
@@ -748,6 +792,23 @@ mod tests {
                 "option --cut-through: '1MiB' is not a number of bytes",
             ),
             (&["--cut-through"][..], "option --cut-through needs a value"),
+            (
+                &["--send-ahead", "logger=0"][..],
+                "option --send-ahead: '0' is not a number of messages from 1 to 1024",
+            ),
+            (
+                &["--send-ahead=logger=1025"][..],
+                "option --send-ahead: '1025' is not a number of messages",
+            ),
+            (
+                &["--send-ahead=logger=lots"][..],
+                "option --send-ahead: 'lots' is not a number of messages",
+            ),
+            (
+                &["--send-ahead", "=8"][..],
+                "option --send-ahead: '=8' names no module",
+            ),
+            (&["--send-ahead"][..], "option --send-ahead needs a value"),
             (
                 &["--no-unix-socket=yes"][..],
                 "option --no-unix-socket takes no value",

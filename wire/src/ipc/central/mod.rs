@@ -222,6 +222,32 @@ pub struct Config {
     /// a frame completed with zero bytes (logged). Use it between modules
     /// that are trusted to send whole messages.
     pub cut_through: Option<usize>,
+    /// Send-ahead, by module name: while a module named here handles as
+    /// many broadcasts as its capacity allows, up to this many of the
+    /// broadcasts queued for it are already written to its socket, so that
+    /// it finds its next message waiting when it finishes instead of a
+    /// round trip later. Empty (the default, as in C): a delivery leaves
+    /// central only when a capacity slot is free.
+    ///
+    /// Meant for modules that only consume, such as loggers and recorders:
+    /// a C module handles queued messages while it waits for a reply
+    /// (`IPC_queryResponse`, the first `IPC_publish` of a message, which
+    /// looks it up, or `IPC_listen` in a handler), so a handler that waits
+    /// would be entered again with a message sent ahead, which capacity 1
+    /// exists to prevent.
+    ///
+    /// The module still gets every message once and in central's order,
+    /// and central's bookkeeping and log stay C's: a message sent ahead
+    /// counts as pending and is logged as sent when its slot frees. Only
+    /// broadcasts from modules go ahead, never a message with a queue limit
+    /// (it may be dropped) or to a module with a handler of a message with
+    /// a priority (a later message may overtake it); a priority or a limit
+    /// set later does not call back what is already written. A message
+    /// written before the module looked its handler up carries the message
+    /// name, as a first delivery does; one for a handler unsubscribed in the
+    /// meantime reaches the module, which discards and acknowledges it (the
+    /// C library warns), where central would have deleted it.
+    pub send_ahead: BTreeMap<String, usize>,
 }
 
 impl Default for Config {
@@ -241,6 +267,7 @@ impl Default for Config {
             max_frame: 256 << 20,
             max_queued_bytes: 64 << 20,
             cut_through: None,
+            send_ahead: BTreeMap::new(),
         }
     }
 }
@@ -364,6 +391,21 @@ enum Status {
     Pending,
     /// Delivered; waiting for Success or Reply.
     Attending,
+    /// Written to the module ahead of its turn ([`Config::send_ahead`]);
+    /// counts as pending until a capacity slot frees.
+    Ahead,
+}
+
+/// How a delivery that takes a capacity slot reaches its module.
+#[derive(Debug, Clone, Copy)]
+enum Carry<'a> {
+    /// Its whole frame, now.
+    Frame,
+    /// Its header and the body's first bytes now, the rest as it arrives
+    /// (cut-through): the bytes so far and the body's whole length.
+    Relayed(&'a [u8], usize),
+    /// It was written ahead of its turn ([`Config::send_ahead`]).
+    Ahead,
 }
 
 #[derive(Debug)]
@@ -412,6 +454,9 @@ struct Module {
     capacity: usize,
     attending: usize,
     pending: VecDeque<i32>,
+    /// Broadcasts sent ahead of their turn, oldest first; they come before
+    /// everything in `pending`.
+    ahead: VecDeque<i32>,
     msg_limits: Vec<(String, i32)>,
     pending_limit: Option<i32>,
     /// Direct-mode listen port (-1 = none).
@@ -457,7 +502,10 @@ struct Relay {
 impl Module {
     /// A delivery would go out now rather than wait in `pending`.
     fn takes_delivery_now(&self) -> bool {
-        self.ready && self.attending < self.capacity && self.pending.is_empty()
+        self.ready
+            && self.attending < self.capacity
+            && self.pending.is_empty()
+            && self.ahead.is_empty()
     }
 }
 
@@ -998,6 +1046,7 @@ impl Central {
                 capacity: 1,
                 attending: 0,
                 pending: VecDeque::new(),
+                ahead: VecDeque::new(),
                 msg_limits: Vec::new(),
                 pending_limit: None,
                 port: -1,
@@ -1267,7 +1316,7 @@ impl Central {
             status: Status::NoHandler,
         });
         self.start_relay(conn, hnd.0, name, total - first.len(), total, None);
-        self.attend_as(did, false, now, Some((first, total)));
+        self.attend_as(did, false, now, Carry::Relayed(first, total));
         true
     }
 
@@ -1486,6 +1535,7 @@ impl Central {
         mine.sort_unstable();
         // C (resourceDelete) only reports when something was being handled.
         let report = !mine.is_empty();
+        mine.extend(self.modules[&conn].ahead.iter().copied());
         mine.extend(self.modules[&conn].pending.iter().copied());
         for id in mine {
             let keep = self.config.resend_on_reconnect && name.is_some();
@@ -2315,18 +2365,12 @@ impl Central {
     }
 
     fn attend(&mut self, did: i32, from_pending: bool, now: SystemTime) {
-        self.attend_as(did, from_pending, now, None)
+        self.attend_as(did, from_pending, now, Carry::Frame)
     }
 
-    /// `relayed`: the body's first bytes and its whole length, for a frame
-    /// forwarded while it arrives (the rest follows by [`Self::relay_bytes`]).
-    fn attend_as(
-        &mut self,
-        did: i32,
-        from_pending: bool,
-        now: SystemTime,
-        relayed: Option<(&[u8], usize)>,
-    ) {
+    /// A delivery takes one of its module's capacity slots: it is written
+    /// (as `carry` says), counted and logged.
+    fn attend_as(&mut self, did: i32, from_pending: bool, now: SystemTime, carry: Carry<'_>) {
         let Some(d) = self.dispatches.get_mut(&did) else {
             return;
         };
@@ -2349,40 +2393,14 @@ impl Central {
             return;
         };
         m.attending += 1;
-        let resume = m.paused;
-        let Some(hnd) = m.handlers.get(&hnd_name) else {
+        if !m.handlers.contains_key(&hnd_name) {
             return;
-        };
-        let mut cd = Writer::new();
-        if !hnd.knows_msg {
-            cd.write_str(&msg);
         }
-        let header = Header {
-            class_total: 0,
-            msg_total: 0,
-            parent_ref,
-            intent: hnd.id,
-            class_id: ClassId(
-                (class_id.0 & 0x0fff_0000)
-                    | (ClassId::native(MsgClass::Unknown).0 & 0xf000_0000)
-                    | class as u32,
-            ),
-            dispatch_ref: NO_REF,
-            msg_ref: did,
-        };
         let dest = m.name.clone().unwrap_or_default();
-        match relayed {
-            None => self.transmit_frame(conn, header, cd.as_bytes(), &data),
-            Some((first, total)) => {
-                let f = Self::head(header, cd.as_bytes(), first, total);
-                self.transmit_relayed(conn, f);
-            }
-        }
-        if resume {
-            // Its acknowledgements must be read.
-            self.modules.get_mut(&conn).unwrap().paused = false;
-            self.memory_paused.remove(&conn);
-            self.outputs.push_back(Output::ResumeRead { conn });
+        match carry {
+            Carry::Frame => self.write_delivery(did, None),
+            Carry::Relayed(first, total) => self.write_delivery(did, Some((first, total))),
+            Carry::Ahead => {}
         }
         if self.logs(Kind::Message, &msg) {
             let o = self.opts();
@@ -2403,6 +2421,59 @@ impl Central {
             };
             self.log_line(Kind::Message, line);
             self.log_data(&msg, class_id, &data, None);
+        }
+    }
+
+    /// Writes delivery `did` to its handler's module. `relayed`: the body's
+    /// first bytes and its whole length, for a frame forwarded while it
+    /// arrives (the rest follows by [`Self::relay_bytes`]).
+    fn write_delivery(&mut self, did: i32, relayed: Option<(&[u8], usize)>) {
+        let Some(d) = self.dispatches.get(&did) else {
+            return;
+        };
+        let Some((conn, hnd_name)) = d.hnd.as_ref() else {
+            return;
+        };
+        let Some(m) = self.modules.get(conn) else {
+            return;
+        };
+        let Some(hnd) = m.handlers.get(hnd_name) else {
+            return;
+        };
+        let conn = *conn;
+        let mut cd = Writer::new();
+        if !hnd.knows_msg {
+            cd.write_str(&d.msg);
+        }
+        let header = Header {
+            class_total: 0,
+            msg_total: 0,
+            parent_ref: d.parent_ref,
+            intent: hnd.id,
+            class_id: ClassId(
+                (d.class_id.0 & 0x0fff_0000)
+                    | (ClassId::native(MsgClass::Unknown).0 & 0xf000_0000)
+                    | d.class as u32,
+            ),
+            dispatch_ref: NO_REF,
+            msg_ref: did,
+        };
+        let resume = m.paused;
+        match relayed {
+            None => {
+                let data = d.data.clone();
+                self.transmit_frame(conn, header, cd.as_bytes(), &data);
+            }
+            Some((first, total)) => {
+                let f = Self::head(header, cd.as_bytes(), first, total);
+                self.transmit_relayed(conn, f);
+            }
+        }
+        if resume {
+            // Its acknowledgements must be read.
+            self.modules.get_mut(&conn).unwrap().paused = false;
+            self.memory_paused.remove(&conn);
+            self.outputs.push_back(Output::ResumeRead { conn });
         }
     }
 
@@ -2494,6 +2565,7 @@ impl Central {
             let line = self.dispatch_line(class, &msg, Some(did), &org_name, parent, &to, now);
             self.log_line(Kind::Message, line);
         }
+        self.send_ahead(conn);
     }
 
     fn drop_pending(&mut self, did: i32, msg: &str) {
@@ -2520,17 +2592,96 @@ impl Central {
                 return;
             };
             if !m.ready || m.attending >= m.capacity {
-                return;
-            }
-            let Some(did) = m.pending.pop_front() else {
                 break;
-            };
-            self.attend(did, true, now);
+            }
+            if let Some(did) = m.ahead.pop_front() {
+                // Already in the module's socket: it only takes its slot.
+                self.attend_as(did, true, now, Carry::Ahead);
+            } else if let Some(did) = m.pending.pop_front() {
+                self.attend(did, true, now);
+            } else {
+                break;
+            }
         }
+        self.send_ahead(conn);
         self.check_memory_resume();
     }
 
+    /// Whether broadcasts may be sent ahead to `m` ([`Config::send_ahead`]):
+    /// only where no priority can reorder what waits for it (queue limits
+    /// are checked per message in [`Self::send_ahead`]), so that sending
+    /// early changes nothing but the time.
+    fn may_send_ahead(&self, m: &Module) -> bool {
+        let depth = m
+            .name
+            .as_ref()
+            .and_then(|n| self.config.send_ahead.get(n))
+            .copied()
+            .unwrap_or(0);
+        m.ahead.len() < depth
+            && m.ready
+            && !m.closed
+            && m.attending >= m.capacity
+            && m.pending_limit.is_none()
+            && m.handlers.values().all(|h| {
+                self.msgs
+                    .get(&h.msg)
+                    .is_none_or(|x| x.priority == DEFAULT_PRIORITY)
+            })
+    }
+
+    /// Writes the oldest broadcasts pending for `conn` ahead of their turn,
+    /// up to its [`Config::send_ahead`] depth; they stay pending in the
+    /// bookkeeping and the log until a capacity slot frees.
+    fn send_ahead(&mut self, conn: ConnId) {
+        loop {
+            let Some(m) = self.modules.get(&conn) else {
+                return;
+            };
+            if !self.may_send_ahead(m) {
+                return;
+            }
+            let Some(&did) = m.pending.front() else {
+                return;
+            };
+            let Some(d) = self.dispatches.get_mut(&did) else {
+                return;
+            };
+            // Queries and informs wait for a slot: only a broadcast's
+            // handler acknowledges it by a Success alone. A message with a
+            // queue limit waits too: the limit may drop it. So do central's
+            // own broadcasts (notifications, `V_watch_…`): they change what
+            // the module knows, and come when they would in C.
+            let limited = d.hnd.as_ref().is_some_and(|(_, hn)| {
+                let name = m.handlers.get(hn).map_or(&d.msg, |h| &h.msg);
+                m.msg_limits.iter().any(|(n, _)| n == name)
+            });
+            let from_module = matches!(d.org, Org::Module(_));
+            if d.class != MsgClass::Broadcast as u16 || limited || !from_module {
+                return;
+            }
+            d.status = Status::Ahead;
+            self.stats.queued_bytes = self.stats.queued_bytes.saturating_sub(d.data.len());
+            let m = self.modules.get_mut(&conn).unwrap();
+            m.pending.pop_front();
+            m.ahead.push_back(did);
+            self.write_delivery(did, None);
+        }
+    }
+
     fn on_success(&mut self, conn: ConnId, did: i32, now: SystemTime) -> Result<(), Bad> {
+        // A module that finishes a message sent ahead before the ones it
+        // was given earlier (it handles them concurrently): the message
+        // takes its slot now, so that it is logged as sent before done.
+        let ahead = self.modules.get(&conn).and_then(|m| {
+            let d = self.dispatches.get(&did)?;
+            let here = d.hnd.as_ref().is_some_and(|(c, _)| *c == conn);
+            (d.status == Status::Ahead && here).then(|| m.ahead.iter().position(|x| *x == did))?
+        });
+        if let Some(i) = ahead {
+            self.modules.get_mut(&conn).unwrap().ahead.remove(i);
+            self.attend_as(did, true, now, Carry::Ahead);
+        }
         let ok = self
             .dispatches
             .get(&did)
@@ -2937,6 +3088,7 @@ impl Central {
                     let st = match d.status {
                         Status::Attending => "Active",
                         Status::Pending => "Pending",
+                        Status::Ahead => "Pending (sent ahead)",
                         Status::NoHandler => "Waiting for a handler",
                     };
                     let line = format!(
@@ -2961,7 +3113,7 @@ impl Central {
                             c.0,
                             m.capacity,
                             m.attending,
-                            m.pending.len(),
+                            m.pending.len() + m.ahead.len(),
                             if m.port >= 0 {
                                 format!(", direct port {}", m.port)
                             } else {
