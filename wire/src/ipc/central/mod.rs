@@ -242,10 +242,10 @@ pub struct Config {
     /// broadcasts from modules go ahead, never a message with a queue limit
     /// (it may be dropped) or to a module with a handler of a message with
     /// a priority (a later message may overtake it); a priority or a limit
-    /// set later does not call back what is already written. A message
-    /// written before the module looked its handler up carries the message
-    /// name, as a first delivery does; one for a handler unsubscribed in the
-    /// meantime reaches the module, which discards and acknowledges it (the
+    /// set later does not call back what is already written. Nothing goes
+    /// ahead for a handler the module has not looked up yet (its first
+    /// delivery), so the frames are byte for byte C's. A message for a
+    /// handler unsubscribed in the meantime reaches the module, which discards and acknowledges it (the
     /// C library warns), where central would have deleted it.
     pub send_ahead: BTreeMap<String, usize>,
 }
@@ -1655,6 +1655,7 @@ impl Central {
         let mut out = Writer::new();
         let mut null_reply = false;
         use Internal::*;
+        let lookup = matches!(kind, MsgInfo | HndInfo);
         match kind {
             MsgInfo | HndInfo => {
                 let msg = read_opt_str(&mut r)?;
@@ -1876,6 +1877,11 @@ impl Central {
             }
         } else if logged {
             self.log_done(name, now);
+        }
+        if lookup {
+            // A handler looked up: what waits for it may go ahead now,
+            // behind the reply.
+            self.send_ahead(conn);
         }
         Ok(())
     }
@@ -2657,7 +2663,17 @@ impl Central {
                 m.msg_limits.iter().any(|(n, _)| n == name)
             });
             let from_module = matches!(d.org, Org::Module(_));
-            if d.class != MsgClass::Broadcast as u16 || limited || !from_module {
+            // Nor before the module has looked the handler up (msgInfo on
+            // its first delivery): the C library handles queued messages
+            // while it waits for that reply, and one that comes without the
+            // message name, for a handler not resolved yet, fails its
+            // sanity check and is lost.
+            let resolved = d
+                .hnd
+                .as_ref()
+                .and_then(|(_, hn)| m.handlers.get(hn))
+                .is_some_and(|h| h.knows_msg);
+            if d.class != MsgClass::Broadcast as u16 || limited || !from_module || !resolved {
                 return;
             }
             d.status = Status::Ahead;
