@@ -1906,3 +1906,39 @@ fn messages_sent_ahead_are_resent_after_a_crash_or_cleared() {
         assert_eq!(sim.central.stats().dispatches, 0);
     }
 }
+
+/// A module that unsubscribes while messages for that handler are ahead
+/// gets them anyway, drops them and acknowledges them: nothing is left
+/// behind in central.
+#[test]
+fn messages_ahead_of_an_unsubscribe_are_dropped_by_the_module() {
+    let mut sim = Sim::new(ahead_config(2));
+    let a = sim.connect("pub");
+    let b = sim.connect("sub");
+    define(&mut sim, a, "tick", "int");
+    sim.m(b).subscribe("tick", "HND-tick").unwrap();
+    sim.pump();
+    for i in 0..4i32 {
+        sim.m(a).publish("tick", i.to_le_bytes(), -1).unwrap();
+    }
+    sim.pump();
+    let d = sim.deliveries(b);
+    assert_eq!(d.len(), 3, "one handled, two ahead");
+    // The handler unsubscribes, then returns.
+    sim.m(b).unsubscribe("tick", "HND-tick").unwrap();
+    sim.pump();
+    for (id, ..) in &d {
+        sim.m(b).ack(*id).unwrap();
+    }
+    sim.pump();
+    assert!(sim.deliveries(b).is_empty());
+    assert_eq!(sim.central.stats().dispatches, 0);
+    assert_eq!(sim.central.stats().queued_bytes, 0);
+    assert!(
+        sim.logs
+            .iter()
+            .any(|l| l.starts_with("Deleted pending tick")),
+        "the one still queued in central is deleted, as in C: {:#?}",
+        sim.logs
+    );
+}

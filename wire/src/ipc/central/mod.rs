@@ -245,8 +245,9 @@ pub struct Config {
     /// set later does not call back what is already written. Nothing goes
     /// ahead for a handler the module has not looked up yet (its first
     /// delivery), so the frames are byte for byte C's. A message for a
-    /// handler unsubscribed in the meantime reaches the module, which discards and acknowledges it (the
-    /// C library warns), where central would have deleted it.
+    /// handler unsubscribed in the meantime reaches the module, which
+    /// discards and acknowledges it (the C library warns), where central
+    /// would have deleted it.
     pub send_ahead: BTreeMap<String, usize>,
 }
 
