@@ -272,7 +272,19 @@ fn publish_subscribe_and_query_through_central() {
 
 #[test]
 fn capacity_priority_and_queue_limits() {
-    let mut sim = Sim::new(Config::default());
+    let sim = priorities_and_queue_limits(Config::default());
+    assert!(
+        sim.logs.iter().any(|l| l.contains("PENDING LIMIT")),
+        "{:#?}",
+        sim.logs
+    );
+}
+
+/// A capacity-1 subscriber with a priority on one message and a queue
+/// limit of 2 on another: the high-priority one overtakes, the limit drops
+/// the three oldest, and the subscriber never holds more than one.
+fn priorities_and_queue_limits(config: Config) -> Sim {
+    let mut sim = Sim::new(config);
     let a = sim.connect("pub");
     let b = sim.connect("sub");
     define(&mut sim, a, "low", "int");
@@ -326,11 +338,7 @@ fn capacity_priority_and_queue_limits() {
         3,
         "limit 2 dropped the three oldest"
     );
-    assert!(
-        sim.logs.iter().any(|l| l.contains("PENDING LIMIT")),
-        "{:#?}",
-        sim.logs
-    );
+    sim
 }
 
 #[test]
@@ -1740,53 +1748,8 @@ fn messages_sent_ahead_still_count_as_pending() {
 
 #[test]
 fn nothing_is_sent_ahead_where_priorities_or_queue_limits_decide() {
-    // The same scenario and expectations as `capacity_priority_and_queue_limits`.
-    let mut sim = Sim::new(ahead_config(8));
-    let a = sim.connect("pub");
-    let b = sim.connect("sub");
-    define(&mut sim, a, "low", "int");
-    define(&mut sim, a, "high", "int");
-    define(&mut sim, a, "limited", "int");
-    for m in ["low", "high", "limited"] {
-        sim.m(b).subscribe(m, &format!("HND-{m}")).unwrap();
-    }
-    sim.m(b).set_priority("high", 10).unwrap();
-    sim.m(b).set_queue_length("limited", 2).unwrap();
-    sim.pump();
-    for i in 0..3i32 {
-        sim.m(a).publish("low", i.to_le_bytes(), -1).unwrap();
-    }
-    for i in 0..5i32 {
-        sim.m(a)
-            .publish("limited", (100 + i).to_le_bytes(), -1)
-            .unwrap();
-    }
-    sim.m(a).publish("high", 999i32.to_le_bytes(), -1).unwrap();
-    sim.pump();
-    let mut got = Vec::new();
-    loop {
-        let d = sim.deliveries(b);
-        if d.is_empty() {
-            break;
-        }
-        assert_eq!(d.len(), 1, "nothing sent ahead");
-        got.push((d[0].1.clone(), value(&d[0].3)));
-        sim.m(b).ack(d[0].0).unwrap();
-        sim.pump();
-    }
-    let expect: Vec<(String, i32)> = [
-        ("low", 0),
-        ("high", 999),
-        ("low", 1),
-        ("low", 2),
-        ("limited", 103),
-        ("limited", 104),
-    ]
-    .iter()
-    .map(|(m, v)| (m.to_string(), *v))
-    .collect();
-    assert_eq!(got, expect);
-    assert_eq!(sim.central.stats().dropped, 3);
+    // C's order and drops, one message at a time.
+    priorities_and_queue_limits(ahead_config(8));
 }
 
 #[test]

@@ -122,6 +122,14 @@ impl Default for Options {
     }
 }
 
+/// The value of option `--<name>`: a whole number from 1 to `max`.
+fn number(name: &str, v: &str, max: u64, what: &str) -> Result<u64, String> {
+    v.parse::<u64>()
+        .ok()
+        .filter(|n| (1..=max).contains(n))
+        .ok_or_else(|| format!("option --{name}: '{v}' is not a number of {what} from 1 to {max}"))
+}
+
 /// Logging letters as C reads them: case does not matter (except `F`/`f`
 /// and `n`/`N` being file-only), and any `x` means no logging at all.
 fn log_options(letters: &str, file: bool) -> Result<LogOptions, String> {
@@ -175,31 +183,11 @@ fn parse_args(args: Vec<String>) -> Result<Options, String> {
                         .map_err(|_| format!("option --bind: '{v}' is not an IP address"))?;
                 }
                 "busy-poll" => {
-                    let v = value(true)?;
-                    let us = v
-                        .parse::<u64>()
-                        .ok()
-                        .filter(|us| (1..=1_000_000).contains(us))
-                        .ok_or_else(|| {
-                            format!(
-                                "option --busy-poll: '{v}' is not a number of microseconds \
-                                 from 1 to 1000000"
-                            )
-                        })?;
+                    let us = number(name, &value(true)?, 1_000_000, "microseconds")?;
                     o.busy_poll = Some(std::time::Duration::from_micros(us));
                 }
                 "cut-through" => {
-                    let v = value(true)?;
-                    let n = v
-                        .parse::<u64>()
-                        .ok()
-                        .filter(|n| (1..=i32::MAX as u64).contains(n))
-                        .ok_or_else(|| {
-                            format!(
-                                "option --cut-through: '{v}' is not a number of bytes \
-                                 from 1 to 2147483647"
-                            )
-                        })?;
+                    let n = number(name, &value(true)?, i32::MAX as u64, "bytes")?;
                     o.config.cut_through = Some(n as usize);
                 }
                 "send-ahead" => {
@@ -213,16 +201,7 @@ fn parse_args(args: Vec<String>) -> Result<Options, String> {
                     }
                     let n = match n {
                         None => DEFAULT_SEND_AHEAD,
-                        Some(n) => n
-                            .parse::<usize>()
-                            .ok()
-                            .filter(|n| (1..=1024).contains(n))
-                            .ok_or_else(|| {
-                                format!(
-                                    "option --send-ahead: '{n}' is not a number of messages \
-                                     from 1 to 1024"
-                                )
-                            })?,
+                        Some(n) => number(name, n, 1024, "messages")? as usize,
                     };
                     o.config.send_ahead.insert(module.to_string(), n);
                 }
