@@ -1562,10 +1562,10 @@ fn store_and_forward_shares_large_queries_and_replies_and_cut_through_copies_non
 
 // ----- send-ahead ------------------------------------------------------------
 
-/// Send-ahead of `n` to the modules named `sub` and `worker`.
+/// Send-ahead of `n` to the module named `sub`.
 fn ahead_config(n: usize) -> Config {
     let mut c = Config::default();
-    c.send_ahead = [("sub".to_string(), n), ("worker".to_string(), n)].into();
+    c.send_ahead = [("sub".to_string(), n)].into();
     c
 }
 
@@ -1598,6 +1598,14 @@ fn frames(sim: &Sim, id: u64) -> (Vec<Vec<u8>>, Vec<Vec<u8>>) {
 /// handler returns). Returns what the subscriber handled, in order, the
 /// most deliveries it ever held unacknowledged, and the simulation.
 fn one_at_a_time(config: Config, n: i32) -> (Vec<i32>, usize, Sim) {
+    let (mut sim, _, b) = ticks(config, n);
+    let (handled, most) = handle_in_order(&mut sim, b);
+    (handled, most, sim)
+}
+
+/// `pub` publishes the ints `0..n` on `tick`, which `sub` (capacity 1)
+/// subscribed to. Returns the simulation and the two modules.
+fn ticks(config: Config, n: i32) -> (Sim, u64, u64) {
     let mut sim = Sim::new(config);
     let a = sim.connect("pub");
     let b = sim.connect("sub");
@@ -1608,20 +1616,27 @@ fn one_at_a_time(config: Config, n: i32) -> (Vec<i32>, usize, Sim) {
         sim.m(a).publish("tick", i.to_le_bytes(), -1).unwrap();
     }
     sim.pump();
+    (sim, a, b)
+}
+
+/// `id` handles what it receives one at a time, oldest first, acknowledging
+/// each (as a C module's handler returns), until nothing more comes.
+/// Returns the values handled and the most deliveries it ever held.
+fn handle_in_order(sim: &mut Sim, id: u64) -> (Vec<i32>, usize) {
     let mut held: VecDeque<(u64, i32)> = VecDeque::new();
     let mut handled = Vec::new();
     let mut most = 0;
     loop {
-        held.extend(sim.deliveries(b).into_iter().map(|d| (d.0, value(&d.3))));
+        held.extend(sim.deliveries(id).into_iter().map(|d| (d.0, value(&d.3))));
         most = most.max(held.len());
-        let Some((id, v)) = held.pop_front() else {
+        let Some((delivery, v)) = held.pop_front() else {
             break;
         };
         handled.push(v);
-        sim.m(b).ack(id).unwrap();
+        sim.m(id).ack(delivery).unwrap();
         sim.pump();
     }
-    (handled, most, sim)
+    (handled, most)
 }
 
 #[test]
@@ -1719,16 +1734,7 @@ fn nothing_goes_ahead_of_a_handlers_first_lookup() {
 
 #[test]
 fn messages_sent_ahead_still_count_as_pending() {
-    let mut sim = Sim::new(ahead_config(2));
-    let a = sim.connect("pub");
-    let b = sim.connect("sub");
-    define(&mut sim, a, "tick", "int");
-    sim.m(b).subscribe("tick", "HND-tick").unwrap();
-    sim.pump();
-    for i in 0..5i32 {
-        sim.m(a).publish("tick", i.to_le_bytes(), -1).unwrap();
-    }
-    sim.pump();
+    let (mut sim, _, b) = ticks(ahead_config(2), 5);
     assert_eq!(sim.deliveries(b).len(), 3, "one handled, two ahead");
     let before = sim.logs.len();
     sim.central.command("status", sim.wall);
@@ -1787,16 +1793,7 @@ fn a_query_is_not_sent_ahead_nor_anything_behind_it() {
 
 #[test]
 fn a_message_sent_ahead_may_be_finished_first() {
-    let mut sim = Sim::new(ahead_config(1));
-    let a = sim.connect("pub");
-    let b = sim.connect("sub");
-    define(&mut sim, a, "tick", "int");
-    sim.m(b).subscribe("tick", "HND-tick").unwrap();
-    sim.pump();
-    for i in 0..3i32 {
-        sim.m(a).publish("tick", i.to_le_bytes(), -1).unwrap();
-    }
-    sim.pump();
+    let (mut sim, _, b) = ticks(ahead_config(1), 3);
     let d = sim.deliveries(b);
     assert_eq!(d.iter().map(|x| value(&x.3)).collect::<Vec<_>>(), [0, 1]);
     // A module handling concurrently acknowledges the later one first.
@@ -1830,42 +1827,19 @@ fn messages_sent_ahead_are_resent_after_a_crash_or_cleared() {
     for resend in [true, false] {
         let mut config = ahead_config(2);
         config.resend_on_reconnect = resend;
-        let mut sim = Sim::new(config);
-        let a = sim.connect("pub");
-        let b = sim.connect("worker");
-        define(&mut sim, a, "job", "int");
-        sim.m(b).subscribe("job", "HND-job").unwrap();
-        sim.pump();
-        for i in 1..=4i32 {
-            sim.m(a).publish("job", i.to_le_bytes(), -1).unwrap();
-        }
-        sim.pump();
+        let (mut sim, _, b) = ticks(config, 4);
         assert_eq!(sim.deliveries(b).len(), 3);
-        // The worker crashes holding one message and two sent ahead.
+        // The subscriber crashes holding one message and two sent ahead.
         sim.close(b);
         if !resend {
             assert_eq!(sim.central.stats().dispatches, 0);
             assert_eq!(sim.central.stats().queued_bytes, 0);
             continue;
         }
-        let (vals, _, _) = {
-            let b2 = sim.connect("worker");
-            sim.m(b2).subscribe("job", "HND-job").unwrap();
-            sim.pump();
-            let mut held: VecDeque<(u64, i32)> = VecDeque::new();
-            let mut vals = Vec::new();
-            loop {
-                held.extend(sim.deliveries(b2).into_iter().map(|d| (d.0, value(&d.3))));
-                let Some((id, v)) = held.pop_front() else {
-                    break;
-                };
-                vals.push(v);
-                sim.m(b2).ack(id).unwrap();
-                sim.pump();
-            }
-            (vals, (), ())
-        };
-        assert_eq!(vals, vec![1, 2, 3, 4]);
+        let b2 = sim.connect("sub");
+        sim.m(b2).subscribe("tick", "HND-tick").unwrap();
+        sim.pump();
+        assert_eq!(handle_in_order(&mut sim, b2).0, vec![0, 1, 2, 3]);
         assert_eq!(sim.central.stats().dispatches, 0);
     }
 }
@@ -1875,16 +1849,7 @@ fn messages_sent_ahead_are_resent_after_a_crash_or_cleared() {
 /// behind in central.
 #[test]
 fn messages_ahead_of_an_unsubscribe_are_dropped_by_the_module() {
-    let mut sim = Sim::new(ahead_config(2));
-    let a = sim.connect("pub");
-    let b = sim.connect("sub");
-    define(&mut sim, a, "tick", "int");
-    sim.m(b).subscribe("tick", "HND-tick").unwrap();
-    sim.pump();
-    for i in 0..4i32 {
-        sim.m(a).publish("tick", i.to_le_bytes(), -1).unwrap();
-    }
-    sim.pump();
+    let (mut sim, _, b) = ticks(ahead_config(2), 4);
     let d = sim.deliveries(b);
     assert_eq!(d.len(), 3, "one handled, two ahead");
     // The handler unsubscribes, then returns.
