@@ -103,42 +103,38 @@ fn msg_info_reply(
     frame(-4, MsgClass::Unknown, 0, msg_ref, &[], &w.into_vec())
 }
 
+/// Takes what `c` wrote, checks that it starts with the msgInfo lookup of
+/// `name`, and answers it as central would (`id`, `class`, formats).
+/// Returns what `c` had written.
+fn answer_lookup(
+    c: &mut Connection,
+    name: &str,
+    id: i32,
+    class: i32,
+    msg_fmt: &str,
+    res_fmt: &str,
+) -> Vec<Frame> {
+    let f = drain(c);
+    assert_eq!(lookup_name(&f[0]), name);
+    c.receive(
+        &msg_info_reply(f[0].header.msg_ref, id, name, class, msg_fmt, res_fmt),
+        Instant::now(),
+    );
+    f
+}
+
 /// Answers the msgInfo lookup of `x_ipc_directMsgQuery` (id 147) that
 /// num_handlers and direct sends start with; returns what follows it.
 fn answer_direct_msg_query_lookup(c: &mut Connection) -> Vec<Frame> {
-    let f = drain(c);
-    assert_eq!(lookup_name(&f[0]), "x_ipc_directMsgQuery");
-    c.receive(
-        &msg_info_reply(
-            f[0].header.msg_ref,
-            147,
-            "x_ipc_directMsgQuery",
-            3,
-            "string",
-            "int",
-        ),
-        Instant::now(),
-    );
+    answer_lookup(c, "x_ipc_directMsgQuery", 147, 3, "string", "int");
     drain(c)
 }
 
 /// Answers the msgInfo lookup a first publish of message9 starts with
 /// (id 106, a broadcast).
 fn answer_message9_lookup(c: &mut Connection) {
-    let f = drain(c);
+    let f = answer_lookup(c, "message9", 106, 15, "{int, <byte:1>}", "string");
     assert_eq!(f.len(), 1);
-    assert_eq!(lookup_name(&f[0]), "message9");
-    c.receive(
-        &msg_info_reply(
-            f[0].header.msg_ref,
-            106,
-            "message9",
-            15,
-            "{int, <byte:1>}",
-            "string",
-        ),
-        Instant::now(),
-    );
 }
 
 fn lookup_name(f: &Frame) -> String {
@@ -284,20 +280,8 @@ fn delivery_lookup_then_event_then_ack() {
         now,
     );
     assert_eq!(c.poll_event(), None);
-    let f = drain(&mut c);
+    let f = answer_lookup(&mut c, "message1", 116, 15, "{int, <byte:1>}", "int");
     assert_eq!(f.len(), 1);
-    assert_eq!(lookup_name(&f[0]), "message1");
-    c.receive(
-        &msg_info_reply(
-            f[0].header.msg_ref,
-            116,
-            "message1",
-            15,
-            "{int, <byte:1>}",
-            "int",
-        ),
-        now,
-    );
     let Some(Event::Delivery {
         delivery,
         handler,
@@ -451,19 +435,7 @@ fn respond_later_and_out_of_order() {
     };
     assert!(c.ack(d8).is_err(), "queries are answered, not acked");
     c.respond(d8, "response1", b"r8").unwrap();
-    let f = drain(&mut c);
-    assert_eq!(lookup_name(&f[0]), "response1");
-    c.receive(
-        &msg_info_reply(
-            f[0].header.msg_ref,
-            105,
-            "response1",
-            15,
-            "{int, <byte:1>}",
-            "int",
-        ),
-        now,
-    );
+    answer_lookup(&mut c, "response1", 105, 15, "{int, <byte:1>}", "int");
     c.respond(d7, "response1", b"r7").unwrap();
     let f = drain(&mut c);
     assert_eq!(f.len(), 2);
@@ -713,19 +685,8 @@ fn incoming_direct_query_is_answered_on_its_link_without_success() {
     rest.extend_from_slice(&b);
     c.receive_direct(link, &rest).unwrap();
     assert_eq!(c.poll_event(), None);
-    let f = drain(&mut c);
-    assert_eq!(lookup_name(&f[0]), "dq", "handler lookup goes to central");
-    c.receive(
-        &msg_info_reply(
-            f[0].header.msg_ref,
-            -120,
-            "dq",
-            15,
-            "{int, <byte:1>}",
-            "int",
-        ),
-        now,
-    );
+    // The handler lookup goes to central.
+    answer_lookup(&mut c, "dq", -120, 15, "{int, <byte:1>}", "int");
     let Some(Event::Delivery {
         delivery: dq,
         kind: DeliveryKind::Query,
