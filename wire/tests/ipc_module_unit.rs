@@ -100,7 +100,12 @@ fn msg_info_reply(
     encode_formatter(Some(&m), &mut w);
     let r = parse(res_fmt).unwrap();
     encode_formatter(Some(&r), &mut w);
-    frame(-4, MsgClass::Unknown, 0, msg_ref, &[], &w.into_vec())
+    reply_frame(msg_ref, &w.into_vec())
+}
+
+/// Central's reply (intent -4) to the query `msg_ref`, carrying `data`.
+fn reply_frame(msg_ref: i32, data: &[u8]) -> Vec<u8> {
+    frame(-4, MsgClass::Unknown, 0, msg_ref, &[], data)
 }
 
 /// Takes what `c` wrote, checks that it starts with the msgInfo lookup of
@@ -230,17 +235,7 @@ fn fixed_and_empty_messages() {
     w.write_i32(15);
     encode_formatter(None, &mut w);
     encode_formatter(None, &mut w);
-    c.receive(
-        &frame(
-            -4,
-            MsgClass::Unknown,
-            0,
-            f[0].header.msg_ref,
-            &[],
-            &w.into_vec(),
-        ),
-        now,
-    );
+    c.receive(&reply_frame(f[0].header.msg_ref, &w.into_vec()), now);
     let f = drain(&mut c);
     assert_eq!(f[0].header.intent, 117);
     assert!(f[0].data.is_empty());
@@ -471,17 +466,7 @@ fn hostile_input_closes_with_an_error() {
     let mut c = connected(true);
     c.publish("m", b"", -1).unwrap();
     let f = drain(&mut c);
-    c.receive(
-        &frame(
-            -4,
-            MsgClass::Unknown,
-            0,
-            f[0].header.msg_ref,
-            &[],
-            &[0x5a, 1, 2],
-        ),
-        now,
-    );
+    c.receive(&reply_frame(f[0].header.msg_ref, &[0x5a, 1, 2]), now);
     assert!(matches!(
         c.poll_event(),
         Some(Event::Closed(Some(Error::Protocol { .. })))
@@ -613,17 +598,7 @@ fn direct_publish_waits_for_receivers_and_links() {
         w.write_str(host);
         w.write_str("mod");
     }
-    c.receive(
-        &frame(
-            -4,
-            MsgClass::Unknown,
-            0,
-            f[0].header.msg_ref,
-            &[],
-            &w.into_vec(),
-        ),
-        now,
-    );
+    c.receive(&reply_frame(f[0].header.msg_ref, &w.into_vec()), now);
     // V_watch_dmsg subscription (registerHandler was looked up at connect)
     let f = drain(&mut c);
     assert_eq!(f.len(), 1);
@@ -732,17 +707,7 @@ fn a_handler_count_from_central_outranks_a_stale_broadcast_list() {
     let f = answer_direct_msg_query_lookup(&mut c);
     assert_eq!(f.len(), 1);
     assert_eq!(f[0].header.intent, 147);
-    c.receive(
-        &frame(
-            -4,
-            MsgClass::Unknown,
-            0,
-            f[0].header.msg_ref,
-            &[],
-            &1i32.to_ne_bytes(),
-        ),
-        now,
-    );
+    c.receive(&reply_frame(f[0].header.msg_ref, &1i32.to_ne_bytes()), now);
     assert_eq!(c.poll_event(), Some(Event::NumHandlers { op: n, count: 1 }));
     // Then the update queued before the subscription: without message9.
     let mut w = Writer::new();
