@@ -6,7 +6,7 @@
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::time::{Instant, SystemTime};
 
-use courier_wire::ipc::central::{Central, Config, ConnId, Output, Peer};
+use courier_wire::ipc::central::{Central, Config, ConnId, LogOptions, Output, Peer};
 use courier_wire::ipc::frame::{ClassId, Header, MsgClass};
 use courier_wire::ipc::module::{Connection, DeliveryKind, Event, ModuleConfig, MsgLength};
 
@@ -593,6 +593,68 @@ fn slow_subscriber_bounded_memory_nothing_lost() {
     );
 }
 
+/// A module that publishes from inside a handler (the usual pipeline: it
+/// handles a message and publishes what it made of it) is attending a
+/// delivery the whole time. Central must still stop reading it when its
+/// subscriber falls behind, or its queue grows without bound.
+#[test]
+fn a_module_publishing_inside_a_broadcast_handler_is_held_back_too() {
+    const LIMIT: usize = 64 << 10;
+    let mut config = Config::default();
+    config.max_queued_bytes = LIMIT;
+    let mut sim = Sim::new(config);
+    let up = sim.connect("upstream");
+    let m = sim.connect("pipeline");
+    let s = sim.connect("slow");
+    define(&mut sim, up, "go", "int");
+    define(&mut sim, m, "data", "[int:16]");
+    sim.m(m).subscribe("go", "HND-go").unwrap();
+    sim.m(s).subscribe("data", "HND-data").unwrap();
+    sim.pump();
+    sim.m(up)
+        .publish("go", 7i32.to_le_bytes().to_vec(), -1)
+        .unwrap();
+    sim.pump();
+    let go = sim.deliveries(m);
+    assert_eq!(go.len(), 1);
+    // Inside its handler of "go", the pipeline module publishes 20 000
+    // messages as fast as its socket lets it, then acknowledges "go".
+    const N: i32 = 20_000;
+    let (mut sent, mut next) = (0, 0);
+    let mut acked = false;
+    while next < N {
+        // Its socket takes what fits; the handler blocks while it is full.
+        while sent < N && sim.mods[&m].outbox.len() < 1000 {
+            let mut body = vec![0u8; 64];
+            body[..4].copy_from_slice(&sent.to_le_bytes());
+            sim.m(m).publish("data", body, -1).unwrap();
+            sent += 1;
+            if sent % 100 == 0 {
+                sim.pump();
+            }
+        }
+        // The handler returns once its last message is written.
+        if sent == N && !acked && sim.mods[&m].outbox.is_empty() {
+            sim.m(m).ack(go[0].0).unwrap();
+            acked = true;
+        }
+        sim.pump();
+        // The subscriber handles a few messages per turn.
+        for (id, _, _, data) in sim.deliveries(s).into_iter().take(5) {
+            assert_eq!(i32::from_le_bytes(data[..4].try_into().unwrap()), next);
+            next += 1;
+            sim.m(s).ack(id).unwrap();
+        }
+    }
+    let st = sim.central.stats();
+    assert_eq!((st.dropped, st.queued_bytes), (0, 0));
+    assert!(
+        st.peak_queued_bytes <= LIMIT + 1024,
+        "peak {} bytes queued with a limit of {LIMIT}",
+        st.peak_queued_bytes
+    );
+}
+
 fn raw_frame(class: MsgClass, intent: i32, body: &[u8]) -> Vec<u8> {
     let h = Header {
         class_total: 0,
@@ -636,6 +698,41 @@ fn hostile(bytes: &[u8]) -> (Vec<String>, Vec<String>) {
         connected: true
     }));
     (closes, logs)
+}
+
+/// `-lx` turns logging off, not the report of a module that sends garbage:
+/// the ERROR line still goes to the terminal (and, with `-L`, to the file).
+#[test]
+fn bad_input_is_reported_with_logging_off() {
+    for file in [false, true] {
+        let mut config = Config::default();
+        config.terminal_log = LogOptions::parse("x", false).unwrap();
+        if file {
+            config.file_log = LogOptions::parse("m", true).unwrap();
+        }
+        let mut central = Central::new(config);
+        let now = SystemTime::now();
+        central.connect(ConnId(7), Peer::Other("attacker".into()), now);
+        let mut f = raw_frame(MsgClass::Query, 5, &[]);
+        f[4..8].copy_from_slice(&(-8i32).to_be_bytes());
+        central.receive(ConnId(7), &f, now);
+        let mut lines = Vec::new();
+        while let Some(o) = central.poll_output() {
+            if let Output::Log { target, line } = o {
+                lines.push((target.terminal, target.file, line));
+            }
+        }
+        // Only the ERROR line reaches the terminal.
+        let shown: Vec<_> = lines.iter().filter(|l| l.0).collect();
+        assert_eq!(shown.len(), 1, "{lines:?}");
+        let (_, to_file, line) = shown[0];
+        assert_eq!(*to_file, file, "{lines:?}");
+        assert!(
+            line.starts_with("ERROR: closing connection 7 (from attacker): ")
+                && line.contains("negative length"),
+            "{line}"
+        );
+    }
 }
 
 #[test]

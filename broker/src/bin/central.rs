@@ -48,7 +48,7 @@ const USAGE: &str = "central command line options:
                   h (incoming message handle time summary)
                   r (log the reference Id as well as the msg name)
                   p (log the reference Id of the message's parent)
-                  x (no logging)
+                  x (no logging; a module's bad input is still reported)
      -l is equivalent to -lmstdh; the default is -lmsi
  -L: logging into file.
      options are the same as above with the addition of F.

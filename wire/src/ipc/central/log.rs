@@ -16,6 +16,11 @@ pub(super) enum Kind {
     Status,
     /// Data lines (`d`, only with `m`).
     Data,
+    /// Courier's own `ERROR:`/`WARNING:` lines about bad input or a
+    /// misbehaving module: on the terminal even when logging is off (`-lx`;
+    /// `-s` still silences the terminal), and in the log file when there is
+    /// one.
+    Problem,
 }
 
 impl Kind {
@@ -25,6 +30,7 @@ impl Kind {
             Kind::Message => o.messages,
             Kind::Status => o.status,
             Kind::Data => o.messages && o.data,
+            Kind::Problem => o.any(),
         }
     }
 }

@@ -206,8 +206,15 @@ pub struct Config {
     pub max_frame: u64,
     /// When the messages queued inside central for delivery exceed this many
     /// bytes, the shell is asked to stop reading from publishers
-    /// ([`Output::PauseRead`]) until the queues drain: memory stays bounded
-    /// and nothing is dropped (TCP back-pressure reaches the publisher).
+    /// ([`Output::PauseRead`]) until the queues drain to half of it: memory
+    /// stays bounded and nothing is dropped (TCP back-pressure reaches the
+    /// publisher). A module is read on while central waits for something
+    /// only it can send: the answer to a query it is handling, or the
+    /// Success that lets its own queue move; a module publishing from its
+    /// handler of a broadcast is held back like any other. A module
+    /// publishing from its handler of a query is not, and neither are
+    /// queries waiting for a first handler of their message, which (as in
+    /// C) wait as long as it takes.
     pub max_queued_bytes: usize,
     /// Cut-through: a message or reply whose body is at least this many
     /// bytes is forwarded while it still arrives, when its receiver can take
@@ -454,6 +461,9 @@ struct Module {
     ready: bool,
     capacity: usize,
     attending: usize,
+    /// Of the deliveries it is handling, those whose sender waits for an
+    /// answer (queries): while it has one, central keeps reading it.
+    answering: usize,
     pending: VecDeque<i32>,
     /// Broadcasts sent ahead of their turn, oldest first; they come before
     /// everything in `pending`.
@@ -547,6 +557,11 @@ pub struct Stats {
     pub modules: usize,
     /// Dispatches alive (pending, attending or waiting for a handler).
     pub dispatches: usize,
+    /// Of those, queries and informs waiting for a first handler of their
+    /// message. As in C, they outlive the module that sent them: a handler
+    /// that registers later gets them (and a reply to a module gone is
+    /// dropped with a log line).
+    pub waiting_for_handler: usize,
     /// Bytes of message data held in pending queues.
     pub queued_bytes: usize,
     /// Most `queued_bytes` ever seen.
@@ -656,6 +671,7 @@ impl Central {
         let mut s = self.stats;
         s.modules = self.modules.len();
         s.dispatches = self.dispatches.len();
+        s.waiting_for_handler = self.msgs.values().map(|m| m.waiting.len()).sum();
         s
     }
 
@@ -919,7 +935,7 @@ impl Central {
 
     fn log_line(&mut self, kind: Kind, line: String) {
         let target = LogTarget {
-            terminal: kind.enabled(&self.config.terminal_log),
+            terminal: kind == Kind::Problem || kind.enabled(&self.config.terminal_log),
             file: kind.enabled(&self.config.file_log),
         };
         if target.terminal || target.file {
@@ -1046,6 +1062,7 @@ impl Central {
                 ready: false,
                 capacity: 1,
                 attending: 0,
+                answering: 0,
                 pending: VecDeque::new(),
                 ahead: VecDeque::new(),
                 msg_limits: Vec::new(),
@@ -1406,7 +1423,7 @@ impl Central {
         let from = self.describe(conn);
         let dest = self.describe(to);
         self.log_line(
-            Kind::Always,
+            Kind::Problem,
             format!(
                 "WARNING: connection {from} ended in the middle of {msg} ({} of {total} bytes \
                  forwarded); the rest went to {dest} as zero bytes",
@@ -1425,7 +1442,7 @@ impl Central {
     fn protocol_error(&mut self, conn: ConnId, why: String, now: SystemTime) {
         let who = self.describe(conn);
         self.log_line(
-            Kind::Always,
+            Kind::Problem,
             format!("ERROR: closing connection {who}: {why}"),
         );
         self.outputs.push_back(Output::Close { conn, reason: why });
@@ -1459,7 +1476,7 @@ impl Central {
         if partial > 0 {
             let who = self.describe(conn);
             self.log_line(
-                Kind::Always,
+                Kind::Problem,
                 format!("WARNING: connection {who} closed in the middle of a frame ({partial} byte(s) discarded)"),
             );
         }
@@ -1606,7 +1623,7 @@ impl Central {
         let Some(name) = self.by_id.get(&id).cloned() else {
             let who = self.describe(conn);
             self.log_line(
-                Kind::Always,
+                Kind::Problem,
                 format!(
                     "WARNING: message with unknown id {} (class {}) from {who} ignored",
                     h.intent,
@@ -1706,7 +1723,7 @@ impl Central {
                 let f = read_opt_str(&mut r)?.unwrap_or_default();
                 if let Err(e) = self.formats.define(&n, &f) {
                     self.log_line(
-                        Kind::Always,
+                        Kind::Problem,
                         format!("WARNING: bad named format {n} = \"{f}\" from {org_name}: {e}"),
                     );
                 }
@@ -1980,7 +1997,7 @@ impl Central {
     ) {
         let Some(class) = u16::try_from(class).ok().and_then(MsgClass::from_u16) else {
             self.log_line(
-                Kind::Always,
+                Kind::Problem,
                 format!("WARNING: message {name} registered with unknown class {class}; ignored"),
             );
             return;
@@ -1988,7 +2005,7 @@ impl Central {
         if let Some(m) = self.msgs.get(&name) {
             if m.internal.is_some() {
                 self.log_line(
-                    Kind::Always,
+                    Kind::Problem,
                     format!(
                         "WARNING: a module tried to redefine central's message {name}; ignored"
                     ),
@@ -2299,7 +2316,7 @@ impl Central {
             other => {
                 let who = self.describe(conn);
                 self.log_line(
-                    Kind::Always,
+                    Kind::Problem,
                     format!(
                         "WARNING: {name} sent with class {} ({other}) by {who}: not supported by IPC; ignored",
                         log::class_name(other)
@@ -2400,6 +2417,9 @@ impl Central {
             return;
         };
         m.attending += 1;
+        if awaits_answer(class) {
+            m.answering += 1;
+        }
         if !m.handlers.contains_key(&hnd_name) {
             return;
         }
@@ -2478,9 +2498,19 @@ impl Central {
         }
         if resume {
             // Its acknowledgements must be read.
-            self.modules.get_mut(&conn).unwrap().paused = false;
-            self.memory_paused.remove(&conn);
-            self.outputs.push_back(Output::ResumeRead { conn });
+            self.resume_read(conn);
+        }
+    }
+
+    /// Central reads `conn` again before the queues have drained: what it
+    /// sends is now waited for.
+    fn resume_read(&mut self, conn: ConnId) {
+        if let Some(m) = self.modules.get_mut(&conn) {
+            if m.paused {
+                m.paused = false;
+                self.memory_paused.remove(&conn);
+                self.outputs.push_back(Output::ResumeRead { conn });
+            }
         }
     }
 
@@ -2572,6 +2602,8 @@ impl Central {
             let line = self.dispatch_line(class, &msg, Some(did), &org_name, parent, &to, now);
             self.log_line(Kind::Message, line);
         }
+        // The queue waits for the module's Success (or its waitMsg): read it.
+        self.resume_read(conn);
         self.send_ahead(conn);
     }
 
@@ -2706,7 +2738,7 @@ impl Central {
         if !ok {
             let who = self.describe(conn);
             self.log_line(
-                Kind::Always,
+                Kind::Problem,
                 format!(
                     "WARNING: Success for unknown or foreign dispatch {did} from {who} ignored"
                 ),
@@ -2729,9 +2761,7 @@ impl Central {
             );
             self.log_line(Kind::Message, line);
         }
-        if let Some(m) = self.modules.get_mut(&conn) {
-            m.attending = m.attending.saturating_sub(1);
-        }
+        self.handled(conn, d.class);
         self.process_pending(conn, now);
         Ok(())
     }
@@ -2752,7 +2782,7 @@ impl Central {
         if !ok {
             let who = self.describe(conn);
             self.log_line(
-                Kind::Always,
+                Kind::Problem,
                 format!("WARNING: Reply for unknown or foreign dispatch {did} from {who} ignored"),
             );
             return Ok(());
@@ -2832,10 +2862,18 @@ impl Central {
                 self.log_data(&d.msg, h.class_id, data, Some(&rn));
             }
         }
+        self.handled(conn, d.class);
+        self.process_pending(conn, now);
+    }
+
+    /// `conn` finished handling a delivery of class `class`.
+    fn handled(&mut self, conn: ConnId, class: u16) {
         if let Some(m) = self.modules.get_mut(&conn) {
             m.attending = m.attending.saturating_sub(1);
+            if awaits_answer(class) {
+                m.answering = m.answering.saturating_sub(1);
+            }
         }
-        self.process_pending(conn, now);
     }
 
     // ----- variables ---------------------------------------------------------
@@ -3025,7 +3063,15 @@ impl Central {
             return;
         }
         if let Some(m) = self.modules.get_mut(&conn) {
-            if !m.paused && !m.closed && m.attending == 0 {
+            // Reading stops only where nothing in central waits for what
+            // the module has not sent yet: no delivery it handles has a
+            // sender waiting for the answer, and none waits in its queue
+            // for a capacity slot its Success would free. A module that
+            // publishes while it handles a broadcast (a pipeline) is
+            // stopped too; one answering a query is not.
+            let nothing_waits = m.attending == 0
+                || (m.answering == 0 && m.pending.is_empty() && m.ahead.is_empty());
+            if !m.paused && !m.closed && nothing_waits {
                 m.paused = true;
                 self.memory_paused.insert(conn);
                 self.outputs.push_back(Output::PauseRead { conn });
@@ -3293,6 +3339,12 @@ fn write_direct_list(w: &mut Writer, list: &[DirectEntry]) {
 }
 
 /// `DIRECT_MSG(msg)`: classes that may go module to module.
+/// A delivery of this class has a sender waiting for its answer (a query),
+/// as opposed to a broadcast or inform, which nobody waits for.
+fn awaits_answer(class: u16) -> bool {
+    class != MsgClass::Broadcast as u16 && class != MsgClass::Inform as u16
+}
+
 fn direct_class(c: MsgClass) -> bool {
     matches!(c, MsgClass::Broadcast | MsgClass::Inform | MsgClass::Query)
 }
