@@ -270,30 +270,43 @@ fn wiretest_direct() {
     assert!(check("wiretest-direct", true) > 80);
 }
 
-/// Our terminal log for a replayed capture, with the connections numbered
-/// as the C central's socket descriptors were (5, 6, …).
-fn replay_log(name: &str, direct: bool, close_order: &[u64]) -> Vec<String> {
+/// A capture replayed into our central, its module frames renumbered into
+/// our ids as they are learned (as `check` does, which proves the frames
+/// equal); the connections are numbered as the C central's socket
+/// descriptors were (5, 6, …).
+struct Replay {
+    central: Central,
+    /// Our terminal log so far.
+    log: Vec<String>,
+    /// Frames our central sent that the capture has not shown yet.
+    actual: HashMap<u64, VecDeque<Vec<u8>>>,
+    /// The module→central frames as our central was given them, in order.
+    stream: Vec<(u64, Vec<u8>)>,
+}
+
+fn replay(name: &str, direct: bool) -> Replay {
     let lines = load(name);
     let mut config = Config::default();
     config.direct = direct;
     config.terminal_log = LogOptions::parse("msid", false).unwrap();
-    let mut central = Central::new(config);
+    let mut r = Replay {
+        central: Central::new(config),
+        log: Vec::new(),
+        actual: HashMap::new(),
+        stream: Vec::new(),
+    };
     let now = SystemTime::UNIX_EPOCH;
-    let mut log = Vec::new();
     let mut connected = std::collections::HashSet::new();
     let mut maps = Maps::default();
-    let mut actual: HashMap<u64, VecDeque<Vec<u8>>> = HashMap::new();
     for l in &lines {
         let conn = ConnId(l.conn + 5);
         if connected.insert(l.conn) {
-            central.connect(conn, Peer::Other("capture".into()), now);
-            drain_log(&mut central, &mut actual, &mut log);
+            r.central.connect(conn, Peer::Other("capture".into()), now);
+            drain_log(&mut r.central, &mut r.actual, &mut r.log);
         }
         if l.central {
-            // Learn the id mappings exactly as `check` does (it already
-            // proved the frames equal).
             let want_delivery = is_delivery(&l.bytes);
-            let q = actual.entry(l.conn).or_default();
+            let q = r.actual.entry(l.conn).or_default();
             let i = q
                 .iter()
                 .position(|f| is_delivery(f) == want_delivery)
@@ -312,14 +325,26 @@ fn replay_log(name: &str, direct: bool, close_order: &[u64]) -> Vec<String> {
         } else {
             let mut b = l.bytes.clone();
             rewrite_module_frame(&mut b, &maps);
-            central.receive(conn, &b, now);
-            drain_log(&mut central, &mut actual, &mut log);
+            r.central.receive(conn, &b, now);
+            drain_log(&mut r.central, &mut r.actual, &mut r.log);
+            r.stream.push((conn.0, b));
         }
     }
-    // Modules close in the order the C central saw their connections end.
-    let _ = &connected;
+    r
+}
+
+/// Our terminal log for a replayed capture.
+fn replay_log(name: &str, direct: bool, close_order: &[u64]) -> Vec<String> {
+    let Replay {
+        mut central,
+        mut log,
+        mut actual,
+        ..
+    } = replay(name, direct);
+    let now = SystemTime::UNIX_EPOCH;
     // The modules ended with IPC_disconnect (x_ipc_CloseMsg, then EOF);
-    // where the capture stops before that, send it as they did.
+    // where the capture stops before that, send it as they did, in the
+    // order the C central saw their connections end.
     let close_id = central.message_id("x_ipc_CloseMsg").unwrap();
     for &c in close_order {
         // Deliveries sent after the capture stopped: the module handled and
@@ -419,4 +444,327 @@ fn wiretest_central_log_matches_c() {
 #[test]
 fn wiretest_direct_log_matches_c() {
     compare_logs("wiretest-direct", true, &[1, 0]);
+}
+
+// ----- mutated captures ---------------------------------------------------------
+//
+// The captures' module streams, renumbered into our ids so that unchanged
+// they drive central through registration, lookups, deliveries, queries,
+// replies, capacity and notifications, then damaged the ways a broken or
+// hostile module damages its stream (`damage/mod.rs`). Whatever the damage,
+// central must not panic or loop, must close a connection it gives up on
+// with a log line saying why, must free every queued byte and dispatch when
+// the modules are gone (but for queries waiting for a handler, which C
+// keeps too), and must still serve new modules. The bound on queued bytes
+// has its own tests in `central_sim.rs`.
+
+use courier_wire::ipc::module::{Connection, Event, ModuleConfig, MsgLength};
+use damage::{damage, damaged, Step};
+use proptest::prelude::*;
+use std::time::Instant;
+
+mod damage;
+
+/// What the operator types (`Step::Other`).
+const CONSOLE: &[&str] = &[
+    "status",
+    "display",
+    "memory",
+    "help",
+    "close module1",
+    "close module2",
+    "close wiretest",
+    "unlock module1",
+    "-lmsid",
+    "-Lx",
+    "-r",
+];
+
+/// Central's configurations worth damaging: C's defaults, direct mode,
+/// `-r`, data logging, cut-through of everything above 16 bytes,
+/// send-ahead to every module, and tiny memory and frame bounds.
+fn hostile_config(pick: u8, direct: bool) -> Config {
+    let mut c = Config::default();
+    c.direct = direct;
+    c.terminal_log = LogOptions::parse("msid", false).unwrap();
+    match pick % 6 {
+        0 => {}
+        1 => c.resend_on_reconnect = true,
+        2 => c.terminal_log = LogOptions::parse("mstid", false).unwrap(),
+        3 => c.cut_through = Some(16),
+        4 => {
+            for m in [
+                "module1", "module2", "module3", "wiretest", "receiver", "sender",
+            ] {
+                c.send_ahead.insert(m.to_string(), 4);
+            }
+        }
+        _ => {
+            c.max_queued_bytes = 64;
+            c.max_frame = 200;
+        }
+    }
+    c
+}
+
+/// Replays the damaged steps, `chunk` bytes per read, honouring central's
+/// pause requests as a shell does, and disconnects every module at the end.
+fn run_damaged(config: Config, steps: Vec<Step>, chunk: usize) -> Central {
+    let now = SystemTime::UNIX_EPOCH;
+    let mut central = Central::new(config);
+    let mut open: std::collections::HashSet<u64> = Default::default();
+    let mut gone: std::collections::HashSet<u64> = Default::default();
+    let mut paused: std::collections::HashSet<u64> = Default::default();
+    // Bytes a paused connection could not deliver yet (its socket buffer).
+    let mut held: HashMap<u64, Vec<u8>> = HashMap::new();
+    let pump = |central: &mut Central,
+                paused: &mut std::collections::HashSet<u64>,
+                gone: &mut std::collections::HashSet<u64>| {
+        let mut lines = Vec::new();
+        let mut closes = Vec::new();
+        let mut guard = 0usize;
+        while let Some(o) = central.poll_output() {
+            if std::env::var_os("FUZZ_DEBUG").is_some() {
+                eprintln!("{o:?}");
+            }
+            guard += 1;
+            assert!(guard < 1_000_000, "central keeps producing output");
+            match o {
+                Output::Close { conn, reason } => {
+                    gone.insert(conn.0);
+                    closes.push((conn.0, reason));
+                }
+                Output::Log { line, .. } => lines.push(line),
+                Output::PauseRead { conn } => {
+                    paused.insert(conn.0);
+                }
+                Output::ResumeRead { conn } => {
+                    paused.remove(&conn.0);
+                }
+                _ => {}
+            }
+        }
+        // Every connection central closes is closed with a log line saying
+        // which and why: bad input names the connection and the fault.
+        for (conn, reason) in closes {
+            let said = lines.iter().any(|l| match reason.as_str() {
+                "module sent x_ipc_CloseMsg" => l.starts_with(&format!(
+                    "x_ipcClose: Closed Connection Detected from: sd: {conn}:"
+                )),
+                "closed from the console" => l.starts_with("close Module: Closing"),
+                _ => {
+                    l.starts_with(&format!("ERROR: closing connection {conn} "))
+                        && l.ends_with(&reason)
+                }
+            });
+            assert!(
+                said,
+                "connection {conn} closed ({reason}) without its log line: {lines:#?}"
+            );
+            central.disconnect(ConnId(conn), now);
+        }
+    };
+    for step in steps {
+        match step {
+            Step::Bytes(conn, bytes) => {
+                if gone.contains(&conn) {
+                    continue;
+                }
+                if open.insert(conn) {
+                    central.connect(ConnId(conn), Peer::Other("fuzz".into()), now);
+                }
+                let buf = held.entry(conn).or_default();
+                buf.extend_from_slice(&bytes);
+                for c in held.keys().copied().collect::<Vec<_>>() {
+                    while !paused.contains(&c) && !gone.contains(&c) {
+                        let buf = held.get_mut(&c).unwrap();
+                        if buf.is_empty() {
+                            break;
+                        }
+                        let k = chunk.min(buf.len());
+                        let piece: Vec<u8> = buf.drain(..k).collect();
+                        central.receive(ConnId(c), &piece, now);
+                        pump(&mut central, &mut paused, &mut gone);
+                    }
+                }
+            }
+            Step::Hangup(conn) => {
+                if open.contains(&conn) && gone.insert(conn) {
+                    central.disconnect(ConnId(conn), now);
+                    pump(&mut central, &mut paused, &mut gone);
+                }
+            }
+            Step::Other(what) => {
+                central.command(CONSOLE[what % CONSOLE.len()], now);
+                pump(&mut central, &mut paused, &mut gone);
+            }
+        }
+    }
+    for conn in open {
+        if gone.insert(conn) {
+            central.disconnect(ConnId(conn), now);
+            pump(&mut central, &mut paused, &mut gone);
+        }
+    }
+    central
+}
+
+/// Two new modules connect to `central`: the second subscribes, the first
+/// sees its handler; through a routing central it also publishes, and the
+/// message arrives.
+fn still_serves(central: &mut Central) {
+    let now = SystemTime::UNIX_EPOCH;
+    let t = Instant::now();
+    let mut mods = [
+        (
+            ConnId(900),
+            Connection::new(ModuleConfig::new("after-a", "localhost"), t),
+        ),
+        (
+            ConnId(901),
+            Connection::new(ModuleConfig::new("after-b", "localhost"), t),
+        ),
+    ];
+    for (c, _) in &mods {
+        central.connect(*c, Peer::Other("after".into()), now);
+    }
+    // Moves bytes until nothing moves; the modules' events, by module.
+    let pump = |central: &mut Central, mods: &mut [(ConnId, Connection); 2]| {
+        let mut events: [Vec<Event>; 2] = Default::default();
+        for _ in 0..100 {
+            let mut moved = false;
+            for (c, m) in mods.iter_mut() {
+                while let Some(bytes) = m.poll_transmit() {
+                    central.receive(*c, &bytes, now);
+                    moved = true;
+                }
+            }
+            while let Some(o) = central.poll_output() {
+                if let Some((conn, bytes)) = o.transmitted() {
+                    if let Some((_, m)) = mods.iter_mut().find(|(c, _)| *c == conn) {
+                        m.receive(&bytes, t);
+                        moved = true;
+                    }
+                }
+            }
+            for (i, (_, m)) in mods.iter_mut().enumerate() {
+                while let Some(e) = m.poll_event() {
+                    if matches!(e, Event::DirectListenRequested) {
+                        m.announce_direct_port(40000 + i as i32);
+                    }
+                    events[i].push(e);
+                    moved = true;
+                }
+            }
+            if !moved {
+                break;
+            }
+        }
+        events
+    };
+    let ev = pump(central, &mut mods);
+    for (i, e) in ev.iter().enumerate() {
+        assert!(
+            e.iter().any(|e| matches!(e, Event::Connected)),
+            "module {i} did not connect: {e:?}"
+        );
+    }
+    mods[1].1.subscribe("after_msg", "h").unwrap();
+    pump(central, &mut mods);
+    let (_, a) = &mut mods[0];
+    a.define_msg("after_msg", MsgLength::Fixed(4), None)
+        .unwrap();
+    a.num_handlers("after_msg").unwrap();
+    let ev = pump(central, &mut mods);
+    assert!(
+        ev[0]
+            .iter()
+            .any(|e| matches!(e, Event::NumHandlers { count: 1, .. })),
+        "central no longer registers handlers: {ev:?}"
+    );
+    if central.config().direct {
+        return;
+    }
+    mods[0]
+        .1
+        .publish("after_msg", vec![1, 2, 3, 4], -1)
+        .unwrap();
+    let ev = pump(central, &mut mods);
+    let got: Vec<&[u8]> = ev[1]
+        .iter()
+        .filter_map(|e| match e {
+            Event::Delivery { data, .. } => Some(&data[..]),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(
+        got,
+        [&[1u8, 2, 3, 4][..]],
+        "central no longer routes: {ev:?}"
+    );
+}
+
+/// A capture's name, whether its central was direct, and its module
+/// frames in our ids.
+type Capture = (&'static str, bool, Vec<(u64, Vec<u8>)>);
+
+fn streams() -> &'static [Capture] {
+    static S: std::sync::OnceLock<Vec<Capture>> = std::sync::OnceLock::new();
+    S.get_or_init(|| {
+        [
+            ("demo-central", false),
+            ("wiretest-central", false),
+            ("flowcontrol-capacity1", false),
+            ("flowcontrol-capacity2", false),
+            ("demo-direct", true),
+            ("wiretest-direct", true),
+        ]
+        .into_iter()
+        .map(|(n, d)| (n, d, replay(n, d).stream))
+        .collect()
+    })
+}
+
+#[test]
+fn undamaged_captures_leave_nothing_behind() {
+    for (name, direct, stream) in streams() {
+        for pick in 0..6 {
+            let steps = stream
+                .iter()
+                .cloned()
+                .map(|(c, b)| Step::Bytes(c, b))
+                .collect();
+            let mut central = run_damaged(hostile_config(pick, *direct), steps, usize::MAX);
+            let s = central.stats();
+            assert_eq!((s.modules, s.queued_bytes), (0, 0), "{name} config {pick}");
+            still_serves(&mut central);
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(damage::cases(400)))]
+
+    #[test]
+    fn damaged_captures_leave_central_up(
+        which in 0usize..6,
+        pick in any::<u8>(),
+        damage in prop::collection::vec(damage(), 1..8),
+        chunk in prop_oneof![Just(usize::MAX), 1usize..64],
+    ) {
+        let (_, direct, stream) = &streams()[which];
+        let steps = damaged(stream, &damage);
+        let mut central = run_damaged(hostile_config(pick, *direct), steps, chunk);
+        let s = central.stats();
+        prop_assert_eq!(s.modules, 0);
+        prop_assert_eq!(s.queued_bytes, 0, "bytes still queued after every module left");
+        if !central.config().resend_on_reconnect {
+            prop_assert_eq!(
+                s.dispatches,
+                s.waiting_for_handler,
+                "dispatches alive after every module left"
+            );
+        }
+        still_serves(&mut central);
+    }
 }

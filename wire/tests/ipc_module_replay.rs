@@ -238,3 +238,181 @@ fn module2_whole_session_matches_c() {
         n,
     );
 }
+
+// ----- damaged central streams ----------------------------------------------------
+//
+// What central sends to module1 and module2 in the capture,
+// damaged (`damage/mod.rs`) and fed to a module that makes the capture's
+// API calls. A module must survive whatever comes from its socket: no
+// panic, no loop, an error event or a closed connection instead, and API
+// calls after that answer with an error.
+
+mod damage;
+
+use courier_wire::ipc::module::Error;
+use damage::{damage, damaged, Step};
+use proptest::prelude::*;
+
+/// The program's calls (`Step::Other`); any of them may fail once the
+/// connection is broken, none may panic.
+fn api_call(c: &mut Connection, what: usize) -> Result<(), Error> {
+    match what % 8 {
+        0 => c.subscribe("message1", "HND-m1").map(drop),
+        1 => c.subscribe("query1", "HND-q1").map(drop),
+        2 => c
+            .publish("message1", 42i32.to_le_bytes().to_vec(), -1)
+            .map(drop),
+        3 => c.query("query1", vec![0u8; 64], -1).map(drop),
+        4 => c.unsubscribe("message1", "HND-m1"),
+        5 => c.set_capacity(2),
+        6 => c.num_handlers("message1").map(drop),
+        _ => c.define_msg("message2", MsgLength::Variable, Some("string")),
+    }
+}
+
+/// Returns how many events the program handled before its connection
+/// closed, if it did.
+fn run_damaged_module(text: &str, damage: &[damage::Damage], chunk: usize) -> (usize, bool) {
+    let now = Instant::now();
+    let from_central: Vec<(u64, Vec<u8>)> = load(text)
+        .into_iter()
+        .filter(|(c, _, _)| *c)
+        .map(|(_, b, _)| (0, b))
+        .collect();
+    // The calls module1 and module2 made (see the replay tests above), in
+    // order, each once the module is connected and waits for nothing, so
+    // that the undamaged stream answers them.
+    type Call = fn(&mut Connection) -> Result<(), Error>;
+    let (name, host, mut script): (_, _, VecDeque<Call>) = if text == MODULE1 {
+        (
+            "module1",
+            "localhost",
+            VecDeque::from([
+                (|c| c.subscribe_connect()) as Call,
+                |c| c.subscribe_connect(),
+                |c| c.subscribe_disconnect(),
+                |c| c.define_format("T1", "{int, {enum : 3}, [double:2,3], double}"),
+                |c| {
+                    c.define_format(
+                        "T2",
+                        "{string, int, <T1:2>, {enum WaitVal, SendVal, ReceiveVal, ListenVal}}",
+                    )
+                },
+                |c| c.define_msg("message1", MsgLength::Variable, Some("int")),
+                |c| c.subscribe_handler_change("message1").map(drop),
+            ]),
+        )
+    } else {
+        (
+            "module2",
+            "127.1",
+            VecDeque::from([
+                (|c| c.define_msg("message2", MsgLength::Variable, Some("string"))) as Call,
+                |c| c.define_msg("response1", MsgLength::Variable, Some("T2")),
+                |c| {
+                    c.subscribe("message1", "HND-message194665907509024")
+                        .map(drop)
+                },
+                |c| c.subscribe("query1", "HND-query194665907508752").map(drop),
+            ]),
+        )
+    };
+    let mut conn = Connection::new(ModuleConfig::new(name, host), now);
+    let mut closed = false;
+    let mut handled = 0;
+    // Runs the program until it has nothing to do: answers what it is
+    // given, writes what it has to write.
+    let mut settle = |conn: &mut Connection, closed: &mut bool| {
+        for _ in 0..10_000 {
+            let mut moved = conn.poll_transmit().is_some();
+            if conn.is_connected() && !conn.is_waiting() && !conn.has_transmit() {
+                if let Some(call) = script.pop_front() {
+                    let r = call(conn);
+                    assert!(r.is_ok() || *closed, "{r:?}");
+                    moved = true;
+                }
+            }
+            while let Some(e) = conn.poll_event() {
+                moved = true;
+                if !*closed {
+                    handled += 1;
+                }
+                match e {
+                    Event::Delivery { delivery, kind, .. } => {
+                        let r = match kind {
+                            DeliveryKind::Broadcast => conn.ack(delivery),
+                            DeliveryKind::Query => {
+                                conn.respond(delivery, "response1", vec![1, 2, 3, 4])
+                            }
+                        };
+                        // Only a closed connection refuses an answer.
+                        assert!(r.is_ok() || *closed || !conn.is_connected(), "{r:?}");
+                    }
+                    Event::Closed(_) => *closed = true,
+                    _ => {}
+                }
+            }
+            if !moved {
+                return;
+            }
+        }
+        panic!("the module never settles");
+    };
+    for step in damaged(&from_central, damage) {
+        match step {
+            Step::Bytes(_, bytes) => {
+                for piece in bytes.chunks(chunk.max(1)) {
+                    conn.receive(piece, now);
+                    settle(&mut conn, &mut closed);
+                }
+            }
+            Step::Hangup(_) => {
+                conn.handle_eof();
+                settle(&mut conn, &mut closed);
+                break;
+            }
+            Step::Other(what) => {
+                let r = api_call(&mut conn, what);
+                assert!(r.is_ok() || closed || !conn.is_connected(), "{r:?}");
+                settle(&mut conn, &mut closed);
+            }
+        }
+    }
+    let closed_early = closed;
+    conn.handle_eof();
+    settle(&mut conn, &mut closed);
+    // A closed connection refuses calls with an error.
+    for what in 0..8 {
+        let _ = api_call(&mut conn, what);
+    }
+    settle(&mut conn, &mut closed);
+    (handled, closed_early)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(damage::cases(300)))]
+
+    #[test]
+    fn damaged_central_streams_never_break_a_module(
+        which in 0usize..2,
+        damage in prop::collection::vec(damage(), 1..8),
+        chunk in prop_oneof![Just(usize::MAX), 1usize..64],
+    ) {
+        run_damaged_module([MODULE1, MODULE2][which], &damage, chunk);
+    }
+}
+
+#[test]
+fn undamaged_central_streams_run_through() {
+    // Unchanged, the streams connect the modules and carry events to them
+    // (module2: connected and its three deliveries; module1: connected and
+    // a notification) without
+    // breaking the connection.
+    for (text, events) in [(MODULE1, 2), (MODULE2, 4)] {
+        let (handled, closed) = run_damaged_module(text, &[], usize::MAX);
+        assert!(
+            handled >= events && !closed,
+            "{handled} events, closed {closed}"
+        );
+    }
+}
