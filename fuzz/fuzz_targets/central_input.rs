@@ -1,15 +1,18 @@
 //! Fuzzes the central state machine (`courier_wire::ipc::central::Central`)
 //! with what modules may send: the input is a script of steps, each
 //! `[op, conn, len_lo, len_hi, bytes…]`. `op % 8`: 0–4 bytes from module
-//! `conn % 6` (connecting it first), 5 its disconnect, 6 a console command;
-//! a first step with op 7 picks, by its `conn` byte, a configuration (direct mode, `-r`, data
-//! logging, cut-through, send-ahead, tiny memory and frame bounds). Central
-//! must never panic, must say in its log why it closes a connection, must
-//! free every queued byte when the modules are gone, and must still accept
-//! a module afterwards.
+//! `conn % 6` (connecting it first), 5 its disconnect, 6 a console command.
+//! A first step with op 7 picks, by its `conn` byte, one of the
+//! configurations of the damaged-capture tests (`wire/tests/damage/`).
+//! Central must never panic or loop, must say in its log why it closes a
+//! connection, and must free every queued byte and dispatch (but for
+//! queries waiting for a handler) when the modules are gone.
 #![no_main]
 
-use courier_wire::ipc::central::{Central, Config, ConnId, LogOptions, Output, Peer};
+#[path = "../../wire/tests/damage/central.rs"]
+mod hostile;
+
+use courier_wire::ipc::central::{Central, Config, ConnId, Output, Peer};
 use libfuzzer_sys::fuzz_target;
 use std::collections::HashSet;
 use std::time::SystemTime;
@@ -19,52 +22,21 @@ const COMMANDS: &[&str] = &[
     "-Lx", "-r", "-lx",
 ];
 
-fn config(pick: u8) -> Config {
-    let mut c = Config::default();
-    c.terminal_log = LogOptions::parse("msid", false).unwrap();
-    c.direct = pick & 0x80 != 0;
-    match pick % 6 {
-        0 => {}
-        1 => c.resend_on_reconnect = true,
-        2 => c.terminal_log = LogOptions::parse("mstid", false).unwrap(),
-        3 => c.cut_through = Some(16),
-        4 => {
-            for i in 0..6 {
-                c.send_ahead.insert(format!("m{i}"), 4);
-            }
-        }
-        _ => {
-            c.max_queued_bytes = 64;
-            c.max_frame = 200;
-        }
-    }
-    c
-}
-
 fn drain(central: &mut Central, gone: &mut HashSet<u64>) {
     let now = SystemTime::UNIX_EPOCH;
     let mut lines = Vec::new();
     let mut closes = Vec::new();
     while let Some(o) = central.poll_output() {
         match o {
-            Output::Close { conn, reason } => closes.push((conn, reason)),
+            Output::Close { conn, reason } => closes.push((conn.0, reason)),
             Output::Log { line, .. } => lines.push(line),
             _ => {}
         }
     }
-    for (conn, reason) in closes {
-        assert!(!reason.is_empty());
-        let c = conn.0;
-        let said = lines.iter().any(|l| match reason.as_str() {
-            "module sent x_ipc_CloseMsg" => {
-                l.starts_with(&format!("x_ipcClose: Closed Connection Detected from: sd: {c}:"))
-            }
-            "closed from the console" => l.starts_with("close Module: Closing"),
-            _ => l.starts_with(&format!("ERROR: closing connection {c} ")) && l.ends_with(&reason),
-        });
-        assert!(said, "connection {c} closed ({reason}) without its log line");
-        gone.insert(conn.0);
-        central.disconnect(conn, now);
+    hostile::check_closes_logged(central, &lines, &closes);
+    for (conn, _) in closes {
+        gone.insert(conn);
+        central.disconnect(ConnId(conn), now);
     }
 }
 
@@ -74,7 +46,7 @@ fuzz_target!(|data: &[u8]| {
     let mut central = match rest {
         [p, pick, tail @ ..] if p % 8 == 7 => {
             rest = tail;
-            Central::new(config(*pick))
+            Central::new(hostile::config(*pick, *pick & 0x80 != 0))
         }
         _ => Central::new(Config::default()),
     };

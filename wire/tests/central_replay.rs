@@ -478,34 +478,8 @@ const CONSOLE: &[&str] = &[
     "-lmsid",
     "-Lx",
     "-r",
+    "-lx",
 ];
-
-/// Central's configurations worth damaging: C's defaults, direct mode,
-/// `-r`, data logging, cut-through of everything above 16 bytes,
-/// send-ahead to every module, and tiny memory and frame bounds.
-fn hostile_config(pick: u8, direct: bool) -> Config {
-    let mut c = Config::default();
-    c.direct = direct;
-    c.terminal_log = LogOptions::parse("msid", false).unwrap();
-    match pick % 6 {
-        0 => {}
-        1 => c.resend_on_reconnect = true,
-        2 => c.terminal_log = LogOptions::parse("mstid", false).unwrap(),
-        3 => c.cut_through = Some(16),
-        4 => {
-            for m in [
-                "module1", "module2", "module3", "wiretest", "receiver", "sender",
-            ] {
-                c.send_ahead.insert(m.to_string(), 4);
-            }
-        }
-        _ => {
-            c.max_queued_bytes = 64;
-            c.max_frame = 200;
-        }
-    }
-    c
-}
 
 /// Replays the damaged steps, `chunk` bytes per read, honouring central's
 /// pause requests as a shell does, and disconnects every module at the end.
@@ -544,23 +518,8 @@ fn run_damaged(config: Config, steps: Vec<Step>, chunk: usize) -> Central {
                 _ => {}
             }
         }
-        // Every connection central closes is closed with a log line saying
-        // which and why: bad input names the connection and the fault.
-        for (conn, reason) in closes {
-            let said = lines.iter().any(|l| match reason.as_str() {
-                "module sent x_ipc_CloseMsg" => l.starts_with(&format!(
-                    "x_ipcClose: Closed Connection Detected from: sd: {conn}:"
-                )),
-                "closed from the console" => l.starts_with("close Module: Closing"),
-                _ => {
-                    l.starts_with(&format!("ERROR: closing connection {conn} "))
-                        && l.ends_with(&reason)
-                }
-            });
-            assert!(
-                said,
-                "connection {conn} closed ({reason}) without its log line: {lines:#?}"
-            );
+        damage::central::check_closes_logged(central, &lines, &closes);
+        for (conn, _) in closes {
             central.disconnect(ConnId(conn), now);
         }
     };
@@ -734,7 +693,8 @@ fn undamaged_captures_leave_nothing_behind() {
                 .cloned()
                 .map(|(c, b)| Step::Bytes(c, b))
                 .collect();
-            let mut central = run_damaged(hostile_config(pick, *direct), steps, usize::MAX);
+            let mut central =
+                run_damaged(damage::central::config(pick, *direct), steps, usize::MAX);
             let s = central.stats();
             assert_eq!((s.modules, s.queued_bytes), (0, 0), "{name} config {pick}");
             still_serves(&mut central);
@@ -754,7 +714,7 @@ proptest! {
     ) {
         let (_, direct, stream) = &streams()[which];
         let steps = damaged(stream, &damage);
-        let mut central = run_damaged(hostile_config(pick, *direct), steps, chunk);
+        let mut central = run_damaged(damage::central::config(pick, *direct), steps, chunk);
         let s = central.stats();
         prop_assert_eq!(s.modules, 0);
         prop_assert_eq!(s.queued_bytes, 0, "bytes still queued after every module left");

@@ -7,6 +7,8 @@
 use proptest::prelude::*;
 use std::collections::HashMap;
 
+pub mod central;
+
 /// Cases per property: `default`, or `DAMAGE_CASES` for a long run
 /// (`DAMAGE_CASES=100000 cargo test -p courier-wire --test central_replay`).
 pub fn cases(default: u32) -> u32 {

@@ -1,0 +1,65 @@
+//! What the damaged-capture tests (`central_replay.rs`) and the
+//! `central_input` fuzz target (`fuzz/`, which includes this file) share:
+//! the configurations of central worth damaging, and the check that central
+//! says why it closes a connection.
+#![allow(dead_code)]
+
+use courier_wire::ipc::central::{Central, Config, LogOptions};
+
+/// Central's configurations worth damaging, by `pick % 6`: C's defaults,
+/// `-r`, data logging with times, cut-through of everything above 16 bytes,
+/// send-ahead to every module, and tiny memory and frame bounds; direct
+/// mode (`-c`) with any of them.
+pub fn config(pick: u8, direct: bool) -> Config {
+    let mut c = Config::default();
+    c.direct = direct;
+    c.terminal_log = LogOptions::parse("msid", false).unwrap();
+    match pick % 6 {
+        0 => {}
+        1 => c.resend_on_reconnect = true,
+        2 => c.terminal_log = LogOptions::parse("mstid", false).unwrap(),
+        3 => c.cut_through = Some(16),
+        4 => {
+            let captured = [
+                "module1", "module2", "module3", "wiretest", "receiver", "sender",
+            ];
+            let fuzzed = ["m0", "m1", "m2", "m3", "m4", "m5"];
+            for m in captured.into_iter().chain(fuzzed) {
+                c.send_ahead.insert(m.to_string(), 4);
+            }
+        }
+        _ => {
+            c.max_queued_bytes = 64;
+            c.max_frame = 200;
+        }
+    }
+    c
+}
+
+/// Every connection central closed (`closes`: connection, reason) has its
+/// line among the log `lines` central wrote with it: bad input names the
+/// connection and the fault, whatever the log options; a module's own
+/// goodbye and a close from the console are logged when logging is on.
+pub fn check_closes_logged(central: &Central, lines: &[String], closes: &[(u64, String)]) {
+    let logging = central.config().terminal_log.any() || central.config().file_log.any();
+    for (conn, reason) in closes {
+        assert!(
+            !reason.is_empty(),
+            "connection {conn} closed without a reason"
+        );
+        let normal = reason == "module sent x_ipc_CloseMsg" || reason == "closed from the console";
+        let said = lines.iter().any(|l| match reason.as_str() {
+            "module sent x_ipc_CloseMsg" => l.starts_with(&format!(
+                "x_ipcClose: Closed Connection Detected from: sd: {conn}:"
+            )),
+            "closed from the console" => l.starts_with("close Module: Closing"),
+            _ => {
+                l.starts_with(&format!("ERROR: closing connection {conn} ")) && l.ends_with(reason)
+            }
+        });
+        assert!(
+            said || (normal && !logging),
+            "connection {conn} closed ({reason}) without its log line: {lines:#?}"
+        );
+    }
+}
