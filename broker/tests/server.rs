@@ -379,7 +379,7 @@ fn console_commands_reach_the_state_machine() {
 /// publisher (TCP back-pressure) and its queues stay bounded; nothing is lost.
 #[test]
 fn slow_subscriber_keeps_central_memory_bounded() {
-    flood_a_slow_subscriber(0, 100_000);
+    flood_a_slow_subscriber(0, 100_000, false);
 }
 
 /// The same with broadcasts sent ahead of their turn
@@ -387,10 +387,18 @@ fn slow_subscriber_keeps_central_memory_bounded() {
 /// same memory bound.
 #[test]
 fn messages_sent_ahead_arrive_once_in_order_over_tcp() {
-    flood_a_slow_subscriber(8, 30_000);
+    flood_a_slow_subscriber(8, 30_000, false);
 }
 
-fn flood_a_slow_subscriber(send_ahead: usize, n: u32) {
+/// The publisher floods from inside its handler of a broadcast (a
+/// pipeline stage), so it is handling a delivery all along: central holds
+/// it back all the same.
+#[test]
+fn a_publisher_flooding_from_its_handler_keeps_central_memory_bounded() {
+    flood_a_slow_subscriber(0, 30_000, true);
+}
+
+fn flood_a_slow_subscriber(send_ahead: usize, n: u32, in_handler: bool) {
     let rt = rt();
     let mut config = Config::default();
     config.max_queued_bytes = 1 << 20;
@@ -405,8 +413,21 @@ fn flood_a_slow_subscriber(send_ahead: usize, n: u32) {
         .unwrap();
     s.conn.subscribe("flood", "HND-flood").unwrap();
     s.sync();
+    let (ready, is_ready) = std::sync::mpsc::channel();
     let publisher = std::thread::spawn(move || {
         let mut p = Client::new(tcp(addr), "flood");
+        // In a handler: the delivery of "go" it acknowledges at the end.
+        let mut go = None;
+        if in_handler {
+            p.conn.subscribe("go", "HND-go").unwrap();
+            p.sync();
+            ready.send(()).unwrap();
+            if let Event::Delivery { delivery, .. } =
+                p.until(|e| matches!(e, Event::Delivery { .. }))
+            {
+                go = Some(delivery);
+            }
+        }
         let body = vec![1u8; 1024];
         for i in 0..n {
             let mut b = body.clone();
@@ -418,8 +439,18 @@ fn flood_a_slow_subscriber(send_ahead: usize, n: u32) {
             }
             p.flush();
         }
+        if let Some(go) = go {
+            p.conn.ack(go).unwrap();
+            p.flush();
+        }
         p
     });
+    if in_handler {
+        is_ready.recv().unwrap();
+        s.conn.define_msg("go", MsgLength::Variable, None).unwrap();
+        s.conn.publish("go", vec![1u8; 4], -1).unwrap();
+        s.flush();
+    }
     let mut next = 0u32;
     let start = Instant::now();
     while next < n {
@@ -447,8 +478,8 @@ fn flood_a_slow_subscriber(send_ahead: usize, n: u32) {
         std::thread::sleep(Duration::from_millis(5));
     };
     println!(
-        "real sockets, {n} x 1 KiB, capacity 1, send-ahead {send_ahead}: \
-         peak queued in central {} bytes (limit {})",
+        "real sockets, {n} x 1 KiB, capacity 1, send-ahead {send_ahead}, \
+         from a handler {in_handler}: peak queued in central {} bytes (limit {})",
         stats.peak_queued_bytes,
         1 << 20
     );
