@@ -1,34 +1,20 @@
 //! Fuzzes the IPC module state machine (`courier_wire::ipc::module::Connection`)
 //! with what its peers may send: the input is a script of steps, each
 //! `[op, arg, len_lo, len_hi, bytes…]`. `op % 4`: 0 bytes from central,
-//! 1 bytes from direct link `arg % 3` (accepted on first use), 2 an API
-//! call of the program (`arg % 10`), 3 central hangs up. The module must
-//! never panic or loop: a malformed central stream closes the connection
-//! with an event, a malformed direct link returns an error, and calls on a
-//! closed connection return errors.
+//! 1 bytes from direct link `arg % 3` (accepted on first use), 2 one of the
+//! program's calls (`wire/tests/damage/module.rs`), 3 central hangs up. The
+//! module must never panic or loop: a malformed central stream closes the
+//! connection with an event, a malformed direct link returns an error, and
+//! calls on a closed connection return errors.
 #![no_main]
 
-use courier_wire::ipc::module::{
-    Connection, DeliveryKind, Event, LinkId, ModuleConfig, MsgLength,
-};
+#[path = "../../wire/tests/damage/module.rs"]
+mod calls;
+
+use courier_wire::ipc::module::{Connection, DeliveryKind, Event, LinkId, ModuleConfig};
 use libfuzzer_sys::fuzz_target;
 use std::collections::HashMap;
 use std::time::Instant;
-
-fn call(c: &mut Connection, what: u8) {
-    let _ = match what % 10 {
-        0 => c.subscribe("message1", "HND-m1").map(drop),
-        1 => c.subscribe("query1", "HND-q1").map(drop),
-        2 => c.publish("message1", 42i32.to_le_bytes().to_vec(), -1).map(drop),
-        3 => c.query("query1", vec![0u8; 16], -1).map(drop),
-        4 => c.unsubscribe("message1", "HND-m1"),
-        5 => c.set_capacity(2),
-        6 => c.num_handlers("message1").map(drop),
-        7 => c.define_msg("message1", MsgLength::Variable, Some("int")),
-        8 => c.define_format("T1", "{int, {enum : 3}, [double:2,3], double}"),
-        _ => c.subscribe_handler_change("message1").map(drop),
-    };
-}
 
 fn settle(c: &mut Connection) {
     for _ in 0..10_000 {
@@ -36,10 +22,18 @@ fn settle(c: &mut Connection) {
         while let Some(e) = c.poll_event() {
             moved = true;
             match e {
-                Event::Delivery { delivery, kind: DeliveryKind::Broadcast, .. } => {
+                Event::Delivery {
+                    delivery,
+                    kind: DeliveryKind::Broadcast,
+                    ..
+                } => {
                     let _ = c.ack(delivery);
                 }
-                Event::Delivery { delivery, kind: DeliveryKind::Query, .. } => {
+                Event::Delivery {
+                    delivery,
+                    kind: DeliveryKind::Query,
+                    ..
+                } => {
                     let _ = c.respond(delivery, "message1", 1i32.to_le_bytes().to_vec());
                 }
                 Event::DirectListenRequested => c.announce_direct_port(40000),
@@ -73,15 +67,17 @@ fuzz_target!(|data: &[u8]| {
                     links.remove(&(arg % 3));
                 }
             }
-            2 => call(&mut c, arg),
+            2 => {
+                let _ = calls::api_call(&mut c, arg as usize);
+            }
             _ => c.handle_eof(),
         }
         settle(&mut c);
     }
     c.handle_eof();
     settle(&mut c);
-    for what in 0..10 {
-        call(&mut c, what);
+    for what in 0..calls::CALLS {
+        let _ = calls::api_call(&mut c, what);
     }
     settle(&mut c);
 });

@@ -24,7 +24,7 @@
 //!
 //! Everything else — headers, class data, message data — must be identical.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::{HashMap, HashSet, VecDeque};
 use std::time::SystemTime;
 
 use courier_wire::ipc::central::{Central, Config, ConnId, LogOptions, Output, Peer};
@@ -129,7 +129,7 @@ fn check(name: &str, direct: bool) -> usize {
     let now = SystemTime::UNIX_EPOCH;
     let mut maps = Maps::default();
     let mut actual: HashMap<u64, VecDeque<Vec<u8>>> = HashMap::new();
-    let mut connected = std::collections::HashSet::new();
+    let mut connected = HashSet::new();
     let mut compared = 0;
     let drain = |central: &mut Central, actual: &mut HashMap<u64, VecDeque<Vec<u8>>>| {
         while let Some(o) = central.poll_output() {
@@ -296,7 +296,7 @@ fn replay(name: &str, direct: bool) -> Replay {
         stream: Vec::new(),
     };
     let now = SystemTime::UNIX_EPOCH;
-    let mut connected = std::collections::HashSet::new();
+    let mut connected = HashSet::new();
     let mut maps = Maps::default();
     for l in &lines {
         let conn = ConnId(l.conn + 5);
@@ -459,6 +459,7 @@ fn wiretest_direct_log_matches_c() {
 // has its own tests in `central_sim.rs`.
 
 use courier_wire::ipc::module::{Connection, Event, ModuleConfig, MsgLength};
+use damage::central::carry_out;
 use damage::{damage, damaged, Step};
 use proptest::prelude::*;
 use std::time::Instant;
@@ -486,43 +487,11 @@ const CONSOLE: &[&str] = &[
 fn run_damaged(config: Config, steps: Vec<Step>, chunk: usize) -> Central {
     let now = SystemTime::UNIX_EPOCH;
     let mut central = Central::new(config);
-    let mut open: std::collections::HashSet<u64> = Default::default();
-    let mut gone: std::collections::HashSet<u64> = Default::default();
-    let mut paused: std::collections::HashSet<u64> = Default::default();
+    let mut open: HashSet<u64> = HashSet::new();
+    let mut gone: HashSet<u64> = HashSet::new();
+    let mut paused: HashSet<u64> = HashSet::new();
     // Bytes a paused connection could not deliver yet (its socket buffer).
     let mut held: HashMap<u64, Vec<u8>> = HashMap::new();
-    let pump = |central: &mut Central,
-                paused: &mut std::collections::HashSet<u64>,
-                gone: &mut std::collections::HashSet<u64>| {
-        let mut lines = Vec::new();
-        let mut closes = Vec::new();
-        let mut guard = 0usize;
-        while let Some(o) = central.poll_output() {
-            if std::env::var_os("FUZZ_DEBUG").is_some() {
-                eprintln!("{o:?}");
-            }
-            guard += 1;
-            assert!(guard < 1_000_000, "central keeps producing output");
-            match o {
-                Output::Close { conn, reason } => {
-                    gone.insert(conn.0);
-                    closes.push((conn.0, reason));
-                }
-                Output::Log { line, .. } => lines.push(line),
-                Output::PauseRead { conn } => {
-                    paused.insert(conn.0);
-                }
-                Output::ResumeRead { conn } => {
-                    paused.remove(&conn.0);
-                }
-                _ => {}
-            }
-        }
-        damage::central::check_closes_logged(central, &lines, &closes);
-        for (conn, _) in closes {
-            central.disconnect(ConnId(conn), now);
-        }
-    };
     for step in steps {
         match step {
             Step::Bytes(conn, bytes) => {
@@ -543,26 +512,26 @@ fn run_damaged(config: Config, steps: Vec<Step>, chunk: usize) -> Central {
                         let k = chunk.min(buf.len());
                         let piece: Vec<u8> = buf.drain(..k).collect();
                         central.receive(ConnId(c), &piece, now);
-                        pump(&mut central, &mut paused, &mut gone);
+                        carry_out(&mut central, &mut paused, &mut gone);
                     }
                 }
             }
             Step::Hangup(conn) => {
                 if open.contains(&conn) && gone.insert(conn) {
                     central.disconnect(ConnId(conn), now);
-                    pump(&mut central, &mut paused, &mut gone);
+                    carry_out(&mut central, &mut paused, &mut gone);
                 }
             }
             Step::Other(what) => {
                 central.command(CONSOLE[what % CONSOLE.len()], now);
-                pump(&mut central, &mut paused, &mut gone);
+                carry_out(&mut central, &mut paused, &mut gone);
             }
         }
     }
     for conn in open {
         if gone.insert(conn) {
             central.disconnect(ConnId(conn), now);
-            pump(&mut central, &mut paused, &mut gone);
+            carry_out(&mut central, &mut paused, &mut gone);
         }
     }
     central

@@ -250,25 +250,9 @@ fn module2_whole_session_matches_c() {
 mod damage;
 
 use courier_wire::ipc::module::Error;
+use damage::module::{api_call, CALLS};
 use damage::{damage, damaged, Step};
 use proptest::prelude::*;
-
-/// The program's calls (`Step::Other`); any of them may fail once the
-/// connection is broken, none may panic.
-fn api_call(c: &mut Connection, what: usize) -> Result<(), Error> {
-    match what % 8 {
-        0 => c.subscribe("message1", "HND-m1").map(drop),
-        1 => c.subscribe("query1", "HND-q1").map(drop),
-        2 => c
-            .publish("message1", 42i32.to_le_bytes().to_vec(), -1)
-            .map(drop),
-        3 => c.query("query1", vec![0u8; 64], -1).map(drop),
-        4 => c.unsubscribe("message1", "HND-m1"),
-        5 => c.set_capacity(2),
-        6 => c.num_handlers("message1").map(drop),
-        _ => c.define_msg("message2", MsgLength::Variable, Some("string")),
-    }
-}
 
 /// Returns how many events the program handled before its connection
 /// closed, if it did.
@@ -382,7 +366,7 @@ fn run_damaged_module(text: &str, damage: &[damage::Damage], chunk: usize) -> (u
     conn.handle_eof();
     settle(&mut conn, &mut closed);
     // A closed connection refuses calls with an error.
-    for what in 0..8 {
+    for what in 0..CALLS {
         let _ = api_call(&mut conn, what);
     }
     settle(&mut conn, &mut closed);

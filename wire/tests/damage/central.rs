@@ -1,10 +1,14 @@
 //! What the damaged-capture tests (`central_replay.rs`) and the
 //! `central_input` fuzz target (`fuzz/`, which includes this file) share:
-//! the configurations of central worth damaging, and the check that central
-//! says why it closes a connection.
+//! the configurations of central worth damaging, and carrying out central's
+//! outputs as a shell does, checking that it says why it closes a
+//! connection.
 #![allow(dead_code)]
 
-use courier_wire::ipc::central::{Central, Config, LogOptions};
+use std::collections::HashSet;
+use std::time::SystemTime;
+
+use courier_wire::ipc::central::{Central, Config, ConnId, LogOptions, Output};
 
 /// Central's configurations worth damaging, by `pick % 6`: C's defaults,
 /// `-r`, data logging with times, cut-through of everything above 16 bytes,
@@ -61,5 +65,37 @@ pub fn check_closes_logged(central: &Central, lines: &[String], closes: &[(u64, 
             said || (normal && !logging),
             "connection {conn} closed ({reason}) without its log line: {lines:#?}"
         );
+    }
+}
+
+/// Carries out what central asks, as a shell does: connections it closes
+/// join `gone` and are disconnected (each checked to have its log line),
+/// and `paused` follows its pause and resume requests. Fails if central
+/// never stops producing output.
+pub fn carry_out(central: &mut Central, paused: &mut HashSet<u64>, gone: &mut HashSet<u64>) {
+    let mut lines = Vec::new();
+    let mut closes = Vec::new();
+    let mut guard = 0usize;
+    while let Some(o) = central.poll_output() {
+        guard += 1;
+        assert!(guard < 1_000_000, "central keeps producing output");
+        match o {
+            Output::Close { conn, reason } => {
+                gone.insert(conn.0);
+                closes.push((conn.0, reason));
+            }
+            Output::Log { line, .. } => lines.push(line),
+            Output::PauseRead { conn } => {
+                paused.insert(conn.0);
+            }
+            Output::ResumeRead { conn } => {
+                paused.remove(&conn.0);
+            }
+            _ => {}
+        }
+    }
+    check_closes_logged(central, &lines, &closes);
+    for (conn, _) in closes {
+        central.disconnect(ConnId(conn), SystemTime::UNIX_EPOCH);
     }
 }

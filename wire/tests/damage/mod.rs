@@ -8,6 +8,7 @@ use proptest::prelude::*;
 use std::collections::HashMap;
 
 pub mod central;
+pub mod module;
 
 /// Cases per property: `default`, or `DAMAGE_CASES` for a long run
 /// (`DAMAGE_CASES=100000 cargo test -p courier-wire --test central_replay`).
