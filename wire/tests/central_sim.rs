@@ -6,7 +6,9 @@
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::time::{Instant, SystemTime};
 
-use courier_wire::ipc::central::{Central, Config, ConnId, LogOptions, Output, Peer};
+use courier_wire::ipc::central::{
+    Central, Config, ConnId, LogOptions, Output, Peer, DISPATCH_COST,
+};
 use courier_wire::ipc::frame::{ClassId, Header, MsgClass};
 use courier_wire::ipc::module::{Connection, DeliveryKind, Event, ModuleConfig, MsgLength};
 
@@ -593,6 +595,129 @@ fn slow_subscriber_bounded_memory_nothing_lost() {
     );
 }
 
+/// Empty messages carry no data but do cost central their bookkeeping:
+/// each counts [`DISPATCH_COST`] against the limit, so a flood of them to
+/// a slow subscriber stops its publisher too instead of growing the
+/// dispatch table without bound.
+#[test]
+fn a_flood_of_empty_messages_is_bounded_too() {
+    const LIMIT: usize = 256 << 10;
+    let mut config = Config::default();
+    config.max_queued_bytes = LIMIT;
+    let mut sim = Sim::new(config);
+    let p = sim.connect("flood");
+    let s = sim.connect("slow");
+    sim.m(p)
+        .define_msg("tick", MsgLength::Variable, None)
+        .unwrap();
+    sim.m(s).subscribe("tick", "HND-tick").unwrap();
+    sim.pump();
+    const N: usize = 30_000;
+    let (mut sent, mut got, mut most) = (0, 0, 0);
+    while got < N {
+        while sent < N && sim.mods[&p].outbox.len() < 1000 {
+            sim.m(p).publish("tick", Vec::new(), -1).unwrap();
+            sent += 1;
+        }
+        sim.pump();
+        most = most.max(sim.central.stats().dispatches);
+        for (id, _, _, data) in sim.deliveries(s) {
+            assert!(data.is_empty());
+            got += 1;
+            sim.m(s).ack(id).unwrap();
+        }
+    }
+    sim.pump();
+    let st = sim.central.stats();
+    println!(
+        "{N} empty messages, capacity 1: at most {most} dispatches in central, peak queued {} (limit {LIMIT})",
+        st.peak_queued_bytes
+    );
+    assert!(
+        most <= LIMIT / DISPATCH_COST + 2,
+        "{most} dispatches at once"
+    );
+    assert!(st.peak_queued_bytes <= LIMIT + DISPATCH_COST);
+    assert_eq!((st.dropped, st.dispatches), (0, 0));
+}
+
+/// Queries for a message nobody handles wait for a handler (as in C),
+/// but not without bound: past the limit the oldest are dropped, with a
+/// rate-limited warning, and a handler that comes gets the newest, oldest
+/// first.
+#[test]
+fn queries_waiting_for_a_handler_are_bounded_and_the_newest_kept() {
+    const LIMIT: usize = 64 << 10;
+    const N: i32 = 5_000;
+    let mut config = Config::default();
+    config.max_queued_bytes = LIMIT;
+    let mut sim = Sim::new(config);
+    let a = sim.connect("asker");
+    define(&mut sim, a, "nobody", "[int:16]");
+    define(&mut sim, a, "nobody_reply", "int");
+    sim.pump();
+    let before = sim.logs.len();
+    for i in 0..N {
+        let mut body = vec![0u8; 64];
+        body[..4].copy_from_slice(&i.to_le_bytes());
+        sim.m(a).query("nobody", body, -1).unwrap();
+        sim.pump();
+    }
+    let st = sim.central.stats();
+    // As many as fit (64 bytes of data, the query's own bytes and the
+    // bookkeeping each), no more.
+    let kept = st.waiting_for_handler;
+    let each = st.waiting_bytes / kept;
+    assert!(
+        each > 64 + DISPATCH_COST && each < 128 + DISPATCH_COST,
+        "{each}"
+    );
+    assert!(
+        st.waiting_bytes <= LIMIT && st.waiting_bytes + each > LIMIT,
+        "{st:?}"
+    );
+    assert_eq!(st.dropped_waiting, N as u64 - kept as u64);
+    let warnings: Vec<&String> = sim.logs[before..]
+        .iter()
+        .filter(|l| l.contains("dropped: more than 65536 bytes of queries wait for a handler"))
+        .collect();
+    assert!(
+        (1..=10).contains(&warnings.len()),
+        "a burst of warnings, not one per drop: {}",
+        warnings.len()
+    );
+    assert!(
+        warnings[0].starts_with("WARNING: Query nobody {") && warnings[0].contains("from asker"),
+        "{}",
+        warnings[0]
+    );
+    let b = sim.connect("server");
+    sim.m(b).subscribe("nobody", "HND-nobody").unwrap();
+    sim.pump();
+    let mut next = N - kept as i32;
+    while next < N {
+        let d = sim.deliveries(b);
+        assert_eq!(d.len(), 1, "capacity 1");
+        assert_eq!(i32::from_le_bytes(d[0].3[..4].try_into().unwrap()), next);
+        next += 1;
+        sim.m(b)
+            .respond(d[0].0, "nobody_reply", next.to_le_bytes())
+            .unwrap();
+        sim.pump();
+    }
+    let replies = sim
+        .take_events(a)
+        .iter()
+        .filter(|e| matches!(e, Event::Reply { .. }))
+        .count();
+    assert_eq!(replies, kept);
+    let st = sim.central.stats();
+    assert_eq!(
+        (st.waiting_for_handler, st.waiting_bytes, st.dispatches),
+        (0, 0, 0)
+    );
+}
+
 /// A module that publishes from inside a handler (the usual pipeline: it
 /// handles a message and publishes what it made of it) is attending a
 /// delivery the whole time. Central must still stop reading it when its
@@ -792,6 +917,78 @@ fn unknown_ids_and_stray_acks_are_logged_not_fatal() {
     let (c, l) = hostile(&ack);
     assert!(c.is_empty());
     assert!(l.iter().any(|x| x.contains("Success for unknown")), "{l:?}");
+}
+
+/// A module repeating a mistake in a loop (here 10 000 Successes for a
+/// dispatch it was never given, and as many frames with an unknown id)
+/// gets a burst of lines, then one a second, and a count of the rest, not
+/// a line per frame; another module's lines are not affected.
+#[test]
+fn a_module_repeating_a_mistake_cannot_flood_the_log() {
+    let mut central = Central::new(Config::default());
+    let t0 = SystemTime::now();
+    central.connect(ConnId(7), Peer::Other("looper".into()), t0);
+    central.connect(ConnId(8), Peer::Other("other".into()), t0);
+    let mut ack = raw_frame(MsgClass::Success, -1, &[]);
+    ack[20..24].copy_from_slice(&42i32.to_be_bytes());
+    let unknown = raw_frame(MsgClass::Broadcast, 123_456, &[]);
+    let problems = |central: &mut Central| {
+        let mut lines = Vec::new();
+        while let Some(o) = central.poll_output() {
+            match o {
+                Output::Log { line, .. } => lines.push(line),
+                Output::Close { reason, .. } => panic!("closed: {reason}"),
+                _ => {}
+            }
+        }
+        lines
+    };
+    problems(&mut central);
+    for i in 0..10_000u32 {
+        // 10 000 frames over 5 seconds.
+        let now = t0 + std::time::Duration::from_micros(u64::from(i) * 500);
+        central.receive(ConnId(7), if i % 2 == 0 { &ack } else { &unknown }, now);
+    }
+    let lines = problems(&mut central);
+    // 10 at once, then one for each of the 4 further seconds.
+    assert_eq!(lines.len(), 10 + 4 + 4, "{lines:#?}");
+    let counts: Vec<u64> = lines
+        .iter()
+        .filter_map(|l| l.strip_prefix("WARNING: "))
+        .filter_map(|l| {
+            l.split_once(" more problem line(s) about connection 7 (from looper) left out")
+        })
+        .map(|(n, _)| n.parse().unwrap())
+        .collect();
+    assert_eq!(counts.len(), 4, "{lines:#?}");
+    // The other module is not silenced by the first one's budget.
+    central.receive(ConnId(8), &ack, t0 + std::time::Duration::from_secs(5));
+    let other = problems(&mut central);
+    assert_eq!(other.len(), 1, "{other:?}");
+    assert!(other[0].contains("from 8 (from other)"), "{other:?}");
+    // Whatever was left out last is said when the module goes.
+    let later = t0 + std::time::Duration::from_micros(4_999_900);
+    for _ in 0..3 {
+        central.receive(ConnId(7), &ack, later);
+    }
+    assert!(problems(&mut central).is_empty());
+    central.disconnect(ConnId(7), later);
+    let closing = problems(&mut central);
+    let last = closing
+        .iter()
+        .find_map(|l| {
+            l.strip_prefix("WARNING: ")?
+                .strip_suffix(" more problem line(s) about connection 7 (from looper) left out")
+        })
+        .unwrap_or_else(|| panic!("no count when the module went: {closing:#?}"));
+    let last: u64 = last.parse().unwrap();
+    assert!(last >= 3);
+    let printed = (lines.len() - counts.len()) as u64;
+    assert_eq!(
+        printed + counts.iter().sum::<u64>() + last,
+        10_003,
+        "every problem printed or counted"
+    );
 }
 
 #[test]
@@ -1845,8 +2042,9 @@ fn messages_sent_ahead_still_count_as_pending() {
     assert_eq!(out.matches("Pending (sent ahead)").count(), 2, "{out}");
     assert_eq!(out.matches(" Active").count(), 1, "{out}");
     // Two are written; the other two are held in central and only they
-    // count as queued bytes (each message is 12 bytes of data here).
-    assert_eq!(sim.central.stats().queued_bytes, 2 * 12);
+    // count as queued bytes (each message is 12 bytes of data here, and
+    // its bookkeeping).
+    assert_eq!(sim.central.stats().queued_bytes, 2 * (12 + DISPATCH_COST));
 }
 
 #[test]

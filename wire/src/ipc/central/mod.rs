@@ -49,7 +49,12 @@
 //! - Back-pressure: when more than [`Config::max_queued_bytes`] of message
 //!   data wait in pending queues, central stops reading from the modules
 //!   that add to them (never from one whose acknowledgements it awaits)
-//!   until the queues drain to half; C grows without bound.
+//!   until the queues drain to half; C grows without bound. Past the same
+//!   bound, the oldest queries waiting for a first handler of their
+//!   message are dropped (C keeps them all).
+//! - A module repeating a mistake (foreign acknowledgements, unknown ids)
+//!   gets ten warning lines at once, then one a second, and a count of
+//!   the rest: it cannot flood the terminal or the log file.
 //! - Malformed frames close only the offending connection, with a log line
 //!   naming the reason; C may abort.
 //! - Log times (`-lt`) are UTC; the `h` (handle summary) option is accepted
@@ -205,16 +210,22 @@ pub struct Config {
     /// a larger header closes the connection with a log line.
     pub max_frame: u64,
     /// When the messages queued inside central for delivery exceed this many
-    /// bytes, the shell is asked to stop reading from publishers
+    /// bytes (their data plus [`DISPATCH_COST`] each, so that empty
+    /// messages count too), the shell is asked to stop reading from publishers
     /// ([`Output::PauseRead`]) until the queues drain to half of it: memory
     /// stays bounded and nothing is dropped (TCP back-pressure reaches the
     /// publisher). A module is read on while central waits for something
     /// only it can send: the answer to a query it is handling, or the
     /// Success that lets its own queue move; a module publishing from its
     /// handler of a broadcast is held back like any other. A module
-    /// publishing from its handler of a query is not, and neither are
-    /// queries waiting for a first handler of their message, which (as in
-    /// C) wait as long as it takes.
+    /// publishing from its handler of a query is not.
+    ///
+    /// Queries and informs waiting for a first handler of their message
+    /// wait as long as it takes, as in C, and outlive their sender; they
+    /// are a pool of their own with the same bound
+    /// ([`Stats::waiting_bytes`]): past it, the oldest of a message are
+    /// dropped with a warning, so that a module asking a service that is
+    /// down, again and again, cannot grow central without bound.
     pub max_queued_bytes: usize,
     /// Cut-through: a message or reply whose body is at least this many
     /// bytes is forwarded while it still arrives, when its receiver can take
@@ -432,6 +443,18 @@ struct Dispatch {
     status: Status,
 }
 
+/// What central counts for a queued message besides its data, against
+/// [`Config::max_queued_bytes`]: about what its bookkeeping takes (the
+/// dispatch record, the message and handler names it carries, its slots in
+/// the dispatch table and in a queue).
+pub const DISPATCH_COST: usize = 256;
+
+/// What a dispatch holds, as [`Stats::queued_bytes`] and
+/// [`Stats::waiting_bytes`] count it.
+fn cost(d: &Dispatch) -> usize {
+    d.data.len() + DISPATCH_COST
+}
+
 impl Dispatch {
     /// Delivered to `conn` and awaiting its Success or Reply.
     fn attending_at(&self, conn: ConnId) -> bool {
@@ -484,6 +507,9 @@ struct Module {
     vars_read: BTreeMap<String, u64>,
     paused: bool,
     closed: bool,
+    /// Its problem lines (unknown ids, foreign acknowledgements …), so
+    /// that a misbehaving module cannot flood the log.
+    problems: log::ProblemBudget,
     /// A frame from this module being forwarded while it arrives.
     relay: Option<Relay>,
     /// The module whose frame is being forwarded to this one: every other
@@ -562,7 +588,15 @@ pub struct Stats {
     /// that registers later gets them (and a reply to a module gone is
     /// dropped with a log line).
     pub waiting_for_handler: usize,
-    /// Bytes of message data held in pending queues.
+    /// What those queries and informs hold: their data plus
+    /// [`DISPATCH_COST`] each. Bounded apart from `queued_bytes` by the same
+    /// [`Config::max_queued_bytes`]: past it, the oldest of a message are
+    /// dropped.
+    pub waiting_bytes: usize,
+    /// Queries and informs dropped because too many waited for a handler.
+    pub dropped_waiting: u64,
+    /// What pending queues hold: message data plus [`DISPATCH_COST`] per
+    /// message, so that a flood of empty messages is bounded too.
     pub queued_bytes: usize,
     /// Most `queued_bytes` ever seen.
     pub peak_queued_bytes: usize,
@@ -719,7 +753,7 @@ impl Central {
     fn free_dispatch_id(&mut self, id: i32) -> Option<Dispatch> {
         let d = self.dispatches.remove(&id)?;
         if d.status == Status::Pending {
-            self.stats.queued_bytes = self.stats.queued_bytes.saturating_sub(d.data.len());
+            self.stats.queued_bytes = self.stats.queued_bytes.saturating_sub(cost(&d));
         }
         self.free_dispatch.push(id);
         Some(d)
@@ -1073,6 +1107,7 @@ impl Central {
                 vars_read: BTreeMap::new(),
                 paused: false,
                 closed: false,
+                problems: log::ProblemBudget::default(),
                 relay: None,
                 relay_from: None,
                 held: Vec::new(),
@@ -1449,6 +1484,35 @@ impl Central {
         self.close_module(conn, false, now);
     }
 
+    /// A line about something `conn` did wrong, within its
+    /// [`log::ProblemBudget`]: a module repeating a mistake in a loop gets
+    /// a burst of lines, then one a second, and a count of the rest.
+    fn complain(&mut self, conn: ConnId, line: String) {
+        let now = self.clock;
+        let allowed = match self.modules.get_mut(&conn) {
+            Some(m) => m.problems.allow(now),
+            None => Some(0),
+        };
+        match allowed {
+            Some(0) => self.log_line(Kind::Problem, line),
+            Some(left_out) => {
+                self.report_left_out(conn, left_out);
+                self.log_line(Kind::Problem, line);
+            }
+            None => {}
+        }
+    }
+
+    fn report_left_out(&mut self, conn: ConnId, left_out: u64) {
+        if left_out > 0 {
+            let who = self.describe(conn);
+            self.log_line(
+                Kind::Problem,
+                format!("WARNING: {left_out} more problem line(s) about connection {who} left out"),
+            );
+        }
+    }
+
     fn describe(&self, conn: ConnId) -> String {
         match self.modules.get(&conn) {
             Some(m) => {
@@ -1496,8 +1560,10 @@ impl Central {
             return;
         }
         m.closed = true;
+        let left_out = m.problems.take_suppressed();
         let name = m.name.clone();
         let host = m.host.clone();
+        self.report_left_out(conn, left_out);
         // A frame it was sending through: its receiver needs the rest.
         self.abandon_relay(conn);
         if eof {
@@ -1559,7 +1625,7 @@ impl Central {
             let keep = self.config.resend_on_reconnect && name.is_some();
             let d = self.dispatches.get_mut(&id).unwrap();
             if d.status == Status::Pending {
-                self.stats.queued_bytes = self.stats.queued_bytes.saturating_sub(d.data.len());
+                self.stats.queued_bytes = self.stats.queued_bytes.saturating_sub(cost(d));
             }
             if keep {
                 d.status = Status::NoHandler;
@@ -1622,8 +1688,8 @@ impl Central {
         let id = h.intent.checked_abs().unwrap_or(0);
         let Some(name) = self.by_id.get(&id).cloned() else {
             let who = self.describe(conn);
-            self.log_line(
-                Kind::Problem,
+            self.complain(
+                conn,
                 format!(
                     "WARNING: message with unknown id {} (class {}) from {who} ignored",
                     h.intent,
@@ -1716,14 +1782,14 @@ impl Central {
                 let class = r.read_i32()?;
                 let mf = read_opt_str(&mut r)?;
                 let rf = read_opt_str(&mut r)?;
-                self.register_message(n, class, mf, rf);
+                self.register_message(conn, n, class, mf, rf);
             }
             RegisterNamedForm => {
                 let n = read_opt_str(&mut r)?.unwrap_or_default();
                 let f = read_opt_str(&mut r)?.unwrap_or_default();
                 if let Err(e) = self.formats.define(&n, &f) {
-                    self.log_line(
-                        Kind::Problem,
+                    self.complain(
+                        conn,
                         format!("WARNING: bad named format {n} = \"{f}\" from {org_name}: {e}"),
                     );
                 }
@@ -1990,22 +2056,23 @@ impl Central {
 
     fn register_message(
         &mut self,
+        conn: ConnId,
         name: String,
         class: i32,
         mf: Option<String>,
         rf: Option<String>,
     ) {
         let Some(class) = u16::try_from(class).ok().and_then(MsgClass::from_u16) else {
-            self.log_line(
-                Kind::Problem,
+            self.complain(
+                conn,
                 format!("WARNING: message {name} registered with unknown class {class}; ignored"),
             );
             return;
         };
         if let Some(m) = self.msgs.get(&name) {
             if m.internal.is_some() {
-                self.log_line(
-                    Kind::Problem,
+                self.complain(
+                    conn,
                     format!(
                         "WARNING: a module tried to redefine central's message {name}; ignored"
                     ),
@@ -2114,6 +2181,7 @@ impl Central {
         let waiting: Vec<i32> = self.msgs.get_mut(&msg).unwrap().waiting.drain(..).collect();
         for did in waiting {
             if let Some(d) = self.dispatches.get_mut(&did) {
+                self.stats.waiting_bytes = self.stats.waiting_bytes.saturating_sub(cost(d));
                 d.hnd = Some((conn, hnd.clone()));
                 self.deliver_or_pend(did, now);
             }
@@ -2297,6 +2365,7 @@ impl Central {
                     self.deliver_or_pend(did, now);
                 } else {
                     self.msgs.get_mut(&name).unwrap().waiting.push_back(did);
+                    self.bound_waiting(conn, &name);
                     if self.logs(Kind::Message, &name) {
                         let to = format!("Resource {name:<6} (Pending)");
                         let org_name = self.module_name(org);
@@ -2315,8 +2384,8 @@ impl Central {
             }
             other => {
                 let who = self.describe(conn);
-                self.log_line(
-                    Kind::Problem,
+                self.complain(
+                    conn,
                     format!(
                         "WARNING: {name} sent with class {} ({other}) by {who}: not supported by IPC; ignored",
                         log::class_name(other)
@@ -2402,7 +2471,7 @@ impl Central {
             return;
         };
         if d.status == Status::Pending {
-            self.stats.queued_bytes = self.stats.queued_bytes.saturating_sub(d.data.len());
+            self.stats.queued_bytes = self.stats.queued_bytes.saturating_sub(cost(d));
         }
         d.status = Status::Attending;
         let (msg, class, class_id, org, parent_ref, data) = (
@@ -2524,7 +2593,7 @@ impl Central {
             return;
         };
         let msg = d.msg.clone();
-        let len = d.data.len();
+        let len = cost(d);
         let Some(m) = self.modules.get(&conn) else {
             return;
         };
@@ -2710,7 +2779,7 @@ impl Central {
                 return;
             }
             d.status = Status::Ahead;
-            self.stats.queued_bytes = self.stats.queued_bytes.saturating_sub(d.data.len());
+            self.stats.queued_bytes = self.stats.queued_bytes.saturating_sub(cost(d));
             let m = self.modules.get_mut(&conn).unwrap();
             m.pending.pop_front();
             m.ahead.push_back(did);
@@ -2737,8 +2806,8 @@ impl Central {
             .is_some_and(|d| d.attending_at(conn));
         if !ok {
             let who = self.describe(conn);
-            self.log_line(
-                Kind::Problem,
+            self.complain(
+                conn,
                 format!(
                     "WARNING: Success for unknown or foreign dispatch {did} from {who} ignored"
                 ),
@@ -2781,8 +2850,8 @@ impl Central {
             .is_some_and(|d| d.attending_at(conn));
         if !ok {
             let who = self.describe(conn);
-            self.log_line(
-                Kind::Problem,
+            self.complain(
+                conn,
                 format!("WARNING: Reply for unknown or foreign dispatch {did} from {who} ignored"),
             );
             return Ok(());
@@ -3096,6 +3165,39 @@ impl Central {
         }
     }
 
+    /// A query or inform of `msg` from `conn` joined those waiting for a
+    /// first handler. Past [`Config::max_queued_bytes`] of them, the oldest
+    /// of `msg` are dropped (the new one last), as a queue limit drops the
+    /// oldest: their askers may have given up long ago, and a handler that
+    /// comes gets the newest. Pausing the asker instead would stop a
+    /// module's whole connection for one message nobody serves, and would
+    /// hide its hang-up until a handler comes.
+    fn bound_waiting(&mut self, conn: ConnId, msg: &str) {
+        if let Some(did) = self.msgs[msg].waiting.back() {
+            self.stats.waiting_bytes += cost(&self.dispatches[did]);
+        }
+        while self.stats.waiting_bytes > self.config.max_queued_bytes {
+            let Some(did) = self.msgs.get_mut(msg).and_then(|m| m.waiting.pop_front()) else {
+                break;
+            };
+            let Some(d) = self.free_dispatch_id(did) else {
+                continue;
+            };
+            self.stats.waiting_bytes = self.stats.waiting_bytes.saturating_sub(cost(&d));
+            self.stats.dropped_waiting += 1;
+            let asker = self.module_name(d.org);
+            let limit = self.config.max_queued_bytes;
+            self.complain(
+                conn,
+                format!(
+                    "WARNING: {} {msg} {{{did}}} from {asker} dropped: more than {limit} bytes of \
+                     queries wait for a handler",
+                    log::class_name(d.class)
+                ),
+            );
+        }
+    }
+
     // ----- console -------------------------------------------------------------
 
     /// A console command line (`help`, `display`, `status`, `memory`,
@@ -3198,6 +3300,13 @@ impl Central {
                     format!(
                         "  Messages queued: {} dispatch(es), {} byte(s) pending (peak {})",
                         s.dispatches, s.queued_bytes, s.peak_queued_bytes
+                    ),
+                );
+                say(
+                    self,
+                    format!(
+                        "  Waiting for a handler: {} message(s), {} byte(s), {} dropped",
+                        s.waiting_for_handler, s.waiting_bytes, s.dropped_waiting
                     ),
                 );
                 say(
