@@ -780,6 +780,152 @@ fn a_module_publishing_inside_a_broadcast_handler_is_held_back_too() {
     );
 }
 
+/// A module that publishes while it answers a query (its asker waits for
+/// the reply) is held back too, when no queue can be stuck behind that
+/// reply: the asker waits a little longer, and central's memory stays
+/// bounded.
+#[test]
+fn a_module_publishing_inside_a_query_handler_is_held_back_too() {
+    const LIMIT: usize = 64 << 10;
+    const N: i32 = 20_000;
+    let mut config = Config::default();
+    config.max_queued_bytes = LIMIT;
+    let mut sim = Sim::new(config);
+    let a = sim.connect("asker");
+    let h = sim.connect("server");
+    let s = sim.connect("slow");
+    define(&mut sim, a, "ask", "int");
+    define(&mut sim, a, "ask_reply", "int");
+    define(&mut sim, h, "data", "[int:16]");
+    sim.m(h).subscribe("ask", "HND-ask").unwrap();
+    sim.m(s).subscribe("data", "HND-data").unwrap();
+    sim.pump();
+    let q = sim.m(a).query("ask", 7i32.to_le_bytes(), -1).unwrap();
+    sim.pump();
+    let ask = sim.deliveries(h);
+    assert_eq!(ask.len(), 1);
+    let (mut sent, mut next, mut replied, mut was_paused) = (0, 0, false, false);
+    while next < N {
+        while sent < N && sim.mods[&h].outbox.len() < 1000 {
+            let mut body = vec![0u8; 64];
+            body[..4].copy_from_slice(&sent.to_le_bytes());
+            sim.m(h).publish("data", body, -1).unwrap();
+            sent += 1;
+            if sent % 100 == 0 {
+                sim.pump();
+                was_paused |= sim.paused.contains(&h);
+            }
+        }
+        if sent == N && !replied && sim.mods[&h].outbox.is_empty() {
+            sim.m(h)
+                .respond(ask[0].0, "ask_reply", 8i32.to_le_bytes())
+                .unwrap();
+            replied = true;
+        }
+        sim.pump();
+        for (id, _, _, data) in sim.deliveries(s).into_iter().take(5) {
+            assert_eq!(i32::from_le_bytes(data[..4].try_into().unwrap()), next);
+            next += 1;
+            sim.m(s).ack(id).unwrap();
+        }
+    }
+    sim.pump();
+    assert!(was_paused, "the answering module was never held back");
+    assert!(sim
+        .take_events(a)
+        .iter()
+        .any(|e| matches!(e, Event::Reply { query, .. } if *query == q)));
+    let st = sim.central.stats();
+    assert_eq!((st.dropped, st.queued_bytes, st.dispatches), (0, 0, 0));
+    assert!(
+        st.peak_queued_bytes <= LIMIT + 1024,
+        "peak {} bytes queued with a limit of {LIMIT}",
+        st.peak_queued_bytes
+    );
+}
+
+/// The other side of that rule: when a message is queued for a module that
+/// waits for an answer (here inside its handler, which holds its only
+/// capacity slot), a module held back while it answers is read again, or
+/// that queue would wait for a reply central does not read.
+#[test]
+fn a_held_back_answer_is_read_when_its_askers_queue_grows() {
+    const LIMIT: usize = 16 << 10;
+    let mut config = Config::default();
+    config.max_queued_bytes = LIMIT;
+    let mut sim = Sim::new(config);
+    let up = sim.connect("upstream");
+    let x = sim.connect("asker");
+    let h = sim.connect("server");
+    let s = sim.connect("slow");
+    define(&mut sim, up, "go", "int");
+    define(&mut sim, x, "ask", "int");
+    define(&mut sim, x, "ask_reply", "int");
+    define(&mut sim, h, "data", "[int:16]");
+    sim.m(x).subscribe("go", "HND-go").unwrap();
+    sim.m(h).subscribe("ask", "HND-ask").unwrap();
+    sim.m(s).subscribe("data", "HND-data").unwrap();
+    sim.pump();
+    // The asker's handler of "go" queries the server and waits.
+    sim.m(up)
+        .publish("go", 1i32.to_le_bytes().to_vec(), -1)
+        .unwrap();
+    sim.pump();
+    let go = sim.deliveries(x);
+    let q = sim.m(x).query("ask", 7i32.to_le_bytes(), -1).unwrap();
+    sim.pump();
+    let ask = sim.deliveries(h);
+    assert_eq!((go.len(), ask.len()), (1, 1));
+    // Answering, the server floods the slow module past the limit and is
+    // held back (the asker has nothing queued yet).
+    for i in 0..200i32 {
+        let mut body = vec![0u8; 64];
+        body[..4].copy_from_slice(&i.to_le_bytes());
+        sim.m(h).publish("data", body, -1).unwrap();
+        sim.pump();
+    }
+    assert!(
+        sim.paused.contains(&h),
+        "the answering module was not held back"
+    );
+    // Now something is queued for the asker, whose handler waits for the
+    // server's reply: the server is read again.
+    sim.m(up)
+        .publish("go", 2i32.to_le_bytes().to_vec(), -1)
+        .unwrap();
+    sim.pump();
+    assert!(
+        !sim.paused.contains(&h),
+        "the reply the asker's queue waits for is not read"
+    );
+    sim.m(h)
+        .respond(ask[0].0, "ask_reply", 8i32.to_le_bytes())
+        .unwrap();
+    sim.pump();
+    assert!(sim
+        .take_events(x)
+        .iter()
+        .any(|e| matches!(e, Event::Reply { query, .. } if *query == q)));
+    sim.m(x).ack(go[0].0).unwrap();
+    sim.pump();
+    let go2 = sim.deliveries(x);
+    assert_eq!(go2.len(), 1);
+    sim.m(x).ack(go2[0].0).unwrap();
+    let mut got = 0;
+    while got < 200 {
+        sim.pump();
+        let d = sim.deliveries(s);
+        assert!(!d.is_empty(), "stuck after {got}");
+        for (id, ..) in d {
+            got += 1;
+            sim.m(s).ack(id).unwrap();
+        }
+    }
+    sim.pump();
+    let st = sim.central.stats();
+    assert_eq!((st.queued_bytes, st.dispatches), (0, 0));
+}
+
 fn raw_frame(class: MsgClass, intent: i32, body: &[u8]) -> Vec<u8> {
     let h = Header {
         class_total: 0,

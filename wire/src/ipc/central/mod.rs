@@ -217,8 +217,12 @@ pub struct Config {
     /// publisher). A module is read on while central waits for something
     /// only it can send: the answer to a query it is handling, or the
     /// Success that lets its own queue move; a module publishing from its
-    /// handler of a broadcast is held back like any other. A module
-    /// publishing from its handler of a query is not.
+    /// handler of a broadcast is held back like any other, and so is one
+    /// publishing while it answers a query, unless a module that waits for
+    /// an answer has messages queued (its handler may hold its capacity
+    /// while it waits, so that queue could wait for the reply central would
+    /// not read); queuing a message for such a module reads answering
+    /// modules again.
     ///
     /// Queries and informs waiting for a first handler of their message
     /// wait as long as it takes, as in C, and outlive their sender; they
@@ -487,6 +491,10 @@ struct Module {
     /// Of the deliveries it is handling, those whose sender waits for an
     /// answer (queries): while it has one, central keeps reading it.
     answering: usize,
+    /// Its queries whose reply has not come (delivered, queued or waiting
+    /// for a handler): while it has one, a handler of its may be blocked
+    /// on someone else's answer.
+    asking: usize,
     pending: VecDeque<i32>,
     /// Broadcasts sent ahead of their turn, oldest first; they come before
     /// everything in `pending`.
@@ -629,6 +637,8 @@ pub struct Central {
     orphans: HashMap<String, Vec<i32>>,
     stats: Stats,
     memory_paused: HashSet<ConnId>,
+    /// Of those, modules held back while they answer a query.
+    answer_paused: HashSet<ConnId>,
     handler_seq: u64,
     msg_info_query: Format,
     msg_info_reply: Format,
@@ -669,6 +679,7 @@ impl Central {
             orphans: HashMap::new(),
             stats: Stats::default(),
             memory_paused: HashSet::new(),
+            answer_paused: HashSet::new(),
             handler_seq: 0,
             msg_info_query: internal::fixed(internal::MSG_INFO_QUERY_FORMAT),
             msg_info_reply: internal::fixed(internal::MSG_INFO_REPLY_FORMAT),
@@ -746,6 +757,11 @@ impl Central {
             self.next_dispatch += 1;
             id
         });
+        if let (Org::Module(asker), true) = (d.org, awaits_answer(d.class)) {
+            if let Some(m) = self.modules.get_mut(&asker) {
+                m.asking += 1;
+            }
+        }
         self.dispatches.insert(id, d);
         id
     }
@@ -754,6 +770,11 @@ impl Central {
         let d = self.dispatches.remove(&id)?;
         if d.status == Status::Pending {
             self.stats.queued_bytes = self.stats.queued_bytes.saturating_sub(cost(&d));
+        }
+        if let (Org::Module(asker), true) = (d.org, awaits_answer(d.class)) {
+            if let Some(m) = self.modules.get_mut(&asker) {
+                m.asking = m.asking.saturating_sub(1);
+            }
         }
         self.free_dispatch.push(id);
         Some(d)
@@ -1097,6 +1118,7 @@ impl Central {
                 capacity: 1,
                 attending: 0,
                 answering: 0,
+                asking: 0,
                 pending: VecDeque::new(),
                 ahead: VecDeque::new(),
                 msg_limits: Vec::new(),
@@ -1658,6 +1680,7 @@ impl Central {
         }
         self.clean_broadcast();
         self.memory_paused.remove(&conn);
+        self.answer_paused.remove(&conn);
         self.modules.remove(&conn);
         if let Some(n) = name {
             self.central_broadcast(internal::DISCONNECT_NOTIFY, |w| w.write_str(&n));
@@ -2578,6 +2601,7 @@ impl Central {
             if m.paused {
                 m.paused = false;
                 self.memory_paused.remove(&conn);
+                self.answer_paused.remove(&conn);
                 self.outputs.push_back(Output::ResumeRead { conn });
             }
         }
@@ -2673,7 +2697,21 @@ impl Central {
         }
         // The queue waits for the module's Success (or its waitMsg): read it.
         self.resume_read(conn);
+        self.unblock_askers(conn);
         self.send_ahead(conn);
+    }
+
+    /// A message was queued for `conn`. If a handler of `conn` may be
+    /// waiting for an answer, the queue may wait on a module held back
+    /// while it answers a query: read those again (see [`Self::check_memory`]).
+    fn unblock_askers(&mut self, conn: ConnId) {
+        if self.answer_paused.is_empty() || self.modules.get(&conn).is_none_or(|m| m.asking == 0) {
+            return;
+        }
+        let paused: Vec<ConnId> = self.answer_paused.drain().collect();
+        for c in paused {
+            self.resume_read(c);
+        }
     }
 
     fn drop_pending(&mut self, did: i32, msg: &str) {
@@ -3131,20 +3169,40 @@ impl Central {
         if self.stats.queued_bytes <= self.config.max_queued_bytes {
             return;
         }
-        if let Some(m) = self.modules.get_mut(&conn) {
-            // Reading stops only where nothing in central waits for what
-            // the module has not sent yet: no delivery it handles has a
-            // sender waiting for the answer, and none waits in its queue
-            // for a capacity slot its Success would free. A module that
-            // publishes while it handles a broadcast (a pipeline) is
-            // stopped too; one answering a query is not.
-            let nothing_waits = m.attending == 0
-                || (m.answering == 0 && m.pending.is_empty() && m.ahead.is_empty());
-            if !m.paused && !m.closed && nothing_waits {
-                m.paused = true;
-                self.memory_paused.insert(conn);
-                self.outputs.push_back(Output::PauseRead { conn });
+        let Some(m) = self.modules.get(&conn) else {
+            return;
+        };
+        if m.paused || m.closed {
+            return;
+        }
+        // Reading stops only where nothing in central waits for what the
+        // module has not sent yet: none of its own queue waits for a
+        // capacity slot its Success or Reply would free, and no queue can
+        // be stuck behind its answer to a query. A module that publishes
+        // while it handles a broadcast (a pipeline) is stopped, and so is
+        // one publishing while it answers a query, as long as no module
+        // that waits for an answer (maybe in a handler, holding its
+        // capacity) has anything queued; when one does, it is read again
+        // (`unblock_askers`). Its asker then waits for the reply until the
+        // queues drain, which they can: whatever is queued is for modules
+        // whose handlers wait for nobody.
+        let own_queue_empty = m.pending.is_empty() && m.ahead.is_empty();
+        let answering = m.attending > 0 && m.answering > 0;
+        let may_pause = m.attending == 0
+            || (own_queue_empty
+                && (!answering
+                    || self
+                        .modules
+                        .values()
+                        .all(|x| x.asking == 0 || (x.pending.is_empty() && x.ahead.is_empty()))));
+        if may_pause {
+            let m = self.modules.get_mut(&conn).unwrap();
+            m.paused = true;
+            self.memory_paused.insert(conn);
+            if answering {
+                self.answer_paused.insert(conn);
             }
+            self.outputs.push_back(Output::PauseRead { conn });
         }
     }
 
@@ -3155,6 +3213,7 @@ impl Central {
             return;
         }
         let paused: Vec<ConnId> = self.memory_paused.drain().collect();
+        self.answer_paused.clear();
         for conn in paused {
             if let Some(m) = self.modules.get_mut(&conn) {
                 if m.paused {
