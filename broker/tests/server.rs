@@ -379,7 +379,7 @@ fn console_commands_reach_the_state_machine() {
 /// publisher (TCP back-pressure) and its queues stay bounded; nothing is lost.
 #[test]
 fn slow_subscriber_keeps_central_memory_bounded() {
-    flood_a_slow_subscriber(0, 100_000, false);
+    flood_a_slow_subscriber(0, 100_000, Inside::Nothing);
 }
 
 /// The same with broadcasts sent ahead of their turn
@@ -387,7 +387,7 @@ fn slow_subscriber_keeps_central_memory_bounded() {
 /// same memory bound.
 #[test]
 fn messages_sent_ahead_arrive_once_in_order_over_tcp() {
-    flood_a_slow_subscriber(8, 30_000, false);
+    flood_a_slow_subscriber(8, 30_000, Inside::Nothing);
 }
 
 /// The publisher floods from inside its handler of a broadcast (a
@@ -395,10 +395,29 @@ fn messages_sent_ahead_arrive_once_in_order_over_tcp() {
 /// it back all the same.
 #[test]
 fn a_publisher_flooding_from_its_handler_keeps_central_memory_bounded() {
-    flood_a_slow_subscriber(0, 30_000, true);
+    flood_a_slow_subscriber(0, 30_000, Inside::Broadcast);
 }
 
-fn flood_a_slow_subscriber(send_ahead: usize, n: u32, in_handler: bool) {
+/// The publisher floods while it answers a query from a third module,
+/// which waits for the reply all along: central holds it back too.
+#[test]
+fn a_publisher_flooding_while_it_answers_a_query_keeps_central_memory_bounded() {
+    flood_a_slow_subscriber(0, 30_000, Inside::Query);
+}
+
+/// Where the flooding publisher is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Inside {
+    /// Its main loop.
+    Nothing,
+    /// Its handler of a broadcast.
+    Broadcast,
+    /// Its handler of a query, whose asker waits for the reply.
+    Query,
+}
+
+fn flood_a_slow_subscriber(send_ahead: usize, n: u32, inside: Inside) {
+    let in_handler = inside != Inside::Nothing;
     let rt = rt();
     let mut config = Config::default();
     config.max_queued_bytes = 1 << 20;
@@ -440,16 +459,52 @@ fn flood_a_slow_subscriber(send_ahead: usize, n: u32, in_handler: bool) {
             p.flush();
         }
         if let Some(go) = go {
-            p.conn.ack(go).unwrap();
+            if inside == Inside::Query {
+                p.conn.respond(go, "went", vec![2u8; 4]).unwrap();
+                // The reply's message is looked up first.
+                p.settle();
+            } else {
+                p.conn.ack(go).unwrap();
+            }
             p.flush();
         }
         p
     });
+    let mut asker = None;
     if in_handler {
         is_ready.recv().unwrap();
-        s.conn.define_msg("go", MsgLength::Variable, None).unwrap();
-        s.conn.publish("go", vec![1u8; 4], -1).unwrap();
-        s.flush();
+        if inside == Inside::Query {
+            // It waits for the reply as long as the flood takes.
+            asker = Some(std::thread::spawn(move || {
+                let mut a = Client::new(tcp(addr), "asker");
+                a.conn.define_msg("go", MsgLength::Variable, None).unwrap();
+                a.conn
+                    .define_msg("went", MsgLength::Variable, None)
+                    .unwrap();
+                let q = a.conn.query("go", vec![1u8; 4], -1).unwrap();
+                let mut buf = vec![0u8; 4096];
+                let start = Instant::now();
+                loop {
+                    a.flush();
+                    while let Some(e) = a.conn.poll_event() {
+                        if matches!(e, Event::Reply { query, .. } if query == q) {
+                            return;
+                        }
+                    }
+                    assert!(start.elapsed() < Duration::from_secs(120), "no reply");
+                    match a.sock.read(&mut buf) {
+                        Ok(0) => panic!("central closed the connection"),
+                        Ok(k) => a.conn.receive(&buf[..k], Instant::now()),
+                        Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
+                        Err(e) => panic!("{e}"),
+                    }
+                }
+            }));
+        } else {
+            s.conn.define_msg("go", MsgLength::Variable, None).unwrap();
+            s.conn.publish("go", vec![1u8; 4], -1).unwrap();
+            s.flush();
+        }
     }
     let mut next = 0u32;
     let start = Instant::now();
@@ -467,6 +522,9 @@ fn flood_a_slow_subscriber(send_ahead: usize, n: u32, in_handler: bool) {
         assert!(start.elapsed() < Duration::from_secs(120));
     }
     let _p = publisher.join().unwrap();
+    if let Some(a) = asker {
+        a.join().unwrap();
+    }
     // The last acknowledgement is on its way: every dispatch is finished
     // once central has read it.
     let deadline = Instant::now() + T;
@@ -479,7 +537,7 @@ fn flood_a_slow_subscriber(send_ahead: usize, n: u32, in_handler: bool) {
     };
     println!(
         "real sockets, {n} x 1 KiB, capacity 1, send-ahead {send_ahead}, \
-         from a handler {in_handler}: peak queued in central {} bytes (limit {})",
+         from inside {inside:?}: peak queued in central {} bytes (limit {})",
         stats.peak_queued_bytes,
         1 << 20
     );
