@@ -288,8 +288,15 @@ impl Builder {
                 stop_rx.clone(),
             )));
         }
+        // C logs registering its own variables before anything else.
+        let mut central = Central::new_at(config, SystemTime::now());
+        while let Some(o) = central.poll_output() {
+            if let Output::Log { target, line } = o {
+                sink.line(target, &line);
+            }
+        }
         let core = Core {
-            central: Central::new(config),
+            central,
             conns: HashMap::new(),
             next_id: FIRST_CONN,
             sink,

@@ -46,14 +46,18 @@ struct Sim {
 
 impl Sim {
     fn new(config: Config) -> Sim {
+        Sim::new_at(config, SystemTime::now())
+    }
+
+    fn new_at(config: Config, wall: SystemTime) -> Sim {
         Sim {
-            central: Central::new(config),
+            central: Central::new_at(config, wall),
             mods: HashMap::new(),
             paused: HashSet::new(),
             logs: Vec::new(),
             closes: Vec::new(),
             sent: Vec::new(),
-            wall: SystemTime::now(),
+            wall,
             now: Instant::now(),
             next: 1,
             read_size: None,
@@ -1343,8 +1347,8 @@ fn direct_handler_lists_keep_the_first_id_and_are_announced_again() {
 fn timed_log_lines_all_carry_the_time() {
     let mut config = Config::default();
     config.terminal_log = courier_wire::ipc::central::LogOptions::parse("mt", false).unwrap();
-    let mut sim = Sim::new(config);
-    sim.wall = SystemTime::UNIX_EPOCH + std::time::Duration::from_millis(3_723_450);
+    let wall = SystemTime::UNIX_EPOCH + std::time::Duration::from_millis(3_723_450);
+    let mut sim = Sim::new_at(config, wall);
     let a = sim.connect("a");
     let b = sim.connect("b");
     define(&mut sim, a, "m", "int");
@@ -1382,6 +1386,63 @@ fn timed_log_lines_all_carry_the_time() {
 /// among the options: a module not named yet is `**NEWMOD**`, the connect
 /// reply names it, replies carry their data (`x_ipc_waitMsg`'s `1`
 /// included) and `x_ipc_CloseMsg` completes with a Done line.
+/// With `-lmsrp` (no `i`) the C central logs registering its own
+/// variables at start-up, and every internal message with its dispatch
+/// id and its parent's: lines from the C central 3.9.1's terminal log
+/// with module1 (`central -lmsrp`, routed, captured in session 20; the
+/// host name is the machine's).
+#[test]
+fn internal_messages_carry_ids_and_parents_like_c() {
+    let mut config = Config::default();
+    config.terminal_log = LogOptions::parse("msrp", false).unwrap();
+    let mut sim = Sim::new(config);
+    sim.drain();
+    let c_start = [
+        "Inform    x_ipc_registerGlobalVar {0}: X_IPC Server {-1} --> X_IPC Server    (Sent)",
+        "  Done    x_ipc_registerGlobalVar {0}:",
+        "Inform    x_ipc_registerGlobalVar {0}: X_IPC Server {-1} --> X_IPC Server    (Sent)",
+        "  Done    x_ipc_registerGlobalVar {0}:",
+        "Inform    V_set_CENTRAL_TERMINAL_LOG_VAR {0}: X_IPC Server {-1} --> X_IPC Server    (Sent)",
+        "  Done    V_set_CENTRAL_TERMINAL_LOG_VAR {0}:",
+        "Inform    V_set_CENTRAL_FILE_LOG_VAR {0}: X_IPC Server {-1} --> X_IPC Server    (Sent)",
+        "  Done    V_set_CENTRAL_FILE_LOG_VAR {0}:",
+        "Inform    x_ipc_registerGlobalVar {0}: X_IPC Server {-1} --> X_IPC Server    (Sent)",
+        "  Done    x_ipc_registerGlobalVar {0}:",
+        "Inform    V_set_X_IPC_TAPPED_MSG_VAR {0}: X_IPC Server {-1} --> X_IPC Server    (Sent)",
+        "  Done    V_set_X_IPC_TAPPED_MSG_VAR {0}:",
+        "Inform    x_ipc_registerGlobalVar {0}: X_IPC Server {-1} --> X_IPC Server    (Sent)",
+        "  Done    x_ipc_registerGlobalVar {0}:",
+        "Inform    V_set_X_IPC_BROADCAST_MSG_VAR {0}: X_IPC Server {-1} --> X_IPC Server    (Sent)",
+        "  Done    V_set_X_IPC_BROADCAST_MSG_VAR {0}:",
+    ];
+    assert_eq!(sim.logs, c_start);
+    sim.logs.clear();
+    sim.connect("module1");
+    let c_connect = [
+        "Query     x_ipc_msgInfoMsg {0}: **NEWMOD** {-1} --> X_IPC Server    (Sent)",
+        "  Reply  x_ipc_msgInfoMsg {0}: X_IPC Server --> **NEWMOD**      {-1}",
+        "Query     x_ipc_classInfoMsg {0}: **NEWMOD** {-1} --> X_IPC Server    (Sent)",
+        "  Reply  x_ipc_classInfoMsg {0}: X_IPC Server --> **NEWMOD**      {-1}",
+        "Query     x_ipc_newModuleConnectMsg {0}: **NEWMOD** {-1} --> X_IPC Server    (Sent)",
+        "  Reply  x_ipc_newModuleConnectMsg {0}: X_IPC Server --> module1         {-1}",
+        "Query     x_ipc_msgInfoMsg {0}:    module1 {-1} --> X_IPC Server    (Sent)",
+        "  Reply  x_ipc_msgInfoMsg {0}: X_IPC Server --> module1         {-1}",
+        "Query     V_get_CENTRAL_TERMINAL_LOG_VAR {0}:    module1 {-1} --> X_IPC Server    (Sent)",
+    ];
+    for line in c_connect {
+        assert!(
+            sim.logs.iter().any(|l| l == line),
+            "no {line:?} in {:#?}",
+            sim.logs
+        );
+    }
+    // Nothing of this reaches a log file: C opens it after start-up.
+    let mut config = Config::default();
+    config.file_log = LogOptions::parse("msrp", true).unwrap();
+    let mut central = Central::new(config);
+    assert_eq!(central.poll_output(), None);
+}
+
 #[test]
 fn internal_messages_are_logged_like_c() {
     let mut config = Config::default();

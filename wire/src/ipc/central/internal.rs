@@ -71,6 +71,7 @@ pub(super) const BROADCAST_MSG_VAR: &str = "X_IPC_BROADCAST_MSG_VAR";
 pub(super) const MSG_INFO: &str = "x_ipc_msgInfoMsg";
 pub(super) const CONNECT_NOTIFY: &str = "x_ipc_connectNotify";
 pub(super) const DISCONNECT_NOTIFY: &str = "x_ipc_disconnectNotify";
+pub(super) const REGISTER_GLOBAL_VAR: &str = "x_ipc_registerGlobalVar";
 
 /// The message-info query and reply formats central sends at connect.
 pub(super) const MSG_INFO_QUERY_FORMAT: &str = "{string, string}";
@@ -340,7 +341,7 @@ pub(super) fn table() -> Vec<Def> {
             LimitPending
         ),
         def!(
-            "x_ipc_registerGlobalVar",
+            REGISTER_GLOBAL_VAR,
             Inform,
             s("{string, string}"),
             None,

@@ -660,6 +660,12 @@ impl<E: std::fmt::Display> From<E> for Bad {
 impl Central {
     /// A central with no modules.
     pub fn new(config: Config) -> Self {
+        Self::new_at(config, SystemTime::UNIX_EPOCH)
+    }
+
+    /// A central with no modules, started at `now`: the time its start-up
+    /// log lines carry with `-lt` (C logs registering its own variables).
+    pub fn new_at(config: Config, now: SystemTime) -> Self {
         let mut c = Central {
             ignore: config.ignore.iter().cloned().collect(),
             config,
@@ -683,7 +689,7 @@ impl Central {
             handler_seq: 0,
             msg_info_query: internal::fixed(internal::MSG_INFO_QUERY_FORMAT),
             msg_info_reply: internal::fixed(internal::MSG_INFO_REPLY_FORMAT),
-            clock: SystemTime::UNIX_EPOCH,
+            clock: now,
         };
         let _ = c
             .formats
@@ -691,18 +697,30 @@ impl Central {
         for d in internal::table() {
             c.register_internal(d);
         }
-        for v in [
-            internal::TERMINAL_LOG_VAR,
-            internal::FILE_LOG_VAR,
-            internal::TAPPED_MSG_VAR,
-            internal::BROADCAST_MSG_VAR,
-        ] {
-            c.register_var(v);
-        }
+        // C's order (logged when `-l` lacks `i`): both log variables
+        // registered, then set; the tapped and broadcast lists each
+        // registered and set.
+        c.register_var(internal::TERMINAL_LOG_VAR);
+        c.register_var(internal::FILE_LOG_VAR);
         c.update_log_vars();
+        for var in [internal::TERMINAL_LOG_VAR, internal::FILE_LOG_VAR] {
+            let value = c.vars[var].value.clone();
+            c.central_inform(&format!("V_set_{var}"), &value, |_| {});
+        }
         let empty = c.str_list_value(&[], 0);
-        c.vars.get_mut(internal::TAPPED_MSG_VAR).unwrap().value = empty.clone();
-        c.vars.get_mut(internal::BROADCAST_MSG_VAR).unwrap().value = empty;
+        for var in [internal::TAPPED_MSG_VAR, internal::BROADCAST_MSG_VAR] {
+            c.register_var(var);
+            c.set_var_by_central(var, empty.clone());
+        }
+        // C opens its log file after this (`Start_File_Logging`): these
+        // lines reach the terminal only.
+        c.outputs.retain_mut(|o| match o {
+            Output::Log { target, .. } => {
+                target.file = false;
+                target.terminal
+            }
+            _ => true,
+        });
         c
     }
 
@@ -751,12 +769,26 @@ impl Central {
         }
     }
 
-    fn alloc_dispatch(&mut self, d: Dispatch) -> i32 {
-        let id = self.free_dispatch.pop().unwrap_or_else(|| {
+    /// A dispatch id, last freed first (as C's `dispatchAllocate`).
+    fn take_ref(&mut self) -> i32 {
+        self.free_dispatch.pop().unwrap_or_else(|| {
             let id = self.next_dispatch;
             self.next_dispatch += 1;
             id
-        });
+        })
+    }
+
+    /// C gives every message a dispatch, the internal ones central handles
+    /// and the informs it sends itself included, and frees it once
+    /// handled; with `-lr` the log shows its id. Central holds an id from
+    /// the same pool while it handles one, so that the ids it logs, and
+    /// gives the modules' messages, follow C's.
+    fn give_ref(&mut self, id: i32) {
+        self.free_dispatch.push(id);
+    }
+
+    fn alloc_dispatch(&mut self, d: Dispatch) -> i32 {
+        let id = self.take_ref();
         if let (Org::Module(asker), true) = (d.org, awaits_answer(d.class)) {
             if let Some(m) = self.modules.get_mut(&asker) {
                 m.asking += 1;
@@ -877,6 +909,16 @@ impl Central {
         if self.vars.contains_key(var) {
             return;
         }
+        // `centralRegisterVar` sends central `x_ipc_registerGlobalVar`
+        // ({varName, format}) and logs it.
+        let mut w = Writer::new();
+        w.write_str(var);
+        w.write_str(&internal::var_format(var));
+        let data = w.into_vec();
+        self.central_inform(internal::REGISTER_GLOBAL_VAR, &data, |c| c.add_var(var));
+    }
+
+    fn add_var(&mut self, var: &str) {
         let format = internal::fixed(&internal::var_format(var));
         self.vars.insert(
             var.to_string(),
@@ -1740,6 +1782,24 @@ impl Central {
         data: &[u8],
         now: SystemTime,
     ) -> Result<(), Bad> {
+        let rid = self.take_ref();
+        let r = self.handle_internal(conn, h, name, kind, data, now, rid);
+        self.give_ref(rid);
+        r
+    }
+
+    /// An internal message, handled under the dispatch id `rid`.
+    #[allow(clippy::too_many_arguments)]
+    fn handle_internal(
+        &mut self,
+        conn: ConnId,
+        h: Header,
+        name: &str,
+        kind: Internal,
+        data: &[u8],
+        now: SystemTime,
+        rid: i32,
+    ) -> Result<(), Bad> {
         let order = h.class_id.data_order().unwrap_or(ByteOrder::NATIVE);
         let mut r = Reader::new(data, order);
         let query = h.class_id.class() == MsgClass::Query as u16;
@@ -1750,7 +1810,7 @@ impl Central {
             let line = self.dispatch_line(
                 h.class_id.class(),
                 name,
-                None,
+                Some(rid),
                 &org_name,
                 h.parent_ref,
                 &to,
@@ -1795,7 +1855,14 @@ impl Central {
                 }
                 self.reply(conn, h.msg_ref, out.as_bytes());
                 if logged {
-                    self.log_internal_reply(name, &org_name, h.class_id, out.as_bytes(), now);
+                    self.log_internal_reply(
+                        name,
+                        &org_name,
+                        (rid, h.parent_ref),
+                        h.class_id,
+                        out.as_bytes(),
+                        now,
+                    );
                 }
                 self.process_pending(conn, now);
                 return Ok(());
@@ -1928,7 +1995,7 @@ impl Central {
                 });
                 self.close_module(conn, false, now);
                 if logged {
-                    self.log_done(name, now);
+                    self.log_done(name, rid, now);
                 }
                 return Ok(());
             }
@@ -1980,10 +2047,11 @@ impl Central {
             if logged {
                 // Named now if this was its connect query.
                 let to = self.module_name(Org::Module(conn));
-                self.log_internal_reply(name, &to, h.class_id, &bytes, now);
+                let refs = (rid, h.parent_ref);
+                self.log_internal_reply(name, &to, refs, h.class_id, &bytes, now);
             }
         } else if logged {
-            self.log_done(name, now);
+            self.log_done(name, rid, now);
         }
         if lookup {
             // A handler looked up: what waits for it may go ahead now,
@@ -1994,9 +2062,14 @@ impl Central {
     }
 
     /// `  Done    <msg>:<time>`: an internal message handled.
-    fn log_done(&mut self, name: &str, now: SystemTime) {
-        let t = log::time(&self.opts(), now);
-        self.log_line(Kind::Message, format!("  Done    {name:>15}:{t}"));
+    fn log_done(&mut self, name: &str, rid: i32, now: SystemTime) {
+        let o = self.opts();
+        let line = format!(
+            "  Done    {name:>15}{}:{}",
+            log::ref_id(&o, rid),
+            log::time(&o, now)
+        );
+        self.log_line(Kind::Message, line);
     }
 
     /// `  Reply  <msg>: X_IPC Server --> <module>  <time>` and the reply's
@@ -2005,16 +2078,20 @@ impl Central {
         &mut self,
         name: &str,
         to: &str,
+        (rid, parent): (i32, i32),
         class_id: ClassId,
         reply: &[u8],
         now: SystemTime,
     ) {
+        let o = self.opts();
         let line = format!(
-            "  Reply  {:>15}: {:>10} --> {:<15}{}",
+            "  Reply  {:>15}{}: {:>10} --> {:<15}{}{}",
             name,
+            log::ref_id(&o, rid),
             SERVER_NAME,
             to,
-            log::time(&self.opts(), now)
+            log::parent_id(&o, parent),
+            log::time(&o, now)
         );
         self.log_line(Kind::Message, line);
         if reply.is_empty() || !self.logs(Kind::Data, name) {
@@ -3002,18 +3079,29 @@ impl Central {
     /// logs it like a module's, around the broadcasts it causes.
     fn set_var_by_central(&mut self, var: &str, bytes: Vec<u8>) {
         let name = format!("V_set_{var}");
-        let logged = self.logs(Kind::Message, &name);
+        let logged = bytes.clone();
+        self.central_inform(&name, &logged, |c| c.set_var(var, bytes));
+    }
+
+    /// An inform central sends itself (`V_set_…`, `x_ipc_registerGlobalVar`):
+    /// logged as C logs it, `Inform` before what `act` does and `Done`
+    /// after, under a dispatch id of its own.
+    fn central_inform(&mut self, name: &str, data: &[u8], act: impl FnOnce(&mut Self)) {
+        let rid = self.take_ref();
+        let logged = self.logs(Kind::Message, name);
         if logged {
             let to = format!("{SERVER_NAME:<15} (Sent)");
             let class = MsgClass::Inform as u16;
-            let line = self.dispatch_line(class, &name, None, SERVER_NAME, NO_REF, &to, self.clock);
+            let line =
+                self.dispatch_line(class, name, Some(rid), SERVER_NAME, NO_REF, &to, self.clock);
             self.log_line(Kind::Message, line);
-            self.log_data_as(&name, ClassId::native(MsgClass::Inform), &bytes, None, true);
+            self.log_data_as(name, ClassId::native(MsgClass::Inform), data, None, true);
         }
-        self.set_var(var, bytes);
+        act(self);
         if logged {
-            self.log_done(&name, self.clock);
+            self.log_done(name, rid, self.clock);
         }
+        self.give_ref(rid);
     }
 
     fn set_var(&mut self, var: &str, bytes: Vec<u8>) {
