@@ -1765,7 +1765,12 @@ impl Central {
         };
         let internal = self.msgs.get(&name).and_then(|m| m.internal.clone());
         match internal {
-            Some(kind) => self.on_internal(conn, h, &name, kind, &data, now),
+            Some(kind) => {
+                let rid = self.take_ref();
+                let r = self.on_internal(conn, h, &name, kind, &data, now, rid);
+                self.give_ref(rid);
+                r
+            }
             None => {
                 self.route(conn, h, name, data, now);
                 Ok(())
@@ -1773,24 +1778,9 @@ impl Central {
         }
     }
 
-    fn on_internal(
-        &mut self,
-        conn: ConnId,
-        h: Header,
-        name: &str,
-        kind: Internal,
-        data: &[u8],
-        now: SystemTime,
-    ) -> Result<(), Bad> {
-        let rid = self.take_ref();
-        let r = self.handle_internal(conn, h, name, kind, data, now, rid);
-        self.give_ref(rid);
-        r
-    }
-
     /// An internal message, handled under the dispatch id `rid`.
     #[allow(clippy::too_many_arguments)]
-    fn handle_internal(
+    fn on_internal(
         &mut self,
         conn: ConnId,
         h: Header,
