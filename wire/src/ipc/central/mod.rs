@@ -459,6 +459,14 @@ fn cost(d: &Dispatch) -> usize {
     d.data.len() + DISPATCH_COST
 }
 
+/// `d` leaves its pending queue (if it was in one): its cost no longer
+/// counts as queued.
+fn unqueue(stats: &mut Stats, d: &Dispatch) {
+    if d.status == Status::Pending {
+        stats.queued_bytes = stats.queued_bytes.saturating_sub(cost(d));
+    }
+}
+
 impl Dispatch {
     /// Delivered to `conn` and awaiting its Success or Reply.
     fn attending_at(&self, conn: ConnId) -> bool {
@@ -705,7 +713,7 @@ impl Central {
         c.update_log_vars();
         for var in [internal::TERMINAL_LOG_VAR, internal::FILE_LOG_VAR] {
             let value = c.vars[var].value.clone();
-            c.central_inform(&format!("V_set_{var}"), &value, |_| {});
+            c.central_inform(&format!("V_set_{var}"), value, |_, _| {});
         }
         let empty = c.str_list_value(&[], 0);
         for var in [internal::TAPPED_MSG_VAR, internal::BROADCAST_MSG_VAR] {
@@ -800,15 +808,13 @@ impl Central {
 
     fn free_dispatch_id(&mut self, id: i32) -> Option<Dispatch> {
         let d = self.dispatches.remove(&id)?;
-        if d.status == Status::Pending {
-            self.stats.queued_bytes = self.stats.queued_bytes.saturating_sub(cost(&d));
-        }
+        unqueue(&mut self.stats, &d);
         if let (Org::Module(asker), true) = (d.org, awaits_answer(d.class)) {
             if let Some(m) = self.modules.get_mut(&asker) {
                 m.asking = m.asking.saturating_sub(1);
             }
         }
-        self.free_dispatch.push(id);
+        self.give_ref(id);
         Some(d)
     }
 
@@ -914,8 +920,9 @@ impl Central {
         let mut w = Writer::new();
         w.write_str(var);
         w.write_str(&internal::var_format(var));
-        let data = w.into_vec();
-        self.central_inform(internal::REGISTER_GLOBAL_VAR, &data, |c| c.add_var(var));
+        self.central_inform(internal::REGISTER_GLOBAL_VAR, w.into_vec(), |c, _| {
+            c.add_var(var)
+        });
     }
 
     fn add_var(&mut self, var: &str) {
@@ -1557,13 +1564,9 @@ impl Central {
             Some(m) => m.problems.allow(now),
             None => Some(0),
         };
-        match allowed {
-            Some(0) => self.log_line(Kind::Problem, line),
-            Some(left_out) => {
-                self.report_left_out(conn, left_out);
-                self.log_line(Kind::Problem, line);
-            }
-            None => {}
+        if let Some(left_out) = allowed {
+            self.report_left_out(conn, left_out);
+            self.log_line(Kind::Problem, line);
         }
     }
 
@@ -1688,9 +1691,7 @@ impl Central {
         for id in mine {
             let keep = self.config.resend_on_reconnect && name.is_some();
             let d = self.dispatches.get_mut(&id).unwrap();
-            if d.status == Status::Pending {
-                self.stats.queued_bytes = self.stats.queued_bytes.saturating_sub(cost(d));
-            }
+            unqueue(&mut self.stats, d);
             if keep {
                 d.status = Status::NoHandler;
                 let msg = d.msg.clone();
@@ -2455,7 +2456,7 @@ impl Central {
                     self.deliver_or_pend(did, now);
                 } else {
                     self.msgs.get_mut(&name).unwrap().waiting.push_back(did);
-                    self.bound_waiting(conn, &name);
+                    self.bound_waiting(conn, &name, did);
                     if self.logs(Kind::Message, &name) {
                         let to = format!("Resource {name:<6} (Pending)");
                         let org_name = self.module_name(org);
@@ -2560,9 +2561,7 @@ impl Central {
         let Some((conn, hnd_name)) = d.hnd.clone() else {
             return;
         };
-        if d.status == Status::Pending {
-            self.stats.queued_bytes = self.stats.queued_bytes.saturating_sub(cost(d));
-        }
+        unqueue(&mut self.stats, d);
         d.status = Status::Attending;
         let (msg, class, class_id, org, parent_ref, data) = (
             d.msg.clone(),
@@ -2684,7 +2683,7 @@ impl Central {
             return;
         };
         let msg = d.msg.clone();
-        let len = cost(d);
+        let queued = cost(d);
         let Some(m) = self.modules.get(&conn) else {
             return;
         };
@@ -2718,7 +2717,7 @@ impl Central {
         let priority = self.msgs.get(&msg).map_or(DEFAULT_PRIORITY, |x| x.priority);
         let d = self.dispatches.get_mut(&did).unwrap();
         d.status = Status::Pending;
-        self.stats.queued_bytes += len;
+        self.stats.queued_bytes += queued;
         self.stats.peak_queued_bytes = self.stats.peak_queued_bytes.max(self.stats.queued_bytes);
         let org = d.org;
         let class = d.class;
@@ -3069,14 +3068,13 @@ impl Central {
     /// logs it like a module's, around the broadcasts it causes.
     fn set_var_by_central(&mut self, var: &str, bytes: Vec<u8>) {
         let name = format!("V_set_{var}");
-        let logged = bytes.clone();
-        self.central_inform(&name, &logged, |c| c.set_var(var, bytes));
+        self.central_inform(&name, bytes, |c, bytes| c.set_var(var, bytes));
     }
 
     /// An inform central sends itself (`V_set_…`, `x_ipc_registerGlobalVar`):
-    /// logged as C logs it, `Inform` before what `act` does and `Done`
-    /// after, under a dispatch id of its own.
-    fn central_inform(&mut self, name: &str, data: &[u8], act: impl FnOnce(&mut Self)) {
+    /// logged as C logs it, `Inform` (with `data`) before what `act` does
+    /// with `data` and `Done` after, under a dispatch id of its own.
+    fn central_inform(&mut self, name: &str, data: Vec<u8>, act: impl FnOnce(&mut Self, Vec<u8>)) {
         let rid = self.take_ref();
         let logged = self.logs(Kind::Message, name);
         if logged {
@@ -3085,9 +3083,9 @@ impl Central {
             let line =
                 self.dispatch_line(class, name, Some(rid), SERVER_NAME, NO_REF, &to, self.clock);
             self.log_line(Kind::Message, line);
-            self.log_data_as(name, ClassId::native(MsgClass::Inform), data, None, true);
+            self.log_data_as(name, ClassId::native(MsgClass::Inform), &data, None, true);
         }
-        act(self);
+        act(self, data);
         if logged {
             self.log_done(name, rid, self.clock);
         }
@@ -3302,17 +3300,15 @@ impl Central {
         }
     }
 
-    /// A query or inform of `msg` from `conn` joined those waiting for a
+    /// A query or inform of `msg` from `conn` (`added`) joined those waiting for a
     /// first handler. Past [`Config::max_queued_bytes`] of them, the oldest
     /// of `msg` are dropped (the new one last), as a queue limit drops the
     /// oldest: their askers may have given up long ago, and a handler that
     /// comes gets the newest. Pausing the asker instead would stop a
     /// module's whole connection for one message nobody serves, and would
     /// hide its hang-up until a handler comes.
-    fn bound_waiting(&mut self, conn: ConnId, msg: &str) {
-        if let Some(did) = self.msgs[msg].waiting.back() {
-            self.stats.waiting_bytes += cost(&self.dispatches[did]);
-        }
+    fn bound_waiting(&mut self, conn: ConnId, msg: &str, added: i32) {
+        self.stats.waiting_bytes += cost(&self.dispatches[&added]);
         while self.stats.waiting_bytes > self.config.max_queued_bytes {
             let Some(did) = self.msgs.get_mut(msg).and_then(|m| m.waiting.pop_front()) else {
                 break;
