@@ -1,0 +1,192 @@
+//! CDR (XCDR1 and XCDR2) of a struct: each field as a member of its
+//! extensibility (final, appendable with DHEADER, mutable with EMHEADER),
+//! the decoding of mutable members in any order, and the key
+//! (`cdr_encode_key`) of a keyed struct.
+
+use proc_macro2::TokenStream;
+use quote::quote;
+
+use super::{len_lets, len_var, var};
+use crate::ast::{Container, Field, Kind};
+use crate::attr::Extensibility;
+
+/// The CDR parts of a struct's `IpcMessage` impl.
+pub(super) struct StructCodec {
+    /// The statements of `cdr_encode`, one member per field.
+    pub(super) enc: Vec<TokenStream>,
+    /// The body of `cdr_decode` up to building `Self`.
+    pub(super) dec: TokenStream,
+    /// `cdr_encode_key`, for a struct with key fields.
+    pub(super) key_fn: TokenStream,
+}
+
+/// Writes field `i`'s value (a count field writes its `Vec`'s length).
+fn cdr_value(i: usize, f: &Field<'_>) -> TokenStream {
+    let m = &f.member;
+    let ty = f.ty;
+    if let Some(vec) = f.count_for {
+        let n = len_var(vec);
+        return quote!(__wire::IpcMessage::cdr_encode(&(#n as #ty), __w););
+    }
+    match &f.kind {
+        Kind::Plain | Kind::SelfPtr => quote!(__wire::IpcMessage::cdr_encode(&self.#m, __w);),
+        Kind::Char => quote!(__w.write_u8(self.#m);),
+        Kind::Vec { elem, len: Some(_) } => {
+            let n = len_var(i);
+            quote!(__wire::__private::cdr_encode_seq::<#elem>(&self.#m[..#n], __w);)
+        }
+        Kind::Vec { elem, len: None } => {
+            quote!(__wire::__private::cdr_encode_seq::<#elem>(&self.#m[..], __w);)
+        }
+    }
+}
+
+/// Reads a field's value.
+fn cdr_read(f: &Field<'_>) -> TokenStream {
+    let ty = f.ty;
+    match &f.kind {
+        Kind::Char => quote!(__r.read_u8()?),
+        Kind::Vec { elem, .. } => quote!(__wire::__private::cdr_decode_seq::<#elem>(__r)?),
+        Kind::Plain | Kind::SelfPtr => quote!(<#ty as __wire::IpcMessage>::cdr_decode(__r)?),
+    }
+}
+
+/// `value` written as the member of field `f`.
+fn member(f: &Field<'_>, value: TokenStream) -> TokenStream {
+    let id = f.id;
+    let mu = f.attrs.key || f.attrs.must_understand;
+    quote! {
+        let __m = __s.begin_member(__w, #id, #mu);
+        #value
+        __s.end_member(__w, __m);
+    }
+}
+
+pub(super) fn struct_codec(
+    c: &Container<'_>,
+    fields: &[Field<'_>],
+    ext: &TokenStream,
+) -> StructCodec {
+    let mutable = c.extensibility() == Extensibility::Mutable;
+    let enc: Vec<TokenStream> = fields
+        .iter()
+        .enumerate()
+        .map(|(i, f)| member(f, cdr_value(i, f)))
+        .collect();
+    let dec = if mutable {
+        mutable_decode(fields, ext)
+    } else {
+        let reads = fields.iter().enumerate().map(|(i, f)| {
+            let v = var(i);
+            let ty = f.ty;
+            let read = cdr_read(f);
+            quote!(let #v: #ty = #read;)
+        });
+        quote! {
+            let __s = __r.begin_struct(#ext)?;
+            #(#reads)*
+            __s.end(__r)?;
+        }
+    };
+    StructCodec {
+        enc,
+        dec,
+        key_fn: key_fn(fields, ext),
+    }
+}
+
+/// Members of a mutable struct come in any order, unknown ones are
+/// skipped unless they must be understood, and each field must come
+/// (an optional one may not).
+fn mutable_decode(fields: &[Field<'_>], ext: &TokenStream) -> TokenStream {
+    let decls = fields.iter().enumerate().map(|(i, f)| {
+        let v = var(i);
+        let ty = f.ty;
+        quote!(let mut #v: ::core::option::Option<#ty> = ::core::option::Option::None;)
+    });
+    let arms = fields.iter().enumerate().map(|(i, f)| {
+        let v = var(i);
+        let id = f.id;
+        let read = cdr_read(f);
+        quote!(#id => #v = ::core::option::Option::Some(#read),)
+    });
+    let unwraps = fields.iter().enumerate().map(|(i, f)| {
+        let v = var(i);
+        let id = f.id;
+        let name = &f.name;
+        if f.optional {
+            // an absent optional member is left out of a mutable struct
+            return quote!(let #v = #v.unwrap_or(::core::option::Option::None););
+        }
+        quote! {
+            let #v = match #v {
+                ::core::option::Option::Some(v) => v,
+                ::core::option::Option::None => {
+                    return ::core::result::Result::Err(__wire::cdr::DecodeError::MissingMember {
+                        type_name: <Self as __wire::IpcMessage>::TYPE_NAME,
+                        member: #name,
+                        id: #id,
+                    })
+                }
+            };
+        }
+    });
+    quote! {
+        let mut __s = __r.begin_struct(#ext)?;
+        #(#decls)*
+        while let ::core::option::Option::Some(__m) = __s.next_member(__r)? {
+            match __m.id {
+                #(#arms)*
+                _ => {
+                    if __m.must_understand {
+                        return ::core::result::Result::Err(__wire::cdr::DecodeError::UnknownMustUnderstand {
+                            type_name: <Self as __wire::IpcMessage>::TYPE_NAME,
+                            id: __m.id,
+                            offset: __r.position(),
+                        });
+                    }
+                }
+            }
+        }
+        __s.end(__r)?;
+        #(#unwraps)*
+    }
+}
+
+/// `cdr_encode_key`: the key members only (none for a struct without keys).
+fn key_fn(fields: &[Field<'_>], ext: &TokenStream) -> TokenStream {
+    if !fields.iter().any(|f| f.attrs.key) {
+        return quote!();
+    }
+    let key_lens = len_lets(fields, &|i| {
+        fields[i].attrs.key || fields.iter().any(|f| f.attrs.key && f.count_for == Some(i))
+    });
+    let writes = fields
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| f.attrs.key)
+        .map(|(i, f)| {
+            let m = &f.member;
+            let ty = f.ty;
+            let value = match (&f.kind, f.count_for) {
+                // a key member whose type has keys contributes its key; one without, all of it
+                (Kind::Plain, None) | (Kind::SelfPtr, _) => quote! {
+                    if <#ty as __wire::IpcMessage>::KEYS.is_empty() {
+                        __wire::IpcMessage::cdr_encode(&self.#m, __w);
+                    } else {
+                        __wire::IpcMessage::cdr_encode_key(&self.#m, __w);
+                    }
+                },
+                _ => cdr_value(i, f),
+            };
+            member(f, value)
+        });
+    quote! {
+        fn cdr_encode_key(&self, __w: &mut __wire::cdr::Writer) {
+            #(#key_lens)*
+            let __s = __w.begin_struct(#ext);
+            #(#writes)*
+            __s.end(__w);
+        }
+    }
+}

@@ -1,0 +1,86 @@
+//! A fieldless enum: its `{enum A, B}` or `{enum : max}` format, and its
+//! value as an int32 in IPC, in CDR and as its own key.
+
+use proc_macro2::{Literal, TokenStream};
+use quote::quote;
+
+use super::{generics, info};
+use crate::ast::{Container, Enum};
+
+pub(super) fn expand_enum(c: &Container<'_>, e: &Enum<'_>) -> TokenStream {
+    let ident = c.ident;
+    let g = generics(c);
+    let (impl_g, ty_g, where_c) = g.split_for_impl();
+    let format = if e.numeric {
+        let max = e.variants.iter().map(|v| v.value).max().unwrap_or(0);
+        format!("{{enum : {max}}}")
+    } else {
+        let names: Vec<String> = e.variants.iter().map(|v| v.ident.to_string()).collect();
+        format!("{{enum {}}}", names.join(", "))
+    };
+    let (type_name, type_name_consts) = info::type_name(c);
+    let inherent = if type_name_consts.is_empty() {
+        quote!()
+    } else {
+        quote! {
+            #[automatically_derived]
+            impl #impl_g #ident #ty_g #where_c { #type_name_consts }
+        }
+    };
+    let idents: Vec<&syn::Ident> = e.variants.iter().map(|v| v.ident).collect();
+    let values: Vec<Literal> = e
+        .variants
+        .iter()
+        .map(|v| Literal::i32_suffixed(i32::try_from(v.value).unwrap_or(0)))
+        .collect();
+    quote! {
+        #inherent
+
+        #[automatically_derived]
+        impl #impl_g __wire::IpcMessage for #ident #ty_g #where_c {
+            const FORMAT: &'static str = #format;
+            const TYPE_NAME: &'static str = #type_name;
+            const IPC_MIN_SIZE: usize = 4;
+            const CDR_MIN_SIZE: usize = 4;
+            const CDR_BOUNDED: bool = true;
+            const CDR_PRIMITIVE: bool = true;
+
+            fn ipc_encode(&self, __w: &mut __wire::ipc::Writer) {
+                __w.write_i32(match self { #(Self::#idents => #values,)* });
+            }
+
+            fn ipc_decode(__r: &mut __wire::ipc::Reader<'_>) -> ::core::result::Result<Self, __wire::ipc::DecodeError> {
+                let __offset = __r.position();
+                match __r.read_i32()? {
+                    #(#values => ::core::result::Result::Ok(Self::#idents),)*
+                    __v => ::core::result::Result::Err(__wire::ipc::DecodeError::InvalidEnum {
+                        offset: __offset,
+                        value: __v as i64,
+                        type_name: <Self as __wire::IpcMessage>::TYPE_NAME,
+                    }),
+                }
+            }
+
+            fn cdr_encode(&self, __w: &mut __wire::cdr::Writer) {
+                __w.write_i32(match self { #(Self::#idents => #values,)* });
+            }
+
+            fn cdr_decode(__r: &mut __wire::cdr::Reader<'_>) -> ::core::result::Result<Self, __wire::cdr::DecodeError> {
+                __r.align(4)?;
+                let __offset = __r.position();
+                match __r.read_i32()? {
+                    #(#values => ::core::result::Result::Ok(Self::#idents),)*
+                    __v => ::core::result::Result::Err(__wire::cdr::DecodeError::InvalidEnum {
+                        offset: __offset,
+                        value: __v as i64,
+                        type_name: <Self as __wire::IpcMessage>::TYPE_NAME,
+                    }),
+                }
+            }
+
+            fn cdr_encode_key(&self, __w: &mut __wire::cdr::Writer) {
+                __wire::IpcMessage::cdr_encode(self, __w);
+            }
+        }
+    }
+}
