@@ -366,8 +366,8 @@ impl Central {
         for id in mine {
             let keep = self.config.resend_on_reconnect && name.is_some();
             let d = self.dispatches.get_mut(&id).unwrap();
-            unqueue(&mut self.stats, d);
             if keep {
+                unqueue(&mut self.stats, d);
                 d.status = Status::NoHandler;
                 let msg = d.msg.clone();
                 self.orphans
@@ -382,6 +382,7 @@ impl Central {
                     ),
                 );
             } else {
+                // Freeing it takes it out of the queued bytes.
                 let msg = d.msg.clone();
                 self.free_dispatch_id(id);
                 if report {
