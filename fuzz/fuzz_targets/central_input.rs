@@ -5,8 +5,10 @@
 //! A first step with op 7 picks, by its `conn` byte, one of the
 //! configurations of the damaged-capture tests (`wire/tests/damage/`).
 //! Central must never panic or loop, must say in its log why it closes a
-//! connection, and must free every queued byte and dispatch (but for
-//! queries waiting for a handler) when the modules are gone.
+//! connection, must keep its tables in agreement after every step
+//! (`Central::check_invariants`), and must free every queued byte and
+//! dispatch (but for queries waiting for a handler) when the modules are
+//! gone.
 #![no_main]
 
 #[path = "../../wire/tests/damage/central.rs"]
@@ -68,6 +70,7 @@ fuzz_target!(|data: &[u8]| {
             6 => central.command(COMMANDS[bytes.len() % COMMANDS.len()], now),
             _ => {}
         }
+        // Carries out central's outputs, then checks its invariants.
         hostile::carry_out(&mut central, &mut paused, &mut gone);
     }
     for conn in open {

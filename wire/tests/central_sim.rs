@@ -42,6 +42,8 @@ struct Sim {
     writes: HashMap<u64, Vec<usize>>,
     /// Frames written as a header plus a shared body.
     shared_bodies: usize,
+    /// Steps since central's invariants were last checked.
+    unchecked: usize,
 }
 
 impl Sim {
@@ -64,6 +66,7 @@ impl Sim {
             wire: HashMap::new(),
             writes: HashMap::new(),
             shared_bodies: 0,
+            unchecked: 0,
         }
     }
 
@@ -188,7 +191,23 @@ impl Sim {
                 other => panic!("unexpected output {other:?}"),
             }
         }
+        self.check();
         any
+    }
+
+    /// Central's tables must agree with each other after every step (every
+    /// step ends in [`Sim::drain`]). The check walks every table, so its
+    /// cost grows with the messages queued: with more than 8 of them it
+    /// runs once every `dispatches / 8` steps, which keeps the floods
+    /// below (hundreds of thousands of steps, a thousand messages queued)
+    /// from taking minutes while a broken link is still caught within a
+    /// few steps.
+    fn check(&mut self) {
+        self.unchecked += 1;
+        if self.unchecked * 8 >= self.central.stats().dispatches {
+            self.central.check_invariants();
+            self.unchecked = 0;
+        }
     }
 
     fn take_events(&mut self, id: u64) -> Vec<Event> {
@@ -954,6 +973,7 @@ fn hostile(bytes: &[u8]) -> (Vec<String>, Vec<String>) {
         SystemTime::now(),
     );
     sim.central.receive(ConnId(99), bytes, SystemTime::now());
+    sim.central.check_invariants();
     let mut closes = Vec::new();
     let mut logs = Vec::new();
     while let Some(o) = sim.central.poll_output() {
@@ -991,6 +1011,7 @@ fn bad_input_is_reported_with_logging_off() {
         let mut f = raw_frame(MsgClass::Query, 5, &[]);
         f[4..8].copy_from_slice(&(-8i32).to_be_bytes());
         central.receive(ConnId(7), &f, now);
+        central.check_invariants();
         let mut lines = Vec::new();
         while let Some(o) = central.poll_output() {
             if let Output::Log { target, line } = o {
@@ -1098,6 +1119,7 @@ fn a_module_repeating_a_mistake_cannot_flood_the_log() {
         // 10 000 frames over 5 seconds.
         let now = t0 + std::time::Duration::from_micros(u64::from(i) * 500);
         central.receive(ConnId(7), if i % 2 == 0 { &ack } else { &unknown }, now);
+        central.check_invariants();
     }
     let lines = problems(&mut central);
     // 10 at once, then one for each of the 4 further seconds.
@@ -1148,7 +1170,9 @@ fn disconnect_mid_frame_is_logged() {
         .connect(ConnId(3), Peer::Other("t".into()), SystemTime::now());
     let f = raw_frame(MsgClass::Query, 5, &[1, 2, 3, 4]);
     sim.central.receive(ConnId(3), &f[..20], SystemTime::now());
+    sim.central.check_invariants();
     sim.central.disconnect(ConnId(3), SystemTime::now());
+    sim.central.check_invariants();
     let mut logs = Vec::new();
     while let Some(o) = sim.central.poll_output() {
         if let Output::Log { line, .. } = o {
@@ -1188,8 +1212,10 @@ fn random_bytes_never_panic() {
         }
         central.receive(ConnId(1), &b, SystemTime::now());
         while central.poll_output().is_some() {}
+        central.check_invariants();
         central.disconnect(ConnId(1), SystemTime::now());
         while central.poll_output().is_some() {}
+        central.check_invariants();
     }
 }
 

@@ -71,7 +71,8 @@ pub fn check_closes_logged(central: &Central, lines: &[String], closes: &[(u64, 
 /// Carries out what central asks, as a shell does: connections it closes
 /// join `gone` and are disconnected (each checked to have its log line),
 /// and `paused` follows its pause and resume requests. Fails if central
-/// never stops producing output.
+/// never stops producing output, or if its tables disagree afterwards
+/// ([`Central::check_invariants`]).
 pub fn carry_out(central: &mut Central, paused: &mut HashSet<u64>, gone: &mut HashSet<u64>) {
     let mut lines = Vec::new();
     let mut closes = Vec::new();
@@ -98,4 +99,5 @@ pub fn carry_out(central: &mut Central, paused: &mut HashSet<u64>, gone: &mut Ha
     for (conn, _) in closes {
         central.disconnect(ConnId(conn), SystemTime::UNIX_EPOCH);
     }
+    central.check_invariants();
 }

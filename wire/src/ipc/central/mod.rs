@@ -73,6 +73,7 @@ mod conn;
 mod console;
 mod direct;
 mod internal;
+mod invariants;
 mod log;
 mod memory;
 mod process;
