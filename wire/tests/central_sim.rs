@@ -1272,7 +1272,10 @@ fn register_again(sim: &mut Sim, conn: u64, msg: &str, hnd: &str) {
 }
 
 fn register_raw(sim: &mut Sim, conn: u64, hid: i32, msg: &str, hnd: &str) {
-    let id = sim.central.message_id("x_ipc_registerHandlerMsg").unwrap();
+    handler_raw(sim, conn, "x_ipc_registerHandlerMsg", hid, msg, hnd)
+}
+fn handler_raw(sim: &mut Sim, conn: u64, internal: &str, hid: i32, msg: &str, hnd: &str) {
+    let id = sim.central.message_id(internal).unwrap();
     let mut body = hid.to_le_bytes().to_vec();
     for s in [msg, hnd] {
         body.extend_from_slice(&(s.len() as i32).to_le_bytes());
@@ -1315,6 +1318,40 @@ fn a_handler_subscribed_again_after_an_unsubscribe_keeps_its_first_id() {
         .collect();
     assert_eq!(intents, vec![hid], "one delivery, to the first id");
     assert_eq!(sim.deliveries(a).len(), 1, "the module dispatched it");
+}
+
+/// A module unsubscribing a handler under another message's name (C's
+/// library never does; a hostile or broken module may) leaves the
+/// handler where it is: central finds no such handler of that message,
+/// as the C central does, and its tables keep agreeing.
+#[test]
+fn unsubscribing_a_handler_under_another_message_changes_nothing() {
+    let mut sim = Sim::new(Config::default());
+    let a = sim.connect("a");
+    let b = sim.connect("b");
+    define(&mut sim, a, "m", "int");
+    define(&mut sim, a, "other", "int");
+    sim.m(a).subscribe("m", "HND-m").unwrap();
+    sim.pump();
+    handler_raw(
+        &mut sim,
+        a,
+        "x_ipc_deregisterHandlerMsg",
+        0,
+        "other",
+        "HND-m",
+    );
+    sim.pump();
+    assert!(
+        sim.logs
+            .iter()
+            .any(|l| l.contains("unsubscribed handler HND-m from other, but it handles m")),
+        "{:#?}",
+        sim.logs
+    );
+    sim.m(b).publish("m", 7i32.to_le_bytes(), -1).unwrap();
+    sim.pump();
+    assert_eq!(sim.deliveries(a).len(), 1, "still subscribed");
 }
 
 /// Direct mode: the handler lists central broadcasts (`V_watch_<msg>`)

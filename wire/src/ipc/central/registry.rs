@@ -226,6 +226,23 @@ impl Central {
         let Some(module) = self.modules.get_mut(&conn) else {
             return;
         };
+        // As in C, only a handler of `msg` is found: one of another message
+        // stays, or `msg` would keep listing a handler the module has not.
+        match module.handlers.get(hnd) {
+            None => return,
+            Some(h) if h.msg != msg => {
+                let (theirs, who) = (h.msg.clone(), self.describe(conn));
+                self.complain(
+                    conn,
+                    format!(
+                        "WARNING: {who} unsubscribed handler {hnd} from {msg}, but it handles \
+                         {theirs}; ignored"
+                    ),
+                );
+                return;
+            }
+            Some(_) => {}
+        }
         let Some(old) = module.handlers.remove(hnd) else {
             return;
         };
