@@ -7,7 +7,7 @@ use std::time::SystemTime;
 
 use super::internal;
 use super::log::{self, Kind};
-use super::tables::{unqueue, Module, Status};
+use super::tables::{unqueue, DispatchId, Linked, Module, Status};
 use super::{Bad, Body, Central, ConnId, Output, Peer};
 use crate::ipc::frame::{ClassId, Header, MsgClass, HEADER_SIZE, QUERY_REPLY_INTENT, SPLIT_AT};
 use crate::ipc::Writer;
@@ -127,8 +127,8 @@ impl Central {
                 big_end: None,
             },
         );
-        let id = self.msgs.get(internal::MSG_INFO).map_or(0, |m| m.id);
-        self.transmit(conn, id.to_be_bytes().to_vec());
+        let id = self.msgs.get(internal::MSG_INFO).and_then(|m| m.id);
+        self.transmit(conn, id.map_or(0, |id| id.0).to_be_bytes().to_vec());
         for f in [self.msg_info_query.clone(), self.msg_info_reply.clone()] {
             let mut w = Writer::new();
             internal::write_formatter(&mut w, Some(&f));
@@ -226,12 +226,23 @@ impl Central {
                 }
             };
             if avail < HEADER_SIZE + n {
-                if self.try_relay(conn, header, n, now) {
-                    // Everything read so far belonged to the frame.
-                    self.modules.get_mut(&conn).unwrap().big_end = None;
-                    return true;
+                match self.try_relay(conn, header, n, now) {
+                    Ok(true) => {
+                        // Everything read so far belonged to the frame.
+                        if let Some(m) = self.modules.get_mut(&conn) {
+                            m.big_end = None;
+                        }
+                        return true;
+                    }
+                    Ok(false) => {}
+                    Err(Bad(e)) => {
+                        self.protocol_error(conn, e, now);
+                        return false;
+                    }
                 }
-                let m = self.modules.get_mut(&conn).unwrap();
+                let Some(m) = self.modules.get_mut(&conn) else {
+                    return false;
+                };
                 if n < SPLIT_AT {
                     m.rx.reserve(HEADER_SIZE + n - avail);
                 } else if m.big_end.is_none() {
@@ -336,11 +347,15 @@ impl Central {
         // Its handlers go away (`moduleClean`): watch variables of the
         // affected messages are updated in subscription order, then the
         // broadcast list is cleaned in its own order (`cleanBroadcast`).
-        let mut hnds: Vec<(u64, String, String)> = self.modules[&conn]
+        let Some(m) = self.modules.get(&conn) else {
+            return;
+        };
+        let mut hnds: Vec<(u64, String, String)> = m
             .handlers
             .iter()
             .map(|(hn, h)| (h.seq, hn.clone(), h.msg.clone()))
             .collect();
+        let queued: Vec<DispatchId> = m.ahead.iter().chain(&m.pending).copied().collect();
         hnds.sort();
         let mut changed: Vec<String> = Vec::new();
         for (_, hn, msg) in &hnds {
@@ -352,7 +367,7 @@ impl Central {
             }
         }
         // Deliveries it was handling, then those it had pending, in order.
-        let mut mine: Vec<i32> = self
+        let mut mine: Vec<DispatchId> = self
             .dispatches
             .iter()
             .filter(|(_, d)| d.attending_at(conn))
@@ -361,25 +376,25 @@ impl Central {
         mine.sort_unstable();
         // C (resourceDelete) only reports when something was being handled.
         let report = !mine.is_empty();
-        mine.extend(self.modules[&conn].ahead.iter().copied());
-        mine.extend(self.modules[&conn].pending.iter().copied());
+        mine.extend(queued);
+        let keep_for = name.as_ref().filter(|_| self.config.resend_on_reconnect);
         for id in mine {
-            let keep = self.config.resend_on_reconnect && name.is_some();
-            let d = self.dispatches.get_mut(&id).unwrap();
-            if keep {
+            let d = match self.dispatches.linked_mut(&id) {
+                Ok(d) => d,
+                // A queue naming a dispatch that is gone: nothing to clear.
+                Err(e) => {
+                    self.report_broken(e);
+                    continue;
+                }
+            };
+            if let Some(n) = keep_for {
                 unqueue(&mut self.stats, d);
                 d.status = Status::NoHandler;
                 let msg = d.msg.clone();
-                self.orphans
-                    .entry(name.clone().unwrap())
-                    .or_default()
-                    .push(id);
+                self.orphans.entry(n.clone()).or_default().push(id);
                 self.log_line(
                     Kind::Status,
-                    format!(
-                        "Keeping {msg} {{{id}}} to resend when {} reconnects",
-                        name.as_deref().unwrap_or("?")
-                    ),
+                    format!("Keeping {msg} {{{id}}} to resend when {n} reconnects"),
                 );
             } else {
                 // Freeing it takes it out of the queued bytes.

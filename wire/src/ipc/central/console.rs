@@ -4,7 +4,7 @@
 use std::time::SystemTime;
 
 use super::log::{self, Kind};
-use super::tables::{Org, Status};
+use super::tables::{DispatchId, Org, Status};
 use super::{Central, LogOptions, LogTarget, Output, VERSION};
 
 impl Central {
@@ -48,7 +48,7 @@ impl Central {
                 }
             }
             ("display", _) => {
-                let mut ids: Vec<i32> = self.dispatches.keys().copied().collect();
+                let mut ids: Vec<DispatchId> = self.dispatches.keys().copied().collect();
                 ids.sort_unstable();
                 say(self, format!("{} message(s) active or pending:", ids.len()));
                 for id in ids {

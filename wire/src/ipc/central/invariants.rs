@@ -5,7 +5,7 @@
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
-use super::tables::{awaits_answer, cost, Dispatch, Org, Status};
+use super::tables::{awaits_answer, cost, Dispatch, DispatchId, Org, Status};
 use super::{Central, ConnId};
 
 impl Central {
@@ -65,7 +65,7 @@ impl Central {
         let n = usize::try_from(self.id_block).unwrap_or(0) * 200;
         let mut named: Vec<Option<&String>> = vec![None; n];
         for (id, name) in &self.by_id {
-            match usize::try_from(*id).ok().and_then(|i| named.get_mut(i)) {
+            match usize::try_from(id.0).ok().and_then(|i| named.get_mut(i)) {
                 Some(slot) => *slot = Some(name),
                 None => out.push(format!("by_id gives {name} id {id}, never handed out")),
             }
@@ -74,16 +74,15 @@ impl Central {
             if *name != m.name {
                 out.push(format!("message {name} is filed as {}", m.name));
             }
-            if m.id == 0 {
+            let Some(id) = m.id else {
                 continue;
-            }
-            let slot = usize::try_from(m.id).ok().and_then(|i| named.get_mut(i));
+            };
+            let slot = usize::try_from(id.0).ok().and_then(|i| named.get_mut(i));
             match slot {
                 Some(slot) if *slot == Some(name) => *slot = None,
                 _ => out.push(format!(
-                    "message {name} has id {}, which by_id gives to {:?}",
-                    m.id,
-                    self.by_id.get(&m.id)
+                    "message {name} has id {id}, which by_id gives to {:?}",
+                    self.by_id.get(&id)
                 )),
             }
         }
@@ -210,7 +209,7 @@ impl Central {
         let mut waiting_bytes = 0;
         // `msg`: the message whose own list holds `id` (its dispatches
         // count as waiting bytes); `None` for those kept for `-r`.
-        let mut visit = |msg: Option<&String>, id: i32, out: &mut Vec<String>| {
+        let mut visit = |msg: Option<&String>, id: DispatchId, out: &mut Vec<String>| {
             let what = || match msg {
                 Some(m) => format!("message {m}"),
                 None => "the -r list".to_string(),
@@ -403,7 +402,7 @@ impl<'a> Dense<'a> {
         let n = usize::try_from(c.next_dispatch).unwrap_or(0);
         let mut slots = vec![None; n];
         for (id, d) in &c.dispatches {
-            match usize::try_from(*id).ok().filter(|i| *i < n) {
+            match usize::try_from(id.0).ok().filter(|i| *i < n) {
                 Some(i) => slots[i] = Some(d),
                 None => out.push(format!(
                     "dispatch id {id} is alive but was never handed out"
@@ -420,22 +419,22 @@ impl<'a> Dense<'a> {
 
     /// Where `id` is in vectors of [`len`](Self::len) marks, if it was
     /// handed out.
-    fn index(&self, id: i32) -> Option<usize> {
+    fn index(&self, id: DispatchId) -> Option<usize> {
         // (Plain comparisons: this runs for every id at every check.)
-        if id >= 0 && (id as usize) < self.slots.len() {
-            Some(id as usize)
+        if id.0 >= 0 && (id.0 as usize) < self.slots.len() {
+            Some(id.0 as usize)
         } else {
             None
         }
     }
 
     /// The dispatches alive, by id.
-    fn iter(&self) -> impl Iterator<Item = (i32, &'a Dispatch)> + '_ {
+    fn iter(&self) -> impl Iterator<Item = (DispatchId, &'a Dispatch)> + '_ {
         // `len` came from an `i32`, so every index fits one.
-        (0..self.slots.len()).filter_map(|i| Some((i as i32, self.slots[i]?)))
+        (0..self.slots.len()).filter_map(|i| Some((DispatchId(i as i32), self.slots[i]?)))
     }
 
-    fn get(&self, id: i32) -> Option<&'a Dispatch> {
+    fn get(&self, id: DispatchId) -> Option<&'a Dispatch> {
         self.index(id).and_then(|i| self.slots[i])
     }
 }

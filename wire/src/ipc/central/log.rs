@@ -6,8 +6,8 @@
 
 use std::time::{SystemTime, UNIX_EPOCH};
 
-use super::tables::Org;
-use super::{Central, ConnId, LogOptions, LogTarget, Output, Peer, SERVER_NAME};
+use super::tables::{DispatchId, Org};
+use super::{Bad, Central, ConnId, LogOptions, LogTarget, Output, Peer, SERVER_NAME};
 use crate::format::{Format, FormatRegistry};
 use crate::ipc::frame::ClassId;
 use crate::ipc::{ByteOrder, Reader};
@@ -43,7 +43,7 @@ impl Kind {
 }
 
 /// `" {%d}"` when the log wants reference ids.
-pub(super) fn ref_id(o: &LogOptions, id: i32) -> String {
+pub(super) fn ref_id(o: &LogOptions, id: DispatchId) -> String {
     if o.refs {
         format!(" {{{id}}}")
     } else {
@@ -178,7 +178,7 @@ impl Central {
         &self,
         class: u16,
         msg: &str,
-        did: Option<i32>,
+        did: Option<DispatchId>,
         org: &str,
         parent: i32,
         to: &str,
@@ -259,6 +259,13 @@ impl Central {
         }
     }
 
+    /// A broken link between central's tables found where no connection
+    /// is to blame (see [`Linked`](super::tables::Linked)): it is logged,
+    /// and central goes on without the missing entry.
+    pub(super) fn report_broken(&mut self, e: Bad) {
+        self.log_line(Kind::Problem, format!("ERROR: {}", e.0));
+    }
+
     /// A line about something `conn` did wrong, within its
     /// [`ProblemBudget`]: a module repeating a mistake in a loop gets
     /// a burst of lines, then one a second, and a count of the rest.
@@ -302,7 +309,7 @@ impl Central {
     }
 
     /// `  Done    <msg>:<time>`: an internal message handled.
-    pub(super) fn log_done(&mut self, name: &str, rid: i32, now: SystemTime) {
+    pub(super) fn log_done(&mut self, name: &str, rid: DispatchId, now: SystemTime) {
         let o = self.opts();
         let line = format!("  Done    {name:>15}{}:{}", ref_id(&o, rid), time(&o, now));
         self.log_line(Kind::Message, line);
@@ -314,7 +321,7 @@ impl Central {
         &mut self,
         name: &str,
         to: &str,
-        (rid, parent): (i32, i32),
+        (rid, parent): (DispatchId, i32),
         class_id: ClassId,
         reply: &[u8],
         now: SystemTime,

@@ -3,8 +3,8 @@
 //! paused and resumed, and the bound on queries waiting for a first handler.
 
 use super::log;
-use super::tables::cost;
-use super::{Central, ConnId, Output};
+use super::tables::{cost, DispatchId, Linked};
+use super::{Bad, Central, ConnId, Output};
 
 impl Central {
     /// Central reads `conn` again before the queues have drained: what it
@@ -63,8 +63,7 @@ impl Central {
                         .modules
                         .values()
                         .all(|x| x.asking == 0 || (x.pending.is_empty() && x.ahead.is_empty()))));
-        if may_pause {
-            let m = self.modules.get_mut(&conn).unwrap();
+        if let (true, Some(m)) = (may_pause, self.modules.get_mut(&conn)) {
             m.paused = true;
             self.memory_paused.insert(conn);
             if answering {
@@ -100,8 +99,13 @@ impl Central {
     /// handler that comes gets the newest. Pausing the asker instead would
     /// stop a module's whole connection for one message nobody serves, and
     /// would hide its hang-up until a handler comes.
-    pub(super) fn bound_waiting(&mut self, conn: ConnId, msg: &str, added: i32) {
-        self.stats.waiting_bytes += cost(&self.dispatches[&added]);
+    pub(super) fn bound_waiting(
+        &mut self,
+        conn: ConnId,
+        msg: &str,
+        added: DispatchId,
+    ) -> Result<(), Bad> {
+        self.stats.waiting_bytes += cost(self.dispatches.linked(&added)?);
         while self.stats.waiting_bytes > self.config.max_queued_bytes {
             let Some(did) = self.msgs.get_mut(msg).and_then(|m| m.waiting.pop_front()) else {
                 break;
@@ -122,5 +126,6 @@ impl Central {
                 ),
             );
         }
+        Ok(())
     }
 }

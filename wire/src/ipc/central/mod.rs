@@ -91,7 +91,7 @@ pub use self::tables::DISPATCH_COST;
 use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
 use std::time::SystemTime;
 
-use self::tables::{Dispatch, Module, Msg, Var};
+use self::tables::{Dispatch, DispatchId, Module, Msg, MsgId, Var};
 use crate::format::{Format, FormatRegistry};
 
 /// Identifies one accepted connection (chosen by the shell, never reused
@@ -236,7 +236,7 @@ pub struct Central {
     outputs: VecDeque<Output>,
     modules: BTreeMap<ConnId, Module>,
     msgs: HashMap<String, Msg>,
-    by_id: HashMap<i32, String>,
+    by_id: HashMap<MsgId, String>,
     next_ids: Vec<i32>,
     id_block: i32,
     /// Named formats as registered, for `getNamedForm`.
@@ -244,12 +244,12 @@ pub struct Central {
     vars: BTreeMap<String, Var>,
     broadcast_msgs: Vec<String>,
     broadcast_size: usize,
-    dispatches: HashMap<i32, Dispatch>,
-    free_dispatch: Vec<i32>,
+    dispatches: HashMap<DispatchId, Dispatch>,
+    free_dispatch: Vec<DispatchId>,
     next_dispatch: i32,
     ignore: HashSet<String>,
     /// Dispatches kept for `-r`, by module name.
-    orphans: HashMap<String, Vec<i32>>,
+    orphans: HashMap<String, Vec<DispatchId>>,
     stats: Stats,
     memory_paused: HashSet<ConnId>,
     /// Of those, modules held back while they answer a query.
@@ -319,7 +319,7 @@ impl Central {
         c.register_var(internal::FILE_LOG_VAR);
         c.update_log_vars();
         for var in [internal::TERMINAL_LOG_VAR, internal::FILE_LOG_VAR] {
-            let value = c.vars[var].value.clone();
+            let value = c.vars.get(var).map(|v| v.value.clone()).unwrap_or_default();
             c.central_inform(&format!("V_set_{var}"), value, |_, _| {});
         }
         let empty = c.str_list_value(&[], 0);
@@ -356,7 +356,7 @@ impl Central {
     /// Central's id for a message name (what `x_ipc_msgInfoMsg` answers,
     /// without the direct-mode sign), if the message is known.
     pub fn message_id(&self, name: &str) -> Option<i32> {
-        self.msgs.get(name).map(|m| m.id).filter(|id| *id != 0)
+        self.msgs.get(name).and_then(|m| m.id).map(|id| id.0)
     }
 
     /// The names of the connected modules (those that completed the connect query).
@@ -380,7 +380,7 @@ mod tests {
     #[test]
     fn message_ids_are_never_0_or_1() {
         let mut c = Central::new(Config::default());
-        let ids: Vec<i32> = (0..1000).map(|_| c.alloc_msg_id()).collect();
+        let ids: Vec<i32> = (0..1000).map(|_| c.alloc_msg_id().0).collect();
         assert!(ids.iter().all(|i| *i >= 2));
         let unique: HashSet<i32> = ids.iter().copied().collect();
         assert_eq!(unique.len(), ids.len());

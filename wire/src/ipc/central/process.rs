@@ -6,7 +6,7 @@ use std::time::SystemTime;
 use super::direct::{write_direct_entry, write_direct_list};
 use super::internal::{self, Internal};
 use super::log::Kind;
-use super::tables::Org;
+use super::tables::{DispatchId, Linked, MsgId, Org};
 use super::{Bad, Body, Central, ConnId, Output, SERVER_NAME, VERSION};
 use crate::ipc::frame::{Header, MsgClass};
 use crate::ipc::{ByteOrder, Reader, Writer};
@@ -27,11 +27,11 @@ impl Central {
             )));
         }
         match h.class_id.class() {
-            12 => return self.on_success(conn, h.dispatch_ref, now),
+            12 => return self.on_success(conn, DispatchId(h.dispatch_ref), now),
             11 => return self.on_reply(conn, h, class_data, data, now),
             _ => {}
         }
-        let id = h.intent.checked_abs().unwrap_or(0);
+        let id = MsgId(h.intent.checked_abs().unwrap_or(0));
         let Some(name) = self.by_id.get(&id).cloned() else {
             let who = self.describe(conn);
             self.complain(
@@ -44,7 +44,7 @@ impl Central {
             );
             return Ok(());
         };
-        let internal = self.msgs.get(&name).and_then(|m| m.internal.clone());
+        let internal = self.msgs.linked(name.as_str())?.internal.clone();
         match internal {
             Some(kind) => {
                 let rid = self.take_ref();
@@ -52,10 +52,7 @@ impl Central {
                 self.give_ref(rid);
                 r
             }
-            None => {
-                self.route(conn, h, name, data, now);
-                Ok(())
-            }
+            None => self.route(conn, h, name, data, now),
         }
     }
 
@@ -69,7 +66,7 @@ impl Central {
         kind: Internal,
         data: &[u8],
         now: SystemTime,
-        rid: i32,
+        rid: DispatchId,
     ) -> Result<(), Bad> {
         let order = h.class_id.data_order().unwrap_or(ByteOrder::NATIVE);
         let mut r = Reader::new(data, order);
@@ -143,7 +140,7 @@ impl Central {
                 let class = r.read_i32()?;
                 let mf = read_opt_str(&mut r)?;
                 let rf = read_opt_str(&mut r)?;
-                self.register_message(conn, n, class, mf, rf);
+                self.register_message(conn, n, class, mf, rf)?;
             }
             RegisterNamedForm => {
                 let n = read_opt_str(&mut r)?.unwrap_or_default();
@@ -175,7 +172,7 @@ impl Central {
                 let id = r.read_i32()?;
                 let msg = read_opt_str(&mut r)?.unwrap_or_default();
                 let hnd = read_opt_str(&mut r)?.unwrap_or_default();
-                self.register_handler(conn, id, msg, hnd, now);
+                self.register_handler(conn, id, msg, hnd, now)?;
             }
             DeregisterHandler => {
                 let _ = r.read_i32()?;
@@ -188,7 +185,7 @@ impl Central {
                 let n = read_opt_str(&mut r)?.unwrap_or_default();
                 let own = self.modules.get(&conn).and_then(|m| m.name.clone());
                 if own.as_deref() == Some(n.as_str()) {
-                    self.modules.get_mut(&conn).unwrap().port = port;
+                    self.modules.linked_mut(&conn)?.port = port;
                     self.log_line(
                         Kind::Message,
                         format!("Direct Connection Established For: {n} at {port}"),
@@ -245,19 +242,18 @@ impl Central {
             SetMsgPriority => {
                 let n = read_opt_str(&mut r)?.unwrap_or_default();
                 let p = r.read_i32()?;
-                self.placeholder(&n);
-                self.msgs.get_mut(&n).unwrap().priority = p;
+                self.placeholder(&n).priority = p;
             }
             RegisterResource => {
                 let cap = r.read_i32()?;
                 let res = read_opt_str(&mut r)?.unwrap_or_default();
-                self.set_capacity(conn, cap, &res, now);
+                self.set_capacity(conn, cap, &res, now)?;
             }
             LimitPending => {
                 let msg = read_opt_str(&mut r)?;
                 let res = read_opt_str(&mut r)?.unwrap_or_default();
                 let limit = r.read_i32()?;
-                self.limit_pending(conn, msg, &res, limit);
+                self.limit_pending(conn, msg, &res, limit)?;
             }
             Close => {
                 self.outputs.push_back(Output::Close {
@@ -284,7 +280,7 @@ impl Central {
                 let mut names: Vec<String> = self
                     .msgs
                     .values()
-                    .filter(|m| m.internal.is_none() && m.id != 0)
+                    .filter(|m| m.internal.is_none() && m.id.is_some())
                     .map(|m| m.name.clone())
                     .collect();
                 names.sort();

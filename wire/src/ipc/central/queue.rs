@@ -5,14 +5,14 @@
 use std::time::SystemTime;
 
 use super::log::Kind;
-use super::tables::{cost, Carry, Module, Org, Status};
+use super::tables::{cost, Carry, DispatchId, Module, Org, Status};
 use super::{Central, ConnId, DEFAULT_PRIORITY};
 use crate::ipc::frame::MsgClass;
 
 impl Central {
     /// `resourcePending`: queue limits (dropping the oldest, with C's
     /// fairness shuffle) and priority order.
-    pub(super) fn pend(&mut self, did: i32, now: SystemTime) {
+    pub(super) fn pend(&mut self, did: DispatchId, now: SystemTime) {
         let Some(d) = self.dispatches.get(&did) else {
             return;
         };
@@ -52,28 +52,30 @@ impl Central {
             _ => None,
         });
         let priority = self.msgs.get(&msg).map_or(DEFAULT_PRIORITY, |x| x.priority);
-        let d = self.dispatches.get_mut(&did).unwrap();
+        // (Both were found above.)
+        let (Some(d), Some(m)) = (self.dispatches.get_mut(&did), self.modules.get_mut(&conn))
+        else {
+            return;
+        };
         d.status = Status::Pending;
         self.stats.queued_bytes += queued;
         self.stats.peak_queued_bytes = self.stats.peak_queued_bytes.max(self.stats.queued_bytes);
         let org = d.org;
         let class = d.class;
         let parent = d.parent_ref;
-        let m = self.modules.get_mut(&conn).unwrap();
         let dest = m.name.clone().unwrap_or_default();
         if let Some(slots) = drop_oldest {
-            if slots.is_empty() {
+            let (Some(&first), Some(&last)) = (slots.first(), slots.last()) else {
                 // A limit of 0: nothing may wait.
-                let _ = m;
                 self.drop_pending(did, &msg);
                 return;
-            }
+            };
             // Shift every same-message entry up one slot; the new one takes the last.
-            let oldest = m.pending[slots[0]];
+            let oldest = m.pending[first];
             for w in slots.windows(2) {
                 m.pending[w[0]] = m.pending[w[1]];
             }
-            m.pending[*slots.last().unwrap()] = did;
+            m.pending[last] = did;
             self.drop_pending(oldest, &msg);
         } else if priority != DEFAULT_PRIORITY && !m.pending.is_empty() {
             let pos = m
@@ -104,7 +106,7 @@ impl Central {
         self.send_ahead(conn);
     }
 
-    fn drop_pending(&mut self, did: i32, msg: &str) {
+    fn drop_pending(&mut self, did: DispatchId, msg: &str) {
         if let Some(d) = self.dispatches.get(&did) {
             if let Some((conn, _)) = d.hnd {
                 if let Some(m) = self.modules.get_mut(&conn) {
@@ -208,9 +210,11 @@ impl Central {
             if d.class != MsgClass::Broadcast as u16 || limited || !from_module || !resolved {
                 return;
             }
+            let Some(m) = self.modules.get_mut(&conn) else {
+                return;
+            };
             d.status = Status::Ahead;
             self.stats.queued_bytes = self.stats.queued_bytes.saturating_sub(cost(d));
-            let m = self.modules.get_mut(&conn).unwrap();
             m.pending.pop_front();
             m.ahead.push_back(did);
             self.write_delivery(did, None);

@@ -7,8 +7,8 @@ use std::time::SystemTime;
 use super::direct::direct_class;
 use super::internal;
 use super::log::Kind;
-use super::tables::{cost, Handler, Status};
-use super::{Central, ConnId};
+use super::tables::{cost, DispatchId, Handler, Linked, Status};
+use super::{Bad, Central, ConnId};
 use crate::ipc::frame::MsgClass;
 use crate::ipc::Writer;
 
@@ -24,16 +24,17 @@ impl Central {
             out.write_ptr_flag(false);
             return;
         };
-        if !self.msgs.contains_key(msg) {
+        let (mf, rf) = self.parsed(msg);
+        let Some(m) = self.msgs.get(msg) else {
             out.write_ptr_flag(false);
             return;
-        }
-        let (mf, rf) = self.parsed(msg);
-        let m = &self.msgs[msg];
+        };
+        // A message only subscribed so far has no id: C answers 0.
+        let id = m.id.map_or(0, |id| id.0);
         let id = if m.direct && direct_class(m.class) {
-            -m.id.abs()
+            -id.abs()
         } else {
-            m.id
+            id
         };
         out.write_ptr_flag(true);
         out.write_i32(id);
@@ -79,13 +80,13 @@ impl Central {
         class: i32,
         mf: Option<String>,
         rf: Option<String>,
-    ) {
+    ) -> Result<(), Bad> {
         let Some(class) = u16::try_from(class).ok().and_then(MsgClass::from_u16) else {
             self.complain(
                 conn,
                 format!("WARNING: message {name} registered with unknown class {class}; ignored"),
             );
-            return;
+            return Ok(());
         };
         if let Some(m) = self.msgs.get(&name) {
             if m.internal.is_some() {
@@ -95,7 +96,7 @@ impl Central {
                         "WARNING: a module tried to redefine central's message {name}; ignored"
                     ),
                 );
-                return;
+                return Ok(());
             }
             if m.class != MsgClass::HandlerReg {
                 self.log_line(
@@ -105,11 +106,11 @@ impl Central {
             }
         }
         self.insert_msg(name.clone(), class, mf, rf, None);
-        let m = self.msgs.get_mut(&name).unwrap();
+        let m = self.msgs.linked(name.as_str())?;
         if m.class == MsgClass::Broadcast && !m.handlers.is_empty() {
             self.record_broadcast(&name, true);
         }
-        let m = self.msgs.get_mut(&name).unwrap();
+        let m = self.msgs.linked_mut(name.as_str())?;
         if direct_class(m.class) {
             m.direct = self.config.direct;
             if m.direct || m.notify_handler_change {
@@ -117,6 +118,7 @@ impl Central {
                 self.update_direct_handlers(&name);
             }
         }
+        Ok(())
     }
 
     pub(super) fn register_handler(
@@ -126,20 +128,16 @@ impl Central {
         msg: String,
         hnd: String,
         now: SystemTime,
-    ) {
+    ) -> Result<(), Bad> {
         // The broadcast list before this registration changes it.
         let list_before = self.var_version(internal::BROADCAST_MSG_VAR);
-        let existed = self
-            .msgs
-            .get(&msg)
-            .is_some_and(|m| m.class != MsgClass::HandlerReg);
-        if existed && self.msgs[&msg].class == MsgClass::Broadcast {
+        let class = self.msgs.get(&msg).map(|m| m.class);
+        let existed = class.is_some_and(|c| c != MsgClass::HandlerReg);
+        if class == Some(MsgClass::Broadcast) {
             self.record_broadcast(&msg, true);
         }
         self.placeholder(&msg);
-        let Some(module) = self.modules.get_mut(&conn) else {
-            return;
-        };
+        let module = self.modules.linked_mut(&conn)?;
         let mod_name = module.name.clone();
         if let Some(old) = module.handlers.get_mut(&hnd) {
             // Re-registering a handler (a C module does it when the client
@@ -148,15 +146,20 @@ impl Central {
             // the next delivery names it again. The C central announces the
             // handler list again all the same (registerHandlerHnd).
             old.knows_msg = false;
-            let m = &self.msgs[&msg];
+            let m = self.msgs.linked(msg.as_str())?;
             if m.direct || m.notify_handler_change {
                 self.update_direct_handlers(&msg);
             }
-            return;
+            return Ok(());
         }
         // Subscribed again after an unsubscribe: the first id, not the 0
         // the C library sends this time.
         let id = module.retired.remove(&hnd).unwrap_or(id);
+        // The message lists the handler, and the module has it.
+        self.msgs
+            .linked_mut(msg.as_str())?
+            .handlers
+            .push((conn, hnd.clone()));
         module.handlers.insert(
             hnd.clone(),
             Handler {
@@ -169,11 +172,6 @@ impl Central {
                 knows_msg: false,
             },
         );
-        self.msgs
-            .get_mut(&msg)
-            .unwrap()
-            .handlers
-            .push((conn, hnd.clone()));
         if !existed {
             self.record_broadcast(&msg, true);
         }
@@ -191,12 +189,13 @@ impl Central {
             }
         }
         self.catch_up_watch(conn, &msg, &hnd);
-        let m = &self.msgs[&msg];
+        let m = self.msgs.linked(msg.as_str())?;
         if m.direct || m.notify_handler_change {
             self.update_direct_handlers(&msg);
         }
         // Queries and informs that waited for a handler.
-        let waiting: Vec<i32> = self.msgs.get_mut(&msg).unwrap().waiting.drain(..).collect();
+        let m = self.msgs.linked_mut(msg.as_str())?;
+        let waiting: Vec<DispatchId> = m.waiting.drain(..).collect();
         for did in waiting {
             if let Some(d) = self.dispatches.get_mut(&did) {
                 self.stats.waiting_bytes = self.stats.waiting_bytes.saturating_sub(cost(d));
@@ -207,7 +206,7 @@ impl Central {
         // -r: deliveries this module had not finished before it crashed.
         if let Some(n) = mod_name {
             if let Some(list) = self.orphans.get_mut(&n) {
-                let (mine, rest): (Vec<i32>, Vec<i32>) = list
+                let (mine, rest): (Vec<DispatchId>, Vec<DispatchId>) = list
                     .drain(..)
                     .partition(|id| self.dispatches.get(id).is_some_and(|d| d.msg == msg));
                 *list = rest;
@@ -220,6 +219,7 @@ impl Central {
                 }
             }
         }
+        Ok(())
     }
 
     pub(super) fn deregister_handler(&mut self, conn: ConnId, msg: &str, hnd: &str) {
@@ -251,7 +251,7 @@ impl Central {
             m.handlers.retain(|(c, n)| !(*c == conn && n == hnd));
         }
         // Deliveries queued for the handler cannot be handled any more.
-        let stale: Vec<i32> = self
+        let stale: Vec<DispatchId> = self
             .dispatches
             .iter()
             .filter(|(_, d)| {
@@ -278,19 +278,24 @@ impl Central {
         let Some(m) = self.msgs.get(msg) else {
             return;
         };
-        if m.class == MsgClass::Broadcast && m.handlers.is_empty() {
+        let unlisted = m.class == MsgClass::Broadcast && m.handlers.is_empty();
+        let watched = m.direct || m.notify_handler_change;
+        if unlisted {
             self.record_broadcast(msg, false);
         }
-        let m = &self.msgs[msg];
-        if m.direct || m.notify_handler_change {
+        if watched {
             self.update_direct_handlers(msg);
         }
     }
 
-    pub(super) fn set_capacity(&mut self, conn: ConnId, cap: i32, res: &str, now: SystemTime) {
-        if !self.modules.contains_key(&conn) {
-            return;
-        }
+    pub(super) fn set_capacity(
+        &mut self,
+        conn: ConnId,
+        cap: i32,
+        res: &str,
+        now: SystemTime,
+    ) -> Result<(), Bad> {
+        self.modules.linked(&conn)?;
         let mut cap = cap;
         if cap < 1 {
             self.log_line(Kind::Status, String::new());
@@ -300,8 +305,7 @@ impl Central {
             );
             cap = 1;
         }
-        let m = self.modules.get_mut(&conn).unwrap();
-        if m.name.as_deref() != Some(res) {
+        if self.modules.linked(&conn)?.name.as_deref() != Some(res) {
             self.log_line(
                 Kind::Status,
                 format!(
@@ -310,7 +314,7 @@ impl Central {
                 ),
             );
         }
-        let m = self.modules.get_mut(&conn).unwrap();
+        let m = self.modules.linked_mut(&conn)?;
         if m.capacity != cap as usize {
             m.capacity = cap as usize;
             self.log_line(Kind::Status, String::new());
@@ -321,6 +325,7 @@ impl Central {
         }
         // Like C, a larger capacity is used from the next completion on.
         let _ = now;
+        Ok(())
     }
 
     pub(super) fn limit_pending(
@@ -329,7 +334,7 @@ impl Central {
         msg: Option<String>,
         res: &str,
         limit: i32,
-    ) {
+    ) -> Result<(), Bad> {
         // The resource is named after its module; prefer the sender's own.
         let target = if self.modules.get(&conn).and_then(|m| m.name.as_deref()) == Some(res) {
             Some(conn)
@@ -344,9 +349,9 @@ impl Central {
                 Kind::Status,
                 format!("ERROR: Non-existent resource {res}; Pending limit not applied"),
             );
-            return;
+            return Ok(());
         };
-        let m = self.modules.get_mut(&target).unwrap();
+        let m = self.modules.linked_mut(&target)?;
         match msg {
             None => m.pending_limit = Some(limit),
             Some(msg) => {
@@ -364,5 +369,6 @@ impl Central {
                 }
             }
         }
+        Ok(())
     }
 }

@@ -6,8 +6,8 @@ use std::time::SystemTime;
 
 use super::log::Kind;
 use super::process::read_opt_str;
-use super::tables::{Carry, Dispatch, Org, Relay, Status};
-use super::{Body, Central, ConnId};
+use super::tables::{Carry, Dispatch, DispatchId, Linked, MsgId, Org, Relay, Status};
+use super::{Bad, Body, Central, ConnId};
 use crate::ipc::frame::{Header, HEADER_SIZE};
 use crate::ipc::{ByteOrder, Reader};
 
@@ -35,26 +35,30 @@ impl Central {
     /// [`Config::cut_through`](super::Config::cut_through) allows it and its
     /// receiver can take it now. True if it did: the buffer's bytes have gone
     /// out with the frame's new header.
-    pub(super) fn try_relay(&mut self, conn: ConnId, h: Header, n: usize, now: SystemTime) -> bool {
+    pub(super) fn try_relay(
+        &mut self,
+        conn: ConnId,
+        h: Header,
+        n: usize,
+        now: SystemTime,
+    ) -> Result<bool, Bad> {
         let Some(min) = self.config.cut_through else {
-            return false;
+            return Ok(false);
         };
         let data_log = Kind::Data.enabled(&self.config.terminal_log)
             || Kind::Data.enabled(&self.config.file_log);
         if n < min || data_log || self.config.resend_on_reconnect {
-            return false;
+            return Ok(false);
         }
-        let Some(m) = self.modules.get(&conn) else {
-            return false;
-        };
+        let m = self.modules.linked(&conn)?;
         let c = h.class_total as usize;
         let avail = m.rx.len() - m.rx_pos;
         if m.relay.is_some() || avail < HEADER_SIZE + c {
-            return false;
+            return Ok(false);
         }
         if h.class_id.data_order().is_none() || h.class_id.class_order().is_none() {
             // `process` closes the connection once the frame is whole.
-            return false;
+            return Ok(false);
         }
         let start = m.rx_pos + HEADER_SIZE;
         let class_data = m.rx[start..start + c].to_vec();
@@ -62,16 +66,16 @@ impl Central {
         let total = n - c;
         let class = h.class_id.class();
         let started = match class {
-            11 => self.relay_reply(conn, h, &class_data, &first, total),
-            3 | 6 | 15 => self.relay_delivery(conn, h, &first, total, now),
+            11 => self.relay_reply(conn, h, &class_data, &first, total)?,
+            3 | 6 | 15 => self.relay_delivery(conn, h, &first, total, now)?,
             _ => false,
         };
         if started {
-            let m = self.modules.get_mut(&conn).unwrap();
+            let m = self.modules.linked_mut(&conn)?;
             m.rx_pos = m.rx.len();
             self.stats.frames_in += 1;
         }
-        started
+        Ok(started)
     }
 
     /// A receiver that can take a relayed frame now.
@@ -90,34 +94,31 @@ impl Central {
         first: &[u8],
         total: usize,
         now: SystemTime,
-    ) -> bool {
+    ) -> Result<bool, Bad> {
         let class = h.class_id.class();
         let Some(name) = h
             .intent
             .checked_abs()
-            .and_then(|id| self.by_id.get(&id))
+            .and_then(|id| self.by_id.get(&MsgId(id)))
             .cloned()
         else {
-            return false;
+            return Ok(false);
         };
-        let Some(msg) = self.msgs.get(&name) else {
-            return false;
-        };
+        let msg = self.msgs.linked(name.as_str())?;
         if msg.internal.is_some() {
-            return false;
+            return Ok(false);
         }
         let hnd = match (class, msg.handlers.as_slice()) {
             (15, [only]) => only.clone(),
             (3 | 6, [.., last]) => last.clone(),
-            _ => return false,
+            _ => return Ok(false),
         };
-        let Some(to) = self.modules.get(&hnd.0) else {
-            return false;
-        };
+        let to = self.modules.linked(&hnd.0)?;
         let free = to.takes_delivery_now() && to.handlers.contains_key(&hnd.1);
         if !free || !self.can_take_relay(conn, hnd.0) {
-            return false;
+            return Ok(false);
         }
+        self.start_relay(conn, hnd.0, name.clone(), total - first.len(), total, None)?;
         let did = self.alloc_dispatch(Dispatch {
             msg: name.clone(),
             class,
@@ -127,12 +128,11 @@ impl Central {
             parent_ref: h.parent_ref,
             // Never stored: it passes through.
             data: Body::empty(),
-            hnd: Some(hnd.clone()),
+            hnd: Some(hnd),
             status: Status::NoHandler,
         });
-        self.start_relay(conn, hnd.0, name, total - first.len(), total, None);
         self.attend_as(did, false, now, Carry::Relayed(first, total));
-        true
+        Ok(true)
     }
 
     fn relay_reply(
@@ -142,16 +142,16 @@ impl Central {
         class_data: &[u8],
         first: &[u8],
         total: usize,
-    ) -> bool {
-        let did = h.dispatch_ref;
+    ) -> Result<bool, Bad> {
+        let did = DispatchId(h.dispatch_ref);
         let Some(d) = self.dispatches.get(&did).filter(|d| d.attending_at(conn)) else {
-            return false;
+            return Ok(false);
         };
         let Org::Module(org) = d.org else {
-            return false;
+            return Ok(false);
         };
         if !self.can_take_relay(conn, org) {
-            return false;
+            return Ok(false);
         }
         let reply_name = if class_data.is_empty() {
             None
@@ -160,16 +160,16 @@ impl Central {
             match read_opt_str(&mut Reader::new(class_data, order)) {
                 Ok(n) => n,
                 // `on_reply` reports it once the frame is whole.
-                Err(_) => return false,
+                Err(_) => return Ok(false),
             }
         };
         let msg = d.msg.clone();
         let header = Self::reply_header(&h, did, d.org_ref);
         let head = Self::head(header, class_data, first, total);
         let remaining = total - first.len();
-        self.start_relay(conn, org, msg, remaining, total, Some((h, reply_name)));
+        self.start_relay(conn, org, msg, remaining, total, Some((h, reply_name)))?;
         self.transmit_relayed(org, head);
-        true
+        Ok(true)
     }
 
     fn start_relay(
@@ -180,15 +180,19 @@ impl Central {
         remaining: usize,
         total: usize,
         reply: Option<(Header, Option<String>)>,
-    ) {
-        self.modules.get_mut(&to).unwrap().relay_from = Some(from);
-        self.modules.get_mut(&from).unwrap().relay = Some(Relay {
+    ) -> Result<(), Bad> {
+        // Both ends first: a half-made pair would hold the receiver's
+        // frames for ever.
+        self.modules.linked(&from)?;
+        self.modules.linked_mut(&to)?.relay_from = Some(from);
+        self.modules.linked_mut(&from)?.relay = Some(Relay {
             to,
             remaining,
             total,
             msg,
             reply,
         });
+        Ok(())
     }
 
     /// The relayed frame from `conn` has passed: frames held for its

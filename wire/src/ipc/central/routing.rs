@@ -6,7 +6,9 @@ use std::time::SystemTime;
 
 use super::log::{self, Kind};
 use super::process::read_opt_str;
-use super::tables::{awaits_answer, unqueue, Carry, Dispatch, Org, Status};
+use super::tables::{
+    awaits_answer, broken, unqueue, Carry, Dispatch, DispatchId, Linked, Org, Status,
+};
 use super::{Bad, Body, Central, ConnId};
 use crate::ipc::frame::{ClassId, Header, MsgClass, NO_REF, QUERY_REPLY_INTENT};
 use crate::ipc::{ByteOrder, Reader, Writer};
@@ -19,12 +21,12 @@ impl Central {
         name: String,
         data: Body,
         now: SystemTime,
-    ) {
+    ) -> Result<(), Bad> {
         let class = h.class_id.class();
         let org = Org::Module(conn);
         match class {
             15 => {
-                let hnds = self.msgs[&name].handlers.clone();
+                let hnds = self.msgs.linked(name.as_str())?.handlers.clone();
                 for hnd in hnds {
                     let did = self.alloc_dispatch(Dispatch {
                         msg: name.clone(),
@@ -41,7 +43,7 @@ impl Central {
                 }
             }
             3 | 6 => {
-                let hnd = self.msgs[&name].handlers.last().cloned();
+                let hnd = self.msgs.linked(name.as_str())?.handlers.last().cloned();
                 let did = self.alloc_dispatch(Dispatch {
                     msg: name.clone(),
                     class,
@@ -56,8 +58,8 @@ impl Central {
                 if hnd.is_some() {
                     self.deliver_or_pend(did, now);
                 } else {
-                    self.msgs.get_mut(&name).unwrap().waiting.push_back(did);
-                    self.bound_waiting(conn, &name, did);
+                    self.msgs.linked_mut(name.as_str())?.waiting.push_back(did);
+                    self.bound_waiting(conn, &name, did)?;
                     if self.logs(Kind::Message, &name) {
                         let to = format!("Resource {name:<6} (Pending)");
                         let org_name = self.module_name(org);
@@ -85,6 +87,7 @@ impl Central {
                 );
             }
         }
+        Ok(())
     }
 
     /// Central's own broadcast (`centralBroadcast`): notifications and
@@ -131,7 +134,7 @@ impl Central {
         self.deliver_or_pend(did, self.clock);
     }
 
-    pub(super) fn deliver_or_pend(&mut self, did: i32, now: SystemTime) {
+    pub(super) fn deliver_or_pend(&mut self, did: DispatchId, now: SystemTime) {
         let Some(d) = self.dispatches.get(&did) else {
             return;
         };
@@ -149,7 +152,7 @@ impl Central {
         }
     }
 
-    pub(super) fn attend(&mut self, did: i32, from_pending: bool, now: SystemTime) {
+    pub(super) fn attend(&mut self, did: DispatchId, from_pending: bool, now: SystemTime) {
         self.attend_as(did, from_pending, now, Carry::Frame)
     }
 
@@ -157,7 +160,7 @@ impl Central {
     /// (as `carry` says), counted and logged.
     pub(super) fn attend_as(
         &mut self,
-        did: i32,
+        did: DispatchId,
         from_pending: bool,
         now: SystemTime,
         carry: Carry<'_>,
@@ -219,7 +222,7 @@ impl Central {
     /// Writes delivery `did` to its handler's module. `relayed`: the body's
     /// first bytes and its whole length, for a frame forwarded while it
     /// arrives (the rest follows by [`Self::relay_bytes`]).
-    pub(super) fn write_delivery(&mut self, did: i32, relayed: Option<(&[u8], usize)>) {
+    pub(super) fn write_delivery(&mut self, did: DispatchId, relayed: Option<(&[u8], usize)>) {
         let Some(d) = self.dispatches.get(&did) else {
             return;
         };
@@ -248,7 +251,7 @@ impl Central {
                     | d.class as u32,
             ),
             dispatch_ref: NO_REF,
-            msg_ref: did,
+            msg_ref: did.0,
         };
         let resume = m.paused;
         match relayed {
@@ -270,7 +273,7 @@ impl Central {
     pub(super) fn on_success(
         &mut self,
         conn: ConnId,
-        did: i32,
+        did: DispatchId,
         now: SystemTime,
     ) -> Result<(), Bad> {
         // A module that finishes a message sent ahead before the ones it
@@ -282,7 +285,7 @@ impl Central {
             (d.status == Status::Ahead && here).then(|| m.ahead.iter().position(|x| *x == did))?
         });
         if let Some(i) = ahead {
-            self.modules.get_mut(&conn).unwrap().ahead.remove(i);
+            self.modules.linked_mut(&conn)?.ahead.remove(i);
             self.attend_as(did, true, now, Carry::Ahead);
         }
         let ok = self
@@ -299,7 +302,7 @@ impl Central {
             );
             return Ok(());
         }
-        let d = self.free_dispatch_id(did).unwrap();
+        let d = self.free_dispatch_id(did).ok_or_else(|| broken(&did))?;
         if self.logs(Kind::Message, &d.msg) {
             let word = if d.class == 6 || d.class == 15 {
                 "Done    "
@@ -328,7 +331,7 @@ impl Central {
         data: Body,
         now: SystemTime,
     ) -> Result<(), Bad> {
-        let did = h.dispatch_ref;
+        let did = DispatchId(h.dispatch_ref);
         let ok = self
             .dispatches
             .get(&did)
@@ -347,7 +350,7 @@ impl Central {
             let order = h.class_id.class_order().unwrap_or(ByteOrder::NATIVE);
             read_opt_str(&mut Reader::new(class_data, order))?
         };
-        let d = &self.dispatches[&did];
+        let d = self.dispatches.linked(&did)?;
         if let Org::Module(org) = d.org {
             if self.modules.get(&org).is_some_and(|m| !m.closed) {
                 let header = Self::reply_header(&h, did, d.org_ref);
@@ -359,14 +362,14 @@ impl Central {
     }
 
     /// The header of a reply forwarded to the module that asked.
-    pub(super) fn reply_header(h: &Header, did: i32, org_ref: i32) -> Header {
+    pub(super) fn reply_header(h: &Header, did: DispatchId, org_ref: i32) -> Header {
         Header {
             class_total: 0,
             msg_total: 0,
             parent_ref: h.parent_ref,
             intent: QUERY_REPLY_INTENT,
             class_id: h.class_id,
-            dispatch_ref: did,
+            dispatch_ref: did.0,
             msg_ref: org_ref,
         }
     }
@@ -383,7 +386,7 @@ impl Central {
         data: Option<&[u8]>,
         now: SystemTime,
     ) {
-        let did = h.dispatch_ref;
+        let did = DispatchId(h.dispatch_ref);
         let Some(d) = self.free_dispatch_id(did) else {
             return;
         };

@@ -2,13 +2,117 @@
 //! message), modules, messages, handlers and global variables — and the
 //! allocation of message and dispatch ids, as C numbers them.
 
-use std::collections::{BTreeMap, VecDeque};
+use std::borrow::Borrow;
+use std::collections::{BTreeMap, HashMap, VecDeque};
+use std::fmt;
+use std::hash::Hash;
 
 use super::internal::{Def, Internal};
 use super::log;
-use super::{Body, Central, ConnId, Peer, Stats, DEFAULT_PRIORITY};
+use super::{Bad, Body, Central, ConnId, Peer, Stats, DEFAULT_PRIORITY};
 use crate::format::{parse, parse_with, Format};
 use crate::ipc::frame::{ClassId, Header, MsgClass};
+
+/// Central's number for one delivery of a message (C's dispatch): the
+/// msgRef of the frame that carries it to its handler, and the dispatchRef
+/// of the module's Success or Reply. Central also holds one while it
+/// handles an internal message or sends itself one (see
+/// [`Central::take_ref`]). Numbered from 0, last freed first.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub(super) struct DispatchId(pub(super) i32);
+
+/// Central's id of a message name (what `x_ipc_msgInfoMsg` answers, and
+/// the intent of a frame sending the message): from 199 down, never 0 or 1.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub(super) struct MsgId(pub(super) i32);
+
+impl fmt::Display for DispatchId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        self.0.fmt(f)
+    }
+}
+
+impl fmt::Display for MsgId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        self.0.fmt(f)
+    }
+}
+
+/// What a key names, for the error of a broken link.
+pub(super) trait Key {
+    fn describe(&self) -> String;
+}
+
+impl Key for DispatchId {
+    fn describe(&self) -> String {
+        format!("dispatch {{{}}}", self.0)
+    }
+}
+
+impl Key for ConnId {
+    fn describe(&self) -> String {
+        format!("module on connection {}", self.0)
+    }
+}
+
+impl Key for str {
+    fn describe(&self) -> String {
+        format!("message {self}")
+    }
+}
+
+impl Key for MsgId {
+    fn describe(&self) -> String {
+        format!("message id {}", self.0)
+    }
+}
+
+/// Looks up an entry that another of central's tables names: a module's
+/// queue names dispatches, a dispatch its handler's module, a message id
+/// or a handler its message. A missing entry is a bug in central, not in
+/// the module; on the paths a module's bytes drive it is an error that
+/// closes the connection being handled (with a log line), where an index
+/// or `unwrap` would take the whole server down.
+pub(super) trait Linked<K: ?Sized, V> {
+    fn linked(&self, k: &K) -> Result<&V, Bad>;
+    fn linked_mut(&mut self, k: &K) -> Result<&mut V, Bad>;
+}
+
+/// The error of a missing entry `k`.
+pub(super) fn broken(k: &(impl Key + ?Sized)) -> Bad {
+    Bad(format!(
+        "internal error: {} is missing from central's tables",
+        k.describe()
+    ))
+}
+
+impl<K, Q, V> Linked<Q, V> for HashMap<K, V>
+where
+    K: Eq + Hash + Borrow<Q>,
+    Q: Eq + Hash + Key + ?Sized,
+{
+    fn linked(&self, k: &Q) -> Result<&V, Bad> {
+        self.get(k).ok_or_else(|| broken(k))
+    }
+
+    fn linked_mut(&mut self, k: &Q) -> Result<&mut V, Bad> {
+        self.get_mut(k).ok_or_else(|| broken(k))
+    }
+}
+
+impl<K, Q, V> Linked<Q, V> for BTreeMap<K, V>
+where
+    K: Ord + Borrow<Q>,
+    Q: Ord + Key + ?Sized,
+{
+    fn linked(&self, k: &Q) -> Result<&V, Bad> {
+        self.get(k).ok_or_else(|| broken(k))
+    }
+
+    fn linked_mut(&mut self, k: &Q) -> Result<&mut V, Bad> {
+        self.get_mut(k).ok_or_else(|| broken(k))
+    }
+}
 
 /// Who sent a dispatch.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -116,10 +220,10 @@ pub(super) struct Module {
     /// for a handler): while it has one, a handler of its may be blocked
     /// on someone else's answer.
     pub(super) asking: usize,
-    pub(super) pending: VecDeque<i32>,
+    pub(super) pending: VecDeque<DispatchId>,
     /// Broadcasts sent ahead of their turn, oldest first; they come before
     /// everything in `pending`.
-    pub(super) ahead: VecDeque<i32>,
+    pub(super) ahead: VecDeque<DispatchId>,
     pub(super) msg_limits: Vec<(String, i32)>,
     pub(super) pending_limit: Option<i32>,
     /// Direct-mode listen port (-1 = none).
@@ -177,8 +281,8 @@ impl Module {
 
 #[derive(Debug)]
 pub(super) struct Msg {
-    /// Central's id; 0 for a name only known from a subscription.
-    pub(super) id: i32,
+    /// Central's id; none for a name only known from a subscription.
+    pub(super) id: Option<MsgId>,
     pub(super) name: String,
     pub(super) class: MsgClass,
     pub(super) msg_format: Option<String>,
@@ -188,7 +292,7 @@ pub(super) struct Msg {
     /// Handlers in subscription order (oldest first).
     pub(super) handlers: Vec<(ConnId, String)>,
     /// Dispatches waiting for a first handler.
-    pub(super) waiting: VecDeque<i32>,
+    pub(super) waiting: VecDeque<DispatchId>,
     pub(super) priority: i32,
     pub(super) direct: bool,
     pub(super) notify_handler_change: bool,
@@ -211,11 +315,11 @@ pub(super) fn awaits_answer(class: u16) -> bool {
 }
 
 impl Central {
-    pub(super) fn alloc_msg_id(&mut self) -> i32 {
+    pub(super) fn alloc_msg_id(&mut self) -> MsgId {
         loop {
             if let Some(id) = self.next_ids.pop() {
                 if id >= 2 {
-                    return id;
+                    return MsgId(id);
                 }
                 continue;
             }
@@ -227,9 +331,9 @@ impl Central {
     }
 
     /// A dispatch id, last freed first (as C's `dispatchAllocate`).
-    pub(super) fn take_ref(&mut self) -> i32 {
+    pub(super) fn take_ref(&mut self) -> DispatchId {
         self.free_dispatch.pop().unwrap_or_else(|| {
-            let id = self.next_dispatch;
+            let id = DispatchId(self.next_dispatch);
             self.next_dispatch += 1;
             id
         })
@@ -240,11 +344,11 @@ impl Central {
     /// handled; with `-lr` the log shows its id. Central holds an id from
     /// the same pool while it handles one, so that the ids it logs, and
     /// gives the modules' messages, follow C's.
-    pub(super) fn give_ref(&mut self, id: i32) {
+    pub(super) fn give_ref(&mut self, id: DispatchId) {
         self.free_dispatch.push(id);
     }
 
-    pub(super) fn alloc_dispatch(&mut self, d: Dispatch) -> i32 {
+    pub(super) fn alloc_dispatch(&mut self, d: Dispatch) -> DispatchId {
         let id = self.take_ref();
         if let (Org::Module(asker), true) = (d.org, awaits_answer(d.class)) {
             if let Some(m) = self.modules.get_mut(&asker) {
@@ -255,7 +359,7 @@ impl Central {
         id
     }
 
-    pub(super) fn free_dispatch_id(&mut self, id: i32) -> Option<Dispatch> {
+    pub(super) fn free_dispatch_id(&mut self, id: DispatchId) -> Option<Dispatch> {
         let d = self.dispatches.remove(&id)?;
         unqueue(&mut self.stats, &d);
         if let (Org::Module(asker), true) = (d.org, awaits_answer(d.class)) {
@@ -283,6 +387,8 @@ impl Central {
         );
     }
 
+    /// Defines message `name` (or defines it again): a new one, or one
+    /// only known from a subscription, gets an id.
     pub(super) fn insert_msg(
         &mut self,
         name: String,
@@ -290,72 +396,53 @@ impl Central {
         msg_format: Option<String>,
         res_format: Option<String>,
         internal: Option<Internal>,
-    ) -> i32 {
-        if let Some(m) = self.msgs.get_mut(&name) {
-            let id = if m.id == 0 { 0 } else { m.id };
-            let was_placeholder = m.class == MsgClass::HandlerReg;
-            m.class = class;
-            m.msg_format = msg_format;
-            m.res_format = res_format;
-            m.parsed = None;
-            if internal.is_some() {
-                m.internal = internal;
-            }
-            let id = if id == 0 {
-                let id = self.alloc_msg_id();
-                self.msgs.get_mut(&name).unwrap().id = id;
-                self.by_id.insert(id, name.clone());
-                id
-            } else {
-                id
-            };
-            if was_placeholder && class != MsgClass::Broadcast {
-                self.record_broadcast(&name, false);
-            }
-            return id;
+    ) -> MsgId {
+        let existed = self.msgs.contains_key(&name);
+        let m = self.placeholder(&name);
+        let was_placeholder = existed && m.class == MsgClass::HandlerReg;
+        let known = m.id;
+        m.class = class;
+        m.msg_format = msg_format;
+        m.res_format = res_format;
+        m.parsed = None;
+        if internal.is_some() {
+            m.internal = internal;
         }
-        let id = self.alloc_msg_id();
-        self.by_id.insert(id, name.clone());
-        self.msgs.insert(
-            name.clone(),
-            Msg {
-                id,
-                name,
-                class,
-                msg_format,
-                res_format,
-                parsed: None,
-                handlers: Vec::new(),
-                waiting: VecDeque::new(),
-                priority: DEFAULT_PRIORITY,
-                direct: false,
-                notify_handler_change: false,
-                internal,
-            },
-        );
+        let id = match known {
+            Some(id) => id,
+            None => {
+                let id = self.alloc_msg_id();
+                self.by_id.insert(id, name.clone());
+                if let Some(m) = self.msgs.get_mut(&name) {
+                    m.id = Some(id);
+                }
+                id
+            }
+        };
+        if was_placeholder && class != MsgClass::Broadcast {
+            self.record_broadcast(&name, false);
+        }
         id
     }
 
-    pub(super) fn placeholder(&mut self, name: &str) {
-        if !self.msgs.contains_key(name) {
-            self.msgs.insert(
-                name.to_string(),
-                Msg {
-                    id: 0,
-                    name: name.to_string(),
-                    class: MsgClass::HandlerReg,
-                    msg_format: None,
-                    res_format: None,
-                    parsed: None,
-                    handlers: Vec::new(),
-                    waiting: VecDeque::new(),
-                    priority: DEFAULT_PRIORITY,
-                    direct: false,
-                    notify_handler_change: false,
-                    internal: None,
-                },
-            );
-        }
+    /// Message `name`, created without an id (class `HandlerReg`) if it
+    /// is not known: a subscription or a priority may come before the
+    /// message is defined.
+    pub(super) fn placeholder(&mut self, name: &str) -> &mut Msg {
+        self.msgs.entry(name.to_string()).or_insert_with(|| Msg {
+            id: None,
+            name: name.to_string(),
+            class: MsgClass::HandlerReg,
+            msg_format: None,
+            res_format: None,
+            parsed: None,
+            handlers: Vec::new(),
+            waiting: VecDeque::new(),
+            priority: DEFAULT_PRIORITY,
+            direct: false,
+            notify_handler_change: false,
+            internal: None,
+        })
     }
 
     /// Parsed formats of a message (named formats expanded as C does when
