@@ -1,7 +1,9 @@
 //! The RTPS backend, Courier against Courier: two sessions (two DDS
 //! participants) in one process, on loopback only, with unicast discovery
-//! (`interface=lo&peers=127.0.0.1`). Each test has its own domain id, so
-//! tests running in parallel never see each other. Every wait is bounded.
+//! (`interface=lo&peers=127.0.0.1`). Each test has its own domain id,
+//! leased machine-wide by `courier_tests::domains`, so tests running in
+//! parallel, in this run or another, never see each other. Every wait is
+//! bounded.
 
 use std::time::Duration;
 
@@ -296,9 +298,14 @@ async fn a_silent_participant_is_lost_when_its_lease_expires() {
     // a participant that announces itself once, with a 500 ms lease, and
     // then falls silent (no goodbye): driven by hand from the wire crate
     let prefix = guid_prefix([7; 10]);
-    let mut cfg = Config::udpv4(158, 15, prefix, [127, 0, 0, 1])
-        .unwrap()
-        .with_unicast_peers(&[[127, 0, 0, 1]], 5);
+    let mut cfg = Config::udpv4(
+        courier_tests::domains::lease(158),
+        15,
+        prefix,
+        [127, 0, 0, 1],
+    )
+    .unwrap()
+    .with_unicast_peers(&[[127, 0, 0, 1]], 5);
     cfg.lease_duration = Duration::from_millis(500);
     cfg.entity_name = Some("ghost".into());
     let mut ghost = Participant::new(cfg, Instant::now(), SystemTime::now());
@@ -633,8 +640,7 @@ async fn a_query_nobody_serves_times_out_and_close_fails_pending_ones() {
 }
 
 /// `busy_poll_us=` in the URL: samples flow as without it, and once
-/// traffic stops the sessions stop spending CPU (both run on this test's
-/// one thread, so its CPU time over an idle stretch shows any spinning).
+/// traffic stops the sessions' busy pollers stop spinning.
 #[tokio::test(flavor = "current_thread")]
 async fn busy_polling_sessions_exchange_samples_and_go_quiet_when_idle() {
     let connect = |name: &'static str| {
@@ -656,7 +662,7 @@ async fn busy_polling_sessions_exchange_samples_and_go_quiet_when_idle() {
         assert_eq!(next(&mut sub).await.unwrap().value, msg(i));
     }
     tokio::time::sleep(Duration::from_millis(20)).await;
-    common::assert_quiet("idle busy-polling sessions").await;
+    common::await_quiet("idle busy-polling sessions").await;
     a.close().await;
     b.close().await;
 }

@@ -6,7 +6,7 @@
 //!
 //! Loopback only: the peers embed a loopback-only unicast configuration
 //! (interface `lo`, no multicast, SPDP to 127.0.0.1) and Courier's sessions
-//! use `interface=lo&peers=127.0.0.1`. Each test has its own domain id.
+//! use `interface=lo&peers=127.0.0.1`. Each test has its own domain id, leased machine-wide (`courier_tests::domains`).
 //! Missing tools or libraries fail the tests (`.ci/run` installs them).
 
 use std::time::Duration;
@@ -64,8 +64,10 @@ async fn await_handlers(s: &Session, topic: &str) {
     common::await_handlers(s, topic, 1).await
 }
 
+/// The peer's `--domain`: the domain leased to key `d`, as the sessions
+/// of `common::session(d, ..)` use.
 fn domain_arg(d: u32) -> String {
-    d.to_string()
+    courier_tests::domains::lease(d).to_string()
 }
 
 // ---------------------------------------------------------------------------
@@ -683,7 +685,7 @@ async fn courier_queries_a_fastdds_service() {
         Vendor::FastDds,
         &[
             "--domain",
-            "188",
+            &domain_arg(188),
             "--topic",
             "echo",
             "--type",
@@ -737,7 +739,7 @@ async fn a_fastdds_client_queries_a_courier_service() {
         Vendor::FastDds,
         &[
             "--domain",
-            "189",
+            &domain_arg(189),
             "--topic",
             "echo",
             "--type",
