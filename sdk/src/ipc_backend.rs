@@ -11,6 +11,7 @@ use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::{mpsc, oneshot};
 
 use crate::busy_poll::BusyPoll;
+use crate::qos::{PublicationQos, SubscriptionQos, TypeInfo};
 use crate::session::{
     Backend, ConnectError, Encoding, QueryError, RawReply, RawRequest, RawSample, SampleQueue,
     SessionError, SessionEvent,
@@ -718,6 +719,31 @@ impl Backend for IpcBackend {
         self.call(|d| Cmd::WatchHandlers(msg.into(), d), g).await
     }
 
+    async fn create_publication(
+        &self,
+        msg: &str,
+        ty: &TypeInfo,
+        qos: &PublicationQos,
+    ) -> Result<(), SessionError> {
+        if let Some(what) = qos.beyond_ipc() {
+            return Err(unsupported(format!("{what} (publication {msg})")));
+        }
+        self.define(msg, ty.format).await
+    }
+
+    async fn create_subscription(
+        &self,
+        msg: &str,
+        _ty: Option<&TypeInfo>,
+        qos: &SubscriptionQos,
+        queue: Arc<SampleQueue>,
+    ) -> Result<(), SessionError> {
+        if let Some(what) = qos.beyond_ipc() {
+            return Err(unsupported(format!("{what} (subscription {msg})")));
+        }
+        self.subscribe(msg, queue).await
+    }
+
     async fn close(&self) {
         self.call(Cmd::Close, ()).await
     }
@@ -762,13 +788,21 @@ struct Driver {
     subs: HashMap<i32, Sub>,
     servers: HashMap<i32, Server>,
     publishes: HashMap<OpId, Done<Result<(), SessionError>>>,
-    queries: HashMap<OpId, Done<Result<RawReply, QueryError>>>,
+    /// Queries waiting for their reply, with their message name.
+    queries: HashMap<OpId, (String, Done<Result<RawReply, QueryError>>)>,
     query_ops: HashMap<u64, OpId>,
     bools: HashMap<OpId, Done<Result<bool, SessionError>>>,
     counts: HashMap<OpId, Done<Result<i32, SessionError>>>,
     closing: Option<Done<()>>,
     watching_modules: bool,
     links: HashMap<LinkId, tokio::io::WriteHalf<Box<dyn IpcStream>>>,
+}
+
+fn unsupported(what: String) -> SessionError {
+    SessionError::Unsupported {
+        what,
+        backend: "ipc://",
+    }
 }
 
 fn refused(e: ModError) -> SessionError {
@@ -943,7 +977,7 @@ impl Driver {
             }
             Cmd::Query(key, m, data, d) => match self.conn.query(&m, data, -1) {
                 Ok(op) => {
-                    self.queries.insert(op, d);
+                    self.queries.insert(op, (m, d));
                     self.query_ops.insert(key, op);
                 }
                 Err(e) => {
@@ -1060,7 +1094,7 @@ impl Driver {
                     data,
                 } => {
                     self.query_ops.retain(|_, op| *op != query);
-                    if let Some(d) = self.queries.remove(&query) {
+                    if let Some((_, d)) = self.queries.remove(&query) {
                         let _ = d.send(Ok((reply_msg, data, order)));
                     }
                 }
@@ -1081,9 +1115,9 @@ impl Driver {
                     if let Some(d) = self.publishes.remove(&op) {
                         let _ = d.send(Err(e.clone()));
                     }
-                    if let Some(d) = self.queries.remove(&op) {
+                    if let Some((msg, d)) = self.queries.remove(&op) {
                         let _ = d.send(Err(QueryError::Refused {
-                            msg: String::new(),
+                            msg,
                             detail: e.to_string(),
                         }));
                     }
@@ -1326,8 +1360,8 @@ impl Driver {
         for (_, d) in self.publishes.drain() {
             let _ = d.send(Err(gone.clone()));
         }
-        for (_, d) in self.queries.drain() {
-            let _ = d.send(Err(QueryError::Disconnected(self.addr.clone())));
+        for (_, (msg, d)) in self.queries.drain() {
+            let _ = d.send(Err(QueryError::Disconnected(msg)));
         }
         self.query_ops.clear();
         for (_, d) in self.bools.drain() {

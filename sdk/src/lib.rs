@@ -103,7 +103,9 @@ pub mod busy_poll;
 pub mod ipc_backend;
 pub mod qos;
 pub mod rtps_backend;
+pub mod scheme;
 pub mod session;
+mod topics;
 
 pub use courier_derive::IpcMessage;
 pub use courier_wire::{cdr, format, ipc, rtps, IpcMessage, NamedFormats};

@@ -19,6 +19,8 @@ use crate::ipc_backend::{IpcBackend, IpcOptions};
 use crate::qos::{Durability, History, Reliability};
 pub use crate::qos::{InstanceState, PublicationQos, SubscriptionQos, TypeInfo};
 use crate::rtps_backend::{RtpsBackend, RtpsOptions};
+use crate::scheme::Resolved;
+use crate::topics::{Definition, Topics};
 use courier_wire::rtps::discovery::{EndpointData, ParticipantData};
 use courier_wire::rtps::{Guid, GuidPrefix};
 use courier_wire::{cdr, ipc, IpcMessage, NamedFormats};
@@ -570,6 +572,27 @@ pub enum SessionError {
         /// The bound.
         after: Duration,
     },
+    /// A topic (IPC message) is used with another type than the one this
+    /// session first used it with. Two types may share a topic only if they
+    /// have the same IPC format and DDS type name.
+    #[error("{msg} carries {bound} in this session, not {given}")]
+    TypeMismatch {
+        /// The topic.
+        msg: String,
+        /// The Rust type the topic was first used with.
+        bound: &'static str,
+        /// The Rust type of this use.
+        given: &'static str,
+    },
+    /// The backend cannot honour what was asked (a DDS QoS setting on an
+    /// IPC session, say).
+    #[error("{what} is not available on {backend} sessions")]
+    Unsupported {
+        /// What was asked.
+        what: String,
+        /// The backend's URL scheme.
+        backend: &'static str,
+    },
     /// A value could not be decoded as the expected type.
     #[error("cannot decode {msg} as {ty}: {detail}")]
     Decode {
@@ -623,6 +646,26 @@ pub enum QueryError {
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum ConnectError {
+    /// The URL's scheme names no backend this process knows.
+    #[error("{}", unknown_scheme(url, scheme.as_deref(), known))]
+    UnknownScheme {
+        /// The URL.
+        url: String,
+        /// Its scheme (`None`: the URL has no `scheme://`).
+        scheme: Option<String>,
+        /// The schemes this process knows.
+        known: Vec<String>,
+    },
+    /// An option was set that the URL's backend cannot honour.
+    #[error("{option} is not an option of {scheme}:// sessions ({hint})")]
+    Unsupported {
+        /// The builder method.
+        option: &'static str,
+        /// The URL's scheme.
+        scheme: String,
+        /// Which backends have it.
+        hint: &'static str,
+    },
     /// The URL is not understood.
     #[error("bad session URL {url:?}: {why}")]
     BadUrl {
@@ -658,6 +701,14 @@ pub enum ConnectError {
         /// Why.
         why: String,
     },
+}
+
+fn unknown_scheme(url: &str, scheme: Option<&str>, known: &[String]) -> String {
+    let what = match scheme {
+        Some(s) => format!("unknown URL scheme {s:?} in {url:?}"),
+        None => format!("no scheme in session URL {url:?}"),
+    };
+    format!("{what}; known schemes: {}", known.join(", "))
 }
 
 /// A pluggable transport: bytes in, bytes out, plus type metadata. Object
@@ -840,6 +891,17 @@ pub struct SessionBuilder {
     name: Option<String>,
     opts: IpcOptions,
     rtps: crate::rtps_backend::RtpsOverrides,
+    /// Builder methods called, by the backends that honour them: one the
+    /// URL's backend cannot honour fails `connect`.
+    set: Vec<(&'static str, Honoured)>,
+}
+
+/// Which backends honour a [`SessionBuilder`] option.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Honoured {
+    Ipc,
+    Rtps,
+    Both,
 }
 
 impl SessionBuilder {
@@ -853,6 +915,7 @@ impl SessionBuilder {
     /// `IPC_connectNoListen`: publishing is not filtered by the list of
     /// subscribed messages.
     pub fn no_listen(mut self) -> Self {
+        self.set.push(("no_listen", Honoured::Ipc));
         self.opts.listen = false;
         self
     }
@@ -870,6 +933,7 @@ impl SessionBuilder {
     /// An embedded central reached through [`SessionBuilder::dial`] that has
     /// stopped is not retried: the session ends as without reconnect.
     pub fn reconnect(mut self, backoff: Duration) -> Self {
+        self.set.push(("reconnect", Honoured::Ipc));
         self.opts.reconnect = Some(backoff);
         self
     }
@@ -882,6 +946,7 @@ impl SessionBuilder {
     /// to 40–44 µs over TCP, and an RTPS round trip across cores from 70 to
     /// 17 µs (BENCHMARKS.md). RTPS: also `busy_poll_us=` in the URL.
     pub fn busy_poll(mut self, window: Duration) -> Self {
+        self.set.push(("busy_poll", Honoured::Both));
         self.opts.busy_poll = Some(window);
         self.rtps.busy_poll = Some(window);
         self
@@ -901,6 +966,7 @@ impl SessionBuilder {
             + Send
             + 'static,
     {
+        self.set.push(("dial", Honoured::Ipc));
         self.opts.dial = Some(crate::ipc_backend::Dial::new(dial));
         self
     }
@@ -910,6 +976,7 @@ impl SessionBuilder {
     /// [`RtpsOptions::receive_thread`]). Also `receive_thread=true` in the
     /// URL. Other backends ignore it.
     pub fn receive_thread(mut self, on: bool) -> Self {
+        self.set.push(("receive_thread", Honoured::Rtps));
         self.rtps.receive_thread = Some(on);
         self
     }
@@ -917,6 +984,7 @@ impl SessionBuilder {
     /// RTPS: the network interface, by name (`lo`) or IPv4 address
     /// (URL: `interface=`).
     pub fn interface(mut self, interface: impl Into<String>) -> Self {
+        self.set.push(("interface", Honoured::Rtps));
         self.rtps.interface = Some(interface.into());
         self
     }
@@ -924,18 +992,21 @@ impl SessionBuilder {
     /// RTPS: unicast discovery peers, `ip` or `ip:port` (URL: `peers=`);
     /// a peer list alone turns multicast off.
     pub fn peers<I: IntoIterator<Item = S>, S: Into<String>>(mut self, peers: I) -> Self {
+        self.set.push(("peers", Honoured::Rtps));
         self.rtps.peers = Some(peers.into_iter().map(Into::into).collect());
         self
     }
 
     /// RTPS: standard SPDP multicast discovery on or off (URL: `multicast=`).
     pub fn multicast(mut self, on: bool) -> Self {
+        self.set.push(("multicast", Honoured::Rtps));
         self.rtps.multicast = Some(on);
         self
     }
 
     /// RTPS: a fixed participant index instead of probing (URL: `index=`).
     pub fn participant_index(mut self, index: u32) -> Self {
+        self.set.push(("participant_index", Honoured::Rtps));
         self.rtps.participant_index = Some(index);
         self
     }
@@ -943,25 +1014,63 @@ impl SessionBuilder {
     /// RTPS: socket receive and send buffer sizes in bytes (URL:
     /// `recv_buffer=`, `send_buffer=`).
     pub fn socket_buffers(mut self, recv: usize, send: usize) -> Self {
+        self.set.push(("socket_buffers", Honoured::Rtps));
         self.rtps.recv_buffer = Some(recv);
         self.rtps.send_buffer = Some(send);
         self
     }
 
     /// Connects: `ipc://…` reaches a central, `rtps://<domain>?…` joins a
-    /// DDS domain.
+    /// DDS domain, a scheme plugged in with
+    /// [`register_scheme`](crate::scheme::register_scheme) its backend.
+    ///
+    /// Fails at once, naming the option, if an option was set that this
+    /// URL's backend cannot honour (say, [`interface`](Self::interface) on
+    /// an `ipc://` session), and names the known schemes for an unknown one.
     pub async fn connect(self) -> Result<Session, ConnectError> {
         let name = self
             .name
             .unwrap_or_else(|| format!("courier-{}", std::process::id()));
-        if self.url.starts_with("rtps:") {
-            let mut o = RtpsOptions::from_url(&self.url)?;
-            self.rtps.apply(&mut o);
-            let backend = RtpsBackend::start(o, &name).await?;
-            return Ok(Session::with_backend(Arc::new(backend), name));
-        }
-        let backend = IpcBackend::connect(&self.url, &name, self.opts).await?;
-        Ok(Session::with_backend(Arc::new(backend), name))
+        let scheme = self.url.split_once("://").map_or("", |(s, _)| s);
+        let refuse = |honoured: &[Honoured]| {
+            let bad = self.set.iter().find(|(_, h)| !honoured.contains(h));
+            bad.map(|(option, h)| ConnectError::Unsupported {
+                option,
+                scheme: scheme.to_string(),
+                hint: match h {
+                    Honoured::Ipc => "it is for ipc:// sessions",
+                    Honoured::Rtps => "it is for rtps:// sessions",
+                    Honoured::Both => "it is for ipc:// and rtps:// sessions",
+                },
+            })
+        };
+        let backend: Arc<dyn Backend> = match crate::scheme::resolve(&self.url)? {
+            Resolved::Rtps => {
+                if let Some(e) = refuse(&[Honoured::Rtps, Honoured::Both]) {
+                    return Err(e);
+                }
+                let mut o = RtpsOptions::from_url(&self.url)?;
+                self.rtps.apply(&mut o);
+                Arc::new(RtpsBackend::start(o, &name).await?)
+            }
+            Resolved::Ipc => {
+                if let Some(e) = refuse(&[Honoured::Ipc, Honoured::Both]) {
+                    return Err(e);
+                }
+                Arc::new(IpcBackend::connect(&self.url, &name, self.opts).await?)
+            }
+            Resolved::Plugged(connect) => {
+                if let Some(e) = refuse(&[]) {
+                    return Err(e);
+                }
+                connect(crate::scheme::ConnectRequest {
+                    url: self.url,
+                    name: name.clone(),
+                })
+                .await?
+            }
+        };
+        Ok(Session::with_backend(backend, name))
     }
 }
 
@@ -997,6 +1106,7 @@ fn decode<T: IpcMessage>(enc: Encoding, data: &[u8], order: ipc::ByteOrder) -> R
 pub struct Session {
     backend: Arc<dyn Backend>,
     name: String,
+    topics: Arc<Topics>,
 }
 
 impl Session {
@@ -1009,6 +1119,7 @@ impl Session {
             name: None,
             opts: IpcOptions::default(),
             rtps: Default::default(),
+            set: Vec::new(),
         }
     }
 
@@ -1017,6 +1128,7 @@ impl Session {
         Session {
             backend,
             name: name.into(),
+            topics: Arc::default(),
         }
     }
 
@@ -1048,11 +1160,35 @@ impl Session {
     /// Defines `msg` carrying `T` (its named formats first). On DDS this
     /// creates the topic's writer with the default [`PublicationQos`]
     /// (reliable, volatile, keep-all); use [`Session::publisher`] for others.
+    ///
+    /// A topic carries one type per session: defining, publishing,
+    /// subscribing, querying or serving it later with a type of another
+    /// IPC format or DDS type name fails with [`SessionError::TypeMismatch`].
+    /// Typed [`publish`](Session::publish), [`query`](Session::query) and
+    /// [`serve`](Session::serve) define what they need themselves; call
+    /// `define` to choose the moment (IPC_defineMsg ahead of time).
     pub async fn define<T: IpcMessage>(&self, msg: &str) -> Result<(), SessionError> {
-        self.define_format::<T>().await?;
-        self.backend
-            .create_publication(msg, &TypeInfo::of::<T>(), &PublicationQos::default())
+        self.topics.bind::<T>(msg)?;
+        self.define_as(msg, Definition::of::<T>(), &PublicationQos::default())
             .await
+    }
+
+    /// Defines `msg` as `def` says (named formats first on IPC) and
+    /// records it as defined.
+    async fn define_as(
+        &self,
+        msg: &str,
+        def: Definition,
+        qos: &PublicationQos,
+    ) -> Result<(), SessionError> {
+        if self.enc() == Encoding::Ipc {
+            for (name, fmt) in def.formats {
+                self.backend.define_format(name, fmt).await?;
+            }
+        }
+        self.backend.create_publication(msg, &def.ty, qos).await?;
+        self.topics.defined(msg);
+        Ok(())
     }
 
     /// A publication of `msg` with QoS (ORTE's `ORTEPublicationCreate`);
@@ -1077,15 +1213,21 @@ impl Session {
     /// 1 MiB unacknowledged per reliable keep-all writer): when readers
     /// fall behind, `publish().await` waits: back-pressure, not loss.
     pub fn publish<'a, T: IpcMessage>(&'a self, msg: &'a str, value: &T) -> Publish<'a> {
-        self.publish_sized(msg, value, 0)
+        let check = self
+            .topics
+            .bind::<T>(msg)
+            .map(|undefined| undefined.then(Definition::of::<T>));
+        self.publish_sized(msg, value, 0, check)
     }
 
     /// [`Session::publish`], encoding into a buffer of `size_hint` bytes.
+    /// `check` is the topic's type check (see [`Publish`]).
     fn publish_sized<'a, T: IpcMessage>(
         &'a self,
         msg: &'a str,
         value: &T,
         size_hint: usize,
+        check: Result<Option<Definition>, SessionError>,
     ) -> Publish<'a> {
         let key_hash = (self.enc() == Encoding::Cdr && !T::KEYS.is_empty())
             .then(|| crate::rtps_backend::key_hash_of(value));
@@ -1101,6 +1243,7 @@ impl Session {
             data,
             confirm: None,
             key_hash,
+            check,
         }
     }
 
@@ -1167,12 +1310,18 @@ impl Session {
         msg: &'a str,
         req: &Req,
     ) -> Query<'a, Resp> {
+        // IPC: the query message must be defined in central (by anyone);
+        // the reply is decoded as `Resp` whatever message the server used
+        let check = self.topics.bind::<Req>(msg).map(|undefined| {
+            (undefined && self.enc() == Encoding::Ipc).then(Definition::of::<Req>)
+        });
         Query {
             session: self,
             msg,
             req: TypeInfo::of::<Req>(),
             data: encode(self.enc(), req),
             timeout: Duration::from_secs(10),
+            check,
             _t: PhantomData,
         }
     }
@@ -1199,6 +1348,20 @@ impl Session {
         msg: &str,
         reply_msg: &str,
     ) -> Result<Requests<Req, Resp>, SessionError> {
+        let define_req = self.topics.bind::<Req>(msg)?;
+        let define_resp = self.topics.bind::<Resp>(reply_msg)?;
+        if self.enc() == Encoding::Ipc {
+            // both must be defined in central: a reply to an undefined
+            // message could not be sent
+            let qos = PublicationQos::default();
+            if define_req {
+                self.define_as(msg, Definition::of::<Req>(), &qos).await?;
+            }
+            if define_resp {
+                self.define_as(reply_msg, Definition::of::<Resp>(), &qos)
+                    .await?;
+            }
+        }
         let rx = self
             .backend
             .serve_typed(msg, &TypeInfo::of::<Req>(), &TypeInfo::of::<Resp>(), 1000)
@@ -1282,6 +1445,9 @@ pub struct Publish<'a> {
     data: Vec<u8>,
     confirm: Option<Duration>,
     key_hash: Option<[u8; 16]>,
+    /// The topic's type check: the definition to make first if the
+    /// session has not defined the topic yet, or the mismatch.
+    check: Result<Option<Definition>, SessionError>,
 }
 
 impl<'a> Publish<'a> {
@@ -1304,11 +1470,20 @@ impl<'a> std::future::IntoFuture for Publish<'a> {
     type IntoFuture = Pin<Box<dyn std::future::Future<Output = Self::Output> + Send + 'a>>;
 
     fn into_future(self) -> Self::IntoFuture {
-        if self.confirm.is_none() && self.key_hash.is_none() {
+        let define = match self.check {
+            Err(e) => return Box::pin(std::future::ready(Err(e))),
+            Ok(define) => define,
+        };
+        if define.is_none() && self.confirm.is_none() && self.key_hash.is_none() {
             // the backend's own (boxed) future, not a box around it
             return self.session.backend.publish(self.msg, self.data);
         }
         Box::pin(async move {
+            if let Some(def) = define {
+                self.session
+                    .define_as(self.msg, def, &PublicationQos::default())
+                    .await?;
+            }
             let opts = WriteOptions {
                 key_hash: self.key_hash,
                 confirm: self.confirm,
@@ -1390,10 +1565,9 @@ impl<T: IpcMessage> PublisherBuilder<T> {
 
     /// Creates the publication.
     pub async fn build(self) -> Result<Publisher<T>, SessionError> {
-        self.session.define_format::<T>().await?;
+        self.session.topics.bind::<T>(&self.msg)?;
         self.session
-            .backend
-            .create_publication(&self.msg, &TypeInfo::of::<T>(), &self.qos)
+            .define_as(&self.msg, Definition::of::<T>(), &self.qos)
             .await?;
         Ok(Publisher {
             session: self.session,
@@ -1437,7 +1611,8 @@ impl<T: IpcMessage> Publisher<T> {
     pub fn publish(&self, value: &T) -> Publish<'_> {
         use std::sync::atomic::Ordering::Relaxed;
         let hint = self.last_len.load(Relaxed);
-        let p = self.session.publish_sized(&self.msg, value, hint);
+        // checked and defined when the publisher was built
+        let p = self.session.publish_sized(&self.msg, value, hint, Ok(None));
         if p.data.len() != hint {
             self.last_len.store(p.data.len(), Relaxed);
         }
@@ -1606,6 +1781,7 @@ impl<T: IpcMessage> SubscriberBuilder<T> {
 
     /// The backend's subscription of this type and QoS, into `queue`.
     async fn create(&self, queue: &Arc<SampleQueue>) -> Result<(), SessionError> {
+        self.session.topics.bind::<T>(&self.msg)?;
         self.session
             .backend
             .create_subscription(
@@ -1816,8 +1992,13 @@ impl<T: IpcMessage> Subscriber<T> {
     }
 
     /// Pulled delivery (ORTE's `ORTEAppSubscriptionPull`): the next sample
-    /// if one is waiting, without waiting.
-    pub fn try_next(&mut self) -> Option<Result<Sample<T>, RecvError>> {
+    /// if one is waiting, without waiting; `None` when none is waiting
+    /// (not the end of the stream: for that, poll the `Stream`).
+    ///
+    /// Named like [`RawSubscriber::try_recv`] and tokio's receivers, so
+    /// that it never shadows `futures::TryStreamExt::try_next`, which
+    /// waits.
+    pub fn try_recv(&mut self) -> Option<Result<Sample<T>, RecvError>> {
         let s = self.raw.queue.try_pop()?;
         Some(self.convert(s))
     }
@@ -1862,6 +2043,8 @@ pub struct Query<'a, Resp> {
     req: TypeInfo,
     data: Vec<u8>,
     timeout: Duration,
+    /// The query message's type check, as [`Publish`]'s.
+    check: Result<Option<Definition>, SessionError>,
     _t: PhantomData<fn() -> Resp>,
 }
 
@@ -1873,6 +2056,19 @@ impl<'a, Resp: IpcMessage + 'a> Query<'a, Resp> {
     }
 
     async fn run(self) -> Result<Resp, QueryError> {
+        let refused = |e: SessionError| match e {
+            SessionError::Disconnected(_) => QueryError::Disconnected(self.msg.to_string()),
+            e => QueryError::Refused {
+                msg: self.msg.to_string(),
+                detail: e.to_string(),
+            },
+        };
+        if let Some(def) = self.check.map_err(refused)? {
+            self.session
+                .define_as(self.msg, def, &PublicationQos::default())
+                .await
+                .map_err(refused)?;
+        }
         let (reply, data, order) = self
             .session
             .backend
@@ -2069,10 +2265,10 @@ mod tests {
         queue.push(RawSample::new("m", small)).unwrap();
         // a buffer that does not decode goes back too
         queue.push(RawSample::new("m", vec![0xff; 5000])).unwrap();
-        assert_eq!(sub.try_next().unwrap().unwrap().value, "x".repeat(10_000));
-        assert_eq!(sub.try_next().unwrap().unwrap().value, "y");
+        assert_eq!(sub.try_recv().unwrap().unwrap().value, "x".repeat(10_000));
+        assert_eq!(sub.try_recv().unwrap().unwrap().value, "y");
         assert!(matches!(
-            sub.try_next(),
+            sub.try_recv(),
             Some(Err(RecvError::Decode { .. }))
         ));
         let mut back = Vec::new();
@@ -2114,7 +2310,7 @@ mod tests {
         w.wake();
         assert_eq!(woken(), 1);
         // keep-last 2: "a" made room for "c"
-        let got: Vec<String> = std::iter::from_fn(|| sub.try_next())
+        let got: Vec<String> = std::iter::from_fn(|| sub.try_recv())
             .map(|s| s.unwrap().value)
             .collect();
         assert_eq!(got, ["b", "c"]);
@@ -2146,7 +2342,7 @@ mod tests {
         let mut sub = subscriber::<String>(&queue);
         let big = cdr::to_vec(&"x".repeat(10_000), cdr::Encoding::Xcdr1Le);
         queue.push(RawSample::new("m", big)).unwrap();
-        assert_eq!(sub.try_next().unwrap().unwrap().value.len(), 10_000);
+        assert_eq!(sub.try_recv().unwrap().unwrap().value.len(), 10_000);
         assert!(queue.returns.get().is_none());
     }
 }

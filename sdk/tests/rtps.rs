@@ -154,8 +154,8 @@ async fn confirmed_publish_waits_for_acknowledgement() {
         .await
         .unwrap();
     // acknowledged means received: it is in the subscriber's queue already
-    assert_eq!(sub.try_next().expect("already here").unwrap().value, msg(1));
-    assert!(sub.try_next().is_none(), "pulled delivery: nothing more");
+    assert_eq!(sub.try_recv().expect("already here").unwrap().value, msg(1));
+    assert!(sub.try_recv().is_none(), "pulled delivery: nothing more");
     // a reader whose keep-all queue is full stops reading (and so stops
     // acknowledging) until its application takes a sample
     b.close().await;
@@ -193,10 +193,18 @@ async fn confirmed_publish_waits_for_acknowledgement() {
     assert_eq!(next(&mut slow).await.unwrap().value, msg(4));
 }
 
+/// A typed publish creates the topic's publication (default QoS) itself;
+/// raw bytes on a topic without one are a clear error.
 #[tokio::test]
-async fn publishing_without_a_publication_is_a_clear_error() {
+async fn typed_publish_creates_its_publication_and_raw_needs_one() {
     let a = session(155, "a").await;
-    let e = a.publish("nowhere", &msg(0)).await.unwrap_err();
+    let b = session(155, "b").await;
+    let mut sub = b.subscribe::<Msg>("somewhere").await.unwrap();
+    a.publish("somewhere", &msg(0)).await.unwrap();
+    await_handlers(&a, "somewhere", 1).await;
+    a.publish("somewhere", &msg(1)).await.unwrap();
+    assert_eq!(next(&mut sub).await.unwrap().value, msg(1));
+    let e = a.publish_raw("nowhere", &[0, 1, 0, 0]).await.unwrap_err();
     assert!(e.to_string().contains("nowhere has no publication"), "{e}");
     let e = a.set_capacity(1).await.unwrap_err();
     assert!(e.to_string().contains("no DDS equivalent"), "{e}");
@@ -371,7 +379,7 @@ async fn exclusive_ownership_takes_the_strongest_writer() {
     assert_eq!(next(&mut sub).await.unwrap().value, msg(100));
     assert_eq!(next(&mut sub).await.unwrap().value, msg(101));
     assert!(
-        sub.try_next().is_none(),
+        sub.try_recv().is_none(),
         "the weak writer's sample was not taken"
     );
     // the strong writer goes away: the weak one takes over
@@ -441,7 +449,7 @@ async fn minimum_separation_drops_and_counts() {
         p.publish(&msg(i)).confirmed().await.unwrap();
     }
     assert_eq!(next(&mut sub).await.unwrap().value, msg(0));
-    assert!(sub.try_next().is_none());
+    assert!(sub.try_recv().is_none());
     assert_eq!(sub.dropped(), 9);
 }
 

@@ -287,6 +287,11 @@ async fn timers_tick_on_schedule() {
 #[tokio::test]
 async fn bad_url_and_unreachable_central_say_where() {
     let e = Session::builder("tcp://x").connect().await.unwrap_err();
+    assert!(e.to_string().contains("unknown URL scheme \"tcp\""), "{e}");
+    let e = Session::builder("ipc://x:notaport")
+        .connect()
+        .await
+        .unwrap_err();
     assert!(e.to_string().contains("bad session URL"), "{e}");
     // A port nobody listens on.
     let port = std::net::TcpListener::bind("127.0.0.1:0")
