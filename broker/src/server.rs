@@ -162,7 +162,7 @@ impl CentralServer {
     pub fn builder() -> Builder {
         Builder {
             port: DEFAULT_PORT,
-            bind: IpAddr::V4(Ipv4Addr::UNSPECIFIED),
+            bind: IpAddr::V4(Ipv4Addr::LOCALHOST),
             unix_socket: false,
             config: Config::default(),
             access: AccessControl::open(),
@@ -191,7 +191,10 @@ impl Builder {
         self
     }
 
-    /// Address to listen on (default `0.0.0.0`, all interfaces, like C).
+    /// Address to listen on. The default is `127.0.0.1`: an embedded
+    /// central is reachable from this machine only unless told otherwise
+    /// (`0.0.0.0` for all interfaces, what the `central` binary does by
+    /// default, like C's).
     pub fn bind(mut self, addr: IpAddr) -> Self {
         self.bind = addr;
         self

@@ -64,7 +64,8 @@ const USAGE: &str = "central command line options:
  -s: silent running, don't print anything to stdout.
  -u: Don't run the user interface (stdin).
  -r: try resending non-completed messages when modules crash
- -d: debugging diagnostics on stderr.
+ -d: debugging diagnostics on stderr (RUST_LOG=<filter>, e.g. debug or
+     courier_broker=trace, chooses them in detail).
  <number>: the number of modules expected (printed only).
  --bind <addr>: listen on this address only (default: all interfaces).
  --hosts-allow <file>, --hosts-deny <file>: access rules
@@ -469,10 +470,7 @@ fn main() -> ExitCode {
     } else {
         tracing::Level::WARN
     };
-    let _ = tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_max_level(level)
-        .try_init();
+    init_logging(level);
     // One thread, like the C central's select loop: the state machine runs
     // on one task anyway, and a single thread avoids cross-thread wake-ups.
     let rt = match tokio::runtime::Builder::new_current_thread()
@@ -571,6 +569,11 @@ async fn run(opts: Options) -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
+    tracing::debug!(
+        addr = %server.local_addr(),
+        unix_socket = opts.unix,
+        "central listening"
+    );
     let expecting = format!(
         "Expecting {} on port {}",
         opts.expected,
@@ -632,6 +635,31 @@ async fn run(opts: Options) -> ExitCode {
         let _ = w.flush();
     }
     ExitCode::SUCCESS
+}
+
+/// Diagnostics on stderr: `RUST_LOG` (`warn`, `debug`,
+/// `courier_broker=trace,info`, …) when set, else `level`. A `RUST_LOG`
+/// that does not parse is reported and the default used.
+fn init_logging(level: tracing::Level) {
+    use tracing_subscriber::filter::Targets;
+    use tracing_subscriber::layer::SubscriberExt;
+    use tracing_subscriber::util::SubscriberInitExt;
+    let default = Targets::new().with_default(level);
+    let (filter, bad) = match std::env::var("RUST_LOG") {
+        Ok(spec) if !spec.trim().is_empty() => match spec.parse::<Targets>() {
+            Ok(t) => (t, None),
+            Err(e) => (default, Some(format!("RUST_LOG={spec:?} ignored: {e}"))),
+        },
+        _ => (default, None),
+    };
+    let fmt = tracing_subscriber::fmt::layer().with_writer(std::io::stderr);
+    let _ = tracing_subscriber::registry()
+        .with(fmt)
+        .with(filter)
+        .try_init();
+    if let Some(bad) = bad {
+        tracing::warn!("{bad}");
+    }
 }
 
 #[cfg(test)]
