@@ -1,9 +1,16 @@
-//! Log lines in the C central's layout (`dispatchUpdateAndDisplay1` in
-//! dispatch.c, `Log_Time`/`Log_RefId`/`Log_ParentId` in logging.c).
+//! Central's log: lines in the C central's layout
+//! (`dispatchUpdateAndDisplay1` in dispatch.c, `Log_Time`/`Log_RefId`/
+//! `Log_ParentId` in logging.c), where each goes (`-l`, `-L`, `-I`), the
+//! data log's decoding of message bodies, and the budget that keeps a
+//! misbehaving module from flooding it.
 
 use std::time::{SystemTime, UNIX_EPOCH};
 
-use super::LogOptions;
+use super::tables::Org;
+use super::{Central, ConnId, LogOptions, LogTarget, Output, Peer, SERVER_NAME};
+use crate::format::{Format, FormatRegistry};
+use crate::ipc::frame::ClassId;
+use crate::ipc::{ByteOrder, Reader};
 
 /// Which `LOG_*` macro a line corresponds to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -131,6 +138,242 @@ impl ProblemBudget {
     pub(super) fn take_suppressed(&mut self) -> u64 {
         std::mem::take(&mut self.suppressed)
     }
+}
+
+impl Central {
+    pub(super) fn log_line(&mut self, kind: Kind, line: String) {
+        let target = LogTarget {
+            terminal: kind == Kind::Problem || kind.enabled(&self.config.terminal_log),
+            file: kind.enabled(&self.config.file_log),
+        };
+        if target.terminal || target.file {
+            self.outputs.push_back(Output::Log { target, line });
+        }
+    }
+
+    /// Options of whichever log is the more verbose (ref/parent/time fields).
+    pub(super) fn opts(&self) -> LogOptions {
+        if self.config.terminal_log.any() {
+            self.config.terminal_log
+        } else {
+            self.config.file_log
+        }
+    }
+
+    /// Whether a `kind` line about `msg` goes anywhere: its kind is on in
+    /// some log, and `msg` is not ignored (`-i` / `-I`). Checked before a
+    /// line is formatted, so that a central with logging off (`-lx`) does
+    /// no formatting work per message.
+    pub(super) fn logs(&self, kind: Kind, msg: &str) -> bool {
+        let o = self.opts();
+        (kind.enabled(&self.config.terminal_log) || kind.enabled(&self.config.file_log))
+            && !(self.ignore.contains(msg)
+                && (o.ignore_internal || self.config.ignore.iter().any(|n| n == msg)))
+    }
+
+    /// `dispatchUpdateAndDisplay1`'s common layout:
+    /// `Class      msg {ref}:     origin {parent} --> <to><time>`.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn dispatch_line(
+        &self,
+        class: u16,
+        msg: &str,
+        did: Option<i32>,
+        org: &str,
+        parent: i32,
+        to: &str,
+        now: SystemTime,
+    ) -> String {
+        let o = self.opts();
+        format!(
+            "{:<9} {:>15}{}: {:>10}{} --> {to}{}",
+            class_name(class),
+            msg,
+            did.map(|d| ref_id(&o, d)).unwrap_or_default(),
+            org,
+            parent_id(&o, parent),
+            time(&o, now)
+        )
+    }
+
+    pub(super) fn module_name(&self, org: Org) -> String {
+        match org {
+            Org::Central => SERVER_NAME.to_string(),
+            Org::Module(c) => self
+                .modules
+                .get(&c)
+                .and_then(|m| m.name.clone())
+                // A module not named yet (before its connect query).
+                .unwrap_or_else(|| "**NEWMOD**".to_string()),
+        }
+    }
+
+    pub(super) fn log_data(
+        &mut self,
+        msg: &str,
+        class_id: ClassId,
+        data: &[u8],
+        reply_of: Option<&str>,
+    ) {
+        self.log_data_as(msg, class_id, data, reply_of, false)
+    }
+
+    /// `internal`: the data is an internal message's own format (its
+    /// msgFormat), not a user message body.
+    pub(super) fn log_data_as(
+        &mut self,
+        msg: &str,
+        class_id: ClassId,
+        data: &[u8],
+        reply_of: Option<&str>,
+        internal: bool,
+    ) {
+        if !Kind::Data.enabled(&self.config.terminal_log)
+            && !Kind::Data.enabled(&self.config.file_log)
+        {
+            return;
+        }
+        let name = reply_of.unwrap_or(msg).to_string();
+        let (mf, rf) = self.parsed(&name);
+        let (mf, rf) = if internal { (None, mf) } else { (mf, rf) };
+        self.log_decoded(&name, &mf, &rf, data, class_id);
+    }
+
+    /// The data lines of `data`, decoded as [`decode_user`] does.
+    fn log_decoded(
+        &mut self,
+        name: &str,
+        mf: &Option<Format>,
+        rf: &Option<Format>,
+        data: &[u8],
+        class_id: ClassId,
+    ) {
+        let order = class_id.data_order().unwrap_or(ByteOrder::NATIVE);
+        let text = match decode_user(mf, rf, data, order, &self.formats) {
+            Ok(Some(t)) => t,
+            Ok(None) => return,
+            Err(e) => format!("    <cannot decode {name}: {e}>"),
+        };
+        for line in text.trim_end_matches('\n').split('\n') {
+            self.log_line(Kind::Data, line.to_string());
+        }
+    }
+
+    /// A line about something `conn` did wrong, within its
+    /// [`ProblemBudget`]: a module repeating a mistake in a loop gets
+    /// a burst of lines, then one a second, and a count of the rest.
+    pub(super) fn complain(&mut self, conn: ConnId, line: String) {
+        let now = self.clock;
+        let allowed = match self.modules.get_mut(&conn) {
+            Some(m) => m.problems.allow(now),
+            None => Some(0),
+        };
+        if let Some(left_out) = allowed {
+            self.report_left_out(conn, left_out);
+            self.log_line(Kind::Problem, line);
+        }
+    }
+
+    pub(super) fn report_left_out(&mut self, conn: ConnId, left_out: u64) {
+        if left_out > 0 {
+            let who = self.describe(conn);
+            self.log_line(
+                Kind::Problem,
+                format!("WARNING: {left_out} more problem line(s) about connection {who} left out"),
+            );
+        }
+    }
+
+    pub(super) fn describe(&self, conn: ConnId) -> String {
+        match self.modules.get(&conn) {
+            Some(m) => {
+                let peer = match &m.peer {
+                    Peer::Tcp(a) => a.clone(),
+                    Peer::Unix => "unix socket".into(),
+                    Peer::Other(s) => s.clone(),
+                };
+                match &m.name {
+                    Some(n) => format!("{} ({n} from {peer})", conn.0),
+                    None => format!("{} (from {peer})", conn.0),
+                }
+            }
+            None => conn.0.to_string(),
+        }
+    }
+
+    /// `  Done    <msg>:<time>`: an internal message handled.
+    pub(super) fn log_done(&mut self, name: &str, rid: i32, now: SystemTime) {
+        let o = self.opts();
+        let line = format!("  Done    {name:>15}{}:{}", ref_id(&o, rid), time(&o, now));
+        self.log_line(Kind::Message, line);
+    }
+
+    /// `  Reply  <msg>: X_IPC Server --> <module>  <time>` and the reply's
+    /// data, decoded with the internal message's reply format.
+    pub(super) fn log_internal_reply(
+        &mut self,
+        name: &str,
+        to: &str,
+        (rid, parent): (i32, i32),
+        class_id: ClassId,
+        reply: &[u8],
+        now: SystemTime,
+    ) {
+        let o = self.opts();
+        let line = format!(
+            "  Reply  {:>15}{}: {:>10} --> {:<15}{}{}",
+            name,
+            ref_id(&o, rid),
+            SERVER_NAME,
+            to,
+            parent_id(&o, parent),
+            time(&o, now)
+        );
+        self.log_line(Kind::Message, line);
+        if reply.is_empty() || !self.logs(Kind::Data, name) {
+            return;
+        }
+        let (_, rf) = self.parsed(name);
+        self.log_decoded(name, &None, &rf, reply, class_id);
+    }
+}
+
+/// Array elements decoded for a data log line: more than its five lines
+/// of at most 80 columns can show (each element takes a character).
+const LOGGED_ELEMENTS: usize = 4096;
+
+/// Decodes a message body for the data log: the wire body (`{int,
+/// <byte:1>}`, `[byte:N]` or the format itself) and then the user format.
+fn decode_user(
+    msg_format: &Option<Format>,
+    res_format: &Option<Format>,
+    data: &[u8],
+    order: ByteOrder,
+    reg: &FormatRegistry,
+) -> Result<Option<String>, String> {
+    let Some(user) = res_format.as_ref().or(msg_format.as_ref()) else {
+        return Ok(None);
+    };
+    if *user == Format::Empty {
+        return Ok(None);
+    }
+    let inner: &[u8] = match msg_format {
+        Some(Format::Struct(f))
+            if f.len() == 2 && matches!(f[1], Format::VarArray { .. }) && res_format.is_some() =>
+        {
+            let mut r = Reader::new(data, order);
+            let _len = r.read_i32().map_err(|e| e.to_string())?;
+            let n = r.read_count(1).map_err(|e| e.to_string())?;
+            r.take(n).map_err(|e| e.to_string())?
+        }
+        _ => data,
+    };
+    let resolve = |n: &str| reg.get(n);
+    let mut r = Reader::new(inner, order);
+    // The log shows five lines: the first elements of a large array do.
+    let v = crate::ipc::decode_value_prefix(user, &mut r, &resolve, LOGGED_ELEMENTS)
+        .map_err(|e| e.to_string())?;
+    Ok(Some(crate::ipc::log_data(user, &v)))
 }
 
 #[cfg(test)]

@@ -1,0 +1,126 @@
+//! Back-pressure
+//! ([`Config::max_queued_bytes`](super::Config::max_queued_bytes)): reading
+//! paused and resumed, and the bound on queries waiting for a first handler.
+
+use super::log;
+use super::tables::cost;
+use super::{Central, ConnId, Output};
+
+impl Central {
+    /// Central reads `conn` again before the queues have drained: what it
+    /// sends is now waited for.
+    pub(super) fn resume_read(&mut self, conn: ConnId) {
+        if let Some(m) = self.modules.get_mut(&conn) {
+            if m.paused {
+                m.paused = false;
+                self.memory_paused.remove(&conn);
+                self.answer_paused.remove(&conn);
+                self.outputs.push_back(Output::ResumeRead { conn });
+            }
+        }
+    }
+
+    /// A message was queued for `conn`. If a handler of `conn` may be
+    /// waiting for an answer, the queue may wait on a module held back
+    /// while it answers a query: read those again (see [`Self::check_memory`]).
+    pub(super) fn unblock_askers(&mut self, conn: ConnId) {
+        if self.answer_paused.is_empty() || self.modules.get(&conn).is_none_or(|m| m.asking == 0) {
+            return;
+        }
+        let paused: Vec<ConnId> = self.answer_paused.drain().collect();
+        for c in paused {
+            self.resume_read(c);
+        }
+    }
+
+    pub(super) fn check_memory(&mut self, conn: ConnId) {
+        if self.stats.queued_bytes <= self.config.max_queued_bytes {
+            return;
+        }
+        let Some(m) = self.modules.get(&conn) else {
+            return;
+        };
+        if m.paused || m.closed {
+            return;
+        }
+        // Reading stops only where nothing in central waits for what the
+        // module has not sent yet: none of its own queue waits for a
+        // capacity slot its Success or Reply would free, and no queue can
+        // be stuck behind its answer to a query. A module that publishes
+        // while it handles a broadcast (a pipeline) is stopped, and so is
+        // one publishing while it answers a query, as long as no module
+        // that waits for an answer (maybe in a handler, holding its
+        // capacity) has anything queued; when one does, it is read again
+        // (`unblock_askers`). Its asker then waits for the reply until the
+        // queues drain, which they can: whatever is queued is for modules
+        // whose handlers wait for nobody.
+        let own_queue_empty = m.pending.is_empty() && m.ahead.is_empty();
+        let answering = m.attending > 0 && m.answering > 0;
+        let may_pause = m.attending == 0
+            || (own_queue_empty
+                && (!answering
+                    || self
+                        .modules
+                        .values()
+                        .all(|x| x.asking == 0 || (x.pending.is_empty() && x.ahead.is_empty()))));
+        if may_pause {
+            let m = self.modules.get_mut(&conn).unwrap();
+            m.paused = true;
+            self.memory_paused.insert(conn);
+            if answering {
+                self.answer_paused.insert(conn);
+            }
+            self.outputs.push_back(Output::PauseRead { conn });
+        }
+    }
+
+    pub(super) fn check_memory_resume(&mut self) {
+        if self.memory_paused.is_empty()
+            || self.stats.queued_bytes > self.config.max_queued_bytes / 2
+        {
+            return;
+        }
+        let paused: Vec<ConnId> = self.memory_paused.drain().collect();
+        self.answer_paused.clear();
+        for conn in paused {
+            if let Some(m) = self.modules.get_mut(&conn) {
+                if m.paused {
+                    m.paused = false;
+                    self.outputs.push_back(Output::ResumeRead { conn });
+                }
+            }
+        }
+    }
+
+    /// A query or inform of `msg` from `conn` (`added`) joined those waiting
+    /// for a first handler. Past
+    /// [`Config::max_queued_bytes`](super::Config::max_queued_bytes) of them,
+    /// the oldest of `msg` are dropped (the new one last), as a queue limit
+    /// drops the oldest: their askers may have given up long ago, and a
+    /// handler that comes gets the newest. Pausing the asker instead would
+    /// stop a module's whole connection for one message nobody serves, and
+    /// would hide its hang-up until a handler comes.
+    pub(super) fn bound_waiting(&mut self, conn: ConnId, msg: &str, added: i32) {
+        self.stats.waiting_bytes += cost(&self.dispatches[&added]);
+        while self.stats.waiting_bytes > self.config.max_queued_bytes {
+            let Some(did) = self.msgs.get_mut(msg).and_then(|m| m.waiting.pop_front()) else {
+                break;
+            };
+            let Some(d) = self.free_dispatch_id(did) else {
+                continue;
+            };
+            self.stats.waiting_bytes = self.stats.waiting_bytes.saturating_sub(cost(&d));
+            self.stats.dropped_waiting += 1;
+            let asker = self.module_name(d.org);
+            let limit = self.config.max_queued_bytes;
+            self.complain(
+                conn,
+                format!(
+                    "WARNING: {} {msg} {{{did}}} from {asker} dropped: more than {limit} bytes of \
+                     queries wait for a handler",
+                    log::class_name(d.class)
+                ),
+            );
+        }
+    }
+}

@@ -1,0 +1,351 @@
+//! Registrations: a module naming itself, messages and handlers
+//! (un)registered, message lookups (`msgInfo`), capacities and queue
+//! limits.
+
+use std::time::SystemTime;
+
+use super::direct::direct_class;
+use super::internal;
+use super::log::Kind;
+use super::tables::{cost, Handler, Status};
+use super::{Central, ConnId};
+use crate::ipc::frame::MsgClass;
+use crate::ipc::Writer;
+
+impl Central {
+    pub(super) fn msg_info(
+        &mut self,
+        conn: ConnId,
+        msg: Option<&str>,
+        hnd: Option<&str>,
+        out: &mut Writer,
+    ) {
+        let Some(msg) = msg else {
+            out.write_ptr_flag(false);
+            return;
+        };
+        if !self.msgs.contains_key(msg) {
+            out.write_ptr_flag(false);
+            return;
+        }
+        let (mf, rf) = self.parsed(msg);
+        let m = &self.msgs[msg];
+        let id = if m.direct && direct_class(m.class) {
+            -m.id.abs()
+        } else {
+            m.id
+        };
+        out.write_ptr_flag(true);
+        out.write_i32(id);
+        out.write_str(&m.name);
+        out.write_i32(m.class as i32);
+        internal::write_formatter(out, mf.as_ref());
+        internal::write_formatter(out, rf.as_ref());
+        if let Some(hn) = hnd {
+            let found = self
+                .modules
+                .get_mut(&conn)
+                .and_then(|m| m.handlers.get_mut(hn))
+                .map(|h| h.knows_msg = true)
+                .is_some();
+            if !found {
+                self.log_line(Kind::Message, String::new());
+                self.log_line(
+                    Kind::Message,
+                    format!("WARNING: msgInfoHnd: Missing handler: {hn}"),
+                );
+            }
+        }
+    }
+
+    pub(super) fn on_connect(&mut self, conn: ConnId, module: String, host: String) {
+        self.log_line(
+            Kind::Always,
+            format!(" Received a new connection: {}", conn.0),
+        );
+        self.log_line(Kind::Always, format!("   modName : {module}"));
+        self.log_line(Kind::Always, format!("   hostName: {host}"));
+        self.central_broadcast(internal::CONNECT_NOTIFY, |w| w.write_str(&module));
+        if let Some(m) = self.modules.get_mut(&conn) {
+            m.name = Some(module);
+            m.host = host;
+        }
+    }
+
+    pub(super) fn register_message(
+        &mut self,
+        conn: ConnId,
+        name: String,
+        class: i32,
+        mf: Option<String>,
+        rf: Option<String>,
+    ) {
+        let Some(class) = u16::try_from(class).ok().and_then(MsgClass::from_u16) else {
+            self.complain(
+                conn,
+                format!("WARNING: message {name} registered with unknown class {class}; ignored"),
+            );
+            return;
+        };
+        if let Some(m) = self.msgs.get(&name) {
+            if m.internal.is_some() {
+                self.complain(
+                    conn,
+                    format!(
+                        "WARNING: a module tried to redefine central's message {name}; ignored"
+                    ),
+                );
+                return;
+            }
+            if m.class != MsgClass::HandlerReg {
+                self.log_line(
+                    Kind::Status,
+                    format!("Registration: Message {name} Found. Updating."),
+                );
+            }
+        }
+        self.insert_msg(name.clone(), class, mf, rf, None);
+        let m = self.msgs.get_mut(&name).unwrap();
+        if m.class == MsgClass::Broadcast && !m.handlers.is_empty() {
+            self.record_broadcast(&name, true);
+        }
+        let m = self.msgs.get_mut(&name).unwrap();
+        if direct_class(m.class) {
+            m.direct = self.config.direct;
+            if m.direct || m.notify_handler_change {
+                self.register_var(&name);
+                self.update_direct_handlers(&name);
+            }
+        }
+    }
+
+    pub(super) fn register_handler(
+        &mut self,
+        conn: ConnId,
+        id: i32,
+        msg: String,
+        hnd: String,
+        now: SystemTime,
+    ) {
+        // The broadcast list before this registration changes it.
+        let list_before = self.var_version(internal::BROADCAST_MSG_VAR);
+        let existed = self
+            .msgs
+            .get(&msg)
+            .is_some_and(|m| m.class != MsgClass::HandlerReg);
+        if existed && self.msgs[&msg].class == MsgClass::Broadcast {
+            self.record_broadcast(&msg, true);
+        }
+        self.placeholder(&msg);
+        let Some(module) = self.modules.get_mut(&conn) else {
+            return;
+        };
+        let mod_name = module.name.clone();
+        if let Some(old) = module.handlers.get_mut(&hnd) {
+            // Re-registering a handler (a C module does it when the client
+            // data changes, with id 0): like x_ipc_selfRegisterHnd, keep
+            // the first id and forget that the module knows the message, so
+            // the next delivery names it again. The C central announces the
+            // handler list again all the same (registerHandlerHnd).
+            old.knows_msg = false;
+            let m = &self.msgs[&msg];
+            if m.direct || m.notify_handler_change {
+                self.update_direct_handlers(&msg);
+            }
+            return;
+        }
+        // Subscribed again after an unsubscribe: the first id, not the 0
+        // the C library sends this time.
+        let id = module.retired.remove(&hnd).unwrap_or(id);
+        module.handlers.insert(
+            hnd.clone(),
+            Handler {
+                id,
+                seq: {
+                    self.handler_seq += 1;
+                    self.handler_seq
+                },
+                msg: msg.clone(),
+                knows_msg: false,
+            },
+        );
+        self.msgs
+            .get_mut(&msg)
+            .unwrap()
+            .handlers
+            .push((conn, hnd.clone()));
+        if !existed {
+            self.record_broadcast(&msg, true);
+        }
+        // A module's own registrations change the broadcast list it read
+        // (the C central sends it none of those changes either); only
+        // changes made by others in the meantime make its copy stale.
+        let list_after = self.var_version(internal::BROADCAST_MSG_VAR);
+        if let (Some(b), Some(a)) = (list_before, list_after) {
+            if let Some(m) = self.modules.get_mut(&conn) {
+                if let Some(r) = m.vars_read.get_mut(internal::BROADCAST_MSG_VAR) {
+                    if *r == b {
+                        *r = a;
+                    }
+                }
+            }
+        }
+        self.catch_up_watch(conn, &msg, &hnd);
+        let m = &self.msgs[&msg];
+        if m.direct || m.notify_handler_change {
+            self.update_direct_handlers(&msg);
+        }
+        // Queries and informs that waited for a handler.
+        let waiting: Vec<i32> = self.msgs.get_mut(&msg).unwrap().waiting.drain(..).collect();
+        for did in waiting {
+            if let Some(d) = self.dispatches.get_mut(&did) {
+                self.stats.waiting_bytes = self.stats.waiting_bytes.saturating_sub(cost(d));
+                d.hnd = Some((conn, hnd.clone()));
+                self.deliver_or_pend(did, now);
+            }
+        }
+        // -r: deliveries this module had not finished before it crashed.
+        if let Some(n) = mod_name {
+            if let Some(list) = self.orphans.get_mut(&n) {
+                let (mine, rest): (Vec<i32>, Vec<i32>) = list
+                    .drain(..)
+                    .partition(|id| self.dispatches.get(id).is_some_and(|d| d.msg == msg));
+                *list = rest;
+                for did in mine {
+                    self.log_line(Kind::Always, format!("Resending {msg} {{{did}}} to {n}"));
+                    if let Some(d) = self.dispatches.get_mut(&did) {
+                        d.hnd = Some((conn, hnd.clone()));
+                        self.deliver_or_pend(did, now);
+                    }
+                }
+            }
+        }
+    }
+
+    pub(super) fn deregister_handler(&mut self, conn: ConnId, msg: &str, hnd: &str) {
+        let Some(module) = self.modules.get_mut(&conn) else {
+            return;
+        };
+        let Some(old) = module.handlers.remove(hnd) else {
+            return;
+        };
+        module.retired.insert(hnd.to_string(), old.id);
+        if let Some(m) = self.msgs.get_mut(msg) {
+            m.handlers.retain(|(c, n)| !(*c == conn && n == hnd));
+        }
+        // Deliveries queued for the handler cannot be handled any more.
+        let stale: Vec<i32> = self
+            .dispatches
+            .iter()
+            .filter(|(_, d)| {
+                d.status == Status::Pending
+                    && d.hnd.as_ref().is_some_and(|(c, n)| *c == conn && n == hnd)
+            })
+            .map(|(id, _)| *id)
+            .collect();
+        for id in stale {
+            if let Some(m) = self.modules.get_mut(&conn) {
+                m.pending.retain(|x| *x != id);
+            }
+            self.free_dispatch_id(id);
+            self.log_line(
+                Kind::Status,
+                format!("Deleted pending {msg} {{{id}}}: its handler {hnd} was unsubscribed"),
+            );
+        }
+        self.handlers_changed(msg);
+    }
+
+    /// After handlers of `msg` changed: broadcast list and watch variable.
+    fn handlers_changed(&mut self, msg: &str) {
+        let Some(m) = self.msgs.get(msg) else {
+            return;
+        };
+        if m.class == MsgClass::Broadcast && m.handlers.is_empty() {
+            self.record_broadcast(msg, false);
+        }
+        let m = &self.msgs[msg];
+        if m.direct || m.notify_handler_change {
+            self.update_direct_handlers(msg);
+        }
+    }
+
+    pub(super) fn set_capacity(&mut self, conn: ConnId, cap: i32, res: &str, now: SystemTime) {
+        if !self.modules.contains_key(&conn) {
+            return;
+        }
+        let mut cap = cap;
+        if cap < 1 {
+            self.log_line(Kind::Status, String::new());
+            self.log_line(
+                Kind::Status,
+                format!("WARNING: Capacity of {}:{res} set to 1", conn.0),
+            );
+            cap = 1;
+        }
+        let m = self.modules.get_mut(&conn).unwrap();
+        if m.name.as_deref() != Some(res) {
+            self.log_line(
+                Kind::Status,
+                format!(
+                    "WARNING: resource {res} is not module {}; capacity applied to the module",
+                    conn.0
+                ),
+            );
+        }
+        let m = self.modules.get_mut(&conn).unwrap();
+        if m.capacity != cap as usize {
+            m.capacity = cap as usize;
+            self.log_line(Kind::Status, String::new());
+            self.log_line(
+                Kind::Status,
+                format!("WARNING: Capacity of {}:{res} changed to {cap}", conn.0),
+            );
+        }
+        // Like C, a larger capacity is used from the next completion on.
+        let _ = now;
+    }
+
+    pub(super) fn limit_pending(
+        &mut self,
+        conn: ConnId,
+        msg: Option<String>,
+        res: &str,
+        limit: i32,
+    ) {
+        // The resource is named after its module; prefer the sender's own.
+        let target = if self.modules.get(&conn).and_then(|m| m.name.as_deref()) == Some(res) {
+            Some(conn)
+        } else {
+            self.modules
+                .iter()
+                .find(|(_, m)| m.name.as_deref() == Some(res))
+                .map(|(c, _)| *c)
+        };
+        let Some(target) = target else {
+            self.log_line(
+                Kind::Status,
+                format!("ERROR: Non-existent resource {res}; Pending limit not applied"),
+            );
+            return;
+        };
+        let m = self.modules.get_mut(&target).unwrap();
+        match msg {
+            None => m.pending_limit = Some(limit),
+            Some(msg) => {
+                if let Some(e) = m.msg_limits.iter_mut().find(|(n, _)| *n == msg) {
+                    if e.1 != limit {
+                        let old = e.1;
+                        e.1 = limit;
+                        self.log_line(
+                            Kind::Status,
+                            format!("WARNING: Changing pending message limit of {msg} from {old} to {limit}"),
+                        );
+                    }
+                } else {
+                    m.msg_limits.push((msg, limit));
+                }
+            }
+        }
+    }
+}

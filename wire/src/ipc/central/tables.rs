@@ -1,0 +1,380 @@
+//! The records central keeps — dispatches (one per delivery of a
+//! message), modules, messages, handlers and global variables — and the
+//! allocation of message and dispatch ids, as C numbers them.
+
+use std::collections::{BTreeMap, VecDeque};
+
+use super::internal::{Def, Internal};
+use super::log;
+use super::{Body, Central, ConnId, Peer, Stats, DEFAULT_PRIORITY};
+use crate::format::{parse, parse_with, Format};
+use crate::ipc::frame::{ClassId, Header, MsgClass};
+
+/// Who sent a dispatch.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Org {
+    Central,
+    Module(ConnId),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Status {
+    /// Waiting for a handler to exist (a query or inform with none yet).
+    NoHandler,
+    /// In a module's pending queue.
+    Pending,
+    /// Delivered; waiting for Success or Reply.
+    Attending,
+    /// Written to the module ahead of its turn
+    /// ([`Config::send_ahead`](super::Config::send_ahead)); counts as pending
+    /// until a capacity slot frees.
+    Ahead,
+}
+
+/// How a delivery that takes a capacity slot reaches its module.
+#[derive(Debug, Clone, Copy)]
+pub(super) enum Carry<'a> {
+    /// Its whole frame, now.
+    Frame,
+    /// Its header and the body's first bytes now, the rest as it arrives
+    /// (cut-through): the bytes so far and the body's whole length.
+    Relayed(&'a [u8], usize),
+    /// It was written ahead of its turn
+    /// ([`Config::send_ahead`](super::Config::send_ahead)).
+    Ahead,
+}
+
+#[derive(Debug)]
+pub(super) struct Dispatch {
+    pub(super) msg: String,
+    /// The class the sender used (Broadcast, Query, Inform).
+    pub(super) class: u16,
+    /// The sender's classId (keeps its byte-order flags for forwarding).
+    pub(super) class_id: ClassId,
+    pub(super) org: Org,
+    pub(super) org_ref: i32,
+    pub(super) parent_ref: i32,
+    pub(super) data: Body,
+    /// The handler: module and handler name.
+    pub(super) hnd: Option<(ConnId, String)>,
+    pub(super) status: Status,
+}
+
+/// What central counts for a queued message besides its data, against
+/// [`Config::max_queued_bytes`](super::Config::max_queued_bytes): about what
+/// its bookkeeping takes (the dispatch record, the message and handler names
+/// it carries, its slots in the dispatch table and in a queue).
+pub const DISPATCH_COST: usize = 256;
+
+/// What a dispatch holds, as [`Stats::queued_bytes`] and
+/// [`Stats::waiting_bytes`] count it.
+pub(super) fn cost(d: &Dispatch) -> usize {
+    d.data.len() + DISPATCH_COST
+}
+
+/// `d` leaves its pending queue (if it was in one): its cost no longer
+/// counts as queued.
+pub(super) fn unqueue(stats: &mut Stats, d: &Dispatch) {
+    if d.status == Status::Pending {
+        stats.queued_bytes = stats.queued_bytes.saturating_sub(cost(d));
+    }
+}
+
+impl Dispatch {
+    /// Delivered to `conn` and awaiting its Success or Reply.
+    pub(super) fn attending_at(&self, conn: ConnId) -> bool {
+        self.status == Status::Attending && self.hnd.as_ref().is_some_and(|(c, _)| *c == conn)
+    }
+}
+
+#[derive(Debug)]
+pub(super) struct Handler {
+    pub(super) id: i32,
+    /// Registration order.
+    pub(super) seq: u64,
+    pub(super) msg: String,
+    /// The module asked msgInfo with this handler's name: it knows the message.
+    pub(super) knows_msg: bool,
+}
+
+#[derive(Debug)]
+pub(super) struct Module {
+    pub(super) peer: Peer,
+    /// Bytes received and not yet framed; `rx_pos` is where unread data starts.
+    pub(super) rx: Vec<u8>,
+    pub(super) rx_pos: usize,
+    pub(super) name: Option<String>,
+    pub(super) host: String,
+    /// `x_ipc_waitMsg` answered: deliveries may flow.
+    pub(super) ready: bool,
+    pub(super) capacity: usize,
+    pub(super) attending: usize,
+    /// Of the deliveries it is handling, those whose sender waits for an
+    /// answer (queries): while it has one, central keeps reading it.
+    pub(super) answering: usize,
+    /// Its queries whose reply has not come (delivered, queued or waiting
+    /// for a handler): while it has one, a handler of its may be blocked
+    /// on someone else's answer.
+    pub(super) asking: usize,
+    pub(super) pending: VecDeque<i32>,
+    /// Broadcasts sent ahead of their turn, oldest first; they come before
+    /// everything in `pending`.
+    pub(super) ahead: VecDeque<i32>,
+    pub(super) msg_limits: Vec<(String, i32)>,
+    pub(super) pending_limit: Option<i32>,
+    /// Direct-mode listen port (-1 = none).
+    pub(super) port: i32,
+    /// Handlers by name.
+    pub(super) handlers: BTreeMap<String, Handler>,
+    /// Ids of handlers this module unsubscribed, by name. A C module
+    /// subscribes the same handler again with id 0 and expects deliveries
+    /// under the id it registered first (`x_ipc_deregisterHnd` keeps the
+    /// record; `x_ipc_selfRegisterHnd` finds it and keeps its id).
+    pub(super) retired: BTreeMap<String, i32>,
+    /// The version of each variable this module last read (`V_get_…`) or
+    /// was sent (`V_watch_…`).
+    pub(super) vars_read: BTreeMap<String, u64>,
+    pub(super) paused: bool,
+    pub(super) closed: bool,
+    /// Its problem lines (unknown ids, foreign acknowledgements …), so
+    /// that a misbehaving module cannot flood the log.
+    pub(super) problems: log::ProblemBudget,
+    /// A frame from this module being forwarded while it arrives.
+    pub(super) relay: Option<Relay>,
+    /// The module whose frame is being forwarded to this one: every other
+    /// frame for this module waits in `held` until that one is complete.
+    pub(super) relay_from: Option<ConnId>,
+    pub(super) held: Vec<(Vec<u8>, Option<Body>)>,
+    /// A large frame is being received into `rx` (from its start, with
+    /// `rx_pos` 0) and ends at this length: `rx` takes no bytes beyond it,
+    /// so that the frame's buffer becomes its [`Body`] without a copy.
+    pub(super) big_end: Option<usize>,
+}
+
+/// A frame body passing through central as it arrives (cut-through).
+#[derive(Debug)]
+pub(super) struct Relay {
+    /// Where the body goes.
+    pub(super) to: ConnId,
+    /// Body bytes still to come from the sender.
+    pub(super) remaining: usize,
+    /// Body bytes in all.
+    pub(super) total: usize,
+    pub(super) msg: String,
+    /// A reply: its bookkeeping (`on_reply`) is done once it has passed.
+    pub(super) reply: Option<(Header, Option<String>)>,
+}
+
+impl Module {
+    /// A delivery would go out now rather than wait in `pending`.
+    pub(super) fn takes_delivery_now(&self) -> bool {
+        self.ready
+            && self.attending < self.capacity
+            && self.pending.is_empty()
+            && self.ahead.is_empty()
+    }
+}
+
+#[derive(Debug)]
+pub(super) struct Msg {
+    /// Central's id; 0 for a name only known from a subscription.
+    pub(super) id: i32,
+    pub(super) name: String,
+    pub(super) class: MsgClass,
+    pub(super) msg_format: Option<String>,
+    pub(super) res_format: Option<String>,
+    /// Parsed (and named-format expanded) formats, cached.
+    pub(super) parsed: Option<(Option<Format>, Option<Format>)>,
+    /// Handlers in subscription order (oldest first).
+    pub(super) handlers: Vec<(ConnId, String)>,
+    /// Dispatches waiting for a first handler.
+    pub(super) waiting: VecDeque<i32>,
+    pub(super) priority: i32,
+    pub(super) direct: bool,
+    pub(super) notify_handler_change: bool,
+    pub(super) internal: Option<Internal>,
+}
+
+#[derive(Debug)]
+pub(super) struct Var {
+    pub(super) format: Format,
+    pub(super) value: Vec<u8>,
+    /// Bumped at every change, so a module's watch can tell whether the
+    /// value it read is still current.
+    pub(super) version: u64,
+}
+
+/// A delivery of this class has a sender waiting for its answer (a query),
+/// as opposed to a broadcast or inform, which nobody waits for.
+pub(super) fn awaits_answer(class: u16) -> bool {
+    class != MsgClass::Broadcast as u16 && class != MsgClass::Inform as u16
+}
+
+impl Central {
+    pub(super) fn alloc_msg_id(&mut self) -> i32 {
+        loop {
+            if let Some(id) = self.next_ids.pop() {
+                if id >= 2 {
+                    return id;
+                }
+                continue;
+            }
+            // C's id table grows by 200 and hands out the highest id first.
+            let lo = self.id_block * 200;
+            self.id_block += 1;
+            self.next_ids = (lo..lo + 200).collect();
+        }
+    }
+
+    /// A dispatch id, last freed first (as C's `dispatchAllocate`).
+    pub(super) fn take_ref(&mut self) -> i32 {
+        self.free_dispatch.pop().unwrap_or_else(|| {
+            let id = self.next_dispatch;
+            self.next_dispatch += 1;
+            id
+        })
+    }
+
+    /// C gives every message a dispatch, the internal ones central handles
+    /// and the informs it sends itself included, and frees it once
+    /// handled; with `-lr` the log shows its id. Central holds an id from
+    /// the same pool while it handles one, so that the ids it logs, and
+    /// gives the modules' messages, follow C's.
+    pub(super) fn give_ref(&mut self, id: i32) {
+        self.free_dispatch.push(id);
+    }
+
+    pub(super) fn alloc_dispatch(&mut self, d: Dispatch) -> i32 {
+        let id = self.take_ref();
+        if let (Org::Module(asker), true) = (d.org, awaits_answer(d.class)) {
+            if let Some(m) = self.modules.get_mut(&asker) {
+                m.asking += 1;
+            }
+        }
+        self.dispatches.insert(id, d);
+        id
+    }
+
+    pub(super) fn free_dispatch_id(&mut self, id: i32) -> Option<Dispatch> {
+        let d = self.dispatches.remove(&id)?;
+        unqueue(&mut self.stats, &d);
+        if let (Org::Module(asker), true) = (d.org, awaits_answer(d.class)) {
+            if let Some(m) = self.modules.get_mut(&asker) {
+                m.asking = m.asking.saturating_sub(1);
+            }
+        }
+        self.give_ref(id);
+        Some(d)
+    }
+
+    pub(super) fn register_internal(&mut self, d: Def) {
+        if !d.ignore_log || matches!(d.kind, Internal::Notify) {
+            // logged unless -I
+        }
+        if d.ignore_log {
+            self.ignore.insert(d.name.to_string());
+        }
+        self.insert_msg(
+            d.name.to_string(),
+            d.class,
+            d.msg_format.map(str::to_string),
+            d.res_format.map(str::to_string),
+            Some(d.kind),
+        );
+    }
+
+    pub(super) fn insert_msg(
+        &mut self,
+        name: String,
+        class: MsgClass,
+        msg_format: Option<String>,
+        res_format: Option<String>,
+        internal: Option<Internal>,
+    ) -> i32 {
+        if let Some(m) = self.msgs.get_mut(&name) {
+            let id = if m.id == 0 { 0 } else { m.id };
+            let was_placeholder = m.class == MsgClass::HandlerReg;
+            m.class = class;
+            m.msg_format = msg_format;
+            m.res_format = res_format;
+            m.parsed = None;
+            if internal.is_some() {
+                m.internal = internal;
+            }
+            let id = if id == 0 {
+                let id = self.alloc_msg_id();
+                self.msgs.get_mut(&name).unwrap().id = id;
+                self.by_id.insert(id, name.clone());
+                id
+            } else {
+                id
+            };
+            if was_placeholder && class != MsgClass::Broadcast {
+                self.record_broadcast(&name, false);
+            }
+            return id;
+        }
+        let id = self.alloc_msg_id();
+        self.by_id.insert(id, name.clone());
+        self.msgs.insert(
+            name.clone(),
+            Msg {
+                id,
+                name,
+                class,
+                msg_format,
+                res_format,
+                parsed: None,
+                handlers: Vec::new(),
+                waiting: VecDeque::new(),
+                priority: DEFAULT_PRIORITY,
+                direct: false,
+                notify_handler_change: false,
+                internal,
+            },
+        );
+        id
+    }
+
+    pub(super) fn placeholder(&mut self, name: &str) {
+        if !self.msgs.contains_key(name) {
+            self.msgs.insert(
+                name.to_string(),
+                Msg {
+                    id: 0,
+                    name: name.to_string(),
+                    class: MsgClass::HandlerReg,
+                    msg_format: None,
+                    res_format: None,
+                    parsed: None,
+                    handlers: Vec::new(),
+                    waiting: VecDeque::new(),
+                    priority: DEFAULT_PRIORITY,
+                    direct: false,
+                    notify_handler_change: false,
+                    internal: None,
+                },
+            );
+        }
+    }
+
+    /// Parsed formats of a message (named formats expanded as C does when
+    /// it parses at lookup time; an unknown name stays `Named`).
+    pub(super) fn parsed(&mut self, name: &str) -> (Option<Format>, Option<Format>) {
+        let reg = &self.formats;
+        let Some(m) = self.msgs.get_mut(name) else {
+            return (None, None);
+        };
+        if m.parsed.is_none() {
+            let p = |s: &Option<String>| -> Option<Format> {
+                let s = s.as_deref()?;
+                if s.is_empty() {
+                    return None;
+                }
+                parse_with(s, reg).or_else(|_| parse(s)).ok()
+            };
+            m.parsed = Some((p(&m.msg_format), p(&m.res_format)));
+        }
+        m.parsed.clone().unwrap_or((None, None))
+    }
+}

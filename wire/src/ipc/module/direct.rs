@@ -1,0 +1,233 @@
+//! Direct mode, sending and receiving side (ipc.md §8): links to other
+//! modules, the handler lists that name them, and sends that wait for
+//! their links.
+
+use super::event::Event;
+use super::ops::Op;
+use super::proto::{self, MsgInfo};
+use super::replies::Pending;
+use super::{Connection, DirectHandler, Error, LinkId, LINK_WAIT, MAX_QUEUED_DELIVERIES};
+use crate::ipc::frame::{ClassId, Deframer, Frame, Header, MsgClass, NO_REF, QUERY_REPLY_INTENT};
+
+impl Connection {
+    /// Reports the direct listener's port (after [`Event::DirectListenRequested`]):
+    /// sends `x_ipc_directResMsg {port, name}` and continues the handshake.
+    pub fn announce_direct_port(&mut self, port: i32) {
+        if let Some(pos) = self
+            .ops
+            .iter()
+            .position(|o| matches!(o, Op::WaitDirectPort))
+        {
+            self.ops[pos] = Op::DirectRes(port);
+            if self.blocked == Some(i32::MIN) {
+                self.blocked = None;
+            }
+            self.pump();
+        }
+    }
+
+    /// Bytes to write on a direct link (§8).
+    pub fn poll_direct_transmit(&mut self) -> Option<(LinkId, Vec<u8>)> {
+        self.direct_tx.pop_front()
+    }
+
+    pub(super) fn push_direct(&mut self, link: LinkId, frame: Frame) {
+        let (head, data) = frame.into_parts();
+        self.direct_tx.push_back((link, head));
+        if let Some(data) = data {
+            self.direct_tx.push_back((link, data));
+        }
+    }
+
+    /// A peer connected to our direct listener: returns the link's handle
+    /// for [`receive_direct`](Self::receive_direct).
+    pub fn accept_direct(&mut self) -> LinkId {
+        let link = LinkId(self.next_link);
+        self.next_link += 1;
+        self.link_in.insert(link, Deframer::new(self.cfg.max_frame));
+        link
+    }
+
+    /// Bytes read from a direct link (accepted or connected), in any split:
+    /// deliveries to our handlers (no Success ack is sent for them) and
+    /// replies to our direct queries. A malformed stream closes only the
+    /// link: the error is returned and the shell drops the socket.
+    pub fn receive_direct(&mut self, link: LinkId, mut bytes: &[u8]) -> Result<(), Error> {
+        let mut d = self
+            .link_in
+            .remove(&link)
+            .unwrap_or_else(|| Deframer::new(self.cfg.max_frame));
+        loop {
+            let frame = match d.next(&mut bytes) {
+                Ok(Some(f)) => f,
+                Ok(None) => break,
+                Err(e) => return Err(Error::Frame(e)),
+            };
+            if frame.header.intent == QUERY_REPLY_INTENT {
+                self.handle_reply(frame)?;
+            } else if self.inbox.len() >= MAX_QUEUED_DELIVERIES {
+                return Err(Error::Protocol {
+                    what: "direct delivery",
+                    detail: format!("more than {MAX_QUEUED_DELIVERIES} unprocessed deliveries"),
+                });
+            } else {
+                self.inbox.push_back((frame, Some(link)));
+            }
+        }
+        self.link_in.insert(link, d);
+        Ok(())
+    }
+
+    /// The shell connected direct link `link`: queued sends proceed.
+    pub fn direct_link_up(&mut self, link: LinkId) {
+        for (id, up) in self.links.values_mut() {
+            if *id == link {
+                *up = true;
+            }
+        }
+        if self.blocked == Some(LINK_WAIT) {
+            self.blocked = None;
+            self.pump();
+        }
+    }
+
+    /// The shell could not connect `link`: its receivers are skipped (as C
+    /// does after a failed connect); queued sends proceed to the others.
+    pub fn direct_link_failed(&mut self, link: LinkId) {
+        let dead: Vec<(String, i32)> = self
+            .links
+            .iter()
+            .filter(|(_, (id, _))| *id == link)
+            .map(|(k, _)| k.clone())
+            .collect();
+        for k in &dead {
+            self.links.remove(k);
+            for list in self.direct_handlers.values_mut() {
+                list.retain(|h| (h.host.as_str(), h.port) != (k.0.as_str(), k.1));
+            }
+        }
+        self.direct_link_up(link);
+    }
+
+    pub(super) fn set_direct_handlers(&mut self, msg: &str, list: Vec<DirectHandler>) {
+        for h in &list {
+            let key = (h.host.clone(), h.port);
+            if !self.links.contains_key(&key) {
+                let link = LinkId(self.next_link);
+                self.next_link += 1;
+                self.links.insert(key, (link, false));
+                self.events.push_back(Event::DirectConnect {
+                    link,
+                    host: h.host.clone(),
+                    port: h.port,
+                    module: h.module.clone(),
+                });
+            }
+        }
+        self.direct_handlers.insert(msg.to_string(), list);
+    }
+
+    /// Sends a direct publish/query, first learning the receivers and
+    /// waiting for their links, so that no message is lost.
+    pub(super) fn direct_send(&mut self, op: Op, info: &MsgInfo) {
+        let (op_id, msg, data, parent, query) = match op {
+            Op::Publish {
+                op,
+                msg,
+                data,
+                parent,
+            } => (op, msg, data, parent, false),
+            Op::Query {
+                op,
+                msg,
+                data,
+                parent,
+            } => (op, msg, data, parent, true),
+            other => {
+                self.ops.push_front(other);
+                return;
+            }
+        };
+        let rebuild = |msg: String, data: Vec<u8>| {
+            if query {
+                Op::Query {
+                    op: op_id,
+                    msg,
+                    data,
+                    parent,
+                }
+            } else {
+                Op::Publish {
+                    op: op_id,
+                    msg,
+                    data,
+                    parent,
+                }
+            }
+        };
+        let Some(list) = self.direct_handlers.get(&msg).cloned() else {
+            self.ops.push_front(rebuild(msg.clone(), data));
+            self.ops.push_front(Op::DirectQuery { msg });
+            return;
+        };
+        let links: Vec<(LinkId, bool)> = list
+            .iter()
+            .filter_map(|h| self.links.get(&(h.host.clone(), h.port)).copied())
+            .collect();
+        if links.iter().any(|(_, up)| !up) {
+            self.ops.push_front(rebuild(msg, data));
+            self.blocked = Some(LINK_WAIT);
+            return;
+        }
+        if list.is_empty() {
+            // C: "No handlers for direct message"; reported, not silent.
+            self.events
+                .push_back(Event::PublishDropped { op: op_id, msg });
+            return;
+        }
+        let body = match proto::wrap(info, &msg, data) {
+            Ok(b) => b,
+            Err((error, _)) => {
+                self.events.push_back(Event::OpFailed { op: op_id, error });
+                return;
+            }
+        };
+        let msg_ref = self.next_msg_ref();
+        let class = if query {
+            MsgClass::Query
+        } else {
+            MsgClass::from_u16(info.class as u16).unwrap_or(MsgClass::Broadcast)
+        };
+        // Last handler first (C walks the list backwards); a query goes to
+        // the first handler only.
+        let targets: Vec<&DirectHandler> = if query {
+            list.iter().take(1).collect()
+        } else {
+            list.iter().rev().collect()
+        };
+        for h in targets {
+            let Some((link, _)) = self.links.get(&(h.host.clone(), h.port)).copied() else {
+                continue;
+            };
+            let frame = Frame {
+                header: Header {
+                    class_total: 0,
+                    msg_total: 0,
+                    parent_ref: parent,
+                    intent: h.intent,
+                    class_id: ClassId::native(class),
+                    dispatch_ref: NO_REF,
+                    msg_ref,
+                },
+                class_data: Vec::new(),
+                data: body.clone(),
+            };
+            self.push_direct(link, frame);
+        }
+        if query {
+            self.pending.insert(msg_ref, Pending::UserQuery(op_id));
+        } else {
+            self.events.push_back(Event::Published { op: op_id });
+        }
+    }
+}
