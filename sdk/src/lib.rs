@@ -91,7 +91,9 @@
 //!   from 8000 (on 127.0.0.1 when central is on loopback, else on all
 //!   interfaces, like C) and links to receivers itself; unlike C, a message
 //!   is never lost because the receiver list is learned late (it waits for
-//!   the links). As in C (`x_ipcDirectResource`, `x_ipc_connectAt`) the
+//!   the links), and a query of a message nobody serves yet waits for its
+//!   first handler, within its timeout, as a routed query waits in central
+//!   (C drops it: "No handlers for direct message"). As in C (`x_ipcDirectResource`, `x_ipc_connectAt`) the
 //!   session also listens at `/tmp/x_ipc/<port>` (removed when it closes;
 //!   a leftover file is replaced, one somebody still answers on is left
 //!   alone), and reaches a receiver whose host is this machine's name over

@@ -74,7 +74,10 @@ async fn every_direct_query_is_answered_under_load() {
         use tracing_subscriber::layer::SubscriberExt;
         use tracing_subscriber::util::SubscriberInitExt;
         let fmt = tracing_subscriber::fmt::layer().with_test_writer();
-        let _ = tracing_subscriber::registry().with(fmt).with(filter).try_init();
+        let _ = tracing_subscriber::registry()
+            .with(fmt)
+            .with(filter)
+            .try_init();
     }
     let rounds = env("DIRECT_STRESS_ROUNDS", 60);
     let queries = env("DIRECT_STRESS_QUERIES", 300);
