@@ -13,11 +13,12 @@ use tokio::sync::{mpsc, oneshot};
 use crate::busy_poll::BusyPoll;
 use crate::qos::{PublicationQos, SubscriptionQos, TypeInfo};
 use crate::session::{
-    Backend, ConnectError, Encoding, QueryError, RawReply, RawRequest, RawSample, SampleQueue,
-    SessionError, SessionEvent,
+    Backend, ConnectError, Encoding, QueryError, RawReply, RawRequest, RawSample, Reply,
+    ReplyFuture, Responder, SampleQueue, SessionError, SessionEvent,
 };
 use courier_wire::ipc::module::{
-    Connection, DeliveryKind, Error as ModError, Event, LinkId, ModuleConfig, MsgLength, OpId,
+    Connection, DeliveryId, DeliveryKind, Error as ModError, Event, LinkId, ModuleConfig,
+    MsgLength, OpId,
 };
 use courier_wire::ipc::ByteOrder;
 
@@ -205,7 +206,9 @@ enum Cmd {
     Query(u64, String, Vec<u8>, Done<Result<RawReply, QueryError>>),
     CancelQuery(u64),
     Ack(u64),
-    Respond(u64, String, Vec<u8>),
+    Respond(u64, String, Vec<u8>, Done<Result<(), SessionError>>),
+    /// A query delivery that will not be answered (its `Request` dropped).
+    Decline(u64),
     ModuleConnected(String, Done<Result<bool, SessionError>>),
     NumHandlers(String, Done<Result<i32, SessionError>>),
     Inform(InformOp, Done<Result<(), SessionError>>),
@@ -563,6 +566,7 @@ impl IpcBackend {
             servers: HashMap::new(),
             publishes: HashMap::new(),
             queries: HashMap::new(),
+            replies: HashMap::new(),
             query_ops: HashMap::new(),
             bools: HashMap::new(),
             counts: HashMap::new(),
@@ -790,12 +794,41 @@ struct Driver {
     publishes: HashMap<OpId, Done<Result<(), SessionError>>>,
     /// Queries waiting for their reply, with their message name.
     queries: HashMap<OpId, (String, Done<Result<RawReply, QueryError>>)>,
+    /// Replies handed to the module, by query delivery, with their reply
+    /// message name.
+    replies: HashMap<DeliveryId, (String, Done<Result<(), SessionError>>)>,
     query_ops: HashMap<u64, OpId>,
     bools: HashMap<OpId, Done<Result<bool, SessionError>>>,
     counts: HashMap<OpId, Done<Result<i32, SessionError>>>,
     closing: Option<Done<()>>,
     watching_modules: bool,
     links: HashMap<LinkId, tokio::io::WriteHalf<Box<dyn IpcStream>>>,
+}
+
+/// The IPC side of one query delivery: answered or declined through the
+/// driver.
+struct IpcReply {
+    cmd: mpsc::UnboundedSender<Cmd>,
+    delivery: DeliveryId,
+    addr: String,
+}
+
+impl Reply for IpcReply {
+    fn reply(self: Box<Self>, reply_msg: &str, data: Vec<u8>) -> ReplyFuture {
+        let (tx, rx) = oneshot::channel();
+        let sent = self
+            .cmd
+            .send(Cmd::Respond(self.delivery, reply_msg.to_string(), data, tx));
+        let addr = self.addr;
+        Box::pin(async move {
+            sent.map_err(|_| SessionError::Disconnected(addr.clone()))?;
+            rx.await.unwrap_or(Err(SessionError::Disconnected(addr)))
+        })
+    }
+
+    fn decline(self: Box<Self>) {
+        let _ = self.cmd.send(Cmd::Decline(self.delivery));
+    }
 }
 
 fn unsupported(what: String) -> SessionError {
@@ -996,10 +1029,19 @@ impl Driver {
             Cmd::Ack(delivery) => {
                 let _ = self.conn.ack(delivery);
             }
-            Cmd::Respond(delivery, reply, data) => {
-                if let Err(e) = self.conn.respond(delivery, &reply, data) {
-                    tracing::warn!("cannot respond with {reply}: {e}");
+            Cmd::Respond(delivery, reply, data, d) => {
+                match self.conn.respond(delivery, &reply, data) {
+                    Ok(()) => {
+                        self.replies.insert(delivery, (reply, d));
+                    }
+                    Err(e) => {
+                        let _ = d.send(Err(refused(e)));
+                    }
                 }
+            }
+            Cmd::Decline(delivery) => {
+                // unknown: answered already, or of a connection since lost
+                let _ = self.conn.decline(delivery);
             }
             Cmd::ModuleConnected(m, d) => match self.conn.is_module_connected(&m) {
                 Ok(op) => {
@@ -1108,6 +1150,23 @@ impl Driver {
                     tracing::debug!(%msg, "not sent: central lists no subscriber for it");
                     if let Some(d) = self.publishes.remove(&op) {
                         let _ = d.send(Ok(()));
+                    }
+                }
+                Event::Replied { delivery } => {
+                    if let Some((_, d)) = self.replies.remove(&delivery) {
+                        let _ = d.send(Ok(()));
+                    }
+                }
+                Event::ReplyFailed { delivery, error } => {
+                    // declined by the module: this module keeps receiving
+                    let e = refused(error);
+                    match self.replies.remove(&delivery) {
+                        Some((reply, d)) => {
+                            let _ = d.send(Err(SessionError::Refused(format!(
+                                "cannot reply with {reply}: {e}; the query was declined"
+                            ))));
+                        }
+                        None => tracing::warn!("a reply was declined: {e}"),
                     }
                 }
                 Event::OpFailed { op, error } => {
@@ -1220,18 +1279,18 @@ impl Driver {
                     .get(&handler)
                     .or_else(|| self.servers.values().find(|s| s.msg == msg));
                 let Some(srv) = srv else {
-                    tracing::warn!("query {msg} for a handler that is gone: not answered");
+                    tracing::warn!("query {msg} for a handler that is gone: declined");
+                    let _ = self.conn.decline(delivery);
                     return;
                 };
-                let cmd = self.cmd_tx.clone();
-                let addr = self.addr.clone();
                 let r = RawRequest {
                     msg,
                     data,
                     order,
-                    respond: Box::new(move |reply: &str, bytes: Vec<u8>| {
-                        cmd.send(Cmd::Respond(delivery, reply.to_string(), bytes))
-                            .map_err(|_| SessionError::Disconnected(addr))
+                    respond: Responder::new(IpcReply {
+                        cmd: self.cmd_tx.clone(),
+                        delivery,
+                        addr: self.addr.clone(),
                     }),
                 };
                 let tx = srv.tx.clone();
@@ -1349,7 +1408,10 @@ impl Driver {
             }
             Cmd::WatchModules => self.watching_modules = true,
             Cmd::Close(d) => self.closing = Some(d),
-            Cmd::CancelQuery(_) | Cmd::Ack(_) | Cmd::Respond(..) | Cmd::LinkAccepted(_) => {}
+            Cmd::Respond(_, _, _, d) => {
+                let _ = d.send(Err(gone()));
+            }
+            Cmd::CancelQuery(_) | Cmd::Ack(_) | Cmd::Decline(_) | Cmd::LinkAccepted(_) => {}
             Cmd::LinkConnected(..) | Cmd::LinkData(..) => {}
         }
     }
@@ -1362,6 +1424,9 @@ impl Driver {
         }
         for (_, (msg, d)) in self.queries.drain() {
             let _ = d.send(Err(QueryError::Disconnected(msg)));
+        }
+        for (_, (_, d)) in self.replies.drain() {
+            let _ = d.send(Err(gone.clone()));
         }
         self.query_ops.clear();
         for (_, d) in self.bools.drain() {
@@ -1383,7 +1448,7 @@ impl Driver {
                 msg: String::new(),
                 data: Vec::new(),
                 order: ByteOrder::NATIVE,
-                respond: Box::new(|_, _| Err(SessionError::Disconnected(String::new()))),
+                respond: Responder::from_fn(|_, _| Err(SessionError::Disconnected(String::new()))),
             });
         }
         self.broadcast(SessionEvent::Disconnected);

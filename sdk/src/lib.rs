@@ -104,6 +104,7 @@
 pub mod busy_poll;
 pub mod ipc_backend;
 pub mod qos;
+mod reply;
 pub mod rtps_backend;
 pub mod scheme;
 pub mod session;

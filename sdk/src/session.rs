@@ -464,8 +464,7 @@ impl Drop for RawSubscriber {
     }
 }
 
-/// Sends a reply: the reply message's name and its bytes.
-pub type Responder = Box<dyn FnOnce(&str, Vec<u8>) -> Result<(), SessionError> + Send>;
+pub use crate::reply::{Reply, ReplyFuture, Responder};
 
 /// A reply as a backend returns it: reply message name, bytes, byte order.
 pub type RawReply = (String, Vec<u8>, ipc::ByteOrder);
@@ -479,7 +478,8 @@ pub struct RawRequest {
     /// Byte order of `data`.
     pub order: ipc::ByteOrder,
     /// Sends the reply (reply message name, bytes); may be called later and
-    /// from any task (IPC_delayResponse).
+    /// from any task (IPC_delayResponse). Dropping it unanswered declines
+    /// the request.
     pub respond: Responder,
 }
 
@@ -1343,13 +1343,38 @@ impl Session {
     }
 
     /// Serves queries of `msg`, answering with `reply_msg` messages.
+    ///
+    /// The reply message name is IPC's (`IPC_respond`'s `replyMsgName`):
+    /// an IPC asker decodes the reply by it. `""` takes the backend's own:
+    /// `<msg>Reply` on IPC; on DDS replies always travel on the service's
+    /// reply topic (`rr/<msg>Reply`), so there any other name is refused
+    /// with [`SessionError::Unsupported`] rather than ignored.
     pub async fn serve<Req: IpcMessage, Resp: IpcMessage>(
         &self,
         msg: &str,
         reply_msg: &str,
     ) -> Result<Requests<Req, Resp>, SessionError> {
+        let reply_msg = match (self.enc(), reply_msg) {
+            (Encoding::Ipc, "") => format!("{msg}Reply"),
+            (Encoding::Ipc, name) => name.to_string(),
+            (Encoding::Cdr, "") => String::new(),
+            (Encoding::Cdr, name) => {
+                return Err(SessionError::Unsupported {
+                    what: format!(
+                        "reply message name {name:?} (DDS replies go on the service's reply \
+                         topic; pass \"\")"
+                    ),
+                    backend: "rtps://",
+                })
+            }
+        };
+        let reply_msg = reply_msg.as_str();
         let define_req = self.topics.bind::<Req>(msg)?;
-        let define_resp = self.topics.bind::<Resp>(reply_msg)?;
+        let define_resp = if reply_msg.is_empty() {
+            false
+        } else {
+            self.topics.bind::<Resp>(reply_msg)?
+        };
         if self.enc() == Encoding::Ipc {
             // both must be defined in central: a reply to an undefined
             // message could not be sent
@@ -2117,13 +2142,18 @@ impl<Req: std::fmt::Debug, Resp> std::fmt::Debug for Request<Req, Resp> {
 }
 
 impl<Req, Resp: IpcMessage> Request<Req, Resp> {
-    /// Answers the request (now or later, from any task).
+    /// Answers the request (now or later, from any task); resolves once
+    /// the reply is sent, or with why it could not be.
+    ///
+    /// A `Request` dropped without a reply is declined: the server keeps
+    /// receiving (on IPC, central frees the module's capacity slot), and
+    /// the asker gets no reply and runs into its timeout.
     pub async fn reply(mut self, resp: &Resp) -> Result<(), SessionError> {
-        let f = self
+        let r = self
             .respond
             .take()
             .ok_or_else(|| SessionError::Refused("already answered".into()))?;
-        f(&self.reply_msg, encode(self.enc, resp))
+        r.reply(&self.reply_msg, encode(self.enc, resp)).await
     }
 }
 

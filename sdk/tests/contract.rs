@@ -232,3 +232,99 @@ async fn an_unknown_scheme_lists_the_known_ones() {
         assert!(text.contains("ipc, rtps"), "{text}");
     }
 }
+
+/// A reply whose message central does not know fails with an error naming
+/// it, and the server keeps receiving (on the old code `reply` returned Ok,
+/// the reply vanished and the module's capacity slot in central stayed
+/// taken: it never received another message).
+#[tokio::test]
+async fn a_failed_reply_is_an_error_and_the_server_keeps_receiving() {
+    let (c, url) = central().await;
+    let server = session(&url, "server").await;
+    let client = session(&url, "client").await;
+    let mut reqs = server.serve_raw("ask").await.unwrap();
+    client.define::<i32>("ask").await.unwrap();
+    client.define::<i32>("answer").await.unwrap();
+    common::await_handlers(&client, "ask", 1).await;
+    let first = tokio::spawn({
+        let client = client.clone();
+        async move {
+            client
+                .query::<i32, i32>("ask", &1)
+                .timeout(Duration::from_millis(500))
+                .await
+        }
+    });
+    let r = tokio::time::timeout(T, reqs.recv()).await.unwrap().unwrap();
+    let e = r
+        .respond
+        .reply("never_defined", 7i32.to_le_bytes().to_vec())
+        .await
+        .unwrap_err();
+    assert!(e.to_string().contains("never_defined"), "{e}");
+    let e = first.await.unwrap().unwrap_err();
+    assert!(matches!(e, QueryError::Timeout { .. }), "{e}");
+    // the slot is free again: the next query is delivered and answered
+    let second = tokio::spawn({
+        let client = client.clone();
+        async move { client.query::<i32, i32>("ask", &2).timeout(T).await }
+    });
+    let r = tokio::time::timeout(T, reqs.recv()).await.unwrap().unwrap();
+    r.respond
+        .reply("answer", 40i32.to_le_bytes().to_vec())
+        .await
+        .unwrap();
+    assert_eq!(second.await.unwrap().unwrap(), 40);
+    client.close().await;
+    server.close().await;
+    c.shutdown().await;
+}
+
+/// A `Request` dropped without a reply is declined: the asker times out and
+/// the server keeps receiving (on the old code the module was wedged).
+#[tokio::test]
+async fn a_dropped_request_is_declined_and_the_server_keeps_receiving() {
+    let (c, url) = central().await;
+    let server = session(&url, "server").await;
+    let client = session(&url, "client").await;
+    let mut reqs = server.serve::<Ask, Sum>("add", "").await.unwrap();
+    common::await_handlers(&client, "add", 1).await;
+    let first = tokio::spawn({
+        let client = client.clone();
+        async move {
+            client
+                .query::<Ask, Sum>("add", &Ask { a: 1, b: 1 })
+                .timeout(Duration::from_millis(500))
+                .await
+        }
+    });
+    let r = tokio::time::timeout(T, reqs.next()).await.unwrap().unwrap();
+    drop(r.unwrap());
+    let e = first.await.unwrap().unwrap_err();
+    assert!(matches!(e, QueryError::Timeout { .. }), "{e}");
+    let second = tokio::spawn({
+        let client = client.clone();
+        async move {
+            client
+                .query::<Ask, Sum>("add", &Ask { a: 20, b: 22 })
+                .timeout(T)
+                .await
+        }
+    });
+    let r = tokio::time::timeout(T, reqs.next())
+        .await
+        .unwrap()
+        .unwrap()
+        .unwrap();
+    let total = r.value.a + r.value.b;
+    r.reply(&Sum {
+        total,
+        note: String::new(),
+    })
+    .await
+    .unwrap();
+    assert_eq!(second.await.unwrap().unwrap().total, 42);
+    client.close().await;
+    server.close().await;
+    c.shutdown().await;
+}

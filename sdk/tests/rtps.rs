@@ -574,10 +574,7 @@ struct AddResp {
 /// A server that answers each request from a task of its own, after a
 /// delay that makes later requests finish first.
 async fn adder(s: &Session) {
-    let mut reqs = s
-        .serve::<AddReq, AddResp>("add", "add_reply")
-        .await
-        .unwrap();
+    let mut reqs = s.serve::<AddReq, AddResp>("add", "").await.unwrap();
     tokio::spawn(async move {
         while let Some(r) = reqs.next().await {
             let r = r.unwrap();

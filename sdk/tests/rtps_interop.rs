@@ -722,7 +722,7 @@ async fn courier_queries_a_fastdds_service() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_fastdds_client_queries_a_courier_service() {
     let s = session(189).await;
-    let mut reqs = s.serve::<Msg, Msg>("echo", "echo_reply").await.unwrap();
+    let mut reqs = s.serve::<Msg, Msg>("echo", "").await.unwrap();
     let server = tokio::spawn(async move {
         for _ in 0..3 {
             let r = tokio::time::timeout(T, reqs.next())

@@ -501,7 +501,10 @@ async fn raw_query_and_serve() {
     let srv = tokio::spawn(async move {
         let r = reqs.recv().await.unwrap();
         assert_eq!(r.data, courier::ipc::to_vec(&9i32));
-        (r.respond)("raw_r", courier::ipc::to_vec(&10i32)).unwrap();
+        r.respond
+            .reply("raw_r", courier::ipc::to_vec(&10i32))
+            .await
+            .unwrap();
         reqs
     });
     let (reply, data, _) = a

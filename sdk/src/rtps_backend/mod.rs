@@ -2054,7 +2054,7 @@ impl State {
             };
             let name = srv.name.clone();
             let cmd = self.responder.clone();
-            let respond: crate::session::Responder = Box::new(move |_reply_msg, data| {
+            let respond = crate::session::Responder::from_fn(move |_reply_msg, data| {
                 let tx = cmd.upgrade().ok_or_else(disconnected)?;
                 tx.send(Cmd::Respond {
                     name,
