@@ -85,7 +85,7 @@ use crate::session::{
     SampleQueue, SessionError, SessionEvent, WriteOptions,
 };
 
-pub(crate) use options::fnmatch;
+use courier_wire::dds::fnmatch;
 pub(crate) use options::RtpsOverrides;
 pub use options::{RtpsOptions, LOOPBACK_MAX_MESSAGE_SIZE};
 
