@@ -125,14 +125,12 @@ impl Domain {
         now: Instant,
     ) -> Result<ServiceId, CreateError> {
         let id = ServiceId(self.next_id());
-        let writer = self.add_writer(config.reply(true), Role::Service(id), now)?;
-        let reader = match self.add_reader(config.request(false), Role::Service(id), now) {
-            Ok(r) => r,
-            Err(e) => {
-                self.remove_writer(writer, now);
-                return Err(e);
-            }
-        };
+        let (writer, reader) = self.add_pair(
+            config.reply(true),
+            config.request(false),
+            Role::Service(id),
+            now,
+        )?;
         self.services.insert(id, Service { writer, reader });
         self.drain(now);
         Ok(id)
@@ -178,14 +176,12 @@ impl Domain {
         now: Instant,
     ) -> Result<ClientId, CreateError> {
         let id = ClientId(self.next_id());
-        let writer = self.add_writer(config.request(true), Role::Client(id), now)?;
-        let reader = match self.add_reader(config.reply(false), Role::Client(id), now) {
-            Ok(r) => r,
-            Err(e) => {
-                self.remove_writer(writer, now);
-                return Err(e);
-            }
-        };
+        let (writer, reader) = self.add_pair(
+            config.request(true),
+            config.reply(false),
+            Role::Client(id),
+            now,
+        )?;
         self.clients.insert(id, Client { writer, reader });
         self.drain(now);
         Ok(id)
@@ -251,6 +247,25 @@ impl Domain {
         self.send_waiting(now);
         self.drain(now);
         Ok(query)
+    }
+
+    /// A writer and a reader for one side of a service (neither if
+    /// either cannot be made).
+    fn add_pair(
+        &mut self,
+        writer: EndpointConfig,
+        reader: EndpointConfig,
+        role: Role,
+        now: Instant,
+    ) -> Result<(Guid, Guid), CreateError> {
+        let w = self.add_writer(writer, role, now)?;
+        match self.add_reader(reader, role, now) {
+            Ok(r) => Ok((w, r)),
+            Err(e) => {
+                self.remove_writer(w, now);
+                Err(e)
+            }
+        }
     }
 
     /// Sends the queries whose service is matched both ways.
