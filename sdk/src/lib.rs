@@ -47,6 +47,12 @@
 //! # Ok(()) }
 //! ```
 //!
+//! With the cargo feature `central`, `courier::central` embeds CMU IPC's central
+//! server itself (what `courier-broker`'s `central` binary runs), so that a
+//! program can host it and connect its own modules over an in-process link,
+//! with no separate process: `courier = { version = "…", features =
+//! ["central"] }`.
+//!
 //! ## The IPC API and its Courier equivalents (manual §4–§8)
 //!
 //! | IPC | Courier |
@@ -102,12 +108,16 @@
 #![deny(unsafe_code)]
 
 pub mod busy_poll;
+#[cfg(feature = "central")]
+#[cfg_attr(docsrs, doc(cfg(feature = "central")))]
+pub mod central;
 pub mod ipc_backend;
 pub mod qos;
 mod reply;
 pub mod rtps_backend;
 pub mod scheme;
 pub mod session;
+mod sys;
 mod topics;
 
 pub use courier_derive::IpcMessage;

@@ -21,6 +21,7 @@
 //!   `quit` on the console does the same, as in C;
 //! - the console prints no `> ` prompt, and `-s` also silences the
 //!   `Logging File Name:` / `Logging to` lines.
+#![deny(unsafe_code)]
 
 use std::io::{BufRead, IsTerminal, Write};
 use std::net::IpAddr;
@@ -424,30 +425,8 @@ impl FileLog {
     }
 }
 
-/// Keeps memory central freed for its next message instead of handing it
-/// back to the kernel at once. With glibc's adaptive defaults, every large
-/// message was received into, copied through and sent from memory that
-/// the allocator had just returned, so each page of it faulted in anew:
-/// ~1000 page faults per routed 1 MiB query, more than half its time
-/// (C modules over the UNIX socket: 3.1 ms per round trip, 0.83 ms with
-/// this; the C central 2.6 ms). Allocations up to 32 MiB come from the
-/// heap, and up to 64 MiB of free heap is kept, so RSS stays near its
-/// high-water mark after a burst of large messages.
-#[cfg(all(target_os = "linux", target_env = "gnu"))]
-fn keep_freed_memory() {
-    // SAFETY: mallopt only sets glibc allocator parameters; it is called
-    // first thing in main, before any other thread exists.
-    unsafe {
-        libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
-        libc::mallopt(libc::M_TRIM_THRESHOLD, 64 << 20);
-    }
-}
-
-#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
-fn keep_freed_memory() {}
-
 fn main() -> ExitCode {
-    keep_freed_memory();
+    courier_broker::keep_freed_memory();
     let opts = match parse_args(std::env::args().skip(1).collect()) {
         Ok(o) => o,
         Err(e) => {

@@ -12,6 +12,7 @@
 //! read it. Exit codes: 0 done, 1 runtime error, 64 usage error. Ctrl-C
 //! (SIGINT) or SIGTERM prints `interrupted`, closes the session (DDS: the
 //! participant says goodbye) and exits 0.
+#![deny(unsafe_code)]
 
 use std::collections::HashSet;
 use std::io::Write;
