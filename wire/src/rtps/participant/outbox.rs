@@ -131,7 +131,7 @@ pub(super) struct Outbox {
     queues: Vec<Queue>,
     /// Closed datagrams, in the order they filled.
     full: Vec<Transmission>,
-    /// Scratch for [`Route::group`](super::Route::group), kept for its capacity.
+    /// Scratch for [`Route::group`](super::emit::Route::group), kept for its capacity.
     pub(super) targets: Vec<(Locator, GuidPrefix, EntityId)>,
 }
 
@@ -293,7 +293,7 @@ impl Outbox {
 mod tests {
     use super::*;
     use crate::rtps::participant::change::{envelope, open, ChangeKind};
-    use crate::rtps::participant::{data_units, Shape};
+    use crate::rtps::participant::emit::{data_units, Shape};
     use crate::rtps::participant::{PROTOCOL_VERSION, VENDOR_ID};
     use crate::rtps::{Message, SequenceNumber};
 
