@@ -16,7 +16,7 @@ async fn bridge(
     from: &Session,
     to: &Session,
     msgs: &[(String, String)],
-) -> Result<(), courier::SessionError> {
+) -> Result<(), courier::Error> {
     let mut tasks = Vec::new();
     for (name, fmt) in msgs {
         let fmt = (!fmt.is_empty()).then_some(fmt.as_str());

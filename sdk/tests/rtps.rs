@@ -8,7 +8,7 @@
 use std::time::Duration;
 
 use courier::{
-    ConnectError, InstanceState, IpcMessage, RecvError, Session, SessionError, SessionEvent,
+    ConnectError, InstanceState, IpcMessage, PublishError, RecvError, Session, SessionEvent,
 };
 use futures::StreamExt;
 
@@ -181,7 +181,7 @@ async fn confirmed_publish_waits_for_acknowledgement() {
         .timeout(Duration::from_millis(300))
         .await;
     match r {
-        Err(SessionError::Timeout { what, after }) => {
+        Err(PublishError::Timeout { what, after }) => {
             assert!(what.contains("acked"), "{what}");
             assert_eq!(after, Duration::from_millis(300));
         }

@@ -604,7 +604,7 @@ async fn ping_publish(s: &Session, o: &PingOpts, ev: &mut courier::Events) -> Re
                     // exiting right after the write could leave a reader
                     // without the last sample: wait for its acknowledgement
                     match p.publish(&v).timeout(LAST_ACK_BOUND).await {
-                        Err(courier::SessionError::Timeout { after, .. }) => err(format_args!(
+                        Err(courier::PublishError::Timeout { after, .. }) => err(format_args!(
                             "courier: sample {seq} not acknowledged by every reader within {after:?}"
                         )),
                         r => r?,
