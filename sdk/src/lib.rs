@@ -103,6 +103,7 @@
 
 pub mod busy_poll;
 mod error;
+pub mod event;
 pub mod ipc_backend;
 pub mod qos;
 mod reply;
@@ -114,6 +115,7 @@ mod topics;
 pub use courier_derive::IpcMessage;
 pub use courier_wire::{cdr, format, ipc, rtps, IpcMessage, NamedFormats};
 pub use error::{ControlError, Error, OpenError, PublishError};
+pub use event::{DurabilityKind, EndpointInfo, Guid, ParticipantInfo, QosSummary};
 pub use ipc_backend::IpcStream;
 pub use qos::{Durability, History, Reliability};
 pub use rtps_backend::RtpsOptions;

@@ -16,14 +16,13 @@ use futures::Stream;
 use tokio::sync::mpsc;
 
 pub use crate::error::{ControlError, OpenError, PublishError, QueryError};
+pub use crate::event::SessionEvent;
 use crate::ipc_backend::{IpcBackend, IpcOptions};
 use crate::qos::{Durability, History, Reliability};
 pub use crate::qos::{InstanceState, PublicationQos, SubscriptionQos, TypeInfo};
 use crate::rtps_backend::{RtpsBackend, RtpsOptions};
 use crate::scheme::Resolved;
 use crate::topics::{Definition, Topics};
-use courier_wire::rtps::discovery::{EndpointData, ParticipantData};
-use courier_wire::rtps::{Guid, GuidPrefix};
 use courier_wire::{cdr, ipc, IpcMessage, NamedFormats};
 
 /// How a backend wants typed values encoded.
@@ -491,68 +490,6 @@ impl std::fmt::Debug for RawRequest {
             .field("data", &self.data.len())
             .finish_non_exhaustive()
     }
-}
-
-/// Something that happened to the session or the system.
-#[derive(Debug, Clone, PartialEq, Eq)]
-#[non_exhaustive]
-pub enum SessionEvent {
-    /// A module connected to central.
-    ModuleConnected(String),
-    /// A module disconnected from central.
-    ModuleDisconnected(String),
-    /// The number of handlers of a message changed.
-    HandlersChanged {
-        /// Message name.
-        msg: String,
-        /// Handlers now.
-        count: i32,
-    },
-    /// This session lost its connection (with reconnect on, a
-    /// [`SessionEvent::Reconnected`] follows once central is back).
-    Disconnected,
-    /// The session reached central again and defined and subscribed
-    /// everything anew (see [`SessionBuilder::reconnect`]).
-    Reconnected,
-    /// DDS: a participant announced itself for the first time.
-    ParticipantFound(Box<ParticipantData>),
-    /// DDS: a known participant announced different data.
-    ParticipantChanged(Box<ParticipantData>),
-    /// DDS: a participant left (`disposed`) or its lease expired.
-    ParticipantLost {
-        /// Its GUID prefix.
-        guid_prefix: GuidPrefix,
-        /// True if it said goodbye, false if it went silent.
-        disposed: bool,
-    },
-    /// DDS: a remote publication (DataWriter) was announced.
-    PublicationFound(Box<EndpointData>),
-    /// DDS: a remote publication changed its QoS.
-    PublicationChanged(Box<EndpointData>),
-    /// DDS: a remote publication is gone.
-    PublicationLost(Guid),
-    /// DDS: a remote subscription (DataReader) was announced.
-    SubscriptionFound(Box<EndpointData>),
-    /// DDS: a remote subscription changed its QoS.
-    SubscriptionChanged(Box<EndpointData>),
-    /// DDS: a remote subscription is gone.
-    SubscriptionLost(Guid),
-    /// DDS: a subscription with a deadline got no sample within it.
-    DeadlineMissed {
-        /// Topic.
-        msg: String,
-        /// Misses on this subscription so far.
-        total: u64,
-    },
-    /// DDS: an endpoint on one of our topics does not match ours.
-    IncompatibleQos {
-        /// Topic.
-        msg: String,
-        /// The other endpoint.
-        remote: Guid,
-        /// The first rule that failed.
-        reason: String,
-    },
 }
 
 /// Why connecting failed.

@@ -21,7 +21,7 @@ use courier_wire::rtps::discovery::{
 use courier_wire::rtps::participant::{
     self, Change, ChangeKind, EndpointConfig, KeyHash, LostReason,
 };
-use courier_wire::rtps::{Guid, SequenceNumber};
+use courier_wire::rtps::{EntityId, Guid, SequenceNumber};
 use tokio::sync::{mpsc, oneshot};
 
 use super::cmd::{disconnected, Cmd, Done, Reply};
@@ -711,10 +711,18 @@ impl State {
                 local_type,
                 remote_type,
                 ..
-            } => tracing::warn!(
-                "{topic}: remote endpoint {} has type {remote_type}, ours is {local_type}",
-                guid_hex(remote)
-            ),
+            } => {
+                tracing::warn!(
+                    "{topic}: remote endpoint {} has type {remote_type}, ours is {local_type}",
+                    guid_hex(remote)
+                );
+                self.emit(SessionEvent::TypeMismatch {
+                    topic,
+                    remote: remote.into(),
+                    local_type,
+                    remote_type,
+                })
+            }
             Event::IncompatibleQos {
                 topic,
                 remote,
@@ -722,31 +730,41 @@ impl State {
                 ..
             } => self.emit(SessionEvent::IncompatibleQos {
                 msg: topic,
-                remote,
+                remote: remote.into(),
                 reason: reason.to_string(),
             }),
             Event::Discovery(d) => match d {
-                P::ParticipantFound(d) => self.emit(SessionEvent::ParticipantFound(Box::new(d))),
+                P::ParticipantFound(d) => {
+                    self.emit(SessionEvent::ParticipantFound(Box::new((&d).into())))
+                }
                 P::ParticipantChanged(d) => {
-                    self.emit(SessionEvent::ParticipantChanged(Box::new(d)))
+                    self.emit(SessionEvent::ParticipantChanged(Box::new((&d).into())))
                 }
                 P::ParticipantLost { prefix, reason } => self.emit(SessionEvent::ParticipantLost {
-                    guid_prefix: prefix,
+                    guid: Guid {
+                        prefix,
+                        entity: EntityId::PARTICIPANT,
+                    }
+                    .into(),
                     disposed: reason == LostReason::Disposed,
                 }),
-                P::PublicationFound(d) => self.emit(SessionEvent::PublicationFound(Box::new(d))),
+                P::PublicationFound(d) => {
+                    self.emit(SessionEvent::PublicationFound(Box::new((&d).into())))
+                }
                 P::PublicationChanged(d) => {
-                    self.emit(SessionEvent::PublicationChanged(Box::new(d)))
+                    self.emit(SessionEvent::PublicationChanged(Box::new((&d).into())))
                 }
                 P::PublicationLost(g) => {
                     self.source_names.remove(&g);
-                    self.emit(SessionEvent::PublicationLost(g));
+                    self.emit(SessionEvent::PublicationLost(g.into()));
                 }
-                P::SubscriptionFound(d) => self.emit(SessionEvent::SubscriptionFound(Box::new(d))),
+                P::SubscriptionFound(d) => {
+                    self.emit(SessionEvent::SubscriptionFound(Box::new((&d).into())))
+                }
                 P::SubscriptionChanged(d) => {
-                    self.emit(SessionEvent::SubscriptionChanged(Box::new(d)))
+                    self.emit(SessionEvent::SubscriptionChanged(Box::new((&d).into())))
                 }
-                P::SubscriptionLost(g) => self.emit(SessionEvent::SubscriptionLost(g)),
+                P::SubscriptionLost(g) => self.emit(SessionEvent::SubscriptionLost(g.into())),
                 _ => {}
             },
             _ => {}
