@@ -1446,14 +1446,8 @@ impl Driver {
         for (_, s) in self.subs.drain() {
             s.queue.close();
         }
-        for (_, s) in self.servers.drain() {
-            let _ = s.tx.try_send(RawRequest {
-                msg: String::new(),
-                data: Vec::new(),
-                order: ByteOrder::NATIVE,
-                respond: Responder::from_fn(|_, _| Err(PublishError::Disconnected(String::new()))),
-            });
-        }
+        // their channels close: the `Requests` streams end with Disconnected
+        self.servers.clear();
         self.broadcast(SessionEvent::Disconnected);
         self.events.lock().unwrap().clear();
     }

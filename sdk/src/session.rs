@@ -169,10 +169,16 @@ pub struct SampleQueue {
 
 /// The callback of an immediate-delivery subscription (ORTE's IMMEDIATE
 /// mode, a DDS listener): called with the queue and one sample, in order,
-/// by one thread at a time.
+/// by one thread at a time; once with `None` when the connection has ended.
 struct Handler(std::sync::Mutex<HandlerFn>);
 
-type HandlerFn = Box<dyn FnMut(&SampleQueue, RawSample) + Send>;
+type HandlerFn = Box<dyn FnMut(&SampleQueue, Option<RawSample>) + Send>;
+
+/// What a queue yields: a sample, or (once) the end of the connection.
+enum Popped {
+    Sample(RawSample),
+    End,
+}
 
 impl std::fmt::Debug for Handler {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -217,8 +223,9 @@ impl SampleQueue {
     }
 
     /// Makes this an immediate-delivery queue: its samples go to `f` (once
-    /// set, for the queue's life) when [`SampleQueue::run_handler`] runs.
-    pub fn set_handler(&self, f: impl FnMut(&SampleQueue, RawSample) + Send + 'static) {
+    /// set, for the queue's life) when [`SampleQueue::run_handler`] runs,
+    /// then `None` once after [`SampleQueue::close`].
+    pub fn set_handler(&self, f: impl FnMut(&SampleQueue, Option<RawSample>) + Send + 'static) {
         let _ = self
             .handler
             .set(Handler(std::sync::Mutex::new(Box::new(f))));
@@ -239,7 +246,11 @@ impl SampleQueue {
             return false;
         };
         let mut f = h.0.lock().unwrap_or_else(|p| p.into_inner());
-        while let Some(s) = self.try_pop() {
+        while let Some(p) = self.try_pop() {
+            let s = match p {
+                Popped::Sample(s) => Some(s),
+                Popped::End => None,
+            };
             let call = std::panic::AssertUnwindSafe(|| f(self, s));
             if std::panic::catch_unwind(call).is_err() {
                 tracing::error!("a subscription callback panicked; its sample is lost");
@@ -248,7 +259,7 @@ impl SampleQueue {
         true
     }
 
-    /// Ready with `true` when a sample (or the end marker) waits, `false`
+    /// Ready with `true` when a sample (or the end) waits, `false`
     /// once nothing more will come to the handler (the end was taken, or
     /// the subscription was dropped).
     fn poll_waiting(&self, cx: &mut Context<'_>) -> Poll<bool> {
@@ -392,23 +403,27 @@ impl SampleQueue {
         }
     }
 
-    fn try_pop(&self) -> Option<RawSample> {
+    /// The next sample, or the end once after close; `None` when nothing
+    /// waits.
+    fn try_pop(&self) -> Option<Popped> {
         let mut st = self.state.lock().unwrap();
         let was_full = st.items.len() >= st.cap;
-        let s = st.items.pop_front();
-        if s.is_none() && st.closed && !st.reported_close {
-            st.reported_close = true;
-            return Some(RawSample::new(String::new(), Vec::new()));
-        }
+        let Some(s) = st.items.pop_front() else {
+            if st.closed && !st.reported_close {
+                st.reported_close = true;
+                return Some(Popped::End);
+            }
+            return None;
+        };
         drop(st);
-        if s.is_some() && was_full {
+        if was_full {
             self.space.notify_waiters();
         }
-        s
+        Some(Popped::Sample(s))
     }
 
-    /// `Ready(Some(marker))` with an empty message name once after close.
-    fn poll_pop(&self, cx: &mut Context<'_>) -> Poll<Option<RawSample>> {
+    /// The next sample, then (once after close) the end, then `None`.
+    fn poll_pop(&self, cx: &mut Context<'_>) -> Poll<Option<Popped>> {
         let mut st = self.state.lock().unwrap();
         let was_full = st.items.len() >= st.cap;
         if let Some(s) = st.items.pop_front() {
@@ -417,14 +432,14 @@ impl SampleQueue {
                 // only a full queue has anyone waiting for room
                 self.space.notify_waiters();
             }
-            return Poll::Ready(Some(s));
+            return Poll::Ready(Some(Popped::Sample(s)));
         }
         if st.closed {
             if st.reported_close {
                 return Poll::Ready(None);
             }
             st.reported_close = true;
-            return Poll::Ready(Some(RawSample::new(String::new(), Vec::new())));
+            return Poll::Ready(Some(Popped::End));
         }
         st.waker = Some(cx.waker().clone());
         Poll::Pending
@@ -441,14 +456,20 @@ pub struct RawSubscriber {
 impl RawSubscriber {
     /// The next sample; `None` once the connection has ended.
     pub async fn recv(&mut self) -> Option<RawSample> {
-        std::future::poll_fn(|cx| self.queue.poll_pop(cx)).await
+        match std::future::poll_fn(|cx| self.queue.poll_pop(cx)).await? {
+            Popped::Sample(s) => Some(s),
+            Popped::End => None,
+        }
     }
 
     /// Pulled delivery (ORTE's `ORTEAppSubscriptionPull`): the next sample
     /// if one is waiting, without waiting. After the end of the connection,
-    /// `None` forever (check [`RawSubscriber::recv`] for the end marker).
+    /// `None` forever ([`RawSubscriber::recv`] tells the end apart).
     pub fn try_recv(&mut self) -> Option<RawSample> {
-        self.queue.try_pop().filter(|s| !s.msg.is_empty())
+        match self.queue.try_pop()? {
+            Popped::Sample(s) => Some(s),
+            Popped::End => None,
+        }
     }
 
     /// Samples dropped by a keep-last policy or a backend filter, and (IPC)
@@ -1200,7 +1221,8 @@ impl Session {
     }
 
     /// Serves queries of `msg` as raw requests (answer with
-    /// [`RawRequest::respond`]).
+    /// [`RawRequest::respond`]); the channel closes when the connection is
+    /// gone.
     pub async fn serve_raw(&self, msg: &str) -> Result<mpsc::Receiver<RawRequest>, OpenError> {
         self.backend.serve(msg, 1000).await
     }
@@ -1256,6 +1278,7 @@ impl Session {
             .await?;
         Ok(Requests {
             rx,
+            ended: false,
             reply_msg: reply_msg.to_string(),
             enc: self.enc(),
             _t: PhantomData,
@@ -1711,7 +1734,9 @@ impl<T: IpcMessage> SubscriberBuilder<T> {
     {
         let queue = SampleQueue::new(self.policy.unwrap_or_default());
         let enc = self.session.enc();
-        queue.set_handler(move |q, s| f(convert::<T>(enc, q, s)));
+        queue.set_handler(move |q, s| {
+            f(s.map_or(Err(RecvError::Disconnected), |s| convert::<T>(enc, q, s)))
+        });
         self.create(&queue).await?;
         if !self.session.backend.delivers_immediately() {
             let q = queue.clone();
@@ -1837,10 +1862,6 @@ fn convert<T: IpcMessage>(
     if let Some(done) = s.done.take() {
         done();
     }
-    if s.msg.is_empty() {
-        // The backend's end-of-connection marker.
-        return Err(RecvError::Disconnected);
-    }
     if s.state != InstanceState::Alive {
         return Err(RecvError::Instance {
             msg: s.msg,
@@ -1868,7 +1889,10 @@ fn convert<T: IpcMessage>(
 }
 
 impl<T: IpcMessage> Subscriber<T> {
-    fn convert(&mut self, s: RawSample) -> Result<Sample<T>, RecvError> {
+    fn convert(&mut self, p: Popped) -> Result<Sample<T>, RecvError> {
+        let Popped::Sample(s) = p else {
+            return Err(RecvError::Disconnected);
+        };
         let r = convert(self.enc, &self.raw.queue, s);
         if matches!(r, Err(RecvError::Decode { .. })) {
             self.decode_errors += 1;
@@ -2018,6 +2042,8 @@ impl<Req, Resp: IpcMessage> Request<Req, Resp> {
 #[derive(Debug)]
 pub struct Requests<Req, Resp> {
     rx: mpsc::Receiver<RawRequest>,
+    /// The end (`Err(Disconnected)`) was yielded.
+    ended: bool,
     reply_msg: String,
     enc: Encoding,
     _t: PhantomData<fn() -> (Req, Resp)>,
@@ -2029,9 +2055,6 @@ impl<Req: IpcMessage, Resp: IpcMessage> Stream for Requests<Req, Resp> {
     fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Self::Item>> {
         match self.rx.poll_recv(cx) {
             Poll::Ready(Some(r)) => {
-                if r.msg.is_empty() {
-                    return Poll::Ready(Some(Err(RecvError::Disconnected)));
-                }
                 let v = decode::<Req>(self.enc, &r.data, r.order);
                 Poll::Ready(Some(match v {
                     Ok(value) => Ok(Request {
@@ -2047,6 +2070,11 @@ impl<Req: IpcMessage, Resp: IpcMessage> Stream for Requests<Req, Resp> {
                         detail: e,
                     }),
                 }))
+            }
+            // the backend closed the channel: the session is gone
+            Poll::Ready(None) if !self.ended => {
+                self.ended = true;
+                Poll::Ready(Some(Err(RecvError::Disconnected)))
             }
             Poll::Ready(None) => Poll::Ready(None),
             Poll::Pending => Poll::Pending,

@@ -868,10 +868,7 @@ async fn spy_session(s: &Session, o: &SpyOpts) -> Result<(), Error> {
         tokio::select! {
             _ = sleep => break,
             smp = samples.recv() => {
-                let Some(smp) = smp else { break };
-                if smp.msg.is_empty() {
-                    break; // the session ended
-                }
+                let Some(smp) = smp else { break }; // the session ended
                 let ty = smp.type_name.as_deref().unwrap_or("?");
                 let state = match smp.state {
                     courier::InstanceState::Alive => "",
