@@ -202,7 +202,7 @@ pub enum SessionEvent {
     /// [`SessionEvent::Reconnected`] follows once central is back).
     Disconnected,
     /// The session reached central again and defined and subscribed
-    /// everything anew (see [`SessionBuilder::reconnect`]).
+    /// everything anew (see [`SessionBuilder::reconnect`](crate::SessionBuilder::reconnect)).
     Reconnected,
     /// DDS: a participant announced itself for the first time.
     ParticipantFound(Box<ParticipantInfo>),
@@ -263,10 +263,7 @@ mod tests {
 
     #[test]
     fn a_guid_prints_as_32_hex_digits_and_knows_its_participant() {
-        let mut b = [0u8; 16];
-        for (i, x) in b.iter_mut().enumerate() {
-            *x = (i as u8) * 17;
-        }
+        let b: [u8; 16] = std::array::from_fn(|i| i as u8 * 17);
         let g = Guid(b);
         assert_eq!(g.to_string(), "00112233445566778899aabbccddeeff");
         assert_eq!(format!("{g:?}"), "Guid(00112233445566778899aabbccddeeff)");
