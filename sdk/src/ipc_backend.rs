@@ -11,10 +11,11 @@ use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::{mpsc, oneshot};
 
 use crate::busy_poll::BusyPoll;
+use crate::error::{ControlError, Failure, OpenError, PublishError};
 use crate::qos::{PublicationQos, SubscriptionQos, TypeInfo};
 use crate::session::{
     Backend, ConnectError, Encoding, QueryError, RawReply, RawRequest, RawSample, Reply,
-    ReplyFuture, Responder, SampleQueue, SessionError, SessionEvent,
+    ReplyFuture, Responder, SampleQueue, SessionEvent,
 };
 use courier_wire::ipc::module::{
     Connection, DeliveryId, DeliveryKind, Error as ModError, Event, LinkId, ModuleConfig,
@@ -194,24 +195,24 @@ impl Default for IpcOptions {
 type Done<T> = oneshot::Sender<T>;
 
 enum Cmd {
-    DefineFormat(String, String, Done<Result<(), SessionError>>),
-    Define(String, Option<String>, Done<Result<(), SessionError>>),
-    Publish(String, Vec<u8>, Done<Result<(), SessionError>>),
-    Subscribe(String, Arc<SampleQueue>, Done<Result<(), SessionError>>),
+    DefineFormat(String, String, Done<Result<(), OpenError>>),
+    Define(String, Option<String>, Done<Result<(), OpenError>>),
+    Publish(String, Vec<u8>, Done<Result<(), PublishError>>),
+    Subscribe(String, Arc<SampleQueue>, Done<Result<(), OpenError>>),
     Serve(
         String,
         mpsc::Sender<RawRequest>,
-        Done<Result<(), SessionError>>,
+        Done<Result<(), OpenError>>,
     ),
     Query(u64, String, Vec<u8>, Done<Result<RawReply, QueryError>>),
     CancelQuery(u64),
     Ack(u64),
-    Respond(u64, String, Vec<u8>, Done<Result<(), SessionError>>),
+    Respond(u64, String, Vec<u8>, Done<Result<(), PublishError>>),
     /// A query delivery that will not be answered (its `Request` dropped).
     Decline(u64),
-    ModuleConnected(String, Done<Result<bool, SessionError>>),
-    NumHandlers(String, Done<Result<i32, SessionError>>),
-    Inform(InformOp, Done<Result<(), SessionError>>),
+    ModuleConnected(String, Done<Result<bool, ControlError>>),
+    NumHandlers(String, Done<Result<i32, ControlError>>),
+    Inform(InformOp, Done<Result<(), ControlError>>),
     /// Subscribe central's connect/disconnect notifications (once).
     WatchModules,
     /// Direct mode: a peer connected to our listener.
@@ -221,7 +222,7 @@ enum Cmd {
     /// Direct mode: bytes read from a link (empty = closed).
     LinkData(LinkId, Vec<u8>),
     /// Subscribe handler-count changes of a message.
-    WatchHandlers(String, Done<Result<(), SessionError>>),
+    WatchHandlers(String, Done<Result<(), ControlError>>),
     Close(Done<()>),
 }
 
@@ -595,8 +596,8 @@ impl IpcBackend {
         rx.await.unwrap_or(gone)
     }
 
-    fn gone(&self) -> SessionError {
-        SessionError::Disconnected(self.addr.clone())
+    fn gone<E: Failure>(&self) -> E {
+        E::disconnected(self.addr.clone())
     }
 }
 
@@ -606,13 +607,13 @@ impl Backend for IpcBackend {
         Encoding::Ipc
     }
 
-    async fn define_format(&self, name: &str, format: &str) -> Result<(), SessionError> {
+    async fn define_format(&self, name: &str, format: &str) -> Result<(), OpenError> {
         let g = Err(self.gone());
         self.call(|d| Cmd::DefineFormat(name.into(), format.into(), d), g)
             .await
     }
 
-    async fn define(&self, msg: &str, format: Option<&str>) -> Result<(), SessionError> {
+    async fn define(&self, msg: &str, format: Option<&str>) -> Result<(), OpenError> {
         let g = Err(self.gone());
         self.call(
             |d| Cmd::Define(msg.into(), format.map(str::to_string), d),
@@ -621,12 +622,12 @@ impl Backend for IpcBackend {
         .await
     }
 
-    async fn publish(&self, msg: &str, data: Vec<u8>) -> Result<(), SessionError> {
+    async fn publish(&self, msg: &str, data: Vec<u8>) -> Result<(), PublishError> {
         let g = Err(self.gone());
         self.call(|d| Cmd::Publish(msg.into(), data, d), g).await
     }
 
-    async fn subscribe(&self, msg: &str, queue: Arc<SampleQueue>) -> Result<(), SessionError> {
+    async fn subscribe(&self, msg: &str, queue: Arc<SampleQueue>) -> Result<(), OpenError> {
         let g = Err(self.gone());
         self.call(|d| Cmd::Subscribe(msg.into(), queue, d), g).await
     }
@@ -665,7 +666,7 @@ impl Backend for IpcBackend {
         &self,
         msg: &str,
         queue: usize,
-    ) -> Result<mpsc::Receiver<RawRequest>, SessionError> {
+    ) -> Result<mpsc::Receiver<RawRequest>, OpenError> {
         let (tx, rx) = mpsc::channel(queue.max(1));
         let g = Err(self.gone());
         self.call(|d| Cmd::Serve(msg.into(), tx, d), g).await?;
@@ -686,24 +687,24 @@ impl Backend for IpcBackend {
         rx
     }
 
-    async fn is_module_connected(&self, module: &str) -> Result<bool, SessionError> {
+    async fn is_module_connected(&self, module: &str) -> Result<bool, ControlError> {
         let g = Err(self.gone());
         self.call(|d| Cmd::ModuleConnected(module.into(), d), g)
             .await
     }
 
-    async fn num_handlers(&self, msg: &str) -> Result<i32, SessionError> {
+    async fn num_handlers(&self, msg: &str) -> Result<i32, ControlError> {
         let g = Err(self.gone());
         self.call(|d| Cmd::NumHandlers(msg.into(), d), g).await
     }
 
-    async fn set_capacity(&self, n: i32) -> Result<(), SessionError> {
+    async fn set_capacity(&self, n: i32) -> Result<(), ControlError> {
         let g = Err(self.gone());
         self.call(|d| Cmd::Inform(InformOp::Capacity(n), d), g)
             .await
     }
 
-    async fn set_priority(&self, msg: &str, priority: i32) -> Result<(), SessionError> {
+    async fn set_priority(&self, msg: &str, priority: i32) -> Result<(), ControlError> {
         let g = Err(self.gone());
         self.call(
             |d| Cmd::Inform(InformOp::Priority(msg.into(), priority), d),
@@ -712,13 +713,13 @@ impl Backend for IpcBackend {
         .await
     }
 
-    async fn set_queue_length(&self, msg: &str, n: i32) -> Result<(), SessionError> {
+    async fn set_queue_length(&self, msg: &str, n: i32) -> Result<(), ControlError> {
         let g = Err(self.gone());
         self.call(|d| Cmd::Inform(InformOp::QueueLength(msg.into(), n), d), g)
             .await
     }
 
-    async fn watch_handlers(&self, msg: &str) -> Result<(), SessionError> {
+    async fn watch_handlers(&self, msg: &str) -> Result<(), ControlError> {
         let g = Err(self.gone());
         self.call(|d| Cmd::WatchHandlers(msg.into(), d), g).await
     }
@@ -728,7 +729,7 @@ impl Backend for IpcBackend {
         msg: &str,
         ty: &TypeInfo,
         qos: &PublicationQos,
-    ) -> Result<(), SessionError> {
+    ) -> Result<(), OpenError> {
         if let Some(what) = qos.beyond_ipc() {
             return Err(unsupported(format!("{what} (publication {msg})")));
         }
@@ -741,7 +742,7 @@ impl Backend for IpcBackend {
         _ty: Option<&TypeInfo>,
         qos: &SubscriptionQos,
         queue: Arc<SampleQueue>,
-    ) -> Result<(), SessionError> {
+    ) -> Result<(), OpenError> {
         if let Some(what) = qos.beyond_ipc() {
             return Err(unsupported(format!("{what} (subscription {msg})")));
         }
@@ -791,15 +792,15 @@ struct Driver {
     events: Arc<Mutex<Vec<mpsc::UnboundedSender<SessionEvent>>>>,
     subs: HashMap<i32, Sub>,
     servers: HashMap<i32, Server>,
-    publishes: HashMap<OpId, Done<Result<(), SessionError>>>,
+    publishes: HashMap<OpId, Done<Result<(), PublishError>>>,
     /// Queries waiting for their reply, with their message name.
     queries: HashMap<OpId, (String, Done<Result<RawReply, QueryError>>)>,
     /// Replies handed to the module, by query delivery, with their reply
     /// message name.
-    replies: HashMap<DeliveryId, (String, Done<Result<(), SessionError>>)>,
+    replies: HashMap<DeliveryId, (String, Done<Result<(), PublishError>>)>,
     query_ops: HashMap<u64, OpId>,
-    bools: HashMap<OpId, Done<Result<bool, SessionError>>>,
-    counts: HashMap<OpId, Done<Result<i32, SessionError>>>,
+    bools: HashMap<OpId, Done<Result<bool, ControlError>>>,
+    counts: HashMap<OpId, Done<Result<i32, ControlError>>>,
     closing: Option<Done<()>>,
     watching_modules: bool,
     links: HashMap<LinkId, tokio::io::WriteHalf<Box<dyn IpcStream>>>,
@@ -821,8 +822,8 @@ impl Reply for IpcReply {
             .send(Cmd::Respond(self.delivery, reply_msg.to_string(), data, tx));
         let addr = self.addr;
         Box::pin(async move {
-            sent.map_err(|_| SessionError::Disconnected(addr.clone()))?;
-            rx.await.unwrap_or(Err(SessionError::Disconnected(addr)))
+            sent.map_err(|_| PublishError::Disconnected(addr.clone()))?;
+            rx.await.unwrap_or(Err(PublishError::Disconnected(addr)))
         })
     }
 
@@ -831,17 +832,23 @@ impl Reply for IpcReply {
     }
 }
 
-fn unsupported(what: String) -> SessionError {
-    SessionError::Unsupported {
+fn unsupported(what: String) -> OpenError {
+    OpenError::Unsupported {
         what,
         backend: "ipc://",
     }
 }
 
-fn refused(e: ModError) -> SessionError {
-    match e {
-        ModError::Closed => SessionError::Disconnected("central".into()),
-        other => SessionError::Refused(other.to_string()),
+/// Central's refusal of an operation on `what`, as the operation's error.
+fn refused<E: Failure>(what: &str) -> impl FnOnce(ModError) -> E + '_ {
+    move |e| E::central(what, e)
+}
+
+/// A query that could not be sent.
+fn query_refused(msg: String, source: PublishError) -> QueryError {
+    match source {
+        PublishError::Disconnected(_) => QueryError::Disconnected(msg),
+        source => QueryError::Refused { msg, source },
     }
 }
 
@@ -963,14 +970,14 @@ impl Driver {
     fn command(&mut self, c: Cmd) {
         match c {
             Cmd::DefineFormat(n, f, d) => {
-                let _ = d.send(self.conn.define_format(&n, &f).map_err(refused));
+                let _ = d.send(self.conn.define_format(&n, &f).map_err(refused(&n)));
                 self.defs.push(Def::Format(n, f));
             }
             Cmd::Define(m, f, d) => {
                 let _ = d.send(
                     self.conn
                         .define_msg(&m, MsgLength::Variable, f.as_deref())
-                        .map_err(refused),
+                        .map_err(refused(&m)),
                 );
                 self.defs.push(Def::Msg(m, f));
             }
@@ -979,7 +986,7 @@ impl Driver {
                     self.publishes.insert(op, d);
                 }
                 Err(e) => {
-                    let _ = d.send(Err(refused(e)));
+                    let _ = d.send(Err(refused(&m)(e)));
                 }
             },
             Cmd::Subscribe(m, queue, d) => {
@@ -992,7 +999,7 @@ impl Driver {
                         self.subs.insert(h, Sub { msg: m, hnd, queue });
                         Ok(())
                     }
-                    Err(e) => Err(refused(e)),
+                    Err(e) => Err(refused(&m)(e)),
                 });
             }
             Cmd::Serve(m, tx, d) => {
@@ -1005,7 +1012,7 @@ impl Driver {
                         self.servers.insert(h, Server { msg: m, hnd, tx });
                         Ok(())
                     }
-                    Err(e) => Err(refused(e)),
+                    Err(e) => Err(refused(&m)(e)),
                 });
             }
             Cmd::Query(key, m, data, d) => match self.conn.query(&m, data, -1) {
@@ -1014,10 +1021,8 @@ impl Driver {
                     self.query_ops.insert(key, op);
                 }
                 Err(e) => {
-                    let _ = d.send(Err(QueryError::Refused {
-                        msg: m,
-                        detail: e.to_string(),
-                    }));
+                    let source = refused(&m)(e);
+                    let _ = d.send(Err(query_refused(m, source)));
                 }
             },
             Cmd::CancelQuery(key) => {
@@ -1035,7 +1040,7 @@ impl Driver {
                         self.replies.insert(delivery, (reply, d));
                     }
                     Err(e) => {
-                        let _ = d.send(Err(refused(e)));
+                        let _ = d.send(Err(refused(&reply)(e)));
                     }
                 }
             }
@@ -1048,7 +1053,7 @@ impl Driver {
                     self.bools.insert(op, d);
                 }
                 Err(e) => {
-                    let _ = d.send(Err(refused(e)));
+                    let _ = d.send(Err(refused(&format!("is_module_connected({m})"))(e)));
                 }
             },
             Cmd::NumHandlers(m, d) => match self.conn.num_handlers(&m) {
@@ -1056,16 +1061,23 @@ impl Driver {
                     self.counts.insert(op, d);
                 }
                 Err(e) => {
-                    let _ = d.send(Err(refused(e)));
+                    let _ = d.send(Err(refused(&format!("num_handlers({m})"))(e)));
                 }
             },
             Cmd::Inform(op, d) => {
-                let r = match op {
-                    InformOp::Capacity(n) => self.conn.set_capacity(n),
-                    InformOp::Priority(m, p) => self.conn.set_priority(&m, p),
-                    InformOp::QueueLength(m, n) => self.conn.set_queue_length(&m, n),
+                let (what, r) = match op {
+                    InformOp::Capacity(n) => {
+                        ("set_capacity".to_string(), self.conn.set_capacity(n))
+                    }
+                    InformOp::Priority(m, p) => {
+                        (format!("set_priority({m})"), self.conn.set_priority(&m, p))
+                    }
+                    InformOp::QueueLength(m, n) => (
+                        format!("set_queue_length({m})"),
+                        self.conn.set_queue_length(&m, n),
+                    ),
                 };
-                let _ = d.send(r.map_err(refused));
+                let _ = d.send(r.map_err(refused(&what)));
             }
             Cmd::LinkAccepted(stream) => {
                 let link = self.conn.accept_direct();
@@ -1100,7 +1112,7 @@ impl Driver {
                     self.conn
                         .subscribe_handler_change(&m)
                         .map(|_| ())
-                        .map_err(refused),
+                        .map_err(refused(&m)),
                 );
             }
             Cmd::Close(d) => {
@@ -1159,32 +1171,26 @@ impl Driver {
                 }
                 Event::ReplyFailed { delivery, error } => {
                     // declined by the module: this module keeps receiving
-                    let e = refused(error);
                     match self.replies.remove(&delivery) {
                         Some((reply, d)) => {
-                            let _ = d.send(Err(SessionError::Refused(format!(
-                                "cannot reply with {reply}: {e}; the query was declined"
-                            ))));
+                            let _ = d.send(Err(refused(&reply)(error)));
                         }
-                        None => tracing::warn!("a reply was declined: {e}"),
+                        None => tracing::warn!("a reply was declined: {error}"),
                     }
                 }
                 Event::OpFailed { op, error } => {
-                    let e = refused(error);
                     if let Some(d) = self.publishes.remove(&op) {
-                        let _ = d.send(Err(e.clone()));
+                        let _ = d.send(Err(refused("a publish")(error.clone())));
                     }
                     if let Some((msg, d)) = self.queries.remove(&op) {
-                        let _ = d.send(Err(QueryError::Refused {
-                            msg,
-                            detail: e.to_string(),
-                        }));
+                        let source = refused(&msg)(error.clone());
+                        let _ = d.send(Err(query_refused(msg, source)));
                     }
                     if let Some(d) = self.bools.remove(&op) {
-                        let _ = d.send(Err(e.clone()));
+                        let _ = d.send(Err(refused("is_module_connected")(error.clone())));
                     }
                     if let Some(d) = self.counts.remove(&op) {
-                        let _ = d.send(Err(e));
+                        let _ = d.send(Err(refused("num_handlers")(error)));
                     }
                 }
                 Event::ModuleConnected { op, connected } => {
@@ -1378,7 +1384,7 @@ impl Driver {
 
     /// A command while there is no connection.
     fn reject(&mut self, c: Cmd) {
-        let gone = || SessionError::Disconnected(self.addr.clone());
+        let addr = self.addr.clone();
         match c {
             Cmd::DefineFormat(n, f, d) => {
                 self.defs.push(Def::Format(n, f));
@@ -1388,29 +1394,26 @@ impl Driver {
                 self.defs.push(Def::Msg(m, f));
                 let _ = d.send(Ok(()));
             }
-            Cmd::Publish(_, _, d)
-            | Cmd::Subscribe(_, _, d)
-            | Cmd::Serve(_, _, d)
-            | Cmd::Inform(_, d) => {
-                let _ = d.send(Err(gone()));
+            Cmd::Publish(_, _, d) | Cmd::Respond(_, _, _, d) => {
+                let _ = d.send(Err(PublishError::Disconnected(addr)));
             }
-            Cmd::WatchHandlers(_, d) => {
-                let _ = d.send(Err(gone()));
+            Cmd::Subscribe(_, _, d) | Cmd::Serve(_, _, d) => {
+                let _ = d.send(Err(OpenError::Disconnected(addr)));
+            }
+            Cmd::Inform(_, d) | Cmd::WatchHandlers(_, d) => {
+                let _ = d.send(Err(ControlError::Disconnected(addr)));
             }
             Cmd::Query(_, m, _, d) => {
                 let _ = d.send(Err(QueryError::Disconnected(m)));
             }
             Cmd::ModuleConnected(_, d) => {
-                let _ = d.send(Err(gone()));
+                let _ = d.send(Err(ControlError::Disconnected(addr)));
             }
             Cmd::NumHandlers(_, d) => {
-                let _ = d.send(Err(gone()));
+                let _ = d.send(Err(ControlError::Disconnected(addr)));
             }
             Cmd::WatchModules => self.watching_modules = true,
             Cmd::Close(d) => self.closing = Some(d),
-            Cmd::Respond(_, _, _, d) => {
-                let _ = d.send(Err(gone()));
-            }
             Cmd::CancelQuery(_) | Cmd::Ack(_) | Cmd::Decline(_) | Cmd::LinkAccepted(_) => {}
             Cmd::LinkConnected(..) | Cmd::LinkData(..) => {}
         }
@@ -1418,22 +1421,22 @@ impl Driver {
 
     /// Operations waiting for central fail at once.
     fn fail_pending(&mut self) {
-        let gone = SessionError::Disconnected(self.addr.clone());
+        let addr = &self.addr;
         for (_, d) in self.publishes.drain() {
-            let _ = d.send(Err(gone.clone()));
+            let _ = d.send(Err(PublishError::Disconnected(addr.clone())));
         }
         for (_, (msg, d)) in self.queries.drain() {
             let _ = d.send(Err(QueryError::Disconnected(msg)));
         }
         for (_, (_, d)) in self.replies.drain() {
-            let _ = d.send(Err(gone.clone()));
+            let _ = d.send(Err(PublishError::Disconnected(addr.clone())));
         }
         self.query_ops.clear();
         for (_, d) in self.bools.drain() {
-            let _ = d.send(Err(gone.clone()));
+            let _ = d.send(Err(ControlError::Disconnected(addr.clone())));
         }
         for (_, d) in self.counts.drain() {
-            let _ = d.send(Err(gone.clone()));
+            let _ = d.send(Err(ControlError::Disconnected(addr.clone())));
         }
     }
 
@@ -1443,14 +1446,8 @@ impl Driver {
         for (_, s) in self.subs.drain() {
             s.queue.close();
         }
-        for (_, s) in self.servers.drain() {
-            let _ = s.tx.try_send(RawRequest {
-                msg: String::new(),
-                data: Vec::new(),
-                order: ByteOrder::NATIVE,
-                respond: Responder::from_fn(|_, _| Err(SessionError::Disconnected(String::new()))),
-            });
-        }
+        // their channels close: the `Requests` streams end with Disconnected
+        self.servers.clear();
         self.broadcast(SessionEvent::Disconnected);
         self.events.lock().unwrap().clear();
     }

@@ -60,7 +60,7 @@
 //! | `IPC_initialize`, `IPC_connect`, `IPC_connectModule` | `Session::builder(url).name(..).connect().await` |
 //! | `IPC_connectNoListen`, `IPC_connectModuleNoListen` | `SessionBuilder::no_listen` |
 //! | `IPC_disconnect` | `Session::close`, or dropping the last clone |
-//! | `IPC_isConnected` | a failed operation returns `SessionError::Disconnected`; `events()` yields `Disconnected` |
+//! | `IPC_isConnected` | a failed operation returns its error's `Disconnected` variant; `events()` yields `Disconnected` |
 //! | `IPC_isModuleConnected` | `Session::is_module_connected` |
 //! | `IPC_defineMsg`, `IPC_isMsgDefined` | `Session::define::<T>` (the format comes from the type) |
 //! | `IPC_defineFormat`, `IPC_checkMsgFormats` | `Session::define_format::<T>` (automatic in `define`); formats are checked at compile time by the derive |
@@ -111,6 +111,8 @@ pub mod busy_poll;
 #[cfg(feature = "central")]
 #[cfg_attr(docsrs, doc(cfg(feature = "central")))]
 pub mod central;
+mod error;
+pub mod event;
 pub mod ipc_backend;
 pub mod qos;
 mod reply;
@@ -122,6 +124,8 @@ mod topics;
 
 pub use courier_derive::IpcMessage;
 pub use courier_wire::{cdr, format, ipc, rtps, IpcMessage, NamedFormats};
+pub use error::{ControlError, Error, OpenError, PublishError};
+pub use event::{DurabilityKind, EndpointInfo, Guid, ParticipantInfo, QosSummary};
 pub use ipc_backend::IpcStream;
 pub use qos::{Durability, History, Reliability};
 pub use rtps_backend::RtpsOptions;
@@ -129,8 +133,8 @@ pub use session::{
     Backend, ConnectError, Encoding, Events, InstanceState, Listener, PeriodicPublication,
     PublicationQos, Publish, Publisher, PublisherBuilder, Query, QueryError, QueuePolicy, RawReply,
     RawRequest, RawSample, RawSubscriber, RecvError, Request, Requests, Responder, Sample,
-    SampleQueue, Session, SessionBuilder, SessionError, SessionEvent, Subscriber,
-    SubscriberBuilder, SubscriptionQos, Tick, Timer, TypeInfo, WriteOptions,
+    SampleQueue, Session, SessionBuilder, SessionEvent, Subscriber, SubscriberBuilder,
+    SubscriptionQos, Tick, Timer, TypeInfo, WriteOptions,
 };
 
 #[doc(hidden)]

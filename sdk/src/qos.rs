@@ -19,7 +19,7 @@
 //! lifespan, minimum separation, exclusive ownership, partitions, a
 //! publication's keep-last history) cannot be honoured there, and creating
 //! the publication or subscription fails with
-//! [`SessionError::Unsupported`](crate::SessionError::Unsupported) naming
+//! [`OpenError::Unsupported`](crate::OpenError::Unsupported) naming
 //! it: never silently ignored.
 
 use std::time::Duration;

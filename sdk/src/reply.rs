@@ -9,11 +9,11 @@
 use std::future::Future;
 use std::pin::Pin;
 
-use crate::session::SessionError;
+use crate::error::PublishError;
 
 /// The future of an answer: resolves once the reply is sent, or with why
 /// it could not be (the reply message is unknown to central, say).
-pub type ReplyFuture = Pin<Box<dyn Future<Output = Result<(), SessionError>> + Send>>;
+pub type ReplyFuture = Pin<Box<dyn Future<Output = Result<(), PublishError>> + Send>>;
 
 /// A backend's side of one request.
 pub trait Reply: Send {
@@ -43,7 +43,7 @@ struct FnReply<F>(F);
 
 impl<F> Reply for FnReply<F>
 where
-    F: FnOnce(&str, Vec<u8>) -> Result<(), SessionError> + Send,
+    F: FnOnce(&str, Vec<u8>) -> Result<(), PublishError> + Send,
 {
     fn reply(self: Box<Self>, reply_msg: &str, data: Vec<u8>) -> ReplyFuture {
         Box::pin(std::future::ready((self.0)(reply_msg, data)))
@@ -61,7 +61,7 @@ impl Responder {
     /// A responder that answers by calling `f` at once and has nothing to
     /// free when declined.
     pub fn from_fn(
-        f: impl FnOnce(&str, Vec<u8>) -> Result<(), SessionError> + Send + 'static,
+        f: impl FnOnce(&str, Vec<u8>) -> Result<(), PublishError> + Send + 'static,
     ) -> Self {
         Responder::new(FnReply(f))
     }
@@ -71,9 +71,7 @@ impl Responder {
         match self.0.take() {
             Some(r) => r.reply(reply_msg, data),
             // `reply` takes `self`, and only it and drop empty it
-            None => Box::pin(std::future::ready(Err(SessionError::Refused(
-                "request already answered".into(),
-            )))),
+            None => Box::pin(std::future::ready(Err(PublishError::AlreadyAnswered))),
         }
     }
 }

@@ -15,14 +15,14 @@ use std::time::{Duration, SystemTime};
 use futures::Stream;
 use tokio::sync::mpsc;
 
+pub use crate::error::{ControlError, OpenError, PublishError, QueryError};
+pub use crate::event::SessionEvent;
 use crate::ipc_backend::{IpcBackend, IpcOptions};
 use crate::qos::{Durability, History, Reliability};
 pub use crate::qos::{InstanceState, PublicationQos, SubscriptionQos, TypeInfo};
 use crate::rtps_backend::{RtpsBackend, RtpsOptions};
 use crate::scheme::Resolved;
 use crate::topics::{Definition, Topics};
-use courier_wire::rtps::discovery::{EndpointData, ParticipantData};
-use courier_wire::rtps::{Guid, GuidPrefix};
 use courier_wire::{cdr, ipc, IpcMessage, NamedFormats};
 
 /// How a backend wants typed values encoded.
@@ -169,10 +169,16 @@ pub struct SampleQueue {
 
 /// The callback of an immediate-delivery subscription (ORTE's IMMEDIATE
 /// mode, a DDS listener): called with the queue and one sample, in order,
-/// by one thread at a time.
+/// by one thread at a time; once with `None` when the connection has ended.
 struct Handler(std::sync::Mutex<HandlerFn>);
 
-type HandlerFn = Box<dyn FnMut(&SampleQueue, RawSample) + Send>;
+type HandlerFn = Box<dyn FnMut(&SampleQueue, Option<RawSample>) + Send>;
+
+/// What a queue yields: a sample, or (once) the end of the connection.
+enum Popped {
+    Sample(RawSample),
+    End,
+}
 
 impl std::fmt::Debug for Handler {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -217,8 +223,9 @@ impl SampleQueue {
     }
 
     /// Makes this an immediate-delivery queue: its samples go to `f` (once
-    /// set, for the queue's life) when [`SampleQueue::run_handler`] runs.
-    pub fn set_handler(&self, f: impl FnMut(&SampleQueue, RawSample) + Send + 'static) {
+    /// set, for the queue's life) when [`SampleQueue::run_handler`] runs,
+    /// then `None` once after [`SampleQueue::close`].
+    pub fn set_handler(&self, f: impl FnMut(&SampleQueue, Option<RawSample>) + Send + 'static) {
         let _ = self
             .handler
             .set(Handler(std::sync::Mutex::new(Box::new(f))));
@@ -239,7 +246,11 @@ impl SampleQueue {
             return false;
         };
         let mut f = h.0.lock().unwrap_or_else(|p| p.into_inner());
-        while let Some(s) = self.try_pop() {
+        while let Some(p) = self.try_pop() {
+            let s = match p {
+                Popped::Sample(s) => Some(s),
+                Popped::End => None,
+            };
             let call = std::panic::AssertUnwindSafe(|| f(self, s));
             if std::panic::catch_unwind(call).is_err() {
                 tracing::error!("a subscription callback panicked; its sample is lost");
@@ -248,7 +259,7 @@ impl SampleQueue {
         true
     }
 
-    /// Ready with `true` when a sample (or the end marker) waits, `false`
+    /// Ready with `true` when a sample (or the end) waits, `false`
     /// once nothing more will come to the handler (the end was taken, or
     /// the subscription was dropped).
     fn poll_waiting(&self, cx: &mut Context<'_>) -> Poll<bool> {
@@ -392,23 +403,27 @@ impl SampleQueue {
         }
     }
 
-    fn try_pop(&self) -> Option<RawSample> {
+    /// The next sample, or the end once after close; `None` when nothing
+    /// waits.
+    fn try_pop(&self) -> Option<Popped> {
         let mut st = self.state.lock().unwrap();
         let was_full = st.items.len() >= st.cap;
-        let s = st.items.pop_front();
-        if s.is_none() && st.closed && !st.reported_close {
-            st.reported_close = true;
-            return Some(RawSample::new(String::new(), Vec::new()));
-        }
+        let Some(s) = st.items.pop_front() else {
+            if st.closed && !st.reported_close {
+                st.reported_close = true;
+                return Some(Popped::End);
+            }
+            return None;
+        };
         drop(st);
-        if s.is_some() && was_full {
+        if was_full {
             self.space.notify_waiters();
         }
-        s
+        Some(Popped::Sample(s))
     }
 
-    /// `Ready(Some(marker))` with an empty message name once after close.
-    fn poll_pop(&self, cx: &mut Context<'_>) -> Poll<Option<RawSample>> {
+    /// The next sample, then (once after close) the end, then `None`.
+    fn poll_pop(&self, cx: &mut Context<'_>) -> Poll<Option<Popped>> {
         let mut st = self.state.lock().unwrap();
         let was_full = st.items.len() >= st.cap;
         if let Some(s) = st.items.pop_front() {
@@ -417,14 +432,14 @@ impl SampleQueue {
                 // only a full queue has anyone waiting for room
                 self.space.notify_waiters();
             }
-            return Poll::Ready(Some(s));
+            return Poll::Ready(Some(Popped::Sample(s)));
         }
         if st.closed {
             if st.reported_close {
                 return Poll::Ready(None);
             }
             st.reported_close = true;
-            return Poll::Ready(Some(RawSample::new(String::new(), Vec::new())));
+            return Poll::Ready(Some(Popped::End));
         }
         st.waker = Some(cx.waker().clone());
         Poll::Pending
@@ -441,14 +456,20 @@ pub struct RawSubscriber {
 impl RawSubscriber {
     /// The next sample; `None` once the connection has ended.
     pub async fn recv(&mut self) -> Option<RawSample> {
-        std::future::poll_fn(|cx| self.queue.poll_pop(cx)).await
+        match std::future::poll_fn(|cx| self.queue.poll_pop(cx)).await? {
+            Popped::Sample(s) => Some(s),
+            Popped::End => None,
+        }
     }
 
     /// Pulled delivery (ORTE's `ORTEAppSubscriptionPull`): the next sample
     /// if one is waiting, without waiting. After the end of the connection,
-    /// `None` forever (check [`RawSubscriber::recv`] for the end marker).
+    /// `None` forever ([`RawSubscriber::recv`] tells the end apart).
     pub fn try_recv(&mut self) -> Option<RawSample> {
-        self.queue.try_pop().filter(|s| !s.msg.is_empty())
+        match self.queue.try_pop()? {
+            Popped::Sample(s) => Some(s),
+            Popped::End => None,
+        }
     }
 
     /// Samples dropped by a keep-last policy or a backend filter, and (IPC)
@@ -492,156 +513,6 @@ impl std::fmt::Debug for RawRequest {
     }
 }
 
-/// Something that happened to the session or the system.
-#[derive(Debug, Clone, PartialEq, Eq)]
-#[non_exhaustive]
-pub enum SessionEvent {
-    /// A module connected to central.
-    ModuleConnected(String),
-    /// A module disconnected from central.
-    ModuleDisconnected(String),
-    /// The number of handlers of a message changed.
-    HandlersChanged {
-        /// Message name.
-        msg: String,
-        /// Handlers now.
-        count: i32,
-    },
-    /// This session lost its connection (with reconnect on, a
-    /// [`SessionEvent::Reconnected`] follows once central is back).
-    Disconnected,
-    /// The session reached central again and defined and subscribed
-    /// everything anew (see [`SessionBuilder::reconnect`]).
-    Reconnected,
-    /// DDS: a participant announced itself for the first time.
-    ParticipantFound(Box<ParticipantData>),
-    /// DDS: a known participant announced different data.
-    ParticipantChanged(Box<ParticipantData>),
-    /// DDS: a participant left (`disposed`) or its lease expired.
-    ParticipantLost {
-        /// Its GUID prefix.
-        guid_prefix: GuidPrefix,
-        /// True if it said goodbye, false if it went silent.
-        disposed: bool,
-    },
-    /// DDS: a remote publication (DataWriter) was announced.
-    PublicationFound(Box<EndpointData>),
-    /// DDS: a remote publication changed its QoS.
-    PublicationChanged(Box<EndpointData>),
-    /// DDS: a remote publication is gone.
-    PublicationLost(Guid),
-    /// DDS: a remote subscription (DataReader) was announced.
-    SubscriptionFound(Box<EndpointData>),
-    /// DDS: a remote subscription changed its QoS.
-    SubscriptionChanged(Box<EndpointData>),
-    /// DDS: a remote subscription is gone.
-    SubscriptionLost(Guid),
-    /// DDS: a subscription with a deadline got no sample within it.
-    DeadlineMissed {
-        /// Topic.
-        msg: String,
-        /// Misses on this subscription so far.
-        total: u64,
-    },
-    /// DDS: an endpoint on one of our topics does not match ours.
-    IncompatibleQos {
-        /// Topic.
-        msg: String,
-        /// The other endpoint.
-        remote: Guid,
-        /// The first rule that failed.
-        reason: String,
-    },
-}
-
-/// What can go wrong with a session operation.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[non_exhaustive]
-pub enum SessionError {
-    /// The connection is gone (central died, or the session was closed).
-    #[error("disconnected from {0}")]
-    Disconnected(String),
-    /// The messaging system refused the operation.
-    #[error("{0}")]
-    Refused(String),
-    /// A bounded wait ran out (e.g. a confirmed publish).
-    #[error("{what} did not complete within {after:?}")]
-    Timeout {
-        /// What was waited for.
-        what: String,
-        /// The bound.
-        after: Duration,
-    },
-    /// A topic (IPC message) is used with another type than the one this
-    /// session first used it with. Two types may share a topic only if they
-    /// have the same IPC format and DDS type name.
-    #[error("{msg} carries {bound} in this session, not {given}")]
-    TypeMismatch {
-        /// The topic.
-        msg: String,
-        /// The Rust type the topic was first used with.
-        bound: &'static str,
-        /// The Rust type of this use.
-        given: &'static str,
-    },
-    /// The backend cannot honour what was asked (a DDS QoS setting on an
-    /// IPC session, say).
-    #[error("{what} is not available on {backend} sessions")]
-    Unsupported {
-        /// What was asked.
-        what: String,
-        /// The backend's URL scheme.
-        backend: &'static str,
-    },
-    /// A value could not be decoded as the expected type.
-    #[error("cannot decode {msg} as {ty}: {detail}")]
-    Decode {
-        /// Message name.
-        msg: String,
-        /// Expected Rust type.
-        ty: &'static str,
-        /// The decoder's message.
-        detail: String,
-    },
-}
-
-/// Why a query failed.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[non_exhaustive]
-pub enum QueryError {
-    /// No reply within the timeout.
-    #[error("no reply to {msg} within {timeout:?}")]
-    Timeout {
-        /// Query message.
-        msg: String,
-        /// The timeout.
-        timeout: Duration,
-    },
-    /// The session ended before the reply.
-    #[error("disconnected before {0} was answered")]
-    Disconnected(String),
-    /// The query could not be sent.
-    #[error("query {msg} refused: {detail}")]
-    Refused {
-        /// Query message.
-        msg: String,
-        /// Why.
-        detail: String,
-    },
-    /// The reply is not the expected type.
-    #[error("reply {reply} to {msg} is not a {ty}: {detail}")]
-    Decode {
-        /// Query message.
-        msg: String,
-        /// Reply message name.
-        reply: String,
-        /// Expected Rust type.
-        ty: &'static str,
-        /// The decoder's message.
-        detail: String,
-    },
-}
-
 /// Why connecting failed.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -675,13 +546,14 @@ pub enum ConnectError {
         why: String,
     },
     /// No central answered.
-    #[error("cannot connect to central at {addr} after {attempts} attempt(s): {source}")]
+    #[error("cannot connect to central at {addr} after {attempts} attempt(s)")]
     Unreachable {
         /// Where it tried.
         addr: String,
         /// How often.
         attempts: u32,
-        /// The last error.
+        /// The last error (the message does not repeat it).
+        #[source]
         source: std::io::Error,
     },
     /// A DDS participant could not join the network (no such interface,
@@ -718,14 +590,14 @@ pub trait Backend: Send + Sync + std::fmt::Debug {
     /// How typed values must be encoded.
     fn encoding(&self) -> Encoding;
     /// Registers a named format (IPC_defineFormat).
-    async fn define_format(&self, name: &str, format: &str) -> Result<(), SessionError>;
+    async fn define_format(&self, name: &str, format: &str) -> Result<(), OpenError>;
     /// Defines a message with its format (IPC_defineMsg).
-    async fn define(&self, msg: &str, format: Option<&str>) -> Result<(), SessionError>;
+    async fn define(&self, msg: &str, format: Option<&str>) -> Result<(), OpenError>;
     /// Publishes; resolves once handed to the transport.
-    async fn publish(&self, msg: &str, data: Vec<u8>) -> Result<(), SessionError>;
+    async fn publish(&self, msg: &str, data: Vec<u8>) -> Result<(), PublishError>;
     /// Subscribes; samples arrive on the returned channel until it is
     /// dropped (then the backend unsubscribes).
-    async fn subscribe(&self, msg: &str, queue: Arc<SampleQueue>) -> Result<(), SessionError>;
+    async fn subscribe(&self, msg: &str, queue: Arc<SampleQueue>) -> Result<(), OpenError>;
     /// Sends a query; the reply's message name and bytes.
     async fn query(
         &self,
@@ -734,25 +606,22 @@ pub trait Backend: Send + Sync + std::fmt::Debug {
         timeout: Duration,
     ) -> Result<RawReply, QueryError>;
     /// Serves queries of `msg`.
-    async fn serve(
-        &self,
-        msg: &str,
-        queue: usize,
-    ) -> Result<mpsc::Receiver<RawRequest>, SessionError>;
+    async fn serve(&self, msg: &str, queue: usize)
+        -> Result<mpsc::Receiver<RawRequest>, OpenError>;
     /// A stream of system events.
     fn events(&self) -> mpsc::UnboundedReceiver<SessionEvent>;
     /// Whether a module of that name is connected.
-    async fn is_module_connected(&self, module: &str) -> Result<bool, SessionError>;
+    async fn is_module_connected(&self, module: &str) -> Result<bool, ControlError>;
     /// How many handlers a message has.
-    async fn num_handlers(&self, msg: &str) -> Result<i32, SessionError>;
+    async fn num_handlers(&self, msg: &str) -> Result<i32, ControlError>;
     /// IPC_setCapacity.
-    async fn set_capacity(&self, n: i32) -> Result<(), SessionError>;
+    async fn set_capacity(&self, n: i32) -> Result<(), ControlError>;
     /// IPC_setMsgPriority.
-    async fn set_priority(&self, msg: &str, priority: i32) -> Result<(), SessionError>;
+    async fn set_priority(&self, msg: &str, priority: i32) -> Result<(), ControlError>;
     /// IPC_setMsgQueueLength.
-    async fn set_queue_length(&self, msg: &str, n: i32) -> Result<(), SessionError>;
+    async fn set_queue_length(&self, msg: &str, n: i32) -> Result<(), ControlError>;
     /// Reports handler-count changes of `msg` on the event streams.
-    async fn watch_handlers(&self, msg: &str) -> Result<(), SessionError>;
+    async fn watch_handlers(&self, msg: &str) -> Result<(), ControlError>;
     /// Disconnects cleanly.
     async fn close(&self);
 
@@ -763,7 +632,7 @@ pub trait Backend: Send + Sync + std::fmt::Debug {
         msg: &str,
         ty: &TypeInfo,
         qos: &PublicationQos,
-    ) -> Result<(), SessionError> {
+    ) -> Result<(), OpenError> {
         let _ = qos;
         self.define(msg, ty.format).await
     }
@@ -776,7 +645,7 @@ pub trait Backend: Send + Sync + std::fmt::Debug {
         ty: Option<&TypeInfo>,
         qos: &SubscriptionQos,
         queue: Arc<SampleQueue>,
-    ) -> Result<(), SessionError> {
+    ) -> Result<(), OpenError> {
         let _ = (ty, qos);
         self.subscribe(msg, queue).await
     }
@@ -788,11 +657,12 @@ pub trait Backend: Send + Sync + std::fmt::Debug {
         topic: &str,
         type_name: &str,
         queue: Arc<SampleQueue>,
-    ) -> Result<(), SessionError> {
+    ) -> Result<(), OpenError> {
         let _ = (topic, type_name, queue);
-        Err(SessionError::Refused(
-            "pattern subscriptions need a DDS backend".into(),
-        ))
+        Err(OpenError::Unsupported {
+            what: "a pattern subscription".into(),
+            backend: scheme_of(self),
+        })
     }
 
     /// Publishes with options: the instance's key hash (keyed DDS topics)
@@ -803,11 +673,12 @@ pub trait Backend: Send + Sync + std::fmt::Debug {
         msg: &str,
         data: Vec<u8>,
         opts: WriteOptions,
-    ) -> Result<(), SessionError> {
+    ) -> Result<(), PublishError> {
         if opts.confirm.is_some() {
-            return Err(SessionError::Refused(
-                "confirmed publishing needs a DDS backend".into(),
-            ));
+            return Err(PublishError::Unsupported {
+                what: format!("a confirmed publish ({msg})"),
+                backend: scheme_of(self),
+            });
         }
         self.publish(msg, data).await
     }
@@ -827,11 +698,12 @@ pub trait Backend: Send + Sync + std::fmt::Debug {
         msg: &str,
         data: Vec<u8>,
         key_hash: Option<[u8; 16]>,
-    ) -> Result<(), SessionError> {
+    ) -> Result<(), PublishError> {
         let _ = (data, key_hash);
-        Err(SessionError::Refused(format!(
-            "cannot publish {msg} without waiting on this backend: use publish().await"
-        )))
+        Err(PublishError::Unsupported {
+            what: format!("publishing {msg} without waiting (use publish().await)"),
+            backend: scheme_of(self),
+        })
     }
 
     /// Disposes or unregisters an instance of a keyed topic; `key` is the
@@ -842,9 +714,12 @@ pub trait Backend: Send + Sync + std::fmt::Debug {
         state: InstanceState,
         key: Vec<u8>,
         key_hash: [u8; 16],
-    ) -> Result<(), SessionError> {
-        let _ = (msg, state, key, key_hash);
-        Err(SessionError::Refused("instances need a DDS backend".into()))
+    ) -> Result<(), PublishError> {
+        let _ = (state, key, key_hash);
+        Err(PublishError::Unsupported {
+            what: format!("disposing or unregistering an instance of {msg}"),
+            backend: scheme_of(self),
+        })
     }
 
     /// Sends a typed query: like [`Backend::query`], with the types (DDS
@@ -868,9 +743,18 @@ pub trait Backend: Send + Sync + std::fmt::Debug {
         req: &TypeInfo,
         resp: &TypeInfo,
         queue: usize,
-    ) -> Result<mpsc::Receiver<RawRequest>, SessionError> {
+    ) -> Result<mpsc::Receiver<RawRequest>, OpenError> {
         let _ = (req, resp);
         self.serve(msg, queue).await
+    }
+}
+
+/// The URL scheme of a backend, for [`OpenError::Unsupported`] and
+/// [`PublishError::Unsupported`].
+fn scheme_of<B: Backend + ?Sized>(b: &B) -> &'static str {
+    match b.encoding() {
+        Encoding::Ipc => "ipc://",
+        Encoding::Cdr => "rtps://",
     }
 }
 
@@ -1147,7 +1031,7 @@ impl Session {
     }
 
     /// Registers `T`'s named formats (`IPC_defineFormat`).
-    pub async fn define_format<T: IpcMessage>(&self) -> Result<(), SessionError> {
+    pub async fn define_format<T: IpcMessage>(&self) -> Result<(), OpenError> {
         if self.enc() != Encoding::Ipc {
             return Ok(());
         }
@@ -1163,11 +1047,11 @@ impl Session {
     ///
     /// A topic carries one type per session: defining, publishing,
     /// subscribing, querying or serving it later with a type of another
-    /// IPC format or DDS type name fails with [`SessionError::TypeMismatch`].
+    /// IPC format or DDS type name fails with [`OpenError::TypeMismatch`].
     /// Typed [`publish`](Session::publish), [`query`](Session::query) and
     /// [`serve`](Session::serve) define what they need themselves; call
     /// `define` to choose the moment (IPC_defineMsg ahead of time).
-    pub async fn define<T: IpcMessage>(&self, msg: &str) -> Result<(), SessionError> {
+    pub async fn define<T: IpcMessage>(&self, msg: &str) -> Result<(), OpenError> {
         self.topics.bind::<T>(msg)?;
         self.define_as(msg, Definition::of::<T>(), &PublicationQos::default())
             .await
@@ -1180,7 +1064,7 @@ impl Session {
         msg: &str,
         def: Definition,
         qos: &PublicationQos,
-    ) -> Result<(), SessionError> {
+    ) -> Result<(), OpenError> {
         if self.enc() == Encoding::Ipc {
             for (name, fmt) in def.formats {
                 self.backend.define_format(name, fmt).await?;
@@ -1227,7 +1111,7 @@ impl Session {
         msg: &'a str,
         value: &T,
         size_hint: usize,
-        check: Result<Option<Definition>, SessionError>,
+        check: Result<Option<Definition>, OpenError>,
     ) -> Publish<'a> {
         let key_hash = (self.enc() == Encoding::Cdr && !T::KEYS.is_empty())
             .then(|| crate::rtps_backend::key_hash_of(value));
@@ -1248,13 +1132,13 @@ impl Session {
     }
 
     /// Publishes raw bytes.
-    pub async fn publish_raw(&self, msg: &str, data: &[u8]) -> Result<(), SessionError> {
+    pub async fn publish_raw(&self, msg: &str, data: &[u8]) -> Result<(), PublishError> {
         self.backend.publish(msg, data.to_vec()).await
     }
 
     /// Subscribes with the default queue policy (keep all, 1000 samples,
     /// then back-pressure).
-    pub async fn subscribe<T: IpcMessage>(&self, msg: &str) -> Result<Subscriber<T>, SessionError> {
+    pub async fn subscribe<T: IpcMessage>(&self, msg: &str) -> Result<Subscriber<T>, OpenError> {
         self.subscribe_with(msg, QueuePolicy::default()).await
     }
 
@@ -1263,7 +1147,7 @@ impl Session {
         &self,
         msg: &str,
         policy: QueuePolicy,
-    ) -> Result<Subscriber<T>, SessionError> {
+    ) -> Result<Subscriber<T>, OpenError> {
         self.subscriber::<T>(msg).queue(policy).build().await
     }
 
@@ -1280,7 +1164,7 @@ impl Session {
     }
 
     /// Subscribes to raw samples.
-    pub async fn subscribe_raw(&self, msg: &str) -> Result<RawSubscriber, SessionError> {
+    pub async fn subscribe_raw(&self, msg: &str) -> Result<RawSubscriber, OpenError> {
         let queue = SampleQueue::new(QueuePolicy::default());
         self.backend
             .create_subscription(msg, None, &SubscriptionQos::default(), queue.clone())
@@ -1296,7 +1180,7 @@ impl Session {
         &self,
         topic: &str,
         type_name: &str,
-    ) -> Result<RawSubscriber, SessionError> {
+    ) -> Result<RawSubscriber, OpenError> {
         let queue = SampleQueue::new(QueuePolicy::KeepLast(10_000));
         self.backend
             .subscribe_pattern(topic, type_name, queue.clone())
@@ -1337,8 +1221,9 @@ impl Session {
     }
 
     /// Serves queries of `msg` as raw requests (answer with
-    /// [`RawRequest::respond`]).
-    pub async fn serve_raw(&self, msg: &str) -> Result<mpsc::Receiver<RawRequest>, SessionError> {
+    /// [`RawRequest::respond`]); the channel closes when the connection is
+    /// gone.
+    pub async fn serve_raw(&self, msg: &str) -> Result<mpsc::Receiver<RawRequest>, OpenError> {
         self.backend.serve(msg, 1000).await
     }
 
@@ -1348,18 +1233,18 @@ impl Session {
     /// an IPC asker decodes the reply by it. `""` takes the backend's own:
     /// `<msg>Reply` on IPC; on DDS replies always travel on the service's
     /// reply topic (`rr/<msg>Reply`), so there any other name is refused
-    /// with [`SessionError::Unsupported`] rather than ignored.
+    /// with [`OpenError::Unsupported`] rather than ignored.
     pub async fn serve<Req: IpcMessage, Resp: IpcMessage>(
         &self,
         msg: &str,
         reply_msg: &str,
-    ) -> Result<Requests<Req, Resp>, SessionError> {
+    ) -> Result<Requests<Req, Resp>, OpenError> {
         let reply_msg = match (self.enc(), reply_msg) {
             (Encoding::Ipc, "") => format!("{msg}Reply"),
             (Encoding::Ipc, name) => name.to_string(),
             (Encoding::Cdr, "") => String::new(),
             (Encoding::Cdr, name) => {
-                return Err(SessionError::Unsupported {
+                return Err(OpenError::Unsupported {
                     what: format!(
                         "reply message name {name:?} (DDS replies go on the service's reply \
                          topic; pass \"\")"
@@ -1393,6 +1278,7 @@ impl Session {
             .await?;
         Ok(Requests {
             rx,
+            ended: false,
             reply_msg: reply_msg.to_string(),
             enc: self.enc(),
             _t: PhantomData,
@@ -1425,33 +1311,33 @@ impl Session {
 
     /// Reports [`SessionEvent::HandlersChanged`] for `msg`
     /// (IPC_subscribeHandlerChange; DDS: matched readers of our writer).
-    pub async fn watch_handlers(&self, msg: &str) -> Result<(), SessionError> {
+    pub async fn watch_handlers(&self, msg: &str) -> Result<(), ControlError> {
         self.backend.watch_handlers(msg).await
     }
 
     /// Whether a module of that name is connected to central (DDS: a
     /// participant with that entity name is known).
-    pub async fn is_module_connected(&self, module: &str) -> Result<bool, SessionError> {
+    pub async fn is_module_connected(&self, module: &str) -> Result<bool, ControlError> {
         self.backend.is_module_connected(module).await
     }
 
     /// How many handlers subscribe `msg` (DDS: readers matched with our writer).
-    pub async fn num_handlers(&self, msg: &str) -> Result<i32, SessionError> {
+    pub async fn num_handlers(&self, msg: &str) -> Result<i32, ControlError> {
         self.backend.num_handlers(msg).await
     }
 
     /// How many messages central may deliver at once (default 1).
-    pub async fn set_capacity(&self, n: i32) -> Result<(), SessionError> {
+    pub async fn set_capacity(&self, n: i32) -> Result<(), ControlError> {
         self.backend.set_capacity(n).await
     }
 
     /// Priority of `msg` in this module's pending queue.
-    pub async fn set_priority(&self, msg: &str, priority: i32) -> Result<(), SessionError> {
+    pub async fn set_priority(&self, msg: &str, priority: i32) -> Result<(), ControlError> {
         self.backend.set_priority(msg, priority).await
     }
 
     /// Most pending `msg` deliveries central keeps for this module (oldest dropped).
-    pub async fn set_queue_length(&self, msg: &str, n: i32) -> Result<(), SessionError> {
+    pub async fn set_queue_length(&self, msg: &str, n: i32) -> Result<(), ControlError> {
         self.backend.set_queue_length(msg, n).await
     }
 
@@ -1472,7 +1358,7 @@ pub struct Publish<'a> {
     key_hash: Option<[u8; 16]>,
     /// The topic's type check: the definition to make first if the
     /// session has not defined the topic yet, or the mismatch.
-    check: Result<Option<Definition>, SessionError>,
+    check: Result<Option<Definition>, OpenError>,
 }
 
 impl<'a> Publish<'a> {
@@ -1491,12 +1377,12 @@ impl<'a> Publish<'a> {
 }
 
 impl<'a> std::future::IntoFuture for Publish<'a> {
-    type Output = Result<(), SessionError>;
+    type Output = Result<(), PublishError>;
     type IntoFuture = Pin<Box<dyn std::future::Future<Output = Self::Output> + Send + 'a>>;
 
     fn into_future(self) -> Self::IntoFuture {
         let define = match self.check {
-            Err(e) => return Box::pin(std::future::ready(Err(e))),
+            Err(e) => return Box::pin(std::future::ready(Err(e.into()))),
             Ok(define) => define,
         };
         if define.is_none() && self.confirm.is_none() && self.key_hash.is_none() {
@@ -1589,7 +1475,7 @@ impl<T: IpcMessage> PublisherBuilder<T> {
     }
 
     /// Creates the publication.
-    pub async fn build(self) -> Result<Publisher<T>, SessionError> {
+    pub async fn build(self) -> Result<Publisher<T>, OpenError> {
         self.session.topics.bind::<T>(&self.msg)?;
         self.session
             .define_as(&self.msg, Definition::of::<T>(), &self.qos)
@@ -1651,27 +1537,24 @@ impl<T: IpcMessage> Publisher<T> {
     /// cannot (IPC: use `publish().await`). Inside a callback of an
     /// immediate subscription the datagram goes out when the callback
     /// returns, packed with the callback's other writes.
-    pub fn try_publish(&self, value: &T) -> Result<(), SessionError> {
+    pub fn try_publish(&self, value: &T) -> Result<(), PublishError> {
         let p = self.publish(value);
         self.session.backend.try_write(p.msg, p.data, p.key_hash)
     }
 
     /// Disposes the instance that `value`'s key fields name (keyed topics).
-    pub async fn dispose(&self, value: &T) -> Result<(), SessionError> {
+    pub async fn dispose(&self, value: &T) -> Result<(), PublishError> {
         self.end(value, InstanceState::Disposed).await
     }
 
     /// Unregisters the instance that `value`'s key fields name (keyed topics).
-    pub async fn unregister(&self, value: &T) -> Result<(), SessionError> {
+    pub async fn unregister(&self, value: &T) -> Result<(), PublishError> {
         self.end(value, InstanceState::Unregistered).await
     }
 
-    async fn end(&self, value: &T, state: InstanceState) -> Result<(), SessionError> {
+    async fn end(&self, value: &T, state: InstanceState) -> Result<(), PublishError> {
         if T::KEYS.is_empty() {
-            return Err(SessionError::Refused(format!(
-                "{} has no key fields: only keyed topics have instances to dispose",
-                T::TYPE_NAME
-            )));
+            return Err(PublishError::NotKeyed(T::TYPE_NAME));
         }
         // A key that always fits in the key hash travels only as the inline
         // KEY_HASH (as Fast DDS sends it, and the only form Fast DDS 2.9
@@ -1715,12 +1598,12 @@ impl<T: IpcMessage> Publisher<T> {
 /// A publication driven by a timer ([`Publisher::send_every`]); dropping it stops it.
 #[derive(Debug)]
 pub struct PeriodicPublication {
-    task: tokio::task::JoinHandle<Result<(), SessionError>>,
+    task: tokio::task::JoinHandle<Result<(), PublishError>>,
 }
 
 impl PeriodicPublication {
     /// Stops it and returns why it ended, if it ended by itself.
-    pub async fn stop(mut self) -> Result<(), SessionError> {
+    pub async fn stop(mut self) -> Result<(), PublishError> {
         self.task.abort();
         (&mut self.task).await.unwrap_or(Ok(()))
     }
@@ -1805,7 +1688,7 @@ impl<T: IpcMessage> SubscriberBuilder<T> {
     }
 
     /// The backend's subscription of this type and QoS, into `queue`.
-    async fn create(&self, queue: &Arc<SampleQueue>) -> Result<(), SessionError> {
+    async fn create(&self, queue: &Arc<SampleQueue>) -> Result<(), OpenError> {
         self.session.topics.bind::<T>(&self.msg)?;
         self.session
             .backend
@@ -1845,13 +1728,15 @@ impl<T: IpcMessage> SubscriberBuilder<T> {
     ///     .await?;
     /// # Ok(()) }
     /// ```
-    pub async fn listen<F>(self, mut f: F) -> Result<Listener, SessionError>
+    pub async fn listen<F>(self, mut f: F) -> Result<Listener, OpenError>
     where
         F: FnMut(Result<Sample<T>, RecvError>) + Send + 'static,
     {
         let queue = SampleQueue::new(self.policy.unwrap_or_default());
         let enc = self.session.enc();
-        queue.set_handler(move |q, s| f(convert::<T>(enc, q, s)));
+        queue.set_handler(move |q, s| {
+            f(s.map_or(Err(RecvError::Disconnected), |s| convert::<T>(enc, q, s)))
+        });
         self.create(&queue).await?;
         if !self.session.backend.delivers_immediately() {
             let q = queue.clone();
@@ -1868,7 +1753,7 @@ impl<T: IpcMessage> SubscriberBuilder<T> {
     }
 
     /// Creates the subscription.
-    pub async fn build(self) -> Result<Subscriber<T>, SessionError> {
+    pub async fn build(self) -> Result<Subscriber<T>, OpenError> {
         let queue = SampleQueue::new(self.policy.unwrap_or_default());
         self.create(&queue).await?;
         Ok(Subscriber {
@@ -1977,10 +1862,6 @@ fn convert<T: IpcMessage>(
     if let Some(done) = s.done.take() {
         done();
     }
-    if s.msg.is_empty() {
-        // The backend's end-of-connection marker.
-        return Err(RecvError::Disconnected);
-    }
     if s.state != InstanceState::Alive {
         return Err(RecvError::Instance {
             msg: s.msg,
@@ -2008,7 +1889,10 @@ fn convert<T: IpcMessage>(
 }
 
 impl<T: IpcMessage> Subscriber<T> {
-    fn convert(&mut self, s: RawSample) -> Result<Sample<T>, RecvError> {
+    fn convert(&mut self, p: Popped) -> Result<Sample<T>, RecvError> {
+        let Popped::Sample(s) = p else {
+            return Err(RecvError::Disconnected);
+        };
         let r = convert(self.enc, &self.raw.queue, s);
         if matches!(r, Err(RecvError::Decode { .. })) {
             self.decode_errors += 1;
@@ -2069,7 +1953,7 @@ pub struct Query<'a, Resp> {
     data: Vec<u8>,
     timeout: Duration,
     /// The query message's type check, as [`Publish`]'s.
-    check: Result<Option<Definition>, SessionError>,
+    check: Result<Option<Definition>, OpenError>,
     _t: PhantomData<fn() -> Resp>,
 }
 
@@ -2081,11 +1965,11 @@ impl<'a, Resp: IpcMessage + 'a> Query<'a, Resp> {
     }
 
     async fn run(self) -> Result<Resp, QueryError> {
-        let refused = |e: SessionError| match e {
-            SessionError::Disconnected(_) => QueryError::Disconnected(self.msg.to_string()),
-            e => QueryError::Refused {
+        let refused = |e: OpenError| match e {
+            OpenError::Disconnected(_) => QueryError::Disconnected(self.msg.to_string()),
+            source => QueryError::Open {
                 msg: self.msg.to_string(),
-                detail: e.to_string(),
+                source,
             },
         };
         if let Some(def) = self.check.map_err(refused)? {
@@ -2148,11 +2032,8 @@ impl<Req, Resp: IpcMessage> Request<Req, Resp> {
     /// A `Request` dropped without a reply is declined: the server keeps
     /// receiving (on IPC, central frees the module's capacity slot), and
     /// the asker gets no reply and runs into its timeout.
-    pub async fn reply(mut self, resp: &Resp) -> Result<(), SessionError> {
-        let r = self
-            .respond
-            .take()
-            .ok_or_else(|| SessionError::Refused("already answered".into()))?;
+    pub async fn reply(mut self, resp: &Resp) -> Result<(), PublishError> {
+        let r = self.respond.take().ok_or(PublishError::AlreadyAnswered)?;
         r.reply(&self.reply_msg, encode(self.enc, resp)).await
     }
 }
@@ -2161,6 +2042,8 @@ impl<Req, Resp: IpcMessage> Request<Req, Resp> {
 #[derive(Debug)]
 pub struct Requests<Req, Resp> {
     rx: mpsc::Receiver<RawRequest>,
+    /// The end (`Err(Disconnected)`) was yielded.
+    ended: bool,
     reply_msg: String,
     enc: Encoding,
     _t: PhantomData<fn() -> (Req, Resp)>,
@@ -2172,9 +2055,6 @@ impl<Req: IpcMessage, Resp: IpcMessage> Stream for Requests<Req, Resp> {
     fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Self::Item>> {
         match self.rx.poll_recv(cx) {
             Poll::Ready(Some(r)) => {
-                if r.msg.is_empty() {
-                    return Poll::Ready(Some(Err(RecvError::Disconnected)));
-                }
                 let v = decode::<Req>(self.enc, &r.data, r.order);
                 Poll::Ready(Some(match v {
                     Ok(value) => Ok(Request {
@@ -2190,6 +2070,11 @@ impl<Req: IpcMessage, Resp: IpcMessage> Stream for Requests<Req, Resp> {
                         detail: e,
                     }),
                 }))
+            }
+            // the backend closed the channel: the session is gone
+            Poll::Ready(None) if !self.ended => {
+                self.ended = true;
+                Poll::Ready(Some(Err(RecvError::Disconnected)))
             }
             Poll::Ready(None) => Poll::Ready(None),
             Poll::Pending => Poll::Pending,

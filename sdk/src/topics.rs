@@ -11,8 +11,8 @@ use std::sync::Mutex;
 
 use courier_wire::IpcMessage;
 
+use crate::error::OpenError;
 use crate::qos::TypeInfo;
-use crate::session::SessionError;
 
 /// A topic's type as bound by its first typed use.
 #[derive(Debug, Clone, Copy)]
@@ -40,11 +40,11 @@ impl Topics {
     /// Binds `msg` to `T`, or checks that it is bound to a type with the
     /// same wire form. `Ok(true)` when the session has not yet defined the
     /// topic for publishing.
-    pub(crate) fn bind<T: IpcMessage>(&self, msg: &str) -> Result<bool, SessionError> {
+    pub(crate) fn bind<T: IpcMessage>(&self, msg: &str) -> Result<bool, OpenError> {
         let mut map = self.lock();
         match map.get(msg) {
             Some(b) if b.format == T::FORMAT && b.type_name == T::TYPE_NAME => Ok(!b.defined),
-            Some(b) => Err(SessionError::TypeMismatch {
+            Some(b) => Err(OpenError::TypeMismatch {
                 msg: msg.to_string(),
                 bound: b.rust,
                 given: std::any::type_name::<T>(),

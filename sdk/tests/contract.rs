@@ -6,7 +6,7 @@
 
 use std::time::Duration;
 
-use courier::{ConnectError, IpcMessage, QueryError, Session, SessionError};
+use courier::{ConnectError, IpcMessage, OpenError, PublishError, QueryError, Session};
 use courier_broker::{CentralHandle, CentralServer};
 use futures::StreamExt;
 
@@ -104,15 +104,18 @@ async fn a_topic_keeps_one_type_per_session() {
     let (c, url) = central().await;
     let a = session(&url, "a").await;
     a.define::<Sum>("sums").await.unwrap();
-    let mismatch = |e: SessionError| match e {
-        SessionError::TypeMismatch { msg, bound, given } => {
+    let mismatch = |e: OpenError| match e {
+        OpenError::TypeMismatch { msg, bound, given } => {
             assert_eq!(msg, "sums");
             assert!(bound.ends_with("Sum"), "{bound}");
             given
         }
         other => panic!("expected a type mismatch, got {other:?}"),
     };
-    let given = mismatch(a.publish("sums", &1.5f64).await.unwrap_err());
+    let given = match a.publish("sums", &1.5f64).await.unwrap_err() {
+        PublishError::Open(e) => mismatch(e),
+        other => panic!("expected a type mismatch, got {other:?}"),
+    };
     assert_eq!(given, "f64");
     mismatch(a.define::<Ask>("sums").await.unwrap_err());
     mismatch(a.subscribe::<i32>("sums").await.err().unwrap());
@@ -124,9 +127,11 @@ async fn a_topic_keeps_one_type_per_session() {
         .await
         .unwrap_err();
     match e {
-        QueryError::Refused { msg, detail } => {
+        QueryError::Open { msg, source } => {
             assert_eq!(msg, "sums");
+            let detail = source.to_string();
             assert!(detail.contains("Sum") && detail.contains("Ask"), "{detail}");
+            mismatch(source);
         }
         other => panic!("expected a refusal, got {other:?}"),
     }
@@ -151,8 +156,8 @@ async fn a_topic_keeps_one_type_per_session() {
 async fn dds_settings_on_an_ipc_session_are_refused_by_name() {
     let (c, url) = central().await;
     let a = session(&url, "a").await;
-    let unsupported = |e: SessionError, what: &str| match e {
-        SessionError::Unsupported { what: w, backend } => {
+    let unsupported = |e: OpenError, what: &str| match e {
+        OpenError::Unsupported { what: w, backend } => {
             assert!(w.contains(what), "{w}");
             assert_eq!(backend, "ipc://");
         }

@@ -8,7 +8,7 @@
 use std::time::Duration;
 
 use courier::{
-    ConnectError, InstanceState, IpcMessage, RecvError, Session, SessionError, SessionEvent,
+    ConnectError, InstanceState, IpcMessage, PublishError, RecvError, Session, SessionEvent,
 };
 use futures::StreamExt;
 
@@ -181,7 +181,7 @@ async fn confirmed_publish_waits_for_acknowledgement() {
         .timeout(Duration::from_millis(300))
         .await;
     match r {
-        Err(SessionError::Timeout { what, after }) => {
+        Err(PublishError::Timeout { what, after }) => {
             assert!(what.contains("acked"), "{what}");
             assert_eq!(after, Duration::from_millis(300));
         }
@@ -258,6 +258,39 @@ async fn pattern_subscription_sees_matching_topics_with_their_types() {
     assert_eq!(a.num_handlers("actuator/arm").await.unwrap(), 0);
 }
 
+/// A remote endpoint on one of our topics with another type name is an
+/// event naming both types (the wire domain's type mismatch, not only a
+/// log line).
+#[tokio::test]
+async fn a_type_mismatch_on_a_topic_is_an_event() {
+    let a = session(169, "a").await;
+    let mut ev = a.events();
+    a.define::<Msg>("mixed").await.unwrap();
+    let b = session(169, "b").await;
+    let _sub = b.subscribe::<i32>("mixed").await.unwrap();
+    let (topic, remote, local_type, remote_type) = tokio::time::timeout(T, async {
+        loop {
+            if let SessionEvent::TypeMismatch {
+                topic,
+                remote,
+                local_type,
+                remote_type,
+            } = ev.next().await.unwrap()
+            {
+                return (topic, remote, local_type, remote_type);
+            }
+        }
+    })
+    .await
+    .expect("a type mismatch reported");
+    assert_eq!(topic, "mixed");
+    assert_eq!(local_type, Msg::TYPE_NAME);
+    assert_eq!(remote_type, i32::TYPE_NAME);
+    assert_eq!(remote.to_string().len(), 32);
+    // no match between them
+    assert_eq!(a.num_handlers("mixed").await.unwrap(), 0);
+}
+
 #[tokio::test]
 async fn discovery_events_found_and_lost() {
     let a = session(157, "watcher").await;
@@ -270,11 +303,10 @@ async fn discovery_events_found_and_lost() {
         while !(found_participant && found_publication) {
             match ev.next().await.unwrap() {
                 SessionEvent::ParticipantFound(p) => {
-                    found_participant |= p.entity_name.as_deref() == Some("robot-7")
+                    found_participant |= p.name.as_deref() == Some("robot-7")
                 }
                 SessionEvent::PublicationFound(e) => {
-                    found_publication |=
-                        e.topic_name == "odom" && e.type_name == "courier::test::Msg"
+                    found_publication |= e.topic == "odom" && e.type_name == "courier::test::Msg"
                 }
                 _ => {}
             }
@@ -326,7 +358,7 @@ async fn a_silent_participant_is_lost_when_its_lease_expires() {
     let found = tokio::time::timeout(T, async {
         loop {
             if let SessionEvent::ParticipantFound(p) = ev.next().await.unwrap() {
-                if p.guid_prefix == prefix {
+                if p.guid.is_of(prefix.0) {
                     return Instant::now();
                 }
             }
@@ -337,12 +369,8 @@ async fn a_silent_participant_is_lost_when_its_lease_expires() {
     assert!(a.is_module_connected("ghost").await.unwrap());
     tokio::time::timeout(T, async {
         loop {
-            if let SessionEvent::ParticipantLost {
-                guid_prefix,
-                disposed,
-            } = ev.next().await.unwrap()
-            {
-                if guid_prefix == prefix {
+            if let SessionEvent::ParticipantLost { guid, disposed } = ev.next().await.unwrap() {
+                if guid.is_of(prefix.0) {
                     assert!(!disposed, "it went silent, it did not say goodbye");
                     break;
                 }

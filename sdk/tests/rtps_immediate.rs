@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{mpsc, Arc};
 use std::time::Duration;
 
-use courier::{RecvError, Sample, Session, SessionError};
+use courier::{PublishError, RecvError, Sample, Session};
 
 mod common;
 use common::{await_handlers, next, session, url, Msg, T};
@@ -168,18 +168,13 @@ async fn try_publish_keeps_order_and_refuses_clearly() {
         .try_write("nobody", vec![0, 1, 0, 0], None)
         .unwrap_err();
     match err {
-        SessionError::Refused(why) => {
-            assert!(
-                why.contains("nobody") && why.contains("no publication"),
-                "{why}"
-            )
-        }
+        PublishError::NoPublication(topic) => assert_eq!(topic, "nobody"),
         e => panic!("unexpected {e:?}"),
     }
     a.close().await;
     let err = p.try_publish(&msg(0)).unwrap_err();
     assert!(
-        matches!(err, SessionError::Disconnected(_)),
+        matches!(err, PublishError::Disconnected(_)),
         "after close: {err:?}"
     );
     b.close().await;

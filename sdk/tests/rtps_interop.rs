@@ -632,9 +632,9 @@ async fn discovery_events(vendor: Vendor, domain: u32) {
     tokio::time::timeout(T, async {
         while prefix.is_none() || !publication {
             match ev.next().await.expect("events") {
-                SessionEvent::ParticipantFound(p) => prefix = Some(p.guid_prefix),
+                SessionEvent::ParticipantFound(p) => prefix = Some(p.guid.prefix()),
                 SessionEvent::PublicationFound(e) => {
-                    publication |= e.topic_name == "seen" && e.type_name == "courier::test::Msg"
+                    publication |= e.topic == "seen" && e.type_name == "courier::test::Msg"
                 }
                 _ => {}
             }
@@ -646,12 +646,10 @@ async fn discovery_events(vendor: Vendor, domain: u32) {
     // the peer exits by itself after lingering and says goodbye
     let lost = tokio::time::timeout(T, async {
         loop {
-            if let SessionEvent::ParticipantLost {
-                guid_prefix,
-                disposed,
-            } = ev.next().await.expect("events")
+            if let SessionEvent::ParticipantLost { guid, disposed } =
+                ev.next().await.expect("events")
             {
-                if guid_prefix == prefix {
+                if guid.is_of(prefix) {
                     return disposed;
                 }
             }

@@ -7,19 +7,20 @@ use courier_wire::dds::{RequestId, ServiceId};
 use courier_wire::rtps::participant::ChangeKind;
 use tokio::sync::{mpsc, oneshot, OwnedSemaphorePermit};
 
+use crate::error::{ControlError, Failure, OpenError, PublishError};
 use crate::qos::{PublicationQos, SubscriptionQos, TypeInfo};
-use crate::session::{QueryError, RawReply, RawRequest, SampleQueue, SessionError};
+use crate::session::{QueryError, RawReply, RawRequest, SampleQueue};
 
-pub(super) fn disconnected() -> SessionError {
-    SessionError::Disconnected("the RTPS participant (session closed)".into())
+pub(super) fn disconnected<E: Failure>() -> E {
+    E::disconnected("the RTPS participant (session closed)".into())
 }
 
-pub(super) type Reply<T> = oneshot::Sender<Result<T, SessionError>>;
+pub(super) type Reply<T, E> = oneshot::Sender<Result<T, E>>;
 
 /// How the driver tells a publisher that a write is done.
 pub(super) enum Done {
     /// The publisher waits for the result (confirmed writes, first writes).
-    Reply(Reply<()>),
+    Reply(Reply<(), PublishError>),
     /// The publisher went on once the write was queued; the permit it holds
     /// is its share of [`QUEUED_WRITE_UNITS`], given back when the write
     /// enters the writer's history.
@@ -27,7 +28,7 @@ pub(super) enum Done {
 }
 
 impl Done {
-    pub(super) fn send(self, r: Result<(), SessionError>) {
+    pub(super) fn send(self, r: Result<(), PublishError>) {
         match self {
             Done::Reply(tx) => {
                 let _ = tx.send(r);
@@ -61,20 +62,20 @@ pub(super) enum Cmd {
         topic: String,
         ty: Box<TypeInfo>,
         qos: Box<PublicationQos>,
-        reply: Reply<()>,
+        reply: Reply<(), OpenError>,
     },
     Subscription {
         topic: String,
         ty: Option<Box<TypeInfo>>,
         qos: Box<SubscriptionQos>,
         queue: Arc<SampleQueue>,
-        reply: Reply<()>,
+        reply: Reply<(), OpenError>,
     },
     Pattern {
         topic: String,
         type_name: String,
         queue: Arc<SampleQueue>,
-        reply: Reply<()>,
+        reply: Reply<(), OpenError>,
     },
     Write {
         topic: Arc<str>,
@@ -86,11 +87,11 @@ pub(super) enum Cmd {
     },
     ModuleConnected {
         name: String,
-        reply: Reply<bool>,
+        reply: Reply<bool, ControlError>,
     },
     NumHandlers {
         topic: String,
-        reply: Reply<i32>,
+        reply: Reply<i32, ControlError>,
     },
     Watch {
         topic: String,
@@ -111,7 +112,7 @@ pub(super) enum Cmd {
         req: Box<TypeInfo>,
         resp: Box<TypeInfo>,
         tx: mpsc::Sender<RawRequest>,
-        reply: Reply<()>,
+        reply: Reply<(), OpenError>,
     },
     Respond {
         service: ServiceId,

@@ -72,10 +72,11 @@ use courier_wire::{cdr, IpcMessage};
 use tokio::sync::{mpsc, oneshot, OwnedSemaphorePermit, Semaphore};
 
 use crate::busy_poll::BusyPoll;
+use crate::error::{ControlError, Failure, OpenError, PublishError};
 use crate::qos::{InstanceState, PublicationQos, SubscriptionQos, TypeInfo};
 use crate::session::{
-    Backend, ConnectError, Encoding, QueryError, RawReply, RawRequest, SampleQueue, SessionError,
-    SessionEvent, WriteOptions,
+    Backend, ConnectError, Encoding, QueryError, RawReply, RawRequest, SampleQueue, SessionEvent,
+    WriteOptions,
 };
 use cmd::{disconnected, queued_units, Cmd, Done, Reply, QUEUED_WRITE_UNIT, QUEUED_WRITE_UNITS};
 use driver::{Core, Driver, Shared, IN_CALLBACK};
@@ -276,26 +277,24 @@ impl RtpsBackend {
     /// What a write of `len` bytes to `msg` needs to go without waiting:
     /// the publication's shared name and a share of the queue budget; or
     /// why it cannot.
-    fn reserve(&self, msg: &str, len: usize) -> Result<(Arc<str>, OwnedSemaphorePermit), String> {
-        let topic = self.publication(msg).ok_or_else(|| {
-            "this session has no publication of it (create one with \
-             Session::publisher::<T>(..).build().await)"
-                .to_string()
-        })?;
+    fn reserve(
+        &self,
+        msg: &str,
+        len: usize,
+    ) -> Result<(Arc<str>, OwnedSemaphorePermit), PublishError> {
+        let topic = self
+            .publication(msg)
+            .ok_or_else(|| PublishError::NoPublication(msg.to_string()))?;
         if len > MAX_WRITE_SIZE {
-            return Err(format!(
-                "a sample of {len} bytes is larger than {MAX_WRITE_SIZE}"
-            ));
+            return Err(too_large(msg, len));
         }
         let permit = self
             .queue_budget
             .clone()
             .try_acquire_many_owned(queued_units(len))
-            .map_err(|_| {
-                format!(
-                    "the session's write queue is full ({} bytes wait for the participant)",
-                    QUEUED_WRITE_UNITS * QUEUED_WRITE_UNIT
-                )
+            .map_err(|_| PublishError::QueueFull {
+                msg: msg.to_string(),
+                bytes: QUEUED_WRITE_UNITS * QUEUED_WRITE_UNIT,
             })?;
         Ok((topic, permit))
     }
@@ -308,7 +307,7 @@ impl RtpsBackend {
         msg: &str,
         data: Vec<u8>,
         key_hash: Option<[u8; 16]>,
-    ) -> Result<Result<(), SessionError>, Vec<u8>> {
+    ) -> Result<Result<(), PublishError>, Vec<u8>> {
         let Ok((topic, permit)) = self.reserve(msg, data.len()) else {
             return Err(data);
         };
@@ -328,7 +327,7 @@ impl RtpsBackend {
         msg: &str,
         data: Vec<u8>,
         opts: WriteOptions,
-    ) -> Result<(), SessionError> {
+    ) -> Result<(), PublishError> {
         if opts.confirm.is_some() {
             return self.write_slow(msg, data, opts).await;
         }
@@ -346,15 +345,12 @@ impl RtpsBackend {
         msg: &str,
         data: Vec<u8>,
         opts: WriteOptions,
-    ) -> Result<(), SessionError> {
+    ) -> Result<(), PublishError> {
         let known = self.publication(msg);
         let topic = known.clone().unwrap_or_else(|| Arc::from(msg));
         if let (None, Some(topic)) = (opts.confirm, known) {
             if data.len() > MAX_WRITE_SIZE {
-                return Err(SessionError::Refused(format!(
-                    "cannot publish {topic}: a sample of {} bytes is larger than {MAX_WRITE_SIZE}",
-                    data.len()
-                )));
+                return Err(too_large(&topic, data.len()));
             }
             // returns once queued: the driver packs what is queued
             let permit = self
@@ -362,7 +358,7 @@ impl RtpsBackend {
                 .clone()
                 .acquire_many_owned(queued_units(data.len()))
                 .await
-                .map_err(|_| disconnected())?;
+                .map_err(|_| disconnected::<PublishError>())?;
             return self
                 .cmd
                 .send(Cmd::Write {
@@ -386,10 +382,18 @@ impl RtpsBackend {
         .await
     }
 
-    async fn ask<T>(&self, make: impl FnOnce(Reply<T>) -> Cmd) -> Result<T, SessionError> {
+    async fn ask<T, E: Failure>(&self, make: impl FnOnce(Reply<T, E>) -> Cmd) -> Result<T, E> {
         let (tx, rx) = oneshot::channel();
         self.cmd.send(make(tx)).map_err(|_| disconnected())?;
         rx.await.map_err(|_| disconnected())?
+    }
+}
+
+fn too_large(msg: &str, len: usize) -> PublishError {
+    PublishError::TooLarge {
+        msg: msg.to_string(),
+        len,
+        max: MAX_WRITE_SIZE,
     }
 }
 
@@ -416,22 +420,25 @@ impl Backend for RtpsBackend {
         Encoding::Cdr
     }
 
-    async fn define_format(&self, _name: &str, _format: &str) -> Result<(), SessionError> {
+    async fn define_format(&self, _name: &str, _format: &str) -> Result<(), OpenError> {
         Ok(())
     }
 
-    async fn define(&self, msg: &str, _format: Option<&str>) -> Result<(), SessionError> {
-        Err(SessionError::Refused(format!(
-            "a DDS publication of {msg} needs a type: use Session::define::<T>() or \
-             Session::publisher::<T>()"
-        )))
+    async fn define(&self, msg: &str, _format: Option<&str>) -> Result<(), OpenError> {
+        Err(OpenError::Unsupported {
+            what: format!(
+                "a publication of {msg} without its type (use Session::define::<T>() or \
+                 Session::publisher::<T>())"
+            ),
+            backend: "rtps://",
+        })
     }
 
-    async fn publish(&self, msg: &str, data: Vec<u8>) -> Result<(), SessionError> {
+    async fn publish(&self, msg: &str, data: Vec<u8>) -> Result<(), PublishError> {
         self.queue_write(msg, data, WriteOptions::default()).await
     }
 
-    async fn subscribe(&self, msg: &str, queue: Arc<SampleQueue>) -> Result<(), SessionError> {
+    async fn subscribe(&self, msg: &str, queue: Arc<SampleQueue>) -> Result<(), OpenError> {
         self.create_subscription(msg, None, &SubscriptionQos::default(), queue)
             .await
     }
@@ -442,9 +449,12 @@ impl Backend for RtpsBackend {
         _data: Vec<u8>,
         _timeout: Duration,
     ) -> Result<RawReply, QueryError> {
-        Err(QueryError::Refused {
+        Err(QueryError::Open {
             msg: msg.into(),
-            detail: "a DDS request topic needs its types: use Session::query".into(),
+            source: OpenError::Unsupported {
+                what: "a query without its types (use Session::query)".into(),
+                backend: "rtps://",
+            },
         })
     }
 
@@ -452,10 +462,11 @@ impl Backend for RtpsBackend {
         &self,
         msg: &str,
         _queue: usize,
-    ) -> Result<mpsc::Receiver<RawRequest>, SessionError> {
-        Err(SessionError::Refused(format!(
-            "the DDS request topic of {msg} needs its types: use Session::serve"
-        )))
+    ) -> Result<mpsc::Receiver<RawRequest>, OpenError> {
+        Err(OpenError::Unsupported {
+            what: format!("serving {msg} without its types (use Session::serve)"),
+            backend: "rtps://",
+        })
     }
 
     async fn query_typed(
@@ -487,7 +498,7 @@ impl Backend for RtpsBackend {
         req: &TypeInfo,
         resp: &TypeInfo,
         queue: usize,
-    ) -> Result<mpsc::Receiver<RawRequest>, SessionError> {
+    ) -> Result<mpsc::Receiver<RawRequest>, OpenError> {
         let (tx, rx) = mpsc::channel(queue.max(1));
         let (name, req, resp) = (
             msg.to_string(),
@@ -515,36 +526,36 @@ impl Backend for RtpsBackend {
         rx
     }
 
-    async fn is_module_connected(&self, module: &str) -> Result<bool, SessionError> {
+    async fn is_module_connected(&self, module: &str) -> Result<bool, ControlError> {
         let name = module.to_string();
         self.ask(|reply| Cmd::ModuleConnected { name, reply }).await
     }
 
-    async fn num_handlers(&self, msg: &str) -> Result<i32, SessionError> {
+    async fn num_handlers(&self, msg: &str) -> Result<i32, ControlError> {
         let topic = msg.to_string();
         self.ask(|reply| Cmd::NumHandlers { topic, reply }).await
     }
 
-    async fn set_capacity(&self, _n: i32) -> Result<(), SessionError> {
-        Err(SessionError::Refused(
-            "IPC_setCapacity has no DDS equivalent: bound a subscription with its queue policy"
+    async fn set_capacity(&self, _n: i32) -> Result<(), ControlError> {
+        Err(no_dds_equivalent(
+            "IPC_setCapacity (no DDS equivalent: bound a subscription with its queue policy)"
                 .into(),
         ))
     }
 
-    async fn set_priority(&self, msg: &str, _priority: i32) -> Result<(), SessionError> {
-        Err(SessionError::Refused(format!(
-            "IPC_setMsgPriority ({msg}) has no DDS equivalent: use ownership strength"
+    async fn set_priority(&self, msg: &str, _priority: i32) -> Result<(), ControlError> {
+        Err(no_dds_equivalent(format!(
+            "IPC_setMsgPriority ({msg}; no DDS equivalent: use ownership strength)"
         )))
     }
 
-    async fn set_queue_length(&self, msg: &str, _n: i32) -> Result<(), SessionError> {
-        Err(SessionError::Refused(format!(
-            "IPC_setMsgQueueLength ({msg}) has no DDS equivalent: use History::KeepLast"
+    async fn set_queue_length(&self, msg: &str, _n: i32) -> Result<(), ControlError> {
+        Err(no_dds_equivalent(format!(
+            "IPC_setMsgQueueLength ({msg}; no DDS equivalent: use History::KeepLast)"
         )))
     }
 
-    async fn watch_handlers(&self, msg: &str) -> Result<(), SessionError> {
+    async fn watch_handlers(&self, msg: &str) -> Result<(), ControlError> {
         self.cmd
             .send(Cmd::Watch { topic: msg.into() })
             .map_err(|_| disconnected())
@@ -562,7 +573,7 @@ impl Backend for RtpsBackend {
         msg: &str,
         ty: &TypeInfo,
         qos: &PublicationQos,
-    ) -> Result<(), SessionError> {
+    ) -> Result<(), OpenError> {
         let (topic, ty, qos) = (msg.to_string(), Box::new(ty.clone()), Box::new(qos.clone()));
         self.ask(|reply| Cmd::Publication {
             topic,
@@ -584,7 +595,7 @@ impl Backend for RtpsBackend {
         ty: Option<&TypeInfo>,
         qos: &SubscriptionQos,
         queue: Arc<SampleQueue>,
-    ) -> Result<(), SessionError> {
+    ) -> Result<(), OpenError> {
         let (topic, ty, qos) = (
             msg.to_string(),
             ty.cloned().map(Box::new),
@@ -605,7 +616,7 @@ impl Backend for RtpsBackend {
         topic: &str,
         type_name: &str,
         queue: Arc<SampleQueue>,
-    ) -> Result<(), SessionError> {
+    ) -> Result<(), OpenError> {
         let (topic, type_name) = (topic.to_string(), type_name.to_string());
         self.ask(|reply| Cmd::Pattern {
             topic,
@@ -621,7 +632,7 @@ impl Backend for RtpsBackend {
         msg: &str,
         data: Vec<u8>,
         opts: WriteOptions,
-    ) -> Result<(), SessionError> {
+    ) -> Result<(), PublishError> {
         self.queue_write(msg, data, opts).await
     }
 
@@ -634,10 +645,8 @@ impl Backend for RtpsBackend {
         msg: &str,
         data: Vec<u8>,
         key_hash: Option<[u8; 16]>,
-    ) -> Result<(), SessionError> {
-        let (topic, permit) = self.reserve(msg, data.len()).map_err(|why| {
-            SessionError::Refused(format!("cannot publish {msg} without waiting: {why}"))
-        })?;
+    ) -> Result<(), PublishError> {
+        let (topic, permit) = self.reserve(msg, data.len())?;
         let now = Instant::now();
         let mut c = self.shared.lock();
         if c.close.is_some() {
@@ -666,12 +675,15 @@ impl Backend for RtpsBackend {
         state: InstanceState,
         key: Vec<u8>,
         key_hash: [u8; 16],
-    ) -> Result<(), SessionError> {
+    ) -> Result<(), PublishError> {
         let kind = match state {
             InstanceState::Alive => {
-                return Err(SessionError::Refused(
-                    "end_instance takes Disposed or Unregistered".into(),
-                ))
+                return Err(PublishError::Unsupported {
+                    what: "end_instance with InstanceState::Alive (it takes Disposed or \
+                           Unregistered)"
+                        .into(),
+                    backend: "rtps://",
+                })
             }
             InstanceState::Disposed => ChangeKind::Disposed,
             InstanceState::Unregistered => ChangeKind::Unregistered,
@@ -686,6 +698,13 @@ impl Backend for RtpsBackend {
             done: Done::Reply(reply),
         })
         .await
+    }
+}
+
+fn no_dds_equivalent(what: String) -> ControlError {
+    ControlError::Unsupported {
+        what,
+        backend: "rtps://",
     }
 }
 

@@ -21,17 +21,17 @@ use courier_wire::rtps::discovery::{
 use courier_wire::rtps::participant::{
     self, Change, ChangeKind, EndpointConfig, KeyHash, LostReason,
 };
-use courier_wire::rtps::{Guid, SequenceNumber};
+use courier_wire::rtps::{EntityId, Guid, SequenceNumber};
 use tokio::sync::{mpsc, oneshot};
 
 use super::cmd::{disconnected, Cmd, Done, Reply};
 use super::{guid_hex, system_time, Listeners};
+use crate::error::{OpenError, PublishError};
 use crate::qos::{
     Durability, History, InstanceState, PublicationQos, Reliability, SubscriptionQos, TypeInfo,
 };
 use crate::session::{
-    QueryError, RawReply, RawRequest, RawSample, ReturnedBuffers, SampleQueue, SessionError,
-    SessionEvent,
+    QueryError, RawReply, RawRequest, RawSample, ReturnedBuffers, SampleQueue, SessionEvent,
 };
 
 struct PendingWrite {
@@ -62,7 +62,7 @@ struct Subscription {
 struct Confirm {
     topic: String,
     after: Duration,
-    reply: Reply<()>,
+    reply: Reply<(), PublishError>,
 }
 
 struct Server {
@@ -285,8 +285,9 @@ impl State {
                                     },
                                 );
                             })
-                            .map_err(|e| {
-                                SessionError::Refused(format!("cannot subscribe {topic}: {e}"))
+                            .map_err(|source| OpenError::Endpoint {
+                                topic: topic.clone(),
+                                source,
                             })
                     }
                     None => {
@@ -322,10 +323,7 @@ impl State {
                 done,
             } => {
                 let Some(w) = self.writers.get_mut(&*topic) else {
-                    done.send(Err(SessionError::Refused(format!(
-                        "{topic} has no publication in this session: call define::<T>() or \
-                         publisher::<T>() first"
-                    ))));
+                    done.send(Err(PublishError::NoPublication(topic.to_string())));
                     return;
                 };
                 let pw = PendingWrite {
@@ -389,11 +387,8 @@ impl State {
             } => {
                 let client = match self.client(&name, &req, &resp, now) {
                     Ok(c) => c,
-                    Err(e) => {
-                        let _ = reply.send(Err(QueryError::Refused {
-                            msg: name,
-                            detail: e.to_string(),
-                        }));
+                    Err(source) => {
+                        let _ = reply.send(Err(QueryError::Open { msg: name, source }));
                         return;
                     }
                 };
@@ -401,11 +396,12 @@ impl State {
                     Ok(q) => {
                         self.queries.insert(q, Query { name, reply });
                     }
-                    Err(e) => {
-                        let _ = reply.send(Err(QueryError::Refused {
-                            msg: name,
-                            detail: e.to_string(),
-                        }));
+                    Err(source) => {
+                        let source = PublishError::Writer {
+                            topic: name.clone(),
+                            source,
+                        };
+                        let _ = reply.send(Err(QueryError::Refused { msg: name, source }));
                     }
                 }
             }
@@ -421,16 +417,17 @@ impl State {
         resp: &TypeInfo,
         tx: mpsc::Sender<RawRequest>,
         now: Instant,
-    ) -> Result<(), SessionError> {
+    ) -> Result<(), OpenError> {
         if self.servers.values().any(|s| s.name == name) {
-            return Err(SessionError::Refused(format!(
-                "{name} is already served by this session"
-            )));
+            return Err(OpenError::AlreadyServed(name));
         }
         let id = self
             .d
             .create_service(&service_config(&name, req, resp), now)
-            .map_err(|e| SessionError::Refused(format!("cannot serve {name}: {e}")))?;
+            .map_err(|source| OpenError::Endpoint {
+                topic: name.clone(),
+                source,
+            })?;
         self.servers.insert(
             id,
             Server {
@@ -449,14 +446,17 @@ impl State {
         req: &TypeInfo,
         resp: &TypeInfo,
         now: Instant,
-    ) -> Result<ClientId, SessionError> {
+    ) -> Result<ClientId, OpenError> {
         if let Some(c) = self.clients.get(name) {
             return Ok(*c);
         }
         let c = self
             .d
             .create_client(&service_config(name, req, resp), now)
-            .map_err(|e| SessionError::Refused(format!("cannot query {name}: {e}")))?;
+            .map_err(|source| OpenError::Endpoint {
+                topic: name.to_string(),
+                source,
+            })?;
         self.clients.insert(name.to_string(), c);
         Ok(c)
     }
@@ -484,15 +484,16 @@ impl State {
         ty: &TypeInfo,
         qos: &PublicationQos,
         now: Instant,
-    ) -> Result<(), SessionError> {
+    ) -> Result<(), OpenError> {
         if let Some(w) = self.writers.get(&topic) {
             if w.type_name == ty.type_name {
                 return Ok(());
             }
-            return Err(SessionError::Refused(format!(
-                "{topic} is already published in this session with type {}, not {}",
-                w.type_name, ty.type_name
-            )));
+            return Err(OpenError::TypeConflict {
+                msg: topic,
+                existing: w.type_name.clone(),
+                given: ty.type_name.to_string(),
+            });
         }
         let cfg = EndpointConfig::writer(&topic, ty.type_name)
             .keyed(ty.keyed)
@@ -500,7 +501,10 @@ impl State {
         let id = self
             .d
             .create_writer(cfg, now)
-            .map_err(|e| SessionError::Refused(format!("cannot publish {topic}: {e}")))?;
+            .map_err(|source| OpenError::Endpoint {
+                topic: topic.clone(),
+                source,
+            })?;
         self.writers.insert(
             topic,
             Publication {
@@ -532,8 +536,9 @@ impl State {
         let mut change = Change::alive_owned(std::mem::take(&mut pw.data));
         change.kind = pw.kind;
         change.key_hash = pw.key_hash.map(KeyHash);
-        let refused = |e: participant::WriteError| {
-            SessionError::Refused(format!("cannot publish {topic}: {e}"))
+        let refused = |source: participant::WriteError| PublishError::Writer {
+            topic: topic.to_string(),
+            source,
         };
         match (pw.confirm, pw.done) {
             (Some(after), Done::Reply(reply)) => {
@@ -653,9 +658,12 @@ impl State {
                             msg: q.name,
                             timeout,
                         },
-                        QueryFailure::Refused(e) => QueryError::Refused {
+                        QueryFailure::Refused(source) => QueryError::Refused {
+                            source: PublishError::Writer {
+                                topic: q.name.clone(),
+                                source,
+                            },
                             msg: q.name,
-                            detail: e.to_string(),
                         },
                         _ => QueryError::Disconnected(q.name),
                     };
@@ -677,7 +685,7 @@ impl State {
             } => {
                 if let Some(c) = self.confirms.remove(&(writer, sequence_number)) {
                     let e = match reason {
-                        ConfirmFailure::Timeout(_) => SessionError::Timeout {
+                        ConfirmFailure::Timeout(_) => PublishError::Timeout {
                             what: format!(
                                 "acknowledgement of a sample of {} by every reader",
                                 c.topic
@@ -703,10 +711,18 @@ impl State {
                 local_type,
                 remote_type,
                 ..
-            } => tracing::warn!(
-                "{topic}: remote endpoint {} has type {remote_type}, ours is {local_type}",
-                guid_hex(remote)
-            ),
+            } => {
+                tracing::warn!(
+                    "{topic}: remote endpoint {} has type {remote_type}, ours is {local_type}",
+                    guid_hex(remote)
+                );
+                self.emit(SessionEvent::TypeMismatch {
+                    topic,
+                    remote: remote.into(),
+                    local_type,
+                    remote_type,
+                })
+            }
             Event::IncompatibleQos {
                 topic,
                 remote,
@@ -714,31 +730,41 @@ impl State {
                 ..
             } => self.emit(SessionEvent::IncompatibleQos {
                 msg: topic,
-                remote,
+                remote: remote.into(),
                 reason: reason.to_string(),
             }),
             Event::Discovery(d) => match d {
-                P::ParticipantFound(d) => self.emit(SessionEvent::ParticipantFound(Box::new(d))),
+                P::ParticipantFound(d) => {
+                    self.emit(SessionEvent::ParticipantFound(Box::new((&d).into())))
+                }
                 P::ParticipantChanged(d) => {
-                    self.emit(SessionEvent::ParticipantChanged(Box::new(d)))
+                    self.emit(SessionEvent::ParticipantChanged(Box::new((&d).into())))
                 }
                 P::ParticipantLost { prefix, reason } => self.emit(SessionEvent::ParticipantLost {
-                    guid_prefix: prefix,
+                    guid: Guid {
+                        prefix,
+                        entity: EntityId::PARTICIPANT,
+                    }
+                    .into(),
                     disposed: reason == LostReason::Disposed,
                 }),
-                P::PublicationFound(d) => self.emit(SessionEvent::PublicationFound(Box::new(d))),
+                P::PublicationFound(d) => {
+                    self.emit(SessionEvent::PublicationFound(Box::new((&d).into())))
+                }
                 P::PublicationChanged(d) => {
-                    self.emit(SessionEvent::PublicationChanged(Box::new(d)))
+                    self.emit(SessionEvent::PublicationChanged(Box::new((&d).into())))
                 }
                 P::PublicationLost(g) => {
                     self.source_names.remove(&g);
-                    self.emit(SessionEvent::PublicationLost(g));
+                    self.emit(SessionEvent::PublicationLost(g.into()));
                 }
-                P::SubscriptionFound(d) => self.emit(SessionEvent::SubscriptionFound(Box::new(d))),
+                P::SubscriptionFound(d) => {
+                    self.emit(SessionEvent::SubscriptionFound(Box::new((&d).into())))
+                }
                 P::SubscriptionChanged(d) => {
-                    self.emit(SessionEvent::SubscriptionChanged(Box::new(d)))
+                    self.emit(SessionEvent::SubscriptionChanged(Box::new((&d).into())))
                 }
-                P::SubscriptionLost(g) => self.emit(SessionEvent::SubscriptionLost(g)),
+                P::SubscriptionLost(g) => self.emit(SessionEvent::SubscriptionLost(g.into())),
                 _ => {}
             },
             _ => {}
@@ -766,7 +792,7 @@ impl State {
         };
         let cmd = self.responder.clone();
         let respond = crate::session::Responder::from_fn(move |_reply_msg, data| {
-            let tx = cmd.upgrade().ok_or_else(disconnected)?;
+            let tx = cmd.upgrade().ok_or_else(disconnected::<PublishError>)?;
             tx.send(Cmd::Respond {
                 service,
                 data,
