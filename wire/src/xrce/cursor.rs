@@ -142,6 +142,7 @@ impl<'a> Reader<'a> {
 
     /// `string`: u32 length including the NUL, the bytes, the NUL.
     pub(crate) fn string(&mut self, what: &'static str) -> Result<String, DecodeError> {
+        self.align(4, what)?;
         let at = self.pos;
         let n = self.u32(what)? as usize;
         if n == 0 {
