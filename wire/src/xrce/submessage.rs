@@ -3,7 +3,7 @@
 
 use super::cursor::{Reader, Writer};
 use super::object::{AgentRepresentation, ClientRepresentation, ObjectInfo, ObjectVariant};
-use super::types::{BaseObjectRequest, ResultStatus, StreamId, Time};
+use super::types::{wire_code, BaseObjectRequest, ResultStatus, StreamId, Time};
 use super::{DecodeError, EncodeError};
 
 /// Size of a submessage header.
@@ -34,69 +34,45 @@ pub mod flags {
     pub const FORMAT_PACKED_SAMPLES: u8 = 0x0E;
 }
 
-/// Submessage ids (`submessageId`, §4).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-#[repr(u8)]
-pub enum SubmessageId {
-    /// 0x00 CREATE_CLIENT.
-    CreateClient = 0x00,
-    /// 0x01 CREATE.
-    Create = 0x01,
-    /// 0x02 GET_INFO.
-    GetInfo = 0x02,
-    /// 0x03 DELETE.
-    Delete = 0x03,
-    /// 0x04 STATUS_AGENT.
-    StatusAgent = 0x04,
-    /// 0x05 STATUS.
-    Status = 0x05,
-    /// 0x06 INFO.
-    Info = 0x06,
-    /// 0x07 WRITE_DATA.
-    WriteData = 0x07,
-    /// 0x08 READ_DATA.
-    ReadData = 0x08,
-    /// 0x09 DATA.
-    Data = 0x09,
-    /// 0x0A ACKNACK.
-    AckNack = 0x0A,
-    /// 0x0B HEARTBEAT.
-    Heartbeat = 0x0B,
-    /// 0x0C RESET.
-    Reset = 0x0C,
-    /// 0x0D FRAGMENT.
-    Fragment = 0x0D,
-    /// 0x0E TIMESTAMP.
-    Timestamp = 0x0E,
-    /// 0x0F TIMESTAMP_REPLY.
-    TimestampReply = 0x0F,
+wire_code! {
+    /// Submessage ids (`submessageId`, §4).
+    pub enum SubmessageId {
+        /// 0x00 CREATE_CLIENT.
+        CreateClient = 0x00,
+        /// 0x01 CREATE.
+        Create = 0x01,
+        /// 0x02 GET_INFO.
+        GetInfo = 0x02,
+        /// 0x03 DELETE.
+        Delete = 0x03,
+        /// 0x04 STATUS_AGENT.
+        StatusAgent = 0x04,
+        /// 0x05 STATUS.
+        Status = 0x05,
+        /// 0x06 INFO.
+        Info = 0x06,
+        /// 0x07 WRITE_DATA.
+        WriteData = 0x07,
+        /// 0x08 READ_DATA.
+        ReadData = 0x08,
+        /// 0x09 DATA.
+        Data = 0x09,
+        /// 0x0A ACKNACK.
+        AckNack = 0x0A,
+        /// 0x0B HEARTBEAT.
+        Heartbeat = 0x0B,
+        /// 0x0C RESET.
+        Reset = 0x0C,
+        /// 0x0D FRAGMENT.
+        Fragment = 0x0D,
+        /// 0x0E TIMESTAMP.
+        Timestamp = 0x0E,
+        /// 0x0F TIMESTAMP_REPLY.
+        TimestampReply = 0x0F,
+    }
 }
 
 impl SubmessageId {
-    /// The id with this value, if there is one.
-    pub fn from_u8(v: u8) -> Option<Self> {
-        use SubmessageId::*;
-        Some(match v {
-            0x00 => CreateClient,
-            0x01 => Create,
-            0x02 => GetInfo,
-            0x03 => Delete,
-            0x04 => StatusAgent,
-            0x05 => Status,
-            0x06 => Info,
-            0x07 => WriteData,
-            0x08 => ReadData,
-            0x09 => Data,
-            0x0A => AckNack,
-            0x0B => Heartbeat,
-            0x0C => Reset,
-            0x0D => Fragment,
-            0x0E => Timestamp,
-            0x0F => TimestampReply,
-            _ => return None,
-        })
-    }
-
     /// The specification's name, e.g. `"CREATE_CLIENT"`.
     pub fn name(self) -> &'static str {
         use SubmessageId::*;

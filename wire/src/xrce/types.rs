@@ -12,62 +12,59 @@ pub const VERSION: [u8; 2] = [1, 0];
 /// `xrce_vendor_id` of eProsima (`01 0F`).
 pub const VENDOR_EPROSIMA: [u8; 2] = [0x01, 0x0F];
 
-/// The kind of an XRCE object: the low 4 bits of an [`ObjectId`] and the
-/// discriminant of [`ObjectVariant`](super::ObjectVariant) (`DDS_XRCE_OBJK_*`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-#[repr(u8)]
-pub enum ObjectKind {
-    /// `OBJK_PARTICIPANT` (0x1).
-    Participant = 0x1,
-    /// `OBJK_TOPIC` (0x2).
-    Topic = 0x2,
-    /// `OBJK_PUBLISHER` (0x3).
-    Publisher = 0x3,
-    /// `OBJK_SUBSCRIBER` (0x4).
-    Subscriber = 0x4,
-    /// `OBJK_DATAWRITER` (0x5).
-    DataWriter = 0x5,
-    /// `OBJK_DATAREADER` (0x6).
-    DataReader = 0x6,
-    /// `OBJK_REQUESTER` (0x7).
-    Requester = 0x7,
-    /// `OBJK_REPLIER` (0x8).
-    Replier = 0x8,
-    /// `OBJK_TYPE` (0xA).
-    Type = 0xA,
-    /// `OBJK_QOSPROFILE` (0xB).
-    QosProfile = 0xB,
-    /// `OBJK_APPLICATION` (0xC).
-    Application = 0xC,
-    /// `OBJK_AGENT` (0xD).
-    Agent = 0xD,
-    /// `OBJK_CLIENT` (0xE).
-    Client = 0xE,
-    /// `OBJK_OTHER` (0xF).
-    Other = 0xF,
-}
+/// Declares a fieldless `u8` enum of wire codes with `from_u8`.
+macro_rules! wire_code {
+    ($(#[$m:meta])* pub enum $name:ident { $($(#[$vm:meta])* $v:ident = $n:literal,)* }) => {
+        $(#[$m])*
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+        #[repr(u8)]
+        pub enum $name { $($(#[$vm])* $v = $n,)* }
 
-impl ObjectKind {
-    /// The kind with this 4-bit value, if there is one.
-    pub fn from_u8(v: u8) -> Option<Self> {
-        use ObjectKind::*;
-        Some(match v {
-            0x1 => Participant,
-            0x2 => Topic,
-            0x3 => Publisher,
-            0x4 => Subscriber,
-            0x5 => DataWriter,
-            0x6 => DataReader,
-            0x7 => Requester,
-            0x8 => Replier,
-            0xA => Type,
-            0xB => QosProfile,
-            0xC => Application,
-            0xD => Agent,
-            0xE => Client,
-            0xF => Other,
-            _ => return None,
-        })
+        impl $name {
+            /// The value with this code, if there is one.
+            pub fn from_u8(v: u8) -> Option<Self> {
+                match v {
+                    $($n => Some(Self::$v),)*
+                    _ => None,
+                }
+            }
+        }
+    };
+}
+pub(crate) use wire_code;
+
+wire_code! {
+    /// The kind of an XRCE object: the low 4 bits of an [`ObjectId`] and the
+    /// discriminant of [`ObjectVariant`](super::ObjectVariant) (`DDS_XRCE_OBJK_*`).
+    pub enum ObjectKind {
+        /// `OBJK_PARTICIPANT` (0x1).
+        Participant = 0x1,
+        /// `OBJK_TOPIC` (0x2).
+        Topic = 0x2,
+        /// `OBJK_PUBLISHER` (0x3).
+        Publisher = 0x3,
+        /// `OBJK_SUBSCRIBER` (0x4).
+        Subscriber = 0x4,
+        /// `OBJK_DATAWRITER` (0x5).
+        DataWriter = 0x5,
+        /// `OBJK_DATAREADER` (0x6).
+        DataReader = 0x6,
+        /// `OBJK_REQUESTER` (0x7).
+        Requester = 0x7,
+        /// `OBJK_REPLIER` (0x8).
+        Replier = 0x8,
+        /// `OBJK_TYPE` (0xA).
+        Type = 0xA,
+        /// `OBJK_QOSPROFILE` (0xB).
+        QosProfile = 0xB,
+        /// `OBJK_APPLICATION` (0xC).
+        Application = 0xC,
+        /// `OBJK_AGENT` (0xD).
+        Agent = 0xD,
+        /// `OBJK_CLIENT` (0xE).
+        Client = 0xE,
+        /// `OBJK_OTHER` (0xF).
+        Other = 0xF,
     }
 }
 
