@@ -3,7 +3,7 @@
 //! `/tmp/x_ipc/<port>`; API calls reach it over a channel.
 
 use std::collections::HashMap;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use futures::future::BoxFuture;
@@ -12,6 +12,7 @@ use tokio::sync::{mpsc, oneshot};
 
 use crate::busy_poll::BusyPoll;
 use crate::error::{ControlError, Failure, OpenError, PublishError};
+use crate::hub::{Hub, Listener};
 use crate::qos::{PublicationQos, SubscriptionQos, TypeInfo};
 use crate::session::{
     Backend, ConnectError, Encoding, QueryError, RawReply, RawRequest, RawSample, Reply,
@@ -236,7 +237,7 @@ enum InformOp {
 pub struct IpcBackend {
     cmd: mpsc::UnboundedSender<Cmd>,
     addr: String,
-    events: Arc<Mutex<Vec<mpsc::UnboundedSender<SessionEvent>>>>,
+    events: Hub<SessionEvent>,
     next_query: std::sync::atomic::AtomicU64,
 }
 
@@ -551,7 +552,7 @@ impl IpcBackend {
         let (conn, io, listener) = handshake(&host, port, name, &opts).await?;
         let buf = vec![0u8; 64 * 1024];
         let (tx, rx) = mpsc::unbounded_channel();
-        let events = Arc::new(Mutex::new(Vec::new()));
+        let events = Hub::new(crate::hub::DEFAULT_CAPACITY);
         let driver = Driver {
             conn,
             io,
@@ -673,18 +674,12 @@ impl Backend for IpcBackend {
         Ok(rx)
     }
 
-    fn events(&self) -> mpsc::UnboundedReceiver<SessionEvent> {
-        let (tx, rx) = mpsc::unbounded_channel();
-        if self.cmd.is_closed() {
-            let _ = tx.send(SessionEvent::Disconnected);
-        } else {
-            let mut ev = self.events.lock().unwrap();
-            if ev.is_empty() {
-                let _ = self.cmd.send(Cmd::WatchModules);
-            }
-            ev.push(tx);
+    fn events(&self) -> Listener<SessionEvent> {
+        if !self.events.has_listeners() {
+            // central reports module (dis)connections only when asked
+            let _ = self.cmd.send(Cmd::WatchModules);
         }
-        rx
+        self.events.listen()
     }
 
     async fn is_module_connected(&self, module: &str) -> Result<bool, ControlError> {
@@ -789,7 +784,7 @@ struct Driver {
     defs: Vec<Def>,
     cmd_tx: mpsc::UnboundedSender<Cmd>,
     addr: String,
-    events: Arc<Mutex<Vec<mpsc::UnboundedSender<SessionEvent>>>>,
+    events: Hub<SessionEvent>,
     subs: HashMap<i32, Sub>,
     servers: HashMap<i32, Server>,
     publishes: HashMap<OpId, Done<Result<(), PublishError>>>,
@@ -1123,10 +1118,7 @@ impl Driver {
     }
 
     fn broadcast(&self, e: SessionEvent) {
-        self.events
-            .lock()
-            .unwrap()
-            .retain(|tx| tx.send(e.clone()).is_ok());
+        self.events.send(e);
     }
 
     fn drain_events(&mut self) {
@@ -1449,7 +1441,7 @@ impl Driver {
         // their channels close: the `Requests` streams end with Disconnected
         self.servers.clear();
         self.broadcast(SessionEvent::Disconnected);
-        self.events.lock().unwrap().clear();
+        self.events.close();
     }
 }
 

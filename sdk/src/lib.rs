@@ -113,6 +113,7 @@ pub mod busy_poll;
 pub mod central;
 mod error;
 pub mod event;
+pub mod hub;
 pub mod ipc_backend;
 pub mod qos;
 mod reply;

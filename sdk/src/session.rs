@@ -608,8 +608,10 @@ pub trait Backend: Send + Sync + std::fmt::Debug {
     /// Serves queries of `msg`.
     async fn serve(&self, msg: &str, queue: usize)
         -> Result<mpsc::Receiver<RawRequest>, OpenError>;
-    /// A stream of system events.
-    fn events(&self) -> mpsc::UnboundedReceiver<SessionEvent>;
+    /// A stream of system events from the backend's [`Hub`](crate::hub::Hub):
+    /// bounded, dropping (and counting) the oldest for a listener that
+    /// falls behind; it ends when the session closes.
+    fn events(&self) -> crate::hub::Listener<SessionEvent>;
     /// Whether a module of that name is connected.
     async fn is_module_connected(&self, module: &str) -> Result<bool, ControlError>;
     /// How many handlers a message has.
@@ -2082,16 +2084,30 @@ impl<Req: IpcMessage, Resp: IpcMessage> Stream for Requests<Req, Resp> {
     }
 }
 
-/// The stream of [`SessionEvent`]s.
+/// The stream of [`SessionEvent`]s ([`Session::events`]).
+///
+/// Each stream has a bounded queue of its own: one that is not read often
+/// enough loses its oldest events, never holding up the session or the
+/// other streams; [`Events::lost`] counts them. The stream ends after
+/// [`SessionEvent::Disconnected`] when the session closes (one opened
+/// after that ends at once).
 #[derive(Debug)]
 pub struct Events {
-    rx: mpsc::UnboundedReceiver<SessionEvent>,
+    rx: crate::hub::Listener<SessionEvent>,
+}
+
+impl Events {
+    /// Events this stream lost so far because it was not read fast enough
+    /// (the oldest are dropped first).
+    pub fn lost(&self) -> u64 {
+        self.rx.lost()
+    }
 }
 
 impl Stream for Events {
     type Item = SessionEvent;
     fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<SessionEvent>> {
-        self.rx.poll_recv(cx)
+        Pin::new(&mut self.rx).poll_next(cx)
     }
 }
 

@@ -462,6 +462,73 @@ async fn deadline_misses_are_events() {
 }
 
 #[tokio::test]
+async fn a_slow_events_listener_loses_the_oldest_and_counts_them() {
+    use futures::FutureExt;
+    let a = session(170, "a").await;
+    let b = session(170, "b").await;
+    let p = a
+        .publisher::<Msg>("tick")
+        .deadline(Duration::from_millis(1))
+        .build()
+        .await
+        .unwrap();
+    // never read until the end
+    let mut slow = b.events();
+    let mut fast = b.events();
+    let mut sub = b
+        .subscriber::<Msg>("tick")
+        .deadline(Duration::from_millis(1))
+        .build()
+        .await
+        .unwrap();
+    await_handlers(&a, "tick", 1).await;
+    p.publish(&msg(0)).await.unwrap();
+    next(&mut sub).await.unwrap();
+    // then silence: a miss every millisecond, far more than one
+    // listener's queue holds (1024)
+    let mut seen = 0u64;
+    let mut last_total = 0;
+    tokio::time::timeout(T, async {
+        while seen < 1500 {
+            let e = fast.next().await.expect("the session goes on");
+            seen += 1;
+            if let SessionEvent::DeadlineMissed { total, .. } = e {
+                last_total = total;
+            }
+        }
+    })
+    .await
+    .expect("1500 events in time");
+    assert_eq!(fast.lost(), 0, "a listener that keeps up loses nothing");
+    let lost = slow.lost();
+    assert!(lost >= seen - 1024, "{lost} lost of at least {seen}");
+    // the slow one kept the newest: a full queue, starting well after the
+    // first miss
+    let mut kept = Vec::new();
+    while let Some(Some(e)) = slow.next().now_or_never() {
+        kept.push(e);
+        if kept.len() > 10_000 {
+            break;
+        }
+    }
+    assert!(kept.len() >= 1024, "a full queue: {}", kept.len());
+    assert!(
+        !kept
+            .iter()
+            .any(|e| matches!(e, SessionEvent::DeadlineMissed { total: 1, .. })),
+        "the oldest (the first miss) were dropped"
+    );
+    let newest = kept.iter().rev().find_map(|e| match e {
+        SessionEvent::DeadlineMissed { total, .. } => Some(*total),
+        _ => None,
+    });
+    assert!(newest >= Some(last_total), "{newest:?} < {last_total}");
+    // neither listener held up the session
+    p.publish(&msg(1)).await.unwrap();
+    assert_eq!(next(&mut sub).await.unwrap().value, msg(1));
+}
+
+#[tokio::test]
 async fn minimum_separation_drops_and_counts() {
     let a = session(161, "a").await;
     let b = session(161, "b").await;

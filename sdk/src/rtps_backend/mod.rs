@@ -132,7 +132,7 @@ pub struct RtpsBackend {
     participant_index: u32,
 }
 
-pub(crate) type Listeners = Arc<Mutex<Vec<mpsc::UnboundedSender<SessionEvent>>>>;
+pub(crate) type Listeners = crate::hub::Hub<SessionEvent>;
 
 impl RtpsBackend {
     /// Joins the domain: binds the sockets (probing participant indices),
@@ -183,7 +183,7 @@ impl RtpsBackend {
         let index = socks.index;
         let now = Instant::now();
         let (tx, rx) = mpsc::unbounded_channel();
-        let listeners: Listeners = Arc::default();
+        let listeners = Listeners::new(crate::hub::DEFAULT_CAPACITY);
         let responder = tx.downgrade();
         let st = State::new(
             Domain::new(cfg, now, SystemTime::now()),
@@ -516,14 +516,8 @@ impl Backend for RtpsBackend {
         Ok(rx)
     }
 
-    fn events(&self) -> mpsc::UnboundedReceiver<SessionEvent> {
-        let (tx, rx) = mpsc::unbounded_channel();
-        if self.cmd.is_closed() {
-            let _ = tx.send(SessionEvent::Disconnected);
-        } else {
-            self.listeners.lock().unwrap().push(tx);
-        }
-        rx
+    fn events(&self) -> crate::hub::Listener<SessionEvent> {
+        self.listeners.listen()
     }
 
     async fn is_module_connected(&self, module: &str) -> Result<bool, ControlError> {

@@ -139,8 +139,7 @@ impl State {
     }
 
     fn emit(&self, e: SessionEvent) {
-        let mut l = self.listeners.lock().unwrap();
-        l.retain(|tx| tx.send(e.clone()).is_ok());
+        self.listeners.send(e);
     }
 
     pub(super) fn next_wakeup(&self) -> Instant {
@@ -229,11 +228,8 @@ impl State {
             let _ = q.reply.send(Err(QueryError::Disconnected(q.name)));
         }
         self.servers.clear(); // ends every Requests stream
-        let mut l = self.listeners.lock().unwrap();
-        for tx in l.iter() {
-            let _ = tx.send(SessionEvent::Disconnected);
-        }
-        l.clear();
+        self.listeners.send(SessionEvent::Disconnected);
+        self.listeners.close();
     }
 
     /// The queues with callbacks, for their end markers (at close).
