@@ -206,7 +206,7 @@ async fn typed_publish_creates_its_publication_and_raw_needs_one() {
     assert_eq!(next(&mut sub).await.unwrap().value, msg(1));
     let e = a.publish_raw("nowhere", &[0, 1, 0, 0]).await.unwrap_err();
     assert!(e.to_string().contains("nowhere has no publication"), "{e}");
-    let e = a.set_capacity(1).await.unwrap_err();
+    let e = a.ipc().unwrap_err();
     assert!(e.to_string().contains("no DDS equivalent"), "{e}");
 }
 
@@ -526,6 +526,54 @@ async fn a_slow_events_listener_loses_the_oldest_and_counts_them() {
     // neither listener held up the session
     p.publish(&msg(1)).await.unwrap();
     assert_eq!(next(&mut sub).await.unwrap().value, msg(1));
+}
+
+/// Publishers of one topic with different QoS are DDS writers of their
+/// own: a reliable reader matches only the reliable one, a best-effort
+/// reader both, and each sample names its own writer.
+#[tokio::test]
+async fn publishers_of_one_topic_with_different_qos_are_writers_of_their_own() {
+    let a = session(171, "a").await;
+    let b = session(171, "b").await;
+    let reliable = a.publisher::<Msg>("multi").build().await.unwrap();
+    let fast = a
+        .publisher::<Msg>("multi")
+        .best_effort()
+        .build()
+        .await
+        .unwrap();
+    let mut strict = b.subscriber::<Msg>("multi").build().await.unwrap();
+    let mut any = b
+        .subscriber::<Msg>("multi")
+        .best_effort()
+        .build()
+        .await
+        .unwrap();
+    // the reliable writer matches both readers
+    await_handlers(&a, "multi", 2).await;
+    // the best-effort one reaches the best-effort reader
+    let fast_source = tokio::time::timeout(T, async {
+        loop {
+            fast.publish(&msg(100)).await.unwrap();
+            if let Ok(Some(s)) = tokio::time::timeout(Duration::from_millis(50), any.next()).await {
+                let s = s.unwrap();
+                if s.value.seq == 100 {
+                    break s.source;
+                }
+            }
+        }
+    })
+    .await
+    .expect("the best-effort writer reaches the best-effort reader");
+    reliable.publish(&msg(1)).await.unwrap();
+    let s = next(&mut strict).await.unwrap();
+    assert_eq!(
+        s.value.seq, 1,
+        "a reliable reader matches no best-effort writer"
+    );
+    let got = s.source;
+    assert!(got.is_some() && fast_source.is_some());
+    assert_ne!(got, fast_source, "two writers, two GUIDs");
 }
 
 #[tokio::test]
