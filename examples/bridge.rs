@@ -20,8 +20,8 @@ async fn bridge(
     let mut tasks = Vec::new();
     for (name, fmt) in msgs {
         let fmt = (!fmt.is_empty()).then_some(fmt.as_str());
-        from.backend().define(name, fmt).await?;
-        to.backend().define(name, fmt).await?;
+        from.ipc()?.define(name, fmt).await?;
+        to.ipc()?.define(name, fmt).await?;
         let mut rx = from.subscribe_raw(name).await?;
         let to = to.clone();
         let name = name.clone();

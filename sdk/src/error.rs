@@ -106,6 +106,9 @@ pub enum PublishError {
     /// The session has no publication of the topic.
     #[error("{0} has no publication in this session: create one with Session::publisher::<T>(..).build().await")]
     NoPublication(String),
+    /// The publication handle was closed (its `Publisher` dropped).
+    #[error("publication {0:?} is closed")]
+    Closed(crate::backend::PubId),
     /// The backend cannot do this kind of write (a confirmed publish or an
     /// instance on IPC, a write that does not wait on IPC).
     #[error("{what} is not available on {backend} sessions")]

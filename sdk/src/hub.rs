@@ -16,7 +16,7 @@ use std::task::{Context, Poll, Waker};
 use futures::Stream;
 
 /// Events queued per listener before the oldest are dropped.
-pub(crate) const DEFAULT_CAPACITY: usize = 1024;
+pub const DEFAULT_CAPACITY: usize = 1024;
 
 struct Slot<T> {
     queue: VecDeque<T>,
@@ -31,7 +31,7 @@ struct Inner<T> {
 }
 
 /// The sending side, owned by a driver (cheap to clone).
-pub(crate) struct Hub<T> {
+pub struct Hub<T> {
     inner: Arc<Mutex<Inner<T>>>,
 }
 
@@ -60,7 +60,7 @@ fn lock<X>(m: &Mutex<X>) -> MutexGuard<'_, X> {
 
 impl<T: Clone> Hub<T> {
     /// A hub whose listeners queue up to `capacity` events each.
-    pub(crate) fn new(capacity: usize) -> Self {
+    pub fn new(capacity: usize) -> Self {
         Hub {
             inner: Arc::new(Mutex::new(Inner {
                 slots: Vec::new(),
@@ -72,7 +72,7 @@ impl<T: Clone> Hub<T> {
 
     /// A new listener; it sees the events sent from now on. On a closed
     /// hub its stream ends at once.
-    pub(crate) fn listen(&self) -> Listener<T> {
+    pub fn listen(&self) -> Listener<T> {
         let slot = Arc::new(Mutex::new(Slot {
             queue: VecDeque::new(),
             lost: 0,
@@ -89,13 +89,13 @@ impl<T: Clone> Hub<T> {
     }
 
     /// Whether anybody listens (a driver may skip building events then).
-    pub(crate) fn has_listeners(&self) -> bool {
+    pub fn has_listeners(&self) -> bool {
         !lock(&self.inner).slots.is_empty()
     }
 
     /// Queues `event` for every listener, dropping (and counting) the
     /// oldest of a full queue.
-    pub(crate) fn send(&self, event: T) {
+    pub fn send(&self, event: T) {
         let inner = lock(&self.inner);
         let cap = inner.capacity;
         for slot in &inner.slots {
@@ -113,7 +113,7 @@ impl<T: Clone> Hub<T> {
 
     /// Ends every listener's stream once it has taken what is queued; later
     /// listeners end at once.
-    pub(crate) fn close(&self) {
+    pub fn close(&self) {
         let mut inner = lock(&self.inner);
         inner.closed = true;
         for slot in inner.slots.drain(..) {
@@ -147,12 +147,9 @@ impl<T> Listener<T> {
     }
 
     fn registered(&self) -> bool {
-        self.hub.upgrade().is_some_and(|h| {
-            lock(&h)
-                .slots
-                .iter()
-                .any(|s| Arc::ptr_eq(s, &self.slot))
-        })
+        self.hub
+            .upgrade()
+            .is_some_and(|h| lock(&h).slots.iter().any(|s| Arc::ptr_eq(s, &self.slot)))
     }
 }
 

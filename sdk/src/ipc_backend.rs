@@ -3,19 +3,23 @@
 //! `/tmp/x_ipc/<port>`; API calls reach it over a channel.
 
 use std::collections::HashMap;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use futures::future::BoxFuture;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::{mpsc, oneshot};
 
+use crate::backend::{
+    Backend, Capabilities, ClientId, Handle, IpcControl, PubId, ServiceId, SubId,
+};
 use crate::busy_poll::BusyPoll;
 use crate::error::{ControlError, Failure, OpenError, PublishError};
+use crate::hub::{Hub, Listener};
 use crate::qos::{PublicationQos, SubscriptionQos, TypeInfo};
 use crate::session::{
-    Backend, ConnectError, Encoding, QueryError, RawReply, RawRequest, RawSample, Reply,
-    ReplyFuture, Responder, SampleQueue, SessionEvent,
+    ConnectError, Encoding, QueryError, RawReply, RawRequest, RawSample, Reply, ReplyFuture,
+    Responder, SampleQueue, SessionEvent, WriteOptions,
 };
 use courier_wire::ipc::module::{
     Connection, DeliveryId, DeliveryKind, Error as ModError, Event, LinkId, ModuleConfig,
@@ -198,12 +202,15 @@ enum Cmd {
     DefineFormat(String, String, Done<Result<(), OpenError>>),
     Define(String, Option<String>, Done<Result<(), OpenError>>),
     Publish(String, Vec<u8>, Done<Result<(), PublishError>>),
-    Subscribe(String, Arc<SampleQueue>, Done<Result<(), OpenError>>),
+    Subscribe(String, Arc<SampleQueue>, SubId, Done<Result<(), OpenError>>),
     Serve(
         String,
         mpsc::Sender<RawRequest>,
+        ServiceId,
         Done<Result<(), OpenError>>,
     ),
+    /// A `Subscriber`, `Listener` or `Requests` was dropped: unsubscribe.
+    CloseHandle(Handle),
     Query(u64, String, Vec<u8>, Done<Result<RawReply, QueryError>>),
     CancelQuery(u64),
     Ack(u64),
@@ -236,8 +243,16 @@ enum InformOp {
 pub struct IpcBackend {
     cmd: mpsc::UnboundedSender<Cmd>,
     addr: String,
-    events: Arc<Mutex<Vec<mpsc::UnboundedSender<SessionEvent>>>>,
+    events: Hub<SessionEvent>,
     next_query: std::sync::atomic::AtomicU64,
+    /// Handle numbers, shared by every kind.
+    next_handle: std::sync::atomic::AtomicU64,
+    /// Open publications and clients: the message each names (IPC keeps
+    /// nothing for them but the definition).
+    names: std::sync::Mutex<HashMap<Handle, Arc<str>>>,
+    /// Messages this session defined, with their format: another
+    /// publication of the same message shares the definition.
+    defined: std::sync::Mutex<HashMap<String, Option<String>>>,
 }
 
 impl std::fmt::Debug for IpcBackend {
@@ -551,7 +566,7 @@ impl IpcBackend {
         let (conn, io, listener) = handshake(&host, port, name, &opts).await?;
         let buf = vec![0u8; 64 * 1024];
         let (tx, rx) = mpsc::unbounded_channel();
-        let events = Arc::new(Mutex::new(Vec::new()));
+        let events = Hub::new(crate::hub::DEFAULT_CAPACITY);
         let driver = Driver {
             conn,
             io,
@@ -585,7 +600,42 @@ impl IpcBackend {
             addr,
             events,
             next_query: std::sync::atomic::AtomicU64::new(1),
+            next_handle: std::sync::atomic::AtomicU64::new(1),
+            names: Default::default(),
+            defined: Default::default(),
         })
+    }
+
+    fn next_handle(&self) -> u64 {
+        self.next_handle
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+    }
+
+    fn names(&self) -> std::sync::MutexGuard<'_, HashMap<Handle, Arc<str>>> {
+        // every critical section is one map operation
+        self.names.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// The message an open publication or client names.
+    fn name_of(&self, h: Handle) -> Option<Arc<str>> {
+        self.names().get(&h).cloned()
+    }
+
+    /// Defines `msg` in central unless this session already did with
+    /// the same format.
+    async fn define_once(&self, msg: &str, format: Option<&str>) -> Result<(), OpenError> {
+        {
+            let defined = self.defined.lock().unwrap_or_else(|e| e.into_inner());
+            if defined.get(msg).is_some_and(|f| f.as_deref() == format) {
+                return Ok(());
+            }
+        }
+        IpcControl::define(self, msg, format).await?;
+        self.defined
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .insert(msg.to_string(), format.map(str::to_string));
+        Ok(())
     }
 
     async fn call<T>(&self, f: impl FnOnce(Done<T>) -> Cmd, gone: T) -> T {
@@ -603,10 +653,157 @@ impl IpcBackend {
 
 #[async_trait::async_trait]
 impl Backend for IpcBackend {
-    fn encoding(&self) -> Encoding {
-        Encoding::Ipc
+    fn capabilities(&self) -> Capabilities {
+        let mut c = Capabilities::new("ipc://", Encoding::Ipc);
+        c.untyped_publications = true;
+        c.reply_names = true;
+        c.named_formats = true;
+        c
     }
 
+    async fn open_publication(
+        &self,
+        msg: &str,
+        ty: &TypeInfo,
+        qos: &PublicationQos,
+    ) -> Result<PubId, OpenError> {
+        if let Some(what) = qos.beyond_ipc() {
+            return Err(unsupported(format!("{what} (publication {msg})")));
+        }
+        // untyped: a message somebody else defines
+        if !ty.is_untyped() {
+            self.define_once(msg, ty.format).await?;
+        }
+        let id = PubId(self.next_handle());
+        self.names().insert(Handle::Publication(id), Arc::from(msg));
+        Ok(id)
+    }
+
+    async fn open_subscription(
+        &self,
+        msg: &str,
+        _ty: Option<&TypeInfo>,
+        qos: &SubscriptionQos,
+        queue: Arc<SampleQueue>,
+    ) -> Result<SubId, OpenError> {
+        if let Some(what) = qos.beyond_ipc() {
+            return Err(unsupported(format!("{what} (subscription {msg})")));
+        }
+        let id = SubId(self.next_handle());
+        let g = Err(self.gone());
+        self.call(|d| Cmd::Subscribe(msg.into(), queue, id, d), g)
+            .await?;
+        Ok(id)
+    }
+
+    async fn open_service(
+        &self,
+        msg: &str,
+        _req: &TypeInfo,
+        _resp: &TypeInfo,
+        queue: usize,
+    ) -> Result<(ServiceId, mpsc::Receiver<RawRequest>), OpenError> {
+        let (tx, rx) = mpsc::channel(queue.max(1));
+        let id = ServiceId(self.next_handle());
+        let g = Err(self.gone());
+        self.call(|d| Cmd::Serve(msg.into(), tx, id, d), g).await?;
+        Ok((id, rx))
+    }
+
+    async fn open_client(
+        &self,
+        msg: &str,
+        _req: &TypeInfo,
+        _resp: &TypeInfo,
+    ) -> Result<ClientId, OpenError> {
+        let id = ClientId(self.next_handle());
+        self.names().insert(Handle::Client(id), Arc::from(msg));
+        Ok(id)
+    }
+
+    async fn write(
+        &self,
+        publication: PubId,
+        data: Vec<u8>,
+        opts: WriteOptions,
+    ) -> Result<(), PublishError> {
+        let msg = self
+            .name_of(Handle::Publication(publication))
+            .ok_or_else(|| PublishError::NoPublication(format!("{publication:?} (closed)")))?;
+        if opts.confirm.is_some() {
+            return Err(PublishError::Unsupported {
+                what: format!("a confirmed publish ({msg})"),
+                backend: "ipc://",
+            });
+        }
+        let g = Err(self.gone());
+        self.call(|d| Cmd::Publish(msg.to_string(), data, d), g)
+            .await
+    }
+
+    async fn query(
+        &self,
+        client: ClientId,
+        data: Vec<u8>,
+        timeout: Duration,
+    ) -> Result<RawReply, QueryError> {
+        let Some(msg) = self.name_of(Handle::Client(client)) else {
+            return Err(QueryError::Disconnected(format!("{client:?} (closed)")));
+        };
+        let key = self
+            .next_query
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let (tx, rx) = oneshot::channel();
+        if self
+            .cmd
+            .send(Cmd::Query(key, msg.to_string(), data, tx))
+            .is_err()
+        {
+            return Err(QueryError::Disconnected(msg.to_string()));
+        }
+        match tokio::time::timeout(timeout, rx).await {
+            Ok(Ok(r)) => r,
+            Ok(Err(_)) => Err(QueryError::Disconnected(msg.to_string())),
+            Err(_) => {
+                let _ = self.cmd.send(Cmd::CancelQuery(key));
+                Err(QueryError::Timeout {
+                    msg: msg.to_string(),
+                    timeout,
+                })
+            }
+        }
+    }
+
+    fn close_handle(&self, handle: Handle) {
+        match handle {
+            Handle::Publication(_) | Handle::Client(_) => {
+                self.names().remove(&handle);
+            }
+            _ => {
+                let _ = self.cmd.send(Cmd::CloseHandle(handle));
+            }
+        }
+    }
+
+    fn events(&self) -> Listener<SessionEvent> {
+        if !self.events.has_listeners() {
+            // central reports module (dis)connections only when asked
+            let _ = self.cmd.send(Cmd::WatchModules);
+        }
+        self.events.listen()
+    }
+
+    async fn close(&self) {
+        self.call(Cmd::Close, ()).await
+    }
+
+    fn ipc(&self) -> Option<&dyn IpcControl> {
+        Some(self)
+    }
+}
+
+#[async_trait::async_trait]
+impl IpcControl for IpcBackend {
     async fn define_format(&self, name: &str, format: &str) -> Result<(), OpenError> {
         let g = Err(self.gone());
         self.call(|d| Cmd::DefineFormat(name.into(), format.into(), d), g)
@@ -622,71 +819,6 @@ impl Backend for IpcBackend {
         .await
     }
 
-    async fn publish(&self, msg: &str, data: Vec<u8>) -> Result<(), PublishError> {
-        let g = Err(self.gone());
-        self.call(|d| Cmd::Publish(msg.into(), data, d), g).await
-    }
-
-    async fn subscribe(&self, msg: &str, queue: Arc<SampleQueue>) -> Result<(), OpenError> {
-        let g = Err(self.gone());
-        self.call(|d| Cmd::Subscribe(msg.into(), queue, d), g).await
-    }
-
-    async fn query(
-        &self,
-        msg: &str,
-        data: Vec<u8>,
-        timeout: Duration,
-    ) -> Result<RawReply, QueryError> {
-        let key = self
-            .next_query
-            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        let (tx, rx) = oneshot::channel();
-        if self
-            .cmd
-            .send(Cmd::Query(key, msg.into(), data, tx))
-            .is_err()
-        {
-            return Err(QueryError::Disconnected(msg.into()));
-        }
-        match tokio::time::timeout(timeout, rx).await {
-            Ok(Ok(r)) => r,
-            Ok(Err(_)) => Err(QueryError::Disconnected(msg.into())),
-            Err(_) => {
-                let _ = self.cmd.send(Cmd::CancelQuery(key));
-                Err(QueryError::Timeout {
-                    msg: msg.into(),
-                    timeout,
-                })
-            }
-        }
-    }
-
-    async fn serve(
-        &self,
-        msg: &str,
-        queue: usize,
-    ) -> Result<mpsc::Receiver<RawRequest>, OpenError> {
-        let (tx, rx) = mpsc::channel(queue.max(1));
-        let g = Err(self.gone());
-        self.call(|d| Cmd::Serve(msg.into(), tx, d), g).await?;
-        Ok(rx)
-    }
-
-    fn events(&self) -> mpsc::UnboundedReceiver<SessionEvent> {
-        let (tx, rx) = mpsc::unbounded_channel();
-        if self.cmd.is_closed() {
-            let _ = tx.send(SessionEvent::Disconnected);
-        } else {
-            let mut ev = self.events.lock().unwrap();
-            if ev.is_empty() {
-                let _ = self.cmd.send(Cmd::WatchModules);
-            }
-            ev.push(tx);
-        }
-        rx
-    }
-
     async fn is_module_connected(&self, module: &str) -> Result<bool, ControlError> {
         let g = Err(self.gone());
         self.call(|d| Cmd::ModuleConnected(module.into(), d), g)
@@ -696,6 +828,11 @@ impl Backend for IpcBackend {
     async fn num_handlers(&self, msg: &str) -> Result<i32, ControlError> {
         let g = Err(self.gone());
         self.call(|d| Cmd::NumHandlers(msg.into(), d), g).await
+    }
+
+    async fn watch_handlers(&self, msg: &str) -> Result<(), ControlError> {
+        let g = Err(self.gone());
+        self.call(|d| Cmd::WatchHandlers(msg.into(), d), g).await
     }
 
     async fn set_capacity(&self, n: i32) -> Result<(), ControlError> {
@@ -718,40 +855,6 @@ impl Backend for IpcBackend {
         self.call(|d| Cmd::Inform(InformOp::QueueLength(msg.into(), n), d), g)
             .await
     }
-
-    async fn watch_handlers(&self, msg: &str) -> Result<(), ControlError> {
-        let g = Err(self.gone());
-        self.call(|d| Cmd::WatchHandlers(msg.into(), d), g).await
-    }
-
-    async fn create_publication(
-        &self,
-        msg: &str,
-        ty: &TypeInfo,
-        qos: &PublicationQos,
-    ) -> Result<(), OpenError> {
-        if let Some(what) = qos.beyond_ipc() {
-            return Err(unsupported(format!("{what} (publication {msg})")));
-        }
-        self.define(msg, ty.format).await
-    }
-
-    async fn create_subscription(
-        &self,
-        msg: &str,
-        _ty: Option<&TypeInfo>,
-        qos: &SubscriptionQos,
-        queue: Arc<SampleQueue>,
-    ) -> Result<(), OpenError> {
-        if let Some(what) = qos.beyond_ipc() {
-            return Err(unsupported(format!("{what} (subscription {msg})")));
-        }
-        self.subscribe(msg, queue).await
-    }
-
-    async fn close(&self) {
-        self.call(Cmd::Close, ()).await
-    }
 }
 
 impl Drop for IpcBackend {
@@ -762,12 +865,14 @@ impl Drop for IpcBackend {
 }
 
 struct Sub {
+    id: SubId,
     msg: String,
     hnd: String,
     queue: Arc<SampleQueue>,
 }
 
 struct Server {
+    id: ServiceId,
     msg: String,
     hnd: String,
     tx: mpsc::Sender<RawRequest>,
@@ -789,7 +894,7 @@ struct Driver {
     defs: Vec<Def>,
     cmd_tx: mpsc::UnboundedSender<Cmd>,
     addr: String,
-    events: Arc<Mutex<Vec<mpsc::UnboundedSender<SessionEvent>>>>,
+    events: Hub<SessionEvent>,
     subs: HashMap<i32, Sub>,
     servers: HashMap<i32, Server>,
     publishes: HashMap<OpId, Done<Result<(), PublishError>>>,
@@ -876,7 +981,6 @@ impl Driver {
             if self.closing.is_some() && !self.conn.is_waiting() {
                 break;
             }
-            self.reap_dropped();
             tokio::select! {
                 cmd = rx.recv() => match cmd {
                     Some(c) => self.command(c),
@@ -941,29 +1045,26 @@ impl Driver {
         });
     }
 
-    /// Unsubscribes subscriptions whose `Subscriber` was dropped.
-    fn reap_dropped(&mut self) {
-        let gone: Vec<i32> = self
-            .subs
-            .iter()
-            .filter(|(_, s)| s.queue.is_receiver_gone())
-            .map(|(h, _)| *h)
-            .collect();
-        for h in gone {
-            if let Some(s) = self.subs.remove(&h) {
-                let _ = self.conn.unsubscribe(&s.msg, &s.hnd);
-            }
-        }
-        let gone: Vec<i32> = self
-            .servers
-            .iter()
-            .filter(|(_, s)| s.tx.is_closed())
-            .map(|(h, _)| *h)
-            .collect();
-        for h in gone {
-            if let Some(s) = self.servers.remove(&h) {
-                let _ = self.conn.unsubscribe(&s.msg, &s.hnd);
-            }
+    /// Unsubscribes the subscription or service of `h` (its
+    /// `Subscriber`, `Listener` or `Requests` was dropped).
+    fn close_handle(&mut self, h: Handle) {
+        let found = match h {
+            Handle::Subscription(id) => self
+                .subs
+                .iter()
+                .find(|(_, s)| s.id == id)
+                .map(|(k, s)| (*k, s.msg.clone(), s.hnd.clone())),
+            Handle::Service(id) => self
+                .servers
+                .iter()
+                .find(|(_, s)| s.id == id)
+                .map(|(k, s)| (*k, s.msg.clone(), s.hnd.clone())),
+            _ => None,
+        };
+        if let Some((k, msg, hnd)) = found {
+            self.subs.remove(&k);
+            self.servers.remove(&k);
+            let _ = self.conn.unsubscribe(&msg, &hnd);
         }
     }
 
@@ -989,27 +1090,44 @@ impl Driver {
                     let _ = d.send(Err(refused(&m)(e)));
                 }
             },
-            Cmd::Subscribe(m, queue, d) => {
+            Cmd::CloseHandle(h) => self.close_handle(h),
+            Cmd::Subscribe(m, queue, id, d) => {
                 let hnd = format!(
                     "HND-{m}-courier{}",
                     HANDLER_SEQ.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
                 );
                 let _ = d.send(match self.conn.subscribe(&m, &hnd) {
                     Ok(h) => {
-                        self.subs.insert(h, Sub { msg: m, hnd, queue });
+                        self.subs.insert(
+                            h,
+                            Sub {
+                                id,
+                                msg: m,
+                                hnd,
+                                queue,
+                            },
+                        );
                         Ok(())
                     }
                     Err(e) => Err(refused(&m)(e)),
                 });
             }
-            Cmd::Serve(m, tx, d) => {
+            Cmd::Serve(m, tx, id, d) => {
                 let hnd = format!(
                     "HND-{m}-courier{}",
                     HANDLER_SEQ.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
                 );
                 let _ = d.send(match self.conn.subscribe(&m, &hnd) {
                     Ok(h) => {
-                        self.servers.insert(h, Server { msg: m, hnd, tx });
+                        self.servers.insert(
+                            h,
+                            Server {
+                                id,
+                                msg: m,
+                                hnd,
+                                tx,
+                            },
+                        );
                         Ok(())
                     }
                     Err(e) => Err(refused(&m)(e)),
@@ -1123,10 +1241,7 @@ impl Driver {
     }
 
     fn broadcast(&self, e: SessionEvent) {
-        self.events
-            .lock()
-            .unwrap()
-            .retain(|tx| tx.send(e.clone()).is_ok());
+        self.events.send(e);
     }
 
     fn drain_events(&mut self) {
@@ -1397,7 +1512,7 @@ impl Driver {
             Cmd::Publish(_, _, d) | Cmd::Respond(_, _, _, d) => {
                 let _ = d.send(Err(PublishError::Disconnected(addr)));
             }
-            Cmd::Subscribe(_, _, d) | Cmd::Serve(_, _, d) => {
+            Cmd::Subscribe(_, _, _, d) | Cmd::Serve(_, _, _, d) => {
                 let _ = d.send(Err(OpenError::Disconnected(addr)));
             }
             Cmd::Inform(_, d) | Cmd::WatchHandlers(_, d) => {
@@ -1414,6 +1529,11 @@ impl Driver {
             }
             Cmd::WatchModules => self.watching_modules = true,
             Cmd::Close(d) => self.closing = Some(d),
+            // dropped while disconnected: not subscribed again
+            Cmd::CloseHandle(h) => {
+                self.subs.retain(|_, s| Handle::Subscription(s.id) != h);
+                self.servers.retain(|_, s| Handle::Service(s.id) != h);
+            }
             Cmd::CancelQuery(_) | Cmd::Ack(_) | Cmd::Decline(_) | Cmd::LinkAccepted(_) => {}
             Cmd::LinkConnected(..) | Cmd::LinkData(..) => {}
         }
@@ -1449,7 +1569,7 @@ impl Driver {
         // their channels close: the `Requests` streams end with Disconnected
         self.servers.clear();
         self.broadcast(SessionEvent::Disconnected);
-        self.events.lock().unwrap().clear();
+        self.events.close();
     }
 }
 

@@ -172,6 +172,21 @@ impl TypeInfo {
             keyed: !T::KEYS.is_empty(),
         }
     }
+
+    /// No type: raw bytes of a message whose type the backend does not
+    /// need (IPC: somebody else defined it) or learns (DDS subscriptions).
+    pub fn untyped() -> Self {
+        TypeInfo {
+            format: None,
+            type_name: "",
+            keyed: false,
+        }
+    }
+
+    /// Whether this is [`TypeInfo::untyped`].
+    pub fn is_untyped(&self) -> bool {
+        self.format.is_none() && self.type_name.is_empty()
+    }
 }
 
 /// What a change does to its instance.

@@ -238,7 +238,7 @@ impl SampleQueue {
 
     /// Hands every waiting sample to the queue's handler, in order, on the
     /// calling thread; `false` if it has none. Backends that deliver
-    /// immediately ([`Backend::delivers_immediately`]) call it after
+    /// immediately ([`Capabilities::immediate_delivery`]) call it after
     /// pushing, holding none of their own locks: the handler may publish.
     /// A handler that panics loses that sample, not the subscription.
     pub fn run_handler(&self) -> bool {
@@ -451,9 +451,18 @@ impl SampleQueue {
 #[derive(Debug)]
 pub struct RawSubscriber {
     queue: Arc<SampleQueue>,
+    /// Unsubscribes when dropped (after the queue is marked abandoned).
+    _handle: Owned,
 }
 
 impl RawSubscriber {
+    fn new(queue: Arc<SampleQueue>, handle: Owned) -> Self {
+        RawSubscriber {
+            queue,
+            _handle: handle,
+        }
+    }
+
     /// The next sample; `None` once the connection has ended.
     pub async fn recv(&mut self) -> Option<RawSample> {
         match std::future::poll_fn(|cx| self.queue.poll_pop(cx)).await? {
@@ -583,178 +592,37 @@ fn unknown_scheme(url: &str, scheme: Option<&str>, known: &[String]) -> String {
     format!("{what}; known schemes: {}", known.join(", "))
 }
 
-/// A pluggable transport: bytes in, bytes out, plus type metadata. Object
-/// safe, so a `Session` holds an `Arc<dyn Backend>`.
-#[async_trait::async_trait]
-pub trait Backend: Send + Sync + std::fmt::Debug {
-    /// How typed values must be encoded.
-    fn encoding(&self) -> Encoding;
-    /// Registers a named format (IPC_defineFormat).
-    async fn define_format(&self, name: &str, format: &str) -> Result<(), OpenError>;
-    /// Defines a message with its format (IPC_defineMsg).
-    async fn define(&self, msg: &str, format: Option<&str>) -> Result<(), OpenError>;
-    /// Publishes; resolves once handed to the transport.
-    async fn publish(&self, msg: &str, data: Vec<u8>) -> Result<(), PublishError>;
-    /// Subscribes; samples arrive on the returned channel until it is
-    /// dropped (then the backend unsubscribes).
-    async fn subscribe(&self, msg: &str, queue: Arc<SampleQueue>) -> Result<(), OpenError>;
-    /// Sends a query; the reply's message name and bytes.
-    async fn query(
-        &self,
-        msg: &str,
-        data: Vec<u8>,
-        timeout: Duration,
-    ) -> Result<RawReply, QueryError>;
-    /// Serves queries of `msg`.
-    async fn serve(&self, msg: &str, queue: usize)
-        -> Result<mpsc::Receiver<RawRequest>, OpenError>;
-    /// A stream of system events.
-    fn events(&self) -> mpsc::UnboundedReceiver<SessionEvent>;
-    /// Whether a module of that name is connected.
-    async fn is_module_connected(&self, module: &str) -> Result<bool, ControlError>;
-    /// How many handlers a message has.
-    async fn num_handlers(&self, msg: &str) -> Result<i32, ControlError>;
-    /// IPC_setCapacity.
-    async fn set_capacity(&self, n: i32) -> Result<(), ControlError>;
-    /// IPC_setMsgPriority.
-    async fn set_priority(&self, msg: &str, priority: i32) -> Result<(), ControlError>;
-    /// IPC_setMsgQueueLength.
-    async fn set_queue_length(&self, msg: &str, n: i32) -> Result<(), ControlError>;
-    /// Reports handler-count changes of `msg` on the event streams.
-    async fn watch_handlers(&self, msg: &str) -> Result<(), ControlError>;
-    /// Disconnects cleanly.
-    async fn close(&self);
+pub use crate::backend::{
+    Backend, Capabilities, ClientId, DdsControl, Handle, IpcControl, PubId, ServiceId, SubId,
+};
 
-    /// Creates the publication of `msg` with its type and QoS (DDS: a
-    /// DataWriter). The default defines the message.
-    async fn create_publication(
-        &self,
-        msg: &str,
-        ty: &TypeInfo,
-        qos: &PublicationQos,
-    ) -> Result<(), OpenError> {
-        let _ = qos;
-        self.define(msg, ty.format).await
-    }
+/// A handle the typed layer owns: closed when dropped, if the session is
+/// still there (a handle does not keep the session alive).
+struct Owned {
+    backend: Option<std::sync::Weak<dyn Backend>>,
+    handle: Handle,
+}
 
-    /// Subscribes with a type and QoS (DDS: a DataReader). The default
-    /// subscribes and ignores both.
-    async fn create_subscription(
-        &self,
-        msg: &str,
-        ty: Option<&TypeInfo>,
-        qos: &SubscriptionQos,
-        queue: Arc<SampleQueue>,
-    ) -> Result<(), OpenError> {
-        let _ = (ty, qos);
-        self.subscribe(msg, queue).await
-    }
-
-    /// Subscribes to every topic whose name and type name match the fnmatch
-    /// patterns (ORTE's pattern subscriptions), now and as they are discovered.
-    async fn subscribe_pattern(
-        &self,
-        topic: &str,
-        type_name: &str,
-        queue: Arc<SampleQueue>,
-    ) -> Result<(), OpenError> {
-        let _ = (topic, type_name, queue);
-        Err(OpenError::Unsupported {
-            what: "a pattern subscription".into(),
-            backend: scheme_of(self),
-        })
-    }
-
-    /// Publishes with options: the instance's key hash (keyed DDS topics)
-    /// and/or waiting until every matched reader has acknowledged the
-    /// sample. The default publishes and refuses to confirm.
-    async fn write(
-        &self,
-        msg: &str,
-        data: Vec<u8>,
-        opts: WriteOptions,
-    ) -> Result<(), PublishError> {
-        if opts.confirm.is_some() {
-            return Err(PublishError::Unsupported {
-                what: format!("a confirmed publish ({msg})"),
-                backend: scheme_of(self),
-            });
+impl Owned {
+    fn new(backend: &Arc<dyn Backend>, handle: Handle) -> Self {
+        Owned {
+            backend: Some(Arc::downgrade(backend)),
+            handle,
         }
-        self.publish(msg, data).await
-    }
-
-    /// Whether the backend runs the handlers of immediate-delivery queues
-    /// itself ([`SampleQueue::run_handler`]) as it delivers; otherwise the
-    /// session runs each on a task of its own.
-    fn delivers_immediately(&self) -> bool {
-        false
-    }
-
-    /// Publishes without waiting, from any thread (a subscription callback
-    /// among them): queued or sent before it returns, or an error. The
-    /// default refuses.
-    fn try_write(
-        &self,
-        msg: &str,
-        data: Vec<u8>,
-        key_hash: Option<[u8; 16]>,
-    ) -> Result<(), PublishError> {
-        let _ = (data, key_hash);
-        Err(PublishError::Unsupported {
-            what: format!("publishing {msg} without waiting (use publish().await)"),
-            backend: scheme_of(self),
-        })
-    }
-
-    /// Disposes or unregisters an instance of a keyed topic; `key` is the
-    /// serialized key (CDR with its encapsulation header).
-    async fn end_instance(
-        &self,
-        msg: &str,
-        state: InstanceState,
-        key: Vec<u8>,
-        key_hash: [u8; 16],
-    ) -> Result<(), PublishError> {
-        let _ = (state, key, key_hash);
-        Err(PublishError::Unsupported {
-            what: format!("disposing or unregistering an instance of {msg}"),
-            backend: scheme_of(self),
-        })
-    }
-
-    /// Sends a typed query: like [`Backend::query`], with the types (DDS
-    /// needs them for the request and reply topics).
-    async fn query_typed(
-        &self,
-        msg: &str,
-        req: &TypeInfo,
-        resp: &TypeInfo,
-        data: Vec<u8>,
-        timeout: Duration,
-    ) -> Result<RawReply, QueryError> {
-        let _ = (req, resp);
-        self.query(msg, data, timeout).await
-    }
-
-    /// Serves typed queries: like [`Backend::serve`], with the types.
-    async fn serve_typed(
-        &self,
-        msg: &str,
-        req: &TypeInfo,
-        resp: &TypeInfo,
-        queue: usize,
-    ) -> Result<mpsc::Receiver<RawRequest>, OpenError> {
-        let _ = (req, resp);
-        self.serve(msg, queue).await
     }
 }
 
-/// The URL scheme of a backend, for [`OpenError::Unsupported`] and
-/// [`PublishError::Unsupported`].
-fn scheme_of<B: Backend + ?Sized>(b: &B) -> &'static str {
-    match b.encoding() {
-        Encoding::Ipc => "ipc://",
-        Encoding::Cdr => "rtps://",
+impl std::fmt::Debug for Owned {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        self.handle.fmt(f)
+    }
+}
+
+impl Drop for Owned {
+    fn drop(&mut self) {
+        if let Some(b) = self.backend.as_ref().and_then(std::sync::Weak::upgrade) {
+            b.close_handle(self.handle);
+        }
     }
 }
 
@@ -989,6 +857,7 @@ fn decode<T: IpcMessage>(enc: Encoding, data: &[u8], order: ipc::ByteOrder) -> R
 #[derive(Debug, Clone)]
 pub struct Session {
     backend: Arc<dyn Backend>,
+    caps: Capabilities,
     name: String,
     topics: Arc<Topics>,
 }
@@ -1010,6 +879,7 @@ impl Session {
     /// A session over any backend.
     pub fn with_backend(backend: Arc<dyn Backend>, name: impl Into<String>) -> Self {
         Session {
+            caps: backend.capabilities(),
             backend,
             name: name.into(),
             topics: Arc::default(),
@@ -1027,18 +897,37 @@ impl Session {
     }
 
     fn enc(&self) -> Encoding {
-        self.backend.encoding()
+        self.caps.encoding
     }
 
-    /// Registers `T`'s named formats (`IPC_defineFormat`).
-    pub async fn define_format<T: IpcMessage>(&self) -> Result<(), OpenError> {
-        if self.enc() != Encoding::Ipc {
-            return Ok(());
+    /// What the backend can do.
+    pub fn capabilities(&self) -> Capabilities {
+        self.caps
+    }
+
+    /// The CMU IPC controls (capacity, priorities, queue lengths, named
+    /// formats, …); [`ControlError::Unsupported`] on other backends.
+    pub fn ipc(&self) -> Result<Ipc<'_>, ControlError> {
+        match self.backend.ipc() {
+            Some(ctl) => Ok(Ipc { ctl }),
+            None => Err(ControlError::Unsupported {
+                what: "CMU IPC's controls (IPC_setCapacity, IPC_setMsgPriority, \
+                       IPC_setMsgQueueLength, IPC_defineFormat; no DDS equivalent: use the \
+                       QoS of publishers and subscribers)"
+                    .into(),
+                backend: self.caps.scheme,
+            }),
         }
-        for (name, fmt) in NamedFormats::of::<T>().iter() {
-            self.backend.define_format(name, fmt).await?;
-        }
-        Ok(())
+    }
+
+    /// The DDS controls (matched readers, participants, instances,
+    /// pattern subscriptions); [`ControlError::Unsupported`] on other
+    /// backends.
+    pub fn dds(&self) -> Result<&dyn DdsControl, ControlError> {
+        self.backend.dds().ok_or_else(|| ControlError::Unsupported {
+            what: "DDS's controls".into(),
+            backend: self.caps.scheme,
+        })
     }
 
     /// Defines `msg` carrying `T` (its named formats first). On DDS this
@@ -1052,27 +941,36 @@ impl Session {
     /// [`serve`](Session::serve) define what they need themselves; call
     /// `define` to choose the moment (IPC_defineMsg ahead of time).
     pub async fn define<T: IpcMessage>(&self, msg: &str) -> Result<(), OpenError> {
-        self.topics.bind::<T>(msg)?;
-        self.define_as(msg, Definition::of::<T>(), &PublicationQos::default())
-            .await
+        if self.topics.bind::<T>(msg)?.is_none() {
+            self.define_shared(msg, Definition::of::<T>()).await?;
+        }
+        Ok(())
     }
 
-    /// Defines `msg` as `def` says (named formats first on IPC) and
-    /// records it as defined.
-    async fn define_as(
+    /// Opens a publication of `msg` as `def` says (named formats first on
+    /// IPC).
+    async fn open_as(
         &self,
         msg: &str,
-        def: Definition,
+        def: &Definition,
         qos: &PublicationQos,
-    ) -> Result<(), OpenError> {
-        if self.enc() == Encoding::Ipc {
-            for (name, fmt) in def.formats {
-                self.backend.define_format(name, fmt).await?;
+    ) -> Result<PubId, OpenError> {
+        if let (true, Some(ipc)) = (self.caps.named_formats, self.backend.ipc()) {
+            for (name, fmt) in &def.formats {
+                ipc.define_format(name, fmt).await?;
             }
         }
-        self.backend.create_publication(msg, &def.ty, qos).await?;
-        self.topics.defined(msg);
-        Ok(())
+        self.backend.open_publication(msg, &def.ty, qos).await
+    }
+
+    /// The session's own publication of `msg` (default QoS), opened now.
+    async fn define_shared(&self, msg: &str, def: Definition) -> Result<PubId, OpenError> {
+        let id = self.open_as(msg, &def, &PublicationQos::default()).await?;
+        let kept = self.topics.set_publication(msg, id);
+        if kept != id {
+            self.backend.close_handle(Handle::Publication(id));
+        }
+        Ok(kept)
     }
 
     /// A publication of `msg` with QoS (ORTE's `ORTEPublicationCreate`);
@@ -1097,21 +995,21 @@ impl Session {
     /// 1 MiB unacknowledged per reliable keep-all writer): when readers
     /// fall behind, `publish().await` waits: back-pressure, not loss.
     pub fn publish<'a, T: IpcMessage>(&'a self, msg: &'a str, value: &T) -> Publish<'a> {
-        let check = self
-            .topics
-            .bind::<T>(msg)
-            .map(|undefined| undefined.then(Definition::of::<T>));
-        self.publish_sized(msg, value, 0, check)
+        let target = self.topics.bind::<T>(msg).map(|known| match known {
+            Some(id) => Target::Open(id),
+            None => Target::Define(Definition::of::<T>()),
+        });
+        self.publish_sized(msg, value, 0, target)
     }
 
-    /// [`Session::publish`], encoding into a buffer of `size_hint` bytes.
-    /// `check` is the topic's type check (see [`Publish`]).
+    /// [`Session::publish`], encoding into a buffer of `size_hint` bytes,
+    /// to `target` (see [`Publish`]).
     fn publish_sized<'a, T: IpcMessage>(
         &'a self,
         msg: &'a str,
         value: &T,
         size_hint: usize,
-        check: Result<Option<Definition>, OpenError>,
+        target: Result<Target, OpenError>,
     ) -> Publish<'a> {
         let key_hash = (self.enc() == Encoding::Cdr && !T::KEYS.is_empty())
             .then(|| crate::rtps_backend::key_hash_of(value));
@@ -1127,13 +1025,29 @@ impl Session {
             data,
             confirm: None,
             key_hash,
-            check,
+            target,
         }
     }
 
-    /// Publishes raw bytes.
+    /// Publishes raw bytes: on the session's publication of `msg` (made by
+    /// [`Session::define`] or a typed publish), or, where the backend
+    /// publishes untyped messages (IPC: a message somebody else defined),
+    /// on one opened now; otherwise [`PublishError::NoPublication`].
     pub async fn publish_raw(&self, msg: &str, data: &[u8]) -> Result<(), PublishError> {
-        self.backend.publish(msg, data.to_vec()).await
+        let id = match self.topics.publication(msg) {
+            Some(id) => id,
+            None if self.caps.untyped_publications => {
+                let def = Definition {
+                    ty: TypeInfo::untyped(),
+                    formats: Vec::new(),
+                };
+                self.define_shared(msg, def).await?
+            }
+            None => return Err(PublishError::NoPublication(msg.to_string())),
+        };
+        self.backend
+            .write(id, data.to_vec(), WriteOptions::default())
+            .await
     }
 
     /// Subscribes with the default queue policy (keep all, 1000 samples,
@@ -1166,10 +1080,18 @@ impl Session {
     /// Subscribes to raw samples.
     pub async fn subscribe_raw(&self, msg: &str) -> Result<RawSubscriber, OpenError> {
         let queue = SampleQueue::new(QueuePolicy::default());
-        self.backend
-            .create_subscription(msg, None, &SubscriptionQos::default(), queue.clone())
+        let id = self
+            .backend
+            .open_subscription(msg, None, &SubscriptionQos::default(), queue.clone())
             .await?;
-        Ok(RawSubscriber { queue })
+        Ok(RawSubscriber::new(
+            queue,
+            self.owned(Handle::Subscription(id)),
+        ))
+    }
+
+    fn owned(&self, handle: Handle) -> Owned {
+        Owned::new(&self.backend, handle)
     }
 
     /// Subscribes to every topic whose name matches `topic` and whose type
@@ -1181,11 +1103,22 @@ impl Session {
         topic: &str,
         type_name: &str,
     ) -> Result<RawSubscriber, OpenError> {
+        let Some(dds) = self
+            .backend
+            .dds()
+            .filter(|_| self.caps.pattern_subscriptions)
+        else {
+            return Err(OpenError::Unsupported {
+                what: "a pattern subscription".into(),
+                backend: self.caps.scheme,
+            });
+        };
         let queue = SampleQueue::new(QueuePolicy::KeepLast(10_000));
-        self.backend
-            .subscribe_pattern(topic, type_name, queue.clone())
-            .await?;
-        Ok(RawSubscriber { queue })
+        let id = dds.open_pattern(topic, type_name, queue.clone()).await?;
+        Ok(RawSubscriber::new(
+            queue,
+            self.owned(Handle::Subscription(id)),
+        ))
     }
 
     /// A query; `.timeout(d)` bounds the wait (default 10 s).
@@ -1196,8 +1129,8 @@ impl Session {
     ) -> Query<'a, Resp> {
         // IPC: the query message must be defined in central (by anyone);
         // the reply is decoded as `Resp` whatever message the server used
-        let check = self.topics.bind::<Req>(msg).map(|undefined| {
-            (undefined && self.enc() == Encoding::Ipc).then(Definition::of::<Req>)
+        let check = self.topics.bind::<Req>(msg).map(|known| {
+            (known.is_none() && self.enc() == Encoding::Ipc).then(Definition::of::<Req>)
         });
         Query {
             session: self,
@@ -1217,14 +1150,45 @@ impl Session {
         data: &[u8],
         timeout: Duration,
     ) -> Result<RawReply, QueryError> {
-        self.backend.query(msg, data.to_vec(), timeout).await
+        let untyped = TypeInfo::untyped();
+        let client = self
+            .client(msg, &untyped, &untyped)
+            .await
+            .map_err(|e| open_failed(msg, e))?;
+        self.backend.query(client, data.to_vec(), timeout).await
+    }
+
+    /// The session's client of the service `msg`, opened on first use.
+    async fn client(
+        &self,
+        msg: &str,
+        req: &TypeInfo,
+        resp: &TypeInfo,
+    ) -> Result<ClientId, OpenError> {
+        if let Some(c) = self.topics.client(msg) {
+            return Ok(c);
+        }
+        let id = self.backend.open_client(msg, req, resp).await?;
+        let kept = self.topics.set_client(msg, id);
+        if kept != id {
+            self.backend.close_handle(Handle::Client(id));
+        }
+        Ok(kept)
     }
 
     /// Serves queries of `msg` as raw requests (answer with
-    /// [`RawRequest::respond`]); the channel closes when the connection is
-    /// gone.
-    pub async fn serve_raw(&self, msg: &str) -> Result<mpsc::Receiver<RawRequest>, OpenError> {
-        self.backend.serve(msg, 1000).await
+    /// [`RawRequest::respond`]); the stream ends when the connection is
+    /// gone, and dropping it stops serving.
+    pub async fn serve_raw(&self, msg: &str) -> Result<RawRequests, OpenError> {
+        let untyped = TypeInfo::untyped();
+        let (id, rx) = self
+            .backend
+            .open_service(msg, &untyped, &untyped, 1000)
+            .await?;
+        Ok(RawRequests {
+            rx,
+            _handle: self.owned(Handle::Service(id)),
+        })
     }
 
     /// Serves queries of `msg`, answering with `reply_msg` messages.
@@ -1239,45 +1203,45 @@ impl Session {
         msg: &str,
         reply_msg: &str,
     ) -> Result<Requests<Req, Resp>, OpenError> {
-        let reply_msg = match (self.enc(), reply_msg) {
-            (Encoding::Ipc, "") => format!("{msg}Reply"),
-            (Encoding::Ipc, name) => name.to_string(),
-            (Encoding::Cdr, "") => String::new(),
-            (Encoding::Cdr, name) => {
+        let reply_msg = match (self.caps.reply_names, reply_msg) {
+            (true, "") => format!("{msg}Reply"),
+            (true, name) => name.to_string(),
+            (false, "") => String::new(),
+            (false, name) => {
                 return Err(OpenError::Unsupported {
                     what: format!(
                         "reply message name {name:?} (DDS replies go on the service's reply \
                          topic; pass \"\")"
                     ),
-                    backend: "rtps://",
+                    backend: self.caps.scheme,
                 })
             }
         };
         let reply_msg = reply_msg.as_str();
-        let define_req = self.topics.bind::<Req>(msg)?;
+        let define_req = self.topics.bind::<Req>(msg)?.is_none();
         let define_resp = if reply_msg.is_empty() {
             false
         } else {
-            self.topics.bind::<Resp>(reply_msg)?
+            self.topics.bind::<Resp>(reply_msg)?.is_none()
         };
-        if self.enc() == Encoding::Ipc {
+        if self.caps.reply_names {
             // both must be defined in central: a reply to an undefined
             // message could not be sent
-            let qos = PublicationQos::default();
             if define_req {
-                self.define_as(msg, Definition::of::<Req>(), &qos).await?;
+                self.define_shared(msg, Definition::of::<Req>()).await?;
             }
             if define_resp {
-                self.define_as(reply_msg, Definition::of::<Resp>(), &qos)
+                self.define_shared(reply_msg, Definition::of::<Resp>())
                     .await?;
             }
         }
-        let rx = self
+        let (id, rx) = self
             .backend
-            .serve_typed(msg, &TypeInfo::of::<Req>(), &TypeInfo::of::<Resp>(), 1000)
+            .open_service(msg, &TypeInfo::of::<Req>(), &TypeInfo::of::<Resp>(), 1000)
             .await?;
         Ok(Requests {
             rx,
+            _handle: self.owned(Handle::Service(id)),
             ended: false,
             reply_msg: reply_msg.to_string(),
             enc: self.enc(),
@@ -1309,36 +1273,43 @@ impl Session {
         }
     }
 
+    fn no_controls(&self, what: &str) -> ControlError {
+        ControlError::Unsupported {
+            what: what.to_string(),
+            backend: self.caps.scheme,
+        }
+    }
+
     /// Reports [`SessionEvent::HandlersChanged`] for `msg`
-    /// (IPC_subscribeHandlerChange; DDS: matched readers of our writer).
+    /// (IPC_subscribeHandlerChange; DDS: readers matched with our writers,
+    /// [`DdsControl::watch_matches`]).
     pub async fn watch_handlers(&self, msg: &str) -> Result<(), ControlError> {
-        self.backend.watch_handlers(msg).await
+        match (self.backend.ipc(), self.backend.dds()) {
+            (Some(ipc), _) => ipc.watch_handlers(msg).await,
+            (_, Some(dds)) => dds.watch_matches(msg).await,
+            _ => Err(self.no_controls("watching handlers")),
+        }
     }
 
     /// Whether a module of that name is connected to central (DDS: a
-    /// participant with that entity name is known).
+    /// participant with that entity name is known,
+    /// [`DdsControl::participant_named`]).
     pub async fn is_module_connected(&self, module: &str) -> Result<bool, ControlError> {
-        self.backend.is_module_connected(module).await
+        match (self.backend.ipc(), self.backend.dds()) {
+            (Some(ipc), _) => ipc.is_module_connected(module).await,
+            (_, Some(dds)) => dds.participant_named(module).await,
+            _ => Err(self.no_controls("is_module_connected")),
+        }
     }
 
-    /// How many handlers subscribe `msg` (DDS: readers matched with our writer).
+    /// How many handlers subscribe `msg` (DDS: readers matched with our
+    /// writers, [`DdsControl::matched_readers`]).
     pub async fn num_handlers(&self, msg: &str) -> Result<i32, ControlError> {
-        self.backend.num_handlers(msg).await
-    }
-
-    /// How many messages central may deliver at once (default 1).
-    pub async fn set_capacity(&self, n: i32) -> Result<(), ControlError> {
-        self.backend.set_capacity(n).await
-    }
-
-    /// Priority of `msg` in this module's pending queue.
-    pub async fn set_priority(&self, msg: &str, priority: i32) -> Result<(), ControlError> {
-        self.backend.set_priority(msg, priority).await
-    }
-
-    /// Most pending `msg` deliveries central keeps for this module (oldest dropped).
-    pub async fn set_queue_length(&self, msg: &str, n: i32) -> Result<(), ControlError> {
-        self.backend.set_queue_length(msg, n).await
+        match (self.backend.ipc(), self.backend.dds()) {
+            (Some(ipc), _) => ipc.num_handlers(msg).await,
+            (_, Some(dds)) => dds.matched_readers(msg).await,
+            _ => Err(self.no_controls("num_handlers")),
+        }
     }
 
     /// Disconnects cleanly (also done when the last clone is dropped).
@@ -1356,9 +1327,16 @@ pub struct Publish<'a> {
     data: Vec<u8>,
     confirm: Option<Duration>,
     key_hash: Option<[u8; 16]>,
-    /// The topic's type check: the definition to make first if the
-    /// session has not defined the topic yet, or the mismatch.
-    check: Result<Option<Definition>, OpenError>,
+    /// Where it goes: an open publication, or the definition of the
+    /// session's publication to make first; or the type mismatch.
+    target: Result<Target, OpenError>,
+}
+
+/// Where a [`Publish`] goes.
+#[derive(Debug)]
+enum Target {
+    Open(PubId),
+    Define(Definition),
 }
 
 impl<'a> Publish<'a> {
@@ -1381,26 +1359,19 @@ impl<'a> std::future::IntoFuture for Publish<'a> {
     type IntoFuture = Pin<Box<dyn std::future::Future<Output = Self::Output> + Send + 'a>>;
 
     fn into_future(self) -> Self::IntoFuture {
-        let define = match self.check {
-            Err(e) => return Box::pin(std::future::ready(Err(e.into()))),
-            Ok(define) => define,
+        let opts = WriteOptions {
+            key_hash: self.key_hash,
+            confirm: self.confirm,
         };
-        if define.is_none() && self.confirm.is_none() && self.key_hash.is_none() {
+        match self.target {
+            Err(e) => Box::pin(std::future::ready(Err(e.into()))),
             // the backend's own (boxed) future, not a box around it
-            return self.session.backend.publish(self.msg, self.data);
+            Ok(Target::Open(id)) => self.session.backend.write(id, self.data, opts),
+            Ok(Target::Define(def)) => Box::pin(async move {
+                let id = self.session.define_shared(self.msg, def).await?;
+                self.session.backend.write(id, self.data, opts).await
+            }),
         }
-        Box::pin(async move {
-            if let Some(def) = define {
-                self.session
-                    .define_as(self.msg, def, &PublicationQos::default())
-                    .await?;
-            }
-            let opts = WriteOptions {
-                key_hash: self.key_hash,
-                confirm: self.confirm,
-            };
-            self.session.backend.write(self.msg, self.data, opts).await
-        })
     }
 }
 
@@ -1475,12 +1446,20 @@ impl<T: IpcMessage> PublisherBuilder<T> {
     }
 
     /// Creates the publication.
+    ///
+    /// Each is a publication of its own (DDS: a DataWriter of its own, so
+    /// that publishers of one topic with different QoS coexist); on IPC
+    /// they share the message's definition. Dropping the last clone closes
+    /// it.
     pub async fn build(self) -> Result<Publisher<T>, OpenError> {
         self.session.topics.bind::<T>(&self.msg)?;
-        self.session
-            .define_as(&self.msg, Definition::of::<T>(), &self.qos)
+        let id = self
+            .session
+            .open_as(&self.msg, &Definition::of::<T>(), &self.qos)
             .await?;
         Ok(Publisher {
+            handle: Arc::new(self.session.owned(Handle::Publication(id))),
+            id,
             session: self.session,
             msg: self.msg,
             last_len: Arc::default(),
@@ -1493,6 +1472,9 @@ impl<T: IpcMessage> PublisherBuilder<T> {
 #[derive(Debug)]
 pub struct Publisher<T> {
     session: Session,
+    id: PubId,
+    /// Closes the publication when the last clone goes.
+    handle: Arc<Owned>,
     msg: String,
     /// Encoded size of the last sample, shared by the clones: the next
     /// one is encoded into a buffer that size, so a large sample is not
@@ -1505,6 +1487,8 @@ impl<T> Clone for Publisher<T> {
     fn clone(&self) -> Self {
         Publisher {
             session: self.session.clone(),
+            id: self.id,
+            handle: self.handle.clone(),
             msg: self.msg.clone(),
             last_len: self.last_len.clone(),
             _t: PhantomData,
@@ -1522,8 +1506,10 @@ impl<T: IpcMessage> Publisher<T> {
     pub fn publish(&self, value: &T) -> Publish<'_> {
         use std::sync::atomic::Ordering::Relaxed;
         let hint = self.last_len.load(Relaxed);
-        // checked and defined when the publisher was built
-        let p = self.session.publish_sized(&self.msg, value, hint, Ok(None));
+        // checked and opened when the publisher was built
+        let p = self
+            .session
+            .publish_sized(&self.msg, value, hint, Ok(Target::Open(self.id)));
         if p.data.len() != hint {
             self.last_len.store(p.data.len(), Relaxed);
         }
@@ -1539,7 +1525,11 @@ impl<T: IpcMessage> Publisher<T> {
     /// returns, packed with the callback's other writes.
     pub fn try_publish(&self, value: &T) -> Result<(), PublishError> {
         let p = self.publish(value);
-        self.session.backend.try_write(p.msg, p.data, p.key_hash)
+        let opts = WriteOptions {
+            key_hash: p.key_hash,
+            confirm: None,
+        };
+        self.session.backend.try_write(self.id, p.data, opts)
     }
 
     /// Disposes the instance that `value`'s key fields name (keyed topics).
@@ -1566,10 +1556,18 @@ impl<T: IpcMessage> Publisher<T> {
             cdr::key_to_vec(value, cdr::Encoding::Xcdr1Le)
         };
         let hash = crate::rtps_backend::key_hash_of(value);
-        self.session
+        match self
+            .session
             .backend
-            .end_instance(&self.msg, state, key, hash)
-            .await
+            .dds()
+            .filter(|_| self.session.caps.instances)
+        {
+            Some(dds) => dds.end_instance(self.id, state, key, hash).await,
+            None => Err(PublishError::Unsupported {
+                what: format!("disposing or unregistering an instance of {}", self.msg),
+                backend: self.session.caps.scheme,
+            }),
+        }
     }
 
     /// ORTE's send callback: every `period`, `f` is asked for a value to
@@ -1688,17 +1686,22 @@ impl<T: IpcMessage> SubscriberBuilder<T> {
     }
 
     /// The backend's subscription of this type and QoS, into `queue`.
-    async fn create(&self, queue: &Arc<SampleQueue>) -> Result<(), OpenError> {
+    async fn create(&self, queue: Arc<SampleQueue>) -> Result<RawSubscriber, OpenError> {
         self.session.topics.bind::<T>(&self.msg)?;
-        self.session
+        let id = self
+            .session
             .backend
-            .create_subscription(
+            .open_subscription(
                 &self.msg,
                 Some(&TypeInfo::of::<T>()),
                 &self.qos,
                 queue.clone(),
             )
-            .await
+            .await?;
+        Ok(RawSubscriber::new(
+            queue,
+            self.session.owned(Handle::Subscription(id)),
+        ))
     }
 
     /// Creates the subscription with immediate delivery (ORTE's IMMEDIATE
@@ -1737,27 +1740,23 @@ impl<T: IpcMessage> SubscriberBuilder<T> {
         queue.set_handler(move |q, s| {
             f(s.map_or(Err(RecvError::Disconnected), |s| convert::<T>(enc, q, s)))
         });
-        self.create(&queue).await?;
-        if !self.session.backend.delivers_immediately() {
-            let q = queue.clone();
+        let raw = self.create(queue.clone()).await?;
+        if !self.session.caps.immediate_delivery {
             tokio::spawn(async move {
-                while std::future::poll_fn(|cx| q.poll_waiting(cx)).await {
-                    q.run_handler();
+                while std::future::poll_fn(|cx| queue.poll_waiting(cx)).await {
+                    queue.run_handler();
                 }
             });
         }
-        Ok(Listener {
-            raw: RawSubscriber { queue },
-            msg: self.msg,
-        })
+        Ok(Listener { raw, msg: self.msg })
     }
 
     /// Creates the subscription.
     pub async fn build(self) -> Result<Subscriber<T>, OpenError> {
         let queue = SampleQueue::new(self.policy.unwrap_or_default());
-        self.create(&queue).await?;
+        let raw = self.create(queue).await?;
         Ok(Subscriber {
-            raw: RawSubscriber { queue },
+            raw,
             msg: self.msg,
             enc: self.session.enc(),
             decode_errors: 0,
@@ -1944,6 +1943,17 @@ impl<T> Subscriber<T> {
     }
 }
 
+/// A query that could not start: opening what it needs failed.
+fn open_failed(msg: &str, e: OpenError) -> QueryError {
+    match e {
+        OpenError::Disconnected(_) => QueryError::Disconnected(msg.to_string()),
+        source => QueryError::Open {
+            msg: msg.to_string(),
+            source,
+        },
+    }
+}
+
 /// A query being built; `.await` it.
 #[derive(Debug)]
 pub struct Query<'a, Resp> {
@@ -1965,29 +1975,22 @@ impl<'a, Resp: IpcMessage + 'a> Query<'a, Resp> {
     }
 
     async fn run(self) -> Result<Resp, QueryError> {
-        let refused = |e: OpenError| match e {
-            OpenError::Disconnected(_) => QueryError::Disconnected(self.msg.to_string()),
-            source => QueryError::Open {
-                msg: self.msg.to_string(),
-                source,
-            },
-        };
+        let refused = |e: OpenError| open_failed(self.msg, e);
         if let Some(def) = self.check.map_err(refused)? {
             self.session
-                .define_as(self.msg, def, &PublicationQos::default())
+                .define_shared(self.msg, def)
                 .await
                 .map_err(refused)?;
         }
+        let client = self
+            .session
+            .client(self.msg, &self.req, &TypeInfo::of::<Resp>())
+            .await
+            .map_err(refused)?;
         let (reply, data, order) = self
             .session
             .backend
-            .query_typed(
-                self.msg,
-                &self.req,
-                &TypeInfo::of::<Resp>(),
-                self.data,
-                self.timeout,
-            )
+            .query(client, self.data, self.timeout)
             .await?;
         decode::<Resp>(self.session.enc(), &data, order).map_err(|detail| QueryError::Decode {
             msg: self.msg.to_string(),
@@ -2038,10 +2041,64 @@ impl<Req, Resp: IpcMessage> Request<Req, Resp> {
     }
 }
 
+/// Raw requests of [`Session::serve_raw`]; dropping it stops serving.
+#[derive(Debug)]
+pub struct RawRequests {
+    rx: mpsc::Receiver<RawRequest>,
+    _handle: Owned,
+}
+
+impl RawRequests {
+    /// The next request; `None` once the connection has ended.
+    pub async fn recv(&mut self) -> Option<RawRequest> {
+        self.rx.recv().await
+    }
+}
+
+impl Stream for RawRequests {
+    type Item = RawRequest;
+    fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<RawRequest>> {
+        self.rx.poll_recv(cx)
+    }
+}
+
+/// CMU IPC's controls on a session ([`Session::ipc`]): the typed
+/// [`Ipc::define_formats`], and every [`IpcControl`] method through `Deref`.
+#[derive(Clone, Copy)]
+pub struct Ipc<'a> {
+    ctl: &'a dyn IpcControl,
+}
+
+impl std::fmt::Debug for Ipc<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Ipc")
+    }
+}
+
+impl<'a> std::ops::Deref for Ipc<'a> {
+    type Target = dyn IpcControl + 'a;
+    fn deref(&self) -> &Self::Target {
+        self.ctl
+    }
+}
+
+impl Ipc<'_> {
+    /// Registers `T`'s named formats (`IPC_defineFormat`; also done by
+    /// every definition of a message carrying `T`).
+    pub async fn define_formats<T: IpcMessage>(&self) -> Result<(), OpenError> {
+        for (name, fmt) in NamedFormats::of::<T>().iter() {
+            self.ctl.define_format(name, fmt).await?;
+        }
+        Ok(())
+    }
+}
+
 /// The stream of requests of [`Session::serve`].
 #[derive(Debug)]
 pub struct Requests<Req, Resp> {
     rx: mpsc::Receiver<RawRequest>,
+    /// Stops serving when dropped.
+    _handle: Owned,
     /// The end (`Err(Disconnected)`) was yielded.
     ended: bool,
     reply_msg: String,
@@ -2082,16 +2139,30 @@ impl<Req: IpcMessage, Resp: IpcMessage> Stream for Requests<Req, Resp> {
     }
 }
 
-/// The stream of [`SessionEvent`]s.
+/// The stream of [`SessionEvent`]s ([`Session::events`]).
+///
+/// Each stream has a bounded queue of its own: one that is not read often
+/// enough loses its oldest events, never holding up the session or the
+/// other streams; [`Events::lost`] counts them. The stream ends after
+/// [`SessionEvent::Disconnected`] when the session closes (one opened
+/// after that ends at once).
 #[derive(Debug)]
 pub struct Events {
-    rx: mpsc::UnboundedReceiver<SessionEvent>,
+    rx: crate::hub::Listener<SessionEvent>,
+}
+
+impl Events {
+    /// Events this stream lost so far because it was not read fast enough
+    /// (the oldest are dropped first).
+    pub fn lost(&self) -> u64 {
+        self.rx.lost()
+    }
 }
 
 impl Stream for Events {
     type Item = SessionEvent;
     fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<SessionEvent>> {
-        self.rx.poll_recv(cx)
+        Pin::new(&mut self.rx).poll_next(cx)
     }
 }
 
@@ -2155,9 +2226,13 @@ mod tests {
 
     fn subscriber<T>(queue: &Arc<SampleQueue>) -> Subscriber<T> {
         Subscriber {
-            raw: RawSubscriber {
-                queue: queue.clone(),
-            },
+            raw: RawSubscriber::new(
+                queue.clone(),
+                Owned {
+                    backend: None,
+                    handle: Handle::Subscription(SubId(0)),
+                },
+            ),
             msg: "m".into(),
             enc: Encoding::Cdr,
             decode_errors: 0,

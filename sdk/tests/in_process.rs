@@ -167,7 +167,7 @@ async fn a_capacity_one_in_process_subscriber_gets_everything_in_order() {
     let c = central(false).await;
     let sub_side = in_process(&c, "sub").await;
     let pub_side = on_tcp(&c, "pub").await;
-    sub_side.set_capacity(1).await.unwrap();
+    sub_side.ipc().unwrap().set_capacity(1).await.unwrap();
     pub_side.define::<i32>("seq").await.unwrap();
     let mut sub = sub_side.subscribe::<i32>("seq").await.unwrap();
     const N: i32 = 5000;

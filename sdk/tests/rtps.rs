@@ -206,7 +206,7 @@ async fn typed_publish_creates_its_publication_and_raw_needs_one() {
     assert_eq!(next(&mut sub).await.unwrap().value, msg(1));
     let e = a.publish_raw("nowhere", &[0, 1, 0, 0]).await.unwrap_err();
     assert!(e.to_string().contains("nowhere has no publication"), "{e}");
-    let e = a.set_capacity(1).await.unwrap_err();
+    let e = a.ipc().unwrap_err();
     assert!(e.to_string().contains("no DDS equivalent"), "{e}");
 }
 
@@ -459,6 +459,121 @@ async fn deadline_misses_are_events() {
     .await
     .unwrap();
     assert!(total >= 2);
+}
+
+#[tokio::test]
+async fn a_slow_events_listener_loses_the_oldest_and_counts_them() {
+    use futures::FutureExt;
+    let a = session(170, "a").await;
+    let b = session(170, "b").await;
+    let p = a
+        .publisher::<Msg>("tick")
+        .deadline(Duration::from_millis(1))
+        .build()
+        .await
+        .unwrap();
+    // never read until the end
+    let mut slow = b.events();
+    let mut fast = b.events();
+    let mut sub = b
+        .subscriber::<Msg>("tick")
+        .deadline(Duration::from_millis(1))
+        .build()
+        .await
+        .unwrap();
+    await_handlers(&a, "tick", 1).await;
+    p.publish(&msg(0)).await.unwrap();
+    next(&mut sub).await.unwrap();
+    // then silence: a miss every millisecond, far more than one
+    // listener's queue holds (1024)
+    let mut seen = 0u64;
+    let mut last_total = 0;
+    tokio::time::timeout(T, async {
+        while seen < 1500 {
+            let e = fast.next().await.expect("the session goes on");
+            seen += 1;
+            if let SessionEvent::DeadlineMissed { total, .. } = e {
+                last_total = total;
+            }
+        }
+    })
+    .await
+    .expect("1500 events in time");
+    assert_eq!(fast.lost(), 0, "a listener that keeps up loses nothing");
+    let lost = slow.lost();
+    assert!(lost >= seen - 1024, "{lost} lost of at least {seen}");
+    // the slow one kept the newest: a full queue, starting well after the
+    // first miss
+    let mut kept = Vec::new();
+    while let Some(Some(e)) = slow.next().now_or_never() {
+        kept.push(e);
+        if kept.len() > 10_000 {
+            break;
+        }
+    }
+    assert!(kept.len() >= 1024, "a full queue: {}", kept.len());
+    assert!(
+        !kept
+            .iter()
+            .any(|e| matches!(e, SessionEvent::DeadlineMissed { total: 1, .. })),
+        "the oldest (the first miss) were dropped"
+    );
+    let newest = kept.iter().rev().find_map(|e| match e {
+        SessionEvent::DeadlineMissed { total, .. } => Some(*total),
+        _ => None,
+    });
+    assert!(newest >= Some(last_total), "{newest:?} < {last_total}");
+    // neither listener held up the session
+    p.publish(&msg(1)).await.unwrap();
+    assert_eq!(next(&mut sub).await.unwrap().value, msg(1));
+}
+
+/// Publishers of one topic with different QoS are DDS writers of their
+/// own: a reliable reader matches only the reliable one, a best-effort
+/// reader both, and each sample names its own writer.
+#[tokio::test]
+async fn publishers_of_one_topic_with_different_qos_are_writers_of_their_own() {
+    let a = session(171, "a").await;
+    let b = session(171, "b").await;
+    let reliable = a.publisher::<Msg>("multi").build().await.unwrap();
+    let fast = a
+        .publisher::<Msg>("multi")
+        .best_effort()
+        .build()
+        .await
+        .unwrap();
+    let mut strict = b.subscriber::<Msg>("multi").build().await.unwrap();
+    let mut any = b
+        .subscriber::<Msg>("multi")
+        .best_effort()
+        .build()
+        .await
+        .unwrap();
+    // the reliable writer matches both readers
+    await_handlers(&a, "multi", 2).await;
+    // the best-effort one reaches the best-effort reader
+    let fast_source = tokio::time::timeout(T, async {
+        loop {
+            fast.publish(&msg(100)).await.unwrap();
+            if let Ok(Some(s)) = tokio::time::timeout(Duration::from_millis(50), any.next()).await {
+                let s = s.unwrap();
+                if s.value.seq == 100 {
+                    break s.source;
+                }
+            }
+        }
+    })
+    .await
+    .expect("the best-effort writer reaches the best-effort reader");
+    reliable.publish(&msg(1)).await.unwrap();
+    let s = next(&mut strict).await.unwrap();
+    assert_eq!(
+        s.value.seq, 1,
+        "a reliable reader matches no best-effort writer"
+    );
+    let got = s.source;
+    assert!(got.is_some() && fast_source.is_some());
+    assert_ne!(got, fast_source, "two writers, two GUIDs");
 }
 
 #[tokio::test]

@@ -160,7 +160,7 @@ async fn query_serve_with_delayed_reply_and_many_concurrent_queries() {
     server.define::<i64>("squared").await.unwrap();
     let mut reqs = server.serve::<i32, i64>("square", "squared").await.unwrap();
     // Central hands a module at most `capacity` queries at once.
-    server.set_capacity(20).await.unwrap();
+    server.ipc().unwrap().set_capacity(20).await.unwrap();
     assert_eq!(
         tokio::time::timeout(T, client.num_handlers("square"))
             .await
@@ -231,9 +231,17 @@ async fn query_timeout_and_events() {
     assert!(matches!(e, QueryError::Timeout { .. }), "{e}");
     assert!(a.is_module_connected("watcher").await.unwrap());
     assert!(!a.is_module_connected("ghost").await.unwrap());
-    a.set_capacity(2).await.unwrap();
-    a.set_priority("nobody_serves", 3).await.unwrap();
-    a.set_queue_length("nobody_serves", 5).await.unwrap();
+    a.ipc().unwrap().set_capacity(2).await.unwrap();
+    a.ipc()
+        .unwrap()
+        .set_priority("nobody_serves", 3)
+        .await
+        .unwrap();
+    a.ipc()
+        .unwrap()
+        .set_queue_length("nobody_serves", 5)
+        .await
+        .unwrap();
     c.shutdown().await;
 }
 
@@ -531,7 +539,7 @@ async fn flood_a_subscriber(
     p.define::<i32>(msg).await.unwrap();
     let sub = s.subscribe_with::<i32>(msg, policy).await.unwrap();
     if let Some(n) = central_limit {
-        s.set_queue_length(msg, n).await.unwrap();
+        s.ipc().unwrap().set_queue_length(msg, n).await.unwrap();
     }
     p.num_handlers(msg).await.unwrap();
     tokio::time::sleep(Duration::from_millis(100)).await;

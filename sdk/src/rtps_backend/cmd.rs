@@ -4,6 +4,8 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use courier_wire::dds::{RequestId, ServiceId};
+
+use crate::backend::{ClientId, Handle, PubId, SubId};
 use courier_wire::rtps::participant::ChangeKind;
 use tokio::sync::{mpsc, oneshot, OwnedSemaphorePermit};
 
@@ -62,23 +64,23 @@ pub(super) enum Cmd {
         topic: String,
         ty: Box<TypeInfo>,
         qos: Box<PublicationQos>,
-        reply: Reply<(), OpenError>,
+        reply: Reply<PubId, OpenError>,
     },
     Subscription {
         topic: String,
         ty: Option<Box<TypeInfo>>,
         qos: Box<SubscriptionQos>,
         queue: Arc<SampleQueue>,
-        reply: Reply<(), OpenError>,
+        reply: Reply<SubId, OpenError>,
     },
     Pattern {
         topic: String,
         type_name: String,
         queue: Arc<SampleQueue>,
-        reply: Reply<(), OpenError>,
+        reply: Reply<SubId, OpenError>,
     },
     Write {
-        topic: Arc<str>,
+        publication: PubId,
         kind: ChangeKind,
         data: Vec<u8>,
         key_hash: Option<[u8; 16]>,
@@ -99,10 +101,14 @@ pub(super) enum Cmd {
     Close {
         reply: oneshot::Sender<()>,
     },
-    Query {
+    Client {
         name: String,
         req: Box<TypeInfo>,
         resp: Box<TypeInfo>,
+        reply: Reply<ClientId, OpenError>,
+    },
+    Query {
+        client: ClientId,
         data: Vec<u8>,
         timeout: Duration,
         reply: oneshot::Sender<Result<RawReply, QueryError>>,
@@ -112,8 +118,10 @@ pub(super) enum Cmd {
         req: Box<TypeInfo>,
         resp: Box<TypeInfo>,
         tx: mpsc::Sender<RawRequest>,
-        reply: Reply<(), OpenError>,
+        reply: Reply<crate::backend::ServiceId, OpenError>,
     },
+    /// A handle the application closed (dropped).
+    CloseHandle(Handle),
     Respond {
         service: ServiceId,
         data: Vec<u8>,
@@ -125,13 +133,13 @@ impl Cmd {
     /// A write that is not confirmed and holds its share of the queue
     /// budget until it enters the writer's history.
     pub(super) fn queued_write(
-        topic: Arc<str>,
+        publication: PubId,
         data: Vec<u8>,
         key_hash: Option<[u8; 16]>,
         permit: OwnedSemaphorePermit,
     ) -> Cmd {
         Cmd::Write {
-            topic,
+            publication,
             kind: ChangeKind::Alive,
             data,
             key_hash,

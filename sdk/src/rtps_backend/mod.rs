@@ -71,11 +71,14 @@ use courier_wire::rtps::{Guid, GuidPrefix, Locator, Time};
 use courier_wire::{cdr, IpcMessage};
 use tokio::sync::{mpsc, oneshot, OwnedSemaphorePermit, Semaphore};
 
+use crate::backend::{
+    Backend, Capabilities, ClientId, DdsControl, Handle, PubId, ServiceId, SubId,
+};
 use crate::busy_poll::BusyPoll;
 use crate::error::{ControlError, Failure, OpenError, PublishError};
 use crate::qos::{InstanceState, PublicationQos, SubscriptionQos, TypeInfo};
 use crate::session::{
-    Backend, ConnectError, Encoding, QueryError, RawReply, RawRequest, SampleQueue, SessionEvent,
+    ConnectError, Encoding, QueryError, RawReply, RawRequest, SampleQueue, SessionEvent,
     WriteOptions,
 };
 use cmd::{disconnected, queued_units, Cmd, Done, Reply, QUEUED_WRITE_UNIT, QUEUED_WRITE_UNITS};
@@ -122,9 +125,9 @@ pub struct RtpsBackend {
     /// thread): for writes that do not wait.
     shared: Arc<Shared>,
     cmd: mpsc::UnboundedSender<Cmd>,
-    /// Topics this session publishes (publications are never deleted): a
-    /// write to one of them cannot be refused, so it need not wait.
-    published: Mutex<HashMap<String, Arc<str>>>,
+    /// The open publications, with their topics: a write to one of them
+    /// cannot be refused, so it need not wait.
+    published: Mutex<HashMap<PubId, Arc<str>>>,
     queue_budget: Arc<Semaphore>,
     listeners: Listeners,
     guid_prefix: GuidPrefix,
@@ -132,7 +135,7 @@ pub struct RtpsBackend {
     participant_index: u32,
 }
 
-pub(crate) type Listeners = Arc<Mutex<Vec<mpsc::UnboundedSender<SessionEvent>>>>;
+pub(crate) type Listeners = crate::hub::Hub<SessionEvent>;
 
 impl RtpsBackend {
     /// Joins the domain: binds the sockets (probing participant indices),
@@ -183,7 +186,7 @@ impl RtpsBackend {
         let index = socks.index;
         let now = Instant::now();
         let (tx, rx) = mpsc::unbounded_channel();
-        let listeners: Listeners = Arc::default();
+        let listeners = Listeners::new(crate::hub::DEFAULT_CAPACITY);
         let responder = tx.downgrade();
         let st = State::new(
             Domain::new(cfg, now, SystemTime::now()),
@@ -264,39 +267,35 @@ impl RtpsBackend {
         self.participant_index
     }
 
-    /// The shared name of this session's publication `msg`, if it has one
-    /// (each write shares it instead of copying the name).
-    fn publication(&self, msg: &str) -> Option<Arc<str>> {
-        self.published
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .get(msg)
-            .cloned()
+    fn published(&self) -> std::sync::MutexGuard<'_, HashMap<PubId, Arc<str>>> {
+        self.published.lock().unwrap_or_else(|p| p.into_inner())
     }
 
-    /// What a write of `len` bytes to `msg` needs to go without waiting:
-    /// the publication's shared name and a share of the queue budget; or
-    /// why it cannot.
-    fn reserve(
-        &self,
-        msg: &str,
-        len: usize,
-    ) -> Result<(Arc<str>, OwnedSemaphorePermit), PublishError> {
-        let topic = self
-            .publication(msg)
-            .ok_or_else(|| PublishError::NoPublication(msg.to_string()))?;
+    /// The topic of the open publication `p` (each write shares the name
+    /// instead of copying it).
+    fn topic_of(&self, p: PubId) -> Result<Arc<str>, PublishError> {
+        self.published()
+            .get(&p)
+            .cloned()
+            .ok_or(PublishError::Closed(p))
+    }
+
+    /// What a write of `len` bytes to `p` needs to go without waiting:
+    /// a share of the queue budget; or why it cannot.
+    fn reserve(&self, p: PubId, len: usize) -> Result<OwnedSemaphorePermit, PublishError> {
+        let topic = self.topic_of(p)?;
         if len > MAX_WRITE_SIZE {
-            return Err(too_large(msg, len));
+            return Err(too_large(&topic, len));
         }
         let permit = self
             .queue_budget
             .clone()
             .try_acquire_many_owned(queued_units(len))
             .map_err(|_| PublishError::QueueFull {
-                msg: msg.to_string(),
+                msg: topic.to_string(),
                 bytes: QUEUED_WRITE_UNITS * QUEUED_WRITE_UNIT,
             })?;
-        Ok((topic, permit))
+        Ok(permit)
     }
 
     /// Queues an unconfirmed write of a known publication without
@@ -304,16 +303,16 @@ impl RtpsBackend {
     /// back for [`RtpsBackend::write_slow`].
     fn try_queue(
         &self,
-        msg: &str,
+        p: PubId,
         data: Vec<u8>,
         key_hash: Option<[u8; 16]>,
     ) -> Result<Result<(), PublishError>, Vec<u8>> {
-        let Ok((topic, permit)) = self.reserve(msg, data.len()) else {
+        let Ok(permit) = self.reserve(p, data.len()) else {
             return Err(data);
         };
         Ok(self
             .cmd
-            .send(Cmd::queued_write(topic, data, key_hash, permit))
+            .send(Cmd::queued_write(p, data, key_hash, permit))
             .map_err(|_| disconnected()))
     }
 
@@ -324,31 +323,30 @@ impl RtpsBackend {
     /// lets the driver and other tasks run.
     async fn queue_write(
         &self,
-        msg: &str,
+        p: PubId,
         data: Vec<u8>,
         opts: WriteOptions,
     ) -> Result<(), PublishError> {
         if opts.confirm.is_some() {
-            return self.write_slow(msg, data, opts).await;
+            return self.write_slow(p, data, opts).await;
         }
         tokio::task::consume_budget().await;
-        match self.try_queue(msg, data, opts.key_hash) {
+        match self.try_queue(p, data, opts.key_hash) {
             Ok(done) => done,
-            Err(data) => self.write_slow(msg, data, opts).await,
+            Err(data) => self.write_slow(p, data, opts).await,
         }
     }
 
     /// A write that may wait: for room in the queue budget, or for the
-    /// driver's answer (confirmed writes, unknown publications).
+    /// driver's answer (confirmed writes).
     async fn write_slow(
         &self,
-        msg: &str,
+        publication: PubId,
         data: Vec<u8>,
         opts: WriteOptions,
     ) -> Result<(), PublishError> {
-        let known = self.publication(msg);
-        let topic = known.clone().unwrap_or_else(|| Arc::from(msg));
-        if let (None, Some(topic)) = (opts.confirm, known) {
+        let topic = self.topic_of(publication)?;
+        if opts.confirm.is_none() {
             if data.len() > MAX_WRITE_SIZE {
                 return Err(too_large(&topic, data.len()));
             }
@@ -362,7 +360,7 @@ impl RtpsBackend {
             return self
                 .cmd
                 .send(Cmd::Write {
-                    topic,
+                    publication,
                     kind: ChangeKind::Alive,
                     data,
                     key_hash: opts.key_hash,
@@ -372,7 +370,7 @@ impl RtpsBackend {
                 .map_err(|_| disconnected());
         }
         self.ask(|reply| Cmd::Write {
-            topic,
+            publication,
             kind: ChangeKind::Alive,
             data,
             key_hash: opts.key_hash,
@@ -414,191 +412,61 @@ fn entropy() -> [u8; 10] {
     out
 }
 
+/// Why an RTPS backend cannot open something without its type.
+fn untyped(what: String) -> OpenError {
+    OpenError::Unsupported {
+        what,
+        backend: "rtps://",
+    }
+}
+
 #[async_trait::async_trait]
 impl Backend for RtpsBackend {
-    fn encoding(&self) -> Encoding {
-        Encoding::Cdr
+    fn capabilities(&self) -> Capabilities {
+        let mut c = Capabilities::new("rtps://", Encoding::Cdr);
+        c.instances = true;
+        c.confirmed_writes = true;
+        c.pattern_subscriptions = true;
+        c.immediate_delivery = true;
+        c.try_write = true;
+        c
     }
 
-    async fn define_format(&self, _name: &str, _format: &str) -> Result<(), OpenError> {
-        Ok(())
-    }
-
-    async fn define(&self, msg: &str, _format: Option<&str>) -> Result<(), OpenError> {
-        Err(OpenError::Unsupported {
-            what: format!(
-                "a publication of {msg} without its type (use Session::define::<T>() or \
-                 Session::publisher::<T>())"
-            ),
-            backend: "rtps://",
-        })
-    }
-
-    async fn publish(&self, msg: &str, data: Vec<u8>) -> Result<(), PublishError> {
-        self.queue_write(msg, data, WriteOptions::default()).await
-    }
-
-    async fn subscribe(&self, msg: &str, queue: Arc<SampleQueue>) -> Result<(), OpenError> {
-        self.create_subscription(msg, None, &SubscriptionQos::default(), queue)
-            .await
-    }
-
-    async fn query(
-        &self,
-        msg: &str,
-        _data: Vec<u8>,
-        _timeout: Duration,
-    ) -> Result<RawReply, QueryError> {
-        Err(QueryError::Open {
-            msg: msg.into(),
-            source: OpenError::Unsupported {
-                what: "a query without its types (use Session::query)".into(),
-                backend: "rtps://",
-            },
-        })
-    }
-
-    async fn serve(
-        &self,
-        msg: &str,
-        _queue: usize,
-    ) -> Result<mpsc::Receiver<RawRequest>, OpenError> {
-        Err(OpenError::Unsupported {
-            what: format!("serving {msg} without its types (use Session::serve)"),
-            backend: "rtps://",
-        })
-    }
-
-    async fn query_typed(
-        &self,
-        msg: &str,
-        req: &TypeInfo,
-        resp: &TypeInfo,
-        data: Vec<u8>,
-        timeout: Duration,
-    ) -> Result<RawReply, QueryError> {
-        let (tx, rx) = oneshot::channel();
-        let gone = || QueryError::Disconnected(msg.to_string());
-        self.cmd
-            .send(Cmd::Query {
-                name: msg.to_string(),
-                req: Box::new(req.clone()),
-                resp: Box::new(resp.clone()),
-                data,
-                timeout,
-                reply: tx,
-            })
-            .map_err(|_| gone())?;
-        rx.await.map_err(|_| gone())?
-    }
-
-    async fn serve_typed(
-        &self,
-        msg: &str,
-        req: &TypeInfo,
-        resp: &TypeInfo,
-        queue: usize,
-    ) -> Result<mpsc::Receiver<RawRequest>, OpenError> {
-        let (tx, rx) = mpsc::channel(queue.max(1));
-        let (name, req, resp) = (
-            msg.to_string(),
-            Box::new(req.clone()),
-            Box::new(resp.clone()),
-        );
-        self.ask(|reply| Cmd::Serve {
-            name,
-            req,
-            resp,
-            tx,
-            reply,
-        })
-        .await?;
-        Ok(rx)
-    }
-
-    fn events(&self) -> mpsc::UnboundedReceiver<SessionEvent> {
-        let (tx, rx) = mpsc::unbounded_channel();
-        if self.cmd.is_closed() {
-            let _ = tx.send(SessionEvent::Disconnected);
-        } else {
-            self.listeners.lock().unwrap().push(tx);
-        }
-        rx
-    }
-
-    async fn is_module_connected(&self, module: &str) -> Result<bool, ControlError> {
-        let name = module.to_string();
-        self.ask(|reply| Cmd::ModuleConnected { name, reply }).await
-    }
-
-    async fn num_handlers(&self, msg: &str) -> Result<i32, ControlError> {
-        let topic = msg.to_string();
-        self.ask(|reply| Cmd::NumHandlers { topic, reply }).await
-    }
-
-    async fn set_capacity(&self, _n: i32) -> Result<(), ControlError> {
-        Err(no_dds_equivalent(
-            "IPC_setCapacity (no DDS equivalent: bound a subscription with its queue policy)"
-                .into(),
-        ))
-    }
-
-    async fn set_priority(&self, msg: &str, _priority: i32) -> Result<(), ControlError> {
-        Err(no_dds_equivalent(format!(
-            "IPC_setMsgPriority ({msg}; no DDS equivalent: use ownership strength)"
-        )))
-    }
-
-    async fn set_queue_length(&self, msg: &str, _n: i32) -> Result<(), ControlError> {
-        Err(no_dds_equivalent(format!(
-            "IPC_setMsgQueueLength ({msg}; no DDS equivalent: use History::KeepLast)"
-        )))
-    }
-
-    async fn watch_handlers(&self, msg: &str) -> Result<(), ControlError> {
-        self.cmd
-            .send(Cmd::Watch { topic: msg.into() })
-            .map_err(|_| disconnected())
-    }
-
-    async fn close(&self) {
-        let (tx, rx) = oneshot::channel();
-        if self.cmd.send(Cmd::Close { reply: tx }).is_ok() {
-            let _ = rx.await;
-        }
-    }
-
-    async fn create_publication(
+    async fn open_publication(
         &self,
         msg: &str,
         ty: &TypeInfo,
         qos: &PublicationQos,
-    ) -> Result<(), OpenError> {
+    ) -> Result<PubId, OpenError> {
+        if ty.is_untyped() {
+            return Err(untyped(format!(
+                "a publication of {msg} without its type (use Session::define::<T>() or \
+                 Session::publisher::<T>())"
+            )));
+        }
         let (topic, ty, qos) = (msg.to_string(), Box::new(ty.clone()), Box::new(qos.clone()));
-        self.ask(|reply| Cmd::Publication {
-            topic,
-            ty,
-            qos,
-            reply,
-        })
-        .await?;
-        self.published
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .insert(msg.to_string(), Arc::from(msg));
-        Ok(())
+        let id = self
+            .ask(|reply| Cmd::Publication {
+                topic,
+                ty,
+                qos,
+                reply,
+            })
+            .await?;
+        self.published().insert(id, Arc::from(msg));
+        Ok(id)
     }
 
-    async fn create_subscription(
+    async fn open_subscription(
         &self,
         msg: &str,
         ty: Option<&TypeInfo>,
         qos: &SubscriptionQos,
         queue: Arc<SampleQueue>,
-    ) -> Result<(), OpenError> {
+    ) -> Result<SubId, OpenError> {
         let (topic, ty, qos) = (
             msg.to_string(),
-            ty.cloned().map(Box::new),
+            ty.filter(|t| !t.is_untyped()).cloned().map(Box::new),
             Box::new(qos.clone()),
         );
         self.ask(|reply| Cmd::Subscription {
@@ -611,17 +479,56 @@ impl Backend for RtpsBackend {
         .await
     }
 
-    async fn subscribe_pattern(
+    async fn open_service(
         &self,
-        topic: &str,
-        type_name: &str,
-        queue: Arc<SampleQueue>,
-    ) -> Result<(), OpenError> {
-        let (topic, type_name) = (topic.to_string(), type_name.to_string());
-        self.ask(|reply| Cmd::Pattern {
-            topic,
-            type_name,
-            queue,
+        msg: &str,
+        req: &TypeInfo,
+        resp: &TypeInfo,
+        queue: usize,
+    ) -> Result<(ServiceId, mpsc::Receiver<RawRequest>), OpenError> {
+        if req.is_untyped() || resp.is_untyped() {
+            return Err(untyped(format!(
+                "serving {msg} without its types (use Session::serve)"
+            )));
+        }
+        let (tx, rx) = mpsc::channel(queue.max(1));
+        let (name, req, resp) = (
+            msg.to_string(),
+            Box::new(req.clone()),
+            Box::new(resp.clone()),
+        );
+        let id = self
+            .ask(|reply| Cmd::Serve {
+                name,
+                req,
+                resp,
+                tx,
+                reply,
+            })
+            .await?;
+        Ok((id, rx))
+    }
+
+    async fn open_client(
+        &self,
+        msg: &str,
+        req: &TypeInfo,
+        resp: &TypeInfo,
+    ) -> Result<ClientId, OpenError> {
+        if req.is_untyped() || resp.is_untyped() {
+            return Err(untyped(
+                "a query without its types (use Session::query)".into(),
+            ));
+        }
+        let (name, req, resp) = (
+            msg.to_string(),
+            Box::new(req.clone()),
+            Box::new(resp.clone()),
+        );
+        self.ask(|reply| Cmd::Client {
+            name,
+            req,
+            resp,
             reply,
         })
         .await
@@ -629,24 +536,26 @@ impl Backend for RtpsBackend {
 
     async fn write(
         &self,
-        msg: &str,
+        publication: PubId,
         data: Vec<u8>,
         opts: WriteOptions,
     ) -> Result<(), PublishError> {
-        self.queue_write(msg, data, opts).await
-    }
-
-    fn delivers_immediately(&self) -> bool {
-        true
+        self.queue_write(publication, data, opts).await
     }
 
     fn try_write(
         &self,
-        msg: &str,
+        publication: PubId,
         data: Vec<u8>,
-        key_hash: Option<[u8; 16]>,
+        opts: WriteOptions,
     ) -> Result<(), PublishError> {
-        let (topic, permit) = self.reserve(msg, data.len())?;
+        if opts.confirm.is_some() {
+            return Err(PublishError::Unsupported {
+                what: "a confirmed write that does not wait".into(),
+                backend: "rtps://",
+            });
+        }
+        let permit = self.reserve(publication, data.len())?;
         let now = Instant::now();
         let mut c = self.shared.lock();
         if c.close.is_some() {
@@ -654,7 +563,10 @@ impl Backend for RtpsBackend {
         }
         // what was queued before goes first
         c.take_commands(now);
-        c.st.command(Cmd::queued_write(topic, data, key_hash, permit), now);
+        c.st.command(
+            Cmd::queued_write(publication, data, opts.key_hash, permit),
+            now,
+        );
         if IN_CALLBACK.with(|t| t.get()) == self.shared.id() {
             // sent, packed with the callbacks' other writes, when they return
             return Ok(());
@@ -669,9 +581,72 @@ impl Backend for RtpsBackend {
         Ok(())
     }
 
+    async fn query(
+        &self,
+        client: ClientId,
+        data: Vec<u8>,
+        timeout: Duration,
+    ) -> Result<RawReply, QueryError> {
+        let (tx, rx) = oneshot::channel();
+        let gone = || QueryError::Disconnected(format!("{client:?}"));
+        self.cmd
+            .send(Cmd::Query {
+                client,
+                data,
+                timeout,
+                reply: tx,
+            })
+            .map_err(|_| gone())?;
+        rx.await.map_err(|_| gone())?
+    }
+
+    fn close_handle(&self, handle: Handle) {
+        if let Handle::Publication(p) = handle {
+            // writes that do not wait are refused from now on
+            self.published().remove(&p);
+        }
+        let _ = self.cmd.send(Cmd::CloseHandle(handle));
+    }
+
+    fn events(&self) -> crate::hub::Listener<SessionEvent> {
+        self.listeners.listen()
+    }
+
+    async fn close(&self) {
+        let (tx, rx) = oneshot::channel();
+        if self.cmd.send(Cmd::Close { reply: tx }).is_ok() {
+            let _ = rx.await;
+        }
+    }
+
+    fn dds(&self) -> Option<&dyn DdsControl> {
+        Some(self)
+    }
+}
+
+#[async_trait::async_trait]
+impl DdsControl for RtpsBackend {
+    async fn matched_readers(&self, topic: &str) -> Result<i32, ControlError> {
+        let topic = topic.to_string();
+        self.ask(|reply| Cmd::NumHandlers { topic, reply }).await
+    }
+
+    async fn watch_matches(&self, topic: &str) -> Result<(), ControlError> {
+        self.cmd
+            .send(Cmd::Watch {
+                topic: topic.into(),
+            })
+            .map_err(|_| disconnected())
+    }
+
+    async fn participant_named(&self, name: &str) -> Result<bool, ControlError> {
+        let name = name.to_string();
+        self.ask(|reply| Cmd::ModuleConnected { name, reply }).await
+    }
+
     async fn end_instance(
         &self,
-        msg: &str,
+        publication: PubId,
         state: InstanceState,
         key: Vec<u8>,
         key_hash: [u8; 16],
@@ -688,9 +663,9 @@ impl Backend for RtpsBackend {
             InstanceState::Disposed => ChangeKind::Disposed,
             InstanceState::Unregistered => ChangeKind::Unregistered,
         };
-        let topic = Arc::from(msg);
+        self.topic_of(publication)?;
         self.ask(|reply| Cmd::Write {
-            topic,
+            publication,
             kind,
             data: key,
             key_hash: Some(key_hash),
@@ -699,12 +674,21 @@ impl Backend for RtpsBackend {
         })
         .await
     }
-}
 
-fn no_dds_equivalent(what: String) -> ControlError {
-    ControlError::Unsupported {
-        what,
-        backend: "rtps://",
+    async fn open_pattern(
+        &self,
+        topic: &str,
+        type_name: &str,
+        queue: Arc<SampleQueue>,
+    ) -> Result<SubId, OpenError> {
+        let (topic, type_name) = (topic.to_string(), type_name.to_string());
+        self.ask(|reply| Cmd::Pattern {
+            topic,
+            type_name,
+            queue,
+            reply,
+        })
+        .await
     }
 }
 

@@ -11,8 +11,8 @@ use std::time::{Duration, Instant, SystemTime};
 use foldhash::{HashMap, HashMapExt, HashSet, HashSetExt};
 
 use courier_wire::dds::{
-    reply_topic, ClientId, ConfirmFailure, Domain, Event, PatternId, QueryFailure, QueryId,
-    ReaderId, ServiceConfig, ServiceId, WriterId,
+    reply_topic, ConfirmFailure, Domain, Event, PatternId, QueryFailure, QueryId, ReaderId,
+    ServiceConfig, WriterId,
 };
 use courier_wire::rtps::discovery::{
     Durability as WireDurability, Duration as RtpsDuration, EndpointQos, History as WireHistory,
@@ -26,6 +26,7 @@ use tokio::sync::{mpsc, oneshot};
 
 use super::cmd::{disconnected, Cmd, Done, Reply};
 use super::{guid_hex, system_time, Listeners};
+use crate::backend::{ClientId, Handle, PubId, ServiceId, SubId};
 use crate::error::{OpenError, PublishError};
 use crate::qos::{
     Durability, History, InstanceState, PublicationQos, Reliability, SubscriptionQos, TypeInfo,
@@ -42,13 +43,24 @@ struct PendingWrite {
     done: Done,
 }
 
-/// A publication: one writer per topic in a session.
+/// A publication: a writer of its own (a topic may have several, each
+/// with its own QoS).
 struct Publication {
     id: WriterId,
+    topic: String,
     type_name: String,
     /// Writes waiting for room in a full keep-all history, in order.
     pending: VecDeque<PendingWrite>,
+    /// The last sample written, for lingering.
+    last: Option<SequenceNumber>,
+    /// Closed by the application at this instant: deleted once what it
+    /// wrote is written and acknowledged, or after [`LINGER`].
+    closed: Option<Instant>,
 }
+
+/// How long a closed publication (service) waits at most for its readers
+/// to acknowledge what it wrote (its replies) before it is deleted.
+const LINGER: Duration = Duration::from_secs(10);
 
 /// Where a reader's samples go.
 struct Subscription {
@@ -65,7 +77,15 @@ struct Confirm {
     reply: Reply<(), PublishError>,
 }
 
+/// What a subscription handle deleted when closed.
+#[derive(Clone, Copy)]
+enum SubKind {
+    Reader(ReaderId),
+    Pattern(PatternId),
+}
+
 struct Server {
+    id: courier_wire::dds::ServiceId,
     name: String,
     tx: mpsc::Sender<RawRequest>,
     dropped: u64,
@@ -76,16 +96,20 @@ struct Query {
     reply: oneshot::Sender<Result<RawReply, QueryError>>,
 }
 
-/// Subscriptions dropped by the application are deleted this often.
+/// Writes waiting for room in a history are retried this often (besides
+/// at once when the domain says the writer is writable).
 const HOUSEKEEPING: Duration = Duration::from_millis(200);
 
 pub(super) struct State {
     pub(super) d: Domain,
     name: String,
     pub(super) listeners: Listeners,
-    writers: HashMap<String, Publication>,
+    /// Handle numbers, shared by every kind.
+    next_handle: u64,
+    writers: HashMap<PubId, Publication>,
     subs: HashMap<ReaderId, Subscription>,
     patterns: HashMap<PatternId, Arc<SampleQueue>>,
+    sub_handles: HashMap<SubId, SubKind>,
     watched: HashSet<String>,
     /// `Sample::source` of the writers that delivered samples (their GUID
     /// in hex), made once per writer.
@@ -93,8 +117,11 @@ pub(super) struct State {
     confirms: HashMap<(WriterId, SequenceNumber), Confirm>,
     next_housekeeping: Instant,
     servers: HashMap<ServiceId, Server>,
-    /// The client of each service queried.
-    clients: HashMap<String, ClientId>,
+    /// Services the application closed, deleted at these instants (their
+    /// last replies go out meanwhile), in order.
+    closed_services: Vec<(courier_wire::dds::ServiceId, Instant)>,
+    /// Clients, with the service each queries.
+    clients: HashMap<ClientId, (String, courier_wire::dds::ClientId)>,
     queries: HashMap<QueryId, Query>,
     /// For responders: replies come back to the driver as commands.
     responder: mpsc::WeakUnboundedSender<Cmd>,
@@ -121,14 +148,17 @@ impl State {
             d,
             name: name.to_string(),
             listeners,
+            next_handle: 1,
             writers: HashMap::default(),
             subs: HashMap::new(),
             patterns: HashMap::new(),
+            sub_handles: HashMap::new(),
             watched: HashSet::new(),
             source_names: HashMap::new(),
             confirms: HashMap::new(),
             next_housekeeping: now,
             servers: HashMap::new(),
+            closed_services: Vec::new(),
             clients: HashMap::new(),
             queries: HashMap::new(),
             responder,
@@ -138,9 +168,13 @@ impl State {
         }
     }
 
+    fn handle(&mut self) -> u64 {
+        self.next_handle += 1;
+        self.next_handle - 1
+    }
+
     fn emit(&self, e: SessionEvent) {
-        let mut l = self.listeners.lock().unwrap();
-        l.retain(|tx| tx.send(e.clone()).is_ok());
+        self.listeners.send(e);
     }
 
     pub(super) fn next_wakeup(&self) -> Instant {
@@ -171,41 +205,90 @@ impl State {
         }
         if now >= self.next_housekeeping {
             self.next_housekeeping = now + HOUSEKEEPING;
-            self.drop_abandoned(now);
-            let topics: Vec<String> = self
+            let waiting: Vec<PubId> = self
                 .writers
                 .iter()
                 .filter(|(_, w)| !w.pending.is_empty())
-                .map(|(t, _)| t.clone())
+                .map(|(p, _)| *p)
                 .collect();
-            for t in topics {
-                self.retry_pending(&t, now);
+            for p in waiting {
+                self.retry_pending(p, now);
+            }
+            self.delete_lingering(now);
+        }
+    }
+
+    /// Deletes what a handle the application closed stands for.
+    fn close_handle(&mut self, h: Handle, now: Instant) {
+        match h {
+            Handle::Publication(p) => {
+                // what was published before the close still reaches the
+                // readers: the writer lingers until it is acknowledged
+                if let Some(w) = self.writers.get_mut(&p) {
+                    w.closed.get_or_insert(now);
+                }
+                self.delete_lingering(now);
+            }
+            Handle::Subscription(id) => match self.sub_handles.remove(&id) {
+                Some(SubKind::Reader(r)) => {
+                    self.subs.remove(&r);
+                    self.d.delete_reader(r, now);
+                }
+                Some(SubKind::Pattern(p)) => {
+                    self.patterns.remove(&p);
+                    self.subs.retain(|_, s| s.pattern != Some(p));
+                    self.d.delete_pattern(p, now);
+                }
+                None => {}
+            },
+            Handle::Service(id) => {
+                // no more requests; replies already given still go out
+                // (and are repaired) before the service is deleted
+                if let Some(srv) = self.servers.remove(&id) {
+                    self.closed_services.push((srv.id, now + LINGER));
+                }
+            }
+            Handle::Client(id) => {
+                if let Some((_, c)) = self.clients.remove(&id) {
+                    self.d.delete_client(c, now);
+                }
             }
         }
     }
 
-    /// Deletes the readers of subscriptions the application dropped.
-    fn drop_abandoned(&mut self, now: Instant) {
-        let gone: Vec<ReaderId> = self
-            .subs
+    /// Deletes the closed publications that are done: nothing waits to be
+    /// written and every reader acknowledged the rest (or [`LINGER`] is
+    /// over).
+    fn delete_lingering(&mut self, now: Instant) {
+        let done: Vec<PubId> = self
+            .writers
             .iter()
-            .filter(|(_, s)| s.pattern.is_none() && s.queue.is_receiver_gone())
-            .map(|(r, _)| *r)
-            .collect();
-        for r in gone {
-            self.subs.remove(&r);
-            self.d.delete_reader(r, now);
-        }
-        let gone: Vec<PatternId> = self
-            .patterns
-            .iter()
-            .filter(|(_, q)| q.is_receiver_gone())
+            .filter(|(_, w)| {
+                w.closed.is_some_and(|at| {
+                    now >= at + LINGER
+                        || (w.pending.is_empty()
+                            && w.last.is_none_or(|sn| {
+                                self.d.participant().is_acked_by_all(w.id.guid(), sn)
+                            }))
+                })
+            })
             .map(|(p, _)| *p)
             .collect();
-        for p in gone {
-            self.patterns.remove(&p);
-            self.subs.retain(|_, s| s.pattern != Some(p));
-            self.d.delete_pattern(p, now);
+        for p in done {
+            let Some(w) = self.writers.remove(&p) else {
+                continue;
+            };
+            for pw in w.pending {
+                pw.done.send(Err(PublishError::Closed(p)));
+            }
+            self.d.delete_writer(w.id, now);
+        }
+        while let Some(&(srv, at)) = self.closed_services.first() {
+            if now < at {
+                break;
+            }
+            self.closed_services.remove(0);
+            self.d.delete_service(srv, now);
         }
     }
 
@@ -229,11 +312,8 @@ impl State {
             let _ = q.reply.send(Err(QueryError::Disconnected(q.name)));
         }
         self.servers.clear(); // ends every Requests stream
-        let mut l = self.listeners.lock().unwrap();
-        for tx in l.iter() {
-            let _ = tx.send(SessionEvent::Disconnected);
-        }
-        l.clear();
+        self.listeners.send(SessionEvent::Disconnected);
+        self.listeners.close();
     }
 
     /// The queues with callbacks, for their end markers (at close).
@@ -267,7 +347,7 @@ impl State {
                 reply,
             } => {
                 queue.return_buffers_to(&self.returns);
-                let r = match ty {
+                let kind = match ty {
                     Some(ty) => {
                         let cfg = EndpointConfig::reader(&topic, ty.type_name)
                             .keyed(ty.keyed)
@@ -284,6 +364,7 @@ impl State {
                                         pattern: None,
                                     },
                                 );
+                                SubKind::Reader(id)
                             })
                             .map_err(|source| OpenError::Endpoint {
                                 topic: topic.clone(),
@@ -296,10 +377,10 @@ impl State {
                             .d
                             .create_pattern(&topic, "*", subscription_qos(&qos), now);
                         self.patterns.insert(p, queue);
-                        Ok(())
+                        Ok(SubKind::Pattern(p))
                     }
                 };
-                let _ = reply.send(r);
+                let _ = reply.send(kind.map(|k| self.sub_handle(k)));
             }
             Cmd::Pattern {
                 topic,
@@ -312,18 +393,18 @@ impl State {
                 q.history = WireHistory::KeepAll;
                 let p = self.d.create_pattern(&topic, &type_name, q, now);
                 self.patterns.insert(p, queue);
-                let _ = reply.send(Ok(()));
+                let _ = reply.send(Ok(self.sub_handle(SubKind::Pattern(p))));
             }
             Cmd::Write {
-                topic,
+                publication,
                 kind,
                 data,
                 key_hash,
                 confirm,
                 done,
             } => {
-                let Some(w) = self.writers.get_mut(&*topic) else {
-                    done.send(Err(PublishError::NoPublication(topic.to_string())));
+                let Some(w) = self.writers.get_mut(&publication) else {
+                    done.send(Err(PublishError::Closed(publication)));
                     return;
                 };
                 let pw = PendingWrite {
@@ -337,8 +418,8 @@ impl State {
                     w.pending.push_back(pw);
                     return;
                 }
-                if let Some(pw) = self.try_write(&topic, pw, now) {
-                    if let Some(w) = self.writers.get_mut(&*topic) {
+                if let Some(pw) = self.try_write(publication, pw, now) {
+                    if let Some(w) = self.writers.get_mut(&publication) {
                         w.pending.push_back(pw);
                     }
                 }
@@ -359,6 +440,27 @@ impl State {
                 self.watched.insert(topic);
             }
             Cmd::Close { .. } => {}
+            Cmd::CloseHandle(h) => self.close_handle(h, now),
+            Cmd::Client {
+                name,
+                req,
+                resp,
+                reply,
+            } => {
+                let r = self
+                    .d
+                    .create_client(&service_config(&name, &req, &resp), now)
+                    .map(|c| {
+                        let id = ClientId(self.handle());
+                        self.clients.insert(id, (name.clone(), c));
+                        id
+                    })
+                    .map_err(|source| OpenError::Endpoint {
+                        topic: name.clone(),
+                        source,
+                    });
+                let _ = reply.send(r);
+            }
             Cmd::Serve {
                 name,
                 req,
@@ -378,19 +480,16 @@ impl State {
                 let _ = self.d.reply(service, request, data, now);
             }
             Cmd::Query {
-                name,
-                req,
-                resp,
+                client,
                 data,
                 timeout,
                 reply,
             } => {
-                let client = match self.client(&name, &req, &resp, now) {
-                    Ok(c) => c,
-                    Err(source) => {
-                        let _ = reply.send(Err(QueryError::Open { msg: name, source }));
-                        return;
-                    }
+                let Some((name, client)) = self.clients.get(&client).cloned() else {
+                    let _ = reply.send(Err(QueryError::Disconnected(format!(
+                        "{client:?} (closed)"
+                    ))));
+                    return;
                 };
                 match self.d.query(client, data, timeout, now) {
                     Ok(q) => {
@@ -417,7 +516,7 @@ impl State {
         resp: &TypeInfo,
         tx: mpsc::Sender<RawRequest>,
         now: Instant,
-    ) -> Result<(), OpenError> {
+    ) -> Result<ServiceId, OpenError> {
         if self.servers.values().any(|s| s.name == name) {
             return Err(OpenError::AlreadyServed(name));
         }
@@ -428,44 +527,36 @@ impl State {
                 topic: name.clone(),
                 source,
             })?;
+        let handle = ServiceId(self.handle());
         self.servers.insert(
-            id,
+            handle,
             Server {
+                id,
                 name,
                 tx,
                 dropped: 0,
             },
         );
-        Ok(())
+        Ok(handle)
     }
 
-    /// The client for querying `name`.
-    fn client(
-        &mut self,
-        name: &str,
-        req: &TypeInfo,
-        resp: &TypeInfo,
-        now: Instant,
-    ) -> Result<ClientId, OpenError> {
-        if let Some(c) = self.clients.get(name) {
-            return Ok(*c);
-        }
-        let c = self
-            .d
-            .create_client(&service_config(name, req, resp), now)
-            .map_err(|source| OpenError::Endpoint {
-                topic: name.to_string(),
-                source,
-            })?;
-        self.clients.insert(name.to_string(), c);
-        Ok(c)
+    fn sub_handle(&mut self, kind: SubKind) -> SubId {
+        let id = SubId(self.handle());
+        self.sub_handles.insert(id, kind);
+        id
     }
 
-    /// Readers of `topic`: those matched with our writer, else every
-    /// known remote reader of it plus our own.
+    /// Readers of `topic`: those matched with our writers of it (the most
+    /// any one has), else every known remote reader of it plus our own.
     fn handlers(&self, topic: &str) -> i32 {
-        let n = match self.writers.get(topic) {
-            Some(w) => self.d.matched_readers(w.id),
+        let ours = self
+            .writers
+            .values()
+            .filter(|w| w.topic == topic)
+            .map(|w| self.d.matched_readers(w.id))
+            .max();
+        let n = match ours {
+            Some(n) => n,
             None => {
                 self.d
                     .participant()
@@ -484,11 +575,13 @@ impl State {
         ty: &TypeInfo,
         qos: &PublicationQos,
         now: Instant,
-    ) -> Result<(), OpenError> {
-        if let Some(w) = self.writers.get(&topic) {
-            if w.type_name == ty.type_name {
-                return Ok(());
-            }
+    ) -> Result<PubId, OpenError> {
+        // one topic, one type (DDS: a topic is created with its type)
+        if let Some(w) = self
+            .writers
+            .values()
+            .find(|w| w.topic == topic && w.type_name != ty.type_name)
+        {
             return Err(OpenError::TypeConflict {
                 msg: topic,
                 existing: w.type_name.clone(),
@@ -505,26 +598,30 @@ impl State {
                 topic: topic.clone(),
                 source,
             })?;
+        let handle = PubId(self.handle());
         self.writers.insert(
-            topic,
+            handle,
             Publication {
                 id,
+                topic,
                 type_name: ty.type_name.to_string(),
                 pending: VecDeque::new(),
+                last: None,
+                closed: None,
             },
         );
-        Ok(())
+        Ok(handle)
     }
 
     /// Writes now, or gives the write back when the history is full.
     fn try_write(
         &mut self,
-        topic: &str,
+        publication: PubId,
         mut pw: PendingWrite,
         now: Instant,
     ) -> Option<PendingWrite> {
-        let Some(w) = self.writers.get(topic) else {
-            pw.done.send(Err(disconnected()));
+        let Some(w) = self.writers.get_mut(&publication) else {
+            pw.done.send(Err(PublishError::Closed(publication)));
             return None;
         };
         let id = w.id;
@@ -536,6 +633,7 @@ impl State {
         let mut change = Change::alive_owned(std::mem::take(&mut pw.data));
         change.kind = pw.kind;
         change.key_hash = pw.key_hash.map(KeyHash);
+        let topic = w.topic.as_str();
         let refused = |source: participant::WriteError| PublishError::Writer {
             topic: topic.to_string(),
             source,
@@ -544,6 +642,7 @@ impl State {
             (Some(after), Done::Reply(reply)) => {
                 match self.d.write_confirmed(id, change, after, now) {
                     Ok(sn) => {
+                        w.last = Some(sn);
                         self.confirms.insert(
                             (id, sn),
                             Confirm {
@@ -558,20 +657,26 @@ impl State {
                     }
                 }
             }
-            (_, done) => done.send(self.d.write(id, change, now).map(drop).map_err(refused)),
+            (_, done) => {
+                let r = self.d.write(id, change, now);
+                if let Ok(sn) = r {
+                    w.last = Some(sn);
+                }
+                done.send(r.map(drop).map_err(refused))
+            }
         }
         None
     }
 
     /// Retries the writes to `topic` that waited for room in its history.
-    fn retry_pending(&mut self, topic: &str, now: Instant) {
+    fn retry_pending(&mut self, publication: PubId, now: Instant) {
         while let Some(pw) = self
             .writers
-            .get_mut(topic)
+            .get_mut(&publication)
             .and_then(|w| w.pending.pop_front())
         {
-            if let Some(back) = self.try_write(topic, pw, now) {
-                if let Some(w) = self.writers.get_mut(topic) {
+            if let Some(back) = self.try_write(publication, pw, now) {
+                if let Some(w) = self.writers.get_mut(&publication) {
                     w.pending.push_front(back);
                 }
                 break;
@@ -579,11 +684,12 @@ impl State {
         }
     }
 
-    fn writer_topic(&self, writer: WriterId) -> Option<String> {
+    /// The publication of `writer` and its topic.
+    fn publication_of(&self, writer: WriterId) -> Option<(PubId, &str)> {
         self.writers
             .iter()
             .find(|(_, w)| w.id == writer)
-            .map(|(t, _)| t.clone())
+            .map(|(p, w)| (*p, w.topic.as_str()))
     }
 
     /// Handles every event the domain has.
@@ -698,8 +804,8 @@ impl State {
                 }
             }
             Event::Writable { writer } => {
-                if let Some(t) = self.writer_topic(writer) {
-                    self.retry_pending(&t, now);
+                if let Some((p, _)) = self.publication_of(writer) {
+                    self.retry_pending(p, now);
                 }
             }
             Event::WriterMatched { writer, .. } | Event::WriterUnmatched { writer, .. } => {
@@ -772,10 +878,11 @@ impl State {
     }
 
     fn handlers_changed(&self, writer: WriterId) {
-        if let Some(topic) = self.writer_topic(writer) {
-            if self.watched.contains(&topic) {
-                let count = self.handlers(&topic);
-                self.emit(SessionEvent::HandlersChanged { msg: topic, count });
+        if let Some((_, topic)) = self.publication_of(writer) {
+            if self.watched.contains(topic) {
+                let msg = topic.to_string();
+                let count = self.handlers(&msg);
+                self.emit(SessionEvent::HandlersChanged { msg, count });
             }
         }
     }
@@ -783,11 +890,11 @@ impl State {
     /// A request for one of our services: to its `Requests` stream.
     fn request(
         &mut self,
-        service: ServiceId,
+        service: courier_wire::dds::ServiceId,
         request: courier_wire::dds::RequestId,
         s: participant::ReceivedSample,
     ) {
-        let Some(srv) = self.servers.get_mut(&service) else {
+        let Some(srv) = self.servers.values_mut().find(|s| s.id == service) else {
             return;
         };
         let cmd = self.responder.clone();
