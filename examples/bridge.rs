@@ -16,20 +16,18 @@ async fn bridge(
     from: &Session,
     to: &Session,
     msgs: &[(String, String)],
-) -> Result<(), courier::SessionError> {
+) -> Result<(), courier::Error> {
     let mut tasks = Vec::new();
     for (name, fmt) in msgs {
         let fmt = (!fmt.is_empty()).then_some(fmt.as_str());
-        from.backend().define(name, fmt).await?;
-        to.backend().define(name, fmt).await?;
+        from.ipc()?.define(name, fmt).await?;
+        to.ipc()?.define(name, fmt).await?;
         let mut rx = from.subscribe_raw(name).await?;
         let to = to.clone();
         let name = name.clone();
         tasks.push(tokio::spawn(async move {
+            // None: the first central went away
             while let Some(s) = rx.recv().await {
-                if s.msg.is_empty() {
-                    break; // the first central went away
-                }
                 if let Err(e) = to.publish_raw(&name, &s.data).await {
                     eprintln!("bridge: {name}: {e}");
                     break;

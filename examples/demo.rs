@@ -89,7 +89,7 @@ async fn module2(
 async fn module1(url: String) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
     let s = Session::builder(url).name("module1").connect().await?;
     println!("module1 | connected (TCP, as a C module would)");
-    s.define_format::<T2>().await?;
+    s.ipc()?.define_formats::<T2>().await?;
     s.define::<i32>("message1").await?;
     s.define::<T1>("query1").await?;
     let mut msg2 = s.subscribe::<String>("message2").await?;

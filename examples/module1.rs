@@ -24,7 +24,7 @@ async fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!("module1: connected");
     // As in C, module1 registers both named formats (module2 defines
     // response1 as "T2" and relies on central knowing it).
-    s.define_format::<T2>().await?;
+    s.ipc()?.define_formats::<T2>().await?;
     s.define::<i32>("message1").await?;
     s.define::<T1>("query1").await?;
     let mut msg2 = s.subscribe::<String>("message2").await?;

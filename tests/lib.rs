@@ -1,3 +1,4 @@
 //! Shared helpers for Courier integration tests.
 
+pub mod domains;
 pub mod peers;

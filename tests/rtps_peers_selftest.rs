@@ -7,7 +7,7 @@
 //!
 //! Loopback only: the peers run nothing but their built-in configuration
 //! (interface `lo`, unicast discovery to 127.0.0.1, no multicast). Each test
-//! has its own domain id, 100 to 115. Missing tools or packages fail the
+//! has its own domain id, leased machine-wide (`courier_tests::domains`). Missing tools or packages fail the
 //! tests (`.ci/run` installs them); nothing is skipped.
 
 use std::path::PathBuf;
@@ -72,6 +72,7 @@ const SYNCED: &[&str] = &["--wait-match", "1", "--wait-stdin", "--settle-ms", "5
 /// acknowledged. Fragmented: Cyclone sends a sample as about 150 DATA_FRAGs
 /// of 1344 bytes, Fast DDS as 4 of about 64 KB.
 fn reliable_200k(publisher: Vendor, subscriber: Vendor, domain: u32) {
+    let domain = courier_tests::domains::lease(domain);
     const SIZE: usize = 200 * 1024;
     let topic = format!("selftest_big_{domain}");
     let mut sub = subscriber.start(
@@ -125,6 +126,7 @@ fn reliable_200k(publisher: Vendor, subscriber: Vendor, domain: u32) {
 
 /// Small best-effort samples: whatever arrives arrives intact and in order.
 fn best_effort(publisher: Vendor, subscriber: Vendor, domain: u32) {
+    let domain = courier_tests::domains::lease(domain);
     const SIZE: usize = 64;
     let topic = format!("selftest_be_{domain}");
     let mut sub = subscriber.start(
@@ -173,6 +175,7 @@ fn best_effort(publisher: Vendor, subscriber: Vendor, domain: u32) {
 /// disposals (the others may be reported unregistered if the writer has gone
 /// by the time the subscriber takes them).
 fn keyed_dispose(publisher: Vendor, subscriber: Vendor, domain: u32) {
+    let domain = courier_tests::domains::lease(domain);
     let topic = format!("selftest_keyed_{domain}");
     let mut sub = subscriber.start(
         domain,
@@ -235,6 +238,7 @@ fn keyed_dispose(publisher: Vendor, subscriber: Vendor, domain: u32) {
 /// A transient-local writer (keep last 3) writes 5 samples with no reader
 /// around; a reader started afterwards gets the last 3.
 fn transient_local_late_joiner(publisher: Vendor, subscriber: Vendor, domain: u32) {
+    let domain = courier_tests::domains::lease(domain);
     let topic = format!("selftest_tl_{domain}");
     let mut publ = publisher.start(
         domain,

@@ -1,12 +1,7 @@
-//! Courier's servers. Today: `central`, a drop-in replacement for CMU IPC's
-//! central server, as a library to embed ([`CentralServer`]) and as the
-//! `central` binary.
-//!
-//! The protocol lives in [`courier_wire::ipc::central`] as a sans-I/O state
-//! machine; this crate is its tokio shell. It owns the sockets — TCP on the
-//! port (default 1381) and the UNIX socket `/tmp/x_ipc/<port>` that C modules
-//! prefer on the local host — plus [access control](access), back-pressure
-//! and clean shutdown.
+//! Courier's servers and tools: the `central` binary (CMU IPC's central
+//! server), the `courier` CLI, and, as a library, the embedded central they
+//! are built on, which lives in [`courier::central`] (cargo feature
+//! `central` of `courier`) and is re-exported here unchanged.
 //!
 //! ```
 //! # #[tokio::main(flavor = "current_thread")]
@@ -15,75 +10,16 @@
 //! use courier_broker::{CentralServer, LogSink};
 //!
 //! let central = CentralServer::builder()
-//!     .bind("127.0.0.1".parse()?)
-//!     .port(0) // any free port
+//!     .port(0) // any free port, on 127.0.0.1
 //!     .log_sink(LogSink::discard())
 //!     .spawn()
 //!     .await?;
-//! let addr = central.local_addr();
-//! // Central speaks first: the 4-byte id of x_ipc_msgInfoMsg (ipc.md §4).
-//! let mut module = tokio::net::TcpStream::connect(addr).await?;
-//! let mut first = [0u8; 4];
-//! tokio::time::timeout(
-//!     Duration::from_secs(5),
-//!     tokio::io::AsyncReadExt::read_exact(&mut module, &mut first),
-//! )
-//! .await??;
-//! // … C modules connect with CENTRALHOST=127.0.0.1:<port> …
+//! let module = central.session("module1").connect().await?;
+//! module.close().await;
 //! tokio::time::timeout(Duration::from_secs(5), central.shutdown()).await?;
 //! # Ok(()) }
 //! ```
-//!
-//! # How the shell is built
-//! One task owns the [`Central`] state machine; nothing else touches it.
-//! Per connection, a reader task reads into a 64 KiB buffer and hands the
-//! buffer to the central task over a channel; the central task feeds the
-//! bytes to [`Central::receive`] and gives the buffer back, so no
-//! allocation happens per read. A writer task per connection writes what
-//! central transmits (`TCP_NODELAY` on). While [`Output::PauseRead`] is in
-//! force the central task simply keeps the connection's buffer, so the
-//! reader stops reading and TCP back-pressure reaches the module; this is how
-//! memory stays bounded when a subscriber is slow.
-//!
-//! Two shortcuts keep the round trip short: the frames central produces for
-//! one connection while handling a batch of events are written together
-//! with one vectored write, and that write is tried directly from the
-//! central task when the connection's writer has nothing queued (otherwise
-//! the bytes are queued to the writer task, in order).
-//!
-//! A module of the hosting process can skip the sockets:
-//! [`CentralHandle::session`] connects a `Session` over an in-process link,
-//! a pair of bounded byte pipes served by the same reader and writer tasks
-//! (see [`InProcessStream`]).
-//!
-//! # Deviations from the C central
-//! - `--bind` chooses the listening address; C always listens on all
-//!   interfaces.
-//! - A stale `/tmp/x_ipc/<port>` is removed only if nobody answers on it;
-//!   if another server does, starting fails (C unlinks it unconditionally).
-//! - Access control is always compiled in (C needs `ACCESS_CONTROL=1`);
-//!   see [`access`] for the rule language and its deviations.
-//! - Peers on the UNIX socket are subject to the rules as local clients
-//!   (C never checks them).
 #![warn(missing_docs)]
+#![deny(unsafe_code)]
 
-pub mod access;
-mod inproc;
-mod server;
-
-pub use courier_wire::ipc::central::{
-    Central, Config, ConnId, LogOptions, LogTarget, OptionError, Output, Peer, Stats,
-};
-pub use inproc::InProcessStream;
-pub use server::{BindError, Builder, CentralHandle, CentralServer, LogSink};
-
-/// The C central's port (`SERVER_PORT`).
-pub const DEFAULT_PORT: u16 = 1381;
-
-/// The directory of the C library's UNIX sockets (`UNIX_DIR_NAME`).
-pub const UNIX_SOCKET_DIR: &str = "/tmp/x_ipc";
-
-/// The UNIX socket path the C library uses for a port: `/tmp/x_ipc/<port>`.
-pub fn unix_path(port: u16) -> std::path::PathBuf {
-    std::path::Path::new(UNIX_SOCKET_DIR).join(port.to_string())
-}
+pub use courier::central::*;

@@ -31,7 +31,17 @@ impl Central {
 
     /// The same in working directory `dir` (where automatic log files go).
     fn start_in(dir: &Path, extra: &[&str], stdin: Stdio) -> Central {
-        let mut child = Command::new(BIN)
+        Central::start_env(dir, extra, stdin, None)
+    }
+
+    /// The same with `RUST_LOG` set to `rust_log` (`None`: unset).
+    fn start_env(dir: &Path, extra: &[&str], stdin: Stdio, rust_log: Option<&str>) -> Central {
+        let mut cmd = Command::new(BIN);
+        match rust_log {
+            Some(v) => cmd.env("RUST_LOG", v),
+            None => cmd.env_remove("RUST_LOG"),
+        };
+        let mut child = cmd
             .current_dir(dir)
             .args(["-p0", "--bind", "127.0.0.1", "--no-unix-socket"])
             .args(extra)
@@ -311,6 +321,30 @@ fn starts_accepts_and_exits_0_on_sigterm() {
     // Central closed the modules' connections on the way out.
     read_to_eof(&mut s);
     read_to_eof(&mut m.sock);
+}
+
+/// `RUST_LOG` chooses central's diagnostics on stderr; one that does not
+/// parse is named and the default kept.
+#[test]
+fn rust_log_is_honoured_and_a_bad_one_named() {
+    let mut c = Central::start_env(&temp(""), &["-u"], Stdio::null(), Some("debug"));
+    let m = c.module("log-test");
+    drop(m);
+    c.wait_line(|l| l.contains("modName : log-test"));
+    c.signal(libc::SIGTERM);
+    let (code, err) = c.wait_exit();
+    assert_eq!(code, Some(0), "{err}");
+    assert!(
+        err.contains("DEBUG"),
+        "debug lines with RUST_LOG=debug:\n{err}"
+    );
+
+    let c = Central::start_env(&temp(""), &["-u"], Stdio::null(), Some("=x=y"));
+    c.signal(libc::SIGTERM);
+    let (code, err) = c.wait_exit();
+    assert_eq!(code, Some(0), "{err}");
+    assert!(err.contains("RUST_LOG=\"=x=y\" ignored"), "{err}");
+    assert!(!err.contains("DEBUG"), "{err}");
 }
 
 #[test]

@@ -1,6 +1,6 @@
 //! The `courier` CLI as a user runs it: `ping` publisher and subscriber
 //! processes, `spy` watching them, over RTPS on loopback (each test its own
-//! domain, 200–215, unicast discovery on 127.0.0.1 only) and over IPC
+//! domain, leased machine-wide by `courier_tests::domains`, unicast discovery on 127.0.0.1 only) and over IPC
 //! through an embedded central; usage errors. Every child is killed and
 //! reaped when its guard drops, and every wait is bounded.
 
@@ -12,8 +12,10 @@ use std::time::{Duration, Instant};
 /// Bound of every wait (a passing test takes well under it).
 const T: Duration = Duration::from_secs(10);
 
-/// A loopback-only RTPS URL: unicast discovery to 127.0.0.1 on `lo`.
-fn url(domain: u32) -> String {
+/// A loopback-only RTPS URL (unicast discovery to 127.0.0.1 on `lo`) on
+/// the domain leased to `key` (see `courier_tests::domains`).
+fn url(key: u32) -> String {
+    let domain = courier_tests::domains::lease(key);
     format!("rtps://{domain}?interface=lo&peers=127.0.0.1")
 }
 

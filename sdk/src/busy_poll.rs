@@ -28,11 +28,22 @@
 //! woken `block_on` future, while it runs a woken task straight from its
 //! queue (the benchmarks do so).
 
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use tokio::sync::Notify;
+
+/// How many busy pollers of this process are spinning right now.
+static SPINNING: AtomicUsize = AtomicUsize::new(0);
+
+/// How many busy pollers of this process (sessions' and an embedded
+/// central's) are spinning right now rather than waiting for activity: 0
+/// once every window since the last message has passed. A diagnostic, and
+/// how the tests check that idle busy polling costs nothing.
+pub fn spinning() -> usize {
+    SPINNING.load(Ordering::Acquire)
+}
 
 struct Shared {
     window_ns: u64,
@@ -159,19 +170,43 @@ impl Drop for BusyPoll {
 /// out a scheduler time slice).
 const YIELD_EVERY: u32 = 8;
 
+impl Shared {
+    /// Marks the spinner spinning or waiting, keeping [`SPINNING`] in step.
+    fn set_spinning(&self, on: bool) {
+        if self.spinning.swap(on, Ordering::AcqRel) != on {
+            if on {
+                SPINNING.fetch_add(1, Ordering::AcqRel);
+            } else {
+                SPINNING.fetch_sub(1, Ordering::AcqRel);
+            }
+        }
+    }
+}
+
+/// Counts the spinner out of [`SPINNING`] however its task ends (closed,
+/// or dropped with its runtime while spinning).
+struct Parked(Arc<Shared>);
+
+impl Drop for Parked {
+    fn drop(&mut self) {
+        self.0.set_spinning(false);
+    }
+}
+
 async fn spin(s: Arc<Shared>) {
+    let _parked = Parked(s.clone());
     let mut turns = 0u32;
     loop {
         if s.closed.load(Ordering::Acquire) {
             return;
         }
         if s.idle() {
-            s.spinning.store(false, Ordering::Release);
+            s.set_spinning(false);
             // Activity between the check and the store above left a permit.
             if s.idle() {
                 s.wake.notified().await;
             }
-            s.spinning.store(true, Ordering::Release);
+            s.set_spinning(true);
             continue;
         }
         turns = turns.wrapping_add(1);

@@ -3,20 +3,27 @@
 //! `/tmp/x_ipc/<port>`; API calls reach it over a channel.
 
 use std::collections::HashMap;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use futures::future::BoxFuture;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::{mpsc, oneshot};
 
+use crate::backend::{
+    Backend, Capabilities, ClientId, Handle, IpcControl, PubId, ServiceId, SubId,
+};
 use crate::busy_poll::BusyPoll;
+use crate::error::{ControlError, Failure, OpenError, PublishError};
+use crate::hub::{Hub, Listener};
+use crate::qos::{PublicationQos, SubscriptionQos, TypeInfo};
 use crate::session::{
-    Backend, ConnectError, Encoding, QueryError, RawReply, RawRequest, RawSample, SampleQueue,
-    SessionError, SessionEvent,
+    ConnectError, Encoding, QueryError, RawReply, RawRequest, RawSample, Reply, ReplyFuture,
+    Responder, SampleQueue, SessionEvent, WriteOptions,
 };
 use courier_wire::ipc::module::{
-    Connection, DeliveryKind, Error as ModError, Event, LinkId, ModuleConfig, MsgLength, OpId,
+    Connection, DeliveryId, DeliveryKind, Error as ModError, Event, LinkId, ModuleConfig,
+    MsgLength, OpId,
 };
 use courier_wire::ipc::ByteOrder;
 
@@ -192,22 +199,27 @@ impl Default for IpcOptions {
 type Done<T> = oneshot::Sender<T>;
 
 enum Cmd {
-    DefineFormat(String, String, Done<Result<(), SessionError>>),
-    Define(String, Option<String>, Done<Result<(), SessionError>>),
-    Publish(String, Vec<u8>, Done<Result<(), SessionError>>),
-    Subscribe(String, Arc<SampleQueue>, Done<Result<(), SessionError>>),
+    DefineFormat(String, String, Done<Result<(), OpenError>>),
+    Define(String, Option<String>, Done<Result<(), OpenError>>),
+    Publish(String, Vec<u8>, Done<Result<(), PublishError>>),
+    Subscribe(String, Arc<SampleQueue>, SubId, Done<Result<(), OpenError>>),
     Serve(
         String,
         mpsc::Sender<RawRequest>,
-        Done<Result<(), SessionError>>,
+        ServiceId,
+        Done<Result<(), OpenError>>,
     ),
+    /// A `Subscriber`, `Listener` or `Requests` was dropped: unsubscribe.
+    CloseHandle(Handle),
     Query(u64, String, Vec<u8>, Done<Result<RawReply, QueryError>>),
     CancelQuery(u64),
     Ack(u64),
-    Respond(u64, String, Vec<u8>),
-    ModuleConnected(String, Done<Result<bool, SessionError>>),
-    NumHandlers(String, Done<Result<i32, SessionError>>),
-    Inform(InformOp, Done<Result<(), SessionError>>),
+    Respond(u64, String, Vec<u8>, Done<Result<(), PublishError>>),
+    /// A query delivery that will not be answered (its `Request` dropped).
+    Decline(u64),
+    ModuleConnected(String, Done<Result<bool, ControlError>>),
+    NumHandlers(String, Done<Result<i32, ControlError>>),
+    Inform(InformOp, Done<Result<(), ControlError>>),
     /// Subscribe central's connect/disconnect notifications (once).
     WatchModules,
     /// Direct mode: a peer connected to our listener.
@@ -217,7 +229,7 @@ enum Cmd {
     /// Direct mode: bytes read from a link (empty = closed).
     LinkData(LinkId, Vec<u8>),
     /// Subscribe handler-count changes of a message.
-    WatchHandlers(String, Done<Result<(), SessionError>>),
+    WatchHandlers(String, Done<Result<(), ControlError>>),
     Close(Done<()>),
 }
 
@@ -231,8 +243,16 @@ enum InformOp {
 pub struct IpcBackend {
     cmd: mpsc::UnboundedSender<Cmd>,
     addr: String,
-    events: Arc<Mutex<Vec<mpsc::UnboundedSender<SessionEvent>>>>,
+    events: Hub<SessionEvent>,
     next_query: std::sync::atomic::AtomicU64,
+    /// Handle numbers, shared by every kind.
+    next_handle: std::sync::atomic::AtomicU64,
+    /// Open publications and clients: the message each names (IPC keeps
+    /// nothing for them but the definition).
+    names: std::sync::Mutex<HashMap<Handle, Arc<str>>>,
+    /// Messages this session defined, with their format: another
+    /// publication of the same message shares the definition.
+    defined: std::sync::Mutex<HashMap<String, Option<String>>>,
 }
 
 impl std::fmt::Debug for IpcBackend {
@@ -546,7 +566,7 @@ impl IpcBackend {
         let (conn, io, listener) = handshake(&host, port, name, &opts).await?;
         let buf = vec![0u8; 64 * 1024];
         let (tx, rx) = mpsc::unbounded_channel();
-        let events = Arc::new(Mutex::new(Vec::new()));
+        let events = Hub::new(crate::hub::DEFAULT_CAPACITY);
         let driver = Driver {
             conn,
             io,
@@ -562,6 +582,7 @@ impl IpcBackend {
             servers: HashMap::new(),
             publishes: HashMap::new(),
             queries: HashMap::new(),
+            replies: HashMap::new(),
             query_ops: HashMap::new(),
             bools: HashMap::new(),
             counts: HashMap::new(),
@@ -579,7 +600,42 @@ impl IpcBackend {
             addr,
             events,
             next_query: std::sync::atomic::AtomicU64::new(1),
+            next_handle: std::sync::atomic::AtomicU64::new(1),
+            names: Default::default(),
+            defined: Default::default(),
         })
+    }
+
+    fn next_handle(&self) -> u64 {
+        self.next_handle
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+    }
+
+    fn names(&self) -> std::sync::MutexGuard<'_, HashMap<Handle, Arc<str>>> {
+        // every critical section is one map operation
+        self.names.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// The message an open publication or client names.
+    fn name_of(&self, h: Handle) -> Option<Arc<str>> {
+        self.names().get(&h).cloned()
+    }
+
+    /// Defines `msg` in central unless this session already did with
+    /// the same format.
+    async fn define_once(&self, msg: &str, format: Option<&str>) -> Result<(), OpenError> {
+        {
+            let defined = self.defined.lock().unwrap_or_else(|e| e.into_inner());
+            if defined.get(msg).is_some_and(|f| f.as_deref() == format) {
+                return Ok(());
+            }
+        }
+        IpcControl::define(self, msg, format).await?;
+        self.defined
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .insert(msg.to_string(), format.map(str::to_string));
+        Ok(())
     }
 
     async fn call<T>(&self, f: impl FnOnce(Done<T>) -> Cmd, gone: T) -> T {
@@ -590,24 +646,171 @@ impl IpcBackend {
         rx.await.unwrap_or(gone)
     }
 
-    fn gone(&self) -> SessionError {
-        SessionError::Disconnected(self.addr.clone())
+    fn gone<E: Failure>(&self) -> E {
+        E::disconnected(self.addr.clone())
     }
 }
 
 #[async_trait::async_trait]
 impl Backend for IpcBackend {
-    fn encoding(&self) -> Encoding {
-        Encoding::Ipc
+    fn capabilities(&self) -> Capabilities {
+        let mut c = Capabilities::new("ipc://", Encoding::Ipc);
+        c.untyped_publications = true;
+        c.reply_names = true;
+        c.named_formats = true;
+        c
     }
 
-    async fn define_format(&self, name: &str, format: &str) -> Result<(), SessionError> {
+    async fn open_publication(
+        &self,
+        msg: &str,
+        ty: &TypeInfo,
+        qos: &PublicationQos,
+    ) -> Result<PubId, OpenError> {
+        if let Some(what) = qos.beyond_ipc() {
+            return Err(unsupported(format!("{what} (publication {msg})")));
+        }
+        // untyped: a message somebody else defines
+        if !ty.is_untyped() {
+            self.define_once(msg, ty.format).await?;
+        }
+        let id = PubId(self.next_handle());
+        self.names().insert(Handle::Publication(id), Arc::from(msg));
+        Ok(id)
+    }
+
+    async fn open_subscription(
+        &self,
+        msg: &str,
+        _ty: Option<&TypeInfo>,
+        qos: &SubscriptionQos,
+        queue: Arc<SampleQueue>,
+    ) -> Result<SubId, OpenError> {
+        if let Some(what) = qos.beyond_ipc() {
+            return Err(unsupported(format!("{what} (subscription {msg})")));
+        }
+        let id = SubId(self.next_handle());
+        let g = Err(self.gone());
+        self.call(|d| Cmd::Subscribe(msg.into(), queue, id, d), g)
+            .await?;
+        Ok(id)
+    }
+
+    async fn open_service(
+        &self,
+        msg: &str,
+        _req: &TypeInfo,
+        _resp: &TypeInfo,
+        queue: usize,
+    ) -> Result<(ServiceId, mpsc::Receiver<RawRequest>), OpenError> {
+        let (tx, rx) = mpsc::channel(queue.max(1));
+        let id = ServiceId(self.next_handle());
+        let g = Err(self.gone());
+        self.call(|d| Cmd::Serve(msg.into(), tx, id, d), g).await?;
+        Ok((id, rx))
+    }
+
+    async fn open_client(
+        &self,
+        msg: &str,
+        _req: &TypeInfo,
+        _resp: &TypeInfo,
+    ) -> Result<ClientId, OpenError> {
+        let id = ClientId(self.next_handle());
+        self.names().insert(Handle::Client(id), Arc::from(msg));
+        Ok(id)
+    }
+
+    async fn write(
+        &self,
+        publication: PubId,
+        data: Vec<u8>,
+        opts: WriteOptions,
+    ) -> Result<(), PublishError> {
+        let msg = self
+            .name_of(Handle::Publication(publication))
+            .ok_or_else(|| PublishError::NoPublication(format!("{publication:?} (closed)")))?;
+        if opts.confirm.is_some() {
+            return Err(PublishError::Unsupported {
+                what: format!("a confirmed publish ({msg})"),
+                backend: "ipc://",
+            });
+        }
+        let g = Err(self.gone());
+        self.call(|d| Cmd::Publish(msg.to_string(), data, d), g)
+            .await
+    }
+
+    async fn query(
+        &self,
+        client: ClientId,
+        data: Vec<u8>,
+        timeout: Duration,
+    ) -> Result<RawReply, QueryError> {
+        let Some(msg) = self.name_of(Handle::Client(client)) else {
+            return Err(QueryError::Disconnected(format!("{client:?} (closed)")));
+        };
+        let key = self
+            .next_query
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let (tx, rx) = oneshot::channel();
+        if self
+            .cmd
+            .send(Cmd::Query(key, msg.to_string(), data, tx))
+            .is_err()
+        {
+            return Err(QueryError::Disconnected(msg.to_string()));
+        }
+        match tokio::time::timeout(timeout, rx).await {
+            Ok(Ok(r)) => r,
+            Ok(Err(_)) => Err(QueryError::Disconnected(msg.to_string())),
+            Err(_) => {
+                let _ = self.cmd.send(Cmd::CancelQuery(key));
+                Err(QueryError::Timeout {
+                    msg: msg.to_string(),
+                    timeout,
+                })
+            }
+        }
+    }
+
+    fn close_handle(&self, handle: Handle) {
+        match handle {
+            Handle::Publication(_) | Handle::Client(_) => {
+                self.names().remove(&handle);
+            }
+            _ => {
+                let _ = self.cmd.send(Cmd::CloseHandle(handle));
+            }
+        }
+    }
+
+    fn events(&self) -> Listener<SessionEvent> {
+        if !self.events.has_listeners() {
+            // central reports module (dis)connections only when asked
+            let _ = self.cmd.send(Cmd::WatchModules);
+        }
+        self.events.listen()
+    }
+
+    async fn close(&self) {
+        self.call(Cmd::Close, ()).await
+    }
+
+    fn ipc(&self) -> Option<&dyn IpcControl> {
+        Some(self)
+    }
+}
+
+#[async_trait::async_trait]
+impl IpcControl for IpcBackend {
+    async fn define_format(&self, name: &str, format: &str) -> Result<(), OpenError> {
         let g = Err(self.gone());
         self.call(|d| Cmd::DefineFormat(name.into(), format.into(), d), g)
             .await
     }
 
-    async fn define(&self, msg: &str, format: Option<&str>) -> Result<(), SessionError> {
+    async fn define(&self, msg: &str, format: Option<&str>) -> Result<(), OpenError> {
         let g = Err(self.gone());
         self.call(
             |d| Cmd::Define(msg.into(), format.map(str::to_string), d),
@@ -616,89 +819,29 @@ impl Backend for IpcBackend {
         .await
     }
 
-    async fn publish(&self, msg: &str, data: Vec<u8>) -> Result<(), SessionError> {
-        let g = Err(self.gone());
-        self.call(|d| Cmd::Publish(msg.into(), data, d), g).await
-    }
-
-    async fn subscribe(&self, msg: &str, queue: Arc<SampleQueue>) -> Result<(), SessionError> {
-        let g = Err(self.gone());
-        self.call(|d| Cmd::Subscribe(msg.into(), queue, d), g).await
-    }
-
-    async fn query(
-        &self,
-        msg: &str,
-        data: Vec<u8>,
-        timeout: Duration,
-    ) -> Result<RawReply, QueryError> {
-        let key = self
-            .next_query
-            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        let (tx, rx) = oneshot::channel();
-        if self
-            .cmd
-            .send(Cmd::Query(key, msg.into(), data, tx))
-            .is_err()
-        {
-            return Err(QueryError::Disconnected(msg.into()));
-        }
-        match tokio::time::timeout(timeout, rx).await {
-            Ok(Ok(r)) => r,
-            Ok(Err(_)) => Err(QueryError::Disconnected(msg.into())),
-            Err(_) => {
-                let _ = self.cmd.send(Cmd::CancelQuery(key));
-                Err(QueryError::Timeout {
-                    msg: msg.into(),
-                    timeout,
-                })
-            }
-        }
-    }
-
-    async fn serve(
-        &self,
-        msg: &str,
-        queue: usize,
-    ) -> Result<mpsc::Receiver<RawRequest>, SessionError> {
-        let (tx, rx) = mpsc::channel(queue.max(1));
-        let g = Err(self.gone());
-        self.call(|d| Cmd::Serve(msg.into(), tx, d), g).await?;
-        Ok(rx)
-    }
-
-    fn events(&self) -> mpsc::UnboundedReceiver<SessionEvent> {
-        let (tx, rx) = mpsc::unbounded_channel();
-        if self.cmd.is_closed() {
-            let _ = tx.send(SessionEvent::Disconnected);
-        } else {
-            let mut ev = self.events.lock().unwrap();
-            if ev.is_empty() {
-                let _ = self.cmd.send(Cmd::WatchModules);
-            }
-            ev.push(tx);
-        }
-        rx
-    }
-
-    async fn is_module_connected(&self, module: &str) -> Result<bool, SessionError> {
+    async fn is_module_connected(&self, module: &str) -> Result<bool, ControlError> {
         let g = Err(self.gone());
         self.call(|d| Cmd::ModuleConnected(module.into(), d), g)
             .await
     }
 
-    async fn num_handlers(&self, msg: &str) -> Result<i32, SessionError> {
+    async fn num_handlers(&self, msg: &str) -> Result<i32, ControlError> {
         let g = Err(self.gone());
         self.call(|d| Cmd::NumHandlers(msg.into(), d), g).await
     }
 
-    async fn set_capacity(&self, n: i32) -> Result<(), SessionError> {
+    async fn watch_handlers(&self, msg: &str) -> Result<(), ControlError> {
+        let g = Err(self.gone());
+        self.call(|d| Cmd::WatchHandlers(msg.into(), d), g).await
+    }
+
+    async fn set_capacity(&self, n: i32) -> Result<(), ControlError> {
         let g = Err(self.gone());
         self.call(|d| Cmd::Inform(InformOp::Capacity(n), d), g)
             .await
     }
 
-    async fn set_priority(&self, msg: &str, priority: i32) -> Result<(), SessionError> {
+    async fn set_priority(&self, msg: &str, priority: i32) -> Result<(), ControlError> {
         let g = Err(self.gone());
         self.call(
             |d| Cmd::Inform(InformOp::Priority(msg.into(), priority), d),
@@ -707,19 +850,10 @@ impl Backend for IpcBackend {
         .await
     }
 
-    async fn set_queue_length(&self, msg: &str, n: i32) -> Result<(), SessionError> {
+    async fn set_queue_length(&self, msg: &str, n: i32) -> Result<(), ControlError> {
         let g = Err(self.gone());
         self.call(|d| Cmd::Inform(InformOp::QueueLength(msg.into(), n), d), g)
             .await
-    }
-
-    async fn watch_handlers(&self, msg: &str) -> Result<(), SessionError> {
-        let g = Err(self.gone());
-        self.call(|d| Cmd::WatchHandlers(msg.into(), d), g).await
-    }
-
-    async fn close(&self) {
-        self.call(Cmd::Close, ()).await
     }
 }
 
@@ -731,12 +865,14 @@ impl Drop for IpcBackend {
 }
 
 struct Sub {
+    id: SubId,
     msg: String,
     hnd: String,
     queue: Arc<SampleQueue>,
 }
 
 struct Server {
+    id: ServiceId,
     msg: String,
     hnd: String,
     tx: mpsc::Sender<RawRequest>,
@@ -758,23 +894,66 @@ struct Driver {
     defs: Vec<Def>,
     cmd_tx: mpsc::UnboundedSender<Cmd>,
     addr: String,
-    events: Arc<Mutex<Vec<mpsc::UnboundedSender<SessionEvent>>>>,
+    events: Hub<SessionEvent>,
     subs: HashMap<i32, Sub>,
     servers: HashMap<i32, Server>,
-    publishes: HashMap<OpId, Done<Result<(), SessionError>>>,
-    queries: HashMap<OpId, Done<Result<RawReply, QueryError>>>,
+    publishes: HashMap<OpId, Done<Result<(), PublishError>>>,
+    /// Queries waiting for their reply, with their message name.
+    queries: HashMap<OpId, (String, Done<Result<RawReply, QueryError>>)>,
+    /// Replies handed to the module, by query delivery, with their reply
+    /// message name.
+    replies: HashMap<DeliveryId, (String, Done<Result<(), PublishError>>)>,
     query_ops: HashMap<u64, OpId>,
-    bools: HashMap<OpId, Done<Result<bool, SessionError>>>,
-    counts: HashMap<OpId, Done<Result<i32, SessionError>>>,
+    bools: HashMap<OpId, Done<Result<bool, ControlError>>>,
+    counts: HashMap<OpId, Done<Result<i32, ControlError>>>,
     closing: Option<Done<()>>,
     watching_modules: bool,
     links: HashMap<LinkId, tokio::io::WriteHalf<Box<dyn IpcStream>>>,
 }
 
-fn refused(e: ModError) -> SessionError {
-    match e {
-        ModError::Closed => SessionError::Disconnected("central".into()),
-        other => SessionError::Refused(other.to_string()),
+/// The IPC side of one query delivery: answered or declined through the
+/// driver.
+struct IpcReply {
+    cmd: mpsc::UnboundedSender<Cmd>,
+    delivery: DeliveryId,
+    addr: String,
+}
+
+impl Reply for IpcReply {
+    fn reply(self: Box<Self>, reply_msg: &str, data: Vec<u8>) -> ReplyFuture {
+        let (tx, rx) = oneshot::channel();
+        let sent = self
+            .cmd
+            .send(Cmd::Respond(self.delivery, reply_msg.to_string(), data, tx));
+        let addr = self.addr;
+        Box::pin(async move {
+            sent.map_err(|_| PublishError::Disconnected(addr.clone()))?;
+            rx.await.unwrap_or(Err(PublishError::Disconnected(addr)))
+        })
+    }
+
+    fn decline(self: Box<Self>) {
+        let _ = self.cmd.send(Cmd::Decline(self.delivery));
+    }
+}
+
+fn unsupported(what: String) -> OpenError {
+    OpenError::Unsupported {
+        what,
+        backend: "ipc://",
+    }
+}
+
+/// Central's refusal of an operation on `what`, as the operation's error.
+fn refused<E: Failure>(what: &str) -> impl FnOnce(ModError) -> E + '_ {
+    move |e| E::central(what, e)
+}
+
+/// A query that could not be sent.
+fn query_refused(msg: String, source: PublishError) -> QueryError {
+    match source {
+        PublishError::Disconnected(_) => QueryError::Disconnected(msg),
+        source => QueryError::Refused { msg, source },
     }
 }
 
@@ -802,7 +981,6 @@ impl Driver {
             if self.closing.is_some() && !self.conn.is_waiting() {
                 break;
             }
-            self.reap_dropped();
             tokio::select! {
                 cmd = rx.recv() => match cmd {
                     Some(c) => self.command(c),
@@ -867,43 +1045,40 @@ impl Driver {
         });
     }
 
-    /// Unsubscribes subscriptions whose `Subscriber` was dropped.
-    fn reap_dropped(&mut self) {
-        let gone: Vec<i32> = self
-            .subs
-            .iter()
-            .filter(|(_, s)| s.queue.is_receiver_gone())
-            .map(|(h, _)| *h)
-            .collect();
-        for h in gone {
-            if let Some(s) = self.subs.remove(&h) {
-                let _ = self.conn.unsubscribe(&s.msg, &s.hnd);
-            }
-        }
-        let gone: Vec<i32> = self
-            .servers
-            .iter()
-            .filter(|(_, s)| s.tx.is_closed())
-            .map(|(h, _)| *h)
-            .collect();
-        for h in gone {
-            if let Some(s) = self.servers.remove(&h) {
-                let _ = self.conn.unsubscribe(&s.msg, &s.hnd);
-            }
+    /// Unsubscribes the subscription or service of `h` (its
+    /// `Subscriber`, `Listener` or `Requests` was dropped).
+    fn close_handle(&mut self, h: Handle) {
+        let found = match h {
+            Handle::Subscription(id) => self
+                .subs
+                .iter()
+                .find(|(_, s)| s.id == id)
+                .map(|(k, s)| (*k, s.msg.clone(), s.hnd.clone())),
+            Handle::Service(id) => self
+                .servers
+                .iter()
+                .find(|(_, s)| s.id == id)
+                .map(|(k, s)| (*k, s.msg.clone(), s.hnd.clone())),
+            _ => None,
+        };
+        if let Some((k, msg, hnd)) = found {
+            self.subs.remove(&k);
+            self.servers.remove(&k);
+            let _ = self.conn.unsubscribe(&msg, &hnd);
         }
     }
 
     fn command(&mut self, c: Cmd) {
         match c {
             Cmd::DefineFormat(n, f, d) => {
-                let _ = d.send(self.conn.define_format(&n, &f).map_err(refused));
+                let _ = d.send(self.conn.define_format(&n, &f).map_err(refused(&n)));
                 self.defs.push(Def::Format(n, f));
             }
             Cmd::Define(m, f, d) => {
                 let _ = d.send(
                     self.conn
                         .define_msg(&m, MsgLength::Variable, f.as_deref())
-                        .map_err(refused),
+                        .map_err(refused(&m)),
                 );
                 self.defs.push(Def::Msg(m, f));
             }
@@ -912,45 +1087,60 @@ impl Driver {
                     self.publishes.insert(op, d);
                 }
                 Err(e) => {
-                    let _ = d.send(Err(refused(e)));
+                    let _ = d.send(Err(refused(&m)(e)));
                 }
             },
-            Cmd::Subscribe(m, queue, d) => {
+            Cmd::CloseHandle(h) => self.close_handle(h),
+            Cmd::Subscribe(m, queue, id, d) => {
                 let hnd = format!(
                     "HND-{m}-courier{}",
                     HANDLER_SEQ.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
                 );
                 let _ = d.send(match self.conn.subscribe(&m, &hnd) {
                     Ok(h) => {
-                        self.subs.insert(h, Sub { msg: m, hnd, queue });
+                        self.subs.insert(
+                            h,
+                            Sub {
+                                id,
+                                msg: m,
+                                hnd,
+                                queue,
+                            },
+                        );
                         Ok(())
                     }
-                    Err(e) => Err(refused(e)),
+                    Err(e) => Err(refused(&m)(e)),
                 });
             }
-            Cmd::Serve(m, tx, d) => {
+            Cmd::Serve(m, tx, id, d) => {
                 let hnd = format!(
                     "HND-{m}-courier{}",
                     HANDLER_SEQ.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
                 );
                 let _ = d.send(match self.conn.subscribe(&m, &hnd) {
                     Ok(h) => {
-                        self.servers.insert(h, Server { msg: m, hnd, tx });
+                        self.servers.insert(
+                            h,
+                            Server {
+                                id,
+                                msg: m,
+                                hnd,
+                                tx,
+                            },
+                        );
                         Ok(())
                     }
-                    Err(e) => Err(refused(e)),
+                    Err(e) => Err(refused(&m)(e)),
                 });
             }
             Cmd::Query(key, m, data, d) => match self.conn.query(&m, data, -1) {
                 Ok(op) => {
-                    self.queries.insert(op, d);
+                    self.queries.insert(op, (m, d));
                     self.query_ops.insert(key, op);
                 }
                 Err(e) => {
-                    let _ = d.send(Err(QueryError::Refused {
-                        msg: m,
-                        detail: e.to_string(),
-                    }));
+                    let source = refused(&m)(e);
+                    let _ = d.send(Err(query_refused(m, source)));
                 }
             },
             Cmd::CancelQuery(key) => {
@@ -962,17 +1152,26 @@ impl Driver {
             Cmd::Ack(delivery) => {
                 let _ = self.conn.ack(delivery);
             }
-            Cmd::Respond(delivery, reply, data) => {
-                if let Err(e) = self.conn.respond(delivery, &reply, data) {
-                    tracing::warn!("cannot respond with {reply}: {e}");
+            Cmd::Respond(delivery, reply, data, d) => {
+                match self.conn.respond(delivery, &reply, data) {
+                    Ok(()) => {
+                        self.replies.insert(delivery, (reply, d));
+                    }
+                    Err(e) => {
+                        let _ = d.send(Err(refused(&reply)(e)));
+                    }
                 }
+            }
+            Cmd::Decline(delivery) => {
+                // unknown: answered already, or of a connection since lost
+                let _ = self.conn.decline(delivery);
             }
             Cmd::ModuleConnected(m, d) => match self.conn.is_module_connected(&m) {
                 Ok(op) => {
                     self.bools.insert(op, d);
                 }
                 Err(e) => {
-                    let _ = d.send(Err(refused(e)));
+                    let _ = d.send(Err(refused(&format!("is_module_connected({m})"))(e)));
                 }
             },
             Cmd::NumHandlers(m, d) => match self.conn.num_handlers(&m) {
@@ -980,16 +1179,23 @@ impl Driver {
                     self.counts.insert(op, d);
                 }
                 Err(e) => {
-                    let _ = d.send(Err(refused(e)));
+                    let _ = d.send(Err(refused(&format!("num_handlers({m})"))(e)));
                 }
             },
             Cmd::Inform(op, d) => {
-                let r = match op {
-                    InformOp::Capacity(n) => self.conn.set_capacity(n),
-                    InformOp::Priority(m, p) => self.conn.set_priority(&m, p),
-                    InformOp::QueueLength(m, n) => self.conn.set_queue_length(&m, n),
+                let (what, r) = match op {
+                    InformOp::Capacity(n) => {
+                        ("set_capacity".to_string(), self.conn.set_capacity(n))
+                    }
+                    InformOp::Priority(m, p) => {
+                        (format!("set_priority({m})"), self.conn.set_priority(&m, p))
+                    }
+                    InformOp::QueueLength(m, n) => (
+                        format!("set_queue_length({m})"),
+                        self.conn.set_queue_length(&m, n),
+                    ),
                 };
-                let _ = d.send(r.map_err(refused));
+                let _ = d.send(r.map_err(refused(&what)));
             }
             Cmd::LinkAccepted(stream) => {
                 let link = self.conn.accept_direct();
@@ -1024,7 +1230,7 @@ impl Driver {
                     self.conn
                         .subscribe_handler_change(&m)
                         .map(|_| ())
-                        .map_err(refused),
+                        .map_err(refused(&m)),
                 );
             }
             Cmd::Close(d) => {
@@ -1035,10 +1241,7 @@ impl Driver {
     }
 
     fn broadcast(&self, e: SessionEvent) {
-        self.events
-            .lock()
-            .unwrap()
-            .retain(|tx| tx.send(e.clone()).is_ok());
+        self.events.send(e);
     }
 
     fn drain_events(&mut self) {
@@ -1060,7 +1263,7 @@ impl Driver {
                     data,
                 } => {
                     self.query_ops.retain(|_, op| *op != query);
-                    if let Some(d) = self.queries.remove(&query) {
+                    if let Some((_, d)) = self.queries.remove(&query) {
                         let _ = d.send(Ok((reply_msg, data, order)));
                     }
                 }
@@ -1076,22 +1279,33 @@ impl Driver {
                         let _ = d.send(Ok(()));
                     }
                 }
-                Event::OpFailed { op, error } => {
-                    let e = refused(error);
-                    if let Some(d) = self.publishes.remove(&op) {
-                        let _ = d.send(Err(e.clone()));
+                Event::Replied { delivery } => {
+                    if let Some((_, d)) = self.replies.remove(&delivery) {
+                        let _ = d.send(Ok(()));
                     }
-                    if let Some(d) = self.queries.remove(&op) {
-                        let _ = d.send(Err(QueryError::Refused {
-                            msg: String::new(),
-                            detail: e.to_string(),
-                        }));
+                }
+                Event::ReplyFailed { delivery, error } => {
+                    // declined by the module: this module keeps receiving
+                    match self.replies.remove(&delivery) {
+                        Some((reply, d)) => {
+                            let _ = d.send(Err(refused(&reply)(error)));
+                        }
+                        None => tracing::warn!("a reply was declined: {error}"),
+                    }
+                }
+                Event::OpFailed { op, error } => {
+                    if let Some(d) = self.publishes.remove(&op) {
+                        let _ = d.send(Err(refused("a publish")(error.clone())));
+                    }
+                    if let Some((msg, d)) = self.queries.remove(&op) {
+                        let source = refused(&msg)(error.clone());
+                        let _ = d.send(Err(query_refused(msg, source)));
                     }
                     if let Some(d) = self.bools.remove(&op) {
-                        let _ = d.send(Err(e.clone()));
+                        let _ = d.send(Err(refused("is_module_connected")(error.clone())));
                     }
                     if let Some(d) = self.counts.remove(&op) {
-                        let _ = d.send(Err(e));
+                        let _ = d.send(Err(refused("num_handlers")(error)));
                     }
                 }
                 Event::ModuleConnected { op, connected } => {
@@ -1186,18 +1400,18 @@ impl Driver {
                     .get(&handler)
                     .or_else(|| self.servers.values().find(|s| s.msg == msg));
                 let Some(srv) = srv else {
-                    tracing::warn!("query {msg} for a handler that is gone: not answered");
+                    tracing::warn!("query {msg} for a handler that is gone: declined");
+                    let _ = self.conn.decline(delivery);
                     return;
                 };
-                let cmd = self.cmd_tx.clone();
-                let addr = self.addr.clone();
                 let r = RawRequest {
                     msg,
                     data,
                     order,
-                    respond: Box::new(move |reply: &str, bytes: Vec<u8>| {
-                        cmd.send(Cmd::Respond(delivery, reply.to_string(), bytes))
-                            .map_err(|_| SessionError::Disconnected(addr))
+                    respond: Responder::new(IpcReply {
+                        cmd: self.cmd_tx.clone(),
+                        delivery,
+                        addr: self.addr.clone(),
                     }),
                 };
                 let tx = srv.tx.clone();
@@ -1285,7 +1499,7 @@ impl Driver {
 
     /// A command while there is no connection.
     fn reject(&mut self, c: Cmd) {
-        let gone = || SessionError::Disconnected(self.addr.clone());
+        let addr = self.addr.clone();
         match c {
             Cmd::DefineFormat(n, f, d) => {
                 self.defs.push(Def::Format(n, f));
@@ -1295,46 +1509,54 @@ impl Driver {
                 self.defs.push(Def::Msg(m, f));
                 let _ = d.send(Ok(()));
             }
-            Cmd::Publish(_, _, d)
-            | Cmd::Subscribe(_, _, d)
-            | Cmd::Serve(_, _, d)
-            | Cmd::Inform(_, d) => {
-                let _ = d.send(Err(gone()));
+            Cmd::Publish(_, _, d) | Cmd::Respond(_, _, _, d) => {
+                let _ = d.send(Err(PublishError::Disconnected(addr)));
             }
-            Cmd::WatchHandlers(_, d) => {
-                let _ = d.send(Err(gone()));
+            Cmd::Subscribe(_, _, _, d) | Cmd::Serve(_, _, _, d) => {
+                let _ = d.send(Err(OpenError::Disconnected(addr)));
+            }
+            Cmd::Inform(_, d) | Cmd::WatchHandlers(_, d) => {
+                let _ = d.send(Err(ControlError::Disconnected(addr)));
             }
             Cmd::Query(_, m, _, d) => {
                 let _ = d.send(Err(QueryError::Disconnected(m)));
             }
             Cmd::ModuleConnected(_, d) => {
-                let _ = d.send(Err(gone()));
+                let _ = d.send(Err(ControlError::Disconnected(addr)));
             }
             Cmd::NumHandlers(_, d) => {
-                let _ = d.send(Err(gone()));
+                let _ = d.send(Err(ControlError::Disconnected(addr)));
             }
             Cmd::WatchModules => self.watching_modules = true,
             Cmd::Close(d) => self.closing = Some(d),
-            Cmd::CancelQuery(_) | Cmd::Ack(_) | Cmd::Respond(..) | Cmd::LinkAccepted(_) => {}
+            // dropped while disconnected: not subscribed again
+            Cmd::CloseHandle(h) => {
+                self.subs.retain(|_, s| Handle::Subscription(s.id) != h);
+                self.servers.retain(|_, s| Handle::Service(s.id) != h);
+            }
+            Cmd::CancelQuery(_) | Cmd::Ack(_) | Cmd::Decline(_) | Cmd::LinkAccepted(_) => {}
             Cmd::LinkConnected(..) | Cmd::LinkData(..) => {}
         }
     }
 
     /// Operations waiting for central fail at once.
     fn fail_pending(&mut self) {
-        let gone = SessionError::Disconnected(self.addr.clone());
+        let addr = &self.addr;
         for (_, d) in self.publishes.drain() {
-            let _ = d.send(Err(gone.clone()));
+            let _ = d.send(Err(PublishError::Disconnected(addr.clone())));
         }
-        for (_, d) in self.queries.drain() {
-            let _ = d.send(Err(QueryError::Disconnected(self.addr.clone())));
+        for (_, (msg, d)) in self.queries.drain() {
+            let _ = d.send(Err(QueryError::Disconnected(msg)));
+        }
+        for (_, (_, d)) in self.replies.drain() {
+            let _ = d.send(Err(PublishError::Disconnected(addr.clone())));
         }
         self.query_ops.clear();
         for (_, d) in self.bools.drain() {
-            let _ = d.send(Err(gone.clone()));
+            let _ = d.send(Err(ControlError::Disconnected(addr.clone())));
         }
         for (_, d) in self.counts.drain() {
-            let _ = d.send(Err(gone.clone()));
+            let _ = d.send(Err(ControlError::Disconnected(addr.clone())));
         }
     }
 
@@ -1344,16 +1566,10 @@ impl Driver {
         for (_, s) in self.subs.drain() {
             s.queue.close();
         }
-        for (_, s) in self.servers.drain() {
-            let _ = s.tx.try_send(RawRequest {
-                msg: String::new(),
-                data: Vec::new(),
-                order: ByteOrder::NATIVE,
-                respond: Box::new(|_, _| Err(SessionError::Disconnected(String::new()))),
-            });
-        }
+        // their channels close: the `Requests` streams end with Disconnected
+        self.servers.clear();
         self.broadcast(SessionEvent::Disconnected);
-        self.events.lock().unwrap().clear();
+        self.events.close();
     }
 }
 

@@ -47,6 +47,12 @@
 //! # Ok(()) }
 //! ```
 //!
+//! With the cargo feature `central`, `courier::central` embeds CMU IPC's central
+//! server itself (what `courier-broker`'s `central` binary runs), so that a
+//! program can host it and connect its own modules over an in-process link,
+//! with no separate process: `courier = { version = "…", features =
+//! ["central"] }`.
+//!
 //! ## The IPC API and its Courier equivalents (manual §4–§8)
 //!
 //! | IPC | Courier |
@@ -54,11 +60,11 @@
 //! | `IPC_initialize`, `IPC_connect`, `IPC_connectModule` | `Session::builder(url).name(..).connect().await` |
 //! | `IPC_connectNoListen`, `IPC_connectModuleNoListen` | `SessionBuilder::no_listen` |
 //! | `IPC_disconnect` | `Session::close`, or dropping the last clone |
-//! | `IPC_isConnected` | a failed operation returns `SessionError::Disconnected`; `events()` yields `Disconnected` |
-//! | `IPC_isModuleConnected` | `Session::is_module_connected` |
-//! | `IPC_defineMsg`, `IPC_isMsgDefined` | `Session::define::<T>` (the format comes from the type) |
-//! | `IPC_defineFormat`, `IPC_checkMsgFormats` | `Session::define_format::<T>` (automatic in `define`); formats are checked at compile time by the derive |
-//! | `IPC_publish`, `IPC_publishData`, `IPC_publishVC`, `IPC_publishFixed` | `Session::publish` (typed) / `publish_raw` (bytes) |
+//! | `IPC_isConnected` | a failed operation returns its error's `Disconnected` variant; `events()` yields `Disconnected` |
+//! | `IPC_isModuleConnected` | `Session::is_module_connected` (also `session.ipc()?.is_module_connected`) |
+//! | `IPC_defineMsg`, `IPC_isMsgDefined` | `Session::define::<T>` (the format comes from the type); `session.ipc()?.define(msg, format)` with a format string known at run time |
+//! | `IPC_defineFormat`, `IPC_checkMsgFormats` | `session.ipc()?.define_formats::<T>()` (automatic in `define`); formats are checked at compile time by the derive |
+//! | `IPC_publish`, `IPC_publishData`, `IPC_publishVC`, `IPC_publishFixed` | `Session::publish` (typed) / `publish_raw` (bytes); `Session::publisher::<T>(msg).build()` for a `Publisher` handle |
 //! | `IPC_subscribe`, `IPC_subscribeData`, `IPC_unsubscribe` | `Session::subscribe::<T>` / `subscribe_raw`; dropping the `Subscriber` unsubscribes. A handler-style callback: `session.subscriber::<T>(msg).listen(f)` (run on a task of its own on IPC; on RTPS where the datagram is read) |
 //! | `IPC_numHandlers` | `Session::num_handlers` |
 //! | `IPC_subscribeConnect`, `IPC_subscribeDisconnect`, their `unsubscribe` | `Session::events()` (`ModuleConnected` / `ModuleDisconnected`); drop the stream |
@@ -67,9 +73,9 @@
 //! | `IPC_respond`, `IPC_respondData`, `IPC_delayResponse` | `Session::serve` → `Request::reply`, callable later and from any task |
 //! | `IPC_listen`, `IPC_listenClear`, `IPC_listenWait`, `IPC_handleMessage`, `IPC_dispatch` | not needed: driving the `Stream`s (a tokio task reads the socket all the time) |
 //! | `IPC_subscribeFD`, `IPC_unsubscribeFD` | not needed: `tokio::select!` over your own I/O and the streams |
-//! | `IPC_setCapacity` | `Session::set_capacity` |
-//! | `IPC_setMsgPriority` | `Session::set_priority` |
-//! | `IPC_setMsgQueueLength` | `Session::set_queue_length` |
+//! | `IPC_setCapacity` | `session.ipc()?.set_capacity(n)` ([`Session::ipc`]: the IPC-only controls, [`IpcControl`]) |
+//! | `IPC_setMsgPriority` | `session.ipc()?.set_priority(msg, p)` |
+//! | `IPC_setMsgQueueLength` | `session.ipc()?.set_queue_length(msg, n)` |
 //! | `IPC_setVerbosity`, `IPC_perror` | `tracing`; every error is a typed `Result` |
 //! | `IPC_marshall`, `IPC_unmarshall`, `IPC_freeData*`, `IPC_msgFormatter`, `IPC_parseFormat` | `courier::ipc::to_vec` / `from_slice`, `#[derive(IpcMessage)]`; Rust frees memory |
 //! | `IPC_getContext`, `IPC_setContext` | several `Session`s (each its own connection) |
@@ -91,7 +97,9 @@
 //!   from 8000 (on 127.0.0.1 when central is on loopback, else on all
 //!   interfaces, like C) and links to receivers itself; unlike C, a message
 //!   is never lost because the receiver list is learned late (it waits for
-//!   the links). As in C (`x_ipcDirectResource`, `x_ipc_connectAt`) the
+//!   the links), and a query of a message nobody serves yet waits for its
+//!   first handler, within its timeout, as a routed query waits in central
+//!   (C drops it: "No handlers for direct message"). As in C (`x_ipcDirectResource`, `x_ipc_connectAt`) the
 //!   session also listens at `/tmp/x_ipc/<port>` (removed when it closes;
 //!   a leftover file is replaced, one somebody still answers on is left
 //!   alone), and reaches a receiver whose host is this machine's name over
@@ -99,23 +107,39 @@
 #![warn(missing_docs)]
 #![deny(unsafe_code)]
 
+pub mod backend;
 pub mod busy_poll;
+#[cfg(feature = "central")]
+#[cfg_attr(docsrs, doc(cfg(feature = "central")))]
+pub mod central;
+mod error;
+pub mod event;
+pub mod hub;
 pub mod ipc_backend;
 pub mod qos;
+mod reply;
 pub mod rtps_backend;
+pub mod scheme;
 pub mod session;
+mod sys;
+mod topics;
 
+pub use backend::{
+    Backend, Capabilities, ClientId, DdsControl, Handle, IpcControl, PubId, ServiceId, SubId,
+};
 pub use courier_derive::IpcMessage;
 pub use courier_wire::{cdr, format, ipc, rtps, IpcMessage, NamedFormats};
+pub use error::{ControlError, Error, OpenError, PublishError};
+pub use event::{DurabilityKind, EndpointInfo, Guid, ParticipantInfo, QosSummary};
 pub use ipc_backend::IpcStream;
 pub use qos::{Durability, History, Reliability};
 pub use rtps_backend::RtpsOptions;
 pub use session::{
-    Backend, ConnectError, Encoding, Events, InstanceState, Listener, PeriodicPublication,
+    ConnectError, Encoding, Events, InstanceState, Ipc, Listener, PeriodicPublication,
     PublicationQos, Publish, Publisher, PublisherBuilder, Query, QueryError, QueuePolicy, RawReply,
-    RawRequest, RawSample, RawSubscriber, RecvError, Request, Requests, Responder, Sample,
-    SampleQueue, Session, SessionBuilder, SessionError, SessionEvent, Subscriber,
-    SubscriberBuilder, SubscriptionQos, Tick, Timer, TypeInfo, WriteOptions,
+    RawRequest, RawRequests, RawSample, RawSubscriber, RecvError, Request, Requests, Responder,
+    Sample, SampleQueue, Session, SessionBuilder, SessionEvent, Subscriber, SubscriberBuilder,
+    SubscriptionQos, Tick, Timer, TypeInfo, WriteOptions,
 };
 
 #[doc(hidden)]

@@ -12,8 +12,15 @@
 //! | — | [`Durability::TransientLocal`] | DURABILITY: late joiners get the history |
 //! | `sendQueueSize` / `recvQueueSize` | [`History`] | HISTORY keep-last(n) / keep-all |
 //!
-//! On the IPC backends only the parts with an IPC meaning apply (the queue
-//! policy of a subscription); the rest is ignored there.
+//! On the IPC backends only the parts with an IPC meaning apply: IPC over
+//! TCP is reliable, volatile and keeps everything, which also satisfies a
+//! best-effort request, and a subscription's keep-last history is its local
+//! queue policy. Any other setting (durability, deadline, strength,
+//! lifespan, minimum separation, exclusive ownership, partitions, a
+//! publication's keep-last history) cannot be honoured there, and creating
+//! the publication or subscription fails with
+//! [`OpenError::Unsupported`](crate::OpenError::Unsupported) naming
+//! it: never silently ignored.
 
 use std::time::Duration;
 
@@ -77,6 +84,25 @@ impl PublicationQos {
     pub fn new() -> Self {
         Self::default()
     }
+
+    /// The first setting an IPC publication cannot honour.
+    pub(crate) fn beyond_ipc(&self) -> Option<&'static str> {
+        if self.durability != Durability::Volatile {
+            Some("transient-local durability")
+        } else if self.history != History::KeepAll {
+            Some("a keep-last writer history")
+        } else if self.strength.is_some() {
+            Some("strength (exclusive ownership)")
+        } else if self.persistence.is_some() {
+            Some("persistence (lifespan)")
+        } else if self.deadline.is_some() {
+            Some("a deadline")
+        } else if !self.partitions.is_empty() {
+            Some("partitions")
+        } else {
+            None
+        }
+    }
 }
 
 /// QoS of a subscription (a DDS DataReader).
@@ -106,6 +132,24 @@ impl SubscriptionQos {
     pub fn new() -> Self {
         Self::default()
     }
+
+    /// The first setting an IPC subscription cannot honour (keep-last is
+    /// its local queue policy).
+    pub(crate) fn beyond_ipc(&self) -> Option<&'static str> {
+        if self.durability != Durability::Volatile {
+            Some("transient-local durability")
+        } else if self.deadline.is_some() {
+            Some("a deadline")
+        } else if self.minimum_separation.is_some() {
+            Some("minimum separation (time-based filter)")
+        } else if self.exclusive {
+            Some("exclusive ownership")
+        } else if !self.partitions.is_empty() {
+            Some("partitions")
+        } else {
+            None
+        }
+    }
 }
 
 /// What the typed layer knows about a message's Rust type.
@@ -127,6 +171,21 @@ impl TypeInfo {
             type_name: T::TYPE_NAME,
             keyed: !T::KEYS.is_empty(),
         }
+    }
+
+    /// No type: raw bytes of a message whose type the backend does not
+    /// need (IPC: somebody else defined it) or learns (DDS subscriptions).
+    pub fn untyped() -> Self {
+        TypeInfo {
+            format: None,
+            type_name: "",
+            keyed: false,
+        }
+    }
+
+    /// Whether this is [`TypeInfo::untyped`].
+    pub fn is_untyped(&self) -> bool {
+        self.format.is_none() && self.type_name.is_empty()
     }
 }
 

@@ -15,12 +15,14 @@ use std::time::{Duration, SystemTime};
 use futures::Stream;
 use tokio::sync::mpsc;
 
+pub use crate::error::{ControlError, OpenError, PublishError, QueryError};
+pub use crate::event::SessionEvent;
 use crate::ipc_backend::{IpcBackend, IpcOptions};
 use crate::qos::{Durability, History, Reliability};
 pub use crate::qos::{InstanceState, PublicationQos, SubscriptionQos, TypeInfo};
 use crate::rtps_backend::{RtpsBackend, RtpsOptions};
-use courier_wire::rtps::discovery::{EndpointData, ParticipantData};
-use courier_wire::rtps::{Guid, GuidPrefix};
+use crate::scheme::Resolved;
+use crate::topics::{Definition, Topics};
 use courier_wire::{cdr, ipc, IpcMessage, NamedFormats};
 
 /// How a backend wants typed values encoded.
@@ -167,10 +169,16 @@ pub struct SampleQueue {
 
 /// The callback of an immediate-delivery subscription (ORTE's IMMEDIATE
 /// mode, a DDS listener): called with the queue and one sample, in order,
-/// by one thread at a time.
+/// by one thread at a time; once with `None` when the connection has ended.
 struct Handler(std::sync::Mutex<HandlerFn>);
 
-type HandlerFn = Box<dyn FnMut(&SampleQueue, RawSample) + Send>;
+type HandlerFn = Box<dyn FnMut(&SampleQueue, Option<RawSample>) + Send>;
+
+/// What a queue yields: a sample, or (once) the end of the connection.
+enum Popped {
+    Sample(RawSample),
+    End,
+}
 
 impl std::fmt::Debug for Handler {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -215,8 +223,9 @@ impl SampleQueue {
     }
 
     /// Makes this an immediate-delivery queue: its samples go to `f` (once
-    /// set, for the queue's life) when [`SampleQueue::run_handler`] runs.
-    pub fn set_handler(&self, f: impl FnMut(&SampleQueue, RawSample) + Send + 'static) {
+    /// set, for the queue's life) when [`SampleQueue::run_handler`] runs,
+    /// then `None` once after [`SampleQueue::close`].
+    pub fn set_handler(&self, f: impl FnMut(&SampleQueue, Option<RawSample>) + Send + 'static) {
         let _ = self
             .handler
             .set(Handler(std::sync::Mutex::new(Box::new(f))));
@@ -229,7 +238,7 @@ impl SampleQueue {
 
     /// Hands every waiting sample to the queue's handler, in order, on the
     /// calling thread; `false` if it has none. Backends that deliver
-    /// immediately ([`Backend::delivers_immediately`]) call it after
+    /// immediately ([`Capabilities::immediate_delivery`]) call it after
     /// pushing, holding none of their own locks: the handler may publish.
     /// A handler that panics loses that sample, not the subscription.
     pub fn run_handler(&self) -> bool {
@@ -237,7 +246,11 @@ impl SampleQueue {
             return false;
         };
         let mut f = h.0.lock().unwrap_or_else(|p| p.into_inner());
-        while let Some(s) = self.try_pop() {
+        while let Some(p) = self.try_pop() {
+            let s = match p {
+                Popped::Sample(s) => Some(s),
+                Popped::End => None,
+            };
             let call = std::panic::AssertUnwindSafe(|| f(self, s));
             if std::panic::catch_unwind(call).is_err() {
                 tracing::error!("a subscription callback panicked; its sample is lost");
@@ -246,7 +259,7 @@ impl SampleQueue {
         true
     }
 
-    /// Ready with `true` when a sample (or the end marker) waits, `false`
+    /// Ready with `true` when a sample (or the end) waits, `false`
     /// once nothing more will come to the handler (the end was taken, or
     /// the subscription was dropped).
     fn poll_waiting(&self, cx: &mut Context<'_>) -> Poll<bool> {
@@ -390,23 +403,27 @@ impl SampleQueue {
         }
     }
 
-    fn try_pop(&self) -> Option<RawSample> {
+    /// The next sample, or the end once after close; `None` when nothing
+    /// waits.
+    fn try_pop(&self) -> Option<Popped> {
         let mut st = self.state.lock().unwrap();
         let was_full = st.items.len() >= st.cap;
-        let s = st.items.pop_front();
-        if s.is_none() && st.closed && !st.reported_close {
-            st.reported_close = true;
-            return Some(RawSample::new(String::new(), Vec::new()));
-        }
+        let Some(s) = st.items.pop_front() else {
+            if st.closed && !st.reported_close {
+                st.reported_close = true;
+                return Some(Popped::End);
+            }
+            return None;
+        };
         drop(st);
-        if s.is_some() && was_full {
+        if was_full {
             self.space.notify_waiters();
         }
-        s
+        Some(Popped::Sample(s))
     }
 
-    /// `Ready(Some(marker))` with an empty message name once after close.
-    fn poll_pop(&self, cx: &mut Context<'_>) -> Poll<Option<RawSample>> {
+    /// The next sample, then (once after close) the end, then `None`.
+    fn poll_pop(&self, cx: &mut Context<'_>) -> Poll<Option<Popped>> {
         let mut st = self.state.lock().unwrap();
         let was_full = st.items.len() >= st.cap;
         if let Some(s) = st.items.pop_front() {
@@ -415,14 +432,14 @@ impl SampleQueue {
                 // only a full queue has anyone waiting for room
                 self.space.notify_waiters();
             }
-            return Poll::Ready(Some(s));
+            return Poll::Ready(Some(Popped::Sample(s)));
         }
         if st.closed {
             if st.reported_close {
                 return Poll::Ready(None);
             }
             st.reported_close = true;
-            return Poll::Ready(Some(RawSample::new(String::new(), Vec::new())));
+            return Poll::Ready(Some(Popped::End));
         }
         st.waker = Some(cx.waker().clone());
         Poll::Pending
@@ -434,19 +451,34 @@ impl SampleQueue {
 #[derive(Debug)]
 pub struct RawSubscriber {
     queue: Arc<SampleQueue>,
+    /// Unsubscribes when dropped (after the queue is marked abandoned).
+    _handle: Owned,
 }
 
 impl RawSubscriber {
+    fn new(queue: Arc<SampleQueue>, handle: Owned) -> Self {
+        RawSubscriber {
+            queue,
+            _handle: handle,
+        }
+    }
+
     /// The next sample; `None` once the connection has ended.
     pub async fn recv(&mut self) -> Option<RawSample> {
-        std::future::poll_fn(|cx| self.queue.poll_pop(cx)).await
+        match std::future::poll_fn(|cx| self.queue.poll_pop(cx)).await? {
+            Popped::Sample(s) => Some(s),
+            Popped::End => None,
+        }
     }
 
     /// Pulled delivery (ORTE's `ORTEAppSubscriptionPull`): the next sample
     /// if one is waiting, without waiting. After the end of the connection,
-    /// `None` forever (check [`RawSubscriber::recv`] for the end marker).
+    /// `None` forever ([`RawSubscriber::recv`] tells the end apart).
     pub fn try_recv(&mut self) -> Option<RawSample> {
-        self.queue.try_pop().filter(|s| !s.msg.is_empty())
+        match self.queue.try_pop()? {
+            Popped::Sample(s) => Some(s),
+            Popped::End => None,
+        }
     }
 
     /// Samples dropped by a keep-last policy or a backend filter, and (IPC)
@@ -462,8 +494,7 @@ impl Drop for RawSubscriber {
     }
 }
 
-/// Sends a reply: the reply message's name and its bytes.
-pub type Responder = Box<dyn FnOnce(&str, Vec<u8>) -> Result<(), SessionError> + Send>;
+pub use crate::reply::{Reply, ReplyFuture, Responder};
 
 /// A reply as a backend returns it: reply message name, bytes, byte order.
 pub type RawReply = (String, Vec<u8>, ipc::ByteOrder);
@@ -477,7 +508,8 @@ pub struct RawRequest {
     /// Byte order of `data`.
     pub order: ipc::ByteOrder,
     /// Sends the reply (reply message name, bytes); may be called later and
-    /// from any task (IPC_delayResponse).
+    /// from any task (IPC_delayResponse). Dropping it unanswered declines
+    /// the request.
     pub respond: Responder,
 }
 
@@ -490,139 +522,30 @@ impl std::fmt::Debug for RawRequest {
     }
 }
 
-/// Something that happened to the session or the system.
-#[derive(Debug, Clone, PartialEq, Eq)]
-#[non_exhaustive]
-pub enum SessionEvent {
-    /// A module connected to central.
-    ModuleConnected(String),
-    /// A module disconnected from central.
-    ModuleDisconnected(String),
-    /// The number of handlers of a message changed.
-    HandlersChanged {
-        /// Message name.
-        msg: String,
-        /// Handlers now.
-        count: i32,
-    },
-    /// This session lost its connection (with reconnect on, a
-    /// [`SessionEvent::Reconnected`] follows once central is back).
-    Disconnected,
-    /// The session reached central again and defined and subscribed
-    /// everything anew (see [`SessionBuilder::reconnect`]).
-    Reconnected,
-    /// DDS: a participant announced itself for the first time.
-    ParticipantFound(Box<ParticipantData>),
-    /// DDS: a known participant announced different data.
-    ParticipantChanged(Box<ParticipantData>),
-    /// DDS: a participant left (`disposed`) or its lease expired.
-    ParticipantLost {
-        /// Its GUID prefix.
-        guid_prefix: GuidPrefix,
-        /// True if it said goodbye, false if it went silent.
-        disposed: bool,
-    },
-    /// DDS: a remote publication (DataWriter) was announced.
-    PublicationFound(Box<EndpointData>),
-    /// DDS: a remote publication changed its QoS.
-    PublicationChanged(Box<EndpointData>),
-    /// DDS: a remote publication is gone.
-    PublicationLost(Guid),
-    /// DDS: a remote subscription (DataReader) was announced.
-    SubscriptionFound(Box<EndpointData>),
-    /// DDS: a remote subscription changed its QoS.
-    SubscriptionChanged(Box<EndpointData>),
-    /// DDS: a remote subscription is gone.
-    SubscriptionLost(Guid),
-    /// DDS: a subscription with a deadline got no sample within it.
-    DeadlineMissed {
-        /// Topic.
-        msg: String,
-        /// Misses on this subscription so far.
-        total: u64,
-    },
-    /// DDS: an endpoint on one of our topics does not match ours.
-    IncompatibleQos {
-        /// Topic.
-        msg: String,
-        /// The other endpoint.
-        remote: Guid,
-        /// The first rule that failed.
-        reason: String,
-    },
-}
-
-/// What can go wrong with a session operation.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[non_exhaustive]
-pub enum SessionError {
-    /// The connection is gone (central died, or the session was closed).
-    #[error("disconnected from {0}")]
-    Disconnected(String),
-    /// The messaging system refused the operation.
-    #[error("{0}")]
-    Refused(String),
-    /// A bounded wait ran out (e.g. a confirmed publish).
-    #[error("{what} did not complete within {after:?}")]
-    Timeout {
-        /// What was waited for.
-        what: String,
-        /// The bound.
-        after: Duration,
-    },
-    /// A value could not be decoded as the expected type.
-    #[error("cannot decode {msg} as {ty}: {detail}")]
-    Decode {
-        /// Message name.
-        msg: String,
-        /// Expected Rust type.
-        ty: &'static str,
-        /// The decoder's message.
-        detail: String,
-    },
-}
-
-/// Why a query failed.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[non_exhaustive]
-pub enum QueryError {
-    /// No reply within the timeout.
-    #[error("no reply to {msg} within {timeout:?}")]
-    Timeout {
-        /// Query message.
-        msg: String,
-        /// The timeout.
-        timeout: Duration,
-    },
-    /// The session ended before the reply.
-    #[error("disconnected before {0} was answered")]
-    Disconnected(String),
-    /// The query could not be sent.
-    #[error("query {msg} refused: {detail}")]
-    Refused {
-        /// Query message.
-        msg: String,
-        /// Why.
-        detail: String,
-    },
-    /// The reply is not the expected type.
-    #[error("reply {reply} to {msg} is not a {ty}: {detail}")]
-    Decode {
-        /// Query message.
-        msg: String,
-        /// Reply message name.
-        reply: String,
-        /// Expected Rust type.
-        ty: &'static str,
-        /// The decoder's message.
-        detail: String,
-    },
-}
-
 /// Why connecting failed.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum ConnectError {
+    /// The URL's scheme names no backend this process knows.
+    #[error("{}", unknown_scheme(url, scheme.as_deref(), known))]
+    UnknownScheme {
+        /// The URL.
+        url: String,
+        /// Its scheme (`None`: the URL has no `scheme://`).
+        scheme: Option<String>,
+        /// The schemes this process knows.
+        known: Vec<String>,
+    },
+    /// An option was set that the URL's backend cannot honour.
+    #[error("{option} is not an option of {scheme}:// sessions ({hint})")]
+    Unsupported {
+        /// The builder method.
+        option: &'static str,
+        /// The URL's scheme.
+        scheme: String,
+        /// Which backends have it.
+        hint: &'static str,
+    },
     /// The URL is not understood.
     #[error("bad session URL {url:?}: {why}")]
     BadUrl {
@@ -632,13 +555,14 @@ pub enum ConnectError {
         why: String,
     },
     /// No central answered.
-    #[error("cannot connect to central at {addr} after {attempts} attempt(s): {source}")]
+    #[error("cannot connect to central at {addr} after {attempts} attempt(s)")]
     Unreachable {
         /// Where it tried.
         addr: String,
         /// How often.
         attempts: u32,
-        /// The last error.
+        /// The last error (the message does not repeat it).
+        #[source]
         source: std::io::Error,
     },
     /// A DDS participant could not join the network (no such interface,
@@ -660,166 +584,45 @@ pub enum ConnectError {
     },
 }
 
-/// A pluggable transport: bytes in, bytes out, plus type metadata. Object
-/// safe, so a `Session` holds an `Arc<dyn Backend>`.
-#[async_trait::async_trait]
-pub trait Backend: Send + Sync + std::fmt::Debug {
-    /// How typed values must be encoded.
-    fn encoding(&self) -> Encoding;
-    /// Registers a named format (IPC_defineFormat).
-    async fn define_format(&self, name: &str, format: &str) -> Result<(), SessionError>;
-    /// Defines a message with its format (IPC_defineMsg).
-    async fn define(&self, msg: &str, format: Option<&str>) -> Result<(), SessionError>;
-    /// Publishes; resolves once handed to the transport.
-    async fn publish(&self, msg: &str, data: Vec<u8>) -> Result<(), SessionError>;
-    /// Subscribes; samples arrive on the returned channel until it is
-    /// dropped (then the backend unsubscribes).
-    async fn subscribe(&self, msg: &str, queue: Arc<SampleQueue>) -> Result<(), SessionError>;
-    /// Sends a query; the reply's message name and bytes.
-    async fn query(
-        &self,
-        msg: &str,
-        data: Vec<u8>,
-        timeout: Duration,
-    ) -> Result<RawReply, QueryError>;
-    /// Serves queries of `msg`.
-    async fn serve(
-        &self,
-        msg: &str,
-        queue: usize,
-    ) -> Result<mpsc::Receiver<RawRequest>, SessionError>;
-    /// A stream of system events.
-    fn events(&self) -> mpsc::UnboundedReceiver<SessionEvent>;
-    /// Whether a module of that name is connected.
-    async fn is_module_connected(&self, module: &str) -> Result<bool, SessionError>;
-    /// How many handlers a message has.
-    async fn num_handlers(&self, msg: &str) -> Result<i32, SessionError>;
-    /// IPC_setCapacity.
-    async fn set_capacity(&self, n: i32) -> Result<(), SessionError>;
-    /// IPC_setMsgPriority.
-    async fn set_priority(&self, msg: &str, priority: i32) -> Result<(), SessionError>;
-    /// IPC_setMsgQueueLength.
-    async fn set_queue_length(&self, msg: &str, n: i32) -> Result<(), SessionError>;
-    /// Reports handler-count changes of `msg` on the event streams.
-    async fn watch_handlers(&self, msg: &str) -> Result<(), SessionError>;
-    /// Disconnects cleanly.
-    async fn close(&self);
+fn unknown_scheme(url: &str, scheme: Option<&str>, known: &[String]) -> String {
+    let what = match scheme {
+        Some(s) => format!("unknown URL scheme {s:?} in {url:?}"),
+        None => format!("no scheme in session URL {url:?}"),
+    };
+    format!("{what}; known schemes: {}", known.join(", "))
+}
 
-    /// Creates the publication of `msg` with its type and QoS (DDS: a
-    /// DataWriter). The default defines the message.
-    async fn create_publication(
-        &self,
-        msg: &str,
-        ty: &TypeInfo,
-        qos: &PublicationQos,
-    ) -> Result<(), SessionError> {
-        let _ = qos;
-        self.define(msg, ty.format).await
-    }
+pub use crate::backend::{
+    Backend, Capabilities, ClientId, DdsControl, Handle, IpcControl, PubId, ServiceId, SubId,
+};
 
-    /// Subscribes with a type and QoS (DDS: a DataReader). The default
-    /// subscribes and ignores both.
-    async fn create_subscription(
-        &self,
-        msg: &str,
-        ty: Option<&TypeInfo>,
-        qos: &SubscriptionQos,
-        queue: Arc<SampleQueue>,
-    ) -> Result<(), SessionError> {
-        let _ = (ty, qos);
-        self.subscribe(msg, queue).await
-    }
+/// A handle the typed layer owns: closed when dropped, if the session is
+/// still there (a handle does not keep the session alive).
+struct Owned {
+    backend: Option<std::sync::Weak<dyn Backend>>,
+    handle: Handle,
+}
 
-    /// Subscribes to every topic whose name and type name match the fnmatch
-    /// patterns (ORTE's pattern subscriptions), now and as they are discovered.
-    async fn subscribe_pattern(
-        &self,
-        topic: &str,
-        type_name: &str,
-        queue: Arc<SampleQueue>,
-    ) -> Result<(), SessionError> {
-        let _ = (topic, type_name, queue);
-        Err(SessionError::Refused(
-            "pattern subscriptions need a DDS backend".into(),
-        ))
-    }
-
-    /// Publishes with options: the instance's key hash (keyed DDS topics)
-    /// and/or waiting until every matched reader has acknowledged the
-    /// sample. The default publishes and refuses to confirm.
-    async fn write(
-        &self,
-        msg: &str,
-        data: Vec<u8>,
-        opts: WriteOptions,
-    ) -> Result<(), SessionError> {
-        if opts.confirm.is_some() {
-            return Err(SessionError::Refused(
-                "confirmed publishing needs a DDS backend".into(),
-            ));
+impl Owned {
+    fn new(backend: &Arc<dyn Backend>, handle: Handle) -> Self {
+        Owned {
+            backend: Some(Arc::downgrade(backend)),
+            handle,
         }
-        self.publish(msg, data).await
     }
+}
 
-    /// Whether the backend runs the handlers of immediate-delivery queues
-    /// itself ([`SampleQueue::run_handler`]) as it delivers; otherwise the
-    /// session runs each on a task of its own.
-    fn delivers_immediately(&self) -> bool {
-        false
+impl std::fmt::Debug for Owned {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        self.handle.fmt(f)
     }
+}
 
-    /// Publishes without waiting, from any thread (a subscription callback
-    /// among them): queued or sent before it returns, or an error. The
-    /// default refuses.
-    fn try_write(
-        &self,
-        msg: &str,
-        data: Vec<u8>,
-        key_hash: Option<[u8; 16]>,
-    ) -> Result<(), SessionError> {
-        let _ = (data, key_hash);
-        Err(SessionError::Refused(format!(
-            "cannot publish {msg} without waiting on this backend: use publish().await"
-        )))
-    }
-
-    /// Disposes or unregisters an instance of a keyed topic; `key` is the
-    /// serialized key (CDR with its encapsulation header).
-    async fn end_instance(
-        &self,
-        msg: &str,
-        state: InstanceState,
-        key: Vec<u8>,
-        key_hash: [u8; 16],
-    ) -> Result<(), SessionError> {
-        let _ = (msg, state, key, key_hash);
-        Err(SessionError::Refused("instances need a DDS backend".into()))
-    }
-
-    /// Sends a typed query: like [`Backend::query`], with the types (DDS
-    /// needs them for the request and reply topics).
-    async fn query_typed(
-        &self,
-        msg: &str,
-        req: &TypeInfo,
-        resp: &TypeInfo,
-        data: Vec<u8>,
-        timeout: Duration,
-    ) -> Result<RawReply, QueryError> {
-        let _ = (req, resp);
-        self.query(msg, data, timeout).await
-    }
-
-    /// Serves typed queries: like [`Backend::serve`], with the types.
-    async fn serve_typed(
-        &self,
-        msg: &str,
-        req: &TypeInfo,
-        resp: &TypeInfo,
-        queue: usize,
-    ) -> Result<mpsc::Receiver<RawRequest>, SessionError> {
-        let _ = (req, resp);
-        self.serve(msg, queue).await
+impl Drop for Owned {
+    fn drop(&mut self) {
+        if let Some(b) = self.backend.as_ref().and_then(std::sync::Weak::upgrade) {
+            b.close_handle(self.handle);
+        }
     }
 }
 
@@ -840,6 +643,17 @@ pub struct SessionBuilder {
     name: Option<String>,
     opts: IpcOptions,
     rtps: crate::rtps_backend::RtpsOverrides,
+    /// Builder methods called, by the backends that honour them: one the
+    /// URL's backend cannot honour fails `connect`.
+    set: Vec<(&'static str, Honoured)>,
+}
+
+/// Which backends honour a [`SessionBuilder`] option.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Honoured {
+    Ipc,
+    Rtps,
+    Both,
 }
 
 impl SessionBuilder {
@@ -853,6 +667,7 @@ impl SessionBuilder {
     /// `IPC_connectNoListen`: publishing is not filtered by the list of
     /// subscribed messages.
     pub fn no_listen(mut self) -> Self {
+        self.set.push(("no_listen", Honoured::Ipc));
         self.opts.listen = false;
         self
     }
@@ -870,6 +685,7 @@ impl SessionBuilder {
     /// An embedded central reached through [`SessionBuilder::dial`] that has
     /// stopped is not retried: the session ends as without reconnect.
     pub fn reconnect(mut self, backoff: Duration) -> Self {
+        self.set.push(("reconnect", Honoured::Ipc));
         self.opts.reconnect = Some(backoff);
         self
     }
@@ -882,6 +698,7 @@ impl SessionBuilder {
     /// to 40–44 µs over TCP, and an RTPS round trip across cores from 70 to
     /// 17 µs (BENCHMARKS.md). RTPS: also `busy_poll_us=` in the URL.
     pub fn busy_poll(mut self, window: Duration) -> Self {
+        self.set.push(("busy_poll", Honoured::Both));
         self.opts.busy_poll = Some(window);
         self.rtps.busy_poll = Some(window);
         self
@@ -901,6 +718,7 @@ impl SessionBuilder {
             + Send
             + 'static,
     {
+        self.set.push(("dial", Honoured::Ipc));
         self.opts.dial = Some(crate::ipc_backend::Dial::new(dial));
         self
     }
@@ -910,6 +728,7 @@ impl SessionBuilder {
     /// [`RtpsOptions::receive_thread`]). Also `receive_thread=true` in the
     /// URL. Other backends ignore it.
     pub fn receive_thread(mut self, on: bool) -> Self {
+        self.set.push(("receive_thread", Honoured::Rtps));
         self.rtps.receive_thread = Some(on);
         self
     }
@@ -917,6 +736,7 @@ impl SessionBuilder {
     /// RTPS: the network interface, by name (`lo`) or IPv4 address
     /// (URL: `interface=`).
     pub fn interface(mut self, interface: impl Into<String>) -> Self {
+        self.set.push(("interface", Honoured::Rtps));
         self.rtps.interface = Some(interface.into());
         self
     }
@@ -924,18 +744,21 @@ impl SessionBuilder {
     /// RTPS: unicast discovery peers, `ip` or `ip:port` (URL: `peers=`);
     /// a peer list alone turns multicast off.
     pub fn peers<I: IntoIterator<Item = S>, S: Into<String>>(mut self, peers: I) -> Self {
+        self.set.push(("peers", Honoured::Rtps));
         self.rtps.peers = Some(peers.into_iter().map(Into::into).collect());
         self
     }
 
     /// RTPS: standard SPDP multicast discovery on or off (URL: `multicast=`).
     pub fn multicast(mut self, on: bool) -> Self {
+        self.set.push(("multicast", Honoured::Rtps));
         self.rtps.multicast = Some(on);
         self
     }
 
     /// RTPS: a fixed participant index instead of probing (URL: `index=`).
     pub fn participant_index(mut self, index: u32) -> Self {
+        self.set.push(("participant_index", Honoured::Rtps));
         self.rtps.participant_index = Some(index);
         self
     }
@@ -943,25 +766,63 @@ impl SessionBuilder {
     /// RTPS: socket receive and send buffer sizes in bytes (URL:
     /// `recv_buffer=`, `send_buffer=`).
     pub fn socket_buffers(mut self, recv: usize, send: usize) -> Self {
+        self.set.push(("socket_buffers", Honoured::Rtps));
         self.rtps.recv_buffer = Some(recv);
         self.rtps.send_buffer = Some(send);
         self
     }
 
     /// Connects: `ipc://…` reaches a central, `rtps://<domain>?…` joins a
-    /// DDS domain.
+    /// DDS domain, a scheme plugged in with
+    /// [`register_scheme`](crate::scheme::register_scheme) its backend.
+    ///
+    /// Fails at once, naming the option, if an option was set that this
+    /// URL's backend cannot honour (say, [`interface`](Self::interface) on
+    /// an `ipc://` session), and names the known schemes for an unknown one.
     pub async fn connect(self) -> Result<Session, ConnectError> {
         let name = self
             .name
             .unwrap_or_else(|| format!("courier-{}", std::process::id()));
-        if self.url.starts_with("rtps:") {
-            let mut o = RtpsOptions::from_url(&self.url)?;
-            self.rtps.apply(&mut o);
-            let backend = RtpsBackend::start(o, &name).await?;
-            return Ok(Session::with_backend(Arc::new(backend), name));
-        }
-        let backend = IpcBackend::connect(&self.url, &name, self.opts).await?;
-        Ok(Session::with_backend(Arc::new(backend), name))
+        let scheme = self.url.split_once("://").map_or("", |(s, _)| s);
+        let refuse = |honoured: &[Honoured]| {
+            let bad = self.set.iter().find(|(_, h)| !honoured.contains(h));
+            bad.map(|(option, h)| ConnectError::Unsupported {
+                option,
+                scheme: scheme.to_string(),
+                hint: match h {
+                    Honoured::Ipc => "it is for ipc:// sessions",
+                    Honoured::Rtps => "it is for rtps:// sessions",
+                    Honoured::Both => "it is for ipc:// and rtps:// sessions",
+                },
+            })
+        };
+        let backend: Arc<dyn Backend> = match crate::scheme::resolve(&self.url)? {
+            Resolved::Rtps => {
+                if let Some(e) = refuse(&[Honoured::Rtps, Honoured::Both]) {
+                    return Err(e);
+                }
+                let mut o = RtpsOptions::from_url(&self.url)?;
+                self.rtps.apply(&mut o);
+                Arc::new(RtpsBackend::start(o, &name).await?)
+            }
+            Resolved::Ipc => {
+                if let Some(e) = refuse(&[Honoured::Ipc, Honoured::Both]) {
+                    return Err(e);
+                }
+                Arc::new(IpcBackend::connect(&self.url, &name, self.opts).await?)
+            }
+            Resolved::Plugged(connect) => {
+                if let Some(e) = refuse(&[]) {
+                    return Err(e);
+                }
+                connect(crate::scheme::ConnectRequest {
+                    url: self.url,
+                    name: name.clone(),
+                })
+                .await?
+            }
+        };
+        Ok(Session::with_backend(backend, name))
     }
 }
 
@@ -996,7 +857,9 @@ fn decode<T: IpcMessage>(enc: Encoding, data: &[u8], order: ipc::ByteOrder) -> R
 #[derive(Debug, Clone)]
 pub struct Session {
     backend: Arc<dyn Backend>,
+    caps: Capabilities,
     name: String,
+    topics: Arc<Topics>,
 }
 
 impl Session {
@@ -1009,14 +872,17 @@ impl Session {
             name: None,
             opts: IpcOptions::default(),
             rtps: Default::default(),
+            set: Vec::new(),
         }
     }
 
     /// A session over any backend.
     pub fn with_backend(backend: Arc<dyn Backend>, name: impl Into<String>) -> Self {
         Session {
+            caps: backend.capabilities(),
             backend,
             name: name.into(),
+            topics: Arc::default(),
         }
     }
 
@@ -1031,28 +897,80 @@ impl Session {
     }
 
     fn enc(&self) -> Encoding {
-        self.backend.encoding()
+        self.caps.encoding
     }
 
-    /// Registers `T`'s named formats (`IPC_defineFormat`).
-    pub async fn define_format<T: IpcMessage>(&self) -> Result<(), SessionError> {
-        if self.enc() != Encoding::Ipc {
-            return Ok(());
+    /// What the backend can do.
+    pub fn capabilities(&self) -> Capabilities {
+        self.caps
+    }
+
+    /// The CMU IPC controls (capacity, priorities, queue lengths, named
+    /// formats, …); [`ControlError::Unsupported`] on other backends.
+    pub fn ipc(&self) -> Result<Ipc<'_>, ControlError> {
+        match self.backend.ipc() {
+            Some(ctl) => Ok(Ipc { ctl }),
+            None => Err(ControlError::Unsupported {
+                what: "CMU IPC's controls (IPC_setCapacity, IPC_setMsgPriority, \
+                       IPC_setMsgQueueLength, IPC_defineFormat; no DDS equivalent: use the \
+                       QoS of publishers and subscribers)"
+                    .into(),
+                backend: self.caps.scheme,
+            }),
         }
-        for (name, fmt) in NamedFormats::of::<T>().iter() {
-            self.backend.define_format(name, fmt).await?;
-        }
-        Ok(())
+    }
+
+    /// The DDS controls (matched readers, participants, instances,
+    /// pattern subscriptions); [`ControlError::Unsupported`] on other
+    /// backends.
+    pub fn dds(&self) -> Result<&dyn DdsControl, ControlError> {
+        self.backend.dds().ok_or_else(|| ControlError::Unsupported {
+            what: "DDS's controls".into(),
+            backend: self.caps.scheme,
+        })
     }
 
     /// Defines `msg` carrying `T` (its named formats first). On DDS this
     /// creates the topic's writer with the default [`PublicationQos`]
     /// (reliable, volatile, keep-all); use [`Session::publisher`] for others.
-    pub async fn define<T: IpcMessage>(&self, msg: &str) -> Result<(), SessionError> {
-        self.define_format::<T>().await?;
-        self.backend
-            .create_publication(msg, &TypeInfo::of::<T>(), &PublicationQos::default())
-            .await
+    ///
+    /// A topic carries one type per session: defining, publishing,
+    /// subscribing, querying or serving it later with a type of another
+    /// IPC format or DDS type name fails with [`OpenError::TypeMismatch`].
+    /// Typed [`publish`](Session::publish), [`query`](Session::query) and
+    /// [`serve`](Session::serve) define what they need themselves; call
+    /// `define` to choose the moment (IPC_defineMsg ahead of time).
+    pub async fn define<T: IpcMessage>(&self, msg: &str) -> Result<(), OpenError> {
+        if self.topics.bind::<T>(msg)?.is_none() {
+            self.define_shared(msg, Definition::of::<T>()).await?;
+        }
+        Ok(())
+    }
+
+    /// Opens a publication of `msg` as `def` says (named formats first on
+    /// IPC).
+    async fn open_as(
+        &self,
+        msg: &str,
+        def: &Definition,
+        qos: &PublicationQos,
+    ) -> Result<PubId, OpenError> {
+        if let (true, Some(ipc)) = (self.caps.named_formats, self.backend.ipc()) {
+            for (name, fmt) in &def.formats {
+                ipc.define_format(name, fmt).await?;
+            }
+        }
+        self.backend.open_publication(msg, &def.ty, qos).await
+    }
+
+    /// The session's own publication of `msg` (default QoS), opened now.
+    async fn define_shared(&self, msg: &str, def: Definition) -> Result<PubId, OpenError> {
+        let id = self.open_as(msg, &def, &PublicationQos::default()).await?;
+        let kept = self.topics.set_publication(msg, id);
+        if kept != id {
+            self.backend.close_handle(Handle::Publication(id));
+        }
+        Ok(kept)
     }
 
     /// A publication of `msg` with QoS (ORTE's `ORTEPublicationCreate`);
@@ -1077,15 +995,21 @@ impl Session {
     /// 1 MiB unacknowledged per reliable keep-all writer): when readers
     /// fall behind, `publish().await` waits: back-pressure, not loss.
     pub fn publish<'a, T: IpcMessage>(&'a self, msg: &'a str, value: &T) -> Publish<'a> {
-        self.publish_sized(msg, value, 0)
+        let target = self.topics.bind::<T>(msg).map(|known| match known {
+            Some(id) => Target::Open(id),
+            None => Target::Define(Definition::of::<T>()),
+        });
+        self.publish_sized(msg, value, 0, target)
     }
 
-    /// [`Session::publish`], encoding into a buffer of `size_hint` bytes.
+    /// [`Session::publish`], encoding into a buffer of `size_hint` bytes,
+    /// to `target` (see [`Publish`]).
     fn publish_sized<'a, T: IpcMessage>(
         &'a self,
         msg: &'a str,
         value: &T,
         size_hint: usize,
+        target: Result<Target, OpenError>,
     ) -> Publish<'a> {
         let key_hash = (self.enc() == Encoding::Cdr && !T::KEYS.is_empty())
             .then(|| crate::rtps_backend::key_hash_of(value));
@@ -1101,17 +1025,34 @@ impl Session {
             data,
             confirm: None,
             key_hash,
+            target,
         }
     }
 
-    /// Publishes raw bytes.
-    pub async fn publish_raw(&self, msg: &str, data: &[u8]) -> Result<(), SessionError> {
-        self.backend.publish(msg, data.to_vec()).await
+    /// Publishes raw bytes: on the session's publication of `msg` (made by
+    /// [`Session::define`] or a typed publish), or, where the backend
+    /// publishes untyped messages (IPC: a message somebody else defined),
+    /// on one opened now; otherwise [`PublishError::NoPublication`].
+    pub async fn publish_raw(&self, msg: &str, data: &[u8]) -> Result<(), PublishError> {
+        let id = match self.topics.publication(msg) {
+            Some(id) => id,
+            None if self.caps.untyped_publications => {
+                let def = Definition {
+                    ty: TypeInfo::untyped(),
+                    formats: Vec::new(),
+                };
+                self.define_shared(msg, def).await?
+            }
+            None => return Err(PublishError::NoPublication(msg.to_string())),
+        };
+        self.backend
+            .write(id, data.to_vec(), WriteOptions::default())
+            .await
     }
 
     /// Subscribes with the default queue policy (keep all, 1000 samples,
     /// then back-pressure).
-    pub async fn subscribe<T: IpcMessage>(&self, msg: &str) -> Result<Subscriber<T>, SessionError> {
+    pub async fn subscribe<T: IpcMessage>(&self, msg: &str) -> Result<Subscriber<T>, OpenError> {
         self.subscribe_with(msg, QueuePolicy::default()).await
     }
 
@@ -1120,7 +1061,7 @@ impl Session {
         &self,
         msg: &str,
         policy: QueuePolicy,
-    ) -> Result<Subscriber<T>, SessionError> {
+    ) -> Result<Subscriber<T>, OpenError> {
         self.subscriber::<T>(msg).queue(policy).build().await
     }
 
@@ -1137,12 +1078,20 @@ impl Session {
     }
 
     /// Subscribes to raw samples.
-    pub async fn subscribe_raw(&self, msg: &str) -> Result<RawSubscriber, SessionError> {
+    pub async fn subscribe_raw(&self, msg: &str) -> Result<RawSubscriber, OpenError> {
         let queue = SampleQueue::new(QueuePolicy::default());
-        self.backend
-            .create_subscription(msg, None, &SubscriptionQos::default(), queue.clone())
+        let id = self
+            .backend
+            .open_subscription(msg, None, &SubscriptionQos::default(), queue.clone())
             .await?;
-        Ok(RawSubscriber { queue })
+        Ok(RawSubscriber::new(
+            queue,
+            self.owned(Handle::Subscription(id)),
+        ))
+    }
+
+    fn owned(&self, handle: Handle) -> Owned {
+        Owned::new(&self.backend, handle)
     }
 
     /// Subscribes to every topic whose name matches `topic` and whose type
@@ -1153,12 +1102,23 @@ impl Session {
         &self,
         topic: &str,
         type_name: &str,
-    ) -> Result<RawSubscriber, SessionError> {
+    ) -> Result<RawSubscriber, OpenError> {
+        let Some(dds) = self
+            .backend
+            .dds()
+            .filter(|_| self.caps.pattern_subscriptions)
+        else {
+            return Err(OpenError::Unsupported {
+                what: "a pattern subscription".into(),
+                backend: self.caps.scheme,
+            });
+        };
         let queue = SampleQueue::new(QueuePolicy::KeepLast(10_000));
-        self.backend
-            .subscribe_pattern(topic, type_name, queue.clone())
-            .await?;
-        Ok(RawSubscriber { queue })
+        let id = dds.open_pattern(topic, type_name, queue.clone()).await?;
+        Ok(RawSubscriber::new(
+            queue,
+            self.owned(Handle::Subscription(id)),
+        ))
     }
 
     /// A query; `.timeout(d)` bounds the wait (default 10 s).
@@ -1167,12 +1127,18 @@ impl Session {
         msg: &'a str,
         req: &Req,
     ) -> Query<'a, Resp> {
+        // IPC: the query message must be defined in central (by anyone);
+        // the reply is decoded as `Resp` whatever message the server used
+        let check = self.topics.bind::<Req>(msg).map(|known| {
+            (known.is_none() && self.enc() == Encoding::Ipc).then(Definition::of::<Req>)
+        });
         Query {
             session: self,
             msg,
             req: TypeInfo::of::<Req>(),
             data: encode(self.enc(), req),
             timeout: Duration::from_secs(10),
+            check,
             _t: PhantomData,
         }
     }
@@ -1184,27 +1150,99 @@ impl Session {
         data: &[u8],
         timeout: Duration,
     ) -> Result<RawReply, QueryError> {
-        self.backend.query(msg, data.to_vec(), timeout).await
+        let untyped = TypeInfo::untyped();
+        let client = self
+            .client(msg, &untyped, &untyped)
+            .await
+            .map_err(|e| open_failed(msg, e))?;
+        self.backend.query(client, data.to_vec(), timeout).await
+    }
+
+    /// The session's client of the service `msg`, opened on first use.
+    async fn client(
+        &self,
+        msg: &str,
+        req: &TypeInfo,
+        resp: &TypeInfo,
+    ) -> Result<ClientId, OpenError> {
+        if let Some(c) = self.topics.client(msg) {
+            return Ok(c);
+        }
+        let id = self.backend.open_client(msg, req, resp).await?;
+        let kept = self.topics.set_client(msg, id);
+        if kept != id {
+            self.backend.close_handle(Handle::Client(id));
+        }
+        Ok(kept)
     }
 
     /// Serves queries of `msg` as raw requests (answer with
-    /// [`RawRequest::respond`]).
-    pub async fn serve_raw(&self, msg: &str) -> Result<mpsc::Receiver<RawRequest>, SessionError> {
-        self.backend.serve(msg, 1000).await
+    /// [`RawRequest::respond`]); the stream ends when the connection is
+    /// gone, and dropping it stops serving.
+    pub async fn serve_raw(&self, msg: &str) -> Result<RawRequests, OpenError> {
+        let untyped = TypeInfo::untyped();
+        let (id, rx) = self
+            .backend
+            .open_service(msg, &untyped, &untyped, 1000)
+            .await?;
+        Ok(RawRequests {
+            rx,
+            _handle: self.owned(Handle::Service(id)),
+        })
     }
 
     /// Serves queries of `msg`, answering with `reply_msg` messages.
+    ///
+    /// The reply message name is IPC's (`IPC_respond`'s `replyMsgName`):
+    /// an IPC asker decodes the reply by it. `""` takes the backend's own:
+    /// `<msg>Reply` on IPC; on DDS replies always travel on the service's
+    /// reply topic (`rr/<msg>Reply`), so there any other name is refused
+    /// with [`OpenError::Unsupported`] rather than ignored.
     pub async fn serve<Req: IpcMessage, Resp: IpcMessage>(
         &self,
         msg: &str,
         reply_msg: &str,
-    ) -> Result<Requests<Req, Resp>, SessionError> {
-        let rx = self
+    ) -> Result<Requests<Req, Resp>, OpenError> {
+        let reply_msg = match (self.caps.reply_names, reply_msg) {
+            (true, "") => format!("{msg}Reply"),
+            (true, name) => name.to_string(),
+            (false, "") => String::new(),
+            (false, name) => {
+                return Err(OpenError::Unsupported {
+                    what: format!(
+                        "reply message name {name:?} (DDS replies go on the service's reply \
+                         topic; pass \"\")"
+                    ),
+                    backend: self.caps.scheme,
+                })
+            }
+        };
+        let reply_msg = reply_msg.as_str();
+        let define_req = self.topics.bind::<Req>(msg)?.is_none();
+        let define_resp = if reply_msg.is_empty() {
+            false
+        } else {
+            self.topics.bind::<Resp>(reply_msg)?.is_none()
+        };
+        if self.caps.reply_names {
+            // both must be defined in central: a reply to an undefined
+            // message could not be sent
+            if define_req {
+                self.define_shared(msg, Definition::of::<Req>()).await?;
+            }
+            if define_resp {
+                self.define_shared(reply_msg, Definition::of::<Resp>())
+                    .await?;
+            }
+        }
+        let (id, rx) = self
             .backend
-            .serve_typed(msg, &TypeInfo::of::<Req>(), &TypeInfo::of::<Resp>(), 1000)
+            .open_service(msg, &TypeInfo::of::<Req>(), &TypeInfo::of::<Resp>(), 1000)
             .await?;
         Ok(Requests {
             rx,
+            _handle: self.owned(Handle::Service(id)),
+            ended: false,
             reply_msg: reply_msg.to_string(),
             enc: self.enc(),
             _t: PhantomData,
@@ -1235,36 +1273,43 @@ impl Session {
         }
     }
 
+    fn no_controls(&self, what: &str) -> ControlError {
+        ControlError::Unsupported {
+            what: what.to_string(),
+            backend: self.caps.scheme,
+        }
+    }
+
     /// Reports [`SessionEvent::HandlersChanged`] for `msg`
-    /// (IPC_subscribeHandlerChange; DDS: matched readers of our writer).
-    pub async fn watch_handlers(&self, msg: &str) -> Result<(), SessionError> {
-        self.backend.watch_handlers(msg).await
+    /// (IPC_subscribeHandlerChange; DDS: readers matched with our writers,
+    /// [`DdsControl::watch_matches`]).
+    pub async fn watch_handlers(&self, msg: &str) -> Result<(), ControlError> {
+        match (self.backend.ipc(), self.backend.dds()) {
+            (Some(ipc), _) => ipc.watch_handlers(msg).await,
+            (_, Some(dds)) => dds.watch_matches(msg).await,
+            _ => Err(self.no_controls("watching handlers")),
+        }
     }
 
     /// Whether a module of that name is connected to central (DDS: a
-    /// participant with that entity name is known).
-    pub async fn is_module_connected(&self, module: &str) -> Result<bool, SessionError> {
-        self.backend.is_module_connected(module).await
+    /// participant with that entity name is known,
+    /// [`DdsControl::participant_named`]).
+    pub async fn is_module_connected(&self, module: &str) -> Result<bool, ControlError> {
+        match (self.backend.ipc(), self.backend.dds()) {
+            (Some(ipc), _) => ipc.is_module_connected(module).await,
+            (_, Some(dds)) => dds.participant_named(module).await,
+            _ => Err(self.no_controls("is_module_connected")),
+        }
     }
 
-    /// How many handlers subscribe `msg` (DDS: readers matched with our writer).
-    pub async fn num_handlers(&self, msg: &str) -> Result<i32, SessionError> {
-        self.backend.num_handlers(msg).await
-    }
-
-    /// How many messages central may deliver at once (default 1).
-    pub async fn set_capacity(&self, n: i32) -> Result<(), SessionError> {
-        self.backend.set_capacity(n).await
-    }
-
-    /// Priority of `msg` in this module's pending queue.
-    pub async fn set_priority(&self, msg: &str, priority: i32) -> Result<(), SessionError> {
-        self.backend.set_priority(msg, priority).await
-    }
-
-    /// Most pending `msg` deliveries central keeps for this module (oldest dropped).
-    pub async fn set_queue_length(&self, msg: &str, n: i32) -> Result<(), SessionError> {
-        self.backend.set_queue_length(msg, n).await
+    /// How many handlers subscribe `msg` (DDS: readers matched with our
+    /// writers, [`DdsControl::matched_readers`]).
+    pub async fn num_handlers(&self, msg: &str) -> Result<i32, ControlError> {
+        match (self.backend.ipc(), self.backend.dds()) {
+            (Some(ipc), _) => ipc.num_handlers(msg).await,
+            (_, Some(dds)) => dds.matched_readers(msg).await,
+            _ => Err(self.no_controls("num_handlers")),
+        }
     }
 
     /// Disconnects cleanly (also done when the last clone is dropped).
@@ -1282,6 +1327,16 @@ pub struct Publish<'a> {
     data: Vec<u8>,
     confirm: Option<Duration>,
     key_hash: Option<[u8; 16]>,
+    /// Where it goes: an open publication, or the definition of the
+    /// session's publication to make first; or the type mismatch.
+    target: Result<Target, OpenError>,
+}
+
+/// Where a [`Publish`] goes.
+#[derive(Debug)]
+enum Target {
+    Open(PubId),
+    Define(Definition),
 }
 
 impl<'a> Publish<'a> {
@@ -1300,21 +1355,23 @@ impl<'a> Publish<'a> {
 }
 
 impl<'a> std::future::IntoFuture for Publish<'a> {
-    type Output = Result<(), SessionError>;
+    type Output = Result<(), PublishError>;
     type IntoFuture = Pin<Box<dyn std::future::Future<Output = Self::Output> + Send + 'a>>;
 
     fn into_future(self) -> Self::IntoFuture {
-        if self.confirm.is_none() && self.key_hash.is_none() {
+        let opts = WriteOptions {
+            key_hash: self.key_hash,
+            confirm: self.confirm,
+        };
+        match self.target {
+            Err(e) => Box::pin(std::future::ready(Err(e.into()))),
             // the backend's own (boxed) future, not a box around it
-            return self.session.backend.publish(self.msg, self.data);
+            Ok(Target::Open(id)) => self.session.backend.write(id, self.data, opts),
+            Ok(Target::Define(def)) => Box::pin(async move {
+                let id = self.session.define_shared(self.msg, def).await?;
+                self.session.backend.write(id, self.data, opts).await
+            }),
         }
-        Box::pin(async move {
-            let opts = WriteOptions {
-                key_hash: self.key_hash,
-                confirm: self.confirm,
-            };
-            self.session.backend.write(self.msg, self.data, opts).await
-        })
     }
 }
 
@@ -1389,13 +1446,20 @@ impl<T: IpcMessage> PublisherBuilder<T> {
     }
 
     /// Creates the publication.
-    pub async fn build(self) -> Result<Publisher<T>, SessionError> {
-        self.session.define_format::<T>().await?;
-        self.session
-            .backend
-            .create_publication(&self.msg, &TypeInfo::of::<T>(), &self.qos)
+    ///
+    /// Each is a publication of its own (DDS: a DataWriter of its own, so
+    /// that publishers of one topic with different QoS coexist); on IPC
+    /// they share the message's definition. Dropping the last clone closes
+    /// it.
+    pub async fn build(self) -> Result<Publisher<T>, OpenError> {
+        self.session.topics.bind::<T>(&self.msg)?;
+        let id = self
+            .session
+            .open_as(&self.msg, &Definition::of::<T>(), &self.qos)
             .await?;
         Ok(Publisher {
+            handle: Arc::new(self.session.owned(Handle::Publication(id))),
+            id,
             session: self.session,
             msg: self.msg,
             last_len: Arc::default(),
@@ -1408,6 +1472,9 @@ impl<T: IpcMessage> PublisherBuilder<T> {
 #[derive(Debug)]
 pub struct Publisher<T> {
     session: Session,
+    id: PubId,
+    /// Closes the publication when the last clone goes.
+    handle: Arc<Owned>,
     msg: String,
     /// Encoded size of the last sample, shared by the clones: the next
     /// one is encoded into a buffer that size, so a large sample is not
@@ -1420,6 +1487,8 @@ impl<T> Clone for Publisher<T> {
     fn clone(&self) -> Self {
         Publisher {
             session: self.session.clone(),
+            id: self.id,
+            handle: self.handle.clone(),
             msg: self.msg.clone(),
             last_len: self.last_len.clone(),
             _t: PhantomData,
@@ -1437,7 +1506,10 @@ impl<T: IpcMessage> Publisher<T> {
     pub fn publish(&self, value: &T) -> Publish<'_> {
         use std::sync::atomic::Ordering::Relaxed;
         let hint = self.last_len.load(Relaxed);
-        let p = self.session.publish_sized(&self.msg, value, hint);
+        // checked and opened when the publisher was built
+        let p = self
+            .session
+            .publish_sized(&self.msg, value, hint, Ok(Target::Open(self.id)));
         if p.data.len() != hint {
             self.last_len.store(p.data.len(), Relaxed);
         }
@@ -1451,27 +1523,28 @@ impl<T: IpcMessage> Publisher<T> {
     /// cannot (IPC: use `publish().await`). Inside a callback of an
     /// immediate subscription the datagram goes out when the callback
     /// returns, packed with the callback's other writes.
-    pub fn try_publish(&self, value: &T) -> Result<(), SessionError> {
+    pub fn try_publish(&self, value: &T) -> Result<(), PublishError> {
         let p = self.publish(value);
-        self.session.backend.try_write(p.msg, p.data, p.key_hash)
+        let opts = WriteOptions {
+            key_hash: p.key_hash,
+            confirm: None,
+        };
+        self.session.backend.try_write(self.id, p.data, opts)
     }
 
     /// Disposes the instance that `value`'s key fields name (keyed topics).
-    pub async fn dispose(&self, value: &T) -> Result<(), SessionError> {
+    pub async fn dispose(&self, value: &T) -> Result<(), PublishError> {
         self.end(value, InstanceState::Disposed).await
     }
 
     /// Unregisters the instance that `value`'s key fields name (keyed topics).
-    pub async fn unregister(&self, value: &T) -> Result<(), SessionError> {
+    pub async fn unregister(&self, value: &T) -> Result<(), PublishError> {
         self.end(value, InstanceState::Unregistered).await
     }
 
-    async fn end(&self, value: &T, state: InstanceState) -> Result<(), SessionError> {
+    async fn end(&self, value: &T, state: InstanceState) -> Result<(), PublishError> {
         if T::KEYS.is_empty() {
-            return Err(SessionError::Refused(format!(
-                "{} has no key fields: only keyed topics have instances to dispose",
-                T::TYPE_NAME
-            )));
+            return Err(PublishError::NotKeyed(T::TYPE_NAME));
         }
         // A key that always fits in the key hash travels only as the inline
         // KEY_HASH (as Fast DDS sends it, and the only form Fast DDS 2.9
@@ -1483,10 +1556,18 @@ impl<T: IpcMessage> Publisher<T> {
             cdr::key_to_vec(value, cdr::Encoding::Xcdr1Le)
         };
         let hash = crate::rtps_backend::key_hash_of(value);
-        self.session
+        match self
+            .session
             .backend
-            .end_instance(&self.msg, state, key, hash)
-            .await
+            .dds()
+            .filter(|_| self.session.caps.instances)
+        {
+            Some(dds) => dds.end_instance(self.id, state, key, hash).await,
+            None => Err(PublishError::Unsupported {
+                what: format!("disposing or unregistering an instance of {}", self.msg),
+                backend: self.session.caps.scheme,
+            }),
+        }
     }
 
     /// ORTE's send callback: every `period`, `f` is asked for a value to
@@ -1515,12 +1596,12 @@ impl<T: IpcMessage> Publisher<T> {
 /// A publication driven by a timer ([`Publisher::send_every`]); dropping it stops it.
 #[derive(Debug)]
 pub struct PeriodicPublication {
-    task: tokio::task::JoinHandle<Result<(), SessionError>>,
+    task: tokio::task::JoinHandle<Result<(), PublishError>>,
 }
 
 impl PeriodicPublication {
     /// Stops it and returns why it ended, if it ended by itself.
-    pub async fn stop(mut self) -> Result<(), SessionError> {
+    pub async fn stop(mut self) -> Result<(), PublishError> {
         self.task.abort();
         (&mut self.task).await.unwrap_or(Ok(()))
     }
@@ -1605,16 +1686,22 @@ impl<T: IpcMessage> SubscriberBuilder<T> {
     }
 
     /// The backend's subscription of this type and QoS, into `queue`.
-    async fn create(&self, queue: &Arc<SampleQueue>) -> Result<(), SessionError> {
-        self.session
+    async fn create(&self, queue: Arc<SampleQueue>) -> Result<RawSubscriber, OpenError> {
+        self.session.topics.bind::<T>(&self.msg)?;
+        let id = self
+            .session
             .backend
-            .create_subscription(
+            .open_subscription(
                 &self.msg,
                 Some(&TypeInfo::of::<T>()),
                 &self.qos,
                 queue.clone(),
             )
-            .await
+            .await?;
+        Ok(RawSubscriber::new(
+            queue,
+            self.session.owned(Handle::Subscription(id)),
+        ))
     }
 
     /// Creates the subscription with immediate delivery (ORTE's IMMEDIATE
@@ -1644,34 +1731,32 @@ impl<T: IpcMessage> SubscriberBuilder<T> {
     ///     .await?;
     /// # Ok(()) }
     /// ```
-    pub async fn listen<F>(self, mut f: F) -> Result<Listener, SessionError>
+    pub async fn listen<F>(self, mut f: F) -> Result<Listener, OpenError>
     where
         F: FnMut(Result<Sample<T>, RecvError>) + Send + 'static,
     {
         let queue = SampleQueue::new(self.policy.unwrap_or_default());
         let enc = self.session.enc();
-        queue.set_handler(move |q, s| f(convert::<T>(enc, q, s)));
-        self.create(&queue).await?;
-        if !self.session.backend.delivers_immediately() {
-            let q = queue.clone();
+        queue.set_handler(move |q, s| {
+            f(s.map_or(Err(RecvError::Disconnected), |s| convert::<T>(enc, q, s)))
+        });
+        let raw = self.create(queue.clone()).await?;
+        if !self.session.caps.immediate_delivery {
             tokio::spawn(async move {
-                while std::future::poll_fn(|cx| q.poll_waiting(cx)).await {
-                    q.run_handler();
+                while std::future::poll_fn(|cx| queue.poll_waiting(cx)).await {
+                    queue.run_handler();
                 }
             });
         }
-        Ok(Listener {
-            raw: RawSubscriber { queue },
-            msg: self.msg,
-        })
+        Ok(Listener { raw, msg: self.msg })
     }
 
     /// Creates the subscription.
-    pub async fn build(self) -> Result<Subscriber<T>, SessionError> {
+    pub async fn build(self) -> Result<Subscriber<T>, OpenError> {
         let queue = SampleQueue::new(self.policy.unwrap_or_default());
-        self.create(&queue).await?;
+        let raw = self.create(queue).await?;
         Ok(Subscriber {
-            raw: RawSubscriber { queue },
+            raw,
             msg: self.msg,
             enc: self.session.enc(),
             decode_errors: 0,
@@ -1776,10 +1861,6 @@ fn convert<T: IpcMessage>(
     if let Some(done) = s.done.take() {
         done();
     }
-    if s.msg.is_empty() {
-        // The backend's end-of-connection marker.
-        return Err(RecvError::Disconnected);
-    }
     if s.state != InstanceState::Alive {
         return Err(RecvError::Instance {
             msg: s.msg,
@@ -1807,7 +1888,10 @@ fn convert<T: IpcMessage>(
 }
 
 impl<T: IpcMessage> Subscriber<T> {
-    fn convert(&mut self, s: RawSample) -> Result<Sample<T>, RecvError> {
+    fn convert(&mut self, p: Popped) -> Result<Sample<T>, RecvError> {
+        let Popped::Sample(s) = p else {
+            return Err(RecvError::Disconnected);
+        };
         let r = convert(self.enc, &self.raw.queue, s);
         if matches!(r, Err(RecvError::Decode { .. })) {
             self.decode_errors += 1;
@@ -1816,8 +1900,13 @@ impl<T: IpcMessage> Subscriber<T> {
     }
 
     /// Pulled delivery (ORTE's `ORTEAppSubscriptionPull`): the next sample
-    /// if one is waiting, without waiting.
-    pub fn try_next(&mut self) -> Option<Result<Sample<T>, RecvError>> {
+    /// if one is waiting, without waiting; `None` when none is waiting
+    /// (not the end of the stream: for that, poll the `Stream`).
+    ///
+    /// Named like [`RawSubscriber::try_recv`] and tokio's receivers, so
+    /// that it never shadows `futures::TryStreamExt::try_next`, which
+    /// waits.
+    pub fn try_recv(&mut self) -> Option<Result<Sample<T>, RecvError>> {
         let s = self.raw.queue.try_pop()?;
         Some(self.convert(s))
     }
@@ -1854,6 +1943,17 @@ impl<T> Subscriber<T> {
     }
 }
 
+/// A query that could not start: opening what it needs failed.
+fn open_failed(msg: &str, e: OpenError) -> QueryError {
+    match e {
+        OpenError::Disconnected(_) => QueryError::Disconnected(msg.to_string()),
+        source => QueryError::Open {
+            msg: msg.to_string(),
+            source,
+        },
+    }
+}
+
 /// A query being built; `.await` it.
 #[derive(Debug)]
 pub struct Query<'a, Resp> {
@@ -1862,6 +1962,8 @@ pub struct Query<'a, Resp> {
     req: TypeInfo,
     data: Vec<u8>,
     timeout: Duration,
+    /// The query message's type check, as [`Publish`]'s.
+    check: Result<Option<Definition>, OpenError>,
     _t: PhantomData<fn() -> Resp>,
 }
 
@@ -1873,16 +1975,22 @@ impl<'a, Resp: IpcMessage + 'a> Query<'a, Resp> {
     }
 
     async fn run(self) -> Result<Resp, QueryError> {
+        let refused = |e: OpenError| open_failed(self.msg, e);
+        if let Some(def) = self.check.map_err(refused)? {
+            self.session
+                .define_shared(self.msg, def)
+                .await
+                .map_err(refused)?;
+        }
+        let client = self
+            .session
+            .client(self.msg, &self.req, &TypeInfo::of::<Resp>())
+            .await
+            .map_err(refused)?;
         let (reply, data, order) = self
             .session
             .backend
-            .query_typed(
-                self.msg,
-                &self.req,
-                &TypeInfo::of::<Resp>(),
-                self.data,
-                self.timeout,
-            )
+            .query(client, self.data, self.timeout)
             .await?;
         decode::<Resp>(self.session.enc(), &data, order).map_err(|detail| QueryError::Decode {
             msg: self.msg.to_string(),
@@ -1921,13 +2029,67 @@ impl<Req: std::fmt::Debug, Resp> std::fmt::Debug for Request<Req, Resp> {
 }
 
 impl<Req, Resp: IpcMessage> Request<Req, Resp> {
-    /// Answers the request (now or later, from any task).
-    pub async fn reply(mut self, resp: &Resp) -> Result<(), SessionError> {
-        let f = self
-            .respond
-            .take()
-            .ok_or_else(|| SessionError::Refused("already answered".into()))?;
-        f(&self.reply_msg, encode(self.enc, resp))
+    /// Answers the request (now or later, from any task); resolves once
+    /// the reply is sent, or with why it could not be.
+    ///
+    /// A `Request` dropped without a reply is declined: the server keeps
+    /// receiving (on IPC, central frees the module's capacity slot), and
+    /// the asker gets no reply and runs into its timeout.
+    pub async fn reply(mut self, resp: &Resp) -> Result<(), PublishError> {
+        let r = self.respond.take().ok_or(PublishError::AlreadyAnswered)?;
+        r.reply(&self.reply_msg, encode(self.enc, resp)).await
+    }
+}
+
+/// Raw requests of [`Session::serve_raw`]; dropping it stops serving.
+#[derive(Debug)]
+pub struct RawRequests {
+    rx: mpsc::Receiver<RawRequest>,
+    _handle: Owned,
+}
+
+impl RawRequests {
+    /// The next request; `None` once the connection has ended.
+    pub async fn recv(&mut self) -> Option<RawRequest> {
+        self.rx.recv().await
+    }
+}
+
+impl Stream for RawRequests {
+    type Item = RawRequest;
+    fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<RawRequest>> {
+        self.rx.poll_recv(cx)
+    }
+}
+
+/// CMU IPC's controls on a session ([`Session::ipc`]): the typed
+/// [`Ipc::define_formats`], and every [`IpcControl`] method through `Deref`.
+#[derive(Clone, Copy)]
+pub struct Ipc<'a> {
+    ctl: &'a dyn IpcControl,
+}
+
+impl std::fmt::Debug for Ipc<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Ipc")
+    }
+}
+
+impl<'a> std::ops::Deref for Ipc<'a> {
+    type Target = dyn IpcControl + 'a;
+    fn deref(&self) -> &Self::Target {
+        self.ctl
+    }
+}
+
+impl Ipc<'_> {
+    /// Registers `T`'s named formats (`IPC_defineFormat`; also done by
+    /// every definition of a message carrying `T`).
+    pub async fn define_formats<T: IpcMessage>(&self) -> Result<(), OpenError> {
+        for (name, fmt) in NamedFormats::of::<T>().iter() {
+            self.ctl.define_format(name, fmt).await?;
+        }
+        Ok(())
     }
 }
 
@@ -1935,6 +2097,10 @@ impl<Req, Resp: IpcMessage> Request<Req, Resp> {
 #[derive(Debug)]
 pub struct Requests<Req, Resp> {
     rx: mpsc::Receiver<RawRequest>,
+    /// Stops serving when dropped.
+    _handle: Owned,
+    /// The end (`Err(Disconnected)`) was yielded.
+    ended: bool,
     reply_msg: String,
     enc: Encoding,
     _t: PhantomData<fn() -> (Req, Resp)>,
@@ -1946,9 +2112,6 @@ impl<Req: IpcMessage, Resp: IpcMessage> Stream for Requests<Req, Resp> {
     fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Self::Item>> {
         match self.rx.poll_recv(cx) {
             Poll::Ready(Some(r)) => {
-                if r.msg.is_empty() {
-                    return Poll::Ready(Some(Err(RecvError::Disconnected)));
-                }
                 let v = decode::<Req>(self.enc, &r.data, r.order);
                 Poll::Ready(Some(match v {
                     Ok(value) => Ok(Request {
@@ -1965,22 +2128,41 @@ impl<Req: IpcMessage, Resp: IpcMessage> Stream for Requests<Req, Resp> {
                     }),
                 }))
             }
+            // the backend closed the channel: the session is gone
+            Poll::Ready(None) if !self.ended => {
+                self.ended = true;
+                Poll::Ready(Some(Err(RecvError::Disconnected)))
+            }
             Poll::Ready(None) => Poll::Ready(None),
             Poll::Pending => Poll::Pending,
         }
     }
 }
 
-/// The stream of [`SessionEvent`]s.
+/// The stream of [`SessionEvent`]s ([`Session::events`]).
+///
+/// Each stream has a bounded queue of its own: one that is not read often
+/// enough loses its oldest events, never holding up the session or the
+/// other streams; [`Events::lost`] counts them. The stream ends after
+/// [`SessionEvent::Disconnected`] when the session closes (one opened
+/// after that ends at once).
 #[derive(Debug)]
 pub struct Events {
-    rx: mpsc::UnboundedReceiver<SessionEvent>,
+    rx: crate::hub::Listener<SessionEvent>,
+}
+
+impl Events {
+    /// Events this stream lost so far because it was not read fast enough
+    /// (the oldest are dropped first).
+    pub fn lost(&self) -> u64 {
+        self.rx.lost()
+    }
 }
 
 impl Stream for Events {
     type Item = SessionEvent;
     fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<SessionEvent>> {
-        self.rx.poll_recv(cx)
+        Pin::new(&mut self.rx).poll_next(cx)
     }
 }
 
@@ -2044,9 +2226,13 @@ mod tests {
 
     fn subscriber<T>(queue: &Arc<SampleQueue>) -> Subscriber<T> {
         Subscriber {
-            raw: RawSubscriber {
-                queue: queue.clone(),
-            },
+            raw: RawSubscriber::new(
+                queue.clone(),
+                Owned {
+                    backend: None,
+                    handle: Handle::Subscription(SubId(0)),
+                },
+            ),
             msg: "m".into(),
             enc: Encoding::Cdr,
             decode_errors: 0,
@@ -2069,10 +2255,10 @@ mod tests {
         queue.push(RawSample::new("m", small)).unwrap();
         // a buffer that does not decode goes back too
         queue.push(RawSample::new("m", vec![0xff; 5000])).unwrap();
-        assert_eq!(sub.try_next().unwrap().unwrap().value, "x".repeat(10_000));
-        assert_eq!(sub.try_next().unwrap().unwrap().value, "y");
+        assert_eq!(sub.try_recv().unwrap().unwrap().value, "x".repeat(10_000));
+        assert_eq!(sub.try_recv().unwrap().unwrap().value, "y");
         assert!(matches!(
-            sub.try_next(),
+            sub.try_recv(),
             Some(Err(RecvError::Decode { .. }))
         ));
         let mut back = Vec::new();
@@ -2114,7 +2300,7 @@ mod tests {
         w.wake();
         assert_eq!(woken(), 1);
         // keep-last 2: "a" made room for "c"
-        let got: Vec<String> = std::iter::from_fn(|| sub.try_next())
+        let got: Vec<String> = std::iter::from_fn(|| sub.try_recv())
             .map(|s| s.unwrap().value)
             .collect();
         assert_eq!(got, ["b", "c"]);
@@ -2146,7 +2332,7 @@ mod tests {
         let mut sub = subscriber::<String>(&queue);
         let big = cdr::to_vec(&"x".repeat(10_000), cdr::Encoding::Xcdr1Le);
         queue.push(RawSample::new("m", big)).unwrap();
-        assert_eq!(sub.try_next().unwrap().unwrap().value.len(), 10_000);
+        assert_eq!(sub.try_recv().unwrap().unwrap().value.len(), 10_000);
         assert!(queue.returns.get().is_none());
     }
 }

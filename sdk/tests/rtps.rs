@@ -1,12 +1,14 @@
 //! The RTPS backend, Courier against Courier: two sessions (two DDS
 //! participants) in one process, on loopback only, with unicast discovery
-//! (`interface=lo&peers=127.0.0.1`). Each test has its own domain id, so
-//! tests running in parallel never see each other. Every wait is bounded.
+//! (`interface=lo&peers=127.0.0.1`). Each test has its own domain id,
+//! leased machine-wide by `courier_tests::domains`, so tests running in
+//! parallel, in this run or another, never see each other. Every wait is
+//! bounded.
 
 use std::time::Duration;
 
 use courier::{
-    ConnectError, InstanceState, IpcMessage, RecvError, Session, SessionError, SessionEvent,
+    ConnectError, InstanceState, IpcMessage, PublishError, RecvError, Session, SessionEvent,
 };
 use futures::StreamExt;
 
@@ -152,8 +154,8 @@ async fn confirmed_publish_waits_for_acknowledgement() {
         .await
         .unwrap();
     // acknowledged means received: it is in the subscriber's queue already
-    assert_eq!(sub.try_next().expect("already here").unwrap().value, msg(1));
-    assert!(sub.try_next().is_none(), "pulled delivery: nothing more");
+    assert_eq!(sub.try_recv().expect("already here").unwrap().value, msg(1));
+    assert!(sub.try_recv().is_none(), "pulled delivery: nothing more");
     // a reader whose keep-all queue is full stops reading (and so stops
     // acknowledging) until its application takes a sample
     b.close().await;
@@ -179,7 +181,7 @@ async fn confirmed_publish_waits_for_acknowledgement() {
         .timeout(Duration::from_millis(300))
         .await;
     match r {
-        Err(SessionError::Timeout { what, after }) => {
+        Err(PublishError::Timeout { what, after }) => {
             assert!(what.contains("acked"), "{what}");
             assert_eq!(after, Duration::from_millis(300));
         }
@@ -191,12 +193,20 @@ async fn confirmed_publish_waits_for_acknowledgement() {
     assert_eq!(next(&mut slow).await.unwrap().value, msg(4));
 }
 
+/// A typed publish creates the topic's publication (default QoS) itself;
+/// raw bytes on a topic without one are a clear error.
 #[tokio::test]
-async fn publishing_without_a_publication_is_a_clear_error() {
+async fn typed_publish_creates_its_publication_and_raw_needs_one() {
     let a = session(155, "a").await;
-    let e = a.publish("nowhere", &msg(0)).await.unwrap_err();
+    let b = session(155, "b").await;
+    let mut sub = b.subscribe::<Msg>("somewhere").await.unwrap();
+    a.publish("somewhere", &msg(0)).await.unwrap();
+    await_handlers(&a, "somewhere", 1).await;
+    a.publish("somewhere", &msg(1)).await.unwrap();
+    assert_eq!(next(&mut sub).await.unwrap().value, msg(1));
+    let e = a.publish_raw("nowhere", &[0, 1, 0, 0]).await.unwrap_err();
     assert!(e.to_string().contains("nowhere has no publication"), "{e}");
-    let e = a.set_capacity(1).await.unwrap_err();
+    let e = a.ipc().unwrap_err();
     assert!(e.to_string().contains("no DDS equivalent"), "{e}");
 }
 
@@ -248,6 +258,39 @@ async fn pattern_subscription_sees_matching_topics_with_their_types() {
     assert_eq!(a.num_handlers("actuator/arm").await.unwrap(), 0);
 }
 
+/// A remote endpoint on one of our topics with another type name is an
+/// event naming both types (the wire domain's type mismatch, not only a
+/// log line).
+#[tokio::test]
+async fn a_type_mismatch_on_a_topic_is_an_event() {
+    let a = session(169, "a").await;
+    let mut ev = a.events();
+    a.define::<Msg>("mixed").await.unwrap();
+    let b = session(169, "b").await;
+    let _sub = b.subscribe::<i32>("mixed").await.unwrap();
+    let (topic, remote, local_type, remote_type) = tokio::time::timeout(T, async {
+        loop {
+            if let SessionEvent::TypeMismatch {
+                topic,
+                remote,
+                local_type,
+                remote_type,
+            } = ev.next().await.unwrap()
+            {
+                return (topic, remote, local_type, remote_type);
+            }
+        }
+    })
+    .await
+    .expect("a type mismatch reported");
+    assert_eq!(topic, "mixed");
+    assert_eq!(local_type, Msg::TYPE_NAME);
+    assert_eq!(remote_type, i32::TYPE_NAME);
+    assert_eq!(remote.to_string().len(), 32);
+    // no match between them
+    assert_eq!(a.num_handlers("mixed").await.unwrap(), 0);
+}
+
 #[tokio::test]
 async fn discovery_events_found_and_lost() {
     let a = session(157, "watcher").await;
@@ -260,11 +303,10 @@ async fn discovery_events_found_and_lost() {
         while !(found_participant && found_publication) {
             match ev.next().await.unwrap() {
                 SessionEvent::ParticipantFound(p) => {
-                    found_participant |= p.entity_name.as_deref() == Some("robot-7")
+                    found_participant |= p.name.as_deref() == Some("robot-7")
                 }
                 SessionEvent::PublicationFound(e) => {
-                    found_publication |=
-                        e.topic_name == "odom" && e.type_name == "courier::test::Msg"
+                    found_publication |= e.topic == "odom" && e.type_name == "courier::test::Msg"
                 }
                 _ => {}
             }
@@ -296,9 +338,14 @@ async fn a_silent_participant_is_lost_when_its_lease_expires() {
     // a participant that announces itself once, with a 500 ms lease, and
     // then falls silent (no goodbye): driven by hand from the wire crate
     let prefix = guid_prefix([7; 10]);
-    let mut cfg = Config::udpv4(158, 15, prefix, [127, 0, 0, 1])
-        .unwrap()
-        .with_unicast_peers(&[[127, 0, 0, 1]], 5);
+    let mut cfg = Config::udpv4(
+        courier_tests::domains::lease(158),
+        15,
+        prefix,
+        [127, 0, 0, 1],
+    )
+    .unwrap()
+    .with_unicast_peers(&[[127, 0, 0, 1]], 5);
     cfg.lease_duration = Duration::from_millis(500);
     cfg.entity_name = Some("ghost".into());
     let mut ghost = Participant::new(cfg, Instant::now(), SystemTime::now());
@@ -311,7 +358,7 @@ async fn a_silent_participant_is_lost_when_its_lease_expires() {
     let found = tokio::time::timeout(T, async {
         loop {
             if let SessionEvent::ParticipantFound(p) = ev.next().await.unwrap() {
-                if p.guid_prefix == prefix {
+                if p.guid.is_of(prefix.0) {
                     return Instant::now();
                 }
             }
@@ -322,12 +369,8 @@ async fn a_silent_participant_is_lost_when_its_lease_expires() {
     assert!(a.is_module_connected("ghost").await.unwrap());
     tokio::time::timeout(T, async {
         loop {
-            if let SessionEvent::ParticipantLost {
-                guid_prefix,
-                disposed,
-            } = ev.next().await.unwrap()
-            {
-                if guid_prefix == prefix {
+            if let SessionEvent::ParticipantLost { guid, disposed } = ev.next().await.unwrap() {
+                if guid.is_of(prefix.0) {
                     assert!(!disposed, "it went silent, it did not say goodbye");
                     break;
                 }
@@ -364,7 +407,7 @@ async fn exclusive_ownership_takes_the_strongest_writer() {
     assert_eq!(next(&mut sub).await.unwrap().value, msg(100));
     assert_eq!(next(&mut sub).await.unwrap().value, msg(101));
     assert!(
-        sub.try_next().is_none(),
+        sub.try_recv().is_none(),
         "the weak writer's sample was not taken"
     );
     // the strong writer goes away: the weak one takes over
@@ -419,6 +462,121 @@ async fn deadline_misses_are_events() {
 }
 
 #[tokio::test]
+async fn a_slow_events_listener_loses_the_oldest_and_counts_them() {
+    use futures::FutureExt;
+    let a = session(170, "a").await;
+    let b = session(170, "b").await;
+    let p = a
+        .publisher::<Msg>("tick")
+        .deadline(Duration::from_millis(1))
+        .build()
+        .await
+        .unwrap();
+    // never read until the end
+    let mut slow = b.events();
+    let mut fast = b.events();
+    let mut sub = b
+        .subscriber::<Msg>("tick")
+        .deadline(Duration::from_millis(1))
+        .build()
+        .await
+        .unwrap();
+    await_handlers(&a, "tick", 1).await;
+    p.publish(&msg(0)).await.unwrap();
+    next(&mut sub).await.unwrap();
+    // then silence: a miss every millisecond, far more than one
+    // listener's queue holds (1024)
+    let mut seen = 0u64;
+    let mut last_total = 0;
+    tokio::time::timeout(T, async {
+        while seen < 1500 {
+            let e = fast.next().await.expect("the session goes on");
+            seen += 1;
+            if let SessionEvent::DeadlineMissed { total, .. } = e {
+                last_total = total;
+            }
+        }
+    })
+    .await
+    .expect("1500 events in time");
+    assert_eq!(fast.lost(), 0, "a listener that keeps up loses nothing");
+    let lost = slow.lost();
+    assert!(lost >= seen - 1024, "{lost} lost of at least {seen}");
+    // the slow one kept the newest: a full queue, starting well after the
+    // first miss
+    let mut kept = Vec::new();
+    while let Some(Some(e)) = slow.next().now_or_never() {
+        kept.push(e);
+        if kept.len() > 10_000 {
+            break;
+        }
+    }
+    assert!(kept.len() >= 1024, "a full queue: {}", kept.len());
+    assert!(
+        !kept
+            .iter()
+            .any(|e| matches!(e, SessionEvent::DeadlineMissed { total: 1, .. })),
+        "the oldest (the first miss) were dropped"
+    );
+    let newest = kept.iter().rev().find_map(|e| match e {
+        SessionEvent::DeadlineMissed { total, .. } => Some(*total),
+        _ => None,
+    });
+    assert!(newest >= Some(last_total), "{newest:?} < {last_total}");
+    // neither listener held up the session
+    p.publish(&msg(1)).await.unwrap();
+    assert_eq!(next(&mut sub).await.unwrap().value, msg(1));
+}
+
+/// Publishers of one topic with different QoS are DDS writers of their
+/// own: a reliable reader matches only the reliable one, a best-effort
+/// reader both, and each sample names its own writer.
+#[tokio::test]
+async fn publishers_of_one_topic_with_different_qos_are_writers_of_their_own() {
+    let a = session(171, "a").await;
+    let b = session(171, "b").await;
+    let reliable = a.publisher::<Msg>("multi").build().await.unwrap();
+    let fast = a
+        .publisher::<Msg>("multi")
+        .best_effort()
+        .build()
+        .await
+        .unwrap();
+    let mut strict = b.subscriber::<Msg>("multi").build().await.unwrap();
+    let mut any = b
+        .subscriber::<Msg>("multi")
+        .best_effort()
+        .build()
+        .await
+        .unwrap();
+    // the reliable writer matches both readers
+    await_handlers(&a, "multi", 2).await;
+    // the best-effort one reaches the best-effort reader
+    let fast_source = tokio::time::timeout(T, async {
+        loop {
+            fast.publish(&msg(100)).await.unwrap();
+            if let Ok(Some(s)) = tokio::time::timeout(Duration::from_millis(50), any.next()).await {
+                let s = s.unwrap();
+                if s.value.seq == 100 {
+                    break s.source;
+                }
+            }
+        }
+    })
+    .await
+    .expect("the best-effort writer reaches the best-effort reader");
+    reliable.publish(&msg(1)).await.unwrap();
+    let s = next(&mut strict).await.unwrap();
+    assert_eq!(
+        s.value.seq, 1,
+        "a reliable reader matches no best-effort writer"
+    );
+    let got = s.source;
+    assert!(got.is_some() && fast_source.is_some());
+    assert_ne!(got, fast_source, "two writers, two GUIDs");
+}
+
+#[tokio::test]
 async fn minimum_separation_drops_and_counts() {
     let a = session(161, "a").await;
     let b = session(161, "b").await;
@@ -434,7 +592,7 @@ async fn minimum_separation_drops_and_counts() {
         p.publish(&msg(i)).confirmed().await.unwrap();
     }
     assert_eq!(next(&mut sub).await.unwrap().value, msg(0));
-    assert!(sub.try_next().is_none());
+    assert!(sub.try_recv().is_none());
     assert_eq!(sub.dropped(), 9);
 }
 
@@ -559,10 +717,7 @@ struct AddResp {
 /// A server that answers each request from a task of its own, after a
 /// delay that makes later requests finish first.
 async fn adder(s: &Session) {
-    let mut reqs = s
-        .serve::<AddReq, AddResp>("add", "add_reply")
-        .await
-        .unwrap();
+    let mut reqs = s.serve::<AddReq, AddResp>("add", "").await.unwrap();
     tokio::spawn(async move {
         while let Some(r) = reqs.next().await {
             let r = r.unwrap();
@@ -633,8 +788,7 @@ async fn a_query_nobody_serves_times_out_and_close_fails_pending_ones() {
 }
 
 /// `busy_poll_us=` in the URL: samples flow as without it, and once
-/// traffic stops the sessions stop spending CPU (both run on this test's
-/// one thread, so its CPU time over an idle stretch shows any spinning).
+/// traffic stops the sessions' busy pollers stop spinning.
 #[tokio::test(flavor = "current_thread")]
 async fn busy_polling_sessions_exchange_samples_and_go_quiet_when_idle() {
     let connect = |name: &'static str| {
@@ -656,7 +810,7 @@ async fn busy_polling_sessions_exchange_samples_and_go_quiet_when_idle() {
         assert_eq!(next(&mut sub).await.unwrap().value, msg(i));
     }
     tokio::time::sleep(Duration::from_millis(20)).await;
-    common::assert_quiet("idle busy-polling sessions").await;
+    common::await_quiet("idle busy-polling sessions").await;
     a.close().await;
     b.close().await;
 }

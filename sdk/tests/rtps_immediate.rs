@@ -8,7 +8,9 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{mpsc, Arc};
 use std::time::Duration;
 
-use courier::{RecvError, Sample, Session, SessionError};
+use courier::{
+    Handle, PublicationQos, PublishError, RecvError, Sample, Session, TypeInfo, WriteOptions,
+};
 
 mod common;
 use common::{await_handlers, next, session, url, Msg, T};
@@ -162,24 +164,24 @@ async fn try_publish_keeps_order_and_refuses_clearly() {
     for i in 0..300 {
         assert_eq!(next(&mut sub).await.unwrap().value.seq, i);
     }
-    // a topic this session has no publication of
-    let err = b
-        .backend()
-        .try_write("nobody", vec![0, 1, 0, 0], None)
+    // a publication this session has closed
+    let backend = b.backend();
+    let closed = backend
+        .open_publication("nobody", &TypeInfo::of::<Msg>(), &PublicationQos::default())
+        .await
+        .unwrap();
+    backend.close_handle(Handle::Publication(closed));
+    let err = backend
+        .try_write(closed, vec![0, 1, 0, 0], WriteOptions::default())
         .unwrap_err();
     match err {
-        SessionError::Refused(why) => {
-            assert!(
-                why.contains("nobody") && why.contains("no publication"),
-                "{why}"
-            )
-        }
+        PublishError::Closed(p) => assert_eq!(p, closed),
         e => panic!("unexpected {e:?}"),
     }
     a.close().await;
     let err = p.try_publish(&msg(0)).unwrap_err();
     assert!(
-        matches!(err, SessionError::Disconnected(_)),
+        matches!(err, PublishError::Disconnected(_)),
         "after close: {err:?}"
     );
     b.close().await;

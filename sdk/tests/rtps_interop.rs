@@ -6,7 +6,7 @@
 //!
 //! Loopback only: the peers embed a loopback-only unicast configuration
 //! (interface `lo`, no multicast, SPDP to 127.0.0.1) and Courier's sessions
-//! use `interface=lo&peers=127.0.0.1`. Each test has its own domain id.
+//! use `interface=lo&peers=127.0.0.1`. Each test has its own domain id, leased machine-wide (`courier_tests::domains`).
 //! Missing tools or libraries fail the tests (`.ci/run` installs them).
 
 use std::time::Duration;
@@ -64,8 +64,10 @@ async fn await_handlers(s: &Session, topic: &str) {
     common::await_handlers(s, topic, 1).await
 }
 
+/// The peer's `--domain`: the domain leased to key `d`, as the sessions
+/// of `common::session(d, ..)` use.
 fn domain_arg(d: u32) -> String {
-    d.to_string()
+    courier_tests::domains::lease(d).to_string()
 }
 
 // ---------------------------------------------------------------------------
@@ -630,9 +632,9 @@ async fn discovery_events(vendor: Vendor, domain: u32) {
     tokio::time::timeout(T, async {
         while prefix.is_none() || !publication {
             match ev.next().await.expect("events") {
-                SessionEvent::ParticipantFound(p) => prefix = Some(p.guid_prefix),
+                SessionEvent::ParticipantFound(p) => prefix = Some(p.guid.prefix()),
                 SessionEvent::PublicationFound(e) => {
-                    publication |= e.topic_name == "seen" && e.type_name == "courier::test::Msg"
+                    publication |= e.topic == "seen" && e.type_name == "courier::test::Msg"
                 }
                 _ => {}
             }
@@ -644,12 +646,10 @@ async fn discovery_events(vendor: Vendor, domain: u32) {
     // the peer exits by itself after lingering and says goodbye
     let lost = tokio::time::timeout(T, async {
         loop {
-            if let SessionEvent::ParticipantLost {
-                guid_prefix,
-                disposed,
-            } = ev.next().await.expect("events")
+            if let SessionEvent::ParticipantLost { guid, disposed } =
+                ev.next().await.expect("events")
             {
-                if guid_prefix == prefix {
+                if guid.is_of(prefix) {
                     return disposed;
                 }
             }
@@ -683,7 +683,7 @@ async fn courier_queries_a_fastdds_service() {
         Vendor::FastDds,
         &[
             "--domain",
-            "188",
+            &domain_arg(188),
             "--topic",
             "echo",
             "--type",
@@ -720,7 +720,7 @@ async fn courier_queries_a_fastdds_service() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_fastdds_client_queries_a_courier_service() {
     let s = session(189).await;
-    let mut reqs = s.serve::<Msg, Msg>("echo", "echo_reply").await.unwrap();
+    let mut reqs = s.serve::<Msg, Msg>("echo", "").await.unwrap();
     let server = tokio::spawn(async move {
         for _ in 0..3 {
             let r = tokio::time::timeout(T, reqs.next())
@@ -737,7 +737,7 @@ async fn a_fastdds_client_queries_a_courier_service() {
         Vendor::FastDds,
         &[
             "--domain",
-            "189",
+            &domain_arg(189),
             "--topic",
             "echo",
             "--type",

@@ -160,7 +160,7 @@ async fn query_serve_with_delayed_reply_and_many_concurrent_queries() {
     server.define::<i64>("squared").await.unwrap();
     let mut reqs = server.serve::<i32, i64>("square", "squared").await.unwrap();
     // Central hands a module at most `capacity` queries at once.
-    server.set_capacity(20).await.unwrap();
+    server.ipc().unwrap().set_capacity(20).await.unwrap();
     assert_eq!(
         tokio::time::timeout(T, client.num_handlers("square"))
             .await
@@ -231,9 +231,17 @@ async fn query_timeout_and_events() {
     assert!(matches!(e, QueryError::Timeout { .. }), "{e}");
     assert!(a.is_module_connected("watcher").await.unwrap());
     assert!(!a.is_module_connected("ghost").await.unwrap());
-    a.set_capacity(2).await.unwrap();
-    a.set_priority("nobody_serves", 3).await.unwrap();
-    a.set_queue_length("nobody_serves", 5).await.unwrap();
+    a.ipc().unwrap().set_capacity(2).await.unwrap();
+    a.ipc()
+        .unwrap()
+        .set_priority("nobody_serves", 3)
+        .await
+        .unwrap();
+    a.ipc()
+        .unwrap()
+        .set_queue_length("nobody_serves", 5)
+        .await
+        .unwrap();
     c.shutdown().await;
 }
 
@@ -287,6 +295,11 @@ async fn timers_tick_on_schedule() {
 #[tokio::test]
 async fn bad_url_and_unreachable_central_say_where() {
     let e = Session::builder("tcp://x").connect().await.unwrap_err();
+    assert!(e.to_string().contains("unknown URL scheme \"tcp\""), "{e}");
+    let e = Session::builder("ipc://x:notaport")
+        .connect()
+        .await
+        .unwrap_err();
     assert!(e.to_string().contains("bad session URL"), "{e}");
     // A port nobody listens on.
     let port = std::net::TcpListener::bind("127.0.0.1:0")
@@ -496,7 +509,10 @@ async fn raw_query_and_serve() {
     let srv = tokio::spawn(async move {
         let r = reqs.recv().await.unwrap();
         assert_eq!(r.data, courier::ipc::to_vec(&9i32));
-        (r.respond)("raw_r", courier::ipc::to_vec(&10i32)).unwrap();
+        r.respond
+            .reply("raw_r", courier::ipc::to_vec(&10i32))
+            .await
+            .unwrap();
         reqs
     });
     let (reply, data, _) = a
@@ -523,7 +539,7 @@ async fn flood_a_subscriber(
     p.define::<i32>(msg).await.unwrap();
     let sub = s.subscribe_with::<i32>(msg, policy).await.unwrap();
     if let Some(n) = central_limit {
-        s.set_queue_length(msg, n).await.unwrap();
+        s.ipc().unwrap().set_queue_length(msg, n).await.unwrap();
     }
     p.num_handlers(msg).await.unwrap();
     tokio::time::sleep(Duration::from_millis(100)).await;
@@ -639,8 +655,7 @@ async fn reconnects_and_resubscribes_after_central_restarts() {
 }
 
 /// Busy-polling sessions and a busy-polling central answer queries like any
-/// other, and stop spending CPU once traffic stops: everything runs on this
-/// test's one thread, so its CPU time over an idle stretch shows spinning.
+/// other, and their busy pollers stop spinning once traffic stops.
 #[tokio::test(flavor = "current_thread")]
 async fn busy_polling_answers_queries_and_goes_quiet_when_idle() {
     let window = Duration::from_millis(20);
@@ -681,7 +696,7 @@ async fn busy_polling_answers_queries_and_goes_quiet_when_idle() {
     }
     // Idle: after the window nothing spins.
     tokio::time::sleep(window * 3).await;
-    common::assert_quiet("an idle busy-polling central and sessions").await;
+    common::await_quiet("an idle busy-polling central and sessions").await;
     // Traffic again: still answered.
     let r: i32 = a.query("spin_q", &21).timeout(T).await.unwrap();
     assert_eq!(r, 42);

@@ -7,6 +7,11 @@
 //! - [`format`](mod@format): the CMU IPC format-string language.
 //! - [`ipc`]: IPC marshalling, byte-identical to CMU IPC 3.9.
 //! - [`cdr`]: OMG CDR as DDS uses it (XCDR1 and XCDR2).
+//! - [`rtps`]: DDSI-RTPS 2.x messages and the participant state machine.
+//! - [`dds`]: a sans-I/O DDS domain over the RTPS participant.
+//! - [`xrce`]: DDS-XRCE messages and their TCP and serial framings.
+//! - `sim` (cargo feature `sim`): a deterministic simulated network to
+//!   test these machines on.
 //! - [`IpcMessage`]: the trait `#[derive(IpcMessage)]` implements.
 //!
 //! ```
@@ -22,10 +27,14 @@
 
 pub mod cdr;
 pub mod const_str;
+pub mod dds;
 pub mod format;
 pub mod ipc;
 mod message;
 pub mod rtps;
+#[cfg(feature = "sim")]
+pub mod sim;
+pub mod xrce;
 
 #[doc(hidden)]
 pub use message::__private;

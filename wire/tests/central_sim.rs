@@ -1662,6 +1662,7 @@ fn large_query_pair(cut_through: Option<usize>) -> (Sim, u64, u64) {
     sim.m(b).respond(d[0].0, "answer", blob(1, 0)).unwrap();
     sim.pump();
     sim.take_events(a);
+    sim.take_events(b); // the answerer's Replied
     (sim, a, b)
 }
 

@@ -4,174 +4,55 @@
 //! late joiners, lease expiry and QoS mismatches. Deterministic: seeded
 //! xorshift, simulated time, no sockets, no sleeps.
 
-use std::time::{Duration, Instant, SystemTime};
+use std::time::Duration;
 
 use courier_wire::rtps::discovery::{
     Durability, Duration as RtpsDuration, EndpointQos, History, Reliability,
 };
 use courier_wire::rtps::matching::Incompatible;
 use courier_wire::rtps::participant::{
-    guid_prefix, Change, ChangeKind, Config, Datagram, EndpointConfig, Event, KeyHash, LostReason,
+    guid_prefix, Change, ChangeKind, Config, EndpointConfig, Event, KeyHash, LostReason,
     Participant, ReceivedSample,
 };
 use courier_wire::rtps::{Guid, Locator, Message, SequenceNumber, Submessage};
+use courier_wire::sim::{self, Faults};
 
 const LO: [u8; 4] = [127, 0, 0, 1];
 
-/// A participant on the simulated network.
-struct Node {
-    p: Participant,
-    events: Vec<Event>,
-    /// A node that is down neither sends nor receives (a crashed process).
-    up: bool,
-}
-
-/// A lossy network of participants: every datagram may be dropped,
-/// duplicated and delayed (which reorders), decided by a seeded xorshift.
-struct Net {
-    nodes: Vec<Node>,
-    seed: u64,
-    loss: u32,
-    dup: u32,
-    max_delay_ms: u64,
-    queue: Vec<(Instant, u64, Locator, Vec<u8>)>,
-    serial: u64,
-    t0: Instant,
-    now: Instant,
-    /// Every datagram sent, for inspecting the wire.
-    tap: Vec<Datagram>,
-    tapping: bool,
-}
+/// The shared simulated network, with participants on it.
+type Net = sim::Net<Participant>;
 
 fn rel() -> Reliability {
     Reliability::Reliable(RtpsDuration::ZERO)
 }
 
-impl Net {
-    fn new(n: usize, seed: u64, loss: u32) -> Net {
-        let t0 = Instant::now();
-        let wall = SystemTime::UNIX_EPOCH + Duration::from_secs(1_700_000_000);
-        let nodes = (0..n)
-            .map(|i| {
-                let cfg = Config::udpv4(0, i as u32, guid_prefix([i as u8 + 1; 10]), LO)
-                    .unwrap()
-                    .with_unicast_peers(&[LO], 9);
-                Node {
-                    p: Participant::new(cfg, t0, wall),
-                    events: Vec::new(),
-                    up: true,
-                }
-            })
-            .collect();
-        let mut net = Net {
-            nodes,
-            seed: seed | 1,
-            loss,
-            dup: if loss > 0 { 5 } else { 0 },
-            max_delay_ms: if loss > 0 { 20 } else { 1 },
-            queue: Vec::new(),
-            serial: 0,
-            t0,
-            now: t0,
-            tap: Vec::new(),
-            tapping: false,
-        };
-        net.pump();
-        net
+/// `n` participants (indices 0..n, peers 127.0.0.1 up to index 9) on a
+/// network with `loss` % loss (and then duplicates and reordering).
+fn new_net(n: usize, seed: u64, loss: u32) -> Net {
+    let mut net = Net::new(seed, Faults::lossy(loss));
+    for i in 0..n {
+        let cfg = Config::udpv4(0, i as u32, guid_prefix([i as u8 + 1; 10]), LO)
+            .unwrap()
+            .with_unicast_peers(&[LO], 9);
+        let p = Participant::new(cfg, net.now(), net.wall());
+        net.add(p);
     }
+    net
+}
 
-    fn rand(&mut self) -> u32 {
-        self.seed ^= self.seed << 13;
-        self.seed ^= self.seed >> 7;
-        self.seed ^= self.seed << 17;
-        (self.seed >> 32) as u32
-    }
+/// What these tests look at on a network of participants.
+trait Look {
+    fn guid(&self, i: usize) -> courier_wire::rtps::GuidPrefix;
+    fn samples(&self, i: usize) -> Vec<&ReceivedSample>;
+}
 
-    fn send(&mut self, d: Datagram) {
-        if self.tapping {
-            self.tap.push(d.clone());
-        }
-        if self.rand() % 100 < self.loss {
-            return;
-        }
-        let copies = if self.rand() % 100 < self.dup { 2 } else { 1 };
-        for _ in 0..copies {
-            let delay = 1 + u64::from(self.rand()) % self.max_delay_ms;
-            self.serial += 1;
-            self.queue.push((
-                self.now + Duration::from_millis(delay),
-                self.serial,
-                d.destination,
-                d.payload.clone(),
-            ));
-        }
-    }
-
-    /// Takes every node's datagrams and events.
-    fn pump(&mut self) {
-        for i in 0..self.nodes.len() {
-            while let Some(d) = self.nodes[i].p.poll_transmit() {
-                if self.nodes[i].up {
-                    self.send(d);
-                }
-            }
-            while let Some(e) = self.nodes[i].p.poll_event() {
-                self.nodes[i].events.push(e);
-            }
-        }
-    }
-
-    /// Advances 1 ms: deliveries, timers, outputs.
-    fn step(&mut self) {
-        self.now += Duration::from_millis(1);
-        let now = self.now;
-        let mut due: Vec<_> = Vec::new();
-        self.queue.retain(|q| {
-            if q.0 <= now {
-                due.push(q.clone());
-                false
-            } else {
-                true
-            }
-        });
-        due.sort_by_key(|q| (q.0, q.1));
-        for (_, _, to, bytes) in due {
-            for n in self.nodes.iter_mut().filter(|n| n.up) {
-                let c = n.p.config();
-                if c.metatraffic_unicast.contains(&to) || c.default_unicast.contains(&to) {
-                    n.p.handle_datagram(Locator::udpv4(LO, 40000), &bytes, now);
-                }
-            }
-        }
-        for n in self.nodes.iter_mut().filter(|n| n.up) {
-            if n.p.poll_timeout().is_some_and(|t| t <= now) {
-                n.p.handle_timeout(now);
-            }
-        }
-        self.pump();
-    }
-
-    fn run_until(&mut self, limit: Duration, mut done: impl FnMut(&Net) -> bool) -> bool {
-        let end = self.now + limit;
-        while self.now < end {
-            if done(self) {
-                return true;
-            }
-            self.step();
-        }
-        done(self)
-    }
-
-    fn run_for(&mut self, d: Duration) {
-        self.run_until(d, |_| false);
-    }
-
+impl Look for Net {
     fn guid(&self, i: usize) -> courier_wire::rtps::GuidPrefix {
-        self.nodes[i].p.guid_prefix()
+        self.hosts[i].node.guid_prefix()
     }
 
     fn samples(&self, i: usize) -> Vec<&ReceivedSample> {
-        self.nodes[i]
+        self.hosts[i]
             .events
             .iter()
             .filter_map(|e| match e {
@@ -179,14 +60,6 @@ impl Net {
                 _ => None,
             })
             .collect()
-    }
-
-    fn has(&self, i: usize, f: impl Fn(&Event) -> bool) -> bool {
-        self.nodes[i].events.iter().any(f)
-    }
-
-    fn elapsed(&self) -> Duration {
-        self.now - self.t0
     }
 }
 
@@ -214,10 +87,10 @@ fn sample(id: i32, n: i32) -> (Vec<u8>, KeyHash) {
 /// Two participants on a network with `loss` % loss, a writer on the first
 /// and a reader on the second, run until both sides have matched.
 fn matched_pair(seed: u64, loss: u32, w: EndpointConfig, r: EndpointConfig) -> (Net, Guid, Guid) {
-    let mut net = Net::new(2, seed, loss);
-    let now = net.now;
-    let w = net.nodes[0].p.create_writer(w, now).unwrap();
-    let r = net.nodes[1].p.create_reader(r, now).unwrap();
+    let mut net = new_net(2, seed, loss);
+    let now = net.now();
+    let w = net.hosts[0].node.create_writer(w, now).unwrap();
+    let r = net.hosts[1].node.create_reader(r, now).unwrap();
     assert!(
         net.run_until(Duration::from_secs(30), |n| matched(n, 0, w, 1, r)),
         "seed {seed}: no match after {:?}",
@@ -240,13 +113,13 @@ fn matched(net: &Net, w_node: usize, w: Guid, r_node: usize, r: Guid) -> bool {
 /// keep-all history allows, then runs until every reader has them all.
 fn write_all(net: &mut Net, w: Guid, readers: &[usize], count: i32, limit: Duration) -> bool {
     let mut next = 0;
-    let end = net.now + limit;
-    while net.now < end {
+    let end = net.now() + limit;
+    while net.now() < end {
         while next < count {
             let (b, k) = sample(next % 5, next);
-            let now = net.now;
-            match net.nodes[0]
-                .p
+            let now = net.now();
+            match net.hosts[0]
+                .node
                 .write(w, Change::alive(&b).with_key_hash(k), now)
             {
                 Ok(_) => next += 1,
@@ -291,15 +164,15 @@ fn check_in_order(net: &Net, r: usize, count: i32) {
 #[test]
 fn two_participants_discover_by_unicast_peers_and_deliver_reliably_under_30_percent_loss() {
     for seed in [1u64, 42, 7777] {
-        let mut net = Net::new(2, seed, 30);
+        let mut net = new_net(2, seed, 30);
         let (p0, p1) = (net.guid(0), net.guid(1));
-        let now = net.now;
-        let w = net.nodes[0]
-            .p
+        let now = net.now();
+        let w = net.hosts[0]
+            .node
             .create_writer(keyed_writer("Robot", "Pose"), now)
             .unwrap();
-        let r = net.nodes[1]
-            .p
+        let r = net.hosts[1]
+            .node
             .create_reader(reliable_reader("Robot", "Pose").keyed(true), now)
             .unwrap();
         assert!(
@@ -338,24 +211,24 @@ fn two_participants_discover_by_unicast_peers_and_deliver_reliably_under_30_perc
                 Event::AckedByAll { writer, up_to } if *writer == w && up_to.0 == 300
             )))
         );
-        assert!(net.nodes[0].p.is_acked_by_all(w, SequenceNumber(300)));
+        assert!(net.hosts[0].node.is_acked_by_all(w, SequenceNumber(300)));
     }
 }
 
 #[test]
 fn three_participants_each_reader_gets_everything_in_order() {
-    let mut net = Net::new(3, 99, 30);
-    let now = net.now;
-    let w = net.nodes[0]
-        .p
+    let mut net = new_net(3, 99, 30);
+    let now = net.now();
+    let w = net.hosts[0]
+        .node
         .create_writer(keyed_writer("T", "Ty"), now)
         .unwrap();
-    let r1 = net.nodes[1]
-        .p
+    let r1 = net.hosts[1]
+        .node
         .create_reader(reliable_reader("T", "Ty").keyed(true), now)
         .unwrap();
-    let r2 = net.nodes[2]
-        .p
+    let r2 = net.hosts[2]
+        .node
         .create_reader(reliable_reader("T", "Ty").keyed(true), now)
         .unwrap();
     assert!(
@@ -364,7 +237,7 @@ fn three_participants_each_reader_gets_everything_in_order() {
     );
     // everybody knows everybody
     for i in 0..3 {
-        assert_eq!(net.nodes[i].p.participants().count(), 2, "node {i}");
+        assert_eq!(net.hosts[i].node.participants().count(), 2, "node {i}");
     }
     assert!(write_all(
         &mut net,
@@ -375,29 +248,29 @@ fn three_participants_each_reader_gets_everything_in_order() {
     ));
     check_in_order(&net, 1, 200);
     check_in_order(&net, 2, 200);
-    assert_eq!(net.nodes[0].p.matched_readers(w), vec![r1, r2]);
+    assert_eq!(net.hosts[0].node.matched_readers(w), vec![r1, r2]);
 }
 
 #[test]
 fn best_effort_delivers_in_order_without_repair() {
     // lossless: everything arrives
-    let mut net = Net::new(2, 5, 0);
-    let now = net.now;
+    let mut net = new_net(2, 5, 0);
+    let now = net.now();
     let mut wq = EndpointQos::writer_default();
     wq.reliability = Reliability::BestEffort;
-    let w = net.nodes[0]
-        .p
+    let w = net.hosts[0]
+        .node
         .create_writer(EndpointConfig::writer("B", "T").qos(wq.clone()), now)
         .unwrap();
-    let r = net.nodes[1]
-        .p
+    let r = net.hosts[1]
+        .node
         .create_reader(EndpointConfig::reader("B", "T"), now)
         .unwrap();
     assert!(net.run_until(Duration::from_secs(10), |n| matched(n, 0, w, 1, r)));
     for i in 0..50 {
         let (b, _) = sample(0, i);
-        let now = net.now;
-        net.nodes[0].p.write(w, Change::alive(&b), now).unwrap();
+        let now = net.now();
+        net.hosts[0].node.write(w, Change::alive(&b), now).unwrap();
         net.step();
     }
     net.run_for(Duration::from_millis(100));
@@ -411,8 +284,8 @@ fn best_effort_delivers_in_order_without_repair() {
     );
     for i in 0..200 {
         let (b, _) = sample(0, i);
-        let now = net.now;
-        net.nodes[0].p.write(w, Change::alive(&b), now).unwrap();
+        let now = net.now();
+        net.hosts[0].node.write(w, Change::alive(&b), now).unwrap();
         // slower than the network reorders: a late sample would be dropped
         net.run_for(Duration::from_millis(25));
     }
@@ -437,8 +310,11 @@ fn a_200_kib_sample_is_fragmented_and_reassembled_under_loss() {
             reliable_reader("Big", "Blob"),
         );
         net.tapping = true;
-        let now = net.now;
-        net.nodes[0].p.write(w, Change::alive(&big), now).unwrap();
+        let now = net.now();
+        net.hosts[0]
+            .node
+            .write(w, Change::alive(&big), now)
+            .unwrap();
         net.pump();
         assert!(
             net.run_until(Duration::from_secs(60), |n| !n.samples(1).is_empty()),
@@ -480,7 +356,7 @@ fn a_200_kib_sample_is_fragmented_and_reassembled_under_loss() {
 
 /// Takes the samples node `i` has received so far, as owned values.
 fn take_samples(net: &mut Net, i: usize) -> Vec<ReceivedSample> {
-    std::mem::take(&mut net.nodes[i].events)
+    std::mem::take(&mut net.hosts[i].events)
         .into_iter()
         .filter_map(|e| match e {
             Event::SampleReceived(s) => Some(s),
@@ -502,14 +378,17 @@ fn sample_buffers_handed_back_are_received_into_again() {
     for size in [10_000usize, 40_000] {
         let mut last = None;
         // (a spare of the other size stays: it does not fit)
-        let other = net.nodes[1].p.spare_bytes();
+        let other = net.hosts[1].node.spare_bytes();
         for round in 0..3u8 {
             let data: Vec<u8> = [0u8, 1, 0, 0]
                 .into_iter()
                 .chain((0..size).map(|i| (i as u8) ^ round))
                 .collect();
-            let now = net.now;
-            net.nodes[0].p.write(w, Change::alive(&data), now).unwrap();
+            let now = net.now();
+            net.hosts[0]
+                .node
+                .write(w, Change::alive(&data), now)
+                .unwrap();
             net.pump();
             assert!(net.run_until(Duration::from_secs(5), |n| !n.samples(1).is_empty()));
             let got = take_samples(&mut net, 1);
@@ -520,41 +399,41 @@ fn sample_buffers_handed_back_are_received_into_again() {
                 assert_eq!(buf.as_ptr(), at, "size {size} round {round}: a new buffer");
             }
             // the spare was taken for this sample
-            assert_eq!(net.nodes[1].p.spare_bytes(), other);
+            assert_eq!(net.hosts[1].node.spare_bytes(), other);
             last = Some(buf.as_ptr());
-            net.nodes[1].p.recycle(buf);
-            assert!(net.nodes[1].p.spare_bytes() > size);
+            net.hosts[1].node.recycle(buf);
+            assert!(net.hosts[1].node.spare_bytes() > size);
         }
     }
 }
 
 #[test]
 fn dispose_and_unregister_are_events_and_go_out_both_ways() {
-    let mut net = Net::new(2, 8, 0);
-    let now = net.now;
-    let w = net.nodes[0]
-        .p
+    let mut net = new_net(2, 8, 0);
+    let now = net.now();
+    let w = net.hosts[0]
+        .node
         .create_writer(keyed_writer("K", "T"), now)
         .unwrap();
-    let r = net.nodes[1]
-        .p
+    let r = net.hosts[1]
+        .node
         .create_reader(reliable_reader("K", "T").keyed(true), now)
         .unwrap();
     assert!(net.run_until(Duration::from_secs(10), |n| matched(n, 0, w, 1, r)));
     net.tapping = true;
     let (b, k) = sample(7, 1);
     let key = [0u8, 1, 0, 0, 7, 0, 0, 0];
-    let now = net.now;
-    net.nodes[0]
-        .p
+    let now = net.now();
+    net.hosts[0]
+        .node
         .write(w, Change::alive(&b).with_key_hash(k), now)
         .unwrap();
-    net.nodes[0]
-        .p
+    net.hosts[0]
+        .node
         .write(w, Change::dispose(&key, k), now)
         .unwrap();
-    net.nodes[0]
-        .p
+    net.hosts[0]
+        .node
         .write(w, Change::unregister(&[], k), now)
         .unwrap();
     net.pump();
@@ -622,26 +501,26 @@ fn tl_reader(durability: Durability) -> EndpointConfig {
 
 #[test]
 fn transient_local_late_joiner_gets_the_history_per_instance_and_volatile_does_not() {
-    let mut net = Net::new(3, 21, 20);
-    let now = net.now;
-    let w = net.nodes[0].p.create_writer(tl_writer(2), now).unwrap();
+    let mut net = new_net(3, 21, 20);
+    let now = net.now();
+    let w = net.hosts[0].node.create_writer(tl_writer(2), now).unwrap();
     // 3 instances × 4 samples, written before anybody listens
     for n in 0..12 {
         let (b, k) = sample(n % 3, n);
-        let now = net.now;
-        net.nodes[0]
-            .p
+        let now = net.now();
+        net.hosts[0]
+            .node
             .write(w, Change::alive(&b).with_key_hash(k), now)
             .unwrap();
     }
     net.run_for(Duration::from_secs(2));
-    let now = net.now;
-    let late = net.nodes[1]
-        .p
+    let now = net.now();
+    let late = net.hosts[1]
+        .node
         .create_reader(tl_reader(Durability::TransientLocal), now)
         .unwrap();
-    let vol = net.nodes[2]
-        .p
+    let vol = net.hosts[2]
+        .node
         .create_reader(tl_reader(Durability::Volatile), now)
         .unwrap();
     assert!(
@@ -659,9 +538,9 @@ fn transient_local_late_joiner_gets_the_history_per_instance_and_volatile_does_n
     );
     // both get what comes next
     let (b, k) = sample(1, 99);
-    let now = net.now;
-    net.nodes[0]
-        .p
+    let now = net.now();
+    net.hosts[0]
+        .node
         .write(w, Change::alive(&b).with_key_hash(k), now)
         .unwrap();
     net.pump();
@@ -674,36 +553,36 @@ fn transient_local_late_joiner_gets_the_history_per_instance_and_volatile_does_n
 
 #[test]
 fn a_silent_participant_is_lost_after_its_lease_and_a_closed_one_at_once() {
-    let mut net = Net::new(3, 31, 0);
+    let mut net = new_net(3, 31, 0);
     let (p1, p2) = (net.guid(1), net.guid(2));
-    let now = net.now;
-    let w = net.nodes[0]
-        .p
+    let now = net.now();
+    let w = net.hosts[0]
+        .node
         .create_writer(EndpointConfig::writer("L", "T"), now)
         .unwrap();
-    let r = net.nodes[1]
-        .p
+    let r = net.hosts[1]
+        .node
         .create_reader(reliable_reader("L", "T"), now)
         .unwrap();
     assert!(
         net.run_until(Duration::from_secs(10), |n| matched(n, 0, w, 1, r)
-            && n.nodes[0].p.participants().count() == 2)
+            && n.hosts[0].node.participants().count() == 2)
     );
     // node 1 crashes: no goodbye
-    net.nodes[1].up = false;
-    let crash = net.now;
+    net.hosts[1].up = false;
+    let crash = net.now();
     assert!(
         net.run_until(Duration::from_secs(30), |n| n.has(0, |e| matches!(
             e,
             Event::ParticipantLost { prefix, reason: LostReason::LeaseExpired } if *prefix == p1
         )))
     );
-    let after = net.now - crash;
+    let after = net.now() - crash;
     assert!(
         after >= Duration::from_secs(7) && after <= Duration::from_secs(11),
         "lost after {after:?} (lease 10 s, last announcement up to 3 s before the crash)"
     );
-    let ev = &net.nodes[0].events;
+    let ev = &net.hosts[0].events;
     let pos = |f: &dyn Fn(&Event) -> bool| ev.iter().position(f).unwrap();
     let unmatched = pos(
         &|e| matches!(e, Event::WriterUnmatched { writer, reader } if *writer == w && *reader == r),
@@ -714,10 +593,10 @@ fn a_silent_participant_is_lost_after_its_lease_and_a_closed_one_at_once() {
         unmatched < sub_lost && sub_lost < lost,
         "endpoints go first"
     );
-    assert!(net.nodes[0].p.matched_readers(w).is_empty());
+    assert!(net.hosts[0].node.matched_readers(w).is_empty());
     // node 2 leaves properly: lost at once, as disposed
-    let now = net.now;
-    net.nodes[2].p.close(now);
+    let now = net.now();
+    net.hosts[2].node.close(now);
     net.pump();
     assert!(
         net.run_until(Duration::from_millis(100), |n| n.has(0, |e| matches!(
@@ -729,54 +608,54 @@ fn a_silent_participant_is_lost_after_its_lease_and_a_closed_one_at_once() {
 
 #[test]
 fn qos_mismatch_gives_an_incompatibility_and_no_match() {
-    let mut net = Net::new(2, 41, 0);
-    let now = net.now;
+    let mut net = new_net(2, 41, 0);
+    let now = net.now();
     let mut be = EndpointQos::writer_default();
     be.reliability = Reliability::BestEffort;
-    let w = net.nodes[0]
-        .p
+    let w = net.hosts[0]
+        .node
         .create_writer(EndpointConfig::writer("Q", "T").qos(be), now)
         .unwrap();
-    let r = net.nodes[1]
-        .p
+    let r = net.hosts[1]
+        .node
         .create_reader(reliable_reader("Q", "T"), now)
         .unwrap();
     // a partition mismatch and an XCDR2-only writer on other topics
     let mut part = EndpointQos::writer_default();
     part.partitions = vec!["a".into()];
-    let wp = net.nodes[0]
-        .p
+    let wp = net.hosts[0]
+        .node
         .create_writer(EndpointConfig::writer("P", "T").qos(part), now)
         .unwrap();
     let mut rp = EndpointQos::reader_default();
     rp.partitions = vec!["b*".into()];
-    net.nodes[1]
-        .p
+    net.hosts[1]
+        .node
         .create_reader(EndpointConfig::reader("P", "T").qos(rp), now)
         .unwrap();
     let mut x2 = EndpointQos::writer_default();
     x2.data_representation = vec![2];
-    let wx = net.nodes[0]
-        .p
+    let wx = net.hosts[0]
+        .node
         .create_writer(EndpointConfig::writer("X", "T").qos(x2), now)
         .unwrap();
-    net.nodes[1]
-        .p
+    net.hosts[1]
+        .node
         .create_reader(EndpointConfig::reader("X", "T"), now)
         .unwrap();
     // different type, same topic
-    let wt = net.nodes[0]
-        .p
+    let wt = net.hosts[0]
+        .node
         .create_writer(EndpointConfig::writer("Ty", "A"), now)
         .unwrap();
-    net.nodes[1]
-        .p
+    net.hosts[1]
+        .node
         .create_reader(EndpointConfig::reader("Ty", "B"), now)
         .unwrap();
     net.run_for(Duration::from_secs(3));
     let incompatible =
         |node: usize, local: Option<Guid>, remote: Option<Guid>| -> Vec<Incompatible> {
-            net.nodes[node]
+            net.hosts[node]
                 .events
                 .iter()
                 .filter_map(|e| match e {
@@ -811,9 +690,9 @@ fn qos_mismatch_gives_an_incompatibility_and_no_match() {
     assert!(!net.has(0, |e| matches!(e, Event::WriterMatched { .. })));
     assert!(!net.has(1, |e| matches!(e, Event::ReaderMatched { .. })));
     // and no user data flows
-    let now = net.now;
-    net.nodes[0]
-        .p
+    let now = net.now();
+    net.hosts[0]
+        .node
         .write(w, Change::alive(b"\0\x01\0\0x"), now)
         .unwrap();
     net.run_for(Duration::from_millis(100));
@@ -822,32 +701,32 @@ fn qos_mismatch_gives_an_incompatibility_and_no_match() {
 
 #[test]
 fn local_writer_and_reader_match_in_process() {
-    let mut net = Net::new(1, 1, 0);
-    let now = net.now;
+    let mut net = new_net(1, 1, 0);
+    let now = net.now();
     let mut q = EndpointQos::writer_default();
     q.durability = Durability::TransientLocal;
     q.history = History::KeepLast(3);
-    let w = net.nodes[0]
-        .p
+    let w = net.hosts[0]
+        .node
         .create_writer(EndpointConfig::writer("Self", "T").qos(q), now)
         .unwrap();
     for i in 0..5 {
         let (b, _) = sample(0, i);
-        net.nodes[0].p.write(w, Change::alive(&b), now).unwrap();
+        net.hosts[0].node.write(w, Change::alive(&b), now).unwrap();
     }
     let mut rq = EndpointQos::reader_default();
     rq.durability = Durability::TransientLocal;
-    let r = net.nodes[0]
-        .p
+    let r = net.hosts[0]
+        .node
         .create_reader(EndpointConfig::reader("Self", "T").qos(rq), now)
         .unwrap();
     let (b, _) = sample(0, 5);
-    net.nodes[0].p.write(w, Change::alive(&b), now).unwrap();
+    net.hosts[0].node.write(w, Change::alive(&b), now).unwrap();
     net.pump();
     assert!(matched(&net, 0, w, 0, r));
     let sns: Vec<i64> = net.samples(0).iter().map(|s| s.sequence_number.0).collect();
     assert_eq!(sns, [3, 4, 5, 6]);
-    assert!(net.nodes[0].p.delete_reader(r, now));
+    assert!(net.hosts[0].node.delete_reader(r, now));
     net.pump();
     assert!(net.has(
         0,
@@ -863,8 +742,8 @@ fn deleted_endpoints_are_lost_remotely() {
         EndpointConfig::writer("D", "T"),
         reliable_reader("D", "T"),
     );
-    let now = net.now;
-    assert!(net.nodes[0].p.delete_writer(w, now));
+    let now = net.now();
+    assert!(net.hosts[0].node.delete_writer(w, now));
     net.pump();
     assert!(net.run_until(Duration::from_secs(10), |n| n
         .has(1, |e| matches!(e, Event::PublicationLost(g) if *g == w))));
@@ -874,9 +753,9 @@ fn deleted_endpoints_are_lost_remotely() {
     ));
     // a participant that joins now does not learn of the deleted writer
     let mut net2 = net;
-    let now = net2.now;
-    let w2 = net2.nodes[0]
-        .p
+    let now = net2.now();
+    let w2 = net2.hosts[0]
+        .node
         .create_writer(EndpointConfig::writer("D2", "T"), now)
         .unwrap();
     net2.run_for(Duration::from_secs(1));
@@ -884,37 +763,37 @@ fn deleted_endpoints_are_lost_remotely() {
         1,
         |e| matches!(e, Event::PublicationFound(d) if d.guid == w2)
     ));
-    assert_eq!(net2.nodes[1].p.publications().count(), 1);
+    assert_eq!(net2.hosts[1].node.publications().count(), 1);
 }
 
 #[test]
 fn hostile_datagrams_do_not_hurt() {
-    let mut net = Net::new(2, 61, 0);
-    let now = net.now;
-    let w = net.nodes[0]
-        .p
+    let mut net = new_net(2, 61, 0);
+    let now = net.now();
+    let w = net.hosts[0]
+        .node
         .create_writer(keyed_writer("H", "T"), now)
         .unwrap();
-    let r = net.nodes[1]
-        .p
+    let r = net.hosts[1]
+        .node
         .create_reader(reliable_reader("H", "T").keyed(true), now)
         .unwrap();
     net.tapping = true;
     assert!(net.run_until(Duration::from_secs(10), |n| matched(n, 0, w, 1, r)));
     let (b, k) = sample(1, 1);
-    let now = net.now;
-    net.nodes[0]
-        .p
+    let now = net.now();
+    net.hosts[0]
+        .node
         .write(w, Change::alive(&b).with_key_hash(k), now)
         .unwrap();
     net.run_for(Duration::from_millis(50));
     let corpus: Vec<Vec<u8>> = net.tap.iter().map(|d| d.payload.clone()).collect();
     assert!(!corpus.is_empty());
     // mutate real datagrams byte by byte and feed them to a fresh participant
-    let mut victim = Net::new(1, 62, 0);
-    let now = victim.now;
-    victim.nodes[0]
-        .p
+    let mut victim = new_net(1, 62, 0);
+    let now = victim.now();
+    victim.hosts[0]
+        .node
         .create_reader(reliable_reader("H", "T").keyed(true), now)
         .unwrap();
     let mut seed = 0x1234_5678_9abc_def0u64;
@@ -933,16 +812,16 @@ fn hostile_datagrams_do_not_hurt() {
         if rnd() % 8 == 0 {
             d.truncate((rnd() as usize) % d.len());
         }
-        let now = victim.now;
-        victim.nodes[0]
-            .p
+        let now = victim.now();
+        victim.hosts[0]
+            .node
             .handle_datagram(Locator::udpv4(LO, 1), &d, now);
         if round % 100 == 0 {
             victim.step();
         }
     }
     victim.run_for(Duration::from_secs(30));
-    let s = victim.nodes[0].p.stats();
+    let s = victim.hosts[0].node.stats();
     assert_eq!(s.datagrams_received, 20_000);
     assert!(s.datagrams_malformed > 0);
 }
@@ -962,12 +841,12 @@ fn replies_carry_the_related_sample_identity_through_loss_fragments_and_late_joi
         .chain((0..100 * 1024).map(|i| (i % 253) as u8))
         .collect();
     for (seed, loss) in [(5u64, 0u32), (21, 30)] {
-        let mut net = Net::new(2, seed, loss);
-        let now = net.now;
-        let w = net.nodes[0].p.create_writer(tl_writer(10), now).unwrap();
+        let mut net = new_net(2, seed, loss);
+        let now = net.now();
+        let w = net.hosts[0].node.create_writer(tl_writer(10), now).unwrap();
         for data in [&small, &big] {
-            net.nodes[0]
-                .p
+            net.hosts[0]
+                .node
                 .write(
                     w,
                     Change::alive(data).with_related_sample_identity(request),
@@ -975,12 +854,15 @@ fn replies_carry_the_related_sample_identity_through_loss_fragments_and_late_joi
                 )
                 .unwrap();
         }
-        net.nodes[0].p.write(w, Change::alive(&small), now).unwrap();
+        net.hosts[0]
+            .node
+            .write(w, Change::alive(&small), now)
+            .unwrap();
         net.tapping = true;
         // a transient-local reader joins after the writes: the history it
         // gets still carries the identities
-        let r = net.nodes[1]
-            .p
+        let r = net.hosts[1]
+            .node
             .create_reader(tl_reader(Durability::TransientLocal), now)
             .unwrap();
         assert!(
@@ -1066,29 +948,29 @@ fn user_submessages(payload: &[u8], w: Guid) -> (Vec<i64>, Vec<(i64, bool)>) {
 
 #[test]
 fn writes_made_before_polling_share_datagrams_and_one_heartbeat() {
-    let mut net = Net::new(2, 11, 0);
-    let now = net.now;
-    let w = net.nodes[0]
-        .p
+    let mut net = new_net(2, 11, 0);
+    let now = net.now();
+    let w = net.hosts[0]
+        .node
         .create_writer(keyed_writer("Burst", "T"), now)
         .unwrap();
-    let r = net.nodes[1]
-        .p
+    let r = net.hosts[1]
+        .node
         .create_reader(reliable_reader("Burst", "T").keyed(true), now)
         .unwrap();
     assert!(net.run_until(Duration::from_secs(10), |n| matched(n, 0, w, 1, r)));
     net.run_for(Duration::from_millis(50));
     // 100 small samples written back to back, then polled once
-    let now = net.now;
+    let now = net.now();
     for i in 0..100 {
         let (b, k) = sample(i % 5, i);
-        net.nodes[0]
-            .p
+        net.hosts[0]
+            .node
             .write(w, Change::alive(&b).with_key_hash(k), now)
             .unwrap();
     }
     let mut burst = Vec::new();
-    while let Some(d) = net.nodes[0].p.poll_transmit() {
+    while let Some(d) = net.hosts[0].node.poll_transmit() {
         burst.push(d);
     }
     let mut sns = Vec::new();
@@ -1109,20 +991,25 @@ fn writes_made_before_polling_share_datagrams_and_one_heartbeat() {
     // because sample 16 (and 32, …) wanted one
     assert_eq!(hbs, vec![(100, false)]);
     for d in burst {
-        net.send(d);
+        let from = net.hosts[0].node.config().default_unicast[0];
+        net.send(sim::Packet {
+            from,
+            to: d.destination,
+            payload: d.payload,
+        });
     }
     net.run_for(Duration::from_millis(50));
     check_in_order(&net, 1, 100);
-    assert!(net.nodes[0].p.is_acked_by_all(w, SequenceNumber(100)));
+    assert!(net.hosts[0].node.is_acked_by_all(w, SequenceNumber(100)));
     // a single write still goes out at the next poll, with a final
     // heartbeat (sample 101 wants no acknowledgement)
     let (b, k) = sample(1, 100);
-    let now = net.now;
-    net.nodes[0]
-        .p
+    let now = net.now();
+    net.hosts[0]
+        .node
         .write(w, Change::alive(&b).with_key_hash(k), now)
         .unwrap();
-    let d = net.nodes[0].p.poll_transmit().unwrap();
+    let d = net.hosts[0].node.poll_transmit().unwrap();
     assert_eq!(
         user_submessages(&d.payload, w),
         (vec![101], vec![(101, true)])
@@ -1131,24 +1018,23 @@ fn writes_made_before_polling_share_datagrams_and_one_heartbeat() {
 
 #[test]
 fn a_keep_all_writer_stops_at_its_unacknowledged_bytes_limit_and_resumes_on_acknowledgement() {
-    let t0 = Instant::now();
-    let wall = SystemTime::UNIX_EPOCH + Duration::from_secs(1_700_000_000);
-    let mut net = Net::new(2, 13, 0);
+    let mut net = new_net(2, 13, 0);
     // node 0 again, with a 64 KiB high-water mark
     let mut cfg = Config::udpv4(0, 0, guid_prefix([1; 10]), LO)
         .unwrap()
         .with_unicast_peers(&[LO], 9);
     cfg.max_unacked_bytes = 64 << 10;
-    net.nodes[0].p = Participant::new(cfg, t0, wall);
-    let now = net.now;
+    let p = Participant::new(cfg, net.now(), net.wall());
+    net.hosts[0].node = p;
+    let now = net.now();
     let mut wq = EndpointQos::writer_default();
     wq.history = History::KeepAll;
-    let w = net.nodes[0]
-        .p
+    let w = net.hosts[0]
+        .node
         .create_writer(EndpointConfig::writer("Big", "T").qos(wq), now)
         .unwrap();
-    let r = net.nodes[1]
-        .p
+    let r = net.hosts[1]
+        .node
         .create_reader(reliable_reader("Big", "T"), now)
         .unwrap();
     assert!(net.run_until(Duration::from_secs(10), |n| matched(n, 0, w, 1, r)));
@@ -1156,10 +1042,10 @@ fn a_keep_all_writer_stops_at_its_unacknowledged_bytes_limit_and_resumes_on_ackn
     // 10 KiB samples: the seventh would put 70 KiB in flight
     let mut big = vec![0u8, 1, 0, 0];
     big.resize(10 << 10, 7);
-    let now = net.now;
+    let now = net.now();
     let mut written = 0;
     let refused = loop {
-        match net.nodes[0].p.write(w, Change::alive(&big), now) {
+        match net.hosts[0].node.write(w, Change::alive(&big), now) {
             Ok(_) => written += 1,
             Err(e) => break e,
         }
@@ -1173,21 +1059,30 @@ fn a_keep_all_writer_stops_at_its_unacknowledged_bytes_limit_and_resumes_on_ackn
     // the reader acknowledges (the burst asked for it: over half the
     // limit), and the writer takes more
     net.pump();
-    assert!(net.run_until(Duration::from_secs(1), |n| n.nodes[0]
-        .p
+    assert!(net.run_until(Duration::from_secs(1), |n| n.hosts[0]
+        .node
         .is_acked_by_all(w, SequenceNumber(6))));
-    let now = net.now;
-    net.nodes[0].p.write(w, Change::alive(&big), now).unwrap();
+    let now = net.now();
+    net.hosts[0]
+        .node
+        .write(w, Change::alive(&big), now)
+        .unwrap();
     // one sample larger than the whole limit is still accepted when
     // nothing else is in flight
-    assert!(net.run_until(Duration::from_secs(1), |n| n.nodes[0]
-        .p
+    assert!(net.run_until(Duration::from_secs(1), |n| n.hosts[0]
+        .node
         .is_acked_by_all(w, SequenceNumber(7))));
     let mut huge = vec![0u8, 1, 0, 0];
     huge.resize(100 << 10, 9);
-    let now = net.now;
-    net.nodes[0].p.write(w, Change::alive(&huge), now).unwrap();
-    assert!(net.nodes[0].p.write(w, Change::alive(&big), now).is_err());
+    let now = net.now();
+    net.hosts[0]
+        .node
+        .write(w, Change::alive(&huge), now)
+        .unwrap();
+    assert!(net.hosts[0]
+        .node
+        .write(w, Change::alive(&big), now)
+        .is_err());
     net.run_for(Duration::from_millis(200));
     assert_eq!(net.samples(1).len(), 8);
 }

@@ -21,6 +21,7 @@
 //!   `quit` on the console does the same, as in C;
 //! - the console prints no `> ` prompt, and `-s` also silences the
 //!   `Logging File Name:` / `Logging to` lines.
+#![deny(unsafe_code)]
 
 use std::io::{BufRead, IsTerminal, Write};
 use std::net::IpAddr;
@@ -64,7 +65,8 @@ const USAGE: &str = "central command line options:
  -s: silent running, don't print anything to stdout.
  -u: Don't run the user interface (stdin).
  -r: try resending non-completed messages when modules crash
- -d: debugging diagnostics on stderr.
+ -d: debugging diagnostics on stderr (RUST_LOG=<filter>, e.g. debug or
+     courier_broker=trace, chooses them in detail).
  <number>: the number of modules expected (printed only).
  --bind <addr>: listen on this address only (default: all interfaces).
  --hosts-allow <file>, --hosts-deny <file>: access rules
@@ -423,30 +425,8 @@ impl FileLog {
     }
 }
 
-/// Keeps memory central freed for its next message instead of handing it
-/// back to the kernel at once. With glibc's adaptive defaults, every large
-/// message was received into, copied through and sent from memory that
-/// the allocator had just returned, so each page of it faulted in anew:
-/// ~1000 page faults per routed 1 MiB query, more than half its time
-/// (C modules over the UNIX socket: 3.1 ms per round trip, 0.83 ms with
-/// this; the C central 2.6 ms). Allocations up to 32 MiB come from the
-/// heap, and up to 64 MiB of free heap is kept, so RSS stays near its
-/// high-water mark after a burst of large messages.
-#[cfg(all(target_os = "linux", target_env = "gnu"))]
-fn keep_freed_memory() {
-    // SAFETY: mallopt only sets glibc allocator parameters; it is called
-    // first thing in main, before any other thread exists.
-    unsafe {
-        libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
-        libc::mallopt(libc::M_TRIM_THRESHOLD, 64 << 20);
-    }
-}
-
-#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
-fn keep_freed_memory() {}
-
 fn main() -> ExitCode {
-    keep_freed_memory();
+    courier_broker::keep_freed_memory();
     let opts = match parse_args(std::env::args().skip(1).collect()) {
         Ok(o) => o,
         Err(e) => {
@@ -469,10 +449,7 @@ fn main() -> ExitCode {
     } else {
         tracing::Level::WARN
     };
-    let _ = tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_max_level(level)
-        .try_init();
+    init_logging(level);
     // One thread, like the C central's select loop: the state machine runs
     // on one task anyway, and a single thread avoids cross-thread wake-ups.
     let rt = match tokio::runtime::Builder::new_current_thread()
@@ -571,6 +548,11 @@ async fn run(opts: Options) -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
+    tracing::debug!(
+        addr = %server.local_addr(),
+        unix_socket = opts.unix,
+        "central listening"
+    );
     let expecting = format!(
         "Expecting {} on port {}",
         opts.expected,
@@ -632,6 +614,31 @@ async fn run(opts: Options) -> ExitCode {
         let _ = w.flush();
     }
     ExitCode::SUCCESS
+}
+
+/// Diagnostics on stderr: `RUST_LOG` (`warn`, `debug`,
+/// `courier_broker=trace,info`, …) when set, else `level`. A `RUST_LOG`
+/// that does not parse is reported and the default used.
+fn init_logging(level: tracing::Level) {
+    use tracing_subscriber::filter::Targets;
+    use tracing_subscriber::layer::SubscriberExt;
+    use tracing_subscriber::util::SubscriberInitExt;
+    let default = Targets::new().with_default(level);
+    let (filter, bad) = match std::env::var("RUST_LOG") {
+        Ok(spec) if !spec.trim().is_empty() => match spec.parse::<Targets>() {
+            Ok(t) => (t, None),
+            Err(e) => (default, Some(format!("RUST_LOG={spec:?} ignored: {e}"))),
+        },
+        _ => (default, None),
+    };
+    let fmt = tracing_subscriber::fmt::layer().with_writer(std::io::stderr);
+    let _ = tracing_subscriber::registry()
+        .with(fmt)
+        .with(filter)
+        .try_init();
+    if let Some(bad) = bad {
+        tracing::warn!("{bad}");
+    }
 }
 
 #[cfg(test)]

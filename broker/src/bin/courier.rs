@@ -12,13 +12,14 @@
 //! read it. Exit codes: 0 done, 1 runtime error, 64 usage error. Ctrl-C
 //! (SIGINT) or SIGTERM prints `interrupted`, closes the session (DDS: the
 //! participant says goodbye) and exits 0.
+#![deny(unsafe_code)]
 
 use std::collections::HashSet;
 use std::io::Write;
 use std::process::ExitCode;
 use std::time::{Duration, Instant, SystemTime};
 
-use courier::rtps::discovery::{Durability, EndpointData, History, Reliability};
+use courier::{DurabilityKind, EndpointInfo, History, ParticipantInfo, Reliability};
 use courier::{IpcMessage, RecvError, Session, SessionEvent};
 use futures::{FutureExt, StreamExt};
 
@@ -563,11 +564,8 @@ impl Matched {
     }
 }
 
-fn incompatible_line(remote: courier::rtps::Guid, reason: &str) -> String {
-    format!(
-        "incompatible {} {reason}",
-        courier::rtps_backend::guid_hex(remote)
-    )
+fn incompatible_line(remote: courier::Guid, reason: &str) -> String {
+    format!("incompatible {remote} {reason}")
 }
 
 async fn ping_publish(s: &Session, o: &PingOpts, ev: &mut courier::Events) -> Result<(), Error> {
@@ -604,7 +602,7 @@ async fn ping_publish(s: &Session, o: &PingOpts, ev: &mut courier::Events) -> Re
                     // exiting right after the write could leave a reader
                     // without the last sample: wait for its acknowledgement
                     match p.publish(&v).timeout(LAST_ACK_BOUND).await {
-                        Err(courier::SessionError::Timeout { after, .. }) => err(format_args!(
+                        Err(courier::PublishError::Timeout { after, .. }) => err(format_args!(
                             "courier: sample {seq} not acknowledged by every reader within {after:?}"
                         )),
                         r => r?,
@@ -708,8 +706,8 @@ async fn ping_subscribe(s: &Session, o: &PingOpts, ev: &mut courier::Events) -> 
 fn pub_event(
     e: SessionEvent,
     o: &PingOpts,
-    found: &mut HashSet<courier::rtps::Guid>,
-    refused: &mut HashSet<courier::rtps::Guid>,
+    found: &mut HashSet<courier::Guid>,
+    refused: &mut HashSet<courier::Guid>,
 ) -> bool {
     match e {
         SessionEvent::DeadlineMissed { msg, total } if msg == o.topic => {
@@ -726,7 +724,7 @@ fn pub_event(
             true
         }
         SessionEvent::PublicationFound(e) | SessionEvent::PublicationChanged(e)
-            if e.topic_name == o.topic && e.type_name == Ping::TYPE_NAME =>
+            if e.topic == o.topic && e.type_name == Ping::TYPE_NAME =>
         {
             // a change is matched anew: a mismatch is reported again
             refused.remove(&e.guid);
@@ -738,21 +736,22 @@ fn pub_event(
     }
 }
 
-fn prefix_hex(p: courier::rtps::GuidPrefix) -> String {
-    p.0.iter().map(|b| format!("{b:02x}")).collect()
+fn prefix_hex(g: courier::Guid) -> String {
+    g.prefix().iter().map(|b| format!("{b:02x}")).collect()
 }
 
-fn qos_text(e: &EndpointData) -> String {
+fn qos_text(e: &EndpointInfo) -> String {
     let q = &e.qos;
     let rel = match q.reliability {
         Reliability::BestEffort => "best-effort",
-        Reliability::Reliable(_) => "reliable",
+        Reliability::Reliable => "reliable",
     };
     let dur = match q.durability {
-        Durability::Volatile => "volatile",
-        Durability::TransientLocal => "transient-local",
-        Durability::Transient => "transient",
-        Durability::Persistent => "persistent",
+        DurabilityKind::Volatile => "volatile",
+        DurabilityKind::TransientLocal => "transient-local",
+        DurabilityKind::Transient => "transient",
+        DurabilityKind::Persistent => "persistent",
+        _ => "other",
     };
     let hist = match q.history {
         History::KeepLast(n) => format!("keep-last({n})"),
@@ -760,13 +759,10 @@ fn qos_text(e: &EndpointData) -> String {
     };
     let dl = q
         .deadline
-        .to_std()
         .map_or("infinite".into(), |d| format!("{}ms", d.as_millis()));
-    let own = if q.exclusive_ownership {
-        format!("exclusive({})", q.ownership_strength)
-    } else {
-        "shared".into()
-    };
+    let own = q
+        .exclusive
+        .map_or("shared".into(), |s| format!("exclusive({s})"));
     format!(
         "reliability={rel} durability={dur} history={hist} deadline={dl} ownership={own} \
          partitions=[{}]",
@@ -774,11 +770,11 @@ fn qos_text(e: &EndpointData) -> String {
     )
 }
 
-fn endpoint_line(kind: &str, what: &str, e: &EndpointData) -> String {
+fn endpoint_line(kind: &str, what: &str, e: &EndpointInfo) -> String {
     format!(
         "{kind} {what} {} topic={} type={} {}",
-        courier::rtps_backend::guid_hex(e.guid),
-        word(&e.topic_name),
+        e.guid,
+        word(&e.topic),
         word(&e.type_name),
         qos_text(e)
     )
@@ -816,29 +812,25 @@ fn word(s: &str) -> String {
     }
 }
 
-/// Socket addresses of locators, each once, or `-`.
-fn locators<'a>(ls: impl IntoIterator<Item = &'a courier::rtps::Locator>) -> String {
-    let mut v: Vec<String> = Vec::new();
-    for a in ls.into_iter().filter_map(|l| l.socket_addr()) {
-        let a = a.to_string();
-        if !v.contains(&a) {
-            v.push(a);
-        }
-    }
+/// Socket addresses, or `-`.
+fn locators(v: &[std::net::SocketAddr]) -> String {
     if v.is_empty() {
         "-".into()
     } else {
-        v.join(",")
+        v.iter()
+            .map(|a| a.to_string())
+            .collect::<Vec<_>>()
+            .join(",")
     }
 }
 
-fn participant_line(what: &str, p: &courier::rtps::discovery::ParticipantData) -> String {
+fn participant_line(what: &str, p: &ParticipantInfo) -> String {
     format!(
         "participant {what} {} name={} unicast={} multicast={}",
-        prefix_hex(p.guid_prefix),
-        p.entity_name.as_deref().map_or("-".into(), word),
-        locators(p.metatraffic_unicast.iter().chain(&p.default_unicast)),
-        locators(p.metatraffic_multicast.iter().chain(&p.default_multicast)),
+        prefix_hex(p.guid),
+        p.name.as_deref().map_or("-".into(), word),
+        locators(&p.unicast),
+        locators(&p.multicast),
     )
 }
 
@@ -877,10 +869,7 @@ async fn spy_session(s: &Session, o: &SpyOpts) -> Result<(), Error> {
         tokio::select! {
             _ = sleep => break,
             smp = samples.recv() => {
-                let Some(smp) = smp else { break };
-                if smp.msg.is_empty() {
-                    break; // the session ended
-                }
+                let Some(smp) = smp else { break }; // the session ended
                 let ty = smp.type_name.as_deref().unwrap_or("?");
                 let state = match smp.state {
                     courier::InstanceState::Alive => "",
@@ -902,20 +891,20 @@ async fn spy_session(s: &Session, o: &SpyOpts) -> Result<(), Error> {
             Some(e) = ev.next() => match e {
                 SessionEvent::ParticipantFound(p) => out(participant_line("found", &p)),
                 SessionEvent::ParticipantChanged(p) => out(participant_line("changed", &p)),
-                SessionEvent::ParticipantLost { guid_prefix, disposed } => out(format_args!(
+                SessionEvent::ParticipantLost { guid, disposed } => out(format_args!(
                     "participant lost {} {}",
-                    prefix_hex(guid_prefix),
+                    prefix_hex(guid),
                     if disposed { "goodbye" } else { "lease-expired" }
                 )),
                 SessionEvent::PublicationFound(e) => out(endpoint_line("publication", "found", &e)),
                 SessionEvent::PublicationChanged(e) => out(endpoint_line("publication", "changed", &e)),
                 SessionEvent::PublicationLost(g) => {
-                    out(format_args!("publication lost {}", courier::rtps_backend::guid_hex(g)))
+                    out(format_args!("publication lost {g}"))
                 }
                 SessionEvent::SubscriptionFound(e) => out(endpoint_line("subscription", "found", &e)),
                 SessionEvent::SubscriptionChanged(e) => out(endpoint_line("subscription", "changed", &e)),
                 SessionEvent::SubscriptionLost(g) => {
-                    out(format_args!("subscription lost {}", courier::rtps_backend::guid_hex(g)))
+                    out(format_args!("subscription lost {g}"))
                 }
                 SessionEvent::IncompatibleQos { remote, reason, .. } => {
                     out(incompatible_line(remote, &reason))

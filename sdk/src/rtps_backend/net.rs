@@ -20,51 +20,8 @@ pub(crate) type UdpSocket = AsyncFd<std::net::UdpSocket>;
 
 use super::options::RtpsOptions;
 
-/// An IPv4 interface as getifaddrs reports it.
-#[derive(Debug, Clone)]
-pub(crate) struct Interface {
-    pub(crate) name: String,
-    pub(crate) addr: Ipv4Addr,
-    pub(crate) up: bool,
-    pub(crate) loopback: bool,
-    pub(crate) multicast: bool,
-}
-
-/// Every IPv4 interface address of this machine.
-#[allow(unsafe_code)]
-pub(crate) fn interfaces() -> io::Result<Vec<Interface>> {
-    let mut out = Vec::new();
-    // SAFETY: getifaddrs fills a linked list that we walk read-only and free
-    // with freeifaddrs; every pointer is checked for null before use.
-    unsafe {
-        let mut head: *mut libc::ifaddrs = std::ptr::null_mut();
-        if libc::getifaddrs(&mut head) != 0 {
-            return Err(io::Error::last_os_error());
-        }
-        let mut cur = head;
-        while !cur.is_null() {
-            let ifa = &*cur;
-            if !ifa.ifa_addr.is_null() && i32::from((*ifa.ifa_addr).sa_family) == libc::AF_INET {
-                let sin = &*(ifa.ifa_addr as *const libc::sockaddr_in);
-                let addr = Ipv4Addr::from(u32::from_be(sin.sin_addr.s_addr));
-                let name = std::ffi::CStr::from_ptr(ifa.ifa_name)
-                    .to_string_lossy()
-                    .into_owned();
-                let f = ifa.ifa_flags;
-                out.push(Interface {
-                    name,
-                    addr,
-                    up: f & libc::IFF_UP as u32 != 0,
-                    loopback: f & libc::IFF_LOOPBACK as u32 != 0,
-                    multicast: f & libc::IFF_MULTICAST as u32 != 0,
-                });
-            }
-            cur = ifa.ifa_next;
-        }
-        libc::freeifaddrs(head);
-    }
-    Ok(out)
-}
+pub(crate) use crate::sys::net::interfaces;
+use crate::sys::net::register;
 
 /// The address to use: the named interface's, a literal address, or the
 /// default choice.
@@ -125,14 +82,6 @@ fn tokio_socket(s: Socket) -> io::Result<UdpSocket> {
 /// Registers a socket with tokio for reading (only).
 pub(crate) fn register_readable(s: std::net::UdpSocket) -> io::Result<UdpSocket> {
     register(s, Interest::READABLE)
-}
-
-#[allow(unsafe_code)]
-fn register(s: std::net::UdpSocket, interest: Interest) -> io::Result<UdpSocket> {
-    // SAFETY: the `AsyncFd` owns the socket, whose descriptor stays open
-    // and the same until the `AsyncFd` is dropped (nothing hands it out
-    // mutably or swaps it)
-    unsafe { AsyncFd::register_with_interest(s, interest) }.map_err(|e| e.into_parts().1)
 }
 
 /// Waits until `sock` can take another datagram. The socket is registered
@@ -307,71 +256,14 @@ pub(crate) fn recv_batch_blocking(
 
 /// One `recvmmsg` into `b`'s buffers; sets `b.n`.
 #[cfg(target_os = "linux")]
-#[allow(unsafe_code)]
 fn recvmmsg(
     sock: &std::net::UdpSocket,
     b: &mut RecvBatch,
     flags: libc::c_int,
 ) -> io::Result<usize> {
-    use std::os::fd::AsRawFd;
-    let RecvBatch {
-        bufs,
-        lens,
-        from,
-        n: got,
-    } = b;
-    // SAFETY: all-zero is a valid value of these plain C structs
-    let mut addrs: [libc::sockaddr_storage; RECV_SLOTS] = unsafe { std::mem::zeroed() };
-    let mut iov: [libc::iovec; RECV_SLOTS] = unsafe { std::mem::zeroed() };
-    let mut hdrs: [libc::mmsghdr; RECV_SLOTS] = unsafe { std::mem::zeroed() };
-    for i in 0..RECV_SLOTS {
-        iov[i] = libc::iovec {
-            iov_base: bufs[i].as_mut_ptr().cast(),
-            iov_len: bufs[i].len(),
-        };
-        let h = &mut hdrs[i].msg_hdr;
-        h.msg_name = std::ptr::from_mut(&mut addrs[i]).cast();
-        h.msg_namelen = std::mem::size_of::<libc::sockaddr_storage>() as libc::socklen_t;
-        h.msg_iov = std::ptr::from_mut(&mut iov[i]);
-        h.msg_iovlen = 1;
-    }
-    // SAFETY: every header points at a live buffer of the stated length
-    // and at a sockaddr_storage, all of which outlive the call
-    let n = unsafe {
-        libc::recvmmsg(
-            sock.as_raw_fd(),
-            hdrs.as_mut_ptr(),
-            RECV_SLOTS as libc::c_uint,
-            flags,
-            std::ptr::null_mut(),
-        )
-    };
-    if n < 0 {
-        return Err(io::Error::last_os_error());
-    }
-    let n = usize::try_from(n).unwrap_or(0).min(RECV_SLOTS);
-    for i in 0..n {
-        lens[i] = (hdrs[i].msg_len as usize).min(bufs[i].len());
-        from[i] = sockaddr_v4(&addrs[i]);
-    }
-    *got = n;
+    let n = crate::sys::net::recvmmsg(sock, &mut b.bufs, &mut b.lens, &mut b.from, flags)?;
+    b.n = n;
     Ok(n)
-}
-
-/// The IPv4 sender in a `sockaddr_storage` (0.0.0.0:0 for anything else:
-/// these sockets are IPv4).
-#[cfg(target_os = "linux")]
-#[allow(unsafe_code)]
-fn sockaddr_v4(a: &libc::sockaddr_storage) -> SocketAddr {
-    if i32::from(a.ss_family) != libc::AF_INET {
-        return SocketAddr::from(([0, 0, 0, 0], 0));
-    }
-    // SAFETY: ss_family says this storage holds a sockaddr_in
-    let sin = unsafe { &*std::ptr::from_ref(a).cast::<libc::sockaddr_in>() };
-    SocketAddr::V4(SocketAddrV4::new(
-        Ipv4Addr::from(u32::from_be(sin.sin_addr.s_addr)),
-        u16::from_be(sin.sin_port),
-    ))
 }
 
 /// Takes the datagrams waiting on `sock`, up to [`RECV_SLOTS`], without

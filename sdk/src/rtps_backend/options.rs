@@ -275,96 +275,6 @@ impl RtpsOverrides {
     }
 }
 
-/// fnmatch(3)-style matching: `*`, `?`, `[abc]`, `[a-z]`, `[!x]`, `\` escapes.
-pub(crate) fn fnmatch(pattern: &str, name: &str) -> bool {
-    let p: Vec<char> = pattern.chars().collect();
-    let n: Vec<char> = name.chars().collect();
-    // iterative matcher with backtracking to the last `*`
-    let (mut pi, mut ni) = (0, 0);
-    let mut star: Option<(usize, usize)> = None;
-    while ni < n.len() {
-        if pi < p.len() {
-            match p[pi] {
-                '*' => {
-                    star = Some((pi, ni));
-                    pi += 1;
-                    continue;
-                }
-                '?' => {
-                    pi += 1;
-                    ni += 1;
-                    continue;
-                }
-                '[' => {
-                    if let Some((ok, next)) = class(&p, pi, n[ni]) {
-                        if ok {
-                            pi = next;
-                            ni += 1;
-                            continue;
-                        }
-                    } else if n[ni] == '[' {
-                        pi += 1;
-                        ni += 1;
-                        continue;
-                    }
-                }
-                '\\' if pi + 1 < p.len() => {
-                    if p[pi + 1] == n[ni] {
-                        pi += 2;
-                        ni += 1;
-                        continue;
-                    }
-                }
-                c => {
-                    if c == n[ni] {
-                        pi += 1;
-                        ni += 1;
-                        continue;
-                    }
-                }
-            }
-        }
-        match star {
-            Some((sp, sn)) => {
-                pi = sp + 1;
-                ni = sn + 1;
-                star = Some((sp, sn + 1));
-            }
-            None => return false,
-        }
-    }
-    p[pi..].iter().all(|c| *c == '*')
-}
-
-/// A bracket expression at `p[i]`: whether `c` is in it, and the index after it.
-fn class(p: &[char], i: usize, c: char) -> Option<(bool, usize)> {
-    let mut j = i + 1;
-    let negate = matches!(p.get(j), Some('!') | Some('^'));
-    if negate {
-        j += 1;
-    }
-    let mut hit = false;
-    let mut first = true;
-    while j < p.len() {
-        if p[j] == ']' && !first {
-            return Some((hit != negate, j + 1));
-        }
-        first = false;
-        if j + 2 < p.len() && p[j + 1] == '-' && p[j + 2] != ']' {
-            if p[j] <= c && c <= p[j + 2] {
-                hit = true;
-            }
-            j += 3;
-        } else {
-            if p[j] == c {
-                hit = true;
-            }
-            j += 1;
-        }
-    }
-    None
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -435,29 +345,5 @@ mod tests {
             (o.max_message_size_on(lo), o.max_message_size_on(eth)),
             (1400, 1400)
         );
-    }
-
-    #[test]
-    fn fnmatch_like_libc() {
-        for (p, n, m) in [
-            ("*", "", true),
-            ("*", "anything", true),
-            ("Hello*", "HelloWorld", true),
-            ("Hello*", "Hell", false),
-            ("rq/*Request", "rq/add_two_intsRequest", true),
-            ("?ello", "Hello", true),
-            ("?ello", "ello", false),
-            ("[HJ]ello", "Jello", true),
-            ("[!HJ]ello", "Jello", false),
-            ("[a-c]x", "bx", true),
-            ("[a-c]x", "dx", false),
-            ("a\\*b", "a*b", true),
-            ("a\\*b", "axb", false),
-            ("*a*b*c", "xxaxxbxxc", true),
-            ("*a*b*c", "xxaxxcxxb", false),
-            ("[", "[", true),
-        ] {
-            assert_eq!(fnmatch(p, n), m, "{p} ~ {n}");
-        }
     }
 }

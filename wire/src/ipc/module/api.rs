@@ -137,6 +137,7 @@ impl Connection {
         }
         self.unacked.remove(&delivery);
         self.push_op(Op::Respond {
+            delivery,
             msg: reply_msg.into(),
             data: data.into(),
             dispatch,
@@ -144,6 +145,26 @@ impl Connection {
             link,
         });
         Ok(())
+    }
+
+    /// Finishes query delivery `delivery` without an answer (the handler
+    /// gave up, or its `Request` was dropped): through central, a Success
+    /// frees this module's capacity slot there, so that the module keeps
+    /// receiving; the asker gets no reply and runs into its timeout. On a
+    /// direct link nothing is sent. (C has no such call: a C handler that
+    /// never responds keeps the slot.)
+    pub fn decline(&mut self, delivery: DeliveryId) -> Result<(), Error> {
+        self.check_open()?;
+        match self.unacked.get(&delivery).copied() {
+            Some((DeliveryKind::Query, dispatch, link)) => {
+                self.unacked.remove(&delivery);
+                if link.is_none() {
+                    self.send_success(dispatch);
+                }
+                Ok(())
+            }
+            _ => Err(Error::UnknownHandle(delivery)),
+        }
     }
 
     /// Sends the Success ack of a broadcast delivery ("handler returned"),

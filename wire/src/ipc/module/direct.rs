@@ -124,6 +124,18 @@ impl Connection {
                 });
             }
         }
+        if !list.is_empty() {
+            // queries that waited for a first handler go first, in order
+            for op in self
+                .awaiting_handler
+                .remove(msg)
+                .unwrap_or_default()
+                .into_iter()
+                .rev()
+            {
+                self.ops.push_front(op);
+            }
+        }
         self.direct_handlers.insert(msg.to_string(), list);
     }
 
@@ -180,6 +192,15 @@ impl Connection {
             return;
         }
         if list.is_empty() {
+            if query {
+                // No handler yet: the query waits for one, within the
+                // asker's timeout, as a routed query waits in central.
+                self.awaiting_handler
+                    .entry(msg.clone())
+                    .or_default()
+                    .push(rebuild(msg, data));
+                return;
+            }
             // C: "No handlers for direct message"; reported, not silent.
             self.events
                 .push_back(Event::PublishDropped { op: op_id, msg });

@@ -88,6 +88,22 @@ pub enum Event {
         /// What was wrong with it.
         error: Error,
     },
+    /// The reply to query delivery `delivery` ([`Connection::respond`]) is
+    /// sent.
+    Replied {
+        /// The query delivery answered.
+        delivery: DeliveryId,
+    },
+    /// The reply to query delivery `delivery` could not be sent (its reply
+    /// message is unknown to central). The query was declined instead (see
+    /// [`Connection::decline`]): the module's capacity in central is free
+    /// again, and the asker gets no reply.
+    ReplyFailed {
+        /// The query delivery.
+        delivery: DeliveryId,
+        /// Why.
+        error: Error,
+    },
     /// An operation failed (e.g. its message is unknown to central).
     OpFailed {
         /// The operation's handle.

@@ -218,6 +218,11 @@ pub struct Connection {
     inbox: VecDeque<(Frame, Option<LinkId>)>,
     link_in: HashMap<LinkId, Deframer>,
     direct_handlers: HashMap<String, Vec<DirectHandler>>,
+    /// Direct queries of messages that have no handler yet, by message, in
+    /// order: sent when central's handler list names one (as a query
+    /// through central waits in central for its first handler), or
+    /// dropped by [`Connection::cancel_query`].
+    awaiting_handler: HashMap<String, Vec<Op>>,
     links: HashMap<(String, i32), (LinkId, bool)>,
     next_link: u64,
     direct_tx: VecDeque<(LinkId, Vec<u8>)>,
@@ -266,6 +271,7 @@ impl Connection {
             inbox: VecDeque::new(),
             link_in: HashMap::new(),
             direct_handlers: HashMap::new(),
+            awaiting_handler: HashMap::new(),
             links: HashMap::new(),
             next_link: 1,
             direct_tx: VecDeque::new(),
@@ -356,6 +362,10 @@ impl Connection {
     pub fn cancel_query(&mut self, query: OpId) {
         self.pending
             .retain(|_, p| !matches!(p, Pending::UserQuery(q) | Pending::ReplyLookup { query: q, .. } if *q == query));
+        for ops in self.awaiting_handler.values_mut() {
+            ops.retain(|o| !matches!(o, Op::Query { op, .. } if *op == query));
+        }
+        self.awaiting_handler.retain(|_, ops| !ops.is_empty());
     }
 
     /// Feeds bytes read from central, in any split.

@@ -1,7 +1,7 @@
 //! The operation queue: API calls run one at a time, in call order, each
 //! first looking its message up; the frames they send to central.
 
-use super::event::{Event, OpId};
+use super::event::{DeliveryId, Event, OpId};
 use super::proto::{self, MsgInfo};
 use super::replies::Pending;
 use super::{Connection, Error, LinkId, MsgLength, Stage};
@@ -55,6 +55,7 @@ pub(super) enum Op {
         parent: i32,
     },
     Respond {
+        delivery: DeliveryId,
         msg: String,
         data: Vec<u8>,
         dispatch: i32,
@@ -201,6 +202,22 @@ impl Connection {
                 | Op::NumHandlers { op, .. } => {
                     self.events.push_back(Event::OpFailed { op, error: err })
                 }
+                Op::Respond {
+                    delivery,
+                    dispatch,
+                    link,
+                    ..
+                } => {
+                    // The query must not keep this module's capacity in
+                    // central forever.
+                    if link.is_none() {
+                        self.send_success(dispatch);
+                    }
+                    self.events.push_back(Event::ReplyFailed {
+                        delivery,
+                        error: err,
+                    });
+                }
                 _ => {
                     if matches!(self.stage, Stage::Handshake) {
                         self.fail(err);
@@ -346,12 +363,14 @@ impl Connection {
                 }
             }
             Op::Respond {
+                delivery,
                 msg,
                 data,
                 dispatch,
                 parent,
                 link,
             } => {
+                self.events.push_back(Event::Replied { delivery });
                 let body = proto::wrap(&info, &msg, data).unwrap_or_else(|(_, data)| data);
                 let mut cd = Writer::new();
                 cd.write_str(&msg);

@@ -192,9 +192,19 @@ impl Connection {
             }
             Op::DirectQuery { msg } => {
                 let list = proto::decode_direct_handlers(&f.data, order)?;
+                let empty = list.is_empty();
                 self.set_direct_handlers(&msg, list);
                 let w = format!("V_watch_{msg}");
                 if !self.by_name.contains_key(&(w.clone(), w.clone())) {
+                    if empty {
+                        // A handler that registers between this answer and
+                        // the watch below would be reported to nobody (and
+                        // a query waiting for it would wait forever): ask
+                        // again once the watch is in place. Central handles
+                        // this connection's messages in order, so every
+                        // registration is either in that answer or watched.
+                        self.ops.push_front(Op::DirectQuery { msg: msg.clone() });
+                    }
                     let id = self.alloc_handler(&w, &w, HandlerKind::DirectWatch(msg));
                     self.ops.push_front(Op::RegisterHandler {
                         id,

@@ -1,6 +1,6 @@
 //! In-process links to an embedded central: a pair of bounded byte pipes in
 //! place of a socket, for a module that runs in the process hosting
-//! central (see [`CentralHandle::session`](crate::CentralHandle::session)).
+//! central (see [`CentralHandle::session`](super::CentralHandle::session)).
 //!
 //! The bytes are exactly those a socket would carry, so central and the
 //! module run the unchanged protocol; what goes away is the loopback: no

@@ -45,7 +45,7 @@
 //! skipped with a warning.
 //!
 //! ```
-//! use courier_broker::access::{AccessControl, Client, Rules};
+//! use courier::central::access::{AccessControl, Client, Rules};
 //! let allow = Rules::parse("central : localhost, 10.0.0.5\n", "hosts.allow").unwrap();
 //! let deny = Rules::parse("ALL : ALL\n", "hosts.deny").unwrap();
 //! let ac = AccessControl::new(allow, deny);
@@ -502,7 +502,7 @@ impl Lazy<'_> {
 /// Reverse lookup with the system resolver (`getnameinfo`), verified by a
 /// forward lookup of the name, as tcpd does. Blocking.
 pub fn reverse_lookup(ip: IpAddr) -> HostName {
-    let Some(name) = getnameinfo(ip) else {
+    let Some(name) = crate::sys::dns::getnameinfo(ip) else {
         return HostName::Unknown;
     };
     let name = name.trim_end_matches('.').to_ascii_lowercase();
@@ -514,50 +514,6 @@ pub fn reverse_lookup(ip: IpAddr) -> HostName {
         HostName::Verified(name)
     } else {
         HostName::Unverified(name)
-    }
-}
-
-fn getnameinfo(ip: IpAddr) -> Option<String> {
-    // SAFETY: the sockaddr structures are fully initialised (zeroed, then
-    // filled), the lengths passed are their sizes, and the host buffer is
-    // NI_MAXHOST bytes long and NUL-terminated by getnameinfo on success.
-    unsafe {
-        let mut host = [0 as libc::c_char; libc::NI_MAXHOST as usize];
-        let rc = match ip {
-            IpAddr::V4(v4) => {
-                let mut sa: libc::sockaddr_in = std::mem::zeroed();
-                sa.sin_family = libc::AF_INET as libc::sa_family_t;
-                sa.sin_addr.s_addr = u32::from_ne_bytes(v4.octets());
-                libc::getnameinfo(
-                    &sa as *const libc::sockaddr_in as *const libc::sockaddr,
-                    std::mem::size_of::<libc::sockaddr_in>() as libc::socklen_t,
-                    host.as_mut_ptr(),
-                    host.len() as libc::socklen_t,
-                    std::ptr::null_mut(),
-                    0,
-                    libc::NI_NAMEREQD,
-                )
-            }
-            IpAddr::V6(v6) => {
-                let mut sa: libc::sockaddr_in6 = std::mem::zeroed();
-                sa.sin6_family = libc::AF_INET6 as libc::sa_family_t;
-                sa.sin6_addr.s6_addr = v6.octets();
-                libc::getnameinfo(
-                    &sa as *const libc::sockaddr_in6 as *const libc::sockaddr,
-                    std::mem::size_of::<libc::sockaddr_in6>() as libc::socklen_t,
-                    host.as_mut_ptr(),
-                    host.len() as libc::socklen_t,
-                    std::ptr::null_mut(),
-                    0,
-                    libc::NI_NAMEREQD,
-                )
-            }
-        };
-        if rc != 0 {
-            return None;
-        }
-        let s = std::ffi::CStr::from_ptr(host.as_ptr());
-        Some(s.to_string_lossy().into_owned())
     }
 }
 

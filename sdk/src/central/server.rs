@@ -4,7 +4,7 @@
 use std::collections::HashMap;
 use std::io::{self, IoSlice, Write};
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
-use std::os::fd::{AsRawFd, OwnedFd, RawFd};
+use std::os::fd::OwnedFd;
 use std::panic::AssertUnwindSafe;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -17,14 +17,14 @@ use tokio::net::{TcpListener, TcpStream, UnixListener, UnixStream};
 use tokio::sync::{mpsc, oneshot, watch, Notify};
 use tokio::task::{JoinHandle, JoinSet};
 
-use courier::busy_poll::BusyPoll;
+use crate::busy_poll::BusyPoll;
 use courier_wire::ipc::central::{
     Body, Central, Config, ConnId, LogOptions, LogTarget, Output, Peer, Stats,
 };
 
-use crate::access::{AccessControl, Client, Decision, HostName, RuleRef};
-use crate::inproc::{self, InProcessStream, ServerEnd, ServerReader, ServerWriter};
-use crate::{unix_path, DEFAULT_PORT};
+use super::access::{AccessControl, Client, Decision, HostName, RuleRef};
+use super::inproc::{self, InProcessStream, ServerEnd, ServerReader, ServerWriter};
+use super::{unix_path, DEFAULT_PORT};
 
 /// Bytes read from a connection at a time (one buffer per connection).
 const READ_BUF: usize = 64 * 1024;
@@ -66,14 +66,14 @@ impl LogSink {
     }
 
     /// The default: every line as a `tracing` event with target
-    /// `courier_broker::central` (terminal lines at `INFO`, file-only lines
+    /// `courier::central` (terminal lines at `INFO`, file-only lines
     /// at `DEBUG`).
     pub fn tracing() -> Self {
         LogSink::new(|target, line| {
             if target.terminal {
-                tracing::info!(target: "courier_broker::central", "{line}");
+                tracing::info!(target: "courier::central", "{line}");
             } else {
-                tracing::debug!(target: "courier_broker::central", "{line}");
+                tracing::debug!(target: "courier::central", "{line}");
             }
         })
     }
@@ -162,7 +162,7 @@ impl CentralServer {
     pub fn builder() -> Builder {
         Builder {
             port: DEFAULT_PORT,
-            bind: IpAddr::V4(Ipv4Addr::UNSPECIFIED),
+            bind: IpAddr::V4(Ipv4Addr::LOCALHOST),
             unix_socket: false,
             config: Config::default(),
             access: AccessControl::open(),
@@ -191,7 +191,10 @@ impl Builder {
         self
     }
 
-    /// Address to listen on (default `0.0.0.0`, all interfaces, like C).
+    /// Address to listen on. The default is `127.0.0.1`: an embedded
+    /// central is reachable from this machine only unless told otherwise
+    /// (`0.0.0.0` for all interfaces, what the `central` binary does by
+    /// default, like C's).
     pub fn bind(mut self, addr: IpAddr) -> Self {
         self.bind = addr;
         self
@@ -231,7 +234,7 @@ impl Builder {
 
     /// Lower latency for CPU: after handling a frame keep polling the
     /// connections for `window` instead of sleeping until the next one
-    /// ([`courier::busy_poll`]). Off by default (the C central has no such
+    /// ([`crate::busy_poll`]). Off by default (the C central has no such
     /// mode); effective on a current-thread runtime, which is what the
     /// `central` binary runs (`--busy-poll <µs>`).
     pub fn busy_poll(mut self, window: Duration) -> Self {
@@ -414,7 +417,7 @@ impl CentralHandle {
         link_in_process(&self.events)
     }
 
-    /// A [`Session`](courier::Session) builder for a module of this process,
+    /// A [`Session`](crate::Session) builder for a module of this process,
     /// connected to this central over [`connect_in_process`](Self::connect_in_process)
     /// links. The session lives no longer than this central: once it has
     /// stopped, connecting fails at once with "central has stopped", and a
@@ -426,7 +429,7 @@ impl CentralHandle {
     /// ```
     /// # #[tokio::main(flavor = "current_thread")]
     /// # async fn main() -> Result<(), Box<dyn std::error::Error>> {
-    /// use courier_broker::{CentralServer, LogSink};
+    /// use courier::central::{CentralServer, LogSink};
     ///
     /// let central = CentralServer::builder()
     ///     .bind("127.0.0.1".parse()?)
@@ -440,18 +443,18 @@ impl CentralHandle {
     /// central.shutdown().await;
     /// # Ok(()) }
     /// ```
-    pub fn session(&self, name: impl Into<String>) -> courier::SessionBuilder {
+    pub fn session(&self, name: impl Into<String>) -> crate::SessionBuilder {
         let host = if self.local.ip().is_unspecified() {
-            courier::ipc_backend::local_host_name()
+            crate::ipc_backend::local_host_name()
         } else {
             self.local.ip().to_string()
         };
         let events = self.events.clone();
-        courier::Session::builder(format!("ipc://{host}:{}", self.local.port()))
+        crate::Session::builder(format!("ipc://{host}:{}", self.local.port()))
             .name(name)
             .dial(move || {
                 let link = link_in_process(&events);
-                async move { Ok(Box::new(link?) as Box<dyn courier::IpcStream>) }
+                async move { Ok(Box::new(link?) as Box<dyn crate::IpcStream>) }
             })
     }
 
@@ -654,25 +657,23 @@ impl Sock {
         }))
     }
 
-    fn raw(&self) -> RawFd {
-        self.fd.get_ref().as_raw_fd()
+    /// The socket, for socket2's (safe) system calls.
+    fn sock(&self) -> socket2::SockRef<'_> {
+        socket2::SockRef::from(self.fd.get_ref())
     }
 
     async fn read(&self, buf: &mut [u8]) -> io::Result<usize> {
         loop {
             let mut ready = self.fd.readable().await?;
-            // SAFETY: `buf` is valid for `buf.len()` bytes of writes and
-            // the descriptor stays open while `self` lives.
-            let n = unsafe { libc::recv(self.raw(), buf.as_mut_ptr().cast(), buf.len(), 0) };
-            if n < 0 {
-                let e = io::Error::last_os_error();
-                if e.kind() == io::ErrorKind::WouldBlock {
+            let n = match io::Read::read(&mut &*self.sock(), buf) {
+                Ok(n) => n,
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
                     ready.clear_ready();
                     continue;
                 }
-                return Err(e);
-            }
-            let n = n as usize;
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+                Err(e) => return Err(e),
+            };
             if n > 0 && n < buf.len() {
                 // A short read emptied the socket: wait for the next event
                 // instead of asking again and hearing EAGAIN (as tokio's
@@ -680,7 +681,7 @@ impl Sock {
                 ready.clear_ready();
             }
             if self.tcp && n >= QUICKACK_MIN {
-                quickack(self.raw());
+                quickack(&self.sock());
             }
             return Ok(n);
         }
@@ -689,19 +690,8 @@ impl Sock {
     /// One non-blocking vectored write (`MSG_NOSIGNAL`: a peer that went
     /// away is an error, not a signal).
     fn try_write_vectored(&self, bufs: &[IoSlice<'_>]) -> io::Result<usize> {
-        // SAFETY: `IoSlice` is ABI-compatible with `iovec` on Unix, the
-        // slices outlive the call, and `msg` points only at them.
-        let n = unsafe {
-            let mut msg: libc::msghdr = std::mem::zeroed();
-            msg.msg_iov = bufs.as_ptr() as *mut libc::iovec;
-            msg.msg_iovlen = bufs.len() as _;
-            libc::sendmsg(self.raw(), &msg, libc::MSG_NOSIGNAL | libc::MSG_DONTWAIT)
-        };
-        if n < 0 {
-            Err(io::Error::last_os_error())
-        } else {
-            Ok(n as usize)
-        }
+        self.sock()
+            .send_vectored_with_flags(bufs, libc::MSG_NOSIGNAL | libc::MSG_DONTWAIT)
     }
 
     /// Waits until the socket has room, through a registration for write
@@ -717,11 +707,7 @@ impl Sock {
     }
 }
 
-fn register(fd: OwnedFd, interest: Interest) -> io::Result<AsyncFd<OwnedFd>> {
-    // SAFETY: the `AsyncFd` owns `fd`, which is open and names the same
-    // socket for as long as it lives.
-    unsafe { AsyncFd::register_with_interest(fd, interest) }.map_err(|e| e.into_parts().1)
-}
+use crate::sys::net::register;
 
 /// Any kind of stream's write half.
 enum WriteHalf {
@@ -772,19 +758,9 @@ const QUICKACK_MIN: usize = 2048;
 /// `throughput1` sent 8 messages/s of 256 KiB through central instead of
 /// ~2 500). Linux clears the flag again by itself, so it is set after every
 /// read of [`QUICKACK_MIN`] bytes or more (one cheap syscall).
-fn quickack(fd: RawFd) {
-    let one: libc::c_int = 1;
-    // SAFETY: the caller's socket stays open for the duration of the call,
-    // and the option value is a correctly sized `c_int`.
-    let _ = unsafe {
-        libc::setsockopt(
-            fd,
-            libc::IPPROTO_TCP,
-            libc::TCP_QUICKACK,
-            &one as *const libc::c_int as *const libc::c_void,
-            std::mem::size_of::<libc::c_int>() as libc::socklen_t,
-        )
-    };
+fn quickack(s: &socket2::SockRef<'_>) {
+    // best effort: failing costs only the delay this avoids
+    let _ = s.set_tcp_quickack(true);
 }
 
 /// The write side of a connection, shared by the central task (direct

@@ -1,0 +1,152 @@
+//! Fuzzes `courier_wire::dds::Domain` with commands and datagrams: two
+//! domains exchange what they send (or the fuzzer's own bytes) while
+//! endpoints, services, clients and patterns come and go, writes (plain and
+//! confirmed), queries and replies are made and time passes. Nothing may
+//! panic.
+#![no_main]
+
+use std::time::{Duration, Instant, SystemTime};
+
+use courier_wire::dds::{Domain, Event, ReaderId, RequestId, ServiceConfig, ServiceId, WriterId};
+use courier_wire::rtps::discovery::{Duration as RtpsDuration, EndpointQos, History, Reliability};
+use courier_wire::rtps::participant::{guid_prefix, Change, Config, EndpointConfig};
+use courier_wire::rtps::Locator;
+use libfuzzer_sys::fuzz_target;
+
+const TOPICS: [&str; 3] = ["a", "b", "rq/sRequest"];
+const TYPES: [&str; 2] = ["T", "U"];
+
+fn qos(b: u8, writer: bool) -> EndpointQos {
+    let mut q = if writer {
+        EndpointQos::writer_default()
+    } else {
+        EndpointQos::reader_default()
+    };
+    if b & 1 == 1 {
+        q.reliability = Reliability::Reliable(RtpsDuration::ZERO);
+    }
+    if b & 2 == 2 {
+        q.history = History::KeepAll;
+    }
+    q.exclusive_ownership = b & 4 == 4;
+    q.ownership_strength = i32::from(b >> 5);
+    if b & 8 == 8 {
+        q.deadline = RtpsDuration::from_std(Duration::from_millis(50));
+        q.time_based_filter = RtpsDuration::from_std(Duration::from_millis(20));
+    }
+    if b & 16 == 16 {
+        q.lifespan = RtpsDuration::from_std(Duration::from_millis(30));
+    }
+    q
+}
+
+#[derive(Default)]
+struct Side {
+    writers: Vec<WriterId>,
+    readers: Vec<ReaderId>,
+    services: Vec<ServiceId>,
+    requests: Vec<(ServiceId, RequestId)>,
+    clients: Vec<courier_wire::dds::ClientId>,
+    patterns: Vec<courier_wire::dds::PatternId>,
+}
+
+fuzz_target!(|data: &[u8]| {
+    let t0 = Instant::now();
+    let mk = |i: u8| {
+        let cfg = Config::udpv4(0, u32::from(i), guid_prefix([i + 1; 10]), [127, 0, 0, 1])
+            .unwrap()
+            .with_unicast_peers(&[[127, 0, 0, 1]], 2);
+        Domain::new(cfg, t0, SystemTime::UNIX_EPOCH)
+    };
+    let mut ds = [mk(0), mk(1)];
+    let mut sides = [Side::default(), Side::default()];
+    let mut now = t0;
+    let mut it = data.iter().copied();
+    let svc = ServiceConfig::new("s", "T", "T");
+    while let (Some(op), Some(arg)) = (it.next(), it.next()) {
+        let i = usize::from(op >> 7);
+        let (d, s) = (&mut ds[i], &mut sides[i]);
+        let pick = |n: usize| usize::from(arg) % n.max(1);
+        match op & 0x0f {
+            0 => {
+                let cfg = EndpointConfig::writer(TOPICS[pick(3)], TYPES[usize::from(arg >> 7)])
+                    .keyed(arg & 8 == 8)
+                    .qos(qos(arg, true));
+                s.writers.extend(d.create_writer(cfg, now).ok());
+            }
+            1 => {
+                let cfg = EndpointConfig::reader(TOPICS[pick(3)], TYPES[usize::from(arg >> 7)])
+                    .keyed(arg & 8 == 8)
+                    .qos(qos(arg, false));
+                s.readers.extend(d.create_reader(cfg, now).ok());
+            }
+            2 if !s.writers.is_empty() => {
+                let w = s.writers[pick(s.writers.len())];
+                let len = usize::from(it.next().unwrap_or(0));
+                let body: Vec<u8> = it.by_ref().take(len).collect();
+                if arg & 1 == 1 {
+                    let _ = d.write_confirmed(w, Change::alive_owned(body), Duration::from_millis(100), now);
+                } else if d.has_room(w, body.len()) {
+                    let _ = d.write(w, Change::alive_owned(body), now);
+                }
+            }
+            3 if !s.writers.is_empty() => {
+                let w = s.writers.swap_remove(pick(s.writers.len()));
+                d.delete_writer(w, now);
+            }
+            4 if !s.readers.is_empty() => {
+                let r = s.readers.swap_remove(pick(s.readers.len()));
+                d.delete_reader(r, now);
+            }
+            5 if !s.readers.is_empty() => {
+                d.set_reader_full(s.readers[pick(s.readers.len())], arg & 1 == 1);
+            }
+            6 => s.services.extend(d.create_service(&svc, now).ok()),
+            7 => s.clients.extend(d.create_client(&svc, now).ok()),
+            8 if !s.clients.is_empty() => {
+                let c = s.clients[pick(s.clients.len())];
+                let _ = d.query(c, vec![0, 1, 0, 0, arg], Duration::from_millis(200), now);
+            }
+            9 if !s.requests.is_empty() => {
+                let (sv, rq) = s.requests.swap_remove(pick(s.requests.len()));
+                let _ = d.reply(sv, rq, vec![0, 1, 0, 0, arg], now);
+            }
+            10 if !s.services.is_empty() => {
+                let sv = s.services.swap_remove(pick(s.services.len()));
+                d.delete_service(sv, now);
+            }
+            11 if !s.clients.is_empty() => {
+                let c = s.clients.swap_remove(pick(s.clients.len()));
+                d.delete_client(c, now);
+            }
+            12 => {
+                let p = d.create_pattern(["*", "a", "[ab]"][pick(3)], "*", qos(arg, false), now);
+                s.patterns.push(p);
+            }
+            13 if !s.patterns.is_empty() => {
+                let p = s.patterns.swap_remove(pick(s.patterns.len()));
+                d.delete_pattern(p, now);
+            }
+            14 => {
+                let len = usize::from(arg);
+                let body: Vec<u8> = it.by_ref().take(len).collect();
+                d.handle_datagram(Locator::udpv4([127, 0, 0, 1], 7411), &body, now);
+            }
+            _ => now += Duration::from_millis(u64::from(arg)),
+        }
+        // the network: what each sends reaches the other; timers fire
+        for k in 0..2 {
+            if ds[k].poll_timeout().is_some_and(|t| t <= now) {
+                ds[k].handle_timeout(now);
+            }
+            while let Some(out) = ds[k].poll_transmit() {
+                ds[1 - k].handle_datagram(Locator::udpv4([127, 0, 0, 1], 7411), &out.payload, now);
+            }
+            while let Some(e) = ds[k].poll_event() {
+                if let Event::Request { service, request, .. } = e {
+                    sides[k].requests.push((service, request));
+                }
+            }
+        }
+    }
+});

@@ -1,0 +1,348 @@
+//! One error type per operation, and [`Error`], which each converts into.
+//!
+//! Opening a publication, subscription, service or client fails with an
+//! [`OpenError`]; a write (a publish, a reply, a dispose) with a
+//! [`PublishError`]; a query with a [`QueryError`]; a backend-specific
+//! control (`session.ipc()`, `session.dds()`) with a [`ControlError`]; a
+//! subscription's stream yields [`RecvError`](crate::RecvError)s; connecting
+//! fails with a [`ConnectError`](crate::ConnectError). Each is
+//! `#[non_exhaustive]` and names the cause where it is known; the lower
+//! layer's error is its [`source`](std::error::Error::source), which the
+//! message does not repeat (print the chain, as `anyhow`'s `{:#}` does, to
+//! see both).
+//!
+//! Code that does several of these and returns `Result<_, courier::Error>`
+//! can use `?` on all of them:
+//!
+//! ```no_run
+//! # async fn demo() -> Result<(), courier::Error> {
+//! use courier::Session;
+//! let s = Session::builder("ipc://127.0.0.1:1381").connect().await?; // ConnectError
+//! let p = s.publisher::<i32>("count").build().await?;                 // OpenError
+//! p.publish(&1).await?;                                                // PublishError
+//! let n: i32 = s.query("double", &21i32).await?;                       // QueryError
+//! # let _ = n; Ok(()) }
+//! ```
+
+use std::time::Duration;
+
+use courier_wire::ipc::module::Error as CentralError;
+use courier_wire::rtps::participant::{CreateError, WriteError};
+
+use crate::session::{ConnectError, RecvError};
+
+/// Why a publication, subscription, service or client could not be
+/// opened (a message defined, a DDS endpoint created).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum OpenError {
+    /// The connection is gone (central died, or the session was closed).
+    #[error("disconnected from {0}")]
+    Disconnected(String),
+    /// A topic (IPC message) is used with another type than the one this
+    /// session first used it with. Two types may share a topic only if they
+    /// have the same IPC format and DDS type name.
+    #[error("{msg} carries {bound} in this session, not {given}")]
+    TypeMismatch {
+        /// The topic.
+        msg: String,
+        /// The Rust type the topic was first used with.
+        bound: &'static str,
+        /// The Rust type of this use.
+        given: &'static str,
+    },
+    /// The backend cannot honour what was asked (a DDS QoS setting on an
+    /// IPC session, a reply message name on a DDS one, say).
+    #[error("{what} is not available on {backend} sessions")]
+    Unsupported {
+        /// What was asked.
+        what: String,
+        /// The backend's URL scheme.
+        backend: &'static str,
+    },
+    /// The session already publishes the topic with another DDS type.
+    #[error("{msg} is already published in this session with type {existing}, not {given}")]
+    TypeConflict {
+        /// The topic.
+        msg: String,
+        /// The type name of the existing publication.
+        existing: String,
+        /// The type name asked for.
+        given: String,
+    },
+    /// The session already serves this service.
+    #[error("{0} is already served by this session")]
+    AlreadyServed(String),
+    /// Central refused the definition or subscription.
+    #[error("central refused {msg}")]
+    Central {
+        /// The message.
+        msg: String,
+        /// Central's answer.
+        #[source]
+        source: CentralError,
+    },
+    /// The DDS participant could not create the endpoint.
+    #[error("cannot create a DDS endpoint of {topic}")]
+    Endpoint {
+        /// The topic (or service).
+        topic: String,
+        /// Why.
+        #[source]
+        source: CreateError,
+    },
+}
+
+/// Why a write (publish, reply, dispose) failed.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum PublishError {
+    /// The connection is gone (central died, or the session was closed).
+    #[error("disconnected from {0}")]
+    Disconnected(String),
+    /// The publication a publish needed could not be opened.
+    #[error(transparent)]
+    Open(#[from] OpenError),
+    /// The session has no publication of the topic.
+    #[error("{0} has no publication in this session: create one with Session::publisher::<T>(..).build().await")]
+    NoPublication(String),
+    /// The publication handle was closed (its `Publisher` dropped).
+    #[error("publication {0:?} is closed")]
+    Closed(crate::backend::PubId),
+    /// The backend cannot do this kind of write (a confirmed publish or an
+    /// instance on IPC, a write that does not wait on IPC).
+    #[error("{what} is not available on {backend} sessions")]
+    Unsupported {
+        /// What was asked.
+        what: String,
+        /// The backend's URL scheme.
+        backend: &'static str,
+    },
+    /// Only keyed topics have instances to dispose or unregister.
+    #[error("{0} has no key fields: only keyed topics have instances to dispose")]
+    NotKeyed(&'static str),
+    /// A write that must not wait found the session's write queue full.
+    #[error("cannot publish {msg} without waiting: the session's write queue is full ({bytes} bytes wait for the participant)")]
+    QueueFull {
+        /// The topic.
+        msg: String,
+        /// The queue's bound.
+        bytes: usize,
+    },
+    /// The sample is larger than the transport can carry.
+    #[error("cannot publish {msg}: a sample of {len} bytes is larger than {max}")]
+    TooLarge {
+        /// The topic.
+        msg: String,
+        /// The sample's size.
+        len: usize,
+        /// The largest possible.
+        max: usize,
+    },
+    /// A confirmed write was not acknowledged in time.
+    #[error("{what} did not complete within {after:?}")]
+    Timeout {
+        /// What was waited for.
+        what: String,
+        /// The bound.
+        after: Duration,
+    },
+    /// The request was already answered.
+    #[error("request already answered")]
+    AlreadyAnswered,
+    /// Central refused the message.
+    #[error("central refused {msg}")]
+    Central {
+        /// The message.
+        msg: String,
+        /// Central's answer.
+        #[source]
+        source: CentralError,
+    },
+    /// The DDS writer refused the sample.
+    #[error("cannot publish {topic}")]
+    Writer {
+        /// The topic.
+        topic: String,
+        /// Why.
+        #[source]
+        source: WriteError,
+    },
+}
+
+/// Why a query failed.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum QueryError {
+    /// No reply within the timeout.
+    #[error("no reply to {msg} within {timeout:?}")]
+    Timeout {
+        /// Query message.
+        msg: String,
+        /// The timeout.
+        timeout: Duration,
+    },
+    /// No server of the query was found within the timeout (backends that
+    /// can tell this apart from [`QueryError::Timeout`]).
+    #[error("nobody serves {msg} (waited {timeout:?})")]
+    NoResponder {
+        /// Query message.
+        msg: String,
+        /// The timeout.
+        timeout: Duration,
+    },
+    /// The session ended before the reply.
+    #[error("disconnected before {0} was answered")]
+    Disconnected(String),
+    /// The query could not be sent.
+    #[error("query {msg} refused")]
+    Refused {
+        /// Query message.
+        msg: String,
+        /// Why.
+        #[source]
+        source: PublishError,
+    },
+    /// The query's client (or its message definition) could not be opened.
+    #[error("query {msg} refused")]
+    Open {
+        /// Query message.
+        msg: String,
+        /// Why.
+        #[source]
+        source: OpenError,
+    },
+    /// The reply is not the expected type.
+    #[error("reply {reply} to {msg} is not a {ty}: {detail}")]
+    Decode {
+        /// Query message.
+        msg: String,
+        /// Reply message name.
+        reply: String,
+        /// Expected Rust type.
+        ty: &'static str,
+        /// The decoder's message.
+        detail: String,
+    },
+}
+
+/// Why a backend-specific control (`session.ipc()`, `session.dds()`)
+/// failed.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum ControlError {
+    /// The connection is gone (central died, or the session was closed).
+    #[error("disconnected from {0}")]
+    Disconnected(String),
+    /// The session's backend has no such control (an IPC control on a DDS
+    /// session, say).
+    #[error("{what} is not available on {backend} sessions")]
+    Unsupported {
+        /// What was asked.
+        what: String,
+        /// The backend's URL scheme.
+        backend: &'static str,
+    },
+    /// Central refused it.
+    #[error("central refused {what}")]
+    Central {
+        /// What was asked.
+        what: String,
+        /// Central's answer.
+        #[source]
+        source: CentralError,
+    },
+}
+
+/// What the backends make of a lost connection and of central's refusals,
+/// for whichever operation's error.
+pub(crate) trait Failure: Sized {
+    /// The connection to `to` is gone.
+    fn disconnected(to: String) -> Self;
+    /// Central refused `what` (a closed connection is
+    /// [`Failure::disconnected`]).
+    fn central(what: &str, e: CentralError) -> Self;
+}
+
+macro_rules! failure {
+    ($($t:ident),*) => {$(
+        impl Failure for $t {
+            fn disconnected(to: String) -> Self {
+                $t::Disconnected(to)
+            }
+            fn central(what: &str, e: CentralError) -> Self {
+                match e {
+                    CentralError::Closed => $t::Disconnected("central".into()),
+                    source => failure!(@central $t, what, source),
+                }
+            }
+        }
+    )*};
+    (@central ControlError, $what:ident, $source:ident) => {
+        ControlError::Central { what: $what.to_string(), source: $source }
+    };
+    (@central $t:ident, $what:ident, $source:ident) => {
+        $t::Central { msg: $what.to_string(), source: $source }
+    };
+}
+failure!(OpenError, PublishError, ControlError);
+
+/// Any Courier error: each per-operation error converts into it, so that
+/// `?` works across them in code returning `Result<_, courier::Error>`.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum Error {
+    /// Connecting failed.
+    #[error(transparent)]
+    Connect(#[from] ConnectError),
+    /// Opening a publication, subscription, service or client failed.
+    #[error(transparent)]
+    Open(#[from] OpenError),
+    /// A write failed.
+    #[error(transparent)]
+    Publish(#[from] PublishError),
+    /// A query failed.
+    #[error(transparent)]
+    Query(#[from] QueryError),
+    /// A subscription yielded an error.
+    #[error(transparent)]
+    Recv(#[from] RecvError),
+    /// A backend-specific control failed.
+    #[error(transparent)]
+    Control(#[from] ControlError),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::error::Error as _;
+
+    #[test]
+    fn question_mark_works_across_operations() {
+        fn all(step: u8) -> Result<(), Error> {
+            match step {
+                0 => Err(OpenError::AlreadyServed("s".into()))?,
+                1 => Err(PublishError::AlreadyAnswered)?,
+                2 => Err(QueryError::Disconnected("q".into()))?,
+                3 => Err(RecvError::Disconnected)?,
+                _ => Err(ControlError::Disconnected("c".into()))?,
+            }
+        }
+        for step in 0..5 {
+            assert!(all(step).is_err());
+        }
+    }
+
+    #[test]
+    fn a_lower_layer_error_is_the_source_and_printed_once_by_chain_walkers() {
+        let e = OpenError::Central {
+            msg: "m".into(),
+            source: CentralError::UnknownMessage("m".into()),
+        };
+        let source = e.source().expect("central's error").to_string();
+        assert!(!e.to_string().contains(&source), "{e}");
+        let p = PublishError::from(e.clone());
+        // transparent: the same message and source as the OpenError
+        assert_eq!(p.to_string(), e.to_string());
+    }
+}

@@ -1,0 +1,276 @@
+//! What [`Session::events`](crate::Session::events) yields: the
+//! [`SessionEvent`]s and the SDK's own descriptions of what DDS discovery
+//! finds ([`ParticipantInfo`], [`EndpointInfo`], [`Guid`]), so that the
+//! public API does not change with the wire crate's discovery structures.
+
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use courier_wire::rtps::discovery::{self as wire, EndpointData, ParticipantData};
+use courier_wire::rtps::Locator;
+
+use crate::qos::{History, Reliability};
+
+/// A DDS GUID: a participant's 12-byte prefix and a 4-byte entity id.
+/// Prints as 32 lower-case hex digits, as [`Sample::source`] names writers.
+///
+/// [`Sample::source`]: crate::Sample::source
+#[derive(Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct Guid(pub [u8; 16]);
+
+impl Guid {
+    /// The participant's part (the GUID prefix).
+    pub fn prefix(&self) -> [u8; 12] {
+        let mut p = [0; 12];
+        p.copy_from_slice(&self.0[..12]);
+        p
+    }
+
+    /// Whether this GUID belongs to the participant with that prefix.
+    pub fn is_of(&self, prefix: [u8; 12]) -> bool {
+        self.prefix() == prefix
+    }
+}
+
+impl std::fmt::Display for Guid {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        self.0.iter().try_for_each(|b| write!(f, "{b:02x}"))
+    }
+}
+
+impl std::fmt::Debug for Guid {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Guid({self})")
+    }
+}
+
+impl From<courier_wire::rtps::Guid> for Guid {
+    fn from(g: courier_wire::rtps::Guid) -> Self {
+        Guid(g.to_bytes())
+    }
+}
+
+/// A DDS participant found by discovery (SPDP).
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct ParticipantInfo {
+    /// Its GUID (prefix and the participant entity id `000001c1`).
+    pub guid: Guid,
+    /// Its entity name, if it announced one (a Courier session's name).
+    pub name: Option<String>,
+    /// Its vendor id (`[1, 16]` Cyclone DDS, `[1, 15]` Fast DDS, `[1, 1]`
+    /// RTI Connext).
+    pub vendor: [u8; 2],
+    /// The DDS domain id it announced, if any.
+    pub domain_id: Option<u32>,
+    /// Its unicast addresses: discovery's first, then user data's.
+    pub unicast: Vec<SocketAddr>,
+    /// Its multicast addresses, in the same order.
+    pub multicast: Vec<SocketAddr>,
+    /// How long it stays known without announcing itself (`None`: for ever).
+    pub lease: Option<Duration>,
+}
+
+/// Durability as a remote endpoint announces it (DDS has two more kinds
+/// than a Courier publication offers).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[non_exhaustive]
+pub enum DurabilityKind {
+    /// Only readers present when a sample is written get it.
+    Volatile,
+    /// The writer keeps its history for late joiners.
+    TransientLocal,
+    /// Kept by a durability service beyond the writer.
+    Transient,
+    /// Kept on disk by a durability service.
+    Persistent,
+}
+
+/// The QoS a remote endpoint announced, summarized.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct QosSummary {
+    /// Reliability.
+    pub reliability: Reliability,
+    /// Durability.
+    pub durability: DurabilityKind,
+    /// History.
+    pub history: History,
+    /// Deadline (`None`: infinite).
+    pub deadline: Option<Duration>,
+    /// `Some(strength)` for exclusive ownership.
+    pub exclusive: Option<i32>,
+    /// Lifespan (`None`: infinite).
+    pub lifespan: Option<Duration>,
+    /// Partitions.
+    pub partitions: Vec<String>,
+}
+
+/// A remote DDS publication (DataWriter) or subscription (DataReader)
+/// found by discovery (SEDP).
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct EndpointInfo {
+    /// Its GUID; [`Guid::prefix`] is its participant's.
+    pub guid: Guid,
+    /// The topic.
+    pub topic: String,
+    /// The DDS type name.
+    pub type_name: String,
+    /// Its QoS.
+    pub qos: QosSummary,
+}
+
+/// Socket addresses of locators, each once.
+fn addrs<'a>(ls: impl IntoIterator<Item = &'a Locator>) -> Vec<SocketAddr> {
+    let mut v = Vec::new();
+    for a in ls.into_iter().filter_map(|l| l.socket_addr()) {
+        if !v.contains(&a) {
+            v.push(a);
+        }
+    }
+    v
+}
+
+impl From<&ParticipantData> for ParticipantInfo {
+    fn from(p: &ParticipantData) -> Self {
+        let guid = courier_wire::rtps::Guid {
+            prefix: p.guid_prefix,
+            entity: courier_wire::rtps::EntityId::PARTICIPANT,
+        };
+        ParticipantInfo {
+            guid: guid.into(),
+            name: p.entity_name.clone(),
+            vendor: p.vendor.0,
+            domain_id: p.domain_id,
+            unicast: addrs(p.metatraffic_unicast.iter().chain(&p.default_unicast)),
+            multicast: addrs(p.metatraffic_multicast.iter().chain(&p.default_multicast)),
+            lease: p.lease_duration.to_std(),
+        }
+    }
+}
+
+impl From<&EndpointData> for EndpointInfo {
+    fn from(e: &EndpointData) -> Self {
+        let q = &e.qos;
+        EndpointInfo {
+            guid: e.guid.into(),
+            topic: e.topic_name.clone(),
+            type_name: e.type_name.clone(),
+            qos: QosSummary {
+                reliability: match q.reliability {
+                    wire::Reliability::BestEffort => Reliability::BestEffort,
+                    wire::Reliability::Reliable(_) => Reliability::Reliable,
+                },
+                durability: match q.durability {
+                    wire::Durability::Volatile => DurabilityKind::Volatile,
+                    wire::Durability::TransientLocal => DurabilityKind::TransientLocal,
+                    wire::Durability::Transient => DurabilityKind::Transient,
+                    wire::Durability::Persistent => DurabilityKind::Persistent,
+                },
+                history: match q.history {
+                    wire::History::KeepLast(n) => {
+                        History::KeepLast(u32::try_from(n.max(1)).unwrap_or(1))
+                    }
+                    wire::History::KeepAll => History::KeepAll,
+                },
+                deadline: q.deadline.to_std(),
+                exclusive: q.exclusive_ownership.then_some(q.ownership_strength),
+                lifespan: q.lifespan.to_std(),
+                partitions: q.partitions.clone(),
+            },
+        }
+    }
+}
+
+/// Something that happened to the session or the system.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum SessionEvent {
+    /// A module connected to central.
+    ModuleConnected(String),
+    /// A module disconnected from central.
+    ModuleDisconnected(String),
+    /// The number of handlers of a message changed.
+    HandlersChanged {
+        /// Message name.
+        msg: String,
+        /// Handlers now.
+        count: i32,
+    },
+    /// This session lost its connection (with reconnect on, a
+    /// [`SessionEvent::Reconnected`] follows once central is back).
+    Disconnected,
+    /// The session reached central again and defined and subscribed
+    /// everything anew (see [`SessionBuilder::reconnect`](crate::SessionBuilder::reconnect)).
+    Reconnected,
+    /// DDS: a participant announced itself for the first time.
+    ParticipantFound(Box<ParticipantInfo>),
+    /// DDS: a known participant announced different data.
+    ParticipantChanged(Box<ParticipantInfo>),
+    /// DDS: a participant left (`disposed`) or its lease expired.
+    ParticipantLost {
+        /// Its GUID (see [`ParticipantInfo::guid`]).
+        guid: Guid,
+        /// True if it said goodbye, false if it went silent.
+        disposed: bool,
+    },
+    /// DDS: a remote publication (DataWriter) was announced.
+    PublicationFound(Box<EndpointInfo>),
+    /// DDS: a remote publication changed its QoS.
+    PublicationChanged(Box<EndpointInfo>),
+    /// DDS: a remote publication is gone.
+    PublicationLost(Guid),
+    /// DDS: a remote subscription (DataReader) was announced.
+    SubscriptionFound(Box<EndpointInfo>),
+    /// DDS: a remote subscription changed its QoS.
+    SubscriptionChanged(Box<EndpointInfo>),
+    /// DDS: a remote subscription is gone.
+    SubscriptionLost(Guid),
+    /// DDS: a subscription with a deadline got no sample within it.
+    DeadlineMissed {
+        /// Topic.
+        msg: String,
+        /// Misses on this subscription so far.
+        total: u64,
+    },
+    /// DDS: an endpoint on one of our topics does not match ours.
+    IncompatibleQos {
+        /// Topic.
+        msg: String,
+        /// The other endpoint.
+        remote: Guid,
+        /// The first rule that failed.
+        reason: String,
+    },
+    /// DDS: an endpoint on one of our topics has another type name, so
+    /// the two do not match.
+    TypeMismatch {
+        /// Topic.
+        topic: String,
+        /// The other endpoint.
+        remote: Guid,
+        /// Our type name.
+        local_type: String,
+        /// Theirs.
+        remote_type: String,
+    },
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_guid_prints_as_32_hex_digits_and_knows_its_participant() {
+        let b: [u8; 16] = std::array::from_fn(|i| i as u8 * 17);
+        let g = Guid(b);
+        assert_eq!(g.to_string(), "00112233445566778899aabbccddeeff");
+        assert_eq!(format!("{g:?}"), "Guid(00112233445566778899aabbccddeeff)");
+        assert!(g.is_of([0, 17, 34, 51, 68, 85, 102, 119, 136, 153, 170, 187]));
+        assert_eq!(
+            g.to_string(),
+            crate::rtps_backend::guid_hex(courier_wire::rtps::Guid::from_bytes(b))
+        );
+    }
+}

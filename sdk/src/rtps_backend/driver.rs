@@ -1,0 +1,332 @@
+//! The driver task: sockets, timers and commands around the [`State`].
+
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use courier_wire::rtps::participant::Transmission;
+use tokio::sync::{mpsc, oneshot};
+
+use super::cmd::{disconnected, Cmd};
+use super::net::{self, UdpSocket};
+use super::out::{locator_of, Full, Out};
+use super::receive::ReceiveThread;
+use super::state::State;
+use super::timer;
+use crate::busy_poll::BusyPoll;
+use crate::session::SampleQueue;
+
+/// The socket has data. The driver is its only reader, so it waits in the
+/// socket's one read-waker slot (`poll_read_ready`), not in the list of
+/// waiters that `readable()` joins and leaves on every turn.
+async fn recv_ready(s: &UdpSocket) -> std::io::Result<()> {
+    // the guard is dropped without clearing: `recv_batch` clears readiness
+    // when it finds the queue empty
+    std::future::poll_fn(|cx| s.poll_read_ready(cx).map_ok(drop)).await
+}
+
+async fn recv_ready_opt(s: &Option<UdpSocket>) -> std::io::Result<()> {
+    match s {
+        Some(s) => recv_ready(s).await,
+        None => std::future::pending().await,
+    }
+}
+
+enum Wake {
+    Cmd(Option<Cmd>),
+    /// Socket `i` (meta, user, meta multicast, user multicast) has data.
+    Readable(usize),
+    Space,
+    Timer,
+    /// Someone else changed the core: a send found the socket full, or a
+    /// close was found among the commands.
+    Attention,
+}
+
+/// What the driver task, a receive thread and `try_publish` share: the
+/// participant and everything around it, one at a time.
+pub(super) struct Shared {
+    pub(super) core: Mutex<Core>,
+    /// The driver should look at the core (see [`Wake::Attention`]).
+    pub(super) attention: tokio::sync::Notify,
+    /// The receive thread stops (set before it is woken).
+    pub(super) closing: std::sync::atomic::AtomicBool,
+    /// Wakes the receive thread where it waits for room in a queue.
+    pub(super) stopping: tokio::sync::Notify,
+}
+
+impl std::fmt::Debug for Shared {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Shared")
+    }
+}
+
+impl Shared {
+    pub(super) fn lock(&self) -> std::sync::MutexGuard<'_, Core> {
+        // a panic while locked leaves the state as consistent as any
+        // protocol error would: go on
+        self.core.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    pub(super) fn id(&self) -> usize {
+        std::ptr::from_ref(self) as usize
+    }
+
+    /// Hands the samples of immediate-delivery subscriptions to their
+    /// callbacks, holding no lock, then sends what the callbacks wrote;
+    /// leaves `queues` empty (its allocation is passed around, not
+    /// renewed per datagram). `Err(Full)` when that found the send buffer
+    /// full.
+    pub(super) fn run_callbacks(&self, queues: &mut Vec<Arc<SampleQueue>>) -> Result<(), Full> {
+        let mut full = false;
+        while !queues.is_empty() {
+            IN_CALLBACK.with(|c| c.set(self.id()));
+            for q in queues.iter() {
+                q.run_handler();
+            }
+            IN_CALLBACK.with(|c| c.set(0));
+            queues.clear();
+            let now = Instant::now();
+            let mut c = self.lock();
+            // a full socket does not hold up callbacks: what they write
+            // waits in the participant for the driver
+            full |= c.flush(now).is_err();
+            c.rearm();
+            std::mem::swap(queues, &mut c.st.immediate);
+        }
+        if full {
+            Err(Full)
+        } else {
+            Ok(())
+        }
+    }
+}
+
+thread_local! {
+    /// The [`Shared`] whose subscription callback this thread is running
+    /// (0: none): its writes are sent when the callbacks are done.
+    pub(super) static IN_CALLBACK: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+}
+
+pub(super) struct Core {
+    pub(super) st: State,
+    pub(super) out: Out,
+    pub(super) cmd: mpsc::UnboundedReceiver<Cmd>,
+    /// The driver's deadlines (see [`timer`]).
+    pub(super) timer: timer::DriverTimer,
+    /// A datagram that found the send buffer full: it goes first.
+    pub(super) stalled: Option<Transmission>,
+    /// A close taken from the commands by someone other than the driver
+    /// (`None` inside: every sender was dropped).
+    pub(super) close: Option<Option<oneshot::Sender<()>>>,
+}
+
+impl Core {
+    /// Hands received samples and events to the application and sends
+    /// what the participant has to send, until the socket is full.
+    pub(super) fn flush(&mut self, now: Instant) -> Result<(), Full> {
+        self.st.pump(now);
+        if let Some(t) = self.stalled.take() {
+            if let Err(full) = self.out.try_send(&t) {
+                self.stalled = Some(t);
+                return Err(full);
+            }
+        }
+        while let Some(t) = self.st.d.poll_transmission() {
+            if let Err(full) = self.out.try_send(&t) {
+                self.stalled = Some(t);
+                return Err(full);
+            }
+        }
+        Ok(())
+    }
+
+    /// Arms the timer for the next deadline, if that moved earlier.
+    pub(super) fn rearm(&mut self) {
+        self.timer.set(self.st.next_wakeup());
+    }
+
+    /// Takes the commands already queued, in order (so that a write made
+    /// without waiting comes after the `publish().await`s before it).
+    pub(super) fn take_commands(&mut self, now: Instant) {
+        while self.close.is_none() {
+            match self.cmd.try_recv() {
+                Ok(Cmd::Close { reply }) => self.close = Some(Some(reply)),
+                Ok(c) => self.st.command(c, now),
+                Err(mpsc::error::TryRecvError::Empty) => return,
+                Err(mpsc::error::TryRecvError::Disconnected) => self.close = Some(None),
+            }
+        }
+    }
+
+    /// Hands the first `n` datagrams of `batch` to the participant, and
+    /// what they deliver to the subscriptions; sample buffers the
+    /// application has given back are reused first.
+    pub(super) fn receive(&mut self, batch: &net::RecvBatch, n: usize, now: Instant) {
+        let st = &mut self.st;
+        st.returns.take(|b| st.d.recycle(b));
+        for k in 0..n {
+            let (bytes, from) = batch.get(k);
+            self.st.d.handle_datagram(locator_of(from), bytes, now);
+            // deliver as we go so that back-pressure is seen
+            self.st.pump(now);
+        }
+    }
+}
+
+pub(super) struct Driver {
+    /// Busy polling after activity, when configured.
+    pub(super) spin: Option<BusyPoll>,
+    pub(super) shared: Arc<Shared>,
+    pub(super) meta: UdpSocket,
+    /// User data, when the driver reads it (no receive thread).
+    pub(super) user: Option<UdpSocket>,
+    pub(super) meta_mc: Option<UdpSocket>,
+    pub(super) user_mc: Option<UdpSocket>,
+    pub(super) batch: net::RecvBatch,
+    /// A duplicate of the sending socket, to wait for room.
+    pub(super) send_sock: std::net::UdpSocket,
+    pub(super) receiver: Option<ReceiveThread>,
+    /// Immediate subscriptions with samples for their callbacks.
+    pub(super) immediate: Vec<Arc<SampleQueue>>,
+}
+
+impl Driver {
+    pub(super) async fn run(mut self) {
+        // one clock reading per turn, taken when the driver wakes
+        let mut now = Instant::now();
+        let shared = self.shared.clone();
+        loop {
+            // what the last turn produced goes out first; then what is due
+            let (paused, flushed, close) = {
+                let mut c = shared.lock();
+                let mut flushed = c.flush(now);
+                let next = c.st.next_wakeup();
+                if next <= now && flushed.is_ok() {
+                    c.st.tick(now);
+                    flushed = c.flush(now);
+                }
+                c.rearm();
+                (c.st.full_queue(), flushed, c.close.take())
+            };
+            if let Some(reply) = close {
+                self.close(Instant::now()).await;
+                if let Some(reply) = reply {
+                    let _ = reply.send(());
+                }
+                return;
+            }
+            if flushed.is_err() {
+                if net::wait_writable(&self.send_sock).await.is_err() {
+                    // cannot wait: drop the datagram (reliable writers repair)
+                    let mut c = shared.lock();
+                    c.stalled = None;
+                    c.out.send_errors += 1;
+                }
+                now = Instant::now();
+                continue;
+            }
+            let wake = tokio::select! {
+                biased;
+                c = std::future::poll_fn(|cx| shared.lock().cmd.poll_recv(cx)) => Wake::Cmd(c),
+                _ = recv_ready(&self.meta) => Wake::Readable(0),
+                _ = recv_ready_opt(&self.user), if paused.is_none() => Wake::Readable(1),
+                _ = recv_ready_opt(&self.meta_mc) => Wake::Readable(2),
+                _ = recv_ready_opt(&self.user_mc), if paused.is_none() => Wake::Readable(3),
+                _ = async { if let Some(q) = &paused { q.space().await } }, if paused.is_some() => Wake::Space,
+                _ = std::future::poll_fn(|cx| shared.lock().timer.poll_fired(cx)) => Wake::Timer,
+                _ = shared.attention.notified() => Wake::Attention,
+            };
+            now = Instant::now();
+            if let (Some(s), Wake::Cmd(_) | Wake::Readable(_)) = (&self.spin, &wake) {
+                s.activity();
+            }
+            match wake {
+                Wake::Cmd(None) => break,
+                Wake::Cmd(Some(Cmd::Close { reply })) => {
+                    self.close(now).await;
+                    let _ = reply.send(());
+                    return;
+                }
+                Wake::Cmd(Some(c)) => {
+                    let mut core = shared.lock();
+                    core.st.command(c, now);
+                    // take every command already queued before flushing
+                    core.take_commands(now);
+                    std::mem::swap(&mut self.immediate, &mut core.st.immediate);
+                }
+                Wake::Readable(i) => self.drain(i, now),
+                Wake::Space | Wake::Timer | Wake::Attention => {}
+            }
+            if !self.immediate.is_empty() {
+                // a full send buffer is seen by the next turn's flush
+                let _ = shared.run_callbacks(&mut self.immediate);
+            }
+        }
+        self.close(Instant::now()).await;
+    }
+
+    /// Reads what is waiting on socket `i`, a batch per system call, up
+    /// to a limit (so that commands and timers are not starved); takes the
+    /// immediate-delivery subscriptions that got samples.
+    pub(super) fn drain(&mut self, i: usize, now: Instant) {
+        let mut c = self.shared.lock();
+        let sock = match i {
+            0 => Some(&self.meta),
+            1 => self.user.as_ref(),
+            2 => self.meta_mc.as_ref(),
+            _ => self.user_mc.as_ref(),
+        };
+        if let Some(sock) = sock {
+            for _ in 0..8 {
+                if i % 2 == 1 && c.st.full_queue().is_some() {
+                    break;
+                }
+                let n = match net::recv_batch(sock, &mut self.batch) {
+                    Ok(n) => n,
+                    // ICMP port unreachable and the like: reported once, nothing to do
+                    Err(_) => continue,
+                };
+                c.receive(&self.batch, n, now);
+                if n < net::RECV_SLOTS {
+                    break; // the socket was emptied
+                }
+            }
+        }
+        std::mem::swap(&mut self.immediate, &mut c.st.immediate);
+    }
+
+    pub(super) async fn close(&mut self, now: Instant) {
+        if let Some(r) = self.receiver.take() {
+            r.stop().await;
+        }
+        let stalled = {
+            let mut c = self.shared.lock();
+            c.st.d.close(now);
+            c.flush(now).is_err()
+        };
+        if stalled {
+            // the goodbyes, once there is room (a bounded wait)
+            let room = net::wait_writable(&self.send_sock);
+            if let Ok(Ok(())) = tokio::time::timeout(Duration::from_millis(100), room).await {
+                let _ = self.shared.lock().flush(now);
+            }
+        }
+        let mut c = self.shared.lock();
+        c.st.pump(now);
+        c.st.fail_all();
+        // later commands fail at once (an `ask` gets its reply dropped),
+        // and so do writes that do not wait
+        c.cmd.close();
+        while let Ok(cmd) = c.cmd.try_recv() {
+            if let Cmd::Write { done, .. } = cmd {
+                done.send(Err(disconnected()));
+            }
+        }
+        c.close = Some(None);
+        let queues = c.st.handler_queues();
+        drop(c);
+        for q in queues {
+            q.run_handler();
+        }
+    }
+}

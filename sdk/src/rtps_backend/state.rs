@@ -1,0 +1,1026 @@
+//! What the driver keeps around the [`Domain`]: the application's side of
+//! each handle (queues, waiting publishers and queries, servers) and the
+//! mapping of the domain's events to the sdk's. The DDS decisions are the
+//! domain's (`courier_wire::dds`).
+
+use std::collections::VecDeque;
+use std::sync::Arc;
+use std::time::{Duration, Instant, SystemTime};
+
+// seeded per process: several of these maps are keyed by GUIDs off the network
+use foldhash::{HashMap, HashMapExt, HashSet, HashSetExt};
+
+use courier_wire::dds::{
+    reply_topic, ConfirmFailure, Domain, Event, PatternId, QueryFailure, QueryId, ReaderId,
+    ServiceConfig, WriterId,
+};
+use courier_wire::rtps::discovery::{
+    Durability as WireDurability, Duration as RtpsDuration, EndpointQos, History as WireHistory,
+    Reliability as WireReliability,
+};
+use courier_wire::rtps::participant::{
+    self, Change, ChangeKind, EndpointConfig, KeyHash, LostReason,
+};
+use courier_wire::rtps::{EntityId, Guid, SequenceNumber};
+use tokio::sync::{mpsc, oneshot};
+
+use super::cmd::{disconnected, Cmd, Done, Reply};
+use super::{guid_hex, system_time, Listeners};
+use crate::backend::{ClientId, Handle, PubId, ServiceId, SubId};
+use crate::error::{OpenError, PublishError};
+use crate::qos::{
+    Durability, History, InstanceState, PublicationQos, Reliability, SubscriptionQos, TypeInfo,
+};
+use crate::session::{
+    QueryError, RawReply, RawRequest, RawSample, ReturnedBuffers, SampleQueue, SessionEvent,
+};
+
+struct PendingWrite {
+    kind: ChangeKind,
+    data: Vec<u8>,
+    key_hash: Option<[u8; 16]>,
+    confirm: Option<Duration>,
+    done: Done,
+}
+
+/// A publication: a writer of its own (a topic may have several, each
+/// with its own QoS).
+struct Publication {
+    id: WriterId,
+    topic: String,
+    type_name: String,
+    /// Writes waiting for room in a full keep-all history, in order.
+    pending: VecDeque<PendingWrite>,
+    /// The last sample written, for lingering.
+    last: Option<SequenceNumber>,
+    /// Closed by the application at this instant: deleted once what it
+    /// wrote is written and acknowledged, or after [`LINGER`].
+    closed: Option<Instant>,
+}
+
+/// How long a closed publication (service) waits at most for its readers
+/// to acknowledge what it wrote (its replies) before it is deleted.
+const LINGER: Duration = Duration::from_secs(10);
+
+/// Where a reader's samples go.
+struct Subscription {
+    topic: String,
+    type_name: Arc<str>,
+    queue: Arc<SampleQueue>,
+    /// The pattern subscription that made the reader, if one did.
+    pattern: Option<PatternId>,
+}
+
+struct Confirm {
+    topic: String,
+    after: Duration,
+    reply: Reply<(), PublishError>,
+}
+
+/// What a subscription handle deleted when closed.
+#[derive(Clone, Copy)]
+enum SubKind {
+    Reader(ReaderId),
+    Pattern(PatternId),
+}
+
+struct Server {
+    id: courier_wire::dds::ServiceId,
+    name: String,
+    tx: mpsc::Sender<RawRequest>,
+    dropped: u64,
+}
+
+struct Query {
+    name: String,
+    reply: oneshot::Sender<Result<RawReply, QueryError>>,
+}
+
+/// Writes waiting for room in a history are retried this often (besides
+/// at once when the domain says the writer is writable).
+const HOUSEKEEPING: Duration = Duration::from_millis(200);
+
+pub(super) struct State {
+    pub(super) d: Domain,
+    name: String,
+    pub(super) listeners: Listeners,
+    /// Handle numbers, shared by every kind.
+    next_handle: u64,
+    writers: HashMap<PubId, Publication>,
+    subs: HashMap<ReaderId, Subscription>,
+    patterns: HashMap<PatternId, Arc<SampleQueue>>,
+    sub_handles: HashMap<SubId, SubKind>,
+    watched: HashSet<String>,
+    /// `Sample::source` of the writers that delivered samples (their GUID
+    /// in hex), made once per writer.
+    source_names: HashMap<Guid, Arc<str>>,
+    confirms: HashMap<(WriterId, SequenceNumber), Confirm>,
+    next_housekeeping: Instant,
+    servers: HashMap<ServiceId, Server>,
+    /// Services the application closed, deleted at these instants (their
+    /// last replies go out meanwhile), in order.
+    closed_services: Vec<(courier_wire::dds::ServiceId, Instant)>,
+    /// Clients, with the service each queries.
+    clients: HashMap<ClientId, (String, courier_wire::dds::ClientId)>,
+    queries: HashMap<QueryId, Query>,
+    /// For responders: replies come back to the driver as commands.
+    responder: mpsc::WeakUnboundedSender<Cmd>,
+    /// Sample buffers subscribers have decoded, for the participant to reuse.
+    pub(super) returns: Arc<ReturnedBuffers>,
+    /// Immediate-delivery subscriptions that got samples since they were
+    /// last handed to their callbacks (see [`super::driver::Shared::run_callbacks`]).
+    pub(super) immediate: Vec<Arc<SampleQueue>>,
+    /// While the receive thread handles a batch: the wakers of the
+    /// `Subscriber`s it delivered to, woken once the batch is done and the
+    /// lock released (woken at once otherwise).
+    pub(super) wakes: Option<Vec<std::task::Waker>>,
+}
+
+impl State {
+    pub(super) fn new(
+        d: Domain,
+        name: &str,
+        listeners: Listeners,
+        responder: mpsc::WeakUnboundedSender<Cmd>,
+        now: Instant,
+    ) -> Self {
+        State {
+            d,
+            name: name.to_string(),
+            listeners,
+            next_handle: 1,
+            writers: HashMap::default(),
+            subs: HashMap::new(),
+            patterns: HashMap::new(),
+            sub_handles: HashMap::new(),
+            watched: HashSet::new(),
+            source_names: HashMap::new(),
+            confirms: HashMap::new(),
+            next_housekeeping: now,
+            servers: HashMap::new(),
+            closed_services: Vec::new(),
+            clients: HashMap::new(),
+            queries: HashMap::new(),
+            responder,
+            returns: Arc::default(),
+            immediate: Vec::new(),
+            wakes: None,
+        }
+    }
+
+    fn handle(&mut self) -> u64 {
+        self.next_handle += 1;
+        self.next_handle - 1
+    }
+
+    fn emit(&self, e: SessionEvent) {
+        self.listeners.send(e);
+    }
+
+    pub(super) fn next_wakeup(&self) -> Instant {
+        let t = self.next_housekeeping;
+        self.d.poll_timeout().map_or(t, |p| t.min(p))
+    }
+
+    /// A keep-all subscription queue the application has not emptied:
+    /// user data is not read until it has room. A reliable writer then
+    /// waits for acknowledgements; a best-effort burst waits in the socket
+    /// buffer (where the kernel drops what does not fit) instead of being
+    /// read and thrown away here.
+    pub(super) fn full_queue(&mut self) -> Option<Arc<SampleQueue>> {
+        while let Some(r) = self.d.paused_reader() {
+            match self.subs.get(&r) {
+                Some(s) if s.queue.is_full() => return Some(s.queue.clone()),
+                _ => self.d.set_reader_full(r, false),
+            }
+        }
+        None
+    }
+
+    /// Runs what is due at `now`: the domain's timers and housekeeping.
+    /// The driver calls it once [`State::next_wakeup`] has come.
+    pub(super) fn tick(&mut self, now: Instant) {
+        if self.d.poll_timeout().is_some_and(|t| t <= now) {
+            self.d.handle_timeout(now);
+        }
+        if now >= self.next_housekeeping {
+            self.next_housekeeping = now + HOUSEKEEPING;
+            let waiting: Vec<PubId> = self
+                .writers
+                .iter()
+                .filter(|(_, w)| !w.pending.is_empty())
+                .map(|(p, _)| *p)
+                .collect();
+            for p in waiting {
+                self.retry_pending(p, now);
+            }
+            self.delete_lingering(now);
+        }
+    }
+
+    /// Deletes what a handle the application closed stands for.
+    fn close_handle(&mut self, h: Handle, now: Instant) {
+        match h {
+            Handle::Publication(p) => {
+                // what was published before the close still reaches the
+                // readers: the writer lingers until it is acknowledged
+                if let Some(w) = self.writers.get_mut(&p) {
+                    w.closed.get_or_insert(now);
+                }
+                self.delete_lingering(now);
+            }
+            Handle::Subscription(id) => match self.sub_handles.remove(&id) {
+                Some(SubKind::Reader(r)) => {
+                    self.subs.remove(&r);
+                    self.d.delete_reader(r, now);
+                }
+                Some(SubKind::Pattern(p)) => {
+                    self.patterns.remove(&p);
+                    self.subs.retain(|_, s| s.pattern != Some(p));
+                    self.d.delete_pattern(p, now);
+                }
+                None => {}
+            },
+            Handle::Service(id) => {
+                // no more requests; replies already given still go out
+                // (and are repaired) before the service is deleted
+                if let Some(srv) = self.servers.remove(&id) {
+                    self.closed_services.push((srv.id, now + LINGER));
+                }
+            }
+            Handle::Client(id) => {
+                if let Some((_, c)) = self.clients.remove(&id) {
+                    self.d.delete_client(c, now);
+                }
+            }
+        }
+    }
+
+    /// Deletes the closed publications that are done: nothing waits to be
+    /// written and every reader acknowledged the rest (or [`LINGER`] is
+    /// over).
+    fn delete_lingering(&mut self, now: Instant) {
+        let done: Vec<PubId> = self
+            .writers
+            .iter()
+            .filter(|(_, w)| {
+                w.closed.is_some_and(|at| {
+                    now >= at + LINGER
+                        || (w.pending.is_empty()
+                            && w.last.is_none_or(|sn| {
+                                self.d.participant().is_acked_by_all(w.id.guid(), sn)
+                            }))
+                })
+            })
+            .map(|(p, _)| *p)
+            .collect();
+        for p in done {
+            let Some(w) = self.writers.remove(&p) else {
+                continue;
+            };
+            for pw in w.pending {
+                pw.done.send(Err(PublishError::Closed(p)));
+            }
+            self.d.delete_writer(w.id, now);
+        }
+        while let Some(&(srv, at)) = self.closed_services.first() {
+            if now < at {
+                break;
+            }
+            self.closed_services.remove(0);
+            self.d.delete_service(srv, now);
+        }
+    }
+
+    /// At close: every waiter fails, every queue ends.
+    pub(super) fn fail_all(&mut self) {
+        for s in self.subs.values() {
+            s.queue.close();
+        }
+        for q in self.patterns.values() {
+            q.close();
+        }
+        for w in self.writers.values_mut() {
+            for pw in w.pending.drain(..) {
+                pw.done.send(Err(disconnected()));
+            }
+        }
+        for (_, c) in self.confirms.drain() {
+            let _ = c.reply.send(Err(disconnected()));
+        }
+        for (_, q) in self.queries.drain() {
+            let _ = q.reply.send(Err(QueryError::Disconnected(q.name)));
+        }
+        self.servers.clear(); // ends every Requests stream
+        self.listeners.send(SessionEvent::Disconnected);
+        self.listeners.close();
+    }
+
+    /// The queues with callbacks, for their end markers (at close).
+    pub(super) fn handler_queues(&mut self) -> Vec<Arc<SampleQueue>> {
+        let immediate = std::mem::take(&mut self.immediate);
+        self.subs
+            .values()
+            .filter(|s| s.pattern.is_none())
+            .map(|s| s.queue.clone())
+            .chain(self.patterns.values().cloned())
+            .filter(|q| q.has_handler())
+            .chain(immediate)
+            .collect()
+    }
+
+    pub(super) fn command(&mut self, c: Cmd, now: Instant) {
+        match c {
+            Cmd::Publication {
+                topic,
+                ty,
+                qos,
+                reply,
+            } => {
+                let _ = reply.send(self.create_writer(topic, &ty, &qos, now));
+            }
+            Cmd::Subscription {
+                topic,
+                ty,
+                qos,
+                queue,
+                reply,
+            } => {
+                queue.return_buffers_to(&self.returns);
+                let kind = match ty {
+                    Some(ty) => {
+                        let cfg = EndpointConfig::reader(&topic, ty.type_name)
+                            .keyed(ty.keyed)
+                            .qos(subscription_qos(&qos));
+                        self.d
+                            .create_reader(cfg, now)
+                            .map(|id| {
+                                self.subs.insert(
+                                    id,
+                                    Subscription {
+                                        topic: topic.clone(),
+                                        type_name: Arc::from(ty.type_name),
+                                        queue,
+                                        pattern: None,
+                                    },
+                                );
+                                SubKind::Reader(id)
+                            })
+                            .map_err(|source| OpenError::Endpoint {
+                                topic: topic.clone(),
+                                source,
+                            })
+                    }
+                    None => {
+                        // the type is learned from the first publication seen
+                        let p = self
+                            .d
+                            .create_pattern(&topic, "*", subscription_qos(&qos), now);
+                        self.patterns.insert(p, queue);
+                        Ok(SubKind::Pattern(p))
+                    }
+                };
+                let _ = reply.send(kind.map(|k| self.sub_handle(k)));
+            }
+            Cmd::Pattern {
+                topic,
+                type_name,
+                queue,
+                reply,
+            } => {
+                queue.return_buffers_to(&self.returns);
+                let mut q = EndpointQos::reader_default();
+                q.history = WireHistory::KeepAll;
+                let p = self.d.create_pattern(&topic, &type_name, q, now);
+                self.patterns.insert(p, queue);
+                let _ = reply.send(Ok(self.sub_handle(SubKind::Pattern(p))));
+            }
+            Cmd::Write {
+                publication,
+                kind,
+                data,
+                key_hash,
+                confirm,
+                done,
+            } => {
+                let Some(w) = self.writers.get_mut(&publication) else {
+                    done.send(Err(PublishError::Closed(publication)));
+                    return;
+                };
+                let pw = PendingWrite {
+                    kind,
+                    data,
+                    key_hash,
+                    confirm,
+                    done,
+                };
+                if !w.pending.is_empty() {
+                    w.pending.push_back(pw);
+                    return;
+                }
+                if let Some(pw) = self.try_write(publication, pw, now) {
+                    if let Some(w) = self.writers.get_mut(&publication) {
+                        w.pending.push_back(pw);
+                    }
+                }
+            }
+            Cmd::ModuleConnected { name, reply } => {
+                let known = name == self.name
+                    || self
+                        .d
+                        .participant()
+                        .participants()
+                        .any(|d| d.entity_name.as_deref() == Some(name.as_str()));
+                let _ = reply.send(Ok(known));
+            }
+            Cmd::NumHandlers { topic, reply } => {
+                let _ = reply.send(Ok(self.handlers(&topic)));
+            }
+            Cmd::Watch { topic } => {
+                self.watched.insert(topic);
+            }
+            Cmd::Close { .. } => {}
+            Cmd::CloseHandle(h) => self.close_handle(h, now),
+            Cmd::Client {
+                name,
+                req,
+                resp,
+                reply,
+            } => {
+                let r = self
+                    .d
+                    .create_client(&service_config(&name, &req, &resp), now)
+                    .map(|c| {
+                        let id = ClientId(self.handle());
+                        self.clients.insert(id, (name.clone(), c));
+                        id
+                    })
+                    .map_err(|source| OpenError::Endpoint {
+                        topic: name.clone(),
+                        source,
+                    });
+                let _ = reply.send(r);
+            }
+            Cmd::Serve {
+                name,
+                req,
+                resp,
+                tx,
+                reply,
+            } => {
+                let _ = reply.send(self.serve(name, &req, &resp, tx, now));
+            }
+            Cmd::Respond {
+                service,
+                data,
+                request,
+            } => {
+                // a reliable keep-all reply writer only refuses when thousands
+                // of replies are unacknowledged; the client then times out
+                let _ = self.d.reply(service, request, data, now);
+            }
+            Cmd::Query {
+                client,
+                data,
+                timeout,
+                reply,
+            } => {
+                let Some((name, client)) = self.clients.get(&client).cloned() else {
+                    let _ = reply.send(Err(QueryError::Disconnected(format!(
+                        "{client:?} (closed)"
+                    ))));
+                    return;
+                };
+                match self.d.query(client, data, timeout, now) {
+                    Ok(q) => {
+                        self.queries.insert(q, Query { name, reply });
+                    }
+                    Err(source) => {
+                        let source = PublishError::Writer {
+                            topic: name.clone(),
+                            source,
+                        };
+                        let _ = reply.send(Err(QueryError::Refused { msg: name, source }));
+                    }
+                }
+            }
+        }
+    }
+
+    /// Serves `name`: a reader of its request topic and a writer of its
+    /// reply topic.
+    fn serve(
+        &mut self,
+        name: String,
+        req: &TypeInfo,
+        resp: &TypeInfo,
+        tx: mpsc::Sender<RawRequest>,
+        now: Instant,
+    ) -> Result<ServiceId, OpenError> {
+        if self.servers.values().any(|s| s.name == name) {
+            return Err(OpenError::AlreadyServed(name));
+        }
+        let id = self
+            .d
+            .create_service(&service_config(&name, req, resp), now)
+            .map_err(|source| OpenError::Endpoint {
+                topic: name.clone(),
+                source,
+            })?;
+        let handle = ServiceId(self.handle());
+        self.servers.insert(
+            handle,
+            Server {
+                id,
+                name,
+                tx,
+                dropped: 0,
+            },
+        );
+        Ok(handle)
+    }
+
+    fn sub_handle(&mut self, kind: SubKind) -> SubId {
+        let id = SubId(self.handle());
+        self.sub_handles.insert(id, kind);
+        id
+    }
+
+    /// Readers of `topic`: those matched with our writers of it (the most
+    /// any one has), else every known remote reader of it plus our own.
+    fn handlers(&self, topic: &str) -> i32 {
+        let ours = self
+            .writers
+            .values()
+            .filter(|w| w.topic == topic)
+            .map(|w| self.d.matched_readers(w.id))
+            .max();
+        let n = match ours {
+            Some(n) => n,
+            None => {
+                self.d
+                    .participant()
+                    .subscriptions()
+                    .filter(|s| s.topic_name == topic)
+                    .count()
+                    + self.subs.values().filter(|s| s.topic == topic).count()
+            }
+        };
+        i32::try_from(n).unwrap_or(i32::MAX)
+    }
+
+    fn create_writer(
+        &mut self,
+        topic: String,
+        ty: &TypeInfo,
+        qos: &PublicationQos,
+        now: Instant,
+    ) -> Result<PubId, OpenError> {
+        // one topic, one type (DDS: a topic is created with its type)
+        if let Some(w) = self
+            .writers
+            .values()
+            .find(|w| w.topic == topic && w.type_name != ty.type_name)
+        {
+            return Err(OpenError::TypeConflict {
+                msg: topic,
+                existing: w.type_name.clone(),
+                given: ty.type_name.to_string(),
+            });
+        }
+        let cfg = EndpointConfig::writer(&topic, ty.type_name)
+            .keyed(ty.keyed)
+            .qos(publication_qos(qos));
+        let id = self
+            .d
+            .create_writer(cfg, now)
+            .map_err(|source| OpenError::Endpoint {
+                topic: topic.clone(),
+                source,
+            })?;
+        let handle = PubId(self.handle());
+        self.writers.insert(
+            handle,
+            Publication {
+                id,
+                topic,
+                type_name: ty.type_name.to_string(),
+                pending: VecDeque::new(),
+                last: None,
+                closed: None,
+            },
+        );
+        Ok(handle)
+    }
+
+    /// Writes now, or gives the write back when the history is full.
+    fn try_write(
+        &mut self,
+        publication: PubId,
+        mut pw: PendingWrite,
+        now: Instant,
+    ) -> Option<PendingWrite> {
+        let Some(w) = self.writers.get_mut(&publication) else {
+            pw.done.send(Err(PublishError::Closed(publication)));
+            return None;
+        };
+        let id = w.id;
+        if !self.d.has_room(id, pw.data.len()) {
+            return Some(pw); // a full keep-all history: Event::Writable follows
+        }
+        // the encoded sample becomes the history's copy (the CDR writer
+        // left room for its envelope)
+        let mut change = Change::alive_owned(std::mem::take(&mut pw.data));
+        change.kind = pw.kind;
+        change.key_hash = pw.key_hash.map(KeyHash);
+        let topic = w.topic.as_str();
+        let refused = |source: participant::WriteError| PublishError::Writer {
+            topic: topic.to_string(),
+            source,
+        };
+        match (pw.confirm, pw.done) {
+            (Some(after), Done::Reply(reply)) => {
+                match self.d.write_confirmed(id, change, after, now) {
+                    Ok(sn) => {
+                        w.last = Some(sn);
+                        self.confirms.insert(
+                            (id, sn),
+                            Confirm {
+                                topic: topic.to_string(),
+                                after,
+                                reply,
+                            },
+                        );
+                    }
+                    Err(e) => {
+                        let _ = reply.send(Err(refused(e)));
+                    }
+                }
+            }
+            (_, done) => {
+                let r = self.d.write(id, change, now);
+                if let Ok(sn) = r {
+                    w.last = Some(sn);
+                }
+                done.send(r.map(drop).map_err(refused))
+            }
+        }
+        None
+    }
+
+    /// Retries the writes to `topic` that waited for room in its history.
+    fn retry_pending(&mut self, publication: PubId, now: Instant) {
+        while let Some(pw) = self
+            .writers
+            .get_mut(&publication)
+            .and_then(|w| w.pending.pop_front())
+        {
+            if let Some(back) = self.try_write(publication, pw, now) {
+                if let Some(w) = self.writers.get_mut(&publication) {
+                    w.pending.push_front(back);
+                }
+                break;
+            }
+        }
+    }
+
+    /// The publication of `writer` and its topic.
+    fn publication_of(&self, writer: WriterId) -> Option<(PubId, &str)> {
+        self.writers
+            .iter()
+            .find(|(_, w)| w.id == writer)
+            .map(|(p, w)| (*p, w.topic.as_str()))
+    }
+
+    /// Handles every event the domain has.
+    pub(super) fn pump(&mut self, now: Instant) {
+        let mut wall = None;
+        while let Some(e) = self.d.poll_event() {
+            match e {
+                // one clock reading for every sample of a datagram
+                Event::Sample { reader, sample } => {
+                    let wall = *wall.get_or_insert_with(SystemTime::now);
+                    self.sample(reader, sample, wall)
+                }
+                e => self.event(e, now),
+            }
+        }
+    }
+
+    fn event(&mut self, e: Event, now: Instant) {
+        use participant::Event as P;
+        match e {
+            Event::Sample { reader, sample } => self.sample(reader, sample, SystemTime::now()),
+            Event::SampleDropped { reader, .. } => {
+                if let Some(s) = self.subs.get(&reader) {
+                    s.queue.count_dropped();
+                }
+            }
+            Event::DeadlineMissed { reader, total, .. } => {
+                if let Some(s) = self.subs.get(&reader) {
+                    self.emit(SessionEvent::DeadlineMissed {
+                        msg: s.topic.clone(),
+                        total,
+                    });
+                }
+            }
+            Event::PatternMatched {
+                pattern,
+                reader,
+                topic,
+                type_name,
+            } => {
+                if let Some(q) = self.patterns.get(&pattern) {
+                    self.subs.insert(
+                        reader,
+                        Subscription {
+                            topic,
+                            type_name: Arc::from(type_name),
+                            queue: q.clone(),
+                            pattern: Some(pattern),
+                        },
+                    );
+                }
+            }
+            Event::Request {
+                service,
+                request,
+                sample,
+            } => self.request(service, request, sample),
+            Event::Reply { query, sample, .. } => {
+                if let Some(q) = self.queries.remove(&query) {
+                    let data = sample.into_data();
+                    let _ = q.reply.send(Ok((
+                        reply_topic(&q.name),
+                        data,
+                        courier_wire::ipc::ByteOrder::NATIVE,
+                    )));
+                }
+            }
+            Event::QueryFailed { query, reason, .. } => {
+                if let Some(q) = self.queries.remove(&query) {
+                    let e = match reason {
+                        QueryFailure::Timeout(timeout) => QueryError::Timeout {
+                            msg: q.name,
+                            timeout,
+                        },
+                        QueryFailure::Refused(source) => QueryError::Refused {
+                            source: PublishError::Writer {
+                                topic: q.name.clone(),
+                                source,
+                            },
+                            msg: q.name,
+                        },
+                        _ => QueryError::Disconnected(q.name),
+                    };
+                    let _ = q.reply.send(Err(e));
+                }
+            }
+            Event::WriteConfirmed {
+                writer,
+                sequence_number,
+            } => {
+                if let Some(c) = self.confirms.remove(&(writer, sequence_number)) {
+                    let _ = c.reply.send(Ok(()));
+                }
+            }
+            Event::ConfirmFailed {
+                writer,
+                sequence_number,
+                reason,
+            } => {
+                if let Some(c) = self.confirms.remove(&(writer, sequence_number)) {
+                    let e = match reason {
+                        ConfirmFailure::Timeout(_) => PublishError::Timeout {
+                            what: format!(
+                                "acknowledgement of a sample of {} by every reader",
+                                c.topic
+                            ),
+                            after: c.after,
+                        },
+                        _ => disconnected(),
+                    };
+                    let _ = c.reply.send(Err(e));
+                }
+            }
+            Event::Writable { writer } => {
+                if let Some((p, _)) = self.publication_of(writer) {
+                    self.retry_pending(p, now);
+                }
+            }
+            Event::WriterMatched { writer, .. } | Event::WriterUnmatched { writer, .. } => {
+                self.handlers_changed(writer)
+            }
+            Event::TypeMismatch {
+                topic,
+                remote,
+                local_type,
+                remote_type,
+                ..
+            } => {
+                tracing::warn!(
+                    "{topic}: remote endpoint {} has type {remote_type}, ours is {local_type}",
+                    guid_hex(remote)
+                );
+                self.emit(SessionEvent::TypeMismatch {
+                    topic,
+                    remote: remote.into(),
+                    local_type,
+                    remote_type,
+                })
+            }
+            Event::IncompatibleQos {
+                topic,
+                remote,
+                reason,
+                ..
+            } => self.emit(SessionEvent::IncompatibleQos {
+                msg: topic,
+                remote: remote.into(),
+                reason: reason.to_string(),
+            }),
+            Event::Discovery(d) => match d {
+                P::ParticipantFound(d) => {
+                    self.emit(SessionEvent::ParticipantFound(Box::new((&d).into())))
+                }
+                P::ParticipantChanged(d) => {
+                    self.emit(SessionEvent::ParticipantChanged(Box::new((&d).into())))
+                }
+                P::ParticipantLost { prefix, reason } => self.emit(SessionEvent::ParticipantLost {
+                    guid: Guid {
+                        prefix,
+                        entity: EntityId::PARTICIPANT,
+                    }
+                    .into(),
+                    disposed: reason == LostReason::Disposed,
+                }),
+                P::PublicationFound(d) => {
+                    self.emit(SessionEvent::PublicationFound(Box::new((&d).into())))
+                }
+                P::PublicationChanged(d) => {
+                    self.emit(SessionEvent::PublicationChanged(Box::new((&d).into())))
+                }
+                P::PublicationLost(g) => {
+                    self.source_names.remove(&g);
+                    self.emit(SessionEvent::PublicationLost(g.into()));
+                }
+                P::SubscriptionFound(d) => {
+                    self.emit(SessionEvent::SubscriptionFound(Box::new((&d).into())))
+                }
+                P::SubscriptionChanged(d) => {
+                    self.emit(SessionEvent::SubscriptionChanged(Box::new((&d).into())))
+                }
+                P::SubscriptionLost(g) => self.emit(SessionEvent::SubscriptionLost(g.into())),
+                _ => {}
+            },
+            _ => {}
+        }
+    }
+
+    fn handlers_changed(&self, writer: WriterId) {
+        if let Some((_, topic)) = self.publication_of(writer) {
+            if self.watched.contains(topic) {
+                let msg = topic.to_string();
+                let count = self.handlers(&msg);
+                self.emit(SessionEvent::HandlersChanged { msg, count });
+            }
+        }
+    }
+
+    /// A request for one of our services: to its `Requests` stream.
+    fn request(
+        &mut self,
+        service: courier_wire::dds::ServiceId,
+        request: courier_wire::dds::RequestId,
+        s: participant::ReceivedSample,
+    ) {
+        let Some(srv) = self.servers.values_mut().find(|s| s.id == service) else {
+            return;
+        };
+        let cmd = self.responder.clone();
+        let respond = crate::session::Responder::from_fn(move |_reply_msg, data| {
+            let tx = cmd.upgrade().ok_or_else(disconnected::<PublishError>)?;
+            tx.send(Cmd::Respond {
+                service,
+                data,
+                request,
+            })
+            .map_err(|_| disconnected())
+        });
+        let r = RawRequest {
+            msg: srv.name.clone(),
+            data: s.into_data(),
+            order: courier_wire::ipc::ByteOrder::NATIVE,
+            respond,
+        };
+        if srv.tx.try_send(r).is_err() {
+            // the server's queue is full (or it stopped serving): the
+            // client times out; counted
+            srv.dropped += 1;
+        }
+    }
+
+    fn sample(&mut self, reader: ReaderId, s: participant::ReceivedSample, received: SystemTime) {
+        let Some(r) = self.subs.get(&reader) else {
+            return;
+        };
+        let source = self
+            .source_names
+            .entry(s.writer)
+            .or_insert_with(|| Arc::from(guid_hex(s.writer)));
+        let raw = RawSample {
+            msg: r.topic.clone(),
+            order: courier_wire::ipc::ByteOrder::NATIVE,
+            received,
+            source: Some(source.clone()),
+            type_name: Some(r.type_name.clone()),
+            state: match s.kind {
+                ChangeKind::Alive => InstanceState::Alive,
+                ChangeKind::Unregistered => InstanceState::Unregistered,
+                ChangeKind::Disposed | ChangeKind::DisposedUnregistered => InstanceState::Disposed,
+            },
+            key_hash: s.key_hash.map(|k| k.0),
+            source_time: s.source_timestamp.and_then(system_time),
+            done: None,
+            // last: the received buffer itself, not a copy
+            data: s.into_data(),
+        };
+        // may exceed the capacity by what one receive batch (8 datagrams)
+        // carried; reading stops until the application catches up (see
+        // `full_queue`)
+        match &mut self.wakes {
+            Some(wakes) => wakes.extend(r.queue.push_over_deferred(raw)),
+            None => r.queue.push_over(raw),
+        }
+        if r.queue.is_full() {
+            self.d.set_reader_full(reader, true);
+        }
+        if r.queue.has_handler() && !self.immediate.iter().any(|q| Arc::ptr_eq(q, &r.queue)) {
+            self.immediate.push(r.queue.clone());
+        }
+    }
+}
+
+fn service_config(name: &str, req: &TypeInfo, resp: &TypeInfo) -> ServiceConfig {
+    let mut c =
+        ServiceConfig::new(name, req.type_name, resp.type_name).keyed(req.keyed, resp.keyed);
+    c.writer_qos = publication_qos(&PublicationQos::default());
+    c.reader_qos = subscription_qos(&SubscriptionQos::default());
+    c
+}
+
+fn wire_duration(d: Option<Duration>) -> RtpsDuration {
+    d.map_or(RtpsDuration::INFINITE, RtpsDuration::from_std)
+}
+
+fn wire_history(h: History) -> WireHistory {
+    match h {
+        History::KeepLast(n) => WireHistory::KeepLast(i32::try_from(n.max(1)).unwrap_or(i32::MAX)),
+        History::KeepAll => WireHistory::KeepAll,
+    }
+}
+
+fn wire_reliability(r: Reliability) -> WireReliability {
+    match r {
+        Reliability::BestEffort => WireReliability::BestEffort,
+        Reliability::Reliable => {
+            WireReliability::Reliable(RtpsDuration::from_std(Duration::from_millis(100)))
+        }
+    }
+}
+
+fn wire_durability(d: Durability) -> WireDurability {
+    match d {
+        Durability::Volatile => WireDurability::Volatile,
+        Durability::TransientLocal => WireDurability::TransientLocal,
+    }
+}
+
+fn publication_qos(q: &PublicationQos) -> EndpointQos {
+    let mut e = EndpointQos::writer_default();
+    e.reliability = wire_reliability(q.reliability);
+    e.durability = wire_durability(q.durability);
+    e.history = wire_history(q.history);
+    e.deadline = wire_duration(q.deadline);
+    e.lifespan = wire_duration(q.persistence);
+    if let Some(s) = q.strength {
+        e.exclusive_ownership = true;
+        e.ownership_strength = s;
+    }
+    e.partitions = q.partitions.clone();
+    e
+}
+
+fn subscription_qos(q: &SubscriptionQos) -> EndpointQos {
+    let mut e = EndpointQos::reader_default();
+    e.reliability = wire_reliability(q.reliability);
+    e.durability = wire_durability(q.durability);
+    e.history = wire_history(q.history);
+    e.deadline = wire_duration(q.deadline);
+    e.time_based_filter = q
+        .minimum_separation
+        .map_or(RtpsDuration::ZERO, RtpsDuration::from_std);
+    e.exclusive_ownership = q.exclusive;
+    e.partitions = q.partitions.clone();
+    e
+}

@@ -1,0 +1,215 @@
+//! The system calls Courier makes that std and socket2 do not offer, and
+//! so every `unsafe` block of the crate: registering descriptors with
+//! tokio's reactor, `recvmmsg`, the interface list, reverse DNS for access
+//! rules, the `timerfd` of the RTPS driver and the allocator settings of the
+//! central binary. Everything else is `#![deny(unsafe_code)]`.
+#![allow(unsafe_code)]
+
+#[cfg(target_os = "linux")]
+pub(crate) mod timerfd;
+
+pub(crate) mod net {
+    //! Sockets and interfaces.
+
+    use std::io;
+    use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4};
+    use std::os::fd::AsRawFd;
+
+    use tokio::io::unix::AsyncFd;
+    use tokio::io::Interest;
+
+    /// An IPv4 address of one interface.
+    #[derive(Debug, Clone)]
+    pub(crate) struct Interface {
+        pub(crate) name: String,
+        pub(crate) addr: Ipv4Addr,
+        pub(crate) up: bool,
+        pub(crate) loopback: bool,
+        pub(crate) multicast: bool,
+    }
+
+    /// Every IPv4 interface address of this machine.
+    pub(crate) fn interfaces() -> io::Result<Vec<Interface>> {
+        let mut out = Vec::new();
+        // SAFETY: getifaddrs fills a linked list that we walk read-only and free
+        // with freeifaddrs; every pointer is checked for null before use.
+        unsafe {
+            let mut head: *mut libc::ifaddrs = std::ptr::null_mut();
+            if libc::getifaddrs(&mut head) != 0 {
+                return Err(io::Error::last_os_error());
+            }
+            let mut cur = head;
+            while !cur.is_null() {
+                let ifa = &*cur;
+                if !ifa.ifa_addr.is_null() && i32::from((*ifa.ifa_addr).sa_family) == libc::AF_INET
+                {
+                    let sin = &*(ifa.ifa_addr as *const libc::sockaddr_in);
+                    let addr = Ipv4Addr::from(u32::from_be(sin.sin_addr.s_addr));
+                    let name = std::ffi::CStr::from_ptr(ifa.ifa_name)
+                        .to_string_lossy()
+                        .into_owned();
+                    let f = ifa.ifa_flags;
+                    out.push(Interface {
+                        name,
+                        addr,
+                        up: f & libc::IFF_UP as u32 != 0,
+                        loopback: f & libc::IFF_LOOPBACK as u32 != 0,
+                        multicast: f & libc::IFF_MULTICAST as u32 != 0,
+                    });
+                }
+                cur = ifa.ifa_next;
+            }
+            libc::freeifaddrs(head);
+        }
+        Ok(out)
+    }
+
+    /// Registers `fd` with tokio's reactor for `interest`.
+    pub(crate) fn register<T: AsRawFd>(fd: T, interest: Interest) -> io::Result<AsyncFd<T>> {
+        // SAFETY: the `AsyncFd` owns `fd`, whose descriptor stays open and the
+        // same until the `AsyncFd` is dropped (nothing hands it out mutably or
+        // swaps it)
+        unsafe { AsyncFd::register_with_interest(fd, interest) }.map_err(|e| e.into_parts().1)
+    }
+
+    /// One `recvmmsg` into up to `N` of `bufs`: the length and sender of each
+    /// datagram go to `lens` and `from`; returns how many came.
+    #[cfg(target_os = "linux")]
+    pub(crate) fn recvmmsg<const N: usize>(
+        sock: &std::net::UdpSocket,
+        bufs: &mut [Vec<u8>],
+        lens: &mut [usize; N],
+        from: &mut [SocketAddr; N],
+        flags: libc::c_int,
+    ) -> io::Result<usize> {
+        const { assert!(N > 0) };
+        if bufs.len() < N {
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                "fewer buffers than slots",
+            ));
+        }
+        // SAFETY: all-zero is a valid value of these plain C structs
+        let mut addrs: [libc::sockaddr_storage; N] = unsafe { std::mem::zeroed() };
+        let mut iov: [libc::iovec; N] = unsafe { std::mem::zeroed() };
+        let mut hdrs: [libc::mmsghdr; N] = unsafe { std::mem::zeroed() };
+        for i in 0..N {
+            iov[i] = libc::iovec {
+                iov_base: bufs[i].as_mut_ptr().cast(),
+                iov_len: bufs[i].len(),
+            };
+            let h = &mut hdrs[i].msg_hdr;
+            h.msg_name = std::ptr::from_mut(&mut addrs[i]).cast();
+            h.msg_namelen = std::mem::size_of::<libc::sockaddr_storage>() as libc::socklen_t;
+            h.msg_iov = std::ptr::from_mut(&mut iov[i]);
+            h.msg_iovlen = 1;
+        }
+        // SAFETY: every header points at a live buffer of the stated length
+        // and at a sockaddr_storage, all of which outlive the call
+        let n = unsafe {
+            libc::recvmmsg(
+                sock.as_raw_fd(),
+                hdrs.as_mut_ptr(),
+                N as libc::c_uint,
+                flags,
+                std::ptr::null_mut(),
+            )
+        };
+        if n < 0 {
+            return Err(io::Error::last_os_error());
+        }
+        let n = usize::try_from(n).unwrap_or(0).min(N);
+        for i in 0..n {
+            lens[i] = (hdrs[i].msg_len as usize).min(bufs[i].len());
+            from[i] = sockaddr_v4(&addrs[i]);
+        }
+        Ok(n)
+    }
+
+    /// The IPv4 sender in a `sockaddr_storage` (0.0.0.0:0 for anything else:
+    /// these sockets are IPv4).
+    #[cfg(target_os = "linux")]
+    fn sockaddr_v4(a: &libc::sockaddr_storage) -> SocketAddr {
+        if i32::from(a.ss_family) != libc::AF_INET {
+            return SocketAddr::from(([0, 0, 0, 0], 0));
+        }
+        // SAFETY: ss_family says this storage holds a sockaddr_in
+        let sin = unsafe { &*std::ptr::from_ref(a).cast::<libc::sockaddr_in>() };
+        SocketAddr::V4(SocketAddrV4::new(
+            Ipv4Addr::from(u32::from_be(sin.sin_addr.s_addr)),
+            u16::from_be(sin.sin_port),
+        ))
+    }
+}
+
+#[cfg(feature = "central")]
+pub(crate) mod dns {
+    //! Reverse lookups for central's access rules.
+
+    use std::net::IpAddr;
+
+    /// The name `ip` resolves to (`NI_NAMEREQD`: no numeric fallback).
+    pub(crate) fn getnameinfo(ip: IpAddr) -> Option<String> {
+        // SAFETY: the sockaddr structures are fully initialised (zeroed, then
+        // filled), the lengths passed are their sizes, and the host buffer is
+        // NI_MAXHOST bytes long and NUL-terminated by getnameinfo on success.
+        unsafe {
+            let mut host = [0 as libc::c_char; libc::NI_MAXHOST as usize];
+            let rc = match ip {
+                IpAddr::V4(v4) => {
+                    let mut sa: libc::sockaddr_in = std::mem::zeroed();
+                    sa.sin_family = libc::AF_INET as libc::sa_family_t;
+                    sa.sin_addr.s_addr = u32::from_ne_bytes(v4.octets());
+                    libc::getnameinfo(
+                        &sa as *const libc::sockaddr_in as *const libc::sockaddr,
+                        std::mem::size_of::<libc::sockaddr_in>() as libc::socklen_t,
+                        host.as_mut_ptr(),
+                        host.len() as libc::socklen_t,
+                        std::ptr::null_mut(),
+                        0,
+                        libc::NI_NAMEREQD,
+                    )
+                }
+                IpAddr::V6(v6) => {
+                    let mut sa: libc::sockaddr_in6 = std::mem::zeroed();
+                    sa.sin6_family = libc::AF_INET6 as libc::sa_family_t;
+                    sa.sin6_addr.s6_addr = v6.octets();
+                    libc::getnameinfo(
+                        &sa as *const libc::sockaddr_in6 as *const libc::sockaddr,
+                        std::mem::size_of::<libc::sockaddr_in6>() as libc::socklen_t,
+                        host.as_mut_ptr(),
+                        host.len() as libc::socklen_t,
+                        std::ptr::null_mut(),
+                        0,
+                        libc::NI_NAMEREQD,
+                    )
+                }
+            };
+            if rc != 0 {
+                return None;
+            }
+            let s = std::ffi::CStr::from_ptr(host.as_ptr());
+            Some(s.to_string_lossy().into_owned())
+        }
+    }
+}
+
+#[cfg(feature = "central")]
+pub(crate) mod alloc {
+    //! glibc's allocator settings for the central binary.
+
+    /// Keeps large freed allocations in the heap (see
+    /// [`crate::central::keep_freed_memory`]).
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    pub(crate) fn keep_freed_memory() {
+        // SAFETY: mallopt only sets glibc allocator parameters; the caller
+        // runs before any other thread exists.
+        unsafe {
+            libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
+            libc::mallopt(libc::M_TRIM_THRESHOLD, 64 << 20);
+        }
+    }
+
+    #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+    pub(crate) fn keep_freed_memory() {}
+}

@@ -1,0 +1,159 @@
+//! The one type each topic (IPC message) carries within a session.
+//!
+//! Two Rust types with the same IPC format string and the same DDS type
+//! name put the same bytes on the wire, so they may share a topic; any
+//! other pair may not: a subscriber would get bytes it cannot decode (IPC)
+//! or never match the writer (DDS). The typed API binds a topic to its type
+//! on first use and refuses another type afterwards, naming both.
+
+use std::collections::HashMap;
+use std::sync::Mutex;
+
+use courier_wire::IpcMessage;
+
+use crate::backend::{ClientId, PubId};
+use crate::error::OpenError;
+use crate::qos::TypeInfo;
+
+/// A topic's type as bound by its first typed use.
+#[derive(Debug, Clone, Copy)]
+struct Bound {
+    /// The Rust type of the first use, for error messages.
+    rust: &'static str,
+    format: &'static str,
+    type_name: &'static str,
+}
+
+/// What a session keeps per topic: its type once bound, the session's
+/// own publication of it (`Session::define`, `Session::publish`) and its
+/// client (`Session::query`), opened on first use and kept open while the
+/// session lives.
+#[derive(Debug, Default, Clone, Copy)]
+struct Entry {
+    bound: Option<Bound>,
+    publication: Option<PubId>,
+    client: Option<ClientId>,
+}
+
+/// A session's topic → type bindings and shared handles, shared by the
+/// session's clones.
+#[derive(Debug, Default)]
+pub(crate) struct Topics(Mutex<HashMap<String, Entry>>);
+
+impl Topics {
+    fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<String, Entry>> {
+        // a panic elsewhere cannot leave the map half-updated: every update
+        // is one insert or one field store
+        self.0.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Binds `msg` to `T`, or checks that it is bound to a type with the
+    /// same wire form. `Ok(Some(_))`: the session's publication of the
+    /// topic, once it has one.
+    pub(crate) fn bind<T: IpcMessage>(&self, msg: &str) -> Result<Option<PubId>, OpenError> {
+        let mut map = self.lock();
+        let e = map.entry(msg.to_string()).or_default();
+        match e.bound {
+            Some(b) if b.format == T::FORMAT && b.type_name == T::TYPE_NAME => Ok(e.publication),
+            Some(b) => Err(OpenError::TypeMismatch {
+                msg: msg.to_string(),
+                bound: b.rust,
+                given: std::any::type_name::<T>(),
+            }),
+            None => {
+                e.bound = Some(Bound {
+                    rust: std::any::type_name::<T>(),
+                    format: T::FORMAT,
+                    type_name: T::TYPE_NAME,
+                });
+                Ok(e.publication)
+            }
+        }
+    }
+
+    /// The session's publication of `msg`, if it has one.
+    pub(crate) fn publication(&self, msg: &str) -> Option<PubId> {
+        self.lock().get(msg).and_then(|e| e.publication)
+    }
+
+    /// Records `id` as the session's publication of `msg`, unless a
+    /// concurrent first use got there first: the one to keep.
+    pub(crate) fn set_publication(&self, msg: &str, id: PubId) -> PubId {
+        *self
+            .lock()
+            .entry(msg.to_string())
+            .or_default()
+            .publication
+            .get_or_insert(id)
+    }
+
+    /// The session's client of the service `msg`, if it has one.
+    pub(crate) fn client(&self, msg: &str) -> Option<ClientId> {
+        self.lock().get(msg).and_then(|e| e.client)
+    }
+
+    /// As [`Topics::set_publication`], for clients.
+    pub(crate) fn set_client(&self, msg: &str, id: ClientId) -> ClientId {
+        *self
+            .lock()
+            .entry(msg.to_string())
+            .or_default()
+            .client
+            .get_or_insert(id)
+    }
+}
+
+/// What publishing a topic the session has not defined yet needs first:
+/// its named formats (IPC) and its type.
+#[derive(Debug)]
+pub(crate) struct Definition {
+    pub(crate) ty: TypeInfo,
+    pub(crate) formats: Vec<(&'static str, &'static str)>,
+}
+
+impl Definition {
+    pub(crate) fn of<T: IpcMessage>() -> Definition {
+        Definition {
+            ty: TypeInfo::of::<T>(),
+            formats: courier_wire::NamedFormats::of::<T>().iter().collect(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(courier_derive::IpcMessage)]
+    #[ipc(type_name = "Point", crate = "::courier_wire")]
+    struct Point {
+        x: i32,
+        y: i32,
+    }
+
+    #[derive(courier_derive::IpcMessage)]
+    #[ipc(type_name = "Point", crate = "::courier_wire")]
+    struct SamePoint {
+        a: i32,
+        b: i32,
+    }
+
+    #[test]
+    fn a_topic_keeps_its_first_type() {
+        let t = Topics::default();
+        assert_eq!(t.bind::<Point>("p").unwrap(), None, "not defined yet");
+        assert_eq!(t.bind::<SamePoint>("p").unwrap(), None, "same wire form");
+        assert_eq!(t.set_publication("p", PubId(1)), PubId(1));
+        assert_eq!(
+            t.set_publication("p", PubId(2)),
+            PubId(1),
+            "the first stays"
+        );
+        assert_eq!(t.bind::<Point>("p").unwrap(), Some(PubId(1)));
+        let e = t.bind::<f64>("p").unwrap_err();
+        let text = e.to_string();
+        assert!(text.contains("Point") && text.contains("f64"), "{text}");
+        assert_eq!(t.bind::<f64>("q").unwrap(), None, "other topics are free");
+        assert_eq!(t.publication("q"), None);
+    }
+}

@@ -1,0 +1,335 @@
+//! What the Session API promises a newcomer, including when it is used the
+//! wrong way: typed calls define what they need, a topic keeps one type,
+//! options a backend cannot honour are refused by name, unknown URL schemes
+//! list the known ones. Against Courier's own central, embedded on a free
+//! port of 127.0.0.1; every wait is bounded.
+
+use std::time::Duration;
+
+use courier::{ConnectError, IpcMessage, OpenError, PublishError, QueryError, Session};
+use courier_broker::{CentralHandle, CentralServer};
+use futures::StreamExt;
+
+mod common;
+
+const T: Duration = Duration::from_secs(20);
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct Ask {
+    a: i32,
+    b: i32,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct Sum {
+    total: i32,
+    note: String,
+}
+
+async fn central() -> (CentralHandle, String) {
+    let c = CentralServer::builder()
+        .bind("127.0.0.1".parse().unwrap())
+        .port(0)
+        .spawn()
+        .await
+        .unwrap();
+    let url = format!("ipc://{}", c.local_addr());
+    (c, url)
+}
+
+async fn session(url: &str, name: &str) -> Session {
+    tokio::time::timeout(T, Session::builder(url).name(name).connect())
+        .await
+        .unwrap()
+        .unwrap()
+}
+
+/// The crate-root example's order: `serve` and `query` with no `define`
+/// anywhere. Both define their messages themselves (on the old code the
+/// query failed with "query  refused", and a reply to an undefined reply
+/// message was dropped).
+#[tokio::test]
+async fn typed_query_and_serve_define_what_they_need() {
+    let (c, url) = central().await;
+    let server = session(&url, "adder").await;
+    let client = session(&url, "asker").await;
+    let mut reqs = server.serve::<Ask, Sum>("add", "add_result").await.unwrap();
+    let srv = tokio::spawn(async move {
+        while let Some(Ok(r)) = reqs.next().await {
+            let sum = Sum {
+                total: r.value.a + r.value.b,
+                note: "ok".into(),
+            };
+            r.reply(&sum).await.unwrap();
+        }
+    });
+    let r: Sum = client
+        .query("add", &Ask { a: 2, b: 40 })
+        .timeout(T)
+        .await
+        .unwrap();
+    assert_eq!(r.total, 42);
+    client.close().await;
+    server.close().await;
+    tokio::time::timeout(T, srv).await.unwrap().unwrap();
+    c.shutdown().await;
+}
+
+/// `publish` alone, never `define`d, reaches a subscriber.
+#[tokio::test]
+async fn typed_publish_defines_its_message() {
+    let (c, url) = central().await;
+    let a = session(&url, "a").await;
+    let b = session(&url, "b").await;
+    let mut sub = b.subscribe::<Sum>("sums").await.unwrap();
+    common::await_handlers(&a, "sums", 1).await;
+    let v = Sum {
+        total: 7,
+        note: "seven".into(),
+    };
+    a.publish("sums", &v).await.unwrap();
+    let got = tokio::time::timeout(T, sub.next()).await.unwrap().unwrap();
+    assert_eq!(got.unwrap().value, v);
+    a.close().await;
+    b.close().await;
+    c.shutdown().await;
+}
+
+/// Another type on a topic this session already uses is an error naming
+/// both types, for every typed operation; the subscriber never sees bytes
+/// it cannot decode (the old code returned Ok and the subscriber got
+/// `Decode { "count 1072693248 at byte 4 …" }`).
+#[tokio::test]
+async fn a_topic_keeps_one_type_per_session() {
+    let (c, url) = central().await;
+    let a = session(&url, "a").await;
+    a.define::<Sum>("sums").await.unwrap();
+    let mismatch = |e: OpenError| match e {
+        OpenError::TypeMismatch { msg, bound, given } => {
+            assert_eq!(msg, "sums");
+            assert!(bound.ends_with("Sum"), "{bound}");
+            given
+        }
+        other => panic!("expected a type mismatch, got {other:?}"),
+    };
+    let given = match a.publish("sums", &1.5f64).await.unwrap_err() {
+        PublishError::Open(e) => mismatch(e),
+        other => panic!("expected a type mismatch, got {other:?}"),
+    };
+    assert_eq!(given, "f64");
+    mismatch(a.define::<Ask>("sums").await.unwrap_err());
+    mismatch(a.subscribe::<i32>("sums").await.err().unwrap());
+    mismatch(a.publisher::<Ask>("sums").build().await.err().unwrap());
+    mismatch(a.serve::<Ask, Sum>("sums", "other").await.err().unwrap());
+    let e = a
+        .query::<Ask, Sum>("sums", &Ask { a: 1, b: 2 })
+        .timeout(T)
+        .await
+        .unwrap_err();
+    match e {
+        QueryError::Open { msg, source } => {
+            assert_eq!(msg, "sums");
+            let detail = source.to_string();
+            assert!(detail.contains("Sum") && detail.contains("Ask"), "{detail}");
+            mismatch(source);
+        }
+        other => panic!("expected a refusal, got {other:?}"),
+    }
+    // the same type again is fine
+    a.publish(
+        "sums",
+        &Sum {
+            total: 1,
+            note: String::new(),
+        },
+    )
+    .await
+    .unwrap();
+    a.close().await;
+    c.shutdown().await;
+}
+
+/// DDS settings on an IPC session fail, naming the setting, instead of
+/// being ignored; settings IPC has (keep-last as the local queue, best
+/// effort, which reliable delivery satisfies) are accepted.
+#[tokio::test]
+async fn dds_settings_on_an_ipc_session_are_refused_by_name() {
+    let (c, url) = central().await;
+    let a = session(&url, "a").await;
+    let unsupported = |e: OpenError, what: &str| match e {
+        OpenError::Unsupported { what: w, backend } => {
+            assert!(w.contains(what), "{w}");
+            assert_eq!(backend, "ipc://");
+        }
+        other => panic!("expected {what} refused, got {other:?}"),
+    };
+    let e = a.subscriber::<i32>("m1").deadline(T).build().await;
+    unsupported(e.err().unwrap(), "deadline");
+    let e = a.subscriber::<i32>("m2").exclusive().build().await;
+    unsupported(e.err().unwrap(), "exclusive");
+    let e = a
+        .subscriber::<i32>("m3")
+        .minimum_separation(T)
+        .build()
+        .await;
+    unsupported(e.err().unwrap(), "minimum separation");
+    let e = a.publisher::<i32>("m4").strength(3).build().await;
+    unsupported(e.err().unwrap(), "strength");
+    let e = a.publisher::<i32>("m5").deadline(T).build().await;
+    unsupported(e.err().unwrap(), "deadline");
+    let e = a.publisher::<i32>("m6").transient_local().build().await;
+    unsupported(e.err().unwrap(), "transient-local");
+    a.subscriber::<i32>("m7")
+        .keep_last(4)
+        .best_effort()
+        .build()
+        .await
+        .unwrap();
+    a.close().await;
+
+    let e = Session::builder(&url)
+        .interface("lo")
+        .connect()
+        .await
+        .err()
+        .unwrap();
+    let text = e.to_string();
+    assert!(
+        matches!(
+            &e,
+            ConnectError::Unsupported {
+                option: "interface",
+                ..
+            }
+        ),
+        "{e:?}"
+    );
+    assert!(text.contains("rtps://"), "{text}");
+    c.shutdown().await;
+}
+
+/// IPC-only builder options on an RTPS session fail at connect.
+#[tokio::test]
+async fn ipc_settings_on_an_rtps_session_are_refused_by_name() {
+    let e = Session::builder(common::url(1))
+        .no_listen()
+        .connect()
+        .await
+        .err()
+        .unwrap();
+    assert!(
+        matches!(&e, ConnectError::Unsupported { option: "no_listen", scheme, .. } if scheme == "rtps"),
+        "{e:?}"
+    );
+}
+
+/// A URL with a scheme nobody registered names the known schemes (the old
+/// code sent every non-`rtps:` URL to IPC: "expected ipc://host:port").
+#[tokio::test]
+async fn an_unknown_scheme_lists_the_known_ones() {
+    for url in ["xrce+udp://127.0.0.1:8888", "localhost:1381"] {
+        let e = Session::builder(url).connect().await.err().unwrap();
+        let text = e.to_string();
+        assert!(
+            matches!(e, ConnectError::UnknownScheme { .. }),
+            "{url}: {e:?}"
+        );
+        assert!(text.contains("ipc, rtps"), "{text}");
+    }
+}
+
+/// A reply whose message central does not know fails with an error naming
+/// it, and the server keeps receiving (on the old code `reply` returned Ok,
+/// the reply vanished and the module's capacity slot in central stayed
+/// taken: it never received another message).
+#[tokio::test]
+async fn a_failed_reply_is_an_error_and_the_server_keeps_receiving() {
+    let (c, url) = central().await;
+    let server = session(&url, "server").await;
+    let client = session(&url, "client").await;
+    let mut reqs = server.serve_raw("ask").await.unwrap();
+    client.define::<i32>("ask").await.unwrap();
+    client.define::<i32>("answer").await.unwrap();
+    common::await_handlers(&client, "ask", 1).await;
+    let first = tokio::spawn({
+        let client = client.clone();
+        async move {
+            client
+                .query::<i32, i32>("ask", &1)
+                .timeout(Duration::from_millis(500))
+                .await
+        }
+    });
+    let r = tokio::time::timeout(T, reqs.recv()).await.unwrap().unwrap();
+    let e = r
+        .respond
+        .reply("never_defined", 7i32.to_le_bytes().to_vec())
+        .await
+        .unwrap_err();
+    assert!(e.to_string().contains("never_defined"), "{e}");
+    let e = first.await.unwrap().unwrap_err();
+    assert!(matches!(e, QueryError::Timeout { .. }), "{e}");
+    // the slot is free again: the next query is delivered and answered
+    let second = tokio::spawn({
+        let client = client.clone();
+        async move { client.query::<i32, i32>("ask", &2).timeout(T).await }
+    });
+    let r = tokio::time::timeout(T, reqs.recv()).await.unwrap().unwrap();
+    r.respond
+        .reply("answer", 40i32.to_le_bytes().to_vec())
+        .await
+        .unwrap();
+    assert_eq!(second.await.unwrap().unwrap(), 40);
+    client.close().await;
+    server.close().await;
+    c.shutdown().await;
+}
+
+/// A `Request` dropped without a reply is declined: the asker times out and
+/// the server keeps receiving (on the old code the module was wedged).
+#[tokio::test]
+async fn a_dropped_request_is_declined_and_the_server_keeps_receiving() {
+    let (c, url) = central().await;
+    let server = session(&url, "server").await;
+    let client = session(&url, "client").await;
+    let mut reqs = server.serve::<Ask, Sum>("add", "").await.unwrap();
+    common::await_handlers(&client, "add", 1).await;
+    let first = tokio::spawn({
+        let client = client.clone();
+        async move {
+            client
+                .query::<Ask, Sum>("add", &Ask { a: 1, b: 1 })
+                .timeout(Duration::from_millis(500))
+                .await
+        }
+    });
+    let r = tokio::time::timeout(T, reqs.next()).await.unwrap().unwrap();
+    drop(r.unwrap());
+    let e = first.await.unwrap().unwrap_err();
+    assert!(matches!(e, QueryError::Timeout { .. }), "{e}");
+    let second = tokio::spawn({
+        let client = client.clone();
+        async move {
+            client
+                .query::<Ask, Sum>("add", &Ask { a: 20, b: 22 })
+                .timeout(T)
+                .await
+        }
+    });
+    let r = tokio::time::timeout(T, reqs.next())
+        .await
+        .unwrap()
+        .unwrap()
+        .unwrap();
+    let total = r.value.a + r.value.b;
+    r.reply(&Sum {
+        total,
+        note: String::new(),
+    })
+    .await
+    .unwrap();
+    assert_eq!(second.await.unwrap().unwrap().total, 42);
+    client.close().await;
+    server.close().await;
+    c.shutdown().await;
+}

@@ -1,0 +1,193 @@
+//! What a [`Domain`](super::Domain) tells its shell.
+
+use std::time::Duration;
+
+use crate::rtps::matching::Incompatible;
+use crate::rtps::participant::{self, KeyHash, ReceivedSample, WriteError};
+use crate::rtps::{Guid, SequenceNumber};
+
+use super::{ClientId, Endpoint, PatternId, QueryId, ReaderId, RequestId, ServiceId, WriterId};
+
+/// Why a reader-side filter dropped a sample (counted by the shell).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[non_exhaustive]
+pub enum DropReason {
+    /// Older than its writer's lifespan, by source timestamp.
+    Lifespan,
+    /// Closer than the reader's minimum separation to the last sample of
+    /// its instance (time-based filter).
+    MinimumSeparation,
+}
+
+/// Why a confirmed write was not confirmed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[non_exhaustive]
+pub enum ConfirmFailure {
+    /// Not every matched reliable reader acknowledged it in time.
+    Timeout(Duration),
+    /// The writer was deleted first.
+    WriterDeleted,
+}
+
+/// Why a query got no reply.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum QueryFailure {
+    /// No reply within its timeout (including time waiting for the
+    /// service to be matched).
+    Timeout(Duration),
+    /// The request could not be written.
+    Refused(WriteError),
+    /// The client was deleted first.
+    ClientDeleted,
+}
+
+/// Something the shell acts on, from [`Domain::poll_event`](super::Domain::poll_event).
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum Event {
+    /// A sample (or dispose/unregister) for a reader, past its filters.
+    Sample {
+        /// The reader.
+        reader: ReaderId,
+        /// The change.
+        sample: ReceivedSample,
+    },
+    /// A reader-side filter dropped a sample.
+    SampleDropped {
+        /// The reader.
+        reader: ReaderId,
+        /// Which filter.
+        reason: DropReason,
+    },
+    /// An instance of a reader with a deadline had no sample for a period
+    /// (again every period until one comes).
+    DeadlineMissed {
+        /// The reader.
+        reader: ReaderId,
+        /// The instance (all zero for a topic without key).
+        instance: KeyHash,
+        /// Misses of this reader so far.
+        total: u64,
+    },
+    /// A pattern subscription made a reader for a publication it matches;
+    /// that reader's samples come as [`Event::Sample`].
+    PatternMatched {
+        /// The pattern subscription.
+        pattern: PatternId,
+        /// Its new reader.
+        reader: ReaderId,
+        /// The publication's topic.
+        topic: String,
+        /// The publication's type name.
+        type_name: String,
+    },
+    /// A request for a service.
+    Request {
+        /// The service.
+        service: ServiceId,
+        /// What the reply names.
+        request: RequestId,
+        /// The request sample.
+        sample: ReceivedSample,
+    },
+    /// The reply to a query.
+    Reply {
+        /// The client.
+        client: ClientId,
+        /// The query answered.
+        query: QueryId,
+        /// The reply sample.
+        sample: ReceivedSample,
+    },
+    /// A query that will get no reply.
+    QueryFailed {
+        /// The client.
+        client: ClientId,
+        /// The query.
+        query: QueryId,
+        /// Why.
+        reason: QueryFailure,
+    },
+    /// A confirmed write was acknowledged by every matched reliable reader.
+    WriteConfirmed {
+        /// The writer.
+        writer: WriterId,
+        /// The write.
+        sequence_number: SequenceNumber,
+    },
+    /// A confirmed write will not be confirmed.
+    ConfirmFailed {
+        /// The writer.
+        writer: WriterId,
+        /// The write.
+        sequence_number: SequenceNumber,
+        /// Why.
+        reason: ConfirmFailure,
+    },
+    /// A writer whose keep-all history was full (a refused
+    /// [`Domain::write`](super::Domain::write), or
+    /// [`Domain::has_room`](super::Domain::has_room) answering false) has
+    /// room again.
+    Writable {
+        /// The writer.
+        writer: WriterId,
+    },
+    /// A writer matched a reader (remote or local).
+    WriterMatched {
+        /// The writer.
+        writer: WriterId,
+        /// The reader.
+        reader: Guid,
+    },
+    /// A writer lost a matched reader.
+    WriterUnmatched {
+        /// The writer.
+        writer: WriterId,
+        /// The reader.
+        reader: Guid,
+    },
+    /// A reader matched a writer (remote or local).
+    ReaderMatched {
+        /// The reader.
+        reader: ReaderId,
+        /// The writer.
+        writer: Guid,
+    },
+    /// A reader lost a matched writer.
+    ReaderUnmatched {
+        /// The reader.
+        reader: ReaderId,
+        /// The writer.
+        writer: Guid,
+    },
+    /// A remote endpoint on a topic a local endpoint uses has another type
+    /// name: they will not match.
+    TypeMismatch {
+        /// The local endpoint.
+        local: Endpoint,
+        /// The remote endpoint.
+        remote: Guid,
+        /// The topic.
+        topic: String,
+        /// Our type name.
+        local_type: String,
+        /// Theirs.
+        remote_type: String,
+    },
+    /// A local endpoint and one on the same topic do not match.
+    IncompatibleQos {
+        /// The local endpoint.
+        local: Endpoint,
+        /// Its topic.
+        topic: String,
+        /// The other endpoint.
+        remote: Guid,
+        /// The first rule that failed.
+        reason: Incompatible,
+    },
+    /// Discovery, as the participant reports it: only
+    /// `ParticipantFound`/`Changed`/`Lost`, `PublicationFound`/`Changed`/`Lost`
+    /// and `SubscriptionFound`/`Changed`/`Lost` come this way.
+    Discovery(participant::Event),
+}

@@ -1,0 +1,285 @@
+//! Readers and the reader-side QoS the participant leaves to the domain:
+//! exclusive ownership, lifespan, time-based filter and deadlines; and the
+//! keep-all back-pressure the shell reports.
+
+use std::collections::HashMap;
+use std::time::{Duration, Instant, SystemTime};
+
+use crate::rtps::discovery::{EndpointQos, History};
+use crate::rtps::participant::{ChangeKind, CreateError, EndpointConfig, KeyHash, ReceivedSample};
+use crate::rtps::{Guid, Time};
+
+use super::{Domain, DropReason, Endpoint, Event, ReaderId, Role};
+
+/// What the reader-side filters know of a writer (remote or local).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct WriterInfo {
+    pub(super) strength: i32,
+    pub(super) lifespan: Option<Duration>,
+}
+
+impl WriterInfo {
+    pub(super) fn of(q: &EndpointQos) -> Self {
+        WriterInfo {
+            strength: q.ownership_strength,
+            lifespan: q.lifespan.to_std(),
+        }
+    }
+}
+
+pub(super) struct LocalReader {
+    pub(super) role: Role,
+    pub(super) topic: String,
+    pub(super) type_name: String,
+    keep_all: bool,
+    exclusive: bool,
+    minimum_separation: Option<Duration>,
+    deadline: Option<Duration>,
+    /// Per instance: owner (exclusive ownership) and its strength.
+    owners: HashMap<[u8; 16], (Guid, i32)>,
+    /// Per instance: when the last sample was delivered.
+    last: HashMap<[u8; 16], Instant>,
+    /// Per instance: when the deadline is next checked.
+    due: HashMap<[u8; 16], Instant>,
+    misses: u64,
+}
+
+/// An RTPS `Time_t` as a `SystemTime`.
+fn system_time(t: Time) -> Option<SystemTime> {
+    let secs = u64::try_from(t.seconds).ok()?;
+    let nanos = (u64::from(t.fraction) * 1_000_000_000) >> 32;
+    SystemTime::UNIX_EPOCH.checked_add(Duration::new(secs, nanos as u32))
+}
+
+impl LocalReader {
+    fn new(cfg: &EndpointConfig, role: Role, now: Instant) -> Self {
+        let q = &cfg.qos;
+        let deadline = q.deadline.to_std();
+        let mut due = HashMap::new();
+        if let Some(d) = deadline {
+            if !cfg.keyed {
+                due.insert([0; 16], now + d);
+            }
+        }
+        LocalReader {
+            role,
+            topic: cfg.topic_name.clone(),
+            type_name: cfg.type_name.clone(),
+            keep_all: q.history == History::KeepAll,
+            exclusive: q.exclusive_ownership,
+            minimum_separation: q.time_based_filter.to_std().filter(|d| !d.is_zero()),
+            deadline,
+            owners: HashMap::new(),
+            last: HashMap::new(),
+            due,
+            misses: 0,
+        }
+    }
+
+    /// The filters, in DDS's order: lifespan, ownership, time-based filter;
+    /// then the deadline is moved. `Err(None)`: dropped silently (another
+    /// writer owns the instance).
+    pub(super) fn admit(
+        &mut self,
+        s: &ReceivedSample,
+        writer: Option<WriterInfo>,
+        now: Instant,
+        wall: SystemTime,
+    ) -> Result<(), Option<DropReason>> {
+        let instance = s.key_hash.map_or([0; 16], |k| k.0);
+        if s.kind != ChangeKind::Alive {
+            self.due.remove(&instance);
+            self.owners.remove(&instance);
+            return Ok(());
+        }
+        if let (Some(life), Some(ts)) = (
+            writer.and_then(|i| i.lifespan),
+            s.source_timestamp.and_then(system_time),
+        ) {
+            if wall.duration_since(ts).is_ok_and(|age| age > life) {
+                return Err(Some(DropReason::Lifespan));
+            }
+        }
+        if self.exclusive {
+            let strength = writer.map_or(0, |i| i.strength);
+            match self.owners.get(&instance) {
+                Some(&(owner, os))
+                    if owner != s.writer
+                        && (os > strength || (os == strength && owner < s.writer)) =>
+                {
+                    return Err(None);
+                }
+                _ => {
+                    self.owners.insert(instance, (s.writer, strength));
+                }
+            }
+        }
+        if let Some(sep) = self.minimum_separation {
+            if self
+                .last
+                .get(&instance)
+                .is_some_and(|t| now.saturating_duration_since(*t) < sep)
+            {
+                return Err(Some(DropReason::MinimumSeparation));
+            }
+            self.last.insert(instance, now);
+        }
+        if let Some(d) = self.deadline {
+            self.due.insert(instance, now + d);
+        }
+        Ok(())
+    }
+
+    /// A writer left: it owns nothing any more.
+    pub(super) fn writer_gone(&mut self, writer: Guid) {
+        self.owners.retain(|_, (w, _)| *w != writer);
+    }
+
+    pub(super) fn next_due(&self) -> Option<Instant> {
+        self.due.values().min().copied()
+    }
+}
+
+impl Domain {
+    /// Creates a reader. Its QoS also sets the domain's filters:
+    /// `exclusive_ownership` (each instance only from the strongest live
+    /// writer; ties to the lower GUID), `time_based_filter` (minimum
+    /// separation per instance), `deadline` ([`Event::DeadlineMissed`]); the
+    /// writers' `lifespan` drops samples older than it by source timestamp.
+    pub fn create_reader(
+        &mut self,
+        config: EndpointConfig,
+        now: Instant,
+    ) -> Result<ReaderId, CreateError> {
+        let g = self.add_reader(config, Role::User, now)?;
+        self.drain(now);
+        Ok(ReaderId(g))
+    }
+
+    /// Deletes a reader (not one of a pattern's: see
+    /// [`Domain::delete_pattern`]); false if there is no such reader.
+    pub fn delete_reader(&mut self, reader: ReaderId, now: Instant) -> bool {
+        if !matches!(self.readers.get(&reader.0), Some(r) if r.role == Role::User) {
+            return false;
+        }
+        self.remove_reader(reader.0, now);
+        self.drain(now);
+        true
+    }
+
+    pub(super) fn add_reader(
+        &mut self,
+        config: EndpointConfig,
+        role: Role,
+        now: Instant,
+    ) -> Result<Guid, CreateError> {
+        let r = LocalReader::new(&config, role, now);
+        let g = self.p.create_reader(config, now)?;
+        let remote: Vec<(Guid, String)> = self
+            .p
+            .publications()
+            .filter(|d| d.topic_name == r.topic && d.type_name != r.type_name)
+            .map(|d| (d.guid, d.type_name.clone()))
+            .collect();
+        self.readers.insert(g, r);
+        for (remote, remote_type) in remote {
+            self.type_mismatch(g, remote, remote_type);
+        }
+        Ok(g)
+    }
+
+    pub(super) fn remove_reader(&mut self, g: Guid, now: Instant) {
+        self.readers.remove(&g);
+        self.full.retain(|r| *r != g);
+        self.p.delete_reader(g, now);
+    }
+
+    /// The shell's queue for a keep-all reader is full (`true`) or has
+    /// room again (`false`). While one is full, [`Domain::paused_reader`]
+    /// names it: the shell stops reading user data, and what reliable
+    /// writers send meanwhile they repair later (back-pressure reaches
+    /// them as unacknowledged history). Ignored for keep-last readers,
+    /// whose queues drop the oldest.
+    pub fn set_reader_full(&mut self, reader: ReaderId, full: bool) {
+        let keep_all = self.readers.get(&reader.0).is_some_and(|r| r.keep_all);
+        self.full.retain(|r| *r != reader.0);
+        if full && keep_all {
+            self.full.push(reader.0);
+        }
+    }
+
+    /// A keep-all reader whose queue the shell reported full, if any:
+    /// while there is one, user data should not be read.
+    pub fn paused_reader(&self) -> Option<ReaderId> {
+        self.full.first().copied().map(ReaderId)
+    }
+
+    /// Filters a sample for a user or pattern reader and passes it on.
+    pub(super) fn deliver(&mut self, s: ReceivedSample, now: Instant) {
+        let writer = self.writer_info.get(&s.writer).copied();
+        let wall = self.wall(now);
+        let Some(r) = self.readers.get_mut(&s.reader) else {
+            return;
+        };
+        let reader = ReaderId(s.reader);
+        match r.admit(&s, writer, now, wall) {
+            Ok(()) => self.events.push_back(Event::Sample { reader, sample: s }),
+            Err(Some(reason)) => self
+                .events
+                .push_back(Event::SampleDropped { reader, reason }),
+            Err(None) => {}
+        }
+    }
+
+    /// One [`Event::DeadlineMissed`] per instance whose deadline passed.
+    pub(super) fn check_deadlines(&mut self, now: Instant) {
+        for (g, r) in self.readers.iter_mut() {
+            let Some(period) = r.deadline else { continue };
+            for (instance, due) in r.due.iter_mut() {
+                if *due <= now {
+                    r.misses += 1;
+                    *due = now + period;
+                    self.events.push_back(Event::DeadlineMissed {
+                        reader: ReaderId(*g),
+                        instance: KeyHash(*instance),
+                        total: r.misses,
+                    });
+                }
+            }
+        }
+    }
+
+    pub(super) fn type_mismatch(&mut self, local: Guid, remote: Guid, remote_type: String) {
+        let (topic, local_type, endpoint) = if let Some(r) = self.readers.get(&local) {
+            (
+                r.topic.clone(),
+                r.type_name.clone(),
+                self.endpoint(local, r.role, false),
+            )
+        } else if let Some(w) = self.writers.get(&local) {
+            (
+                w.topic.clone(),
+                w.type_name.clone(),
+                self.endpoint(local, w.role, true),
+            )
+        } else {
+            return;
+        };
+        self.events.push_back(Event::TypeMismatch {
+            local: endpoint,
+            remote,
+            topic,
+            local_type,
+            remote_type,
+        });
+    }
+
+    pub(super) fn endpoint(&self, g: Guid, role: Role, writer: bool) -> Endpoint {
+        match role {
+            Role::Service(s) => Endpoint::Service(s),
+            Role::Client(c) => Endpoint::Client(c),
+            Role::User | Role::Pattern(_) if writer => Endpoint::Writer(super::WriterId(g)),
+            Role::User | Role::Pattern(_) => Endpoint::Reader(ReaderId(g)),
+        }
+    }
+}

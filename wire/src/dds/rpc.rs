@@ -1,0 +1,403 @@
+//! Request/reply as ROS 2 does it over DDS (rmw_fastrtps): a request topic
+//! `rq/<name>Request` and a reply topic `rr/<name>Reply`; a reply carries
+//! the request's identity as its related sample identity
+//! (`PID_RELATED_SAMPLE_IDENTITY`, and Fast DDS's 0x800f).
+
+use std::time::{Duration, Instant};
+
+use crate::rtps::discovery::{Duration as RtpsDuration, EndpointQos, History, Reliability};
+use crate::rtps::participant::{
+    Change, ChangeKind, CreateError, EndpointConfig, ReceivedSample, SampleIdentity, WriteError,
+};
+use crate::rtps::{Guid, GuidPrefix, SequenceNumber};
+
+use super::{ClientId, Domain, Event, QueryFailure, QueryId, RequestId, Role, ServiceId};
+
+/// ROS 2's request topic of service `name`.
+pub fn request_topic(name: &str) -> String {
+    format!("rq/{name}Request")
+}
+
+/// ROS 2's reply topic of service `name`.
+pub fn reply_topic(name: &str) -> String {
+    format!("rr/{name}Reply")
+}
+
+/// A service as both its sides see it: name, types and QoS.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct ServiceConfig {
+    /// The service name (topics `rq/<name>Request`, `rr/<name>Reply`).
+    pub name: String,
+    /// The request's DDS type name.
+    pub request_type: String,
+    /// Whether the request type has key fields.
+    pub request_keyed: bool,
+    /// The reply's DDS type name.
+    pub reply_type: String,
+    /// Whether the reply type has key fields.
+    pub reply_keyed: bool,
+    /// QoS of the writers (request writer of a client, reply writer of a service).
+    pub writer_qos: EndpointQos,
+    /// QoS of the readers.
+    pub reader_qos: EndpointQos,
+}
+
+impl ServiceConfig {
+    /// A service of these types, reliable, volatile, keep-all both ways.
+    pub fn new(name: &str, request_type: &str, reply_type: &str) -> Self {
+        let reliable = Reliability::Reliable(RtpsDuration::from_std(Duration::from_millis(100)));
+        let mut writer_qos = EndpointQos::writer_default();
+        writer_qos.reliability = reliable;
+        writer_qos.history = History::KeepAll;
+        let mut reader_qos = EndpointQos::reader_default();
+        reader_qos.reliability = reliable;
+        reader_qos.history = History::KeepAll;
+        ServiceConfig {
+            name: name.to_string(),
+            request_type: request_type.to_string(),
+            request_keyed: false,
+            reply_type: reply_type.to_string(),
+            reply_keyed: false,
+            writer_qos,
+            reader_qos,
+        }
+    }
+
+    /// Sets whether the request and reply types have keys.
+    pub fn keyed(mut self, request: bool, reply: bool) -> Self {
+        self.request_keyed = request;
+        self.reply_keyed = reply;
+        self
+    }
+
+    fn request(&self, writer: bool) -> EndpointConfig {
+        let t = request_topic(&self.name);
+        self.endpoint(writer, &t, &self.request_type, self.request_keyed)
+    }
+
+    fn reply(&self, writer: bool) -> EndpointConfig {
+        let t = reply_topic(&self.name);
+        self.endpoint(writer, &t, &self.reply_type, self.reply_keyed)
+    }
+
+    fn endpoint(&self, writer: bool, topic: &str, ty: &str, keyed: bool) -> EndpointConfig {
+        let (cfg, qos) = if writer {
+            (EndpointConfig::writer(topic, ty), &self.writer_qos)
+        } else {
+            (EndpointConfig::reader(topic, ty), &self.reader_qos)
+        };
+        cfg.keyed(keyed).qos(qos.clone())
+    }
+}
+
+pub(super) struct Service {
+    writer: Guid,
+    reader: Guid,
+}
+
+pub(super) struct Client {
+    writer: Guid,
+    reader: Guid,
+}
+
+pub(super) struct Waiting {
+    client: ClientId,
+    query: QueryId,
+    data: Vec<u8>,
+    deadline: Instant,
+    timeout: Duration,
+}
+
+pub(super) struct Inflight {
+    client: ClientId,
+    query: QueryId,
+    deadline: Instant,
+    timeout: Duration,
+}
+
+impl Domain {
+    /// Serves a service: a reader of its request topic and a writer of its
+    /// reply topic. Requests come as [`Event::Request`].
+    pub fn create_service(
+        &mut self,
+        config: &ServiceConfig,
+        now: Instant,
+    ) -> Result<ServiceId, CreateError> {
+        let id = ServiceId(self.next_id());
+        let (writer, reader) = self.add_pair(
+            config.reply(true),
+            config.request(false),
+            Role::Service(id),
+            now,
+        )?;
+        self.services.insert(id, Service { writer, reader });
+        self.drain(now);
+        Ok(id)
+    }
+
+    /// Stops serving; false if there is no such service.
+    pub fn delete_service(&mut self, service: ServiceId, now: Instant) -> bool {
+        let Some(s) = self.services.remove(&service) else {
+            return false;
+        };
+        self.remove_writer(s.writer, now);
+        self.remove_reader(s.reader, now);
+        self.drain(now);
+        true
+    }
+
+    /// Answers a request with `data` (a serialized reply, padded as
+    /// [`Domain::write`] pads).
+    pub fn reply(
+        &mut self,
+        service: ServiceId,
+        request: RequestId,
+        data: Vec<u8>,
+        now: Instant,
+    ) -> Result<SequenceNumber, WriteError> {
+        let w = self
+            .services
+            .get(&service)
+            .ok_or(WriteError::UnknownWriter)?
+            .writer;
+        let change = Change::alive_owned(data).with_related_sample_identity(request.0);
+        let r = self.write_guid(w, change, None, now);
+        self.drain(now);
+        r
+    }
+
+    /// A client of a service: a writer of its request topic and a reader
+    /// of its reply topic. Several clients of one service, in one domain or
+    /// not, each get only the replies to their own queries.
+    pub fn create_client(
+        &mut self,
+        config: &ServiceConfig,
+        now: Instant,
+    ) -> Result<ClientId, CreateError> {
+        let id = ClientId(self.next_id());
+        let (writer, reader) = self.add_pair(
+            config.request(true),
+            config.reply(false),
+            Role::Client(id),
+            now,
+        )?;
+        self.clients.insert(id, Client { writer, reader });
+        self.drain(now);
+        Ok(id)
+    }
+
+    /// Deletes a client; its open queries fail
+    /// ([`QueryFailure::ClientDeleted`]). False if there is no such client.
+    pub fn delete_client(&mut self, client: ClientId, now: Instant) -> bool {
+        let Some(c) = self.clients.remove(&client) else {
+            return false;
+        };
+        let mut failed: Vec<QueryId> = Vec::new();
+        self.waiting.retain(|q| {
+            let mine = q.client == client;
+            if mine {
+                failed.push(q.query);
+            }
+            !mine
+        });
+        self.inflight.retain(|_, q| {
+            let mine = q.client == client;
+            if mine {
+                failed.push(q.query);
+            }
+            !mine
+        });
+        failed.sort();
+        for query in failed {
+            self.events.push_back(Event::QueryFailed {
+                client,
+                query,
+                reason: QueryFailure::ClientDeleted,
+            });
+        }
+        self.remove_writer(c.writer, now);
+        self.remove_reader(c.reader, now);
+        self.drain(now);
+        true
+    }
+
+    /// Sends a request (serialized, padded as [`Domain::write`] pads) once
+    /// the service is matched both ways (a request reader for our writer,
+    /// a reply writer for our reader); its reply comes as [`Event::Reply`],
+    /// or [`Event::QueryFailed`] after `timeout`.
+    pub fn query(
+        &mut self,
+        client: ClientId,
+        data: Vec<u8>,
+        timeout: Duration,
+        now: Instant,
+    ) -> Result<QueryId, WriteError> {
+        if !self.clients.contains_key(&client) {
+            return Err(WriteError::UnknownWriter);
+        }
+        let query = QueryId(self.next_id());
+        self.waiting.push(Waiting {
+            client,
+            query,
+            data,
+            deadline: now + timeout,
+            timeout,
+        });
+        self.send_waiting(now);
+        self.drain(now);
+        Ok(query)
+    }
+
+    /// A writer and a reader for one side of a service (neither if
+    /// either cannot be made).
+    fn add_pair(
+        &mut self,
+        writer: EndpointConfig,
+        reader: EndpointConfig,
+        role: Role,
+        now: Instant,
+    ) -> Result<(Guid, Guid), CreateError> {
+        let w = self.add_writer(writer, role, now)?;
+        match self.add_reader(reader, role, now) {
+            Ok(r) => Ok((w, r)),
+            Err(e) => {
+                self.remove_writer(w, now);
+                Err(e)
+            }
+        }
+    }
+
+    /// Sends the queries whose service is matched both ways.
+    pub(super) fn send_waiting(&mut self, now: Instant) {
+        let mut i = 0;
+        while i < self.waiting.len() {
+            let Some(c) = self.clients.get(&self.waiting[i].client) else {
+                i += 1;
+                continue;
+            };
+            let (writer, reader) = (c.writer, c.reader);
+            let ready = !self.p.matched_readers(writer).is_empty()
+                && !self.p.matched_writers(reader).is_empty();
+            if !ready {
+                i += 1;
+                continue;
+            }
+            let q = self.waiting.swap_remove(i);
+            // as rmw_fastrtps clients do: the request names the reader its
+            // reply should go to (sequence number unknown)
+            let to = SampleIdentity {
+                writer: reader,
+                sequence_number: SequenceNumber(-1 << 32),
+            };
+            let change = Change::alive_owned(q.data).with_related_sample_identity(to);
+            match self.write_guid(writer, change, None, now) {
+                Ok(sn) => {
+                    let id = SampleIdentity {
+                        writer,
+                        sequence_number: sn,
+                    };
+                    self.inflight.insert(
+                        id,
+                        Inflight {
+                            client: q.client,
+                            query: q.query,
+                            deadline: q.deadline,
+                            timeout: q.timeout,
+                        },
+                    );
+                }
+                Err(e) => self.events.push_back(Event::QueryFailed {
+                    client: q.client,
+                    query: q.query,
+                    reason: QueryFailure::Refused(e),
+                }),
+            }
+        }
+    }
+
+    /// Queries whose time ran out, waiting or sent.
+    pub(super) fn expire_queries(&mut self, now: Instant) {
+        let mut late: Vec<(ClientId, QueryId, Duration)> = Vec::new();
+        self.waiting.retain(|q| {
+            let out = q.deadline <= now;
+            if out {
+                late.push((q.client, q.query, q.timeout));
+            }
+            !out
+        });
+        self.inflight.retain(|_, q| {
+            let out = q.deadline <= now;
+            if out {
+                late.push((q.client, q.query, q.timeout));
+            }
+            !out
+        });
+        late.sort_by_key(|l| l.1);
+        for (client, query, t) in late {
+            self.events.push_back(Event::QueryFailed {
+                client,
+                query,
+                reason: QueryFailure::Timeout(t),
+            });
+        }
+    }
+
+    pub(super) fn next_query_deadline(&self) -> Option<Instant> {
+        let w = self.waiting.iter().map(|q| q.deadline);
+        w.chain(self.inflight.values().map(|q| q.deadline)).min()
+    }
+
+    /// A request for one of our services.
+    pub(super) fn on_request(&mut self, service: ServiceId, s: ReceivedSample) {
+        if s.kind != ChangeKind::Alive {
+            return;
+        }
+        // as rmw_fastrtps: a request that names a reply reader (its
+        // related identity's GUID) is answered for that GUID with the
+        // request's sequence number; otherwise for the request itself
+        let request = match s.related_sample_identity {
+            Some(r) if r.writer.prefix != GuidPrefix::UNKNOWN => SampleIdentity {
+                writer: r.writer,
+                sequence_number: s.sequence_number,
+            },
+            _ => s.identity(),
+        };
+        self.events.push_back(Event::Request {
+            service,
+            request: RequestId(request),
+            sample: s,
+        });
+    }
+
+    /// A reply to one of our queries (or another client's: ignored).
+    pub(super) fn on_reply(&mut self, client: ClientId, s: ReceivedSample) {
+        let Some(c) = self.clients.get(&client) else {
+            return;
+        };
+        // a reply names our request writer (Courier, Fast DDS) or our
+        // reply reader (rmw_fastrtps) with the request's sequence number
+        let Some(id) = s.related_sample_identity.map(|id| {
+            if id.writer == c.reader {
+                SampleIdentity {
+                    writer: c.writer,
+                    sequence_number: id.sequence_number,
+                }
+            } else {
+                id
+            }
+        }) else {
+            return;
+        };
+        if id.writer != c.writer {
+            return; // another client's
+        }
+        if let Some(q) = self.inflight.remove(&id) {
+            self.events.push_back(Event::Reply {
+                client: q.client,
+                query: q.query,
+                sample: s,
+            });
+        }
+    }
+}

@@ -1,0 +1,212 @@
+//! SPDP, participant discovery (§8.5.3): this participant's announcements
+//! (periodic to the configured destinations and every known participant,
+//! and directed to a newcomer), received announcements and disposals, and
+//! what a participant found or lost means for the SEDP endpoints and the
+//! remote endpoints it had.
+
+use std::time::{Duration, Instant};
+
+use super::emit::pick;
+use super::outbox::Unit;
+use super::{builtin_endpoints, Event, LostReason, Participant};
+use crate::rtps::discovery::{payload_params, Disposal, ParticipantData};
+use crate::rtps::matching::ParticipantEvent;
+use crate::rtps::{Data, EntityId, Guid, GuidPrefix, Locator, SequenceNumber, Submessage};
+
+impl Participant {
+    /// Where periodic SPDP goes: the configured destinations, then each known
+    /// participant's metatraffic locator not already among them.
+    pub(super) fn spdp_targets(&self) -> Vec<(Locator, GuidPrefix)> {
+        let mut t: Vec<(Locator, GuidPrefix)> = self
+            .cfg
+            .spdp_destinations
+            .iter()
+            .map(|l| (*l, GuidPrefix::UNKNOWN))
+            .collect();
+        let mut known: Vec<&ParticipantData> = self.participants.iter().collect();
+        known.sort_by_key(|p| p.guid_prefix);
+        for p in known {
+            if let Some(l) = pick(&p.metatraffic_unicast) {
+                if !t.iter().any(|(x, _)| *x == l) {
+                    t.push((l, p.guid_prefix));
+                }
+            }
+        }
+        t
+    }
+
+    fn spdp_unit(&self, now: Instant) -> Unit {
+        let d = Data {
+            reader_id: EntityId::SPDP_READER,
+            writer_id: EntityId::SPDP_WRITER,
+            writer_sn: SequenceNumber(1),
+            inline_qos: None,
+            payload: Some(&self.spdp_payload),
+            key: false,
+            non_standard: false,
+        };
+        Unit::new(Some(self.wall(now)), &Submessage::Data(d))
+    }
+
+    pub(super) fn announce(&mut self, now: Instant) {
+        for (l, p) in self.spdp_targets() {
+            let u = self.spdp_unit(now);
+            self.outbox.push(l, p, u);
+        }
+        let period = if self.initial_left > 0 {
+            self.initial_left -= 1;
+            self.cfg.initial_announce_period
+        } else {
+            self.cfg.announce_period
+        };
+        self.next_announce = now
+            .checked_add(period.max(Duration::from_millis(1)))
+            .unwrap_or(now);
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn on_spdp(
+        &mut self,
+        qos: Option<&[u8]>,
+        little: bool,
+        payload: Option<&[u8]>,
+        key: bool,
+        source: Locator,
+        now: Instant,
+    ) {
+        match Disposal::from_data(qos, little, payload, key) {
+            Ok(Some(d)) => {
+                let prefix = Guid::from_bytes(d.key_hash).prefix;
+                if self.participants.remove(prefix).is_some() {
+                    self.participant_gone(prefix, LostReason::Disposed);
+                }
+                return;
+            }
+            Ok(None) => {}
+            Err(_) => {
+                self.stats.discovery_errors += 1;
+                return;
+            }
+        }
+        let Some(payload) = payload.filter(|_| !key) else {
+            return;
+        };
+        let mut data = match payload_params(payload).and_then(|l| ParticipantData::from_params(&l))
+        {
+            Ok(d) => d,
+            Err(_) => {
+                self.stats.discovery_errors += 1;
+                return;
+            }
+        };
+        if data.guid_prefix == self.cfg.guid_prefix || data.guid_prefix == GuidPrefix::UNKNOWN {
+            return;
+        }
+        if data.domain_id.is_some_and(|d| d != self.cfg.domain_id) {
+            self.stats.other_domain += 1;
+            return;
+        }
+        if data.metatraffic_unicast.is_empty() && data.default_unicast.is_empty() {
+            // nowhere announced: answer where it came from
+            data.metatraffic_unicast.push(source);
+        }
+        let known = self.participants.get(&data.guid_prefix).is_some();
+        if !known && self.participants.len() >= self.cfg.max_participants {
+            self.stats.discovery_limited += 1;
+            return;
+        }
+        match self.participants.announce(data.clone(), now) {
+            Some(ParticipantEvent::Found(_)) => {
+                self.events.push_back(Event::ParticipantFound(data.clone()));
+                self.participant_found(&data, now);
+            }
+            Some(ParticipantEvent::Changed(_)) => {
+                self.events.push_back(Event::ParticipantChanged(data))
+            }
+            _ => {}
+        }
+    }
+
+    fn participant_found(&mut self, data: &ParticipantData, now: Instant) {
+        use builtin_endpoints as b;
+        let prefix = data.guid_prefix;
+        // Fast DDS repeats the SEDP bits in the (security) upper half: mask
+        // to what we implement; a peer announcing nothing gets the standard four
+        let mut bes = data.builtin_endpoints & b::COURIER;
+        if bes & !(b::PARTICIPANT_ANNOUNCER | b::PARTICIPANT_DETECTOR) == 0 {
+            bes |= b::COURIER;
+        }
+        let g = |entity| Guid { prefix, entity };
+        // our SPDP first, directly, so that it arrives before our SEDP heartbeats
+        if let Some(l) = pick(&data.metatraffic_unicast).or_else(|| pick(&data.default_unicast)) {
+            let u = self.spdp_unit(now);
+            self.outbox.push(l, prefix, u);
+        }
+        if bes & b::PUBLICATIONS_DETECTOR != 0 {
+            let r = g(EntityId::SEDP_PUBLICATIONS_READER);
+            self.pub_writer.add_reader(r, true, now);
+            self.pub_writer_readers.insert(r);
+        }
+        if bes & b::SUBSCRIPTIONS_DETECTOR != 0 {
+            let r = g(EntityId::SEDP_SUBSCRIPTIONS_READER);
+            self.sub_writer.add_reader(r, true, now);
+            self.sub_writer_readers.insert(r);
+        }
+        if bes & b::PUBLICATIONS_ANNOUNCER != 0 {
+            self.pub_reader
+                .add_writer(g(EntityId::SEDP_PUBLICATIONS_WRITER));
+        }
+        if bes & b::SUBSCRIPTIONS_ANNOUNCER != 0 {
+            self.sub_reader
+                .add_writer(g(EntityId::SEDP_SUBSCRIPTIONS_WRITER));
+        }
+    }
+
+    /// Cleans up after a participant that left (already out of the table).
+    pub(super) fn participant_gone(&mut self, prefix: GuidPrefix, reason: LostReason) {
+        let g = |entity| Guid { prefix, entity };
+        for (w, set, e) in [
+            (
+                &mut self.pub_writer,
+                &mut self.pub_writer_readers,
+                EntityId::SEDP_PUBLICATIONS_READER,
+            ),
+            (
+                &mut self.sub_writer,
+                &mut self.sub_writer_readers,
+                EntityId::SEDP_SUBSCRIPTIONS_READER,
+            ),
+        ] {
+            w.remove_reader(g(e));
+            set.remove(&g(e));
+        }
+        for (r, e) in [
+            (&mut self.pub_reader, EntityId::SEDP_PUBLICATIONS_WRITER),
+            (&mut self.sub_reader, EntityId::SEDP_SUBSCRIPTIONS_WRITER),
+        ] {
+            r.remove_writer(g(e));
+            self.reassembler
+                .forget_below(g(e), SequenceNumber(i64::MAX));
+        }
+        let ws: Vec<Guid> = self
+            .remote_writers
+            .keys()
+            .filter(|w| w.prefix == prefix)
+            .copied()
+            .collect();
+        for w in ws {
+            self.remote_writer_gone(w);
+        }
+        let rs: Vec<Guid> = self
+            .remote_readers
+            .keys()
+            .filter(|r| r.prefix == prefix)
+            .copied()
+            .collect();
+        for r in rs {
+            self.remote_reader_gone(r);
+        }
+        self.events
+            .push_back(Event::ParticipantLost { prefix, reason });
+    }
+}

@@ -1,0 +1,326 @@
+//! User writers and readers: creating them (entity ids, matching right
+//! away), deleting them, writing changes (per-instance keep-last history,
+//! in-process delivery to local readers) and the calls around writing:
+//! buffer recycling, room in the history, acknowledgement requests.
+
+use std::collections::{BTreeSet, VecDeque};
+use std::time::Instant;
+
+use foldhash::{HashMap, HashMapExt};
+
+use super::change::{envelope_with, ReceivedSample, ENVELOPE_ROOM};
+use super::{
+    entity_id, Change, CreateError, EndpointConfig, EndpointKind, Event, Participant, WriteError,
+    MAX_WRITE_SIZE,
+};
+use crate::rtps::discovery::{Durability, EndpointData, History, Reliability};
+use crate::rtps::reliability::{Reader, Writer};
+use crate::rtps::{EntityId, Guid, SequenceNumber};
+
+pub(super) struct LocalWriter {
+    pub(super) data: EndpointData,
+    pub(super) writer: Writer,
+    pub(super) reliable: bool,
+    pub(super) durable: bool,
+    /// Per-instance keep-last depth (keyed topics only).
+    pub(super) keep_last: Option<usize>,
+    pub(super) instances: HashMap<[u8; 16], VecDeque<i64>>,
+    pub(super) matched: BTreeSet<Guid>,
+    pub(super) local_readers: BTreeSet<EntityId>,
+    pub(super) acked_reported: i64,
+}
+
+pub(super) struct LocalReader {
+    pub(super) data: EndpointData,
+    pub(super) reader: Reader,
+    pub(super) matched: BTreeSet<Guid>,
+    pub(super) local_writers: BTreeSet<EntityId>,
+}
+
+fn valid_name(s: &str) -> bool {
+    !s.is_empty() && s.len() <= 256 && !s.contains('\0')
+}
+
+impl Participant {
+    /// Creates a local writer and announces it. Matching readers (remote,
+    /// and local ones in this participant) are matched right away.
+    pub fn create_writer(
+        &mut self,
+        config: EndpointConfig,
+        now: Instant,
+    ) -> Result<Guid, CreateError> {
+        self.touch();
+        let (guid, data) = self.new_endpoint(config, EndpointKind::Writer)?;
+        let keyed = guid.entity.kind() == 0x02;
+        let q = &data.qos;
+        let reliable = matches!(q.reliability, Reliability::Reliable(_));
+        let durable = q.durability >= Durability::TransientLocal;
+        let max = self.cfg.max_history;
+        let (depth, keep_last) = match q.history {
+            History::KeepLast(n) => {
+                let n = usize::try_from(n.max(1)).unwrap_or(1).min(max);
+                if keyed {
+                    (Some(max), Some(n))
+                } else {
+                    (Some(n), None)
+                }
+            }
+            History::KeepAll => (None, None),
+        };
+        let writer = Writer::new(guid, reliable, depth, max, self.cfg.heartbeat_period)
+            .retain_acked(durable)
+            .max_unacked_bytes(self.cfg.max_unacked_bytes);
+        self.announce_endpoint(&data, true, now);
+        self.writers.insert(
+            guid.entity,
+            LocalWriter {
+                data,
+                writer,
+                reliable,
+                durable,
+                keep_last,
+                instances: HashMap::new(),
+                matched: BTreeSet::new(),
+                local_readers: BTreeSet::new(),
+                acked_reported: 0,
+            },
+        );
+        let remote: Vec<Guid> = self.remote_readers.keys().copied().collect();
+        for r in remote {
+            self.match_remote_reader(guid.entity, r, now);
+        }
+        let local: Vec<EntityId> = self.readers.keys().copied().collect();
+        for r in local {
+            self.match_local(guid.entity, r);
+        }
+        self.flush(now);
+        Ok(guid)
+    }
+
+    /// Creates a local reader and announces it. Matching writers (remote,
+    /// and local ones in this participant) are matched right away.
+    pub fn create_reader(
+        &mut self,
+        config: EndpointConfig,
+        now: Instant,
+    ) -> Result<Guid, CreateError> {
+        self.touch();
+        let (guid, data) = self.new_endpoint(config, EndpointKind::Reader)?;
+        let reliable = matches!(data.qos.reliability, Reliability::Reliable(_));
+        self.announce_endpoint(&data, false, now);
+        self.readers.insert(
+            guid.entity,
+            LocalReader {
+                data,
+                reader: Reader::new(reliable, self.cfg.max_out_of_order),
+                matched: BTreeSet::new(),
+                local_writers: BTreeSet::new(),
+            },
+        );
+        let remote: Vec<Guid> = self.remote_writers.keys().copied().collect();
+        for w in remote {
+            self.match_remote_writer(guid.entity, w);
+        }
+        let local: Vec<EntityId> = self.writers.keys().copied().collect();
+        for w in local {
+            self.match_local(w, guid.entity);
+        }
+        self.flush(now);
+        Ok(guid)
+    }
+
+    fn new_endpoint(
+        &mut self,
+        config: EndpointConfig,
+        kind: EndpointKind,
+    ) -> Result<(Guid, EndpointData), CreateError> {
+        if self.closed {
+            return Err(CreateError::Closed);
+        }
+        if !valid_name(&config.topic_name) || !valid_name(&config.type_name) {
+            return Err(CreateError::InvalidName);
+        }
+        let entity =
+            entity_id(self.next_key, kind, config.keyed).ok_or(CreateError::TooManyEndpoints)?;
+        self.next_key += 1;
+        let mut qos = config.qos;
+        if qos.data_representation.is_empty() {
+            qos.data_representation = vec![0];
+        }
+        let guid = self.guid(entity);
+        let data = EndpointData {
+            guid,
+            topic_name: config.topic_name,
+            type_name: config.type_name,
+            qos,
+            unicast: Vec::new(),
+            multicast: Vec::new(),
+            expects_inline_qos: false,
+            type_information: None,
+        };
+        Ok((guid, data))
+    }
+
+    /// Deletes a local writer: its readers are unmatched and a dispose is
+    /// announced. Returns false if there is no such writer.
+    pub fn delete_writer(&mut self, writer: Guid, now: Instant) -> bool {
+        self.touch();
+        if !self.is_local(writer) {
+            return false;
+        }
+        let Some(w) = self.writers.remove(&writer.entity) else {
+            return false;
+        };
+        for r in &w.matched {
+            self.events
+                .push_back(Event::WriterUnmatched { writer, reader: *r });
+        }
+        for r in &w.local_readers {
+            if let Some(lr) = self.readers.get_mut(r) {
+                lr.local_writers.remove(&writer.entity);
+            }
+            let reader = self.guid(*r);
+            self.events
+                .push_back(Event::WriterUnmatched { writer, reader });
+            self.events
+                .push_back(Event::ReaderUnmatched { reader, writer });
+        }
+        self.unannounce_endpoint(writer, true, now);
+        self.flush(now);
+        true
+    }
+
+    /// Deletes a local reader: its writers are unmatched and a dispose is
+    /// announced. Returns false if there is no such reader.
+    pub fn delete_reader(&mut self, reader: Guid, now: Instant) -> bool {
+        self.touch();
+        if !self.is_local(reader) {
+            return false;
+        }
+        let Some(r) = self.readers.remove(&reader.entity) else {
+            return false;
+        };
+        for w in &r.matched {
+            self.events
+                .push_back(Event::ReaderUnmatched { reader, writer: *w });
+        }
+        for w in &r.local_writers {
+            if let Some(lw) = self.writers.get_mut(w) {
+                lw.local_readers.remove(&reader.entity);
+            }
+            let writer = self.guid(*w);
+            self.events
+                .push_back(Event::ReaderUnmatched { reader, writer });
+            self.events
+                .push_back(Event::WriterUnmatched { writer, reader });
+        }
+        self.unannounce_endpoint(reader, false, now);
+        self.flush(now);
+        true
+    }
+
+    /// Writes a change with a local writer; returns its sequence number.
+    /// Matched local readers get it at once as [`Event::SampleReceived`].
+    pub fn write(
+        &mut self,
+        writer: Guid,
+        change: Change<'_>,
+        now: Instant,
+    ) -> Result<SequenceNumber, WriteError> {
+        self.touch();
+        if self.closed {
+            return Err(WriteError::Closed);
+        }
+        if !self.is_local(writer) {
+            return Err(WriteError::UnknownWriter);
+        }
+        if change.data.len() > MAX_WRITE_SIZE {
+            return Err(WriteError::TooLarge(change.data.len()));
+        }
+        let ts = change.source_timestamp.unwrap_or_else(|| self.wall(now));
+        let max = self.cfg.max_history;
+        let lw = self
+            .writers
+            .get_mut(&writer.entity)
+            .ok_or(WriteError::UnknownWriter)?;
+        let env = envelope_with(
+            change.kind,
+            change.key_hash,
+            Some(ts),
+            change.related_sample_identity,
+            change.data,
+        );
+        let key = change.key_hash.unwrap_or_default().0;
+        if let Some(depth) = lw.keep_last {
+            // per-instance keep-last: the oldest sample of this instance goes
+            if let Some(q) = lw.instances.get_mut(&key) {
+                while q.len() >= depth {
+                    if let Some(old) = q.pop_front() {
+                        lw.writer.remove(SequenceNumber(old));
+                    }
+                }
+            }
+        }
+        let sn = lw
+            .writer
+            .write(env.clone(), now)
+            .ok_or(WriteError::HistoryFull(max))?;
+        if lw.keep_last.is_some() {
+            lw.instances.entry(key).or_default().push_back(sn.0);
+            if lw.instances.len() > max {
+                // forget instances whose samples all left the history
+                let (inst, w) = (&mut lw.instances, &lw.writer);
+                inst.retain(|_, q| {
+                    q.retain(|s| w.get(SequenceNumber(*s)).is_some());
+                    !q.is_empty()
+                });
+            }
+        }
+        let local: Vec<EntityId> = lw.local_readers.iter().copied().collect();
+        for r in local {
+            let s = ReceivedSample::new(self.guid(r), writer, sn, env.clone());
+            self.events.push_back(Event::SampleReceived(s));
+        }
+        // sent by the next poll_transmit, packed with whatever else is
+        // written before it
+        Ok(sn)
+    }
+
+    /// Hands back the buffer of a received sample ([`ReceivedSample::into_data`])
+    /// once the application is done with it: the next large sample received
+    /// is stored in it instead of a fresh allocation. Up to
+    /// [`Config::spare_buffer_bytes`](super::Config::spare_buffer_bytes) are kept; the rest is dropped.
+    pub fn recycle(&mut self, buf: Vec<u8>) {
+        self.reassembler.recycle(buf);
+    }
+
+    /// Bytes of buffers held for reuse ([`Participant::recycle`]).
+    pub fn spare_bytes(&self) -> usize {
+        self.reassembler.spare_bytes()
+    }
+
+    /// True when [`Participant::write`] of `len` bytes to this local writer
+    /// would not fail with [`WriteError::HistoryFull`]: a caller handing
+    /// over owned data can keep it instead when it would.
+    pub fn has_room(&mut self, writer: Guid, len: usize) -> bool {
+        if !self.is_local(writer) {
+            return true; // write answers UnknownWriter
+        }
+        self.writers
+            .get_mut(&writer.entity)
+            .is_none_or(|lw| lw.writer.has_room(len + ENVELOPE_ROOM))
+    }
+
+    /// Makes the next [`Participant::write`] of a reliable local writer ask
+    /// its readers to acknowledge at once (writes normally ask only every
+    /// few samples); for confirmed writes.
+    pub fn request_ack(&mut self, writer: Guid) {
+        self.touch();
+        if !self.is_local(writer) {
+            return;
+        }
+        if let Some(w) = self.writers.get_mut(&writer.entity) {
+            w.writer.request_ack_with_next_write();
+        }
+    }
+}

@@ -1,0 +1,694 @@
+//! The sans-I/O DDS domain on the shared simulated network: exclusive
+//! ownership and its hand-over, lifespan, time-based filter, deadlines,
+//! request/reply correlation, pattern subscriptions, confirmed writes,
+//! keep-all back-pressure and type mismatches. Deterministic: seeded
+//! faults, simulated time.
+
+use std::time::Duration;
+
+use courier_wire::dds::{
+    ConfirmFailure, Domain, DropReason, Endpoint, Event, QueryFailure, ReaderId, ServiceConfig,
+    WriterId,
+};
+use courier_wire::rtps::discovery::{Duration as RtpsDuration, EndpointQos, History, Reliability};
+use courier_wire::rtps::participant::{guid_prefix, Change, Config, EndpointConfig, WriteError};
+use courier_wire::sim::{self, Faults};
+
+const LO: [u8; 4] = [127, 0, 0, 1];
+
+type Net = sim::Net<Domain>;
+
+fn config(i: usize) -> Config {
+    Config::udpv4(0, i as u32, guid_prefix([i as u8 + 1; 10]), LO)
+        .unwrap()
+        .with_unicast_peers(&[LO], 9)
+}
+
+/// `n` domains on a network with `loss` % loss.
+fn new_net(n: usize, seed: u64, loss: u32) -> Net {
+    let mut net = Net::new(seed, Faults::lossy(loss));
+    for i in 0..n {
+        let d = Domain::new(config(i), net.now(), net.wall());
+        net.add(d);
+    }
+    net
+}
+
+fn reliable() -> Reliability {
+    Reliability::Reliable(RtpsDuration::ZERO)
+}
+
+fn ms(n: u64) -> Duration {
+    Duration::from_millis(n)
+}
+
+fn writer_qos() -> EndpointQos {
+    let mut q = EndpointQos::writer_default();
+    q.history = History::KeepAll;
+    q
+}
+
+fn reader_qos() -> EndpointQos {
+    let mut q = EndpointQos::reader_default();
+    q.reliability = reliable();
+    q.history = History::KeepAll;
+    q
+}
+
+/// A CDR_LE sample holding `n`.
+fn sample(n: u32) -> Vec<u8> {
+    let mut b = vec![0, 1, 0, 0];
+    b.extend_from_slice(&n.to_le_bytes());
+    b
+}
+
+fn value(data: &[u8]) -> u32 {
+    u32::from_le_bytes(data[4..8].try_into().unwrap())
+}
+
+/// The values reader `r` of host `i` received, in order.
+fn received(net: &Net, i: usize, r: ReaderId) -> Vec<u32> {
+    net.hosts[i]
+        .events
+        .iter()
+        .filter_map(|e| match e {
+            Event::Sample { reader, sample } if *reader == r => Some(value(sample.data())),
+            _ => None,
+        })
+        .collect()
+}
+
+fn matched(net: &Net, i: usize, r: ReaderId, writers: usize) -> bool {
+    net.hosts[i]
+        .events
+        .iter()
+        .filter(|e| matches!(e, Event::ReaderMatched { reader, .. } if *reader == r))
+        .count()
+        >= writers
+}
+
+fn writer_matched(net: &Net, i: usize, w: WriterId) -> bool {
+    net.has(
+        i,
+        |e| matches!(e, Event::WriterMatched { writer, .. } if *writer == w),
+    )
+}
+
+fn write(net: &mut Net, i: usize, w: WriterId, n: u32) {
+    let now = net.now();
+    net.node(i)
+        .write(w, Change::alive_owned(sample(n)), now)
+        .unwrap();
+}
+
+#[test]
+fn exclusive_ownership_goes_to_the_strongest_writer_then_to_the_next_when_it_is_deleted_or_lost() {
+    // 0: strong writer (10), 1: weak writer (1), 2: exclusive reader; short
+    // leases so that a crashed owner is lost soon
+    let mut net = Net::new(5, Faults::lossy(10));
+    for i in 0..3 {
+        let mut cfg = config(i);
+        cfg.lease_duration = Duration::from_secs(1);
+        cfg.announce_period = ms(250);
+        let d = Domain::new(cfg, net.now(), net.wall());
+        net.add(d);
+    }
+    let now = net.now();
+    let mut strong = writer_qos();
+    strong.exclusive_ownership = true;
+    strong.ownership_strength = 10;
+    let mut weak = strong.clone();
+    weak.ownership_strength = 1;
+    let mut rq = reader_qos();
+    rq.exclusive_ownership = true;
+    let s = net
+        .node(0)
+        .create_writer(EndpointConfig::writer("Own", "T").qos(strong.clone()), now)
+        .unwrap();
+    let w = net
+        .node(1)
+        .create_writer(EndpointConfig::writer("Own", "T").qos(weak), now)
+        .unwrap();
+    let r = net
+        .node(2)
+        .create_reader(EndpointConfig::reader("Own", "T").qos(rq), now)
+        .unwrap();
+    assert!(net.run_until(Duration::from_secs(10), |n| matched(n, 2, r, 2)));
+    // both write (strong: even values, weak: odd ones); only the strong is taken
+    for k in 0..20 {
+        write(&mut net, 0, s, 2 * k);
+        write(&mut net, 1, w, 2 * k + 1);
+        net.run_for(ms(20));
+    }
+    net.run_for(ms(500));
+    let got = received(&net, 2, r);
+    assert_eq!(
+        got,
+        (0..20).map(|k| 2 * k).collect::<Vec<_>>(),
+        "only the strong writer's"
+    );
+    // the strong writer is deleted: the weak one's samples are taken
+    let now = net.now();
+    assert!(net.node(0).delete_writer(s, now));
+    net.run_for(ms(500));
+    write(&mut net, 1, w, 1001);
+    net.run_for(ms(500));
+    assert_eq!(
+        received(&net, 2, r).last(),
+        Some(&1001),
+        "hand-over on deletion"
+    );
+
+    // again with a new strong writer, which then crashes: the weak
+    // writer's samples are taken once the strong one's lease has ended
+    let now = net.now();
+    let s2 = net
+        .node(0)
+        .create_writer(EndpointConfig::writer("Own", "T").qos(strong), now)
+        .unwrap();
+    assert!(net.run_until(Duration::from_secs(10), |n| matched(n, 2, r, 3)));
+    net.run_for(ms(200));
+    write(&mut net, 0, s2, 2000);
+    net.run_for(ms(300));
+    assert_eq!(received(&net, 2, r).last(), Some(&2000));
+    write(&mut net, 1, w, 2001);
+    net.run_for(ms(300));
+    assert_eq!(
+        received(&net, 2, r).last(),
+        Some(&2000),
+        "the strong writer still owns it"
+    );
+    net.hosts[0].up = false;
+    let crash = net.now();
+    let mut k = 3001;
+    while received(&net, 2, r).last() != Some(&(k - 2)) {
+        write(&mut net, 1, w, k);
+        k += 2;
+        net.run_for(ms(100));
+        assert!(net.now() - crash < Duration::from_secs(5), "no hand-over");
+    }
+    let after = net.now() - crash;
+    assert!(
+        after >= ms(900),
+        "taken over only after the lease: {after:?}"
+    );
+}
+
+#[test]
+fn samples_older_than_their_writers_lifespan_are_dropped() {
+    let mut net = new_net(1, 7, 20);
+    // a writer whose clock is 2 s behind: its samples look 2 s old
+    let wall = net.wall() - Duration::from_secs(2);
+    let late = Domain::new(config(1), net.now(), wall);
+    net.add(late);
+    let now = net.now();
+    let mut wq = writer_qos();
+    wq.lifespan = RtpsDuration::from_std(Duration::from_secs(1));
+    let fresh = net
+        .node(0)
+        .create_writer(EndpointConfig::writer("Life", "T").qos(wq.clone()), now)
+        .unwrap();
+    let stale = net
+        .node(1)
+        .create_writer(EndpointConfig::writer("Life", "T").qos(wq), now)
+        .unwrap();
+    let r = net
+        .node(0)
+        .create_reader(EndpointConfig::reader("Life", "T").qos(reader_qos()), now)
+        .unwrap();
+    assert!(net.run_until(Duration::from_secs(10), |n| matched(n, 0, r, 2)));
+    for k in 0..10 {
+        write(&mut net, 0, fresh, k);
+        write(&mut net, 1, stale, 100 + k);
+        net.run_for(ms(10));
+    }
+    net.run_for(Duration::from_secs(1));
+    assert_eq!(received(&net, 0, r), (0..10).collect::<Vec<_>>());
+    let dropped = net.hosts[0]
+        .events
+        .iter()
+        .filter(|e| matches!(e, Event::SampleDropped { reader, reason: DropReason::Lifespan } if *reader == r))
+        .count();
+    assert_eq!(dropped, 10, "every stale sample, counted");
+}
+
+#[test]
+fn a_minimum_separation_takes_one_sample_per_period() {
+    let mut net = new_net(2, 9, 0);
+    let now = net.now();
+    let w = net
+        .node(0)
+        .create_writer(EndpointConfig::writer("Tbf", "T").qos(writer_qos()), now)
+        .unwrap();
+    let mut rq = reader_qos();
+    rq.time_based_filter = RtpsDuration::from_std(ms(100));
+    let r = net
+        .node(1)
+        .create_reader(EndpointConfig::reader("Tbf", "T").qos(rq), now)
+        .unwrap();
+    assert!(net.run_until(Duration::from_secs(10), |n| matched(n, 1, r, 1)));
+    // a sample every 10 ms for 1 s; the time each one is taken
+    let mut taken = Vec::new();
+    for k in 0..100 {
+        write(&mut net, 0, w, k);
+        for _ in 0..10 {
+            net.step();
+            for e in net.take_events(1) {
+                if let Event::Sample { .. } = e {
+                    taken.push(net.now());
+                }
+            }
+        }
+    }
+    assert!((9..=11).contains(&taken.len()), "{} taken", taken.len());
+    for p in taken.windows(2) {
+        assert!(p[1] - p[0] >= ms(100), "{:?} apart", p[1] - p[0]);
+    }
+}
+
+#[test]
+fn a_missed_deadline_is_an_event_per_period_until_a_sample_comes() {
+    let mut net = new_net(2, 11, 10);
+    let now = net.now();
+    let mut wq = writer_qos();
+    wq.deadline = RtpsDuration::from_std(ms(100));
+    let w = net
+        .node(0)
+        .create_writer(EndpointConfig::writer("Dl", "T").qos(wq), now)
+        .unwrap();
+    let mut rq = reader_qos();
+    rq.deadline = RtpsDuration::from_std(ms(100));
+    let r = net
+        .node(1)
+        .create_reader(EndpointConfig::reader("Dl", "T").qos(rq), now)
+        .unwrap();
+    assert!(net.run_until(Duration::from_secs(10), |n| matched(n, 1, r, 1)));
+    let misses = |net: &Net| {
+        net.hosts[1]
+            .events
+            .iter()
+            .filter(|e| matches!(e, Event::DeadlineMissed { reader, .. } if *reader == r))
+            .count()
+    };
+    // every 30 ms for 1 s (lost samples are repaired within the period)
+    write(&mut net, 0, w, 0);
+    net.run_for(ms(50));
+    let before = misses(&net);
+    for k in 1..33 {
+        write(&mut net, 0, w, k);
+        net.run_for(ms(30));
+    }
+    net.run_for(ms(50));
+    assert_eq!(misses(&net), before, "no miss while samples come");
+    // silence for 1 s: about one miss per 100 ms
+    net.run_for(Duration::from_secs(1));
+    let silent = misses(&net) - before;
+    assert!((9..=11).contains(&silent), "{silent} misses");
+    let last = net.hosts[1].events.iter().rev().find_map(|e| match e {
+        Event::DeadlineMissed { total, .. } => Some(*total),
+        _ => None,
+    });
+    assert_eq!(last, Some(misses(&net) as u64));
+    // a sample stops them
+    write(&mut net, 0, w, 99);
+    net.run_for(ms(60));
+    let now_misses = misses(&net);
+    net.run_for(ms(60));
+    assert_eq!(misses(&net), now_misses);
+}
+
+#[test]
+fn two_clients_of_one_service_each_get_only_their_own_replies() {
+    for seed in [1u64, 2, 3] {
+        let mut net = new_net(3, seed, 20);
+        let now = net.now();
+        let svc = ServiceConfig::new("add_one", "Req", "Rep");
+        let s = net.node(0).create_service(&svc, now).unwrap();
+        let a = net.node(1).create_client(&svc, now).unwrap();
+        let b = net.node(2).create_client(&svc, now).unwrap();
+        // a third client in the same domain as a
+        let c = net.node(1).create_client(&svc, now).unwrap();
+        let mut asked = Vec::new();
+        for k in 0..5u32 {
+            for (host, client, base) in [(1, a, 1000), (2, b, 2000), (1, c, 3000)] {
+                let now = net.now();
+                let q = net
+                    .node(host)
+                    .query(client, sample(base + k), Duration::from_secs(20), now)
+                    .unwrap();
+                asked.push((host, client, q, base + k));
+            }
+        }
+        // the service answers every request with its value + 1
+        let end = net.now() + Duration::from_secs(20);
+        let mut replies = 0;
+        while net.now() < end && replies < asked.len() {
+            net.step();
+            for e in net.take_events(0) {
+                if let Event::Request {
+                    service,
+                    request,
+                    sample: req,
+                } = e
+                {
+                    assert_eq!(service, s);
+                    let now = net.now();
+                    let v = value(req.data());
+                    net.node(0).reply(s, request, sample(v + 1), now).unwrap();
+                }
+            }
+            replies = [1, 2]
+                .iter()
+                .map(|h| {
+                    net.hosts[*h]
+                        .events
+                        .iter()
+                        .filter(|e| matches!(e, Event::Reply { .. }))
+                        .count()
+                })
+                .sum();
+        }
+        for (host, client, query, v) in &asked {
+            let got: Vec<u32> = net.hosts[*host]
+                .events
+                .iter()
+                .filter_map(|e| match e {
+                    Event::Reply {
+                        client: c,
+                        query: q,
+                        sample,
+                    } if c == client && q == query => Some(value(sample.data())),
+                    _ => None,
+                })
+                .collect();
+            assert_eq!(
+                got,
+                vec![v + 1],
+                "seed {seed}: query {query:?} of {client:?}"
+            );
+        }
+        assert_eq!(
+            replies,
+            asked.len(),
+            "seed {seed}: one reply per query, no more"
+        );
+    }
+}
+
+#[test]
+fn a_query_nobody_serves_times_out() {
+    let mut net = new_net(1, 3, 0);
+    let now = net.now();
+    let c = net
+        .node(0)
+        .create_client(&ServiceConfig::new("none", "Req", "Rep"), now)
+        .unwrap();
+    let q = net.node(0).query(c, sample(1), ms(300), now).unwrap();
+    net.run_for(ms(299));
+    assert!(!net.has(0, |e| matches!(e, Event::QueryFailed { .. })));
+    net.run_for(ms(2));
+    assert!(net.has(0, |e| matches!(e, Event::QueryFailed { client, query, reason: QueryFailure::Timeout(_) } if *client == c && *query == q)));
+}
+
+#[test]
+fn a_pattern_subscription_reads_every_matching_topic_and_type() {
+    let mut net = new_net(2, 13, 10);
+    let now = net.now();
+    let pose = net
+        .node(0)
+        .create_writer(
+            EndpointConfig::writer("robot/pose", "Pose").qos(writer_qos()),
+            now,
+        )
+        .unwrap();
+    let vel = net
+        .node(0)
+        .create_writer(
+            EndpointConfig::writer("robot/vel", "Twist").qos(writer_qos()),
+            now,
+        )
+        .unwrap();
+    let other = net
+        .node(0)
+        .create_writer(
+            EndpointConfig::writer("camera/pose", "Pose").qos(writer_qos()),
+            now,
+        )
+        .unwrap();
+    let wrong_type = net
+        .node(0)
+        .create_writer(
+            EndpointConfig::writer("robot/img", "Image").qos(writer_qos()),
+            now,
+        )
+        .unwrap();
+    let now = net.now();
+    let p = net
+        .node(1)
+        .create_pattern("robot/*", "[PT]*", reader_qos(), now);
+    assert!(net.run_until(Duration::from_secs(10), |n| {
+        n.hosts[1]
+            .events
+            .iter()
+            .filter(|e| matches!(e, Event::PatternMatched { .. }))
+            .count()
+            >= 2
+            && n.hosts[1]
+                .events
+                .iter()
+                .filter(|e| matches!(e, Event::ReaderMatched { .. }))
+                .count()
+                >= 2
+    }));
+    net.run_for(ms(200));
+    for (w, v) in [(pose, 1), (vel, 2), (other, 3), (wrong_type, 4)] {
+        write(&mut net, 0, w, v);
+    }
+    net.run_for(ms(500));
+    let readers: Vec<(ReaderId, String)> = net.hosts[1]
+        .events
+        .iter()
+        .filter_map(|e| match e {
+            Event::PatternMatched {
+                pattern,
+                reader,
+                topic,
+                ..
+            } if *pattern == p => Some((*reader, topic.clone())),
+            _ => None,
+        })
+        .collect();
+    let mut topics: Vec<&str> = readers.iter().map(|(_, t)| t.as_str()).collect();
+    topics.sort();
+    assert_eq!(topics, ["robot/pose", "robot/vel"]);
+    let mut got: Vec<u32> = readers
+        .iter()
+        .flat_map(|(r, _)| received(&net, 1, *r))
+        .collect();
+    got.sort();
+    assert_eq!(got, [1, 2]);
+    // deleting the pattern deletes its readers
+    let now = net.now();
+    assert!(net.node(1).delete_pattern(p, now));
+    net.run_for(ms(500));
+    assert_eq!(
+        net.hosts[1]
+            .node
+            .participant()
+            .matched_writers(readers[0].0.guid())
+            .len(),
+        0
+    );
+}
+
+#[test]
+fn a_confirmed_write_resolves_only_once_every_reliable_reader_has_acknowledged_it() {
+    let mut net = new_net(2, 17, 30);
+    let now = net.now();
+    let w = net
+        .node(0)
+        .create_writer(EndpointConfig::writer("Conf", "T").qos(writer_qos()), now)
+        .unwrap();
+    let r = net
+        .node(1)
+        .create_reader(EndpointConfig::reader("Conf", "T").qos(reader_qos()), now)
+        .unwrap();
+    assert!(
+        net.run_until(Duration::from_secs(10), |n| matched(n, 1, r, 1)
+            && writer_matched(n, 0, w))
+    );
+    net.run_for(ms(100));
+    // the reader's host stops reading for a while
+    net.hosts[1].up = false;
+    let now = net.now();
+    let sn = net
+        .node(0)
+        .write_confirmed(
+            w,
+            Change::alive_owned(sample(7)),
+            Duration::from_secs(5),
+            now,
+        )
+        .unwrap();
+    let confirmed = |n: &Net| {
+        n.has(0, |e| matches!(e, Event::WriteConfirmed { writer, sequence_number } if *writer == w && *sequence_number == sn))
+    };
+    net.run_for(ms(500));
+    assert!(!confirmed(&net), "not before the reader has it");
+    net.hosts[1].up = true;
+    assert!(net.run_until(Duration::from_secs(4), |n| confirmed(n)));
+    assert_eq!(received(&net, 1, r), [7], "the reader has it");
+    assert!(net.hosts[0]
+        .node
+        .participant()
+        .is_acked_by_all(w.guid(), sn));
+    // without the reader, the confirmation times out
+    net.hosts[1].up = false;
+    let now = net.now();
+    let sn = net
+        .node(0)
+        .write_confirmed(w, Change::alive_owned(sample(8)), ms(500), now)
+        .unwrap();
+    net.run_for(ms(600));
+    assert!(net.has(0, |e| matches!(e, Event::ConfirmFailed { writer, sequence_number, reason: ConfirmFailure::Timeout(_) } if *writer == w && *sequence_number == sn)));
+    // with no reader matched, a confirmed write is confirmed at once
+    let now = net.now();
+    let lone = net
+        .node(0)
+        .create_writer(EndpointConfig::writer("Nobody", "T").qos(writer_qos()), now)
+        .unwrap();
+    let sn = net
+        .node(0)
+        .write_confirmed(lone, Change::alive_owned(sample(9)), ms(500), now)
+        .unwrap();
+    net.pump();
+    assert!(net.has(0, |e| matches!(e, Event::WriteConfirmed { writer, sequence_number } if *writer == lone && *sequence_number == sn)));
+}
+
+#[test]
+fn a_full_keep_all_reader_holds_back_a_reliable_writer_until_it_has_room() {
+    let mut net = Net::new(19, Faults::lossy(5));
+    let mut cfg = config(0);
+    cfg.max_unacked_bytes = 16 << 10;
+    let d = Domain::new(cfg, net.now(), net.wall());
+    net.add(d);
+    let d = Domain::new(config(1), net.now(), net.wall());
+    net.add(d);
+    let now = net.now();
+    let w = net
+        .node(0)
+        .create_writer(EndpointConfig::writer("Bp", "T").qos(writer_qos()), now)
+        .unwrap();
+    let r = net
+        .node(1)
+        .create_reader(EndpointConfig::reader("Bp", "T").qos(reader_qos()), now)
+        .unwrap();
+    assert!(
+        net.run_until(Duration::from_secs(10), |n| matched(n, 1, r, 1)
+            && writer_matched(n, 0, w))
+    );
+    net.run_for(ms(100));
+    // the shell's queue is full: user data is not read
+    net.node(1).set_reader_full(r, true);
+    assert_eq!(net.hosts[1].node.paused_reader(), Some(r));
+    let big = |n: u32| {
+        let mut b = sample(n);
+        b.resize(2048, 0);
+        b
+    };
+    let mut written = 0u32;
+    let mut blocked = false;
+    for _ in 0..200 {
+        let now = net.now();
+        if !net.node(0).has_room(w, 2048) {
+            blocked = true;
+            break;
+        }
+        net.node(0)
+            .write(w, Change::alive_owned(big(written)), now)
+            .unwrap();
+        written += 1;
+        net.run_for(ms(5));
+    }
+    assert!(blocked, "the writer's history filled up");
+    let now = net.now();
+    assert!(matches!(
+        net.node(0).write(w, Change::alive_owned(big(written)), now),
+        Err(WriteError::HistoryFull(_))
+    ));
+    assert!(written < 20, "{written} written");
+    assert!(received(&net, 1, r).is_empty());
+    net.run_for(Duration::from_secs(1));
+    assert!(!net.has(0, |e| matches!(e, Event::Writable { .. })));
+    // room again: everything arrives and the writer may go on
+    net.node(1).set_reader_full(r, false);
+    assert!(net.run_until(Duration::from_secs(5), |n| n.has(
+        0,
+        |e| matches!(e, Event::Writable { writer } if *writer == w)
+    )));
+    let now = net.now();
+    net.node(0)
+        .write(w, Change::alive_owned(big(written)), now)
+        .unwrap();
+    written += 1;
+    assert!(
+        net.run_until(Duration::from_secs(5), |n| received(n, 1, r).len()
+            == written as usize)
+    );
+    assert_eq!(received(&net, 1, r), (0..written).collect::<Vec<_>>());
+}
+
+#[test]
+fn a_remote_endpoint_of_another_type_on_our_topic_is_reported_with_both_type_names() {
+    let mut net = new_net(2, 23, 0);
+    let now = net.now();
+    let w = net
+        .node(0)
+        .create_writer(
+            EndpointConfig::writer("Shared", "TypeA").qos(writer_qos()),
+            now,
+        )
+        .unwrap();
+    let r = net
+        .node(1)
+        .create_reader(
+            EndpointConfig::reader("Shared", "TypeB").qos(reader_qos()),
+            now,
+        )
+        .unwrap();
+    let reported = |n: &Net| {
+        n.has(0, |e| matches!(e, Event::TypeMismatch { local, remote, topic, local_type, remote_type }
+            if *local == Endpoint::Writer(w) && *remote == r.guid() && topic == "Shared" && local_type == "TypeA" && remote_type == "TypeB"))
+            && n.has(1, |e| matches!(e, Event::TypeMismatch { local, remote, local_type, remote_type, .. }
+            if *local == Endpoint::Reader(r) && *remote == w.guid() && local_type == "TypeB" && remote_type == "TypeA"))
+    };
+    assert!(net.run_until(Duration::from_secs(10), reported));
+    assert!(!matched(&net, 1, r, 1));
+}
+
+#[test]
+fn payloads_are_padded_to_four_bytes() {
+    let mut net = new_net(1, 29, 0);
+    let now = net.now();
+    let w = net
+        .node(0)
+        .create_writer(EndpointConfig::writer("Pad", "T").qos(writer_qos()), now)
+        .unwrap();
+    let r = net
+        .node(0)
+        .create_reader(EndpointConfig::reader("Pad", "T").qos(reader_qos()), now)
+        .unwrap();
+    net.node(0)
+        .write(w, Change::alive(&[0, 1, 0, 0, 9]), now)
+        .unwrap();
+    net.pump();
+    let data: Vec<Vec<u8>> = net.hosts[0]
+        .events
+        .iter()
+        .filter_map(|e| match e {
+            Event::Sample { reader, sample } if *reader == r => Some(sample.data().to_vec()),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(data, [vec![0, 1, 0, 0, 9, 0, 0, 0]]);
+}
