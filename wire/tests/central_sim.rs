@@ -7,7 +7,7 @@ use std::collections::{HashMap, HashSet, VecDeque};
 use std::time::{Instant, SystemTime};
 
 use courier_wire::ipc::central::{
-    Central, Config, ConnId, LogOptions, Output, Peer, DISPATCH_COST,
+    Central, Config, ConnId, DispatchState, LogOptions, Output, Peer, DISPATCH_COST,
 };
 use courier_wire::ipc::frame::{ClassId, Header, MsgClass};
 use courier_wire::ipc::module::{Connection, DeliveryKind, Event, ModuleConfig, MsgLength};
@@ -1581,6 +1581,39 @@ fn console_line_with_several_options() {
     while c.poll_output().is_some() {}
 }
 
+/// The console's options reach central through `reconfigure`.
+#[test]
+fn reconfiguring_changes_what_is_logged() {
+    let mut sim = Sim::new(Config::default());
+    let a = sim.connect("a");
+    let b = sim.connect("b");
+    define(&mut sim, a, "foo", "int");
+    sim.m(b).subscribe("foo", "HND-foo").unwrap();
+    sim.pump();
+    let publish = |sim: &mut Sim| {
+        let before = sim.logs.len();
+        sim.m(a).publish("foo", 1i32.to_le_bytes(), -1).unwrap();
+        sim.pump();
+        sim.logs[before..]
+            .iter()
+            .filter(|l| l.contains(" foo"))
+            .count()
+    };
+    assert!(publish(&mut sim) > 0, "logged with -lmsi");
+    // The console's `-Ifoo`.
+    sim.central.reconfigure(|c| c.ignore.push("foo".into()));
+    assert_eq!(publish(&mut sim), 0, "ignored");
+    assert!(sim.central.config().ignore.contains(&"foo".to_string()));
+    // `-lmd -Lx` and no `-I`: logged again, and no file log.
+    sim.central.reconfigure(|c| {
+        c.ignore.clear();
+        c.terminal_log = LogOptions::parse("md", false).unwrap();
+        c.file_log = LogOptions::parse("x", true).unwrap();
+    });
+    assert!(!sim.central.config().file_log.any());
+    assert!(publish(&mut sim) > 0, "logged again");
+}
+
 /// The race of a C module's start (ipc.md §4): it reads
 /// `X_IPC_BROADCAST_MSG_VAR` with `V_get_…`, then subscribes
 /// `V_watch_…`. A subscription made by another module between the two
@@ -2312,6 +2345,15 @@ fn messages_sent_ahead_still_count_as_pending() {
     );
     assert_eq!(out.matches("Pending (sent ahead)").count(), 2, "{out}");
     assert_eq!(out.matches(" Active").count(), 1, "{out}");
+    // The same, as data.
+    let sub = sim.central.modules();
+    let sub = sub.iter().find(|m| m.conn == ConnId(b)).unwrap();
+    assert_eq!(sub.name.as_deref(), Some("sub"));
+    assert_eq!((sub.capacity, sub.active, sub.pending), (1, 1, 4));
+    let states: Vec<DispatchState> = sim.central.dispatches().iter().map(|d| d.state).collect();
+    let count = |s: DispatchState| states.iter().filter(|x| **x == s).count();
+    assert_eq!(count(DispatchState::SentAhead), 2, "{states:?}");
+    assert_eq!(count(DispatchState::Active), 1, "{states:?}");
     // Two are written; the other two are held in central and only they
     // count as queued bytes (each message is 12 bytes of data here, and
     // its bookkeeping).

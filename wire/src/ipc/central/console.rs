@@ -1,211 +1,160 @@
-//! The console: the commands typed on central's terminal (`help`,
-//! `display`, `status`, `memory`, `close`, `unlock`, and options).
+//! What central's console shows and does, as data: the messages alive
+//! (`display`), the modules (`status`), closing a module (`close`), new
+//! options, and the console's own lines; [`Central::stats`] serves
+//! `memory`. The commands and their text use only these (`commands.rs`).
 
 use std::time::SystemTime;
 
-use super::log::{self, Kind};
-use super::tables::{DispatchId, Org, Status};
-use super::{Central, LogOptions, LogTarget, Output, VERSION};
+use super::log::Kind;
+use super::tables::{Org, Status};
+use super::{Central, Config, ConnId, LogTarget, Output};
+use crate::ipc::frame::MsgClass;
+
+/// A message alive in central, one delivery of it (a dispatch), as the
+/// console's `display` lists it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct DispatchInfo {
+    /// Central's number for it (`{id}` in the log with `-lr`).
+    pub id: i32,
+    /// The class it was sent with (broadcast, query or inform).
+    pub class: MsgClass,
+    /// The message name.
+    pub msg: String,
+    /// The module that sent it (`X_IPC Server` for central's own).
+    pub from: String,
+    /// The module it is for, if a handler was chosen.
+    pub to: Option<String>,
+    /// Where it is.
+    pub state: DispatchState,
+}
+
+/// Where a message alive in central is ([`DispatchInfo::state`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum DispatchState {
+    /// Delivered; its handler has not finished.
+    Active,
+    /// Queued for its handler's module.
+    Pending,
+    /// Queued, and already written to its module
+    /// ([`Config::send_ahead`]).
+    SentAhead,
+    /// A query or inform waiting for a first handler of its message (or,
+    /// with `-r`, for its module to come back).
+    WaitingForHandler,
+}
+
+/// A connected module, as the console's `status` lists it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct ModuleInfo {
+    /// Its connection.
+    pub conn: ConnId,
+    /// Its name, once its connect query has come.
+    pub name: Option<String>,
+    /// The host it said it runs on (empty before its connect query).
+    pub host: String,
+    /// How many messages it handles at once (`IPC_setCapacity`).
+    pub capacity: usize,
+    /// Messages it is handling.
+    pub active: usize,
+    /// Messages queued for it (sent ahead or not).
+    pub pending: usize,
+    /// Its direct-mode listen port, if it announced one.
+    pub direct_port: Option<i32>,
+}
 
 impl Central {
-    /// A console command line (`help`, `display`, `status`, `memory`,
-    /// `close <module>`, `unlock <resource>`, or an option such as `-lmsd`).
-    pub fn command(&mut self, line: &str, now: SystemTime) {
-        self.clock = now;
-        let mut words = line.split_whitespace();
-        let Some(cmd) = words.next() else {
-            return;
-        };
-        let arg = words.next();
-        let say = |c: &mut Central, s: String| {
-            c.outputs.push_back(Output::Log {
-                target: LogTarget {
-                    terminal: true,
-                    file: false,
-                },
-                line: s,
-            })
-        };
-        match (cmd, arg) {
-            ("help", _) | ("?", _) => {
-                for l in [
-                    "The following are central commands:",
-                    "  help: print this message",
-                    "  display: display the active and pending messages",
-                    "  status: display the known modules and their status",
-                    "  memory: display total memory usage",
-                    "  close <module>: close a connection to a module",
-                    "  unlock <resource>: unlock a locked resource",
-                    "The following command line options can also be used as commands:",
-                    "  -v: display server version information",
-                    "  -l<options>: logging onto terminal (m s t d i h r p x)",
-                    "  -L<options>: logging into file (as -l, plus F n)",
-                    "  -I<msgName>: ignore logging this message",
-                    "  -c: use direct connections for messages defined from now on",
-                    "  -r: resend non-completed messages when modules crash and reconnect",
-                ] {
-                    say(self, l.to_string());
-                }
-            }
-            ("display", _) => {
-                let mut ids: Vec<DispatchId> = self.dispatches.keys().copied().collect();
-                ids.sort_unstable();
-                say(self, format!("{} message(s) active or pending:", ids.len()));
-                for id in ids {
-                    let d = &self.dispatches[&id];
-                    let dest = d
+    /// The messages alive, by id.
+    pub fn dispatches(&self) -> Vec<DispatchInfo> {
+        let mut ids: Vec<_> = self.dispatches.keys().copied().collect();
+        ids.sort_unstable();
+        ids.into_iter()
+            .filter_map(|id| {
+                let d = self.dispatches.get(&id)?;
+                Some(DispatchInfo {
+                    id: id.0,
+                    class: MsgClass::from_u16(d.class).unwrap_or(MsgClass::Unknown),
+                    msg: d.msg.clone(),
+                    from: self.module_name(d.org),
+                    to: d
                         .hnd
                         .as_ref()
-                        .map(|(c, _)| self.module_name(Org::Module(*c)))
-                        .unwrap_or_else(|| "(no handler)".into());
-                    let st = match d.status {
-                        Status::Attending => "Active",
-                        Status::Pending => "Pending",
-                        Status::Ahead => "Pending (sent ahead)",
-                        Status::NoHandler => "Waiting for a handler",
-                    };
-                    let line = format!(
-                        "  {{{id}}} {:<9} {:>15}: {:>10} --> {:<15} {st}",
-                        log::class_name(d.class),
-                        d.msg,
-                        self.module_name(d.org),
-                        dest
-                    );
-                    say(self, line);
-                }
-            }
-            ("status", _) => {
-                let lines: Vec<String> = self
-                    .modules
-                    .iter()
-                    .map(|(c, m)| {
-                        format!(
-                            "  Module {} on {} (sd {}): capacity {}, active {}, pending {}{}",
-                            m.name.as_deref().unwrap_or("<connecting>"),
-                            if m.host.is_empty() { "?" } else { &m.host },
-                            c.0,
-                            m.capacity,
-                            m.attending,
-                            m.pending.len() + m.ahead.len(),
-                            if m.port >= 0 {
-                                format!(", direct port {}", m.port)
-                            } else {
-                                String::new()
-                            }
-                        )
-                    })
-                    .collect();
-                say(self, format!("{} module(s) connected:", lines.len()));
-                for l in lines {
-                    say(self, l);
-                }
-            }
-            ("memory", _) => {
-                let s = self.stats();
-                say(self, "Cumulative Memory Usage:".into());
-                say(
-                    self,
-                    format!(
-                        "  Messages queued: {} dispatch(es), {} byte(s) pending (peak {})",
-                        s.dispatches, s.queued_bytes, s.peak_queued_bytes
-                    ),
-                );
-                say(
-                    self,
-                    format!(
-                        "  Waiting for a handler: {} message(s), {} byte(s), {} dropped",
-                        s.waiting_for_handler, s.waiting_bytes, s.dropped_waiting
-                    ),
-                );
-                say(
-                    self,
-                    format!(
-                        "  Modules: {}, messages defined: {}, frames received: {}, dropped by limits: {}",
-                        s.modules,
-                        self.msgs.len(),
-                        s.frames_in,
-                        s.dropped
-                    ),
-                );
-            }
-            ("close", Some(name)) => {
-                let conn = self
-                    .modules
-                    .iter()
-                    .find(|(_, m)| m.name.as_deref() == Some(name))
-                    .map(|(c, _)| *c);
-                match conn {
-                    Some(c) => {
-                        self.log_line(Kind::Always, format!("close Module: Closing {name}"));
-                        self.outputs.push_back(Output::Close {
-                            conn: c,
-                            reason: "closed from the console".into(),
-                        });
-                        self.close_module(c, false, now);
-                    }
-                    None => say(self, format!("Can not find {name} to close.")),
-                }
-            }
-            ("close", None) => say(self, "usage: close <module>".into()),
-            ("unlock", Some(name)) => say(
-                self,
-                format!("Resource {name} is not locked (IPC modules cannot lock resources)"),
-            ),
-            ("unlock", None) => say(self, "usage: unlock <resource>".into()),
-            ("quit", _) => say(self, "use Ctrl-C (SIGINT) to stop central".into()),
-            (opt, _) if opt.starts_with('-') => {
-                // A line may hold several options (`-lm -Lx`), as in C.
-                for word in line.split_whitespace() {
-                    if let Err(e) = self.apply_option(word) {
-                        say(self, e);
-                    }
-                }
-            }
-            (other, _) => say(self, format!("Unknown command '{other}' (type help)")),
-        }
+                        .map(|(c, _)| self.module_name(Org::Module(*c))),
+                    state: match d.status {
+                        Status::Attending => DispatchState::Active,
+                        Status::Pending => DispatchState::Pending,
+                        Status::Ahead => DispatchState::SentAhead,
+                        Status::NoHandler => DispatchState::WaitingForHandler,
+                    },
+                })
+            })
+            .collect()
     }
 
-    /// An option given as a console command.
-    fn apply_option(&mut self, opt: &str) -> Result<(), String> {
-        let (flag, rest) = opt.split_at(opt.len().min(2));
-        match flag {
-            "-v" => {
-                let v = format!(
-                    "Task Control Server {}.{}.1 (Courier {})",
-                    VERSION.0,
-                    VERSION.1,
-                    env!("CARGO_PKG_VERSION")
-                );
-                self.outputs.push_back(Output::Log {
-                    target: LogTarget {
-                        terminal: true,
-                        file: false,
-                    },
-                    line: v,
-                });
+    /// The connected modules, by connection.
+    pub fn modules(&self) -> Vec<ModuleInfo> {
+        self.modules
+            .iter()
+            .map(|(c, m)| ModuleInfo {
+                conn: *c,
+                name: m.name.clone(),
+                host: m.host.clone(),
+                capacity: m.capacity,
+                active: m.attending,
+                pending: m.pending.len() + m.ahead.len(),
+                direct_port: (m.port >= 0).then_some(m.port),
+            })
+            .collect()
+    }
+
+    /// Closes the module named `name` (the console's `close`), as the C
+    /// central does: logged, and its connection closed. False if no
+    /// module has that name.
+    pub fn close_module_named(&mut self, name: &str, now: SystemTime) -> bool {
+        self.clock = now;
+        let conn = self
+            .modules
+            .iter()
+            .find(|(_, m)| m.name.as_deref() == Some(name))
+            .map(|(c, _)| *c);
+        let Some(conn) = conn else {
+            return false;
+        };
+        self.log_line(Kind::Always, format!("close Module: Closing {name}"));
+        self.outputs.push_back(Output::Close {
+            conn,
+            reason: "closed from the console".into(),
+        });
+        self.close_module(conn, false, now);
+        true
+    }
+
+    /// Changes the configuration while central runs (the console's
+    /// options: `-l`, `-L`, `-I`, `-c`, `-r`). The log variables modules
+    /// read follow the new logging options, names in [`Config::ignore`]
+    /// are not logged, and every other option takes effect from the next
+    /// event on.
+    pub fn reconfigure(&mut self, change: impl FnOnce(&mut Config)) {
+        change(&mut self.config);
+        for name in &self.config.ignore {
+            if !self.ignore.contains(name) {
+                self.ignore.insert(name.clone());
             }
-            "-l" => {
-                self.config.terminal_log =
-                    LogOptions::parse(rest, false).map_err(|e| e.to_string())?;
-                self.update_log_vars();
-            }
-            "-L" => {
-                self.config.file_log = LogOptions::parse(rest, true).map_err(|e| e.to_string())?;
-                self.update_log_vars();
-            }
-            "-I" if !rest.is_empty() => {
-                self.config.ignore.push(rest.to_string());
-                self.ignore.insert(rest.to_string());
-            }
-            "-c" => self.config.direct = true,
-            "-r" => self.config.resend_on_reconnect = true,
-            "-s" | "-u" | "-p" | "-f" => {
-                return Err(format!(
-                    "option {flag} can only be given on the command line"
-                ))
-            }
-            _ => return Err(format!("Unknown option '{opt}' (type help)")),
         }
-        Ok(())
+        self.update_log_vars();
+    }
+
+    /// A line for the terminal only (not the log file), in order with
+    /// everything else central asks: the console's answers.
+    pub fn print(&mut self, line: String) {
+        self.outputs.push_back(Output::Log {
+            target: LogTarget {
+                terminal: true,
+                file: false,
+            },
+            line,
+        });
     }
 }

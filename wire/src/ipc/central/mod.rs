@@ -15,6 +15,12 @@
 //!       Transmit / TransmitBody / Close / Log / PauseRead / ResumeRead } }
 //! ```
 //!
+//! A console is data and actions here ([`Central::dispatches`],
+//! [`Central::modules`], [`Central::close_module_named`],
+//! [`Central::reconfigure`], [`Central::print`]); the commands and their
+//! text ([`Central::command`]) are written against those alone, so that a
+//! shell can take them over.
+//!
 //! Framing is done here too: `receive` takes raw stream bytes in any
 //! split, so tests can replay captured byte streams exactly
 //! (`wire/tests/central_replay.rs` replays the C modules of every capture
@@ -68,6 +74,7 @@
 //!   has the start), and a warning names both modules.
 
 mod body;
+mod commands;
 mod config;
 mod conn;
 mod console;
@@ -86,6 +93,7 @@ mod vars;
 
 pub use self::body::Body;
 pub use self::config::{Config, LogOptions, OptionError};
+pub use self::console::{DispatchInfo, DispatchState, ModuleInfo};
 pub use self::tables::DISPATCH_COST;
 
 use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
@@ -227,6 +235,9 @@ pub struct Stats {
     pub dropped: u64,
     /// Frames received from modules.
     pub frames_in: u64,
+    /// Message names central knows: its own, those defined by modules, and
+    /// those only subscribed so far.
+    pub messages: usize,
 }
 
 /// The IPC central server's state.
@@ -350,6 +361,7 @@ impl Central {
         s.modules = self.modules.len();
         s.dispatches = self.dispatches.len();
         s.waiting_for_handler = self.msgs.values().map(|m| m.waiting.len()).sum();
+        s.messages = self.msgs.len();
         s
     }
 

@@ -1,0 +1,263 @@
+//! The console's commands, read as the C central reads them, and the text
+//! it answers with ([`Central::command`]).
+//!
+//! The text is a shell's, not the state machine's: this file uses nothing
+//! but central's public console API ([`Central::dispatches`],
+//! [`Central::modules`], [`Central::stats`],
+//! [`Central::close_module_named`], [`Central::reconfigure`],
+//! [`Central::print`]), so that the shell that runs the console can take
+//! it over whole. That shell is now the embedded central's server
+//! (`courier::central`), which calls [`Central::command`].
+
+use std::time::SystemTime;
+
+use super::{Central, DispatchInfo, DispatchState, LogOptions, ModuleInfo, Stats, VERSION};
+use crate::ipc::frame::MsgClass;
+
+/// The line the console's `-v` prints.
+fn banner() -> String {
+    format!(
+        "Task Control Server {}.{}.1 (Courier {})",
+        VERSION.0,
+        VERSION.1,
+        env!("CARGO_PKG_VERSION")
+    )
+}
+
+const HELP: &[&str] = &[
+    "The following are central commands:",
+    "  help: print this message",
+    "  display: display the active and pending messages",
+    "  status: display the known modules and their status",
+    "  memory: display total memory usage",
+    "  close <module>: close a connection to a module",
+    "  unlock <resource>: unlock a locked resource",
+    "The following command line options can also be used as commands:",
+    "  -v: display server version information",
+    "  -l<options>: logging onto terminal (m s t d i h r p x)",
+    "  -L<options>: logging into file (as -l, plus F n)",
+    "  -I<msgName>: ignore logging this message",
+    "  -c: use direct connections for messages defined from now on",
+    "  -r: resend non-completed messages when modules crash and reconnect",
+];
+
+impl Central {
+    /// A console command line (`help`, `display`, `status`, `memory`,
+    /// `close <module>`, `unlock <resource>`, or an option such as
+    /// `-lmsd`): its answer goes out as terminal lines ([`Central::print`]),
+    /// its action (closing a module, an option) is carried out. `quit` is
+    /// the shell's: it is only told how to stop.
+    pub fn command(&mut self, line: &str, now: SystemTime) {
+        command(self, line, now);
+    }
+}
+
+fn command(central: &mut Central, line: &str, now: SystemTime) {
+    let mut words = line.split_whitespace();
+    let Some(cmd) = words.next() else {
+        return;
+    };
+    let arg = words.next();
+    match (cmd, arg) {
+        ("help", _) | ("?", _) => {
+            for l in HELP {
+                central.print(l.to_string());
+            }
+        }
+        ("display", _) => {
+            let ds = central.dispatches();
+            central.print(format!("{} message(s) active or pending:", ds.len()));
+            for d in &ds {
+                central.print(dispatch_line(d));
+            }
+        }
+        ("status", _) => {
+            let ms = central.modules();
+            central.print(format!("{} module(s) connected:", ms.len()));
+            for m in &ms {
+                central.print(module_line(m));
+            }
+        }
+        ("memory", _) => {
+            for l in memory_lines(&central.stats()) {
+                central.print(l);
+            }
+        }
+        ("close", Some(name)) => {
+            if !central.close_module_named(name, now) {
+                central.print(format!("Can not find {name} to close."));
+            }
+        }
+        ("close", None) => central.print("usage: close <module>".into()),
+        ("unlock", Some(name)) => central.print(format!(
+            "Resource {name} is not locked (IPC modules cannot lock resources)"
+        )),
+        ("unlock", None) => central.print("usage: unlock <resource>".into()),
+        ("quit", _) => central.print("use Ctrl-C (SIGINT) to stop central".into()),
+        (opt, _) if opt.starts_with('-') => {
+            // A line may hold several options (`-lm -Lx`), as in C.
+            for word in line.split_whitespace() {
+                if let Err(e) = option(central, word) {
+                    central.print(e);
+                }
+            }
+        }
+        (other, _) => central.print(format!("Unknown command '{other}' (type help)")),
+    }
+}
+
+/// An option given as a console command.
+fn option(central: &mut Central, opt: &str) -> Result<(), String> {
+    let (flag, rest) = opt.split_at(opt.len().min(2));
+    match flag {
+        "-v" => central.print(banner()),
+        "-l" => {
+            let o = LogOptions::parse(rest, false).map_err(|e| e.to_string())?;
+            central.reconfigure(|c| c.terminal_log = o);
+        }
+        "-L" => {
+            let o = LogOptions::parse(rest, true).map_err(|e| e.to_string())?;
+            central.reconfigure(|c| c.file_log = o);
+        }
+        "-I" if !rest.is_empty() => central.reconfigure(|c| c.ignore.push(rest.to_string())),
+        "-c" => central.reconfigure(|c| c.direct = true),
+        "-r" => central.reconfigure(|c| c.resend_on_reconnect = true),
+        "-s" | "-u" | "-p" | "-f" => {
+            return Err(format!(
+                "option {flag} can only be given on the command line"
+            ))
+        }
+        _ => return Err(format!("Unknown option '{opt}' (type help)")),
+    }
+    Ok(())
+}
+
+/// C's name of a message class, as its log prints it.
+fn class_name(class: MsgClass) -> &'static str {
+    match class {
+        MsgClass::Query => "Query",
+        MsgClass::Inform => "Inform",
+        MsgClass::Broadcast => "Broadcast",
+        _ => "Unknown",
+    }
+}
+
+/// `display`: one message alive.
+fn dispatch_line(d: &DispatchInfo) -> String {
+    let st = match d.state {
+        DispatchState::Active => "Active",
+        DispatchState::Pending => "Pending",
+        DispatchState::SentAhead => "Pending (sent ahead)",
+        DispatchState::WaitingForHandler => "Waiting for a handler",
+    };
+    format!(
+        "  {{{}}} {:<9} {:>15}: {:>10} --> {:<15} {st}",
+        d.id,
+        class_name(d.class),
+        d.msg,
+        d.from,
+        d.to.as_deref().unwrap_or("(no handler)")
+    )
+}
+
+/// `status`: one module.
+fn module_line(m: &ModuleInfo) -> String {
+    format!(
+        "  Module {} on {} (sd {}): capacity {}, active {}, pending {}{}",
+        m.name.as_deref().unwrap_or("<connecting>"),
+        if m.host.is_empty() { "?" } else { &m.host },
+        m.conn.0,
+        m.capacity,
+        m.active,
+        m.pending,
+        m.direct_port
+            .map(|p| format!(", direct port {p}"))
+            .unwrap_or_default()
+    )
+}
+
+/// `memory`.
+fn memory_lines(s: &Stats) -> [String; 4] {
+    [
+        "Cumulative Memory Usage:".into(),
+        format!(
+            "  Messages queued: {} dispatch(es), {} byte(s) pending (peak {})",
+            s.dispatches, s.queued_bytes, s.peak_queued_bytes
+        ),
+        format!(
+            "  Waiting for a handler: {} message(s), {} byte(s), {} dropped",
+            s.waiting_for_handler, s.waiting_bytes, s.dropped_waiting
+        ),
+        format!(
+            "  Modules: {}, messages defined: {}, frames received: {}, dropped by limits: {}",
+            s.modules, s.messages, s.frames_in, s.dropped
+        ),
+    ]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ipc::central::{Config, ConnId, Output, Peer};
+
+    fn answer(central: &mut Central, line: &str) -> Vec<String> {
+        central.command(line, SystemTime::UNIX_EPOCH);
+        std::iter::from_fn(|| central.poll_output())
+            .filter_map(|o| match o {
+                Output::Log { target, line } => {
+                    assert!(target.terminal && !target.file, "{line}");
+                    Some(line)
+                }
+                _ => None,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn bad_options_and_commands_are_answered() {
+        let mut c = Central::new(Config::default());
+        assert_eq!(
+            answer(&mut c, "-p1381 -lq"),
+            [
+                "option -p can only be given on the command line".to_string(),
+                LogOptions::parse("q", false).unwrap_err().to_string(),
+            ]
+        );
+        assert_eq!(
+            answer(&mut c, "frob"),
+            ["Unknown command 'frob' (type help)"]
+        );
+        assert_eq!(
+            answer(&mut c, "close nobody"),
+            ["Can not find nobody to close."]
+        );
+        assert_eq!(answer(&mut c, "close"), ["usage: close <module>"]);
+        assert_eq!(answer(&mut c, "-v"), [banner()]);
+        assert_eq!(answer(&mut c, "help").len(), HELP.len());
+        assert!(answer(&mut c, "   ").is_empty());
+    }
+
+    #[test]
+    fn status_display_and_memory() {
+        let mut c = Central::new(Config::default());
+        c.connect(ConnId(5), Peer::Other("t".into()), SystemTime::UNIX_EPOCH);
+        while c.poll_output().is_some() {}
+        assert_eq!(
+            answer(&mut c, "status"),
+            [
+                "1 module(s) connected:",
+                "  Module <connecting> on ? (sd 5): capacity 1, active 0, pending 0"
+            ]
+        );
+        assert_eq!(
+            answer(&mut c, "display"),
+            ["0 message(s) active or pending:"]
+        );
+        let memory = answer(&mut c, "memory");
+        assert_eq!(memory[0], "Cumulative Memory Usage:");
+        assert!(
+            memory[3].starts_with("  Modules: 1, messages defined: "),
+            "{memory:?}"
+        );
+    }
+}
