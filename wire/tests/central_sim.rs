@@ -250,6 +250,18 @@ fn define(sim: &mut Sim, id: u64, msg: &str, fmt: &str) {
         .unwrap();
 }
 
+/// Two modules connected: the first (`names.0`) defines `msg` with format
+/// `fmt`, the second subscribes it with handler `HND-<msg>`.
+fn pub_sub(config: Config, names: (&str, &str), msg: &str, fmt: &str) -> (Sim, u64, u64) {
+    let mut sim = Sim::new(config);
+    let a = sim.connect(names.0);
+    let b = sim.connect(names.1);
+    define(&mut sim, a, msg, fmt);
+    sim.m(b).subscribe(msg, &format!("HND-{msg}")).unwrap();
+    sim.pump();
+    (sim, a, b)
+}
+
 #[test]
 fn publish_subscribe_and_query_through_central() {
     let mut sim = Sim::new(Config::default());
@@ -495,12 +507,7 @@ fn direct_mode_negates_ids_and_lists_listeners() {
 fn resend_on_reconnect_redelivers_unfinished_messages() {
     let mut config = Config::default();
     config.resend_on_reconnect = true;
-    let mut sim = Sim::new(config);
-    let a = sim.connect("pub");
-    let b = sim.connect("worker");
-    define(&mut sim, a, "job", "int");
-    sim.m(b).subscribe("job", "HND-job").unwrap();
-    sim.pump();
+    let (mut sim, a, b) = pub_sub(config, ("pub", "worker"), "job", "int");
     sim.m(a).publish("job", 1i32.to_le_bytes(), -1).unwrap();
     sim.m(a).publish("job", 2i32.to_le_bytes(), -1).unwrap();
     sim.pump();
@@ -528,12 +535,7 @@ fn resend_on_reconnect_redelivers_unfinished_messages() {
 
 #[test]
 fn without_resend_unfinished_messages_are_cleared() {
-    let mut sim = Sim::new(Config::default());
-    let a = sim.connect("pub");
-    let b = sim.connect("worker");
-    define(&mut sim, a, "job", "int");
-    sim.m(b).subscribe("job", "HND-job").unwrap();
-    sim.pump();
+    let (mut sim, a, b) = pub_sub(Config::default(), ("pub", "worker"), "job", "int");
     sim.m(a).publish("job", 1i32.to_le_bytes(), -1).unwrap();
     sim.pump();
     sim.close(b);
@@ -577,12 +579,7 @@ fn two_hundred_modules_connect_at_once() {
 fn slow_subscriber_bounded_memory_nothing_lost() {
     let mut config = Config::default();
     config.max_queued_bytes = 256 << 10;
-    let mut sim = Sim::new(config);
-    let p = sim.connect("flood");
-    let s = sim.connect("slow");
-    define(&mut sim, p, "data", "[int:16]");
-    sim.m(s).subscribe("data", "HND-data").unwrap();
-    sim.pump();
+    let (mut sim, p, s) = pub_sub(config, ("flood", "slow"), "data", "[int:16]");
     const N: i32 = 100_000;
     let mut sent = 0;
     let mut next = 0;
@@ -1326,13 +1323,9 @@ fn a_handler_subscribed_again_after_an_unsubscribe_keeps_its_first_id() {
 /// as the C central does, and its tables keep agreeing.
 #[test]
 fn unsubscribing_a_handler_under_another_message_changes_nothing() {
-    let mut sim = Sim::new(Config::default());
-    let a = sim.connect("a");
-    let b = sim.connect("b");
-    define(&mut sim, a, "m", "int");
-    define(&mut sim, a, "other", "int");
-    sim.m(a).subscribe("m", "HND-m").unwrap();
-    sim.pump();
+    // `a` handles m (as HND-m).
+    let (mut sim, b, a) = pub_sub(Config::default(), ("b", "a"), "m", "int");
+    define(&mut sim, b, "other", "int");
     handler_raw(
         &mut sim,
         a,
@@ -1342,13 +1335,9 @@ fn unsubscribing_a_handler_under_another_message_changes_nothing() {
         "HND-m",
     );
     sim.pump();
-    assert!(
-        sim.logs
-            .iter()
-            .any(|l| l.contains("unsubscribed handler HND-m from other, but it handles m")),
-        "{:#?}",
-        sim.logs
-    );
+    let warning = "unsubscribed handler HND-m from other, but it handles m";
+    let warned = sim.logs.iter().any(|l| l.contains(warning));
+    assert!(warned, "{:#?}", sim.logs);
     sim.m(b).publish("m", 7i32.to_le_bytes(), -1).unwrap();
     sim.pump();
     assert_eq!(sim.deliveries(a).len(), 1, "still subscribed");
@@ -1584,12 +1573,7 @@ fn console_line_with_several_options() {
 /// The console's options reach central through `reconfigure`.
 #[test]
 fn reconfiguring_changes_what_is_logged() {
-    let mut sim = Sim::new(Config::default());
-    let a = sim.connect("a");
-    let b = sim.connect("b");
-    define(&mut sim, a, "foo", "int");
-    sim.m(b).subscribe("foo", "HND-foo").unwrap();
-    sim.pump();
+    let (mut sim, a, _) = pub_sub(Config::default(), ("a", "b"), "foo", "int");
     let publish = |sim: &mut Sim| {
         let before = sim.logs.len();
         sim.m(a).publish("foo", 1i32.to_le_bytes(), -1).unwrap();
@@ -2104,12 +2088,7 @@ fn a_malformed_body_costs_the_receiver_one_message_not_its_connection() {
 /// every byte central wrote to it, and how many frames went out with a
 /// shared body.
 fn mixed_sizes_read_in(read: usize) -> (Vec<Vec<u8>>, Vec<u8>, usize) {
-    let mut sim = Sim::new(Config::default());
-    let a = sim.connect("pub");
-    let b = sim.connect("sub");
-    define(&mut sim, a, "m", "{int, <ubyte:1>}");
-    sim.m(b).subscribe("m", "HND-m").unwrap();
-    sim.pump();
+    let (mut sim, a, b) = pub_sub(Config::default(), ("pub", "sub"), "m", "{int, <ubyte:1>}");
     let start = sim.wire[&b].len();
     let sizes = [10, 70_000, 3, 20_000, 5];
     for (i, n) in sizes.iter().enumerate() {
@@ -2204,12 +2183,7 @@ fn one_at_a_time(config: Config, n: i32) -> (Vec<i32>, usize, Sim) {
 /// `pub` publishes the ints `0..n` on `tick`, which `sub` (capacity 1)
 /// subscribed to. Returns the simulation and the two modules.
 fn ticks(config: Config, n: i32) -> (Sim, u64, u64) {
-    let mut sim = Sim::new(config);
-    let a = sim.connect("pub");
-    let b = sim.connect("sub");
-    define(&mut sim, a, "tick", "int");
-    sim.m(b).subscribe("tick", "HND-tick").unwrap();
-    sim.pump();
+    let (mut sim, a, b) = pub_sub(config, ("pub", "sub"), "tick", "int");
     for i in 0..n {
         sim.m(a).publish("tick", i.to_le_bytes(), -1).unwrap();
     }
@@ -2299,12 +2273,7 @@ fn only_the_modules_named_get_messages_ahead() {
 /// module has looked the handler up.
 #[test]
 fn nothing_goes_ahead_of_a_handlers_first_lookup() {
-    let mut sim = Sim::new(ahead_config(4));
-    let a = sim.connect("pub");
-    let b = sim.connect("sub");
-    define(&mut sim, a, "tick", "int");
-    sim.m(b).subscribe("tick", "HND-tick").unwrap();
-    sim.pump();
+    let (mut sim, a, b) = pub_sub(ahead_config(4), ("pub", "sub"), "tick", "int");
     let to_sub = |sim: &Sim| -> Vec<Header> {
         sim.sent
             .iter()
