@@ -33,6 +33,22 @@ pub(super) fn expand_enum(c: &Container<'_>, e: &Enum<'_>) -> TokenStream {
         .iter()
         .map(|v| Literal::i32_suffixed(i32::try_from(v.value).unwrap_or(0)))
         .collect();
+    // Reading the value back: the same in IPC and CDR but for the error.
+    let decode = |codec: TokenStream| {
+        quote! {
+            let __offset = __r.position();
+            match __r.read_i32()? {
+                #(#values => ::core::result::Result::Ok(Self::#idents),)*
+                __v => ::core::result::Result::Err(__wire::#codec::DecodeError::InvalidEnum {
+                    offset: __offset,
+                    value: __v as i64,
+                    type_name: <Self as __wire::IpcMessage>::TYPE_NAME,
+                }),
+            }
+        }
+    };
+    let ipc_decode = decode(quote!(ipc));
+    let cdr_decode = decode(quote!(cdr));
     quote! {
         #inherent
 
@@ -50,15 +66,7 @@ pub(super) fn expand_enum(c: &Container<'_>, e: &Enum<'_>) -> TokenStream {
             }
 
             fn ipc_decode(__r: &mut __wire::ipc::Reader<'_>) -> ::core::result::Result<Self, __wire::ipc::DecodeError> {
-                let __offset = __r.position();
-                match __r.read_i32()? {
-                    #(#values => ::core::result::Result::Ok(Self::#idents),)*
-                    __v => ::core::result::Result::Err(__wire::ipc::DecodeError::InvalidEnum {
-                        offset: __offset,
-                        value: __v as i64,
-                        type_name: <Self as __wire::IpcMessage>::TYPE_NAME,
-                    }),
-                }
+                #ipc_decode
             }
 
             fn cdr_encode(&self, __w: &mut __wire::cdr::Writer) {
@@ -67,15 +75,7 @@ pub(super) fn expand_enum(c: &Container<'_>, e: &Enum<'_>) -> TokenStream {
 
             fn cdr_decode(__r: &mut __wire::cdr::Reader<'_>) -> ::core::result::Result<Self, __wire::cdr::DecodeError> {
                 __r.align(4)?;
-                let __offset = __r.position();
-                match __r.read_i32()? {
-                    #(#values => ::core::result::Result::Ok(Self::#idents),)*
-                    __v => ::core::result::Result::Err(__wire::cdr::DecodeError::InvalidEnum {
-                        offset: __offset,
-                        value: __v as i64,
-                        type_name: <Self as __wire::IpcMessage>::TYPE_NAME,
-                    }),
-                }
+                #cdr_decode
             }
 
             fn cdr_encode_key(&self, __w: &mut __wire::cdr::Writer) {
