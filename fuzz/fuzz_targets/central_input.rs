@@ -19,19 +19,6 @@ use libfuzzer_sys::fuzz_target;
 use std::collections::HashSet;
 use std::time::SystemTime;
 
-const COMMANDS: &[&str] = &[
-    "status",
-    "display",
-    "memory",
-    "help",
-    "close m0",
-    "close m1",
-    "unlock m0",
-    "-lmsid",
-    "-Lx",
-    "-r",
-    "-lx",
-];
 
 fuzz_target!(|data: &[u8]| {
     let now = SystemTime::UNIX_EPOCH;
@@ -67,7 +54,7 @@ fuzz_target!(|data: &[u8]| {
                     central.disconnect(ConnId(conn), now);
                 }
             }
-            6 => central.command(COMMANDS[bytes.len() % COMMANDS.len()], now),
+            6 => hostile::console(&mut central, bytes.len(), ["m0", "m1", "m2"], now),
             _ => {}
         }
         // Carries out central's outputs, then checks its invariants.

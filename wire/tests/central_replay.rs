@@ -466,22 +466,6 @@ use std::time::Instant;
 
 mod damage;
 
-/// What the operator types (`Step::Other`).
-const CONSOLE: &[&str] = &[
-    "status",
-    "display",
-    "memory",
-    "help",
-    "close module1",
-    "close module2",
-    "close wiretest",
-    "unlock module1",
-    "-lmsid",
-    "-Lx",
-    "-r",
-    "-lx",
-];
-
 /// Replays the damaged steps, `chunk` bytes per read, honouring central's
 /// pause requests as a shell does, and disconnects every module at the end.
 fn run_damaged(config: Config, steps: Vec<Step>, chunk: usize) -> Central {
@@ -523,7 +507,12 @@ fn run_damaged(config: Config, steps: Vec<Step>, chunk: usize) -> Central {
                 }
             }
             Step::Other(what) => {
-                central.command(CONSOLE[what % CONSOLE.len()], now);
+                damage::central::console(
+                    &mut central,
+                    what,
+                    ["module1", "module2", "wiretest"],
+                    now,
+                );
                 carry_out(&mut central, &mut paused, &mut gone);
             }
         }

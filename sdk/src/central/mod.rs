@@ -69,6 +69,7 @@
 //! - Peers on the UNIX socket are subject to the rules as local clients
 //!   (C never checks them).
 pub mod access;
+mod console;
 mod inproc;
 mod server;
 

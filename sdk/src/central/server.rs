@@ -5,7 +5,6 @@ use std::collections::HashMap;
 use std::io::{self, IoSlice, Write};
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::os::fd::OwnedFd;
-use std::panic::AssertUnwindSafe;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
@@ -1057,7 +1056,7 @@ impl Core {
                 self.gone(conn, now);
             }
             Event::Command(line) => {
-                self.guarded(None, |c| c.command(&line, now));
+                super::console::command(&mut self.central, &line, now);
                 self.drain();
             }
             Event::Stats(reply) => {
@@ -1127,7 +1126,7 @@ impl Core {
                 parked: None,
             },
         );
-        self.guarded(Some(conn), |c| c.connect(conn, peer, now));
+        self.central.connect(conn, peer, now);
         self.drain();
     }
 
@@ -1140,7 +1139,7 @@ impl Core {
             st.parked = Some((buf, len));
             return;
         }
-        self.guarded(Some(conn), |c| c.receive(conn, &buf[..len], now));
+        self.central.receive(conn, &buf[..len], now);
         self.drain();
         self.give_back(conn, buf);
     }
@@ -1158,7 +1157,7 @@ impl Core {
 
     /// EOF or a broken connection.
     fn gone(&mut self, conn: ConnId, now: SystemTime) {
-        self.guarded(None, |c| c.disconnect(conn, now));
+        self.central.disconnect(conn, now);
         self.close(conn);
         self.drain();
     }
@@ -1169,25 +1168,6 @@ impl Core {
         let target = log_target(self.central.config());
         if target.terminal || target.file {
             self.sink.line(target, line);
-        }
-    }
-
-    /// Runs `f` on the state machine. A panic in it (a bug) must not take
-    /// the server down: the connection being handled is dropped instead.
-    fn guarded(&mut self, conn: Option<ConnId>, f: impl FnOnce(&mut Central)) {
-        let central = &mut self.central;
-        if std::panic::catch_unwind(AssertUnwindSafe(|| f(central))).is_err() {
-            let who = conn.map_or("console".to_string(), |c| c.0.to_string());
-            let line = format!("ERROR: internal error while handling connection {who}; closing it");
-            tracing::error!("{line}");
-            self.log(&line);
-            if let Some(conn) = conn {
-                self.close(conn);
-                let central = &mut self.central;
-                let _ = std::panic::catch_unwind(AssertUnwindSafe(|| {
-                    central.disconnect(conn, SystemTime::now())
-                }));
-            }
         }
     }
 
@@ -1212,7 +1192,7 @@ impl Core {
             };
             if len > 0 {
                 let now = SystemTime::now();
-                self.guarded(Some(conn), |c| c.receive(conn, &buf[..len], now));
+                self.central.receive(conn, &buf[..len], now);
             }
             self.give_back(conn, buf);
         }
@@ -1226,7 +1206,7 @@ impl Core {
                 tracing::debug!(conn = conn.0, %reason, "closing connection");
                 self.close(conn);
                 // The state machine forgets the module on disconnect.
-                self.guarded(None, |c| c.disconnect(conn, SystemTime::now()));
+                self.central.disconnect(conn, SystemTime::now());
             }
             Output::Log { target, line } => self.sink.line(target, &line),
             Output::PauseRead { conn } => {

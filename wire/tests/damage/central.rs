@@ -101,3 +101,23 @@ pub fn carry_out(central: &mut Central, paused: &mut HashSet<u64>, gone: &mut Ha
     }
     central.check_invariants();
 }
+
+/// What an operator does at the console, by `what % 12`, through central's
+/// console API (the console's text is the shell's, `courier::central`):
+/// `status`, `display`, `memory`, `help`, `close` of one of `names`, a
+/// close of a module nobody runs, and the options `-lmsid`, `-Lx`, `-r`,
+/// `-lx`.
+pub fn console(central: &mut Central, what: usize, names: [&str; 3], now: SystemTime) {
+    match what % 12 {
+        0 => drop(central.modules()),
+        1 => drop(central.dispatches()),
+        2 => drop(central.stats()),
+        3 => central.print("The following are central commands:".into()),
+        4..=6 => drop(central.close_module_named(names[what % 12 - 4], now)),
+        7 => drop(central.close_module_named("nobody-runs-this", now)),
+        8 => central.reconfigure(|c| c.terminal_log = LogOptions::parse("msid", false).unwrap()),
+        9 => central.reconfigure(|c| c.file_log = LogOptions::parse("x", true).unwrap()),
+        10 => central.reconfigure(|c| c.resend_on_reconnect = true),
+        _ => central.reconfigure(|c| c.terminal_log = LogOptions::parse("x", false).unwrap()),
+    }
+}

@@ -10,7 +10,7 @@
 //!   accept      -> central.connect(conn, peer, now)
 //!   bytes read  -> central.receive(conn, &bytes, now)
 //!   EOF / error -> central.disconnect(conn, now)
-//!   stdin line  -> central.command(line, now)
+//!   stdin line  -> the shell's console (`courier::central`), through the console API
 //!   loop { match central.poll_output() {
 //!       Transmit / TransmitBody / Close / Log / PauseRead / ResumeRead } }
 //! ```
@@ -18,8 +18,8 @@
 //! A console is data and actions here ([`Central::dispatches`],
 //! [`Central::modules`], [`Central::close_module_named`],
 //! [`Central::reconfigure`], [`Central::print`]); the commands and their
-//! text ([`Central::command`]) are written against those alone, so that a
-//! shell can take them over.
+//! text are the shell's (`courier::central`'s console), written against
+//! those alone.
 //!
 //! Framing is done here too: `receive` takes raw stream bytes in any
 //! split, so tests can replay captured byte streams exactly
@@ -74,7 +74,6 @@
 //!   has the start), and a warning names both modules.
 
 mod body;
-mod commands;
 mod config;
 mod conn;
 mod console;
@@ -202,7 +201,8 @@ const SERVER_NAME: &str = "X_IPC Server";
 /// `DEFAULT_PRIORITY` of `ipc_setMsgPriority`.
 const DEFAULT_PRIORITY: i32 = 1;
 /// IPC version central reports (`{{3, 9}, direct}`).
-const VERSION: (i32, i32) = (3, 9);
+/// The IPC protocol version central speaks (major, minor): CMU IPC 3.9.
+pub const VERSION: (i32, i32) = (3, 9);
 /// Most handlers listed in a direct handler list (`MAX_DIRECT_HANDLERS`).
 const MAX_DIRECT_HANDLERS: usize = 100;
 

@@ -1,18 +1,18 @@
 //! The console's commands, read as the C central reads them, and the text
-//! it answers with ([`Central::command`]).
+//! it answers with ([`command`]).
 //!
-//! The text is a shell's, not the state machine's: this file uses nothing
-//! but central's public console API ([`Central::dispatches`],
+//! The text is the shell's, not the state machine's: this module uses
+//! nothing but central's public console API ([`Central::dispatches`],
 //! [`Central::modules`], [`Central::stats`],
 //! [`Central::close_module_named`], [`Central::reconfigure`],
-//! [`Central::print`]), so that the shell that runs the console can take
-//! it over whole. That shell is now the embedded central's server
-//! (`courier::central`), which calls [`Central::command`].
+//! [`Central::print`]).
 
 use std::time::SystemTime;
 
-use super::{Central, DispatchInfo, DispatchState, LogOptions, ModuleInfo, Stats, VERSION};
-use crate::ipc::frame::MsgClass;
+use courier_wire::ipc::central::{
+    Central, DispatchInfo, DispatchState, LogOptions, ModuleInfo, Stats, VERSION,
+};
+use courier_wire::ipc::frame::MsgClass;
 
 /// The line the console's `-v` prints.
 fn banner() -> String {
@@ -41,18 +41,12 @@ const HELP: &[&str] = &[
     "  -r: resend non-completed messages when modules crash and reconnect",
 ];
 
-impl Central {
-    /// A console command line (`help`, `display`, `status`, `memory`,
-    /// `close <module>`, `unlock <resource>`, or an option such as
-    /// `-lmsd`): its answer goes out as terminal lines ([`Central::print`]),
-    /// its action (closing a module, an option) is carried out. `quit` is
-    /// the shell's: it is only told how to stop.
-    pub fn command(&mut self, line: &str, now: SystemTime) {
-        command(self, line, now);
-    }
-}
-
-fn command(central: &mut Central, line: &str, now: SystemTime) {
+/// Runs a console command line (`help`, `display`, `status`, `memory`,
+/// `close <module>`, `unlock <resource>`, or an option such as `-lmsd`):
+/// its answer goes out as terminal lines ([`Central::print`]), its action
+/// (closing a module, an option) is carried out. `quit` is the shell's: it
+/// is only told how to stop.
+pub(crate) fn command(central: &mut Central, line: &str, now: SystemTime) {
     let mut words = line.split_whitespace();
     let Some(cmd) = words.next() else {
         return;
@@ -149,6 +143,7 @@ fn dispatch_line(d: &DispatchInfo) -> String {
         DispatchState::Pending => "Pending",
         DispatchState::SentAhead => "Pending (sent ahead)",
         DispatchState::WaitingForHandler => "Waiting for a handler",
+        _ => "Unknown",
     };
     format!(
         "  {{{}}} {:<9} {:>15}: {:>10} --> {:<15} {st}",
@@ -198,10 +193,10 @@ fn memory_lines(s: &Stats) -> [String; 4] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ipc::central::{Config, ConnId, Output, Peer};
+    use courier_wire::ipc::central::{Config, ConnId, Output, Peer};
 
     fn answer(central: &mut Central, line: &str) -> Vec<String> {
-        central.command(line, SystemTime::UNIX_EPOCH);
+        command(central, line, SystemTime::UNIX_EPOCH);
         std::iter::from_fn(|| central.poll_output())
             .filter_map(|o| match o {
                 Output::Log { target, line } => {
@@ -259,5 +254,15 @@ mod tests {
             memory[3].starts_with("  Modules: 1, messages defined: "),
             "{memory:?}"
         );
+    }
+
+    #[test]
+    fn a_console_line_with_several_options() {
+        let mut c = Central::new(Config::default());
+        command(&mut c, "-lmd -Lx -Ifoo", SystemTime::now());
+        assert!(c.config().terminal_log.data && c.config().terminal_log.messages);
+        assert!(!c.config().file_log.any());
+        assert!(c.config().ignore.contains(&"foo".to_string()));
+        while c.poll_output().is_some() {}
     }
 }
