@@ -7,7 +7,6 @@
 use std::time::Duration;
 
 use courier::{ConnectError, IpcMessage, OpenError, PublishError, QueryError, Session};
-use courier_broker::{CentralHandle, CentralServer};
 use futures::StreamExt;
 
 mod common;
@@ -26,23 +25,7 @@ struct Sum {
     note: String,
 }
 
-async fn central() -> (CentralHandle, String) {
-    let c = CentralServer::builder()
-        .bind("127.0.0.1".parse().unwrap())
-        .port(0)
-        .spawn()
-        .await
-        .unwrap();
-    let url = format!("ipc://{}", c.local_addr());
-    (c, url)
-}
-
-async fn session(url: &str, name: &str) -> Session {
-    tokio::time::timeout(T, Session::builder(url).name(name).connect())
-        .await
-        .unwrap()
-        .unwrap()
-}
+use common::{central, connect as session};
 
 /// The crate-root example's order: `serve` and `query` with no `define`
 /// anywhere. Both define their messages themselves (on the old code the

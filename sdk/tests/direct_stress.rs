@@ -10,9 +10,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use courier::{IpcMessage, Session};
+use courier::IpcMessage;
 use courier_broker::CentralServer;
 use futures::StreamExt;
+
+mod common;
 
 /// The bound on one reply (a loaded 2-core machine answers in well under
 /// a millisecond).
@@ -83,24 +85,9 @@ async fn every_direct_query_is_answered_under_load() {
     let queries = env("DIRECT_STRESS_QUERIES", 300);
     let mut cfg = courier_broker::Config::default();
     cfg.direct = true;
-    let c = CentralServer::builder()
-        .port(0)
-        .config(cfg)
-        .spawn()
-        .await
-        .unwrap();
-    let url = format!("ipc://{}", c.local_addr());
-    let connect = |name: &'static str| {
-        let url = url.clone();
-        async move {
-            tokio::time::timeout(REPLY, Session::builder(url).name(name).connect())
-                .await
-                .expect("connect in time")
-                .expect("connect")
-        }
-    };
-    let a = connect("stress-a").await;
-    let b = connect("stress-b").await;
+    let (c, url) = common::central_with(CentralServer::builder().config(cfg)).await;
+    let a = common::connect(&url, "stress-a").await;
+    let b = common::connect(&url, "stress-b").await;
     let _hog = Hog::start(2);
     let payload = Blob {
         n: 4,

@@ -25,33 +25,7 @@ struct Path {
     points: Vec<Point>,
 }
 
-async fn central() -> (CentralHandle, String) {
-    let mut b = CentralServer::builder();
-    if std::env::var_os("CENTRAL_LOG").is_some() {
-        let mut cfg = courier_broker::Config::default();
-        cfg.terminal_log = courier_broker::LogOptions::parse("msr", false).unwrap();
-        b = b
-            .config(cfg)
-            .log_sink(courier_broker::LogSink::new(|_, l: &str| {
-                eprintln!("central| {l}")
-            }));
-    }
-    let c = b
-        .bind("127.0.0.1".parse().unwrap())
-        .port(0)
-        .spawn()
-        .await
-        .unwrap();
-    let url = format!("ipc://{}", c.local_addr());
-    (c, url)
-}
-
-async fn session(url: &str, name: &str) -> Session {
-    tokio::time::timeout(T, Session::builder(url).name(name).connect())
-        .await
-        .unwrap()
-        .unwrap()
-}
+use common::{central, connect as session};
 
 #[tokio::test]
 async fn publish_subscribe_typed() {
@@ -659,14 +633,7 @@ async fn reconnects_and_resubscribes_after_central_restarts() {
 #[tokio::test(flavor = "current_thread")]
 async fn busy_polling_answers_queries_and_goes_quiet_when_idle() {
     let window = Duration::from_millis(20);
-    let c = CentralServer::builder()
-        .bind("127.0.0.1".parse().unwrap())
-        .port(0)
-        .busy_poll(window)
-        .spawn()
-        .await
-        .unwrap();
-    let url = format!("ipc://{}", c.local_addr());
+    let (c, url) = common::central_with(CentralServer::builder().busy_poll(window)).await;
     let connect = |name: &'static str| {
         Session::builder(url.clone())
             .name(name)

@@ -145,3 +145,41 @@ pub async fn ended_by_central(
     assert!(matches!(e, courier::QueryError::Disconnected(_)), "{e}");
     assert!(since.elapsed() < Duration::from_secs(5), "failed at once");
 }
+
+/// Courier's central from `b`, embedded on a free port of 127.0.0.1, and
+/// its `ipc://` URL. With `CENTRAL_LOG` set, its message log goes to
+/// stderr (which replaces `b`'s configuration).
+pub async fn central_with(
+    mut b: courier_broker::Builder,
+) -> (courier_broker::CentralHandle, String) {
+    if std::env::var_os("CENTRAL_LOG").is_some() {
+        let mut cfg = courier_broker::Config::default();
+        cfg.terminal_log = courier_broker::LogOptions::parse("msr", false).unwrap();
+        b = b
+            .config(cfg)
+            .log_sink(courier_broker::LogSink::new(|_, l: &str| {
+                eprintln!("central| {l}")
+            }));
+    }
+    let c = b
+        .bind("127.0.0.1".parse().unwrap())
+        .port(0)
+        .spawn()
+        .await
+        .unwrap();
+    let url = format!("ipc://{}", c.local_addr());
+    (c, url)
+}
+
+/// Courier's central with C's defaults (see [`central_with`]).
+pub async fn central() -> (courier_broker::CentralHandle, String) {
+    central_with(courier_broker::CentralServer::builder()).await
+}
+
+/// A session named `name` on `url`, connected within the bound.
+pub async fn connect(url: &str, name: &str) -> Session {
+    tokio::time::timeout(T, Session::builder(url).name(name).connect())
+        .await
+        .expect("connect in time")
+        .expect("connect")
+}
