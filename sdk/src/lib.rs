@@ -108,6 +108,7 @@
 #![deny(unsafe_code)]
 
 pub mod backend;
+mod builder;
 pub mod busy_poll;
 #[cfg(feature = "central")]
 #[cfg_attr(docsrs, doc(cfg(feature = "central")))]
@@ -116,12 +117,17 @@ mod error;
 pub mod event;
 pub mod hub;
 pub mod ipc_backend;
+mod publisher;
 pub mod qos;
+mod queue;
 mod reply;
+mod rpc;
 pub mod rtps_backend;
 pub mod scheme;
 pub mod session;
+mod subscriber;
 mod sys;
+mod timer;
 mod topics;
 
 pub use backend::{

@@ -1,0 +1,271 @@
+//! [`SessionBuilder`], the options it keeps and which backends honour them.
+
+use crate::backend::Backend;
+use crate::ipc_backend::{IpcBackend, IpcOptions};
+use crate::rtps_backend::{RtpsBackend, RtpsOptions};
+use crate::scheme::Resolved;
+use crate::session::Session;
+use std::sync::Arc;
+use std::time::Duration;
+
+/// Why connecting failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ConnectError {
+    /// The URL's scheme names no backend this process knows.
+    #[error("{}", unknown_scheme(url, scheme.as_deref(), known))]
+    UnknownScheme {
+        /// The URL.
+        url: String,
+        /// Its scheme (`None`: the URL has no `scheme://`).
+        scheme: Option<String>,
+        /// The schemes this process knows.
+        known: Vec<String>,
+    },
+    /// An option was set that the URL's backend cannot honour.
+    #[error("{option} is not an option of {scheme}:// sessions ({hint})")]
+    Unsupported {
+        /// The builder method.
+        option: &'static str,
+        /// The URL's scheme.
+        scheme: String,
+        /// Which backends have it.
+        hint: &'static str,
+    },
+    /// The URL is not understood.
+    #[error("bad session URL {url:?}: {why}")]
+    BadUrl {
+        /// The URL.
+        url: String,
+        /// What is wrong.
+        why: String,
+    },
+    /// No central answered.
+    #[error("cannot connect to central at {addr} after {attempts} attempt(s)")]
+    Unreachable {
+        /// Where it tried.
+        addr: String,
+        /// How often.
+        attempts: u32,
+        /// The last error (the message does not repeat it).
+        #[source]
+        source: std::io::Error,
+    },
+    /// A DDS participant could not join the network (no such interface,
+    /// no free participant index, a socket error).
+    #[error("cannot join {url}: {why}")]
+    Network {
+        /// The session URL.
+        url: String,
+        /// Why.
+        why: String,
+    },
+    /// The handshake failed.
+    #[error("handshake with central at {addr} failed: {why}")]
+    Handshake {
+        /// Where.
+        addr: String,
+        /// Why.
+        why: String,
+    },
+}
+
+fn unknown_scheme(url: &str, scheme: Option<&str>, known: &[String]) -> String {
+    let what = match scheme {
+        Some(s) => format!("unknown URL scheme {s:?} in {url:?}"),
+        None => format!("no scheme in session URL {url:?}"),
+    };
+    format!("{what}; known schemes: {}", known.join(", "))
+}
+
+/// Builds a [`Session`].
+#[derive(Debug, Clone)]
+pub struct SessionBuilder {
+    pub(crate) url: String,
+    pub(crate) name: Option<String>,
+    pub(crate) opts: IpcOptions,
+    pub(crate) rtps: crate::rtps_backend::RtpsOverrides,
+    /// Builder methods called, by the backends that honour them: one the
+    /// URL's backend cannot honour fails `connect`.
+    pub(crate) set: Vec<(&'static str, Honoured)>,
+}
+
+/// Which backends honour a [`SessionBuilder`] option.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Honoured {
+    Ipc,
+    Rtps,
+    Both,
+}
+
+impl SessionBuilder {
+    /// The module name (default: `courier-<pid>`; DDS: the participant's
+    /// entity name).
+    pub fn name(mut self, name: impl Into<String>) -> Self {
+        self.name = Some(name.into());
+        self
+    }
+
+    /// `IPC_connectNoListen`: publishing is not filtered by the list of
+    /// subscribed messages.
+    pub fn no_listen(mut self) -> Self {
+        self.set.push(("no_listen", Honoured::Ipc));
+        self.opts.listen = false;
+        self
+    }
+
+    /// How long to keep trying to reach central (default 5 s, as C's five
+    /// one-second retries).
+    pub fn connect_timeout(mut self, d: Duration) -> Self {
+        self.opts.connect_timeout = d;
+        self
+    }
+
+    /// After losing central, keep trying to reach it (first after `backoff`,
+    /// doubling up to 5 s), then define and subscribe everything again;
+    /// subscribers stay open meanwhile. Operations fail while disconnected.
+    /// An embedded central reached through [`SessionBuilder::dial`] that has
+    /// stopped is not retried: the session ends as without reconnect.
+    pub fn reconnect(mut self, backoff: Duration) -> Self {
+        self.set.push(("reconnect", Honoured::Ipc));
+        self.opts.reconnect = Some(backoff);
+        self
+    }
+
+    /// Lower latency for CPU: after every message keep polling for `window`
+    /// instead of sleeping until the next one (see [`crate::busy_poll`]).
+    /// Off by default; costs a CPU while messages flow. Effective on a
+    /// current-thread tokio runtime; on the project's 2-vCPU VM a 4 B query
+    /// between processes through a busy-polling central went from 80–105 µs
+    /// to 40–44 µs over TCP, and an RTPS round trip across cores from 70 to
+    /// 17 µs (BENCHMARKS.md). RTPS: also `busy_poll_us=` in the URL.
+    pub fn busy_poll(mut self, window: Duration) -> Self {
+        self.set.push(("busy_poll", Honoured::Both));
+        self.opts.busy_poll = Some(window);
+        self.rtps.busy_poll = Some(window);
+        self
+    }
+
+    /// IPC: reach central through `dial` instead of a socket; it is called
+    /// for the first connection and for every reconnect. The URL still
+    /// names central (error messages, direct mode's listening address).
+    /// [`CentralHandle::session`] uses it for an in-process link to an
+    /// embedded central.
+    ///
+    /// [`CentralHandle::session`]: https://docs.rs/courier-broker/latest/courier_broker/struct.CentralHandle.html#method.session
+    pub fn dial<F, Fut>(mut self, dial: F) -> Self
+    where
+        F: Fn() -> Fut + Send + Sync + 'static,
+        Fut: std::future::Future<Output = std::io::Result<Box<dyn crate::ipc_backend::IpcStream>>>
+            + Send
+            + 'static,
+    {
+        self.set.push(("dial", Honoured::Ipc));
+        self.opts.dial = Some(crate::ipc_backend::Dial::new(dial));
+        self
+    }
+
+    /// RTPS: read user data on a receive thread of its own, which also runs
+    /// the callbacks of [`SubscriberBuilder::listen`] (see
+    /// [`RtpsOptions::receive_thread`]). Also `receive_thread=true` in the
+    /// URL. Other backends ignore it.
+    ///
+    /// [`SubscriberBuilder::listen`]: crate::SubscriberBuilder::listen
+    pub fn receive_thread(mut self, on: bool) -> Self {
+        self.set.push(("receive_thread", Honoured::Rtps));
+        self.rtps.receive_thread = Some(on);
+        self
+    }
+
+    /// RTPS: the network interface, by name (`lo`) or IPv4 address
+    /// (URL: `interface=`).
+    pub fn interface(mut self, interface: impl Into<String>) -> Self {
+        self.set.push(("interface", Honoured::Rtps));
+        self.rtps.interface = Some(interface.into());
+        self
+    }
+
+    /// RTPS: unicast discovery peers, `ip` or `ip:port` (URL: `peers=`);
+    /// a peer list alone turns multicast off.
+    pub fn peers<I: IntoIterator<Item = S>, S: Into<String>>(mut self, peers: I) -> Self {
+        self.set.push(("peers", Honoured::Rtps));
+        self.rtps.peers = Some(peers.into_iter().map(Into::into).collect());
+        self
+    }
+
+    /// RTPS: standard SPDP multicast discovery on or off (URL: `multicast=`).
+    pub fn multicast(mut self, on: bool) -> Self {
+        self.set.push(("multicast", Honoured::Rtps));
+        self.rtps.multicast = Some(on);
+        self
+    }
+
+    /// RTPS: a fixed participant index instead of probing (URL: `index=`).
+    pub fn participant_index(mut self, index: u32) -> Self {
+        self.set.push(("participant_index", Honoured::Rtps));
+        self.rtps.participant_index = Some(index);
+        self
+    }
+
+    /// RTPS: socket receive and send buffer sizes in bytes (URL:
+    /// `recv_buffer=`, `send_buffer=`).
+    pub fn socket_buffers(mut self, recv: usize, send: usize) -> Self {
+        self.set.push(("socket_buffers", Honoured::Rtps));
+        self.rtps.recv_buffer = Some(recv);
+        self.rtps.send_buffer = Some(send);
+        self
+    }
+
+    /// Connects: `ipc://…` reaches a central, `rtps://<domain>?…` joins a
+    /// DDS domain, a scheme plugged in with
+    /// [`register_scheme`](crate::scheme::register_scheme) its backend.
+    ///
+    /// Fails at once, naming the option, if an option was set that this
+    /// URL's backend cannot honour (say, [`interface`](Self::interface) on
+    /// an `ipc://` session), and names the known schemes for an unknown one.
+    pub async fn connect(self) -> Result<Session, ConnectError> {
+        let name = self
+            .name
+            .unwrap_or_else(|| format!("courier-{}", std::process::id()));
+        let scheme = self.url.split_once("://").map_or("", |(s, _)| s);
+        let refuse = |honoured: &[Honoured]| {
+            let bad = self.set.iter().find(|(_, h)| !honoured.contains(h));
+            bad.map(|(option, h)| ConnectError::Unsupported {
+                option,
+                scheme: scheme.to_string(),
+                hint: match h {
+                    Honoured::Ipc => "it is for ipc:// sessions",
+                    Honoured::Rtps => "it is for rtps:// sessions",
+                    Honoured::Both => "it is for ipc:// and rtps:// sessions",
+                },
+            })
+        };
+        let backend: Arc<dyn Backend> = match crate::scheme::resolve(&self.url)? {
+            Resolved::Rtps => {
+                if let Some(e) = refuse(&[Honoured::Rtps, Honoured::Both]) {
+                    return Err(e);
+                }
+                let mut o = RtpsOptions::from_url(&self.url)?;
+                self.rtps.apply(&mut o);
+                Arc::new(RtpsBackend::start(o, &name).await?)
+            }
+            Resolved::Ipc => {
+                if let Some(e) = refuse(&[Honoured::Ipc, Honoured::Both]) {
+                    return Err(e);
+                }
+                Arc::new(IpcBackend::connect(&self.url, &name, self.opts).await?)
+            }
+            Resolved::Plugged(connect) => {
+                if let Some(e) = refuse(&[]) {
+                    return Err(e);
+                }
+                connect(crate::scheme::ConnectRequest {
+                    url: self.url,
+                    name: name.clone(),
+                })
+                .await?
+            }
+        };
+        Ok(Session::with_backend(backend, name))
+    }
+}

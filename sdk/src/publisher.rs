@@ -1,0 +1,320 @@
+//! Publications: [`Publish`], [`PublisherBuilder`], [`Publisher`], [`PeriodicPublication`].
+
+use crate::backend::{Handle, PubId};
+use crate::error::{OpenError, PublishError};
+use crate::qos::{Durability, History, InstanceState, PublicationQos, Reliability};
+use crate::session::{Owned, Session};
+use crate::timer::Tick;
+use crate::topics::Definition;
+use courier_wire::{cdr, IpcMessage};
+use std::marker::PhantomData;
+use std::pin::Pin;
+use std::sync::Arc;
+use std::time::Duration;
+
+/// How [`Backend::write`] publishes.
+///
+/// [`Backend::write`]: crate::Backend::write
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[non_exhaustive]
+pub struct WriteOptions {
+    /// The instance's key hash (keyed DDS topics).
+    pub key_hash: Option<[u8; 16]>,
+    /// Wait at most this long for every matched reader's acknowledgement.
+    pub confirm: Option<Duration>,
+}
+
+/// A publish being built; `.await` it.
+#[derive(Debug)]
+#[must_use = "a publish does nothing until awaited"]
+pub struct Publish<'a> {
+    pub(crate) session: &'a Session,
+    pub(crate) msg: &'a str,
+    pub(crate) data: Vec<u8>,
+    pub(crate) confirm: Option<Duration>,
+    pub(crate) key_hash: Option<[u8; 16]>,
+    /// Where it goes: an open publication, or the definition of the
+    /// session's publication to make first; or the type mismatch.
+    pub(crate) target: Result<Target, OpenError>,
+}
+
+/// Where a [`Publish`] goes.
+#[derive(Debug)]
+pub(crate) enum Target {
+    Open(PubId),
+    Define(Definition),
+}
+
+impl<'a> Publish<'a> {
+    /// Resolve only once every matched reader has acknowledged the sample
+    /// (reliable DDS writers), waiting at most 10 s unless `.timeout(d)`.
+    pub fn confirmed(mut self) -> Self {
+        self.confirm.get_or_insert(Duration::from_secs(10));
+        self
+    }
+
+    /// Bounds the wait of a confirmed publish (implies `.confirmed()`).
+    pub fn timeout(mut self, d: Duration) -> Self {
+        self.confirm = Some(d);
+        self
+    }
+}
+
+impl<'a> std::future::IntoFuture for Publish<'a> {
+    type Output = Result<(), PublishError>;
+    type IntoFuture = Pin<Box<dyn std::future::Future<Output = Self::Output> + Send + 'a>>;
+
+    fn into_future(self) -> Self::IntoFuture {
+        let opts = WriteOptions {
+            key_hash: self.key_hash,
+            confirm: self.confirm,
+        };
+        match self.target {
+            Err(e) => Box::pin(std::future::ready(Err(e.into()))),
+            // the backend's own (boxed) future, not a box around it
+            Ok(Target::Open(id)) => self.session.backend.write(id, self.data, opts),
+            Ok(Target::Define(def)) => Box::pin(async move {
+                let id = self.session.define_shared(self.msg, def).await?;
+                self.session.backend.write(id, self.data, opts).await
+            }),
+        }
+    }
+}
+
+/// Builds a [`Publisher`]: ORTE's publication parameters as DDS QoS.
+#[derive(Debug)]
+pub struct PublisherBuilder<T> {
+    pub(crate) session: Session,
+    pub(crate) msg: String,
+    pub(crate) qos: PublicationQos,
+    pub(crate) _t: PhantomData<fn(T)>,
+}
+
+impl<T: IpcMessage> PublisherBuilder<T> {
+    /// Best effort: nothing is repaired.
+    pub fn best_effort(mut self) -> Self {
+        self.qos.reliability = Reliability::BestEffort;
+        self
+    }
+
+    /// Strict reliable (the default).
+    pub fn reliable(mut self) -> Self {
+        self.qos.reliability = Reliability::Reliable;
+        self
+    }
+
+    /// Keep the history for late-joining transient-local readers.
+    pub fn transient_local(mut self) -> Self {
+        self.qos.durability = Durability::TransientLocal;
+        self
+    }
+
+    /// Keep only the newest `n` samples per instance.
+    pub fn keep_last(mut self, n: u32) -> Self {
+        self.qos.history = History::KeepLast(n.max(1));
+        self
+    }
+
+    /// Keep every sample until acknowledged (the default).
+    pub fn keep_all(mut self) -> Self {
+        self.qos.history = History::KeepAll;
+        self
+    }
+
+    /// ORTE's strength: exclusive ownership with this strength.
+    pub fn strength(mut self, strength: i32) -> Self {
+        self.qos.strength = Some(strength);
+        self
+    }
+
+    /// ORTE's persistence: how long each sample stays valid (DDS lifespan).
+    pub fn persistence(mut self, d: Duration) -> Self {
+        self.qos.persistence = Some(d);
+        self
+    }
+
+    /// The offered deadline.
+    pub fn deadline(mut self, d: Duration) -> Self {
+        self.qos.deadline = Some(d);
+        self
+    }
+
+    /// Adds a DDS partition.
+    pub fn partition(mut self, p: impl Into<String>) -> Self {
+        self.qos.partitions.push(p.into());
+        self
+    }
+
+    /// Replaces the whole QoS.
+    pub fn qos(mut self, qos: PublicationQos) -> Self {
+        self.qos = qos;
+        self
+    }
+
+    /// Creates the publication.
+    ///
+    /// Each is a publication of its own (DDS: a DataWriter of its own, so
+    /// that publishers of one topic with different QoS coexist); on IPC
+    /// they share the message's definition. Dropping the last clone closes
+    /// it.
+    pub async fn build(self) -> Result<Publisher<T>, OpenError> {
+        self.session.topics.bind::<T>(&self.msg)?;
+        let id = self
+            .session
+            .open_as(&self.msg, &Definition::of::<T>(), &self.qos)
+            .await?;
+        Ok(Publisher {
+            handle: Arc::new(self.session.owned(Handle::Publication(id))),
+            id,
+            session: self.session,
+            msg: self.msg,
+            last_len: Arc::default(),
+            _t: PhantomData,
+        })
+    }
+}
+
+/// A typed publication handle (DDS: a DataWriter).
+#[derive(Debug)]
+pub struct Publisher<T> {
+    session: Session,
+    id: PubId,
+    /// Closes the publication when the last clone goes.
+    handle: Arc<Owned>,
+    msg: String,
+    /// Encoded size of the last sample, shared by the clones: the next
+    /// one is encoded into a buffer that size, so a large sample is not
+    /// reallocated while it is written.
+    last_len: Arc<std::sync::atomic::AtomicUsize>,
+    _t: PhantomData<fn(T)>,
+}
+
+impl<T> Clone for Publisher<T> {
+    fn clone(&self) -> Self {
+        Publisher {
+            session: self.session.clone(),
+            id: self.id,
+            handle: self.handle.clone(),
+            msg: self.msg.clone(),
+            last_len: self.last_len.clone(),
+            _t: PhantomData,
+        }
+    }
+}
+
+impl<T: IpcMessage> Publisher<T> {
+    /// The topic.
+    pub fn msg(&self) -> &str {
+        &self.msg
+    }
+
+    /// Publishes a value (`.confirmed()` to wait for acknowledgements).
+    pub fn publish(&self, value: &T) -> Publish<'_> {
+        use std::sync::atomic::Ordering::Relaxed;
+        let hint = self.last_len.load(Relaxed);
+        // checked and opened when the publisher was built
+        let p = self
+            .session
+            .publish_sized(&self.msg, value, hint, Ok(Target::Open(self.id)));
+        if p.data.len() != hint {
+            self.last_len.store(p.data.len(), Relaxed);
+        }
+        p
+    }
+
+    /// Publishes without waiting and from any thread, a subscription
+    /// callback's among them (ORTE's `ORTEPublicationSend`): the sample is
+    /// queued or sent when this returns. Fails where `publish().await`
+    /// would wait (the session's write queue is full) and on backends that
+    /// cannot (IPC: use `publish().await`). Inside a callback of an
+    /// immediate subscription the datagram goes out when the callback
+    /// returns, packed with the callback's other writes.
+    pub fn try_publish(&self, value: &T) -> Result<(), PublishError> {
+        let p = self.publish(value);
+        let opts = WriteOptions {
+            key_hash: p.key_hash,
+            confirm: None,
+        };
+        self.session.backend.try_write(self.id, p.data, opts)
+    }
+
+    /// Disposes the instance that `value`'s key fields name (keyed topics).
+    pub async fn dispose(&self, value: &T) -> Result<(), PublishError> {
+        self.end(value, InstanceState::Disposed).await
+    }
+
+    /// Unregisters the instance that `value`'s key fields name (keyed topics).
+    pub async fn unregister(&self, value: &T) -> Result<(), PublishError> {
+        self.end(value, InstanceState::Unregistered).await
+    }
+
+    async fn end(&self, value: &T, state: InstanceState) -> Result<(), PublishError> {
+        if T::KEYS.is_empty() {
+            return Err(PublishError::NotKeyed(T::TYPE_NAME));
+        }
+        // A key that always fits in the key hash travels only as the inline
+        // KEY_HASH (as Fast DDS sends it, and the only form Fast DDS 2.9
+        // acts on); a longer key also as the serialized key (K flag), which
+        // Cyclone needs to find the instance behind an MD5 hash.
+        let key = if T::CDR_KEY_BOUNDED {
+            Vec::new()
+        } else {
+            cdr::key_to_vec(value, cdr::Encoding::Xcdr1Le)
+        };
+        let hash = crate::rtps_backend::key_hash_of(value);
+        match self
+            .session
+            .backend
+            .dds()
+            .filter(|_| self.session.caps.instances)
+        {
+            Some(dds) => dds.end_instance(self.id, state, key, hash).await,
+            None => Err(PublishError::Unsupported {
+                what: format!("disposing or unregistering an instance of {}", self.msg),
+                backend: self.session.caps.scheme,
+            }),
+        }
+    }
+
+    /// ORTE's send callback: every `period`, `f` is asked for a value to
+    /// publish (`None` skips that tick). Runs on a task until the returned
+    /// handle is dropped or stopped, or publishing fails.
+    pub fn send_every<F>(&self, period: Duration, mut f: F) -> PeriodicPublication
+    where
+        T: Send + 'static,
+        F: FnMut(Tick) -> Option<T> + Send + 'static,
+    {
+        let p = self.clone();
+        let task = tokio::spawn(async move {
+            use futures::StreamExt;
+            let mut timer = p.session.every(period);
+            while let Some(tick) = timer.next().await {
+                if let Some(v) = f(tick) {
+                    p.publish(&v).await?;
+                }
+            }
+            Ok(())
+        });
+        PeriodicPublication { task }
+    }
+}
+
+/// A publication driven by a timer ([`Publisher::send_every`]); dropping it stops it.
+#[derive(Debug)]
+pub struct PeriodicPublication {
+    task: tokio::task::JoinHandle<Result<(), PublishError>>,
+}
+
+impl PeriodicPublication {
+    /// Stops it and returns why it ended, if it ended by itself.
+    pub async fn stop(mut self) -> Result<(), PublishError> {
+        self.task.abort();
+        (&mut self.task).await.unwrap_or(Ok(()))
+    }
+}
+
+impl Drop for PeriodicPublication {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}

@@ -1,0 +1,494 @@
+//! The queue between a backend and one subscription: [`SampleQueue`], its
+//! [`QueuePolicy`], the [`RawSample`]s it holds and the [`RawSubscriber`] that reads them.
+
+use crate::qos::InstanceState;
+use crate::session::Owned;
+use courier_wire::ipc;
+use std::collections::VecDeque;
+use std::sync::Arc;
+use std::task::{Context, Poll};
+use std::time::SystemTime;
+
+/// One message as a backend delivers it.
+pub struct RawSample {
+    /// Message name (DDS: topic name).
+    pub msg: String,
+    /// The bytes, as the sender marshalled them (DDS: CDR with its
+    /// encapsulation header; for a dispose or unregister, the serialized
+    /// key if the writer sent one).
+    pub data: Vec<u8>,
+    /// Byte order of `data` (IPC).
+    pub order: ipc::ByteOrder,
+    /// When this process received it.
+    pub received: SystemTime,
+    /// Who sent it, when the backend knows (DDS: the writer's GUID in hex;
+    /// shared by every sample of that writer).
+    pub source: Option<Arc<str>>,
+    /// The sender's type name, when the backend knows (DDS; shared by every
+    /// sample of the subscription).
+    pub type_name: Option<Arc<str>>,
+    /// Sample, dispose or unregister (always `Alive` on IPC).
+    pub state: InstanceState,
+    /// The instance's key hash (keyed DDS topics), when sent.
+    pub key_hash: Option<[u8; 16]>,
+    /// The writer's source timestamp, when sent (DDS `INFO_TS`).
+    pub source_time: Option<SystemTime>,
+    /// Called once the user has taken the sample (IPC: the Success ack that
+    /// frees central's capacity slot).
+    pub done: Option<Box<dyn FnOnce() + Send>>,
+}
+
+impl RawSample {
+    /// A live sample of `msg`, received now, with no other metadata.
+    pub fn new(msg: impl Into<String>, data: Vec<u8>) -> Self {
+        RawSample {
+            msg: msg.into(),
+            data,
+            order: ipc::ByteOrder::NATIVE,
+            received: SystemTime::now(),
+            source: None,
+            type_name: None,
+            state: InstanceState::Alive,
+            key_hash: None,
+            source_time: None,
+            done: None,
+        }
+    }
+}
+
+impl std::fmt::Debug for RawSample {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RawSample")
+            .field("msg", &self.msg)
+            .field("data", &self.data.len())
+            .field("received", &self.received)
+            .field("source", &self.source)
+            .field("state", &self.state)
+            .finish_non_exhaustive()
+    }
+}
+
+/// What a subscription does when its local queue is full.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum QueuePolicy {
+    /// Keep every sample; when `n` wait, stop acknowledging so central
+    /// holds the rest (back-pressure, where `set_queue_length` applies).
+    KeepAll(usize),
+    /// Keep the newest `n`; the oldest is dropped and counted
+    /// ([`Subscriber::dropped`]), as `IPC_setMsgQueueLength` does in central.
+    ///
+    /// [`Subscriber::dropped`]: crate::Subscriber::dropped
+    KeepLast(usize),
+}
+
+impl Default for QueuePolicy {
+    fn default() -> Self {
+        QueuePolicy::KeepAll(1000)
+    }
+}
+
+/// Sample buffers a [`Subscriber`] has decoded, on their way back to the
+/// backend that filled them (RTPS: to be reassembled into again).
+#[derive(Debug, Default)]
+pub(crate) struct ReturnedBuffers {
+    /// The buffers and their total capacity.
+    bufs: std::sync::Mutex<(Vec<Vec<u8>>, usize)>,
+    /// Set with every buffer given, cleared by the taker: the taker's
+    /// check costs no lock while nothing comes back.
+    any: std::sync::atomic::AtomicBool,
+}
+
+impl ReturnedBuffers {
+    /// Most buffers waiting to be taken; the rest are freed.
+    const MAX: usize = 64;
+    /// Most bytes waiting to be taken (a subscriber can drain a long queue
+    /// while the backend takes nothing); the rest are freed.
+    const MAX_BYTES: usize = 4 << 20;
+
+    fn give(&self, b: Vec<u8>) {
+        use std::sync::atomic::Ordering;
+        let mut g = self.bufs.lock().unwrap();
+        let (bufs, bytes) = &mut *g;
+        if bufs.len() < Self::MAX && *bytes + b.capacity() <= Self::MAX_BYTES {
+            *bytes += b.capacity();
+            bufs.push(b);
+            self.any.store(true, Ordering::Release);
+        }
+    }
+
+    /// Hands every buffer given back so far to `f`.
+    pub(crate) fn take(&self, mut f: impl FnMut(Vec<u8>)) {
+        use std::sync::atomic::Ordering;
+        if !self.any.swap(false, Ordering::Acquire) {
+            return;
+        }
+        let mut g = self.bufs.lock().unwrap();
+        g.1 = 0;
+        for b in g.0.drain(..) {
+            f(b);
+        }
+    }
+}
+
+/// The queue between a backend and one subscription.
+#[derive(Debug)]
+pub struct SampleQueue {
+    state: std::sync::Mutex<QueueState>,
+    space: tokio::sync::Notify,
+    /// Where a typed subscriber puts decoded sample buffers, if the backend
+    /// reuses them.
+    pub(crate) returns: std::sync::OnceLock<Arc<ReturnedBuffers>>,
+    /// Immediate delivery: the callback every sample goes to.
+    handler: std::sync::OnceLock<Handler>,
+}
+
+/// The callback of an immediate-delivery subscription (ORTE's IMMEDIATE
+/// mode, a DDS listener): called with the queue and one sample, in order,
+/// by one thread at a time; once with `None` when the connection has ended.
+struct Handler(std::sync::Mutex<HandlerFn>);
+
+type HandlerFn = Box<dyn FnMut(&SampleQueue, Option<RawSample>) + Send>;
+
+/// What a queue yields: a sample, or (once) the end of the connection.
+pub(crate) enum Popped {
+    Sample(RawSample),
+    End,
+}
+
+impl std::fmt::Debug for Handler {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Handler")
+    }
+}
+
+#[derive(Debug)]
+struct QueueState {
+    items: VecDeque<RawSample>,
+    cap: usize,
+    keep_last: bool,
+    dropped: u64,
+    closed: bool,
+    reported_close: bool,
+    receiver_gone: bool,
+    waker: Option<std::task::Waker>,
+}
+
+impl SampleQueue {
+    /// An empty queue with this policy.
+    pub fn new(policy: QueuePolicy) -> Arc<SampleQueue> {
+        let (cap, keep_last) = match policy {
+            QueuePolicy::KeepAll(n) => (n.max(1), false),
+            QueuePolicy::KeepLast(n) => (n.max(1), true),
+        };
+        Arc::new(SampleQueue {
+            state: std::sync::Mutex::new(QueueState {
+                items: VecDeque::new(),
+                cap,
+                keep_last,
+                dropped: 0,
+                closed: false,
+                reported_close: false,
+                receiver_gone: false,
+                waker: None,
+            }),
+            space: tokio::sync::Notify::new(),
+            returns: std::sync::OnceLock::new(),
+            handler: std::sync::OnceLock::new(),
+        })
+    }
+
+    /// Makes this an immediate-delivery queue: its samples go to `f` (once
+    /// set, for the queue's life) when [`SampleQueue::run_handler`] runs,
+    /// then `None` once after [`SampleQueue::close`].
+    pub fn set_handler(&self, f: impl FnMut(&SampleQueue, Option<RawSample>) + Send + 'static) {
+        let _ = self
+            .handler
+            .set(Handler(std::sync::Mutex::new(Box::new(f))));
+    }
+
+    /// Whether the queue has a handler (see [`SampleQueue::set_handler`]).
+    pub fn has_handler(&self) -> bool {
+        self.handler.get().is_some()
+    }
+
+    /// Hands every waiting sample to the queue's handler, in order, on the
+    /// calling thread; `false` if it has none. Backends that deliver
+    /// immediately ([`Capabilities::immediate_delivery`]) call it after
+    /// pushing, holding none of their own locks: the handler may publish.
+    /// A handler that panics loses that sample, not the subscription.
+    ///
+    /// [`Capabilities::immediate_delivery`]: crate::Capabilities::immediate_delivery
+    pub fn run_handler(&self) -> bool {
+        let Some(h) = self.handler.get() else {
+            return false;
+        };
+        let mut f = h.0.lock().unwrap_or_else(|p| p.into_inner());
+        while let Some(p) = self.try_pop() {
+            let s = match p {
+                Popped::Sample(s) => Some(s),
+                Popped::End => None,
+            };
+            let call = std::panic::AssertUnwindSafe(|| f(self, s));
+            if std::panic::catch_unwind(call).is_err() {
+                tracing::error!("a subscription callback panicked; its sample is lost");
+            }
+        }
+        true
+    }
+
+    /// Ready with `true` when a sample (or the end) waits, `false`
+    /// once nothing more will come to the handler (the end was taken, or
+    /// the subscription was dropped).
+    pub(crate) fn poll_waiting(&self, cx: &mut Context<'_>) -> Poll<bool> {
+        let mut st = self.state.lock().unwrap();
+        if st.receiver_gone || (st.closed && st.reported_close && st.items.is_empty()) {
+            return Poll::Ready(false);
+        }
+        if !st.items.is_empty() || st.closed {
+            return Poll::Ready(true);
+        }
+        st.waker = Some(cx.waker().clone());
+        Poll::Pending
+    }
+
+    /// Decoded sample buffers of this queue go back to `to` (once set, for
+    /// the queue's life).
+    pub(crate) fn return_buffers_to(&self, to: &Arc<ReturnedBuffers>) {
+        let _ = self.returns.set(to.clone());
+    }
+
+    /// A sample buffer the subscriber is done with.
+    pub(crate) fn give_back(&self, buf: Vec<u8>) {
+        // small buffers are the allocator's business
+        if buf.capacity() >= courier_wire::rtps::frag::SPARE_MIN {
+            if let Some(r) = self.returns.get() {
+                r.give(buf);
+            }
+        }
+    }
+
+    /// Adds a sample; `Err` gives it back when the queue is full under
+    /// keep-all (wait with [`SampleQueue::push_wait`]).
+    #[allow(clippy::result_large_err)] // handed straight back, never stored
+    pub fn push(&self, s: RawSample) -> Result<(), RawSample> {
+        // woken outside the lock: the woken task takes it at once, and on
+        // the pusher's CPU it may run before the pusher gets further
+        if let Some(w) = self.insert(s, false)? {
+            w.wake();
+        }
+        Ok(())
+    }
+
+    /// Adds a sample under the lock (beyond a keep-all capacity if `over`,
+    /// else giving it back); keep-last drops the oldest. Returns the waker
+    /// of a waiting receiver, for the caller to wake after the lock.
+    #[allow(clippy::result_large_err)] // handed straight back, never stored
+    fn insert(&self, s: RawSample, over: bool) -> Result<Option<std::task::Waker>, RawSample> {
+        let mut st = self.state.lock().unwrap();
+        if st.receiver_gone {
+            return Ok(None);
+        }
+        if st.items.len() >= st.cap {
+            if st.keep_last {
+                st.items.pop_front();
+                st.dropped += 1;
+            } else if !over {
+                return Err(s);
+            }
+        }
+        st.items.push_back(s);
+        Ok(st.waker.take())
+    }
+
+    /// Adds a sample, waiting for room.
+    pub async fn push_wait(&self, mut s: RawSample) {
+        loop {
+            let notified = self.space.notified();
+            match self.push(s) {
+                Ok(()) => return,
+                Err(back) => s = back,
+            }
+            notified.await;
+        }
+    }
+
+    /// Adds a sample even beyond the capacity (for backends that cannot
+    /// wait; they stop reading until [`SampleQueue::is_full`] turns false).
+    /// Keep-last still drops the oldest.
+    pub fn push_over(&self, s: RawSample) {
+        if let Some(w) = self.push_over_deferred(s) {
+            w.wake();
+        }
+    }
+
+    /// [`SampleQueue::push_over`], but the waker of a waiting receiver is
+    /// returned instead of woken: a backend that delivers a batch under
+    /// its own lock wakes receivers once, after the batch and the lock.
+    pub fn push_over_deferred(&self, s: RawSample) -> Option<std::task::Waker> {
+        // with `over` nothing is given back
+        self.insert(s, true).unwrap_or_default()
+    }
+
+    /// Whether a keep-all queue holds its capacity or more.
+    pub fn is_full(&self) -> bool {
+        let st = self.state.lock().unwrap();
+        !st.keep_last && !st.receiver_gone && st.items.len() >= st.cap
+    }
+
+    /// Resolves after the next sample is taken out (room may have appeared).
+    pub async fn space(&self) {
+        let n = self.space.notified();
+        if !self.is_full() {
+            return;
+        }
+        n.await
+    }
+
+    /// Counts a sample dropped by a filter of the backend (e.g. minimum separation).
+    pub fn count_dropped(&self) {
+        self.state.lock().unwrap().dropped += 1;
+    }
+
+    /// No more samples will come (the connection ended).
+    pub fn close(&self) {
+        let mut st = self.state.lock().unwrap();
+        st.closed = true;
+        if let Some(w) = st.waker.take() {
+            w.wake();
+        }
+    }
+
+    /// Whether the subscription was dropped by the user.
+    pub fn is_receiver_gone(&self) -> bool {
+        self.state.lock().unwrap().receiver_gone
+    }
+
+    /// Samples dropped by keep-last.
+    pub fn dropped(&self) -> u64 {
+        self.state.lock().unwrap().dropped
+    }
+
+    fn receiver_dropped(&self) {
+        let mut st = self.state.lock().unwrap();
+        st.receiver_gone = true;
+        st.items.clear();
+        let waker = st.waker.take();
+        drop(st);
+        self.space.notify_waiters();
+        if let Some(w) = waker {
+            w.wake(); // the task running a `listen` callback ends
+        }
+    }
+
+    /// The next sample, or the end once after close; `None` when nothing
+    /// waits.
+    pub(crate) fn try_pop(&self) -> Option<Popped> {
+        let mut st = self.state.lock().unwrap();
+        let was_full = st.items.len() >= st.cap;
+        let Some(s) = st.items.pop_front() else {
+            if st.closed && !st.reported_close {
+                st.reported_close = true;
+                return Some(Popped::End);
+            }
+            return None;
+        };
+        drop(st);
+        if was_full {
+            self.space.notify_waiters();
+        }
+        Some(Popped::Sample(s))
+    }
+
+    /// The next sample, then (once after close) the end, then `None`.
+    pub(crate) fn poll_pop(&self, cx: &mut Context<'_>) -> Poll<Option<Popped>> {
+        let mut st = self.state.lock().unwrap();
+        let was_full = st.items.len() >= st.cap;
+        if let Some(s) = st.items.pop_front() {
+            drop(st);
+            if was_full {
+                // only a full queue has anyone waiting for room
+                self.space.notify_waiters();
+            }
+            return Poll::Ready(Some(Popped::Sample(s)));
+        }
+        if st.closed {
+            if st.reported_close {
+                return Poll::Ready(None);
+            }
+            st.reported_close = true;
+            return Poll::Ready(Some(Popped::End));
+        }
+        st.waker = Some(cx.waker().clone());
+        Poll::Pending
+    }
+}
+
+/// Raw samples of one subscription (`Session::subscribe_raw`); dropping it
+/// unsubscribes.
+#[derive(Debug)]
+pub struct RawSubscriber {
+    pub(crate) queue: Arc<SampleQueue>,
+    /// Unsubscribes when dropped (after the queue is marked abandoned).
+    _handle: Owned,
+}
+
+impl RawSubscriber {
+    pub(crate) fn new(queue: Arc<SampleQueue>, handle: Owned) -> Self {
+        RawSubscriber {
+            queue,
+            _handle: handle,
+        }
+    }
+
+    /// The next sample; `None` once the connection has ended.
+    pub async fn recv(&mut self) -> Option<RawSample> {
+        match std::future::poll_fn(|cx| self.queue.poll_pop(cx)).await? {
+            Popped::Sample(s) => Some(s),
+            Popped::End => None,
+        }
+    }
+
+    /// Pulled delivery (ORTE's `ORTEAppSubscriptionPull`): the next sample
+    /// if one is waiting, without waiting. After the end of the connection,
+    /// `None` forever ([`RawSubscriber::recv`] tells the end apart).
+    pub fn try_recv(&mut self) -> Option<RawSample> {
+        match self.queue.try_pop()? {
+            Popped::Sample(s) => Some(s),
+            Popped::End => None,
+        }
+    }
+
+    /// Samples dropped by a keep-last policy or a backend filter, and (IPC)
+    /// messages whose body did not hold together.
+    pub fn dropped(&self) -> u64 {
+        self.queue.dropped()
+    }
+}
+
+impl Drop for RawSubscriber {
+    fn drop(&mut self) {
+        self.queue.receiver_dropped();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn buffers_waiting_to_go_back_are_bounded() {
+        let returns = ReturnedBuffers::default();
+        for _ in 0..10 {
+            returns.give(Vec::with_capacity(1 << 20));
+        }
+        let mut n = 0;
+        returns.take(|_| n += 1);
+        assert_eq!(n, 4, "4 MiB at most");
+        for _ in 0..100 {
+            returns.give(Vec::with_capacity(8192));
+        }
+        returns.take(|_| n += 1);
+        assert_eq!(n, 4 + ReturnedBuffers::MAX);
+    }
+}

@@ -1,0 +1,206 @@
+//! Queries and serving: [`Query`], [`Request`], [`Requests`] and their raw forms.
+
+use crate::error::{OpenError, PublishError, QueryError};
+use crate::qos::TypeInfo;
+use crate::reply::Responder;
+use crate::session::{decode, encode, Encoding, Owned, Session};
+use crate::subscriber::RecvError;
+use crate::topics::Definition;
+use courier_wire::{ipc, IpcMessage};
+use futures::Stream;
+use std::marker::PhantomData;
+use std::pin::Pin;
+use std::task::{Context, Poll};
+use std::time::Duration;
+use tokio::sync::mpsc;
+
+/// A reply as a backend returns it: reply message name, bytes, byte order.
+pub type RawReply = (String, Vec<u8>, ipc::ByteOrder);
+
+/// A request delivered to a server, with the way to answer it.
+pub struct RawRequest {
+    /// Query message name.
+    pub msg: String,
+    /// The request bytes.
+    pub data: Vec<u8>,
+    /// Byte order of `data`.
+    pub order: ipc::ByteOrder,
+    /// Sends the reply (reply message name, bytes); may be called later and
+    /// from any task (IPC_delayResponse). Dropping it unanswered declines
+    /// the request.
+    pub respond: Responder,
+}
+
+impl std::fmt::Debug for RawRequest {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RawRequest")
+            .field("msg", &self.msg)
+            .field("data", &self.data.len())
+            .finish_non_exhaustive()
+    }
+}
+
+/// A query that could not start: opening what it needs failed.
+pub(crate) fn open_failed(msg: &str, e: OpenError) -> QueryError {
+    match e {
+        OpenError::Disconnected(_) => QueryError::Disconnected(msg.to_string()),
+        source => QueryError::Open {
+            msg: msg.to_string(),
+            source,
+        },
+    }
+}
+
+/// A query being built; `.await` it.
+#[derive(Debug)]
+pub struct Query<'a, Resp> {
+    pub(crate) session: &'a Session,
+    pub(crate) msg: &'a str,
+    pub(crate) req: TypeInfo,
+    pub(crate) data: Vec<u8>,
+    pub(crate) timeout: Duration,
+    /// The query message's type check, as [`Publish`]'s.
+    pub(crate) check: Result<Option<Definition>, OpenError>,
+    pub(crate) _t: PhantomData<fn() -> Resp>,
+}
+
+impl<'a, Resp: IpcMessage + 'a> Query<'a, Resp> {
+    /// Bounds the wait for the reply.
+    pub fn timeout(mut self, d: Duration) -> Self {
+        self.timeout = d;
+        self
+    }
+
+    async fn run(self) -> Result<Resp, QueryError> {
+        let refused = |e: OpenError| open_failed(self.msg, e);
+        if let Some(def) = self.check.map_err(refused)? {
+            self.session
+                .define_shared(self.msg, def)
+                .await
+                .map_err(refused)?;
+        }
+        let client = self
+            .session
+            .client(self.msg, &self.req, &TypeInfo::of::<Resp>())
+            .await
+            .map_err(refused)?;
+        let (reply, data, order) = self
+            .session
+            .backend
+            .query(client, self.data, self.timeout)
+            .await?;
+        decode::<Resp>(self.session.enc(), &data, order).map_err(|detail| QueryError::Decode {
+            msg: self.msg.to_string(),
+            reply,
+            ty: std::any::type_name::<Resp>(),
+            detail,
+        })
+    }
+}
+
+impl<'a, Resp: IpcMessage + 'a> std::future::IntoFuture for Query<'a, Resp> {
+    type Output = Result<Resp, QueryError>;
+    type IntoFuture = Pin<Box<dyn std::future::Future<Output = Self::Output> + Send + 'a>>;
+
+    fn into_future(self) -> Self::IntoFuture {
+        Box::pin(self.run())
+    }
+}
+
+/// A request to a [`Session::serve`] server.
+pub struct Request<Req, Resp> {
+    /// The request.
+    pub value: Req,
+    reply_msg: String,
+    enc: Encoding,
+    respond: Option<Responder>,
+    _t: PhantomData<fn(Resp)>,
+}
+
+impl<Req: std::fmt::Debug, Resp> std::fmt::Debug for Request<Req, Resp> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Request")
+            .field("value", &self.value)
+            .finish_non_exhaustive()
+    }
+}
+
+impl<Req, Resp: IpcMessage> Request<Req, Resp> {
+    /// Answers the request (now or later, from any task); resolves once
+    /// the reply is sent, or with why it could not be.
+    ///
+    /// A `Request` dropped without a reply is declined: the server keeps
+    /// receiving (on IPC, central frees the module's capacity slot), and
+    /// the asker gets no reply and runs into its timeout.
+    pub async fn reply(mut self, resp: &Resp) -> Result<(), PublishError> {
+        let r = self.respond.take().ok_or(PublishError::AlreadyAnswered)?;
+        r.reply(&self.reply_msg, encode(self.enc, resp)).await
+    }
+}
+
+/// Raw requests of [`Session::serve_raw`]; dropping it stops serving.
+#[derive(Debug)]
+pub struct RawRequests {
+    pub(crate) rx: mpsc::Receiver<RawRequest>,
+    pub(crate) _handle: Owned,
+}
+
+impl RawRequests {
+    /// The next request; `None` once the connection has ended.
+    pub async fn recv(&mut self) -> Option<RawRequest> {
+        self.rx.recv().await
+    }
+}
+
+impl Stream for RawRequests {
+    type Item = RawRequest;
+    fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<RawRequest>> {
+        self.rx.poll_recv(cx)
+    }
+}
+
+/// The stream of requests of [`Session::serve`].
+#[derive(Debug)]
+pub struct Requests<Req, Resp> {
+    pub(crate) rx: mpsc::Receiver<RawRequest>,
+    /// Stops serving when dropped.
+    pub(crate) _handle: Owned,
+    /// The end (`Err(Disconnected)`) was yielded.
+    pub(crate) ended: bool,
+    pub(crate) reply_msg: String,
+    pub(crate) enc: Encoding,
+    pub(crate) _t: PhantomData<fn() -> (Req, Resp)>,
+}
+
+impl<Req: IpcMessage, Resp: IpcMessage> Stream for Requests<Req, Resp> {
+    type Item = Result<Request<Req, Resp>, RecvError>;
+
+    fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Self::Item>> {
+        match self.rx.poll_recv(cx) {
+            Poll::Ready(Some(r)) => {
+                let v = decode::<Req>(self.enc, &r.data, r.order);
+                Poll::Ready(Some(match v {
+                    Ok(value) => Ok(Request {
+                        value,
+                        reply_msg: self.reply_msg.clone(),
+                        enc: self.enc,
+                        respond: Some(r.respond),
+                        _t: PhantomData,
+                    }),
+                    Err(e) => Err(RecvError::Decode {
+                        msg: r.msg,
+                        ty: std::any::type_name::<Req>(),
+                        detail: e,
+                    }),
+                }))
+            }
+            // the backend closed the channel: the session is gone
+            Poll::Ready(None) if !self.ended => {
+                self.ended = true;
+                Poll::Ready(Some(Err(RecvError::Disconnected)))
+            }
+            Poll::Ready(None) => Poll::Ready(None),
+            Poll::Pending => Poll::Pending,
+        }
+    }
+}
