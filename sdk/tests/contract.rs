@@ -316,3 +316,48 @@ async fn a_dropped_request_is_declined_and_the_server_keeps_receiving() {
     server.close().await;
     c.shutdown().await;
 }
+
+/// Two publications of one message in one session share its definition in
+/// central, and both reach the subscriber.
+#[tokio::test]
+async fn two_ipc_publications_of_one_message_share_its_definition() {
+    let (c, url) = central().await;
+    let a = session(&url, "a").await;
+    let b = session(&url, "b").await;
+    let mut sub = b.subscribe::<i32>("shared").await.unwrap();
+    let p1 = a.publisher::<i32>("shared").build().await.unwrap();
+    let p2 = a.publisher::<i32>("shared").build().await.unwrap();
+    common::await_handlers(&a, "shared", 1).await;
+    p1.publish(&1).await.unwrap();
+    p2.publish(&2).await.unwrap();
+    drop(p1);
+    p2.publish(&3).await.unwrap();
+    for want in [1, 2, 3] {
+        let got = tokio::time::timeout(T, sub.next()).await.unwrap().unwrap();
+        assert_eq!(got.unwrap().value, want);
+    }
+    a.close().await;
+    b.close().await;
+    c.shutdown().await;
+}
+
+/// Dropping the stream of `serve` unsubscribes its handler in central.
+#[tokio::test]
+async fn a_dropped_requests_stream_unsubscribes() {
+    let (c, url) = central().await;
+    let server = session(&url, "server").await;
+    let client = session(&url, "client").await;
+    let reqs = server.serve::<Ask, Sum>("add", "").await.unwrap();
+    common::await_handlers(&client, "add", 1).await;
+    drop(reqs);
+    tokio::time::timeout(T, async {
+        while client.num_handlers("add").await.unwrap() != 0 {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    })
+    .await
+    .expect("the handler is gone from central");
+    client.close().await;
+    server.close().await;
+    c.shutdown().await;
+}
