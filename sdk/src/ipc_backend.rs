@@ -14,6 +14,7 @@ use crate::backend::{
     Backend, Capabilities, ClientId, Handle, IpcControl, PubId, ServiceId, SubId,
 };
 use crate::busy_poll::BusyPoll;
+use crate::direct_link::LinkWriter;
 use crate::error::{ControlError, Failure, OpenError, PublishError};
 use crate::hub::{Hub, Listener};
 use crate::qos::{PublicationQos, SubscriptionQos, TypeInfo};
@@ -228,6 +229,9 @@ enum Cmd {
     LinkConnected(LinkId, Option<Box<dyn IpcStream>>),
     /// Direct mode: bytes read from a link (empty = closed).
     LinkData(LinkId, Vec<u8>),
+    /// A congested link's writer has drained to its limit (the link, for
+    /// the logs).
+    LinkDrained(LinkId),
     /// Subscribe handler-count changes of a message.
     WatchHandlers(String, Done<Result<(), ControlError>>),
     Close(Done<()>),
@@ -589,6 +593,9 @@ impl IpcBackend {
             closing: None,
             watching_modules: false,
             links: HashMap::new(),
+            touched: Vec::new(),
+            published: Vec::new(),
+            parked: Vec::new(),
         };
         if let Some(l) = listener {
             spawn_accept(l, tx.clone());
@@ -908,8 +915,18 @@ struct Driver {
     counts: HashMap<OpId, Done<Result<i32, ControlError>>>,
     closing: Option<Done<()>>,
     watching_modules: bool,
-    links: HashMap<LinkId, tokio::io::WriteHalf<Box<dyn IpcStream>>>,
+    links: HashMap<LinkId, LinkWriter>,
+    /// Links given frames since the publishes below were last resolved.
+    touched: Vec<LinkId>,
+    /// Publishes the module has sent, resolved once their frames are queued
+    /// (see [`Driver::resolve_published`]).
+    published: Vec<PublishDone>,
+    /// Publishes waiting for these congested links to drain.
+    parked: Vec<(PublishDone, Vec<LinkId>)>,
 }
+
+/// Where a publish's result goes.
+type PublishDone = Done<Result<(), PublishError>>;
 
 /// The IPC side of one query delivery: answered or declined through the
 /// driver.
@@ -978,6 +995,7 @@ impl Driver {
             if self.flush().await.is_err() {
                 break;
             }
+            self.resolve_published();
             if self.closing.is_some() && !self.conn.is_waiting() {
                 break;
             }
@@ -1021,14 +1039,68 @@ impl Driver {
             out.push(b);
         }
         write_all_vectored(&mut self.io, &out).await?;
+        // never waits: each link has a writer task of its own
         while let Some((link, b)) = self.conn.poll_direct_transmit() {
-            if let Some(w) = self.links.get_mut(&link) {
-                if w.write_all(&b).await.is_err() {
+            if let Some(w) = self.links.get(&link) {
+                if w.send(b) {
+                    if !self.touched.contains(&link) {
+                        self.touched.push(link);
+                    }
+                } else {
                     self.links.remove(&link);
                 }
             }
         }
         Ok(())
+    }
+
+    /// Resolves the publishes the module has sent, but for those whose
+    /// frames went to a link that is congested now: they wait until it
+    /// drains (back-pressure on the publishers of that link alone).
+    fn resolve_published(&mut self) {
+        let congested: Vec<LinkId> = self
+            .touched
+            .drain(..)
+            .filter(|l| self.links.get(l).is_some_and(LinkWriter::congested))
+            .collect();
+        for d in self.published.drain(..) {
+            if congested.is_empty() {
+                let _ = d.send(Ok(()));
+            } else {
+                self.parked.push((d, congested.clone()));
+            }
+        }
+    }
+
+    /// Lets go the parked publishes whose links are all uncongested (or
+    /// gone) now.
+    fn release_parked(&mut self) {
+        let links = &self.links;
+        for (_, ls) in self.parked.iter_mut() {
+            ls.retain(|l| links.get(l).is_some_and(LinkWriter::congested));
+        }
+        let (done, waiting): (Vec<_>, Vec<_>) = std::mem::take(&mut self.parked)
+            .into_iter()
+            .partition(|(_, ls)| ls.is_empty());
+        self.parked = waiting;
+        for (d, _) in done {
+            let _ = d.send(Ok(()));
+        }
+    }
+
+    /// The writer task of a new direct link.
+    fn link_writer(&self, link: LinkId, w: tokio::io::WriteHalf<Box<dyn IpcStream>>) -> LinkWriter {
+        let (drained, failed) = (self.cmd_tx.clone(), self.cmd_tx.clone());
+        LinkWriter::spawn(
+            w,
+            move || {
+                let _ = drained.send(Cmd::LinkDrained(link));
+            },
+            move || {
+                // an empty read is how a link's end reaches the driver
+                let _ = failed.send(Cmd::LinkData(link, Vec::new()));
+            },
+        )
     }
 
     /// Reads a direct link on its own task, feeding the driver.
@@ -1200,11 +1272,13 @@ impl Driver {
             Cmd::LinkAccepted(stream) => {
                 let link = self.conn.accept_direct();
                 let (r, w) = tokio::io::split(stream);
+                let w = self.link_writer(link, w);
                 self.links.insert(link, w);
                 self.spawn_link_reader(link, r);
             }
             Cmd::LinkConnected(link, Some(stream)) => {
                 let (r, w) = tokio::io::split(stream);
+                let w = self.link_writer(link, w);
                 self.links.insert(link, w);
                 self.spawn_link_reader(link, r);
                 self.conn.direct_link_up(link);
@@ -1213,10 +1287,16 @@ impl Driver {
             Cmd::LinkData(link, bytes) => {
                 if bytes.is_empty() {
                     self.links.remove(&link);
+                    self.release_parked();
                 } else if let Err(e) = self.conn.receive_direct(link, &bytes) {
                     tracing::warn!("direct link dropped: {e}");
                     self.links.remove(&link);
+                    self.release_parked();
                 }
+            }
+            Cmd::LinkDrained(link) => {
+                tracing::trace!(?link, "direct link drained");
+                self.release_parked();
             }
             Cmd::WatchModules => {
                 if !self.watching_modules {
@@ -1268,8 +1348,9 @@ impl Driver {
                     }
                 }
                 Event::Published { op } => {
+                    // resolved once its frames are queued (direct links)
                     if let Some(d) = self.publishes.remove(&op) {
-                        let _ = d.send(Ok(()));
+                        self.published.push(d);
                     }
                 }
                 Event::PublishDropped { op, msg } => {
@@ -1535,14 +1616,17 @@ impl Driver {
                 self.servers.retain(|_, s| Handle::Service(s.id) != h);
             }
             Cmd::CancelQuery(_) | Cmd::Ack(_) | Cmd::Decline(_) | Cmd::LinkAccepted(_) => {}
-            Cmd::LinkConnected(..) | Cmd::LinkData(..) => {}
+            Cmd::LinkConnected(..) | Cmd::LinkData(..) | Cmd::LinkDrained(_) => {}
         }
     }
 
     /// Operations waiting for central fail at once.
     fn fail_pending(&mut self) {
         let addr = &self.addr;
-        for (_, d) in self.publishes.drain() {
+        let waiting = self.publishes.drain().map(|(_, d)| d);
+        let sent = self.published.drain(..);
+        let parked = self.parked.drain(..).map(|(d, _)| d);
+        for d in waiting.chain(sent).chain(parked) {
             let _ = d.send(Err(PublishError::Disconnected(addr.clone())));
         }
         for (_, (msg, d)) in self.queries.drain() {

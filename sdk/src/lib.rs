@@ -113,6 +113,7 @@ pub mod busy_poll;
 #[cfg(feature = "central")]
 #[cfg_attr(docsrs, doc(cfg(feature = "central")))]
 pub mod central;
+mod direct_link;
 mod error;
 pub mod event;
 pub mod hub;
