@@ -9,7 +9,6 @@ use std::time::{Duration, Instant};
 
 use courier::ipc::module::{Connection, Event, ModuleConfig};
 use courier::IpcMessage;
-use courier_broker::CentralServer;
 use futures::StreamExt;
 
 mod common;
@@ -104,7 +103,7 @@ fn stuck_module(central: std::net::SocketAddr, msg: &str) -> Stuck {
 async fn a_direct_receiver_that_stops_reading_holds_up_only_the_publishes_to_it() {
     let mut cfg = courier_broker::Config::default();
     cfg.direct = true;
-    let (c, url) = common::central_with(CentralServer::builder().config(cfg)).await;
+    let (c, url) = common::central_with(cfg, |b| b).await;
     // the messages are defined before anybody subscribes them
     let publisher = common::connect(&url, "publisher").await;
     publisher.define::<Blob>("to_both").await.unwrap();

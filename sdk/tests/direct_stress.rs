@@ -11,7 +11,6 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use courier::IpcMessage;
-use courier_broker::CentralServer;
 use futures::StreamExt;
 
 mod common;
@@ -85,7 +84,7 @@ async fn every_direct_query_is_answered_under_load() {
     let queries = env("DIRECT_STRESS_QUERIES", 300);
     let mut cfg = courier_broker::Config::default();
     cfg.direct = true;
-    let (c, url) = common::central_with(CentralServer::builder().config(cfg)).await;
+    let (c, url) = common::central_with(cfg, |b| b).await;
     let a = common::connect(&url, "stress-a").await;
     let b = common::connect(&url, "stress-b").await;
     let _hog = Hog::start(2);

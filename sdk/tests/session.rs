@@ -633,7 +633,8 @@ async fn reconnects_and_resubscribes_after_central_restarts() {
 #[tokio::test(flavor = "current_thread")]
 async fn busy_polling_answers_queries_and_goes_quiet_when_idle() {
     let window = Duration::from_millis(20);
-    let (c, url) = common::central_with(CentralServer::builder().busy_poll(window)).await;
+    let (c, url) =
+        common::central_with(courier_broker::Config::default(), |b| b.busy_poll(window)).await;
     let connect = |name: &'static str| {
         Session::builder(url.clone())
             .name(name)

@@ -146,22 +146,21 @@ pub async fn ended_by_central(
     assert!(since.elapsed() < Duration::from_secs(5), "failed at once");
 }
 
-/// Courier's central from `b`, embedded on a free port of 127.0.0.1, and
-/// its `ipc://` URL. With `CENTRAL_LOG` set, its message log goes to
-/// stderr (which replaces `b`'s configuration).
+/// Courier's central with configuration `cfg`, built further by `more`,
+/// embedded on a free port of 127.0.0.1, and its `ipc://` URL. With
+/// `CENTRAL_LOG` set, its message log (`-lmsr`) goes to stderr.
 pub async fn central_with(
-    mut b: courier_broker::Builder,
+    mut cfg: courier_broker::Config,
+    more: impl FnOnce(courier_broker::Builder) -> courier_broker::Builder,
 ) -> (courier_broker::CentralHandle, String) {
+    let mut b = courier_broker::CentralServer::builder();
     if std::env::var_os("CENTRAL_LOG").is_some() {
-        let mut cfg = courier_broker::Config::default();
         cfg.terminal_log = courier_broker::LogOptions::parse("msr", false).unwrap();
-        b = b
-            .config(cfg)
-            .log_sink(courier_broker::LogSink::new(|_, l: &str| {
-                eprintln!("central| {l}")
-            }));
+        b = b.log_sink(courier_broker::LogSink::new(|_, l: &str| {
+            eprintln!("central| {l}")
+        }));
     }
-    let c = b
+    let c = more(b.config(cfg))
         .bind("127.0.0.1".parse().unwrap())
         .port(0)
         .spawn()
@@ -173,7 +172,7 @@ pub async fn central_with(
 
 /// Courier's central with C's defaults (see [`central_with`]).
 pub async fn central() -> (courier_broker::CentralHandle, String) {
-    central_with(courier_broker::CentralServer::builder()).await
+    central_with(courier_broker::Config::default(), |b| b).await
 }
 
 /// A session named `name` on `url`, connected within the bound.
