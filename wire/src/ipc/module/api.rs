@@ -154,27 +154,22 @@ impl Connection {
     /// direct link nothing is sent. (C has no such call: a C handler that
     /// never responds keeps the slot.)
     pub fn decline(&mut self, delivery: DeliveryId) -> Result<(), Error> {
-        self.check_open()?;
-        match self.unacked.get(&delivery).copied() {
-            Some((DeliveryKind::Query, dispatch, link)) => {
-                self.unacked.remove(&delivery);
-                if link.is_none() {
-                    self.send_success(dispatch);
-                }
-                Ok(())
-            }
-            _ => Err(Error::UnknownHandle(delivery)),
-        }
+        self.finish(delivery, DeliveryKind::Query)
     }
 
     /// Sends the Success ack of a broadcast delivery ("handler returned"),
     /// freeing a capacity slot in central.
     pub fn ack(&mut self, delivery: DeliveryId) -> Result<(), Error> {
+        self.finish(delivery, DeliveryKind::Broadcast)
+    }
+
+    /// Forgets delivery `delivery` of `kind` and sends its Success to
+    /// central (none on direct links, §8).
+    fn finish(&mut self, delivery: DeliveryId, kind: DeliveryKind) -> Result<(), Error> {
         self.check_open()?;
         match self.unacked.get(&delivery).copied() {
-            Some((DeliveryKind::Broadcast, dispatch, link)) => {
+            Some((k, dispatch, link)) if k == kind => {
                 self.unacked.remove(&delivery);
-                // No Success on direct links (§8).
                 if link.is_none() {
                     self.send_success(dispatch);
                 }
