@@ -118,6 +118,7 @@ mod error;
 pub mod event;
 pub mod hub;
 pub mod ipc_backend;
+mod mailbox;
 mod publisher;
 pub mod qos;
 mod queue;

@@ -110,7 +110,7 @@ thread_local! {
 pub(super) struct Core {
     pub(super) st: State,
     pub(super) out: Out,
-    pub(super) cmd: mpsc::UnboundedReceiver<Cmd>,
+    pub(super) cmd: crate::mailbox::Inbox<Cmd>,
     /// The driver's deadlines (see [`timer`]).
     pub(super) timer: timer::DriverTimer,
     /// A datagram that found the send buffer full: it goes first.

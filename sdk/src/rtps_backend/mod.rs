@@ -76,6 +76,7 @@ use crate::backend::{
 };
 use crate::busy_poll::BusyPoll;
 use crate::error::{ControlError, Failure, OpenError, PublishError};
+use crate::mailbox::{mailbox, Mailbox};
 use crate::qos::{InstanceState, PublicationQos, SubscriptionQos, TypeInfo};
 use crate::session::{
     ConnectError, Encoding, QueryError, RawReply, RawRequest, SampleQueue, SessionEvent,
@@ -124,7 +125,7 @@ pub struct RtpsBackend {
     /// The participant, shared with the driver task (and the receive
     /// thread): for writes that do not wait.
     shared: Arc<Shared>,
-    cmd: mpsc::UnboundedSender<Cmd>,
+    cmd: Mailbox<Cmd>,
     /// The open publications, with their topics: a write to one of them
     /// cannot be refused, so it need not wait.
     published: Mutex<HashMap<PubId, Arc<str>>>,
@@ -185,7 +186,7 @@ impl RtpsBackend {
         ));
         let index = socks.index;
         let now = Instant::now();
-        let (tx, rx) = mpsc::unbounded_channel();
+        let (tx, rx) = mailbox(crate::mailbox::CAPACITY);
         let listeners = Listeners::new(crate::hub::DEFAULT_CAPACITY);
         let responder = tx.downgrade();
         let st = State::new(
@@ -310,9 +311,10 @@ impl RtpsBackend {
         let Ok(permit) = self.reserve(p, data.len()) else {
             return Err(data);
         };
+        // bounded by the write budget its permit is part of
         Ok(self
             .cmd
-            .send(Cmd::queued_write(p, data, key_hash, permit))
+            .post(Cmd::queued_write(p, data, key_hash, permit))
             .map_err(|_| disconnected()))
     }
 
@@ -357,9 +359,10 @@ impl RtpsBackend {
                 .acquire_many_owned(queued_units(data.len()))
                 .await
                 .map_err(|_| disconnected::<PublishError>())?;
+            // bounded by the write budget its permit is part of
             return self
                 .cmd
-                .send(Cmd::Write {
+                .post(Cmd::Write {
                     publication,
                     kind: ChangeKind::Alive,
                     data,
@@ -382,7 +385,7 @@ impl RtpsBackend {
 
     async fn ask<T, E: Failure>(&self, make: impl FnOnce(Reply<T, E>) -> Cmd) -> Result<T, E> {
         let (tx, rx) = oneshot::channel();
-        self.cmd.send(make(tx)).map_err(|_| disconnected())?;
+        self.cmd.send(make(tx)).await.map_err(|_| disconnected())?;
         rx.await.map_err(|_| disconnected())?
     }
 }
@@ -596,6 +599,7 @@ impl Backend for RtpsBackend {
                 timeout,
                 reply: tx,
             })
+            .await
             .map_err(|_| gone())?;
         rx.await.map_err(|_| gone())?
     }
@@ -605,7 +609,8 @@ impl Backend for RtpsBackend {
             // writes that do not wait are refused from now on
             self.published().remove(&p);
         }
-        let _ = self.cmd.send(Cmd::CloseHandle(handle));
+        // one per handle
+        let _ = self.cmd.post(Cmd::CloseHandle(handle));
     }
 
     fn events(&self) -> crate::hub::Listener<SessionEvent> {
@@ -614,7 +619,7 @@ impl Backend for RtpsBackend {
 
     async fn close(&self) {
         let (tx, rx) = oneshot::channel();
-        if self.cmd.send(Cmd::Close { reply: tx }).is_ok() {
+        if self.cmd.send(Cmd::Close { reply: tx }).await.is_ok() {
             let _ = rx.await;
         }
     }
@@ -636,6 +641,7 @@ impl DdsControl for RtpsBackend {
             .send(Cmd::Watch {
                 topic: topic.into(),
             })
+            .await
             .map_err(|_| disconnected())
     }
 
@@ -696,7 +702,7 @@ impl Drop for RtpsBackend {
     fn drop(&mut self) {
         // the driver leaves the domain (disposes everything) and ends
         let (tx, _rx) = oneshot::channel();
-        let _ = self.cmd.send(Cmd::Close { reply: tx });
+        let _ = self.cmd.post(Cmd::Close { reply: tx });
     }
 }
 

@@ -124,7 +124,7 @@ pub(super) struct State {
     clients: HashMap<ClientId, (String, courier_wire::dds::ClientId)>,
     queries: HashMap<QueryId, Query>,
     /// For responders: replies come back to the driver as commands.
-    responder: mpsc::WeakUnboundedSender<Cmd>,
+    responder: crate::mailbox::WeakMailbox<Cmd>,
     /// Sample buffers subscribers have decoded, for the participant to reuse.
     pub(super) returns: Arc<ReturnedBuffers>,
     /// Immediate-delivery subscriptions that got samples since they were
@@ -141,7 +141,7 @@ impl State {
         d: Domain,
         name: &str,
         listeners: Listeners,
-        responder: mpsc::WeakUnboundedSender<Cmd>,
+        responder: crate::mailbox::WeakMailbox<Cmd>,
         now: Instant,
     ) -> Self {
         State {
@@ -900,7 +900,8 @@ impl State {
         let cmd = self.responder.clone();
         let respond = crate::session::Responder::from_fn(move |_reply_msg, data| {
             let tx = cmd.upgrade().ok_or_else(disconnected::<PublishError>)?;
-            tx.send(Cmd::Respond {
+            // one reply per request
+            tx.post(Cmd::Respond {
                 service,
                 data,
                 request,
