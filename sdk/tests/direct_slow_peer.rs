@@ -188,3 +188,67 @@ async fn a_direct_receiver_that_stops_reading_holds_up_only_the_publishes_to_it(
     good.close().await;
     c.shutdown().await;
 }
+
+/// The receiving side of the same: a Courier subscriber whose
+/// application stops taking samples keeps only a bounded amount of what its
+/// direct link brings (the link's reader waits for the subscriber's queue,
+/// so TCP holds the sender back), and once the application reads again it
+/// gets every message, in order. Before the bound, the receiving session
+/// read the link to its end, parking each sample it could not queue in a
+/// task of its own: the sender never waited, and memory grew with the
+/// flood.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_subscriber_that_stops_reading_holds_back_its_direct_sender_and_loses_nothing() {
+    const N: usize = 1024;
+    let mut cfg = courier_broker::Config::default();
+    cfg.direct = true;
+    let (c, url) = common::central_with(cfg, |b| b).await;
+    let publisher = common::connect(&url, "publisher").await;
+    publisher.define::<Blob>("flood").await.unwrap();
+    let reader = common::connect(&url, "reader").await;
+    let mut sub = reader
+        .subscriber::<Blob>("flood")
+        .queue(courier::QueuePolicy::KeepAll(4))
+        .build()
+        .await
+        .unwrap();
+    common::await_handlers(&publisher, "flood", 1).await;
+
+    // 16 MiB: far more than the socket buffers, the sender's link queue
+    // (1 MiB) and the reader's bound together
+    let flood = tokio::spawn({
+        let p = publisher.clone();
+        async move {
+            for i in 0..N {
+                let mut data = vec![7; 64 << 10];
+                data[..4].copy_from_slice(&(i as u32).to_le_bytes());
+                let blob = Blob { n: 64 << 10, data };
+                p.publish("flood", &blob).await.unwrap();
+            }
+        }
+    });
+    // Time for the flood to go through if nothing held it back (16 MiB on
+    // loopback is well under a second's work): a wait, not a measured bound.
+    let mut flood = flood;
+    let finished = tokio::time::timeout(Duration::from_secs(3), &mut flood).await;
+    assert!(
+        finished.is_err(),
+        "the sender waits while the subscriber does not read (back-pressure)"
+    );
+    for i in 0..N {
+        let got = tokio::time::timeout(T, sub.next())
+            .await
+            .unwrap_or_else(|_| panic!("message {i} of {N} arrives"))
+            .expect("the stream goes on")
+            .unwrap();
+        let seq = u32::from_le_bytes(got.value.data[..4].try_into().unwrap());
+        assert_eq!(seq as usize, i, "every message, in order");
+    }
+    tokio::time::timeout(T, flood)
+        .await
+        .expect("the sender finishes once the subscriber reads")
+        .unwrap();
+    publisher.close().await;
+    reader.close().await;
+    c.shutdown().await;
+}

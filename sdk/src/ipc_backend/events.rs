@@ -1,0 +1,187 @@
+//! What the module state machine reports, handed out: deliveries to
+//! subscribers and servers, operation results, central's notices.
+
+use super::*;
+
+impl Driver {
+    pub(super) fn broadcast(&self, e: SessionEvent) {
+        self.events.send(e);
+    }
+
+    pub(super) fn drain_events(&mut self) {
+        while let Some(e) = self.conn.poll_event() {
+            match e {
+                Event::Delivery {
+                    delivery,
+                    handler,
+                    msg,
+                    kind,
+                    order,
+                    data,
+                    ..
+                } => self.deliver(delivery, handler, msg, kind, order, data),
+                Event::Reply {
+                    query,
+                    reply_msg,
+                    order,
+                    data,
+                } => {
+                    self.query_ops.retain(|_, op| *op != query);
+                    if let Some((_, d)) = self.queries.remove(&query) {
+                        let _ = d.send(Ok((reply_msg, data, order)));
+                    }
+                }
+                Event::Published { op } => {
+                    // resolved once its frames are queued (direct links)
+                    if let Some(d) = self.publishes.remove(&op) {
+                        self.published.push(d);
+                    }
+                }
+                Event::PublishDropped { op, msg } => {
+                    // As C: a broadcast nobody subscribes to is not sent.
+                    tracing::debug!(%msg, "not sent: central lists no subscriber for it");
+                    if let Some(d) = self.publishes.remove(&op) {
+                        let _ = d.send(Ok(()));
+                    }
+                }
+                Event::Replied { delivery } => {
+                    if let Some((_, d)) = self.replies.remove(&delivery) {
+                        let _ = d.send(Ok(()));
+                    }
+                }
+                Event::ReplyFailed { delivery, error } => {
+                    // declined by the module: this module keeps receiving
+                    match self.replies.remove(&delivery) {
+                        Some((reply, d)) => {
+                            let _ = d.send(Err(refused(&reply)(error)));
+                        }
+                        None => tracing::warn!("a reply was declined: {error}"),
+                    }
+                }
+                Event::OpFailed { op, error } => {
+                    if let Some(d) = self.publishes.remove(&op) {
+                        let _ = d.send(Err(refused("a publish")(error.clone())));
+                    }
+                    if let Some((msg, d)) = self.queries.remove(&op) {
+                        let source = refused(&msg)(error.clone());
+                        let _ = d.send(Err(query_refused(msg, source)));
+                    }
+                    if let Some(d) = self.bools.remove(&op) {
+                        let _ = d.send(Err(refused("is_module_connected")(error.clone())));
+                    }
+                    if let Some(d) = self.counts.remove(&op) {
+                        let _ = d.send(Err(refused("num_handlers")(error)));
+                    }
+                }
+                Event::ModuleConnected { op, connected } => {
+                    if let Some(d) = self.bools.remove(&op) {
+                        let _ = d.send(Ok(connected));
+                    }
+                }
+                Event::NumHandlers { op, count } => {
+                    if let Some(d) = self.counts.remove(&op) {
+                        let _ = d.send(Ok(count));
+                    }
+                }
+                Event::ModuleConnect(m) => self.broadcast(SessionEvent::ModuleConnected(m)),
+                Event::ModuleDisconnect(m) => self.broadcast(SessionEvent::ModuleDisconnected(m)),
+                Event::HandlerChange { msg, count } => {
+                    self.broadcast(SessionEvent::HandlersChanged { msg, count })
+                }
+                Event::Undeliverable {
+                    handler,
+                    msg,
+                    kind,
+                    error,
+                } => {
+                    // Counted where the user looks for lost samples.
+                    if let Some(sub) = self.subs.get(&handler) {
+                        sub.queue.count_dropped();
+                    }
+                    tracing::warn!(
+                        msg = %msg,
+                        ?kind,
+                        "dropped a message whose body does not hold together: {error}"
+                    );
+                }
+                Event::Closed(_) => {}
+                Event::DirectConnect {
+                    link, host, port, ..
+                } => {
+                    let tx = self.cmd_tx.clone();
+                    tokio::spawn(async move {
+                        let s = match u16::try_from(port) {
+                            Ok(p) => connect_direct(&host, p).await,
+                            Err(_) => None,
+                        };
+                        // one per link
+                        let _ = tx.post(Cmd::LinkConnected(link, s));
+                    });
+                }
+                _ => {}
+            }
+        }
+    }
+
+    pub(super) fn deliver(
+        &mut self,
+        delivery: u64,
+        handler: i32,
+        msg: String,
+        kind: DeliveryKind,
+        order: ByteOrder,
+        data: Vec<u8>,
+    ) {
+        match kind {
+            DeliveryKind::Broadcast => {
+                let Some(sub) = self.subs.get_mut(&handler) else {
+                    let _ = self.conn.ack(delivery);
+                    return;
+                };
+                // Acknowledged once queued for the subscriber: central's
+                // capacity then counts what this module has not yet taken
+                // in, and one Subscriber the user does not poll does not
+                // stall the others. A full queue (keep-all) acknowledges
+                // only when there is room again: back-pressure to central
+                // (and, in direct mode, to the link through its credit).
+                let mut s = RawSample::new(msg, data);
+                s.order = order;
+                let credit = self.read_credit.clone();
+                if sub
+                    .overflow
+                    .push(&sub.queue, s, delivery, credit, &self.cmd_tx)
+                {
+                    let _ = self.conn.ack(delivery);
+                }
+            }
+            DeliveryKind::Query => {
+                // A query that raced a re-`serve` goes to the live server.
+                let srv = self
+                    .servers
+                    .get(&handler)
+                    .or_else(|| self.servers.values().find(|s| s.msg == msg));
+                let Some(srv) = srv else {
+                    tracing::warn!("query {msg} for a handler that is gone: declined");
+                    let _ = self.conn.decline(delivery);
+                    return;
+                };
+                let r = RawRequest {
+                    msg,
+                    data,
+                    order,
+                    respond: Responder::new(IpcReply {
+                        cmd: self.cmd_tx.clone(),
+                        delivery,
+                        addr: self.addr.clone(),
+                    }),
+                };
+                let tx = srv.tx.clone();
+                if let Err(mpsc::error::TrySendError::Full(r)) = tx.try_send(r) {
+                    tokio::spawn(async move {
+                        let _ = tx.send(r).await;
+                    });
+                }
+            }
+        }
+    }
+}

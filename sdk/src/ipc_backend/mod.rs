@@ -1,0 +1,574 @@
+//! The CMU IPC backend: one tokio task drives the sans-I/O module state
+//! machine (`courier_wire::ipc::module`) over TCP or the UNIX socket
+//! `/tmp/x_ipc/<port>`; API calls reach it over a channel.
+
+mod connect;
+mod direct;
+mod driver;
+mod events;
+mod overflow;
+mod reconnect;
+mod transport;
+
+pub use transport::IpcStream;
+
+use connect::{gone_for_good, handshake};
+use direct::{connect_direct, spawn_accept, DirectListener};
+use driver::{Cmd, Done, Driver, InformOp};
+use transport::{write_all_vectored, Tcp};
+
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use futures::future::BoxFuture;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::sync::{mpsc, oneshot, OwnedSemaphorePermit, Semaphore};
+
+use crate::backend::{
+    Backend, Capabilities, ClientId, Handle, IpcControl, PubId, ServiceId, SubId,
+};
+use crate::busy_poll::BusyPoll;
+use crate::direct_link::LinkWriter;
+use crate::error::{ControlError, Failure, OpenError, PublishError};
+use crate::hub::{Hub, Listener};
+use crate::mailbox::{mailbox, Inbox, Mailbox};
+use crate::qos::{PublicationQos, SubscriptionQos, TypeInfo};
+use crate::session::{
+    ConnectError, Encoding, QueryError, RawReply, RawRequest, RawSample, Reply, ReplyFuture,
+    Responder, SampleQueue, SessionEvent, WriteOptions,
+};
+use courier_wire::ipc::module::{
+    Connection, DeliveryId, DeliveryKind, Error as ModError, Event, LinkId, ModuleConfig,
+    MsgLength, OpId,
+};
+use courier_wire::ipc::ByteOrder;
+
+/// The C library's default central port.
+pub const DEFAULT_PORT: u16 = 1381;
+
+/// Options of the IPC backend.
+#[derive(Debug, Clone)]
+#[non_exhaustive]
+pub struct IpcOptions {
+    /// `false` = `IPC_connectNoListen`.
+    pub listen: bool,
+    /// How long to keep trying to reach central.
+    pub connect_timeout: Duration,
+    /// Reconnect after losing central: first wait, doubling up to 5 s.
+    pub reconnect: Option<Duration>,
+    /// Keep polling for this long after each message instead of sleeping
+    /// (see [`crate::busy_poll`]); `None` (the default) never spins.
+    pub busy_poll: Option<Duration>,
+    /// Opens the connection to central instead of a socket (an in-process
+    /// link to an embedded central); `None` = TCP or the UNIX socket.
+    pub dial: Option<Dial>,
+}
+
+/// The future of a [`Dial`] call.
+pub type DialFuture = BoxFuture<'static, std::io::Result<Box<dyn IpcStream>>>;
+
+/// Opens a new connection to central; called for the first connection and
+/// for every reconnect.
+///
+/// A dial that fails with [`std::io::ErrorKind::NotConnected`] says that
+/// central is gone for good (an embedded central that has stopped): the
+/// session does not retry it, neither while connecting nor to reconnect.
+/// Any other error is retried as a refused socket connection is.
+#[derive(Clone)]
+pub struct Dial(Arc<dyn Fn() -> DialFuture + Send + Sync>);
+
+impl Dial {
+    /// Wraps a function that opens a stream to central.
+    pub fn new<F, Fut>(f: F) -> Self
+    where
+        F: Fn() -> Fut + Send + Sync + 'static,
+        Fut: std::future::Future<Output = std::io::Result<Box<dyn IpcStream>>> + Send + 'static,
+    {
+        Dial(Arc::new(move || Box::pin(f())))
+    }
+
+    fn open(&self) -> DialFuture {
+        (self.0)()
+    }
+}
+
+impl std::fmt::Debug for Dial {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Dial(..)")
+    }
+}
+
+impl Default for IpcOptions {
+    fn default() -> Self {
+        IpcOptions {
+            listen: true,
+            connect_timeout: Duration::from_secs(5),
+            reconnect: None,
+            busy_poll: None,
+            dial: None,
+        }
+    }
+}
+
+/// A session's connection to an IPC central.
+pub struct IpcBackend {
+    cmd: Mailbox<Cmd>,
+    addr: String,
+    events: Hub<SessionEvent>,
+    next_query: std::sync::atomic::AtomicU64,
+    /// Handle numbers, shared by every kind.
+    next_handle: std::sync::atomic::AtomicU64,
+    /// Open publications and clients: the message each names (IPC keeps
+    /// nothing for them but the definition).
+    names: std::sync::Mutex<HashMap<Handle, Arc<str>>>,
+    /// Messages this session defined, with their format: another
+    /// publication of the same message shares the definition.
+    defined: std::sync::Mutex<HashMap<String, Option<String>>>,
+}
+
+impl std::fmt::Debug for IpcBackend {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("IpcBackend")
+            .field("central", &self.addr)
+            .finish_non_exhaustive()
+    }
+}
+
+/// `(host, port)` from `ipc://host:port`, `ipc://host`, `ipc://` (then
+/// `CENTRALHOST`, then localhost:1381).
+pub fn parse_url(url: &str) -> Result<(String, u16), String> {
+    let rest = url
+        .strip_prefix("ipc://")
+        .ok_or_else(|| "expected ipc://host:port".to_string())?;
+    let rest = rest.trim_end_matches('/');
+    let spec = if rest.is_empty() {
+        std::env::var("CENTRALHOST").unwrap_or_else(|_| "localhost".into())
+    } else {
+        rest.to_string()
+    };
+    match spec.rsplit_once(':') {
+        Some((h, p)) => {
+            let port = p
+                .parse::<u16>()
+                .ok()
+                .filter(|p| *p > 0)
+                .ok_or_else(|| format!("'{p}' is not a port number"))?;
+            Ok((
+                if h.is_empty() {
+                    "localhost".into()
+                } else {
+                    h.into()
+                },
+                port,
+            ))
+        }
+        None => Ok((spec, DEFAULT_PORT)),
+    }
+}
+
+/// This machine's name, as the C library takes it for the module's host
+/// and for choosing the UNIX socket (`localhost` if it cannot be read).
+pub fn local_host_name() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|s| s.trim().to_string())
+        .unwrap_or_else(|_| "localhost".into())
+}
+
+/// C's rule: the UNIX socket is tried first when the host is this machine's
+/// name (exactly, or as a prefix followed by '.').
+fn is_local_name(host: &str, local: &str) -> bool {
+    host == local || local.strip_prefix(host).is_some_and(|r| r.starts_with('.'))
+}
+
+impl IpcBackend {
+    /// Connects to central and completes the IPC handshake.
+    pub async fn connect(url: &str, name: &str, opts: IpcOptions) -> Result<Self, ConnectError> {
+        let (host, port) = parse_url(url).map_err(|why| ConnectError::BadUrl {
+            url: url.into(),
+            why,
+        })?;
+        let addr = format!("{host}:{port}");
+        let (conn, io, listener) = handshake(&host, port, name, &opts).await?;
+        let buf = vec![0u8; 64 * 1024];
+        let (tx, rx) = mailbox(crate::mailbox::CAPACITY);
+        let events = Hub::new(crate::hub::DEFAULT_CAPACITY);
+        let driver = Driver {
+            conn,
+            io,
+            host,
+            port,
+            name: name.to_string(),
+            opts,
+            defs: Vec::new(),
+            cmd_tx: tx.clone(),
+            addr: addr.clone(),
+            events: events.clone(),
+            subs: HashMap::new(),
+            servers: HashMap::new(),
+            publishes: HashMap::new(),
+            queries: HashMap::new(),
+            replies: HashMap::new(),
+            query_ops: HashMap::new(),
+            bools: HashMap::new(),
+            counts: HashMap::new(),
+            closing: None,
+            watching_modules: false,
+            links: HashMap::new(),
+            touched: Vec::new(),
+            published: Vec::new(),
+            parked: Vec::new(),
+            read_credit: None,
+        };
+        if let Some(l) = listener {
+            spawn_accept(l, tx.clone());
+        }
+        let spin = driver.opts.busy_poll.map(BusyPoll::start);
+        tokio::spawn(driver.run(rx, buf, spin));
+        Ok(IpcBackend {
+            cmd: tx,
+            addr,
+            events,
+            next_query: std::sync::atomic::AtomicU64::new(1),
+            next_handle: std::sync::atomic::AtomicU64::new(1),
+            names: Default::default(),
+            defined: Default::default(),
+        })
+    }
+
+    fn next_handle(&self) -> u64 {
+        self.next_handle
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+    }
+
+    fn names(&self) -> std::sync::MutexGuard<'_, HashMap<Handle, Arc<str>>> {
+        // every critical section is one map operation
+        self.names.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// The message an open publication or client names.
+    fn name_of(&self, h: Handle) -> Option<Arc<str>> {
+        self.names().get(&h).cloned()
+    }
+
+    /// Defines `msg` in central unless this session already did with
+    /// the same format.
+    async fn define_once(&self, msg: &str, format: Option<&str>) -> Result<(), OpenError> {
+        {
+            let defined = self.defined.lock().unwrap_or_else(|e| e.into_inner());
+            if defined.get(msg).is_some_and(|f| f.as_deref() == format) {
+                return Ok(());
+            }
+        }
+        IpcControl::define(self, msg, format).await?;
+        self.defined
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .insert(msg.to_string(), format.map(str::to_string));
+        Ok(())
+    }
+
+    async fn call<T>(&self, f: impl FnOnce(Done<T>) -> Cmd, gone: T) -> T {
+        let (tx, rx) = oneshot::channel();
+        if self.cmd.send(f(tx)).await.is_err() {
+            return gone;
+        }
+        rx.await.unwrap_or(gone)
+    }
+
+    fn gone<E: Failure>(&self) -> E {
+        E::disconnected(self.addr.clone())
+    }
+}
+
+#[async_trait::async_trait]
+impl Backend for IpcBackend {
+    fn capabilities(&self) -> Capabilities {
+        let mut c = Capabilities::new("ipc://", Encoding::Ipc);
+        c.untyped_publications = true;
+        c.reply_names = true;
+        c.named_formats = true;
+        c
+    }
+
+    async fn open_publication(
+        &self,
+        msg: &str,
+        ty: &TypeInfo,
+        qos: &PublicationQos,
+    ) -> Result<PubId, OpenError> {
+        if let Some(what) = qos.beyond_ipc() {
+            return Err(unsupported(format!("{what} (publication {msg})")));
+        }
+        // untyped: a message somebody else defines
+        if !ty.is_untyped() {
+            self.define_once(msg, ty.format).await?;
+        }
+        let id = PubId(self.next_handle());
+        self.names().insert(Handle::Publication(id), Arc::from(msg));
+        Ok(id)
+    }
+
+    async fn open_subscription(
+        &self,
+        msg: &str,
+        _ty: Option<&TypeInfo>,
+        qos: &SubscriptionQos,
+        queue: Arc<SampleQueue>,
+    ) -> Result<SubId, OpenError> {
+        if let Some(what) = qos.beyond_ipc() {
+            return Err(unsupported(format!("{what} (subscription {msg})")));
+        }
+        let id = SubId(self.next_handle());
+        let g = Err(self.gone());
+        self.call(|d| Cmd::Subscribe(msg.into(), queue, id, d), g)
+            .await?;
+        Ok(id)
+    }
+
+    async fn open_service(
+        &self,
+        msg: &str,
+        _req: &TypeInfo,
+        _resp: &TypeInfo,
+        queue: usize,
+    ) -> Result<(ServiceId, mpsc::Receiver<RawRequest>), OpenError> {
+        let (tx, rx) = mpsc::channel(queue.max(1));
+        let id = ServiceId(self.next_handle());
+        let g = Err(self.gone());
+        self.call(|d| Cmd::Serve(msg.into(), tx, id, d), g).await?;
+        Ok((id, rx))
+    }
+
+    async fn open_client(
+        &self,
+        msg: &str,
+        _req: &TypeInfo,
+        _resp: &TypeInfo,
+    ) -> Result<ClientId, OpenError> {
+        let id = ClientId(self.next_handle());
+        self.names().insert(Handle::Client(id), Arc::from(msg));
+        Ok(id)
+    }
+
+    async fn write(
+        &self,
+        publication: PubId,
+        data: Vec<u8>,
+        opts: WriteOptions,
+    ) -> Result<(), PublishError> {
+        let msg = self
+            .name_of(Handle::Publication(publication))
+            .ok_or_else(|| PublishError::NoPublication(format!("{publication:?} (closed)")))?;
+        if opts.confirm.is_some() {
+            return Err(PublishError::Unsupported {
+                what: format!("a confirmed publish ({msg})"),
+                backend: "ipc://",
+            });
+        }
+        let g = Err(self.gone());
+        self.call(|d| Cmd::Publish(msg.to_string(), data, d), g)
+            .await
+    }
+
+    async fn query(
+        &self,
+        client: ClientId,
+        data: Vec<u8>,
+        timeout: Duration,
+    ) -> Result<RawReply, QueryError> {
+        let Some(msg) = self.name_of(Handle::Client(client)) else {
+            return Err(QueryError::Disconnected(format!("{client:?} (closed)")));
+        };
+        let key = self
+            .next_query
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let (tx, rx) = oneshot::channel();
+        if self
+            .cmd
+            .send(Cmd::Query(key, msg.to_string(), data, tx))
+            .await
+            .is_err()
+        {
+            return Err(QueryError::Disconnected(msg.to_string()));
+        }
+        match tokio::time::timeout(timeout, rx).await {
+            Ok(Ok(r)) => r,
+            Ok(Err(_)) => Err(QueryError::Disconnected(msg.to_string())),
+            Err(_) => {
+                // one per query
+                let _ = self.cmd.post(Cmd::CancelQuery(key));
+                Err(QueryError::Timeout {
+                    msg: msg.to_string(),
+                    timeout,
+                })
+            }
+        }
+    }
+
+    fn close_handle(&self, handle: Handle) {
+        match handle {
+            Handle::Publication(_) | Handle::Client(_) => {
+                self.names().remove(&handle);
+            }
+            _ => {
+                // one per handle
+                let _ = self.cmd.post(Cmd::CloseHandle(handle));
+            }
+        }
+    }
+
+    fn events(&self) -> Listener<SessionEvent> {
+        if !self.events.has_listeners() {
+            // central reports module (dis)connections only when asked
+            // the driver subscribes once; one per `events()` call
+            let _ = self.cmd.post(Cmd::WatchModules);
+        }
+        self.events.listen()
+    }
+
+    async fn close(&self) {
+        self.call(Cmd::Close, ()).await
+    }
+
+    fn ipc(&self) -> Option<&dyn IpcControl> {
+        Some(self)
+    }
+}
+
+#[async_trait::async_trait]
+impl IpcControl for IpcBackend {
+    async fn define_format(&self, name: &str, format: &str) -> Result<(), OpenError> {
+        let g = Err(self.gone());
+        self.call(|d| Cmd::DefineFormat(name.into(), format.into(), d), g)
+            .await
+    }
+
+    async fn define(&self, msg: &str, format: Option<&str>) -> Result<(), OpenError> {
+        let g = Err(self.gone());
+        self.call(
+            |d| Cmd::Define(msg.into(), format.map(str::to_string), d),
+            g,
+        )
+        .await
+    }
+
+    async fn is_module_connected(&self, module: &str) -> Result<bool, ControlError> {
+        let g = Err(self.gone());
+        self.call(|d| Cmd::ModuleConnected(module.into(), d), g)
+            .await
+    }
+
+    async fn num_handlers(&self, msg: &str) -> Result<i32, ControlError> {
+        let g = Err(self.gone());
+        self.call(|d| Cmd::NumHandlers(msg.into(), d), g).await
+    }
+
+    async fn watch_handlers(&self, msg: &str) -> Result<(), ControlError> {
+        let g = Err(self.gone());
+        self.call(|d| Cmd::WatchHandlers(msg.into(), d), g).await
+    }
+
+    async fn set_capacity(&self, n: i32) -> Result<(), ControlError> {
+        let g = Err(self.gone());
+        self.call(|d| Cmd::Inform(InformOp::Capacity(n), d), g)
+            .await
+    }
+
+    async fn set_priority(&self, msg: &str, priority: i32) -> Result<(), ControlError> {
+        let g = Err(self.gone());
+        self.call(
+            |d| Cmd::Inform(InformOp::Priority(msg.into(), priority), d),
+            g,
+        )
+        .await
+    }
+
+    async fn set_queue_length(&self, msg: &str, n: i32) -> Result<(), ControlError> {
+        let g = Err(self.gone());
+        self.call(|d| Cmd::Inform(InformOp::QueueLength(msg.into(), n), d), g)
+            .await
+    }
+}
+
+impl Drop for IpcBackend {
+    fn drop(&mut self) {
+        let (tx, _) = oneshot::channel();
+        let _ = self.cmd.post(Cmd::Close(tx));
+    }
+}
+
+/// The IPC side of one query delivery: answered or declined through the
+/// driver.
+struct IpcReply {
+    cmd: Mailbox<Cmd>,
+    delivery: DeliveryId,
+    addr: String,
+}
+
+impl Reply for IpcReply {
+    fn reply(self: Box<Self>, reply_msg: &str, data: Vec<u8>) -> ReplyFuture {
+        let (tx, rx) = oneshot::channel();
+        // one per query delivery (sent at once: a reply future dropped
+        // unpolled must not leave the delivery unanswered)
+        let sent = self
+            .cmd
+            .post(Cmd::Respond(self.delivery, reply_msg.to_string(), data, tx));
+        let addr = self.addr;
+        Box::pin(async move {
+            sent.map_err(|_| PublishError::Disconnected(addr.clone()))?;
+            rx.await.unwrap_or(Err(PublishError::Disconnected(addr)))
+        })
+    }
+
+    fn decline(self: Box<Self>) {
+        let _ = self.cmd.post(Cmd::Decline(self.delivery));
+    }
+}
+
+fn unsupported(what: String) -> OpenError {
+    OpenError::Unsupported {
+        what,
+        backend: "ipc://",
+    }
+}
+
+/// Central's refusal of an operation on `what`, as the operation's error.
+fn refused<E: Failure>(what: &str) -> impl FnOnce(ModError) -> E + '_ {
+    move |e| E::central(what, e)
+}
+
+/// A query that could not be sent.
+fn query_refused(msg: String, source: PublishError) -> QueryError {
+    match source {
+        PublishError::Disconnected(_) => QueryError::Disconnected(msg),
+        source => QueryError::Refused { msg, source },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn urls() {
+        assert_eq!(
+            parse_url("ipc://127.0.0.1:1400").unwrap(),
+            ("127.0.0.1".into(), 1400)
+        );
+        assert_eq!(parse_url("ipc://host").unwrap(), ("host".into(), 1381));
+        assert!(parse_url("tcp://x").unwrap_err().contains("ipc://"));
+        assert!(parse_url("ipc://h:0").unwrap_err().contains("not a port"));
+        assert!(parse_url("ipc://h:99999")
+            .unwrap_err()
+            .contains("not a port"));
+    }
+
+    #[test]
+    fn local_names() {
+        assert!(is_local_name("vm", "vm"));
+        assert!(is_local_name("vm", "vm.example.org"));
+        assert!(!is_local_name("v", "vm"));
+        assert!(!is_local_name("127.0.0.1", "vm"));
+    }
+}
