@@ -760,7 +760,7 @@ async fn queries_are_answered_with_the_related_sample_identity() {
 }
 
 #[tokio::test]
-async fn a_query_nobody_serves_times_out_and_close_fails_pending_ones() {
+async fn a_query_nobody_serves_says_so_and_close_fails_pending_ones() {
     let a = session(166, "a").await;
     let e = a
         .query::<AddReq, AddResp>("nobody", &AddReq { a: 1, b: 2 })
@@ -768,9 +768,10 @@ async fn a_query_nobody_serves_times_out_and_close_fails_pending_ones() {
         .await
         .unwrap_err();
     assert!(
-        matches!(&e, courier::QueryError::Timeout { msg, .. } if msg == "nobody"),
+        matches!(&e, courier::QueryError::NoResponder { msg, .. } if msg == "nobody"),
         "{e}"
     );
+    assert_eq!(e.to_string(), "nobody serves nobody (waited 300ms)");
     let a2 = a.clone();
     let pending = tokio::spawn(async move {
         a2.query::<AddReq, AddResp>("nobody", &AddReq { a: 1, b: 2 })

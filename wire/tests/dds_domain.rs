@@ -396,7 +396,7 @@ fn two_clients_of_one_service_each_get_only_their_own_replies() {
 }
 
 #[test]
-fn a_query_nobody_serves_times_out() {
+fn a_query_nobody_serves_fails_as_unserved() {
     let mut net = new_net(1, 3, 0);
     let now = net.now();
     let c = net
@@ -407,7 +407,24 @@ fn a_query_nobody_serves_times_out() {
     net.run_for(ms(299));
     assert!(!net.has(0, |e| matches!(e, Event::QueryFailed { .. })));
     net.run_for(ms(2));
-    assert!(net.has(0, |e| matches!(e, Event::QueryFailed { client, query, reason: QueryFailure::Timeout(_) } if *client == c && *query == q)));
+    assert!(net.has(0, |e| matches!(e, Event::QueryFailed { client, query, reason: QueryFailure::NoService(t) } if *client == c && *query == q && *t == ms(300))));
+}
+
+#[test]
+fn a_query_a_matched_service_leaves_unanswered_times_out() {
+    let mut net = new_net(2, 4, 0);
+    let now = net.now();
+    let cfg = ServiceConfig::new("silent", "Req", "Rep");
+    net.node(1).create_service(&cfg, now).unwrap();
+    let c = net.node(0).create_client(&cfg, now).unwrap();
+    // the request goes out once both sides are matched, then nothing comes
+    let q = net.node(0).query(c, sample(1), ms(3000), now).unwrap();
+    net.run_for(ms(3001));
+    assert!(
+        net.has(1, |e| matches!(e, Event::Request { .. })),
+        "the service got the request"
+    );
+    assert!(net.has(0, |e| matches!(e, Event::QueryFailed { client, query, reason: QueryFailure::Timeout(t) } if *client == c && *query == q && *t == ms(3000))));
 }
 
 #[test]

@@ -764,6 +764,10 @@ impl State {
                             msg: q.name,
                             timeout,
                         },
+                        QueryFailure::NoService(timeout) => QueryError::NoResponder {
+                            msg: q.name,
+                            timeout,
+                        },
                         QueryFailure::Refused(source) => QueryError::Refused {
                             source: PublishError::Writer {
                                 topic: q.name.clone(),

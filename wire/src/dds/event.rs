@@ -33,9 +33,12 @@ pub enum ConfirmFailure {
 #[derive(Debug, Clone, PartialEq, Eq)]
 #[non_exhaustive]
 pub enum QueryFailure {
-    /// No reply within its timeout (including time waiting for the
-    /// service to be matched).
+    /// The request went out (the service was matched both ways) and no
+    /// reply came within its timeout.
     Timeout(Duration),
+    /// No service was matched within the timeout: the request was never
+    /// sent.
+    NoService(Duration),
     /// The request could not be written.
     Refused(WriteError),
     /// The client was deleted first.

@@ -318,27 +318,27 @@ impl Domain {
 
     /// Queries whose time ran out, waiting or sent.
     pub(super) fn expire_queries(&mut self, now: Instant) {
-        let mut late: Vec<(ClientId, QueryId, Duration)> = Vec::new();
+        let mut late: Vec<(ClientId, QueryId, QueryFailure)> = Vec::new();
         self.waiting.retain(|q| {
             let out = q.deadline <= now;
             if out {
-                late.push((q.client, q.query, q.timeout));
+                late.push((q.client, q.query, QueryFailure::NoService(q.timeout)));
             }
             !out
         });
         self.inflight.retain(|_, q| {
             let out = q.deadline <= now;
             if out {
-                late.push((q.client, q.query, q.timeout));
+                late.push((q.client, q.query, QueryFailure::Timeout(q.timeout)));
             }
             !out
         });
         late.sort_by_key(|l| l.1);
-        for (client, query, t) in late {
+        for (client, query, reason) in late {
             self.events.push_back(Event::QueryFailed {
                 client,
                 query,
-                reason: QueryFailure::Timeout(t),
+                reason,
             });
         }
     }
