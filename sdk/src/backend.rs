@@ -171,6 +171,17 @@ pub trait Backend: Send + Sync + std::fmt::Debug {
         opts: WriteOptions,
     ) -> Result<(), PublishError>;
 
+    /// The part of [`Backend::write`] that needs no waiting, if the write
+    /// can be done that way now (the usual case: an open publication with
+    /// room in its queue): called before `write` by every `publish().await`
+    /// so that a publish that does not wait costs no boxed future. Gives
+    /// the data back ([`WriteNow::Wait`]) for `write` otherwise; the
+    /// default always does.
+    fn write_now(&self, publication: PubId, data: Vec<u8>, opts: WriteOptions) -> WriteNow {
+        let _ = publication;
+        WriteNow::Wait(data, opts)
+    }
+
     /// Publishes without waiting, from any thread (a subscription callback
     /// among them): queued or sent before it returns, or an error. The
     /// default refuses ([`Capabilities::try_write`] is false).
@@ -274,4 +285,13 @@ pub trait DdsControl: Send + Sync {
         type_name: &str,
         queue: Arc<SampleQueue>,
     ) -> Result<SubId, OpenError>;
+}
+
+/// What [`Backend::write_now`] did.
+#[derive(Debug)]
+pub enum WriteNow {
+    /// Written (or refused) without waiting.
+    Done(Result<(), PublishError>),
+    /// The write has to wait: do it with [`Backend::write`].
+    Wait(Vec<u8>, WriteOptions),
 }

@@ -150,6 +150,9 @@ pub enum PublishError {
     /// The request was already answered.
     #[error("request already answered")]
     AlreadyAnswered,
+    /// A publish's future was polled again after it completed.
+    #[error("this publish already completed (its future was polled after it returned Ready)")]
+    Completed,
     /// Central refused the message.
     #[error("central refused {msg}")]
     Central {

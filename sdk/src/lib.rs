@@ -134,6 +134,7 @@ mod topics;
 
 pub use backend::{
     Backend, Capabilities, ClientId, DdsControl, Handle, IpcControl, PubId, ServiceId, SubId,
+    WriteNow,
 };
 pub use courier_derive::IpcMessage;
 pub use courier_wire::{cdr, format, ipc, rtps, IpcMessage, NamedFormats};
@@ -144,10 +145,10 @@ pub use qos::{Durability, History, Reliability};
 pub use rtps_backend::RtpsOptions;
 pub use session::{
     ConnectError, Encoding, Events, InstanceState, Ipc, Listener, PeriodicPublication,
-    PublicationQos, Publish, Publisher, PublisherBuilder, Query, QueryError, QueuePolicy, RawReply,
-    RawRequest, RawRequests, RawSample, RawSubscriber, RecvError, Request, Requests, Responder,
-    Sample, SampleQueue, Session, SessionBuilder, SessionEvent, Subscriber, SubscriberBuilder,
-    SubscriptionQos, Tick, Timer, TypeInfo, WriteOptions,
+    PublicationQos, Publish, PublishFuture, Publisher, PublisherBuilder, Query, QueryError,
+    QueuePolicy, RawReply, RawRequest, RawRequests, RawSample, RawSubscriber, RecvError, Request,
+    Requests, Responder, Sample, SampleQueue, Session, SessionBuilder, SessionEvent, Subscriber,
+    SubscriberBuilder, SubscriptionQos, Tick, Timer, TypeInfo, WriteOptions,
 };
 
 #[doc(hidden)]

@@ -1,15 +1,17 @@
 //! Publications: [`Publish`], [`PublisherBuilder`], [`Publisher`], [`PeriodicPublication`].
 
-use crate::backend::{Handle, PubId};
+use crate::backend::{Handle, PubId, WriteNow};
 use crate::error::{OpenError, PublishError};
 use crate::qos::{Durability, History, InstanceState, PublicationQos, Reliability};
 use crate::session::{Owned, Session};
 use crate::timer::Tick;
 use crate::topics::Definition;
 use courier_wire::{cdr, IpcMessage};
+use std::future::Future;
 use std::marker::PhantomData;
 use std::pin::Pin;
 use std::sync::Arc;
+use std::task::{Context, Poll};
 use std::time::Duration;
 
 /// How [`Backend::write`] publishes.
@@ -62,21 +64,99 @@ impl<'a> Publish<'a> {
 
 impl<'a> std::future::IntoFuture for Publish<'a> {
     type Output = Result<(), PublishError>;
-    type IntoFuture = Pin<Box<dyn std::future::Future<Output = Self::Output> + Send + 'a>>;
+    type IntoFuture = PublishFuture<'a>;
 
     fn into_future(self) -> Self::IntoFuture {
         let opts = WriteOptions {
             key_hash: self.key_hash,
             confirm: self.confirm,
         };
-        match self.target {
-            Err(e) => Box::pin(std::future::ready(Err(e.into()))),
-            // the backend's own (boxed) future, not a box around it
-            Ok(Target::Open(id)) => self.session.backend.write(id, self.data, opts),
-            Ok(Target::Define(def)) => Box::pin(async move {
+        PublishFuture(match self.target {
+            Err(e) => Step::Done(Some(Err(e.into()))),
+            Ok(Target::Open(id)) => Step::Now {
+                session: self.session,
+                id,
+                data: self.data,
+                opts,
+            },
+            Ok(Target::Define(def)) => Step::Wait(Box::pin(async move {
                 let id = self.session.define_shared(self.msg, def).await?;
                 self.session.backend.write(id, self.data, opts).await
-            }),
+            })),
+        })
+    }
+}
+
+/// The future of a [`Publish`]. A publish that need not wait (the usual
+/// case) is done in its first poll with no allocation of its own
+/// ([`Backend::write_now`](crate::Backend::write_now)); it still counts
+/// against tokio's cooperative budget, so that a publishing loop lets
+/// other tasks run.
+#[must_use = "futures do nothing unless polled"]
+pub struct PublishFuture<'a>(Step<'a>);
+
+enum Step<'a> {
+    Now {
+        session: &'a Session,
+        id: PubId,
+        data: Vec<u8>,
+        opts: WriteOptions,
+    },
+    Wait(Pin<Box<dyn Future<Output = Result<(), PublishError>> + Send + 'a>>),
+    Done(Option<Result<(), PublishError>>),
+}
+
+impl std::fmt::Debug for PublishFuture<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let step = match &self.0 {
+            Step::Now { .. } => "not polled",
+            Step::Wait(_) => "waiting",
+            Step::Done(_) => "done",
+        };
+        f.debug_tuple("PublishFuture").field(&step).finish()
+    }
+}
+
+impl Future for PublishFuture<'_> {
+    type Output = Result<(), PublishError>;
+
+    fn poll(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Self::Output> {
+        loop {
+            match std::mem::replace(&mut self.0, Step::Done(None)) {
+                Step::Now {
+                    session,
+                    id,
+                    data,
+                    opts,
+                } => {
+                    let Poll::Ready(coop) = tokio::task::coop::poll_proceed(cx) else {
+                        self.0 = Step::Now {
+                            session,
+                            id,
+                            data,
+                            opts,
+                        };
+                        return Poll::Pending;
+                    };
+                    match session.backend.write_now(id, data, opts) {
+                        WriteNow::Done(r) => {
+                            coop.made_progress();
+                            return Poll::Ready(r);
+                        }
+                        WriteNow::Wait(data, opts) => {
+                            self.0 = Step::Wait(session.backend.write(id, data, opts));
+                        }
+                    }
+                }
+                Step::Wait(mut f) => {
+                    let r = f.as_mut().poll(cx);
+                    if r.is_pending() {
+                        self.0 = Step::Wait(f);
+                    }
+                    return r;
+                }
+                Step::Done(r) => return Poll::Ready(r.unwrap_or(Err(PublishError::Completed))),
+            }
         }
     }
 }

@@ -21,7 +21,7 @@ pub use crate::event::SessionEvent;
 use crate::ipc_backend::IpcOptions;
 use crate::publisher::Target;
 pub use crate::publisher::{
-    PeriodicPublication, Publish, Publisher, PublisherBuilder, WriteOptions,
+    PeriodicPublication, Publish, PublishFuture, Publisher, PublisherBuilder, WriteOptions,
 };
 pub use crate::qos::{InstanceState, PublicationQos, SubscriptionQos, TypeInfo};
 pub(crate) use crate::queue::ReturnedBuffers;

@@ -815,3 +815,21 @@ async fn busy_polling_sessions_exchange_samples_and_go_quiet_when_idle() {
     a.close().await;
     b.close().await;
 }
+
+/// A publish that need not wait is done in its first poll; polling its
+/// future again is an error naming the mistake, not a panic.
+#[tokio::test]
+async fn a_publish_polled_after_it_completed_is_an_error_not_a_panic() {
+    use std::future::IntoFuture;
+    let a = session(172, "a").await;
+    let p = a.publisher::<i32>("polled_twice").build().await.unwrap();
+    let mut f = p.publish(&1).into_future();
+    let first = tokio::time::timeout(T, &mut f).await.expect("in time");
+    assert!(first.is_ok(), "{first:?}");
+    let again = tokio::time::timeout(T, &mut f).await.expect("in time");
+    assert!(
+        matches!(again, Err(courier::PublishError::Completed)),
+        "{again:?}"
+    );
+    a.close().await;
+}

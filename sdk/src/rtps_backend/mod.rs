@@ -72,7 +72,7 @@ use courier_wire::{cdr, IpcMessage};
 use tokio::sync::{mpsc, oneshot, OwnedSemaphorePermit, Semaphore};
 
 use crate::backend::{
-    Backend, Capabilities, ClientId, DdsControl, Handle, PubId, ServiceId, SubId,
+    Backend, Capabilities, ClientId, DdsControl, Handle, PubId, ServiceId, SubId, WriteNow,
 };
 use crate::busy_poll::BusyPoll;
 use crate::error::{ControlError, Failure, OpenError, PublishError};
@@ -544,6 +544,16 @@ impl Backend for RtpsBackend {
         opts: WriteOptions,
     ) -> Result<(), PublishError> {
         self.queue_write(publication, data, opts).await
+    }
+
+    fn write_now(&self, publication: PubId, data: Vec<u8>, opts: WriteOptions) -> WriteNow {
+        if opts.confirm.is_some() {
+            return WriteNow::Wait(data, opts);
+        }
+        match self.try_queue(publication, data, opts.key_hash) {
+            Ok(done) => WriteNow::Done(done),
+            Err(data) => WriteNow::Wait(data, opts),
+        }
     }
 
     fn try_write(

@@ -78,7 +78,9 @@ mod reader;
 mod rpc;
 mod writer;
 
-use std::collections::{BTreeMap, HashMap, VecDeque};
+use std::collections::{BTreeMap, VecDeque};
+
+use foldhash::{HashMap, HashMapExt};
 use std::time::{Duration, Instant, SystemTime};
 
 use crate::rtps::participant::{self, Config, Datagram, Participant, SampleIdentity, Transmission};

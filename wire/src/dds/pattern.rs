@@ -1,7 +1,7 @@
 //! Pattern subscriptions: a reader per publication whose topic and type
 //! names match fnmatch patterns, made as publications are discovered.
 
-use std::collections::HashSet;
+use foldhash::{HashSet, HashSetExt};
 use std::time::Instant;
 
 use crate::rtps::discovery::{EndpointData, EndpointQos};

@@ -2,7 +2,7 @@
 //! exclusive ownership, lifespan, time-based filter and deadlines; and the
 //! keep-all back-pressure the shell reports.
 
-use std::collections::HashMap;
+use foldhash::{HashMap, HashMapExt};
 use std::time::{Duration, Instant, SystemTime};
 
 use crate::rtps::discovery::{EndpointQos, History};
