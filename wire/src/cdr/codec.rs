@@ -431,6 +431,7 @@ impl StructWriter {
     /// structs it writes the parameter header (XCDR1) or `EMHEADER` (XCDR2).
     /// `must_understand` sets the must-understand flag; Cyclone DDS sets it
     /// only for `@must_understand` members, not for keys.
+    #[inline]
     pub fn begin_member(&self, w: &mut Writer, id: u32, must_understand: bool) -> MemberHeader {
         // A member started while the enclosing member has written nothing
         // yet (only possible without begin_struct): frame the enclosing one
@@ -474,6 +475,7 @@ impl StructWriter {
     }
 
     /// Ends a member started with [`StructWriter::begin_member`].
+    #[inline]
     pub fn end_member(&self, w: &mut Writer, h: MemberHeader) {
         let nothing_written = w.pending.take().is_some();
         let absent = core::mem::take(&mut w.absent);
