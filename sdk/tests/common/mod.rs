@@ -124,13 +124,12 @@ pub async fn slow_keep_all_subscriber(a: &Session, b: &Session, n: u32) {
     assert_eq!(sub.dropped(), 0);
 }
 
-/// Central stopped at `since`: the subscriber ends with `Disconnected`
-/// (after what was already in flight, if anything) and the pending query
-/// fails, at once rather than at its timeout.
+/// Central stopped: the subscriber ends with `Disconnected` (after what
+/// was already in flight, if anything) and the pending query fails with
+/// `Disconnected`, not with its timeout.
 pub async fn ended_by_central(
     sub: &mut courier::Subscriber<i32>,
     query: tokio::task::JoinHandle<Result<i32, courier::QueryError>>,
-    since: std::time::Instant,
 ) {
     let first = tokio::time::timeout(T, sub.next()).await.unwrap();
     assert!(
@@ -143,7 +142,6 @@ pub async fn ended_by_central(
         .unwrap()
         .unwrap_err();
     assert!(matches!(e, courier::QueryError::Disconnected(_)), "{e}");
-    assert!(since.elapsed() < Duration::from_secs(5), "failed at once");
 }
 
 /// Courier's central with configuration `cfg`, built further by `more`,
