@@ -242,9 +242,9 @@ async fn central_stopping_disconnects_in_process_modules() {
     // Longer than the test allows: a stopped central must not be retried.
     let late = c.session("late").connect_timeout(Duration::from_secs(60));
     stop_under_a_subscriber_and_a_query(c, &a).await;
-    let asked = std::time::Instant::now();
     match tokio::time::timeout(T, late.connect()).await.unwrap() {
-        Err(e @ ConnectError::Unreachable { .. }) => {
+        Err(e @ ConnectError::Unreachable { attempts, .. }) => {
+            assert_eq!(attempts, 1, "a stopped central is not retried: {e}");
             // the OS error is the source, not repeated in the message
             let source = std::error::Error::source(&e)
                 .expect("the last error")
@@ -255,11 +255,6 @@ async fn central_stopping_disconnects_in_process_modules() {
         Err(e) => panic!("unexpected error: {e}"),
         Ok(_) => panic!("connected to a stopped central"),
     }
-    assert!(
-        asked.elapsed() < Duration::from_millis(150),
-        "{:?}",
-        asked.elapsed()
-    );
 }
 
 /// A hosted session with `reconnect` does not retry a central that has
