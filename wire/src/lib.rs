@@ -31,6 +31,7 @@ pub mod dds;
 pub mod format;
 pub mod ipc;
 mod message;
+pub mod ros2;
 pub mod rtps;
 #[cfg(feature = "sim")]
 pub mod sim;
