@@ -194,6 +194,22 @@ pub enum QueryError {
         /// The timeout.
         timeout: Duration,
     },
+    /// No reply within the timeout, but replies came meanwhile that
+    /// answered no open query: a service that ties replies to requests
+    /// another way (see [`ServiceStyle`](crate::ServiceStyle)), or late
+    /// replies.
+    #[error(
+        "no reply to {msg} within {timeout:?}; {replies} reply(ies) came that answered no open \
+         query (a ROS 2 service of the other request/reply style? see the `services` option)"
+    )]
+    Unmatched {
+        /// Query message.
+        msg: String,
+        /// The timeout.
+        timeout: Duration,
+        /// Replies that matched nothing.
+        replies: u64,
+    },
     /// The session ended before the reply.
     #[error("disconnected before {0} was answered")]
     Disconnected(String),

@@ -142,7 +142,7 @@ pub use error::{ControlError, Error, OpenError, PublishError};
 pub use event::{DurabilityKind, EndpointInfo, Guid, ParticipantInfo, QosSummary};
 pub use ipc_backend::IpcStream;
 pub use qos::{Durability, History, Reliability};
-pub use rtps_backend::RtpsOptions;
+pub use rtps_backend::{RtpsOptions, ServiceStyle};
 pub use session::{
     ConnectError, Encoding, Events, InstanceState, Ipc, Listener, PeriodicPublication,
     PublicationQos, Publish, PublishFuture, Publisher, PublisherBuilder, Query, QueryError,

@@ -709,3 +709,189 @@ fn payloads_are_padded_to_four_bytes() {
         .collect();
     assert_eq!(data, [vec![0, 1, 0, 0, 9, 0, 0, 0]]);
 }
+
+// ---------------------------------------------------------------------------
+// The two ROS 2 request/reply styles (rmw_fastrtps: related sample identity;
+// rmw_cyclonedds: a header before the body). The peer of the other style is
+// played by a plain writer and reader on the service's topics, writing and
+// checking the bytes rmw_cyclonedds puts on the wire.
+
+use courier_wire::dds::{RequestHeader, RpcStyle};
+
+/// rmw_cyclonedds's layout: encapsulation, client id (u64), request number
+/// (i64), body; little-endian here.
+fn with_header(client: u64, seq: i64, body: u32) -> Vec<u8> {
+    let mut b = vec![0, 1, 0, 0];
+    b.extend_from_slice(&client.to_le_bytes());
+    b.extend_from_slice(&seq.to_le_bytes());
+    b.extend_from_slice(&body.to_le_bytes());
+    b
+}
+
+/// A plain writer of `topic` and reader of `other` on host `i`.
+fn raw_pair(
+    net: &mut Net,
+    i: usize,
+    topic: &str,
+    ty: &str,
+    other: &str,
+    other_ty: &str,
+) -> (WriterId, ReaderId) {
+    let now = net.now();
+    let mut wq = writer_qos();
+    wq.reliability = reliable();
+    let w = net
+        .node(i)
+        .create_writer(EndpointConfig::writer(topic, ty).qos(wq), now)
+        .unwrap();
+    let r = net
+        .node(i)
+        .create_reader(
+            EndpointConfig::reader(other, other_ty).qos(reader_qos()),
+            now,
+        )
+        .unwrap();
+    (w, r)
+}
+
+fn samples_of(
+    net: &mut Net,
+    i: usize,
+    r: ReaderId,
+) -> Vec<courier_wire::rtps::participant::ReceivedSample> {
+    net.take_events(i)
+        .into_iter()
+        .filter_map(|e| match e {
+            Event::Sample { reader, sample } if reader == r => Some(sample),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn a_service_answers_a_request_header_client_by_header() {
+    let mut net = new_net(2, 21, 0);
+    let now = net.now();
+    let svc = ServiceConfig::new("add", "Req", "Rep").with_style(RpcStyle::RequestHeader);
+    let s = net.node(0).create_service(&svc, now).unwrap();
+    let (w, r) = raw_pair(&mut net, 1, "rq/addRequest", "Req", "rr/addReply", "Rep");
+    // the plain writer is matched with the service's request reader
+    assert!(net.run_until(ms(5000), |n| n.has(
+        1,
+        |e| matches!(e, Event::WriterMatched { writer, .. } if *writer == w)
+    )));
+    let now = net.now();
+    net.node(1)
+        .write(w, Change::alive_owned(with_header(0xfeed, 41, 7)), now)
+        .unwrap();
+    let mut got = None;
+    assert!(net.run_until(ms(5000), |n| n
+        .has(0, |e| matches!(e, Event::Request { .. }))));
+    for e in net.take_events(0) {
+        if let Event::Request {
+            request,
+            sample: req,
+            ..
+        } = e
+        {
+            // the service sees the body alone
+            assert_eq!(req.data(), sample(7));
+            assert_eq!(request.style(), RpcStyle::RequestHeader);
+            assert_eq!(
+                request.request_header(),
+                Some(RequestHeader {
+                    client: 0xfeed,
+                    seq: 41
+                })
+            );
+            assert_eq!(request.related_identity(), None);
+            got = Some(request);
+        }
+    }
+    let request = got.expect("the request");
+    let now = net.now();
+    net.node(0).reply(s, request, sample(8), now).unwrap();
+    assert!(net.run_until(ms(5000), |n| n.has(
+        1,
+        |e| matches!(e, Event::Sample { reader, .. } if *reader == r)
+    )));
+    let replies = samples_of(&mut net, 1, r);
+    assert_eq!(replies.len(), 1);
+    // the reply echoes the header, as rmw_cyclonedds's client expects
+    assert_eq!(replies[0].data(), with_header(0xfeed, 41, 8));
+    assert_eq!(replies[0].related_sample_identity, None);
+}
+
+#[test]
+fn a_client_asks_a_request_header_service_and_takes_only_its_own_replies() {
+    let mut net = new_net(2, 22, 0);
+    let now = net.now();
+    let svc = ServiceConfig::new("add", "Req", "Rep").with_style(RpcStyle::RequestHeader);
+    let c = net.node(0).create_client(&svc, now).unwrap();
+    let (w, r) = raw_pair(&mut net, 1, "rr/addReply", "Rep", "rq/addRequest", "Req");
+    let now = net.now();
+    let q = net.node(0).query(c, sample(5), ms(10_000), now).unwrap();
+    assert!(net.run_until(ms(5000), |n| n.has(
+        1,
+        |e| matches!(e, Event::Sample { reader, .. } if *reader == r)
+    )));
+    let reqs = samples_of(&mut net, 1, r);
+    assert_eq!(reqs.len(), 1);
+    let h = RequestHeader::peek(reqs[0].data()).expect("a header");
+    assert_eq!(h.seq, 1, "the client's first request");
+    assert_eq!(
+        reqs[0].data(),
+        with_header(h.client, 1, 5),
+        "header, then the body"
+    );
+    let now = net.now();
+    // another client's reply first (ignored), then ours
+    net.node(1)
+        .write(
+            w,
+            Change::alive_owned(with_header(h.client ^ 1, 1, 99)),
+            now,
+        )
+        .unwrap();
+    net.node(1)
+        .write(w, Change::alive_owned(with_header(h.client, 1, 6)), now)
+        .unwrap();
+    assert!(net.run_until(ms(5000), |n| n.has(0, |e| matches!(e, Event::Reply { .. }))));
+    let replies: Vec<_> = net
+        .take_events(0)
+        .into_iter()
+        .filter_map(|e| match e {
+            Event::Reply {
+                client,
+                query,
+                sample,
+            } => Some((client, query, sample.data().to_vec())),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(replies, vec![(c, q, sample(6))]);
+}
+
+#[test]
+fn replies_that_answer_no_query_are_counted_and_named_when_the_query_times_out() {
+    let mut net = new_net(2, 23, 0);
+    let now = net.now();
+    // the client asks by related sample identity; the service answers by
+    // header (the other style): its replies match nothing
+    let svc = ServiceConfig::new("add", "Req", "Rep").with_style(RpcStyle::SampleIdentity);
+    let c = net.node(0).create_client(&svc, now).unwrap();
+    let (w, r) = raw_pair(&mut net, 1, "rr/addReply", "Rep", "rq/addRequest", "Req");
+    let now = net.now();
+    let q = net.node(0).query(c, sample(5), ms(3000), now).unwrap();
+    assert!(net.run_until(ms(2000), |n| n.has(
+        1,
+        |e| matches!(e, Event::Sample { reader, .. } if *reader == r)
+    )));
+    let now = net.now();
+    // a reply without identity and too short for a header
+    net.node(1)
+        .write(w, Change::alive_owned(sample(6)), now)
+        .unwrap();
+    net.run_for(ms(3001));
+    assert!(net.has(0, |e| matches!(e, Event::QueryFailed { client, query, reason: QueryFailure::Unmatched { replies: 1, .. } } if *client == c && *query == q)));
+}

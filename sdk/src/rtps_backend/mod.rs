@@ -89,7 +89,7 @@ use receive::ReceiveThread;
 use state::State;
 
 pub(crate) use options::RtpsOverrides;
-pub use options::{RtpsOptions, LOOPBACK_MAX_MESSAGE_SIZE};
+pub use options::{RtpsOptions, ServiceStyle, LOOPBACK_MAX_MESSAGE_SIZE};
 
 /// The DDS key hash of `value` (DDSI-RTPS §9.6.4.8): its key fields as
 /// big-endian XCDR2, zero-padded when the key can never exceed 16 bytes,
@@ -189,13 +189,14 @@ impl RtpsBackend {
         let (tx, rx) = mailbox(crate::mailbox::CAPACITY);
         let listeners = Listeners::new(crate::hub::DEFAULT_CAPACITY);
         let responder = tx.downgrade();
-        let st = State::new(
+        let mut st = State::new(
             Domain::new(cfg, now, SystemTime::now()),
             name,
             listeners.clone(),
             responder,
             now,
         );
+        st.service_style = opts.services.wire();
         let sock_err = |e: std::io::Error| fail(format!("user data socket: {e}"));
         let out = Out {
             sock: socks.user.try_clone().map_err(sock_err)?,

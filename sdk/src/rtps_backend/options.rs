@@ -60,6 +60,38 @@ pub struct RtpsOptions {
     /// the driver task reads it. It saves a tokio wake-up per datagram
     /// (BENCHMARKS.md: round trips); `Subscriber` streams are fed from it too.
     pub receive_thread: bool,
+    /// How `query` and `serve` tie replies to requests (URL option
+    /// `services=auto|fastrtps|cyclonedds`).
+    pub services: ServiceStyle,
+}
+
+/// The two ways ROS 2's DDS-based rmw implementations tie a reply to its
+/// request.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[non_exhaustive]
+pub enum ServiceStyle {
+    /// Each peer's own (the default): a request that carries its related
+    /// sample identity is answered so, a request from a Cyclone DDS
+    /// participant without one by header; a query goes by header when
+    /// every service it matched is a Cyclone DDS participant.
+    #[default]
+    Auto,
+    /// rmw_fastrtps's (and rmw_connextdds's): the reply carries the
+    /// request's identity as inline QoS.
+    FastRtps,
+    /// rmw_cyclonedds's: a 16-byte header (client id, request number)
+    /// before the body of each request and reply.
+    CycloneDds,
+}
+
+impl ServiceStyle {
+    pub(crate) fn wire(self) -> Option<courier_wire::dds::RpcStyle> {
+        match self {
+            ServiceStyle::Auto => None,
+            ServiceStyle::FastRtps => Some(courier_wire::dds::RpcStyle::SampleIdentity),
+            ServiceStyle::CycloneDds => Some(courier_wire::dds::RpcStyle::RequestHeader),
+        }
+    }
 }
 
 impl Default for RtpsOptions {
@@ -78,6 +110,7 @@ impl Default for RtpsOptions {
             max_message_size: None,
             fragment_size: None,
             receive_thread: false,
+            services: ServiceStyle::Auto,
         }
     }
 }
@@ -180,6 +213,19 @@ impl RtpsOptions {
                     o.fragment_size = Some(n);
                 }
                 "receive_thread" => o.receive_thread = parse_bool(url, k, v)?,
+                "services" => {
+                    o.services = match v {
+                        "auto" => ServiceStyle::Auto,
+                        "fastrtps" => ServiceStyle::FastRtps,
+                        "cyclonedds" => ServiceStyle::CycloneDds,
+                        _ => {
+                            return Err(bad(
+                                url,
+                                format!("{k}={v}: expected auto, fastrtps or cyclonedds"),
+                            ))
+                        }
+                    }
+                }
                 "busy_poll_us" => {
                     o.busy_poll =
                         Some(Duration::from_micros(parse_num(url, k, v)?)).filter(|d| !d.is_zero())
@@ -190,7 +236,7 @@ impl RtpsOptions {
                         format!(
                             "unknown option {k:?} (known: interface, peers, multicast, index, \
                              max_index, recv_buffer, send_buffer, lease_ms, busy_poll_us, \
-                             max_message_size, fragment_size, receive_thread)"
+                             max_message_size, fragment_size, receive_thread, services)"
                         ),
                     ))
                 }

@@ -125,6 +125,9 @@ pub(super) struct State {
     queries: HashMap<QueryId, Query>,
     /// For responders: replies come back to the driver as commands.
     responder: crate::mailbox::WeakMailbox<Cmd>,
+    /// The request/reply style of services and clients (`None`: each
+    /// peer's).
+    pub(super) service_style: Option<courier_wire::dds::RpcStyle>,
     /// Sample buffers subscribers have decoded, for the participant to reuse.
     pub(super) returns: Arc<ReturnedBuffers>,
     /// Immediate-delivery subscriptions that got samples since they were
@@ -162,6 +165,7 @@ impl State {
             clients: HashMap::new(),
             queries: HashMap::new(),
             responder,
+            service_style: None,
             returns: Arc::default(),
             immediate: Vec::new(),
             wakes: None,
@@ -449,7 +453,7 @@ impl State {
             } => {
                 let r = self
                     .d
-                    .create_client(&service_config(&name, &req, &resp), now)
+                    .create_client(&service_config(&name, &req, &resp, self.service_style), now)
                     .map(|c| {
                         let id = ClientId(self.handle());
                         self.clients.insert(id, (name.clone(), c));
@@ -522,7 +526,7 @@ impl State {
         }
         let id = self
             .d
-            .create_service(&service_config(&name, req, resp), now)
+            .create_service(&service_config(&name, req, resp, self.service_style), now)
             .map_err(|source| OpenError::Endpoint {
                 topic: name.clone(),
                 source,
@@ -768,6 +772,11 @@ impl State {
                             msg: q.name,
                             timeout,
                         },
+                        QueryFailure::Unmatched { timeout, replies } => QueryError::Unmatched {
+                            msg: q.name,
+                            timeout,
+                            replies,
+                        },
                         QueryFailure::Refused(source) => QueryError::Refused {
                             source: PublishError::Writer {
                                 topic: q.name.clone(),
@@ -966,11 +975,17 @@ impl State {
     }
 }
 
-fn service_config(name: &str, req: &TypeInfo, resp: &TypeInfo) -> ServiceConfig {
+fn service_config(
+    name: &str,
+    req: &TypeInfo,
+    resp: &TypeInfo,
+    style: Option<courier_wire::dds::RpcStyle>,
+) -> ServiceConfig {
     let mut c =
         ServiceConfig::new(name, req.type_name, resp.type_name).keyed(req.keyed, resp.keyed);
     c.writer_qos = publication_qos(&PublicationQos::default());
     c.reader_qos = subscription_qos(&SubscriptionQos::default());
+    c.style = style;
     c
 }
 

@@ -39,6 +39,15 @@ pub enum QueryFailure {
     /// No service was matched within the timeout: the request was never
     /// sent.
     NoService(Duration),
+    /// The request went out, no reply to it came within its timeout, but
+    /// `replies` replies came meanwhile that answered no open query of this
+    /// client (a service of another request/reply style, or late replies).
+    Unmatched {
+        /// The timeout.
+        timeout: Duration,
+        /// Replies that matched nothing.
+        replies: u64,
+    },
     /// The request could not be written.
     Refused(WriteError),
     /// The client was deleted first.

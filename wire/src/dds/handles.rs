@@ -3,6 +3,8 @@
 use crate::rtps::participant::SampleIdentity;
 use crate::rtps::Guid;
 
+use super::request_header::{RequestHeader, RpcStyle};
+
 /// A writer of this domain ([`Domain::create_writer`](super::Domain::create_writer)).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct WriterId(pub(crate) Guid);
@@ -46,16 +48,46 @@ pub struct PatternId(pub(crate) u64);
 pub struct QueryId(pub(crate) u64);
 
 /// A request a service received: what its reply must name
-/// ([`Domain::reply`](super::Domain::reply)). As rmw_fastrtps: the reply
-/// reader the request named (with the request's sequence number), else the
-/// request's own identity.
+/// ([`Domain::reply`](super::Domain::reply)), in the request's
+/// [`RpcStyle`]. Related sample identity, as rmw_fastrtps: the reply reader
+/// the request named (with the request's sequence number), else the
+/// request's own identity. Request header, as rmw_cyclonedds: the client's
+/// id and request number from the header.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct RequestId(pub(crate) SampleIdentity);
+pub struct RequestId(pub(crate) RequestKey);
+
+/// A request's identity in either style (also the key of a client's
+/// open queries).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub(crate) enum RequestKey {
+    Identity(SampleIdentity),
+    Header(RequestHeader),
+}
 
 impl RequestId {
-    /// The identity the reply carries as its related sample identity.
-    pub fn related_identity(self) -> SampleIdentity {
-        self.0
+    /// How the reply names the request.
+    pub fn style(self) -> RpcStyle {
+        match self.0 {
+            RequestKey::Identity(_) => RpcStyle::SampleIdentity,
+            RequestKey::Header(_) => RpcStyle::RequestHeader,
+        }
+    }
+
+    /// The identity the reply carries as its related sample identity
+    /// ([`RpcStyle::SampleIdentity`]).
+    pub fn related_identity(self) -> Option<SampleIdentity> {
+        match self.0 {
+            RequestKey::Identity(id) => Some(id),
+            RequestKey::Header(_) => None,
+        }
+    }
+
+    /// The header the reply starts with ([`RpcStyle::RequestHeader`]).
+    pub fn request_header(self) -> Option<RequestHeader> {
+        match self.0 {
+            RequestKey::Identity(_) => None,
+            RequestKey::Header(h) => Some(h),
+        }
     }
 }
 

@@ -75,6 +75,7 @@ mod event;
 mod handles;
 mod pattern;
 mod reader;
+mod request_header;
 mod rpc;
 mod writer;
 
@@ -83,7 +84,7 @@ use std::collections::{BTreeMap, VecDeque};
 use foldhash::{HashMap, HashMapExt};
 use std::time::{Duration, Instant, SystemTime};
 
-use crate::rtps::participant::{self, Config, Datagram, Participant, SampleIdentity, Transmission};
+use crate::rtps::participant::{self, Config, Datagram, Participant, Transmission};
 use crate::rtps::{Guid, Locator};
 
 pub use event::{ConfirmFailure, DropReason, Event, QueryFailure};
@@ -91,6 +92,7 @@ pub use handles::{
     ClientId, Endpoint, PatternId, QueryId, ReaderId, RequestId, ServiceId, WriterId,
 };
 pub use pattern::fnmatch;
+pub use request_header::{RequestHeader, RpcStyle};
 pub use rpc::{reply_topic, request_topic, ServiceConfig};
 pub use writer::pad;
 
@@ -123,7 +125,7 @@ pub struct Domain {
     services: BTreeMap<ServiceId, rpc::Service>,
     clients: BTreeMap<ClientId, rpc::Client>,
     waiting: Vec<rpc::Waiting>,
-    inflight: HashMap<SampleIdentity, rpc::Inflight>,
+    inflight: HashMap<handles::RequestKey, rpc::Inflight>,
     next_id: u64,
     next_housekeeping: Instant,
     events: VecDeque<Event>,

@@ -1,7 +1,12 @@
-//! Request/reply as ROS 2 does it over DDS (rmw_fastrtps): a request topic
-//! `rq/<name>Request` and a reply topic `rr/<name>Reply`; a reply carries
-//! the request's identity as its related sample identity
-//! (`PID_RELATED_SAMPLE_IDENTITY`, and Fast DDS's 0x800f).
+//! Request/reply as ROS 2 does it over DDS: a request topic
+//! `rq/<name>Request` and a reply topic `rr/<name>Reply`; a reply names its
+//! request in one of two styles ([`RpcStyle`]): as its related sample
+//! identity (`PID_RELATED_SAMPLE_IDENTITY`, and Fast DDS's 0x800f; as
+//! rmw_fastrtps does), or by a header before the body (as rmw_cyclonedds
+//! does). Unless a service or client is given a style, it takes each
+//! peer's: a request with a related identity is answered so, a request
+//! from a Cyclone DDS participant without one by header; a client asks by
+//! header when every service it matched is a Cyclone DDS participant.
 
 use std::time::{Duration, Instant};
 
@@ -11,6 +16,8 @@ use crate::rtps::participant::{
 };
 use crate::rtps::{Guid, GuidPrefix, SequenceNumber};
 
+use super::handles::RequestKey;
+use super::request_header::{self, RequestHeader, RpcStyle};
 use super::{ClientId, Domain, Event, QueryFailure, QueryId, RequestId, Role, ServiceId};
 
 /// ROS 2's request topic of service `name`.
@@ -41,6 +48,8 @@ pub struct ServiceConfig {
     pub writer_qos: EndpointQos,
     /// QoS of the readers.
     pub reader_qos: EndpointQos,
+    /// The request/reply style; `None`: each peer's (see the module docs).
+    pub style: Option<RpcStyle>,
 }
 
 impl ServiceConfig {
@@ -61,7 +70,14 @@ impl ServiceConfig {
             reply_keyed: false,
             writer_qos,
             reader_qos,
+            style: None,
         }
+    }
+
+    /// Uses `style` with every peer instead of each peer's own.
+    pub fn with_style(mut self, style: RpcStyle) -> Self {
+        self.style = Some(style);
+        self
     }
 
     /// Sets whether the request and reply types have keys.
@@ -94,11 +110,28 @@ impl ServiceConfig {
 pub(super) struct Service {
     writer: Guid,
     reader: Guid,
+    style: Option<RpcStyle>,
 }
 
 pub(super) struct Client {
     writer: Guid,
     reader: Guid,
+    style: Option<RpcStyle>,
+    /// Its id in request headers.
+    id: u64,
+    /// The number of its last request sent with a header.
+    seq: i64,
+    /// Replies that answered none of its open queries.
+    unmatched: u64,
+}
+
+/// A client's id in request headers: from its request writer's GUID
+/// (rmw_cyclonedds uses the writer's instance handle; any number unique
+/// among the service's clients does).
+fn header_id(writer: Guid) -> u64 {
+    let mut b = [0u8; 8];
+    b.copy_from_slice(&writer.prefix.0[4..12]);
+    u64::from_le_bytes(b) ^ u64::from(u32::from_be_bytes(writer.entity.0))
 }
 
 pub(super) struct Waiting {
@@ -114,6 +147,8 @@ pub(super) struct Inflight {
     query: QueryId,
     deadline: Instant,
     timeout: Duration,
+    /// The client's unmatched replies when it was sent.
+    unmatched_before: u64,
 }
 
 impl Domain {
@@ -131,7 +166,14 @@ impl Domain {
             Role::Service(id),
             now,
         )?;
-        self.services.insert(id, Service { writer, reader });
+        self.services.insert(
+            id,
+            Service {
+                writer,
+                reader,
+                style: config.style,
+            },
+        );
         self.drain(now);
         Ok(id)
     }
@@ -161,7 +203,14 @@ impl Domain {
             .get(&service)
             .ok_or(WriteError::UnknownWriter)?
             .writer;
-        let change = Change::alive_owned(data).with_related_sample_identity(request.0);
+        let change = match request.0 {
+            RequestKey::Identity(id) => Change::alive_owned(data).with_related_sample_identity(id),
+            RequestKey::Header(h) => {
+                let mut data = data;
+                h.put(&mut data);
+                Change::alive_owned(data)
+            }
+        };
         let r = self.write_guid(w, change, None, now);
         self.drain(now);
         r
@@ -182,7 +231,17 @@ impl Domain {
             Role::Client(id),
             now,
         )?;
-        self.clients.insert(id, Client { writer, reader });
+        self.clients.insert(
+            id,
+            Client {
+                writer,
+                reader,
+                style: config.style,
+                id: header_id(writer),
+                seq: 0,
+                unmatched: 0,
+            },
+        );
         self.drain(now);
         Ok(id)
     }
@@ -284,26 +343,50 @@ impl Domain {
                 continue;
             }
             let q = self.waiting.swap_remove(i);
-            // as rmw_fastrtps clients do: the request names the reader its
-            // reply should go to (sequence number unknown)
-            let to = SampleIdentity {
-                writer: reader,
-                sequence_number: SequenceNumber(-1 << 32),
+            let style = c.style.unwrap_or_else(|| self.style_of_services(writer));
+            let (change, header) = match style {
+                RpcStyle::SampleIdentity => {
+                    // as rmw_fastrtps clients do: the request names the
+                    // reader its reply should go to (sequence number unknown)
+                    let to = SampleIdentity {
+                        writer: reader,
+                        sequence_number: SequenceNumber(-1 << 32),
+                    };
+                    let change = Change::alive_owned(q.data).with_related_sample_identity(to);
+                    (change, None)
+                }
+                RpcStyle::RequestHeader => {
+                    let Some(c) = self.clients.get_mut(&q.client) else {
+                        continue;
+                    };
+                    c.seq += 1;
+                    let h = RequestHeader {
+                        client: c.id,
+                        seq: c.seq,
+                    };
+                    let mut data = q.data;
+                    h.put(&mut data);
+                    (Change::alive_owned(data), Some(h))
+                }
             };
-            let change = Change::alive_owned(q.data).with_related_sample_identity(to);
+            let unmatched_before = self.clients.get(&q.client).map_or(0, |c| c.unmatched);
             match self.write_guid(writer, change, None, now) {
                 Ok(sn) => {
-                    let id = SampleIdentity {
-                        writer,
-                        sequence_number: sn,
+                    let key = match header {
+                        Some(h) => RequestKey::Header(h),
+                        None => RequestKey::Identity(SampleIdentity {
+                            writer,
+                            sequence_number: sn,
+                        }),
                     };
                     self.inflight.insert(
-                        id,
+                        key,
                         Inflight {
                             client: q.client,
                             query: q.query,
                             deadline: q.deadline,
                             timeout: q.timeout,
+                            unmatched_before,
                         },
                     );
                 }
@@ -326,10 +409,22 @@ impl Domain {
             }
             !out
         });
+        let clients = &self.clients;
         self.inflight.retain(|_, q| {
             let out = q.deadline <= now;
             if out {
-                late.push((q.client, q.query, QueryFailure::Timeout(q.timeout)));
+                let unmatched = clients
+                    .get(&q.client)
+                    .map_or(0, |c| c.unmatched.saturating_sub(q.unmatched_before));
+                let reason = if unmatched > 0 {
+                    QueryFailure::Unmatched {
+                        timeout: q.timeout,
+                        replies: unmatched,
+                    }
+                } else {
+                    QueryFailure::Timeout(q.timeout)
+                };
+                late.push((q.client, q.query, reason));
             }
             !out
         });
@@ -348,20 +443,57 @@ impl Domain {
         w.chain(self.inflight.values().map(|q| q.deadline)).min()
     }
 
+    /// The style to ask the services matched with request writer
+    /// `writer` in: by header when every one is a Cyclone DDS participant.
+    fn style_of_services(&self, writer: Guid) -> RpcStyle {
+        let readers = self.p.matched_readers(writer);
+        let cyclone = |g: &Guid| {
+            self.p
+                .participant(g.prefix)
+                .is_some_and(|d| RpcStyle::of_vendor(d.vendor) == RpcStyle::RequestHeader)
+        };
+        if !readers.is_empty() && readers.iter().all(cyclone) {
+            RpcStyle::RequestHeader
+        } else {
+            RpcStyle::SampleIdentity
+        }
+    }
+
     /// A request for one of our services.
-    pub(super) fn on_request(&mut self, service: ServiceId, s: ReceivedSample) {
+    pub(super) fn on_request(&mut self, service: ServiceId, mut s: ReceivedSample) {
         if s.kind != ChangeKind::Alive {
             return;
         }
-        // as rmw_fastrtps: a request that names a reply reader (its
-        // related identity's GUID) is answered for that GUID with the
-        // request's sequence number; otherwise for the request itself
-        let request = match s.related_sample_identity {
-            Some(r) if r.writer.prefix != GuidPrefix::UNKNOWN => SampleIdentity {
-                writer: r.writer,
-                sequence_number: s.sequence_number,
-            },
-            _ => s.identity(),
+        let Some(srv) = self.services.get(&service) else {
+            return;
+        };
+        let style = srv
+            .style
+            .unwrap_or_else(|| match s.related_sample_identity {
+                Some(_) => RpcStyle::SampleIdentity,
+                None => self
+                    .p
+                    .participant(s.writer.prefix)
+                    .map_or(RpcStyle::SampleIdentity, |d| RpcStyle::of_vendor(d.vendor)),
+            });
+        let header = match style {
+            RpcStyle::RequestHeader => {
+                RequestHeader::peek(s.data()).filter(|_| s.remove_data(4, request_header::LEN))
+            }
+            RpcStyle::SampleIdentity => None,
+        };
+        let request = match (header, s.related_sample_identity) {
+            (Some(h), _) => RequestKey::Header(h),
+            // as rmw_fastrtps: a request that names a reply reader (its
+            // related identity's GUID) is answered for that GUID with the
+            // request's sequence number; otherwise for the request itself
+            (None, Some(r)) if r.writer.prefix != GuidPrefix::UNKNOWN => {
+                RequestKey::Identity(SampleIdentity {
+                    writer: r.writer,
+                    sequence_number: s.sequence_number,
+                })
+            }
+            (None, _) => RequestKey::Identity(s.identity()),
         };
         self.events.push_back(Event::Request {
             service,
@@ -371,33 +503,49 @@ impl Domain {
     }
 
     /// A reply to one of our queries (or another client's: ignored).
-    pub(super) fn on_reply(&mut self, client: ClientId, s: ReceivedSample) {
-        let Some(c) = self.clients.get(&client) else {
+    pub(super) fn on_reply(&mut self, client: ClientId, mut s: ReceivedSample) {
+        let Some(c) = self.clients.get_mut(&client) else {
             return;
         };
-        // a reply names our request writer (Courier, Fast DDS) or our
-        // reply reader (rmw_fastrtps) with the request's sequence number
-        let Some(id) = s.related_sample_identity.map(|id| {
-            if id.writer == c.reader {
-                SampleIdentity {
-                    writer: c.writer,
-                    sequence_number: id.sequence_number,
+        let key = match s.related_sample_identity {
+            // a reply names our request writer (Courier, Fast DDS) or our
+            // reply reader (rmw_fastrtps) with the request's sequence number
+            Some(id) => {
+                let id = if id.writer == c.reader {
+                    SampleIdentity {
+                        writer: c.writer,
+                        sequence_number: id.sequence_number,
+                    }
+                } else {
+                    id
+                };
+                if id.writer != c.writer {
+                    return; // another client's
                 }
-            } else {
-                id
+                RequestKey::Identity(id)
             }
-        }) else {
+            // rmw_cyclonedds: the header names the client
+            None => match RequestHeader::peek(s.data()) {
+                Some(h) if h.client == c.id => RequestKey::Header(h),
+                Some(_) => return, // another client's
+                None => {
+                    c.unmatched += 1;
+                    return;
+                }
+            },
+        };
+        let Some(q) = self.inflight.remove(&key) else {
+            // late, or for a query this client never made
+            c.unmatched += 1;
             return;
         };
-        if id.writer != c.writer {
-            return; // another client's
+        if matches!(key, RequestKey::Header(_)) {
+            s.remove_data(4, request_header::LEN);
         }
-        if let Some(q) = self.inflight.remove(&id) {
-            self.events.push_back(Event::Reply {
-                client: q.client,
-                query: q.query,
-                sample: s,
-            });
-        }
+        self.events.push_back(Event::Reply {
+            client: q.client,
+            query: q.query,
+            sample: s,
+        });
     }
 }

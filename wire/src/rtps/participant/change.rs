@@ -368,6 +368,18 @@ impl ReceivedSample {
         &self.envelope[..data_len(&self.envelope)]
     }
 
+    /// Removes `len` bytes of the data starting at `at` (rmw_cyclonedds's
+    /// request header, after the encapsulation); false, and nothing
+    /// removed, if the data is shorter. Copies only a shared sample.
+    pub fn remove_data(&mut self, at: usize, len: usize) -> bool {
+        let end = at.saturating_add(len);
+        if end > data_len(&self.envelope) {
+            return false;
+        }
+        Arc::make_mut(&mut self.envelope).drain(at..end);
+        true
+    }
+
     /// [`ReceivedSample::data`] as an owned buffer: without a copy when no
     /// other reader shares this sample (the usual case).
     pub fn into_data(self) -> Vec<u8> {
