@@ -733,18 +733,13 @@ async fn adder(s: &Session) {
     });
 }
 
-#[tokio::test]
-async fn queries_are_answered_with_the_related_sample_identity() {
-    let server = session(165, "server").await;
-    let c1 = session(165, "client-1").await;
-    let c2 = session(165, "client-2").await;
-    adder(&server).await;
-    // many concurrent queries from two clients, answered out of order:
-    // each gets its own reply
+/// `n` concurrent queries from each client, answered out of order: each
+/// gets its own reply.
+async fn ask_concurrently(clients: &[&Session], n: i64) {
     let mut all = Vec::new();
-    for (k, c) in [&c1, &c2].into_iter().enumerate() {
-        for i in 0..20i64 {
-            let c = c.clone();
+    for (k, c) in clients.iter().enumerate() {
+        for i in 0..n {
+            let c = (*c).clone();
             all.push(tokio::spawn(async move {
                 let a = i * 7 + k as i64 * 1000;
                 let r: AddResp = c
@@ -759,6 +754,15 @@ async fn queries_are_answered_with_the_related_sample_identity() {
     for h in all {
         h.await.unwrap();
     }
+}
+
+#[tokio::test]
+async fn queries_are_answered_with_the_related_sample_identity() {
+    let server = session(165, "server").await;
+    let c1 = session(165, "client-1").await;
+    let c2 = session(165, "client-2").await;
+    adder(&server).await;
+    ask_concurrently(&[&c1, &c2], 20).await;
 }
 
 #[tokio::test]
@@ -853,24 +857,7 @@ async fn queries_in_rmw_cyclonedds_style() {
     let c1 = session_with(173, "client-1", "services=cyclonedds").await;
     let c2 = session_with(173, "client-2", "services=cyclonedds").await;
     adder(&server).await;
-    let mut all = Vec::new();
-    for (k, c) in [&c1, &c2].into_iter().enumerate() {
-        for i in 0..10i64 {
-            let c = c.clone();
-            all.push(tokio::spawn(async move {
-                let a = i * 7 + k as i64 * 1000;
-                let r: AddResp = c
-                    .query("add", &AddReq { a, b: 1 })
-                    .timeout(T)
-                    .await
-                    .unwrap();
-                assert_eq!(r.sum, a + 1);
-            }));
-        }
-    }
-    for h in all {
-        h.await.unwrap();
-    }
+    ask_concurrently(&[&c1, &c2], 10).await;
     // the option is what made both sides use the header: a client of the
     // other style is not understood (the server takes the first 16 bytes
     // of its body for a header)
