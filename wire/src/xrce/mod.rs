@@ -39,13 +39,28 @@
 //! - Decoding never panics and allocates no more than the input holds;
 //!   errors name the field and its byte offset in the message.
 
+mod binary;
+mod client;
 mod cursor;
 mod message;
 mod object;
 pub mod serial;
+mod session;
+pub mod stream;
 mod submessage;
 pub mod tcp;
 mod types;
+
+pub use binary::{
+    qos_flags, BinaryRepresentation, DataReaderBinary, DataReaderQos, DataWriterBinary,
+    EndpointQos, GroupBinary, GroupQos, ParticipantBinary, ServiceBinary, TopicBinary,
+};
+pub use client::{
+    Client, ClientConfig, CommandError, ConnectError, CreationMode, Event, Keepalive, LostReason,
+    ObjectDef, SampleIdentity, State, StatusError,
+};
+pub use session::{InputError, QueueError};
+pub use stream::{SeqNum, StreamConfig, StreamError};
 
 pub use message::{Message, MessageHeader, SESSION_ID_WITHOUT_CLIENT_KEY};
 pub use object::{
