@@ -39,6 +39,7 @@
 //! - Decoding never panics and allocates no more than the input holds;
 //!   errors name the field and its byte offset in the message.
 
+mod agent;
 mod binary;
 mod client;
 mod cursor;
@@ -46,11 +47,14 @@ mod message;
 mod object;
 pub mod serial;
 mod session;
+#[cfg(feature = "sim")]
+pub mod sim;
 pub mod stream;
 mod submessage;
 pub mod tcp;
 mod types;
 
+pub use agent::{Agent, AgentCommandError, AgentConfig, AgentEvent};
 pub use binary::{
     qos_flags, BinaryRepresentation, DataReaderBinary, DataReaderQos, DataWriterBinary,
     EndpointQos, GroupBinary, GroupQos, ParticipantBinary, ServiceBinary, TopicBinary,
