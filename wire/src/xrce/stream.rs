@@ -489,7 +489,7 @@ impl ReliableOutput {
 
     fn slot_index(&self, seq: SeqNum) -> Option<usize> {
         let d = usize::from(seq.since(self.last_acked));
-        (d >= 1 && d <= self.slots.len()).then_some(d - 1)
+        d.checked_sub(1).filter(|&i| i < self.slots.len())
     }
 
     /// The next message to send: a retransmission asked for by an ACKNACK,
