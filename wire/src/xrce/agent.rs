@@ -202,6 +202,17 @@ impl<A: Clone + Eq + Hash> Agent<A> {
         self.clients.keys().map(|k| ClientKey::from(*k))
     }
 
+    /// Bytes held in every session's streams, and in messages waiting to
+    /// go; bounded by the configuration (clients × streams × window).
+    pub fn buffered_bytes(&self) -> usize {
+        self.transmits.iter().map(|t| t.1.len()).sum::<usize>()
+            + self
+                .clients
+                .values()
+                .map(|p| p.streams.buffered())
+                .sum::<usize>()
+    }
+
     /// The address a client's messages go to.
     pub fn client_address(&self, client: ClientKey) -> Option<&A> {
         self.clients.get(&u32::from(client)).map(|p| &p.addr)
@@ -280,7 +291,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
         let Some(proxy) = self.clients.get_mut(&key) else {
             return Ok(());
         };
-        let arrival = proxy.streams.receive(msg, now);
+        let arrival = proxy.streams.receive(msg, bytes.len(), now);
         let mut result = arrival.errors.into_iter().next().map_or(Ok(()), Err);
         for (stream, sub) in arrival.subs {
             let r = self.on_submessage(key, stream, sub, now);

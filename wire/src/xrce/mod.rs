@@ -64,7 +64,7 @@ pub use client::{
     ObjectDef, SampleIdentity, State, StatusError,
 };
 pub use session::{InputError, QueueError};
-pub use stream::{SeqNum, StreamConfig, StreamError};
+pub use stream::{FragmentError, SeqNum, StreamConfig, StreamError};
 
 pub use message::{Message, MessageHeader, SESSION_ID_WITHOUT_CLIENT_KEY};
 pub use object::{

@@ -256,7 +256,7 @@ impl Streams {
     }
 
     /// Takes an arriving message of this session.
-    pub fn receive(&mut self, message: Message, now: Instant) -> Arrival {
+    pub fn receive(&mut self, message: Message, len: usize, now: Instant) -> Arrival {
         let mut a = Arrival::default();
         for s in self.rel_out.values_mut() {
             s.touch(now);
@@ -279,7 +279,7 @@ impl Streams {
                 a.errors.push(InputError::TooManyStreams(id.0));
                 return a;
             };
-            input.receive(seq, message);
+            input.receive(seq, message, len);
             let mut subs = Vec::new();
             let mut errors = Vec::new();
             while let Some(m) = input.next_message() {
@@ -354,6 +354,26 @@ impl Streams {
             .values_mut()
             .flat_map(|s| s.take_acked().collect::<Vec<_>>())
             .collect()
+    }
+
+    /// Bytes the session holds in its streams.
+    pub fn buffered(&self) -> usize {
+        self.control.iter().map(Vec::len).sum::<usize>()
+            + self
+                .rel_out
+                .values()
+                .map(ReliableOutput::buffered)
+                .sum::<usize>()
+            + self
+                .be_out
+                .values()
+                .map(BestEffortOutput::buffered)
+                .sum::<usize>()
+            + self
+                .rel_in
+                .values()
+                .map(ReliableInput::buffered)
+                .sum::<usize>()
     }
 
     /// Whether every output stream is empty and acknowledged.
