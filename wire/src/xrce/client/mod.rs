@@ -43,7 +43,8 @@ use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
 use super::message::MessageHeader;
 use super::object::{AgentRepresentation, ClientRepresentation, ObjectVariant};
-use super::session::{single, Streams};
+use super::session::{single, QueueError, Streams};
+use super::stream::StreamError;
 use super::submessage::{
     flags, Create, Data, DeliveryControl, GetInfo, Payload, ReadData, Submessage,
 };
@@ -391,11 +392,25 @@ impl Client {
     ) -> Result<RequestId, CommandError> {
         self.require_session()?;
         let req = self.alloc_request()?;
+        let data_len = data.len();
         let sub = Submessage::new(Payload::WriteData(Data {
             request: BaseObjectRequest::new(req, object),
             data,
         }));
         let tag = stream.is_reliable().then_some(req);
+        if stream.is_reliable() {
+            // writes kept for a new session count against the backlog too
+            let kept: usize = self.unconfirmed.iter().map(|u| u.2.len()).sum();
+            let max = self.cfg.streams.max_backlog;
+            if kept + data_len > max {
+                return Err(QueueError::Stream(StreamError::Backlog {
+                    stream: stream.0,
+                    len: data_len,
+                    max,
+                })
+                .into());
+            }
+        }
         let bytes = self.queue(stream, &sub, tag, false)?;
         if stream.is_reliable() {
             self.unconfirmed.push_back((req, stream, bytes));
