@@ -675,7 +675,8 @@ fn create_client_is_checked_by_the_agent() {
             vec![sub(Payload::CreateClient(rep))],
         )
     };
-    let cases: [(&dyn Fn(&mut ClientRepresentation), StatusCode); 4] = [
+    type Change<'a> = &'a dyn Fn(&mut ClientRepresentation);
+    let cases: [(Change, StatusCode); 4] = [
         (
             &|r| r.client_key = ClientKey::from(0),
             StatusCode::ERR_INVALID_DATA,

@@ -111,7 +111,7 @@ impl ReliableInput {
 
     /// The next message in order, if it is here.
     pub fn next_message(&mut self) -> Option<Message> {
-        let next = self.last_handled.add(1);
+        let next = self.last_handled.wrapping_add(1);
         let (len, m) = self.held.remove(&next.0)?;
         self.held_bytes -= len;
         self.last_handled = next;
@@ -123,8 +123,10 @@ impl ReliableInput {
     /// how far to NACK (at most one window ahead).
     pub fn on_heartbeat(&mut self, hb: &Heartbeat) {
         let first = SeqNum(hb.first_unacked);
-        if first.is_after(self.last_handled.add(1)) && first.since(self.last_handled) < 0x8000 {
-            self.last_handled = first.sub(1);
+        if first.is_after(self.last_handled.wrapping_add(1))
+            && first.since(self.last_handled) < 0x8000
+        {
+            self.last_handled = first.wrapping_sub(1);
             let keep: BTreeMap<u16, (usize, Message)> = std::mem::take(&mut self.held)
                 .into_iter()
                 .filter(|(s, _)| SeqNum(*s).is_after(self.last_handled))
@@ -137,7 +139,7 @@ impl ReliableInput {
             }
         }
         let last = SeqNum(hb.last_unacked);
-        let limit = self.last_handled.add(self.cfg.depth);
+        let limit = self.last_handled.wrapping_add(self.cfg.depth);
         let last = if last.is_after(limit) { limit } else { last };
         if last.is_after(self.last_announced) {
             self.last_announced = last;
@@ -146,11 +148,11 @@ impl ReliableInput {
 
     /// The ACKNACK describing this stream now.
     pub fn acknack(&self) -> AckNack {
-        let first = self.last_handled.add(1);
+        let first = self.last_handled.wrapping_add(1);
         let known = self.last_announced.since(self.last_handled);
         let mut bits = 0u16;
         for i in 0..16u16 {
-            if i < known && known < 0x8000 && !self.held.contains_key(&first.add(i).0) {
+            if i < known && known < 0x8000 && !self.held.contains_key(&first.wrapping_add(i).0) {
                 bits |= 1 << i;
             }
         }

@@ -48,12 +48,12 @@ impl SeqNum {
     pub const INITIAL_LAST: SeqNum = SeqNum(u16::MAX);
 
     /// `self + n`, wrapping.
-    pub fn add(self, n: u16) -> SeqNum {
+    pub fn wrapping_add(self, n: u16) -> SeqNum {
         SeqNum(self.0.wrapping_add(n))
     }
 
     /// `self - n`, wrapping.
-    pub fn sub(self, n: u16) -> SeqNum {
+    pub fn wrapping_sub(self, n: u16) -> SeqNum {
         SeqNum(self.0.wrapping_sub(n))
     }
 

@@ -70,7 +70,7 @@ impl BestEffortOutput {
     pub fn poll_transmit(&mut self) -> Option<Vec<u8>> {
         let mut m = self.ready.pop_front().or_else(|| self.open.take())?;
         self.queued = self.queued.saturating_sub(m.len() - self.header.len());
-        self.last_sent = self.last_sent.add(1);
+        self.last_sent = self.last_sent.wrapping_add(1);
         set_seq(&mut m, self.last_sent);
         Some(m)
     }
@@ -175,7 +175,7 @@ impl ReliableOutput {
 
     /// The last sequence number sent.
     pub fn last_sent(&self) -> SeqNum {
-        self.last_acked.add(self.sent as u16)
+        self.last_acked.wrapping_add(self.sent as u16)
     }
 
     /// The last sequence number acknowledged.
@@ -303,7 +303,7 @@ impl ReliableOutput {
             }
         }
         self.fill();
-        let seq = self.last_sent().add(1);
+        let seq = self.last_sent().wrapping_add(1);
         let slot = self.slots.get_mut(self.sent)?;
         set_seq(&mut slot.bytes, seq);
         let bytes = slot.bytes.clone();
@@ -341,13 +341,13 @@ impl ReliableOutput {
     /// the heartbeat.
     pub fn on_acknack(&mut self, ack: &AckNack, now: Instant) {
         let first = SeqNum(ack.first_unacked);
-        let newly = usize::from(first.sub(1).since(self.last_acked));
+        let newly = usize::from(first.wrapping_sub(1).since(self.last_acked));
         if newly <= self.sent {
             for _ in 0..newly {
                 if let Some(s) = self.slots.pop_front() {
                     self.acked.extend(s.tags);
                 }
-                self.last_acked = self.last_acked.add(1);
+                self.last_acked = self.last_acked.wrapping_add(1);
                 self.sent -= 1;
             }
         } else if newly < 0x8000 {
@@ -356,10 +356,14 @@ impl ReliableOutput {
         let bits = ack.nack_bits();
         let all = self.cfg.nack_resends_all && bits != 0;
         let count = if all { self.sent as u16 } else { 16 };
-        let from = if all { self.last_acked.add(1) } else { first };
+        let from = if all {
+            self.last_acked.wrapping_add(1)
+        } else {
+            first
+        };
         for i in 0..count {
             if all || bits & (1 << i) != 0 {
-                let seq = from.add(i);
+                let seq = from.wrapping_add(i);
                 let sent = self.slot_index(seq).is_some_and(|j| j < self.sent);
                 if sent && !self.resend.contains(&seq) {
                     self.resend.push_back(seq);
@@ -385,7 +389,7 @@ impl ReliableOutput {
         }
         self.arm_heartbeat(now);
         Some(Heartbeat {
-            first_unacked: self.last_acked.add(1).0,
+            first_unacked: self.last_acked.wrapping_add(1).0,
             last_unacked: self.last_sent().0,
             stream_id: self.id,
         })
