@@ -16,6 +16,24 @@
 //! Wall-clock time (for TIMESTAMP_REPLY) is the anchor given to
 //! [`Agent::new`] or [`Agent::set_wall_clock`] plus the monotonic time
 //! since; the agent reads no clock.
+//!
+//! ```
+//! use std::time::{Instant, SystemTime};
+//! use courier_wire::xrce::{Agent, AgentConfig, AgentEvent};
+//! let now = Instant::now();
+//! let mut agent: Agent<&str> = Agent::new(AgentConfig::default(), now, SystemTime::now());
+//! // CREATE_CLIENT of `udp_xml_reliable_pubsub` #1, from a client at "a"
+//! let create_client = [
+//!     0x80, 0, 0, 0, 0, 1, 16, 0, b'X', b'R', b'C', b'E', 1, 0, 1, 0x0F,
+//!     0xCC, 0xCC, 0xDD, 0xDD, 0x81, 0, 0xFC, 0x01,
+//! ];
+//! agent.handle_input("a", &create_client, now).unwrap();
+//! assert!(matches!(agent.poll_event(), Some(AgentEvent::ClientCreated { kept: false, .. })));
+//! // STATUS_AGENT OK, as captured (#2)
+//! let (to, status_agent) = agent.poll_transmit().unwrap();
+//! assert_eq!(to, "a");
+//! assert_eq!(status_agent[..10], [0x81, 0, 0, 0, 4, 1, 11, 0, 0, 0]);
+//! ```
 
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::hash::Hash;
