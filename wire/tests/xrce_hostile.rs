@@ -864,3 +864,48 @@ fn host_commands_fail_with_reasons() {
     a.send_data(ClientKey::from(3), req, StreamId::RELIABLE, &[0; 600], now)
         .unwrap();
 }
+
+#[test]
+fn replaced_objects_keep_their_place_and_writes_in_flight_are_capped() {
+    let mut cfg = no_keepalive(1);
+    cfg.max_pending = 100;
+    let (mut c, now) = connected(cfg);
+    let p = ObjectId::new(1, ObjectKind::Participant);
+    let t = ObjectId::new(1, ObjectKind::Topic);
+    let xml = |s: &str| Representation::Xml(s.into());
+    let part = |s: &str| ObjectVariant::Participant {
+        representation: xml(s),
+        domain_id: 0,
+    };
+    c.create(p, part("a"), CreationMode::REPLACE, now).unwrap();
+    c.create(
+        t,
+        ObjectVariant::Topic {
+            representation: xml("t"),
+            participant_id: p,
+        },
+        CreationMode::REPLACE,
+        now,
+    )
+    .unwrap();
+    c.create(p, part("b"), CreationMode::REPLACE, now).unwrap();
+    let ids: Vec<_> = c.objects().iter().map(|d| d.id).collect();
+    assert_eq!(
+        ids,
+        [p, t],
+        "the participant is still created before its topic"
+    );
+    assert_eq!(c.objects()[0].variant, part("b"));
+    // tiny reliable writes: at most max_pending wait for their ACKNACK
+    let w = ObjectId::new(1, ObjectKind::DataWriter);
+    let mut n = 0;
+    let err = loop {
+        match c.write(w, StreamId::RELIABLE, &[n as u8], now) {
+            Ok(_) => n += 1,
+            Err(e) => break e,
+        }
+        drain(&mut c);
+    };
+    assert_eq!(n, 100);
+    assert_eq!(err, CommandError::TooManyRequests(100));
+}

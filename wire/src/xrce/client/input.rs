@@ -71,7 +71,7 @@ impl Client {
         }
         self.streams.control.extend(arrival.replies);
         for tag in self.streams.take_acked() {
-            self.unconfirmed.retain(|u| u.0 != tag);
+            self.unconfirmed.acked(tag);
             self.events.push_back(Event::WriteAcked(RequestId(tag)));
         }
         first

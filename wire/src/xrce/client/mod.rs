@@ -71,6 +71,31 @@ struct ReadDef {
     read: ReadData,
 }
 
+/// Reliable writes the agent has not acknowledged, kept to be sent again
+/// in a new session: in order, and by request id.
+#[derive(Debug, Clone, Default)]
+struct Unconfirmed {
+    writes: BTreeMap<u64, (u16, StreamId, Vec<u8>)>,
+    ids: BTreeMap<u16, u64>,
+    bytes: usize,
+    next: u64,
+}
+
+impl Unconfirmed {
+    fn push(&mut self, id: u16, stream: StreamId, bytes: Vec<u8>) {
+        self.bytes += bytes.len();
+        self.ids.insert(id, self.next);
+        self.writes.insert(self.next, (id, stream, bytes));
+        self.next += 1;
+    }
+
+    fn acked(&mut self, id: u16) {
+        if let Some(w) = self.ids.remove(&id).and_then(|k| self.writes.remove(&k)) {
+            self.bytes = self.bytes.saturating_sub(w.2.len());
+        }
+    }
+}
+
 /// A DDS-XRCE client session.
 #[derive(Debug, Clone)]
 pub struct Client {
@@ -82,7 +107,7 @@ pub struct Client {
     pending: BTreeMap<u16, (ObjectId, PendingKind)>,
     objects: Vec<ObjectDef>,
     reads: BTreeMap<u16, ReadDef>,
-    unconfirmed: VecDeque<(u16, StreamId, Vec<u8>)>,
+    unconfirmed: Unconfirmed,
     events: VecDeque<Event>,
     agent: Option<AgentRepresentation>,
     ping_sent: Option<Instant>,
@@ -131,7 +156,7 @@ impl Client {
             pending: BTreeMap::new(),
             objects: Vec::new(),
             reads: BTreeMap::new(),
-            unconfirmed: VecDeque::new(),
+            unconfirmed: Unconfirmed::default(),
             events: VecDeque::new(),
             agent: None,
             ping_sent: None,
@@ -176,7 +201,7 @@ impl Client {
     /// a partly rebuilt submessage, writes kept for a new session. Bounded
     /// by the stream configuration.
     pub fn buffered_bytes(&self) -> usize {
-        self.streams.buffered() + self.unconfirmed.iter().map(|u| u.2.len()).sum::<usize>()
+        self.streams.buffered() + self.unconfirmed.bytes
     }
 
     fn tick(&mut self, now: Instant) -> Instant {
@@ -288,16 +313,17 @@ impl Client {
         if self.pending.len() >= self.cfg.max_pending {
             return Err(CommandError::TooManyRequests(self.pending.len()));
         }
-        loop {
+        for _ in 0..=u16::MAX {
             let id = self.next_request;
             self.next_request = if id == u16::MAX { 10 } else { id + 1 };
             let used = self.pending.contains_key(&id)
-                || self.reads.values().any(|r| r.request == id)
-                || self.unconfirmed.iter().any(|u| u.0 == id);
+                || self.unconfirmed.ids.contains_key(&id)
+                || self.reads.values().any(|r| r.request == id);
             if !used {
                 return Ok(id);
             }
         }
+        Err(CommandError::TooManyRequests(self.pending.len()))
     }
 
     fn check_kind(object: ObjectId, kinds: &[ObjectKind]) -> Result<(), CommandError> {
@@ -363,11 +389,14 @@ impl Client {
         );
         self.queue(self.cfg.control_stream, &sub, None, false)?;
         self.pending.insert(req, (object, PendingKind::Create));
-        self.objects.retain(|d| d.id != object);
-        self.objects.push(ObjectDef {
-            id: object,
-            variant,
-        });
+        // a replaced object keeps its place: children come after it
+        match self.objects.iter_mut().find(|d| d.id == object) {
+            Some(d) => d.variant = variant,
+            None => self.objects.push(ObjectDef {
+                id: object,
+                variant,
+            }),
+        }
         Ok(RequestId(req))
     }
 
@@ -400,9 +429,11 @@ impl Client {
         let tag = stream.is_reliable().then_some(req);
         if stream.is_reliable() {
             // writes kept for a new session count against the backlog too
-            let kept: usize = self.unconfirmed.iter().map(|u| u.2.len()).sum();
+            if self.unconfirmed.ids.len() >= self.cfg.max_pending {
+                return Err(CommandError::TooManyRequests(self.unconfirmed.ids.len()));
+            }
             let max = self.cfg.streams.max_backlog;
-            if kept + data_len > max {
+            if self.unconfirmed.bytes + data_len > max {
                 return Err(QueueError::Stream(StreamError::Backlog {
                     stream: stream.0,
                     len: data_len,
@@ -413,7 +444,7 @@ impl Client {
         }
         let bytes = self.queue(stream, &sub, tag, false)?;
         if stream.is_reliable() {
-            self.unconfirmed.push_back((req, stream, bytes));
+            self.unconfirmed.push(req, stream, bytes);
         }
         Ok(RequestId(req))
     }
@@ -562,7 +593,7 @@ impl Client {
                 true,
             )?;
         }
-        for (req, stream, bytes) in self.unconfirmed.clone() {
+        for (req, stream, bytes) in self.unconfirmed.writes.clone().into_values() {
             self.streams.push(stream, bytes, Some(req), true)?;
         }
         Ok(ids)
