@@ -9,7 +9,8 @@
 //! - [`cdr`]: OMG CDR as DDS uses it (XCDR1 and XCDR2).
 //! - [`rtps`]: DDSI-RTPS 2.x messages and the participant state machine.
 //! - [`dds`]: a sans-I/O DDS domain over the RTPS participant.
-//! - [`xrce`]: DDS-XRCE messages and their TCP and serial framings.
+//! - [`xrce`]: DDS-XRCE messages, their TCP and serial framings, streams,
+//!   and the client and agent session machines.
 //! - `sim` (cargo feature `sim`): a deterministic simulated network to
 //!   test these machines on.
 //! - [`IpcMessage`]: the trait `#[derive(IpcMessage)]` implements.

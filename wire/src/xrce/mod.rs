@@ -1,8 +1,11 @@
-//! DDS-XRCE wire format (sans-I/O), as eProsima Micro XRCE-DDS Client and
-//! Agent 2.x put it on the wire (`shared/protocols/xrce.md`): the message
-//! header in both forms, every submessage 0x00–0x0F with its payload, and
-//! the TCP ([`tcp`]) and serial ([`serial`]) framings. UDP carries one
-//! message per datagram with no framing.
+//! DDS-XRCE (sans-I/O), as eProsima Micro XRCE-DDS Client and Agent 2.x
+//! put it on the wire (`shared/protocols/xrce.md`): the message header in
+//! both forms, every submessage 0x00–0x0F with its payload, binary object
+//! representations ([`BinaryRepresentation`]), the TCP ([`tcp`]) and
+//! serial ([`serial`]) framings (UDP carries one message per datagram with
+//! no framing), the [`stream`]s, and the two session machines: [`Client`]
+//! and the agent's half, [`Agent`]. With the cargo feature `sim`, `xrce::sim`
+//! puts both on the shared simulated network.
 //!
 //! ```
 //! use courier_wire::xrce::{
@@ -38,14 +41,65 @@
 //!   [`Message::reassembled`] decodes a submessage rebuilt from fragments.
 //! - Decoding never panics and allocates no more than the input holds;
 //!   errors name the field and its byte offset in the message.
+//!
+//! # The session machines
+//! [`Client`] and [`Agent`] read no clock and touch no socket: messages
+//! come in through `handle_input(.., now)`, time through
+//! `handle_timeout(now)`, and out of `poll_transmit`, `poll_event` and
+//! `poll_timeout`. Commands return request ids at once. A machine given
+//! bytes it cannot use returns an [`InputError`] and goes on; what it holds
+//! is bounded by its configuration (`buffered_bytes` tells how much).
+//! On the wire the client is the eProsima client (`tests/xrce_replay.rs`
+//! replays nine captures) and the agent is the eProsima agent
+//! (`tests/xrce_agent_replay.rs`), except where noted below.
+//!
+//! ## Deviations from eProsima Micro XRCE-DDS 2.3.0
+//! - Padding bytes are zeros; the eProsima client sends whatever its
+//!   buffers held.
+//! - The client postpones a HEARTBEAT whenever something arrives, as
+//!   eProsima's session loop does, but never by more than two periods: a
+//!   stream of incoming samples cannot keep a lost message from being
+//!   announced.
+//! - Fragments are cut as the window opens and rebuilt as they arrive, so
+//!   a sample may take more fragments than the window holds (20 000 bytes
+//!   in 41 fragments through a 16-message window). eProsima's client
+//!   needs every fragment of a submessage in its input history at once:
+//!   an agent sending it samples must keep them within history × MTU.
+//! - A receiver NACKs only inside its window, and honours a HEARTBEAT
+//!   whose first sequence number is past what it expects (the agent's
+//!   rule; eProsima's client ignores it).
+//! - The agent answers TIMESTAMP with one reading of its clock for both
+//!   receive and transmit time, acknowledges a reliable message before its
+//!   host has acted on it, refuses a best-effort sample larger than the
+//!   client's MTU to its host instead of dropping it silently, and refuses
+//!   CREATE_CLIENT with an MTU below [`AgentConfig::min_mtu`].
 
+mod agent;
+mod binary;
+mod client;
 mod cursor;
 mod message;
 mod object;
 pub mod serial;
+mod session;
+#[cfg(feature = "sim")]
+pub mod sim;
+pub mod stream;
 mod submessage;
 pub mod tcp;
 mod types;
+
+pub use agent::{Agent, AgentCommandError, AgentConfig, AgentEvent};
+pub use binary::{
+    qos_flags, BinaryRepresentation, DataReaderBinary, DataReaderQos, DataWriterBinary,
+    EndpointQos, GroupBinary, GroupQos, ParticipantBinary, ServiceBinary, TopicBinary,
+};
+pub use client::{
+    Client, ClientConfig, CommandError, ConnectError, CreationMode, Event, Keepalive, LostReason,
+    ObjectDef, SampleIdentity, State, StatusError,
+};
+pub use session::{InputError, QueueError};
+pub use stream::{FragmentError, SeqNum, StreamConfig, StreamError};
 
 pub use message::{Message, MessageHeader, SESSION_ID_WITHOUT_CLIENT_KEY};
 pub use object::{

@@ -241,6 +241,29 @@ impl StatusCode {
     pub fn is_ok(self) -> bool {
         self.0 < 0x80
     }
+
+    /// The spec's name (`STATUS_ERR_ALREADY_EXISTS`…), or `STATUS_UNKNOWN`.
+    pub fn name(self) -> &'static str {
+        match self.0 {
+            0x00 => "STATUS_OK",
+            0x01 => "STATUS_OK_MATCHED",
+            0x80 => "STATUS_ERR_DDS_ERROR",
+            0x81 => "STATUS_ERR_MISMATCH",
+            0x82 => "STATUS_ERR_ALREADY_EXISTS",
+            0x83 => "STATUS_ERR_DENIED",
+            0x84 => "STATUS_ERR_UNKNOWN_REFERENCE",
+            0x85 => "STATUS_ERR_INVALID_DATA",
+            0x86 => "STATUS_ERR_INCOMPATIBLE",
+            0x87 => "STATUS_ERR_RESOURCES",
+            _ => "STATUS_UNKNOWN",
+        }
+    }
+}
+
+impl std::fmt::Display for StatusCode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} ({:#04x})", self.name(), self.0)
+    }
 }
 
 /// `ResultStatus`: a status code and an implementation-specific byte.

@@ -1,0 +1,606 @@
+//! The agent's half of DDS-XRCE sessions, sans-I/O (`protocols/xrce.md`
+//! §2, §6–§11), behaving on the wire as eProsima Micro XRCE-DDS Agent
+//! 2.3.0 does: it accepts CREATE_CLIENT and answers STATUS_AGENT, keeps a
+//! session with its streams per client key, acknowledges reliable input,
+//! retransmits reliable output, rebuilds fragments, answers pings
+//! (GET_INFO), TIMESTAMP and the session's DELETE itself, and hands every
+//! object request (CREATE, DELETE, WRITE_DATA, READ_DATA) to its host as
+//! an [`AgentEvent`]. It knows nothing of DDS: the host answers with
+//! [`Agent::reply_status`] and sends samples with [`Agent::send_data`].
+//!
+//! `A` is the transport address (UDP socket address, TCP connection id,
+//! serial address): a session whose id is 0x80 or above is found by the
+//! address it was created from, as the eProsima agent does; below 0x80 by
+//! the key in every header.
+//!
+//! Wall-clock time (for TIMESTAMP_REPLY) is the anchor given to
+//! [`Agent::new`] or [`Agent::set_wall_clock`] plus the monotonic time
+//! since; the agent reads no clock.
+//!
+//! ```
+//! use std::time::{Instant, SystemTime};
+//! use courier_wire::xrce::{Agent, AgentConfig, AgentEvent};
+//! let now = Instant::now();
+//! let mut agent: Agent<&str> = Agent::new(AgentConfig::default(), now, SystemTime::now());
+//! // CREATE_CLIENT of `udp_xml_reliable_pubsub` #1, from a client at "a"
+//! let create_client = [
+//!     0x80, 0, 0, 0, 0, 1, 16, 0, b'X', b'R', b'C', b'E', 1, 0, 1, 0x0F,
+//!     0xCC, 0xCC, 0xDD, 0xDD, 0x81, 0, 0xFC, 0x01,
+//! ];
+//! agent.handle_input("a", &create_client, now).unwrap();
+//! assert!(matches!(agent.poll_event(), Some(AgentEvent::ClientCreated { kept: false, .. })));
+//! // STATUS_AGENT OK, as captured (#2)
+//! let (to, status_agent) = agent.poll_transmit().unwrap();
+//! assert_eq!(to, "a");
+//! assert_eq!(status_agent[..10], [0x81, 0, 0, 0, 4, 1, 11, 0, 0, 0]);
+//! ```
+
+use std::collections::{BTreeMap, HashMap, VecDeque};
+use std::hash::Hash;
+use std::time::{Instant, SystemTime, UNIX_EPOCH};
+
+use super::client::CreationMode;
+use super::message::{Message, MessageHeader};
+use super::object::{
+    ActivityInfo, AgentRepresentation, ClientRepresentation, ObjectInfo, ObjectVariant,
+};
+use super::session::{session_header, single, InputError, QueueError, Streams};
+use super::stream::StreamConfig;
+use super::submessage::{
+    flags, Data, Info, Payload, ReadData, Status, StatusAgent, Submessage, TimestampReply,
+};
+use super::types::{
+    BaseObjectRequest, ClientKey, ObjectKind, Property, ResultStatus, StatusCode, StreamId, Time,
+    COOKIE,
+};
+use super::SESSION_ID_WITHOUT_CLIENT_KEY;
+
+/// How the agent behaves.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct AgentConfig {
+    /// Stream settings; each client's `mtu` is the one it advertises,
+    /// capped by this one.
+    pub streams: StreamConfig,
+    /// Sessions at most; CREATE_CLIENT beyond gets `ERR_RESOURCES`.
+    pub max_clients: usize,
+    /// Streams of each kind and direction per session.
+    pub max_streams: usize,
+    /// The smallest MTU a client may advertise (`ERR_INVALID_DATA` below).
+    pub min_mtu: u16,
+    /// What STATUS_AGENT and INFO say of the agent.
+    pub representation: AgentRepresentation,
+}
+
+impl Default for AgentConfig {
+    fn default() -> Self {
+        AgentConfig {
+            streams: StreamConfig {
+                mtu: usize::from(u16::MAX),
+                ..StreamConfig::agent()
+            },
+            max_clients: 1024,
+            max_streams: 4,
+            min_mtu: 64,
+            representation: AgentRepresentation::default(),
+        }
+    }
+}
+
+/// What the agent hands its host.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum AgentEvent {
+    /// A session was created (or, with `kept`, created again with the same
+    /// key and session id: its streams start over, its objects stay).
+    ClientCreated {
+        /// The client.
+        client: ClientKey,
+        /// Its session id.
+        session_id: u8,
+        /// CLIENT_Representation properties.
+        properties: Option<Vec<Property>>,
+        /// Whether the client's objects are kept.
+        kept: bool,
+    },
+    /// A session ended (DELETE of the client, replaced by another session
+    /// id, or its address taken by another client): drop its objects.
+    ClientDeleted {
+        /// The client.
+        client: ClientKey,
+    },
+    /// CREATE: answer with [`Agent::reply_status`] on `reply_stream`.
+    Create {
+        /// The client.
+        client: ClientKey,
+        /// Request id and object id.
+        request: BaseObjectRequest,
+        /// What to create.
+        object: ObjectVariant,
+        /// Creation mode.
+        mode: CreationMode,
+        /// Built-in reliable 0x80 if the CREATE came on a reliable stream,
+        /// else best-effort 0x01.
+        reply_stream: StreamId,
+    },
+    /// DELETE of an object: answer with [`Agent::reply_status`].
+    Delete {
+        /// The client.
+        client: ClientKey,
+        /// Request id and object id.
+        request: BaseObjectRequest,
+        /// Where the STATUS goes.
+        reply_stream: StreamId,
+    },
+    /// WRITE_DATA (FORMAT_DATA) to a writer, requester or replier. The
+    /// agent confirms nothing beyond the stream's ACKNACK.
+    Write {
+        /// The client.
+        client: ClientKey,
+        /// Request id and writer.
+        request: BaseObjectRequest,
+        /// The serialized body (for a replier, its SampleIdentity first).
+        data: Vec<u8>,
+    },
+    /// READ_DATA: send samples with [`Agent::send_data`] under
+    /// `read.request` on `read.preferred_stream_id`; errors go back as a
+    /// STATUS on 0x80.
+    Read {
+        /// The client.
+        client: ClientKey,
+        /// The request.
+        read: ReadData,
+    },
+}
+
+/// Why a host command failed.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum AgentCommandError {
+    /// No session with this key.
+    #[error("no XRCE session for client {0:08x}")]
+    UnknownClient(u32),
+    /// The stream refused the submessage (window and backlog full, or a
+    /// best-effort sample larger than the client's MTU).
+    #[error(transparent)]
+    Queue(#[from] QueueError),
+}
+
+#[derive(Debug, Clone)]
+struct Proxy<A> {
+    session_id: u8,
+    addr: A,
+    streams: Streams,
+}
+
+/// The agent side of every client session.
+#[derive(Debug, Clone)]
+pub struct Agent<A> {
+    cfg: AgentConfig,
+    clients: BTreeMap<u32, Proxy<A>>,
+    by_addr: HashMap<A, u32>,
+    transmits: VecDeque<(A, Vec<u8>)>,
+    events: VecDeque<AgentEvent>,
+    now: Instant,
+    wall: (Instant, SystemTime),
+}
+
+fn to_time(wall: SystemTime) -> Time {
+    let d = wall.duration_since(UNIX_EPOCH).unwrap_or_default();
+    Time {
+        seconds: d.as_secs() as i32,
+        nanoseconds: d.subsec_nanos(),
+    }
+}
+
+impl<A: Clone + Eq + Hash> Agent<A> {
+    /// An agent with no sessions; `wall` is the wall-clock time at `now`.
+    pub fn new(cfg: AgentConfig, now: Instant, wall: SystemTime) -> Self {
+        Agent {
+            cfg,
+            clients: BTreeMap::new(),
+            by_addr: HashMap::new(),
+            transmits: VecDeque::new(),
+            events: VecDeque::new(),
+            now,
+            wall: (now, wall),
+        }
+    }
+
+    /// Sets the wall-clock time at `now` (after the host's clock moved).
+    pub fn set_wall_clock(&mut self, now: Instant, wall: SystemTime) {
+        self.wall = (now, wall);
+    }
+
+    fn wall_at(&self, now: Instant) -> SystemTime {
+        self.wall.1 + now.saturating_duration_since(self.wall.0)
+    }
+
+    /// The sessions' client keys.
+    pub fn clients(&self) -> impl Iterator<Item = ClientKey> + '_ {
+        self.clients.keys().map(|k| ClientKey::from(*k))
+    }
+
+    /// Bytes held in every session's streams, and in messages waiting to
+    /// go; bounded by the configuration (clients × streams × window).
+    pub fn buffered_bytes(&self) -> usize {
+        self.transmits.iter().map(|t| t.1.len()).sum::<usize>()
+            + self
+                .clients
+                .values()
+                .map(|p| p.streams.buffered())
+                .sum::<usize>()
+    }
+
+    /// The address a client's messages go to.
+    pub fn client_address(&self, client: ClientKey) -> Option<&A> {
+        self.clients.get(&u32::from(client)).map(|p| &p.addr)
+    }
+
+    fn tick(&mut self, now: Instant) -> Instant {
+        self.now = self.now.max(now);
+        self.now
+    }
+
+    fn send(&mut self, to: &A, header: MessageHeader, sub: Submessage) {
+        if let Ok(m) = single(header, sub) {
+            self.transmits.push_back((to.clone(), m));
+        }
+    }
+
+    fn info(&self, request: BaseObjectRequest, in_session: bool) -> Submessage {
+        Submessage::new(Payload::Info(Info {
+            request,
+            result: ResultStatus {
+                status: StatusCode::OK,
+                implementation_status: in_session.into(),
+            },
+            info: ObjectInfo {
+                config: Some(ObjectVariant::Agent(self.cfg.representation.clone())),
+                activity: Some(ActivityInfo::Agent {
+                    availability: 1,
+                    locators: Vec::new(),
+                }),
+            },
+        }))
+    }
+
+    /// Takes one message from `from`.
+    pub fn handle_input(&mut self, from: A, bytes: &[u8], now: Instant) -> Result<(), InputError> {
+        let now = self.tick(now);
+        let msg = Message::decode(bytes)?;
+        let h = msg.header;
+        let first = msg.submessages.first().map(|s| s.payload.clone());
+        if h.session_id & !SESSION_ID_WITHOUT_CLIENT_KEY == 0 {
+            // outside a session: CREATE_CLIENT or a ping
+            return match first {
+                Some(Payload::CreateClient(rep)) => {
+                    self.create_client(from, rep);
+                    Ok(())
+                }
+                Some(Payload::GetInfo(g)) => {
+                    let known = self.by_addr.contains_key(&from);
+                    let sub = self.info(g.request, known);
+                    self.send(&from, h, sub);
+                    Ok(())
+                }
+                _ => Err(InputError::Unexpected {
+                    what: first.as_ref().map_or("empty message", |p| p.id().name()),
+                    stream: h.stream_id.0,
+                }),
+            };
+        }
+        let key = match h.client_key {
+            Some(k) => Some(u32::from(k)),
+            None => self.by_addr.get(&from).copied(),
+        };
+        let Some(key) = key.filter(|k| self.clients.contains_key(k)) else {
+            return self.unknown_client(from, h, first);
+        };
+        let proxy_session = self.clients.get(&key).map(|p| p.session_id);
+        if proxy_session != Some(h.session_id) {
+            return Err(InputError::WrongSession {
+                expected: proxy_session.unwrap_or(0),
+                got: h.session_id,
+            });
+        }
+        if h.client_key.is_some() {
+            self.bind(key, from);
+        }
+        let Some(proxy) = self.clients.get_mut(&key) else {
+            return Ok(());
+        };
+        let arrival = proxy.streams.receive(msg, bytes.len(), now);
+        let mut result = arrival.errors.into_iter().next().map_or(Ok(()), Err);
+        for (stream, sub) in arrival.subs {
+            let r = self.on_submessage(key, stream, sub, now);
+            result = result.and(r);
+        }
+        if let Some(p) = self.clients.get(&key) {
+            let addr = p.addr.clone();
+            self.transmits
+                .extend(arrival.replies.into_iter().map(|m| (addr.clone(), m)));
+        }
+        result
+    }
+
+    fn unknown_client(
+        &mut self,
+        from: A,
+        h: MessageHeader,
+        first: Option<Payload>,
+    ) -> Result<(), InputError> {
+        match first {
+            // the session's DELETE is confirmed even when the session is gone
+            Some(Payload::Delete(r)) if r.object_id.kind_bits() == ObjectKind::Client as u8 => {
+                let result = ResultStatus::default();
+                let sub = Submessage::new(Payload::Status(Status { request: r, result }));
+                self.send(&from, h, sub);
+                Ok(())
+            }
+            Some(Payload::GetInfo(g)) => {
+                let sub = self.info(g.request, false);
+                self.send(&from, h, sub);
+                Ok(())
+            }
+            _ => Err(InputError::UnknownClient {
+                session_id: h.session_id,
+            }),
+        }
+    }
+
+    fn bind(&mut self, key: u32, addr: A) {
+        if let Some(p) = self.clients.get_mut(&key) {
+            if p.addr != addr {
+                self.by_addr.remove(&p.addr);
+                p.addr = addr.clone();
+            }
+        }
+        self.by_addr.insert(addr, key);
+    }
+
+    fn remove_client(&mut self, key: u32) {
+        if let Some(p) = self.clients.remove(&key) {
+            if self.by_addr.get(&p.addr) == Some(&key) {
+                self.by_addr.remove(&p.addr);
+            }
+            self.events.push_back(AgentEvent::ClientDeleted {
+                client: ClientKey::from(key),
+            });
+        }
+    }
+
+    fn create_client(&mut self, from: A, rep: ClientRepresentation) {
+        let key = u32::from(rep.client_key);
+        let reply_header = session_header(rep.session_id, rep.client_key);
+        let status = if key == 0 || rep.cookie != COOKIE || rep.mtu < self.cfg.min_mtu {
+            StatusCode::ERR_INVALID_DATA
+        } else if rep.version.first() != Some(&1) {
+            StatusCode::ERR_INCOMPATIBLE
+        } else if !self.clients.contains_key(&key) && self.clients.len() >= self.cfg.max_clients {
+            StatusCode::ERR_RESOURCES
+        } else {
+            StatusCode::OK
+        };
+        if status == StatusCode::OK {
+            if let Some(&old) = self.by_addr.get(&from).filter(|&&k| k != key) {
+                self.remove_client(old);
+            }
+            let kept = self
+                .clients
+                .get(&key)
+                .is_some_and(|p| p.session_id == rep.session_id);
+            if kept {
+                if let Some(p) = self.clients.get_mut(&key) {
+                    p.streams.reset();
+                }
+            } else {
+                self.remove_client(key);
+                let streams = Streams::new(
+                    reply_header,
+                    StreamConfig {
+                        mtu: usize::from(rep.mtu).min(self.cfg.streams.mtu),
+                        ..self.cfg.streams
+                    },
+                    self.cfg.max_streams,
+                );
+                self.clients.insert(
+                    key,
+                    Proxy {
+                        session_id: rep.session_id,
+                        addr: from.clone(),
+                        streams,
+                    },
+                );
+            }
+            self.bind(key, from.clone());
+            self.events.push_back(AgentEvent::ClientCreated {
+                client: rep.client_key,
+                session_id: rep.session_id,
+                properties: rep.properties.clone(),
+                kept,
+            });
+        }
+        let sub = Submessage::new(Payload::StatusAgent(StatusAgent {
+            result: ResultStatus {
+                status,
+                implementation_status: 0,
+            },
+            agent: self.cfg.representation.clone(),
+        }));
+        self.send(&from, reply_header, sub);
+    }
+
+    fn on_submessage(
+        &mut self,
+        key: u32,
+        stream: StreamId,
+        sub: Submessage,
+        now: Instant,
+    ) -> Result<(), InputError> {
+        let client = ClientKey::from(key);
+        let reply_stream = if stream.is_reliable() {
+            StreamId::RELIABLE
+        } else {
+            StreamId::BEST_EFFORT
+        };
+        let sub_flags = sub.flags;
+        let format = sub.data_format();
+        let event = match sub.payload {
+            Payload::Create(c) => AgentEvent::Create {
+                client,
+                request: c.request,
+                object: c.object,
+                mode: CreationMode::from_flags(sub_flags),
+                reply_stream,
+            },
+            Payload::Delete(r) if r.object_id.kind_bits() == ObjectKind::Client as u8 => {
+                let status = Submessage::new(Payload::Status(Status {
+                    request: r,
+                    result: ResultStatus::default(),
+                }));
+                if let Some(p) = self.clients.get(&key) {
+                    let (addr, header) = (p.addr.clone(), p.streams.header());
+                    self.send(&addr, header, status);
+                }
+                self.remove_client(key);
+                return Ok(());
+            }
+            Payload::Delete(request) => AgentEvent::Delete {
+                client,
+                request,
+                reply_stream,
+            },
+            Payload::WriteData(d) if format == flags::FORMAT_DATA => AgentEvent::Write {
+                client,
+                request: d.request,
+                data: d.data,
+            },
+            Payload::WriteData(_) => return Err(InputError::DataFormat(format)),
+            Payload::ReadData(read) => AgentEvent::Read { client, read },
+            Payload::GetInfo(g) => {
+                let info = self.info(g.request, true);
+                if let Some(p) = self.clients.get_mut(&key) {
+                    let _ = p.streams.send_control(info);
+                }
+                return Ok(());
+            }
+            Payload::Timestamp(t) => {
+                let at = to_time(self.wall_at(now));
+                let reply = Submessage::new(Payload::TimestampReply(TimestampReply {
+                    transmit: at,
+                    receive: at,
+                    originate: t,
+                }));
+                if let Some(p) = self.clients.get_mut(&key) {
+                    let _ = p.streams.send_control(reply);
+                }
+                return Ok(());
+            }
+            Payload::Reset => {
+                if let Some(p) = self.clients.get_mut(&key) {
+                    p.streams.reset();
+                }
+                return Ok(());
+            }
+            p => {
+                return Err(InputError::Unexpected {
+                    what: p.id().name(),
+                    stream: stream.0,
+                })
+            }
+        };
+        self.events.push_back(event);
+        Ok(())
+    }
+
+    fn proxy(&mut self, client: ClientKey) -> Result<&mut Proxy<A>, AgentCommandError> {
+        self.clients
+            .get_mut(&u32::from(client))
+            .ok_or(AgentCommandError::UnknownClient(client.into()))
+    }
+
+    fn queue(
+        &mut self,
+        client: ClientKey,
+        stream: StreamId,
+        sub: Submessage,
+    ) -> Result<(), AgentCommandError> {
+        let p = self.proxy(client)?;
+        if stream == StreamId::NONE {
+            p.streams.send_control(sub).map_err(QueueError::from)?;
+        } else {
+            let bytes = p.streams.encode(&sub).map_err(QueueError::from)?;
+            p.streams.push(stream, bytes, None, false)?;
+        }
+        Ok(())
+    }
+
+    /// Answers a CREATE, DELETE or READ_DATA: STATUS on `stream`.
+    pub fn reply_status(
+        &mut self,
+        client: ClientKey,
+        request: BaseObjectRequest,
+        status: StatusCode,
+        stream: StreamId,
+        now: Instant,
+    ) -> Result<(), AgentCommandError> {
+        self.tick(now);
+        let sub = Submessage::new(Payload::Status(Status {
+            request,
+            result: ResultStatus {
+                status,
+                implementation_status: 0,
+            },
+        }));
+        self.queue(client, stream, sub)
+    }
+
+    /// Sends a sample (DATA, FORMAT_DATA) for the READ_DATA `read` (its
+    /// request id and object) on `stream`. A reliable stream fragments what
+    /// does not fit the client's MTU; a best-effort stream refuses it.
+    pub fn send_data(
+        &mut self,
+        client: ClientKey,
+        read: BaseObjectRequest,
+        stream: StreamId,
+        data: &[u8],
+        now: Instant,
+    ) -> Result<(), AgentCommandError> {
+        self.tick(now);
+        let sub = Submessage::new(Payload::Data(Data {
+            request: read,
+            data: data.to_vec(),
+        }));
+        self.queue(client, stream, sub)
+    }
+
+    /// Time passed; HEARTBEATs that are due go out with the next
+    /// [`poll_transmit`](Self::poll_transmit).
+    pub fn handle_timeout(&mut self, now: Instant) {
+        self.tick(now);
+    }
+
+    /// When [`handle_timeout`](Self::handle_timeout) is next needed.
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        self.clients
+            .values()
+            .filter_map(|p| p.streams.poll_timeout())
+            .min()
+    }
+
+    /// The next message: its destination and bytes.
+    pub fn poll_transmit(&mut self) -> Option<(A, Vec<u8>)> {
+        if let Some(t) = self.transmits.pop_front() {
+            return Some(t);
+        }
+        let now = self.now;
+        self.clients
+            .values_mut()
+            .find_map(|p| p.streams.poll_transmit(now).map(|m| (p.addr.clone(), m)))
+    }
+
+    /// The next event for the host.
+    pub fn poll_event(&mut self) -> Option<AgentEvent> {
+        self.events.pop_front()
+    }
+}

@@ -1,0 +1,385 @@
+//! The stream side of one XRCE session, shared by the client and the
+//! agent: the session's message header, its output and input streams by
+//! id (created on first use, up to a limit), and what an arriving message
+//! does to them: HEARTBEAT and ACKNACK handling, best-effort filtering,
+//! in-order hand-over and fragment reassembly on reliable streams, and the
+//! ACKNACK every reliable message is answered with.
+
+use std::collections::{BTreeMap, VecDeque};
+use std::time::Instant;
+
+use super::message::{Message, MessageHeader};
+use super::stream::{
+    BestEffortInput, BestEffortOutput, FragmentError, ReliableInput, ReliableOutput, SeqNum,
+    StreamConfig, StreamError,
+};
+use super::submessage::{Payload, Submessage};
+use super::types::{ClientKey, StreamId};
+use super::{DecodeError, EncodeError};
+
+/// Why an arriving message (or part of it) was not used. The machine that
+/// returned it goes on working.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum InputError {
+    /// The bytes are not an XRCE message.
+    #[error(transparent)]
+    Decode(#[from] DecodeError),
+    /// A message of another session.
+    #[error("XRCE message for session {got:#04x}, this one is {expected:#04x}")]
+    WrongSession {
+        /// This session's id.
+        expected: u8,
+        /// The header's.
+        got: u8,
+    },
+    /// The header's client key is not this session's.
+    #[error("XRCE message with client key {got:08x}, this session's is {expected:08x}")]
+    WrongClientKey {
+        /// This session's key.
+        expected: u32,
+        /// The header's.
+        got: u32,
+    },
+    /// The agent knows no client for this message.
+    #[error("XRCE message from an unknown client (session {session_id:#04x})")]
+    UnknownClient {
+        /// The header's session id.
+        session_id: u8,
+    },
+    /// A submessage this side never receives, or not on this stream.
+    #[error("unexpected XRCE {what} on stream {stream:#04x}")]
+    Unexpected {
+        /// The submessage.
+        what: &'static str,
+        /// The stream it came on.
+        stream: u8,
+    },
+    /// More streams than the session allows.
+    #[error("XRCE stream {0:#04x} is one more stream than this session allows")]
+    TooManyStreams(u8),
+    /// Fragments that do not fit together.
+    #[error(transparent)]
+    Fragment(#[from] FragmentError),
+    /// WRITE_DATA or DATA in a format other than FORMAT_DATA.
+    #[error("XRCE data format {0:#04x} is not FORMAT_DATA")]
+    DataFormat(u8),
+    /// DATA too short for what its object kind puts in front of the sample.
+    #[error("XRCE DATA for object {object:#06x} has {len} byte(s), its prefix needs {needed}")]
+    ShortData {
+        /// The requester or replier.
+        object: u16,
+        /// Bytes received.
+        len: usize,
+        /// Bytes the prefix needs.
+        needed: usize,
+    },
+    /// A reply to nothing this side asked.
+    #[error("XRCE {what} answers nothing this session asked")]
+    Unsolicited {
+        /// The submessage.
+        what: &'static str,
+    },
+}
+
+/// Why a submessage could not be queued.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum QueueError {
+    /// The stream refused it.
+    #[error(transparent)]
+    Stream(#[from] StreamError),
+    /// It could not be encoded.
+    #[error(transparent)]
+    Encode(#[from] EncodeError),
+    /// Stream 0 carries no data, and a session has a limited number of streams.
+    #[error("XRCE stream {0:#04x} is stream 0, or one more stream than the session allows")]
+    BadStream(u8),
+}
+
+/// What one arriving message gave.
+#[derive(Debug, Default)]
+pub(crate) struct Arrival {
+    /// Submessages to act on, in order, with the stream they came on
+    /// (ACKNACK and HEARTBEAT are handled here and not included).
+    pub subs: Vec<(StreamId, Submessage)>,
+    /// ACKNACKs to send once the submessages are acted on.
+    pub replies: Vec<Vec<u8>>,
+    /// What went wrong on the way.
+    pub errors: Vec<InputError>,
+}
+
+/// The streams of one session.
+#[derive(Debug, Clone)]
+pub(crate) struct Streams {
+    header: MessageHeader,
+    cfg: StreamConfig,
+    max_streams: usize,
+    be_out: BTreeMap<u8, BestEffortOutput>,
+    rel_out: BTreeMap<u8, ReliableOutput>,
+    be_in: BTreeMap<u8, BestEffortInput>,
+    rel_in: BTreeMap<u8, ReliableInput>,
+    /// Messages on stream 0, ready to go.
+    pub control: VecDeque<Vec<u8>>,
+}
+
+/// The header of session `session_id` (with `key` when below 0x80) on stream 0.
+pub(crate) fn session_header(session_id: u8, key: ClientKey) -> MessageHeader {
+    if session_id < super::SESSION_ID_WITHOUT_CLIENT_KEY {
+        MessageHeader::with_key(session_id, key, StreamId::NONE, 0)
+    } else {
+        MessageHeader::new(session_id, StreamId::NONE, 0)
+    }
+}
+
+/// A one-submessage message.
+pub(crate) fn single(header: MessageHeader, sub: Submessage) -> Result<Vec<u8>, EncodeError> {
+    Message::new(header, vec![sub]).to_vec()
+}
+
+impl Streams {
+    /// The streams of the session whose messages carry `header` (session
+    /// id and key; stream and sequence number are set per message). The
+    /// MTU is kept between 64 and 65535 bytes and the window between 1 and 64.
+    pub fn new(header: MessageHeader, mut cfg: StreamConfig, max_streams: usize) -> Self {
+        cfg.mtu = cfg.mtu.clamp(64, usize::from(u16::MAX));
+        cfg.depth = cfg.depth.clamp(1, 64);
+        Streams {
+            header,
+            cfg,
+            max_streams: max_streams.max(1),
+            be_out: BTreeMap::new(),
+            rel_out: BTreeMap::new(),
+            be_in: BTreeMap::new(),
+            rel_in: BTreeMap::new(),
+            control: VecDeque::new(),
+        }
+    }
+
+    pub fn header(&self) -> MessageHeader {
+        self.header
+    }
+
+    pub fn config(&self) -> &StreamConfig {
+        &self.cfg
+    }
+
+    /// Forgets every stream (a session created again starts from 0).
+    pub fn reset(&mut self) {
+        self.be_out.clear();
+        self.rel_out.clear();
+        self.be_in.clear();
+        self.rel_in.clear();
+        self.control.clear();
+    }
+
+    /// A message on stream 0 holding `sub`.
+    pub fn control_message(&self, sub: Submessage) -> Result<Vec<u8>, EncodeError> {
+        single(self.header, sub)
+    }
+
+    /// Queues `sub` on stream 0.
+    pub fn send_control(&mut self, sub: Submessage) -> Result<(), EncodeError> {
+        let m = self.control_message(sub)?;
+        self.control.push_back(m);
+        Ok(())
+    }
+
+    /// The bytes of `sub` as it goes into a stream: header, payload and,
+    /// when the configuration says so, padding to 4.
+    pub fn encode(&self, sub: &Submessage) -> Result<Vec<u8>, EncodeError> {
+        let mut v = Vec::new();
+        sub.encode(&mut v, 0)?;
+        if self.cfg.pad {
+            v.resize((v.len() + 3) & !3, 0);
+        }
+        Ok(v)
+    }
+
+    /// Queues encoded submessage bytes on output stream `id`; `tag` comes
+    /// back from [`take_acked`](Self::take_acked) once a reliable stream's
+    /// peer has it all. `force` skips the backlog limit.
+    pub fn push(
+        &mut self,
+        id: StreamId,
+        bytes: Vec<u8>,
+        tag: Option<u16>,
+        force: bool,
+    ) -> Result<(), QueueError> {
+        let n = self.rel_out.len() + self.be_out.len();
+        if id.is_reliable() {
+            if !self.rel_out.contains_key(&id.0) && n >= 2 * self.max_streams {
+                return Err(QueueError::BadStream(id.0));
+            }
+            let (h, c) = (self.header, self.cfg);
+            let s = self
+                .rel_out
+                .entry(id.0)
+                .or_insert_with(|| ReliableOutput::new(&h, id, c));
+            if force {
+                s.push_unchecked(bytes, tag);
+                Ok(())
+            } else {
+                Ok(s.push(bytes, tag)?)
+            }
+        } else if id.is_best_effort() {
+            if !self.be_out.contains_key(&id.0) && n >= 2 * self.max_streams {
+                return Err(QueueError::BadStream(id.0));
+            }
+            let (h, c) = (self.header, self.cfg);
+            let s = self
+                .be_out
+                .entry(id.0)
+                .or_insert_with(|| BestEffortOutput::new(&h, id, c));
+            Ok(s.push(&bytes)?)
+        } else {
+            Err(QueueError::BadStream(0))
+        }
+    }
+
+    fn reliable_input(&mut self, id: StreamId) -> Option<&mut ReliableInput> {
+        if !self.rel_in.contains_key(&id.0) && self.rel_in.len() >= self.max_streams {
+            return None;
+        }
+        let c = self.cfg;
+        Some(
+            self.rel_in
+                .entry(id.0)
+                .or_insert_with(|| ReliableInput::new(id, c)),
+        )
+    }
+
+    fn acknack_message(&self, id: StreamId) -> Option<Vec<u8>> {
+        let a = self.rel_in.get(&id.0)?.acknack();
+        self.control_message(Submessage::new(Payload::AckNack(a)))
+            .ok()
+    }
+
+    /// Takes an arriving message of this session.
+    pub fn receive(&mut self, message: Message, len: usize, now: Instant) -> Arrival {
+        let mut a = Arrival::default();
+        for s in self.rel_out.values_mut() {
+            s.touch(now);
+        }
+        let id = message.header.stream_id;
+        let seq = SeqNum(message.header.sequence_nr);
+        let subs = if id == StreamId::NONE {
+            message.submessages
+        } else if id.is_best_effort() {
+            if !self.be_in.contains_key(&id.0) && self.be_in.len() >= self.max_streams {
+                a.errors.push(InputError::TooManyStreams(id.0));
+                return a;
+            }
+            if !self.be_in.entry(id.0).or_default().accept(seq) {
+                return a;
+            }
+            message.submessages
+        } else {
+            let Some(input) = self.reliable_input(id) else {
+                a.errors.push(InputError::TooManyStreams(id.0));
+                return a;
+            };
+            input.receive(seq, message, len);
+            let mut subs = Vec::new();
+            let mut errors = Vec::new();
+            while let Some(m) = input.next_message() {
+                subs.extend(input.unpack(m, &mut errors));
+            }
+            a.errors.extend(errors.into_iter().map(InputError::from));
+            a.replies.extend(self.acknack_message(id));
+            subs
+        };
+        for sub in subs {
+            match &sub.payload {
+                Payload::AckNack(ack) => {
+                    if let Some(s) = self.rel_out.get_mut(&ack.stream_id.0) {
+                        s.on_acknack(ack, now);
+                    }
+                }
+                Payload::Heartbeat(hb) if hb.stream_id.is_reliable() => {
+                    match self.reliable_input(hb.stream_id) {
+                        Some(input) => {
+                            input.on_heartbeat(hb);
+                            a.replies.extend(self.acknack_message(hb.stream_id));
+                        }
+                        None => a.errors.push(InputError::TooManyStreams(hb.stream_id.0)),
+                    }
+                }
+                Payload::Fragment(_) if !id.is_reliable() => {
+                    a.errors
+                        .push(InputError::Fragment(FragmentError::NotReliable(id.0)));
+                }
+                Payload::Heartbeat(_) => a.errors.push(InputError::Unexpected {
+                    what: "HEARTBEAT",
+                    stream: id.0,
+                }),
+                _ => a.subs.push((id, sub)),
+            }
+        }
+        a
+    }
+
+    /// The next message to send: stream 0 first, then retransmissions and
+    /// new messages of each stream, then HEARTBEATs that are due.
+    pub fn poll_transmit(&mut self, now: Instant) -> Option<Vec<u8>> {
+        if let Some(m) = self.control.pop_front() {
+            return Some(m);
+        }
+        for s in self.rel_out.values_mut() {
+            if let Some(m) = s.poll_transmit(now) {
+                return Some(m);
+            }
+        }
+        for s in self.be_out.values_mut() {
+            if let Some(m) = s.poll_transmit() {
+                return Some(m);
+            }
+        }
+        let hb = self
+            .rel_out
+            .values_mut()
+            .find_map(|s| s.poll_heartbeat(now))?;
+        self.control_message(Submessage::new(Payload::Heartbeat(hb)))
+            .ok()
+    }
+
+    /// The earliest HEARTBEAT deadline.
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        self.rel_out.values().filter_map(|s| s.poll_timeout()).min()
+    }
+
+    /// Tags of reliable submessages the peer acknowledged since the last call.
+    pub fn take_acked(&mut self) -> Vec<u16> {
+        self.rel_out
+            .values_mut()
+            .flat_map(|s| s.take_acked().collect::<Vec<_>>())
+            .collect()
+    }
+
+    /// Bytes the session holds in its streams.
+    pub fn buffered(&self) -> usize {
+        self.control.iter().map(Vec::len).sum::<usize>()
+            + self
+                .rel_out
+                .values()
+                .map(ReliableOutput::buffered)
+                .sum::<usize>()
+            + self
+                .be_out
+                .values()
+                .map(BestEffortOutput::buffered)
+                .sum::<usize>()
+            + self
+                .rel_in
+                .values()
+                .map(ReliableInput::buffered)
+                .sum::<usize>()
+    }
+
+    /// Whether every output stream is empty and acknowledged.
+    pub fn is_idle(&self) -> bool {
+        self.control.is_empty()
+            && self.rel_out.values().all(|s| s.is_idle())
+            && self.be_out.values().all(|s| s.is_empty())
+    }
+}

@@ -1,0 +1,223 @@
+//! Input streams: best-effort (newer only) and reliable (window,
+//! in-order hand-over, ACKNACK, reassembly).
+
+use std::collections::BTreeMap;
+
+use super::super::message::{Message, MessageHeader};
+use super::super::submessage::{AckNack, Heartbeat, Payload, Submessage, SubmessageId};
+use super::super::types::StreamId;
+use super::{FragmentError, SeqNum, StreamConfig};
+
+/// A best-effort input stream.
+#[derive(Debug, Clone)]
+pub struct BestEffortInput {
+    last: SeqNum,
+}
+
+impl Default for BestEffortInput {
+    fn default() -> Self {
+        BestEffortInput {
+            last: SeqNum::INITIAL_LAST,
+        }
+    }
+}
+
+impl BestEffortInput {
+    /// Whether to take message `seq`: only if it is newer than the last taken.
+    pub fn accept(&mut self, seq: SeqNum) -> bool {
+        let take = seq.is_after(self.last);
+        if take {
+            self.last = seq;
+        }
+        take
+    }
+}
+
+/// What a reliable input stream did with a message.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Received {
+    /// Kept, to be handed on in order.
+    Accepted,
+    /// Already handled or already held.
+    Duplicate,
+    /// Too far ahead of the window.
+    OutOfWindow,
+}
+
+#[derive(Debug, Clone)]
+struct Reassembly {
+    header: MessageHeader,
+    buf: Vec<u8>,
+    overflow: bool,
+}
+
+/// A reliable input stream: window, in-order hand-over, ACKNACK and
+/// fragment reassembly.
+#[derive(Debug, Clone)]
+pub struct ReliableInput {
+    id: StreamId,
+    cfg: StreamConfig,
+    last_handled: SeqNum,
+    last_announced: SeqNum,
+    held: BTreeMap<u16, (usize, Message)>,
+    held_bytes: usize,
+    reassembly: Option<Reassembly>,
+}
+
+impl ReliableInput {
+    /// Input stream `id`.
+    pub fn new(id: StreamId, cfg: StreamConfig) -> Self {
+        ReliableInput {
+            id,
+            cfg,
+            last_handled: SeqNum::INITIAL_LAST,
+            last_announced: SeqNum::INITIAL_LAST,
+            held: BTreeMap::new(),
+            held_bytes: 0,
+            reassembly: None,
+        }
+    }
+
+    /// The last message handed on.
+    pub fn last_handled(&self) -> SeqNum {
+        self.last_handled
+    }
+
+    /// Bytes held: early messages and a partly rebuilt submessage.
+    pub fn buffered(&self) -> usize {
+        self.held_bytes + self.reassembly.as_ref().map_or(0, |r| r.buf.len())
+    }
+
+    /// Takes message `seq` (`len` bytes on the wire) if it is inside the
+    /// window and new.
+    pub fn receive(&mut self, seq: SeqNum, message: Message, len: usize) -> Received {
+        let d = seq.since(self.last_handled);
+        if d == 0 || d >= 0x8000 {
+            return Received::Duplicate;
+        }
+        if d > self.cfg.depth {
+            return Received::OutOfWindow;
+        }
+        if self.held.contains_key(&seq.0) {
+            return Received::Duplicate;
+        }
+        self.held.insert(seq.0, (len, message));
+        self.held_bytes += len;
+        if seq.is_after(self.last_announced) {
+            self.last_announced = seq;
+        }
+        Received::Accepted
+    }
+
+    /// The next message in order, if it is here.
+    pub fn next_message(&mut self) -> Option<Message> {
+        let next = self.last_handled.wrapping_add(1);
+        let (len, m) = self.held.remove(&next.0)?;
+        self.held_bytes -= len;
+        self.last_handled = next;
+        Some(m)
+    }
+
+    /// A HEARTBEAT from the sender: it holds `first..=last`. Messages the
+    /// sender no longer holds are skipped (as the agent does); `last` tells
+    /// how far to NACK (at most one window ahead).
+    pub fn on_heartbeat(&mut self, hb: &Heartbeat) {
+        let first = SeqNum(hb.first_unacked);
+        if first.is_after(self.last_handled.wrapping_add(1))
+            && first.since(self.last_handled) < 0x8000
+        {
+            self.last_handled = first.wrapping_sub(1);
+            let keep: BTreeMap<u16, (usize, Message)> = std::mem::take(&mut self.held)
+                .into_iter()
+                .filter(|(s, _)| SeqNum(*s).is_after(self.last_handled))
+                .collect();
+            self.held_bytes = keep.values().map(|(l, _)| l).sum();
+            self.held = keep;
+            self.reassembly = None;
+            if self.last_handled.is_after(self.last_announced) {
+                self.last_announced = self.last_handled;
+            }
+        }
+        let last = SeqNum(hb.last_unacked);
+        let limit = self.last_handled.wrapping_add(self.cfg.depth);
+        let last = if last.is_after(limit) { limit } else { last };
+        if last.is_after(self.last_announced) {
+            self.last_announced = last;
+        }
+    }
+
+    /// The ACKNACK describing this stream now.
+    pub fn acknack(&self) -> AckNack {
+        let first = self.last_handled.wrapping_add(1);
+        let known = self.last_announced.since(self.last_handled);
+        let mut bits = 0u16;
+        for i in 0..16u16 {
+            if i < known && known < 0x8000 && !self.held.contains_key(&first.wrapping_add(i).0) {
+                bits |= 1 << i;
+            }
+        }
+        let mut a = AckNack {
+            first_unacked: first.0,
+            nack_bitmap: [0; 2],
+            stream_id: self.id,
+        };
+        a.set_nack_bits(bits);
+        a
+    }
+
+    /// The submessages of a message handed on in order, with FRAGMENTs
+    /// rebuilt: complete submessages come out as they are, fragments are
+    /// collected until the last one. Problems are pushed to `errors` and
+    /// the rest goes on.
+    pub fn unpack(&mut self, message: Message, errors: &mut Vec<FragmentError>) -> Vec<Submessage> {
+        let mut out = Vec::new();
+        let n = message.submessages.len();
+        for (i, s) in message.submessages.into_iter().enumerate() {
+            let last_fragment = s.is_last_fragment();
+            let Payload::Fragment(body) = s.payload else {
+                if self.reassembly.take().is_some() {
+                    errors.push(FragmentError::Interleaved(s.id().name()));
+                }
+                out.push(s);
+                continue;
+            };
+            if !last_fragment && i + 1 != n {
+                self.reassembly = None;
+                errors.push(FragmentError::NotLastInMessage);
+                continue;
+            }
+            let max = self.cfg.max_reassembly;
+            let r = self.reassembly.get_or_insert_with(|| Reassembly {
+                header: message.header,
+                buf: Vec::new(),
+                overflow: false,
+            });
+            if !r.overflow {
+                if r.buf.len() + body.len() > max {
+                    r.overflow = true;
+                    r.buf = Vec::new();
+                    errors.push(FragmentError::TooLarge { max });
+                } else {
+                    r.buf.extend_from_slice(&body);
+                }
+            }
+            if last_fragment {
+                if let Some(r) = self.reassembly.take().filter(|r| !r.overflow) {
+                    match Message::reassembled(&r.header, &r.buf) {
+                        Ok(m) => {
+                            for sub in m.submessages {
+                                if sub.id() == SubmessageId::Fragment {
+                                    errors.push(FragmentError::Nested);
+                                } else {
+                                    out.push(sub);
+                                }
+                            }
+                        }
+                        Err(e) => errors.push(FragmentError::Decode(e)),
+                    }
+                }
+            }
+        }
+        out
+    }
+}
