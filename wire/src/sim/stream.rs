@@ -153,25 +153,21 @@ impl Pipe {
         }
     }
 
-    /// Bytes that have arrived by `now`.
-    fn arrived(&self, now: Instant) -> usize {
-        let mut n = 0;
-        for (i, (t, b)) in self.segs.iter().enumerate() {
-            if *t > now {
-                break;
-            }
-            n += b.len() - if i == 0 { self.offset } else { 0 };
-        }
-        n
+    /// Whether bytes have arrived by `now`.
+    fn arrived(&self, now: Instant) -> bool {
+        self.segs.front().is_some_and(|(t, _)| *t <= now)
     }
 
-    /// Takes up to `n` bytes from the front (arrived or not).
-    fn take(&mut self, mut n: usize) -> Vec<u8> {
+    /// Takes up to `n` bytes from the front: those arrived by `by`, or any.
+    fn take(&mut self, mut n: usize, by: Option<Instant>) -> Vec<u8> {
         let mut out = Vec::new();
         while n > 0 {
-            let Some((_, b)) = self.segs.front() else {
+            let Some((t, b)) = self.segs.front() else {
                 break;
             };
+            if by.is_some_and(|by| *t > by) {
+                break;
+            }
             let k = (b.len() - self.offset).min(n);
             out.extend_from_slice(&b[self.offset..self.offset + k]);
             self.offset += k;
@@ -447,22 +443,22 @@ impl<N: Node> Net<N> {
     /// How many were handed over.
     pub fn push(&mut self, stream: StreamId, n: usize) -> usize {
         let mut done = 0;
-        while done < n {
-            let Some(k) = self.read_size(stream.peer(), n - done, true) else {
+        while done < n && self.unread(stream) > 0 {
+            let Some(k) = self.read_size(stream.peer(), true) else {
                 break;
             };
-            done += self.hand_over(stream, k);
+            done += self.hand_over(stream, k.min(n - done), None);
         }
         done
     }
 
-    /// How many bytes the reader `to` takes next from its pipe (at most
-    /// `arrived`), if it reads now; `forced` ignores holds.
-    fn read_size(&mut self, to: StreamId, arrived: usize, forced: bool) -> Option<usize> {
+    /// How many bytes the reader `to` takes next from its pipe, if it
+    /// reads now (`usize::MAX`: all that arrived); `forced` ignores holds.
+    fn read_size(&mut self, to: StreamId, forced: bool) -> Option<usize> {
         let from = to.peer();
         let end = self.streams.end(to)?;
         let pipe = self.streams.pipe(from)?;
-        if arrived == 0 || !end.open || (pipe.held && !forced) {
+        if !end.open || (pipe.held && !forced) {
             return None;
         }
         if let Some(h) = end.owner {
@@ -471,18 +467,18 @@ impl<N: Node> Net<N> {
                 return None;
             }
         }
-        let n = match self.stream_faults.reads {
-            Reads::Whole => arrived,
+        Some(match self.stream_faults.reads {
+            Reads::Whole => usize::MAX,
             Reads::Chunks(k) => k.max(1),
             Reads::Random(k) => 1 + self.rand() as usize % k.max(1),
-        };
-        Some(n.min(arrived))
+        })
     }
 
-    /// Takes `n` bytes that end `from` wrote and hands them to its peer.
-    fn hand_over(&mut self, from: StreamId, n: usize) -> usize {
+    /// Takes up to `n` bytes that end `from` wrote (arrived by `by`, or
+    /// any) and hands them to its peer; how many.
+    fn hand_over(&mut self, from: StreamId, n: usize, by: Option<Instant>) -> usize {
         let to = from.peer();
-        let Some(bytes) = self.streams.pipe_mut(from).map(|p| p.take(n)) else {
+        let Some(bytes) = self.streams.pipe_mut(from).map(|p| p.take(n, by)) else {
             return 0;
         };
         match self.streams.end_mut(to) {
@@ -516,13 +512,12 @@ impl<N: Node> Net<N> {
                     }
                     continue;
                 }
-                loop {
-                    let arrived = self.streams.pipe(from).map_or(0, |p| p.arrived(now));
-                    let Some(n) = self.read_size(to, arrived, false) else {
+                while self.streams.pipe(from).is_some_and(|p| p.arrived(now)) {
+                    let Some(n) = self.read_size(to, false) else {
                         break;
                     };
                     any = true;
-                    self.hand_over(from, n);
+                    self.hand_over(from, n, Some(now));
                 }
                 any |= self.deliver_eof(from);
             }
