@@ -374,6 +374,15 @@ fn the_test_can_be_either_end() {
     net.write(theirs.peer(), b"to the script");
     assert!(net.run_until_quiet(QUIET));
     assert_eq!(net.read(*theirs), b"to the script");
+    // ... or both.
+    let a = net.connect_raw("a".into(), &"scripted".into()).unwrap();
+    let [(b, from)] = &net.take_accepted()[..] else {
+        panic!()
+    };
+    assert_eq!((b.peer(), from.as_str()), (a, "a"));
+    net.write(a, b"to myself");
+    assert!(net.run_until_quiet(QUIET));
+    assert_eq!(net.read(*b), b"to myself");
 }
 
 #[test]

@@ -230,7 +230,8 @@ impl ModuleNode {
         self.central
     }
 
-    fn close(&mut self, stream: StreamId) {
+    /// Hangs up `stream` (a link, or central's).
+    fn hang_up(&mut self, stream: StreamId) {
         self.links.remove(&stream);
         self.ops.push_back(StreamOp::Close { stream });
     }
@@ -287,7 +288,7 @@ impl Node for ModuleNode {
             self.conn.receive(bytes, now);
         } else if let Some(&link) = self.links.get(&stream) {
             if self.conn.receive_direct(link, bytes).is_err() {
-                self.close(stream);
+                self.hang_up(stream);
             }
         }
     }
@@ -295,10 +296,10 @@ impl Node for ModuleNode {
         if self.central == Some(stream) {
             self.conn.handle_eof();
             if !std::mem::replace(&mut self.closed, true) {
-                self.close(stream);
+                self.hang_up(stream);
             }
         } else if self.links.contains_key(&stream) {
-            self.close(stream);
+            self.hang_up(stream);
         }
     }
     fn poll_stream(&mut self) -> Option<StreamOp<String>> {
@@ -327,7 +328,6 @@ impl Node for ModuleNode {
 
 /// Central or a module: the nodes of an IPC network.
 #[derive(Debug)]
-#[allow(clippy::large_enum_variant)]
 pub enum IpcNode {
     /// The central server.
     Central(CentralNode),

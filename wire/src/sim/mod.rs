@@ -219,7 +219,7 @@ impl<N: Node> Net<N> {
 
     /// Sets the wall clock: [`Net::wall`] is `wall` now.
     pub fn set_wall(&mut self, wall: SystemTime) {
-        self.wall0 = wall - (self.now - self.t0);
+        self.wall0 = wall.checked_sub(self.now - self.t0).unwrap_or(wall);
     }
 
     /// Adds a node; returns its index.

@@ -374,10 +374,18 @@ impl<N: Node> Net<N> {
     pub fn connect_raw(&mut self, from: N::Addr, to: &N::Addr) -> Option<StreamId> {
         let now = self.now;
         let host =
-            (0..self.hosts.len()).find(|&h| self.hosts[h].up && self.hosts[h].node.listens(to))?;
-        let (mine, theirs) = self.streams.open(None, Some(host));
-        self.hosts[host].node.handle_accept(theirs, from, now);
-        self.pump_host(host);
+            (0..self.hosts.len()).find(|&h| self.hosts[h].up && self.hosts[h].node.listens(to));
+        if host.is_none() && !self.streams.raw_listen.contains(to) {
+            return None;
+        }
+        let (mine, theirs) = self.streams.open(None, host);
+        match host {
+            Some(h) => {
+                self.hosts[h].node.handle_accept(theirs, from, now);
+                self.pump_host(h);
+            }
+            None => self.streams.accepted.push((theirs, from)),
+        }
         Some(mine)
     }
 
