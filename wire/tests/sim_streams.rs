@@ -108,15 +108,20 @@ fn pair(seed: u64, faults: StreamFaults) -> (Net<Rec>, StreamId, StreamId) {
     (net, c, s)
 }
 
-/// The pieces host `i` read (on any stream).
-fn pieces(net: &mut Net<Rec>, i: usize) -> Vec<Vec<u8>> {
-    net.take_events(i)
-        .into_iter()
+/// The pieces read, in these events (on any stream).
+fn data(events: &[Ev]) -> Vec<Vec<u8>> {
+    events
+        .iter()
         .filter_map(|e| match e {
-            Ev::Data(_, b) => Some(b),
+            Ev::Data(_, b) => Some(b.clone()),
             _ => None,
         })
         .collect()
+}
+
+/// The pieces host `i` read (on any stream).
+fn pieces(net: &mut Net<Rec>, i: usize) -> Vec<Vec<u8>> {
+    data(&net.take_events(i))
 }
 
 /// `n` writes of 1 to 300 bytes, each byte its position in the stream.
@@ -255,15 +260,7 @@ fn eof_comes_after_the_last_byte_and_later_writes_go_nowhere() {
         let last = ev.iter().rposition(|e| matches!(e, Ev::Data(..)));
         assert_eq!(ev.last(), Some(&Ev::Eof(s)), "seed {seed}: {ev:?}");
         assert_eq!(last, Some(ev.len() - 2), "nothing after EOF");
-        let data: Vec<u8> = ev
-            .iter()
-            .filter_map(|e| match e {
-                Ev::Data(_, b) => Some(b.clone()),
-                _ => None,
-            })
-            .collect::<Vec<_>>()
-            .concat();
-        assert_eq!(data, vec![7; 200]);
+        assert_eq!(data(&ev).concat(), vec![7; 200]);
         // The closed end reads nothing more.
         net.write(s, b"late");
         assert!(net.run_until_quiet(QUIET));
@@ -397,16 +394,7 @@ fn datagrams_and_streams_share_one_clock() {
     assert!(net.run_until_quiet(QUIET));
     let ev = net.take_events(1);
     assert!(ev.contains(&Ev::Datagram("client".into(), b"dgram".to_vec())));
-    assert_eq!(
-        ev.iter()
-            .filter_map(|e| match e {
-                Ev::Data(_, b) => Some(b.clone()),
-                _ => None,
-            })
-            .collect::<Vec<_>>()
-            .concat(),
-        b"stream"
-    );
+    assert_eq!(data(&ev).concat(), b"stream");
     assert_eq!(net.tap.len(), 1);
     assert_eq!(net.stream_tap, vec![(c, b"stream".to_vec())]);
     assert!(

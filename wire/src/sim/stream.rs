@@ -372,21 +372,27 @@ impl<N: Node> Net<N> {
     /// whoever listens at `to` — at once, without delay. `None` if nobody
     /// listens there.
     pub fn connect_raw(&mut self, from: N::Addr, to: &N::Addr) -> Option<StreamId> {
-        let now = self.now;
         let host =
             (0..self.hosts.len()).find(|&h| self.hosts[h].up && self.hosts[h].node.listens(to));
         if host.is_none() && !self.streams.raw_listen.contains(to) {
             return None;
         }
         let (mine, theirs) = self.streams.open(None, host);
+        self.accept(host, theirs, from);
+        Some(mine)
+    }
+
+    /// End `theirs` of a new link, from `from`, is accepted by its
+    /// listener: host `host`, or the test.
+    fn accept(&mut self, host: Option<usize>, theirs: StreamId, from: N::Addr) {
         match host {
             Some(h) => {
+                let now = self.now;
                 self.hosts[h].node.handle_accept(theirs, from, now);
                 self.pump_host(h);
             }
             None => self.streams.accepted.push((theirs, from)),
         }
-        Some(mine)
     }
 
     /// Connections to `at` (from nodes or [`Net::connect_raw`]) are
@@ -582,13 +588,7 @@ impl<N: Node> Net<N> {
             let raw = self.streams.raw_listen.contains(&c.to);
             let stream = if host.is_some() || raw {
                 let (mine, theirs) = self.streams.open(Some(c.from), host);
-                match host {
-                    Some(h) => {
-                        self.hosts[h].node.handle_accept(theirs, from_addr, now);
-                        self.pump_host(h);
-                    }
-                    None => self.streams.accepted.push((theirs, from_addr)),
-                }
+                self.accept(host, theirs, from_addr);
                 Some(mine)
             } else {
                 None

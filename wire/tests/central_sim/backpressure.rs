@@ -12,7 +12,7 @@ use courier_wire::ipc::frame::HEADER_SIZE;
 use courier_wire::ipc::module::{Event, MsgLength};
 use courier_wire::sim::Reads;
 
-use crate::support::{define, pub_sub, Sim};
+use crate::support::{define, pub_sub, Mod, Sim};
 
 /// A module's socket buffer: about 1000 of these tests' 100-byte frames.
 const SOCKET: usize = 100_000;
@@ -27,6 +27,25 @@ impl Stall {
         self.0 = if progress { 0 } else { self.0 + 1 };
         assert!(self.0 < 1000, "nothing delivered in 1000 rounds, at {at:?}");
     }
+}
+
+/// 64 bytes of `[int:16]` data, the first int `i`.
+fn numbered(i: i32) -> Vec<u8> {
+    let mut body = vec![0u8; 64];
+    body[..4].copy_from_slice(&i.to_le_bytes());
+    body
+}
+
+/// The subscriber `s` handles up to `most` of the messages it was given,
+/// which must be numbered `*next`, `*next + 1`, …, and acknowledges each.
+fn handle_in_order(sim: &mut Sim, s: Mod, next: &mut i32, most: usize, stall: &mut Stall) {
+    let before = *next;
+    for (id, _, _, data) in sim.deliveries(s).into_iter().take(most) {
+        assert_eq!(i32::from_le_bytes(data[..4].try_into().unwrap()), *next);
+        *next += 1;
+        sim.m(s).ack(id).unwrap();
+    }
+    stall.round(*next > before, *next);
 }
 
 /// A publisher floods 100 000 messages at a subscriber with capacity 1 that
@@ -45,19 +64,11 @@ fn slow_subscriber_bounded_memory_nothing_lost() {
     while next < N {
         // The publisher writes as fast as its socket lets it.
         while sent < N && sim.unread(p) < SOCKET {
-            let mut body = vec![0u8; 64];
-            body[..4].copy_from_slice(&sent.to_le_bytes());
-            sim.m(p).publish("data", body.clone(), -1).unwrap();
+            sim.m(p).publish("data", numbered(sent), -1).unwrap();
             sent += 1;
         }
         sim.pump();
-        let before = next;
-        for (id, _, _, data) in sim.deliveries(s) {
-            assert_eq!(i32::from_le_bytes(data[..4].try_into().unwrap()), next);
-            next += 1;
-            sim.m(s).ack(id).unwrap();
-        }
-        stall.round(next > before, next);
+        handle_in_order(&mut sim, s, &mut next, usize::MAX, &mut stall);
     }
     let st = sim.central().stats();
     println!(
@@ -143,9 +154,7 @@ fn queries_waiting_for_a_handler_are_bounded_and_the_newest_kept() {
     sim.pump();
     let before = sim.logs.len();
     for i in 0..N {
-        let mut body = vec![0u8; 64];
-        body[..4].copy_from_slice(&i.to_le_bytes());
-        sim.m(a).query("nobody", body, -1).unwrap();
+        sim.m(a).query("nobody", numbered(i), -1).unwrap();
         sim.pump();
     }
     let st = sim.central().stats();
@@ -236,9 +245,7 @@ fn a_module_publishing_inside_a_broadcast_handler_is_held_back_too() {
     while next < N {
         // Its socket takes what fits; the handler blocks while it is full.
         while sent < N && sim.unread(m) < SOCKET {
-            let mut body = vec![0u8; 64];
-            body[..4].copy_from_slice(&sent.to_le_bytes());
-            sim.m(m).publish("data", body, -1).unwrap();
+            sim.m(m).publish("data", numbered(sent), -1).unwrap();
             sent += 1;
             if sent % 100 == 0 {
                 sim.pump();
@@ -251,13 +258,7 @@ fn a_module_publishing_inside_a_broadcast_handler_is_held_back_too() {
         }
         sim.pump();
         // The subscriber handles a few messages per turn.
-        let before = next;
-        for (id, _, _, data) in sim.deliveries(s).into_iter().take(5) {
-            assert_eq!(i32::from_le_bytes(data[..4].try_into().unwrap()), next);
-            next += 1;
-            sim.m(s).ack(id).unwrap();
-        }
-        stall.round(next > before, next);
+        handle_in_order(&mut sim, s, &mut next, 5, &mut stall);
     }
     let st = sim.central().stats();
     assert_eq!((st.dropped, st.queued_bytes), (0, 0));
@@ -296,9 +297,7 @@ fn a_module_publishing_inside_a_query_handler_is_held_back_too() {
     let mut stall = Stall::default();
     while next < N {
         while sent < N && sim.unread(h) < SOCKET {
-            let mut body = vec![0u8; 64];
-            body[..4].copy_from_slice(&sent.to_le_bytes());
-            sim.m(h).publish("data", body, -1).unwrap();
+            sim.m(h).publish("data", numbered(sent), -1).unwrap();
             sent += 1;
             if sent % 100 == 0 {
                 sim.pump();
@@ -312,13 +311,7 @@ fn a_module_publishing_inside_a_query_handler_is_held_back_too() {
             replied = true;
         }
         sim.pump();
-        let before = next;
-        for (id, _, _, data) in sim.deliveries(s).into_iter().take(5) {
-            assert_eq!(i32::from_le_bytes(data[..4].try_into().unwrap()), next);
-            next += 1;
-            sim.m(s).ack(id).unwrap();
-        }
-        stall.round(next > before, next);
+        handle_in_order(&mut sim, s, &mut next, 5, &mut stall);
     }
     sim.pump();
     assert!(was_paused, "the answering module was never held back");
@@ -370,9 +363,7 @@ fn a_held_back_answer_is_read_when_its_askers_queue_grows() {
     // Answering, the server floods the slow module past the limit and is
     // held back (the asker has nothing queued yet).
     for i in 0..200i32 {
-        let mut body = vec![0u8; 64];
-        body[..4].copy_from_slice(&i.to_le_bytes());
-        sim.m(h).publish("data", body, -1).unwrap();
+        sim.m(h).publish("data", numbered(i), -1).unwrap();
         sim.pump();
     }
     assert!(sim.paused(h), "the answering module was not held back");

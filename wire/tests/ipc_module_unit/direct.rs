@@ -4,21 +4,13 @@ use courier_wire::ipc::frame::{Header, MsgClass};
 use courier_wire::ipc::module::{DeliveryKind, Event, LinkId};
 use courier_wire::ipc::Writer;
 
-use crate::script::{by_hand, frame, msg_info_reply, reply_frame, str_data, Central};
+use crate::script::{by_hand, frame, reply_frame, str_data, Central};
 
 #[test]
 fn direct_publish_waits_for_receivers_and_links() {
     let mut c = by_hand(false);
     let op = c.publish("dmsg", b"xy", -1).unwrap();
-    let f = c.frames();
-    c.send(&msg_info_reply(
-        f[0].header.msg_ref,
-        -116,
-        "dmsg",
-        15,
-        "{int, <byte:1>}",
-        "string",
-    ));
+    c.answer_lookup("dmsg", -116, 15, "{int, <byte:1>}", "string");
     // lookup of x_ipc_directMsgQuery, then the query itself
     let f = c.answer_direct_msg_query_lookup();
     assert_eq!(f.len(), 1);

@@ -47,15 +47,7 @@ fn publish_of_unsubscribed_message_is_reported_not_sent() {
         // IPC_connectNoListen: no filtering, body is len, len, bytes.
         let mut s = Scripted::connected(seed, false);
         let op = s.c().publish("message2", b"hi", -1).unwrap();
-        let f = s.frames();
-        s.send(&msg_info_reply(
-            f[0].header.msg_ref,
-            106,
-            "message2",
-            15,
-            "{int, <byte:1>}",
-            "string",
-        ));
+        s.answer_lookup("message2", 106, 15, "{int, <byte:1>}", "string");
         let f = s.frames();
         assert_eq!(f.len(), 1);
         assert_eq!(f[0].header.intent, 106);
@@ -72,15 +64,7 @@ fn fixed_and_empty_messages() {
     for seed in SEEDS {
         let mut s = Scripted::connected(seed, false);
         let a = s.c().publish("fixedMsg", [1, 2, 3], -1).unwrap();
-        let f = s.frames();
-        s.send(&msg_info_reply(
-            f[0].header.msg_ref,
-            116,
-            "fixedMsg",
-            15,
-            "[byte:8]",
-            "{int, int}",
-        ));
+        s.answer_lookup("fixedMsg", 116, 15, "[byte:8]", "{int, int}");
         assert!(s.frames().is_empty());
         assert!(matches!(
             s.event(),
@@ -172,15 +156,7 @@ fn queries_replies_out_of_order_and_cancel() {
     for seed in SEEDS {
         let mut s = Scripted::connected(seed, false);
         let q1 = s.c().query("query1", b"a", -1).unwrap();
-        let f = s.frames();
-        s.send(&msg_info_reply(
-            f[0].header.msg_ref,
-            111,
-            "query1",
-            15,
-            "{int, <byte:1>}",
-            "int",
-        ));
+        s.answer_lookup("query1", 111, 15, "{int, <byte:1>}", "int");
         let f1 = s.frames();
         let q2 = s.c().query("query1", b"b", -1).unwrap();
         let q3 = s.c().query("query1", b"c", -1).unwrap();
@@ -238,15 +214,7 @@ fn respond_later_and_out_of_order() {
             &[0; 8],
         ));
         assert_eq!(s.event(), None);
-        let f = s.frames();
-        s.send(&msg_info_reply(
-            f[0].header.msg_ref,
-            111,
-            "query1",
-            15,
-            "{int, <byte:1>}",
-            "int",
-        ));
+        s.answer_lookup("query1", 111, 15, "{int, <byte:1>}", "int");
         let e = s.event();
         let Some(Event::Delivery {
             delivery: d7,
