@@ -1,0 +1,256 @@
+//! Hostile and broken input: frames that break the rules close only their
+//! sender, with a log line; mistakes are logged, not fatal, and cannot
+//! flood the log; random bytes never panic central.
+//!
+//! The senders are connections of the test's own to central on the
+//! network (`Sim::raw`), their bytes cut as any module's are. Two tests
+//! feed a bare `Central` instead: one looks at where each log line goes
+//! (terminal or file), which the network's log events do not keep, and
+//! one gives each frame its own arrival time, back in time included.
+
+use std::time::SystemTime;
+
+use courier_wire::ipc::central::{Central, Config, ConnId, LogOptions, Output, Peer};
+use courier_wire::ipc::frame::{ClassId, MsgClass};
+use courier_wire::ipc::module::Event;
+
+use crate::routing::raw_frame;
+use crate::support::{define, Sim};
+
+/// Sends `bytes` on a connection of its own while a module is connected:
+/// the reasons central closed connections for, and its log lines.
+fn hostile(bytes: &[u8]) -> (Vec<String>, Vec<String>) {
+    let mut sim = Sim::new(Config::default());
+    let ok = sim.connect("bystander");
+    let attacker = sim.raw("attacker");
+    let (logs, closes) = (sim.logs.len(), sim.closes.len());
+    sim.net.write(attacker, bytes);
+    sim.pump();
+    let closes = sim.closes[closes..]
+        .iter()
+        .map(|(_, why)| why.clone())
+        .collect();
+    let logs = sim.logs[logs..].to_vec();
+    // Central is still fine for everyone else.
+    define(&mut sim, ok, "still", "int");
+    sim.pump();
+    let op = sim.m(ok).is_module_connected("bystander").unwrap();
+    sim.pump();
+    assert!(sim.take_events(ok).contains(&Event::ModuleConnected {
+        op,
+        connected: true
+    }));
+    (closes, logs)
+}
+
+/// `-lx` turns logging off, not the report of a module that sends garbage:
+/// the ERROR line still goes to the terminal (and, with `-L`, to the file).
+#[test]
+fn bad_input_is_reported_with_logging_off() {
+    for file in [false, true] {
+        let mut config = Config::default();
+        config.terminal_log = LogOptions::parse("x", false).unwrap();
+        if file {
+            config.file_log = LogOptions::parse("m", true).unwrap();
+        }
+        let mut central = Central::new(config);
+        let now = SystemTime::now();
+        central.connect(ConnId(7), Peer::Other("attacker".into()), now);
+        let mut f = raw_frame(MsgClass::Query, 5, &[]);
+        f[4..8].copy_from_slice(&(-8i32).to_be_bytes());
+        central.receive(ConnId(7), &f, now);
+        central.check_invariants();
+        let mut lines = Vec::new();
+        while let Some(o) = central.poll_output() {
+            if let Output::Log { target, line } = o {
+                lines.push((target.terminal, target.file, line));
+            }
+        }
+        // Only the ERROR line reaches the terminal.
+        let shown: Vec<_> = lines.iter().filter(|l| l.0).collect();
+        assert_eq!(shown.len(), 1, "{lines:?}");
+        let (_, to_file, line) = shown[0];
+        assert_eq!(*to_file, file, "{lines:?}");
+        assert!(
+            line.starts_with("ERROR: closing connection 7 (from attacker): ")
+                && line.contains("negative length"),
+            "{line}"
+        );
+    }
+}
+
+#[test]
+fn hostile_frames_close_only_the_offender_with_a_log_line() {
+    // Negative length.
+    let mut f = raw_frame(MsgClass::Query, 5, &[]);
+    f[4..8].copy_from_slice(&(-8i32).to_be_bytes());
+    let (c, l) = hostile(&f);
+    assert!(c[0].contains("negative length"), "{c:?}");
+    assert!(l.iter().any(|x| x.contains("negative length")));
+    // Oversized.
+    let mut f = raw_frame(MsgClass::Query, 5, &[]);
+    f[4..8].copy_from_slice(&i32::MAX.to_be_bytes());
+    let (c, _) = hostile(&f);
+    assert!(c[0].contains("exceeds the limit"), "{c:?}");
+    // Not packed / bad byte order.
+    let mut f = raw_frame(MsgClass::Query, 5, &[]);
+    f[17] = 4;
+    assert!(hostile(&f).0[0].contains("not packed"));
+    let mut f = raw_frame(MsgClass::Query, 5, &[]);
+    f[16] = 0x77;
+    assert!(hostile(&f).0[0].contains("byte-order"));
+}
+
+#[test]
+fn truncated_internal_data_closes_with_the_reason() {
+    // x_ipc_msgInfoMsg with a string length running off the end.
+    let mut sim = Sim::new(Config::default());
+    let t = sim.raw("t");
+    sim.pump();
+    let greeting = sim.net.read(t);
+    let msg_info = i32::from_be_bytes(greeting[..4].try_into().unwrap());
+    let mut body = 1000i32.to_le_bytes().to_vec();
+    body.extend_from_slice(b"abc");
+    let f = raw_frame(MsgClass::Query, msg_info, &body);
+    sim.net.write(t, &f);
+    sim.pump();
+    let closes = &sim.closes;
+    assert_eq!(closes.len(), 1);
+    assert!(closes[0].1.contains("count 1000"), "{closes:?}");
+    assert!(sim.net.is_eof(t), "and the connection is closed");
+}
+
+#[test]
+fn unknown_ids_and_stray_acks_are_logged_not_fatal() {
+    let (c, l) = hostile(&raw_frame(MsgClass::Broadcast, 123_456, &[]));
+    assert!(c.is_empty());
+    assert!(l.iter().any(|x| x.contains("unknown id 123456")), "{l:?}");
+    let mut ack = raw_frame(MsgClass::Success, -1, &[]);
+    ack[20..24].copy_from_slice(&42i32.to_be_bytes());
+    let (c, l) = hostile(&ack);
+    assert!(c.is_empty());
+    assert!(l.iter().any(|x| x.contains("Success for unknown")), "{l:?}");
+}
+
+/// A module repeating a mistake in a loop (here 10 000 Successes for a
+/// dispatch it was never given, and as many frames with an unknown id)
+/// gets a burst of lines, then one a second, and a count of the rest, not
+/// a line per frame; another module's lines are not affected.
+#[test]
+fn a_module_repeating_a_mistake_cannot_flood_the_log() {
+    let mut central = Central::new(Config::default());
+    let t0 = SystemTime::now();
+    central.connect(ConnId(7), Peer::Other("looper".into()), t0);
+    central.connect(ConnId(8), Peer::Other("other".into()), t0);
+    let mut ack = raw_frame(MsgClass::Success, -1, &[]);
+    ack[20..24].copy_from_slice(&42i32.to_be_bytes());
+    let unknown = raw_frame(MsgClass::Broadcast, 123_456, &[]);
+    let problems = |central: &mut Central| {
+        let mut lines = Vec::new();
+        while let Some(o) = central.poll_output() {
+            match o {
+                Output::Log { line, .. } => lines.push(line),
+                Output::Close { reason, .. } => panic!("closed: {reason}"),
+                _ => {}
+            }
+        }
+        lines
+    };
+    problems(&mut central);
+    for i in 0..10_000u32 {
+        // 10 000 frames over 5 seconds.
+        let now = t0 + std::time::Duration::from_micros(u64::from(i) * 500);
+        central.receive(ConnId(7), if i % 2 == 0 { &ack } else { &unknown }, now);
+        central.check_invariants();
+    }
+    let lines = problems(&mut central);
+    // 10 at once, then one for each of the 4 further seconds.
+    assert_eq!(lines.len(), 10 + 4 + 4, "{lines:#?}");
+    let counts: Vec<u64> = lines
+        .iter()
+        .filter_map(|l| l.strip_prefix("WARNING: "))
+        .filter_map(|l| {
+            l.split_once(" more problem line(s) about connection 7 (from looper) left out")
+        })
+        .map(|(n, _)| n.parse().unwrap())
+        .collect();
+    assert_eq!(counts.len(), 4, "{lines:#?}");
+    // The other module is not silenced by the first one's budget.
+    central.receive(ConnId(8), &ack, t0 + std::time::Duration::from_secs(5));
+    let other = problems(&mut central);
+    assert_eq!(other.len(), 1, "{other:?}");
+    assert!(other[0].contains("from 8 (from other)"), "{other:?}");
+    // Whatever was left out last is said when the module goes.
+    let later = t0 + std::time::Duration::from_micros(4_999_900);
+    for _ in 0..3 {
+        central.receive(ConnId(7), &ack, later);
+    }
+    assert!(problems(&mut central).is_empty());
+    central.disconnect(ConnId(7), later);
+    let closing = problems(&mut central);
+    let last = closing
+        .iter()
+        .find_map(|l| {
+            l.strip_prefix("WARNING: ")?
+                .strip_suffix(" more problem line(s) about connection 7 (from looper) left out")
+        })
+        .unwrap_or_else(|| panic!("no count when the module went: {closing:#?}"));
+    let last: u64 = last.parse().unwrap();
+    assert!(last >= 3);
+    let printed = (lines.len() - counts.len()) as u64;
+    assert_eq!(
+        printed + counts.iter().sum::<u64>() + last,
+        10_003,
+        "every problem printed or counted"
+    );
+}
+
+#[test]
+fn disconnect_mid_frame_is_logged() {
+    let mut sim = Sim::new(Config::default());
+    let t = sim.raw("t");
+    let f = raw_frame(MsgClass::Query, 5, &[1, 2, 3, 4]);
+    sim.net.write(t, &f[..20]);
+    sim.net.close(t);
+    sim.pump();
+    assert!(
+        sim.logs
+            .iter()
+            .any(|l| l.contains("in the middle of a frame (20 byte(s)")),
+        "{:?}",
+        sim.logs
+    );
+    assert_eq!(sim.central().stats().modules, 0);
+}
+
+#[test]
+fn random_bytes_never_panic() {
+    // A cheap deterministic fuzz: xorshift bytes, sometimes with a valid
+    // header prefix, cut as the network cuts them; central's invariants
+    // are checked after every piece and after the disconnect.
+    let mut x: u64 = 0x9e37_79b9_7f4a_7c15;
+    for round in 0..2000 {
+        let mut sim = Sim::new(Config::default());
+        let fuzz = sim.raw("fuzz");
+        let n = (round % 200) + 1;
+        let mut b = Vec::with_capacity(n);
+        for _ in 0..n {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            b.push(x as u8);
+        }
+        if round % 2 == 0 && b.len() >= 28 {
+            let body = (b.len() - 28) as i32;
+            b[0..4].copy_from_slice(&0i32.to_be_bytes());
+            b[4..8].copy_from_slice(&body.to_be_bytes());
+            b[16..20].copy_from_slice(&ClassId::native(MsgClass::Query).0.to_be_bytes());
+            let id = [182i32, 171, 173, 166, 164, 168, 162, 147, 144, 199, 195][round % 11];
+            b[12..16].copy_from_slice(&id.to_be_bytes());
+        }
+        sim.net.write(fuzz, &b);
+        sim.net.close(fuzz);
+        sim.pump();
+        assert_eq!(sim.central().stats().modules, 0, "round {round}");
+    }
+}

@@ -1,0 +1,113 @@
+//! Direct links (ipc.md §8), through the API a shell calls, by hand.
+
+use courier_wire::ipc::frame::{Header, MsgClass};
+use courier_wire::ipc::module::{DeliveryKind, Event, LinkId};
+use courier_wire::ipc::Writer;
+
+use crate::script::{by_hand, frame, reply_frame, str_data, Central};
+
+#[test]
+fn direct_publish_waits_for_receivers_and_links() {
+    let mut c = by_hand(false);
+    let op = c.publish("dmsg", b"xy", -1).unwrap();
+    c.answer_lookup("dmsg", -116, 15, "{int, <byte:1>}", "string");
+    // lookup of x_ipc_directMsgQuery, then the query itself
+    let f = c.answer_direct_msg_query_lookup();
+    assert_eq!(f.len(), 1);
+    assert_eq!(
+        (f[0].header.intent, f[0].data.clone()),
+        (147, str_data("dmsg"))
+    );
+    let mut w = Writer::new();
+    w.write_i32(2);
+    w.write_i32(2);
+    for (id, port, host) in [(198, 8000, "a"), (197, 8001, "b")] {
+        w.write_i32(id);
+        w.write_i32(0);
+        w.write_i32(0);
+        w.write_i32(port);
+        w.write_str(host);
+        w.write_str("mod");
+    }
+    c.send(&reply_frame(f[0].header.msg_ref, &w.into_vec()));
+    // V_watch_dmsg subscription (registerHandler was looked up at connect)
+    let f = c.frames();
+    assert_eq!(f.len(), 1);
+    assert_eq!(f[0].header.intent, 166);
+    assert!(
+        c.poll_direct_transmit().is_none(),
+        "held until the links are up"
+    );
+    let mut links = Vec::new();
+    while let Some(e) = c.poll_event() {
+        if let Event::DirectConnect { link, port, .. } = e {
+            links.push((link, port));
+        }
+    }
+    assert_eq!(links, vec![(LinkId(1), 8000), (LinkId(2), 8001)]);
+    c.direct_link_up(LinkId(1));
+    assert!(c.poll_direct_transmit().is_none());
+    c.direct_link_up(LinkId(2));
+    let (l1, b1) = c.poll_direct_transmit().unwrap();
+    let (l2, b2) = c.poll_direct_transmit().unwrap();
+    assert_eq!((l1, l2), (LinkId(2), LinkId(1)), "last handler first");
+    let h1 = Header::decode(&b1).unwrap();
+    let h2 = Header::decode(&b2).unwrap();
+    assert_eq!((h1.intent, h2.intent), (197, 198));
+    assert_eq!(h1.msg_ref, h2.msg_ref);
+    let mut want = 2i32.to_ne_bytes().repeat(2);
+    want.extend_from_slice(b"xy");
+    assert_eq!(&b1[28..], &want[..]);
+    assert_eq!(c.poll_event(), Some(Event::Published { op }));
+    assert!(c.frames().is_empty(), "nothing went to central");
+    // second publish: receivers known, links up: immediate
+    c.publish("dmsg", b"z", -1).unwrap();
+    assert!(c.poll_direct_transmit().is_some());
+}
+
+#[test]
+fn incoming_direct_query_is_answered_on_its_link_without_success() {
+    let mut c = by_hand(true);
+    c.subscribe("dq", "HND-dq").unwrap();
+    c.take_registration();
+    let link = c.accept_direct();
+    let q = frame(198, MsgClass::Query, -1, 9, &[], &[0; 8]);
+    let b = frame(198, MsgClass::Broadcast, -1, 10, &[], &[0; 8]);
+    c.receive_direct(link, &q[..5]).unwrap();
+    let mut rest = q[5..].to_vec();
+    rest.extend_from_slice(&b);
+    c.receive_direct(link, &rest).unwrap();
+    assert_eq!(c.poll_event(), None);
+    // The handler lookup goes to central.
+    c.answer_lookup("dq", -120, 15, "{int, <byte:1>}", "int");
+    let Some(Event::Delivery {
+        delivery: dq,
+        kind: DeliveryKind::Query,
+        dispatch_ref: 9,
+        ..
+    }) = c.poll_event()
+    else {
+        panic!()
+    };
+    let Some(Event::Delivery {
+        delivery: db,
+        kind: DeliveryKind::Broadcast,
+        ..
+    }) = c.poll_event()
+    else {
+        panic!()
+    };
+    c.ack(db).unwrap();
+    assert!(c.frames().is_empty(), "no Success for direct deliveries");
+    c.respond(dq, "dq", b"ok").unwrap();
+    let (l, bytes) = c.poll_direct_transmit().unwrap();
+    assert_eq!(l, link);
+    let h = Header::decode(&bytes).unwrap();
+    assert_eq!(
+        (h.intent, h.dispatch_ref, h.msg_ref, h.class_id.class()),
+        (-4, 9, 9, 11)
+    );
+    // garbage on a link is reported, the central connection stays up
+    assert!(c.receive_direct(link, &[0xff; 28]).is_err());
+    assert!(c.is_connected());
+}
