@@ -446,6 +446,85 @@ fn key_framing() {
     }
 }
 
+/// `IpcMessage::Key`: what `cdr_encode_key` writes comes back as the key
+/// fields (one alone, several as a tuple), in every encoding and
+/// extensibility; a key field of a keyed type is that type's key.
+#[test]
+fn keys_decode_to_the_key_type() {
+    let k = Keyed {
+        user_id: 9,
+        message: "m".into(),
+        inner: Inner { a: 5, b: 1.5 },
+        label: None,
+    };
+    let m = KeyedMutable {
+        inner: KeyedAppendable {
+            x: 2.0,
+            n: 2,
+            ids: vec![7, 8],
+        },
+        other: 5,
+    };
+    for enc in ENCODINGS {
+        let key: (i32, Inner, Option<String>) =
+            cdr::key_from_slice::<Keyed>(&cdr::key_to_vec(&k, enc)).unwrap();
+        assert_eq!(key, (9, Inner { a: 5, b: 1.5 }, None), "{enc:?}");
+        // KeyedMutable's key is its member's key: (n, ids)
+        let key: (u16, Vec<u8>) =
+            cdr::key_from_slice::<KeyedMutable>(&cdr::key_to_vec(&m, enc)).unwrap();
+        assert_eq!(key, (2, vec![7, 8]), "{enc:?}");
+        let s = AppendableS {
+            id: -4,
+            ..AppendableS::sample()
+        };
+        let key: i32 = cdr::key_from_slice::<AppendableS>(&cdr::key_to_vec(&s, enc)).unwrap();
+        assert_eq!(key, -4, "{enc:?}");
+        let key: i32 = cdr::key_from_slice::<MutableS>(&cdr::key_to_vec(
+            &MutableS {
+                id: 3,
+                ..MutableS::sample()
+            },
+            enc,
+        ))
+        .unwrap();
+        assert_eq!(key, 3, "{enc:?}");
+    }
+    // a key that is not one: the error says where
+    assert!(cdr::key_from_slice::<Keyed>(&[0, 1, 0, 0, 9]).is_err());
+}
+
+/// The key hash serializes every struct as final (no DHEADER, no
+/// EMHEADER: DDSI-RTPS 2.5 §9.6.4.8), and a bounded key comes back from
+/// its hash.
+#[test]
+fn key_hash_form_and_keys_from_hashes() {
+    let s = AppendableS {
+        id: 0x0a0b_0c0d,
+        ..AppendableS::sample()
+    };
+    let h = courier::key_hash(&s);
+    assert_eq!(h, [0x0a, 0x0b, 0x0c, 0x0d, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]);
+    let m = MutableS {
+        id: 0x0a0b_0c0d,
+        ..MutableS::sample()
+    };
+    assert_eq!(courier::key_hash(&m), h, "no EMHEADER in the hash");
+    assert_eq!(cdr::key_from_key_hash::<AppendableS>(&h), Some(0x0a0b_0c0d));
+    assert_eq!(cdr::key_from_key_hash::<MutableS>(&h), Some(0x0a0b_0c0d));
+    // an unbounded key (a string) hashes to MD5: no key in it
+    let k = Keyed {
+        user_id: 1,
+        message: String::new(),
+        inner: Inner { a: 1, b: 0.0 },
+        label: Some("l".into()),
+    };
+    assert_eq!(cdr::key_from_key_hash::<Keyed>(&courier::key_hash(&k)), None);
+    // bytes after the key that are not zero: not a key hash of this type
+    let mut odd = h;
+    odd[15] = 1;
+    assert_eq!(cdr::key_from_key_hash::<AppendableS>(&odd), None);
+}
+
 /// Const generics: one format per `N`, inline.
 #[derive(IpcMessage, Debug, Clone, PartialEq)]
 struct Fixed<const N: usize> {

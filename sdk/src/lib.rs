@@ -137,7 +137,7 @@ pub use backend::{
     WriteNow,
 };
 pub use courier_derive::IpcMessage;
-pub use courier_wire::{cdr, format, ipc, rtps, IpcMessage, NamedFormats};
+pub use courier_wire::{cdr, format, ipc, key_hash, rtps, IpcMessage, NamedFormats};
 pub use error::{ControlError, Error, OpenError, PublishError};
 pub use event::{DurabilityKind, EndpointInfo, Guid, ParticipantInfo, QosSummary};
 pub use ipc_backend::IpcStream;
