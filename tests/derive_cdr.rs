@@ -503,7 +503,10 @@ fn key_hash_form_and_keys_from_hashes() {
         ..AppendableS::sample()
     };
     let h = courier::key_hash(&s);
-    assert_eq!(h, [0x0a, 0x0b, 0x0c, 0x0d, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]);
+    assert_eq!(
+        h,
+        [0x0a, 0x0b, 0x0c, 0x0d, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]
+    );
     let m = MutableS {
         id: 0x0a0b_0c0d,
         ..MutableS::sample()
@@ -518,7 +521,10 @@ fn key_hash_form_and_keys_from_hashes() {
         inner: Inner { a: 1, b: 0.0 },
         label: Some("l".into()),
     };
-    assert_eq!(cdr::key_from_key_hash::<Keyed>(&courier::key_hash(&k)), None);
+    assert_eq!(
+        cdr::key_from_key_hash::<Keyed>(&courier::key_hash(&k)),
+        None
+    );
     // bytes after the key that are not zero: not a key hash of this type
     let mut odd = h;
     odd[15] = 1;

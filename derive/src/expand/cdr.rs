@@ -170,8 +170,11 @@ fn key_part(f: &Field<'_>) -> (TokenStream, TokenStream) {
 /// a tuple) read from what `cdr_encode_key` writes; a struct without key
 /// fields is its own key.
 fn key_decode(fields: &[Field<'_>], ext: &TokenStream, mutable: bool) -> TokenStream {
-    let keys: Vec<(usize, &Field<'_>)> =
-        fields.iter().enumerate().filter(|(_, f)| f.attrs.key).collect();
+    let keys: Vec<(usize, &Field<'_>)> = fields
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| f.attrs.key)
+        .collect();
     if keys.is_empty() {
         return quote! {
             type Key = Self;

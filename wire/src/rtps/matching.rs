@@ -196,7 +196,11 @@ pub fn check_qos(offered: &EndpointQos, requested: &EndpointQos) -> Result<(), I
         return Err(Incompatible::Partition);
     }
     // The writer uses the first representation it offers; the reader must accept it.
-    let used = offered.data_representation.first().copied().unwrap_or(XCDR1);
+    let used = offered
+        .data_representation
+        .first()
+        .copied()
+        .unwrap_or(XCDR1);
     let accepted = if requested.data_representation.is_empty() {
         vec![XCDR1]
     } else {
