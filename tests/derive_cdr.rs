@@ -596,3 +596,79 @@ fn vec_without_len_is_a_cdr_sequence() {
     let e = courier::format::parse(SeqMsg::FORMAT).unwrap_err();
     assert!(e.to_string().contains("dimension 0"), "{e}");
 }
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "A", extensibility = "appendable")]
+struct GoldenA {
+    #[ipc(key)]
+    id: i32,
+    text: String,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "M", extensibility = "mutable")]
+struct GoldenM {
+    #[ipc(key)]
+    id: i32,
+    text: String,
+}
+
+fn unhex(s: &str) -> Vec<u8> {
+    (0..s.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(&s[i..i + 2], 16).unwrap())
+        .collect()
+}
+
+/// XCDR2 encapsulation headers and the key-only payloads of a dispose, as
+/// Cyclone DDS 11 writes them (PyPI cyclonedds 11.0.1, `@appendable` /
+/// `@mutable class A/M(IdlStruct) { id: int32 (key); text: str }`, value
+/// `(7, "x")`: `serialize()` and `serialize_key()`), and the ids Courier's
+/// publications use per representation.
+#[test]
+fn xcdr2_headers_and_key_payloads_golden() {
+    let a = GoldenA {
+        id: 7,
+        text: "x".into(),
+    };
+    // D_CDR2_LE (0x0009), DHEADER 10, id, string "x"
+    let sample = cdr::to_vec(&a, Encoding::Xcdr2Le);
+    assert_eq!(sample, unhex("000900000a00000007000000020000007800"));
+    assert_eq!(cdr::from_slice::<GoldenA>(&sample).unwrap(), a);
+    // the serialized key of a dispose: the DHEADER around the key member
+    assert_eq!(
+        cdr::key_to_vec(&a, Encoding::Xcdr2Le),
+        unhex("000900000400000007000000")
+    );
+    // Cyclone 11's mutable sample (PL_CDR2_LE, 0x000b) decodes; its key
+    // member has no must-understand flag where Courier sets one (as idlc
+    // does for @key members): both read back as id 7
+    let cyclone_m = unhex("000b000012000000000000200700000001000050020000007800");
+    let m = cdr::from_slice::<GoldenM>(&cyclone_m).unwrap();
+    assert_eq!((m.id, m.text.as_str()), (7, "x"));
+    assert_eq!(
+        cdr::key_from_slice::<GoldenM>(&unhex("000b0000080000000000002007000000")),
+        Ok(7)
+    );
+    assert_eq!(cdr::key_to_vec(&m, Encoding::Xcdr2Le)[..2], [0x00, 0x0b]);
+    assert_eq!(
+        cdr::key_from_slice::<GoldenM>(&cdr::key_to_vec(&m, Encoding::Xcdr2Le)),
+        Ok(7)
+    );
+    // the encapsulation id per representation and extensibility
+    for (enc, ext, id) in [
+        (Encoding::Xcdr1Le, "final", 0x0001),
+        (Encoding::Xcdr1Le, "mutable", 0x0003),
+        (Encoding::Xcdr2Le, "final", 0x0007),
+        (Encoding::Xcdr2Le, "appendable", 0x0009),
+        (Encoding::Xcdr2Le, "mutable", 0x000b),
+    ] {
+        let b = match ext {
+            "final" => cdr::to_vec(&FinalS::sample(), enc),
+            "appendable" => cdr::to_vec(&AppendableS::sample(), enc),
+            _ => cdr::to_vec(&MutableS::sample(), enc),
+        };
+        assert_eq!(u16::from_be_bytes([b[0], b[1]]), id, "{enc:?} {ext}");
+        assert_eq!(b[2..4], [0, 0], "{enc:?} {ext}: options");
+    }
+}
