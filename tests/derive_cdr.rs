@@ -446,6 +446,91 @@ fn key_framing() {
     }
 }
 
+/// `IpcMessage::Key`: what `cdr_encode_key` writes comes back as the key
+/// fields (one alone, several as a tuple), in every encoding and
+/// extensibility; a key field of a keyed type is that type's key.
+#[test]
+fn keys_decode_to_the_key_type() {
+    let k = Keyed {
+        user_id: 9,
+        message: "m".into(),
+        inner: Inner { a: 5, b: 1.5 },
+        label: None,
+    };
+    let m = KeyedMutable {
+        inner: KeyedAppendable {
+            x: 2.0,
+            n: 2,
+            ids: vec![7, 8],
+        },
+        other: 5,
+    };
+    for enc in ENCODINGS {
+        let key: (i32, Inner, Option<String>) =
+            cdr::key_from_slice::<Keyed>(&cdr::key_to_vec(&k, enc)).unwrap();
+        assert_eq!(key, (9, Inner { a: 5, b: 1.5 }, None), "{enc:?}");
+        // KeyedMutable's key is its member's key: (n, ids)
+        let key: (u16, Vec<u8>) =
+            cdr::key_from_slice::<KeyedMutable>(&cdr::key_to_vec(&m, enc)).unwrap();
+        assert_eq!(key, (2, vec![7, 8]), "{enc:?}");
+        let s = AppendableS {
+            id: -4,
+            ..AppendableS::sample()
+        };
+        let key: i32 = cdr::key_from_slice::<AppendableS>(&cdr::key_to_vec(&s, enc)).unwrap();
+        assert_eq!(key, -4, "{enc:?}");
+        let key: i32 = cdr::key_from_slice::<MutableS>(&cdr::key_to_vec(
+            &MutableS {
+                id: 3,
+                ..MutableS::sample()
+            },
+            enc,
+        ))
+        .unwrap();
+        assert_eq!(key, 3, "{enc:?}");
+    }
+    // a key that is not one: the error says where
+    assert!(cdr::key_from_slice::<Keyed>(&[0, 1, 0, 0, 9]).is_err());
+}
+
+/// The key hash serializes every struct as final (no DHEADER, no
+/// EMHEADER: DDSI-RTPS 2.5 §9.6.4.8), and a bounded key comes back from
+/// its hash.
+#[test]
+fn key_hash_form_and_keys_from_hashes() {
+    let s = AppendableS {
+        id: 0x0a0b_0c0d,
+        ..AppendableS::sample()
+    };
+    let h = courier::key_hash(&s);
+    assert_eq!(
+        h,
+        [0x0a, 0x0b, 0x0c, 0x0d, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]
+    );
+    let m = MutableS {
+        id: 0x0a0b_0c0d,
+        ..MutableS::sample()
+    };
+    assert_eq!(courier::key_hash(&m), h, "no EMHEADER in the hash");
+    assert_eq!(cdr::key_from_key_hash::<AppendableS>(&h), Some(0x0a0b_0c0d));
+    assert_eq!(cdr::key_from_key_hash::<MutableS>(&h), Some(0x0a0b_0c0d));
+    // an unbounded key (a string) hashes to MD5: no key in it
+    let k = Keyed {
+        user_id: 1,
+        message: String::new(),
+        inner: Inner { a: 1, b: 0.0 },
+        label: Some("l".into()),
+    };
+    assert_eq!(
+        cdr::key_from_key_hash::<Keyed>(&courier::key_hash(&k)),
+        None
+    );
+    // bytes after the key that are not zero: not a key hash of this type
+    let mut odd = h;
+    odd[15] = 1;
+    assert_eq!(cdr::key_from_key_hash::<AppendableS>(&odd), None);
+}
+
 /// Const generics: one format per `N`, inline.
 #[derive(IpcMessage, Debug, Clone, PartialEq)]
 struct Fixed<const N: usize> {
@@ -510,4 +595,80 @@ fn vec_without_len_is_a_cdr_sequence() {
     assert_eq!(SeqMsg::FORMAT, "{uint, string, <ubyte:0>}");
     let e = courier::format::parse(SeqMsg::FORMAT).unwrap_err();
     assert!(e.to_string().contains("dimension 0"), "{e}");
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "A", extensibility = "appendable")]
+struct GoldenA {
+    #[ipc(key)]
+    id: i32,
+    text: String,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "M", extensibility = "mutable")]
+struct GoldenM {
+    #[ipc(key)]
+    id: i32,
+    text: String,
+}
+
+fn unhex(s: &str) -> Vec<u8> {
+    (0..s.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(&s[i..i + 2], 16).unwrap())
+        .collect()
+}
+
+/// XCDR2 encapsulation headers and the key-only payloads of a dispose, as
+/// Cyclone DDS 11 writes them (PyPI cyclonedds 11.0.1, `@appendable` /
+/// `@mutable class A/M(IdlStruct) { id: int32 (key); text: str }`, value
+/// `(7, "x")`: `serialize()` and `serialize_key()`), and the ids Courier's
+/// publications use per representation.
+#[test]
+fn xcdr2_headers_and_key_payloads_golden() {
+    let a = GoldenA {
+        id: 7,
+        text: "x".into(),
+    };
+    // D_CDR2_LE (0x0009), DHEADER 10, id, string "x"
+    let sample = cdr::to_vec(&a, Encoding::Xcdr2Le);
+    assert_eq!(sample, unhex("000900000a00000007000000020000007800"));
+    assert_eq!(cdr::from_slice::<GoldenA>(&sample).unwrap(), a);
+    // the serialized key of a dispose: the DHEADER around the key member
+    assert_eq!(
+        cdr::key_to_vec(&a, Encoding::Xcdr2Le),
+        unhex("000900000400000007000000")
+    );
+    // Cyclone 11's mutable sample (PL_CDR2_LE, 0x000b) decodes; its key
+    // member has no must-understand flag where Courier sets one (as idlc
+    // does for @key members): both read back as id 7
+    let cyclone_m = unhex("000b000012000000000000200700000001000050020000007800");
+    let m = cdr::from_slice::<GoldenM>(&cyclone_m).unwrap();
+    assert_eq!((m.id, m.text.as_str()), (7, "x"));
+    assert_eq!(
+        cdr::key_from_slice::<GoldenM>(&unhex("000b0000080000000000002007000000")),
+        Ok(7)
+    );
+    assert_eq!(cdr::key_to_vec(&m, Encoding::Xcdr2Le)[..2], [0x00, 0x0b]);
+    assert_eq!(
+        cdr::key_from_slice::<GoldenM>(&cdr::key_to_vec(&m, Encoding::Xcdr2Le)),
+        Ok(7)
+    );
+    // the encapsulation id per representation and extensibility
+    for (enc, ext, id) in [
+        (Encoding::Xcdr1Le, "final", 0x0001),
+        (Encoding::Xcdr1Le, "mutable", 0x0003),
+        (Encoding::Xcdr2Le, "final", 0x0007),
+        (Encoding::Xcdr2Le, "appendable", 0x0009),
+        (Encoding::Xcdr2Le, "mutable", 0x000b),
+    ] {
+        let b = match ext {
+            "final" => cdr::to_vec(&FinalS::sample(), enc),
+            "appendable" => cdr::to_vec(&AppendableS::sample(), enc),
+            _ => cdr::to_vec(&MutableS::sample(), enc),
+        };
+        assert_eq!(u16::from_be_bytes([b[0], b[1]]), id, "{enc:?} {ext}");
+        assert_eq!(b[2..4], [0, 0], "{enc:?} {ext}: options");
+    }
 }

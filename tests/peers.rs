@@ -52,6 +52,63 @@ pub fn fastdds_peer() -> Result<PathBuf, String> {
     BUILT.get_or_init(|| build(Program::FastDds)).clone()
 }
 
+/// Where `.ci/run` installs the `cyclonedds` Python package (11.x, with its
+/// own Cyclone DDS 11 C library): a virtual environment under `target/`.
+pub const CYCLONE11_VENV: &str = "cyclonedds-py";
+
+/// The Python interpreter that has the `cyclonedds` package 11.x, for
+/// [`cyclone11_peer_args`]: `COURIER_CYCLONEDDS_PYTHON` when set, else
+/// `target/cyclonedds-py/bin/python` (what `.ci/run` makes). Checked once
+/// per process; the error names what is missing and how to install it.
+pub fn cyclone11_python() -> Result<PathBuf, String> {
+    static FOUND: OnceLock<Result<PathBuf, String>> = OnceLock::new();
+    FOUND
+        .get_or_init(|| {
+            let python = match std::env::var_os("COURIER_CYCLONEDDS_PYTHON") {
+                Some(p) => PathBuf::from(p),
+                None => target_dir().join(CYCLONE11_VENV).join("bin/python"),
+            };
+            let install = format!(
+                "install it with `python3 -m venv target/{CYCLONE11_VENV} && \
+                 target/{CYCLONE11_VENV}/bin/pip install 'cyclonedds==11.*'` (what .ci/run \
+                 does), or point COURIER_CYCLONEDDS_PYTHON at a Python that has it"
+            );
+            if !python.exists() {
+                return Err(format!(
+                    "the Cyclone DDS 11 peer needs the cyclonedds Python package 11.x, and \
+                     {} does not exist: {install}",
+                    python.display()
+                ));
+            }
+            let out = Command::new(&python)
+                .args([
+                    "-c",
+                    "import cyclonedds.domain, importlib.metadata as m; \
+                     print(m.version('cyclonedds'))",
+                ])
+                .output()
+                .map_err(|e| format!("cannot run {}: {e}", python.display()))?;
+            let version = String::from_utf8_lossy(&out.stdout).trim().to_string();
+            if !out.status.success() || !version.starts_with("11.") {
+                return Err(format!(
+                    "{} has no cyclonedds 11.x (version {version:?}; {}): {install}",
+                    python.display(),
+                    String::from_utf8_lossy(&out.stderr).trim()
+                ));
+            }
+            Ok(python)
+        })
+        .clone()
+}
+
+/// The command line of the Cyclone DDS 11 peer (`cyclone11_peer.py`, run by
+/// [`cyclone11_python`]) with `args`: spawn `cyclone11_python()` with these.
+pub fn cyclone11_peer_args<S: AsRef<OsStr>>(args: &[S]) -> Vec<std::ffi::OsString> {
+    let mut v = vec![sources_dir().join("cyclone11_peer.py").into_os_string()];
+    v.extend(args.iter().map(|a| a.as_ref().to_os_string()));
+    v
+}
+
 /// Byte `i` of the payload of sample `seq`, as both peers fill it.
 pub fn payload(seq: u32, size: usize) -> Vec<u8> {
     (0..size)

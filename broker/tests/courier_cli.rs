@@ -208,14 +208,20 @@ fn spy_prints_discovery_decoded_samples_and_a_clean_leave() {
         " history=keep-all ",
         " deadline=infinite ",
         " ownership=exclusive(3) ",
-        " partitions=[]",
+        " partitions=[] ",
+        // a final type: XCDR1, what Fast DDS 2.9 reads too
+        " representation=[XCDR1]",
     ] {
         assert!(e.contains(want), "{want} in {e}");
     }
-    // sample <topic> <type> from <writer> <bytes> B: <decoded>
+    // sample <topic> <type> from <writer> <bytes> B <encapsulation>: <decoded>
     let s = spy.expect("sample chatter courier::Ping from ");
     let f: Vec<&str> = s.split_whitespace().collect();
-    assert_eq!((f[4], f[6]), (guid.as_str(), "B:"), "{s}");
+    assert_eq!(
+        (f[4], f[6], f[7], f[8]),
+        (guid.as_str(), "B", "XCDR1", "CDR_LE:"),
+        "{s}"
+    );
     assert!(s.contains(": courier::Ping { seq: "), "{s}");
     spy.expect("sample chatter courier::Ping from ");
     // Ctrl-C: the publisher closes its session, so the spy sees it leave at

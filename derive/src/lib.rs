@@ -110,7 +110,10 @@
 //!   mutable struct is `cdr::DecodeError::MissingMember`; an unknown
 //!   must-understand member is `UnknownMustUnderstand`; other unknown members
 //!   are skipped. `cdr_encode_key` writes the struct's framing with only the
-//!   key members (a key member whose type has no keys is written whole).
+//!   key members (a key member whose type has no keys is written whole);
+//!   `type Key` is what `cdr_decode_key` reads back from it: the one key
+//!   field's type (its own `Key`), a tuple of them for several key fields,
+//!   and `Self` for a struct without key fields.
 #![warn(missing_docs)]
 #![forbid(unsafe_code)]
 

@@ -58,6 +58,10 @@ macro_rules! cdr_struct {
                 )*
                 s.end(w);
             }
+            type Key = Self;
+            fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, DecodeError> {
+                Self::cdr_decode(r)
+            }
             fn cdr_encode_key(&self, w: &mut cdr::Writer) {
                 let s = w.begin_struct($ext);
                 $(
@@ -116,6 +120,10 @@ pub enum Color {
 }
 
 impl IpcMessage for Color {
+    type Key = Self;
+    fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, DecodeError> {
+        Self::cdr_decode(r)
+    }
     const FORMAT: &'static str = "{enum Red, Green, Blue}";
     const TYPE_NAME: &'static str = "Color";
     const IPC_MIN_SIZE: usize = 4;

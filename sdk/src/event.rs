@@ -104,6 +104,9 @@ pub struct QosSummary {
     pub lifespan: Option<Duration>,
     /// Partitions.
     pub partitions: Vec<String>,
+    /// Data representations (`DataRepresentationId_t`: 0 XCDR1, 1 XML, 2
+    /// XCDR2): what a writer writes (the first) or a reader accepts.
+    pub data_representation: Vec<i16>,
 }
 
 /// A remote DDS publication (DataWriter) or subscription (DataReader)
@@ -178,6 +181,7 @@ impl From<&EndpointData> for EndpointInfo {
                 exclusive: q.exclusive_ownership.then_some(q.ownership_strength),
                 lifespan: q.lifespan.to_std(),
                 partitions: q.partitions.clone(),
+                data_representation: q.data_representation.clone(),
             },
         }
     }

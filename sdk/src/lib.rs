@@ -137,18 +137,19 @@ pub use backend::{
     WriteNow,
 };
 pub use courier_derive::IpcMessage;
-pub use courier_wire::{cdr, format, ipc, rtps, IpcMessage, NamedFormats};
+pub use courier_wire::{cdr, format, ipc, key_hash, rtps, IpcMessage, NamedFormats};
 pub use error::{ControlError, Error, OpenError, PublishError};
 pub use event::{DurabilityKind, EndpointInfo, Guid, ParticipantInfo, QosSummary};
 pub use ipc_backend::IpcStream;
-pub use qos::{Durability, History, Reliability};
+pub use qos::{DataRepresentation, Durability, History, KeyOf, Reliability};
 pub use rtps_backend::{RtpsOptions, ServiceStyle};
 pub use session::{
-    ConnectError, Encoding, Events, InstanceState, Ipc, Listener, PeriodicPublication,
-    PublicationQos, Publish, PublishFuture, Publisher, PublisherBuilder, Query, QueryError,
-    QueuePolicy, RawReply, RawRequest, RawRequests, RawSample, RawSubscriber, RecvError, Request,
-    Requests, Responder, Sample, SampleQueue, Session, SessionBuilder, SessionEvent, Subscriber,
-    SubscriberBuilder, SubscriptionQos, Tick, Timer, TypeInfo, WriteOptions,
+    ConnectError, Delivery, Encoding, Events, InstanceChange, InstanceState, Ipc, Listener,
+    PeriodicPublication, PublicationQos, Publish, PublishFuture, Publisher, PublisherBuilder,
+    Query, QueryError, QueuePolicy, RawReply, RawRequest, RawRequests, RawSample, RawSubscriber,
+    Received, RecvError, Request, Requests, Responder, Sample, SampleQueue, Samples, Session,
+    SessionBuilder, SessionEvent, Subscriber, SubscriberBuilder, SubscriptionQos, Tick, Timer,
+    TypeInfo, WithInstances, WriteOptions,
 };
 
 #[doc(hidden)]

@@ -2,7 +2,9 @@
 
 use crate::backend::{Handle, PubId, WriteNow};
 use crate::error::{OpenError, PublishError};
-use crate::qos::{Durability, History, InstanceState, PublicationQos, Reliability};
+use crate::qos::{
+    DataRepresentation, Durability, History, InstanceState, PublicationQos, Reliability,
+};
 use crate::session::{Owned, Session};
 use crate::timer::Tick;
 use crate::topics::Definition;
@@ -225,6 +227,24 @@ impl<T: IpcMessage> PublisherBuilder<T> {
         self
     }
 
+    /// Writes this representation instead of the one the type calls for
+    /// (XCDR1 for a final type, XCDR2 for an appendable or mutable one):
+    /// XCDR2 for readers that ask for it, XCDR1 for Fast DDS 2.9.
+    pub fn data_representation(mut self, r: DataRepresentation) -> Self {
+        self.qos.data_representation = Some(r);
+        self
+    }
+
+    /// Whether closing the publication disposes the instances it leaves
+    /// alive (DDS's `autodispose_unregistered_instances`; the default).
+    /// `false` unregisters them instead: their readers see them
+    /// not-alive-no-writers. Closing is dropping the last clone of the
+    /// [`Publisher`] (or the session).
+    pub fn autodispose(mut self, on: bool) -> Self {
+        self.qos.autodispose = on;
+        self
+    }
+
     /// Replaces the whole QoS.
     pub fn qos(mut self, qos: PublicationQos) -> Self {
         self.qos = qos;
@@ -246,6 +266,7 @@ impl<T: IpcMessage> PublisherBuilder<T> {
         Ok(Publisher {
             handle: Arc::new(self.session.owned(Handle::Publication(id))),
             id,
+            cdr: self.qos.representation_for(T::EXTENSIBILITY).encoding(),
             session: self.session,
             msg: self.msg,
             last_len: Arc::default(),
@@ -262,6 +283,8 @@ pub struct Publisher<T> {
     /// Closes the publication when the last clone goes.
     handle: Arc<Owned>,
     msg: String,
+    /// The CDR encoding of its data representation.
+    cdr: cdr::Encoding,
     /// Encoded size of the last sample, shared by the clones: the next
     /// one is encoded into a buffer that size, so a large sample is not
     /// reallocated while it is written.
@@ -276,6 +299,7 @@ impl<T> Clone for Publisher<T> {
             id: self.id,
             handle: self.handle.clone(),
             msg: self.msg.clone(),
+            cdr: self.cdr,
             last_len: self.last_len.clone(),
             _t: PhantomData,
         }
@@ -293,9 +317,9 @@ impl<T: IpcMessage> Publisher<T> {
         use std::sync::atomic::Ordering::Relaxed;
         let hint = self.last_len.load(Relaxed);
         // checked and opened when the publisher was built
-        let p = self
-            .session
-            .publish_sized(&self.msg, value, hint, Ok(Target::Open(self.id)));
+        let p =
+            self.session
+                .publish_sized(&self.msg, value, hint, self.cdr, Ok(Target::Open(self.id)));
         if p.data.len() != hint {
             self.last_len.store(p.data.len(), Relaxed);
         }
@@ -332,15 +356,10 @@ impl<T: IpcMessage> Publisher<T> {
         if T::KEYS.is_empty() {
             return Err(PublishError::NotKeyed(T::TYPE_NAME));
         }
-        // A key that always fits in the key hash travels only as the inline
-        // KEY_HASH (as Fast DDS sends it, and the only form Fast DDS 2.9
-        // acts on); a longer key also as the serialized key (K flag), which
-        // Cyclone needs to find the instance behind an MD5 hash.
-        let key = if T::CDR_KEY_BOUNDED {
-            Vec::new()
-        } else {
-            cdr::key_to_vec(value, cdr::Encoding::Xcdr1Le)
-        };
+        // The serialized key (K flag) and the inline KEY_HASH: Cyclone DDS 11
+        // finds the instance only by the key, Fast DDS 2.9 only by the hash
+        // (the participant sends it the hash alone).
+        let key = cdr::key_to_vec(value, self.cdr);
         let hash = crate::rtps_backend::key_hash_of(value);
         match self
             .session

@@ -11,6 +11,21 @@
 //! | `BEST_EFFORTS` / `STRICT_RELIABLE` | [`Reliability`] | RELIABILITY |
 //! | — | [`Durability::TransientLocal`] | DURABILITY: late joiners get the history |
 //! | `sendQueueSize` / `recvQueueSize` | [`History`] | HISTORY keep-last(n) / keep-all |
+//! | — | [`DataRepresentation`] | DATA_REPRESENTATION: XCDR1 or XCDR2 on the wire |
+//! | — | [`PublicationQos::autodispose`] | WRITER_DATA_LIFECYCLE `autodispose_unregistered_instances` |
+//!
+//! # Data representation
+//!
+//! A publication writes one representation and announces it; a
+//! subscription announces the ones it accepts, and decodes each sample by
+//! its encapsulation header. By default a publication writes what its type
+//! calls for, as Cyclone DDS does: XCDR1 for a final type (which Fast DDS
+//! 2.9, that speaks nothing else, then reads), XCDR2 for an appendable or
+//! mutable one (`#[ipc(extensibility = "...")]`); a subscription accepts
+//! both. A writer and a reader match only when the reader accepts what the
+//! writer writes; when they do not, the
+//! [`SessionEvent::IncompatibleQos`](crate::SessionEvent::IncompatibleQos)
+//! names both sides' representations.
 //!
 //! On the IPC backends only the parts with an IPC meaning apply: IPC over
 //! TCP is reliable, volatile and keeps everything, which also satisfies a
@@ -57,8 +72,57 @@ pub enum History {
     KeepAll,
 }
 
+/// How samples are serialized on the wire (DDS-XTypes 1.3 §7.6.3.1.1,
+/// `DataRepresentationQosPolicy`); see the [module docs](self#data-representation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum DataRepresentation {
+    /// XCDR version 1 (`XCDR_DATA_REPRESENTATION`, id 0): plain CDR, and
+    /// a parameter list for mutable types. The only one Fast DDS 2.9 speaks.
+    Xcdr1,
+    /// XCDR version 2 (`XCDR2_DATA_REPRESENTATION`, id 2): `DHEADER`s for
+    /// appendable types, `EMHEADER`s for mutable ones, 4-byte alignment at
+    /// most. What Cyclone DDS 11 writes for appendable and mutable types.
+    Xcdr2,
+}
+
+impl DataRepresentation {
+    /// What a type of this extensibility is written as unless asked
+    /// otherwise: XCDR1 when final, XCDR2 when appendable or mutable.
+    pub fn default_for(ext: courier_wire::cdr::Extensibility) -> Self {
+        match ext {
+            courier_wire::cdr::Extensibility::Final => DataRepresentation::Xcdr1,
+            _ => DataRepresentation::Xcdr2,
+        }
+    }
+
+    /// The `DataRepresentationId_t` announced on the wire.
+    pub fn id(self) -> i16 {
+        match self {
+            DataRepresentation::Xcdr1 => 0,
+            DataRepresentation::Xcdr2 => 2,
+        }
+    }
+
+    /// The little-endian CDR encoding of this representation.
+    pub fn encoding(self) -> courier_wire::cdr::Encoding {
+        match self {
+            DataRepresentation::Xcdr1 => courier_wire::cdr::Encoding::Xcdr1Le,
+            DataRepresentation::Xcdr2 => courier_wire::cdr::Encoding::Xcdr2Le,
+        }
+    }
+}
+
+impl std::fmt::Display for DataRepresentation {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            DataRepresentation::Xcdr1 => "XCDR1",
+            DataRepresentation::Xcdr2 => "XCDR2",
+        })
+    }
+}
+
 /// QoS of a publication (a DDS DataWriter).
-#[derive(Debug, Clone, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 #[non_exhaustive]
 pub struct PublicationQos {
     /// Reliable by default.
@@ -77,12 +141,43 @@ pub struct PublicationQos {
     pub deadline: Option<Duration>,
     /// DDS partitions (none = the default partition).
     pub partitions: Vec<String>,
+    /// What the publication writes; `None` (the default): what the type
+    /// calls for ([`DataRepresentation::default_for`]).
+    pub data_representation: Option<DataRepresentation>,
+    /// Closing the publication disposes the instances it wrote and did
+    /// not dispose or unregister (DDS's `autodispose_unregistered_instances`,
+    /// true by default); false unregisters them instead (its readers see
+    /// them not-alive-no-writers).
+    pub autodispose: bool,
+}
+
+impl Default for PublicationQos {
+    fn default() -> Self {
+        PublicationQos {
+            reliability: Reliability::default(),
+            durability: Durability::default(),
+            history: History::default(),
+            strength: None,
+            persistence: None,
+            deadline: None,
+            partitions: Vec::new(),
+            data_representation: None,
+            autodispose: true,
+        }
+    }
 }
 
 impl PublicationQos {
-    /// Reliable, volatile, keep-all.
+    /// Reliable, volatile, keep-all, the type's representation, instances
+    /// disposed when closed.
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// The representation written for a type of extensibility `ext`.
+    pub fn representation_for(&self, ext: courier_wire::cdr::Extensibility) -> DataRepresentation {
+        self.data_representation
+            .unwrap_or_else(|| DataRepresentation::default_for(ext))
     }
 
     /// The first setting an IPC publication cannot honour.
@@ -99,6 +194,8 @@ impl PublicationQos {
             Some("a deadline")
         } else if !self.partitions.is_empty() {
             Some("partitions")
+        } else if self.data_representation.is_some() {
+            Some("a data representation (IPC has its own encoding)")
         } else {
             None
         }
@@ -125,6 +222,9 @@ pub struct SubscriptionQos {
     pub exclusive: bool,
     /// DDS partitions (none = the default partition).
     pub partitions: Vec<String>,
+    /// The representations accepted, in order of preference; empty (the
+    /// default): XCDR1 and XCDR2.
+    pub data_representation: Vec<DataRepresentation>,
 }
 
 impl SubscriptionQos {
@@ -146,10 +246,53 @@ impl SubscriptionQos {
             Some("exclusive ownership")
         } else if !self.partitions.is_empty() {
             Some("partitions")
+        } else if !self.data_representation.is_empty() {
+            Some("a data representation (IPC has its own encoding)")
         } else {
             None
         }
     }
+
+    /// The representations accepted: [`SubscriptionQos::data_representation`],
+    /// or XCDR1 and XCDR2 when it is empty.
+    pub fn accepted_representations(&self) -> Vec<DataRepresentation> {
+        if self.data_representation.is_empty() {
+            vec![DataRepresentation::Xcdr1, DataRepresentation::Xcdr2]
+        } else {
+            self.data_representation.clone()
+        }
+    }
+}
+
+/// The serialized key (with encapsulation header, in the sample's own
+/// encoding) of the instance an encoded sample belongs to, or `None` if it
+/// does not decode: what a backend needs to dispose the instances a
+/// publication leaves behind ([`PublicationQos::autodispose`]).
+#[derive(Clone, Copy)]
+pub struct KeyOf(pub fn(&[u8]) -> Option<Vec<u8>>);
+
+impl std::fmt::Debug for KeyOf {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("KeyOf(..)")
+    }
+}
+
+impl PartialEq for KeyOf {
+    /// Always equal: the key function of a type follows from the type,
+    /// which [`TypeInfo`]'s other fields name.
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+
+impl Eq for KeyOf {}
+
+/// The serialized key of a CDR sample of `T` (see [`KeyOf`]).
+fn key_of<T: courier_wire::IpcMessage>(sample: &[u8]) -> Option<Vec<u8>> {
+    use courier_wire::cdr;
+    let v = cdr::from_slice::<T>(sample).ok()?;
+    let enc = cdr::Reader::with_header(sample).ok()?.encoding();
+    Some(cdr::key_to_vec(&v, enc))
 }
 
 /// What the typed layer knows about a message's Rust type.
@@ -161,15 +304,22 @@ pub struct TypeInfo {
     pub type_name: &'static str,
     /// The type has key fields (a keyed DDS topic).
     pub keyed: bool,
+    /// Its CDR extensibility (which representation it is written in by default).
+    pub extensibility: courier_wire::cdr::Extensibility,
+    /// For a keyed type: the key of an encoded sample.
+    pub key_of: Option<KeyOf>,
 }
 
 impl TypeInfo {
     /// The information of `T`.
     pub fn of<T: courier_wire::IpcMessage>() -> Self {
+        let keyed = !T::KEYS.is_empty();
         TypeInfo {
             format: Some(T::FORMAT),
             type_name: T::TYPE_NAME,
-            keyed: !T::KEYS.is_empty(),
+            keyed,
+            extensibility: T::EXTENSIBILITY,
+            key_of: keyed.then_some(KeyOf(key_of::<T>)),
         }
     }
 
@@ -180,6 +330,8 @@ impl TypeInfo {
             format: None,
             type_name: "",
             keyed: false,
+            extensibility: courier_wire::cdr::Extensibility::Final,
+            key_of: None,
         }
     }
 

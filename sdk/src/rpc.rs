@@ -3,7 +3,7 @@
 use crate::error::{OpenError, PublishError, QueryError};
 use crate::qos::TypeInfo;
 use crate::reply::Responder;
-use crate::session::{decode, encode, Encoding, Owned, Session};
+use crate::session::{decode, encode_rpc, Encoding, Owned, Session};
 use crate::subscriber::RecvError;
 use crate::topics::Definition;
 use courier_wire::{ipc, IpcMessage};
@@ -134,7 +134,7 @@ impl<Req, Resp: IpcMessage> Request<Req, Resp> {
     /// the asker gets no reply and runs into its timeout.
     pub async fn reply(mut self, resp: &Resp) -> Result<(), PublishError> {
         let r = self.respond.take().ok_or(PublishError::AlreadyAnswered)?;
-        r.reply(&self.reply_msg, encode(self.enc, resp)).await
+        r.reply(&self.reply_msg, encode_rpc(self.enc, resp)).await
     }
 }
 

@@ -23,12 +23,16 @@ use crate::publisher::Target;
 pub use crate::publisher::{
     PeriodicPublication, Publish, PublishFuture, Publisher, PublisherBuilder, WriteOptions,
 };
+use crate::qos::DataRepresentation;
 pub use crate::qos::{InstanceState, PublicationQos, SubscriptionQos, TypeInfo};
 pub(crate) use crate::queue::ReturnedBuffers;
 pub use crate::queue::{QueuePolicy, RawSample, RawSubscriber, SampleQueue};
 use crate::rpc::open_failed;
 pub use crate::rpc::{Query, RawReply, RawRequest, RawRequests, Request, Requests};
-pub use crate::subscriber::{Listener, RecvError, Sample, Subscriber, SubscriberBuilder};
+pub use crate::subscriber::{
+    Delivery, InstanceChange, Listener, Received, RecvError, Sample, Samples, Subscriber,
+    SubscriberBuilder, WithInstances,
+};
 pub use crate::timer::{Tick, Timer};
 use crate::topics::{Definition, Topics};
 
@@ -78,7 +82,10 @@ impl Drop for Owned {
     }
 }
 
-pub(crate) fn encode<T: IpcMessage>(enc: Encoding, value: &T) -> Vec<u8> {
+/// A request or reply encoded for the session's backend: CDR as XCDR1
+/// whatever the type (what a service announces, and what ROS 2's RMWs
+/// write; an XCDR1 appendable type is written as a final one).
+pub(crate) fn encode_rpc<T: IpcMessage>(enc: Encoding, value: &T) -> Vec<u8> {
     match enc {
         Encoding::Ipc => ipc::to_vec(value),
         Encoding::Cdr => cdr::to_vec(value, cdr::Encoding::Xcdr1Le),
@@ -261,25 +268,25 @@ impl Session {
             Some(id) => Target::Open(id),
             None => Target::Define(Definition::of::<T>()),
         });
-        self.publish_sized(msg, value, 0, target)
+        let cdr = DataRepresentation::default_for(T::EXTENSIBILITY).encoding();
+        self.publish_sized(msg, value, 0, cdr, target)
     }
 
-    /// [`Session::publish`], encoding into a buffer of `size_hint` bytes,
-    /// to `target` (see [`Publish`]).
+    /// [`Session::publish`], encoding into a buffer of `size_hint` bytes
+    /// (CDR: as `cdr`), to `target` (see [`Publish`]).
     pub(crate) fn publish_sized<'a, T: IpcMessage>(
         &'a self,
         msg: &'a str,
         value: &T,
         size_hint: usize,
+        cdr: cdr::Encoding,
         target: Result<Target, OpenError>,
     ) -> Publish<'a> {
         let key_hash = (self.enc() == Encoding::Cdr && !T::KEYS.is_empty())
             .then(|| crate::rtps_backend::key_hash_of(value));
         let data = match self.enc() {
-            Encoding::Cdr if size_hint > 0 => {
-                cdr::to_vec_with_capacity(value, cdr::Encoding::Xcdr1Le, size_hint)
-            }
-            enc => encode(enc, value),
+            Encoding::Cdr => cdr::to_vec_with_capacity(value, cdr, size_hint),
+            Encoding::Ipc => ipc::to_vec(value),
         };
         Publish {
             session: self,
@@ -398,7 +405,7 @@ impl Session {
             session: self,
             msg,
             req: TypeInfo::of::<Req>(),
-            data: encode(self.enc(), req),
+            data: encode_rpc(self.enc(), req),
             timeout: Duration::from_secs(10),
             check,
             _t: PhantomData,

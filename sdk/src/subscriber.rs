@@ -1,11 +1,41 @@
-//! Typed subscriptions: [`SubscriberBuilder`], [`Subscriber`], [`Listener`], [`Sample`].
+//! Typed subscriptions: [`SubscriberBuilder`], [`Subscriber`], [`Listener`], [`Sample`],
+//! and instance state changes ([`InstanceChange`], [`Received`]).
+//!
+//! A subscriber yields samples. On a keyed DDS topic an instance also
+//! changes state without a sample: a writer disposes it or unregisters it
+//! (or closes, which disposes what it leaves: DDS's
+//! `autodispose_unregistered_instances`). Those changes are yielded too by
+//! a subscriber built [`with_instances`](SubscriberBuilder::with_instances),
+//! in order with the samples, as [`Received::Instance`]; a plain one skips
+//! them and counts them ([`Subscriber::instance_changes_skipped`]). Neither
+//! is an error, so a `?` loop goes on past them.
+//!
+//! ```no_run
+//! # async fn demo() -> Result<(), Box<dyn std::error::Error>> {
+//! use courier::{IpcMessage, Received, Session};
+//! use futures::StreamExt;
+//! #[derive(IpcMessage, Debug)]
+//! struct Pose { #[ipc(key)] robot: i32, x: f64 }
+//! let s = Session::builder("rtps://0?interface=lo&peers=127.0.0.1").connect().await?;
+//! let mut sub = s.subscriber::<Pose>("pose").with_instances().build().await?;
+//! while let Some(item) = sub.next().await {
+//!     match item? {
+//!         Received::Sample(p) => println!("robot {} at {}", p.value.robot, p.value.x),
+//!         // the key decoded as the type's key: here the robot's i32
+//!         Received::Instance(c) => println!("robot {:?} {:?}", c.key, c.state),
+//!     }
+//! }
+//! # Ok(()) }
+//! ```
 
 use crate::backend::Handle;
 use crate::error::OpenError;
-use crate::qos::{Durability, History, InstanceState, Reliability, SubscriptionQos, TypeInfo};
+use crate::qos::{
+    DataRepresentation, Durability, History, InstanceState, Reliability, SubscriptionQos, TypeInfo,
+};
 use crate::queue::{Popped, QueuePolicy, RawSample, RawSubscriber, SampleQueue};
 use crate::session::{decode, Encoding, Session};
-use courier_wire::IpcMessage;
+use courier_wire::{cdr, IpcMessage};
 use futures::Stream;
 use std::marker::PhantomData;
 use std::pin::Pin;
@@ -13,17 +43,162 @@ use std::sync::Arc;
 use std::task::{Context, Poll};
 use std::time::{Duration, SystemTime};
 
+mod sealed {
+    pub trait Sealed {}
+    impl Sealed for super::Samples {}
+    impl Sealed for super::WithInstances {}
+}
+
+/// What a [`Subscriber`] (or a [`Listener`]'s callback) gets: samples only
+/// ([`Samples`], the default) or samples and instance state changes
+/// ([`WithInstances`]). Sealed.
+pub trait Delivery<T: IpcMessage>: sealed::Sealed + 'static {
+    /// The stream's item (inside `Result<_, RecvError>`).
+    type Item;
+    #[doc(hidden)]
+    fn sample(s: Sample<T>) -> Self::Item;
+    /// `None`: skipped (and counted).
+    #[doc(hidden)]
+    fn change(c: InstanceChange<T>) -> Option<Self::Item>;
+}
+
+/// [`Delivery`] of samples only: instance state changes are skipped and
+/// counted ([`Subscriber::instance_changes_skipped`]).
+#[derive(Debug, Clone, Copy)]
+pub enum Samples {}
+
+/// [`Delivery`] of samples and instance state changes, in order, as
+/// [`Received`] ([`SubscriberBuilder::with_instances`]).
+#[derive(Debug, Clone, Copy)]
+pub enum WithInstances {}
+
+impl<T: IpcMessage> Delivery<T> for Samples {
+    type Item = Sample<T>;
+    fn sample(s: Sample<T>) -> Sample<T> {
+        s
+    }
+    fn change(_: InstanceChange<T>) -> Option<Sample<T>> {
+        None
+    }
+}
+
+impl<T: IpcMessage> Delivery<T> for WithInstances {
+    type Item = Received<T>;
+    fn sample(s: Sample<T>) -> Received<T> {
+        Received::Sample(s)
+    }
+    fn change(c: InstanceChange<T>) -> Option<Received<T>> {
+        Some(Received::Instance(c))
+    }
+}
+
+/// What a subscriber built [`with_instances`](SubscriberBuilder::with_instances) yields.
+pub enum Received<T: IpcMessage> {
+    /// A sample.
+    Sample(Sample<T>),
+    /// An instance changed state without a sample (keyed DDS topics).
+    Instance(InstanceChange<T>),
+}
+
+impl<T: IpcMessage + std::fmt::Debug> std::fmt::Debug for Received<T>
+where
+    T::Key: std::fmt::Debug,
+{
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Received::Sample(s) => f.debug_tuple("Sample").field(s).finish(),
+            Received::Instance(c) => f.debug_tuple("Instance").field(c).finish(),
+        }
+    }
+}
+
+impl<T: IpcMessage + Clone> Clone for Received<T>
+where
+    T::Key: Clone,
+{
+    fn clone(&self) -> Self {
+        match self {
+            Received::Sample(s) => Received::Sample(s.clone()),
+            Received::Instance(c) => Received::Instance(c.clone()),
+        }
+    }
+}
+
+impl<T: IpcMessage + PartialEq> PartialEq for Received<T>
+where
+    T::Key: PartialEq,
+{
+    fn eq(&self, other: &Self) -> bool {
+        match (self, other) {
+            (Received::Sample(a), Received::Sample(b)) => a == b,
+            (Received::Instance(a), Received::Instance(b)) => a == b,
+            _ => false,
+        }
+    }
+}
+
+impl<T: IpcMessage> Received<T> {
+    /// The sample, if this is one.
+    pub fn sample(self) -> Option<Sample<T>> {
+        match self {
+            Received::Sample(s) => Some(s),
+            Received::Instance(_) => None,
+        }
+    }
+}
+
+/// An instance of a keyed topic that a writer disposed or unregistered.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InstanceChange<T: IpcMessage> {
+    /// Topic.
+    pub msg: String,
+    /// [`InstanceState::Disposed`] or [`InstanceState::Unregistered`].
+    pub state: InstanceState,
+    /// The instance's key, as the type's [`IpcMessage::Key`] (for
+    /// `struct S { #[ipc(key)] id: i32, .. }` an `i32`): from the serialized
+    /// key when the writer sent it (Cyclone DDS and Courier do), else from
+    /// the key hash when that holds the key itself (a key of at most 16
+    /// bytes; Fast DDS sends only the hash). `None` when neither gives it
+    /// (Fast DDS's dispose of a string key: compare [`key_hash`](Self::key_hash)
+    /// with [`courier_wire::key_hash`] of the values seen), and always on a
+    /// topic without key fields.
+    pub key: Option<T::Key>,
+    /// The instance's key hash, when the writer sent it.
+    pub key_hash: Option<[u8; 16]>,
+    /// When it was received.
+    pub received: SystemTime,
+    /// The writer (its GUID in hex), when known.
+    pub source: Option<Arc<str>>,
+    /// The writer's timestamp, when sent.
+    pub source_time: Option<SystemTime>,
+}
+
 /// Builds a [`Subscriber`]: ORTE's subscription parameters as DDS QoS.
 #[derive(Debug)]
-pub struct SubscriberBuilder<T> {
+pub struct SubscriberBuilder<T, D = Samples> {
     pub(crate) session: Session,
     pub(crate) msg: String,
     pub(crate) qos: SubscriptionQos,
     pub(crate) policy: Option<QueuePolicy>,
-    pub(crate) _t: PhantomData<fn() -> T>,
+    pub(crate) _t: PhantomData<fn() -> (T, D)>,
 }
 
 impl<T: IpcMessage> SubscriberBuilder<T> {
+    /// Also yield instance state changes ([`Received::Instance`]: a writer
+    /// disposed or unregistered an instance, or closed) with the samples,
+    /// in order; without it they are skipped and counted.
+    pub fn with_instances(self) -> SubscriberBuilder<T, WithInstances> {
+        SubscriberBuilder {
+            session: self.session,
+            msg: self.msg,
+            qos: self.qos,
+            policy: self.policy,
+            _t: PhantomData,
+        }
+    }
+}
+
+impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
     /// Best effort: matches every writer; nothing is repaired.
     pub fn best_effort(mut self) -> Self {
         self.qos.reliability = Reliability::BestEffort;
@@ -72,6 +247,13 @@ impl<T: IpcMessage> SubscriberBuilder<T> {
     /// Adds a DDS partition.
     pub fn partition(mut self, p: impl Into<String>) -> Self {
         self.qos.partitions.push(p.into());
+        self
+    }
+
+    /// Accepts only these data representations (by default XCDR1 and
+    /// XCDR2: every sample is decoded by its own encapsulation header).
+    pub fn data_representation(mut self, accepted: &[DataRepresentation]) -> Self {
+        self.qos.data_representation = accepted.to_vec();
         self
     }
 
@@ -137,12 +319,22 @@ impl<T: IpcMessage> SubscriberBuilder<T> {
     /// [`Publisher::try_publish`]: crate::Publisher::try_publish
     pub async fn listen<F>(self, mut f: F) -> Result<Listener, OpenError>
     where
-        F: FnMut(Result<Sample<T>, RecvError>) + Send + 'static,
+        F: FnMut(Result<D::Item, RecvError>) + Send + 'static,
     {
         let queue = SampleQueue::new(self.policy.unwrap_or_default());
         let enc = self.session.enc();
+        let skipped = Arc::new(std::sync::atomic::AtomicU64::new(0));
+        let count = skipped.clone();
         queue.set_handler(move |q, s| {
-            f(s.map_or(Err(RecvError::Disconnected), |s| convert::<T>(enc, q, s)))
+            let Some(s) = s else {
+                return f(Err(RecvError::Disconnected));
+            };
+            match convert::<T, D>(enc, q, s) {
+                Some(r) => f(r),
+                None => {
+                    count.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                }
+            }
         });
         let raw = self.create(queue.clone()).await?;
         if !self.session.caps.immediate_delivery {
@@ -152,11 +344,15 @@ impl<T: IpcMessage> SubscriberBuilder<T> {
                 }
             });
         }
-        Ok(Listener { raw, msg: self.msg })
+        Ok(Listener {
+            raw,
+            msg: self.msg,
+            skipped,
+        })
     }
 
     /// Creates the subscription.
-    pub async fn build(self) -> Result<Subscriber<T>, OpenError> {
+    pub async fn build(self) -> Result<Subscriber<T, D>, OpenError> {
         let queue = SampleQueue::new(self.policy.unwrap_or_default());
         let raw = self.create(queue).await?;
         Ok(Subscriber {
@@ -164,6 +360,7 @@ impl<T: IpcMessage> SubscriberBuilder<T> {
             msg: self.msg,
             enc: self.session.enc(),
             decode_errors: 0,
+            skipped: 0,
             _t: PhantomData,
         })
     }
@@ -176,6 +373,7 @@ impl<T: IpcMessage> SubscriberBuilder<T> {
 pub struct Listener {
     raw: RawSubscriber,
     msg: String,
+    skipped: Arc<std::sync::atomic::AtomicU64>,
 }
 
 impl Listener {
@@ -188,6 +386,12 @@ impl Listener {
     /// (IPC) messages whose body did not hold together.
     pub fn dropped(&self) -> u64 {
         self.raw.dropped()
+    }
+
+    /// Instance state changes the callback did not get, because it takes
+    /// samples only (see [`SubscriberBuilder::with_instances`]).
+    pub fn instance_changes_skipped(&self) -> u64 {
+        self.skipped.load(std::sync::atomic::Ordering::Relaxed)
     }
 }
 
@@ -230,75 +434,90 @@ pub enum RecvError {
     /// The session lost its connection; the stream ends after this.
     #[error("disconnected")]
     Disconnected,
-    /// Not a failure: an instance of a keyed topic was disposed or
-    /// unregistered (the change carries no value); the stream goes on.
-    #[error("instance of {msg} {state:?}")]
-    Instance {
-        /// Topic.
-        msg: String,
-        /// Disposed or unregistered.
-        state: InstanceState,
-        /// The instance's key hash, when known.
-        key_hash: Option<[u8; 16]>,
-        /// The serialized key, if the writer sent it.
-        key: Vec<u8>,
-    },
 }
 
-/// A typed subscription: a `Stream` of samples. Dropping it unsubscribes.
+/// A typed subscription: a `Stream` of samples (and, built
+/// [`with_instances`](SubscriberBuilder::with_instances), instance state
+/// changes). Dropping it unsubscribes.
 #[derive(Debug)]
-pub struct Subscriber<T> {
+pub struct Subscriber<T, D = Samples> {
     raw: RawSubscriber,
     msg: String,
     enc: Encoding,
     decode_errors: u64,
-    _t: PhantomData<fn() -> T>,
+    skipped: u64,
+    _t: PhantomData<fn() -> (T, D)>,
 }
 
-/// A raw sample as the typed `Sample` (or why not): what both a
-/// [`Subscriber`] and a [`Listener`]'s callback see.
-fn convert<T: IpcMessage>(
+/// The key of an instance change, decoded to `T::Key` (see
+/// [`InstanceChange::key`]).
+fn change_key<T: IpcMessage>(
+    enc: Encoding,
+    data: &[u8],
+    key_hash: Option<[u8; 16]>,
+) -> Option<T::Key> {
+    if T::KEYS.is_empty() || enc != Encoding::Cdr {
+        return None;
+    }
+    let from_key = (!data.is_empty())
+        .then(|| cdr::key_from_slice::<T>(data).ok())
+        .flatten();
+    from_key.or_else(|| key_hash.and_then(|h| cdr::key_from_key_hash::<T>(&h)))
+}
+
+/// A raw sample as the typed item (or why not): what both a
+/// [`Subscriber`] and a [`Listener`]'s callback see; `None` for an
+/// instance change that `D` skips.
+fn convert<T: IpcMessage, D: Delivery<T>>(
     enc: Encoding,
     queue: &SampleQueue,
     mut s: RawSample,
-) -> Result<Sample<T>, RecvError> {
+) -> Option<Result<D::Item, RecvError>> {
     if let Some(done) = s.done.take() {
         done();
     }
     if s.state != InstanceState::Alive {
-        return Err(RecvError::Instance {
+        let key = change_key::<T>(enc, &s.data, s.key_hash);
+        return D::change(InstanceChange {
             msg: s.msg,
             state: s.state,
+            key,
             key_hash: s.key_hash,
-            key: s.data,
-        });
+            received: s.received,
+            source: s.source,
+            source_time: s.source_time,
+        })
+        .map(Ok);
     }
     let decoded = decode::<T>(enc, &s.data, s.order);
     queue.give_back(s.data);
-    match decoded {
-        Ok(value) => Ok(Sample {
+    Some(match decoded {
+        Ok(value) => Ok(D::sample(Sample {
             value,
             msg: s.msg,
             received: s.received,
             source: s.source,
             source_time: s.source_time,
-        }),
+        })),
         Err(detail) => Err(RecvError::Decode {
             msg: s.msg,
             ty: std::any::type_name::<T>(),
             detail,
         }),
-    }
+    })
 }
 
-impl<T: IpcMessage> Subscriber<T> {
-    fn convert(&mut self, p: Popped) -> Result<Sample<T>, RecvError> {
+impl<T: IpcMessage, D: Delivery<T>> Subscriber<T, D> {
+    /// The item of a popped sample; `None` for a skipped instance change.
+    fn convert(&mut self, p: Popped) -> Option<Result<D::Item, RecvError>> {
         let Popped::Sample(s) = p else {
-            return Err(RecvError::Disconnected);
+            return Some(Err(RecvError::Disconnected));
         };
-        let r = convert(self.enc, &self.raw.queue, s);
-        if matches!(r, Err(RecvError::Decode { .. })) {
-            self.decode_errors += 1;
+        let r = convert::<T, D>(self.enc, &self.raw.queue, s);
+        match &r {
+            Some(Err(RecvError::Decode { .. })) => self.decode_errors += 1,
+            None => self.skipped += 1,
+            _ => {}
         }
         r
     }
@@ -310,25 +529,42 @@ impl<T: IpcMessage> Subscriber<T> {
     /// Named like [`RawSubscriber::try_recv`] and tokio's receivers, so
     /// that it never shadows `futures::TryStreamExt::try_next`, which
     /// waits.
-    pub fn try_recv(&mut self) -> Option<Result<Sample<T>, RecvError>> {
-        let s = self.raw.queue.try_pop()?;
-        Some(self.convert(s))
-    }
-}
-
-impl<T: IpcMessage> Stream for Subscriber<T> {
-    type Item = Result<Sample<T>, RecvError>;
-
-    fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Self::Item>> {
-        match self.raw.queue.poll_pop(cx) {
-            Poll::Ready(Some(s)) => Poll::Ready(Some(self.convert(s))),
-            Poll::Ready(None) => Poll::Ready(None),
-            Poll::Pending => Poll::Pending,
+    pub fn try_recv(&mut self) -> Option<Result<D::Item, RecvError>> {
+        loop {
+            let s = self.raw.queue.try_pop()?;
+            if let Some(r) = self.convert(s) {
+                return Some(r);
+            }
         }
     }
 }
 
-impl<T> Subscriber<T> {
+impl<T: IpcMessage, D: Delivery<T>> Stream for Subscriber<T, D> {
+    type Item = Result<D::Item, RecvError>;
+
+    fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Self::Item>> {
+        loop {
+            match self.raw.queue.poll_pop(cx) {
+                Poll::Ready(Some(s)) => {
+                    if let Some(r) = self.convert(s) {
+                        return Poll::Ready(Some(r));
+                    }
+                }
+                Poll::Ready(None) => return Poll::Ready(None),
+                Poll::Pending => return Poll::Pending,
+            }
+        }
+    }
+}
+
+impl<T, D> Subscriber<T, D> {
+    /// Instance state changes skipped so far: a subscriber that takes
+    /// samples only does not yield them (see
+    /// [`SubscriberBuilder::with_instances`]).
+    pub fn instance_changes_skipped(&self) -> u64 {
+        self.skipped
+    }
+
     /// The message subscribed.
     pub fn msg(&self) -> &str {
         &self.msg
@@ -353,7 +589,6 @@ mod tests {
     use crate::backend::SubId;
     use crate::queue::ReturnedBuffers;
     use crate::session::Owned;
-    use courier_wire::cdr;
 
     fn subscriber<T>(queue: &Arc<SampleQueue>) -> Subscriber<T> {
         Subscriber {
@@ -367,6 +602,7 @@ mod tests {
             msg: "m".into(),
             enc: Encoding::Cdr,
             decode_errors: 0,
+            skipped: 0,
             _t: PhantomData,
         }
     }

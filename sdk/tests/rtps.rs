@@ -8,7 +8,8 @@
 use std::time::Duration;
 
 use courier::{
-    ConnectError, InstanceState, IpcMessage, PublishError, RecvError, Session, SessionEvent,
+    ConnectError, DataRepresentation, InstanceState, IpcMessage, PublishError, Received, RecvError,
+    Session, SessionEvent,
 };
 use futures::StreamExt;
 
@@ -81,8 +82,15 @@ async fn keyed_topic_dispose_reaches_the_subscriber() {
     let a = session(152, "a").await;
     let b = session(152, "b").await;
     let p = a.publisher::<Keyed>("robots").build().await.unwrap();
-    let mut sub = b.subscribe::<Keyed>("robots").await.unwrap();
-    await_handlers(&a, "robots", 1).await;
+    let mut sub = b
+        .subscriber::<Keyed>("robots")
+        .with_instances()
+        .build()
+        .await
+        .unwrap();
+    // a plain subscriber of the same topic skips the changes and counts them
+    let mut plain = b.subscribe::<Keyed>("robots").await.unwrap();
+    await_handlers(&a, "robots", 2).await;
     let k = |id, seq| Keyed {
         id,
         seq,
@@ -91,25 +99,89 @@ async fn keyed_topic_dispose_reaches_the_subscriber() {
     p.publish(&k(1, 1)).await.unwrap();
     p.publish(&k(2, 1)).await.unwrap();
     p.dispose(&k(1, 0)).await.unwrap();
-    assert_eq!(next(&mut sub).await.unwrap().value, k(1, 1));
-    assert_eq!(next(&mut sub).await.unwrap().value, k(2, 1));
-    match next(&mut sub).await {
-        Err(RecvError::Instance {
-            msg,
-            state,
-            key_hash,
-            key,
-        }) => {
-            assert_eq!(msg, "robots");
-            assert_eq!(state, InstanceState::Disposed);
-            // key hash of `long id = 1`: big-endian, zero-padded
-            let mut want = [0u8; 16];
-            want[3] = 1;
-            assert_eq!(key_hash, Some(want));
-            // a key that fits in the key hash travels only as the hash
-            assert!(key.is_empty(), "{key:?}");
+    p.unregister(&k(2, 0)).await.unwrap();
+    p.publish(&k(3, 1)).await.unwrap();
+    let sample = |r: Result<Received<Keyed>, RecvError>| match r {
+        Ok(Received::Sample(s)) => s.value,
+        other => panic!("expected a sample, got {other:?}"),
+    };
+    assert_eq!(sample(next(&mut sub).await), k(1, 1));
+    assert_eq!(sample(next(&mut sub).await), k(2, 1));
+    for (id, want) in [
+        (1, InstanceState::Disposed),
+        (2, InstanceState::Unregistered),
+    ] {
+        match next(&mut sub).await {
+            Ok(Received::Instance(c)) => {
+                assert_eq!(c.msg, "robots");
+                assert_eq!(c.state, want);
+                // the key, decoded as Keyed's key type (its `id`)
+                assert_eq!(c.key, Some(id));
+                // the key hash of `long id`: big-endian, zero-padded
+                assert_eq!(c.key_hash, Some(courier::key_hash(&k(id, 0))));
+                assert!(c.source.is_some());
+            }
+            other => panic!("expected the change of instance {id}, got {other:?}"),
         }
-        other => panic!("expected a dispose, got {other:?}"),
+    }
+    // the stream goes on after the changes
+    assert_eq!(sample(next(&mut sub).await), k(3, 1));
+    for want in [k(1, 1), k(2, 1), k(3, 1)] {
+        assert_eq!(next(&mut plain).await.unwrap().value, want);
+    }
+    assert_eq!(plain.instance_changes_skipped(), 2);
+}
+
+/// Closing a publisher disposes the instances it leaves alive
+/// (`autodispose_unregistered_instances`), or unregisters them when told
+/// not to.
+#[tokio::test]
+async fn closing_a_publisher_disposes_or_unregisters_its_instances() {
+    let a = session(173, "a").await;
+    let b = session(173, "b").await;
+    let mut sub = b
+        .subscriber::<Keyed>("fleet")
+        .with_instances()
+        .build()
+        .await
+        .unwrap();
+    for (autodispose, want) in [
+        (true, InstanceState::Disposed),
+        (false, InstanceState::Unregistered),
+    ] {
+        let p = a
+            .publisher::<Keyed>("fleet")
+            .autodispose(autodispose)
+            .build()
+            .await
+            .unwrap();
+        await_handlers(&a, "fleet", 1).await;
+        let k = |id| Keyed {
+            id,
+            seq: 1,
+            text: "t".into(),
+        };
+        p.publish(&k(1)).await.unwrap();
+        p.publish(&k(2)).await.unwrap();
+        p.publish(&k(3)).await.unwrap();
+        // instance 2 is disposed by hand: not again at the close
+        p.dispose(&k(2)).await.unwrap();
+        drop(p);
+        let mut changes = Vec::new();
+        let mut samples = 0;
+        while changes.len() < 3 {
+            match next(&mut sub).await.unwrap() {
+                Received::Sample(_) => samples += 1,
+                Received::Instance(c) => changes.push((c.key.unwrap(), c.state)),
+            }
+        }
+        assert_eq!(samples, 3, "autodispose {autodispose}");
+        changes.sort_by_key(|c| c.0);
+        assert_eq!(
+            changes,
+            [(1, want), (2, InstanceState::Disposed), (3, want)],
+            "autodispose {autodispose}"
+        );
     }
 }
 
@@ -853,15 +925,15 @@ async fn session_with(key: u32, name: &str, extra: &str) -> Session {
 /// the other style are counted and named on timeout: dds_domain.rs.)
 #[tokio::test]
 async fn queries_in_rmw_cyclonedds_style() {
-    let server = session_with(173, "server", "services=cyclonedds").await;
-    let c1 = session_with(173, "client-1", "services=cyclonedds").await;
-    let c2 = session_with(173, "client-2", "services=cyclonedds").await;
+    let server = session_with(176, "server", "services=cyclonedds").await;
+    let c1 = session_with(176, "client-1", "services=cyclonedds").await;
+    let c2 = session_with(176, "client-2", "services=cyclonedds").await;
     adder(&server).await;
     ask_concurrently(&[&c1, &c2], 10).await;
     // the option is what made both sides use the header: a client of the
     // other style is not understood (the server takes the first 16 bytes
     // of its body for a header)
-    let other = session_with(173, "fastrtps-client", "services=fastrtps").await;
+    let other = session_with(176, "fastrtps-client", "services=fastrtps").await;
     let e = other
         .query::<AddReq, AddResp>("add", &AddReq { a: 1, b: 2 })
         .timeout(Duration::from_secs(1))
@@ -875,11 +947,94 @@ async fn queries_in_rmw_cyclonedds_style() {
 
 #[tokio::test]
 async fn a_bad_services_option_is_named() {
-    let url = format!("{}&services=zenoh", common::url(174));
+    let url = format!("{}&services=zenoh", common::url(177));
     let e = Session::builder(url).connect().await.unwrap_err();
     assert!(
         e.to_string()
             .contains("services=zenoh: expected auto, fastrtps or cyclonedds"),
         "{e}"
+    );
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "courier::test::Appendable", extensibility = "appendable")]
+struct Appendable {
+    #[ipc(key)]
+    id: i32,
+    text: String,
+}
+
+/// A publication writes what its type calls for (XCDR2 for an appendable
+/// type, XCDR1 for a final one) or what it is told; subscriptions accept
+/// both and decode by the encapsulation header; a reader that does not
+/// accept what the writer writes does not match, and the event names both
+/// representations.
+#[tokio::test]
+async fn representations_follow_the_type_and_mismatches_name_them() {
+    let a = session(174, "a").await;
+    let b = session(174, "b").await;
+    let mut raw = b.subscribe_raw("app").await.unwrap();
+    let mut typed = b.subscribe::<Appendable>("app").await.unwrap();
+    let p = a.publisher::<Appendable>("app").build().await.unwrap();
+    await_handlers(&a, "app", 2).await;
+    let v = Appendable {
+        id: 3,
+        text: "x2".into(),
+    };
+    p.publish(&v).await.unwrap();
+    assert_eq!(next(&mut typed).await.unwrap().value, v);
+    let header = tokio::time::timeout(T, async {
+        loop {
+            if let Some(s) = raw.try_recv() {
+                return s.data[..2].to_vec();
+            }
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+    })
+    .await
+    .expect("the raw sample in time");
+    assert_eq!(
+        header,
+        [0x00, 0x09],
+        "D_CDR2_LE: XCDR2 of an appendable type"
+    );
+
+    // asked for XCDR1 (CDR_LE): read by the same subscriber
+    let p1 = a
+        .publisher::<Appendable>("app")
+        .data_representation(DataRepresentation::Xcdr1)
+        .build()
+        .await
+        .unwrap();
+    let v1 = Appendable {
+        id: 4,
+        text: "x1".into(),
+    };
+    p1.publish(&v1).await.unwrap();
+    assert_eq!(next(&mut typed).await.unwrap().value, v1);
+
+    // a reader that accepts XCDR1 only does not match the XCDR2 writer
+    let mut ev = b.events();
+    let _only1 = b
+        .subscriber::<Appendable>("app")
+        .data_representation(&[DataRepresentation::Xcdr1])
+        .build()
+        .await
+        .unwrap();
+    let reason = tokio::time::timeout(T, async {
+        loop {
+            if let SessionEvent::IncompatibleQos { msg, reason, .. } = ev.next().await.unwrap() {
+                assert_eq!(msg, "app");
+                return reason;
+            }
+        }
+    })
+    .await
+    .expect("an incompatible-QoS event in time");
+    assert!(
+        reason.contains("the writer writes XCDR2")
+            && reason.contains("the reader accepts [XCDR1]")
+            && reason.contains("let the reader accept XCDR2"),
+        "{reason}"
     );
 }

@@ -11,7 +11,7 @@
 
 use std::time::Duration;
 
-use courier::{InstanceState, RecvError, Session, SessionEvent};
+use courier::{InstanceState, Received, Session, SessionEvent};
 use futures::StreamExt;
 
 mod common;
@@ -347,7 +347,12 @@ async fn courier_to_fastdds_best_effort() {
 
 async fn keyed_peer_to_courier(vendor: Vendor, domain: u32) {
     let s = session(domain).await;
-    let mut sub = s.subscribe::<Keyed>("keyed").await.unwrap();
+    let mut sub = s
+        .subscriber::<Keyed>("keyed")
+        .with_instances()
+        .build()
+        .await
+        .unwrap();
     let d = domain_arg(domain);
     let mut peer = Peer::start(
         vendor,
@@ -380,20 +385,21 @@ async fn keyed_peer_to_courier(vendor: Vendor, domain: u32) {
     );
     // ids n % 5: 1, 2; then instance 2 is disposed
     for seq in 1..=2u32 {
-        let v = next(&mut sub).await.unwrap().value;
+        let v = match next(&mut sub).await {
+            Ok(Received::Sample(s)) => s.value,
+            other => panic!("{vendor:?}: expected sample {seq}, got {other:?}"),
+        };
         assert_eq!(
             (v.id, v.seq, v.text.as_str()),
             (seq as i32, seq, &*format!("k-{seq}"))
         );
     }
     match next(&mut sub).await {
-        Err(RecvError::Instance { state, key, .. }) => {
-            assert_eq!(state, InstanceState::Disposed, "{vendor:?}");
-            // Cyclone sends the key (K flag, CDR with the id); Fast DDS only
-            // the key hash. Where a key came, it names instance 2.
-            if !key.is_empty() {
-                assert_eq!(&key[4..8], &2i32.to_le_bytes(), "{vendor:?}: {key:?}");
-            }
+        Ok(Received::Instance(c)) => {
+            assert_eq!(c.state, InstanceState::Disposed, "{vendor:?}");
+            // Cyclone sends the key (K flag, CDR with the id), Fast DDS only
+            // the key hash, which holds this key: either way instance 2
+            assert_eq!(c.key, Some(2), "{vendor:?}: {c:?}");
         }
         other => panic!("{vendor:?}: expected the dispose of instance 2, got {other:?}"),
     }

@@ -42,3 +42,15 @@ pub mod xrce;
 pub use message::__private;
 
 pub use message::{IpcMessage, NamedFormats};
+
+/// The DDS key hash of `value`'s instance (`PID_KEY_HASH`, DDSI-RTPS 2.5
+/// §9.6.4.8): [`rtps::participant::KeyHash::of`] as bytes. A subscriber can
+/// compare it with the key hash of an instance change; for the key itself
+/// see [`cdr::key_from_slice`] and [`cdr::key_from_key_hash`].
+///
+/// ```
+/// assert_eq!(courier_wire::key_hash(&7i32)[..4], [0, 0, 0, 7]);
+/// ```
+pub fn key_hash<T: IpcMessage>(value: &T) -> [u8; 16] {
+    rtps::participant::KeyHash::of(value).0
+}

@@ -137,6 +137,19 @@ pub trait IpcMessage: Sized {
     fn cdr_encode_key(&self, w: &mut cdr::Writer) {
         let _ = w;
     }
+
+    /// What names an instance of a keyed DDS topic of this type: for a
+    /// type with key fields (`#[ipc(key)]`), the key field's own `Key`
+    /// when there is one key field, else a tuple of them in declaration
+    /// order; for a type without key fields, the whole value (`Self`),
+    /// which is what such a type contributes as a key field of another.
+    /// `#[derive(IpcMessage)]` picks it.
+    type Key;
+
+    /// Reads the key that [`cdr_encode_key`](Self::cdr_encode_key) writes
+    /// (for a type without key fields: the whole value, as
+    /// [`cdr_decode`](Self::cdr_decode) reads it). See [`cdr::key_from_slice`].
+    fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self::Key, cdr::DecodeError>;
 }
 
 /// The named formats a type depends on, collected by
@@ -301,6 +314,10 @@ macro_rules! numeric {
             fn cdr_encode_key(&self, w: &mut cdr::Writer) {
                 self.cdr_encode(w);
             }
+            type Key = Self;
+            fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
+                Self::cdr_decode(r)
+            }
         }
     )*};
 }
@@ -353,6 +370,11 @@ impl IpcMessage for bool {
     fn cdr_encode_key(&self, w: &mut cdr::Writer) {
         self.cdr_encode(w);
     }
+
+    type Key = Self;
+    fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
+        Self::cdr_decode(r)
+    }
 }
 
 /// IPC `char` is one byte. Rust `char`s map to Latin-1: U+0000–U+00FF
@@ -381,6 +403,11 @@ impl IpcMessage for char {
     fn cdr_encode_key(&self, w: &mut cdr::Writer) {
         self.cdr_encode(w);
     }
+
+    type Key = Self;
+    fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
+        Self::cdr_decode(r)
+    }
 }
 
 fn latin1(c: char) -> u8 {
@@ -408,6 +435,11 @@ impl IpcMessage for String {
     fn cdr_encode_key(&self, w: &mut cdr::Writer) {
         self.cdr_encode(w);
     }
+
+    type Key = Self;
+    fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
+        Self::cdr_decode(r)
+    }
 }
 
 /// `string` where NULL matters to the reader: `None` is sent as C's NULL,
@@ -432,6 +464,11 @@ impl IpcMessage for Option<String> {
         let s = r.read_str()?;
         Ok((!s.is_empty()).then(|| s.to_owned()))
     }
+
+    type Key = Self;
+    fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
+        Self::cdr_decode(r)
+    }
 }
 
 /// The empty message (`IPC_defineMsg(name, 0, NULL)`): no data at all.
@@ -448,6 +485,11 @@ impl IpcMessage for () {
     fn cdr_encode(&self, _: &mut cdr::Writer) {}
     fn cdr_decode(_: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
         Ok(())
+    }
+
+    type Key = Self;
+    fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
+        Self::cdr_decode(r)
     }
 }
 
@@ -534,6 +576,11 @@ impl<T: IpcMessage, const N: usize> IpcMessage for [T; N] {
     fn cdr_encode_key(&self, w: &mut cdr::Writer) {
         self.cdr_encode(w);
     }
+
+    type Key = Self;
+    fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
+        Self::cdr_decode(r)
+    }
 }
 
 /// Pointers `*T`: a flag byte (`'Z'` or 0), then the pointee if present.
@@ -566,6 +613,11 @@ impl<T: IpcMessage> IpcMessage for Option<Box<T>> {
     }
     fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
         Ok(cdr::read_optional(r, T::cdr_decode)?.map(Box::new))
+    }
+
+    type Key = Self;
+    fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
+        Self::cdr_decode(r)
     }
 }
 
@@ -601,6 +653,10 @@ impl<T: IpcMessage> IpcMessage for Box<T> {
     }
     fn cdr_encode_key(&self, w: &mut cdr::Writer) {
         (**self).cdr_encode_key(w);
+    }
+    type Key = T::Key;
+    fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<T::Key, cdr::DecodeError> {
+        T::cdr_decode_key(r)
     }
 }
 

@@ -125,6 +125,10 @@ fn sequence_count_past_the_end_does_not_allocate() {
 #[derive(Debug, PartialEq)]
 struct Vec2(Vec<Point>);
 impl IpcMessage for Vec2 {
+    type Key = Self;
+    fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, DecodeError> {
+        Self::cdr_decode(r)
+    }
     const FORMAT: &'static str = "<{int, double}:1>";
     const TYPE_NAME: &'static str = "Vec2";
     const IPC_MIN_SIZE: usize = 4;

@@ -210,3 +210,40 @@ fn qos_defaults_and_hostile_parameters() {
     assert!(ParticipantData::from_params(&payload_params(&p).unwrap()).is_err());
     assert!(payload_params(&[0, 1, 0, 0, 1, 0, 0, 0]).is_err());
 }
+
+/// `PID_DATA_REPRESENTATION` (0x0073) as Courier announces it: a reader that
+/// accepts XCDR1 and XCDR2 sends the very bytes Cyclone DDS 11's reader sends
+/// (cyclone11_sedp_sub: `73 00 08 00 | 02 00 00 00 | 00 00 02 00`), a writer
+/// of XCDR2 one id.
+#[test]
+fn data_representation_parameter_golden() {
+    let cyclone = fixture("cyclone11_sedp_sub");
+    let both = [0x73, 0x00, 0x08, 0x00, 2, 0, 0, 0, 0, 0, 2, 0];
+    assert!(
+        cyclone.windows(both.len()).any(|w| w == both),
+        "the fixture holds Cyclone 11's parameter"
+    );
+    let m = Message::parse(&cyclone).unwrap();
+    let (d, _) = datas(&m, EntityId::SEDP_SUBSCRIPTIONS_WRITER)[0];
+    let mut e =
+        EndpointData::from_params(&payload_params(d.payload.unwrap()).unwrap(), false).unwrap();
+    for (reps, want) in [
+        (vec![0i16, 2], both.to_vec()),
+        (
+            vec![2],
+            vec![0x73, 0x00, 0x08, 0x00, 1, 0, 0, 0, 2, 0, 0, 0],
+        ),
+        (
+            vec![0],
+            vec![0x73, 0x00, 0x08, 0x00, 1, 0, 0, 0, 0, 0, 0, 0],
+        ),
+    ] {
+        e.qos.data_representation = reps.clone();
+        let p = e.to_payload(VendorId::CYCLONE, ProtocolVersion::V2_5);
+        let at = p
+            .windows(4)
+            .position(|w| w == [0x73, 0x00, 0x08, 0x00])
+            .unwrap_or_else(|| panic!("{reps:?}: no PID_DATA_REPRESENTATION"));
+        assert_eq!(p[at..at + 12], want[..], "{reps:?}");
+    }
+}

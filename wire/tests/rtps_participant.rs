@@ -477,6 +477,17 @@ fn dispose_and_unregister_are_events_and_go_out_both_ways() {
     assert!(dispose.0, "K flag");
     assert_eq!(dispose.1.as_deref(), Some(&key[..]));
     let q = dispose.2.unwrap();
+    // golden: KEY_HASH (0x0070, the key hash of `long id = 7`), STATUS_INFO
+    // (0x0071, disposed), sentinel; then the serialized key with its
+    // encapsulation header (CDR_LE, id 7) as the K-flag payload
+    assert_eq!(
+        q,
+        [
+            0x70, 0x00, 0x10, 0x00, 0, 0, 0, 7, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, //
+            0x71, 0x00, 0x04, 0x00, 0, 0, 0, 1, //
+            0x01, 0x00, 0x00, 0x00,
+        ]
+    );
     let d = courier_wire::rtps::discovery::Disposal::from_data(Some(&q), true, None, false)
         .unwrap()
         .unwrap();

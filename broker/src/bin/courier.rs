@@ -89,11 +89,14 @@ output, one event a line (a name with blanks is quoted; an empty list is -):
       reliability=reliable|best-effort durability=volatile|transient-local|transient|persistent
       history=keep-last(<n>)|keep-all deadline=<n>ms|infinite
       ownership=shared|exclusive(<strength>) partitions=[<p>,...]
+      representation=[XCDR1|XCDR2,...] (a writer writes the first)
   publication|subscription lost <guid>
   incompatible <guid> <reason>
-  sample <topic> <type> from <writer guid> <bytes> B[ (disposed)|(unregistered)]: <value>
-      <value>: courier::Ping { seq: <n>, stamp_ns: <n>, text: \"...\" }, or the first
-      64 bytes in hex (… when more), or - when none
+  sample <topic> <type> from <writer guid> <bytes> B <encapsulation>[ (disposed)|(unregistered)]: <value>
+      <encapsulation>: XCDR1|XCDR2 and the encapsulation id (CDR_LE, D_CDR2_LE, PL_CDR2_LE, ...),
+      or - when there is none (a dispose with only a key hash)
+      <value>: courier::Ping { seq: <n>, stamp_ns: <n>, text: \"...\" } in either
+      representation, or the first 64 bytes in hex (… when more), or - when none
   interrupted                   Ctrl-C / SIGTERM: session closed (exit 0)";
 
 /// A usage error: printed with the usage text, exit 64.
@@ -763,10 +766,16 @@ fn qos_text(e: &EndpointInfo) -> String {
     let own = q
         .exclusive
         .map_or("shared".into(), |s| format!("exclusive({s})"));
+    let reps: Vec<String> = q
+        .data_representation
+        .iter()
+        .map(|r| courier::rtps::matching::RepresentationName(*r).to_string())
+        .collect();
     format!(
         "reliability={rel} durability={dur} history={hist} deadline={dl} ownership={own} \
-         partitions=[{}]",
-        q.partitions.join(",")
+         partitions=[{}] representation=[{}]",
+        q.partitions.join(","),
+        reps.join(",")
     )
 }
 
@@ -778,6 +787,37 @@ fn endpoint_line(kind: &str, what: &str, e: &EndpointInfo) -> String {
         word(&e.type_name),
         qos_text(e)
     )
+}
+
+/// The representation of a serialized payload, from its encapsulation
+/// header: `XCDR2 D_CDR2_LE`, `XCDR1 CDR_LE`, …; `-` without a header,
+/// `unknown(0x....)` for an id that is not CDR.
+fn encapsulation_text(data: &[u8]) -> String {
+    use courier::cdr::{RepresentationId as R, Version};
+    let Some(h) = data.get(..2) else {
+        return "-".into();
+    };
+    let id = u16::from_be_bytes([h[0], h[1]]);
+    let Some(r) = R::from_u16(id) else {
+        return format!("unknown(0x{id:04x})");
+    };
+    let name = match r {
+        R::CdrBe => "CDR_BE",
+        R::CdrLe => "CDR_LE",
+        R::PlCdrBe => "PL_CDR_BE",
+        R::PlCdrLe => "PL_CDR_LE",
+        R::Cdr2Be => "CDR2_BE",
+        R::Cdr2Le => "CDR2_LE",
+        R::DCdr2Be => "D_CDR2_BE",
+        R::DCdr2Le => "D_CDR2_LE",
+        R::PlCdr2Be => "PL_CDR2_BE",
+        R::PlCdr2Le => "PL_CDR2_LE",
+    };
+    let version = match r.encoding().version() {
+        Version::Xcdr1 => "XCDR1",
+        Version::Xcdr2 => "XCDR2",
+    };
+    format!("{version} {name}")
 }
 
 /// A sample's bytes for `spy`: decoded when the type is known
@@ -877,10 +917,11 @@ async fn spy_session(s: &Session, o: &SpyOpts) -> Result<(), Error> {
                     courier::InstanceState::Unregistered => " (unregistered)",
                 };
                 out(format_args!(
-                    "sample {} {ty} from {} {} B{state}: {}",
+                    "sample {} {ty} from {} {} B {}{state}: {}",
                     smp.msg,
                     smp.source.as_deref().unwrap_or("?"),
                     smp.data.len(),
+                    encapsulation_text(&smp.data),
                     sample_text(ty, &smp.data)
                 ));
                 n += 1;
@@ -938,6 +979,18 @@ mod tests {
         let long = sample_text("x::Y", &[0x5a; 65]);
         assert_eq!(long, format!("{}…", "5a".repeat(64)));
         assert_eq!(sample_text("x::Y", &[]), "-");
+        // XCDR2 decodes too, and says so
+        let x2 = courier::cdr::to_vec(&p, courier::cdr::Encoding::Xcdr2Le);
+        assert_eq!(
+            sample_text("courier::Ping", &x2),
+            "courier::Ping { seq: 7, stamp_ns: 9, text: \"hi\" }"
+        );
+        assert_eq!(encapsulation_text(&x2), "XCDR2 CDR2_LE");
+        assert_eq!(encapsulation_text(&data), "XCDR1 CDR_LE");
+        assert_eq!(encapsulation_text(&[0x00, 0x0b, 0, 0]), "XCDR2 PL_CDR2_LE");
+        assert_eq!(encapsulation_text(&[0x00, 0x09]), "XCDR2 D_CDR2_LE");
+        assert_eq!(encapsulation_text(&[0x80, 0x01]), "unknown(0x8001)");
+        assert_eq!(encapsulation_text(&[]), "-");
     }
 
     #[test]

@@ -91,7 +91,7 @@ pub(super) fn struct_codec(
     StructCodec {
         enc,
         dec,
-        key_fn: key_fn(fields, ext),
+        key_fn: key_fn(fields, ext, mutable),
     }
 }
 
@@ -153,10 +153,126 @@ fn mutable_decode(fields: &[Field<'_>], ext: &TokenStream) -> TokenStream {
     }
 }
 
-/// `cdr_encode_key`: the key members only (none for a struct without keys).
-fn key_fn(fields: &[Field<'_>], ext: &TokenStream) -> TokenStream {
+/// The type a key field contributes to `Key` and how it is read: what
+/// `key_fn` writes for it.
+fn key_part(f: &Field<'_>) -> (TokenStream, TokenStream) {
+    let ty = f.ty;
+    match (&f.kind, f.count_for) {
+        (Kind::Plain, None) | (Kind::SelfPtr, _) => (
+            quote!(<#ty as __wire::IpcMessage>::Key),
+            quote!(<#ty as __wire::IpcMessage>::cdr_decode_key(__r)?),
+        ),
+        _ => (quote!(#ty), cdr_read(f)),
+    }
+}
+
+/// `type Key` and `cdr_decode_key`: the key fields (one alone, several as
+/// a tuple) read from what `cdr_encode_key` writes; a struct without key
+/// fields is its own key.
+fn key_decode(fields: &[Field<'_>], ext: &TokenStream, mutable: bool) -> TokenStream {
+    let keys: Vec<(usize, &Field<'_>)> = fields
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| f.attrs.key)
+        .collect();
+    if keys.is_empty() {
+        return quote! {
+            type Key = Self;
+            fn cdr_decode_key(__r: &mut __wire::cdr::Reader<'_>) -> ::core::result::Result<Self, __wire::cdr::DecodeError> {
+                <Self as __wire::IpcMessage>::cdr_decode(__r)
+            }
+        };
+    }
+    let tys: Vec<TokenStream> = keys.iter().map(|(_, f)| key_part(f).0).collect();
+    let vars: Vec<syn::Ident> = keys.iter().map(|(i, _)| var(*i)).collect();
+    let key_ty = if tys.len() == 1 {
+        tys[0].clone()
+    } else {
+        quote!((#(#tys),*))
+    };
+    let value = if vars.len() == 1 {
+        let v = &vars[0];
+        quote!(#v)
+    } else {
+        quote!((#(#vars),*))
+    };
+    let in_order = {
+        let reads = keys.iter().zip(&tys).map(|((i, f), t)| {
+            let v = var(*i);
+            let read = key_part(f).1;
+            quote!(let #v: #t = #read;)
+        });
+        quote! {
+            let __s = __r.begin_struct(#ext)?;
+            #(#reads)*
+            __s.end(__r)?;
+        }
+    };
+    let body = if mutable {
+        let decls = keys.iter().zip(&tys).map(|((i, _), t)| {
+            let v = var(*i);
+            quote!(let mut #v: ::core::option::Option<#t> = ::core::option::Option::None;)
+        });
+        let arms = keys.iter().map(|(i, f)| {
+            let v = var(*i);
+            let id = f.id;
+            let read = key_part(f).1;
+            quote!(#id => #v = ::core::option::Option::Some(#read),)
+        });
+        let unwraps = keys.iter().map(|(i, f)| {
+            let v = var(*i);
+            let id = f.id;
+            let name = &f.name;
+            quote! {
+                let #v = match #v {
+                    ::core::option::Option::Some(v) => v,
+                    ::core::option::Option::None => {
+                        return ::core::result::Result::Err(__wire::cdr::DecodeError::MissingMember {
+                            type_name: <Self as __wire::IpcMessage>::TYPE_NAME,
+                            member: #name,
+                            id: #id,
+                        })
+                    }
+                };
+            }
+        });
+        // the key-hash form has no member headers: the key members in order
+        quote! {
+            let #value = if __r.is_key_hash_form() {
+                #in_order
+                #value
+            } else {
+                let mut __s = __r.begin_struct(#ext)?;
+                #(#decls)*
+                while let ::core::option::Option::Some(__m) = __s.next_member(__r)? {
+                    match __m.id {
+                        #(#arms)*
+                        _ => {}
+                    }
+                }
+                __s.end(__r)?;
+                #(#unwraps)*
+                #value
+            };
+        }
+    } else {
+        in_order
+    };
+    quote! {
+        type Key = #key_ty;
+        fn cdr_decode_key(__r: &mut __wire::cdr::Reader<'_>) -> ::core::result::Result<Self::Key, __wire::cdr::DecodeError> {
+            #body
+            ::core::result::Result::Ok(#value)
+        }
+    }
+}
+
+/// `cdr_encode_key`: the key members only (none for a struct without
+/// keys), with `type Key` and `cdr_decode_key` to read them back.
+fn key_fn(fields: &[Field<'_>], ext: &TokenStream, mutable: bool) -> TokenStream {
+    let decode = key_decode(fields, ext, mutable);
     if !fields.iter().any(|f| f.attrs.key) {
-        return quote!();
+        return decode;
     }
     let key_lens = len_lets(fields, &|i| {
         fields[i].attrs.key || fields.iter().any(|f| f.attrs.key && f.count_for == Some(i))
@@ -188,5 +304,7 @@ fn key_fn(fields: &[Field<'_>], ext: &TokenStream) -> TokenStream {
             #(#writes)*
             __s.end(__w);
         }
+
+        #decode
     }
 }

@@ -81,6 +81,11 @@ pub(super) fn expand_enum(c: &Container<'_>, e: &Enum<'_>) -> TokenStream {
             fn cdr_encode_key(&self, __w: &mut __wire::cdr::Writer) {
                 __wire::IpcMessage::cdr_encode(self, __w);
             }
+
+            type Key = Self;
+            fn cdr_decode_key(__r: &mut __wire::cdr::Reader<'_>) -> ::core::result::Result<Self, __wire::cdr::DecodeError> {
+                <Self as __wire::IpcMessage>::cdr_decode(__r)
+            }
         }
     }
 }

@@ -27,6 +27,8 @@ pub(super) enum Done {
     /// is its share of [`QUEUED_WRITE_UNITS`], given back when the write
     /// enters the writer's history.
     Queued(OwnedSemaphorePermit),
+    /// Nobody waits (the disposes of a publication that closes).
+    Ignored,
 }
 
 impl Done {
@@ -38,6 +40,11 @@ impl Done {
             Done::Queued(_permit) => {
                 if let Err(e) = r {
                     tracing::warn!("a queued write failed: {e}");
+                }
+            }
+            Done::Ignored => {
+                if let Err(e) = r {
+                    tracing::warn!("a dispose of a closing publication failed: {e}");
                 }
             }
         }

@@ -301,6 +301,9 @@ impl Driver {
         }
         let stalled = {
             let mut c = self.shared.lock();
+            // the instances its publications leave, disposed (best effort:
+            // the participant leaves with them)
+            c.st.dispose_all_live(now);
             c.st.d.close(now);
             c.flush(now).is_err()
         };

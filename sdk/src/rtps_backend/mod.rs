@@ -68,7 +68,7 @@ use foldhash::HashMap;
 use courier_wire::dds::Domain;
 use courier_wire::rtps::participant::{self, ChangeKind, Config, KeyHash, MAX_WRITE_SIZE};
 use courier_wire::rtps::{Guid, GuidPrefix, Locator, Time};
-use courier_wire::{cdr, IpcMessage};
+use courier_wire::IpcMessage;
 use tokio::sync::{mpsc, oneshot, OwnedSemaphorePermit, Semaphore};
 
 use crate::backend::{
@@ -95,9 +95,7 @@ pub use options::{RtpsOptions, ServiceStyle, LOOPBACK_MAX_MESSAGE_SIZE};
 /// big-endian XCDR2, zero-padded when the key can never exceed 16 bytes,
 /// else their MD5.
 pub(crate) fn key_hash_of<T: IpcMessage>(value: &T) -> [u8; 16] {
-    let mut w = cdr::Writer::new(cdr::Encoding::Xcdr2Be);
-    value.cdr_encode_key(&mut w);
-    KeyHash::from_key(&w.into_vec(), !T::CDR_KEY_BOUNDED).0
+    KeyHash::of(value).0
 }
 
 /// A GUID as 32 hex digits (prefix, then entity id).

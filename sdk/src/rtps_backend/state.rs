@@ -29,7 +29,8 @@ use super::{guid_hex, system_time, Listeners};
 use crate::backend::{ClientId, Handle, PubId, ServiceId, SubId};
 use crate::error::{OpenError, PublishError};
 use crate::qos::{
-    Durability, History, InstanceState, PublicationQos, Reliability, SubscriptionQos, TypeInfo,
+    Durability, History, InstanceState, KeyOf, PublicationQos, Reliability, SubscriptionQos,
+    TypeInfo,
 };
 use crate::session::{
     QueryError, RawReply, RawRequest, RawSample, ReturnedBuffers, SampleQueue, SessionEvent,
@@ -56,7 +57,17 @@ struct Publication {
     /// Closed by the application at this instant: deleted once what it
     /// wrote is written and acknowledged, or after [`LINGER`].
     closed: Option<Instant>,
+    /// Keyed topics: the instances written and not yet disposed or
+    /// unregistered (key hash → serialized key), disposed when the
+    /// publication closes if `autodispose`, else unregistered.
+    live: HashMap<[u8; 16], Vec<u8>>,
+    key_of: Option<KeyOf>,
+    autodispose: bool,
 }
+
+/// Instances one publication keeps track of at most for disposing them when
+/// it closes; past it, new instances are left to their readers' lease.
+const MAX_TRACKED_INSTANCES: usize = 100_000;
 
 /// How long a closed publication (service) waits at most for its readers
 /// to acknowledge what it wrote (its replies) before it is deleted.
@@ -226,6 +237,7 @@ impl State {
     fn close_handle(&mut self, h: Handle, now: Instant) {
         match h {
             Handle::Publication(p) => {
+                self.dispose_live(p, now);
                 // what was published before the close still reaches the
                 // readers: the writer lingers until it is acknowledged
                 if let Some(w) = self.writers.get_mut(&p) {
@@ -257,6 +269,53 @@ impl State {
                     self.d.delete_client(c, now);
                 }
             }
+        }
+    }
+
+    /// A publication that closes disposes the instances it left alive
+    /// (DDS's `autodispose_unregistered_instances`), or unregisters them
+    /// when told not to, as a DDS writer that is deleted does: with their
+    /// serialized key and key hash, after what it still has to write.
+    fn dispose_live(&mut self, p: PubId, now: Instant) {
+        let Some(w) = self.writers.get_mut(&p) else {
+            return;
+        };
+        if w.closed.is_some() {
+            return;
+        }
+        let kind = if w.autodispose {
+            ChangeKind::Disposed
+        } else {
+            ChangeKind::Unregistered
+        };
+        let live: Vec<([u8; 16], Vec<u8>)> = w.live.drain().collect();
+        for (hash, key) in live {
+            let pw = PendingWrite {
+                kind,
+                data: key,
+                key_hash: Some(hash),
+                confirm: None,
+                done: Done::Ignored,
+            };
+            let Some(w) = self.writers.get_mut(&p) else {
+                return;
+            };
+            if !w.pending.is_empty() {
+                w.pending.push_back(pw);
+            } else if let Some(pw) = self.try_write(p, pw, now) {
+                if let Some(w) = self.writers.get_mut(&p) {
+                    w.pending.push_back(pw);
+                }
+            }
+        }
+    }
+
+    /// Dispose of every publication's live instances (see
+    /// [`State::dispose_live`]): when the session closes.
+    pub(super) fn dispose_all_live(&mut self, now: Instant) {
+        let ps: Vec<PubId> = self.writers.keys().copied().collect();
+        for p in ps {
+            self.dispose_live(p, now);
         }
     }
 
@@ -393,7 +452,8 @@ impl State {
                 reply,
             } => {
                 queue.return_buffers_to(&self.returns);
-                let mut q = EndpointQos::reader_default();
+                let mut q = subscription_qos(&SubscriptionQos::default());
+                q.reliability = WireReliability::BestEffort;
                 q.history = WireHistory::KeepAll;
                 let p = self.d.create_pattern(&topic, &type_name, q, now);
                 self.patterns.insert(p, queue);
@@ -594,7 +654,7 @@ impl State {
         }
         let cfg = EndpointConfig::writer(&topic, ty.type_name)
             .keyed(ty.keyed)
-            .qos(publication_qos(qos));
+            .qos(publication_qos(qos, ty));
         let id = self
             .d
             .create_writer(cfg, now)
@@ -612,6 +672,9 @@ impl State {
                 pending: VecDeque::new(),
                 last: None,
                 closed: None,
+                live: HashMap::new(),
+                key_of: ty.key_of,
+                autodispose: qos.autodispose,
             },
         );
         Ok(handle)
@@ -631,6 +694,18 @@ impl State {
         let id = w.id;
         if !self.d.has_room(id, pw.data.len()) {
             return Some(pw); // a full keep-all history: Event::Writable follows
+        }
+        if let Some(hash) = pw.key_hash {
+            // the instances left alive, for autodispose
+            if pw.kind == ChangeKind::Alive {
+                if !w.live.contains_key(&hash) && w.live.len() < MAX_TRACKED_INSTANCES {
+                    if let Some(key) = w.key_of.and_then(|k| (k.0)(&pw.data)) {
+                        w.live.insert(hash, key);
+                    }
+                }
+            } else {
+                w.live.remove(&hash);
+            }
         }
         // the encoded sample becomes the history's copy (the CDR writer
         // left room for its envelope)
@@ -983,7 +1058,9 @@ fn service_config(
 ) -> ServiceConfig {
     let mut c =
         ServiceConfig::new(name, req.type_name, resp.type_name).keyed(req.keyed, resp.keyed);
-    c.writer_qos = publication_qos(&PublicationQos::default());
+    // requests and replies are written as final types are (XCDR1, what ROS 2's
+    // RMWs read), whatever the types; both are accepted
+    c.writer_qos = publication_qos(&PublicationQos::default(), &TypeInfo::untyped());
     c.reader_qos = subscription_qos(&SubscriptionQos::default());
     c.style = style;
     c
@@ -1016,8 +1093,9 @@ fn wire_durability(d: Durability) -> WireDurability {
     }
 }
 
-fn publication_qos(q: &PublicationQos) -> EndpointQos {
+fn publication_qos(q: &PublicationQos, ty: &TypeInfo) -> EndpointQos {
     let mut e = EndpointQos::writer_default();
+    e.data_representation = vec![q.representation_for(ty.extensibility).id()];
     e.reliability = wire_reliability(q.reliability);
     e.durability = wire_durability(q.durability);
     e.history = wire_history(q.history);
@@ -1033,6 +1111,11 @@ fn publication_qos(q: &PublicationQos) -> EndpointQos {
 
 fn subscription_qos(q: &SubscriptionQos) -> EndpointQos {
     let mut e = EndpointQos::reader_default();
+    e.data_representation = q
+        .accepted_representations()
+        .iter()
+        .map(|r| r.id())
+        .collect();
     e.reliability = wire_reliability(q.reliability);
     e.durability = wire_durability(q.durability);
     e.history = wire_history(q.history);

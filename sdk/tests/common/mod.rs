@@ -56,9 +56,9 @@ pub async fn await_handlers(s: &Session, topic: &str, n: i32) {
     .unwrap_or_else(|_| panic!("{topic}: {n} reader(s) never matched"));
 }
 
-pub async fn next<M: IpcMessage>(
-    sub: &mut courier::Subscriber<M>,
-) -> Result<courier::Sample<M>, RecvError> {
+pub async fn next<M: IpcMessage, D: courier::Delivery<M>>(
+    sub: &mut courier::Subscriber<M, D>,
+) -> Result<D::Item, RecvError> {
     tokio::time::timeout(T, sub.next())
         .await
         .expect("a sample in time")

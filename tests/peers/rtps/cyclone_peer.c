@@ -53,7 +53,7 @@ static const char LOOPBACK_CONFIG[] =
     "%s"
     "</Domain></CycloneDDS>";
 
-enum type_kind { TYPE_NONE, TYPE_MSG, TYPE_KEYED };
+enum type_kind { TYPE_NONE, TYPE_MSG, TYPE_KEYED, TYPE_STRKEYED };
 
 struct options {
   long domain;
@@ -92,7 +92,7 @@ static pid_t initial_ppid;
 static void usage(FILE *out)
 {
   fprintf(out,
-      "usage: %s --domain N --topic NAME --type msg|keyed --pub|--sub\n"
+      "usage: %s --domain N --topic NAME --type msg|keyed|strkeyed --pub|--sub\n"
       "          --reliable|--best-effort [--transient-local]\n"
       "          [--depth N (keep last, default 10) | --keep-all] [--count N]\n"
       "          [--size BYTES[,BYTES...]] [--period-ms N] [--dispose-every N]\n"
@@ -202,8 +202,10 @@ static void parse_args(int argc, char **argv, struct options *o)
         o->type = TYPE_MSG;
       else if (strcmp(t, "keyed") == 0)
         o->type = TYPE_KEYED;
+      else if (strcmp(t, "strkeyed") == 0)
+        o->type = TYPE_STRKEYED;
       else
-        usage_error("--type must be msg or keyed, not '%s'", t);
+        usage_error("--type must be msg, keyed or strkeyed, not '%s'", t);
     } else if (strcmp(a, "--pub") == 0 || strcmp(a, "--sub") == 0) {
       int r = (a[2] == 'p') ? 1 : 2;
       if (o->role != 0 && o->role != r)
@@ -278,15 +280,17 @@ static void parse_args(int argc, char **argv, struct options *o)
         o->settle_set || o->keys || o->no_autodispose || o->text)
       usage_error("--size, --period-ms, --dispose-every, --wait-match, --wait-stdin, "
                   "--settle-ms, --keys, --no-autodispose and --text are publisher options");
-    if (o->disposed_set && o->type != TYPE_KEYED)
-      usage_error("--disposed is for --type keyed");
+    if (o->disposed_set && o->type == TYPE_MSG)
+      usage_error("--disposed is for --type keyed or strkeyed");
   } else {
+    if (o->type == TYPE_STRKEYED)
+      usage_error("--type strkeyed is for subscribers");
     if (o->disposed_set)
       usage_error("--disposed is a subscriber option");
     if (!o->count_set)
       o->count = 1;
   }
-  if (o->type == TYPE_KEYED && o->nsizes)
+  if (o->type != TYPE_MSG && o->nsizes)
     usage_error("--size is for --type msg");
   if (o->type == TYPE_MSG && (o->dispose_every || o->keys || o->no_autodispose))
     usage_error("--dispose-every, --keys and --no-autodispose are for --type keyed");
@@ -387,6 +391,15 @@ static void print_sample_msg(const courier_test_Msg *m)
   char *t = escape_text(m->text ? m->text : "");
   emit("sample %" PRIu32 " %s %" PRIu32 " %08" PRIx32, m->seq, t, m->payload._length,
       fnv1a32(m->payload._buffer, m->payload._length));
+  free(t);
+}
+
+static void print_sample_strkeyed(const courier_test_StrKeyed *k)
+{
+  char *n = escape_text(k->name ? k->name : "");
+  char *t = escape_text(k->text ? k->text : "");
+  emit("sample %s %" PRIu32 " %s", n, k->seq, t);
+  free(n);
   free(t);
 }
 
@@ -594,9 +607,28 @@ struct inst_state {
 static struct inst_state tracked[MAX_TRACKED];
 static size_t ntracked;
 
-/* Reports a disposed/unregistered instance once per transition out of ALIVE;
- * returns true when it reported a disposal. */
-static bool track_instance(int32_t id, dds_instance_state_t st)
+/* The names of the string keys seen, so that an instance of a string key
+ * is tracked by a number like an int key. */
+static char *names[MAX_TRACKED];
+static size_t nnames;
+
+static int32_t name_id(const char *name)
+{
+  for (size_t i = 0; i < nnames; i++)
+    if (strcmp(names[i], name) == 0)
+      return (int32_t)i;
+  if (nnames == MAX_TRACKED)
+    return (int32_t)(MAX_TRACKED - 1);
+  names[nnames] = strdup(name);
+  if (names[nnames] == NULL)
+    fail("strdup", DDS_RETCODE_OUT_OF_RESOURCES);
+  return (int32_t)nnames++;
+}
+
+/* Reports a disposed/unregistered instance once per transition out of ALIVE
+ * (named `label` when given, else by `id`); returns true when it reported a
+ * disposal. */
+static bool track_instance(int32_t id, const char *label, dds_instance_state_t st)
 {
   size_t i;
   for (i = 0; i < ntracked; i++)
@@ -613,12 +645,17 @@ static bool track_instance(int32_t id, dds_instance_state_t st)
   if (st == tracked[i].state)
     return false;
   tracked[i].state = st;
+  char num[16];
+  if (label == NULL) {
+    snprintf(num, sizeof num, "%" PRId32, id);
+    label = num;
+  }
   if (st == DDS_IST_NOT_ALIVE_DISPOSED) {
-    emit("disposed %" PRId32, id);
+    emit("disposed %s", label);
     return true;
   }
   if (st == DDS_IST_NOT_ALIVE_NO_WRITERS)
-    emit("unregistered %" PRId32, id);
+    emit("unregistered %s", label);
   return false;
 }
 
@@ -643,14 +680,26 @@ static void run_sub(const struct options *o, dds_entity_t rd, dds_entity_t ws)
           print_sample_msg(samples[i]);
           received++;
         }
-      } else {
+      } else if (o->type == TYPE_KEYED) {
         const courier_test_Keyed *k = samples[i];
         if (infos[i].valid_data) {
           print_sample_keyed(k);
           received++;
         }
-        if (track_instance(k->id, infos[i].instance_state))
+        if (track_instance(k->id, NULL, infos[i].instance_state))
           disposed++;
+      } else {
+        /* an invalid sample (a dispose) holds the key fields only */
+        const courier_test_StrKeyed *k = samples[i];
+        const char *name = k->name ? k->name : "";
+        char *label = escape_text(name);
+        if (infos[i].valid_data) {
+          print_sample_strkeyed(k);
+          received++;
+        }
+        if (track_instance(name_id(name), label, infos[i].instance_state))
+          disposed++;
+        free(label);
       }
     }
     if (n > 0) {
@@ -721,7 +770,10 @@ int main(int argc, char **argv)
     fail("create participant", pp);
 
   qos = make_qos(&o);
-  tp = dds_create_topic(pp, o.type == TYPE_MSG ? &courier_test_Msg_desc : &courier_test_Keyed_desc,
+  tp = dds_create_topic(pp,
+      o.type == TYPE_MSG     ? &courier_test_Msg_desc
+      : o.type == TYPE_KEYED ? &courier_test_Keyed_desc
+                             : &courier_test_StrKeyed_desc,
       o.topic, qos, NULL);
   if (tp < 0)
     fail("create topic", tp);

@@ -95,6 +95,13 @@ struct Keyed
     std::string text;
 };
 
+struct StrKeyed
+{
+    std::string name;
+    uint32_t seq = 0;
+    std::string text;
+};
+
 // Size of plain CDR data, with alignment relative to the first byte after the
 // 4-byte encapsulation header.
 struct CdrSize
@@ -353,9 +360,123 @@ public:
 
 };
 
+// `courier::test::StrKeyed` (a string key): subscribers only.
+class StrKeyedType : public fdds::TopicDataType
+{
+public:
+
+    StrKeyedType()
+    {
+        setName("courier::test::StrKeyed");
+        m_typeSize = 4 + 4 + 256 + 4 + 4 + 256;
+        m_isGetKeyDefined = true;
+        auto_fill_type_object(false);
+        auto_fill_type_information(false);
+    }
+
+    bool serialize(void* data, frtps::SerializedPayload_t* payload) override
+    {
+        const StrKeyed* k = static_cast<const StrKeyed*>(data);
+        fcdr::FastBuffer buf(reinterpret_cast<char*>(payload->data), payload->max_size);
+        fcdr::Cdr ser(buf, fcdr::Cdr::DEFAULT_ENDIAN, fcdr::Cdr::DDS_CDR);
+        try
+        {
+            begin_serialize(ser, payload);
+            ser.serialize(k->name);
+            ser.serialize(k->seq);
+            ser.serialize(k->text);
+        }
+        catch (fcdr::exception::Exception& e)
+        {
+            std::fprintf(stderr, "%s: serialize StrKeyed: %s\n", PROG, e.what());
+            return false;
+        }
+        payload->length = static_cast<uint32_t>(ser.getSerializedDataLength());
+        return true;
+    }
+
+    // Also accepts a key-only payload (just `name`).
+    bool deserialize(frtps::SerializedPayload_t* payload, void* data) override
+    {
+        StrKeyed* k = static_cast<StrKeyed*>(data);
+        fcdr::FastBuffer buf(reinterpret_cast<char*>(payload->data), payload->length);
+        fcdr::Cdr de(buf, fcdr::Cdr::DEFAULT_ENDIAN, fcdr::Cdr::DDS_CDR);
+        try
+        {
+            begin_deserialize(de, payload);
+            de.deserialize(k->name);
+            k->seq = 0;
+            k->text.clear();
+            size_t used = static_cast<size_t>(de.getCurrentPosition() - de.getBufferPointer());
+            if (used + 4 > payload->length)
+            {
+                return true; // key only (at most padding follows)
+            }
+            de.deserialize(k->seq);
+            de.deserialize(k->text);
+        }
+        catch (fcdr::exception::Exception& e)
+        {
+            std::fprintf(stderr, "%s: deserialize StrKeyed (%u bytes): %s\n", PROG,
+                    payload->length, e.what());
+            return false;
+        }
+        return true;
+    }
+
+    std::function<uint32_t()> getSerializedSizeProvider(void* data) override
+    {
+        return [data]() -> uint32_t
+               {
+                   const StrKeyed* k = static_cast<const StrKeyed*>(data);
+                   CdrSize s;
+                   s.str(k->name);
+                   s.u32();
+                   s.str(k->text);
+                   return s.total();
+               };
+    }
+
+    void* createData() override
+    {
+        return new StrKeyed();
+    }
+
+    void deleteData(void* data) override
+    {
+        delete static_cast<StrKeyed*>(data);
+    }
+
+    // The key hash (RTPS 9.6.3.8): an unbounded string key can exceed 16
+    // bytes, so it is always the MD5 of the key serialized as big-endian
+    // CDR (length with the NUL, the bytes, the NUL), as fastddsgen's code does.
+    bool getKey(void* data, frtps::InstanceHandle_t* handle, bool) override
+    {
+        const StrKeyed* k = static_cast<const StrKeyed*>(data);
+        std::vector<unsigned char> key;
+        uint32_t n = static_cast<uint32_t>(k->name.size() + 1);
+        key.push_back(static_cast<unsigned char>(n >> 24));
+        key.push_back(static_cast<unsigned char>(n >> 16));
+        key.push_back(static_cast<unsigned char>(n >> 8));
+        key.push_back(static_cast<unsigned char>(n));
+        key.insert(key.end(), k->name.begin(), k->name.end());
+        key.push_back(0);
+        MD5 md5;
+        md5.init();
+        md5.update(key.data(), static_cast<unsigned int>(key.size()));
+        md5.finalize();
+        for (size_t i = 0; i < 16; i++)
+        {
+            handle->value[i] = md5.digest[i];
+        }
+        return true;
+    }
+
+};
+
 // ---- options ----
 
-enum class Kind { None, Msg, Keyed };
+enum class Kind { None, Msg, Keyed, StrKeyed };
 
 struct Options
 {
@@ -384,6 +505,7 @@ struct Options
     bool disposed_set = false;
     bool autodispose = true;
     bool hb_piggyback = true;
+    bool strict_instances = false;
     std::string text;
     bool text_set = false;
     std::string trace;
@@ -398,7 +520,11 @@ void usage(FILE* out)
             "          [--size BYTES[,BYTES...]] [--period-ms N] [--dispose-every N]\n"
             "          [--wait-match N] [--wait-stdin] [--settle-ms N] [--timeout-s N] [--linger-ms N]\n"
             "          [--keys N] [--disposed N] [--no-autodispose] [--no-hb-piggyback]\n"
-            "          [--text PREFIX] [--trace FILE]\n"
+            "          [--text PREFIX] [--trace FILE] [--strict-instances]\n"
+            "--type strkeyed (subscribers): courier::test::StrKeyed, a string key.\n"
+            "--strict-instances: a dispose or unregister of an instance never seen alive\n"
+            "  is reported as disposed-unknown/unregistered-unknown <instance handle>,\n"
+            "  not decoded from the handle.\n"
             "Loopback only (UDPv4 on 127.0.0.1, unicast discovery, no shared memory).\n"
             "A subscriber is done after --count samples and --disposed disposals (both when\n"
             "given, otherwise it runs until --timeout-s); either role then stays --linger-ms.\n"
@@ -532,9 +658,13 @@ Options parse_args(int argc, char** argv)
             {
                 o.type = Kind::Keyed;
             }
+            else if (std::strcmp(t, "strkeyed") == 0)
+            {
+                o.type = Kind::StrKeyed;
+            }
             else
             {
-                usage_error("--type must be msg or keyed, not '%s'", t);
+                usage_error("--type must be msg, keyed or strkeyed, not '%s'", t);
             }
         }
         else if (a == "--pub" || a == "--sub" || a == "--serve" || a == "--request")
@@ -623,6 +753,10 @@ Options parse_args(int argc, char** argv)
         {
             o.hb_piggyback = false;
         }
+        else if (a == "--strict-instances")
+        {
+            o.strict_instances = true;
+        }
         else if (a == "--text")
         {
             const char* t = value();
@@ -684,13 +818,21 @@ Options parse_args(int argc, char** argv)
                     "--settle-ms, --keys, --no-autodispose, --no-hb-piggyback and --text are "
                     "publisher options");
         }
-        if (o.disposed_set && o.type != Kind::Keyed)
+        if (o.disposed_set && o.type == Kind::Msg)
         {
-            usage_error("--disposed is for --type keyed");
+            usage_error("--disposed is for --type keyed or strkeyed");
         }
     }
     else
     {
+        if (o.type == Kind::StrKeyed)
+        {
+            usage_error("--type strkeyed is for subscribers");
+        }
+        if (o.strict_instances)
+        {
+            usage_error("--strict-instances is a subscriber option");
+        }
         if (o.disposed_set)
         {
             usage_error("--disposed is a subscriber option");
@@ -700,7 +842,7 @@ Options parse_args(int argc, char** argv)
             o.count = 1;
         }
     }
-    if (o.type == Kind::Keyed && !o.sizes.empty())
+    if (o.type != Kind::Msg && !o.sizes.empty())
     {
         usage_error("--size is for --type msg");
     }
@@ -1277,6 +1419,16 @@ struct InstanceTracker
 
 };
 
+// A dispose or unregister of an instance never seen alive, under
+// --strict-instances (and always for strkeyed): it did not land on the
+// instance the writer meant.
+void report_unknown(const fdds::SampleInfo& info)
+{
+    const char* word = info.instance_state == fdds::NOT_ALIVE_DISPOSED_INSTANCE_STATE ?
+            "disposed-unknown" : "unregistered-unknown";
+    emit("%s %s", word, InstanceTracker::hex(info.instance_handle).c_str());
+}
+
 void run_sub(const Options& o, fdds::DataReader* r)
 {
     long received = 0;
@@ -1284,6 +1436,9 @@ void run_sub(const Options& o, fdds::DataReader* r)
     InstanceTracker tracker;
     Msg m;
     Keyed k;
+    StrKeyed sk;
+    std::map<frtps::InstanceHandle_t, std::string> names;
+    std::map<std::string, fdds::InstanceStateKind> name_states;
     auto finished = [&]()
             {
                 return (o.count_set || o.disposed_set) && (!o.count_set || received >= o.count) &&
@@ -1297,7 +1452,8 @@ void run_sub(const Options& o, fdds::DataReader* r)
         while (!finished())
         {
             fdds::SampleInfo info;
-            void* data = o.type == Kind::Msg ? static_cast<void*>(&m) : static_cast<void*>(&k);
+            void* data = o.type == Kind::Msg ? static_cast<void*>(&m) :
+                    o.type == Kind::Keyed ? static_cast<void*>(&k) : static_cast<void*>(&sk);
             ReturnCode_t rc = r->take_next_sample(data, &info);
             if (rc == ReturnCode_t::RETCODE_NO_DATA)
             {
@@ -1317,6 +1473,45 @@ void run_sub(const Options& o, fdds::DataReader* r)
                     received++;
                 }
             }
+            else if (o.type == Kind::StrKeyed)
+            {
+                // tracked by instance handle: a dispose must land on the
+                // instance seen alive (Fast DDS 2.9 finds it by key hash)
+                std::string name;
+                if (info.valid_data)
+                {
+                    emit("sample %s %u %s", escape_text(sk.name).c_str(), sk.seq,
+                            escape_text(sk.text).c_str());
+                    received++;
+                    names[info.instance_handle] = sk.name;
+                    name = sk.name;
+                }
+                else
+                {
+                    auto it = names.find(info.instance_handle);
+                    if (it == names.end())
+                    {
+                        report_unknown(info);
+                        continue;
+                    }
+                    name = it->second;
+                }
+                auto st = name_states.find(name);
+                auto prev = st == name_states.end() ? fdds::ALIVE_INSTANCE_STATE : st->second;
+                name_states[name] = info.instance_state;
+                if (info.instance_state != prev)
+                {
+                    if (info.instance_state == fdds::NOT_ALIVE_DISPOSED_INSTANCE_STATE)
+                    {
+                        emit("disposed %s", escape_text(name).c_str());
+                        disposed++;
+                    }
+                    else if (info.instance_state == fdds::NOT_ALIVE_NO_WRITERS_INSTANCE_STATE)
+                    {
+                        emit("unregistered %s", escape_text(name).c_str());
+                    }
+                }
+            }
             else
             {
                 int32_t id;
@@ -1326,6 +1521,11 @@ void run_sub(const Options& o, fdds::DataReader* r)
                     received++;
                     tracker.learn(info.instance_handle, k.id);
                     id = k.id;
+                }
+                else if (o.strict_instances && !tracker.ids.count(info.instance_handle))
+                {
+                    report_unknown(info);
+                    continue;
                 }
                 else
                 {
@@ -1490,7 +1690,8 @@ int main(int argc, char** argv)
     }
 
     fdds::TypeSupport type(o.type == Kind::Msg ? static_cast<fdds::TopicDataType*>(new MsgType()) :
-            static_cast<fdds::TopicDataType*>(new KeyedType()));
+            o.type == Kind::Keyed ? static_cast<fdds::TopicDataType*>(new KeyedType()) :
+            static_cast<fdds::TopicDataType*>(new StrKeyedType()));
     if (type.register_type(participant) != ReturnCode_t::RETCODE_OK)
     {
         fail("register_type failed");

@@ -79,6 +79,9 @@ pub struct Writer {
     member_lc: u32,
     /// An absent optional value asked for the open mutable member to be dropped.
     absent: bool,
+    /// Key-hash form: every struct is written as a final one (no `DHEADER`,
+    /// no member headers), as DDSI-RTPS §9.6.4.8 serializes a key for its hash.
+    flat: bool,
 }
 
 macro_rules! put_num {
@@ -106,6 +109,21 @@ impl Writer {
             pending: None,
             member_lc: LC_NEXTINT,
             absent: false,
+            flat: false,
+        }
+    }
+
+    /// A writer of the key-hash form (DDSI-RTPS 2.5 §9.6.4.8, DDS-XTypes
+    /// 1.3 §7.6.8): big-endian XCDR2 without encapsulation header, every
+    /// struct written as a final one (no `DHEADER`, no member headers),
+    /// whatever its extensibility. Feed it [`IpcMessage::cdr_encode_key`]
+    /// (see [`crate::rtps::participant::KeyHash::of`]).
+    ///
+    /// [`IpcMessage::cdr_encode_key`]: crate::IpcMessage::cdr_encode_key
+    pub fn key_hash_form() -> Self {
+        Writer {
+            flat: true,
+            ..Writer::new(Encoding::Xcdr2Be)
         }
     }
 
@@ -386,6 +404,7 @@ impl Writer {
     /// Starts a struct of the given extensibility.
     pub fn begin_struct(&mut self, ext: Extensibility) -> StructWriter {
         self.first(LC_NEXTINT);
+        let ext = if self.flat { Extensibility::Final } else { ext };
         let dheader = match (self.version(), ext) {
             (Version::Xcdr2, Extensibility::Appendable | Extensibility::Mutable) => {
                 self.begin_dheader()
@@ -580,6 +599,9 @@ pub struct Reader<'a> {
     /// [`StructReader::next_member`] (an optional member's value is there
     /// without presence flag).
     member_start: Option<usize>,
+    /// Key-hash form: every struct is read as a final one (see
+    /// [`Writer::key_hash_form`]).
+    flat: bool,
 }
 
 macro_rules! get_num {
@@ -611,6 +633,16 @@ impl<'a> Reader<'a> {
             encoding,
             depth: 0,
             member_start: None,
+            flat: false,
+        }
+    }
+
+    /// A reader of the key-hash form that [`Writer::key_hash_form`] writes:
+    /// big-endian XCDR2, every struct read as a final one.
+    pub fn key_hash_form(buf: &'a [u8]) -> Self {
+        Reader {
+            flat: true,
+            ..Reader::new(buf, Encoding::Xcdr2Be)
         }
     }
 
@@ -626,6 +658,13 @@ impl<'a> Reader<'a> {
             origin: 4,
             ..Reader::new(buf, rep.encoding())
         })
+    }
+
+    /// Whether this reads the key-hash form ([`Reader::key_hash_form`]):
+    /// structs without `DHEADER` or member headers, whatever their
+    /// extensibility.
+    pub fn is_key_hash_form(&self) -> bool {
+        self.flat
     }
 
     /// The encoding being read.
@@ -881,6 +920,7 @@ impl<'a> Reader<'a> {
     pub fn begin_struct(&mut self, ext: Extensibility) -> Result<StructReader, DecodeError> {
         self.member_start = None;
         self.enter()?;
+        let ext = if self.flat { Extensibility::Final } else { ext };
         let dheader = match (self.version(), ext) {
             (Version::Xcdr2, Extensibility::Appendable | Extensibility::Mutable) => {
                 self.begin_dheader()?

@@ -372,6 +372,40 @@ pub fn key_to_vec<T: IpcMessage>(value: &T, encoding: Encoding) -> Vec<u8> {
     w.into_vec()
 }
 
+/// Deserializes a key that [`key_to_vec`] (or a DDS writer's dispose or
+/// unregister: the serialized key of a key-only DATA) wrote, with its
+/// encapsulation header, as the type's [`IpcMessage::Key`]: for
+/// `struct Keyed { #[ipc(key)] id: i32, .. }` an `i32`.
+///
+/// ```
+/// use courier_wire::cdr;
+/// // a type without key fields is its own key (a key field of such a type
+/// // is written whole); derived keyed structs give their key fields
+/// let key = cdr::key_to_vec(&7u32, cdr::Encoding::Xcdr2Le);
+/// assert_eq!(cdr::key_from_slice::<u32>(&key), Ok(7));
+/// ```
+pub fn key_from_slice<T: IpcMessage>(bytes: &[u8]) -> Result<T::Key, DecodeError> {
+    let mut r = Reader::with_header(bytes)?;
+    let k = T::cdr_decode_key(&mut r)?;
+    r.finish_padding()?;
+    Ok(k)
+}
+
+/// The key behind a DDS key hash, when the hash holds the key itself: a
+/// type whose key serializes to at most 16 bytes ([`IpcMessage::CDR_KEY_BOUNDED`])
+/// has the key, in the key-hash form ([`Writer::key_hash_form`]), zero-padded
+/// as its hash. `None` for a longer key (its hash is an MD5 digest) or
+/// bytes that do not decode.
+pub fn key_from_key_hash<T: IpcMessage>(hash: &[u8; 16]) -> Option<T::Key> {
+    if T::KEYS.is_empty() || !T::CDR_KEY_BOUNDED {
+        return None;
+    }
+    let mut r = Reader::key_hash_form(hash);
+    let k = T::cdr_decode_key(&mut r).ok()?;
+    let rest = hash.get(r.position()..)?;
+    rest.iter().all(|b| *b == 0).then_some(k)
+}
+
 /// Writes an optional value (an `@optional` member, `Option<Box<T>>`), as
 /// Cyclone DDS does:
 ///

@@ -52,14 +52,74 @@ pub enum Incompatible {
     /// No common partition.
     #[error("no common partition")]
     Partition,
-    /// No data representation the reader accepts is offered.
-    #[error("data representation: writer offers {offered:?}, reader accepts {accepted:?}")]
+    /// The reader does not accept the data representation the writer uses
+    /// (the first it offers).
+    #[error(
+        "data representation: the writer writes {used} (offers {}), the reader accepts {}: \
+         let the reader accept {used}, or have the writer write {}",
+        RepresentationList(offered),
+        RepresentationList(accepted),
+        RepresentationList(accepted).or_list()
+    )]
     DataRepresentation {
+        /// What the writer writes: the first it offers.
+        used: RepresentationName,
         /// Writer's (first is what it uses).
         offered: Vec<i16>,
         /// Reader's.
         accepted: Vec<i16>,
     },
+}
+
+/// A `DataRepresentationId_t` (DDS-XTypes 1.3 §7.6.3.1.1) by its name:
+/// `XCDR1` (0), `XML` (1), `XCDR2` (2); any other as its number.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct RepresentationName(pub i16);
+
+impl std::fmt::Display for RepresentationName {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.0 {
+            XCDR1 => f.write_str("XCDR1"),
+            XML => f.write_str("XML"),
+            XCDR2 => f.write_str("XCDR2"),
+            n => write!(f, "representation {n}"),
+        }
+    }
+}
+
+/// `XCDR_DATA_REPRESENTATION`: XCDR version 1.
+pub const XCDR1: i16 = 0;
+/// `XML_DATA_REPRESENTATION`.
+pub const XML: i16 = 1;
+/// `XCDR2_DATA_REPRESENTATION`: XCDR version 2.
+pub const XCDR2: i16 = 2;
+
+/// A list of data representations by name: `[XCDR1, XCDR2]`.
+struct RepresentationList<'a>(&'a [i16]);
+
+impl RepresentationList<'_> {
+    /// `XCDR1` or `XCDR1 or XCDR2`.
+    fn or_list(&self) -> String {
+        let v: Vec<String> = self
+            .0
+            .iter()
+            .map(|r| RepresentationName(*r).to_string())
+            .collect();
+        v.join(" or ")
+    }
+}
+
+impl std::fmt::Display for RepresentationList<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("[")?;
+        for (i, r) in self.0.iter().enumerate() {
+            if i > 0 {
+                f.write_str(", ")?;
+            }
+            write!(f, "{}", RepresentationName(*r))?;
+        }
+        f.write_str("]")
+    }
 }
 
 fn liveliness_rank(k: LivelinessKind) -> u8 {
@@ -136,14 +196,19 @@ pub fn check_qos(offered: &EndpointQos, requested: &EndpointQos) -> Result<(), I
         return Err(Incompatible::Partition);
     }
     // The writer uses the first representation it offers; the reader must accept it.
-    let used = offered.data_representation.first().copied().unwrap_or(0);
+    let used = offered
+        .data_representation
+        .first()
+        .copied()
+        .unwrap_or(XCDR1);
     let accepted = if requested.data_representation.is_empty() {
-        vec![0]
+        vec![XCDR1]
     } else {
         requested.data_representation.clone()
     };
     if !accepted.contains(&used) {
         return Err(Incompatible::DataRepresentation {
+            used: RepresentationName(used),
             offered: offered.data_representation.clone(),
             accepted,
         });
@@ -309,10 +374,20 @@ mod tests {
         // Fast DDS 2.9 accepts only XCDR1: an XCDR2 writer does not match it
         let mut x2 = w.clone();
         x2.data_representation = vec![2];
-        assert!(matches!(
-            check_qos(&x2, &r),
-            Err(Incompatible::DataRepresentation { .. })
-        ));
+        let e = check_qos(&x2, &r).unwrap_err();
+        assert!(matches!(e, Incompatible::DataRepresentation { .. }));
+        // the representations by name, and what to change on which side
+        assert_eq!(
+            e.to_string(),
+            "data representation: the writer writes XCDR2 (offers [XCDR2]), the reader \
+             accepts [XCDR1]: let the reader accept XCDR2, or have the writer write XCDR1"
+        );
+        let mut odd = r.clone();
+        odd.data_representation = vec![0, 1, 7];
+        assert!(check_qos(&x2, &odd)
+            .unwrap_err()
+            .to_string()
+            .contains("accepts [XCDR1, XML, representation 7]"));
         let mut both = r.clone();
         both.data_representation = vec![0, 2];
         assert_eq!(check_qos(&x2, &both), Ok(()));

@@ -54,6 +54,10 @@ macro_rules! cdr_struct {
                 )*
                 s.end(w);
             }
+            type Key = Self;
+            fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, DecodeError> {
+                Self::cdr_decode(r)
+            }
             fn cdr_encode_key(&self, w: &mut cdr::Writer) {
                 let s = w.begin_struct($ext);
                 $(
@@ -112,6 +116,10 @@ pub enum Color {
 }
 
 impl IpcMessage for Color {
+    type Key = Self;
+    fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, DecodeError> {
+        Self::cdr_decode(r)
+    }
     const FORMAT: &'static str = "{enum Red, Green, Blue}";
     const TYPE_NAME: &'static str = "Color";
     const IPC_MIN_SIZE: usize = 4;
@@ -148,6 +156,10 @@ impl IpcMessage for Color {
 pub struct SeqI32(pub Vec<i32>);
 
 impl IpcMessage for SeqI32 {
+    type Key = Self;
+    fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, DecodeError> {
+        Self::cdr_decode(r)
+    }
     const FORMAT: &'static str = "<int:1>";
     const TYPE_NAME: &'static str = "SeqI32";
     const IPC_MIN_SIZE: usize = 4;
@@ -171,6 +183,10 @@ impl IpcMessage for SeqI32 {
 pub struct Grid(pub [[i16; 3]; 2]);
 
 impl IpcMessage for Grid {
+    type Key = Self;
+    fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, DecodeError> {
+        Self::cdr_decode(r)
+    }
     const FORMAT: &'static str = "[short:2,3]";
     const TYPE_NAME: &'static str = "Grid";
     const IPC_MIN_SIZE: usize = 12;

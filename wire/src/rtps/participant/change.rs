@@ -134,7 +134,7 @@ pub const PID_RELATED_SAMPLE_IDENTITY: u16 = 0x0083;
 /// rmw_fastrtps services read; Courier writes both.
 pub const PID_FASTDDS_RELATED_SAMPLE_IDENTITY: u16 = 0x800f;
 /// eProsima's vendor id.
-const VENDOR_EPROSIMA: VendorId = VendorId([0x01, 0x0f]);
+pub(super) const VENDOR_EPROSIMA: VendorId = VendorId([0x01, 0x0f]);
 
 impl<'a> Change<'a> {
     /// A sample.
@@ -277,6 +277,7 @@ fn data_len(b: &[u8]) -> usize {
 }
 
 /// An envelope opened: the change's metadata and its data.
+#[derive(Clone, Copy)]
 pub(super) struct Env<'a> {
     pub(super) kind: ChangeKind,
     pub(super) key_hash: Option<KeyHash>,

@@ -7,7 +7,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use super::change::{inline_qos, open, ChangeKind, Env};
+use super::change::{inline_qos, open, ChangeKind, Env, VENDOR_EPROSIMA};
 use super::outbox::{Outbox, Unit};
 use super::Participant;
 use crate::rtps::discovery::EndpointData;
@@ -154,6 +154,27 @@ pub(super) fn data_unit_list(
     units
 }
 
+/// A dispose or unregister as the participant `to` reads it. It carries the
+/// serialized key (K flag), which Cyclone DDS needs to find an instance whose
+/// key hash is an MD5 digest (Cyclone 11 needs it always), and the key hash
+/// inline. Fast DDS (2.9 and before) copies a key payload of up to 16 bytes
+/// over the key hash into the instance handle, so that the change lands on
+/// an instance of its own: to eProsima's participants it goes as Fast DDS
+/// sends its own, key hash only.
+pub(super) fn key_form_for<'a>(route: &Route<'_>, to: GuidPrefix, e: &Env<'a>) -> Env<'a> {
+    let strip = e.kind != ChangeKind::Alive
+        && e.key_hash.is_some()
+        && !e.data.is_empty()
+        && route
+            .participants
+            .get(&to)
+            .is_some_and(|p| p.vendor == VENDOR_EPROSIMA);
+    Env {
+        data: if strip { &[] } else { e.data },
+        ..*e
+    }
+}
+
 /// Sends what a writer (built-in or user) asked for.
 fn emit_writer(
     route: &Route<'_>,
@@ -180,6 +201,7 @@ fn emit_writer(
             let e = open(&payload);
             let t = targets(to, outbox);
             for &(l, p, rid) in &t {
+                let e = key_form_for(route, p, &e);
                 data_units(shape, rid, writer_id, sn, &e, None, |ts, sm| {
                     outbox.push_sample(l, p, ts, sm, &payload)
                 });

@@ -27,6 +27,29 @@
 pub struct KeyHash(pub [u8; 16]);
 
 impl KeyHash {
+    /// The key hash of `value`'s instance (DDSI-RTPS 2.5 §9.6.4.8): its key
+    /// fields ([`IpcMessage::cdr_encode_key`]) as big-endian XCDR2 with every
+    /// struct written as final ([`Writer::key_hash_form`]), zero-padded to
+    /// 16 bytes when the type's key can never serialize to more
+    /// ([`IpcMessage::CDR_KEY_BOUNDED`]), else their MD5 digest. This is the
+    /// `PID_KEY_HASH` Courier sends, and what Fast DDS computes for
+    /// `@final` types.
+    ///
+    /// ```
+    /// use courier_wire::rtps::participant::KeyHash;
+    /// // an `int32` key: its 4 big-endian bytes, zero-padded
+    /// assert_eq!(KeyHash::of(&7i32).0, [0, 0, 0, 7, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]);
+    /// ```
+    ///
+    /// [`IpcMessage::cdr_encode_key`]: crate::IpcMessage::cdr_encode_key
+    /// [`IpcMessage::CDR_KEY_BOUNDED`]: crate::IpcMessage::CDR_KEY_BOUNDED
+    /// [`Writer::key_hash_form`]: crate::cdr::Writer::key_hash_form
+    pub fn of<T: crate::IpcMessage>(value: &T) -> Self {
+        let mut w = crate::cdr::Writer::key_hash_form();
+        value.cdr_encode_key(&mut w);
+        KeyHash::from_key(w.as_bytes(), !T::CDR_KEY_BOUNDED)
+    }
+
     /// The key hash of a key serialized as big-endian XCDR2 (without
     /// encapsulation header). `may_exceed_16` says whether the type's key
     /// *can* serialize to more than 16 bytes (any unbounded string or

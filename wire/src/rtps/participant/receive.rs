@@ -11,7 +11,7 @@ use std::time::Instant;
 use smallvec::SmallVec;
 
 use super::change::{envelope, envelope_with, inline_info, open, ChangeKind, ENVELOPE_ROOM};
-use super::emit::{data_units, Route, Shape};
+use super::emit::{data_units, key_form_for, Route, Shape};
 use super::{KeyHash, Participant};
 use crate::rtps::discovery::Disposal;
 use crate::rtps::frag;
@@ -346,7 +346,7 @@ impl Participant {
             n.reader_id,
             n.writer_id,
             n.writer_sn,
-            &open(&sample),
+            &key_form_for(&route, reader.prefix, &open(&sample)),
             Some(&frags),
             |ts, sm| outbox.push_sample(l, reader.prefix, ts, sm, &sample),
         );

@@ -1,0 +1,428 @@
+//! XCDR2 and instances against the real peers: `@appendable` and
+//! `@mutable` samples both ways with Cyclone DDS 11 (the PyPI `cyclonedds`
+//! package, its own Cyclone 11 C core inside; `tests/peers/rtps/cyclone11_peer.py`),
+//! and an int-keyed and a string-keyed dispose — one explicit, one by
+//! closing the publisher (autodispose) — seen as disposed by Cyclone DDS
+//! 0.10 (C), Fast DDS 2.9 and Cyclone DDS 11. XCDR1 with Fast DDS 2.9 is
+//! what `rtps_interop.rs` runs (final types), and the keyed cases here too.
+//!
+//! Loopback only, as in `rtps_interop.rs`: every peer runs its built-in
+//! loopback-only unicast configuration, Courier `interface=lo&peers=127.0.0.1`.
+//! A missing peer (the Debian packages, or the `cyclonedds` Python package
+//! that `.ci/run` installs under `target/cyclonedds-py`) fails the test
+//! with what is missing.
+
+use std::time::Duration;
+
+use courier::{IpcMessage, Session};
+use futures::{FutureExt, StreamExt};
+
+mod common;
+use common::{next, T};
+
+use courier_tests::peers::{
+    cyclone11_peer_args, cyclone11_python, cyclone_peer, fastdds_peer, PeerProcess,
+};
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Vendor {
+    Cyclone,
+    FastDds,
+    Cyclone11,
+}
+
+struct Peer(PeerProcess);
+
+impl Peer {
+    fn start(vendor: Vendor, args: &[&str]) -> Peer {
+        let p = match vendor {
+            Vendor::Cyclone => cyclone_peer().and_then(|exe| PeerProcess::spawn(exe, args)),
+            Vendor::FastDds => fastdds_peer().and_then(|exe| PeerProcess::spawn(exe, args)),
+            Vendor::Cyclone11 => {
+                cyclone11_python().and_then(|py| PeerProcess::spawn(py, &cyclone11_peer_args(args)))
+            }
+        };
+        Peer(p.unwrap_or_else(|e| panic!("cannot start the {vendor:?} interop peer: {e}")))
+    }
+
+    fn expect(&mut self, prefix: &str) -> String {
+        self.0
+            .expect_line(prefix, T)
+            .unwrap_or_else(|e| panic!("{e}"))
+    }
+}
+
+async fn blocking<R: Send + 'static>(f: impl FnOnce() -> R + Send + 'static) -> R {
+    tokio::task::spawn_blocking(f).await.expect("blocking task")
+}
+
+fn domain_arg(d: u32) -> String {
+    courier_tests::domains::lease(d).to_string()
+}
+
+async fn session(domain: u32) -> Session {
+    common::session(domain, "courier").await
+}
+
+/// `@appendable struct courier::test::Appendable { @key int32 id; uint32 seq; string text; }`
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "courier::test::Appendable", extensibility = "appendable")]
+struct Appendable {
+    #[ipc(key)]
+    id: i32,
+    seq: u32,
+    text: String,
+}
+
+/// The same members, `@mutable`.
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "courier::test::Mutable", extensibility = "mutable")]
+struct Mutable {
+    #[ipc(key)]
+    id: i32,
+    seq: u32,
+    text: String,
+}
+
+/// `courier::test::Keyed` (tests/peers/rtps/types.idl), final.
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "courier::test::Keyed")]
+struct Keyed {
+    #[ipc(key)]
+    id: i32,
+    seq: u32,
+    text: String,
+}
+
+/// `courier::test::StrKeyed` (tests/peers/rtps/types.idl), final: a key
+/// whose hash is an MD5 digest.
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "courier::test::StrKeyed")]
+struct StrKeyed {
+    #[ipc(key)]
+    name: String,
+    seq: u32,
+    text: String,
+}
+
+/// The three members every type here has.
+trait Three: IpcMessage + Clone + std::fmt::Debug + PartialEq + Send + Sync + 'static {
+    fn make(id: i32, seq: u32, text: &str) -> Self;
+}
+
+macro_rules! three {
+    ($t:ident) => {
+        impl Three for $t {
+            fn make(id: i32, seq: u32, text: &str) -> Self {
+                $t {
+                    id,
+                    seq,
+                    text: text.into(),
+                }
+            }
+        }
+    };
+}
+three!(Appendable);
+three!(Mutable);
+
+// ---------------------------------------------------------------------------
+// XCDR2 with Cyclone DDS 11
+
+/// Cyclone 11 writes three samples of an appendable or mutable type
+/// (XCDR2, its default for them); Courier's subscriber takes them, and its
+/// raw subscription sees the XCDR2 encapsulation id `want`.
+async fn xcdr2_cyclone11_to_courier<M: Three>(ty: &str, want: [u8; 2], domain: u32) {
+    let s = session(domain).await;
+    let mut sub = s.subscribe::<M>("x2").await.unwrap();
+    let mut raw = s.subscribe_raw("x2").await.unwrap();
+    let d = domain_arg(domain);
+    let mut peer = Peer::start(
+        Vendor::Cyclone11,
+        &[
+            "--domain",
+            &d,
+            "--topic",
+            "x2",
+            "--type",
+            ty,
+            "--pub",
+            "--reliable",
+            "--count",
+            "3",
+            "--keys",
+            "5",
+            "--wait-match",
+            "1",
+            "--settle-ms",
+            "300",
+            "--text",
+            "c11",
+            "--linger-ms",
+            "300",
+            "--timeout-s",
+            "20",
+        ],
+    );
+    for seq in 1..=3u32 {
+        let v = next(&mut sub).await.unwrap().value;
+        assert_eq!(v, M::make(5, seq, &format!("c11-{seq}")), "{ty}");
+    }
+    let header = tokio::time::timeout(T, async {
+        loop {
+            if let Some(s) = raw.try_recv() {
+                return [s.data[0], s.data[1]];
+            }
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+    })
+    .await
+    .expect("a raw sample in time");
+    assert_eq!(header, want, "{ty}: Cyclone 11 wrote XCDR2");
+    blocking(move || peer.expect("done")).await;
+    s.close().await;
+}
+
+/// Courier writes three samples of an appendable or mutable type (XCDR2
+/// by default); Cyclone 11's reader accepts XCDR2 only and takes them.
+async fn xcdr2_courier_to_cyclone11<M: Three>(ty: &str, domain: u32) {
+    let s = session(domain).await;
+    let p = s.publisher::<M>("x2").build().await.unwrap();
+    let d = domain_arg(domain);
+    let mut peer = Peer::start(
+        Vendor::Cyclone11,
+        &[
+            "--domain",
+            &d,
+            "--topic",
+            "x2",
+            "--type",
+            ty,
+            "--sub",
+            "--reliable",
+            "--representation",
+            "xcdr2",
+            "--count",
+            "3",
+            "--timeout-s",
+            "20",
+        ],
+    );
+    common::await_handlers(&s, "x2", 1).await;
+    let mut peer = blocking(move || {
+        peer.expect("matched 1");
+        peer
+    })
+    .await;
+    for seq in 1..=3u32 {
+        p.publish(&M::make(9, seq, &format!("c-{seq}")))
+            .await
+            .unwrap();
+    }
+    let got = blocking(move || (0..3).map(|_| peer.expect("sample ")).collect::<Vec<_>>()).await;
+    let want: Vec<String> = (1..=3)
+        .map(|seq| format!("sample 9 {seq} c-{seq}"))
+        .collect();
+    assert_eq!(got, want, "{ty}");
+    s.close().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn appendable_xcdr2_cyclone11_to_courier() {
+    xcdr2_cyclone11_to_courier::<Appendable>("appendable", [0x00, 0x09], 1).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn mutable_xcdr2_cyclone11_to_courier() {
+    xcdr2_cyclone11_to_courier::<Mutable>("mutable", [0x00, 0x0b], 2).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn appendable_xcdr2_courier_to_cyclone11() {
+    xcdr2_courier_to_cyclone11::<Appendable>("appendable", 3).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn mutable_xcdr2_courier_to_cyclone11() {
+    xcdr2_courier_to_cyclone11::<Mutable>("mutable", 4).await;
+}
+
+// ---------------------------------------------------------------------------
+// Disposes every peer reads
+
+/// Courier writes instances `a` and `b`, disposes `a`, then closes the
+/// publisher, which disposes `b` (autodispose); the peer, a reliable
+/// subscriber, must see both samples and both instances disposed — on the
+/// instance it saw alive (Fast DDS runs `--strict-instances`: a dispose
+/// that lands on an instance of its own fails).
+async fn dispose_seen_by<K: IpcMessage + Send + Sync + 'static>(
+    vendor: Vendor,
+    ty: &str,
+    make: fn(&str, u32) -> K,
+    keys: [&str; 2],
+    domain: u32,
+) {
+    let s = session(domain).await;
+    let p = s.publisher::<K>("inst").build().await.unwrap();
+    let d = domain_arg(domain);
+    let mut args = vec![
+        "--domain",
+        &d,
+        "--topic",
+        "inst",
+        "--type",
+        ty,
+        "--sub",
+        "--reliable",
+        "--count",
+        "2",
+        "--disposed",
+        "2",
+        "--timeout-s",
+        "20",
+    ];
+    if vendor == Vendor::FastDds {
+        args.push("--strict-instances");
+    }
+    let mut peer = Peer::start(vendor, &args);
+    common::await_handlers(&s, "inst", 1).await;
+    let mut peer = blocking(move || {
+        peer.expect("matched 1");
+        peer
+    })
+    .await;
+    p.publish(&make(keys[0], 1)).await.unwrap();
+    p.publish(&make(keys[1], 2)).await.unwrap();
+    p.dispose(&make(keys[0], 0)).await.unwrap();
+    drop(p);
+    let mut lines = blocking(move || {
+        let mut v = Vec::new();
+        loop {
+            let l = peer.expect("");
+            if l == "done" {
+                return v;
+            }
+            if !l.starts_with("matched") && l != "ready" {
+                v.push(l);
+            }
+        }
+    })
+    .await;
+    lines.sort();
+    let mut want = vec![
+        format!("disposed {}", keys[0]),
+        format!("disposed {}", keys[1]),
+        format!("sample {} 1 c-1", keys[0]),
+        format!("sample {} 2 c-2", keys[1]),
+    ];
+    want.sort();
+    assert_eq!(lines, want, "{vendor:?} {ty}");
+    s.close().await;
+}
+
+fn keyed(k: &str, seq: u32) -> Keyed {
+    Keyed {
+        id: k.parse().expect("an int key"),
+        seq,
+        text: format!("c-{seq}"),
+    }
+}
+
+fn strkeyed(k: &str, seq: u32) -> StrKeyed {
+    StrKeyed {
+        name: k.into(),
+        seq,
+        text: format!("c-{seq}"),
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn int_keyed_dispose_seen_by_cyclone() {
+    dispose_seen_by(Vendor::Cyclone, "keyed", keyed, ["41", "42"], 10).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn int_keyed_dispose_seen_by_fastdds() {
+    dispose_seen_by(Vendor::FastDds, "keyed", keyed, ["41", "42"], 11).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn int_keyed_dispose_seen_by_cyclone11() {
+    dispose_seen_by(Vendor::Cyclone11, "keyed", keyed, ["41", "42"], 12).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn string_keyed_dispose_seen_by_cyclone() {
+    dispose_seen_by(Vendor::Cyclone, "strkeyed", strkeyed, ["ab", "robot-7"], 13).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn string_keyed_dispose_seen_by_fastdds() {
+    dispose_seen_by(Vendor::FastDds, "strkeyed", strkeyed, ["ab", "robot-7"], 14).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn string_keyed_dispose_seen_by_cyclone11() {
+    dispose_seen_by(
+        Vendor::Cyclone11,
+        "strkeyed",
+        strkeyed,
+        ["ab", "robot-7"],
+        15,
+    )
+    .await;
+}
+
+/// Cyclone 11 disposes an instance of each key type; a Courier subscriber
+/// with instance events gets the change with the key decoded.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cyclone11_string_keyed_dispose_reaches_courier_with_its_key() {
+    let s = session(16).await;
+    let mut sub = s
+        .subscriber::<StrKeyed>("inst")
+        .with_instances()
+        .build()
+        .await
+        .unwrap();
+    let d = domain_arg(16);
+    let mut peer = Peer::start(
+        Vendor::Cyclone11,
+        &[
+            "--domain",
+            &d,
+            "--topic",
+            "inst",
+            "--type",
+            "strkeyed",
+            "--pub",
+            "--reliable",
+            "--count",
+            "1",
+            "--keys",
+            "robot-9",
+            "--dispose",
+            "--wait-match",
+            "1",
+            "--settle-ms",
+            "300",
+            "--linger-ms",
+            "300",
+            "--timeout-s",
+            "20",
+        ],
+    );
+    let mut got = None;
+    while got.is_none() {
+        match next(&mut sub).await.unwrap() {
+            courier::Received::Sample(v) => assert_eq!(v.value.name, "robot-9"),
+            courier::Received::Instance(c) => got = Some(c),
+        }
+    }
+    let c = got.unwrap();
+    assert_eq!(c.state, courier::InstanceState::Disposed);
+    assert_eq!(c.key.as_deref(), Some("robot-9"), "{c:?}");
+    blocking(move || peer.expect("done")).await;
+    // the stream goes on
+    assert!(sub.next().now_or_never().is_none());
+    s.close().await;
+}

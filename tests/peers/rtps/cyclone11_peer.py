@@ -1,0 +1,289 @@
+#!/usr/bin/env python3
+"""Cyclone DDS 11 (the PyPI `cyclonedds` package) as an RTPS interop peer.
+
+The same command line and output lines as cyclone_peer.c / fastdds_peer.cpp
+(see README.md in this directory), for the types only Cyclone 11 speaks
+(XCDR2: @appendable and @mutable) and for the keyed types:
+
+  --type keyed       @final struct courier::test::Keyed { @key int32 id; uint32 seq; string text; }
+  --type strkeyed    @final struct courier::test::StrKeyed { @key string name; uint32 seq; string text; }
+  --type appendable  @appendable struct courier::test::Appendable { @key int32 id; uint32 seq; string text; }
+  --type mutable     @mutable struct courier::test::Mutable { @key int32 id; uint32 seq; string text; }
+
+Loopback only: the domain is created from a configuration string (interface
+lo, no multicast, unicast SPDP to 127.0.0.1); CYCLONEDDS_URI is removed from
+the environment before the library loads.
+
+Output: ready | matched <n> | sent <key> <seq> | dispose <key> | acked |
+sample <key> <seq> <text> | disposed <key> | unregistered <key> | done | timeout.
+A reader given --representation accepts that representation only, so a sample
+it takes proves what the writer wrote. A dispose or unregister of an instance this
+reader never saw alive is `disposed-unknown` / `unregistered-unknown`: the
+change did not land on a known instance.
+
+Exit codes: 0 done, 1 DDS error, 2 timeout, 3 parent gone, 64 usage.
+"""
+
+import os
+import sys
+
+os.environ.pop("CYCLONEDDS_URI", None)
+
+import argparse  # noqa: E402
+import time  # noqa: E402
+from dataclasses import dataclass  # noqa: E402
+
+try:
+    from cyclonedds.core import InstanceState, Policy, Qos  # noqa: E402
+    from cyclonedds.domain import Domain, DomainParticipant  # noqa: E402
+    from cyclonedds.idl import IdlStruct  # noqa: E402
+    from cyclonedds.idl.annotations import appendable, final, key, mutable  # noqa: E402
+    from cyclonedds.idl.types import int32, uint32  # noqa: E402
+    from cyclonedds.pub import DataWriter  # noqa: E402
+    from cyclonedds.sub import DataReader  # noqa: E402
+    from cyclonedds.topic import Topic  # noqa: E402
+    from cyclonedds.util import duration  # noqa: E402
+except ImportError as e:  # pragma: no cover
+    print(f"cyclone11_peer: the cyclonedds Python package (11.x) is missing: {e}", file=sys.stderr)
+    sys.exit(1)
+
+PROG = "cyclone11_peer"
+
+LOOPBACK_CONFIG = (
+    '<CycloneDDS><Domain id="any">'
+    '<General><Interfaces><NetworkInterface name="lo"/></Interfaces>'
+    "<AllowMulticast>false</AllowMulticast></General>"
+    "<Discovery><ParticipantIndex>auto</ParticipantIndex>"
+    "<MaxAutoParticipantIndex>20</MaxAutoParticipantIndex>"
+    '<Peers><Peer address="127.0.0.1"/></Peers></Discovery>'
+    "{tracing}"
+    "</Domain></CycloneDDS>"
+)
+
+
+@dataclass
+@final
+class Keyed(IdlStruct, typename="courier::test::Keyed"):
+    id: int32
+    key("id")
+    seq: uint32
+    text: str
+
+
+@dataclass
+@final
+class StrKeyed(IdlStruct, typename="courier::test::StrKeyed"):
+    name: str
+    key("name")
+    seq: uint32
+    text: str
+
+
+@dataclass
+@appendable
+class Appendable(IdlStruct, typename="courier::test::Appendable"):
+    id: int32
+    key("id")
+    seq: uint32
+    text: str
+
+
+@dataclass
+@mutable
+class Mutable(IdlStruct, typename="courier::test::Mutable"):
+    id: int32
+    key("id")
+    seq: uint32
+    text: str
+
+
+TYPES = {"keyed": Keyed, "strkeyed": StrKeyed, "appendable": Appendable, "mutable": Mutable}
+
+
+def emit(line):
+    sys.stdout.write(line + "\n")
+    sys.stdout.flush()
+
+
+def fail(msg, code=1):
+    print(f"{PROG}: {msg}", file=sys.stderr)
+    sys.exit(code)
+
+
+def escape(text):
+    if text == "":
+        return '""'
+    out = []
+    for b in text.encode():
+        if 0x21 <= b <= 0x7E and b not in (ord("%"), ord('"')):
+            out.append(chr(b))
+        else:
+            out.append(f"%{b:02X}")
+    return "".join(out)
+
+
+def key_of(kind, v):
+    return v.name if kind == "strkeyed" else str(v.id)
+
+
+def make(kind, k, seq, text):
+    if kind == "strkeyed":
+        return StrKeyed(name=k, seq=seq, text=text)
+    return TYPES[kind](id=int(k), seq=seq, text=text)
+
+
+class Clock:
+    def __init__(self, timeout_s, parent):
+        self.start = time.monotonic()
+        self.timeout_s = timeout_s
+        self.parent = parent
+        self.last_parent_check = 0.0
+
+    def check(self):
+        now = time.monotonic()
+        if now - self.start > self.timeout_s:
+            emit("timeout")
+            sys.exit(2)
+        if now - self.last_parent_check > 0.5:
+            self.last_parent_check = now
+            if os.getppid() != self.parent:
+                fail("the parent process went away", 3)
+
+
+def main():
+    ap = argparse.ArgumentParser(prog=PROG, description="Cyclone DDS 11 interop peer (loopback only)")
+    ap.add_argument("--domain", type=int, required=True)
+    ap.add_argument("--topic", required=True)
+    ap.add_argument("--type", choices=sorted(TYPES), required=True)
+    role = ap.add_mutually_exclusive_group(required=True)
+    role.add_argument("--pub", action="store_true")
+    role.add_argument("--sub", action="store_true")
+    rel = ap.add_mutually_exclusive_group(required=True)
+    rel.add_argument("--reliable", action="store_true")
+    rel.add_argument("--best-effort", action="store_true")
+    ap.add_argument("--representation", choices=["xcdr1", "xcdr2", "default"], default="default",
+                    help="writer: the one it writes; reader: xcdr1 or xcdr2 alone (default: the type's)")
+    ap.add_argument("--count", type=int)
+    ap.add_argument("--disposed", type=int)
+    ap.add_argument("--keys", help="pub: comma-separated keys, sample n goes to keys[n %% len]")
+    ap.add_argument("--dispose", action="store_true", help="pub: dispose every key after writing")
+    ap.add_argument("--wait-match", type=int, default=0)
+    ap.add_argument("--settle-ms", type=int, default=250)
+    ap.add_argument("--linger-ms", type=int, default=0)
+    ap.add_argument("--timeout-s", type=float, default=60)
+    ap.add_argument("--text", default="cyclone11")
+    ap.add_argument("--trace", help="Cyclone's finest trace into this file")
+    o = ap.parse_args()
+    if not 0 <= o.domain <= 232:
+        ap.error("--domain must be 0..232")
+    if o.pub and o.disposed is not None:
+        ap.error("--disposed is a subscriber option")
+
+    clock = Clock(o.timeout_s, os.getppid())
+    ty = TYPES[o.type]
+    tracing = ""
+    if o.trace:
+        tracing = (f"<Tracing><Verbosity>finest</Verbosity><OutputFile>{o.trace}</OutputFile>"
+                   "</Tracing>")
+    dom = Domain(o.domain, LOOPBACK_CONFIG.format(tracing=tracing))
+    dp = DomainParticipant(o.domain)
+    policies = [
+        Policy.Reliability.Reliable(duration(seconds=1)) if o.reliable else Policy.Reliability.BestEffort,
+        Policy.History.KeepLast(100),
+    ]
+    if o.representation == "xcdr1":
+        policies.append(Policy.DataRepresentation(use_cdrv0_representation=True))
+    elif o.representation == "xcdr2":
+        policies.append(Policy.DataRepresentation(use_xcdrv2_representation=True))
+    qos = Qos(*policies)
+    topic = Topic(dp, o.topic, ty)
+    emit("ready")
+
+    if o.pub:
+        w = DataWriter(dp, topic, qos=qos)
+        matched = -1
+        while True:
+            clock.check()
+            n = w.get_publication_matched_status().current_count
+            if n != matched:
+                matched = n
+                emit(f"matched {n}")
+            if n >= o.wait_match:
+                break
+            time.sleep(0.01)
+        time.sleep(o.settle_ms / 1000)
+        keys = (o.keys or "1").split(",")
+        count = o.count if o.count is not None else 1
+        for seq in range(1, count + 1):
+            k = keys[(seq - 1) % len(keys)]
+            w.write(make(o.type, k, seq, f"{o.text}-{seq}"))
+            emit(f"sent {k} {seq}")
+        if o.dispose:
+            for k in keys:
+                w.dispose(make(o.type, k, 0, ""))
+                emit(f"dispose {k}")
+        if o.reliable:
+            if not w.wait_for_acks(duration(seconds=o.timeout_s)):
+                emit("timeout")
+                sys.exit(2)
+            emit("acked")
+        time.sleep(o.linger_ms / 1000)
+        emit("done")
+        del w, dom
+        return 0
+
+    r = DataReader(dp, topic, qos=qos)
+    matched = -1
+    received = 0
+    disposed = 0
+    ids = {}  # instance handle -> key, for instances seen alive
+    states = {}
+
+    def finished():
+        if o.count is None and o.disposed is None:
+            return False
+        return (o.count is None or received >= o.count) and (o.disposed is None or disposed >= o.disposed)
+
+    while not finished():
+        clock.check()
+        n = r.get_subscription_matched_status().current_count
+        if n != matched:
+            matched = n
+            emit(f"matched {n}")
+        got = r.take(N=100)
+        for s in got:
+            info = s.sample_info
+            if info.valid_data:
+                k = key_of(o.type, s)
+                emit(f"sample {escape(k)} {s.seq} {escape(s.text)}")
+                ids[info.instance_handle] = k
+                received += 1
+            # the instance state as seen when taken: on a valid sample too
+            # (a dispose that came before the sample was taken shows there)
+            st = info.instance_state
+            k = ids.get(info.instance_handle)
+            if st == InstanceState.NotAliveDisposed:
+                word = "disposed"
+            elif st == InstanceState.NotAliveNoWriters:
+                word = "unregistered"
+            else:
+                if k is not None:
+                    states[k] = "alive"
+                continue
+            if k is None:
+                emit(f"{word}-unknown {info.instance_handle}")
+                continue
+            if states.get(k) != word:
+                states[k] = word
+                emit(f"{word} {escape(k)}")
+                if word == "disposed":
+                    disposed += 1
+        if not got:
+            time.sleep(0.02)
+    time.sleep(o.linger_ms / 1000)
+    emit("done")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
