@@ -68,6 +68,8 @@
 //!   see [`access`] for the rule language and its deviations.
 //! - Peers on the UNIX socket are subject to the rules as local clients
 //!   (C never checks them).
+//! - A rules file named by the operator must exist and be readable
+//!   ([`access::RulesFile`]); tcpd takes any missing file as no rules.
 pub mod access;
 mod console;
 mod inproc;

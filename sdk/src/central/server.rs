@@ -218,8 +218,9 @@ impl Builder {
     /// Allow/deny rules, checked before any byte is sent to a new
     /// connection. A refused connection is closed at once and logged as
     /// `WARNING: connection rejected from <peer> (denied by <file>:<line>)`,
-    /// to the logs that are on (terminal and/or file, like the C central's
-    /// own warnings) and as a `tracing` warning.
+    /// once: to the logs that are on (terminal and/or file, like the C
+    /// central's own warnings), or as a `tracing` warning when no log is on
+    /// (`-lx` without `-L`, `-s`, [`LogSink::discard`]).
     pub fn access(mut self, access: AccessControl) -> Self {
         self.access = access;
         self
@@ -270,10 +271,7 @@ impl Builder {
         }
         let target = log_target(&config);
         for w in access.warnings() {
-            tracing::warn!("{w}");
-            if target.terminal || target.file {
-                sink.line(target, &format!("WARNING: {w}"));
-            }
+            shell_line(&mut sink, target, &format!("WARNING: {w}"));
         }
         let mut tasks = Vec::new();
         tasks.push(tokio::spawn(accept_loop(
@@ -324,8 +322,21 @@ impl Builder {
 /// terminal if terminal logging is on at all, in the file if file logging is.
 fn log_target(c: &Config) -> LogTarget {
     LogTarget {
-        terminal: c.terminal_log.any(),
+        // `-s`: the shell prints nothing on the terminal.
+        terminal: c.terminal_log.any() && !c.quiet,
         file: c.file_log.any(),
+    }
+}
+
+/// Logs a line of the shell's own (refusals, read errors, rule warnings)
+/// exactly once: to the logs that are on (terminal and/or file, as the C
+/// central's own warnings go), or, when none is, as a `tracing` warning, so
+/// that it is never lost and never printed twice.
+fn shell_line(sink: &mut LogSink, target: LogTarget, line: &str) {
+    if target.terminal || target.file {
+        sink.line(target, line);
+    } else {
+        tracing::warn!("{line}");
     }
 }
 
@@ -1029,9 +1040,9 @@ impl Core {
         match ev {
             Event::Accepted(stream, peer) => self.accepted(stream, peer, now),
             Event::Refused { peer, rule } => {
-                let line = format!("WARNING: connection rejected from {peer} (denied by {rule})");
-                tracing::warn!("{line}");
-                self.log(&line);
+                self.log(&format!(
+                    "WARNING: connection rejected from {peer} (denied by {rule})"
+                ));
             }
             Event::Data { conn, buf, len } => self.data(conn, buf, len, now),
             Event::Eof { conn, error } => {
@@ -1089,11 +1100,7 @@ impl Core {
                 peer,
                 now,
             ),
-            Err(e) => {
-                let line = format!("WARNING: cannot serve a new connection: {e}");
-                tracing::warn!("{line}");
-                self.log(&line);
-            }
+            Err(e) => self.log(&format!("WARNING: cannot serve a new connection: {e}")),
         }
     }
 
@@ -1162,13 +1169,11 @@ impl Core {
         self.drain();
     }
 
-    /// A line of the shell's own (refusals, read errors), to the logs that
-    /// are on now (see [`log_target`]).
+    /// A line of the shell's own (refusals, read errors), logged once
+    /// ([`shell_line`]).
     fn log(&mut self, line: &str) {
         let target = log_target(self.central.config());
-        if target.terminal || target.file {
-            self.sink.line(target, line);
-        }
+        shell_line(&mut self.sink, target, line);
     }
 
     /// Carries out every output of the state machine, including the data
