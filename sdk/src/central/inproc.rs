@@ -141,6 +141,16 @@ impl Pipe {
         Poll::Ready(Ok(()))
     }
 
+    /// Ready when there are bytes or the writer is gone (a read then ends).
+    fn poll_readable(&self, cx: &mut Context<'_>) -> Poll<()> {
+        let mut s = self.lock();
+        if !s.buf.is_empty() || s.write_closed {
+            return Poll::Ready(());
+        }
+        s.reader = Some(cx.waker().clone());
+        Poll::Pending
+    }
+
     fn close_read(&self) {
         let mut s = self.lock();
         s.read_closed = true;
@@ -230,10 +240,32 @@ impl Drop for InProcessStream {
 pub(crate) struct ServerReader(Arc<Pipe>);
 
 impl ServerReader {
-    pub(crate) async fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+    /// Waits until there are bytes to read or the module's end is closed.
+    pub(crate) async fn readable(&mut self) {
+        std::future::poll_fn(|cx| self.0.poll_readable(cx)).await
+    }
+
+    /// Reads what is there now: 0 at the end of the stream, `WouldBlock`
+    /// if nothing is.
+    pub(crate) fn try_read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
         let mut rb = ReadBuf::new(buf);
-        std::future::poll_fn(|cx| self.0.poll_read(cx, &mut rb)).await?;
-        Ok(rb.filled().len())
+        let waker = futures::task::noop_waker();
+        match self.0.poll_read(&mut Context::from_waker(&waker), &mut rb) {
+            Poll::Ready(r) => r.map(|()| rb.filled().len()),
+            Poll::Pending => Err(io::ErrorKind::WouldBlock.into()),
+        }
+    }
+
+    /// Waits for bytes, then reads them (0: end of stream).
+    #[cfg(test)]
+    pub(crate) async fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        loop {
+            self.readable().await;
+            match self.try_read(buf) {
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => continue,
+                r => return r,
+            }
+        }
     }
 }
 

@@ -1,13 +1,13 @@
 //! The tokio shell around [`Central`]: listeners, per-connection reader and
 //! writer tasks, and the one task that owns the state machine.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::io::{self, IoSlice, Write};
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::os::fd::OwnedFd;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime};
 
 use tokio::io::unix::AsyncFd;
@@ -25,8 +25,16 @@ use super::access::{AccessControl, Client, Decision, HostName, RuleRef};
 use super::inproc::{self, InProcessStream, ServerEnd, ServerReader, ServerWriter};
 use super::{unix_path, DEFAULT_PORT};
 
-/// Bytes read from a connection at a time (one buffer per connection).
+/// Bytes read from a connection at a time. The buffers come from a pool
+/// shared by all connections ([`BufPool`]): a connection holds one only
+/// from a read until central has taken the bytes in, so an idle module
+/// costs no buffer at all.
 const READ_BUF: usize = 64 * 1024;
+/// Free read buffers the pool keeps for the next reads; more are freed.
+const POOL_KEEP: usize = 8;
+/// A connection's batch vector keeps its capacity between writes up to
+/// this many slices; a larger one (after a burst) is freed.
+const BATCH_KEEP: usize = 16;
 /// Events handled before the frames they produced are written out.
 const BATCH: usize = 64;
 /// Slices per vectored write.
@@ -302,6 +310,7 @@ impl Builder {
             sink,
             events_tx: events_tx.clone(),
             tasks: JoinSet::new(),
+            pool: Arc::default(),
             dirty: Vec::new(),
             resumed: Vec::new(),
             spin: self.busy_poll.map(BusyPoll::start),
@@ -525,7 +534,7 @@ enum Event {
     Accepted(Stream, Peer),
     /// A connection was refused (already closed).
     Refused { peer: String, rule: RuleRef },
-    /// Bytes read: `buf[..len]`; the buffer goes back to the reader.
+    /// Bytes read: `buf[..len]`; the buffer goes back to the pool.
     Data {
         conn: ConnId,
         buf: Vec<u8>,
@@ -672,17 +681,25 @@ impl Sock {
         socket2::SockRef::from(self.fd.get_ref())
     }
 
-    async fn read(&self, buf: &mut [u8]) -> io::Result<usize> {
+    /// Waits until the socket is readable, then reads into a buffer of
+    /// the pool (held only once there is something to read).
+    async fn read(&self, pool: &BufPool) -> io::Result<(Vec<u8>, usize)> {
         loop {
             let mut ready = self.fd.readable().await?;
-            let n = match io::Read::read(&mut &*self.sock(), buf) {
+            let mut buf = pool.take();
+            let n = match io::Read::read(&mut &*self.sock(), &mut buf) {
                 Ok(n) => n,
-                Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
-                    ready.clear_ready();
-                    continue;
+                Err(e) => {
+                    pool.put(buf);
+                    match e.kind() {
+                        io::ErrorKind::WouldBlock => {
+                            ready.clear_ready();
+                            continue;
+                        }
+                        io::ErrorKind::Interrupted => continue,
+                        _ => return Err(e),
+                    }
                 }
-                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
-                Err(e) => return Err(e),
             };
             if n > 0 && n < buf.len() {
                 // A short read emptied the socket: wait for the next event
@@ -693,7 +710,7 @@ impl Sock {
             if self.tcp && n >= QUICKACK_MIN {
                 quickack(&self.sock());
             }
-            return Ok(n);
+            return Ok((buf, n));
         }
     }
 
@@ -747,10 +764,21 @@ enum ReadHalf {
 }
 
 impl ReadHalf {
-    async fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+    /// The next bytes, in a buffer of `pool` (`len` 0: end of stream).
+    async fn read(&mut self, pool: &BufPool) -> io::Result<(Vec<u8>, usize)> {
         match self {
-            ReadHalf::Sock(s) => s.read(buf).await,
-            ReadHalf::InProcess(r) => r.read(buf).await,
+            ReadHalf::Sock(s) => s.read(pool).await,
+            ReadHalf::InProcess(r) => {
+                r.readable().await;
+                let mut buf = pool.take();
+                match r.try_read(&mut buf) {
+                    Ok(n) => Ok((buf, n)),
+                    Err(e) => {
+                        pool.put(buf);
+                        Err(e)
+                    }
+                }
+            }
         }
     }
 }
@@ -773,15 +801,66 @@ fn quickack(s: &socket2::SockRef<'_>) {
     let _ = s.set_tcp_quickack(true);
 }
 
-/// The write side of a connection, shared by the central task (direct
-/// writes while nothing is queued) and the writer task.
-struct WriteSide {
+/// What the central task shares with a connection's reader task and, while
+/// one runs, its writer task.
+struct Shared {
     half: WriteHalf,
-    /// Batches handed to the writer task and not yet completely written.
-    queued: AtomicUsize,
+    /// Batches the central task could not write at once, in order.
+    queue: Mutex<WriteQueue>,
     /// Signalled when central closes the connection, so that a writer
     /// stuck on a peer that does not read gives up after [`CLOSE_LINGER`].
     closing: Notify,
+    /// The reader's go-ahead: central took the bytes it read in (or closed
+    /// the connection, see `closed`).
+    go: Notify,
+    /// Central closed the connection: the reader ends.
+    closed: AtomicBool,
+}
+
+/// Writes waiting for room in the socket. A writer task exists only while
+/// there are some (`writer`); an idle connection has none. Whoever sees
+/// `writer` false under the lock may write directly: everything queued
+/// before is on the wire.
+#[derive(Default)]
+struct WriteQueue {
+    chunks: VecDeque<Chunks>,
+    writer: bool,
+}
+
+impl Shared {
+    fn queue(&self) -> std::sync::MutexGuard<'_, WriteQueue> {
+        // Nothing panics while holding it; the queue stays consistent.
+        self.queue.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Central closed the connection: the reader stops, a writer finishes
+    /// what is queued (or gives up after [`CLOSE_LINGER`]) and ends.
+    fn close(&self) {
+        self.closed.store(true, Ordering::Release);
+        self.go.notify_one();
+        self.closing.notify_one();
+    }
+}
+
+/// Read buffers shared by all connections: taken for a read, put back once
+/// central has taken the bytes in.
+#[derive(Default)]
+struct BufPool {
+    free: Mutex<Vec<Vec<u8>>>,
+}
+
+impl BufPool {
+    fn take(&self) -> Vec<u8> {
+        let got = self.free.lock().unwrap_or_else(|e| e.into_inner()).pop();
+        got.unwrap_or_else(|| vec![0u8; READ_BUF])
+    }
+
+    fn put(&self, buf: Vec<u8>) {
+        let mut free = self.free.lock().unwrap_or_else(|e| e.into_inner());
+        if free.len() < POOL_KEEP {
+            free.push(buf);
+        }
+    }
 }
 
 /// Bytes to write: a frame, or a frame's header, or a large message's
@@ -855,34 +934,42 @@ impl Chunks {
     }
 }
 
-async fn writer_task(
-    conn: ConnId,
-    side: Arc<WriteSide>,
-    mut rx: mpsc::UnboundedReceiver<Chunks>,
-    events: mpsc::UnboundedSender<Event>,
-) {
-    // Ends when the central task drops its sender (the connection is
-    // closed) and everything queued before has been written.
+/// Writes the queued batches of a connection, then ends; started by the
+/// central task when a write could not be completed at once
+/// ([`Core::flush`]).
+async fn writer_task(conn: ConnId, shared: Arc<Shared>, events: mpsc::UnboundedSender<Event>) {
     let mut deadline: Option<tokio::time::Instant> = None;
-    while let Some(mut chunks) = rx.recv().await {
+    loop {
+        let next = {
+            let mut q = shared.queue();
+            let next = q.chunks.pop_front();
+            if next.is_none() {
+                // Under the lock: from now on central writes directly.
+                q.writer = false;
+                q.chunks = VecDeque::new();
+            }
+            next
+        };
+        let Some(mut chunks) = next else { return };
         loop {
-            match chunks.try_write(&side.half) {
+            match chunks.try_write(&shared.half) {
                 Ok(true) => break,
                 Ok(false) => {}
                 Err(error) => {
+                    // `writer` stays set: nothing more is written.
                     let _ = events.send(Event::WriteFailed { conn, error });
                     return;
                 }
             }
             let ready = match deadline {
                 None => tokio::select! {
-                    r = side.half.writable() => r,
-                    _ = side.closing.notified() => {
+                    r = shared.half.writable() => r,
+                    _ = shared.closing.notified() => {
                         deadline = Some(tokio::time::Instant::now() + CLOSE_LINGER);
                         Ok(())
                     }
                 },
-                Some(d) => match tokio::time::timeout_at(d, side.half.writable()).await {
+                Some(d) => match tokio::time::timeout_at(d, shared.half.writable()).await {
                     Ok(r) => r,
                     Err(_) => {
                         tracing::debug!(
@@ -898,7 +985,6 @@ async fn writer_task(
                 return;
             }
         }
-        side.queued.fetch_sub(1, Ordering::AcqRel);
     }
     // Dropping the last write half sends FIN once the reader is gone too.
 }
@@ -907,36 +993,38 @@ async fn reader_task(
     conn: ConnId,
     mut half: ReadHalf,
     events: mpsc::UnboundedSender<Event>,
-    mut back: mpsc::Receiver<Vec<u8>>,
+    shared: Arc<Shared>,
+    pool: Arc<BufPool>,
 ) {
-    let mut buf = vec![0u8; READ_BUF];
     loop {
-        // The central task closes the connection by dropping `back`'s sender.
         let r = tokio::select! {
             biased;
-            b = back.recv() => {
-                if b.is_none() {
+            // A go-ahead left over, or the connection closed.
+            _ = shared.go.notified() => {
+                if shared.closed.load(Ordering::Acquire) {
                     return;
                 }
                 continue;
             }
-            r = half.read(&mut buf) => r,
+            r = half.read(&pool) => r,
         };
         match r {
-            Ok(0) => {
+            Ok((buf, 0)) => {
+                pool.put(buf);
                 let _ = events.send(Event::Eof { conn, error: None });
                 return;
             }
-            Ok(len) => {
+            Ok((buf, len)) => {
                 if events.send(Event::Data { conn, buf, len }).is_err() {
                     return;
                 }
-                // Wait for the buffer: the central task keeps it while the
-                // connection is paused, and so stops this reader.
-                buf = match back.recv().await {
-                    Some(b) => b,
-                    None => return,
-                };
+                // Wait until central has taken the bytes in: it holds the
+                // go-ahead back while the connection is paused, and so
+                // stops this reader.
+                shared.go.notified().await;
+                if shared.closed.load(Ordering::Acquire) {
+                    return;
+                }
             }
             Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
             Err(error) => {
@@ -952,16 +1040,14 @@ async fn reader_task(
 
 /// The central task's view of one connection.
 struct ConnState {
-    side: Arc<WriteSide>,
-    to_writer: mpsc::UnboundedSender<Chunks>,
+    shared: Arc<Shared>,
     /// Frames produced in the current batch, not yet written.
     batch: Vec<Buf>,
-    /// Hands the read buffer back to the reader.
-    back: mpsc::Sender<Vec<u8>>,
     /// Central asked not to read from this connection.
     paused: bool,
-    /// The reader's buffer, kept while paused, with the number of bytes in
-    /// it not yet given to central.
+    /// The reader sent bytes and waits for its go-ahead.
+    reader_waits: bool,
+    /// Bytes read before a pause took effect, not yet given to central.
     parked: Option<(Vec<u8>, usize)>,
 }
 
@@ -972,6 +1058,8 @@ struct Core {
     sink: LogSink,
     events_tx: mpsc::UnboundedSender<Event>,
     tasks: JoinSet<()>,
+    /// Read buffers, shared with the readers.
+    pool: Arc<BufPool>,
     /// Connections with frames in their batch.
     dirty: Vec<ConnId>,
     /// Connections resumed while handling outputs.
@@ -1022,7 +1110,7 @@ impl Core {
         // Dropping the states closes every connection: readers stop,
         // writers write what is queued and end.
         for (_, st) in self.conns.drain() {
-            st.side.closing.notify_one();
+            st.shared.close();
         }
         let tasks = &mut self.tasks;
         let drained = tokio::time::timeout(SHUTDOWN_GRACE, async {
@@ -1107,29 +1195,27 @@ impl Core {
     /// Starts the reader and writer tasks of an accepted connection and
     /// hands it to the state machine.
     fn serve(&mut self, conn: ConnId, r: ReadHalf, w: WriteHalf, peer: Peer, now: SystemTime) {
-        let side = Arc::new(WriteSide {
+        let shared = Arc::new(Shared {
             half: w,
-            queued: AtomicUsize::new(0),
+            queue: Mutex::default(),
             closing: Notify::new(),
+            go: Notify::new(),
+            closed: AtomicBool::new(false),
         });
-        let (to_writer, writer_rx) = mpsc::unbounded_channel();
-        let (back, back_rx) = mpsc::channel(1);
-        self.tasks.spawn(writer_task(
+        self.tasks.spawn(reader_task(
             conn,
-            side.clone(),
-            writer_rx,
+            r,
             self.events_tx.clone(),
+            shared.clone(),
+            self.pool.clone(),
         ));
-        self.tasks
-            .spawn(reader_task(conn, r, self.events_tx.clone(), back_rx));
         self.conns.insert(
             conn,
             ConnState {
-                side,
-                to_writer,
+                shared,
                 batch: Vec::new(),
-                back,
                 paused: false,
+                reader_waits: false,
                 parked: None,
             },
         );
@@ -1139,25 +1225,27 @@ impl Core {
 
     fn data(&mut self, conn: ConnId, buf: Vec<u8>, len: usize, now: SystemTime) {
         let Some(st) = self.conns.get_mut(&conn) else {
+            self.pool.put(buf);
             return;
         };
+        st.reader_waits = true;
         if st.paused {
             // Read before the pause took effect: keep it for later.
             st.parked = Some((buf, len));
             return;
         }
         self.central.receive(conn, &buf[..len], now);
+        self.pool.put(buf);
         self.drain();
-        self.give_back(conn, buf);
+        self.go_ahead(conn);
     }
 
-    /// Returns the read buffer to the reader, or keeps it while paused.
-    fn give_back(&mut self, conn: ConnId, buf: Vec<u8>) {
+    /// Lets `conn`'s reader read on, unless the connection is paused.
+    fn go_ahead(&mut self, conn: ConnId) {
         if let Some(st) = self.conns.get_mut(&conn) {
-            if st.paused {
-                st.parked = Some((buf, 0));
-            } else {
-                let _ = st.back.try_send(buf);
+            if st.reader_waits && !st.paused {
+                st.reader_waits = false;
+                st.shared.go.notify_one();
             }
         }
     }
@@ -1192,14 +1280,14 @@ impl Core {
             if st.paused {
                 continue;
             }
-            let Some((buf, len)) = st.parked.take() else {
+            if let Some((buf, len)) = st.parked.take() {
+                self.central.receive(conn, &buf[..len], SystemTime::now());
+                self.pool.put(buf);
+                // Its outputs (and perhaps a new pause) first.
+                self.resumed.push(conn);
                 continue;
-            };
-            if len > 0 {
-                let now = SystemTime::now();
-                self.central.receive(conn, &buf[..len], now);
             }
-            self.give_back(conn, buf);
+            self.go_ahead(conn);
         }
     }
 
@@ -1245,7 +1333,7 @@ impl Core {
     fn close(&mut self, conn: ConnId) {
         self.flush(conn);
         if let Some(st) = self.conns.remove(&conn) {
-            st.side.closing.notify_one();
+            st.shared.close();
         }
     }
 
@@ -1268,22 +1356,37 @@ impl Core {
             off: 0,
         };
         chunks.advance(0);
-        // Nothing queued at the writer: everything before is on the wire,
-        // so writing here keeps the order and saves a task wake-up.
-        if st.side.queued.load(Ordering::Acquire) == 0 {
-            match chunks.try_write(&st.side.half) {
-                Ok(true) => {
+        let mut q = st.shared.queue();
+        if q.writer {
+            // Behind what the writer task has still to write.
+            q.chunks.push_back(chunks);
+            return;
+        }
+        // No writer: everything before is on the wire, so writing here
+        // keeps the order and saves a task wake-up.
+        match chunks.try_write(&st.shared.half) {
+            Ok(true) => {
+                drop(q);
+                if chunks.bufs.capacity() <= BATCH_KEEP {
                     chunks.bufs.clear();
                     st.batch = chunks.bufs;
-                    return;
                 }
-                Ok(false) => {}
-                // The writer task meets the error again and reports it.
-                Err(_) => {}
+                return;
+            }
+            Ok(false) => {}
+            Err(error) => {
+                // Reported like a writer task's failure; nothing more is
+                // written (`writer` stays set, with no writer task).
+                q.writer = true;
+                let _ = self.events_tx.send(Event::WriteFailed { conn, error });
+                return;
             }
         }
-        st.side.queued.fetch_add(1, Ordering::AcqRel);
-        let _ = st.to_writer.send(chunks);
+        q.chunks.push_back(chunks);
+        q.writer = true;
+        drop(q);
+        self.tasks
+            .spawn(writer_task(conn, st.shared.clone(), self.events_tx.clone()));
     }
 }
 
