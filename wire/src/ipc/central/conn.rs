@@ -13,10 +13,6 @@ use super::{Bad, Body, Central, ConnId, Output, Peer};
 use crate::ipc::frame::{ClassId, Header, MsgClass, HEADER_SIZE, QUERY_REPLY_INTENT, SPLIT_AT};
 use crate::ipc::Writer;
 
-/// A module's receive buffer keeps at most this capacity once everything in
-/// it was taken in; a larger one is freed.
-pub(super) const RX_KEEP: usize = 4 * 1024;
-
 impl Central {
     fn transmit(&mut self, conn: ConnId, bytes: Vec<u8>) {
         self.transmit_parts(conn, bytes, None);
@@ -191,11 +187,9 @@ impl Central {
             if m.rx_pos == m.rx.len() {
                 m.rx.clear();
                 m.rx_pos = 0;
-                // The buffer grew for what arrived at once (a burst of
-                // frames, a large one); an idle module keeps little.
-                if m.rx.capacity() > RX_KEEP {
-                    m.rx = Vec::new();
-                }
+                // Everything was taken in: an idle module keeps no buffer
+                // (however large what arrived at once made it).
+                m.rx = Vec::new();
             } else if m.rx_pos > 0 {
                 m.rx.drain(..m.rx_pos);
                 m.rx_pos = 0;

@@ -75,6 +75,8 @@ impl<K: Ord, V> SmallMap<K, V> {
             SmallMap::Few(v) => match Self::find(v, &key) {
                 Ok(i) => Some(std::mem::replace(&mut v[i].1, value)),
                 Err(i) if v.len() < FEW => {
+                    // One more slot only: most modules hold one or two.
+                    v.reserve_exact(1);
                     v.insert(i, (key, value));
                     None
                 }
