@@ -18,9 +18,10 @@
 //! `VmRSS` (and its anonymous part, `RssAnon`) from `/proc/<pid>/status`,
 //! read after a pause for things to settle.
 //!
-//! `--large`: after the last count, two more modules exchange 1 MiB
-//! queries through central (C central: 64 KiB, it takes seconds per
-//! MiB), the two leave, and the resident size is read again.
+//! `--large`: after the last count, two more modules exchange 20 queries
+//! of 1 MiB through central (C central: 64 KiB, it takes seconds per
+//! MiB), the two leave, and the resident size is read again two seconds
+//! later (Courier's central gives memory back after a quiet second).
 
 use std::net::{TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
@@ -165,6 +166,8 @@ fn measure(name: &str, target: Target<'_>, counts: &[usize], large: bool) -> Row
     let large = large.then(|| {
         let size = if courier { 1 << 20 } else { 64 << 10 };
         large_messages(port, size, 20);
+        // Courier's central gives memory back after a quiet second.
+        std::thread::sleep(Duration::from_millis(1500));
         (size, rss(pid))
     });
     drop(modules);

@@ -245,15 +245,25 @@ impl ServerReader {
         std::future::poll_fn(|cx| self.0.poll_readable(cx)).await
     }
 
-    /// Reads what is there now: 0 at the end of the stream, `WouldBlock`
-    /// if nothing is.
-    pub(crate) fn try_read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
-        let mut rb = ReadBuf::new(buf);
-        let waker = futures::task::noop_waker();
-        match self.0.poll_read(&mut Context::from_waker(&waker), &mut rb) {
-            Poll::Ready(r) => r.map(|()| rb.filled().len()),
-            Poll::Pending => Err(io::ErrorKind::WouldBlock.into()),
+    /// Appends what is there now to `buf`, up to its capacity: 0 at the end
+    /// of the stream, `WouldBlock` if nothing is there.
+    pub(crate) fn try_read_spare(&mut self, buf: &mut Vec<u8>) -> io::Result<usize> {
+        let mut s = self.0.lock();
+        if s.buf.is_empty() {
+            return if s.write_closed {
+                Ok(0)
+            } else {
+                Err(io::ErrorKind::WouldBlock.into())
+            };
         }
+        let k = (buf.capacity() - buf.len()).min(s.buf.len());
+        buf.extend(s.buf.drain(..k));
+        let writer = s.writer.take();
+        drop(s);
+        if let Some(w) = writer {
+            w.wake();
+        }
+        Ok(k)
     }
 
     /// Waits for bytes, then reads them (0: end of stream).
@@ -261,9 +271,14 @@ impl ServerReader {
     pub(crate) async fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
         loop {
             self.readable().await;
-            match self.try_read(buf) {
+            let mut v = Vec::with_capacity(buf.len());
+            match self.try_read_spare(&mut v) {
                 Err(e) if e.kind() == io::ErrorKind::WouldBlock => continue,
-                r => return r,
+                Err(e) => return Err(e),
+                Ok(n) => {
+                    buf[..n].copy_from_slice(&v);
+                    return Ok(n);
+                }
             }
         }
     }

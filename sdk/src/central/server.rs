@@ -32,8 +32,11 @@ use super::{unix_path, DEFAULT_PORT};
 const READ_BUF: usize = 64 * 1024;
 /// Free read buffers the pool keeps for the next reads; more are freed.
 const POOL_KEEP: usize = 8;
-/// A connection's batch vector keeps its capacity between writes up to
-/// this many slices; a larger one (after a burst) is freed.
+/// Batch vectors (of slices to write) kept for reuse, shared by all
+/// connections; a vector longer than [`BATCH_KEEP`] (after a burst) is
+/// freed instead.
+const SPARE_BATCHES: usize = 8;
+/// See [`SPARE_BATCHES`].
 const BATCH_KEEP: usize = 16;
 /// Events handled before the frames they produced are written out.
 const BATCH: usize = 64;
@@ -46,6 +49,11 @@ const SHUTDOWN_GRACE: Duration = Duration::from_secs(2);
 const CLOSE_LINGER: Duration = Duration::from_secs(10);
 /// How long a reverse DNS lookup for access control may take.
 const LOOKUP_TIMEOUT: Duration = Duration::from_secs(10);
+/// After this long without events following at least [`TRIM_AFTER`] bytes
+/// read, central frees its spare buffers and gives free memory back.
+const IDLE_TRIM: Duration = Duration::from_secs(1);
+/// See [`IDLE_TRIM`].
+const TRIM_AFTER: usize = 1 << 20;
 /// The first connection id, like the C central's first module socket.
 const FIRST_CONN: u64 = 5;
 
@@ -282,19 +290,19 @@ impl Builder {
             shell_line(&mut sink, target, &format!("WARNING: {w}"));
         }
         let mut tasks = Vec::new();
-        tasks.push(tokio::spawn(accept_loop(
+        tasks.push(tokio::spawn(Box::pin(accept_loop(
             Listener::Tcp(tcp),
             access.clone(),
             events_tx.clone(),
             stop_rx.clone(),
-        )));
+        ))));
         if let Some((l, _)) = unix {
-            tasks.push(tokio::spawn(accept_loop(
+            tasks.push(tokio::spawn(Box::pin(accept_loop(
                 Listener::Unix(l),
                 access,
                 events_tx.clone(),
                 stop_rx.clone(),
-            )));
+            ))));
         }
         // C logs registering its own variables before anything else.
         let mut central = Central::new_at(config, SystemTime::now());
@@ -311,11 +319,16 @@ impl Builder {
             events_tx: events_tx.clone(),
             tasks: JoinSet::new(),
             pool: Arc::default(),
+            spare_batches: Vec::new(),
+            read_since_trim: 0,
             dirty: Vec::new(),
             resumed: Vec::new(),
             spin: self.busy_poll.map(BusyPoll::start),
         };
-        let central_task = tokio::spawn(core.run(events_rx, stop_rx));
+        // Boxed first: the state machine's task is a few kilobytes, which
+        // spawning would otherwise copy through several stack frames (the
+        // deepest the main thread's stack ever gets).
+        let central_task = tokio::spawn(Box::pin(core.run(events_rx, stop_rx)));
         Ok(CentralHandle {
             local,
             unix_path,
@@ -534,12 +547,8 @@ enum Event {
     Accepted(Stream, Peer),
     /// A connection was refused (already closed).
     Refused { peer: String, rule: RuleRef },
-    /// Bytes read: `buf[..len]`; the buffer goes back to the pool.
-    Data {
-        conn: ConnId,
-        buf: Vec<u8>,
-        len: usize,
-    },
+    /// Bytes read; the buffer goes back to the pool.
+    Data { conn: ConnId, buf: Vec<u8> },
     /// End of stream or a read error.
     Eof {
         conn: ConnId,
@@ -683,11 +692,11 @@ impl Sock {
 
     /// Waits until the socket is readable, then reads into a buffer of
     /// the pool (held only once there is something to read).
-    async fn read(&self, pool: &BufPool) -> io::Result<(Vec<u8>, usize)> {
+    async fn read(&self, pool: &BufPool) -> io::Result<Vec<u8>> {
         loop {
             let mut ready = self.fd.readable().await?;
             let mut buf = pool.take();
-            let n = match io::Read::read(&mut &*self.sock(), &mut buf) {
+            let n = match crate::sys::net::read_spare(self.fd.get_ref(), &mut buf) {
                 Ok(n) => n,
                 Err(e) => {
                     pool.put(buf);
@@ -701,7 +710,7 @@ impl Sock {
                     }
                 }
             };
-            if n > 0 && n < buf.len() {
+            if n > 0 && n < buf.capacity() {
                 // A short read emptied the socket: wait for the next event
                 // instead of asking again and hearing EAGAIN (as tokio's
                 // own streams do). Data that came since raises a new one.
@@ -710,7 +719,7 @@ impl Sock {
             if self.tcp && n >= QUICKACK_MIN {
                 quickack(&self.sock());
             }
-            return Ok((buf, n));
+            return Ok(buf);
         }
     }
 
@@ -764,15 +773,15 @@ enum ReadHalf {
 }
 
 impl ReadHalf {
-    /// The next bytes, in a buffer of `pool` (`len` 0: end of stream).
-    async fn read(&mut self, pool: &BufPool) -> io::Result<(Vec<u8>, usize)> {
+    /// The next bytes, in a buffer of `pool` (empty: end of stream).
+    async fn read(&mut self, pool: &BufPool) -> io::Result<Vec<u8>> {
         match self {
             ReadHalf::Sock(s) => s.read(pool).await,
             ReadHalf::InProcess(r) => {
                 r.readable().await;
                 let mut buf = pool.take();
-                match r.try_read(&mut buf) {
-                    Ok(n) => Ok((buf, n)),
+                match r.try_read_spare(&mut buf) {
+                    Ok(_) => Ok(buf),
                     Err(e) => {
                         pool.put(buf);
                         Err(e)
@@ -850,12 +859,16 @@ struct BufPool {
 }
 
 impl BufPool {
+    /// An empty buffer with room for [`READ_BUF`] bytes. A new one is not
+    /// zeroed (reads go to its spare capacity), so only the pages bytes
+    /// land on are ever touched.
     fn take(&self) -> Vec<u8> {
         let got = self.free.lock().unwrap_or_else(|e| e.into_inner()).pop();
-        got.unwrap_or_else(|| vec![0u8; READ_BUF])
+        got.unwrap_or_else(|| Vec::with_capacity(READ_BUF))
     }
 
-    fn put(&self, buf: Vec<u8>) {
+    fn put(&self, mut buf: Vec<u8>) {
+        buf.clear();
         let mut free = self.free.lock().unwrap_or_else(|e| e.into_inner());
         if free.len() < POOL_KEEP {
             free.push(buf);
@@ -1009,13 +1022,13 @@ async fn reader_task(
             r = half.read(&pool) => r,
         };
         match r {
-            Ok((buf, 0)) => {
+            Ok(buf) if buf.is_empty() => {
                 pool.put(buf);
                 let _ = events.send(Event::Eof { conn, error: None });
                 return;
             }
-            Ok((buf, len)) => {
-                if events.send(Event::Data { conn, buf, len }).is_err() {
+            Ok(buf) => {
+                if events.send(Event::Data { conn, buf }).is_err() {
                     return;
                 }
                 // Wait until central has taken the bytes in: it holds the
@@ -1048,7 +1061,7 @@ struct ConnState {
     /// The reader sent bytes and waits for its go-ahead.
     reader_waits: bool,
     /// Bytes read before a pause took effect, not yet given to central.
-    parked: Option<(Vec<u8>, usize)>,
+    parked: Option<Vec<u8>>,
 }
 
 struct Core {
@@ -1060,6 +1073,11 @@ struct Core {
     tasks: JoinSet<()>,
     /// Read buffers, shared with the readers.
     pool: Arc<BufPool>,
+    /// Empty batch vectors for the next connections that write, so that
+    /// an idle connection holds none.
+    spare_batches: Vec<Vec<Buf>>,
+    /// Bytes read since memory was last given back ([`IDLE_TRIM`]).
+    read_since_trim: usize,
     /// Connections with frames in their batch.
     dirty: Vec<ConnId>,
     /// Connections resumed while handling outputs.
@@ -1074,6 +1092,12 @@ impl Core {
         mut events: mpsc::UnboundedReceiver<Event>,
         mut stop: watch::Receiver<bool>,
     ) {
+        // Armed once TRIM_AFTER bytes were read; fires IDLE_TRIM after the
+        // last event (moved on lazily, not at every event).
+        let trim = tokio::time::sleep(IDLE_TRIM);
+        tokio::pin!(trim);
+        let mut trim_armed = false;
+        let mut last_event = tokio::time::Instant::now();
         loop {
             tokio::select! {
                 biased;
@@ -1092,6 +1116,22 @@ impl Core {
                         }
                     }
                     self.flush_all();
+                    if self.read_since_trim >= TRIM_AFTER {
+                        last_event = tokio::time::Instant::now();
+                        if !trim_armed {
+                            trim.as_mut().reset(last_event + IDLE_TRIM);
+                            trim_armed = true;
+                        }
+                    }
+                }
+                () = &mut trim, if trim_armed => {
+                    let due = last_event + IDLE_TRIM;
+                    if due > tokio::time::Instant::now() {
+                        trim.as_mut().reset(due);
+                    } else {
+                        trim_armed = false;
+                        self.give_memory_back();
+                    }
                 }
                 Some(r) = self.tasks.join_next(), if !self.tasks.is_empty() => {
                     if let Err(e) = r {
@@ -1103,6 +1143,21 @@ impl Core {
             }
         }
         self.shutdown().await;
+    }
+
+    /// Quiet after much traffic: frees the spare read buffers and batch
+    /// vectors, and hands free heap back to the kernel when the process
+    /// keeps it ([`super::keep_freed_memory`]).
+    fn give_memory_back(&mut self) {
+        self.read_since_trim = 0;
+        self.pool
+            .free
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clear();
+        self.spare_batches = Vec::new();
+        crate::sys::alloc::give_back();
+        tracing::debug!("quiet: spare buffers freed, free memory given back");
     }
 
     async fn shutdown(mut self) {
@@ -1132,7 +1187,7 @@ impl Core {
                     "WARNING: connection rejected from {peer} (denied by {rule})"
                 ));
             }
-            Event::Data { conn, buf, len } => self.data(conn, buf, len, now),
+            Event::Data { conn, buf } => self.data(conn, buf, now),
             Event::Eof { conn, error } => {
                 if !self.conns.contains_key(&conn) {
                     return;
@@ -1223,18 +1278,19 @@ impl Core {
         self.drain();
     }
 
-    fn data(&mut self, conn: ConnId, buf: Vec<u8>, len: usize, now: SystemTime) {
+    fn data(&mut self, conn: ConnId, buf: Vec<u8>, now: SystemTime) {
         let Some(st) = self.conns.get_mut(&conn) else {
             self.pool.put(buf);
             return;
         };
         st.reader_waits = true;
+        self.read_since_trim += buf.len();
         if st.paused {
             // Read before the pause took effect: keep it for later.
-            st.parked = Some((buf, len));
+            st.parked = Some(buf);
             return;
         }
-        self.central.receive(conn, &buf[..len], now);
+        self.central.receive(conn, &buf, now);
         self.pool.put(buf);
         self.drain();
         self.go_ahead(conn);
@@ -1280,8 +1336,8 @@ impl Core {
             if st.paused {
                 continue;
             }
-            if let Some((buf, len)) = st.parked.take() {
-                self.central.receive(conn, &buf[..len], SystemTime::now());
+            if let Some(buf) = st.parked.take() {
+                self.central.receive(conn, &buf, SystemTime::now());
                 self.pool.put(buf);
                 // Its outputs (and perhaps a new pause) first.
                 self.resumed.push(conn);
@@ -1322,6 +1378,9 @@ impl Core {
         if let Some(st) = self.conns.get_mut(&conn) {
             if st.batch.is_empty() {
                 self.dirty.push(conn);
+                if st.batch.capacity() == 0 {
+                    st.batch = self.spare_batches.pop().unwrap_or_default();
+                }
             }
             st.batch.push(Buf::Own(head));
             st.batch.extend(body.map(Buf::Shared));
@@ -1367,9 +1426,10 @@ impl Core {
         match chunks.try_write(&st.shared.half) {
             Ok(true) => {
                 drop(q);
-                if chunks.bufs.capacity() <= BATCH_KEEP {
+                if chunks.bufs.capacity() <= BATCH_KEEP && self.spare_batches.len() < SPARE_BATCHES
+                {
                     chunks.bufs.clear();
-                    st.batch = chunks.bufs;
+                    self.spare_batches.push(chunks.bufs);
                 }
                 return;
             }
