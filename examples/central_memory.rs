@@ -20,8 +20,9 @@
 //!
 //! `--large`: after the last count, two more modules exchange 20 queries
 //! of 1 MiB through central (C central: 64 KiB, it takes seconds per
-//! MiB), the two leave, and the resident size is read again two seconds
-//! later (Courier's central gives memory back after a quiet second).
+//! MiB), the two leave, and the resident size is read again 11.5 s later
+//! (Courier's central gives memory back once 10 s pass with less than
+//! 1 MiB read).
 
 use std::net::{TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
@@ -166,8 +167,9 @@ fn measure(name: &str, target: Target<'_>, counts: &[usize], large: bool) -> Row
     let large = large.then(|| {
         let size = if courier { 1 << 20 } else { 64 << 10 };
         large_messages(port, size, 20);
-        // Courier's central gives memory back after a quiet second.
-        std::thread::sleep(Duration::from_millis(1500));
+        // Courier's central gives memory back once 10 s pass with less
+        // than 1 MiB read.
+        std::thread::sleep(Duration::from_secs(11));
         (size, rss(pid))
     });
     drop(modules);

@@ -48,7 +48,7 @@
 //! reading and TCP back-pressure reaches the module; this is how memory
 //! stays bounded when a subscriber is slow. An idle connection holds no
 //! buffer: its cost is the reader task and a few small tables (about
-//! 3.5 KB per idle module, see BENCHMARKS.md).
+//! 3 KB per idle module, see BENCHMARKS.md).
 //!
 //! The frames central produces for one connection while handling a batch
 //! of events are written together with one vectored write, directly from
@@ -103,9 +103,9 @@ pub fn unix_path(port: u16) -> std::path::PathBuf {
 /// (C modules over the UNIX socket: 3.1 ms per round trip, 0.83 ms with
 /// this; the C central 2.6 ms). Allocations up to 32 MiB come from the
 /// heap, and up to 64 MiB of free heap is kept while traffic goes on;
-/// once central has been quiet for a second after at least 1 MiB went
-/// through it, it gives the free memory back (`malloc_trim`), so RSS
-/// returns close to where it was before the burst.
+/// when less than 1 MiB came in during 10 seconds after at least 1 MiB
+/// did, central gives the free memory back (`malloc_trim`), so RSS returns
+/// close to where it was before the burst.
 ///
 /// Process-wide (it sets glibc's `mallopt` parameters; elsewhere it does
 /// nothing); call it first thing in `main`, before other threads start, as

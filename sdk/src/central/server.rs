@@ -49,11 +49,14 @@ const SHUTDOWN_GRACE: Duration = Duration::from_secs(2);
 const CLOSE_LINGER: Duration = Duration::from_secs(10);
 /// How long a reverse DNS lookup for access control may take.
 const LOOKUP_TIMEOUT: Duration = Duration::from_secs(10);
-/// After this long without events following at least [`TRIM_AFTER`] bytes
-/// read, central frees its spare buffers and gives free memory back.
-const IDLE_TRIM: Duration = Duration::from_secs(1);
+/// Once [`TRIM_AFTER`] bytes were read, central looks again after this
+/// long: if less than [`TRIM_AFTER`] came in meanwhile, the burst is over
+/// and it frees its spare buffers and gives free memory back. Long enough
+/// that bursts a few seconds apart find their memory still mapped (giving
+/// it back costs a page fault per page at the next burst).
+const IDLE_TRIM: Duration = Duration::from_secs(10);
 /// See [`IDLE_TRIM`].
-const TRIM_AFTER: usize = 1 << 20;
+const TRIM_AFTER: u64 = 1 << 20;
 /// The first connection id, like the C central's first module socket.
 const FIRST_CONN: u64 = 5;
 
@@ -320,7 +323,8 @@ impl Builder {
             tasks: JoinSet::new(),
             pool: Arc::default(),
             spare_batches: Vec::new(),
-            read_since_trim: 0,
+            read_total: 0,
+            read_at_trim: 0,
             dirty: Vec::new(),
             resumed: Vec::new(),
             spin: self.busy_poll.map(BusyPoll::start),
@@ -1076,8 +1080,10 @@ struct Core {
     /// Empty batch vectors for the next connections that write, so that
     /// an idle connection holds none.
     spare_batches: Vec<Vec<Buf>>,
-    /// Bytes read since memory was last given back ([`IDLE_TRIM`]).
-    read_since_trim: usize,
+    /// Bytes read in all (wrapping) and when memory was last given back
+    /// ([`IDLE_TRIM`]).
+    read_total: u64,
+    read_at_trim: u64,
     /// Connections with frames in their batch.
     dirty: Vec<ConnId>,
     /// Connections resumed while handling outputs.
@@ -1092,12 +1098,12 @@ impl Core {
         mut events: mpsc::UnboundedReceiver<Event>,
         mut stop: watch::Receiver<bool>,
     ) {
-        // Armed once TRIM_AFTER bytes were read; fires IDLE_TRIM after the
-        // last event (moved on lazily, not at every event).
+        // Armed once TRIM_AFTER bytes were read; `mark` is `read_total`
+        // when it was last (re)armed.
         let trim = tokio::time::sleep(IDLE_TRIM);
         tokio::pin!(trim);
         let mut trim_armed = false;
-        let mut last_event = tokio::time::Instant::now();
+        let mut mark = 0u64;
         loop {
             tokio::select! {
                 biased;
@@ -1116,18 +1122,17 @@ impl Core {
                         }
                     }
                     self.flush_all();
-                    if self.read_since_trim >= TRIM_AFTER {
-                        last_event = tokio::time::Instant::now();
-                        if !trim_armed {
-                            trim.as_mut().reset(last_event + IDLE_TRIM);
-                            trim_armed = true;
-                        }
+                    if !trim_armed && self.read_total.wrapping_sub(self.read_at_trim) >= TRIM_AFTER {
+                        trim.as_mut().reset(tokio::time::Instant::now() + IDLE_TRIM);
+                        mark = self.read_total;
+                        trim_armed = true;
                     }
                 }
                 () = &mut trim, if trim_armed => {
-                    let due = last_event + IDLE_TRIM;
-                    if due > tokio::time::Instant::now() {
-                        trim.as_mut().reset(due);
+                    if self.read_total.wrapping_sub(mark) >= TRIM_AFTER {
+                        // Still busy: look again later.
+                        mark = self.read_total;
+                        trim.as_mut().reset(tokio::time::Instant::now() + IDLE_TRIM);
                     } else {
                         trim_armed = false;
                         self.give_memory_back();
@@ -1145,11 +1150,11 @@ impl Core {
         self.shutdown().await;
     }
 
-    /// Quiet after much traffic: frees the spare read buffers and batch
+    /// A burst of traffic is over ([`IDLE_TRIM`]): frees the spare read buffers and batch
     /// vectors, and hands free heap back to the kernel when the process
     /// keeps it ([`super::keep_freed_memory`]).
     fn give_memory_back(&mut self) {
-        self.read_since_trim = 0;
+        self.read_at_trim = self.read_total;
         self.pool
             .free
             .lock()
@@ -1157,7 +1162,7 @@ impl Core {
             .clear();
         self.spare_batches = Vec::new();
         crate::sys::alloc::give_back();
-        tracing::debug!("quiet: spare buffers freed, free memory given back");
+        tracing::debug!("burst over: spare buffers freed, free memory given back");
     }
 
     async fn shutdown(mut self) {
@@ -1284,7 +1289,7 @@ impl Core {
             return;
         };
         st.reader_waits = true;
-        self.read_since_trim += buf.len();
+        self.read_total = self.read_total.wrapping_add(buf.len() as u64);
         if st.paused {
             // Read before the pause took effect: keep it for later.
             st.parked = Some(buf);

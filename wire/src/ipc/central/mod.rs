@@ -412,7 +412,7 @@ mod tests {
         let conn = ConnId(5);
         c.connect(conn, Peer::Other("test".into()), now);
         // Each side's output to the other until both are quiet.
-        let mut pump = |c: &mut Central, m: &mut Connection, hold: bool| -> Vec<u8> {
+        let pump = |c: &mut Central, m: &mut Connection, hold: bool| -> Vec<u8> {
             let mut held = Vec::new();
             loop {
                 let mut moved = false;
