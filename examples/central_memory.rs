@@ -20,9 +20,8 @@
 //!
 //! `--large`: after the last count, two more modules exchange 20 queries
 //! of 1 MiB through central (C central: 64 KiB, it takes seconds per
-//! MiB), the two leave, and the resident size is read again 11.5 s later
-//! (Courier's central gives memory back once 10 s pass with less than
-//! 1 MiB read).
+//! MiB), the two leave, and the resident size is read again 12.5 s later
+//! (Courier's central gives memory back after ten quiet seconds).
 
 use std::net::{TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
@@ -167,9 +166,8 @@ fn measure(name: &str, target: Target<'_>, counts: &[usize], large: bool) -> Row
     let large = large.then(|| {
         let size = if courier { 1 << 20 } else { 64 << 10 };
         large_messages(port, size, 20);
-        // Courier's central gives memory back once 10 s pass with less
-        // than 1 MiB read.
-        std::thread::sleep(Duration::from_secs(11));
+        // Courier's central gives memory back after ten quiet seconds.
+        std::thread::sleep(Duration::from_secs(12));
         (size, rss(pid))
     });
     drop(modules);

@@ -103,9 +103,9 @@ pub fn unix_path(port: u16) -> std::path::PathBuf {
 /// (C modules over the UNIX socket: 3.1 ms per round trip, 0.83 ms with
 /// this; the C central 2.6 ms). Allocations up to 32 MiB come from the
 /// heap, and up to 64 MiB of free heap is kept while traffic goes on;
-/// when less than 1 MiB came in during 10 seconds after at least 1 MiB
-/// did, central gives the free memory back (`malloc_trim`), so RSS returns
-/// close to where it was before the burst.
+/// after at least 1 MiB came in, once ten seconds in a row have each
+/// brought less than 100 KiB, central gives the free memory back
+/// (`malloc_trim`), so RSS returns close to where it was before the burst.
 ///
 /// Process-wide (it sets glibc's `mallopt` parameters; elsewhere it does
 /// nothing); call it first thing in `main`, before other threads start, as

@@ -49,13 +49,17 @@ const SHUTDOWN_GRACE: Duration = Duration::from_secs(2);
 const CLOSE_LINGER: Duration = Duration::from_secs(10);
 /// How long a reverse DNS lookup for access control may take.
 const LOOKUP_TIMEOUT: Duration = Duration::from_secs(10);
-/// Once [`TRIM_AFTER`] bytes were read, central looks again after this
-/// long: if less than [`TRIM_AFTER`] came in meanwhile, the burst is over
-/// and it frees its spare buffers and gives free memory back. Long enough
-/// that bursts a few seconds apart find their memory still mapped (giving
-/// it back costs a page fault per page at the next burst).
-const IDLE_TRIM: Duration = Duration::from_secs(10);
-/// See [`IDLE_TRIM`].
+/// Once [`TRIM_AFTER`] bytes were read since memory was last given back,
+/// central checks every [`TRIM_TICK`] how much came in since the previous
+/// check. After [`QUIET_TICKS`] checks in a row with less than
+/// `TRIM_AFTER / QUIET_TICKS`, the burst is over: it frees its spare
+/// buffers and gives free memory back. Ten seconds, so that bursts a few
+/// seconds apart find their memory still mapped (giving it back costs a
+/// page fault per page at the next burst).
+const TRIM_TICK: Duration = Duration::from_secs(1);
+/// See [`TRIM_TICK`].
+const QUIET_TICKS: u32 = 10;
+/// See [`TRIM_TICK`].
 const TRIM_AFTER: u64 = 1 << 20;
 /// The first connection id, like the C central's first module socket.
 const FIRST_CONN: u64 = 5;
@@ -1081,7 +1085,7 @@ struct Core {
     /// an idle connection holds none.
     spare_batches: Vec<Vec<Buf>>,
     /// Bytes read in all (wrapping) and when memory was last given back
-    /// ([`IDLE_TRIM`]).
+    /// ([`TRIM_TICK`]).
     read_total: u64,
     read_at_trim: u64,
     /// Connections with frames in their batch.
@@ -1098,12 +1102,14 @@ impl Core {
         mut events: mpsc::UnboundedReceiver<Event>,
         mut stop: watch::Receiver<bool>,
     ) {
-        // Armed once TRIM_AFTER bytes were read; `mark` is `read_total`
-        // when it was last (re)armed.
-        let trim = tokio::time::sleep(IDLE_TRIM);
+        // Ticks once a second from when TRIM_AFTER bytes were read until
+        // memory is given back; `mark` is `read_total` at the last tick,
+        // `quiet` the ticks in a row that found little read since.
+        let trim = tokio::time::sleep(TRIM_TICK);
         tokio::pin!(trim);
         let mut trim_armed = false;
         let mut mark = 0u64;
+        let mut quiet = 0u32;
         loop {
             tokio::select! {
                 biased;
@@ -1122,17 +1128,19 @@ impl Core {
                         }
                     }
                     self.flush_all();
-                    if !trim_armed && self.read_total.wrapping_sub(self.read_at_trim) >= TRIM_AFTER {
-                        trim.as_mut().reset(tokio::time::Instant::now() + IDLE_TRIM);
-                        mark = self.read_total;
-                        trim_armed = true;
+                    let since_trim = self.read_total.wrapping_sub(self.read_at_trim);
+                    if !trim_armed && since_trim >= TRIM_AFTER {
+                        trim.as_mut().reset(tokio::time::Instant::now() + TRIM_TICK);
+                        (trim_armed, mark, quiet) = (true, self.read_total, 0);
                     }
                 }
                 () = &mut trim, if trim_armed => {
-                    if self.read_total.wrapping_sub(mark) >= TRIM_AFTER {
-                        // Still busy: look again later.
-                        mark = self.read_total;
-                        trim.as_mut().reset(tokio::time::Instant::now() + IDLE_TRIM);
+                    let read = self.read_total.wrapping_sub(mark);
+                    let busy = read >= TRIM_AFTER / u64::from(QUIET_TICKS);
+                    mark = self.read_total;
+                    quiet = if busy { 0 } else { quiet + 1 };
+                    if quiet < QUIET_TICKS {
+                        trim.as_mut().reset(tokio::time::Instant::now() + TRIM_TICK);
                     } else {
                         trim_armed = false;
                         self.give_memory_back();
@@ -1150,7 +1158,7 @@ impl Core {
         self.shutdown().await;
     }
 
-    /// A burst of traffic is over ([`IDLE_TRIM`]): frees the spare read buffers and batch
+    /// A burst of traffic is over ([`TRIM_TICK`]): frees the spare read buffers and batch
     /// vectors, and hands free heap back to the kernel when the process
     /// keeps it ([`super::keep_freed_memory`]).
     fn give_memory_back(&mut self) {
