@@ -785,17 +785,19 @@ impl ReadHalf {
     async fn read(&mut self, pool: &BufPool) -> io::Result<Vec<u8>> {
         match self {
             ReadHalf::Sock(s) => s.read(pool).await,
-            ReadHalf::InProcess(r) => {
+            ReadHalf::InProcess(r) => loop {
                 r.readable().await;
                 let mut buf = pool.take();
                 match r.try_read_spare(&mut buf) {
-                    Ok(_) => Ok(buf),
+                    Ok(_) => return Ok(buf),
                     Err(e) => {
                         pool.put(buf);
-                        Err(e)
+                        if e.kind() != io::ErrorKind::WouldBlock {
+                            return Err(e);
+                        }
                     }
                 }
-            }
+            },
         }
     }
 }
