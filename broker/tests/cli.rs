@@ -5,7 +5,7 @@
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
 use std::path::{Path, PathBuf};
-use std::process::{Child, ChildStdout, Command, Stdio};
+use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
@@ -19,6 +19,9 @@ struct Central {
     child: Child,
     lines: mpsc::Receiver<String>,
     seen: Vec<String>,
+    /// Stderr read line by line too, once [`Central::watch_stderr`] is called.
+    errs: Option<mpsc::Receiver<String>>,
+    seen_err: Vec<String>,
     port: u16,
 }
 
@@ -55,11 +58,77 @@ impl Central {
             child,
             lines,
             seen: Vec::new(),
+            errs: None,
+            seen_err: Vec::new(),
             port: 0,
         };
         let line = c.wait_line(|l| l.starts_with("Expecting "));
         c.port = line.rsplit(' ').next().unwrap().parse().unwrap();
         c
+    }
+
+    /// Starts central with `-s` (which prints no `Expecting` line) on a
+    /// free port, stderr watched, and waits until a connection succeeds:
+    /// that first connection is accepted (and, if the rules say so,
+    /// refused).
+    fn start_silent(extra: &[&str]) -> Central {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let mut child = Command::new(BIN)
+            .env_remove("RUST_LOG")
+            .current_dir(temp(""))
+            .args(["--bind", "127.0.0.1", "--no-unix-socket", "-s"])
+            .arg(format!("-p{port}"))
+            .args(extra)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let lines = spawn_reader(child.stdout.take().unwrap());
+        let mut c = Central {
+            child,
+            lines,
+            seen: Vec::new(),
+            errs: None,
+            seen_err: Vec::new(),
+            port,
+        };
+        c.watch_stderr();
+        let deadline = Instant::now() + T;
+        while TcpStream::connect(("127.0.0.1", port)).is_err() {
+            assert!(Instant::now() < deadline, "central did not start");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        c
+    }
+
+    /// Reads stderr line by line from now on (see [`Central::wait_err_line`]).
+    fn watch_stderr(&mut self) {
+        self.errs = Some(spawn_reader(self.child.stderr.take().unwrap()));
+    }
+
+    fn wait_err_line(&mut self, f: impl Fn(&str) -> bool) -> String {
+        if let Some(l) = self.seen_err.iter().find(|l| f(l)) {
+            return l.clone();
+        }
+        let errs = self.errs.as_ref().expect("watch_stderr first");
+        let deadline = Instant::now() + T;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match errs.recv_timeout(left) {
+                Ok(l) => {
+                    self.seen_err.push(l.clone());
+                    if f(&l) {
+                        return l;
+                    }
+                }
+                Err(e) => panic!("no such stderr line ({e}); so far: {:#?}", self.seen_err),
+            }
+        }
     }
 
     fn wait_line(&mut self, f: impl Fn(&str) -> bool) -> String {
@@ -98,8 +167,29 @@ impl Central {
         assert_eq!(unsafe { libc::kill(pid, sig) }, 0);
     }
 
+    /// Waits for the exit; returns the status code, every line of stdout
+    /// and stderr.
+    fn wait_exit_all(mut self) -> (Option<i32>, Vec<String>, String) {
+        let (code, err) = self.exit();
+        // The reader thread ends at EOF, which the exit brings.
+        let deadline = Instant::now() + T;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.lines.recv_timeout(left) {
+                Ok(l) => self.seen.push(l),
+                Err(mpsc::RecvTimeoutError::Disconnected) => break,
+                Err(e) => panic!("stdout did not end ({e}): {:#?}", self.seen),
+            }
+        }
+        (code, std::mem::take(&mut self.seen), err)
+    }
+
     /// Waits for the exit; returns the status code and stderr.
     fn wait_exit(mut self) -> (Option<i32>, String) {
+        self.exit()
+    }
+
+    fn exit(&mut self) -> (Option<i32>, String) {
         let deadline = Instant::now() + T;
         let status = loop {
             if let Some(s) = self.child.try_wait().unwrap() {
@@ -112,12 +202,27 @@ impl Central {
             std::thread::sleep(Duration::from_millis(20));
         };
         let mut err = String::new();
-        self.child
-            .stderr
-            .take()
-            .unwrap()
-            .read_to_string(&mut err)
-            .unwrap();
+        match (self.child.stderr.take(), self.errs.take()) {
+            (Some(mut e), _) => {
+                e.read_to_string(&mut err).unwrap();
+            }
+            (None, Some(errs)) => {
+                let deadline = Instant::now() + T;
+                loop {
+                    let left = deadline.saturating_duration_since(Instant::now());
+                    match errs.recv_timeout(left) {
+                        Ok(l) => self.seen_err.push(l),
+                        Err(mpsc::RecvTimeoutError::Disconnected) => break,
+                        Err(e) => panic!("stderr did not end ({e}): {:#?}", self.seen_err),
+                    }
+                }
+                for l in &self.seen_err {
+                    err.push_str(l);
+                    err.push('\n');
+                }
+            }
+            (None, None) => {}
+        }
         (status.code(), err)
     }
 }
@@ -129,7 +234,7 @@ impl Drop for Central {
     }
 }
 
-fn spawn_reader(out: ChildStdout) -> mpsc::Receiver<String> {
+fn spawn_reader(out: impl Read + Send + 'static) -> mpsc::Receiver<String> {
     let (tx, rx) = mpsc::channel();
     std::thread::spawn(move || {
         for line in BufReader::new(out).lines() {
@@ -230,10 +335,18 @@ fn bad_flags_exit_2_with_one_line_naming_them() {
     }
 }
 
+/// An empty rules file (no rules, but it exists).
+fn empty_rules(name: &str) -> PathBuf {
+    let p = temp(name);
+    std::fs::write(&p, "# no rules\n").unwrap();
+    p
+}
+
 #[test]
 fn bad_hosts_file_exits_2_naming_file_and_line() {
     let deny = temp("bad.deny");
     std::fs::write(&deny, "# rules\ncentral : 10.0.0.0/40\n").unwrap();
+    let allow = empty_rules("empty.allow");
     let (code, _, err) = run(&[
         "-p0",
         "--bind",
@@ -241,7 +354,7 @@ fn bad_hosts_file_exits_2_naming_file_and_line() {
         "--no-unix-socket",
         "-u",
         "--hosts-allow",
-        "/nonexistent/allow",
+        allow.to_str().unwrap(),
         "--hosts-deny",
         deny.to_str().unwrap(),
     ]);
@@ -252,6 +365,75 @@ fn bad_hosts_file_exits_2_naming_file_and_line() {
             "central: {}:2: prefix length 40 too long in '10.0.0.0/40'",
             deny.display()
         )
+    );
+}
+
+/// Access control fails closed: a rules file named on the command line
+/// that does not exist or cannot be read stops central before it listens,
+/// with one line naming the file and the OS error.
+#[test]
+fn named_hosts_file_missing_or_unreadable_exits_2() {
+    let empty = empty_rules("exists.rules");
+    let empty = empty.to_str().unwrap();
+    let dir = temp("");
+    let dir = dir.to_str().unwrap();
+    for (allow, deny, want) in [
+        (
+            empty,
+            "/nonexistent/hosts.deny",
+            "central: cannot read /nonexistent/hosts.deny: No such file or directory (os error 2)"
+                .to_string(),
+        ),
+        (
+            "/nonexistent/hosts.allow",
+            empty,
+            "central: cannot read /nonexistent/hosts.allow: No such file or directory (os error 2)"
+                .to_string(),
+        ),
+        (
+            dir,
+            empty,
+            format!("central: cannot read {dir}: Is a directory (os error 21)"),
+        ),
+    ] {
+        let (code, out, err) = run(&[
+            "-p0",
+            "--bind",
+            "127.0.0.1",
+            "--no-unix-socket",
+            "-u",
+            "--hosts-allow",
+            allow,
+            "--hosts-deny",
+            deny,
+        ]);
+        assert_eq!(code, Some(2), "{allow} {deny}: {err}");
+        assert_eq!(out, "", "nothing started, nothing printed");
+        assert_eq!(err, format!("{want}\n"));
+    }
+}
+
+/// Without `--hosts-*`, the default files may be missing: central starts,
+/// with one warning line on stderr saying which rules are not in force.
+#[test]
+fn missing_default_hosts_files_give_one_warning_line() {
+    let allow = Path::new("/etc/hosts.allow").exists();
+    let deny = Path::new("/etc/hosts.deny").exists();
+    let want = match (allow, deny) {
+        (true, true) => None,
+        (false, false) => Some("central: WARNING: no access rules in force: neither /etc/hosts.allow nor /etc/hosts.deny exists; every host may connect"),
+        (true, false) => Some("central: WARNING: no deny rules in force: /etc/hosts.deny does not exist; every host may connect"),
+        (false, true) => Some("central: WARNING: no allow rules in force: /etc/hosts.allow does not exist; only /etc/hosts.deny decides"),
+    };
+    let c = Central::start(&["-u"], Stdio::null());
+    c.signal(libc::SIGTERM);
+    let (code, out, err) = c.wait_exit_all();
+    assert_eq!(code, Some(0), "{err}");
+    let lines: Vec<&str> = err.lines().collect();
+    assert_eq!(lines, want.into_iter().collect::<Vec<_>>(), "stderr: {err}");
+    assert!(
+        !out.iter().any(|l| l.contains("in force")),
+        "not on stdout too: {out:?}"
     );
 }
 
@@ -290,13 +472,14 @@ fn version_and_help() {
 
 #[test]
 fn starts_accepts_and_exits_0_on_sigterm() {
+    let (allow, deny) = (empty_rules("start.allow"), empty_rules("start.deny"));
     let mut c = Central::start(
         &[
             "-u",
             "--hosts-allow",
-            "/nonexistent/a",
+            allow.to_str().unwrap(),
             "--hosts-deny",
-            "/nonexistent/d",
+            deny.to_str().unwrap(),
         ],
         Stdio::null(),
     );
@@ -318,6 +501,7 @@ fn starts_accepts_and_exits_0_on_sigterm() {
     c.signal(libc::SIGTERM);
     let (code, err) = c.wait_exit();
     assert_eq!(code, Some(0), "{err}");
+    assert_eq!(err, "", "both rules files exist: no warning");
     // Central closed the modules' connections on the way out.
     read_to_eof(&mut s);
     read_to_eof(&mut m.sock);
@@ -483,16 +667,72 @@ fn hosts_deny_refuses_before_any_byte_and_says_why() {
         read_to_eof(&mut s).is_empty(),
         "no protocol byte for a denied peer"
     );
-    c.wait_line(|l| {
-        l == format!(
-            "WARNING: connection rejected from 127.0.0.1:{port} (denied by {}:1)",
-            deny.display()
-        )
-    });
+    let want = format!(
+        "WARNING: connection rejected from 127.0.0.1:{port} (denied by {}:1)",
+        deny.display()
+    );
+    c.wait_line(|l| l == want);
     c.signal(libc::SIGTERM);
-    assert_eq!(c.wait_exit().0, Some(0));
+    let (code, out, err) = c.wait_exit_all();
+    assert_eq!(code, Some(0));
+    assert_eq!(out.iter().filter(|l| l.contains("rejected")).count(), 1);
+    assert!(
+        !err.contains("rejected"),
+        "logged once, not on stderr too: {err}"
+    );
     let files: Vec<_> = std::fs::read_dir(&dir).unwrap().collect();
     assert!(files.is_empty(), "no file log without -L: {files:?}");
+}
+
+/// A refusal is logged exactly once: on the terminal log when it is on,
+/// else (`-lx`, or `-s`, which prints nothing on stdout) on stderr.
+#[test]
+fn a_refusal_is_logged_once_whatever_the_logging() {
+    let deny = temp("once.deny");
+    let allow = empty_rules("once.allow");
+    std::fs::write(&deny, "central : ALL\n").unwrap();
+    let rejected = |l: &str| l.contains("connection rejected from 127.0.0.1:");
+    for (flag, on_stdout) in [(None, true), (Some("-lx"), false), (Some("-s"), false)] {
+        let mut args = vec![
+            "-u",
+            "--hosts-allow",
+            allow.to_str().unwrap(),
+            "--hosts-deny",
+            deny.to_str().unwrap(),
+        ];
+        args.extend(flag);
+        let mut c = if flag == Some("-s") {
+            // Its probe connection is the first refusal.
+            Central::start_silent(&args)
+        } else {
+            let mut c = Central::start(&args, Stdio::null());
+            c.watch_stderr();
+            let mut s = c.connect();
+            assert!(read_to_eof(&mut s).is_empty());
+            c
+        };
+        // A second refusal, whose line shows that the first was written.
+        let mut s = c.connect();
+        let port = s.local_addr().unwrap().port();
+        assert!(read_to_eof(&mut s).is_empty());
+        let second = move |l: &str| l.contains(&format!("127.0.0.1:{port} "));
+        if on_stdout {
+            c.wait_line(second);
+        } else {
+            c.wait_err_line(second);
+        }
+        c.signal(libc::SIGTERM);
+        let (code, out, err) = c.wait_exit_all();
+        assert_eq!(code, Some(0), "{flag:?}: {err}");
+        let n_out = out.iter().filter(|l| rejected(l)).count();
+        let n_err = err.lines().filter(|l| rejected(l)).count();
+        let want = if on_stdout { (2, 0) } else { (0, 2) };
+        assert_eq!(
+            (n_out, n_err),
+            want,
+            "{flag:?}: stdout {out:#?}\nstderr {err}"
+        );
+    }
 }
 
 #[test]

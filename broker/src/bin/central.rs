@@ -9,6 +9,12 @@
 //! Where it differs from the C central on purpose:
 //! - unknown options and bad values are errors (exit status 2, one line on
 //!   stderr naming the flag and the value); C warns and goes on;
+//! - a `--hosts-allow`/`--hosts-deny` file that does not exist or cannot be
+//!   read is a start-up error (exit status 2, one line naming the file and
+//!   the OS error); a missing default `/etc/hosts.allow` or
+//!   `/etc/hosts.deny` gives one warning line on stderr saying which rules
+//!   are not in force (tcpd, which C links, silently takes a missing file
+//!   as no rules);
 //! - `-v` prints the version and exits 0 wherever it appears (C: only as the
 //!   first argument, exiting 1);
 //! - `-p0` listens on a free port (printed in `Expecting 1 on port <port>`);
@@ -30,7 +36,7 @@ use std::process::ExitCode;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
-use courier_broker::access::{AccessControl, DEFAULT_ALLOW, DEFAULT_DENY};
+use courier_broker::access::{AccessControl, RulesFile, DEFAULT_ALLOW, DEFAULT_DENY};
 use courier_broker::{CentralServer, Config, LogOptions, LogSink, LogTarget};
 
 /// `X_IPC_VERSION_MAJOR.MINOR.MICRO` of the C central we stand in for.
@@ -71,6 +77,8 @@ const USAGE: &str = "central command line options:
  --bind <addr>: listen on this address only (default: all interfaces).
  --hosts-allow <file>, --hosts-deny <file>: access rules
      (default /etc/hosts.allow and /etc/hosts.deny, daemon name 'central').
+     A file named here must exist and be readable; a missing default file
+     holds no rules (with a warning).
  --no-unix-socket: do not listen on /tmp/x_ipc/<port>.
  --busy-poll <us>: after each frame keep polling for <us> microseconds
      (1..=1000000) instead of sleeping: lower latency for CPU (default off).
@@ -99,8 +107,10 @@ struct Options {
     help: bool,
     debug: bool,
     unix: bool,
-    allow: PathBuf,
-    deny: PathBuf,
+    /// `--hosts-allow`; `None`: the default file, which may be missing.
+    allow: Option<PathBuf>,
+    /// `--hosts-deny`; `None`: the default file, which may be missing.
+    deny: Option<PathBuf>,
     busy_poll: Option<std::time::Duration>,
 }
 
@@ -117,8 +127,8 @@ impl Default for Options {
             help: false,
             debug: false,
             unix: true,
-            allow: DEFAULT_ALLOW.into(),
-            deny: DEFAULT_DENY.into(),
+            allow: None,
+            deny: None,
             busy_poll: None,
         }
     }
@@ -207,8 +217,8 @@ fn parse_args(args: Vec<String>) -> Result<Options, String> {
                     };
                     o.config.send_ahead.insert(module.to_string(), n);
                 }
-                "hosts-allow" => o.allow = value(true)?.into(),
-                "hosts-deny" => o.deny = value(true)?.into(),
+                "hosts-allow" => o.allow = Some(value(true)?.into()),
+                "hosts-deny" => o.deny = Some(value(true)?.into()),
                 "no-unix-socket" => {
                     value(false)?;
                     o.unix = false;
@@ -482,13 +492,27 @@ async fn run(opts: Options) -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
-    let access = match AccessControl::load(&opts.allow, &opts.deny) {
+    // A file named on the command line must be there (a typo must not
+    // leave central open); only the default files may be missing.
+    fn file<'a>(given: &'a Option<PathBuf>, default: &'static str) -> RulesFile<'a> {
+        match given {
+            Some(p) => RulesFile::Given(p),
+            None => RulesFile::Default(Path::new(default)),
+        }
+    }
+    let access = match AccessControl::load_files(
+        file(&opts.allow, DEFAULT_ALLOW),
+        file(&opts.deny, DEFAULT_DENY),
+    ) {
         Ok(a) => a,
         Err(e) => {
             eprintln!("central: {e}");
             return ExitCode::from(2);
         }
     };
+    if let Some(w) = access.missing_files_warning() {
+        eprintln!("central: WARNING: {w}");
+    }
     let silent = opts.config.quiet;
     if let (Some(f), false) = (&opts.log_file, silent) {
         println!("Logging File Name: {}", f.display());
@@ -670,8 +694,7 @@ mod tests {
         let o = parse(&[]).unwrap();
         assert_eq!(o.port, 1381);
         assert!(o.unix && o.console && !o.config.quiet);
-        assert_eq!(o.allow, PathBuf::from("/etc/hosts.allow"));
-        assert_eq!(o.deny, PathBuf::from("/etc/hosts.deny"));
+        assert_eq!((o.allow, o.deny), (None, None), "the default files");
         let t = o.config.terminal_log;
         assert!(t.messages && t.status && t.ignore_internal && !t.data);
     }
@@ -718,8 +741,8 @@ mod tests {
         assert_eq!(parse(&[]).unwrap().config.cut_through, None);
         assert_eq!(o.bind, IpAddr::from([127, 0, 0, 1]));
         assert_eq!(
-            (o.allow.as_path(), o.deny.as_path()),
-            (Path::new("/a"), Path::new("/d"))
+            (o.allow.as_deref(), o.deny.as_deref()),
+            (Some(Path::new("/a")), Some(Path::new("/d")))
         );
         assert!(!o.unix);
         assert_eq!(

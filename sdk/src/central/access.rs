@@ -5,7 +5,7 @@
 //! lines `daemon_list : client_list [: options]`; the daemon name is
 //! `central`. A connection is **allowed** if a rule of the allow file
 //! matches it, else **denied** if a rule of the deny file matches it, else
-//! allowed. A missing file holds no rules. `#` starts a comment, a
+//! allowed. `#` starts a comment, a
 //! backslash at the end of a line continues it, list items are separated by
 //! commas and/or blanks, and the options field is ignored.
 //!
@@ -38,6 +38,15 @@
 //! **UNIX-socket peers** are local: they are checked as if they came from
 //! the loopback address (127.0.0.1 or `::1`) with the host name
 //! `localhost`.
+//!
+//! **Missing files fail closed.** A file named by the operator
+//! ([`Rules::load`], [`AccessControl::load`], [`RulesFile::Given`]) that
+//! does not exist or cannot be read is an error naming the file and the
+//! OS error: a typo in a path must not leave central open to everyone.
+//! Only the default locations ([`RulesFile::Default`],
+//! [`AccessControl::load_default`]) may be missing; a missing default
+//! holds no rules, and [`AccessControl::missing_files_warning`] gives the
+//! one line to print about it.
 //!
 //! **Errors.** A malformed rule for `central` (or `ALL`) is an error naming
 //! the file and line; a malformed rule that can only concern other daemons
@@ -153,7 +162,7 @@ pub struct ParseError {
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum LoadError {
-    /// The file exists but could not be read.
+    /// The file does not exist or could not be read.
     #[error("cannot read {file}: {source}")]
     Io {
         /// The file.
@@ -247,18 +256,32 @@ pub struct Rules {
 }
 
 impl Rules {
-    /// Reads and parses a file, then resolves the host names in it; a
-    /// missing file has no rules.
+    /// Reads and parses a file, then resolves the host names in it. A file
+    /// that does not exist or cannot be read is an error
+    /// ([`LoadError::Io`]): rules the operator named must be in force.
     pub fn load(path: &Path) -> Result<Rules, LoadError> {
         let name = path.display().to_string();
-        let mut rules = match std::fs::read_to_string(path) {
-            Ok(text) => Rules::parse(&text, &name)?,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Rules {
-                file: name,
-                ..Rules::default()
-            },
-            Err(source) => return Err(LoadError::Io { file: name, source }),
-        };
+        match std::fs::read_to_string(path) {
+            Ok(text) => Ok(Rules::from_text(&text, &name)?),
+            Err(source) => Err(LoadError::Io { file: name, source }),
+        }
+    }
+
+    /// Like [`Rules::load`], but a file that does not exist gives `None`
+    /// (for default locations, which need not exist). Any other error
+    /// reading it is still an error.
+    pub fn load_if_exists(path: &Path) -> Result<Option<Rules>, LoadError> {
+        let name = path.display().to_string();
+        match std::fs::read_to_string(path) {
+            Ok(text) => Ok(Some(Rules::from_text(&text, &name)?)),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+            Err(source) => Err(LoadError::Io { file: name, source }),
+        }
+    }
+
+    /// Parses and resolves names with the system resolver.
+    fn from_text(text: &str, name: &str) -> Result<Rules, ParseError> {
+        let mut rules = Rules::parse(text, name)?;
         rules.resolve_names(&mut |name| {
             (name, 0)
                 .to_socket_addrs()
@@ -410,11 +433,34 @@ impl Rules {
     }
 }
 
+/// Where a rules file is to be read from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RulesFile<'a> {
+    /// Named by the operator (`--hosts-allow`, `--hosts-deny`): it must
+    /// exist and be readable.
+    Given(&'a Path),
+    /// A default location (`/etc/hosts.allow`, `/etc/hosts.deny`): if it
+    /// does not exist, it holds no rules.
+    Default(&'a Path),
+}
+
+impl RulesFile<'_> {
+    /// Loads the file; `Ok(None)`: a default file that does not exist.
+    fn load(self) -> Result<Option<Rules>, LoadError> {
+        match self {
+            RulesFile::Given(p) => Rules::load(p).map(Some),
+            RulesFile::Default(p) => Rules::load_if_exists(p),
+        }
+    }
+}
+
 /// Allow and deny rules together.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct AccessControl {
     allow: Rules,
     deny: Rules,
+    /// Default files that did not exist: (allow, deny).
+    missing: (Option<String>, Option<String>),
 }
 
 impl AccessControl {
@@ -425,20 +471,64 @@ impl AccessControl {
 
     /// From parsed allow and deny rules.
     pub fn new(allow: Rules, deny: Rules) -> Self {
-        AccessControl { allow, deny }
+        AccessControl {
+            allow,
+            deny,
+            missing: (None, None),
+        }
     }
 
-    /// Reads the two files ([`Rules::load`]); a missing file has no rules.
+    /// Reads the two files ([`Rules::load`]); both must exist and be
+    /// readable.
     pub fn load(allow: &Path, deny: &Path) -> Result<Self, LoadError> {
+        Self::load_files(RulesFile::Given(allow), RulesFile::Given(deny))
+    }
+
+    /// Reads the two files, each given or a default
+    /// ([`RulesFile`]): a given file must exist, a default one that does not
+    /// exist holds no rules (see [`AccessControl::missing_files_warning`]).
+    /// The allow file is read first.
+    pub fn load_files(allow: RulesFile<'_>, deny: RulesFile<'_>) -> Result<Self, LoadError> {
+        let name = |f: RulesFile<'_>| match f {
+            RulesFile::Given(p) | RulesFile::Default(p) => p.display().to_string(),
+        };
+        let a = allow.load()?;
+        let d = deny.load()?;
         Ok(AccessControl {
-            allow: Rules::load(allow)?,
-            deny: Rules::load(deny)?,
+            missing: (
+                a.is_none().then(|| name(allow)),
+                d.is_none().then(|| name(deny)),
+            ),
+            allow: a.unwrap_or_default(),
+            deny: d.unwrap_or_default(),
         })
     }
 
-    /// Reads `/etc/hosts.allow` and `/etc/hosts.deny`.
+    /// Reads `/etc/hosts.allow` and `/etc/hosts.deny`, either of which may
+    /// be missing.
     pub fn load_default() -> Result<Self, LoadError> {
-        Self::load(Path::new(DEFAULT_ALLOW), Path::new(DEFAULT_DENY))
+        Self::load_files(
+            RulesFile::Default(Path::new(DEFAULT_ALLOW)),
+            RulesFile::Default(Path::new(DEFAULT_DENY)),
+        )
+    }
+
+    /// One line saying which rules are not in force because a default file
+    /// ([`RulesFile::Default`]) does not exist; `None` if both were read.
+    pub fn missing_files_warning(&self) -> Option<String> {
+        match &self.missing {
+            (None, None) => None,
+            (Some(a), Some(d)) => Some(format!(
+                "no access rules in force: neither {a} nor {d} exists; every host may connect"
+            )),
+            (None, Some(d)) => Some(format!(
+                "no deny rules in force: {d} does not exist; every host may connect"
+            )),
+            (Some(a), None) => Some(format!(
+                "no allow rules in force: {a} does not exist; only {} decides",
+                self.deny.file
+            )),
+        }
     }
 
     /// Decides for a client, looking its host name up (blocking, with the
@@ -1090,10 +1180,76 @@ mod tests {
     }
 
     #[test]
-    fn missing_file_is_empty() {
-        let r = Rules::load(Path::new("/nonexistent/hosts.allow")).unwrap();
-        assert!(r.is_empty());
-        assert_eq!(r.file(), "/nonexistent/hosts.allow");
+    fn a_given_file_must_exist_and_be_readable() {
+        let e = Rules::load(Path::new("/nonexistent/hosts.allow"))
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            e,
+            "cannot read /nonexistent/hosts.allow: No such file or directory (os error 2)"
+        );
+        let e = AccessControl::load(Path::new("/nonexistent/a"), Path::new("/nonexistent/d"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("cannot read /nonexistent/a: "), "{e}");
+        // A directory cannot be read as a file (root reads any file, so a
+        // mode-000 file would not do for this test).
+        let dir = std::env::temp_dir();
+        let e = AccessControl::load_files(
+            RulesFile::Default(Path::new("/nonexistent/a")),
+            RulesFile::Default(&dir),
+        )
+        .unwrap_err()
+        .to_string();
+        assert_eq!(
+            e,
+            format!(
+                "cannot read {}: Is a directory (os error 21)",
+                dir.display()
+            )
+        );
+        assert_eq!(
+            Rules::load_if_exists(Path::new("/nonexistent/x")).unwrap(),
+            None
+        );
+    }
+
+    #[test]
+    fn missing_default_files_hold_no_rules_and_say_so() {
+        let dir = std::env::temp_dir().join(format!("courier-access-d-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let deny = dir.join("hosts.deny");
+        std::fs::write(&deny, "central : 10.\n").unwrap();
+        let (na, nd) = (Path::new("/nonexistent/a"), Path::new("/nonexistent/d"));
+        let both =
+            AccessControl::load_files(RulesFile::Default(na), RulesFile::Default(nd)).unwrap();
+        assert!(both.check(ip("10.0.0.1")).is_allowed());
+        assert_eq!(
+            both.missing_files_warning().unwrap(),
+            "no access rules in force: neither /nonexistent/a nor /nonexistent/d exists; every host may connect"
+        );
+        let no_deny =
+            AccessControl::load_files(RulesFile::Given(&deny), RulesFile::Default(nd)).unwrap();
+        assert_eq!(
+            no_deny.missing_files_warning().unwrap(),
+            "no deny rules in force: /nonexistent/d does not exist; every host may connect"
+        );
+        let no_allow =
+            AccessControl::load_files(RulesFile::Default(na), RulesFile::Given(&deny)).unwrap();
+        assert!(!no_allow.check(ip("10.0.0.1")).is_allowed());
+        assert_eq!(
+            no_allow.missing_files_warning().unwrap(),
+            format!(
+                "no allow rules in force: /nonexistent/a does not exist; only {} decides",
+                deny.display()
+            )
+        );
+        let all = AccessControl::load_files(RulesFile::Default(&deny), RulesFile::Default(&deny))
+            .unwrap();
+        assert_eq!(all.missing_files_warning(), None);
+        // A given file never falls back to "no rules".
+        assert!(AccessControl::load_files(RulesFile::Given(na), RulesFile::Default(nd)).is_err());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

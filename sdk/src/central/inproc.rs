@@ -141,6 +141,16 @@ impl Pipe {
         Poll::Ready(Ok(()))
     }
 
+    /// Ready when there are bytes or the writer is gone (a read then ends).
+    fn poll_readable(&self, cx: &mut Context<'_>) -> Poll<()> {
+        let mut s = self.lock();
+        if !s.buf.is_empty() || s.write_closed {
+            return Poll::Ready(());
+        }
+        s.reader = Some(cx.waker().clone());
+        Poll::Pending
+    }
+
     fn close_read(&self) {
         let mut s = self.lock();
         s.read_closed = true;
@@ -230,10 +240,47 @@ impl Drop for InProcessStream {
 pub(crate) struct ServerReader(Arc<Pipe>);
 
 impl ServerReader {
+    /// Waits until there are bytes to read or the module's end is closed.
+    pub(crate) async fn readable(&mut self) {
+        std::future::poll_fn(|cx| self.0.poll_readable(cx)).await
+    }
+
+    /// Appends what is there now to `buf`, up to its capacity: 0 at the end
+    /// of the stream, `WouldBlock` if nothing is there.
+    pub(crate) fn try_read_spare(&mut self, buf: &mut Vec<u8>) -> io::Result<usize> {
+        let mut s = self.0.lock();
+        if s.buf.is_empty() {
+            return if s.write_closed {
+                Ok(0)
+            } else {
+                Err(io::ErrorKind::WouldBlock.into())
+            };
+        }
+        let k = (buf.capacity() - buf.len()).min(s.buf.len());
+        buf.extend(s.buf.drain(..k));
+        let writer = s.writer.take();
+        drop(s);
+        if let Some(w) = writer {
+            w.wake();
+        }
+        Ok(k)
+    }
+
+    /// Waits for bytes, then reads them (0: end of stream).
+    #[cfg(test)]
     pub(crate) async fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
-        let mut rb = ReadBuf::new(buf);
-        std::future::poll_fn(|cx| self.0.poll_read(cx, &mut rb)).await?;
-        Ok(rb.filled().len())
+        loop {
+            self.readable().await;
+            let mut v = Vec::with_capacity(buf.len());
+            match self.try_read_spare(&mut v) {
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => continue,
+                Err(e) => return Err(e),
+                Ok(n) => {
+                    buf[..n].copy_from_slice(&v);
+                    return Ok(n);
+                }
+            }
+        }
     }
 }
 

@@ -39,20 +39,23 @@
 //!
 //! # How the shell is built
 //! One task owns the [`Central`] state machine; nothing else touches it.
-//! Per connection, a reader task reads into a 64 KiB buffer and hands the
-//! buffer to the central task over a channel; the central task feeds the
-//! bytes to [`Central::receive`] and gives the buffer back, so no
-//! allocation happens per read. A writer task per connection writes what
-//! central transmits (`TCP_NODELAY` on). While [`Output::PauseRead`] is in
-//! force the central task simply keeps the connection's buffer, so the
-//! reader stops reading and TCP back-pressure reaches the module; this is how
-//! memory stays bounded when a subscriber is slow.
+//! Per connection, a reader task waits until the socket is readable,
+//! takes a 64 KiB buffer from a pool shared by all connections, reads into
+//! it and hands it to the central task over a channel; the central task
+//! feeds the bytes to [`Central::receive`], puts the buffer back in the
+//! pool and gives the reader its go-ahead. While [`Output::PauseRead`] is
+//! in force the central task holds the go-ahead back, so the reader stops
+//! reading and TCP back-pressure reaches the module; this is how memory
+//! stays bounded when a subscriber is slow. An idle connection holds no
+//! buffer: its cost is the reader task and a few small tables (about
+//! 3 KB per idle module, see BENCHMARKS.md).
 //!
-//! Two shortcuts keep the round trip short: the frames central produces for
-//! one connection while handling a batch of events are written together
-//! with one vectored write, and that write is tried directly from the
-//! central task when the connection's writer has nothing queued (otherwise
-//! the bytes are queued to the writer task, in order).
+//! The frames central produces for one connection while handling a batch
+//! of events are written together with one vectored write, directly from
+//! the central task. What the socket does not take at once is queued, in
+//! order, and a writer task is started for that connection; it waits for
+//! room, writes the queue and ends when it is empty (until then later
+//! frames join the queue), so idle connections have no writer task.
 //!
 //! A module of the hosting process can skip the sockets:
 //! [`CentralHandle::session`] connects a `Session` over an in-process link,
@@ -68,6 +71,8 @@
 //!   see [`access`] for the rule language and its deviations.
 //! - Peers on the UNIX socket are subject to the rules as local clients
 //!   (C never checks them).
+//! - A rules file named by the operator must exist and be readable
+//!   ([`access::RulesFile`]); tcpd takes any missing file as no rules.
 pub mod access;
 mod console;
 mod inproc;
@@ -97,8 +102,10 @@ pub fn unix_path(port: u16) -> std::path::PathBuf {
 /// ~1000 page faults per routed 1 MiB query, more than half its time
 /// (C modules over the UNIX socket: 3.1 ms per round trip, 0.83 ms with
 /// this; the C central 2.6 ms). Allocations up to 32 MiB come from the
-/// heap, and up to 64 MiB of free heap is kept, so RSS stays near its
-/// high-water mark after a burst of large messages.
+/// heap, and up to 64 MiB of free heap is kept while traffic goes on;
+/// after at least 1 MiB came in, once ten seconds in a row have each
+/// brought less than 100 KiB, central gives the free memory back
+/// (`malloc_trim`), so RSS returns close to where it was before the burst.
 ///
 /// Process-wide (it sets glibc's `mallopt` parameters; elsewhere it does
 /// nothing); call it first thing in `main`, before other threads start, as

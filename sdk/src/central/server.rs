@@ -1,13 +1,13 @@
 //! The tokio shell around [`Central`]: listeners, per-connection reader and
 //! writer tasks, and the one task that owns the state machine.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::io::{self, IoSlice, Write};
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::os::fd::OwnedFd;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime};
 
 use tokio::io::unix::AsyncFd;
@@ -25,8 +25,19 @@ use super::access::{AccessControl, Client, Decision, HostName, RuleRef};
 use super::inproc::{self, InProcessStream, ServerEnd, ServerReader, ServerWriter};
 use super::{unix_path, DEFAULT_PORT};
 
-/// Bytes read from a connection at a time (one buffer per connection).
+/// Bytes read from a connection at a time. The buffers come from a pool
+/// shared by all connections ([`BufPool`]): a connection holds one only
+/// from a read until central has taken the bytes in, so an idle module
+/// costs no buffer at all.
 const READ_BUF: usize = 64 * 1024;
+/// Free read buffers the pool keeps for the next reads; more are freed.
+const POOL_KEEP: usize = 8;
+/// Batch vectors (of slices to write) kept for reuse, shared by all
+/// connections; a vector longer than [`BATCH_KEEP`] (after a burst) is
+/// freed instead.
+const SPARE_BATCHES: usize = 8;
+/// See [`SPARE_BATCHES`].
+const BATCH_KEEP: usize = 16;
 /// Events handled before the frames they produced are written out.
 const BATCH: usize = 64;
 /// Slices per vectored write.
@@ -38,6 +49,18 @@ const SHUTDOWN_GRACE: Duration = Duration::from_secs(2);
 const CLOSE_LINGER: Duration = Duration::from_secs(10);
 /// How long a reverse DNS lookup for access control may take.
 const LOOKUP_TIMEOUT: Duration = Duration::from_secs(10);
+/// Once [`TRIM_AFTER`] bytes were read since memory was last given back,
+/// central checks every [`TRIM_TICK`] how much came in since the previous
+/// check. After [`QUIET_TICKS`] checks in a row with less than
+/// `TRIM_AFTER / QUIET_TICKS`, the burst is over: it frees its spare
+/// buffers and gives free memory back. Ten seconds, so that bursts a few
+/// seconds apart find their memory still mapped (giving it back costs a
+/// page fault per page at the next burst).
+const TRIM_TICK: Duration = Duration::from_secs(1);
+/// See [`TRIM_TICK`].
+const QUIET_TICKS: u32 = 10;
+/// See [`TRIM_TICK`].
+const TRIM_AFTER: u64 = 1 << 20;
 /// The first connection id, like the C central's first module socket.
 const FIRST_CONN: u64 = 5;
 
@@ -218,8 +241,9 @@ impl Builder {
     /// Allow/deny rules, checked before any byte is sent to a new
     /// connection. A refused connection is closed at once and logged as
     /// `WARNING: connection rejected from <peer> (denied by <file>:<line>)`,
-    /// to the logs that are on (terminal and/or file, like the C central's
-    /// own warnings) and as a `tracing` warning.
+    /// once: to the logs that are on (terminal and/or file, like the C
+    /// central's own warnings), or as a `tracing` warning when no log is on
+    /// (`-lx` without `-L`, `-s`, [`LogSink::discard`]).
     pub fn access(mut self, access: AccessControl) -> Self {
         self.access = access;
         self
@@ -270,25 +294,22 @@ impl Builder {
         }
         let target = log_target(&config);
         for w in access.warnings() {
-            tracing::warn!("{w}");
-            if target.terminal || target.file {
-                sink.line(target, &format!("WARNING: {w}"));
-            }
+            shell_line(&mut sink, target, &format!("WARNING: {w}"));
         }
         let mut tasks = Vec::new();
-        tasks.push(tokio::spawn(accept_loop(
+        tasks.push(tokio::spawn(Box::pin(accept_loop(
             Listener::Tcp(tcp),
             access.clone(),
             events_tx.clone(),
             stop_rx.clone(),
-        )));
+        ))));
         if let Some((l, _)) = unix {
-            tasks.push(tokio::spawn(accept_loop(
+            tasks.push(tokio::spawn(Box::pin(accept_loop(
                 Listener::Unix(l),
                 access,
                 events_tx.clone(),
                 stop_rx.clone(),
-            )));
+            ))));
         }
         // C logs registering its own variables before anything else.
         let mut central = Central::new_at(config, SystemTime::now());
@@ -304,11 +325,18 @@ impl Builder {
             sink,
             events_tx: events_tx.clone(),
             tasks: JoinSet::new(),
+            pool: Arc::default(),
+            spare_batches: Vec::new(),
+            read_total: 0,
+            read_at_trim: 0,
             dirty: Vec::new(),
             resumed: Vec::new(),
             spin: self.busy_poll.map(BusyPoll::start),
         };
-        let central_task = tokio::spawn(core.run(events_rx, stop_rx));
+        // Boxed first: the state machine's task is a few kilobytes, which
+        // spawning would otherwise copy through several stack frames (the
+        // deepest the main thread's stack ever gets).
+        let central_task = tokio::spawn(Box::pin(core.run(events_rx, stop_rx)));
         Ok(CentralHandle {
             local,
             unix_path,
@@ -324,8 +352,21 @@ impl Builder {
 /// terminal if terminal logging is on at all, in the file if file logging is.
 fn log_target(c: &Config) -> LogTarget {
     LogTarget {
-        terminal: c.terminal_log.any(),
+        // `-s`: the shell prints nothing on the terminal.
+        terminal: c.terminal_log.any() && !c.quiet,
         file: c.file_log.any(),
+    }
+}
+
+/// Logs a line of the shell's own (refusals, read errors, rule warnings)
+/// exactly once: to the logs that are on (terminal and/or file, as the C
+/// central's own warnings go), or, when none is, as a `tracing` warning, so
+/// that it is never lost and never printed twice.
+fn shell_line(sink: &mut LogSink, target: LogTarget, line: &str) {
+    if target.terminal || target.file {
+        sink.line(target, line);
+    } else {
+        tracing::warn!("{line}");
     }
 }
 
@@ -514,12 +555,8 @@ enum Event {
     Accepted(Stream, Peer),
     /// A connection was refused (already closed).
     Refused { peer: String, rule: RuleRef },
-    /// Bytes read: `buf[..len]`; the buffer goes back to the reader.
-    Data {
-        conn: ConnId,
-        buf: Vec<u8>,
-        len: usize,
-    },
+    /// Bytes read; the buffer goes back to the pool.
+    Data { conn: ConnId, buf: Vec<u8> },
     /// End of stream or a read error.
     Eof {
         conn: ConnId,
@@ -661,19 +698,27 @@ impl Sock {
         socket2::SockRef::from(self.fd.get_ref())
     }
 
-    async fn read(&self, buf: &mut [u8]) -> io::Result<usize> {
+    /// Waits until the socket is readable, then reads into a buffer of
+    /// the pool (held only once there is something to read).
+    async fn read(&self, pool: &BufPool) -> io::Result<Vec<u8>> {
         loop {
             let mut ready = self.fd.readable().await?;
-            let n = match io::Read::read(&mut &*self.sock(), buf) {
+            let mut buf = pool.take();
+            let n = match crate::sys::net::read_spare(self.fd.get_ref(), &mut buf) {
                 Ok(n) => n,
-                Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
-                    ready.clear_ready();
-                    continue;
+                Err(e) => {
+                    pool.put(buf);
+                    match e.kind() {
+                        io::ErrorKind::WouldBlock => {
+                            ready.clear_ready();
+                            continue;
+                        }
+                        io::ErrorKind::Interrupted => continue,
+                        _ => return Err(e),
+                    }
                 }
-                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
-                Err(e) => return Err(e),
             };
-            if n > 0 && n < buf.len() {
+            if n > 0 && n < buf.capacity() {
                 // A short read emptied the socket: wait for the next event
                 // instead of asking again and hearing EAGAIN (as tokio's
                 // own streams do). Data that came since raises a new one.
@@ -682,7 +727,7 @@ impl Sock {
             if self.tcp && n >= QUICKACK_MIN {
                 quickack(&self.sock());
             }
-            return Ok(n);
+            return Ok(buf);
         }
     }
 
@@ -736,10 +781,23 @@ enum ReadHalf {
 }
 
 impl ReadHalf {
-    async fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+    /// The next bytes, in a buffer of `pool` (empty: end of stream).
+    async fn read(&mut self, pool: &BufPool) -> io::Result<Vec<u8>> {
         match self {
-            ReadHalf::Sock(s) => s.read(buf).await,
-            ReadHalf::InProcess(r) => r.read(buf).await,
+            ReadHalf::Sock(s) => s.read(pool).await,
+            ReadHalf::InProcess(r) => loop {
+                r.readable().await;
+                let mut buf = pool.take();
+                match r.try_read_spare(&mut buf) {
+                    Ok(_) => return Ok(buf),
+                    Err(e) => {
+                        pool.put(buf);
+                        if e.kind() != io::ErrorKind::WouldBlock {
+                            return Err(e);
+                        }
+                    }
+                }
+            },
         }
     }
 }
@@ -762,15 +820,70 @@ fn quickack(s: &socket2::SockRef<'_>) {
     let _ = s.set_tcp_quickack(true);
 }
 
-/// The write side of a connection, shared by the central task (direct
-/// writes while nothing is queued) and the writer task.
-struct WriteSide {
+/// What the central task shares with a connection's reader task and, while
+/// one runs, its writer task.
+struct Shared {
     half: WriteHalf,
-    /// Batches handed to the writer task and not yet completely written.
-    queued: AtomicUsize,
+    /// Batches the central task could not write at once, in order.
+    queue: Mutex<WriteQueue>,
     /// Signalled when central closes the connection, so that a writer
     /// stuck on a peer that does not read gives up after [`CLOSE_LINGER`].
     closing: Notify,
+    /// The reader's go-ahead: central took the bytes it read in (or closed
+    /// the connection, see `closed`).
+    go: Notify,
+    /// Central closed the connection: the reader ends.
+    closed: AtomicBool,
+}
+
+/// Writes waiting for room in the socket. A writer task exists only while
+/// there are some (`writer`); an idle connection has none. Whoever sees
+/// `writer` false under the lock may write directly: everything queued
+/// before is on the wire.
+#[derive(Default)]
+struct WriteQueue {
+    chunks: VecDeque<Chunks>,
+    writer: bool,
+}
+
+impl Shared {
+    fn queue(&self) -> std::sync::MutexGuard<'_, WriteQueue> {
+        // Nothing panics while holding it; the queue stays consistent.
+        self.queue.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Central closed the connection: the reader stops, a writer finishes
+    /// what is queued (or gives up after [`CLOSE_LINGER`]) and ends.
+    fn close(&self) {
+        self.closed.store(true, Ordering::Release);
+        self.go.notify_one();
+        self.closing.notify_one();
+    }
+}
+
+/// Read buffers shared by all connections: taken for a read, put back once
+/// central has taken the bytes in.
+#[derive(Default)]
+struct BufPool {
+    free: Mutex<Vec<Vec<u8>>>,
+}
+
+impl BufPool {
+    /// An empty buffer with room for [`READ_BUF`] bytes. A new one is not
+    /// zeroed (reads go to its spare capacity), so only the pages bytes
+    /// land on are ever touched.
+    fn take(&self) -> Vec<u8> {
+        let got = self.free.lock().unwrap_or_else(|e| e.into_inner()).pop();
+        got.unwrap_or_else(|| Vec::with_capacity(READ_BUF))
+    }
+
+    fn put(&self, mut buf: Vec<u8>) {
+        buf.clear();
+        let mut free = self.free.lock().unwrap_or_else(|e| e.into_inner());
+        if free.len() < POOL_KEEP {
+            free.push(buf);
+        }
+    }
 }
 
 /// Bytes to write: a frame, or a frame's header, or a large message's
@@ -844,34 +957,42 @@ impl Chunks {
     }
 }
 
-async fn writer_task(
-    conn: ConnId,
-    side: Arc<WriteSide>,
-    mut rx: mpsc::UnboundedReceiver<Chunks>,
-    events: mpsc::UnboundedSender<Event>,
-) {
-    // Ends when the central task drops its sender (the connection is
-    // closed) and everything queued before has been written.
+/// Writes the queued batches of a connection, then ends; started by the
+/// central task when a write could not be completed at once
+/// ([`Core::flush`]).
+async fn writer_task(conn: ConnId, shared: Arc<Shared>, events: mpsc::UnboundedSender<Event>) {
     let mut deadline: Option<tokio::time::Instant> = None;
-    while let Some(mut chunks) = rx.recv().await {
+    loop {
+        let next = {
+            let mut q = shared.queue();
+            let next = q.chunks.pop_front();
+            if next.is_none() {
+                // Under the lock: from now on central writes directly.
+                q.writer = false;
+                q.chunks = VecDeque::new();
+            }
+            next
+        };
+        let Some(mut chunks) = next else { return };
         loop {
-            match chunks.try_write(&side.half) {
+            match chunks.try_write(&shared.half) {
                 Ok(true) => break,
                 Ok(false) => {}
                 Err(error) => {
+                    // `writer` stays set: nothing more is written.
                     let _ = events.send(Event::WriteFailed { conn, error });
                     return;
                 }
             }
             let ready = match deadline {
                 None => tokio::select! {
-                    r = side.half.writable() => r,
-                    _ = side.closing.notified() => {
+                    r = shared.half.writable() => r,
+                    _ = shared.closing.notified() => {
                         deadline = Some(tokio::time::Instant::now() + CLOSE_LINGER);
                         Ok(())
                     }
                 },
-                Some(d) => match tokio::time::timeout_at(d, side.half.writable()).await {
+                Some(d) => match tokio::time::timeout_at(d, shared.half.writable()).await {
                     Ok(r) => r,
                     Err(_) => {
                         tracing::debug!(
@@ -887,7 +1008,6 @@ async fn writer_task(
                 return;
             }
         }
-        side.queued.fetch_sub(1, Ordering::AcqRel);
     }
     // Dropping the last write half sends FIN once the reader is gone too.
 }
@@ -896,36 +1016,38 @@ async fn reader_task(
     conn: ConnId,
     mut half: ReadHalf,
     events: mpsc::UnboundedSender<Event>,
-    mut back: mpsc::Receiver<Vec<u8>>,
+    shared: Arc<Shared>,
+    pool: Arc<BufPool>,
 ) {
-    let mut buf = vec![0u8; READ_BUF];
     loop {
-        // The central task closes the connection by dropping `back`'s sender.
         let r = tokio::select! {
             biased;
-            b = back.recv() => {
-                if b.is_none() {
+            // A go-ahead left over, or the connection closed.
+            _ = shared.go.notified() => {
+                if shared.closed.load(Ordering::Acquire) {
                     return;
                 }
                 continue;
             }
-            r = half.read(&mut buf) => r,
+            r = half.read(&pool) => r,
         };
         match r {
-            Ok(0) => {
+            Ok(buf) if buf.is_empty() => {
+                pool.put(buf);
                 let _ = events.send(Event::Eof { conn, error: None });
                 return;
             }
-            Ok(len) => {
-                if events.send(Event::Data { conn, buf, len }).is_err() {
+            Ok(buf) => {
+                if events.send(Event::Data { conn, buf }).is_err() {
                     return;
                 }
-                // Wait for the buffer: the central task keeps it while the
-                // connection is paused, and so stops this reader.
-                buf = match back.recv().await {
-                    Some(b) => b,
-                    None => return,
-                };
+                // Wait until central has taken the bytes in: it holds the
+                // go-ahead back while the connection is paused, and so
+                // stops this reader.
+                shared.go.notified().await;
+                if shared.closed.load(Ordering::Acquire) {
+                    return;
+                }
             }
             Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
             Err(error) => {
@@ -941,17 +1063,15 @@ async fn reader_task(
 
 /// The central task's view of one connection.
 struct ConnState {
-    side: Arc<WriteSide>,
-    to_writer: mpsc::UnboundedSender<Chunks>,
+    shared: Arc<Shared>,
     /// Frames produced in the current batch, not yet written.
     batch: Vec<Buf>,
-    /// Hands the read buffer back to the reader.
-    back: mpsc::Sender<Vec<u8>>,
     /// Central asked not to read from this connection.
     paused: bool,
-    /// The reader's buffer, kept while paused, with the number of bytes in
-    /// it not yet given to central.
-    parked: Option<(Vec<u8>, usize)>,
+    /// The reader sent bytes and waits for its go-ahead.
+    reader_waits: bool,
+    /// Bytes read before a pause took effect, not yet given to central.
+    parked: Option<Vec<u8>>,
 }
 
 struct Core {
@@ -961,6 +1081,15 @@ struct Core {
     sink: LogSink,
     events_tx: mpsc::UnboundedSender<Event>,
     tasks: JoinSet<()>,
+    /// Read buffers, shared with the readers.
+    pool: Arc<BufPool>,
+    /// Empty batch vectors for the next connections that write, so that
+    /// an idle connection holds none.
+    spare_batches: Vec<Vec<Buf>>,
+    /// Bytes read in all (wrapping) and when memory was last given back
+    /// ([`TRIM_TICK`]).
+    read_total: u64,
+    read_at_trim: u64,
     /// Connections with frames in their batch.
     dirty: Vec<ConnId>,
     /// Connections resumed while handling outputs.
@@ -975,6 +1104,14 @@ impl Core {
         mut events: mpsc::UnboundedReceiver<Event>,
         mut stop: watch::Receiver<bool>,
     ) {
+        // Ticks once a second from when TRIM_AFTER bytes were read until
+        // memory is given back; `mark` is `read_total` at the last tick,
+        // `quiet` the ticks in a row that found little read since.
+        let trim = tokio::time::sleep(TRIM_TICK);
+        tokio::pin!(trim);
+        let mut trim_armed = false;
+        let mut mark = 0u64;
+        let mut quiet = 0u32;
         loop {
             tokio::select! {
                 biased;
@@ -993,6 +1130,23 @@ impl Core {
                         }
                     }
                     self.flush_all();
+                    let since_trim = self.read_total.wrapping_sub(self.read_at_trim);
+                    if !trim_armed && since_trim >= TRIM_AFTER {
+                        trim.as_mut().reset(tokio::time::Instant::now() + TRIM_TICK);
+                        (trim_armed, mark, quiet) = (true, self.read_total, 0);
+                    }
+                }
+                () = &mut trim, if trim_armed => {
+                    let read = self.read_total.wrapping_sub(mark);
+                    let busy = read >= TRIM_AFTER / u64::from(QUIET_TICKS);
+                    mark = self.read_total;
+                    quiet = if busy { 0 } else { quiet + 1 };
+                    if quiet < QUIET_TICKS {
+                        trim.as_mut().reset(tokio::time::Instant::now() + TRIM_TICK);
+                    } else {
+                        trim_armed = false;
+                        self.give_memory_back();
+                    }
                 }
                 Some(r) = self.tasks.join_next(), if !self.tasks.is_empty() => {
                     if let Err(e) = r {
@@ -1006,12 +1160,27 @@ impl Core {
         self.shutdown().await;
     }
 
+    /// A burst of traffic is over ([`TRIM_TICK`]): frees the spare read buffers and batch
+    /// vectors, and hands free heap back to the kernel when the process
+    /// keeps it ([`super::keep_freed_memory`]).
+    fn give_memory_back(&mut self) {
+        self.read_at_trim = self.read_total;
+        self.pool
+            .free
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clear();
+        self.spare_batches = Vec::new();
+        crate::sys::alloc::give_back();
+        tracing::debug!("burst over: spare buffers freed, free memory given back");
+    }
+
     async fn shutdown(mut self) {
         self.flush_all();
         // Dropping the states closes every connection: readers stop,
         // writers write what is queued and end.
         for (_, st) in self.conns.drain() {
-            st.side.closing.notify_one();
+            st.shared.close();
         }
         let tasks = &mut self.tasks;
         let drained = tokio::time::timeout(SHUTDOWN_GRACE, async {
@@ -1029,11 +1198,11 @@ impl Core {
         match ev {
             Event::Accepted(stream, peer) => self.accepted(stream, peer, now),
             Event::Refused { peer, rule } => {
-                let line = format!("WARNING: connection rejected from {peer} (denied by {rule})");
-                tracing::warn!("{line}");
-                self.log(&line);
+                self.log(&format!(
+                    "WARNING: connection rejected from {peer} (denied by {rule})"
+                ));
             }
-            Event::Data { conn, buf, len } => self.data(conn, buf, len, now),
+            Event::Data { conn, buf } => self.data(conn, buf, now),
             Event::Eof { conn, error } => {
                 if !self.conns.contains_key(&conn) {
                     return;
@@ -1089,40 +1258,34 @@ impl Core {
                 peer,
                 now,
             ),
-            Err(e) => {
-                let line = format!("WARNING: cannot serve a new connection: {e}");
-                tracing::warn!("{line}");
-                self.log(&line);
-            }
+            Err(e) => self.log(&format!("WARNING: cannot serve a new connection: {e}")),
         }
     }
 
     /// Starts the reader and writer tasks of an accepted connection and
     /// hands it to the state machine.
     fn serve(&mut self, conn: ConnId, r: ReadHalf, w: WriteHalf, peer: Peer, now: SystemTime) {
-        let side = Arc::new(WriteSide {
+        let shared = Arc::new(Shared {
             half: w,
-            queued: AtomicUsize::new(0),
+            queue: Mutex::default(),
             closing: Notify::new(),
+            go: Notify::new(),
+            closed: AtomicBool::new(false),
         });
-        let (to_writer, writer_rx) = mpsc::unbounded_channel();
-        let (back, back_rx) = mpsc::channel(1);
-        self.tasks.spawn(writer_task(
+        self.tasks.spawn(reader_task(
             conn,
-            side.clone(),
-            writer_rx,
+            r,
             self.events_tx.clone(),
+            shared.clone(),
+            self.pool.clone(),
         ));
-        self.tasks
-            .spawn(reader_task(conn, r, self.events_tx.clone(), back_rx));
         self.conns.insert(
             conn,
             ConnState {
-                side,
-                to_writer,
+                shared,
                 batch: Vec::new(),
-                back,
                 paused: false,
+                reader_waits: false,
                 parked: None,
             },
         );
@@ -1130,27 +1293,30 @@ impl Core {
         self.drain();
     }
 
-    fn data(&mut self, conn: ConnId, buf: Vec<u8>, len: usize, now: SystemTime) {
+    fn data(&mut self, conn: ConnId, buf: Vec<u8>, now: SystemTime) {
         let Some(st) = self.conns.get_mut(&conn) else {
+            self.pool.put(buf);
             return;
         };
+        st.reader_waits = true;
+        self.read_total = self.read_total.wrapping_add(buf.len() as u64);
         if st.paused {
             // Read before the pause took effect: keep it for later.
-            st.parked = Some((buf, len));
+            st.parked = Some(buf);
             return;
         }
-        self.central.receive(conn, &buf[..len], now);
+        self.central.receive(conn, &buf, now);
+        self.pool.put(buf);
         self.drain();
-        self.give_back(conn, buf);
+        self.go_ahead(conn);
     }
 
-    /// Returns the read buffer to the reader, or keeps it while paused.
-    fn give_back(&mut self, conn: ConnId, buf: Vec<u8>) {
+    /// Lets `conn`'s reader read on, unless the connection is paused.
+    fn go_ahead(&mut self, conn: ConnId) {
         if let Some(st) = self.conns.get_mut(&conn) {
-            if st.paused {
-                st.parked = Some((buf, 0));
-            } else {
-                let _ = st.back.try_send(buf);
+            if st.reader_waits && !st.paused {
+                st.reader_waits = false;
+                st.shared.go.notify_one();
             }
         }
     }
@@ -1162,13 +1328,11 @@ impl Core {
         self.drain();
     }
 
-    /// A line of the shell's own (refusals, read errors), to the logs that
-    /// are on now (see [`log_target`]).
+    /// A line of the shell's own (refusals, read errors), logged once
+    /// ([`shell_line`]).
     fn log(&mut self, line: &str) {
         let target = log_target(self.central.config());
-        if target.terminal || target.file {
-            self.sink.line(target, line);
-        }
+        shell_line(&mut self.sink, target, line);
     }
 
     /// Carries out every output of the state machine, including the data
@@ -1187,14 +1351,14 @@ impl Core {
             if st.paused {
                 continue;
             }
-            let Some((buf, len)) = st.parked.take() else {
+            if let Some(buf) = st.parked.take() {
+                self.central.receive(conn, &buf, SystemTime::now());
+                self.pool.put(buf);
+                // Its outputs (and perhaps a new pause) first.
+                self.resumed.push(conn);
                 continue;
-            };
-            if len > 0 {
-                let now = SystemTime::now();
-                self.central.receive(conn, &buf[..len], now);
             }
-            self.give_back(conn, buf);
+            self.go_ahead(conn);
         }
     }
 
@@ -1229,6 +1393,9 @@ impl Core {
         if let Some(st) = self.conns.get_mut(&conn) {
             if st.batch.is_empty() {
                 self.dirty.push(conn);
+                if st.batch.capacity() == 0 {
+                    st.batch = self.spare_batches.pop().unwrap_or_default();
+                }
             }
             st.batch.push(Buf::Own(head));
             st.batch.extend(body.map(Buf::Shared));
@@ -1240,7 +1407,7 @@ impl Core {
     fn close(&mut self, conn: ConnId) {
         self.flush(conn);
         if let Some(st) = self.conns.remove(&conn) {
-            st.side.closing.notify_one();
+            st.shared.close();
         }
     }
 
@@ -1263,22 +1430,38 @@ impl Core {
             off: 0,
         };
         chunks.advance(0);
-        // Nothing queued at the writer: everything before is on the wire,
-        // so writing here keeps the order and saves a task wake-up.
-        if st.side.queued.load(Ordering::Acquire) == 0 {
-            match chunks.try_write(&st.side.half) {
-                Ok(true) => {
+        let mut q = st.shared.queue();
+        if q.writer {
+            // Behind what the writer task has still to write.
+            q.chunks.push_back(chunks);
+            return;
+        }
+        // No writer: everything before is on the wire, so writing here
+        // keeps the order and saves a task wake-up.
+        match chunks.try_write(&st.shared.half) {
+            Ok(true) => {
+                drop(q);
+                if chunks.bufs.capacity() <= BATCH_KEEP && self.spare_batches.len() < SPARE_BATCHES
+                {
                     chunks.bufs.clear();
-                    st.batch = chunks.bufs;
-                    return;
+                    self.spare_batches.push(chunks.bufs);
                 }
-                Ok(false) => {}
-                // The writer task meets the error again and reports it.
-                Err(_) => {}
+                return;
+            }
+            Ok(false) => {}
+            Err(error) => {
+                // Reported like a writer task's failure; nothing more is
+                // written (`writer` stays set, with no writer task).
+                q.writer = true;
+                let _ = self.events_tx.send(Event::WriteFailed { conn, error });
+                return;
             }
         }
-        st.side.queued.fetch_add(1, Ordering::AcqRel);
-        let _ = st.to_writer.send(chunks);
+        q.chunks.push_back(chunks);
+        q.writer = true;
+        drop(q);
+        self.tasks
+            .spawn(writer_task(conn, st.shared.clone(), self.events_tx.clone()));
     }
 }
 

@@ -72,6 +72,21 @@ pub(crate) mod net {
         unsafe { AsyncFd::register_with_interest(fd, interest) }.map_err(|e| e.into_parts().1)
     }
 
+    /// One `read(2)` of `fd` into the spare capacity of `buf`, whose length
+    /// grows by what was read: a buffer read into this way is never zeroed
+    /// first, so only the pages the bytes land on become resident.
+    pub(crate) fn read_spare<T: AsRawFd>(fd: &T, buf: &mut Vec<u8>) -> io::Result<usize> {
+        let spare = buf.spare_capacity_mut();
+        // SAFETY: read(2) writes at most `spare.len()` bytes to memory we own
+        // exclusively (the vector's spare capacity), through a valid pointer.
+        let n = unsafe { libc::read(fd.as_raw_fd(), spare.as_mut_ptr().cast(), spare.len()) };
+        let n = usize::try_from(n).map_err(|_| io::Error::last_os_error())?;
+        // SAFETY: read(2) initialised the first `n` bytes of the spare
+        // capacity (n <= spare.len()).
+        unsafe { buf.set_len(buf.len() + n) };
+        Ok(n)
+    }
+
     /// One `recvmmsg` into up to `N` of `bufs`: the length and sender of each
     /// datagram go to `lens` and `from`; returns how many came.
     #[cfg(target_os = "linux")]
@@ -198,6 +213,11 @@ pub(crate) mod dns {
 pub(crate) mod alloc {
     //! glibc's allocator settings for the central binary.
 
+    use std::sync::atomic::{AtomicBool, Ordering};
+
+    /// [`keep_freed_memory`] was called: [`give_back`] trims.
+    static KEEPING: AtomicBool = AtomicBool::new(false);
+
     /// Keeps large freed allocations in the heap (see
     /// [`crate::central::keep_freed_memory`]).
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
@@ -208,8 +228,27 @@ pub(crate) mod alloc {
             libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
             libc::mallopt(libc::M_TRIM_THRESHOLD, 64 << 20);
         }
+        KEEPING.store(true, Ordering::Relaxed);
     }
 
     #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
     pub(crate) fn keep_freed_memory() {}
+
+    /// Hands the free memory [`keep_freed_memory`] kept back to the kernel
+    /// (`malloc_trim`); nothing if it was not called.
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    pub(crate) fn give_back() {
+        if KEEPING.load(Ordering::Relaxed) {
+            // SAFETY: malloc_trim only releases free heap memory; it is
+            // thread-safe (it takes the arenas' locks).
+            unsafe {
+                libc::malloc_trim(0);
+            }
+        }
+    }
+
+    #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+    pub(crate) fn give_back() {
+        let _ = &KEEPING;
+    }
 }

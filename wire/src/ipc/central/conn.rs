@@ -2,11 +2,12 @@
 //! frames written to it, and its connection closed (a protocol error, its
 //! goodbye or its end of stream).
 
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::VecDeque;
 use std::time::SystemTime;
 
 use super::internal;
 use super::log::{self, Kind};
+use super::small_map::SmallMap;
 use super::tables::{unqueue, DispatchId, Linked, Module, Status};
 use super::{Bad, Body, Central, ConnId, Output, Peer};
 use crate::ipc::frame::{ClassId, Header, MsgClass, HEADER_SIZE, QUERY_REPLY_INTENT, SPLIT_AT};
@@ -99,7 +100,7 @@ impl Central {
         self.clock = now;
         self.modules.insert(
             conn,
-            Module {
+            Box::new(Module {
                 peer,
                 rx: Vec::new(),
                 rx_pos: 0,
@@ -115,9 +116,9 @@ impl Central {
                 msg_limits: Vec::new(),
                 pending_limit: None,
                 port: -1,
-                handlers: BTreeMap::new(),
-                retired: BTreeMap::new(),
-                vars_read: BTreeMap::new(),
+                handlers: SmallMap::new(),
+                retired: SmallMap::new(),
+                vars_read: SmallMap::new(),
                 paused: false,
                 closed: false,
                 problems: log::ProblemBudget::default(),
@@ -125,7 +126,7 @@ impl Central {
                 relay_from: None,
                 held: Vec::new(),
                 big_end: None,
-            },
+            }),
         );
         let id = self.msgs.get(internal::MSG_INFO).and_then(|m| m.id);
         self.transmit(conn, id.map_or(0, |id| id.0).to_be_bytes().to_vec());
@@ -186,9 +187,9 @@ impl Central {
             if m.rx_pos == m.rx.len() {
                 m.rx.clear();
                 m.rx_pos = 0;
-                if m.rx.capacity() > 1 << 20 {
-                    m.rx.shrink_to(64 << 10);
-                }
+                // Everything was taken in: an idle module keeps no buffer
+                // (however large what arrived at once made it).
+                m.rx = Vec::new();
             } else if m.rx_pos > 0 {
                 m.rx.drain(..m.rx_pos);
                 m.rx_pos = 0;

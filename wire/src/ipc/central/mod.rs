@@ -87,6 +87,7 @@ mod queue;
 mod registry;
 mod relay;
 mod routing;
+mod small_map;
 mod tables;
 mod vars;
 
@@ -245,7 +246,8 @@ pub struct Stats {
 pub struct Central {
     config: Config,
     outputs: VecDeque<Output>,
-    modules: BTreeMap<ConnId, Module>,
+    /// Boxed: a B-tree node holds eleven entries, most of them empty.
+    modules: BTreeMap<ConnId, Box<Module>>,
     msgs: HashMap<String, Msg>,
     by_id: HashMap<MsgId, String>,
     next_ids: Vec<i32>,
@@ -396,5 +398,64 @@ mod tests {
         assert!(ids.iter().all(|i| *i >= 2));
         let unique: HashSet<i32> = ids.iter().copied().collect();
         assert_eq!(unique.len(), ids.len());
+    }
+
+    /// A module's receive buffer grows for a burst and is given back once
+    /// the burst is taken in: an idle module keeps little.
+    #[test]
+    fn receive_buffer_shrinks_back_after_a_burst() {
+        use crate::ipc::module::{Connection, ModuleConfig, MsgLength};
+        use std::time::Instant;
+        let now = SystemTime::now();
+        let mut c = Central::new(Config::default());
+        let mut m = Connection::new(ModuleConfig::new("burst", "localhost"), Instant::now());
+        let conn = ConnId(5);
+        c.connect(conn, Peer::Other("test".into()), now);
+        // Each side's output to the other until both are quiet.
+        let pump = |c: &mut Central, m: &mut Connection, hold: bool| -> Vec<u8> {
+            let mut held = Vec::new();
+            loop {
+                let mut moved = false;
+                while let Some(o) = c.poll_output() {
+                    match o {
+                        Output::Transmit { bytes, .. } => {
+                            m.receive(&bytes, Instant::now());
+                            moved = true;
+                        }
+                        Output::TransmitBody { head, body, .. } => {
+                            m.receive(&head, Instant::now());
+                            m.receive(&body, Instant::now());
+                            moved = true;
+                        }
+                        _ => {}
+                    }
+                }
+                while m.poll_event().is_some() {}
+                while let Some(b) = m.poll_transmit() {
+                    if hold {
+                        held.extend_from_slice(&b);
+                    } else {
+                        c.receive(conn, &b, now);
+                    }
+                    moved = true;
+                }
+                if !moved || hold {
+                    return held;
+                }
+            }
+        };
+        pump(&mut c, &mut m, false);
+        m.define_msg("burst", MsgLength::Variable, None).unwrap();
+        // Its first frame (a query central answers) 300 times, in one read.
+        let burst = pump(&mut c, &mut m, true).repeat(300);
+        assert!(burst.len() > 16 * 1024, "{} bytes", burst.len());
+        c.receive(conn, &burst, now);
+        let answers = std::iter::from_fn(|| c.poll_output())
+            .filter(|o| matches!(o, Output::Transmit { .. }))
+            .count();
+        assert_eq!(answers, 300);
+        assert!(!c.modules[&conn].closed);
+        let rx = &c.modules[&conn].rx;
+        assert_eq!(rx.capacity(), 0, "nothing kept once taken in");
     }
 }

@@ -9,6 +9,7 @@ use std::hash::Hash;
 
 use super::internal::{Def, Internal};
 use super::log;
+use super::small_map::SmallMap;
 use super::{Bad, Body, Central, ConnId, Peer, Stats, DEFAULT_PRIORITY};
 use crate::format::{parse, parse_with, Format};
 use crate::ipc::frame::{ClassId, Header, MsgClass};
@@ -229,15 +230,15 @@ pub(super) struct Module {
     /// Direct-mode listen port (-1 = none).
     pub(super) port: i32,
     /// Handlers by name.
-    pub(super) handlers: BTreeMap<String, Handler>,
+    pub(super) handlers: SmallMap<String, Handler>,
     /// Ids of handlers this module unsubscribed, by name. A C module
     /// subscribes the same handler again with id 0 and expects deliveries
     /// under the id it registered first (`x_ipc_deregisterHnd` keeps the
     /// record; `x_ipc_selfRegisterHnd` finds it and keeps its id).
-    pub(super) retired: BTreeMap<String, i32>,
+    pub(super) retired: SmallMap<String, i32>,
     /// The version of each variable this module last read (`V_get_…`) or
     /// was sent (`V_watch_…`).
-    pub(super) vars_read: BTreeMap<String, u64>,
+    pub(super) vars_read: SmallMap<String, u64>,
     pub(super) paused: bool,
     pub(super) closed: bool,
     /// Its problem lines (unknown ids, foreign acknowledgements …), so
