@@ -24,6 +24,38 @@ struct Proc {
     child: Child,
     lines: mpsc::Receiver<String>,
     seen: Vec<String>,
+    err_lines: mpsc::Receiver<String>,
+    err_seen: Vec<String>,
+}
+
+/// Sends each line `r` gives to a channel, from a thread of its own.
+fn lines_of(r: impl Read + Send + 'static) -> mpsc::Receiver<String> {
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for l in BufReader::new(r).lines().map_while(Result::ok) {
+            if tx.send(l).is_err() {
+                break;
+            }
+        }
+    });
+    rx
+}
+
+/// The next line of `lines` starting with `prefix` (lines before it are
+/// skipped, and kept in `seen`).
+fn expect_in(lines: &mpsc::Receiver<String>, seen: &mut Vec<String>, prefix: &str) -> String {
+    let deadline = Instant::now() + T;
+    loop {
+        match lines.recv_timeout(deadline.saturating_duration_since(Instant::now())) {
+            Ok(l) => {
+                seen.push(l.clone());
+                if l.starts_with(prefix) {
+                    return l;
+                }
+            }
+            Err(_) => panic!("no line {prefix:?} within {T:?}; saw {seen:?}"),
+        }
+    }
 }
 
 impl Proc {
@@ -32,42 +64,29 @@ impl Proc {
             .args(args)
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
+            .stderr(Stdio::piped())
             .spawn()
             .expect("spawn courier");
-        let out = child.stdout.take().unwrap();
-        let (tx, rx) = mpsc::channel();
-        std::thread::spawn(move || {
-            for l in BufReader::new(out).lines().map_while(Result::ok) {
-                if tx.send(l).is_err() {
-                    break;
-                }
-            }
-        });
+        let lines = lines_of(child.stdout.take().unwrap());
+        let err_lines = lines_of(child.stderr.take().unwrap());
         Proc {
             child,
-            lines: rx,
+            lines,
             seen: Vec::new(),
+            err_lines,
+            err_seen: Vec::new(),
         }
     }
 
-    /// The next line starting with `prefix` (lines before it are skipped).
+    /// The next line on stdout starting with `prefix` (lines before it are
+    /// skipped).
     fn expect(&mut self, prefix: &str) -> String {
-        let deadline = Instant::now() + T;
-        loop {
-            match self
-                .lines
-                .recv_timeout(deadline.saturating_duration_since(Instant::now()))
-            {
-                Ok(l) => {
-                    self.seen.push(l.clone());
-                    if l.starts_with(prefix) {
-                        return l;
-                    }
-                }
-                Err(_) => panic!("no line {prefix:?} within {T:?}; saw {:?}", self.seen),
-            }
-        }
+        expect_in(&self.lines, &mut self.seen, prefix)
+    }
+
+    /// The next line on stderr starting with `prefix`.
+    fn expect_err(&mut self, prefix: &str) -> String {
+        expect_in(&self.err_lines, &mut self.err_seen, prefix)
     }
 
     fn signal(&self, sig: i32) {
@@ -219,10 +238,15 @@ fn spy_prints_discovery_decoded_samples_and_a_clean_leave() {
     assert!(s.contains(": courier::Ping { seq: "), "{s}");
     spy.expect("sample chatter courier::Ping from ");
     // Ctrl-C: the publisher closes its session, so the spy sees it leave at
-    // once (a goodbye, not a lease expiry)
+    // once (a goodbye, not a lease expiry); it says what it interrupted and
+    // exits 130, as a shell reports Ctrl-C
     publ.signal(libc::SIGINT);
-    publ.expect("interrupted");
-    assert_eq!(publ.wait(), Some(0));
+    let i = publ.expect("interrupted");
+    assert!(
+        i.starts_with("interrupted after ") && i.ends_with(" samples sent"),
+        "{i}"
+    );
+    assert_eq!(publ.wait(), Some(130));
     assert_eq!(
         spy.expect("publication lost "),
         format!("publication lost {guid}")
@@ -232,8 +256,8 @@ fn spy_prints_discovery_decoded_samples_and_a_clean_leave() {
         format!("participant lost {prefix} goodbye")
     );
     spy.signal(libc::SIGTERM);
-    spy.expect("interrupted");
-    assert_eq!(spy.wait(), Some(0));
+    assert!(spy.expect("interrupted").starts_with("interrupted after "));
+    assert_eq!(spy.wait(), Some(143));
 }
 
 #[test]
@@ -347,7 +371,7 @@ fn ping_over_ipc_through_central() {
         let mut args = vec!["ping", u.as_str()];
         args.extend_from_slice(flag);
         let (code, _, err) = run(&args);
-        assert_eq!(code, 64, "{args:?}: {err}");
+        assert_eq!(code, 2, "{args:?}: {err}");
         assert!(err.contains(&format!("{} is DDS QoS", flag[1])), "{err}");
     }
     // spy needs a DDS backend: a clear error, exit 1
@@ -363,67 +387,184 @@ fn usage_errors_name_the_problem() {
     let u = url(204);
     let u = u.as_str();
     for (args, want) in [
-        (&[][..], "no command given"),
-        (&["fly"][..], "unknown command \"fly\""),
-        (&["ping", u][..], "--publish and --subscribe"),
+        (&["fly"][..], "unrecognized subcommand 'fly'"),
+        (&["pnig"][..], "a similar subcommand exists: 'ping'"),
+        (
+            &["ping", u][..],
+            "the following required arguments were not provided",
+        ),
         (
             &["ping", u, "--publish", "--subscribe"][..],
-            "--publish and --subscribe",
+            "'--publish' cannot be used with '--subscribe'",
         ),
         (
             &["ping", u, "--publish", "--colour", "red"][..],
-            "unknown option \"--colour\"",
+            "unexpected argument '--colour'",
+        ),
+        (
+            &["ping", u, "--publsh"][..],
+            "a similar argument exists: '--publish'",
         ),
         (
             &["ping", u, "--publish", "--period", "soon"][..],
-            "--period \"soon\"",
+            "invalid value 'soon' for '--period <MS>'",
         ),
         (
             &["ping", u, "--publish", "--period=0"][..],
-            "--period must be at least 1 ms",
+            "invalid value '0' for '--period <MS>'",
         ),
         (
             &["ping", u, "--subscribe", "--count", "0"][..],
-            "--count must be at least 1",
+            "invalid value '0' for '--count <N>'",
         ),
         (
             &["ping", u, "--publish=yes"][..],
-            "--publish takes no value",
+            "unexpected value 'yes' for '--publish'",
         ),
         (
             &["ping", u, "--publish", "--exclusive"][..],
-            "--exclusive is for --subscribe",
+            "'--publish' cannot be used with '--exclusive'",
         ),
         (&["ping", u, u, "--publish"][..], "unexpected argument"),
-        (&["ping", "--publish"][..], "no session URL"),
-        (&["spy", u, "--count"][..], "--count needs a value"),
-        (&["spy", u, "--duration", "-1"][..], "--duration \"-1\""),
+        (
+            &["ping", "--publish"][..],
+            "the following required arguments were not provided",
+        ),
+        (
+            &["spy", u, "--count"][..],
+            "a value is required for '--count <N>'",
+        ),
+        (
+            &["spy", u, "--duration", "-1"][..],
+            "unexpected argument '-1'",
+        ),
         (
             &["spy", u, "--frobnicate"][..],
-            "unknown option \"--frobnicate\"",
+            "unexpected argument '--frobnicate'",
         ),
+        (
+            &["spy", u, "--topic", "a", "--topic", "b"][..],
+            "--topic takes one fnmatch pattern",
+        ),
+        (
+            &[
+                "ping",
+                "rtps://999?interface=lo&peers=127.0.0.1",
+                "--publish",
+            ][..],
+            "domain 999 is above 232",
+        ),
+        (&["completions", "tcsh"][..], "invalid value 'tcsh'"),
     ] {
         let (code, out, err) = run(args);
-        assert_eq!(code, 64, "{args:?}: {err}");
+        assert_eq!(code, 2, "{args:?}: {err}");
+        assert!(err.starts_with("error: "), "{args:?}: {err}");
         assert!(err.contains(want), "{args:?}: {want:?} in {err}");
-        assert!(err.contains("usage: courier"), "{args:?}: {err}");
         assert!(out.is_empty(), "{args:?}: {out}");
     }
-    let (code, _, err) = run(&[
-        "ping",
-        "rtps://999?interface=lo&peers=127.0.0.1",
-        "--publish",
-    ]);
-    assert_eq!(code, 1, "{err}");
-    assert!(err.contains("232"), "{err}");
+    // no command at all: the help, as a usage error
+    let (code, _, err) = run(&[]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("Commands:"), "{err}");
     for (args, want) in [
-        (&["--help"][..], "spy <url>"),
-        (&["help"][..], "ping <url>"),
+        (&["--help"][..], "spy"),
+        (&["help"][..], "ping"),
         (&["ping", "--help"][..], "--min-separation"),
         (&["spy", "-h"][..], "participant found|changed"),
+        (
+            &["--version"][..],
+            concat!("courier ", env!("CARGO_PKG_VERSION")),
+        ),
+        (&["ping", "--version"][..], "courier-ping "),
+        (&["completions", "bash"][..], "_courier()"),
+        (&["completions", "zsh"][..], "#compdef courier"),
     ] {
         let (code, out, err) = run(args);
         assert_eq!(code, 0, "{args:?}: {err}");
         assert!(out.contains(want), "{args:?}: {want:?} in {out}");
     }
+}
+
+/// Every session URL is checked before anything connects, and a bad one
+/// names the schemes this program knows.
+#[test]
+fn bad_urls_are_usage_errors_naming_the_known_schemes() {
+    for (url, want) in [
+        (
+            "foo://x",
+            "invalid value 'foo://x' for '<URL>': unknown scheme \"foo\" in \"foo://x\"; \
+             known schemes: ipc, rtps",
+        ),
+        (
+            "localhost:1381",
+            "no scheme in \"localhost:1381\"; a session URL is SCHEME://…, known schemes: ipc, rtps",
+        ),
+        ("ipc://h:0", "bad IPC URL: '0' is not a port number"),
+        ("rtps://x", "domain \"x\" is not a number"),
+        (
+            "rtps://1?interface=lo&colour=red",
+            "unknown option \"colour\"",
+        ),
+    ] {
+        for cmd in [&["ping", url, "--publish"][..], &["spy", url][..]] {
+            let (code, _, err) = run(cmd);
+            assert_eq!(code, 2, "{cmd:?}: {err}");
+            assert!(err.contains(want), "{cmd:?}: {want:?} in {err}");
+        }
+    }
+}
+
+/// A free port of 127.0.0.1 that nobody listens on (bound, then closed).
+fn dead_port() -> u16 {
+    let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    l.local_addr().unwrap().port()
+}
+
+/// A central that is not there: the wait shows what it waits for (with
+/// `--progress always`, as on a terminal), Ctrl-C says it interrupted the
+/// connect and exits 130, and giving up names the address and what to
+/// check. A host name that does not resolve fails at once.
+#[test]
+fn a_dead_central_is_reported_where_it_was_looked_for() {
+    let port = dead_port();
+    let u = format!("ipc://127.0.0.1:{port}");
+    let mut waiting = Proc::start(&["--progress", "always", "ping", &u, "--subscribe"]);
+    assert_eq!(
+        waiting.expect_err("courier: connecting"),
+        format!("courier: connecting to central at 127.0.0.1:{port} for 1 s (is central running?)")
+    );
+    waiting.signal(libc::SIGINT);
+    let i = waiting.expect("interrupted");
+    assert!(
+        i.starts_with(&format!(
+            "interrupted while connecting to central at 127.0.0.1:{port} ("
+        )),
+        "{i}"
+    );
+    assert_eq!(waiting.wait(), Some(130));
+    let (code, out, err) = run(&["ping", &u, "--subscribe"]);
+    assert_eq!(code, 1, "{err}");
+    assert!(out.is_empty(), "{out}");
+    let want = format!("courier: cannot connect to central at 127.0.0.1:{port} (");
+    assert!(err.starts_with(&want), "{want:?} in {err}");
+    assert!(
+        err.trim_end()
+            .ends_with("Connection refused (os error 111); is central running there?"),
+        "{err}"
+    );
+    // no progress unless asked for (stderr is not a terminal here)
+    assert_eq!(err.lines().count(), 1, "{err}");
+    // a label of 64 bytes: glibc refuses the name without asking a name
+    // server, so nothing leaves this machine
+    let host = "a".repeat(64);
+    let started = Instant::now();
+    let (code, _, err) = run(&["ping", &format!("ipc://{host}:1381"), "--subscribe"]);
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.starts_with(&format!(
+            "courier: cannot connect to central at {host}:1381: cannot resolve \"{host}\""
+        )),
+        "{err}"
+    );
+    assert!(started.elapsed() < Duration::from_secs(2), "retried: {err}");
 }

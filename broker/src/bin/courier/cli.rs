@@ -1,0 +1,350 @@
+//! The command line: clap's derive, with every session URL checked before
+//! anything connects, and the checks clap cannot express (options one
+//! backend has and the other has not) as usage errors too.
+
+use clap::error::ErrorKind;
+use clap::{ArgGroup, Args, CommandFactory, Parser, Subcommand, ValueEnum};
+
+use courier::rtps_backend::RtpsOptions;
+
+/// Largest `--size`: big enough to exercise fragmentation, small enough not
+/// to exhaust memory by a typo.
+pub const MAX_SIZE: u64 = 16 << 20;
+
+const AFTER_HELP: &str = "\
+Session URLs:
+  ipc://HOST:PORT          a CMU IPC central (Courier's `central` or the C one); ipc:// alone
+                           takes CENTRALHOST, then localhost:1381
+  rtps://DOMAIN?OPTIONS    DDS over RTPS, e.g. rtps://0?interface=lo&peers=127.0.0.1
+
+Exit status: 0 done; 1 a runtime failure (the message says which); 2 a usage
+error; 128+N stopped by signal N before it was done (130 Ctrl-C, 143 SIGTERM).
+`courier <command> --help` describes a command and what it prints.";
+
+/// Command-line tools over any Courier session URL.
+#[derive(Parser, Debug)]
+#[command(
+    name = "courier",
+    version,
+    propagate_version = true,
+    after_help = AFTER_HELP,
+    arg_required_else_help = true
+)]
+pub struct Cli {
+    /// Report what long waits wait for (connecting, discovery) on stderr:
+    /// auto = when stderr is a terminal
+    #[arg(long, global = true, value_enum, value_name = "WHEN", default_value_t = ProgressMode::Auto)]
+    pub progress: ProgressMode,
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// When long waits report progress.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ProgressMode {
+    /// When stderr is a terminal.
+    Auto,
+    /// Always.
+    Always,
+    /// Never.
+    Never,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Send or receive courier::Ping samples (like ORTE's orteping)
+    #[command(after_help = PING_OUTPUT)]
+    Ping(PingArgs),
+    /// Print discovery and every sample of matching topics (like ORTE's ortespy)
+    #[command(after_help = SPY_OUTPUT)]
+    Spy(SpyArgs),
+    /// Print a shell completion script (bash, zsh, fish, elvish, powershell)
+    Completions {
+        /// The shell
+        #[arg(value_enum)]
+        shell: clap_complete::Shell,
+    },
+}
+
+const PING_OUTPUT: &str = "\
+Output, one event a line:
+  ready                               the publication / subscription exists
+  matched <n>                         publisher: readers now matched (DDS and IPC);
+                                      subscriber: publications now matched (DDS)
+  incompatible <guid> <reason>        an endpoint of the topic whose QoS does not match (DDS)
+  sent <seq>
+  received <seq> from <source> <bytes> B   <source>: writer GUID (DDS), ? (IPC)
+  deadline missed <total>             subscriber with --deadline (DDS)
+  skipped <reason>                    a sample that did not decode
+  done                                --count reached (exit 0)
+  interrupted after <n> samples …     Ctrl-C / SIGTERM: session closed (exit 130 / 143)";
+
+const SPY_OUTPUT: &str = "\
+Every sample of the topics matching --topic and --type, and discovery; needs an
+rtps:// session (pattern subscriptions).
+Output, one event a line (a name with blanks is quoted; an empty list is -):
+  ready
+  participant found|changed <guid prefix> name=<name> unicast=<addrs> multicast=<addrs>
+  participant lost <guid prefix> goodbye|lease-expired
+  publication|subscription found|changed <guid> topic=<topic> type=<type>
+      reliability=reliable|best-effort durability=volatile|transient-local|transient|persistent
+      history=keep-last(<n>)|keep-all deadline=<n>ms|infinite
+      ownership=shared|exclusive(<strength>) partitions=[<p>,...]
+  publication|subscription lost <guid>
+  incompatible <guid> <reason>
+  sample <topic> <type> from <writer guid> <bytes> B[ (disposed)|(unregistered)]: <value>
+      <value>: courier::Ping { seq: <n>, stamp_ns: <n>, text: \"...\" }, or the first
+      64 bytes in hex (… when more), or - when none
+  interrupted after <n> samples       Ctrl-C / SIGTERM: session closed (exit 130 / 143)";
+
+#[derive(Args, Debug)]
+#[command(group(ArgGroup::new("mode").required(true).args(["publish", "subscribe"])))]
+pub struct PingArgs {
+    /// Session URL (ipc://…, rtps://…)
+    #[arg(value_name = "URL", value_parser = session_url)]
+    pub url: String,
+    /// Publish a sample every --period
+    #[arg(long)]
+    pub publish: bool,
+    /// Subscribe and report what arrives
+    #[arg(long)]
+    pub subscribe: bool,
+    /// Topic
+    #[arg(long, default_value = "ping")]
+    pub topic: String,
+    /// Publishing period
+    #[arg(long, value_name = "MS", default_value_t = 1000, value_parser = clap::value_parser!(u64).range(1..))]
+    pub period: u64,
+    /// Stop after N samples sent or received (default: run until interrupted)
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub count: Option<u64>,
+    /// Text length of each sample
+    #[arg(long, value_name = "BYTES", default_value_t = 0, value_parser = clap::value_parser!(u64).range(..=MAX_SIZE))]
+    pub size: u64,
+    /// Participant / module name
+    #[arg(long, default_value = "courier-ping")]
+    pub name: String,
+    #[command(flatten)]
+    pub qos: QosArgs,
+}
+
+/// DDS QoS of `ping` (refused on IPC, which has none).
+#[derive(Args, Debug, Default)]
+#[command(next_help_heading = "DDS QoS (rtps:// only)")]
+pub struct QosArgs {
+    /// Publisher: exclusive ownership with this strength; subscriber: as --exclusive
+    #[arg(long, value_name = "N", allow_negative_numbers = true)]
+    pub strength: Option<i32>,
+    /// Subscriber: take samples from the strongest publisher only
+    #[arg(long, conflicts_with = "publish")]
+    pub exclusive: bool,
+    /// Publisher: offered deadline; subscriber: requested deadline, each miss
+    /// prints `deadline missed <total>`
+    #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u64).range(1..))]
+    pub deadline: Option<u64>,
+    /// Subscriber: minimum separation between samples
+    #[arg(long, value_name = "MS", conflicts_with = "publish")]
+    pub min_separation: Option<u64>,
+    /// Best-effort reliability
+    #[arg(long, overrides_with = "reliable")]
+    pub best_effort: bool,
+    /// Reliable (the default)
+    #[arg(long, overrides_with = "best_effort")]
+    pub reliable: bool,
+}
+
+impl QosArgs {
+    /// The QoS options given, by flag.
+    fn given(&self) -> Vec<&'static str> {
+        let mut v = Vec::new();
+        if self.strength.is_some() {
+            v.push("--strength");
+        }
+        if self.exclusive {
+            v.push("--exclusive");
+        }
+        if self.deadline.is_some() {
+            v.push("--deadline");
+        }
+        if self.min_separation.is_some() {
+            v.push("--min-separation");
+        }
+        if self.best_effort {
+            v.push("--best-effort");
+        }
+        v
+    }
+}
+
+#[derive(Args, Debug)]
+pub struct SpyArgs {
+    /// Session URL (ipc://…, rtps://…)
+    #[arg(value_name = "URL", value_parser = session_url)]
+    pub url: String,
+    /// fnmatch pattern of topics to print samples of (default *)
+    #[arg(long, value_name = "PATTERN")]
+    pub topic: Vec<String>,
+    /// fnmatch pattern of type names
+    #[arg(long = "type", value_name = "PATTERN", default_value = "*")]
+    pub type_name: String,
+    /// Exit after N samples
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub count: Option<u64>,
+    /// Exit after this long
+    #[arg(long, value_name = "SECS", value_parser = clap::value_parser!(u64).range(1..))]
+    pub duration: Option<u64>,
+    /// Participant / module name
+    #[arg(long, default_value = "courier-spy")]
+    pub name: String,
+}
+
+/// The backend a session URL names.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    Ipc,
+    Dds,
+}
+
+/// The backend of a URL that [`session_url`] accepted.
+pub fn kind(url: &str) -> Kind {
+    match url.split_once("://") {
+        Some((s, _)) if s.eq_ignore_ascii_case("ipc") => Kind::Ipc,
+        _ => Kind::Dds,
+    }
+}
+
+/// Checks a session URL before anything connects: a scheme this program
+/// knows, and what that backend makes of the rest.
+pub fn session_url(url: &str) -> Result<String, String> {
+    let known = courier::scheme::known_schemes().join(", ");
+    let Some((scheme, _)) = url.split_once("://") else {
+        return Err(format!(
+            "no scheme in {url:?}; a session URL is SCHEME://…, known schemes: {known} \
+             (ipc://localhost:1381, rtps://0?interface=lo)"
+        ));
+    };
+    match scheme.to_ascii_lowercase().as_str() {
+        "ipc" => courier::ipc_backend::parse_url(url)
+            .map(|_| url.to_string())
+            .map_err(|why| format!("bad IPC URL: {why}")),
+        "rtps" => RtpsOptions::from_url(url)
+            .map(|_| url.to_string())
+            .map_err(|e| e.to_string()),
+        _ => Err(format!(
+            "unknown scheme {scheme:?} in {url:?}; known schemes: {known}"
+        )),
+    }
+}
+
+/// A usage error found after parsing: printed as clap prints its own, with
+/// the subcommand's usage, exit 2.
+pub fn usage_error(sub: &str, msg: impl std::fmt::Display) -> clap::Error {
+    let mut cmd = Cli::command();
+    cmd.build();
+    match cmd.find_subcommand_mut(sub) {
+        Some(s) => s.error(ErrorKind::ArgumentConflict, msg),
+        None => cmd.error(ErrorKind::ArgumentConflict, msg),
+    }
+}
+
+impl Cli {
+    /// The checks clap cannot make: options of one backend given for the
+    /// other.
+    pub fn check(&self) -> Result<(), clap::Error> {
+        match &self.command {
+            Command::Ping(a) => {
+                // The IPC backend takes no QoS and would ignore these
+                // silently: a publisher that is not exclusive, a deadline
+                // that is never watched.
+                if let Some(f) = a.qos.given().first().filter(|_| kind(&a.url) == Kind::Ipc) {
+                    return Err(usage_error(
+                        "ping",
+                        format!(
+                            "{f} is DDS QoS and needs an rtps:// session; {} is IPC, which has no QoS",
+                            a.url
+                        ),
+                    ));
+                }
+            }
+            Command::Spy(a) => {
+                if a.topic.len() > 1 {
+                    return Err(usage_error(
+                        "spy",
+                        "--topic takes one fnmatch pattern (use *, ?, [..])",
+                    ));
+                }
+            }
+            Command::Completions { .. } => {}
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(a: &[&str]) -> Result<Cli, clap::Error> {
+        Cli::try_parse_from(std::iter::once("courier").chain(a.iter().copied()))
+    }
+
+    #[test]
+    fn the_derive_is_consistent() {
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn ping_options_in_both_spellings() {
+        let u = "rtps://205?interface=lo&peers=127.0.0.1";
+        let cli = parse(&[
+            "ping",
+            u,
+            "--subscribe",
+            "--topic=t",
+            "--deadline",
+            "250",
+            "--count=4",
+            "--strength",
+            "-2",
+            "--best-effort",
+        ])
+        .unwrap();
+        let Command::Ping(o) = cli.command else {
+            panic!("parse")
+        };
+        assert_eq!(o.url, u);
+        assert!(!o.publish && o.subscribe && o.qos.best_effort);
+        assert_eq!(o.topic, "t");
+        assert_eq!(o.qos.deadline, Some(250));
+        assert_eq!((o.count, o.qos.strength), (Some(4), Some(-2)));
+    }
+
+    #[test]
+    fn urls_are_checked_before_connecting() {
+        let known = courier::scheme::known_schemes().join(", ");
+        for (url, want) in [
+            (
+                "foo://x",
+                format!("unknown scheme \"foo\" in \"foo://x\"; known schemes: {known}"),
+            ),
+            (
+                "localhost:1381",
+                "no scheme in \"localhost:1381\"".to_string(),
+            ),
+            (
+                "ipc://h:port",
+                "bad IPC URL: 'port' is not a port number".to_string(),
+            ),
+            ("rtps://999", "domain 999 is above 232".to_string()),
+            (
+                "rtps://0?colour=red",
+                "unknown option \"colour\"".to_string(),
+            ),
+        ] {
+            let e = session_url(url).unwrap_err();
+            assert!(e.contains(&want), "{url}: {want:?} in {e:?}");
+        }
+        assert_eq!(kind("IPC://h:1"), Kind::Ipc);
+        assert_eq!(kind("rtps://0"), Kind::Dds);
+    }
+}
