@@ -374,6 +374,9 @@ impl<'de> Visitor<'de> for Seed<'_> {
 
     fn visit_i128<E: de::Error>(self, n: i128) -> Result<Value, E> {
         match self.shape {
+            Shape::Format(Format::Primitive(Primitive::String | Primitive::Format)) => {
+                Err(E::invalid_type(de::Unexpected::Other("a number"), &self))
+            }
             Shape::Format(Format::Primitive(p)) => int_value(*p, n),
             Shape::Format(Format::Enum { .. }) => i32::try_from(n)
                 .map(Value::Enum)
@@ -631,6 +634,11 @@ mod tests {
             ("{enum A, B}", "\"C\"", "one of A, B"),
             ("char", "\"ab\"", "one-character string"),
             ("boolean", "1.5", "true or false"),
+            (
+                "{int, string}",
+                "[1, 2]",
+                "invalid type: a number, expected a string",
+            ),
             ("{int, *!}", "[1, [2, 3]]", "expected an array of 2 fields"),
             ("3", "[1, 2]", "expected 3 bytes, found 2"),
         ] {
