@@ -5,6 +5,7 @@
 use clap::error::ErrorKind;
 use clap::{ArgGroup, Args, CommandFactory, Parser, Subcommand, ValueEnum};
 
+use courier::format::Format;
 use courier::rtps_backend::RtpsOptions;
 
 /// Largest `--size`: big enough to exercise fragmentation, small enough not
@@ -52,6 +53,12 @@ pub enum ProgressMode {
 
 #[derive(Subcommand, Debug)]
 pub enum Command {
+    /// Print every sample of a topic, decoded (like ros2 topic echo)
+    #[command(after_help = ECHO_OUTPUT)]
+    Echo(EchoArgs),
+    /// Publish a value (like ros2 topic pub)
+    #[command(name = "pub", after_help = PUB_OUTPUT)]
+    Pub(PubArgs),
     /// Send or receive courier::Ping samples (like ORTE's orteping)
     #[command(after_help = PING_OUTPUT)]
     Ping(PingArgs),
@@ -65,6 +72,32 @@ pub enum Command {
         shell: clap_complete::Shell,
     },
 }
+
+const ECHO_OUTPUT: &str = "\
+Each sample on one line of stdout: as central's data log prints data ({1, \"a\",
+[0.50, 1.00]}), or with --json as JSON guided by the format ([1,\"a\",[0.5,1.0]]:
+structs and arrays as arrays, enums by name, null for NULL pointers).
+The format: on ipc:// --format, or the one central holds for the message; on
+rtps:// the discovered type when Courier knows it (courier::Ping,
+std_msgs::msg::dds_::String_). Samples of other types print as hex
+({\"hex\":\"…\"} with --json). Diagnostics and progress go to stderr.";
+
+const PUB_OUTPUT: &str = "\
+VALUE is JSON guided by the format ([1, \"a\", [0.5, 1]] for {int, string, [double:2]};
+enums by name or number; null for a NULL pointer), or for a string plain text.
+The type: on ipc:// --format, else the format central holds for the message; on
+rtps:// --type, one Courier knows (courier::Ping: [seq, stamp_ns, \"text\"];
+std_msgs::msg::dds_::String_: [\"text\"]).
+It waits for --wait subscribers first (a sample nobody subscribes is not sent on
+IPC and reaches nobody on DDS), then publishes --count samples at --rate.
+Output, one event a line:
+  ready                    the publication exists
+  matched <n>              subscribers now matched
+  incompatible <guid> <reason>   a subscription whose QoS does not match (DDS)
+  sent <n>
+  done                     --count reached (exit 0)
+  interrupted while waiting for subscribers of … | after <n> samples sent
+                           Ctrl-C / SIGTERM (exit 130 / 143)";
 
 const PING_OUTPUT: &str = "\
 Output, one event a line:
@@ -96,6 +129,68 @@ Output, one event a line (a name with blanks is quoted; an empty list is -):
       <value>: courier::Ping { seq: <n>, stamp_ns: <n>, text: \"...\" }, or the first
       64 bytes in hex (… when more), or - when none
   interrupted after <n> samples       Ctrl-C / SIGTERM: session closed (exit 130 / 143)";
+
+#[derive(Args, Debug)]
+pub struct EchoArgs {
+    /// Session URL (ipc://…, rtps://…)
+    #[arg(value_name = "URL", value_parser = session_url)]
+    pub url: String,
+    /// Topic (IPC: message name)
+    pub topic: String,
+    /// Print each sample as JSON
+    #[arg(long)]
+    pub json: bool,
+    /// IPC format of the samples (default: the one central holds)
+    #[arg(long, value_name = "FORMAT", value_parser = crate::values::parse_format)]
+    pub format: Option<Format>,
+    /// Exit after N samples
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub count: Option<u64>,
+    /// Exit after this long
+    #[arg(long, value_name = "SECS", value_parser = clap::value_parser!(u64).range(1..))]
+    pub duration: Option<u64>,
+    /// Participant / module name
+    #[arg(long, default_value = "courier-echo")]
+    pub name: String,
+}
+
+#[derive(Args, Debug)]
+pub struct PubArgs {
+    /// Session URL (ipc://…, rtps://…)
+    #[arg(value_name = "URL", value_parser = session_url)]
+    pub url: String,
+    /// Topic (IPC: message name)
+    pub topic: String,
+    /// The value: JSON, or text for a string
+    #[arg(allow_hyphen_values = true)]
+    pub value: String,
+    /// IPC: the message's format (defines the message in central)
+    #[arg(long, value_name = "FORMAT", value_parser = crate::values::parse_format)]
+    pub format: Option<Format>,
+    /// DDS: the type, one Courier knows
+    #[arg(long = "type", value_name = "TYPE")]
+    pub type_name: Option<String>,
+    /// Samples to publish (0: until interrupted)
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    pub count: u64,
+    /// Samples a second
+    #[arg(long, value_name = "HZ", default_value_t = 1.0, value_parser = rate)]
+    pub rate: f64,
+    /// Wait for this many subscribers before the first sample
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    pub wait: u32,
+    /// Participant / module name
+    #[arg(long, default_value = "courier-pub")]
+    pub name: String,
+}
+
+/// A rate: a positive number of samples a second, at most a million.
+fn rate(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(r) if r > 0.0 && r <= 1e6 => Ok(r),
+        _ => Err("expected a number of samples a second above 0 and at most 1000000".into()),
+    }
+}
 
 #[derive(Args, Debug)]
 #[command(group(ArgGroup::new("mode").required(true).args(["publish", "subscribe"])))]
@@ -274,6 +369,30 @@ impl Cli {
                     ));
                 }
             }
+            Command::Echo(a) => {
+                if a.format.is_some() && kind(&a.url) == Kind::Dds {
+                    return Err(usage_error(
+                        "echo",
+                        "--format is for ipc:// sessions; on rtps:// the type comes from \
+                         discovery",
+                    ));
+                }
+            }
+            Command::Pub(a) => match kind(&a.url) {
+                Kind::Ipc if a.type_name.is_some() => {
+                    return Err(usage_error(
+                        "pub",
+                        "--type is for rtps:// sessions; on ipc:// give --format",
+                    ))
+                }
+                Kind::Dds if a.format.is_some() => {
+                    return Err(usage_error(
+                        "pub",
+                        "--format is for ipc:// sessions; on rtps:// give --type",
+                    ))
+                }
+                _ => {}
+            },
             Command::Completions { .. } => {}
         }
         Ok(())

@@ -13,11 +13,14 @@
 
 mod cli;
 mod connect;
+mod echo;
 mod ping;
+mod publish;
 mod spy;
 mod stop;
 mod text;
 mod values;
+mod wait;
 
 use std::process::ExitCode;
 
@@ -38,7 +41,10 @@ fn main() -> ExitCode {
     text::set_progress(cli.progress);
     // commands whose stdout is a log of events say there what stopped
     // them; the others keep stdout for data and say it on stderr
-    let events_on_stdout = matches!(cli.command, Command::Ping(_) | Command::Spy(_));
+    let events_on_stdout = matches!(
+        cli.command,
+        Command::Ping(_) | Command::Pub(_) | Command::Spy(_)
+    );
     let cmd = match cli.command {
         Command::Completions { shell } => {
             let mut out = std::io::stdout();
@@ -57,7 +63,9 @@ fn main() -> ExitCode {
     let r = rt.block_on(async {
         let stop = Stop::watch().map_err(|e| format!("cannot watch signals: {e}"))?;
         match cmd {
+            Command::Echo(o) => echo::run(o, stop).await,
             Command::Ping(o) => ping::run(o, stop).await,
+            Command::Pub(o) => publish::run(o, stop).await,
             Command::Spy(o) => spy::run(o, stop).await,
             Command::Completions { .. } => Ok(Ended::Done),
         }
