@@ -8,6 +8,7 @@
 
 mod echo_pub;
 mod ping_spy;
+mod rates;
 mod usage;
 
 use std::io::{BufRead, BufReader, Read};
@@ -98,6 +99,22 @@ impl Proc {
     pub fn signal(&self, sig: i32) {
         let pid = i32::try_from(self.child.id()).unwrap();
         assert_eq!(unsafe { libc::kill(pid, sig) }, 0);
+    }
+
+    /// Waits for the exit (at most `T`): the exit code, and what it printed
+    /// on stdout and stderr (beyond the lines already taken).
+    pub fn finish(mut self) -> (Option<i32>, String, String) {
+        let code = self.wait();
+        let rest = |rx: &mpsc::Receiver<String>| {
+            let mut s = String::new();
+            // the readers end with the pipes, which closed at the exit
+            while let Ok(l) = rx.recv_timeout(T) {
+                s.push_str(&l);
+                s.push('\n');
+            }
+            s
+        };
+        (code, rest(&self.lines), rest(&self.err_lines))
     }
 
     /// The exit code, waiting at most `T`.

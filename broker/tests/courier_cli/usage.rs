@@ -104,6 +104,15 @@ fn usage_errors_name_the_problem() {
             "invalid value '0' for '--rate <HZ>': expected a number of samples a second above 0",
         ),
         (&["pub", u, "t"][..], "required arguments were not provided"),
+        (
+            &["hz", u, "t", "--window", "1"][..],
+            "invalid value '1' for '--window <N>': 1 is not in 2..=1000000",
+        ),
+        (
+            &["bw", u, "t", "--gap", "0"][..],
+            "invalid value '0' for '--gap <MS>'",
+        ),
+        (&["hz", "tcp://x", "t"][..], "unknown scheme \"tcp\""),
     ] {
         let (code, out, err) = run(args);
         assert_eq!(code, 2, "{args:?}: {err}");

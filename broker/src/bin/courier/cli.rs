@@ -56,6 +56,12 @@ pub enum Command {
     /// Print every sample of a topic, decoded (like ros2 topic echo)
     #[command(after_help = ECHO_OUTPUT)]
     Echo(EchoArgs),
+    /// Report the rate of a topic's samples every second (like ros2 topic hz)
+    #[command(after_help = HZ_OUTPUT)]
+    Hz(RateArgs),
+    /// Report the bandwidth and sizes of a topic's samples every second (like ros2 topic bw)
+    #[command(after_help = BW_OUTPUT)]
+    Bw(RateArgs),
     /// Publish a value (like ros2 topic pub)
     #[command(name = "pub", after_help = PUB_OUTPUT)]
     Pub(PubArgs),
@@ -98,6 +104,22 @@ Output, one event a line:
   done                     --count reached (exit 0)
   interrupted while waiting for subscribers of … | after <n> samples sent
                            Ctrl-C / SIGTERM (exit 130 / 143)";
+
+const HZ_OUTPUT: &str = "\
+Every second, over the last --window samples (one line, stdout):
+  rate <r> Hz min <s> s max <s> s std dev <s> s window <n> gaps <n>
+      min, max: shortest and longest interval between two samples;
+      gaps: intervals longer than --gap (default: twice the mean interval)
+  no new samples          none came in the last second
+When --count or --duration ends it, a last report. Progress while nothing has
+come (discovery on DDS) goes to stderr.";
+
+const BW_OUTPUT: &str = "\
+Every second, over the last --window samples (one line, stdout):
+  bw <rate>/s from <n> samples size mean <size> min <size> max <size> window <n>
+      sizes as received: IPC data, or CDR with its 4-byte header and padding (DDS)
+  no new samples          none came in the last second
+When --count or --duration ends it, a last report.";
 
 const PING_OUTPUT: &str = "\
 Output, one event a line:
@@ -151,6 +173,30 @@ pub struct EchoArgs {
     pub duration: Option<u64>,
     /// Participant / module name
     #[arg(long, default_value = "courier-echo")]
+    pub name: String,
+}
+
+#[derive(Args, Debug)]
+pub struct RateArgs {
+    /// Session URL (ipc://…, rtps://…)
+    #[arg(value_name = "URL", value_parser = session_url)]
+    pub url: String,
+    /// Topic (IPC: message name)
+    pub topic: String,
+    /// Samples the statistics are over
+    #[arg(long, value_name = "N", default_value_t = 10_000, value_parser = clap::value_parser!(u64).range(2..=1_000_000))]
+    pub window: u64,
+    /// hz: count intervals longer than this as gaps (default: twice the mean)
+    #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u64).range(1..))]
+    pub gap: Option<u64>,
+    /// Exit after N samples
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub count: Option<u64>,
+    /// Exit after this long
+    #[arg(long, value_name = "SECS", value_parser = clap::value_parser!(u64).range(1..))]
+    pub duration: Option<u64>,
+    /// Participant / module name
+    #[arg(long, default_value = "courier-rate")]
     pub name: String,
 }
 
@@ -393,7 +439,7 @@ impl Cli {
                 }
                 _ => {}
             },
-            Command::Completions { .. } => {}
+            Command::Hz(_) | Command::Bw(_) | Command::Completions { .. } => {}
         }
         Ok(())
     }

@@ -16,6 +16,7 @@ mod connect;
 mod echo;
 mod ping;
 mod publish;
+mod rate;
 mod spy;
 mod stop;
 mod text;
@@ -64,6 +65,8 @@ fn main() -> ExitCode {
         let stop = Stop::watch().map_err(|e| format!("cannot watch signals: {e}"))?;
         match cmd {
             Command::Echo(o) => echo::run(o, stop).await,
+            Command::Hz(o) => rate::run(o, rate::Mode::Hz, stop).await,
+            Command::Bw(o) => rate::run(o, rate::Mode::Bw, stop).await,
             Command::Ping(o) => ping::run(o, stop).await,
             Command::Pub(o) => publish::run(o, stop).await,
             Command::Spy(o) => spy::run(o, stop).await,
