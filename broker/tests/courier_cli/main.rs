@@ -6,6 +6,7 @@
 //! when its guard drops, and every wait is bounded. One file per
 //! subcommand; the helpers are here.
 
+mod call;
 mod echo_pub;
 mod ping_spy;
 mod rates;

@@ -113,6 +113,18 @@ fn usage_errors_name_the_problem() {
             "invalid value '0' for '--gap <MS>'",
         ),
         (&["hz", "tcp://x", "t"][..], "unknown scheme \"tcp\""),
+        (
+            &["call", "ipc://127.0.0.1:1", "q", "1", "--type", "x"][..],
+            "--type and --reply-type are for rtps:// sessions",
+        ),
+        (
+            &["call", u, "q", "1", "--reply-format", "int"][..],
+            "--format and --reply-format are for ipc:// sessions",
+        ),
+        (
+            &["call", u, "q", "1", "--timeout", "0"][..],
+            "invalid value '0' for '--timeout <MS>'",
+        ),
     ] {
         let (code, out, err) = run(args);
         assert_eq!(code, 2, "{args:?}: {err}");

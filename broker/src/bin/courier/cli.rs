@@ -53,6 +53,9 @@ pub enum ProgressMode {
 
 #[derive(Subcommand, Debug)]
 pub enum Command {
+    /// Send one query and print its reply (like ros2 service call)
+    #[command(after_help = CALL_OUTPUT)]
+    Call(CallArgs),
     /// Print every sample of a topic, decoded (like ros2 topic echo)
     #[command(after_help = ECHO_OUTPUT)]
     Echo(EchoArgs),
@@ -78,6 +81,17 @@ pub enum Command {
         shell: clap_complete::Shell,
     },
 }
+
+const CALL_OUTPUT: &str = "\
+REQUEST is JSON guided by the format (see `courier pub --help`), or text for a
+string. The reply goes to stdout on one line, decoded as `courier echo` prints
+samples (--json for JSON).
+On ipc:// an IPC query (IPC_queryResponse): the request's format is --format or
+the one central holds for QUERY, the reply's --reply-format or the one central
+holds for the reply's message. On rtps:// a ROS 2 style service call (topics
+rq/QUERYRequest and rr/QUERYReply) with types Courier knows: --type (default
+courier::Ping) and --reply-type (default: --type).
+Exit 1 when no reply comes within --timeout.";
 
 const ECHO_OUTPUT: &str = "\
 Each sample on one line of stdout: as central's data log prints data ({1, \"a\",
@@ -151,6 +165,39 @@ Output, one event a line (a name with blanks is quoted; an empty list is -):
       <value>: courier::Ping { seq: <n>, stamp_ns: <n>, text: \"...\" }, or the first
       64 bytes in hex (… when more), or - when none
   interrupted after <n> samples       Ctrl-C / SIGTERM: session closed (exit 130 / 143)";
+
+#[derive(Args, Debug)]
+pub struct CallArgs {
+    /// Session URL (ipc://…, rtps://…)
+    #[arg(value_name = "URL", value_parser = session_url)]
+    pub url: String,
+    /// The query message (IPC) or service (DDS)
+    pub query: String,
+    /// The request: JSON, or text for a string
+    #[arg(allow_hyphen_values = true)]
+    pub request: String,
+    /// IPC: the request's format (default: the one central holds)
+    #[arg(long, value_name = "FORMAT", value_parser = crate::values::parse_format)]
+    pub format: Option<Format>,
+    /// IPC: the reply's format (default: the one central holds)
+    #[arg(long, value_name = "FORMAT", value_parser = crate::values::parse_format)]
+    pub reply_format: Option<Format>,
+    /// DDS: the request type, one Courier knows
+    #[arg(long = "type", value_name = "TYPE")]
+    pub type_name: Option<String>,
+    /// DDS: the reply type (default: --type)
+    #[arg(long, value_name = "TYPE")]
+    pub reply_type: Option<String>,
+    /// How long to wait for the reply
+    #[arg(long, value_name = "MS", default_value_t = 5000, value_parser = clap::value_parser!(u64).range(1..))]
+    pub timeout: u64,
+    /// Print the reply as JSON
+    #[arg(long)]
+    pub json: bool,
+    /// Participant / module name
+    #[arg(long, default_value = "courier-call")]
+    pub name: String,
+}
 
 #[derive(Args, Debug)]
 pub struct EchoArgs {
@@ -435,6 +482,23 @@ impl Cli {
                     return Err(usage_error(
                         "pub",
                         "--format is for ipc:// sessions; on rtps:// give --type",
+                    ))
+                }
+                _ => {}
+            },
+            Command::Call(a) => match kind(&a.url) {
+                Kind::Ipc if a.type_name.is_some() || a.reply_type.is_some() => {
+                    return Err(usage_error(
+                        "call",
+                        "--type and --reply-type are for rtps:// sessions; on ipc:// give \
+                         --format and --reply-format",
+                    ))
+                }
+                Kind::Dds if a.format.is_some() || a.reply_format.is_some() => {
+                    return Err(usage_error(
+                        "call",
+                        "--format and --reply-format are for ipc:// sessions; on rtps:// give \
+                         --type and --reply-type",
                     ))
                 }
                 _ => {}

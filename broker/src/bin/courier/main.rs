@@ -11,6 +11,7 @@
 //! says what it interrupted).
 #![deny(unsafe_code)]
 
+mod call;
 mod cli;
 mod connect;
 mod echo;
@@ -64,6 +65,7 @@ fn main() -> ExitCode {
     let r = rt.block_on(async {
         let stop = Stop::watch().map_err(|e| format!("cannot watch signals: {e}"))?;
         match cmd {
+            Command::Call(o) => call::run(o, stop).await,
             Command::Echo(o) => echo::run(o, stop).await,
             Command::Hz(o) => rate::run(o, rate::Mode::Hz, stop).await,
             Command::Bw(o) => rate::run(o, rate::Mode::Bw, stop).await,
@@ -89,7 +91,7 @@ fn main() -> ExitCode {
             ExitCode::from(ended.exit_code())
         }
         Err(e) => {
-            err(format_args!("courier: {e}"));
+            err(format_args!("courier: {}", text::with_sources(&*e)));
             ExitCode::from(1)
         }
     }

@@ -43,6 +43,22 @@ pub fn progress(line: impl std::fmt::Display) {
     }
 }
 
+/// An error and its sources, each said once (many errors already repeat
+/// their source in their own text).
+pub fn with_sources(e: &dyn std::error::Error) -> String {
+    let mut s = e.to_string();
+    let mut cur = e.source();
+    while let Some(c) = cur {
+        let t = c.to_string();
+        if !s.contains(&t) {
+            s.push_str(": ");
+            s.push_str(&t);
+        }
+        cur = c.source();
+    }
+    s
+}
+
 /// A word of a line: as is, or quoted when it would not stay one word.
 pub fn word(s: &str) -> String {
     if s.is_empty() || s.contains(|c: char| c.is_whitespace() || c == '"') {
