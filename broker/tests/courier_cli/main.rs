@@ -10,6 +10,7 @@ mod call;
 mod echo_pub;
 mod ping_spy;
 mod rates;
+mod rtt;
 mod usage;
 
 use std::io::{BufRead, BufReader, Read};

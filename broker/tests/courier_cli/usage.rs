@@ -11,7 +11,7 @@ fn usage_errors_name_the_problem() {
     let u = u.as_str();
     for (args, want) in [
         (&["fly"][..], "unrecognized subcommand 'fly'"),
-        (&["pnig"][..], "a similar subcommand exists: 'ping'"),
+        (&["ehco"][..], "a similar subcommand exists: 'echo'"),
         (
             &["ping", u][..],
             "the following required arguments were not provided",
@@ -113,6 +113,18 @@ fn usage_errors_name_the_problem() {
             "invalid value '0' for '--gap <MS>'",
         ),
         (&["hz", "tcp://x", "t"][..], "unknown scheme \"tcp\""),
+        (
+            &["ping", u, "--rtt", "--subscribe"][..],
+            "'--rtt' cannot be used with '--subscribe'",
+        ),
+        (
+            &["ping", u, "--rtt", "--best-effort"][..],
+            "cannot be used with",
+        ),
+        (
+            &["pong", u, "--count", "0"][..],
+            "invalid value '0' for '--count <N>'",
+        ),
         (
             &["call", "ipc://127.0.0.1:1", "q", "1", "--type", "x"][..],
             "--type and --reply-type are for rtps:// sessions",

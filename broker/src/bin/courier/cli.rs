@@ -74,6 +74,8 @@ pub enum Command {
     /// Print discovery and every sample of matching topics (like ORTE's ortespy)
     #[command(after_help = SPY_OUTPUT)]
     Spy(SpyArgs),
+    /// Answer every courier::Ping with the same sample (for ping --rtt, like ddsperf pong)
+    Pong(PongArgs),
     /// Print a shell completion script (bash, zsh, fish, elvish, powershell)
     Completions {
         /// The shell
@@ -146,7 +148,14 @@ Output, one event a line:
   deadline missed <total>             subscriber with --deadline (DDS)
   skipped <reason>                    a sample that did not decode
   done                                --count reached (exit 0)
-  interrupted after <n> samples …     Ctrl-C / SIGTERM: session closed (exit 130 / 143)";
+  interrupted after <n> samples …     Ctrl-C / SIGTERM: session closed (exit 130 / 143)
+--rtt (with `courier pong` answering; latencies in microseconds):
+  ready
+  matched <n>                         pongs subscribing the topic
+  rtt n=<k> min=<us> p50=<us> p90=<us> p99=<us> max=<us> mean=<us> lost=<l> (us)
+                                      every second, over that second
+  total n=<k> … lost=<l> (us)         over the whole run, then done
+  interrupted after <k> round trips: n=<k> … (us)";
 
 const SPY_OUTPUT: &str = "\
 Every sample of the topics matching --topic and --type, and discovery; needs an
@@ -286,7 +295,7 @@ fn rate(s: &str) -> Result<f64, String> {
 }
 
 #[derive(Args, Debug)]
-#[command(group(ArgGroup::new("mode").required(true).args(["publish", "subscribe"])))]
+#[command(group(ArgGroup::new("mode").required(true).args(["publish", "subscribe", "rtt"])))]
 pub struct PingArgs {
     /// Session URL (ipc://…, rtps://…)
     #[arg(value_name = "URL", value_parser = session_url)]
@@ -297,13 +306,23 @@ pub struct PingArgs {
     /// Subscribe and report what arrives
     #[arg(long)]
     pub subscribe: bool,
+    /// Measure round trips through a `courier pong` (latency percentiles)
+    #[arg(long)]
+    pub rtt: bool,
     /// Topic
     #[arg(long, default_value = "ping")]
     pub topic: String,
-    /// Publishing period
+    /// --rtt: the topic the answers come on
+    #[arg(long, value_name = "TOPIC", default_value = "pong")]
+    pub reply_topic: String,
+    /// Publishing period (default 1000; --rtt: none, round trips back to back)
+    #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u64).range(1..))]
+    pub period: Option<u64>,
+    /// --rtt: a ping not answered within this long counts as lost
     #[arg(long, value_name = "MS", default_value_t = 1000, value_parser = clap::value_parser!(u64).range(1..))]
-    pub period: u64,
-    /// Stop after N samples sent or received (default: run until interrupted)
+    pub timeout: u64,
+    /// Stop after N samples sent or received, or N round trips (default: run
+    /// until interrupted)
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
     pub count: Option<u64>,
     /// Text length of each sample
@@ -321,20 +340,25 @@ pub struct PingArgs {
 #[command(next_help_heading = "DDS QoS (rtps:// only)")]
 pub struct QosArgs {
     /// Publisher: exclusive ownership with this strength; subscriber: as --exclusive
-    #[arg(long, value_name = "N", allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_name = "N",
+        allow_negative_numbers = true,
+        conflicts_with = "rtt"
+    )]
     pub strength: Option<i32>,
     /// Subscriber: take samples from the strongest publisher only
-    #[arg(long, conflicts_with = "publish")]
+    #[arg(long, conflicts_with_all = ["publish", "rtt"])]
     pub exclusive: bool,
     /// Publisher: offered deadline; subscriber: requested deadline, each miss
     /// prints `deadline missed <total>`
-    #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u64).range(1..), conflicts_with = "rtt")]
     pub deadline: Option<u64>,
     /// Subscriber: minimum separation between samples
-    #[arg(long, value_name = "MS", conflicts_with = "publish")]
+    #[arg(long, value_name = "MS", conflicts_with_all = ["publish", "rtt"])]
     pub min_separation: Option<u64>,
     /// Best-effort reliability
-    #[arg(long, overrides_with = "reliable")]
+    #[arg(long, overrides_with = "reliable", conflicts_with = "rtt")]
     pub best_effort: bool,
     /// Reliable (the default)
     #[arg(long, overrides_with = "best_effort")]
@@ -362,6 +386,25 @@ impl QosArgs {
         }
         v
     }
+}
+
+#[derive(Args, Debug)]
+pub struct PongArgs {
+    /// Session URL (ipc://…, rtps://…)
+    #[arg(value_name = "URL", value_parser = session_url)]
+    pub url: String,
+    /// The topic pings come on
+    #[arg(long, default_value = "ping")]
+    pub topic: String,
+    /// The topic answers go on
+    #[arg(long, value_name = "TOPIC", default_value = "pong")]
+    pub reply_topic: String,
+    /// Exit after answering N pings
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub count: Option<u64>,
+    /// Participant / module name
+    #[arg(long, default_value = "courier-pong")]
+    pub name: String,
 }
 
 #[derive(Args, Debug)]
@@ -503,7 +546,7 @@ impl Cli {
                 }
                 _ => {}
             },
-            Command::Hz(_) | Command::Bw(_) | Command::Completions { .. } => {}
+            Command::Hz(_) | Command::Bw(_) | Command::Pong(_) | Command::Completions { .. } => {}
         }
         Ok(())
     }

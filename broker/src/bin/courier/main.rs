@@ -16,6 +16,7 @@ mod cli;
 mod connect;
 mod echo;
 mod ping;
+mod pong;
 mod publish;
 mod rate;
 mod spy;
@@ -45,7 +46,7 @@ fn main() -> ExitCode {
     // them; the others keep stdout for data and say it on stderr
     let events_on_stdout = matches!(
         cli.command,
-        Command::Ping(_) | Command::Pub(_) | Command::Spy(_)
+        Command::Ping(_) | Command::Pong(_) | Command::Pub(_) | Command::Spy(_)
     );
     let cmd = match cli.command {
         Command::Completions { shell } => {
@@ -70,6 +71,7 @@ fn main() -> ExitCode {
             Command::Hz(o) => rate::run(o, rate::Mode::Hz, stop).await,
             Command::Bw(o) => rate::run(o, rate::Mode::Bw, stop).await,
             Command::Ping(o) => ping::run(o, stop).await,
+            Command::Pong(o) => pong::pong(o, stop).await,
             Command::Pub(o) => publish::run(o, stop).await,
             Command::Spy(o) => spy::run(o, stop).await,
             Command::Completions { .. } => Ok(Ended::Done),

@@ -21,6 +21,9 @@ pub fn now_ns() -> u64 {
 }
 
 pub async fn run(o: PingArgs, mut stop: Stop) -> Result<Ended> {
+    if o.rtt {
+        return crate::pong::rtt(o, stop).await;
+    }
     let s = match connect(&o.url, &o.name, &mut stop).await? {
         Ok(s) => s,
         Err(ended) => return Ok(ended),
@@ -82,7 +85,7 @@ async fn publish(
     if n > 0 {
         matched.set(n.unsigned_abs() as usize);
     }
-    let mut tick = tokio::time::interval(Duration::from_millis(o.period));
+    let mut tick = tokio::time::interval(Duration::from_millis(o.period.unwrap_or(1000)));
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut seq = 0u32;
     loop {
