@@ -8,6 +8,7 @@
 
 mod call;
 mod echo_pub;
+mod list;
 mod ping_spy;
 mod rates;
 mod rtt;

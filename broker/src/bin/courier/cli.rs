@@ -68,6 +68,9 @@ pub enum Command {
     /// Publish a value (like ros2 topic pub)
     #[command(name = "pub", after_help = PUB_OUTPUT)]
     Pub(PubArgs),
+    /// List participants and endpoints (DDS), or modules and messages (IPC)
+    #[command(after_help = LIST_OUTPUT)]
+    List(ListArgs),
     /// Send or receive courier::Ping samples (like ORTE's orteping)
     #[command(after_help = PING_OUTPUT)]
     Ping(PingArgs),
@@ -103,6 +106,18 @@ The format: on ipc:// --format, or the one central holds for the message; on
 rtps:// the discovered type when Courier knows it (courier::Ping,
 std_msgs::msg::dds_::String_). Samples of other types print as hex
 ({\"hex\":\"…\"} with --json). Diagnostics and progress go to stderr.";
+
+const LIST_OUTPUT: &str = "\
+On rtps://, what discovery finds within --duration (default 2 s), by participant:
+  participant <guid prefix> name=<name> unicast=<addrs> multicast=<addrs>
+    publication|subscription <guid> topic=<topic> type=<type> <qos as spy prints it>
+or with --watch every change as it comes, as `courier spy` prints discovery.
+On ipc://, what a module can ask central (neither the C central nor Courier's
+has a request that lists modules or messages):
+  module <name> connected|not-connected          for each --module
+  message <name> format=<format>|- handlers=<n>  for each --message (or: unknown)
+  ready, then module <name> connected|disconnected and message <name> handlers=<n>
+                                                  as they change, with --watch";
 
 const PUB_OUTPUT: &str = "\
 VALUE is JSON guided by the format ([1, \"a\", [0.5, 1]] for {int, string, [double:2]};
@@ -389,6 +404,28 @@ impl QosArgs {
 }
 
 #[derive(Args, Debug)]
+pub struct ListArgs {
+    /// Session URL (ipc://…, rtps://…)
+    #[arg(value_name = "URL", value_parser = session_url)]
+    pub url: String,
+    /// Print changes as they come, until interrupted or --duration
+    #[arg(long)]
+    pub watch: bool,
+    /// How long to listen (default: 2 s, or for ever with --watch)
+    #[arg(long, value_name = "SECS", value_parser = clap::value_parser!(u64).range(1..))]
+    pub duration: Option<u64>,
+    /// IPC: whether this module is connected (repeat for more)
+    #[arg(long, value_name = "NAME")]
+    pub module: Vec<String>,
+    /// IPC: this message's format and handlers (repeat for more)
+    #[arg(long, value_name = "NAME")]
+    pub message: Vec<String>,
+    /// Participant / module name
+    #[arg(long, default_value = "courier-list")]
+    pub name: String,
+}
+
+#[derive(Args, Debug)]
 pub struct PongArgs {
     /// Session URL (ipc://…, rtps://…)
     #[arg(value_name = "URL", value_parser = session_url)]
@@ -546,6 +583,15 @@ impl Cli {
                 }
                 _ => {}
             },
+            Command::List(a) => {
+                if kind(&a.url) == Kind::Dds && !(a.module.is_empty() && a.message.is_empty()) {
+                    return Err(usage_error(
+                        "list",
+                        "--module and --message are for ipc:// sessions; rtps:// lists what \
+                         discovery finds",
+                    ));
+                }
+            }
             Command::Hz(_) | Command::Bw(_) | Command::Pong(_) | Command::Completions { .. } => {}
         }
         Ok(())

@@ -15,6 +15,7 @@ mod call;
 mod cli;
 mod connect;
 mod echo;
+mod list;
 mod ping;
 mod pong;
 mod publish;
@@ -46,7 +47,7 @@ fn main() -> ExitCode {
     // them; the others keep stdout for data and say it on stderr
     let events_on_stdout = matches!(
         cli.command,
-        Command::Ping(_) | Command::Pong(_) | Command::Pub(_) | Command::Spy(_)
+        Command::List(_) | Command::Ping(_) | Command::Pong(_) | Command::Pub(_) | Command::Spy(_)
     );
     let cmd = match cli.command {
         Command::Completions { shell } => {
@@ -70,6 +71,7 @@ fn main() -> ExitCode {
             Command::Echo(o) => echo::run(o, stop).await,
             Command::Hz(o) => rate::run(o, rate::Mode::Hz, stop).await,
             Command::Bw(o) => rate::run(o, rate::Mode::Bw, stop).await,
+            Command::List(o) => list::run(o, stop).await,
             Command::Ping(o) => ping::run(o, stop).await,
             Command::Pong(o) => pong::pong(o, stop).await,
             Command::Pub(o) => publish::run(o, stop).await,

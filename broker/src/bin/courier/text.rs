@@ -115,14 +115,19 @@ pub fn qos_text(e: &EndpointInfo) -> String {
     )
 }
 
-pub fn endpoint_line(kind: &str, what: &str, e: &EndpointInfo) -> String {
+/// `<guid> topic=<topic> type=<type> <qos>`.
+pub fn endpoint_text(e: &EndpointInfo) -> String {
     format!(
-        "{kind} {what} {} topic={} type={} {}",
+        "{} topic={} type={} {}",
         e.guid,
         word(&e.topic),
         word(&e.type_name),
         qos_text(e)
     )
+}
+
+pub fn endpoint_line(kind: &str, what: &str, e: &EndpointInfo) -> String {
+    format!("{kind} {what} {}", endpoint_text(e))
 }
 
 pub fn incompatible_line(remote: courier::Guid, reason: &str) -> String {
@@ -141,14 +146,19 @@ fn locators(v: &[std::net::SocketAddr]) -> String {
     }
 }
 
-pub fn participant_line(what: &str, p: &ParticipantInfo) -> String {
+/// `<guid prefix> name=<name> unicast=<addrs> multicast=<addrs>`.
+pub fn participant_text(p: &ParticipantInfo) -> String {
     format!(
-        "participant {what} {} name={} unicast={} multicast={}",
+        "{} name={} unicast={} multicast={}",
         prefix_hex(p.guid),
         p.name.as_deref().map_or("-".into(), word),
         locators(&p.unicast),
         locators(&p.multicast),
     )
+}
+
+pub fn participant_line(what: &str, p: &ParticipantInfo) -> String {
+    format!("participant {what} {}", participant_text(p))
 }
 
 #[cfg(test)]
