@@ -218,9 +218,62 @@ fn ping_over_ipc_through_central() {
         assert_eq!(code, 2, "{args:?}: {err}");
         assert!(err.contains(&format!("{} is DDS QoS", flag[1])), "{err}");
     }
-    // spy needs a DDS backend: a clear error, exit 1
-    let (code, _, err) = run(&["spy", &u]);
-    assert_eq!(code, 1, "{err}");
-    assert!(err.contains("pattern subscriptions"), "{err}");
-    assert!(err.contains("rtps://"), "{err}");
+    // spy on IPC names its messages: central has no list to match a
+    // pattern against
+    for (args, want) in [
+        (&["spy", &u][..], "spy on ipc:// needs --topic MESSAGE"),
+        (
+            &["spy", &u, "--topic", "p*"][..],
+            "--topic \"p*\" is a pattern",
+        ),
+        (
+            &["spy", &u, "--topic", "p", "--type", "x"][..],
+            "--type is for rtps://",
+        ),
+    ] {
+        let (code, _, err) = run(args);
+        assert_eq!(code, 2, "{args:?}: {err}");
+        assert!(err.contains(want), "{args:?}: {want:?} in {err}");
+    }
+}
+
+#[test]
+fn spy_on_ipc_decodes_the_messages_named() {
+    let central = Central::start();
+    let u = central.url.clone();
+    let mut spy = Proc::start(&["spy", &u, "--topic", "ping", "--topic", "status"]);
+    spy.expect("ready");
+    // a module comes, publishes two messages of different formats
+    let mut publ = Proc::start(&[
+        "ping",
+        &u,
+        "--publish",
+        "--period",
+        "50",
+        "--count",
+        "2",
+        "--size",
+        "3",
+        "--name",
+        "tx",
+    ]);
+    assert_eq!(spy.expect("module "), "module tx connected");
+    let s = spy.expect("sample ping ");
+    assert!(
+        s.starts_with("sample ping \"{uint, ulong, string}\" from ? 19 B: {1, "),
+        "{s}"
+    );
+    assert!(s.ends_with(", \"xxx\"}"), "{s}");
+    publ.expect("done");
+    assert_eq!(publ.wait(), Some(0));
+    assert_eq!(spy.expect("module "), "module tx disconnected");
+    let (code, _, err) = run(&["pub", &u, "status", "Send", "--format", "{enum Wait, Send}"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(
+        spy.expect("sample status "),
+        "sample status \"{enum Wait, Send}\" from ? 4 B: Send"
+    );
+    spy.signal(libc::SIGINT);
+    assert!(spy.expect("interrupted").starts_with("interrupted after "));
+    assert_eq!(spy.wait(), Some(130));
 }

@@ -121,7 +121,8 @@ has a request that lists modules or messages):
 
 const PUB_OUTPUT: &str = "\
 VALUE is JSON guided by the format ([1, \"a\", [0.5, 1]] for {int, string, [double:2]};
-enums by name or number; null for a NULL pointer), or for a string plain text.
+enums by name or number; null for a NULL pointer), or plain text for a string, a
+char or an enum's name (hello world, Send).
 The type: on ipc:// --format, else the format central holds for the message; on
 rtps:// --type, one Courier knows (courier::Ping: [seq, stamp_ns, \"text\"];
 std_msgs::msg::dds_::String_: [\"text\"]).
@@ -173,8 +174,10 @@ Output, one event a line:
   interrupted after <k> round trips: n=<k> … (us)";
 
 const SPY_OUTPUT: &str = "\
-Every sample of the topics matching --topic and --type, and discovery; needs an
-rtps:// session (pattern subscriptions).
+On rtps:// every sample of the topics matching --topic and --type, and discovery;
+on ipc:// every message named by --topic (central offers no list of messages to
+match a pattern against), decoded through the format central holds, and modules
+connecting and disconnecting.
 Output, one event a line (a name with blanks is quoted; an empty list is -):
   ready
   participant found|changed <guid prefix> name=<name> unicast=<addrs> multicast=<addrs>
@@ -185,9 +188,12 @@ Output, one event a line (a name with blanks is quoted; an empty list is -):
       ownership=shared|exclusive(<strength>) partitions=[<p>,...]
   publication|subscription lost <guid>
   incompatible <guid> <reason>
+  module <name> connected|disconnected            (IPC)
   sample <topic> <type> from <writer guid> <bytes> B[ (disposed)|(unregistered)]: <value>
       <value>: courier::Ping { seq: <n>, stamp_ns: <n>, text: \"...\" }, or the first
-      64 bytes in hex (… when more), or - when none
+      64 bytes in hex (… when more), or - when none. On IPC <type> is the
+      message's format (? when unknown), <writer guid> is ?, and <value> is printed
+      as central's data log prints it
   interrupted after <n> samples       Ctrl-C / SIGTERM: session closed (exit 130 / 143)";
 
 #[derive(Args, Debug)]
@@ -278,7 +284,7 @@ pub struct PubArgs {
     pub url: String,
     /// Topic (IPC: message name)
     pub topic: String,
-    /// The value: JSON, or text for a string
+    /// The value: JSON, or plain text for a string, char or enum name
     #[arg(allow_hyphen_values = true)]
     pub value: String,
     /// IPC: the message's format (defines the message in central)
@@ -449,10 +455,11 @@ pub struct SpyArgs {
     /// Session URL (ipc://…, rtps://…)
     #[arg(value_name = "URL", value_parser = session_url)]
     pub url: String,
-    /// fnmatch pattern of topics to print samples of (default *)
-    #[arg(long, value_name = "PATTERN")]
+    /// DDS: fnmatch pattern of topics to print samples of (default *);
+    /// IPC: a message to print (repeat for more)
+    #[arg(long, value_name = "TOPIC")]
     pub topic: Vec<String>,
-    /// fnmatch pattern of type names
+    /// DDS: fnmatch pattern of type names
     #[arg(long = "type", value_name = "PATTERN", default_value = "*")]
     pub type_name: String,
     /// Exit after N samples
@@ -534,14 +541,40 @@ impl Cli {
                     ));
                 }
             }
-            Command::Spy(a) => {
-                if a.topic.len() > 1 {
-                    return Err(usage_error(
-                        "spy",
-                        "--topic takes one fnmatch pattern (use *, ?, [..])",
-                    ));
+            Command::Spy(a) => match kind(&a.url) {
+                Kind::Ipc => {
+                    if a.topic.is_empty() {
+                        return Err(usage_error(
+                            "spy",
+                            "spy on ipc:// needs --topic MESSAGE for each message to print: \
+                             central offers no list of messages to match a pattern against",
+                        ));
+                    }
+                    if let Some(p) = a.topic.iter().find(|t| t.contains(['*', '?', '['])) {
+                        return Err(usage_error(
+                            "spy",
+                            format!(
+                                "--topic {p:?} is a pattern; on ipc:// name each message \
+                                 (central offers no list of messages to match it against)"
+                            ),
+                        ));
+                    }
+                    if a.type_name != "*" {
+                        return Err(usage_error(
+                            "spy",
+                            "--type is for rtps:// sessions (IPC messages have no type names)",
+                        ));
+                    }
                 }
-            }
+                Kind::Dds => {
+                    if a.topic.len() > 1 {
+                        return Err(usage_error(
+                            "spy",
+                            "on rtps:// --topic takes one fnmatch pattern (use *, ?, [..])",
+                        ));
+                    }
+                }
+            },
             Command::Echo(a) => {
                 if a.format.is_some() && kind(&a.url) == Kind::Dds {
                     return Err(usage_error(

@@ -1,7 +1,9 @@
 //! `courier spy`: like ORTE's `ortespy`, every discovered participant and
-//! endpoint, and every sample of the matching topics.
+//! endpoint, and every sample of the matching topics (DDS); on IPC every
+//! message named, decoded, and modules coming and going.
 
 use std::cell::Cell;
+use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
 use courier::{Session, SessionEvent};
@@ -9,28 +11,77 @@ use futures::StreamExt;
 
 use crate::cli::{kind, Kind, SpyArgs};
 use crate::connect::connect;
+use crate::echo::SampleDecoder;
 use crate::stop::{count, run_session, Ended, Stop};
-use crate::text::{endpoint_line, incompatible_line, out, participant_line, prefix_hex};
-use crate::values::sample_text;
+use crate::text::{endpoint_line, hex, incompatible_line, out, participant_line, prefix_hex, word};
+use crate::values::{sample_text, Decoded, Style};
 use crate::Result;
 
 pub async fn run(o: SpyArgs, mut stop: Stop) -> Result<Ended> {
-    // IPC refuses pattern subscriptions: say so without connecting
-    // (central need not even run)
-    if kind(&o.url) == Kind::Ipc {
-        return Err(format!(
-            "spy needs pattern subscriptions, which need a DDS session (rtps://...); {} is IPC",
-            o.url
-        )
-        .into());
-    }
     let s = match connect(&o.url, &o.name, &mut stop).await? {
         Ok(s) => s,
         Err(ended) => return Ok(ended),
     };
     let n = Cell::new(0u64);
     let what = || format!("after {}", count(n.get(), "sample"));
-    run_session(&s, &mut stop, spy(&s, &o, &n), what).await
+    match kind(&o.url) {
+        Kind::Dds => run_session(&s, &mut stop, spy(&s, &o, &n), what).await,
+        Kind::Ipc => run_session(&s, &mut stop, spy_ipc(&s, &o, &n), what).await,
+    }
+}
+
+/// On IPC: the messages named, each decoded through the format central
+/// holds for it, and modules connecting and disconnecting. (A module sees
+/// only what it subscribes; central offers no list of messages to match a
+/// pattern against.)
+async fn spy_ipc(s: &Session, o: &SpyArgs, n: &Cell<u64>) -> Result<()> {
+    let mut ev = s.events();
+    let mut subs = Vec::new();
+    let mut decoders = HashMap::new();
+    for t in &o.topic {
+        let sub = s.subscribe_raw(t).await?;
+        subs.push(Box::pin(futures::stream::unfold(
+            sub,
+            |mut sub| async move { sub.recv().await.map(|smp| (smp, sub)) },
+        )));
+        decoders.insert(t.clone(), SampleDecoder::new(&o.url, t, None));
+    }
+    let mut samples = futures::stream::select_all(subs);
+    out("ready");
+    let until = o.duration.map(|d| Instant::now() + Duration::from_secs(d));
+    loop {
+        let sleep = async {
+            match until {
+                Some(t) => tokio::time::sleep_until(t.into()).await,
+                None => std::future::pending().await,
+            }
+        };
+        tokio::select! {
+            _ = sleep => break,
+            smp = samples.next() => {
+                let Some(smp) = smp else { break }; // the session ended
+                let Some(dec) = decoders.get_mut(&smp.msg) else { continue };
+                let (ty, value) = match dec.decode(s, &smp).await {
+                    Ok(Decoded::Value(f, v)) => (word(&f.to_string()), Decoded::Value(f, v).print(Style::Text)),
+                    Ok(d) => ("?".to_string(), d.print(Style::Text)),
+                    Err(e) => ("?".to_string(), format!("{} ({e})", hex(&smp.data))),
+                };
+                out(format_args!("sample {} {ty} from ? {} B: {value}", smp.msg, smp.data.len()));
+                n.set(n.get() + 1);
+                if o.count.is_some_and(|c| n.get() >= c) {
+                    break;
+                }
+            }
+            Some(e) = ev.next() => match e {
+                SessionEvent::ModuleConnected(m) => out(format_args!("module {} connected", word(&m))),
+                SessionEvent::ModuleDisconnected(m) => {
+                    out(format_args!("module {} disconnected", word(&m)))
+                }
+                _ => {}
+            },
+        }
+    }
+    Ok(())
 }
 
 async fn spy(s: &Session, o: &SpyArgs, n: &Cell<u64>) -> Result<()> {

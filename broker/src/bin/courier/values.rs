@@ -172,24 +172,26 @@ impl Decoded {
 }
 
 /// A value given on the command line, of format `fmt`: JSON (see
-/// `courier_wire::ipc::value::ValueSeed`), or for a `string` (or a
-/// `char`) the text itself when it is not JSON.
+/// `courier_wire::ipc::value::ValueSeed`), or, for a format a JSON string
+/// fits (`string`, `char`, an enum's name, `format`), the text itself when
+/// it is not JSON: `hello world`, `Send`.
 pub fn parse_value(fmt: &Format, text: &str) -> Result<Value, String> {
     let mut de = serde_json::Deserializer::from_str(text);
     let json = ValueSeed::new(fmt)
         .deserialize(&mut de)
         .and_then(|v| de.end().map(|()| v));
+    let bare = matches!(
+        fmt,
+        Format::Primitive(
+            format::Primitive::String | format::Primitive::Char | format::Primitive::Format
+        ) | Format::Enum { .. }
+    );
     match json {
         Ok(v) => Ok(v),
-        Err(e) => match fmt {
-            Format::Primitive(format::Primitive::String) if e.is_syntax() || e.is_eof() => {
-                Ok(Value::String((!text.is_empty()).then(|| text.to_string())))
-            }
-            Format::Primitive(format::Primitive::Char) if text.len() == 1 => {
-                Ok(Value::Char(text.as_bytes()[0]))
-            }
-            _ => Err(format!("{text:?} is not a value of {fmt}: {e}")),
-        },
+        Err(e) if bare && (e.is_syntax() || e.is_eof()) => ValueSeed::new(fmt)
+            .deserialize(serde_json::Value::String(text.to_string()))
+            .map_err(|e| format!("{text:?} is not a value of {fmt}: {e}")),
+        Err(e) => Err(format!("{text:?} is not a value of {fmt}: {e}")),
     }
 }
 
@@ -263,6 +265,13 @@ mod tests {
             parse_value(&i, "[1, 2.5]").unwrap(),
             Value::Struct(vec![Value::Int(1), Value::Double(2.5)])
         );
+        let e = parse_format("{enum Wait, Send}").unwrap();
+        assert_eq!(parse_value(&e, "Send").unwrap(), Value::Enum(1));
+        assert_eq!(parse_value(&e, "1").unwrap(), Value::Enum(1));
+        let err = parse_value(&e, "Sned").unwrap_err();
+        assert!(err.contains("expected one of Wait, Send"), "{err}");
+        let c = parse_format("char").unwrap();
+        assert_eq!(parse_value(&c, "x").unwrap(), Value::Char(b'x'));
         let e = parse_value(&i, "1 2").unwrap_err();
         assert!(e.contains("is not a value of {int, double}"), "{e}");
         let e = parse_format("{int, T1}").unwrap_err();
