@@ -1,12 +1,10 @@
 //! `courier echo` and `courier pub`, against modules of the test's own and
 //! each other, over IPC and RTPS.
 
-use std::time::Duration;
-
-use courier::{IpcMessage, Session};
+use courier::IpcMessage;
 use futures::StreamExt;
 
-use crate::{run, url, Central, Proc, T};
+use crate::{await_handlers, run, url, Central, Proc, T};
 
 #[derive(IpcMessage, Debug, Clone, PartialEq)]
 struct Point {
@@ -20,19 +18,6 @@ struct Path {
     n: i32,
     #[ipc(len = "n")]
     points: Vec<Point>,
-}
-
-/// Waits until `msg` has at least `n` handlers in central.
-fn await_handlers(c: &Central, s: &Session, msg: &str, n: i32) {
-    c.rt.block_on(async {
-        tokio::time::timeout(T, async {
-            while s.num_handlers(msg).await.unwrap() < n {
-                tokio::time::sleep(Duration::from_millis(10)).await;
-            }
-        })
-        .await
-        .expect("handlers within T")
-    });
 }
 
 #[test]

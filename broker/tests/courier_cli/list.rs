@@ -5,6 +5,9 @@ use crate::{run, url, Central, Proc, T};
 #[test]
 fn list_what_dds_discovery_finds() {
     let u = url(250);
+    // the listing listens first: it hears every announcement
+    let list = Proc::start(&["list", &u, "--duration", "3"]);
+    std::thread::sleep(std::time::Duration::from_millis(300));
     let mut talker = Proc::start(&[
         "ping",
         &u,
@@ -25,8 +28,8 @@ fn list_what_dds_discovery_finds() {
     ]);
     talker.expect("matched 1");
     listener.expect("matched 1");
-    let (code, out, err) = run(&["list", &u, "--duration", "2"]);
-    assert_eq!(code, 0, "{err}");
+    let (code, out, err) = list.finish();
+    assert_eq!(code, Some(0), "{err}");
     let lines: Vec<&str> = out.lines().collect();
     // participants by name, each followed by its endpoints
     let at = |name: &str| {

@@ -227,3 +227,16 @@ impl Drop for Central {
         }
     }
 }
+
+/// Waits until `msg` has at least `n` handlers in central, as `s` sees it.
+pub fn await_handlers(c: &Central, s: &courier::Session, msg: &str, n: i32) {
+    c.rt.block_on(async {
+        tokio::time::timeout(T, async {
+            while s.num_handlers(msg).await.unwrap() < n {
+                tokio::time::sleep(Duration::from_millis(10)).await;
+            }
+        })
+        .await
+        .expect("handlers within T")
+    });
+}

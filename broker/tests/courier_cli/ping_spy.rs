@@ -2,7 +2,7 @@
 
 use std::time::{Duration, Instant};
 
-use crate::{run, url, Central, Proc};
+use crate::{await_handlers, run, url, Central, Proc};
 
 #[test]
 fn ping_publisher_to_ping_subscriber() {
@@ -241,8 +241,12 @@ fn ping_over_ipc_through_central() {
 fn spy_on_ipc_decodes_the_messages_named() {
     let central = Central::start();
     let u = central.url.clone();
+    let m = central.session("observer");
     let mut spy = Proc::start(&["spy", &u, "--topic", "ping", "--topic", "status"]);
     spy.expect("ready");
+    // its subscriptions reached central
+    await_handlers(&central, &m, "ping", 1);
+    await_handlers(&central, &m, "status", 1);
     // a module comes, publishes two messages of different formats
     let mut publ = Proc::start(&[
         "ping",

@@ -111,6 +111,8 @@ const LIST_OUTPUT: &str = "\
 On rtps://, what discovery finds within --duration (default 2 s), by participant:
   participant <guid prefix> name=<name> unicast=<addrs> multicast=<addrs>
     publication|subscription <guid> topic=<topic> type=<type> <qos as spy prints it>
+(a participant that announced itself while this one was still connecting shows as
+`participant <guid prefix> name=? (announced before this listing began)`),
 or with --watch every change as it comes, as `courier spy` prints discovery.
 On ipc://, what a module can ask central (neither the C central nor Courier's
 has a request that lists modules or messages):

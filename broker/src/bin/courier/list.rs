@@ -102,26 +102,34 @@ async fn dds(s: &Session, o: &ListArgs, seen: &Cell<u64>) -> Result<()> {
             }
         }
     }
-    // participants by name, each with its endpoints by topic
-    let mut ps: Vec<&ParticipantInfo> = parts.values().collect();
-    ps.sort_by(|a, b| (&a.name, a.guid).cmp(&(&b.name, b.guid)));
-    for p in ps {
-        out(format_args!("participant {}", participant_text(p)));
-        let mut mine: Vec<&(&str, EndpointInfo)> = eps
-            .values()
-            .filter(|(_, e)| e.guid.is_of(p.guid.prefix()))
-            .collect();
+    // participants by name, each with its endpoints by topic; endpoints
+    // of a participant found before this session listened (its
+    // announcement came while connecting) under its GUID prefix
+    let mut prefixes: Vec<[u8; 12]> = parts.keys().copied().collect();
+    for e in eps.values() {
+        let p = e.1.guid.prefix();
+        if !prefixes.contains(&p) {
+            prefixes.push(p);
+        }
+    }
+    prefixes.sort_by_key(|p| (parts.get(p).map(|i| i.name.clone()), *p));
+    for prefix in prefixes {
+        match parts.get(&prefix) {
+            Some(p) => out(format_args!("participant {}", participant_text(p))),
+            None => out(format_args!(
+                "participant {} name=? (announced before this listing began)",
+                prefix
+                    .iter()
+                    .map(|b| format!("{b:02x}"))
+                    .collect::<String>()
+            )),
+        }
+        let mut mine: Vec<&(&str, EndpointInfo)> =
+            eps.values().filter(|(_, e)| e.guid.is_of(prefix)).collect();
         mine.sort_by(|a, b| (&a.1.topic, a.0).cmp(&(&b.1.topic, b.0)));
         for (k, e) in mine {
             out(format_args!("  {k} {}", endpoint_text(e)));
         }
-    }
-    // endpoints whose participant was not (yet) announced
-    for (k, e) in eps
-        .values()
-        .filter(|(_, e)| !parts.contains_key(&e.guid.prefix()))
-    {
-        out(format_args!("{k} {}", endpoint_text(e)));
     }
     Ok(())
 }
