@@ -7,41 +7,7 @@
 //!   person writes and reads, with the format saying what each part is.
 //!   It is what `courier echo --json` prints and `courier pub` reads.
 //!
-//! The format-guided form, part by part:
-//!
-//! | format | JSON |
-//! |---|---|
-//! | integers, `float`, `double` | a number (`NaN` and infinities print as `null`, which reads back as NaN) |
-//! | `boolean` | `true` / `false` |
-//! | `char` | a one-character string (U+0000 to U+00FF), or its code as a number on input |
-//! | `string` | a string (`""` and `null` are both C's NULL); bytes that are not UTF-8 as an array of numbers |
-//! | `N` (raw bytes) | an array of N numbers |
-//! | `{a, b, …}` | an array, one item per field (IPC formats name no fields) |
-//! | `[T:d1,d2]` | nested arrays, one level per dimension |
-//! | `<T:k>` | a flat array; the size fields must agree with it when the value is marshalled |
-//! | `*T`, `*!` | `null` or the value pointed to |
-//! | `{enum A, B}` | the name (`"B"`), or the number when the format has no names or the value is out of range; either on input |
-//! | `format` | the format string, `null` for none |
-//! | the empty format | `null` |
-//!
-//! Named formats must be expanded first ([`FormatRegistry::resolve`]); the
-//! formats central sends are.
-//!
-//! ```
-//! use courier_wire::format;
-//! use courier_wire::ipc::value::{Typed, ValueSeed};
-//! use serde::de::DeserializeSeed;
-//!
-//! let fmt = format::parse("{int, string, {enum Wait, Send}, [double:2]}").unwrap();
-//! let json = r#"[666, "hello", "Send", [1.5, 2]]"#;
-//! let v = ValueSeed::new(&fmt)
-//!     .deserialize(&mut serde_json::Deserializer::from_str(json))
-//!     .unwrap();
-//! assert_eq!(serde_json::to_string(&Typed::new(&fmt, &v)).unwrap(),
-//!            r#"[666,"hello","Send",[1.5,2.0]]"#);
-//! ```
-//!
-//! [`FormatRegistry::resolve`]: crate::format::FormatRegistry::resolve
+//! The format-guided form is described on [`Typed`].
 
 use core::fmt;
 
@@ -74,11 +40,46 @@ impl<'a> Shape<'a> {
     }
 }
 
-/// A value with its format, serialized in the format-guided form (see the
-/// [module](self) documentation).
+/// A value with its format, serialized in the format-guided form: the
+/// plain form a person writes and reads, with the format saying what each
+/// part is ([`ValueSeed`] reads it back). Serializing fails when the value
+/// does not fit the format, naming the first part that does not.
 ///
-/// Serializing fails when the value does not fit the format, naming the
-/// first part that does not.
+/// The format-guided form, part by part:
+///
+/// | format | JSON |
+/// |---|---|
+/// | integers, `float`, `double` | a number (`NaN` and infinities print as `null`, which reads back as NaN) |
+/// | `boolean` | `true` / `false` |
+/// | `char` | a one-character string (U+0000 to U+00FF), or its code as a number on input |
+/// | `string` | a string (`""` and `null` are both C's NULL); bytes that are not UTF-8 as an array of numbers |
+/// | `N` (raw bytes) | an array of N numbers |
+/// | `{a, b, …}` | an array, one item per field (IPC formats name no fields) |
+/// | `[T:d1,d2]` | nested arrays, one level per dimension |
+/// | `<T:k>` | a flat array; the size fields must agree with it when the value is marshalled |
+/// | `*T`, `*!` | `null` or the value pointed to |
+/// | `{enum A, B}` | the name (`"B"`), or the number when the format has no names or the value is out of range; either on input |
+/// | `format` | the format string, `null` for none |
+/// | the empty format | `null` |
+///
+/// Named formats must be expanded first ([`FormatRegistry::resolve`]); the
+/// formats central sends are.
+///
+/// ```
+/// use courier_wire::format;
+/// use courier_wire::ipc::value::{Typed, ValueSeed};
+/// use serde::de::DeserializeSeed;
+///
+/// let fmt = format::parse("{int, string, {enum Wait, Send}, [double:2]}").unwrap();
+/// let json = r#"[666, "hello", "Send", [1.5, 2]]"#;
+/// let v = ValueSeed::new(&fmt)
+///     .deserialize(&mut serde_json::Deserializer::from_str(json))
+///     .unwrap();
+/// assert_eq!(serde_json::to_string(&Typed::new(&fmt, &v)).unwrap(),
+///            r#"[666,"hello","Send",[1.5,2.0]]"#);
+/// ```
+///
+/// [`FormatRegistry::resolve`]: crate::format::FormatRegistry::resolve
 #[derive(Debug, Clone, Copy)]
 pub struct Typed<'a> {
     fmt: &'a Format,
@@ -233,8 +234,8 @@ fn primitive<S: Serializer>(p: Primitive, v: &Value, s: S) -> Result<S::Ok, S::E
     }
 }
 
-/// Reads a [`Value`] of a format from the format-guided form (see the
-/// [module](self) documentation): `ValueSeed::new(&fmt).deserialize(d)`.
+/// Reads a [`Value`] of a format from the format-guided form (see
+/// [`Typed`]): `ValueSeed::new(&fmt).deserialize(d)`.
 ///
 /// Numbers must fit the primitive they are read as; structs and fixed
 /// arrays must have exactly their number of items. Variable arrays are
