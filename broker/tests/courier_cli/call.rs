@@ -123,6 +123,20 @@ fn call_a_dds_service() {
     let (code, out, err) = run(&["call", &u, "echo", r#"[1, 2, "x"]"#, "--timeout", "8000"]);
     assert_eq!(code, 0, "{err}");
     assert_eq!(out, "{2, 2, \"x!\"}\n");
+    // the same service through formats (the layout of the derived type)
+    let (code, out, err) = run(&[
+        "call",
+        &u,
+        "echo",
+        r#"[5, 0, "y"]"#,
+        "--format",
+        "{uint, ulong, string}",
+        "--type",
+        "courier::Ping",
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out, "[6,0,\"y!\"]\n");
     let (code, out, err) = run(&["call", &u, "nobody", r#"[1, 2, "x"]"#, "--timeout", "500"]);
     assert_eq!((code, out.as_str()), (1, ""), "{err}");
     assert!(

@@ -13,6 +13,7 @@ struct Point {
 }
 
 #[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "demo::Path")]
 struct Path {
     name: String,
     n: i32,
@@ -175,6 +176,49 @@ fn echo_and_pub_over_rtps() {
     assert_eq!(code, 0, "{err}");
     assert_eq!(echo.expect(""), r#"["hello ros"]"#);
     assert_eq!(echo.wait(), Some(0));
+    // any type whose layout an IPC format describes: a participant of the
+    // test subscribes a derived type, pub writes it through the format,
+    // echo reads it through the format
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let (rx, mut sub) = rt.block_on(async {
+        let s = courier::Session::builder(u.as_str())
+            .name("rx")
+            .connect()
+            .await
+            .unwrap();
+        let sub = s.subscribe::<Path>("paths").await.unwrap();
+        (s, sub)
+    });
+    let f = "{string, int, <{double, double}:2>}";
+    let mut echo = Proc::start(&["echo", &u, "paths", "--format", f, "--count", "1"]);
+    let (code, _, err) = run(&[
+        "pub",
+        &u,
+        "paths",
+        r#"["a", 1, [[3, 4]]]"#,
+        "--format",
+        f,
+        "--type",
+        "demo::Path",
+        "--wait",
+        "2",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(echo.expect(""), r#"{"a", 1, <{3.00, 4.00}>}"#);
+    let got = rt
+        .block_on(async { tokio::time::timeout(T, sub.next()).await })
+        .unwrap()
+        .unwrap()
+        .unwrap();
+    assert_eq!(
+        got.value,
+        Path {
+            name: "a".into(),
+            n: 1,
+            points: vec![Point { x: 3.0, y: 4.0 }]
+        }
+    );
+    rt.block_on(async { tokio::time::timeout(T, rx.close()).await.unwrap() });
     let (code, _, err) = run(&["pub", &u, "t", "[1]", "--type", "x::Y", "--wait", "0"]);
     assert_eq!(code, 1, "{err}");
     assert!(

@@ -79,8 +79,8 @@ fn usage_errors_name_the_problem() {
         ),
         (&["completions", "tcsh"][..], "invalid value 'tcsh'"),
         (
-            &["echo", u, "t", "--format", "int"][..],
-            "--format is for ipc:// sessions; on rtps:// the type comes from discovery",
+            &["echo", u, "t", "--format", "{int, *int}"][..],
+            "a pointer has no CDR layout for --format on rtps://",
         ),
         (
             &["echo", "ipc://127.0.0.1:1", "t", "--format", "{int"][..],
@@ -97,7 +97,7 @@ fn usage_errors_name_the_problem() {
         ),
         (
             &["pub", u, "t", "1", "--format", "int"][..],
-            "--format is for ipc:// sessions; on rtps:// give --type",
+            "--format on rtps:// needs --type: the DDS type name subscribers match on",
         ),
         (
             &["pub", u, "t", "1", "--rate", "0"][..],
@@ -131,7 +131,11 @@ fn usage_errors_name_the_problem() {
         ),
         (
             &["call", u, "q", "1", "--reply-format", "int"][..],
-            "--format and --reply-format are for ipc:// sessions",
+            "--reply-format on rtps:// needs --reply-type (or --type)",
+        ),
+        (
+            &["call", u, "q", "1", "--format", "int"][..],
+            "--format on rtps:// needs --type",
         ),
         (
             &["call", u, "q", "1", "--timeout", "0"][..],

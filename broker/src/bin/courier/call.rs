@@ -1,6 +1,7 @@
 //! `courier call <url> <query> <request>`: one query (IPC) or service call
 //! (DDS, ROS 2 style), the reply printed decoded (like `ros2 service
-//! call`, `z_get`).
+//! call`, `z_get`). On DDS the types are ones Courier knows, or any laid
+//! out as an IPC format (`--format`, `--reply-format`, see `cdr_value`).
 
 use std::cell::Cell;
 use std::time::{Duration, Instant};
@@ -123,25 +124,67 @@ fn type_info(k: &Known) -> TypeInfo {
     }
 }
 
+/// One side of a DDS call: a type Courier knows, or any type laid out as
+/// an IPC format (`--format` / `--reply-format`) under a type name.
+enum Side {
+    Known(&'static Known),
+    Cdr(Format, &'static str),
+}
+
+impl Side {
+    fn new(format: Option<&Format>, type_name: Option<&str>) -> Result<Side> {
+        let name = type_name.unwrap_or("courier::Ping");
+        Ok(match format {
+            Some(f) => Side::Cdr(f.clone(), Box::leak(name.to_string().into_boxed_str())),
+            None => Side::Known(known(name)?),
+        })
+    }
+
+    fn type_info(&self) -> TypeInfo {
+        match self {
+            Side::Known(k) => type_info(k),
+            Side::Cdr(f, name) => TypeInfo {
+                format: Some(Box::leak(f.to_string().into_boxed_str())),
+                type_name: name,
+                keyed: false,
+            },
+        }
+    }
+
+    fn encode(&self, text: &str) -> Result<Vec<u8>> {
+        Ok(match self {
+            Side::Known(k) => k.encode(&parse_value(&k.parsed(), text)?)?,
+            Side::Cdr(f, _) => crate::cdr_value::encode(f, &parse_value(f, text)?)?,
+        })
+    }
+
+    fn decode(&self, data: &[u8]) -> Result<Decoded> {
+        Ok(match self {
+            Side::Known(k) => Decoded::dds(Some(k.type_name), data)?,
+            Side::Cdr(f, _) => Decoded::cdr(f, data)?,
+        })
+    }
+}
+
 async fn dds_call(
     s: &Session,
     o: &CallArgs,
     timeout: Duration,
     asked: &Cell<Option<Instant>>,
 ) -> Result<Decoded> {
-    let req = known(o.type_name.as_deref().unwrap_or("courier::Ping"))?;
-    let resp = match &o.reply_type {
-        Some(t) => known(t)?,
-        None => req,
+    let req = Side::new(o.format.as_ref(), o.type_name.as_deref())?;
+    let resp = match (&o.reply_format, &o.reply_type) {
+        (None, None) if o.format.is_none() => Side::new(None, o.type_name.as_deref())?,
+        (f, t) => Side::new(f.as_ref(), t.as_deref().or(o.type_name.as_deref()))?,
     };
-    let data = req.encode(&parse_value(&req.parsed(), &o.request)?)?;
+    let data = req.encode(&o.request)?;
     let b = s.backend();
     let client = b
-        .open_client(&o.query, &type_info(req), &type_info(resp))
+        .open_client(&o.query, &req.type_info(), &resp.type_info())
         .await?;
     asked.set(Some(Instant::now()));
     let r = b.query(client, data, timeout).await;
     b.close_handle(Handle::Client(client));
     let (_, data, _) = r.map_err(|e| failed(o, e, timeout))?;
-    Ok(Decoded::dds(Some(resp.type_name), &data)?)
+    resp.decode(&data)
 }

@@ -94,8 +94,9 @@ samples (--json for JSON).
 On ipc:// an IPC query (IPC_queryResponse): the request's format is --format or
 the one central holds for QUERY, the reply's --reply-format or the one central
 holds for the reply's message. On rtps:// a ROS 2 style service call (topics
-rq/QUERYRequest and rr/QUERYReply) with types Courier knows: --type (default
-courier::Ping) and --reply-type (default: --type).
+rq/QUERYRequest and rr/QUERYReply) with types named by --type (default
+courier::Ping) and --reply-type (default: --type): ones Courier knows, or any
+laid out as --format / --reply-format (as #[derive(IpcMessage)] lays it out).
 Exit 1 when no reply comes within --timeout.";
 
 const ECHO_OUTPUT: &str = "\
@@ -103,7 +104,8 @@ Each sample on one line of stdout: as central's data log prints data ({1, \"a\",
 [0.50, 1.00]}), or with --json as JSON guided by the format ([1,\"a\",[0.5,1.0]]:
 structs and arrays as arrays, enums by name, null for NULL pointers).
 The format: on ipc:// --format, or the one central holds for the message; on
-rtps:// the discovered type when Courier knows it (courier::Ping,
+rtps:// --format (CDR laid out as #[derive(IpcMessage)] lays out that format;
+no pointers), else the discovered type when Courier knows it (courier::Ping,
 std_msgs::msg::dds_::String_). Samples of other types print as hex
 ({\"hex\":\"…\"} with --json). Diagnostics and progress go to stderr.";
 
@@ -126,7 +128,9 @@ VALUE is JSON guided by the format ([1, \"a\", [0.5, 1]] for {int, string, [doub
 enums by name or number; null for a NULL pointer), or plain text for a string, a
 char or an enum's name (hello world, Send).
 The type: on ipc:// --format, else the format central holds for the message; on
-rtps:// --type, one Courier knows (courier::Ping: [seq, stamp_ns, \"text\"];
+rtps:// --type with --format (any DDS type whose layout an IPC format describes,
+as #[derive(IpcMessage)] lays it out; no pointers), or --type alone naming one
+Courier knows (courier::Ping: [seq, stamp_ns, \"text\"];
 std_msgs::msg::dds_::String_: [\"text\"]).
 It waits for --wait subscribers first (a sample nobody subscribes is not sent on
 IPC and reaches nobody on DDS), then publishes --count samples at --rate.
@@ -208,13 +212,15 @@ pub struct CallArgs {
     /// The request: JSON, or text for a string
     #[arg(allow_hyphen_values = true)]
     pub request: String,
-    /// IPC: the request's format (default: the one central holds)
+    /// The request's format (IPC default: the one central holds; DDS: the
+    /// CDR layout of --type)
     #[arg(long, value_name = "FORMAT", value_parser = crate::values::parse_format)]
     pub format: Option<Format>,
-    /// IPC: the reply's format (default: the one central holds)
+    /// The reply's format (IPC default: the one central holds; DDS: the CDR
+    /// layout of --reply-type)
     #[arg(long, value_name = "FORMAT", value_parser = crate::values::parse_format)]
     pub reply_format: Option<Format>,
-    /// DDS: the request type, one Courier knows
+    /// DDS: the request type (one Courier knows, or any with --format)
     #[arg(long = "type", value_name = "TYPE")]
     pub type_name: Option<String>,
     /// DDS: the reply type (default: --type)
@@ -241,7 +247,8 @@ pub struct EchoArgs {
     /// Print each sample as JSON
     #[arg(long)]
     pub json: bool,
-    /// IPC format of the samples (default: the one central holds)
+    /// The samples' IPC format (IPC default: the one central holds; DDS:
+    /// its CDR layout, default: the discovered type if Courier knows it)
     #[arg(long, value_name = "FORMAT", value_parser = crate::values::parse_format)]
     pub format: Option<Format>,
     /// Exit after N samples
@@ -289,10 +296,11 @@ pub struct PubArgs {
     /// The value: JSON, or plain text for a string, char or enum name
     #[arg(allow_hyphen_values = true)]
     pub value: String,
-    /// IPC: the message's format (defines the message in central)
+    /// The format (IPC: defines the message in central; DDS: the CDR layout
+    /// of --type)
     #[arg(long, value_name = "FORMAT", value_parser = crate::values::parse_format)]
     pub format: Option<Format>,
-    /// DDS: the type, one Courier knows
+    /// DDS: the type name (one Courier knows, or any with --format)
     #[arg(long = "type", value_name = "TYPE")]
     pub type_name: Option<String>,
     /// Samples to publish (0: until interrupted)
@@ -578,12 +586,8 @@ impl Cli {
                 }
             },
             Command::Echo(a) => {
-                if a.format.is_some() && kind(&a.url) == Kind::Dds {
-                    return Err(usage_error(
-                        "echo",
-                        "--format is for ipc:// sessions; on rtps:// the type comes from \
-                         discovery",
-                    ));
+                if let (Some(f), Kind::Dds) = (&a.format, kind(&a.url)) {
+                    crate::cdr_value::check(f).map_err(|e| usage_error("echo", e))?;
                 }
             }
             Command::Pub(a) => match kind(&a.url) {
@@ -593,11 +597,17 @@ impl Cli {
                         "--type is for rtps:// sessions; on ipc:// give --format",
                     ))
                 }
-                Kind::Dds if a.format.is_some() => {
-                    return Err(usage_error(
-                        "pub",
-                        "--format is for ipc:// sessions; on rtps:// give --type",
-                    ))
+                Kind::Dds => {
+                    if let Some(f) = &a.format {
+                        if a.type_name.is_none() {
+                            return Err(usage_error(
+                                "pub",
+                                "--format on rtps:// needs --type: the DDS type name \
+                                 subscribers match on",
+                            ));
+                        }
+                        crate::cdr_value::check(f).map_err(|e| usage_error("pub", e))?;
+                    }
                 }
                 _ => {}
             },
@@ -609,12 +619,23 @@ impl Cli {
                          --format and --reply-format",
                     ))
                 }
-                Kind::Dds if a.format.is_some() || a.reply_format.is_some() => {
-                    return Err(usage_error(
-                        "call",
-                        "--format and --reply-format are for ipc:// sessions; on rtps:// give \
-                         --type and --reply-type",
-                    ))
+                Kind::Dds => {
+                    if a.format.is_some() && a.type_name.is_none() {
+                        return Err(usage_error(
+                            "call",
+                            "--format on rtps:// needs --type: the DDS type name the service \
+                             matches on",
+                        ));
+                    }
+                    if a.reply_format.is_some() && a.reply_type.is_none() && a.type_name.is_none() {
+                        return Err(usage_error(
+                            "call",
+                            "--reply-format on rtps:// needs --reply-type (or --type)",
+                        ));
+                    }
+                    for f in a.format.iter().chain(&a.reply_format) {
+                        crate::cdr_value::check(f).map_err(|e| usage_error("call", e))?;
+                    }
                 }
                 _ => {}
             },

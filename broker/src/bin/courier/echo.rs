@@ -2,8 +2,9 @@
 //! line (like `ros2 topic echo`, `z_sub`).
 //!
 //! On IPC the format is `--format`, or the one central holds for the
-//! message (looked up at its first delivery); on DDS the discovered type
-//! when Courier knows it. Anything else prints as hex.
+//! message (looked up at its first delivery); on DDS `--format` (the CDR
+//! layout the derive gives that format), else the discovered type when
+//! Courier knows it. Anything else prints as hex.
 
 use std::cell::Cell;
 use std::time::{Duration, Instant};
@@ -65,7 +66,10 @@ impl SampleDecoder {
                 }
                 Ok(Decoded::ipc(self.format.as_ref(), &smp.data, smp.order)?)
             }
-            Kind::Dds => Ok(Decoded::dds(smp.type_name.as_deref(), &smp.data)?),
+            Kind::Dds => match &self.format {
+                Some(f) => Ok(Decoded::cdr(f, &smp.data)?),
+                None => Ok(Decoded::dds(smp.type_name.as_deref(), &smp.data)?),
+            },
         }
     }
 }

@@ -12,6 +12,7 @@
 #![deny(unsafe_code)]
 
 mod call;
+mod cdr_value;
 mod cli;
 mod connect;
 mod echo;

@@ -3,8 +3,9 @@
 //! topic pub`, `z_pub`).
 //!
 //! The type: on IPC `--format`, else the format central holds for the
-//! message; on DDS a type Courier knows (`--type`, default
-//! `courier::Ping`).
+//! message; on DDS `--type` with `--format` (any type, laid out as the
+//! derive lays out that format), or a type Courier knows (`--type`,
+//! default `courier::Ping`).
 
 use std::cell::Cell;
 use std::time::{Duration, Instant};
@@ -46,12 +47,14 @@ enum Encoder {
     Ipc(Format),
     /// A DDS type Courier knows.
     Known(&'static Known),
+    /// CDR laid out as the derive lays out this format.
+    Cdr(Format),
 }
 
 impl Encoder {
     fn format(&self) -> Format {
         match self {
-            Encoder::Ipc(f) => f.clone(),
+            Encoder::Ipc(f) | Encoder::Cdr(f) => f.clone(),
             Encoder::Known(k) => k.parsed(),
         }
     }
@@ -60,6 +63,7 @@ impl Encoder {
         Ok(match self {
             Encoder::Ipc(f) => v.to_ipc_bytes(f)?,
             Encoder::Known(k) => k.encode(v)?,
+            Encoder::Cdr(f) => crate::cdr_value::encode(f, v)?,
         })
     }
 }
@@ -101,6 +105,14 @@ async fn encoder(s: &Session, o: &PubArgs) -> Result<(Encoder, TypeInfo)> {
             Ok((Encoder::Ipc(f), TypeInfo::untyped()))
         }
         Kind::Dds => {
+            if let (Some(f), Some(name)) = (&o.format, &o.type_name) {
+                let ty = TypeInfo {
+                    format: Some(leak(f.to_string())),
+                    type_name: leak(name.clone()),
+                    keyed: false,
+                };
+                return Ok((Encoder::Cdr(f.clone()), ty));
+            }
             let name = o.type_name.as_deref().unwrap_or("courier::Ping");
             let k = known_type(name).ok_or_else(|| {
                 format!("type {name:?} is not one Courier knows ({})", known_names())

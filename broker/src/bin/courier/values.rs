@@ -146,6 +146,13 @@ impl Decoded {
         }
     }
 
+    /// A DDS sample (CDR) laid out as `fmt` (see `cdr_value`).
+    pub fn cdr(fmt: &Format, data: &[u8]) -> Result<Decoded, String> {
+        crate::cdr_value::decode(fmt, data)
+            .map(|v| Decoded::Value(fmt.clone(), v))
+            .map_err(|e| format!("does not decode as {fmt}: {e}"))
+    }
+
     /// A DDS sample (CDR) of `type_name`: decoded when the type is known.
     pub fn dds(type_name: Option<&str>, data: &[u8]) -> Result<Decoded, String> {
         match type_name.and_then(known_type) {
