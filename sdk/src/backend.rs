@@ -13,6 +13,7 @@
 use std::sync::Arc;
 use std::time::Duration;
 
+use courier_wire::ipc::module::MsgInfo;
 use tokio::sync::mpsc;
 
 use crate::error::{ControlError, OpenError, PublishError, QueryError};
@@ -252,6 +253,23 @@ pub trait IpcControl: Send + Sync {
     /// Most pending `msg` deliveries central keeps for this module, the
     /// oldest dropped (`IPC_setMsgQueueLength`).
     async fn set_queue_length(&self, msg: &str, n: i32) -> Result<(), ControlError>;
+    /// What central told this session about `msg` (C's `msgInfo`: its
+    /// class and formats, the user's format as `res_format`), or `None`
+    /// if the session has not looked `msg` up or central does not know it.
+    ///
+    /// The session looks a message up when it first publishes or queries
+    /// it, at the first delivery of a subscription, for the message of a
+    /// reply, and in [`IpcControl::watch_handlers`]; operations run in
+    /// order, so once a later [`IpcControl::num_handlers`] of any message
+    /// has answered, that lookup is done. Tools that handle messages whose
+    /// type they learn at run time (`courier echo`) decode through it. The
+    /// default says the backend has none.
+    async fn message_info(&self, msg: &str) -> Result<Option<MsgInfo>, ControlError> {
+        Err(ControlError::Unsupported {
+            what: format!("message_info({msg})"),
+            backend: "this backend",
+        })
+    }
 }
 
 /// What only a DDS backend does ([`Session::dds`](crate::Session::dds)).

@@ -323,6 +323,19 @@ impl TypeInfo {
         }
     }
 
+    /// A final type without keys known only by its DDS type name and
+    /// layout (an IPC format string): what tools that encode dynamic values
+    /// (the `courier` CLI) publish and query with.
+    pub fn dynamic(format: Option<&'static str>, type_name: &'static str) -> Self {
+        TypeInfo {
+            format,
+            type_name,
+            keyed: false,
+            extensibility: courier_wire::cdr::Extensibility::Final,
+            key_of: None,
+        }
+    }
+
     /// No type: raw bytes of a message whose type the backend does not
     /// need (IPC: somebody else defined it) or learns (DDS subscriptions).
     pub fn untyped() -> Self {

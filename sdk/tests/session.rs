@@ -672,3 +672,36 @@ async fn busy_polling_answers_queries_and_goes_quiet_when_idle() {
     srv.await.unwrap();
     c.shutdown().await;
 }
+
+/// A module learns a message's format from central, as C's `msgInfo`
+/// does: tools that meet a message at run time decode it through that.
+#[tokio::test]
+async fn message_info_gives_the_format_central_holds() {
+    let (c, url) = central().await;
+    let a = session(&url, "a").await;
+    let b = session(&url, "b").await;
+    a.define::<Path>("path").await.unwrap();
+    let ipc = b.ipc().unwrap();
+    // not looked up yet
+    assert_eq!(ipc.message_info("path").await.unwrap(), None);
+    // watch_handlers looks it up; the num_handlers after it answers once
+    // the lookup is done
+    for m in ["path", "nobody-defined-this"] {
+        ipc.watch_handlers(m).await.unwrap();
+    }
+    tokio::time::timeout(T, b.num_handlers("path"))
+        .await
+        .unwrap()
+        .unwrap();
+    let info = ipc.message_info("path").await.unwrap().expect("looked up");
+    assert_eq!(info.name, "path");
+    // named formats come expanded (Path::FORMAT names Point)
+    assert_eq!(
+        info.res_format.map(|f| f.to_string()).as_deref(),
+        Some("{string, int, <{double, double}:2>}")
+    );
+    assert_eq!(ipc.message_info("nobody-defined-this").await.unwrap(), None);
+    a.close().await;
+    b.close().await;
+    c.shutdown().await;
+}

@@ -2,7 +2,7 @@
 //! when central runs with `-c`.
 
 use super::direct::UnixListenerFile;
-use super::transport::open;
+use super::transport::{is_unresolved, open};
 use super::*;
 
 /// A dial error that no retry can mend (see [`Dial`]).
@@ -31,8 +31,12 @@ pub(super) async fn handshake(
             };
             match opened {
                 Ok(io) => break io,
+                // a host name that does not resolve will not while we
+                // wait: say so now (a reconnect, which waits for the
+                // network to come back, still retries it)
                 Err(e)
                     if gone_for_good(opts, &e)
+                        || is_unresolved(&e)
                         || tokio::time::Instant::now() + Duration::from_millis(200) >= deadline =>
                 {
                     return Err(ConnectError::Unreachable {
@@ -105,5 +109,63 @@ pub(super) async fn handshake(
             why,
         })?;
         Ok((conn, io, listener))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A host name that glibc refuses without asking a name server (a
+    /// label longer than 63 bytes cannot be put in a DNS query), so the
+    /// test sends nothing off this machine.
+    fn unresolvable() -> String {
+        "a".repeat(64)
+    }
+
+    #[tokio::test]
+    async fn a_host_that_does_not_resolve_is_not_retried() {
+        let opts = IpcOptions {
+            connect_timeout: Duration::from_secs(5),
+            ..IpcOptions::default()
+        };
+        let started = std::time::Instant::now();
+        let Err(e) = handshake(&unresolvable(), 1381, "m", &opts).await else {
+            panic!("connected to an unresolvable host")
+        };
+        let ConnectError::Unreachable {
+            attempts, source, ..
+        } = &e
+        else {
+            panic!("{e:?}")
+        };
+        assert_eq!(*attempts, 1, "{e}");
+        assert!(is_unresolved(source), "{source:?}");
+        assert!(source.to_string().contains("cannot resolve"), "{source}");
+        assert!(
+            started.elapsed() < Duration::from_secs(2),
+            "{:?}",
+            started.elapsed()
+        );
+    }
+
+    #[tokio::test]
+    async fn a_refused_connection_is_retried_until_the_timeout() {
+        // a port nobody listens on: bind one, note it, close it
+        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let port = l.local_addr().unwrap().port();
+        drop(l);
+        let opts = IpcOptions {
+            connect_timeout: Duration::from_millis(700),
+            ..IpcOptions::default()
+        };
+        let Err(ConnectError::Unreachable {
+            attempts, source, ..
+        }) = handshake("127.0.0.1", port, "m", &opts).await
+        else {
+            panic!("expected Unreachable")
+        };
+        assert!(attempts > 1, "{attempts}");
+        assert!(!is_unresolved(&source), "{source:?}");
     }
 }

@@ -27,6 +27,8 @@ pub(super) enum Cmd {
     Decline(u64),
     ModuleConnected(String, Done<Result<bool, ControlError>>),
     NumHandlers(String, Done<Result<i32, ControlError>>),
+    /// The cached msgInfo of a message.
+    MsgInfo(String, Done<Result<Option<MsgInfo>, ControlError>>),
     Inform(InformOp, Done<Result<(), ControlError>>),
     /// Subscribe central's connect/disconnect notifications (once).
     WatchModules,
@@ -420,6 +422,9 @@ impl Driver {
                     let _ = d.send(Err(refused(&format!("num_handlers({m})"))(e)));
                 }
             },
+            Cmd::MsgInfo(m, d) => {
+                let _ = d.send(Ok(self.conn.msg_info(&m).cloned()));
+            }
             Cmd::Inform(op, d) => {
                 let (what, r) = match op {
                     InformOp::Capacity(n) => {

@@ -39,7 +39,7 @@ use crate::session::{
     Responder, SampleQueue, SessionEvent, WriteOptions,
 };
 use courier_wire::ipc::module::{
-    Connection, DeliveryId, DeliveryKind, Error as ModError, Event, LinkId, ModuleConfig,
+    Connection, DeliveryId, DeliveryKind, Error as ModError, Event, LinkId, ModuleConfig, MsgInfo,
     MsgLength, OpId,
 };
 use courier_wire::ipc::ByteOrder;
@@ -488,6 +488,11 @@ impl IpcControl for IpcBackend {
         let g = Err(self.gone());
         self.call(|d| Cmd::Inform(InformOp::QueueLength(msg.into(), n), d), g)
             .await
+    }
+
+    async fn message_info(&self, msg: &str) -> Result<Option<MsgInfo>, ControlError> {
+        let g = Err(self.gone());
+        self.call(|d| Cmd::MsgInfo(msg.into(), d), g).await
     }
 }
 

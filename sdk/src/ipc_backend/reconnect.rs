@@ -108,6 +108,9 @@ impl Driver {
             Cmd::NumHandlers(_, d) => {
                 let _ = d.send(Err(ControlError::Disconnected(addr)));
             }
+            Cmd::MsgInfo(_, d) => {
+                let _ = d.send(Err(ControlError::Disconnected(addr)));
+            }
             Cmd::WatchModules => self.watching_modules = true,
             Cmd::Close(d) => self.closing = Some(d),
             // dropped while disconnected: not subscribed again

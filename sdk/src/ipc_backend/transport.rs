@@ -108,14 +108,48 @@ impl AsyncWrite for Tcp {
     }
 }
 
+/// Central's host name did not resolve (or resolved to no address): the
+/// error [`open`] wraps in an `io::Error`, so that connecting gives up at
+/// once instead of retrying what no retry mends ([`is_unresolved`]).
+#[derive(Debug)]
+pub(super) struct Unresolved(String);
+
+impl std::fmt::Display for Unresolved {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Unresolved {}
+
+/// Whether `e` says that central's host name does not resolve.
+pub(super) fn is_unresolved(e: &std::io::Error) -> bool {
+    e.get_ref().is_some_and(|i| i.is::<Unresolved>())
+}
+
 pub(super) async fn open(host: &str, port: u16) -> std::io::Result<Box<dyn IpcStream>> {
     if is_local_name(host, &local_host_name()) {
         if let Ok(s) = tokio::net::UnixStream::connect(format!("/tmp/x_ipc/{port}")).await {
             return Ok(Box::new(s));
         }
     }
-    let s = tokio::net::TcpStream::connect((host, port)).await?;
-    Ok(Box::new(Tcp::new(s)?))
+    // Resolve first, apart from connecting: a name that does not resolve
+    // is told from a central that does not answer (yet).
+    let unresolved = |kind, why: String| {
+        std::io::Error::new(kind, Unresolved(format!("cannot resolve {host:?}: {why}")))
+    };
+    let addrs: Vec<std::net::SocketAddr> = tokio::net::lookup_host((host, port))
+        .await
+        .map_err(|e| unresolved(e.kind(), e.to_string()))?
+        .collect();
+    let mut last = None;
+    for a in addrs {
+        match tokio::net::TcpStream::connect(a).await {
+            Ok(s) => return Ok(Box::new(Tcp::new(s)?)),
+            Err(e) => last = Some(e),
+        }
+    }
+    Err(last.unwrap_or_else(|| unresolved(std::io::ErrorKind::NotFound, "no address".into())))
 }
 
 /// Writes `bufs` one after the other, with as few system calls as the

@@ -53,6 +53,7 @@ pub use wire::{decode_formatter, encode_formatter};
 
 /// A primitive IPC type (ipc.md §9.3), with its formatter code (§9.7).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub enum Primitive {
     /// `char`: 1 byte (code 16).
     Char,
@@ -88,6 +89,7 @@ pub enum Primitive {
 
 /// A parsed IPC format (ipc.md §9.6).
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub enum Format {
     /// No data: the empty or NULL format (formatter code -1).
     Empty,

@@ -61,8 +61,13 @@ pub const MAX_VALUE_DEPTH: usize = 1_000;
 use crate::format::{Format, Primitive};
 
 mod print;
+#[cfg(feature = "serde")]
+mod serde_form;
 
 pub use print::{log_data, print_value, print_value_with, PrintOptions};
+#[cfg(feature = "serde")]
+#[cfg_attr(docsrs, doc(cfg(feature = "serde")))]
+pub use serde_form::{Typed, ValueSeed};
 
 /// A value of any IPC format (ipc.md §9), as [`decode_value`] produces it and
 /// [`encode_value`] consumes it.
@@ -88,7 +93,12 @@ pub use print::{log_data, print_value, print_value_with, PrintOptions};
 /// | named format | the value of its definition |
 ///
 /// Floating-point fields compare with IEEE semantics (`NaN != NaN`).
+///
+/// With the cargo feature `serde`, values serialize in a self-describing
+/// form (`{"Int": 5}`), and in the plain form a person reads and writes
+/// with their format: `Typed` and `ValueSeed` in this module.
 #[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "serde", derive(::serde::Serialize, ::serde::Deserialize))]
 pub enum Value {
     /// No data: the value of the empty (NULL) format.
     Empty,

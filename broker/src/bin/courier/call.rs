@@ -1,0 +1,184 @@
+//! `courier call <url> <query> <request>`: one query (IPC) or service call
+//! (DDS, ROS 2 style), the reply printed decoded (like `ros2 service
+//! call`, `z_get`). On DDS the types are ones Courier knows, or any laid
+//! out as an IPC format (`--format`, `--reply-format`, see `cdr_value`).
+
+use std::cell::Cell;
+use std::time::{Duration, Instant};
+
+use courier::format::Format;
+use courier::{Handle, QueryError, Session, TypeInfo};
+
+use crate::cli::{kind, CallArgs, Kind};
+use crate::connect::connect;
+use crate::stop::{run_session, Ended, Stop};
+use crate::text::out;
+use crate::values::{known_names, known_type, parse_value, Decoded, Known, Style};
+use crate::Result;
+
+pub async fn run(o: CallArgs, mut stop: Stop) -> Result<Ended> {
+    let s = match connect(&o.url, &o.name, &mut stop).await? {
+        Ok(s) => s,
+        Err(ended) => return Ok(ended),
+    };
+    let asked = Cell::new(None::<Instant>);
+    let what = || match asked.get() {
+        Some(t) => format!(
+            "while waiting for the reply to {:?} ({:.1} s)",
+            o.query,
+            t.elapsed().as_secs_f64()
+        ),
+        None => format!("before calling {:?}", o.query),
+    };
+    run_session(&s, &mut stop, call(&s, &o, &asked), what).await
+}
+
+async fn call(s: &Session, o: &CallArgs, asked: &Cell<Option<Instant>>) -> Result<()> {
+    let style = if o.json { Style::Json } else { Style::Text };
+    let timeout = Duration::from_millis(o.timeout);
+    let reply = match kind(&o.url) {
+        Kind::Ipc => ipc_call(s, o, timeout, asked).await?,
+        Kind::Dds => dds_call(s, o, timeout, asked).await?,
+    };
+    out(reply.print(style));
+    Ok(())
+}
+
+/// Why a query failed, said for the command line.
+fn failed(o: &CallArgs, e: QueryError, timeout: Duration) -> crate::Error {
+    match e {
+        QueryError::Timeout { .. } => {
+            format!("no reply to {:?} within {timeout:?} (--timeout)", o.query).into()
+        }
+        QueryError::NoResponder { .. } => format!(
+            "nobody serves {:?} (waited {timeout:?} for a server to be discovered)",
+            o.query
+        )
+        .into(),
+        e => e.into(),
+    }
+}
+
+async fn ipc_call(
+    s: &Session,
+    o: &CallArgs,
+    timeout: Duration,
+    asked: &Cell<Option<Instant>>,
+) -> Result<Decoded> {
+    let ipc = s.ipc()?;
+    let format = match &o.format {
+        Some(f) => f.clone(),
+        None => {
+            // look the message up: watch_handlers does, the num_handlers
+            // after it answers once that is done
+            ipc.watch_handlers(&o.query).await?;
+            let servers = s.num_handlers(&o.query).await?;
+            let info = ipc.message_info(&o.query).await?.ok_or_else(|| {
+                format!(
+                    "central knows no message {:?} (is its server running?)",
+                    o.query
+                )
+            })?;
+            if servers == 0 {
+                crate::text::progress(format_args!(
+                    "nobody serves {:?} yet; central keeps the query until somebody does",
+                    o.query
+                ));
+            }
+            info.res_format.ok_or_else(|| {
+                format!(
+                    "message {:?} has no format in central; give one with --format",
+                    o.query
+                )
+            })?
+        }
+    };
+    let data = parse_value(&format, &o.request)?.to_ipc_bytes(&format)?;
+    asked.set(Some(Instant::now()));
+    let (reply_msg, data, order) = s
+        .query_raw(&o.query, &data, timeout)
+        .await
+        .map_err(|e| failed(o, e, timeout))?;
+    // the session looked the reply's message up to unwrap it
+    let reply_format: Option<Format> = match &o.reply_format {
+        Some(f) => Some(f.clone()),
+        None => ipc
+            .message_info(&reply_msg)
+            .await?
+            .and_then(|i| i.res_format),
+    };
+    Ok(Decoded::ipc(reply_format.as_ref(), &data, order)
+        .map_err(|e| format!("the reply ({reply_msg}) {e}"))?)
+}
+
+fn known(name: &str) -> Result<&'static Known> {
+    Ok(known_type(name)
+        .ok_or_else(|| format!("type {name:?} is not one Courier knows ({})", known_names()))?)
+}
+
+fn type_info(k: &Known) -> TypeInfo {
+    TypeInfo::dynamic(Some(k.format), k.type_name)
+}
+
+/// One side of a DDS call: a type Courier knows, or any type laid out as
+/// an IPC format (`--format` / `--reply-format`) under a type name.
+enum Side {
+    Known(&'static Known),
+    Cdr(Format, &'static str),
+}
+
+impl Side {
+    fn new(format: Option<&Format>, type_name: Option<&str>) -> Result<Side> {
+        let name = type_name.unwrap_or("courier::Ping");
+        Ok(match format {
+            Some(f) => Side::Cdr(f.clone(), Box::leak(name.to_string().into_boxed_str())),
+            None => Side::Known(known(name)?),
+        })
+    }
+
+    fn type_info(&self) -> TypeInfo {
+        match self {
+            Side::Known(k) => type_info(k),
+            Side::Cdr(f, name) => {
+                TypeInfo::dynamic(Some(Box::leak(f.to_string().into_boxed_str())), name)
+            }
+        }
+    }
+
+    fn encode(&self, text: &str) -> Result<Vec<u8>> {
+        Ok(match self {
+            Side::Known(k) => k.encode(&parse_value(&k.parsed(), text)?)?,
+            Side::Cdr(f, _) => crate::cdr_value::encode(f, &parse_value(f, text)?)?,
+        })
+    }
+
+    fn decode(&self, data: &[u8]) -> Result<Decoded> {
+        Ok(match self {
+            Side::Known(k) => Decoded::dds(Some(k.type_name), data)?,
+            Side::Cdr(f, _) => Decoded::cdr(f, data)?,
+        })
+    }
+}
+
+async fn dds_call(
+    s: &Session,
+    o: &CallArgs,
+    timeout: Duration,
+    asked: &Cell<Option<Instant>>,
+) -> Result<Decoded> {
+    let req = Side::new(o.format.as_ref(), o.type_name.as_deref())?;
+    let resp = match (&o.reply_format, &o.reply_type) {
+        (None, None) if o.format.is_none() => Side::new(None, o.type_name.as_deref())?,
+        (f, t) => Side::new(f.as_ref(), t.as_deref().or(o.type_name.as_deref()))?,
+    };
+    let data = req.encode(&o.request)?;
+    let b = s.backend();
+    let client = b
+        .open_client(&o.query, &req.type_info(), &resp.type_info())
+        .await?;
+    asked.set(Some(Instant::now()));
+    let r = b.query(client, data, timeout).await;
+    b.close_handle(Handle::Client(client));
+    let (_, data, _) = r.map_err(|e| failed(o, e, timeout))?;
+    resp.decode(&data)
+}

@@ -1,0 +1,343 @@
+//! A dynamic [`Value`] in DDS's CDR, through an IPC format, laid out as
+//! `#[derive(IpcMessage)]` lays out a type of that format (final
+//! extensibility): so `courier echo --format` and `courier pub --format`
+//! speak any DDS type whose layout an IPC format describes.
+//!
+//! Written as XCDR1 little-endian (what Courier's sessions send); read in
+//! either version and byte order. Pointers (`*T`, `*!`), `format` fields
+//! and variable arrays sized by more than one field have no CDR layout
+//! here and are refused up front.
+
+use courier::cdr::{Encoding, Extensibility, Reader, Writer};
+use courier::format::{Format, Primitive};
+use courier::ipc::Value;
+
+/// Why `fmt` has no CDR layout here, if it has none.
+pub fn check(fmt: &Format) -> Result<(), String> {
+    let refuse = |what: &str| {
+        Err(format!(
+            "{what} has no CDR layout for --format on rtps:// (pointers, format fields and \
+             variable arrays sized by several fields are IPC only)"
+        ))
+    };
+    match fmt {
+        Format::Pointer(_) | Format::SelfPointer => refuse("a pointer"),
+        Format::Primitive(Primitive::Format) => refuse("a format field"),
+        Format::Named(n) => refuse(&format!("named format `{n}`")),
+        Format::VarArray { dims, .. } if dims.len() != 1 => refuse("a variable array"),
+        Format::Struct(fs) => fs.iter().try_for_each(check),
+        Format::FixedArray { elem, .. } | Format::VarArray { elem, .. } => check(elem),
+        _ => Ok(()),
+    }
+}
+
+/// The size of a CDR primitive of this format (what XCDR2 writes no
+/// `DHEADER` before arrays and sequences of).
+fn primitive(f: &Format) -> Option<usize> {
+    match f {
+        Format::Primitive(p) => match p {
+            Primitive::Char | Primitive::Byte | Primitive::UByte | Primitive::Boolean => Some(1),
+            Primitive::Short | Primitive::UShort | Primitive::TwoByte => Some(2),
+            Primitive::Int | Primitive::UInt | Primitive::Float => Some(4),
+            Primitive::Long | Primitive::ULong | Primitive::Double => Some(8),
+            Primitive::String | Primitive::Format => None,
+        },
+        _ => None,
+    }
+}
+
+/// `value` of format `fmt` as a CDR sample (encapsulation header first).
+pub fn encode(fmt: &Format, value: &Value) -> Result<Vec<u8>, String> {
+    check(fmt)?;
+    let mut w = Writer::with_header(Encoding::Xcdr1Le, Extensibility::Final);
+    enc(fmt, value, &mut w)?;
+    Ok(w.into_vec())
+}
+
+fn mismatch(f: &Format, v: &Value) -> String {
+    format!("expected a value of {f}, found {}", v.kind())
+}
+
+fn enc(f: &Format, v: &Value, w: &mut Writer) -> Result<(), String> {
+    match (f, v) {
+        (Format::Empty, Value::Empty) => {}
+        (Format::Primitive(p), v) => match (p, v) {
+            (Primitive::Char, Value::Char(x)) | (Primitive::UByte, Value::UByte(x)) => {
+                w.write_u8(*x)
+            }
+            (Primitive::Byte, Value::Byte(x)) => w.write_i8(*x),
+            (Primitive::Short, Value::Short(x)) => w.write_i16(*x),
+            (Primitive::UShort, Value::UShort(x)) | (Primitive::TwoByte, Value::TwoByte(x)) => {
+                w.write_u16(*x)
+            }
+            (Primitive::Int, Value::Int(x)) => w.write_i32(*x),
+            (Primitive::UInt, Value::UInt(x)) => w.write_u32(*x),
+            (Primitive::Long, Value::Long(x)) => w.write_i64(*x),
+            (Primitive::ULong, Value::ULong(x)) => w.write_u64(*x),
+            (Primitive::Float, Value::Float(x)) => w.write_f32(*x),
+            (Primitive::Double, Value::Double(x)) => w.write_f64(*x),
+            (Primitive::Boolean, Value::Boolean(x)) => w.write_bool(*x),
+            (Primitive::String, Value::String(s)) => w.write_string(s.as_deref().unwrap_or("")),
+            _ => return Err(mismatch(f, v)),
+        },
+        (Format::Length(n), Value::Bytes(b)) => {
+            if b.len() != *n as usize {
+                return Err(format!("expected {n} bytes, found {}", b.len()));
+            }
+            let d = w.begin_array(true);
+            w.write_bytes(b);
+            w.end_dheader(d);
+        }
+        (Format::Struct(fs), Value::Struct(vs)) => {
+            if fs.len() != vs.len() {
+                return Err(format!("expected {} fields, found {}", fs.len(), vs.len()));
+            }
+            for (i, (f, v)) in fs.iter().zip(vs).enumerate() {
+                // a variable array's size field must say its length, as
+                // the derive writes it
+                if let (Format::VarArray { dims, .. }, Value::VarArray(items)) = (f, v) {
+                    let k = dims[0] as usize;
+                    let n = vs.get(k.wrapping_sub(1)).and_then(Value::as_integer);
+                    if n != Some(items.len() as i128) {
+                        return Err(format!(
+                            "field {}: variable array has {} element(s), but its size field \
+                             {k} says {}",
+                            i + 1,
+                            items.len(),
+                            n.map_or("nothing".into(), |n| n.to_string())
+                        ));
+                    }
+                }
+                enc(f, v, w).map_err(|e| format!("field {}: {e}", i + 1))?;
+            }
+        }
+        (Format::FixedArray { elem, dims }, Value::Array(_)) => {
+            let d = w.begin_array(primitive(elem).is_some());
+            enc_flat(elem, dims, v, w)?;
+            w.end_dheader(d);
+        }
+        (Format::VarArray { elem, .. }, Value::VarArray(items)) => {
+            let d = w.begin_sequence(items.len(), primitive(elem));
+            for x in items {
+                enc(elem, x, w)?;
+            }
+            w.end_dheader(d);
+        }
+        (Format::Enum { .. }, Value::Enum(n)) => w.write_i32(*n),
+        _ => return Err(mismatch(f, v)),
+    }
+    Ok(())
+}
+
+/// The elements of a (multi-dimensional) fixed array, flat.
+fn enc_flat(elem: &Format, dims: &[u32], v: &Value, w: &mut Writer) -> Result<(), String> {
+    let Value::Array(items) = v else {
+        return Err(format!("expected an array, found {}", v.kind()));
+    };
+    let Some((&n, rest)) = dims.split_first() else {
+        return enc(elem, v, w);
+    };
+    if items.len() != n as usize {
+        return Err(format!("expected {n} elements, found {}", items.len()));
+    }
+    for x in items {
+        if rest.is_empty() {
+            enc(elem, x, w)?;
+        } else {
+            enc_flat(elem, rest, x, w)?;
+        }
+    }
+    Ok(())
+}
+
+/// A CDR sample (encapsulation header first) as a value of format `fmt`.
+pub fn decode(fmt: &Format, data: &[u8]) -> Result<Value, String> {
+    check(fmt)?;
+    let mut r = Reader::with_header(data).map_err(|e| e.to_string())?;
+    let v = dec(fmt, &mut r).map_err(|e| e.to_string())?;
+    r.finish_padding().map_err(|e| e.to_string())?;
+    Ok(v)
+}
+
+type DecodeResult = Result<Value, courier::cdr::DecodeError>;
+
+fn dec(f: &Format, r: &mut Reader<'_>) -> DecodeResult {
+    Ok(match f {
+        Format::Empty => Value::Empty,
+        Format::Primitive(p) => match p {
+            Primitive::Char => Value::Char(r.read_u8()?),
+            Primitive::Byte => Value::Byte(r.read_i8()?),
+            Primitive::UByte => Value::UByte(r.read_u8()?),
+            Primitive::Short => Value::Short(r.read_i16()?),
+            Primitive::UShort => Value::UShort(r.read_u16()?),
+            Primitive::TwoByte => Value::TwoByte(r.read_u16()?),
+            Primitive::Int => Value::Int(r.read_i32()?),
+            Primitive::UInt => Value::UInt(r.read_u32()?),
+            Primitive::Long => Value::Long(r.read_i64()?),
+            Primitive::ULong => Value::ULong(r.read_u64()?),
+            Primitive::Float => Value::Float(r.read_f32()?),
+            Primitive::Double => Value::Double(r.read_f64()?),
+            Primitive::Boolean => Value::Boolean(r.read_bool()?),
+            Primitive::String => {
+                let s = r.read_str()?;
+                Value::String((!s.is_empty()).then(|| s.to_string()))
+            }
+            // refused by check()
+            Primitive::Format => Value::Format(None),
+        },
+        Format::Length(n) => {
+            let d = r.begin_array(true)?;
+            let b = r.take(*n as usize)?.to_vec();
+            r.end_dheader(d);
+            Value::Bytes(b)
+        }
+        Format::Struct(fs) => {
+            r.enter()?;
+            let mut vs = Vec::with_capacity(fs.len());
+            for f in fs {
+                vs.push(dec(f, r)?);
+            }
+            r.leave();
+            Value::Struct(vs)
+        }
+        Format::FixedArray { elem, dims } => {
+            let d = r.begin_array(primitive(elem).is_some())?;
+            let v = dec_flat(elem, dims, r)?;
+            r.end_dheader(d);
+            v
+        }
+        Format::VarArray { elem, .. } => {
+            let prim = primitive(elem);
+            let d = if prim.is_some() {
+                None
+            } else {
+                r.begin_dheader()?
+            };
+            let n = r.read_len(prim.unwrap_or(1))?;
+            let mut items = Vec::with_capacity(n.min(4096));
+            for _ in 0..n {
+                items.push(dec(elem, r)?);
+            }
+            r.end_dheader(d);
+            Value::VarArray(items)
+        }
+        Format::Enum { .. } => Value::Enum(r.read_i32()?),
+        // refused by check()
+        Format::Pointer(_) | Format::SelfPointer | Format::Named(_) => Value::Pointer(None),
+    })
+}
+
+fn dec_flat(elem: &Format, dims: &[u32], r: &mut Reader<'_>) -> DecodeResult {
+    let Some((&n, rest)) = dims.split_first() else {
+        return dec(elem, r);
+    };
+    let min = primitive(elem).unwrap_or(1);
+    if (n as usize).saturating_mul(min) > r.remaining() {
+        return Err(courier::cdr::DecodeError::CountTooLarge {
+            offset: r.position(),
+            count: u64::from(n),
+            remaining: r.remaining(),
+        });
+    }
+    let mut items = Vec::with_capacity(n as usize);
+    for _ in 0..n {
+        items.push(dec_flat(elem, rest, r)?);
+    }
+    Ok(Value::Array(items))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use courier::IpcMessage;
+
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct Point {
+        x: f64,
+        y: f64,
+    }
+
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    #[ipc(numeric)]
+    enum Status {
+        Wait,
+        Send,
+    }
+
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct Sample {
+        name: String,
+        flag: bool,
+        c: char,
+        b: i8,
+        s: i16,
+        n: i32,
+        #[ipc(len = "n")]
+        points: Vec<Point>,
+        m: [[u16; 3]; 2],
+        status: Status,
+        big: u64,
+        k: i32,
+        #[ipc(len = "k")]
+        bytes: Vec<u8>,
+    }
+
+    fn sample() -> Sample {
+        Sample {
+            name: "hi".into(),
+            flag: true,
+            c: 'x',
+            b: -2,
+            s: -300,
+            n: 2,
+            points: vec![Point { x: 0.5, y: 1.0 }, Point { x: 1.5, y: 2.0 }],
+            m: [[1, 2, 3], [4, 5, 6]],
+            status: Status::Send,
+            big: u64::MAX,
+            k: 3,
+            bytes: vec![7, 8, 9],
+        }
+    }
+
+    /// The dynamic codec lays a value out as the derive does: the same
+    /// bytes out (XCDR1), the same value in (XCDR1 and XCDR2, both byte
+    /// orders).
+    #[test]
+    fn the_layout_is_the_derives() {
+        let fmt = courier::format::parse(
+            "{string, boolean, char, byte, short, int, <{double, double}:6>, [ushort:2,3], \
+             {enum Wait, Send}, ulong, int, <ubyte:11>}",
+        )
+        .unwrap();
+        let v = Value::from_ipc_bytes(
+            &fmt,
+            &courier::ipc::to_vec(&sample()),
+            courier::ipc::ByteOrder::NATIVE,
+        )
+        .unwrap();
+        let derived = courier::cdr::to_vec(&sample(), courier::cdr::Encoding::Xcdr1Le);
+        assert_eq!(encode(&fmt, &v).unwrap(), derived);
+        for enc in [
+            courier::cdr::Encoding::Xcdr1Le,
+            courier::cdr::Encoding::Xcdr1Be,
+            courier::cdr::Encoding::Xcdr2Le,
+            courier::cdr::Encoding::Xcdr2Be,
+        ] {
+            let bytes = courier::cdr::to_vec(&sample(), enc);
+            assert_eq!(decode(&fmt, &bytes).unwrap(), v, "{enc:?}");
+        }
+    }
+
+    #[test]
+    fn what_has_no_layout_is_refused() {
+        for f in ["*int", "{int, *!}", "{int, int, <int:1,2>}", "format"] {
+            let e = check(&courier::format::parse(f).unwrap()).unwrap_err();
+            assert!(e.contains("has no CDR layout"), "{f}: {e}");
+        }
+        let f = courier::format::parse("{int, <int:1>}").unwrap();
+        let bad = Value::Struct(vec![Value::Int(2), Value::VarArray(vec![Value::Int(1)])]);
+        let e = encode(&f, &bad).unwrap_err();
+        assert!(e.contains("size field 1 says 2"), "{e}");
+        assert!(decode(&f, &[0, 1, 0, 0, 1]).is_err());
+    }
+}

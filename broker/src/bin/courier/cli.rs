@@ -1,0 +1,728 @@
+//! The command line: clap's derive, with every session URL checked before
+//! anything connects, and the checks clap cannot express (options one
+//! backend has and the other has not) as usage errors too.
+
+use clap::error::ErrorKind;
+use clap::{ArgGroup, Args, CommandFactory, Parser, Subcommand, ValueEnum};
+
+use courier::format::Format;
+use courier::rtps_backend::RtpsOptions;
+
+/// Largest `--size`: big enough to exercise fragmentation, small enough not
+/// to exhaust memory by a typo.
+pub const MAX_SIZE: u64 = 16 << 20;
+
+const AFTER_HELP: &str = "\
+Session URLs:
+  ipc://HOST:PORT          a CMU IPC central (Courier's `central` or the C one); ipc:// alone
+                           takes CENTRALHOST, then localhost:1381
+  rtps://DOMAIN?OPTIONS    DDS over RTPS, e.g. rtps://0?interface=lo&peers=127.0.0.1
+
+Exit status: 0 done; 1 a runtime failure (the message says which); 2 a usage
+error; 128+N stopped by signal N before it was done (130 Ctrl-C, 143 SIGTERM).
+`courier <command> --help` describes a command and what it prints.";
+
+/// Command-line tools over any Courier session URL.
+#[derive(Parser, Debug)]
+#[command(
+    name = "courier",
+    version,
+    propagate_version = true,
+    after_help = AFTER_HELP,
+    arg_required_else_help = true
+)]
+pub struct Cli {
+    /// Report what long waits wait for (connecting, discovery) on stderr:
+    /// auto = when stderr is a terminal
+    #[arg(long, global = true, value_enum, value_name = "WHEN", default_value_t = ProgressMode::Auto)]
+    pub progress: ProgressMode,
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// When long waits report progress.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ProgressMode {
+    /// When stderr is a terminal.
+    Auto,
+    /// Always.
+    Always,
+    /// Never.
+    Never,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Send one query and print its reply (like ros2 service call)
+    #[command(after_help = CALL_OUTPUT)]
+    Call(CallArgs),
+    /// Print every sample of a topic, decoded (like ros2 topic echo)
+    #[command(after_help = ECHO_OUTPUT)]
+    Echo(EchoArgs),
+    /// Report the rate of a topic's samples every second (like ros2 topic hz)
+    #[command(after_help = HZ_OUTPUT)]
+    Hz(RateArgs),
+    /// Report the bandwidth and sizes of a topic's samples every second (like ros2 topic bw)
+    #[command(after_help = BW_OUTPUT)]
+    Bw(RateArgs),
+    /// Publish a value (like ros2 topic pub)
+    #[command(name = "pub", after_help = PUB_OUTPUT)]
+    Pub(PubArgs),
+    /// List participants and endpoints (DDS), or modules and messages (IPC)
+    #[command(after_help = LIST_OUTPUT)]
+    List(ListArgs),
+    /// Send or receive courier::Ping samples (like ORTE's orteping)
+    #[command(after_help = PING_OUTPUT)]
+    Ping(PingArgs),
+    /// Print discovery and every sample of matching topics (like ORTE's ortespy)
+    #[command(after_help = SPY_OUTPUT)]
+    Spy(SpyArgs),
+    /// Answer every courier::Ping with the same sample (for ping --rtt, like ddsperf pong)
+    Pong(PongArgs),
+    /// Print a shell completion script (bash, zsh, fish, elvish, powershell)
+    Completions {
+        /// The shell
+        #[arg(value_enum)]
+        shell: clap_complete::Shell,
+    },
+}
+
+const CALL_OUTPUT: &str = "\
+REQUEST is JSON guided by the format (see `courier pub --help`), or text for a
+string. The reply goes to stdout on one line, decoded as `courier echo` prints
+samples (--json for JSON).
+On ipc:// an IPC query (IPC_queryResponse): the request's format is --format or
+the one central holds for QUERY, the reply's --reply-format or the one central
+holds for the reply's message. On rtps:// a ROS 2 style service call (topics
+rq/QUERYRequest and rr/QUERYReply) with types named by --type (default
+courier::Ping) and --reply-type (default: --type): ones Courier knows, or any
+laid out as --format / --reply-format (as #[derive(IpcMessage)] lays it out).
+Exit 1 when no reply comes within --timeout.";
+
+const ECHO_OUTPUT: &str = "\
+Each sample on one line of stdout: as central's data log prints data ({1, \"a\",
+[0.50, 1.00]}), or with --json as JSON guided by the format ([1,\"a\",[0.5,1.0]]:
+structs and arrays as arrays, enums by name, null for NULL pointers).
+The format: on ipc:// --format, or the one central holds for the message; on
+rtps:// --format (CDR laid out as #[derive(IpcMessage)] lays out that format;
+no pointers), else the discovered type when Courier knows it (courier::Ping,
+std_msgs::msg::dds_::String_). Samples of other types print as hex
+({\"hex\":\"…\"} with --json). Diagnostics and progress go to stderr.";
+
+const LIST_OUTPUT: &str = "\
+On rtps://, what discovery finds within --duration (default 2 s), by participant:
+  participant <guid prefix> name=<name> unicast=<addrs> multicast=<addrs>
+    publication|subscription <guid> topic=<topic> type=<type> <qos as spy prints it>
+(a participant that announced itself while this one was still connecting shows as
+`participant <guid prefix> name=? (announced before this listing began)`),
+or with --watch every change as it comes, as `courier spy` prints discovery.
+On ipc://, what a module can ask central (neither the C central nor Courier's
+has a request that lists modules or messages):
+  module <name> connected|not-connected          for each --module
+  message <name> format=<format>|- handlers=<n>  for each --message (or: unknown)
+  ready, then module <name> connected|disconnected and message <name> handlers=<n>
+                                                  as they change, with --watch";
+
+const PUB_OUTPUT: &str = "\
+VALUE is JSON guided by the format ([1, \"a\", [0.5, 1]] for {int, string, [double:2]};
+enums by name or number; null for a NULL pointer), or plain text for a string, a
+char or an enum's name (hello world, Send).
+The type: on ipc:// --format, else the format central holds for the message; on
+rtps:// --type with --format (any DDS type whose layout an IPC format describes,
+as #[derive(IpcMessage)] lays it out; no pointers), or --type alone naming one
+Courier knows (courier::Ping: [seq, stamp_ns, \"text\"];
+std_msgs::msg::dds_::String_: [\"text\"]).
+It waits for --wait subscribers first (a sample nobody subscribes is not sent on
+IPC and reaches nobody on DDS), then publishes --count samples at --rate.
+Output, one event a line:
+  ready                    the publication exists
+  matched <n>              subscribers now matched
+  incompatible <guid> <reason>   a subscription whose QoS does not match (DDS)
+  sent <n>
+  done                     --count reached (exit 0)
+  interrupted while waiting for subscribers of … | after <n> samples sent
+                           Ctrl-C / SIGTERM (exit 130 / 143)";
+
+const HZ_OUTPUT: &str = "\
+Every second, over the last --window samples (one line, stdout):
+  rate <r> Hz min <s> s max <s> s std dev <s> s window <n> gaps <n>
+      min, max: shortest and longest interval between two samples;
+      gaps: intervals longer than --gap (default: twice the mean interval)
+  no new samples          none came in the last second
+When --count or --duration ends it, a last report. Progress while nothing has
+come (discovery on DDS) goes to stderr.";
+
+const BW_OUTPUT: &str = "\
+Every second, over the last --window samples (one line, stdout):
+  bw <rate>/s from <n> samples size mean <size> min <size> max <size> window <n>
+      sizes as received: IPC data, or CDR with its 4-byte header and padding (DDS)
+  no new samples          none came in the last second
+When --count or --duration ends it, a last report.";
+
+const PING_OUTPUT: &str = "\
+Output, one event a line:
+  ready                               the publication / subscription exists
+  matched <n>                         publisher: readers now matched (DDS and IPC);
+                                      subscriber: publications now matched (DDS)
+  incompatible <guid> <reason>        an endpoint of the topic whose QoS does not match (DDS)
+  sent <seq>
+  received <seq> from <source> <bytes> B   <source>: writer GUID (DDS), ? (IPC)
+  deadline missed <total>             subscriber with --deadline (DDS)
+  skipped <reason>                    a sample that did not decode
+  done                                --count reached (exit 0)
+  interrupted after <n> samples …     Ctrl-C / SIGTERM: session closed (exit 130 / 143)
+--rtt (with `courier pong` answering; latencies in microseconds):
+  ready
+  matched <n>                         pongs subscribing the topic
+  rtt n=<k> min=<us> p50=<us> p90=<us> p99=<us> max=<us> mean=<us> lost=<l> (us)
+                                      every second, over that second
+  total n=<k> … lost=<l> (us)         over the whole run, then done
+  interrupted after <k> round trips: n=<k> … (us)";
+
+const SPY_OUTPUT: &str = "\
+On rtps:// every sample of the topics matching --topic and --type, and discovery;
+on ipc:// every message named by --topic (central offers no list of messages to
+match a pattern against), decoded through the format central holds, and modules
+connecting and disconnecting.
+Output, one event a line (a name with blanks is quoted; an empty list is -):
+  ready
+  participant found|changed <guid prefix> name=<name> unicast=<addrs> multicast=<addrs>
+  participant lost <guid prefix> goodbye|lease-expired
+  publication|subscription found|changed <guid> topic=<topic> type=<type>
+      reliability=reliable|best-effort durability=volatile|transient-local|transient|persistent
+      history=keep-last(<n>)|keep-all deadline=<n>ms|infinite
+      ownership=shared|exclusive(<strength>) partitions=[<p>,...]
+      representation=[XCDR1|XCDR2,...] (a writer writes the first)
+  publication|subscription lost <guid>
+  incompatible <guid> <reason>
+  module <name> connected|disconnected            (IPC)
+  sample <topic> <type> from <writer guid> <bytes> B <encapsulation>[ (disposed)|(unregistered)]: <value>
+      <encapsulation> (DDS): XCDR1|XCDR2 and the encapsulation id (CDR_LE, D_CDR2_LE,
+      PL_CDR2_LE, ...), or - when there is none (a dispose with only a key hash)
+      <value>: courier::Ping { seq: <n>, stamp_ns: <n>, text: \"...\" } in either
+      representation, or the first
+      64 bytes in hex (… when more), or - when none. On IPC <type> is the
+      message's format (? when unknown), <writer guid> is ?, and <value> is printed
+      as central's data log prints it
+  interrupted after <n> samples       Ctrl-C / SIGTERM: session closed (exit 130 / 143)";
+
+#[derive(Args, Debug)]
+pub struct CallArgs {
+    /// Session URL (ipc://…, rtps://…)
+    #[arg(value_name = "URL", value_parser = session_url)]
+    pub url: String,
+    /// The query message (IPC) or service (DDS)
+    pub query: String,
+    /// The request: JSON, or text for a string
+    #[arg(allow_hyphen_values = true)]
+    pub request: String,
+    /// The request's format (IPC default: the one central holds; DDS: the
+    /// CDR layout of --type)
+    #[arg(long, value_name = "FORMAT", value_parser = crate::values::parse_format)]
+    pub format: Option<Format>,
+    /// The reply's format (IPC default: the one central holds; DDS: the CDR
+    /// layout of --reply-type)
+    #[arg(long, value_name = "FORMAT", value_parser = crate::values::parse_format)]
+    pub reply_format: Option<Format>,
+    /// DDS: the request type (one Courier knows, or any with --format)
+    #[arg(long = "type", value_name = "TYPE")]
+    pub type_name: Option<String>,
+    /// DDS: the reply type (default: --type)
+    #[arg(long, value_name = "TYPE")]
+    pub reply_type: Option<String>,
+    /// How long to wait for the reply
+    #[arg(long, value_name = "MS", default_value_t = 5000, value_parser = clap::value_parser!(u64).range(1..))]
+    pub timeout: u64,
+    /// Print the reply as JSON
+    #[arg(long)]
+    pub json: bool,
+    /// Participant / module name
+    #[arg(long, default_value = "courier-call")]
+    pub name: String,
+}
+
+#[derive(Args, Debug)]
+pub struct EchoArgs {
+    /// Session URL (ipc://…, rtps://…)
+    #[arg(value_name = "URL", value_parser = session_url)]
+    pub url: String,
+    /// Topic (IPC: message name)
+    pub topic: String,
+    /// Print each sample as JSON
+    #[arg(long)]
+    pub json: bool,
+    /// The samples' IPC format (IPC default: the one central holds; DDS:
+    /// its CDR layout, default: the discovered type if Courier knows it)
+    #[arg(long, value_name = "FORMAT", value_parser = crate::values::parse_format)]
+    pub format: Option<Format>,
+    /// Exit after N samples
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub count: Option<u64>,
+    /// Exit after this long
+    #[arg(long, value_name = "SECS", value_parser = clap::value_parser!(u64).range(1..))]
+    pub duration: Option<u64>,
+    /// Participant / module name
+    #[arg(long, default_value = "courier-echo")]
+    pub name: String,
+}
+
+#[derive(Args, Debug)]
+pub struct RateArgs {
+    /// Session URL (ipc://…, rtps://…)
+    #[arg(value_name = "URL", value_parser = session_url)]
+    pub url: String,
+    /// Topic (IPC: message name)
+    pub topic: String,
+    /// Samples the statistics are over
+    #[arg(long, value_name = "N", default_value_t = 10_000, value_parser = clap::value_parser!(u64).range(2..=1_000_000))]
+    pub window: u64,
+    /// hz: count intervals longer than this as gaps (default: twice the mean)
+    #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u64).range(1..))]
+    pub gap: Option<u64>,
+    /// Exit after N samples
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub count: Option<u64>,
+    /// Exit after this long
+    #[arg(long, value_name = "SECS", value_parser = clap::value_parser!(u64).range(1..))]
+    pub duration: Option<u64>,
+    /// Participant / module name
+    #[arg(long, default_value = "courier-rate")]
+    pub name: String,
+}
+
+#[derive(Args, Debug)]
+pub struct PubArgs {
+    /// Session URL (ipc://…, rtps://…)
+    #[arg(value_name = "URL", value_parser = session_url)]
+    pub url: String,
+    /// Topic (IPC: message name)
+    pub topic: String,
+    /// The value: JSON, or plain text for a string, char or enum name
+    #[arg(allow_hyphen_values = true)]
+    pub value: String,
+    /// The format (IPC: defines the message in central; DDS: the CDR layout
+    /// of --type)
+    #[arg(long, value_name = "FORMAT", value_parser = crate::values::parse_format)]
+    pub format: Option<Format>,
+    /// DDS: the type name (one Courier knows, or any with --format)
+    #[arg(long = "type", value_name = "TYPE")]
+    pub type_name: Option<String>,
+    /// Samples to publish (0: until interrupted)
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    pub count: u64,
+    /// Samples a second
+    #[arg(long, value_name = "HZ", default_value_t = 1.0, value_parser = rate)]
+    pub rate: f64,
+    /// Wait for this many subscribers before the first sample
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    pub wait: u32,
+    /// Participant / module name
+    #[arg(long, default_value = "courier-pub")]
+    pub name: String,
+}
+
+/// A rate: a positive number of samples a second, at most a million.
+fn rate(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(r) if r > 0.0 && r <= 1e6 => Ok(r),
+        _ => Err("expected a number of samples a second above 0 and at most 1000000".into()),
+    }
+}
+
+#[derive(Args, Debug)]
+#[command(group(ArgGroup::new("mode").required(true).args(["publish", "subscribe", "rtt"])))]
+pub struct PingArgs {
+    /// Session URL (ipc://…, rtps://…)
+    #[arg(value_name = "URL", value_parser = session_url)]
+    pub url: String,
+    /// Publish a sample every --period
+    #[arg(long)]
+    pub publish: bool,
+    /// Subscribe and report what arrives
+    #[arg(long)]
+    pub subscribe: bool,
+    /// Measure round trips through a `courier pong` (latency percentiles)
+    #[arg(long)]
+    pub rtt: bool,
+    /// Topic
+    #[arg(long, default_value = "ping")]
+    pub topic: String,
+    /// --rtt: the topic the answers come on
+    #[arg(long, value_name = "TOPIC", default_value = "pong")]
+    pub reply_topic: String,
+    /// Publishing period (default 1000; --rtt: none, round trips back to back)
+    #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u64).range(1..))]
+    pub period: Option<u64>,
+    /// --rtt: a ping not answered within this long counts as lost
+    #[arg(long, value_name = "MS", default_value_t = 1000, value_parser = clap::value_parser!(u64).range(1..))]
+    pub timeout: u64,
+    /// Stop after N samples sent or received, or N round trips (default: run
+    /// until interrupted)
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub count: Option<u64>,
+    /// Text length of each sample
+    #[arg(long, value_name = "BYTES", default_value_t = 0, value_parser = clap::value_parser!(u64).range(..=MAX_SIZE))]
+    pub size: u64,
+    /// Participant / module name
+    #[arg(long, default_value = "courier-ping")]
+    pub name: String,
+    #[command(flatten)]
+    pub qos: QosArgs,
+}
+
+/// DDS QoS of `ping` (refused on IPC, which has none).
+#[derive(Args, Debug, Default)]
+#[command(next_help_heading = "DDS QoS (rtps:// only)")]
+pub struct QosArgs {
+    /// Publisher: exclusive ownership with this strength; subscriber: as --exclusive
+    #[arg(
+        long,
+        value_name = "N",
+        allow_negative_numbers = true,
+        conflicts_with = "rtt"
+    )]
+    pub strength: Option<i32>,
+    /// Subscriber: take samples from the strongest publisher only
+    #[arg(long, conflicts_with_all = ["publish", "rtt"])]
+    pub exclusive: bool,
+    /// Publisher: offered deadline; subscriber: requested deadline, each miss
+    /// prints `deadline missed <total>`
+    #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u64).range(1..), conflicts_with = "rtt")]
+    pub deadline: Option<u64>,
+    /// Subscriber: minimum separation between samples
+    #[arg(long, value_name = "MS", conflicts_with_all = ["publish", "rtt"])]
+    pub min_separation: Option<u64>,
+    /// Best-effort reliability
+    #[arg(long, overrides_with = "reliable", conflicts_with = "rtt")]
+    pub best_effort: bool,
+    /// Reliable (the default)
+    #[arg(long, overrides_with = "best_effort")]
+    pub reliable: bool,
+}
+
+impl QosArgs {
+    /// The QoS options given, by flag.
+    fn given(&self) -> Vec<&'static str> {
+        let mut v = Vec::new();
+        if self.strength.is_some() {
+            v.push("--strength");
+        }
+        if self.exclusive {
+            v.push("--exclusive");
+        }
+        if self.deadline.is_some() {
+            v.push("--deadline");
+        }
+        if self.min_separation.is_some() {
+            v.push("--min-separation");
+        }
+        if self.best_effort {
+            v.push("--best-effort");
+        }
+        v
+    }
+}
+
+#[derive(Args, Debug)]
+pub struct ListArgs {
+    /// Session URL (ipc://…, rtps://…)
+    #[arg(value_name = "URL", value_parser = session_url)]
+    pub url: String,
+    /// Print changes as they come, until interrupted or --duration
+    #[arg(long)]
+    pub watch: bool,
+    /// How long to listen (default: 2 s, or for ever with --watch)
+    #[arg(long, value_name = "SECS", value_parser = clap::value_parser!(u64).range(1..))]
+    pub duration: Option<u64>,
+    /// IPC: whether this module is connected (repeat for more)
+    #[arg(long, value_name = "NAME")]
+    pub module: Vec<String>,
+    /// IPC: this message's format and handlers (repeat for more)
+    #[arg(long, value_name = "NAME")]
+    pub message: Vec<String>,
+    /// Participant / module name
+    #[arg(long, default_value = "courier-list")]
+    pub name: String,
+}
+
+#[derive(Args, Debug)]
+pub struct PongArgs {
+    /// Session URL (ipc://…, rtps://…)
+    #[arg(value_name = "URL", value_parser = session_url)]
+    pub url: String,
+    /// The topic pings come on
+    #[arg(long, default_value = "ping")]
+    pub topic: String,
+    /// The topic answers go on
+    #[arg(long, value_name = "TOPIC", default_value = "pong")]
+    pub reply_topic: String,
+    /// Exit after answering N pings
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub count: Option<u64>,
+    /// Participant / module name
+    #[arg(long, default_value = "courier-pong")]
+    pub name: String,
+}
+
+#[derive(Args, Debug)]
+pub struct SpyArgs {
+    /// Session URL (ipc://…, rtps://…)
+    #[arg(value_name = "URL", value_parser = session_url)]
+    pub url: String,
+    /// DDS: fnmatch pattern of topics to print samples of (default *);
+    /// IPC: a message to print (repeat for more)
+    #[arg(long, value_name = "TOPIC")]
+    pub topic: Vec<String>,
+    /// DDS: fnmatch pattern of type names
+    #[arg(long = "type", value_name = "PATTERN", default_value = "*")]
+    pub type_name: String,
+    /// Exit after N samples
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub count: Option<u64>,
+    /// Exit after this long
+    #[arg(long, value_name = "SECS", value_parser = clap::value_parser!(u64).range(1..))]
+    pub duration: Option<u64>,
+    /// Participant / module name
+    #[arg(long, default_value = "courier-spy")]
+    pub name: String,
+}
+
+/// The backend a session URL names.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    Ipc,
+    Dds,
+}
+
+/// The backend of a URL that [`session_url`] accepted.
+pub fn kind(url: &str) -> Kind {
+    match url.split_once("://") {
+        Some((s, _)) if s.eq_ignore_ascii_case("ipc") => Kind::Ipc,
+        _ => Kind::Dds,
+    }
+}
+
+/// Checks a session URL before anything connects: a scheme this program
+/// knows, and what that backend makes of the rest.
+pub fn session_url(url: &str) -> Result<String, String> {
+    let known = courier::scheme::known_schemes().join(", ");
+    let Some((scheme, _)) = url.split_once("://") else {
+        return Err(format!(
+            "no scheme in {url:?}; a session URL is SCHEME://…, known schemes: {known} \
+             (ipc://localhost:1381, rtps://0?interface=lo)"
+        ));
+    };
+    match scheme.to_ascii_lowercase().as_str() {
+        "ipc" => courier::ipc_backend::parse_url(url)
+            .map(|_| url.to_string())
+            .map_err(|why| format!("bad IPC URL: {why}")),
+        "rtps" => RtpsOptions::from_url(url)
+            .map(|_| url.to_string())
+            .map_err(|e| e.to_string()),
+        _ => Err(format!(
+            "unknown scheme {scheme:?} in {url:?}; known schemes: {known}"
+        )),
+    }
+}
+
+/// A usage error found after parsing: printed as clap prints its own, with
+/// the subcommand's usage, exit 2.
+pub fn usage_error(sub: &str, msg: impl std::fmt::Display) -> clap::Error {
+    let mut cmd = Cli::command();
+    cmd.build();
+    match cmd.find_subcommand_mut(sub) {
+        Some(s) => s.error(ErrorKind::ArgumentConflict, msg),
+        None => cmd.error(ErrorKind::ArgumentConflict, msg),
+    }
+}
+
+impl Cli {
+    /// The checks clap cannot make: options of one backend given for the
+    /// other.
+    pub fn check(&self) -> Result<(), clap::Error> {
+        match &self.command {
+            Command::Ping(a) => {
+                // The IPC backend takes no QoS and would ignore these
+                // silently: a publisher that is not exclusive, a deadline
+                // that is never watched.
+                if let Some(f) = a.qos.given().first().filter(|_| kind(&a.url) == Kind::Ipc) {
+                    return Err(usage_error(
+                        "ping",
+                        format!(
+                            "{f} is DDS QoS and needs an rtps:// session; {} is IPC, which has no QoS",
+                            a.url
+                        ),
+                    ));
+                }
+            }
+            Command::Spy(a) => match kind(&a.url) {
+                Kind::Ipc => {
+                    if a.topic.is_empty() {
+                        return Err(usage_error(
+                            "spy",
+                            "spy on ipc:// needs --topic MESSAGE for each message to print: \
+                             central offers no list of messages to match a pattern against",
+                        ));
+                    }
+                    if let Some(p) = a.topic.iter().find(|t| t.contains(['*', '?', '['])) {
+                        return Err(usage_error(
+                            "spy",
+                            format!(
+                                "--topic {p:?} is a pattern; on ipc:// name each message \
+                                 (central offers no list of messages to match it against)"
+                            ),
+                        ));
+                    }
+                    if a.type_name != "*" {
+                        return Err(usage_error(
+                            "spy",
+                            "--type is for rtps:// sessions (IPC messages have no type names)",
+                        ));
+                    }
+                }
+                Kind::Dds => {
+                    if a.topic.len() > 1 {
+                        return Err(usage_error(
+                            "spy",
+                            "on rtps:// --topic takes one fnmatch pattern (use *, ?, [..])",
+                        ));
+                    }
+                }
+            },
+            Command::Echo(a) => {
+                if let (Some(f), Kind::Dds) = (&a.format, kind(&a.url)) {
+                    crate::cdr_value::check(f).map_err(|e| usage_error("echo", e))?;
+                }
+            }
+            Command::Pub(a) => match kind(&a.url) {
+                Kind::Ipc if a.type_name.is_some() => {
+                    return Err(usage_error(
+                        "pub",
+                        "--type is for rtps:// sessions; on ipc:// give --format",
+                    ))
+                }
+                Kind::Dds => {
+                    if let Some(f) = &a.format {
+                        if a.type_name.is_none() {
+                            return Err(usage_error(
+                                "pub",
+                                "--format on rtps:// needs --type: the DDS type name \
+                                 subscribers match on",
+                            ));
+                        }
+                        crate::cdr_value::check(f).map_err(|e| usage_error("pub", e))?;
+                    }
+                }
+                _ => {}
+            },
+            Command::Call(a) => match kind(&a.url) {
+                Kind::Ipc if a.type_name.is_some() || a.reply_type.is_some() => {
+                    return Err(usage_error(
+                        "call",
+                        "--type and --reply-type are for rtps:// sessions; on ipc:// give \
+                         --format and --reply-format",
+                    ))
+                }
+                Kind::Dds => {
+                    if a.format.is_some() && a.type_name.is_none() {
+                        return Err(usage_error(
+                            "call",
+                            "--format on rtps:// needs --type: the DDS type name the service \
+                             matches on",
+                        ));
+                    }
+                    if a.reply_format.is_some() && a.reply_type.is_none() && a.type_name.is_none() {
+                        return Err(usage_error(
+                            "call",
+                            "--reply-format on rtps:// needs --reply-type (or --type)",
+                        ));
+                    }
+                    for f in a.format.iter().chain(&a.reply_format) {
+                        crate::cdr_value::check(f).map_err(|e| usage_error("call", e))?;
+                    }
+                }
+                _ => {}
+            },
+            Command::List(a) => {
+                if kind(&a.url) == Kind::Dds && !(a.module.is_empty() && a.message.is_empty()) {
+                    return Err(usage_error(
+                        "list",
+                        "--module and --message are for ipc:// sessions; rtps:// lists what \
+                         discovery finds",
+                    ));
+                }
+            }
+            Command::Hz(_) | Command::Bw(_) | Command::Pong(_) | Command::Completions { .. } => {}
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(a: &[&str]) -> Result<Cli, clap::Error> {
+        Cli::try_parse_from(std::iter::once("courier").chain(a.iter().copied()))
+    }
+
+    #[test]
+    fn the_derive_is_consistent() {
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn ping_options_in_both_spellings() {
+        let u = "rtps://205?interface=lo&peers=127.0.0.1";
+        let cli = parse(&[
+            "ping",
+            u,
+            "--subscribe",
+            "--topic=t",
+            "--deadline",
+            "250",
+            "--count=4",
+            "--strength",
+            "-2",
+            "--best-effort",
+        ])
+        .unwrap();
+        let Command::Ping(o) = cli.command else {
+            panic!("parse")
+        };
+        assert_eq!(o.url, u);
+        assert!(!o.publish && o.subscribe && o.qos.best_effort);
+        assert_eq!(o.topic, "t");
+        assert_eq!(o.qos.deadline, Some(250));
+        assert_eq!((o.count, o.qos.strength), (Some(4), Some(-2)));
+    }
+
+    #[test]
+    fn urls_are_checked_before_connecting() {
+        let known = courier::scheme::known_schemes().join(", ");
+        for (url, want) in [
+            (
+                "foo://x",
+                format!("unknown scheme \"foo\" in \"foo://x\"; known schemes: {known}"),
+            ),
+            (
+                "localhost:1381",
+                "no scheme in \"localhost:1381\"".to_string(),
+            ),
+            (
+                "ipc://h:port",
+                "bad IPC URL: 'port' is not a port number".to_string(),
+            ),
+            ("rtps://999", "domain 999 is above 232".to_string()),
+            (
+                "rtps://0?colour=red",
+                "unknown option \"colour\"".to_string(),
+            ),
+        ] {
+            let e = session_url(url).unwrap_err();
+            assert!(e.contains(&want), "{url}: {want:?} in {e:?}");
+        }
+        assert_eq!(kind("IPC://h:1"), Kind::Ipc);
+        assert_eq!(kind("rtps://0"), Kind::Dds);
+    }
+}

@@ -1,0 +1,103 @@
+//! `courier`: command-line tools over any session URL (`courier --help`).
+//!
+//! Each subcommand lives in a module of its own; `cli` holds the
+//! arguments, `stop` the signals and exit codes, `text` what lines look
+//! like, `connect` the connect with progress, `values` the types the tool
+//! knows and how samples print.
+//!
+//! Output is one event or sample a line, flushed, so that tests and
+//! scripts can read it. Exit codes: 0 done, 1 runtime failure, 2 usage
+//! error, 128+N stopped by signal N before the command was done (then it
+//! says what it interrupted).
+#![deny(unsafe_code)]
+
+mod call;
+mod cdr_value;
+mod cli;
+mod connect;
+mod echo;
+mod list;
+mod ping;
+mod pong;
+mod publish;
+mod rate;
+mod spy;
+mod stop;
+mod text;
+mod values;
+mod wait;
+
+use std::process::ExitCode;
+
+use clap::{CommandFactory, Parser};
+
+use cli::{Cli, Command};
+use stop::{Ended, Stop, Why};
+use text::{err, out};
+
+type Error = Box<dyn std::error::Error>;
+type Result<T> = std::result::Result<T, Error>;
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    if let Err(e) = cli.check() {
+        e.exit();
+    }
+    text::set_progress(cli.progress);
+    // commands whose stdout is a log of events say there what stopped
+    // them; the others keep stdout for data and say it on stderr
+    let events_on_stdout = matches!(
+        cli.command,
+        Command::List(_) | Command::Ping(_) | Command::Pong(_) | Command::Pub(_) | Command::Spy(_)
+    );
+    let cmd = match cli.command {
+        Command::Completions { shell } => {
+            let mut out = std::io::stdout();
+            clap_complete::generate(shell, &mut Cli::command(), "courier", &mut out);
+            return ExitCode::SUCCESS;
+        }
+        c => c,
+    };
+    let rt = match tokio::runtime::Runtime::new() {
+        Ok(rt) => rt,
+        Err(e) => {
+            err(format_args!("courier: cannot start the runtime: {e}"));
+            return ExitCode::from(1);
+        }
+    };
+    let r = rt.block_on(async {
+        let stop = Stop::watch().map_err(|e| format!("cannot watch signals: {e}"))?;
+        match cmd {
+            Command::Call(o) => call::run(o, stop).await,
+            Command::Echo(o) => echo::run(o, stop).await,
+            Command::Hz(o) => rate::run(o, rate::Mode::Hz, stop).await,
+            Command::Bw(o) => rate::run(o, rate::Mode::Bw, stop).await,
+            Command::List(o) => list::run(o, stop).await,
+            Command::Ping(o) => ping::run(o, stop).await,
+            Command::Pong(o) => pong::pong(o, stop).await,
+            Command::Pub(o) => publish::run(o, stop).await,
+            Command::Spy(o) => spy::run(o, stop).await,
+            Command::Completions { .. } => Ok(Ended::Done),
+        }
+    });
+    match r {
+        Ok(ended) => {
+            if let Ended::Stopped {
+                why: Why::Signal(_),
+                what,
+            } = &ended
+            {
+                if events_on_stdout {
+                    out(format_args!("interrupted {what}"));
+                } else {
+                    err(format_args!("courier: interrupted {what}"));
+                }
+            }
+            ExitCode::from(ended.exit_code())
+        }
+        Err(e) => {
+            err(format_args!("courier: {}", text::with_sources(&*e)));
+            ExitCode::from(1)
+        }
+    }
+}

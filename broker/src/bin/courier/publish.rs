@@ -1,0 +1,223 @@
+//! `courier pub <url> <topic> <value>`: publishes a value given as JSON
+//! (or plain text for a `string`), typed by an IPC format (like `ros2
+//! topic pub`, `z_pub`).
+//!
+//! The type: on IPC `--format`, else the format central holds for the
+//! message; on DDS `--type` with `--format` (any type, laid out as the
+//! derive lays out that format), or a type Courier knows (`--type`,
+//! default `courier::Ping`).
+
+use std::cell::Cell;
+use std::time::{Duration, Instant};
+
+use courier::format::Format;
+use courier::ipc::Value;
+use courier::{Handle, PubId, PublicationQos, Session, SessionEvent, TypeInfo, WriteOptions};
+use futures::StreamExt;
+
+use crate::cli::{kind, Kind, PubArgs};
+use crate::connect::{connect, target, PROGRESS_EVERY};
+use crate::ping::{Matched, LAST_ACK_BOUND};
+use crate::stop::{count, run_session, Ended, Stop};
+use crate::text::{err, incompatible_line, out, progress};
+use crate::values::{known_names, known_type, parse_value, Known};
+use crate::wait::Discovery;
+use crate::Result;
+
+pub async fn run(o: PubArgs, mut stop: Stop) -> Result<Ended> {
+    let s = match connect(&o.url, &o.name, &mut stop).await? {
+        Ok(s) => s,
+        Err(ended) => return Ok(ended),
+    };
+    let sent = Cell::new(0u64);
+    let waiting = Cell::new(true);
+    let what = || {
+        if waiting.get() {
+            format!("while waiting for subscribers of {:?}", o.topic)
+        } else {
+            format!("after {} sent", count(sent.get(), "sample"))
+        }
+    };
+    run_session(&s, &mut stop, publish(&s, &o, &sent, &waiting), what).await
+}
+
+/// What a sample's bytes are made from.
+enum Encoder {
+    /// IPC marshalling through the format.
+    Ipc(Format),
+    /// A DDS type Courier knows.
+    Known(&'static Known),
+    /// CDR laid out as the derive lays out this format.
+    Cdr(Format),
+}
+
+impl Encoder {
+    fn format(&self) -> Format {
+        match self {
+            Encoder::Ipc(f) | Encoder::Cdr(f) => f.clone(),
+            Encoder::Known(k) => k.parsed(),
+        }
+    }
+
+    fn encode(&self, v: &Value) -> Result<Vec<u8>> {
+        Ok(match self {
+            Encoder::Ipc(f) => v.to_ipc_bytes(f)?,
+            Encoder::Known(k) => k.encode(v)?,
+            Encoder::Cdr(f) => crate::cdr_value::encode(f, v)?,
+        })
+    }
+}
+
+/// Leaks a string: type information lives as long as the process.
+fn leak(s: String) -> &'static str {
+    Box::leak(s.into_boxed_str())
+}
+
+/// The type of the topic, and the publication's type information.
+async fn encoder(s: &Session, o: &PubArgs) -> Result<(Encoder, TypeInfo)> {
+    match kind(&o.url) {
+        Kind::Ipc => {
+            let ipc = s.ipc()?;
+            if let Some(f) = &o.format {
+                let ty = TypeInfo::dynamic(Some(leak(f.to_string())), "");
+                return Ok((Encoder::Ipc(f.clone()), ty));
+            }
+            // look the message up in central: watch_handlers does, and the
+            // num_handlers after it answers once it is done
+            ipc.watch_handlers(&o.topic).await?;
+            s.num_handlers(&o.topic).await?;
+            let info = ipc.message_info(&o.topic).await?.ok_or_else(|| {
+                format!(
+                    "central knows no message {:?}: give its format with --format",
+                    o.topic
+                )
+            })?;
+            let f = info.res_format.ok_or_else(|| {
+                format!(
+                    "message {:?} has no format in central (raw bytes); give one with --format",
+                    o.topic
+                )
+            })?;
+            Ok((Encoder::Ipc(f), TypeInfo::untyped()))
+        }
+        Kind::Dds => {
+            if let (Some(f), Some(name)) = (&o.format, &o.type_name) {
+                let ty = TypeInfo::dynamic(Some(leak(f.to_string())), leak(name.clone()));
+                return Ok((Encoder::Cdr(f.clone()), ty));
+            }
+            let name = o.type_name.as_deref().unwrap_or("courier::Ping");
+            let k = known_type(name).ok_or_else(|| {
+                format!("type {name:?} is not one Courier knows ({})", known_names())
+            })?;
+            let ty = TypeInfo::dynamic(Some(k.format), k.type_name);
+            Ok((Encoder::Known(k), ty))
+        }
+    }
+}
+
+async fn publish(s: &Session, o: &PubArgs, sent: &Cell<u64>, waiting: &Cell<bool>) -> Result<()> {
+    let (enc, ty) = encoder(s, o).await?;
+    let value = parse_value(&enc.format(), &o.value)?;
+    let data = enc.encode(&value)?;
+    let b = s.backend();
+    let id = b
+        .open_publication(&o.topic, &ty, &PublicationQos::default())
+        .await?;
+    let r = publish_on(s, o, id, &data, sent, waiting).await;
+    b.close_handle(Handle::Publication(id));
+    r
+}
+
+async fn publish_on(
+    s: &Session,
+    o: &PubArgs,
+    id: PubId,
+    data: &[u8],
+    sent: &Cell<u64>,
+    waiting: &Cell<bool>,
+) -> Result<()> {
+    let mut ev = s.events();
+    s.watch_handlers(&o.topic).await?;
+    out("ready");
+    let mut matched = Matched(None);
+    let mut n = s.num_handlers(&o.topic).await?.unsigned_abs();
+    if n > 0 {
+        matched.set(n as usize);
+    }
+    // wait for the subscribers asked for: a sample nobody subscribes is
+    // not sent (IPC) or reaches nobody (DDS)
+    let started = Instant::now();
+    let mut found = Discovery::default();
+    let mut tick =
+        tokio::time::interval_at(tokio::time::Instant::now() + PROGRESS_EVERY, PROGRESS_EVERY);
+    while n < o.wait {
+        tokio::select! {
+            Some(e) = ev.next() => {
+                found.update(&e);
+                match e {
+                    SessionEvent::HandlersChanged { msg, count } if msg == o.topic => {
+                        n = count.unsigned_abs();
+                        matched.set(n as usize);
+                    }
+                    SessionEvent::IncompatibleQos { msg, remote, reason } if msg == o.topic => {
+                        out(incompatible_line(remote, &reason))
+                    }
+                    _ => {}
+                }
+            }
+            _ = tick.tick() => {
+                let secs = started.elapsed().as_secs();
+                let seen = match kind(&o.url) {
+                    Kind::Dds => format!(": {}", found.summary(&o.topic, false)),
+                    Kind::Ipc => format!(" at {}", target(&o.url)),
+                };
+                progress(format_args!(
+                    "waiting for {} of {:?} for {secs} s (--wait 0 publishes at once){seen}",
+                    count(u64::from(o.wait), "subscriber"),
+                    o.topic,
+                ));
+            }
+        }
+    }
+    waiting.set(false);
+    let period = Duration::from_secs_f64(1.0 / o.rate);
+    let mut tick = tokio::time::interval(period);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let b = s.backend();
+    loop {
+        tokio::select! {
+            _ = tick.tick() => {
+                let last = o.count != 0 && sent.get() + 1 >= o.count;
+                let mut opts = WriteOptions::default();
+                let confirm = last && kind(&o.url) == Kind::Dds;
+                if confirm {
+                    // exiting right after the write could leave a reader
+                    // without the last sample: wait for its acknowledgement
+                    opts.confirm = Some(LAST_ACK_BOUND);
+                }
+                match b.write(id, data.to_vec(), opts).await {
+                    Err(courier::PublishError::Timeout { after, .. }) if confirm => err(format_args!(
+                        "courier: the last sample was not acknowledged by every reader within {after:?}"
+                    )),
+                    r => r?,
+                }
+                sent.set(sent.get() + 1);
+                out(format_args!("sent {}", sent.get()));
+                if last {
+                    break;
+                }
+            }
+            Some(e) = ev.next() => match e {
+                SessionEvent::HandlersChanged { msg, count } if msg == o.topic => {
+                    matched.set(count.unsigned_abs() as usize)
+                }
+                SessionEvent::IncompatibleQos { msg, remote, reason } if msg == o.topic => {
+                    out(incompatible_line(remote, &reason))
+                }
+                _ => {}
+            },
+        }
+    }
+    out("done");
+    Ok(())
+}

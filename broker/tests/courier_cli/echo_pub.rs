@@ -1,0 +1,231 @@
+//! `courier echo` and `courier pub`, against modules of the test's own and
+//! each other, over IPC and RTPS.
+
+use courier::IpcMessage;
+use futures::StreamExt;
+
+use crate::{await_handlers, run, url, Central, Proc, T};
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct Point {
+    x: f64,
+    y: f64,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "demo::Path")]
+struct Path {
+    name: String,
+    n: i32,
+    #[ipc(len = "n")]
+    points: Vec<Point>,
+}
+
+#[test]
+fn echo_and_pub_over_ipc_through_central() {
+    let c = Central::start();
+    let u = c.url.as_str();
+    let m = c.session("module");
+    c.rt.block_on(m.define::<Path>("path")).unwrap();
+    let path = Path {
+        name: "a".into(),
+        n: 2,
+        points: vec![Point { x: 0.5, y: 1.0 }, Point { x: 1.5, y: 2.0 }],
+    };
+    // a module publishes a derived type: echo decodes it through the
+    // format central holds for it (named formats expanded)
+    for (json, want) in [
+        (false, r#"{"a", 2, <{0.50, 1.00}, {1.50, 2.00}>}"#),
+        (true, r#"["a",2,[[0.5,1.0],[1.5,2.0]]]"#),
+    ] {
+        let mut args = vec!["echo", u, "path", "--count", "1"];
+        if json {
+            args.push("--json");
+        }
+        let mut echo = Proc::start(&args);
+        await_handlers(&c, &m, "path", 1);
+        c.rt.block_on(async { m.publish("path", &path).await })
+            .unwrap();
+        assert_eq!(echo.expect(""), want);
+        assert_eq!(echo.wait(), Some(0));
+    }
+    // pub takes the format central holds too: the module's typed
+    // subscriber gets a Path
+    let mut sub = c.rt.block_on(m.subscribe::<Path>("path")).unwrap();
+    let (code, out, err) = run(&["pub", u, "path", r#"["b", 1, [[3, 4]]]"#]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out, "ready\nmatched 1\nsent 1\ndone\n");
+    let got =
+        c.rt.block_on(async { tokio::time::timeout(T, sub.next()).await })
+            .unwrap()
+            .unwrap()
+            .unwrap();
+    assert_eq!(
+        got.value,
+        Path {
+            name: "b".into(),
+            n: 1,
+            points: vec![Point { x: 3.0, y: 4.0 }]
+        }
+    );
+    drop(sub);
+    // pub --format defines a message of its own; a plain string needs no
+    // JSON quotes
+    let mut echo = Proc::start(&["echo", u, "status", "--count", "2"]);
+    let (code, out, err) = run(&[
+        "pub",
+        u,
+        "status",
+        r#"[7, "x", "Send"]"#,
+        "--format",
+        "{int, string, {enum Wait, Send}}",
+        "--count",
+        "2",
+        "--rate",
+        "50",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out, "ready\nmatched 1\nsent 1\nsent 2\ndone\n");
+    assert_eq!(echo.expect(""), r#"{7, "x", Send}"#);
+    assert_eq!(echo.expect(""), r#"{7, "x", Send}"#);
+    assert_eq!(echo.wait(), Some(0));
+    let mut echo = Proc::start(&["echo", u, "text", "--count", "1", "--json"]);
+    let (code, _, err) = run(&["pub", u, "text", "hello world", "--format", "string"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(echo.expect(""), r#""hello world""#);
+    // failures name the message and what is wrong
+    for (args, want) in [
+        (
+            &["pub", u, "nosuch", "1"][..],
+            "courier: central knows no message \"nosuch\": give its format with --format\n",
+        ),
+        (
+            &["pub", u, "path", "[1]"][..],
+            "courier: \"[1]\" is not a value of {string, int, <{double, double}:2>}: \
+             invalid type: a number, expected a string at line 1 column 2\n",
+        ),
+        (
+            &["pub", u, "path", r#"["b", 3, [[3, 4]]]"#][..],
+            "courier: field 3: variable array has 1 element(s), but its size fields say 3\n",
+        ),
+    ] {
+        let (code, out, err) = run(args);
+        assert_eq!((code, out.as_str()), (1, ""), "{args:?}: {err}");
+        assert!(err.ends_with(want), "{args:?}: {want:?} in {err:?}");
+    }
+    // Ctrl-C says what was interrupted, exit 130: echo on stderr (its
+    // stdout is data), pub on stdout (its stdout is events)
+    let mut echo = Proc::start(&["echo", u, "path"]);
+    await_handlers(&c, &m, "path", 1);
+    echo.signal(libc::SIGINT);
+    assert_eq!(
+        echo.expect_err("courier: interrupted"),
+        "courier: interrupted after 0 samples"
+    );
+    assert_eq!(echo.wait(), Some(130));
+    let mut lonely = Proc::start(&["pub", u, "status", "[1, \"\", 0]"]);
+    lonely.expect("ready");
+    lonely.signal(libc::SIGINT);
+    assert_eq!(
+        lonely.expect("interrupted"),
+        "interrupted while waiting for subscribers of \"status\""
+    );
+    assert_eq!(lonely.wait(), Some(130));
+}
+
+#[test]
+fn echo_and_pub_over_rtps() {
+    let u = url(210);
+    // waiting shows what discovery found so far
+    let mut echo = Proc::start(&[
+        "--progress",
+        "always",
+        "echo",
+        &u,
+        "chatter",
+        "--count",
+        "2",
+    ]);
+    let p = echo.expect_err("courier: no sample of \"chatter\" for 1 s: ");
+    assert!(p.ends_with(", 0 publications of \"chatter\""), "{p}");
+    let (code, out, err) = run(&[
+        "pub",
+        &u,
+        "chatter",
+        r#"[1, 2, "hi"]"#,
+        "--count",
+        "2",
+        "--rate",
+        "50",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out, "ready\nmatched 1\nsent 1\nsent 2\ndone\n");
+    assert_eq!(echo.expect("{"), r#"{1, 2, "hi"}"#);
+    assert_eq!(echo.expect("{"), r#"{1, 2, "hi"}"#);
+    assert_eq!(echo.wait(), Some(0));
+    // ROS 2's std_msgs/String, as JSON
+    let mut echo = Proc::start(&["echo", &u, "rt/chatter", "--count", "1", "--json"]);
+    let (code, _, err) = run(&[
+        "pub",
+        &u,
+        "rt/chatter",
+        r#"["hello ros"]"#,
+        "--type",
+        "std_msgs::msg::dds_::String_",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(echo.expect(""), r#"["hello ros"]"#);
+    assert_eq!(echo.wait(), Some(0));
+    // any type whose layout an IPC format describes: a participant of the
+    // test subscribes a derived type, pub writes it through the format,
+    // echo reads it through the format
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let (rx, mut sub) = rt.block_on(async {
+        let s = courier::Session::builder(u.as_str())
+            .name("rx")
+            .connect()
+            .await
+            .unwrap();
+        let sub = s.subscribe::<Path>("paths").await.unwrap();
+        (s, sub)
+    });
+    let f = "{string, int, <{double, double}:2>}";
+    let mut echo = Proc::start(&["echo", &u, "paths", "--format", f, "--count", "1"]);
+    let (code, _, err) = run(&[
+        "pub",
+        &u,
+        "paths",
+        r#"["a", 1, [[3, 4]]]"#,
+        "--format",
+        f,
+        "--type",
+        "demo::Path",
+        "--wait",
+        "2",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(echo.expect(""), r#"{"a", 1, <{3.00, 4.00}>}"#);
+    let got = rt
+        .block_on(async { tokio::time::timeout(T, sub.next()).await })
+        .unwrap()
+        .unwrap()
+        .unwrap();
+    assert_eq!(
+        got.value,
+        Path {
+            name: "a".into(),
+            n: 1,
+            points: vec![Point { x: 3.0, y: 4.0 }]
+        }
+    );
+    rt.block_on(async { tokio::time::timeout(T, rx.close()).await.unwrap() });
+    let (code, _, err) = run(&["pub", &u, "t", "[1]", "--type", "x::Y", "--wait", "0"]);
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.ends_with(
+            "courier: type \"x::Y\" is not one Courier knows (courier::Ping, \
+             std_msgs::msg::dds_::String_)\n"
+        ),
+        "{err}"
+    );
+}

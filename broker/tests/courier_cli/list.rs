@@ -1,0 +1,130 @@
+//! `courier list`: discovery on RTPS; modules and messages on IPC.
+
+use crate::{run, url, Central, Proc, T};
+
+#[test]
+fn list_what_dds_discovery_finds() {
+    let u = url(250);
+    // the listing listens first: it hears every announcement
+    let list = Proc::start(&["list", &u, "--duration", "3"]);
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let mut talker = Proc::start(&[
+        "ping",
+        &u,
+        "--publish",
+        "--topic",
+        "chatter",
+        "--name",
+        "talker",
+    ]);
+    let mut listener = Proc::start(&[
+        "ping",
+        &u,
+        "--subscribe",
+        "--topic",
+        "chatter",
+        "--name",
+        "listener",
+    ]);
+    talker.expect("matched 1");
+    listener.expect("matched 1");
+    let (code, out, err) = list.finish();
+    assert_eq!(code, Some(0), "{err}");
+    let lines: Vec<&str> = out.lines().collect();
+    // participants by name, each followed by its endpoints
+    let at = |name: &str| {
+        lines
+            .iter()
+            .position(|l| l.starts_with("participant ") && l.contains(&format!(" name={name} ")))
+            .unwrap_or_else(|| panic!("{name} in {out}"))
+    };
+    let (l, t) = (at("listener"), at("talker"));
+    assert!(l < t, "{out}");
+    assert!(
+        lines[l + 1].starts_with("  subscription ")
+            && lines[l + 1].contains(" topic=chatter type=courier::Ping reliability=reliable "),
+        "{out}"
+    );
+    assert!(
+        lines[t + 1].starts_with("  publication ")
+            && lines[t + 1].contains(" topic=chatter type=courier::Ping "),
+        "{out}"
+    );
+    // --watch: changes as they come; Ctrl-C says how long it watched
+    let mut watch = Proc::start(&["list", &u, "--watch"]);
+    watch.expect("ready");
+    drop(talker);
+    let mut newcomer = Proc::start(&["ping", &u, "--publish", "--name", "newcomer"]);
+    newcomer.expect("ready");
+    let p = watch.expect("participant found ");
+    let p = if p.contains(" name=newcomer ") {
+        p
+    } else {
+        // the others, announced again, may come first
+        loop {
+            let p = watch.expect("participant found ");
+            if p.contains(" name=newcomer ") {
+                break p;
+            }
+        }
+    };
+    let prefix = p.split_whitespace().nth(2).unwrap().to_string();
+    let e = loop {
+        let e = watch.expect("publication found ");
+        if e.contains(&format!(" {prefix}")) {
+            break e;
+        }
+    };
+    assert!(e.contains(" topic=ping type=courier::Ping "), "{e}");
+    watch.signal(libc::SIGINT);
+    let i = watch.expect("interrupted");
+    assert!(i.starts_with("interrupted after watching "), "{i}");
+    assert_eq!(watch.wait(), Some(130));
+}
+
+#[test]
+fn list_modules_and_messages_of_an_ipc_central() {
+    let c = Central::start();
+    let u = c.url.as_str();
+    let m = c.session("module1");
+    c.rt.block_on(m.ipc().unwrap().define("msg", Some("{int, string}")))
+        .unwrap();
+    let (code, out, err) = run(&[
+        "list",
+        u,
+        "--module",
+        "module1",
+        "--module",
+        "nobody",
+        "--message",
+        "msg",
+        "--message",
+        "nope",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(
+        out,
+        "module module1 connected\nmodule nobody not-connected\n\
+         message msg format=\"{int, string}\" handlers=0\nmessage nope unknown\n"
+    );
+    // without names: what is missing, said on stderr
+    let (code, out, err) = run(&["list", u]);
+    assert_eq!((code, out.as_str()), (0, ""), "{err}");
+    assert!(
+        err.contains("has no request that lists its modules or messages"),
+        "{err}"
+    );
+    // --watch: modules as they come and go, handlers of the messages named
+    let mut watch = Proc::start(&["list", u, "--watch", "--message", "msg"]);
+    watch.expect("ready");
+    let newcomer = c.session("newcomer");
+    assert_eq!(watch.expect("module "), "module newcomer connected");
+    let sub = c.rt.block_on(newcomer.subscribe_raw("msg")).unwrap();
+    assert_eq!(watch.expect("message "), "message msg handlers=1");
+    drop(sub);
+    c.rt.block_on(async { tokio::time::timeout(T, newcomer.close()).await.unwrap() });
+    assert_eq!(watch.expect("module "), "module newcomer disconnected");
+    watch.signal(libc::SIGTERM);
+    watch.expect("interrupted after watching ");
+    assert_eq!(watch.wait(), Some(143));
+}

@@ -1,0 +1,256 @@
+//! Usage errors, bad URLs, a dead central: what each says, and exit 2
+//! for usage, 1 for a runtime failure, 130 for Ctrl-C.
+
+use std::time::{Duration, Instant};
+
+use crate::{run, url, Proc};
+
+#[test]
+fn usage_errors_name_the_problem() {
+    let u = url(204);
+    let u = u.as_str();
+    for (args, want) in [
+        (&["fly"][..], "unrecognized subcommand 'fly'"),
+        (&["ehco"][..], "a similar subcommand exists: 'echo'"),
+        (
+            &["ping", u][..],
+            "the following required arguments were not provided",
+        ),
+        (
+            &["ping", u, "--publish", "--subscribe"][..],
+            "'--publish' cannot be used with '--subscribe'",
+        ),
+        (
+            &["ping", u, "--publish", "--colour", "red"][..],
+            "unexpected argument '--colour'",
+        ),
+        (
+            &["ping", u, "--publsh"][..],
+            "a similar argument exists: '--publish'",
+        ),
+        (
+            &["ping", u, "--publish", "--period", "soon"][..],
+            "invalid value 'soon' for '--period <MS>'",
+        ),
+        (
+            &["ping", u, "--publish", "--period=0"][..],
+            "invalid value '0' for '--period <MS>'",
+        ),
+        (
+            &["ping", u, "--subscribe", "--count", "0"][..],
+            "invalid value '0' for '--count <N>'",
+        ),
+        (
+            &["ping", u, "--publish=yes"][..],
+            "unexpected value 'yes' for '--publish'",
+        ),
+        (
+            &["ping", u, "--publish", "--exclusive"][..],
+            "'--publish' cannot be used with '--exclusive'",
+        ),
+        (&["ping", u, u, "--publish"][..], "unexpected argument"),
+        (
+            &["ping", "--publish"][..],
+            "the following required arguments were not provided",
+        ),
+        (
+            &["spy", u, "--count"][..],
+            "a value is required for '--count <N>'",
+        ),
+        (
+            &["spy", u, "--duration", "-1"][..],
+            "unexpected argument '-1'",
+        ),
+        (
+            &["spy", u, "--frobnicate"][..],
+            "unexpected argument '--frobnicate'",
+        ),
+        (
+            &["spy", u, "--topic", "a", "--topic", "b"][..],
+            "--topic takes one fnmatch pattern",
+        ),
+        (
+            &[
+                "ping",
+                "rtps://999?interface=lo&peers=127.0.0.1",
+                "--publish",
+            ][..],
+            "domain 999 is above 232",
+        ),
+        (&["completions", "tcsh"][..], "invalid value 'tcsh'"),
+        (
+            &["echo", u, "t", "--format", "{int, *int}"][..],
+            "a pointer has no CDR layout for --format on rtps://",
+        ),
+        (
+            &["echo", "ipc://127.0.0.1:1", "t", "--format", "{int"][..],
+            "invalid value '{int' for '--format <FORMAT>': \"{int\" is not an IPC format",
+        ),
+        (
+            &["echo", "ipc://127.0.0.1:1", "t", "--format", "{int, T1}"][..],
+            "refers to a named format; spell it out",
+        ),
+        (&["echo", u][..], "required arguments were not provided"),
+        (
+            &["pub", "ipc://127.0.0.1:1", "t", "1", "--type", "x"][..],
+            "--type is for rtps:// sessions; on ipc:// give --format",
+        ),
+        (
+            &["pub", u, "t", "1", "--format", "int"][..],
+            "--format on rtps:// needs --type: the DDS type name subscribers match on",
+        ),
+        (
+            &["pub", u, "t", "1", "--rate", "0"][..],
+            "invalid value '0' for '--rate <HZ>': expected a number of samples a second above 0",
+        ),
+        (&["pub", u, "t"][..], "required arguments were not provided"),
+        (
+            &["hz", u, "t", "--window", "1"][..],
+            "invalid value '1' for '--window <N>': 1 is not in 2..=1000000",
+        ),
+        (
+            &["bw", u, "t", "--gap", "0"][..],
+            "invalid value '0' for '--gap <MS>'",
+        ),
+        (&["hz", "tcp://x", "t"][..], "unknown scheme \"tcp\""),
+        (
+            &["ping", u, "--rtt", "--subscribe"][..],
+            "'--rtt' cannot be used with '--subscribe'",
+        ),
+        (
+            &["ping", u, "--rtt", "--best-effort"][..],
+            "cannot be used with",
+        ),
+        (
+            &["pong", u, "--count", "0"][..],
+            "invalid value '0' for '--count <N>'",
+        ),
+        (
+            &["call", "ipc://127.0.0.1:1", "q", "1", "--type", "x"][..],
+            "--type and --reply-type are for rtps:// sessions",
+        ),
+        (
+            &["call", u, "q", "1", "--reply-format", "int"][..],
+            "--reply-format on rtps:// needs --reply-type (or --type)",
+        ),
+        (
+            &["call", u, "q", "1", "--format", "int"][..],
+            "--format on rtps:// needs --type",
+        ),
+        (
+            &["call", u, "q", "1", "--timeout", "0"][..],
+            "invalid value '0' for '--timeout <MS>'",
+        ),
+    ] {
+        let (code, out, err) = run(args);
+        assert_eq!(code, 2, "{args:?}: {err}");
+        assert!(err.starts_with("error: "), "{args:?}: {err}");
+        assert!(err.contains(want), "{args:?}: {want:?} in {err}");
+        assert!(out.is_empty(), "{args:?}: {out}");
+    }
+    // no command at all: the help, as a usage error
+    let (code, _, err) = run(&[]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("Commands:"), "{err}");
+    for (args, want) in [
+        (&["--help"][..], "spy"),
+        (&["help"][..], "ping"),
+        (&["ping", "--help"][..], "--min-separation"),
+        (&["spy", "-h"][..], "participant found|changed"),
+        (
+            &["--version"][..],
+            concat!("courier ", env!("CARGO_PKG_VERSION")),
+        ),
+        (&["ping", "--version"][..], "courier-ping "),
+        (&["completions", "bash"][..], "_courier()"),
+        (&["completions", "zsh"][..], "#compdef courier"),
+    ] {
+        let (code, out, err) = run(args);
+        assert_eq!(code, 0, "{args:?}: {err}");
+        assert!(out.contains(want), "{args:?}: {want:?} in {out}");
+    }
+}
+
+/// Every session URL is checked before anything connects, and a bad one
+/// names the schemes this program knows.
+#[test]
+fn bad_urls_are_usage_errors_naming_the_known_schemes() {
+    for (url, want) in [
+        (
+            "foo://x",
+            "invalid value 'foo://x' for '<URL>': unknown scheme \"foo\" in \"foo://x\"; \
+             known schemes: ipc, rtps",
+        ),
+        (
+            "localhost:1381",
+            "no scheme in \"localhost:1381\"; a session URL is SCHEME://…, known schemes: ipc, rtps",
+        ),
+        ("ipc://h:0", "bad IPC URL: '0' is not a port number"),
+        ("rtps://x", "domain \"x\" is not a number"),
+        (
+            "rtps://1?interface=lo&colour=red",
+            "unknown option \"colour\"",
+        ),
+    ] {
+        for cmd in [&["ping", url, "--publish"][..], &["spy", url][..]] {
+            let (code, _, err) = run(cmd);
+            assert_eq!(code, 2, "{cmd:?}: {err}");
+            assert!(err.contains(want), "{cmd:?}: {want:?} in {err}");
+        }
+    }
+}
+
+/// A free port of 127.0.0.1 that nobody listens on (bound, then closed).
+fn dead_port() -> u16 {
+    let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    l.local_addr().unwrap().port()
+}
+
+/// A central that is not there: the wait shows what it waits for (with
+/// `--progress always`, as on a terminal), Ctrl-C says it interrupted the
+/// connect and exits 130, and giving up names the address and what to
+/// check. A host name that does not resolve fails at once.
+#[test]
+fn a_dead_central_is_reported_where_it_was_looked_for() {
+    let port = dead_port();
+    let u = format!("ipc://127.0.0.1:{port}");
+    let mut waiting = Proc::start(&["--progress", "always", "ping", &u, "--subscribe"]);
+    assert_eq!(
+        waiting.expect_err("courier: connecting"),
+        format!("courier: connecting to central at 127.0.0.1:{port} for 1 s (is central running?)")
+    );
+    waiting.signal(libc::SIGINT);
+    let i = waiting.expect("interrupted");
+    assert!(
+        i.starts_with(&format!(
+            "interrupted while connecting to central at 127.0.0.1:{port} ("
+        )),
+        "{i}"
+    );
+    assert_eq!(waiting.wait(), Some(130));
+    let (code, out, err) = run(&["ping", &u, "--subscribe"]);
+    assert_eq!(code, 1, "{err}");
+    assert!(out.is_empty(), "{out}");
+    let want = format!("courier: cannot connect to central at 127.0.0.1:{port} (");
+    assert!(err.starts_with(&want), "{want:?} in {err}");
+    assert!(
+        err.trim_end()
+            .ends_with("Connection refused (os error 111); is central running there?"),
+        "{err}"
+    );
+    // no progress unless asked for (stderr is not a terminal here)
+    assert_eq!(err.lines().count(), 1, "{err}");
+    // a label of 64 bytes: glibc refuses the name without asking a name
+    // server, so nothing leaves this machine
+    let host = "a".repeat(64);
+    let started = Instant::now();
+    let (code, _, err) = run(&["ping", &format!("ipc://{host}:1381"), "--subscribe"]);
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.starts_with(&format!(
+            "courier: cannot connect to central at {host}:1381: cannot resolve \"{host}\""
+        )),
+        "{err}"
+    );
+    assert!(started.elapsed() < Duration::from_secs(2), "retried: {err}");
+}
