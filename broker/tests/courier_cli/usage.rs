@@ -1,8 +1,6 @@
 //! Usage errors, bad URLs, a dead central: what each says, and exit 2
 //! for usage, 1 for a runtime failure, 130 for Ctrl-C.
 
-use std::time::{Duration, Instant};
-
 use crate::{run, url, Proc};
 
 #[test]
@@ -243,7 +241,6 @@ fn a_dead_central_is_reported_where_it_was_looked_for() {
     // a label of 64 bytes: glibc refuses the name without asking a name
     // server, so nothing leaves this machine
     let host = "a".repeat(64);
-    let started = Instant::now();
     let (code, _, err) = run(&["ping", &format!("ipc://{host}:1381"), "--subscribe"]);
     assert_eq!(code, 1, "{err}");
     assert!(
@@ -252,5 +249,6 @@ fn a_dead_central_is_reported_where_it_was_looked_for() {
         )),
         "{err}"
     );
-    assert!(started.elapsed() < Duration::from_secs(2), "retried: {err}");
+    // one attempt: a retried connect says "(<n> attempts in <t> s)" before the colon
+    assert!(!err.contains("attempts"), "retried: {err}");
 }
