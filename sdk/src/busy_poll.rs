@@ -221,29 +221,41 @@ async fn spin(s: Arc<Shared>) {
 mod tests {
     use super::*;
 
+    /// Waits (bounded) until `f` holds.
+    async fn eventually(what: &str, f: impl Fn() -> bool) {
+        let deadline = tokio::time::Instant::now() + Duration::from_secs(10);
+        while !f() {
+            assert!(tokio::time::Instant::now() < deadline, "never: {what}");
+            tokio::time::sleep(Duration::from_millis(1)).await;
+        }
+    }
+
     /// The spinner spins after activity, stops once the window has passed,
-    /// and ends when the `BusyPoll` is dropped.
+    /// and ends when the `BusyPoll` is dropped. Checked by waiting for each
+    /// state, not by sleeping a set time, so that a loaded machine cannot
+    /// make it fail: a window of a minute cannot pass unseen, and one of
+    /// 20 ms must pass.
     #[tokio::test(flavor = "current_thread")]
     async fn spins_only_within_the_window_and_ends_when_dropped() {
-        let bp = BusyPoll::start(Duration::from_millis(30));
-        let h = bp.handle();
-        let spinning_after = |d: Duration| {
-            let s = bp.shared.clone();
-            async move {
-                tokio::time::sleep(d).await;
-                s.spinning.load(Ordering::Acquire)
-            }
-        };
-        assert!(!spinning_after(Duration::from_millis(10)).await);
+        let long = BusyPoll::start(Duration::from_secs(60));
+        let spinning = |bp: &BusyPoll| bp.shared.spinning.load(Ordering::Acquire);
+        tokio::time::sleep(Duration::from_millis(10)).await;
+        assert!(!spinning(&long), "no spinning before any activity");
+        long.handle().activity();
+        eventually("spinning after activity", || spinning(&long)).await;
+
+        let short = BusyPoll::start(Duration::from_millis(20));
+        let h = short.handle();
         h.activity();
-        assert!(spinning_after(Duration::from_millis(5)).await);
-        assert!(!spinning_after(Duration::from_millis(60)).await);
-        bp.activity();
-        assert!(spinning_after(Duration::from_millis(5)).await);
-        let weak = Arc::downgrade(&bp.shared);
+        eventually("spinning after activity", || spinning(&short)).await;
+        eventually("stopped after the window", || !spinning(&short)).await;
+        short.activity();
+        eventually("spinning again", || spinning(&short)).await;
+
+        let weak = Arc::downgrade(&short.shared);
         drop(h);
-        drop(bp);
-        tokio::time::sleep(Duration::from_millis(5)).await;
-        assert!(weak.upgrade().is_none(), "the spinner task ended");
+        drop(short);
+        eventually("the spinner task ended", || weak.upgrade().is_none()).await;
+        drop(long);
     }
 }
