@@ -195,6 +195,11 @@ impl Drop for Parked {
 
 async fn spin(s: Arc<Shared>) {
     let _parked = Parked(s.clone());
+    // activity before this task first ran: it spins from the start, and
+    // says so (else `spinning()` would count it out while it spins)
+    if !s.idle() {
+        s.set_spinning(true);
+    }
     let mut turns = 0u32;
     loop {
         if s.closed.load(Ordering::Acquire) {
