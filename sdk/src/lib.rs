@@ -131,13 +131,14 @@ mod subscriber;
 mod sys;
 mod timer;
 mod topics;
+pub mod xrce_backend;
 
 pub use backend::{
     Backend, Capabilities, ClientId, DdsControl, Handle, IpcControl, PubId, ServiceId, SubId,
-    WriteNow,
+    TimeSync, WriteNow, XrceControl, XrceState,
 };
 pub use courier_derive::IpcMessage;
-pub use courier_wire::{cdr, format, ipc, rtps, IpcMessage, NamedFormats};
+pub use courier_wire::{cdr, format, ipc, rtps, xrce, IpcMessage, NamedFormats};
 pub use error::{ControlError, Error, OpenError, PublishError};
 pub use event::{DurabilityKind, EndpointInfo, Guid, ParticipantInfo, QosSummary};
 pub use ipc_backend::IpcStream;
@@ -150,6 +151,7 @@ pub use session::{
     Requests, Responder, Sample, SampleQueue, Session, SessionBuilder, SessionEvent, Subscriber,
     SubscriberBuilder, SubscriptionQos, Tick, Timer, TypeInfo, WriteOptions,
 };
+pub use xrce_backend::{XrceOptions, XrceRepresentation, XrceTransport};
 
 #[doc(hidden)]
 pub use courier_wire as __wire;
