@@ -1197,11 +1197,7 @@ impl Driver {
                 }
                 self.unpark(now);
             }
-            Event::SessionDeleted { .. } => {
-                if self.closing.is_some() {
-                    self.finish();
-                }
-            }
+            Event::SessionDeleted { .. } if self.closing.is_some() => self.finish(),
             _ => {}
         }
     }

@@ -29,7 +29,7 @@
 //! - A publication is a DataWriter. Reliable publications write on the
 //!   built-in reliable stream 0x80 (fragmenting samples larger than the
 //!   MTU), best-effort ones on 0x01 (a sample larger than the MTU is
-//!   refused with [`PublishError::TooLarge`](crate::PublishError::TooLarge)).
+//!   refused with [`PublishError::TooLarge`]).
 //!   `publish().await` resolves once the sample is queued;
 //!   `publish().confirmed()` once the agent has acknowledged every byte of
 //!   it — the agent confirms nothing beyond that: whether its DDS write

@@ -449,10 +449,12 @@ mod tests {
     #[test]
     fn a_binary_writer_carries_the_qos() {
         let o = opts(XrceRepresentation::Binary);
-        let mut q = PublicationQos::default();
-        q.history = History::KeepLast(5);
-        q.durability = Durability::TransientLocal;
-        q.strength = Some(7);
+        let q = PublicationQos {
+            history: History::KeepLast(5),
+            durability: Durability::TransientLocal,
+            strength: Some(7),
+            ..Default::default()
+        };
         let t = ObjectId::new(3, ObjectKind::Topic);
         let v = writer(
             &o,
@@ -516,8 +518,10 @@ mod tests {
     fn what_a_representation_cannot_carry_is_refused() {
         let p = ObjectId::new(1, ObjectKind::Publisher);
         let t = ObjectId::new(1, ObjectKind::Topic);
-        let mut q = PublicationQos::default();
-        q.history = History::KeepLast(3);
+        let mut q = PublicationQos {
+            history: History::KeepLast(3),
+            ..Default::default()
+        };
         let e = writer(&opts(XrceRepresentation::Reference), "t", &TY, t, &q, p).unwrap_err();
         assert!(e.to_string().contains("profile holds the QoS"), "{e}");
         q = PublicationQos::default();
@@ -537,8 +541,10 @@ mod tests {
         ));
         q.strength = Some(1);
         assert!(writer(&opts(XrceRepresentation::Xml), "t", &TY, t, &q, p).is_err());
-        let mut s = SubscriptionQos::default();
-        s.deadline = Some(std::time::Duration::from_secs(1));
+        let s = SubscriptionQos {
+            deadline: Some(std::time::Duration::from_secs(1)),
+            ..Default::default()
+        };
         let sub = ObjectId::new(1, ObjectKind::Subscriber);
         assert!(reader(&opts(XrceRepresentation::Binary), "t", &TY, t, &s, sub).is_err());
     }
