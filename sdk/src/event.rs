@@ -204,18 +204,13 @@ pub enum SessionEvent {
     /// The session reached central again and defined and subscribed
     /// everything anew (see [`SessionBuilder::reconnect`](crate::SessionBuilder::reconnect)).
     Reconnected,
-    /// XRCE: the session exists on the agent (the first time; see
-    /// [`SessionEvent::SessionRecreated`] for later ones).
-    AgentConnected {
-        /// Where the agent is (`xrce+udp://127.0.0.1:8888`).
-        agent: String,
-    },
     /// XRCE: the agent stopped answering (`silent`: nothing heard for the
-    /// keepalive timeout) or answered without knowing the session (it
-    /// restarted). Reliable writes made meanwhile are kept and sent once
+    /// keepalive timeout, or its TCP connection or serial line broke) or
+    /// answered without knowing the session (it restarted). Reliable writes made meanwhile are kept and sent once
     /// it is back; the session re-creates itself on its own.
     AgentLost {
-        /// True if it went silent, false if it forgot the session.
+        /// True if it went silent (or the link broke), false if it forgot
+        /// the session.
         silent: bool,
     },
     /// XRCE: a lost agent answered again and still had the session.

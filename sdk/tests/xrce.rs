@@ -370,3 +370,19 @@ async fn an_agent_that_goes_silent_and_comes_back_keeps_the_session() {
     a.publish("loop", &msg(9, 1)).await.unwrap();
     assert_eq!(next(&mut sub).await, msg(9, 1));
 }
+
+#[tokio::test]
+async fn an_open_the_agent_never_answers_fails_within_its_bound() {
+    let agent = xrce_agent::udp(0).await;
+    let url = format!("xrce+udp://{}?{FAST}&wait_ms=300", agent.addr);
+    let a = session(url, "a").await;
+    agent.mute(true);
+    let e = tokio::time::timeout(T, a.publisher::<Msg>("nobody_answers").build())
+        .await
+        .expect("bounded")
+        .unwrap_err();
+    assert!(
+        matches!(e, OpenError::NoAnswer { .. } | OpenError::Disconnected(_)),
+        "{e:?}"
+    );
+}

@@ -97,6 +97,8 @@ enum Opened {
 
 struct OpenWait {
     topic: String,
+    /// When the open fails if the agent has not answered.
+    deadline: Instant,
     remaining: usize,
     error: Option<OpenError>,
     /// The per-handle object to delete again if the open fails.
@@ -284,10 +286,17 @@ impl Driver {
     pub(super) fn next_wakeup(&self) -> Option<Instant> {
         let parked = self.parked.iter().map(|(t, _)| *t).min();
         let closing = self.closing.as_ref().map(|c| c.0);
-        [self.client.poll_timeout(), parked, self.redial_at, closing]
-            .into_iter()
-            .flatten()
-            .min()
+        let opens = self.opens.values().map(|w| w.deadline).min();
+        [
+            self.client.poll_timeout(),
+            parked,
+            self.redial_at,
+            closing,
+            opens,
+        ]
+        .into_iter()
+        .flatten()
+        .min()
     }
 
     // -----------------------------------------------------------------
@@ -879,6 +888,7 @@ impl Driver {
             self.creates.insert(*r, key);
         }
         let wait = OpenWait {
+            deadline: Instant::now() + self.opts.agent_wait,
             topic,
             remaining: requests.len(),
             error: None,
@@ -1015,6 +1025,22 @@ impl Driver {
                 c.expire(self.opts.agent_wait);
             }
         }
+        let late: Vec<u64> = self
+            .opens
+            .iter()
+            .filter(|(_, w)| w.deadline <= now)
+            .map(|(k, _)| *k)
+            .collect();
+        for k in late {
+            if let Some(mut w) = self.opens.remove(&k) {
+                self.creates.retain(|_, o| *o != k);
+                w.error = Some(OpenError::NoAnswer {
+                    topic: w.topic.clone(),
+                    after: self.opts.agent_wait,
+                });
+                self.complete(w, now);
+            }
+        }
         if self.closing.as_ref().is_some_and(|c| c.0 <= now) {
             self.finish();
         }
@@ -1027,7 +1053,7 @@ impl Driver {
         if !self.lost_reported && self.connected.is_none() {
             self.lost_reported = true;
             self.shared.set_state(XrceState::Lost);
-            self.hub.send(SessionEvent::AgentLost { silent: false });
+            self.hub.send(SessionEvent::AgentLost { silent: true });
         }
     }
 
@@ -1051,10 +1077,8 @@ impl Driver {
             Event::Connected { .. } => {
                 self.shared.set_state(XrceState::Connected);
                 if let Some(c) = self.connected.take() {
+                    // the first session: `connect().await` returns
                     let _ = c.send(Ok(()));
-                    self.hub.send(SessionEvent::AgentConnected {
-                        agent: self.url.clone(),
-                    });
                 } else {
                     match self.client.recreate_objects(now) {
                         Ok(ids) => {

@@ -120,6 +120,8 @@ pub struct XrceBackend {
     hub: Hub<SessionEvent>,
     shared: Arc<Shared>,
     scheme: &'static str,
+    /// Service names of the open clients, for errors.
+    clients: Mutex<std::collections::HashMap<ClientId, Arc<str>>>,
 }
 
 /// A random client key (never 0): this process, this moment, a random seed.
@@ -198,6 +200,7 @@ impl XrceBackend {
                 hub,
                 shared,
                 scheme,
+                clients: Mutex::default(),
             }),
             Ok(Err(e)) => Err(e),
             Err(_) => Err(ConnectError::Agent {
@@ -300,13 +303,20 @@ impl Backend for XrceBackend {
         resp: &TypeInfo,
     ) -> Result<ClientId, OpenError> {
         let (name, req, resp) = (name.to_string(), req.clone(), resp.clone());
-        self.ask(|reply| Cmd::Client {
-            name,
-            req,
-            resp,
-            reply,
-        })
-        .await
+        let n: Arc<str> = Arc::from(name.as_str());
+        let id = self
+            .ask(|reply| Cmd::Client {
+                name,
+                req,
+                resp,
+                reply,
+            })
+            .await?;
+        self.clients
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .insert(id, n);
+        Ok(id)
     }
 
     async fn write(
@@ -345,7 +355,13 @@ impl Backend for XrceBackend {
         timeout: Duration,
     ) -> Result<RawReply, QueryError> {
         let (tx, rx) = oneshot::channel();
-        let gone = || QueryError::Disconnected(format!("{client:?}"));
+        let name = self
+            .clients
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .get(&client)
+            .map_or_else(|| format!("{client:?}"), |n| n.to_string());
+        let gone = || QueryError::Disconnected(name.clone());
         let deadline = Instant::now() + timeout;
         let sent = tokio::time::timeout_at(
             deadline.into(),
@@ -357,7 +373,7 @@ impl Backend for XrceBackend {
         )
         .await;
         let timed_out = || QueryError::Timeout {
-            msg: format!("{client:?}"),
+            msg: name.clone(),
             timeout,
         };
         match sent {
@@ -373,6 +389,12 @@ impl Backend for XrceBackend {
     }
 
     fn close_handle(&self, handle: Handle) {
+        if let Handle::Client(c) = handle {
+            self.clients
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .remove(&c);
+        }
         // one per handle
         let _ = self.cmd.post(Cmd::CloseHandle(handle));
     }
