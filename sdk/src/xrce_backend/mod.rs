@@ -461,3 +461,122 @@ impl Drop for XrceBackend {
         let _ = self.cmd.post(Cmd::Close { reply: tx });
     }
 }
+
+#[cfg(test)]
+mod serial_tests {
+    //! `xrce+serial://` over a pseudo-terminal pair: an agent machine on
+    //! the master side, the session on the slave's path.
+
+    use std::io::{Read, Write};
+    use std::time::{Duration, Instant, SystemTime};
+
+    use courier_wire::xrce::serial::{self, SerialDecoder};
+    use courier_wire::xrce::{Agent, AgentConfig, AgentEvent, ObjectKind, StatusCode};
+    use futures::StreamExt;
+    use tokio::io::Interest;
+
+    use crate::session::Session;
+
+    const T: Duration = Duration::from_secs(20);
+
+    /// The agent: answers every CREATE with OK and hands every written
+    /// sample to every reading reader (one client, one topic).
+    async fn agent(master: std::fs::File) {
+        let fd = crate::sys::net::register(master, Interest::READABLE | Interest::WRITABLE)
+            .expect("register the pty");
+        let mut agent: Agent<u8> =
+            Agent::new(AgentConfig::default(), Instant::now(), SystemTime::now());
+        let mut dec = SerialDecoder::new();
+        let mut reads = Vec::new();
+        let mut buf = vec![0u8; 4096];
+        loop {
+            let wake = agent.poll_timeout();
+            tokio::select! {
+                g = fd.readable() => {
+                    let Ok(mut g) = g else { return };
+                    match g.try_io(|f| f.get_ref().read(&mut buf)) {
+                        Ok(Ok(n)) if n > 0 => dec.push(&buf[..n]),
+                        Ok(_) => tokio::time::sleep(Duration::from_millis(10)).await,
+                        Err(_) => {}
+                    }
+                }
+                _ = tokio::time::sleep_until(
+                    wake.unwrap_or_else(|| Instant::now() + Duration::from_millis(50)).into()
+                ) => agent.handle_timeout(Instant::now()),
+            }
+            while let Some(Ok(f)) = dec.next_frame() {
+                let _ = agent.handle_input(f.src, &f.payload, Instant::now());
+            }
+            let now = Instant::now();
+            while let Some(e) = agent.poll_event() {
+                match e {
+                    AgentEvent::Create {
+                        client,
+                        request,
+                        reply_stream,
+                        ..
+                    } => {
+                        let _ =
+                            agent.reply_status(client, request, StatusCode::OK, reply_stream, now);
+                    }
+                    AgentEvent::Read { client, read }
+                        if read.request.object_id.kind() == Some(ObjectKind::DataReader) =>
+                    {
+                        reads.push((client, read));
+                    }
+                    AgentEvent::Write { data, .. } => {
+                        for (c, r) in &reads {
+                            let _ =
+                                agent.send_data(*c, r.request, r.preferred_stream_id, &data, now);
+                        }
+                    }
+                    _ => {}
+                }
+            }
+            while let Some((to, m)) = agent.poll_transmit() {
+                let mut frame = Vec::new();
+                serial::encode(0, to, &m, &mut frame).unwrap();
+                let mut at = 0;
+                while at < frame.len() {
+                    let Ok(mut g) = fd.writable().await else {
+                        return;
+                    };
+                    if let Ok(Ok(n)) = g.try_io(|f| f.get_ref().write(&frame[at..])) {
+                        at += n;
+                    }
+                }
+            }
+        }
+    }
+
+    #[tokio::test]
+    async fn a_session_over_a_pseudo_terminal() {
+        let (master, path) = crate::sys::tty::pty_pair().expect("a pty pair");
+        let a = tokio::spawn(agent(master));
+        let s = tokio::time::timeout(
+            T,
+            Session::builder(format!("xrce+serial://{path}?baud=115200")).connect(),
+        )
+        .await
+        .unwrap()
+        .unwrap();
+        let x = s.xrce().unwrap();
+        x.ping(T).await.unwrap();
+        x.sync_time(T).await.unwrap();
+        let mut sub = s.subscribe::<u32>("line").await.unwrap();
+        let p = s.publisher::<u32>("line").build().await.unwrap();
+        for i in 0..20u32 {
+            p.publish(&i).await.unwrap();
+        }
+        for i in 0..20u32 {
+            let got = tokio::time::timeout(T, sub.next())
+                .await
+                .unwrap()
+                .unwrap()
+                .unwrap();
+            assert_eq!(got.value, i);
+        }
+        s.close().await;
+        a.abort();
+    }
+}
