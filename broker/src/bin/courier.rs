@@ -41,7 +41,8 @@ commands:
   spy <url>                          print discovery and samples (like ortespy)
   help                               this text
 
-<url> is any session URL: rtps://<domain>?interface=lo&peers=127.0.0.1, ipc://host:port.
+<url> is any session URL: rtps://<domain>?interface=lo&peers=127.0.0.1, ipc://host:port,
+xrce+udp://host:port (also xrce+tcp://, xrce+serial:///dev/ttyX?baud=115200).
 `courier <command> --help` describes the command's options.";
 
 const PING_USAGE: &str = "\
@@ -51,7 +52,7 @@ usage: courier ping <url> (--publish | --subscribe) [options]
   --count N            stop after N samples sent or received (default: run until Ctrl-C)
   --size BYTES         text length of each sample (default 0, at most 16 MiB)
   --name NAME          participant / module name (default courier-ping)
-DDS QoS (rtps:// only; refused on ipc://, which has none):
+DDS QoS (rtps:// and xrce+…://; refused on ipc://, which has none):
   --strength N         publisher: exclusive ownership with this strength;
                        subscriber: same as --exclusive
   --exclusive          subscriber: take samples from the strongest publisher only
@@ -479,7 +480,10 @@ fn parse_ping(a: &[String]) -> Result<Cmd, Usage> {
     }
     // The IPC backend takes no QoS and would ignore these silently: a
     // publisher that is not exclusive, a deadline that is never watched.
-    if let Some(f) = qos.first().filter(|_| !is_dds(&o.url)) {
+    if let Some(f) = qos
+        .first()
+        .filter(|_| !is_dds(&o.url) && !o.url.starts_with("xrce+"))
+    {
         return Err(Usage(format!(
             "{f} is DDS QoS and needs an rtps:// session; {} is IPC, which has no QoS",
             o.url
@@ -580,12 +584,20 @@ async fn ping_publish(s: &Session, o: &PingOpts, ev: &mut courier::Events) -> Re
         b = b.deadline(d);
     }
     let p = b.build().await?;
-    s.watch_handlers(&o.topic).await?;
+    // an XRCE agent tells its clients nothing of the readers matched
+    let xrce = s.xrce().is_ok();
+    if !xrce {
+        s.watch_handlers(&o.topic).await?;
+    }
     out("ready");
     // readers already matched when the publication was created (DDS: the
     // readers matched with our writer; IPC: the modules subscribing)
     let mut matched = Matched(None);
-    let n = s.num_handlers(&o.topic).await?;
+    let n = if xrce {
+        0
+    } else {
+        s.num_handlers(&o.topic).await?
+    };
     if n > 0 {
         matched.set(n.unsigned_abs() as usize);
     }
@@ -598,7 +610,7 @@ async fn ping_publish(s: &Session, o: &PingOpts, ev: &mut courier::Events) -> Re
                 seq = seq.wrapping_add(1);
                 let v = Ping { seq, stamp_ns: now_ns(), text: "x".repeat(o.size) };
                 let last = o.count.is_some_and(|n| u64::from(seq) >= n);
-                if last && is_dds(&o.url) && !o.best_effort {
+                if last && (is_dds(&o.url) || xrce) && !o.best_effort {
                     // exiting right after the write could leave a reader
                     // without the last sample: wait for its acknowledgement
                     match p.publish(&v).timeout(LAST_ACK_BOUND).await {
