@@ -1329,6 +1329,8 @@ fn full() -> OpenError {
 /// the agent or a timer.
 pub(super) async fn run(mut d: Driver, mut inbox: Inbox<Cmd>, mut link: Option<Link>) {
     let mut buf = vec![0u8; 65_536];
+    // every sender is gone: nothing more to read (the close is under way)
+    let mut orphaned = false;
     let now = Instant::now();
     d.client.connect(now);
     loop {
@@ -1360,7 +1362,7 @@ pub(super) async fn run(mut d: Driver, mut inbox: Inbox<Cmd>, mut link: Option<L
         let readable = link.is_some() && stalled.is_none();
         tokio::select! {
             biased;
-            cmd = inbox.recv() => match cmd {
+            cmd = inbox.recv(), if !orphaned => match cmd {
                 Some(c) => {
                     d.command(c, Instant::now());
                     // take what else is queued before transmitting
@@ -1370,6 +1372,7 @@ pub(super) async fn run(mut d: Driver, mut inbox: Inbox<Cmd>, mut link: Option<L
                     }
                 }
                 None => {
+                    orphaned = true;
                     let (tx, _rx) = oneshot::channel();
                     d.command(Cmd::Close { reply: tx }, Instant::now());
                     if d.closing.as_ref().is_some_and(|c| c.0 <= Instant::now()) {
