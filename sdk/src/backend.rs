@@ -229,6 +229,70 @@ pub trait Backend: Send + Sync + std::fmt::Debug {
     fn dds(&self) -> Option<&dyn DdsControl> {
         None
     }
+
+    /// The DDS-XRCE controls, on an XRCE backend.
+    fn xrce(&self) -> Option<&dyn XrceControl> {
+        None
+    }
+}
+
+/// The agent's clock as a time sync measured it
+/// ([`XrceControl::sync_time`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TimeSync {
+    /// Agent time = local wall-clock time − `offset_ns` (DDS-XRCE's
+    /// `((t0 + t3) − (t1 + t2)) / 2`, as eProsima's client computes it).
+    pub offset_ns: i64,
+    /// The round trip of the TIMESTAMP.
+    pub rtt: Duration,
+}
+
+impl TimeSync {
+    /// The agent's time at local wall-clock time `local`.
+    pub fn agent_time(&self, local: std::time::SystemTime) -> std::time::SystemTime {
+        let d = Duration::from_nanos(self.offset_ns.unsigned_abs());
+        if self.offset_ns >= 0 {
+            local.checked_sub(d).unwrap_or(local)
+        } else {
+            local.checked_add(d).unwrap_or(local)
+        }
+    }
+}
+
+/// Where an XRCE session stands ([`XrceControl::state`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum XrceState {
+    /// The session exists and the agent answers.
+    Connected,
+    /// The agent is silent or lost the session; the session waits for it
+    /// and creates itself again.
+    Lost,
+    /// The session ended.
+    Closed,
+}
+
+/// What only a DDS-XRCE backend does ([`Session::xrce`](crate::Session::xrce)).
+#[async_trait::async_trait]
+pub trait XrceControl: Send + Sync {
+    /// Pings the agent inside the session (`uxr_ping_agent_session`): the
+    /// round trip, or [`ControlError::Timeout`].
+    async fn ping(&self, timeout: Duration) -> Result<Duration, ControlError>;
+    /// Measures the agent's clock offset (`uxr_sync_session`); the result
+    /// is kept for [`XrceControl::time_offset`].
+    async fn sync_time(&self, timeout: Duration) -> Result<TimeSync, ControlError>;
+    /// The last time sync, if any (`session.time_offset`).
+    fn time_offset(&self) -> Option<TimeSync>;
+    /// The agent's time now by the last sync (`uxr_epoch_nanos`), or
+    /// `None` before the first.
+    fn agent_time(&self) -> Option<std::time::SystemTime> {
+        self.time_offset()
+            .map(|t| t.agent_time(std::time::SystemTime::now()))
+    }
+    /// Where the session stands.
+    fn state(&self) -> XrceState;
+    /// The client key the session uses.
+    fn client_key(&self) -> u32;
 }
 
 /// What only a CMU IPC backend does ([`Session::ipc`](crate::Session::ipc)).

@@ -60,6 +60,15 @@ pub enum ConnectError {
         /// Why.
         why: String,
     },
+    /// No DDS-XRCE session with the agent: it did not answer CREATE_CLIENT,
+    /// or refused it (the status code named).
+    #[error("no DDS-XRCE session with the agent at {url}: {why}")]
+    Agent {
+        /// The session URL.
+        url: String,
+        /// Why.
+        why: String,
+    },
     /// The handshake failed.
     #[error("handshake with central at {addr} failed: {why}")]
     Handshake {
@@ -85,6 +94,7 @@ pub struct SessionBuilder {
     pub(crate) name: Option<String>,
     pub(crate) opts: IpcOptions,
     pub(crate) rtps: crate::rtps_backend::RtpsOverrides,
+    pub(crate) xrce: Option<Box<crate::xrce_backend::XrceOptions>>,
     /// Builder methods called, by the backends that honour them: one the
     /// URL's backend cannot honour fails `connect`.
     pub(crate) set: Vec<(&'static str, Honoured)>,
@@ -96,6 +106,7 @@ pub(crate) enum Honoured {
     Ipc,
     Rtps,
     Both,
+    Xrce,
 }
 
 impl SessionBuilder {
@@ -216,8 +227,19 @@ impl SessionBuilder {
         self
     }
 
+    /// XRCE: every option of the session at once, typed (instead of the
+    /// URL's query string, which is then not read; the URL's scheme must
+    /// still be an `xrce+…` one, and `opts.transport` says where the agent is).
+    pub fn xrce(mut self, opts: crate::xrce_backend::XrceOptions) -> Self {
+        self.set.push(("xrce", Honoured::Xrce));
+        self.xrce = Some(Box::new(opts));
+        self
+    }
+
     /// Connects: `ipc://…` reaches a central, `rtps://<domain>?…` joins a
-    /// DDS domain, a scheme plugged in with
+    /// DDS domain, `xrce+udp://host:port?…` (also `xrce+tcp://`,
+    /// `xrce+serial:///dev/tty…`) creates a session with a DDS-XRCE agent
+    /// (see [`XrceOptions::from_url`](crate::XrceOptions::from_url)), a scheme plugged in with
     /// [`register_scheme`](crate::scheme::register_scheme) its backend.
     ///
     /// Fails at once, naming the option, if an option was set that this
@@ -237,6 +259,9 @@ impl SessionBuilder {
                     Honoured::Ipc => "it is for ipc:// sessions",
                     Honoured::Rtps => "it is for rtps:// sessions",
                     Honoured::Both => "it is for ipc:// and rtps:// sessions",
+                    Honoured::Xrce => {
+                        "it is for xrce+udp://, xrce+tcp:// and xrce+serial:// sessions"
+                    }
                 },
             })
         };
@@ -248,6 +273,16 @@ impl SessionBuilder {
                 let mut o = RtpsOptions::from_url(&self.url)?;
                 self.rtps.apply(&mut o);
                 Arc::new(RtpsBackend::start(o, &name).await?)
+            }
+            Resolved::Xrce => {
+                if let Some(e) = refuse(&[Honoured::Xrce]) {
+                    return Err(e);
+                }
+                let o = match self.xrce {
+                    Some(o) => *o,
+                    None => crate::xrce_backend::XrceOptions::from_url(&self.url)?,
+                };
+                Arc::new(crate::xrce_backend::XrceBackend::connect(o, &name).await?)
             }
             Resolved::Ipc => {
                 if let Some(e) = refuse(&[Honoured::Ipc, Honoured::Both]) {

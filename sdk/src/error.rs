@@ -82,6 +82,24 @@ pub enum OpenError {
         #[source]
         source: CentralError,
     },
+    /// The XRCE agent refused to create an entity (its STATUS code named).
+    #[error("the XRCE agent refused the {entity} of {topic}: {status}")]
+    Refused {
+        /// The topic (or service).
+        topic: String,
+        /// Which entity (`data writer`, `topic`, …).
+        entity: &'static str,
+        /// The agent's answer.
+        status: courier_wire::xrce::StatusCode,
+    },
+    /// The XRCE agent did not answer the creation in time.
+    #[error("the XRCE agent did not confirm the entities of {topic} within {after:?}")]
+    NoAnswer {
+        /// The topic (or service).
+        topic: String,
+        /// The bound.
+        after: Duration,
+    },
     /// The DDS participant could not create the endpoint.
     #[error("cannot create a DDS endpoint of {topic}")]
     Endpoint {
@@ -161,6 +179,15 @@ pub enum PublishError {
         /// Central's answer.
         #[source]
         source: CentralError,
+    },
+    /// The XRCE session refused the sample.
+    #[error("cannot publish {topic} over XRCE")]
+    Xrce {
+        /// The topic.
+        topic: String,
+        /// Why.
+        #[source]
+        source: courier_wire::xrce::CommandError,
     },
     /// The DDS writer refused the sample.
     #[error("cannot publish {topic}")]
@@ -270,6 +297,14 @@ pub enum ControlError {
         /// Central's answer.
         #[source]
         source: CentralError,
+    },
+    /// No answer within the bound (an XRCE ping or time sync).
+    #[error("no answer to {what} within {after:?}")]
+    Timeout {
+        /// What was asked.
+        what: String,
+        /// The bound.
+        after: Duration,
     },
 }
 

@@ -208,6 +208,34 @@ pub enum SessionEvent {
     /// The session reached central again and defined and subscribed
     /// everything anew (see [`SessionBuilder::reconnect`](crate::SessionBuilder::reconnect)).
     Reconnected,
+    /// XRCE: the agent stopped answering (`silent`: nothing heard for the
+    /// keepalive timeout, or its TCP connection or serial line broke) or
+    /// answered without knowing the session (it restarted). Reliable writes made meanwhile are kept and sent once
+    /// it is back; the session re-creates itself on its own.
+    AgentLost {
+        /// True if it went silent (or the link broke), false if it forgot
+        /// the session.
+        silent: bool,
+    },
+    /// XRCE: a lost agent answered again and still had the session.
+    AgentBack,
+    /// XRCE: the session was created anew on an agent that had lost it,
+    /// with every entity and reading of the session; its `Subscriber`s
+    /// stayed open throughout.
+    SessionRecreated {
+        /// Entities created again.
+        entities: usize,
+    },
+    /// XRCE: the agent refused an entity (when the session was re-created,
+    /// or a reading it had accepted).
+    EntityError {
+        /// The topic or service.
+        topic: String,
+        /// Which entity.
+        entity: &'static str,
+        /// The agent's STATUS code.
+        status: courier_wire::xrce::StatusCode,
+    },
     /// DDS: a participant announced itself for the first time.
     ParticipantFound(Box<ParticipantInfo>),
     /// DDS: a known participant announced different data.

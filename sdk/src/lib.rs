@@ -83,6 +83,44 @@
 //! | `IPC_printData`, `IPC_readData` | `courier::ipc::print_value` / `decode_value` (dynamic values) |
 //! | `IPC_msgInstanceName`, `IPC_dataLength` | `Sample::msg`, `RawSample::data.len()`; `Sample::source` (the sender) stays `None` on IPC: no IPC frame carries it |
 //!
+//! ## The Micro XRCE-DDS client API and its Courier equivalents
+//!
+//! A session over `xrce+udp://`, `xrce+tcp://` or `xrce+serial://` is a
+//! DDS-XRCE client of an agent (see [`xrce_backend`]). Every function of
+//! eProsima's client library (v2.x):
+//!
+//! | Micro XRCE-DDS | Courier |
+//! |---|---|
+//! | `uxr_init_udp_transport`, `uxr_init_tcp_transport`, `uxr_init_serial_transport` | the URL: `xrce+udp://host:port`, `xrce+tcp://host:port` (one write per frame, `TCP_NODELAY`), `xrce+serial:///dev/ttyX?baud=115200` |
+//! | `uxr_close_PROTOCOL_transport` | `Session::close`, or dropping the last clone |
+//! | `uxr_init_can_transport` | none: no CAN link (CAN FD needs SocketCAN and a frame mapping of its own) |
+//! | `uxr_init_custom_transport`, `uxr_set_custom_transport_callbacks` | a backend of your own under a URL scheme of your own ([`scheme::register_scheme`]), driving [`xrce::Client`] over your link |
+//! | `uxr_init_session`, `uxr_create_session`, `uxr_create_session_retries` | `Session::builder(url).connect().await` (client key `key=`, session id `session=`, attempts `attempts=`/`attempt_ms=`; [`XrceOptions`]) |
+//! | `uxr_delete_session`, `uxr_delete_session_retries` | `Session::close` (the session's DELETE is sent, its STATUS awaited briefly) |
+//! | `uxr_create_output_best_effort_stream`, `uxr_create_output_reliable_stream`, `uxr_create_input_best_effort_stream`, `uxr_create_input_reliable_stream` | not needed: every session has the built-in best-effort (0x01) and reliable (0x80) streams; a publication's or subscription's [`Reliability`] picks one; window and history: `depth=`, `history=`, `mtu=` |
+//! | `uxr_stream_id`, `uxr_stream_id_from_raw`, `uxr_object_id` | not needed: the session allocates object ids and streams; `courier::xrce::{StreamId, ObjectId}` for code that drives the machine itself |
+//! | `uxr_buffer_create_participant_{bin,xml,ref}` | automatic: one participant per session, in `domain=`, made with the first entity, by the representation of `representation=binary\|xml\|reference` (`ref.participant=` names its profile) |
+//! | `uxr_buffer_create_topic_{bin,xml,ref}` | automatic: each topic once, named and typed by the Rust type's [`TypeInfo`] (`#[ipc(type_name = …)]`, keys) |
+//! | `uxr_buffer_create_publisher_{bin,xml}`, `uxr_buffer_create_subscriber_{bin,xml}` | automatic: one publisher and one subscriber per session |
+//! | `uxr_buffer_create_datawriter_{bin,xml,ref}` | `Session::publisher::<T>(topic).qos(q).build().await` (or a first `publish`/`define`) |
+//! | `uxr_buffer_create_datareader_{bin,xml,ref}` | `Session::subscriber::<T>(topic).qos(q).build().await`, `Session::subscribe` |
+//! | `uxr_buffer_create_requester_{bin,xml,ref}` | `Session::query` (one requester per service, made on first use) |
+//! | `uxr_buffer_create_replier_{bin,xml,ref}` | `Session::serve::<Req, Resp>(name, "")` |
+//! | `uxr_buffer_delete_entity` | dropping the `Publisher`, `Subscriber`, `Requests` |
+//! | `uxr_set_status_callback`, `uxr_run_session_until_all_status`, `uxr_run_session_until_one_status` | the `build().await` of each entity resolves once the agent's STATUS came; a refusal is [`OpenError::Refused`] naming the XRCE status code; later ones are [`SessionEvent::EntityError`] |
+//! | `uxr_prepare_output_stream`, `uxr_prepare_output_stream_fragmented`, `uxr_buffer_topic` | `Publisher::publish(&value).await` (typed; samples larger than the MTU are fragmented on reliable streams), `Session::publish_raw` (bytes) |
+//! | `uxr_run_session_until_confirm_delivery` | `publish(&value).confirmed().await` (bounded by `.timeout(d)`) |
+//! | `uxr_buffer_request_data`, `uxr_set_topic_callback`, `uxr_run_session_until_data` | the `Subscriber` stream (a READ_DATA of unlimited samples for as long as it lives), or `subscriber::<T>(topic).listen(f)` for a callback |
+//! | `uxr_buffer_cancel_data` | dropping the `Subscriber` |
+//! | `uxr_buffer_request`, `uxr_set_reply_callback` | `Session::query(name, &req).timeout(d).await` |
+//! | `uxr_set_request_callback`, `uxr_buffer_reply` | the `Requests` stream of `serve`, `Request::reply` (the sample identity travels with the request) |
+//! | `uxr_run_session_time`, `uxr_run_session_timeout`, `uxr_run_session_until_timeout`, `uxr_run_session`, `uxr_flash_output_streams` | not needed: a tokio task runs the session all the time and sends what is queued at once |
+//! | `uxr_ping_agent`, `uxr_ping_agent_attempts`, `uxr_ping_agent_session` | `session.xrce()?.ping(timeout).await` ([`XrceControl`]); a session also pings by itself after `keepalive_ms=` of silence |
+//! | `uxr_sync_session`, `uxr_set_time_callback` | `session.xrce()?.sync_time(timeout).await` → [`TimeSync`] (`offset_ns`, `rtt`) |
+//! | `uxr_epoch_millis`, `uxr_epoch_nanos` | `session.xrce()?.agent_time()` (the agent's clock by the last sync) |
+//! | `uxr_discovery_agents`, `uxr_discovery_agents_default` | not yet: name the agent in the URL (see the crate's open issues) |
+//! | the ping-and-recreate loop every eProsima application writes | not needed: the session reconnects by itself ([`SessionEvent::AgentLost`], [`SessionEvent::AgentBack`], [`SessionEvent::SessionRecreated`]), keeping its `Subscriber`s and its unacknowledged reliable writes |
+//!
 //! ## Deviations from CMU IPC
 //! - Publishing a message nobody subscribes is silently not sent, as in C
 //!   (the module filters by central's `X_IPC_BROADCAST_MSG_VAR`); use
@@ -131,13 +169,14 @@ mod subscriber;
 mod sys;
 mod timer;
 mod topics;
+pub mod xrce_backend;
 
 pub use backend::{
     Backend, Capabilities, ClientId, DdsControl, Handle, IpcControl, PubId, ServiceId, SubId,
-    WriteNow,
+    TimeSync, WriteNow, XrceControl, XrceState,
 };
 pub use courier_derive::IpcMessage;
-pub use courier_wire::{cdr, format, ipc, key_hash, rtps, IpcMessage, NamedFormats};
+pub use courier_wire::{cdr, format, ipc, key_hash, rtps, xrce, IpcMessage, NamedFormats};
 pub use error::{ControlError, Error, OpenError, PublishError};
 pub use event::{DurabilityKind, EndpointInfo, Guid, ParticipantInfo, QosSummary};
 pub use ipc_backend::IpcStream;
@@ -151,6 +190,7 @@ pub use session::{
     SessionBuilder, SessionEvent, Subscriber, SubscriberBuilder, SubscriptionQos, Tick, Timer,
     TypeInfo, WithInstances, WriteOptions,
 };
+pub use xrce_backend::{XrceOptions, XrceRepresentation, XrceTransport};
 
 #[doc(hidden)]
 pub use courier_wire as __wire;

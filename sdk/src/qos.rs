@@ -326,7 +326,7 @@ impl TypeInfo {
     /// A final type without keys known only by its DDS type name and
     /// layout (an IPC format string): what tools that encode dynamic values
     /// (the `courier` CLI) publish and query with.
-    pub fn dynamic(format: Option<&'static str>, type_name: &'static str) -> Self {
+    pub const fn dynamic(format: Option<&'static str>, type_name: &'static str) -> Self {
         TypeInfo {
             format,
             type_name,

@@ -1,6 +1,7 @@
 //! Session URL schemes: which backend a URL's scheme names.
 //!
-//! `ipc://` and `rtps://` are built in; a program can plug in its own
+//! `ipc://`, `rtps://`, `xrce+udp://`, `xrce+tcp://` and `xrce+serial://`
+//! are built in; a program can plug in its own
 //! backend under a scheme of its own with [`register_scheme`], after which
 //! [`Session::builder`](crate::Session::builder) connects such URLs through
 //! it. A URL whose scheme nobody registered is refused with an error that
@@ -14,7 +15,7 @@ use std::sync::{Arc, RwLock};
 use crate::session::{Backend, ConnectError};
 
 /// The schemes built into Courier.
-pub const BUILT_IN: &[&str] = &["ipc", "rtps"];
+pub const BUILT_IN: &[&str] = &["ipc", "rtps", "xrce+udp", "xrce+tcp", "xrce+serial"];
 
 /// What a plugged-in backend is asked to connect.
 #[derive(Debug, Clone)]
@@ -90,6 +91,7 @@ pub fn known_schemes() -> Vec<String> {
 pub(crate) enum Resolved {
     Ipc,
     Rtps,
+    Xrce,
     Plugged(Connector),
 }
 
@@ -106,6 +108,7 @@ pub(crate) fn resolve(url: &str) -> Result<Resolved, ConnectError> {
     match scheme.to_ascii_lowercase().as_str() {
         "ipc" => Ok(Resolved::Ipc),
         "rtps" => Ok(Resolved::Rtps),
+        "xrce+udp" | "xrce+tcp" | "xrce+serial" => Ok(Resolved::Xrce),
         other => {
             let map = REGISTRY.read().unwrap_or_else(|e| e.into_inner());
             map.get(other)
@@ -129,10 +132,14 @@ mod tests {
 
     #[test]
     fn unknown_schemes_list_the_known_ones() {
-        let e = resolve("xrce+udp://127.0.0.1:8888").err().unwrap();
+        let e = resolve("zenoh://127.0.0.1:7447").err().unwrap();
         let text = e.to_string();
-        assert!(text.contains("\"xrce+udp\""), "{text}");
-        assert!(text.contains("ipc, rtps"), "{text}");
+        assert!(text.contains("\"zenoh\""), "{text}");
+        assert!(
+            text.contains("ipc, rtps, xrce+udp, xrce+tcp, xrce+serial"),
+            "{text}"
+        );
+        assert!(matches!(resolve("XRCE+UDP://h:1"), Ok(Resolved::Xrce)));
         let e = resolve("localhost:1381").err().unwrap();
         assert!(e.to_string().contains("no scheme"), "{e}");
         assert!(matches!(resolve("IPC://h:1"), Ok(Resolved::Ipc)));

@@ -50,6 +50,7 @@ pub use crate::reply::{Reply, ReplyFuture, Responder};
 
 pub use crate::backend::{
     Backend, Capabilities, ClientId, DdsControl, Handle, IpcControl, PubId, ServiceId, SubId,
+    TimeSync, XrceControl, XrceState,
 };
 
 /// A handle the typed layer owns: closed when dropped, if the session is
@@ -137,6 +138,7 @@ impl Session {
             name: None,
             opts: IpcOptions::default(),
             rtps: Default::default(),
+            xrce: None,
             set: Vec::new(),
         }
     }
@@ -193,6 +195,17 @@ impl Session {
             what: "DDS's controls".into(),
             backend: self.caps.scheme,
         })
+    }
+
+    /// The DDS-XRCE controls (agent ping, time sync, session state);
+    /// [`ControlError::Unsupported`] on other backends.
+    pub fn xrce(&self) -> Result<&dyn XrceControl, ControlError> {
+        self.backend
+            .xrce()
+            .ok_or_else(|| ControlError::Unsupported {
+                what: "DDS-XRCE's controls (agent ping, time sync)".into(),
+                backend: self.caps.scheme,
+            })
     }
 
     /// Defines `msg` carrying `T` (its named formats first). On DDS this

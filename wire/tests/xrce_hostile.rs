@@ -629,6 +629,12 @@ fn keepalive_pings_then_reports_the_agent_lost_and_back() {
         ev.contains(&Event::AgentLost(LostReason::SessionUnknown)),
         "{ev:?}"
     );
+    // ...which, pinged again while lost, is not taken for the agent back
+    c.ping(t);
+    c.handle_input(&forgot, t).unwrap();
+    let (_, ev) = drain(&mut c);
+    assert!(!ev.contains(&Event::AgentBack), "{ev:?}");
+    assert_eq!(c.state(), State::Lost);
 }
 
 fn create_client(key: u32, session_id: u8) -> Vec<u8> {

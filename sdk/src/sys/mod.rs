@@ -1,12 +1,13 @@
 //! The system calls Courier makes that std and socket2 do not offer, and
 //! so every `unsafe` block of the crate: registering descriptors with
 //! tokio's reactor, `recvmmsg`, the interface list, reverse DNS for access
-//! rules, the `timerfd` of the RTPS driver and the allocator settings of the
+//! rules, the `timerfd` of the RTPS driver, the serial lines of the XRCE backend and the allocator settings of the
 //! central binary. Everything else is `#![deny(unsafe_code)]`.
 #![allow(unsafe_code)]
 
 #[cfg(target_os = "linux")]
 pub(crate) mod timerfd;
+pub(crate) mod tty;
 
 pub(crate) mod net {
     //! Sockets and interfaces.

@@ -519,6 +519,11 @@ pub fn session_url(url: &str) -> Result<String, String> {
         "rtps" => RtpsOptions::from_url(url)
             .map(|_| url.to_string())
             .map_err(|e| e.to_string()),
+        "xrce+udp" | "xrce+tcp" | "xrce+serial" => {
+            courier::xrce_backend::XrceOptions::from_url(url)
+                .map(|_| url.to_string())
+                .map_err(|e| e.to_string())
+        }
         _ => Err(format!(
             "unknown scheme {scheme:?} in {url:?}; known schemes: {known}"
         )),

@@ -62,7 +62,15 @@ impl Client {
             }
             return first;
         }
-        self.heard(now);
+        // an agent that answers a ping without knowing the session has
+        // not been heard: it lost the session (see `on_info`)
+        let forgot_us = !msg.submessages.is_empty()
+            && msg.submessages.iter().all(
+                |s| matches!(&s.payload, Payload::Info(i) if i.result.implementation_status == 0),
+            );
+        if !forgot_us {
+            self.heard(now);
+        }
         let arrival = self.streams.receive(msg, bytes.len(), now);
         let mut first = arrival.errors.into_iter().next().map_or(Ok(()), Err);
         for (stream, sub) in arrival.subs {

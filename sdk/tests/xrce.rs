@@ -1,0 +1,388 @@
+//! Sessions over `xrce+udp://` and `xrce+tcp://` against a minimal agent
+//! built in the test from `courier_wire::xrce::Agent` (tests/xrce_agent):
+//! publish and subscribe, confirmed publishes, fragmentation, query and
+//! serve, ping and time sync, entity errors, and reconnection after the
+//! agent is stopped and started again on the same port. Every wait is
+//! bounded; every port is chosen by the system.
+
+mod xrce_agent;
+
+use std::time::Duration;
+
+use courier::{
+    IpcMessage, OpenError, PublicationQos, Reliability, Session, SessionEvent, SubscriptionQos,
+    XrceState,
+};
+use futures::StreamExt;
+
+/// The bound on every wait.
+const T: Duration = Duration::from_secs(20);
+
+/// Fast loss detection and reconnection for the tests.
+const FAST: &str = "keepalive_ms=100&lost_ms=500&attempt_ms=100&attempts=20";
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "courier::test::Msg")]
+struct Msg {
+    seq: u32,
+    text: String,
+    payload: Vec<u8>,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "courier::test::Keyed")]
+struct Keyed {
+    #[ipc(key)]
+    id: i32,
+    seq: u32,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "courier::test::AddRequest")]
+struct AddRequest {
+    a: i32,
+    b: i32,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "courier::test::AddReply")]
+struct AddReply {
+    sum: i32,
+}
+
+fn msg(seq: u32, len: usize) -> Msg {
+    Msg {
+        seq,
+        text: format!("sample {seq}"),
+        payload: (0..len).map(|i| (i as u32 ^ seq) as u8).collect(),
+    }
+}
+
+async fn session(url: String, name: &str) -> Session {
+    tokio::time::timeout(T, Session::builder(url).name(name).connect())
+        .await
+        .expect("connect in time")
+        .expect("connect")
+}
+
+async fn next<M: IpcMessage>(sub: &mut courier::Subscriber<M>) -> M {
+    tokio::time::timeout(T, sub.next())
+        .await
+        .expect("a sample in time")
+        .expect("stream open")
+        .expect("a sample")
+        .value
+}
+
+async fn wait_event(ev: &mut courier::Events, what: &str, f: impl Fn(&SessionEvent) -> bool) {
+    tokio::time::timeout(T, async {
+        while let Some(e) = ev.next().await {
+            if f(&e) {
+                return;
+            }
+        }
+        panic!("events ended before {what}");
+    })
+    .await
+    .unwrap_or_else(|_| panic!("no {what} in time"));
+}
+
+async fn pub_sub(url: String) {
+    let a = session(url.clone(), "pub").await;
+    let b = session(url, "sub").await;
+    let mut sub = b.subscribe::<Msg>("chatter").await.unwrap();
+    let p = a.publisher::<Msg>("chatter").build().await.unwrap();
+    for i in 0..50 {
+        p.publish(&msg(i, 10)).await.unwrap();
+    }
+    for i in 0..50 {
+        assert_eq!(next(&mut sub).await, msg(i, 10));
+    }
+    // keyed topics, best effort both ways
+    let mut be = SubscriptionQos::default();
+    be.reliability = Reliability::BestEffort;
+    let mut ksub = b
+        .subscriber::<Keyed>("keyed")
+        .qos(be)
+        .build()
+        .await
+        .unwrap();
+    let mut q = PublicationQos::default();
+    q.reliability = Reliability::BestEffort;
+    let kp = a.publisher::<Keyed>("keyed").qos(q).build().await.unwrap();
+    kp.publish(&Keyed { id: 7, seq: 1 }).await.unwrap();
+    assert_eq!(next(&mut ksub).await, Keyed { id: 7, seq: 1 });
+    // confirmed: the agent has acknowledged it when the publish returns
+    p.publish(&msg(50, 10)).confirmed().await.unwrap();
+    assert_eq!(next(&mut sub).await, msg(50, 10));
+    // a 20 000-byte sample crosses in fragments, both ways
+    p.publish(&msg(51, 20_000)).confirmed().await.unwrap();
+    assert_eq!(next(&mut sub).await, msg(51, 20_000));
+    // so does a burst of them, beyond the reliable window
+    for i in 52..60 {
+        p.publish(&msg(i, 5_000)).await.unwrap();
+    }
+    for i in 52..60 {
+        assert_eq!(next(&mut sub).await, msg(i, 5_000));
+    }
+    a.close().await;
+    b.close().await;
+}
+
+async fn query_serve(url: String) {
+    let server = session(url.clone(), "server").await;
+    let client = session(url, "client").await;
+    let mut reqs = server
+        .serve::<AddRequest, AddReply>("add", "")
+        .await
+        .unwrap();
+    let serving = tokio::spawn(async move {
+        while let Some(r) = reqs.next().await {
+            let r = r.unwrap();
+            let sum = r.value.a + r.value.b;
+            r.reply(&AddReply { sum }).await.unwrap();
+        }
+    });
+    for i in 0..10 {
+        let reply: AddReply = client
+            .query("add", &AddRequest { a: i, b: 100 })
+            .timeout(T)
+            .await
+            .unwrap();
+        assert_eq!(reply.sum, i + 100);
+    }
+    // concurrent queries are told apart by their request ids
+    let qs = (0..8).map(|i| {
+        let c = client.clone();
+        async move {
+            let r: AddReply = c
+                .query("add", &AddRequest { a: i, b: i })
+                .timeout(T)
+                .await
+                .unwrap();
+            assert_eq!(r.sum, 2 * i);
+        }
+    });
+    futures::future::join_all(qs).await;
+    client.close().await;
+    server.close().await;
+    let _ = tokio::time::timeout(T, serving).await;
+}
+
+#[tokio::test]
+async fn udp_publish_subscribe_confirmed_and_fragmented() {
+    let agent = xrce_agent::udp(0).await;
+    pub_sub(format!("xrce+udp://{}", agent.addr)).await;
+}
+
+#[tokio::test]
+async fn tcp_publish_subscribe_confirmed_and_fragmented() {
+    let agent = xrce_agent::tcp(0).await;
+    pub_sub(format!("xrce+tcp://{}", agent.addr)).await;
+}
+
+#[tokio::test]
+async fn udp_query_and_serve() {
+    let agent = xrce_agent::udp(0).await;
+    query_serve(format!("xrce+udp://{}", agent.addr)).await;
+}
+
+#[tokio::test]
+async fn tcp_query_and_serve() {
+    let agent = xrce_agent::tcp(0).await;
+    query_serve(format!("xrce+tcp://{}", agent.addr)).await;
+}
+
+#[tokio::test]
+async fn xml_representation_and_a_session_id_with_the_key_in_every_header() {
+    let agent = xrce_agent::udp(0).await;
+    let url = format!(
+        "xrce+udp://{}?representation=xml&session=0x05&key=0x12345678",
+        agent.addr
+    );
+    let a = session(url.clone(), "a").await;
+    assert_eq!(a.xrce().unwrap().client_key(), 0x1234_5678);
+    let b = session(format!("xrce+udp://{}?representation=xml", agent.addr), "b").await;
+    let mut sub = b.subscribe::<Msg>("xml_topic").await.unwrap();
+    a.publish("xml_topic", &msg(1, 3)).await.unwrap();
+    assert_eq!(next(&mut sub).await, msg(1, 3));
+}
+
+#[tokio::test]
+async fn ping_and_time_sync() {
+    let agent = xrce_agent::udp(0).await;
+    let s = session(format!("xrce+udp://{}", agent.addr), "ping").await;
+    let x = s.xrce().unwrap();
+    let rtt = x.ping(T).await.unwrap();
+    assert!(rtt < T, "{rtt:?}");
+    assert!(x.time_offset().is_none());
+    let t = x.sync_time(T).await.unwrap();
+    // the same clock on both sides: the offset is within the round trip
+    assert!(
+        t.offset_ns.unsigned_abs() <= t.rtt.as_nanos() as u64 + 1_000_000,
+        "{t:?}"
+    );
+    assert_eq!(x.time_offset(), Some(t));
+    assert!(x.agent_time().is_some());
+    assert_eq!(x.state(), XrceState::Connected);
+    // other backends have no XRCE controls
+    assert!(s.ipc().is_err() && s.dds().is_err());
+}
+
+#[tokio::test]
+async fn an_entity_the_agent_refuses_names_its_status_code() {
+    let agent = xrce_agent::udp(0).await;
+    let s = session(format!("xrce+udp://{}", agent.addr), "refused").await;
+    let e = s
+        .publisher::<Msg>("refused_topic")
+        .build()
+        .await
+        .unwrap_err();
+    match &e {
+        OpenError::Refused { entity, status, .. } => {
+            assert_eq!(*entity, "topic");
+            assert_eq!(*status, courier::xrce::StatusCode::ERR_DDS_ERROR);
+        }
+        e => panic!("{e:?}"),
+    }
+    assert!(e.to_string().contains("STATUS_ERR_DDS_ERROR (0x80)"), "{e}");
+    // the session goes on
+    let mut sub = s.subscribe::<Msg>("fine").await.unwrap();
+    s.publish("fine", &msg(2, 0)).await.unwrap();
+    assert_eq!(next(&mut sub).await, msg(2, 0));
+}
+
+#[tokio::test]
+async fn no_agent_fails_the_connect_and_foreign_options_are_refused() {
+    // a port nobody answers on
+    let sock = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let port = sock.local_addr().unwrap().port();
+    let url = format!("xrce+udp://127.0.0.1:{port}?attempts=2&attempt_ms=50");
+    let e = tokio::time::timeout(T, Session::builder(url.clone()).connect())
+        .await
+        .unwrap()
+        .unwrap_err();
+    assert!(e.to_string().contains("2 CREATE_CLIENT"), "{e}");
+    let e = Session::builder(url.clone())
+        .interface("lo")
+        .connect()
+        .await
+        .unwrap_err();
+    assert!(e.to_string().contains("interface"), "{e}");
+    let e = Session::builder(format!("{url}&bogus=1"))
+        .connect()
+        .await
+        .unwrap_err();
+    assert!(e.to_string().contains("bogus"), "{e}");
+}
+
+/// The agent stops, then starts again on the same port, empty: the session
+/// reports both moments, creates itself again, its subscriber stays open,
+/// and reliable samples published meanwhile arrive.
+async fn reconnect(tcp: bool) {
+    let start = |port| async move {
+        if tcp {
+            xrce_agent::tcp(port).await
+        } else {
+            xrce_agent::udp(port).await
+        }
+    };
+    let agent = start(0).await;
+    let port = agent.addr.port();
+    let scheme = if tcp { "tcp" } else { "udp" };
+    let url = format!("xrce+{scheme}://127.0.0.1:{port}?{FAST}&wait_ms=20000");
+    let a = session(url.clone(), "a").await;
+    let b = session(url, "b").await;
+    let mut ev_a = a.events();
+    let mut ev_b = b.events();
+    let mut sub = b.subscribe::<Msg>("survivor").await.unwrap();
+    let p = a.publisher::<Msg>("survivor").build().await.unwrap();
+    p.publish(&msg(0, 4)).confirmed().await.unwrap();
+    assert_eq!(next(&mut sub).await, msg(0, 4));
+
+    agent.stop().await;
+    wait_event(&mut ev_a, "AgentLost", |e| {
+        matches!(e, SessionEvent::AgentLost { .. })
+    })
+    .await;
+    assert_eq!(a.xrce().unwrap().state(), XrceState::Lost);
+    // published while the agent is away: kept, sent once it is back
+    let writer = tokio::spawn(async move {
+        for i in 1..=5 {
+            p.publish(&msg(i, 4)).await.unwrap();
+        }
+        p
+    });
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let _agent = start(port).await;
+    wait_event(&mut ev_a, "SessionRecreated", |e| {
+        matches!(e, SessionEvent::SessionRecreated { .. })
+    })
+    .await;
+    wait_event(&mut ev_b, "SessionRecreated", |e| {
+        matches!(e, SessionEvent::SessionRecreated { .. })
+    })
+    .await;
+    let p = tokio::time::timeout(T, writer).await.unwrap().unwrap();
+    let mut got = Vec::new();
+    while got.len() < 5 {
+        let m = next(&mut sub).await;
+        if !got.contains(&m.seq) {
+            got.push(m.seq);
+        }
+    }
+    got.sort();
+    assert_eq!(got, [1, 2, 3, 4, 5]);
+    // and the session works as before
+    p.publish(&msg(6, 4)).confirmed().await.unwrap();
+    loop {
+        if next(&mut sub).await.seq == 6 {
+            break;
+        }
+    }
+    assert_eq!(b.xrce().unwrap().state(), XrceState::Connected);
+}
+
+#[tokio::test]
+async fn udp_reconnects_after_the_agent_restarts() {
+    reconnect(false).await;
+}
+
+#[tokio::test]
+async fn tcp_reconnects_after_the_agent_restarts() {
+    reconnect(true).await;
+}
+
+#[tokio::test]
+async fn an_agent_that_goes_silent_and_comes_back_keeps_the_session() {
+    let agent = xrce_agent::udp(0).await;
+    let url = format!("xrce+udp://{}?{FAST}", agent.addr);
+    let a = session(url, "a").await;
+    let mut ev = a.events();
+    let mut sub = a.subscribe::<Msg>("loop").await.unwrap();
+    agent.mute(true);
+    wait_event(&mut ev, "AgentLost", |e| {
+        *e == SessionEvent::AgentLost { silent: true }
+    })
+    .await;
+    agent.mute(false);
+    wait_event(&mut ev, "AgentBack", |e| *e == SessionEvent::AgentBack).await;
+    a.publish("loop", &msg(9, 1)).await.unwrap();
+    assert_eq!(next(&mut sub).await, msg(9, 1));
+}
+
+#[tokio::test]
+async fn an_open_the_agent_never_answers_fails_within_its_bound() {
+    let agent = xrce_agent::udp(0).await;
+    let url = format!("xrce+udp://{}?{FAST}&wait_ms=300", agent.addr);
+    let a = session(url, "a").await;
+    agent.mute(true);
+    let e = tokio::time::timeout(T, a.publisher::<Msg>("nobody_answers").build())
+        .await
+        .expect("bounded")
+        .unwrap_err();
+    assert!(
+        matches!(e, OpenError::NoAnswer { .. } | OpenError::Disconnected(_)),
+        "{e:?}"
+    );
+}
