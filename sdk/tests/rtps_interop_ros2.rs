@@ -92,13 +92,11 @@ async fn a_courier_query_is_answered_by_an_rmw_cyclonedds_style_service() {
 async fn a_courier_service_answers_an_rmw_cyclonedds_style_client() {
     let s = session(2).await;
     let mut reqs = s.serve::<AddReq, AddResp>("add", "").await.unwrap();
+    // answers until the test ends (the peer asks again when an answer is
+    // late, so the number of requests is not fixed)
     let server = tokio::spawn(async move {
-        for _ in 0..3 {
-            let r = tokio::time::timeout(T, reqs.next())
-                .await
-                .expect("a request in time")
-                .expect("the stream goes on")
-                .expect("the body decodes (the header was taken off)");
+        while let Some(r) = reqs.next().await {
+            let r = r.expect("the body decodes (the header was taken off)");
             let sum = r.value.a + r.value.b;
             r.reply(&AddResp { sum }).await.unwrap();
         }
@@ -114,6 +112,7 @@ async fn a_courier_service_answers_an_rmw_cyclonedds_style_client() {
     // each reply echoed the client's id and request number
     assert_eq!(replies, ["reply 1 11", "reply 2 22", "reply 3 33"]);
     assert!(!lines.iter().any(|l| l.starts_with("foreign")), "{lines:?}");
-    tokio::time::timeout(T, server).await.unwrap().unwrap();
+    assert!(!server.is_finished(), "the service ran to the end");
+    server.abort();
     s.close().await;
 }

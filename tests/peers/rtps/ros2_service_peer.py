@@ -145,19 +145,26 @@ def main():
             time.sleep(0.005)
         writer.wait_for_acks(duration(seconds=5))
     else:
+        # matching is seen from each side on its own: the service's reader
+        # may not know this writer yet, and a volatile reader takes nothing
+        # written before it matched. Settle, and ask again (same number)
+        # when no answer comes: a late duplicate's reply is ignored.
+        time.sleep(0.25)
         me = random.getrandbits(64)
         for seq in range(1, o.count + 1):
-            writer.write(Request(client=me, seq=seq, a=10 * seq, b=seq))
             answered = False
             while not answered:
-                check()
-                for r in reader.take(N=10):
-                    if r.client != me:
-                        emit(f"foreign {r.client} {r.seq}")
-                        continue
-                    emit(f"reply {r.seq} {r.sum}")
-                    answered = r.seq == seq
-                time.sleep(0.005)
+                writer.write(Request(client=me, seq=seq, a=10 * seq, b=seq))
+                deadline = time.monotonic() + 1.0
+                while not answered and time.monotonic() < deadline:
+                    check()
+                    for r in reader.take(N=10):
+                        if r.client != me:
+                            emit(f"foreign {r.client} {r.seq}")
+                        elif r.seq == seq and not answered:
+                            emit(f"reply {r.seq} {r.sum}")
+                            answered = True
+                    time.sleep(0.005)
     emit("done")
     del dp, dom
     return 0
