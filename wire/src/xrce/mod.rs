@@ -76,6 +76,7 @@
 
 mod agent;
 mod binary;
+pub mod bridge;
 mod client;
 mod cursor;
 mod message;
@@ -89,7 +90,7 @@ mod submessage;
 pub mod tcp;
 mod types;
 
-pub use agent::{Agent, AgentCommandError, AgentConfig, AgentEvent};
+pub use agent::{Agent, AgentCommandError, AgentConfig, AgentEvent, WriteTicket};
 pub use binary::{
     qos_flags, BinaryRepresentation, DataReaderBinary, DataReaderQos, DataWriterBinary,
     EndpointQos, GroupBinary, GroupQos, ParticipantBinary, ServiceBinary, TopicBinary,

@@ -103,8 +103,16 @@ pub(crate) struct Arrival {
     /// Submessages to act on, in order, with the stream they came on
     /// (ACKNACK and HEARTBEAT are handled here and not included).
     pub subs: Vec<(StreamId, Submessage)>,
+    /// For each of `subs` on a reliable stream: the sequence number of the
+    /// message that completed it.
+    pub origins: Vec<Option<SeqNum>>,
+    /// Reliable messages handed on, in order (all of the message's stream).
+    pub handed: Vec<SeqNum>,
     /// ACKNACKs to send once the submessages are acted on.
     pub replies: Vec<Vec<u8>>,
+    /// Reliable streams whose ACKNACK the caller sends once it has acted
+    /// (instead of `replies`), when acknowledgement is deferred.
+    pub ack_later: Vec<StreamId>,
     /// What went wrong on the way.
     pub errors: Vec<InputError>,
 }
@@ -119,6 +127,8 @@ pub(crate) struct Streams {
     rel_out: BTreeMap<u8, ReliableOutput>,
     be_in: BTreeMap<u8, BestEffortInput>,
     rel_in: BTreeMap<u8, ReliableInput>,
+    /// Reliable input is acknowledged only as the owner confirms it.
+    deferred: bool,
     /// Messages on stream 0, ready to go.
     pub control: VecDeque<Vec<u8>>,
 }
@@ -152,8 +162,37 @@ impl Streams {
             rel_out: BTreeMap::new(),
             be_in: BTreeMap::new(),
             rel_in: BTreeMap::new(),
+            deferred: false,
             control: VecDeque::new(),
         }
+    }
+
+    /// Defers acknowledgement of reliable input: a message handed on is
+    /// acknowledged only through [`confirm_through`](Self::confirm_through)
+    /// or [`confirm_all`](Self::confirm_all), and ACKNACKs for arriving
+    /// messages are left to the caller ([`Arrival::ack_later`]).
+    pub fn set_deferred(&mut self, deferred: bool) {
+        self.deferred = deferred;
+        for s in self.rel_in.values_mut() {
+            s.set_deferred(deferred);
+        }
+    }
+
+    /// Acknowledges reliable input stream `id` up to `seq`; whether it moved.
+    pub fn confirm_through(&mut self, id: StreamId, seq: SeqNum) -> bool {
+        self.rel_in
+            .get_mut(&id.0)
+            .is_some_and(|s| s.confirm_through(seq))
+    }
+
+    /// Acknowledges everything stream `id` handed on; whether it moved.
+    pub fn confirm_all(&mut self, id: StreamId) -> bool {
+        self.rel_in.get_mut(&id.0).is_some_and(|s| s.confirm_all())
+    }
+
+    /// The ACKNACK of reliable input stream `id` now, as a message.
+    pub fn acknack_for(&self, id: StreamId) -> Option<Vec<u8>> {
+        self.acknack_message(id)
     }
 
     pub fn header(&self) -> MessageHeader {
@@ -241,12 +280,12 @@ impl Streams {
         if !self.rel_in.contains_key(&id.0) && self.rel_in.len() >= self.max_streams {
             return None;
         }
-        let c = self.cfg;
-        Some(
-            self.rel_in
-                .entry(id.0)
-                .or_insert_with(|| ReliableInput::new(id, c)),
-        )
+        let (c, deferred) = (self.cfg, self.deferred);
+        Some(self.rel_in.entry(id.0).or_insert_with(|| {
+            let mut s = ReliableInput::new(id, c);
+            s.set_deferred(deferred);
+            s
+        }))
     }
 
     fn acknack_message(&self, id: StreamId) -> Option<Vec<u8>> {
@@ -263,8 +302,9 @@ impl Streams {
         }
         let id = message.header.stream_id;
         let seq = SeqNum(message.header.sequence_nr);
-        let subs = if id == StreamId::NONE {
-            message.submessages
+        let deferred = self.deferred;
+        let subs: Vec<(Option<SeqNum>, Submessage)> = if id == StreamId::NONE {
+            message.submessages.into_iter().map(|s| (None, s)).collect()
         } else if id.is_best_effort() {
             if !self.be_in.contains_key(&id.0) && self.be_in.len() >= self.max_streams {
                 a.errors.push(InputError::TooManyStreams(id.0));
@@ -273,7 +313,7 @@ impl Streams {
             if !self.be_in.entry(id.0).or_default().accept(seq) {
                 return a;
             }
-            message.submessages
+            message.submessages.into_iter().map(|s| (None, s)).collect()
         } else {
             let Some(input) = self.reliable_input(id) else {
                 a.errors.push(InputError::TooManyStreams(id.0));
@@ -283,13 +323,19 @@ impl Streams {
             let mut subs = Vec::new();
             let mut errors = Vec::new();
             while let Some(m) = input.next_message() {
-                subs.extend(input.unpack(m, &mut errors));
+                let s = SeqNum(m.header.sequence_nr);
+                a.handed.push(s);
+                subs.extend(input.unpack(m, &mut errors).into_iter().map(|x| (Some(s), x)));
             }
             a.errors.extend(errors.into_iter().map(InputError::from));
-            a.replies.extend(self.acknack_message(id));
+            if deferred {
+                a.ack_later.push(id);
+            } else {
+                a.replies.extend(self.acknack_message(id));
+            }
             subs
         };
-        for sub in subs {
+        for (origin, sub) in subs {
             match &sub.payload {
                 Payload::AckNack(ack) => {
                     if let Some(s) = self.rel_out.get_mut(&ack.stream_id.0) {
@@ -313,7 +359,10 @@ impl Streams {
                     what: "HEARTBEAT",
                     stream: id.0,
                 }),
-                _ => a.subs.push((id, sub)),
+                _ => {
+                    a.subs.push((id, sub));
+                    a.origins.push(origin);
+                }
             }
         }
         a
