@@ -23,3 +23,5 @@
 #![deny(unsafe_code)]
 
 pub use courier::central::*;
+
+pub mod xrce_agent;
