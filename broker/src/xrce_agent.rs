@@ -251,11 +251,13 @@ impl XrceAgentBuilder {
         for t in &self.transports {
             match t {
                 Transport::Udp(a) => {
-                    let s = UdpSocket::bind(a).await.map_err(|source| StartError::Bind {
-                        what: "XRCE UDP",
-                        addr: *a,
-                        source,
-                    })?;
+                    let s = UdpSocket::bind(a)
+                        .await
+                        .map_err(|source| StartError::Bind {
+                            what: "XRCE UDP",
+                            addr: *a,
+                            source,
+                        })?;
                     udp_addrs.push(s.local_addr().unwrap_or(*a));
                     let s = Arc::new(s);
                     let idx = udp.len() as u8;
@@ -263,11 +265,13 @@ impl XrceAgentBuilder {
                     readers.spawn(udp_reader(s, idx, tx.clone()));
                 }
                 Transport::Tcp(a) => {
-                    let l = TcpListener::bind(a).await.map_err(|source| StartError::Bind {
-                        what: "XRCE TCP",
-                        addr: *a,
-                        source,
-                    })?;
+                    let l = TcpListener::bind(a)
+                        .await
+                        .map_err(|source| StartError::Bind {
+                            what: "XRCE TCP",
+                            addr: *a,
+                            source,
+                        })?;
                     tcp_addrs.push(l.local_addr().unwrap_or(*a));
                     readers.spawn(tcp_acceptor(l, tx.clone()));
                 }
@@ -565,8 +569,10 @@ async fn open_rtps(
         None => (0..=o.max_participant_index).collect(),
     };
     for i in indices {
-        let (Some(mp), Some(up)) = (m.metatraffic_unicast(o.domain, i), m.user_unicast(o.domain, i))
-        else {
+        let (Some(mp), Some(up)) = (
+            m.metatraffic_unicast(o.domain, i),
+            m.user_unicast(o.domain, i),
+        ) else {
             last = format!("no ports for participant index {i} in domain {}", o.domain);
             break;
         };
@@ -591,8 +597,12 @@ async fn open_rtps(
             o.domain
         ))
     })?;
-    let meta_addr = meta.local_addr().map_err(|e| StartError::Rtps(e.to_string()))?;
-    let tok = |s: std::net::UdpSocket| UdpSocket::from_std(s).map_err(|e| StartError::Rtps(e.to_string()));
+    let meta_addr = meta
+        .local_addr()
+        .map_err(|e| StartError::Rtps(e.to_string()))?;
+    let tok = |s: std::net::UdpSocket| {
+        UdpSocket::from_std(s).map_err(|e| StartError::Rtps(e.to_string()))
+    };
     let meta = Arc::new(tok(meta)?);
     let user = Arc::new(tok(user)?);
     readers.spawn(rtps_reader(meta, tx.clone()));
@@ -662,7 +672,10 @@ fn entropy() -> [u8; 10] {
     b
 }
 
-fn discovery_socket(a: SocketAddrV4, o: &RtpsOptions) -> Result<(UdpSocket, SocketAddr), StartError> {
+fn discovery_socket(
+    a: SocketAddrV4,
+    o: &RtpsOptions,
+) -> Result<(UdpSocket, SocketAddr), StartError> {
     let s = udp_socket(a, true).map_err(|source| StartError::Bind {
         what: "XRCE discovery",
         addr: SocketAddr::V4(a),
@@ -686,7 +699,11 @@ async fn discovery_reader(s: Arc<UdpSocket>, udp: Vec<SocketAddr>, iface: Ipv4Ad
         .iter()
         .filter_map(|a| match a {
             SocketAddr::V4(v) => {
-                let ip = if v.ip().is_unspecified() { iface } else { *v.ip() };
+                let ip = if v.ip().is_unspecified() {
+                    iface
+                } else {
+                    *v.ip()
+                };
                 Some(TransportLocator::Medium {
                     address: ip.octets(),
                     port: v.port(),

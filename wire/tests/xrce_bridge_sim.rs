@@ -106,9 +106,10 @@ impl Node for N {
     fn poll_transmit(&mut self) -> Option<(Addr, Vec<u8>)> {
         match self {
             N::Client(p) => p.poll_transmit(),
-            N::Bridge(b, _) => b
-                .poll_transmit()
-                .or_else(|| b.poll_datagram().map(|d| (Addr::R(d.destination), d.payload))),
+            N::Bridge(b, _) => b.poll_transmit().or_else(|| {
+                b.poll_datagram()
+                    .map(|d| (Addr::R(d.destination), d.payload))
+            }),
             N::Dds(d) => d
                 .poll_transmit()
                 .map(|d| (Addr::R(d.destination), d.payload)),
@@ -183,11 +184,9 @@ fn bin(b: BinaryRepresentation) -> Representation {
 impl World {
     fn add_client(&mut self, addr: u16, key: u32) -> usize {
         let c = Client::new(ClientConfig::new(key));
-        let i = self.net.add(N::Client(Peer::client(
-            Addr::X(addr),
-            Addr::X(AGENT),
-            c,
-        )));
+        let i = self
+            .net
+            .add(N::Client(Peer::client(Addr::X(addr), Addr::X(AGENT), c)));
         let now = self.net.now();
         self.client(i).connect(now);
         assert!(self.run_until(Duration::from_secs(10), |w| w
@@ -260,7 +259,10 @@ impl World {
             let now = self.net.now();
             self.client(i).create(id, v, mode, now).unwrap();
         }
-        assert!(self.run_until(Duration::from_secs(10), |w| w.statuses(i).len() >= before + n));
+        assert!(
+            self.run_until(Duration::from_secs(10), |w| w.statuses(i).len()
+                >= before + n)
+        );
     }
 
     fn data(&self, i: usize) -> Vec<Vec<u8>> {
@@ -291,7 +293,9 @@ fn participant() -> (ObjectId, ObjectVariant) {
     (
         oid(ObjectKind::Participant),
         ObjectVariant::Participant {
-            representation: bin(BinaryRepresentation::Participant(ParticipantBinary::default())),
+            representation: bin(BinaryRepresentation::Participant(
+                ParticipantBinary::default(),
+            )),
             domain_id: 0,
         },
     )
@@ -454,10 +458,20 @@ fn xrce_client_to_dds_reader_and_dds_writer_to_xrce_client() {
         }
     }
     w.create(c, objs, CreationMode::REPLACE);
-    assert!(w.statuses(c).iter().all(|s| s.1 == Ok(StatusCode::OK)), "{:?}", w.statuses(c));
+    assert!(
+        w.statuses(c).iter().all(|s| s.1 == Ok(StatusCode::OK)),
+        "{:?}",
+        w.statuses(c)
+    );
     let now = w.net.now();
     w.client(c)
-        .read(ObjectId::new(2, ObjectKind::DataReader), R, R, unlimited(), now)
+        .read(
+            ObjectId::new(2, ObjectKind::DataReader),
+            R,
+            R,
+            unlimited(),
+            now,
+        )
         .unwrap();
     // wait until both sides are matched
     assert!(w.run_until(Duration::from_secs(10), |w| {
@@ -466,10 +480,9 @@ fn xrce_client_to_dds_reader_and_dds_writer_to_xrce_client() {
             _ => unreachable!(),
         };
         d.matched_readers(dw) == 1
-            && w.net.hosts[w.dds]
-                .events
-                .iter()
-                .any(|e| matches!(e, Ev::Dds(DdsEvent::ReaderMatched { reader, .. }) if *reader == r))
+            && w.net.hosts[w.dds].events.iter().any(
+                |e| matches!(e, Ev::Dds(DdsEvent::ReaderMatched { reader, .. }) if *reader == r),
+            )
     }));
     for i in 0..20 {
         let now = w.net.now();
@@ -477,12 +490,18 @@ fn xrce_client_to_dds_reader_and_dds_writer_to_xrce_client() {
             .write(oid(ObjectKind::DataWriter), R, &sample(i, 25), now)
             .unwrap();
         w.dds()
-            .write(dw, Change::alive_owned(encapsulated(&sample(100 + i, 30))), now)
+            .write(
+                dw,
+                Change::alive_owned(encapsulated(&sample(100 + i, 30))),
+                now,
+            )
             .unwrap();
         w.net.step();
     }
-    assert!(w.run_until(Duration::from_secs(10), |w| w.dds_samples(r).len() == 20
-        && w.data(c).len() == 20));
+    assert!(
+        w.run_until(Duration::from_secs(10), |w| w.dds_samples(r).len() == 20
+            && w.data(c).len() == 20)
+    );
     let want: Vec<Vec<u8>> = (0..20).map(|i| encapsulated(&sample(i, 25))).collect();
     assert_eq!(w.dds_samples(r), want);
     let back: Vec<Vec<u8>> = (0..20).map(|i| sample(100 + i, 30)).collect();
@@ -518,7 +537,10 @@ fn keep_all_back_pressure_holds_the_client_and_loses_nothing_acknowledged() {
     while w.net.elapsed() < t0 + Duration::from_secs(5) {
         while next < n {
             let now = w.net.now();
-            match w.client(c).write(oid(ObjectKind::DataWriter), R, &sample(next, 100), now) {
+            match w
+                .client(c)
+                .write(oid(ObjectKind::DataWriter), R, &sample(next, 100), now)
+            {
                 Ok(_) => next += 1,
                 Err(_) => break,
             }
@@ -534,11 +556,19 @@ fn keep_all_back_pressure_holds_the_client_and_loses_nothing_acknowledged() {
     // the bridge's writer holds ~2 000 bytes; the rest waits unacknowledged
     let held = w.bridge().agent().writes_pending();
     assert!(held > 0, "no write held");
-    assert!(acked < n as usize, "every write acknowledged though DDS could not take them");
-    assert_eq!(w.bridge().stats().writes_refused + w.bridge().stats().writes_dropped, 0);
+    assert!(
+        acked < n as usize,
+        "every write acknowledged though DDS could not take them"
+    );
+    assert_eq!(
+        w.bridge().stats().writes_refused + w.bridge().stats().writes_dropped,
+        0
+    );
     // the reader reads again: everything arrives, in order, all acknowledged
     w.dds().set_reader_full(r, false);
-    let done = w.run_until(Duration::from_secs(120), |w| w.dds_samples(r).len() == n as usize);
+    let done = w.run_until(Duration::from_secs(120), |w| {
+        w.dds_samples(r).len() == n as usize
+    });
     // keep writing what the client could not queue
     let mut done = done;
     while !done && next < n {
@@ -549,10 +579,14 @@ fn keep_all_back_pressure_holds_the_client_and_loses_nothing_acknowledged() {
         {
             next += 1;
         }
-        done = w.run_until(Duration::from_millis(50), |w| w.dds_samples(r).len() == n as usize);
+        done = w.run_until(Duration::from_millis(50), |w| {
+            w.dds_samples(r).len() == n as usize
+        });
     }
     if !done {
-        done = w.run_until(Duration::from_secs(60), |w| w.dds_samples(r).len() == n as usize);
+        done = w.run_until(Duration::from_secs(60), |w| {
+            w.dds_samples(r).len() == n as usize
+        });
     }
     assert!(done, "{} of {n} samples", w.dds_samples(r).len());
     let want: Vec<Vec<u8>> = (0..n).map(|i| encapsulated(&sample(i, 100))).collect();
@@ -583,7 +617,9 @@ fn first_sample_of_a_new_writer_reaches_a_reader_discovered_before() {
     let n = objs.len();
     for (id, v) in objs {
         let now = w.net.now();
-        w.client(c).create(id, v, CreationMode::REPLACE, now).unwrap();
+        w.client(c)
+            .create(id, v, CreationMode::REPLACE, now)
+            .unwrap();
     }
     // written in the same message as the CREATEs, before any STATUS came
     let now = w.net.now();
@@ -702,9 +738,11 @@ fn delivery_control_max_samples_and_best_effort() {
         .unwrap();
     let c = w.add_client(10, 0xAAAA_0005);
     w.create(c, reader_objects("Many", true), CreationMode::REPLACE);
-    assert!(w.run_until(Duration::from_secs(10), |w| match &w.net.hosts[w.dds].node {
-        N::Dds(d) => d.matched_readers(dw) == 1,
-        _ => false,
+    assert!(w.run_until(Duration::from_secs(10), |w| {
+        match &w.net.hosts[w.dds].node {
+            N::Dds(d) => d.matched_readers(dw) == 1,
+            _ => false,
+        }
     }));
     for i in 0..10 {
         let now = w.net.now();
@@ -755,7 +793,8 @@ fn creation_modes_xml_and_references() {
         representation: rep,
         domain_id: 0,
     };
-    let hello = "<dds><participant><rtps><name>default_xrce_participant</name></rtps></participant></dds>";
+    let hello =
+        "<dds><participant><rtps><name>default_xrce_participant</name></rtps></participant></dds>";
     w.create(c, vec![(p, part(xml(hello)))], CreationMode::CREATE);
     w.create(c, vec![(p, part(xml(hello)))], CreationMode::CREATE);
     w.create(
@@ -774,13 +813,25 @@ fn creation_modes_xml_and_references() {
             replace: false,
         },
     );
-    w.create(c, vec![(p, part(Representation::Reference("p".into())))], CreationMode::REUSE_OR_REPLACE);
-    w.create(c, vec![(p, part(Representation::Reference("nope".into())))], CreationMode::REPLACE);
+    w.create(
+        c,
+        vec![(p, part(Representation::Reference("p".into())))],
+        CreationMode::REUSE_OR_REPLACE,
+    );
+    w.create(
+        c,
+        vec![(p, part(Representation::Reference("nope".into())))],
+        CreationMode::REPLACE,
+    );
     let other_domain = ObjectVariant::Participant {
         representation: xml(hello),
         domain_id: 7,
     };
-    w.create(c, vec![(ObjectId::new(2, ObjectKind::Participant), other_domain)], CreationMode::REPLACE);
+    w.create(
+        c,
+        vec![(ObjectId::new(2, ObjectKind::Participant), other_domain)],
+        CreationMode::REPLACE,
+    );
     // a writer by reference under a publisher given as XML
     let pb = oid(ObjectKind::Publisher);
     w.create(
@@ -804,7 +855,9 @@ fn creation_modes_xml_and_references() {
             (
                 ObjectId::new(2, ObjectKind::DataWriter),
                 ObjectVariant::DataWriter {
-                    representation: xml("<dds><data_writer><topic><name>T</name></topic></data_writer></dds>"),
+                    representation: xml(
+                        "<dds><data_writer><topic><name>T</name></topic></data_writer></dds>",
+                    ),
                     publisher_id: pb,
                 },
             ),

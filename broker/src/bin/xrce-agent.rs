@@ -218,7 +218,9 @@ fn level(v: u8) -> tracing::level_filters::LevelFilter {
 }
 
 /// The agent's settings, or what is wrong with them.
-fn build(plan: &Plan) -> Result<(Vec<Transport>, RtpsOptions, Profiles, Option<SocketAddrV4>), String> {
+fn build(
+    plan: &Plan,
+) -> Result<(Vec<Transport>, RtpsOptions, Profiles, Option<SocketAddrV4>), String> {
     let c = &plan.common;
     if let Some(m) = &c.middleware {
         if m != "dds" {

@@ -88,8 +88,8 @@ use out::Out;
 use receive::ReceiveThread;
 use state::State;
 
-pub(crate) use options::RtpsOverrides;
 pub use net::interface_address;
+pub(crate) use options::RtpsOverrides;
 pub use options::{parse_peer, RtpsOptions, ServiceStyle, LOOPBACK_MAX_MESSAGE_SIZE};
 
 /// The DDS key hash of `value` (DDSI-RTPS §9.6.4.8): its key fields as

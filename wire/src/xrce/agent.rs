@@ -588,7 +588,12 @@ impl<A: Clone + Eq + Hash> Agent<A> {
 
     /// A ticket for a write completed by message `origin` of reliable
     /// `stream`, counted against that message.
-    fn ticket(&mut self, key: u32, stream: StreamId, origin: Option<SeqNum>) -> Option<WriteTicket> {
+    fn ticket(
+        &mut self,
+        key: u32,
+        stream: StreamId,
+        origin: Option<SeqNum>,
+    ) -> Option<WriteTicket> {
         if !self.cfg.host_confirms_writes || !stream.is_reliable() {
             return None;
         }

@@ -325,7 +325,12 @@ impl Streams {
             while let Some(m) = input.next_message() {
                 let s = SeqNum(m.header.sequence_nr);
                 a.handed.push(s);
-                subs.extend(input.unpack(m, &mut errors).into_iter().map(|x| (Some(s), x)));
+                subs.extend(
+                    input
+                        .unpack(m, &mut errors)
+                        .into_iter()
+                        .map(|x| (Some(s), x)),
+                );
             }
             a.errors.extend(errors.into_iter().map(InputError::from));
             if deferred {

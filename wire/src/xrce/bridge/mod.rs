@@ -365,9 +365,9 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
     /// When [`handle_timeout`](Self::handle_timeout) is next needed.
     pub fn poll_timeout(&self) -> Option<Instant> {
         let inboxes = self.objects.values().filter_map(|o| match &o.entity {
-            Entity::Reader(_, i) | Entity::Requester { inbox: i, .. } | Entity::Replier { inbox: i, .. } => {
-                i.poll_timeout()
-            }
+            Entity::Reader(_, i)
+            | Entity::Requester { inbox: i, .. }
+            | Entity::Replier { inbox: i, .. } => i.poll_timeout(),
             _ => None,
         });
         [self.agent.poll_timeout(), self.domain.poll_timeout()]
@@ -698,9 +698,8 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
             variant: variant.clone(),
             entity,
         };
-        let dds_err = |e: crate::rtps::participant::CreateError| {
-            (StatusCode::ERR_DDS_ERROR, e.to_string())
-        };
+        let dds_err =
+            |e: crate::rtps::participant::CreateError| (StatusCode::ERR_DDS_ERROR, e.to_string());
         match variant {
             V::Participant {
                 representation,
@@ -803,7 +802,10 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
                 } else {
                     let r = self.domain.create_reader(cfg, now).map_err(dds_err)?;
                     let cap = inbox_cap(&self.cfg, &ep.qos);
-                    Ok(obj(Some(*publisher_id), Entity::Reader(r, read::Inbox::new(cap))))
+                    Ok(obj(
+                        Some(*publisher_id),
+                        Entity::Reader(r, read::Inbox::new(cap)),
+                    ))
                 }
             }
             V::Requester {
@@ -824,9 +826,19 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
                 let mut rq = profile::default_qos(false);
                 rq.reliability = wq.reliability;
                 let (wt, wty, rt, rty) = if requester {
-                    (&s.request_topic, &s.request_type, &s.reply_topic, &s.reply_type)
+                    (
+                        &s.request_topic,
+                        &s.request_type,
+                        &s.reply_topic,
+                        &s.reply_type,
+                    )
                 } else {
-                    (&s.reply_topic, &s.reply_type, &s.request_topic, &s.request_type)
+                    (
+                        &s.reply_topic,
+                        &s.reply_type,
+                        &s.request_topic,
+                        &s.request_type,
+                    )
                 };
                 let w = self
                     .domain
@@ -890,7 +902,13 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
             },
             Some(Entity::Replier { .. }) => {
                 let Some(id) = RtpsIdentity::from_bytes(&data, true) else {
-                    self.refused(client, request.object_id, "reply shorter than its sample identity", ticket, now);
+                    self.refused(
+                        client,
+                        request.object_id,
+                        "reply shorter than its sample identity",
+                        ticket,
+                        now,
+                    );
                     return;
                 };
                 Held {
@@ -1057,9 +1075,9 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
                             inbox.delivery = None;
                         }
                     }
-                    Err(AgentCommandError::Queue(QueueError::Stream(
-                        StreamError::Backlog { .. },
-                    ))) => break, // again when the client acknowledges
+                    Err(AgentCommandError::Queue(QueueError::Stream(StreamError::Backlog {
+                        ..
+                    }))) => break, // again when the client acknowledges
                     Err(_) => {
                         // too large for a best-effort stream, or no session
                         stats.samples_dropped += 1;

@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 use std::time::Duration;
 
 use crate::rtps::discovery::{
-    Duration as RtpsDuration, Durability, EndpointQos, History, Reliability,
+    Durability, Duration as RtpsDuration, EndpointQos, History, Reliability,
 };
 
 use super::super::binary::{
@@ -186,10 +186,16 @@ fn loosen(xml: &str) -> std::borrow::Cow<'_, str> {
 fn parse(xml: &str) -> Result<roxmltree::Document<'_>, ProfileError> {
     roxmltree::Document::parse(xml).map_err(|e| {
         let p = e.pos();
+        let mut message = e.to_string();
+        // roxmltree ends its message with the position, which comes first here
+        let at = format!(" at {}:{}", p.row, p.col);
+        if message.ends_with(&at) {
+            message.truncate(message.len() - at.len());
+        }
         ProfileError::Xml {
             line: p.row,
             column: p.col,
-            message: e.to_string(),
+            message,
         }
     })
 }
@@ -379,10 +385,9 @@ fn endpoint_of(
         if let Some(p) = child(q, "lifespan").and_then(|d| child(d, "duration")) {
             qos.lifespan = rtps_duration(duration(element, p)?);
         }
-        if let Some(p) = child(q, "timeBasedFilter").and_then(|d| child(d, "minimum_separation"))
-        {
-            qos.time_based_filter = duration(element, p)?
-                .map_or(RtpsDuration::ZERO, RtpsDuration::from_std);
+        if let Some(p) = child(q, "timeBasedFilter").and_then(|d| child(d, "minimum_separation")) {
+            qos.time_based_filter =
+                duration(element, p)?.map_or(RtpsDuration::ZERO, RtpsDuration::from_std);
         }
     }
     Ok(EndpointProfile { topic, qos })
@@ -641,12 +646,17 @@ mod tests {
     fn the_shared_references_file() {
         let p = Profiles::parse(REFS).unwrap();
         assert_eq!(p.len(), 6);
-        let Profile::Writer(w) = p.get(ObjectKind::DataWriter, "shapetype_data_writer").unwrap()
+        let Profile::Writer(w) = p
+            .get(ObjectKind::DataWriter, "shapetype_data_writer")
+            .unwrap()
         else {
             panic!()
         };
         let t = w.topic.as_ref().unwrap();
-        assert_eq!((t.name.as_str(), t.type_name.as_str(), t.keyed), ("Square", "ShapeType", true));
+        assert_eq!(
+            (t.name.as_str(), t.type_name.as_str(), t.keyed),
+            ("Square", "ShapeType", true)
+        );
         assert_eq!(w.qos.durability, Durability::TransientLocal);
         let Profile::Service(s) = p.get(ObjectKind::Requester, "shapetype_requester").unwrap()
         else {
@@ -655,7 +665,10 @@ mod tests {
         assert_eq!(s.request_topic, "shapetype_service_Request");
         assert!(matches!(
             p.get(ObjectKind::DataReader, "shapetype_data_writer"),
-            Err(ProfileError::UnknownReference { kind: "data_reader", .. })
+            Err(ProfileError::UnknownReference {
+                kind: "data_reader",
+                ..
+            })
         ));
     }
 
@@ -684,8 +697,10 @@ mod tests {
 
     #[test]
     fn errors_say_where_and_what() {
-        let e = Profiles::parse("<profiles>\n<topic profile_name=\"t\"><name>x</name></topic>\n</profiles>")
-            .unwrap_err();
+        let e = Profiles::parse(
+            "<profiles>\n<topic profile_name=\"t\"><name>x</name></topic>\n</profiles>",
+        )
+        .unwrap_err();
         assert_eq!(e.to_string(), "<topic> has no <dataType>");
         let e = Profiles::parse("<profiles>\n<topic profile_name=\"t\">\n</profile>").unwrap_err();
         assert!(e.to_string().starts_with("XML at line 3"), "{e}");
@@ -694,7 +709,10 @@ mod tests {
             "<dds><data_reader><topic><kind>MAYBE</kind><name>a</name><dataType>b</dataType></topic></data_reader></dds>",
         )
         .unwrap_err();
-        assert_eq!(e.to_string(), "<data_reader>: \"MAYBE\" is not a valid topic <kind>");
+        assert_eq!(
+            e.to_string(),
+            "<data_reader>: \"MAYBE\" is not a valid topic <kind>"
+        );
         assert_eq!(
             from_xml(ObjectKind::DataWriter, "<dds/>").unwrap_err(),
             ProfileError::Missing("data_writer")

@@ -1,0 +1,585 @@
+//! The `xrce-agent` library and binary on loopback: Courier's XRCE client
+//! machine over UDP, TCP and a pseudo-terminal ⇄ the agent ⇄ Cyclone DDS
+//! 0.10 (Debian's, through `courier_tests::peers`, pinned to `lo` with
+//! unicast discovery) in both directions; two XRCE clients of one agent;
+//! the command line's errors, word for word.
+//!
+//! Every DDS participant (the agent's, Cyclone's) is on `lo`, unicast to
+//! 127.0.0.1, multicast off, in a domain leased machine-wide
+//! (`courier_tests::domains`). Every XRCE socket binds 127.0.0.1 port 0.
+
+use std::io::{Read, Write};
+use std::net::{SocketAddr, TcpStream, UdpSocket};
+use std::path::Path;
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use courier::rtps_backend::RtpsOptions;
+use courier_broker::xrce_agent::{Transport, XrceAgent};
+use courier_tests::peers::{cyclone_peer, payload, PeerProcess};
+use courier_wire::xrce::serial::{self, SerialDecoder};
+use courier_wire::xrce::tcp::{self, TcpDeframer};
+use courier_wire::xrce::{
+    qos_flags, BinaryRepresentation, Client, ClientConfig, CreationMode, DataReaderBinary,
+    DataReaderQos, DataWriterBinary, DeliveryControl, EndpointQos, Event, GroupBinary, ObjectId,
+    ObjectKind, ObjectVariant, ParticipantBinary, StreamId, TopicBinary,
+};
+
+const T: Duration = Duration::from_secs(30);
+const R: StreamId = StreamId::RELIABLE;
+
+enum Io {
+    Udp(UdpSocket),
+    Tcp(TcpStream, TcpDeframer),
+    Serial(Box<dyn serialport::SerialPort>, SerialDecoder),
+}
+
+/// Courier's XRCE client machine over a blocking socket.
+struct XClient {
+    c: Client,
+    io: Io,
+    events: Vec<Event>,
+}
+
+impl XClient {
+    fn new(key: u32, io: Io) -> Self {
+        let mut c = Client::new(ClientConfig::new(key));
+        c.connect(Instant::now());
+        let mut x = XClient {
+            c,
+            io,
+            events: Vec::new(),
+        };
+        assert!(
+            x.until(T, |e| e
+                .iter()
+                .any(|e| matches!(e, Event::Connected { .. }))),
+            "no session"
+        );
+        x
+    }
+
+    fn udp(key: u32, agent: SocketAddr) -> Self {
+        let s = UdpSocket::bind("127.0.0.1:0").unwrap();
+        s.connect(agent).unwrap();
+        Self::new(key, Io::Udp(s))
+    }
+
+    fn tcp(key: u32, agent: SocketAddr) -> Self {
+        let s = TcpStream::connect(agent).unwrap();
+        s.set_nodelay(true).unwrap();
+        Self::new(key, Io::Tcp(s, TcpDeframer::new()))
+    }
+
+    fn serial(key: u32, path: &Path) -> Self {
+        let p = serialport::new(path.to_string_lossy(), 115_200)
+            .timeout(Duration::from_millis(5))
+            .open()
+            .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        Self::new(key, Io::Serial(p, SerialDecoder::new()))
+    }
+
+    /// Sends, receives for up to 5 ms, fires timers.
+    fn turn(&mut self) {
+        while let Some(m) = self.c.poll_transmit() {
+            match &mut self.io {
+                Io::Udp(s) => {
+                    s.send(&m).unwrap();
+                }
+                Io::Tcp(s, _) => {
+                    let mut f = Vec::new();
+                    tcp::encode(&m, &mut f).unwrap();
+                    s.write_all(&f).unwrap();
+                }
+                Io::Serial(p, _) => {
+                    let mut f = Vec::new();
+                    serial::encode(1, 0, &m, &mut f).unwrap();
+                    p.write_all(&f).unwrap();
+                }
+            }
+        }
+        let mut got: Vec<Vec<u8>> = Vec::new();
+        let mut buf = vec![0u8; 65_536];
+        match &mut self.io {
+            Io::Udp(s) => {
+                s.set_read_timeout(Some(Duration::from_millis(5))).unwrap();
+                if let Ok(n) = s.recv(&mut buf) {
+                    got.push(buf[..n].to_vec());
+                }
+            }
+            Io::Tcp(s, d) => {
+                s.set_read_timeout(Some(Duration::from_millis(5))).unwrap();
+                if let Ok(n) = s.read(&mut buf) {
+                    d.push(&buf[..n]);
+                }
+                while let Some(Ok(m)) = d.next_frame() {
+                    got.push(m);
+                }
+            }
+            Io::Serial(p, d) => {
+                if let Ok(n) = p.read(&mut buf) {
+                    d.push(&buf[..n]);
+                }
+                while let Some(Ok(f)) = d.next_frame() {
+                    got.push(f.payload);
+                }
+            }
+        }
+        let now = Instant::now();
+        for m in got {
+            let _ = self.c.handle_input(&m, now);
+        }
+        if self.c.poll_timeout().is_some_and(|t| t <= now) {
+            self.c.handle_timeout(now);
+        }
+        while let Some(e) = self.c.poll_event() {
+            self.events.push(e);
+        }
+    }
+
+    fn until(&mut self, limit: Duration, mut done: impl FnMut(&[Event]) -> bool) -> bool {
+        let end = Instant::now() + limit;
+        while Instant::now() < end {
+            if done(&self.events) {
+                return true;
+            }
+            self.turn();
+        }
+        done(&self.events)
+    }
+
+    fn ok_statuses(&self) -> usize {
+        self.events
+            .iter()
+            .filter(|e| matches!(e, Event::Status { result: Ok(_), .. }))
+            .count()
+    }
+
+    /// Creates objects and waits for them all to be OK.
+    fn create(&mut self, objects: Vec<(ObjectId, ObjectVariant)>) {
+        let n = self.ok_statuses() + objects.len();
+        for (id, v) in objects {
+            self.c
+                .create(id, v, CreationMode::REPLACE, Instant::now())
+                .unwrap();
+        }
+        let ok = self.until(T, |e| {
+            e.iter()
+                .filter(|e| matches!(e, Event::Status { result: Ok(_), .. }))
+                .count()
+                >= n
+        });
+        let errors: Vec<&Event> = self
+            .events
+            .iter()
+            .filter(|e| matches!(e, Event::Status { result: Err(_), .. }))
+            .collect();
+        assert!(ok && errors.is_empty(), "{errors:?}");
+    }
+
+    fn data(&self) -> Vec<Vec<u8>> {
+        self.events
+            .iter()
+            .filter_map(|e| match e {
+                Event::Data { data, .. } => Some(data.clone()),
+                _ => None,
+            })
+            .collect()
+    }
+}
+
+fn oid(kind: ObjectKind) -> ObjectId {
+    ObjectId::new(1, kind)
+}
+
+fn bin(b: BinaryRepresentation) -> courier_wire::xrce::Representation {
+    b.to_representation().unwrap()
+}
+
+const MSG: &str = "courier::test::Msg";
+
+fn base(domain: u32, topic: &str) -> Vec<(ObjectId, ObjectVariant)> {
+    vec![
+        (
+            oid(ObjectKind::Participant),
+            ObjectVariant::Participant {
+                representation: bin(BinaryRepresentation::Participant(
+                    ParticipantBinary::default(),
+                )),
+                domain_id: domain as i16,
+            },
+        ),
+        (
+            oid(ObjectKind::Topic),
+            ObjectVariant::Topic {
+                representation: bin(BinaryRepresentation::Topic(TopicBinary {
+                    topic_name: topic.into(),
+                    type_reference: None,
+                    type_name: Some(MSG.into()),
+                })),
+                participant_id: oid(ObjectKind::Participant),
+            },
+        ),
+    ]
+}
+
+fn reliable() -> EndpointQos {
+    EndpointQos {
+        flags: qos_flags::RELIABLE,
+        ..EndpointQos::default()
+    }
+}
+
+/// Reliable, transient-local, keep-all: a reader that the agent's
+/// participant has not discovered yet when the client writes still gets
+/// every sample.
+fn writer(domain: u32, topic: &str) -> Vec<(ObjectId, ObjectVariant)> {
+    let mut v = base(domain, topic);
+    v.push((
+        oid(ObjectKind::Publisher),
+        ObjectVariant::Publisher {
+            representation: bin(BinaryRepresentation::Publisher(GroupBinary::default())),
+            participant_id: oid(ObjectKind::Participant),
+        },
+    ));
+    v.push((
+        oid(ObjectKind::DataWriter),
+        ObjectVariant::DataWriter {
+            representation: bin(BinaryRepresentation::DataWriter(DataWriterBinary {
+                topic_id: oid(ObjectKind::Topic),
+                qos: Some((
+                    EndpointQos {
+                        flags: qos_flags::RELIABLE | qos_flags::TRANSIENT_LOCAL,
+                        ..EndpointQos::default()
+                    },
+                    None,
+                )),
+            })),
+            publisher_id: oid(ObjectKind::Publisher),
+        },
+    ));
+    v
+}
+
+fn reader(domain: u32, topic: &str) -> Vec<(ObjectId, ObjectVariant)> {
+    let mut v = base(domain, topic);
+    v.push((
+        oid(ObjectKind::Subscriber),
+        ObjectVariant::Subscriber {
+            representation: bin(BinaryRepresentation::Subscriber(GroupBinary::default())),
+            participant_id: oid(ObjectKind::Participant),
+        },
+    ));
+    v.push((
+        oid(ObjectKind::DataReader),
+        ObjectVariant::DataReader {
+            representation: bin(BinaryRepresentation::DataReader(DataReaderBinary {
+                topic_id: oid(ObjectKind::Topic),
+                qos: Some(DataReaderQos {
+                    base: reliable(),
+                    time_based_filter_ms: None,
+                    content_filter: None,
+                }),
+            })),
+            subscriber_id: oid(ObjectKind::Subscriber),
+        },
+    ));
+    v
+}
+
+/// A `courier::test::Msg` body (XCDR1 little-endian, origin at its first byte).
+fn msg(seq: u32, text: &str, payload: &[u8]) -> Vec<u8> {
+    let mut v = seq.to_le_bytes().to_vec();
+    v.extend_from_slice(&(text.len() as u32 + 1).to_le_bytes());
+    v.extend_from_slice(text.as_bytes());
+    v.push(0);
+    v.resize(v.len().next_multiple_of(4), 0);
+    v.extend_from_slice(&(payload.len() as u32).to_le_bytes());
+    v.extend_from_slice(payload);
+    v
+}
+
+/// seq, text and payload of a `Msg` body.
+fn unmsg(b: &[u8]) -> (u32, String, Vec<u8>) {
+    let u = |at: usize| u32::from_le_bytes(b[at..at + 4].try_into().unwrap()) as usize;
+    let seq = u(0) as u32;
+    let tl = u(4);
+    let text = String::from_utf8(b[8..8 + tl - 1].to_vec()).unwrap();
+    let at = (8 + tl).next_multiple_of(4);
+    let pl = u(at);
+    (seq, text, b[at + 4..at + 4 + pl].to_vec())
+}
+
+fn rtps(domain: u32) -> RtpsOptions {
+    let mut o = RtpsOptions::default();
+    o.domain = domain;
+    o.interface = Some("lo".into());
+    o.peers = vec!["127.0.0.1".into()];
+    o.multicast = false;
+    o
+}
+
+fn agent(rt: &tokio::runtime::Runtime, domain: u32, transports: Vec<Transport>) -> XrceAgent {
+    let mut b = XrceAgent::builder().rtps(rtps(domain));
+    for t in transports {
+        b = b.transport(t);
+    }
+    rt.block_on(b.spawn()).unwrap()
+}
+
+fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
+fn cyclone(args: &[&str]) -> PeerProcess {
+    let exe = cyclone_peer().unwrap_or_else(|e| panic!("cannot build the Cyclone DDS peer: {e}"));
+    PeerProcess::spawn(exe, args).unwrap_or_else(|e| panic!("{e}"))
+}
+
+fn local(port: u16) -> SocketAddr {
+    SocketAddr::from(([127, 0, 0, 1], port))
+}
+
+#[test]
+fn xrce_client_over_udp_writes_to_cyclone() {
+    let d = courier_tests::domains::lease(1);
+    let rt = runtime();
+    let a = agent(&rt, d, vec![Transport::Udp(local(0))]);
+    let ds = d.to_string();
+    let mut sub = cyclone(&[
+        "--domain",
+        &ds,
+        "--topic",
+        "xrce_up",
+        "--type",
+        "msg",
+        "--sub",
+        "--reliable",
+        "--transient-local",
+        "--keep-all",
+        "--count",
+        "5",
+        "--timeout-s",
+        "60",
+    ]);
+    sub.expect_line("ready", T).unwrap();
+    let mut c = XClient::udp(0x1111_0001, a.udp_addrs()[0]);
+    c.create(writer(d, "xrce_up"));
+    sub.expect_line("matched 1", T).unwrap();
+    for seq in 1..=5u32 {
+        let body = msg(seq, "xrce", &payload(seq, 40));
+        c.c.write(oid(ObjectKind::DataWriter), R, &body, Instant::now())
+            .unwrap();
+    }
+    // every write acknowledged: DDS has taken them all
+    assert!(c.until(T, |e| e
+        .iter()
+        .filter(|e| matches!(e, Event::WriteAcked(_)))
+        .count()
+        == 5));
+    for seq in 1..=5u32 {
+        let line = sub.expect_line("sample", T).unwrap();
+        assert_eq!(
+            line,
+            courier_tests::peers::msg_sample_line(seq, "xrce", 40),
+            "{}",
+            sub.stderr()
+        );
+    }
+    sub.expect_line("done", T).unwrap();
+    rt.block_on(a.shutdown());
+}
+
+#[test]
+fn cyclone_writes_to_an_xrce_client_over_tcp() {
+    let d = courier_tests::domains::lease(2);
+    let rt = runtime();
+    let a = agent(&rt, d, vec![Transport::Tcp(local(0))]);
+    let mut c = XClient::tcp(0x1111_0002, a.tcp_addrs()[0]);
+    c.create(reader(d, "xrce_down"));
+    let unlimited = Some(DeliveryControl {
+        max_samples: u16::MAX,
+        ..DeliveryControl::default()
+    });
+    c.c.read(oid(ObjectKind::DataReader), R, R, unlimited, Instant::now())
+        .unwrap();
+    let ds = d.to_string();
+    let mut publ = cyclone(&[
+        "--domain",
+        &ds,
+        "--topic",
+        "xrce_down",
+        "--type",
+        "msg",
+        "--pub",
+        "--reliable",
+        "--count",
+        "5",
+        "--size",
+        "1500",
+        "--wait-match",
+        "1",
+        "--text",
+        "cyc",
+        "--linger-ms",
+        "3000",
+        "--timeout-s",
+        "60",
+    ]);
+    assert!(c.until(T, |e| e
+        .iter()
+        .filter(|e| matches!(e, Event::Data { .. }))
+        .count()
+        >= 5));
+    let got: Vec<(u32, String, Vec<u8>)> = c.data().iter().map(|b| unmsg(b)).collect();
+    for (i, (seq, text, p)) in got.iter().enumerate() {
+        let want = i as u32 + 1;
+        assert_eq!(*seq, want);
+        assert!(text.starts_with("cyc"), "{text}");
+        assert_eq!(*p, payload(want, 1500));
+    }
+    publ.kill();
+    rt.block_on(a.shutdown());
+}
+
+#[test]
+fn two_xrce_clients_through_a_pseudoterminal_and_udp() {
+    let d = courier_tests::domains::lease(3);
+    let rt = runtime();
+    let a = agent(
+        &rt,
+        d,
+        vec![
+            Transport::Pseudoterminal { link: None },
+            Transport::Udp(local(0)),
+        ],
+    );
+    let pty = a.serial_paths()[0].clone();
+    assert!(pty.exists(), "{}", pty.display());
+    let mut w = XClient::serial(0x2222_0001, &pty);
+    let mut r = XClient::udp(0x2222_0002, a.udp_addrs()[0]);
+    r.create(reader(d, "serial_topic"));
+    let unlimited = Some(DeliveryControl {
+        max_samples: u16::MAX,
+        ..DeliveryControl::default()
+    });
+    r.c.read(oid(ObjectKind::DataReader), R, R, unlimited, Instant::now())
+        .unwrap();
+    w.create(writer(d, "serial_topic"));
+    for seq in 0..10u32 {
+        let body = msg(seq, "pty", &payload(seq, 600));
+        w.c.write(oid(ObjectKind::DataWriter), R, &body, Instant::now())
+            .unwrap();
+    }
+    let end = Instant::now() + T;
+    while r.data().len() < 10 && Instant::now() < end {
+        w.turn();
+        r.turn();
+    }
+    let got: Vec<_> = r.data().iter().map(|b| unmsg(b)).collect();
+    let want: Vec<_> = (0..10u32)
+        .map(|s| (s, "pty".to_string(), payload(s, 600)))
+        .collect();
+    assert_eq!(got, want);
+    rt.block_on(a.shutdown());
+}
+
+fn agent_cli(args: &[&str]) -> (i32, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_xrce-agent"))
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn command_line_errors() {
+    let dir = std::env::temp_dir().join(format!("xrce-agent-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let bad = dir.join("bad.refs");
+    std::fs::write(
+        &bad,
+        "<profiles>\n  <topic profile_name=\"t\">\n</profiles>\n",
+    )
+    .unwrap();
+    let incomplete = dir.join("incomplete.refs");
+    std::fs::write(
+        &incomplete,
+        "<profiles><topic profile_name=\"t\"><name>x</name></topic></profiles>",
+    )
+    .unwrap();
+    let missing = dir.join("missing.refs");
+    let cases: Vec<(Vec<String>, i32, String)> = vec![
+        (
+            vec!["udp4".into()],
+            2,
+            "error: the following required arguments were not provided:\n  --port <PORT>".into(),
+        ),
+        (
+            vec!["udp6".into(), "-p".into(), "8888".into()],
+            2,
+            "error: the udp6 transport is not supported (these are: udp4, tcp4, serial, pseudoterminal)".into(),
+        ),
+        (
+            vec!["udp4".into(), "-p".into(), "0".into(), "-v".into(), "9".into()],
+            2,
+            "error: invalid value '9' for '--verbose <VERBOSE>': 9 is not in 0..=6".into(),
+        ),
+        (
+            vec!["udp4".into(), "-p".into(), "0".into(), "-m".into(), "ced".into()],
+            2,
+            "xrce-agent: middleware \"ced\" is not supported: this agent always bridges into DDS (-m dds)".into(),
+        ),
+        (
+            vec!["udp4".into(), "-p".into(), "0".into(), "-r".into(), bad.display().to_string()],
+            2,
+            format!(
+                "xrce-agent: references file {}: XML at line 3, column 1: expected 'topic' tag, not 'profiles'",
+                bad.display()
+            ),
+        ),
+        (
+            vec!["udp4".into(), "-p".into(), "0".into(), "-r".into(), incomplete.display().to_string()],
+            2,
+            format!(
+                "xrce-agent: references file {}: <topic> has no <dataType>",
+                incomplete.display()
+            ),
+        ),
+        (
+            vec!["udp4".into(), "-p".into(), "0".into(), "-r".into(), missing.display().to_string()],
+            2,
+            format!(
+                "xrce-agent: references file {}: No such file or directory (os error 2)",
+                missing.display()
+            ),
+        ),
+        (
+            vec!["tcp4".into(), "-p".into(), "0".into(), "--multicast".into(), "maybe".into()],
+            2,
+            "error: invalid value 'maybe' for '--multicast <MULTICAST>': \"maybe\": expected on or off".into(),
+        ),
+        (
+            vec!["serial".into(), "--dev".into(), "/nonexistent/tty".into(), "--bind".into(), "127.0.0.1".into()],
+            1,
+            "xrce-agent: cannot open serial /nonexistent/tty:".into(),
+        ),
+    ];
+    for (args, code, want) in cases {
+        let a: Vec<&str> = args.iter().map(String::as_str).collect();
+        let (got_code, stderr) = agent_cli(&a);
+        assert_eq!(got_code, code, "{args:?}: {stderr}");
+        assert!(
+            stderr.starts_with(&want),
+            "{args:?}:\n got: {stderr}\nwant: {want}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(dir);
+}
