@@ -49,7 +49,7 @@ use courier_wire::xrce::bridge::{Bridge, BridgeConfig, BridgeEvent, Profiles};
 use courier_wire::xrce::serial::{self, SerialDecoder};
 use courier_wire::xrce::tcp::{self, TcpDeframer};
 use courier_wire::xrce::{
-    ActivityInfo, AgentRepresentation, Info, Message, ObjectInfo, ObjectVariant, Payload,
+    ActivityInfo, AgentRepresentation, Info, Message, ObjectId, ObjectInfo, ObjectVariant, Payload,
     ResultStatus, StatusCode, Submessage, TransportLocator,
 };
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -681,12 +681,11 @@ fn discovery_socket(
         addr: SocketAddr::V4(a),
         source,
     })?;
-    if o.multicast {
-        let iface = interface_address(o).unwrap_or(Ipv4Addr::LOCALHOST);
-        let group = Ipv4Addr::new(239, 255, 0, 2);
-        if let Err(e) = s.join_multicast_v4(&group, &iface) {
-            tracing::warn!("XRCE discovery: cannot join {group} on {iface}: {e}");
-        }
+    // as MicroXRCEAgent: the group is joined whatever the DDS side does
+    let iface = interface_address(o).unwrap_or(Ipv4Addr::LOCALHOST);
+    let group = Ipv4Addr::new(239, 255, 0, 2);
+    if let Err(e) = s.join_multicast_v4(&group, &iface) {
+        tracing::warn!("XRCE discovery: cannot join {group} on {iface}: {e}");
     }
     let bound = s.local_addr().unwrap_or(SocketAddr::V4(a));
     let s = UdpSocket::from_std(s).map_err(|e| StartError::Rtps(e.to_string()))?;
@@ -834,6 +833,13 @@ impl Driver {
     }
 }
 
+fn kind(o: ObjectId) -> String {
+    o.kind().map_or_else(
+        || format!("object kind {:#x}", o.kind_bits()),
+        |k| format!("{k:?}").to_lowercase(),
+    )
+}
+
 fn log(e: &BridgeEvent) {
     match e {
         BridgeEvent::ClientCreated {
@@ -855,15 +861,15 @@ fn log(e: &BridgeEvent) {
             reason,
         } => match reason {
             None => tracing::info!(
-                "created {:?} {:#06x} of client 0x{:08X}: {}",
-                object.kind(),
+                "created {} {:#06x} of client 0x{:08X}: {}",
+                kind(*object),
                 object.0,
                 u32::from(*client),
                 status.name()
             ),
             Some(r) => tracing::warn!(
-                "create {:?} {:#06x} of client 0x{:08X}: {}: {r}",
-                object.kind(),
+                "create {} {:#06x} of client 0x{:08X}: {}: {r}",
+                kind(*object),
                 object.0,
                 u32::from(*client),
                 status.name()
