@@ -1,6 +1,6 @@
 //! The XRCE agent as a library: XRCE transports (UDP, TCP, serial devices,
 //! pseudo-terminals, several at once) in front of one
-//! [`Bridge`](courier_wire::xrce::bridge::Bridge), whose DDS participant
+//! [`Bridge`], whose DDS participant
 //! speaks RTPS on the interface and peers of [`RtpsOptions`].
 //!
 //! One tokio task drives the bridge; each socket has a reader task, each
@@ -18,7 +18,8 @@
 //! use courier_broker::xrce_agent::{Transport, XrceAgent};
 //!
 //! let mut rtps = RtpsOptions::default();
-//! rtps.domain = 231;
+//! # let domain = courier_tests::domains::lease(900);
+//! rtps.domain = domain; // a DDS domain id of your choosing
 //! rtps.interface = Some("127.0.0.1".into());
 //! rtps.peers = vec!["127.0.0.1".into()];
 //! rtps.multicast = false;

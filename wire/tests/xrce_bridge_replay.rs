@@ -85,7 +85,7 @@ fn is_stream_control(m: &[u8]) -> bool {
 
 /// Replays `capture`; returns how many messages were compared per port.
 /// `mask` blanks bytes of DATA payloads that legitimately differ.
-fn replay(capture: &str, mask: impl Fn(&mut Vec<u8>)) -> BTreeMap<u16, usize> {
+fn replay(capture: &str, mask: impl Fn(&mut [u8])) -> BTreeMap<u16, usize> {
     replay_with(capture, mask, false)
 }
 
@@ -101,7 +101,7 @@ fn is_data(m: &[u8]) -> bool {
 /// `lenient`: a client may get samples eProsima's agent lost at the start
 /// (the first DATA of a port beyond the captured count are dropped before
 /// comparing, and messages' sequence numbers are not compared).
-fn replay_with(capture: &str, mask: impl Fn(&mut Vec<u8>), lenient: bool) -> BTreeMap<u16, usize> {
+fn replay_with(capture: &str, mask: impl Fn(&mut [u8]), lenient: bool) -> BTreeMap<u16, usize> {
     let recs = records(capture);
     let t0 = Instant::now();
     let cfg = Config::udpv4(0, 0, guid_prefix([7; 10]), [127, 0, 0, 1]).unwrap();
@@ -213,7 +213,7 @@ fn replay_with(capture: &str, mask: impl Fn(&mut Vec<u8>), lenient: bool) -> BTr
     compared
 }
 
-fn same(_: &mut Vec<u8>) {}
+fn same(_: &mut [u8]) {}
 
 #[test]
 fn xml_reliable_pubsub_through_the_bridge() {
@@ -277,7 +277,7 @@ fn replier_identity(m: &[u8]) -> Option<[u8; 24]> {
 /// request id in front of a requester's (the replay answers the first
 /// request, which eProsima's agent lost, with the captured answer to the
 /// second: the ids are one apart).
-fn identity_guid(m: &mut Vec<u8>) {
+fn identity_guid(m: &mut [u8]) {
     if let Some(at) = identity_at(m) {
         m[at..at + 24].fill(0);
     }

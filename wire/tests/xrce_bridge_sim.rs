@@ -42,7 +42,7 @@ enum N {
 enum Ev {
     Client(Event),
     Bridge(BridgeEvent),
-    Dds(DdsEvent),
+    Dds(Box<DdsEvent>),
 }
 
 fn owns(d: &Domain, l: &Locator) -> bool {
@@ -122,7 +122,7 @@ impl Node for N {
                 PeerEvent::Agent(_) => None,
             }),
             N::Bridge(b, _) => b.poll_event().map(Ev::Bridge),
-            N::Dds(d) => d.poll_event().map(Ev::Dds),
+            N::Dds(d) => d.poll_event().map(|e| Ev::Dds(Box::new(e))),
         }
     }
 }
@@ -243,9 +243,7 @@ impl World {
         self.client_events(i)
             .into_iter()
             .filter_map(|e| match e {
-                Event::Status { object, result, .. } => {
-                    Some((*object, result.clone().map_err(|e| e.0)))
-                }
+                Event::Status { object, result, .. } => Some((*object, (*result).map_err(|e| e.0))),
                 _ => None,
             })
             .collect()
@@ -280,9 +278,12 @@ impl World {
             .events
             .iter()
             .filter_map(|e| match e {
-                Ev::Dds(DdsEvent::Sample { reader, sample }) if *reader == r => {
-                    Some(sample.data().to_vec())
-                }
+                Ev::Dds(e) => match &**e {
+                    DdsEvent::Sample { reader, sample } if *reader == r => {
+                        Some(sample.data().to_vec())
+                    }
+                    _ => None,
+                },
                 _ => None,
             })
             .collect()
@@ -481,7 +482,7 @@ fn xrce_client_to_dds_reader_and_dds_writer_to_xrce_client() {
         };
         d.matched_readers(dw) == 1
             && w.net.hosts[w.dds].events.iter().any(
-                |e| matches!(e, Ev::Dds(DdsEvent::ReaderMatched { reader, .. }) if *reader == r),
+                |e| matches!(e, Ev::Dds(e) if matches!(**e, DdsEvent::ReaderMatched { reader, .. } if reader == r)),
             )
     }));
     for i in 0..20 {
@@ -526,7 +527,9 @@ fn keep_all_back_pressure_holds_the_client_and_loses_nothing_acknowledged() {
     assert!(w.run_until(Duration::from_secs(10), |w| w.net.hosts[w.dds]
         .events
         .iter()
-        .any(|e| matches!(e, Ev::Dds(DdsEvent::ReaderMatched { .. })))));
+        .any(
+            |e| matches!(e, Ev::Dds(e) if matches!(**e, DdsEvent::ReaderMatched { .. }))
+        )));
     // the DDS reader stops reading: nothing the bridge writes is acknowledged
     w.dds().set_reader_full(r, true);
     let n = 200u32;

@@ -22,7 +22,7 @@
 //! | replier | a reader of the request topic and a writer of the reply topic; the client sees and echoes each request's sample identity |
 //!
 //! Objects come by binary representation, by XML (the Fast DDS subset of
-//! [`profile`]) or by reference to a profile of the agent's references
+//! [`from_xml`]) or by reference to a profile of the agent's references
 //! file ([`Profiles`]). CREATE's mode flags behave as eProsima's agent
 //! does: an existing object gives `ERR_ALREADY_EXISTS`; with REPLACE it is
 //! deleted (with everything it contains) and created again; with REUSE it
