@@ -54,7 +54,7 @@
 mod profile;
 mod read;
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::{HashMap, HashSet, VecDeque};
 use std::hash::Hash;
 use std::time::{Instant, SystemTime};
 
@@ -229,6 +229,10 @@ pub struct Bridge<A> {
     objects: HashMap<Key, Object>,
     by_reader: HashMap<ReaderId, Key>,
     by_writer: HashMap<WriterId, Key>,
+    /// Inboxes that may have something to deliver (samples and a
+    /// READ_DATA): the only ones looked at after an input, so that the work
+    /// per message does not grow with the number of objects.
+    ready: HashSet<Key>,
     events: VecDeque<BridgeEvent>,
     stats: BridgeStats,
     now: Instant,
@@ -299,6 +303,7 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
             objects: HashMap::new(),
             by_reader: HashMap::new(),
             by_writer: HashMap::new(),
+            ready: HashSet::new(),
             events: VecDeque::new(),
             stats: BridgeStats::default(),
             now,
@@ -364,12 +369,15 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
 
     /// When [`handle_timeout`](Self::handle_timeout) is next needed.
     pub fn poll_timeout(&self) -> Option<Instant> {
-        let inboxes = self.objects.values().filter_map(|o| match &o.entity {
-            Entity::Reader(_, i)
-            | Entity::Requester { inbox: i, .. }
-            | Entity::Replier { inbox: i, .. } => i.poll_timeout(),
-            _ => None,
-        });
+        let inboxes = self
+            .ready
+            .iter()
+            .filter_map(|k| match &self.objects.get(k)?.entity {
+                Entity::Reader(_, i)
+                | Entity::Requester { inbox: i, .. }
+                | Entity::Replier { inbox: i, .. } => i.poll_timeout(),
+                _ => None,
+            });
         [self.agent.poll_timeout(), self.domain.poll_timeout()]
             .into_iter()
             .flatten()
@@ -540,6 +548,7 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
                 if inbox.push(item) {
                     self.stats.samples_dropped += 1;
                 }
+                self.ready.insert(key);
             }
             DdsEvent::Writable { writer } => {
                 if let Some(&key) = self.by_writer.get(&writer) {
@@ -1030,60 +1039,75 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
         };
         inbox.delivery = read::Delivery::start(&read, now);
         inbox.wake = None;
+        self.ready.insert(key);
     }
 
     /// Sends what every delivery allows now.
     fn deliver_all(&mut self, now: Instant) {
         let agent = &mut self.agent;
         let stats = &mut self.stats;
-        for (key, o) in self.objects.iter_mut() {
+        let objects = &mut self.objects;
+        self.ready.retain(|key| {
+            let Some(o) = objects.get_mut(key) else {
+                return false;
+            };
             let inbox = match &mut o.entity {
                 Entity::Reader(_, i)
                 | Entity::Requester { inbox: i, .. }
                 | Entity::Replier { inbox: i, .. } => i,
-                _ => continue,
+                _ => return false,
             };
-            let Some(d) = inbox.delivery.as_mut() else {
-                continue;
-            };
-            if d.expired(now) {
+            deliver(agent, stats, *key, inbox, now);
+            inbox.delivery.is_some() && !inbox.queue.is_empty()
+        });
+    }
+}
+
+/// Sends what one inbox's delivery allows now.
+fn deliver<A: Clone + Eq + Hash>(
+    agent: &mut Agent<A>,
+    stats: &mut BridgeStats,
+    key: Key,
+    inbox: &mut read::Inbox,
+    now: Instant,
+) {
+    let Some(d) = inbox.delivery.as_mut() else {
+        return;
+    };
+    if d.expired(now) {
+        inbox.delivery = None;
+        return;
+    }
+    inbox.wake = None;
+    while let Some(sample) = inbox.queue.front() {
+        let Some(d) = inbox.delivery.as_mut() else {
+            break;
+        };
+        match d.gate(sample.len(), now) {
+            read::Gate::Ended => {
                 inbox.delivery = None;
-                continue;
+                break;
             }
-            inbox.wake = None;
-            while let Some(sample) = inbox.queue.front() {
-                let Some(d) = inbox.delivery.as_mut() else {
-                    break;
-                };
-                match d.gate(sample.len(), now) {
-                    read::Gate::Ended => {
-                        inbox.delivery = None;
-                        break;
-                    }
-                    read::Gate::Wait(t) => {
-                        inbox.wake = Some(t);
-                        break;
-                    }
-                    read::Gate::Open => {}
+            read::Gate::Wait(t) => {
+                inbox.wake = Some(t);
+                break;
+            }
+            read::Gate::Open => {}
+        }
+        match agent.send_data(key.0, d.request, d.stream, sample, now) {
+            Ok(()) => {
+                stats.samples_sent += 1;
+                let len = sample.len();
+                inbox.queue.pop_front();
+                if d.sent(len, now) {
+                    inbox.delivery = None;
                 }
-                match agent.send_data(key.0, d.request, d.stream, sample, now) {
-                    Ok(()) => {
-                        stats.samples_sent += 1;
-                        let len = sample.len();
-                        inbox.queue.pop_front();
-                        if d.sent(len, now) {
-                            inbox.delivery = None;
-                        }
-                    }
-                    Err(AgentCommandError::Queue(QueueError::Stream(StreamError::Backlog {
-                        ..
-                    }))) => break, // again when the client acknowledges
-                    Err(_) => {
-                        // too large for a best-effort stream, or no session
-                        stats.samples_dropped += 1;
-                        inbox.queue.pop_front();
-                    }
-                }
+            }
+            Err(AgentCommandError::Queue(QueueError::Stream(StreamError::Backlog { .. }))) => break, // again when the client acknowledges
+            Err(_) => {
+                // too large for a best-effort stream, or no session
+                stats.samples_dropped += 1;
+                inbox.queue.pop_front();
             }
         }
     }
