@@ -54,7 +54,7 @@
 mod profile;
 mod read;
 
-use std::collections::{HashMap, HashSet, VecDeque};
+use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
 use std::hash::Hash;
 use std::time::{Instant, SystemTime};
 
@@ -78,6 +78,11 @@ pub use profile::{
     from_binary, from_xml, EndpointProfile, Profile, ProfileError, Profiles, ServiceProfile,
     TopicProfile,
 };
+
+/// Requests a requester remembers waiting for their replies; older ones
+/// are forgotten (their replies, should they still come, are counted in
+/// [`BridgeStats::replies_unmatched`]).
+pub const MAX_INFLIGHT: usize = 4096;
 
 /// How the bridge behaves.
 #[derive(Debug, Clone)]
@@ -202,8 +207,10 @@ enum Entity {
         out: Output,
         reader: ReaderId,
         inbox: read::Inbox,
-        /// DDS sequence number of each request → its XRCE request.
-        inflight: HashMap<i64, BaseObjectRequest>,
+        /// DDS sequence number of each request → its XRCE request; the
+        /// oldest are forgotten beyond [`MAX_INFLIGHT`] (replies that never
+        /// came).
+        inflight: BTreeMap<i64, BaseObjectRequest>,
     },
     Replier {
         out: Output,
@@ -873,7 +880,7 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
                         out,
                         reader: r,
                         inbox,
-                        inflight: HashMap::new(),
+                        inflight: BTreeMap::new(),
                     }
                 } else {
                     Entity::Replier {
@@ -995,6 +1002,9 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
                     }) = self.objects.get_mut(&key)
                     {
                         inflight.insert(sn.0, h.request);
+                        if inflight.len() > MAX_INFLIGHT {
+                            inflight.pop_first();
+                        }
                     }
                     if let Some(t) = h.ticket {
                         self.agent.write_done(t, now);
