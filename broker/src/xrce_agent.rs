@@ -886,6 +886,16 @@ fn log(e: &BridgeEvent) {
             u32::from(*client),
             status.name()
         ),
+        BridgeEvent::Unmatched {
+            client,
+            object,
+            why,
+        } => tracing::warn!(
+            "{} {:#06x} of client 0x{:08X} does not match: {why}",
+            kind(*object),
+            object.0,
+            u32::from(*client)
+        ),
         BridgeEvent::WriteRefused {
             client,
             object,

@@ -907,3 +907,26 @@ fn creation_modes_xml_and_references() {
         _ => unreachable!(),
     }
 }
+
+#[test]
+fn an_entity_that_cannot_match_is_reported() {
+    let mut w = world(7, 0, |_, _| {});
+    let now = w.net.now();
+    w.dds()
+        .create_reader(
+            EndpointConfig::reader("Hello", "SomethingElse").qos(reliable_keep_all(true)),
+            now,
+        )
+        .unwrap();
+    let c = w.add_client(10, 0xAAAA_0007);
+    w.create(c, writer_objects("Hello", true), CreationMode::REPLACE);
+    assert!(
+        w.run_until(Duration::from_secs(10), |w| w.net.hosts[w.bridge]
+            .events
+            .iter()
+            .any(
+                |e| matches!(e, Ev::Bridge(BridgeEvent::Unmatched { why, .. })
+            if why.contains("\"HelloWorld\" here, \"SomethingElse\""))
+            ))
+    );
+}

@@ -150,6 +150,16 @@ pub enum BridgeEvent {
         /// The answer.
         status: StatusCode,
     },
+    /// An entity of a client does not match a DDS endpoint on its topic
+    /// (another type name, or incompatible QoS): why its data does not flow.
+    Unmatched {
+        /// The client.
+        client: ClientKey,
+        /// Its writer, reader, requester or replier.
+        object: ObjectId,
+        /// What differs.
+        why: String,
+    },
     /// DDS refused a written sample for good (not for lack of room).
     WriteRefused {
         /// The client.
@@ -562,7 +572,46 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
                     self.flush(key, now);
                 }
             }
+            DdsEvent::TypeMismatch {
+                local,
+                remote,
+                topic,
+                local_type,
+                remote_type,
+            } => {
+                if let Some(key) = self.key_of(local) {
+                    self.events.push_back(BridgeEvent::Unmatched {
+                        client: key.0,
+                        object: key.1,
+                        why: format!(
+                            "topic {topic:?}: type {local_type:?} here, {remote_type:?} at {remote:?}"
+                        ),
+                    });
+                }
+            }
+            DdsEvent::IncompatibleQos {
+                local,
+                topic,
+                remote,
+                reason,
+            } => {
+                if let Some(key) = self.key_of(local) {
+                    self.events.push_back(BridgeEvent::Unmatched {
+                        client: key.0,
+                        object: key.1,
+                        why: format!("topic {topic:?}: QoS incompatible with {remote:?}: {reason}"),
+                    });
+                }
+            }
             _ => {}
+        }
+    }
+
+    fn key_of(&self, e: crate::dds::Endpoint) -> Option<Key> {
+        match e {
+            crate::dds::Endpoint::Writer(w) => self.by_writer.get(&w).copied(),
+            crate::dds::Endpoint::Reader(r) => self.by_reader.get(&r).copied(),
+            _ => None,
         }
     }
 
