@@ -289,6 +289,57 @@ impl<A: Clone + Eq + Hash> Agent<A> {
                 .sum::<usize>()
     }
 
+    /// Restores a session the agent had before it restarted (its host kept
+    /// `key`, `session_id`, the MTU and the address): no STATUS_AGENT, no
+    /// event. Its streams' positions are not kept: each takes the client's
+    /// from what the client sends first (a reliable stream from its
+    /// HEARTBEAT or ACKNACK), so a client that goes on with its old
+    /// session, as eProsima's does, is served again. False if the agent is
+    /// full or the key is 0.
+    pub fn restore_client(&mut self, key: ClientKey, session_id: u8, mtu: u16, addr: A) -> bool {
+        let k = u32::from(key);
+        if k == 0 || (!self.clients.contains_key(&k) && self.clients.len() >= self.cfg.max_clients)
+        {
+            return false;
+        }
+        self.remove_client(k);
+        self.events
+            .retain(|e| !matches!(e, AgentEvent::ClientDeleted { client } if *client == key));
+        let mut streams = Streams::new(
+            session_header(session_id, key),
+            StreamConfig {
+                mtu: usize::from(mtu).min(self.cfg.streams.mtu),
+                ..self.cfg.streams
+            },
+            self.cfg.max_streams,
+        );
+        streams.set_deferred(self.cfg.host_confirms_writes);
+        streams.set_resync();
+        self.clients.insert(
+            k,
+            Proxy {
+                session_id,
+                addr: addr.clone(),
+                streams,
+                pending: BTreeMap::new(),
+                epoch: 0,
+            },
+        );
+        self.bind(k, addr);
+        true
+    }
+
+    /// A session's id and MTU (what [`Agent::restore_client`] needs besides
+    /// the key and address).
+    pub fn session(&self, client: ClientKey) -> Option<(u8, u16)> {
+        self.clients.get(&u32::from(client)).map(|p| {
+            (
+                p.session_id,
+                u16::try_from(p.streams.config().mtu).unwrap_or(u16::MAX),
+            )
+        })
+    }
+
     /// The address a client's messages go to.
     pub fn client_address(&self, client: ClientKey) -> Option<&A> {
         self.clients.get(&u32::from(client)).map(|p| &p.addr)
@@ -367,11 +418,15 @@ impl<A: Clone + Eq + Hash> Agent<A> {
         let Some(proxy) = self.clients.get_mut(&key) else {
             return Ok(());
         };
-        let stream_id = msg.header.stream_id;
         let arrival = proxy.streams.receive(msg, bytes.len(), now);
-        if self.cfg.host_confirms_writes && stream_id.is_reliable() {
-            let q = proxy.pending.entry(stream_id.0).or_default();
-            q.extend(arrival.handed.iter().map(|s| (*s, 0)));
+        if self.cfg.host_confirms_writes {
+            for (stream, seq) in &arrival.handed {
+                proxy
+                    .pending
+                    .entry(stream.0)
+                    .or_default()
+                    .push_back((*seq, 0));
+            }
         }
         let mut result = arrival.errors.into_iter().next().map_or(Ok(()), Err);
         for ((stream, sub), origin) in arrival.subs.into_iter().zip(arrival.origins) {

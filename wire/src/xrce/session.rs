@@ -106,8 +106,8 @@ pub(crate) struct Arrival {
     /// For each of `subs` on a reliable stream: the sequence number of the
     /// message that completed it.
     pub origins: Vec<Option<SeqNum>>,
-    /// Reliable messages handed on, in order (all of the message's stream).
-    pub handed: Vec<SeqNum>,
+    /// Reliable messages handed on, in order, with their stream.
+    pub handed: Vec<(StreamId, SeqNum)>,
     /// ACKNACKs to send once the submessages are acted on.
     pub replies: Vec<Vec<u8>>,
     /// Reliable streams whose ACKNACK the caller sends once it has acted
@@ -129,6 +129,9 @@ pub(crate) struct Streams {
     rel_in: BTreeMap<u8, ReliableInput>,
     /// Reliable input is acknowledged only as the owner confirms it.
     deferred: bool,
+    /// A restored session: streams take the peer's position from its first
+    /// message, HEARTBEAT or ACKNACK.
+    resync: bool,
     /// Messages on stream 0, ready to go.
     pub control: VecDeque<Vec<u8>>,
 }
@@ -163,6 +166,7 @@ impl Streams {
             be_in: BTreeMap::new(),
             rel_in: BTreeMap::new(),
             deferred: false,
+            resync: false,
             control: VecDeque::new(),
         }
     }
@@ -176,6 +180,15 @@ impl Streams {
         for s in self.rel_in.values_mut() {
             s.set_deferred(deferred);
         }
+    }
+
+    /// The session was restored without its streams' positions: every
+    /// stream takes the peer's from what the peer sends first (a reliable
+    /// output stream from the first ACKNACK, a reliable input stream from
+    /// the first HEARTBEAT, a best-effort input stream from its first
+    /// message). Best-effort output starts from 0 again.
+    pub fn set_resync(&mut self) {
+        self.resync = true;
     }
 
     /// Acknowledges reliable input stream `id` up to `seq`; whether it moved.
@@ -205,6 +218,7 @@ impl Streams {
 
     /// Forgets every stream (a session created again starts from 0).
     pub fn reset(&mut self) {
+        self.resync = false;
         self.be_out.clear();
         self.rel_out.clear();
         self.be_in.clear();
@@ -250,11 +264,14 @@ impl Streams {
             if !self.rel_out.contains_key(&id.0) && n >= 2 * self.max_streams {
                 return Err(QueueError::BadStream(id.0));
             }
-            let (h, c) = (self.header, self.cfg);
-            let s = self
-                .rel_out
-                .entry(id.0)
-                .or_insert_with(|| ReliableOutput::new(&h, id, c));
+            let (h, c, r) = (self.header, self.cfg, self.resync);
+            let s = self.rel_out.entry(id.0).or_insert_with(|| {
+                let mut s = ReliableOutput::new(&h, id, c);
+                if r {
+                    s.set_resync();
+                }
+                s
+            });
             if force {
                 s.push_unchecked(bytes, tag);
                 Ok(())
@@ -280,16 +297,23 @@ impl Streams {
         if !self.rel_in.contains_key(&id.0) && self.rel_in.len() >= self.max_streams {
             return None;
         }
-        let (c, deferred) = (self.cfg, self.deferred);
+        let (c, deferred, resync) = (self.cfg, self.deferred, self.resync);
         Some(self.rel_in.entry(id.0).or_insert_with(|| {
             let mut s = ReliableInput::new(id, c);
             s.set_deferred(deferred);
+            if resync {
+                s.set_resync();
+            }
             s
         }))
     }
 
     fn acknack_message(&self, id: StreamId) -> Option<Vec<u8>> {
-        let a = self.rel_in.get(&id.0)?.acknack();
+        let input = self.rel_in.get(&id.0)?;
+        if input.is_resyncing() {
+            return None;
+        }
+        let a = input.acknack();
         self.control_message(Submessage::new(Payload::AckNack(a)))
             .ok()
     }
@@ -310,7 +334,15 @@ impl Streams {
                 a.errors.push(InputError::TooManyStreams(id.0));
                 return a;
             }
-            if !self.be_in.entry(id.0).or_default().accept(seq) {
+            let resync = self.resync;
+            let input = self.be_in.entry(id.0).or_insert_with(|| {
+                if resync {
+                    BestEffortInput::resynced()
+                } else {
+                    BestEffortInput::default()
+                }
+            });
+            if !input.accept(seq) {
                 return a;
             }
             message.submessages.into_iter().map(|s| (None, s)).collect()
@@ -324,7 +356,7 @@ impl Streams {
             let mut errors = Vec::new();
             while let Some(m) = input.next_message() {
                 let s = SeqNum(m.header.sequence_nr);
-                a.handed.push(s);
+                a.handed.push((id, s));
                 subs.extend(
                     input
                         .unpack(m, &mut errors)
@@ -351,7 +383,23 @@ impl Streams {
                     match self.reliable_input(hb.stream_id) {
                         Some(input) => {
                             input.on_heartbeat(hb);
-                            a.replies.extend(self.acknack_message(hb.stream_id));
+                            // messages held behind one the sender gave up on
+                            // (or, restored, before its window) go on now
+                            let mut errors = Vec::new();
+                            while let Some(m) = input.next_message() {
+                                let s = SeqNum(m.header.sequence_nr);
+                                a.handed.push((hb.stream_id, s));
+                                for x in input.unpack(m, &mut errors) {
+                                    a.subs.push((hb.stream_id, x));
+                                    a.origins.push(Some(s));
+                                }
+                            }
+                            a.errors.extend(errors.into_iter().map(InputError::from));
+                            if deferred {
+                                a.ack_later.push(hb.stream_id);
+                            } else {
+                                a.replies.extend(self.acknack_message(hb.stream_id));
+                            }
                         }
                         None => a.errors.push(InputError::TooManyStreams(hb.stream_id.0)),
                     }

@@ -141,6 +141,14 @@ pub enum BridgeEvent {
         /// Why, when it is an error.
         reason: Option<String>,
     },
+    /// What [`Bridge::client_state`] gives for this client changed (a
+    /// session created again, an object created or deleted, a READ_DATA
+    /// started): a shell that keeps state saves it again. After
+    /// [`BridgeEvent::ClientDeleted`] there is nothing to keep.
+    ClientChanged {
+        /// The client.
+        client: ClientKey,
+    },
     /// A DELETE was answered.
     Deleted {
         /// The client.
@@ -234,6 +242,28 @@ struct Object {
     parent: Option<ObjectId>,
     variant: ObjectVariant,
     entity: Entity,
+    /// Creation order, for restoring.
+    order: u64,
+}
+
+/// What the bridge keeps of a client so that a restarted agent serves it
+/// again ([`Bridge::client_state`], [`Bridge::restore`]): its session, its
+/// objects in creation order and the READ_DATA being served. Stream
+/// positions are not kept (see [`Agent::restore_client`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ClientState<A> {
+    /// The client.
+    pub client: ClientKey,
+    /// Its session id.
+    pub session_id: u8,
+    /// The MTU its messages are cut to.
+    pub mtu: u16,
+    /// Where its messages go.
+    pub addr: A,
+    /// Its objects, in the order they were created.
+    pub objects: Vec<(ObjectId, ObjectVariant)>,
+    /// The READ_DATA being served.
+    pub reads: Vec<ReadData>,
 }
 
 type Key = (ClientKey, ObjectId);
@@ -250,6 +280,7 @@ pub struct Bridge<A> {
     /// READ_DATA): the only ones looked at after an input, so that the work
     /// per message does not grow with the number of objects.
     ready: HashSet<Key>,
+    order: u64,
     events: VecDeque<BridgeEvent>,
     stats: BridgeStats,
     now: Instant,
@@ -321,6 +352,7 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
             by_reader: HashMap::new(),
             by_writer: HashMap::new(),
             ready: HashSet::new(),
+            order: 0,
             events: VecDeque::new(),
             stats: BridgeStats::default(),
             now,
@@ -462,6 +494,7 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
                     session_id,
                     kept,
                 });
+                self.events.push_back(BridgeEvent::ClientChanged { client });
             }
             AgentEvent::ClientDeleted { client } => {
                 self.drop_client(client, now);
@@ -482,12 +515,16 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
                 let _ = self
                     .agent
                     .reply_status(client, request, status, reply_stream, now);
+                let changed = reason.is_none();
                 self.events.push_back(BridgeEvent::Created {
                     client,
                     object: id,
                     status,
                     reason,
                 });
+                if changed {
+                    self.events.push_back(BridgeEvent::ClientChanged { client });
+                }
             }
             AgentEvent::Delete {
                 client,
@@ -508,6 +545,9 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
                     object: request.object_id,
                     status,
                 });
+                if status == StatusCode::OK {
+                    self.events.push_back(BridgeEvent::ClientChanged { client });
+                }
             }
             AgentEvent::Write {
                 client,
@@ -758,10 +798,13 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
     ) -> Result<Object, (StatusCode, String)> {
         use ObjectVariant as V;
         let kind = variant.kind();
+        self.order += 1;
+        let order = self.order;
         let obj = |parent, entity| Object {
             parent,
             variant: variant.clone(),
             entity,
+            order,
         };
         let dds_err =
             |e: crate::rtps::participant::CreateError| (StatusCode::ERR_DDS_ERROR, e.to_string());
@@ -1097,8 +1140,77 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
             }
         };
         inbox.delivery = read::Delivery::start(&read, now);
+        inbox.read = inbox.delivery.is_some().then_some(read);
         inbox.wake = None;
         self.ready.insert(key);
+        self.events.push_back(BridgeEvent::ClientChanged { client });
+    }
+
+    /// What to keep of `client` to serve it again after a restart.
+    pub fn client_state(&self, client: ClientKey) -> Option<ClientState<A>> {
+        let (session_id, mtu) = self.agent.session(client)?;
+        let addr = self.agent.client_address(client)?.clone();
+        let mut objects: Vec<(u64, ObjectId, ObjectVariant)> = Vec::new();
+        let mut reads = Vec::new();
+        for ((c, id), o) in &self.objects {
+            if *c != client {
+                continue;
+            }
+            objects.push((o.order, *id, o.variant.clone()));
+            if let Entity::Reader(_, i)
+            | Entity::Requester { inbox: i, .. }
+            | Entity::Replier { inbox: i, .. } = &o.entity
+            {
+                if let (Some(r), Some(_)) = (&i.read, &i.delivery) {
+                    reads.push((o.order, r.clone()));
+                }
+            }
+        }
+        objects.sort_by_key(|o| o.0);
+        reads.sort_by_key(|r| r.0);
+        Some(ClientState {
+            client,
+            session_id,
+            mtu,
+            addr,
+            objects: objects.into_iter().map(|(_, id, v)| (id, v)).collect(),
+            reads: reads.into_iter().map(|(_, r)| r).collect(),
+        })
+    }
+
+    /// Serves a client again as [`client_state`](Self::client_state) left
+    /// it (at start, after a restart): its session is restored in the
+    /// agent machine (no STATUS_AGENT), its objects created again (no
+    /// STATUS), its READ_DATA started again. Objects that cannot be made
+    /// any more (a references file that changed) come back as errors.
+    pub fn restore(&mut self, state: ClientState<A>, now: Instant) -> Vec<(ObjectId, String)> {
+        let now = self.tick(now);
+        let client = state.client;
+        let mut errors = Vec::new();
+        if !self
+            .agent
+            .restore_client(client, state.session_id, state.mtu, state.addr)
+        {
+            errors.push((
+                ObjectId::CLIENT,
+                "the agent has no room for the session".into(),
+            ));
+            return errors;
+        }
+        self.drop_client(client, now);
+        for (id, v) in state.objects {
+            if let Err((_, why)) = self.create(client, id, v, CreationMode::REPLACE, now) {
+                errors.push((id, why));
+            }
+        }
+        for r in state.reads {
+            self.read(client, r, now);
+        }
+        // the events of restoring are not news
+        self.events
+            .retain(|e| !matches!(e, BridgeEvent::ClientChanged { client: c } if *c == client));
+        self.process(now);
+        errors
     }
 
     /// Sends what every delivery allows now.

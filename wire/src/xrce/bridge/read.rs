@@ -120,6 +120,8 @@ pub(super) struct Inbox {
     pub cap: usize,
     /// The READ_DATA being served.
     pub delivery: Option<Delivery>,
+    /// The READ_DATA that started it (kept for restoring).
+    pub read: Option<ReadData>,
     /// When the gate next opens (rate, pace).
     pub wake: Option<Instant>,
 }
@@ -130,6 +132,7 @@ impl Inbox {
             queue: VecDeque::new(),
             cap: cap.max(1),
             delivery: None,
+            read: None,
             wake: None,
         }
     }

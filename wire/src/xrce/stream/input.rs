@@ -12,20 +12,31 @@ use super::{FragmentError, SeqNum, StreamConfig};
 #[derive(Debug, Clone)]
 pub struct BestEffortInput {
     last: SeqNum,
+    resync: bool,
 }
 
 impl Default for BestEffortInput {
     fn default() -> Self {
         BestEffortInput {
             last: SeqNum::INITIAL_LAST,
+            resync: false,
         }
     }
 }
 
 impl BestEffortInput {
+    /// A stream of a restored session: the next message is taken whatever
+    /// its number, and numbering goes on from it.
+    pub fn resynced() -> Self {
+        BestEffortInput {
+            last: SeqNum::INITIAL_LAST,
+            resync: true,
+        }
+    }
+
     /// Whether to take message `seq`: only if it is newer than the last taken.
     pub fn accept(&mut self, seq: SeqNum) -> bool {
-        let take = seq.is_after(self.last);
+        let take = std::mem::take(&mut self.resync) || seq.is_after(self.last);
         if take {
             self.last = seq;
         }
@@ -67,6 +78,8 @@ pub struct ReliableInput {
     /// The last message acknowledged: `last_handled` unless deferred.
     confirmed: SeqNum,
     deferred: bool,
+    /// A restored session: the sender's first HEARTBEAT sets the position.
+    resync: bool,
     last_announced: SeqNum,
     held: BTreeMap<u16, (usize, Message)>,
     held_bytes: usize,
@@ -82,6 +95,7 @@ impl ReliableInput {
             last_handled: SeqNum::INITIAL_LAST,
             confirmed: SeqNum::INITIAL_LAST,
             deferred: false,
+            resync: false,
             last_announced: SeqNum::INITIAL_LAST,
             held: BTreeMap::new(),
             held_bytes: 0,
@@ -102,6 +116,20 @@ impl ReliableInput {
         if !deferred {
             self.confirmed = self.last_handled;
         }
+    }
+
+    /// The session was restored without this stream's position: the
+    /// sender's first HEARTBEAT sets it.
+    pub fn set_resync(&mut self) {
+        self.resync = true;
+    }
+
+    /// Whether the stream waits for the sender's HEARTBEAT to know where
+    /// it stands (it sends no ACKNACK meanwhile: one would name messages
+    /// missing that the sender may long have had acknowledged, and a sender
+    /// that resends on any NACK would answer each with everything again).
+    pub fn is_resyncing(&self) -> bool {
+        self.resync
     }
 
     /// The last message acknowledged.
@@ -173,6 +201,31 @@ impl ReliableInput {
     /// how far to NACK (at most one window ahead).
     pub fn on_heartbeat(&mut self, hb: &Heartbeat) {
         let first = SeqNum(hb.first_unacked);
+        if std::mem::take(&mut self.resync) {
+            // a restored session: the sender's window starts here; what
+            // came before the HEARTBEAT and is not in it is forgotten
+            self.last_handled = first.wrapping_sub(1);
+            self.confirmed = self.last_handled;
+            self.last_announced = self.last_handled;
+            let keep: BTreeMap<u16, (usize, Message)> = std::mem::take(&mut self.held)
+                .into_iter()
+                .filter(|(s, _)| {
+                    let d = SeqNum(*s).since(self.last_handled);
+                    d != 0 && d <= self.cfg.depth
+                })
+                .collect();
+            self.held_bytes = keep.values().map(|(l, _)| l).sum();
+            self.held = keep;
+            self.reassembly = None;
+            if let Some(last) = self
+                .held
+                .keys()
+                .map(|s| SeqNum(*s))
+                .max_by(|a, b| a.serial_cmp(*b))
+            {
+                self.last_announced = last;
+            }
+        }
         if first.is_after(self.last_handled.wrapping_add(1))
             && first.since(self.last_handled) < 0x8000
         {
