@@ -983,8 +983,10 @@ fn restart(seed: u64, loss: u32) {
     let mut cfg = dds_config(0);
     cfg.guid_prefix = guid_prefix([99; 10]);
     let domain = Domain::new(cfg, now, w.net.wall());
-    let mut bc = BridgeConfig::default();
-    bc.profiles = Profiles::parse(REFS).unwrap();
+    let bc = BridgeConfig {
+        profiles: Profiles::parse(REFS).unwrap(),
+        ..BridgeConfig::default()
+    };
     let mut fresh = Bridge::new(bc, domain, now, w.net.wall());
     for st in states {
         assert!(fresh.restore(st, now).is_empty());
