@@ -25,3 +25,4 @@
 pub use courier::central::*;
 
 pub mod xrce_agent;
+mod xrce_state;

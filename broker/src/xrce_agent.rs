@@ -108,6 +108,9 @@ pub enum StartError {
     /// No transport was given.
     #[error("no transport: give at least one of udp4, tcp4, serial, pseudoterminal")]
     NoTransport,
+    /// The state file could not be opened or read.
+    #[error("{0}")]
+    State(String),
 }
 
 /// Builds an [`XrceAgent`].
@@ -117,6 +120,7 @@ pub struct XrceAgentBuilder {
     rtps: RtpsOptions,
     bridge: BridgeConfig,
     discovery: Option<SocketAddrV4>,
+    state: Option<PathBuf>,
 }
 
 /// A running agent. Dropping it without [`shutdown`](Self::shutdown)
@@ -142,6 +146,7 @@ impl XrceAgent {
             rtps: RtpsOptions::default(),
             bridge: BridgeConfig::default(),
             discovery: None,
+            state: None,
         }
     }
 
@@ -232,6 +237,17 @@ impl XrceAgentBuilder {
     /// multicast).
     pub fn discovery(mut self, addr: SocketAddrV4) -> Self {
         self.discovery = Some(addr);
+        self
+    }
+
+    /// Keeps every client's session, objects and READ_DATA in this file
+    /// (created if need be) and serves the clients it holds at start, so
+    /// that a restart (even after `kill -9`) is invisible to clients that
+    /// go on with their sessions. Transports must be given in the same
+    /// order as before: a UDP client is known by the index of its
+    /// transport and its address.
+    pub fn state(mut self, path: impl Into<PathBuf>) -> Self {
+        self.state = Some(path.into());
         self
     }
 
@@ -338,7 +354,25 @@ impl XrceAgentBuilder {
         let mut bridge_cfg = self.bridge.clone();
         bridge_cfg.domain_id = self.rtps.domain;
         let now = Instant::now();
-        let bridge = Bridge::new(bridge_cfg, domain.domain, now, SystemTime::now());
+        let mut bridge = Bridge::new(bridge_cfg, domain.domain, now, SystemTime::now());
+        let store = match &self.state {
+            None => None,
+            Some(path) => {
+                let (store, states) = crate::xrce_state::open(path).map_err(StartError::State)?;
+                for st in states {
+                    let client = u32::from(st.client);
+                    let n = st.objects.len();
+                    for (object, why) in bridge.restore(st, now) {
+                        tracing::warn!(
+                            "restoring client 0x{client:08X}: object {:#06x}: {why}",
+                            object.0
+                        );
+                    }
+                    tracing::info!("restored client 0x{client:08X} with {n} object(s)");
+                }
+                Some(store)
+            }
+        };
         let (stop_tx, stop_rx) = oneshot::channel();
         let driver = Driver {
             bridge,
@@ -347,6 +381,7 @@ impl XrceAgentBuilder {
             serial: serial_out,
             rtps_send: domain.send,
             readers,
+            store,
         };
         let task = tokio::spawn(driver.run(rx, stop_rx));
         Ok(XrceAgent {
@@ -365,7 +400,7 @@ impl XrceAgentBuilder {
 
 /// Where an XRCE client is: the transport and its address there.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-enum Peer {
+pub(crate) enum Peer {
     Udp(u8, SocketAddr),
     Tcp(u64),
     Serial(u8, u8),
@@ -750,6 +785,7 @@ struct Driver {
     serial: Vec<std::sync::mpsc::Sender<(u8, Vec<u8>)>>,
     rtps_send: Arc<UdpSocket>,
     readers: JoinSet<()>,
+    store: Option<crate::xrce_state::Store>,
 }
 
 impl Driver {
@@ -830,6 +866,21 @@ impl Driver {
         }
         while let Some(e) = self.bridge.poll_event() {
             log(&e);
+            if let Some(store) = &self.store {
+                let r = match &e {
+                    BridgeEvent::ClientChanged { client } => {
+                        match self.bridge.client_state(*client) {
+                            Some(st) => store.save(&st),
+                            None => Ok(()),
+                        }
+                    }
+                    BridgeEvent::ClientDeleted { client } => store.remove(*client),
+                    _ => Ok(()),
+                };
+                if let Err(e) = r {
+                    tracing::error!("state file: {e}");
+                }
+            }
         }
     }
 }

@@ -293,3 +293,100 @@ fn command_line_errors() {
     }
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// `xrce-agent` with `--state`, on 127.0.0.1 at `port` (0: any); its UDP address.
+fn agent_with_state(
+    domain: u32,
+    state: &std::path::Path,
+    port: u16,
+) -> (std::process::Child, SocketAddr) {
+    use std::io::BufRead;
+    let mut child = Command::new(env!("CARGO_BIN_EXE_xrce-agent"))
+        .args(["udp4", "-p", &port.to_string(), "--bind", "127.0.0.1"])
+        .args([
+            "--interface",
+            "lo",
+            "--peers",
+            "127.0.0.1",
+            "--multicast",
+            "off",
+        ])
+        .args(["--domain", &domain.to_string(), "-v", "2", "--state"])
+        .arg(state)
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let out = child.stdout.take().unwrap();
+    let mut addr = None;
+    for line in std::io::BufReader::new(out).lines() {
+        let line = line.unwrap();
+        if let Some(a) = line.strip_prefix("udp4 ") {
+            addr = Some(a.parse().unwrap());
+        }
+        if line == "ready" {
+            break;
+        }
+    }
+    (child, addr.expect("the agent printed its address"))
+}
+
+#[test]
+fn a_restart_with_state_after_kill_9_is_invisible_to_clients() {
+    let d = courier_tests::domains::lease(4);
+    let dir = std::env::temp_dir().join(format!("xrce-agent-state-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let state = dir.join("agent.redb");
+    let _ = std::fs::remove_file(&state);
+    let (mut agent, addr) = agent_with_state(d, &state, 0);
+    let mut w = XClient::udp(0x4444_0001, addr);
+    let mut r = XClient::udp(0x4444_0002, addr);
+    r.create(reader(d, "restart"));
+    let unlimited = Some(DeliveryControl {
+        max_samples: u16::MAX,
+        ..DeliveryControl::default()
+    });
+    r.c.read(oid(ObjectKind::DataReader), R, R, unlimited, Instant::now())
+        .unwrap();
+    w.create(writer(d, "restart"));
+    let mut next = 0u32;
+    let mut exchange = |w: &mut XClient, r: &mut XClient, n: u32| {
+        let end = Instant::now() + T;
+        while r.data().len() < n as usize && Instant::now() < end {
+            while next < n {
+                let body = msg(next, "restart", &[next as u8; 32]);
+                match w
+                    .c
+                    .write(oid(ObjectKind::DataWriter), R, &body, Instant::now())
+                {
+                    Ok(_) => next += 1,
+                    Err(_) => break,
+                }
+            }
+            w.turn();
+            r.turn();
+        }
+    };
+    exchange(&mut w, &mut r, 10);
+    assert_eq!(r.data().len(), 10);
+    // kill -9, and the same agent again on the same port with the same state
+    agent.kill().unwrap();
+    agent.wait().unwrap();
+    let (mut again, addr2) = agent_with_state(d, &state, addr.port());
+    assert_eq!(addr2, addr);
+    // the clients know nothing of it and go on with their sessions
+    exchange(&mut w, &mut r, 20);
+    let got: Vec<u32> = r.data().iter().map(|b| unmsg(b).0).collect();
+    assert_eq!(
+        got,
+        (0..20).collect::<Vec<_>>(),
+        "complete and in order across the restart"
+    );
+    assert!(w.until(T, |e| e
+        .iter()
+        .filter(|e| matches!(e, Event::WriteAcked(_)))
+        .count()
+        == 20));
+    again.kill().unwrap();
+    again.wait().unwrap();
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -12,7 +12,9 @@
 //! agent wherever they stand. Beyond MicroXRCEAgent's: `--bind` (the
 //! address UDP, TCP and discovery listen on; default every interface, as
 //! MicroXRCEAgent), and the DDS participant's `--domain`, `--interface`,
-//! `--peers`, `--multicast on|off` and `--any-domain`.
+//! `--peers`, `--multicast on|off` and `--any-domain`; and `--state <file>`,
+//! which keeps clients' sessions and objects so that a restarted agent
+//! serves them again.
 
 use std::net::{IpAddr, Ipv4Addr, SocketAddr, SocketAddrV4};
 use std::path::PathBuf;
@@ -115,6 +117,10 @@ struct Common {
     /// Take XRCE participants of any domain id into the agent's domain.
     #[arg(long)]
     any_domain: bool,
+    /// Keep clients' sessions and objects in this file and serve them again
+    /// after a restart (give the transports in the same order).
+    #[arg(long)]
+    state: Option<PathBuf>,
 }
 
 fn on_off(s: &str) -> Result<bool, String> {
@@ -137,6 +143,7 @@ impl Common {
         self.peers.extend(o.peers);
         self.multicast = o.multicast.or(self.multicast);
         self.any_domain |= o.any_domain;
+        self.state = o.state.or(self.state.take());
     }
 }
 
@@ -301,6 +308,9 @@ fn main() -> ExitCode {
         }
         if let Some(d) = discovery {
             b = b.discovery(d);
+        }
+        if let Some(s) = &plan.common.state {
+            b = b.state(s);
         }
         let agent = match b.spawn().await {
             Ok(a) => a,
