@@ -31,7 +31,7 @@ pub(crate) struct Store {
     db: Database,
 }
 
-/// Why the state file cannot be used.
+/// Opens (or creates) the state file; the clients it holds.
 pub(crate) fn open(path: &Path) -> Result<(Store, Vec<ClientState<Peer>>), String> {
     let fail = |e: &dyn std::fmt::Display| format!("state file {}: {e}", path.display());
     let db = Database::create(path).map_err(|e| fail(&e))?;
@@ -60,27 +60,30 @@ pub(crate) fn open(path: &Path) -> Result<(Store, Vec<ClientState<Peer>>), Strin
 
 impl Store {
     /// Saves (or replaces) a client's record.
-    pub(crate) fn save(&self, s: &ClientState<Peer>) -> Result<(), redb::Error> {
+    pub(crate) fn save(&self, s: &ClientState<Peer>) -> Result<(), String> {
         let bytes = encode(s);
-        let tx = self.db.begin_write()?;
+        let tx = self.db.begin_write().map_err(text)?;
         {
-            let mut t = tx.open_table(CLIENTS)?;
-            t.insert(u32::from(s.client), bytes.as_slice())?;
+            let mut t = tx.open_table(CLIENTS).map_err(text)?;
+            t.insert(u32::from(s.client), bytes.as_slice())
+                .map_err(text)?;
         }
-        tx.commit()?;
-        Ok(())
+        tx.commit().map_err(text)
     }
 
     /// Forgets a client.
-    pub(crate) fn remove(&self, client: ClientKey) -> Result<(), redb::Error> {
-        let tx = self.db.begin_write()?;
+    pub(crate) fn remove(&self, client: ClientKey) -> Result<(), String> {
+        let tx = self.db.begin_write().map_err(text)?;
         {
-            let mut t = tx.open_table(CLIENTS)?;
-            t.remove(u32::from(client))?;
+            let mut t = tx.open_table(CLIENTS).map_err(text)?;
+            t.remove(u32::from(client)).map_err(text)?;
         }
-        tx.commit()?;
-        Ok(())
+        tx.commit().map_err(text)
     }
+}
+
+fn text(e: impl std::fmt::Display) -> String {
+    e.to_string()
 }
 
 fn encode(s: &ClientState<Peer>) -> Vec<u8> {

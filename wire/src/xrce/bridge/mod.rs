@@ -49,6 +49,13 @@
 //!   (as eProsima's agent), padded to 4 bytes with the pad count in the
 //!   options (RTPS 2.3 §10.5); from DDS the 4-byte header and the padding
 //!   it names are taken off.
+//! - **A restart can be invisible.** [`Bridge::client_state`] says what to
+//!   keep of a client (session, objects, READ_DATA; [`BridgeEvent::ClientChanged`]
+//!   says when it changed) and [`Bridge::restore`] serves it again in a new
+//!   bridge: the client, which knows nothing of the restart, goes on with
+//!   its session, and the streams take its position from its first
+//!   HEARTBEAT or ACKNACK ([`Agent::restore_client`]). eProsima's agent
+//!   forgets every session.
 //! - TYPE, QOSPROFILE and APPLICATION objects are refused with `ERR_DENIED`.
 
 mod profile;
