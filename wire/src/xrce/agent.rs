@@ -294,8 +294,12 @@ impl<A: Clone + Eq + Hash> Agent<A> {
     /// event. Its streams' positions are not kept: each takes the client's
     /// from what the client sends first (a reliable stream from its
     /// HEARTBEAT or ACKNACK), so a client that goes on with its old
-    /// session, as eProsima's does, is served again. False if the agent is
-    /// full or the key is 0.
+    /// session, as eProsima's does, is served again. Best-effort output
+    /// starts from sequence number 0 again: a client drops best-effort
+    /// messages until their numbers pass the last one it took. Messages
+    /// handed to the host before the restart but not acknowledged come
+    /// again (at least once); reliable output not yet acknowledged is gone
+    /// with the old process. False if the agent is full or the key is 0.
     pub fn restore_client(&mut self, key: ClientKey, session_id: u8, mtu: u16, addr: A) -> bool {
         let k = u32::from(key);
         if k == 0 || (!self.clients.contains_key(&k) && self.clients.len() >= self.cfg.max_clients)
