@@ -23,3 +23,6 @@
 #![deny(unsafe_code)]
 
 pub use courier::central::*;
+
+pub mod xrce_agent;
+mod xrce_state;

@@ -88,8 +88,9 @@ use out::Out;
 use receive::ReceiveThread;
 use state::State;
 
+pub use net::interface_address;
 pub(crate) use options::RtpsOverrides;
-pub use options::{RtpsOptions, ServiceStyle, LOOPBACK_MAX_MESSAGE_SIZE};
+pub use options::{parse_peer, RtpsOptions, ServiceStyle, LOOPBACK_MAX_MESSAGE_SIZE};
 
 /// The DDS key hash of `value` (DDSI-RTPS §9.6.4.8): its key fields as
 /// big-endian XCDR2, zero-padded when the key can never exceed 16 bytes,

@@ -23,9 +23,12 @@ use super::options::RtpsOptions;
 pub(crate) use crate::sys::net::interfaces;
 use crate::sys::net::register;
 
-/// The address to use: the named interface's, a literal address, or the
-/// default choice.
-pub(crate) fn interface_address(o: &RtpsOptions) -> Result<Ipv4Addr, String> {
+/// The IPv4 address RTPS options select: the named interface's
+/// (`interface=lo`), a literal address, or by default the first up,
+/// multicast-capable, non-loopback interface's, else 127.0.0.1. For
+/// programs that open sockets of their own next to Courier's (the XRCE
+/// agent).
+pub fn interface_address(o: &RtpsOptions) -> Result<Ipv4Addr, String> {
     let ifs = interfaces().map_err(|e| format!("cannot list network interfaces: {e}"))?;
     match &o.interface {
         Some(name) => {

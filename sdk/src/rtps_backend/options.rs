@@ -251,8 +251,9 @@ impl RtpsOptions {
         Ok(o)
     }
 
-    /// The largest datagram a participant bound to `address` sends.
-    pub(crate) fn max_message_size_on(&self, address: Ipv4Addr) -> usize {
+    /// The largest datagram sent on the interface with `address`
+    /// ([`RtpsOptions::max_message_size`] or its default there).
+    pub fn max_message_size_on(&self, address: Ipv4Addr) -> usize {
         match self.max_message_size {
             Some(n) => n,
             None if address.is_loopback() => LOOPBACK_MAX_MESSAGE_SIZE,
@@ -261,8 +262,8 @@ impl RtpsOptions {
     }
 }
 
-/// A peer: an address (all participant indices) or an address and port.
-pub(crate) fn parse_peer(p: &str) -> Result<(Ipv4Addr, Option<u16>), String> {
+/// A peer of [`RtpsOptions::peers`]: its address and, if given, its port.
+pub fn parse_peer(p: &str) -> Result<(Ipv4Addr, Option<u16>), String> {
     let p = p.trim();
     if let Ok(a) = p.parse::<SocketAddrV4>() {
         return Ok((*a.ip(), Some(a.port())));

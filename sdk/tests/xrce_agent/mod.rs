@@ -194,10 +194,13 @@ impl Host {
                         self.reads.push((client, read));
                     }
                 }
+                // the test agent does not confirm writes (host_confirms_writes
+                // off): the ticket needs no answer
                 AgentEvent::Write {
                     client,
                     request,
                     data,
+                    ..
                 } => self.write(client, request, data),
                 AgentEvent::ClientDeleted { client } => {
                     self.objects.retain(|(c, _), _| *c != client);

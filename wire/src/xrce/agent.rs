@@ -45,7 +45,7 @@ use super::object::{
     ActivityInfo, AgentRepresentation, ClientRepresentation, ObjectInfo, ObjectVariant,
 };
 use super::session::{session_header, single, InputError, QueueError, Streams};
-use super::stream::StreamConfig;
+use super::stream::{SeqNum, StreamConfig};
 use super::submessage::{
     flags, Data, Info, Payload, ReadData, Status, StatusAgent, Submessage, TimestampReply,
 };
@@ -69,6 +69,14 @@ pub struct AgentConfig {
     pub min_mtu: u16,
     /// What STATUS_AGENT and INFO say of the agent.
     pub representation: AgentRepresentation,
+    /// A reliable message is acknowledged only once the host has
+    /// [completed](Agent::write_done) every WRITE_DATA it holds (each
+    /// [`AgentEvent::Write`] then carries a [`WriteTicket`]), so a write
+    /// the host cannot take yet holds the client back through the
+    /// stream's window instead of being lost after its acknowledgement.
+    /// Off, a message is acknowledged as soon as it is handed to the host
+    /// (eProsima's behaviour).
+    pub host_confirms_writes: bool,
 }
 
 impl Default for AgentConfig {
@@ -82,8 +90,24 @@ impl Default for AgentConfig {
             max_streams: 4,
             min_mtu: 64,
             representation: AgentRepresentation::default(),
+            host_confirms_writes: false,
         }
     }
+}
+
+/// A reliable WRITE_DATA the host has not completed: hand it back to
+/// [`Agent::write_done`] once DDS took the sample (or the host gave it up
+/// for good). Until then its message, and every later one of its stream,
+/// stays unacknowledged.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct WriteTicket {
+    /// The client.
+    pub client: ClientKey,
+    /// The reliable stream the write came on.
+    pub stream: StreamId,
+    /// The sequence number of the message that completed it.
+    pub seq: SeqNum,
+    epoch: u32,
 }
 
 /// What the agent hands its host.
@@ -140,6 +164,9 @@ pub enum AgentEvent {
         request: BaseObjectRequest,
         /// The serialized body (for a replier, its SampleIdentity first).
         data: Vec<u8>,
+        /// With [`AgentConfig::host_confirms_writes`], for a write on a
+        /// reliable stream: what to hand [`Agent::write_done`].
+        ticket: Option<WriteTicket>,
     },
     /// READ_DATA: send samples with [`Agent::send_data`] under
     /// `read.request` on `read.preferred_stream_id`; errors go back as a
@@ -170,6 +197,37 @@ struct Proxy<A> {
     session_id: u8,
     addr: A,
     streams: Streams,
+    /// Per reliable input stream: messages handed to the host and not yet
+    /// acknowledged, with the writes of each the host has not completed.
+    pending: BTreeMap<u8, VecDeque<(SeqNum, u32)>>,
+    /// Bumped when the streams start over: older tickets are void.
+    epoch: u32,
+}
+
+impl<A> Proxy<A> {
+    fn reset_streams(&mut self) {
+        self.streams.reset();
+        self.pending.clear();
+        self.epoch = self.epoch.wrapping_add(1);
+    }
+
+    /// Acknowledges what the host has completed on `stream`; whether the
+    /// acknowledged position moved.
+    fn advance(&mut self, stream: StreamId) -> bool {
+        let mut moved = false;
+        let q = self.pending.entry(stream.0).or_default();
+        while let Some(&(seq, n)) = q.front() {
+            if n > 0 {
+                break;
+            }
+            q.pop_front();
+            moved |= self.streams.confirm_through(stream, seq);
+        }
+        if q.is_empty() {
+            moved |= self.streams.confirm_all(stream);
+        }
+        moved
+    }
 }
 
 /// The agent side of every client session.
@@ -229,6 +287,61 @@ impl<A: Clone + Eq + Hash> Agent<A> {
                 .values()
                 .map(|p| p.streams.buffered())
                 .sum::<usize>()
+    }
+
+    /// Restores a session the agent had before it restarted (its host kept
+    /// `key`, `session_id`, the MTU and the address): no STATUS_AGENT, no
+    /// event. Its streams' positions are not kept: each takes the client's
+    /// from what the client sends first (a reliable stream from its
+    /// HEARTBEAT or ACKNACK), so a client that goes on with its old
+    /// session, as eProsima's does, is served again. Best-effort output
+    /// starts from sequence number 0 again: a client drops best-effort
+    /// messages until their numbers pass the last one it took. Messages
+    /// handed to the host before the restart but not acknowledged come
+    /// again (at least once); reliable output not yet acknowledged is gone
+    /// with the old process. False if the agent is full or the key is 0.
+    pub fn restore_client(&mut self, key: ClientKey, session_id: u8, mtu: u16, addr: A) -> bool {
+        let k = u32::from(key);
+        if k == 0 || (!self.clients.contains_key(&k) && self.clients.len() >= self.cfg.max_clients)
+        {
+            return false;
+        }
+        self.remove_client(k);
+        self.events
+            .retain(|e| !matches!(e, AgentEvent::ClientDeleted { client } if *client == key));
+        let mut streams = Streams::new(
+            session_header(session_id, key),
+            StreamConfig {
+                mtu: usize::from(mtu).min(self.cfg.streams.mtu),
+                ..self.cfg.streams
+            },
+            self.cfg.max_streams,
+        );
+        streams.set_deferred(self.cfg.host_confirms_writes);
+        streams.set_resync();
+        self.clients.insert(
+            k,
+            Proxy {
+                session_id,
+                addr: addr.clone(),
+                streams,
+                pending: BTreeMap::new(),
+                epoch: 0,
+            },
+        );
+        self.bind(k, addr);
+        true
+    }
+
+    /// A session's id and MTU (what [`Agent::restore_client`] needs besides
+    /// the key and address).
+    pub fn session(&self, client: ClientKey) -> Option<(u8, u16)> {
+        self.clients.get(&u32::from(client)).map(|p| {
+            (
+                p.session_id,
+                u16::try_from(p.streams.config().mtu).unwrap_or(u16::MAX),
+            )
+        })
     }
 
     /// The address a client's messages go to.
@@ -310,15 +423,29 @@ impl<A: Clone + Eq + Hash> Agent<A> {
             return Ok(());
         };
         let arrival = proxy.streams.receive(msg, bytes.len(), now);
+        if self.cfg.host_confirms_writes {
+            for (stream, seq) in &arrival.handed {
+                proxy
+                    .pending
+                    .entry(stream.0)
+                    .or_default()
+                    .push_back((*seq, 0));
+            }
+        }
         let mut result = arrival.errors.into_iter().next().map_or(Ok(()), Err);
-        for (stream, sub) in arrival.subs {
-            let r = self.on_submessage(key, stream, sub, now);
+        for ((stream, sub), origin) in arrival.subs.into_iter().zip(arrival.origins) {
+            let r = self.on_submessage(key, stream, origin, sub, now);
             result = result.and(r);
         }
-        if let Some(p) = self.clients.get(&key) {
+        if let Some(p) = self.clients.get_mut(&key) {
+            let mut replies = arrival.replies;
+            for id in arrival.ack_later {
+                p.advance(id);
+                replies.extend(p.streams.acknack_for(id));
+            }
             let addr = p.addr.clone();
             self.transmits
-                .extend(arrival.replies.into_iter().map(|m| (addr.clone(), m)));
+                .extend(replies.into_iter().map(|m| (addr.clone(), m)));
         }
         result
     }
@@ -391,11 +518,11 @@ impl<A: Clone + Eq + Hash> Agent<A> {
                 .is_some_and(|p| p.session_id == rep.session_id);
             if kept {
                 if let Some(p) = self.clients.get_mut(&key) {
-                    p.streams.reset();
+                    p.reset_streams();
                 }
             } else {
                 self.remove_client(key);
-                let streams = Streams::new(
+                let mut streams = Streams::new(
                     reply_header,
                     StreamConfig {
                         mtu: usize::from(rep.mtu).min(self.cfg.streams.mtu),
@@ -403,12 +530,15 @@ impl<A: Clone + Eq + Hash> Agent<A> {
                     },
                     self.cfg.max_streams,
                 );
+                streams.set_deferred(self.cfg.host_confirms_writes);
                 self.clients.insert(
                     key,
                     Proxy {
                         session_id: rep.session_id,
                         addr: from.clone(),
                         streams,
+                        pending: BTreeMap::new(),
+                        epoch: 0,
                     },
                 );
             }
@@ -434,6 +564,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
         &mut self,
         key: u32,
         stream: StreamId,
+        origin: Option<SeqNum>,
         sub: Submessage,
         now: Instant,
     ) -> Result<(), InputError> {
@@ -474,6 +605,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
                 client,
                 request: d.request,
                 data: d.data,
+                ticket: self.ticket(key, stream, origin),
             },
             Payload::WriteData(_) => return Err(InputError::DataFormat(format)),
             Payload::ReadData(read) => AgentEvent::Read { client, read },
@@ -498,7 +630,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
             }
             Payload::Reset => {
                 if let Some(p) = self.clients.get_mut(&key) {
-                    p.streams.reset();
+                    p.reset_streams();
                 }
                 return Ok(());
             }
@@ -511,6 +643,73 @@ impl<A: Clone + Eq + Hash> Agent<A> {
         };
         self.events.push_back(event);
         Ok(())
+    }
+
+    /// A ticket for a write completed by message `origin` of reliable
+    /// `stream`, counted against that message.
+    fn ticket(
+        &mut self,
+        key: u32,
+        stream: StreamId,
+        origin: Option<SeqNum>,
+    ) -> Option<WriteTicket> {
+        if !self.cfg.host_confirms_writes || !stream.is_reliable() {
+            return None;
+        }
+        let seq = origin?;
+        let p = self.clients.get_mut(&key)?;
+        let entry = p
+            .pending
+            .get_mut(&stream.0)?
+            .iter_mut()
+            .find(|(s, _)| *s == seq)?;
+        entry.1 += 1;
+        Some(WriteTicket {
+            client: ClientKey::from(key),
+            stream,
+            seq,
+            epoch: p.epoch,
+        })
+    }
+
+    /// The host completed a write ([`AgentEvent::Write::ticket`]): DDS took
+    /// the sample, or the host gave it up for good (its writer deleted).
+    /// Once every write of a message and of those before it is completed,
+    /// the message is acknowledged (an ACKNACK goes out at once). False for
+    /// a ticket of a session that is gone or started over.
+    pub fn write_done(&mut self, ticket: WriteTicket, now: Instant) -> bool {
+        self.tick(now);
+        let Some(p) = self.clients.get_mut(&u32::from(ticket.client)) else {
+            return false;
+        };
+        if p.epoch != ticket.epoch {
+            return false;
+        }
+        let Some(entry) = p
+            .pending
+            .get_mut(&ticket.stream.0)
+            .and_then(|q| q.iter_mut().find(|(s, n)| *s == ticket.seq && *n > 0))
+        else {
+            return false;
+        };
+        entry.1 -= 1;
+        if p.advance(ticket.stream) {
+            if let Some(m) = p.streams.acknack_for(ticket.stream) {
+                let addr = p.addr.clone();
+                self.transmits.push_back((addr, m));
+            }
+        }
+        true
+    }
+
+    /// Writes handed to the host and not yet [completed](Self::write_done).
+    pub fn writes_pending(&self) -> usize {
+        self.clients
+            .values()
+            .flat_map(|p| p.pending.values())
+            .flatten()
+            .map(|(_, n)| *n as usize)
+            .sum()
     }
 
     fn proxy(&mut self, client: ClientKey) -> Result<&mut Proxy<A>, AgentCommandError> {

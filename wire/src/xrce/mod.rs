@@ -4,8 +4,9 @@
 //! representations ([`BinaryRepresentation`]), the TCP ([`tcp`]) and
 //! serial ([`serial`]) framings (UDP carries one message per datagram with
 //! no framing), the [`stream`]s, and the two session machines: [`Client`]
-//! and the agent's half, [`Agent`]. With the cargo feature `sim`, `xrce::sim`
-//! puts both on the shared simulated network.
+//! and the agent's half, [`Agent`]; and the agent's host over one DDS
+//! domain, [`bridge::Bridge`]. With the cargo feature `sim`, `xrce::sim`
+//! puts the machines on the shared simulated network.
 //!
 //! ```
 //! use courier_wire::xrce::{
@@ -70,12 +71,14 @@
 //!   rule; eProsima's client ignores it).
 //! - The agent answers TIMESTAMP with one reading of its clock for both
 //!   receive and transmit time, acknowledges a reliable message before its
-//!   host has acted on it, refuses a best-effort sample larger than the
+//!   host has acted on it unless [`AgentConfig::host_confirms_writes`] (the
+//!   [`bridge`] always sets it), refuses a best-effort sample larger than the
 //!   client's MTU to its host instead of dropping it silently, and refuses
 //!   CREATE_CLIENT with an MTU below [`AgentConfig::min_mtu`].
 
 mod agent;
 mod binary;
+pub mod bridge;
 mod client;
 mod cursor;
 mod message;
@@ -89,7 +92,7 @@ mod submessage;
 pub mod tcp;
 mod types;
 
-pub use agent::{Agent, AgentCommandError, AgentConfig, AgentEvent};
+pub use agent::{Agent, AgentCommandError, AgentConfig, AgentEvent, WriteTicket};
 pub use binary::{
     qos_flags, BinaryRepresentation, DataReaderBinary, DataReaderQos, DataWriterBinary,
     EndpointQos, GroupBinary, GroupQos, ParticipantBinary, ServiceBinary, TopicBinary,

@@ -103,8 +103,16 @@ pub(crate) struct Arrival {
     /// Submessages to act on, in order, with the stream they came on
     /// (ACKNACK and HEARTBEAT are handled here and not included).
     pub subs: Vec<(StreamId, Submessage)>,
+    /// For each of `subs` on a reliable stream: the sequence number of the
+    /// message that completed it.
+    pub origins: Vec<Option<SeqNum>>,
+    /// Reliable messages handed on, in order, with their stream.
+    pub handed: Vec<(StreamId, SeqNum)>,
     /// ACKNACKs to send once the submessages are acted on.
     pub replies: Vec<Vec<u8>>,
+    /// Reliable streams whose ACKNACK the caller sends once it has acted
+    /// (instead of `replies`), when acknowledgement is deferred.
+    pub ack_later: Vec<StreamId>,
     /// What went wrong on the way.
     pub errors: Vec<InputError>,
 }
@@ -119,6 +127,11 @@ pub(crate) struct Streams {
     rel_out: BTreeMap<u8, ReliableOutput>,
     be_in: BTreeMap<u8, BestEffortInput>,
     rel_in: BTreeMap<u8, ReliableInput>,
+    /// Reliable input is acknowledged only as the owner confirms it.
+    deferred: bool,
+    /// A restored session: streams take the peer's position from its first
+    /// message, HEARTBEAT or ACKNACK.
+    resync: bool,
     /// Messages on stream 0, ready to go.
     pub control: VecDeque<Vec<u8>>,
 }
@@ -152,8 +165,47 @@ impl Streams {
             rel_out: BTreeMap::new(),
             be_in: BTreeMap::new(),
             rel_in: BTreeMap::new(),
+            deferred: false,
+            resync: false,
             control: VecDeque::new(),
         }
+    }
+
+    /// Defers acknowledgement of reliable input: a message handed on is
+    /// acknowledged only through [`confirm_through`](Self::confirm_through)
+    /// or [`confirm_all`](Self::confirm_all), and ACKNACKs for arriving
+    /// messages are left to the caller ([`Arrival::ack_later`]).
+    pub fn set_deferred(&mut self, deferred: bool) {
+        self.deferred = deferred;
+        for s in self.rel_in.values_mut() {
+            s.set_deferred(deferred);
+        }
+    }
+
+    /// The session was restored without its streams' positions: every
+    /// stream takes the peer's from what the peer sends first (a reliable
+    /// output stream from the first ACKNACK, a reliable input stream from
+    /// the first HEARTBEAT, a best-effort input stream from its first
+    /// message). Best-effort output starts from 0 again.
+    pub fn set_resync(&mut self) {
+        self.resync = true;
+    }
+
+    /// Acknowledges reliable input stream `id` up to `seq`; whether it moved.
+    pub fn confirm_through(&mut self, id: StreamId, seq: SeqNum) -> bool {
+        self.rel_in
+            .get_mut(&id.0)
+            .is_some_and(|s| s.confirm_through(seq))
+    }
+
+    /// Acknowledges everything stream `id` handed on; whether it moved.
+    pub fn confirm_all(&mut self, id: StreamId) -> bool {
+        self.rel_in.get_mut(&id.0).is_some_and(|s| s.confirm_all())
+    }
+
+    /// The ACKNACK of reliable input stream `id` now, as a message.
+    pub fn acknack_for(&self, id: StreamId) -> Option<Vec<u8>> {
+        self.acknack_message(id)
     }
 
     pub fn header(&self) -> MessageHeader {
@@ -166,6 +218,7 @@ impl Streams {
 
     /// Forgets every stream (a session created again starts from 0).
     pub fn reset(&mut self) {
+        self.resync = false;
         self.be_out.clear();
         self.rel_out.clear();
         self.be_in.clear();
@@ -211,11 +264,14 @@ impl Streams {
             if !self.rel_out.contains_key(&id.0) && n >= 2 * self.max_streams {
                 return Err(QueueError::BadStream(id.0));
             }
-            let (h, c) = (self.header, self.cfg);
-            let s = self
-                .rel_out
-                .entry(id.0)
-                .or_insert_with(|| ReliableOutput::new(&h, id, c));
+            let (h, c, r) = (self.header, self.cfg, self.resync);
+            let s = self.rel_out.entry(id.0).or_insert_with(|| {
+                let mut s = ReliableOutput::new(&h, id, c);
+                if r {
+                    s.set_resync();
+                }
+                s
+            });
             if force {
                 s.push_unchecked(bytes, tag);
                 Ok(())
@@ -241,16 +297,23 @@ impl Streams {
         if !self.rel_in.contains_key(&id.0) && self.rel_in.len() >= self.max_streams {
             return None;
         }
-        let c = self.cfg;
-        Some(
-            self.rel_in
-                .entry(id.0)
-                .or_insert_with(|| ReliableInput::new(id, c)),
-        )
+        let (c, deferred, resync) = (self.cfg, self.deferred, self.resync);
+        Some(self.rel_in.entry(id.0).or_insert_with(|| {
+            let mut s = ReliableInput::new(id, c);
+            s.set_deferred(deferred);
+            if resync {
+                s.set_resync();
+            }
+            s
+        }))
     }
 
     fn acknack_message(&self, id: StreamId) -> Option<Vec<u8>> {
-        let a = self.rel_in.get(&id.0)?.acknack();
+        let input = self.rel_in.get(&id.0)?;
+        if input.is_resyncing() {
+            return None;
+        }
+        let a = input.acknack();
         self.control_message(Submessage::new(Payload::AckNack(a)))
             .ok()
     }
@@ -263,17 +326,26 @@ impl Streams {
         }
         let id = message.header.stream_id;
         let seq = SeqNum(message.header.sequence_nr);
-        let subs = if id == StreamId::NONE {
-            message.submessages
+        let deferred = self.deferred;
+        let subs: Vec<(Option<SeqNum>, Submessage)> = if id == StreamId::NONE {
+            message.submessages.into_iter().map(|s| (None, s)).collect()
         } else if id.is_best_effort() {
             if !self.be_in.contains_key(&id.0) && self.be_in.len() >= self.max_streams {
                 a.errors.push(InputError::TooManyStreams(id.0));
                 return a;
             }
-            if !self.be_in.entry(id.0).or_default().accept(seq) {
+            let resync = self.resync;
+            let input = self.be_in.entry(id.0).or_insert_with(|| {
+                if resync {
+                    BestEffortInput::resynced()
+                } else {
+                    BestEffortInput::default()
+                }
+            });
+            if !input.accept(seq) {
                 return a;
             }
-            message.submessages
+            message.submessages.into_iter().map(|s| (None, s)).collect()
         } else {
             let Some(input) = self.reliable_input(id) else {
                 a.errors.push(InputError::TooManyStreams(id.0));
@@ -283,13 +355,24 @@ impl Streams {
             let mut subs = Vec::new();
             let mut errors = Vec::new();
             while let Some(m) = input.next_message() {
-                subs.extend(input.unpack(m, &mut errors));
+                let s = SeqNum(m.header.sequence_nr);
+                a.handed.push((id, s));
+                subs.extend(
+                    input
+                        .unpack(m, &mut errors)
+                        .into_iter()
+                        .map(|x| (Some(s), x)),
+                );
             }
             a.errors.extend(errors.into_iter().map(InputError::from));
-            a.replies.extend(self.acknack_message(id));
+            if deferred {
+                a.ack_later.push(id);
+            } else {
+                a.replies.extend(self.acknack_message(id));
+            }
             subs
         };
-        for sub in subs {
+        for (origin, sub) in subs {
             match &sub.payload {
                 Payload::AckNack(ack) => {
                     if let Some(s) = self.rel_out.get_mut(&ack.stream_id.0) {
@@ -300,7 +383,23 @@ impl Streams {
                     match self.reliable_input(hb.stream_id) {
                         Some(input) => {
                             input.on_heartbeat(hb);
-                            a.replies.extend(self.acknack_message(hb.stream_id));
+                            // messages held behind one the sender gave up on
+                            // (or, restored, before its window) go on now
+                            let mut errors = Vec::new();
+                            while let Some(m) = input.next_message() {
+                                let s = SeqNum(m.header.sequence_nr);
+                                a.handed.push((hb.stream_id, s));
+                                for x in input.unpack(m, &mut errors) {
+                                    a.subs.push((hb.stream_id, x));
+                                    a.origins.push(Some(s));
+                                }
+                            }
+                            a.errors.extend(errors.into_iter().map(InputError::from));
+                            if deferred {
+                                a.ack_later.push(hb.stream_id);
+                            } else {
+                                a.replies.extend(self.acknack_message(hb.stream_id));
+                            }
                         }
                         None => a.errors.push(InputError::TooManyStreams(hb.stream_id.0)),
                     }
@@ -313,7 +412,10 @@ impl Streams {
                     what: "HEARTBEAT",
                     stream: id.0,
                 }),
-                _ => a.subs.push((id, sub)),
+                _ => {
+                    a.subs.push((id, sub));
+                    a.origins.push(origin);
+                }
             }
         }
         a

@@ -12,20 +12,31 @@ use super::{FragmentError, SeqNum, StreamConfig};
 #[derive(Debug, Clone)]
 pub struct BestEffortInput {
     last: SeqNum,
+    resync: bool,
 }
 
 impl Default for BestEffortInput {
     fn default() -> Self {
         BestEffortInput {
             last: SeqNum::INITIAL_LAST,
+            resync: false,
         }
     }
 }
 
 impl BestEffortInput {
+    /// A stream of a restored session: the next message is taken whatever
+    /// its number, and numbering goes on from it.
+    pub fn resynced() -> Self {
+        BestEffortInput {
+            last: SeqNum::INITIAL_LAST,
+            resync: true,
+        }
+    }
+
     /// Whether to take message `seq`: only if it is newer than the last taken.
     pub fn accept(&mut self, seq: SeqNum) -> bool {
-        let take = seq.is_after(self.last);
+        let take = std::mem::take(&mut self.resync) || seq.is_after(self.last);
         if take {
             self.last = seq;
         }
@@ -53,11 +64,22 @@ struct Reassembly {
 
 /// A reliable input stream: window, in-order hand-over, ACKNACK and
 /// fragment reassembly.
+///
+/// A message is acknowledged once handed on, unless acknowledgement is
+/// [deferred](ReliableInput::set_deferred): then the ACKNACK names the
+/// first message not yet [confirmed](ReliableInput::confirm_through), and
+/// the window counts from there, so a sender whose messages are not
+/// confirmed stops after one window.
 #[derive(Debug, Clone)]
 pub struct ReliableInput {
     id: StreamId,
     cfg: StreamConfig,
     last_handled: SeqNum,
+    /// The last message acknowledged: `last_handled` unless deferred.
+    confirmed: SeqNum,
+    deferred: bool,
+    /// A restored session: the sender's first HEARTBEAT sets the position.
+    resync: bool,
     last_announced: SeqNum,
     held: BTreeMap<u16, (usize, Message)>,
     held_bytes: usize,
@@ -71,6 +93,9 @@ impl ReliableInput {
             id,
             cfg,
             last_handled: SeqNum::INITIAL_LAST,
+            confirmed: SeqNum::INITIAL_LAST,
+            deferred: false,
+            resync: false,
             last_announced: SeqNum::INITIAL_LAST,
             held: BTreeMap::new(),
             held_bytes: 0,
@@ -81,6 +106,56 @@ impl ReliableInput {
     /// The last message handed on.
     pub fn last_handled(&self) -> SeqNum {
         self.last_handled
+    }
+
+    /// Whether messages handed on wait for
+    /// [`confirm_through`](Self::confirm_through) before they are
+    /// acknowledged. Turning it off confirms everything handed on.
+    pub fn set_deferred(&mut self, deferred: bool) {
+        self.deferred = deferred;
+        if !deferred {
+            self.confirmed = self.last_handled;
+        }
+    }
+
+    /// The session was restored without this stream's position: the
+    /// sender's first HEARTBEAT sets it.
+    pub fn set_resync(&mut self) {
+        self.resync = true;
+    }
+
+    /// Whether the stream waits for the sender's HEARTBEAT to know where
+    /// it stands (it sends no ACKNACK meanwhile: one would name messages
+    /// missing that the sender may long have had acknowledged, and a sender
+    /// that resends on any NACK would answer each with everything again).
+    pub fn is_resyncing(&self) -> bool {
+        self.resync
+    }
+
+    /// The last message acknowledged.
+    pub fn confirmed(&self) -> SeqNum {
+        self.confirmed
+    }
+
+    /// Acknowledges every message up to `seq` (no further than the last one
+    /// handed on). Whether that moved anything.
+    pub fn confirm_through(&mut self, seq: SeqNum) -> bool {
+        let seq = if seq.is_after(self.last_handled) {
+            self.last_handled
+        } else {
+            seq
+        };
+        if seq.is_after(self.confirmed) {
+            self.confirmed = seq;
+            true
+        } else {
+            false
+        }
+    }
+
+    /// Acknowledges every message handed on.
+    pub fn confirm_all(&mut self) -> bool {
+        self.confirm_through(self.last_handled)
     }
 
     /// Bytes held: early messages and a partly rebuilt submessage.
@@ -95,7 +170,7 @@ impl ReliableInput {
         if d == 0 || d >= 0x8000 {
             return Received::Duplicate;
         }
-        if d > self.cfg.depth {
+        if seq.since(self.confirmed) > self.cfg.depth {
             return Received::OutOfWindow;
         }
         if self.held.contains_key(&seq.0) {
@@ -115,6 +190,9 @@ impl ReliableInput {
         let (len, m) = self.held.remove(&next.0)?;
         self.held_bytes -= len;
         self.last_handled = next;
+        if !self.deferred {
+            self.confirmed = next;
+        }
         Some(m)
     }
 
@@ -123,10 +201,39 @@ impl ReliableInput {
     /// how far to NACK (at most one window ahead).
     pub fn on_heartbeat(&mut self, hb: &Heartbeat) {
         let first = SeqNum(hb.first_unacked);
+        if std::mem::take(&mut self.resync) {
+            // a restored session: the sender's window starts here; what
+            // came before the HEARTBEAT and is not in it is forgotten
+            self.last_handled = first.wrapping_sub(1);
+            self.confirmed = self.last_handled;
+            self.last_announced = self.last_handled;
+            let keep: BTreeMap<u16, (usize, Message)> = std::mem::take(&mut self.held)
+                .into_iter()
+                .filter(|(s, _)| {
+                    let d = SeqNum(*s).since(self.last_handled);
+                    d != 0 && d <= self.cfg.depth
+                })
+                .collect();
+            self.held_bytes = keep.values().map(|(l, _)| l).sum();
+            self.held = keep;
+            self.reassembly = None;
+            if let Some(last) = self
+                .held
+                .keys()
+                .map(|s| SeqNum(*s))
+                .max_by(|a, b| a.serial_cmp(*b))
+            {
+                self.last_announced = last;
+            }
+        }
         if first.is_after(self.last_handled.wrapping_add(1))
             && first.since(self.last_handled) < 0x8000
         {
+            let nothing_pending = self.confirmed == self.last_handled;
             self.last_handled = first.wrapping_sub(1);
+            if nothing_pending || !self.deferred {
+                self.confirmed = self.last_handled;
+            }
             let keep: BTreeMap<u16, (usize, Message)> = std::mem::take(&mut self.held)
                 .into_iter()
                 .filter(|(s, _)| SeqNum(*s).is_after(self.last_handled))
@@ -139,20 +246,27 @@ impl ReliableInput {
             }
         }
         let last = SeqNum(hb.last_unacked);
-        let limit = self.last_handled.wrapping_add(self.cfg.depth);
+        let limit = self.confirmed.wrapping_add(self.cfg.depth);
         let last = if last.is_after(limit) { limit } else { last };
         if last.is_after(self.last_announced) {
             self.last_announced = last;
         }
     }
 
-    /// The ACKNACK describing this stream now.
+    /// The ACKNACK describing this stream now: everything up to the last
+    /// message acknowledged, and which later ones are missing (those handed
+    /// on but not confirmed are not).
     pub fn acknack(&self) -> AckNack {
-        let first = self.last_handled.wrapping_add(1);
-        let known = self.last_announced.since(self.last_handled);
+        let first = self.confirmed.wrapping_add(1);
+        let handed = self.last_handled.since(self.confirmed);
+        let known = self.last_announced.since(self.confirmed);
         let mut bits = 0u16;
         for i in 0..16u16 {
-            if i < known && known < 0x8000 && !self.held.contains_key(&first.wrapping_add(i).0) {
+            if i >= handed
+                && i < known
+                && known < 0x8000
+                && !self.held.contains_key(&first.wrapping_add(i).0)
+            {
                 bits |= 1 << i;
             }
         }

@@ -121,6 +121,9 @@ pub struct ReliableOutput {
     hb_deadline: Option<Instant>,
     hb_base: Option<Instant>,
     acked: VecDeque<u16>,
+    /// The peer's position is unknown (the session was restored): the
+    /// first ACKNACK says it.
+    resync: bool,
 }
 
 impl ReliableOutput {
@@ -139,6 +142,7 @@ impl ReliableOutput {
             hb_deadline: None,
             hb_base: None,
             acked: VecDeque::new(),
+            resync: false,
         }
     }
 
@@ -342,6 +346,19 @@ impl ReliableOutput {
     pub fn on_acknack(&mut self, ack: &AckNack, now: Instant) {
         let first = SeqNum(ack.first_unacked);
         let newly = usize::from(first.wrapping_sub(1).since(self.last_acked));
+        if std::mem::take(&mut self.resync) && newly > self.sent {
+            // a restored session: the peer expects `first` next, so what
+            // was sent is numbered from there and sent again
+            self.last_acked = first.wrapping_sub(1);
+            for i in 0..self.sent {
+                let seq = first.wrapping_add(i as u16);
+                if let Some(s) = self.slots.get_mut(i) {
+                    set_seq(&mut s.bytes, seq);
+                }
+                self.resend.push_back(seq);
+            }
+            return;
+        }
         if newly <= self.sent {
             for _ in 0..newly {
                 if let Some(s) = self.slots.pop_front() {
@@ -408,6 +425,14 @@ impl ReliableOutput {
     }
 
     /// Tags of submessages acknowledged since the last call, in order.
+    /// The session was restored without this stream's position: the
+    /// peer's first ACKNACK, whatever it acknowledges, sets the numbering
+    /// (what was sent meanwhile is numbered from it and sent again).
+    pub fn set_resync(&mut self) {
+        self.resync = true;
+    }
+
+    /// Tags of the submessages acknowledged since the last call.
     pub fn take_acked(&mut self) -> impl Iterator<Item = u16> + '_ {
         self.acked.drain(..)
     }

@@ -1,0 +1,352 @@
+//! `xrce-agent`: a DDS-XRCE agent with MicroXRCEAgent's command line,
+//! bridging XRCE clients into one DDS participant.
+//!
+//! ```text
+//! xrce-agent udp4 -p 8888 [-v 4] [-r refs.xml] [-d [7400]] [-m dds]
+//! xrce-agent tcp4 -p 8888
+//! xrce-agent serial --dev /dev/ttyUSB0 -b 115200
+//! xrce-agent pseudoterminal [--dev /tmp/xrce-pty]
+//! xrce-agent udp4 -p 8888 tcp4 -p 8889 --domain 3 --interface lo --peers 127.0.0.1
+//! ```
+//! Several transports may follow one another; options apply to the whole
+//! agent wherever they stand. Beyond MicroXRCEAgent's: `--bind` (the
+//! address UDP, TCP and discovery listen on; default every interface, as
+//! MicroXRCEAgent), and the DDS participant's `--domain`, `--interface`,
+//! `--peers`, `--multicast on|off` and `--any-domain`; and `--state <file>`,
+//! which keeps clients' sessions and objects so that a restarted agent
+//! serves them again.
+
+use std::net::{IpAddr, Ipv4Addr, SocketAddr, SocketAddrV4};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Args, Parser, Subcommand};
+use courier::rtps_backend::RtpsOptions;
+use courier_broker::xrce_agent::{Transport, XrceAgent};
+use courier_wire::xrce::bridge::Profiles;
+
+const TRANSPORTS: [&str; 4] = ["udp4", "tcp4", "serial", "pseudoterminal"];
+const UNSUPPORTED: [&str; 5] = ["udp6", "tcp6", "multiserial", "canfd", "termios"];
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "xrce-agent",
+    about = "A DDS-XRCE agent: XRCE clients' entities in one DDS participant",
+    after_help = "Several transports may be given one after another, e.g. \
+                  `xrce-agent udp4 -p 8888 tcp4 -p 8889`."
+)]
+struct Chunk {
+    #[command(subcommand)]
+    transport: Cmd,
+}
+
+#[derive(Subcommand, Debug)]
+enum Cmd {
+    /// UDP over IPv4.
+    Udp4(Net),
+    /// TCP over IPv4.
+    Tcp4(Net),
+    /// A serial device.
+    Serial(Serial),
+    /// A new pseudo-terminal (its path is printed).
+    Pseudoterminal(Pty),
+}
+
+#[derive(Args, Debug)]
+struct Net {
+    /// Port to listen on (0: any free port, printed).
+    #[arg(short = 'p', long)]
+    port: u16,
+    #[command(flatten)]
+    common: Common,
+}
+
+#[derive(Args, Debug)]
+struct Serial {
+    /// The serial device.
+    #[arg(short = 'D', long = "dev")]
+    dev: PathBuf,
+    /// Baud rate.
+    #[arg(short = 'b', long = "baudrate", default_value_t = 115_200)]
+    baud: u32,
+    #[command(flatten)]
+    common: Common,
+}
+
+#[derive(Args, Debug)]
+struct Pty {
+    /// A symbolic link to make to the new pseudo-terminal.
+    #[arg(short = 'D', long = "dev")]
+    dev: Option<PathBuf>,
+    /// Baud rate (a pseudo-terminal has none; accepted for MicroXRCEAgent's command lines).
+    #[arg(short = 'b', long = "baudrate")]
+    baud: Option<u32>,
+    #[command(flatten)]
+    common: Common,
+}
+
+#[derive(Args, Debug, Default, Clone)]
+struct Common {
+    /// Verbosity 0 (nothing) to 6 (everything), as MicroXRCEAgent's; default 4.
+    #[arg(short = 'v', long = "verbose", value_parser = clap::value_parser!(u8).range(0..=6))]
+    verbose: Option<u8>,
+    /// References file (Fast DDS profiles XML) for CREATE by reference.
+    #[arg(short = 'r', long = "refs")]
+    refs: Option<PathBuf>,
+    /// Answer discovery on this UDP port (default 7400) and 239.255.0.2.
+    #[arg(short = 'd', long = "discovery", num_args = 0..=1, default_missing_value = "7400")]
+    discovery: Option<u16>,
+    /// Middleware: only `dds`.
+    #[arg(short = 'm', long = "middleware")]
+    middleware: Option<String>,
+    /// Address UDP, TCP and discovery listen on (default 0.0.0.0).
+    #[arg(long)]
+    bind: Option<Ipv4Addr>,
+    /// DDS domain id of the agent's participant (default 0).
+    #[arg(long)]
+    domain: Option<u32>,
+    /// Network interface (name or IPv4 address) of the DDS participant.
+    #[arg(long)]
+    interface: Option<String>,
+    /// Unicast discovery peers of the DDS participant (ip or ip:port, comma-separated).
+    #[arg(long, value_delimiter = ',')]
+    peers: Vec<String>,
+    /// SPDP multicast discovery: on or off (default on unless --peers).
+    #[arg(long, value_parser = on_off)]
+    multicast: Option<bool>,
+    /// Take XRCE participants of any domain id into the agent's domain.
+    #[arg(long)]
+    any_domain: bool,
+    /// Keep clients' sessions and objects in this file and serve them again
+    /// after a restart (give the transports in the same order).
+    #[arg(long)]
+    state: Option<PathBuf>,
+}
+
+fn on_off(s: &str) -> Result<bool, String> {
+    match s {
+        "on" | "true" | "yes" | "1" => Ok(true),
+        "off" | "false" | "no" | "0" => Ok(false),
+        _ => Err(format!("{s:?}: expected on or off")),
+    }
+}
+
+impl Common {
+    fn merge(&mut self, o: Common) {
+        self.verbose = o.verbose.or(self.verbose);
+        self.refs = o.refs.or(self.refs.take());
+        self.discovery = o.discovery.or(self.discovery);
+        self.middleware = o.middleware.or(self.middleware.take());
+        self.bind = o.bind.or(self.bind);
+        self.domain = o.domain.or(self.domain);
+        self.interface = o.interface.or(self.interface.take());
+        self.peers.extend(o.peers);
+        self.multicast = o.multicast.or(self.multicast);
+        self.any_domain |= o.any_domain;
+        self.state = o.state.or(self.state.take());
+    }
+}
+
+/// What the command line asks for.
+struct Plan {
+    transports: Vec<Cmd>,
+    common: Common,
+}
+
+/// Splits the arguments at each transport name and parses each part.
+fn parse(args: Vec<String>) -> Result<Plan, clap::Error> {
+    let mut chunks: Vec<Vec<String>> = Vec::new();
+    let mut pre: Vec<String> = Vec::new();
+    for a in args.into_iter().skip(1) {
+        if TRANSPORTS.contains(&a.as_str()) {
+            chunks.push(vec![a]);
+        } else if let Some(c) = chunks.last_mut() {
+            c.push(a);
+        } else {
+            pre.push(a);
+        }
+    }
+    if let Some(u) = pre
+        .iter()
+        .chain(chunks.iter().flatten())
+        .find(|a| UNSUPPORTED.contains(&a.as_str()))
+    {
+        return Err(clap::Error::raw(
+            clap::error::ErrorKind::InvalidSubcommand,
+            format!(
+                "the {u} transport is not supported (these are: {})\n",
+                TRANSPORTS.join(", ")
+            ),
+        ));
+    }
+    if chunks.is_empty() {
+        // let clap say what is missing (or print help/version)
+        let mut v = vec!["xrce-agent".to_string()];
+        v.extend(pre);
+        Chunk::try_parse_from(v)?;
+        unreachable!("clap requires a transport");
+    }
+    if let Some(first) = chunks.first_mut() {
+        // options before the first transport belong to it
+        let mut v = vec![first.remove(0)];
+        v.append(&mut pre);
+        v.append(first);
+        *first = v;
+    }
+    let mut plan = Plan {
+        transports: Vec::new(),
+        common: Common::default(),
+    };
+    for c in chunks {
+        let mut v = vec!["xrce-agent".to_string()];
+        v.extend(c);
+        let chunk = Chunk::try_parse_from(v)?;
+        let common = match &chunk.transport {
+            Cmd::Udp4(n) | Cmd::Tcp4(n) => n.common.clone(),
+            Cmd::Serial(s) => s.common.clone(),
+            Cmd::Pseudoterminal(p) => p.common.clone(),
+        };
+        plan.common.merge(common);
+        plan.transports.push(chunk.transport);
+    }
+    Ok(plan)
+}
+
+fn level(v: u8) -> tracing::level_filters::LevelFilter {
+    use tracing::level_filters::LevelFilter as L;
+    match v {
+        0 => L::OFF,
+        1 | 2 => L::ERROR,
+        3 => L::WARN,
+        4 => L::INFO,
+        5 => L::DEBUG,
+        _ => L::TRACE,
+    }
+}
+
+/// The agent's settings, or what is wrong with them.
+fn build(
+    plan: &Plan,
+) -> Result<(Vec<Transport>, RtpsOptions, Profiles, Option<SocketAddrV4>), String> {
+    let c = &plan.common;
+    if let Some(m) = &c.middleware {
+        if m != "dds" {
+            return Err(format!(
+                "middleware {m:?} is not supported: this agent always bridges into DDS (-m dds)"
+            ));
+        }
+    }
+    let bind = c.bind.unwrap_or(Ipv4Addr::UNSPECIFIED);
+    let transports = plan
+        .transports
+        .iter()
+        .map(|t| match t {
+            Cmd::Udp4(n) => Transport::Udp(SocketAddr::new(IpAddr::V4(bind), n.port)),
+            Cmd::Tcp4(n) => Transport::Tcp(SocketAddr::new(IpAddr::V4(bind), n.port)),
+            Cmd::Serial(s) => Transport::Serial {
+                device: s.dev.clone(),
+                baud: s.baud,
+            },
+            Cmd::Pseudoterminal(p) => Transport::Pseudoterminal {
+                link: p.dev.clone(),
+            },
+        })
+        .collect();
+    let mut rtps = RtpsOptions::default();
+    rtps.domain = c.domain.unwrap_or(0);
+    rtps.interface = c.interface.clone();
+    rtps.peers = c.peers.clone();
+    rtps.multicast = c.multicast.unwrap_or(c.peers.is_empty());
+    let profiles = match &c.refs {
+        None => Profiles::new(),
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| format!("references file {}: {e}", path.display()))?;
+            Profiles::parse(&text)
+                .map_err(|e| format!("references file {}: {e}", path.display()))?
+        }
+    };
+    let discovery = c.discovery.map(|p| SocketAddrV4::new(bind, p));
+    Ok((transports, rtps, profiles, discovery))
+}
+
+fn main() -> ExitCode {
+    let plan = match parse(std::env::args().collect()) {
+        Ok(p) => p,
+        Err(e) => e.exit(),
+    };
+    tracing_subscriber::fmt()
+        .with_max_level(level(plan.common.verbose.unwrap_or(4)))
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .init();
+    let (transports, rtps, profiles, discovery) = match build(&plan) {
+        Ok(b) => b,
+        Err(e) => {
+            eprintln!("xrce-agent: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    let rt = match tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+    {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("xrce-agent: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    rt.block_on(async move {
+        let domain = rtps.domain;
+        let mut b = XrceAgent::builder()
+            .rtps(rtps)
+            .profiles(profiles)
+            .any_domain(plan.common.any_domain);
+        for t in transports {
+            b = b.transport(t);
+        }
+        if let Some(d) = discovery {
+            b = b.discovery(d);
+        }
+        if let Some(s) = &plan.common.state {
+            b = b.state(s);
+        }
+        let agent = match b.spawn().await {
+            Ok(a) => a,
+            Err(e) => {
+                eprintln!("xrce-agent: {e}");
+                return ExitCode::FAILURE;
+            }
+        };
+        for a in agent.udp_addrs() {
+            println!("udp4 {a}");
+        }
+        for a in agent.tcp_addrs() {
+            println!("tcp4 {a}");
+        }
+        for p in agent.serial_paths() {
+            println!("serial {}", p.display());
+        }
+        if let Some(a) = agent.discovery_addr() {
+            println!("discovery {a}");
+        }
+        println!("rtps {} domain {domain}", agent.rtps_addr());
+        println!("ready");
+        wait_for_signal().await;
+        agent.shutdown().await;
+        ExitCode::SUCCESS
+    })
+}
+
+async fn wait_for_signal() {
+    use tokio::signal::unix::{signal, SignalKind};
+    let Ok(mut term) = signal(SignalKind::terminate()) else {
+        let _ = tokio::signal::ctrl_c().await;
+        return;
+    };
+    tokio::select! {
+        _ = tokio::signal::ctrl_c() => {}
+        _ = term.recv() => {}
+    }
+}

@@ -1,0 +1,213 @@
+//! `xrce-agent --state <file>`: every client's session, objects and
+//! READ_DATA kept in a redb database, so that an agent killed and started
+//! again serves its clients as before
+//! ([`Bridge::restore`](courier_wire::xrce::bridge::Bridge::restore)).
+//! One record per client, written whenever what it holds changes
+//! (sessions, CREATE, DELETE, READ_DATA, never per sample) and committed
+//! durably: a record survives `kill -9` and power loss alike.
+//!
+//! A record: `XAS1`, the client key (4 bytes), session id, MTU (u16 LE),
+//! the client's address (`0` UDP: transport index, IPv4, port LE; `1`
+//! TCP: none, the client reconnects; `2` serial: transport index, serial
+//! address), then an XRCE message whose submessages are the CREATEs of its
+//! objects in creation order and its READ_DATAs.
+
+use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4};
+use std::path::Path;
+
+use courier_wire::xrce::bridge::ClientState;
+use courier_wire::xrce::{
+    BaseObjectRequest, ClientKey, Create, Message, MessageHeader, Payload, StreamId, Submessage,
+};
+use redb::{Database, ReadableTable, TableDefinition};
+
+use super::xrce_agent::Peer;
+
+const CLIENTS: TableDefinition<u32, &[u8]> = TableDefinition::new("clients");
+const MAGIC: &[u8; 4] = b"XAS1";
+
+/// The state file.
+pub(crate) struct Store {
+    db: Database,
+}
+
+/// Opens (or creates) the state file; the clients it holds.
+pub(crate) fn open(path: &Path) -> Result<(Store, Vec<ClientState<Peer>>), String> {
+    let fail = |e: &dyn std::fmt::Display| format!("state file {}: {e}", path.display());
+    let db = Database::create(path).map_err(|e| fail(&e))?;
+    let mut states = Vec::new();
+    {
+        let tx = db.begin_write().map_err(|e| fail(&e))?;
+        {
+            // the table exists from now on
+            let t = tx.open_table(CLIENTS).map_err(|e| fail(&e))?;
+            for row in t.iter().map_err(|e| fail(&e))? {
+                let (k, v) = row.map_err(|e| fail(&e))?;
+                match decode(v.value()) {
+                    Some(s) => states.push(s),
+                    None => tracing::warn!(
+                        "state file {}: the record of client 0x{:08X} is damaged; it is left out",
+                        path.display(),
+                        k.value()
+                    ),
+                }
+            }
+        }
+        tx.commit().map_err(|e| fail(&e))?;
+    }
+    Ok((Store { db }, states))
+}
+
+impl Store {
+    /// Saves (or replaces) a client's record.
+    pub(crate) fn save(&self, s: &ClientState<Peer>) -> Result<(), String> {
+        let bytes = encode(s);
+        let tx = self.db.begin_write().map_err(text)?;
+        {
+            let mut t = tx.open_table(CLIENTS).map_err(text)?;
+            t.insert(u32::from(s.client), bytes.as_slice())
+                .map_err(text)?;
+        }
+        tx.commit().map_err(text)
+    }
+
+    /// Forgets a client.
+    pub(crate) fn remove(&self, client: ClientKey) -> Result<(), String> {
+        let tx = self.db.begin_write().map_err(text)?;
+        {
+            let mut t = tx.open_table(CLIENTS).map_err(text)?;
+            t.remove(u32::from(client)).map_err(text)?;
+        }
+        tx.commit().map_err(text)
+    }
+}
+
+fn text(e: impl std::fmt::Display) -> String {
+    e.to_string()
+}
+
+fn encode(s: &ClientState<Peer>) -> Vec<u8> {
+    let mut v = MAGIC.to_vec();
+    v.extend_from_slice(&s.client.0);
+    v.push(s.session_id);
+    v.extend_from_slice(&s.mtu.to_le_bytes());
+    match s.addr {
+        Peer::Udp(i, SocketAddr::V4(a)) => {
+            v.extend_from_slice(&[0, i]);
+            v.extend_from_slice(&a.ip().octets());
+            v.extend_from_slice(&a.port().to_le_bytes());
+        }
+        Peer::Serial(i, src) => v.extend_from_slice(&[2, i, src]),
+        Peer::Tcp(_) | Peer::Udp(_, SocketAddr::V6(_)) => v.push(1),
+    }
+    let mut subs: Vec<Submessage> = s
+        .objects
+        .iter()
+        .map(|(id, object)| {
+            Submessage::new(Payload::Create(Create {
+                request: BaseObjectRequest::new(0, *id),
+                object: object.clone(),
+            }))
+        })
+        .collect();
+    subs.extend(
+        s.reads
+            .iter()
+            .map(|r| Submessage::new(Payload::ReadData(r.clone()))),
+    );
+    let m = Message::new(MessageHeader::new(0x80, StreamId::NONE, 0), subs);
+    // objects too large for one message are kept as far as they go
+    v.extend(m.to_vec().unwrap_or_default());
+    v
+}
+
+fn decode(b: &[u8]) -> Option<ClientState<Peer>> {
+    let rest = b.strip_prefix(MAGIC)?;
+    let key: [u8; 4] = rest.get(..4)?.try_into().ok()?;
+    let session_id = *rest.get(4)?;
+    let mtu = u16::from_le_bytes(rest.get(5..7)?.try_into().ok()?);
+    let (addr, rest) = match *rest.get(7)? {
+        0 => {
+            let i = *rest.get(8)?;
+            let ip: [u8; 4] = rest.get(9..13)?.try_into().ok()?;
+            let port = u16::from_le_bytes(rest.get(13..15)?.try_into().ok()?);
+            (
+                Peer::Udp(
+                    i,
+                    SocketAddr::V4(SocketAddrV4::new(Ipv4Addr::from(ip), port)),
+                ),
+                rest.get(15..)?,
+            )
+        }
+        // a TCP client comes back on a new connection: until then, an
+        // address no connection has
+        1 => (
+            Peer::Tcp(u64::MAX - u64::from(u32::from_be_bytes(key))),
+            rest.get(8..)?,
+        ),
+        2 => (Peer::Serial(*rest.get(8)?, *rest.get(9)?), rest.get(10..)?),
+        _ => return None,
+    };
+    let m = Message::decode(rest).ok()?;
+    let mut objects = Vec::new();
+    let mut reads = Vec::new();
+    for s in m.submessages {
+        match s.payload {
+            Payload::Create(c) => objects.push((c.request.object_id, c.object)),
+            Payload::ReadData(r) => reads.push(r),
+            _ => return None,
+        }
+    }
+    Some(ClientState {
+        client: ClientKey(key),
+        session_id,
+        mtu,
+        addr,
+        objects,
+        reads,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use courier_wire::xrce::{
+        DeliveryControl, ObjectId, ObjectKind, ObjectVariant, ReadData, Representation,
+    };
+
+    #[test]
+    fn records_round_trip() {
+        let s = ClientState {
+            client: ClientKey::from(0xAABB_CCDD),
+            session_id: 0x81,
+            mtu: 508,
+            addr: Peer::Udp(1, "127.0.0.1:40000".parse().unwrap()),
+            objects: vec![(
+                ObjectId::new(1, ObjectKind::Participant),
+                ObjectVariant::Participant {
+                    representation: Representation::Xml("<dds/>".into()),
+                    domain_id: 3,
+                },
+            )],
+            reads: vec![ReadData {
+                request: BaseObjectRequest::new(14, ObjectId::new(1, ObjectKind::DataReader)),
+                preferred_stream_id: StreamId::RELIABLE,
+                data_format: 0,
+                content_filter: None,
+                delivery_control: Some(DeliveryControl {
+                    max_samples: u16::MAX,
+                    ..DeliveryControl::default()
+                }),
+            }],
+        };
+        assert_eq!(decode(&encode(&s)), Some(s.clone()));
+        let serial = ClientState {
+            addr: Peer::Serial(0, 1),
+            ..s.clone()
+        };
+        assert_eq!(decode(&encode(&serial)), Some(serial));
+        let mut damaged = encode(&s);
+        damaged.truncate(20);
+        assert_eq!(decode(&damaged), None);
+    }
+}

@@ -1,0 +1,392 @@
+//! The `xrce-agent` library and binary on loopback: Courier's XRCE client
+//! machine over UDP, TCP and a pseudo-terminal ⇄ the agent ⇄ Cyclone DDS
+//! 0.10 (Debian's, through `courier_tests::peers`, pinned to `lo` with
+//! unicast discovery) in both directions; two XRCE clients of one agent;
+//! the command line's errors, word for word.
+//!
+//! Every DDS participant (the agent's, Cyclone's) is on `lo`, unicast to
+//! 127.0.0.1, multicast off, in a domain leased machine-wide
+//! (`courier_tests::domains`). Every XRCE socket binds 127.0.0.1 port 0.
+
+use std::net::SocketAddr;
+use std::process::Command;
+use std::time::Instant;
+
+use courier::rtps_backend::RtpsOptions;
+use courier_broker::xrce_agent::{Transport, XrceAgent};
+use courier_tests::peers::{cyclone_peer, payload, PeerProcess};
+use courier_wire::xrce::{DeliveryControl, Event, ObjectKind};
+
+mod xrce_client;
+use xrce_client::{msg, oid, reader, unmsg, writer, XClient, R, T};
+
+fn rtps(domain: u32) -> RtpsOptions {
+    let mut o = RtpsOptions::default();
+    o.domain = domain;
+    o.interface = Some("lo".into());
+    o.peers = vec!["127.0.0.1".into()];
+    o.multicast = false;
+    o
+}
+
+fn agent(rt: &tokio::runtime::Runtime, domain: u32, transports: Vec<Transport>) -> XrceAgent {
+    let mut b = XrceAgent::builder().rtps(rtps(domain));
+    for t in transports {
+        b = b.transport(t);
+    }
+    rt.block_on(b.spawn()).unwrap()
+}
+
+fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
+fn cyclone(args: &[&str]) -> PeerProcess {
+    let exe = cyclone_peer().unwrap_or_else(|e| panic!("cannot build the Cyclone DDS peer: {e}"));
+    PeerProcess::spawn(exe, args).unwrap_or_else(|e| panic!("{e}"))
+}
+
+fn local(port: u16) -> SocketAddr {
+    SocketAddr::from(([127, 0, 0, 1], port))
+}
+
+#[test]
+fn xrce_client_over_udp_writes_to_cyclone() {
+    let d = courier_tests::domains::lease(1);
+    let rt = runtime();
+    let a = agent(&rt, d, vec![Transport::Udp(local(0))]);
+    let ds = d.to_string();
+    let mut sub = cyclone(&[
+        "--domain",
+        &ds,
+        "--topic",
+        "xrce_up",
+        "--type",
+        "msg",
+        "--sub",
+        "--reliable",
+        "--transient-local",
+        "--keep-all",
+        "--count",
+        "5",
+        "--timeout-s",
+        "60",
+    ]);
+    sub.expect_line("ready", T).unwrap();
+    let mut c = XClient::udp(0x1111_0001, a.udp_addrs()[0]);
+    c.create(writer(d, "xrce_up"));
+    sub.expect_line("matched 1", T).unwrap();
+    for seq in 1..=5u32 {
+        let body = msg(seq, "xrce", &payload(seq, 40));
+        c.c.write(oid(ObjectKind::DataWriter), R, &body, Instant::now())
+            .unwrap();
+    }
+    // every write acknowledged: DDS has taken them all
+    assert!(c.until(T, |e| e
+        .iter()
+        .filter(|e| matches!(e, Event::WriteAcked(_)))
+        .count()
+        == 5));
+    for seq in 1..=5u32 {
+        let line = sub.expect_line("sample", T).unwrap();
+        assert_eq!(
+            line,
+            courier_tests::peers::msg_sample_line(seq, "xrce", 40),
+            "{}",
+            sub.stderr()
+        );
+    }
+    sub.expect_line("done", T).unwrap();
+    rt.block_on(a.shutdown());
+}
+
+#[test]
+fn cyclone_writes_to_an_xrce_client_over_tcp() {
+    let d = courier_tests::domains::lease(2);
+    let rt = runtime();
+    let a = agent(&rt, d, vec![Transport::Tcp(local(0))]);
+    let mut c = XClient::tcp(0x1111_0002, a.tcp_addrs()[0]);
+    c.create(reader(d, "xrce_down"));
+    let unlimited = Some(DeliveryControl {
+        max_samples: u16::MAX,
+        ..DeliveryControl::default()
+    });
+    c.c.read(oid(ObjectKind::DataReader), R, R, unlimited, Instant::now())
+        .unwrap();
+    let ds = d.to_string();
+    let mut publ = cyclone(&[
+        "--domain",
+        &ds,
+        "--topic",
+        "xrce_down",
+        "--type",
+        "msg",
+        "--pub",
+        "--reliable",
+        "--count",
+        "5",
+        "--size",
+        "1500",
+        "--wait-match",
+        "1",
+        "--text",
+        "cyc",
+        "--linger-ms",
+        "3000",
+        "--timeout-s",
+        "60",
+    ]);
+    assert!(c.until(T, |e| e
+        .iter()
+        .filter(|e| matches!(e, Event::Data { .. }))
+        .count()
+        >= 5));
+    let got: Vec<(u32, String, Vec<u8>)> = c.data().iter().map(|b| unmsg(b)).collect();
+    for (i, (seq, text, p)) in got.iter().enumerate() {
+        let want = i as u32 + 1;
+        assert_eq!(*seq, want);
+        assert!(text.starts_with("cyc"), "{text}");
+        assert_eq!(*p, payload(want, 1500));
+    }
+    publ.kill();
+    rt.block_on(a.shutdown());
+}
+
+#[test]
+fn two_xrce_clients_through_a_pseudoterminal_and_udp() {
+    let d = courier_tests::domains::lease(3);
+    let rt = runtime();
+    let a = agent(
+        &rt,
+        d,
+        vec![
+            Transport::Pseudoterminal { link: None },
+            Transport::Udp(local(0)),
+        ],
+    );
+    let pty = a.serial_paths()[0].clone();
+    assert!(pty.exists(), "{}", pty.display());
+    let mut w = XClient::serial(0x2222_0001, &pty);
+    let mut r = XClient::udp(0x2222_0002, a.udp_addrs()[0]);
+    r.create(reader(d, "serial_topic"));
+    let unlimited = Some(DeliveryControl {
+        max_samples: u16::MAX,
+        ..DeliveryControl::default()
+    });
+    r.c.read(oid(ObjectKind::DataReader), R, R, unlimited, Instant::now())
+        .unwrap();
+    w.create(writer(d, "serial_topic"));
+    for seq in 0..10u32 {
+        let body = msg(seq, "pty", &payload(seq, 600));
+        w.c.write(oid(ObjectKind::DataWriter), R, &body, Instant::now())
+            .unwrap();
+    }
+    let end = Instant::now() + T;
+    while r.data().len() < 10 && Instant::now() < end {
+        w.turn();
+        r.turn();
+    }
+    let got: Vec<_> = r.data().iter().map(|b| unmsg(b)).collect();
+    let want: Vec<_> = (0..10u32)
+        .map(|s| (s, "pty".to_string(), payload(s, 600)))
+        .collect();
+    assert_eq!(got, want);
+    rt.block_on(a.shutdown());
+}
+
+fn agent_cli(args: &[&str]) -> (i32, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_xrce-agent"))
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn command_line_errors() {
+    let dir = std::env::temp_dir().join(format!("xrce-agent-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let bad = dir.join("bad.refs");
+    std::fs::write(
+        &bad,
+        "<profiles>\n  <topic profile_name=\"t\">\n</profiles>\n",
+    )
+    .unwrap();
+    let incomplete = dir.join("incomplete.refs");
+    std::fs::write(
+        &incomplete,
+        "<profiles><topic profile_name=\"t\"><name>x</name></topic></profiles>",
+    )
+    .unwrap();
+    let missing = dir.join("missing.refs");
+    let cases: Vec<(Vec<String>, i32, String)> = vec![
+        (
+            vec!["udp4".into()],
+            2,
+            "error: the following required arguments were not provided:\n  --port <PORT>".into(),
+        ),
+        (
+            vec!["udp6".into(), "-p".into(), "8888".into()],
+            2,
+            "error: the udp6 transport is not supported (these are: udp4, tcp4, serial, pseudoterminal)".into(),
+        ),
+        (
+            vec!["udp4".into(), "-p".into(), "0".into(), "-v".into(), "9".into()],
+            2,
+            "error: invalid value '9' for '--verbose <VERBOSE>': 9 is not in 0..=6".into(),
+        ),
+        (
+            vec!["udp4".into(), "-p".into(), "0".into(), "-m".into(), "ced".into()],
+            2,
+            "xrce-agent: middleware \"ced\" is not supported: this agent always bridges into DDS (-m dds)".into(),
+        ),
+        (
+            vec!["udp4".into(), "-p".into(), "0".into(), "-r".into(), bad.display().to_string()],
+            2,
+            format!(
+                "xrce-agent: references file {}: XML at line 3, column 1: expected 'topic' tag, not 'profiles'",
+                bad.display()
+            ),
+        ),
+        (
+            vec!["udp4".into(), "-p".into(), "0".into(), "-r".into(), incomplete.display().to_string()],
+            2,
+            format!(
+                "xrce-agent: references file {}: <topic> has no <dataType>",
+                incomplete.display()
+            ),
+        ),
+        (
+            vec!["udp4".into(), "-p".into(), "0".into(), "-r".into(), missing.display().to_string()],
+            2,
+            format!(
+                "xrce-agent: references file {}: No such file or directory (os error 2)",
+                missing.display()
+            ),
+        ),
+        (
+            vec!["tcp4".into(), "-p".into(), "0".into(), "--multicast".into(), "maybe".into()],
+            2,
+            "error: invalid value 'maybe' for '--multicast <MULTICAST>': \"maybe\": expected on or off".into(),
+        ),
+        (
+            vec!["serial".into(), "--dev".into(), "/nonexistent/tty".into(), "--bind".into(), "127.0.0.1".into()],
+            1,
+            "xrce-agent: cannot open serial /nonexistent/tty:".into(),
+        ),
+    ];
+    for (args, code, want) in cases {
+        let a: Vec<&str> = args.iter().map(String::as_str).collect();
+        let (got_code, stderr) = agent_cli(&a);
+        assert_eq!(got_code, code, "{args:?}: {stderr}");
+        assert!(
+            stderr.starts_with(&want),
+            "{args:?}:\n got: {stderr}\nwant: {want}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// `xrce-agent` with `--state`, on 127.0.0.1 at `port` (0: any); its UDP address.
+fn agent_with_state(
+    domain: u32,
+    state: &std::path::Path,
+    port: u16,
+) -> (std::process::Child, SocketAddr) {
+    use std::io::BufRead;
+    let mut child = Command::new(env!("CARGO_BIN_EXE_xrce-agent"))
+        .args(["udp4", "-p", &port.to_string(), "--bind", "127.0.0.1"])
+        .args([
+            "--interface",
+            "lo",
+            "--peers",
+            "127.0.0.1",
+            "--multicast",
+            "off",
+        ])
+        .args(["--domain", &domain.to_string(), "-v", "2", "--state"])
+        .arg(state)
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let out = child.stdout.take().unwrap();
+    let mut addr = None;
+    for line in std::io::BufReader::new(out).lines() {
+        let line = line.unwrap();
+        if let Some(a) = line.strip_prefix("udp4 ") {
+            addr = Some(a.parse().unwrap());
+        }
+        if line == "ready" {
+            break;
+        }
+    }
+    (child, addr.expect("the agent printed its address"))
+}
+
+#[test]
+fn a_restart_with_state_after_kill_9_is_invisible_to_clients() {
+    let d = courier_tests::domains::lease(4);
+    let dir = std::env::temp_dir().join(format!("xrce-agent-state-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let state = dir.join("agent.redb");
+    let _ = std::fs::remove_file(&state);
+    let (mut agent, addr) = agent_with_state(d, &state, 0);
+    let mut w = XClient::udp(0x4444_0001, addr);
+    let mut r = XClient::udp(0x4444_0002, addr);
+    r.create(reader(d, "restart"));
+    let unlimited = Some(DeliveryControl {
+        max_samples: u16::MAX,
+        ..DeliveryControl::default()
+    });
+    r.c.read(oid(ObjectKind::DataReader), R, R, unlimited, Instant::now())
+        .unwrap();
+    w.create(writer(d, "restart"));
+    let mut next = 0u32;
+    let mut exchange = |w: &mut XClient, r: &mut XClient, n: u32| {
+        let end = Instant::now() + T;
+        while r.data().len() < n as usize && Instant::now() < end {
+            while next < n {
+                let body = msg(next, "restart", &[next as u8; 32]);
+                match w
+                    .c
+                    .write(oid(ObjectKind::DataWriter), R, &body, Instant::now())
+                {
+                    Ok(_) => next += 1,
+                    Err(_) => break,
+                }
+            }
+            w.turn();
+            r.turn();
+        }
+    };
+    exchange(&mut w, &mut r, 10);
+    assert_eq!(r.data().len(), 10);
+    // kill -9, and the same agent again on the same port with the same state
+    agent.kill().unwrap();
+    agent.wait().unwrap();
+    let (mut again, addr2) = agent_with_state(d, &state, addr.port());
+    assert_eq!(addr2, addr);
+    // the clients know nothing of it and go on with their sessions
+    exchange(&mut w, &mut r, 20);
+    let got: Vec<u32> = r.data().iter().map(|b| unmsg(b).0).collect();
+    assert_eq!(
+        got,
+        (0..20).collect::<Vec<_>>(),
+        "complete and in order across the restart"
+    );
+    assert!(w.until(T, |e| e
+        .iter()
+        .filter(|e| matches!(e, Event::WriteAcked(_)))
+        .count()
+        == 20));
+    again.kill().unwrap();
+    again.wait().unwrap();
+    let _ = std::fs::remove_dir_all(dir);
+}

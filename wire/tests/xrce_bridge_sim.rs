@@ -1,0 +1,1005 @@
+//! The XRCE agent's host ([`Bridge`]) on the shared simulated network:
+//! Courier XRCE clients ⇄ bridge (agent machine + one DDS Domain) ⇄ plain
+//! DDS Domains. Entities by binary representation, XML and reference;
+//! samples both ways, byte for byte; requester/replier; READ_DATA delivery
+//! control; creation modes; keep-all back-pressure that reaches the
+//! client through the XRCE window with nothing acknowledged lost; the
+//! first sample of a writer whose reader was already discovered.
+
+use std::time::{Duration, Instant};
+
+use courier_wire::dds::{Domain, Event as DdsEvent, ReaderId};
+use courier_wire::rtps::discovery::{Duration as RtpsDuration, EndpointQos, History, Reliability};
+use courier_wire::rtps::participant::{guid_prefix, Change, Config, EndpointConfig};
+use courier_wire::rtps::Locator;
+use courier_wire::sim::{self, Faults, Node};
+use courier_wire::xrce::bridge::{Bridge, BridgeConfig, BridgeEvent, Profiles};
+use courier_wire::xrce::sim::{Peer, PeerEvent};
+use courier_wire::xrce::{
+    qos_flags, BinaryRepresentation, Client, ClientConfig, CreationMode, DataReaderBinary,
+    DataReaderQos, DataWriterBinary, DeliveryControl, EndpointQos as BinQos, Event, GroupBinary,
+    ObjectId, ObjectKind, ObjectVariant, ParticipantBinary, Representation, ServiceBinary,
+    StatusCode, StreamId, TopicBinary,
+};
+
+const LO: [u8; 4] = [127, 0, 0, 1];
+const R: StreamId = StreamId::RELIABLE;
+const BE: StreamId = StreamId::BEST_EFFORT;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+enum Addr {
+    X(u16),
+    R(Locator),
+}
+
+enum N {
+    Client(Peer<Addr>),
+    Bridge(Box<Bridge<Addr>>, u16),
+    Dds(Box<Domain>),
+}
+
+#[derive(Debug)]
+enum Ev {
+    Client(Event),
+    Bridge(BridgeEvent),
+    Dds(Box<DdsEvent>),
+}
+
+fn owns(d: &Domain, l: &Locator) -> bool {
+    let c = d.participant().config();
+    c.metatraffic_unicast.contains(l) || c.default_unicast.contains(l)
+}
+
+fn dummy() -> Locator {
+    Locator::udpv4(LO, 1)
+}
+
+impl Node for N {
+    type Addr = Addr;
+    type Event = Ev;
+    fn owns(&self, to: &Addr) -> bool {
+        match (self, to) {
+            (N::Client(p), _) => p.owns(to),
+            (N::Bridge(_, a), Addr::X(x)) => a == x,
+            (N::Bridge(b, _), Addr::R(l)) => owns(b.domain(), l),
+            (N::Dds(d), Addr::R(l)) => owns(d, l),
+            _ => false,
+        }
+    }
+    fn reads(&self, to: &Addr) -> bool {
+        match (self, to) {
+            (N::Dds(d), Addr::R(l)) => Node::reads(&**d, l),
+            _ => true,
+        }
+    }
+    fn address(&self) -> Addr {
+        match self {
+            N::Client(p) => p.address(),
+            N::Bridge(_, a) => Addr::X(*a),
+            N::Dds(d) => Addr::R(Node::address(&**d)),
+        }
+    }
+    fn handle_datagram(&mut self, from: Addr, bytes: &[u8], now: Instant) {
+        match (self, to_locator(from)) {
+            (N::Client(p), _) => p.handle_datagram(from, bytes, now),
+            (N::Bridge(b, _), _) if matches!(from, Addr::X(_)) => {
+                let _ = b.handle_input(from, bytes, now);
+            }
+            (N::Bridge(b, _), l) => b.handle_datagram(l, bytes, now),
+            (N::Dds(d), l) => d.handle_datagram(l, bytes, now),
+        }
+    }
+    fn handle_timeout(&mut self, now: Instant) {
+        match self {
+            N::Client(p) => p.handle_timeout(now),
+            N::Bridge(b, _) => b.handle_timeout(now),
+            N::Dds(d) => d.handle_timeout(now),
+        }
+    }
+    fn poll_timeout(&self) -> Option<Instant> {
+        match self {
+            N::Client(p) => p.poll_timeout(),
+            N::Bridge(b, _) => b.poll_timeout(),
+            N::Dds(d) => d.poll_timeout(),
+        }
+    }
+    fn poll_transmit(&mut self) -> Option<(Addr, Vec<u8>)> {
+        match self {
+            N::Client(p) => p.poll_transmit(),
+            N::Bridge(b, _) => b.poll_transmit().or_else(|| {
+                b.poll_datagram()
+                    .map(|d| (Addr::R(d.destination), d.payload))
+            }),
+            N::Dds(d) => d
+                .poll_transmit()
+                .map(|d| (Addr::R(d.destination), d.payload)),
+        }
+    }
+    fn poll_event(&mut self) -> Option<Ev> {
+        match self {
+            N::Client(p) => p.poll_event().and_then(|e| match e {
+                PeerEvent::Client(e) => Some(Ev::Client(e)),
+                PeerEvent::Agent(_) => None,
+            }),
+            N::Bridge(b, _) => b.poll_event().map(Ev::Bridge),
+            N::Dds(d) => d.poll_event().map(|e| Ev::Dds(Box::new(e))),
+        }
+    }
+}
+
+fn to_locator(a: Addr) -> Locator {
+    match a {
+        Addr::R(l) => l,
+        Addr::X(_) => dummy(),
+    }
+}
+
+type Net = sim::Net<N>;
+
+fn dds_config(i: u32) -> Config {
+    Config::udpv4(0, i, guid_prefix([i as u8 + 1; 10]), LO)
+        .unwrap()
+        .with_unicast_peers(&[LO], 9)
+}
+
+const AGENT: u16 = 1;
+
+struct World {
+    net: Net,
+    bridge: usize,
+    dds: usize,
+}
+
+fn world(seed: u64, loss: u32, tweak: impl FnOnce(&mut Config, &mut BridgeConfig)) -> World {
+    let mut net = Net::new(seed, Faults::lossy(loss));
+    let (mut dc, mut bc) = (dds_config(0), BridgeConfig::default());
+    bc.profiles = Profiles::parse(REFS).unwrap();
+    tweak(&mut dc, &mut bc);
+    let domain = Domain::new(dc, net.now(), net.wall());
+    let bridge = Bridge::new(bc, domain, net.now(), net.wall());
+    let bridge = net.add(N::Bridge(Box::new(bridge), AGENT));
+    let dds = net.add(N::Dds(Box::new(Domain::new(
+        dds_config(1),
+        net.now(),
+        net.wall(),
+    ))));
+    World { net, bridge, dds }
+}
+
+const REFS: &str = r#"<profiles>
+  <participant profile_name="p"><rtps><name>p</name></rtps></participant>
+  <data_writer profile_name="square_writer">
+    <topic><kind>WITH_KEY</kind><name>Square</name><dataType>ShapeType</dataType></topic>
+  </data_writer>
+</profiles>"#;
+
+fn oid(kind: ObjectKind) -> ObjectId {
+    ObjectId::new(1, kind)
+}
+
+fn bin(b: BinaryRepresentation) -> Representation {
+    b.to_representation().unwrap()
+}
+
+impl World {
+    fn add_client(&mut self, addr: u16, key: u32) -> usize {
+        let c = Client::new(ClientConfig::new(key));
+        let i = self
+            .net
+            .add(N::Client(Peer::client(Addr::X(addr), Addr::X(AGENT), c)));
+        let now = self.net.now();
+        self.client(i).connect(now);
+        assert!(self.run_until(Duration::from_secs(10), |w| w
+            .client_events(i)
+            .iter()
+            .any(|e| matches!(e, Event::Connected { .. }))));
+        i
+    }
+
+    fn client(&mut self, i: usize) -> &mut Client {
+        match self.net.node(i) {
+            N::Client(p) => p.as_client().unwrap(),
+            _ => panic!("not a client"),
+        }
+    }
+
+    fn bridge(&mut self) -> &mut Bridge<Addr> {
+        match self.net.node(self.bridge) {
+            N::Bridge(b, _) => b,
+            _ => panic!(),
+        }
+    }
+
+    fn dds(&mut self) -> &mut Domain {
+        match self.net.node(self.dds) {
+            N::Dds(d) => d,
+            _ => panic!(),
+        }
+    }
+
+    fn run_until(&mut self, limit: Duration, mut done: impl FnMut(&Self) -> bool) -> bool {
+        let end = self.net.elapsed() + limit;
+        while self.net.elapsed() < end {
+            if done(self) {
+                return true;
+            }
+            self.net.step();
+        }
+        done(self)
+    }
+
+    fn client_events(&self, i: usize) -> Vec<&Event> {
+        self.net.hosts[i]
+            .events
+            .iter()
+            .filter_map(|e| match e {
+                Ev::Client(e) => Some(e),
+                _ => None,
+            })
+            .collect()
+    }
+
+    fn statuses(&self, i: usize) -> Vec<(ObjectId, Result<StatusCode, StatusCode>)> {
+        self.client_events(i)
+            .into_iter()
+            .filter_map(|e| match e {
+                Event::Status { object, result, .. } => Some((*object, (*result).map_err(|e| e.0))),
+                _ => None,
+            })
+            .collect()
+    }
+
+    /// Creates `objects` in order and waits for every STATUS.
+    fn create(&mut self, i: usize, objects: Vec<(ObjectId, ObjectVariant)>, mode: CreationMode) {
+        let before = self.statuses(i).len();
+        let n = objects.len();
+        for (id, v) in objects {
+            let now = self.net.now();
+            self.client(i).create(id, v, mode, now).unwrap();
+        }
+        assert!(
+            self.run_until(Duration::from_secs(10), |w| w.statuses(i).len()
+                >= before + n)
+        );
+    }
+
+    fn data(&self, i: usize) -> Vec<Vec<u8>> {
+        self.client_events(i)
+            .into_iter()
+            .filter_map(|e| match e {
+                Event::Data { data, .. } => Some(data.clone()),
+                _ => None,
+            })
+            .collect()
+    }
+
+    fn dds_samples(&self, r: ReaderId) -> Vec<Vec<u8>> {
+        self.net.hosts[self.dds]
+            .events
+            .iter()
+            .filter_map(|e| match e {
+                Ev::Dds(e) => match &**e {
+                    DdsEvent::Sample { reader, sample } if *reader == r => {
+                        Some(sample.data().to_vec())
+                    }
+                    _ => None,
+                },
+                _ => None,
+            })
+            .collect()
+    }
+}
+
+fn participant() -> (ObjectId, ObjectVariant) {
+    (
+        oid(ObjectKind::Participant),
+        ObjectVariant::Participant {
+            representation: bin(BinaryRepresentation::Participant(
+                ParticipantBinary::default(),
+            )),
+            domain_id: 0,
+        },
+    )
+}
+
+fn topic(name: &str) -> (ObjectId, ObjectVariant) {
+    (
+        oid(ObjectKind::Topic),
+        ObjectVariant::Topic {
+            representation: bin(BinaryRepresentation::Topic(TopicBinary {
+                topic_name: name.into(),
+                type_reference: None,
+                type_name: Some("HelloWorld".into()),
+            })),
+            participant_id: oid(ObjectKind::Participant),
+        },
+    )
+}
+
+fn endpoint_qos(reliable: bool) -> BinQos {
+    BinQos {
+        flags: if reliable { qos_flags::RELIABLE } else { 0 },
+        ..BinQos::default()
+    }
+}
+
+/// Participant, topic, publisher and a writer (keep-all) by binary representation.
+fn writer_objects(name: &str, reliable: bool) -> Vec<(ObjectId, ObjectVariant)> {
+    let p = oid(ObjectKind::Publisher);
+    vec![
+        participant(),
+        topic(name),
+        (
+            p,
+            ObjectVariant::Publisher {
+                representation: bin(BinaryRepresentation::Publisher(GroupBinary::default())),
+                participant_id: oid(ObjectKind::Participant),
+            },
+        ),
+        (
+            oid(ObjectKind::DataWriter),
+            ObjectVariant::DataWriter {
+                representation: bin(BinaryRepresentation::DataWriter(DataWriterBinary {
+                    topic_id: oid(ObjectKind::Topic),
+                    qos: Some((endpoint_qos(reliable), None)),
+                })),
+                publisher_id: p,
+            },
+        ),
+    ]
+}
+
+/// Participant, topic, subscriber and a reader (keep-all) by binary representation.
+fn reader_objects(name: &str, reliable: bool) -> Vec<(ObjectId, ObjectVariant)> {
+    let s = oid(ObjectKind::Subscriber);
+    vec![
+        participant(),
+        topic(name),
+        (
+            s,
+            ObjectVariant::Subscriber {
+                representation: bin(BinaryRepresentation::Subscriber(GroupBinary::default())),
+                participant_id: oid(ObjectKind::Participant),
+            },
+        ),
+        (
+            oid(ObjectKind::DataReader),
+            ObjectVariant::DataReader {
+                representation: bin(BinaryRepresentation::DataReader(DataReaderBinary {
+                    topic_id: oid(ObjectKind::Topic),
+                    qos: Some(DataReaderQos {
+                        base: endpoint_qos(reliable),
+                        time_based_filter_ms: None,
+                        content_filter: None,
+                    }),
+                })),
+                subscriber_id: s,
+            },
+        ),
+    ]
+}
+
+fn reliable_keep_all(reader: bool) -> EndpointQos {
+    let mut q = if reader {
+        EndpointQos::reader_default()
+    } else {
+        EndpointQos::writer_default()
+    };
+    q.reliability = Reliability::Reliable(RtpsDuration::ZERO);
+    q.history = History::KeepAll;
+    q
+}
+
+fn sample(i: u32, len: usize) -> Vec<u8> {
+    let mut v = i.to_le_bytes().to_vec();
+    v.extend((4..len).map(|k| (k as u32 ^ i) as u8));
+    v
+}
+
+fn unlimited() -> Option<DeliveryControl> {
+    Some(DeliveryControl {
+        max_samples: u16::MAX,
+        ..DeliveryControl::default()
+    })
+}
+
+/// The DDS bytes of an XRCE body: CDR_LE header with the pad count, padding.
+fn encapsulated(body: &[u8]) -> Vec<u8> {
+    let pad = (4 - body.len() % 4) % 4;
+    let mut v = vec![0, 1, 0, pad as u8];
+    v.extend_from_slice(body);
+    v.resize(4 + body.len() + pad, 0);
+    v
+}
+
+#[test]
+fn xrce_client_to_dds_reader_and_dds_writer_to_xrce_client() {
+    let mut w = world(1, 0, |_, _| {});
+    let now = w.net.now();
+    let r = w
+        .dds()
+        .create_reader(
+            EndpointConfig::reader("Hello", "HelloWorld").qos(reliable_keep_all(true)),
+            now,
+        )
+        .unwrap();
+    let dw = w
+        .dds()
+        .create_writer(
+            EndpointConfig::writer("Back", "HelloWorld").qos(reliable_keep_all(false)),
+            now,
+        )
+        .unwrap();
+    let c = w.add_client(10, 0xAAAA_0001);
+    w.create(c, writer_objects("Hello", true), CreationMode::REPLACE);
+    let mut objs = reader_objects("Back", true);
+    // ids must not collide with the writer's participant and topic: use id 2
+    for o in objs.iter_mut() {
+        o.0 = ObjectId::new(2, o.0.kind().unwrap());
+        match &mut o.1 {
+            ObjectVariant::Topic { participant_id, .. }
+            | ObjectVariant::Subscriber { participant_id, .. } => {
+                *participant_id = ObjectId::new(2, ObjectKind::Participant)
+            }
+            ObjectVariant::DataReader {
+                representation,
+                subscriber_id,
+            } => {
+                *subscriber_id = ObjectId::new(2, ObjectKind::Subscriber);
+                *representation = bin(BinaryRepresentation::DataReader(DataReaderBinary {
+                    topic_id: ObjectId::new(2, ObjectKind::Topic),
+                    qos: Some(DataReaderQos {
+                        base: endpoint_qos(true),
+                        time_based_filter_ms: None,
+                        content_filter: None,
+                    }),
+                }));
+            }
+            _ => {}
+        }
+    }
+    w.create(c, objs, CreationMode::REPLACE);
+    assert!(
+        w.statuses(c).iter().all(|s| s.1 == Ok(StatusCode::OK)),
+        "{:?}",
+        w.statuses(c)
+    );
+    let now = w.net.now();
+    w.client(c)
+        .read(
+            ObjectId::new(2, ObjectKind::DataReader),
+            R,
+            R,
+            unlimited(),
+            now,
+        )
+        .unwrap();
+    // wait until both sides are matched
+    assert!(w.run_until(Duration::from_secs(10), |w| {
+        let d = match &w.net.hosts[w.dds].node {
+            N::Dds(d) => d,
+            _ => unreachable!(),
+        };
+        d.matched_readers(dw) == 1
+            && w.net.hosts[w.dds].events.iter().any(
+                |e| matches!(e, Ev::Dds(e) if matches!(**e, DdsEvent::ReaderMatched { reader, .. } if reader == r)),
+            )
+    }));
+    for i in 0..20 {
+        let now = w.net.now();
+        w.client(c)
+            .write(oid(ObjectKind::DataWriter), R, &sample(i, 25), now)
+            .unwrap();
+        w.dds()
+            .write(
+                dw,
+                Change::alive_owned(encapsulated(&sample(100 + i, 30))),
+                now,
+            )
+            .unwrap();
+        w.net.step();
+    }
+    assert!(
+        w.run_until(Duration::from_secs(10), |w| w.dds_samples(r).len() == 20
+            && w.data(c).len() == 20)
+    );
+    let want: Vec<Vec<u8>> = (0..20).map(|i| encapsulated(&sample(i, 25))).collect();
+    assert_eq!(w.dds_samples(r), want);
+    let back: Vec<Vec<u8>> = (0..20).map(|i| sample(100 + i, 30)).collect();
+    assert_eq!(w.data(c), back);
+    assert_eq!(w.bridge().stats().writes, 20);
+}
+
+#[test]
+fn keep_all_back_pressure_holds_the_client_and_loses_nothing_acknowledged() {
+    // a small high-water mark, so that the bridge's writer fills up
+    let mut w = world(2, 0, |c, _| c.max_unacked_bytes = 2_000);
+    let now = w.net.now();
+    let r = w
+        .dds()
+        .create_reader(
+            EndpointConfig::reader("Hello", "HelloWorld").qos(reliable_keep_all(true)),
+            now,
+        )
+        .unwrap();
+    let c = w.add_client(10, 0xAAAA_0002);
+    w.create(c, writer_objects("Hello", true), CreationMode::REPLACE);
+    assert!(w.run_until(Duration::from_secs(10), |w| w.net.hosts[w.dds]
+        .events
+        .iter()
+        .any(
+            |e| matches!(e, Ev::Dds(e) if matches!(**e, DdsEvent::ReaderMatched { .. }))
+        )));
+    // the DDS reader stops reading: nothing the bridge writes is acknowledged
+    w.dds().set_reader_full(r, true);
+    let n = 200u32;
+    let mut next = 0;
+    let mut acked = 0;
+    w.run_until(Duration::from_secs(5), |_| false);
+    let t0 = w.net.elapsed();
+    while w.net.elapsed() < t0 + Duration::from_secs(5) {
+        while next < n {
+            let now = w.net.now();
+            match w
+                .client(c)
+                .write(oid(ObjectKind::DataWriter), R, &sample(next, 100), now)
+            {
+                Ok(_) => next += 1,
+                Err(_) => break,
+            }
+        }
+        w.net.step();
+    }
+    acked = acked.max(
+        w.client_events(c)
+            .iter()
+            .filter(|e| matches!(e, Event::WriteAcked(_)))
+            .count(),
+    );
+    // the bridge's writer holds ~2 000 bytes; the rest waits unacknowledged
+    let held = w.bridge().agent().writes_pending();
+    assert!(held > 0, "no write held");
+    assert!(
+        acked < n as usize,
+        "every write acknowledged though DDS could not take them"
+    );
+    assert_eq!(
+        w.bridge().stats().writes_refused + w.bridge().stats().writes_dropped,
+        0
+    );
+    // the reader reads again: everything arrives, in order, all acknowledged
+    w.dds().set_reader_full(r, false);
+    let done = w.run_until(Duration::from_secs(120), |w| {
+        w.dds_samples(r).len() == n as usize
+    });
+    // keep writing what the client could not queue
+    let mut done = done;
+    while !done && next < n {
+        let now = w.net.now();
+        if w.client(c)
+            .write(oid(ObjectKind::DataWriter), R, &sample(next, 100), now)
+            .is_ok()
+        {
+            next += 1;
+        }
+        done = w.run_until(Duration::from_millis(50), |w| {
+            w.dds_samples(r).len() == n as usize
+        });
+    }
+    if !done {
+        done = w.run_until(Duration::from_secs(60), |w| {
+            w.dds_samples(r).len() == n as usize
+        });
+    }
+    assert!(done, "{} of {n} samples", w.dds_samples(r).len());
+    let want: Vec<Vec<u8>> = (0..n).map(|i| encapsulated(&sample(i, 100))).collect();
+    assert_eq!(w.dds_samples(r), want);
+    assert!(w.run_until(Duration::from_secs(10), |w| w
+        .client_events(c)
+        .iter()
+        .filter(|e| matches!(e, Event::WriteAcked(_)))
+        .count()
+        == n as usize));
+}
+
+#[test]
+fn first_sample_of_a_new_writer_reaches_a_reader_discovered_before() {
+    let mut w = world(3, 0, |_, _| {});
+    let now = w.net.now();
+    let r = w
+        .dds()
+        .create_reader(
+            EndpointConfig::reader("Early", "HelloWorld").qos(reliable_keep_all(true)),
+            now,
+        )
+        .unwrap();
+    let c = w.add_client(10, 0xAAAA_0003);
+    // the bridge's participant has discovered the reader long before
+    w.run_until(Duration::from_secs(3), |_| false);
+    let objs = writer_objects("Early", true);
+    let n = objs.len();
+    for (id, v) in objs {
+        let now = w.net.now();
+        w.client(c)
+            .create(id, v, CreationMode::REPLACE, now)
+            .unwrap();
+    }
+    // written in the same message as the CREATEs, before any STATUS came
+    let now = w.net.now();
+    w.client(c)
+        .write(oid(ObjectKind::DataWriter), R, &sample(1, 16), now)
+        .unwrap();
+    assert!(w.run_until(Duration::from_secs(10), |w| !w.dds_samples(r).is_empty()));
+    assert_eq!(w.dds_samples(r)[0], encapsulated(&sample(1, 16)));
+    assert_eq!(w.statuses(c).len(), n);
+}
+
+#[test]
+fn request_and_reply_between_two_xrce_clients() {
+    let mut w = world(4, 20, |_, _| {});
+    let q = w.add_client(10, 0xAAAA_0004);
+    let s = w.add_client(11, 0xBBBB_0004);
+    let svc = |requester: bool| {
+        let b = ServiceBinary {
+            service_name: "add".into(),
+            request_type: "AddRequest".into(),
+            reply_type: "AddReply".into(),
+            request_topic_name: None,
+            reply_topic_name: None,
+        };
+        if requester {
+            (
+                oid(ObjectKind::Requester),
+                ObjectVariant::Requester {
+                    representation: bin(BinaryRepresentation::Requester(b)),
+                    participant_id: oid(ObjectKind::Participant),
+                },
+            )
+        } else {
+            (
+                oid(ObjectKind::Replier),
+                ObjectVariant::Replier {
+                    representation: bin(BinaryRepresentation::Replier(b)),
+                    participant_id: oid(ObjectKind::Participant),
+                },
+            )
+        }
+    };
+    w.create(q, vec![participant(), svc(true)], CreationMode::REPLACE);
+    w.create(s, vec![participant(), svc(false)], CreationMode::REPLACE);
+    let now = w.net.now();
+    w.client(s)
+        .read(oid(ObjectKind::Replier), R, R, unlimited(), now)
+        .unwrap();
+    w.client(q)
+        .read(oid(ObjectKind::Requester), R, R, unlimited(), now)
+        .unwrap();
+    let mut asked = Vec::new();
+    for i in 0..5u32 {
+        let now = w.net.now();
+        asked.push(
+            w.client(q)
+                .request(oid(ObjectKind::Requester), R, &i.to_le_bytes(), now)
+                .unwrap(),
+        );
+    }
+    let mut answered = 0;
+    let replies_in = |w: &World| {
+        w.client_events(q)
+            .iter()
+            .filter(|e| matches!(e, Event::Reply { .. }))
+            .count()
+    };
+    let end = w.net.elapsed() + Duration::from_secs(60);
+    while replies_in(&w) < 5 && w.net.elapsed() < end {
+        let reqs: Vec<_> = w
+            .client_events(s)
+            .into_iter()
+            .filter_map(|e| match e {
+                Event::Request { identity, data, .. } => Some((*identity, data.clone())),
+                _ => None,
+            })
+            .collect();
+        while answered < reqs.len() {
+            let (id, d) = &reqs[answered];
+            let v = u32::from_le_bytes(d[..4].try_into().unwrap()) * 10;
+            let now = w.net.now();
+            w.client(s)
+                .reply(oid(ObjectKind::Replier), R, id, &v.to_le_bytes(), now)
+                .unwrap();
+            answered += 1;
+        }
+        w.net.step();
+    }
+    let replies: Vec<(u16, u32)> = w
+        .client_events(q)
+        .into_iter()
+        .filter_map(|e| match e {
+            Event::Reply { request, data, .. } => {
+                Some((request.0, u32::from_le_bytes(data[..4].try_into().unwrap())))
+            }
+            _ => None,
+        })
+        .collect();
+    let mut want: Vec<(u16, u32)> = asked.iter().zip(0..).map(|(r, i)| (r.0, i * 10)).collect();
+    let mut got = replies.clone();
+    got.sort();
+    want.sort();
+    assert_eq!(got, want);
+}
+
+#[test]
+fn delivery_control_max_samples_and_best_effort() {
+    let mut w = world(5, 0, |_, _| {});
+    let now = w.net.now();
+    let dw = w
+        .dds()
+        .create_writer(
+            EndpointConfig::writer("Many", "HelloWorld").qos(reliable_keep_all(false)),
+            now,
+        )
+        .unwrap();
+    let c = w.add_client(10, 0xAAAA_0005);
+    w.create(c, reader_objects("Many", true), CreationMode::REPLACE);
+    assert!(w.run_until(Duration::from_secs(10), |w| {
+        match &w.net.hosts[w.dds].node {
+            N::Dds(d) => d.matched_readers(dw) == 1,
+            _ => false,
+        }
+    }));
+    for i in 0..10 {
+        let now = w.net.now();
+        w.dds()
+            .write(dw, Change::alive_owned(encapsulated(&sample(i, 8))), now)
+            .unwrap();
+    }
+    w.run_until(Duration::from_secs(2), |_| false);
+    // nothing without a READ_DATA; then three samples on best effort
+    assert!(w.data(c).is_empty());
+    let now = w.net.now();
+    let three = Some(DeliveryControl {
+        max_samples: 3,
+        ..DeliveryControl::default()
+    });
+    w.client(c)
+        .read(oid(ObjectKind::DataReader), R, BE, three, now)
+        .unwrap();
+    w.run_until(Duration::from_secs(2), |_| false);
+    let got = w.data(c);
+    assert_eq!(got, (0..3).map(|i| sample(i, 8)).collect::<Vec<_>>());
+    // the rest with the next READ_DATA, paced 100 ms apart
+    let now = w.net.now();
+    let paced = Some(DeliveryControl {
+        max_samples: u16::MAX,
+        min_pace_period: 100,
+        ..DeliveryControl::default()
+    });
+    w.client(c)
+        .read(oid(ObjectKind::DataReader), R, R, paced, now)
+        .unwrap();
+    let t0 = w.net.elapsed();
+    assert!(w.run_until(Duration::from_secs(5), |w| w.data(c).len() == 10));
+    assert!(w.net.elapsed() - t0 >= Duration::from_millis(600));
+    assert_eq!(w.data(c), (0..10).map(|i| sample(i, 8)).collect::<Vec<_>>());
+}
+
+fn xml(s: &str) -> Representation {
+    Representation::Xml(s.into())
+}
+
+#[test]
+fn creation_modes_xml_and_references() {
+    let mut w = world(6, 0, |_, _| {});
+    let c = w.add_client(10, 0xAAAA_0006);
+    let p = oid(ObjectKind::Participant);
+    let part = |rep: Representation| ObjectVariant::Participant {
+        representation: rep,
+        domain_id: 0,
+    };
+    let hello =
+        "<dds><participant><rtps><name>default_xrce_participant</name></rtps></participant></dds>";
+    w.create(c, vec![(p, part(xml(hello)))], CreationMode::CREATE);
+    w.create(c, vec![(p, part(xml(hello)))], CreationMode::CREATE);
+    w.create(
+        c,
+        vec![(p, part(xml(hello)))],
+        CreationMode {
+            reuse: true,
+            replace: false,
+        },
+    );
+    w.create(
+        c,
+        vec![(p, part(Representation::Reference("p".into())))],
+        CreationMode {
+            reuse: true,
+            replace: false,
+        },
+    );
+    w.create(
+        c,
+        vec![(p, part(Representation::Reference("p".into())))],
+        CreationMode::REUSE_OR_REPLACE,
+    );
+    w.create(
+        c,
+        vec![(p, part(Representation::Reference("nope".into())))],
+        CreationMode::REPLACE,
+    );
+    let other_domain = ObjectVariant::Participant {
+        representation: xml(hello),
+        domain_id: 7,
+    };
+    w.create(
+        c,
+        vec![(ObjectId::new(2, ObjectKind::Participant), other_domain)],
+        CreationMode::REPLACE,
+    );
+    // a writer by reference under a publisher given as XML
+    let pb = oid(ObjectKind::Publisher);
+    w.create(
+        c,
+        vec![
+            (p, part(xml(hello))),
+            (
+                pb,
+                ObjectVariant::Publisher {
+                    representation: xml(""),
+                    participant_id: p,
+                },
+            ),
+            (
+                oid(ObjectKind::DataWriter),
+                ObjectVariant::DataWriter {
+                    representation: Representation::Reference("square_writer".into()),
+                    publisher_id: pb,
+                },
+            ),
+            (
+                ObjectId::new(2, ObjectKind::DataWriter),
+                ObjectVariant::DataWriter {
+                    representation: xml(
+                        "<dds><data_writer><topic><name>T</name></topic></data_writer></dds>",
+                    ),
+                    publisher_id: pb,
+                },
+            ),
+        ],
+        CreationMode::REPLACE,
+    );
+    let codes: Vec<_> = w.statuses(c).into_iter().map(|s| s.1).collect();
+    use StatusCode as S;
+    assert_eq!(
+        codes,
+        [
+            Ok(S::OK),
+            Err(S::ERR_ALREADY_EXISTS),
+            Ok(S::OK_MATCHED),
+            Err(S::ERR_MISMATCH),
+            Ok(S::OK),
+            Err(S::ERR_UNKNOWN_REFERENCE),
+            Err(S::ERR_INCOMPATIBLE),
+            Ok(S::OK),
+            Ok(S::OK),
+            Ok(S::OK),
+            Err(S::ERR_INVALID_DATA),
+        ]
+    );
+    // the bridge says why
+    let why: Vec<String> = w.net.hosts[w.bridge]
+        .events
+        .iter()
+        .filter_map(|e| match e {
+            Ev::Bridge(BridgeEvent::Created {
+                reason: Some(r), ..
+            }) => Some(r.clone()),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(why.last().unwrap(), "<data_writer> has no <dataType>");
+    // deleting the participant deletes what it holds
+    assert_eq!(w.bridge().object_count(), 3);
+    let now = w.net.now();
+    w.client(c).delete(p, now).unwrap();
+    assert!(w.run_until(Duration::from_secs(5), |w| w.statuses(c).len() == 12));
+    match &mut w.net.hosts[w.bridge].node {
+        N::Bridge(b, _) => assert_eq!(b.object_count(), 0),
+        _ => unreachable!(),
+    }
+}
+
+#[test]
+fn an_entity_that_cannot_match_is_reported() {
+    let mut w = world(7, 0, |_, _| {});
+    let now = w.net.now();
+    w.dds()
+        .create_reader(
+            EndpointConfig::reader("Hello", "SomethingElse").qos(reliable_keep_all(true)),
+            now,
+        )
+        .unwrap();
+    let c = w.add_client(10, 0xAAAA_0007);
+    w.create(c, writer_objects("Hello", true), CreationMode::REPLACE);
+    assert!(
+        w.run_until(Duration::from_secs(10), |w| w.net.hosts[w.bridge]
+            .events
+            .iter()
+            .any(
+                |e| matches!(e, Ev::Bridge(BridgeEvent::Unmatched { why, .. })
+            if why.contains("\"HelloWorld\" here, \"SomethingElse\""))
+            ))
+    );
+}
+
+#[test]
+fn a_restarted_bridge_serves_clients_that_go_on_with_their_sessions() {
+    for seed in [8, 18, 28, 38] {
+        restart(seed, 20);
+    }
+}
+
+/// Two clients through a bridge that restarts (a new bridge restored from
+/// what the old one said to keep) between sample 30 and 31, at `loss` %.
+fn restart(seed: u64, loss: u32) {
+    let mut w = world(seed, loss, |_, _| {});
+    let p = w.add_client(10, 0xAAAA_0008);
+    let s = w.add_client(11, 0xBBBB_0008);
+    w.create(p, writer_objects("Restart", true), CreationMode::REPLACE);
+    w.create(s, reader_objects("Restart", true), CreationMode::REPLACE);
+    let now = w.net.now();
+    w.client(s)
+        .read(oid(ObjectKind::DataReader), R, R, unlimited(), now)
+        .unwrap();
+    let mut next = 0u32;
+    let write_until = |w: &mut World, n: u32, next: &mut u32| {
+        let end = w.net.elapsed() + Duration::from_secs(60);
+        while w.net.elapsed() < end {
+            while *next < n {
+                let now = w.net.now();
+                match w
+                    .client(p)
+                    .write(oid(ObjectKind::DataWriter), R, &sample(*next, 40), now)
+                {
+                    Ok(_) => *next += 1,
+                    Err(_) => break,
+                }
+            }
+            if w.data(s).len() >= n as usize {
+                return true;
+            }
+            w.net.step();
+        }
+        false
+    };
+    assert!(write_until(&mut w, 30, &mut next));
+    // the agent restarts: a new bridge and a new DDS participant, restored
+    // from what the old one said to keep; the clients know nothing of it
+    let states: Vec<_> = [0xAAAA_0008u32, 0xBBBB_0008]
+        .into_iter()
+        .map(|k| w.bridge().client_state(k.into()).unwrap())
+        .collect();
+    assert_eq!(states[1].reads.len(), 1);
+    let now = w.net.now();
+    let mut cfg = dds_config(0);
+    cfg.guid_prefix = guid_prefix([99; 10]);
+    let domain = Domain::new(cfg, now, w.net.wall());
+    let bc = BridgeConfig {
+        profiles: Profiles::parse(REFS).unwrap(),
+        ..BridgeConfig::default()
+    };
+    let mut fresh = Bridge::new(bc, domain, now, w.net.wall());
+    for st in states {
+        assert!(fresh.restore(st, now).is_empty());
+    }
+    w.net.hosts[w.bridge].node = N::Bridge(Box::new(fresh), AGENT);
+    assert!(
+        write_until(&mut w, 60, &mut next),
+        "seed {seed}: {} of 60 after the restart",
+        w.data(s).len()
+    );
+    assert_eq!(
+        w.data(s),
+        (0..60).map(|i| sample(i, 40)).collect::<Vec<_>>(),
+        "complete and in order across the restart"
+    );
+}
