@@ -13,70 +13,14 @@
 //! for 340 ms) — their rules are tested in `xrce_streams.rs`.
 
 use std::collections::BTreeMap;
-use std::path::PathBuf;
 use std::time::{Duration, Instant, SystemTime};
 
 use courier_wire::xrce::{
-    Agent, AgentConfig, AgentEvent, BaseObjectRequest, ClientKey, Message, Payload, StatusCode,
-    StreamId,
+    Agent, AgentConfig, AgentEvent, BaseObjectRequest, ClientKey, StatusCode, StreamId,
 };
 
-fn fixture(name: &str) -> String {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/fixtures/xrce")
-        .join(name);
-    std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
-}
-
-fn hex(b: &[u8]) -> String {
-    b.iter().map(|x| format!("{x:02x}")).collect()
-}
-
-struct Rec {
-    n: u32,
-    t: f64,
-    c2a: bool,
-    port: u16,
-    bytes: Vec<u8>,
-}
-
-fn records(capture: &str) -> Vec<Rec> {
-    let times: BTreeMap<u32, f64> = fixture(&format!("times/{capture}.times"))
-        .lines()
-        .filter(|l| !l.starts_with('#'))
-        .map(|l| {
-            let (a, b) = l.split_once(' ').unwrap();
-            (a.parse().unwrap(), b.parse().unwrap())
-        })
-        .collect();
-    fixture(&format!("{capture}.hex"))
-        .lines()
-        .filter(|l| !l.starts_with('#'))
-        .map(|l| {
-            let f: Vec<&str> = l.split_whitespace().collect();
-            let n = f[0].parse().unwrap();
-            Rec {
-                n,
-                t: times[&n],
-                c2a: f[2] == "C->A",
-                port: f[3].parse().unwrap(),
-                bytes: (0..f[4].len())
-                    .step_by(2)
-                    .map(|i| u8::from_str_radix(&f[4][i..i + 2], 16).unwrap())
-                    .collect(),
-            }
-        })
-        .collect()
-}
-
-/// ACKNACK and HEARTBEAT messages.
-fn is_stream_control(m: &[u8]) -> bool {
-    Message::decode(m)
-        .unwrap()
-        .submessages
-        .iter()
-        .all(|s| matches!(s.payload, Payload::AckNack(_) | Payload::Heartbeat(_)))
-}
+mod xrce_captures;
+use xrce_captures::{hex, is_stream_control, records};
 
 #[derive(Default)]
 struct Host {
