@@ -1,4 +1,5 @@
 //! Shared helpers for Courier integration tests.
 
 pub mod domains;
+pub mod netns;
 pub mod peers;

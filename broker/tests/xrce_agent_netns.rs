@@ -23,30 +23,7 @@ use xrce_client::{msg, oid, reader, unmsg, writer, XClient, R, T};
 const CHILD: &str = "COURIER_NETNS_CHILD";
 const DOMAIN: &str = "COURIER_NETNS_DOMAIN";
 
-fn sh(args: &[&str]) -> Result<(), String> {
-    let out = Command::new(args[0])
-        .args(&args[1..])
-        .output()
-        .map_err(|e| format!("cannot run {}: {e}", args[0]))?;
-    if out.status.success() {
-        Ok(())
-    } else {
-        Err(format!(
-            "{} failed: {}",
-            args.join(" "),
-            String::from_utf8_lossy(&out.stderr).trim()
-        ))
-    }
-}
-
-/// Removes the namespace however the test ends.
-struct Netns(String);
-
-impl Drop for Netns {
-    fn drop(&mut self) {
-        let _ = sh(&["ip", "netns", "del", &self.0]);
-    }
-}
+use courier_tests::netns::{sh, Netns};
 
 /// Builds a namespace with only `lo` and `rules` (each run with `ip netns
 /// exec`), runs test `name` of this binary in it and checks that it passed.

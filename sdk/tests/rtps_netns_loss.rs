@@ -22,30 +22,7 @@ use common::Msg;
 const CHILD: &str = "COURIER_NETNS_CHILD";
 const N: u32 = 400;
 
-fn sh(args: &[&str]) -> Result<(), String> {
-    let out = Command::new(args[0])
-        .args(&args[1..])
-        .output()
-        .map_err(|e| format!("cannot run {}: {e}", args[0]))?;
-    if out.status.success() {
-        Ok(())
-    } else {
-        Err(format!(
-            "{} failed: {}",
-            args.join(" "),
-            String::from_utf8_lossy(&out.stderr).trim()
-        ))
-    }
-}
-
-/// Removes the namespace however the test ends.
-struct Netns(String);
-
-impl Drop for Netns {
-    fn drop(&mut self) {
-        let _ = sh(&["ip", "netns", "del", &self.0]);
-    }
-}
+use courier_tests::netns::{sh, Netns};
 
 fn payload(seq: u32) -> Vec<u8> {
     // every 50th sample is fragmented (100 KiB in 1344-byte fragments)
