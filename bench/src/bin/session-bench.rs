@@ -3,8 +3,8 @@
 //! zenoh's z_ping/z_pong, usable as a tool.
 //!
 //! ```text
-//! cargo run --release -p courier-examples --bin session-bench            # embedded centrals
-//! cargo run --release -p courier-examples --bin session-bench -- --url ipc://127.0.0.1:1381
+//! cargo run --release -p courier-bench --bin session-bench            # embedded centrals
+//! cargo run --release -p courier-bench --bin session-bench -- --url ipc://127.0.0.1:1381
 //! ```
 //! With `--url` the given central is used for the routed column only (start
 //! a second one with `-c` and pass `--direct-url` for the direct column).
@@ -53,7 +53,7 @@
 //! line in the format of `ping`'s; the other runs until its standard input
 //! closes.
 
-#[path = "appendix_a.rs"]
+#[path = "../../../examples/appendix_a.rs"]
 mod appendix;
 
 use std::time::{Duration, Instant};

@@ -10,7 +10,7 @@
 //! other options or under a profiler) instead of starting one; it is
 //! left running.
 //! `--central` defaults to the `central` next to this program (build both
-//! with `cargo build --release -p courier-broker -p courier-examples`).
+//! with `cargo build --release -p courier-broker -p courier-bench`).
 //! Each central is started on a free port with logging off (`-lx -s -u`),
 //! then the modules connect one by one over loopback TCP and stay idle.
 //! The modules are Courier's sans-I/O module state machine on blocking
@@ -30,7 +30,7 @@ use std::time::{Duration, Instant};
 
 use courier::ipc::module::MsgLength;
 
-#[path = "client.rs"]
+#[path = "../client.rs"]
 mod client;
 use client::Client;
 

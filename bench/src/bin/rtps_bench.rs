@@ -4,9 +4,9 @@
 //! ddsperf").
 //!
 //! ```text
-//! cargo run --release -p courier-examples --bin rtps_bench               # full table
-//! cargo run --release -p courier-examples --bin rtps_bench -- --quick    # smoke run, < 30 s
-//! cargo run --release -p courier-examples --bin rtps_bench -- --no-ddsperf
+//! cargo run --release -p courier-bench --bin rtps_bench               # full table
+//! cargo run --release -p courier-bench --bin rtps_bench -- --quick    # smoke run, < 30 s
+//! cargo run --release -p courier-bench --bin rtps_bench -- --no-ddsperf
 //! ```
 //!
 //! Every measurement runs as two processes (this binary re-executes itself
@@ -211,7 +211,7 @@ fn parse_role_opts(args: &[String]) -> Opts {
     o
 }
 
-#[path = "udp_floor.rs"]
+#[path = "../udp_floor.rs"]
 mod floor;
 
 fn main() {

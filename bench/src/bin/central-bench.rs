@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 
 use courier::ipc::module::MsgLength;
 
-#[path = "client.rs"]
+#[path = "../client.rs"]
 mod client;
 use client::Client;
 
