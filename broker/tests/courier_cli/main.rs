@@ -9,6 +9,7 @@
 mod call;
 mod echo_pub;
 mod list;
+mod perf;
 mod ping_spy;
 mod rates;
 mod rtt;

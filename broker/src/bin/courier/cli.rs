@@ -71,6 +71,9 @@ pub enum Command {
     /// List participants and endpoints (DDS), or modules and messages (IPC)
     #[command(after_help = LIST_OUTPUT)]
     List(ListArgs),
+    /// Throughput and one-way latency with ddsperf's samples (like ddsperf pub/sub)
+    #[command(after_help = PERF_OUTPUT)]
+    Perf(crate::perf::PerfArgs),
     /// Send or receive courier::Ping samples (like ORTE's orteping)
     #[command(after_help = PING_OUTPUT)]
     Ping(PingArgs),
@@ -86,6 +89,19 @@ pub enum Command {
         shell: clap_complete::Shell,
     },
 }
+
+const PERF_OUTPUT: &str = "\
+`courier perf sub URL` prints one line a second and a total at the end:
+  received <samples/s> <Mbit/s> lost <n> size <bytes> latency n=… p50=… p99=… (us)
+`courier perf pub URL` waits for --readers matched readers, then publishes as
+fast as they take the samples (or at --rate) and prints `sent …` each second.
+On DDS the samples are ddsperf's (topic DDSPerfRDataKS, type KeyedSeq,
+keep-all; DDSPerfUDataKS with --best-effort), so either side can be Cyclone's
+`ddsperf pub` / `ddsperf sub`. Latency is one way: publisher and subscriber must
+share a clock. For round trips use `courier ping --rtt` with `courier pong`.
+`ddsperf sub` takes a sample whose source time is odd for a ping to answer and,
+finding no ddsperf peer to answer, prints `get_pong_writer: participant handle …
+not found`; its counts are unaffected.";
 
 const CALL_OUTPUT: &str = "\
 REQUEST is JSON guided by the format (see `courier pub --help`), or text for a
@@ -594,6 +610,19 @@ impl Cli {
                     }
                 }
             },
+            Command::Perf(a) => {
+                let c = a.common();
+                if c.best_effort && kind(&c.url) == Kind::Ipc {
+                    return Err(usage_error(
+                        "perf",
+                        format!(
+                            "--best-effort is DDS QoS and needs an rtps:// session; {} is IPC, \
+                             which has no QoS",
+                            c.url
+                        ),
+                    ));
+                }
+            }
             Command::Echo(a) => {
                 if let (Some(f), Kind::Dds) = (&a.format, kind(&a.url)) {
                     crate::cdr_value::check(f).map_err(|e| usage_error("echo", e))?;

@@ -17,6 +17,7 @@ mod cli;
 mod connect;
 mod echo;
 mod list;
+mod perf;
 mod ping;
 mod pong;
 mod publish;
@@ -48,7 +49,12 @@ fn main() -> ExitCode {
     // them; the others keep stdout for data and say it on stderr
     let events_on_stdout = matches!(
         cli.command,
-        Command::List(_) | Command::Ping(_) | Command::Pong(_) | Command::Pub(_) | Command::Spy(_)
+        Command::List(_)
+            | Command::Perf(_)
+            | Command::Ping(_)
+            | Command::Pong(_)
+            | Command::Pub(_)
+            | Command::Spy(_)
     );
     let cmd = match cli.command {
         Command::Completions { shell } => {
@@ -73,6 +79,7 @@ fn main() -> ExitCode {
             Command::Hz(o) => rate::run(o, rate::Mode::Hz, stop).await,
             Command::Bw(o) => rate::run(o, rate::Mode::Bw, stop).await,
             Command::List(o) => list::run(o, stop).await,
+            Command::Perf(o) => perf::run(o, stop).await,
             Command::Ping(o) => ping::run(o, stop).await,
             Command::Pong(o) => pong::pong(o, stop).await,
             Command::Pub(o) => publish::run(o, stop).await,

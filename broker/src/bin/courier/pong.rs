@@ -67,6 +67,11 @@ pub struct Stats {
 }
 
 impl Stats {
+    /// Adds one measurement.
+    pub fn push(&mut self, d: Duration) {
+        self.rtts.push(d.as_micros() as u64);
+    }
+
     /// `n=100 min=41 p50=55 p90=70 p99=120 max=300 mean=57 lost=0` (µs).
     pub fn line(&self) -> String {
         let mut v = self.rtts.clone();
