@@ -13,6 +13,7 @@
 use std::sync::Arc;
 use std::time::Duration;
 
+use courier_wire::ipc::introspect::{Answer, Ask};
 use courier_wire::ipc::module::MsgInfo;
 use tokio::sync::mpsc;
 
@@ -317,6 +318,20 @@ pub trait IpcControl: Send + Sync {
     /// Most pending `msg` deliveries central keeps for this module, the
     /// oldest dropped (`IPC_setMsgQueueLength`).
     async fn set_queue_length(&self, msg: &str, n: i32) -> Result<(), ControlError>;
+    /// Asks central about the other modules and messages (see
+    /// [`courier_wire::ipc::introspect`]; [`Ipc::messages`],
+    /// [`Ipc::message_details`] and [`Ipc::modules`] are the typed forms).
+    ///
+    /// [`Ipc::messages`]: crate::Ipc::messages
+    /// [`Ipc::message_details`]: crate::Ipc::message_details
+    /// [`Ipc::modules`]: crate::Ipc::modules
+    async fn ask_central(&self, ask: Ask) -> Result<Answer, ControlError> {
+        Err(ControlError::Unsupported {
+            what: format!("ask_central({})", ask.message()),
+            backend: "this backend",
+        })
+    }
+
     /// What central told this session about `msg` (C's `msgInfo`: its
     /// class and formats, the user's format as `res_format`), or `None`
     /// if the session has not looked `msg` up or central does not know it.

@@ -12,6 +12,7 @@ use std::sync::Arc;
 use std::task::{Context, Poll};
 use std::time::Duration;
 
+use courier_wire::ipc::introspect::{Answer, Ask, MessageDetails, ModuleDetails};
 use courier_wire::{cdr, ipc, IpcMessage, NamedFormats};
 use futures::Stream;
 
@@ -628,6 +629,50 @@ impl Ipc<'_> {
             self.ctl.define_format(name, fmt).await?;
         }
         Ok(())
+    }
+
+    /// Every message central knows, by name, internal ones left out
+    /// (`x_ipc_getMessages`: C's central answers it too).
+    pub async fn messages(&self) -> Result<Vec<String>, ControlError> {
+        match self.ctl.ask_central(Ask::Messages).await? {
+            Answer::Messages(v) => Ok(v),
+            other => Err(unexpected_answer("x_ipc_getMessages", &other)),
+        }
+    }
+
+    /// What central holds of one message: formats, class, handlers and the
+    /// first handler's module (`x_ipc_getMessageInfo`: C's central answers
+    /// it too). A message central does not know comes back with its name
+    /// only (class 0, no formats, no handlers).
+    pub async fn message_details(&self, msg: &str) -> Result<MessageDetails, ControlError> {
+        match self
+            .ctl
+            .ask_central(Ask::MessageDetails(msg.into()))
+            .await?
+        {
+            Answer::MessageDetails(d) => Ok(d),
+            other => Err(unexpected_answer("x_ipc_getMessageInfo", &other)),
+        }
+    }
+
+    /// Every module connected to central, by name, with its host, handler
+    /// count and the messages central holds for it. Only Courier's
+    /// central answers this (`courier_getModules`); the C central has no
+    /// such request, and the error then names that message as unknown to
+    /// central.
+    pub async fn modules(&self) -> Result<Vec<ModuleDetails>, ControlError> {
+        match self.ctl.ask_central(Ask::Modules).await? {
+            Answer::Modules(v) => Ok(v),
+            other => Err(unexpected_answer("courier_getModules", &other)),
+        }
+    }
+}
+
+/// A backend answered an [`Ask`] with the answer to another one.
+fn unexpected_answer(asked: &str, got: &Answer) -> ControlError {
+    ControlError::Unsupported {
+        what: format!("{asked} (the backend answered {got:?})"),
+        backend: "this backend",
     }
 }
 

@@ -6,6 +6,9 @@ use super::*;
 
 pub(super) type Done<T> = oneshot::Sender<T>;
 
+/// Where central's answer to an [`Ask`] goes.
+pub(super) type AnswerDone = Done<Result<Answer, ControlError>>;
+
 pub(super) enum Cmd {
     DefineFormat(String, String, Done<Result<(), OpenError>>),
     Define(String, Option<String>, Done<Result<(), OpenError>>),
@@ -27,6 +30,8 @@ pub(super) enum Cmd {
     Decline(u64),
     ModuleConnected(String, Done<Result<bool, ControlError>>),
     NumHandlers(String, Done<Result<i32, ControlError>>),
+    /// A question about the other modules and messages.
+    Ask(Ask, AnswerDone),
     /// The cached msgInfo of a message.
     MsgInfo(String, Done<Result<Option<MsgInfo>, ControlError>>),
     Inform(InformOp, Done<Result<(), ControlError>>),
@@ -103,6 +108,8 @@ pub(super) struct Driver {
     pub(super) query_ops: HashMap<u64, OpId>,
     pub(super) bools: HashMap<OpId, Done<Result<bool, ControlError>>>,
     pub(super) counts: HashMap<OpId, Done<Result<i32, ControlError>>>,
+    /// Questions to central, with the message each asks on.
+    pub(super) asks: HashMap<OpId, (&'static str, AnswerDone)>,
     pub(super) closing: Option<Done<()>>,
     pub(super) watching_modules: bool,
     pub(super) links: HashMap<LinkId, LinkWriter>,
@@ -422,6 +429,17 @@ impl Driver {
                     let _ = d.send(Err(refused(&format!("num_handlers({m})"))(e)));
                 }
             },
+            Cmd::Ask(a, d) => {
+                let what = a.message();
+                match self.conn.ask_central(a) {
+                    Ok(op) => {
+                        self.asks.insert(op, (what, d));
+                    }
+                    Err(e) => {
+                        let _ = d.send(Err(refused(what)(e)));
+                    }
+                }
+            }
             Cmd::MsgInfo(m, d) => {
                 let _ = d.send(Ok(self.conn.msg_info(&m).cloned()));
             }

@@ -69,6 +69,9 @@ impl Driver {
                     if let Some(d) = self.bools.remove(&op) {
                         let _ = d.send(Err(refused("is_module_connected")(error.clone())));
                     }
+                    if let Some((what, d)) = self.asks.remove(&op) {
+                        let _ = d.send(Err(refused(what)(error.clone())));
+                    }
                     if let Some(d) = self.counts.remove(&op) {
                         let _ = d.send(Err(refused("num_handlers")(error)));
                     }
@@ -76,6 +79,11 @@ impl Driver {
                 Event::ModuleConnected { op, connected } => {
                     if let Some(d) = self.bools.remove(&op) {
                         let _ = d.send(Ok(connected));
+                    }
+                }
+                Event::CentralAnswer { op, answer } => {
+                    if let Some((_, d)) = self.asks.remove(&op) {
+                        let _ = d.send(Ok(answer));
                     }
                 }
                 Event::NumHandlers { op, count } => {

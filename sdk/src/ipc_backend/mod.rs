@@ -38,6 +38,7 @@ use crate::session::{
     ConnectError, Encoding, QueryError, RawReply, RawRequest, RawSample, Reply, ReplyFuture,
     Responder, SampleQueue, SessionEvent, WriteOptions,
 };
+use courier_wire::ipc::introspect::{Answer, Ask};
 use courier_wire::ipc::module::{
     Connection, DeliveryId, DeliveryKind, Error as ModError, Event, LinkId, ModuleConfig, MsgInfo,
     MsgLength, OpId,
@@ -212,6 +213,7 @@ impl IpcBackend {
             query_ops: HashMap::new(),
             bools: HashMap::new(),
             counts: HashMap::new(),
+            asks: HashMap::new(),
             closing: None,
             watching_modules: false,
             links: HashMap::new(),
@@ -488,6 +490,11 @@ impl IpcControl for IpcBackend {
         let g = Err(self.gone());
         self.call(|d| Cmd::Inform(InformOp::QueueLength(msg.into(), n), d), g)
             .await
+    }
+
+    async fn ask_central(&self, ask: Ask) -> Result<Answer, ControlError> {
+        let g = Err(self.gone());
+        self.call(|d| Cmd::Ask(ask, d), g).await
     }
 
     async fn message_info(&self, msg: &str) -> Result<Option<MsgInfo>, ControlError> {

@@ -108,6 +108,9 @@ impl Driver {
             Cmd::NumHandlers(_, d) => {
                 let _ = d.send(Err(ControlError::Disconnected(addr)));
             }
+            Cmd::Ask(_, d) => {
+                let _ = d.send(Err(ControlError::Disconnected(addr)));
+            }
             Cmd::MsgInfo(_, d) => {
                 let _ = d.send(Err(ControlError::Disconnected(addr)));
             }
@@ -143,6 +146,9 @@ impl Driver {
             let _ = d.send(Err(ControlError::Disconnected(addr.clone())));
         }
         for (_, d) in self.counts.drain() {
+            let _ = d.send(Err(ControlError::Disconnected(addr.clone())));
+        }
+        for (_, (_, d)) in self.asks.drain() {
             let _ = d.send(Err(ControlError::Disconnected(addr.clone())));
         }
     }

@@ -17,6 +17,7 @@
 pub mod central;
 mod codec;
 pub mod frame;
+pub mod introspect;
 pub mod module;
 pub mod value;
 

@@ -132,8 +132,13 @@ On rtps://, what discovery finds within --duration (default 2 s), by participant
 (a participant that announced itself while this one was still connecting shows as
 `participant <guid prefix> name=? (announced before this listing began)`),
 or with --watch every change as it comes, as `courier spy` prints discovery.
-On ipc://, what a module can ask central (neither the C central nor Courier's
-has a request that lists modules or messages):
+On ipc://, without --module/--message, every module (Courier's central only:
+courier_getModules) and every message central lists (x_ipc_getMessages):
+  module <name> host=<host> handlers=<n> waiting=<n>
+  message <name> class=publish|query|… format=<format>|- handlers=<n> module=<first handler's>|-
+(from the C central, which has no module list and whose x_ipc_getMessageInfo
+crashes on a message subscribed but never defined, each message as --message
+prints it). With names:
   module <name> connected|not-connected          for each --module
   message <name> format=<format>|- handlers=<n>  for each --message (or: unknown)
   ready, then module <name> connected|disconnected and message <name> handlers=<n>

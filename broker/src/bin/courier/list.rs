@@ -134,19 +134,92 @@ async fn dds(s: &Session, o: &ListArgs, seen: &Cell<u64>) -> Result<()> {
     Ok(())
 }
 
+/// `list ipc://` without --module / --message: every module and every
+/// message with what central holds of it (formats, class, handlers, the
+/// first handler's module) from Courier's central; from the C central,
+/// which has no module list, the message names and then each message as
+/// `--message` looks it up. (C's `x_ipc_getMessageInfo` dereferences
+/// what a message subscribed but never defined lacks, and crashes that
+/// central: it is only asked of Courier's.) Returns the messages left to
+/// look up one by one.
+async fn everything(ipc: &courier::Ipc<'_>, o: &ListArgs) -> Result<Vec<String>> {
+    let courier_central = match ipc.modules().await {
+        Ok(modules) => {
+            for m in modules.iter().filter(|m| m.name != o.name) {
+                out(format_args!(
+                    "module {} host={} handlers={} waiting={}",
+                    word(&m.name),
+                    word(&m.host),
+                    m.handlers,
+                    m.waiting
+                ));
+            }
+            true
+        }
+        Err(e) if unknown_to_central(&e) => {
+            err(format_args!(
+                "courier: {} has no module list (courier_getModules is Courier's; the C \
+                 central has none): name modules with --module, or --watch them connect and \
+                 disconnect",
+                target(&o.url)
+            ));
+            false
+        }
+        Err(e) => return Err(e.into()),
+    };
+    let names = ipc.messages().await?;
+    if !courier_central {
+        return Ok(names);
+    }
+    for name in names {
+        let d = ipc.message_details(&name).await?;
+        let fmt = |f: &Option<String>| f.as_deref().map_or("-".into(), word);
+        // IPC_defineMsg registers the user's format as the reply format
+        // (the message format is C's byte-array wrapper)
+        out(format_args!(
+            "message {} class={} format={} handlers={} module={}",
+            word(&name),
+            class_name(d.class),
+            fmt(&d.reply_format),
+            d.handlers,
+            fmt(&d.resource)
+        ));
+    }
+    Ok(Vec::new())
+}
+
+/// Whether central answered that it knows no such request.
+fn unknown_to_central(e: &courier::ControlError) -> bool {
+    matches!(
+        e,
+        courier::ControlError::Central {
+            source: courier::ipc::module::Error::UnknownMessage(_),
+            ..
+        }
+    )
+}
+
+/// A message class as users know it (`IPC_publish`: publish, `IPC_query…`: query).
+fn class_name(class: i32) -> String {
+    use courier::ipc::frame::MsgClass;
+    match u16::try_from(class).ok().and_then(MsgClass::from_u16) {
+        Some(MsgClass::Broadcast) => "publish".into(),
+        Some(MsgClass::Query) => "query".into(),
+        Some(MsgClass::Inform) => "inform".into(),
+        Some(MsgClass::Unknown) => "-".into(),
+        Some(c) => format!("{c:?}").to_lowercase(),
+        None => class.to_string(),
+    }
+}
+
 async fn ipc(s: &Session, o: &ListArgs) -> Result<()> {
     let ipc = s.ipc()?;
-    if !o.watch && o.module.is_empty() && o.message.is_empty() {
-        err(format_args!(
-            "courier: {} has no request that lists its modules or messages (neither has the \
-             C central); name them with --module / --message, or --watch modules connect and \
-             disconnect",
-            target(&o.url)
-        ));
-        return Ok(());
-    }
     // events first: central reports (dis)connections from then on
     let mut ev = s.events();
+    let mut messages = o.message.clone();
+    if o.module.is_empty() && o.message.is_empty() {
+        messages = everything(&ipc, o).await?;
+    }
     for m in &o.module {
         let up = s.is_module_connected(m).await?;
         out(format_args!(
@@ -155,10 +228,10 @@ async fn ipc(s: &Session, o: &ListArgs) -> Result<()> {
             if up { "connected" } else { "not-connected" }
         ));
     }
-    for m in &o.message {
+    for m in &messages {
         ipc.watch_handlers(m).await?;
     }
-    for m in &o.message {
+    for m in &messages {
         // the num_handlers answers after the lookup watch_handlers made
         let n = s.num_handlers(m).await?;
         match ipc.message_info(m).await? {

@@ -3,6 +3,7 @@
 
 use crate::format::{encode_formatter, parse, Format};
 use crate::ipc::frame::MsgClass;
+use crate::ipc::introspect;
 use crate::ipc::Writer;
 
 /// What central does with a message addressed to it.
@@ -30,6 +31,10 @@ pub(super) enum Internal {
     IgnoreLogging,
     ResumeLogging,
     GetMessages,
+    /// `x_ipc_getMessageInfo` (see [`crate::ipc::introspect`]).
+    MessageInfo,
+    /// `courier_getModules`, Courier's own (see [`crate::ipc::introspect`]).
+    Modules,
     /// Accepted and ignored (TCA bookkeeping the IPC API never relies on).
     Ignored,
     /// Broadcast by central (connect/disconnect notifications).
@@ -119,6 +124,23 @@ pub(super) fn table() -> Vec<Def> {
             None,
             s(STR_LIST_FORMAT),
             GetMessages
+        ),
+        def!(
+            introspect::GET_MESSAGE_INFO,
+            Query,
+            s(introspect::MESSAGE_INFO_QUERY_FORMAT),
+            s(introspect::MESSAGE_INFO_REPLY_FORMAT),
+            MessageInfo,
+            // C ignores x_ipc_getMessages a second time instead of this one
+            // (comServer.c), so its log shows these queries
+            false
+        ),
+        def!(
+            introspect::GET_MODULES,
+            Query,
+            None,
+            s(introspect::MODULES_REPLY_FORMAT),
+            Modules
         ),
         def!(
             "x_ipc_hndInfoMsg",

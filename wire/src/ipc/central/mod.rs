@@ -79,6 +79,7 @@ mod conn;
 mod console;
 mod direct;
 mod internal;
+mod introspect;
 mod invariants;
 mod log;
 mod memory;

@@ -9,7 +9,7 @@ use super::log::Kind;
 use super::tables::{DispatchId, Linked, MsgId, Org};
 use super::{Bad, Body, Central, ConnId, Output, SERVER_NAME, VERSION};
 use crate::ipc::frame::{Header, MsgClass};
-use crate::ipc::{ByteOrder, Reader, Writer};
+use crate::ipc::{introspect, ByteOrder, Reader, Writer};
 
 impl Central {
     pub(super) fn process(
@@ -286,6 +286,15 @@ impl Central {
                 names.sort();
                 let size = internal::str_list_size(names.len(), 0);
                 internal::encode_str_list(&names, size, &mut out);
+            }
+            MessageInfo => {
+                let n = read_opt_str(&mut r)?.unwrap_or_default();
+                let d = self.message_details(n);
+                introspect::encode_message_details(&d, &mut out);
+            }
+            Modules => {
+                let list = self.module_details();
+                introspect::encode_modules(&list, &mut out);
             }
             Ignored | Notify | VarWatch(_) => {}
             VarGet(v) => match self.vars.get(&v) {

@@ -102,8 +102,7 @@ impl<K: Ord, V> SmallMap<K, V> {
         }
     }
 
-    #[cfg(test)]
-    fn len(&self) -> usize {
+    pub(super) fn len(&self) -> usize {
         match self {
             SmallMap::Few(v) => v.len(),
             SmallMap::Many(m) => m.len(),

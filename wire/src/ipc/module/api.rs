@@ -226,6 +226,17 @@ impl Connection {
         Ok(op)
     }
 
+    /// Asks central about the other modules and messages (see
+    /// [`crate::ipc::introspect`]): answer in [`Event::CentralAnswer`], or
+    /// [`Event::OpFailed`] with [`Error::UnknownMessage`] when central does
+    /// not offer that question (the C central has no `courier_getModules`).
+    pub fn ask_central(&mut self, ask: crate::ipc::introspect::Ask) -> Result<OpId, Error> {
+        self.check_open()?;
+        let op = self.alloc_op();
+        self.push_op(Op::Ask { op, ask });
+        Ok(op)
+    }
+
     /// `IPC_numHandlers`: answer in [`Event::NumHandlers`].
     pub fn num_handlers(&mut self, msg: &str) -> Result<OpId, Error> {
         self.check_open()?;

@@ -111,6 +111,13 @@ pub enum Event {
         /// Why.
         error: Error,
     },
+    /// Answer of [`Connection::ask_central`].
+    CentralAnswer {
+        /// The operation's handle.
+        op: OpId,
+        /// What central said.
+        answer: crate::ipc::introspect::Answer,
+    },
     /// Answer of [`Connection::is_module_connected`].
     ModuleConnected {
         /// The operation's handle.

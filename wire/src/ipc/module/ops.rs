@@ -70,6 +70,10 @@ pub(super) enum Op {
         op: OpId,
         module: String,
     },
+    Ask {
+        op: OpId,
+        ask: crate::ipc::introspect::Ask,
+    },
     NumHandlers {
         op: OpId,
         msg: String,
@@ -199,6 +203,7 @@ impl Connection {
                 Op::Publish { op, .. }
                 | Op::Query { op, .. }
                 | Op::ModuleConnectedQ { op, .. }
+                | Op::Ask { op, .. }
                 | Op::NumHandlers { op, .. } => {
                     self.events.push_back(Event::OpFailed { op, error: err })
                 }
@@ -410,6 +415,11 @@ impl Connection {
                 let mut w = Writer::new();
                 w.write_str(&module);
                 self.query_blocking(intent, w.into_vec(), Op::ModuleConnectedQ { op, module });
+            }
+            Op::Ask { op, ask } => {
+                let mut w = Writer::new();
+                ask.encode(&mut w);
+                self.query_blocking(intent, w.into_vec(), Op::Ask { op, ask });
             }
             Op::NumHandlers { op, msg } => {
                 let mut w = Writer::new();

@@ -41,6 +41,7 @@ pub(super) fn op_message(op: &Op) -> Option<String> {
         Op::Publish { msg, .. } | Op::Query { msg, .. } | Op::Respond { msg, .. } => msg,
         Op::Inform { msg, .. } => msg,
         Op::ModuleConnectedQ { .. } => "x_ipc_moduleConnectedQ",
+        Op::Ask { ask, .. } => ask.message(),
         Op::NumHandlers { .. } => "x_ipc_directMsgQuery",
         Op::NotifyHandlerChange { .. } => "x_ipc_notifyHandlerChange",
         Op::Close => "x_ipc_CloseMsg",

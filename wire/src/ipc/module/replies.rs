@@ -181,6 +181,12 @@ impl Connection {
                 self.stage = Stage::Ready;
                 self.events.push_back(Event::Connected);
             }
+            Op::Ask { op, ask } => {
+                let answer = ask
+                    .decode(&f.data, order)
+                    .map_err(|e| proto_err(ask.message(), e))?;
+                self.events.push_back(Event::CentralAnswer { op, answer });
+            }
             Op::ModuleConnectedQ { op, .. } => {
                 let v = rd
                     .read_i32()
