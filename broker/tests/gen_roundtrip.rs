@@ -1,0 +1,189 @@
+//! The code `courier gen` generated (the golden files under
+//! `tests/gen/expected/`) compiles, its IPC formats are those of the input,
+//! and its values survive IPC marshalling and CDR (XCDR1, XCDR2).
+
+use std::path::Path;
+
+use courier::cdr::{self, Encoding};
+use courier::format::{self, Format, FormatRegistry};
+use courier::{ipc, IpcMessage, NamedFormats};
+use courier_broker::gen::{self, Input};
+
+#[allow(dead_code)]
+mod manual_ipc {
+    include!("gen/expected/manual_ipc.rs");
+}
+
+/// `value` encodes and decodes to itself in IPC and in every CDR encoding.
+fn round_trip<T: IpcMessage + PartialEq + std::fmt::Debug>(value: &T) {
+    let bytes = ipc::to_vec(value);
+    assert_eq!(&ipc::from_slice::<T>(&bytes).unwrap(), value, "IPC");
+    cdr_round_trip(value);
+}
+
+/// `value` survives every CDR encoding.
+fn cdr_round_trip<T: IpcMessage + PartialEq + std::fmt::Debug>(value: &T) {
+    for enc in [
+        Encoding::Xcdr1Le,
+        Encoding::Xcdr1Be,
+        Encoding::Xcdr2Le,
+        Encoding::Xcdr2Be,
+    ] {
+        let bytes = cdr::to_vec(value, enc);
+        assert_eq!(&cdr::from_slice::<T>(&bytes).unwrap(), value, "{enc:?}");
+    }
+}
+
+/// The formats an IPC input defines, by name.
+fn input_formats(file: &str) -> FormatRegistry {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/gen/inputs")
+        .join(file);
+    let input = Input::read(&path).unwrap();
+    let mut reg = FormatRegistry::new();
+    for (name, f) in gen::ipc::formats(&input).unwrap() {
+        if f != Format::Empty {
+            reg.insert(&name, f).unwrap();
+        }
+    }
+    reg
+}
+
+/// `T`'s format, with the named formats it uses expanded.
+fn expanded<T: IpcMessage>() -> String {
+    let mut reg = FormatRegistry::new();
+    for (name, f) in NamedFormats::of::<T>().iter() {
+        reg.define(name, f).unwrap();
+    }
+    let f = format::parse(T::FORMAT).unwrap();
+    reg.resolve(&f).unwrap().to_string()
+}
+
+/// The input's format `name`, expanded.
+fn input_expanded(reg: &FormatRegistry, name: &str) -> String {
+    reg.resolve(&Format::Named(name.into()))
+        .unwrap()
+        .to_string()
+}
+
+#[test]
+fn ipc_formats_are_the_inputs() {
+    use manual_ipc::*;
+    let reg = input_formats("manual.ipc");
+    // the generated format string is the input's, character for character
+    // (a struct's format names the named formats it uses, as the input does)
+    for (name, got) in [
+        ("DATA1", Data1::FORMAT),
+        ("Primitives", Primitives::FORMAT),
+        ("Row", Row::FORMAT),
+        ("Samples", Samples::FORMAT),
+        ("POINTER_EXAMPLE", PointerExample::FORMAT),
+        ("ENUM_TYPE", EnumType::FORMAT),
+        ("Mixed", Mixed::FORMAT),
+        ("point", Point::FORMAT),
+        ("T1", T1::FORMAT),
+        ("T2", T2::FORMAT),
+        ("LIST", List::FORMAT),
+        ("Matrix", Matrix::FORMAT),
+        ("radians", Radians::FORMAT),
+        ("message1", Message1::FORMAT),
+        ("message2", Message2::FORMAT),
+    ] {
+        assert_eq!(got, reg.get(name).unwrap().to_string(), "{name}");
+    }
+    assert_eq!(
+        T2::FORMAT,
+        "{string, int, <T1:2>, {enum WaitVal, SendVal, ReceiveVal, ListenVal}}"
+    );
+    assert_eq!(T2::FORMAT_NAME, Some("T2"));
+    assert_eq!(Point::FORMAT_NAME, Some("point"));
+    // aliases of named formats are written out where they are used: the
+    // same format once names are expanded
+    assert_eq!(TwoPointArrays::FORMAT, "{[point:5], [point:5]}");
+    assert_eq!(
+        expanded::<TwoPointArrays>(),
+        input_expanded(&reg, "two-point-arrays")
+    );
+    assert_eq!(
+        expanded::<PointArray>(),
+        input_expanded(&reg, "point-array")
+    );
+    assert_eq!(expanded::<T2>(), input_expanded(&reg, "T2"));
+}
+
+#[test]
+fn ipc_values_round_trip() {
+    use manual_ipc::*;
+    round_trip(&Data1(1, "two".into(), 3));
+    round_trip(&Primitives(
+        'x',
+        -1,
+        255,
+        -300,
+        60000,
+        -70000,
+        4_000_000_000,
+        -(1 << 40),
+        1 << 63,
+        1.5,
+        -2.25,
+        true,
+        "all".into(),
+    ));
+    round_trip(&Row(
+        [1.0, 2.0, 3.0],
+        ['a', 'b', 'c', 'd', 'e', 'f', 'g', 'h'],
+    ));
+    round_trip(&Samples(3, vec![0.5, 1.5, 2.5]));
+    round_trip(&PointerExample(7, Some(Box::new(8))));
+    round_trip(&PointerExample(7, None));
+    round_trip(&List(
+        1,
+        Some(Box::new(List(2, Some(Box::new(List(3, None)))))),
+    ));
+    round_trip(&Mixed(
+        4,
+        MixedField2::C,
+        [0.0, -1.0, 1e300],
+        MixedField4::V10,
+    ));
+    let p = |x: f64| Point(x, x + 1.0, x + 2.0);
+    round_trip(&TwoPointArrays(
+        [p(0.0), p(1.0), p(2.0), p(3.0), p(4.0)],
+        [p(5.0), p(6.0), p(7.0), p(8.0), p(9.0)],
+    ));
+    let t1 = |i: i32| {
+        T1(
+            i,
+            T1Field2::V3,
+            [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]],
+            f64::from(i),
+        )
+    };
+    round_trip(&T2(
+        "hello".into(),
+        2,
+        vec![t1(1), t1(2)],
+        T2Field4::ReceiveVal,
+    ));
+    round_trip(&T2(String::new(), 0, vec![], T2Field4::WaitVal));
+    let m: Matrix = [[9; 42]; 17];
+    round_trip(&m);
+}
+
+/// T1 as the C library marshals `{int, {enum : 3}, [double:2,3], double}`
+/// on a little-endian host: each field in order, no padding.
+#[test]
+fn ipc_t1_golden_bytes() {
+    use manual_ipc::*;
+    let t1 = T1(5, T1Field2::V2, [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]], 0.5);
+    let mut want = Vec::new();
+    want.extend_from_slice(&5i32.to_le_bytes()); // int
+    want.extend_from_slice(&2i32.to_le_bytes()); // {enum : 3}: V2 as a C int
+    for d in [1.0f64, 2.0, 3.0, 4.0, 5.0, 6.0] {
+        want.extend_from_slice(&d.to_le_bytes()); // [double:2,3], row-major
+    }
+    want.extend_from_slice(&0.5f64.to_le_bytes()); // double
+    assert_eq!(ipc::to_vec(&t1), want);
+    assert_eq!(want.len(), 64);
+}
