@@ -51,3 +51,13 @@ fn ipc_manual_formats() {
         &Options::default(),
     );
 }
+
+#[test]
+fn xdr_manual_examples() {
+    golden(
+        Lang::Xdr,
+        &["manual.xdr"],
+        "manual_xdr.rs",
+        &Options::default(),
+    );
+}

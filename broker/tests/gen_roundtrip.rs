@@ -14,6 +14,19 @@ mod manual_ipc {
     include!("gen/expected/manual_ipc.rs");
 }
 
+#[allow(dead_code)]
+mod manual_xdr {
+    /// `ipc_type ExternalStruct1;` names a type the including code
+    /// provides (in C, with its `ExternalStruct1_IPC_FORMAT` macro).
+    #[derive(courier::IpcMessage, Debug, Clone, PartialEq)]
+    pub struct ExternalStruct1 {
+        pub foo: i32,
+        pub goo: i32,
+    }
+
+    include!("gen/expected/manual_xdr.rs");
+}
+
 /// `value` encodes and decodes to itself in IPC and in every CDR encoding.
 fn round_trip<T: IpcMessage + PartialEq + std::fmt::Debug>(value: &T) {
     let bytes = ipc::to_vec(value);
@@ -186,4 +199,104 @@ fn ipc_t1_golden_bytes() {
     want.extend_from_slice(&0.5f64.to_le_bytes()); // double
     assert_eq!(ipc::to_vec(&t1), want);
     assert_eq!(want.len(), 64);
+}
+
+/// The IPC formats xdrgen gives the manual's examples (appendix B), with
+/// named formats expanded.
+#[test]
+fn xdr_formats_are_xdrgens() {
+    use manual_xdr::*;
+    let canon = |s: &str| format::parse(s).unwrap().to_string();
+    assert_eq!(Zoo::FORMAT, "{int, int}");
+    assert_eq!(expanded::<Transform>(), canon("{[double:4,4]}"));
+    assert_eq!(expanded::<Gamma>(), canon("{int, <float:1>}"));
+    assert_eq!(expanded::<Color>(), canon("{enum RED,ORANGE,YELLOW}"));
+    assert_eq!(expanded::<Mixed>(), canon("int"));
+    // xdrgen writes `uchar`, which no IPC library knows: `ubyte` is the
+    // one-byte unsigned primitive
+    assert_eq!(expanded::<ImagePixel>(), canon("[ubyte:3]"));
+    assert_eq!(
+        expanded::<ExecCall>(),
+        canon("{{int,<string:1>},[string:20]}")
+    );
+    assert_eq!(expanded::<Roo>(), canon("{int, char}"));
+    assert_eq!(
+        expanded::<PrimitiveTypes>(),
+        canon("{string, ubyte, char, uint, int, char, float, double}")
+    );
+    assert_eq!(
+        expanded::<IncExternalStruct>(),
+        canon("{int, {int, int}, {char, double}}")
+    );
+    assert_eq!(
+        expanded::<MyNestedStruct>(),
+        canon("{{int, {int}}, {char, {int, {int}}}}")
+    );
+    assert_eq!(
+        expanded::<IncludesEnums>(),
+        canon("{{enum RED,ORANGE,YELLOW}, {enum FOO,GOO,ZOO}, int}")
+    );
+    assert_eq!((TWO, FOUR, SIX), (2, 3, 6));
+}
+
+#[test]
+fn xdr_values_round_trip() {
+    use manual_xdr::*;
+    round_trip(&Zoo { foo: 1, goo: 2 });
+    let inc = MyIncludableStruct {
+        foo: 3,
+        goo: MyIncludableStructGoo { a: 4 },
+    };
+    round_trip(&MyNestedStruct {
+        b: inc.clone(),
+        roo: MyNestedStructRoo { a: 'r', b2: inc },
+    });
+    round_trip(&PrimitiveTypes {
+        a: "xdr".into(),
+        b: 200,
+        c: 'c',
+        d: 3_000_000_000,
+        e: -5,
+        f: 1,
+        g: 0.25,
+        h: -8.5,
+    });
+    let px: ImagePixel = [1, 2, 3];
+    round_trip(&px);
+    let mut mat = [[0.0; 4]; 4];
+    mat[1][2] = 12.0;
+    round_trip(&Transform { mat });
+    round_trip(&Alpha {
+        size: 2,
+        beta: vec![
+            AlphaBeta {
+                data: ['a', 'b', 'c', 'd', 'e'],
+            },
+            AlphaBeta {
+                data: ['v', 'w', 'x', 'y', 'z'],
+            },
+        ],
+    });
+    round_trip(&Gamma {
+        delta: 3,
+        epsilon: vec![1.0, 2.0, 3.0],
+    });
+    round_trip(&IncludesEnums {
+        color: Color::YELLOW,
+        my_enum: IncludesEnumsMyEnum::GOO,
+        mixed: SIX,
+    });
+    round_trip(&ExecCall {
+        args: ExecCallArgs {
+            argc: 2,
+            argv: vec!["ls".into(), "-l".into()],
+        },
+        env_vars: std::array::from_fn(|i| format!("V{i}=1")),
+    });
+    round_trip(&Roo { a: 1, b: 'b' });
+    round_trip(&IncExternalStruct {
+        a: 1,
+        s1: ExternalStruct1 { foo: 2, goo: 3 },
+        s2: ExternalStruct2('s', 4.0),
+    });
 }

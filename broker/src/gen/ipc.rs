@@ -75,16 +75,34 @@ pub fn translate(inputs: &[Input]) -> Result<Module, GenError> {
         .collect();
     let mut top = Module::default();
     for d in &defs {
-        let mut cx = Cx {
-            def: d,
-            rust_names: &rust_names,
-            extra: Vec::new(),
-        };
-        let item = cx.top()?;
-        top.items.push(item);
-        top.items.append(&mut cx.extra);
+        let source = format!("{}:{}", d.input.name, d.name_pos.line);
+        top.items
+            .extend(items(d.name, &d.format, &d.name_pos, &source, &rust_names)?);
     }
     model::finish(top)
+}
+
+/// The items for named format `name` (defined at `pos`, `source` in doc
+/// comments): its own type first, then the types of its inline parts.
+/// `rust_names` maps the format names it may use to Rust type names.
+pub(super) fn items(
+    name: &str,
+    format: &Format,
+    pos: &Pos,
+    source: &str,
+    rust_names: &HashMap<&str, String>,
+) -> Result<Vec<Item>, GenError> {
+    let mut cx = Cx {
+        name,
+        format,
+        pos,
+        source,
+        rust_names,
+        extra: Vec::new(),
+    };
+    let mut out = vec![cx.top()?];
+    out.append(&mut cx.extra);
+    Ok(out)
 }
 
 /// The named formats of one input, in file order, as parsed (named
@@ -196,37 +214,37 @@ fn definitions(input: &Input) -> Result<Vec<Def<'_>>, GenError> {
 
 /// Translation of one definition; inline composites go to `extra`.
 struct Cx<'a> {
-    def: &'a Def<'a>,
+    name: &'a str,
+    format: &'a Format,
+    pos: &'a Pos,
+    source: &'a str,
     rust_names: &'a HashMap<&'a str, String>,
     extra: Vec<Item>,
 }
 
 impl Cx<'_> {
     fn pos(&self) -> Pos {
-        self.def.name_pos.clone()
-    }
-
-    fn source(&self) -> String {
-        format!("{}:{}", self.def.input.name, self.def.name_pos.line)
+        self.pos.clone()
     }
 
     fn top(&mut self) -> Result<Item, GenError> {
-        let d = self.def;
-        let rust = self.rust_names[d.name].clone();
+        let name = self.name;
+        let rust = self
+            .rust_names
+            .get(name)
+            .cloned()
+            .unwrap_or_else(|| names::type_name(name));
         let doc = vec![format!(
-            "IPC format `{}` ({}): `{}`.",
-            d.name,
-            self.source(),
-            d.format
+            "IPC format `{name}` ({}): `{}`.",
+            self.source, self.format
         )];
-        Ok(match &d.format {
+        Ok(match self.format {
             Format::Empty => Item::Struct(StructDef {
                 name: rust,
                 pos: self.pos(),
                 doc: vec![format!(
-                    "IPC format `{}` ({}): the empty format (no data).",
-                    d.name,
-                    self.source()
+                    "IPC format `{name}` ({}): the empty format (no data).",
+                    self.source
                 )],
                 format_name: None,
                 type_name: None,
@@ -235,7 +253,7 @@ impl Cx<'_> {
                 fields: Vec::new(),
             }),
             Format::Struct(fields) => {
-                let format_name = (rust != d.name).then(|| d.name.to_string());
+                let format_name = (rust != name).then(|| name.to_string());
                 Item::Struct(self.structure(rust, format_name, doc, fields)?)
             }
             Format::Enum { names, max } => Item::Enum(self.enumeration(rust, doc, names, *max)?),

@@ -22,9 +22,11 @@
 
 mod error;
 pub mod ipc;
+mod lex;
 mod model;
 mod names;
 mod rust;
+pub mod xdr;
 
 use std::path::{Path, PathBuf};
 
@@ -70,6 +72,8 @@ impl Input {
 pub enum Lang {
     /// IPC format strings: `NAME = FORMAT` lines (see [`ipc`]).
     Ipc,
+    /// XDR as `xdrgen` reads it (see [`xdr`]).
+    Xdr,
 }
 
 impl Lang {
@@ -77,6 +81,7 @@ impl Lang {
     pub fn name(self) -> &'static str {
         match self {
             Lang::Ipc => "ipc",
+            Lang::Xdr => "xdr",
         }
     }
 }
@@ -132,6 +137,7 @@ pub fn generate_with(
     let _ = (loader, options);
     let module = match lang {
         Lang::Ipc => ipc::translate(inputs)?,
+        Lang::Xdr => xdr::translate(inputs)?,
     };
     let sources: Vec<String> = inputs.iter().map(|i| i.name.clone()).collect();
     Ok(rust::emit(&module, lang.name(), &sources))

@@ -49,6 +49,8 @@ pub enum Prim {
     Bool,
     /// `char` (one Latin-1 byte on the wire).
     Char,
+    /// `u8` sent as an IPC `char` (`#[ipc(char)]` on a field; `u8` in arrays).
+    CharByte,
     /// `String`.
     String,
 }
@@ -69,6 +71,7 @@ impl Prim {
             Prim::F64 => "f64",
             Prim::Bool => "bool",
             Prim::Char => "char",
+            Prim::CharByte => "u8",
             Prim::String => "String",
         }
     }

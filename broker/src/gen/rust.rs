@@ -5,7 +5,8 @@
 use std::fmt::Write as _;
 
 use super::model::{
-    AliasDef, ConstDef, EnumDef, Extensibility, FieldDef, Item, Module, StructDef, Ty, TypeRef,
+    AliasDef, ConstDef, EnumDef, Extensibility, FieldDef, Item, Module, Prim, StructDef, Ty,
+    TypeRef,
 };
 use super::names;
 
@@ -161,6 +162,9 @@ fn struct_def(out: &mut String, s: &StructDef, path: &[String], depth: usize) {
 
 fn field_attrs(f: &FieldDef) -> Vec<String> {
     let mut a = Vec::new();
+    if f.ty == Ty::Prim(Prim::CharByte) {
+        a.push("char".to_string());
+    }
     if f.key {
         a.push("key".to_string());
     }

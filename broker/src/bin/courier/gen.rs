@@ -54,12 +54,15 @@ pub struct GenArgs {
 pub enum LangArg {
     /// IPC format strings
     Ipc,
+    /// XDR as IPC's xdrgen reads it
+    Xdr,
 }
 
 impl From<LangArg> for Lang {
     fn from(l: LangArg) -> Lang {
         match l {
             LangArg::Ipc => Lang::Ipc,
+            LangArg::Xdr => Lang::Xdr,
         }
     }
 }
