@@ -61,3 +61,35 @@ fn xdr_manual_examples() {
         &Options::default(),
     );
 }
+
+/// A ROS 2 message set as rosidl writes IDL, with ROS 2's DDS type names;
+/// the files `#include` each other by package path.
+#[test]
+fn idl_ros2_messages() {
+    golden(
+        Lang::Idl,
+        &[
+            "ros2/sensor_msgs/msg/Imu.idl",
+            "ros2/sensor_msgs/msg/NavSatStatus.idl",
+            "ros2/geometry_msgs/msg/PoseStamped.idl",
+            "ros2/geometry_msgs/msg/Twist.idl",
+            "ros2/example_interfaces/srv/AddTwoInts.idl",
+        ],
+        "ros2_idl.rs",
+        &{
+            let mut o = Options::default();
+            o.ros2_names = true;
+            o
+        },
+    );
+}
+
+#[test]
+fn idl_cyclone_types() {
+    golden(
+        Lang::Idl,
+        &["cyclone.idl"],
+        "cyclone_idl.rs",
+        &Options::default(),
+    );
+}

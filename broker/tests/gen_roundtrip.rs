@@ -27,6 +27,16 @@ mod manual_xdr {
     include!("gen/expected/manual_xdr.rs");
 }
 
+#[allow(dead_code)]
+mod ros2_idl {
+    include!("gen/expected/ros2_idl.rs");
+}
+
+#[allow(dead_code)]
+mod cyclone_idl {
+    include!("gen/expected/cyclone_idl.rs");
+}
+
 /// `value` encodes and decodes to itself in IPC and in every CDR encoding.
 fn round_trip<T: IpcMessage + PartialEq + std::fmt::Debug>(value: &T) {
     let bytes = ipc::to_vec(value);
@@ -298,5 +308,148 @@ fn xdr_values_round_trip() {
         a: 1,
         s1: ExternalStruct1 { foo: 2, goo: 3 },
         s2: ExternalStruct2('s', 4.0),
+    });
+}
+
+/// std_msgs/Header as a ROS 2 node sends it (XCDR1, little endian),
+/// derived byte by byte from the CDR rules (DDS-XTypes 1.3 §7.4.1).
+#[test]
+fn idl_ros2_header_golden_bytes() {
+    use ros2_idl::builtin_interfaces::msg::Time;
+    use ros2_idl::std_msgs::msg::Header;
+    let h = Header {
+        stamp: Time { sec: 1, nanosec: 2 },
+        frame_id: "map".into(),
+    };
+    let want = [
+        0x00, 0x01, 0x00, 0x00, // encapsulation CDR_LE, options 0
+        0x01, 0x00, 0x00, 0x00, // stamp.sec: int32 1 at offset 0
+        0x02, 0x00, 0x00, 0x00, // stamp.nanosec: uint32 2 at offset 4
+        0x04, 0x00, 0x00, 0x00, // frame_id length: 3 chars + NUL, at offset 8
+        b'm', b'a', b'p', 0x00, // frame_id bytes and its NUL
+    ];
+    assert_eq!(cdr::to_vec(&h, Encoding::Xcdr1Le), want);
+    assert_eq!(cdr::from_slice::<Header>(&want).unwrap(), h);
+    assert_eq!(Header::TYPE_NAME, "std_msgs::msg::dds_::Header_");
+    round_trip(&h);
+}
+
+/// example_interfaces/AddTwoInts: the request is two int64s, 8-aligned
+/// from the end of the encapsulation header.
+#[test]
+fn idl_ros2_service_pair() {
+    use ros2_idl::example_interfaces::srv::{AddTwoIntsRequest, AddTwoIntsResponse};
+    let rq = AddTwoIntsRequest { a: 1, b: -2 };
+    let mut want = vec![0x00, 0x01, 0x00, 0x00]; // CDR_LE
+    want.extend_from_slice(&1i64.to_le_bytes()); // a at offset 0
+    want.extend_from_slice(&(-2i64).to_le_bytes()); // b at offset 8
+    assert_eq!(cdr::to_vec(&rq, Encoding::Xcdr1Le), want);
+    assert_eq!(
+        AddTwoIntsRequest::TYPE_NAME,
+        "example_interfaces::srv::dds_::AddTwoInts_Request_"
+    );
+    assert_eq!(
+        AddTwoIntsResponse::TYPE_NAME,
+        "example_interfaces::srv::dds_::AddTwoInts_Response_"
+    );
+    round_trip(&rq);
+    round_trip(&AddTwoIntsResponse { sum: -1 });
+}
+
+#[test]
+fn idl_ros2_values_round_trip() {
+    use ros2_idl::builtin_interfaces::msg::Time;
+    use ros2_idl::geometry_msgs::msg::*;
+    use ros2_idl::sensor_msgs::msg::{self as sensor, Imu, NavSatStatus};
+    use ros2_idl::std_msgs::msg::Header;
+    let header = Header {
+        stamp: Time {
+            sec: 10,
+            nanosec: 500,
+        },
+        frame_id: "base_link".into(),
+    };
+    let q = Quaternion {
+        x: 0.0,
+        y: 0.0,
+        z: 0.0,
+        w: 1.0,
+    };
+    let v = |x: f64| Vector3 {
+        x,
+        y: -x,
+        z: 2.0 * x,
+    };
+    round_trip(&PoseStamped {
+        header: header.clone(),
+        pose: Pose {
+            position: Point {
+                x: 1.0,
+                y: 2.0,
+                z: 3.0,
+            },
+            orientation: q.clone(),
+        },
+    });
+    round_trip(&Twist {
+        linear: v(1.0),
+        angular: v(0.5),
+    });
+    let cov: sensor::Double9 = [0.1, 0.0, 0.0, 0.0, 0.1, 0.0, 0.0, 0.0, 0.1];
+    round_trip(&Imu {
+        header,
+        orientation: q,
+        orientation_covariance: cov,
+        angular_velocity: v(0.25),
+        angular_velocity_covariance: cov,
+        linear_acceleration: v(9.81),
+        linear_acceleration_covariance: [-1.0; 9],
+    });
+    use sensor::nav_sat_status_constants::*;
+    round_trip(&NavSatStatus {
+        status: STATUS_NO_FIX,
+        service: SERVICE_GLONASS,
+    });
+    assert_eq!((STATUS_FIX, SERVICE_GPS), (0, 1));
+}
+
+#[test]
+fn idl_cyclone_types_round_trip() {
+    use courier::cdr::Extensibility;
+    use cyclone_idl::hello_world_data::*;
+    assert_eq!(Msg::TYPE_NAME, "HelloWorldData::Msg");
+    assert_eq!(Msg::KEYS, ["user_id"]);
+    assert_eq!(Reading::EXTENSIBILITY, Extensibility::Appendable);
+    assert_eq!(Config::EXTENSIBILITY, Extensibility::Mutable);
+    assert_eq!((MAX_NAME, GRID, SCALE, GREETING), (32, 2, 1500.0, "hello"));
+    round_trip(&Msg {
+        user_id: 7,
+        message: "hi".into(),
+    });
+    // sequences are CDR-only: IPC counts arrays with a field
+    cdr_round_trip(&Reading {
+        sensor: "imu0".into(),
+        level: Level::HIGH,
+        values: vec![1.0, 2.0],
+        raw: vec![0xde, 0xad],
+        grid: [[1, 2, 3], [4, 5, 6]],
+        tag: 'x',
+        valid: true,
+    });
+    let history = vec![Msg {
+        user_id: 1,
+        message: "a".into(),
+    }];
+    cdr_round_trip(&Config {
+        port: 7400,
+        note: Some(Box::new("n".into())),
+        big: -1,
+        history,
+    });
+    cdr_round_trip(&Config {
+        port: 0,
+        note: None,
+        big: 0,
+        history: vec![],
     });
 }

@@ -21,6 +21,7 @@
 //! depends on `courier`.
 
 mod error;
+pub mod idl;
 pub mod ipc;
 mod lex;
 mod model;
@@ -74,6 +75,8 @@ pub enum Lang {
     Ipc,
     /// XDR as `xdrgen` reads it (see [`xdr`]).
     Xdr,
+    /// OMG IDL (see [`idl`]).
+    Idl,
 }
 
 impl Lang {
@@ -82,6 +85,7 @@ impl Lang {
         match self {
             Lang::Ipc => "ipc",
             Lang::Xdr => "xdr",
+            Lang::Idl => "idl",
         }
     }
 }
@@ -92,6 +96,11 @@ pub trait Loader {
     fn load(&self, path: &Path) -> std::io::Result<String>;
     /// True if `path` exists.
     fn exists(&self, path: &Path) -> bool;
+    /// Directories searched after the including file's own and its
+    /// parents (`-I`).
+    fn include_dirs(&self) -> Vec<PathBuf> {
+        Vec::new()
+    }
 }
 
 /// Reads included files from the file system, searching the including
@@ -108,6 +117,9 @@ impl Loader for FsLoader {
     }
     fn exists(&self, path: &Path) -> bool {
         path.is_file()
+    }
+    fn include_dirs(&self) -> Vec<PathBuf> {
+        self.include_dirs.clone()
     }
 }
 
@@ -134,10 +146,10 @@ pub fn generate_with(
     loader: &dyn Loader,
     options: &Options,
 ) -> Result<String, GenError> {
-    let _ = (loader, options);
     let module = match lang {
         Lang::Ipc => ipc::translate(inputs)?,
         Lang::Xdr => xdr::translate(inputs)?,
+        Lang::Idl => idl::translate(inputs, loader, options)?,
     };
     let sources: Vec<String> = inputs.iter().map(|i| i.name.clone()).collect();
     Ok(rust::emit(&module, lang.name(), &sources))

@@ -56,6 +56,8 @@ pub enum LangArg {
     Ipc,
     /// XDR as IPC's xdrgen reads it
     Xdr,
+    /// OMG IDL (ROS 2, Cyclone DDS)
+    Idl,
 }
 
 impl From<LangArg> for Lang {
@@ -63,6 +65,7 @@ impl From<LangArg> for Lang {
         match l {
             LangArg::Ipc => Lang::Ipc,
             LangArg::Xdr => Lang::Xdr,
+            LangArg::Idl => Lang::Idl,
         }
     }
 }

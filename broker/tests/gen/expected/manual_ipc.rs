@@ -35,11 +35,7 @@ pub struct Row(pub [f64; 3], pub [char; 8]);
 
 /// IPC format `Samples` (manual.ipc:14): `{int, <float:1>}`.
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
-pub struct Samples(
-    pub i32,
-    #[ipc(len = "0")]
-    pub Vec<f32>,
-);
+pub struct Samples(pub i32, #[ipc(len = "0")] pub Vec<f32>);
 
 /// IPC format `POINTER_EXAMPLE` (manual.ipc:17): `{int, *int}`.
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
@@ -125,8 +121,7 @@ pub enum T1Field2 {
 pub struct T2(
     pub String,
     pub i32,
-    #[ipc(len = "1")]
-    pub Vec<T1>,
+    #[ipc(len = "1")] pub Vec<T1>,
     pub T2Field4,
 );
 
