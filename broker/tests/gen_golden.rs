@@ -31,7 +31,7 @@ fn golden(lang: Lang, inputs: &[&str], expected: &str, options: &Options) {
             .lines()
             .zip(want.lines())
             .position(|(a, b)| a != b)
-            .map_or_else(|| got.lines().count().min(want.lines().count()), |i| i)
+            .unwrap_or_else(|| got.lines().count().min(want.lines().count()))
             + 1;
         panic!(
             "{} differs from the generated code at line {line}:\n  generated: {:?}\n  expected:  {:?}\n(COURIER_BLESS=1 rewrites it)",

@@ -12,7 +12,7 @@ const KEYWORDS: &[&str] = &[
 /// Words of a name: split at non-alphanumeric characters and where a
 /// lower-case letter or digit is followed by an upper-case one
 /// (`envVars` -> `env`, `Vars`; `HTTPServer` -> `HTTP`, `Server`).
-fn words(s: &str) -> Vec<String> {
+pub fn words(s: &str) -> Vec<String> {
     let chars: Vec<char> = s.chars().collect();
     let mut out = Vec::new();
     let mut cur = String::new();
@@ -101,6 +101,20 @@ pub fn verbatim(s: &str) -> String {
 pub fn is_camel(s: &str) -> bool {
     let s = s.trim_start_matches("r#");
     s.starts_with(|c: char| c.is_ascii_uppercase()) && !s.contains('_')
+}
+
+/// True if clippy's `enum_variant_names` would object: at least three
+/// variants starting, or ending, with the same word.
+pub fn shared_variant_word(variants: &[&str]) -> bool {
+    if variants.len() < 3 {
+        return false;
+    }
+    let ws: Vec<Vec<String>> = variants.iter().map(|v| words(v)).collect();
+    let same = |pick: fn(&Vec<String>) -> Option<&String>| {
+        let first = pick(&ws[0]);
+        first.is_some() && ws.iter().all(|w| w.len() > 1 && pick(w) == first)
+    };
+    same(|w| w.first()) || same(|w| w.last())
 }
 
 /// True if `s` is written all in capitals (clippy's `upper_case_acronyms`).

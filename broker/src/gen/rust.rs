@@ -198,6 +198,12 @@ fn field_attrs(f: &FieldDef) -> Vec<String> {
 
 fn field_head(out: &mut String, f: &FieldDef, depth: usize) {
     doc(out, &f.doc, depth);
+    if let Ty::Boxed(inner) = &f.ty {
+        if matches!(**inner, Ty::Prim(Prim::String) | Ty::Vec(_)) {
+            // the box is what makes the member @optional in CDR
+            let _ = writeln!(out, "{}#[allow(clippy::box_collection)]", indent(depth));
+        }
+    }
     let a = field_attrs(f);
     if !a.is_empty() {
         let _ = writeln!(out, "{}#[ipc({})]", indent(depth), a.join(", "));
@@ -211,22 +217,20 @@ fn enum_def(out: &mut String, e: &EnumDef, depth: usize) {
         out,
         "{ind}#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, IpcMessage)]"
     );
-    let odd = e.variants.iter().any(|(n, _, _)| !names::is_camel(n));
-    let caps = e.variants.iter().any(|(n, _, _)| names::is_all_caps(n));
-    match (odd, caps) {
-        (true, true) => {
-            let _ = writeln!(
-                out,
-                "{ind}#[allow(non_camel_case_types, clippy::upper_case_acronyms)]"
-            );
-        }
-        (true, false) => {
-            let _ = writeln!(out, "{ind}#[allow(non_camel_case_types)]");
-        }
-        (false, true) => {
-            let _ = writeln!(out, "{ind}#[allow(clippy::upper_case_acronyms)]");
-        }
-        (false, false) => {}
+    // variant names are the source's (IPC format strings spell them)
+    let mut allow = Vec::new();
+    if e.variants.iter().any(|(n, _, _)| !names::is_camel(n)) {
+        allow.push("non_camel_case_types");
+    }
+    if e.variants.iter().any(|(n, _, _)| names::is_all_caps(n)) {
+        allow.push("clippy::upper_case_acronyms");
+    }
+    let vnames: Vec<&str> = e.variants.iter().map(|(n, _, _)| n.as_str()).collect();
+    if names::shared_variant_word(&vnames) {
+        allow.push("clippy::enum_variant_names");
+    }
+    if !allow.is_empty() {
+        let _ = writeln!(out, "{ind}#[allow({})]", allow.join(", "));
     }
     let mut attrs = Vec::new();
     if e.numeric && e.variants.iter().all(|v| v.1.is_none()) {

@@ -69,6 +69,7 @@ pub mod hello_world_data {
     pub struct Config {
         #[ipc(id = 10)]
         pub port: u16,
+        #[allow(clippy::box_collection)]
         pub note: Option<Box<String>>,
         pub big: i64,
         pub history: Vec<Msg>,

@@ -127,6 +127,7 @@ pub struct T2(
 
 /// Part of `T2`: `{enum WaitVal, SendVal, ReceiveVal, ListenVal}`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, IpcMessage)]
+#[allow(clippy::enum_variant_names)]
 pub enum T2Field4 {
     WaitVal,
     SendVal,
