@@ -24,5 +24,6 @@
 
 pub use courier::central::*;
 
+pub mod gen;
 pub mod xrce_agent;
 mod xrce_state;

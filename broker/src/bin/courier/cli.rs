@@ -82,6 +82,9 @@ pub enum Command {
     Spy(SpyArgs),
     /// Answer every courier::Ping with the same sample (for ping --rtt, like ddsperf pong)
     Pong(PongArgs),
+    /// Generate Rust types from IPC formats, XDR or IDL (like IPC's xdrgen)
+    #[command(after_help = crate::gen::GEN_HELP)]
+    Gen(crate::gen::GenArgs),
     /// Print a shell completion script (bash, zsh, fish, elvish, powershell)
     Completions {
         /// The shell
@@ -691,7 +694,11 @@ impl Cli {
                     ));
                 }
             }
-            Command::Hz(_) | Command::Bw(_) | Command::Pong(_) | Command::Completions { .. } => {}
+            Command::Hz(_)
+            | Command::Bw(_)
+            | Command::Pong(_)
+            | Command::Gen(_)
+            | Command::Completions { .. } => {}
         }
         Ok(())
     }

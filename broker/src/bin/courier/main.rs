@@ -16,6 +16,7 @@ mod cdr_value;
 mod cli;
 mod connect;
 mod echo;
+mod gen;
 mod list;
 mod perf;
 mod ping;
@@ -62,6 +63,7 @@ fn main() -> ExitCode {
             clap_complete::generate(shell, &mut Cli::command(), "courier", &mut out);
             return ExitCode::SUCCESS;
         }
+        Command::Gen(o) => return gen::run(o),
         c => c,
     };
     let rt = match tokio::runtime::Runtime::new() {
@@ -84,7 +86,7 @@ fn main() -> ExitCode {
             Command::Pong(o) => pong::pong(o, stop).await,
             Command::Pub(o) => publish::run(o, stop).await,
             Command::Spy(o) => spy::run(o, stop).await,
-            Command::Completions { .. } => Ok(Ended::Done),
+            Command::Completions { .. } | Command::Gen(_) => Ok(Ended::Done),
         }
     });
     match r {
