@@ -1,37 +1,59 @@
-//! Appendix A's module3 on Courier's Session API: prints `message1` and
-//! `message2`.
+//! Appendix A's module3 of the CMU IPC manual on Courier's Session API:
+//! prints `message1` and `message2`.
 //!
 //! ```text
-//! CENTRALHOST=127.0.0.1:1381 cargo run -p courier-examples --bin module3 [-- SECONDS]
+//! cargo run --example module3 [-- --seconds 30]
 //! ```
+//! Runs until Ctrl-C, or for `--seconds`.
 
-#[path = "appendix_a.rs"]
-mod appendix;
-
+use clap::Parser;
 use courier::Session;
+use courier_examples::{seconds, Error};
 use futures::StreamExt;
 
-#[tokio::main(flavor = "current_thread")]
-async fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let s = Session::builder("ipc://").name("module3").connect().await?;
+/// Appendix A's module3.
+#[derive(Parser, Debug)]
+#[command(name = "module3")]
+pub struct Args {
+    /// Central's URL (`ipc://` alone: `CENTRALHOST`, else localhost:1381).
+    #[arg(short = 'e', long = "endpoint", default_value = "ipc://")]
+    endpoint: String,
+    /// Stop after this many seconds (default: at Ctrl-C).
+    #[arg(long, value_parser = seconds)]
+    seconds: Option<f64>,
+}
+
+/// What a stream that ends means.
+const GONE: &str = "the connection to central ended";
+
+/// Connects and prints message1 and message2 until stopped.
+pub async fn run(args: Args) -> Result<(), Error> {
+    let builder = Session::builder(&args.endpoint).name("module3");
+    let s = courier_examples::connect(builder, &args.endpoint, 10.0).await?;
     println!("module3: connected");
     let mut msg1 = s.subscribe::<i32>("message1").await?;
     let mut msg2 = s.subscribe::<String>("message2").await?;
-    let stop = appendix::stop_signal();
+    let stop = courier_examples::stop_after(args.seconds);
     tokio::pin!(stop);
     loop {
         tokio::select! {
-            Some(m) = msg1.next() => match m {
-                Ok(v) => println!("msg1Handler: Receiving message1 ({}) [module3]", v.value),
-                Err(e) => { println!("{e}"); break; }
+            m = msg1.next() => match m {
+                Some(Ok(v)) => println!("msg1Handler: Receiving message1 ({}) [module3]", v.value),
+                Some(Err(e)) => println!("msg1Handler: {e}"),
+                None => return Err(GONE.into()),
             },
-            Some(m) = msg2.next() => match m {
-                Ok(v) => println!("msg2Handler: Receiving message2 ({}) [module3]", v.value),
-                Err(e) => { println!("{e}"); break; }
+            m = msg2.next() => match m {
+                Some(Ok(v)) => println!("msg2Handler: Receiving message2 ({}) [module3]", v.value),
+                Some(Err(e)) => println!("msg2Handler: {e}"),
+                None => return Err(GONE.into()),
             },
             _ = &mut stop => break,
         }
     }
     s.close().await;
     Ok(())
+}
+
+fn main() -> std::process::ExitCode {
+    courier_examples::main("module3", run)
 }

@@ -1,0 +1,165 @@
+//! What Courier's examples share: the arguments every `cargo run --example`
+//! program takes (in the style of zenoh's `z_*` programs), connecting with a
+//! bound and a hint, a `main` that turns an error into a message and a
+//! non-zero exit, and the message types of the IPC manual's Appendix A.
+//!
+//! The examples themselves are the files at the top of `examples/`; run one
+//! from the repository root with `cargo run --example NAME -- --help`.
+
+#![warn(missing_docs)]
+
+use std::future::Future;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use courier::Session;
+
+pub mod appendix_a;
+
+/// Any error an example reports (printed, then the example exits with 1).
+pub type Error = Box<dyn std::error::Error + Send + Sync>;
+
+/// The central a session URL without a host names (CMU IPC's default port).
+pub const DEFAULT_ENDPOINT: &str = "ipc://127.0.0.1:1381";
+
+/// The arguments of every example that talks to one endpoint.
+#[derive(clap::Args, Debug, Clone)]
+pub struct Common {
+    /// Session URL: `ipc://host:port` (a central), `rtps://DOMAIN?interface=lo&peers=127.0.0.1`
+    /// (DDS), `xrce+udp://host:port` (a DDS-XRCE agent).
+    #[arg(short = 'e', long = "endpoint", default_value = DEFAULT_ENDPOINT)]
+    pub endpoint: String,
+    /// How long to wait for the connection (seconds).
+    #[arg(long, default_value_t = 5.0, value_parser = seconds)]
+    pub connect_timeout: f64,
+}
+
+/// Where a DDS participant joins: the RTPS examples' arguments. The
+/// defaults keep every datagram on the loopback interface (unicast
+/// discovery with 127.0.0.1, no multicast), so nothing leaves the machine.
+#[derive(clap::Args, Debug, Clone)]
+pub struct Rtps {
+    /// DDS domain id (0 is every DDS implementation's default).
+    #[arg(short, long, default_value_t = 0)]
+    pub domain: u32,
+    /// Network interface, by name or IPv4 address.
+    #[arg(long, default_value = "lo")]
+    pub interface: String,
+    /// Unicast discovery peers (`ip` or `ip:port`), repeatable.
+    #[arg(long = "peer", default_values_t = ["127.0.0.1".to_string()])]
+    pub peers: Vec<String>,
+    /// Also use the standard SPDP multicast discovery.
+    #[arg(long)]
+    pub multicast: bool,
+    /// How long to wait for the participant to start (seconds).
+    #[arg(long, default_value_t = 5.0, value_parser = seconds)]
+    pub connect_timeout: f64,
+}
+
+impl Rtps {
+    /// Joins the domain as participant `name`, pinned as the arguments say.
+    pub async fn connect(&self, name: &str) -> Result<Session, Error> {
+        let url = format!("rtps://{}", self.domain);
+        let builder = Session::builder(&url)
+            .name(name)
+            .interface(&self.interface)
+            .peers(self.peers.iter().cloned())
+            .multicast(self.multicast);
+        connect(builder, &url, self.connect_timeout).await
+    }
+}
+
+/// Cyclone DDS's HelloWorld type (`HelloWorldData.idl`), so that `rtps_pub`
+/// and `rtps_sub` talk with Cyclone's `HelloworldPublisher` and
+/// `HelloworldSubscriber` on topic `HelloWorldData_Msg`:
+///
+/// ```idl
+/// module HelloWorldData { struct Msg { @key long userID; string message; }; };
+/// ```
+#[derive(courier::IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "HelloWorldData::Msg")]
+pub struct HelloWorld {
+    /// `@key long userID`: one DDS instance per user id.
+    #[ipc(key)]
+    pub user_id: i32,
+    /// `string message`.
+    pub message: String,
+}
+
+/// Parses a positive number of seconds.
+pub fn seconds(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        _ => Err(format!("{s:?} is not a positive number of seconds")),
+    }
+}
+
+impl Common {
+    /// Connects as module / participant `name`, within the connect timeout;
+    /// the error says where it tried and what to check.
+    pub async fn connect(&self, name: &str) -> Result<Session, Error> {
+        let builder = Session::builder(&self.endpoint).name(name);
+        connect(builder, &self.endpoint, self.connect_timeout).await
+    }
+}
+
+/// Connects with `builder` (made for `url`) within `secs` seconds; the
+/// error names the URL and what to start when nothing answers there.
+pub async fn connect(
+    builder: courier::SessionBuilder,
+    url: &str,
+    secs: f64,
+) -> Result<Session, Error> {
+    let hint = if url.starts_with("ipc://") {
+        " (is a central running? `cargo run -p courier-broker --bin central` starts one)"
+    } else if url.starts_with("xrce") {
+        " (is an agent running? `cargo run -p courier-broker --bin xrce-agent -- udp4 -p 8888` starts one)"
+    } else {
+        ""
+    };
+    match tokio::time::timeout(Duration::from_secs_f64(secs), builder.connect()).await {
+        Ok(Ok(s)) => Ok(s),
+        Ok(Err(e)) => Err(format!("cannot connect to {url}: {e}{hint}").into()),
+        Err(_) => Err(format!("no connection to {url} within {secs} s{hint}").into()),
+    }
+}
+
+/// Runs an example: parses its arguments (a usage error exits with 2, as
+/// clap does), runs `run` on a tokio runtime, and prints the error and
+/// exits with 1 if it fails.
+pub fn main<A, F>(name: &str, run: impl FnOnce(A) -> F) -> ExitCode
+where
+    A: clap::Parser,
+    F: Future<Output = Result<(), Error>>,
+{
+    let args = A::parse();
+    let rt = match tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+    {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("{name}: cannot start the tokio runtime: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    match rt.block_on(run(args)) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("{name}: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Resolves on Ctrl-C, or after `secs` seconds when given: how the
+/// examples that run until stopped end.
+pub async fn stop_after(secs: Option<f64>) {
+    match secs {
+        Some(s) => tokio::time::sleep(Duration::from_secs_f64(s)).await,
+        None => {
+            let _ = tokio::signal::ctrl_c().await;
+        }
+    }
+}
