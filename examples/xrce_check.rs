@@ -136,7 +136,7 @@ async fn stream_of(
     Ok(())
 }
 
-async fn pubsub(url: &str, two: bool) -> Res<()> {
+pub async fn pubsub(url: &str, two: bool) -> Res<()> {
     let a = Session::builder(url).name("check-a").connect().await?;
     let b = if two {
         Session::builder(url).name("check-b").connect().await?
@@ -195,7 +195,7 @@ async fn by_reference(url: &str) -> Res<()> {
     Err("nothing read back".into())
 }
 
-async fn rpc(url: &str, two: bool) -> Res<()> {
+pub async fn rpc(url: &str, two: bool) -> Res<()> {
     let server = Session::builder(url).name("check-server").connect().await?;
     let client = if two {
         Session::builder(url).name("check-client").connect().await?
