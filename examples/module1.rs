@@ -24,17 +24,15 @@ use tokio::io::AsyncBufReadExt;
 #[derive(Parser, Debug)]
 #[command(name = "module1")]
 pub struct Args {
-    /// Central's URL (`ipc://` alone: `CENTRALHOST`, else localhost:1381).
-    #[arg(short = 'e', long = "endpoint", default_value = "ipc://")]
-    endpoint: String,
+    #[command(flatten)]
+    central: courier_examples::Central,
     /// Commands (`m`, `r`, `q`); none: read them from stdin.
     commands: Vec<String>,
 }
 
 /// Connects, defines module1's messages, then runs the commands.
 pub async fn run(args: Args) -> Result<(), Error> {
-    let builder = Session::builder(&args.endpoint).name("module1");
-    let s = courier_examples::connect(builder, &args.endpoint, 10.0).await?;
+    let s = args.central.connect("module1").await?;
     println!("module1: connected");
     // As in C, module1 registers both named formats (module2 defines
     // response1 as "T2" and relies on central knowing it).

@@ -8,31 +8,19 @@
 //! ```
 //! Runs until Ctrl-C, or for `--seconds`.
 
-use clap::Parser;
-use courier::Session;
 use courier_examples::appendix_a::{appendix_a, T1, T2};
-use courier_examples::{seconds, Error};
+use courier_examples::Error;
 use futures::StreamExt;
 
-/// Appendix A's module2.
-#[derive(Parser, Debug)]
-#[command(name = "module2")]
-pub struct Args {
-    /// Central's URL (`ipc://` alone: `CENTRALHOST`, else localhost:1381).
-    #[arg(short = 'e', long = "endpoint", default_value = "ipc://")]
-    endpoint: String,
-    /// Stop after this many seconds (default: at Ctrl-C).
-    #[arg(long, value_parser = seconds)]
-    seconds: Option<f64>,
-}
+/// The arguments: `-e URL`, `--seconds S`.
+pub type Args = courier_examples::Module;
 
 /// What a stream that ends means.
 const GONE: &str = "the connection to central ended";
 
 /// Connects and handles message1 and query1 until stopped.
 pub async fn run(args: Args) -> Result<(), Error> {
-    let builder = Session::builder(&args.endpoint).name("module2");
-    let s = courier_examples::connect(builder, &args.endpoint, 10.0).await?;
+    let s = args.central.connect("module2").await?;
     println!("module2: connected");
     s.define::<String>("message2").await?;
     s.define::<T2>("response1").await?;

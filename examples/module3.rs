@@ -6,30 +6,18 @@
 //! ```
 //! Runs until Ctrl-C, or for `--seconds`.
 
-use clap::Parser;
-use courier::Session;
-use courier_examples::{seconds, Error};
+use courier_examples::Error;
 use futures::StreamExt;
 
-/// Appendix A's module3.
-#[derive(Parser, Debug)]
-#[command(name = "module3")]
-pub struct Args {
-    /// Central's URL (`ipc://` alone: `CENTRALHOST`, else localhost:1381).
-    #[arg(short = 'e', long = "endpoint", default_value = "ipc://")]
-    endpoint: String,
-    /// Stop after this many seconds (default: at Ctrl-C).
-    #[arg(long, value_parser = seconds)]
-    seconds: Option<f64>,
-}
+/// The arguments: `-e URL`, `--seconds S`.
+pub type Args = courier_examples::Module;
 
 /// What a stream that ends means.
 const GONE: &str = "the connection to central ended";
 
 /// Connects and prints message1 and message2 until stopped.
 pub async fn run(args: Args) -> Result<(), Error> {
-    let builder = Session::builder(&args.endpoint).name("module3");
-    let s = courier_examples::connect(builder, &args.endpoint, 10.0).await?;
+    let s = args.central.connect("module3").await?;
     println!("module3: connected");
     let mut msg1 = s.subscribe::<i32>("message1").await?;
     let mut msg2 = s.subscribe::<String>("message2").await?;

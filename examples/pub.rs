@@ -10,11 +10,8 @@
 //! message nobody subscribes to is not sent at all, as in C: start `sub`
 //! first.
 
-use std::time::Duration;
-
 use clap::Parser;
-use courier_examples::{seconds, Common, Error};
-use futures::StreamExt;
+use courier_examples::{seconds, Common, Error, Rounds};
 
 /// Publishes `[   N] PAYLOAD` on a topic every period.
 #[derive(Parser, Debug)]
@@ -41,17 +38,11 @@ pub async fn run(args: Args) -> Result<(), Error> {
     let session = args.common.connect("pub").await?;
     // A Publisher handle: the topic is defined (IPC) or the DDS writer made once.
     let publisher = session.publisher::<String>(&args.key).build().await?;
-    let mut ticks = session.every(Duration::from_secs_f64(args.period));
-    let mut n = 0u64;
-    while args.count.is_none_or(|c| n < c) {
+    let mut rounds = Rounds::new(&session, args.count, args.period);
+    while let Some(n) = rounds.next().await {
         let text = format!("[{n:4}] {}", args.payload);
         println!("Putting data ('{}': '{text}')...", args.key);
         publisher.publish(&text).await?;
-        n += 1;
-        tokio::select! {
-            _ = ticks.next() => {}
-            _ = tokio::signal::ctrl_c() => break,
-        }
     }
     // Publisher and session close when dropped; closing explicitly waits
     // until the connection said goodbye.

@@ -9,11 +9,8 @@
 //! machine. Cyclone's `HelloworldSubscriber` (same domain, same interface)
 //! and `rtps_sub` receive it.
 
-use std::time::Duration;
-
 use clap::Parser;
-use courier_examples::{seconds, Error, HelloWorld, Rtps};
-use futures::StreamExt;
+use courier_examples::{seconds, Error, HelloWorld, Qos, Rounds, Rtps};
 
 /// Publishes HelloWorld samples on a DDS topic.
 #[derive(Parser, Debug)]
@@ -30,12 +27,8 @@ pub struct Args {
     /// The `userID` key: samples of one id are one DDS instance.
     #[arg(long, default_value_t = 1)]
     user_id: i32,
-    /// Best effort instead of reliable (a reliable reader then ignores us).
-    #[arg(long)]
-    best_effort: bool,
-    /// Keep the last sample for readers that join later.
-    #[arg(long)]
-    transient_local: bool,
+    #[command(flatten)]
+    qos: Qos,
     /// How many samples (default: until Ctrl-C).
     #[arg(long)]
     count: Option<u64>,
@@ -48,10 +41,10 @@ pub struct Args {
 pub async fn run(args: Args) -> Result<(), Error> {
     let session = args.rtps.connect("rtps_pub").await?;
     let mut writer = session.publisher::<HelloWorld>(&args.key);
-    if args.best_effort {
+    if args.qos.best_effort {
         writer = writer.best_effort();
     }
-    if args.transient_local {
+    if args.qos.transient_local {
         writer = writer.transient_local().keep_last(1);
     }
     let writer = writer.build().await?;
@@ -62,9 +55,8 @@ pub async fn run(args: Args) -> Result<(), Error> {
         args.rtps.interface,
         <HelloWorld as courier::IpcMessage>::TYPE_NAME
     );
-    let mut ticks = session.every(Duration::from_secs_f64(args.period));
-    let mut n = 0u64;
-    while args.count.is_none_or(|c| n < c) {
+    let mut rounds = Rounds::new(&session, args.count, args.period);
+    while let Some(n) = rounds.next().await {
         let sample = HelloWorld {
             user_id: args.user_id,
             message: format!("{} {n}", args.payload),
@@ -73,11 +65,6 @@ pub async fn run(args: Args) -> Result<(), Error> {
         // Resolves once the sample is handed to the participant; with
         // `.confirmed()` it would wait until every reliable reader acked it.
         writer.publish(&sample).await?;
-        n += 1;
-        tokio::select! {
-            _ = ticks.next() => {}
-            _ = tokio::signal::ctrl_c() => break,
-        }
     }
     // Closing the writer disposes the instance it wrote (autodispose).
     drop(writer);

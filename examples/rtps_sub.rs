@@ -10,7 +10,7 @@
 
 use clap::Parser;
 use courier::SessionEvent;
-use courier_examples::{Error, HelloWorld, Rtps};
+use courier_examples::{Error, HelloWorld, Qos, Rtps};
 use futures::StreamExt;
 
 /// Prints HelloWorld samples and discovery events.
@@ -22,12 +22,8 @@ pub struct Args {
     /// The DDS topic.
     #[arg(short, long, default_value = "HelloWorldData_Msg")]
     key: String,
-    /// Best effort instead of reliable (matches writers of either kind).
-    #[arg(long)]
-    best_effort: bool,
-    /// Ask writers for the samples they kept for late joiners.
-    #[arg(long)]
-    transient_local: bool,
+    #[command(flatten)]
+    qos: Qos,
     /// Stop after this many samples (default: until Ctrl-C).
     #[arg(long)]
     count: Option<u64>,
@@ -39,10 +35,10 @@ pub async fn run(args: Args) -> Result<(), Error> {
     // Take the event stream before making readers, to see every discovery.
     let mut events = session.events();
     let mut reader = session.subscriber::<HelloWorld>(&args.key);
-    if args.best_effort {
+    if args.qos.best_effort {
         reader = reader.best_effort();
     }
-    if args.transient_local {
+    if args.qos.transient_local {
         reader = reader.transient_local();
     }
     let mut reader = reader.build().await?;

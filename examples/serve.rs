@@ -7,7 +7,7 @@
 //! Runs until Ctrl-C, or until it answered `--count` queries.
 
 use clap::Parser;
-use courier_examples::{Common, Error};
+use courier_examples::{until_ctrl_c, Common, Error};
 use futures::StreamExt;
 
 /// Answers every query with `PAYLOAD (you asked: REQUEST)`.
@@ -36,9 +36,8 @@ pub async fn run(args: Args) -> Result<(), Error> {
     println!("Serving '{}'; Ctrl-C to quit", args.key);
     let mut n = 0u64;
     while args.count.is_none_or(|c| n < c) {
-        let request = tokio::select! {
-            r = requests.next() => r,
-            _ = tokio::signal::ctrl_c() => break,
+        let Some(request) = until_ctrl_c(requests.next()).await else {
+            break;
         };
         let request = match request {
             Some(Ok(r)) => r,

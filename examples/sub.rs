@@ -8,7 +8,7 @@
 //! Runs until Ctrl-C, or until `--count` messages arrived.
 
 use clap::Parser;
-use courier_examples::{Common, Error};
+use courier_examples::{until_ctrl_c, Common, Error};
 use futures::StreamExt;
 
 /// Prints every string published on a topic.
@@ -35,9 +35,8 @@ pub async fn run(args: Args) -> Result<(), Error> {
     println!("Subscribed to '{}'; Ctrl-C to quit", args.key);
     let mut n = 0u64;
     while args.count.is_none_or(|c| n < c) {
-        let sample = tokio::select! {
-            s = sub.next() => s,
-            _ = tokio::signal::ctrl_c() => break,
+        let Some(sample) = until_ctrl_c(sub.next()).await else {
+            break;
         };
         match sample {
             Some(Ok(s)) => println!(">> Received ('{}': '{}')", s.msg, s.value),

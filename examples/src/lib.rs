@@ -56,6 +56,18 @@ pub struct Rtps {
     pub connect_timeout: f64,
 }
 
+/// The QoS choices of the RTPS examples (both ends: a reader and a writer
+/// match when the writer offers at least what the reader asks).
+#[derive(clap::Args, Debug, Clone)]
+pub struct Qos {
+    /// Best effort instead of reliable (a reliable reader ignores a best-effort writer).
+    #[arg(long)]
+    pub best_effort: bool,
+    /// Transient local: the writer keeps its last sample for readers that join later.
+    #[arg(long)]
+    pub transient_local: bool,
+}
+
 impl Rtps {
     /// Joins the domain as participant `name`, pinned as the arguments say.
     pub async fn connect(&self, name: &str) -> Result<Session, Error> {
@@ -150,6 +162,76 @@ where
             eprintln!("{name}: {e}");
             ExitCode::FAILURE
         }
+    }
+}
+
+/// The argument of the Appendix A modules: where central is.
+#[derive(clap::Args, Debug, Clone)]
+pub struct Central {
+    /// Central's URL (`ipc://` alone: `CENTRALHOST`, else localhost:1381, as in C).
+    #[arg(short = 'e', long = "endpoint", default_value = "ipc://")]
+    pub endpoint: String,
+}
+
+impl Central {
+    /// Connects as module `name`, within 10 s.
+    pub async fn connect(&self, name: &str) -> Result<Session, Error> {
+        let builder = Session::builder(&self.endpoint).name(name);
+        connect(builder, &self.endpoint, 10.0).await
+    }
+}
+
+/// The arguments of module2 and module3, which run until stopped.
+#[derive(clap::Parser, Debug, Clone)]
+pub struct Module {
+    #[command(flatten)]
+    /// Where central is.
+    pub central: Central,
+    /// Stop after this many seconds (default: at Ctrl-C).
+    #[arg(long, value_parser = seconds)]
+    pub seconds: Option<f64>,
+}
+
+/// Counts the rounds of a periodic example: the first at once, the next
+/// one `period` later, up to `count` rounds (`None`: no limit), and none
+/// after Ctrl-C.
+pub struct Rounds {
+    count: Option<u64>,
+    done: u64,
+    timer: courier::Timer,
+}
+
+impl Rounds {
+    /// Rounds on `session`'s timer.
+    pub fn new(session: &Session, count: Option<u64>, period: f64) -> Self {
+        let timer = session.every(Duration::from_secs_f64(period));
+        Rounds {
+            count,
+            done: 0,
+            timer,
+        }
+    }
+
+    /// The next round's number, or `None` once `count` rounds are done or
+    /// Ctrl-C was pressed.
+    pub async fn next(&mut self) -> Option<u64> {
+        use futures::StreamExt;
+        if self.count.is_some_and(|c| self.done >= c) {
+            return None;
+        }
+        if self.done > 0 {
+            until_ctrl_c(self.timer.next()).await?;
+        }
+        self.done += 1;
+        Some(self.done - 1)
+    }
+}
+
+/// `f`'s output, or `None` if Ctrl-C comes first.
+pub async fn until_ctrl_c<T>(f: impl Future<Output = T>) -> Option<T> {
+    tokio::select! {
+        v = f => Some(v),
+        _ = tokio::signal::ctrl_c() => None,
     }
 }
 
