@@ -14,6 +14,7 @@ use std::time::Duration;
 
 use courier::Session;
 
+#[path = "../appendix_a.rs"]
 pub mod appendix_a;
 
 /// Any error an example reports (printed, then the example exits with 1).

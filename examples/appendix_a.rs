@@ -1,5 +1,7 @@
 //! The message types of the IPC manual's Appendix A (`module.h`), shared
-//! by the module1, module2 and module3 examples.
+//! by the module1, module2 and module3 examples (through the examples'
+//! library) and by courier-bench's `session-bench`, which includes this file.
+#![allow(dead_code)] // each includer uses part of it
 
 use courier::IpcMessage;
 
