@@ -1,6 +1,7 @@
-//! The message types of the IPC manual's Appendix A (module.h), shared by
-//! the examples.
-#![allow(dead_code)]
+//! The message types of the IPC manual's Appendix A (`module.h`), shared
+//! by the module1, module2 and module3 examples (through the examples'
+//! library) and by courier-bench's `session-bench`, which includes this file.
+#![allow(dead_code)] // each includer uses part of it
 
 use courier::IpcMessage;
 
@@ -9,9 +10,13 @@ use courier::IpcMessage;
 #[derive(IpcMessage, Debug, Clone, Copy, PartialEq)]
 #[ipc(numeric)]
 pub enum Status {
+    /// `WaitVal`.
     Wait,
+    /// `SendVal`.
     Send,
+    /// `ReceiveVal`.
     Receive,
+    /// `ListenVal`.
     Listen,
 }
 
@@ -19,28 +24,40 @@ pub enum Status {
 #[derive(IpcMessage, Debug, Clone, Copy, PartialEq)]
 #[allow(clippy::enum_variant_names)] // the manual's names
 pub enum StatusEnum {
+    /// `WaitVal`.
     WaitVal,
+    /// `SendVal`.
     SendVal,
+    /// `ReceiveVal`.
     ReceiveVal,
+    /// `ListenVal`.
     ListenVal,
 }
 
 /// `T1_TYPE`.
 #[derive(IpcMessage, Debug, Clone, PartialEq)]
 pub struct T1 {
+    /// `int i1`.
     pub i1: i32,
+    /// `STATUS_ENUM status`.
     pub status: Status,
+    /// `double matrix[2][3]`.
     pub matrix: [[f64; 3]; 2],
+    /// `double d1`.
     pub d1: f64,
 }
 
 /// `T2_TYPE`: a string, a count, a variable array of T1 and a status.
 #[derive(IpcMessage, Debug, Clone, PartialEq)]
 pub struct T2 {
+    /// `char *str1`.
     pub str1: String,
+    /// `int count`: the length of `t1`.
     pub count: i32,
+    /// `T1_PTR t1`: `count` elements.
     #[ipc(len = "count")]
     pub t1: Vec<T1>,
+    /// `STATUS_ENUM status`.
     pub status: StatusEnum,
 }
 
@@ -59,15 +76,4 @@ pub fn appendix_a() -> (T1, T2) {
         status: StatusEnum::ReceiveVal,
     };
     (t1, t2)
-}
-
-/// Resolves after the number of seconds given as the first argument, or on
-/// Ctrl-C when there is none (how module2 and module3 end).
-pub async fn stop_signal() {
-    match std::env::args().nth(1).and_then(|a| a.parse::<u64>().ok()) {
-        Some(secs) => tokio::time::sleep(std::time::Duration::from_secs(secs)).await,
-        None => {
-            let _ = tokio::signal::ctrl_c().await;
-        }
-    }
 }

@@ -4,15 +4,16 @@
 //! second.
 //!
 //! ```text
-//! cargo run -p courier-examples --bin bridge -- ipc://hostA:1381 ipc://hostB:1381 message1:int message2:string
+//! cargo run --example bridge -- ipc://hostA:1381 ipc://hostB:1381 message1:int message2:string
 //! ```
 //! Each message is given as `name:format` (its IPC format string), so the
 //! bridge can define it on the second central.
 
 use courier::Session;
+use courier_examples::Error;
 
 /// Forwards `msgs` (name, format) from `from` to `to` until `from` ends.
-async fn bridge(
+pub async fn bridge(
     from: &Session,
     to: &Session,
     msgs: &[(String, String)],
@@ -41,110 +42,51 @@ async fn bridge(
     Ok(())
 }
 
-#[tokio::main(flavor = "current_thread")]
-async fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    if args.len() < 3 {
-        eprintln!("usage: bridge <from-url> <to-url> name:format...");
-        std::process::exit(2);
+/// Republishes messages of one central on another.
+#[derive(clap::Parser, Debug)]
+#[command(name = "bridge")]
+pub struct Args {
+    /// The central to read from.
+    from: String,
+    /// The central to publish on.
+    to: String,
+    /// The messages, each `name:format` (e.g. `message1:int`).
+    #[arg(required = true, value_parser = name_format)]
+    msgs: Vec<(String, String)>,
+}
+
+/// Parses `name:format`.
+fn name_format(m: &str) -> Result<(String, String), String> {
+    match m.split_once(':') {
+        Some((n, f)) if !n.is_empty() => Ok((n.to_string(), f.to_string())),
+        _ => Err(format!("{m:?} is not name:format (e.g. message1:int)")),
     }
-    let mut msgs = Vec::new();
-    for m in &args[2..] {
-        match m.split_once(':') {
-            Some((n, f)) if !n.is_empty() => msgs.push((n.to_string(), f.to_string())),
-            _ => {
-                eprintln!("bridge: '{m}' is not name:format");
-                std::process::exit(2);
-            }
-        }
-    }
-    let from = Session::builder(&args[0])
-        .name("bridge-in")
-        .connect()
-        .await?;
-    let to = Session::builder(&args[1])
-        .name("bridge-out")
-        .connect()
-        .await?;
+}
+
+/// Connects to both centrals and forwards until the first one goes away.
+pub async fn run(args: Args) -> Result<(), Error> {
+    let from = courier_examples::connect(
+        Session::builder(&args.from).name("bridge-in"),
+        &args.from,
+        10.0,
+    )
+    .await?;
+    let to = courier_examples::connect(
+        Session::builder(&args.to).name("bridge-out"),
+        &args.to,
+        10.0,
+    )
+    .await?;
     println!(
         "bridge: {} -> {} for {} message(s)",
-        args[0],
-        args[1],
-        msgs.len()
+        args.from,
+        args.to,
+        args.msgs.len()
     );
-    bridge(&from, &to, &msgs).await?;
+    bridge(&from, &to, &args.msgs).await?;
     Ok(())
 }
 
-#[cfg(test)]
-mod tests {
-    use std::time::Duration;
-
-    use courier::Session;
-    use courier_broker::CentralServer;
-    use futures::StreamExt;
-
-    #[tokio::test]
-    async fn messages_cross_from_one_central_to_the_other() {
-        let t = Duration::from_secs(20);
-        let a = CentralServer::builder()
-            .bind([127, 0, 0, 1].into())
-            .port(0)
-            .spawn()
-            .await
-            .unwrap();
-        let b = CentralServer::builder()
-            .bind([127, 0, 0, 1].into())
-            .port(0)
-            .spawn()
-            .await
-            .unwrap();
-        let (ua, ub) = (
-            format!("ipc://{}", a.local_addr()),
-            format!("ipc://{}", b.local_addr()),
-        );
-        let from = Session::builder(&ua)
-            .name("bridge-in")
-            .connect()
-            .await
-            .unwrap();
-        let to = Session::builder(&ub)
-            .name("bridge-out")
-            .connect()
-            .await
-            .unwrap();
-        let msgs = vec![("message1".to_string(), "int".to_string())];
-        let listener = Session::builder(&ub)
-            .name("listener")
-            .connect()
-            .await
-            .unwrap();
-        let mut sub = listener.subscribe::<i32>("message1").await.unwrap();
-        listener.num_handlers("message1").await.unwrap();
-        let (f2, t2) = (from.clone(), to.clone());
-        let bridge = tokio::spawn(async move { super::bridge(&f2, &t2, &msgs).await });
-        let publisher = Session::builder(&ua)
-            .name("publisher")
-            .connect()
-            .await
-            .unwrap();
-        // Publish until the bridge's subscription is known on central A and
-        // the listener's on central B reaches the bridge.
-        let deadline = tokio::time::Instant::now() + t;
-        let v = loop {
-            publisher.publish("message1", &42i32).await.unwrap();
-            if let Ok(Some(s)) = tokio::time::timeout(Duration::from_millis(200), sub.next()).await
-            {
-                break s.unwrap().value;
-            }
-            assert!(
-                tokio::time::Instant::now() < deadline,
-                "nothing crossed the bridge"
-            );
-        };
-        assert_eq!(v, 42);
-        a.shutdown().await;
-        let _ = tokio::time::timeout(t, bridge).await;
-        b.shutdown().await;
-    }
+fn main() -> std::process::ExitCode {
+    courier_examples::main("bridge", run)
 }

@@ -1,26 +1,38 @@
-//! Appendix A's module1 on Courier's Session API: publishes `message1`,
-//! queries `query1`, prints `message2`. Interoperates with the C module2
-//! and module3 (and the Rust ones) through any central.
+//! Appendix A's module1 of the CMU IPC manual on Courier's Session API:
+//! publishes `message1`, queries `query1`, prints `message2`. It works with
+//! the C module2 and module3 (and the Rust ones) through any central, C or
+//! Courier's.
 //!
 //! ```text
-//! CENTRALHOST=127.0.0.1:1381 cargo run -p courier-examples --bin module1 -- m r m q
+//! cargo run --example module1 -- m r m q
+//! CENTRALHOST=otherhost:1381 cargo run --example module1
 //! ```
 //! Commands come from the arguments, else from stdin, one per line, as in
-//! C: `m` publishes message1, `r` queries query1, `q` quits.
+//! C: `m` publishes message1, `r` queries query1, `q` quits. Each line is
+//! acted on as it is typed, while the session keeps serving central.
 
-#[path = "appendix_a.rs"]
-mod appendix;
-
-use std::io::BufRead;
 use std::time::Duration;
 
-use appendix::{appendix_a, T1, T2};
+use clap::Parser;
 use courier::Session;
+use courier_examples::appendix_a::{appendix_a, T1, T2};
+use courier_examples::Error;
 use futures::StreamExt;
+use tokio::io::AsyncBufReadExt;
 
-#[tokio::main(flavor = "current_thread")]
-async fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let s = Session::builder("ipc://").name("module1").connect().await?;
+/// Appendix A's module1.
+#[derive(Parser, Debug)]
+#[command(name = "module1")]
+pub struct Args {
+    #[command(flatten)]
+    central: courier_examples::Central,
+    /// Commands (`m`, `r`, `q`); none: read them from stdin.
+    commands: Vec<String>,
+}
+
+/// Connects, defines module1's messages, then runs the commands.
+pub async fn run(args: Args) -> Result<(), Error> {
+    let s = args.central.connect("module1").await?;
     println!("module1: connected");
     // As in C, module1 registers both named formats (module2 defines
     // response1 as "T2" and relies on central knowing it).
@@ -28,7 +40,7 @@ async fn main() -> Result<(), Box<dyn std::error::Error>> {
     s.define::<i32>("message1").await?;
     s.define::<T1>("query1").await?;
     let mut msg2 = s.subscribe::<String>("message2").await?;
-    tokio::spawn(async move {
+    let printer = tokio::spawn(async move {
         while let Some(m) = msg2.next().await {
             match m {
                 Ok(v) => println!("msg2Handler: Receiving message2 ({}) [module1]", v.value),
@@ -36,40 +48,64 @@ async fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
         }
     });
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let commands: Box<dyn Iterator<Item = String>> = if args.is_empty() {
+    let result = if args.commands.is_empty() {
         println!("Type 'm' to send message1; Type 'r' to send query1; Type 'q' to quit");
-        Box::new(
-            std::io::stdin()
-                .lock()
-                .lines()
-                .map_while(Result::ok)
-                .collect::<Vec<_>>()
-                .into_iter(),
-        )
-    } else {
-        Box::new(args.into_iter())
-    };
-    let (t1, _) = appendix_a();
-    for c in commands {
-        match c.trim() {
-            "m" => {
-                println!("\n  IPC_publishData(message1, &i1) [42]");
-                s.publish("message1", &42i32).await?;
+        // tokio's stdin: the runtime keeps serving the session (central's
+        // updates, message2) while this waits for the next line.
+        let mut lines = tokio::io::BufReader::new(tokio::io::stdin()).lines();
+        loop {
+            match lines.next_line().await {
+                Ok(Some(line)) => match command(&s, &line).await {
+                    Ok(true) => continue,
+                    Ok(false) => break Ok(()),
+                    Err(e) => break Err(e),
+                },
+                Ok(None) => break Ok(()),
+                Err(e) => break Err(format!("cannot read stdin: {e}").into()),
             }
-            "r" => {
-                println!("\n  IPC_queryResponseData(query1, &t1, &r1Ptr, IPC_WAIT_FOREVER)");
-                let r: T2 = s
-                    .query("query1", &t1)
-                    .timeout(Duration::from_secs(10))
-                    .await?;
-                println!("\n  Received response:\n{r:?}");
-            }
-            "q" => break,
-            other => println!("unknown command {other:?}"),
         }
-        tokio::time::sleep(Duration::from_millis(300)).await;
-    }
+    } else {
+        let mut result = Ok(());
+        for c in &args.commands {
+            match command(&s, c).await {
+                Ok(true) => tokio::time::sleep(Duration::from_millis(300)).await,
+                Ok(false) => break,
+                Err(e) => {
+                    result = Err(e);
+                    break;
+                }
+            }
+        }
+        result
+    };
     s.close().await;
-    Ok(())
+    printer.abort();
+    result
+}
+
+/// Runs one command; `false` to quit.
+async fn command(s: &Session, c: &str) -> Result<bool, Error> {
+    match c.trim() {
+        "m" => {
+            println!("\n  IPC_publishData(message1, &i1) [42]");
+            s.publish("message1", &42i32).await?;
+        }
+        "r" => {
+            println!("\n  IPC_queryResponseData(query1, &t1, &r1Ptr, IPC_WAIT_FOREVER)");
+            let (t1, _) = appendix_a();
+            let r: T2 = s
+                .query("query1", &t1)
+                .timeout(Duration::from_secs(10))
+                .await?;
+            println!("\n  Received response:\n{r:?}");
+        }
+        "q" => return Ok(false),
+        "" => {}
+        other => println!("unknown command {other:?}: 'm', 'r' or 'q'"),
+    }
+    Ok(true)
+}
+
+fn main() -> std::process::ExitCode {
+    courier_examples::main("module1", run)
 }

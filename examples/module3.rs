@@ -1,37 +1,47 @@
-//! Appendix A's module3 on Courier's Session API: prints `message1` and
-//! `message2`.
+//! Appendix A's module3 of the CMU IPC manual on Courier's Session API:
+//! prints `message1` and `message2`.
 //!
 //! ```text
-//! CENTRALHOST=127.0.0.1:1381 cargo run -p courier-examples --bin module3 [-- SECONDS]
+//! cargo run --example module3 [-- --seconds 30]
 //! ```
+//! Runs until Ctrl-C, or for `--seconds`.
 
-#[path = "appendix_a.rs"]
-mod appendix;
-
-use courier::Session;
+use courier_examples::Error;
 use futures::StreamExt;
 
-#[tokio::main(flavor = "current_thread")]
-async fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let s = Session::builder("ipc://").name("module3").connect().await?;
+/// The arguments: `-e URL`, `--seconds S`.
+pub type Args = courier_examples::Module;
+
+/// What a stream that ends means.
+const GONE: &str = "the connection to central ended";
+
+/// Connects and prints message1 and message2 until stopped.
+pub async fn run(args: Args) -> Result<(), Error> {
+    let s = args.central.connect("module3").await?;
     println!("module3: connected");
     let mut msg1 = s.subscribe::<i32>("message1").await?;
     let mut msg2 = s.subscribe::<String>("message2").await?;
-    let stop = appendix::stop_signal();
+    let stop = courier_examples::stop_after(args.seconds);
     tokio::pin!(stop);
     loop {
         tokio::select! {
-            Some(m) = msg1.next() => match m {
-                Ok(v) => println!("msg1Handler: Receiving message1 ({}) [module3]", v.value),
-                Err(e) => { println!("{e}"); break; }
+            m = msg1.next() => match m {
+                Some(Ok(v)) => println!("msg1Handler: Receiving message1 ({}) [module3]", v.value),
+                Some(Err(e)) => println!("msg1Handler: {e}"),
+                None => return Err(GONE.into()),
             },
-            Some(m) = msg2.next() => match m {
-                Ok(v) => println!("msg2Handler: Receiving message2 ({}) [module3]", v.value),
-                Err(e) => { println!("{e}"); break; }
+            m = msg2.next() => match m {
+                Some(Ok(v)) => println!("msg2Handler: Receiving message2 ({}) [module3]", v.value),
+                Some(Err(e)) => println!("msg2Handler: {e}"),
+                None => return Err(GONE.into()),
             },
             _ = &mut stop => break,
         }
     }
     s.close().await;
     Ok(())
+}
+
+fn main() -> std::process::ExitCode {
+    courier_examples::main("module3", run)
 }

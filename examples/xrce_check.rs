@@ -2,7 +2,7 @@
 //! what each step saw (for eProsima's MicroXRCEAgent or Courier's own):
 //!
 //! ```text
-//! xrce-check <url> pubsub|self|ref|rpc|rpc1|ping|watch [seconds]
+//! cargo run --example xrce_check -- <url> pubsub|self|ref|rpc|rpc1|ping|watch [seconds]
 //! ```
 //! - `pubsub`: two sessions, a writer and a reader: reliable, best effort,
 //!   confirmed, a 20 000-byte sample (fragments);
@@ -136,7 +136,7 @@ async fn stream_of(
     Ok(())
 }
 
-async fn pubsub(url: &str, two: bool) -> Res<()> {
+pub async fn pubsub(url: &str, two: bool) -> Res<()> {
     let a = Session::builder(url).name("check-a").connect().await?;
     let b = if two {
         Session::builder(url).name("check-b").connect().await?
@@ -195,7 +195,7 @@ async fn by_reference(url: &str) -> Res<()> {
     Err("nothing read back".into())
 }
 
-async fn rpc(url: &str, two: bool) -> Res<()> {
+pub async fn rpc(url: &str, two: bool) -> Res<()> {
     let server = Session::builder(url).name("check-server").connect().await?;
     let client = if two {
         Session::builder(url).name("check-client").connect().await?
@@ -290,10 +290,17 @@ async fn watch(url: &str, secs: u64) -> Res<()> {
 async fn main() {
     let args: Vec<String> = std::env::args().collect();
     let (Some(url), Some(step)) = (args.get(1), args.get(2)) else {
-        eprintln!("usage: xrce-check <url> pubsub|self|ref|rpc|rpc1|ping|watch [seconds]");
+        eprintln!("usage: xrce_check <url> pubsub|self|ref|rpc|rpc1|ping|watch [seconds]");
         std::process::exit(2);
     };
-    let secs = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(20);
+    let secs = match args.get(3).map(|s| s.parse()) {
+        None => 20,
+        Some(Ok(s)) => s,
+        Some(Err(_)) => {
+            eprintln!("xrce_check: {:?} is not a number of seconds", args[3]);
+            std::process::exit(2);
+        }
+    };
     println!("{step} on {url}");
     let r = match step.as_str() {
         "pubsub" => pubsub(url, true).await,

@@ -35,85 +35,9 @@
 //! assert_eq!(wire::ipc::from_slice::<T2>(&bytes).unwrap(), t2);
 //! ```
 //!
-//! ## Type mapping
-//!
-//! | Rust field | IPC format |
-//! |---|---|
-//! | `i8` `u8` `i16` `u16` `i32` `u32` `i64` `u64` `f32` `f64` `bool` | `byte` `ubyte` `short` `ushort` `int` `uint` `long` `ulong` `float` `double` `boolean` |
-//! | `#[ipc(char)] u8`, `char` (Latin-1) | `char` |
-//! | `String`, `Option<String>` | `string` |
-//! | `[[T; m]; n]` | `[T:n,m]` |
-//! | `#[ipc(len = "count")] Vec<T>` | `<T:k>`, k = 1-based index of field `count` |
-//! | `Option<Box<T>>` | `*T` |
-//! | `Option<Box<Self>>` (or the type's own name) | `*!` |
-//! | a struct deriving `IpcMessage` | its format name (registered by `named_formats`) |
-//! | a fieldless enum deriving `IpcMessage` | `{enum A, B, C}` or `{enum : max}`, inline |
-//!
-//! `usize`/`isize`, 128-bit integers, references, raw pointers, tuples,
-//! slices, maps and sets, `Option<T>` other than the two forms above, `Vec`
-//! anywhere but directly as a field, data-carrying enums and unions are
-//! compile errors that say what to use instead.
-//!
-//! ## Attributes
-//!
-//! On the struct or enum:
-//!
-//! | attribute | meaning |
-//! |---|---|
-//! | `#[ipc(name = "T1")]` | format name of a struct (default: the Rust identifier) |
-//! | `#[ipc(type_name = "HelloWorldData::Msg")]` | DDS type name (default: `module_path!()::Ident`, plus `<params>` for generic types) |
-//! | `#[ipc(numeric)]` | enum: `{enum : max}` instead of `{enum A, B, C}`; implied by any explicit discriminant |
-//! | `#[ipc(extensibility = "final" \| "appendable" \| "mutable")]` | struct: XTypes extensibility of the CDR encoding (default final) |
-//! | `#[ipc(crate = "::courier_wire")]` | path of the wire crate in generated code (default `::courier::__wire`) |
-//!
-//! On a field:
-//!
-//! | attribute | meaning |
-//! |---|---|
-//! | `#[ipc(len = "count")]` | this `Vec` is `<T:k>`; its length lives in the integer field `count` (one `Vec` per length field; for tuple structs name the index, `len = "0"`) |
-//! | `#[ipc(char)]` | this `u8` is an IPC `char` |
-//! | `#[ipc(key)]` | DDS key field (`KEYS`, `cdr_encode_key`); key members carry the XTypes must-understand flag, as idlc gives `@key` members |
-//! | `#[ipc(must_understand)]` | sets the must-understand flag of a non-key member |
-//! | `#[ipc(id = 7)]` | CDR member id (mutable structs); ids continue sequentially after it |
-//!
-//! ## Choices
-//!
-//! - **Crate path.** Generated code names the wire crate as
-//!   `::courier::__wire`, which works for every user of `courier`. Crates that
-//!   depend on `courier-wire` alone (its own tests, this crate's tests) say
-//!   `#[ipc(crate = "::courier_wire")]`. No manifest lookup is done.
-//! - **Variable arrays.** On encode the length field is written as the `Vec`'s
-//!   length (the field's own value is ignored), in IPC and in CDR, so the data
-//!   never disagrees with its count. A `Vec` longer than the length field's type
-//!   (or `i32::MAX`) can express is truncated to that many elements. On IPC
-//!   decode the length field gets its wire value, and if it precedes the array
-//!   the array's wire count must equal it (`DecodeError::CountMismatch`). CDR
-//!   decoding takes both values as they come (a DDS peer's count field is just
-//!   a field). Two-dimensional `<T:k1,k2>` arrays are not supported.
-//! - **Unit structs** (and structs without fields) are the empty message:
-//!   `FORMAT` is `""` as for `()`, they have no format name, and using one as
-//!   a field of another struct fails at compile time.
-//! - **Generics.** Type parameters get an `IpcMessage` bound. A generic struct
-//!   has one format per instantiation, so it is written inline (no format
-//!   name, and `#[ipc(name)]` on it is an error); its default `TYPE_NAME`
-//!   lists the type arguments' type names (const parameters are not listed).
-//!   Lifetime parameters are a compile error.
-//! - **Format names** default to the Rust identifier, so two types with the
-//!   same identifier in different modules need `#[ipc(name = "...")]` to
-//!   register distinct formats.
-//! - **Enums** are int32 in IPC and CDR; an unknown value decodes to
-//!   `DecodeError::InvalidEnum` naming `TYPE_NAME`.
-//! - **CDR.** Members are framed by `cdr::Writer::begin_struct` /
-//!   `begin_member`; member ids count from 0. `Option<Box<T>>` members are
-//!   `@optional` (`cdr::write_optional`): an absent one is left out of a
-//!   mutable struct and decodes to `None`. Any other member missing from a
-//!   mutable struct is `cdr::DecodeError::MissingMember`; an unknown
-//!   must-understand member is `UnknownMustUnderstand`; other unknown members
-//!   are skipped. `cdr_encode_key` writes the struct's framing with only the
-//!   key members (a key member whose type has no keys is written whole);
-//!   `type Key` is what `cdr_decode_key` reads back from it: the one key
-//!   field's type (its own `Key`), a tuple of them for several key fields,
-//!   and `Self` for a struct without key fields.
+//! The type mapping, every `#[ipc(...)]` attribute and the choices the
+//! derive makes are documented where users meet them: the `courier`
+//! crate's `derive_guide` module.
 #![warn(missing_docs)]
 #![forbid(unsafe_code)]
 
@@ -124,8 +48,8 @@ mod attr;
 mod ctxt;
 mod expand;
 
-/// Derives `IpcMessage` (see the [crate documentation](crate) for the
-/// type mapping and the `#[ipc(...)]` attributes).
+/// Derives `IpcMessage`: the type mapping and the `#[ipc(...)]`
+/// attributes are in the `courier` crate's `derive_guide` module.
 #[proc_macro_derive(IpcMessage, attributes(ipc))]
 pub fn derive_ipc_message(input: TokenStream) -> TokenStream {
     let input = syn::parse_macro_input!(input as syn::DeriveInput);

@@ -146,10 +146,8 @@ impl SessionBuilder {
     /// Lower latency for CPU: after every message keep polling for `window`
     /// instead of sleeping until the next one (see [`crate::busy_poll`]).
     /// Off by default; costs a CPU while messages flow. Effective on a
-    /// current-thread tokio runtime; on the project's 2-vCPU VM a 4 B query
-    /// between processes through a busy-polling central went from 80–105 µs
-    /// to 40–44 µs over TCP, and an RTPS round trip across cores from 70 to
-    /// 17 µs (BENCHMARKS.md). RTPS: also `busy_poll_us=` in the URL.
+    /// current-thread tokio runtime; what it gains and costs is measured in
+    /// the repository's `BENCHMARKS.md`. RTPS: also `busy_poll_us=` in the URL.
     pub fn busy_poll(mut self, window: Duration) -> Self {
         self.set.push(("busy_poll", Honoured::Both));
         self.opts.busy_poll = Some(window);

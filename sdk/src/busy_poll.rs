@@ -1,10 +1,9 @@
 //! Busy polling: spend CPU after each message to answer the next one sooner.
 //!
 //! A process that sleeps in `epoll_wait` between messages pays for being
-//! woken up when the next one arrives. On a VM whose idle vCPUs halt (the
-//! project machine: `cpuidle_haltpoll` with `guest_halt_poll_ns=0`) that
-//! wake-up is most of a loopback round trip: ~20 µs per hop against ~3 µs
-//! of actual work. [`BusyPoll`] keeps the runtime polling its I/O driver for
+//! woken up when the next one arrives. On a VM whose idle vCPUs halt that
+//! wake-up can be most of a loopback round trip, several times the actual
+//! work (measurements in the repository's `BENCHMARKS.md`). [`BusyPoll`] keeps the runtime polling its I/O driver for
 //! a *window* after the last activity instead of sleeping, so a reply that
 //! arrives within the window is picked up without a wake-up. Outside the
 //! window nothing spins and nothing is spent.

@@ -23,10 +23,203 @@
 //! assert_eq!(courier::cdr::from_slice::<T1>(&cdr).unwrap(), t1);
 //! ```
 //!
+//! # Quick start
+//!
+//! One program, no external process: a CMU IPC central embedded on a free
+//! port (cargo feature `central`), two modules, a publish/subscribe and a
+//! query. The `sensor` module connects over TCP exactly as a C module
+//! would; `logger` uses an in-process link to the central it hosts.
+//!
+//! ```
+//! # #[tokio::main(flavor = "current_thread")]
+//! # async fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! use std::time::Duration;
+//! use courier::central::CentralServer;
+//! use courier::{IpcMessage, Session};
+//! use futures::StreamExt;
+//!
+//! #[derive(IpcMessage, Debug, Clone, PartialEq)]
+//! struct Reading { sensor: String, celsius: f64 }
+//!
+//! let central = CentralServer::builder().port(0).spawn().await?; // 127.0.0.1, any free port
+//! let url = format!("ipc://{}", central.local_addr());
+//! let sensor = Session::builder(&url).name("sensor").connect().await?;
+//! let logger = central.session("logger").connect().await?;
+//!
+//! // publish / subscribe
+//! let mut readings = logger.subscribe::<Reading>("reading").await?;
+//! sensor.num_handlers("reading").await?; // see "Rules" below: central now lists the subscriber
+//! sensor.publish("reading", &Reading { sensor: "t1".into(), celsius: 21.5 }).await?;
+//! let sample = tokio::time::timeout(Duration::from_secs(5), readings.next())
+//!     .await?
+//!     .ok_or("subscription ended")??;
+//! assert_eq!(sample.value.celsius, 21.5);
+//!
+//! // query / response: a server task answers, the query waits at most 5 s
+//! let mut requests = logger.serve::<String, u32>("length", "").await?;
+//! tokio::spawn(async move {
+//!     while let Some(Ok(req)) = requests.next().await {
+//!         let n = req.value.len() as u32;
+//!         if let Err(e) = req.reply(&n).await {
+//!             eprintln!("reply failed: {e}");
+//!         }
+//!     }
+//! });
+//! let n: u32 = sensor.query("length", &"four".to_string()).timeout(Duration::from_secs(5)).await?;
+//! assert_eq!(n, 4);
+//!
+//! sensor.close().await;
+//! logger.close().await;
+//! central.shutdown().await;
+//! # Ok(()) }
+//! ```
+//!
+//! `cargo run --example demo` in the repository takes one type through IPC,
+//! DDS and DDS-XRCE; `cargo run --example pub` / `sub` / `query` / `serve`
+//! work on any backend's URL.
+//!
+//! ## Rules
+//!
+//! - **Keep the [`Session`] alive.** Dropping its last clone disconnects
+//!   (`close().await` does it and waits for the goodbye). Dropping a
+//!   [`Subscriber`], [`Requests`] or [`Publisher`] closes that handle only.
+//! - **Bound your awaits.** `connect` gives up by itself (IPC: after
+//!   [`SessionBuilder::connect_timeout`], 5 s by default; RTPS at once;
+//!   XRCE after its attempts), a query after its `.timeout(d)` (10 s by
+//!   default) and a confirmed publish after its `.timeout(d)`; a
+//!   subscription's `next()` waits for the next sample however long that
+//!   takes, so wrap it in `tokio::time::timeout` where silence is an error.
+//! - **IPC sends no message nobody subscribes to** (as C): a publish before
+//!   central told the module about a subscriber returns `Ok` and sends
+//!   nothing. `Session::num_handlers` asks central and makes the answer
+//!   count at once.
+//! - **Full queues.** A subscription queues 1000 unread samples by default
+//!   ([`QueuePolicy::KeepAll`]); then it stops taking more: on IPC central
+//!   holds the rest (back-pressure up to the publisher). With
+//!   [`QueuePolicy::KeepLast`] (`subscribe_with`) the oldest are dropped
+//!   instead, counted by `Subscriber::dropped`. Nothing is dropped silently.
+//! - **DDS on a shared network:** a participant uses multicast discovery
+//!   on the default interface unless told otherwise; pin it (`interface`,
+//!   `peers`, `multicast=false`) to keep its traffic where you want it.
+//!
+//! # One quick start per backend
+//!
+//! ## IPC through a central
+//!
+//! The quick start above; against a separate `central` (Courier's or the C
+//! one) the URL names it: `Session::builder("ipc://robot:1381")`, or
+//! `"ipc://"` for `CENTRALHOST` / localhost:1381 as C does.
+//!
+//! ## IPC direct links
+//!
+//! With a central started in direct mode (`central -c`, or
+//! `Config::direct`), modules register with central but send each other
+//! messages over TCP links of their own; the API does not change.
+//!
+//! ```
+//! # #[tokio::main(flavor = "current_thread")]
+//! # async fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! use std::time::Duration;
+//! use courier::central::{CentralServer, Config};
+//! use courier::Session;
+//! use futures::StreamExt;
+//!
+//! let mut config = Config::default();
+//! config.direct = true; // as `central -c`
+//! let central = CentralServer::builder().port(0).config(config).spawn().await?;
+//! let url = format!("ipc://{}", central.local_addr());
+//! let a = Session::builder(&url).name("a").connect().await?;
+//! let b = Session::builder(&url).name("b").connect().await?;
+//! let mut sub = b.subscribe::<i32>("count").await?;
+//! a.num_handlers("count").await?;
+//! a.publish("count", &7i32).await?; // over a link from a to b, not through central
+//! let s = tokio::time::timeout(Duration::from_secs(5), sub.next()).await?.ok_or("ended")??;
+//! assert_eq!(s.value, 7);
+//! a.close().await;
+//! b.close().await;
+//! central.shutdown().await;
+//! # Ok(()) }
+//! ```
+//!
+//! ## DDS / RTPS
+//!
+//! `rtps://DOMAIN` joins a DDS domain as a DDSI-RTPS participant that
+//! Cyclone DDS, Fast DDS and ROS 2 see as one of theirs. Pinned to `lo`
+//! with unicast discovery, nothing leaves the machine. Discovery takes a
+//! moment: a volatile sample written before the reader is matched is not
+//! delivered to it, so this example makes both ends transient-local.
+//!
+//! ```
+//! # #[tokio::main(flavor = "current_thread")]
+//! # async fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! use std::time::Duration;
+//! use courier::{IpcMessage, Session};
+//! use futures::StreamExt;
+//!
+//! #[derive(IpcMessage, Debug, PartialEq)]
+//! #[ipc(type_name = "HelloWorldData::Msg")] // Cyclone DDS's HelloWorld
+//! struct Msg { #[ipc(key)] user_id: i32, message: String }
+//!
+//! # let domain = courier_tests::domains::lease(1);
+//! let url = format!("rtps://{domain}?interface=lo&peers=127.0.0.1&multicast=false");
+//! let a = Session::builder(&url).name("a").connect().await?;
+//! let b = Session::builder(&url).name("b").connect().await?;
+//! let writer = a.publisher::<Msg>("HelloWorldData_Msg").transient_local().keep_last(1).build().await?;
+//! let mut reader = b.subscriber::<Msg>("HelloWorldData_Msg").transient_local().build().await?;
+//! writer.publish(&Msg { user_id: 1, message: "Hello World".into() }).await?;
+//! let s = tokio::time::timeout(Duration::from_secs(10), reader.next()).await?.ok_or("ended")??;
+//! assert_eq!(s.value.message, "Hello World");
+//! drop((writer, reader));
+//! a.close().await;
+//! b.close().await;
+//! # Ok(()) }
+//! ```
+//!
+//! ## DDS-XRCE
+//!
+//! `xrce+udp://host:port` (or `xrce+tcp://`, `xrce+serial:///dev/ttyX`)
+//! is a DDS-XRCE client of an agent: eProsima's MicroXRCEAgent or
+//! `courier-broker`'s, embedded here on a free port, its DDS side pinned
+//! to `lo`. `domain=` names the DDS domain the agent joins for the client.
+//!
+//! ```
+//! # #[tokio::main(flavor = "current_thread")]
+//! # async fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! use std::time::Duration;
+//! use courier::rtps_backend::RtpsOptions;
+//! use courier::Session;
+//! use courier_broker::xrce_agent::{Transport, XrceAgent};
+//! use futures::StreamExt;
+//!
+//! # let domain = courier_tests::domains::lease(1);
+//! let mut rtps = RtpsOptions::default();
+//! rtps.domain = domain;
+//! rtps.interface = Some("lo".into());
+//! rtps.peers = vec!["127.0.0.1".into()];
+//! rtps.multicast = false;
+//! let agent = XrceAgent::builder()
+//!     .transport(Transport::Udp("127.0.0.1:0".parse()?))
+//!     .rtps(rtps)
+//!     .spawn()
+//!     .await?;
+//! let url = format!("xrce+udp://{}?domain={domain}", agent.udp_addrs()[0]);
+//! let device = Session::builder(&url).name("device").connect().await?;
+//! let mut sub = device.subscribe::<String>("chatter").await?;
+//! device.publish("chatter", &"hello".to_string()).await?; // through the agent's DDS participant
+//! let s = tokio::time::timeout(Duration::from_secs(10), sub.next()).await?.ok_or("ended")??;
+//! assert_eq!(s.value, "hello");
+//! drop(sub);
+//! device.close().await;
+//! agent.shutdown().await;
+//! # Ok(()) }
+//! ```
+//!
 //! # Sessions
 //!
 //! A [`Session`] is one module's connection; over CMU IPC it talks to a
-//! `central` (Courier's, see `courier-broker`, or the original C one):
+//! `central` (Courier's, see `courier-broker`, or the original C one). This
+//! one needs a central already running on localhost:1381, so it is only
+//! compiled as a test (the quick starts above run):
 //!
 //! ```no_run
 //! # #[derive(courier::IpcMessage, Debug)] struct T1 { i1: i32 }
@@ -151,6 +344,7 @@ pub mod busy_poll;
 #[cfg(feature = "central")]
 #[cfg_attr(docsrs, doc(cfg(feature = "central")))]
 pub mod central;
+pub mod derive_guide;
 mod direct_link;
 mod error;
 pub mod event;
@@ -175,6 +369,8 @@ pub use backend::{
     Backend, Capabilities, ClientId, DdsControl, Handle, IpcControl, PubId, ServiceId, SubId,
     TimeSync, WriteNow, XrceControl, XrceState,
 };
+/// `#[derive(IpcMessage)]`: its type mapping and every `#[ipc(...)]`
+/// attribute are in [`derive_guide`].
 pub use courier_derive::IpcMessage;
 pub use courier_wire::{cdr, format, ipc, key_hash, rtps, xrce, IpcMessage, NamedFormats};
 pub use error::{ControlError, Error, OpenError, PublishError};
