@@ -299,8 +299,7 @@ async fn a_session_without_the_graph_says_how_to_get_it() {
         .ros2_node("/ok", "2bad")
         .connect()
         .await
-        .err()
-        .expect("refused")
+        .expect_err("refused")
         .to_string();
     assert!(e.contains("starts with a digit"), "{e}");
     s.close().await;
