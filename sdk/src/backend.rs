@@ -373,6 +373,14 @@ pub trait DdsControl: Send + Sync {
         key: Vec<u8>,
         key_hash: [u8; 16],
     ) -> Result<(), PublishError>;
+    /// The ROS 2 nodes known: this session's own (with
+    /// [`RtpsOptions::ros2_node`](crate::RtpsOptions::ros2_node)) and
+    /// every other participant's from its `ros_discovery_info` samples,
+    /// each with its readers and writers resolved through discovery (see
+    /// [`rtps_backend::ros2`](crate::rtps_backend::ros2)).
+    /// [`ControlError::Unsupported`] unless the session reads the graph
+    /// (`ros2_node` or `ros2_graph`).
+    async fn ros2_nodes(&self) -> Result<Vec<crate::rtps_backend::Ros2Node>, ControlError>;
     /// Subscribes to every topic whose name and type name match the
     /// fnmatch patterns (ORTE's pattern subscriptions), now and as they are
     /// discovered; close it as a subscription.

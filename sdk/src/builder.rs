@@ -225,6 +225,17 @@ impl SessionBuilder {
         self
     }
 
+    /// RTPS: the session is ROS 2 node `name` in `namespace` (`/` or
+    /// `/a/b`): it publishes the node on `ros_discovery_info` and reads
+    /// the other participants' (see [`RtpsOptions::ros2_node`]; URL:
+    /// `ros2_node=/namespace/name`). Names that break ROS 2's naming rules
+    /// fail `connect`, saying which rule.
+    pub fn ros2_node(mut self, namespace: &str, name: &str) -> Self {
+        self.set.push(("ros2_node", Honoured::Rtps));
+        self.rtps.ros2_node = Some(courier_wire::ros2::names::Node::new(namespace, name));
+        self
+    }
+
     /// XRCE: every option of the session at once, typed (instead of the
     /// URL's query string, which is then not read; the URL's scheme must
     /// still be an `xrce+…` one, and `opts.transport` says where the agent is).
@@ -269,7 +280,10 @@ impl SessionBuilder {
                     return Err(e);
                 }
                 let mut o = RtpsOptions::from_url(&self.url)?;
-                self.rtps.apply(&mut o);
+                self.rtps.apply(&mut o).map_err(|e| ConnectError::BadUrl {
+                    url: self.url.clone(),
+                    why: format!("ros2_node: {e}"),
+                })?;
                 Arc::new(RtpsBackend::start(o, &name).await?)
             }
             Resolved::Xrce => {

@@ -275,6 +275,29 @@ pub enum SessionEvent {
         /// The first rule that failed.
         reason: String,
     },
+    /// ROS 2 (a session with [`RtpsOptions::ros2_node`] or
+    /// [`RtpsOptions::ros2_graph`]): a participant's ROS 2 nodes changed,
+    /// as its latest `ros_discovery_info` sample lists them; empty when it
+    /// left. [`DdsControl::ros2_nodes`](crate::DdsControl::ros2_nodes)
+    /// gives each node's topics.
+    ///
+    /// [`RtpsOptions::ros2_node`]: crate::RtpsOptions::ros2_node
+    /// [`RtpsOptions::ros2_graph`]: crate::RtpsOptions::ros2_graph
+    Ros2Nodes {
+        /// The participant (its GID, as a GUID).
+        participant: Guid,
+        /// Its nodes, in the order it listed them.
+        nodes: Vec<crate::rtps_backend::Ros2NodeName>,
+    },
+    /// ROS 2: a `ros_discovery_info` sample was refused (it does not
+    /// decode, or speaks for another participant than its writer's); what
+    /// was known of the writer's participant stays as it was.
+    Ros2GraphRefused {
+        /// The writer that sent it.
+        writer: Guid,
+        /// Why.
+        reason: String,
+    },
     /// DDS: an endpoint on one of our topics has another type name, so
     /// the two do not match.
     TypeMismatch {

@@ -127,6 +127,10 @@ pub(super) enum Cmd {
         tx: mpsc::Sender<RawRequest>,
         reply: Reply<crate::backend::ServiceId, OpenError>,
     },
+    /// The ROS 2 nodes known (see [`super::ros2`]).
+    Ros2Nodes {
+        reply: Reply<Vec<super::ros2::Ros2Node>, ControlError>,
+    },
     /// A handle the application closed (dropped).
     CloseHandle(Handle),
     Respond {

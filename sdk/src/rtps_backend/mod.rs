@@ -55,6 +55,7 @@ mod net;
 mod options;
 mod out;
 mod receive;
+pub mod ros2;
 mod state;
 mod timer;
 
@@ -88,9 +89,11 @@ use out::Out;
 use receive::ReceiveThread;
 use state::State;
 
+pub use courier_wire::ros2::graph::GidSize;
 pub use net::interface_address;
 pub(crate) use options::RtpsOverrides;
 pub use options::{parse_peer, RtpsOptions, ServiceStyle, LOOPBACK_MAX_MESSAGE_SIZE};
+pub use ros2::{Ros2Endpoint, Ros2Kind, Ros2Node, Ros2NodeName};
 
 /// The DDS key hash of `value` (DDSI-RTPS §9.6.4.8): its key fields as
 /// big-endian XCDR2, zero-padded when the key can never exceed 16 bytes,
@@ -196,6 +199,13 @@ impl RtpsBackend {
             now,
         );
         st.service_style = opts.services.wire();
+        if opts.reads_ros2_graph() {
+            let g = ros2::Ros2Graph::start(&mut st.d, opts.ros2_node.clone(), opts.ros2_gid, now)
+                .map_err(|e| fail(format!("the ROS 2 graph topic: {e}")))?;
+            st.ros2 = Some(g);
+            // the node, with no endpoints yet
+            st.publish_ros2_node(now);
+        }
         let sock_err = |e: std::io::Error| fail(format!("user data socket: {e}"));
         let out = Out {
             sock: socks.user.try_clone().map_err(sock_err)?,
@@ -689,6 +699,10 @@ impl DdsControl for RtpsBackend {
             done: Done::Reply(reply),
         })
         .await
+    }
+
+    async fn ros2_nodes(&self) -> Result<Vec<Ros2Node>, ControlError> {
+        self.ask(|reply| Cmd::Ros2Nodes { reply }).await
     }
 
     async fn open_pattern(

@@ -3,6 +3,9 @@
 use std::net::{Ipv4Addr, SocketAddrV4};
 use std::time::Duration;
 
+use courier_wire::ros2::graph::GidSize;
+use courier_wire::ros2::names::{NameError, Node};
+
 use crate::session::ConnectError;
 
 /// Largest datagram a participant on the loopback interface sends by
@@ -63,6 +66,19 @@ pub struct RtpsOptions {
     /// How `query` and `serve` tie replies to requests (URL option
     /// `services=auto|fastrtps|cyclonedds`).
     pub services: ServiceStyle,
+    /// ROS 2: the node this session is in the ROS 2 graph (URL option
+    /// `ros2_node=/namespace/name`, or [`RtpsOptions::with_ros2_node`]):
+    /// the session publishes it on `ros_discovery_info` with its readers
+    /// and writers, and reads the other participants' nodes (see
+    /// [`super::ros2`]). `None` (the default): neither.
+    pub ros2_node: Option<Node>,
+    /// ROS 2: read the other participants' nodes without being one (URL
+    /// option `ros2_graph=true`); implied by [`RtpsOptions::ros2_node`].
+    pub ros2_graph: bool,
+    /// ROS 2: the size of the GIDs written (URL option `ros2_gid=16|24`):
+    /// 16 bytes for ROS 2 Iron and later (the default), 24 for Humble and
+    /// older, whose rmws read no other. Either size is read.
+    pub ros2_gid: GidSize,
 }
 
 /// The two ways ROS 2's DDS-based rmw implementations tie a reply to its
@@ -111,6 +127,9 @@ impl Default for RtpsOptions {
             fragment_size: None,
             receive_thread: false,
             services: ServiceStyle::Auto,
+            ros2_node: None,
+            ros2_graph: false,
+            ros2_gid: GidSize::Sixteen,
         }
     }
 }
@@ -135,12 +154,45 @@ fn parse_num<T: std::str::FromStr>(url: &str, key: &str, v: &str) -> Result<T, C
         .map_err(|_| bad(url, format!("{key}={v:?}: expected a number")))
 }
 
+/// A node's fully qualified name (`/ns/name`, `/name`) as its namespace
+/// and name.
+pub(crate) fn parse_node(full: &str) -> Result<Node, NameError> {
+    let (ns, name) = full.rsplit_once('/').unwrap_or(("", full));
+    if !full.starts_with('/') {
+        // Node::new says why a relative namespace is refused
+        return Node::new(full, "node");
+    }
+    Node::new(ns, name)
+}
+
 impl RtpsOptions {
+    /// These options with the session as ROS 2 node `name` in `namespace`
+    /// (see [`RtpsOptions::ros2_node`]); an error names the ROS 2 naming
+    /// rule the names break.
+    ///
+    /// ```
+    /// use courier::rtps_backend::RtpsOptions;
+    /// let o = RtpsOptions::default().with_ros2_node("/robot", "driver").unwrap();
+    /// assert_eq!(o.ros2_node.unwrap().to_string(), "/robot/driver");
+    /// assert!(RtpsOptions::default().with_ros2_node("/", "2d").is_err());
+    /// ```
+    pub fn with_ros2_node(mut self, namespace: &str, name: &str) -> Result<Self, NameError> {
+        self.ros2_node = Some(Node::new(namespace, name)?);
+        Ok(self)
+    }
+
+    /// Whether the session reads the ROS 2 graph (a node, or `ros2_graph`).
+    pub fn reads_ros2_graph(&self) -> bool {
+        self.ros2_graph || self.ros2_node.is_some()
+    }
+
     /// Parses `rtps://<domain>?key=value&…`. Keys: `interface`, `peers`
     /// (comma-separated `ip` or `ip:port`), `multicast` (true/false),
     /// `index` (participant index), `max_index`, `recv_buffer`,
     /// `send_buffer` (bytes), `lease_ms`, `busy_poll_us`, `max_message_size`,
-    /// `fragment_size` (bytes), `receive_thread` (true/false). `peers` without
+    /// `fragment_size` (bytes), `receive_thread` (true/false), `services`
+    /// (auto/fastrtps/cyclonedds), `ros2_node` (`/namespace/name`),
+    /// `ros2_graph` (true/false), `ros2_gid` (16/24). `peers` without
     /// `multicast` turns multicast off. Anything else is an error naming the
     /// key.
     ///
@@ -226,6 +278,23 @@ impl RtpsOptions {
                         }
                     }
                 }
+                "ros2_node" => {
+                    o.ros2_node = Some(parse_node(v).map_err(|e| bad(url, e.to_string()))?)
+                }
+                "ros2_graph" => o.ros2_graph = parse_bool(url, k, v)?,
+                "ros2_gid" => {
+                    o.ros2_gid = parse_num::<usize>(url, k, v)
+                        .ok()
+                        .and_then(GidSize::from_bytes)
+                        .ok_or_else(|| {
+                            bad(
+                                url,
+                                format!(
+                                    "{k}={v}: expected 16 (ROS 2 Iron and later) or 24 (Humble)"
+                                ),
+                            )
+                        })?
+                }
                 "busy_poll_us" => {
                     o.busy_poll =
                         Some(Duration::from_micros(parse_num(url, k, v)?)).filter(|d| !d.is_zero())
@@ -236,7 +305,8 @@ impl RtpsOptions {
                         format!(
                             "unknown option {k:?} (known: interface, peers, multicast, index, \
                              max_index, recv_buffer, send_buffer, lease_ms, busy_poll_us, \
-                             max_message_size, fragment_size, receive_thread, services)"
+                             max_message_size, fragment_size, receive_thread, services, \
+                             ros2_node, ros2_graph, ros2_gid)"
                         ),
                     ))
                 }
@@ -288,10 +358,13 @@ pub(crate) struct RtpsOverrides {
     pub(crate) send_buffer: Option<usize>,
     pub(crate) busy_poll: Option<Duration>,
     pub(crate) receive_thread: Option<bool>,
+    pub(crate) ros2_node: Option<Result<Node, NameError>>,
 }
 
 impl RtpsOverrides {
-    pub(crate) fn apply(&self, o: &mut RtpsOptions) {
+    /// Applies the overrides; a ROS 2 node name that breaks the rules is
+    /// the error.
+    pub(crate) fn apply(&self, o: &mut RtpsOptions) -> Result<(), NameError> {
         if let Some(i) = &self.interface {
             o.interface = Some(i.clone());
         }
@@ -319,6 +392,10 @@ impl RtpsOverrides {
         if let Some(on) = self.receive_thread {
             o.receive_thread = on;
         }
+        if let Some(n) = &self.ros2_node {
+            o.ros2_node = Some(n.clone()?);
+        }
+        Ok(())
     }
 }
 
@@ -374,6 +451,32 @@ mod tests {
             ("rtps://0?peers=not-an-ip", "not-an-ip"),
             ("rtps://0?index", "index"),
             ("ipc://x", "rtps://"),
+        ] {
+            let e = RtpsOptions::from_url(u).unwrap_err().to_string();
+            assert!(e.contains(needle), "{u}: {e}");
+        }
+    }
+
+    #[test]
+    fn ros2_options() {
+        let o = RtpsOptions::from_url("rtps://0?ros2_node=/robot/arm/ctl&ros2_gid=24").unwrap();
+        let n = o.ros2_node.clone().unwrap();
+        assert_eq!((n.namespace(), n.name()), ("/robot/arm", "ctl"));
+        assert_eq!(o.ros2_gid, GidSize::TwentyFour);
+        assert!(o.reads_ros2_graph());
+        let o = RtpsOptions::from_url("rtps://0?ros2_node=/talker").unwrap();
+        let n = o.ros2_node.unwrap();
+        assert_eq!((n.namespace(), n.name()), ("/", "talker"));
+        let o = RtpsOptions::from_url("rtps://0?ros2_graph=true").unwrap();
+        assert!(o.ros2_node.is_none() && o.reads_ros2_graph());
+        assert!(!RtpsOptions::default().reads_ros2_graph());
+        assert_eq!(RtpsOptions::default().ros2_gid, GidSize::Sixteen);
+        for (u, needle) in [
+            ("rtps://0?ros2_node=talker", "start with `/`"),
+            ("rtps://0?ros2_node=/ns/", "empty"),
+            ("rtps://0?ros2_node=/2fast", "digit"),
+            ("rtps://0?ros2_gid=20", "16 (ROS 2 Iron"),
+            ("rtps://0?ros2_graph=perhaps", "ros2_graph"),
         ] {
             let e = RtpsOptions::from_url(u).unwrap_err().to_string();
             assert!(e.contains(needle), "{u}: {e}");

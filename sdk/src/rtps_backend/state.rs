@@ -148,6 +148,8 @@ pub(super) struct State {
     /// `Subscriber`s it delivered to, woken once the batch is done and the
     /// lock released (woken at once otherwise).
     pub(super) wakes: Option<Vec<std::task::Waker>>,
+    /// The ROS 2 graph topic, when the session reads it.
+    pub(super) ros2: Option<super::ros2::Ros2Graph>,
 }
 
 impl State {
@@ -180,6 +182,7 @@ impl State {
             returns: Arc::default(),
             immediate: Vec::new(),
             wakes: None,
+            ros2: None,
         }
     }
 
@@ -393,6 +396,65 @@ impl State {
     }
 
     pub(super) fn command(&mut self, c: Cmd, now: Instant) {
+        // what changes the session's endpoints changes its ROS 2 node
+        let endpoints = matches!(
+            c,
+            Cmd::Publication { .. }
+                | Cmd::Subscription { .. }
+                | Cmd::Pattern { .. }
+                | Cmd::Client { .. }
+                | Cmd::Serve { .. }
+                | Cmd::CloseHandle(_)
+        );
+        self.apply(c, now);
+        if endpoints {
+            self.publish_ros2_node(now);
+        }
+    }
+
+    /// The GIDs of the session's open readers and writers: what its ROS 2
+    /// node lists (a closed publication that lingers is not listed).
+    fn endpoint_gids(
+        &self,
+    ) -> (
+        Vec<courier_wire::ros2::graph::Gid>,
+        Vec<courier_wire::ros2::graph::Gid>,
+    ) {
+        let mut readers: Vec<_> = self.subs.keys().map(|r| r.guid().into()).collect();
+        let mut writers: Vec<_> = self
+            .writers
+            .values()
+            .filter(|w| w.closed.is_none())
+            .map(|w| w.id.guid().into())
+            .collect();
+        let pairs = self
+            .servers
+            .values()
+            .filter_map(|s| self.d.service_endpoints(s.id))
+            .chain(
+                self.clients
+                    .values()
+                    .filter_map(|(_, c)| self.d.client_endpoints(*c)),
+            );
+        for (w, r) in pairs {
+            writers.push(w.guid().into());
+            readers.push(r.guid().into());
+        }
+        (readers, writers)
+    }
+
+    /// Publishes the session's ROS 2 node if its endpoints changed.
+    pub(super) fn publish_ros2_node(&mut self, now: Instant) {
+        if self.ros2.is_none() {
+            return;
+        }
+        let (readers, writers) = self.endpoint_gids();
+        if let Some(g) = &mut self.ros2 {
+            g.publish(&mut self.d, readers, writers, now);
+        }
+    }
+
+    fn apply(&mut self, c: Cmd, now: Instant) {
         match c {
             Cmd::Publication {
                 topic,
@@ -504,6 +566,21 @@ impl State {
                 self.watched.insert(topic);
             }
             Cmd::Close { .. } => {}
+            Cmd::Ros2Nodes { reply } => {
+                let r = match &self.ros2 {
+                    Some(g) => {
+                        let (readers, writers) = self.endpoint_gids();
+                        Ok(g.nodes(&self.d, readers, writers))
+                    }
+                    None => Err(crate::error::ControlError::Unsupported {
+                        what: "the ROS 2 graph (connect with ros2_node=/namespace/name or \
+                               ros2_graph=true)"
+                            .into(),
+                        backend: "rtps://",
+                    }),
+                };
+                let _ = reply.send(r);
+            }
             Cmd::CloseHandle(h) => self.close_handle(h, now),
             Cmd::Client {
                 name,
@@ -819,6 +896,8 @@ impl State {
                             pattern: Some(pattern),
                         },
                     );
+                    // a reader of the session's: in its ROS 2 node
+                    self.publish_ros2_node(now);
                 }
             }
             Event::Request {
@@ -934,14 +1013,19 @@ impl State {
                 P::ParticipantChanged(d) => {
                     self.emit(SessionEvent::ParticipantChanged(Box::new((&d).into())))
                 }
-                P::ParticipantLost { prefix, reason } => self.emit(SessionEvent::ParticipantLost {
-                    guid: Guid {
-                        prefix,
-                        entity: EntityId::PARTICIPANT,
+                P::ParticipantLost { prefix, reason } => {
+                    self.emit(SessionEvent::ParticipantLost {
+                        guid: Guid {
+                            prefix,
+                            entity: EntityId::PARTICIPANT,
+                        }
+                        .into(),
+                        disposed: reason == LostReason::Disposed,
+                    });
+                    if let Some(g) = &mut self.ros2 {
+                        g.participant_lost(prefix, &self.listeners);
                     }
-                    .into(),
-                    disposed: reason == LostReason::Disposed,
-                }),
+                }
                 P::PublicationFound(d) => {
                     self.emit(SessionEvent::PublicationFound(Box::new((&d).into())))
                 }
@@ -1011,6 +1095,9 @@ impl State {
 
     fn sample(&mut self, reader: ReaderId, s: participant::ReceivedSample, received: SystemTime) {
         let Some(r) = self.subs.get(&reader) else {
+            if let Some(g) = self.ros2.as_mut().filter(|g| g.is_reader(reader)) {
+                g.receive(s, &self.listeners);
+            }
             return;
         };
         let source = self

@@ -173,6 +173,18 @@ impl Domain {
         &self.p
     }
 
+    /// The topic and type name of this domain's writer or reader `guid`
+    /// (of any kind: plain, of a pattern, service or client).
+    pub fn local_endpoint(&self, guid: Guid) -> Option<(&str, &str)> {
+        match self.writers.get(&guid) {
+            Some(w) => Some((&w.topic, &w.type_name)),
+            None => self
+                .readers
+                .get(&guid)
+                .map(|r| (r.topic.as_str(), r.type_name.as_str())),
+        }
+    }
+
     /// The next datagram to send.
     pub fn poll_transmit(&mut self) -> Option<Datagram> {
         self.p.poll_transmit()

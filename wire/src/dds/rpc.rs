@@ -18,7 +18,9 @@ use crate::rtps::{Guid, GuidPrefix, SequenceNumber};
 
 use super::handles::RequestKey;
 use super::request_header::{self, RequestHeader, RpcStyle};
-use super::{ClientId, Domain, Event, QueryFailure, QueryId, RequestId, Role, ServiceId};
+use super::{
+    ClientId, Domain, Event, QueryFailure, QueryId, ReaderId, RequestId, Role, ServiceId, WriterId,
+};
 
 /// ROS 2's request topic of service `name`.
 pub fn request_topic(name: &str) -> String {
@@ -187,6 +189,21 @@ impl Domain {
         self.remove_reader(s.reader, now);
         self.drain(now);
         true
+    }
+
+    /// A service's reply writer and request reader (what a ROS 2 node
+    /// lists for it in its graph entry).
+    pub fn service_endpoints(&self, service: ServiceId) -> Option<(WriterId, ReaderId)> {
+        self.services
+            .get(&service)
+            .map(|s| (WriterId(s.writer), ReaderId(s.reader)))
+    }
+
+    /// A client's request writer and reply reader.
+    pub fn client_endpoints(&self, client: ClientId) -> Option<(WriterId, ReaderId)> {
+        self.clients
+            .get(&client)
+            .map(|c| (WriterId(c.writer), ReaderId(c.reader)))
     }
 
     /// Answers a request with `data` (a serialized reply, padded as

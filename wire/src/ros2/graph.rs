@@ -4,11 +4,23 @@
 //! `ros2 node list` and friends can name nodes DDS discovery knows nothing
 //! of.
 //!
-//! The GID grew from 24 bytes (Humble and older) to 16 (Iron and later,
-//! rmw_dds_common 2.0): [`GidSize`] says which to write; decoding takes
-//! either.
+//! The GID shrank from 24 bytes (Humble and older) to 16 (Iron and later,
+//! rmw_dds_common 2.0, commit "Change Gid.msg to be 16 bytes"): the
+//! message's `Gid.msg` is `char[24] data` before and `char[16] data`
+//! since. Both rmw_cyclonedds and rmw_fastrtps put the entity's 16-byte
+//! DDS GUID (prefix, then entity id, in wire order) first and zeros after
+//! it, so the size depends on the peer's ROS 2 release, not on its rmw:
+//! [`GidSize`] says which to write; decoding takes either.
+//!
+//! Both rmws publish on the topic with [`writer_qos`] (reliable,
+//! transient-local, keep last 1) and read it with [`reader_qos`] (the same,
+//! keep all), in plain CDR (XCDR1): rmw_cyclonedds `rmw_node.cpp`
+//! (`rmw_context_impl_s::init`) and rmw_fastrtps
+//! `init_rmw_context_impl.cpp` set exactly these.
 
 use crate::cdr::{DecodeError, Encoding, Extensibility, Reader, Writer};
+use crate::rtps::discovery::{Durability, EndpointQos, History};
+use crate::rtps::participant::EndpointConfig;
 
 /// The topic's name.
 pub const TOPIC: &str = "ros_discovery_info";
@@ -17,17 +29,62 @@ pub const TYPE_NAME: &str = "rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_
 /// The longest node name and namespace (`string<=256`).
 pub const MAX_NAME: usize = 256;
 
+/// The QoS the rmws publish [`TOPIC`] with: reliable, transient-local
+/// (a late joiner gets each participant's latest sample), keep last 1,
+/// XCDR1.
+pub fn writer_qos() -> EndpointQos {
+    let mut q = EndpointQos::writer_default();
+    q.durability = Durability::TransientLocal;
+    q.history = History::KeepLast(1);
+    q.data_representation = vec![0];
+    q
+}
+
+/// The QoS the rmws read [`TOPIC`] with: as [`writer_qos`] but keep all
+/// (the topic has no key: one sample per participant must not push out
+/// another's before it is taken). Accepts XCDR1 only, the representation
+/// both rmws write.
+pub fn reader_qos() -> EndpointQos {
+    let mut q = writer_qos();
+    q.history = History::KeepAll;
+    q
+}
+
+/// The writer of [`TOPIC`] as the rmws create it.
+pub fn writer_config() -> EndpointConfig {
+    EndpointConfig::writer(TOPIC, TYPE_NAME).qos(writer_qos())
+}
+
+/// The reader of [`TOPIC`] as the rmws create it.
+pub fn reader_config() -> EndpointConfig {
+    EndpointConfig::reader(TOPIC, TYPE_NAME).qos(reader_qos())
+}
+
 /// How many bytes a GID takes on the wire.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum GidSize {
-    /// ROS 2 Iron and later (rmw_dds_common 2.x).
+    /// ROS 2 Iron and later (rmw_dds_common 2.x and 3.x).
     #[default]
     Sixteen,
-    /// ROS 2 Humble and older.
+    /// ROS 2 Humble and older (rmw_dds_common 1.x).
     TwentyFour,
 }
 
 impl GidSize {
+    /// The size in bytes (16 or 24).
+    pub fn bytes(self) -> usize {
+        self.len()
+    }
+
+    /// The size of `bytes` (16 or 24), if it is one.
+    pub fn from_bytes(bytes: usize) -> Option<GidSize> {
+        match bytes {
+            16 => Some(GidSize::Sixteen),
+            24 => Some(GidSize::TwentyFour),
+            _ => None,
+        }
+    }
+
     fn len(self) -> usize {
         match self {
             GidSize::Sixteen => 16,
@@ -37,8 +94,20 @@ impl GidSize {
 }
 
 /// An entity's GID: its DDS GUID (16 bytes; zero-padded to 24 for Humble).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Default)]
 pub struct Gid(pub [u8; 16]);
+
+impl From<crate::rtps::Guid> for Gid {
+    fn from(g: crate::rtps::Guid) -> Self {
+        Gid(g.to_bytes())
+    }
+}
+
+impl From<Gid> for crate::rtps::Guid {
+    fn from(g: Gid) -> Self {
+        crate::rtps::Guid::from_bytes(g.0)
+    }
+}
 
 /// One node of a participant.
 #[derive(Debug, Clone, PartialEq, Eq, Default)]

@@ -1,7 +1,7 @@
 //! ROS 2 over DDS: the names ROS 2 gives DDS topics and types
-//! ([`names`]), and its graph topic `ros_discovery_info` ([`graph`]), as
-//! the DDS-based rmw implementations (rmw_fastrtps, rmw_cyclonedds) use
-//! them.
+//! ([`names`]), its graph topic `ros_discovery_info` ([`graph`]) and what a
+//! participant learns from it ([`cache`]), as the DDS-based rmw
+//! implementations (rmw_fastrtps, rmw_cyclonedds) use them.
 //!
 //! ```
 //! use courier_wire::ros2::names::{dds_topic, dds_type, ros_topic, Kind, Node};
@@ -17,5 +17,6 @@
 //! );
 //! ```
 
+pub mod cache;
 pub mod graph;
 pub mod names;
