@@ -157,7 +157,7 @@ impl Default for Opts {
 fn usage() -> ! {
     println!(
         "usage:\n  rtps_bench [--quick] [--no-ddsperf] [--filter TEXT] [--reps R] [--threads N] [--busy-poll US] \
-         [--max-message-size BYTES]   whole table (both CPU placements, Courier and ddsperf)\n  \
+         [--max-message-size BYTES[,BYTES…]]   whole table (both CPU placements, Courier and ddsperf)\n  \
          rtps_bench ping|pong|pub|sub [--domain D] [--size BYTES] [--secs S] [--warmup S] \
          [--best-effort] [--threads N] [--queue N] [--busy-poll US] [--max-message-size BYTES] \
          [--listener]\n\n\
@@ -171,7 +171,9 @@ fn usage() -> ! {
          pair --listener with ddsperf's listener mode, its \"stream\" rows the default with \
          ddsperf's waitset mode.\n\
          --max-message-size sets the largest datagram of Courier and of ddsperf (default: \
-         each one's own, 65500 for Courier on loopback and 14720 for Cyclone).\n\
+         each one's own, 65500 for Courier on loopback and 14720 for Cyclone 0.10, whose \
+         fragments are 1344 B). In the table, a list (e.g. 14720,65500) runs every row at each \
+         size in turn, the size named in the row.\n\
          Domains 0..=232; sessions use rtps://D?interface=lo&peers=127.0.0.1."
     );
     std::process::exit(2)
@@ -1465,7 +1467,8 @@ fn orchestrate(args: &[String]) {
     let mut threads = 1;
     let mut busy_poll_us = 0;
     let mut reps: usize = 1;
-    let mut max_message_size = None;
+    // `None`: each library's own default datagram size
+    let mut max_message_sizes: Vec<Option<usize>> = vec![None];
     let mut it = args.iter();
     while let Some(a) = it.next() {
         match a.as_str() {
@@ -1484,11 +1487,11 @@ fn orchestrate(args: &[String]) {
                     .unwrap_or_else(|| usage())
             }
             "--max-message-size" => {
-                max_message_size = Some(
-                    it.next()
-                        .and_then(|s| s.parse().ok())
-                        .unwrap_or_else(|| usage()),
-                )
+                max_message_sizes = it
+                    .next()
+                    .map(|s| s.split(',').map(|n| n.trim().parse().ok().map(Some)).collect())
+                    .and_then(|v: Option<Vec<_>>| v.filter(|v| !v.is_empty()))
+                    .unwrap_or_else(|| usage())
             }
             "--no-ddsperf" => no_ddsperf = true,
             "--filter" => filter = it.next().cloned(),
@@ -1522,7 +1525,7 @@ fn orchestrate(args: &[String]) {
         domain: 229,
         threads,
         busy_poll_us,
-        max_message_size,
+        max_message_size: None,
     };
     let cases = [
         Case {
@@ -1560,9 +1563,17 @@ fn orchestrate(args: &[String]) {
     ];
     let started = Instant::now();
     let mut rows = Vec::new();
-    for case in cases {
+    // every datagram size in turn, each row named with its own when one is set
+    let runs = max_message_sizes
+        .iter()
+        .flat_map(|&mm| cases.iter().map(move |&c| (mm, c)));
+    for (mm, case) in runs {
+        orch.max_message_size = mm;
         for pl in PLACEMENTS {
-            let name = format!("{} {}", case.name(), pl.name);
+            let name = match mm {
+                Some(n) => format!("{} {}, {n} B datagrams", case.name(), pl.name),
+                None => format!("{} {}", case.name(), pl.name),
+            };
             if filter.as_ref().is_some_and(|f| !name.contains(f.as_str())) {
                 continue;
             }
@@ -1606,11 +1617,18 @@ fn orchestrate(args: &[String]) {
     println!(
         "\nRTPS on loopback, Courier ↔ Courier vs Cyclone ddsperf ↔ ddsperf ({}; {}; {}; {} CPUs \
          online; {:.0} s)\n",
-        match max_message_size {
-            Some(n) => format!("datagrams of at most {n} B for both"),
-            None => "each one's default datagram size (Courier 65500 B on loopback, \
+        match &max_message_sizes[..] {
+            [None] => "each one's default datagram size (Courier 65500 B on loopback, \
                      Cyclone 14720 B)"
                 .to_string(),
+            sizes => format!(
+                "datagrams of at most the row's size for both libraries: {}",
+                sizes
+                    .iter()
+                    .map(|m| m.map_or("each one's default".into(), |n| format!("{n} B")))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
         },
         if quick {
             "--quick: short smoke run, not for comparison"
