@@ -11,6 +11,7 @@ mod echo_pub;
 mod list;
 mod ping_spy;
 mod rates;
+mod record;
 mod rtt;
 mod usage;
 

@@ -23,7 +23,7 @@ use crate::cli::{kind, Kind, RecordArgs};
 use crate::connect::connect;
 use crate::recording::{dds_channel, ipc_channel, known_field_names, ChannelDesc};
 use crate::stop::{count, run_session, Ended, Stop};
-use crate::text::{err, out, word};
+use crate::text::{err, out, progress, word};
 use crate::values::known_type;
 use crate::Result;
 
@@ -284,7 +284,8 @@ async fn record(s: &Session, o: &RecordArgs, rec: &RefCell<Recorder>) -> Result<
     // IPC: each message's format, asked of central at its first sample
     let mut formats: HashMap<String, Option<Format>> = HashMap::new();
     out("ready");
-    let until = o.duration.map(|d| Instant::now() + Duration::from_secs(d));
+    let started = Instant::now();
+    let until = o.duration.map(|d| started + Duration::from_secs(d));
     let mut flush = tokio::time::interval(FLUSH_EVERY);
     loop {
         let sleep = async {
@@ -295,7 +296,16 @@ async fn record(s: &Session, o: &RecordArgs, rec: &RefCell<Recorder>) -> Result<
         };
         tokio::select! {
             _ = sleep => break,
-            _ = flush.tick() => rec.borrow_mut().flush()?,
+            _ = flush.tick() => {
+                let mut r = rec.borrow_mut();
+                r.flush()?;
+                progress(format_args!(
+                    "recording for {} s: {} on {}",
+                    started.elapsed().as_secs(),
+                    count(r.total, "message"),
+                    count(r.channels.len() as u64, "channel")
+                ));
+            }
             smp = all.next() => {
                 let Some(smp) = smp else {
                     return Err("the session ended".into());

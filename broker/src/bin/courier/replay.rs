@@ -50,14 +50,22 @@ pub async fn run(o: ReplayArgs, progress_mode: ProgressMode, mut stop: Stop) -> 
     for d in &survey.damage {
         err(format_args!("courier: {}: {d}", o.file.display()));
     }
-    let chosen = choose(&o, &survey)?;
+    // every channel's way onto the target, before anything connects
+    let plans = choose(&o, &survey)?
+        .into_iter()
+        .map(|c| {
+            plan(&o, c)
+                .map(|p| (c, p))
+                .map_err(|e| format!("channel {:?} ({}): {e}", c.topic, c.id))
+        })
+        .collect::<std::result::Result<Vec<_>, _>>()?;
     let s = match connect(&o.url, &o.name, &mut stop).await? {
         Ok(s) => s,
         Err(ended) => return Ok(ended),
     };
     let sent = Cell::new(0u64);
     let what = || format!("after {} replayed", count(sent.get(), "message"));
-    let body = replay(&s, &o, progress_mode, &survey, chosen, &sent);
+    let body = replay(&s, &o, progress_mode, &survey, plans, &sent);
     let ended = run_session(&s, &mut stop, body, what).await?;
     if !survey.damage.is_empty() {
         return Err(format!(
@@ -194,9 +202,13 @@ fn leak(s: String) -> &'static str {
     Box::leak(s.into_boxed_str())
 }
 
+/// How a channel goes onto the target: the conversion, the publication's
+/// type, and how that is said.
+type Plan = (Convert, TypeInfo, String);
+
 /// How channel `c` goes onto the target: the conversion and the
 /// publication's type, or why it cannot.
-fn plan(o: &ReplayArgs, c: &Chan) -> std::result::Result<(Convert, TypeInfo, String), String> {
+fn plan(o: &ReplayArgs, c: &Chan) -> std::result::Result<Plan, String> {
     let src = Source::of(c)?;
     let wanted = o
         .types
@@ -310,7 +322,7 @@ async fn replay(
     o: &ReplayArgs,
     mode: ProgressMode,
     survey: &Survey,
-    chosen: Vec<&Chan>,
+    plans: Vec<(&Chan, Plan)>,
     sent: &Cell<u64>,
 ) -> Result<()> {
     let b = s.backend();
@@ -323,9 +335,7 @@ async fn replay(
     let mut opened = Vec::new();
     let mut topics = BTreeMap::new();
     let r: Result<()> = async {
-        for c in &chosen {
-            let (conv, ty, shown) =
-                plan(o, c).map_err(|e| format!("channel {:?} ({}): {e}", c.topic, c.id))?;
+        for (c, (conv, ty, shown)) in plans {
             let id = b.open_publication(&c.topic, &ty, &qos).await?;
             opened.push(id);
             out(format_args!("channel {} {shown}", word(&c.topic)));
