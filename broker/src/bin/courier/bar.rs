@@ -28,6 +28,7 @@ pub struct Bar {
 const WIDTH: u64 = 30;
 
 impl Bar {
+    /// A bar for `total` things called `what`, shown as `mode` says.
     pub fn new(mode: ProgressMode, total: u64, what: &'static str) -> Bar {
         let terminal = std::io::stderr().is_terminal();
         let look = match mode {

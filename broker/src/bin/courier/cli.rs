@@ -312,10 +312,7 @@ pub struct ReplayArgs {
 
 /// A replay's `--rate`: a factor above 0, at most a million.
 fn factor(s: &str) -> Result<f64, String> {
-    match s.parse::<f64>() {
-        Ok(r) if r > 0.0 && r <= 1e6 => Ok(r),
-        _ => Err("expected a factor of the recorded rate above 0 and at most 1000000".into()),
-    }
+    above_0_to_a_million(s, "a factor of the recorded rate")
 }
 
 /// A `--type TOPIC=TYPE`.
@@ -443,9 +440,15 @@ pub struct PubArgs {
 
 /// A rate: a positive number of samples a second, at most a million.
 fn rate(s: &str) -> Result<f64, String> {
+    above_0_to_a_million(s, "a number of samples a second")
+}
+
+/// A number above 0 and at most a million, else an error saying `what`
+/// was expected.
+fn above_0_to_a_million(s: &str, what: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
         Ok(r) if r > 0.0 && r <= 1e6 => Ok(r),
-        _ => Err("expected a number of samples a second above 0 and at most 1000000".into()),
+        _ => Err(format!("expected {what} above 0 and at most 1000000")),
     }
 }
 

@@ -22,7 +22,7 @@ use futures::StreamExt;
 use crate::cli::{kind, Kind, RecordArgs};
 use crate::connect::connect;
 use crate::recording::{dds_channel, ipc_channel, known_field_names, ChannelDesc};
-use crate::stop::{count, run_session, Ended, Stop};
+use crate::stop::{count, deadline, run_session, Ended, Stop};
 use crate::text::{err, out, progress, word};
 use crate::values::known_type;
 use crate::Result;
@@ -288,14 +288,8 @@ async fn record(s: &Session, o: &RecordArgs, rec: &RefCell<Recorder>) -> Result<
     let until = o.duration.map(|d| started + Duration::from_secs(d));
     let mut flush = tokio::time::interval(FLUSH_EVERY);
     loop {
-        let sleep = async {
-            match until {
-                Some(t) => tokio::time::sleep_until(t.into()).await,
-                None => std::future::pending().await,
-            }
-        };
         tokio::select! {
-            _ = sleep => break,
+            _ = deadline(until) => break,
             _ = flush.tick() => {
                 let mut r = rec.borrow_mut();
                 r.flush()?;

@@ -34,26 +34,36 @@ pub const SCHEMA_OMGIDL: &str = "omgidl";
 /// Schema encoding of a ROS 2 `.msg` definition (ROS 2 bags).
 pub const SCHEMA_ROS2MSG: &str = "ros2msg";
 
-/// Channel metadata keys.
+/// Channel metadata: the IPC format that lays the samples out.
 pub const META_FORMAT: &str = "ipc_format";
+/// Channel metadata: the DDS type name (recorded on DDS).
 pub const META_TYPE: &str = "dds_type";
+/// Channel metadata: the byte order of IPC samples (`little`, `big`).
 pub const META_ORDER: &str = "byte_order";
+/// Channel metadata: the URL scheme of the session recorded.
 pub const META_SCHEME: &str = "recorded_on";
 
 /// A schema: name, encoding, data.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SchemaDesc {
+    /// The type's name (IPC: the message's).
     pub name: String,
+    /// `ipc-format`, `omgidl`, … (empty: the name alone).
     pub encoding: String,
+    /// The schema text.
     pub data: Vec<u8>,
 }
 
 /// A channel as `courier record` writes it.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ChannelDesc {
+    /// The topic (IPC message) name.
     pub topic: String,
+    /// The message encoding: [`ENC_IPC`] or [`ENC_CDR`].
     pub encoding: &'static str,
+    /// The schema, when there is one.
     pub schema: Option<SchemaDesc>,
+    /// `META_*` keys.
     pub metadata: BTreeMap<String, String>,
 }
 
@@ -152,7 +162,8 @@ pub fn known_field_names(type_name: &str) -> &'static [&'static str] {
 }
 
 /// `type_name` (`a::b::T`) laid out as `f` (as `#[derive(IpcMessage)]`
-/// lays it out in CDR), in OMG IDL: modules for the scopes, a struct of
+/// lays it out in CDR), in OMG IDL: modules for the scopes, a `@final`
+/// struct (XTypes would default to appendable) of
 /// the top-level fields (named from `names`, else `f1`, `f2`, …; a format
 /// that is not a struct is one field `data`), and a struct or enum for
 /// each nested struct or named enum (`T_f2`, …). Only layouts with CDR
@@ -179,21 +190,17 @@ pub fn omgidl(type_name: &str, f: &Format, names: &[&str]) -> String {
         let _ = writeln!(body, "  {ty} {fname}{suffix};");
     }
     let mut out = String::new();
-    for s in &scopes {
-        let _ = write!(out, "module {s} {{ ");
-    }
     if !scopes.is_empty() {
+        let open: Vec<String> = scopes.iter().map(|s| format!("module {s} {{")).collect();
+        out.push_str(&open.join(" "));
         out.push('\n');
     }
     for d in defs {
         out.push_str(&d);
     }
-    let _ = write!(out, "struct {name} {{\n{body}}};\n");
-    for _ in &scopes {
-        out.push_str("}; ");
-    }
+    let _ = write!(out, "@final struct {name} {{\n{body}}};\n");
     if !scopes.is_empty() {
-        out.pop();
+        out.push_str(&vec!["};"; scopes.len()].join(" "));
         out.push('\n');
     }
     out
@@ -211,7 +218,7 @@ fn idl_type(f: &Format, name: &str, defs: &mut Vec<String>) -> (String, String) 
                 let (t, s) = idl_type(fld, &format!("{name}_f{}", i + 1), defs);
                 let _ = writeln!(body, "  {t} f{}{s};", i + 1);
             }
-            defs.push(format!("struct {name} {{\n{body}}};\n"));
+            defs.push(format!("@final struct {name} {{\n{body}}};\n"));
             (name.to_string(), String::new())
         }
         Format::FixedArray { elem, dims } => {
@@ -275,8 +282,8 @@ mod tests {
         let f = fmt(crate::values::Ping::FORMAT);
         assert_eq!(
             omgidl("courier::Ping", &f, known_field_names("courier::Ping")),
-            "module courier { \n\
-             struct Ping {\n  uint32 seq;\n  uint64 stamp_ns;\n  string text;\n};\n}\n"
+            "module courier {\n\
+             @final struct Ping {\n  uint32 seq;\n  uint64 stamp_ns;\n  string text;\n};\n};\n"
         );
         assert_eq!(
             omgidl(
@@ -284,8 +291,8 @@ mod tests {
                 &fmt("string"),
                 known_field_names("std_msgs::msg::dds_::String_")
             ),
-            "module std_msgs { module msg { module dds_ { \n\
-             struct String_ {\n  string data;\n};\n}; }; }\n"
+            "module std_msgs { module msg { module dds_ {\n\
+             @final struct String_ {\n  string data;\n};\n}; }; };\n"
         );
     }
 
@@ -294,10 +301,10 @@ mod tests {
         let f = fmt("{int, <{double, double}:1>, [ushort:2,3], {enum Wait, Send}, 4, <[int:2]:1>}");
         assert_eq!(
             omgidl("Path", &f, &[]),
-            "struct Path_f2 {\n  double f1;\n  double f2;\n};\n\
+            "@final struct Path_f2 {\n  double f1;\n  double f2;\n};\n\
              enum Path_f4 { Wait, Send };\n\
              typedef int32 Path_f6_elem[2];\n\
-             struct Path {\n  int32 f1;\n  sequence<Path_f2> f2;\n  uint16 f3[2][3];\n  \
+             @final struct Path {\n  int32 f1;\n  sequence<Path_f2> f2;\n  uint16 f3[2][3];\n  \
              Path_f4 f4;\n  octet f5[4];\n  sequence<Path_f6_elem> f6;\n};\n"
         );
     }

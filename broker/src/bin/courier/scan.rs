@@ -25,24 +25,34 @@ pub const RECORD_LIMIT: u64 = 1 << 30;
 /// A channel of the recording.
 #[derive(Debug, Clone)]
 pub struct Chan {
+    /// Its id in the file.
     pub id: u16,
+    /// The topic (IPC message) name.
     pub topic: String,
+    /// The message encoding.
     pub encoding: String,
+    /// Its schema, when it has one.
     pub schema: Option<SchemaDesc>,
+    /// Its metadata.
     pub metadata: BTreeMap<String, String>,
 }
 
 /// A message of the recording.
 #[derive(Debug)]
 pub struct Msg {
+    /// Its channel's id.
     pub channel: u16,
+    /// When it was recorded (ns since the Unix epoch).
     pub log_time: u64,
+    /// Its bytes, in its channel's encoding.
     pub data: Vec<u8>,
 }
 
 /// What a walk meets, in file order.
 pub enum Event {
+    /// A channel, the first time it is met.
     Channel(Chan),
+    /// An intact message of a known channel.
     Message(Msg),
 }
 
@@ -50,10 +60,14 @@ pub enum Event {
 /// messages each has, the log times they span, and the damage.
 #[derive(Debug, Default)]
 pub struct Survey {
+    /// Every channel, by id.
     pub channels: BTreeMap<u16, Chan>,
+    /// Intact messages, by channel id.
     pub counts: BTreeMap<u16, u64>,
+    /// The earliest and latest log times of the intact messages.
     pub first: Option<u64>,
     pub last: Option<u64>,
+    /// Each damage found: what is wrong, and at which byte.
     pub damage: Vec<String>,
 }
 
