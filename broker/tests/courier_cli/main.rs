@@ -12,6 +12,7 @@ mod list;
 mod perf;
 mod ping_spy;
 mod rates;
+mod record;
 mod rtt;
 mod usage;
 

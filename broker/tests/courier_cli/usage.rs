@@ -9,7 +9,7 @@ fn usage_errors_name_the_problem() {
     let u = u.as_str();
     for (args, want) in [
         (&["fly"][..], "unrecognized subcommand 'fly'"),
-        (&["ehco"][..], "a similar subcommand exists: 'echo'"),
+        (&["echp"][..], "a similar subcommand exists: 'echo'"),
         (
             &["ping", u][..],
             "the following required arguments were not provided",

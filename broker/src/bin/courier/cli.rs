@@ -85,6 +85,12 @@ pub enum Command {
     /// Generate Rust types from IPC formats, XDR or IDL (like IPC's xdrgen)
     #[command(after_help = crate::gen::GEN_HELP)]
     Gen(crate::gen::GenArgs),
+    /// Record topics into an MCAP file (like ros2 bag record)
+    #[command(after_help = RECORD_OUTPUT)]
+    Record(RecordArgs),
+    /// Play an MCAP recording back onto any session (like ros2 bag play)
+    #[command(after_help = REPLAY_OUTPUT)]
+    Replay(ReplayArgs),
     /// Print a shell completion script (bash, zsh, fish, elvish, powershell)
     Completions {
         /// The shell
@@ -230,6 +236,117 @@ Output, one event a line (a name with blanks is quoted; an empty list is -):
       as central's data log prints it
   interrupted after <n> samples       Ctrl-C / SIGTERM: session closed (exit 130 / 143)";
 
+const RECORD_OUTPUT: &str = "\
+The file: MCAP (zstd chunks, closed at least once a second; a summary with
+statistics, chunk and message indexes when the recording ends), one channel per
+topic and type. Recorded on ipc://: message encoding `ipc` (IPC marshalling),
+schema `ipc-format` holding the message's format string as central holds it.
+Recorded on rtps://: message encoding `cdr`, schema named after the DDS type, in
+OMG IDL (`omgidl`) when Courier knows the type's layout. Log time: when received;
+publish time: the writer's source timestamp when it sent one.
+On ipc:// name each message to record; on rtps:// TOPICS are fnmatch patterns
+(default: every topic).
+Output, one event a line:
+  ready
+  channel <topic> <encoding> <schema encoding>:<schema name>|-   a new channel
+  recorded <n> messages on <k> channels in <file> (<bytes> B)    the file is finished
+  done                                    --count or --duration reached (exit 0)
+  interrupted after <n> messages recorded Ctrl-C / SIGTERM: the file is finished
+                                          all the same (exit 130 / 143)";
+
+const REPLAY_OUTPUT: &str = "\
+Samples are re-encoded for the session: a channel recorded on IPC goes onto DDS
+as CDR laid out as #[derive(IpcMessage)] lays out its format, under the type
+--type TOPIC=TYPE names; one recorded on DDS goes onto IPC when Courier knows its
+layout (courier::Ping, std_msgs::msg::dds_::String_, or recorded with a format).
+Output, one event a line:
+  channel <topic> <how>     each channel replayed: ipc <format> | cdr <type> |
+                            ipc->cdr <type> | cdr->ipc <format>
+  ready                     the publications exist (then --wait)
+  replayed <n> messages
+  done
+A progress bar on stderr when it is a terminal (--progress).
+A damaged file (truncated, a bad chunk): each problem on stderr with the byte
+where it is, what is intact is replayed, then exit 1.";
+
+#[derive(Args, Debug)]
+pub struct RecordArgs {
+    /// Session URL (ipc://…, rtps://…)
+    #[arg(value_name = "URL", value_parser = session_url)]
+    pub url: String,
+    /// Topics (IPC messages) to record; on rtps:// fnmatch patterns, default every topic
+    #[arg(value_name = "TOPICS")]
+    pub topics: Vec<String>,
+    /// The MCAP file to write
+    #[arg(short, long, value_name = "FILE.mcap")]
+    pub output: std::path::PathBuf,
+    /// Replace the file if it exists
+    #[arg(long)]
+    pub overwrite: bool,
+    /// Stop after N messages
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub count: Option<u64>,
+    /// Stop after this long
+    #[arg(long, value_name = "SECS", value_parser = clap::value_parser!(u64).range(1..))]
+    pub duration: Option<u64>,
+    /// Write chunks uncompressed
+    #[arg(long)]
+    pub no_compression: bool,
+    /// Close a chunk once it holds this many bytes (uncompressed)
+    #[arg(long, value_name = "BYTES", default_value_t = 1 << 20, value_parser = clap::value_parser!(u64).range(1..=1 << 30))]
+    pub chunk_size: u64,
+    /// Participant / module name
+    #[arg(long, default_value = "courier-record")]
+    pub name: String,
+}
+
+#[derive(Args, Debug)]
+pub struct ReplayArgs {
+    /// The MCAP file to play
+    #[arg(value_name = "FILE.mcap")]
+    pub file: std::path::PathBuf,
+    /// Session URL (ipc://…, rtps://…)
+    #[arg(value_name = "URL", value_parser = session_url)]
+    pub url: String,
+    /// Play at this many times the recorded rate
+    #[arg(long, value_name = "X", default_value_t = 1.0, value_parser = factor)]
+    pub rate: f64,
+    /// Start over at the end, until interrupted
+    #[arg(long = "loop")]
+    pub r#loop: bool,
+    /// Replay only this topic (repeat for more)
+    #[arg(long, value_name = "NAME")]
+    pub topic: Vec<String>,
+    /// The DDS type of a topic (needed for channels recorded on IPC)
+    #[arg(long = "type", value_name = "TOPIC=TYPE", value_parser = topic_type)]
+    pub types: Vec<(String, String)>,
+    /// Wait for this many subscribers of each topic before playing
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    pub wait: u32,
+    /// DDS: keep the last --depth samples of each topic for readers that join late
+    #[arg(long)]
+    pub transient_local: bool,
+    /// --transient-local: samples kept per topic
+    #[arg(long, value_name = "N", default_value_t = 1000, requires = "transient_local", value_parser = clap::value_parser!(u32).range(1..))]
+    pub depth: u32,
+    /// Participant / module name
+    #[arg(long, default_value = "courier-replay")]
+    pub name: String,
+}
+
+/// A replay's `--rate`: a factor above 0, at most a million.
+fn factor(s: &str) -> Result<f64, String> {
+    above_0_to_a_million(s, "a factor of the recorded rate")
+}
+
+/// A `--type TOPIC=TYPE`.
+fn topic_type(s: &str) -> Result<(String, String), String> {
+    match s.split_once('=') {
+        Some((t, ty)) if !t.is_empty() && !ty.is_empty() => Ok((t.to_string(), ty.to_string())),
+        _ => Err(format!("{s:?} is not TOPIC=TYPE")),
+    }
+}
+
 #[derive(Args, Debug)]
 pub struct CallArgs {
     /// Session URL (ipc://…, rtps://…)
@@ -347,9 +464,15 @@ pub struct PubArgs {
 
 /// A rate: a positive number of samples a second, at most a million.
 fn rate(s: &str) -> Result<f64, String> {
+    above_0_to_a_million(s, "a number of samples a second")
+}
+
+/// A number above 0 and at most a million, else an error saying `what`
+/// was expected.
+fn above_0_to_a_million(s: &str, what: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
         Ok(r) if r > 0.0 && r <= 1e6 => Ok(r),
-        _ => Err("expected a number of samples a second above 0 and at most 1000000".into()),
+        _ => Err(format!("expected {what} above 0 and at most 1000000")),
     }
 }
 
@@ -691,6 +814,34 @@ impl Cli {
                         "list",
                         "--module and --message are for ipc:// sessions; rtps:// lists what \
                          discovery finds",
+                    ));
+                }
+            }
+            Command::Record(a) => {
+                if kind(&a.url) == Kind::Ipc {
+                    if a.topics.is_empty() {
+                        return Err(usage_error(
+                            "record",
+                            "record on ipc:// needs the messages to record, by name \
+                             (`courier list ipc://…` lists them)",
+                        ));
+                    }
+                    if let Some(p) = a.topics.iter().find(|t| t.contains(['*', '?', '['])) {
+                        return Err(usage_error(
+                            "record",
+                            format!(
+                                "{p:?} is a pattern; on ipc:// name each message (central \
+                                 offers no list of messages to match it against)"
+                            ),
+                        ));
+                    }
+                }
+            }
+            Command::Replay(a) => {
+                if kind(&a.url) == Kind::Ipc && a.transient_local {
+                    return Err(usage_error(
+                        "replay",
+                        "--transient-local is DDS durability; ipc:// has none",
                     ));
                 }
             }

@@ -11,6 +11,7 @@
 //! says what it interrupted).
 #![deny(unsafe_code)]
 
+mod bar;
 mod call;
 mod cdr_value;
 mod cli;
@@ -23,6 +24,10 @@ mod ping;
 mod pong;
 mod publish;
 mod rate;
+mod record;
+mod recording;
+mod replay;
+mod scan;
 mod spy;
 mod stop;
 mod text;
@@ -46,6 +51,7 @@ fn main() -> ExitCode {
         e.exit();
     }
     text::set_progress(cli.progress);
+    let progress_mode = cli.progress;
     // commands whose stdout is a log of events say there what stopped
     // them; the others keep stdout for data and say it on stderr
     let events_on_stdout = matches!(
@@ -55,6 +61,8 @@ fn main() -> ExitCode {
             | Command::Ping(_)
             | Command::Pong(_)
             | Command::Pub(_)
+            | Command::Record(_)
+            | Command::Replay(_)
             | Command::Spy(_)
     );
     let cmd = match cli.command {
@@ -86,6 +94,8 @@ fn main() -> ExitCode {
             Command::Pong(o) => pong::pong(o, stop).await,
             Command::Pub(o) => publish::run(o, stop).await,
             Command::Spy(o) => spy::run(o, stop).await,
+            Command::Record(o) => record::run(o, stop).await,
+            Command::Replay(o) => replay::run(o, progress_mode, stop).await,
             Command::Completions { .. } | Command::Gen(_) => Ok(Ended::Done),
         }
     });

@@ -124,6 +124,15 @@ where
     r
 }
 
+/// Resolves at `until`, or never when there is none (a command's
+/// `--duration`).
+pub async fn deadline(until: Option<std::time::Instant>) {
+    match until {
+        Some(t) => tokio::time::sleep_until(t.into()).await,
+        None => std::future::pending().await,
+    }
+}
+
 /// "N thing(s)".
 pub fn count(n: u64, thing: &str) -> String {
     if n == 1 {

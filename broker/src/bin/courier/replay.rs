@@ -1,0 +1,485 @@
+//! `courier replay FILE.mcap <url>`: plays a recording back onto any
+//! backend (like `ros2 bag play`), at the recorded rate or `--rate`
+//! times it, once or `--loop`ing, every channel or those `--topic` names.
+//!
+//! Samples are re-encoded for the target: IPC bytes are decoded through
+//! their channel's format and written as CDR onto DDS (laid out as the
+//! derive lays out that format), and CDR back to IPC bytes the same way;
+//! a channel recorded on IPC needs `--type TOPIC=TYPE` for DDS, whose
+//! readers match on type names.
+//!
+//! The file is read twice, in a thread of its own: once to count what is
+//! intact (and report what is damaged, with where), once to play it.
+//! A damaged file replays what is intact and exits 1 at the end.
+
+use std::cell::Cell;
+use std::collections::{BTreeMap, HashMap};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use courier::format::Format;
+use courier::ipc::{ByteOrder, Value};
+use courier::{
+    Durability, Handle, History, PubId, PublicationQos, Session, SessionEvent, TypeInfo,
+    WriteOptions,
+};
+use futures::StreamExt;
+
+use crate::bar::Bar;
+use crate::cli::{kind, Kind, ProgressMode, ReplayArgs};
+use crate::connect::{connect, PROGRESS_EVERY};
+use crate::ping::LAST_ACK_BOUND;
+use crate::recording::{
+    parse_order, ros2_dds_name, ENC_CDR, ENC_IPC, META_FORMAT, META_TYPE, SCHEMA_IPC_FORMAT,
+    SCHEMA_ROS2MSG,
+};
+use crate::scan::{self, Chan, Event, Msg, Survey};
+use crate::stop::{count, run_session, Ended, Stop};
+use crate::text::{err, out, progress, word};
+use crate::values::known_type;
+use crate::Result;
+
+/// Messages read ahead of the one being played.
+const READ_AHEAD: usize = 256;
+
+pub async fn run(o: ReplayArgs, progress_mode: ProgressMode, mut stop: Stop) -> Result<Ended> {
+    let path = o.file.clone();
+    let survey = tokio::task::spawn_blocking(move || scan::survey(&path))
+        .await
+        .map_err(|e| format!("reading {}: {e}", o.file.display()))??;
+    for d in &survey.damage {
+        err(format_args!("courier: {}: {d}", o.file.display()));
+    }
+    // every channel's way onto the target, before anything connects
+    let plans = choose(&o, &survey)?
+        .into_iter()
+        .map(|c| {
+            plan(&o, c)
+                .map(|p| (c, p))
+                .map_err(|e| format!("channel {:?} ({}): {e}", c.topic, c.id))
+        })
+        .collect::<std::result::Result<Vec<_>, _>>()?;
+    let s = match connect(&o.url, &o.name, &mut stop).await? {
+        Ok(s) => s,
+        Err(ended) => return Ok(ended),
+    };
+    let sent = Cell::new(0u64);
+    let what = || format!("after {} replayed", count(sent.get(), "message"));
+    let body = replay(&s, &o, progress_mode, &survey, plans, &sent);
+    let ended = run_session(&s, &mut stop, body, what).await?;
+    if !survey.damage.is_empty() {
+        return Err(format!(
+            "{} is damaged ({}, said above): what is intact was replayed",
+            o.file.display(),
+            count(survey.damage.len() as u64, "problem")
+        )
+        .into());
+    }
+    Ok(ended)
+}
+
+/// The channels to replay: all, or those `--topic` names (each must name
+/// one).
+fn choose<'a>(o: &ReplayArgs, survey: &'a Survey) -> Result<Vec<&'a Chan>> {
+    for t in &o.topic {
+        if !survey.channels.values().any(|c| &c.topic == t) {
+            let mut have: Vec<&str> = survey.channels.values().map(|c| c.topic.as_str()).collect();
+            have.sort_unstable();
+            have.dedup();
+            return Err(format!(
+                "--topic {t:?}: {} has no channel of that topic (it has: {})",
+                o.file.display(),
+                if have.is_empty() {
+                    "none".into()
+                } else {
+                    have.join(", ")
+                }
+            )
+            .into());
+        }
+    }
+    for (t, _) in &o.types {
+        if !survey.channels.values().any(|c| &c.topic == t) {
+            return Err(format!(
+                "--type {t}=…: {} has no channel of that topic",
+                o.file.display()
+            )
+            .into());
+        }
+    }
+    Ok(survey
+        .channels
+        .values()
+        .filter(|c| o.topic.is_empty() || o.topic.contains(&c.topic))
+        .collect())
+}
+
+/// What a channel's samples are, as recorded.
+enum Source {
+    Ipc {
+        format: Option<Format>,
+        order: ByteOrder,
+    },
+    Cdr {
+        format: Option<Format>,
+        type_name: Option<String>,
+    },
+}
+
+fn parse(text: &str) -> std::result::Result<Format, String> {
+    courier::format::parse(text).map_err(|e| format!("its IPC format {text:?} does not parse: {e}"))
+}
+
+impl Source {
+    fn of(c: &Chan) -> std::result::Result<Source, String> {
+        let schema = c.schema.as_ref();
+        match c.encoding.as_str() {
+            ENC_IPC => {
+                let text = c.metadata.get(META_FORMAT).cloned().or_else(|| {
+                    schema
+                        .filter(|s| s.encoding == SCHEMA_IPC_FORMAT)
+                        .map(|s| String::from_utf8_lossy(&s.data).into_owned())
+                });
+                Ok(Source::Ipc {
+                    format: text.as_deref().map(parse).transpose()?,
+                    order: parse_order(&c.metadata)?,
+                })
+            }
+            ENC_CDR => {
+                let type_name = c.metadata.get(META_TYPE).cloned().or_else(|| {
+                    schema.map(|s| {
+                        if s.encoding == SCHEMA_ROS2MSG {
+                            ros2_dds_name(&s.name).unwrap_or_else(|| s.name.clone())
+                        } else {
+                            s.name.clone()
+                        }
+                    })
+                });
+                let format = match c.metadata.get(META_FORMAT) {
+                    Some(t) => Some(parse(t)?),
+                    None => type_name
+                        .as_deref()
+                        .and_then(known_type)
+                        .map(|k| k.parsed()),
+                };
+                Ok(Source::Cdr { format, type_name })
+            }
+            e => Err(format!(
+                "its message encoding {e:?} is not one courier replays ({ENC_IPC}, {ENC_CDR})"
+            )),
+        }
+    }
+}
+
+/// How a recorded sample becomes one for the target.
+enum Convert {
+    Pass,
+    /// IPC bytes of the other byte order to ours.
+    Reorder(Format, ByteOrder),
+    IpcToCdr(Format, ByteOrder),
+    CdrToIpc(Format),
+}
+
+impl Convert {
+    fn apply(&self, data: &[u8]) -> std::result::Result<Vec<u8>, String> {
+        let from_ipc = |f: &Format, o: ByteOrder| {
+            Value::from_ipc_bytes(f, data, o).map_err(|e| format!("does not decode as {f}: {e}"))
+        };
+        match self {
+            Convert::Pass => Ok(data.to_vec()),
+            Convert::Reorder(f, o) => from_ipc(f, *o)?.to_ipc_bytes(f).map_err(|e| e.to_string()),
+            Convert::IpcToCdr(f, o) => crate::cdr_value::encode(f, &from_ipc(f, *o)?),
+            Convert::CdrToIpc(f) => crate::cdr_value::decode(f, data)
+                .map_err(|e| format!("does not decode as {f}: {e}"))?
+                .to_ipc_bytes(f)
+                .map_err(|e| e.to_string()),
+        }
+    }
+}
+
+/// Leaks a string: type information lives as long as the process.
+fn leak(s: String) -> &'static str {
+    Box::leak(s.into_boxed_str())
+}
+
+/// How a channel goes onto the target: the conversion, the publication's
+/// type, and how that is said.
+type Plan = (Convert, TypeInfo, String);
+
+/// How channel `c` goes onto the target: the conversion and the
+/// publication's type, or why it cannot.
+fn plan(o: &ReplayArgs, c: &Chan) -> std::result::Result<Plan, String> {
+    let src = Source::of(c)?;
+    let wanted = o
+        .types
+        .iter()
+        .find(|(t, _)| t == &c.topic)
+        .map(|(_, ty)| ty.clone());
+    let dynamic = |f: Option<&Format>, ty: &str| {
+        TypeInfo::dynamic(f.map(|f| leak(f.to_string())), leak(ty.to_string()))
+    };
+    match (kind(&o.url), src) {
+        (Kind::Ipc, Source::Ipc { format, order }) => {
+            let ty = format
+                .as_ref()
+                .map_or(TypeInfo::untyped(), |f| dynamic(Some(f), ""));
+            let shown = format.as_ref().map_or("raw".to_string(), Format::to_string);
+            let conv = match (order == ByteOrder::NATIVE, format) {
+                (true, _) => Convert::Pass,
+                (false, Some(f)) => Convert::Reorder(f, order),
+                (false, None) => {
+                    return Err("its IPC bytes are of the other byte order, and it has no \
+                                format to convert them by"
+                        .into())
+                }
+            };
+            Ok((conv, ty, format!("ipc {}", word(&shown))))
+        }
+        (Kind::Ipc, Source::Cdr { format, type_name }) => {
+            let f = format.ok_or_else(|| {
+                format!(
+                    "Courier does not know the layout of its DDS type {}, so it cannot write \
+                     it as IPC",
+                    type_name.as_deref().unwrap_or("?")
+                )
+            })?;
+            crate::cdr_value::check(&f)?;
+            let ty = dynamic(Some(&f), "");
+            let shown = format!("cdr->ipc {}", word(&f.to_string()));
+            Ok((Convert::CdrToIpc(f), ty, shown))
+        }
+        (Kind::Dds, Source::Ipc { format, order }) => {
+            let ty_name = wanted.ok_or_else(|| {
+                format!(
+                    "it was recorded on IPC, and DDS readers match on a type name: give one \
+                     with --type {}=TYPE",
+                    c.topic
+                )
+            })?;
+            let f = format.ok_or(
+                "it has no IPC format (central held none when it was recorded), so its bytes \
+                 cannot be written as CDR",
+            )?;
+            crate::cdr_value::check(&f)?;
+            let ty = dynamic(Some(&f), &ty_name);
+            let shown = format!("ipc->cdr {}", word(&ty_name));
+            Ok((Convert::IpcToCdr(f, order), ty, shown))
+        }
+        (Kind::Dds, Source::Cdr { format, type_name }) => {
+            let ty_name = wanted.or(type_name).ok_or_else(|| {
+                format!(
+                    "it names no DDS type: give one with --type {}=TYPE",
+                    c.topic
+                )
+            })?;
+            let ty = dynamic(format.as_ref(), &ty_name);
+            Ok((Convert::Pass, ty, format!("cdr {}", word(&ty_name))))
+        }
+    }
+}
+
+/// A channel being replayed.
+struct Playing {
+    id: PubId,
+    topic: String,
+    conv: Convert,
+    /// Its intact messages in the file, and how many of them were played
+    /// in this pass (the last is written confirmed on DDS).
+    total: u64,
+    played: u64,
+}
+
+/// What the reading thread sends.
+enum Item {
+    Msg(Msg),
+    /// The end of one pass over the file.
+    End,
+}
+
+/// Reads the chosen channels' messages in a thread (again and again with
+/// `--loop`) while the receiver wants them.
+fn reader(file: PathBuf, ids: Vec<u16>, looping: bool) -> tokio::sync::mpsc::Receiver<Item> {
+    let (tx, rx) = tokio::sync::mpsc::channel(READ_AHEAD);
+    std::thread::spawn(move || loop {
+        let mut open = true;
+        // the damage was reported by the first reading
+        let r = scan::walk(&file, &mut |e| match e {
+            Event::Message(m) if ids.contains(&m.channel) => {
+                open = tx.blocking_send(Item::Msg(m)).is_ok();
+                open
+            }
+            _ => true,
+        });
+        if r.is_err() || !open || tx.blocking_send(Item::End).is_err() || !looping {
+            break;
+        }
+    });
+    rx
+}
+
+async fn replay(
+    s: &Session,
+    o: &ReplayArgs,
+    mode: ProgressMode,
+    survey: &Survey,
+    plans: Vec<(&Chan, Plan)>,
+    sent: &Cell<u64>,
+) -> Result<()> {
+    let b = s.backend();
+    let mut qos = PublicationQos::default();
+    if o.transient_local {
+        qos.durability = Durability::TransientLocal;
+        qos.history = History::KeepLast(o.depth);
+    }
+    let mut playing: HashMap<u16, Playing> = HashMap::new();
+    let mut opened = Vec::new();
+    let mut topics = BTreeMap::new();
+    let r: Result<()> = async {
+        for (c, (conv, ty, shown)) in plans {
+            let id = b.open_publication(&c.topic, &ty, &qos).await?;
+            opened.push(id);
+            out(format_args!("channel {} {shown}", word(&c.topic)));
+            topics.insert(c.topic.clone(), ());
+            playing.insert(
+                c.id,
+                Playing {
+                    id,
+                    topic: c.topic.clone(),
+                    conv,
+                    total: survey.counts.get(&c.id).copied().unwrap_or(0),
+                    played: 0,
+                },
+            );
+        }
+        out("ready");
+        wait_for(s, o, topics.keys()).await?;
+        play(s, o, mode, survey, &mut playing, sent).await
+    }
+    .await;
+    for id in opened {
+        b.close_handle(Handle::Publication(id));
+    }
+    r?;
+    out(format_args!("replayed {}", count(sent.get(), "message")));
+    out("done");
+    Ok(())
+}
+
+/// Waits until each topic has `--wait` subscribers (a sample nobody
+/// subscribes is not sent on IPC and reaches nobody on DDS).
+async fn wait_for<'a>(
+    s: &Session,
+    o: &ReplayArgs,
+    topics: impl Iterator<Item = &'a String>,
+) -> Result<()> {
+    if o.wait == 0 {
+        return Ok(());
+    }
+    let mut ev = s.events();
+    let mut have = BTreeMap::new();
+    for t in topics {
+        s.watch_handlers(t).await?;
+        have.insert(t.clone(), s.num_handlers(t).await?.unsigned_abs());
+    }
+    let started = Instant::now();
+    let mut tick =
+        tokio::time::interval_at(tokio::time::Instant::now() + PROGRESS_EVERY, PROGRESS_EVERY);
+    while have.values().any(|&n| n < o.wait) {
+        tokio::select! {
+            Some(e) = ev.next() => {
+                if let SessionEvent::HandlersChanged { msg, count } = e {
+                    if let Some(n) = have.get_mut(&msg) {
+                        *n = count.unsigned_abs();
+                    }
+                }
+            }
+            _ = tick.tick() => {
+                let missing: Vec<&str> = have
+                    .iter()
+                    .filter(|(_, &n)| n < o.wait)
+                    .map(|(t, _)| t.as_str())
+                    .collect();
+                progress(format_args!(
+                    "waiting for {} of {} for {} s (--wait 0 replays at once)",
+                    count(u64::from(o.wait), "subscriber"),
+                    missing.join(", "),
+                    started.elapsed().as_secs()
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Plays the messages at their recorded pace (times `--rate`).
+async fn play(
+    s: &Session,
+    o: &ReplayArgs,
+    mode: ProgressMode,
+    survey: &Survey,
+    playing: &mut HashMap<u16, Playing>,
+    sent: &Cell<u64>,
+) -> Result<()> {
+    let dds = kind(&o.url) == Kind::Dds;
+    let b = s.backend();
+    let per_pass: u64 = playing.values().map(|p| p.total).sum();
+    let first = survey.first.unwrap_or(0);
+    let span = survey.last.unwrap_or(first).saturating_sub(first) as f64 / 1e9 / o.rate;
+    let mut bar = Bar::new(mode, per_pass, "messages");
+    let mut rx = reader(o.file.clone(), playing.keys().copied().collect(), o.r#loop);
+    let mut start = tokio::time::Instant::now();
+    let mut in_pass = 0u64;
+    let mut bad = 0u64;
+    while let Some(item) = rx.recv().await {
+        let m = match item {
+            Item::Msg(m) => m,
+            Item::End => {
+                bar.finish(in_pass, span);
+                start = tokio::time::Instant::now();
+                in_pass = 0;
+                for p in playing.values_mut() {
+                    p.played = 0;
+                }
+                continue;
+            }
+        };
+        let Some(p) = playing.get_mut(&m.channel) else {
+            continue;
+        };
+        let offset = m.log_time.saturating_sub(first) as f64 / 1e9 / o.rate;
+        tokio::time::sleep_until(start + Duration::from_secs_f64(offset)).await;
+        p.played += 1;
+        in_pass += 1;
+        let data = match p.conv.apply(&m.data) {
+            Ok(d) => d,
+            Err(e) => {
+                bad += 1;
+                err(format_args!(
+                    "courier: a message of {:?} (log time {}) {e}: skipped",
+                    p.topic, m.log_time
+                ));
+                continue;
+            }
+        };
+        let mut opts = WriteOptions::default();
+        let confirm = dds && p.played == p.total;
+        if confirm {
+            // the last of its channel: wait for every reader to have it
+            opts.confirm = Some(LAST_ACK_BOUND);
+        }
+        match b.write(p.id, data, opts).await {
+            Err(courier::PublishError::Timeout { after, .. }) if confirm => err(format_args!(
+                "courier: the last sample of {:?} was not acknowledged by every reader within \
+                 {after:?}",
+                p.topic
+            )),
+            r => r?,
+        }
+        sent.set(sent.get() + 1);
+        bar.update(in_pass, offset);
+    }
+    if bad > 0 {
+        return Err(format!("{} did not decode (said above)", count(bad, "message")).into());
+    }
+    Ok(())
+}

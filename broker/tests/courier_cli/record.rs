@@ -1,0 +1,562 @@
+//! `courier record` and `courier replay`: recordings made on IPC (through a
+//! central embedded in the test, no C) replayed onto IPC and onto RTPS,
+//! where a Cyclone DDS 0.10 reader (`tests/peers/rtps/cyclone_peer`,
+//! pinned to lo) receives the same values; recordings read by Python's
+//! `mcap` package; damaged files; usage errors.
+
+use std::path::{Path, PathBuf};
+
+use courier_tests::peers::{cyclone_peer, fnv1a32, PeerProcess};
+
+use crate::{run, url, Central, Proc, T};
+
+/// `Msg` of `tests/peers/rtps/types.idl` (`unsigned long seq; string text;
+/// sequence<octet> payload`) as an IPC format: the payload's length is the
+/// `seq` field (field 1), as the derive lays a `<T:k>` out in CDR.
+const MSG: &str = "{uint, string, <ubyte:1>}";
+
+/// A directory of the test's own, removed when dropped.
+struct Dir(PathBuf);
+
+impl Dir {
+    fn new(name: &str) -> Dir {
+        let d = std::env::temp_dir().join(format!("courier-record-{}-{name}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        Dir(d)
+    }
+
+    fn file(&self, name: &str) -> String {
+        self.0.join(name).to_str().unwrap().to_string()
+    }
+}
+
+impl Drop for Dir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// Publishes `value` of `format` once with `courier pub` (which waits for
+/// the recorder's subscription).
+fn publish(u: &str, topic: &str, format: &str, value: &str) {
+    let (code, out, err) = run(&["pub", u, topic, value, "--format", format]);
+    assert_eq!(
+        (code, out.as_str()),
+        (0, "ready\nmatched 1\nsent 1\ndone\n"),
+        "{err}"
+    );
+}
+
+/// Records `msg` (three samples of MSG) and `text` (two strings) on the
+/// central into `file`: the recorder's output.
+fn record_ipc(c: &Central, file: &str, extra: &[&str]) -> String {
+    let u = c.url.as_str();
+    let mut args = vec!["record", u, "msg", "text", "-o", file, "--count", "5"];
+    args.extend_from_slice(extra);
+    let mut rec = Proc::start(&args);
+    rec.expect("ready");
+    for seq in 1..=3u32 {
+        let payload: Vec<String> = (0..seq)
+            .map(|i| ((seq * 7 + i) % 256).to_string())
+            .collect();
+        publish(
+            u,
+            "msg",
+            MSG,
+            &format!("[{seq}, \"ipc-{seq}\", [{}]]", payload.join(", ")),
+        );
+    }
+    publish(u, "text", "string", "hello");
+    publish(u, "text", "string", "world");
+    let (code, out, err) = rec.finish();
+    assert_eq!(code, Some(0), "{out}{err}");
+    out
+}
+
+/// The payload of sample `seq` as `record_ipc` publishes it.
+fn payload(seq: u32) -> Vec<u8> {
+    (0..seq).map(|i| ((seq * 7 + i) % 256) as u8).collect()
+}
+
+#[test]
+fn a_recording_made_on_ipc_replays_onto_ipc_and_onto_cyclone_dds() {
+    let dir = Dir::new("ipc-dds");
+    let file = dir.file("ipc.mcap");
+    let c = Central::start();
+    let u = c.url.as_str();
+    let out = record_ipc(&c, &file, &[]);
+    assert!(out.starts_with("channel msg ipc ipc-format:msg\n"), "{out}");
+    assert!(out.contains("channel text ipc ipc-format:text\n"), "{out}");
+    let size = std::fs::metadata(&file).unwrap().len();
+    assert!(
+        out.ends_with(&format!(
+            "recorded 5 messages on 2 channels in {file} ({size} B)\ndone\n"
+        )),
+        "{out}"
+    );
+
+    // back onto IPC: echo prints the values published
+    let mut echo = Proc::start(&["echo", u, "msg", "--count", "3", "--json"]);
+    let (code, out, err) = run(&[
+        "replay", &file, u, "--topic", "msg", "--wait", "1", "--rate", "10",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(
+        out,
+        format!(
+            "channel msg ipc {:?}\nready\nreplayed 3 messages\ndone\n",
+            MSG
+        )
+    );
+    assert_eq!(echo.expect(""), r#"[1,"ipc-1",[7]]"#);
+    assert_eq!(echo.expect(""), r#"[2,"ipc-2",[14,15]]"#);
+    assert_eq!(echo.expect(""), r#"[3,"ipc-3",[21,22,23]]"#);
+    assert_eq!(echo.wait(), Some(0));
+
+    // onto RTPS: Cyclone DDS 0.10 reads courier::test::Msg, the values
+    // re-encoded as CDR
+    let rtps = url(260);
+    let domain = courier_tests::domains::lease(260).to_string();
+    let exe = cyclone_peer().unwrap_or_else(|e| panic!("cannot build the Cyclone DDS peer: {e}"));
+    let mut sub = PeerProcess::spawn(
+        exe,
+        &[
+            "--domain",
+            &domain,
+            "--topic",
+            "msg",
+            "--type",
+            "msg",
+            "--sub",
+            "--reliable",
+            "--transient-local",
+            "--count",
+            "3",
+            "--timeout-s",
+            "30",
+        ],
+    )
+    .unwrap();
+    sub.expect_line("ready", T).unwrap();
+    let (code, out, err) = run(&[
+        "replay",
+        &file,
+        &rtps,
+        "--topic",
+        "msg",
+        "--type",
+        "msg=courier::test::Msg",
+        "--wait",
+        "1",
+        "--transient-local",
+        "--rate",
+        "10",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(
+        out,
+        "channel msg ipc->cdr courier::test::Msg\nready\nreplayed 3 messages\ndone\n"
+    );
+    for seq in 1..=3u32 {
+        let p = payload(seq);
+        assert_eq!(
+            sub.expect_line("sample", T).unwrap(),
+            format!("sample {seq} ipc-{seq} {} {:08x}", p.len(), fnv1a32(&p)),
+            "{}",
+            sub.stderr()
+        );
+    }
+    sub.expect_line("done", T).unwrap();
+
+    // a channel recorded on IPC has no DDS type name until one is given
+    let (code, _, err) = run(&["replay", &file, &rtps, "--topic", "text"]);
+    assert_eq!(code, 1);
+    assert_eq!(
+        err,
+        "courier: channel \"text\" (2): it was recorded on IPC, and DDS readers match on a type \
+         name: give one with --type text=TYPE\n"
+    );
+    let (code, _, err) = run(&["replay", &file, u, "--topic", "nosuch"]);
+    assert_eq!(code, 1);
+    assert_eq!(
+        err,
+        format!("courier: --topic \"nosuch\": {file} has no channel of that topic (it has: msg, text)\n")
+    );
+}
+
+#[test]
+fn a_recording_made_on_rtps_replays_onto_ipc() {
+    let dir = Dir::new("dds-ipc");
+    let file = dir.file("dds.mcap");
+    let u = url(261);
+    let mut rec = Proc::start(&["record", &u, "chatter", "-o", &file, "--count", "2"]);
+    rec.expect("ready");
+    let (code, _, err) = run(&[
+        "pub",
+        &u,
+        "chatter",
+        r#"[1, 2, "hi"]"#,
+        "--count",
+        "2",
+        "--rate",
+        "20",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let (code, out, err) = rec.finish();
+    assert_eq!(code, Some(0), "{err}");
+    assert!(
+        out.starts_with("channel chatter cdr omgidl:courier::Ping\n"),
+        "{out}"
+    );
+    let c = Central::start();
+    let mut echo = Proc::start(&["echo", &c.url, "chatter", "--count", "2"]);
+    let (code, out, err) = run(&["replay", &file, &c.url, "--wait", "1", "--rate", "5"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(
+        out,
+        "channel chatter cdr->ipc \"{uint, ulong, string}\"\nready\nreplayed 2 messages\ndone\n"
+    );
+    assert_eq!(echo.expect(""), r#"{1, 2, "hi"}"#);
+    assert_eq!(echo.expect(""), r#"{1, 2, "hi"}"#);
+}
+
+/// The Python that has the `mcap` package: `COURIER_MCAP_PYTHON`, else the
+/// venv `.ci/run` makes (`target/cyclonedds-py`).
+fn mcap_python() -> PathBuf {
+    let python = match std::env::var_os("COURIER_MCAP_PYTHON") {
+        Some(p) => PathBuf::from(p),
+        // target/debug/courier -> target
+        None => Path::new(env!("CARGO_BIN_EXE_courier"))
+            .ancestors()
+            .nth(2)
+            .unwrap()
+            .join("cyclonedds-py/bin/python"),
+    };
+    let ok = std::process::Command::new(&python)
+        .args(["-c", "import mcap"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    assert!(
+        ok,
+        "reading recordings with another tool needs Python's mcap package in {}: install it \
+         with `target/cyclonedds-py/bin/pip install 'mcap==1.*'` (what .ci/run does), or \
+         point COURIER_MCAP_PYTHON at a Python that has it",
+        python.display()
+    );
+    python
+}
+
+/// Lists a recording's channels, schemas and messages with Python's mcap.
+const LIST: &str = r#"
+import sys
+from mcap.reader import make_reader
+with open(sys.argv[1], "rb") as f:
+    r = make_reader(f)
+    s = r.get_summary()
+    # chunks are closed at least once a second: one or more
+    assert len(s.chunk_indexes) == s.statistics.chunk_count >= 1
+    print("messages", s.statistics.message_count)
+    for cid, c in sorted(s.channels.items()):
+        sc = s.schemas.get(c.schema_id)
+        print("channel", c.topic, c.message_encoding, dict(c.metadata),
+              s.statistics.channel_message_counts.get(cid, 0))
+        print("schema", sc.name, sc.encoding, repr(sc.data.decode()))
+    for sc, c, m in r.iter_messages():
+        assert m.publish_time == m.log_time > 0
+        print(c.topic, m.data.hex())
+"#;
+
+#[test]
+fn recordings_open_in_pythons_mcap() {
+    let python = mcap_python();
+    let dir = Dir::new("python");
+    let file = dir.file("ipc.mcap");
+    let c = Central::start();
+    record_ipc(&c, &file, &[]);
+    let out = std::process::Command::new(python)
+        .args(["-c", LIST, &file])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let meta =
+        |f: &str| format!("{{'byte_order': 'little', 'ipc_format': '{f}', 'recorded_on': 'ipc'}}");
+    assert_eq!(
+        String::from_utf8(out.stdout).unwrap(),
+        format!(
+            "messages 5\n\
+             channel msg ipc {} 3\n\
+             schema msg ipc-format '{MSG}'\n\
+             channel text ipc {} 2\n\
+             schema text ipc-format 'string'\n\
+             msg 01000000050000006970632d310100000007\n\
+             msg 02000000050000006970632d32020000000e0f\n\
+             msg 03000000050000006970632d3303000000151617\n\
+             text 0500000068656c6c6f\n\
+             text 05000000776f726c64\n",
+            meta(MSG),
+            meta("string"),
+        )
+    );
+}
+
+/// The offsets of the top-level chunk records of an MCAP file.
+fn chunks(bytes: &[u8]) -> Vec<(usize, usize)> {
+    let mut at = 8;
+    let mut v = Vec::new();
+    while at + 9 <= bytes.len() {
+        let len = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+        if bytes[at] == 0x06 {
+            v.push((at, 9 + len));
+        }
+        if bytes[at] == 0x0f {
+            break;
+        }
+        at += 9 + len;
+    }
+    v
+}
+
+/// Replays `file` onto the central for an echo of `msg` that expects
+/// `want`: replay's exit code and stderr.
+fn replay_damaged(c: &Central, file: &str, want: &[&str]) -> (i32, String) {
+    let n = want.len().to_string();
+    let mut echo = Proc::start(&["echo", &c.url, "msg", "--count", &n, "--json"]);
+    let (code, out, err) = run(&[
+        "replay", file, &c.url, "--topic", "msg", "--wait", "1", "--rate", "10",
+    ]);
+    assert_eq!(
+        out,
+        format!(
+            "channel msg ipc {MSG:?}\nready\nreplayed {} messages\ndone\n",
+            want.len()
+        ),
+        "{err}"
+    );
+    for w in want {
+        assert_eq!(echo.expect(""), *w);
+    }
+    assert_eq!(echo.wait(), Some(0));
+    (code, err)
+}
+
+#[test]
+fn a_damaged_recording_says_where_and_replays_what_is_intact() {
+    let dir = Dir::new("damaged");
+    let file = dir.file("ok.mcap");
+    let c = Central::start();
+    // a chunk per record that follows a full one: msg's schema and
+    // channel, then its three messages, one a chunk (then text's)
+    record_ipc(&c, &file, &["--chunk-size", "1"]);
+    let bytes = std::fs::read(&file).unwrap();
+    let ch = chunks(&bytes);
+    assert_eq!(ch.len(), 6, "{ch:?}");
+    let all = [
+        r#"[1,"ipc-1",[7]]"#,
+        r#"[2,"ipc-2",[14,15]]"#,
+        r#"[3,"ipc-3",[21,22,23]]"#,
+    ];
+    let damaged = |f: &str| {
+        format!("courier: {f} is damaged (1 problem, said above): what is intact was replayed\n")
+    };
+
+    // cut in the third message's chunk: the first two replay
+    let cut = dir.file("cut.mcap");
+    let (at, len) = ch[3];
+    std::fs::write(&cut, &bytes[..at + len / 2]).unwrap();
+    let (code, err) = replay_damaged(&c, &cut, &all[..2]);
+    assert_eq!(code, 1);
+    assert_eq!(
+        err,
+        format!(
+            "courier: {cut}: truncated at byte {}: the chunk record at byte {at} needs {} bytes, \
+             {} remain\n{}",
+            at + len / 2,
+            len - 9,
+            len / 2 - 9,
+            damaged(&cut)
+        )
+    );
+
+    // a corrupted chunk (the second message's) is skipped, the ones after
+    // it replay
+    let bad = dir.file("bad.mcap");
+    let mut b = bytes.clone();
+    let (at, len) = ch[2];
+    for x in &mut b[at + len - 8..at + len] {
+        *x ^= 0x5a;
+    }
+    std::fs::write(&bad, &b).unwrap();
+    let (code, err) = replay_damaged(&c, &bad, &[all[0], all[2]]);
+    assert_eq!(code, 1);
+    let prefix = format!("courier: {bad}: the chunk at byte {at} is damaged (zstd data: ");
+    let suffix = format!("): its messages are skipped\n{}", damaged(&bad));
+    assert!(err.starts_with(&prefix) && err.ends_with(&suffix), "{err}");
+
+    // the first chunk, which held the channel records: the summary repeats them
+    let first = dir.file("first.mcap");
+    let mut b = bytes.clone();
+    let (at, len) = ch[0];
+    for x in &mut b[at + len - 8..at + len] {
+        *x ^= 0x5a;
+    }
+    std::fs::write(&first, &b).unwrap();
+    let (code, err) = replay_damaged(&c, &first, &all);
+    assert_eq!(code, 1);
+    assert!(
+        err.starts_with(&format!(
+            "courier: {first}: the chunk at byte {at} is damaged"
+        )),
+        "{err}"
+    );
+
+    // no summary, cut right after a chunk: the file was not finished
+    let unfinished = dir.file("unfinished.mcap");
+    let (at, len) = ch[2];
+    std::fs::write(&unfinished, &bytes[..at + len]).unwrap();
+    let (code, err) = replay_damaged(&c, &unfinished, &all[..2]);
+    assert_eq!(code, 1);
+    assert_eq!(
+        err,
+        format!(
+            "courier: {unfinished}: truncated at byte {}: the file ends before its data end \
+             record (the recording was not finished)\n{}",
+            at + len,
+            damaged(&unfinished)
+        )
+    );
+
+    // not MCAP at all: nothing to replay
+    let junk = dir.file("junk.mcap");
+    std::fs::write(&junk, b"hello, world").unwrap();
+    let (code, out, err) = run(&["replay", &junk, &c.url]);
+    assert_eq!((code, out.as_str()), (1, ""));
+    assert_eq!(
+        err,
+        format!("courier: {junk} is not an MCAP file: it does not begin with the MCAP magic\n")
+    );
+    let missing = dir.file("missing.mcap");
+    let (code, _, err) = run(&["replay", &missing, &c.url]);
+    assert_eq!(code, 1);
+    assert_eq!(
+        err,
+        format!("courier: cannot open {missing}: No such file or directory (os error 2)\n")
+    );
+}
+
+#[test]
+fn ctrl_c_finishes_the_recording_and_replay_loops() {
+    let dir = Dir::new("ctrl-c");
+    let file = dir.file("int.mcap");
+    let c = Central::start();
+    let u = c.url.as_str();
+    let mut rec = Proc::start(&["--progress", "always", "record", u, "text", "-o", &file]);
+    rec.expect("ready");
+    publish(u, "text", "string", "one");
+    publish(u, "text", "string", "two");
+    rec.expect("channel text");
+    // once the recorder says it has both, Ctrl-C
+    rec.expect_err("courier: recording for ");
+    while !rec
+        .expect_err("courier: recording for ")
+        .contains(": 2 messages on 1 channel")
+    {}
+    rec.signal(libc::SIGINT);
+    let (code, out, err) = rec.finish();
+    assert_eq!(code, Some(130), "{err}");
+    let size = std::fs::metadata(&file).unwrap().len();
+    assert_eq!(
+        out,
+        format!("recorded 2 messages on 1 channel in {file} ({size} B)\ninterrupted after 2 messages recorded\n")
+    );
+    // the file is whole: summary and all
+    let mut echo = Proc::start(&["echo", u, "text", "--count", "5"]);
+    let mut rep = Proc::start(&["replay", &file, u, "--loop", "--rate", "20", "--wait", "1"]);
+    for w in ["\"one\"", "\"two\"", "\"one\"", "\"two\"", "\"one\""] {
+        assert_eq!(echo.expect(""), w);
+    }
+    assert_eq!(echo.wait(), Some(0));
+    rep.expect("ready");
+    rep.signal(libc::SIGINT);
+    let line = rep.expect("interrupted after");
+    assert!(line.ends_with(" messages replayed"), "{line}");
+    let (code, _, err) = rep.finish();
+    assert_eq!(code, Some(130), "{err}");
+    // a file that exists is not overwritten unless asked
+    let (code, _, err) = run(&["record", u, "text", "-o", &file, "--count", "1"]);
+    assert_eq!(code, 1);
+    assert_eq!(
+        err,
+        format!(
+            "courier: cannot create {file}: File exists (os error 17) (--overwrite replaces it)\n"
+        )
+    );
+    // --duration ends a recording that got nothing
+    let empty = dir.file("empty.mcap");
+    let (code, out, err) = run(&["record", u, "nothing", "-o", &empty, "--duration", "1"]);
+    assert_eq!(code, 0, "{err}");
+    let size = std::fs::metadata(&empty).unwrap().len();
+    assert_eq!(
+        out,
+        format!("ready\nrecorded 0 messages on 0 channels in {empty} ({size} B)\ndone\n")
+    );
+}
+
+#[test]
+fn bad_flags_are_usage_errors() {
+    let u = "ipc://127.0.0.1:9";
+    for (args, want) in [
+        (
+            &["record", u, "-o", "x.mcap"][..],
+            "record on ipc:// needs the messages to record",
+        ),
+        (
+            &["record", u, "a*", "-o", "x.mcap"][..],
+            "\"a*\" is a pattern; on ipc:// name each message",
+        ),
+        (
+            &["record", u, "a"][..],
+            "the following required arguments were not provided:\n  --output <FILE.mcap>",
+        ),
+        (
+            &["record", u, "a", "-o", "x", "--count", "0"][..],
+            "invalid value '0' for '--count <N>'",
+        ),
+        (
+            &["replay", "x.mcap", u, "--rate", "0"][..],
+            "invalid value '0' for '--rate <X>': expected a factor",
+        ),
+        (
+            &["replay", "x.mcap", u, "--rate", "fast"][..],
+            "invalid value 'fast' for '--rate <X>'",
+        ),
+        (
+            &["replay", "x.mcap", u, "--type", "t"][..],
+            "invalid value 't' for '--type <TOPIC=TYPE>': \"t\" is not TOPIC=TYPE",
+        ),
+        (
+            &["replay", "x.mcap", u, "--transient-local"][..],
+            "--transient-local is DDS durability; ipc:// has none",
+        ),
+        (
+            &["replay", "x.mcap", "rtps://0", "--depth", "5"][..],
+            "the following required arguments were not provided:\n  --transient-local",
+        ),
+        (
+            &["replay", "x.mcap", "foo://x"][..],
+            "unknown scheme \"foo\"",
+        ),
+        (
+            &["replay", "x.mcap", u, "--lop"][..],
+            "tip: a similar argument exists: '--loop'",
+        ),
+    ] {
+        let (code, out, err) = run(args);
+        assert_eq!((code, out.as_str()), (2, ""), "{args:?}: {err}");
+        assert!(err.contains(want), "{args:?}: {want:?} in {err:?}");
+    }
+}
