@@ -33,25 +33,6 @@ fn registration_line_only_without_i() {
     }
 }
 
-/// A message with a format sent without data: C's `NO DATA` line.
-#[test]
-fn data_log_says_no_data() {
-    let mut sim = Sim::new(config("msdi"));
-    let a = sim.connect("a");
-    let b = sim.connect("b");
-    define(&mut sim, a, "m", "int");
-    sim.m(b).subscribe("m", "HND-m").unwrap();
-    sim.pump();
-    sim.m(a).publish("m", Vec::new(), -1).unwrap();
-    sim.pump();
-    let at = sim
-        .logs
-        .iter()
-        .position(|l| l.starts_with("Broadcast") && l.contains(" m:"))
-        .expect("the broadcast line");
-    assert_eq!(sim.logs[at + 1], "    NO DATA", "{:#?}", sim.logs);
-}
-
 /// Socket numbers start at 5 and come back when their module is gone,
 /// as C's file descriptors do.
 #[test]
@@ -123,36 +104,6 @@ fn variable_formats_as_c_writes_them() {
         "{:#?}",
         sim.logs
     );
-}
-
-/// A reply to a querier that has gone names it, as C does.
-#[test]
-fn a_dead_querier_is_named() {
-    let mut sim = Sim::new(config("msi"));
-    let a = sim.connect("asker");
-    let b = sim.connect("answerer");
-    define(&mut sim, a, "q", "int");
-    sim.m(b).subscribe("q", "HND-q").unwrap();
-    sim.pump();
-    sim.m(a).query("q", 1i32.to_le_bytes(), -1).unwrap();
-    sim.pump();
-    let d = sim.deliveries(b);
-    sim.close(a);
-    sim.m(b).respond(d[0].0, "q_reply", 2i32.to_le_bytes()).unwrap();
-    sim.pump();
-    assert!(
-        sim.logs.iter().any(|l| l.starts_with("  Reply") && l.contains("answerer --> asker")),
-        "{:#?}",
-        sim.logs
-    );
-    assert!(
-        sim.logs
-            .iter()
-            .any(|l| l == "WARNING: Reply Ignored for dead module: asker"),
-        "{:#?}",
-        sim.logs
-    );
-    assert!(!sim.logs.iter().any(|l| l.contains("**NEWMOD**")), "{:#?}", sim.logs);
 }
 
 /// With `-r`, a module that closed with `IPC_disconnect` leaves nothing to
