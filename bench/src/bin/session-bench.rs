@@ -55,6 +55,8 @@
 
 #[path = "../../../examples/appendix_a.rs"]
 mod appendix;
+#[path = "../ipc_relay_floor.rs"]
+mod relay_floor;
 
 use std::time::{Duration, Instant};
 
@@ -469,6 +471,14 @@ fn main() {
             args.next();
             processes::table(args)
         }
+        Some(r @ ("relay" | "raw-pong" | "raw-ping")) => {
+            args.next();
+            match r {
+                "relay" => relay_floor::relay(args),
+                "raw-pong" => relay_floor::raw_pong(args),
+                _ => relay_floor::raw_ping(args),
+            }
+        }
         _ => tables(args),
     }
 }
@@ -696,8 +706,29 @@ mod processes {
             .and_then(|v| v.parse().ok())
     }
 
+    /// One run's result: the median round trip in µs (or messages/s), and
+    /// for C clients the central process's CPU time per message in µs
+    /// (all its threads, from `/proc/<pid>/task/*/schedstat`).
+    struct Sample {
+        value: f64,
+        cpu_us: Option<f64>,
+    }
+
+    /// CPU time (ns) a process's threads have used so far.
+    fn cpu_ns(pid: u32) -> Option<u64> {
+        let mut total = 0;
+        for t in std::fs::read_dir(format!("/proc/{pid}/task")).ok()? {
+            let st = std::fs::read_to_string(t.ok()?.path().join("schedstat")).ok()?;
+            total += st.split_whitespace().next()?.parse::<u64>().ok()?;
+        }
+        Some(total)
+    }
+
+    /// Warm-up messages the C measuring programs send before the timed ones.
+    const C_WARM_UP: usize = 200;
+
     /// One run: the median round trip in µs.
-    fn run(s: &Setup, central: Centrals, clients: Clients, host: &str) -> Option<f64> {
+    fn run(s: &Setup, central: Centrals, clients: Clients, host: &str) -> Option<Sample> {
         let port = free_port();
         let r = run_on(s, central, clients, host, port);
         // the C central leaves its socket file behind
@@ -711,8 +742,9 @@ mod processes {
         clients: Clients,
         host: &str,
         port: u16,
-    ) -> Option<f64> {
+    ) -> Option<Sample> {
         let _central = start_central(s, central, port);
+        let central_pid = _central.as_ref().map(|p| p.0.id());
         let me = std::env::current_exe().unwrap();
         let url = format!("ipc://{host}:{port}");
         let spin = format!("{}", s.spin_us);
@@ -789,6 +821,7 @@ mod processes {
         // Subscribed before the timing side starts (see below).
         std::thread::sleep(Duration::from_millis(300));
         let mut client = client;
+        let cpu0 = central_pid.and_then(cpu_ns);
         let mut c = client
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
@@ -827,9 +860,75 @@ mod processes {
                 }
             }
         }
+        let cpu1 = central_pid.and_then(cpu_ns);
         let mut out = String::new();
         let _ = c.stdout.take().unwrap().read_to_string(&mut out);
-        median_of(&out)
+        let cpu_us = match (clients, cpu0, cpu1) {
+            (Clients::C, Some(a), Some(b)) if !s.throughput => {
+                Some((b - a) as f64 / 1e3 / (s.count + C_WARM_UP) as f64)
+            }
+            _ => None,
+        };
+        median_of(&out).map(|value| Sample { value, cpu_us })
+    }
+
+    /// The relay floor on one transport (see `ipc_relay_floor.rs`): the
+    /// median round trip in µs.
+    fn relay_run(s: &Setup, unix: bool) -> Option<f64> {
+        let me = std::env::current_exe().unwrap();
+        let port = free_port();
+        let path = format!("/tmp/courier-relay-{}-{port}", std::process::id());
+        let addr: Vec<String> = if unix {
+            vec!["--unix".into(), path.clone()]
+        } else {
+            vec!["--tcp".into(), port.to_string()]
+        };
+        let spawn = |args: &[&str], out: Stdio| {
+            Command::new(&me)
+                .args(args)
+                .args(&addr)
+                .stdin(Stdio::null())
+                .stdout(out)
+                .stderr(Stdio::null())
+                .spawn()
+                .expect("start a relay-floor process")
+        };
+        let _relay = Proc(spawn(&["relay"], Stdio::null()));
+        let t0 = Instant::now();
+        let listening = || {
+            // A probe connection would be taken for the answering end.
+            if unix {
+                std::path::Path::new(&path).exists()
+            } else {
+                listening_tcp(port)
+            }
+        };
+        while !listening() {
+            if t0.elapsed() > Duration::from_secs(5) {
+                return None;
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let _pong = Proc(spawn(&["raw-pong"], Stdio::null()));
+        std::thread::sleep(Duration::from_millis(100));
+        let count = s.count.to_string();
+        let size = s.size.to_string();
+        let ping = spawn(&["raw-ping", "--count", &count, "--size", &size], Stdio::piped());
+        let out = ping.wait_with_output().ok()?;
+        let _ = std::fs::remove_file(&path);
+        median_of(&String::from_utf8_lossy(&out.stdout))
+    }
+
+    /// Whether 127.0.0.1:`port` is in LISTEN state (read from
+    /// `/proc/net/tcp`, so that no probe connection is made).
+    fn listening_tcp(port: u16) -> bool {
+        let want = format!("0100007F:{port:04X}");
+        std::fs::read_to_string("/proc/net/tcp").is_ok_and(|t| {
+            t.lines().any(|l| {
+                let f: Vec<&str> = l.split_whitespace().collect();
+                f.len() > 3 && f[1] == want && f[3] == "0A"
+            })
+        })
     }
 
     pub fn table(mut args: impl Iterator<Item = String>) {
@@ -846,9 +945,12 @@ mod processes {
             send_ahead: None,
         };
         let mut reps = 5usize;
+        let mut relay = false;
+        let mut only: Option<String> = None;
         let usage = "usage: session-bench processes [--central PATH] [--c-central PATH] \
                      [--c-rtt DIR] [--publish | --throughput] [--size S] [--count N] \
-                     [--reps R] [--busy-poll US] [--cut-through BYTES] [--send-ahead N]";
+                     [--reps R] [--busy-poll US] [--cut-through BYTES] [--send-ahead N] \
+                     [--relay-floor] [--only c-clients]";
         let num = |v: Option<String>| -> usize {
             match v.as_deref().map(str::parse::<usize>) {
                 Some(Ok(n)) if n > 0 => n,
@@ -871,6 +973,8 @@ mod processes {
                 "--busy-poll" => s.spin_us = num(args.next()) as u64,
                 "--cut-through" => s.cut_through = Some(num(args.next())),
                 "--send-ahead" => s.send_ahead = Some(num(args.next())),
+                "--relay-floor" => relay = true,
+                "--only" => only = args.next(),
                 "-h" | "--help" => {
                     println!("{usage}");
                     return;
@@ -901,6 +1005,12 @@ mod processes {
         let mut clients = vec![Clients::Courier, Clients::CourierSpin];
         if s.c_rtt.is_some() {
             clients.push(Clients::C);
+        }
+        // `--only c-clients`: the plain centrals with C clients, the cells
+        // issue 30's goal is about (and the relay floor's).
+        if only.as_deref() == Some("c-clients") {
+            clients.retain(|c| *c == Clients::C);
+            centrals.retain(|c| matches!(c, Centrals::Courier | Centrals::C));
         }
         let host = courier::ipc_backend::local_host_name();
         let what = if s.throughput {
@@ -935,6 +1045,7 @@ mod processes {
         }
         println!();
         println!("|---|---|{}", "---|".repeat(centrals.len()));
+        let mut floors: Vec<String> = Vec::new();
         for (transport, h) in [("TCP", "127.0.0.1"), ("UNIX socket", host.as_str())] {
             // Runs alternate between the cells, so drift hits all alike.
             // Only a Courier module can host central.
@@ -944,11 +1055,17 @@ mod processes {
                 .filter(|&(m, c)| !(m == Clients::C && c == Centrals::Hosted))
                 .collect();
             let mut got: Vec<Vec<f64>> = vec![Vec::new(); cells.len()];
+            let mut cpu: Vec<Vec<f64>> = vec![Vec::new(); cells.len()];
+            let mut floor: Vec<f64> = Vec::new();
             for _ in 0..reps {
                 for (i, (m, c)) in cells.iter().enumerate() {
                     if let Some(v) = run(&s, *c, *m, h) {
-                        got[i].push(v);
+                        got[i].push(v.value);
+                        cpu[i].extend(v.cpu_us);
                     }
+                }
+                if relay && !s.throughput {
+                    floor.extend(relay_run(&s, transport != "TCP"));
                 }
             }
             let med = |v: &mut Vec<f64>| {
@@ -956,6 +1073,23 @@ mod processes {
                 v.get(v.len() / 2).copied()
             };
             let meds: Vec<Option<f64>> = got.iter_mut().map(med).collect();
+            let cpus: Vec<Option<f64>> = cpu.iter_mut().map(med).collect();
+            if let Some(f) = med(&mut floor) {
+                floors.push(format!("| relay floor (no IPC logic, raw ends) | {transport} | {f:.1} µs |"));
+                for (i, &(m, c)) in cells.iter().enumerate() {
+                    if m != Clients::C || c == Centrals::Hosted {
+                        continue;
+                    }
+                    if let Some(v) = meds[i] {
+                        floors.push(format!(
+                            "| C clients, {} | {transport} | {v:.1} µs ({:.2}× floor){} |",
+                            name_c(c),
+                            v / f,
+                            cpus[i].map(|u| format!("; central CPU {u:.1} µs per round trip")).unwrap_or_default()
+                        ));
+                    }
+                }
+            }
             let reference = cells
                 .iter()
                 .position(|&(m, c)| m == Clients::C && c == Centrals::C)
@@ -987,6 +1121,14 @@ mod processes {
                     }
                 }
                 println!();
+            }
+        }
+        if !floors.is_empty() {
+            println!("\nthe relay floor: a process with no IPC logic relaying the same round trip's frames between two raw ends (median of {reps}), and the C-client cells against it\n");
+            println!("| what | transport | round trip |");
+            println!("|---|---|---|");
+            for l in &floors {
+                println!("{l}");
             }
         }
         if s.throughput && s.c_central.is_some() {

@@ -23,8 +23,11 @@
 //! - the comment prompt of file logging (`-L` without `n`) is shown only
 //!   when standard input is a terminal, and only at start;
 //! - `-d` (C's debugging flag) turns on debug diagnostics on stderr;
-//! - SIGINT and SIGTERM stop central cleanly with exit status 0 (C aborts);
-//!   `quit` on the console does the same, as in C;
+//! - SIGINT and SIGTERM stop central cleanly with exit status 0 (C aborts
+//!   with status 1); the lines are C's: the memory report on stderr (unless
+//!   `-s`), then `Central Abort : Signal <n>` in the log when messages are
+//!   logged, else on stderr. `quit` on the console does the same, as in C,
+//!   ending with `Central Quit`;
 //! - the console prints no `> ` prompt, and `-s` also silences the
 //!   `Logging File Name:` / `Logging to` lines.
 #![deny(unsafe_code)]
@@ -478,6 +481,17 @@ fn main() -> ExitCode {
     code
 }
 
+/// Why the console loop ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Stop {
+    /// SIGINT (2) or SIGTERM (15).
+    Signal(i32),
+    /// `quit` on the console.
+    Quit,
+    /// The server task is gone.
+    Gone,
+}
+
 async fn run(opts: Options) -> ExitCode {
     // Signals first: from the moment central listens, SIGTERM and SIGINT
     // mean a clean stop.
@@ -552,6 +566,7 @@ async fn run(opts: Options) -> ExitCode {
         }
     });
     let file_log_on = opts.config.file_log.any();
+    let messages_logged = opts.config.terminal_log.messages || opts.config.file_log.messages;
     let mut server = CentralServer::builder();
     if let Some(w) = opts.busy_poll {
         server = server.busy_poll(w);
@@ -613,24 +628,53 @@ async fn run(opts: Options) -> ExitCode {
         drop(tx);
     }
     let mut console_open = opts.console;
-    loop {
+    // What stopped central: a signal's number, or the console's `quit`.
+    let stop = loop {
         tokio::select! {
-            _ = int.recv() => break,
-            _ = term.recv() => break,
+            _ = int.recv() => break Stop::Signal(2),
+            _ = term.recv() => break Stop::Signal(15),
             line = rx.recv(), if console_open => match line {
                 Some(l) => {
                     let l = l.trim();
                     if l == "quit" {
-                        // As C: stop central, exit 0.
-                        eprintln!("Central Quit");
-                        break;
+                        break Stop::Quit;
                     } else if !server.command(l) {
-                        break;
+                        break Stop::Gone;
                     }
                 }
                 None => console_open = false,
             },
         }
+    };
+    // As C (`x_ipcError`, `stdinHnd`): the memory report on stderr unless
+    // silent, then the reason.
+    if stop != Stop::Gone && !silent {
+        if let Some(stats) = server.stats().await {
+            let mut err = std::io::stderr().lock();
+            for l in courier_broker::memory_report(&stats) {
+                let _ = writeln!(err, "{l}");
+            }
+        }
+    }
+    match stop {
+        Stop::Signal(n) => {
+            // C logs it where messages are logged, else on stderr.
+            let line = format!("Central Abort : Signal {n}");
+            if messages_logged {
+                if !silent {
+                    println!("{line}");
+                }
+                if file_log_on {
+                    file.lock()
+                        .unwrap_or_else(|e| e.into_inner())
+                        .line(&line, silent);
+                }
+            } else {
+                eprintln!("{line}");
+            }
+        }
+        Stop::Quit => eprintln!("Central Quit"),
+        Stop::Gone => {}
     }
     server.shutdown().await;
     let mut f = file.lock().unwrap_or_else(|e| e.into_inner());

@@ -12,7 +12,6 @@ use std::time::SystemTime;
 use courier_wire::ipc::central::{
     Central, DispatchInfo, DispatchState, LogOptions, ModuleInfo, Stats, VERSION,
 };
-use courier_wire::ipc::frame::MsgClass;
 
 /// The line the console's `-v` prints.
 fn banner() -> String {
@@ -24,21 +23,38 @@ fn banner() -> String {
     )
 }
 
+/// `help`, in the C central's words (`displayHelp`), listing the options
+/// that work as console commands here.
 const HELP: &[&str] = &[
-    "The following are central commands:",
-    "  help: print this message",
-    "  display: display the active and pending messages",
-    "  status: display the known modules and their status",
-    "  memory: display total memory usage",
-    "  close <module>: close a connection to a module",
-    "  unlock <resource>: unlock a locked resource",
-    "The following command line options can also be used as commands:",
-    "  -v: display server version information",
-    "  -l<options>: logging onto terminal (m s t d i h r p x)",
-    "  -L<options>: logging into file (as -l, plus F n)",
-    "  -I<msgName>: ignore logging this message",
-    "  -c: use direct connections for messages defined from now on",
-    "  -r: resend non-completed messages when modules crash and reconnect",
+    "",
+    "The following command are available:",
+    "help: print this message.",
+    "display : Display active and pending messages.",
+    "status : Display the known modules and their status.",
+    "memory : Display total memory usage.",
+    "close <module>: Close a connection to a module.",
+    "unlock <resource>: Unlock a locked resouce.",
+    "The following command line options can also be used as commands",
+    " -v: display server version info.",
+    " -l: logging onto terminal.",
+    "     options are: m (message traffic)",
+    "                  s (status of IPC)",
+    "                  t (time messages are handled)",
+    "                  d (data associated with message)",
+    "                  i (ignore logging registration and deregistration messages)",
+    "                  h (incoming message handle time summary)",
+    "                  r (log the reference Id as well as the msg name)",
+    "                  p (log the reference Id of the message's parent)",
+    "                  x (no logging)",
+    "     -l is equivalent to -lmstdh; the default is -lmsi",
+    " -L: logging into file.",
+    "     options are the same as above with the addition of F.",
+    "                  F (don't flush file after each line)",
+    "                  n (do not prompt the user for comments)",
+    "     the default is -Lx",
+    " -c: Use direct (not via central) conntections where possible.",
+    " -I<msgName>: Ignore logging this message.",
+    " -r: try resending non-completed messages when modules crash",
 ];
 
 /// Runs a console command line (`help`, `display`, `status`, `memory`,
@@ -59,21 +75,24 @@ pub(crate) fn command(central: &mut Central, line: &str, now: SystemTime) {
             }
         }
         ("display", _) => {
-            let ds = central.dispatches();
-            central.print(format!("{} message(s) active or pending:", ds.len()));
-            for d in &ds {
+            central.print("Active and Pending Messages:".into());
+            for d in &central.dispatches() {
                 central.print(dispatch_line(d));
             }
         }
         ("status", _) => {
-            let ms = central.modules();
-            central.print(format!("{} module(s) connected:", ms.len()));
+            central.print("Resource status".into());
+            let mut ms = central.modules();
+            // C walks its resource table in hash order; by name here.
+            ms.sort_by(|a, b| a.name.cmp(&b.name));
             for m in &ms {
-                central.print(module_line(m));
+                if let Some(line) = module_line(m) {
+                    central.print(line);
+                }
             }
         }
         ("memory", _) => {
-            for l in memory_lines(&central.stats()) {
+            for l in memory_report(&central.stats()) {
                 central.print(l);
             }
         }
@@ -126,53 +145,33 @@ fn option(central: &mut Central, opt: &str) -> Result<(), String> {
     Ok(())
 }
 
-/// C's name of a message class, as its log prints it.
-fn class_name(class: MsgClass) -> &'static str {
-    match class {
-        MsgClass::Query => "Query",
-        MsgClass::Inform => "Inform",
-        MsgClass::Broadcast => "Broadcast",
-        _ => "Unknown",
-    }
-}
-
-/// `display`: one message alive.
+/// `display`: one message alive, as C's `displayMessages` prints it
+/// (`  <message> {<id>}: <status>`, with C's status names).
 fn dispatch_line(d: &DispatchInfo) -> String {
     let st = match d.state {
         DispatchState::Active => "Active",
-        DispatchState::Pending => "Pending",
-        DispatchState::SentAhead => "Pending (sent ahead)",
-        DispatchState::WaitingForHandler => "Waiting for a handler",
-        _ => "Unknown",
+        DispatchState::Pending | DispatchState::SentAhead => "Pending",
+        // C keeps a query without a handler as an inactive dispatch.
+        DispatchState::WaitingForHandler => "Inactive",
+        _ => "Allocated",
     };
-    format!(
-        "  {{{}}} {:<9} {:>15}: {:>10} --> {:<15} {st}",
-        d.id,
-        class_name(d.class),
-        d.msg,
-        d.from,
-        d.to.as_deref().unwrap_or("(no handler)")
-    )
+    format!("  {} {{{}}}: {st}", d.msg, d.id)
 }
 
-/// `status`: one module.
-fn module_line(m: &ModuleInfo) -> String {
-    format!(
-        "  Module {} on {} (sd {}): capacity {}, active {}, pending {}{}",
-        m.name.as_deref().unwrap_or("<connecting>"),
-        if m.host.is_empty() { "?" } else { &m.host },
-        m.conn.0,
-        m.capacity,
-        m.active,
-        m.pending,
-        m.direct_port
-            .map(|p| format!(", direct port {p}"))
-            .unwrap_or_default()
-    )
+/// `status`: one module, as C's `showResourceStatus` prints its resource
+/// (a module not named yet has none).
+fn module_line(m: &ModuleInfo) -> Option<String> {
+    let name = m.name.as_deref()?;
+    Some(format!(
+        " Resource {name}  Attending: {}  Pending: {} Resource Status: Active",
+        m.active, m.pending
+    ))
 }
 
-/// `memory`.
-fn memory_lines(s: &Stats) -> [String; 4] {
+/// What `memory` prints, and what central prints on standard error when a
+/// signal stops it (C's `x_ipcStats`): C's heading, then Courier's own
+/// counters (C counts its `malloc` calls, which Courier does not have).
+pub fn memory_report(s: &Stats) -> [String; 4] {
     [
         "Cumulative Memory Usage:".into(),
         format!(
@@ -237,17 +236,9 @@ mod tests {
         let mut c = Central::new(Config::default());
         c.connect(ConnId(5), Peer::Other("t".into()), SystemTime::UNIX_EPOCH);
         while c.poll_output().is_some() {}
-        assert_eq!(
-            answer(&mut c, "status"),
-            [
-                "1 module(s) connected:",
-                "  Module <connecting> on ? (sd 5): capacity 1, active 0, pending 0"
-            ]
-        );
-        assert_eq!(
-            answer(&mut c, "display"),
-            ["0 message(s) active or pending:"]
-        );
+        // A module not named yet has no resource.
+        assert_eq!(answer(&mut c, "status"), ["Resource status"]);
+        assert_eq!(answer(&mut c, "display"), ["Active and Pending Messages:"]);
         let memory = answer(&mut c, "memory");
         assert_eq!(memory[0], "Cumulative Memory Usage:");
         assert!(

@@ -73,6 +73,15 @@
 //!   (C never checks them).
 //! - A rules file named by the operator must exist and be readable
 //!   ([`access::RulesFile`]); tcpd takes any missing file as no rules.
+//! - The console's `memory` (and the report printed on standard error
+//!   when a signal stops central) has C's heading, `Cumulative Memory
+//!   Usage:`, then Courier's own counters: C counts its `malloc` calls and
+//!   data-message buffers, which Courier does not have.
+//! - `status` lists modules by name (C: its hash table's order); `help`
+//!   lists the options that work as console commands here (C also lists
+//!   `-f -i -s -u`, which do nothing there).
+//! - The banner is `Task Control Server 3.9.1 (Courier <version>)` (C:
+//!   its build date), and the console prints no `> ` prompt.
 pub mod access;
 mod console;
 mod inproc;
@@ -81,6 +90,7 @@ mod server;
 pub use courier_wire::ipc::central::{
     Central, Config, ConnId, LogOptions, LogTarget, OptionError, Output, Peer, Stats,
 };
+pub use console::memory_report;
 pub use inproc::InProcessStream;
 pub use server::{BindError, Builder, CentralHandle, CentralServer, LogSink};
 

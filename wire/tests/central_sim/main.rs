@@ -8,6 +8,7 @@
 //! checked after every input (`CentralNode::check_invariants`).
 
 mod backpressure;
+mod c_lines;
 mod cut_through;
 mod end_to_end;
 mod hostile;

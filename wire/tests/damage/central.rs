@@ -53,13 +53,13 @@ pub fn check_closes_logged(central: &Central, lines: &[String], closes: &[(u64, 
         );
         let normal = reason == "module sent x_ipc_CloseMsg" || reason == "closed from the console";
         let said = lines.iter().any(|l| match reason.as_str() {
-            "module sent x_ipc_CloseMsg" => l.starts_with(&format!(
-                "x_ipcClose: Closed Connection Detected from: sd: {conn}:"
-            )),
-            "closed from the console" => l.starts_with("close Module: Closing"),
-            _ => {
-                l.starts_with(&format!("ERROR: closing connection {conn} ")) && l.ends_with(reason)
+            // Lines name a connection by its socket number (C's file
+            // descriptor, reused), not by the shell's id.
+            "module sent x_ipc_CloseMsg" => {
+                l.starts_with("x_ipcClose: Closed Connection Detected from: sd: ")
             }
+            "closed from the console" => l.starts_with("close Module: Closing"),
+            _ => l.starts_with("ERROR: closing connection ") && l.ends_with(reason),
         });
         assert!(
             said || (normal && !logging),

@@ -8,7 +8,7 @@ use std::time::SystemTime;
 use super::internal;
 use super::log::{self, Kind};
 use super::small_map::SmallMap;
-use super::tables::{unqueue, DispatchId, Linked, Module, Status};
+use super::tables::{unqueue, DispatchId, Linked, Module, Org, Status, FIRST_SD};
 use super::{Bad, Body, Central, ConnId, Output, Peer};
 use crate::ipc::frame::{ClassId, Header, MsgClass, HEADER_SIZE, QUERY_REPLY_INTENT, SPLIT_AT};
 use crate::ipc::Writer;
@@ -94,14 +94,31 @@ impl Central {
         self.transmit(conn, f);
     }
 
+    /// The lowest socket number no module has (see `Module::sd`).
+    fn free_sd(&self) -> i32 {
+        let mut used: Vec<i32> = self.modules.values().map(|m| m.sd).collect();
+        used.sort_unstable();
+        let mut sd = FIRST_SD;
+        for u in used {
+            if u == sd {
+                sd += 1;
+            } else if u > sd {
+                break;
+            }
+        }
+        sd
+    }
+
     /// A module connected: queues the 4-byte msgInfo id and the two
     /// formatter frames central speaks first (ipc.md §4).
     pub fn connect(&mut self, conn: ConnId, peer: Peer, now: SystemTime) {
         self.clock = now;
+        let sd = self.free_sd();
         self.modules.insert(
             conn,
             Box::new(Module {
                 peer,
+                sd,
                 rx: Vec::new(),
                 rx_pos: 0,
                 name: None,
@@ -317,6 +334,7 @@ impl Central {
         let left_out = m.problems.take_suppressed();
         let name = m.name.clone();
         let host = m.host.clone();
+        let sd = m.sd;
         self.report_left_out(conn, left_out);
         // A frame it was sending through: its receiver needs the rest.
         self.abandon_relay(conn);
@@ -324,7 +342,7 @@ impl Central {
             // handleDataMsgRecv
             self.log_line(
                 Kind::Status,
-                format!("Closed Connection Detected from: sd: {}: ", conn.0),
+                format!("Closed Connection Detected from: sd: {sd}: "),
             );
             if let Some(n) = &name {
                 self.log_line(Kind::Always, format!(" Closing {n} on {host}"));
@@ -333,10 +351,7 @@ impl Central {
             // x_ipcCloseHnd
             self.log_line(
                 Kind::Always,
-                format!(
-                    "x_ipcClose: Closed Connection Detected from: sd: {}:",
-                    conn.0
-                ),
+                format!("x_ipcClose: Closed Connection Detected from: sd: {sd}:"),
             );
             if let Some(n) = &name {
                 self.log_line(Kind::Always, format!("x_ipcClose: Closing {n} on {host}"));
@@ -378,7 +393,11 @@ impl Central {
         // C (resourceDelete) only reports when something was being handled.
         let report = !mine.is_empty();
         mine.extend(queued);
-        let keep_for = name.as_ref().filter(|_| self.config.resend_on_reconnect);
+        // Only a module that died keeps its messages for `-r`; one that
+        // closed with `IPC_disconnect` meant to go.
+        let keep_for = name
+            .as_ref()
+            .filter(|_| self.config.resend_on_reconnect && eof);
         for id in mine {
             let d = match self.dispatches.linked_mut(&id) {
                 Ok(d) => d,
@@ -412,6 +431,15 @@ impl Central {
         }
         for msg in changed {
             self.update_direct_handlers(&msg);
+        }
+        // Queries it sent that are still out keep its name for the log
+        // (their reply names it; C keeps the module record).
+        if let Some(n) = &name {
+            for d in self.dispatches.values_mut() {
+                if d.org == Org::Module(conn) {
+                    d.org_gone = Some(n.clone());
+                }
+            }
         }
         self.clean_broadcast();
         self.memory_paused.remove(&conn);

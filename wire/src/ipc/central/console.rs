@@ -77,7 +77,7 @@ impl Central {
                     id: id.0,
                     class: MsgClass::from_u16(d.class).unwrap_or(MsgClass::Unknown),
                     msg: d.msg.clone(),
-                    from: self.module_name(d.org),
+                    from: self.org_name(d),
                     to: d
                         .hnd
                         .as_ref()

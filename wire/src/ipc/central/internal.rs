@@ -411,6 +411,18 @@ pub(super) fn var_defs(var: &str) -> [VarDef; 4] {
     ]
 }
 
+/// The format text central's `x_ipc_registerGlobalVar` carries for a
+/// variable, as the C central writes it (and its data log prints it): the
+/// log variables' `LOG_TYPE` without spaces, a handler list through the
+/// named format `directMsgHandler`, not expanded.
+pub(super) fn var_format_text(var: &str) -> &'static str {
+    match var {
+        TERMINAL_LOG_VAR | FILE_LOG_VAR => "{*int,int,int,int,int,int,int,int,int,int,int,int}",
+        TAPPED_MSG_VAR | BROADCAST_MSG_VAR => STR_LIST_FORMAT,
+        _ => "{int, <directMsgHandler: 1>}",
+    }
+}
+
 /// The format of a variable: the four built-in ones, else a handler list.
 pub(super) fn var_format(var: &str) -> String {
     match var {

@@ -6,7 +6,7 @@
 
 use std::time::{SystemTime, UNIX_EPOCH};
 
-use super::tables::{DispatchId, Org};
+use super::tables::{Dispatch, DispatchId, Org};
 use super::{Bad, Central, ConnId, LogOptions, LogTarget, Output, Peer, SERVER_NAME};
 use crate::format::{Format, FormatRegistry};
 use crate::ipc::frame::ClassId;
@@ -15,12 +15,17 @@ use crate::ipc::{ByteOrder, Reader};
 /// Which `LOG_*` macro a line corresponds to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum Kind {
-    /// `LOG`: printed whenever the log is on at all.
+    /// `LOG`: on the terminal whatever the options (even `-lx`; only `-s`
+    /// silences it), in the log file whenever there is one.
     Always,
     /// `LOG_MESSAGE`: message traffic (`m`).
     Message,
     /// `LOG_STATUS`: status (`s`).
     Status,
+    /// `LOG_STATUS` between `Start_Ignore_Logging` and
+    /// `End_Ignore_Logging`: status, unless the log ignores registrations
+    /// (`i`, part of the default `-lmsi`).
+    Registration,
     /// Data lines (`d`, only with `m`).
     Data,
     /// Courier's own `ERROR:`/`WARNING:` lines about bad input or a
@@ -36,6 +41,7 @@ impl Kind {
             Kind::Always => o.any(),
             Kind::Message => o.messages,
             Kind::Status => o.status,
+            Kind::Registration => o.status && !o.ignore_internal,
             Kind::Data => o.messages && o.data,
             Kind::Problem => o.any(),
         }
@@ -143,7 +149,8 @@ impl ProblemBudget {
 impl Central {
     pub(super) fn log_line(&mut self, kind: Kind, line: String) {
         let target = LogTarget {
-            terminal: kind == Kind::Problem || kind.enabled(&self.config.terminal_log),
+            terminal: matches!(kind, Kind::Problem | Kind::Always)
+                || kind.enabled(&self.config.terminal_log),
             file: kind.enabled(&self.config.file_log),
         };
         if target.terminal || target.file {
@@ -205,6 +212,14 @@ impl Central {
                 .and_then(|m| m.name.clone())
                 // A module not named yet (before its connect query).
                 .unwrap_or_else(|| "**NEWMOD**".to_string()),
+        }
+    }
+
+    /// The name of the module that sent `d`, also after it closed.
+    pub(super) fn org_name(&self, d: &Dispatch) -> String {
+        match &d.org_gone {
+            Some(n) => n.clone(),
+            None => self.module_name(d.org),
         }
     }
 
@@ -300,8 +315,8 @@ impl Central {
                     Peer::Other(s) => s.clone(),
                 };
                 match &m.name {
-                    Some(n) => format!("{} ({n} from {peer})", conn.0),
-                    None => format!("{} (from {peer})", conn.0),
+                    Some(n) => format!("{} ({n} from {peer})", m.sd),
+                    None => format!("{} (from {peer})", m.sd),
                 }
             }
             None => conn.0.to_string(),
@@ -363,6 +378,10 @@ fn decode_user(
     };
     if *user == Format::Empty {
         return Ok(None);
+    }
+    // A message with a format sent without data (`Log_Data` of NULL).
+    if data.is_empty() {
+        return Ok(Some("    NO DATA".to_string()));
     }
     let inner: &[u8] = match msg_format {
         Some(Format::Struct(f))

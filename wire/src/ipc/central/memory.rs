@@ -115,7 +115,7 @@ impl Central {
             };
             self.stats.waiting_bytes = self.stats.waiting_bytes.saturating_sub(cost(&d));
             self.stats.dropped_waiting += 1;
-            let asker = self.module_name(d.org);
+            let asker = self.org_name(&d);
             let limit = self.config.max_queued_bytes;
             self.complain(
                 conn,

@@ -65,6 +65,20 @@
 //!   naming the reason; C may abort.
 //! - Log times (`-lt`) are UTC; the `h` (handle summary) option is accepted
 //!   and prints nothing; `unlock` answers that IPC modules cannot lock.
+//! - A module connecting with the name of a live module is refused: one
+//!   `ERROR: refused module …` line, its connection closed before the
+//!   connect reply (its `IPC_connect` fails). C takes it in as the same
+//!   resource (one capacity for both, deliveries to the second held until
+//!   the first finishes) and, when either closes, closes both.
+//! - With `-l` without `i`, the data of central's own log variables shows
+//!   a null pointer as `*0` (C prints the pointer's address as an int).
+//! - Lines about two events that reach central at the same moment from
+//!   different modules (a Reply and a Done, say) may come in the other
+//!   order; C's order there depends on its `select` loop too.
+//!
+//! The shell's own deviations (start-up banner, console, signals, access
+//! control) are listed in `courier::central` and the `central` binary's
+//! docs.
 //! - The data log decodes internal messages with their own formats when
 //!   `-l` lacks `i` (C prints them the same way).
 //! - Cut-through ([`Config::cut_through`], off by default): a large message

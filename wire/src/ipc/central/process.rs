@@ -111,7 +111,9 @@ impl Central {
             Connect => {
                 let module = read_opt_str(&mut r)?.unwrap_or_default();
                 let host = read_opt_str(&mut r)?.unwrap_or_default();
-                self.on_connect(conn, module, host);
+                if !self.on_connect(conn, module, host) {
+                    return Ok(());
+                }
                 out.write_i32(VERSION.0);
                 out.write_i32(VERSION.1);
                 out.write_bool(self.config.direct);

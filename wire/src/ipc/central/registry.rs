@@ -8,7 +8,7 @@ use super::direct::direct_class;
 use super::internal;
 use super::log::Kind;
 use super::tables::{cost, DispatchId, Handler, Linked, Status};
-use super::{Bad, Central, ConnId};
+use super::{Bad, Central, ConnId, Output};
 use crate::ipc::frame::MsgClass;
 use crate::ipc::Writer;
 
@@ -59,11 +59,36 @@ impl Central {
         }
     }
 
-    pub(super) fn on_connect(&mut self, conn: ConnId, module: String, host: String) {
-        self.log_line(
-            Kind::Always,
-            format!(" Received a new connection: {}", conn.0),
-        );
+    /// A module's connect query (`x_ipc_connect`). False if it was
+    /// refused: another live module already has its name. The C central
+    /// takes such a module in as the same resource (one capacity for both)
+    /// and, when either closes, closes both; Courier refuses the second
+    /// with one line and closes its connection before answering, so the
+    /// module's `IPC_connect` fails and the first goes on undisturbed.
+    pub(super) fn on_connect(&mut self, conn: ConnId, module: String, host: String) -> bool {
+        let sd = self.modules.get(&conn).map_or(0, |m| m.sd);
+        let live = self
+            .modules
+            .iter()
+            .find(|(c, m)| **c != conn && !m.closed && m.name.as_deref() == Some(module.as_str()))
+            .map(|(_, m)| (m.sd, m.host.clone()));
+        if let Some((other_sd, other_host)) = live {
+            self.log_line(
+                Kind::Problem,
+                format!(
+                    "ERROR: refused module {module} on {host} (sd {sd}): a module named \
+                     {module} is already connected (on {other_host}, sd {other_sd})"
+                ),
+            );
+            self.outputs.push_back(Output::Close {
+                conn,
+                reason: format!("a module named {module} is already connected"),
+            });
+            // Nothing else knows it yet: it goes without a close line.
+            self.modules.remove(&conn);
+            return false;
+        }
+        self.log_line(Kind::Always, format!(" Received a new connection: {sd}"));
         self.log_line(Kind::Always, format!("   modName : {module}"));
         self.log_line(Kind::Always, format!("   hostName: {host}"));
         self.central_broadcast(internal::CONNECT_NOTIFY, |w| w.write_str(&module));
@@ -71,6 +96,7 @@ impl Central {
             m.name = Some(module);
             m.host = host;
         }
+        true
     }
 
     pub(super) fn register_message(
@@ -100,7 +126,7 @@ impl Central {
             }
             if m.class != MsgClass::HandlerReg {
                 self.log_line(
-                    Kind::Status,
+                    Kind::Registration,
                     format!("Registration: Message {name} Found. Updating."),
                 );
             }

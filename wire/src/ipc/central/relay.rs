@@ -124,6 +124,7 @@ impl Central {
             class,
             class_id: h.class_id,
             org: Org::Module(conn),
+            org_gone: None,
             org_ref: h.msg_ref,
             parent_ref: h.parent_ref,
             // Never stored: it passes through.

@@ -33,6 +33,7 @@ impl Central {
                         class,
                         class_id: h.class_id,
                         org,
+                        org_gone: None,
                         org_ref: h.msg_ref,
                         parent_ref: h.parent_ref,
                         data: data.clone(),
@@ -49,6 +50,7 @@ impl Central {
                     class,
                     class_id: h.class_id,
                     org,
+                    org_gone: None,
                     org_ref: h.msg_ref,
                     parent_ref: h.parent_ref,
                     data,
@@ -125,6 +127,7 @@ impl Central {
             class: MsgClass::Broadcast as u16,
             class_id: ClassId::native(MsgClass::Broadcast),
             org: Org::Central,
+            org_gone: None,
             org_ref: NO_REF,
             parent_ref: NO_REF,
             data,
@@ -402,13 +405,13 @@ impl Central {
                 d.msg,
                 log::ref_id(&o, did),
                 responder,
-                self.module_name(d.org),
+                self.org_name(&d),
                 log::parent_id(&o, d.parent_ref),
                 log::time(&o, now)
             );
             self.log_line(Kind::Message, line);
             if !org_alive {
-                let dead = self.module_name(d.org);
+                let dead = self.org_name(&d);
                 self.log_line(
                     Kind::Message,
                     format!("WARNING: Reply Ignored for dead module: {dead}"),

@@ -149,6 +149,10 @@ pub(super) enum Carry<'a> {
     Ahead,
 }
 
+/// The first socket number the C central gives a module: descriptors 0–2
+/// are the standard streams, 3 and 4 its TCP and UNIX listeners.
+pub(super) const FIRST_SD: i32 = 5;
+
 #[derive(Debug)]
 pub(super) struct Dispatch {
     pub(super) msg: String,
@@ -157,6 +161,9 @@ pub(super) struct Dispatch {
     /// The sender's classId (keeps its byte-order flags for forwarding).
     pub(super) class_id: ClassId,
     pub(super) org: Org,
+    /// The sending module's name once it has closed (its connection is
+    /// gone from the module table, but a reply may still come).
+    pub(super) org_gone: Option<String>,
     pub(super) org_ref: i32,
     pub(super) parent_ref: i32,
     pub(super) data: Body,
@@ -205,6 +212,10 @@ pub(super) struct Handler {
 #[derive(Debug)]
 pub(super) struct Module {
     pub(super) peer: Peer,
+    /// The number the log calls its socket (`sd`): as the C central's file
+    /// descriptors, the lowest not in use from [`FIRST_SD`] on, so a
+    /// number comes back once its module is gone.
+    pub(super) sd: i32,
     /// Bytes received and not yet framed; `rx_pos` is where unread data starts.
     pub(super) rx: Vec<u8>,
     pub(super) rx_pos: usize,

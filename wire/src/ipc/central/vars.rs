@@ -18,7 +18,7 @@ impl Central {
         // ({varName, format}) and logs it.
         let mut w = Writer::new();
         w.write_str(var);
-        w.write_str(&internal::var_format(var));
+        w.write_str(internal::var_format_text(var));
         self.central_inform(internal::REGISTER_GLOBAL_VAR, w.into_vec(), |c, _| {
             c.add_var(var)
         });
