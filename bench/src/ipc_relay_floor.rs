@@ -128,16 +128,21 @@ fn frame(size: usize) -> Vec<u8> {
     f
 }
 
-fn parse(role: &str, args: impl Iterator<Item = String>) -> (Option<u16>, Option<String>, usize, usize) {
+fn parse(
+    role: &str,
+    args: impl Iterator<Item = String>,
+) -> (Option<u16>, Option<String>, usize, usize) {
     let (mut tcp, mut unix, mut count, mut size) = (None, None, 5000, 4);
     let mut args = args;
     while let Some(a) = args.next() {
         let v = args.next();
         let num = || -> usize {
-            v.as_deref().and_then(|v| v.parse().ok()).unwrap_or_else(|| {
-                eprintln!("{role}: {a} needs a number (got {v:?})");
-                std::process::exit(2)
-            })
+            v.as_deref()
+                .and_then(|v| v.parse().ok())
+                .unwrap_or_else(|| {
+                    eprintln!("{role}: {a} needs a number (got {v:?})");
+                    std::process::exit(2)
+                })
         };
         match a.as_str() {
             "--tcp" => tcp = Some(num() as u16),

@@ -1489,7 +1489,11 @@ fn orchestrate(args: &[String]) {
             "--max-message-size" => {
                 max_message_sizes = it
                     .next()
-                    .map(|s| s.split(',').map(|n| n.trim().parse().ok().map(Some)).collect())
+                    .map(|s| {
+                        s.split(',')
+                            .map(|n| n.trim().parse().ok().map(Some))
+                            .collect()
+                    })
                     .and_then(|v: Option<Vec<_>>| v.filter(|v| !v.is_empty()))
                     .unwrap_or_else(|| usage())
             }

@@ -913,7 +913,10 @@ mod processes {
         std::thread::sleep(Duration::from_millis(100));
         let count = s.count.to_string();
         let size = s.size.to_string();
-        let ping = spawn(&["raw-ping", "--count", &count, "--size", &size], Stdio::piped());
+        let ping = spawn(
+            &["raw-ping", "--count", &count, "--size", &size],
+            Stdio::piped(),
+        );
         let out = ping.wait_with_output().ok()?;
         let _ = std::fs::remove_file(&path);
         median_of(&String::from_utf8_lossy(&out.stdout))
@@ -1075,7 +1078,9 @@ mod processes {
             let meds: Vec<Option<f64>> = got.iter_mut().map(med).collect();
             let cpus: Vec<Option<f64>> = cpu.iter_mut().map(med).collect();
             if let Some(f) = med(&mut floor) {
-                floors.push(format!("| relay floor (no IPC logic, raw ends) | {transport} | {f:.1} µs |"));
+                floors.push(format!(
+                    "| relay floor (no IPC logic, raw ends) | {transport} | {f:.1} µs |"
+                ));
                 for (i, &(m, c)) in cells.iter().enumerate() {
                     if m != Clients::C || c == Centrals::Hosted {
                         continue;
@@ -1085,7 +1090,9 @@ mod processes {
                             "| C clients, {} | {transport} | {v:.1} µs ({:.2}× floor){} |",
                             name_c(c),
                             v / f,
-                            cpus[i].map(|u| format!("; central CPU {u:.1} µs per round trip")).unwrap_or_default()
+                            cpus[i]
+                                .map(|u| format!("; central CPU {u:.1} µs per round trip"))
+                                .unwrap_or_default()
                         ));
                     }
                 }

@@ -87,10 +87,10 @@ mod console;
 mod inproc;
 mod server;
 
+pub use console::memory_report;
 pub use courier_wire::ipc::central::{
     Central, Config, ConnId, LogOptions, LogTarget, OptionError, Output, Peer, Stats,
 };
-pub use console::memory_report;
 pub use inproc::InProcessStream;
 pub use server::{BindError, Builder, CentralHandle, CentralServer, LogSink};
 

@@ -62,7 +62,7 @@ pub(super) async fn handshake(
                     Some(Event::Connected) => return Ok(()),
                     Some(Event::Closed(e)) => {
                         return Err(
-                            e.map_or("central closed the connection".into(), |e| e.to_string())
+                            e.map_or_else(|| closed_during_handshake(name), |e| e.to_string())
                         )
                     }
                     Some(Event::DirectListenRequested) => {
@@ -95,7 +95,7 @@ pub(super) async fn handshake(
                 }
                 let n = io.read(&mut buf).await.map_err(|e| e.to_string())?;
                 if n == 0 {
-                    return Err("central closed the connection".into());
+                    return Err(closed_during_handshake(name));
                 }
                 conn.receive(&buf[..n], Instant::now());
             }
@@ -168,4 +168,12 @@ mod tests {
         assert!(attempts > 1, "{attempts}");
         assert!(!is_unresolved(&source), "{source:?}");
     }
+}
+
+/// Why central may have closed a connection before the handshake ended.
+fn closed_during_handshake(name: &str) -> String {
+    format!(
+        "central closed the connection (Courier's central and the C central refuse a module \
+         named {name:?} while one of that name is connected: module names must be unique)"
+    )
 }

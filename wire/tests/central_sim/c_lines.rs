@@ -150,7 +150,10 @@ fn a_second_module_of_a_live_name_is_refused() {
         sim.logs
     );
     assert_eq!(
-        sim.logs.iter().filter(|l| l.starts_with(" Received a new connection")).count(),
+        sim.logs
+            .iter()
+            .filter(|l| l.starts_with(" Received a new connection"))
+            .count(),
         1
     );
     define(&mut sim, a, "m", "int");

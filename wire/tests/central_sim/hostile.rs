@@ -71,7 +71,10 @@ fn bad_input_is_reported_with_logging_off() {
         // socket number, from 5, as C's descriptors).
         let shown: Vec<_> = lines.iter().filter(|l| l.0).collect();
         assert_eq!(shown.len(), 2, "{lines:?}");
-        assert_eq!(shown[1].2, "x_ipcClose: Closed Connection Detected from: sd: 5:");
+        assert_eq!(
+            shown[1].2,
+            "x_ipcClose: Closed Connection Detected from: sd: 5:"
+        );
         let (_, to_file, line) = shown[0];
         assert_eq!(*to_file, file, "{lines:?}");
         assert!(

@@ -211,8 +211,8 @@ Output, one event a line:
 
 const SPY_OUTPUT: &str = "\
 On rtps:// every sample of the topics matching --topic and --type, and discovery;
-on ipc:// every message named by --topic (central offers no list of messages to
-match a pattern against), decoded through the format central holds, and modules
+on ipc:// every message named by --topic (no patterns: a module sees only what it
+subscribes, and messages defined later would be missed), decoded through the format central holds, and modules
 connecting and disconnecting.
 Output, one event a line (a name with blanks is quoted; an empty list is -):
   ready
@@ -295,8 +295,8 @@ pub struct RecordArgs {
     /// Close a chunk once it holds this many bytes (uncompressed)
     #[arg(long, value_name = "BYTES", default_value_t = 1 << 20, value_parser = clap::value_parser!(u64).range(1..=1 << 30))]
     pub chunk_size: u64,
-    /// Participant / module name
-    #[arg(long, default_value = "courier-record")]
+    /// Participant / module name (%p: this process's id; IPC module names must be unique)
+    #[arg(long, default_value = "courier-record-%p")]
     pub name: String,
 }
 
@@ -329,8 +329,8 @@ pub struct ReplayArgs {
     /// --transient-local: samples kept per topic
     #[arg(long, value_name = "N", default_value_t = 1000, requires = "transient_local", value_parser = clap::value_parser!(u32).range(1..))]
     pub depth: u32,
-    /// Participant / module name
-    #[arg(long, default_value = "courier-replay")]
+    /// Participant / module name (%p: this process's id; IPC module names must be unique)
+    #[arg(long, default_value = "courier-replay-%p")]
     pub name: String,
 }
 
@@ -377,8 +377,8 @@ pub struct CallArgs {
     /// Print the reply as JSON
     #[arg(long)]
     pub json: bool,
-    /// Participant / module name
-    #[arg(long, default_value = "courier-call")]
+    /// Participant / module name (%p: this process's id; IPC module names must be unique)
+    #[arg(long, default_value = "courier-call-%p")]
     pub name: String,
 }
 
@@ -402,8 +402,8 @@ pub struct EchoArgs {
     /// Exit after this long
     #[arg(long, value_name = "SECS", value_parser = clap::value_parser!(u64).range(1..))]
     pub duration: Option<u64>,
-    /// Participant / module name
-    #[arg(long, default_value = "courier-echo")]
+    /// Participant / module name (%p: this process's id; IPC module names must be unique)
+    #[arg(long, default_value = "courier-echo-%p")]
     pub name: String,
 }
 
@@ -426,8 +426,8 @@ pub struct RateArgs {
     /// Exit after this long
     #[arg(long, value_name = "SECS", value_parser = clap::value_parser!(u64).range(1..))]
     pub duration: Option<u64>,
-    /// Participant / module name
-    #[arg(long, default_value = "courier-rate")]
+    /// Participant / module name (%p: this process's id; IPC module names must be unique)
+    #[arg(long, default_value = "courier-rate-%p")]
     pub name: String,
 }
 
@@ -457,8 +457,8 @@ pub struct PubArgs {
     /// Wait for this many subscribers before the first sample
     #[arg(long, value_name = "N", default_value_t = 1)]
     pub wait: u32,
-    /// Participant / module name
-    #[arg(long, default_value = "courier-pub")]
+    /// Participant / module name (%p: this process's id; IPC module names must be unique)
+    #[arg(long, default_value = "courier-pub-%p")]
     pub name: String,
 }
 
@@ -510,8 +510,8 @@ pub struct PingArgs {
     /// Text length of each sample
     #[arg(long, value_name = "BYTES", default_value_t = 0, value_parser = clap::value_parser!(u64).range(..=MAX_SIZE))]
     pub size: u64,
-    /// Participant / module name
-    #[arg(long, default_value = "courier-ping")]
+    /// Participant / module name (%p: this process's id; IPC module names must be unique)
+    #[arg(long, default_value = "courier-ping-%p")]
     pub name: String,
     #[command(flatten)]
     pub qos: QosArgs,
@@ -587,8 +587,8 @@ pub struct ListArgs {
     /// IPC: this message's format and handlers (repeat for more)
     #[arg(long, value_name = "NAME")]
     pub message: Vec<String>,
-    /// Participant / module name
-    #[arg(long, default_value = "courier-list")]
+    /// Participant / module name (%p: this process's id; IPC module names must be unique)
+    #[arg(long, default_value = "courier-list-%p")]
     pub name: String,
 }
 
@@ -606,8 +606,8 @@ pub struct PongArgs {
     /// Exit after answering N pings
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
     pub count: Option<u64>,
-    /// Participant / module name
-    #[arg(long, default_value = "courier-pong")]
+    /// Participant / module name (%p: this process's id; IPC module names must be unique)
+    #[arg(long, default_value = "courier-pong-%p")]
     pub name: String,
 }
 
@@ -629,8 +629,8 @@ pub struct SpyArgs {
     /// Exit after this long
     #[arg(long, value_name = "SECS", value_parser = clap::value_parser!(u64).range(1..))]
     pub duration: Option<u64>,
-    /// Participant / module name
-    #[arg(long, default_value = "courier-spy")]
+    /// Participant / module name (%p: this process's id; IPC module names must be unique)
+    #[arg(long, default_value = "courier-spy-%p")]
     pub name: String,
 }
 
@@ -713,7 +713,7 @@ impl Cli {
                         return Err(usage_error(
                             "spy",
                             "spy on ipc:// needs --topic MESSAGE for each message to print: \
-                             central offers no list of messages to match a pattern against",
+                             patterns are for rtps:// (`courier list ipc://…` lists the messages)",
                         ));
                     }
                     if let Some(p) = a.topic.iter().find(|t| t.contains(['*', '?', '['])) {
@@ -721,7 +721,7 @@ impl Cli {
                             "spy",
                             format!(
                                 "--topic {p:?} is a pattern; on ipc:// name each message \
-                                 (central offers no list of messages to match it against)"
+                                 (`courier list ipc://…` lists the messages)"
                             ),
                         ));
                     }
@@ -830,8 +830,8 @@ impl Cli {
                         return Err(usage_error(
                             "record",
                             format!(
-                                "{p:?} is a pattern; on ipc:// name each message (central \
-                                 offers no list of messages to match it against)"
+                                "{p:?} is a pattern; on ipc:// name each message \
+                                 (`courier list ipc://…` lists them)"
                             ),
                         ));
                     }

@@ -32,6 +32,13 @@ pub const PROGRESS_EVERY: Duration = Duration::from_secs(1);
 /// Connects, or says what was interrupted when the command is stopped
 /// first. While it waits (an IPC central that does not answer yet), the
 /// wait reports progress every second.
+/// The module / participant name `--name` gives: `%p` is this process's
+/// id, so that the default names (`courier-echo-%p`, …) of two commands on
+/// one central differ (central refuses a second module of a live name).
+pub fn module_name(name: &str) -> String {
+    name.replace("%p", &std::process::id().to_string())
+}
+
 pub async fn connect(
     url: &str,
     name: &str,
@@ -39,7 +46,7 @@ pub async fn connect(
 ) -> Result<std::result::Result<Session, Ended>> {
     let target = target(url);
     let started = Instant::now();
-    let connecting = Session::builder(url).name(name).connect();
+    let connecting = Session::builder(url).name(module_name(name)).connect();
     tokio::pin!(connecting);
     let mut tick =
         tokio::time::interval_at(tokio::time::Instant::now() + PROGRESS_EVERY, PROGRESS_EVERY);

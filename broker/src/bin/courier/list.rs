@@ -145,7 +145,8 @@ async fn dds(s: &Session, o: &ListArgs, seen: &Cell<u64>) -> Result<()> {
 async fn everything(ipc: &courier::Ipc<'_>, o: &ListArgs) -> Result<Vec<String>> {
     let courier_central = match ipc.modules().await {
         Ok(modules) => {
-            for m in modules.iter().filter(|m| m.name != o.name) {
+            let me = crate::connect::module_name(&o.name);
+            for m in modules.iter().filter(|m| m.name != me) {
                 out(format_args!(
                     "module {} host={} handlers={} waiting={}",
                     word(&m.name),

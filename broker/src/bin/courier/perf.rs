@@ -77,9 +77,10 @@ pub struct PerfCommon {
     /// Stop after this many samples
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
     pub count: Option<u64>,
-    /// Module / participant name
-    #[arg(long, default_value = "courier-perf")]
-    pub name: String,
+    /// Module / participant name, %p this process's id (default:
+    /// courier-perf-pub-%p or courier-perf-sub-%p)
+    #[arg(long)]
+    pub name: Option<String>,
 }
 
 /// `courier perf pub`.
@@ -253,7 +254,8 @@ impl Tally {
 
 async fn publish<T: PerfSample>(o: PerfPubArgs, mut stop: Stop) -> Result<Ended> {
     let c = &o.common;
-    let s = match connect(&c.url, &c.name, &mut stop).await? {
+    let name = c.name.as_deref().unwrap_or("courier-perf-pub-%p");
+    let s = match connect(&c.url, name, &mut stop).await? {
         Ok(s) => s,
         Err(ended) => return Ok(ended),
     };
@@ -370,7 +372,8 @@ async fn send<T: PerfSample>(s: &Session, o: &PerfPubArgs, total: &RefCell<Tally
 
 async fn subscribe<T: PerfSample>(o: PerfSubArgs, mut stop: Stop) -> Result<Ended> {
     let c = &o.common;
-    let s = match connect(&c.url, &c.name, &mut stop).await? {
+    let name = c.name.as_deref().unwrap_or("courier-perf-sub-%p");
+    let s = match connect(&c.url, name, &mut stop).await? {
         Ok(s) => s,
         Err(ended) => return Ok(ended),
     };

@@ -35,8 +35,8 @@ pub async fn run(o: SpyArgs, mut stop: Stop) -> Result<Ended> {
 
 /// On IPC: the messages named, each decoded through the format central
 /// holds for it, and modules connecting and disconnecting. (A module sees
-/// only what it subscribes; central offers no list of messages to match a
-/// pattern against.)
+/// only what it subscribes, and a pattern would miss the messages defined
+/// after it was matched.)
 async fn spy_ipc(s: &Session, o: &SpyArgs, n: &Cell<u64>) -> Result<()> {
     let mut ev = s.events();
     let mut subs = Vec::new();
