@@ -112,6 +112,14 @@ pub(super) async fn handshake(
     }
 }
 
+/// Why central may have closed a connection before the handshake ended.
+fn closed_during_handshake(name: &str) -> String {
+    format!(
+        "central closed the connection (Courier's central and the C central refuse a module \
+         named {name:?} while one of that name is connected: module names must be unique)"
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -168,12 +176,4 @@ mod tests {
         assert!(attempts > 1, "{attempts}");
         assert!(!is_unresolved(&source), "{source:?}");
     }
-}
-
-/// Why central may have closed a connection before the handshake ended.
-fn closed_during_handshake(name: &str) -> String {
-    format!(
-        "central closed the connection (Courier's central and the C central refuse a module \
-         named {name:?} while one of that name is connected: module names must be unique)"
-    )
 }
