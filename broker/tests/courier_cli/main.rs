@@ -10,6 +10,7 @@ mod call;
 mod echo_pub;
 mod list;
 mod ping_spy;
+mod ping_xrce;
 mod rates;
 mod rtt;
 mod usage;
