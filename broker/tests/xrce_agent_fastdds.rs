@@ -10,16 +10,14 @@
 //! XRCE socket binds 127.0.0.1 port 0. Every wait is bounded.
 
 use std::net::SocketAddr;
-use std::time::Duration;
 
-use courier::rtps_backend::RtpsOptions;
 use courier::{IpcMessage, Session};
 use courier_broker::xrce_agent::{Transport, XrceAgent};
 use courier_tests::peers::{fastdds_peer, msg_sample_line, payload, PeerProcess};
 use futures::StreamExt;
 
-/// The bound on every wait.
-const T: Duration = Duration::from_secs(30);
+mod xrce_client;
+use xrce_client::{rtps, runtime, T};
 
 /// `courier::test::Msg` of the peers' `types.idl`.
 #[derive(IpcMessage, Debug, Clone, PartialEq)]
@@ -28,23 +26,6 @@ struct Msg {
     seq: u32,
     text: String,
     payload: Vec<u8>,
-}
-
-fn rtps(domain: u32) -> RtpsOptions {
-    let mut o = RtpsOptions::default();
-    o.domain = domain;
-    o.interface = Some("lo".into());
-    o.peers = vec!["127.0.0.1".into()];
-    o.multicast = false;
-    o
-}
-
-fn runtime() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .unwrap()
 }
 
 /// The agent (UDP on 127.0.0.1:0) and a session of it in `domain`.
@@ -65,9 +46,11 @@ fn agent_and_session(rt: &tokio::runtime::Runtime, domain: u32) -> (XrceAgent, S
     (a, s)
 }
 
-fn fastdds(args: &[&str]) -> PeerProcess {
+/// The Fast DDS peer with this command line (words separated by spaces).
+fn fastdds(args: &str) -> PeerProcess {
     let exe = fastdds_peer().unwrap_or_else(|e| panic!("cannot build the Fast DDS peer: {e}"));
-    PeerProcess::spawn(exe, args).unwrap_or_else(|e| panic!("{e}"))
+    let args: Vec<&str> = args.split_whitespace().collect();
+    PeerProcess::spawn(exe, &args).unwrap_or_else(|e| panic!("{e}"))
 }
 
 #[test]
@@ -75,23 +58,10 @@ fn an_xrce_session_writes_to_fast_dds() {
     let d = courier_tests::domains::lease(1);
     let rt = runtime();
     let (a, s) = agent_and_session(&rt, d);
-    let ds = d.to_string();
-    let mut sub = fastdds(&[
-        "--domain",
-        &ds,
-        "--topic",
-        "xrce_to_fastdds",
-        "--type",
-        "msg",
-        "--sub",
-        "--reliable",
-        "--transient-local",
-        "--keep-all",
-        "--count",
-        "5",
-        "--timeout-s",
-        "60",
-    ]);
+    let mut sub = fastdds(&format!(
+        "--domain {d} --topic xrce_to_fastdds --type msg --sub --reliable --transient-local \
+         --keep-all --count 5 --timeout-s 60"
+    ));
     sub.expect_line("ready", T).unwrap();
     let p = rt
         .block_on(
@@ -138,29 +108,10 @@ fn fast_dds_writes_to_an_xrce_session() {
     let mut sub = rt
         .block_on(s.subscriber::<Msg>("fastdds_to_xrce").reliable().build())
         .unwrap();
-    let ds = d.to_string();
-    let mut publ = fastdds(&[
-        "--domain",
-        &ds,
-        "--topic",
-        "fastdds_to_xrce",
-        "--type",
-        "msg",
-        "--pub",
-        "--reliable",
-        "--count",
-        "5",
-        "--size",
-        "40,1500",
-        "--wait-match",
-        "1",
-        "--text",
-        "fdds",
-        "--linger-ms",
-        "3000",
-        "--timeout-s",
-        "60",
-    ]);
+    let mut publ = fastdds(&format!(
+        "--domain {d} --topic fastdds_to_xrce --type msg --pub --reliable --count 5 \
+         --size 40,1500 --wait-match 1 --text fdds --linger-ms 3000 --timeout-s 60"
+    ));
     for want in 1..=5u32 {
         let got = rt
             .block_on(async { tokio::time::timeout(T, sub.next()).await })

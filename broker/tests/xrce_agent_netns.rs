@@ -18,7 +18,7 @@ use courier_broker::xrce_agent::{Transport, XrceAgent};
 use courier_wire::xrce::{DeliveryControl, Event, ObjectKind};
 
 mod xrce_client;
-use xrce_client::{msg, oid, reader, unmsg, writer, XClient, R, T};
+use xrce_client::{msg, oid, reader, runtime, unmsg, writer, XClient, R, T};
 
 const CHILD: &str = "COURIER_NETNS_CHILD";
 const DOMAIN: &str = "COURIER_NETNS_DOMAIN";
@@ -74,20 +74,7 @@ const GUARD: &[&str] = &[
 ];
 
 fn rtps() -> RtpsOptions {
-    let mut o = RtpsOptions::default();
-    o.domain = std::env::var(DOMAIN).unwrap().parse().unwrap();
-    o.interface = Some("lo".into());
-    o.peers = vec!["127.0.0.1".into()];
-    o.multicast = false;
-    o
-}
-
-fn runtime() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .unwrap()
+    xrce_client::rtps(std::env::var(DOMAIN).unwrap().parse().unwrap())
 }
 
 /// The agents Courier's discovery (`XrceDiscovery`) finds at `to`
