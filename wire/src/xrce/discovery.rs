@@ -338,19 +338,17 @@ impl Discovery {
 mod tests {
     use super::*;
 
-    fn hex(s: &str) -> Vec<u8> {
-        let s: String = s.split_whitespace().collect();
-        (0..s.len())
-            .step_by(2)
-            .map(|i| u8::from_str_radix(&s[i..i + 2], 16).unwrap())
-            .collect()
-    }
-
     /// udp_discovery.pcap #1 (eProsima client → agent, unicast and multicast alike).
-    const REQUEST: &str = "80000000 02010800 0009fffd 03000000";
+    const REQUEST: [u8; 16] = [
+        0x80, 0x00, 0x00, 0x00, 0x02, 0x01, 0x08, 0x00, 0x00, 0x09, 0xFF, 0xFD, 0x03, 0x00, 0x00,
+        0x00,
+    ];
     /// udp_discovery.pcap #2 (MicroXRCEAgent v2.3.0 `-d 7400`, XRCE on 8888).
-    const ANSWER: &str = "80000000 06012400 0009fffd 0000010d 58524345 0100010f 00010d00 \
-                          01000000 01000000 017f0000 0100b822";
+    const ANSWER: [u8; 44] = [
+        0x80, 0x00, 0x00, 0x00, 0x06, 0x01, 0x24, 0x00, 0x00, 0x09, 0xFF, 0xFD, 0x00, 0x00, 0x01,
+        0x0D, 0x58, 0x52, 0x43, 0x45, 0x01, 0x00, 0x01, 0x0F, 0x00, 0x01, 0x0D, 0x00, 0x01, 0x00,
+        0x00, 0x00, 0x01, 0x00, 0x00, 0x00, 0x01, 0x7F, 0x00, 0x00, 0x01, 0x00, 0xB8, 0x22,
+    ];
 
     fn at(p: u16) -> SocketAddr {
         SocketAddr::from(([127, 0, 0, 1], p))
@@ -358,14 +356,14 @@ mod tests {
 
     #[test]
     fn the_request_is_eprosimas_bytes() {
-        assert_eq!(request_bytes(), hex(REQUEST));
-        let m = Message::decode(&hex(REQUEST)).unwrap();
+        assert_eq!(request_bytes(), REQUEST.to_vec());
+        let m = Message::decode(&REQUEST).unwrap();
         assert!(as_request(&m).is_some());
     }
 
     #[test]
     fn the_answer_of_eprosimas_agent_names_its_xrce_port() {
-        let a = parse_answer(&hex(ANSWER)).unwrap();
+        let a = parse_answer(&ANSWER).unwrap();
         assert_eq!(a.agent.version, [1, 0]);
         assert_eq!(a.agent.vendor, [0x01, 0x0F]);
         assert_eq!(a.availability, Some(1));
@@ -380,7 +378,7 @@ mod tests {
 
     #[test]
     fn answer_encodes_as_eprosimas_agent_does() {
-        let req = Message::decode(&hex(REQUEST)).unwrap();
+        let req = Message::decode(&REQUEST).unwrap();
         let g = as_request(&req).unwrap();
         let m = answer(
             req.header,
@@ -391,7 +389,7 @@ mod tests {
                 port: 8888,
             }],
         );
-        assert_eq!(m.to_vec().unwrap(), hex(ANSWER));
+        assert_eq!(m.to_vec().unwrap(), ANSWER.to_vec());
     }
 
     #[test]
@@ -404,7 +402,10 @@ mod tests {
         let mut d = Discovery::new(vec![at(1), at(2)], cfg, t0);
         let sent: Vec<_> =
             std::iter::from_fn(|| d.poll_transmit().map(|(a, b)| (a, b.to_vec()))).collect();
-        assert_eq!(sent, vec![(at(1), hex(REQUEST)), (at(2), hex(REQUEST))]);
+        assert_eq!(
+            sent,
+            vec![(at(1), REQUEST.to_vec()), (at(2), REQUEST.to_vec())]
+        );
         assert!(!d.is_finished(t0));
         d.handle_timeout(t0 + Duration::from_millis(50));
         assert!(d.poll_transmit().is_none(), "not yet the second round");
@@ -423,7 +424,7 @@ mod tests {
     #[test]
     fn answers_are_found_once_and_located() {
         let mut d = Discovery::new(vec![at(7400)], DiscoveryConfig::default(), Instant::now());
-        let new = d.handle_input(at(7400), &hex(ANSWER)).unwrap();
+        let new = d.handle_input(at(7400), &ANSWER).unwrap();
         assert_eq!(
             new,
             vec![FoundAgent {
@@ -435,7 +436,7 @@ mod tests {
             }]
         );
         // the same agent through multicast: nothing new
-        let again = d.handle_input(SocketAddr::from(([127, 0, 0, 1], 7400)), &hex(ANSWER));
+        let again = d.handle_input(SocketAddr::from(([127, 0, 0, 1], 7400)), &ANSWER);
         assert_eq!(again.unwrap(), vec![]);
         assert_eq!(d.found().len(), 1);
     }
@@ -485,7 +486,7 @@ mod tests {
     fn bad_answers_are_errors() {
         let mut d = Discovery::new(vec![at(1)], DiscoveryConfig::default(), Instant::now());
         // truncated at every length
-        let good = hex(ANSWER);
+        let good = ANSWER.to_vec();
         for n in 0..good.len() {
             assert!(d.handle_input(at(1), &good[..n]).is_err(), "{n} bytes");
         }
@@ -512,7 +513,7 @@ mod tests {
         );
         // our own request echoed back
         assert!(matches!(
-            d.handle_input(at(1), &hex(REQUEST)),
+            d.handle_input(at(1), &REQUEST),
             Err(DiscoveryError::NotAnAnswer("not INFO"))
         ));
         assert!(d.found().is_empty());
