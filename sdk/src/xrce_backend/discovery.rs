@@ -2,24 +2,6 @@
 //! (a unicast list) and `uxr_discovery_agents_default` (the multicast
 //! group 239.255.0.2:7400), over [`courier_wire::xrce::discovery`].
 //!
-//! ```no_run
-//! # async fn demo() -> Result<(), Box<dyn std::error::Error>> {
-//! use courier::xrce_backend::XrceDiscovery;
-//! let found = XrceDiscovery::new()
-//!     .agent("127.0.0.1:7400".parse()?)
-//!     .agent("127.0.0.1:8888".parse()?)
-//!     .all()
-//!     .await?;
-//! for a in &found {
-//!     println!("agent at {} (XRCE {}.{})", a.address, a.version[0], a.version[1]);
-//! }
-//! // or straight into a session on the first agent that answers:
-//! let s = courier::Session::builder("xrce+udp://?discover=127.0.0.1:7400,127.0.0.1:8888")
-//!     .connect()
-//!     .await?;
-//! # let _ = s; Ok(()) }
-//! ```
-//!
 //! The addresses may be agents' discovery ports (MicroXRCEAgent's `-d`,
 //! whose answer names the agent's XRCE port) or their XRCE ports (which
 //! answer as to a ping, naming no port: the address that answered is the
@@ -38,6 +20,29 @@ pub use courier_wire::xrce::discovery::FoundAgent;
 /// What to look for, and how long ([`XrceDiscovery::all`],
 /// [`XrceDiscovery::first`]); in a URL, `xrce+udp://?discover=…` (see
 /// [`XrceOptions::discovery`](super::XrceOptions::discovery)).
+///
+/// The addresses may be agents' discovery ports (MicroXRCEAgent's `-d`,
+/// whose answer names the agent's XRCE port) or their XRCE ports (which
+/// answer as to a ping, naming no port: the address that answered is the
+/// agent's). Multicast reaches every agent on the local network.
+///
+/// ```no_run
+/// # async fn demo() -> Result<(), Box<dyn std::error::Error>> {
+/// use courier::xrce_backend::XrceDiscovery;
+/// let found = XrceDiscovery::new()
+///     .agent("127.0.0.1:7400".parse()?)
+///     .agent("127.0.0.1:8888".parse()?)
+///     .all()
+///     .await?;
+/// for a in &found {
+///     println!("agent at {} (XRCE {}.{})", a.address, a.version[0], a.version[1]);
+/// }
+/// // or straight into a session on the first agent that answers:
+/// let s = courier::Session::builder("xrce+udp://?discover=127.0.0.1:7400,127.0.0.1:8888")
+///     .connect()
+///     .await?;
+/// # let _ = s; Ok(()) }
+/// ```
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct XrceDiscovery {
     /// Where the requests go (unicast addresses and multicast groups).
