@@ -47,12 +47,10 @@ use courier_wire::dds::Domain;
 use courier_wire::rtps::participant::{self, Config, PortMapping, SPDP_MULTICAST_ADDRESS};
 use courier_wire::rtps::Locator;
 use courier_wire::xrce::bridge::{Bridge, BridgeConfig, BridgeEvent, Profiles};
+use courier_wire::xrce::discovery;
 use courier_wire::xrce::serial::{self, SerialDecoder};
 use courier_wire::xrce::tcp::{self, TcpDeframer};
-use courier_wire::xrce::{
-    ActivityInfo, AgentRepresentation, Info, Message, ObjectId, ObjectInfo, ObjectVariant, Payload,
-    ResultStatus, StatusCode, Submessage, TransportLocator,
-};
+use courier_wire::xrce::{AgentRepresentation, Message, ObjectId, TransportLocator};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, UdpSocket};
 use tokio::sync::{mpsc, oneshot};
@@ -755,24 +753,16 @@ async fn discovery_reader(s: Arc<UdpSocket>, udp: Vec<SocketAddr>, iface: Ipv4Ad
         let Ok(m) = Message::decode(&buf[..n]) else {
             continue;
         };
-        let Some(Payload::GetInfo(g)) = m.submessages.first().map(|s| &s.payload) else {
+        let Some(g) = discovery::as_request(&m) else {
             continue;
         };
-        let info = Submessage::new(Payload::Info(Info {
-            request: g.request,
-            result: ResultStatus {
-                status: StatusCode::OK,
-                implementation_status: 0,
-            },
-            info: ObjectInfo {
-                config: Some(ObjectVariant::Agent(AgentRepresentation::default())),
-                activity: Some(ActivityInfo::Agent {
-                    availability: 1,
-                    locators: locators.clone(),
-                }),
-            },
-        }));
-        if let Ok(reply) = Message::new(m.header, vec![info]).to_vec() {
+        let reply = discovery::answer(
+            m.header,
+            g,
+            AgentRepresentation::default(),
+            locators.clone(),
+        );
+        if let Ok(reply) = reply.to_vec() {
             let _ = s.send_to(&reply, from).await;
         }
     }

@@ -12,22 +12,12 @@ use std::net::SocketAddr;
 use std::process::Command;
 use std::time::Instant;
 
-use courier::rtps_backend::RtpsOptions;
 use courier_broker::xrce_agent::{Transport, XrceAgent};
 use courier_tests::peers::{cyclone_peer, payload, PeerProcess};
 use courier_wire::xrce::{DeliveryControl, Event, ObjectKind};
 
 mod xrce_client;
-use xrce_client::{msg, oid, reader, unmsg, writer, XClient, R, T};
-
-fn rtps(domain: u32) -> RtpsOptions {
-    let mut o = RtpsOptions::default();
-    o.domain = domain;
-    o.interface = Some("lo".into());
-    o.peers = vec!["127.0.0.1".into()];
-    o.multicast = false;
-    o
-}
+use xrce_client::{msg, oid, reader, rtps, runtime, unmsg, writer, XClient, R, T};
 
 fn agent(rt: &tokio::runtime::Runtime, domain: u32, transports: Vec<Transport>) -> XrceAgent {
     let mut b = XrceAgent::builder().rtps(rtps(domain));
@@ -35,14 +25,6 @@ fn agent(rt: &tokio::runtime::Runtime, domain: u32, transports: Vec<Transport>) 
         b = b.transport(t);
     }
     rt.block_on(b.spawn()).unwrap()
-}
-
-fn runtime() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .unwrap()
 }
 
 fn cyclone(args: &[&str]) -> PeerProcess {

@@ -1,24 +1,24 @@
 //! The XRCE agent where only a private network namespace may take it:
 //! discovery on port 7400 and the multicast group 239.255.0.2
-//! (MicroXRCEAgent's `-d`), and reliable XRCE through 30 % datagram loss.
+//! (MicroXRCEAgent's `-d`), found by the SDK's `XrceDiscovery`, and
+//! reliable XRCE through 30 % datagram loss.
 //! The namespace has only `lo`; iptables there drops anything not
 //! addressed to 127.0.0.0/8 or, for discovery, 224.0.0.0/4 on `lo`.
 //!
 //! Each test re-executes its own binary inside the namespace with
 //! `COURIER_NETNS_CHILD` set; the child is the same test function.
 
-use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4, UdpSocket};
+use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
 use courier::rtps_backend::RtpsOptions;
+use courier::xrce_backend::{FoundAgent, XrceDiscovery};
 use courier_broker::xrce_agent::{Transport, XrceAgent};
-use courier_wire::xrce::{
-    ActivityInfo, DeliveryControl, Event, Message, ObjectKind, Payload, TransportLocator,
-};
+use courier_wire::xrce::{DeliveryControl, Event, ObjectKind};
 
 mod xrce_client;
-use xrce_client::{msg, oid, reader, unmsg, writer, XClient, R, T};
+use xrce_client::{msg, oid, reader, runtime, unmsg, writer, XClient, R, T};
 
 const CHILD: &str = "COURIER_NETNS_CHILD";
 const DOMAIN: &str = "COURIER_NETNS_DOMAIN";
@@ -74,51 +74,20 @@ const GUARD: &[&str] = &[
 ];
 
 fn rtps() -> RtpsOptions {
-    let mut o = RtpsOptions::default();
-    o.domain = std::env::var(DOMAIN).unwrap().parse().unwrap();
-    o.interface = Some("lo".into());
-    o.peers = vec!["127.0.0.1".into()];
-    o.multicast = false;
-    o
+    xrce_client::rtps(std::env::var(DOMAIN).unwrap().parse().unwrap())
 }
 
-fn runtime() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .unwrap()
-}
-
-/// GET_INFO as eProsima's discovery sends it (request 9, mask 3); the
-/// locators of the INFO that comes back.
-fn discover(to: SocketAddrV4) -> Vec<TransportLocator> {
-    let s = UdpSocket::bind("127.0.0.1:0").unwrap();
-    socket2::SockRef::from(&s)
-        .set_multicast_if_v4(&Ipv4Addr::LOCALHOST)
-        .unwrap();
-    s.set_read_timeout(Some(Duration::from_millis(200)))
-        .unwrap();
-    let get_info = [
-        0x80, 0, 0, 0, 0x02, 0x01, 0x08, 0x00, 0x00, 0x09, 0xFF, 0xFD, 0x03, 0, 0, 0,
-    ];
-    let end = Instant::now() + T;
-    let mut buf = [0u8; 1024];
-    while Instant::now() < end {
-        s.send_to(&get_info, to).unwrap();
-        if let Ok(n) = s.recv(&mut buf) {
-            let m = Message::decode(&buf[..n]).unwrap();
-            let Payload::Info(i) = &m.submessages[0].payload else {
-                panic!("not INFO: {m:?}")
-            };
-            assert_eq!(i.request.request_id.0, 9);
-            let Some(ActivityInfo::Agent { locators, .. }) = &i.info.activity else {
-                panic!("no activity: {i:?}")
-            };
-            return locators.clone();
-        }
-    }
-    panic!("no INFO from {to}");
+/// The agents Courier's discovery (`XrceDiscovery`) finds at `to`
+/// alone, multicast requests leaving from 127.0.0.1.
+fn discover(rt: &tokio::runtime::Runtime, to: SocketAddrV4) -> Vec<FoundAgent> {
+    let d = XrceDiscovery::new()
+        .agent(SocketAddr::V4(to))
+        .multicast_interface(Ipv4Addr::LOCALHOST)
+        .attempts(3)
+        .period(Duration::from_millis(300));
+    rt.block_on(async { tokio::time::timeout(T, d.all()).await })
+        .expect("bounded")
+        .expect("discovery runs")
 }
 
 #[test]
@@ -137,15 +106,16 @@ fn discovery_by_multicast_and_unicast_in_a_network_namespace() {
         let SocketAddr::V4(udp) = agent.udp_addrs()[0] else {
             unreachable!()
         };
-        let want = vec![TransportLocator::Medium {
-            address: [127, 0, 0, 1],
-            port: udp.port(),
-        }];
-        assert_eq!(discover(SocketAddrV4::new(Ipv4Addr::LOCALHOST, 7400)), want);
-        assert_eq!(
-            discover(SocketAddrV4::new(Ipv4Addr::new(239, 255, 0, 2), 7400)),
-            want
-        );
+        let unicast = discover(&rt, SocketAddrV4::new(Ipv4Addr::LOCALHOST, 7400));
+        let multicast = discover(&rt, SocketAddrV4::new(Ipv4Addr::new(239, 255, 0, 2), 7400));
+        for (how, found) in [("unicast", unicast), ("multicast", multicast)] {
+            let got: Vec<_> = found
+                .iter()
+                .map(|f| (f.address, f.version, f.vendor, f.answered_from.port()))
+                .collect();
+            let want = vec![(SocketAddr::V4(udp), [1, 0], [0x01, 0x0F], 7400)];
+            assert_eq!(got, want, "{how}: {found:?}");
+        }
         rt.block_on(agent.shutdown());
         return;
     }

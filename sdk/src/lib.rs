@@ -311,7 +311,7 @@
 //! | `uxr_ping_agent`, `uxr_ping_agent_attempts`, `uxr_ping_agent_session` | `session.xrce()?.ping(timeout).await` ([`XrceControl`]); a session also pings by itself after `keepalive_ms=` of silence |
 //! | `uxr_sync_session`, `uxr_set_time_callback` | `session.xrce()?.sync_time(timeout).await` → [`TimeSync`] (`offset_ns`, `rtt`) |
 //! | `uxr_epoch_millis`, `uxr_epoch_nanos` | `session.xrce()?.agent_time()` (the agent's clock by the last sync) |
-//! | `uxr_discovery_agents`, `uxr_discovery_agents_default` | not yet: name the agent in the URL (see the crate's open issues) |
+//! | `uxr_discovery_agents`, `uxr_discovery_agents_default` | [`xrce_backend::XrceDiscovery`]: `.agent(addr)…` (unicast list) and `.multicast()` (239.255.0.2:7400), then `.all().await` (every agent that answered, with its XRCE version and vendor) or `.first().await`; a session on the first agent found: `xrce+udp://?discover=ip:port,…\|multicast` ([`XrceOptions::discovery`]) |
 //! | the ping-and-recreate loop every eProsima application writes | not needed: the session reconnects by itself ([`SessionEvent::AgentLost`], [`SessionEvent::AgentBack`], [`SessionEvent::SessionRecreated`]), keeping its `Subscriber`s and its unacknowledged reliable writes |
 //!
 //! ## Deviations from CMU IPC

@@ -11,6 +11,7 @@ mod echo_pub;
 mod list;
 mod perf;
 mod ping_spy;
+mod ping_xrce;
 mod rates;
 mod record;
 mod rtt;

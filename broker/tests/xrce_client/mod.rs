@@ -17,6 +17,26 @@ use courier_wire::xrce::{
 };
 
 pub const T: Duration = Duration::from_secs(30);
+
+/// The agent's DDS participant for the tests: `lo`, unicast discovery to
+/// 127.0.0.1, multicast off, in `domain`.
+pub fn rtps(domain: u32) -> courier::rtps_backend::RtpsOptions {
+    let mut o = courier::rtps_backend::RtpsOptions::default();
+    o.domain = domain;
+    o.interface = Some("lo".into());
+    o.peers = vec!["127.0.0.1".into()];
+    o.multicast = false;
+    o
+}
+
+/// A two-thread runtime for the agent and sessions.
+pub fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap()
+}
 pub const R: StreamId = StreamId::RELIABLE;
 
 pub enum Io {

@@ -49,6 +49,12 @@
 //! - Entities are described by binary representation by default, or as
 //!   XML or reference profiles ([`XrceRepresentation`]).
 //!
+//! # Finding the agent
+//! [`XrceDiscovery`] asks a list of addresses (and, if told, the
+//! multicast group) which agents are there, as `uxr_discovery_agents`
+//! does; `xrce+udp://?discover=ip:port,…` connects to the first that
+//! answers.
+//!
 //! # Reconnection
 //! When the agent stops answering for [`XrceOptions::lost_after`] (or
 //! answers without knowing the session, or a TCP connection breaks), the
@@ -63,6 +69,7 @@
 //! fail with an error: nothing is dropped silently.
 
 mod cmd;
+mod discovery;
 mod driver;
 mod options;
 mod repr;
@@ -88,6 +95,7 @@ use crate::qos::{PublicationQos, SubscriptionQos, TypeInfo};
 use crate::session::{Encoding, RawReply, RawRequest, SampleQueue, WriteOptions};
 use cmd::Cmd;
 
+pub use discovery::{DiscoverError, FoundAgent, XrceDiscovery};
 pub use options::{RefKind, XrceCreation, XrceOptions, XrceRepresentation, XrceTransport};
 
 /// What the backend's callers read without asking the driver.
@@ -145,7 +153,17 @@ fn disconnected<E: crate::error::Failure>() -> E {
 impl XrceBackend {
     /// Opens the link and creates the session with the agent
     /// (CREATE_CLIENT, [`XrceOptions::connect_attempts`] times at most).
-    pub async fn connect(opts: XrceOptions, name: &str) -> Result<Self, ConnectError> {
+    /// With [`XrceOptions::discovery`], the agent is the first that
+    /// answers discovery.
+    pub async fn connect(mut opts: XrceOptions, name: &str) -> Result<Self, ConnectError> {
+        if let Some(d) = &opts.discovery {
+            let found = d.first().await.map_err(|e| ConnectError::Agent {
+                url: "xrce+udp://?discover=…".into(),
+                why: e.to_string(),
+            })?;
+            tracing::debug!("XRCE: discovered the agent at {}", found.address);
+            opts.transport = XrceTransport::Udp(found.address.to_string());
+        }
         let url = opts.transport.to_string();
         let scheme = match opts.transport {
             XrceTransport::Udp(_) => "xrce+udp://",

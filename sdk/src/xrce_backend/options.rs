@@ -4,6 +4,7 @@
 use std::collections::BTreeMap;
 use std::time::Duration;
 
+use super::discovery::XrceDiscovery;
 use crate::session::ConnectError;
 
 /// How the session reaches its agent.
@@ -171,6 +172,14 @@ pub struct XrceOptions {
     /// (`chatter_data_writer`) and the participant's
     /// `default_xrce_participant`.
     pub references: BTreeMap<(RefKind, String), String>,
+    /// Find the agent by discovery before connecting (`xrce+udp://` with
+    /// no address and `discover=<addr>,<addr>,…`, where an address is an
+    /// agent's discovery or XRCE port, `ip:port`, or `multicast` for
+    /// 239.255.0.2:7400; `discover_attempts=`, `discover_ms=`). The
+    /// session connects over UDP to the first agent that answers, and
+    /// stays with it: a lost agent is waited for, not rediscovered.
+    /// [`XrceOptions::transport`] is then `Udp("")` until connected.
+    pub discovery: Option<XrceDiscovery>,
 }
 
 impl XrceOptions {
@@ -192,6 +201,15 @@ impl XrceOptions {
             connect_interval: Duration::from_secs(1),
             agent_wait: Duration::from_secs(10),
             references: BTreeMap::new(),
+            discovery: None,
+        }
+    }
+
+    /// Defaults, connecting over UDP to the first agent `discovery` finds.
+    pub fn discovered(discovery: XrceDiscovery) -> Self {
+        XrceOptions {
+            discovery: Some(discovery),
+            ..XrceOptions::new(XrceTransport::Udp(String::new()))
         }
     }
 
@@ -260,7 +278,21 @@ impl XrceOptions {
                 format!("{addr}:{default_port}")
             })
         };
+        let discover = pairs.iter().any(|(k, _)| *k == "discover");
         let transport = match scheme.to_ascii_lowercase().as_str() {
+            "xrce+udp" if discover => {
+                if !addr.is_empty() {
+                    return Err(bad(format!(
+                        "{addr:?} and discover=: name the agent or discover it, not both"
+                    )));
+                }
+                XrceTransport::Udp(String::new())
+            }
+            _ if discover => {
+                return Err(bad(
+                    "discover= finds agents over UDP only (xrce+udp://)".into()
+                ))
+            }
             "xrce+udp" => XrceTransport::Udp(host_port(8888)?),
             "xrce+tcp" => XrceTransport::Tcp(host_port(8888)?),
             "xrce+serial" => {
@@ -364,6 +396,31 @@ impl XrceOptions {
                         }
                     }
                 }
+                "discover" => {
+                    let mut d = o.discovery.take().unwrap_or_default();
+                    for a in v.split(',').filter(|a| !a.is_empty()) {
+                        d = if a == "multicast" {
+                            d.multicast()
+                        } else {
+                            d.agent(a.parse().map_err(|_| {
+                                bad(format!("discover={v}: {a:?} is not ip:port or multicast"))
+                            })?)
+                        };
+                    }
+                    if d.targets.is_empty() {
+                        return Err(bad("discover= lists no address".into()));
+                    }
+                    o.discovery = Some(d);
+                }
+                "discover_attempts" => {
+                    let n = fit(num(v)?, 1000)? as u32;
+                    let d = o.discovery.take().unwrap_or_default();
+                    o.discovery = Some(d.attempts(n));
+                }
+                "discover_ms" => {
+                    let d = o.discovery.take().unwrap_or_default();
+                    o.discovery = Some(d.period(ms(v)?.max(Duration::from_millis(1))));
+                }
                 _ if k.starts_with("ref.") => {
                     let rest = &k[4..];
                     let (kind, name) = rest.split_once('.').unwrap_or((rest, ""));
@@ -376,6 +433,11 @@ impl XrceOptions {
                 }
                 _ => return Err(bad(format!("unknown XRCE option {k:?}"))),
             }
+        }
+        if o.discovery.as_ref().is_some_and(|d| d.targets.is_empty()) {
+            return Err(bad(
+                "discover_attempts= and discover_ms= go with discover=<addresses>".into(),
+            ));
         }
         if o.lost_after < o.keepalive {
             return Err(bad(format!(
@@ -414,6 +476,29 @@ mod tests {
     }
 
     #[test]
+    fn discovery_urls() {
+        let o = XrceOptions::from_url(
+            "xrce+udp://?discover=127.0.0.1:7400,multicast,[::1]:8888&discover_attempts=5&discover_ms=200",
+        )
+        .unwrap();
+        let d = o.discovery.unwrap();
+        assert_eq!(
+            d.targets,
+            vec![
+                "127.0.0.1:7400".parse().unwrap(),
+                "239.255.0.2:7400".parse().unwrap(),
+                "[::1]:8888".parse().unwrap()
+            ]
+        );
+        assert_eq!((d.attempts, d.period), (5, Duration::from_millis(200)));
+        assert_eq!(o.transport, XrceTransport::Udp(String::new()));
+        assert!(XrceOptions::from_url("xrce+udp://h:1")
+            .unwrap()
+            .discovery
+            .is_none());
+    }
+
+    #[test]
     fn references_by_kind_and_name() {
         let o = XrceOptions::from_url(
             "xrce+udp://h:1?representation=reference&ref.data_writer.Square=shapetype_data_writer&ref.participant=p",
@@ -444,6 +529,11 @@ mod tests {
             ("xrce+udp://", "no agent address"),
             ("xrce+udp://h:1?ref.thing.x=y", "unknown entity kind"),
             ("xrce+udp://h:1?keepalive_ms=5000", "shorter than"),
+            ("xrce+udp://h:1?discover=127.0.0.1:7400", "not both"),
+            ("xrce+tcp://?discover=127.0.0.1:7400", "UDP only"),
+            ("xrce+udp://?discover=here", "not ip:port"),
+            ("xrce+udp://?discover=", "no address"),
+            ("xrce+udp://h:1?discover_ms=5", "go with discover="),
         ] {
             let e = XrceOptions::from_url(url).unwrap_err().to_string();
             assert!(e.contains(says), "{url}: {e}");

@@ -4,7 +4,7 @@
 //! representations ([`BinaryRepresentation`]), the TCP ([`tcp`]) and
 //! serial ([`serial`]) framings (UDP carries one message per datagram with
 //! no framing), the [`stream`]s, and the two session machines: [`Client`]
-//! and the agent's half, [`Agent`]; and the agent's host over one DDS
+//! and the agent's half, [`Agent`]; agent [`discovery`]; and the agent's host over one DDS
 //! domain, [`bridge::Bridge`]. With the cargo feature `sim`, `xrce::sim`
 //! puts the machines on the shared simulated network.
 //!
@@ -81,6 +81,7 @@ mod binary;
 pub mod bridge;
 mod client;
 mod cursor;
+pub mod discovery;
 mod message;
 mod object;
 pub mod serial;
