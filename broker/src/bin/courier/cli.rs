@@ -603,7 +603,7 @@ pub struct PongArgs {
     /// The topic answers go on
     #[arg(long, value_name = "TOPIC", default_value = "pong")]
     pub reply_topic: String,
-    /// Exit after answering N pings
+    /// Exit after answering N pings (ping --rtt's warm-up pings not counted)
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
     pub count: Option<u64>,
     /// Participant / module name (%p: this process's id; IPC module names must be unique)

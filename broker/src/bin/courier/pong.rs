@@ -39,6 +39,11 @@ async fn answer(s: &Session, o: &PongArgs, n: &Cell<u64>) -> Result<()> {
                 None | Some(Err(RecvError::Disconnected)) => return Err("the session ended".into()),
                 Some(Ok(smp)) => {
                     p.publish(&smp.value).await?;
+                    // `ping --rtt`'s warm-up pings (seq 0) are answered but
+                    // not counted: --count N answers N measured pings
+                    if smp.value.seq == 0 {
+                        continue;
+                    }
                     n.set(n.get() + 1);
                     if o.count.is_some_and(|c| n.get() >= c) {
                         break;
