@@ -160,3 +160,31 @@ fn a_second_module_of_a_live_name_is_refused() {
     sim.pump();
     assert_eq!(sim.central().stats().modules, 1);
 }
+
+/// `IPC_publish(msg, 0, NULL)` of a message with a format: C's data log
+/// shows `NO DATA` under the broadcast (checked with the C library's
+/// variable-length `int` message); with data, the value.
+#[test]
+fn an_empty_publish_logs_no_data() {
+    let mut sim = Sim::new(config("msd"));
+    let a = sim.connect("a");
+    let b = sim.connect("b");
+    define(&mut sim, a, "m", "int");
+    sim.m(b).subscribe("m", "HND-m").unwrap();
+    sim.pump();
+    sim.m(a).publish("m", Vec::new(), -1).unwrap();
+    sim.pump();
+    for (d, ..) in sim.deliveries(b) {
+        sim.m(b).ack(d).unwrap();
+    }
+    sim.m(a).publish("m", 7i32.to_le_bytes(), -1).unwrap();
+    sim.pump();
+    let after: Vec<&str> = sim
+        .logs
+        .iter()
+        .enumerate()
+        .filter(|(_, l)| l.starts_with("Broadcast               m:") && l.ends_with("(Sent)"))
+        .map(|(i, _)| sim.logs[i + 1].as_str())
+        .collect();
+    assert_eq!(after, ["    NO DATA", "    7"], "{:#?}", sim.logs);
+}
