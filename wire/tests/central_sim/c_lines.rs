@@ -188,3 +188,51 @@ fn an_empty_publish_logs_no_data() {
         .collect();
     assert_eq!(after, ["    NO DATA", "    7"], "{:#?}", sim.logs);
 }
+
+/// A querier gone before its answer: the reply line names it by its module
+/// name, and — as C's central, whose dead-module warning tests the
+/// message's registered class, which an IPC message never has — no
+/// warning follows. Checked against the C central with a querier killed
+/// and one that called `IPC_disconnect`.
+#[test]
+fn a_dead_querier_is_named_and_not_warned_about() {
+    for crash in [false, true] {
+        let mut sim = Sim::new(config("msd"));
+        let asker = sim.connect("qclient");
+        let server = sim.connect("qserver");
+        define(&mut sim, asker, "q", "int");
+        define(&mut sim, asker, "r", "int");
+        sim.m(server).subscribe("q", "HND-q").unwrap();
+        sim.pump();
+        sim.m(asker).query("q", 3i32.to_le_bytes(), -1).unwrap();
+        sim.pump();
+        if crash {
+            sim.close(asker);
+        } else {
+            sim.m(asker).close().unwrap();
+            sim.pump();
+        }
+        let deliveries = sim.deliveries(server);
+        assert_eq!(deliveries.len(), 1, "{:#?}", sim.logs);
+        sim.m(server)
+            .respond(deliveries[0].0, "r", 5i32.to_le_bytes())
+            .unwrap();
+        sim.pump();
+        let at = sim
+            .logs
+            .iter()
+            .position(|l| l.starts_with("  Reply                q:"))
+            .unwrap_or_else(|| panic!("no reply line: {:#?}", sim.logs));
+        assert_eq!(
+            sim.logs[at..at + 2],
+            ["  Reply                q:    qserver --> qclient        ", "    5"],
+            "crash {crash}: {:#?}",
+            sim.logs
+        );
+        assert!(
+            !sim.logs.iter().any(|l| l.contains("WARNING")),
+            "crash {crash}: {:#?}",
+            sim.logs
+        );
+    }
+}
