@@ -586,7 +586,7 @@ async fn tables(mut args: impl Iterator<Item = String>) {
 /// `session-bench processes`: every module and central its own process.
 mod processes {
     use std::io::Read;
-    use std::net::{Ipv4Addr, TcpListener, TcpStream};
+    use std::net::{Ipv4Addr, TcpListener};
     use std::path::{Path, PathBuf};
     use std::process::{Child, Command, Stdio};
     use std::time::{Duration, Instant};
@@ -681,13 +681,20 @@ mod processes {
             .spawn()
             .unwrap_or_else(|e| panic!("cannot start {}: {e}", bin.display()));
         let p = Proc(child);
-        wait_listening(port);
+        wait_listening(port, true);
         Some(p)
     }
 
-    fn wait_listening(port: u16) {
+    /// Waits until central listens on `port`, without connecting to it: a
+    /// probe connection that closes before saying who it is makes the C
+    /// central close a module by the name `**NEWMOD**` (its close goes by
+    /// name), which is any other module still connecting: the answering
+    /// module then never subscribes and the run hangs. TCP from
+    /// `/proc/net/tcp`; with `unix`, the UNIX socket by its file too.
+    fn wait_listening(port: u16, unix: bool) {
         let t0 = Instant::now();
-        while TcpStream::connect((Ipv4Addr::LOCALHOST, port)).is_err() {
+        let socket = format!("/tmp/x_ipc/{port}");
+        while !(listening_tcp(port) && (!unix || Path::new(&socket).exists())) {
             assert!(
                 t0.elapsed() < Duration::from_secs(5),
                 "central did not listen on {port}"
@@ -816,7 +823,7 @@ mod processes {
                 .expect("start the answering module"),
         );
         if central == Centrals::Hosted {
-            wait_listening(port);
+            wait_listening(port, false);
         }
         // Subscribed before the timing side starts (see below).
         std::thread::sleep(Duration::from_millis(300));
@@ -922,14 +929,15 @@ mod processes {
         median_of(&String::from_utf8_lossy(&out.stdout))
     }
 
-    /// Whether 127.0.0.1:`port` is in LISTEN state (read from
-    /// `/proc/net/tcp`, so that no probe connection is made).
+    /// Whether `port` is in LISTEN state on 127.0.0.1 or on every address
+    /// (the C central's) — read from `/proc/net/tcp`, so that no probe
+    /// connection is made.
     fn listening_tcp(port: u16) -> bool {
-        let want = format!("0100007F:{port:04X}");
+        let wanted = [format!("0100007F:{port:04X}"), format!("00000000:{port:04X}")];
         std::fs::read_to_string("/proc/net/tcp").is_ok_and(|t| {
             t.lines().any(|l| {
                 let f: Vec<&str> = l.split_whitespace().collect();
-                f.len() > 3 && f[1] == want && f[3] == "0A"
+                f.len() > 3 && wanted.contains(&f[1].to_string()) && f[3] == "0A"
             })
         })
     }

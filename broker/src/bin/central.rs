@@ -6,30 +6,10 @@
 //! the expected module count), plus `--bind <addr>`, `--hosts-allow <file>`,
 //! `--hosts-deny <file>`, `--no-unix-socket` and `--help`.
 //!
-//! Where it differs from the C central on purpose:
-//! - unknown options and bad values are errors (exit status 2, one line on
-//!   stderr naming the flag and the value); C warns and goes on;
-//! - a `--hosts-allow`/`--hosts-deny` file that does not exist or cannot be
-//!   read is a start-up error (exit status 2, one line naming the file and
-//!   the OS error); a missing default `/etc/hosts.allow` or
-//!   `/etc/hosts.deny` gives one warning line on stderr saying which rules
-//!   are not in force (tcpd, which C links, silently takes a missing file
-//!   as no rules);
-//! - `-v` prints the version and exits 0 wherever it appears (C: only as the
-//!   first argument, exiting 1);
-//! - `-p0` listens on a free port (printed in `Expecting 1 on port <port>`);
-//! - without `-f`, the file log is `x_ipc.log.<seconds since 1970>` in the
-//!   working directory, as in C, and its header time is UTC;
-//! - the comment prompt of file logging (`-L` without `n`) is shown only
-//!   when standard input is a terminal, and only at start;
-//! - `-d` (C's debugging flag) turns on debug diagnostics on stderr;
-//! - SIGINT and SIGTERM stop central cleanly with exit status 0 (C aborts
-//!   with status 1); the lines are C's: the memory report on stderr (unless
-//!   `-s`), then `Central Abort : Signal <n>` in the log when messages are
-//!   logged, else on stderr. `quit` on the console does the same, as in C,
-//!   ending with `Central Quit`;
-//! - the console prints no `> ` prompt, and `-s` also silences the
-//!   `Logging File Name:` / `Logging to` lines.
+//! Where it differs from the C central on purpose — options, console,
+//! signals, sockets, access control, routing and logs — is listed in one
+//! place: "Deviations from the C central" in the `courier::central`
+//! documentation (`sdk/src/central/mod.rs`); `--help` says so too.
 #![deny(unsafe_code)]
 
 use std::io::{BufRead, IsTerminal, Write};
@@ -96,7 +76,9 @@ const USAGE: &str = "central command line options:
      one waiting (default: none, as in C). Repeat for more modules. Only for
      modules that consume without waiting in their handlers (no queries, no
      IPC_listen): a C module handles queued messages while it waits.
- --help, -h: this text.";
+ --help, -h: this text.
+Where this central differs from the C central: the list \"Deviations from
+the C central\" in the documentation of the courier crate, courier::central.";
 
 #[derive(Debug)]
 struct Options {

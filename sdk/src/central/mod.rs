@@ -63,25 +63,112 @@
 //! (see [`InProcessStream`]).
 //!
 //! # Deviations from the C central
+//! This is the one list of where Courier's central (this module, the
+//! `central` program of `courier-broker`, and the routing machine
+//! `courier_wire::ipc::central` under both) differs from the C central of
+//! CMU IPC 3.9.1. Everything not listed here — log and data-log lines,
+//! console wording, frames, ids as modules see them — was compared with the
+//! C central on the same C programs and matches it.
+//!
+//! **Start-up, command line and console** (the `central` program):
+//! - The banner is `Task Control Server 3.9.1 (Courier <version>)` (C: its
+//!   build date), and the console prints no `> ` prompt.
+//! - Unknown options and bad values are errors (exit status 2, one line on
+//!   stderr naming the flag and the value); C warns and goes on.
+//! - `-v` prints the version and exits 0 wherever it appears (C: only as
+//!   the first argument, exiting 1); `-p0` listens on a free port (printed
+//!   in `Expecting 1 on port <port>`); `-d` (C's debugging flag) turns on
+//!   debug diagnostics on stderr.
+//! - Without `-f` the file log is `x_ipc.log.<seconds since 1970>` as in
+//!   C, but its header time is UTC, as are log times (`-lt`); the comment
+//!   prompt of file logging (`-L` without `n`) is shown only when standard
+//!   input is a terminal, and only at start; `-s` also silences the
+//!   `Logging File Name:` / `Logging to` lines.
+//! - SIGINT and SIGTERM stop central cleanly with exit status 0 (C aborts
+//!   with status 1). The lines are C's: the memory report on stderr (unless
+//!   `-s`), then `Central Abort : Signal <n>` in the log when messages are
+//!   logged, else on stderr; `quit` ends with `Central Quit`, as in C.
+//! - The console's `memory` (and that report) has C's heading,
+//!   `Cumulative Memory Usage:`, then Courier's own counters: C counts its
+//!   `malloc` calls and data-message buffers, which Courier does not have.
+//! - `status` lists modules sorted by name (C: its hash table's order);
+//!   `help` lists the options that work as console commands here (C also
+//!   lists `-f -i -s -u`, which do nothing there); the `h` log option
+//!   (handle summary) is accepted and prints nothing; `unlock` answers that
+//!   IPC modules cannot lock.
+//!
+//! **Sockets and access control** (this module's server):
 //! - `--bind` chooses the listening address; C always listens on all
 //!   interfaces.
 //! - A stale `/tmp/x_ipc/<port>` is removed only if nobody answers on it;
 //!   if another server does, starting fails (C unlinks it unconditionally).
 //! - Access control is always compiled in (C needs `ACCESS_CONTROL=1`);
-//!   see [`access`] for the rule language and its deviations.
-//! - Peers on the UNIX socket are subject to the rules as local clients
-//!   (C never checks them).
-//! - A rules file named by the operator must exist and be readable
-//!   ([`access::RulesFile`]); tcpd takes any missing file as no rules.
-//! - The console's `memory` (and the report printed on standard error
-//!   when a signal stops central) has C's heading, `Cumulative Memory
-//!   Usage:`, then Courier's own counters: C counts its `malloc` calls and
-//!   data-message buffers, which Courier does not have.
-//! - `status` lists modules by name (C: its hash table's order); `help`
-//!   lists the options that work as console commands here (C also lists
-//!   `-f -i -s -u`, which do nothing there).
-//! - The banner is `Task Control Server 3.9.1 (Courier <version>)` (C:
-//!   its build date), and the console prints no `> ` prompt.
+//!   see [`access`] for the rule language and its own deviations. Peers on
+//!   the UNIX socket are subject to the rules as local clients (C never
+//!   checks them).
+//! - A rules file named by the operator (`--hosts-allow`, `--hosts-deny`)
+//!   must exist and be readable, else starting fails (exit status 2, one
+//!   line naming the file and the OS error); a missing default
+//!   `/etc/hosts.allow` or `/etc/hosts.deny` gives one warning line saying
+//!   which rules are not in force. tcpd, which C links, silently takes a
+//!   missing file as no rules.
+//!
+//! **Modules and routing** (the machine in `courier_wire::ipc::central`):
+//! - A module connecting with the name of a live module is refused: one
+//!   `ERROR: refused module …` line, its connection closed before the
+//!   connect reply (its `IPC_connect` fails). C takes it in as the same
+//!   resource (one capacity for both, deliveries to the second held until
+//!   the first finishes) and, when either closes, closes both.
+//! - A connection that closes is closed, whoever it is. C closes a module
+//!   by its name, so a connection that leaves before naming itself closes
+//!   the first module still called `**NEWMOD**` — possibly another module
+//!   in the middle of connecting (a port probe can make C's central drop a
+//!   real module that way).
+//! - Message ids and dispatch ids are numbered like C's (message ids from
+//!   199 down, never 0 or 1; dispatch ids reused last-freed first) but need
+//!   not be the same numbers: modules only learn them from replies.
+//! - `-r` resends a crashed module's unfinished messages automatically when
+//!   a module of the same name subscribes the same handler again (C asks
+//!   `Resend <msg> message?` on the terminal for each).
+//! - Back-pressure: when more than [`Config::max_queued_bytes`] of message
+//!   data wait in pending queues, central stops reading from the modules
+//!   that add to them (never from one whose acknowledgements it awaits)
+//!   until the queues drain to half; C grows without bound. Past the same
+//!   bound, the oldest queries waiting for a first handler of their
+//!   message are dropped (C keeps them all).
+//! - Malformed frames close only the offending connection, with a log line
+//!   naming the reason; C may abort or stall.
+//! - A module repeating a mistake (foreign acknowledgements, unknown ids)
+//!   gets ten warning lines at once, then one a second, and a count of
+//!   the rest: it cannot flood the terminal or the log file.
+//! - `x_ipc_getMessages` (`IPC_printMessages`-style listings) answers the
+//!   messages modules defined, sorted by name. C answers every entry of
+//!   its message table not ignored for logging, in hash-table order: also
+//!   central's own internal messages outside its ignore set, and messages
+//!   only subscribed, never defined.
+//! - `x_ipc_getMessageInfo` on a message subscribed but never defined
+//!   answers it with no formats, its handler count and first handler's
+//!   module; C's central dereferences the missing definition and dies
+//!   (SIGSEGV). An unknown name is answered with the name only (C leaves
+//!   the other fields uninitialised).
+//! - `courier_getModules`, a query of Courier's own (what `courier list`
+//!   asks), lists the connected modules; the C central has no such query.
+//! - Cut-through ([`Config::cut_through`], off by default): a large message
+//!   whose handler can take it at once is forwarded while it still
+//!   arrives, instead of after its last byte (C's way). If the sender dies
+//!   in the middle, the receiver's frame is completed with zero bytes (it
+//!   already has the start), and a warning names both modules.
+//! - Send-ahead ([`Config::send_ahead`], per module, off by default) writes
+//!   queued broadcasts to a module before it finished the one it handles;
+//!   C never does.
+//!
+//! **Logs**:
+//! - With `-l` without `i`, the data of central's own log variables shows
+//!   a null pointer as `*0` (C prints the pointer's address as an int).
+//! - Lines about two events that reach central at the same moment from
+//!   different modules (a `Reply` and a `Done`, say) may come in the other
+//!   order; C's order there depends on its `select` loop too.
+//!
 pub mod access;
 mod console;
 mod inproc;

@@ -160,3 +160,79 @@ fn a_second_module_of_a_live_name_is_refused() {
     sim.pump();
     assert_eq!(sim.central().stats().modules, 1);
 }
+
+/// `IPC_publish(msg, 0, NULL)` of a message with a format: C's data log
+/// shows `NO DATA` under the broadcast (checked with the C library's
+/// variable-length `int` message); with data, the value.
+#[test]
+fn an_empty_publish_logs_no_data() {
+    let mut sim = Sim::new(config("msd"));
+    let a = sim.connect("a");
+    let b = sim.connect("b");
+    define(&mut sim, a, "m", "int");
+    sim.m(b).subscribe("m", "HND-m").unwrap();
+    sim.pump();
+    sim.m(a).publish("m", Vec::new(), -1).unwrap();
+    sim.pump();
+    for (d, ..) in sim.deliveries(b) {
+        sim.m(b).ack(d).unwrap();
+    }
+    sim.m(a).publish("m", 7i32.to_le_bytes(), -1).unwrap();
+    sim.pump();
+    let after: Vec<&str> = sim
+        .logs
+        .iter()
+        .enumerate()
+        .filter(|(_, l)| l.starts_with("Broadcast               m:") && l.ends_with("(Sent)"))
+        .map(|(i, _)| sim.logs[i + 1].as_str())
+        .collect();
+    assert_eq!(after, ["    NO DATA", "    7"], "{:#?}", sim.logs);
+}
+
+/// A querier gone before its answer: the reply line names it by its module
+/// name, and — as C's central, whose dead-module warning tests the
+/// message's registered class, which an IPC message never has — no
+/// warning follows. Checked against the C central with a querier killed
+/// and one that called `IPC_disconnect`.
+#[test]
+fn a_dead_querier_is_named_and_not_warned_about() {
+    for crash in [false, true] {
+        let mut sim = Sim::new(config("msd"));
+        let asker = sim.connect("qclient");
+        let server = sim.connect("qserver");
+        define(&mut sim, asker, "q", "int");
+        define(&mut sim, asker, "r", "int");
+        sim.m(server).subscribe("q", "HND-q").unwrap();
+        sim.pump();
+        sim.m(asker).query("q", 3i32.to_le_bytes(), -1).unwrap();
+        sim.pump();
+        if crash {
+            sim.close(asker);
+        } else {
+            sim.m(asker).close().unwrap();
+            sim.pump();
+        }
+        let deliveries = sim.deliveries(server);
+        assert_eq!(deliveries.len(), 1, "{:#?}", sim.logs);
+        sim.m(server)
+            .respond(deliveries[0].0, "r", 5i32.to_le_bytes())
+            .unwrap();
+        sim.pump();
+        let at = sim
+            .logs
+            .iter()
+            .position(|l| l.starts_with("  Reply                q:"))
+            .unwrap_or_else(|| panic!("no reply line: {:#?}", sim.logs));
+        assert_eq!(
+            sim.logs[at..at + 2],
+            ["  Reply                q:    qserver --> qclient        ", "    5"],
+            "crash {crash}: {:#?}",
+            sim.logs
+        );
+        assert!(
+            !sim.logs.iter().any(|l| l.contains("WARNING")),
+            "crash {crash}: {:#?}",
+            sim.logs
+        );
+    }
+}

@@ -360,6 +360,10 @@ impl Central {
     }
 }
 
+/// C's `Log_Data` line for a message that carries no data: `NO DATA`
+/// right-aligned in `indent + 7` columns, the indent being 4.
+const NO_DATA: &str = "    NO DATA";
+
 /// Array elements decoded for a data log line: more than its five lines
 /// of at most 80 columns can show (each element takes a character).
 const LOGGED_ELEMENTS: usize = 4096;
@@ -379,13 +383,12 @@ fn decode_user(
     if *user == Format::Empty {
         return Ok(None);
     }
-    // A message with a format sent without data (`Log_Data` of NULL).
-    if data.is_empty() {
-        return Ok(Some("    NO DATA".to_string()));
-    }
     let inner: &[u8] = match msg_format {
         Some(Format::Struct(f))
-            if f.len() == 2 && matches!(f[1], Format::VarArray { .. }) && res_format.is_some() =>
+            if f.len() == 2
+                && matches!(f[1], Format::VarArray { .. })
+                && res_format.is_some()
+                && !data.is_empty() =>
         {
             let mut r = Reader::new(data, order);
             let _len = r.read_i32().map_err(|e| e.to_string())?;
@@ -394,6 +397,12 @@ fn decode_user(
         }
         _ => data,
     };
+    // A message with a format sent without data: `Log_Data` of NULL. C
+    // central decodes `IPC_publish(msg, 0, NULL)` of a variable-length
+    // message (a byte array of length 0) to NULL too.
+    if inner.is_empty() {
+        return Ok(Some(NO_DATA.to_string()));
+    }
     let resolve = |n: &str| reg.get(n);
     let mut r = Reader::new(inner, order);
     // The log shows five lines: the first elements of a large array do.

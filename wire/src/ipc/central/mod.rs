@@ -46,46 +46,9 @@
 //! ```
 //!
 //! # Deviations from the C central
-//! - Message ids and dispatch ids are numbered like C (ids from 199 down,
-//!   never 0 or 1; dispatch ids reused last-freed first) but need not be the
-//!   same numbers: modules only learn them from replies.
-//! - `-r` resends a crashed module's unfinished messages automatically when
-//!   a module of the same name subscribes the same handler again (C asks
-//!   `Resend <msg> message?` on the terminal for each).
-//! - Back-pressure: when more than [`Config::max_queued_bytes`] of message
-//!   data wait in pending queues, central stops reading from the modules
-//!   that add to them (never from one whose acknowledgements it awaits)
-//!   until the queues drain to half; C grows without bound. Past the same
-//!   bound, the oldest queries waiting for a first handler of their
-//!   message are dropped (C keeps them all).
-//! - A module repeating a mistake (foreign acknowledgements, unknown ids)
-//!   gets ten warning lines at once, then one a second, and a count of
-//!   the rest: it cannot flood the terminal or the log file.
-//! - Malformed frames close only the offending connection, with a log line
-//!   naming the reason; C may abort.
-//! - Log times (`-lt`) are UTC; the `h` (handle summary) option is accepted
-//!   and prints nothing; `unlock` answers that IPC modules cannot lock.
-//! - A module connecting with the name of a live module is refused: one
-//!   `ERROR: refused module …` line, its connection closed before the
-//!   connect reply (its `IPC_connect` fails). C takes it in as the same
-//!   resource (one capacity for both, deliveries to the second held until
-//!   the first finishes) and, when either closes, closes both.
-//! - With `-l` without `i`, the data of central's own log variables shows
-//!   a null pointer as `*0` (C prints the pointer's address as an int).
-//! - Lines about two events that reach central at the same moment from
-//!   different modules (a Reply and a Done, say) may come in the other
-//!   order; C's order there depends on its `select` loop too.
-//!
-//! The shell's own deviations (start-up banner, console, signals, access
-//! control) are listed in `courier::central` and the `central` binary's
-//! docs.
-//! - The data log decodes internal messages with their own formats when
-//!   `-l` lacks `i` (C prints them the same way).
-//! - Cut-through ([`Config::cut_through`], off by default): a large message
-//!   whose handler can take it at once is forwarded while it still arrives,
-//!   instead of after its last byte (C's way). If the sender dies in the
-//!   middle, the receiver's frame is completed with zero bytes (it already
-//!   has the start), and a warning names both modules.
+//! Kept in one list, with the server's and the `central` program's, in
+//! the `courier` crate's `courier::central` documentation (source:
+//! `sdk/src/central/mod.rs`).
 
 mod body;
 mod config;
