@@ -217,6 +217,42 @@ pub(crate) mod net {
             u16::from_be(sin.sin_port),
         ))
     }
+    #[cfg(test)]
+    mod tests {
+        use super::*;
+        use std::io::IoSlice;
+
+        /// Each datagram of one `sendmmsg` arrives whole (its slices
+        /// gathered), in order, at its own address; a longer list is cut
+        /// at `SEND_SLOTS`.
+        #[test]
+        fn sendmmsg_sends_each_datagram_gathered_and_in_order() {
+            let rx = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+            rx.set_read_timeout(Some(std::time::Duration::from_secs(5)))
+                .unwrap();
+            let tx = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+            let SocketAddr::V4(to) = rx.local_addr().unwrap() else {
+                unreachable!("bound to IPv4")
+            };
+            let bodies: Vec<[Vec<u8>; 2]> = (0..SEND_SLOTS as u8 + 3)
+                .map(|i| [vec![i; 3], vec![i.wrapping_add(100); 2000]])
+                .collect();
+            let iovs: Vec<[IoSlice<'_>; 2]> = bodies
+                .iter()
+                .map(|[a, b]| [IoSlice::new(a), IoSlice::new(b)])
+                .collect();
+            let msgs: Vec<(SocketAddrV4, &[IoSlice<'_>])> =
+                iovs.iter().map(|p| (to, &p[..])).collect();
+            assert_eq!(sendmmsg(&tx, &msgs, 0).unwrap(), SEND_SLOTS);
+            assert_eq!(sendmmsg(&tx, &msgs[SEND_SLOTS..], 0).unwrap(), 3);
+            assert_eq!(sendmmsg(&tx, &[], 0).unwrap(), 0);
+            let mut buf = vec![0; 4096];
+            for [a, b] in &bodies {
+                let n = rx.recv(&mut buf).unwrap();
+                assert_eq!(&buf[..n], [&a[..], &b[..]].concat());
+            }
+        }
+    }
 }
 
 #[cfg(feature = "central")]
