@@ -3,7 +3,6 @@
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use courier_wire::rtps::participant::Transmission;
 use tokio::sync::{mpsc, oneshot};
 
 use super::cmd::{disconnected, Cmd};
@@ -113,8 +112,6 @@ pub(super) struct Core {
     pub(super) cmd: crate::mailbox::Inbox<Cmd>,
     /// The driver's deadlines (see [`timer`]).
     pub(super) timer: timer::DriverTimer,
-    /// A datagram that found the send buffer full: it goes first.
-    pub(super) stalled: Option<Transmission>,
     /// A close taken from the commands by someone other than the driver
     /// (`None` inside: every sender was dropped).
     pub(super) close: Option<Option<oneshot::Sender<()>>>,
@@ -122,22 +119,23 @@ pub(super) struct Core {
 
 impl Core {
     /// Hands received samples and events to the application and sends
-    /// what the participant has to send, until the socket is full.
+    /// what the participant has to send, until the socket is full: the
+    /// datagrams a turn produced go out together, a `sendmmsg` for every
+    /// [`SEND_SLOTS`](crate::sys::net::SEND_SLOTS) of them.
     pub(super) fn flush(&mut self, now: Instant) -> Result<(), Full> {
         self.st.pump(now);
-        if let Some(t) = self.stalled.take() {
-            if let Err(full) = self.out.try_send(&t) {
-                self.stalled = Some(t);
-                return Err(full);
+        loop {
+            while self.out.has_room() {
+                match self.st.d.poll_transmission() {
+                    Some(t) => self.out.queue(t),
+                    None => break,
+                }
             }
-        }
-        while let Some(t) = self.st.d.poll_transmission() {
-            if let Err(full) = self.out.try_send(&t) {
-                self.stalled = Some(t);
-                return Err(full);
+            if self.out.is_empty() {
+                return Ok(());
             }
+            self.out.send()?;
         }
-        Ok(())
     }
 
     /// Arms the timer for the next deadline, if that moved earlier.
@@ -218,9 +216,7 @@ impl Driver {
             if flushed.is_err() {
                 if net::wait_writable(&self.send_sock).await.is_err() {
                     // cannot wait: drop the datagram (reliable writers repair)
-                    let mut c = shared.lock();
-                    c.stalled = None;
-                    c.out.send_errors += 1;
+                    shared.lock().out.drop_first();
                 }
                 now = Instant::now();
                 continue;

@@ -207,13 +207,11 @@ impl RtpsBackend {
             st.publish_ros2_node(now);
         }
         let sock_err = |e: std::io::Error| fail(format!("user data socket: {e}"));
-        let out = Out {
-            sock: socks.user.try_clone().map_err(sock_err)?,
-            loopback_only: address.is_loopback(),
-            multicast: opts.multicast,
-            refused: 0,
-            send_errors: 0,
-        };
+        let out = Out::new(
+            socks.user.try_clone().map_err(sock_err)?,
+            address.is_loopback(),
+            opts.multicast,
+        );
         let timer = timer::DriverTimer::new(st.next_wakeup());
         let shared = Arc::new(Shared {
             core: Mutex::new(Core {
@@ -221,7 +219,6 @@ impl RtpsBackend {
                 out,
                 cmd: rx,
                 timer,
-                stalled: None,
                 close: None,
             }),
             attention: tokio::sync::Notify::new(),

@@ -1,6 +1,6 @@
 //! The system calls Courier makes that std and socket2 do not offer, and
 //! so every `unsafe` block of the crate: registering descriptors with
-//! tokio's reactor, `recvmmsg`, the interface list, reverse DNS for access
+//! tokio's reactor, `recvmmsg` and `sendmmsg`, the interface list, reverse DNS for access
 //! rules, the `timerfd` of the RTPS driver, the serial lines of the XRCE backend and the allocator settings of the
 //! central binary. Everything else is `#![deny(unsafe_code)]`.
 #![allow(unsafe_code)]
@@ -142,6 +142,67 @@ pub(crate) mod net {
         Ok(n)
     }
 
+    /// Datagrams one [`sendmmsg`] call takes at most; the rest of a longer
+    /// list is left to the next call.
+    pub(crate) const SEND_SLOTS: usize = 32;
+
+    /// One `sendmmsg` of up to [`SEND_SLOTS`] datagrams, each to its own
+    /// IPv4 address and gathered from its own slices: returns how many the
+    /// kernel took (at least one), or the error of the first. As with
+    /// `sendmmsg(2)`, an error after the first datagram ends the call early
+    /// and is not reported: send the rest again to see it.
+    #[cfg(target_os = "linux")]
+    pub(crate) fn sendmmsg(
+        sock: &std::net::UdpSocket,
+        msgs: &[(SocketAddrV4, &[io::IoSlice<'_>])],
+        flags: libc::c_int,
+    ) -> io::Result<usize> {
+        let n = msgs.len().min(SEND_SLOTS);
+        if n == 0 {
+            return Ok(0);
+        }
+        // SAFETY: all-zero is a valid value of these plain C structs
+        let mut addrs: [libc::sockaddr_in; SEND_SLOTS] = unsafe { std::mem::zeroed() };
+        let mut hdrs: [libc::mmsghdr; SEND_SLOTS] = unsafe { std::mem::zeroed() };
+        for (i, (to, parts)) in msgs[..n].iter().enumerate() {
+            addrs[i].sin_family = libc::AF_INET as libc::sa_family_t;
+            addrs[i].sin_port = to.port().to_be();
+            addrs[i].sin_addr.s_addr = u32::from_ne_bytes(to.ip().octets());
+            let h = &mut hdrs[i].msg_hdr;
+            h.msg_name = std::ptr::from_mut(&mut addrs[i]).cast();
+            h.msg_namelen = std::mem::size_of::<libc::sockaddr_in>() as libc::socklen_t;
+            // `IoSlice` is ABI-compatible with `iovec` on Unix (std's
+            // documented guarantee); the kernel only reads through it
+            h.msg_iov = parts.as_ptr().cast::<libc::iovec>().cast_mut();
+            h.msg_iovlen = parts.len() as _;
+        }
+        // SAFETY: every header points at a live sockaddr_in and at `parts`,
+        // slices of valid buffers, all of which outlive the call; n <= the
+        // length of `hdrs`
+        let sent = unsafe {
+            libc::sendmmsg(sock.as_raw_fd(), hdrs.as_mut_ptr(), n as libc::c_uint, flags)
+        };
+        usize::try_from(sent).map_err(|_| io::Error::last_os_error())
+    }
+
+    /// [`sendmmsg`] where there is none: one `sendmsg` per datagram, until
+    /// one fails.
+    #[cfg(not(target_os = "linux"))]
+    pub(crate) fn sendmmsg(
+        sock: &std::net::UdpSocket,
+        msgs: &[(SocketAddrV4, &[io::IoSlice<'_>])],
+        flags: libc::c_int,
+    ) -> io::Result<usize> {
+        let sock = socket2::SockRef::from(sock);
+        for (i, (to, parts)) in msgs.iter().take(SEND_SLOTS).enumerate() {
+            let to = socket2::SockAddr::from(SocketAddr::V4(*to));
+            if let Err(e) = sock.send_to_vectored_with_flags(parts, &to, flags) {
+                return if i == 0 { Err(e) } else { Ok(i) };
+            }
+        }
+        Ok(msgs.len().min(SEND_SLOTS))
+    }
+
     /// The IPv4 sender in a `sockaddr_storage` (0.0.0.0:0 for anything else:
     /// these sockets are IPv4).
     #[cfg(target_os = "linux")]
@@ -155,6 +216,42 @@ pub(crate) mod net {
             Ipv4Addr::from(u32::from_be(sin.sin_addr.s_addr)),
             u16::from_be(sin.sin_port),
         ))
+    }
+    #[cfg(test)]
+    mod tests {
+        use super::*;
+        use std::io::IoSlice;
+
+        /// Each datagram of one `sendmmsg` arrives whole (its slices
+        /// gathered), in order, at its own address; a longer list is cut
+        /// at `SEND_SLOTS`.
+        #[test]
+        fn sendmmsg_sends_each_datagram_gathered_and_in_order() {
+            let rx = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+            rx.set_read_timeout(Some(std::time::Duration::from_secs(5)))
+                .unwrap();
+            let tx = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+            let SocketAddr::V4(to) = rx.local_addr().unwrap() else {
+                unreachable!("bound to IPv4")
+            };
+            let bodies: Vec<[Vec<u8>; 2]> = (0..SEND_SLOTS as u8 + 3)
+                .map(|i| [vec![i; 3], vec![i.wrapping_add(100); 2000]])
+                .collect();
+            let iovs: Vec<[IoSlice<'_>; 2]> = bodies
+                .iter()
+                .map(|[a, b]| [IoSlice::new(a), IoSlice::new(b)])
+                .collect();
+            let msgs: Vec<(SocketAddrV4, &[IoSlice<'_>])> =
+                iovs.iter().map(|p| (to, &p[..])).collect();
+            assert_eq!(sendmmsg(&tx, &msgs, 0).unwrap(), SEND_SLOTS);
+            assert_eq!(sendmmsg(&tx, &msgs[SEND_SLOTS..], 0).unwrap(), 3);
+            assert_eq!(sendmmsg(&tx, &[], 0).unwrap(), 0);
+            let mut buf = vec![0; 4096];
+            for [a, b] in &bodies {
+                let n = rx.recv(&mut buf).unwrap();
+                assert_eq!(&buf[..n], [&a[..], &b[..]].concat());
+            }
+        }
     }
 }
 
