@@ -361,11 +361,37 @@ impl Session {
     }
 
     /// Subscribes to raw samples.
+    ///
+    /// The subscription names no type: IPC and RTPS take every sample of
+    /// `msg`, whatever its type. A DDS-XRCE agent must create a typed DDS
+    /// reader for its client, so on `xrce+…://` use
+    /// [`Session::subscribe_raw_as`].
     pub async fn subscribe_raw(&self, msg: &str) -> Result<RawSubscriber, OpenError> {
+        self.raw_subscription(msg, None).await
+    }
+
+    /// Subscribes to raw samples of `msg` announced as type `ty` (a DDS
+    /// type name and layout, see [`TypeInfo::dynamic`]): what tools that
+    /// learn the type at run time use on backends whose readers are typed
+    /// (DDS-XRCE; on RTPS the reader then matches only writers of that
+    /// type name).
+    pub async fn subscribe_raw_as(
+        &self,
+        msg: &str,
+        ty: &TypeInfo,
+    ) -> Result<RawSubscriber, OpenError> {
+        self.raw_subscription(msg, Some(ty)).await
+    }
+
+    async fn raw_subscription(
+        &self,
+        msg: &str,
+        ty: Option<&TypeInfo>,
+    ) -> Result<RawSubscriber, OpenError> {
         let queue = SampleQueue::new(QueuePolicy::default());
         let id = self
             .backend
-            .open_subscription(msg, None, &SubscriptionQos::default(), queue.clone())
+            .open_subscription(msg, ty, &SubscriptionQos::default(), queue.clone())
             .await?;
         Ok(RawSubscriber::new(
             queue,

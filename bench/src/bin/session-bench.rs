@@ -933,7 +933,10 @@ mod processes {
     /// (the C central's) — read from `/proc/net/tcp`, so that no probe
     /// connection is made.
     fn listening_tcp(port: u16) -> bool {
-        let wanted = [format!("0100007F:{port:04X}"), format!("00000000:{port:04X}")];
+        let wanted = [
+            format!("0100007F:{port:04X}"),
+            format!("00000000:{port:04X}"),
+        ];
         std::fs::read_to_string("/proc/net/tcp").is_ok_and(|t| {
             t.lines().any(|l| {
                 let f: Vec<&str> = l.split_whitespace().collect();

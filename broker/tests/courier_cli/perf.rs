@@ -106,7 +106,7 @@ fn perf_over_ipc_counts_every_sample_and_its_latency() {
 
 #[test]
 fn ddsperf_pub_is_measured_by_courier_perf_sub() {
-    let u = url(260);
+    let u = url(270);
     let mut sub = Proc::start(&["perf", "sub", &u, "--count", "300"]);
     sub.expect("receiving DDSPerfRDataKS");
     // ddsperf writes KeyedSeq samples of 100 bytes on DDSPerfRDataKS
@@ -127,7 +127,7 @@ fn ddsperf_pub_is_measured_by_courier_perf_sub() {
 
 #[test]
 fn courier_perf_pub_is_measured_by_ddsperf_sub() {
-    let u = url(261);
+    let u = url(271);
     let dp = Ddsperf::start(domain(&u), &["-D", "6", "sub"]);
     // --readers 1: it starts once ddsperf's reader matched
     let (code, out, err) = run(&[

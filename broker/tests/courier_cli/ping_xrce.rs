@@ -32,7 +32,7 @@ fn agent(key: u32) -> (tokio::runtime::Runtime, XrceAgent, String) {
 
 #[test]
 fn ping_publisher_to_subscriber_over_xrce() {
-    let (rt, a, u) = agent(260);
+    let (rt, a, u) = agent(272);
     let mut sub = Proc::start(&["ping", &u, "--subscribe", "--count", "3", "--name", "rx"]);
     sub.expect("ready");
     let mut publ = Proc::start(&["ping", &u, "--publish", "--period", "50", "--name", "tx"]);
@@ -48,7 +48,7 @@ fn ping_publisher_to_subscriber_over_xrce() {
 
 #[test]
 fn ping_rtt_through_pong_over_xrce() {
-    let (rt, a, u) = agent(261);
+    let (rt, a, u) = agent(273);
     let mut pong = Proc::start(&["pong", &u]);
     pong.expect("ready");
     let mut ping = Proc::start(&["ping", &u, "--rtt", "--count", "20", "--size", "64"]);
@@ -64,5 +64,55 @@ fn ping_rtt_through_pong_over_xrce() {
         ping.seen
     );
     drop(pong);
+    rt.block_on(a.shutdown());
+}
+
+/// `echo` and `spy` over XRCE name the type (the agent creates a typed
+/// DDS reader) and the topics (a client learns nothing of discovery).
+#[test]
+fn echo_and_spy_over_xrce_name_their_type() {
+    let (rt, a, u) = agent(274);
+    let mut echo = Proc::start(&[
+        "echo",
+        &u,
+        "ping",
+        "--type",
+        "courier::Ping",
+        "--count",
+        "2",
+    ]);
+    let mut spy = Proc::start(&[
+        "spy",
+        &u,
+        "--topic",
+        "ping",
+        "--type",
+        "courier::Ping",
+        "--count",
+        "2",
+    ]);
+    spy.expect("ready");
+    let mut publ = Proc::start(&["ping", &u, "--publish", "--period", "100", "--size", "3"]);
+    publ.expect("ready");
+    let first = echo.expect("{");
+    assert!(
+        first.starts_with("{1, ") && first.ends_with(", \"xxx\"}"),
+        "{first}"
+    );
+    let line = spy.expect("sample ");
+    assert!(
+        line.starts_with("sample ping courier::Ping from ? ") && line.ends_with(", \"xxx\"}"),
+        "{line}"
+    );
+    assert_eq!(echo.wait(), Some(0));
+    assert_eq!(spy.wait(), Some(0));
+    drop(publ);
+    // without a type, or with a pattern: usage errors that say why
+    let (code, _, err) = crate::run(&["echo", &u, "ping"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("give --type TYPE"), "{err}");
+    let (code, _, err) = crate::run(&["spy", &u, "--topic", "p*", "--type", "courier::Ping"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("patterns cannot be matched"), "{err}");
     rt.block_on(a.shutdown());
 }

@@ -180,7 +180,12 @@ pub(crate) mod net {
         // slices of valid buffers, all of which outlive the call; n <= the
         // length of `hdrs`
         let sent = unsafe {
-            libc::sendmmsg(sock.as_raw_fd(), hdrs.as_mut_ptr(), n as libc::c_uint, flags)
+            libc::sendmmsg(
+                sock.as_raw_fd(),
+                hdrs.as_mut_ptr(),
+                n as libc::c_uint,
+                flags,
+            )
         };
         usize::try_from(sent).map_err(|_| io::Error::last_os_error())
     }

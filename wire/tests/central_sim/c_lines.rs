@@ -225,7 +225,10 @@ fn a_dead_querier_is_named_and_not_warned_about() {
             .unwrap_or_else(|| panic!("no reply line: {:#?}", sim.logs));
         assert_eq!(
             sim.logs[at..at + 2],
-            ["  Reply                q:    qserver --> qclient        ", "    5"],
+            [
+                "  Reply                q:    qserver --> qclient        ",
+                "    5"
+            ],
             "crash {crash}: {:#?}",
             sim.logs
         );

@@ -7,13 +7,14 @@ use std::cell::Cell;
 use std::time::{Duration, Instant};
 
 use courier::format::Format;
-use courier::{Handle, QueryError, Session, TypeInfo};
+use courier::{Handle, QueryError, Session};
 
 use crate::cli::{kind, CallArgs, Kind};
 use crate::connect::connect;
+use crate::dds_type::DdsType;
 use crate::stop::{run_session, Ended, Stop};
 use crate::text::out;
-use crate::values::{known_names, known_type, parse_value, Decoded, Known, Style};
+use crate::values::{parse_value, Decoded, Style};
 use crate::Result;
 
 pub async fn run(o: CallArgs, mut stop: Stop) -> Result<Ended> {
@@ -111,65 +112,16 @@ async fn ipc_call(
         .map_err(|e| format!("the reply ({reply_msg}) {e}"))?)
 }
 
-fn known(name: &str) -> Result<&'static Known> {
-    Ok(known_type(name)
-        .ok_or_else(|| format!("type {name:?} is not one Courier knows ({})", known_names()))?)
-}
-
-fn type_info(k: &Known) -> TypeInfo {
-    TypeInfo::dynamic(Some(k.format), k.type_name)
-}
-
-/// One side of a DDS call: a type Courier knows, or any type laid out as
-/// an IPC format (`--format` / `--reply-format`) under a type name.
-enum Side {
-    Known(&'static Known),
-    Cdr(Format, &'static str),
-}
-
-impl Side {
-    fn new(format: Option<&Format>, type_name: Option<&str>) -> Result<Side> {
-        let name = type_name.unwrap_or("courier::Ping");
-        Ok(match format {
-            Some(f) => Side::Cdr(f.clone(), Box::leak(name.to_string().into_boxed_str())),
-            None => Side::Known(known(name)?),
-        })
-    }
-
-    fn type_info(&self) -> TypeInfo {
-        match self {
-            Side::Known(k) => type_info(k),
-            Side::Cdr(f, name) => {
-                TypeInfo::dynamic(Some(Box::leak(f.to_string().into_boxed_str())), name)
-            }
-        }
-    }
-
-    fn encode(&self, text: &str) -> Result<Vec<u8>> {
-        Ok(match self {
-            Side::Known(k) => k.encode(&parse_value(&k.parsed(), text)?)?,
-            Side::Cdr(f, _) => crate::cdr_value::encode(f, &parse_value(f, text)?)?,
-        })
-    }
-
-    fn decode(&self, data: &[u8]) -> Result<Decoded> {
-        Ok(match self {
-            Side::Known(k) => Decoded::dds(Some(k.type_name), data)?,
-            Side::Cdr(f, _) => Decoded::cdr(f, data)?,
-        })
-    }
-}
-
 async fn dds_call(
     s: &Session,
     o: &CallArgs,
     timeout: Duration,
     asked: &Cell<Option<Instant>>,
 ) -> Result<Decoded> {
-    let req = Side::new(o.format.as_ref(), o.type_name.as_deref())?;
+    let req = DdsType::new(o.format.as_ref(), o.type_name.as_deref())?;
     let resp = match (&o.reply_format, &o.reply_type) {
-        (None, None) if o.format.is_none() => Side::new(None, o.type_name.as_deref())?,
-        (f, t) => Side::new(f.as_ref(), t.as_deref().or(o.type_name.as_deref()))?,
+        (None, None) if o.format.is_none() => DdsType::new(None, o.type_name.as_deref())?,
+        (f, t) => DdsType::new(f.as_ref(), t.as_deref().or(o.type_name.as_deref()))?,
     };
     let data = req.encode(&o.request)?;
     let b = s.backend();

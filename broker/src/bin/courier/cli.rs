@@ -131,7 +131,8 @@ structs and arrays as arrays, enums by name, null for NULL pointers).
 The format: on ipc:// --format, or the one central holds for the message; on
 rtps:// --format (CDR laid out as #[derive(IpcMessage)] lays out that format;
 no pointers), else the discovered type when Courier knows it (courier::Ping,
-std_msgs::msg::dds_::String_). Samples of other types print as hex
+std_msgs::msg::dds_::String_); on xrce+…:// --type names the type the agent's
+reader takes (with --format for one Courier does not know). Samples of other types print as hex
 ({\"hex\":\"…\"} with --json). Diagnostics and progress go to stderr.";
 
 const LIST_OUTPUT: &str = "\
@@ -211,8 +212,9 @@ Output, one event a line:
 
 const SPY_OUTPUT: &str = "\
 On rtps:// every sample of the topics matching --topic and --type, and discovery;
-on ipc:// every message named by --topic (no patterns: a module sees only what it
-subscribes, and messages defined later would be missed), decoded through the format central holds, and modules
+on xrce+…:// every sample of the topics named by --topic as the --type named (a
+client learns nothing of discovery); on ipc:// every message named by --topic (no
+patterns: a module sees only what it subscribes), decoded through the format central holds, and modules
 connecting and disconnecting.
 Output, one event a line (a name with blanks is quoted; an empty list is -):
   ready
@@ -396,6 +398,10 @@ pub struct EchoArgs {
     /// its CDR layout, default: the discovered type if Courier knows it)
     #[arg(long, value_name = "FORMAT", value_parser = crate::values::parse_format)]
     pub format: Option<Format>,
+    /// DDS: subscribe as this type name (required on xrce+…://, whose agent
+    /// creates a typed reader; laid out as --format, or a type Courier knows)
+    #[arg(long = "type", value_name = "TYPE")]
+    pub type_name: Option<String>,
     /// Exit after N samples
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
     pub count: Option<u64>,
@@ -641,6 +647,12 @@ pub enum Kind {
     Dds,
 }
 
+/// Whether a URL that [`session_url`] accepted names a DDS-XRCE agent.
+pub fn is_xrce(url: &str) -> bool {
+    url.get(..5)
+        .is_some_and(|s| s.eq_ignore_ascii_case("xrce+"))
+}
+
 /// The backend of a URL that [`session_url`] accepted.
 pub fn kind(url: &str) -> Kind {
     match url.split_once("://") {
@@ -732,6 +744,18 @@ impl Cli {
                         ));
                     }
                 }
+                Kind::Dds if is_xrce(&a.url) => {
+                    if a.topic.is_empty()
+                        || a.topic.iter().any(|t| t.contains(['*', '?', '[']))
+                        || a.type_name.contains(['*', '?', '['])
+                    {
+                        return Err(usage_error(
+                            "spy",
+                            "on xrce+…:// name each --topic and one --type: an XRCE client \
+                             learns nothing of DDS discovery, so patterns cannot be matched",
+                        ));
+                    }
+                }
                 Kind::Dds => {
                     if a.topic.len() > 1 {
                         return Err(usage_error(
@@ -757,6 +781,20 @@ impl Cli {
             Command::Echo(a) => {
                 if let (Some(f), Kind::Dds) = (&a.format, kind(&a.url)) {
                     crate::cdr_value::check(f).map_err(|e| usage_error("echo", e))?;
+                }
+                if a.type_name.is_some() && kind(&a.url) == Kind::Ipc {
+                    return Err(usage_error(
+                        "echo",
+                        "--type is for DDS sessions (rtps://, xrce+…://); IPC messages have no \
+                         type names",
+                    ));
+                }
+                if a.type_name.is_none() && is_xrce(&a.url) {
+                    return Err(usage_error(
+                        "echo",
+                        "on xrce+…:// the agent creates a typed DDS reader: give --type TYPE \
+                         (with --format for a type Courier does not know)",
+                    ));
                 }
             }
             Command::Pub(a) => match kind(&a.url) {

@@ -15,6 +15,7 @@ use futures::StreamExt;
 
 use crate::cli::{kind, EchoArgs, Kind};
 use crate::connect::{connect, target, PROGRESS_EVERY};
+use crate::dds_type::DdsType;
 use crate::stop::{count, run_session, Ended, Stop};
 use crate::text::{err, out, progress};
 use crate::values::{Decoded, Style};
@@ -76,7 +77,16 @@ impl SampleDecoder {
 
 async fn echo(s: &Session, o: &EchoArgs, n: &Cell<u64>) -> Result<()> {
     let mut ev = s.events();
-    let mut sub = s.subscribe_raw(&o.topic).await?;
+    // a type named: announced (an XRCE agent needs it) and decoded by
+    let ty = o
+        .type_name
+        .as_deref()
+        .map(|t| DdsType::new(o.format.as_ref(), Some(t)))
+        .transpose()?;
+    let mut sub = match &ty {
+        Some(t) => s.subscribe_raw_as(&o.topic, &t.type_info()).await?,
+        None => s.subscribe_raw(&o.topic).await?,
+    };
     let style = if o.json { Style::Json } else { Style::Text };
     let mut dec = SampleDecoder::new(&o.url, &o.topic, o.format.clone());
     let started = Instant::now();
@@ -98,7 +108,11 @@ async fn echo(s: &Session, o: &EchoArgs, n: &Cell<u64>) -> Result<()> {
                     return Err("the session ended".into());
                 };
                 n.set(n.get() + 1);
-                let d = match dec.decode(s, &smp).await {
+                let decoded = match &ty {
+                    Some(t) => t.decode(&smp.data),
+                    None => dec.decode(s, &smp).await,
+                };
+                let d = match decoded {
                     Ok(d) => d,
                     Err(e) => {
                         err(format_args!("courier: sample {} of {:?} {e}", n.get(), o.topic));

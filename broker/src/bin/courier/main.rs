@@ -16,6 +16,7 @@ mod call;
 mod cdr_value;
 mod cli;
 mod connect;
+mod dds_type;
 mod echo;
 mod gen;
 mod list;

@@ -9,8 +9,9 @@ use std::time::{Duration, Instant};
 use courier::{Session, SessionEvent};
 use futures::StreamExt;
 
-use crate::cli::{kind, Kind, SpyArgs};
+use crate::cli::{is_xrce, kind, Kind, SpyArgs};
 use crate::connect::connect;
+use crate::dds_type::DdsType;
 use crate::echo::SampleDecoder;
 use crate::stop::{count, run_session, Ended, Stop};
 use crate::text::{
@@ -28,21 +29,34 @@ pub async fn run(o: SpyArgs, mut stop: Stop) -> Result<Ended> {
     let n = Cell::new(0u64);
     let what = || format!("after {}", count(n.get(), "sample"));
     match kind(&o.url) {
+        Kind::Dds if is_xrce(&o.url) => {
+            run_session(&s, &mut stop, spy_named(&s, &o, &n), what).await
+        }
         Kind::Dds => run_session(&s, &mut stop, spy(&s, &o, &n), what).await,
-        Kind::Ipc => run_session(&s, &mut stop, spy_ipc(&s, &o, &n), what).await,
+        Kind::Ipc => run_session(&s, &mut stop, spy_named(&s, &o, &n), what).await,
     }
 }
 
 /// On IPC: the messages named, each decoded through the format central
 /// holds for it, and modules connecting and disconnecting. (A module sees
 /// only what it subscribes, and a pattern would miss the messages defined
-/// after it was matched.)
-async fn spy_ipc(s: &Session, o: &SpyArgs, n: &Cell<u64>) -> Result<()> {
+/// after it was matched.) On XRCE: the topics named, as the type named
+/// (the client learns nothing of DDS discovery).
+async fn spy_named(s: &Session, o: &SpyArgs, n: &Cell<u64>) -> Result<()> {
     let mut ev = s.events();
     let mut subs = Vec::new();
     let mut decoders = HashMap::new();
+    // XRCE: the agent creates typed readers (cli.rs checked --type names one)
+    let typed = if is_xrce(&o.url) {
+        Some(DdsType::new(None, Some(&o.type_name))?)
+    } else {
+        None
+    };
     for t in &o.topic {
-        let sub = s.subscribe_raw(t).await?;
+        let sub = match &typed {
+            Some(ty) => s.subscribe_raw_as(t, &ty.type_info()).await?,
+            None => s.subscribe_raw(t).await?,
+        };
         subs.push(Box::pin(futures::stream::unfold(
             sub,
             |mut sub| async move { sub.recv().await.map(|smp| (smp, sub)) },
@@ -64,7 +78,12 @@ async fn spy_ipc(s: &Session, o: &SpyArgs, n: &Cell<u64>) -> Result<()> {
             smp = samples.next() => {
                 let Some(smp) = smp else { break }; // the session ended
                 let Some(dec) = decoders.get_mut(&smp.msg) else { continue };
-                let (ty, value) = match dec.decode(s, &smp).await {
+                let decoded = match &typed {
+                    Some(t) => t.decode(&smp.data),
+                    None => dec.decode(s, &smp).await,
+                };
+                let (ty, value) = match decoded {
+                    Ok(d) if typed.is_some() => (o.type_name.clone(), d.print(Style::Text)),
                     Ok(Decoded::Value(f, v)) => (word(&f.to_string()), Decoded::Value(f, v).print(Style::Text)),
                     Ok(d) => ("?".to_string(), d.print(Style::Text)),
                     Err(e) => ("?".to_string(), format!("{} ({e})", hex(&smp.data))),

@@ -413,9 +413,10 @@ impl Central {
             // C warns from its two-way-message branch only, which tests
             // the message's registered class: an IPC message (registered
             // as a broadcast) is answered to a dead querier silently.
-            let two_way = self.msgs.get(&d.msg).is_some_and(|m| {
-                matches!(m.class, MsgClass::Query | MsgClass::MultiQuery)
-            });
+            let two_way = self
+                .msgs
+                .get(&d.msg)
+                .is_some_and(|m| matches!(m.class, MsgClass::Query | MsgClass::MultiQuery));
             if !org_alive && two_way {
                 let dead = self.org_name(&d);
                 self.log_line(
