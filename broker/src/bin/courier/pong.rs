@@ -8,11 +8,12 @@ use std::time::{Duration, Instant};
 use courier::{RecvError, Session, SessionEvent};
 use futures::StreamExt;
 
+use crate::cli::{kind, Kind};
 use crate::cli::{PingArgs, PongArgs};
 use crate::connect::{connect, PROGRESS_EVERY};
-use crate::ping::{now_ns, Matched};
+use crate::ping::{now_ns, Matched, LAST_ACK_BOUND};
 use crate::stop::{count, run_session, Ended, Stop};
-use crate::text::{out, progress};
+use crate::text::{err, out, progress};
 use crate::values::Ping;
 use crate::Result;
 
@@ -38,14 +39,26 @@ async fn answer(s: &Session, o: &PongArgs, n: &Cell<u64>) -> Result<()> {
             r = sub.next() => match r {
                 None | Some(Err(RecvError::Disconnected)) => return Err("the session ended".into()),
                 Some(Ok(smp)) => {
-                    p.publish(&smp.value).await?;
                     // `ping --rtt`'s warm-up pings (seq 0) are answered but
                     // not counted: --count N answers N measured pings
-                    if smp.value.seq == 0 {
-                        continue;
+                    let counted = smp.value.seq != 0;
+                    let last = counted && o.count.is_some_and(|c| n.get() + 1 >= c);
+                    if last && kind(&o.url) == Kind::Dds {
+                        // leaving right after the write could cost the
+                        // pinger its last answer: wait for its acknowledgement
+                        match p.publish(&smp.value).timeout(LAST_ACK_BOUND).await {
+                            Err(courier::PublishError::Timeout { after, .. }) => err(format_args!(
+                                "courier: the last answer was not acknowledged within {after:?}"
+                            )),
+                            r => r?,
+                        }
+                    } else {
+                        p.publish(&smp.value).await?;
                     }
-                    n.set(n.get() + 1);
-                    if o.count.is_some_and(|c| n.get() >= c) {
+                    if counted {
+                        n.set(n.get() + 1);
+                    }
+                    if last {
                         break;
                     }
                 }
