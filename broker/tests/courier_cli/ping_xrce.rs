@@ -67,10 +67,10 @@ fn ping_rtt_through_pong_over_xrce() {
     rt.block_on(a.shutdown());
 }
 
-/// `echo` and `spy` over XRCE name the type (the agent creates a typed
+/// `echo`, `spy` and `hz` over XRCE name the type (the agent creates a typed
 /// DDS reader) and the topics (a client learns nothing of discovery).
 #[test]
-fn echo_and_spy_over_xrce_name_their_type() {
+fn echo_spy_and_hz_over_xrce_name_their_type() {
     let (rt, a, u) = agent(274);
     let mut echo = Proc::start(&[
         "echo",
@@ -81,6 +81,7 @@ fn echo_and_spy_over_xrce_name_their_type() {
         "--count",
         "2",
     ]);
+    let mut hz = Proc::start(&["hz", &u, "ping", "--type", "courier::Ping", "--count", "4"]);
     let mut spy = Proc::start(&[
         "spy",
         &u,
@@ -106,9 +107,15 @@ fn echo_and_spy_over_xrce_name_their_type() {
     );
     assert_eq!(echo.wait(), Some(0));
     assert_eq!(spy.wait(), Some(0));
+    let rate = hz.expect("rate ");
+    assert!(rate.contains(" window 4 "), "{rate}");
+    assert_eq!(hz.wait(), Some(0));
     drop(publ);
     // without a type, or with a pattern: usage errors that say why
     let (code, _, err) = crate::run(&["echo", &u, "ping"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("give --type TYPE"), "{err}");
+    let (code, _, err) = crate::run(&["bw", &u, "ping"]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("give --type TYPE"), "{err}");
     let (code, _, err) = crate::run(&["spy", &u, "--topic", "p*", "--type", "courier::Ping"]);

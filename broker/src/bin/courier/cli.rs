@@ -426,6 +426,13 @@ pub struct RateArgs {
     /// hz: count intervals longer than this as gaps (default: twice the mean)
     #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u64).range(1..))]
     pub gap: Option<u64>,
+    /// DDS: subscribe as this type (required on xrce+…://, whose agent
+    /// creates a typed reader; a type Courier knows, or laid out as --format)
+    #[arg(long = "type", value_name = "TYPE")]
+    pub type_name: Option<String>,
+    /// With --type: the type's layout as an IPC format, for a type Courier does not know
+    #[arg(long, value_name = "FORMAT", value_parser = crate::values::parse_format, requires = "type_name")]
+    pub format: Option<Format>,
     /// Exit after N samples
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
     pub count: Option<u64>,
@@ -883,11 +890,28 @@ impl Cli {
                     ));
                 }
             }
-            Command::Hz(_)
-            | Command::Bw(_)
-            | Command::Pong(_)
-            | Command::Gen(_)
-            | Command::Completions { .. } => {}
+            Command::Hz(a) | Command::Bw(a) => {
+                let sub = if matches!(self.command, Command::Hz(_)) {
+                    "hz"
+                } else {
+                    "bw"
+                };
+                if a.type_name.is_some() && kind(&a.url) == Kind::Ipc {
+                    return Err(usage_error(
+                        sub,
+                        "--type is for DDS sessions (rtps://, xrce+…://); IPC messages have no \
+                         type names",
+                    ));
+                }
+                if a.type_name.is_none() && is_xrce(&a.url) {
+                    return Err(usage_error(
+                        sub,
+                        "on xrce+…:// the agent creates a typed DDS reader: give --type TYPE \
+                         (with --format for a type Courier does not know)",
+                    ));
+                }
+            }
+            Command::Pong(_) | Command::Gen(_) | Command::Completions { .. } => {}
         }
         Ok(())
     }

@@ -11,6 +11,7 @@ use futures::StreamExt;
 
 use crate::cli::{kind, Kind, RateArgs};
 use crate::connect::{connect, target, PROGRESS_EVERY};
+use crate::dds_type::DdsType;
 use crate::stop::{count, run_session, Ended, Stop};
 use crate::text::{out, progress};
 use crate::wait::Discovery;
@@ -132,7 +133,13 @@ fn bytes_per_sec(b: f64) -> String {
 
 async fn measure(s: &Session, o: &RateArgs, mode: Mode, n: &Cell<u64>) -> Result<()> {
     let mut ev = s.events();
-    let mut sub = s.subscribe_raw(&o.topic).await?;
+    let mut sub = match &o.type_name {
+        Some(t) => {
+            let ty = DdsType::new(o.format.as_ref(), Some(t))?;
+            s.subscribe_raw_as(&o.topic, &ty.type_info()).await?
+        }
+        None => s.subscribe_raw(&o.topic).await?,
+    };
     let started = Instant::now();
     let until = o.duration.map(|d| started + Duration::from_secs(d));
     let mut window = Window::new(o.window as usize);
