@@ -120,6 +120,8 @@ pub fn cpu_secs_of(pids: &[u32]) -> Option<f64> {
 pub struct Proc {
     pub name: String,
     pub child: Child,
+    /// After [`Proc::wait_line`]: the rest of stdout, sent at its end.
+    rest: Option<std::sync::mpsc::Receiver<String>>,
 }
 
 impl Proc {
@@ -141,6 +143,7 @@ impl Proc {
         Ok(Proc {
             name: name.to_string(),
             child,
+            rest: None,
         })
     }
 
@@ -159,6 +162,8 @@ impl Proc {
             .take()
             .ok_or_else(|| format!("{}: stdout already taken", self.name))?;
         let (tx, rx) = std::sync::mpsc::channel();
+        let (rest_tx, rest_rx) = std::sync::mpsc::channel();
+        self.rest = Some(rest_rx);
         let prefix_owned = prefix.to_string();
         std::thread::spawn(move || {
             let mut r = std::io::BufReader::new(out);
@@ -173,11 +178,11 @@ impl Proc {
                     }
                     Ok(_) if line.contains(prefix_owned.as_str()) => {
                         let _ = tx.send(Ok(line.trim_end().to_string()));
-                        // keep draining, so that the child never blocks on a full pipe
-                        let mut sink = String::new();
-                        while matches!(r.read_line(&mut sink), Ok(n) if n > 0) {
-                            sink.clear();
-                        }
+                        // keep reading, so that the child never blocks on a
+                        // full pipe; the rest goes to `finish`
+                        let mut rest = String::new();
+                        while matches!(r.read_line(&mut rest), Ok(n) if n > 0) {}
+                        let _ = rest_tx.send(rest);
                         return;
                     }
                     Ok(_) => lines.push(line.clone()),
@@ -200,10 +205,14 @@ impl Proc {
     pub fn finish(mut self, limit: Duration) -> Result<String, String> {
         use std::io::Read;
         let out = self.child.stdout.take();
+        let rest = self.rest.take();
         let reader = std::thread::spawn(move || {
             let mut s = String::new();
             if let Some(mut o) = out {
                 let _ = o.read_to_string(&mut s);
+            } else if let Some(r) = rest {
+                // the child has ended (or was killed): its pipe closes
+                s = r.recv_timeout(Duration::from_secs(10)).unwrap_or_default();
             }
             s
         });
