@@ -309,7 +309,8 @@ async fn soak(o: &Opts) -> Result<(), String> {
     let mut next_sample = started + PERIOD;
     let header = "| t (s) | agent CPU % | agent RSS (MiB) | delivered in 10 s | delivered total | gaps | repeated |";
     println!("{header}\n|---|---|---|---|---|---|---|");
-    while Instant::now() < end + Duration::from_millis(500) {
+    // the last row at `end` (the clients stop then)
+    while next_sample <= end + Duration::from_millis(500) {
         tokio::select! {
             s = sub.next() => match s {
                 Some(Ok(s)) => on_sample(&s.value, &mut c),
