@@ -29,7 +29,8 @@
 //! end of its measured window: CPU per round trip or per sample.
 //!
 //! Placement (taskset): both clients on CPU 0, the agent (or relay) on
-//! CPU 1 — each agent gets the same one CPU, whatever its threads.
+//! CPU 1 — each agent gets the same one CPU, whatever its threads;
+//! `--same-core`: everything on CPU 0.
 //!
 //! The roles are usable by hand:
 //! ```text
@@ -974,6 +975,8 @@ struct Orch {
     quick: bool,
     eprosima: Result<std::path::PathBuf, String>,
     pin: bool,
+    /// CPUs of the clients and of the agent (`--same-core`: both 0).
+    cpus: (&'static str, &'static str),
     /// XRCE message sizes of the 16 B sample: the floor sends these.
     datagram: usize,
 }
@@ -1022,14 +1025,14 @@ impl Orch {
         let mut procs = Vec::new();
         match sys {
             System::Courier => {
-                let mut c = self.cmd("1", &self.exe);
+                let mut c = self.cmd(self.cpus.1, &self.exe);
                 c.args(["courier-agent", "--port", &port.to_string()]);
                 let mut p = Proc::spawn("courier-agent", c)?;
                 p.wait_line("ready", Duration::from_secs(20))?;
                 procs.push(p);
             }
             System::Floor => {
-                let mut c = self.cmd("1", &self.exe);
+                let mut c = self.cmd(self.cpus.1, &self.exe);
                 c.args(["relay", "--port", &port.to_string()]);
                 let mut p = Proc::spawn("relay", c)?;
                 p.wait_line("ready", Duration::from_secs(20))?;
@@ -1038,7 +1041,7 @@ impl Orch {
             System::Eprosima => {
                 let agent = self.eprosima.clone()?;
                 let ds_port = procs::free_udp_port()?;
-                let mut ds = self.cmd("1", std::path::Path::new(DISCOVERY_SERVER));
+                let mut ds = self.cmd(self.cpus.1, std::path::Path::new(DISCOVERY_SERVER));
                 ds.args(["-i", "0", "-l", "127.0.0.1", "-p", &ds_port.to_string()]);
                 let mut dsp = Proc::spawn("fast-discovery-server", ds)?;
                 dsp.wait_line("Server is running", Duration::from_secs(20))
@@ -1047,7 +1050,7 @@ impl Orch {
                 let profile = std::env::temp_dir()
                     .join(format!("xrce-bench-fastdds-{}.xml", std::process::id()));
                 std::fs::write(&profile, FASTDDS_UDP_ONLY).map_err(|e| e.to_string())?;
-                let mut c = self.cmd("1", &agent);
+                let mut c = self.cmd(self.cpus.1, &agent);
                 c.args(["udp4", "-p", &port.to_string(), "-v", "4"])
                     .env("ROS_DISCOVERY_SERVER", format!("127.0.0.1:{ds_port}"))
                     .env("FASTRTPS_DEFAULT_PROFILES_FILE", &profile);
@@ -1073,7 +1076,7 @@ impl Orch {
         let agent_pid = agents.last().map(Proc::pid).unwrap_or(0);
         let url = format!("xrce+udp://127.0.0.1:{port}");
         let role = |r: &str| {
-            let mut c = self.cmd("0", &self.exe);
+            let mut c = self.cmd(self.cpus.0, &self.exe);
             let r = match sys {
                 System::Floor => format!("udp-{r}"),
                 _ => r.to_string(),
@@ -1191,12 +1194,13 @@ fn cpu_cell(o: &Outcome) -> String {
 
 fn usage() -> ExitCode {
     println!(
-        "usage:\n  xrce_bench [--quick] [--reps R] [--filter TEXT] [--eprosima PATH] [--no-eprosima] [--no-pin]\n\
+        "usage:\n  xrce_bench [--quick] [--reps R] [--filter TEXT] [--eprosima PATH] [--no-eprosima] [--no-pin] [--same-core]\n\
          \x20   the whole table: Courier's agent, eProsima's MicroXRCEAgent and a UDP relay floor, \
          the same Courier clients (runs itself inside `unshare -rn`, a namespace with only lo)\n\
          \x20   --eprosima: MicroXRCEAgent v2.3.0 (default {DEFAULT_EPROSIMA}); needs \
          {DISCOVERY_SERVER} (fastdds-tools) on PATH\n\
-         \x20   --no-pin: no taskset (default: clients on CPU 0, the agent on CPU 1)\n\
+         \x20   --no-pin: no taskset (default: clients on CPU 0, the agent on CPU 1); \
+         --same-core: all on CPU 0\n\
          \x20 xrce_bench courier-agent|relay --port P\n\
          \x20 xrce_bench ping|pong|pub|sub --url xrce+udp://127.0.0.1:P [--best-effort] [--size B] \
          [--secs S] [--warmup S] [--watch PEER_PID,AGENT_PID]\n\
@@ -1260,11 +1264,13 @@ fn orchestrate(args: &[String]) -> ExitCode {
     let mut eprosima: Option<String> = None;
     let mut no_eprosima = false;
     let mut pin = true;
+    let mut same_core = false;
     let mut it = args.iter();
     while let Some(a) = it.next() {
         match a.as_str() {
             "--quick" => quick = true,
             "--no-pin" => pin = false,
+            "--same-core" => same_core = true,
             "--no-eprosima" => no_eprosima = true,
             "--reps" => match it.next().and_then(|s| s.parse().ok()).filter(|&r| r >= 1) {
                 Some(r) => reps = r,
@@ -1328,6 +1334,7 @@ fn orchestrate(args: &[String]) -> ExitCode {
         quick,
         eprosima,
         pin,
+        cpus: if same_core { ("0", "0") } else { ("0", "1") },
         datagram: xrce_datagram(16),
     };
     let started = Instant::now();
@@ -1385,7 +1392,8 @@ fn ratio(a: &Outcome, b: &Outcome) -> Option<f64> {
 
 /// The goals of issue 28: round trip ≤ 0.2× eProsima's and ≤ 1.5× the
 /// floor; throughput ≥ 10× eProsima's.
-fn goal(kind: Kind, vs_eprosima: Option<f64>, vs_floor: Option<f64>) -> String {
+fn goal(case: Case, vs_eprosima: Option<f64>, vs_floor: Option<f64>) -> String {
+    let (kind, best_effort) = (case.kind, case.best_effort);
     let met = |ok: bool| if ok { "met" } else { "NOT met" };
     match kind {
         Kind::Rtt => format!(
@@ -1393,6 +1401,7 @@ fn goal(kind: Kind, vs_eprosima: Option<f64>, vs_floor: Option<f64>) -> String {
             vs_eprosima.map_or("–", |r| met(r <= 0.2)),
             vs_floor.map_or("–", |r| met(r <= 1.5))
         ),
+        Kind::Thr if best_effort => "– (the goal is for reliable)".into(),
         Kind::Thr => format!(
             "≥ 10× eProsima {}",
             vs_eprosima.map_or("–", |r| met(r >= 10.0))
@@ -1418,10 +1427,10 @@ fn print_table(orch: &Orch, rows: Vec<Row>, reps: usize, secs: f64) {
         } else {
             "one run each".into()
         },
-        if orch.pin {
-            "clients on CPU 0, agent on CPU 1"
-        } else {
-            "not pinned"
+        match (orch.pin, orch.cpus.1) {
+            (false, _) => "not pinned",
+            (true, "0") => "clients and agent on CPU 0",
+            (true, _) => "clients on CPU 0, agent on CPU 1",
         },
         orch.datagram,
         std::thread::available_parallelism().map_or(0, |n| n.get()),
@@ -1450,7 +1459,7 @@ fn print_table(orch: &Orch, rows: Vec<Row>, reps: usize, secs: f64) {
             cell(case.kind, &o[2]),
             r(vs_e),
             r(vs_f),
-            goal(case.kind, vs_e, vs_f)
+            goal(*case, vs_e, vs_f)
         );
     }
     println!(
