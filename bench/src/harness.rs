@@ -136,3 +136,14 @@ pub fn foreign_load(a: Option<(u64, u64)>, b: Option<(u64, u64)>, secs: f64) -> 
     let ticks = (b1 - b0).saturating_sub(o1 - o0) as f64;
     Some(ticks / 100.0 / secs.max(1e-3))
 }
+
+/// A rate in samples per second, as the tables print it.
+pub fn fmt_rate(r: f64) -> String {
+    if r >= 1e6 {
+        format!("{:.2} M/s", r / 1e6)
+    } else if r >= 1e3 {
+        format!("{:.1} k/s", r / 1e3)
+    } else {
+        format!("{r:.0} /s")
+    }
+}

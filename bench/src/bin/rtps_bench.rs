@@ -212,7 +212,7 @@ fn parse_role_opts(args: &[String]) -> Opts {
 
 #[path = "../harness.rs"]
 mod harness;
-use harness::{cpu_ticks, foreign_load, num, percentile, result_line, Watchdog};
+use harness::{cpu_ticks, fmt_rate, foreign_load, num, percentile, result_line, Watchdog};
 
 #[path = "../udp_floor.rs"]
 mod floor;
@@ -1287,16 +1287,6 @@ fn find_ddsperf() -> Result<String, String> {
         }
     }
     Err("ddsperf not installed".into())
-}
-
-fn fmt_rate(r: f64) -> String {
-    if r >= 1e6 {
-        format!("{:.2} M/s", r / 1e6)
-    } else if r >= 1e3 {
-        format!("{:.1} k/s", r / 1e3)
-    } else {
-        format!("{r:.0} /s")
-    }
 }
 
 fn cell(kind: Kind, o: &Outcome) -> String {

@@ -58,7 +58,7 @@ mod harness;
 #[path = "../xrce_procs.rs"]
 mod procs;
 
-use harness::{cpu_ticks, foreign_load, num, percentile, result_line, Watchdog};
+use harness::{cpu_ticks, fmt_rate, foreign_load, num, percentile, result_line, Watchdog};
 use procs::{cpu_secs, cpu_secs_of, Proc};
 
 /// The sample: a sequence number, a timestamp (ping: ns since the ping
@@ -1162,16 +1162,6 @@ fn median(mut runs: Vec<Outcome>) -> Outcome {
     }
     runs.sort_by(|a, b| a.value.partial_cmp(&b.value).unwrap_or(std::cmp::Ordering::Equal));
     runs[(runs.len() - 1) / 2].clone()
-}
-
-fn fmt_rate(r: f64) -> String {
-    if r >= 1e6 {
-        format!("{:.2} M/s", r / 1e6)
-    } else if r >= 1e3 {
-        format!("{:.1} k/s", r / 1e3)
-    } else {
-        format!("{r:.0} /s")
-    }
 }
 
 fn cell(kind: Kind, o: &Outcome) -> String {
