@@ -89,6 +89,11 @@ const CTL_PROBE_SEEN: u32 = 1;
 const CTL_DONE: u32 = 2;
 
 const PING_RETRY: Duration = Duration::from_millis(200);
+/// A throughput subscriber that got nothing for this long since its last
+/// sample stops (what has not come by then is lost).
+const SILENCE: Duration = Duration::from_secs(3);
+/// … or this long after the publisher's warm-up + measured time.
+const LATE: Duration = Duration::from_secs(10);
 /// Other processes' CPU use (in CPUs) above which a row is marked busy.
 const BUSY: f64 = 0.15;
 /// The reliable window of both XRCE streams (the agent's and the
@@ -565,10 +570,19 @@ async fn subscribe(o: &Opts) -> Res {
     let mut stop_at = deadline;
     let mut probe_answered = false;
     loop {
+        // a stream that stopped for good (samples lost, the end marker
+        // with them) ends the run after SILENCE rather than at the deadline
+        // nor later than LATE after the publisher stopped
+        let until = match c.first {
+            Some(first) => stop_at
+                .min(c.last + SILENCE)
+                .min(first + Duration::from_secs_f64(o.warmup + o.secs) + LATE),
+            None => stop_at,
+        };
         let r = tokio::select! {
             biased;
             r = data.next() => r,
-            _ = tokio::time::sleep_until(stop_at.into()) => break,
+            _ = tokio::time::sleep_until(until.into()) => break,
         };
         let smp = match r {
             Some(Ok(smp)) => smp.value,
