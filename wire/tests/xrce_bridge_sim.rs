@@ -603,6 +603,60 @@ fn keep_all_back_pressure_holds_the_client_and_loses_nothing_acknowledged() {
 }
 
 #[test]
+fn a_full_keep_all_reader_of_another_client_holds_the_writer_and_loses_nothing() {
+    // two clients of the bridge: a reliable keep-all reader whose client
+    // does not read yet, with room for 8 samples, and a reliable writer
+    let mut w = world(6, 0, |_, b| b.reader_queue = 8);
+    let rd = w.add_client(10, 0xAAAA_0006);
+    w.create(rd, reader_objects("Pair", true), CreationMode::REPLACE);
+    let wr = w.add_client(11, 0xAAAA_0007);
+    w.create(wr, writer_objects("Pair", true), CreationMode::REPLACE);
+    let n = 100u32;
+    let mut next = 0;
+    let write_more = |w: &mut World, next: &mut u32| {
+        while *next < n {
+            let now = w.net.now();
+            match w
+                .client(wr)
+                .write(oid(ObjectKind::DataWriter), R, &sample(*next, 16), now)
+            {
+                Ok(_) => *next += 1,
+                Err(_) => break,
+            }
+        }
+    };
+    let t0 = w.net.elapsed();
+    while w.net.elapsed() < t0 + Duration::from_secs(3) {
+        write_more(&mut w, &mut next);
+        w.net.step();
+    }
+    // the reader is full: the writer's samples wait, unacknowledged
+    assert_eq!(w.bridge().stats().samples_dropped, 0);
+    let acked = |w: &World| {
+        w.client_events(wr)
+            .iter()
+            .filter(|e| matches!(e, Event::WriteAcked(_)))
+            .count()
+    };
+    assert!(acked(&w) < n as usize, "all acknowledged, none held");
+    assert!(w.bridge().agent().writes_pending() > 0, "no write held");
+    // the reader's client reads: everything arrives, in order
+    let now = w.net.now();
+    w.client(rd)
+        .read(oid(ObjectKind::DataReader), R, R, unlimited(), now)
+        .unwrap();
+    let mut done = false;
+    let t1 = w.net.elapsed();
+    while !done && w.net.elapsed() < t1 + Duration::from_secs(60) {
+        write_more(&mut w, &mut next);
+        done = w.run_until(Duration::from_millis(50), |w| w.data(rd).len() == n as usize);
+    }
+    assert_eq!(w.data(rd), (0..n).map(|i| sample(i, 16)).collect::<Vec<_>>());
+    assert_eq!(w.bridge().stats().samples_dropped, 0);
+    assert!(w.run_until(Duration::from_secs(10), |w| acked(w) == n as usize));
+}
+
+#[test]
 fn first_sample_of_a_new_writer_reaches_a_reader_discovered_before() {
     let mut w = world(3, 0, |_, _| {});
     let now = w.net.now();

@@ -35,7 +35,7 @@
 //! assert_eq!(status_agent[..10], [0x81, 0, 0, 0, 4, 1, 11, 0, 0, 0]);
 //! ```
 
-use std::collections::{BTreeMap, HashMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
 use std::hash::Hash;
 use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
@@ -237,6 +237,11 @@ pub struct Agent<A> {
     clients: BTreeMap<u32, Proxy<A>>,
     by_addr: HashMap<A, u32>,
     transmits: VecDeque<(A, Vec<u8>)>,
+    /// Sessions that may have something to send: touched by an input or a
+    /// command, or with a HEARTBEAT due. [`Agent::poll_transmit`] looks at
+    /// these only, so that the work per message does not grow with the
+    /// number of clients.
+    dirty: BTreeSet<u32>,
     events: VecDeque<AgentEvent>,
     now: Instant,
     wall: (Instant, SystemTime),
@@ -258,6 +263,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
             clients: BTreeMap::new(),
             by_addr: HashMap::new(),
             transmits: VecDeque::new(),
+            dirty: BTreeSet::new(),
             events: VecDeque::new(),
             now,
             wall: (now, wall),
@@ -319,6 +325,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
         );
         streams.set_deferred(self.cfg.host_confirms_writes);
         streams.set_resync();
+        self.dirty.insert(k);
         self.clients.insert(
             k,
             Proxy {
@@ -419,6 +426,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
         if h.client_key.is_some() {
             self.bind(key, from);
         }
+        self.dirty.insert(key);
         let Some(proxy) = self.clients.get_mut(&key) else {
             return Ok(());
         };
@@ -437,6 +445,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
             let r = self.on_submessage(key, stream, origin, sub, now);
             result = result.and(r);
         }
+        self.dirty.insert(key);
         if let Some(p) = self.clients.get_mut(&key) {
             let mut replies = arrival.replies;
             for id in arrival.ack_later {
@@ -476,6 +485,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
     }
 
     fn bind(&mut self, key: u32, addr: A) {
+        self.dirty.insert(key);
         if let Some(p) = self.clients.get_mut(&key) {
             if p.addr != addr {
                 self.by_addr.remove(&p.addr);
@@ -517,6 +527,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
                 .get(&key)
                 .is_some_and(|p| p.session_id == rep.session_id);
             if kept {
+                self.dirty.insert(key);
                 if let Some(p) = self.clients.get_mut(&key) {
                     p.reset_streams();
                 }
@@ -531,6 +542,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
                     self.cfg.max_streams,
                 );
                 streams.set_deferred(self.cfg.host_confirms_writes);
+                self.dirty.insert(key);
                 self.clients.insert(
                     key,
                     Proxy {
@@ -611,6 +623,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
             Payload::ReadData(read) => AgentEvent::Read { client, read },
             Payload::GetInfo(g) => {
                 let info = self.info(g.request, true);
+                self.dirty.insert(key);
                 if let Some(p) = self.clients.get_mut(&key) {
                     let _ = p.streams.send_control(info);
                 }
@@ -623,12 +636,14 @@ impl<A: Clone + Eq + Hash> Agent<A> {
                     receive: at,
                     originate: t,
                 }));
+                self.dirty.insert(key);
                 if let Some(p) = self.clients.get_mut(&key) {
                     let _ = p.streams.send_control(reply);
                 }
                 return Ok(());
             }
             Payload::Reset => {
+                self.dirty.insert(key);
                 if let Some(p) = self.clients.get_mut(&key) {
                     p.reset_streams();
                 }
@@ -657,6 +672,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
             return None;
         }
         let seq = origin?;
+        self.dirty.insert(key);
         let p = self.clients.get_mut(&key)?;
         let entry = p
             .pending
@@ -679,6 +695,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
     /// a ticket of a session that is gone or started over.
     pub fn write_done(&mut self, ticket: WriteTicket, now: Instant) -> bool {
         self.tick(now);
+        self.dirty.insert(u32::from(ticket.client));
         let Some(p) = self.clients.get_mut(&u32::from(ticket.client)) else {
             return false;
         };
@@ -713,6 +730,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
     }
 
     fn proxy(&mut self, client: ClientKey) -> Result<&mut Proxy<A>, AgentCommandError> {
+        self.dirty.insert(u32::from(client));
         self.clients
             .get_mut(&u32::from(client))
             .ok_or(AgentCommandError::UnknownClient(client.into()))
@@ -777,6 +795,11 @@ impl<A: Clone + Eq + Hash> Agent<A> {
     /// [`poll_transmit`](Self::poll_transmit).
     pub fn handle_timeout(&mut self, now: Instant) {
         self.tick(now);
+        for (k, p) in &self.clients {
+            if p.streams.poll_timeout().is_some_and(|t| t <= now) {
+                self.dirty.insert(*k);
+            }
+        }
     }
 
     /// When [`handle_timeout`](Self::handle_timeout) is next needed.
@@ -793,9 +816,15 @@ impl<A: Clone + Eq + Hash> Agent<A> {
             return Some(t);
         }
         let now = self.now;
-        self.clients
-            .values_mut()
-            .find_map(|p| p.streams.poll_transmit(now).map(|m| (p.addr.clone(), m)))
+        while let Some(&k) = self.dirty.first() {
+            if let Some(p) = self.clients.get_mut(&k) {
+                if let Some(m) = p.streams.poll_transmit(now) {
+                    return Some((p.addr.clone(), m));
+                }
+            }
+            self.dirty.remove(&k);
+        }
+        None
     }
 
     /// The next event for the host.

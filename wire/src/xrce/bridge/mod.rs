@@ -66,7 +66,7 @@ use std::hash::Hash;
 use std::time::{Instant, SystemTime};
 
 use crate::dds::{Domain, Event as DdsEvent, ReaderId, WriterId};
-use crate::rtps::discovery::History;
+use crate::rtps::discovery::{History, Reliability};
 use crate::rtps::participant::{
     Change, ChangeKind, Datagram, EndpointConfig, SampleIdentity as RtpsIdentity, WriteError,
 };
@@ -103,7 +103,11 @@ pub struct BridgeConfig {
     /// The references file's profiles (CREATE by reference).
     pub profiles: Profiles,
     /// Samples a keep-all reader keeps for its client at most (a keep-last
-    /// reader keeps its depth); beyond, the oldest are dropped and counted.
+    /// reader keeps its depth). A reliable keep-all reader that holds this
+    /// many makes the bridge's own reliable writers matched with it wait
+    /// (and their clients with them); samples from remote DDS writers can
+    /// take it to four times this, beyond which the oldest are dropped and
+    /// counted.
     pub reader_queue: usize,
 }
 
@@ -287,6 +291,12 @@ pub struct Bridge<A> {
     /// READ_DATA): the only ones looked at after an input, so that the work
     /// per message does not grow with the number of objects.
     ready: HashSet<Key>,
+    /// Reliable keep-all inboxes at their cap: the bridge's reliable
+    /// writers matched with one hold their samples (and so the client's
+    /// XRCE window) until it drains to half (KEEP_ALL back-pressure between
+    /// two clients of this agent, where DDS has no acknowledgement to
+    /// withhold). Nearly always empty.
+    full: Vec<Key>,
     order: u64,
     events: VecDeque<BridgeEvent>,
     stats: BridgeStats,
@@ -359,6 +369,7 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
             by_reader: HashMap::new(),
             by_writer: HashMap::new(),
             ready: HashSet::new(),
+            full: Vec::new(),
             order: 0,
             events: VecDeque::new(),
             stats: BridgeStats::default(),
@@ -469,21 +480,59 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
     /// delivers what READ_DATAs allow.
     fn process(&mut self, now: Instant) {
         loop {
-            let mut any = false;
-            while let Some(e) = self.agent.poll_event() {
-                any = true;
-                self.on_agent(e, now);
+            loop {
+                let mut any = false;
+                while let Some(e) = self.agent.poll_event() {
+                    any = true;
+                    self.on_agent(e, now);
+                }
+                while let Some(e) = self.domain.poll_event() {
+                    any = true;
+                    self.on_dds(e, now);
+                }
+                if !any {
+                    break;
+                }
             }
-            while let Some(e) = self.domain.poll_event() {
-                any = true;
-                self.on_dds(e, now);
-            }
-            if !any {
+            self.deliver_all(now);
+            if !self.release_full(now) {
                 break;
             }
         }
-        self.deliver_all(now);
     }
+
+    /// Forgets the full inboxes that drained (or are gone) and lets the
+    /// writers they held write again; whether there were any.
+    fn release_full(&mut self, now: Instant) -> bool {
+        if self.full.is_empty() {
+            return false;
+        }
+        let objects = &self.objects;
+        let before = self.full.len();
+        self.full.retain(|key| match objects.get(key).map(|o| &o.entity) {
+            Some(Entity::Reader(_, i)) => !i.has_room(),
+            _ => false,
+        });
+        if self.full.len() == before {
+            return false;
+        }
+        let held: Vec<Key> = self
+            .objects
+            .iter()
+            .filter(|(_, o)| match &o.entity {
+                Entity::Writer(out)
+                | Entity::Requester { out, .. }
+                | Entity::Replier { out, .. } => !out.held.is_empty(),
+                _ => false,
+            })
+            .map(|(k, _)| *k)
+            .collect();
+        for key in held {
+            self.flush(key, now);
+        }
+        true
+    }
+
 
     fn on_agent(&mut self, e: AgentEvent, now: Instant) {
         match e {
@@ -611,6 +660,9 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
                 };
                 if inbox.push(item) {
                     self.stats.samples_dropped += 1;
+                }
+                if inbox.is_full() && !self.full.contains(&key) {
+                    self.full.push(key);
                 }
                 self.ready.insert(key);
             }
@@ -917,10 +969,14 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
                 } else {
                     let r = self.domain.create_reader(cfg, now).map_err(dds_err)?;
                     let cap = inbox_cap(&self.cfg, &ep.qos);
-                    Ok(obj(
-                        Some(*publisher_id),
-                        Entity::Reader(r, read::Inbox::new(cap)),
-                    ))
+                    let keep_all_reliable = ep.qos.history == History::KeepAll
+                        && matches!(ep.qos.reliability, Reliability::Reliable(_));
+                    let inbox = if keep_all_reliable {
+                        read::Inbox::holding(cap)
+                    } else {
+                        read::Inbox::new(cap)
+                    };
+                    Ok(obj(Some(*publisher_id), Entity::Reader(r, inbox)))
                 }
             }
             V::Requester {
@@ -1072,6 +1128,14 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
 
     /// Writes what an output holds, in order, while its history has room.
     fn flush(&mut self, key: Key, now: Instant) {
+        let Some(out) = output_of(&mut self.objects, key) else {
+            return;
+        };
+        if out.held.is_empty() {
+            return;
+        }
+        let writer = out.writer;
+        let mut room = room_for(&self.objects, &self.by_reader, &self.domain, writer);
         loop {
             let Some(out) = output_of(&mut self.objects, key) else {
                 return;
@@ -1085,6 +1149,19 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
                 change = change.with_related_sample_identity(r);
             }
             let best_effort = h.ticket.is_none();
+            if !best_effort {
+                match room.as_mut() {
+                    Some((0, inbox)) => {
+                        // again when that inbox drains (`release_full`)
+                        if !self.full.contains(inbox) {
+                            self.full.push(*inbox);
+                        }
+                        return;
+                    }
+                    Some((r, _)) => *r -= 1,
+                    None => {}
+                }
+            }
             let result = self.domain.write(writer, change, now);
             match result {
                 Ok(sn) => {
@@ -1239,6 +1316,38 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
             inbox.delivery.is_some() && !inbox.queue.is_empty()
         });
     }
+}
+
+/// Room left in the fullest holding inbox (reliable keep-all reader of
+/// this agent) that `writer` is matched with, and that inbox; `None`: no
+/// such reader.
+/// Samples written reach the inboxes as DDS events a little later, so the
+/// writer takes at most this many at a time.
+fn room_for(
+    objects: &HashMap<Key, Object>,
+    by_reader: &HashMap<ReaderId, Key>,
+    domain: &Domain,
+    writer: WriterId,
+) -> Option<(usize, Key)> {
+    let mut room: Option<(usize, Key)> = None;
+    for g in domain.participant().matched_readers(writer.guid()) {
+        let Some(key) = by_reader.get(&ReaderId(g)) else {
+            continue;
+        };
+        if let Some(Object {
+            entity: Entity::Reader(_, i),
+            ..
+        }) = objects.get(key)
+        {
+            if i.hold {
+                let r = i.cap.saturating_sub(i.queue.len());
+                if room.map_or(true, |(m, _)| r < m) {
+                    room = Some((r, *key));
+                }
+            }
+        }
+    }
+    room
 }
 
 /// Sends what one inbox's delivery allows now.

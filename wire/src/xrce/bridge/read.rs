@@ -124,7 +124,16 @@ pub(super) struct Inbox {
     pub read: Option<ReadData>,
     /// When the gate next opens (rate, pace).
     pub wake: Option<Instant>,
+    /// A reliable keep-all reader: at `cap` it holds the bridge's own
+    /// writers back instead of dropping ([`Inbox::is_full`]); only samples
+    /// from elsewhere (remote DDS writers) can take it beyond, up to
+    /// [`HOLD_SLACK`] × `cap`, where the oldest go after all.
+    pub hold: bool,
 }
+
+/// How far beyond its `cap` a holding inbox takes samples that nothing
+/// could hold back (from remote DDS writers) before it drops the oldest.
+pub const HOLD_SLACK: usize = 4;
 
 impl Inbox {
     pub fn new(cap: usize) -> Self {
@@ -134,13 +143,37 @@ impl Inbox {
             delivery: None,
             read: None,
             wake: None,
+            hold: false,
         }
+    }
+
+    /// A reliable keep-all reader's inbox (see [`Inbox::hold`]).
+    pub fn holding(cap: usize) -> Self {
+        Inbox {
+            hold: true,
+            ..Inbox::new(cap)
+        }
+    }
+
+    /// A holding inbox at its cap: the bridge's writers matched with it wait.
+    pub fn is_full(&self) -> bool {
+        self.hold && self.queue.len() >= self.cap
+    }
+
+    /// A holding inbox that drained to half its cap: the writers it held go on.
+    pub fn has_room(&self) -> bool {
+        self.queue.len() <= self.cap / 2
     }
 
     /// Keeps a sample; whether an older one was dropped for it.
     pub fn push(&mut self, sample: Vec<u8>) -> bool {
         self.queue.push_back(sample);
-        if self.queue.len() > self.cap {
+        let limit = if self.hold {
+            self.cap.saturating_mul(HOLD_SLACK)
+        } else {
+            self.cap
+        };
+        if self.queue.len() > limit {
             self.queue.pop_front();
             true
         } else {
