@@ -853,6 +853,13 @@ impl Cli {
                 }
                 _ => {}
             },
+            Command::List(a) if is_xrce(&a.url) => {
+                return Err(usage_error(
+                    "list",
+                    "list does not run on xrce+…://: an XRCE client learns nothing of DDS \
+                     discovery; list the DDS side (rtps://…), where the agent's entities are",
+                ));
+            }
             Command::List(a) => {
                 if kind(&a.url) == Kind::Dds && !(a.module.is_empty() && a.message.is_empty()) {
                     return Err(usage_error(
@@ -861,6 +868,14 @@ impl Cli {
                          discovery finds",
                     ));
                 }
+            }
+            Command::Record(a) if is_xrce(&a.url) => {
+                return Err(usage_error(
+                    "record",
+                    "record does not run on xrce+…://: an XRCE client learns nothing of DDS \
+                     discovery, so it knows no topic types to record; record the same topics on \
+                     the DDS side (rtps://…), where the agent's entities are",
+                ));
             }
             Command::Record(a) => {
                 if kind(&a.url) == Kind::Ipc {
