@@ -71,7 +71,9 @@ fn lo_only() -> Result<(), String> {
     if others.is_empty() {
         Ok(())
     } else {
-        Err(format!("interfaces besides lo: {others:?}; refusing to run"))
+        Err(format!(
+            "interfaces besides lo: {others:?}; refusing to run"
+        ))
     }
 }
 
@@ -196,7 +198,10 @@ impl Proc {
                 self.name,
                 std::env::temp_dir().display()
             )),
-            Err(_) => Err(format!("{} printed no {prefix:?} within {limit:?}", self.name)),
+            Err(_) => Err(format!(
+                "{} printed no {prefix:?} within {limit:?}",
+                self.name
+            )),
         }
     }
 
@@ -272,7 +277,11 @@ pub fn courier_agent_role(args: &[String]) -> Result<(), String> {
         match (a.as_str(), v) {
             ("--port", Some(p)) if p <= 65535 => port = p as u16,
             ("--domain", Some(d)) if d <= 232 => domain = d,
-            _ => return Err(format!("courier-agent: bad argument {a:?} (--port P --domain D)")),
+            _ => {
+                return Err(format!(
+                    "courier-agent: bad argument {a:?} (--port P --domain D)"
+                ))
+            }
         }
     }
     let rt = tokio::runtime::Builder::new_current_thread()
@@ -286,7 +295,10 @@ pub fn courier_agent_role(args: &[String]) -> Result<(), String> {
         rtps.peers = vec!["127.0.0.1".into()];
         rtps.multicast = false;
         let agent = XrceAgent::builder()
-            .transport(Transport::Udp(SocketAddr::from((Ipv4Addr::LOCALHOST, port))))
+            .transport(Transport::Udp(SocketAddr::from((
+                Ipv4Addr::LOCALHOST,
+                port,
+            ))))
             .rtps(rtps)
             .spawn()
             .await

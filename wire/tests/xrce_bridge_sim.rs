@@ -649,9 +649,14 @@ fn a_full_keep_all_reader_of_another_client_holds_the_writer_and_loses_nothing()
     let t1 = w.net.elapsed();
     while !done && w.net.elapsed() < t1 + Duration::from_secs(60) {
         write_more(&mut w, &mut next);
-        done = w.run_until(Duration::from_millis(50), |w| w.data(rd).len() == n as usize);
+        done = w.run_until(Duration::from_millis(50), |w| {
+            w.data(rd).len() == n as usize
+        });
     }
-    assert_eq!(w.data(rd), (0..n).map(|i| sample(i, 16)).collect::<Vec<_>>());
+    assert_eq!(
+        w.data(rd),
+        (0..n).map(|i| sample(i, 16)).collect::<Vec<_>>()
+    );
     assert_eq!(w.bridge().stats().samples_dropped, 0);
     assert!(w.run_until(Duration::from_secs(10), |w| acked(w) == n as usize));
 }

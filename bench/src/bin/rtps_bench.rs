@@ -301,7 +301,6 @@ async fn await_reader(s: &Session, topic: &str, within: Duration) -> Res {
     Ok(())
 }
 
-
 /// The round-trip roles' writer of `topic`: reliable, keep-last 1 (as
 /// ddsperf's ping and pong).
 async fn rtt_publisher(s: &Session, topic: &str) -> Result<courier::Publisher<Data>, String> {
@@ -328,7 +327,6 @@ fn print_ping_result(size: usize, rtts: &mut [u64], secs: f64, retries: u64, set
         percentile(rtts, 1.0) / 1e3,
     );
 }
-
 
 /// Round trips: publish on `PING`, wait for the echo on `PONG`, one at a
 /// time; RTT = now − the echoed `ts_ns` (the ping's own clock).
@@ -1005,7 +1003,6 @@ fn run_pair(second: Command, first: Command, limit: Duration) -> Result<(String,
     Ok((ao, bo))
 }
 
-
 impl Orchestrator {
     fn taskset(&self, cpu: &str, program: &std::path::Path) -> Command {
         let mut c = Command::new("taskset");
@@ -1278,7 +1275,6 @@ fn parse_ddsperf_sub(out: &str, from: f64, to: f64, payload: usize) -> Option<Ou
         range: None,
     })
 }
-
 
 fn find_ddsperf() -> Result<String, String> {
     let paths = std::env::var_os("PATH").unwrap_or_default();

@@ -157,7 +157,10 @@ fn parse_opts(args: &[String]) -> Result<Opts, String> {
             "--watch" => {
                 o.watch = val()?
                     .split(',')
-                    .map(|p| p.parse::<u32>().map_err(|_| format!("--watch: bad pid {p:?}")))
+                    .map(|p| {
+                        p.parse::<u32>()
+                            .map_err(|_| format!("--watch: bad pid {p:?}"))
+                    })
                     .collect::<Result<_, _>>()?
             }
             other => return Err(format!("unknown argument {other:?} (try --help)")),
@@ -313,7 +316,9 @@ impl RttRun {
 
     fn result(mut self, o: &Opts) -> String {
         let end_cpu = cpu_mark(&o.watch);
-        let secs = self.measuring_from.map_or(0.0, |t| t.elapsed().as_secs_f64());
+        let secs = self
+            .measuring_from
+            .map_or(0.0, |t| t.elapsed().as_secs_f64());
         let cpu = cpu_fields(self.start_cpu, end_cpu, self.rtts.len() as u64);
         ping_result(&mut self.rtts, secs, self.retries, cpu)
     }
@@ -397,7 +402,9 @@ async fn pong(o: &Opts) -> Res {
             None => return Err("pong: session closed".into()),
             Some(Err(e)) => return Err(format!("pong: {e}")),
             Some(Ok(v)) => {
-                p.publish(&v.value).await.map_err(|e| format!("pong: {e}"))?;
+                p.publish(&v.value)
+                    .await
+                    .map_err(|e| format!("pong: {e}"))?;
                 quiet.kick();
                 n += 1;
                 if v.value.seq == END {
@@ -538,7 +545,11 @@ impl ThrCount {
         let Some(t0) = self.first else {
             return "RESULT role=sub error=nothing-received".into();
         };
-        let end = self.last.duration_since(t0).as_secs_f64().min(o.warmup + o.secs);
+        let end = self
+            .last
+            .duration_since(t0)
+            .as_secs_f64()
+            .min(o.warmup + o.secs);
         if self.win_end_cpu.is_none() {
             self.win_end_cpu = cpu_mark(&o.watch);
         }
@@ -1118,7 +1129,9 @@ impl Orch {
         let out_a = a.finish(Duration::from_secs(30))?;
         drop(agents);
         let (Some(rb), ra) = (result_line(&out_b), result_line(&out_a)) else {
-            return Err(format!("no RESULT: {second}: {out_b:?}, {first}: {out_a:?}"));
+            return Err(format!(
+                "no RESULT: {second}: {out_b:?}, {first}: {out_a:?}"
+            ));
         };
         if let Some(e) = rb.get("error").or(ra.as_ref().and_then(|r| r.get("error"))) {
             return Err(e.clone());
@@ -1174,7 +1187,11 @@ fn median(mut runs: Vec<Outcome>) -> Outcome {
     if let Some(f) = runs.iter().find(|o| o.note.is_some() || o.value.is_none()) {
         return f.clone();
     }
-    runs.sort_by(|a, b| a.value.partial_cmp(&b.value).unwrap_or(std::cmp::Ordering::Equal));
+    runs.sort_by(|a, b| {
+        a.value
+            .partial_cmp(&b.value)
+            .unwrap_or(std::cmp::Ordering::Equal)
+    });
     runs[(runs.len() - 1) / 2].clone()
 }
 
@@ -1438,7 +1455,10 @@ fn print_table(orch: &Orch, rows: Vec<Row>, reps: usize, secs: f64) {
         },
         orch.datagram,
         std::thread::available_parallelism().map_or(0, |n| n.get()),
-        load.split_whitespace().take(3).collect::<Vec<_>>().join(" "),
+        load.split_whitespace()
+            .take(3)
+            .collect::<Vec<_>>()
+            .join(" "),
     );
     println!(
         "| measurement | Courier agent | eProsima agent | relay floor | Courier / eProsima | \

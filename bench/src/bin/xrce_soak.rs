@@ -72,9 +72,11 @@ fn parse(args: &[String]) -> Result<Opts, String> {
             "--port" => o.port = num()?.min(65535.0) as u16,
             "--no-pin" => o.pin = false,
             "-h" | "--help" => {
-                return Err("usage: xrce_soak [--clients N] [--hz F] [--minutes M] [--no-pin]\n\
+                return Err(
+                    "usage: xrce_soak [--clients N] [--hz F] [--minutes M] [--no-pin]\n\
                      \x20      xrce_soak clients --port P [--clients N] [--hz F] [--minutes M]"
-                    .into())
+                        .into(),
+                )
             }
             other => return Err(format!("unknown argument {other:?} (try --help)")),
         }
@@ -406,9 +408,16 @@ fn summary(o: &Opts, rows: &[Row], sent: u64, failed: u64, c: Counts, load0: &st
     let steady: Vec<&Row> = rows.iter().skip(1).collect();
     if steady.len() >= 4 {
         let half = steady.len() / 2;
-        let mean = |r: &[&Row], f: fn(&Row) -> f64| r.iter().map(|x| f(x)).sum::<f64>() / r.len() as f64;
-        let (c1, c2) = (mean(&steady[..half], |r| r.1), mean(&steady[half..], |r| r.1));
-        let (m1, m2) = (mean(&steady[..half], |r| r.2), mean(&steady[half..], |r| r.2));
+        let mean =
+            |r: &[&Row], f: fn(&Row) -> f64| r.iter().map(|x| f(x)).sum::<f64>() / r.len() as f64;
+        let (c1, c2) = (
+            mean(&steady[..half], |r| r.1),
+            mean(&steady[half..], |r| r.1),
+        );
+        let (m1, m2) = (
+            mean(&steady[..half], |r| r.2),
+            mean(&steady[half..], |r| r.2),
+        );
         let rss_last = steady.last().map_or(0.0, |r| r.2);
         let rss_max = steady.iter().map(|r| r.2).fold(0.0, f64::max);
         println!(

@@ -121,7 +121,10 @@ fn echo_spy_and_hz_over_xrce_name_their_type() {
     assert!(err.contains("list the DDS side (rtps://…)"), "{err}");
     let (code, _, err) = crate::run(&["record", &u, "ping", "-o", "/nonexistent/x.mcap"]);
     assert_eq!(code, 2, "{err}");
-    assert!(err.contains("record the same topics on the DDS side"), "{err}");
+    assert!(
+        err.contains("record the same topics on the DDS side"),
+        "{err}"
+    );
     let (code, _, err) = crate::run(&["bw", &u, "ping"]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("give --type TYPE"), "{err}");

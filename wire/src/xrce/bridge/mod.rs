@@ -509,10 +509,11 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
         }
         let objects = &self.objects;
         let before = self.full.len();
-        self.full.retain(|key| match objects.get(key).map(|o| &o.entity) {
-            Some(Entity::Reader(_, i)) => !i.has_room(),
-            _ => false,
-        });
+        self.full
+            .retain(|key| match objects.get(key).map(|o| &o.entity) {
+                Some(Entity::Reader(_, i)) => !i.has_room(),
+                _ => false,
+            });
         if self.full.len() == before {
             return false;
         }
@@ -532,7 +533,6 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
         }
         true
     }
-
 
     fn on_agent(&mut self, e: AgentEvent, now: Instant) {
         match e {
