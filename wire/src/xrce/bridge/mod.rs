@@ -1341,7 +1341,7 @@ fn room_for(
         {
             if i.hold {
                 let r = i.cap.saturating_sub(i.queue.len());
-                if room.map_or(true, |(m, _)| r < m) {
+                if room.is_none_or(|(m, _)| r < m) {
                     room = Some((r, *key));
                 }
             }
