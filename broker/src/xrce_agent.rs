@@ -142,7 +142,11 @@ impl XrceAgent {
         XrceAgentBuilder {
             transports: Vec::new(),
             rtps: RtpsOptions::default(),
-            bridge: BridgeConfig::default(),
+            bridge: {
+                let mut b = BridgeConfig::default();
+                b.agent.streams = b.agent.streams.delayed_acks();
+                b
+            },
             discovery: None,
             state: None,
         }

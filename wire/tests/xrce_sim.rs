@@ -12,7 +12,8 @@ use courier_wire::xrce::sim::{Peer, PeerEvent};
 use courier_wire::xrce::{
     Agent, AgentCommandError, AgentConfig, AgentEvent, BaseObjectRequest, Client, ClientConfig,
     ClientKey, CreationMode, DeliveryControl, Event, Keepalive, LostReason, ObjectId, ObjectKind,
-    ObjectVariant, QueueError, ReadData, Representation, State, StatusCode, StreamError, StreamId,
+    Message, ObjectVariant, QueueError, ReadData, Representation, State, StatusCode, StreamConfig,
+    StreamError, StreamId, SubmessageId,
 };
 
 type Net = sim::Net<Peer<u16>>;
@@ -105,6 +106,7 @@ struct World {
 fn client_config(key: u32, session_id: u8) -> ClientConfig {
     ClientConfig {
         session_id,
+        streams: streams(StreamConfig::client()),
         keepalive: Some(Keepalive {
             interval: Duration::from_secs(1),
             timeout: Duration::from_secs(3),
@@ -115,8 +117,23 @@ fn client_config(key: u32, session_id: u8) -> ClientConfig {
 
 fn agent_config() -> AgentConfig {
     let mut c = AgentConfig::default();
+    c.streams = streams(c.streams);
     c.streams.max_backlog = 64 * 1024;
     c
+}
+
+thread_local! {
+    /// Courier's delayed acknowledgement on both sides (else eProsima's:
+    /// an ACKNACK per message).
+    static DELAYED_ACKS: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+fn streams(c: StreamConfig) -> StreamConfig {
+    if DELAYED_ACKS.with(|d| d.get()) {
+        c.delayed_acks()
+    } else {
+        c
+    }
 }
 
 fn world(seed: u64, faults: Faults, session_id: u8) -> World {
@@ -354,6 +371,60 @@ fn reliable_both_directions_complete_and_in_order_at_30_percent_loss() {
     for seed in 1..=5 {
         reliable_transfer(seed, 150, 40, 0x81);
     }
+}
+
+#[test]
+fn delayed_acks_reliable_complete_and_in_order_at_30_percent_loss() {
+    DELAYED_ACKS.with(|d| d.set(true));
+    for seed in 31..=35 {
+        reliable_transfer(seed, 150, 40, 0x81);
+    }
+    reliable_transfer(36, 6, 20_000, 0x81);
+}
+
+/// ACKNACKs sent while 128 samples go through reliably, two written per
+/// millisecond (the simulator's latency is at least 1 ms a hop, so a
+/// one-at-a-time ping-pong would be slower than the delay), without loss.
+fn acknacks_for_a_steady_stream() -> usize {
+    let n = 128u32;
+    let mut w = world(41, Faults::none(), 0x81);
+    w.setup(R);
+    w.net.tapping = true;
+    let writer = oid(ObjectKind::DataWriter);
+    let p = w.publisher;
+    for i in (0..n).step_by(2) {
+        for k in i..i + 2 {
+            let now = w.net.now();
+            w.client(p).write(writer, R, &sample(k, 16), now).unwrap();
+        }
+        w.step();
+    }
+    assert!(w.run_until(Duration::from_secs(5), |w| {
+        w.received().len() == n as usize
+            && w.count(p, |e| matches!(e, Event::WriteAcked(_))) == n as usize
+    }));
+    assert_eq!(w.received(), (0..n).map(|i| sample(i, 16)).collect::<Vec<_>>());
+    w.net
+        .tap
+        .iter()
+        .filter_map(|pk| Message::decode(&pk.payload).ok())
+        .flat_map(|m| m.submessages)
+        .filter(|s| s.id() == SubmessageId::AckNack)
+        .count()
+}
+
+#[test]
+fn delayed_acks_cover_several_messages_with_one_acknack() {
+    let every = acknacks_for_a_steady_stream();
+    DELAYED_ACKS.with(|d| d.set(true));
+    let delayed = acknacks_for_a_steady_stream();
+    // eProsima's way: one per message and hop (the client packs two
+    // samples a message, the agent sends one a message): 64 + 128
+    assert!(every >= 192, "{every} ACKNACKs without delay");
+    assert!(
+        delayed * 2 <= every,
+        "{delayed} ACKNACKs with delayed acknowledgement, {every} without"
+    );
 }
 
 #[test]

@@ -185,7 +185,7 @@ impl XrceBackend {
             depth: opts.depth,
             max_backlog: usize::from(opts.history).max(1) * mtu,
             max_reassembly: (1 << 20).max(mtu),
-            ..StreamConfig::client()
+            ..StreamConfig::client().delayed_acks()
         };
         cfg.create_attempts = opts.connect_attempts;
         cfg.create_interval = opts.connect_interval;

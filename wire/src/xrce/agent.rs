@@ -450,7 +450,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
             let mut replies = arrival.replies;
             for id in arrival.ack_later {
                 p.advance(id);
-                replies.extend(p.streams.acknack_for(id));
+                replies.extend(p.streams.acknack_for(id, now));
             }
             let addr = p.addr.clone();
             self.transmits
@@ -711,7 +711,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
         };
         entry.1 -= 1;
         if p.advance(ticket.stream) {
-            if let Some(m) = p.streams.acknack_for(ticket.stream) {
+            if let Some(m) = p.streams.acknack_for(ticket.stream, now) {
                 let addr = p.addr.clone();
                 self.transmits.push_back((addr, m));
             }

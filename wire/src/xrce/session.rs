@@ -203,8 +203,13 @@ impl Streams {
         self.rel_in.get_mut(&id.0).is_some_and(|s| s.confirm_all())
     }
 
-    /// The ACKNACK of reliable input stream `id` now, as a message.
-    pub fn acknack_for(&self, id: StreamId) -> Option<Vec<u8>> {
+    /// The ACKNACK of reliable input stream `id` as a message, if it is to
+    /// go now ([`StreamConfig::ack_delay`]: else
+    /// [`poll_transmit`](Self::poll_transmit) sends it when due).
+    pub fn acknack_for(&mut self, id: StreamId, now: Instant) -> Option<Vec<u8>> {
+        if !self.rel_in.get_mut(&id.0)?.ack_now(now) {
+            return None;
+        }
         self.acknack_message(id)
     }
 
@@ -308,8 +313,9 @@ impl Streams {
         }))
     }
 
-    fn acknack_message(&self, id: StreamId) -> Option<Vec<u8>> {
-        let input = self.rel_in.get(&id.0)?;
+    fn acknack_message(&mut self, id: StreamId) -> Option<Vec<u8>> {
+        let input = self.rel_in.get_mut(&id.0)?;
+        input.ack_sent();
         if input.is_resyncing() {
             return None;
         }
@@ -368,7 +374,7 @@ impl Streams {
             if deferred {
                 a.ack_later.push(id);
             } else {
-                a.replies.extend(self.acknack_message(id));
+                a.replies.extend(self.acknack_for(id, now));
             }
             subs
         };
@@ -398,7 +404,7 @@ impl Streams {
                             if deferred {
                                 a.ack_later.push(hb.stream_id);
                             } else {
-                                a.replies.extend(self.acknack_message(hb.stream_id));
+                                a.replies.extend(self.acknack_for(hb.stream_id, now));
                             }
                         }
                         None => a.errors.push(InputError::TooManyStreams(hb.stream_id.0)),
@@ -422,7 +428,8 @@ impl Streams {
     }
 
     /// The next message to send: stream 0 first, then retransmissions and
-    /// new messages of each stream, then HEARTBEATs that are due.
+    /// new messages of each stream, then held ACKNACKs and HEARTBEATs that
+    /// are due.
     pub fn poll_transmit(&mut self, now: Instant) -> Option<Vec<u8>> {
         if let Some(m) = self.control.pop_front() {
             return Some(m);
@@ -437,6 +444,16 @@ impl Streams {
                 return Some(m);
             }
         }
+        let due = self
+            .rel_in
+            .iter()
+            .find(|(_, s)| s.ack_deadline().is_some_and(|t| t <= now))
+            .map(|(id, _)| StreamId(*id));
+        if let Some(id) = due {
+            if let Some(m) = self.acknack_message(id) {
+                return Some(m);
+            }
+        }
         let hb = self
             .rel_out
             .values_mut()
@@ -445,9 +462,11 @@ impl Streams {
             .ok()
     }
 
-    /// The earliest HEARTBEAT deadline.
+    /// The earliest HEARTBEAT or held ACKNACK deadline.
     pub fn poll_timeout(&self) -> Option<Instant> {
-        self.rel_out.values().filter_map(|s| s.poll_timeout()).min()
+        let hb = self.rel_out.values().filter_map(|s| s.poll_timeout());
+        let ack = self.rel_in.values().filter_map(ReliableInput::ack_deadline);
+        hb.chain(ack).min()
     }
 
     /// Tags of reliable submessages the peer acknowledged since the last call.

@@ -2,6 +2,7 @@
 //! in-order hand-over, ACKNACK, reassembly).
 
 use std::collections::BTreeMap;
+use std::time::Instant;
 
 use super::super::message::{Message, MessageHeader};
 use super::super::submessage::{AckNack, Heartbeat, Payload, Submessage, SubmessageId};
@@ -84,6 +85,12 @@ pub struct ReliableInput {
     held: BTreeMap<u16, (usize, Message)>,
     held_bytes: usize,
     reassembly: Option<Reassembly>,
+    /// The last message an ACKNACK acknowledged.
+    ack_sent: SeqNum,
+    /// An ACKNACK must go at once (gap, duplicate, HEARTBEAT).
+    ack_urgent: bool,
+    /// A delayed ACKNACK is due then ([`StreamConfig::ack_delay`]).
+    ack_due: Option<Instant>,
 }
 
 impl ReliableInput {
@@ -100,7 +107,41 @@ impl ReliableInput {
             held: BTreeMap::new(),
             held_bytes: 0,
             reassembly: None,
+            ack_sent: SeqNum::INITIAL_LAST,
+            ack_urgent: false,
+            ack_due: None,
         }
+    }
+
+    /// Whether the ACKNACK describing the stream should go now; else it is
+    /// held until [`ack_deadline`](Self::ack_deadline)
+    /// ([`StreamConfig::ack_delay`]). Call [`ack_sent`](Self::ack_sent)
+    /// when one goes.
+    pub fn ack_now(&mut self, now: Instant) -> bool {
+        let Some(delay) = self.cfg.ack_delay else {
+            return true;
+        };
+        let half = (self.cfg.depth / 2).max(1);
+        let gap = !self.held.is_empty() || self.last_announced.is_after(self.last_handled);
+        if self.ack_urgent || gap || self.confirmed.since(self.ack_sent) >= half {
+            return true;
+        }
+        if self.confirmed != self.ack_sent {
+            self.ack_due.get_or_insert(now + delay);
+        }
+        false
+    }
+
+    /// An ACKNACK describing the stream now went out.
+    pub fn ack_sent(&mut self) {
+        self.ack_sent = self.confirmed;
+        self.ack_urgent = false;
+        self.ack_due = None;
+    }
+
+    /// When a held ACKNACK is due.
+    pub fn ack_deadline(&self) -> Option<Instant> {
+        self.ack_due
     }
 
     /// The last message handed on.
@@ -168,12 +209,15 @@ impl ReliableInput {
     pub fn receive(&mut self, seq: SeqNum, message: Message, len: usize) -> Received {
         let d = seq.since(self.last_handled);
         if d == 0 || d >= 0x8000 {
+            self.ack_urgent = true;
             return Received::Duplicate;
         }
         if seq.since(self.confirmed) > self.cfg.depth {
+            self.ack_urgent = true;
             return Received::OutOfWindow;
         }
         if self.held.contains_key(&seq.0) {
+            self.ack_urgent = true;
             return Received::Duplicate;
         }
         self.held.insert(seq.0, (len, message));
@@ -200,6 +244,8 @@ impl ReliableInput {
     /// sender no longer holds are skipped (as the agent does); `last` tells
     /// how far to NACK (at most one window ahead).
     pub fn on_heartbeat(&mut self, hb: &Heartbeat) {
+        // the sender asks: it hears back at once
+        self.ack_urgent = true;
         let first = SeqNum(hb.first_unacked);
         if std::mem::take(&mut self.resync) {
             // a restored session: the sender's window starts here; what
