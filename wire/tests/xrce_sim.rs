@@ -11,9 +11,9 @@ use courier_wire::sim::{self, Faults};
 use courier_wire::xrce::sim::{Peer, PeerEvent};
 use courier_wire::xrce::{
     Agent, AgentCommandError, AgentConfig, AgentEvent, BaseObjectRequest, Client, ClientConfig,
-    ClientKey, CreationMode, DeliveryControl, Event, Keepalive, LostReason, ObjectId, ObjectKind,
-    Message, ObjectVariant, QueueError, ReadData, Representation, State, StatusCode, StreamConfig,
-    StreamError, StreamId, SubmessageId,
+    ClientKey, CreationMode, DeliveryControl, Event, Keepalive, LostReason, Message, ObjectId,
+    ObjectKind, ObjectVariant, QueueError, ReadData, Representation, State, StatusCode,
+    StreamConfig, StreamError, StreamId, SubmessageId,
 };
 
 type Net = sim::Net<Peer<u16>>;
@@ -403,7 +403,10 @@ fn acknacks_for_a_steady_stream() -> usize {
         w.received().len() == n as usize
             && w.count(p, |e| matches!(e, Event::WriteAcked(_))) == n as usize
     }));
-    assert_eq!(w.received(), (0..n).map(|i| sample(i, 16)).collect::<Vec<_>>());
+    assert_eq!(
+        w.received(),
+        (0..n).map(|i| sample(i, 16)).collect::<Vec<_>>()
+    );
     w.net
         .tap
         .iter()
