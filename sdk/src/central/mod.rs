@@ -172,6 +172,7 @@
 pub mod access;
 mod console;
 mod inproc;
+mod ready;
 mod server;
 
 pub use console::memory_report;
