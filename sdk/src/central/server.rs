@@ -1370,8 +1370,8 @@ impl Core {
         }
     }
 
-    /// Writes what is queued for `conn`, then forgets it: the writer task
-    /// finishes the queue and ends, the reader task ends.
+    /// Writes what is queued for `conn`, then forgets it (dropping its read
+    /// half): a writer task finishes the queue and ends.
     fn close(&mut self, conn: ConnId) {
         self.flush(conn);
         if let Some(st) = self.conns.remove(&conn) {
