@@ -149,7 +149,7 @@ fn start_and_shutdown_leave_no_task_and_no_socket_file() {
         .permissions()
         .mode();
     assert_eq!(mode & 0o777, 0o777, "/tmp/x_ipc is shared by every user");
-    // Connections over both transports, so per-connection tasks exist.
+    // Connections over both transports, with bytes written to each.
     let mut t = tcp(central.local_addr());
     let mut u = UnixStream::connect(&path).unwrap();
     u.set_read_timeout(Some(T)).unwrap();
@@ -166,7 +166,10 @@ fn start_and_shutdown_leave_no_task_and_no_socket_file() {
         }
     });
     let (mut t, mut u) = reader.join().unwrap();
-    assert!(rt.metrics().num_alive_tasks() >= 4);
+    // Two accept loops and the task that runs central and reads every
+    // connection (a connection has a writer task only while its socket
+    // would not take what central has for it).
+    assert!(rt.metrics().num_alive_tasks() >= 3);
     block(&rt, central.shutdown());
     assert_eq!(rt.metrics().num_alive_tasks(), 0, "every task ended");
     assert!(!path.exists(), "socket file removed on shutdown");

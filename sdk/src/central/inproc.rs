@@ -240,9 +240,10 @@ impl Drop for InProcessStream {
 pub(crate) struct ServerReader(Arc<Pipe>);
 
 impl ServerReader {
-    /// Waits until there are bytes to read or the module's end is closed.
-    pub(crate) async fn readable(&mut self) {
-        std::future::poll_fn(|cx| self.0.poll_readable(cx)).await
+    /// Ready when there are bytes to read or the module's end is closed;
+    /// otherwise `cx` is woken when that happens.
+    pub(crate) fn poll_readable(&mut self, cx: &mut Context<'_>) -> Poll<()> {
+        self.0.poll_readable(cx)
     }
 
     /// Appends what is there now to `buf`, up to its capacity: 0 at the end
@@ -270,7 +271,7 @@ impl ServerReader {
     #[cfg(test)]
     pub(crate) async fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
         loop {
-            self.readable().await;
+            std::future::poll_fn(|cx| self.poll_readable(cx)).await;
             let mut v = Vec::with_capacity(buf.len());
             match self.try_read_spare(&mut v) {
                 Err(e) if e.kind() == io::ErrorKind::WouldBlock => continue,

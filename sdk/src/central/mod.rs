@@ -38,17 +38,22 @@
 //! ```
 //!
 //! # How the shell is built
-//! One task owns the [`Central`] state machine; nothing else touches it.
-//! Per connection, a reader task waits until the socket is readable,
-//! takes a 64 KiB buffer from a pool shared by all connections, reads into
-//! it and hands it to the central task over a channel; the central task
-//! feeds the bytes to [`Central::receive`], puts the buffer back in the
-//! pool and gives the reader its go-ahead. While [`Output::PauseRead`] is
-//! in force the central task holds the go-ahead back, so the reader stops
-//! reading and TCP back-pressure reaches the module; this is how memory
-//! stays bounded when a subscriber is slow. An idle connection holds no
-//! buffer: its cost is the reader task and a few small tables (about
-//! 3 KB per idle module, see BENCHMARKS.md).
+//! One task owns the [`Central`] state machine; nothing else touches it,
+//! and it reads every connection itself. Each connection has a waker that
+//! puts it on a ready list; the central task polls the connection's socket
+//! with that waker, and when the socket turns readable the reactor wakes
+//! the central task through it. The central task then takes a 64 KiB
+//! buffer from a pool shared by all connections, reads into it, feeds the
+//! bytes to [`Central::receive`], writes what that produced and puts the
+//! buffer back: a 4 B message costs one task wake-up, one `read` and one
+//! `sendmsg`, with no hand-off between tasks. While [`Output::PauseRead`]
+//! is in force the central task does not read the connection, so TCP
+//! back-pressure reaches the module; this is how memory stays bounded when
+//! a subscriber is slow. A connection is read at most four times in a row
+//! and a batch makes at most 64 reads before its frames are written, so a
+//! busy module does not starve the others. An idle connection holds no
+//! buffer and no task: its cost is its socket's registration, its waker
+//! and a few small tables (see BENCHMARKS.md).
 //!
 //! The frames central produces for one connection while handling a batch
 //! of events are written together with one vectored write, directly from
@@ -59,8 +64,8 @@
 //!
 //! A module of the hosting process can skip the sockets:
 //! [`CentralHandle::session`] connects a `Session` over an in-process link,
-//! a pair of bounded byte pipes served by the same reader and writer tasks
-//! (see [`InProcessStream`]).
+//! a pair of bounded byte pipes read by the same central task and served by
+//! the same writer tasks (see [`InProcessStream`]).
 //!
 //! # Deviations from the C central
 //! This is the one list of where Courier's central (this module, the
@@ -172,6 +177,7 @@
 pub mod access;
 mod console;
 mod inproc;
+mod ready;
 mod server;
 
 pub use console::memory_report;

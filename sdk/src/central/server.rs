@@ -1,13 +1,15 @@
-//! The tokio shell around [`Central`]: listeners, per-connection reader and
-//! writer tasks, and the one task that owns the state machine.
+//! The tokio shell around [`Central`]: listeners, the one task that owns
+//! the state machine and reads every connection itself (woken through the
+//! [`ReadyList`]), and a writer task per connection while central has
+//! bytes queued for it that its socket would not take at once.
 
 use std::collections::{HashMap, VecDeque};
 use std::io::{self, IoSlice, Write};
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::os::fd::OwnedFd;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
+use std::task::{Context, Poll, Waker};
 use std::time::{Duration, SystemTime};
 
 use tokio::io::unix::AsyncFd;
@@ -23,6 +25,7 @@ use courier_wire::ipc::central::{
 
 use super::access::{AccessControl, Client, Decision, HostName, RuleRef};
 use super::inproc::{self, InProcessStream, ServerEnd, ServerReader, ServerWriter};
+use super::ready::ReadyList;
 use super::{unix_path, DEFAULT_PORT};
 
 /// Bytes read from a connection at a time. The buffers come from a pool
@@ -38,8 +41,11 @@ const POOL_KEEP: usize = 8;
 const SPARE_BATCHES: usize = 8;
 /// See [`SPARE_BATCHES`].
 const BATCH_KEEP: usize = 16;
-/// Events handled before the frames they produced are written out.
+/// Events handled (or reads made) before the frames they produced are
+/// written out.
 const BATCH: usize = 64;
+/// Reads of one connection in a row before the others' turn.
+const READS_PER_TURN: usize = 4;
 /// Slices per vectored write.
 const IOV: usize = 64;
 /// How long shutdown lets writers flush what central queued for them.
@@ -325,12 +331,13 @@ impl Builder {
             sink,
             events_tx: events_tx.clone(),
             tasks: JoinSet::new(),
-            pool: Arc::default(),
+            pool: BufPool::default(),
+            ready: Arc::default(),
+            to_read: Vec::new(),
             spare_batches: Vec::new(),
             read_total: 0,
             read_at_trim: 0,
             dirty: Vec::new(),
-            resumed: Vec::new(),
             spin: self.busy_poll.map(BusyPoll::start),
         };
         // Boxed first: the state machine's task is a few kilobytes, which
@@ -555,13 +562,6 @@ enum Event {
     Accepted(Stream, Peer),
     /// A connection was refused (already closed).
     Refused { peer: String, rule: RuleRef },
-    /// Bytes read; the buffer goes back to the pool.
-    Data { conn: ConnId, buf: Vec<u8> },
-    /// End of stream or a read error.
-    Eof {
-        conn: ConnId,
-        error: Option<io::Error>,
-    },
     /// Writing failed: the connection is gone.
     WriteFailed { conn: ConnId, error: io::Error },
     /// A console line.
@@ -698,11 +698,15 @@ impl Sock {
         socket2::SockRef::from(self.fd.get_ref())
     }
 
-    /// Waits until the socket is readable, then reads into a buffer of
-    /// the pool (held only once there is something to read).
-    async fn read(&self, pool: &BufPool) -> io::Result<Vec<u8>> {
+    /// Reads into a buffer of the pool (held only once there is something
+    /// to read) if the socket is readable; otherwise `cx` is woken when it
+    /// becomes so.
+    fn poll_read(&self, cx: &mut Context<'_>, pool: &BufPool) -> Poll<io::Result<Vec<u8>>> {
         loop {
-            let mut ready = self.fd.readable().await?;
+            let mut ready = match self.fd.poll_read_ready(cx) {
+                Poll::Ready(r) => r?,
+                Poll::Pending => return Poll::Pending,
+            };
             let mut buf = pool.take();
             let n = match crate::sys::net::read_spare(self.fd.get_ref(), &mut buf) {
                 Ok(n) => n,
@@ -714,7 +718,7 @@ impl Sock {
                             continue;
                         }
                         io::ErrorKind::Interrupted => continue,
-                        _ => return Err(e),
+                        _ => return Poll::Ready(Err(e)),
                     }
                 }
             };
@@ -727,7 +731,7 @@ impl Sock {
             if self.tcp && n >= QUICKACK_MIN {
                 quickack(&self.sock());
             }
-            return Ok(buf);
+            return Poll::Ready(Ok(buf));
         }
     }
 
@@ -781,19 +785,22 @@ enum ReadHalf {
 }
 
 impl ReadHalf {
-    /// The next bytes, in a buffer of `pool` (empty: end of stream).
-    async fn read(&mut self, pool: &BufPool) -> io::Result<Vec<u8>> {
+    /// The next bytes, in a buffer of `pool` (empty: end of stream), if
+    /// there are any; otherwise `cx` is woken when there are.
+    fn poll_read(&mut self, cx: &mut Context<'_>, pool: &BufPool) -> Poll<io::Result<Vec<u8>>> {
         match self {
-            ReadHalf::Sock(s) => s.read(pool).await,
+            ReadHalf::Sock(s) => s.poll_read(cx, pool),
             ReadHalf::InProcess(r) => loop {
-                r.readable().await;
+                if r.poll_readable(cx).is_pending() {
+                    return Poll::Pending;
+                }
                 let mut buf = pool.take();
                 match r.try_read_spare(&mut buf) {
-                    Ok(_) => return Ok(buf),
+                    Ok(_) => return Poll::Ready(Ok(buf)),
                     Err(e) => {
                         pool.put(buf);
                         if e.kind() != io::ErrorKind::WouldBlock {
-                            return Err(e);
+                            return Poll::Ready(Err(e));
                         }
                     }
                 }
@@ -820,8 +827,8 @@ fn quickack(s: &socket2::SockRef<'_>) {
     let _ = s.set_tcp_quickack(true);
 }
 
-/// What the central task shares with a connection's reader task and, while
-/// one runs, its writer task.
+/// What the central task shares with a connection's writer task, while
+/// one runs.
 struct Shared {
     half: WriteHalf,
     /// Batches the central task could not write at once, in order.
@@ -829,11 +836,6 @@ struct Shared {
     /// Signalled when central closes the connection, so that a writer
     /// stuck on a peer that does not read gives up after [`CLOSE_LINGER`].
     closing: Notify,
-    /// The reader's go-ahead: central took the bytes it read in (or closed
-    /// the connection, see `closed`).
-    go: Notify,
-    /// Central closed the connection: the reader ends.
-    closed: AtomicBool,
 }
 
 /// Writes waiting for room in the socket. A writer task exists only while
@@ -852,16 +854,14 @@ impl Shared {
         self.queue.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// Central closed the connection: the reader stops, a writer finishes
-    /// what is queued (or gives up after [`CLOSE_LINGER`]) and ends.
+    /// Central closed the connection: a writer finishes what is queued
+    /// (or gives up after [`CLOSE_LINGER`]) and ends.
     fn close(&self) {
-        self.closed.store(true, Ordering::Release);
-        self.go.notify_one();
         self.closing.notify_one();
     }
 }
 
-/// Read buffers shared by all connections: taken for a read, put back once
+/// Read buffers for all connections: taken for a read, put back once
 /// central has taken the bytes in.
 #[derive(Default)]
 struct BufPool {
@@ -1012,66 +1012,18 @@ async fn writer_task(conn: ConnId, shared: Arc<Shared>, events: mpsc::UnboundedS
     // Dropping the last write half sends FIN once the reader is gone too.
 }
 
-async fn reader_task(
-    conn: ConnId,
-    mut half: ReadHalf,
-    events: mpsc::UnboundedSender<Event>,
-    shared: Arc<Shared>,
-    pool: Arc<BufPool>,
-) {
-    loop {
-        let r = tokio::select! {
-            biased;
-            // A go-ahead left over, or the connection closed.
-            _ = shared.go.notified() => {
-                if shared.closed.load(Ordering::Acquire) {
-                    return;
-                }
-                continue;
-            }
-            r = half.read(&pool) => r,
-        };
-        match r {
-            Ok(buf) if buf.is_empty() => {
-                pool.put(buf);
-                let _ = events.send(Event::Eof { conn, error: None });
-                return;
-            }
-            Ok(buf) => {
-                if events.send(Event::Data { conn, buf }).is_err() {
-                    return;
-                }
-                // Wait until central has taken the bytes in: it holds the
-                // go-ahead back while the connection is paused, and so
-                // stops this reader.
-                shared.go.notified().await;
-                if shared.closed.load(Ordering::Acquire) {
-                    return;
-                }
-            }
-            Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-            Err(error) => {
-                let _ = events.send(Event::Eof {
-                    conn,
-                    error: Some(error),
-                });
-                return;
-            }
-        }
-    }
-}
-
 /// The central task's view of one connection.
 struct ConnState {
     shared: Arc<Shared>,
+    /// Read by the central task itself, when `waker` says it may be
+    /// readable ([`ReadyList`]).
+    read: ReadHalf,
+    /// Puts this connection on the ready list.
+    waker: Waker,
     /// Frames produced in the current batch, not yet written.
     batch: Vec<Buf>,
     /// Central asked not to read from this connection.
     paused: bool,
-    /// The reader sent bytes and waits for its go-ahead.
-    reader_waits: bool,
-    /// Bytes read before a pause took effect, not yet given to central.
-    parked: Option<Vec<u8>>,
 }
 
 struct Core {
@@ -1081,8 +1033,12 @@ struct Core {
     sink: LogSink,
     events_tx: mpsc::UnboundedSender<Event>,
     tasks: JoinSet<()>,
-    /// Read buffers, shared with the readers.
-    pool: Arc<BufPool>,
+    /// Read buffers, held only from a read until central took the bytes in.
+    pool: BufPool,
+    /// Connections that may have bytes to read.
+    ready: Arc<ReadyList>,
+    /// Connections to read next (taken from `ready`).
+    to_read: Vec<ConnId>,
     /// Empty batch vectors for the next connections that write, so that
     /// an idle connection holds none.
     spare_batches: Vec<Vec<Buf>>,
@@ -1092,8 +1048,6 @@ struct Core {
     read_at_trim: u64,
     /// Connections with frames in their batch.
     dirty: Vec<ConnId>,
-    /// Connections resumed while handling outputs.
-    resumed: Vec<ConnId>,
     /// Busy polling after activity, when configured.
     spin: Option<BusyPoll>,
 }
@@ -1130,10 +1084,17 @@ impl Core {
                         }
                     }
                     self.flush_all();
-                    let since_trim = self.read_total.wrapping_sub(self.read_at_trim);
-                    if !trim_armed && since_trim >= TRIM_AFTER {
-                        trim.as_mut().reset(tokio::time::Instant::now() + TRIM_TICK);
-                        (trim_armed, mark, quiet) = (true, self.read_total, 0);
+                }
+                () = std::future::poll_fn(|cx| self.ready.poll_take(cx, &mut self.to_read)) => {
+                    if let Some(s) = &self.spin {
+                        s.activity();
+                    }
+                    let more = self.read_ready();
+                    self.flush_all();
+                    if more {
+                        // Connections with more to read wait on the list:
+                        // let the writers and the I/O driver run first.
+                        tokio::task::yield_now().await;
                     }
                 }
                 () = &mut trim, if trim_armed => {
@@ -1155,6 +1116,11 @@ impl Core {
                         }
                     }
                 }
+            }
+            let since_trim = self.read_total.wrapping_sub(self.read_at_trim);
+            if !trim_armed && since_trim >= TRIM_AFTER {
+                trim.as_mut().reset(tokio::time::Instant::now() + TRIM_TICK);
+                (trim_armed, mark, quiet) = (true, self.read_total, 0);
             }
         }
         self.shutdown().await;
@@ -1202,21 +1168,6 @@ impl Core {
                     "WARNING: connection rejected from {peer} (denied by {rule})"
                 ));
             }
-            Event::Data { conn, buf } => self.data(conn, buf, now),
-            Event::Eof { conn, error } => {
-                if !self.conns.contains_key(&conn) {
-                    return;
-                }
-                if let Some(e) = error {
-                    if e.kind() != io::ErrorKind::ConnectionReset {
-                        self.log(&format!(
-                            "WARNING: read error on connection {}: {e}",
-                            conn.0
-                        ));
-                    }
-                }
-                self.gone(conn, now);
-            }
             Event::WriteFailed { conn, error } => {
                 if !self.conns.contains_key(&conn) {
                     return;
@@ -1262,63 +1213,99 @@ impl Core {
         }
     }
 
-    /// Starts the reader and writer tasks of an accepted connection and
-    /// hands it to the state machine.
+    /// Hands an accepted connection to the state machine; it is read from
+    /// this task ([`Core::read_ready`]).
     fn serve(&mut self, conn: ConnId, r: ReadHalf, w: WriteHalf, peer: Peer, now: SystemTime) {
         let shared = Arc::new(Shared {
             half: w,
             queue: Mutex::default(),
             closing: Notify::new(),
-            go: Notify::new(),
-            closed: AtomicBool::new(false),
         });
-        self.tasks.spawn(reader_task(
-            conn,
-            r,
-            self.events_tx.clone(),
-            shared.clone(),
-            self.pool.clone(),
-        ));
         self.conns.insert(
             conn,
             ConnState {
                 shared,
+                read: r,
+                waker: self.ready.waker(conn),
                 batch: Vec::new(),
                 paused: false,
-                reader_waits: false,
-                parked: None,
             },
         );
         self.central.connect(conn, peer, now);
         self.drain();
+        // The first poll registers for readiness (or finds bytes).
+        self.ready.push(conn);
+    }
+
+    /// Reads the connections on the ready list, [`BATCH`] reads at most
+    /// (and [`READS_PER_TURN`] per connection) before what they produced
+    /// is written. `true` if some were put back on the list with more to
+    /// read.
+    fn read_ready(&mut self) -> bool {
+        let ids = std::mem::take(&mut self.to_read);
+        let mut reads = 0;
+        let mut more = false;
+        for (i, &conn) in ids.iter().enumerate() {
+            if reads >= BATCH {
+                for &c in &ids[i..] {
+                    self.ready.push(c);
+                }
+                more = true;
+                break;
+            }
+            let (n, again) = self.read_conn(conn);
+            reads += n;
+            more |= again;
+        }
+        self.to_read = ids;
+        more
+    }
+
+    /// Reads what `conn` has and hands it to the state machine, until the
+    /// socket has nothing more (its waker is then registered) or
+    /// [`READS_PER_TURN`] reads were made (it is then put back on the
+    /// ready list, behind the others). Returns the reads made and whether
+    /// it was put back.
+    fn read_conn(&mut self, conn: ConnId) -> (usize, bool) {
+        for n in 0..READS_PER_TURN {
+            let Some(st) = self.conns.get_mut(&conn) else {
+                return (n, false);
+            };
+            if st.paused {
+                // `ResumeRead` puts it back on the list.
+                return (n, false);
+            }
+            let mut cx = Context::from_waker(&st.waker);
+            let now = SystemTime::now();
+            match st.read.poll_read(&mut cx, &self.pool) {
+                Poll::Pending => return (n, false),
+                Poll::Ready(Ok(buf)) if buf.is_empty() => {
+                    self.pool.put(buf);
+                    self.gone(conn, now);
+                    return (n, false);
+                }
+                Poll::Ready(Ok(buf)) => self.data(conn, buf, now),
+                Poll::Ready(Err(e)) => {
+                    if e.kind() != io::ErrorKind::ConnectionReset {
+                        self.log(&format!(
+                            "WARNING: read error on connection {}: {e}",
+                            conn.0
+                        ));
+                    }
+                    self.gone(conn, now);
+                    return (n + 1, false);
+                }
+            }
+        }
+        self.ready.push(conn);
+        (READS_PER_TURN, true)
     }
 
     fn data(&mut self, conn: ConnId, buf: Vec<u8>, now: SystemTime) {
-        let Some(st) = self.conns.get_mut(&conn) else {
-            self.pool.put(buf);
-            return;
-        };
-        st.reader_waits = true;
         self.read_total = self.read_total.wrapping_add(buf.len() as u64);
-        if st.paused {
-            // Read before the pause took effect: keep it for later.
-            st.parked = Some(buf);
-            return;
-        }
         self.central.receive(conn, &buf, now);
         self.pool.put(buf);
         self.drain();
-        self.go_ahead(conn);
-    }
-
-    /// Lets `conn`'s reader read on, unless the connection is paused.
-    fn go_ahead(&mut self, conn: ConnId) {
-        if let Some(st) = self.conns.get_mut(&conn) {
-            if st.reader_waits && !st.paused {
-                st.reader_waits = false;
-                st.shared.go.notify_one();
-            }
-        }
     }
 
     /// EOF or a broken connection.
@@ -1335,30 +1322,10 @@ impl Core {
         shell_line(&mut self.sink, target, line);
     }
 
-    /// Carries out every output of the state machine, including the data
-    /// parked on connections it resumes.
+    /// Carries out every output of the state machine.
     fn drain(&mut self) {
-        loop {
-            while let Some(o) = self.central.poll_output() {
-                self.apply(o);
-            }
-            let Some(conn) = self.resumed.pop() else {
-                return;
-            };
-            let Some(st) = self.conns.get_mut(&conn) else {
-                continue;
-            };
-            if st.paused {
-                continue;
-            }
-            if let Some(buf) = st.parked.take() {
-                self.central.receive(conn, &buf, SystemTime::now());
-                self.pool.put(buf);
-                // Its outputs (and perhaps a new pause) first.
-                self.resumed.push(conn);
-                continue;
-            }
-            self.go_ahead(conn);
+        while let Some(o) = self.central.poll_output() {
+            self.apply(o);
         }
     }
 
@@ -1380,8 +1347,9 @@ impl Core {
             }
             Output::ResumeRead { conn } => {
                 if let Some(st) = self.conns.get_mut(&conn) {
-                    st.paused = false;
-                    self.resumed.push(conn);
+                    if std::mem::replace(&mut st.paused, false) {
+                        self.ready.push(conn);
+                    }
                 }
             }
             other => tracing::warn!("unhandled central output {other:?}"),
@@ -1402,8 +1370,8 @@ impl Core {
         }
     }
 
-    /// Writes what is queued for `conn`, then forgets it: the writer task
-    /// finishes the queue and ends, the reader task ends.
+    /// Writes what is queued for `conn`, then forgets it (dropping its read
+    /// half): a writer task finishes the queue and ends.
     fn close(&mut self, conn: ConnId) {
         self.flush(conn);
         if let Some(st) = self.conns.remove(&conn) {
