@@ -25,7 +25,7 @@ use futures::StreamExt;
 
 use crate::cli::{kind, session_url, Kind};
 use crate::connect::connect;
-use crate::ping::{Matched, LAST_ACK_BOUND};
+use crate::ping::{publish_acked, Matched};
 use crate::pong::Stats;
 use crate::stop::{count, run_session, Ended, Stop};
 use crate::text::{err, incompatible_line, out};
@@ -334,18 +334,7 @@ async fn send<T: PerfSample>(s: &Session, o: &PerfPubArgs, total: &RefCell<Tally
         let v = T::new(seq, baggage.clone());
         let last = c.count.is_some_and(|n| u64::from(seq) >= n)
             || end.is_some_and(|e| Instant::now() >= e);
-        if last && reliable_dds {
-            // leaving right after the write could cost a reader the tail:
-            // wait for every reader to acknowledge the last sample
-            match p.publish(&v).timeout(LAST_ACK_BOUND).await {
-                Err(courier::PublishError::Timeout { after, .. }) => err(format_args!(
-                    "courier: sample {seq} not acknowledged by every reader within {after:?}"
-                )),
-                r => r?,
-            }
-        } else {
-            p.publish(&v).await?;
-        }
+        publish_acked(&p, &v, last && reliable_dds, format!("sample {seq}")).await?;
         period.add(v.size());
         total.borrow_mut().add(v.size());
         let now = Instant::now();

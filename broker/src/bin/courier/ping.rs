@@ -43,6 +43,31 @@ pub async fn run(o: PingArgs, mut stop: Stop) -> Result<Ended> {
 /// reliable reader to acknowledge it.
 pub const LAST_ACK_BOUND: Duration = Duration::from_secs(5);
 
+/// Publishes `v`. When `last` (the last write of a reliable DDS
+/// publication), it waits up to [`LAST_ACK_BOUND`] for every matched reader
+/// to acknowledge it: leaving right after the write could cost a reader the
+/// tail. A timeout is said on stderr (`what` names the sample), not failed.
+pub async fn publish_acked<T: courier::IpcMessage>(
+    p: &courier::Publisher<T>,
+    v: &T,
+    last: bool,
+    what: impl std::fmt::Display,
+) -> Result<()> {
+    if !last {
+        p.publish(v).await?;
+        return Ok(());
+    }
+    match p.publish(v).timeout(LAST_ACK_BOUND).await {
+        Err(courier::PublishError::Timeout { after, .. }) => {
+            err(format_args!(
+                "courier: {what} not acknowledged by every reader within {after:?}"
+            ));
+            Ok(())
+        }
+        r => Ok(r?),
+    }
+}
+
 /// How long `ping --subscribe` lets discovery settle before it counts the
 /// publications it matches.
 const SETTLE: Duration = Duration::from_millis(50);
@@ -102,18 +127,8 @@ async fn publish(
                 seq = seq.wrapping_add(1);
                 let v = Ping { seq, stamp_ns: now_ns(), text: "x".repeat(o.size as usize) };
                 let last = o.count.is_some_and(|n| u64::from(seq) >= n);
-                if last && kind(&o.url) == Kind::Dds && !o.qos.best_effort {
-                    // exiting right after the write could leave a reader
-                    // without the last sample: wait for its acknowledgement
-                    match p.publish(&v).timeout(LAST_ACK_BOUND).await {
-                        Err(courier::PublishError::Timeout { after, .. }) => err(format_args!(
-                            "courier: sample {seq} not acknowledged by every reader within {after:?}"
-                        )),
-                        r => r?,
-                    }
-                } else {
-                    p.publish(&v).await?;
-                }
+                let acked = last && kind(&o.url) == Kind::Dds && !o.qos.best_effort;
+                publish_acked(&p, &v, acked, format!("sample {seq}")).await?;
                 sent.set(sent.get() + 1);
                 out(format_args!("sent {seq}"));
                 if last {

@@ -11,9 +11,9 @@ use futures::StreamExt;
 use crate::cli::{kind, Kind};
 use crate::cli::{PingArgs, PongArgs};
 use crate::connect::{connect, PROGRESS_EVERY};
-use crate::ping::{now_ns, Matched, LAST_ACK_BOUND};
+use crate::ping::{now_ns, publish_acked, Matched};
 use crate::stop::{count, run_session, Ended, Stop};
-use crate::text::{err, out, progress};
+use crate::text::{out, progress};
 use crate::values::Ping;
 use crate::Result;
 
@@ -43,18 +43,8 @@ async fn answer(s: &Session, o: &PongArgs, n: &Cell<u64>) -> Result<()> {
                     // not counted: --count N answers N measured pings
                     let counted = smp.value.seq != 0;
                     let last = counted && o.count.is_some_and(|c| n.get() + 1 >= c);
-                    if last && kind(&o.url) == Kind::Dds {
-                        // leaving right after the write could cost the
-                        // pinger its last answer: wait for its acknowledgement
-                        match p.publish(&smp.value).timeout(LAST_ACK_BOUND).await {
-                            Err(courier::PublishError::Timeout { after, .. }) => err(format_args!(
-                                "courier: the last answer was not acknowledged within {after:?}"
-                            )),
-                            r => r?,
-                        }
-                    } else {
-                        p.publish(&smp.value).await?;
-                    }
+                    let acked = last && kind(&o.url) == Kind::Dds;
+                    publish_acked(&p, &smp.value, acked, "the last answer").await?;
                     if counted {
                         n.set(n.get() + 1);
                     }
