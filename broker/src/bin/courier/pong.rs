@@ -8,8 +8,7 @@ use std::time::{Duration, Instant};
 use courier::{RecvError, Session, SessionEvent};
 use futures::StreamExt;
 
-use crate::cli::{kind, Kind};
-use crate::cli::{PingArgs, PongArgs};
+use crate::cli::{kind, Kind, PingArgs, PongArgs};
 use crate::connect::{connect, PROGRESS_EVERY};
 use crate::ping::{now_ns, publish_acked, Matched};
 use crate::stop::{count, run_session, Ended, Stop};
