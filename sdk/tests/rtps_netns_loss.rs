@@ -166,8 +166,10 @@ fn dropped(ns: &Netns) -> u64 {
         .and_then(|n| n.parse().ok())
         .unwrap_or_else(|| panic!("no DROP counter in:\n{rules}"));
     eprintln!("datagrams dropped by the namespace: {dropped}");
-    // (~300-450 datagrams cross the namespace; 30 % of them are dropped)
-    assert!(dropped > 30, "only {dropped} datagrams dropped:\n{rules}");
+    // 80-450 datagrams cross the namespace (fewer since a driver turn's
+    // datagrams go out in one sendmmsg), 30 % of them dropped: at least 10
+    // shows the loss was real (fewer than 10 of 80 is a 1-in-10 000 draw)
+    assert!(dropped >= 10, "only {dropped} datagrams dropped:\n{rules}");
     dropped
 }
 
