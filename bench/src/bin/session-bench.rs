@@ -1060,6 +1060,7 @@ mod processes {
         println!();
         println!("|---|---|{}", "---|".repeat(centrals.len()));
         let mut floors: Vec<String> = Vec::new();
+        let mut pairs: Vec<String> = Vec::new();
         for (transport, h) in [("TCP", "127.0.0.1"), ("UNIX socket", host.as_str())] {
             // Runs alternate between the cells, so drift hits all alike.
             // Only a Courier module can host central.
@@ -1071,11 +1072,26 @@ mod processes {
             let mut got: Vec<Vec<f64>> = vec![Vec::new(); cells.len()];
             let mut cpu: Vec<Vec<f64>> = vec![Vec::new(); cells.len()];
             let mut floor: Vec<f64> = Vec::new();
+            // Each run of a cell against the C-client C-central run of the
+            // same round (seconds apart): drift between rounds cancels.
+            let mut paired: Vec<Vec<f64>> = vec![Vec::new(); cells.len()];
+            let c_ref = cells
+                .iter()
+                .position(|&(m, c)| m == Clients::C && c == Centrals::C);
             for _ in 0..reps {
+                let mut round: Vec<Option<f64>> = vec![None; cells.len()];
                 for (i, (m, c)) in cells.iter().enumerate() {
                     if let Some(v) = run(&s, *c, *m, h) {
                         got[i].push(v.value);
                         cpu[i].extend(v.cpu_us);
+                        round[i] = Some(v.value);
+                    }
+                }
+                if let Some(r) = c_ref.and_then(|i| round[i]) {
+                    for (i, v) in round.iter().enumerate() {
+                        if let Some(v) = v {
+                            paired[i].push(v / r);
+                        }
                     }
                 }
                 if relay && !s.throughput {
@@ -1108,10 +1124,24 @@ mod processes {
                     }
                 }
             }
-            let reference = cells
-                .iter()
-                .position(|&(m, c)| m == Clients::C && c == Centrals::C)
-                .and_then(|i| meds[i]);
+            for (i, &(m, c)) in cells.iter().enumerate() {
+                if Some(i) == c_ref || paired[i].is_empty() {
+                    continue;
+                }
+                let v = &mut paired[i];
+                v.sort_by(f64::total_cmp);
+                let below = v.iter().filter(|&&x| x <= 1.0).count();
+                pairs.push(format!(
+                    "| {} clients, {} | {transport} | {:.3}× | {:.3}–{:.3}× | {below} of {} |",
+                    name_m(m),
+                    name_c(c),
+                    v[v.len() / 2],
+                    v[v.len() / 4],
+                    v[(v.len() * 3) / 4],
+                    v.len()
+                ));
+            }
+            let reference = c_ref.and_then(|i| meds[i]);
             for m in &clients {
                 print!("| {} | {transport} |", name_m(*m));
                 // Throughput: against the C central with the same clients.
@@ -1139,6 +1169,14 @@ mod processes {
                     }
                 }
                 println!();
+            }
+        }
+        if !pairs.is_empty() && !s.throughput {
+            println!("\neach run against the C-client C-central run of the same round (median of the {reps} per-round ratios, their quartiles, and the rounds at or below 1.0×)\n");
+            println!("| cell | transport | paired ratio | quartiles | rounds ≤ 1.0× |");
+            println!("|---|---|---|---|---|");
+            for l in &pairs {
+                println!("{l}");
             }
         }
         if !floors.is_empty() {
