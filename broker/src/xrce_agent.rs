@@ -40,6 +40,7 @@ use std::net::{IpAddr, Ipv4Addr, SocketAddr, SocketAddrV4};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
+use std::task::{Context, Poll};
 use std::time::{Duration, Instant, SystemTime};
 
 use courier::rtps_backend::{interface_address, parse_peer, RtpsOptions};
@@ -51,7 +52,7 @@ use courier_wire::xrce::discovery;
 use courier_wire::xrce::serial::{self, SerialDecoder};
 use courier_wire::xrce::tcp::{self, TcpDeframer};
 use courier_wire::xrce::{AgentRepresentation, Message, ObjectId, TransportLocator};
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::io::{AsyncReadExt, AsyncWriteExt, ReadBuf};
 use tokio::net::{TcpListener, UdpSocket};
 use tokio::sync::{mpsc, oneshot};
 use tokio::task::JoinSet;
@@ -278,10 +279,8 @@ impl XrceAgentBuilder {
                             source,
                         })?;
                     udp_addrs.push(s.local_addr().unwrap_or(*a));
-                    let s = Arc::new(s);
-                    let idx = udp.len() as u8;
-                    udp.push(s.clone());
-                    readers.spawn(udp_reader(s, idx, tx.clone()));
+                    // Read by the driver itself (`Driver::poll_udp`).
+                    udp.push(Arc::new(s));
                 }
                 Transport::Tcp(a) => {
                     let l = TcpListener::bind(a)
@@ -413,27 +412,6 @@ enum Input {
     Rtps(Locator, Vec<u8>),
     TcpOpen(u64, mpsc::Sender<Vec<u8>>),
     TcpClosed(u64),
-}
-
-async fn udp_reader(s: Arc<UdpSocket>, idx: u8, tx: mpsc::Sender<Input>) {
-    let mut buf = vec![0u8; 65_536];
-    loop {
-        match s.recv_from(&mut buf).await {
-            Ok((n, from)) => {
-                if tx
-                    .send(Input::Xrce(Peer::Udp(idx, from), buf[..n].to_vec()))
-                    .await
-                    .is_err()
-                {
-                    return;
-                }
-            }
-            Err(e) => {
-                // ICMP port unreachable from a client that went away
-                tracing::debug!("XRCE UDP receive: {e}");
-            }
-        }
-    }
 }
 
 async fn tcp_acceptor(l: TcpListener, tx: mpsc::Sender<Input>) {
@@ -772,6 +750,10 @@ async fn discovery_reader(s: Arc<UdpSocket>, udp: Vec<SocketAddr>, iface: Ipv4Ad
     }
 }
 
+/// Datagrams [`Driver::poll_udp`] takes in before the bridge's output is
+/// sent.
+const UDP_BATCH: usize = 64;
+
 struct Driver {
     bridge: Bridge<Peer>,
     udp: Vec<Arc<UdpSocket>>,
@@ -784,16 +766,31 @@ struct Driver {
 
 impl Driver {
     async fn run(mut self, mut rx: mpsc::Receiver<Input>, mut stop: oneshot::Receiver<()>) {
+        // One timer for the whole loop, moved when the bridge's next
+        // deadline moves (a new one per turn cost a timer-wheel insert and
+        // removal per datagram).
+        let sleep = tokio::time::sleep(Duration::from_secs(3600));
+        tokio::pin!(sleep);
+        let mut armed: Option<Instant> = None;
+        let mut buf = vec![0u8; 65_536];
         loop {
             let deadline = self.bridge.poll_timeout();
-            let sleep = async {
-                match deadline {
-                    Some(t) => tokio::time::sleep_until(t.into()).await,
-                    None => std::future::pending().await,
+            if deadline != armed {
+                if let Some(t) = deadline {
+                    sleep.as_mut().reset(t.into());
                 }
-            };
+                armed = deadline;
+            }
             tokio::select! {
+                biased;
                 _ = &mut stop => break,
+                _ = std::future::poll_fn(|cx| self.poll_udp(cx, &mut buf)) => {
+                    // the other inputs get their turn however busy UDP is
+                    for _ in 0..UDP_BATCH {
+                        let Ok(m) = rx.try_recv() else { break };
+                        self.input(m);
+                    }
+                }
                 m = rx.recv() => match m {
                     Some(m) => {
                         self.input(m);
@@ -804,13 +801,50 @@ impl Driver {
                     }
                     None => break,
                 },
-                _ = sleep => self.bridge.handle_timeout(Instant::now()),
+                _ = &mut sleep, if armed.is_some() => {
+                    armed = None;
+                    self.bridge.handle_timeout(Instant::now());
+                }
             }
             self.flush().await;
         }
         self.readers.abort_all();
         self.bridge.close(Instant::now());
         self.flush().await;
+    }
+
+    /// Takes what the XRCE UDP sockets hold (up to [`UDP_BATCH`]
+    /// datagrams) straight into the bridge, with no task or channel
+    /// between the socket and the state machine. Pending (every socket's
+    /// readiness registered) when none had anything.
+    fn poll_udp(&mut self, cx: &mut Context<'_>, buf: &mut [u8]) -> Poll<usize> {
+        let mut taken = 0;
+        for (idx, s) in self.udp.iter().enumerate() {
+            while taken < UDP_BATCH {
+                let mut rb = ReadBuf::new(buf);
+                match s.poll_recv_from(cx, &mut rb) {
+                    Poll::Ready(Ok(from)) => {
+                        taken += 1;
+                        let peer = Peer::Udp(idx as u8, from);
+                        if let Err(e) = self.bridge.handle_input(peer, rb.filled(), Instant::now())
+                        {
+                            tracing::debug!("XRCE from {peer:?}: {e}");
+                        }
+                    }
+                    // ICMP port unreachable from a client that went away
+                    Poll::Ready(Err(e)) => {
+                        tracing::debug!("XRCE UDP receive: {e}");
+                        taken += 1;
+                    }
+                    Poll::Pending => break,
+                }
+            }
+        }
+        if taken > 0 {
+            Poll::Ready(taken)
+        } else {
+            Poll::Pending
+        }
     }
 
     fn input(&mut self, m: Input) {

@@ -1332,6 +1332,11 @@ pub(super) async fn run(mut d: Driver, mut inbox: Inbox<Cmd>, mut link: Option<L
     let mut orphaned = false;
     let now = Instant::now();
     d.client.connect(now);
+    // One timer for the whole loop, moved when the next wake-up moves (a
+    // new one per turn cost a timer-wheel insert and removal per message).
+    let sleep = tokio::time::sleep(Duration::from_secs(3600));
+    tokio::pin!(sleep);
+    let mut armed: Option<Instant> = None;
     loop {
         let now = Instant::now();
         d.events(now);
@@ -1351,13 +1356,13 @@ pub(super) async fn run(mut d: Driver, mut inbox: Inbox<Cmd>, mut link: Option<L
             break;
         }
         let wake = d.next_wakeup();
-        let stalled = d.stalled.clone();
-        let sleep = async {
-            match wake {
-                Some(t) => tokio::time::sleep_until(t.into()).await,
-                None => std::future::pending().await,
+        if wake != armed {
+            if let Some(t) = wake {
+                sleep.as_mut().reset(t.into());
             }
-        };
+            armed = wake;
+        }
+        let stalled = d.stalled.clone();
         let readable = link.is_some() && stalled.is_none();
         tokio::select! {
             biased;
@@ -1406,7 +1411,8 @@ pub(super) async fn run(mut d: Driver, mut inbox: Inbox<Cmd>, mut link: Option<L
                     d.stalled = None;
                 }
             },
-            _ = sleep => {
+            _ = &mut sleep, if armed.is_some() => {
+                armed = None;
                 let now = Instant::now();
                 if d.redial_at.is_some_and(|t| t <= now) {
                     let dial = Link::open(&d.opts.transport, usize::from(d.opts.mtu));

@@ -35,7 +35,11 @@
 //! assert_eq!(status_agent[..10], [0x81, 0, 0, 0, 4, 1, 11, 0, 0, 0]);
 //! ```
 
-use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+
+// Looked up per message, with keys the clients choose: foldhash is seeded
+// per process and costs a fraction of SipHash.
+use foldhash::{HashMap, HashMapExt};
 use std::hash::Hash;
 use std::time::{Instant, SystemTime, UNIX_EPOCH};
 

@@ -61,7 +61,11 @@
 mod profile;
 mod read;
 
-use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
+use std::collections::{BTreeMap, VecDeque};
+
+// Looked up several times per sample, with keys the clients choose:
+// foldhash is seeded per process and costs a fraction of SipHash.
+use foldhash::{HashMap, HashMapExt, HashSet, HashSetExt};
 use std::hash::Hash;
 use std::time::{Instant, SystemTime};
 
