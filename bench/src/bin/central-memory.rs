@@ -3,7 +3,8 @@
 //! for Courier's central and, optionally, a C one in the same run.
 //!
 //! ```text
-//! central-memory [--central PATH] [--c-central PATH] [--modules 40,400] [--large]
+//! central-memory [--central PATH] [--c-central PATH] [--floor PATH | --no-floor]
+//!                [--modules 40,400] [--large]
 //! central-memory --running PID:PORT [--modules ...] [--large]
 //! ```
 //! `--running` measures a central already running (started by hand, with
@@ -22,6 +23,13 @@
 //! of 1 MiB through central (C central: 64 KiB, it takes seconds per
 //! MiB), the two leave, and the resident size is read again 12.5 s later
 //! (Courier's central gives memory back after ten quiet seconds).
+//!
+//! The floor: `tokio-listen-floor` (next to this program, or `--floor`) is
+//! started the same way and measured last, a tokio current-thread runtime
+//! listening on TCP and a UNIX socket with no IPC at all: what any tokio
+//! program of this shape has resident. Its "modules" are bare TCP
+//! connections it accepts and holds (no handshake), and it gets no large
+//! messages.
 
 use std::net::{TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
@@ -39,15 +47,29 @@ const SETTLE: Duration = Duration::from_millis(500);
 /// The bound on every wait for central.
 const T: Duration = Duration::from_secs(20);
 
+/// What a started program is.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    Courier,
+    C,
+    /// `tokio-listen-floor`: listeners only, no IPC.
+    Floor,
+}
+
 struct Running {
     child: Child,
     port: u16,
+    /// The floor's UNIX socket file, removed when it is stopped.
+    socket: Option<PathBuf>,
 }
 
 impl Drop for Running {
     fn drop(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
+        if let Some(s) = &self.socket {
+            let _ = std::fs::remove_file(s);
+        }
     }
 }
 
@@ -58,12 +80,23 @@ fn free_port() -> u16 {
         .unwrap_or_else(|e| fail(&format!("no free port: {e}")))
 }
 
-fn start(path: &Path, courier: bool) -> Running {
+fn start(path: &Path, kind: Kind) -> Running {
     let port = free_port();
     let mut cmd = Command::new(path);
-    cmd.arg(format!("-p{port}")).args(["-lx", "-s", "-u"]);
-    if courier {
-        cmd.args(["--bind", "127.0.0.1", "--no-unix-socket"]);
+    cmd.arg(format!("-p{port}"));
+    let mut socket = None;
+    match kind {
+        Kind::Courier => {
+            cmd.args(["-lx", "-s", "-u", "--bind", "127.0.0.1", "--no-unix-socket"]);
+        }
+        Kind::C => {
+            cmd.args(["-lx", "-s", "-u"]);
+        }
+        Kind::Floor => {
+            let s = std::env::temp_dir().join(format!("tokio-listen-floor-{port}.sock"));
+            cmd.arg("--unix").arg(&s);
+            socket = Some(s);
+        }
     }
     let child = cmd
         .stdin(Stdio::null())
@@ -71,9 +104,14 @@ fn start(path: &Path, courier: bool) -> Running {
         .stderr(Stdio::null())
         .spawn()
         .unwrap_or_else(|e| fail(&format!("cannot start {}: {e}", path.display())));
-    let r = Running { child, port };
+    let r = Running {
+        child,
+        port,
+        socket,
+    };
     let deadline = Instant::now() + T;
-    // A bare connection that closes at once: central logs nothing (-lx).
+    // A bare connection that closes at once: central logs nothing (-lx);
+    // the floor holds it.
     while TcpStream::connect(("127.0.0.1", port)).is_err() {
         if Instant::now() > deadline {
             fail(&format!("{} did not start listening", path.display()));
@@ -138,39 +176,53 @@ struct Row {
 
 /// A central to measure: started here (stopped when done) or running.
 enum Target<'a> {
-    Start { path: &'a Path, courier: bool },
+    Start { path: &'a Path, kind: Kind },
     Running { pid: u32, port: u16 },
 }
 
 fn measure(name: &str, target: Target<'_>, counts: &[usize], large: bool) -> Row {
-    let (started, pid, port, courier) = match target {
-        Target::Start { path, courier } => {
-            let r = start(path, courier);
+    let (started, pid, port, kind) = match target {
+        Target::Start { path, kind } => {
+            let r = start(path, kind);
             let (pid, port) = (r.child.id(), r.port);
-            (Some(r), pid, port, courier)
+            (Some(r), pid, port, kind)
         }
-        Target::Running { pid, port } => (None, pid, port, true),
+        Target::Running { pid, port } => (None, pid, port, Kind::Courier),
     };
     let idle = rss(pid);
     let addr = format!("127.0.0.1:{port}");
     let mut modules = Vec::new();
+    let mut bare = Vec::new();
     let mut at = Vec::new();
     for &n in counts {
-        while modules.len() < n {
-            let mut m = Client::connect(&addr, &format!("idle{}", modules.len()));
-            m.sync();
-            modules.push(m);
+        if kind == Kind::Floor {
+            while bare.len() < n {
+                let s = TcpStream::connect(&addr)
+                    .unwrap_or_else(|e| fail(&format!("cannot connect to the floor: {e}")));
+                bare.push(s);
+            }
+        } else {
+            while modules.len() < n {
+                let mut m = Client::connect(&addr, &format!("idle{}", modules.len()));
+                m.sync();
+                modules.push(m);
+            }
         }
         at.push((n, rss(pid)));
     }
-    let large = large.then(|| {
-        let size = if courier { 1 << 20 } else { 64 << 10 };
+    let large = (large && kind != Kind::Floor).then(|| {
+        let size = if kind == Kind::Courier {
+            1 << 20
+        } else {
+            64 << 10
+        };
         large_messages(port, size, 20);
         // Courier's central gives memory back after ten quiet seconds.
         std::thread::sleep(Duration::from_secs(12));
         (size, rss(pid))
     });
     drop(modules);
+    drop(bare);
     drop(started);
     Row {
         name: name.into(),
@@ -196,6 +248,8 @@ fn kb(b: f64) -> String {
 fn main() {
     let mut central: Option<PathBuf> = None;
     let mut c_central: Option<PathBuf> = None;
+    let mut floor: Option<PathBuf> = None;
+    let mut no_floor = false;
     let mut counts = vec![40, 400];
     let mut large = false;
     let mut running: Option<(u32, u16)> = None;
@@ -208,6 +262,8 @@ fn main() {
         match a.as_str() {
             "--central" => central = Some(value().into()),
             "--c-central" => c_central = Some(value().into()),
+            "--floor" => floor = Some(value().into()),
+            "--no-floor" => no_floor = true,
             "--modules" => {
                 let v = value();
                 counts = v
@@ -227,7 +283,7 @@ fn main() {
             }
             "-h" | "--help" => {
                 println!(
-                    "usage: central-memory [--central PATH] [--c-central PATH] [--modules 40,400] [--large]"
+                    "usage: central-memory [--central PATH] [--c-central PATH] [--floor PATH | --no-floor] [--modules 40,400] [--large]"
                 );
                 return;
             }
@@ -239,27 +295,40 @@ fn main() {
         print_table(&counts, large, &[row]);
         return;
     }
-    let central = central.unwrap_or_else(|| {
-        let me = std::env::current_exe().unwrap_or_else(|e| fail(&format!("{e}")));
-        me.with_file_name("central")
-    });
+    let me = std::env::current_exe().unwrap_or_else(|e| fail(&format!("{e}")));
+    let central = central.unwrap_or_else(|| me.with_file_name("central"));
     if !central.exists() {
         fail(&format!(
             "{} does not exist (build it: cargo build --release -p courier-broker, or give --central)",
             central.display()
         ));
     }
+    let floor =
+        (!no_floor).then(|| floor.unwrap_or_else(|| me.with_file_name("tokio-listen-floor")));
+    if let Some(f) = floor.as_ref().filter(|f| !f.exists()) {
+        fail(&format!(
+            "{} does not exist (build it: cargo build --release -p courier-bench, or give --floor or --no-floor)",
+            f.display()
+        ));
+    }
     let courier = Target::Start {
         path: &central,
-        courier: true,
+        kind: Kind::Courier,
     };
     let mut rows = vec![measure("courier", courier, &counts, large)];
     if let Some(c) = &c_central {
         let c = Target::Start {
             path: c,
-            courier: false,
+            kind: Kind::C,
         };
         rows.push(measure("C", c, &counts, large));
+    }
+    if let Some(f) = &floor {
+        let f = Target::Start {
+            path: f,
+            kind: Kind::Floor,
+        };
+        rows.push(measure("floor: tokio listener, no IPC", f, &counts, large));
     }
     print_table(&counts, large, &rows);
 }
@@ -289,8 +358,10 @@ fn print_table(counts: &[usize], large: bool, rows: &[Row]) {
         for (n, (v, _)) in &r.counts {
             print!(" {} |", kb((*v as f64 - r.idle.0 as f64) / *n as f64));
         }
-        if let Some((size, (v, a))) = r.large {
-            print!(" {} ({} anon; {} KiB) |", mb(v), mb(a), size >> 10);
+        match r.large {
+            Some((size, (v, a))) => print!(" {} ({} anon; {} KiB) |", mb(v), mb(a), size >> 10),
+            None if large => print!(" – |"),
+            None => {}
         }
         println!();
     }
