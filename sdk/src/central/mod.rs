@@ -98,7 +98,9 @@
 //!   `malloc` calls and data-message buffers, which Courier does not have.
 //! - `status` lists modules sorted by name (C: its hash table's order);
 //!   `help` lists the options that work as console commands here (C also
-//!   lists `-f -i -s -u`, which do nothing there); the `h` log option
+//!   lists `-f -i -s -u`, which do nothing there) and words `-I` as taking
+//!   a message name, which is what the console's `-I` takes here (C's
+//!   help line says a file name); the `h` log option
 //!   (handle summary) is accepted and prints nothing; `unlock` answers that
 //!   IPC modules cannot lock.
 //!
@@ -172,7 +174,14 @@
 //!   a null pointer as `*0` (C prints the pointer's address as an int).
 //! - Lines about two events that reach central at the same moment from
 //!   different modules (a `Reply` and a `Done`, say) may come in the other
-//!   order; C's order there depends on its `select` loop too.
+//!   order; C's order there depends on its `select` loop too. When that
+//!   order decides whether a module is still busy with a delivery, the
+//!   same data is logged as `(Pending)` and later `Resource m --> m
+//!   (Sent)` where C logged `(Sent)` at once, or the other way round: e.g.
+//!   with `-l`, the broadcast of `X_IPC_BROADCAST_MSG_VAR` that follows a
+//!   module's two registrations back to back, when the other modules'
+//!   `Done` for the previous broadcast is taken in after them (central
+//!   reads every frame a connection has before the next connection's).
 //!
 pub mod access;
 mod console;
