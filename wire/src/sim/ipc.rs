@@ -327,6 +327,9 @@ impl Node for ModuleNode {
 }
 
 /// Central or a module: the nodes of an IPC network.
+// A simulated network has one central: its size is not worth a box that
+// every test would have to write.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug)]
 pub enum IpcNode {
     /// The central server.
