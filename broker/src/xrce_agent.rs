@@ -754,6 +754,14 @@ async fn discovery_reader(s: Arc<UdpSocket>, udp: Vec<SocketAddr>, iface: Ipv4Ad
 /// sent.
 const UDP_BATCH: usize = 64;
 
+/// An XRCE message from `peer`, into the bridge; one it refuses is logged
+/// (debug) and dropped.
+fn xrce_input(bridge: &mut Bridge<Peer>, peer: Peer, bytes: &[u8]) {
+    if let Err(e) = bridge.handle_input(peer, bytes, Instant::now()) {
+        tracing::debug!("XRCE from {peer:?}: {e}");
+    }
+}
+
 struct Driver {
     bridge: Bridge<Peer>,
     udp: Vec<Arc<UdpSocket>>,
@@ -826,10 +834,7 @@ impl Driver {
                     Poll::Ready(Ok(from)) => {
                         taken += 1;
                         let peer = Peer::Udp(idx as u8, from);
-                        if let Err(e) = self.bridge.handle_input(peer, rb.filled(), Instant::now())
-                        {
-                            tracing::debug!("XRCE from {peer:?}: {e}");
-                        }
+                        xrce_input(&mut self.bridge, peer, rb.filled());
                     }
                     // ICMP port unreachable from a client that went away
                     Poll::Ready(Err(e)) => {
@@ -850,11 +855,7 @@ impl Driver {
     fn input(&mut self, m: Input) {
         let now = Instant::now();
         match m {
-            Input::Xrce(peer, bytes) => {
-                if let Err(e) = self.bridge.handle_input(peer, &bytes, now) {
-                    tracing::debug!("XRCE from {peer:?}: {e}");
-                }
-            }
+            Input::Xrce(peer, bytes) => xrce_input(&mut self.bridge, peer, &bytes),
             Input::Rtps(from, bytes) => self.bridge.handle_datagram(from, &bytes, now),
             Input::TcpOpen(id, tx) => {
                 self.tcp.insert(id, tx);
