@@ -505,6 +505,13 @@ fn flood_a_slow_subscriber(send_ahead: usize, n: u32, inside: Inside) {
             }));
         } else {
             s.conn.define_msg("go", MsgLength::Variable, None).unwrap();
+            // The publisher's subscription reaches this module as an update
+            // of central's broadcast list, which may still be on its way: a
+            // broadcast with no handler in that list is dropped unsent (as
+            // the C library does). Counting the handlers settles it.
+            let op = s.conn.num_handlers("go").unwrap();
+            let counted = s.until(|e| matches!(e, Event::NumHandlers { op: o, .. } if *o == op));
+            assert!(matches!(counted, Event::NumHandlers { count: 1, .. }), "{counted:?}");
             s.conn.publish("go", vec![1u8; 4], -1).unwrap();
             s.flush();
         }
