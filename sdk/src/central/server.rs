@@ -3,7 +3,7 @@
 //! [`ReadyList`]), and a writer task per connection while central has
 //! bytes queued for it that its socket would not take at once.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::VecDeque;
 use std::io::{self, IoSlice, Write};
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::os::fd::OwnedFd;
@@ -12,6 +12,7 @@ use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll, Waker};
 use std::time::{Duration, SystemTime};
 
+use foldhash::{HashMap, HashMapExt};
 use tokio::io::unix::AsyncFd;
 use tokio::io::Interest;
 use tokio::net::{TcpListener, TcpStream, UnixListener, UnixStream};
@@ -1066,10 +1067,14 @@ impl Core {
         let mut trim_armed = false;
         let mut mark = 0u64;
         let mut quiet = 0u32;
+        // One wait for the stop signal for the whole loop: a `changed()`
+        // made anew each turn registered and removed a waiter per message.
+        let stopped = stop.changed();
+        tokio::pin!(stopped);
         loop {
             tokio::select! {
                 biased;
-                _ = stop.changed() => break,
+                _ = &mut stopped => break,
                 ev = events.recv() => {
                     let Some(ev) = ev else { break };
                     if let Some(s) = &self.spin {

@@ -275,7 +275,8 @@ impl Central {
             }
             let start = m.rx_pos + HEADER_SIZE;
             let c = header.class_total as usize;
-            let class_data = m.rx[start..start + c].to_vec();
+            // Class data is a few bytes (names, ids): kept off the heap.
+            let class_data = smallvec::SmallVec::<[u8; 64]>::from_slice(&m.rx[start..start + c]);
             let data = if m.rx_pos == 0 && start + n == m.rx.len() && n - c >= SPLIT_AT {
                 // The frame is the whole buffer: its data stays where it is.
                 Body::in_frame(std::mem::take(&mut m.rx), start + c..start + n)

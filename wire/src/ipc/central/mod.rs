@@ -74,7 +74,11 @@ pub use self::config::{Config, LogOptions, OptionError};
 pub use self::console::{DispatchInfo, DispatchState, ModuleInfo};
 pub use self::tables::DISPATCH_COST;
 
-use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
+use std::collections::{BTreeMap, VecDeque};
+
+// Looked up for every frame: foldhash (seeded per process, so names a
+// peer picks cannot be aimed at one bucket) costs a fraction of SipHash.
+use foldhash::{HashMap, HashMapExt, HashSet, HashSetExt};
 use std::time::SystemTime;
 
 use self::tables::{Dispatch, DispatchId, Module, Msg, MsgId, Var};

@@ -141,7 +141,7 @@ impl Central {
         let Some(d) = self.dispatches.get(&did) else {
             return;
         };
-        let Some((conn, _)) = d.hnd.clone() else {
+        let Some(conn) = d.hnd.as_ref().map(|h| h.0) else {
             return;
         };
         let Some(m) = self.modules.get(&conn) else {
@@ -168,39 +168,49 @@ impl Central {
         now: SystemTime,
         carry: Carry<'_>,
     ) {
+        // Nothing is cloned here unless the delivery is logged: this runs
+        // for every message central routes.
         let Some(d) = self.dispatches.get_mut(&did) else {
             return;
         };
-        let Some((conn, hnd_name)) = d.hnd.clone() else {
+        let Some((conn, hnd_name)) = d.hnd.as_ref() else {
             return;
         };
+        let conn = *conn;
         unqueue(&mut self.stats, d);
         d.status = Status::Attending;
-        let (msg, class, class_id, org, parent_ref, data) = (
-            d.msg.clone(),
-            d.class,
-            d.class_id,
-            d.org,
-            d.parent_ref,
-            d.data.clone(),
-        );
         let Some(m) = self.modules.get_mut(&conn) else {
             return;
         };
         m.attending += 1;
-        if awaits_answer(class) {
+        if awaits_answer(d.class) {
             m.answering += 1;
         }
-        if !m.handlers.contains_key(&hnd_name) {
+        if !m.handlers.contains_key(hnd_name) {
             return;
         }
-        let dest = m.name.clone().unwrap_or_default();
         match carry {
             Carry::Frame => self.write_delivery(did, None),
             Carry::Relayed(first, total) => self.write_delivery(did, Some((first, total))),
             Carry::Ahead => {}
         }
-        if self.logs(Kind::Message, &msg) {
+        let Some(d) = self.dispatches.get(&did) else {
+            return;
+        };
+        if self.logs(Kind::Message, &d.msg) {
+            let (msg, class, class_id, org, parent_ref, data) = (
+                d.msg.clone(),
+                d.class,
+                d.class_id,
+                d.org,
+                d.parent_ref,
+                d.data.clone(),
+            );
+            let dest = self
+                .modules
+                .get(&conn)
+                .and_then(|m| m.name.clone())
+                .unwrap_or_default();
             let o = self.opts();
             let line = if from_pending {
                 format!(
@@ -393,12 +403,12 @@ impl Central {
         let Some(d) = self.free_dispatch_id(did) else {
             return;
         };
-        let responder = self.module_name(Org::Module(conn));
-        let org_alive = match d.org {
-            Org::Module(c) => self.modules.get(&c).is_some_and(|m| !m.closed),
-            Org::Central => false,
-        };
         if self.logs(Kind::Message, &d.msg) {
+            let responder = self.module_name(Org::Module(conn));
+            let org_alive = match d.org {
+                Org::Module(c) => self.modules.get(&c).is_some_and(|m| !m.closed),
+                Org::Central => false,
+            };
             let o = self.opts();
             let line = format!(
                 "  Reply  {:>15}{}: {:>10} --> {:<15}{}{}",

@@ -5,6 +5,7 @@
 use std::borrow::Borrow;
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::fmt;
+use std::hash::BuildHasher;
 use std::hash::Hash;
 
 use super::internal::{Def, Internal};
@@ -87,10 +88,11 @@ pub(super) fn broken(k: &(impl Key + ?Sized)) -> Bad {
     ))
 }
 
-impl<K, Q, V> Linked<Q, V> for HashMap<K, V>
+impl<K, Q, V, S> Linked<Q, V> for HashMap<K, V, S>
 where
     K: Eq + Hash + Borrow<Q>,
     Q: Eq + Hash + Key + ?Sized,
+    S: BuildHasher,
 {
     fn linked(&self, k: &Q) -> Result<&V, Bad> {
         self.get(k).ok_or_else(|| broken(k))
