@@ -511,7 +511,10 @@ fn flood_a_slow_subscriber(send_ahead: usize, n: u32, inside: Inside) {
             // the C library does). Counting the handlers settles it.
             let op = s.conn.num_handlers("go").unwrap();
             let counted = s.until(|e| matches!(e, Event::NumHandlers { op: o, .. } if *o == op));
-            assert!(matches!(counted, Event::NumHandlers { count: 1, .. }), "{counted:?}");
+            assert!(
+                matches!(counted, Event::NumHandlers { count: 1, .. }),
+                "{counted:?}"
+            );
             s.conn.publish("go", vec![1u8; 4], -1).unwrap();
             s.flush();
         }
