@@ -43,6 +43,7 @@ use std::sync::Arc;
 use std::task::{Context, Poll};
 use std::time::{Duration, Instant, SystemTime};
 
+use courier::driver_timer::DriverTimer;
 use courier::rtps_backend::{interface_address, parse_peer, RtpsOptions};
 use courier_wire::dds::Domain;
 use courier_wire::rtps::participant::{self, Config, PortMapping, SPDP_MULTICAST_ADDRESS};
@@ -775,20 +776,11 @@ struct Driver {
 impl Driver {
     async fn run(mut self, mut rx: mpsc::Receiver<Input>, mut stop: oneshot::Receiver<()>) {
         // One timer for the whole loop, moved when the bridge's next
-        // deadline moves (a new one per turn cost a timer-wheel insert and
-        // removal per datagram).
-        let sleep = tokio::time::sleep(Duration::from_secs(3600));
-        tokio::pin!(sleep);
-        let mut armed: Option<Instant> = None;
+        // deadline moves.
+        let mut timer = DriverTimer::quiet();
         let mut buf = vec![0u8; 65_536];
         loop {
-            let deadline = self.bridge.poll_timeout();
-            if deadline != armed {
-                if let Some(t) = deadline {
-                    sleep.as_mut().reset(t.into());
-                }
-                armed = deadline;
-            }
+            timer.set_next(self.bridge.poll_timeout());
             tokio::select! {
                 biased;
                 _ = &mut stop => break,
@@ -809,8 +801,7 @@ impl Driver {
                     }
                     None => break,
                 },
-                _ = &mut sleep, if armed.is_some() => {
-                    armed = None;
+                () = std::future::poll_fn(|cx| timer.poll_fired(cx)) => {
                     self.bridge.handle_timeout(Instant::now());
                 }
             }

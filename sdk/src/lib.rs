@@ -346,6 +346,8 @@ pub mod busy_poll;
 pub mod central;
 pub mod derive_guide;
 mod direct_link;
+#[doc(hidden)]
+pub mod driver_timer;
 mod error;
 pub mod event;
 pub mod hub;

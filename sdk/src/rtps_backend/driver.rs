@@ -10,8 +10,8 @@ use super::net::{self, UdpSocket};
 use super::out::{locator_of, Full, Out};
 use super::receive::ReceiveThread;
 use super::state::State;
-use super::timer;
 use crate::busy_poll::BusyPoll;
+use crate::driver_timer;
 use crate::session::SampleQueue;
 
 /// The socket has data. The driver is its only reader, so it waits in the
@@ -110,8 +110,8 @@ pub(super) struct Core {
     pub(super) st: State,
     pub(super) out: Out,
     pub(super) cmd: crate::mailbox::Inbox<Cmd>,
-    /// The driver's deadlines (see [`timer`]).
-    pub(super) timer: timer::DriverTimer,
+    /// The driver's deadlines (see [`driver_timer`]).
+    pub(super) timer: driver_timer::DriverTimer,
     /// A close taken from the commands by someone other than the driver
     /// (`None` inside: every sender was dropped).
     pub(super) close: Option<Option<oneshot::Sender<()>>>,

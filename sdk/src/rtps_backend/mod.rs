@@ -57,7 +57,6 @@ mod out;
 mod receive;
 pub mod ros2;
 mod state;
-mod timer;
 
 use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
@@ -212,7 +211,7 @@ impl RtpsBackend {
             address.is_loopback(),
             opts.multicast,
         );
-        let timer = timer::DriverTimer::new(st.next_wakeup());
+        let timer = crate::driver_timer::DriverTimer::new(st.next_wakeup());
         let shared = Arc::new(Shared {
             core: Mutex::new(Core {
                 st,

@@ -1,7 +1,7 @@
 //! The system calls Courier makes that std and socket2 do not offer, and
 //! so every `unsafe` block of the crate: registering descriptors with
 //! tokio's reactor, `recvmmsg` and `sendmmsg`, the interface list, reverse DNS for access
-//! rules, the `timerfd` of the RTPS driver, the serial lines of the XRCE backend and the allocator settings of the
+//! rules, the `timerfd` of the drivers' timers, the serial lines of the XRCE backend and the allocator settings of the
 //! central binary. Everything else is `#![deny(unsafe_code)]`.
 #![allow(unsafe_code)]
 

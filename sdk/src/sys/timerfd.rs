@@ -1,4 +1,4 @@
-//! A monotonic `timerfd` registered with tokio: the RTPS driver's timer on
+//! A monotonic `timerfd` registered with tokio: a driver loop's timer on
 //! Linux (three system calls libc has and std does not).
 
 use std::io;

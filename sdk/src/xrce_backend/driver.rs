@@ -30,6 +30,7 @@ use super::transport::Link;
 use super::Shared;
 use crate::backend::{ClientId, Handle, PubId, ServiceId, SubId, TimeSync, XrceState};
 use crate::builder::ConnectError;
+use crate::driver_timer::DriverTimer;
 use crate::error::{OpenError, PublishError, QueryError};
 use crate::event::SessionEvent;
 use crate::hub::Hub;
@@ -1332,11 +1333,8 @@ pub(super) async fn run(mut d: Driver, mut inbox: Inbox<Cmd>, mut link: Option<L
     let mut orphaned = false;
     let now = Instant::now();
     d.client.connect(now);
-    // One timer for the whole loop, moved when the next wake-up moves (a
-    // new one per turn cost a timer-wheel insert and removal per message).
-    let sleep = tokio::time::sleep(Duration::from_secs(3600));
-    tokio::pin!(sleep);
-    let mut armed: Option<Instant> = None;
+    // One timer for the whole loop, moved when the next wake-up moves.
+    let mut timer = DriverTimer::quiet();
     loop {
         let now = Instant::now();
         d.events(now);
@@ -1355,13 +1353,7 @@ pub(super) async fn run(mut d: Driver, mut inbox: Inbox<Cmd>, mut link: Option<L
         if d.done {
             break;
         }
-        let wake = d.next_wakeup();
-        if wake != armed {
-            if let Some(t) = wake {
-                sleep.as_mut().reset(t.into());
-            }
-            armed = wake;
-        }
+        timer.set_next(d.next_wakeup());
         let stalled = d.stalled.clone();
         let readable = link.is_some() && stalled.is_none();
         tokio::select! {
@@ -1411,8 +1403,7 @@ pub(super) async fn run(mut d: Driver, mut inbox: Inbox<Cmd>, mut link: Option<L
                     d.stalled = None;
                 }
             },
-            _ = &mut sleep, if armed.is_some() => {
-                armed = None;
+            () = std::future::poll_fn(|cx| timer.poll_fired(cx)) => {
                 let now = Instant::now();
                 if d.redial_at.is_some_and(|t| t <= now) {
                     let dial = Link::open(&d.opts.transport, usize::from(d.opts.mtu));
