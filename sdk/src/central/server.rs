@@ -1062,8 +1062,10 @@ impl Core {
         // Ticks once a second from when TRIM_AFTER bytes were read until
         // memory is given back; `mark` is `read_total` at the last tick,
         // `quiet` the ticks in a row that found little read since.
-        let trim = tokio::time::sleep(TRIM_TICK);
-        tokio::pin!(trim);
+        // A `timerfd` where there is one: while it is armed (during traffic)
+        // the runtime still waits in `epoll_wait` with no timeout, so no
+        // kernel timer is armed and cancelled around every wait.
+        let mut trim = crate::driver_timer::DriverTimer::quiet();
         let mut trim_armed = false;
         let mut mark = 0u64;
         let mut quiet = 0u32;
@@ -1102,13 +1104,13 @@ impl Core {
                         tokio::task::yield_now().await;
                     }
                 }
-                () = &mut trim, if trim_armed => {
+                () = std::future::poll_fn(|cx| trim.poll_fired(cx)), if trim_armed => {
                     let read = self.read_total.wrapping_sub(mark);
                     let busy = read >= TRIM_AFTER / u64::from(QUIET_TICKS);
                     mark = self.read_total;
                     quiet = if busy { 0 } else { quiet + 1 };
                     if quiet < QUIET_TICKS {
-                        trim.as_mut().reset(tokio::time::Instant::now() + TRIM_TICK);
+                        trim.set(std::time::Instant::now() + TRIM_TICK);
                     } else {
                         trim_armed = false;
                         self.give_memory_back();
@@ -1124,7 +1126,7 @@ impl Core {
             }
             let since_trim = self.read_total.wrapping_sub(self.read_at_trim);
             if !trim_armed && since_trim >= TRIM_AFTER {
-                trim.as_mut().reset(tokio::time::Instant::now() + TRIM_TICK);
+                trim.set(std::time::Instant::now() + TRIM_TICK);
                 (trim_armed, mark, quiet) = (true, self.read_total, 0);
             }
         }

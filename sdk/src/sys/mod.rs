@@ -76,6 +76,7 @@ pub(crate) mod net {
     /// One `read(2)` of `fd` into the spare capacity of `buf`, whose length
     /// grows by what was read: a buffer read into this way is never zeroed
     /// first, so only the pages the bytes land on become resident.
+    #[cfg(feature = "central")]
     pub(crate) fn read_spare<T: AsRawFd>(fd: &T, buf: &mut Vec<u8>) -> io::Result<usize> {
         let spare = buf.spare_capacity_mut();
         // SAFETY: read(2) writes at most `spare.len()` bytes to memory we own
