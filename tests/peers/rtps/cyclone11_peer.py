@@ -24,18 +24,18 @@ change did not land on a known instance.
 Exit codes: 0 done, 1 DDS error, 2 timeout, 3 parent gone, 64 usage.
 """
 
-import os
+import argparse
 import sys
+import time
+from dataclasses import dataclass
 
-os.environ.pop("CYCLONEDDS_URI", None)
-
-import argparse  # noqa: E402
-import time  # noqa: E402
-from dataclasses import dataclass  # noqa: E402
+# before the cyclonedds package loads: importing it drops CYCLONEDDS_URI
+import peer_common
+from peer_common import Clock, emit, loopback_domain
 
 try:
     from cyclonedds.core import InstanceState, Policy, Qos  # noqa: E402
-    from cyclonedds.domain import Domain, DomainParticipant  # noqa: E402
+    from cyclonedds.domain import DomainParticipant  # noqa: E402
     from cyclonedds.idl import IdlStruct  # noqa: E402
     from cyclonedds.idl.annotations import appendable, final, key, mutable  # noqa: E402
     from cyclonedds.idl.types import int32, uint32  # noqa: E402
@@ -48,17 +48,6 @@ except ImportError as e:  # pragma: no cover
     sys.exit(1)
 
 PROG = "cyclone11_peer"
-
-LOOPBACK_CONFIG = (
-    '<CycloneDDS><Domain id="any">'
-    '<General><Interfaces><NetworkInterface name="lo"/></Interfaces>'
-    "<AllowMulticast>false</AllowMulticast></General>"
-    "<Discovery><ParticipantIndex>auto</ParticipantIndex>"
-    "<MaxAutoParticipantIndex>20</MaxAutoParticipantIndex>"
-    '<Peers><Peer address="127.0.0.1"/></Peers></Discovery>'
-    "{tracing}"
-    "</Domain></CycloneDDS>"
-)
 
 
 @dataclass
@@ -100,14 +89,8 @@ class Mutable(IdlStruct, typename="courier::test::Mutable"):
 TYPES = {"keyed": Keyed, "strkeyed": StrKeyed, "appendable": Appendable, "mutable": Mutable}
 
 
-def emit(line):
-    sys.stdout.write(line + "\n")
-    sys.stdout.flush()
-
-
 def fail(msg, code=1):
-    print(f"{PROG}: {msg}", file=sys.stderr)
-    sys.exit(code)
+    peer_common.fail(PROG, msg, code)
 
 
 def escape(text):
@@ -132,22 +115,6 @@ def make(kind, k, seq, text):
     return TYPES[kind](id=int(k), seq=seq, text=text)
 
 
-class Clock:
-    def __init__(self, timeout_s, parent):
-        self.start = time.monotonic()
-        self.timeout_s = timeout_s
-        self.parent = parent
-        self.last_parent_check = 0.0
-
-    def check(self):
-        now = time.monotonic()
-        if now - self.start > self.timeout_s:
-            emit("timeout")
-            sys.exit(2)
-        if now - self.last_parent_check > 0.5:
-            self.last_parent_check = now
-            if os.getppid() != self.parent:
-                fail("the parent process went away", 3)
 
 
 def main():
@@ -179,13 +146,9 @@ def main():
     if o.pub and o.disposed is not None:
         ap.error("--disposed is a subscriber option")
 
-    clock = Clock(o.timeout_s, os.getppid())
+    clock = Clock(PROG, o.timeout_s)
     ty = TYPES[o.type]
-    tracing = ""
-    if o.trace:
-        tracing = (f"<Tracing><Verbosity>finest</Verbosity><OutputFile>{o.trace}</OutputFile>"
-                   "</Tracing>")
-    dom = Domain(o.domain, LOOPBACK_CONFIG.format(tracing=tracing))
+    dom = loopback_domain(o.domain, o.trace)  # kept for the whole run
     dp = DomainParticipant(o.domain)
     policies = [
         Policy.Reliability.Reliable(duration(seconds=1)) if o.reliable else Policy.Reliability.BestEffort,

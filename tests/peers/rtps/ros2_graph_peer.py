@@ -39,15 +39,14 @@ Output:
 Exit codes: 0 done, 1 DDS error, 2 timeout, 3 parent gone, 64 usage.
 """
 
-import os
+import argparse
 import sys
+import threading
+import time
+from dataclasses import dataclass
 
-os.environ.pop("CYCLONEDDS_URI", None)
-
-import argparse  # noqa: E402
-import threading  # noqa: E402
-import time  # noqa: E402
-from dataclasses import dataclass  # noqa: E402
+# before the cyclonedds package loads: importing it drops CYCLONEDDS_URI
+from peer_common import Clock, emit, loopback_domain
 
 try:
     from cyclonedds.builtin import (  # noqa: E402
@@ -57,7 +56,7 @@ try:
         BuiltinTopicDcpsSubscription,
     )
     from cyclonedds.core import Policy, Qos  # noqa: E402
-    from cyclonedds.domain import Domain, DomainParticipant  # noqa: E402
+    from cyclonedds.domain import DomainParticipant  # noqa: E402
     from cyclonedds.idl import IdlStruct  # noqa: E402
     from cyclonedds.idl.annotations import final  # noqa: E402
     from cyclonedds.idl import types  # noqa: E402
@@ -72,17 +71,6 @@ except ImportError as e:  # pragma: no cover
 PROG = "ros2_graph_peer"
 TOPIC = "ros_discovery_info"
 TYPE = "rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"
-
-LOOPBACK_CONFIG = (
-    '<CycloneDDS><Domain id="any">'
-    '<General><Interfaces><NetworkInterface name="lo"/></Interfaces>'
-    "<AllowMulticast>false</AllowMulticast></General>"
-    "<Discovery><ParticipantIndex>auto</ParticipantIndex>"
-    "<MaxAutoParticipantIndex>20</MaxAutoParticipantIndex>"
-    '<Peers><Peer address="127.0.0.1"/></Peers></Discovery>'
-    "</Domain></CycloneDDS>"
-)
-
 
 def graph_types(gid_size, bounded=True):
     """rmw_dds_common's three messages with GIDs of gid_size bytes."""
@@ -123,11 +111,6 @@ class String(IdlStruct, typename="std_msgs::msg::dds_::String_"):
     data: str
 
 
-def emit(line):
-    sys.stdout.write(line + "\n")
-    sys.stdout.flush()
-
-
 def gid_bytes(entity, size):
     return entity.guid.bytes + bytes(size - 16)
 
@@ -153,8 +136,6 @@ def main():
     ns, name = o.node.rsplit("/", 1)
     ns = ns or "/"
 
-    start = time.monotonic()
-    parent = os.getppid()
     stdin_closed = threading.Event()
 
     def watch_stdin():
@@ -164,17 +145,9 @@ def main():
 
     threading.Thread(target=watch_stdin, daemon=True).start()
 
-    def check():
-        if time.monotonic() - start > o.timeout_s:
-            emit("timeout")
-            sys.exit(2)
-        if os.getppid() != parent:
-            print(f"{PROG}: the parent process went away", file=sys.stderr)
-            sys.exit(3)
+    check = Clock(PROG, o.timeout_s).check
 
-    # kept for the whole run: dropped, the domain would fall back to
-    # Cyclone's default configuration (multicast on the default interface)
-    dom = Domain(o.domain, LOOPBACK_CONFIG)
+    dom = loopback_domain(o.domain)  # kept for the whole run
     dp = DomainParticipant(o.domain)
     me = gid_bytes(dp, o.gid_size)
 

@@ -22,19 +22,18 @@ foreign <client> <seq> (a reply for another client) | done | timeout.
 Exit codes: 0 done, 1 DDS error, 2 timeout, 3 parent gone, 64 usage.
 """
 
-import os
+import argparse
+import random
 import sys
+import time
+from dataclasses import dataclass
 
-os.environ.pop("CYCLONEDDS_URI", None)
-
-import argparse  # noqa: E402
-import random  # noqa: E402
-import time  # noqa: E402
-from dataclasses import dataclass  # noqa: E402
+# before the cyclonedds package loads: importing it drops CYCLONEDDS_URI
+from peer_common import Clock, emit, loopback_domain
 
 try:
     from cyclonedds.core import Policy, Qos  # noqa: E402
-    from cyclonedds.domain import Domain, DomainParticipant  # noqa: E402
+    from cyclonedds.domain import DomainParticipant  # noqa: E402
     from cyclonedds.idl import IdlStruct  # noqa: E402
     from cyclonedds.idl.annotations import final  # noqa: E402
     from cyclonedds.idl.types import int64, uint64  # noqa: E402
@@ -47,17 +46,6 @@ except ImportError as e:  # pragma: no cover
     sys.exit(1)
 
 PROG = "ros2_service_peer"
-
-LOOPBACK_CONFIG = (
-    '<CycloneDDS><Domain id="any">'
-    '<General><Interfaces><NetworkInterface name="lo"/></Interfaces>'
-    "<AllowMulticast>false</AllowMulticast></General>"
-    "<Discovery><ParticipantIndex>auto</ParticipantIndex>"
-    "<MaxAutoParticipantIndex>20</MaxAutoParticipantIndex>"
-    '<Peers><Peer address="127.0.0.1"/></Peers></Discovery>'
-    "</Domain></CycloneDDS>"
-)
-
 
 # The header's fields, then the body's: the bytes rmw_cyclonedds writes.
 @dataclass
@@ -77,11 +65,6 @@ class Reply(IdlStruct, typename="courier::test::AddTwoInts_Response_"):
     sum: int64
 
 
-def emit(line):
-    sys.stdout.write(line + "\n")
-    sys.stdout.flush()
-
-
 def main():
     ap = argparse.ArgumentParser(prog=PROG, description="rmw_cyclonedds-style service peer (loopback only)")
     ap.add_argument("--domain", type=int, required=True)
@@ -95,20 +78,10 @@ def main():
     if not 0 <= o.domain <= 232:
         ap.error("--domain must be 0..232")
 
-    start = time.monotonic()
-    parent = os.getppid()
 
-    def check():
-        if time.monotonic() - start > o.timeout_s:
-            emit("timeout")
-            sys.exit(2)
-        if os.getppid() != parent:
-            print(f"{PROG}: the parent process went away", file=sys.stderr)
-            sys.exit(3)
+    check = Clock(PROG, o.timeout_s).check
 
-    # kept for the whole run: dropped, the domain would fall back to
-    # Cyclone's default configuration (multicast on the default interface)
-    dom = Domain(o.domain, LOOPBACK_CONFIG)
+    dom = loopback_domain(o.domain)  # kept for the whole run
     dp = DomainParticipant(o.domain)
     # rmw's default service QoS: reliable, volatile, keep last 10
     qos = Qos(Policy.Reliability.Reliable(duration(seconds=1)), Policy.History.KeepLast(10))
