@@ -464,37 +464,66 @@ fn binary_entities_pub_and_sub_in_one_client() {
     );
 }
 
-#[test]
-fn xml_reliable_hello_world_subscriber_and_publisher() {
+/// The two clients of a HelloWorld capture, each replayed on its own port:
+/// the subscriber (key CCCCDDDD) connects at record 1, creates its
+/// entities at 3, asks to read at 13 and disconnects at `sub_end`; the
+/// publisher (key AAAABBBB) connects at 15, creates its entities at 17,
+/// writes samples 1, 2, … at the records `writes` and disconnects at
+/// `pub_end`. Returns (subscriber, publisher).
+struct HelloPair {
+    capture: &'static str,
+    stream: StreamId,
+    sub_port: u16,
+    sub_end: u32,
+    pub_port: u16,
+    writes: [u32; 5],
+    pub_end: u32,
+}
+
+fn hello_pair(p: HelloPair) -> (Outcome, Outcome) {
     let sub = run(Replay {
-        capture: "udp_xml_reliable_pubsub",
-        port: 54235,
+        capture: p.capture,
+        port: p.sub_port,
         cfg: config(0xCCCC_DDDD),
         cmds: vec![
             connect_at(1),
             cmd(3, |c, now, _| hello_entities(c, now, true)),
-            read_at(13, oid(1, ObjectKind::DataReader), R),
-            disconnect_at(39),
+            read_at(13, oid(1, ObjectKind::DataReader), p.stream),
+            disconnect_at(p.sub_end),
         ],
         defer: vec![],
     });
-    assert_eq!(statuses_ok(&sub.events), 4);
-    assert_eq!(data_of(&sub.events), vec![hello(1), hello(2), hello(3)]);
     let mut cmds = vec![
         connect_at(15),
         cmd(17, |c, now, _| hello_entities(c, now, false)),
     ];
-    for (i, n) in [27, 31, 35, 40, 43].into_iter().enumerate() {
-        cmds.push(write_at(n, R, hello(i as u32 + 1)));
+    for (i, n) in p.writes.into_iter().enumerate() {
+        cmds.push(write_at(n, p.stream, hello(i as u32 + 1)));
     }
-    cmds.push(disconnect_at(45));
+    cmds.push(disconnect_at(p.pub_end));
     let publ = run(Replay {
-        capture: "udp_xml_reliable_pubsub",
-        port: 43825,
+        capture: p.capture,
+        port: p.pub_port,
         cfg: config(0xAAAA_BBBB),
         cmds,
         defer: vec![],
     });
+    (sub, publ)
+}
+
+#[test]
+fn xml_reliable_hello_world_subscriber_and_publisher() {
+    let (sub, publ) = hello_pair(HelloPair {
+        capture: "udp_xml_reliable_pubsub",
+        stream: R,
+        sub_port: 54235,
+        sub_end: 39,
+        pub_port: 43825,
+        writes: [27, 31, 35, 40, 43],
+        pub_end: 45,
+    });
+    assert_eq!(statuses_ok(&sub.events), 4);
+    assert_eq!(data_of(&sub.events), vec![hello(1), hello(2), hello(3)]);
     assert!(
         publ.padding_differed > 0,
         "the capture's garbage padding is seen"
@@ -503,75 +532,38 @@ fn xml_reliable_hello_world_subscriber_and_publisher() {
 
 #[test]
 fn xml_best_effort_hello_world_subscriber_and_publisher() {
-    let be = StreamId::BEST_EFFORT;
-    let sub = run(Replay {
+    let (sub, _) = hello_pair(HelloPair {
         capture: "udp_xml_besteffort_pubsub",
-        port: 35650,
-        cfg: config(0xCCCC_DDDD),
-        cmds: vec![
-            connect_at(1),
-            cmd(3, |c, now, _| hello_entities(c, now, true)),
-            read_at(13, oid(1, ObjectKind::DataReader), be),
-            disconnect_at(35),
-        ],
-        defer: vec![],
+        stream: StreamId::BEST_EFFORT,
+        sub_port: 35650,
+        sub_end: 35,
+        pub_port: 51656,
+        writes: [27, 28, 30, 32, 34],
+        pub_end: 38,
     });
     // sample 1 was written before DDS matched the endpoints
     assert_eq!(
         data_of(&sub.events),
         vec![hello(2), hello(3), hello(4), hello(5)]
     );
-    let mut cmds = vec![
-        connect_at(15),
-        cmd(17, |c, now, _| hello_entities(c, now, false)),
-    ];
-    for (i, n) in [27, 28, 30, 32, 34].into_iter().enumerate() {
-        cmds.push(write_at(n, be, hello(i as u32 + 1)));
-    }
-    cmds.push(disconnect_at(38));
-    run(Replay {
-        capture: "udp_xml_besteffort_pubsub",
-        port: 51656,
-        cfg: config(0xAAAA_BBBB),
-        cmds,
-        defer: vec![],
-    });
 }
 
 #[test]
 fn reliable_loss_recovery_heartbeats_acknacks_and_retransmission() {
-    let sub = run(Replay {
+    let (sub, publ) = hello_pair(HelloPair {
         capture: "udp_reliable_loss_recovery",
-        port: 59323,
-        cfg: config(0xCCCC_DDDD),
-        cmds: vec![
-            connect_at(1),
-            cmd(3, |c, now, _| hello_entities(c, now, true)),
-            read_at(13, oid(1, ObjectKind::DataReader), R),
-            disconnect_at(55),
-        ],
-        defer: vec![],
+        stream: R,
+        sub_port: 59323,
+        sub_end: 55,
+        pub_port: 40530,
+        writes: [29, 33, 40, 44, 50],
+        pub_end: 54,
     });
     // DATA seq 6 (sample 4) was dropped by the proxy, NACKed (#47) and resent
     assert_eq!(
         data_of(&sub.events),
         vec![hello(2), hello(3), hello(4), hello(5)]
     );
-    let mut cmds = vec![
-        connect_at(15),
-        cmd(17, |c, now, _| hello_entities(c, now, false)),
-    ];
-    for (i, n) in [29, 33, 40, 44, 50].into_iter().enumerate() {
-        cmds.push(write_at(n, R, hello(i as u32 + 1)));
-    }
-    cmds.push(disconnect_at(54));
-    let publ = run(Replay {
-        capture: "udp_reliable_loss_recovery",
-        port: 40530,
-        cfg: config(0xAAAA_BBBB),
-        cmds,
-        defer: vec![],
-    });
     let acked = publ
         .events
         .iter()
