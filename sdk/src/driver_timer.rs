@@ -38,19 +38,9 @@ enum Inner {
 impl DriverTimer {
     /// A timer that fires at `at` (or a little after).
     pub fn new(at: Instant) -> Self {
-        #[cfg(target_os = "linux")]
-        match fd::TimerFd::new() {
-            Ok(mut t) => {
-                t.set(at);
-                return DriverTimer {
-                    inner: Inner::Fd(t),
-                };
-            }
-            Err(e) => tracing::debug!("no timerfd ({e}): a tokio timer instead"),
-        }
-        DriverTimer {
-            inner: Inner::Sleep(Box::pin(tokio::time::sleep_until(at.into()))),
-        }
+        let mut t = Self::quiet();
+        t.set(at);
+        t
     }
 
     /// A timer with nothing due yet ([`set`](Self::set) or
