@@ -39,7 +39,7 @@
 //! session-bench processes [--central PATH] [--c-central PATH] [--c-rtt DIR]
 //!                         [--publish | --throughput] [--size S] [--count N]
 //!                         [--reps R] [--busy-poll US] [--cut-through BYTES]
-//!                         [--send-ahead N]
+//!                         [--send-ahead N] [--relay-floor] [--only c-clients]
 //! ```
 //! `--cut-through` starts Courier's centrals (and the hosted one) with that
 //! option; `--send-ahead N` sends up to N broadcasts ahead to the two
@@ -52,6 +52,12 @@
 //! subscriber from its first delivery to its last). The timing one prints a
 //! line in the format of `ping`'s; the other runs until its standard input
 //! closes.
+//!
+//! `--relay-floor` adds the relay floor (`ipc_relay_floor.rs`) in each of
+//! its shapes. `session-bench relay-sweep [--reps R] [--count N] [--work
+//! NS,...] [--one-cpu]` times only the poll-loop and tokio relays, each with
+//! the given busy work per frame: what a central's CPU per message costs a
+//! round trip, unpinned or with every process on CPU 0.
 
 #[path = "../../../examples/appendix_a.rs"]
 mod appendix;
@@ -471,6 +477,10 @@ fn main() {
             args.next();
             processes::table(args)
         }
+        Some("relay-sweep") => {
+            args.next();
+            processes::sweep(args)
+        }
         Some(r @ ("relay" | "raw-pong" | "raw-ping")) => {
             args.next();
             match r {
@@ -590,6 +600,8 @@ mod processes {
     use std::path::{Path, PathBuf};
     use std::process::{Child, Command, Stdio};
     use std::time::{Duration, Instant};
+
+    use super::relay_floor::Kind;
 
     /// A child process that is killed and reaped when dropped.
     struct Proc(Child);
@@ -881,7 +893,18 @@ mod processes {
 
     /// The relay floor on one transport (see `ipc_relay_floor.rs`): the
     /// median round trip in µs.
-    fn relay_run(s: &Setup, unix: bool) -> Option<f64> {
+    fn relay_run(s: &Setup, unix: bool, kind: Kind) -> Option<f64> {
+        relay_run_with(s.count, s.size, unix, kind, 0)
+    }
+
+    /// [`relay_run`] with `work_ns` of busy work per frame in the relay.
+    fn relay_run_with(
+        count: usize,
+        size: usize,
+        unix: bool,
+        kind: Kind,
+        work_ns: u64,
+    ) -> Option<f64> {
         let me = std::env::current_exe().unwrap();
         let port = free_port();
         let path = format!("/tmp/courier-relay-{}-{port}", std::process::id());
@@ -900,7 +923,11 @@ mod processes {
                 .spawn()
                 .expect("start a relay-floor process")
         };
-        let _relay = Proc(spawn(&["relay"], Stdio::null()));
+        let work = work_ns.to_string();
+        let _relay = Proc(spawn(
+            &["relay", "--kind", kind.arg(), "--work-ns", &work],
+            Stdio::null(),
+        ));
         let t0 = Instant::now();
         let listening = || {
             // A probe connection would be taken for the answering end.
@@ -918,8 +945,8 @@ mod processes {
         }
         let _pong = Proc(spawn(&["raw-pong"], Stdio::null()));
         std::thread::sleep(Duration::from_millis(100));
-        let count = s.count.to_string();
-        let size = s.size.to_string();
+        let count = count.to_string();
+        let size = size.to_string();
         let ping = spawn(
             &["raw-ping", "--count", &count, "--size", &size],
             Stdio::piped(),
@@ -927,6 +954,113 @@ mod processes {
         let out = ping.wait_with_output().ok()?;
         let _ = std::fs::remove_file(&path);
         median_of(&String::from_utf8_lossy(&out.stdout))
+    }
+
+    /// `session-bench relay-sweep`: the poll and tokio relays with and
+    /// without busy work per frame, on both transports, in alternating
+    /// rounds: what a microsecond of a central's CPU per message costs a
+    /// round trip, and what the tokio shape costs against the poll shape.
+    pub fn sweep(mut args: impl Iterator<Item = String>) {
+        let usage = "usage: session-bench relay-sweep [--reps R] [--count N] \
+                     [--work NS[,NS...]] [--one-cpu]";
+        let (mut reps, mut count, mut works, mut one_cpu) =
+            (9usize, 3000usize, vec![0u64, 5000], false);
+        let fail = |m: String| -> ! {
+            eprintln!("relay-sweep: {m}; {usage}");
+            std::process::exit(2)
+        };
+        while let Some(a) = args.next() {
+            let mut num = |what: &str| -> usize {
+                let v = args.next();
+                v.as_deref()
+                    .and_then(|v| v.parse().ok())
+                    .filter(|&n| n > 0)
+                    .unwrap_or_else(|| fail(format!("{what} needs a positive number (got {v:?})")))
+            };
+            match a.as_str() {
+                "--reps" => reps = num("--reps"),
+                "--count" => count = num("--count"),
+                "--work" => {
+                    let v = args.next().unwrap_or_default();
+                    works = v
+                        .split(',')
+                        .map(|w| {
+                            w.parse().unwrap_or_else(|_| {
+                                fail(format!("--work {v:?}: nanoseconds, comma-separated"))
+                            })
+                        })
+                        .collect();
+                }
+                "--one-cpu" => one_cpu = true,
+                "-h" | "--help" => {
+                    println!("{usage}");
+                    return;
+                }
+                other => fail(format!("unknown argument {other:?}")),
+            }
+        }
+        if one_cpu {
+            // Every process this one starts inherits the mask.
+            // SAFETY: a zeroed cpu_set_t is valid; CPU_SET writes inside it.
+            let r = unsafe {
+                let mut set: libc::cpu_set_t = std::mem::zeroed();
+                libc::CPU_SET(0, &mut set);
+                libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set)
+            };
+            if r != 0 {
+                fail(format!(
+                    "cannot pin to CPU 0: {}",
+                    std::io::Error::last_os_error()
+                ));
+            }
+        }
+        let kinds = [Kind::Poll, Kind::Tokio];
+        let mut cells: Vec<(bool, Kind, u64, Vec<f64>)> = Vec::new();
+        for unix in [true, false] {
+            for &w in &works {
+                for k in kinds {
+                    cells.push((unix, k, w, Vec::new()));
+                }
+            }
+        }
+        for _ in 0..reps {
+            for (unix, k, w, got) in cells.iter_mut() {
+                got.extend(relay_run_with(count, 4, *unix, *k, *w));
+            }
+        }
+        println!(
+            "relay round trip, 4 B frames between raw ends, {}; median of {reps} runs of {count} round trips, alternating\n",
+            if one_cpu { "all processes on CPU 0" } else { "unpinned" }
+        );
+        println!("| relay | transport | busy work per frame | round trip | quartiles of the runs | vs no work |");
+        println!("|---|---|---|---|---|---|");
+        let med = |v: &[f64], q: usize| {
+            let mut v = v.to_vec();
+            v.sort_by(f64::total_cmp);
+            v.get(v.len() * q / 4).copied()
+        };
+        for (unix, k, w, got) in &cells {
+            let base = cells
+                .iter()
+                .find(|c| c.0 == *unix && c.1 == *k && c.2 == 0)
+                .and_then(|c| med(&c.3, 2));
+            let (Some(m), Some(lo), Some(hi)) = (med(got, 2), med(got, 1), med(got, 3)) else {
+                continue;
+            };
+            println!(
+                "| {} | {} | {:.1} µs | {m:.1} µs | {lo:.1}–{hi:.1} µs | {} |",
+                k.arg(),
+                if *unix { "UNIX socket" } else { "TCP" },
+                *w as f64 / 1e3,
+                base.filter(|_| *w > 0)
+                    .map(|b| format!(
+                        "{:+.1} µs for +{:.1} µs of CPU per round trip",
+                        m - b,
+                        2.0 * *w as f64 / 1e3
+                    ))
+                    .unwrap_or_else(|| "–".into())
+            );
+        }
     }
 
     /// Whether `port` is in LISTEN state on 127.0.0.1 or on every address
@@ -1071,7 +1205,10 @@ mod processes {
                 .collect();
             let mut got: Vec<Vec<f64>> = vec![Vec::new(); cells.len()];
             let mut cpu: Vec<Vec<f64>> = vec![Vec::new(); cells.len()];
-            let mut floor: Vec<f64> = Vec::new();
+            // Per relay kind (`Kind::ALL`), and per round the
+            // tokio relay against the poll relay.
+            let mut floor: Vec<Vec<f64>> = vec![Vec::new(); Kind::ALL.len()];
+            let mut tokio_vs_poll: Vec<f64> = Vec::new();
             // Each run of a cell against the C-client C-central run of the
             // same round (seconds apart): drift between rounds cancels.
             let mut paired: Vec<Vec<f64>> = vec![Vec::new(); cells.len()];
@@ -1095,7 +1232,17 @@ mod processes {
                     }
                 }
                 if relay && !s.throughput {
-                    floor.extend(relay_run(&s, transport != "TCP"));
+                    let r: Vec<Option<f64>> = Kind::ALL
+                        .iter()
+                        .map(|&k| relay_run(&s, transport != "TCP", k))
+                        .collect();
+                    for (f, v) in floor.iter_mut().zip(&r) {
+                        f.extend(*v);
+                    }
+                    let at = |k| r[Kind::ALL.iter().position(|&x| x == k).unwrap()];
+                    if let (Some(p), Some(t)) = (at(Kind::Poll), at(Kind::Tokio)) {
+                        tokio_vs_poll.push(t / p);
+                    }
                 }
             }
             let med = |v: &mut Vec<f64>| {
@@ -1104,9 +1251,27 @@ mod processes {
             };
             let meds: Vec<Option<f64>> = got.iter_mut().map(med).collect();
             let cpus: Vec<Option<f64>> = cpu.iter_mut().map(med).collect();
-            if let Some(f) = med(&mut floor) {
+            let kinds: Vec<Option<f64>> = floor.iter_mut().map(med).collect();
+            // The threads relay last: the C-client rows below are against it.
+            for (k, f) in Kind::ALL.iter().zip(&kinds).skip(1) {
+                if let Some(f) = f {
+                    floors.push(format!("| {} | {transport} | {f:.1} µs |", k.describe()));
+                }
+            }
+            if !tokio_vs_poll.is_empty() {
+                let v = &mut tokio_vs_poll;
+                v.sort_by(f64::total_cmp);
                 floors.push(format!(
-                    "| relay floor (no IPC logic, raw ends) | {transport} | {f:.1} µs |"
+                    "| tokio relay / poll relay, paired per round | {transport} | {:.3}× (quartiles {:.3}–{:.3}×) |",
+                    v[v.len() / 2],
+                    v[v.len() / 4],
+                    v[(v.len() * 3) / 4]
+                ));
+            }
+            if let Some(f) = kinds[0] {
+                floors.push(format!(
+                    "| {} (the floor below) | {transport} | {f:.1} µs |",
+                    Kind::Threads.describe()
                 ));
                 for (i, &(m, c)) in cells.iter().enumerate() {
                     if m != Clients::C || c == Centrals::Hosted {
