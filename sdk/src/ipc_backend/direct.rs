@@ -80,7 +80,10 @@ pub(super) fn spawn_accept(l: DirectListener, tx: Mailbox<Cmd>) {
                         None => std::future::pending().await,
                     }
                 } => match r {
-                    Ok((s, _)) => Box::new(s),
+                    Ok((s, _)) => match Unix::new(s) {
+                        Ok(s) => Box::new(s),
+                        Err(_) => continue,
+                    },
                     Err(_) => break,
                 },
             };
@@ -99,7 +102,9 @@ pub(super) async fn connect_direct(host: &str, port: u16) -> Option<Box<dyn IpcS
     let local = host == "localhost" || is_local_name(host, &local_host_name());
     if local {
         if let Ok(s) = tokio::net::UnixStream::connect(format!("{UNIX_SOCKET_DIR}/{port}")).await {
-            return Some(Box::new(s));
+            if let Ok(s) = Unix::new(s) {
+                return Some(Box::new(s));
+            }
         }
     }
     let host = if local { "127.0.0.1" } else { host };

@@ -9,6 +9,7 @@ mod events;
 mod overflow;
 mod reconnect;
 mod transport;
+mod unix_stream;
 
 pub use transport::IpcStream;
 
@@ -16,6 +17,7 @@ use connect::{gone_for_good, handshake};
 use direct::{connect_direct, spawn_accept, DirectListener};
 use driver::{Cmd, Done, Driver, InformOp};
 use transport::{write_all_vectored, Tcp};
+use unix_stream::Unix;
 
 use std::collections::HashMap;
 use std::sync::Arc;

@@ -1,8 +1,11 @@
 //! The byte streams a session talks IPC over: TCP (with quick
-//! acknowledgements for bulk reads) or the UNIX socket `/tmp/x_ipc/<port>`,
-//! and vectored writes that keep every byte across partial writes.
+//! acknowledgements for bulk reads) or the UNIX socket `/tmp/x_ipc/<port>`
+//! ([`Unix`]: woken only for what it reads), and vectored writes that keep every
+//! byte across partial writes.
 
 use tokio::io::{AsyncRead, AsyncWrite, AsyncWriteExt};
+
+use super::unix_stream::Unix;
 
 use super::{is_local_name, local_host_name};
 
@@ -130,7 +133,7 @@ pub(super) fn is_unresolved(e: &std::io::Error) -> bool {
 pub(super) async fn open(host: &str, port: u16) -> std::io::Result<Box<dyn IpcStream>> {
     if is_local_name(host, &local_host_name()) {
         if let Ok(s) = tokio::net::UnixStream::connect(format!("/tmp/x_ipc/{port}")).await {
-            return Ok(Box::new(s));
+            return Ok(Box::new(Unix::new(s)?));
         }
     }
     // Resolve first, apart from connecting: a name that does not resolve
