@@ -23,10 +23,10 @@ use crate::sys::net::register;
 /// message it sends — when the session is asleep waiting for the answer,
 /// at the moment the peer is running. (TCP sockets report room only after
 /// a write found none.) Measured on a module sending 4 B queries to
-/// Courier's central over the UNIX socket (BENCHMARKS.md §4.1.2): context
-/// switches per round trip 1.7–2.0 → 1.0–1.2, the module's CPU per round
-/// trip 28–34 → 24–25 µs. Central's own sockets are registered the same
-/// way (`central::server`'s `Sock`).
+/// Courier's central over the UNIX socket (BENCHMARKS.md §4.1.2, medians):
+/// context switches per round trip 1.79 → 1.02, the module's CPU per round
+/// trip 32.4 → 26.9 µs. Central's own sockets are registered the same way
+/// (`central::server`'s `Sock`).
 pub(crate) struct Unix {
     fd: AsyncFd<UnixStream>,
     /// While a write waits for room: a registration for write readiness of
@@ -85,8 +85,16 @@ impl AsyncRead for Unix {
         loop {
             let mut ready = ready!(self.fd.poll_read_ready(cx))?;
             let unfilled = buf.initialize_unfilled();
+            let room = unfilled.len();
             match ready.try_io(|s| (&mut s.get_ref()).read(unfilled)) {
                 Ok(Ok(n)) => {
+                    // A short read emptied the socket: wait for the next
+                    // edge rather than read again to find nothing (as
+                    // tokio's own streams do; an edge that came in between
+                    // is not lost, readiness is cleared by its tick).
+                    if n > 0 && n < room {
+                        ready.clear_ready();
+                    }
                     buf.advance(n);
                     return Poll::Ready(Ok(()));
                 }
