@@ -744,19 +744,14 @@ impl Sock {
     }
 
     /// Waits until the socket has room, through a registration for write
-    /// readiness that lives only as long as the wait (on a duplicate of the
-    /// descriptor, since one descriptor has one registration). The kernel
-    /// reports readiness at registration, so room that appeared since the
-    /// last write is not missed.
+    /// readiness that lives only as long as the wait ([`register_for_room`]).
     async fn writable(&self) -> io::Result<()> {
-        let dup = self.fd.get_ref().try_clone()?;
-        let w = register(dup, Interest::WRITABLE)?;
-        let _ready = w.writable().await?;
+        let _ready = register_for_room(self.fd.get_ref())?.writable().await?;
         Ok(())
     }
 }
 
-use crate::sys::net::register;
+use crate::sys::net::{register, register_for_room};
 
 /// Any kind of stream's write half.
 enum WriteHalf {

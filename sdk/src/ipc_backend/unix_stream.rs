@@ -4,6 +4,7 @@
 //! waits for room.
 
 use std::io::{self, IoSlice, Read};
+use std::os::fd::OwnedFd;
 use std::os::unix::net::UnixStream;
 use std::pin::Pin;
 use std::task::{ready, Context, Poll};
@@ -11,7 +12,7 @@ use std::task::{ready, Context, Poll};
 use tokio::io::unix::AsyncFd;
 use tokio::io::{AsyncRead, AsyncWrite, Interest, ReadBuf};
 
-use crate::sys::net::register;
+use crate::sys::net::{register, register_for_room};
 
 /// A UNIX-socket connection registered with the reactor for read
 /// readiness only, and for write readiness only while a write waits for
@@ -29,11 +30,9 @@ use crate::sys::net::register;
 /// (`central::server`'s `Sock`).
 pub(crate) struct Unix {
     fd: AsyncFd<UnixStream>,
-    /// While a write waits for room: a registration for write readiness of
-    /// a duplicate of the descriptor (one descriptor has one registration).
-    /// The kernel reports readiness at registration, so room that appeared
-    /// since the write that found none is not missed.
-    room: Option<AsyncFd<UnixStream>>,
+    /// While a write waits for room: its registration
+    /// ([`register_for_room`]).
+    room: Option<AsyncFd<OwnedFd>>,
 }
 
 impl Unix {
@@ -63,10 +62,7 @@ impl Unix {
             }
             let room = match &mut self.room {
                 Some(r) => r,
-                r @ None => r.insert(register(
-                    self.fd.get_ref().try_clone()?,
-                    Interest::WRITABLE,
-                )?),
+                r @ None => r.insert(register_for_room(self.fd.get_ref())?),
             };
             ready!(room.poll_write_ready(cx))?.clear_ready();
         }

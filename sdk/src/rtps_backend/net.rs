@@ -21,7 +21,7 @@ pub(crate) type UdpSocket = AsyncFd<std::net::UdpSocket>;
 use super::options::RtpsOptions;
 
 pub(crate) use crate::sys::net::interfaces;
-use crate::sys::net::register;
+use crate::sys::net::{register, register_for_room};
 
 /// The IPv4 address RTPS options select: the named interface's
 /// (`interface=lo`), a literal address, or by default the first up,
@@ -88,12 +88,11 @@ pub(crate) fn register_readable(s: std::net::UdpSocket) -> io::Result<UdpSocket>
 }
 
 /// Waits until `sock` can take another datagram. The socket is registered
-/// for reading only, so a duplicate of its descriptor is registered for
-/// writing for as long as the wait lasts (rare: a UDP send buffer is full
-/// only while a NIC's queue is).
+/// for reading only, so it is registered for room for as long as the wait
+/// lasts ([`register_for_room`]; rare: a UDP send buffer is full only while
+/// a NIC's queue is).
 pub(crate) async fn wait_writable(sock: &std::net::UdpSocket) -> io::Result<()> {
-    let dup = register(sock.try_clone()?, Interest::WRITABLE)?;
-    let _ready = dup.writable().await?;
+    let _ready = register_for_room(sock)?.writable().await?;
     Ok(())
 }
 

@@ -14,7 +14,7 @@ pub(crate) mod net {
 
     use std::io;
     use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4};
-    use std::os::fd::AsRawFd;
+    use std::os::fd::{AsFd, AsRawFd, OwnedFd};
 
     use tokio::io::unix::AsyncFd;
     use tokio::io::Interest;
@@ -71,6 +71,17 @@ pub(crate) mod net {
         // same until the `AsyncFd` is dropped (nothing hands it out mutably or
         // swaps it)
         unsafe { AsyncFd::register_with_interest(fd, interest) }.map_err(|e| e.into_parts().1)
+    }
+
+    /// A registration for write readiness of a socket that is registered
+    /// for reading only, on a duplicate of its descriptor (one descriptor
+    /// has one registration), to be kept only while a write waits for
+    /// room. A socket that asks for both is woken each time it gets room
+    /// back, which a UNIX socket does on every read by its peer. The kernel
+    /// reports readiness at registration, so room that appeared since the
+    /// write that found none is not missed.
+    pub(crate) fn register_for_room(fd: &impl AsFd) -> io::Result<AsyncFd<OwnedFd>> {
+        register(fd.as_fd().try_clone_to_owned()?, Interest::WRITABLE)
     }
 
     /// One `read(2)` of `fd` into the spare capacity of `buf`, whose length
