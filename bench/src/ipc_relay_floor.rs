@@ -76,8 +76,8 @@ impl Conn {
         }
     }
 
-    /// `read` through a shared reference (both std streams allow it), for
-    /// the tokio relay's readiness guard.
+    /// `read` through a shared reference (both std streams allow it): the
+    /// tokio relay reads through its readiness guard's `&Conn`.
     fn read_shared(&self, b: &mut [u8]) -> io::Result<usize> {
         match self {
             Conn::Tcp(s) => (&*s).read(b),
@@ -104,19 +104,13 @@ impl AsRawFd for Conn {
 
 impl Read for Conn {
     fn read(&mut self, b: &mut [u8]) -> io::Result<usize> {
-        match self {
-            Conn::Tcp(s) => s.read(b),
-            Conn::Unix(s) => s.read(b),
-        }
+        self.read_shared(b)
     }
 }
 
 impl Write for Conn {
     fn write(&mut self, b: &[u8]) -> io::Result<usize> {
-        match self {
-            Conn::Tcp(s) => s.write(b),
-            Conn::Unix(s) => s.write(b),
-        }
+        self.write_shared(b)
     }
     fn flush(&mut self) -> io::Result<()> {
         Ok(())
