@@ -374,7 +374,9 @@ pub use backend::{
 /// `#[derive(IpcMessage)]`: its type mapping and every `#[ipc(...)]`
 /// attribute are in [`derive_guide`].
 pub use courier_derive::IpcMessage;
-pub use courier_wire::{cdr, format, ipc, key_hash, rtps, xrce, IpcMessage, NamedFormats};
+pub use courier_wire::{
+    cdr, format, ipc, key_hash, rtps, xrce, IpcMessage, Matrix, NamedFormats, NdVec, ShapeError,
+};
 pub use error::{ControlError, Error, OpenError, PublishError};
 pub use event::{DurabilityKind, EndpointInfo, Guid, ParticipantInfo, QosSummary};
 pub use ipc_backend::IpcStream;

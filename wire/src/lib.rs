@@ -13,7 +13,8 @@
 //!   and the client and agent session machines.
 //! - `sim` (cargo feature `sim`): a deterministic simulated network to
 //!   test these machines on.
-//! - [`IpcMessage`]: the trait `#[derive(IpcMessage)]` implements.
+//! - [`IpcMessage`]: the trait `#[derive(IpcMessage)]` implements, and
+//!   [`NdVec`], the multi-dimensional variable arrays (`<T:k1,k2>`) it takes.
 //!
 //! ```
 //! use courier_wire::{ipc, cdr, IpcMessage};
@@ -32,6 +33,7 @@ pub mod dds;
 pub mod format;
 pub mod ipc;
 mod message;
+pub mod ndvec;
 pub mod ros2;
 pub mod rtps;
 #[cfg(feature = "sim")]
@@ -42,6 +44,7 @@ pub mod xrce;
 pub use message::__private;
 
 pub use message::{IpcMessage, NamedFormats};
+pub use ndvec::{Matrix, NdVec, ShapeError};
 
 /// The DDS key hash of `value`'s instance (`PID_KEY_HASH`, DDSI-RTPS 2.5
 /// §9.6.4.8): [`rtps::participant::KeyHash::of`] as bytes. A subscriber can

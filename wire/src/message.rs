@@ -24,6 +24,11 @@ use crate::ipc;
 /// | `string` | `String`, `Option<String>` |
 /// | `[T:n]` | `[T; n]` |
 /// | `*T` | `Option<Box<T>>` |
+#[diagnostic::on_unimplemented(
+    message = "`{Self}` is not an IPC message type",
+    label = "`IpcMessage` is not implemented for `{Self}`",
+    note = "derive it with `#[derive(courier::IpcMessage)]`; an `NdVec` or `Matrix` field is `<T:k1,k2>` and needs its size fields named, `#[ipc(len = \"rows, cols\")]`"
+)]
 pub trait IpcMessage: Sized {
     /// The IPC format string (manual §3), e.g. `"{int, {enum : 3}, [double:2,3], double}"`.
     const FORMAT: &'static str;
@@ -665,6 +670,7 @@ impl<T: IpcMessage> IpcMessage for Box<T> {
 pub mod __private {
     use super::*;
     pub use crate::const_str::ConstStr;
+    use crate::ndvec::{NdVec, ShapeError};
 
     /// IPC variable array `<T:k>`: `int32` count, then the elements.
     pub fn ipc_encode_vec<T: IpcMessage>(v: &[T], w: &mut ipc::Writer) {
@@ -700,6 +706,71 @@ pub mod __private {
         let v = T::cdr_decode_vec(r, n)?;
         r.end_dheader(d);
         Ok(v)
+    }
+
+    /// What the derive needs of a multi-dimensional variable array field
+    /// (`<T:k1,k2,…>`, a field with several `len` names): its element type,
+    /// its number of dimensions, its shape and elements, and how to build it
+    /// from size fields and elements received.
+    #[diagnostic::on_unimplemented(
+        message = "`{Self}` is not a multi-dimensional variable array",
+        label = "a field with several `len` names is `<T:k1,k2,…>`",
+        note = "use `courier::NdVec<T, N>` (`courier::Matrix<T>` for two dimensions), or `Vec<T>` with one `len` name"
+    )]
+    pub trait NdField: Sized {
+        /// The element type.
+        type Elem: IpcMessage;
+        /// The number of dimensions.
+        const DIMS: usize;
+        /// The size of dimension `d` (from 0); never above `i32::MAX`.
+        fn dim(&self, d: usize) -> usize;
+        /// The elements, row-major.
+        fn elems(&self) -> &[Self::Elem];
+        /// The array from its received size fields and elements.
+        fn from_received(dims: &[i128], data: Vec<Self::Elem>) -> Result<Self, ShapeError>;
+    }
+
+    impl<T: IpcMessage, const N: usize> NdField for NdVec<T, N> {
+        type Elem = T;
+        const DIMS: usize = N;
+        fn dim(&self, d: usize) -> usize {
+            self.shape()[d]
+        }
+        fn elems(&self) -> &[T] {
+            self.as_slice()
+        }
+        fn from_received(dims: &[i128], data: Vec<T>) -> Result<Self, ShapeError> {
+            // the derive passes exactly `DIMS` size fields (checked at compile time)
+            let mut shape = [0i128; N];
+            for (s, d) in shape.iter_mut().zip(dims) {
+                *s = *d;
+            }
+            crate::ndvec::from_received(shape, data)
+        }
+    }
+
+    /// Builds an IPC-decoded `<T:k1,k2,…>` field; `offset` is where its count was.
+    pub fn ipc_nd<F: NdField>(
+        dims: &[i128],
+        data: Vec<F::Elem>,
+        offset: usize,
+    ) -> Result<F, ipc::DecodeError> {
+        F::from_received(dims, data).map_err(|error| ipc::DecodeError::Shape {
+            offset,
+            error: Box::new(error),
+        })
+    }
+
+    /// Builds a CDR-decoded `<T:k1,k2,…>` field; `offset` is where its sequence was.
+    pub fn cdr_nd<F: NdField>(
+        dims: &[i128],
+        data: Vec<F::Elem>,
+        offset: usize,
+    ) -> Result<F, cdr::DecodeError> {
+        F::from_received(dims, data).map_err(|error| cdr::DecodeError::Shape {
+            offset,
+            error: Box::new(error),
+        })
     }
 
     /// Self pointer `*!`: flag byte, then the enclosing struct.

@@ -288,6 +288,16 @@ pub enum DecodeError {
         /// Found element count.
         found: usize,
     },
+    /// A multi-dimensional variable array's size fields do not fit its
+    /// elements (or are negative, or too large).
+    #[error("variable array at byte {offset}: {error}")]
+    Shape {
+        /// Offset of the array's count.
+        offset: usize,
+        /// What is wrong with the shape (boxed: decoders recurse, and
+        /// every frame carries room for the error).
+        error: Box<crate::ShapeError>,
+    },
     /// Nesting too deep.
     #[error("data nested deeper than {max} levels at byte {offset}")]
     TooDeep {

@@ -114,6 +114,16 @@ pub enum DecodeError {
         /// Count on the wire.
         found: u64,
     },
+    /// A multi-dimensional variable array's size fields do not fit its
+    /// elements (or are negative, or too large).
+    #[error("variable array at byte {offset}: {error}")]
+    Shape {
+        /// Offset of the array's count.
+        offset: usize,
+        /// What is wrong with the shape (boxed: decoders recurse, and
+        /// every frame carries room for the error).
+        error: Box<crate::ShapeError>,
+    },
     /// Nesting deeper than [`MAX_DEPTH`] (recursive formats, self pointers).
     #[error("data nested deeper than {max} levels at byte {offset}")]
     TooDeep {
