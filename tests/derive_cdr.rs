@@ -672,3 +672,113 @@ fn xcdr2_headers_and_key_payloads_golden() {
         assert_eq!(b[2..4], [0, 0], "{enc:?} {ext}: options");
     }
 }
+
+/// `<T:k1,k2>` in CDR: the size fields are members of their own, the
+/// elements one `sequence<T>`, flat, row-major (IDL `struct Grid { long
+/// rows; long cols; sequence<double> cells; }`).
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "Grid")]
+struct CdrGrid {
+    rows: i32,
+    cols: i32,
+    #[ipc(len = "rows, cols")]
+    cells: courier::Matrix<f64>,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "GridM", extensibility = "mutable")]
+struct CdrGridM {
+    rows: i32,
+    cols: i32,
+    #[ipc(len = "rows, cols")]
+    cells: courier::Matrix<f64>,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(extensibility = "appendable")]
+struct CdrCube {
+    #[ipc(len = "a, b, c")]
+    v: courier::NdVec<Inner, 3>,
+    a: u32,
+    b: u64,
+    c: i64,
+}
+
+/// Cyclone DDS 11's bytes for the same values (PyPI cyclonedds 11.0.1:
+/// `Grid(IdlStruct)` / `@mutable GridM(IdlStruct)` with `rows: int32, cols:
+/// int32, cells: sequence[float64]`, `serialize()` and
+/// `serialize(use_version_2=True)`).
+#[test]
+fn nd_var_array_cdr_golden_as_cyclone() {
+    let g = CdrGrid {
+        rows: 2,
+        cols: 3,
+        cells: courier::Matrix::new([2, 3], vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0]).unwrap(),
+    };
+    let xcdr1 = unhex(
+        "00010000020000000300000006000000000000000000000000000000000000000000f03f\
+         0000000000000040000000000000084000000000000010400000000000001440",
+    );
+    let xcdr2 = unhex(
+        "000700000200000003000000060000000000000000000000000000000000f03f00000000\
+         00000040000000000000084000000000000010400000000000001440",
+    );
+    assert_eq!(cdr::to_vec(&g, Encoding::Xcdr1Le), xcdr1);
+    assert_eq!(cdr::to_vec(&g, Encoding::Xcdr2Le), xcdr2);
+    assert_eq!(cdr::from_slice::<CdrGrid>(&xcdr1).unwrap(), g);
+    assert_eq!(cdr::from_slice::<CdrGrid>(&xcdr2).unwrap(), g);
+
+    let m = CdrGridM {
+        rows: 2,
+        cols: 1,
+        cells: courier::Matrix::new([2, 1], vec![1.5, 2.5]).unwrap(),
+    };
+    let cyclone = unhex(
+        "000b000028000000000000200200000001000020010000000200007002000000\
+         000000000000f83f0000000000000440",
+    );
+    assert_eq!(cdr::from_slice::<CdrGridM>(&cyclone).unwrap(), m);
+    assert_eq!(cdr::to_vec(&m, Encoding::Xcdr2Le), cyclone);
+    round_trip(&m);
+    round_trip(&g);
+    round_trip(&CdrCube {
+        v: courier::NdVec::from_fn([2, 1, 2], |[i, _, k]| Inner {
+            a: i as u8,
+            b: k as f64,
+        })
+        .unwrap(),
+        a: 2,
+        b: 1,
+        c: 2,
+    });
+}
+
+#[test]
+fn nd_var_array_cdr_shape_errors() {
+    // rows 2 × cols 3, but a sequence of 5
+    let mut b = unhex("000100000200000003000000050000000000000000");
+    b.extend([0u8; 40]);
+    let e = cdr::from_slice::<CdrGrid>(&b).unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "variable array at byte 8: shape [2, 3] holds 6 elements, but 5 were given"
+    );
+    // a negative size field
+    let b = unhex("0001000002000000feffffff00000000");
+    assert_eq!(
+        cdr::from_slice::<CdrGrid>(&b).unwrap_err().to_string(),
+        "variable array at byte 8: dimension 2 of the shape is -2: a size cannot be negative"
+    );
+    // mutable members in another order: sizes after the elements
+    let m = CdrGridM {
+        rows: 1,
+        cols: 2,
+        cells: courier::Matrix::new([1, 2], vec![1.0, 2.0]).unwrap(),
+    };
+    let b = cdr::to_vec(&m, Encoding::Xcdr2Le);
+    let mut wrong = m.clone();
+    wrong.cells = courier::Matrix::new([2, 2], vec![0.0; 4]).unwrap();
+    wrong.rows = 1; // ignored on encode: 2 is written
+    assert_ne!(cdr::to_vec(&wrong, Encoding::Xcdr2Le), b);
+    assert_eq!(cdr::from_slice::<CdrGridM>(&b).unwrap(), m);
+}

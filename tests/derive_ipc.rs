@@ -4,7 +4,7 @@
 //! little-endian host).
 
 use courier::ipc::{self, ByteOrder, DecodeError};
-use courier::{IpcMessage, NamedFormats};
+use courier::{IpcMessage, Matrix, NamedFormats, NdVec};
 
 /// `typedef enum { WaitVal, SendVal, ReceiveVal, ListenVal } STATUS_ENUM`,
 /// written in T1 as `{enum : 3}`.
@@ -181,10 +181,7 @@ fn invalid_enum_names_the_type() {
     }
 }
 
-// ---- ipc.md §10 E7 rows that a derive can express ----
-//
-// `{int, int, <double:1,2>}` (a 2-dimensional variable array whose count is
-// the product of two fields) is not derivable: `#[ipc(len)]` names one field.
+// ---- ipc.md §10 E7 ----
 
 /// `{char, double, short}`.
 #[derive(IpcMessage, Debug, PartialEq)]
@@ -233,6 +230,154 @@ struct VarBytes {
     len: i32,
     #[ipc(len = "len")]
     data: Vec<i8>,
+}
+
+/// `{int, int, <double:1,2>}`: a 2-dimensional variable array whose count
+/// is the product of two fields.
+#[derive(IpcMessage, Debug, PartialEq)]
+struct Grid {
+    rows: i32,
+    cols: i32,
+    #[ipc(len = "rows, cols")]
+    cells: Matrix<f64>,
+}
+
+/// Size fields after the array, of other widths, and three dimensions.
+#[derive(IpcMessage, Debug, PartialEq)]
+struct Cube {
+    label: String,
+    #[ipc(len = "x, y, z")]
+    v: NdVec<i16, 3>,
+    z: u64,
+    y: u32,
+    x: i64,
+}
+
+#[test]
+fn e7_two_dimensional_var_array() {
+    assert_eq!(Grid::FORMAT, "{int, int, <double:1,2>}");
+    let g = Grid {
+        rows: 2,
+        cols: 3,
+        cells: Matrix::new([2, 3], vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0]).unwrap(),
+    };
+    let mut bytes = hex("02000000 03000000 06000000");
+    for d in [0.0f64, 1.0, 2.0, 3.0, 4.0, 5.0] {
+        bytes.extend(d.to_le_bytes());
+    }
+    golden(&g, &bytes);
+    // what the dynamic codec (C's layout) makes of the derive's bytes
+    let fmt = courier::format::parse(Grid::FORMAT).unwrap();
+    let v = ipc::Value::from_ipc_bytes(&fmt, &ipc::to_vec(&g), ByteOrder::NATIVE).unwrap();
+    let ipc::Value::Struct(fields) = &v else {
+        panic!("{v:?}")
+    };
+    assert_eq!(fields[0].as_integer(), Some(2));
+    assert_eq!(fields[1].as_integer(), Some(3));
+    let cells: Vec<f64> = fields[2]
+        .as_slice()
+        .unwrap()
+        .iter()
+        .map(|c| c.as_f64().unwrap())
+        .collect();
+    assert_eq!(cells, [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]);
+}
+
+#[test]
+fn nd_var_array_size_fields_come_from_the_shape() {
+    // the size fields' own values are ignored on encode, as a `Vec`'s count field's is
+    let g = Grid {
+        rows: 7,
+        cols: -1,
+        cells: Matrix::new([3, 1], vec![1.0, 2.0, 3.0]).unwrap(),
+    };
+    let back = ipc::from_slice::<Grid>(&ipc::to_vec(&g)).unwrap();
+    assert_eq!((back.rows, back.cols), (3, 1));
+    assert_eq!(back.cells, g.cells);
+
+    assert_eq!(Cube::FORMAT, "{string, <short:5,4,3>, ulong, uint, long}");
+    let c = Cube {
+        label: "c".into(),
+        v: NdVec::from_fn([2, 3, 4], |[i, j, k]| (i * 100 + j * 10 + k) as i16).unwrap(),
+        z: 0,
+        y: 0,
+        x: 0,
+    };
+    let back = ipc::from_slice::<Cube>(&ipc::to_vec(&c)).unwrap();
+    assert_eq!((back.x, back.y, back.z), (2, 3, 4));
+    assert_eq!(back.v[[1, 2, 3]], 123);
+    assert_eq!(back.v, c.v);
+    // an empty dimension: no elements, the other sizes still sent
+    let e = Grid {
+        rows: 0,
+        cols: 0,
+        cells: Matrix::new([0, 9], vec![]).unwrap(),
+    };
+    assert_eq!(ipc::to_vec(&e)[..12], hex("00000000 09000000 00000000")[..]);
+    assert_eq!(
+        ipc::from_slice::<Grid>(&ipc::to_vec(&e))
+            .unwrap()
+            .cells
+            .shape(),
+        [0, 9]
+    );
+}
+
+#[test]
+fn nd_var_array_shape_errors_name_the_problem() {
+    let decode = |h: &str| ipc::from_slice_with_order::<Grid>(&hex(h), ByteOrder::Little);
+    // 2 × 3 say the size fields, 5 elements came
+    let mut b = hex("02000000 03000000 05000000");
+    b.extend([0u8; 40]);
+    let e = ipc::from_slice_with_order::<Grid>(&b, ByteOrder::Little).unwrap_err();
+    assert_eq!(
+        e,
+        DecodeError::Shape {
+            offset: 8,
+            error: Box::new(courier::ShapeError::Length {
+                shape: vec![2, 3],
+                expected: 6,
+                found: 5
+            })
+        }
+    );
+    assert_eq!(
+        e.to_string(),
+        "variable array at byte 8: shape [2, 3] holds 6 elements, but 5 were given"
+    );
+    // a negative size field, even with no elements
+    assert_eq!(
+        decode("02000000 ffffffff 00000000")
+            .unwrap_err()
+            .to_string(),
+        "variable array at byte 8: dimension 2 of the shape is -1: a size cannot be negative"
+    );
+    // size fields whose product overflows, with no elements
+    assert!(matches!(
+        decode("00000100 00000100 00000000"),
+        Err(DecodeError::Shape { error, .. }) if matches!(*error, courier::ShapeError::TooLarge { .. })
+    ));
+    // the array's own count promising more than there is
+    assert!(matches!(
+        decode("02000000 03000000 ffffff7f"),
+        Err(DecodeError::CountTooLarge { .. })
+    ));
+    // the same for size fields that come after the array
+    let c = Cube {
+        label: String::new(),
+        v: NdVec::filled([1, 2, 2], 5).unwrap(),
+        z: 0,
+        y: 0,
+        x: 0,
+    };
+    let mut b = ipc::to_vec(&c);
+    let n = b.len();
+    b[n - 8] = 3; // x = 3
+    assert!(matches!(
+        ipc::from_slice::<Cube>(&b),
+        Err(DecodeError::Shape { error, .. })
+            if matches!(*error, courier::ShapeError::Length { expected: 12, found: 4, .. })
+    ));
 }
 
 #[test]

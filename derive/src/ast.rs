@@ -43,6 +43,10 @@ pub enum Kind<'a> {
     SelfPtr,
     /// `Vec<T>`: IPC `<T:k>`; `len` is the index of the length field.
     Vec { elem: &'a Type, len: Option<usize> },
+    /// A field with several `len` names, IPC `<T:k1,k2,…>`: a type
+    /// implementing `__private::NdField` (`NdVec<T, N>`), checked by the
+    /// compiler; `dims` are the indices of the size fields, in order.
+    NdVec { dims: Vec<usize> },
 }
 
 pub struct Field<'a> {
@@ -53,8 +57,10 @@ pub struct Field<'a> {
     pub ty: &'a Type,
     pub attrs: FieldAttrs,
     pub kind: Kind<'a>,
-    /// Index of the `Vec` field whose length this field holds.
+    /// Index of the `Vec` (or `NdVec`) field whose length this field holds.
     pub count_for: Option<usize>,
+    /// Which dimension of that `NdVec` (0 for a `Vec`).
+    pub count_dim: usize,
     /// Member id (CDR mutable extensibility).
     pub id: u32,
     /// `Option<Box<T>>`: an `@optional` member (absent members of a mutable
@@ -233,6 +239,7 @@ fn struct_fields<'a>(cx: &Ctxt, input: &'a DeriveInput, fields: &'a syn::Fields)
             attrs,
             kind,
             count_for: None,
+            count_dim: 0,
             id,
             optional: matches!(generic_arg(&f.ty, "Option"), Some(Some(inner)) if generic_arg(inner, "Box").is_some()),
             span: syn::spanned::Spanned::span(f),
@@ -244,12 +251,16 @@ fn struct_fields<'a>(cx: &Ctxt, input: &'a DeriveInput, fields: &'a syn::Fields)
         let Some(lit) = out[i].attrs.len.clone() else {
             continue;
         };
+        if matches!(out[i].kind, Kind::NdVec { .. }) {
+            resolve_dims(cx, input, &mut out, i, &lit);
+            continue;
+        }
         if !matches!(out[i].kind, Kind::Vec { .. }) {
             continue; // reported in field_kind
         }
         let want = lit.value();
         if want.contains(',') {
-            continue; // reported while parsing the attribute
+            continue; // several names on a `Vec`: reported in field_kind
         }
         let Some(j) = out.iter().position(|f| f.name == want) else {
             let names: Vec<String> = out
@@ -286,7 +297,7 @@ fn struct_fields<'a>(cx: &Ctxt, input: &'a DeriveInput, fields: &'a syn::Fields)
             cx.error_spanned_by(
                 &lit,
                 format!(
-                    "field `{want}` already holds the length of `{}`; each variable array needs its own length field (2-dimensional `<T:k1,k2>` arrays are not supported)",
+                    "field `{want}` already holds the length of `{}`; each variable array needs its own length field",
                     out[other].name
                 ),
             );
@@ -314,6 +325,104 @@ fn struct_fields<'a>(cx: &Ctxt, input: &'a DeriveInput, fields: &'a syn::Fields)
         }
     }
     out
+}
+
+/// Size fields of a C `int` or wider, which hold any dimension of an IPC
+/// array (at most `i32::MAX`): C's IPC reads them as `int`.
+const DIM_INTEGERS: &[&str] = &["i32", "u32", "i64", "u64"];
+
+/// Resolves `len = "k1, k2, …"` of the `NdVec` field `i`.
+fn resolve_dims(
+    cx: &Ctxt,
+    input: &DeriveInput,
+    out: &mut [Field<'_>],
+    i: usize,
+    lit: &syn::LitStr,
+) {
+    let names: Vec<String> = lit
+        .value()
+        .split(',')
+        .map(|n| n.trim().to_string())
+        .collect();
+    if names.iter().any(String::is_empty) {
+        cx.error_spanned_by(
+            lit,
+            format!(
+                "`len = {:?}` has an empty field name; write the size fields separated by commas, e.g. `len = \"rows, cols\"`",
+                lit.value()
+            ),
+        );
+        return;
+    }
+    if out[i].attrs.key {
+        cx.error_spanned_by(
+            lit,
+            format!(
+                "`{}` cannot be a key field: a multi-dimensional array has no DDS key form",
+                out[i].name
+            ),
+        );
+    }
+    let mut dims = Vec::new();
+    for (d, want) in names.iter().enumerate() {
+        let Some(j) = out.iter().position(|f| &f.name == want) else {
+            cx.error_spanned_by(
+                lit,
+                format!(
+                    "`len` names `{want}`, but `{}` has no such field",
+                    input.ident
+                ),
+            );
+            continue;
+        };
+        let is_dim_integer = match out[j].ty {
+            Type::Path(p) if p.qself.is_none() => p
+                .path
+                .get_ident()
+                .is_some_and(|id| DIM_INTEGERS.iter().any(|n| id == n)),
+            _ => false,
+        };
+        if j == i || !is_dim_integer {
+            let ty = out[j].ty;
+            cx.error_spanned_by(
+                lit,
+                format!(
+                    "size field `{want}` has type `{}`; the dimensions of a multi-dimensional array live in i32, u32, i64 or u64 fields (C's IPC reads them as `int`)",
+                    quote::quote!(#ty).to_string().replace(' ', "")
+                ),
+            );
+            continue;
+        }
+        if names[..d].contains(want) {
+            cx.error_spanned_by(
+                lit,
+                format!("`len` names `{want}` twice; each dimension needs its own size field"),
+            );
+            continue;
+        }
+        if let Some(other) = out[j].count_for {
+            cx.error_spanned_by(
+                lit,
+                format!(
+                    "field `{want}` already holds the length of `{}`; each variable array needs its own size fields",
+                    out[other].name
+                ),
+            );
+            continue;
+        }
+        if out[j].attrs.key {
+            cx.error_spanned_by(
+                lit,
+                format!("size field `{want}` cannot be a key field: the array it sizes has no DDS key form"),
+            );
+        }
+        out[j].count_for = Some(i);
+        out[j].count_dim = d;
+        dims.push(j);
+    }
+    if let Kind::NdVec { dims: slot } = &mut out[i].kind {
+        *slot = dims;
+    }
 }
 
 fn is_integer(ty: &Type) -> bool {
@@ -386,11 +495,27 @@ fn field_kind<'a>(
     } else {
         check_type(cx, input, ty);
     }
+    // (`Matrix<T>` is left to the compiler: users have their own types of that name)
+    if attrs.len.is_none() && matches!(generic_arg(ty, "NdVec"), Some(Some(_))) {
+        cx.error_spanned_by(
+            ty,
+            "an `NdVec` is IPC `<T:k1,k2,…>`: name the fields that hold its shape, one per dimension, e.g. `#[ipc(len = \"rows, cols\")]`",
+        );
+    }
     if let Some(lit) = &attrs.len {
-        if !matches!(kind, Kind::Vec { .. }) {
+        if lit.value().contains(',') {
+            if matches!(kind, Kind::Vec { .. }) {
+                cx.error_spanned_by(
+                    lit,
+                    "a `Vec` has one dimension, so `len` names one field; for `<T:k1,k2,…>` use `courier::NdVec<T, N>` (`courier::Matrix<T>` for two dimensions)",
+                );
+            } else {
+                kind = Kind::NdVec { dims: Vec::new() };
+            }
+        } else if !matches!(kind, Kind::Vec { .. }) {
             cx.error_spanned_by(
                 lit,
-                "`len` applies only to `Vec<T>` fields (IPC variable arrays)",
+                "`len` applies only to `Vec<T>` fields (IPC variable arrays), or with several fields to `NdVec<T, N>`",
             );
         }
     }

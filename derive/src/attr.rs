@@ -30,7 +30,8 @@ pub struct ContainerAttrs {
 
 /// Attributes on a field.
 pub struct FieldAttrs {
-    /// `len = "field"`: the field that holds this `Vec`'s length.
+    /// `len = "field"`: the field that holds this `Vec`'s length;
+    /// `len = "rows, cols"`: the fields that hold an `NdVec`'s shape.
     pub len: Option<LitStr>,
     /// `char`: this `u8` is an IPC `char`.
     pub char_: Option<Span>,
@@ -179,14 +180,7 @@ pub fn field(cx: &Ctxt, attrs: &[Attribute]) -> FieldAttrs {
     for attr in ipc_attrs(attrs) {
         let r = attr.parse_nested_meta(|meta| {
             if meta.path.is_ident("len") {
-                let s: LitStr = meta.value()?.parse()?;
-                if s.value().contains(',') {
-                    cx.error_spanned_by(
-                        &s,
-                        "multi-dimensional variable arrays (`<T:k1,k2>`) are not supported: name one integer field",
-                    );
-                }
-                out.len = Some(s);
+                out.len = Some(meta.value()?.parse()?);
             } else if meta.path.is_ident("char") {
                 out.char_ = Some(meta.path.require_ident()?.span());
             } else if meta.path.is_ident("key") {

@@ -43,6 +43,7 @@
 //! | `String`, `Option<String>` | `string` |
 //! | `[[T; m]; n]` | `[T:n,m]` |
 //! | `#[ipc(len = "count")] Vec<T>` | `<T:k>`, k = 1-based index of field `count` |
+//! | `#[ipc(len = "rows, cols")] Matrix<T>`, `#[ipc(len = "a, b, c")] NdVec<T, 3>` | `<T:k1,k2>`, `<T:k1,k2,k3>`: flat, row-major, sized by those fields |
 //! | `Option<Box<T>>` | `*T` |
 //! | `Option<Box<Self>>` (or the type's own name) | `*!` |
 //! | a struct deriving `IpcMessage` | its format name (registered by `named_formats`) |
@@ -70,6 +71,7 @@
 //! | attribute | meaning |
 //! |---|---|
 //! | `#[ipc(len = "count")]` | this `Vec` is `<T:k>`; its length lives in the integer field `count` (one `Vec` per length field; for tuple structs name the index, `len = "0"`) |
+//! | `#[ipc(len = "rows, cols")]` | this [`NdVec`](crate::NdVec) (or [`Matrix`](crate::Matrix)) is `<T:k1,k2,…>`; its shape lives in those `i32`/`u32`/`i64`/`u64` fields, one per dimension, in order |
 //! | `#[ipc(char)]` | this `u8` is an IPC `char` |
 //! | `#[ipc(key)]` | DDS key field (`KEYS`, `cdr_encode_key`); key members carry the XTypes must-understand flag, as idlc gives `@key` members |
 //! | `#[ipc(must_understand)]` | sets the must-understand flag of a non-key member |
@@ -88,7 +90,40 @@
 //!   decode the length field gets its wire value, and if it precedes the array
 //!   the array's wire count must equal it (`DecodeError::CountMismatch`). CDR
 //!   decoding takes both values as they come (a DDS peer's count field is just
-//!   a field). Two-dimensional `<T:k1,k2>` arrays are not supported.
+//!   a field).
+//! - **Multi-dimensional variable arrays** (`<T:k1,k2,…>`) are
+//!   [`NdVec<T, N>`](crate::NdVec), whose shape and elements always agree
+//!   (its constructors check, and no shape holds more than `i32::MAX`
+//!   elements): on encode the size fields are written from the shape, so
+//!   encoding cannot fail. They must be `i32`, `u32`, `i64` or `u64`, which
+//!   hold any dimension (C's IPC reads them as `int`). On decode, in IPC and
+//!   in CDR, the shape is the size fields' values and must hold exactly the
+//!   elements received (`DecodeError::Shape` otherwise, naming the shape).
+//!   In CDR the elements are one flat `sequence<T>` after the size members,
+//!   as Cyclone DDS writes IDL `long rows; long cols; sequence<T> cells;`.
+//!   An `NdVec` and its size fields cannot be DDS keys.
+//!
+//!   ```
+//!   use courier::{IpcMessage, Matrix};
+//!
+//!   #[derive(IpcMessage, Debug, PartialEq)]
+//!   struct Image {
+//!       rows: i32,
+//!       cols: i32,
+//!       #[ipc(len = "rows, cols")]
+//!       pixels: Matrix<u8>,
+//!   }
+//!
+//!   assert_eq!(Image::FORMAT, "{int, int, <ubyte:1,2>}");
+//!   let img = Image {
+//!       rows: 0, // written from the shape: 2
+//!       cols: 0, // and 3
+//!       pixels: Matrix::new([2, 3], vec![1, 2, 3, 4, 5, 6])?,
+//!   };
+//!   let back: Image = courier::ipc::from_slice(&courier::ipc::to_vec(&img))?;
+//!   assert_eq!((back.rows, back.cols, back.pixels[[1, 2]]), (2, 3, 6));
+//!   # Ok::<(), Box<dyn std::error::Error>>(())
+//!   ```
 //! - **Unit structs** (and structs without fields) are the empty message:
 //!   `FORMAT` is `""` as for `()`, they have no format name, and using one as
 //!   a field of another struct fails at compile time.

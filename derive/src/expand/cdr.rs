@@ -6,7 +6,7 @@
 use proc_macro2::TokenStream;
 use quote::quote;
 
-use super::{len_lets, len_var, var};
+use super::{count_value, len_lets, len_var, offset_var, var};
 use crate::ast::{Container, Field, Kind};
 use crate::attr::Extensibility;
 
@@ -20,15 +20,21 @@ pub(super) struct StructCodec {
     pub(super) key_fn: TokenStream,
 }
 
-/// Writes field `i`'s value (a count field writes its `Vec`'s length).
-fn cdr_value(i: usize, f: &Field<'_>) -> TokenStream {
+/// Writes field `i`'s value (a count field writes its array's length or
+/// dimension).
+fn cdr_value(fields: &[Field<'_>], i: usize) -> TokenStream {
+    let f = &fields[i];
     let m = &f.member;
     let ty = f.ty;
     if let Some(vec) = f.count_for {
-        let n = len_var(vec);
+        let n = count_value(fields, vec, f.count_dim);
         return quote!(__wire::IpcMessage::cdr_encode(&(#n as #ty), __w););
     }
     match &f.kind {
+        Kind::NdVec { .. } => {
+            quote!(__wire::__private::cdr_encode_seq::<<#ty as __wire::__private::NdField>::Elem>(
+            __wire::__private::NdField::elems(&self.#m), __w);)
+        }
         Kind::Plain | Kind::SelfPtr => quote!(__wire::IpcMessage::cdr_encode(&self.#m, __w);),
         Kind::Char => quote!(__w.write_u8(self.#m);),
         Kind::Vec { elem, len: Some(_) } => {
@@ -41,10 +47,13 @@ fn cdr_value(i: usize, f: &Field<'_>) -> TokenStream {
     }
 }
 
-/// Reads a field's value.
+/// Reads a field's value (an `NdVec`'s elements only: [`nd_finish`] builds it).
 fn cdr_read(f: &Field<'_>) -> TokenStream {
     let ty = f.ty;
     match &f.kind {
+        Kind::NdVec { .. } => {
+            quote!(__wire::__private::cdr_decode_seq::<<#ty as __wire::__private::NdField>::Elem>(__r)?)
+        }
         Kind::Char => quote!(__r.read_u8()?),
         Kind::Vec { elem, .. } => quote!(__wire::__private::cdr_decode_seq::<#elem>(__r)?),
         Kind::Plain | Kind::SelfPtr => quote!(<#ty as __wire::IpcMessage>::cdr_decode(__r)?),
@@ -71,16 +80,22 @@ pub(super) fn struct_codec(
     let enc: Vec<TokenStream> = fields
         .iter()
         .enumerate()
-        .map(|(i, f)| member(f, cdr_value(i, f)))
+        .map(|(i, f)| member(f, cdr_value(fields, i)))
         .collect();
+    let finish = nd_finish(fields);
     let dec = if mutable {
         mutable_decode(fields, ext)
     } else {
         let reads = fields.iter().enumerate().map(|(i, f)| {
             let v = var(i);
-            let ty = f.ty;
+            let ty = decoded_ty(f);
             let read = cdr_read(f);
-            quote!(let #v: #ty = #read;)
+            if matches!(f.kind, Kind::NdVec { .. }) {
+                let o = offset_var(i);
+                quote!(let #o = __r.position(); let #v #ty = #read;)
+            } else {
+                quote!(let #v #ty = #read;)
+            }
         });
         quote! {
             let __s = __r.begin_struct(#ext)?;
@@ -88,11 +103,43 @@ pub(super) fn struct_codec(
             __s.end(__r)?;
         }
     };
+    let dec = quote!(#dec #(#finish)*);
     StructCodec {
         enc,
         dec,
         key_fn: key_fn(fields, ext, mutable),
     }
+}
+
+/// `: T` for a decoded field's local; nothing for an `NdVec`, whose local
+/// holds its elements until [`nd_finish`].
+fn decoded_ty(f: &Field<'_>) -> TokenStream {
+    let ty = f.ty;
+    match f.kind {
+        Kind::NdVec { .. } => quote!(),
+        _ => quote!(: #ty),
+    }
+}
+
+/// Builds each `NdVec` field from its elements and its size fields, once
+/// all are read.
+fn nd_finish(fields: &[Field<'_>]) -> Vec<TokenStream> {
+    fields
+        .iter()
+        .enumerate()
+        .filter_map(|(i, f)| {
+            let Kind::NdVec { dims } = &f.kind else {
+                return None;
+            };
+            let ty = f.ty;
+            let v = var(i);
+            let o = offset_var(i);
+            let sizes = dims.iter().map(|j| var(*j));
+            Some(quote! {
+                let #v: #ty = __wire::__private::cdr_nd::<#ty>(&[#(#sizes as i128),*], #v, #o)?;
+            })
+        })
+        .collect()
 }
 
 /// Members of a mutable struct come in any order, unknown ones are
@@ -102,13 +149,26 @@ fn mutable_decode(fields: &[Field<'_>], ext: &TokenStream) -> TokenStream {
     let decls = fields.iter().enumerate().map(|(i, f)| {
         let v = var(i);
         let ty = f.ty;
-        quote!(let mut #v: ::core::option::Option<#ty> = ::core::option::Option::None;)
+        if matches!(f.kind, Kind::NdVec { .. }) {
+            let o = offset_var(i);
+            quote! {
+                let mut #o = 0usize;
+                let mut #v = ::core::option::Option::None;
+            }
+        } else {
+            quote!(let mut #v: ::core::option::Option<#ty> = ::core::option::Option::None;)
+        }
     });
     let arms = fields.iter().enumerate().map(|(i, f)| {
         let v = var(i);
         let id = f.id;
         let read = cdr_read(f);
-        quote!(#id => #v = ::core::option::Option::Some(#read),)
+        if matches!(f.kind, Kind::NdVec { .. }) {
+            let o = offset_var(i);
+            quote!(#id => { #o = __r.position(); #v = ::core::option::Option::Some(#read); })
+        } else {
+            quote!(#id => #v = ::core::option::Option::Some(#read),)
+        }
     });
     let unwraps = fields.iter().enumerate().map(|(i, f)| {
         let v = var(i);
@@ -293,7 +353,7 @@ fn key_fn(fields: &[Field<'_>], ext: &TokenStream, mutable: bool) -> TokenStream
                         __wire::IpcMessage::cdr_encode_key(&self.#m, __w);
                     }
                 },
-                _ => cdr_value(i, f),
+                _ => cdr_value(fields, i),
             };
             member(f, value)
         });

@@ -53,6 +53,21 @@ pub(super) fn struct_format(c: &Container<'_>, fields: &[Field<'_>]) -> StructFo
                 let k = format!(":{}>", len.map_or(0, |j| j + 1));
                 quote!(#build.push_str("<").push_str(<#elem as __wire::IpcMessage>::FIELD_FORMAT).push_str(#k))
             }
+            Kind::NdVec { dims } => {
+                let n = dims.len();
+                let msg = format!(
+                    "field `{}` of `{}` names {n} size fields in `len`, but its type has a different number of dimensions",
+                    f.name, ident
+                );
+                checks.push(quote_spanned! {ty.span()=>
+                    if <#ty as __wire::__private::NdField>::DIMS != #n {
+                        ::core::panic!(#msg);
+                    }
+                });
+                let ks: Vec<String> = dims.iter().map(|j| (j + 1).to_string()).collect();
+                let k = format!(":{}>", ks.join(","));
+                quote!(#build.push_str("<").push_str(<<#ty as __wire::__private::NdField>::Elem as __wire::IpcMessage>::FIELD_FORMAT).push_str(#k))
+            }
         };
     }
     if !fields.is_empty() {
@@ -86,6 +101,9 @@ pub(super) fn struct_format(c: &Container<'_>, fields: &[Field<'_>]) -> StructFo
             Kind::Vec { elem, .. } => {
                 nested.push(quote!(<#elem as __wire::IpcMessage>::named_formats(__out);))
             }
+            Kind::NdVec { .. } => nested.push(quote!(
+                <<#ty as __wire::__private::NdField>::Elem as __wire::IpcMessage>::named_formats(__out);
+            )),
             _ => {}
         }
     }

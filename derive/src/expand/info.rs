@@ -77,7 +77,7 @@ pub(super) fn sizes(fields: &[Field<'_>]) -> Sizes {
                 cdr_min.push(quote!(1usize));
                 quote!(false)
             }
-            Kind::Vec { .. } => {
+            Kind::Vec { .. } | Kind::NdVec { .. } => {
                 ipc_min.push(quote!(4usize));
                 cdr_min.push(quote!(4usize));
                 quote!(false)

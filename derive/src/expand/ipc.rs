@@ -5,7 +5,7 @@
 use proc_macro2::TokenStream;
 use quote::quote;
 
-use super::{len_var, var};
+use super::{count_value, len_var, offset_var, var};
 use crate::ast::{Field, Kind};
 
 /// The statements of `ipc_encode` and `ipc_decode`, one or more per field.
@@ -17,12 +17,14 @@ pub(super) struct StructCodec {
 pub(super) fn struct_codec(fields: &[Field<'_>]) -> StructCodec {
     let mut ipc_enc = Vec::new();
     let mut ipc_dec = Vec::new();
+    // `NdVec`s are built once every size field has been read
+    let mut ipc_post = Vec::new();
     for (i, f) in fields.iter().enumerate() {
         let m = &f.member;
         let ty = f.ty;
         let v = var(i);
         if let Some(vec) = f.count_for {
-            let n = len_var(vec);
+            let n = count_value(fields, vec, f.count_dim);
             ipc_enc.push(quote!(__wire::IpcMessage::ipc_encode(&(#n as #ty), __w);));
             ipc_dec.push(quote!(let #v: #ty = <#ty as __wire::IpcMessage>::ipc_decode(__r)?;));
             continue;
@@ -70,8 +72,23 @@ pub(super) fn struct_codec(fields: &[Field<'_>]) -> StructCodec {
                     ),
                 }
             }
+            Kind::NdVec { dims } => {
+                let elem = quote!(<#ty as __wire::__private::NdField>::Elem);
+                let o = offset_var(i);
+                let sizes = dims.iter().map(|j| var(*j));
+                ipc_enc.push(quote!(__wire::__private::ipc_encode_vec::<#elem>(
+                    __wire::__private::NdField::elems(&self.#m), __w);));
+                ipc_dec.push(quote! {
+                    let #o = __r.position();
+                    let #v = __wire::__private::ipc_decode_vec::<#elem>(__r)?;
+                });
+                ipc_post.push(quote! {
+                    let #v: #ty = __wire::__private::ipc_nd::<#ty>(&[#(#sizes as i128),*], #v, #o)?;
+                });
+            }
         }
     }
+    ipc_dec.extend(ipc_post);
     StructCodec {
         enc: ipc_enc,
         dec: ipc_dec,

@@ -69,6 +69,27 @@ fn len_var(i: usize) -> syn::Ident {
     format_ident!("__n{}", i)
 }
 
+/// The local that holds where `NdVec` field `i`'s elements began.
+fn offset_var(i: usize) -> syn::Ident {
+    format_ident!("__o{}", i)
+}
+
+/// What a size field writes: the length sent for `Vec` field `array`, or
+/// dimension `dim` of `NdVec` field `array` (never above `i32::MAX`, which
+/// every size field type of an `NdVec` holds).
+fn count_value(fields: &[Field<'_>], array: usize, dim: usize) -> TokenStream {
+    match &fields[array].kind {
+        Kind::NdVec { .. } => {
+            let m = &fields[array].member;
+            quote!(__wire::__private::NdField::dim(&self.#m, #dim))
+        }
+        _ => {
+            let n = len_var(array);
+            quote!(#n)
+        }
+    }
+}
+
 /// The length of each `Vec` field with a count field (those `only` takes),
 /// capped by its count type and by int32: the length both encoders send,
 /// so that the count never disagrees with the data.
