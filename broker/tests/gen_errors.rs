@@ -144,11 +144,19 @@ fn unsupported_constructs() {
         err(
             Lang::Xdr,
             "bad.xdr",
-            "struct Image {\n  int rows;\n  int cols;\n  unsigned char data<><>;\n};\n"
+            "struct Image {\n  int rows;\n  double cols;\n  unsigned char data<><>;\n};\n"
         ),
-        "bad.xdr:4:17: the 2-dimensional variable-length array `data` is not supported: \
-         #[derive(IpcMessage)] takes one count field per Vec; use one `<>` dimension (rows as a \
-         struct or fixed array)"
+        "bad.xdr:4:17: 2-dimensional variable-length array `data` is not preceded by the 2 int \
+         or unsigned int fields that hold its dimensions"
+    );
+    assert_eq!(
+        err(
+            Lang::Xdr,
+            "bad.xdr",
+            "struct Image {\n  int cols;\n  unsigned char data<><>;\n};\n"
+        ),
+        "bad.xdr:3:17: 2-dimensional variable-length array `data` is not preceded by the 2 int \
+         or unsigned int fields that hold its dimensions"
     );
     assert_eq!(
         err(
@@ -160,10 +168,10 @@ fn unsupported_constructs() {
          no union type); use a struct with an enum tag"
     );
     assert_eq!(
-        err(Lang::Ipc, "bad.ipc", "T = {int, int, <int:1,2>}\n"),
-        "bad.ipc:1:1: the multi-dimensional variable array `<int:1,2>` is not supported: \
-         #[derive(IpcMessage)] takes one count field per Vec; use a one-dimensional `<T:k>` \
-         holding rows of a fixed-size array"
+        err(Lang::Ipc, "bad.ipc", "T = {int, short, <int:1,2>}\n"),
+        "bad.ipc:1:1: the variable array `<int:1,2>` sized by field 2 of format `short` is not \
+         supported: the size fields of a multi-dimensional array must be `int`, `uint`, `long` \
+         or `ulong` (C's IPC reads them as `int`)"
     );
 }
 

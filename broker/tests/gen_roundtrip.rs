@@ -100,6 +100,8 @@ fn ipc_formats_are_the_inputs() {
         ("Primitives", Primitives::FORMAT),
         ("Row", Row::FORMAT),
         ("Samples", Samples::FORMAT),
+        ("Grid", Grid::FORMAT),
+        ("Voxels", Voxels::FORMAT),
         ("POINTER_EXAMPLE", PointerExample::FORMAT),
         ("ENUM_TYPE", EnumType::FORMAT),
         ("Mixed", Mixed::FORMAT),
@@ -158,6 +160,18 @@ fn ipc_values_round_trip() {
         ['a', 'b', 'c', 'd', 'e', 'f', 'g', 'h'],
     ));
     round_trip(&Samples(3, vec![0.5, 1.5, 2.5]));
+    // the size fields are written from the shape
+    round_trip(&Grid(
+        2,
+        3,
+        courier::Matrix::new([2, 3], vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0]).unwrap(),
+    ));
+    round_trip(&Voxels(
+        1,
+        courier::NdVec::from_fn([2, 1, 3], |[i, j, k]| (i * 3 + j + k) as f32).unwrap(),
+        2,
+        3,
+    ));
     round_trip(&PointerExample(7, Some(Box::new(8))));
     round_trip(&PointerExample(7, None));
     round_trip(&List(
@@ -220,6 +234,12 @@ fn xdr_formats_are_xdrgens() {
     assert_eq!(Zoo::FORMAT, "{int, int}");
     assert_eq!(expanded::<Transform>(), canon("{[double:4,4]}"));
     assert_eq!(expanded::<Gamma>(), canon("{int, <float:1>}"));
+    // xdrgen's `{int,int,<uchar:1,2>}`
+    assert_eq!(expanded::<Image>(), canon("{int, int, <ubyte:1,2>}"));
+    assert_eq!(
+        expanded::<Volume>(),
+        canon("{string, uint, int, int, <float:2,3,4>, float}")
+    );
     assert_eq!(expanded::<Color>(), canon("{enum RED,ORANGE,YELLOW}"));
     assert_eq!(expanded::<Mixed>(), canon("int"));
     // xdrgen writes `uchar`, which no IPC library knows: `ubyte` is the
@@ -253,6 +273,19 @@ fn xdr_formats_are_xdrgens() {
 fn xdr_values_round_trip() {
     use manual_xdr::*;
     round_trip(&Zoo { foo: 1, goo: 2 });
+    round_trip(&Image {
+        rows: 2,
+        cols: 2,
+        data: courier::Matrix::from_rows(vec![[1, 2], [3, 4]]).unwrap(),
+    });
+    round_trip(&Volume {
+        label: "v".into(),
+        depth: 1,
+        height: 2,
+        width: 1,
+        voxels: courier::NdVec::filled([1, 2, 1], 0.5).unwrap(),
+        scale: 2.0,
+    });
     let inc = MyIncludableStruct {
         foo: 3,
         goo: MyIncludableStructGoo { a: 4 },

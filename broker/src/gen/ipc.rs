@@ -16,7 +16,9 @@
 //! name; a struct, enum or pointer target written inline becomes a type
 //! named after its place (`T2Field4`); any other format becomes a type
 //! alias. Variable arrays take their count from the field the format
-//! names; `*!` is `Option<Box<Self>>`.
+//! names (`Vec<T>`), or their shape from the fields it names
+//! (`<T:k1,k2>`: `courier::Matrix<T>`, `courier::NdVec<T, N>` for more
+//! dimensions); `*!` is `Option<Box<Self>>`.
 
 use std::collections::HashMap;
 
@@ -280,17 +282,39 @@ impl Cx<'_> {
         for (i, f) in fields.iter().enumerate() {
             let inner = format!("{name}Field{}", i + 1);
             let (ty, len) = match f {
-                Format::VarArray { elem, dims } => {
-                    if dims.len() != 1 {
-                        return Err(GenError::unsupported(
-                            self.pos(),
-                            format!("the multi-dimensional variable array `{f}`"),
-                            "#[derive(IpcMessage)] takes one count field per Vec; use a \
-                             one-dimensional `<T:k>` holding rows of a fixed-size array",
-                        ));
-                    }
+                Format::VarArray { elem, dims } if dims.len() == 1 => {
                     let elem = self.ty(elem, &inner, &name)?;
                     (Ty::Vec(Box::new(elem)), Some((dims[0] - 1).to_string()))
+                }
+                Format::VarArray { elem, dims } => {
+                    // `NdVec` size fields hold any dimension: C reads them as `int`
+                    for &k in dims {
+                        let sized_by = &fields[k as usize - 1];
+                        if !matches!(
+                            sized_by,
+                            Format::Primitive(
+                                Primitive::Int
+                                    | Primitive::UInt
+                                    | Primitive::Long
+                                    | Primitive::ULong
+                            )
+                        ) {
+                            return Err(GenError::unsupported(
+                                self.pos(),
+                                format!(
+                                    "the variable array `{f}` sized by field {k} of format `{sized_by}`"
+                                ),
+                                "the size fields of a multi-dimensional array must be `int`, \
+                                 `uint`, `long` or `ulong` (C's IPC reads them as `int`)",
+                            ));
+                        }
+                    }
+                    let elem = self.ty(elem, &inner, &name)?;
+                    let names: Vec<String> = dims.iter().map(|k| (k - 1).to_string()).collect();
+                    (
+                        Ty::NdVec(Box::new(elem), dims.len()),
+                        Some(names.join(", ")),
+                    )
                 }
                 other => (self.ty(other, &inner, &name)?, None),
             };

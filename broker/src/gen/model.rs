@@ -16,6 +16,9 @@ pub enum Ty {
     Array(Box<Ty>, u32),
     /// `Vec<T>`: an IPC variable array (with its count field) or a CDR sequence.
     Vec(Box<Ty>),
+    /// `courier::NdVec<T, N>`: an IPC variable array of `N` > 1 dimensions
+    /// (with its size fields).
+    NdVec(Box<Ty>, usize),
     /// `Option<Box<T>>`: an IPC pointer, a CDR `@optional` member.
     Boxed(Box<Ty>),
     /// Another generated type.
@@ -331,6 +334,7 @@ fn expand(ty: &Ty, aliases: &HashMap<TypeRef, Ty>, depth: usize) -> Ty {
         Ty::Prim(_) => ty.clone(),
         Ty::Array(t, n) => Ty::Array(Box::new(expand(t, aliases, depth + 1)), *n),
         Ty::Vec(t) => Ty::Vec(Box::new(expand(t, aliases, depth + 1))),
+        Ty::NdVec(t, n) => Ty::NdVec(Box::new(expand(t, aliases, depth + 1)), *n),
         Ty::Boxed(t) => Ty::Boxed(Box::new(expand(t, aliases, depth + 1))),
         Ty::Named(r) => match aliases.get(r) {
             Some(t) => expand(t, aliases, depth + 1),
@@ -385,7 +389,7 @@ fn by_value<'t>(ty: &'t Ty, out: &mut Vec<&'t TypeRef>) {
     match ty {
         Ty::Array(t, _) => by_value(t, out),
         Ty::Named(r) => out.push(r),
-        Ty::Prim(_) | Ty::Vec(_) | Ty::Boxed(_) => {}
+        Ty::Prim(_) | Ty::Vec(_) | Ty::NdVec(..) | Ty::Boxed(_) => {}
     }
 }
 

@@ -86,6 +86,8 @@ pub fn ty_rust(ty: &Ty, cur: &[String]) -> String {
         Ty::Prim(p) => p.rust().to_string(),
         Ty::Array(t, n) => format!("[{}; {n}]", ty_rust(t, cur)),
         Ty::Vec(t) => format!("Vec<{}>", ty_rust(t, cur)),
+        Ty::NdVec(t, 2) => format!("courier::Matrix<{}>", ty_rust(t, cur)),
+        Ty::NdVec(t, n) => format!("courier::NdVec<{}, {n}>", ty_rust(t, cur)),
         Ty::Boxed(t) => format!("Option<Box<{}>>", ty_rust(t, cur)),
         Ty::Named(r) => path_to(r, cur),
     }
@@ -199,7 +201,7 @@ fn field_attrs(f: &FieldDef) -> Vec<String> {
 fn field_head(out: &mut String, f: &FieldDef, depth: usize) {
     doc(out, &f.doc, depth);
     if let Ty::Boxed(inner) = &f.ty {
-        if matches!(**inner, Ty::Prim(Prim::String) | Ty::Vec(_)) {
+        if matches!(**inner, Ty::Prim(Prim::String) | Ty::Vec(_) | Ty::NdVec(..)) {
             // the box is what makes the member @optional in CDR
             let _ = writeln!(out, "{}#[allow(clippy::box_collection)]", indent(depth));
         }

@@ -18,16 +18,17 @@
 //! | `string s<>` | `String` | `string` |
 //! | `T a[n][m]` | `[[T; m]; n]` | `[T:n,m]` |
 //! | `T a<>` | `Vec<T>`, counted by the field before it | `<T:k>` |
+//! | `T a<><>` | `courier::Matrix<T>`, sized by the two fields before it | `<T:k1,k2>` |
+//! | `T a<><><>` | `courier::NdVec<T, 3>`, sized by the three fields before it | `<T:k1,k2,k3>` |
 //! | `enum { A, B }` | enum | `{enum A, B}` |
 //! | `enum { A = 2, B }` | `i32` alias and constants | `int` |
 //! | `ipc_type X;` | `X`, which the including code must provide | |
 //! | `ipc_type X = "fmt";` | as the IPC format `fmt` | `fmt` |
 //!
-//! A variable array must follow the `int` or `unsigned int` field that
-//! holds its length, as xdrgen requires. Not supported: variable arrays of
-//! more than one dimension (`<><>`: the derive takes one count field per
-//! `Vec`), and what xdrgen refuses (`union`, `const`, `hyper`, optional
-//! data `*`). `%{ … %}` code sections hold C and are skipped.
+//! A variable array of n dimensions must follow the n `int` or `unsigned
+//! int` fields that hold its dimensions, in order, as xdrgen requires. Not
+//! supported: what xdrgen refuses (`union`, `const`, `hyper`, optional data
+//! `*`). `%{ … %}` code sections hold C and are skipped.
 
 use std::collections::HashMap;
 
@@ -486,21 +487,34 @@ impl Cx<'_> {
                 fd.doc.push(format!("`{}` in the XDR file.", f.name));
             }
             if let Dims::Var(v) = &f.dims {
-                let counted = i
-                    .checked_sub(1)
-                    .map(|j| &fields[j])
-                    .filter(|c| matches!((&c.ty, &c.dims), (XType::Int | XType::UInt, Dims::None)));
-                let Some(count) = counted else {
+                // xdrgen: an array of n dimensions is sized by the n fields
+                // before it, in order, each an int or unsigned int
+                let sizes = i.checked_sub(v.len()).map(|j| &fields[j..i]).filter(|cs| {
+                    cs.iter()
+                        .all(|c| matches!((&c.ty, &c.dims), (XType::Int | XType::UInt, Dims::None)))
+                });
+                let Some(sizes) = sizes else {
                     return Err(GenError::invalid(
                         f.pos.clone(),
-                        format!(
-                            "variable-length array `{}` is not preceded by the int or unsigned int \
-                             field that holds its length",
-                            f.name
-                        ),
+                        if v.len() == 1 {
+                            format!(
+                                "variable-length array `{}` is not preceded by the int or unsigned \
+                                 int field that holds its length",
+                                f.name
+                            )
+                        } else {
+                            format!(
+                                "{}-dimensional variable-length array `{}` is not preceded by the \
+                                 {} int or unsigned int fields that hold its dimensions",
+                                v.len(),
+                                f.name,
+                                v.len()
+                            )
+                        },
                     ));
                 };
-                fd.len = Some(names::field_name(&count.name));
+                let names: Vec<String> = sizes.iter().map(|c| names::field_name(&c.name)).collect();
+                fd.len = Some(names.join(", "));
                 if let Some(Some(max)) = v.first() {
                     fd.doc
                         .push(format!("At most {max} elements (not checked)."));
@@ -615,18 +629,7 @@ impl Cx<'_> {
                 .rev()
                 .fold(elem, |t, n| Ty::Array(Box::new(t), *n)),
             Dims::Var(v) if v.len() == 1 => Ty::Vec(Box::new(elem)),
-            Dims::Var(v) => {
-                return Err(GenError::unsupported(
-                    d.pos.clone(),
-                    format!(
-                        "the {}-dimensional variable-length array `{}`",
-                        v.len(),
-                        d.name
-                    ),
-                    "#[derive(IpcMessage)] takes one count field per Vec; use one `<>` \
-                     dimension (rows as a struct or fixed array)",
-                ))
-            }
+            Dims::Var(v) => Ty::NdVec(Box::new(elem), v.len()),
         })
     }
 }

@@ -4,27 +4,28 @@
 //! speak any DDS type whose layout an IPC format describes.
 //!
 //! Written as XCDR1 little-endian (what Courier's sessions send); read in
-//! either version and byte order. Pointers (`*T`, `*!`), `format` fields
-//! and variable arrays sized by more than one field have no CDR layout
-//! here and are refused up front.
+//! either version and byte order. A variable array is a `sequence<T>`
+//! beside its size fields (flat, row-major, for `<T:k1,k2>`). Pointers
+//! (`*T`, `*!`) and `format` fields have no CDR layout here and are
+//! refused up front.
 
 use courier::cdr::{Encoding, Extensibility, Reader, Writer};
 use courier::format::{Format, Primitive};
 use courier::ipc::Value;
+use courier::ShapeError;
 
 /// Why `fmt` has no CDR layout here, if it has none.
 pub fn check(fmt: &Format) -> Result<(), String> {
     let refuse = |what: &str| {
         Err(format!(
-            "{what} has no CDR layout for --format on rtps:// (pointers, format fields and \
-             variable arrays sized by several fields are IPC only)"
+            "{what} has no CDR layout for --format on rtps:// (pointers and format fields \
+             are IPC only)"
         ))
     };
     match fmt {
         Format::Pointer(_) | Format::SelfPointer => refuse("a pointer"),
         Format::Primitive(Primitive::Format) => refuse("a format field"),
         Format::Named(n) => refuse(&format!("named format `{n}`")),
-        Format::VarArray { dims, .. } if dims.len() != 1 => refuse("a variable array"),
         Format::Struct(fs) => fs.iter().try_for_each(check),
         Format::FixedArray { elem, .. } | Format::VarArray { elem, .. } => check(elem),
         _ => Ok(()),
@@ -93,20 +94,11 @@ fn enc(f: &Format, v: &Value, w: &mut Writer) -> Result<(), String> {
                 return Err(format!("expected {} fields, found {}", fs.len(), vs.len()));
             }
             for (i, (f, v)) in fs.iter().zip(vs).enumerate() {
-                // a variable array's size field must say its length, as
-                // the derive writes it
+                // a variable array's size fields must say its length, as
+                // the derive writes them
                 if let (Format::VarArray { dims, .. }, Value::VarArray(items)) = (f, v) {
-                    let k = dims[0] as usize;
-                    let n = vs.get(k.wrapping_sub(1)).and_then(Value::as_integer);
-                    if n != Some(items.len() as i128) {
-                        return Err(format!(
-                            "field {}: variable array has {} element(s), but its size field \
-                             {k} says {}",
-                            i + 1,
-                            items.len(),
-                            n.map_or("nothing".into(), |n| n.to_string())
-                        ));
-                    }
+                    check_sizes(dims, vs, items.len())
+                        .map_err(|e| format!("field {}: {e}", i + 1))?;
                 }
                 enc(f, v, w).map_err(|e| format!("field {}: {e}", i + 1))?;
             }
@@ -127,6 +119,66 @@ fn enc(f: &Format, v: &Value, w: &mut Writer) -> Result<(), String> {
         _ => return Err(mismatch(f, v)),
     }
     Ok(())
+}
+
+/// That the size fields `dims` (1-based) of a struct's values `vs` say
+/// `len` elements.
+fn check_sizes(dims: &[u32], vs: &[Value], len: usize) -> Result<(), String> {
+    let sizes: Vec<Option<i128>> = dims
+        .iter()
+        .map(|&k| {
+            vs.get((k as usize).wrapping_sub(1))
+                .and_then(Value::as_integer)
+        })
+        .collect();
+    let product = sizes
+        .iter()
+        .try_fold(1i128, |p, n| n.map(|n| p.saturating_mul(n)));
+    if product == Some(len as i128) {
+        return Ok(());
+    }
+    let fields: Vec<String> = dims.iter().map(u32::to_string).collect();
+    let says: Vec<String> = sizes
+        .iter()
+        .map(|n| n.map_or("nothing".into(), |n| n.to_string()))
+        .collect();
+    Err(format!(
+        "variable array has {len} element(s), but its size field{} {} say{} {}",
+        if dims.len() == 1 { "" } else { "s" },
+        fields.join(", "),
+        if dims.len() == 1 { "s" } else { "" },
+        says.join(" × ")
+    ))
+}
+
+/// What is wrong with a received `<T:k1,k2,…>` of `len` elements whose
+/// size fields `dims` (1-based; integers, as the format parser checks) are
+/// among `vs`, if anything.
+fn shape_error(dims: &[u32], vs: &[Value], len: usize) -> Option<ShapeError> {
+    let mut shape = Vec::with_capacity(dims.len());
+    for (d, &k) in dims.iter().enumerate() {
+        let n = vs
+            .get((k as usize).wrapping_sub(1))
+            .and_then(Value::as_integer)
+            .unwrap_or(0);
+        if n < 0 {
+            return Some(ShapeError::Negative {
+                dim: d + 1,
+                value: n,
+            });
+        }
+        shape.push(u64::try_from(n).unwrap_or(u64::MAX));
+    }
+    let expected = shape.iter().try_fold(1u64, |p, &n| p.checked_mul(n));
+    match expected {
+        Some(e) if e == len as u64 => None,
+        Some(expected) => Some(ShapeError::Length {
+            shape,
+            expected,
+            found: len,
+        }),
+        None => Some(ShapeError::TooLarge { shape }),
+    }
 }
 
 /// The elements of a (multi-dimensional) fixed array, flat.
@@ -194,10 +246,26 @@ fn dec(f: &Format, r: &mut Reader<'_>) -> DecodeResult {
         Format::Struct(fs) => {
             r.enter()?;
             let mut vs = Vec::with_capacity(fs.len());
+            let mut arrays = Vec::new();
             for f in fs {
+                if let Format::VarArray { dims, .. } = f {
+                    arrays.push((vs.len(), dims, r.position()));
+                }
                 vs.push(dec(f, r)?);
             }
             r.leave();
+            // the elements of `<T:k1,k2>` must fit its shape, as the derive
+            // requires; a one-dimensional count is just a field in DDS
+            for (i, dims, offset) in arrays {
+                if let (true, Value::VarArray(items)) = (dims.len() > 1, &vs[i]) {
+                    if let Some(error) = shape_error(dims, &vs, items.len()) {
+                        return Err(courier::cdr::DecodeError::Shape {
+                            offset,
+                            error: Box::new(error),
+                        });
+                    }
+                }
+            }
             Value::Struct(vs)
         }
         Format::FixedArray { elem, dims } => {
@@ -330,7 +398,7 @@ mod tests {
 
     #[test]
     fn what_has_no_layout_is_refused() {
-        for f in ["*int", "{int, *!}", "{int, int, <int:1,2>}", "format"] {
+        for f in ["*int", "{int, *!}", "format"] {
             let e = check(&courier::format::parse(f).unwrap()).unwrap_err();
             assert!(e.contains("has no CDR layout"), "{f}: {e}");
         }
@@ -339,5 +407,72 @@ mod tests {
         let e = encode(&f, &bad).unwrap_err();
         assert!(e.contains("size field 1 says 2"), "{e}");
         assert!(decode(&f, &[0, 1, 0, 0, 1]).is_err());
+    }
+
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct Grid {
+        label: String,
+        rows: u32,
+        cols: i64,
+        #[ipc(len = "rows, cols")]
+        cells: courier::Matrix<Point>,
+    }
+
+    /// `<T:k1,k2>` as the derive lays it out: the size fields, then one
+    /// flat sequence; elements that do not fit the shape are an error both ways.
+    #[test]
+    fn multi_dimensional_arrays_are_laid_out_as_the_derives() {
+        let g = Grid {
+            label: "g".into(),
+            rows: 2,
+            cols: 1,
+            cells: courier::Matrix::new(
+                [2, 1],
+                vec![Point { x: 1.0, y: 2.0 }, Point { x: 3.0, y: 4.0 }],
+            )
+            .unwrap(),
+        };
+        assert_eq!(Grid::FORMAT, "{string, uint, long, <Point:2,3>}");
+        let fmt = courier::format::parse("{string, uint, long, <{double, double}:2,3>}").unwrap();
+        let v = Value::from_ipc_bytes(
+            &fmt,
+            &courier::ipc::to_vec(&g),
+            courier::ipc::ByteOrder::NATIVE,
+        )
+        .unwrap();
+        assert_eq!(
+            encode(&fmt, &v).unwrap(),
+            courier::cdr::to_vec(&g, courier::cdr::Encoding::Xcdr1Le)
+        );
+        for enc in [
+            courier::cdr::Encoding::Xcdr1Be,
+            courier::cdr::Encoding::Xcdr2Le,
+        ] {
+            assert_eq!(
+                decode(&fmt, &courier::cdr::to_vec(&g, enc)).unwrap(),
+                v,
+                "{enc:?}"
+            );
+        }
+        // a value whose sizes do not fit its elements
+        let Value::Struct(mut fields) = v else {
+            panic!()
+        };
+        fields[2] = Value::Long(3);
+        let bad = Value::Struct(fields);
+        assert_eq!(
+            encode(&fmt, &bad).unwrap_err(),
+            "field 4: variable array has 2 element(s), but its size fields 2, 3 say 2 × 3"
+        );
+        // bytes whose sizes do not fit their elements
+        let mut wrong = g.clone();
+        wrong.cols = 2; // ignored by the derive
+        wrong.cells = courier::Matrix::new([1, 2], wrong.cells.into_vec()).unwrap();
+        let mut bytes = courier::cdr::to_vec(&wrong, courier::cdr::Encoding::Xcdr1Le);
+        bytes[12] = 2; // rows (payload byte 8): 1 -> 2, so 2 x 2 for 2 elements at byte 24
+        assert_eq!(
+            decode(&fmt, &bytes).unwrap_err(),
+            "variable array at byte 24: shape [2, 2] holds 4 elements, but 2 were given"
+        );
     }
 }

@@ -37,17 +37,34 @@ pub struct Row(pub [f64; 3], pub [char; 8]);
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 pub struct Samples(pub i32, #[ipc(len = "0")] pub Vec<f32>);
 
-/// IPC format `POINTER_EXAMPLE` (manual.ipc:17): `{int, *int}`.
+/// IPC format `Grid` (manual.ipc:17): `{int, int, <double:1,2>}`.
+#[derive(Debug, Clone, PartialEq, IpcMessage)]
+pub struct Grid(
+    pub i32,
+    pub i32,
+    #[ipc(len = "0, 1")] pub courier::Matrix<f64>,
+);
+
+/// IPC format `Voxels` (manual.ipc:18): `{uint, <float:3,1,4>, ulong, long}`.
+#[derive(Debug, Clone, PartialEq, IpcMessage)]
+pub struct Voxels(
+    pub u32,
+    #[ipc(len = "2, 0, 3")] pub courier::NdVec<f32, 3>,
+    pub u64,
+    pub i64,
+);
+
+/// IPC format `POINTER_EXAMPLE` (manual.ipc:21): `{int, *int}`.
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 #[ipc(name = "POINTER_EXAMPLE")]
 pub struct PointerExample(pub i32, pub Option<Box<i32>>);
 
-/// IPC format `LIST` (manual.ipc:18): `{int, *!}`.
+/// IPC format `LIST` (manual.ipc:22): `{int, *!}`.
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 #[ipc(name = "LIST")]
 pub struct List(pub i32, pub Option<Box<List>>);
 
-/// IPC format `ENUM_TYPE` (manual.ipc:21): `{enum A, B, C, D}`.
+/// IPC format `ENUM_TYPE` (manual.ipc:25): `{enum A, B, C, D}`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, IpcMessage)]
 pub enum EnumType {
     A,
@@ -56,7 +73,7 @@ pub enum EnumType {
     D,
 }
 
-/// IPC format `Mixed` (manual.ipc:22): `{int, {enum A, B, C, D}, [double:3], {enum : 10}}`.
+/// IPC format `Mixed` (manual.ipc:26): `{int, {enum A, B, C, D}, [double:3], {enum : 10}}`.
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 pub struct Mixed(pub i32, pub MixedField2, pub [f64; 3], pub MixedField4);
 
@@ -86,23 +103,23 @@ pub enum MixedField4 {
     V10,
 }
 
-/// IPC format `point` (manual.ipc:26): `{double, double, double}`.
+/// IPC format `point` (manual.ipc:30): `{double, double, double}`.
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 #[ipc(name = "point")]
 pub struct Point(pub f64, pub f64, pub f64);
 
-/// IPC format `point-array` (manual.ipc:27): `[point:5]`.
+/// IPC format `point-array` (manual.ipc:31): `[point:5]`.
 pub type PointArray = [Point; 5];
 
-/// IPC format `two-point-arrays` (manual.ipc:28): `{point-array, point-array}`.
+/// IPC format `two-point-arrays` (manual.ipc:32): `{point-array, point-array}`.
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 #[ipc(name = "two-point-arrays")]
 pub struct TwoPointArrays(pub [Point; 5], pub [Point; 5]);
 
-/// IPC format `radians` (manual.ipc:29): `double`.
+/// IPC format `radians` (manual.ipc:33): `double`.
 pub type Radians = f64;
 
-/// IPC format `T1` (manual.ipc:32): `{int, {enum : 3}, [double:2,3], double}`.
+/// IPC format `T1` (manual.ipc:36): `{int, {enum : 3}, [double:2,3], double}`.
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 pub struct T1(pub i32, pub T1Field2, pub [[f64; 3]; 2], pub f64);
 
@@ -116,7 +133,7 @@ pub enum T1Field2 {
     V3,
 }
 
-/// IPC format `T2` (manual.ipc:33): `{string, int, <T1:2>, {enum WaitVal, SendVal, ReceiveVal, ListenVal}}`.
+/// IPC format `T2` (manual.ipc:37): `{string, int, <T1:2>, {enum WaitVal, SendVal, ReceiveVal, ListenVal}}`.
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 pub struct T2(
     pub String,
@@ -135,8 +152,8 @@ pub enum T2Field4 {
     ListenVal,
 }
 
-/// IPC format `message1` (manual.ipc:34): `int`.
+/// IPC format `message1` (manual.ipc:38): `int`.
 pub type Message1 = i32;
 
-/// IPC format `message2` (manual.ipc:35): `string`.
+/// IPC format `message2` (manual.ipc:39): `string`.
 pub type Message2 = String;

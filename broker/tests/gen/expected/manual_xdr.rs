@@ -3,44 +3,44 @@
 
 use courier::IpcMessage;
 
-/// XDR typedef `foo` (manual.xdr:7).
+/// XDR typedef `foo` (manual.xdr:5).
 pub type Foo = i32;
 
-/// XDR struct `Zoo` (manual.xdr:9).
+/// XDR struct `Zoo` (manual.xdr:7).
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 pub struct Zoo {
     pub foo: i32,
     pub goo: i32,
 }
 
-/// XDR struct `MyIncludableStruct` (manual.xdr:14).
+/// XDR struct `MyIncludableStruct` (manual.xdr:12).
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 pub struct MyIncludableStruct {
     pub foo: i32,
     pub goo: MyIncludableStructGoo,
 }
 
-/// Field `goo` (manual.xdr:16).
+/// Field `goo` (manual.xdr:14).
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 pub struct MyIncludableStructGoo {
     pub a: i32,
 }
 
-/// XDR struct `MyNestedStruct` (manual.xdr:19).
+/// XDR struct `MyNestedStruct` (manual.xdr:17).
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 pub struct MyNestedStruct {
     pub b: MyIncludableStruct,
     pub roo: MyNestedStructRoo,
 }
 
-/// Field `roo` (manual.xdr:24).
+/// Field `roo` (manual.xdr:22).
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 pub struct MyNestedStructRoo {
     pub a: char,
     pub b2: MyIncludableStruct,
 }
 
-/// XDR struct `PrimitiveTypes` (manual.xdr:28).
+/// XDR struct `PrimitiveTypes` (manual.xdr:26).
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 pub struct PrimitiveTypes {
     pub a: String,
@@ -54,16 +54,16 @@ pub struct PrimitiveTypes {
     pub h: f64,
 }
 
-/// XDR typedef `ImagePixel` (manual.xdr:40).
+/// XDR typedef `ImagePixel` (manual.xdr:38).
 pub type ImagePixel = [u8; 3];
 
-/// XDR struct `Transform` (manual.xdr:41).
+/// XDR struct `Transform` (manual.xdr:39).
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 pub struct Transform {
     pub mat: [[f64; 4]; 4],
 }
 
-/// XDR struct `Alpha` (manual.xdr:46).
+/// XDR struct `Alpha` (manual.xdr:44).
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 pub struct Alpha {
     pub size: i32,
@@ -71,13 +71,13 @@ pub struct Alpha {
     pub beta: Vec<AlphaBeta>,
 }
 
-/// Field `beta` (manual.xdr:48).
+/// Field `beta` (manual.xdr:46).
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 pub struct AlphaBeta {
     pub data: [char; 5],
 }
 
-/// XDR struct `Gamma` (manual.xdr:51).
+/// XDR struct `Gamma` (manual.xdr:49).
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 pub struct Gamma {
     pub delta: i32,
@@ -86,7 +86,28 @@ pub struct Gamma {
     pub epsilon: Vec<f32>,
 }
 
-/// XDR enum `Color` (manual.xdr:57).
+/// XDR struct `Image` (manual.xdr:55).
+#[derive(Debug, Clone, PartialEq, IpcMessage)]
+pub struct Image {
+    pub rows: i32,
+    pub cols: i32,
+    #[ipc(len = "rows, cols")]
+    pub data: courier::Matrix<u8>,
+}
+
+/// XDR struct `Volume` (manual.xdr:62).
+#[derive(Debug, Clone, PartialEq, IpcMessage)]
+pub struct Volume {
+    pub label: String,
+    pub depth: u32,
+    pub height: i32,
+    pub width: i32,
+    #[ipc(len = "depth, height, width")]
+    pub voxels: courier::NdVec<f32, 3>,
+    pub scale: f32,
+}
+
+/// XDR enum `Color` (manual.xdr:72).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, IpcMessage)]
 #[allow(clippy::upper_case_acronyms)]
 pub enum Color {
@@ -95,7 +116,7 @@ pub enum Color {
     YELLOW,
 }
 
-/// XDR enum `Mixed` (manual.xdr:61).
+/// XDR enum `Mixed` (manual.xdr:76).
 /// Its entries have values, so IPC sees an `int` (as xdrgen writes it).
 pub type Mixed = i32;
 
@@ -108,7 +129,7 @@ pub const FOUR: Mixed = 3;
 /// `SIX` of `Mixed`.
 pub const SIX: Mixed = 6;
 
-/// XDR struct `IncludesEnums` (manual.xdr:65).
+/// XDR struct `IncludesEnums` (manual.xdr:80).
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 pub struct IncludesEnums {
     pub color: Color,
@@ -117,7 +138,7 @@ pub struct IncludesEnums {
     pub mixed: i32,
 }
 
-/// Field `myEnum` (manual.xdr:67).
+/// Field `myEnum` (manual.xdr:82).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, IpcMessage)]
 #[allow(clippy::upper_case_acronyms)]
 pub enum IncludesEnumsMyEnum {
@@ -126,7 +147,7 @@ pub enum IncludesEnumsMyEnum {
     ZOO,
 }
 
-/// XDR struct `ExecCall` (manual.xdr:72).
+/// XDR struct `ExecCall` (manual.xdr:87).
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 pub struct ExecCall {
     pub args: ExecCallArgs,
@@ -134,7 +155,7 @@ pub struct ExecCall {
     pub env_vars: [String; 20],
 }
 
-/// Field `args` (manual.xdr:76).
+/// Field `args` (manual.xdr:91).
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 pub struct ExecCallArgs {
     pub argc: i32,
@@ -142,21 +163,21 @@ pub struct ExecCallArgs {
     pub argv: Vec<String>,
 }
 
-/// XDR typedef `Meters` (manual.xdr:86).
+/// XDR typedef `Meters` (manual.xdr:101).
 pub type Meters = f64;
 
-/// XDR struct `Roo` (manual.xdr:90).
+/// XDR struct `Roo` (manual.xdr:105).
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 pub struct Roo {
     pub a: i32,
     pub b: char,
 }
 
-/// IPC format `ExternalStruct2` (manual.xdr:100 `ipc_type`): `{char, double}`.
+/// IPC format `ExternalStruct2` (manual.xdr:115 `ipc_type`): `{char, double}`.
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 pub struct ExternalStruct2(pub char, pub f64);
 
-/// XDR struct `IncExternalStruct` (manual.xdr:102).
+/// XDR struct `IncExternalStruct` (manual.xdr:117).
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 pub struct IncExternalStruct {
     pub a: i32,
