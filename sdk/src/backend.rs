@@ -363,6 +363,17 @@ pub trait DdsControl: Send + Sync {
     /// Whether a participant with this entity name (or this session's own
     /// name) is known.
     async fn participant_named(&self, name: &str) -> Result<bool, ControlError>;
+    /// The remote readers of `topic` known through discovery, matched with
+    /// this session's writers or not (what a tool needs to write a topic
+    /// the way its readers expect, e.g. keyed: [`EndpointInfo::keyed`]).
+    ///
+    /// [`EndpointInfo::keyed`]: crate::EndpointInfo::keyed
+    async fn readers_of(&self, topic: &str) -> Result<Vec<crate::EndpointInfo>, ControlError> {
+        Err(ControlError::Unsupported {
+            what: format!("readers_of({topic})"),
+            backend: "this backend",
+        })
+    }
     /// Disposes or unregisters an instance written by `publication`;
     /// `key` is the serialized key (CDR with its encapsulation header),
     /// empty when the key hash alone names it.

@@ -153,6 +153,21 @@ impl From<&ParticipantData> for ParticipantInfo {
     }
 }
 
+impl EndpointInfo {
+    /// Whether its topic's type is keyed, as its GUID's entity kind says
+    /// (`WITH_KEY`): a writer and a reader match only if both are or
+    /// neither is.
+    pub fn keyed(&self) -> bool {
+        courier_wire::rtps::EntityId([
+            self.guid.0[12],
+            self.guid.0[13],
+            self.guid.0[14],
+            self.guid.0[15],
+        ])
+        .is_keyed()
+    }
+}
+
 impl From<&EndpointData> for EndpointInfo {
     fn from(e: &EndpointData) -> Self {
         let q = &e.qos;

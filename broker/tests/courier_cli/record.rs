@@ -185,6 +185,82 @@ fn a_recording_made_on_ipc_replays_onto_ipc_and_onto_cyclone_dds() {
     );
 }
 
+/// `Keyed` of `tests/peers/rtps/types.idl` (`@key long id; unsigned long
+/// seq; string text`) as an IPC format.
+const KEYED: &str = "{int, uint, string}";
+
+/// A recording's type says nothing of keys, and Cyclone DDS matches a
+/// keyed reader only with a keyed writer: replay writes a topic keyed
+/// when its readers are.
+#[test]
+fn a_recording_replays_onto_a_keyed_dds_topic() {
+    let dir = Dir::new("keyed");
+    let file = dir.file("keyed.mcap");
+    let c = Central::start();
+    let u = c.url.as_str();
+    let mut rec = Proc::start(&["record", u, "k", "-o", &file, "--count", "2"]);
+    rec.expect("ready");
+    publish(u, "k", KEYED, "[7, 1, \"k-1\"]");
+    publish(u, "k", KEYED, "[9, 2, \"k-2\"]");
+    let (code, out, err) = rec.finish();
+    assert_eq!(code, Some(0), "{out}{err}");
+
+    let rtps = url(262);
+    let domain = courier_tests::domains::lease(262).to_string();
+    let exe = cyclone_peer().unwrap_or_else(|e| panic!("cannot build the Cyclone DDS peer: {e}"));
+    let mut sub = PeerProcess::spawn(
+        exe,
+        &[
+            "--domain",
+            &domain,
+            "--topic",
+            "k",
+            "--type",
+            "keyed",
+            "--sub",
+            "--reliable",
+            "--transient-local",
+            "--count",
+            "2",
+            "--timeout-s",
+            "30",
+        ],
+    )
+    .unwrap();
+    sub.expect_line("ready", T).unwrap();
+    let (code, out, err) = run(&[
+        "replay",
+        &file,
+        &rtps,
+        "--type",
+        "k=courier::test::Keyed",
+        "--wait",
+        "1",
+        "--transient-local",
+        "--rate",
+        "10",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(
+        out,
+        "channel k ipc->cdr courier::test::Keyed\nready\nchannel k keyed, as its readers are\n\
+         replayed 2 messages\ndone\n"
+    );
+    assert_eq!(
+        sub.expect_line("sample", T).unwrap(),
+        "sample 7 1 k-1",
+        "{}",
+        sub.stderr()
+    );
+    assert_eq!(
+        sub.expect_line("sample", T).unwrap(),
+        "sample 9 2 k-2",
+        "{}",
+        sub.stderr()
+    );
+    sub.expect_line("done", T).unwrap();
+}
+
 #[test]
 fn a_recording_made_on_rtps_replays_onto_ipc() {
     let dir = Dir::new("dds-ipc");

@@ -102,6 +102,10 @@ pub(super) enum Cmd {
         topic: String,
         reply: Reply<i32, ControlError>,
     },
+    ReadersOf {
+        topic: String,
+        reply: Reply<Vec<crate::EndpointInfo>, ControlError>,
+    },
     Watch {
         topic: String,
     },

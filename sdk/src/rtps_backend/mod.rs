@@ -666,6 +666,11 @@ impl DdsControl for RtpsBackend {
         self.ask(|reply| Cmd::ModuleConnected { name, reply }).await
     }
 
+    async fn readers_of(&self, topic: &str) -> Result<Vec<crate::EndpointInfo>, ControlError> {
+        let topic = topic.to_string();
+        self.ask(|reply| Cmd::ReadersOf { topic, reply }).await
+    }
+
     async fn end_instance(
         &self,
         publication: PubId,

@@ -562,6 +562,16 @@ impl State {
             Cmd::NumHandlers { topic, reply } => {
                 let _ = reply.send(Ok(self.handlers(&topic)));
             }
+            Cmd::ReadersOf { topic, reply } => {
+                let readers = self
+                    .d
+                    .participant()
+                    .subscriptions()
+                    .filter(|s| s.topic_name == topic)
+                    .map(crate::EndpointInfo::from)
+                    .collect();
+                let _ = reply.send(Ok(readers));
+            }
             Cmd::Watch { topic } => {
                 self.watched.insert(topic);
             }

@@ -21,15 +21,11 @@ pub(super) struct Offer {
 impl Offer {
     pub(super) fn of(e: &EndpointData) -> Self {
         Offer {
-            keyed: is_keyed_entity(e.guid),
+            keyed: e.guid.entity.is_keyed(),
             exclusive: e.qos.exclusive_ownership,
             partitions: e.qos.partitions.clone(),
         }
     }
-}
-
-fn is_keyed_entity(g: Guid) -> bool {
-    matches!(g.entity.0[3], 0x02 | 0x07)
 }
 
 pub(super) struct Pattern {

@@ -106,6 +106,14 @@ impl EntityId {
     pub const fn is_reader(self) -> bool {
         matches!(self.0[3] & 0x0f, 0x04 | 0x07)
     }
+
+    /// True for the kinds of keyed endpoints (writer 0x02, reader 0x07, of
+    /// any category: user-defined, built-in or vendor-specific): the
+    /// topic's type has a key, and an endpoint of the other kind does not
+    /// match (Cyclone DDS refuses the pair).
+    pub const fn is_keyed(self) -> bool {
+        matches!(self.0[3] & 0x3f, 0x02 | 0x07)
+    }
 }
 
 /// A GUID: participant prefix plus entity id.
@@ -475,6 +483,28 @@ impl Out<'_> {
         self.u32(s.num_bits);
         for w in s.bitmap.iter().take(s.num_bits.div_ceil(32) as usize) {
             self.u32(*w);
+        }
+    }
+}
+
+#[cfg(test)]
+mod entity_kind_tests {
+    use super::EntityId;
+
+    #[test]
+    fn keyed_kinds_of_every_category() {
+        for (kind, keyed) in [
+            (0x02, true),  // user writer with key
+            (0x03, false), // user writer, no key
+            (0x04, false), // user reader, no key
+            (0x07, true),  // user reader with key
+            (0xc2, true),  // built-in writer (SEDP: keyed by GUID)
+            (0xc7, true),
+            (0x42, true), // vendor-specific writer with key
+            (0x44, false),
+            (0xc1, false), // participant
+        ] {
+            assert_eq!(EntityId([0, 0, 1, kind]).is_keyed(), keyed, "{kind:#04x}");
         }
     }
 }

@@ -6,7 +6,10 @@
 //! their channel's format and written as CDR onto DDS (laid out as the
 //! derive lays out that format), and CDR back to IPC bytes the same way;
 //! a channel recorded on IPC needs `--type TOPIC=TYPE` for DDS, whose
-//! readers match on type names.
+//! readers match on type names. A recording does not say whether a DDS
+//! type is keyed, and DDS readers match only writers of their own kind: a
+//! topic is written keyed when the readers of it that discovery finds
+//! (before playing, and while `--wait`ing) all are, and says so.
 //!
 //! The file is read twice, in a thread of its own: once to count what is
 //! intact (and report what is damaged, with where), once to play it.
@@ -281,6 +284,8 @@ fn plan(o: &ReplayArgs, c: &Chan) -> std::result::Result<Plan, String> {
 /// A channel being replayed.
 struct Playing {
     id: PubId,
+    /// The publication's type (keyed or not as the topic's readers are).
+    ty: TypeInfo,
     topic: String,
     conv: Convert,
     /// Its intact messages in the file, and how many of them were played
@@ -344,6 +349,7 @@ async fn replay(
                 c.id,
                 Playing {
                     id,
+                    ty,
                     topic: c.topic.clone(),
                     conv,
                     total: survey.counts.get(&c.id).copied().unwrap_or(0),
@@ -352,7 +358,13 @@ async fn replay(
             );
         }
         out("ready");
-        wait_for(s, o, topics.keys()).await?;
+        let mut pubs = Pubs {
+            qos: &qos,
+            playing: &mut playing,
+            opened: &mut opened,
+        };
+        pubs.key_as_readers(s).await?;
+        wait_for(s, o, topics.keys(), &mut pubs).await?;
         play(s, o, mode, survey, &mut playing, sent).await
     }
     .await;
@@ -365,12 +377,62 @@ async fn replay(
     Ok(())
 }
 
+/// The publications being replayed, to open again when a topic's readers
+/// want them keyed (or not).
+struct Pubs<'p> {
+    qos: &'p PublicationQos,
+    playing: &'p mut HashMap<u16, Playing>,
+    opened: &'p mut Vec<PubId>,
+}
+
+impl Pubs<'_> {
+    /// DDS readers match a writer only if both are keyed or neither is,
+    /// and a recording's type says nothing of keys: a publication whose
+    /// topic's known readers of its type are all of the other kind is
+    /// opened again as they are (and says so). Nothing to do off DDS.
+    async fn key_as_readers(&mut self, s: &Session) -> Result<()> {
+        let Ok(dds) = s.dds() else {
+            return Ok(());
+        };
+        for p in self.playing.values_mut() {
+            let readers = dds.readers_of(&p.topic).await?;
+            let mut kinds = readers
+                .iter()
+                .filter(|r| r.type_name == p.ty.type_name)
+                .map(courier::EndpointInfo::keyed);
+            let Some(keyed) = kinds.next() else {
+                continue;
+            };
+            if keyed == p.ty.keyed || kinds.any(|k| k != keyed) {
+                continue; // they match already, or some would stop matching
+            }
+            let b = s.backend();
+            let mut ty = p.ty.clone();
+            ty.keyed = keyed;
+            let id = b.open_publication(&p.topic, &ty, self.qos).await?;
+            b.close_handle(Handle::Publication(p.id));
+            self.opened.retain(|&o| o != p.id);
+            self.opened.push(id);
+            p.id = id;
+            p.ty = ty;
+            out(format_args!(
+                "channel {} {}, as its readers are",
+                word(&p.topic),
+                if keyed { "keyed" } else { "not keyed" }
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// Waits until each topic has `--wait` subscribers (a sample nobody
-/// subscribes is not sent on IPC and reaches nobody on DDS).
+/// subscribes is not sent on IPC and reaches nobody on DDS), keying the
+/// DDS publications as their readers are found to be.
 async fn wait_for<'a>(
     s: &Session,
     o: &ReplayArgs,
     topics: impl Iterator<Item = &'a String>,
+    pubs: &mut Pubs<'_>,
 ) -> Result<()> {
     if o.wait == 0 {
         return Ok(());
@@ -386,14 +448,22 @@ async fn wait_for<'a>(
         tokio::time::interval_at(tokio::time::Instant::now() + PROGRESS_EVERY, PROGRESS_EVERY);
     while have.values().any(|&n| n < o.wait) {
         tokio::select! {
-            Some(e) = ev.next() => {
-                if let SessionEvent::HandlersChanged { msg, count } = e {
+            Some(e) = ev.next() => match e {
+                SessionEvent::HandlersChanged { msg, count } => {
                     if let Some(n) = have.get_mut(&msg) {
                         *n = count.unsigned_abs();
                     }
                 }
-            }
+                SessionEvent::SubscriptionFound(r) | SessionEvent::SubscriptionChanged(r)
+                    if have.contains_key(&r.topic) =>
+                {
+                    pubs.key_as_readers(s).await?;
+                }
+                _ => {}
+            },
             _ = tick.tick() => {
+                // readers found before this wait began have no event
+                pubs.key_as_readers(s).await?;
                 let missing: Vec<&str> = have
                     .iter()
                     .filter(|(_, &n)| n < o.wait)
