@@ -74,6 +74,47 @@ fn record_ipc(c: &Central, file: &str, extra: &[&str]) -> String {
     out
 }
 
+/// A Cyclone DDS 0.10 reader of `topic` (peer type `ty`: msg, keyed or
+/// strkeyed; reliable, transient-local) for `count` samples, ready, on
+/// the domain of `key`: the Courier URL of that domain, and the reader.
+fn cyclone_reader(key: u32, topic: &str, ty: &str, count: u32) -> (String, PeerProcess) {
+    let domain = courier_tests::domains::lease(key).to_string();
+    let exe = cyclone_peer().unwrap_or_else(|e| panic!("cannot build the Cyclone DDS peer: {e}"));
+    let count = count.to_string();
+    let mut sub = PeerProcess::spawn(
+        exe,
+        &[
+            "--domain",
+            &domain,
+            "--topic",
+            topic,
+            "--type",
+            ty,
+            "--sub",
+            "--reliable",
+            "--transient-local",
+            "--count",
+            &count,
+            "--timeout-s",
+            "30",
+        ],
+    )
+    .unwrap();
+    sub.expect_line("ready", T).unwrap();
+    (url(key), sub)
+}
+
+/// Replays `file` onto `rtps` with `args` once one reader has matched
+/// (transient-local, at ten times the recorded pace): its output.
+fn replay_to_reader(file: &str, rtps: &str, args: &[&str]) -> String {
+    let mut a = vec!["replay", file, rtps];
+    a.extend_from_slice(args);
+    a.extend_from_slice(&["--wait", "1", "--transient-local", "--rate", "10"]);
+    let (code, out, err) = run(&a);
+    assert_eq!(code, 0, "{err}");
+    out
+}
+
 /// The payload of sample `seq` as `record_ipc` publishes it.
 fn payload(seq: u32) -> Vec<u8> {
     (0..seq).map(|i| ((seq * 7 + i) % 256) as u8).collect()
@@ -116,44 +157,12 @@ fn a_recording_made_on_ipc_replays_onto_ipc_and_onto_cyclone_dds() {
 
     // onto RTPS: Cyclone DDS 0.10 reads courier::test::Msg, the values
     // re-encoded as CDR
-    let rtps = url(260);
-    let domain = courier_tests::domains::lease(260).to_string();
-    let exe = cyclone_peer().unwrap_or_else(|e| panic!("cannot build the Cyclone DDS peer: {e}"));
-    let mut sub = PeerProcess::spawn(
-        exe,
-        &[
-            "--domain",
-            &domain,
-            "--topic",
-            "msg",
-            "--type",
-            "msg",
-            "--sub",
-            "--reliable",
-            "--transient-local",
-            "--count",
-            "3",
-            "--timeout-s",
-            "30",
-        ],
-    )
-    .unwrap();
-    sub.expect_line("ready", T).unwrap();
-    let (code, out, err) = run(&[
-        "replay",
+    let (rtps, mut sub) = cyclone_reader(260, "msg", "msg", 3);
+    let out = replay_to_reader(
         &file,
         &rtps,
-        "--topic",
-        "msg",
-        "--type",
-        "msg=courier::test::Msg",
-        "--wait",
-        "1",
-        "--transient-local",
-        "--rate",
-        "10",
-    ]);
-    assert_eq!(code, 0, "{err}");
+        &["--topic", "msg", "--type", "msg=courier::test::Msg"],
+    );
     assert_eq!(
         out,
         "channel msg ipc->cdr courier::test::Msg\nready\nreplayed 3 messages\ndone\n"
@@ -205,42 +214,8 @@ fn a_recording_replays_onto_a_keyed_dds_topic() {
     let (code, out, err) = rec.finish();
     assert_eq!(code, Some(0), "{out}{err}");
 
-    let rtps = url(262);
-    let domain = courier_tests::domains::lease(262).to_string();
-    let exe = cyclone_peer().unwrap_or_else(|e| panic!("cannot build the Cyclone DDS peer: {e}"));
-    let mut sub = PeerProcess::spawn(
-        exe,
-        &[
-            "--domain",
-            &domain,
-            "--topic",
-            "k",
-            "--type",
-            "keyed",
-            "--sub",
-            "--reliable",
-            "--transient-local",
-            "--count",
-            "2",
-            "--timeout-s",
-            "30",
-        ],
-    )
-    .unwrap();
-    sub.expect_line("ready", T).unwrap();
-    let (code, out, err) = run(&[
-        "replay",
-        &file,
-        &rtps,
-        "--type",
-        "k=courier::test::Keyed",
-        "--wait",
-        "1",
-        "--transient-local",
-        "--rate",
-        "10",
-    ]);
-    assert_eq!(code, 0, "{err}");
+    let (rtps, mut sub) = cyclone_reader(262, "k", "keyed", 2);
+    let out = replay_to_reader(&file, &rtps, &["--type", "k=courier::test::Keyed"]);
     assert_eq!(
         out,
         "channel k ipc->cdr courier::test::Keyed\nready\nchannel k keyed, as its readers are\n\
