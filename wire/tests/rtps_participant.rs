@@ -654,6 +654,15 @@ fn qos_mismatch_gives_an_incompatibility_and_no_match() {
         .node
         .create_reader(EndpointConfig::reader("X", "T"), now)
         .unwrap();
+    // a keyed writer and a reader of the same type without a key
+    let wk = net.hosts[0]
+        .node
+        .create_writer(EndpointConfig::writer("K", "T").keyed(true), now)
+        .unwrap();
+    net.hosts[1]
+        .node
+        .create_reader(EndpointConfig::reader("K", "T"), now)
+        .unwrap();
     // different type, same topic
     let wt = net.hosts[0]
         .node
@@ -698,6 +707,19 @@ fn qos_mismatch_gives_an_incompatibility_and_no_match() {
         incompatible(0, Some(wt), None)[..],
         [Incompatible::Type { .. }]
     ));
+    let kind = incompatible(0, Some(wk), None);
+    assert_eq!(
+        kind,
+        [Incompatible::TopicKind {
+            writer_keyed: true,
+            reader_keyed: false
+        }]
+    );
+    assert_eq!(
+        kind[0].to_string(),
+        "topic kind: the writer is keyed (WITH_KEY), the reader not keyed (NO_KEY): declare the \
+         same key fields on both sides"
+    );
     assert!(!net.has(0, |e| matches!(e, Event::WriterMatched { .. })));
     assert!(!net.has(1, |e| matches!(e, Event::ReaderMatched { .. })));
     // and no user data flows

@@ -29,6 +29,20 @@ pub enum Incompatible {
         /// Reader's type.
         reader: String,
     },
+    /// One is keyed (entity kind `WITH_KEY`) and the other not: their
+    /// types differ in whether they have a key (Cyclone DDS and Fast DDS
+    /// refuse the pair too).
+    #[error(
+        "topic kind: the writer is {}, the reader {}: declare the same key fields on both sides",
+        keyed_word(*writer_keyed),
+        keyed_word(*reader_keyed)
+    )]
+    TopicKind {
+        /// The writer is keyed.
+        writer_keyed: bool,
+        /// The reader is keyed.
+        reader_keyed: bool,
+    },
     /// The reader wants reliable, the writer offers best effort.
     #[error("reader requests RELIABLE, writer offers BEST_EFFORT")]
     Reliability,
@@ -69,6 +83,14 @@ pub enum Incompatible {
         /// Reader's.
         accepted: Vec<i16>,
     },
+}
+
+fn keyed_word(keyed: bool) -> &'static str {
+    if keyed {
+        "keyed (WITH_KEY)"
+    } else {
+        "not keyed (NO_KEY)"
+    }
 }
 
 /// A `DataRepresentationId_t` (DDS-XTypes 1.3 §7.6.3.1.1) by its name:
@@ -228,6 +250,14 @@ pub fn check_match(writer: &EndpointData, reader: &EndpointData) -> Result<(), I
         return Err(Incompatible::Type {
             writer: writer.type_name.clone(),
             reader: reader.type_name.clone(),
+        });
+    }
+    let (writer_keyed, reader_keyed) =
+        (writer.guid.entity.is_keyed(), reader.guid.entity.is_keyed());
+    if writer_keyed != reader_keyed {
+        return Err(Incompatible::TopicKind {
+            writer_keyed,
+            reader_keyed,
         });
     }
     check_qos(&writer.qos, &reader.qos)
