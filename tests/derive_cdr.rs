@@ -396,6 +396,47 @@ proptest! {
         let _ = cdr::from_slice::<FinalS>(&b);
         let _ = cdr::from_slice::<MutableS>(&b);
         let _ = cdr::from_slice::<AppendableS>(&b);
+        let _ = ipc::from_slice::<CdrCube>(&b);
+        let _ = cdr::from_slice::<CdrCube>(&b);
+        let _ = cdr::from_slice::<CdrGridM>(&b);
+    }
+
+    /// `<T:k1,k2,k3>` of any shape (empty dimensions too) survives IPC and
+    /// every CDR encoding; a value's bytes with one byte changed decode to
+    /// a value whose shape fits its elements, or to an error.
+    #[test]
+    fn prop_nd_shapes(
+        shape in (0usize..4, 0usize..4, 0usize..4),
+        seed in any::<u8>(),
+        flip in (any::<prop::sample::Index>(), 1u8..=255),
+    ) {
+        let (a, b, c) = shape;
+        let v = CdrCube {
+            v: courier::NdVec::from_fn([a, b, c], |[i, j, k]| Inner {
+                a: seed.wrapping_add((i * 16 + j * 4 + k) as u8),
+                b: (i + j + k) as f64,
+            })
+            .unwrap(),
+            a: a as u32,
+            b: b as u64,
+            c: c as i64,
+        };
+        round_trip(&v);
+        for bytes in [ipc::to_vec(&v), cdr::to_vec(&v, Encoding::Xcdr2Le)] {
+            let mut bytes = bytes;
+            let at = flip.0.index(bytes.len());
+            bytes[at] ^= flip.1;
+            let shape_fits = |d: &CdrCube| {
+                let [x, y, z] = d.v.shape();
+                x * y * z == d.v.len() && (x, y, z) == (d.a as usize, d.b as usize, d.c as usize)
+            };
+            if let Ok(d) = ipc::from_slice::<CdrCube>(&bytes) {
+                prop_assert!(shape_fits(&d));
+            }
+            if let Ok(d) = cdr::from_slice::<CdrCube>(&bytes) {
+                prop_assert!(shape_fits(&d));
+            }
+        }
     }
 }
 
