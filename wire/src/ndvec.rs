@@ -76,6 +76,18 @@ pub enum ShapeError {
         /// The shape (dimensions beyond `u64` saturate).
         shape: Vec<u64>,
     },
+    /// Rows of a matrix given as vectors differ in length.
+    #[error(
+        "row {row} has {found} elements, but row 0 has {expected}: a matrix's rows are all as long"
+    )]
+    Ragged {
+        /// The first row of another length.
+        row: usize,
+        /// Its length.
+        found: usize,
+        /// The length of row 0.
+        expected: usize,
+    },
 }
 
 fn shape_u64(shape: &[usize]) -> Vec<u64> {
@@ -263,6 +275,33 @@ impl<T> NdVec<T, 2> {
             data: rows.into_iter().flatten().collect(),
         })
     }
+
+    /// A matrix from rows given as vectors, which must all be as long
+    /// ([`ShapeError::Ragged`] names the first that is not). No rows make
+    /// a 0 × 0 matrix.
+    pub fn from_row_vecs(rows: Vec<Vec<T>>) -> Result<Self, ShapeError> {
+        let cols = rows.first().map_or(0, Vec::len);
+        if let Some((row, r)) = rows.iter().enumerate().find(|(_, r)| r.len() != cols) {
+            return Err(ShapeError::Ragged {
+                row,
+                found: r.len(),
+                expected: cols,
+            });
+        }
+        let shape = [rows.len(), cols];
+        element_count(&shape)?;
+        Ok(NdVec {
+            shape,
+            data: rows.into_iter().flatten().collect(),
+        })
+    }
+
+    /// The rows, in order.
+    pub fn iter_rows(&self) -> impl ExactSizeIterator<Item = &[T]> + '_ {
+        let cols = self.shape[1];
+        // a matrix without columns still has its rows (all empty)
+        (0..self.shape[0]).map(move |i| &self.data[i * cols..(i + 1) * cols])
+    }
 }
 
 impl<T, const N: usize> Default for NdVec<T, N> {
@@ -419,6 +458,21 @@ mod tests {
         assert_eq!((m.rows(), m.cols()), (3, 2));
         assert_eq!(m.row(2), Some(&[5, 6][..]));
         assert_eq!(m.row(3), None);
+        let rows: Vec<&[i32]> = m.iter_rows().collect();
+        assert_eq!(rows, [&[1, 2][..], &[3, 4], &[5, 6]]);
+        assert_eq!(
+            Matrix::from_row_vecs(vec![vec![1, 2], vec![3, 4], vec![5, 6]]).unwrap(),
+            m
+        );
+        assert_eq!(
+            Matrix::from_row_vecs(vec![vec![1, 2], vec![3]])
+                .unwrap_err()
+                .to_string(),
+            "row 1 has 1 elements, but row 0 has 2: a matrix's rows are all as long"
+        );
+        let empty = Matrix::<u8>::from_row_vecs(vec![vec![], vec![]]).unwrap();
+        assert_eq!((empty.shape(), empty.iter_rows().count()), ([2, 0], 2));
+        assert_eq!(Matrix::<u8>::from_row_vecs(vec![]).unwrap().shape(), [0, 0]);
         let mut m = m.reshape([2, 3]).unwrap();
         m[[1, 2]] = 60;
         assert_eq!(m.into_vec(), vec![1, 2, 3, 4, 5, 60]);
