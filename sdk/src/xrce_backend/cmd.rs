@@ -82,7 +82,18 @@ impl Cmd {
 
     /// Fails the command: it waited longer than the bound for the agent.
     pub(super) fn expire(self, after: Duration) {
-        let gone = || "the XRCE agent (it did not come back in time)".to_string();
+        self.fail("the XRCE agent (it did not come back in time)", Some(after));
+    }
+
+    /// Fails the command: the session ended.
+    pub(super) fn closed(self) {
+        self.fail("the XRCE agent (session closed)", None);
+    }
+
+    /// Answers the command with an error naming `gone`; a write that
+    /// `expired_after` a bound is a timeout, and a close is simply done.
+    fn fail(self, gone: &str, expired_after: Option<Duration>) {
+        let gone = || gone.to_string();
         match self {
             Cmd::Publication { reply, .. } => {
                 let _ = reply.send(Err(OpenError::Disconnected(gone())));
@@ -97,59 +108,34 @@ impl Cmd {
                 let _ = reply.send(Err(OpenError::Disconnected(gone())));
             }
             Cmd::Write { reply, .. } => {
-                let _ = reply.send(Err(PublishError::Timeout {
-                    what: "waiting for the XRCE agent to take the sample".into(),
-                    after,
+                let _ = reply.send(Err(match expired_after {
+                    Some(after) => PublishError::Timeout {
+                        what: "waiting for the XRCE agent to take the sample".into(),
+                        after,
+                    },
+                    None => PublishError::Disconnected(gone()),
                 }));
             }
             Cmd::Query { reply, .. } => {
                 let _ = reply.send(Err(QueryError::Disconnected(gone())));
             }
+            Cmd::Ping { reply } => {
+                let _ = reply.send(Err(ControlError::Disconnected(gone())));
+            }
+            Cmd::SyncTime { reply } => {
+                let _ = reply.send(Err(ControlError::Disconnected(gone())));
+            }
             Cmd::Respond { .. } => {
-                tracing::warn!("XRCE: a reply is dropped: the agent did not come back in time")
-            }
-            Cmd::Ping { reply } => {
-                let _ = reply.send(Err(ControlError::Disconnected(gone())));
-            }
-            Cmd::SyncTime { reply } => {
-                let _ = reply.send(Err(ControlError::Disconnected(gone())));
-            }
-            Cmd::CloseHandle(_) | Cmd::Close { .. } => {}
-        }
-    }
-
-    /// Fails the command: the session ended.
-    pub(super) fn closed(self) {
-        let gone = || "the XRCE agent (session closed)".to_string();
-        match self {
-            Cmd::Publication { reply, .. } => {
-                let _ = reply.send(Err(OpenError::Disconnected(gone())));
-            }
-            Cmd::Subscription { reply, .. } => {
-                let _ = reply.send(Err(OpenError::Disconnected(gone())));
-            }
-            Cmd::Service { reply, .. } => {
-                let _ = reply.send(Err(OpenError::Disconnected(gone())));
-            }
-            Cmd::Client { reply, .. } => {
-                let _ = reply.send(Err(OpenError::Disconnected(gone())));
-            }
-            Cmd::Write { reply, .. } => {
-                let _ = reply.send(Err(PublishError::Disconnected(gone())));
-            }
-            Cmd::Query { reply, .. } => {
-                let _ = reply.send(Err(QueryError::Disconnected(gone())));
-            }
-            Cmd::Ping { reply } => {
-                let _ = reply.send(Err(ControlError::Disconnected(gone())));
-            }
-            Cmd::SyncTime { reply } => {
-                let _ = reply.send(Err(ControlError::Disconnected(gone())));
+                if expired_after.is_some() {
+                    tracing::warn!("XRCE: a reply is dropped: the agent did not come back in time")
+                }
             }
             Cmd::Close { reply } => {
-                let _ = reply.send(());
+                if expired_after.is_none() {
+                    let _ = reply.send(());
+                }
             }
-            Cmd::Respond { .. } | Cmd::CloseHandle(_) => {}
+            Cmd::CloseHandle(_) => {}
         }
     }
 }
