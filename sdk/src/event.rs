@@ -30,6 +30,12 @@ impl Guid {
     pub fn is_of(&self, prefix: [u8; 12]) -> bool {
         self.prefix() == prefix
     }
+
+    /// For an endpoint's GUID: whether its entity kind is keyed
+    /// (`WITH_KEY`), i.e. its topic's type has a key.
+    pub fn is_keyed(&self) -> bool {
+        courier_wire::rtps::EntityId([self.0[12], self.0[13], self.0[14], self.0[15]]).is_keyed()
+    }
 }
 
 impl std::fmt::Display for Guid {
@@ -158,13 +164,7 @@ impl EndpointInfo {
     /// (`WITH_KEY`): a writer and a reader match only if both are or
     /// neither is.
     pub fn keyed(&self) -> bool {
-        courier_wire::rtps::EntityId([
-            self.guid.0[12],
-            self.guid.0[13],
-            self.guid.0[14],
-            self.guid.0[15],
-        ])
-        .is_keyed()
+        self.guid.is_keyed()
     }
 }
 

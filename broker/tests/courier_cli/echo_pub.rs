@@ -4,7 +4,7 @@
 use courier::IpcMessage;
 use futures::StreamExt;
 
-use crate::{await_handlers, run, url, Central, Proc, T};
+use crate::{await_handlers, cyclone_reader, run, url, Central, Proc, T};
 
 #[derive(IpcMessage, Debug, Clone, PartialEq)]
 struct Point {
@@ -219,6 +219,30 @@ fn echo_and_pub_over_rtps() {
         }
     );
     rt.block_on(async { tokio::time::timeout(T, rx.close()).await.unwrap() });
+    // a keyed topic: Cyclone DDS's reader matches only a keyed writer, and
+    // a layout says nothing of keys, so pub writes it as its readers want
+    let (k, mut cyclone) = cyclone_reader(211, "k", "keyed", 1, &[]);
+    let (code, out, err) = run(&[
+        "pub",
+        &k,
+        "k",
+        r#"[7, 1, "hi"]"#,
+        "--format",
+        "{int, uint, string}",
+        "--type",
+        "courier::test::Keyed",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(
+        out,
+        "ready\nkeyed, as the readers of \"k\" are\nmatched 1\nsent 1\ndone\n"
+    );
+    assert_eq!(
+        cyclone.expect_line("sample", T).unwrap(),
+        "sample 7 1 hi",
+        "{}",
+        cyclone.stderr()
+    );
     let (code, _, err) = run(&["pub", &u, "t", "[1]", "--type", "x::Y", "--wait", "0"]);
     assert_eq!(code, 1, "{err}");
     assert!(

@@ -25,6 +25,41 @@ use std::time::{Duration, Instant};
 /// Bound of every wait (a passing test takes well under it).
 pub const T: Duration = Duration::from_secs(10);
 
+/// A Cyclone DDS 0.10 reader of `topic` (peer type `ty`: msg, keyed or
+/// strkeyed; reliable, and `extra` peer flags such as
+/// `--transient-local`) for `count` samples, ready, on the domain of
+/// `key`: the Courier URL of that domain, and the reader.
+pub fn cyclone_reader(
+    key: u32,
+    topic: &str,
+    ty: &str,
+    count: u32,
+    extra: &[&str],
+) -> (String, courier_tests::peers::PeerProcess) {
+    let domain = courier_tests::domains::lease(key).to_string();
+    let exe = courier_tests::peers::cyclone_peer()
+        .unwrap_or_else(|e| panic!("cannot build the Cyclone DDS peer: {e}"));
+    let count = count.to_string();
+    let mut args = vec![
+        "--domain",
+        &domain,
+        "--topic",
+        topic,
+        "--type",
+        ty,
+        "--sub",
+        "--reliable",
+        "--count",
+        &count,
+        "--timeout-s",
+        "30",
+    ];
+    args.extend_from_slice(extra);
+    let mut sub = courier_tests::peers::PeerProcess::spawn(exe, &args).unwrap();
+    sub.expect_line("ready", T).unwrap();
+    (url(key), sub)
+}
+
 /// A loopback-only RTPS URL (unicast discovery to 127.0.0.1 on `lo`) on
 /// the domain leased to `key` (see `courier_tests::domains`).
 pub fn url(key: u32) -> String {

@@ -6,9 +6,9 @@
 
 use std::path::{Path, PathBuf};
 
-use courier_tests::peers::{cyclone_peer, fnv1a32, PeerProcess};
+use courier_tests::peers::fnv1a32;
 
-use crate::{run, url, Central, Proc, T};
+use crate::{cyclone_reader, run, url, Central, Proc, T};
 
 /// `Msg` of `tests/peers/rtps/types.idl` (`unsigned long seq; string text;
 /// sequence<octet> payload`) as an IPC format: the payload's length is the
@@ -74,36 +74,6 @@ fn record_ipc(c: &Central, file: &str, extra: &[&str]) -> String {
     out
 }
 
-/// A Cyclone DDS 0.10 reader of `topic` (peer type `ty`: msg, keyed or
-/// strkeyed; reliable, transient-local) for `count` samples, ready, on
-/// the domain of `key`: the Courier URL of that domain, and the reader.
-fn cyclone_reader(key: u32, topic: &str, ty: &str, count: u32) -> (String, PeerProcess) {
-    let domain = courier_tests::domains::lease(key).to_string();
-    let exe = cyclone_peer().unwrap_or_else(|e| panic!("cannot build the Cyclone DDS peer: {e}"));
-    let count = count.to_string();
-    let mut sub = PeerProcess::spawn(
-        exe,
-        &[
-            "--domain",
-            &domain,
-            "--topic",
-            topic,
-            "--type",
-            ty,
-            "--sub",
-            "--reliable",
-            "--transient-local",
-            "--count",
-            &count,
-            "--timeout-s",
-            "30",
-        ],
-    )
-    .unwrap();
-    sub.expect_line("ready", T).unwrap();
-    (url(key), sub)
-}
-
 /// Replays `file` onto `rtps` with `args` once one reader has matched
 /// (transient-local, at ten times the recorded pace): its output.
 fn replay_to_reader(file: &str, rtps: &str, args: &[&str]) -> String {
@@ -157,7 +127,7 @@ fn a_recording_made_on_ipc_replays_onto_ipc_and_onto_cyclone_dds() {
 
     // onto RTPS: Cyclone DDS 0.10 reads courier::test::Msg, the values
     // re-encoded as CDR
-    let (rtps, mut sub) = cyclone_reader(260, "msg", "msg", 3);
+    let (rtps, mut sub) = cyclone_reader(260, "msg", "msg", 3, &["--transient-local"]);
     let out = replay_to_reader(
         &file,
         &rtps,
@@ -214,7 +184,7 @@ fn a_recording_replays_onto_a_keyed_dds_topic() {
     let (code, out, err) = rec.finish();
     assert_eq!(code, Some(0), "{out}{err}");
 
-    let (rtps, mut sub) = cyclone_reader(262, "k", "keyed", 2);
+    let (rtps, mut sub) = cyclone_reader(262, "k", "keyed", 2, &["--transient-local"]);
     let out = replay_to_reader(&file, &rtps, &["--type", "k=courier::test::Keyed"]);
     assert_eq!(
         out,

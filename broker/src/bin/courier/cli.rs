@@ -165,8 +165,12 @@ Courier knows (courier::Ping: [seq, stamp_ns, \"text\"];
 std_msgs::msg::dds_::String_: [\"text\"]).
 It waits for --wait subscribers first (a sample nobody subscribes is not sent on
 IPC and reaches nobody on DDS), then publishes --count samples at --rate.
+A DDS reader matches only a writer of its kind (keyed or not), which a format does
+not say: the publication is keyed when the topic's readers all are.
 Output, one event a line:
   ready                    the publication exists
+  keyed, as the readers of <topic> are
+                           (or not keyed; DDS) it was opened again so
   matched <n>              subscribers now matched
   incompatible <guid> <reason>   a subscription whose QoS does not match (DDS)
   sent <n>
@@ -265,6 +269,9 @@ Output, one event a line:
   channel <topic> <how>     each channel replayed: ipc <format> | cdr <type> |
                             ipc->cdr <type> | cdr->ipc <format>
   ready                     the publications exist (then --wait)
+  channel <topic> keyed, as its readers are   (or not keyed) opened again as
+                            the topic's DDS readers want it (a recording does
+                            not say whether a type is keyed)
   replayed <n> messages
   done
 A progress bar on stderr when it is a terminal (--progress).

@@ -25,6 +25,7 @@ mod ping;
 mod pong;
 mod publish;
 mod rate;
+mod reader_kind;
 mod record;
 mod recording;
 mod replay;

@@ -12,12 +12,13 @@ use std::time::{Duration, Instant};
 
 use courier::format::Format;
 use courier::ipc::Value;
-use courier::{Handle, PubId, PublicationQos, Session, SessionEvent, TypeInfo, WriteOptions};
+use courier::{PublicationQos, Session, SessionEvent, TypeInfo, WriteOptions};
 use futures::StreamExt;
 
 use crate::cli::{kind, Kind, PubArgs};
 use crate::connect::{connect, target, PROGRESS_EVERY};
 use crate::ping::{Matched, LAST_ACK_BOUND};
+use crate::reader_kind::{kind_word, Publication};
 use crate::stop::{count, run_session, Ended, Stop};
 use crate::text::{err, incompatible_line, out, progress};
 use crate::values::{known_names, known_type, parse_value, Known};
@@ -119,19 +120,36 @@ async fn publish(s: &Session, o: &PubArgs, sent: &Cell<u64>, waiting: &Cell<bool
     let (enc, ty) = encoder(s, o).await?;
     let value = parse_value(&enc.format(), &o.value)?;
     let data = enc.encode(&value)?;
-    let b = s.backend();
-    let id = b
-        .open_publication(&o.topic, &ty, &PublicationQos::default())
-        .await?;
-    let r = publish_on(s, o, id, &data, sent, waiting).await;
-    b.close_handle(Handle::Publication(id));
+    let mut pb = Publication::open(s, &o.topic, ty, &PublicationQos::default()).await?;
+    let r = publish_on(s, o, &mut pb, &data, sent, waiting).await;
+    pb.close(s);
     r
+}
+
+/// How the reason of a keyed/unkeyed mismatch begins
+/// (`rtps::matching::Incompatible::TopicKind`).
+const KIND_MISMATCH: &str = "topic kind:";
+
+/// Opens `pb` again if the topic's readers all want the other kind
+/// (keyed or not: DDS matches only writers of their kind), and says so.
+async fn key_as_readers(s: &Session, o: &PubArgs, pb: &mut Publication) -> Result<()> {
+    if let Some(keyed) = pb
+        .key_as_readers(s, &o.topic, &PublicationQos::default())
+        .await?
+    {
+        out(format_args!(
+            "{}, as the readers of {:?} are",
+            kind_word(keyed),
+            o.topic
+        ));
+    }
+    Ok(())
 }
 
 async fn publish_on(
     s: &Session,
     o: &PubArgs,
-    id: PubId,
+    pb: &mut Publication,
     data: &[u8],
     sent: &Cell<u64>,
     waiting: &Cell<bool>,
@@ -140,6 +158,7 @@ async fn publish_on(
     s.watch_handlers(&o.topic).await?;
     out("ready");
     let mut matched = Matched(None);
+    key_as_readers(s, o, pb).await?;
     let mut n = s.num_handlers(&o.topic).await?.unsigned_abs();
     if n > 0 {
         matched.set(n as usize);
@@ -160,12 +179,24 @@ async fn publish_on(
                         matched.set(n as usize);
                     }
                     SessionEvent::IncompatibleQos { msg, remote, reason } if msg == o.topic => {
-                        out(incompatible_line(remote, &reason))
+                        key_as_readers(s, o, pb).await?;
+                        // a reader of the other kind is matched by opening the
+                        // publication again, not by the user
+                        if !(reason.starts_with(KIND_MISMATCH) && remote.is_keyed() == pb.ty.keyed) {
+                            out(incompatible_line(remote, &reason))
+                        }
+                    }
+                    SessionEvent::SubscriptionFound(r) | SessionEvent::SubscriptionChanged(r)
+                        if r.topic == o.topic =>
+                    {
+                        key_as_readers(s, o, pb).await?
                     }
                     _ => {}
                 }
             }
             _ = tick.tick() => {
+                // readers found before the events began have no event
+                key_as_readers(s, o, pb).await?;
                 let secs = started.elapsed().as_secs();
                 let seen = match kind(&o.url) {
                     Kind::Dds => format!(": {}", found.summary(&o.topic, false)),
@@ -195,7 +226,7 @@ async fn publish_on(
                     // without the last sample: wait for its acknowledgement
                     opts.confirm = Some(LAST_ACK_BOUND);
                 }
-                match b.write(id, data.to_vec(), opts).await {
+                match b.write(pb.id, data.to_vec(), opts).await {
                     Err(courier::PublishError::Timeout { after, .. }) if confirm => err(format_args!(
                         "courier: the last sample was not acknowledged by every reader within {after:?}"
                     )),

@@ -22,16 +22,14 @@ use std::time::{Duration, Instant};
 
 use courier::format::Format;
 use courier::ipc::{ByteOrder, Value};
-use courier::{
-    Durability, Handle, History, PubId, PublicationQos, Session, SessionEvent, TypeInfo,
-    WriteOptions,
-};
+use courier::{Durability, History, PublicationQos, Session, SessionEvent, TypeInfo, WriteOptions};
 use futures::StreamExt;
 
 use crate::bar::Bar;
 use crate::cli::{kind, Kind, ProgressMode, ReplayArgs};
 use crate::connect::{connect, PROGRESS_EVERY};
 use crate::ping::LAST_ACK_BOUND;
+use crate::reader_kind::{kind_word, Publication};
 use crate::recording::{
     parse_order, ros2_dds_name, ENC_CDR, ENC_IPC, META_FORMAT, META_TYPE, SCHEMA_IPC_FORMAT,
     SCHEMA_ROS2MSG,
@@ -283,9 +281,8 @@ fn plan(o: &ReplayArgs, c: &Chan) -> std::result::Result<Plan, String> {
 
 /// A channel being replayed.
 struct Playing {
-    id: PubId,
-    /// The publication's type (keyed or not as the topic's readers are).
-    ty: TypeInfo,
+    /// Its publication (keyed or not as the topic's readers are).
+    pb: Publication,
     topic: String,
     conv: Convert,
     /// Its intact messages in the file, and how many of them were played
@@ -330,26 +327,22 @@ async fn replay(
     plans: Vec<(&Chan, Plan)>,
     sent: &Cell<u64>,
 ) -> Result<()> {
-    let b = s.backend();
     let mut qos = PublicationQos::default();
     if o.transient_local {
         qos.durability = Durability::TransientLocal;
         qos.history = History::KeepLast(o.depth);
     }
     let mut playing: HashMap<u16, Playing> = HashMap::new();
-    let mut opened = Vec::new();
     let mut topics = BTreeMap::new();
     let r: Result<()> = async {
         for (c, (conv, ty, shown)) in plans {
-            let id = b.open_publication(&c.topic, &ty, &qos).await?;
-            opened.push(id);
+            let pb = Publication::open(s, &c.topic, ty, &qos).await?;
             out(format_args!("channel {} {shown}", word(&c.topic)));
             topics.insert(c.topic.clone(), ());
             playing.insert(
                 c.id,
                 Playing {
-                    id,
-                    ty,
+                    pb,
                     topic: c.topic.clone(),
                     conv,
                     total: survey.counts.get(&c.id).copied().unwrap_or(0),
@@ -358,18 +351,13 @@ async fn replay(
             );
         }
         out("ready");
-        let mut pubs = Pubs {
-            qos: &qos,
-            playing: &mut playing,
-            opened: &mut opened,
-        };
-        pubs.key_as_readers(s).await?;
-        wait_for(s, o, topics.keys(), &mut pubs).await?;
+        key_as_readers(s, &mut playing, &qos).await?;
+        wait_for(s, o, topics.keys(), &mut playing, &qos).await?;
         play(s, o, mode, survey, &mut playing, sent).await
     }
     .await;
-    for id in opened {
-        b.close_handle(Handle::Publication(id));
+    for p in playing.values() {
+        p.pb.close(s);
     }
     r?;
     out(format_args!("replayed {}", count(sent.get(), "message")));
@@ -377,52 +365,23 @@ async fn replay(
     Ok(())
 }
 
-/// The publications being replayed, to open again when a topic's readers
-/// want them keyed (or not).
-struct Pubs<'p> {
-    qos: &'p PublicationQos,
-    playing: &'p mut HashMap<u16, Playing>,
-    opened: &'p mut Vec<PubId>,
-}
-
-impl Pubs<'_> {
-    /// DDS readers match a writer only if both are keyed or neither is,
-    /// and a recording's type says nothing of keys: a publication whose
-    /// topic's known readers of its type are all of the other kind is
-    /// opened again as they are (and says so). Nothing to do off DDS.
-    async fn key_as_readers(&mut self, s: &Session) -> Result<()> {
-        let Ok(dds) = s.dds() else {
-            return Ok(());
-        };
-        for p in self.playing.values_mut() {
-            let readers = dds.readers_of(&p.topic).await?;
-            let mut kinds = readers
-                .iter()
-                .filter(|r| r.type_name == p.ty.type_name)
-                .map(courier::EndpointInfo::keyed);
-            let Some(keyed) = kinds.next() else {
-                continue;
-            };
-            if keyed == p.ty.keyed || kinds.any(|k| k != keyed) {
-                continue; // they match already, or some would stop matching
-            }
-            let b = s.backend();
-            let mut ty = p.ty.clone();
-            ty.keyed = keyed;
-            let id = b.open_publication(&p.topic, &ty, self.qos).await?;
-            b.close_handle(Handle::Publication(p.id));
-            self.opened.retain(|&o| o != p.id);
-            self.opened.push(id);
-            p.id = id;
-            p.ty = ty;
+/// Opens again, as their readers want, the publications whose topic's
+/// readers are all of the other kind (keyed or not), and says so.
+async fn key_as_readers(
+    s: &Session,
+    playing: &mut HashMap<u16, Playing>,
+    qos: &PublicationQos,
+) -> Result<()> {
+    for p in playing.values_mut() {
+        if let Some(keyed) = p.pb.key_as_readers(s, &p.topic, qos).await? {
             out(format_args!(
                 "channel {} {}, as its readers are",
                 word(&p.topic),
-                if keyed { "keyed" } else { "not keyed" }
+                kind_word(keyed)
             ));
         }
-        Ok(())
     }
+    Ok(())
 }
 
 /// Waits until each topic has `--wait` subscribers (a sample nobody
@@ -432,7 +391,8 @@ async fn wait_for<'a>(
     s: &Session,
     o: &ReplayArgs,
     topics: impl Iterator<Item = &'a String>,
-    pubs: &mut Pubs<'_>,
+    playing: &mut HashMap<u16, Playing>,
+    qos: &PublicationQos,
 ) -> Result<()> {
     if o.wait == 0 {
         return Ok(());
@@ -457,13 +417,13 @@ async fn wait_for<'a>(
                 SessionEvent::SubscriptionFound(r) | SessionEvent::SubscriptionChanged(r)
                     if have.contains_key(&r.topic) =>
                 {
-                    pubs.key_as_readers(s).await?;
+                    key_as_readers(s, playing, qos).await?;
                 }
                 _ => {}
             },
             _ = tick.tick() => {
                 // readers found before this wait began have no event
-                pubs.key_as_readers(s).await?;
+                key_as_readers(s, playing, qos).await?;
                 let missing: Vec<&str> = have
                     .iter()
                     .filter(|(_, &n)| n < o.wait)
@@ -537,7 +497,7 @@ async fn play(
             // the last of its channel: wait for every reader to have it
             opts.confirm = Some(LAST_ACK_BOUND);
         }
-        match b.write(p.id, data, opts).await {
+        match b.write(p.pb.id, data, opts).await {
             Err(courier::PublishError::Timeout { after, .. }) if confirm => err(format_args!(
                 "courier: the last sample of {:?} was not acknowledged by every reader within \
                  {after:?}",
