@@ -133,10 +133,7 @@ const KIND_MISMATCH: &str = "topic kind:";
 /// Opens `pb` again if the topic's readers all want the other kind
 /// (keyed or not: DDS matches only writers of their kind), and says so.
 async fn key_as_readers(s: &Session, o: &PubArgs, pb: &mut Publication) -> Result<()> {
-    if let Some(keyed) = pb
-        .key_as_readers(s, &o.topic, &PublicationQos::default())
-        .await?
-    {
+    if let Some(keyed) = pb.key_as_readers(s).await? {
         out(format_args!(
             "{}, as the readers of {:?} are",
             kind_word(keyed),

@@ -8,10 +8,13 @@ use courier::{Handle, PubId, PublicationQos, Session, TypeInfo};
 
 use crate::Result;
 
-/// A publication the CLI writes, with the type it was opened with.
+/// A publication the CLI writes: its topic, and the type and QoS it was
+/// opened with (to open it again).
 pub struct Publication {
     pub id: PubId,
+    pub topic: String,
     pub ty: TypeInfo,
+    qos: PublicationQos,
 }
 
 impl Publication {
@@ -23,23 +26,23 @@ impl Publication {
         qos: &PublicationQos,
     ) -> Result<Publication> {
         let id = s.backend().open_publication(topic, &ty, qos).await?;
-        Ok(Publication { id, ty })
+        Ok(Publication {
+            id,
+            topic: topic.to_string(),
+            ty,
+            qos: qos.clone(),
+        })
     }
 
-    /// If every reader of `topic` (of this type) that discovery knows
+    /// If every reader of its topic (of its type) that discovery knows
     /// wants the other kind, opens the publication again as that kind,
     /// closes the old one, and returns whether it is keyed now. Nothing off
     /// DDS, without readers, or when some reader already matches.
-    pub async fn key_as_readers(
-        &mut self,
-        s: &Session,
-        topic: &str,
-        qos: &PublicationQos,
-    ) -> Result<Option<bool>> {
+    pub async fn key_as_readers(&mut self, s: &Session) -> Result<Option<bool>> {
         let Ok(dds) = s.dds() else {
             return Ok(None);
         };
-        let readers = dds.readers_of(topic).await?;
+        let readers = dds.readers_of(&self.topic).await?;
         let mut kinds = readers
             .iter()
             .filter(|r| r.type_name == self.ty.type_name)
@@ -53,7 +56,7 @@ impl Publication {
         let b = s.backend();
         let mut ty = self.ty.clone();
         ty.keyed = keyed;
-        let id = b.open_publication(topic, &ty, qos).await?;
+        let id = b.open_publication(&self.topic, &ty, &self.qos).await?;
         b.close_handle(Handle::Publication(self.id));
         self.id = id;
         self.ty = ty;

@@ -281,9 +281,9 @@ fn plan(o: &ReplayArgs, c: &Chan) -> std::result::Result<Plan, String> {
 
 /// A channel being replayed.
 struct Playing {
-    /// Its publication (keyed or not as the topic's readers are).
+    /// Its publication (keyed or not as the topic's readers are), with
+    /// its topic.
     pb: Publication,
-    topic: String,
     conv: Convert,
     /// Its intact messages in the file, and how many of them were played
     /// in this pass (the last is written confirmed on DDS).
@@ -343,7 +343,6 @@ async fn replay(
                 c.id,
                 Playing {
                     pb,
-                    topic: c.topic.clone(),
                     conv,
                     total: survey.counts.get(&c.id).copied().unwrap_or(0),
                     played: 0,
@@ -351,8 +350,8 @@ async fn replay(
             );
         }
         out("ready");
-        key_as_readers(s, &mut playing, &qos).await?;
-        wait_for(s, o, topics.keys(), &mut playing, &qos).await?;
+        key_as_readers(s, &mut playing).await?;
+        wait_for(s, o, topics.keys(), &mut playing).await?;
         play(s, o, mode, survey, &mut playing, sent).await
     }
     .await;
@@ -367,16 +366,12 @@ async fn replay(
 
 /// Opens again, as their readers want, the publications whose topic's
 /// readers are all of the other kind (keyed or not), and says so.
-async fn key_as_readers(
-    s: &Session,
-    playing: &mut HashMap<u16, Playing>,
-    qos: &PublicationQos,
-) -> Result<()> {
+async fn key_as_readers(s: &Session, playing: &mut HashMap<u16, Playing>) -> Result<()> {
     for p in playing.values_mut() {
-        if let Some(keyed) = p.pb.key_as_readers(s, &p.topic, qos).await? {
+        if let Some(keyed) = p.pb.key_as_readers(s).await? {
             out(format_args!(
                 "channel {} {}, as its readers are",
-                word(&p.topic),
+                word(&p.pb.topic),
                 kind_word(keyed)
             ));
         }
@@ -392,7 +387,6 @@ async fn wait_for<'a>(
     o: &ReplayArgs,
     topics: impl Iterator<Item = &'a String>,
     playing: &mut HashMap<u16, Playing>,
-    qos: &PublicationQos,
 ) -> Result<()> {
     if o.wait == 0 {
         return Ok(());
@@ -417,13 +411,13 @@ async fn wait_for<'a>(
                 SessionEvent::SubscriptionFound(r) | SessionEvent::SubscriptionChanged(r)
                     if have.contains_key(&r.topic) =>
                 {
-                    key_as_readers(s, playing, qos).await?;
+                    key_as_readers(s, playing).await?;
                 }
                 _ => {}
             },
             _ = tick.tick() => {
                 // readers found before this wait began have no event
-                key_as_readers(s, playing, qos).await?;
+                key_as_readers(s, playing).await?;
                 let missing: Vec<&str> = have
                     .iter()
                     .filter(|(_, &n)| n < o.wait)
@@ -486,7 +480,7 @@ async fn play(
                 bad += 1;
                 err(format_args!(
                     "courier: a message of {:?} (log time {}) {e}: skipped",
-                    p.topic, m.log_time
+                    p.pb.topic, m.log_time
                 ));
                 continue;
             }
@@ -501,7 +495,7 @@ async fn play(
             Err(courier::PublishError::Timeout { after, .. }) if confirm => err(format_args!(
                 "courier: the last sample of {:?} was not acknowledged by every reader within \
                  {after:?}",
-                p.topic
+                p.pb.topic
             )),
             r => r?,
         }
