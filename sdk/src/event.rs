@@ -7,6 +7,7 @@ use std::net::SocketAddr;
 use std::time::Duration;
 
 use courier_wire::rtps::discovery::{self as wire, EndpointData, ParticipantData};
+use courier_wire::rtps::matching::Incompatible;
 use courier_wire::rtps::Locator;
 
 use crate::qos::{History, Reliability};
@@ -287,8 +288,10 @@ pub enum SessionEvent {
         msg: String,
         /// The other endpoint.
         remote: Guid,
-        /// The first rule that failed.
-        reason: String,
+        /// The first rule that failed; its `Display` names both sides and
+        /// what to change. Match on it (`Incompatible::Reliability`, …)
+        /// rather than on its text.
+        reason: Incompatible,
     },
     /// ROS 2 (a session with [`RtpsOptions::ros2_node`] or
     /// [`RtpsOptions::ros2_graph`]): a participant's ROS 2 nodes changed,

@@ -1014,7 +1014,7 @@ impl State {
             } => self.emit(SessionEvent::IncompatibleQos {
                 msg: topic,
                 remote: remote.into(),
-                reason: reason.to_string(),
+                reason,
             }),
             Event::Discovery(d) => match d {
                 P::ParticipantFound(d) => {

@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 use courier::format::Format;
 use courier::ipc::Value;
-use courier::{PublicationQos, Session, SessionEvent, TypeInfo, WriteOptions};
+use courier::{Incompatible, PublicationQos, Session, SessionEvent, TypeInfo, WriteOptions};
 use futures::StreamExt;
 
 use crate::cli::{kind, Kind, PubArgs};
@@ -126,10 +126,6 @@ async fn publish(s: &Session, o: &PubArgs, sent: &Cell<u64>, waiting: &Cell<bool
     r
 }
 
-/// How the reason of a keyed/unkeyed mismatch begins
-/// (`rtps::matching::Incompatible::TopicKind`).
-const KIND_MISMATCH: &str = "topic kind:";
-
 /// Opens `pb` again if the topic's readers all want the other kind
 /// (keyed or not: DDS matches only writers of their kind), and says so.
 async fn key_as_readers(s: &Session, o: &PubArgs, pb: &mut Publication) -> Result<()> {
@@ -179,7 +175,8 @@ async fn publish_on(
                         key_as_readers(s, o, pb).await?;
                         // a reader of the other kind is matched by opening the
                         // publication again, not by the user
-                        if !(reason.starts_with(KIND_MISMATCH) && remote.is_keyed() == pb.ty.keyed) {
+                        let kind = matches!(reason, Incompatible::TopicKind { .. });
+                        if !(kind && remote.is_keyed() == pb.ty.keyed) {
                             out(incompatible_line(remote, &reason))
                         }
                     }

@@ -167,7 +167,7 @@ pub fn endpoint_line(kind: &str, what: &str, e: &EndpointInfo) -> String {
     format!("{kind} {what} {}", endpoint_text(e))
 }
 
-pub fn incompatible_line(remote: courier::Guid, reason: &str) -> String {
+pub fn incompatible_line(remote: courier::Guid, reason: &courier::Incompatible) -> String {
     format!("incompatible {remote} {reason}")
 }
 
