@@ -123,17 +123,40 @@ pub async fn connect(
     url: &str,
     secs: f64,
 ) -> Result<Session, Error> {
-    let hint = if url.starts_with("ipc://") {
-        " (is a central running? `cargo run -p courier-broker --bin central` starts one)"
-    } else if url.starts_with("xrce") {
-        " (is an agent running? `cargo run -p courier-broker --bin xrce-agent -- udp4 -p 8888` starts one)"
-    } else {
-        ""
-    };
     match tokio::time::timeout(Duration::from_secs_f64(secs), builder.connect()).await {
         Ok(Ok(s)) => Ok(s),
-        Ok(Err(e)) => Err(format!("cannot connect to {url}: {e}{hint}").into()),
-        Err(_) => Err(format!("no connection to {url} within {secs} s{hint}").into()),
+        Ok(Err(e)) => {
+            let hint = if answered(&e) { "" } else { start_hint(url) };
+            Err(format!("cannot connect to {url}: {e}{hint}").into())
+        }
+        Err(_) => Err(format!("no connection to {url} within {secs} s{}", start_hint(url)).into()),
+    }
+}
+
+/// Whether `e` says the URL or the options are wrong (or the peer answered
+/// and refused), rather than that nothing answered there: starting a server
+/// would not help.
+fn answered(e: &courier::ConnectError) -> bool {
+    use courier::ConnectError as E;
+    matches!(
+        e,
+        E::UnknownScheme { .. } | E::Unsupported { .. } | E::BadUrl { .. } | E::Handshake { .. }
+    )
+}
+
+/// What to start when nothing answers at `url`: a central for IPC, an agent
+/// on the URL's transport for XRCE (nothing for DDS: peers come and go).
+fn start_hint(url: &str) -> &'static str {
+    if url.starts_with("ipc://") {
+        " (is a central running? `cargo run -p courier-broker --bin central` starts one)"
+    } else if url.starts_with("xrce+udp://") {
+        " (is an agent running? `cargo run -p courier-broker --bin xrce-agent -- udp4 -p 8888` starts one)"
+    } else if url.starts_with("xrce+tcp://") {
+        " (is an agent running? `cargo run -p courier-broker --bin xrce-agent -- tcp4 -p 8888` starts one)"
+    } else if url.starts_with("xrce+serial://") {
+        " (does the device exist, with an agent at its other end? `cargo run -p courier-broker --bin xrce-agent -- serial --dev DEVICE` starts one)"
+    } else {
+        ""
     }
 }
 

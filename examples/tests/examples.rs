@@ -197,6 +197,26 @@ async fn query_without_central_says_what_to_start() {
     );
 }
 
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_wrong_url_is_not_blamed_on_a_missing_server() {
+    // the URL is wrong: starting a central would not help, so no such hint
+    let url = "ipc://127.0.0.1:99999";
+    let r = query::run(args(&["query", "-e", url, "--connect-timeout", "2"])).await;
+    let e = r.expect_err("bad port").to_string();
+    assert!(
+        e.contains("'99999' is not a port number") && !e.contains("running?"),
+        "{e}"
+    );
+    // a serial device that is not there: the hint is about the device, not UDP
+    let url = "xrce+serial:///dev/courier-no-such-tty";
+    let r = query::run(args(&["query", "-e", url, "--connect-timeout", "2"])).await;
+    let e = r.expect_err("no device").to_string();
+    assert!(
+        e.contains("does the device exist") && !e.contains("udp4"),
+        "{e}"
+    );
+}
+
 #[test]
 fn bad_arguments_are_usage_errors() {
     let e = publish::Args::try_parse_from(["pub", "--period", "0"]).unwrap_err();

@@ -82,7 +82,16 @@ pub enum ConnectError {
 fn unknown_scheme(url: &str, scheme: Option<&str>, known: &[String]) -> String {
     let what = match scheme {
         Some(s) => format!("unknown URL scheme {s:?} in {url:?}"),
-        None => format!("no scheme in session URL {url:?}"),
+        None => match url.split_once(':') {
+            // `ipc:/host`, `rtps:7`: a known scheme without its `//`
+            Some((s, rest)) if known.iter().any(|k| k.eq_ignore_ascii_case(s)) => {
+                let rest = rest.trim_start_matches('/');
+                return format!(
+                    "session URL {url:?} lacks \"//\" after \"{s}:\": write {s}://{rest}"
+                );
+            }
+            _ => format!("no scheme in session URL {url:?}"),
+        },
     };
     format!("{what}; known schemes: {}", known.join(", "))
 }

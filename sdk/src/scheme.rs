@@ -142,6 +142,14 @@ mod tests {
         assert!(matches!(resolve("XRCE+UDP://h:1"), Ok(Resolved::Xrce)));
         let e = resolve("localhost:1381").err().unwrap();
         assert!(e.to_string().contains("no scheme"), "{e}");
+        let e = resolve("ipc:/127.0.0.1:1381").err().unwrap();
+        assert_eq!(
+            e.to_string(),
+            "session URL \"ipc:/127.0.0.1:1381\" lacks \"//\" after \"ipc:\": \
+             write ipc://127.0.0.1:1381"
+        );
+        let e = resolve("rtps:7").err().unwrap();
+        assert!(e.to_string().ends_with("write rtps://7"), "{e}");
         assert!(matches!(resolve("IPC://h:1"), Ok(Resolved::Ipc)));
     }
 
