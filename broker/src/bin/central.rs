@@ -248,6 +248,10 @@ fn parse_args(args: Vec<String>) -> Result<Options, String> {
                 o.log_file = Some(value.into());
             }
             'p' => {
+                if value.is_empty() {
+                    // C's form: `-p 1381` would leave the port unset
+                    return Err("option -p needs a port number glued to it (-p1381)".into());
+                }
                 o.port = value
                     .parse::<u16>()
                     .map_err(|_| format!("option -p: '{value}' is not a port number (0-65535)"))?;
@@ -795,7 +799,14 @@ mod tests {
         for (args, want) in [
             (&["-pabc"][..], "option -p: 'abc' is not a port number"),
             (&["-p70000"][..], "option -p: '70000' is not a port number"),
-            (&["-p"][..], "option -p: '' is not a port number"),
+            (
+                &["-p"][..],
+                "option -p needs a port number glued to it (-p1381)",
+            ),
+            (
+                &["-p", "1382"][..],
+                "option -p needs a port number glued to it",
+            ),
             (&["-p-1"][..], "option -p: '-1'"),
             (&["-lq"][..], "option -lq: unknown logging option 'q' in -l"),
             (&["-LZ"][..], "option -LZ: unknown logging option 'Z' in -L"),
