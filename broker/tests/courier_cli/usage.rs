@@ -169,6 +169,23 @@ fn usage_errors_name_the_problem() {
     }
 }
 
+/// The commonest slip with replay, the URL first and the recording second,
+/// is named as such rather than as a URL without a scheme.
+#[test]
+fn replay_with_its_arguments_swapped_says_which_comes_first() {
+    let (code, _, err) = run(&["replay", "ipc://127.0.0.1:1", "run.mcap"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("\"run.mcap\" is a recording, not a session URL")
+            && err.contains("courier replay FILE.mcap URL"),
+        "{err}"
+    );
+    // an existing file or directory in the URL's place is named as a path
+    let (code, _, err) = run(&["spy", "/"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("\"/\" is a path, not a session URL"), "{err}");
+}
+
 /// Every session URL is checked before anything connects, and a bad one
 /// names the schemes this program knows.
 #[test]

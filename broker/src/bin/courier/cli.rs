@@ -680,6 +680,15 @@ pub fn kind(url: &str) -> Kind {
 pub fn session_url(url: &str) -> Result<String, String> {
     let known = courier::scheme::known_schemes().join(", ");
     let Some((scheme, _)) = url.split_once("://") else {
+        if url.ends_with(".mcap") {
+            return Err(format!(
+                "{url:?} is a recording, not a session URL (replay takes the file first: \
+                 courier replay FILE.mcap URL; record writes one with -o FILE.mcap)"
+            ));
+        }
+        if std::path::Path::new(url).exists() {
+            return Err(format!("{url:?} is a path, not a session URL (SCHEME://…)"));
+        }
         return Err(format!(
             "no scheme in {url:?}; a session URL is SCHEME://…, known schemes: {known} \
              (ipc://localhost:1381, rtps://0?interface=lo)"
