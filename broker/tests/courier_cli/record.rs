@@ -467,6 +467,27 @@ fn a_damaged_recording_says_where_and_replays_what_is_intact() {
         err,
         format!("courier: cannot open {missing}: No such file or directory (os error 2)\n")
     );
+    // a directory, to either command
+    let d = dir.file("");
+    let d = d.trim_end_matches('/');
+    let (code, _, err) = run(&["replay", d, &c.url]);
+    assert_eq!(
+        (code, err),
+        (
+            1,
+            format!("courier: {d} is a directory, not an MCAP file\n")
+        )
+    );
+    let (code, _, err) = run(&["record", &c.url, "x", "-o", d, "--overwrite"]);
+    assert_eq!(
+        (code, err),
+        (
+            1,
+            format!(
+                "courier: cannot create {d}: it is a directory (-o names the MCAP file to write)\n"
+            )
+        )
+    );
 }
 
 #[test]

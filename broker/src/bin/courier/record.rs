@@ -32,6 +32,13 @@ const FLUSH_EVERY: Duration = Duration::from_secs(1);
 
 pub async fn run(o: RecordArgs, mut stop: Stop) -> Result<Ended> {
     // the file first: a bad path fails before anything connects
+    if o.output.is_dir() {
+        return Err(format!(
+            "cannot create {}: it is a directory (-o names the MCAP file to write)",
+            o.output.display()
+        )
+        .into());
+    }
     let file = File::options()
         .write(true)
         .create(true)

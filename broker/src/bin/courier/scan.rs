@@ -301,10 +301,13 @@ fn summary_start(f: &mut File, len: u64) -> Option<(u64, u64)> {
 pub fn walk(path: &Path, visit: &mut dyn FnMut(Event) -> bool) -> Result<Vec<String>, String> {
     let shown = path.display();
     let mut f = File::open(path).map_err(|e| format!("cannot open {shown}: {e}"))?;
-    let len = f
+    let meta = f
         .metadata()
-        .map_err(|e| format!("cannot read {shown}: {e}"))?
-        .len();
+        .map_err(|e| format!("cannot read {shown}: {e}"))?;
+    if meta.is_dir() {
+        return Err(format!("{shown} is a directory, not an MCAP file"));
+    }
+    let len = meta.len();
     let mut magic = [0u8; 8];
     if len < 8 || f.read_exact(&mut magic).is_err() || magic != mcap::MAGIC {
         return Err(format!(
