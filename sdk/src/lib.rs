@@ -80,9 +80,12 @@
 //!
 //! ## Rules
 //!
-//! - **Keep the [`Session`] alive.** Dropping its last clone disconnects
-//!   (`close().await` does it and waits for the goodbye). Dropping a
-//!   [`Subscriber`], [`Requests`] or [`Publisher`] closes that handle only.
+//! - **Keep the [`Session`] alive.** It stays connected while any clone of
+//!   it, or any handle made from it ([`Subscriber`], [`Requests`],
+//!   [`Publisher`], …), lives, and disconnects when the last is dropped;
+//!   `close().await` disconnects at once (the handles' streams end, their
+//!   calls fail) and waits for the goodbye. Dropping a handle closes that
+//!   handle only.
 //! - **Bound your awaits.** `connect` gives up by itself (IPC: after
 //!   [`SessionBuilder::connect_timeout`], 5 s by default; RTPS at once;
 //!   XRCE after its attempts), a query after its `.timeout(d)` (10 s by
