@@ -143,7 +143,13 @@ impl SessionBuilder {
 
     /// After losing central, keep trying to reach it (first after `backoff`,
     /// doubling up to 5 s), then define and subscribe everything again;
-    /// subscribers stay open meanwhile. Operations fail while disconnected.
+    /// subscribers stay open meanwhile. Operations fail while disconnected
+    /// (those issued while the new connection's handshake runs wait for
+    /// it). As at start, central knows another module's subscriptions
+    /// only once that module has reconnected too: IPC sends no message
+    /// nobody subscribes to, so a publish right after a reconnect can reach
+    /// nobody ([`Session::num_handlers`](crate::Session::num_handlers) says
+    /// who is back).
     /// An embedded central reached through [`SessionBuilder::dial`] that has
     /// stopped is not retried: the session ends as without reconnect.
     pub fn reconnect(mut self, backoff: Duration) -> Self {
@@ -222,6 +228,29 @@ impl SessionBuilder {
     pub fn participant_index(mut self, index: u32) -> Self {
         self.set.push(("participant_index", Honoured::Rtps));
         self.rtps.participant_index = Some(index);
+        self
+    }
+
+    /// The largest message this session sends or takes, in bytes (its
+    /// data, as [`ipc::to_vec`](crate::ipc::to_vec) or
+    /// [`cdr::to_vec`](crate::cdr::to_vec) gives it).
+    ///
+    /// - IPC: 256 MiB by default, what Courier's central takes. A larger
+    ///   publish, query or reply fails with [`PublishError::TooLarge`]
+    ///   (nothing is sent); a larger message from central ends the
+    ///   connection (logged; with [`reconnect`](Self::reconnect) the
+    ///   session reconnects), as it cannot be skipped on the stream.
+    /// - RTPS: 16 MiB by default (URL: `max_sample_size=`). A larger
+    ///   sample is given up by the readers (a
+    ///   [`SessionEvent::SampleLost`]), and a reliable writer goes on.
+    ///
+    /// [`PublishError::TooLarge`]: crate::PublishError::TooLarge
+    /// [`SessionEvent::SampleLost`]: crate::SessionEvent::SampleLost
+    pub fn max_message_bytes(mut self, bytes: usize) -> Self {
+        self.set.push(("max_message_bytes", Honoured::Both));
+        let room = courier_wire::ipc::module::FRAME_ROOM;
+        self.opts.max_frame = (bytes as u64).saturating_add(room);
+        self.rtps.max_sample_size = Some(bytes);
         self
     }
 

@@ -335,6 +335,16 @@ macro_rules! failure {
     (@central ControlError, $what:ident, $source:ident) => {
         ControlError::Central { what: $what.to_string(), source: $source }
     };
+    (@central PublishError, $what:ident, $source:ident) => {
+        match $source {
+            CentralError::TooLarge { msg, len, max } => PublishError::TooLarge {
+                msg,
+                len,
+                max: usize::try_from(max).unwrap_or(usize::MAX),
+            },
+            source => PublishError::Central { msg: $what.to_string(), source },
+        }
+    };
     (@central $t:ident, $what:ident, $source:ident) => {
         $t::Central { msg: $what.to_string(), source: $source }
     };

@@ -282,6 +282,20 @@ pub enum SessionEvent {
         /// Misses on this subscription so far.
         total: u64,
     },
+    /// DDS: a sample was larger than this session takes
+    /// ([`SessionBuilder::max_message_bytes`](crate::SessionBuilder::max_message_bytes),
+    /// URL option `max_sample_size`): the subscription skipped it (counted
+    /// in its `dropped()`), and a reliable writer went on with the next.
+    SampleLost {
+        /// Topic.
+        msg: String,
+        /// The writer.
+        writer: Guid,
+        /// The sample's size in bytes.
+        size: u64,
+        /// The largest this session takes.
+        limit: u64,
+    },
     /// DDS: an endpoint on one of our topics does not match ours.
     IncompatibleQos {
         /// Topic.

@@ -382,8 +382,9 @@ impl Listener {
         &self.msg
     }
 
-    /// Samples dropped by a keep-last policy or a backend filter so far, and
-    /// (IPC) messages whose body did not hold together.
+    /// Samples dropped by a keep-last policy or a backend filter so far,
+    /// (IPC) messages whose body did not hold together, and (DDS) samples
+    /// larger than the session takes ([`SessionEvent::SampleLost`](crate::SessionEvent::SampleLost)).
     pub fn dropped(&self) -> u64 {
         self.raw.dropped()
     }
@@ -570,8 +571,9 @@ impl<T, D> Subscriber<T, D> {
         &self.msg
     }
 
-    /// Samples dropped by a keep-last policy or a backend filter so far, and
-    /// (IPC) messages whose body did not hold together.
+    /// Samples dropped by a keep-last policy or a backend filter so far,
+    /// (IPC) messages whose body did not hold together, and (DDS) samples
+    /// larger than the session takes ([`SessionEvent::SampleLost`](crate::SessionEvent::SampleLost)).
     pub fn dropped(&self) -> u64 {
         self.raw.dropped()
     }

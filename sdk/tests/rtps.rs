@@ -1047,3 +1047,58 @@ async fn representations_follow_the_type_and_mismatches_name_them() {
         "{text}"
     );
 }
+
+/// A sample larger than the reader takes is given up by the reader (an
+/// event, counted as dropped) instead of being asked for again forever, so
+/// the reliable writer goes on: the next sample arrives. Before, the
+/// oversized sample held back every later one.
+#[tokio::test]
+async fn a_sample_too_large_for_the_reader_is_given_up_and_the_next_arrives() {
+    let a = session(178, "a").await;
+    let b = tokio::time::timeout(
+        T,
+        Session::builder(common::url(178))
+            .name("b")
+            .max_message_bytes(100_000)
+            .connect(),
+    )
+    .await
+    .expect("connect in time")
+    .expect("connect");
+    let p = a.publisher::<Msg>("big").build().await.unwrap();
+    let mut ev = b.events();
+    let mut sub = b.subscribe::<Msg>("big").await.unwrap();
+    await_handlers(&a, "big", 1).await;
+    let big = Msg {
+        seq: 1,
+        text: "big".into(),
+        payload: vec![7; 300_000],
+    };
+    p.publish(&big).await.unwrap();
+    p.publish(&msg(2)).await.unwrap();
+    assert_eq!(next(&mut sub).await.unwrap().value, msg(2));
+    let lost = tokio::time::timeout(T, async {
+        loop {
+            if let SessionEvent::SampleLost {
+                msg, size, limit, ..
+            } = ev.next().await.unwrap()
+            {
+                return (msg, size, limit);
+            }
+        }
+    })
+    .await
+    .expect("a SampleLost event in time");
+    let size = courier::cdr::to_vec(&big, courier::cdr::Encoding::Xcdr1Le).len() as u64;
+    assert_eq!(lost, ("big".to_string(), size, 100_000));
+    assert_eq!(sub.dropped(), 1);
+    // reliable and acknowledged: the writer is not stuck on it
+    p.publish(&msg(3))
+        .confirmed()
+        .timeout(T)
+        .await
+        .expect("acknowledged by the reader");
+    assert_eq!(next(&mut sub).await.unwrap().value, msg(3));
+    a.close().await;
+    b.close().await;
+}

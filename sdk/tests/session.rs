@@ -705,3 +705,73 @@ async fn message_info_gives_the_format_central_holds() {
     b.close().await;
     c.shutdown().await;
 }
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct Blob {
+    n: u32,
+    #[ipc(len = "n")]
+    data: Vec<u8>,
+}
+
+/// `max_message_bytes`: a message above a session's limit is refused when
+/// sent (nothing goes out, the session goes on); one above it from central
+/// ends the receiving session visibly: a `Disconnected` event, its
+/// subscriptions end. Before, the receiver stopped reading without a word
+/// and its subscribers waited forever.
+#[tokio::test]
+async fn messages_above_the_limit_are_refused_and_end_a_receiver_visibly() {
+    let (c, url) = central().await;
+    let small = |name: &'static str| {
+        tokio::time::timeout(
+            T,
+            Session::builder(&url)
+                .name(name)
+                .max_message_bytes(100_000)
+                .connect(),
+        )
+    };
+    let a = session(&url, "a").await;
+    let b = small("b").await.unwrap().unwrap();
+    let mut sub = b.subscribe::<Blob>("blob").await.unwrap();
+    let mut small_sub = b.subscribe::<i32>("small").await.unwrap();
+    assert_eq!(b.num_handlers("blob").await.unwrap(), 1);
+    assert_eq!(b.num_handlers("small").await.unwrap(), 1);
+    let big = Blob {
+        n: 0,
+        data: vec![7; 200_000],
+    };
+    // the sender with the small limit refuses it, naming sizes
+    match b.publish("blob", &big).await {
+        Err(courier::PublishError::TooLarge { msg, len, max }) => {
+            let bytes = courier::ipc::to_vec(&big).len();
+            assert_eq!((msg.as_str(), len, max), ("blob", bytes, 100_000))
+        }
+        other => panic!("{other:?}"),
+    }
+    // and goes on
+    a.num_handlers("small").await.unwrap();
+    a.publish("small", &1).await.unwrap();
+    let s = tokio::time::timeout(T, small_sub.next()).await.unwrap();
+    assert_eq!(s.unwrap().unwrap().value, 1);
+    // the default limit sends it; the receiver cannot take it
+    let mut events = b.events();
+    a.publish("blob", &big).await.unwrap();
+    let first = tokio::time::timeout(T, sub.next()).await.unwrap();
+    assert!(
+        matches!(first, Some(Err(RecvError::Disconnected))),
+        "{first:?}"
+    );
+    assert!(tokio::time::timeout(T, sub.next()).await.unwrap().is_none());
+    loop {
+        match tokio::time::timeout(T, events.next()).await.unwrap() {
+            Some(SessionEvent::Disconnected) => break,
+            Some(_) => {}
+            None => panic!("events ended without Disconnected"),
+        }
+    }
+    assert!(b.publish("small", &2).await.is_err());
+    // central let it go: its name is free again
+    let b2 = small("b").await.unwrap();
+    assert!(b2.is_ok(), "{:?}", b2.err());
+    c.shutdown().await;
+}

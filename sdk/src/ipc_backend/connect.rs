@@ -50,6 +50,7 @@ pub(super) async fn handshake(
         };
         let mut cfg = ModuleConfig::new(name, local_host_name());
         cfg.listen = opts.listen;
+        cfg.max_frame = opts.max_frame;
         let mut conn = Connection::new(cfg, Instant::now());
         let mut buf = vec![0u8; 64 * 1024];
         let mut listener: Option<DirectListener> = None;

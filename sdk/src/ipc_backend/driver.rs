@@ -123,6 +123,9 @@ pub(super) struct Driver {
     /// The credit of the direct-link read whose deliveries are being
     /// handed out (until the next [`Driver::drain_events`] is done).
     pub(super) read_credit: Option<Arc<OwnedSemaphorePermit>>,
+    /// The module closed the connection itself: central sent something it
+    /// refuses (a frame above its limit, bytes that do not decode).
+    pub(super) failed: bool,
 }
 
 /// Where a publish's result goes.
@@ -147,6 +150,13 @@ impl Driver {
             }
             self.drain_events();
             self.read_credit = None;
+            if std::mem::take(&mut self.failed) {
+                // as if central had gone: the socket is of no more use
+                if self.lost(closed, &mut rx).await {
+                    continue;
+                }
+                break;
+            }
             if self.flush().await.is_err() {
                 break;
             }
@@ -164,13 +174,9 @@ impl Driver {
                 },
                 n = self.io.read(&mut buf) => match n {
                     Ok(0) | Err(_) => {
-                        if let Some(first) = self.opts.reconnect.filter(|_| self.closing.is_none() && !closed) {
-                            if self.reconnect(first, &mut rx).await {
-                                continue;
-                            }
+                        if self.lost(closed, &mut rx).await {
+                            continue;
                         }
-                        self.conn.handle_eof();
-                        self.drain_events();
                         break;
                     }
                     Ok(n) => self.conn.receive(&buf[..n], Instant::now()),
@@ -186,6 +192,25 @@ impl Driver {
         if let Some(d) = self.closing.take() {
             let _ = d.send(());
         }
+    }
+
+    /// The connection to central is lost (closed by central, or by the
+    /// module over what central sent): reconnects if asked to and the
+    /// session is not closing (`true`: go on with the new connection),
+    /// else lets what waits know (`false`: the driver ends).
+    async fn lost(&mut self, closed: bool, rx: &mut Inbox<Cmd>) -> bool {
+        if let Some(first) = self
+            .opts
+            .reconnect
+            .filter(|_| self.closing.is_none() && !closed)
+        {
+            if self.reconnect(first, rx).await {
+                return true;
+            }
+        }
+        self.conn.handle_eof();
+        self.drain_events();
+        false
     }
 
     pub(super) async fn flush(&mut self) -> std::io::Result<()> {

@@ -112,7 +112,13 @@ impl Driver {
                         "dropped a message whose body does not hold together: {error}"
                     );
                 }
-                Event::Closed(_) => {}
+                Event::Closed(None) => {}
+                Event::Closed(Some(e)) => {
+                    // the module gave up on what central sent: say why, as
+                    // nothing else will (the session ends, or reconnects)
+                    tracing::error!(central = %self.addr, "closing the connection to central: {e}");
+                    self.failed = true;
+                }
                 Event::DirectConnect {
                     link, host, port, ..
                 } => {

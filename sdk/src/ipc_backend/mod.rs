@@ -56,6 +56,10 @@ pub const DEFAULT_PORT: u16 = 1381;
 pub struct IpcOptions {
     /// `false` = `IPC_connectNoListen`.
     pub listen: bool,
+    /// Largest frame sent or taken (a message's data may be
+    /// [`FRAME_ROOM`](courier_wire::ipc::module::FRAME_ROOM) less): 256 MiB
+    /// by default, as Courier's central takes.
+    pub max_frame: u64,
     /// How long to keep trying to reach central.
     pub connect_timeout: Duration,
     /// Reconnect after losing central: first wait, doubling up to 5 s.
@@ -106,6 +110,7 @@ impl Default for IpcOptions {
     fn default() -> Self {
         IpcOptions {
             listen: true,
+            max_frame: courier_wire::ipc::module::DEFAULT_MAX_FRAME,
             connect_timeout: Duration::from_secs(5),
             reconnect: None,
             busy_poll: None,
@@ -223,6 +228,7 @@ impl IpcBackend {
             published: Vec::new(),
             parked: Vec::new(),
             read_credit: None,
+            failed: false,
         };
         if let Some(l) = listener {
             spawn_accept(l, tx.clone());

@@ -180,6 +180,11 @@ impl RtpsBackend {
         if let Some(n) = opts.fragment_size {
             cfg.fragment_size = n;
         }
+        if let Some(n) = opts.max_sample_size {
+            cfg.max_sample_size = n;
+            // room to reassemble at least one such sample
+            cfg.reassembly_limit = cfg.reassembly_limit.max(n);
+        }
         cfg.entity_name = Some(name.to_string());
         let locator = SocketAddr::from((
             address,

@@ -56,6 +56,12 @@ pub struct RtpsOptions {
     /// 1344. A size that does not fit in one datagram with its headers is
     /// lowered to the largest that does.
     pub fragment_size: Option<u16>,
+    /// Largest sample this participant's readers take (URL option
+    /// `max_sample_size`; also [`SessionBuilder::max_message_bytes`](crate::SessionBuilder::max_message_bytes));
+    /// `None`: 16 MiB. A larger sample is given up: its readers skip it
+    /// and say so ([`SessionEvent::SampleLost`](crate::SessionEvent::SampleLost)),
+    /// and a reliable writer goes on with the next.
+    pub max_sample_size: Option<usize>,
     /// Read user data on a thread of its own that blocks in `recvmmsg` and
     /// runs immediate subscriptions' callbacks
     /// ([`SubscriberBuilder::listen`](crate::SubscriberBuilder::listen))
@@ -125,6 +131,7 @@ impl Default for RtpsOptions {
             busy_poll: None,
             max_message_size: None,
             fragment_size: None,
+            max_sample_size: None,
             receive_thread: false,
             services: ServiceStyle::Auto,
             ros2_node: None,
@@ -264,6 +271,13 @@ impl RtpsOptions {
                     }
                     o.fragment_size = Some(n);
                 }
+                "max_sample_size" => {
+                    let n: usize = parse_num(url, k, v)?;
+                    if n == 0 {
+                        return Err(bad(url, format!("{k}=0: a sample of 0 bytes is no sample")));
+                    }
+                    o.max_sample_size = Some(n);
+                }
                 "receive_thread" => o.receive_thread = parse_bool(url, k, v)?,
                 "services" => {
                     o.services = match v {
@@ -305,8 +319,8 @@ impl RtpsOptions {
                         format!(
                             "unknown option {k:?} (known: interface, peers, multicast, index, \
                              max_index, recv_buffer, send_buffer, lease_ms, busy_poll_us, \
-                             max_message_size, fragment_size, receive_thread, services, \
-                             ros2_node, ros2_graph, ros2_gid)"
+                             max_message_size, fragment_size, max_sample_size, receive_thread, \
+                             services, ros2_node, ros2_graph, ros2_gid)"
                         ),
                     ))
                 }
@@ -358,6 +372,7 @@ pub(crate) struct RtpsOverrides {
     pub(crate) send_buffer: Option<usize>,
     pub(crate) busy_poll: Option<Duration>,
     pub(crate) receive_thread: Option<bool>,
+    pub(crate) max_sample_size: Option<usize>,
     pub(crate) ros2_node: Option<Result<Node, NameError>>,
 }
 
@@ -391,6 +406,9 @@ impl RtpsOverrides {
         }
         if let Some(on) = self.receive_thread {
             o.receive_thread = on;
+        }
+        if let Some(n) = self.max_sample_size {
+            o.max_sample_size = Some(n);
         }
         if let Some(n) = &self.ros2_node {
             o.ros2_node = Some(n.clone()?);
@@ -428,6 +446,11 @@ mod tests {
         assert_eq!(o.lease, Duration::from_millis(500));
         assert_eq!(o.busy_poll, Some(Duration::from_micros(50)));
         assert!(!o.receive_thread);
+        assert_eq!(o.max_sample_size, None);
+        let o = RtpsOptions::from_url("rtps://0?max_sample_size=67108864").unwrap();
+        assert_eq!(o.max_sample_size, Some(64 << 20));
+        let e = RtpsOptions::from_url("rtps://0?max_sample_size=0").unwrap_err();
+        assert!(e.to_string().contains("max_sample_size=0"), "{e}");
         assert!(
             RtpsOptions::from_url("rtps://0?receive_thread=true")
                 .unwrap()

@@ -882,6 +882,23 @@ impl State {
                     s.queue.count_dropped();
                 }
             }
+            Event::SampleLost {
+                reader,
+                writer,
+                size,
+                limit,
+            } => {
+                if let Some(s) = self.subs.get(&reader) {
+                    s.queue.count_dropped();
+                    tracing::warn!(topic = %s.topic, "gave up a sample of {size} bytes: larger than the {limit} this session takes");
+                    self.emit(SessionEvent::SampleLost {
+                        msg: s.topic.clone(),
+                        writer: writer.into(),
+                        size: u64::from(size),
+                        limit: limit as u64,
+                    });
+                }
+            }
             Event::DeadlineMissed { reader, total, .. } => {
                 if let Some(s) = self.subs.get(&reader) {
                     self.emit(SessionEvent::DeadlineMissed {

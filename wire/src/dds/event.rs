@@ -72,6 +72,19 @@ pub enum Event {
         /// Which filter.
         reason: DropReason,
     },
+    /// A reader gave up a sample larger than the participant takes
+    /// ([`Config::max_sample_size`](crate::rtps::participant::Config::max_sample_size));
+    /// a reliable writer goes on with the next.
+    SampleLost {
+        /// The reader.
+        reader: ReaderId,
+        /// The writer.
+        writer: Guid,
+        /// The sample's size.
+        size: u32,
+        /// The largest taken.
+        limit: usize,
+    },
     /// An instance of a reader with a deadline had no sample for a period
     /// (again every period until one comes).
     DeadlineMissed {

@@ -286,6 +286,22 @@ impl Domain {
                     Some(_) => self.deliver(s, now),
                     None => {}
                 },
+                P::SampleLost {
+                    reader,
+                    writer,
+                    size,
+                    limit,
+                    ..
+                } => {
+                    if self.readers.contains_key(&reader) {
+                        self.events.push_back(Event::SampleLost {
+                            reader: ReaderId(reader),
+                            writer,
+                            size,
+                            limit,
+                        });
+                    }
+                }
                 P::AckedByAll { writer, .. } => self.acks_changed(writer),
                 P::WriterMatched { writer, reader } => {
                     match self.writers.get(&writer).map(|w| w.role) {

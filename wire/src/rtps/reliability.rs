@@ -764,6 +764,34 @@ impl Reader {
         }
     }
 
+    /// This reader cannot take sample `sn` of `writer` (it is larger than
+    /// it may be): it is skipped as if the writer had sent a GAP for it, so
+    /// that a reliable writer goes on with the next instead of resending
+    /// it forever. `true` if it was still awaited (the first time only).
+    pub fn give_up(&mut self, writer: Guid, sn: SequenceNumber) -> bool {
+        let Some(w) = self.writers.get_mut(&writer) else {
+            return false;
+        };
+        if sn.0 < w.next {
+            return false;
+        }
+        if !self.reliable {
+            w.next = sn.0 + 1;
+            return true;
+        }
+        if sn.0 == w.next {
+            w.next += 1;
+            Self::drain(w, writer, &mut self.samples);
+            return true;
+        }
+        if w.pending.contains_key(&sn.0) || w.pending.len() >= self.max_pending {
+            // known, or no room: asked for again and given up again later
+            return false;
+        }
+        w.pending.insert(sn.0, None);
+        true
+    }
+
     /// A GAP: those sequence numbers will never come.
     pub fn handle_gap(&mut self, writer: Guid, g: &Gap) {
         let Some(w) = self.writers.get_mut(&writer) else {
@@ -1005,6 +1033,33 @@ mod tests {
             let got = run(30, seed, 500, None);
             assert_eq!(got, (1..=500).collect::<Vec<_>>(), "seed {seed}");
         }
+    }
+
+    #[test]
+    fn a_sample_given_up_is_skipped_in_order_and_once() {
+        let wg = guid(1);
+        let mut r = Reader::new(true, 256);
+        r.add_writer(wg);
+        let p = |b: u8| -> Payload { Arc::from(vec![b; 4]) };
+        // 2 is given up before 1 arrives: held as a gap, 3 waits behind 1
+        assert!(r.give_up(wg, SequenceNumber(2)));
+        assert!(!r.give_up(wg, SequenceNumber(2)), "once");
+        r.handle_data(wg, SequenceNumber(3), p(3));
+        assert!(r.poll_sample().is_none());
+        r.handle_data(wg, SequenceNumber(1), p(1));
+        let got: Vec<i64> = std::iter::from_fn(|| r.poll_sample())
+            .map(|(_, sn, _)| sn.0)
+            .collect();
+        assert_eq!(got, [1, 3]);
+        // the next expected one given up: the ones behind it come out
+        r.handle_data(wg, SequenceNumber(5), p(5));
+        assert!(r.give_up(wg, SequenceNumber(4)));
+        assert_eq!(r.poll_sample().map(|(_, sn, _)| sn.0), Some(5));
+        assert_eq!(r.next_expected(wg), Some(SequenceNumber(6)));
+        // what was delivered is not given up
+        assert!(!r.give_up(wg, SequenceNumber(5)));
+        // an unknown writer: nothing
+        assert!(!r.give_up(guid(9), SequenceNumber(1)));
     }
 
     #[test]

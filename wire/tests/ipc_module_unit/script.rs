@@ -267,6 +267,11 @@ pub trait Central {
 pub fn by_hand(listen: bool) -> Connection {
     let mut cfg = ModuleConfig::new("module2", "127.1");
     cfg.listen = listen;
+    by_hand_with(cfg)
+}
+
+/// [`by_hand`] with a configuration of the test's.
+pub fn by_hand_with(cfg: ModuleConfig) -> Connection {
     let mut c = Connection::new(cfg, Instant::now());
     c.send(&handshake_stream());
     c.frames();

@@ -7,8 +7,8 @@ use courier_wire::ipc::Writer;
 use courier_wire::sim::{Reads, StreamFaults};
 
 use crate::script::{
-    frame, handshake_stream, lookup_name, msg_info_reply, reply_frame, str_data, Central, Scripted,
-    SEEDS,
+    by_hand_with, frame, handshake_stream, lookup_name, msg_info_reply, reply_frame, str_data,
+    Central, Scripted, SEEDS,
 };
 
 #[test]
@@ -412,4 +412,58 @@ fn a_handler_count_from_central_outranks_a_stale_broadcast_list() {
         assert_eq!(f[0].header.intent, 106);
         assert_eq!(s.event(), Some(Event::Published { op }));
     }
+}
+
+/// A message larger than a frame may carry is refused when it is sent,
+/// naming it and the limit, rather than sent for central to drop the
+/// connection; a frame from central above the limit closes the connection
+/// with that reason, which the shell reports.
+#[test]
+fn frames_above_the_limit_are_refused_both_ways() {
+    use courier_wire::ipc::frame::FrameError;
+    use courier_wire::ipc::module::{ModuleConfig, FRAME_ROOM};
+    let mut cfg = ModuleConfig::new("module2", "127.1");
+    cfg.max_frame = 64 * 1024;
+    let max = cfg.max_frame - FRAME_ROOM;
+    let mut c = by_hand_with(cfg);
+    let big = vec![0u8; max as usize + 1];
+    assert_eq!(
+        c.publish("message2", big.clone(), -1),
+        Err(Error::TooLarge {
+            msg: "message2".into(),
+            len: max as usize + 1,
+            max
+        })
+    );
+    let e = c.query("message2", big, -1).unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        format!(
+            "message \"message2\" of {} bytes is larger than the {max} bytes a frame may carry",
+            max + 1
+        )
+    );
+    assert!(c.publish("message2", vec![0u8; max as usize], -1).is_ok());
+    // central announces a body one byte above the limit
+    let mut f = frame(106, MsgClass::Broadcast, 1, 0, &[], &[]);
+    f[0..4].copy_from_slice(&0i32.to_be_bytes());
+    f[4..8].copy_from_slice(&(64 * 1024 + 1i32).to_be_bytes());
+    c.send(&f);
+    let mut closed = None;
+    while let Some(e) = c.poll_event() {
+        if let Event::Closed(why) = e {
+            closed = Some(why);
+        }
+    }
+    assert!(
+        matches!(
+            closed,
+            Some(Some(Error::Frame(FrameError::TooLarge {
+                size: 65537,
+                limit: 65536
+            })))
+        ),
+        "{closed:?}"
+    );
+    assert_eq!(c.publish("message2", b"x", -1), Err(Error::Closed));
 }

@@ -7,7 +7,7 @@ use super::delivery::HandlerKind;
 use super::event::Event;
 use super::event::{DeliveryId, DeliveryKind, OpId};
 use super::ops::Op;
-use super::{Connection, Error, MsgLength, Stage};
+use super::{Connection, Error, MsgLength, Stage, FRAME_ROOM};
 use crate::ipc::Writer;
 
 impl Connection {
@@ -17,6 +17,19 @@ impl Connection {
         } else {
             Ok(())
         }
+    }
+
+    /// Refuses a message whose frame would be larger than a frame may be.
+    fn check_size(&self, msg: &str, data: &[u8]) -> Result<(), Error> {
+        let max = self.cfg.max_frame.saturating_sub(FRAME_ROOM);
+        if data.len() as u64 > max {
+            return Err(Error::TooLarge {
+                msg: msg.to_string(),
+                len: data.len(),
+                max,
+            });
+        }
+        Ok(())
     }
 
     /// `IPC_defineFormat`: `x_ipc_registerNamedFormMsg {name, fmt}`.
@@ -91,11 +104,13 @@ impl Connection {
         parent_ref: i32,
     ) -> Result<OpId, Error> {
         self.check_open()?;
+        let data = data.into();
+        self.check_size(msg, &data)?;
         let op = self.alloc_op();
         self.push_op(Op::Publish {
             op,
             msg: msg.into(),
-            data: data.into(),
+            data,
             parent: parent_ref,
         });
         Ok(op)
@@ -110,11 +125,13 @@ impl Connection {
         parent_ref: i32,
     ) -> Result<OpId, Error> {
         self.check_open()?;
+        let data = data.into();
+        self.check_size(msg, &data)?;
         let op = self.alloc_op();
         self.push_op(Op::Query {
             op,
             msg: msg.into(),
-            data: data.into(),
+            data,
             parent: parent_ref,
         });
         Ok(op)
@@ -129,6 +146,8 @@ impl Connection {
         data: impl Into<Vec<u8>>,
     ) -> Result<(), Error> {
         self.check_open()?;
+        let data = data.into();
+        self.check_size(reply_msg, &data)?;
         let Some((kind, dispatch, link)) = self.unacked.get(&delivery).copied() else {
             return Err(Error::UnknownHandle(delivery));
         };
@@ -139,7 +158,7 @@ impl Connection {
         self.push_op(Op::Respond {
             delivery,
             msg: reply_msg.into(),
-            data: data.into(),
+            data,
             dispatch,
             parent: dispatch,
             link,

@@ -60,8 +60,16 @@ use crate::format::Format;
 pub use self::event::{DeliveryId, DeliveryKind, Event, OpId};
 pub use self::proto::MsgInfo;
 
-/// Largest frame body (class data + message data) accepted from central.
-pub const DEFAULT_MAX_FRAME: u64 = 64 * 1024 * 1024;
+/// Largest frame body (class data + message data) accepted from central,
+/// and the largest message sent: central's own limit
+/// ([`central::Config::max_frame`](crate::ipc::central::Config::max_frame)),
+/// so that whatever Courier's central forwards, a module takes.
+pub const DEFAULT_MAX_FRAME: u64 = 256 * 1024 * 1024;
+
+/// Room a frame needs besides a message's data (class data, the variable
+/// length wrapper's count): a message may be [`ModuleConfig::max_frame`]
+/// less this.
+pub const FRAME_ROOM: u64 = 4096;
 
 /// Most deliveries buffered before the shell takes them with
 /// [`Connection::poll_event`]; central sends at most `capacity` outstanding
@@ -87,7 +95,8 @@ pub struct ModuleConfig {
     /// `false` = `IPC_connectNoListen`: publishes are not filtered by
     /// `X_IPC_BROADCAST_MSG_VAR`.
     pub listen: bool,
-    /// Largest frame body accepted from central.
+    /// Largest frame body accepted from central or a direct link; a
+    /// message sent must leave [`FRAME_ROOM`] below it.
     pub max_frame: u64,
 }
 
@@ -145,6 +154,18 @@ pub enum Error {
     /// Unknown delivery or handler handle.
     #[error("unknown handle {0}")]
     UnknownHandle(u64),
+    /// The message is larger than a frame may be
+    /// ([`ModuleConfig::max_frame`] less [`FRAME_ROOM`]): central (or the
+    /// receiving module) would refuse the frame and drop the connection.
+    #[error("message {msg:?} of {len} bytes is larger than the {max} bytes a frame may carry")]
+    TooLarge {
+        /// Message name.
+        msg: String,
+        /// Its data's size.
+        len: usize,
+        /// The largest a message's data may be.
+        max: u64,
+    },
 }
 
 /// Length discipline of a message (`IPC_defineMsg`'s length argument).

@@ -82,6 +82,22 @@ pub enum Event {
     },
     /// A local reader received a change.
     SampleReceived(ReceivedSample),
+    /// A local reader gave up a sample larger than
+    /// [`Config::max_sample_size`](super::Config::max_sample_size): it is
+    /// skipped (acknowledged as a GAP would be), so a reliable writer goes
+    /// on with the next.
+    SampleLost {
+        /// Local reader.
+        reader: Guid,
+        /// The writer.
+        writer: Guid,
+        /// The sample's sequence number.
+        sn: SequenceNumber,
+        /// Its size, as its fragments announce it.
+        size: u32,
+        /// The largest this participant takes.
+        limit: usize,
+    },
     /// Every reader matched with a reliable local writer has acknowledged
     /// every change up to and including `up_to` (for `publish().confirmed()`).
     AckedByAll {

@@ -12,9 +12,9 @@ use smallvec::SmallVec;
 
 use super::change::{envelope, envelope_with, inline_info, open, ChangeKind, ENVELOPE_ROOM};
 use super::emit::{data_units, key_form_for, Route, Shape};
-use super::{KeyHash, Participant};
+use super::{Event, KeyHash, Participant};
 use crate::rtps::discovery::Disposal;
-use crate::rtps::frag;
+use crate::rtps::frag::{self, FragError};
 use crate::rtps::{
     AckNack, DataFrag, EntityId, Gap, Guid, GuidPrefix, Heartbeat, Locator, Message, NackFrag,
     SequenceNumber, Submessage, Time, VendorId,
@@ -242,7 +242,42 @@ impl Participant {
                 now,
             ),
             Ok(None) => {}
+            Err(FragError::TooLarge { size, limit }) => {
+                self.stats.fragments_rejected += 1;
+                self.give_up(writer, f.reader_id, f.writer_sn, size, limit);
+            }
             Err(_) => self.stats.fragments_rejected += 1,
+        }
+    }
+
+    /// A sample too large to take: each local reader that awaits it skips
+    /// it and says so (once); discovery data is not given up (its writer
+    /// resends it, and a participant that big is refused anyway).
+    fn give_up(
+        &mut self,
+        writer: Guid,
+        reader_id: EntityId,
+        sn: SequenceNumber,
+        size: u32,
+        limit: usize,
+    ) {
+        if writer.entity.is_builtin() {
+            return;
+        }
+        let prefix = self.cfg.guid_prefix;
+        for (e, lr) in self.readers.iter_mut() {
+            if (reader_id == EntityId::UNKNOWN || reader_id == *e)
+                && lr.matched.contains(&writer)
+                && lr.reader.give_up(writer, sn)
+            {
+                self.events.push_back(Event::SampleLost {
+                    reader: Guid { prefix, entity: *e },
+                    writer,
+                    sn,
+                    size,
+                    limit,
+                });
+            }
         }
     }
 
