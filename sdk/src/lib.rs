@@ -101,6 +101,10 @@
 //!   holds the rest (back-pressure up to the publisher). With
 //!   [`QueuePolicy::KeepLast`] (`subscribe_with`) the oldest are dropped
 //!   instead, counted by `Subscriber::dropped`. Nothing is dropped silently.
+//! - **Errors chain.** An error caused by a lower layer (central's
+//!   refusal, a socket error, a type IPC cannot carry) says what failed and
+//!   keeps the cause as its [`source()`](std::error::Error::source): print
+//!   the chain (anyhow's `{:#}`, or walk `source()`) to see both.
 //! - **DDS on a shared network:** a participant uses multicast discovery
 //!   on the default interface unless told otherwise; pin it (`interface`,
 //!   `peers`, `multicast=false`) to keep its traffic where you want it.
@@ -353,6 +357,7 @@ mod direct_link;
 pub mod driver_timer;
 mod error;
 pub mod event;
+mod format_check;
 pub mod hub;
 pub mod ipc_backend;
 mod mailbox;

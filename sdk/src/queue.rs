@@ -25,7 +25,9 @@ pub struct RawSample {
     /// shared by every sample of that writer).
     pub source: Option<Arc<str>>,
     /// The sender's type name, when the backend knows (DDS; shared by every
-    /// sample of the subscription).
+    /// sample of the subscription); IPC: the message's format as central
+    /// holds it (expanded), which a typed subscription checks its type
+    /// against ([`RecvError::FormatMismatch`](crate::RecvError::FormatMismatch)).
     pub type_name: Option<Arc<str>>,
     /// Sample, dispose or unregister (always `Alive` on IPC).
     pub state: InstanceState,

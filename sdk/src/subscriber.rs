@@ -30,6 +30,7 @@
 
 use crate::backend::Handle;
 use crate::error::OpenError;
+use crate::format_check::FormatCheck;
 use crate::qos::{
     DataRepresentation, Durability, History, InstanceState, Reliability, SubscriptionQos, TypeInfo,
 };
@@ -325,11 +326,12 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
         let enc = self.session.enc();
         let skipped = Arc::new(std::sync::atomic::AtomicU64::new(0));
         let count = skipped.clone();
+        let mut check = FormatCheck::default();
         queue.set_handler(move |q, s| {
             let Some(s) = s else {
                 return f(Err(RecvError::Disconnected));
             };
-            match convert::<T, D>(enc, q, s) {
+            match convert::<T, D>(enc, q, &mut check, s) {
                 Some(r) => f(r),
                 None => {
                     count.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
@@ -359,6 +361,7 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
             raw,
             msg: self.msg,
             enc: self.session.enc(),
+            check: FormatCheck::default(),
             decode_errors: 0,
             skipped: 0,
             _t: PhantomData,
@@ -435,6 +438,22 @@ pub enum RecvError {
     /// The session lost its connection; the stream ends after this.
     #[error("disconnected")]
     Disconnected,
+    /// IPC: the message's format, as central holds it (its definer's),
+    /// does not fit the subscriber's type, so its data would read as wrong
+    /// values; it is skipped undecoded. Every message of that format gives
+    /// this error, until the definition changes. Define the message with
+    /// the type the subscriber reads, or subscribe with the sender's.
+    #[error("{msg} is sent as {central} (central's format), which does not fit {ty}: {detail}")]
+    FormatMismatch {
+        /// Message name.
+        msg: String,
+        /// The subscriber's type.
+        ty: &'static str,
+        /// Central's format of the message.
+        central: String,
+        /// Where they differ.
+        detail: String,
+    },
 }
 
 /// A typed subscription: a `Stream` of samples (and, built
@@ -445,6 +464,8 @@ pub struct Subscriber<T, D = Samples> {
     raw: RawSubscriber,
     msg: String,
     enc: Encoding,
+    /// IPC: central's format of the message against `T`.
+    check: FormatCheck,
     decode_errors: u64,
     skipped: u64,
     _t: PhantomData<fn() -> (T, D)>,
@@ -472,10 +493,18 @@ fn change_key<T: IpcMessage>(
 fn convert<T: IpcMessage, D: Delivery<T>>(
     enc: Encoding,
     queue: &SampleQueue,
+    check: &mut FormatCheck,
     mut s: RawSample,
 ) -> Option<Result<D::Item, RecvError>> {
     if let Some(done) = s.done.take() {
         done();
+    }
+    // IPC: the backend tags a sample with central's format of the message
+    if let (Encoding::Ipc, Some(theirs)) = (enc, &s.type_name) {
+        if let Err(e) = check.check::<T>(&s.msg, theirs) {
+            queue.give_back(s.data);
+            return Some(Err(e));
+        }
     }
     if s.state != InstanceState::Alive {
         let key = change_key::<T>(enc, &s.data, s.key_hash);
@@ -514,9 +543,11 @@ impl<T: IpcMessage, D: Delivery<T>> Subscriber<T, D> {
         let Popped::Sample(s) = p else {
             return Some(Err(RecvError::Disconnected));
         };
-        let r = convert::<T, D>(self.enc, &self.raw.queue, s);
+        let r = convert::<T, D>(self.enc, &self.raw.queue, &mut self.check, s);
         match &r {
-            Some(Err(RecvError::Decode { .. })) => self.decode_errors += 1,
+            Some(Err(RecvError::Decode { .. } | RecvError::FormatMismatch { .. })) => {
+                self.decode_errors += 1
+            }
             None => self.skipped += 1,
             _ => {}
         }
@@ -603,6 +634,7 @@ mod tests {
             ),
             msg: "m".into(),
             enc: Encoding::Cdr,
+            check: FormatCheck::default(),
             decode_errors: 0,
             skipped: 0,
             _t: PhantomData,

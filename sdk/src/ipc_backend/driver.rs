@@ -71,6 +71,9 @@ pub(super) struct Sub {
     pub(super) queue: Arc<SampleQueue>,
     /// Samples waiting for room in `queue`.
     pub(super) overflow: super::overflow::Overflow,
+    /// Central's format of `msg`, as looked up for the first delivery
+    /// (`None`: not yet); samples carry it for the typed layer's check.
+    pub(super) format: Option<Option<Arc<str>>>,
 }
 
 pub(super) struct Server {
@@ -377,6 +380,7 @@ impl Driver {
                                 hnd,
                                 queue,
                                 overflow: Default::default(),
+                                format: None,
                             },
                         );
                         Ok(())

@@ -158,8 +158,14 @@ impl Driver {
                 // stall the others. A full queue (keep-all) acknowledges
                 // only when there is room again: back-pressure to central
                 // (and, in direct mode, to the link through its credit).
+                let conn = &self.conn;
+                let format = sub.format.get_or_insert_with(|| {
+                    let info = conn.msg_info(&msg)?;
+                    info.res_format.as_ref().map(|f| Arc::from(f.to_string()))
+                });
                 let mut s = RawSample::new(msg, data);
                 s.order = order;
+                s.type_name = format.clone();
                 let credit = self.read_credit.clone();
                 if sub
                     .overflow

@@ -46,6 +46,11 @@ impl Driver {
                     }
                     for (_, sub) in std::mem::take(&mut self.subs) {
                         if let Ok(h) = self.conn.subscribe(&sub.msg, &sub.hnd) {
+                            // the new central's definition may differ
+                            let sub = super::driver::Sub {
+                                format: None,
+                                ..sub
+                            };
                             self.subs.insert(h, sub);
                         }
                     }

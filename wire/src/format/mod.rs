@@ -7,6 +7,8 @@
 //! - [`FormatRegistry`]: named formats (`IPC_defineFormat`) and their
 //!   expansion ([`FormatRegistry::resolve`]), and [`equivalent`], the
 //!   comparison `IPC_checkMsgFormats` makes.
+//! - [`fits`]: whether data of one format reads correctly as another (what
+//!   a typed subscriber checks against the format central holds).
 //! - [`Format::fixed_wire_size`], [`Format::c_size`], [`Format::c_align`]:
 //!   marshalled size of fixed-size formats and the C struct layout on LP64.
 //! - [`encode_formatter`] / [`decode_formatter`]: the formatter encoding of the
@@ -41,12 +43,14 @@
 //! - Unknown names are `Format::Named` for [`parse`], and an error for
 //!   [`parse_with`] (C asks central, then fails).
 
+mod fit;
 mod parse;
 mod print;
 mod registry;
 mod size;
 mod wire;
 
+pub use fit::{fits, Misfit};
 pub use parse::{parse, parse_with, ParseError, MAX_NESTING};
 pub use registry::{equivalent, FormatRegistry, ResolveError, MAX_EXPANDED_NODES};
 pub use wire::{decode_formatter, encode_formatter};
