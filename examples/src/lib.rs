@@ -127,7 +127,7 @@ pub async fn connect(
         Ok(Ok(s)) => Ok(s),
         Ok(Err(e)) => {
             let hint = if answered(&e) { "" } else { start_hint(url) };
-            Err(format!("cannot connect to {url}: {e}{hint}").into())
+            Err(format!("cannot connect to {url}: {}{hint}", chain(&e)).into())
         }
         Err(_) => Err(format!("no connection to {url} within {secs} s{}", start_hint(url)).into()),
     }
@@ -183,10 +183,24 @@ where
     match rt.block_on(run(args)) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("{name}: {e}");
+            eprintln!("{name}: {}", chain(&*e));
             ExitCode::FAILURE
         }
     }
+}
+
+/// An error and its causes (`source()`), as one line: Courier's errors
+/// name what failed and keep what caused it (central's refusal, an I/O
+/// error) as their source.
+pub fn chain(e: &dyn std::error::Error) -> String {
+    let mut s = e.to_string();
+    let mut cur = e.source();
+    while let Some(c) = cur {
+        s.push_str(": ");
+        s.push_str(&c.to_string());
+        cur = c.source();
+    }
+    s
 }
 
 /// The argument of the Appendix A modules: where central is.

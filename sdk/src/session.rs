@@ -179,7 +179,7 @@ impl Session {
         match self.backend.ipc() {
             Some(ctl) => Ok(Ipc { ctl }),
             None => Err(ControlError::Unsupported {
-                what: "CMU IPC's controls (IPC_setCapacity, IPC_setMsgPriority, \
+                what: "Session::ipc (CMU IPC's controls: IPC_setCapacity, IPC_setMsgPriority, \
                        IPC_setMsgQueueLength, IPC_defineFormat; no DDS equivalent: use the \
                        QoS of publishers and subscribers)"
                     .into(),
@@ -193,7 +193,7 @@ impl Session {
     /// backends.
     pub fn dds(&self) -> Result<&dyn DdsControl, ControlError> {
         self.backend.dds().ok_or_else(|| ControlError::Unsupported {
-            what: "DDS's controls".into(),
+            what: "Session::dds (the DDS controls)".into(),
             backend: self.caps.scheme,
         })
     }
@@ -204,7 +204,7 @@ impl Session {
         self.backend
             .xrce()
             .ok_or_else(|| ControlError::Unsupported {
-                what: "DDS-XRCE's controls (agent ping, time sync)".into(),
+                what: "Session::xrce (the DDS-XRCE controls: agent ping, time sync)".into(),
                 backend: self.caps.scheme,
             })
     }
@@ -613,6 +613,11 @@ impl Session {
 
     /// How many handlers subscribe `msg` (DDS: readers matched with our
     /// writers, [`DdsControl::matched_readers`]).
+    ///
+    /// IPC, as C's `IPC_numHandlers`: central counts every handler of a
+    /// defined (broadcast) message, but at most one of a message nobody has
+    /// defined yet, however many modules subscribe it. To wait for `n > 1`
+    /// subscribers, [`define`](Self::define) the message first.
     pub async fn num_handlers(&self, msg: &str) -> Result<i32, ControlError> {
         match (self.backend.ipc(), self.backend.dds()) {
             (Some(ipc), _) => ipc.num_handlers(msg).await,

@@ -775,3 +775,88 @@ async fn messages_above_the_limit_are_refused_and_end_a_receiver_visibly() {
     assert!(b2.is_ok(), "{:?}", b2.err());
     c.shutdown().await;
 }
+
+/// A subscriber whose type does not fit the format central holds for the
+/// message (its definer's) gets `FormatMismatch` for each such message
+/// instead of wrong values: the C library decodes by the sender's format,
+/// so an `int` read as `f32` used to come out as a plausible number. A
+/// type that reads the same bytes as the same kind (`u32` for `int`) fits.
+#[tokio::test]
+async fn a_subscriber_whose_type_does_not_fit_central_s_format_is_told() {
+    let (c, url) = central().await;
+    let a = session(&url, "a").await;
+    let b = session(&url, "b").await;
+    a.define::<i32>("speed").await.unwrap();
+    let mut wrong = b.subscribe::<f32>("speed").await.unwrap();
+    // one type per topic and session: another session reads it as u32
+    let b2 = session(&url, "b2").await;
+    let mut right = b2.subscribe::<u32>("speed").await.unwrap();
+    assert_eq!(a.num_handlers("speed").await.unwrap(), 2);
+    for v in [1_078_530_011, 7] {
+        a.publish("speed", &v).await.unwrap();
+    }
+    for _ in 0..2 {
+        match tokio::time::timeout(T, wrong.next()).await.unwrap() {
+            Some(Err(RecvError::FormatMismatch {
+                msg,
+                central,
+                detail,
+                ..
+            })) => {
+                assert_eq!((msg.as_str(), central.as_str()), ("speed", "int"));
+                assert_eq!(
+                    detail,
+                    "at the top, the data has int where the reader has float"
+                );
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+    assert_eq!(wrong.decode_errors(), 2);
+    for want in [1_078_530_011u32, 7] {
+        let s = tokio::time::timeout(T, right.next()).await.unwrap();
+        assert_eq!(s.unwrap().unwrap().value, want);
+    }
+    c.shutdown().await;
+}
+
+/// A `Vec` without `#[ipc(len)]` is a DDS sequence: its IPC format `<T:0>`
+/// names no count field, so neither central nor a C module could read it.
+/// An IPC session refuses such a type when it is first used, saying what to
+/// add, instead of registering a format nobody can read.
+#[tokio::test]
+async fn a_type_ipc_cannot_carry_is_refused_naming_the_fix() {
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct Route {
+        name: String,
+        waypoints: Vec<f64>,
+    }
+    let (c, url) = central().await;
+    let a = session(&url, "a").await;
+    let want = "a Vec field needs #[ipc(len = \"count\")]";
+    let e = a.subscribe::<Route>("route").await.unwrap_err().to_string();
+    assert!(
+        e.contains("{string, <double:0>}") && e.contains(want),
+        "{e}"
+    );
+    let b = session(&url, "b").await;
+    let e = b.define::<Route>("route").await.unwrap_err().to_string();
+    assert!(e.contains(want), "{e}");
+    let e = b
+        .query::<Route, i32>(
+            "plan",
+            &Route {
+                name: "r".into(),
+                waypoints: vec![],
+            },
+        )
+        .timeout(Duration::from_secs(1))
+        .await
+        .unwrap_err();
+    assert_eq!(e.to_string(), "query plan refused");
+    let cause = std::error::Error::source(&e)
+        .expect("the cause")
+        .to_string();
+    assert!(cause.contains(want), "{cause}");
+    c.shutdown().await;
+}

@@ -310,6 +310,7 @@ impl Backend for IpcBackend {
         if let Some(what) = qos.beyond_ipc() {
             return Err(unsupported(format!("{what} (publication {msg})")));
         }
+        ipc_format(msg, ty)?;
         // untyped: a message somebody else defines
         if !ty.is_untyped() {
             self.define_once(msg, ty.format).await?;
@@ -322,12 +323,15 @@ impl Backend for IpcBackend {
     async fn open_subscription(
         &self,
         msg: &str,
-        _ty: Option<&TypeInfo>,
+        ty: Option<&TypeInfo>,
         qos: &SubscriptionQos,
         queue: Arc<SampleQueue>,
     ) -> Result<SubId, OpenError> {
         if let Some(what) = qos.beyond_ipc() {
             return Err(unsupported(format!("{what} (subscription {msg})")));
+        }
+        if let Some(ty) = ty {
+            ipc_format(msg, ty)?;
         }
         let id = SubId(self.next_handle());
         let g = Err(self.gone());
@@ -339,10 +343,12 @@ impl Backend for IpcBackend {
     async fn open_service(
         &self,
         msg: &str,
-        _req: &TypeInfo,
-        _resp: &TypeInfo,
+        req: &TypeInfo,
+        resp: &TypeInfo,
         queue: usize,
     ) -> Result<(ServiceId, mpsc::Receiver<RawRequest>), OpenError> {
+        ipc_format(msg, req)?;
+        ipc_format(msg, resp)?;
         let (tx, rx) = mpsc::channel(queue.max(1));
         let id = ServiceId(self.next_handle());
         let g = Err(self.gone());
@@ -353,9 +359,11 @@ impl Backend for IpcBackend {
     async fn open_client(
         &self,
         msg: &str,
-        _req: &TypeInfo,
-        _resp: &TypeInfo,
+        req: &TypeInfo,
+        resp: &TypeInfo,
     ) -> Result<ClientId, OpenError> {
+        ipc_format(msg, req)?;
+        ipc_format(msg, resp)?;
         let id = ClientId(self.next_handle());
         self.names().insert(Handle::Client(id), Arc::from(msg));
         Ok(id)
@@ -543,6 +551,30 @@ impl Reply for IpcReply {
 
     fn decline(self: Box<Self>) {
         let _ = self.cmd.post(Cmd::Decline(self.delivery));
+    }
+}
+
+/// Refuses a type whose format IPC cannot carry: a `Vec` field without
+/// `#[ipc(len = "…")]` has the format `<T:0>` (a DDS sequence, CDR only),
+/// which names no count field, so neither central nor a C module could
+/// read it.
+fn ipc_format(msg: &str, ty: &TypeInfo) -> Result<(), OpenError> {
+    let Some(f) = ty.format else {
+        return Ok(());
+    };
+    match courier_wire::format::parse(f) {
+        Ok(_) => Ok(()),
+        Err(e) => {
+            let hint = if f.contains(":0>") {
+                "; a Vec field needs #[ipc(len = \"count\")] (an integer field that holds its length) to go over IPC"
+            } else {
+                ""
+            };
+            Err(unsupported(format!(
+                "{msg} as {} (its IPC format {f:?} is not one: {e}{hint})",
+                ty.type_name
+            )))
+        }
     }
 }
 
