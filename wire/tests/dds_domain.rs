@@ -681,6 +681,13 @@ fn a_remote_endpoint_of_another_type_on_our_topic_is_reported_with_both_type_nam
     };
     assert!(net.run_until(Duration::from_secs(10), reported));
     assert!(!matched(&net, 1, r, 1));
+    // once, as a type mismatch: not also as an incompatible QoS
+    for node in [0, 1] {
+        assert!(
+            !net.has(node, |e| matches!(e, Event::IncompatibleQos { .. })),
+            "node {node}"
+        );
+    }
 }
 
 #[test]

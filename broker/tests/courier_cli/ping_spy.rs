@@ -172,6 +172,31 @@ fn deadlines_and_incompatible_qos_are_reported() {
     assert_eq!(sub.wait(), Some(0));
 }
 
+/// An endpoint of another type on the topic is reported once on each side,
+/// naming both types (the session reports it as a type mismatch, no longer
+/// also as an incompatible QoS).
+#[test]
+fn another_type_on_the_topic_is_reported_with_both_names() {
+    let u = url(205);
+    let mut sub = Proc::start(&["ping", &u, "--subscribe", "--topic", "t", "--count", "1"]);
+    sub.expect("ready");
+    let mut publ = Proc::start(&[
+        "pub", &u, "t", "7", "--format", "int", "--type", "Seven", "--wait", "1",
+    ]);
+    let line = publ.expect("incompatible ");
+    assert!(
+        line.ends_with("where this side has \"Seven\"") && line.contains("type \"courier::Ping\""),
+        "{line}"
+    );
+    let line = sub.expect("incompatible ");
+    assert!(
+        line.ends_with("type \"Seven\" where this side has \"courier::Ping\""),
+        "{line}"
+    );
+    drop(publ);
+    drop(sub);
+}
+
 #[test]
 fn a_counted_publisher_finishes_while_a_spy_watches() {
     // the spy's readers are best effort and never acknowledge: the last

@@ -358,7 +358,10 @@ impl Domain {
                             .get(&local)
                             .map(|w| (w.topic.clone(), self.endpoint(local, w.role, true)))
                     };
-                    if let Some((topic, local)) = found {
+                    // another type name is reported as a type mismatch,
+                    // with both names, when either endpoint appears
+                    let typed = matches!(reason, crate::rtps::matching::Incompatible::Type { .. });
+                    if let (Some((topic, local)), false) = (found, typed) {
                         self.events.push_back(Event::IncompatibleQos {
                             local,
                             topic,

@@ -172,7 +172,7 @@ Output, one event a line:
   keyed, as the readers of <topic> are
                            (or not keyed; DDS) it was opened again so
   matched <n>              subscribers now matched
-  incompatible <guid> <reason>   a subscription whose QoS does not match (DDS)
+  incompatible <guid> <reason>   a subscription whose QoS or type does not match (DDS)
   sent <n>
   done                     --count reached (exit 0)
   interrupted while waiting for subscribers of … | after <n> samples sent
@@ -199,7 +199,7 @@ Output, one event a line:
   ready                               the publication / subscription exists
   matched <n>                         publisher: readers now matched (DDS and IPC);
                                       subscriber: publications now matched (DDS)
-  incompatible <guid> <reason>        an endpoint of the topic whose QoS does not match (DDS)
+  incompatible <guid> <reason>        an endpoint of the topic whose QoS or type does not match (DDS)
   sent <seq>
   received <seq> from <source> <bytes> B   <source>: writer GUID (DDS), ? (IPC)
   deadline missed <total>             subscriber with --deadline (DDS)

@@ -28,7 +28,7 @@ use crate::connect::connect;
 use crate::ping::{publish_acked, Matched};
 use crate::pong::Stats;
 use crate::stop::{count, run_session, Ended, Stop};
-use crate::text::{err, incompatible_line, out};
+use crate::text::{err, incompatible_line, out, type_mismatch_line};
 use crate::Result;
 
 /// `courier perf`: throughput and latency.
@@ -293,6 +293,9 @@ async fn send<T: PerfSample>(s: &Session, o: &PerfPubArgs, total: &RefCell<Tally
                     SessionEvent::IncompatibleQos { msg, remote, reason } if msg == topic => {
                         out(incompatible_line(remote, &reason))
                     }
+                    SessionEvent::TypeMismatch { topic: t, remote, local_type, remote_type } if t == topic => {
+                        out(type_mismatch_line(remote, &local_type, &remote_type))
+                    }
                     _ => {}
                 },
                 _ = tokio::time::sleep(Duration::from_secs(2)) => err(format_args!(
@@ -445,6 +448,9 @@ async fn receive<T: PerfSample>(s: &Session, c: &PerfCommon, total: &RefCell<Tal
             Some(e) = ev.next() => match e {
                 SessionEvent::IncompatibleQos { msg, remote, reason } if msg == topic => {
                     out(incompatible_line(remote, &reason))
+                }
+                SessionEvent::TypeMismatch { topic: t, remote, local_type, remote_type } if t == topic => {
+                    out(type_mismatch_line(remote, &local_type, &remote_type))
                 }
                 _ => {}
             },

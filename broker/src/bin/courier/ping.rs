@@ -10,7 +10,7 @@ use futures::{FutureExt, StreamExt};
 use crate::cli::{kind, Kind, PingArgs};
 use crate::connect::connect;
 use crate::stop::{count, run_session, Ended, Stop};
-use crate::text::{err, incompatible_line, out};
+use crate::text::{err, incompatible_line, out, type_mismatch_line};
 use crate::values::Ping;
 use crate::Result;
 
@@ -142,6 +142,9 @@ async fn publish(
                 SessionEvent::IncompatibleQos { msg, remote, reason } if msg == o.topic => {
                     out(incompatible_line(remote, &reason))
                 }
+                SessionEvent::TypeMismatch { topic, remote, local_type, remote_type } if topic == o.topic => {
+                    out(type_mismatch_line(remote, &local_type, &remote_type))
+                }
                 _ => {}
             },
         }
@@ -246,6 +249,16 @@ fn pub_event(
         } if msg == o.topic => {
             refused.insert(remote);
             out(incompatible_line(remote, &reason));
+            true
+        }
+        SessionEvent::TypeMismatch {
+            topic,
+            remote,
+            local_type,
+            remote_type,
+        } if topic == o.topic => {
+            refused.insert(remote);
+            out(type_mismatch_line(remote, &local_type, &remote_type));
             true
         }
         SessionEvent::PublicationFound(e) | SessionEvent::PublicationChanged(e)

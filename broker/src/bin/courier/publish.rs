@@ -20,7 +20,7 @@ use crate::connect::{connect, target, PROGRESS_EVERY};
 use crate::ping::{Matched, LAST_ACK_BOUND};
 use crate::reader_kind::{kind_word, Publication};
 use crate::stop::{count, run_session, Ended, Stop};
-use crate::text::{err, incompatible_line, out, progress};
+use crate::text::{err, incompatible_line, out, progress, type_mismatch_line};
 use crate::values::{known_names, known_type, parse_value, Known};
 use crate::wait::Discovery;
 use crate::Result;
@@ -180,6 +180,9 @@ async fn publish_on(
                             out(incompatible_line(remote, &reason))
                         }
                     }
+                    SessionEvent::TypeMismatch { topic, remote, local_type, remote_type } if topic == o.topic => {
+                        out(type_mismatch_line(remote, &local_type, &remote_type))
+                    }
                     SessionEvent::SubscriptionFound(r) | SessionEvent::SubscriptionChanged(r)
                         if r.topic == o.topic =>
                     {
@@ -238,6 +241,9 @@ async fn publish_on(
                 }
                 SessionEvent::IncompatibleQos { msg, remote, reason } if msg == o.topic => {
                     out(incompatible_line(remote, &reason))
+                }
+                SessionEvent::TypeMismatch { topic, remote, local_type, remote_type } if topic == o.topic => {
+                    out(type_mismatch_line(remote, &local_type, &remote_type))
                 }
                 _ => {}
             },

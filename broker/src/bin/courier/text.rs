@@ -171,6 +171,11 @@ pub fn incompatible_line(remote: courier::Guid, reason: &courier::Incompatible) 
     format!("incompatible {remote} {reason}")
 }
 
+/// An endpoint of another type on the topic: an `incompatible` line too.
+pub fn type_mismatch_line(remote: courier::Guid, local_type: &str, remote_type: &str) -> String {
+    format!("incompatible {remote} type {remote_type:?} where this side has {local_type:?}")
+}
+
 /// Socket addresses, or `-`.
 fn locators(v: &[std::net::SocketAddr]) -> String {
     if v.is_empty() {
