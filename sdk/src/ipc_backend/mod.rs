@@ -146,31 +146,51 @@ impl std::fmt::Debug for IpcBackend {
 /// `(host, port)` from `ipc://host:port`, `ipc://host`, `ipc://` (then
 /// `CENTRALHOST`, then localhost:1381).
 pub fn parse_url(url: &str) -> Result<(String, u16), String> {
-    let rest = url
-        .strip_prefix("ipc://")
-        .ok_or_else(|| "expected ipc://host:port".to_string())?;
+    // the scheme is case-insensitive, as in every URL
+    let rest = match url.get(..6) {
+        Some(s) if s.eq_ignore_ascii_case("ipc://") => &url[6..],
+        _ => return Err("expected ipc://host:port".to_string()),
+    };
     let rest = rest.trim_end_matches('/');
     let spec = if rest.is_empty() {
         std::env::var("CENTRALHOST").unwrap_or_else(|_| "localhost".into())
     } else {
         rest.to_string()
     };
+    let port = |p: &str| {
+        p.parse::<u16>()
+            .ok()
+            .filter(|p| *p > 0)
+            .ok_or_else(|| format!("'{p}' is not a port number"))
+    };
+    // an IPv6 address in brackets: [::1], [::1]:1381
+    if let Some(v6) = spec.strip_prefix('[') {
+        let (host, after) = v6
+            .split_once(']')
+            .ok_or_else(|| format!("'{spec}': '[' without its ']'"))?;
+        let port = match after {
+            "" => DEFAULT_PORT,
+            a => port(
+                a.strip_prefix(':')
+                    .ok_or_else(|| format!("'{spec}': expected :port after the ']'"))?,
+            )?,
+        };
+        return Ok((host.to_string(), port));
+    }
+    if spec.matches(':').count() > 1 {
+        return Err(format!(
+            "'{spec}': an IPv6 address goes in brackets, as in ipc://[::1]:1381"
+        ));
+    }
     match spec.rsplit_once(':') {
-        Some((h, p)) => {
-            let port = p
-                .parse::<u16>()
-                .ok()
-                .filter(|p| *p > 0)
-                .ok_or_else(|| format!("'{p}' is not a port number"))?;
-            Ok((
-                if h.is_empty() {
-                    "localhost".into()
-                } else {
-                    h.into()
-                },
-                port,
-            ))
-        }
+        Some((h, p)) => Ok((
+            if h.is_empty() {
+                "localhost".into()
+            } else {
+                h.into()
+            },
+            port(p)?,
+        )),
         None => Ok((spec, DEFAULT_PORT)),
     }
 }
@@ -614,6 +634,16 @@ mod tests {
         assert!(parse_url("ipc://h:99999")
             .unwrap_err()
             .contains("not a port"));
+        assert_eq!(parse_url("IPC://h:1").unwrap(), ("h".into(), 1));
+        assert_eq!(parse_url("ipc://[::1]:1400").unwrap(), ("::1".into(), 1400));
+        assert_eq!(parse_url("ipc://[::1]").unwrap(), ("::1".into(), 1381));
+        assert!(parse_url("ipc://::1").unwrap_err().contains("in brackets"));
+        assert!(parse_url("ipc://[::1")
+            .unwrap_err()
+            .contains("without its ']'"));
+        assert!(parse_url("ipc://[::1]x")
+            .unwrap_err()
+            .contains(":port after"));
     }
 
     #[test]

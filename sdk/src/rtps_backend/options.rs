@@ -232,10 +232,19 @@ impl RtpsOptions {
             ));
         }
         let mut multicast_set = false;
+        let mut seen: Vec<&str> = Vec::new();
         for pair in query.split('&').filter(|p| !p.is_empty()) {
             let (k, v) = pair
                 .split_once('=')
                 .ok_or_else(|| bad(url, format!("option {pair:?} has no value")))?;
+            // a second value would silently replace the first
+            if seen.contains(&k) {
+                return Err(bad(
+                    url,
+                    format!("option {k:?} is given twice (peers take a comma-separated list)"),
+                ));
+            }
+            seen.push(k);
             match k {
                 "interface" => o.interface = Some(v.to_string()),
                 "peers" => {
@@ -358,7 +367,14 @@ pub fn parse_peer(p: &str) -> Result<(Ipv4Addr, Option<u16>), String> {
     if p == "localhost" {
         return Ok((Ipv4Addr::LOCALHOST, None));
     }
-    Err(format!("peer {p:?} is not an IPv4 address or address:port"))
+    if let Some(port) = p.strip_prefix("localhost:") {
+        if let Ok(port) = port.parse::<u16>() {
+            return Ok((Ipv4Addr::LOCALHOST, Some(port)));
+        }
+    }
+    Err(format!(
+        "peer {p:?} is not an IPv4 address or address:port (or localhost[:port])"
+    ))
 }
 
 /// Builder-level overrides, applied over the URL's options.
@@ -447,6 +463,19 @@ mod tests {
         assert_eq!(o.busy_poll, Some(Duration::from_micros(50)));
         assert!(!o.receive_thread);
         assert_eq!(o.max_sample_size, None);
+        let o = RtpsOptions::from_url("rtps://0?peers=localhost:7410,localhost").unwrap();
+        assert_eq!(o.peers, ["localhost:7410", "localhost"]);
+        assert_eq!(
+            parse_peer("localhost:7410"),
+            Ok((Ipv4Addr::LOCALHOST, Some(7410)))
+        );
+        let e = RtpsOptions::from_url("rtps://0?interface=lo&peers=127.0.0.1&interface=eth0")
+            .unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("option \"interface\" is given twice"),
+            "{e}"
+        );
         let o = RtpsOptions::from_url("rtps://0?max_sample_size=67108864").unwrap();
         assert_eq!(o.max_sample_size, Some(64 << 20));
         let e = RtpsOptions::from_url("rtps://0?max_sample_size=0").unwrap_err();

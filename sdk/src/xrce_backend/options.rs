@@ -259,6 +259,10 @@ impl XrceOptions {
             let (k, v) = pair
                 .split_once('=')
                 .ok_or_else(|| bad(format!("option {pair:?} has no value (key=value)")))?;
+            // a second value would silently replace the first
+            if pairs.iter().any(|(seen, _)| *seen == k) {
+                return Err(bad(format!("option {k:?} is given twice")));
+            }
             pairs.push((k, v));
         }
         let host_port = |default_port: u16| -> Result<String, ConnectError> {
@@ -534,6 +538,7 @@ mod tests {
             ("xrce+udp://?discover=here", "not ip:port"),
             ("xrce+udp://?discover=", "no address"),
             ("xrce+udp://h:1?discover_ms=5", "go with discover="),
+            ("xrce+udp://h:1?key=1&key=2", "option \"key\" is given twice"),
         ] {
             let e = XrceOptions::from_url(url).unwrap_err().to_string();
             assert!(e.contains(says), "{url}: {e}");
