@@ -692,3 +692,74 @@ fn recursion_through_vec_is_bounded() {
         .unwrap();
     assert!(matches!(r, Err(DecodeError::TooDeep { .. })), "{r:?}");
 }
+
+/// A `Vec` longer than its length field's type can say would go out cut
+/// short (both encoders send no more than the field holds);
+/// `check_lengths`, which a session runs before it encodes, names it,
+/// here, in a nested struct, in an array element and in a `Vec` element.
+#[test]
+fn check_lengths_names_a_vec_its_length_field_cannot_say() {
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct Obstacles {
+        n: u8,
+        #[ipc(len = "n")]
+        xs: Vec<f32>,
+    }
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct Scene {
+        name: String,
+        near: Obstacles,
+        pair: [Obstacles; 2],
+        k: i32,
+        #[ipc(len = "k")]
+        more: Vec<Obstacles>,
+    }
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct Flat {
+        a: i32,
+        b: [f64; 3],
+    }
+    assert!(!Flat::CHECKS_LENGTHS && Obstacles::CHECKS_LENGTHS && Scene::CHECKS_LENGTHS);
+    let ok = Obstacles {
+        n: 0,
+        xs: vec![0.5; 255],
+    };
+    let long = Obstacles {
+        n: 0,
+        xs: vec![0.5; 300],
+    };
+    assert_eq!(ok.check_lengths(), Ok(()));
+    let e = long.check_lengths().unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "field `xs` has 300 elements, more than its length field `n` (u8) can say (255)"
+    );
+    // what the encoder does with it: 255 of the 300 go out
+    let back: Obstacles = courier::ipc::from_slice(&courier::ipc::to_vec(&long)).unwrap();
+    assert_eq!(back.xs.len(), 255);
+    let scene = |near: &Obstacles, second: &Obstacles, last: &Obstacles| Scene {
+        name: "s".into(),
+        near: near.clone(),
+        pair: [ok.clone(), second.clone()],
+        k: 0,
+        more: vec![ok.clone(), last.clone()],
+    };
+    assert_eq!(scene(&ok, &ok, &ok).check_lengths(), Ok(()));
+    for s in [
+        scene(&long, &ok, &ok),
+        scene(&ok, &long, &ok),
+        scene(&ok, &ok, &long),
+    ] {
+        assert_eq!(s.check_lengths().unwrap_err().len, 300);
+    }
+    // a recursive type checks through itself
+    let deep = Node {
+        n: 0,
+        children: vec![Node {
+            n: 0,
+            children: vec![],
+        }],
+    };
+    assert!(Node::CHECKS_LENGTHS);
+    assert_eq!(deep.check_lengths(), Ok(()));
+}

@@ -70,7 +70,7 @@
 //!
 //! | attribute | meaning |
 //! |---|---|
-//! | `#[ipc(len = "count")]` | this `Vec` is `<T:k>`; its length lives in the integer field `count` (one `Vec` per length field; for tuple structs name the index, `len = "0"`) |
+//! | `#[ipc(len = "count")]` | this `Vec` is `<T:k>`; its length lives in the integer field `count` (one `Vec` per length field; for tuple structs name the index, `len = "0"`); the encoders write `count` from the `Vec`, and a session refuses to send a `Vec` longer than `count`'s type can say ([`PublishError::Length`](crate::PublishError::Length)) rather than send it cut short. C's IPC reads a length field as an `int`: for C peers, make it `i32` or `u32` |
 //! | `#[ipc(len = "rows, cols")]` | this [`NdVec`](crate::NdVec) (or [`Matrix`](crate::Matrix)) is `<T:k1,k2,…>`; its shape lives in those `i32`/`u32`/`i64`/`u64` fields, one per dimension, in order |
 //! | `#[ipc(char)]` | this `u8` is an IPC `char` |
 //! | `#[ipc(key)]` | DDS key field (`KEYS`, `cdr_encode_key`); key members carry the XTypes must-understand flag, as idlc gives `@key` members |

@@ -147,6 +147,16 @@ pub enum PublishError {
         /// The queue's bound.
         bytes: usize,
     },
+    /// A `Vec` of the value is longer than its length field's type can say
+    /// ([`IpcMessage::check_lengths`](courier_wire::IpcMessage::check_lengths)):
+    /// nothing is sent, rather than fewer elements than the value has.
+    #[error("cannot publish {msg}: {error}")]
+    Length {
+        /// The topic.
+        msg: String,
+        /// Which field, how long, and what its length field holds.
+        error: courier_wire::LengthError,
+    },
     /// The sample is larger than the transport can carry.
     #[error("cannot publish {msg}: a sample of {len} bytes is larger than {max}")]
     TooLarge {

@@ -39,7 +39,7 @@ pub struct Publish<'a> {
     pub(crate) key_hash: Option<[u8; 16]>,
     /// Where it goes: an open publication, or the definition of the
     /// session's publication to make first; or the type mismatch.
-    pub(crate) target: Result<Target, OpenError>,
+    pub(crate) target: Result<Target, PublishError>,
 }
 
 /// Where a [`Publish`] goes.
@@ -74,7 +74,7 @@ impl<'a> std::future::IntoFuture for Publish<'a> {
             confirm: self.confirm,
         };
         PublishFuture(match self.target {
-            Err(e) => Step::Done(Some(Err(e.into()))),
+            Err(e) => Step::Done(Some(Err(e))),
             Ok(Target::Open(id)) => Step::Now {
                 session: self.session,
                 id,
@@ -335,6 +335,9 @@ impl<T: IpcMessage> Publisher<T> {
     /// returns, packed with the callback's other writes.
     pub fn try_publish(&self, value: &T) -> Result<(), PublishError> {
         let p = self.publish(value);
+        if let Err(e) = p.target {
+            return Err(e);
+        }
         let opts = WriteOptions {
             key_hash: p.key_hash,
             confirm: None,

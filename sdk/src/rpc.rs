@@ -57,7 +57,8 @@ pub struct Query<'a, Resp> {
     pub(crate) session: &'a Session,
     pub(crate) msg: &'a str,
     pub(crate) req: TypeInfo,
-    pub(crate) data: Vec<u8>,
+    /// The request, encoded (or why it cannot be sent).
+    pub(crate) data: Result<Vec<u8>, PublishError>,
     pub(crate) timeout: Duration,
     /// The query message's type check, as [`Publish`]'s.
     pub(crate) check: Result<Option<Definition>, OpenError>,
@@ -73,6 +74,10 @@ impl<'a, Resp: IpcMessage + 'a> Query<'a, Resp> {
 
     async fn run(self) -> Result<Resp, QueryError> {
         let refused = |e: OpenError| open_failed(self.msg, e);
+        let data = self.data.map_err(|source| QueryError::Refused {
+            msg: self.msg.to_string(),
+            source,
+        })?;
         if let Some(def) = self.check.map_err(refused)? {
             self.session
                 .define_shared(self.msg, def)
@@ -87,7 +92,7 @@ impl<'a, Resp: IpcMessage + 'a> Query<'a, Resp> {
         let (reply, data, order) = self
             .session
             .backend
-            .query(client, self.data, self.timeout)
+            .query(client, data, self.timeout)
             .await?;
         decode::<Resp>(self.session.enc(), &data, order).map_err(|detail| QueryError::Decode {
             msg: self.msg.to_string(),
@@ -134,7 +139,9 @@ impl<Req, Resp: IpcMessage> Request<Req, Resp> {
     /// the asker gets no reply and runs into its timeout.
     pub async fn reply(mut self, resp: &Resp) -> Result<(), PublishError> {
         let r = self.respond.take().ok_or(PublishError::AlreadyAnswered)?;
-        r.reply(&self.reply_msg, encode_rpc(self.enc, resp)).await
+        // refused: the responder, dropped, declines the request
+        let data = encode_rpc(self.enc, &self.reply_msg, resp)?;
+        r.reply(&self.reply_msg, data).await
     }
 }
 

@@ -87,11 +87,30 @@ impl Drop for Owned {
 /// A request or reply encoded for the session's backend: CDR as XCDR1
 /// whatever the type (what a service announces, and what ROS 2's RMWs
 /// write; an XCDR1 appendable type is written as a final one).
-pub(crate) fn encode_rpc<T: IpcMessage>(enc: Encoding, value: &T) -> Vec<u8> {
-    match enc {
+pub(crate) fn encode_rpc<T: IpcMessage>(
+    enc: Encoding,
+    msg: &str,
+    value: &T,
+) -> Result<Vec<u8>, PublishError> {
+    check_lengths(msg, value)?;
+    Ok(match enc {
         Encoding::Ipc => ipc::to_vec(value),
         Encoding::Cdr => cdr::to_vec(value, cdr::Encoding::Xcdr1Le),
+    })
+}
+
+/// Refuses a value a `Vec` of which is longer than its length field can
+/// say (the encoders would send fewer elements than it has).
+pub(crate) fn check_lengths<T: IpcMessage>(msg: &str, value: &T) -> Result<(), PublishError> {
+    if T::CHECKS_LENGTHS {
+        value
+            .check_lengths()
+            .map_err(|error| PublishError::Length {
+                msg: msg.to_string(),
+                error,
+            })?;
     }
+    Ok(())
 }
 
 pub(crate) fn decode<T: IpcMessage>(
@@ -296,11 +315,16 @@ impl Session {
         cdr: cdr::Encoding,
         target: Result<Target, OpenError>,
     ) -> Publish<'a> {
-        let key_hash = (self.enc() == Encoding::Cdr && !T::KEYS.is_empty())
+        let target = match check_lengths(msg, value) {
+            Ok(()) => target.map_err(PublishError::from),
+            Err(e) => Err(e),
+        };
+        let key_hash = (self.enc() == Encoding::Cdr && !T::KEYS.is_empty() && target.is_ok())
             .then(|| crate::rtps_backend::key_hash_of(value));
-        let data = match self.enc() {
-            Encoding::Cdr => cdr::to_vec_with_capacity(value, cdr, size_hint),
-            Encoding::Ipc => ipc::to_vec(value),
+        let data = match (self.enc(), &target) {
+            (_, Err(_)) => Vec::new(),
+            (Encoding::Cdr, _) => cdr::to_vec_with_capacity(value, cdr, size_hint),
+            (Encoding::Ipc, _) => ipc::to_vec(value),
         };
         Publish {
             session: self,
@@ -445,7 +469,7 @@ impl Session {
             session: self,
             msg,
             req: TypeInfo::of::<Req>(),
-            data: encode_rpc(self.enc(), req),
+            data: encode_rpc(self.enc(), msg, req),
             timeout: Duration::from_secs(10),
             check,
             _t: PhantomData,

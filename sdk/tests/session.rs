@@ -860,3 +860,63 @@ async fn a_type_ipc_cannot_carry_is_refused_naming_the_fix() {
     assert!(cause.contains(want), "{cause}");
     c.shutdown().await;
 }
+
+/// A value with a `Vec` longer than its length field can say is refused
+/// by publish, query and reply, naming the field, instead of going out
+/// cut short.
+#[tokio::test]
+async fn a_vec_its_length_field_cannot_say_is_refused_not_cut_short() {
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct Obstacles {
+        n: u8,
+        #[ipc(len = "n")]
+        xs: Vec<f32>,
+    }
+    let (c, url) = central().await;
+    let a = session(&url, "a").await;
+    let b = session(&url, "b").await;
+    let mut sub = b.subscribe::<Obstacles>("obstacles").await.unwrap();
+    assert_eq!(a.num_handlers("obstacles").await.unwrap(), 1);
+    let long = Obstacles {
+        n: 0,
+        xs: vec![1.0; 300],
+    };
+    let want = "field `xs` has 300 elements, more than its length field `n` (u8) can say (255)";
+    let e = a.publish("obstacles", &long).await.unwrap_err();
+    assert!(matches!(e, courier::PublishError::Length { .. }), "{e:?}");
+    assert_eq!(e.to_string(), format!("cannot publish obstacles: {want}"));
+    let p = a.publisher::<Obstacles>("obstacles").build().await.unwrap();
+    assert!(p.try_publish(&long).is_err());
+    // nothing went out; what fits does
+    let fits = Obstacles {
+        n: 0,
+        xs: vec![2.0; 255],
+    };
+    p.publish(&fits).await.unwrap();
+    let got = tokio::time::timeout(T, sub.next()).await.unwrap();
+    assert_eq!(got.unwrap().unwrap().value.xs.len(), 255);
+    // a query's request, and a reply
+    let e = a
+        .query::<Obstacles, i32>("count", &long)
+        .timeout(Duration::from_secs(1))
+        .await
+        .unwrap_err();
+    assert!(matches!(e, QueryError::Refused { .. }), "{e:?}");
+    let mut reqs = b.serve::<i32, Obstacles>("obstacles_of", "").await.unwrap();
+    let server = tokio::spawn(async move {
+        let r = reqs.next().await.unwrap().unwrap();
+        r.reply(&Obstacles {
+            n: 0,
+            xs: vec![0.0; 256],
+        })
+        .await
+    });
+    let q = a
+        .query::<i32, Obstacles>("obstacles_of", &1)
+        .timeout(Duration::from_secs(1))
+        .await;
+    assert!(matches!(q, Err(QueryError::Timeout { .. })), "{q:?}");
+    let e = server.await.unwrap().unwrap_err();
+    assert!(e.to_string().contains("`xs` has 256 elements"), "{e}");
+    c.shutdown().await;
+}

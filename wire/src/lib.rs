@@ -43,7 +43,7 @@ pub mod xrce;
 #[doc(hidden)]
 pub use message::__private;
 
-pub use message::{IpcMessage, NamedFormats};
+pub use message::{IpcMessage, LengthError, NamedFormats};
 pub use ndvec::{Matrix, NdVec, ShapeError};
 
 /// The DDS key hash of `value`'s instance (`PID_KEY_HASH`, DDSI-RTPS 2.5

@@ -56,6 +56,18 @@ pub trait IpcMessage: Sized {
     const CDR_KEY_BOUNDED: bool = Self::CDR_BOUNDED;
     /// Names of the key fields (`#[ipc(key)]`), for keyed DDS topics.
     const KEYS: &'static [&'static str] = &[];
+    /// [`check_lengths`](Self::check_lengths) has something to check: the
+    /// type (or a type inside it) has a `Vec` whose length lives in a field.
+    const CHECKS_LENGTHS: bool = false;
+
+    /// `Err` if a `Vec` is longer than its length field's type can say (300
+    /// elements with `#[ipc(len = "n")]` on `n: u8`): both encoders would
+    /// send only as many as the field holds. A session checks before it
+    /// encodes what it publishes, queries or replies; [`ipc::to_vec`] and
+    /// [`cdr::to_vec`] do not check (they send that many).
+    fn check_lengths(&self) -> Result<(), LengthError> {
+        Ok(())
+    }
 
     /// Adds the named formats this type's format refers to (itself included
     /// when it is named), so a session can register them (`IPC_defineFormat`)
@@ -155,6 +167,25 @@ pub trait IpcMessage: Sized {
     /// (for a type without key fields: the whole value, as
     /// [`cdr_decode`](Self::cdr_decode) reads it). See [`cdr::key_from_slice`].
     fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self::Key, cdr::DecodeError>;
+}
+
+/// A `Vec` longer than its length field's type can say
+/// ([`IpcMessage::check_lengths`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "field `{field}` has {len} elements, more than its length field `{count}` ({count_type}) can say ({max})"
+)]
+pub struct LengthError {
+    /// The `Vec` field.
+    pub field: &'static str,
+    /// Its length field.
+    pub count: &'static str,
+    /// The length field's type.
+    pub count_type: &'static str,
+    /// The `Vec`'s length.
+    pub len: usize,
+    /// The most the length field holds (at most `i32::MAX`, IPC's count).
+    pub max: u64,
 }
 
 /// The named formats a type depends on, collected by
@@ -516,6 +547,14 @@ impl<T: IpcMessage, const N: usize> IpcMessage for [T; N] {
     const TYPE_NAME: &'static str = T::TYPE_NAME;
     const IPC_MIN_SIZE: usize = T::IPC_MIN_SIZE * N;
     const CDR_MIN_SIZE: usize = T::CDR_MIN_SIZE * N;
+    const CHECKS_LENGTHS: bool = T::CHECKS_LENGTHS;
+
+    fn check_lengths(&self) -> Result<(), LengthError> {
+        if T::CHECKS_LENGTHS {
+            self.iter().try_for_each(T::check_lengths)?;
+        }
+        Ok(())
+    }
 
     fn named_formats(out: &mut NamedFormats) {
         T::named_formats(out);
@@ -594,6 +633,16 @@ impl<T: IpcMessage> IpcMessage for Option<Box<T>> {
     const TYPE_NAME: &'static str = T::TYPE_NAME;
     const IPC_MIN_SIZE: usize = 1;
     const CDR_MIN_SIZE: usize = 1;
+    // not `T::CHECKS_LENGTHS`: types that point at each other would make
+    // the constant depend on itself
+    const CHECKS_LENGTHS: bool = true;
+
+    fn check_lengths(&self) -> Result<(), LengthError> {
+        match self {
+            Some(v) => v.check_lengths(),
+            None => Ok(()),
+        }
+    }
 
     fn named_formats(out: &mut NamedFormats) {
         T::named_formats(out);
@@ -640,7 +689,11 @@ impl<T: IpcMessage> IpcMessage for Box<T> {
     const KEYS: &'static [&'static str] = T::KEYS;
     const CDR_BOUNDED: bool = T::CDR_BOUNDED;
     const CDR_KEY_BOUNDED: bool = T::CDR_KEY_BOUNDED;
+    const CHECKS_LENGTHS: bool = T::CHECKS_LENGTHS;
 
+    fn check_lengths(&self) -> Result<(), LengthError> {
+        (**self).check_lengths()
+    }
     fn named_formats(out: &mut NamedFormats) {
         T::named_formats(out);
     }

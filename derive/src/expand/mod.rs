@@ -9,6 +9,7 @@ mod enums;
 mod format;
 mod info;
 mod ipc;
+mod lengths;
 
 use proc_macro2::TokenStream;
 use quote::{format_ident, quote};
@@ -136,6 +137,10 @@ fn expand_struct(c: &Container<'_>, fields: &[Field<'_>]) -> TokenStream {
         key_bounded,
     } = info::sizes(fields);
     let keys = info::keys(fields);
+    let lengths::Lengths {
+        checks: checks_lengths,
+        body: check_lengths,
+    } = lengths::lengths(fields);
     let all_lens = len_lets(fields, &|_| true);
     let ipc::StructCodec {
         enc: ipc_enc,
@@ -172,6 +177,12 @@ fn expand_struct(c: &Container<'_>, fields: &[Field<'_>]) -> TokenStream {
             const CDR_BOUNDED: bool = #(#bounded)&&*;
             const CDR_KEY_BOUNDED: bool = #(#key_bounded)&&*;
             const KEYS: &'static [&'static str] = &[#(#keys),*];
+            const CHECKS_LENGTHS: bool = #checks_lengths;
+
+            fn check_lengths(&self) -> ::core::result::Result<(), __wire::LengthError> {
+                #(#check_lengths)*
+                ::core::result::Result::Ok(())
+            }
 
             fn named_formats(__out: &mut __wire::NamedFormats) {
                 #named_formats

@@ -538,7 +538,10 @@ mod tests {
             ("xrce+udp://?discover=here", "not ip:port"),
             ("xrce+udp://?discover=", "no address"),
             ("xrce+udp://h:1?discover_ms=5", "go with discover="),
-            ("xrce+udp://h:1?key=1&key=2", "option \"key\" is given twice"),
+            (
+                "xrce+udp://h:1?key=1&key=2",
+                "option \"key\" is given twice",
+            ),
         ] {
             let e = XrceOptions::from_url(url).unwrap_err().to_string();
             assert!(e.contains(says), "{url}: {e}");
