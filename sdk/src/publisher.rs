@@ -335,9 +335,8 @@ impl<T: IpcMessage> Publisher<T> {
     /// returns, packed with the callback's other writes.
     pub fn try_publish(&self, value: &T) -> Result<(), PublishError> {
         let p = self.publish(value);
-        if let Err(e) = p.target {
-            return Err(e);
-        }
+        // a value it refuses (a Vec its length field cannot say)
+        p.target?;
         let opts = WriteOptions {
             key_hash: p.key_hash,
             confirm: None,
