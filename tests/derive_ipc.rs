@@ -719,7 +719,7 @@ fn check_lengths_names_a_vec_its_length_field_cannot_say() {
         a: i32,
         b: [f64; 3],
     }
-    assert!(!Flat::CHECKS_LENGTHS && Obstacles::CHECKS_LENGTHS && Scene::CHECKS_LENGTHS);
+    const { assert!(!Flat::CHECKS_LENGTHS && Obstacles::CHECKS_LENGTHS && Scene::CHECKS_LENGTHS) };
     let ok = Obstacles {
         n: 0,
         xs: vec![0.5; 255],
@@ -760,6 +760,6 @@ fn check_lengths_names_a_vec_its_length_field_cannot_say() {
             children: vec![],
         }],
     };
-    assert!(Node::CHECKS_LENGTHS);
+    const { assert!(Node::CHECKS_LENGTHS) };
     assert_eq!(deep.check_lengths(), Ok(()));
 }
