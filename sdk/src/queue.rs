@@ -468,6 +468,20 @@ impl RawSubscriber {
     }
 }
 
+/// The samples as a `Stream` (as [`RawSubscriber::recv`]); it ends with
+/// the connection.
+impl futures::Stream for RawSubscriber {
+    type Item = RawSample;
+
+    fn poll_next(self: std::pin::Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<RawSample>> {
+        match self.queue.poll_pop(cx) {
+            Poll::Ready(Some(Popped::Sample(s))) => Poll::Ready(Some(s)),
+            Poll::Ready(Some(Popped::End) | None) => Poll::Ready(None),
+            Poll::Pending => Poll::Pending,
+        }
+    }
+}
+
 impl Drop for RawSubscriber {
     fn drop(&mut self) {
         self.queue.receiver_dropped();

@@ -65,9 +65,16 @@ async fn publish_subscribe_typed() {
         .unwrap();
     let r = tokio::time::timeout(T, raw.recv()).await.unwrap().unwrap();
     assert_eq!(courier::ipc::from_slice::<Path>(&r.data).unwrap(), p);
+    // a raw subscription is a Stream too, ending with the connection
+    a.publish_raw("path", &courier::ipc::to_vec(&p))
+        .await
+        .unwrap();
+    let r = tokio::time::timeout(T, raw.next()).await.unwrap().unwrap();
+    assert_eq!(courier::ipc::from_slice::<Path>(&r.data).unwrap(), p);
+    b.close().await;
+    assert!(tokio::time::timeout(T, raw.next()).await.unwrap().is_none());
     drop(raw);
     a.close().await;
-    b.close().await;
     c.shutdown().await;
 }
 
