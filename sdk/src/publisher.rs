@@ -82,7 +82,8 @@ impl<'a> std::future::IntoFuture for Publish<'a> {
                 opts,
             },
             Ok(Target::Define(def)) => Step::Wait(Box::pin(async move {
-                let id = self.session.define_shared(self.msg, def).await?;
+                let r = self.session.define_shared(self.msg, def).await;
+                let id = self.session.settled(&[self.msg], r)?;
                 self.session.backend.write(id, self.data, opts).await
             })),
         })
@@ -259,10 +260,11 @@ impl<T: IpcMessage> PublisherBuilder<T> {
     /// it.
     pub async fn build(self) -> Result<Publisher<T>, OpenError> {
         self.session.topics.bind::<T>(&self.msg)?;
-        let id = self
+        let r = self
             .session
             .open_as(&self.msg, &Definition::of::<T>(), &self.qos)
-            .await?;
+            .await;
+        let id = self.session.settled(&[&self.msg], r)?;
         Ok(Publisher {
             handle: Arc::new(self.session.owned(Handle::Publication(id))),
             id,

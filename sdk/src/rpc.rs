@@ -74,21 +74,22 @@ impl<'a, Resp: IpcMessage + 'a> Query<'a, Resp> {
 
     async fn run(self) -> Result<Resp, QueryError> {
         let refused = |e: OpenError| open_failed(self.msg, e);
-        let data = self.data.map_err(|source| QueryError::Refused {
-            msg: self.msg.to_string(),
-            source,
+        let data = self.data.map_err(|source| {
+            self.session.topics.settle(&[self.msg], false);
+            QueryError::Refused {
+                msg: self.msg.to_string(),
+                source,
+            }
         })?;
         if let Some(def) = self.check.map_err(refused)? {
-            self.session
-                .define_shared(self.msg, def)
-                .await
-                .map_err(refused)?;
+            let r = self.session.define_shared(self.msg, def).await;
+            self.session.settled(&[self.msg], r).map_err(refused)?;
         }
-        let client = self
+        let r = self
             .session
             .client(self.msg, &self.req, &TypeInfo::of::<Resp>())
-            .await
-            .map_err(refused)?;
+            .await;
+        let client = self.session.settled(&[self.msg], r).map_err(refused)?;
         let (reply, data, order) = self
             .session
             .backend

@@ -240,9 +240,18 @@ impl Session {
     /// `define` to choose the moment (IPC_defineMsg ahead of time).
     pub async fn define<T: IpcMessage>(&self, msg: &str) -> Result<(), OpenError> {
         if self.topics.bind::<T>(msg)?.is_none() {
-            self.define_shared(msg, Definition::of::<T>()).await?;
+            let r = self.define_shared(msg, Definition::of::<T>()).await;
+            self.settled(&[msg], r)?;
         }
         Ok(())
+    }
+
+    /// The result of a typed first use of `msgs`, after which their
+    /// bindings stay (success) or are let go if nothing uses them
+    /// (failure: see `Topics::settle`).
+    pub(crate) fn settled<R, E>(&self, msgs: &[&str], r: Result<R, E>) -> Result<R, E> {
+        self.topics.settle(msgs, r.is_ok());
+        r
     }
 
     /// Opens a publication of `msg` as `def` says (named formats first on
@@ -317,7 +326,10 @@ impl Session {
     ) -> Publish<'a> {
         let target = match check_lengths(msg, value) {
             Ok(()) => target.map_err(PublishError::from),
-            Err(e) => Err(e),
+            Err(e) => {
+                self.topics.settle(&[msg], false);
+                Err(e)
+            }
         };
         let key_hash = (self.enc() == Encoding::Cdr && !T::KEYS.is_empty() && target.is_ok())
             .then(|| crate::rtps_backend::key_hash_of(value));
@@ -555,8 +567,28 @@ impl Session {
         let define_resp = if reply_msg.is_empty() {
             false
         } else {
-            self.topics.bind::<Resp>(reply_msg)?.is_none()
+            match self.topics.bind::<Resp>(reply_msg) {
+                Ok(known) => known.is_none(),
+                Err(e) => {
+                    self.topics.settle(&[msg], false);
+                    return Err(e);
+                }
+            }
         };
+        let r = self
+            .open_service::<Req, Resp>(msg, reply_msg, define_req, define_resp)
+            .await;
+        self.settled(&[msg, reply_msg], r)
+    }
+
+    /// [`Session::serve`] once its topics are bound.
+    async fn open_service<Req: IpcMessage, Resp: IpcMessage>(
+        &self,
+        msg: &str,
+        reply_msg: &str,
+        define_req: bool,
+        define_resp: bool,
+    ) -> Result<Requests<Req, Resp>, OpenError> {
         if self.caps.reply_names {
             // both must be defined in central: a reply to an undefined
             // message could not be sent

@@ -273,7 +273,7 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
     /// The backend's subscription of this type and QoS, into `queue`.
     async fn create(&self, queue: Arc<SampleQueue>) -> Result<RawSubscriber, OpenError> {
         self.session.topics.bind::<T>(&self.msg)?;
-        let id = self
+        let r = self
             .session
             .backend
             .open_subscription(
@@ -282,7 +282,8 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
                 &self.qos,
                 queue.clone(),
             )
-            .await?;
+            .await;
+        let id = self.session.settled(&[&self.msg], r)?;
         Ok(RawSubscriber::new(
             queue,
             self.session.owned(Handle::Subscription(id)),

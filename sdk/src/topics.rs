@@ -31,6 +31,8 @@ struct Bound {
 #[derive(Debug, Default, Clone, Copy)]
 struct Entry {
     bound: Option<Bound>,
+    /// A typed use succeeded: the binding stays.
+    in_use: bool,
     publication: Option<PubId>,
     client: Option<ClientId>,
 }
@@ -67,6 +69,23 @@ impl Topics {
                     type_name: T::TYPE_NAME,
                 });
                 Ok(e.publication)
+            }
+        }
+    }
+
+    /// A typed use of `msgs` that bound them has ended: on success the
+    /// bindings stay; on failure, a binding no use has confirmed (and
+    /// that holds no publication or client) is forgotten, so that a failed
+    /// first attempt does not hold the topic to its type.
+    pub(crate) fn settle(&self, msgs: &[&str], ok: bool) {
+        let mut map = self.lock();
+        for m in msgs {
+            if let Some(e) = map.get_mut(*m) {
+                if ok {
+                    e.in_use = true;
+                } else if !e.in_use && e.publication.is_none() && e.client.is_none() {
+                    e.bound = None;
+                }
             }
         }
     }
@@ -155,5 +174,17 @@ mod tests {
         assert!(text.contains("Point") && text.contains("f64"), "{text}");
         assert_eq!(t.bind::<f64>("q").unwrap(), None, "other topics are free");
         assert_eq!(t.publication("q"), None);
+        // a failed first use lets the topic go; a successful one keeps it
+        t.settle(&["q"], false);
+        assert_eq!(t.bind::<Point>("q").unwrap(), None, "q was let go");
+        t.settle(&["q"], true);
+        t.settle(&["q"], false);
+        assert!(
+            t.bind::<f64>("q").is_err(),
+            "a use succeeded: q keeps Point"
+        );
+        // a topic with a publication keeps its type whatever fails
+        t.settle(&["p"], false);
+        assert!(t.bind::<f64>("p").is_err());
     }
 }

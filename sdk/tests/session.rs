@@ -927,3 +927,59 @@ async fn a_vec_its_length_field_cannot_say_is_refused_not_cut_short() {
     assert!(e.to_string().contains("`xs` has 256 elements"), "{e}");
     c.shutdown().await;
 }
+
+/// A typed first use that fails does not hold the topic to its type: the
+/// next attempt may use another (before, it failed with `TypeMismatch`
+/// naming the type of the attempt that never worked). A use that worked
+/// keeps the type.
+#[tokio::test]
+async fn a_failed_first_use_does_not_bind_the_topic_to_its_type() {
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct Route {
+        name: String,
+        waypoints: Vec<f64>,
+    }
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct Route2 {
+        name: String,
+        n: i32,
+        #[ipc(len = "n")]
+        waypoints: Vec<f64>,
+    }
+    let (c, url) = central().await;
+    let a = session(&url, "a").await;
+    // IPC refuses the type without a length field
+    assert!(a.subscribe::<Route>("r1").await.is_err());
+    assert!(a.define::<Route>("r2").await.is_err());
+    assert!(a.serve::<Route, i32>("r3", "").await.is_err());
+    assert!(a
+        .publish(
+            "r4",
+            &Route {
+                name: "r".into(),
+                waypoints: vec![]
+            }
+        )
+        .await
+        .is_err());
+    // the fixed type takes each topic, and keeps it
+    for t in ["r1", "r2", "r3", "r4"] {
+        let _s = a.subscribe::<Route2>(t).await.unwrap();
+        let e = a.define::<i32>(t).await.unwrap_err();
+        assert!(e.to_string().contains("Route2"), "{e}");
+    }
+    // on a closed session each call says it is closed, not a type mismatch
+    let b = session(&url, "b").await;
+    b.close().await;
+    let e = b.serve::<String, i32>("q", "").await.unwrap_err();
+    assert!(matches!(e, courier::OpenError::Disconnected(_)), "{e:?}");
+    let e = b.publish("q", &1i32).await.unwrap_err();
+    assert!(
+        matches!(
+            e,
+            courier::PublishError::Open(courier::OpenError::Disconnected(_))
+        ),
+        "{e:?}"
+    );
+    c.shutdown().await;
+}
