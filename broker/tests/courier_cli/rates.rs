@@ -42,6 +42,9 @@ fn hz_and_bw_over_ipc() {
     assert!(lines[0].ends_with(" window 5 gaps 0"), "{out}");
     assert!(field(lines[0], "rate") > 1.0, "{out}");
     assert_eq!(lines[1], "no new samples", "{out}");
+    // nothing at all: the end says so
+    let (code, out, err) = run(&["hz", u, "nothing", "--duration", "1"]);
+    assert_eq!((code, out.as_str()), (0, "no samples in 1 s\n"), "{err}");
     // bw: IPC data of {uint, ulong, string} with 100 characters: 4 + 8 + 4 + 100
     let bw = Proc::start(&["bw", u, "t", "--count", "5"]);
     let (code, _, err) = run(&[

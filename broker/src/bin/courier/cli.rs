@@ -184,8 +184,8 @@ Every second, over the last --window samples (one line, stdout):
       min, max: shortest and longest interval between two samples;
       gaps: intervals longer than --gap (default: twice the mean interval)
   no new samples          none came in the last second
-When --count or --duration ends it, a last report. Progress while nothing has
-come (discovery on DDS) goes to stderr.";
+When --count or --duration ends it, a last report, or `no samples in <n> s` if
+none came. Progress while nothing has come (discovery on DDS) goes to stderr.";
 
 const BW_OUTPUT: &str = "\
 Every second, over the last --window samples (one line, stdout):

@@ -202,6 +202,12 @@ async fn measure(s: &Session, o: &RateArgs, mode: Mode, n: &Cell<u64>) -> Result
         if let Some(line) = report(&window) {
             out(line);
         }
+    } else if n.get() == 0 {
+        // the end says so, whether or not progress went to stderr
+        out(format_args!(
+            "no samples in {} s",
+            started.elapsed().as_secs()
+        ));
     }
     Ok(())
 }
