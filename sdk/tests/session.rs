@@ -983,3 +983,30 @@ async fn a_failed_first_use_does_not_bind_the_topic_to_its_type() {
     );
     c.shutdown().await;
 }
+
+/// One server per message and session on IPC, as on DDS: a second `serve`
+/// is refused (it would have shared the queries with the first at random);
+/// once the first is dropped, the message may be served again.
+#[tokio::test]
+async fn a_message_is_served_once_per_session() {
+    let (c, url) = central().await;
+    let a = session(&url, "a").await;
+    let first = a.serve::<i32, i32>("double", "").await.unwrap();
+    let e = a.serve::<i32, i32>("double", "").await.unwrap_err();
+    assert!(
+        matches!(e, courier::OpenError::AlreadyServed(ref m) if m == "double"),
+        "{e:?}"
+    );
+    drop(first);
+    let mut again = a.serve::<i32, i32>("double", "").await.unwrap();
+    let b = session(&url, "b").await;
+    tokio::spawn(async move {
+        while let Some(Ok(r)) = again.next().await {
+            let v = r.value * 2;
+            let _ = r.reply(&v).await;
+        }
+    });
+    let n: i32 = b.query("double", &21).timeout(T).await.unwrap();
+    assert_eq!(n, 42);
+    c.shutdown().await;
+}

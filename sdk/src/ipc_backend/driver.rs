@@ -388,6 +388,11 @@ impl Driver {
                     Err(e) => Err(refused(&m)(e)),
                 });
             }
+            // one server per message and session, as on DDS: a second
+            // would share its queries with the first at random
+            Cmd::Serve(m, _, _, d) if self.servers.values().any(|s| s.msg == m) => {
+                let _ = d.send(Err(OpenError::AlreadyServed(m)));
+            }
             Cmd::Serve(m, tx, id, d) => {
                 let hnd = format!(
                     "HND-{m}-courier{}",
