@@ -32,9 +32,16 @@ pub const MODULES_REPLY_FORMAT: &str = "{int, <{string, string, int, int}:1>}";
 pub struct MessageDetails {
     /// The message's name.
     pub name: String,
-    /// Its format as registered (`None`: no format, or unknown message).
+    /// The format of its frames' body as registered (`None`: no format, or
+    /// unknown message). For a message defined with `IPC_defineMsg` (C) or
+    /// `Session::define` (Courier) this is the wrapper,
+    /// `{int, <byte:1>}` for variable length or `[byte:N]` for fixed: the
+    /// data's own format is then [`reply_format`](Self::reply_format).
     pub msg_format: Option<String>,
-    /// A query's reply format as registered.
+    /// The second format central holds (its `resFormat`): for a query
+    /// registered as such, its reply's format; for a message defined with
+    /// `IPC_defineMsg`, the format of its data (what `courier echo` decodes
+    /// by).
     pub reply_format: Option<String>,
     /// Its class (`MsgClass` number: 6 publish/inform, 4 query, … ; 0 when
     /// central does not know the message).
