@@ -126,41 +126,37 @@ fn fit(theirs: &Format, ours: &Format, path: &mut Vec<String>) -> Result<(), Mis
                 return Err(misfit(path));
             }
             for (i, (x, y)) in a.iter().zip(b).enumerate() {
-                path.push(format!("field {}", i + 1));
-                fit(x, y, path)?;
-                path.pop();
+                inside(format!("field {}", i + 1), x, y, path)?;
             }
             Ok(())
         }
-        (Format::Pointer(a), Format::Pointer(b)) => {
-            path.push("pointee".into());
-            fit(a, b, path)?;
-            path.pop();
-            Ok(())
-        }
-        (Format::VarArray { elem: a, dims: x }, Format::VarArray { elem: b, dims: y }) => {
-            if x != y {
-                return Err(misfit(path));
-            }
-            path.push("element".into());
-            fit(a, b, path)?;
-            path.pop();
-            Ok(())
+        (Format::Pointer(a), Format::Pointer(b)) => inside("pointee".into(), a, b, path),
+        (Format::VarArray { elem: a, dims: x }, Format::VarArray { elem: b, dims: y })
+            if x == y =>
+        {
+            inside("element".into(), a, b, path)
         }
         (Format::FixedArray { .. }, Format::FixedArray { .. }) => {
-            let (Some((a, n)), Some((b, m))) = (flat(theirs), flat(ours)) else {
-                return Err(misfit(path));
-            };
-            if n != m {
-                return Err(misfit(path));
+            match (flat(theirs), flat(ours)) {
+                (Some((a, n)), Some((b, m))) if n == m => inside("element".into(), a, b, path),
+                _ => Err(misfit(path)),
             }
-            path.push("element".into());
-            fit(a, b, path)?;
-            path.pop();
-            Ok(())
         }
         _ => Err(misfit(path)),
     }
+}
+
+/// [`fit`] one step down, `step` naming it in the path.
+fn inside(
+    step: String,
+    theirs: &Format,
+    ours: &Format,
+    path: &mut Vec<String>,
+) -> Result<(), Misfit> {
+    path.push(step);
+    fit(theirs, ours, path)?;
+    path.pop();
+    Ok(())
 }
 
 #[cfg(test)]
