@@ -120,6 +120,14 @@ fn fit(theirs: &Format, ours: &Format, path: &mut Vec<String>) -> Result<(), Mis
     match (theirs, ours) {
         (Format::Empty, Format::Empty) | (Format::SelfPointer, Format::SelfPointer) => Ok(()),
         (Format::Length(a), Format::Length(b)) if a == b => Ok(()),
+        // `n` raw bytes and an array of n one-byte values
+        (Format::Length(n), arr @ Format::FixedArray { .. })
+        | (arr @ Format::FixedArray { .. }, Format::Length(n))
+            if flat(arr)
+                .is_some_and(|(e, m)| m == u64::from(*n) && kind(e) == Some(Kind::Int(1))) =>
+        {
+            Ok(())
+        }
         (Format::Named(a), Format::Named(b)) if a == b => Ok(()),
         (Format::Struct(a), Format::Struct(b)) => {
             if a.len() != b.len() {
@@ -187,6 +195,8 @@ mod tests {
             ("{int, <double:1>}", "{uint, <double:1>}"),
             ("*{int, string}", "*{int, string}"),
             ("{int, *!}", "{int, *!}"),
+            ("4", "[ubyte:4]"),
+            ("[char:2,3]", "6"),
             ("", ""),
         ] {
             assert_eq!(check(a, b), Ok(()), "{a} as {b}");
