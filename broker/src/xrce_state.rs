@@ -34,7 +34,27 @@ pub(crate) struct Store {
 /// Opens (or creates) the state file; the clients it holds.
 pub(crate) fn open(path: &Path) -> Result<(Store, Vec<ClientState<Peer>>), String> {
     let fail = |e: &dyn std::fmt::Display| format!("state file {}: {e}", path.display());
-    let db = Database::create(path).map_err(|e| fail(&e))?;
+    let damaged = |e: &dyn std::fmt::Display| {
+        format!(
+            "state file {} is damaged or not an agent's state file ({e}); move it away to \
+             start without the saved sessions",
+            path.display()
+        )
+    };
+    // redb asserts (panics) on some truncated files instead of failing
+    let db = match std::panic::catch_unwind(|| Database::create(path)) {
+        Ok(Ok(db)) => db,
+        Ok(Err(redb::DatabaseError::Storage(redb::StorageError::Corrupted(e)))) => {
+            return Err(damaged(&e))
+        }
+        Ok(Err(redb::DatabaseError::Storage(redb::StorageError::Io(e))))
+            if e.kind() == std::io::ErrorKind::InvalidData =>
+        {
+            return Err(damaged(&e))
+        }
+        Ok(Err(e)) => return Err(fail(&e)),
+        Err(_) => return Err(damaged(&"the database library gave up reading it")),
+    };
     let mut states = Vec::new();
     {
         let tx = db.begin_write().map_err(|e| fail(&e))?;
@@ -209,5 +229,25 @@ mod tests {
         let mut damaged = encode(&s);
         damaged.truncate(20);
         assert_eq!(decode(&damaged), None);
+    }
+
+    /// A truncated or foreign file is an error that says what to do, not a
+    /// panic (redb asserts on some truncations).
+    #[test]
+    fn a_damaged_state_file_is_an_error_not_a_panic() {
+        let dir = std::env::temp_dir().join(format!("courier-state-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("state.redb");
+        drop(open(&path).unwrap());
+        let whole = std::fs::read(&path).unwrap();
+        for len in [512, 4096, whole.len() / 2] {
+            std::fs::write(&path, &whole[..len.min(whole.len())]).unwrap();
+            let e = open(&path).err().expect("a damaged file");
+            assert!(e.contains("move it away"), "{len} bytes: {e}");
+        }
+        std::fs::write(&path, vec![0x5a; 8192]).unwrap();
+        let e = open(&path).err().expect("not a state file");
+        assert!(e.contains("move it away"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -102,8 +102,9 @@ struct Common {
     /// Address UDP, TCP and discovery listen on (default 0.0.0.0).
     #[arg(long)]
     bind: Option<Ipv4Addr>,
-    /// DDS domain id of the agent's participant (default 0).
-    #[arg(long)]
+    /// DDS domain id of the agent's participant (default 0; at most 232,
+    /// the highest the standard port mapping allows).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(0..=232))]
     domain: Option<u32>,
     /// Network interface (name or IPv4 address) of the DDS participant.
     #[arg(long)]
