@@ -133,3 +133,27 @@ fn echo_spy_and_hz_over_xrce_name_their_type() {
     assert!(err.contains("patterns cannot be matched"), "{err}");
     rt.block_on(a.shutdown());
 }
+
+/// `courier pub` over XRCE: the agent says nothing of readers, so pub
+/// says it cannot wait for them and publishes at once (it used to fail
+/// with "watching handlers is not available"); echo decodes what it sends.
+#[test]
+fn pub_and_echo_over_xrce() {
+    let (rt, a, u) = agent(275);
+    let args = ["--format", "int", "--type", "Seven"];
+    let mut echo = Proc::start(&[&["echo", &u, "t", "--count", "2"][..], &args].concat());
+    let mut publ = Proc::start(
+        &[
+            &["pub", &u, "t", "7", "--rate", "10", "--count", "0"][..],
+            &args,
+        ]
+        .concat(),
+    );
+    publ.expect("ready");
+    publ.expect("sent 1");
+    assert_eq!(echo.expect(""), "7");
+    assert_eq!(echo.expect(""), "7");
+    assert_eq!(echo.wait(), Some(0));
+    drop(publ);
+    rt.block_on(a.shutdown());
+}
