@@ -17,6 +17,8 @@ Session URLs:
   ipc://HOST:PORT          a CMU IPC central (Courier's `central` or the C one); ipc:// alone
                            takes CENTRALHOST, then localhost:1381
   rtps://DOMAIN?OPTIONS    DDS over RTPS, e.g. rtps://0?interface=lo&peers=127.0.0.1
+  xrce+udp://HOST:PORT     DDS through a DDS-XRCE agent (also xrce+tcp://, xrce+serial:///dev/…);
+                           the agent says nothing of readers; echo and pub take --type there
 
 Exit status: 0 done; 1 a runtime failure (the message says which); 2 a usage
 error; 128+N stopped by signal N before it was done (130 Ctrl-C, 143 SIGTERM).
