@@ -52,6 +52,13 @@ pub(crate) enum Target {
 impl<'a> Publish<'a> {
     /// Resolve only once every matched reader has acknowledged the sample
     /// (reliable DDS writers), waiting at most 10 s unless `.timeout(d)`.
+    ///
+    /// As DDS's `wait_for_acknowledgments`: the readers waited for are
+    /// those matched while it waits. A reader that leaves (or whose lease
+    /// ends) before acknowledging is no longer waited for, best-effort
+    /// readers never are, and with no reliable reader it resolves at once.
+    /// To know that somebody got it, wait for readers first
+    /// ([`Session::num_handlers`](crate::Session::num_handlers)).
     pub fn confirmed(mut self) -> Self {
         self.confirm.get_or_insert(Duration::from_secs(10));
         self

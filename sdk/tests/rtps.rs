@@ -1102,3 +1102,39 @@ async fn a_sample_too_large_for_the_reader_is_given_up_and_the_next_arrives() {
     a.close().await;
     b.close().await;
 }
+
+/// The README's ORTE-style QoS example, as written there: the writer
+/// offers the deadline the reader asks for, so they match and the sample
+/// arrives (the example used to leave the writer's deadline infinite,
+/// which no reader with a deadline matches).
+#[tokio::test]
+async fn the_readme_qos_example_matches_and_delivers() {
+    use std::time::Duration;
+    let a = session(179, "a").await;
+    let b = session(179, "b").await;
+    let p = a
+        .publisher::<Msg>("pose")
+        .strength(5)
+        .persistence(Duration::from_secs(1))
+        .deadline(Duration::from_millis(100))
+        .build()
+        .await
+        .unwrap();
+    let mut s = b
+        .subscriber::<Msg>("pose")
+        .deadline(Duration::from_millis(200))
+        .minimum_separation(Duration::from_millis(50))
+        .exclusive()
+        .build()
+        .await
+        .unwrap();
+    await_handlers(&a, "pose", 1).await;
+    p.publish(&msg(1))
+        .confirmed()
+        .timeout(Duration::from_secs(1))
+        .await
+        .unwrap();
+    assert_eq!(next(&mut s).await.unwrap().value, msg(1));
+    a.close().await;
+    b.close().await;
+}
