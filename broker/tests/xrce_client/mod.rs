@@ -245,6 +245,16 @@ pub fn reliable() -> EndpointQos {
 /// participant has not discovered yet when the client writes still gets
 /// every sample.
 pub fn writer(domain: u32, topic: &str) -> Vec<(ObjectId, ObjectVariant)> {
+    writer_with(
+        domain,
+        topic,
+        qos_flags::RELIABLE | qos_flags::TRANSIENT_LOCAL,
+    )
+}
+
+/// A writer with these QoS flags (reliable and volatile: what a Courier
+/// session's publisher is by default).
+pub fn writer_with(domain: u32, topic: &str, flags: u16) -> Vec<(ObjectId, ObjectVariant)> {
     let mut v = base(domain, topic);
     v.push((
         oid(ObjectKind::Publisher),
@@ -260,7 +270,7 @@ pub fn writer(domain: u32, topic: &str) -> Vec<(ObjectId, ObjectVariant)> {
                 topic_id: oid(ObjectKind::Topic),
                 qos: Some((
                     EndpointQos {
-                        flags: qos_flags::RELIABLE | qos_flags::TRANSIENT_LOCAL,
+                        flags,
                         ..EndpointQos::default()
                     },
                     None,

@@ -67,7 +67,7 @@ use std::collections::{BTreeMap, VecDeque};
 // foldhash is seeded per process and costs a fraction of SipHash.
 use foldhash::{HashMap, HashMapExt, HashSet, HashSetExt};
 use std::hash::Hash;
-use std::time::{Instant, SystemTime};
+use std::time::{Duration, Instant, SystemTime};
 
 use crate::dds::{Domain, Event as DdsEvent, ReaderId, WriterId};
 use crate::rtps::discovery::{History, Reliability};
@@ -283,6 +283,14 @@ pub struct ClientState<A> {
 
 type Key = (ClientKey, ObjectId);
 
+/// How long a restored bridge holds its clients' writes: its DDS
+/// participant and writers are new, and a sample written before a remote
+/// reader is matched again is lost to it (volatile) although the client
+/// had it acknowledged. The clients, unacknowledged meanwhile, keep their
+/// samples and resend them. Discovery on one host takes tens of
+/// milliseconds; across a network, a few SPDP periods.
+pub const REDISCOVERY: Duration = Duration::from_secs(1);
+
 /// The agent's host over one Domain. See the [module docs](self).
 pub struct Bridge<A> {
     agent: Agent<A>,
@@ -301,6 +309,9 @@ pub struct Bridge<A> {
     /// two clients of this agent, where DDS has no acknowledgement to
     /// withhold). Nearly always empty.
     full: Vec<Key>,
+    /// After a restore: until then writes wait, so that the new
+    /// participant rediscovers the remote readers first ([`REDISCOVERY`]).
+    rediscovery: Option<Instant>,
     order: u64,
     events: VecDeque<BridgeEvent>,
     stats: BridgeStats,
@@ -374,6 +385,7 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
             by_writer: HashMap::new(),
             ready: HashSet::new(),
             full: Vec::new(),
+            rediscovery: None,
             order: 0,
             events: VecDeque::new(),
             stats: BridgeStats::default(),
@@ -435,6 +447,10 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
         if self.domain.poll_timeout().is_some_and(|t| t <= now) {
             self.domain.handle_timeout(now);
         }
+        if self.rediscovery.is_some_and(|t| t <= now) {
+            self.rediscovery = None;
+            self.flush_held(now);
+        }
         self.process(now);
     }
 
@@ -449,11 +465,15 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
                 | Entity::Replier { inbox: i, .. } => i.poll_timeout(),
                 _ => None,
             });
-        [self.agent.poll_timeout(), self.domain.poll_timeout()]
-            .into_iter()
-            .flatten()
-            .chain(inboxes)
-            .min()
+        [
+            self.agent.poll_timeout(),
+            self.domain.poll_timeout(),
+            self.rediscovery,
+        ]
+        .into_iter()
+        .flatten()
+        .chain(inboxes)
+        .min()
     }
 
     /// The next XRCE message: destination and bytes.
@@ -521,6 +541,12 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
         if self.full.len() == before {
             return false;
         }
+        self.flush_held(now);
+        true
+    }
+
+    /// Writes what every output holds, as far as it can.
+    fn flush_held(&mut self, now: Instant) {
         let held: Vec<Key> = self
             .objects
             .iter()
@@ -535,7 +561,6 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
         for key in held {
             self.flush(key, now);
         }
-        true
     }
 
     fn on_agent(&mut self, e: AgentEvent, now: Instant) {
@@ -1132,6 +1157,9 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
 
     /// Writes what an output holds, in order, while its history has room.
     fn flush(&mut self, key: Key, now: Instant) {
+        if self.rediscovery.is_some_and(|t| now < t) {
+            return; // held until the readers are found again
+        }
         let Some(out) = output_of(&mut self.objects, key) else {
             return;
         };
@@ -1286,6 +1314,7 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
             return errors;
         }
         self.drop_client(client, now);
+        self.rediscovery = Some(now + REDISCOVERY);
         for (id, v) in state.objects {
             if let Err((_, why)) = self.create(client, id, v, CreationMode::REPLACE, now) {
                 errors.push((id, why));
