@@ -698,7 +698,12 @@ fn qos_mismatch_gives_an_incompatibility_and_no_match() {
         incompatible(1, Some(r), Some(w)),
         [Incompatible::Reliability]
     );
-    assert_eq!(incompatible(0, Some(wp), None), [Incompatible::Partition]);
+    let e = incompatible(0, Some(wp), None);
+    assert!(matches!(e[..], [Incompatible::Partition { .. }]), "{e:?}");
+    assert_eq!(
+        e[0].to_string(),
+        "no common partition: the writer is in [\"a\"], the reader in [\"b*\"]"
+    );
     assert!(matches!(
         incompatible(0, Some(wx), None)[..],
         [Incompatible::DataRepresentation { .. }]

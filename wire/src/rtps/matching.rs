@@ -5,7 +5,7 @@ use foldhash::HashMap;
 use std::time::Instant;
 
 use super::discovery::{
-    Durability, EndpointData, EndpointQos, LivelinessKind, ParticipantData, Reliability,
+    Durability, Duration, EndpointData, EndpointQos, LivelinessKind, ParticipantData, Reliability,
 };
 use super::types::GuidPrefix;
 
@@ -55,17 +55,44 @@ pub enum Incompatible {
         requested: Durability,
     },
     /// The writer's deadline period is longer than the reader's.
-    #[error("writer deadline is longer than the reader's")]
-    Deadline,
+    #[error(
+        "deadline: the writer offers {}, the reader requests {}: give the writer a deadline of {} or less",
+        period(*offered),
+        period(*requested),
+        period(*requested)
+    )]
+    Deadline {
+        /// The writer's.
+        offered: Duration,
+        /// The reader's.
+        requested: Duration,
+    },
     /// Liveliness kind or lease incompatible.
     #[error("liveliness: writer offers less than the reader requests")]
     Liveliness,
     /// Ownership kinds differ.
-    #[error("ownership: one side is EXCLUSIVE, the other SHARED")]
-    Ownership,
+    #[error(
+        "ownership: the writer is {}, the reader {}: make both EXCLUSIVE (a writer's strength, \
+         a reader's exclusive) or both SHARED",
+        ownership_word(*writer_exclusive),
+        ownership_word(!*writer_exclusive)
+    )]
+    Ownership {
+        /// The writer is the exclusive one (else the reader is).
+        writer_exclusive: bool,
+    },
     /// No common partition.
-    #[error("no common partition")]
-    Partition,
+    #[error(
+        "no common partition: the writer is in {}, the reader in {}",
+        partition_list(writer),
+        partition_list(reader)
+    )]
+    Partition {
+        /// The writer's partitions (none: the default partition "").
+        writer: Vec<String>,
+        /// The reader's.
+        reader: Vec<String>,
+    },
     /// The reader does not accept the data representation the writer uses
     /// (the first it offers).
     #[error(
@@ -83,6 +110,31 @@ pub enum Incompatible {
         /// Reader's.
         accepted: Vec<i16>,
     },
+}
+
+/// A QoS period as people write it: `200ms`, `1s`, `infinite`.
+fn period(d: Duration) -> String {
+    match d.to_std() {
+        Some(d) => format!("{d:?}"),
+        None => "infinite".into(),
+    }
+}
+
+fn ownership_word(exclusive: bool) -> &'static str {
+    if exclusive {
+        "EXCLUSIVE"
+    } else {
+        "SHARED"
+    }
+}
+
+/// Partitions as a list; none is the default partition `""`.
+fn partition_list(p: &[String]) -> String {
+    if p.is_empty() {
+        "[\"\"] (the default)".into()
+    } else {
+        format!("{p:?}")
+    }
 }
 
 fn keyed_word(keyed: bool) -> &'static str {
@@ -204,7 +256,10 @@ pub fn check_qos(offered: &EndpointQos, requested: &EndpointQos) -> Result<(), I
         });
     }
     if offered.deadline > requested.deadline {
-        return Err(Incompatible::Deadline);
+        return Err(Incompatible::Deadline {
+            offered: offered.deadline,
+            requested: requested.deadline,
+        });
     }
     if liveliness_rank(offered.liveliness.0) < liveliness_rank(requested.liveliness.0)
         || offered.liveliness.1 > requested.liveliness.1
@@ -212,10 +267,15 @@ pub fn check_qos(offered: &EndpointQos, requested: &EndpointQos) -> Result<(), I
         return Err(Incompatible::Liveliness);
     }
     if offered.exclusive_ownership != requested.exclusive_ownership {
-        return Err(Incompatible::Ownership);
+        return Err(Incompatible::Ownership {
+            writer_exclusive: offered.exclusive_ownership,
+        });
     }
     if !partitions_match(&offered.partitions, &requested.partitions) {
-        return Err(Incompatible::Partition);
+        return Err(Incompatible::Partition {
+            writer: offered.partitions.clone(),
+            reader: requested.partitions.clone(),
+        });
     }
     // The writer uses the first representation it offers; the reader must accept it.
     let used = offered
@@ -367,7 +427,7 @@ impl Participants {
 
 #[cfg(test)]
 mod tests {
-    use super::super::discovery::{Duration, History};
+    use super::super::discovery::History;
     use super::super::{ProtocolVersion, VendorId};
     use super::*;
 
@@ -397,10 +457,33 @@ mod tests {
             seconds: 1,
             fraction: 0,
         };
-        assert_eq!(check_qos(&w, &dl), Err(Incompatible::Deadline));
+        let e = check_qos(&w, &dl).unwrap_err();
+        assert!(matches!(e, Incompatible::Deadline { .. }));
+        assert_eq!(
+            e.to_string(),
+            "deadline: the writer offers infinite, the reader requests 1s: give the writer a \
+             deadline of 1s or less"
+        );
         let mut ex = w.clone();
         ex.exclusive_ownership = true;
-        assert_eq!(check_qos(&ex, &r), Err(Incompatible::Ownership));
+        let e = check_qos(&ex, &r).unwrap_err();
+        assert_eq!(
+            e,
+            Incompatible::Ownership {
+                writer_exclusive: true
+            }
+        );
+        assert!(e
+            .to_string()
+            .starts_with("ownership: the writer is EXCLUSIVE, the reader SHARED"));
+        let e = Incompatible::Partition {
+            writer: vec![],
+            reader: vec!["a".into()],
+        };
+        assert_eq!(
+            e.to_string(),
+            "no common partition: the writer is in [\"\"] (the default), the reader in [\"a\"]"
+        );
         // Fast DDS 2.9 accepts only XCDR1: an XCDR2 writer does not match it
         let mut x2 = w.clone();
         x2.data_representation = vec![2];
