@@ -386,3 +386,22 @@ async fn an_open_the_agent_never_answers_fails_within_its_bound() {
         "{e:?}"
     );
 }
+
+/// A reliable sample larger than all the session's stream may queue
+/// (history × mtu) is refused at once with `TooLarge`; before, the publish
+/// waited its whole 10 s for room that could never be.
+#[tokio::test]
+async fn a_sample_larger_than_the_stream_may_queue_is_refused_at_once() {
+    let agent = xrce_agent::udp(0).await;
+    let s = session(format!("xrce+udp://{}?history=16", agent.addr), "big").await;
+    let p = s.publisher::<Msg>("big").build().await.unwrap();
+    // refused, not left to wait for room (the publish's own bound is 10 s)
+    let e = tokio::time::timeout(Duration::from_secs(5), p.publish(&msg(1, 100_000)))
+        .await
+        .expect("refused at once")
+        .unwrap_err();
+    assert!(matches!(e, courier::PublishError::TooLarge { .. }), "{e:?}");
+    // what fits goes
+    p.publish(&msg(2, 1_000)).await.unwrap();
+    s.close().await;
+}

@@ -365,3 +365,35 @@ fn best_effort_streams_take_only_newer_messages_and_refuse_what_does_not_fit() {
     out.push(&write(3, 8)).unwrap();
     assert_eq!(out.poll_transmit().unwrap()[..4], [0x81, 0x01, 1, 0]);
 }
+
+/// A submessage larger than all a reliable stream may queue can never go:
+/// it is refused at once (`NeverFits`, naming the options), where a full
+/// backlog (`Backlog`) means "wait for room". Before, both were `Backlog`,
+/// so a sender waited its whole timeout for room that could never be.
+#[test]
+fn a_submessage_larger_than_the_stream_may_queue_is_refused_at_once() {
+    use courier_wire::xrce::stream::StreamError;
+    let mut cfg = StreamConfig::agent();
+    cfg.max_backlog = 4096;
+    let mut out = ReliableOutput::new(&session(), R, cfg);
+    let e = out.push(vec![0; 5000], None).unwrap_err();
+    assert!(
+        matches!(
+            e,
+            StreamError::NeverFits {
+                len: 5000,
+                max: 4096,
+                ..
+            }
+        ),
+        "{e:?}"
+    );
+    assert!(
+        e.to_string()
+            .contains("raise the session's history= or mtu="),
+        "{e}"
+    );
+    out.push(vec![0; 3000], None).unwrap();
+    let e = out.push(vec![0; 3000], None).unwrap_err();
+    assert!(matches!(e, StreamError::Backlog { .. }), "{e:?}");
+}

@@ -179,13 +179,13 @@ fn entity_name(kind: ObjectKind) -> &'static str {
 fn xrce_error(topic: &str, e: CommandError) -> PublishError {
     match e {
         CommandError::NotConnected => PublishError::Disconnected("the XRCE agent".into()),
-        CommandError::Queue(QueueError::Stream(StreamError::TooLarge { len, max, .. })) => {
-            PublishError::TooLarge {
-                msg: topic.to_string(),
-                len,
-                max,
-            }
-        }
+        CommandError::Queue(QueueError::Stream(
+            StreamError::TooLarge { len, max, .. } | StreamError::NeverFits { len, max, .. },
+        )) => PublishError::TooLarge {
+            msg: topic.to_string(),
+            len,
+            max,
+        },
         source => PublishError::Xrce {
             topic: topic.to_string(),
             source,

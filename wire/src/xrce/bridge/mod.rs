@@ -1425,7 +1425,8 @@ fn deliver<A: Clone + Eq + Hash>(
             }
             Err(AgentCommandError::Queue(QueueError::Stream(StreamError::Backlog { .. }))) => break, // again when the client acknowledges
             Err(_) => {
-                // too large for a best-effort stream, or no session
+                // too large for a best-effort stream or for all a reliable
+                // one queues, or no session
                 stats.samples_dropped += 1;
                 inbox.queue.pop_front();
             }

@@ -433,6 +433,15 @@ impl Client {
                 return Err(CommandError::TooManyRequests(self.unconfirmed.ids.len()));
             }
             let max = self.cfg.streams.max_backlog;
+            if data_len > max {
+                // no wait makes room for it
+                return Err(QueueError::Stream(StreamError::NeverFits {
+                    stream: stream.0,
+                    len: data_len,
+                    max,
+                })
+                .into());
+            }
             if self.unconfirmed.bytes + data_len > max {
                 return Err(QueueError::Stream(StreamError::Backlog {
                     stream: stream.0,

@@ -183,6 +183,19 @@ pub enum StreamError {
         /// The limit.
         max: usize,
     },
+    /// A reliable stream's submessage larger than all it may queue: it can
+    /// never go (waiting for room would wait forever).
+    #[error(
+        "XRCE reliable stream {stream:#04x}: a {len}-byte submessage is larger than the {max} bytes the stream may queue (raise the session's history= or mtu=)"
+    )]
+    NeverFits {
+        /// The stream.
+        stream: u8,
+        /// Submessage size.
+        len: usize,
+        /// The most the stream queues.
+        max: usize,
+    },
     /// Best-effort streams do not fragment.
     #[error("XRCE best-effort stream {stream:#04x}: a {len}-byte submessage does not fit a {max}-byte message")]
     TooLarge {

@@ -155,6 +155,13 @@ impl ReliableOutput {
     /// [`take_acked`](Self::take_acked) once every byte of it is
     /// acknowledged.
     pub fn push(&mut self, sub: Vec<u8>, tag: Option<u16>) -> Result<(), StreamError> {
+        if sub.len() > self.cfg.max_backlog {
+            return Err(StreamError::NeverFits {
+                stream: self.id.0,
+                len: sub.len(),
+                max: self.cfg.max_backlog,
+            });
+        }
         if self.backlog_bytes + sub.len() > self.cfg.max_backlog {
             return Err(StreamError::Backlog {
                 stream: self.id.0,
