@@ -476,3 +476,43 @@ fn a_restart_with_state_after_sigterm_loses_nothing_for_a_remote_reader() {
     rt.block_on(s.close());
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// A client participant of another domain than the agent's is refused
+/// with `STATUS_ERR_INCOMPATIBLE`, which says nothing by itself; the error
+/// names the likely cause and the option that changes it.
+#[test]
+fn a_participant_of_another_domain_is_refused_naming_the_domains() {
+    use courier::IpcMessage;
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct Reading {
+        value: f64,
+    }
+    let d = courier_tests::domains::lease(6);
+    let rt = runtime();
+    let a = agent(&rt, d, vec![Transport::Udp(local(0))]);
+    let other = if d == 1 { 2 } else { d - 1 };
+    let url = format!("xrce+udp://{}?domain={other}", a.udp_addrs()[0]);
+    let s = rt
+        .block_on(courier::Session::builder(url).name("lost").connect())
+        .unwrap();
+    let e = rt
+        .block_on(s.publisher::<Reading>("r").build())
+        .unwrap_err();
+    assert!(
+        matches!(
+            &e,
+            courier::OpenError::Refused {
+                entity: "participant",
+                ..
+            }
+        ),
+        "{e:?}"
+    );
+    let text = e.to_string();
+    assert!(
+        text.contains("STATUS_ERR_INCOMPATIBLE") && text.contains("--any-domain"),
+        "{text}"
+    );
+    rt.block_on(s.close());
+    rt.block_on(a.shutdown());
+}

@@ -83,14 +83,17 @@ pub enum OpenError {
         source: CentralError,
     },
     /// The XRCE agent refused to create an entity (its STATUS code named).
-    #[error("the XRCE agent refused the {entity} of {topic}: {status}")]
+    #[error("the XRCE agent refused the {entity} of {topic}: {status}{hint}")]
     Refused {
-        /// The topic (or service).
+        /// The topic (or service; for the participant, the session's name).
         topic: String,
         /// Which entity (`data writer`, `topic`, …).
         entity: &'static str,
         /// The agent's answer.
         status: courier_wire::xrce::StatusCode,
+        /// What usually causes it, when the status says little (empty, or
+        /// ` (…)`): a status carries no text.
+        hint: &'static str,
     },
     /// The XRCE agent did not answer the creation in time.
     #[error("the XRCE agent did not confirm the entities of {topic} within {after:?}")]

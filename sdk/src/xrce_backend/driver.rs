@@ -193,6 +193,21 @@ fn xrce_error(topic: &str, e: CommandError) -> PublishError {
     }
 }
 
+/// What an agent's refusal usually means, where the status alone says
+/// little (an XRCE STATUS carries no text; the agent's log has it).
+fn refusal_hint(entity: &str, status: StatusCode) -> &'static str {
+    match (entity, status) {
+        ("participant", StatusCode::ERR_INCOMPATIBLE) => {
+            " (is the session's domain= the agent's --domain? An agent takes participants of \
+             its own domain only, unless started with --any-domain)"
+        }
+        (_, StatusCode::ERR_UNKNOWN_REFERENCE) => {
+            " (representation=reference names a profile the agent's -r file does not have)"
+        }
+        _ => "",
+    }
+}
+
 /// Whether a command error means "wait and try again".
 fn must_wait(e: &CommandError) -> bool {
     matches!(
@@ -1286,6 +1301,7 @@ impl Driver {
                     },
                     entity,
                     status: e.0,
+                    hint: refusal_hint(entity, e.0),
                 });
             }
         }
