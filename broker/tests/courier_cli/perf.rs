@@ -102,6 +102,26 @@ fn perf_over_ipc_counts_every_sample_and_its_latency() {
     assert_eq!(field(total, "lost"), 0, "{total}");
     // every IPC sample carries its send time in the baggage
     assert!(total.contains("latency n=2000 "), "{total}");
+    // --secs bounds the wait for readers too: nobody reads "nobody"
+    let (code, out, err) = run(&[
+        "perf",
+        "pub",
+        u,
+        "--topic",
+        "nobody",
+        "--readers",
+        "1",
+        "--secs",
+        "1",
+    ]);
+    assert_eq!(
+        (code, out.as_str(), err.as_str()),
+        (
+            1,
+            "matched 0\n",
+            "courier: no reader of \"nobody\" within --secs 1: nothing was measured\n"
+        )
+    );
 }
 
 #[test]

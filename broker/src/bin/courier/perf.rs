@@ -28,7 +28,7 @@ use crate::connect::connect;
 use crate::ping::{publish_acked, Matched};
 use crate::pong::Stats;
 use crate::stop::{count, run_session, Ended, Stop};
-use crate::text::{err, incompatible_line, out, type_mismatch_line};
+use crate::text::{incompatible_line, out, progress, type_mismatch_line};
 use crate::Result;
 
 /// `courier perf`: throughput and latency.
@@ -283,8 +283,24 @@ async fn send<T: PerfSample>(s: &Session, o: &PerfPubArgs, total: &RefCell<Tally
         let mut n = s.num_handlers(&topic).await?.unsigned_abs();
         matched.set(n as usize);
         let waiting = Instant::now();
+        // --secs bounds the whole run, the wait for readers included
+        let give_up = async {
+            match c.secs {
+                Some(x) => tokio::time::sleep(Duration::from_secs_f64(x)).await,
+                None => std::future::pending().await,
+            }
+        };
+        tokio::pin!(give_up);
         while n < o.readers {
             tokio::select! {
+                _ = &mut give_up => {
+                    return Err(format!(
+                        "{} of {topic:?} within --secs {}: nothing was measured",
+                        if n == 0 { "no reader".to_string() } else { format!("only {n} of {} readers", o.readers) },
+                        c.secs.unwrap_or_default()
+                    )
+                    .into());
+                }
                 Some(e) = ev.next() => match e {
                     SessionEvent::HandlersChanged { msg, count } if msg == topic => {
                         n = count.unsigned_abs();
@@ -298,8 +314,8 @@ async fn send<T: PerfSample>(s: &Session, o: &PerfPubArgs, total: &RefCell<Tally
                     }
                     _ => {}
                 },
-                _ = tokio::time::sleep(Duration::from_secs(2)) => err(format_args!(
-                    "courier: waiting for {} on {topic:?} for {} s ({} so far)",
+                _ = tokio::time::sleep(Duration::from_secs(2)) => progress(format_args!(
+                    "waiting for {} on {topic:?} for {} s ({} so far)",
                     count(u64::from(o.readers), "reader"),
                     waiting.elapsed().as_secs(),
                     n
