@@ -135,6 +135,12 @@ pub struct XrceOptions {
     pub transport: XrceTransport,
     /// The client key (`key=`, decimal or `0x` hex; never 0); `None`: a
     /// random one per session.
+    ///
+    /// A key names one client at a time: an agent takes a second session
+    /// with a live session's key as that client reconnecting (the XRCE
+    /// rule), so two sessions sharing a key take the agent's session from
+    /// each other, over and over (`AgentLost` / `SessionRecreated` events),
+    /// and lose what was in flight. Give each a key of its own, or none.
     pub client_key: Option<u32>,
     /// The session id (`session=`): 0x81 as eProsima's library uses;
     /// below 0x80 every message carries the client key.
