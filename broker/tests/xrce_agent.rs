@@ -383,15 +383,8 @@ fn a_restart_with_state_after_kill_9_is_invisible_to_clients() {
 /// samples lost before, none after) showed.
 #[test]
 fn a_restart_with_state_after_sigterm_loses_nothing_for_a_remote_reader() {
-    use courier::IpcMessage;
     use futures::StreamExt;
-    #[derive(IpcMessage, Debug, Clone, PartialEq)]
-    #[ipc(type_name = "courier::test::Msg")]
-    struct Msg {
-        seq: u32,
-        text: String,
-        payload: Vec<u8>,
-    }
+    use xrce_client::Msg;
     let d = courier_tests::domains::lease(5);
     let dir = std::env::temp_dir().join(format!("xrce-agent-term-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();

@@ -11,22 +11,13 @@
 
 use std::net::SocketAddr;
 
-use courier::{IpcMessage, Session};
+use courier::Session;
 use courier_broker::xrce_agent::{Transport, XrceAgent};
 use courier_tests::peers::{fastdds_peer, msg_sample_line, payload, PeerProcess};
 use futures::StreamExt;
 
 mod xrce_client;
-use xrce_client::{rtps, runtime, T};
-
-/// `courier::test::Msg` of the peers' `types.idl`.
-#[derive(IpcMessage, Debug, Clone, PartialEq)]
-#[ipc(type_name = "courier::test::Msg")]
-struct Msg {
-    seq: u32,
-    text: String,
-    payload: Vec<u8>,
-}
+use xrce_client::{rtps, runtime, Msg, T};
 
 /// The agent (UDP on 127.0.0.1:0) and a session of it in `domain`.
 fn agent_and_session(rt: &tokio::runtime::Runtime, domain: u32) -> (XrceAgent, Session) {

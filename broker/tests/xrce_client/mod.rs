@@ -1,6 +1,6 @@
 //! Courier's XRCE client machine over blocking sockets, and the objects
 //! the agent tests create (shared by `xrce_agent.rs` and
-//! `xrce_agent_netns.rs`).
+//! `xrce_agent_netns.rs`, `xrce_agent_fastdds.rs`).
 #![allow(dead_code)]
 
 use std::io::{Read, Write};
@@ -208,6 +208,16 @@ pub fn bin(b: BinaryRepresentation) -> courier_wire::xrce::Representation {
 }
 
 pub const MSG: &str = "courier::test::Msg";
+
+/// `courier::test::Msg` of the peers' `types.idl` (what [`msg`] encodes),
+/// for a Courier session on the DDS side.
+#[derive(courier::IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "courier::test::Msg")]
+pub struct Msg {
+    pub seq: u32,
+    pub text: String,
+    pub payload: Vec<u8>,
+}
 
 pub fn base(domain: u32, topic: &str) -> Vec<(ObjectId, ObjectVariant)> {
     vec![
