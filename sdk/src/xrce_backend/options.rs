@@ -343,8 +343,13 @@ impl XrceOptions {
                     Ok(n)
                 }
             };
-            let ms =
-                |v: &str| -> Result<Duration, ConnectError> { Ok(Duration::from_millis(num(v)?)) };
+            // a period of 0 ms would mean "all the time"
+            let ms = |v: &str| -> Result<Duration, ConnectError> {
+                match num(v)? {
+                    0 => Err(bad(format!("{k}=0: a period of 0 ms; give 1 or more"))),
+                    n => Ok(Duration::from_millis(n)),
+                }
+            };
             match k {
                 "baud" if matches!(o.transport, XrceTransport::Serial { .. }) => {}
                 "key" => {
@@ -379,11 +384,12 @@ impl XrceOptions {
                     let n = fit(num(v)?, 0x7FFF)?;
                     o.domain = n as i16;
                 }
-                "keepalive_ms" => o.keepalive = ms(v)?.max(Duration::from_millis(1)),
-                "lost_ms" => o.lost_after = ms(v)?.max(Duration::from_millis(1)),
+                "keepalive_ms" => o.keepalive = ms(v)?,
+                "lost_ms" => o.lost_after = ms(v)?,
                 "attempts" => o.connect_attempts = fit(num(v)?, u64::from(u32::MAX))?.max(1) as u32,
-                "attempt_ms" => o.connect_interval = ms(v)?.max(Duration::from_millis(1)),
-                "wait_ms" => o.agent_wait = ms(v)?,
+                "attempt_ms" => o.connect_interval = ms(v)?,
+                // 0: fail at once while the agent is lost
+                "wait_ms" => o.agent_wait = Duration::from_millis(num(v)?),
                 "creation" => {
                     o.creation = match v {
                         "replace" => XrceCreation::Replace,
@@ -539,6 +545,11 @@ mod tests {
             ("xrce+udp://", "no agent address"),
             ("xrce+udp://h:1?ref.thing.x=y", "unknown entity kind"),
             ("xrce+udp://h:1?keepalive_ms=5000", "shorter than"),
+            (
+                "xrce+udp://h:1?keepalive_ms=0",
+                "keepalive_ms=0: a period of 0 ms",
+            ),
+            ("xrce+udp://h:1?lost_ms=0", "lost_ms=0: a period of 0 ms"),
             ("xrce+udp://h:1?discover=127.0.0.1:7400", "not both"),
             ("xrce+tcp://?discover=127.0.0.1:7400", "UDP only"),
             ("xrce+udp://?discover=here", "not ip:port"),
