@@ -164,12 +164,13 @@ async fn publish_on(
     out("ready");
     let mut matched = Matched(None);
     key_as_readers(s, o, pb).await?;
+    let wait = if xrce { 0 } else { o.wait };
     let mut n = if xrce {
-        u32::MAX
+        0
     } else {
         s.num_handlers(&o.topic).await?.unsigned_abs()
     };
-    if n > 0 && !xrce {
+    if n > 0 {
         matched.set(n as usize);
     }
     // wait for the subscribers asked for: a sample nobody subscribes is
@@ -178,7 +179,7 @@ async fn publish_on(
     let mut found = Discovery::default();
     let mut tick =
         tokio::time::interval_at(tokio::time::Instant::now() + PROGRESS_EVERY, PROGRESS_EVERY);
-    while n < o.wait {
+    while n < wait {
         tokio::select! {
             Some(e) = ev.next() => {
                 found.update(&e);
