@@ -263,6 +263,17 @@ async fn no_agent_fails_the_connect_and_foreign_options_are_refused() {
         .unwrap()
         .unwrap_err();
     assert!(e.to_string().contains("2 CREATE_CLIENT"), "{e}");
+    assert!(!e.to_string().contains("unreachable"), "{e}");
+    // a port nothing listens on: the host says so, and the error does
+    drop(sock);
+    let e = tokio::time::timeout(T, Session::builder(url.clone()).connect())
+        .await
+        .unwrap()
+        .unwrap_err();
+    assert!(
+        e.to_string().contains("nothing listens on that UDP port"),
+        "{e}"
+    );
     let e = Session::builder(url.clone())
         .interface("lo")
         .connect()

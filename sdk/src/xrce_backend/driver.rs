@@ -157,6 +157,9 @@ pub(super) struct Driver {
     /// A full keep-all reliable subscription: the link is not read until
     /// it has room (back-pressure through the agent's reliable window).
     pub(super) stalled: Option<Arc<SampleQueue>>,
+    /// The link reports that nothing listens at the agent's address
+    /// (UDP: an ICMP "port unreachable" since the agent last spoke).
+    pub(super) unreachable: bool,
     /// Closing: the session's DELETE is out, stop at this time at the latest.
     pub(super) closing: Option<(Instant, oneshot::Sender<()>)>,
     pub(super) done: bool,
@@ -265,6 +268,7 @@ impl Driver {
             lost_reported: false,
             redial_at: None,
             stalled: None,
+            unreachable: false,
             closing: None,
             done: false,
         }
@@ -1110,9 +1114,16 @@ impl Driver {
             }
             Event::ConnectFailed(e) => {
                 if let Some(c) = self.connected.take() {
+                    let mut why = e.to_string();
+                    if self.unreachable {
+                        why.push_str(
+                            "; nothing listens on that UDP port (the host answered \"port \
+                             unreachable\"): is the agent running, on this port?",
+                        );
+                    }
                     let _ = c.send(Err(ConnectError::Agent {
                         url: self.url.clone(),
-                        why: e.to_string(),
+                        why,
                     }));
                     self.done = true;
                 } else {
@@ -1353,6 +1364,7 @@ pub(super) async fn run(mut d: Driver, mut inbox: Inbox<Cmd>, mut link: Option<L
     let mut timer = DriverTimer::quiet();
     loop {
         let now = Instant::now();
+        d.unreachable = link.as_ref().is_some_and(Link::unreachable);
         d.events(now);
         // transmit what the machine has
         while let Some(m) = d.client.poll_transmit() {

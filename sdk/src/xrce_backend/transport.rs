@@ -24,7 +24,13 @@ pub(crate) const SERIAL_AGENT_ADDR: u8 = 0;
 
 /// An open link to the agent.
 pub(crate) enum Link {
-    Udp(UdpSocket),
+    Udp {
+        socket: UdpSocket,
+        /// An ICMP "port unreachable" came back since the agent last sent
+        /// anything: nothing listens at its address (loopback reports it
+        /// at once).
+        refused: bool,
+    },
     Tcp {
         stream: TcpStream,
         deframer: TcpDeframer,
@@ -40,7 +46,7 @@ pub(crate) enum Link {
 impl std::fmt::Debug for Link {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(match self {
-            Link::Udp(_) => "Link::Udp",
+            Link::Udp { .. } => "Link::Udp",
             Link::Tcp { .. } => "Link::Tcp",
             Link::Serial { .. } => "Link::Serial",
         })
@@ -67,7 +73,10 @@ impl Link {
                 };
                 let s = UdpSocket::bind(any).await?;
                 s.connect(to).await?;
-                Ok(Link::Udp(s))
+                Ok(Link::Udp {
+                    socket: s,
+                    refused: false,
+                })
             }
             XrceTransport::Tcp(addr) => {
                 let to = resolve(addr).await?;
@@ -99,13 +108,22 @@ impl Link {
         matches!(self, Link::Tcp { .. })
     }
 
+    /// Whether the agent's address reported that nothing listens there
+    /// (UDP's ICMP "port unreachable") since it last sent anything.
+    pub(crate) fn unreachable(&self) -> bool {
+        matches!(self, Link::Udp { refused: true, .. })
+    }
+
     /// Sends one XRCE message.
     pub(crate) async fn send(&mut self, msg: &[u8]) -> io::Result<()> {
         match self {
-            Link::Udp(s) => match s.send(msg).await {
+            Link::Udp { socket, refused } => match socket.send(msg).await {
                 Ok(_) => Ok(()),
                 // nobody listens (yet): the machine's retries cover it
-                Err(e) if e.kind() == io::ErrorKind::ConnectionRefused => Ok(()),
+                Err(e) if e.kind() == io::ErrorKind::ConnectionRefused => {
+                    *refused = true;
+                    Ok(())
+                }
                 Err(e) => Err(e),
             },
             Link::Tcp { stream, out, .. } => {
@@ -136,11 +154,14 @@ impl Link {
     /// The next XRCE message from the agent.
     pub(crate) async fn recv(&mut self, buf: &mut [u8]) -> io::Result<Vec<u8>> {
         match self {
-            Link::Udp(s) => loop {
-                match s.recv(buf).await {
-                    Ok(n) => return Ok(buf[..n].to_vec()),
+            Link::Udp { socket, refused } => loop {
+                match socket.recv(buf).await {
+                    Ok(n) => {
+                        *refused = false;
+                        return Ok(buf[..n].to_vec());
+                    }
                     // an ICMP "port unreachable" for an earlier datagram
-                    Err(e) if e.kind() == io::ErrorKind::ConnectionRefused => continue,
+                    Err(e) if e.kind() == io::ErrorKind::ConnectionRefused => *refused = true,
                     Err(e) => return Err(e),
                 }
             },
