@@ -691,6 +691,50 @@ fn a_remote_endpoint_of_another_type_on_our_topic_is_reported_with_both_type_nam
 }
 
 #[test]
+fn two_local_endpoints_of_different_types_on_one_topic_are_reported_both_ways() {
+    // an XRCE agent hosts every client's endpoints in one participant, so
+    // a mismatch between two of them is never discovered, only local
+    let mut net = new_net(1, 31, 0);
+    let now = net.now();
+    let w = net
+        .node(0)
+        .create_writer(
+            EndpointConfig::writer("Shared", "TypeA").qos(writer_qos()),
+            now,
+        )
+        .unwrap();
+    let r = net
+        .node(0)
+        .create_reader(
+            EndpointConfig::reader("Shared", "TypeB").qos(reader_qos()),
+            now,
+        )
+        .unwrap();
+    // a pattern takes every type: no mismatch for it
+    net.node(0).create_pattern("Shared", "*", reader_qos(), now);
+    let same = net
+        .node(0)
+        .create_reader(
+            EndpointConfig::reader("Shared", "TypeA").qos(reader_qos()),
+            now,
+        )
+        .unwrap();
+    net.run_for(ms(50));
+    assert!(net.has(0, |e| matches!(e, Event::TypeMismatch { local, remote, topic, local_type, remote_type }
+        if *local == Endpoint::Writer(w) && *remote == r.guid() && topic == "Shared" && local_type == "TypeA" && remote_type == "TypeB")));
+    assert!(net.has(0, |e| matches!(e, Event::TypeMismatch { local, remote, local_type, remote_type, .. }
+        if *local == Endpoint::Reader(r) && *remote == w.guid() && local_type == "TypeB" && remote_type == "TypeA")));
+    let mismatches = net.hosts[0]
+        .events
+        .iter()
+        .filter(|e| matches!(e, Event::TypeMismatch { .. }))
+        .count();
+    assert_eq!(mismatches, 2, "only the writer and the TypeB reader");
+    assert!(matched(&net, 0, same, 1));
+    assert!(!matched(&net, 0, r, 1));
+}
+
+#[test]
 fn payloads_are_padded_to_four_bytes() {
     let mut net = new_net(1, 29, 0);
     let now = net.now();

@@ -303,13 +303,17 @@ fn participant() -> (ObjectId, ObjectVariant) {
 }
 
 fn topic(name: &str) -> (ObjectId, ObjectVariant) {
+    typed_topic(name, "HelloWorld")
+}
+
+fn typed_topic(name: &str, type_name: &str) -> (ObjectId, ObjectVariant) {
     (
         oid(ObjectKind::Topic),
         ObjectVariant::Topic {
             representation: bin(BinaryRepresentation::Topic(TopicBinary {
                 topic_name: name.into(),
                 type_reference: None,
-                type_name: Some("HelloWorld".into()),
+                type_name: Some(type_name.into()),
             })),
             participant_id: oid(ObjectKind::Participant),
         },
@@ -988,6 +992,33 @@ fn an_entity_that_cannot_match_is_reported() {
             if why.contains("\"HelloWorld\" here, \"SomethingElse\""))
             ))
     );
+}
+
+#[test]
+fn two_clients_of_different_types_on_one_topic_are_both_reported() {
+    // both clients' entities live in the bridge's one participant: the
+    // mismatch is never discovered, only found locally
+    let mut w = world(9, 0, |_, _| {});
+    let p = w.add_client(10, 0xAAAA_0009);
+    let s = w.add_client(11, 0xBBBB_0009);
+    w.create(p, writer_objects("Mixed", true), CreationMode::REPLACE);
+    let mut other = reader_objects("Mixed", true);
+    for o in &mut other {
+        if matches!(o.1, ObjectVariant::Topic { .. }) {
+            *o = typed_topic("Mixed", "Other");
+        }
+    }
+    w.create(s, other, CreationMode::REPLACE);
+    let reported = |w: &World, client: u32, text: &str| {
+        w.net.hosts[w.bridge].events.iter().any(|e| {
+            matches!(e, Ev::Bridge(BridgeEvent::Unmatched { client: c, why, .. })
+                if u32::from(*c) == client && why.contains(text))
+        })
+    };
+    assert!(w.run_until(Duration::from_secs(10), |w| {
+        reported(w, 0xAAAA_0009, "\"HelloWorld\" here, \"Other\"")
+            && reported(w, 0xBBBB_0009, "\"Other\" here, \"HelloWorld\"")
+    }));
 }
 
 #[test]

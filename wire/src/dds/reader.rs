@@ -181,9 +181,26 @@ impl Domain {
             .filter(|d| d.topic_name == r.topic && d.type_name != r.type_name)
             .map(|d| (d.guid, d.type_name.clone()))
             .collect();
+        // this participant's own writers are matched with it locally and
+        // never discovered: the same check (an XRCE agent hosts several
+        // clients' endpoints in one participant)
+        let local: Vec<(Guid, String)> = if matches!(role, Role::Pattern(_)) {
+            Vec::new()
+        } else {
+            self.writers
+                .iter()
+                .filter(|(_, w)| w.topic == r.topic && w.type_name != r.type_name)
+                .map(|(wg, w)| (*wg, w.type_name.clone()))
+                .collect()
+        };
+        let type_name = r.type_name.clone();
         self.readers.insert(g, r);
         for (remote, remote_type) in remote {
             self.type_mismatch(g, remote, remote_type);
+        }
+        for (writer, writer_type) in local {
+            self.type_mismatch(g, writer, writer_type);
+            self.type_mismatch(writer, g, type_name.clone());
         }
         Ok(g)
     }

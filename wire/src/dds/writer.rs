@@ -96,11 +96,27 @@ impl Domain {
             .filter(|d| d.topic_name == w.topic && d.type_name != w.type_name)
             .map(|d| (d.guid, d.type_name.clone()))
             .collect();
+        // this participant's own readers (see `add_reader`); a pattern's
+        // readers take every type
+        let local: Vec<(Guid, String)> = self
+            .readers
+            .iter()
+            .filter(|(_, r)| {
+                r.topic == w.topic
+                    && r.type_name != w.type_name
+                    && !matches!(r.role, Role::Pattern(_))
+            })
+            .map(|(rg, r)| (*rg, r.type_name.clone()))
+            .collect();
         let (topic, type_name, offer) = (w.topic.clone(), w.type_name.clone(), w.offer.clone());
         self.writer_info.insert(g, info);
         self.writers.insert(g, w);
         for (remote, remote_type) in remote {
             self.type_mismatch(g, remote, remote_type);
+        }
+        for (reader, reader_type) in local {
+            self.type_mismatch(g, reader, reader_type);
+            self.type_mismatch(reader, g, type_name.clone());
         }
         self.offer_to_patterns(&topic, &type_name, &offer, now);
         Ok(g)
