@@ -202,9 +202,10 @@ pub fn parse_value(fmt: &Format, text: &str) -> Result<Value, String> {
     }
 }
 
-/// A sample's bytes for `spy`: decoded when the type is known
-/// (`courier::Ping`), else the first 64 bytes in hex (`…` when there are
-/// more), `-` when there are none.
+/// A sample's bytes for `spy`: decoded when the type is one the CLI
+/// knows (`courier::Ping` as a Rust value, ROS 2's `String_` and the rest
+/// as central's data log prints a value), else the first 64 bytes in hex
+/// (`…` when there are more), `-` when there are none.
 pub fn sample_text(type_name: &str, data: &[u8]) -> String {
     if type_name == Ping::TYPE_NAME {
         if let Ok(p) = courier::cdr::from_slice::<Ping>(data) {
@@ -214,7 +215,10 @@ pub fn sample_text(type_name: &str, data: &[u8]) -> String {
             );
         }
     }
-    hex(data)
+    match Decoded::dds(Some(type_name), data) {
+        Ok(d @ Decoded::Value(..)) => format!("{type_name} {}", d.print(Style::Text)),
+        _ => hex(data),
+    }
 }
 
 #[cfg(test)]
@@ -250,6 +254,17 @@ mod tests {
         assert_eq!(encapsulation_text(&[0x00, 0x09]), "XCDR2 D_CDR2_LE");
         assert_eq!(encapsulation_text(&[0x80, 0x01]), "unknown(0x8001)");
         assert_eq!(encapsulation_text(&[]), "-");
+        // ROS 2's String_ (what `ros2 topic pub /chatter std_msgs/String` sends)
+        let ros = courier::cdr::to_vec(
+            &RosString {
+                data: "hello".into(),
+            },
+            courier::cdr::Encoding::Xcdr1Le,
+        );
+        assert_eq!(
+            sample_text("std_msgs::msg::dds_::String_", &ros),
+            "std_msgs::msg::dds_::String_ {\"hello\"}"
+        );
         // the same sample through the dynamic value
         let d = Decoded::dds(Some("courier::Ping"), &data).unwrap();
         assert_eq!(d.print(Style::Text), "{7, 9, \"hi\"}");
