@@ -3,6 +3,18 @@
 use crate::{run, url, Central, Proc, T};
 
 #[test]
+fn list_on_an_empty_domain_says_it_found_nobody() {
+    let u = url(251);
+    let (code, out, err) = run(&["list", &u, "--duration", "1"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out, "", "the list itself is empty");
+    assert!(
+        err.contains("no participant found in 1 s on DDS domain"),
+        "{err}"
+    );
+}
+
+#[test]
 fn list_what_dds_discovery_finds() {
     let u = url(250);
     // the listing listens first: it hears every announcement

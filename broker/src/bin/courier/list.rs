@@ -112,6 +112,14 @@ async fn dds(s: &Session, o: &ListArgs, seen: &Cell<u64>) -> Result<()> {
             prefixes.push(p);
         }
     }
+    if prefixes.is_empty() {
+        // stderr: stdout stays the (empty) list, for scripts
+        err(format_args!(
+            "courier: no participant found in {secs} s on {} (another domain, peers=, or --duration longer?)",
+            target(&o.url)
+        ));
+        return Ok(());
+    }
     prefixes.sort_by_key(|p| (parts.get(p).map(|i| i.name.clone()), *p));
     for prefix in prefixes {
         match parts.get(&prefix) {
