@@ -750,7 +750,7 @@ fn check_lengths_names_a_vec_its_length_field_cannot_say() {
         scene(&ok, &long, &ok),
         scene(&ok, &ok, &long),
     ] {
-        assert_eq!(s.check_lengths().unwrap_err().len, 300);
+        assert_eq!(s.check_lengths().unwrap_err().length(), 300);
     }
     // a recursive type checks through itself
     let deep = Node {
@@ -762,4 +762,77 @@ fn check_lengths_names_a_vec_its_length_field_cannot_say() {
     };
     const { assert!(Node::CHECKS_LENGTHS) };
     assert_eq!(deep.check_lengths(), Ok(()));
+}
+
+/// `#[ipc(bound = N)]` (IDL `string<N>`, `sequence<T, N>`): a `String` of
+/// more than N bytes or a `Vec` of more than N elements is named by
+/// `check_lengths`, through nesting too; the formats and encodings do not
+/// change (IPC has no bounds).
+#[test]
+fn check_lengths_names_a_string_or_vec_over_its_bound() {
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct Label {
+        #[ipc(bound = 5)]
+        text: String,
+        n: i32,
+        #[ipc(len = "n", bound = 3)]
+        codes: Vec<i32>,
+    }
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct Unbounded {
+        text: String,
+        n: i32,
+        #[ipc(len = "n")]
+        codes: Vec<i32>,
+    }
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct Outer {
+        labels: [Label; 2],
+    }
+    const { assert!(Label::CHECKS_LENGTHS && Outer::CHECKS_LENGTHS) };
+    assert_eq!(Label::FORMAT, Unbounded::FORMAT);
+    let label = |text: &str, codes: usize| Label {
+        text: text.into(),
+        n: 0,
+        codes: vec![7; codes],
+    };
+    assert_eq!(label("12345", 3).check_lengths(), Ok(()));
+    // bytes, as CDR counts them: "é" is two
+    let e = label("1234é", 3).check_lengths().unwrap_err();
+    assert_eq!(
+        e,
+        courier::LengthError::Bound {
+            field: "text",
+            len: 6,
+            unit: "bytes",
+            bound: 5
+        }
+    );
+    assert_eq!(
+        e.to_string(),
+        "field `text` has 6 bytes, more than its bound of 5"
+    );
+    let e = label("ok", 4).check_lengths().unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "field `codes` has 4 elements, more than its bound of 3"
+    );
+    let outer = Outer {
+        labels: [label("ok", 1), label("too long", 1)],
+    };
+    assert_eq!(outer.check_lengths().unwrap_err().field(), "text");
+    // the bytes are those of the unbounded type
+    let v = Unbounded {
+        text: "12345".into(),
+        n: 3,
+        codes: vec![7; 3],
+    };
+    assert_eq!(
+        courier::ipc::to_vec(&label("12345", 3)),
+        courier::ipc::to_vec(&v)
+    );
+    assert_eq!(
+        courier::cdr::to_vec(&label("12345", 3), courier::cdr::Encoding::Xcdr1Le),
+        courier::cdr::to_vec(&v, courier::cdr::Encoding::Xcdr1Le)
+    );
 }

@@ -460,7 +460,7 @@ fn idl_cyclone_types_round_trip() {
         message: "hi".into(),
     });
     // sequences are CDR-only: IPC counts arrays with a field
-    cdr_round_trip(&Reading {
+    let reading = Reading {
         sensor: "imu0".into(),
         level: Level::HIGH,
         values: vec![1.0, 2.0],
@@ -468,7 +468,24 @@ fn idl_cyclone_types_round_trip() {
         grid: [[1, 2, 3], [4, 5, 6]],
         tag: 'x',
         valid: true,
-    });
+    };
+    cdr_round_trip(&reading);
+    // the IDL's bounds hold: `string<MAX_NAME>` (through its typedef),
+    // `sequence<double, 16>`
+    assert_eq!(reading.check_lengths(), Ok(()));
+    let long = Reading {
+        sensor: "s".repeat(33),
+        ..reading.clone()
+    };
+    assert_eq!(
+        long.check_lengths().unwrap_err().to_string(),
+        "field `sensor` has 33 bytes, more than its bound of 32"
+    );
+    let long = Reading {
+        values: vec![0.0; 17],
+        ..reading
+    };
+    assert_eq!(long.check_lengths().unwrap_err().field(), "values");
     let history = vec![Msg {
         user_id: 1,
         message: "a".into(),

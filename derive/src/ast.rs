@@ -519,6 +519,14 @@ fn field_kind<'a>(
             );
         }
     }
+    if let Some((_, span)) = attrs.bound {
+        if !matches!(kind, Kind::Vec { .. }) && !is_string(ty) {
+            cx.error_at(
+                span,
+                "`bound` applies to `String` and `Vec<T>` fields (IDL `string<N>`, `sequence<T, N>`); an array's length is its type's",
+            );
+        }
+    }
     if let Some(span) = attrs.char_ {
         if is_u8(ty) {
             kind = Kind::Char;

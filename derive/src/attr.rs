@@ -41,10 +41,12 @@ pub struct FieldAttrs {
     pub must_understand: bool,
     /// `id = N`: the member id (mutable extensibility).
     pub id: Option<(u32, Span)>,
+    /// `bound = N`: at most N bytes of a `String`, N elements of a `Vec`.
+    pub bound: Option<(u64, Span)>,
 }
 
 const CONTAINER_KEYS: &str = "`crate`, `name`, `type_name`, `numeric`, `extensibility`";
-const FIELD_KEYS: &str = "`len`, `char`, `key`, `must_understand`, `id`";
+const FIELD_KEYS: &str = "`len`, `char`, `key`, `must_understand`, `id`, `bound`";
 
 /// Skips the value of an unknown or misplaced key (`= expr` or `(...)`)
 /// so that parsing can go on and report later problems too.
@@ -138,7 +140,7 @@ pub fn container(cx: &Ctxt, attrs: &[Attribute], is_enum: bool) -> ContainerAttr
                     ),
                     Some(e) => out.extensibility = Some((e, s.span())),
                 }
-            } else if matches!(key_name(&meta).as_str(), "len" | "char" | "key" | "must_understand" | "id") {
+            } else if matches!(key_name(&meta).as_str(), "len" | "char" | "key" | "must_understand" | "id" | "bound") {
                 cx.error_spanned_by(
                     &meta.path,
                     format!(
@@ -176,6 +178,7 @@ pub fn field(cx: &Ctxt, attrs: &[Attribute]) -> FieldAttrs {
         key: false,
         must_understand: false,
         id: None,
+        bound: None,
     };
     for attr in ipc_attrs(attrs) {
         let r = attr.parse_nested_meta(|meta| {
@@ -192,6 +195,12 @@ pub fn field(cx: &Ctxt, attrs: &[Attribute]) -> FieldAttrs {
                 match n.base10_parse::<u32>() {
                     Ok(v) if v <= 0x0fff_ffff => out.id = Some((v, n.span())),
                     _ => cx.error_spanned_by(&n, "member `id` must be an integer from 0 to 0x0fffffff (28 bits)"),
+                }
+            } else if meta.path.is_ident("bound") {
+                let n: LitInt = meta.value()?.parse()?;
+                match n.base10_parse::<u64>() {
+                    Ok(v) if (1..=0x7fff_ffff).contains(&v) => out.bound = Some((v, n.span())),
+                    _ => cx.error_spanned_by(&n, "`bound` must be an integer from 1 to 2147483647 (IDL `string<N>`, `sequence<T, N>`)"),
                 }
             } else if matches!(
                 key_name(&meta).as_str(),

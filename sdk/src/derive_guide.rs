@@ -76,6 +76,7 @@
 //! | `#[ipc(key)]` | DDS key field (`KEYS`, `cdr_encode_key`); key members carry the XTypes must-understand flag, as idlc gives `@key` members |
 //! | `#[ipc(must_understand)]` | sets the must-understand flag of a non-key member |
 //! | `#[ipc(id = 7)]` | CDR member id (mutable structs); ids continue sequentially after it |
+//! | `#[ipc(bound = 10)]` | this `String` holds at most 10 bytes, this `Vec` at most 10 elements (IDL `string<10>`, `sequence<T, 10>`; what `courier gen` emits for them): a session refuses to send a longer one ([`PublishError::Length`](crate::PublishError::Length)), and a typed subscriber refuses to take one ([`RecvError::Decode`](crate::RecvError::Decode)), as DDS implementations refuse a bounded value over its bound. The IPC format is unchanged (IPC has no bounds) |
 //!
 //! # Choices
 //!

@@ -100,7 +100,8 @@ pub(crate) fn encode_rpc<T: IpcMessage>(
 }
 
 /// Refuses a value a `Vec` of which is longer than its length field can
-/// say (the encoders would send fewer elements than it has).
+/// say (the encoders would send fewer elements than it has), or with a
+/// `String` or `Vec` over its `#[ipc(bound = N)]`.
 pub(crate) fn check_lengths<T: IpcMessage>(msg: &str, value: &T) -> Result<(), PublishError> {
     if T::CHECKS_LENGTHS {
         value
@@ -118,10 +119,17 @@ pub(crate) fn decode<T: IpcMessage>(
     data: &[u8],
     order: ipc::ByteOrder,
 ) -> Result<T, String> {
-    match enc {
+    let value = match enc {
         Encoding::Ipc => ipc::from_slice_with_order::<T>(data, order).map_err(|e| e.to_string()),
         Encoding::Cdr => cdr::from_slice::<T>(data).map_err(|e| e.to_string()),
+    }?;
+    // a bounded `String` or `Vec` over its bound: refused, as a DDS reader
+    // of the bounded type refuses it (a decoded `Vec` always fits its
+    // length field, which it was read by)
+    if T::CHECKS_LENGTHS {
+        value.check_lengths().map_err(|e| e.to_string())?;
     }
+    Ok(value)
 }
 
 /// One module's connection: publish, subscribe, query, serve, timers, events.

@@ -928,6 +928,60 @@ async fn a_vec_its_length_field_cannot_say_is_refused_not_cut_short() {
     c.shutdown().await;
 }
 
+/// A bounded `String` (`#[ipc(bound = N)]`, IDL `string<N>`) over its
+/// bound is refused by publish, and a subscriber of the bounded type
+/// refuses one that a peer with the unbounded type sent.
+#[tokio::test]
+async fn a_string_over_its_bound_is_refused_on_both_sides() {
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    #[ipc(name = "Name")]
+    struct Name {
+        #[ipc(bound = 4)]
+        text: String,
+    }
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    #[ipc(name = "Name")]
+    struct AnyName {
+        text: String,
+    }
+    let (c, url) = central().await;
+    let a = session(&url, "a").await;
+    let b = session(&url, "b").await;
+    let mut sub = b.subscribe::<Name>("name").await.unwrap();
+    assert_eq!(a.num_handlers("name").await.unwrap(), 1);
+    let e = a
+        .publish(
+            "name",
+            &Name {
+                text: "robot".into(),
+            },
+        )
+        .await
+        .unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "cannot publish name: field `text` has 5 bytes, more than its bound of 4"
+    );
+    a.publish(
+        "name",
+        &AnyName {
+            text: "robot".into(),
+        },
+    )
+    .await
+    .unwrap();
+    a.publish("name", &AnyName { text: "bot".into() })
+        .await
+        .unwrap();
+    let got = tokio::time::timeout(T, sub.next()).await.unwrap().unwrap();
+    let e = got.unwrap_err();
+    assert!(matches!(e, courier::RecvError::Decode { .. }), "{e:?}");
+    assert!(e.to_string().contains("more than its bound of 4"), "{e}");
+    let got = tokio::time::timeout(T, sub.next()).await.unwrap().unwrap();
+    assert_eq!(got.unwrap().value.text, "bot");
+    c.shutdown().await;
+}
+
 /// A typed first use that fails does not hold the topic to its type: the
 /// next attempt may use another (before, it failed with `TypeMismatch`
 /// naming the type of the attempt that never worked). A use that worked

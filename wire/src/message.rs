@@ -57,12 +57,15 @@ pub trait IpcMessage: Sized {
     /// Names of the key fields (`#[ipc(key)]`), for keyed DDS topics.
     const KEYS: &'static [&'static str] = &[];
     /// [`check_lengths`](Self::check_lengths) has something to check: the
-    /// type (or a type inside it) has a `Vec` whose length lives in a field.
+    /// type (or a type inside it) has a `Vec` whose length lives in a field,
+    /// or a bounded `String` or `Vec` (`#[ipc(bound = N)]`).
     const CHECKS_LENGTHS: bool = false;
 
     /// `Err` if a `Vec` is longer than its length field's type can say (300
     /// elements with `#[ipc(len = "n")]` on `n: u8`): both encoders would
-    /// send only as many as the field holds. A session checks before it
+    /// send only as many as the field holds; or if a `String` or `Vec` is
+    /// longer than its `#[ipc(bound = N)]`, which a DDS reader of the
+    /// bounded IDL type would refuse. A session checks before it
     /// encodes what it publishes, queries or replies; [`ipc::to_vec`] and
     /// [`cdr::to_vec`] do not check (they send that many).
     fn check_lengths(&self) -> Result<(), LengthError> {
@@ -169,23 +172,56 @@ pub trait IpcMessage: Sized {
     fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self::Key, cdr::DecodeError>;
 }
 
-/// A `Vec` longer than its length field's type can say
-/// ([`IpcMessage::check_lengths`]).
+/// A value longer than its type lets it be ([`IpcMessage::check_lengths`]).
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error(
-    "field `{field}` has {len} elements, more than its length field `{count}` ({count_type}) can say ({max})"
-)]
-pub struct LengthError {
-    /// The `Vec` field.
-    pub field: &'static str,
-    /// Its length field.
-    pub count: &'static str,
-    /// The length field's type.
-    pub count_type: &'static str,
-    /// The `Vec`'s length.
-    pub len: usize,
-    /// The most the length field holds (at most `i32::MAX`, IPC's count).
-    pub max: u64,
+#[non_exhaustive]
+pub enum LengthError {
+    /// A `Vec` longer than its length field's type can say.
+    #[error(
+        "field `{field}` has {len} elements, more than its length field `{count}` ({count_type}) can say ({max})"
+    )]
+    Count {
+        /// The `Vec` field.
+        field: &'static str,
+        /// Its length field.
+        count: &'static str,
+        /// The length field's type.
+        count_type: &'static str,
+        /// The `Vec`'s length.
+        len: usize,
+        /// The most the length field holds (at most `i32::MAX`, IPC's count).
+        max: u64,
+    },
+    /// A `String` or `Vec` longer than its `#[ipc(bound = N)]` (IDL
+    /// `string<N>`, `sequence<T, N>`; XDR `string<N>`, `T x<N>`).
+    #[error("field `{field}` has {len} {unit}, more than its bound of {bound}")]
+    Bound {
+        /// The field.
+        field: &'static str,
+        /// Its length: bytes of a `String` (CDR's count, without the NUL),
+        /// elements of a `Vec`.
+        len: usize,
+        /// `"bytes"` or `"elements"`.
+        unit: &'static str,
+        /// The bound.
+        bound: u64,
+    },
+}
+
+impl LengthError {
+    /// The field that is too long.
+    pub fn field(&self) -> &'static str {
+        match self {
+            LengthError::Count { field, .. } | LengthError::Bound { field, .. } => field,
+        }
+    }
+
+    /// Its length.
+    pub fn length(&self) -> usize {
+        match self {
+            LengthError::Count { len, .. } | LengthError::Bound { len, .. } => *len,
+        }
+    }
 }
 
 /// The named formats a type depends on, collected by

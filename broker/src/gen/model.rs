@@ -182,6 +182,8 @@ pub struct FieldDef {
     pub id: Option<u32>,
     /// `#[ipc(must_understand)]`.
     pub must_understand: bool,
+    /// `#[ipc(bound = N)]`: a bounded string or sequence.
+    pub bound: Option<u32>,
 }
 
 impl FieldDef {
@@ -196,6 +198,7 @@ impl FieldDef {
             key: false,
             id: None,
             must_understand: false,
+            bound: None,
         }
     }
 }

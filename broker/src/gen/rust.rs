@@ -195,6 +195,9 @@ fn field_attrs(f: &FieldDef) -> Vec<String> {
     if let Some(l) = &f.len {
         a.push(format!("len = {}", quote(l)));
     }
+    if let Some(n) = f.bound {
+        a.push(format!("bound = {n}"));
+    }
     a
 }
 

@@ -76,6 +76,8 @@ struct Decl {
     pos: Pos,
     ty: XType,
     dims: Dims,
+    /// `string s<N>`: the string's own bound.
+    string_bound: Option<i128>,
 }
 
 enum Def {
@@ -330,12 +332,16 @@ impl Parser {
             self.c.expect(">")?;
             var.push(max);
         }
+        let mut string_bound = None;
         if matches!(ty, XType::String) {
             // the last <> is the string's own
-            if var.pop().is_none() {
-                return Err(self
-                    .c
-                    .error("`<>` after a string (strings are variable-length in XDR)"));
+            match var.pop() {
+                Some(b) => string_bound = b,
+                None => {
+                    return Err(self
+                        .c
+                        .error("`<>` after a string (strings are variable-length in XDR)"))
+                }
             }
         }
         if !var.is_empty() {
@@ -353,6 +359,7 @@ impl Parser {
             pos,
             ty,
             dims,
+            string_bound,
         })
     }
 }
@@ -486,6 +493,14 @@ impl Cx<'_> {
             if fd.name.trim_start_matches("r#") != f.name {
                 fd.doc.push(format!("`{}` in the XDR file.", f.name));
             }
+            if let Some(max) = f.string_bound {
+                match (u32::try_from(max), &f.dims) {
+                    (Ok(n), Dims::None) if (1..=0x7fff_ffff).contains(&n) => fd.bound = Some(n),
+                    _ => fd
+                        .doc
+                        .push(format!("Strings of at most {max} bytes (not checked).")),
+                }
+            }
             if let Dims::Var(v) = &f.dims {
                 // xdrgen: an array of n dimensions is sized by the n fields
                 // before it, in order, each an int or unsigned int
@@ -515,9 +530,19 @@ impl Cx<'_> {
                 };
                 let names: Vec<String> = sizes.iter().map(|c| names::field_name(&c.name)).collect();
                 fd.len = Some(names.join(", "));
-                if let Some(Some(max)) = v.first() {
-                    fd.doc
-                        .push(format!("At most {max} elements (not checked)."));
+                // `T x<N>`: a one-dimensional array's bound is the field's
+                if let [Some(max)] = v.as_slice() {
+                    // XDR bounds fit a u32; the derive takes up to i32::MAX
+                    match u32::try_from(*max) {
+                        Ok(n) if (1..=0x7fff_ffff).contains(&n) => fd.bound = Some(n),
+                        _ => fd
+                            .doc
+                            .push(format!("At most {max} elements (not checked).")),
+                    }
+                } else if let Some(Some(max)) = v.first() {
+                    fd.doc.push(format!(
+                        "At most {max} elements in its first dimension (not checked)."
+                    ));
                 }
             }
             fds.push(fd);

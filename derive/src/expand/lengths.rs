@@ -1,6 +1,7 @@
 //! `check_lengths`: each `Vec` with a length field against what that
-//! field's type can say (the encoders send no more than that), and the
-//! fields whose types check lengths of their own.
+//! field's type can say (the encoders send no more than that), each
+//! bounded `String` or `Vec` against its bound, and the fields whose types
+//! check lengths of their own.
 
 use proc_macro2::TokenStream;
 use quote::quote;
@@ -23,6 +24,29 @@ pub(super) fn lengths(fields: &[Field<'_>]) -> Lengths {
         }
         let m = &f.member;
         let ty = f.ty;
+        if let Some((bound, _)) = f.attrs.bound {
+            // a `String`'s bytes (CDR counts them, without the NUL) or a
+            // `Vec`'s elements: `len()` of either
+            let (field, unit) = (
+                &f.name,
+                if matches!(f.kind, Kind::Vec { .. }) {
+                    "elements"
+                } else {
+                    "bytes"
+                },
+            );
+            flags.push(quote!(true));
+            body.push(quote! {
+                if self.#m.len() as u64 > #bound {
+                    return ::core::result::Result::Err(__wire::LengthError::Bound {
+                        field: #field,
+                        len: self.#m.len(),
+                        unit: #unit,
+                        bound: #bound,
+                    });
+                }
+            });
+        }
         match &f.kind {
             Kind::Plain => {
                 flags.push(quote!(<#ty as __wire::IpcMessage>::CHECKS_LENGTHS));
@@ -42,7 +66,7 @@ pub(super) fn lengths(fields: &[Field<'_>]) -> Lengths {
                     body.push(quote! {
                         let __max = ::core::cmp::min(<#cty>::MAX as u64, 0x7fff_ffff_u64);
                         if self.#m.len() as u64 > __max {
-                            return ::core::result::Result::Err(__wire::LengthError {
+                            return ::core::result::Result::Err(__wire::LengthError::Count {
                                 field: #field,
                                 count: #count_name,
                                 count_type: #cty_name,

@@ -27,4 +27,16 @@ struct Unsupported {
     text: &'static str,
 }
 
+#[derive(IpcMessage)]
+struct BadBound {
+    #[ipc(bound = 5)]
+    x: i32,
+    #[ipc(bound = 0)]
+    s: String,
+    #[ipc(bound = 3)]
+    a: [i32; 4],
+    #[ipc(bound = "3")]
+    v: Vec<i32>,
+}
+
 fn main() {}

@@ -20,8 +20,9 @@
 //! `pkg::msg::dds_::Name_` with [`Options::ros2_names`](super::Options)),
 //! sequences become `Vec<T>` (a CDR sequence; such a struct has no IPC
 //! form, since IPC counts arrays with a field), `@optional` members
-//! `Option<Box<T>>`, bounds of strings and sequences doc comments (they are
-//! not checked). Structs are final unless annotated otherwise, as idlc and
+//! `Option<Box<T>>`, bounds of strings and sequences `#[ipc(bound = N)]`
+//! (publishing refuses a longer value, a subscriber refuses to take one;
+//! the bound of an array's elements is a doc comment only). Structs are final unless annotated otherwise, as idlc and
 //! ROS 2 have them.
 //!
 //! Refused with the place and a hint: `union`, inheritance, `wchar`,
@@ -61,9 +62,12 @@ enum Val {
 #[derive(Debug, Clone)]
 enum Kind {
     Module,
-    Struct { defined: bool },
+    Struct {
+        defined: bool,
+    },
     Enum,
-    Typedef(Ty),
+    /// The type, and the bound of a bounded string or sequence.
+    Typedef(Ty, Option<u32>),
     Const(Val),
 }
 
@@ -288,14 +292,16 @@ impl Tr<'_> {
             Def::Enum(e) => self.enumeration(e, scope, fcx),
             Def::Typedef(ty, decls) => {
                 for decl in decls {
-                    let (base, notes) = self.ty(ty, scope)?;
+                    let (base, notes, bound) = self.ty(ty, scope)?;
+                    // a bound of the elements of an array alias is not the alias's
+                    let bound = bound.filter(|_| decl.dims.is_empty());
                     let t = self.with_dims(base, &decl.dims, scope, &decl.pos)?;
                     let rust = names::type_name(&decl.name);
                     self.declare(
                         scope,
                         &decl.name,
                         &decl.pos,
-                        Kind::Typedef(t.clone()),
+                        Kind::Typedef(t.clone(), bound),
                         rust.clone(),
                     )?;
                     let mut doc = vec![format!(
@@ -399,22 +405,26 @@ impl Tr<'_> {
         }
     }
 
-    /// The Rust type of a type specifier, and notes for doc comments.
-    fn ty(&self, t: &TypeAst, scope: &[String]) -> Result<(Ty, Vec<String>), GenError> {
+    /// The Rust type of a type specifier, notes for doc comments, and the
+    /// bound of a bounded string or sequence (`#[ipc(bound = N)]`).
+    fn ty(
+        &self,
+        t: &TypeAst,
+        scope: &[String],
+    ) -> Result<(Ty, Vec<String>, Option<u32>), GenError> {
         Ok(match t {
-            TypeAst::Prim(p) => (Ty::Prim(*p), Vec::new()),
-            TypeAst::String(None) => (Ty::Prim(Prim::String), Vec::new()),
+            TypeAst::Prim(p) => (Ty::Prim(*p), Vec::new(), None),
+            TypeAst::String(None) => (Ty::Prim(Prim::String), Vec::new(), None),
             TypeAst::String(Some(b)) => {
                 let n = self.bound(b, scope, "a string bound")?;
                 (
                     Ty::Prim(Prim::String),
-                    vec![format!(
-                        "At most {n} characters (`string<{n}>`, not checked)."
-                    )],
+                    vec![format!("At most {n} bytes (`string<{n}>`).")],
+                    Some(n),
                 )
             }
             TypeAst::Sequence(elem, bound, pos) => {
-                let (e, _) = self.ty(elem, scope)?;
+                let (e, _, _) = self.ty(elem, scope)?;
                 if matches!(e, Ty::Vec(_)) {
                     return Err(GenError::unsupported(
                         pos.clone(),
@@ -423,16 +433,17 @@ impl Tr<'_> {
                          sequence in a struct",
                     ));
                 }
-                let notes = match bound {
+                match bound {
                     Some(b) => {
                         let n = self.bound(b, scope, "a sequence bound")?;
-                        vec![format!(
-                            "At most {n} elements (`sequence<…, {n}>`, not checked)."
-                        )]
+                        (
+                            Ty::Vec(Box::new(e)),
+                            vec![format!("At most {n} elements (`sequence<…, {n}>`).")],
+                            Some(n),
+                        )
                     }
-                    None => Vec::new(),
-                };
-                (Ty::Vec(Box::new(e)), notes)
+                    None => (Ty::Vec(Box::new(e)), Vec::new(), None),
+                }
             }
             TypeAst::Named(path, absolute, pos) => {
                 let written = format!("{}{}", if *absolute { "::" } else { "" }, path.join("::"));
@@ -443,8 +454,10 @@ impl Tr<'_> {
                     });
                 };
                 match &sym.kind {
-                    Kind::Struct { .. } | Kind::Enum => (Ty::Named(sym.rust.clone()), Vec::new()),
-                    Kind::Typedef(t) => (t.clone(), Vec::new()),
+                    Kind::Struct { .. } | Kind::Enum => {
+                        (Ty::Named(sym.rust.clone()), Vec::new(), None)
+                    }
+                    Kind::Typedef(t, bound) => (t.clone(), Vec::new(), *bound),
                     Kind::Module | Kind::Const(_) => {
                         return Err(GenError::invalid(
                             pos.clone(),
@@ -567,8 +580,11 @@ impl Tr<'_> {
                     });
                 }
                 seen.insert(&decl.name, &decl.pos);
-                let (base, notes) = self.ty(&m.ty, scope)?;
+                let (base, notes, bound) = self.ty(&m.ty, scope)?;
                 let mut t = self.with_dims(base, &decl.dims, scope, &decl.pos)?;
+                // a field's own bound; an array's elements' is not checked
+                let element_bound = bound.filter(|_| !decl.dims.is_empty());
+                let bound = bound.filter(|_| decl.dims.is_empty());
                 let mut fd = FieldDef::new(
                     names::field_name(&decl.name),
                     decl.pos.clone(),
@@ -613,6 +629,18 @@ impl Tr<'_> {
                         }
                         _ => {}
                     }
+                }
+                match (bound, element_bound) {
+                    (Some(n), _) if matches!(t, Ty::Prim(Prim::String) | Ty::Vec(_)) => {
+                        fd.bound = Some(n)
+                    }
+                    (Some(n), _) => fd.doc.push(format!(
+                        "The bound {n} is not checked (`#[ipc(bound)]` takes no optional member)."
+                    )),
+                    (None, Some(n)) => fd.doc.push(format!(
+                        "The bound {n} of each element is not checked (`#[ipc(bound)]` is a field's own)."
+                    )),
+                    (None, None) => {}
                 }
                 fd.ty = t;
                 fields.push(fd);
@@ -698,7 +726,7 @@ impl Tr<'_> {
         scope: &[String],
         fcx: &FileCx<'_>,
     ) -> Result<(), GenError> {
-        let (t, _) = self.ty(ty, scope)?;
+        let (t, _, _) = self.ty(ty, scope)?;
         let v = self.eval(value, scope)?;
         let bad = |want: &str| {
             GenError::invalid(

@@ -28,11 +28,11 @@ pub mod hello_world_data {
     }
 
     /// IDL typedef `HelloWorldData::Name` (cyclone.idl:13).
-    /// At most 32 characters (`string<32>`, not checked).
+    /// At most 32 bytes (`string<32>`).
     pub type Name = String;
 
     /// IDL typedef `HelloWorldData::Blob` (cyclone.idl:14).
-    /// At most 64 elements (`sequence<…, 64>`, not checked).
+    /// At most 64 elements (`sequence<…, 64>`).
     pub type Blob = Vec<u8>;
 
     /// IDL typedef `HelloWorldData::Grid` (cyclone.idl:15).
@@ -52,11 +52,13 @@ pub mod hello_world_data {
     #[derive(Debug, Clone, PartialEq, IpcMessage)]
     #[ipc(type_name = "HelloWorldData::Reading", extensibility = "appendable")]
     pub struct Reading {
-        #[ipc(key)]
+        #[ipc(key, bound = 32)]
         pub sensor: String,
         pub level: Level,
-        /// At most 16 elements (`sequence<…, 16>`, not checked).
+        /// At most 16 elements (`sequence<…, 16>`).
+        #[ipc(bound = 16)]
         pub values: Vec<f64>,
+        #[ipc(bound = 64)]
         pub raw: Vec<u8>,
         pub grid: [[i32; 3]; 2],
         pub tag: char,

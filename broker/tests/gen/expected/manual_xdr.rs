@@ -81,8 +81,7 @@ pub struct AlphaBeta {
 #[derive(Debug, Clone, PartialEq, IpcMessage)]
 pub struct Gamma {
     pub delta: i32,
-    /// At most 20 elements (not checked).
-    #[ipc(len = "delta")]
+    #[ipc(len = "delta", bound = 20)]
     pub epsilon: Vec<f32>,
 }
 
