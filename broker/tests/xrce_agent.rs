@@ -204,7 +204,7 @@ fn command_line_errors() {
     let incomplete = dir.join("incomplete.refs");
     std::fs::write(
         &incomplete,
-        "<profiles><topic profile_name=\"t\"><name>x</name></topic></profiles>",
+        "<profiles>\n  <topic profile_name=\"ok\"><name>y</name><dataType>T</dataType></topic>\n  <topic profile_name=\"t\"><name>x</name></topic>\n</profiles>",
     )
     .unwrap();
     let missing = dir.join("missing.refs");
@@ -241,7 +241,7 @@ fn command_line_errors() {
             vec!["udp4".into(), "-p".into(), "0".into(), "-r".into(), incomplete.display().to_string()],
             2,
             format!(
-                "xrce-agent: references file {}: <topic> has no <dataType>",
+                "xrce-agent: references file {}: line 3: <topic profile_name=\"t\">: <topic> has no <dataType>",
                 incomplete.display()
             ),
         ),

@@ -120,12 +120,28 @@ pub enum ProfileError {
         name: String,
     },
     /// Two profiles of one kind with the same name in a references file.
-    #[error("two {kind} profiles named {name:?}")]
+    #[error("line {line}: a second {kind} profile named {name:?} (the first is at line {first})")]
     Duplicate {
         /// The kind.
         kind: &'static str,
         /// The name.
         name: String,
+        /// The second one's line (1-based).
+        line: u32,
+        /// The first one's.
+        first: u32,
+    },
+    /// A profile of a references file that does not describe its object.
+    #[error("line {line}: <{element} profile_name={name:?}>: {error}")]
+    InProfile {
+        /// The profile's line (1-based).
+        line: u32,
+        /// Its element.
+        element: &'static str,
+        /// Its name.
+        name: String,
+        /// What is wrong with it.
+        error: Box<ProfileError>,
     },
     /// A binary representation for an object kind that has none.
     #[error("a {0:?} has no binary representation")]
@@ -567,6 +583,7 @@ impl Profiles {
         let xml = loosen(xml);
         let doc = parse(&xml)?;
         let mut by_kind = BTreeMap::new();
+        let mut lines: BTreeMap<(u8, &str), u32> = BTreeMap::new();
         let kinds = [
             ObjectKind::Participant,
             ObjectKind::Topic,
@@ -587,13 +604,25 @@ impl Profiles {
             else {
                 continue;
             };
-            let p = profile_of(kind, n)?;
-            if by_kind.insert((kind as u8, name.to_string()), p).is_some() {
+            // `loosen` adds spaces only: the lines are the file's
+            let line = doc.text_pos_at(n.range().start).row;
+            let tag = element(kind).unwrap_or("?");
+            let p = profile_of(kind, n).map_err(|e| ProfileError::InProfile {
+                line,
+                element: tag,
+                name: name.into(),
+                error: Box::new(e),
+            })?;
+            if let Some(&first) = lines.get(&(kind as u8, name)) {
                 return Err(ProfileError::Duplicate {
-                    kind: element(kind).unwrap_or("?"),
+                    kind: tag,
                     name: name.into(),
+                    line,
+                    first,
                 });
             }
+            lines.insert((kind as u8, name), line);
+            by_kind.insert((kind as u8, name.to_string()), p);
         }
         Ok(Profiles { by_kind })
     }
@@ -641,6 +670,27 @@ mod tests {
     <replier profile_name="shapetype_replier" service_name="shapetype_service"
              request_type="request_type" reply_type="reply_type"></replier>
 </profiles>"#;
+
+    #[test]
+    fn a_references_file_error_names_the_line_of_its_profile() {
+        let topic = |name: &str, kind: &str| {
+            format!("  <topic profile_name=\"{name}\"><kind>{kind}</kind><name>T</name><dataType>D</dataType></topic>\n")
+        };
+        let file = |body: String| format!("<profiles>\n{body}</profiles>\n");
+        let twice = file(topic("a", "NO_KEY") + &topic("b", "NO_KEY") + &topic("a", "NO_KEY"));
+        assert_eq!(
+            Profiles::parse(&twice).unwrap_err().to_string(),
+            "line 4: a second topic profile named \"a\" (the first is at line 2)"
+        );
+        let bad = file(topic("a", "NO_KEY") + &topic("b", "SOMETIMES"));
+        let e = Profiles::parse(&bad).unwrap_err();
+        assert!(
+            e.to_string().starts_with(
+                "line 3: <topic profile_name=\"b\">: <topic>: \"SOMETIMES\" is not a valid"
+            ),
+            "{e}"
+        );
+    }
 
     #[test]
     fn the_shared_references_file() {
