@@ -13,7 +13,7 @@ use courier_wire::rtps::discovery::{Duration as RtpsDuration, EndpointQos, Histo
 use courier_wire::rtps::participant::{guid_prefix, Change, Config, EndpointConfig};
 use courier_wire::rtps::Locator;
 use courier_wire::sim::{self, Faults, Node};
-use courier_wire::xrce::bridge::{Bridge, BridgeConfig, BridgeEvent, Profiles};
+use courier_wire::xrce::bridge::{Bridge, BridgeConfig, BridgeEvent, Profiles, REDISCOVERY};
 use courier_wire::xrce::sim::{Peer, PeerEvent};
 use courier_wire::xrce::{
     qos_flags, BinaryRepresentation, Client, ClientConfig, CreationMode, DataReaderBinary,
@@ -35,7 +35,9 @@ enum Addr {
 enum N {
     Client(Peer<Addr>),
     Bridge(Box<Bridge<Addr>>, u16),
-    Dds(Box<Domain>),
+    /// A DDS participant; `true` while it reads nothing (what is sent to it
+    /// waits): a peer slow to discover.
+    Dds(Box<Domain>, bool),
 }
 
 #[derive(Debug)]
@@ -62,13 +64,13 @@ impl Node for N {
             (N::Client(p), _) => p.owns(to),
             (N::Bridge(_, a), Addr::X(x)) => a == x,
             (N::Bridge(b, _), Addr::R(l)) => owns(b.domain(), l),
-            (N::Dds(d), Addr::R(l)) => owns(d, l),
+            (N::Dds(d, _), Addr::R(l)) => owns(d, l),
             _ => false,
         }
     }
     fn reads(&self, to: &Addr) -> bool {
         match (self, to) {
-            (N::Dds(d), Addr::R(l)) => Node::reads(&**d, l),
+            (N::Dds(d, deaf), Addr::R(l)) => !deaf && Node::reads(&**d, l),
             _ => true,
         }
     }
@@ -76,7 +78,7 @@ impl Node for N {
         match self {
             N::Client(p) => p.address(),
             N::Bridge(_, a) => Addr::X(*a),
-            N::Dds(d) => Addr::R(Node::address(&**d)),
+            N::Dds(d, _) => Addr::R(Node::address(&**d)),
         }
     }
     fn handle_datagram(&mut self, from: Addr, bytes: &[u8], now: Instant) {
@@ -86,21 +88,21 @@ impl Node for N {
                 let _ = b.handle_input(from, bytes, now);
             }
             (N::Bridge(b, _), l) => b.handle_datagram(l, bytes, now),
-            (N::Dds(d), l) => d.handle_datagram(l, bytes, now),
+            (N::Dds(d, _), l) => d.handle_datagram(l, bytes, now),
         }
     }
     fn handle_timeout(&mut self, now: Instant) {
         match self {
             N::Client(p) => p.handle_timeout(now),
             N::Bridge(b, _) => b.handle_timeout(now),
-            N::Dds(d) => d.handle_timeout(now),
+            N::Dds(d, _) => d.handle_timeout(now),
         }
     }
     fn poll_timeout(&self) -> Option<Instant> {
         match self {
             N::Client(p) => p.poll_timeout(),
             N::Bridge(b, _) => b.poll_timeout(),
-            N::Dds(d) => d.poll_timeout(),
+            N::Dds(d, _) => d.poll_timeout(),
         }
     }
     fn poll_transmit(&mut self) -> Option<(Addr, Vec<u8>)> {
@@ -110,7 +112,7 @@ impl Node for N {
                 b.poll_datagram()
                     .map(|d| (Addr::R(d.destination), d.payload))
             }),
-            N::Dds(d) => d
+            N::Dds(d, _) => d
                 .poll_transmit()
                 .map(|d| (Addr::R(d.destination), d.payload)),
         }
@@ -122,7 +124,7 @@ impl Node for N {
                 PeerEvent::Agent(_) => None,
             }),
             N::Bridge(b, _) => b.poll_event().map(Ev::Bridge),
-            N::Dds(d) => d.poll_event().map(|e| Ev::Dds(Box::new(e))),
+            N::Dds(d, _) => d.poll_event().map(|e| Ev::Dds(Box::new(e))),
         }
     }
 }
@@ -158,11 +160,10 @@ fn world(seed: u64, loss: u32, tweak: impl FnOnce(&mut Config, &mut BridgeConfig
     let domain = Domain::new(dc, net.now(), net.wall());
     let bridge = Bridge::new(bc, domain, net.now(), net.wall());
     let bridge = net.add(N::Bridge(Box::new(bridge), AGENT));
-    let dds = net.add(N::Dds(Box::new(Domain::new(
-        dds_config(1),
-        net.now(),
-        net.wall(),
-    ))));
+    let dds = net.add(N::Dds(
+        Box::new(Domain::new(dds_config(1), net.now(), net.wall())),
+        false,
+    ));
     World { net, bridge, dds }
 }
 
@@ -182,6 +183,14 @@ fn bin(b: BinaryRepresentation) -> Representation {
 }
 
 impl World {
+    /// The DDS participant reads nothing (`true`; what is sent to it
+    /// waits) or reads again.
+    fn deafen(&mut self, deaf: bool) {
+        if let N::Dds(_, d) = &mut self.net.hosts[self.dds].node {
+            *d = deaf;
+        }
+    }
+
     fn add_client(&mut self, addr: u16, key: u32) -> usize {
         let c = Client::new(ClientConfig::new(key));
         let i = self
@@ -212,7 +221,7 @@ impl World {
 
     fn dds(&mut self) -> &mut Domain {
         match self.net.node(self.dds) {
-            N::Dds(d) => d,
+            N::Dds(d, _) => d,
             _ => panic!(),
         }
     }
@@ -481,7 +490,7 @@ fn xrce_client_to_dds_reader_and_dds_writer_to_xrce_client() {
     // wait until both sides are matched
     assert!(w.run_until(Duration::from_secs(10), |w| {
         let d = match &w.net.hosts[w.dds].node {
-            N::Dds(d) => d,
+            N::Dds(d, _) => d,
             _ => unreachable!(),
         };
         d.matched_readers(dw) == 1
@@ -806,7 +815,7 @@ fn delivery_control_max_samples_and_best_effort() {
     w.create(c, reader_objects("Many", true), CreationMode::REPLACE);
     assert!(w.run_until(Duration::from_secs(10), |w| {
         match &w.net.hosts[w.dds].node {
-            N::Dds(d) => d.matched_readers(dw) == 1,
+            N::Dds(d, _) => d.matched_readers(dw) == 1,
             _ => false,
         }
     }));
@@ -1151,11 +1160,24 @@ fn a_reader_cut_off_for_two_seconds_catches_up_at_link_speed() {
 /// A graceful stop (the old participant says goodbye) and a restored
 /// bridge, with a remote DDS reader: every sample the client writes from
 /// the first the reader got arrives, across the restart. Simulated time.
-/// (The simulator rediscovers faster than the client's samples arrive, so
-/// this does not hit the race `REDISCOVERY` closes; the `xrce-agent`
-/// reproduction with a Courier session client did.)
 #[test]
 fn a_restored_bridge_writes_nothing_before_remote_readers_find_it_again() {
+    graceful_restart_with_a_remote_reader(Duration::ZERO);
+}
+
+/// The same with a remote reader that reads nothing for 600 ms after the
+/// restart (what is sent to it waits), so it finds the new participant
+/// only then: the race `REDISCOVERY` closes. A restored bridge that wrote
+/// the client's samples at once wrote them before the volatile reader
+/// matched, and the reader never got them although the client had them
+/// acknowledged (with the hold set to zero, this test fails so).
+#[test]
+fn a_restored_bridge_holds_its_writes_for_a_reader_slow_to_find_it() {
+    graceful_restart_with_a_remote_reader(Duration::from_millis(600));
+}
+
+fn graceful_restart_with_a_remote_reader(deaf: Duration) {
+    assert!(deaf < REDISCOVERY);
     let mut w = world(5, 0, |_, _| {});
     let now = w.net.now();
     let r = w
@@ -1207,6 +1229,7 @@ fn a_restored_bridge_writes_nothing_before_remote_readers_find_it_again() {
     let mut fresh = Bridge::new(bc, Domain::new(cfg, now, w.net.wall()), now, w.net.wall());
     assert!(fresh.restore(st, now).is_empty());
     w.net.hosts[w.bridge].node = N::Bridge(Box::new(fresh), AGENT);
+    w.deafen(true);
     // the client goes on at once: its samples reach the new bridge first
     let last = next + 5;
     while next < last {
@@ -1217,6 +1240,8 @@ fn a_restored_bridge_writes_nothing_before_remote_readers_find_it_again() {
         next += 1;
     }
     let want: Vec<Vec<u8>> = (first..last).map(|i| sample(i, 40)).collect();
+    w.run_until(deaf, |_| false);
+    w.deafen(false);
     w.run_until(Duration::from_secs(30), |w| bodies(w).len() >= want.len());
     assert_eq!(
         bodies(&w),
