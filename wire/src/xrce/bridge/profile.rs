@@ -751,7 +751,10 @@ mod tests {
             "<profiles>\n<topic profile_name=\"t\"><name>x</name></topic>\n</profiles>",
         )
         .unwrap_err();
-        assert_eq!(e.to_string(), "<topic> has no <dataType>");
+        assert_eq!(
+            e.to_string(),
+            "line 2: <topic profile_name=\"t\">: <topic> has no <dataType>"
+        );
         let e = Profiles::parse("<profiles>\n<topic profile_name=\"t\">\n</profile>").unwrap_err();
         assert!(e.to_string().starts_with("XML at line 3"), "{e}");
         let e = from_xml(
