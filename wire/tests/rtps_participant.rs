@@ -354,6 +354,59 @@ fn a_200_kib_sample_is_fragmented_and_reassembled_under_loss() {
     }
 }
 
+/// A 4 MiB sample whose first burst the reader's socket buffer mostly
+/// dropped (only its first 64 datagrams, ~0.9 MiB, arrive): one NACK_FRAG
+/// names at most 256 missing fragments, so the ~2400 missing take ten
+/// rounds. Each resend that leaves more to ask for ends with a heartbeat
+/// to that reader, so the rounds go at the network's pace: simulated, the
+/// sample is whole within 100 ms, the first periodic heartbeat's time
+/// (before, each round waited for one: ~1 s).
+#[test]
+fn a_large_sample_mostly_lost_is_repaired_a_round_trip_per_nack_frag() {
+    let big: Vec<u8> = [0u8, 1, 0, 0]
+        .into_iter()
+        .chain((0..4 << 20).map(|i| (i * 31 % 251) as u8))
+        .collect();
+    let (mut net, w, _) = matched_pair(
+        21,
+        0,
+        EndpointConfig::writer("Big", "Blob"),
+        reliable_reader("Big", "Blob"),
+    );
+    let now = net.now();
+    let start = net.elapsed();
+    net.hosts[0]
+        .node
+        .write(w, Change::alive(&big), now)
+        .unwrap();
+    // the first burst: what a 1 MiB receive buffer takes, the rest dropped
+    let from = sim::Node::address(&net.hosts[0].node);
+    let mut sent = 0;
+    while let Some(d) = net.hosts[0].node.poll_transmit() {
+        sent += 1;
+        if sent <= 64 {
+            net.send(sim::Packet {
+                from,
+                to: d.destination,
+                payload: d.payload,
+            });
+        }
+    }
+    assert!(sent > 250, "{sent} datagrams");
+    net.tapping = true;
+    assert!(net.run_until(Duration::from_secs(10), |n| !n.samples(1).is_empty()));
+    assert_eq!(net.samples(1)[0].data(), &big[..]);
+    let took = net.elapsed() - start;
+    assert!(took < Duration::from_millis(100), "{took:?}");
+    let nack_frags = net
+        .tap
+        .iter()
+        .flat_map(|d| Message::parse(&d.payload).unwrap().submessages)
+        .filter(|s| matches!(s, Submessage::NackFrag(_)))
+        .count();
+    assert!(nack_frags >= 9, "{nack_frags}");
+}
+
 /// Takes the samples node `i` has received so far, as owned values.
 fn take_samples(net: &mut Net, i: usize) -> Vec<ReceivedSample> {
     std::mem::take(&mut net.hosts[i].events)

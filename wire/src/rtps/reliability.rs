@@ -466,6 +466,19 @@ impl Writer {
         self.ack_next = true;
     }
 
+    /// Asks `reader` at once what it still misses (a heartbeat that wants
+    /// an answer). For a writer that resent the fragments a NACK_FRAG asked
+    /// for while the sample has more than that NACK_FRAG could name (a
+    /// fragment number set spans 256): the reader then asks for the next
+    /// ones a round trip later instead of a heartbeat period later. An
+    /// 8 MiB sample whose first burst overflowed a 1 MiB socket buffer
+    /// took ~20 periodic heartbeats (2 s) to repair.
+    pub fn heartbeat_to(&mut self, reader: Guid) {
+        if self.reliable && self.readers.contains_key(&reader) {
+            self.push_heartbeat(Some(reader), false);
+        }
+    }
+
     /// Queues a heartbeat for one reader, or for all of them. A fresh
     /// reader (see [`ReaderProxy::fresh`]) gets its own, announcing nothing
     /// from its start on and asking for an answer.

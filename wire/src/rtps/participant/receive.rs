@@ -376,14 +376,31 @@ impl Participant {
             fragment_size: self.cfg.fragment_size,
         };
         let outbox = &mut self.outbox;
+        let env = open(&sample);
+        // fragments past what this NACK_FRAG could name: ask for the rest
+        // right after these (see `Writer::heartbeat_to`)
+        let fs = usize::from(shape.fragment_size.max(1));
+        let set = &n.fragment_number_state;
+        let more =
+            env.data.len().div_ceil(fs) as u64 > u64::from(set.base) + u64::from(set.num_bits) - 1;
         data_units(
             shape,
             n.reader_id,
             n.writer_id,
             n.writer_sn,
-            &key_form_for(&route, reader.prefix, &open(&sample)),
+            &key_form_for(&route, reader.prefix, &env),
             Some(&frags),
             |ts, sm| outbox.push_sample(l, reader.prefix, ts, sm, &sample),
         );
+        if more {
+            let writer = match n.writer_id {
+                EntityId::SEDP_PUBLICATIONS_WRITER => Some(&mut self.pub_writer),
+                EntityId::SEDP_SUBSCRIPTIONS_WRITER => Some(&mut self.sub_writer),
+                e => self.writers.get_mut(&e).map(|w| &mut w.writer),
+            };
+            if let Some(w) = writer {
+                w.heartbeat_to(reader);
+            }
+        }
     }
 }
