@@ -396,6 +396,7 @@ impl Writer {
         // a sum over the history when acknowledged samples are retained)
         let keep_all_reliable = self.keep_all_reliable();
         let unacked_after = self.unacked_after(payload.len())?;
+        let len = payload.len();
         let sn = self.next_sn;
         self.next_sn += 1;
         self.history_bytes += payload.len();
@@ -431,8 +432,15 @@ impl Writer {
                         || unacked_after.saturating_mul(2) >= self.max_unacked_bytes));
             let final_flag = self.hb_after_writes.unwrap_or(true) && !want_ack;
             self.hb_after_writes = Some(final_flag);
-            self.next_heartbeat
-                .get_or_insert(now + self.heartbeat_period);
+            let next = if len >= LARGE_SAMPLE {
+                // the piggybacked heartbeat ends a burst that may have
+                // overrun the reader's socket buffer, and gone with it:
+                // another soon, once the reader had time to drain
+                now + LARGE_SAMPLE_HEARTBEAT.min(self.heartbeat_period)
+            } else {
+                now + self.heartbeat_period
+            };
+            self.next_heartbeat = Some(self.next_heartbeat.map_or(next, |t| t.min(next)));
         }
         Some(SequenceNumber(sn))
     }
@@ -655,6 +663,17 @@ impl Writer {
 
 /// A piggybacked heartbeat asks for an acknowledgement every this many samples.
 const ACK_EVERY: i64 = 16;
+
+/// A sample at least this large is sent in a burst longer than a socket
+/// buffer may hold (Cyclone DDS and Courier ask for 1 MiB; Linux's default
+/// is 208 KiB) ...
+const LARGE_SAMPLE: usize = 128 * 1024;
+
+/// ... so the next heartbeat follows it after this, not a whole
+/// heartbeat period later: the repair of what the reader dropped starts
+/// then (an 8 MiB sample to a reader with a 1 MiB buffer took a 100 ms
+/// period per sample).
+const LARGE_SAMPLE_HEARTBEAT: Duration = Duration::from_millis(5);
 
 #[derive(Debug)]
 struct WriterProxy {
@@ -1246,6 +1265,35 @@ mod tests {
             self.deliver();
             None
         }
+    }
+
+    #[test]
+    fn a_large_sample_is_followed_by_a_heartbeat_soon_a_small_one_a_period_later() {
+        let t0 = Instant::now();
+        let period = Duration::from_millis(100);
+        let mut w = Writer::new(guid(1), true, None, 64, period);
+        w.add_reader(guid(2), false, t0);
+        while w.poll_transmit().is_some() {}
+        w.write(Arc::from(vec![0u8; 100]), t0).unwrap();
+        assert_eq!(w.poll_timeout(), Some(t0 + period));
+        // a large one brings it forward, and it stays there
+        let t1 = t0 + Duration::from_millis(1);
+        w.write(Arc::from(vec![0u8; LARGE_SAMPLE]), t1).unwrap();
+        assert_eq!(w.poll_timeout(), Some(t1 + LARGE_SAMPLE_HEARTBEAT));
+        w.write(Arc::from(vec![0u8; 100]), t1).unwrap();
+        assert_eq!(w.poll_timeout(), Some(t1 + LARGE_SAMPLE_HEARTBEAT));
+        while w.poll_transmit().is_some() {}
+        // it asks the unacknowledging reader, then the period resumes
+        let t2 = t1 + LARGE_SAMPLE_HEARTBEAT;
+        w.handle_timeout(t2);
+        assert!(matches!(
+            w.poll_transmit(),
+            Some(Transmit::Heartbeat {
+                final_flag: false,
+                ..
+            })
+        ));
+        assert_eq!(w.poll_timeout(), Some(t2 + period));
     }
 
     #[test]
