@@ -73,6 +73,35 @@ pub enum OpenError {
     /// The session already serves this service.
     #[error("{0} is already served by this session")]
     AlreadyServed(String),
+    /// IPC: central already holds the message with a format the type does
+    /// not fit (another module defined it), so the type's data would be
+    /// read as wrong values there; C would replace the definition under
+    /// that module's feet. Use the type it was defined with.
+    #[error("central defines {msg} as {central}, which does not fit {ty}: {detail}")]
+    FormatMismatch {
+        /// The message.
+        msg: String,
+        /// The type used.
+        ty: &'static str,
+        /// Central's format of the message.
+        central: String,
+        /// Where they differ.
+        detail: String,
+    },
+    /// IPC: two types of this session name different formats alike (two
+    /// Rust types of one name in different modules): defining the second
+    /// would change the first's messages.
+    #[error(
+        "the named format {name} is {existing} in this session, not {given}: give one of the two types its own name (#[ipc(name = \"...\")])"
+    )]
+    NamedFormatConflict {
+        /// The format name.
+        name: String,
+        /// What the session defined it as.
+        existing: String,
+        /// What it was asked to define it as.
+        given: String,
+    },
     /// Central refused the definition or subscription.
     #[error("central refused {msg}")]
     Central {
@@ -210,6 +239,15 @@ pub enum PublishError {
         /// Why.
         #[source]
         source: WriteError,
+    },
+    /// The function of a [`PeriodicPublication`](crate::PeriodicPublication)
+    /// panicked, which ended it.
+    #[error("the periodic publication of {msg} ended: its function panicked: {panic}")]
+    Panicked {
+        /// The topic.
+        msg: String,
+        /// The panic's message.
+        panic: String,
     },
 }
 

@@ -56,7 +56,8 @@ fn expanded<T: IpcMessage>() -> Option<Format> {
     names.resolve(&format::parse(T::FORMAT).ok()?).ok()
 }
 
-fn verdict<T: IpcMessage>(theirs: &str) -> Result<(), String> {
+/// Whether data of `theirs` (a format central holds, expanded) reads as `T`.
+pub(crate) fn verdict<T: IpcMessage>(theirs: &str) -> Result<(), String> {
     // what cannot be compared is not held against the data: decoding
     // still checks every byte
     let (Ok(theirs), Some(ours)) = (format::parse(theirs), expanded::<T>()) else {

@@ -405,7 +405,10 @@ impl<T: IpcMessage> Publisher<T> {
             }
             Ok(())
         });
-        PeriodicPublication { task }
+        PeriodicPublication {
+            task,
+            msg: self.msg.clone(),
+        }
     }
 }
 
@@ -413,13 +416,30 @@ impl<T: IpcMessage> Publisher<T> {
 #[derive(Debug)]
 pub struct PeriodicPublication {
     task: tokio::task::JoinHandle<Result<(), PublishError>>,
+    msg: String,
 }
 
 impl PeriodicPublication {
-    /// Stops it and returns why it ended, if it ended by itself.
+    /// Stops it and returns why it ended, if it ended by itself: a publish
+    /// that failed, or [`PublishError::Panicked`] when its function panicked.
     pub async fn stop(mut self) -> Result<(), PublishError> {
         self.task.abort();
-        (&mut self.task).await.unwrap_or(Ok(()))
+        match (&mut self.task).await {
+            Ok(r) => r,
+            Err(e) if e.is_panic() => {
+                let p = e.into_panic();
+                let panic = p
+                    .downcast_ref::<&str>()
+                    .map(|s| s.to_string())
+                    .or_else(|| p.downcast_ref::<String>().cloned())
+                    .unwrap_or_else(|| "(not a string)".into());
+                Err(PublishError::Panicked {
+                    msg: std::mem::take(&mut self.msg),
+                    panic,
+                })
+            }
+            Err(_) => Ok(()), // stopped here
+        }
     }
 }
 

@@ -6,6 +6,7 @@ use crate::reply::Responder;
 use crate::session::{decode, encode_rpc, Encoding, Owned, Session};
 use crate::subscriber::RecvError;
 use crate::topics::Definition;
+use courier_wire::ipc::introspect::{Answer, Ask};
 use courier_wire::{ipc, IpcMessage};
 use futures::Stream;
 use std::marker::PhantomData;
@@ -25,6 +26,10 @@ pub struct RawRequest {
     pub data: Vec<u8>,
     /// Byte order of `data`.
     pub order: ipc::ByteOrder,
+    /// IPC: the query message's format as central holds it (expanded),
+    /// which a typed server checks its request type against
+    /// ([`RecvError::FormatMismatch`]); `None` elsewhere.
+    pub format: Option<std::sync::Arc<str>>,
     /// Sends the reply (reply message name, bytes); may be called later and
     /// from any task (IPC_delayResponse). Dropping it unanswered declines
     /// the request.
@@ -95,6 +100,25 @@ impl<'a, Resp: IpcMessage + 'a> Query<'a, Resp> {
             .backend
             .query(client, data, self.timeout)
             .await?;
+        if self.session.enc() == Encoding::Ipc {
+            let ty = std::any::type_name::<Resp>();
+            let fits = crate::format_check::verdict::<Resp>;
+            if let Err((central, detail)) = self
+                .session
+                .replies
+                .check(self.session, &reply, ty, fits)
+                .await
+            {
+                return Err(QueryError::Decode {
+                    msg: self.msg.to_string(),
+                    reply: reply.clone(),
+                    ty,
+                    detail: format!(
+                        "{reply} is sent as {central} (central's format), which does not fit: {detail}"
+                    ),
+                });
+            }
+        }
         decode::<Resp>(self.session.enc(), &data, order).map_err(|detail| QueryError::Decode {
             msg: self.msg.to_string(),
             reply,
@@ -111,6 +135,101 @@ impl<'a, Resp: IpcMessage + 'a> std::future::IntoFuture for Query<'a, Resp> {
     fn into_future(self) -> Self::IntoFuture {
         Box::pin(self.run())
     }
+}
+
+/// IPC: does the format central holds for a message fit a type this
+/// session reads or writes it as? Looked up once per message and type (a
+/// round trip to central the first time), for replies a query reads and
+/// for messages the session defines (where C would replace another
+/// module's definition); subscriptions and servers check each sample's
+/// format ([`crate::format_check`]). The C library decodes by the
+/// sender's format, so `{int}` read as `f32` is a wrong value, not an
+/// error. Also the named formats the session defined.
+/// Fits, or central's format and where it differs.
+type Verdict = Result<(), (String, String)>;
+
+#[derive(Debug, Default)]
+pub(crate) struct ReplyChecks {
+    verdicts: std::sync::Mutex<std::collections::HashMap<(String, &'static str), Verdict>>,
+    named: std::sync::Mutex<std::collections::HashMap<&'static str, &'static str>>,
+}
+
+impl ReplyChecks {
+    /// `Err((central's format, where they differ))` when data of `msg`
+    /// as central holds it does not read as the type `ty` (`fits`).
+    pub(crate) async fn check(
+        &self,
+        session: &Session,
+        msg: &str,
+        ty: &'static str,
+        fits: fn(&str) -> Result<(), String>,
+    ) -> Verdict {
+        let key = (msg.to_string(), ty);
+        let lock = || self.verdicts.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(v) = lock().get(&key) {
+            return v.clone();
+        }
+        let Some(ipc) = session.backend.ipc() else {
+            return Ok(());
+        };
+        // what this module learnt of it, else central's answer; unknown
+        // (central does not answer, holds no format, or names other
+        // formats in it) is not held against the data, which decoding
+        // still checks
+        let theirs = match ipc.message_info(msg).await {
+            Ok(Some(info)) => info.res_format.map(|f| f.to_string()),
+            _ => match ipc.ask_central(Ask::MessageDetails(msg.to_string())).await {
+                Ok(Answer::MessageDetails(d)) if d.class != 0 => d.reply_format,
+                _ => None,
+            },
+        };
+        let Some(theirs) = theirs.filter(|f| !names_formats(f)) else {
+            return Ok(());
+        };
+        let verdict = fits(&theirs).map_err(|detail| (theirs, detail));
+        lock().insert(key, verdict.clone());
+        verdict
+    }
+
+    /// Records the named formats a definition brings; a name this session
+    /// gave another format is refused.
+    pub(crate) fn named_formats(
+        &self,
+        formats: &[(&'static str, &'static str)],
+    ) -> Result<(), OpenError> {
+        let mut named = self.named.lock().unwrap_or_else(|e| e.into_inner());
+        for (name, fmt) in formats {
+            match named.get(name) {
+                Some(existing) if existing != fmt => {
+                    return Err(OpenError::NamedFormatConflict {
+                        name: name.to_string(),
+                        existing: existing.to_string(),
+                        given: fmt.to_string(),
+                    })
+                }
+                _ => {}
+            }
+        }
+        for (name, fmt) in formats {
+            named.insert(name, fmt);
+        }
+        Ok(())
+    }
+}
+
+/// Whether a format refers to named formats (central answers them
+/// unexpanded).
+fn names_formats(f: &str) -> bool {
+    fn named(f: &courier_wire::format::Format) -> bool {
+        use courier_wire::format::Format as F;
+        match f {
+            F::Named(_) => true,
+            F::Struct(fs) => fs.iter().any(named),
+            F::Pointer(e) | F::FixedArray { elem: e, .. } | F::VarArray { elem: e, .. } => named(e),
+            _ => false,
+        }
+    }
+    courier_wire::format::parse(f).map_or(true, |f| named(&f))
 }
 
 /// A request to a [`Session::serve`] server.
@@ -177,6 +296,8 @@ pub struct Requests<Req, Resp> {
     pub(crate) ended: bool,
     pub(crate) reply_msg: String,
     pub(crate) enc: Encoding,
+    /// IPC: central's format of the query message against `Req`.
+    pub(crate) check: crate::format_check::FormatCheck,
     pub(crate) _t: PhantomData<fn() -> (Req, Resp)>,
 }
 
@@ -186,6 +307,13 @@ impl<Req: IpcMessage, Resp: IpcMessage> Stream for Requests<Req, Resp> {
     fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Self::Item>> {
         match self.rx.poll_recv(cx) {
             Poll::Ready(Some(r)) => {
+                // IPC: a request whose format does not fit `Req` would
+                // read as wrong values; declined (its responder dropped)
+                if let (Encoding::Ipc, Some(theirs)) = (self.enc, &r.format) {
+                    if let Err(e) = self.check.check::<Req>(&r.msg, theirs) {
+                        return Poll::Ready(Some(Err(e)));
+                    }
+                }
                 let v = decode::<Req>(self.enc, &r.data, r.order);
                 Poll::Ready(Some(match v {
                     Ok(value) => Ok(Request {

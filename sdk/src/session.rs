@@ -54,17 +54,20 @@ pub use crate::backend::{
     TimeSync, XrceControl, XrceState,
 };
 
-/// A handle the typed layer owns: closed when dropped, if the session is
-/// still there (a handle does not keep the session alive).
+/// A handle the typed layer owns: closed when dropped. It keeps the
+/// session's backend alive, as the crate's rules promise: a subscriber made
+/// from a `Session` that was dropped (`connect().await?.subscribe(..)`)
+/// still receives, and the session disconnects when the last of the
+/// `Session` clones and their handles is gone.
 pub(crate) struct Owned {
-    pub(crate) backend: Option<std::sync::Weak<dyn Backend>>,
+    pub(crate) backend: Option<Arc<dyn Backend>>,
     pub(crate) handle: Handle,
 }
 
 impl Owned {
     pub(crate) fn new(backend: &Arc<dyn Backend>, handle: Handle) -> Self {
         Owned {
-            backend: Some(Arc::downgrade(backend)),
+            backend: Some(backend.clone()),
             handle,
         }
     }
@@ -78,7 +81,7 @@ impl std::fmt::Debug for Owned {
 
 impl Drop for Owned {
     fn drop(&mut self) {
-        if let Some(b) = self.backend.as_ref().and_then(std::sync::Weak::upgrade) {
+        if let Some(b) = &self.backend {
             b.close_handle(self.handle);
         }
     }
@@ -152,6 +155,8 @@ pub struct Session {
     pub(crate) caps: Capabilities,
     name: String,
     pub(crate) topics: Arc<Topics>,
+    /// IPC: whether replies of each message fit each type a query reads.
+    pub(crate) replies: Arc<crate::rpc::ReplyChecks>,
 }
 
 impl Session {
@@ -178,6 +183,7 @@ impl Session {
             backend,
             name: name.into(),
             topics: Arc::default(),
+            replies: Arc::default(),
         }
     }
 
@@ -271,6 +277,20 @@ impl Session {
         qos: &PublicationQos,
     ) -> Result<PubId, OpenError> {
         if let (true, Some(ipc)) = (self.caps.named_formats, self.backend.ipc()) {
+            self.replies.named_formats(&def.formats)?;
+            // what another module defined: not replaced by a misfit
+            if def.ty.format.is_some() {
+                if let Err((central, detail)) =
+                    self.replies.check(self, msg, def.rust, def.fits).await
+                {
+                    return Err(OpenError::FormatMismatch {
+                        msg: msg.to_string(),
+                        ty: def.rust,
+                        central,
+                        detail,
+                    });
+                }
+            }
             for (name, fmt) in &def.formats {
                 ipc.define_format(name, fmt).await?;
             }
@@ -367,6 +387,8 @@ impl Session {
                 let def = Definition {
                     ty: TypeInfo::untyped(),
                     formats: Vec::new(),
+                    rust: "raw bytes",
+                    fits: |_| Ok(()),
                 };
                 self.define_shared(msg, def).await?
             }
@@ -618,6 +640,7 @@ impl Session {
             ended: false,
             reply_msg: reply_msg.to_string(),
             enc: self.enc(),
+            check: Default::default(),
             _t: PhantomData,
         })
     }

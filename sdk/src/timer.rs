@@ -6,6 +6,9 @@ use std::pin::Pin;
 use std::task::{Context, Poll};
 use std::time::Duration;
 
+/// The longest period: longer ones are this (they never fire in practice).
+const FAR: Duration = Duration::from_secs(30 * 365 * 86_400);
+
 /// A timer tick: when it was due and when it fired.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Tick {
@@ -25,7 +28,9 @@ pub struct Timer {
 
 impl Timer {
     pub(crate) fn new(period: Duration, count: Option<u64>) -> Timer {
-        let period = period.max(Duration::from_nanos(1));
+        // at most ~30 years (tokio's own "far future"): `Duration::MAX`
+        // means "never" and must not overflow the clock
+        let period = period.clamp(Duration::from_nanos(1), FAR);
         let mut interval = tokio::time::interval_at(tokio::time::Instant::now() + period, period);
         interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Burst);
         Timer {
@@ -57,5 +62,22 @@ impl Stream for Timer {
             }
             Poll::Pending => Poll::Pending,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use futures::StreamExt;
+
+    #[tokio::test]
+    async fn a_period_of_duration_max_is_never_and_does_not_overflow_the_clock() {
+        let mut t = Timer::new(Duration::MAX, None);
+        let next = tokio::time::timeout(Duration::from_millis(20), t.next()).await;
+        assert!(next.is_err(), "{next:?}");
+        let mut once = Timer::new(Duration::MAX, Some(1));
+        assert!(tokio::time::timeout(Duration::from_millis(20), once.next())
+            .await
+            .is_err());
     }
 }

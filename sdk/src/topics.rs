@@ -128,6 +128,10 @@ impl Topics {
 pub(crate) struct Definition {
     pub(crate) ty: TypeInfo,
     pub(crate) formats: Vec<(&'static str, &'static str)>,
+    /// The Rust type, for errors.
+    pub(crate) rust: &'static str,
+    /// Whether data of a format central holds reads as the type.
+    pub(crate) fits: fn(&str) -> Result<(), String>,
 }
 
 impl Definition {
@@ -135,6 +139,8 @@ impl Definition {
         Definition {
             ty: TypeInfo::of::<T>(),
             formats: courier_wire::NamedFormats::of::<T>().iter().collect(),
+            rust: std::any::type_name::<T>(),
+            fits: crate::format_check::verdict::<T>,
         }
     }
 }

@@ -1064,3 +1064,217 @@ async fn a_message_is_served_once_per_session() {
     assert_eq!(n, 42);
     c.shutdown().await;
 }
+
+/// `close()` returns at once although a publish waits for room that
+/// central will not make (its subscriber reads nothing, so central stops
+/// reading the publisher): the waiting publish fails. It hung before.
+#[tokio::test]
+async fn close_returns_while_a_publish_waits_for_central_to_read() {
+    #[derive(IpcMessage, Debug, Clone)]
+    #[allow(dead_code)]
+    struct Blob {
+        n: i32,
+        #[ipc(len = "n")]
+        data: Vec<u8>,
+    }
+    let (c, url) = central().await;
+    let p = session(&url, "pub").await;
+    let s = session(&url, "sub").await;
+    let _unread = s.subscribe::<Blob>("blob").await.unwrap();
+    assert_eq!(p.num_handlers("blob").await.unwrap(), 1);
+    let publisher = {
+        let p = p.clone();
+        tokio::spawn(async move {
+            let blob = Blob {
+                n: 0,
+                data: vec![0; 1 << 20],
+            };
+            let mut sent = 0u64;
+            loop {
+                if let Err(e) = p.publish("blob", &blob).await {
+                    return (sent, e);
+                }
+                sent += 1;
+            }
+        })
+    };
+    // until the publisher is held up (central keeps 64 MiB for a module)
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    assert!(!publisher.is_finished());
+    tokio::time::timeout(Duration::from_secs(5), p.close())
+        .await
+        .expect("close() returns");
+    let (sent, e) = tokio::time::timeout(Duration::from_secs(5), publisher)
+        .await
+        .expect("the waiting publish fails")
+        .unwrap();
+    assert!(sent > 0);
+    assert!(matches!(e, courier::PublishError::Disconnected(_)), "{e:?}");
+    s.close().await;
+    c.shutdown().await;
+}
+
+/// A subscriber (or a server's `Requests`) keeps its session connected
+/// after the `Session` value is dropped, as a `Publisher` does
+/// (`connect().await?.subscribe(..)` is a whole program's subscription);
+/// the session disconnects when the handle goes too.
+#[tokio::test]
+async fn a_handle_keeps_its_session_connected() {
+    let (c, url) = central().await;
+    let p = session(&url, "p").await;
+    let mut sub = session(&url, "only_sub")
+        .await
+        .subscribe::<i32>("n")
+        .await
+        .unwrap();
+    let mut reqs = session(&url, "only_srv")
+        .await
+        .serve::<i32, i32>("double", "")
+        .await
+        .unwrap();
+    assert!(p.is_module_connected("only_sub").await.unwrap());
+    assert!(p.is_module_connected("only_srv").await.unwrap());
+    assert_eq!(p.num_handlers("n").await.unwrap(), 1);
+    p.publish("n", &5).await.unwrap();
+    let got = tokio::time::timeout(T, sub.next()).await.unwrap();
+    assert_eq!(got.unwrap().unwrap().value, 5);
+    let server = tokio::spawn(async move {
+        let r = reqs.next().await.unwrap().unwrap();
+        let v = r.value * 2;
+        r.reply(&v).await.unwrap();
+        reqs
+    });
+    let q = p.query::<i32, i32>("double", &21).timeout(T).await;
+    assert_eq!(q.unwrap(), 42);
+    let reqs = server.await.unwrap();
+    drop(sub);
+    drop(reqs);
+    let gone = async {
+        while p.is_module_connected("only_sub").await.unwrap()
+            || p.is_module_connected("only_srv").await.unwrap()
+        {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    };
+    tokio::time::timeout(T, gone).await.unwrap();
+    c.shutdown().await;
+}
+
+/// A periodic publication whose function panicked says so when stopped.
+#[tokio::test]
+async fn a_periodic_publication_whose_function_panicked_says_so() {
+    let (c, url) = central().await;
+    let p = session(&url, "p").await;
+    let pub_ = p.publisher::<i32>("tick").build().await.unwrap();
+    let job = pub_.send_every(Duration::from_millis(5), |_| -> Option<i32> {
+        panic!("sensor unplugged")
+    });
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let e = job.stop().await.unwrap_err();
+    assert!(matches!(e, courier::PublishError::Panicked { .. }), "{e:?}");
+    assert_eq!(
+        e.to_string(),
+        "the periodic publication of tick ended: its function panicked: sensor unplugged"
+    );
+    // stopped while running: Ok
+    let job = pub_.send_every(Duration::from_millis(5), |_| Some(1));
+    tokio::time::sleep(Duration::from_millis(20)).await;
+    assert_eq!(job.stop().await, Ok(()));
+    c.shutdown().await;
+}
+
+/// Types that disagree with central's format are refused, not read as
+/// wrong values: a query whose request type does not fit the message
+/// another module defined, a reply that does not fit the type the query
+/// reads, a publish of a misfit, and a server of a misfit; and two types
+/// of one session that name different formats alike.
+#[tokio::test]
+async fn queries_servers_and_publishers_that_do_not_fit_central_s_format_are_refused() {
+    let (c, url) = central().await;
+    let srv = session(&url, "srv").await;
+    let a = session(&url, "a").await;
+    let mut reqs = srv.serve::<i32, i32>("work", "").await.unwrap();
+    let server = tokio::spawn(async move {
+        while let Some(Ok(r)) = reqs.next().await {
+            let v = r.value * 2;
+            r.reply(&v).await.unwrap();
+        }
+    });
+    // the right types work
+    assert_eq!(a.query::<i32, i32>("work", &3).timeout(T).await.unwrap(), 6);
+    // a reply read as f32 (1.7e-44 before)
+    let e = a
+        .query::<i32, f32>("work", &3)
+        .timeout(T)
+        .await
+        .unwrap_err();
+    assert!(matches!(e, QueryError::Decode { .. }), "{e:?}");
+    assert!(
+        e.to_string()
+            .contains("workReply is sent as int (central's format)"),
+        "{e}"
+    );
+    // a request of f32 (the server read 1069547520 before)
+    let b = session(&url, "b").await;
+    let e = b
+        .query::<f32, i32>("work", &1.5)
+        .timeout(T)
+        .await
+        .unwrap_err();
+    let chain = format!(
+        "{e} / {}",
+        std::error::Error::source(&e)
+            .map(|s| s.to_string())
+            .unwrap_or_default()
+    );
+    assert!(
+        chain.contains("central defines work as int, which does not fit f32"),
+        "{chain}"
+    );
+    // a publish of a misfit, and a server of one
+    let e = b.publish("workReply", &2.5f64).await.unwrap_err();
+    assert!(
+        e.to_string().contains("central defines workReply as int"),
+        "{e}"
+    );
+    let e = b.serve::<f32, i32>("work", "").await.unwrap_err();
+    assert!(
+        matches!(e, courier::OpenError::FormatMismatch { .. }),
+        "{e:?}"
+    );
+    // one session, two types named alike
+    mod one {
+        #[derive(courier::IpcMessage, Debug, Clone, PartialEq)]
+        pub struct Pos {
+            pub x: i32,
+            pub y: i32,
+        }
+    }
+    mod two {
+        #[derive(courier::IpcMessage, Debug, Clone, PartialEq)]
+        pub struct Pos {
+            pub lat: f64,
+        }
+    }
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct A {
+        p: one::Pos,
+    }
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct B {
+        p: two::Pos,
+    }
+    b.define::<A>("msg_a").await.unwrap();
+    let e = b.define::<B>("msg_b").await.unwrap_err();
+    assert!(
+        matches!(e, courier::OpenError::NamedFormatConflict { .. }),
+        "{e:?}"
+    );
+    assert!(
+        e.to_string()
+            .starts_with("the named format Pos is {int, int} in this session, not {double}"),
+        "{e}"
+    );
+    server.abort();
+    c.shutdown().await;
+}

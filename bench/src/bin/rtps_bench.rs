@@ -846,7 +846,9 @@ struct Case {
 
 impl Case {
     fn name(&self) -> String {
-        let sz = if self.size >= 1024 {
+        let sz = if self.size >= 1 << 20 {
+            format!("{} MiB", self.size >> 20)
+        } else if self.size >= 1024 {
             format!("{} KiB", self.size / 1024)
         } else {
             format!("{} B", self.size)
@@ -1416,6 +1418,16 @@ fn orchestrate(args: &[String]) {
         Case {
             kind: Kind::Thr { best_effort: false },
             size: 64 << 10,
+        },
+        // large samples: a burst of fragments longer than the reader's
+        // socket buffer (1 MiB asked for by both), repaired by NACK_FRAG
+        Case {
+            kind: Kind::Thr { best_effort: false },
+            size: 1 << 20,
+        },
+        Case {
+            kind: Kind::Thr { best_effort: false },
+            size: 8 << 20,
         },
         Case {
             kind: Kind::Thr { best_effort: true },

@@ -81,6 +81,8 @@ pub(super) struct Server {
     pub(super) msg: String,
     pub(super) hnd: String,
     pub(super) tx: mpsc::Sender<RawRequest>,
+    /// Central's format of the query message, once looked up.
+    pub(super) format: Option<Option<Arc<str>>>,
 }
 
 /// A definition replayed after a reconnect.
@@ -129,6 +131,10 @@ pub(super) struct Driver {
     /// The module closed the connection itself: central sent something it
     /// refuses (a frame above its limit, bytes that do not decode).
     pub(super) failed: bool,
+    /// Notified when the session closes (or its last handle goes): a write
+    /// to central that waits for room then gives up, since central may take
+    /// nothing more from this module (its subscribers' queues are full).
+    pub(super) stop: Arc<tokio::sync::Notify>,
 }
 
 /// Where a publish's result goes.
@@ -190,7 +196,9 @@ impl Driver {
                 break;
             }
         }
-        let _ = self.io.shutdown().await;
+        // bounded: a socket central does not read may not take a goodbye
+        let _ =
+            tokio::time::timeout(std::time::Duration::from_millis(100), self.io.shutdown()).await;
         self.fail_all();
         if let Some(d) = self.closing.take() {
             let _ = d.send(());
@@ -221,7 +229,17 @@ impl Driver {
         while let Some(b) = self.conn.poll_transmit() {
             out.push(b);
         }
-        write_all_vectored(&mut self.io, &out).await?;
+        let stop = self.stop.clone();
+        tokio::select! {
+            biased;
+            r = write_all_vectored(&mut self.io, &out) => r?,
+            () = stop.notified() => {
+                return Err(std::io::Error::new(
+                    std::io::ErrorKind::Interrupted,
+                    "the session closed while central was taking nothing from it",
+                ));
+            }
+        }
         // never waits: each link has a writer task of its own
         while let Some((link, b)) = self.conn.poll_direct_transmit() {
             if let Some(w) = self.links.get(&link) {
@@ -407,6 +425,7 @@ impl Driver {
                                 msg: m,
                                 hnd,
                                 tx,
+                                format: None,
                             },
                         );
                         Ok(())

@@ -176,19 +176,33 @@ impl Driver {
             }
             DeliveryKind::Query => {
                 // A query that raced a re-`serve` goes to the live server.
-                let srv = self
-                    .servers
-                    .get(&handler)
-                    .or_else(|| self.servers.values().find(|s| s.msg == msg));
+                let key = if self.servers.contains_key(&handler) {
+                    Some(handler)
+                } else {
+                    self.servers
+                        .iter()
+                        .find(|(_, s)| s.msg == msg)
+                        .map(|(k, _)| *k)
+                };
+                let srv = key.and_then(|k| self.servers.get_mut(&k));
                 let Some(srv) = srv else {
                     tracing::warn!("query {msg} for a handler that is gone: declined");
                     let _ = self.conn.decline(delivery);
                     return;
                 };
+                let conn = &self.conn;
+                let format = srv
+                    .format
+                    .get_or_insert_with(|| {
+                        let info = conn.msg_info(&msg)?;
+                        info.res_format.as_ref().map(|f| Arc::from(f.to_string()))
+                    })
+                    .clone();
                 let r = RawRequest {
                     msg,
                     data,
                     order,
+                    format,
                     respond: Responder::new(IpcReply {
                         cmd: self.cmd_tx.clone(),
                         delivery,

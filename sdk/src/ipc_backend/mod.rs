@@ -133,6 +133,8 @@ pub struct IpcBackend {
     /// Messages this session defined, with their format: another
     /// publication of the same message shares the definition.
     defined: std::sync::Mutex<HashMap<String, Option<String>>>,
+    /// Tells the driver to give up a write central does not take (close).
+    stop: Arc<tokio::sync::Notify>,
 }
 
 impl std::fmt::Debug for IpcBackend {
@@ -221,6 +223,7 @@ impl IpcBackend {
         let buf = vec![0u8; 64 * 1024];
         let (tx, rx) = mailbox(crate::mailbox::CAPACITY);
         let events = Hub::new(crate::hub::DEFAULT_CAPACITY);
+        let stop = Arc::new(tokio::sync::Notify::new());
         let driver = Driver {
             conn,
             io,
@@ -249,6 +252,7 @@ impl IpcBackend {
             parked: Vec::new(),
             read_credit: None,
             failed: false,
+            stop: stop.clone(),
         };
         if let Some(l) = listener {
             spawn_accept(l, tx.clone());
@@ -263,6 +267,7 @@ impl IpcBackend {
             next_handle: std::sync::atomic::AtomicU64::new(1),
             names: Default::default(),
             defined: Default::default(),
+            stop,
         })
     }
 
@@ -466,6 +471,7 @@ impl Backend for IpcBackend {
     }
 
     async fn close(&self) {
+        self.stop.notify_one();
         self.call(Cmd::Close, ()).await
     }
 
@@ -541,6 +547,7 @@ impl IpcControl for IpcBackend {
 
 impl Drop for IpcBackend {
     fn drop(&mut self) {
+        self.stop.notify_one();
         let (tx, _) = oneshot::channel();
         let _ = self.cmd.post(Cmd::Close(tx));
     }

@@ -1111,6 +1111,7 @@ impl State {
             msg: srv.name.clone(),
             data: s.into_data(),
             order: courier_wire::ipc::ByteOrder::NATIVE,
+            format: None,
             respond,
         };
         if srv.tx.try_send(r).is_err() {

@@ -1170,6 +1170,7 @@ impl Driver {
                     msg: s.name.to_string(),
                     data: with_header(&data),
                     order: ByteOrder::Little,
+                    format: None,
                     respond,
                 };
                 if let Err(e) = s.tx.try_send(req) {
