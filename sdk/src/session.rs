@@ -678,7 +678,9 @@ impl Session {
 
     /// Reports [`SessionEvent::HandlersChanged`] for `msg`
     /// (IPC_subscribeHandlerChange; DDS: readers matched with our writers,
-    /// [`DdsControl::watch_matches`]).
+    /// [`DdsControl::watch_matches`]). On IPC the message must be defined
+    /// (by any module) first, as in C: otherwise
+    /// [`ControlError::Central`] with `UnknownMessage`.
     pub async fn watch_handlers(&self, msg: &str) -> Result<(), ControlError> {
         match (self.backend.ipc(), self.backend.dds()) {
             (Some(ipc), _) => ipc.watch_handlers(msg).await,

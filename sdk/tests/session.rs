@@ -692,10 +692,9 @@ async fn message_info_gives_the_format_central_holds() {
     // not looked up yet
     assert_eq!(ipc.message_info("path").await.unwrap(), None);
     // watch_handlers looks it up; the num_handlers after it answers once
-    // the lookup is done
-    for m in ["path", "nobody-defined-this"] {
-        ipc.watch_handlers(m).await.unwrap();
-    }
+    // the lookup is done (a message nobody defined: an error, as in C)
+    ipc.watch_handlers("path").await.unwrap();
+    assert!(ipc.watch_handlers("nobody-defined-this").await.is_err());
     tokio::time::timeout(T, b.num_handlers("path"))
         .await
         .unwrap()
@@ -1276,5 +1275,58 @@ async fn queries_servers_and_publishers_that_do_not_fit_central_s_format_are_ref
         "{e}"
     );
     server.abort();
+    c.shutdown().await;
+}
+
+/// `subscribe().await` returns once central has the subscription: another
+/// module that asks `num_handlers` right after counts it, and its publish
+/// arrives (the quick start's pattern). It returned when the registration
+/// was queued, and 4 % of such publishes went nowhere.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_subscription_is_at_central_when_subscribe_returns() {
+    let (c, url) = central().await;
+    let a = session(&url, "a").await;
+    let b = session(&url, "b").await;
+    for i in 0..100 {
+        let msg = format!("m{i}");
+        a.define::<i32>(&msg).await.unwrap();
+        let mut sub = b.subscribe::<i32>(&msg).await.unwrap();
+        assert_eq!(a.num_handlers(&msg).await.unwrap(), 1, "{msg}");
+        a.publish(&msg, &i).await.unwrap();
+        let got = tokio::time::timeout(Duration::from_secs(2), sub.next()).await;
+        assert_eq!(got.expect(&msg).unwrap().unwrap().value, i);
+    }
+    c.shutdown().await;
+}
+
+/// `watch_handlers` on a message central does not know fails, as C's
+/// `IPC_subscribeHandlerChange` does (it returned Ok and never reported);
+/// once the message is defined, the watch works.
+#[tokio::test]
+async fn watching_the_handlers_of_an_undefined_message_fails_until_it_is_defined() {
+    let (c, url) = central().await;
+    let a = session(&url, "a").await;
+    let b = session(&url, "b").await;
+    let e = a.watch_handlers("later").await.unwrap_err();
+    assert!(matches!(e, courier::ControlError::Central { .. }), "{e:?}");
+    assert!(
+        format!("{e}: {}", std::error::Error::source(&e).unwrap())
+            .contains("watch_handlers(later): define the message first: message \"later\" is not defined in central"),
+        "{e}"
+    );
+    a.define::<i32>("later").await.unwrap();
+    let mut ev = a.events();
+    a.watch_handlers("later").await.unwrap();
+    let _sub = b.subscribe::<i32>("later").await.unwrap();
+    let changed = async {
+        loop {
+            if let Some(SessionEvent::HandlersChanged { msg, count }) = ev.next().await {
+                if msg == "later" && count == 1 {
+                    return;
+                }
+            }
+        }
+    };
+    tokio::time::timeout(T, changed).await.unwrap();
     c.shutdown().await;
 }

@@ -113,6 +113,11 @@ pub(super) struct Driver {
     pub(super) query_ops: HashMap<u64, OpId>,
     pub(super) bools: HashMap<OpId, Done<Result<bool, ControlError>>>,
     pub(super) counts: HashMap<OpId, Done<Result<i32, ControlError>>>,
+    /// Subscriptions and servers whose registration central has not yet
+    /// confirmed (by answering the question asked right after it).
+    pub(super) registering: HashMap<OpId, Done<Result<(), OpenError>>>,
+    /// `watch_handlers` calls waiting for central's first count.
+    pub(super) watch_ops: HashMap<OpId, (String, Done<Result<(), ControlError>>)>,
     /// Questions to central, with the message each asks on.
     pub(super) asks: HashMap<OpId, (&'static str, AnswerDone)>,
     pub(super) closing: Option<Done<()>>,
@@ -154,7 +159,13 @@ impl Driver {
             if let Some(s) = &spin {
                 s.activity();
             }
-            if self.flush().await.is_err() {
+            if let Err(e) = self.flush().await {
+                // a write that failed is a lost connection, as a read that
+                // failed (central went away with bytes still to send);
+                // given up for a close, it is the end
+                if e.kind() != std::io::ErrorKind::Interrupted && self.lost(closed, &mut rx).await {
+                    continue;
+                }
                 break;
             }
             self.drain_events();
@@ -166,7 +177,10 @@ impl Driver {
                 }
                 break;
             }
-            if self.flush().await.is_err() {
+            if let Err(e) = self.flush().await {
+                if e.kind() != std::io::ErrorKind::Interrupted && self.lost(closed, &mut rx).await {
+                    continue;
+                }
                 break;
             }
             self.resolve_published();
@@ -339,6 +353,24 @@ impl Driver {
 
     /// Unsubscribes the subscription or service of `h` (its
     /// `Subscriber`, `Listener` or `Requests` was dropped).
+    /// A subscription or server of `msg` was registered: `d` is answered
+    /// once central has it, by asking central a question right after the
+    /// registration (central takes a module's frames in order). Before, a
+    /// `subscribe().await` returned when the registration was queued here,
+    /// and another module asking `num_handlers` at once could still get 0
+    /// and its publish go nowhere.
+    fn registered(&mut self, msg: &str, d: Done<Result<(), OpenError>>) {
+        match self.conn.num_handlers(msg) {
+            Ok(op) => {
+                self.registering.insert(op, d);
+            }
+            // the registration itself was taken: nothing to wait for
+            Err(_) => {
+                let _ = d.send(Ok(()));
+            }
+        }
+    }
+
     pub(super) fn close_handle(&mut self, h: Handle) {
         let found = match h {
             Handle::Subscription(id) => self
@@ -388,8 +420,9 @@ impl Driver {
                     "HND-{m}-courier{}",
                     HANDLER_SEQ.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
                 );
-                let _ = d.send(match self.conn.subscribe(&m, &hnd) {
+                match self.conn.subscribe(&m, &hnd) {
                     Ok(h) => {
+                        self.registered(&m, d);
                         self.subs.insert(
                             h,
                             Sub {
@@ -401,10 +434,11 @@ impl Driver {
                                 format: None,
                             },
                         );
-                        Ok(())
                     }
-                    Err(e) => Err(refused(&m)(e)),
-                });
+                    Err(e) => {
+                        let _ = d.send(Err(refused(&m)(e)));
+                    }
+                }
             }
             // one server per message and session, as on DDS: a second
             // would share its queries with the first at random
@@ -416,8 +450,9 @@ impl Driver {
                     "HND-{m}-courier{}",
                     HANDLER_SEQ.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
                 );
-                let _ = d.send(match self.conn.subscribe(&m, &hnd) {
+                match self.conn.subscribe(&m, &hnd) {
                     Ok(h) => {
+                        self.registered(&m, d);
                         self.servers.insert(
                             h,
                             Server {
@@ -428,10 +463,11 @@ impl Driver {
                                 format: None,
                             },
                         );
-                        Ok(())
                     }
-                    Err(e) => Err(refused(&m)(e)),
-                });
+                    Err(e) => {
+                        let _ = d.send(Err(refused(&m)(e)));
+                    }
+                }
             }
             Cmd::Query(key, m, data, d) => match self.conn.query(&m, data, -1) {
                 Ok(op) => {
@@ -549,14 +585,18 @@ impl Driver {
                     let _ = self.conn.subscribe_disconnect();
                 }
             }
-            Cmd::WatchHandlers(m, d) => {
-                let _ = d.send(
-                    self.conn
-                        .subscribe_handler_change(&m)
-                        .map(|_| ())
-                        .map_err(refused(&m)),
-                );
-            }
+            Cmd::WatchHandlers(m, d) => match self.conn.subscribe_handler_change(&m) {
+                // answered once central said whether it knows the message
+                Ok(Some(op)) => {
+                    self.watch_ops.insert(op, (m, d));
+                }
+                Ok(None) => {
+                    let _ = d.send(Ok(()));
+                }
+                Err(e) => {
+                    let _ = d.send(Err(refused(&m)(e)));
+                }
+            },
             Cmd::Close(d) => {
                 let _ = self.conn.close();
                 self.closing = Some(d);

@@ -89,6 +89,27 @@ impl Driver {
                 Event::NumHandlers { op, count } => {
                     if let Some(d) = self.counts.remove(&op) {
                         let _ = d.send(Ok(count));
+                    } else if let Some(d) = self.registering.remove(&op) {
+                        let _ = d.send(Ok(()));
+                    } else if let Some((msg, d)) = self.watch_ops.remove(&op) {
+                        // as C's IPC_subscribeHandlerChange: a message
+                        // central does not know is an error, not a watch
+                        // that never reports
+                        let known = self.conn.msg_info(&msg).is_some_and(|i| i.id != 0);
+                        if !known {
+                            // undone, so that a watch after the definition
+                            // registers anew
+                            let w = format!("V_watch_{msg}");
+                            let _ = self.conn.unsubscribe(&w, &w);
+                        }
+                        let _ = d.send(if known {
+                            Ok(())
+                        } else {
+                            Err(ControlError::Central {
+                                what: format!("watch_handlers({msg}): define the message first"),
+                                source: courier_wire::ipc::module::Error::UnknownMessage(msg),
+                            })
+                        });
                     }
                 }
                 Event::ModuleConnect(m) => self.broadcast(SessionEvent::ModuleConnected(m)),

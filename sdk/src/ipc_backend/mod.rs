@@ -243,6 +243,8 @@ impl IpcBackend {
             query_ops: HashMap::new(),
             bools: HashMap::new(),
             counts: HashMap::new(),
+            registering: HashMap::new(),
+            watch_ops: HashMap::new(),
             asks: HashMap::new(),
             closing: None,
             watching_modules: false,

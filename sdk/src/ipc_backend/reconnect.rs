@@ -153,6 +153,12 @@ impl Driver {
         for (_, d) in self.counts.drain() {
             let _ = d.send(Err(ControlError::Disconnected(addr.clone())));
         }
+        for (_, d) in self.registering.drain() {
+            let _ = d.send(Err(OpenError::Disconnected(addr.clone())));
+        }
+        for (_, (_, d)) in self.watch_ops.drain() {
+            let _ = d.send(Err(ControlError::Disconnected(addr.clone())));
+        }
         for (_, (_, d)) in self.asks.drain() {
             let _ = d.send(Err(ControlError::Disconnected(addr.clone())));
         }

@@ -72,7 +72,7 @@ async fn ipc_call(
         None => {
             // look the message up: watch_handlers does, the num_handlers
             // after it answers once that is done
-            ipc.watch_handlers(&o.query).await?;
+            crate::connect::look_up(&ipc, &o.query).await?;
             let servers = s.num_handlers(&o.query).await?;
             let info = ipc.message_info(&o.query).await?.ok_or_else(|| {
                 format!(

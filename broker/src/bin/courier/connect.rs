@@ -103,3 +103,19 @@ fn failed(target: &str, e: ConnectError, took: Duration) -> String {
         e => format!("cannot connect to {target}: {e}"),
     }
 }
+
+/// Has the session's module look `msg` up in central (IPC), so that
+/// `message_info` and the handler count know it once `num_handlers`
+/// answered after this: `watch_handlers` makes the lookup, and fails on a
+/// message central does not know, which the callers report their own way
+/// (by `message_info` being `None`).
+pub async fn look_up(ipc: &courier::Ipc<'_>, msg: &str) -> Result<()> {
+    use courier::ipc::module::Error as Central;
+    match ipc.watch_handlers(msg).await {
+        Err(courier::ControlError::Central {
+            source: Central::UnknownMessage(_),
+            ..
+        }) => Ok(()),
+        r => Ok(r?),
+    }
+}

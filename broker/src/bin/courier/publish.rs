@@ -85,7 +85,7 @@ async fn encoder(s: &Session, o: &PubArgs) -> Result<(Encoder, TypeInfo)> {
             }
             // look the message up in central: watch_handlers does, and the
             // num_handlers after it answers once it is done
-            ipc.watch_handlers(&o.topic).await?;
+            crate::connect::look_up(&ipc, &o.topic).await?;
             s.num_handlers(&o.topic).await?;
             let info = ipc.message_info(&o.topic).await?.ok_or_else(|| {
                 format!(
