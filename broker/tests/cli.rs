@@ -781,3 +781,21 @@ fn port_in_use_fails_clearly() {
     assert!(err.contains("Unable to start server"), "{err}");
     assert!(err.contains(&format!("127.0.0.1:{port}")), "{err}");
 }
+
+/// `central --help | head -1` where `head` is gone before central writes:
+/// exit 0, no panic (it printed "failed printing to stdout: Broken pipe"
+/// and exited 101).
+#[test]
+fn help_into_a_closed_pipe_exits_cleanly() {
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let out = std::process::Command::new(BIN)
+        .arg("--help")
+        .stdout(writer)
+        .stderr(std::process::Stdio::piped())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+}

@@ -22,6 +22,15 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use courier_broker::access::{AccessControl, RulesFile, DEFAULT_ALLOW, DEFAULT_DENY};
 use courier_broker::{CentralServer, Config, LogOptions, LogSink, LogTarget};
 
+/// `println!` that does not panic when stdout is gone (`central --help |
+/// head -1`, a console whose reader closed): what central prints is for
+/// people, and a closed pipe must not stop it.
+macro_rules! say {
+    ($($t:tt)*) => {{
+        let _ = writeln!(std::io::stdout(), $($t)*);
+    }};
+}
+
 /// `X_IPC_VERSION_MAJOR.MINOR.MICRO` of the C central we stand in for.
 const IPC_VERSION: &str = "3.9.1";
 /// `--send-ahead <module>` without a depth.
@@ -196,6 +205,14 @@ fn parse_args(args: Vec<String>) -> Result<Options, String> {
                     if module.is_empty() {
                         return Err(format!("option --send-ahead: '{v}' names no module"));
                     }
+                    // `--send-ahead -p0`: the module was forgotten, and the
+                    // next option would be taken for it
+                    if module.starts_with('-') {
+                        return Err(format!(
+                            "option --send-ahead: '{v}' is an option, not a module name: \
+                             --send-ahead <module>[=<n>]"
+                        ));
+                    }
                     let n = match n {
                         None => DEFAULT_SEND_AHEAD,
                         Some(n) => number(name, n, 1024, "messages")? as usize,
@@ -356,7 +373,7 @@ impl FileLog {
         let f = std::fs::File::create(&self.path)?;
         let mut w = std::io::BufWriter::new(f);
         if !silent {
-            println!("Logging to {};", self.path.display());
+            say!("Logging to {};", self.path.display());
         }
         writeln!(
             w,
@@ -397,7 +414,7 @@ impl FileLog {
         const SPACER: &str =
             "*                                                                              *";
         let Some(f) = self.file.as_mut() else { return };
-        println!("Enter any comments in the log file (end with blank line)");
+        say!("Enter any comments in the log file (end with blank line)");
         let _ = std::io::stdout().flush();
         let mut any = false;
         let mut line = String::new();
@@ -434,13 +451,13 @@ fn main() -> ExitCode {
         }
     };
     if opts.help {
-        println!("{USAGE}");
+        say!("{USAGE}");
         return ExitCode::SUCCESS;
     }
     if opts.version {
-        println!("{}", banner());
-        println!(" Implementation : Courier central (Rust), IPC protocol 3.9");
-        println!(" Released : Courier {}", env!("CARGO_PKG_VERSION"));
+        say!("{}", banner());
+        say!(" Implementation : Courier central (Rust), IPC protocol 3.9");
+        say!(" Released : Courier {}", env!("CARGO_PKG_VERSION"));
         return ExitCode::SUCCESS;
     }
     let level = if opts.debug {
@@ -515,7 +532,7 @@ async fn run(opts: Options) -> ExitCode {
     }
     let silent = opts.config.quiet;
     if let (Some(f), false) = (&opts.log_file, silent) {
-        println!("Logging File Name: {}", f.display());
+        say!("Logging File Name: {}", f.display());
     }
     let now = SystemTime::now();
     let file = Arc::new(Mutex::new(FileLog {
@@ -584,8 +601,8 @@ async fn run(opts: Options) -> ExitCode {
         server.local_addr().port()
     );
     if !silent {
-        println!("{}", banner());
-        println!("{expecting}");
+        say!("{}", banner());
+        say!("{expecting}");
         let _ = std::io::stdout().flush();
     }
     if file_log_on {
@@ -648,7 +665,7 @@ async fn run(opts: Options) -> ExitCode {
             let line = format!("Central Abort : Signal {n}");
             if messages_logged {
                 if !silent {
-                    println!("{line}");
+                    say!("{line}");
                 }
                 if file_log_on {
                     file.lock()
@@ -855,6 +872,10 @@ mod tests {
                 "option --send-ahead: '=8' names no module",
             ),
             (&["--send-ahead"][..], "option --send-ahead needs a value"),
+            (
+                &["--send-ahead", "-p0"][..],
+                "option --send-ahead: '-p0' is an option, not a module name",
+            ),
             (
                 &["--no-unix-socket=yes"][..],
                 "option --no-unix-socket takes no value",
