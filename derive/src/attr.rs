@@ -64,6 +64,17 @@ fn key_name(meta: &ParseNestedMeta<'_>) -> String {
     quote::quote!(#p).to_string().replace(' ', "")
 }
 
+/// Reports a key given twice (`#[ipc(char, char)]`, or across two
+/// `#[ipc(...)]` attributes): the second would silently win.
+fn duplicate(cx: &Ctxt, meta: &ParseNestedMeta<'_>, seen: &mut Vec<String>) {
+    let name = key_name(meta);
+    if seen.contains(&name) {
+        cx.error_spanned_by(&meta.path, format!("duplicate `ipc` attribute `{name}`"));
+    } else {
+        seen.push(name);
+    }
+}
+
 fn ipc_attrs(attrs: &[Attribute]) -> impl Iterator<Item = &Attribute> {
     attrs.iter().filter(|a| a.path().is_ident("ipc"))
 }
@@ -77,8 +88,10 @@ pub fn container(cx: &Ctxt, attrs: &[Attribute], is_enum: bool) -> ContainerAttr
         numeric: None,
         extensibility: None,
     };
+    let mut seen: Vec<String> = Vec::new();
     for attr in ipc_attrs(attrs) {
         let r = attr.parse_nested_meta(|meta| {
+            duplicate(cx, &meta, &mut seen);
             if meta.path.is_ident("crate") {
                 let s: LitStr = meta.value()?.parse()?;
                 match s.parse::<syn::Path>() {
@@ -180,8 +193,10 @@ pub fn field(cx: &Ctxt, attrs: &[Attribute]) -> FieldAttrs {
         id: None,
         bound: None,
     };
+    let mut seen: Vec<String> = Vec::new();
     for attr in ipc_attrs(attrs) {
         let r = attr.parse_nested_meta(|meta| {
+            duplicate(cx, &meta, &mut seen);
             if meta.path.is_ident("len") {
                 out.len = Some(meta.value()?.parse()?);
             } else if meta.path.is_ident("char") {

@@ -39,10 +39,11 @@
 //! | Rust field | IPC format |
 //! |---|---|
 //! | `i8` `u8` `i16` `u16` `i32` `u32` `i64` `u64` `f32` `f64` `bool` | `byte` `ubyte` `short` `ushort` `int` `uint` `long` `ulong` `float` `double` `boolean` |
-//! | `#[ipc(char)] u8`, `char` (Latin-1) | `char` |
-//! | `String`, `Option<String>` | `string` |
+//! | `#[ipc(char)] u8`, `char` (Latin-1) | `char`: one byte; a `char` above U+00FF goes out as `'?'` (use `#[ipc(char)] u8` for exact bytes) |
+//! | `String`, `Option<String>` | `string`: `None` goes out as C's NULL string, and `Some("")` arrives as `None` (NULL and `""` are the same bytes in IPC; CDR does the same, so both backends agree) |
 //! | `[[T; m]; n]` | `[T:n,m]` |
 //! | `#[ipc(len = "count")] Vec<T>` | `<T:k>`, k = 1-based index of field `count` |
+//! | `Vec<T>` without `len` | a DDS `sequence<T>` (CDR only): its IPC format `<T:0>` names no count field, so an IPC session refuses the type when it is first used (`OpenError`, naming the field to add); fine on `rtps://` and XRCE |
 //! | `#[ipc(len = "rows, cols")] Matrix<T>`, `#[ipc(len = "a, b, c")] NdVec<T, 3>` | `<T:k1,k2>`, `<T:k1,k2,k3>`: flat, row-major, sized by those fields |
 //! | `Option<Box<T>>` | `*T` |
 //! | `Option<Box<Self>>` (or the type's own name) | `*!` |

@@ -39,4 +39,14 @@ struct BadBound {
     v: Vec<i32>,
 }
 
+#[derive(IpcMessage)]
+#[ipc(name = "A", name = "B")]
+struct Twice {
+    #[ipc(char, char)]
+    c: u8,
+    #[ipc(key)]
+    #[ipc(key)]
+    k: i32,
+}
+
 fn main() {}
