@@ -173,10 +173,8 @@ impl SessionBuilder {
     /// IPC: reach central through `dial` instead of a socket; it is called
     /// for the first connection and for every reconnect. The URL still
     /// names central (error messages, direct mode's listening address).
-    /// [`CentralHandle::session`] uses it for an in-process link to an
-    /// embedded central.
-    ///
-    /// [`CentralHandle::session`]: https://docs.rs/courier-broker/latest/courier_broker/struct.CentralHandle.html#method.session
+    /// `courier::central::CentralHandle::session` (feature `central`) uses
+    /// it for an in-process link to an embedded central.
     pub fn dial<F, Fut>(mut self, dial: F) -> Self
     where
         F: Fn() -> Fut + Send + Sync + 'static,

@@ -349,6 +349,16 @@ pub enum ControlError {
         #[source]
         source: CentralError,
     },
+    /// An argument out of its range (C's `IPC_Argument_Out_Of_Range`).
+    #[error("{what}: {value} is out of range, it must be at least {min}")]
+    OutOfRange {
+        /// The call.
+        what: String,
+        /// The value given.
+        value: i64,
+        /// The least allowed.
+        min: i64,
+    },
     /// No answer within the bound (an XRCE ping or time sync).
     #[error("no answer to {what} within {after:?}")]
     Timeout {

@@ -76,9 +76,12 @@ impl std::fmt::Debug for RawSample {
 pub enum QueuePolicy {
     /// Keep every sample; when `n` wait, stop acknowledging so central
     /// holds the rest (back-pressure, where `set_queue_length` applies).
+    /// `n` of 0 is taken as 1 (a queue holds at least the sample being
+    /// handed over).
     KeepAll(usize),
     /// Keep the newest `n`; the oldest is dropped and counted
     /// ([`Subscriber::dropped`]), as `IPC_setMsgQueueLength` does in central.
+    /// `n` of 0 is taken as 1.
     ///
     /// [`Subscriber::dropped`]: crate::Subscriber::dropped
     KeepLast(usize),

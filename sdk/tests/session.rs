@@ -1330,3 +1330,35 @@ async fn watching_the_handlers_of_an_undefined_message_fails_until_it_is_defined
     tokio::time::timeout(T, changed).await.unwrap();
     c.shutdown().await;
 }
+
+/// C's argument checks: a capacity or queue length below 1, a negative
+/// priority and an empty message name are refused, naming the call (they
+/// returned Ok).
+#[tokio::test]
+async fn out_of_range_arguments_and_empty_names_are_refused() {
+    let (c, url) = central().await;
+    let a = session(&url, "a").await;
+    let ipc = a.ipc().unwrap();
+    for (e, want) in [
+        (
+            ipc.set_capacity(0).await.unwrap_err(),
+            "set_capacity: 0 is out of range, it must be at least 1",
+        ),
+        (
+            ipc.set_queue_length("m", -5).await.unwrap_err(),
+            "set_queue_length(m): -5 is out of range, it must be at least 1",
+        ),
+        (
+            ipc.set_priority("m", -1).await.unwrap_err(),
+            "set_priority(m): -1 is out of range, it must be at least 0",
+        ),
+    ] {
+        assert_eq!(e.to_string(), want);
+    }
+    ipc.set_capacity(2).await.unwrap();
+    let e = a.publish("", &1).await.unwrap_err();
+    assert!(e.to_string().contains("an empty message name"), "{e}");
+    let e = a.subscribe::<i32>("").await.unwrap_err();
+    assert!(e.to_string().contains("an empty message name"), "{e}");
+    c.shutdown().await;
+}

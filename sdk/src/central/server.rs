@@ -184,10 +184,11 @@ pub enum BindError {
 pub struct CentralServer;
 
 impl CentralServer {
-    /// A builder with the C central's defaults: port 1381 on all
-    /// interfaces, [`Config::default`], no access rules, log lines to
-    /// `tracing`, and **no** UNIX socket (turn it on with
-    /// [`Builder::unix_socket`]; the `central` binary does).
+    /// A builder with the C central's port (1381) on 127.0.0.1 only (the
+    /// C central and the `central` binary listen on every interface:
+    /// [`Builder::bind`] `0.0.0.0` for that), [`Config::default`], no
+    /// access rules, log lines to `tracing`, and **no** UNIX socket (turn
+    /// it on with [`Builder::unix_socket`]; the `central` binary does).
     pub fn builder() -> Builder {
         Builder {
             port: DEFAULT_PORT,

@@ -20,7 +20,7 @@ pub(super) async fn handshake(
 ) -> Result<(Connection, Box<dyn IpcStream>, Option<DirectListener>), ConnectError> {
     {
         let host = host.to_string();
-        let addr = format!("{host}:{port}");
+        let addr = super::host_port(&host, port);
         let deadline = tokio::time::Instant::now() + opts.connect_timeout;
         let mut attempts = 0;
         let mut io = loop {

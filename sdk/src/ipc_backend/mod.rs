@@ -218,7 +218,7 @@ impl IpcBackend {
             url: url.into(),
             why,
         })?;
-        let addr = format!("{host}:{port}");
+        let addr = host_port(&host, port);
         let (conn, io, listener) = handshake(&host, port, name, &opts).await?;
         let buf = vec![0u8; 64 * 1024];
         let (tx, rx) = mailbox(crate::mailbox::CAPACITY);
@@ -334,6 +334,7 @@ impl Backend for IpcBackend {
         ty: &TypeInfo,
         qos: &PublicationQos,
     ) -> Result<PubId, OpenError> {
+        named(msg)?;
         if let Some(what) = qos.beyond_ipc() {
             return Err(unsupported(format!("{what} (publication {msg})")));
         }
@@ -354,6 +355,7 @@ impl Backend for IpcBackend {
         qos: &SubscriptionQos,
         queue: Arc<SampleQueue>,
     ) -> Result<SubId, OpenError> {
+        named(msg)?;
         if let Some(what) = qos.beyond_ipc() {
             return Err(unsupported(format!("{what} (subscription {msg})")));
         }
@@ -374,6 +376,7 @@ impl Backend for IpcBackend {
         resp: &TypeInfo,
         queue: usize,
     ) -> Result<(ServiceId, mpsc::Receiver<RawRequest>), OpenError> {
+        named(msg)?;
         ipc_format(msg, req)?;
         ipc_format(msg, resp)?;
         let (tx, rx) = mpsc::channel(queue.max(1));
@@ -389,6 +392,7 @@ impl Backend for IpcBackend {
         req: &TypeInfo,
         resp: &TypeInfo,
     ) -> Result<ClientId, OpenError> {
+        named(msg)?;
         ipc_format(msg, req)?;
         ipc_format(msg, resp)?;
         let id = ClientId(self.next_handle());
@@ -516,12 +520,14 @@ impl IpcControl for IpcBackend {
     }
 
     async fn set_capacity(&self, n: i32) -> Result<(), ControlError> {
+        at_least("set_capacity", n, 1)?;
         let g = Err(self.gone());
         self.call(|d| Cmd::Inform(InformOp::Capacity(n), d), g)
             .await
     }
 
     async fn set_priority(&self, msg: &str, priority: i32) -> Result<(), ControlError> {
+        at_least(&format!("set_priority({msg})"), priority, 0)?;
         let g = Err(self.gone());
         self.call(
             |d| Cmd::Inform(InformOp::Priority(msg.into(), priority), d),
@@ -531,6 +537,7 @@ impl IpcControl for IpcBackend {
     }
 
     async fn set_queue_length(&self, msg: &str, n: i32) -> Result<(), ControlError> {
+        at_least(&format!("set_queue_length({msg})"), n, 1)?;
         let g = Err(self.gone());
         self.call(|d| Cmd::Inform(InformOp::QueueLength(msg.into(), n), d), g)
             .await
@@ -545,6 +552,38 @@ impl IpcControl for IpcBackend {
         let g = Err(self.gone());
         self.call(|d| Cmd::MsgInfo(msg.into(), d), g).await
     }
+}
+
+/// `host:port`, an IPv6 address in brackets (`[::1]:1381`), as URLs and
+/// socket addresses write it.
+pub(crate) fn host_port(host: &str, port: u16) -> String {
+    if host.contains(':') {
+        format!("[{host}]:{port}")
+    } else {
+        format!("{host}:{port}")
+    }
+}
+
+/// A message needs a name (C's `IPC_Null_Argument` for an empty one).
+fn named(msg: &str) -> Result<(), OpenError> {
+    if msg.is_empty() {
+        return Err(unsupported("an empty message name".to_string()));
+    }
+    Ok(())
+}
+
+/// C's range checks (`IPC_setCapacity`, `IPC_setMsgQueueLength`: at
+/// least 1; `IPC_setMsgPriority`: at least 0): refused before anything is
+/// sent, as C returns `IPC_Argument_Out_Of_Range`.
+fn at_least(what: &str, value: i32, min: i32) -> Result<(), ControlError> {
+    if value < min {
+        return Err(ControlError::OutOfRange {
+            what: what.to_string(),
+            value: value.into(),
+            min: min.into(),
+        });
+    }
+    Ok(())
 }
 
 impl Drop for IpcBackend {
@@ -653,6 +692,9 @@ mod tests {
         assert!(parse_url("ipc://[::1]x")
             .unwrap_err()
             .contains(":port after"));
+        // and back, as errors name it
+        assert_eq!(host_port("::1", 1381), "[::1]:1381");
+        assert_eq!(host_port("central.local", 1381), "central.local:1381");
     }
 
     #[test]
