@@ -218,6 +218,20 @@ pub enum SessionEvent {
         /// Handlers now.
         count: i32,
     },
+    /// IPC: a keep-all subscription's queue is full (`queued` samples
+    /// unread), so the session holds central's next delivery back until
+    /// the application takes one: central hands a module its messages one
+    /// by one, so **every** subscription and server of the session waits
+    /// meanwhile (as a C module whose handler does not return). Reported
+    /// once each time it fills. Read the subscription, drop it, or give it
+    /// [`QueuePolicy::KeepLast`](crate::QueuePolicy::KeepLast) to drop the
+    /// oldest instead.
+    SubscriberFull {
+        /// Message name.
+        msg: String,
+        /// Samples waiting in its queue.
+        queued: usize,
+    },
     /// This session lost its connection (with reconnect on, a
     /// [`SessionEvent::Reconnected`] follows once central is back).
     Disconnected,

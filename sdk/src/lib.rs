@@ -98,7 +98,9 @@
 //!   count at once.
 //! - **Full queues.** A subscription queues 1000 unread samples by default
 //!   ([`QueuePolicy::KeepAll`]); then it stops taking more: on IPC central
-//!   holds the rest (back-pressure up to the publisher). With
+//!   holds the rest (back-pressure up to the publisher; central hands a
+//!   module its messages one by one, so the session's other subscriptions
+//!   and servers wait too, reported as `SessionEvent::SubscriberFull`). With
 //!   [`QueuePolicy::KeepLast`] (`subscribe_with`) the oldest are dropped
 //!   instead, counted by `Subscriber::dropped`. Nothing is dropped silently.
 //! - **Errors chain.** An error caused by a lower layer (central's

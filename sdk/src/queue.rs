@@ -335,6 +335,16 @@ impl SampleQueue {
         self.insert(s, true).unwrap_or_default()
     }
 
+    /// Samples waiting to be taken.
+    pub fn len(&self) -> usize {
+        self.state.lock().unwrap().items.len()
+    }
+
+    /// No sample waits.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
     /// Whether a keep-all queue holds its capacity or more.
     pub fn is_full(&self) -> bool {
         let st = self.state.lock().unwrap();

@@ -1362,3 +1362,34 @@ async fn out_of_range_arguments_and_empty_names_are_refused() {
     assert!(e.to_string().contains("an empty message name"), "{e}");
     c.shutdown().await;
 }
+
+/// A keep-all subscription nobody reads holds the whole session back (IPC
+/// delivers a module's messages one by one): the session says so once,
+/// naming the message, instead of going silent.
+#[tokio::test]
+async fn a_full_subscription_that_holds_the_session_back_is_reported() {
+    let (c, url) = central().await;
+    let p = session(&url, "p").await;
+    let s = session(&url, "s").await;
+    let mut ev = s.events();
+    let _unread = s
+        .subscribe_with::<i32>("status", courier::QueuePolicy::KeepAll(5))
+        .await
+        .unwrap();
+    assert_eq!(p.num_handlers("status").await.unwrap(), 1);
+    for i in 0..20 {
+        p.publish("status", &i).await.unwrap();
+    }
+    let full = async {
+        loop {
+            match ev.next().await {
+                Some(SessionEvent::SubscriberFull { msg, queued }) => return (msg, queued),
+                Some(_) => continue,
+                None => panic!("events ended"),
+            }
+        }
+    };
+    let (msg, queued) = tokio::time::timeout(T, full).await.unwrap();
+    assert_eq!((msg.as_str(), queued), ("status", 5));
+    c.shutdown().await;
+}

@@ -188,11 +188,24 @@ impl Driver {
                 s.order = order;
                 s.type_name = format.clone();
                 let credit = self.read_credit.clone();
+                let was_waiting = sub.overflow.is_waiting();
                 if sub
                     .overflow
                     .push(&sub.queue, s, delivery, credit, &self.cmd_tx)
                 {
                     let _ = self.conn.ack(delivery);
+                } else if !was_waiting {
+                    // the first held back: everything of the session waits
+                    let full = SessionEvent::SubscriberFull {
+                        msg: sub.msg.clone(),
+                        queued: sub.queue.len(),
+                    };
+                    tracing::warn!(
+                        "the queue of a subscription of {} is full: this session takes \
+                         nothing more from central until it is read",
+                        sub.msg
+                    );
+                    self.broadcast(full);
                 }
             }
             DeliveryKind::Query => {

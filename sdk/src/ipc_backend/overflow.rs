@@ -33,6 +33,11 @@ pub(super) struct Overflow {
 }
 
 impl Overflow {
+    /// Samples are waiting for room (the queue was full).
+    pub(super) fn is_waiting(&self) -> bool {
+        self.waiting.load(Ordering::Acquire) > 0
+    }
+
     /// Queues `s` for `queue` behind any sample already waiting: `true`
     /// when it went in at once (acknowledge it now), else the task asks
     /// the driver to acknowledge it (`Cmd::Ack`) once it is in.
