@@ -1393,3 +1393,28 @@ async fn a_full_subscription_that_holds_the_session_back_is_reported() {
     assert_eq!((msg.as_str(), queued), ("status", 5));
     c.shutdown().await;
 }
+
+/// A reconnecting in-process session whose embedded central stops for
+/// good reports `Disconnected` once (it came twice: from the reconnect
+/// that gave up, then from the end).
+#[tokio::test]
+async fn a_reconnecting_session_whose_central_stops_reports_disconnected_once() {
+    let (c, _url) = central().await;
+    let s = c
+        .session("recon")
+        .reconnect(Duration::from_millis(50))
+        .connect()
+        .await
+        .unwrap();
+    let mut ev = s.events();
+    c.shutdown().await;
+    let mut seen = Vec::new();
+    while let Ok(Some(e)) = tokio::time::timeout(Duration::from_secs(2), ev.next()).await {
+        seen.push(e);
+    }
+    let downs = seen
+        .iter()
+        .filter(|e| matches!(e, SessionEvent::Disconnected))
+        .count();
+    assert_eq!(downs, 1, "{seen:?}");
+}

@@ -140,6 +140,8 @@ pub(super) struct Driver {
     /// to central that waits for room then gives up, since central may take
     /// nothing more from this module (its subscribers' queues are full).
     pub(super) stop: Arc<tokio::sync::Notify>,
+    /// `Disconnected` was reported and `Reconnected` not since.
+    pub(super) reported_down: bool,
 }
 
 /// Where a publish's result goes.

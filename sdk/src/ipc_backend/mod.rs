@@ -255,6 +255,7 @@ impl IpcBackend {
             read_credit: None,
             failed: false,
             stop: stop.clone(),
+            reported_down: false,
         };
         if let Some(l) = listener {
             spawn_accept(l, tx.clone());

@@ -12,6 +12,7 @@ impl Driver {
         self.fail_pending();
         self.links.clear();
         self.broadcast(SessionEvent::Disconnected);
+        self.reported_down = true;
         let mut wait = first;
         loop {
             let sleep = tokio::time::sleep(wait);
@@ -64,6 +65,7 @@ impl Driver {
                         let _ = self.conn.subscribe_disconnect();
                     }
                     self.broadcast(SessionEvent::Reconnected);
+                    self.reported_down = false;
                     return true;
                 }
                 Err(ConnectError::Unreachable { source, .. })
@@ -172,7 +174,10 @@ impl Driver {
         }
         // their channels close: the `Requests` streams end with Disconnected
         self.servers.clear();
-        self.broadcast(SessionEvent::Disconnected);
+        // once: a reconnect that gave up has said it already
+        if !std::mem::replace(&mut self.reported_down, true) {
+            self.broadcast(SessionEvent::Disconnected);
+        }
         self.events.close();
     }
 }
