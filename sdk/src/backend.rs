@@ -349,6 +349,17 @@ pub trait IpcControl: Send + Sync {
             backend: "this backend",
         })
     }
+
+    /// Looks `msg` up in central now (as a C module does before it first
+    /// uses a message) and answers what central holds of it: `None` when
+    /// central does not know it. Answered from this module's cache once
+    /// looked up. The default says the backend has none.
+    async fn look_up(&self, msg: &str) -> Result<Option<MsgInfo>, ControlError> {
+        Err(ControlError::Unsupported {
+            what: format!("look_up({msg})"),
+            backend: "this backend",
+        })
+    }
 }
 
 /// What only a DDS backend does ([`Session::dds`](crate::Session::dds)).

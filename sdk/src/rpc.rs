@@ -6,7 +6,6 @@ use crate::reply::Responder;
 use crate::session::{decode, encode_rpc, Encoding, Owned, Session};
 use crate::subscriber::RecvError;
 use crate::topics::Definition;
-use courier_wire::ipc::introspect::{Answer, Ask};
 use courier_wire::{ipc, IpcMessage};
 use futures::Stream;
 use std::marker::PhantomData;
@@ -150,7 +149,10 @@ type Verdict = Result<(), (String, String)>;
 
 #[derive(Debug, Default)]
 pub(crate) struct ReplyChecks {
-    verdicts: std::sync::Mutex<std::collections::HashMap<(String, &'static str), Verdict>>,
+    /// By message, then by type: a hit allocates nothing.
+    verdicts: std::sync::Mutex<
+        std::collections::HashMap<String, std::collections::HashMap<&'static str, Verdict>>,
+    >,
     named: std::sync::Mutex<std::collections::HashMap<&'static str, &'static str>>,
 }
 
@@ -164,30 +166,32 @@ impl ReplyChecks {
         ty: &'static str,
         fits: fn(&str) -> Result<(), String>,
     ) -> Verdict {
-        let key = (msg.to_string(), ty);
         let lock = || self.verdicts.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(v) = lock().get(&key) {
+        if let Some(v) = lock().get(msg).and_then(|m| m.get(ty)) {
             return v.clone();
         }
         let Some(ipc) = session.backend.ipc() else {
             return Ok(());
         };
-        // what this module learnt of it, else central's answer; unknown
-        // (central does not answer, holds no format, or names other
-        // formats in it) is not held against the data, which decoding
-        // still checks
-        let theirs = match ipc.message_info(msg).await {
+        // central's format (looked up as a C module does; the C central
+        // dies of `x_ipc_getMessageInfo` for a name it does not know);
+        // unknown (central does not know the message, holds no format, or
+        // names other formats in it) is not held against the data, which
+        // decoding still checks
+        let theirs = match ipc.look_up(msg).await {
             Ok(Some(info)) => info.res_format.map(|f| f.to_string()),
-            _ => match ipc.ask_central(Ask::MessageDetails(msg.to_string())).await {
-                Ok(Answer::MessageDetails(d)) if d.class != 0 => d.reply_format,
-                _ => None,
-            },
+            _ => None,
         };
-        let Some(theirs) = theirs.filter(|f| !names_formats(f)) else {
-            return Ok(());
+        // (remembered too: a message unknown now is not asked about again
+        // on every query)
+        let verdict = match theirs.filter(|f| !names_formats(f)) {
+            Some(theirs) => fits(&theirs).map_err(|detail| (theirs, detail)),
+            None => Ok(()),
         };
-        let verdict = fits(&theirs).map_err(|detail| (theirs, detail));
-        lock().insert(key, verdict.clone());
+        lock()
+            .entry(msg.to_string())
+            .or_default()
+            .insert(ty, verdict.clone());
         verdict
     }
 

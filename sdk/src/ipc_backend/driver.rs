@@ -34,6 +34,7 @@ pub(super) enum Cmd {
     Ask(Ask, AnswerDone),
     /// The cached msgInfo of a message.
     MsgInfo(String, Done<Result<Option<MsgInfo>, ControlError>>),
+    LookUp(String, Done<Result<Option<MsgInfo>, ControlError>>),
     Inform(InformOp, Done<Result<(), ControlError>>),
     /// Subscribe central's connect/disconnect notifications (once).
     WatchModules,
@@ -116,6 +117,8 @@ pub(super) struct Driver {
     /// Subscriptions and servers whose registration central has not yet
     /// confirmed (by answering the question asked right after it).
     pub(super) registering: HashMap<OpId, Done<Result<(), OpenError>>>,
+    /// Lookups waiting for central's answer.
+    pub(super) look_ups: HashMap<OpId, Done<Result<Option<MsgInfo>, ControlError>>>,
     /// `watch_handlers` calls waiting for central's first count.
     pub(super) watch_ops: HashMap<OpId, (String, Done<Result<(), ControlError>>)>,
     /// Questions to central, with the message each asks on.
@@ -534,6 +537,14 @@ impl Driver {
             Cmd::MsgInfo(m, d) => {
                 let _ = d.send(Ok(self.conn.msg_info(&m).cloned()));
             }
+            Cmd::LookUp(m, d) => match self.conn.look_up(&m) {
+                Ok(op) => {
+                    self.look_ups.insert(op, d);
+                }
+                Err(e) => {
+                    let _ = d.send(Err(refused(&format!("look_up({m})"))(e)));
+                }
+            },
             Cmd::Inform(op, d) => {
                 let (what, r) = match op {
                     InformOp::Capacity(n) => {

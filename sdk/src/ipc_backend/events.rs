@@ -86,6 +86,11 @@ impl Driver {
                         let _ = d.send(Ok(answer));
                     }
                 }
+                Event::LookedUp { op, info } => {
+                    if let Some(d) = self.look_ups.remove(&op) {
+                        let _ = d.send(Ok(info));
+                    }
+                }
                 Event::NumHandlers { op, count } => {
                     if let Some(d) = self.counts.remove(&op) {
                         let _ = d.send(Ok(count));

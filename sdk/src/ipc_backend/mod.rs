@@ -245,6 +245,7 @@ impl IpcBackend {
             counts: HashMap::new(),
             registering: HashMap::new(),
             watch_ops: HashMap::new(),
+            look_ups: HashMap::new(),
             asks: HashMap::new(),
             closing: None,
             watching_modules: false,
@@ -552,6 +553,11 @@ impl IpcControl for IpcBackend {
     async fn message_info(&self, msg: &str) -> Result<Option<MsgInfo>, ControlError> {
         let g = Err(self.gone());
         self.call(|d| Cmd::MsgInfo(msg.into(), d), g).await
+    }
+
+    async fn look_up(&self, msg: &str) -> Result<Option<MsgInfo>, ControlError> {
+        let g = Err(self.gone());
+        self.call(|d| Cmd::LookUp(msg.into(), d), g).await
     }
 }
 

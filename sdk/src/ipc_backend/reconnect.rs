@@ -118,7 +118,7 @@ impl Driver {
             Cmd::Ask(_, d) => {
                 let _ = d.send(Err(ControlError::Disconnected(addr)));
             }
-            Cmd::MsgInfo(_, d) => {
+            Cmd::MsgInfo(_, d) | Cmd::LookUp(_, d) => {
                 let _ = d.send(Err(ControlError::Disconnected(addr)));
             }
             Cmd::WatchModules => self.watching_modules = true,
@@ -157,6 +157,9 @@ impl Driver {
         }
         for (_, d) in self.registering.drain() {
             let _ = d.send(Err(OpenError::Disconnected(addr.clone())));
+        }
+        for (_, d) in self.look_ups.drain() {
+            let _ = d.send(Err(ControlError::Disconnected(addr.clone())));
         }
         for (_, (_, d)) in self.watch_ops.drain() {
             let _ = d.send(Err(ControlError::Disconnected(addr.clone())));

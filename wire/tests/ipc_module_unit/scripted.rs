@@ -339,6 +339,43 @@ fn define_msg_sends_the_c_msg_formats() {
     }
 }
 
+/// `look_up` asks central with the msgInfo lookup a C module makes (safe
+/// for names central does not know) and answers what central holds, or
+/// `None`; once known, it answers from the cache without asking again.
+#[test]
+fn look_up_answers_what_central_holds_or_none() {
+    for seed in SEEDS {
+        let mut s = Scripted::connected(seed, false);
+        let a = s.c().look_up("nope").unwrap();
+        let f = s.frames();
+        assert_eq!(lookup_name(&f[0]), "nope");
+        s.send(&frame(
+            -4,
+            MsgClass::Unknown,
+            0,
+            f[0].header.msg_ref,
+            &[],
+            &[0],
+        ));
+        assert_eq!(s.event(), Some(Event::LookedUp { op: a, info: None }));
+        let b = s.c().look_up("message9").unwrap();
+        s.answer_message9_lookup();
+        match s.event() {
+            Some(Event::LookedUp { op, info: Some(i) }) if op == b => {
+                assert_eq!(i.name, "message9");
+                assert_eq!(
+                    i.res_format.map(|f| f.to_string()).as_deref(),
+                    Some("string")
+                );
+            }
+            e => panic!("{e:?}"),
+        }
+        let c = s.c().look_up("message9").unwrap();
+        assert!(s.frames().is_empty(), "asked again");
+        assert!(matches!(s.event(), Some(Event::LookedUp { op, info: Some(_) }) if op == c));
+    }
+}
+
 #[test]
 fn unknown_message_fails_the_op_and_is_asked_again() {
     for seed in SEEDS {

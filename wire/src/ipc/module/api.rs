@@ -256,6 +256,21 @@ impl Connection {
         Ok(op)
     }
 
+    /// Looks `msg` up in central (`x_ipc_msgInfoMsg`, as a C module does
+    /// before it first uses a message; safe for names central does not
+    /// know, unlike `x_ipc_getMessageInfo`, which the C central 3.9.1 dies
+    /// on): the answer is [`Event::LookedUp`]. A message already looked
+    /// up is answered from what this connection learnt.
+    pub fn look_up(&mut self, msg: &str) -> Result<OpId, Error> {
+        self.check_open()?;
+        let op = self.alloc_op();
+        self.push_op(Op::LookUp {
+            op,
+            msg: msg.into(),
+        });
+        Ok(op)
+    }
+
     /// `IPC_numHandlers`: answer in [`Event::NumHandlers`].
     pub fn num_handlers(&mut self, msg: &str) -> Result<OpId, Error> {
         self.check_open()?;

@@ -125,6 +125,14 @@ pub enum Event {
         /// Whether the module is connected.
         connected: bool,
     },
+    /// Answer of [`Connection::look_up`]: what central knows of the
+    /// message (`None`: it does not know it).
+    LookedUp {
+        /// The operation's handle.
+        op: OpId,
+        /// Central's answer.
+        info: Option<super::MsgInfo>,
+    },
     /// Answer of [`Connection::num_handlers`].
     NumHandlers {
         /// The operation's handle.

@@ -78,6 +78,11 @@ pub(super) enum Op {
         op: OpId,
         msg: String,
     },
+    /// Answered by [`Event::LookedUp`] once `msg` is looked up.
+    LookUp {
+        op: OpId,
+        msg: String,
+    },
     NotifyHandlerChange {
         msg: String,
     },
@@ -195,6 +200,12 @@ impl Connection {
         let name = proto::op_message(&op).unwrap_or_default();
         let known = self.info(&name);
         let unknown = !name.is_empty() && known.is_none() && self.unknown.remove(&name);
+        if let Op::LookUp { op, .. } = op {
+            // what central said (nothing: it does not know the message)
+            let info = known.filter(|i| i.id != 0);
+            self.events.push_back(Event::LookedUp { op, info });
+            return;
+        }
         let info = known.unwrap_or_default();
         if unknown || (info.id == 0 && !name.is_empty()) {
             // Central does not know the message.
@@ -299,7 +310,7 @@ impl Connection {
                 // redefinition may change the formats, so forget the cache.
                 self.cache.remove(&name);
             }
-            Op::Lookup(_) => {}
+            Op::Lookup(_) | Op::LookUp { .. } => {}
             Op::DirectQuery { msg } => {
                 let mut w = Writer::new();
                 w.write_str(&msg);

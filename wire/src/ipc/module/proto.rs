@@ -35,7 +35,7 @@ pub(super) fn op_message(op: &Op) -> Option<String> {
         Op::WaitMsg => "x_ipc_waitMsg",
         Op::DefineFormat { .. } => "x_ipc_registerNamedFormMsg",
         Op::DefineMsg { .. } => "x_ipc_registerMessageMsg",
-        Op::Lookup(n) => n,
+        Op::Lookup(n) | Op::LookUp { msg: n, .. } => n,
         Op::DirectQuery { .. } => "x_ipc_directMsgQuery",
         Op::Deregister { .. } => "x_ipc_deregisterHandlerMsg",
         Op::Publish { msg, .. } | Op::Query { msg, .. } | Op::Respond { msg, .. } => msg,
