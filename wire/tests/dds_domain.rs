@@ -56,6 +56,22 @@ fn reader_qos() -> EndpointQos {
 }
 
 /// A CDR_LE sample holding `n`.
+/// A reliable writer of `topic` and `ty` on node `i`.
+fn writer(net: &mut Net, i: usize, topic: &str, ty: &str) -> WriterId {
+    let now = net.now();
+    net.node(i)
+        .create_writer(EndpointConfig::writer(topic, ty).qos(writer_qos()), now)
+        .unwrap()
+}
+
+/// A reliable reader of `topic` and `ty` on node `i`.
+fn reader(net: &mut Net, i: usize, topic: &str, ty: &str) -> ReaderId {
+    let now = net.now();
+    net.node(i)
+        .create_reader(EndpointConfig::reader(topic, ty).qos(reader_qos()), now)
+        .unwrap()
+}
+
 fn sample(n: u32) -> Vec<u8> {
     let mut b = vec![0, 1, 0, 0];
     b.extend_from_slice(&n.to_le_bytes());
@@ -430,35 +446,10 @@ fn a_query_a_matched_service_leaves_unanswered_times_out() {
 #[test]
 fn a_pattern_subscription_reads_every_matching_topic_and_type() {
     let mut net = new_net(2, 13, 10);
-    let now = net.now();
-    let pose = net
-        .node(0)
-        .create_writer(
-            EndpointConfig::writer("robot/pose", "Pose").qos(writer_qos()),
-            now,
-        )
-        .unwrap();
-    let vel = net
-        .node(0)
-        .create_writer(
-            EndpointConfig::writer("robot/vel", "Twist").qos(writer_qos()),
-            now,
-        )
-        .unwrap();
-    let other = net
-        .node(0)
-        .create_writer(
-            EndpointConfig::writer("camera/pose", "Pose").qos(writer_qos()),
-            now,
-        )
-        .unwrap();
-    let wrong_type = net
-        .node(0)
-        .create_writer(
-            EndpointConfig::writer("robot/img", "Image").qos(writer_qos()),
-            now,
-        )
-        .unwrap();
+    let pose = writer(&mut net, 0, "robot/pose", "Pose");
+    let vel = writer(&mut net, 0, "robot/vel", "Twist");
+    let other = writer(&mut net, 0, "camera/pose", "Pose");
+    let wrong_type = writer(&mut net, 0, "robot/img", "Image");
     let now = net.now();
     let p = net
         .node(1)
@@ -658,21 +649,8 @@ fn a_full_keep_all_reader_holds_back_a_reliable_writer_until_it_has_room() {
 #[test]
 fn a_remote_endpoint_of_another_type_on_our_topic_is_reported_with_both_type_names() {
     let mut net = new_net(2, 23, 0);
-    let now = net.now();
-    let w = net
-        .node(0)
-        .create_writer(
-            EndpointConfig::writer("Shared", "TypeA").qos(writer_qos()),
-            now,
-        )
-        .unwrap();
-    let r = net
-        .node(1)
-        .create_reader(
-            EndpointConfig::reader("Shared", "TypeB").qos(reader_qos()),
-            now,
-        )
-        .unwrap();
+    let w = writer(&mut net, 0, "Shared", "TypeA");
+    let r = reader(&mut net, 1, "Shared", "TypeB");
     let reported = |n: &Net| {
         n.has(0, |e| matches!(e, Event::TypeMismatch { local, remote, topic, local_type, remote_type }
             if *local == Endpoint::Writer(w) && *remote == r.guid() && topic == "Shared" && local_type == "TypeA" && remote_type == "TypeB"))
@@ -695,30 +673,12 @@ fn two_local_endpoints_of_different_types_on_one_topic_are_reported_both_ways() 
     // an XRCE agent hosts every client's endpoints in one participant, so
     // a mismatch between two of them is never discovered, only local
     let mut net = new_net(1, 31, 0);
-    let now = net.now();
-    let w = net
-        .node(0)
-        .create_writer(
-            EndpointConfig::writer("Shared", "TypeA").qos(writer_qos()),
-            now,
-        )
-        .unwrap();
-    let r = net
-        .node(0)
-        .create_reader(
-            EndpointConfig::reader("Shared", "TypeB").qos(reader_qos()),
-            now,
-        )
-        .unwrap();
+    let w = writer(&mut net, 0, "Shared", "TypeA");
+    let r = reader(&mut net, 0, "Shared", "TypeB");
     // a pattern takes every type: no mismatch for it
+    let now = net.now();
     net.node(0).create_pattern("Shared", "*", reader_qos(), now);
-    let same = net
-        .node(0)
-        .create_reader(
-            EndpointConfig::reader("Shared", "TypeA").qos(reader_qos()),
-            now,
-        )
-        .unwrap();
+    let same = reader(&mut net, 0, "Shared", "TypeA");
     net.run_for(ms(50));
     assert!(net.has(0, |e| matches!(e, Event::TypeMismatch { local, remote, topic, local_type, remote_type }
         if *local == Endpoint::Writer(w) && *remote == r.guid() && topic == "Shared" && local_type == "TypeA" && remote_type == "TypeB")));

@@ -230,6 +230,22 @@ pub trait Central {
         f
     }
 
+    /// Takes what the module wrote, checks that it starts with the msgInfo
+    /// lookup of `name`, and answers as central does for a name it does
+    /// not know.
+    fn answer_unknown(&mut self, name: &str) {
+        let f = self.frames();
+        assert_eq!(lookup_name(&f[0]), name);
+        self.send(&frame(
+            -4,
+            MsgClass::Unknown,
+            0,
+            f[0].header.msg_ref,
+            &[],
+            &[0],
+        ));
+    }
+
     /// Answers the msgInfo lookup of `x_ipc_directMsgQuery` (id 147) that
     /// num_handlers and direct sends start with; returns what follows it.
     fn answer_direct_msg_query_lookup(&mut self) -> Vec<Frame> {

@@ -347,16 +347,7 @@ fn look_up_answers_what_central_holds_or_none() {
     for seed in SEEDS {
         let mut s = Scripted::connected(seed, false);
         let a = s.c().look_up("nope").unwrap();
-        let f = s.frames();
-        assert_eq!(lookup_name(&f[0]), "nope");
-        s.send(&frame(
-            -4,
-            MsgClass::Unknown,
-            0,
-            f[0].header.msg_ref,
-            &[],
-            &[0],
-        ));
+        s.answer_unknown("nope");
         assert_eq!(s.event(), Some(Event::LookedUp { op: a, info: None }));
         let b = s.c().look_up("message9").unwrap();
         s.answer_message9_lookup();
@@ -381,15 +372,7 @@ fn unknown_message_fails_the_op_and_is_asked_again() {
     for seed in SEEDS {
         let mut s = Scripted::connected(seed, false);
         let a = s.c().publish("nope", b"", -1).unwrap();
-        let f = s.frames();
-        s.send(&frame(
-            -4,
-            MsgClass::Unknown,
-            0,
-            f[0].header.msg_ref,
-            &[],
-            &[0],
-        ));
+        s.answer_unknown("nope");
         assert!(matches!(
             s.event(),
             Some(Event::OpFailed { op, error: Error::UnknownMessage(_) }) if op == a
