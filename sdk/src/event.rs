@@ -218,12 +218,16 @@ pub enum SessionEvent {
         /// Handlers now.
         count: i32,
     },
-    /// IPC: a keep-all subscription's queue is full (`queued` samples
-    /// unread), so the session holds central's next delivery back until
-    /// the application takes one: central hands a module its messages one
-    /// by one, so **every** subscription and server of the session waits
-    /// meanwhile (as a C module whose handler does not return). Reported
-    /// once each time it fills. Read the subscription, drop it, or give it
+    /// A keep-all subscription's queue is full (`queued` samples unread),
+    /// so the session takes nothing more until the application takes one,
+    /// and **every** subscription and server of the session waits
+    /// meanwhile. IPC: central hands a module its messages one by one (as
+    /// a C module whose handler does not return). RTPS: the participant
+    /// stops reading user data; reliable writers hold the rest
+    /// (back-pressure, not loss). XRCE: the session stops reading the
+    /// link (a reliable subscription's queue). Reported once each time it
+    /// fills. Read
+    /// the subscription, drop it, or give it
     /// [`QueuePolicy::KeepLast`](crate::QueuePolicy::KeepLast) to drop the
     /// oldest instead.
     SubscriberFull {

@@ -702,6 +702,7 @@ async fn slow_keep_all_subscriber_loses_nothing() {
 async fn a_subscriber_that_stops_reading_stops_the_publisher_within_bounded_memory() {
     let a = session(167, "a").await;
     let b = session(167, "b").await;
+    let mut b_events = b.events();
     let p = a.publisher::<Msg>("stall").build().await.unwrap();
     let mut sub = b
         .subscriber::<Msg>("stall")
@@ -745,6 +746,21 @@ async fn a_subscriber_that_stops_reading_stops_the_publisher_within_bounded_memo
     );
     eprintln!("publisher stopped after {stuck} samples");
     assert!(!writer.is_finished());
+    // the subscribing session said why it stopped taking samples
+    let full = async {
+        loop {
+            if let Some(courier::SessionEvent::SubscriberFull { msg, queued }) =
+                b_events.next().await
+            {
+                return (msg, queued);
+            }
+        }
+    };
+    let (msg, queued) = tokio::time::timeout(Duration::from_secs(5), full)
+        .await
+        .unwrap();
+    assert_eq!(msg, "stall");
+    assert!(queued >= 8, "{queued}");
     // reading again releases it, and nothing was lost or reordered
     for i in 0..n {
         let s = next(&mut sub).await.unwrap();

@@ -181,6 +181,37 @@ async fn tcp_publish_subscribe_confirmed_and_fragmented() {
     pub_sub(format!("xrce+tcp://{}", agent.addr)).await;
 }
 
+/// A reliable subscription whose queue is full stops the session reading
+/// the link (the agent's window holds the rest): the session says so,
+/// and reading again delivers everything in order.
+#[tokio::test]
+async fn a_full_subscription_is_reported_and_loses_nothing() {
+    let agent = xrce_agent::udp(0).await;
+    let url = format!("xrce+udp://{}", agent.addr);
+    let a = session(url.clone(), "pub").await;
+    let b = session(url, "sub").await;
+    let mut ev = b.events();
+    let mut sub = b
+        .subscriber::<Msg>("full")
+        .queue(courier::QueuePolicy::KeepAll(4))
+        .build()
+        .await
+        .unwrap();
+    let p = a.publisher::<Msg>("full").build().await.unwrap();
+    for i in 0..20 {
+        p.publish(&msg(i, 10)).await.unwrap();
+    }
+    wait_event(&mut ev, "SubscriberFull", |e| {
+        matches!(e, SessionEvent::SubscriberFull { msg, queued } if msg == "full" && *queued >= 4)
+    })
+    .await;
+    for i in 0..20 {
+        assert_eq!(next(&mut sub).await, msg(i, 10));
+    }
+    a.close().await;
+    b.close().await;
+}
+
 #[tokio::test]
 async fn udp_query_and_serve() {
     let agent = xrce_agent::udp(0).await;

@@ -1152,12 +1152,20 @@ impl State {
         // may exceed the capacity by what one receive batch (8 datagrams)
         // carried; reading stops until the application catches up (see
         // `full_queue`)
+        let was_full = r.queue.is_full();
         match &mut self.wakes {
             Some(wakes) => wakes.extend(r.queue.push_over_deferred(raw)),
             None => r.queue.push_over(raw),
         }
         if r.queue.is_full() {
             self.d.set_reader_full(reader, true);
+            if !was_full {
+                // every subscription of the session waits now: say so
+                self.listeners.send(SessionEvent::SubscriberFull {
+                    msg: r.topic.to_string(),
+                    queued: r.queue.len(),
+                });
+            }
         }
         if r.queue.has_handler() && !self.immediate.iter().any(|q| Arc::ptr_eq(q, &r.queue)) {
             self.immediate.push(r.queue.clone());

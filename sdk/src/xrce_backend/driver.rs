@@ -1335,7 +1335,12 @@ impl Driver {
             Ok(()) => {}
             Err(back) if s.reliable => {
                 // keep it, and read no more until the subscriber makes room
+                // (every subscription of the session waits: say so)
                 s.queue.push_over(back);
+                self.hub.send(SessionEvent::SubscriberFull {
+                    msg: s.topic.to_string(),
+                    queued: s.queue.len(),
+                });
                 self.stalled = Some(s.queue.clone());
             }
             Err(_) => s.queue.count_dropped(),
