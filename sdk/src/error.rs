@@ -240,6 +240,14 @@ pub enum PublishError {
         #[source]
         source: WriteError,
     },
+    /// `unregister` of an instance this publication has not registered
+    /// (never written or disposed, or unregistered already): DDS's
+    /// `PRECONDITION_NOT_MET`. Nothing is sent.
+    #[error("cannot unregister that instance of {topic}: this publication has not registered it (written or disposed), or unregistered it already")]
+    NotRegistered {
+        /// The topic.
+        topic: String,
+    },
     /// The function of a [`PeriodicPublication`](crate::PeriodicPublication)
     /// panicked, which ended it.
     #[error("the periodic publication of {msg} ended: its function panicked: {panic}")]

@@ -100,6 +100,14 @@ async fn keyed_topic_dispose_reaches_the_subscriber() {
     p.publish(&k(2, 1)).await.unwrap();
     p.dispose(&k(1, 0)).await.unwrap();
     p.unregister(&k(2, 0)).await.unwrap();
+    // unregistering one not registered, or twice: refused, nothing sent
+    for id in [2, 9] {
+        let e = p.unregister(&k(id, 0)).await.unwrap_err();
+        assert!(
+            matches!(e, courier::PublishError::NotRegistered { .. }),
+            "{e:?}"
+        );
+    }
     p.publish(&k(3, 1)).await.unwrap();
     let sample = |r: Result<Received<Keyed>, RecvError>| match r {
         Ok(Received::Sample(s)) => s.value,

@@ -61,6 +61,11 @@ struct Publication {
     /// unregistered (key hash → serialized key), disposed when the
     /// publication closes if `autodispose`, else unregistered.
     live: HashMap<[u8; 16], Vec<u8>>,
+    /// Keyed topics: the instances this writer registered (wrote or
+    /// disposed) and has not unregistered, to refuse an unregister of one
+    /// it has not (DDS's PRECONDITION_NOT_MET); `None` once more than
+    /// [`MAX_TRACKED_INSTANCES`] were seen, when nothing is refused.
+    registered: Option<HashSet<[u8; 16]>>,
     key_of: Option<KeyOf>,
     autodispose: bool,
 }
@@ -760,6 +765,7 @@ impl State {
                 last: None,
                 closed: None,
                 live: HashMap::new(),
+                registered: Some(HashSet::new()),
                 key_of: ty.key_of,
                 autodispose: qos.autodispose,
             },
@@ -783,6 +789,21 @@ impl State {
             return Some(pw); // a full keep-all history: Event::Writable follows
         }
         if let Some(hash) = pw.key_hash {
+            if let Some(reg) = &mut w.registered {
+                if pw.kind == ChangeKind::Unregistered {
+                    if !reg.remove(&hash) {
+                        pw.done.send(Err(PublishError::NotRegistered {
+                            topic: w.topic.clone(),
+                        }));
+                        return None;
+                    }
+                } else if reg.len() < MAX_TRACKED_INSTANCES {
+                    reg.insert(hash);
+                } else if !reg.contains(&hash) {
+                    // too many to know: refuse nothing from now on
+                    w.registered = None;
+                }
+            }
             // the instances left alive, for autodispose
             if pw.kind == ChangeKind::Alive {
                 if !w.live.contains_key(&hash) && w.live.len() < MAX_TRACKED_INSTANCES {
