@@ -272,7 +272,9 @@ pub enum QueryError {
         timeout: Duration,
     },
     /// No server of the query was found within the timeout (backends that
-    /// can tell this apart from [`QueryError::Timeout`]).
+    /// can tell this apart from [`QueryError::Timeout`]; IPC: central
+    /// counted no handler of the message when the wait ended, and keeps
+    /// the query until one subscribes, as C's central does).
     #[error("nobody serves {msg} (waited {timeout:?})")]
     NoResponder {
         /// Query message.

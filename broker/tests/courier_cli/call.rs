@@ -81,7 +81,7 @@ fn call_an_ipc_query() {
         ),
         (
             &["call", u, "nobody", "[1, 2]", "--timeout", "300"][..],
-            "courier: no reply to \"nobody\" within 300ms (--timeout)\n",
+            "courier: nobody serves \"nobody\" (waited 300ms for a server; central keeps the query until one subscribes)\n",
         ),
     ] {
         let (code, out, err) = run(args);

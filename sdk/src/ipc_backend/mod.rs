@@ -449,6 +449,19 @@ impl Backend for IpcBackend {
             Err(_) => {
                 // one per query
                 let _ = self.cmd.post(Cmd::CancelQuery(key));
+                // central holds a query nobody serves until a server
+                // comes: say so rather than "no reply" (one more question
+                // to central, on this path only)
+                let asked = tokio::time::timeout(
+                    Duration::from_secs(1),
+                    IpcControl::num_handlers(self, &msg),
+                );
+                if let Ok(Ok(0)) = asked.await {
+                    return Err(QueryError::NoResponder {
+                        msg: msg.to_string(),
+                        timeout,
+                    });
+                }
                 Err(QueryError::Timeout {
                     msg: msg.to_string(),
                     timeout,

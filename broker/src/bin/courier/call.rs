@@ -52,8 +52,12 @@ fn failed(o: &CallArgs, e: QueryError, timeout: Duration) -> crate::Error {
             format!("no reply to {:?} within {timeout:?} (--timeout)", o.query).into()
         }
         QueryError::NoResponder { .. } => format!(
-            "nobody serves {:?} (waited {timeout:?} for a server to be discovered)",
-            o.query
+            "nobody serves {:?} (waited {timeout:?} for a server{})",
+            o.query,
+            match kind(&o.url) {
+                Kind::Ipc => "; central keeps the query until one subscribes",
+                Kind::Dds => " to be discovered",
+            }
         )
         .into(),
         e => e.into(),
