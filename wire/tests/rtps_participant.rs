@@ -615,6 +615,32 @@ fn transient_local_late_joiner_gets_the_history_per_instance_and_volatile_does_n
     assert_eq!(net.samples(2)[0].sequence_number, SequenceNumber(13));
 }
 
+/// A participant with a short lease (600 ms) that sends nothing else
+/// announces itself often enough: its peer keeps it for 10 s of idleness
+/// (with 3 s announcements it was lost and found again every few seconds).
+#[test]
+fn an_idle_participant_with_a_short_lease_is_not_lost() {
+    let mut net = Net::new(37, Faults::none());
+    for i in 0..2u8 {
+        let mut cfg = Config::udpv4(0, u32::from(i), guid_prefix([i + 1; 10]), LO)
+            .unwrap()
+            .with_unicast_peers(&[LO], 9);
+        cfg.lease_duration = Duration::from_millis(600);
+        let p = Participant::new(cfg, net.now(), net.wall());
+        net.add(p);
+    }
+    assert!(net.run_until(Duration::from_secs(5), |n| n.hosts[0]
+        .node
+        .participants()
+        .count()
+        == 1));
+    net.run_for(Duration::from_secs(10));
+    assert!(
+        !net.has(0, |e| matches!(e, Event::ParticipantLost { .. })),
+        "lost while it lived"
+    );
+}
+
 #[test]
 fn a_silent_participant_is_lost_after_its_lease_and_a_closed_one_at_once() {
     let mut net = new_net(3, 31, 0);

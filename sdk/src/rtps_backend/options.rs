@@ -199,9 +199,10 @@ impl RtpsOptions {
     /// `send_buffer` (bytes), `lease_ms`, `busy_poll_us`, `max_message_size`,
     /// `fragment_size` (bytes), `receive_thread` (true/false), `services`
     /// (auto/fastrtps/cyclonedds), `ros2_node` (`/namespace/name`),
-    /// `ros2_graph` (true/false), `ros2_gid` (16/24). `peers` without
-    /// `multicast` turns multicast off. Anything else is an error naming the
-    /// key.
+    /// `ros2_graph` (true/false), `ros2_gid` (16/24), `max_sample_size`
+    /// (bytes). `peers` without `multicast` turns multicast off; an empty
+    /// `peers=` is an error (never multicast by accident). `lease_ms` is at
+    /// least 100. Anything else is an error naming the key.
     ///
     /// ```
     /// use courier::rtps_backend::RtpsOptions;
@@ -252,7 +253,17 @@ impl RtpsOptions {
                         .split(',')
                         .filter(|p| !p.is_empty())
                         .map(str::to_string)
-                        .collect()
+                        .collect();
+                    // `peers=$UNSET_VAR` must not fall back to multicast
+                    if o.peers.is_empty() {
+                        return Err(bad(
+                            url,
+                            format!(
+                                "peers={v:?} names no peer: give host[,host…], or leave \
+                                 the option out for multicast discovery"
+                            ),
+                        ));
+                    }
                 }
                 "multicast" => {
                     o.multicast = parse_bool(url, k, v)?;
@@ -262,7 +273,18 @@ impl RtpsOptions {
                 "max_index" => o.max_participant_index = parse_num(url, k, v)?,
                 "recv_buffer" => o.recv_buffer = Some(parse_num(url, k, v)?),
                 "send_buffer" => o.send_buffer = Some(parse_num(url, k, v)?),
-                "lease_ms" => o.lease = Duration::from_millis(parse_num(url, k, v)?),
+                "lease_ms" => {
+                    let ms: u64 = parse_num(url, k, v)?;
+                    // peers drop a participant silent for its lease: below
+                    // this, one late datagram does
+                    if ms < 100 {
+                        return Err(bad(
+                            url,
+                            format!("{k}={ms}: a lease under 100 ms expires between announcements"),
+                        ));
+                    }
+                    o.lease = Duration::from_millis(ms);
+                }
                 "max_message_size" => {
                     let n: usize = parse_num(url, k, v)?;
                     if !(512..=65_507).contains(&n) {
@@ -501,6 +523,11 @@ mod tests {
             ("rtps://0?multicast=maybe", "multicast"),
             ("rtps://0?receive_thread=2", "receive_thread"),
             ("rtps://0?peers=not-an-ip", "not-an-ip"),
+            // an empty list (an unset shell variable) is not multicast
+            ("rtps://0?interface=lo&peers=", "names no peer"),
+            ("rtps://0?peers=,", "names no peer"),
+            ("rtps://0?lease_ms=0", "under 100 ms"),
+            ("rtps://0?lease_ms=99", "under 100 ms"),
             ("rtps://0?index", "index"),
             ("ipc://x", "rtps://"),
         ] {

@@ -96,7 +96,8 @@ pub struct Config {
     pub spdp_destinations: Vec<Locator>,
     /// Lease announced: peers drop this participant after this much silence.
     pub lease_duration: Duration,
-    /// Period of SPDP announcements after start-up.
+    /// Period of SPDP announcements after start-up (at most a third of
+    /// [`lease_duration`](Self::lease_duration)).
     pub announce_period: Duration,
     /// Number of quick announcements after the first one (Fast DDS: 5).
     pub initial_announcements: u32,

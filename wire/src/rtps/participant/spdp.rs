@@ -57,7 +57,10 @@ impl Participant {
             self.initial_left -= 1;
             self.cfg.initial_announce_period
         } else {
-            self.cfg.announce_period
+            // at least three announcements per lease: a short lease
+            // (`lease_ms=500`) expired between 3 s announcements of an
+            // idle participant, and peers dropped it while it lived
+            self.cfg.announce_period.min(self.cfg.lease_duration / 3)
         };
         self.next_announce = now
             .checked_add(period.max(Duration::from_millis(1)))
