@@ -84,7 +84,8 @@
 //!   it, or any handle made from it ([`Subscriber`], [`Requests`],
 //!   [`Publisher`], …), lives, and disconnects when the last is dropped;
 //!   `close().await` disconnects at once (the handles' streams end, their
-//!   calls fail) and waits for the goodbye. Dropping a handle closes that
+//!   calls fail) and waits for the goodbye (DDS: and, for up to a second,
+//!   for its readers to acknowledge what its writers still hold). Dropping a handle closes that
 //!   handle only.
 //! - **Bound your awaits.** `connect` gives up by itself (IPC: after
 //!   [`SessionBuilder::connect_timeout`], 5 s by default; RTPS at once;

@@ -715,7 +715,14 @@ impl Session {
         }
     }
 
-    /// Disconnects cleanly (also done when the last clone is dropped).
+    /// Disconnects cleanly (also done when the last clone and handle is
+    /// dropped). The session's streams end and its calls fail at once. On
+    /// DDS the instances its publications leave are disposed (or
+    /// unregistered, per `autodispose`), and the close waits, up to one
+    /// second as Cyclone DDS's writer linger, until the readers
+    /// acknowledged what its writers hold: a burst of `publish().await`s
+    /// right before it is not lost. A `.confirmed()` publish is the way to
+    /// know that one sample arrived.
     pub async fn close(&self) {
         self.backend.close().await
     }

@@ -1162,3 +1162,78 @@ async fn the_readme_qos_example_matches_and_delivers() {
     a.close().await;
     b.close().await;
 }
+
+/// A session closed (or dropped) right after a burst of reliable publishes
+/// loses none of them: the close waits (up to a second, as Cyclone's
+/// writer linger) until its readers acknowledged what its writers hold. It
+/// left at once, and a reading subscriber got 1536 of 2000. It also
+/// disposes the instances a publisher it still holds leaves alive.
+#[tokio::test]
+async fn a_session_closed_right_after_publishing_loses_nothing() {
+    let b = session(180, "b").await;
+    // room for the whole burst: the reader never holds the writer back
+    let mut sub = b
+        .subscriber::<Msg>("burst")
+        .queue(courier::QueuePolicy::KeepAll(4000))
+        .build()
+        .await
+        .unwrap();
+    let mut keyed = b
+        .subscriber::<Keyed>("alive")
+        .with_instances()
+        .build()
+        .await
+        .unwrap();
+    for drop_it in [false, true] {
+        let a = session(180, "a").await;
+        let p = a.publisher::<Msg>("burst").build().await.unwrap();
+        let kp = a.publisher::<Keyed>("alive").build().await.unwrap();
+        await_handlers(&a, "burst", 1).await;
+        await_handlers(&a, "alive", 1).await;
+        kp.publish(&Keyed {
+            id: 9,
+            seq: 1,
+            text: String::new(),
+        })
+        .await
+        .unwrap();
+        for seq in 0..2000 {
+            p.publish(&Msg {
+                seq,
+                text: "q".repeat(300),
+                payload: Vec::new(),
+            })
+            .await
+            .unwrap();
+        }
+        if drop_it {
+            // every handle: the session goes with the last
+            drop(p);
+            drop(kp);
+            drop(a);
+        } else {
+            // the publisher handles are still held
+            a.close().await;
+        }
+        for seq in 0..2000 {
+            let got = tokio::time::timeout(Duration::from_secs(3), sub.next()).await;
+            let Ok(Some(Ok(got))) = got else {
+                panic!("dropped {drop_it}: sample {seq} never came: {got:?}");
+            };
+            assert_eq!(got.value.seq, seq, "dropped: {drop_it}");
+        }
+        let first = tokio::time::timeout(Duration::from_secs(3), keyed.next()).await;
+        assert!(
+            matches!(first, Ok(Some(Ok(Received::Sample(_))))),
+            "dropped {drop_it}: {first:?}"
+        );
+        match next(&mut keyed).await {
+            Ok(Received::Instance(c)) => assert_eq!(
+                (c.state, c.key),
+                (InstanceState::Disposed, Some(9)),
+                "dropped: {drop_it}"
+            ),
+            other => panic!("dropped {drop_it}: {other:?}"),
+        }
+    }
+}

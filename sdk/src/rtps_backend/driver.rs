@@ -188,14 +188,35 @@ pub(super) struct Driver {
     pub(super) immediate: Vec<Arc<SampleQueue>>,
 }
 
+/// A command that came while the session closes: a write fails, anything
+/// else is dropped (its caller learns that the session is gone).
+fn refuse(c: Cmd) {
+    if let Cmd::Write { done, .. } = c {
+        done.send(Err(disconnected()));
+    }
+}
+
+/// How long a closing session waits for its readers to acknowledge what
+/// its writers hold (Cyclone DDS's `WriterLingerDuration` is 1 s).
+const CLOSE_LINGER: Duration = Duration::from_secs(1);
+
+/// A close under way: until when it waits, and who waits for it.
+struct Linger {
+    until: Instant,
+    replies: Vec<oneshot::Sender<()>>,
+}
+
 impl Driver {
     pub(super) async fn run(mut self) {
         // one clock reading per turn, taken when the driver wakes
         let mut now = Instant::now();
         let shared = self.shared.clone();
+        let mut linger: Option<Linger> = None;
+        // every sender is gone: the mailbox is not polled again
+        let mut orphaned = false;
         loop {
             // what the last turn produced goes out first; then what is due
-            let (paused, flushed, close) = {
+            let (paused, flushed, close, quiet) = {
                 let mut c = shared.lock();
                 let mut flushed = c.flush(now);
                 let next = c.st.next_wakeup();
@@ -204,12 +225,17 @@ impl Driver {
                     flushed = c.flush(now);
                 }
                 c.rearm();
-                (c.st.full_queue(), flushed, c.close.take())
+                let quiet = linger.is_some() && flushed.is_ok() && c.st.quiet();
+                (c.st.full_queue(), flushed, c.close.take(), quiet)
             };
             if let Some(reply) = close {
+                self.begin_close(&mut linger, reply, now);
+                continue;
+            }
+            if let Some(l) = linger.take_if(|l| quiet || now >= l.until) {
                 self.close(Instant::now()).await;
-                if let Some(reply) = reply {
-                    let _ = reply.send(());
+                for r in l.replies {
+                    let _ = r.send(());
                 }
                 return;
             }
@@ -221,9 +247,11 @@ impl Driver {
                 now = Instant::now();
                 continue;
             }
+            let until = linger.as_ref().map(|l| l.until);
             let wake = tokio::select! {
                 biased;
-                c = std::future::poll_fn(|cx| shared.lock().cmd.poll_recv(cx)) => Wake::Cmd(c),
+                c = std::future::poll_fn(|cx| shared.lock().cmd.poll_recv(cx)), if !orphaned => Wake::Cmd(c),
+                _ = async { if let Some(t) = until { tokio::time::sleep_until(t.into()).await } }, if until.is_some() => Wake::Timer,
                 _ = recv_ready(&self.meta) => Wake::Readable(0),
                 _ = recv_ready_opt(&self.user), if paused.is_none() => Wake::Readable(1),
                 _ = recv_ready_opt(&self.meta_mc) => Wake::Readable(2),
@@ -237,12 +265,15 @@ impl Driver {
                 s.activity();
             }
             match wake {
-                Wake::Cmd(None) => break,
-                Wake::Cmd(Some(Cmd::Close { reply })) => {
-                    self.close(now).await;
-                    let _ = reply.send(());
-                    return;
+                Wake::Cmd(None) => {
+                    orphaned = true;
+                    self.begin_close(&mut linger, None, now);
                 }
+                Wake::Cmd(Some(Cmd::Close { reply })) => {
+                    self.begin_close(&mut linger, Some(reply), now);
+                }
+                // closing: nothing new is taken
+                Wake::Cmd(Some(c)) if linger.is_some() => refuse(c),
                 Wake::Cmd(Some(c)) => {
                     let mut core = shared.lock();
                     core.st.command(c, now);
@@ -258,7 +289,6 @@ impl Driver {
                 let _ = shared.run_callbacks(&mut self.immediate);
             }
         }
-        self.close(Instant::now()).await;
     }
 
     /// Reads what is waiting on socket `i`, a batch per system call, up
@@ -289,6 +319,24 @@ impl Driver {
             }
         }
         std::mem::swap(&mut self.immediate, &mut c.st.immediate);
+    }
+
+    /// A close was asked for (or every handle is gone): the first starts
+    /// the linger, later ones wait for the same end.
+    fn begin_close(
+        &mut self,
+        linger: &mut Option<Linger>,
+        reply: Option<oneshot::Sender<()>>,
+        now: Instant,
+    ) {
+        let l = linger.get_or_insert_with(|| {
+            self.shared.lock().st.begin_close(now);
+            Linger {
+                until: now + CLOSE_LINGER,
+                replies: Vec::new(),
+            }
+        });
+        l.replies.extend(reply);
     }
 
     pub(super) async fn close(&mut self, now: Instant) {

@@ -364,6 +364,34 @@ impl State {
     }
 
     /// At close: every waiter fails, every queue ends.
+    /// The start of a close: the session's streams end, its queries and
+    /// services stop, the instances its publications leave are disposed;
+    /// what its writers hold still goes out (see [`State::quiet`]).
+    pub(super) fn begin_close(&mut self, now: Instant) {
+        for s in self.subs.values() {
+            s.queue.close();
+        }
+        for q in self.patterns.values() {
+            q.close();
+        }
+        for (_, q) in self.queries.drain() {
+            let _ = q.reply.send(Err(QueryError::Disconnected(q.name)));
+        }
+        self.servers.clear();
+        self.dispose_all_live(now);
+    }
+
+    /// Every writer has written what it holds and every reliable reader
+    /// matched with it has acknowledged all of it: a closing session loses
+    /// nothing its `publish().await`s returned `Ok` for by leaving now.
+    pub(super) fn quiet(&self) -> bool {
+        self.writers.values().all(|w| {
+            w.pending.is_empty()
+                && w.last
+                    .is_none_or(|sn| self.d.participant().is_acked_by_all(w.id.guid(), sn))
+        })
+    }
+
     pub(super) fn fail_all(&mut self) {
         for s in self.subs.values() {
             s.queue.close();
