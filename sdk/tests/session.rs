@@ -923,7 +923,14 @@ async fn a_vec_its_length_field_cannot_say_is_refused_not_cut_short() {
         .query::<i32, Obstacles>("obstacles_of", &1)
         .timeout(Duration::from_secs(1))
         .await;
-    assert!(matches!(q, Err(QueryError::Timeout { .. })), "{q:?}");
+    // no reply came (the server, done, may have stopped serving by then)
+    assert!(
+        matches!(
+            q,
+            Err(QueryError::Timeout { .. } | QueryError::NoResponder { .. })
+        ),
+        "{q:?}"
+    );
     let e = server.await.unwrap().unwrap_err();
     assert!(e.to_string().contains("`xs` has 256 elements"), "{e}");
     c.shutdown().await;
