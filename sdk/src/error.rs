@@ -132,6 +132,15 @@ pub enum OpenError {
         /// The bound.
         after: Duration,
     },
+    /// The QoS cannot work as asked (a zero deadline, a minimum separation
+    /// longer than the deadline or than RTPS can say).
+    #[error("QoS of {topic}: {why}")]
+    Qos {
+        /// The topic.
+        topic: String,
+        /// What is wrong.
+        why: String,
+    },
     /// The DDS participant could not create the endpoint.
     #[error("cannot create a DDS endpoint of {topic}")]
     Endpoint {

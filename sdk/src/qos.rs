@@ -39,6 +39,41 @@
 
 use std::time::Duration;
 
+/// The shortest deadline: below it `DeadlineMissed` would fire without
+/// pause (a zero deadline did, thousands of events a second and a core).
+pub const MIN_DEADLINE: Duration = Duration::from_millis(1);
+
+/// The longest finite duration RTPS carries (`i32::MAX` seconds, about 68
+/// years); longer is "infinite" on the wire.
+const MAX_WIRE: Duration = Duration::from_secs(i32::MAX as u64);
+
+/// Why a deadline and a minimum separation cannot work together, if so.
+pub(crate) fn check_timing(
+    deadline: Option<Duration>,
+    minimum_separation: Option<Duration>,
+) -> Result<(), String> {
+    if let Some(d) = deadline.filter(|d| *d < MIN_DEADLINE) {
+        return Err(format!(
+            "a deadline of {d:?} is under {MIN_DEADLINE:?}: it would be missed without pause"
+        ));
+    }
+    if let Some(s) = minimum_separation {
+        if s > MAX_WIRE {
+            return Err(format!(
+                "a minimum separation of {s:?} is longer than RTPS can say (about 68 years): \
+                 it would mean no separation at all"
+            ));
+        }
+        if let Some(d) = deadline.filter(|d| s > *d) {
+            return Err(format!(
+                "the minimum separation {s:?} is longer than the deadline {d:?}: every \
+                 deadline would be missed (DDS's INCONSISTENT_POLICY)"
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Reliability.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
 pub enum Reliability {

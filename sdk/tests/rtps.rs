@@ -1237,3 +1237,55 @@ async fn a_session_closed_right_after_publishing_loses_nothing() {
         }
     }
 }
+
+/// QoS that cannot work is refused when the endpoint is made, naming why:
+/// a zero deadline (a storm of DeadlineMissed events, a core busy), a
+/// minimum separation longer than the deadline (DDS's inconsistent
+/// policy) or than RTPS can say (it meant no separation at all).
+#[tokio::test]
+async fn qos_that_cannot_work_is_refused() {
+    let a = session(181, "a").await;
+    let e = a
+        .subscriber::<Msg>("q")
+        .deadline(Duration::ZERO)
+        .build()
+        .await
+        .unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "QoS of q: a deadline of 0ns is under 1ms: it would be missed without pause"
+    );
+    let e = a
+        .subscriber::<Msg>("q")
+        .deadline(Duration::from_millis(100))
+        .minimum_separation(Duration::from_secs(1))
+        .build()
+        .await
+        .unwrap_err();
+    assert!(
+        e.to_string().contains("longer than the deadline 100ms"),
+        "{e}"
+    );
+    let e = a
+        .subscriber::<Msg>("q")
+        .minimum_separation(Duration::MAX)
+        .build()
+        .await
+        .unwrap_err();
+    assert!(e.to_string().contains("longer than RTPS can say"), "{e}");
+    let e = a
+        .publisher::<Msg>("q")
+        .deadline(Duration::from_nanos(1))
+        .build()
+        .await
+        .unwrap_err();
+    assert!(e.to_string().contains("under 1ms"), "{e}");
+    // what can work still does
+    a.subscriber::<Msg>("q")
+        .deadline(Duration::from_millis(100))
+        .minimum_separation(Duration::from_millis(50))
+        .build()
+        .await
+        .unwrap();
+    a.close().await;
+}

@@ -458,6 +458,10 @@ impl Backend for RtpsBackend {
                  Session::publisher::<T>())"
             )));
         }
+        crate::qos::check_timing(qos.deadline, None).map_err(|why| OpenError::Qos {
+            topic: msg.to_string(),
+            why,
+        })?;
         let (topic, ty, qos) = (msg.to_string(), Box::new(ty.clone()), Box::new(qos.clone()));
         let id = self
             .ask(|reply| Cmd::Publication {
@@ -478,6 +482,12 @@ impl Backend for RtpsBackend {
         qos: &SubscriptionQos,
         queue: Arc<SampleQueue>,
     ) -> Result<SubId, OpenError> {
+        crate::qos::check_timing(qos.deadline, qos.minimum_separation).map_err(|why| {
+            OpenError::Qos {
+                topic: msg.to_string(),
+                why,
+            }
+        })?;
         let (topic, ty, qos) = (
             msg.to_string(),
             ty.filter(|t| !t.is_untyped()).cloned().map(Box::new),

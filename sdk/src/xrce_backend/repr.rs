@@ -233,6 +233,10 @@ pub(crate) fn writer(
     if !qos.partitions.is_empty() {
         return Err(unsupported("partitions"));
     }
+    crate::qos::check_timing(qos.deadline, None).map_err(|why| OpenError::Qos {
+        topic: topic.to_string(),
+        why,
+    })?;
     let representation = match o.representation {
         XrceRepresentation::Binary => {
             let (mut flags, history_depth) =
