@@ -1289,3 +1289,46 @@ async fn qos_that_cannot_work_is_refused() {
         .unwrap();
     a.close().await;
 }
+
+/// The reader's limit holds for a sample that fits one datagram as for a
+/// fragmented one (5000 bytes against a limit of 1000 was delivered).
+#[tokio::test]
+async fn the_sample_size_limit_holds_for_unfragmented_samples_too() {
+    let a = session(182, "a").await;
+    let b = tokio::time::timeout(
+        T,
+        Session::builder(common::url(182))
+            .name("b")
+            .max_message_bytes(1000)
+            .connect(),
+    )
+    .await
+    .expect("connect in time")
+    .expect("connect");
+    let p = a.publisher::<Msg>("mid").build().await.unwrap();
+    let mut ev = b.events();
+    let mut sub = b.subscribe::<Msg>("mid").await.unwrap();
+    await_handlers(&a, "mid", 1).await;
+    let mid = Msg {
+        seq: 1,
+        text: String::new(),
+        payload: vec![7; 5000],
+    };
+    p.publish(&mid).await.unwrap();
+    p.publish(&msg(2)).await.unwrap();
+    assert_eq!(next(&mut sub).await.unwrap().value, msg(2));
+    let lost = tokio::time::timeout(T, async {
+        loop {
+            if let SessionEvent::SampleLost { size, limit, .. } = ev.next().await.unwrap() {
+                return (size, limit);
+            }
+        }
+    })
+    .await
+    .expect("a SampleLost event in time");
+    let size = courier::cdr::to_vec(&mid, courier::cdr::Encoding::Xcdr1Le).len() as u64;
+    assert_eq!(lost, (size, 1000));
+    assert_eq!(sub.dropped(), 1);
+    a.close().await;
+    b.close().await;
+}

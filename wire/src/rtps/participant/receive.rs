@@ -154,6 +154,14 @@ impl Participant {
             }
             e if e.is_builtin() => {}
             _ => {
+                // the reader's limit holds for a sample in one DATA as for
+                // a fragmented one
+                let limit = self.cfg.max_sample_size;
+                if let Some(p) = payload.as_ref().filter(|p| p.len() > limit) {
+                    let size = u32::try_from(p.len()).unwrap_or(u32::MAX);
+                    self.give_up(writer, reader_id, sn, size, limit);
+                    return;
+                }
                 let (key_hash, status, related) = inline_info(qos, little, rx.vendor);
                 let kind = match status {
                     Some(s) => ChangeKind::from_status(s),
