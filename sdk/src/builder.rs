@@ -32,6 +32,14 @@ pub enum ConnectError {
         /// Which backends have it.
         hint: &'static str,
     },
+    /// A builder option's value is wrong (the URL is fine).
+    #[error("bad {option}: {why}")]
+    BadOption {
+        /// The builder method.
+        option: &'static str,
+        /// What is wrong.
+        why: String,
+    },
     /// The URL is not understood.
     #[error("bad session URL {url:?}: {why}")]
     BadUrl {
@@ -316,9 +324,9 @@ impl SessionBuilder {
                     return Err(e);
                 }
                 let mut o = RtpsOptions::from_url(&self.url)?;
-                self.rtps.apply(&mut o).map_err(|e| ConnectError::BadUrl {
-                    url: self.url.clone(),
-                    why: format!("ros2_node: {e}"),
+                self.rtps.apply(&mut o).map_err(|e| ConnectError::BadOption {
+                    option: "SessionBuilder::ros2_node",
+                    why: e.to_string(),
                 })?;
                 Arc::new(RtpsBackend::start(o, &name).await?)
             }

@@ -302,5 +302,7 @@ async fn a_session_without_the_graph_says_how_to_get_it() {
         .expect_err("refused")
         .to_string();
     assert!(e.contains("starts with a digit"), "{e}");
+    // the builder's argument is named, not the URL, which is fine
+    assert!(e.starts_with("bad SessionBuilder::ros2_node: "), "{e}");
     s.close().await;
 }
