@@ -324,10 +324,12 @@ impl SessionBuilder {
                     return Err(e);
                 }
                 let mut o = RtpsOptions::from_url(&self.url)?;
-                self.rtps.apply(&mut o).map_err(|e| ConnectError::BadOption {
-                    option: "SessionBuilder::ros2_node",
-                    why: e.to_string(),
-                })?;
+                self.rtps
+                    .apply(&mut o)
+                    .map_err(|e| ConnectError::BadOption {
+                        option: "SessionBuilder::ros2_node",
+                        why: e.to_string(),
+                    })?;
                 Arc::new(RtpsBackend::start(o, &name).await?)
             }
             Resolved::Xrce => {

@@ -93,8 +93,13 @@ impl Duration {
         if self == Self::INFINITE || self.seconds < 0 {
             return None;
         }
-        let nanos = (u64::from(self.fraction) * 1_000_000_000) >> 32;
-        Some(std::time::Duration::new(self.seconds as u64, nanos as u32))
+        // to the nearest nanosecond: 100 ms goes out as 429496729/2^32 s
+        // and must come back as 100 ms, not 99.999999 ms
+        let nanos = (u64::from(self.fraction) * 1_000_000_000 + (1 << 31)) >> 32;
+        Some(
+            std::time::Duration::from_secs(self.seconds as u64)
+                + std::time::Duration::from_nanos(nanos),
+        )
     }
 }
 

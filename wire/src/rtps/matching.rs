@@ -44,10 +44,19 @@ pub enum Incompatible {
         reader_keyed: bool,
     },
     /// The reader wants reliable, the writer offers best effort.
-    #[error("reader requests RELIABLE, writer offers BEST_EFFORT")]
+    #[error(
+        "reliability: the reader requests RELIABLE, the writer offers BEST_EFFORT: make the \
+         writer reliable, or the reader best effort"
+    )]
     Reliability,
     /// The reader wants more durability than the writer offers.
-    #[error("reader requests durability {requested:?}, writer offers {offered:?}")]
+    #[error(
+        "durability: the reader requests {}, the writer offers {}: give the writer {} (or \
+         more), or the reader less",
+        durability_word(*requested),
+        durability_word(*offered),
+        durability_word(*requested)
+    )]
     Durability {
         /// Offered.
         offered: Durability,
@@ -117,6 +126,15 @@ fn period(d: Duration) -> String {
     match d.to_std() {
         Some(d) => format!("{d:?}"),
         None => "infinite".into(),
+    }
+}
+
+fn durability_word(d: Durability) -> &'static str {
+    match d {
+        Durability::Volatile => "VOLATILE",
+        Durability::TransientLocal => "TRANSIENT_LOCAL",
+        Durability::Transient => "TRANSIENT",
+        Durability::Persistent => "PERSISTENT",
     }
 }
 
@@ -430,6 +448,31 @@ mod tests {
     use super::super::discovery::History;
     use super::super::{ProtocolVersion, VendorId};
     use super::*;
+
+    #[test]
+    fn reasons_name_both_sides_and_the_fix_in_dds_words() {
+        let ms100 = Duration::from_std(std::time::Duration::from_millis(100));
+        assert_eq!(ms100.to_std(), Some(std::time::Duration::from_millis(100)));
+        let d = Incompatible::Deadline {
+            offered: Duration::INFINITE,
+            requested: ms100,
+        };
+        assert_eq!(
+            d.to_string(),
+            "deadline: the writer offers infinite, the reader requests 100ms: give the writer a deadline of 100ms or less"
+        );
+        let d = Incompatible::Durability {
+            offered: Durability::Volatile,
+            requested: Durability::TransientLocal,
+        };
+        assert_eq!(
+            d.to_string(),
+            "durability: the reader requests TRANSIENT_LOCAL, the writer offers VOLATILE: give the writer TRANSIENT_LOCAL (or more), or the reader less"
+        );
+        assert!(Incompatible::Reliability
+            .to_string()
+            .ends_with("make the writer reliable, or the reader best effort"));
+    }
 
     #[test]
     fn requested_offered_rules() {
