@@ -210,6 +210,57 @@ fn exclusive_ownership_goes_to_the_strongest_writer_then_to_the_next_when_it_is_
     );
 }
 
+/// An owner that goes silent past the reader's deadline loses the
+/// instance (DDS 2.2.3.9): the weaker writer's next samples are taken.
+/// The strong writer kept it for ever while alive and silent.
+#[test]
+fn an_exclusive_owner_that_misses_the_deadline_hands_the_instance_over() {
+    let mut net = new_net(3, 41, 0);
+    let now = net.now();
+    let mut strong = writer_qos();
+    strong.exclusive_ownership = true;
+    strong.ownership_strength = 5;
+    strong.deadline = RtpsDuration::from_std(ms(100));
+    let mut weak = strong.clone();
+    weak.ownership_strength = 1;
+    let mut rq = reader_qos();
+    rq.exclusive_ownership = true;
+    rq.deadline = RtpsDuration::from_std(ms(100));
+    let s = net
+        .node(0)
+        .create_writer(EndpointConfig::writer("Own2", "T").qos(strong), now)
+        .unwrap();
+    let w = net
+        .node(1)
+        .create_writer(EndpointConfig::writer("Own2", "T").qos(weak), now)
+        .unwrap();
+    let r = net
+        .node(2)
+        .create_reader(EndpointConfig::reader("Own2", "T").qos(rq), now)
+        .unwrap();
+    assert!(net.run_until(Duration::from_secs(10), |n| matched(n, 2, r, 2)));
+    // both write every 20 ms: the strong one's are taken
+    for k in 0..5 {
+        write(&mut net, 0, s, 2 * k);
+        write(&mut net, 1, w, 2 * k + 1);
+        net.run_for(ms(20));
+    }
+    // the strong one goes silent; the weak one goes on
+    for k in 5..30 {
+        write(&mut net, 1, w, 2 * k + 1);
+        net.run_for(ms(20));
+    }
+    net.run_for(ms(100));
+    let got = received(&net, 2, r);
+    assert_eq!(&got[..5], &[0, 2, 4, 6, 8], "the strong writer's first");
+    assert_eq!(
+        got.last(),
+        Some(&59),
+        "the weak writer's once the owner missed the deadline"
+    );
+    assert!(got.iter().skip(5).all(|v| v % 2 == 1));
+}
+
 #[test]
 fn samples_older_than_their_writers_lifespan_are_dropped() {
     let mut net = new_net(1, 7, 20);

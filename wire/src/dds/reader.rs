@@ -256,6 +256,9 @@ impl Domain {
                 if *due <= now {
                     r.misses += 1;
                     *due = now + period;
+                    // an owner that missed the deadline loses the instance
+                    // (DDS 2.2.3.9): the next writer's sample takes it
+                    r.owners.remove(instance);
                     self.events.push_back(Event::DeadlineMissed {
                         reader: ReaderId(*g),
                         instance: KeyHash(*instance),
