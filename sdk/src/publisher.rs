@@ -58,7 +58,11 @@ impl<'a> Publish<'a> {
     /// ends) before acknowledging is no longer waited for, best-effort
     /// readers never are, and with no reliable reader it resolves at once.
     /// To know that somebody got it, wait for readers first
-    /// ([`Session::num_handlers`](crate::Session::num_handlers)).
+    /// ([`Session::num_handlers`](crate::Session::num_handlers)). A reader
+    /// that gives a sample up as larger than it takes (its
+    /// `max_sample_size`; it reports `SessionEvent::SampleLost`)
+    /// acknowledges it too. A confirmed publish that times out was still
+    /// sent, and may arrive later: publishing it again can deliver it twice.
     pub fn confirmed(mut self) -> Self {
         self.confirm.get_or_insert(Duration::from_secs(10));
         self
@@ -199,7 +203,8 @@ impl<T: IpcMessage> PublisherBuilder<T> {
         self
     }
 
-    /// Keep only the newest `n` samples per instance.
+    /// Keep only the newest `n` samples per instance (`n` of 0 is taken
+    /// as 1).
     pub fn keep_last(mut self, n: u32) -> Self {
         self.qos.history = History::KeepLast(n.max(1));
         self

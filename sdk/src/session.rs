@@ -332,7 +332,11 @@ impl Session {
     /// the error comes back), so that a burst of publishes goes out packed
     /// into shared datagrams. What is queued is bounded (1 MiB per session, plus
     /// 1 MiB unacknowledged per reliable keep-all writer): when readers
-    /// fall behind, `publish().await` waits: back-pressure, not loss.
+    /// fall behind, `publish().await` waits: back-pressure, not loss. The
+    /// session's queue is shared by all its topics: a reader that stops
+    /// reading one topic holds back the session's publishes of every
+    /// topic once that 1 MiB is full (a keep-last publication, or a session
+    /// per topic, keeps the others going).
     pub fn publish<'a, T: IpcMessage>(&'a self, msg: &'a str, value: &T) -> Publish<'a> {
         let target = self.topics.bind::<T>(msg).map(|known| match known {
             Some(id) => Target::Open(id),
@@ -553,7 +557,8 @@ impl Session {
 
     /// Serves queries of `msg` as raw requests (answer with
     /// [`RawRequest::respond`]); the stream ends when the connection is
-    /// gone, and dropping it stops serving.
+    /// gone, and dropping it stops serving. IPC only: a DDS service needs
+    /// its request and reply types (use [`Session::serve`]).
     pub async fn serve_raw(&self, msg: &str) -> Result<RawRequests, OpenError> {
         let untyped = TypeInfo::untyped();
         let (id, rx) = self

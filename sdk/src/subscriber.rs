@@ -218,7 +218,12 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
         self
     }
 
-    /// Keep the newest `n` samples (also the local queue policy).
+    /// Keep the newest `n` samples: DDS's history (per instance, what
+    /// writers send a late joiner) and also the local queue, which holds
+    /// the newest `n` of **all** instances together: on a keyed topic with
+    /// more instances than `n`, samples of other instances are dropped
+    /// (counted by `dropped()`) before the application reads them. Use a
+    /// larger `n`, or keep-all, to see every instance. `n` of 0 is 1.
     pub fn keep_last(mut self, n: u32) -> Self {
         self.qos.history = History::KeepLast(n.max(1));
         self.policy = Some(QueuePolicy::KeepLast(n.max(1) as usize));
@@ -297,7 +302,9 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
     /// receive thread (`receive_thread`), or else its driver task; keep it
     /// short and never block in it (it holds up reception). It can answer
     /// at once with [`Publisher::try_publish`]. Other backends call it from
-    /// a task of its own. Dropping the [`Listener`] unsubscribes.
+    /// a task of its own. A callback that panics loses that sample only:
+    /// the panic is caught (and logged), and the next sample calls it
+    /// again. Dropping the [`Listener`] unsubscribes.
     ///
     /// ```no_run
     /// # async fn demo() -> Result<(), Box<dyn std::error::Error>> {
