@@ -38,6 +38,10 @@ pub struct RawSample {
     /// Called once the user has taken the sample (IPC: the Success ack that
     /// frees central's capacity slot).
     pub done: Option<Box<dyn FnOnce() + Send>>,
+    /// When the sample expires (DDS LIFESPAN: its source time plus its
+    /// writer's lifespan): a sample still unread then is dropped from the
+    /// queue, counted by `dropped()`, never handed out.
+    pub expires: Option<SystemTime>,
 }
 
 impl RawSample {
@@ -54,7 +58,13 @@ impl RawSample {
             key_hash: None,
             source_time: None,
             done: None,
+            expires: None,
         }
+    }
+
+    /// A live sample whose lifespan has ended.
+    fn expired(&self) -> bool {
+        self.state == InstanceState::Alive && self.expires.is_some_and(|e| SystemTime::now() > e)
     }
 }
 
@@ -401,31 +411,48 @@ impl SampleQueue {
     pub(crate) fn try_pop(&self) -> Option<Popped> {
         let mut st = self.state.lock().unwrap();
         let was_full = st.items.len() >= st.cap;
-        let Some(s) = st.items.pop_front() else {
-            if st.closed && !st.reported_close {
-                st.reported_close = true;
-                return Some(Popped::End);
-            }
-            return None;
+        let (next, expired) = pop_live(&mut st);
+        let Some(s) = next else {
+            let end = st.closed && !st.reported_close;
+            st.reported_close |= end;
+            drop(st);
+            self.discard(expired, was_full);
+            return end.then_some(Popped::End);
         };
         drop(st);
+        self.discard(expired, was_full);
+        Some(Popped::Sample(s))
+    }
+
+    /// Samples taken out unread (expired): their acknowledgements and
+    /// buffers go back; waiters for room are woken if there was none.
+    fn discard(&self, expired: Vec<RawSample>, was_full: bool) {
+        for e in expired {
+            if let Some(d) = e.done {
+                d();
+            }
+            self.give_back(e.data);
+        }
         if was_full {
             self.space.notify_waiters();
         }
-        Some(Popped::Sample(s))
     }
 
     /// The next sample, then (once after close) the end, then `None`.
     pub(crate) fn poll_pop(&self, cx: &mut Context<'_>) -> Poll<Option<Popped>> {
         let mut st = self.state.lock().unwrap();
         let was_full = st.items.len() >= st.cap;
-        if let Some(s) = st.items.pop_front() {
+        let (next, expired) = pop_live(&mut st);
+        if let Some(s) = next {
             drop(st);
-            if was_full {
-                // only a full queue has anyone waiting for room
-                self.space.notify_waiters();
-            }
+            // only a full queue has anyone waiting for room
+            self.discard(expired, was_full);
             return Poll::Ready(Some(Popped::Sample(s)));
+        }
+        if !expired.is_empty() {
+            drop(st);
+            self.discard(expired, was_full);
+            st = self.state.lock().unwrap();
         }
         if st.closed {
             if st.reported_close {
@@ -437,6 +464,21 @@ impl SampleQueue {
         st.waker = Some(cx.waker().clone());
         Poll::Pending
     }
+}
+
+/// The first sample whose lifespan has not ended, and the expired ones
+/// before it (counted as dropped).
+fn pop_live(st: &mut QueueState) -> (Option<RawSample>, Vec<RawSample>) {
+    let mut expired = Vec::new();
+    while let Some(s) = st.items.pop_front() {
+        if s.expired() {
+            st.dropped += 1;
+            expired.push(s);
+        } else {
+            return (Some(s), expired);
+        }
+    }
+    (None, expired)
 }
 
 /// Raw samples of one subscription (`Session::subscribe_raw`); dropping it

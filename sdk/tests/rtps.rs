@@ -1332,3 +1332,32 @@ async fn the_sample_size_limit_holds_for_unfragmented_samples_too() {
     a.close().await;
     b.close().await;
 }
+
+/// A sample whose lifespan (its writer's `persistence`) ends while it waits
+/// unread in the subscriber's queue is dropped there and counted, never
+/// handed out (it was delivered 300 ms after it expired); one read in time
+/// is handed out.
+#[tokio::test]
+async fn a_sample_that_expires_unread_is_dropped_from_the_queue() {
+    let a = session(183, "a").await;
+    let b = session(183, "b").await;
+    let p = a
+        .publisher::<Msg>("short")
+        .persistence(Duration::from_millis(500))
+        .build()
+        .await
+        .unwrap();
+    let mut sub = b.subscribe::<Msg>("short").await.unwrap();
+    await_handlers(&a, "short", 1).await;
+    p.publish(&msg(1)).confirmed().timeout(T).await.unwrap();
+    // read in time
+    assert_eq!(next(&mut sub).await.unwrap().value, msg(1));
+    p.publish(&msg(2)).confirmed().timeout(T).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(900)).await;
+    p.publish(&msg(3)).confirmed().timeout(T).await.unwrap();
+    // 2 expired unread; 3 is fresh
+    assert_eq!(next(&mut sub).await.unwrap().value, msg(3));
+    assert_eq!(sub.dropped(), 1);
+    a.close().await;
+    b.close().await;
+}

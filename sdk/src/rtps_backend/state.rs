@@ -1181,6 +1181,12 @@ impl State {
             .source_names
             .entry(s.writer)
             .or_insert_with(|| Arc::from(guid_hex(s.writer)));
+        let source_time = s.source_timestamp.and_then(system_time);
+        let expires = self
+            .d
+            .writer_lifespan(s.writer)
+            .zip(source_time)
+            .and_then(|(life, t)| t.checked_add(life));
         let raw = RawSample {
             msg: r.topic.clone(),
             order: courier_wire::ipc::ByteOrder::NATIVE,
@@ -1193,8 +1199,9 @@ impl State {
                 ChangeKind::Disposed | ChangeKind::DisposedUnregistered => InstanceState::Disposed,
             },
             key_hash: s.key_hash.map(|k| k.0),
-            source_time: s.source_timestamp.and_then(system_time),
+            source_time,
             done: None,
+            expires,
             // last: the received buffer itself, not a copy
             data: s.into_data(),
         };

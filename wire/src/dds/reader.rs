@@ -225,6 +225,13 @@ impl Domain {
         }
     }
 
+    /// The lifespan a remote writer offers (DDS LIFESPAN), if finite: a
+    /// sample of it expires that long after its source timestamp, also
+    /// while it waits unread in the shell's queue.
+    pub fn writer_lifespan(&self, writer: Guid) -> Option<Duration> {
+        self.writer_info.get(&writer).and_then(|i| i.lifespan)
+    }
+
     /// A keep-all reader whose queue the shell reported full, if any:
     /// while there is one, user data should not be read.
     pub fn paused_reader(&self) -> Option<ReaderId> {
