@@ -143,8 +143,10 @@ impl SessionBuilder {
     }
 
     /// How long to keep trying to reach central (default 5 s, as C's five
-    /// one-second retries).
+    /// one-second retries). IPC only: an RTPS session joins at once, and an
+    /// XRCE one takes `attempts=` and `attempt_ms=` in its URL.
     pub fn connect_timeout(mut self, d: Duration) -> Self {
+        self.set.push(("connect_timeout", Honoured::Ipc));
         self.opts.connect_timeout = d;
         self
     }
@@ -318,6 +320,12 @@ impl SessionBuilder {
                 },
             })
         };
+        if self.rtps.max_sample_size == Some(0) {
+            return Err(ConnectError::BadOption {
+                option: "SessionBuilder::max_message_bytes",
+                why: "0 bytes is no message".into(),
+            });
+        }
         let backend: Arc<dyn Backend> = match crate::scheme::resolve(&self.url)? {
             Resolved::Rtps => {
                 if let Some(e) = refuse(&[Honoured::Rtps, Honoured::Both]) {

@@ -204,6 +204,34 @@ async fn ipc_settings_on_an_rtps_session_are_refused_by_name() {
         matches!(&e, ConnectError::Unsupported { option: "no_listen", scheme, .. } if scheme == "rtps"),
         "{e:?}"
     );
+    // connect_timeout too (it was silently ignored there)
+    let e = Session::builder(common::url(1))
+        .connect_timeout(std::time::Duration::from_secs(1))
+        .connect()
+        .await
+        .err()
+        .unwrap();
+    assert!(
+        matches!(
+            &e,
+            ConnectError::Unsupported {
+                option: "connect_timeout",
+                ..
+            }
+        ),
+        "{e:?}"
+    );
+    // and a message size of 0 on any backend
+    let e = Session::builder(common::url(1))
+        .max_message_bytes(0)
+        .connect()
+        .await
+        .err()
+        .unwrap();
+    assert_eq!(
+        e.to_string(),
+        "bad SessionBuilder::max_message_bytes: 0 bytes is no message"
+    );
 }
 
 /// A URL with a scheme nobody registered names the known schemes (the old
