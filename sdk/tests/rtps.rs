@@ -1078,25 +1078,38 @@ async fn representations_follow_the_type_and_mismatches_name_them() {
 /// oversized sample held back every later one.
 #[tokio::test]
 async fn a_sample_too_large_for_the_reader_is_given_up_and_the_next_arrives() {
-    let a = session(178, "a").await;
+    given_up(178, "big", 100_000, 300_000).await;
+}
+
+/// The reader's limit holds for a sample that fits one datagram as for a
+/// fragmented one (5000 bytes against a limit of 1000 was delivered).
+#[tokio::test]
+async fn the_sample_size_limit_holds_for_unfragmented_samples_too() {
+    given_up(182, "mid", 1000, 5000).await;
+}
+
+/// A reader limited to `limit` bytes gives a sample of `len` bytes up
+/// (an event, counted as dropped), and the writer goes on.
+async fn given_up(key: u32, topic: &str, limit: usize, len: usize) {
+    let a = session(key, "a").await;
     let b = tokio::time::timeout(
         T,
-        Session::builder(common::url(178))
+        Session::builder(common::url(key))
             .name("b")
-            .max_message_bytes(100_000)
+            .max_message_bytes(limit)
             .connect(),
     )
     .await
     .expect("connect in time")
     .expect("connect");
-    let p = a.publisher::<Msg>("big").build().await.unwrap();
+    let p = a.publisher::<Msg>(topic).build().await.unwrap();
     let mut ev = b.events();
-    let mut sub = b.subscribe::<Msg>("big").await.unwrap();
-    await_handlers(&a, "big", 1).await;
+    let mut sub = b.subscribe::<Msg>(topic).await.unwrap();
+    await_handlers(&a, topic, 1).await;
     let big = Msg {
         seq: 1,
         text: "big".into(),
-        payload: vec![7; 300_000],
+        payload: vec![7; len],
     };
     p.publish(&big).await.unwrap();
     p.publish(&msg(2)).await.unwrap();
@@ -1114,7 +1127,7 @@ async fn a_sample_too_large_for_the_reader_is_given_up_and_the_next_arrives() {
     .await
     .expect("a SampleLost event in time");
     let size = courier::cdr::to_vec(&big, courier::cdr::Encoding::Xcdr1Le).len() as u64;
-    assert_eq!(lost, ("big".to_string(), size, 100_000));
+    assert_eq!(lost, (topic.to_string(), size, limit as u64));
     assert_eq!(sub.dropped(), 1);
     // reliable and acknowledged: the writer is not stuck on it
     p.publish(&msg(3))
@@ -1288,49 +1301,6 @@ async fn qos_that_cannot_work_is_refused() {
         .await
         .unwrap();
     a.close().await;
-}
-
-/// The reader's limit holds for a sample that fits one datagram as for a
-/// fragmented one (5000 bytes against a limit of 1000 was delivered).
-#[tokio::test]
-async fn the_sample_size_limit_holds_for_unfragmented_samples_too() {
-    let a = session(182, "a").await;
-    let b = tokio::time::timeout(
-        T,
-        Session::builder(common::url(182))
-            .name("b")
-            .max_message_bytes(1000)
-            .connect(),
-    )
-    .await
-    .expect("connect in time")
-    .expect("connect");
-    let p = a.publisher::<Msg>("mid").build().await.unwrap();
-    let mut ev = b.events();
-    let mut sub = b.subscribe::<Msg>("mid").await.unwrap();
-    await_handlers(&a, "mid", 1).await;
-    let mid = Msg {
-        seq: 1,
-        text: String::new(),
-        payload: vec![7; 5000],
-    };
-    p.publish(&mid).await.unwrap();
-    p.publish(&msg(2)).await.unwrap();
-    assert_eq!(next(&mut sub).await.unwrap().value, msg(2));
-    let lost = tokio::time::timeout(T, async {
-        loop {
-            if let SessionEvent::SampleLost { size, limit, .. } = ev.next().await.unwrap() {
-                return (size, limit);
-            }
-        }
-    })
-    .await
-    .expect("a SampleLost event in time");
-    let size = courier::cdr::to_vec(&mid, courier::cdr::Encoding::Xcdr1Le).len() as u64;
-    assert_eq!(lost, (size, 1000));
-    assert_eq!(sub.dropped(), 1);
-    a.close().await;
-    b.close().await;
 }
 
 /// A sample whose lifespan (its writer's `persistence`) ends while it waits
