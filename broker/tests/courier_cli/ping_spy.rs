@@ -181,7 +181,9 @@ fn another_type_on_the_topic_is_reported_with_both_names() {
     let mut sub = Proc::start(&["ping", &u, "--subscribe", "--topic", "t", "--count", "1"]);
     sub.expect("ready");
     let mut publ = Proc::start(&[
-        "pub", &u, "t", "7", "--format", "int", "--type", "Seven", "--wait", "1",
+        // a wait long enough for discovery on a loaded machine: the line
+        // comes while it waits (with 1 s, a CI run once saw none)
+        "pub", &u, "t", "7", "--format", "int", "--type", "Seven", "--wait", "8",
     ]);
     let line = publ.expect("incompatible ");
     assert!(
