@@ -273,8 +273,9 @@ async fn send<T: PerfSample>(s: &Session, o: &PerfPubArgs, total: &RefCell<Tally
     } else {
         b.reliable()
     };
-    let p = b.build().await?;
+    // listening first: what the endpoint's creation reports is not missed
     let mut ev = s.events();
+    let p = b.build().await?;
     // an XRCE agent tells its clients nothing of the readers matched
     let xrce = s.xrce().is_ok();
     let mut matched = Matched(None);
@@ -420,8 +421,8 @@ async fn receive<T: PerfSample>(s: &Session, c: &PerfCommon, total: &RefCell<Tal
     } else {
         b.reliable()
     };
-    let mut sub = b.build().await?;
     let mut ev = s.events();
+    let mut sub = b.build().await?;
     out(format_args!("receiving {topic}"));
     let started = Instant::now();
     let end = c

@@ -120,8 +120,11 @@ async fn publish(s: &Session, o: &PubArgs, sent: &Cell<u64>, waiting: &Cell<bool
     let (enc, ty) = encoder(s, o).await?;
     let value = parse_value(&enc.format(), &o.value)?;
     let data = enc.encode(&value)?;
+    // listening before the publication exists: a reader of another type
+    // already discovered is reported as the writer is created
+    let ev = s.events();
     let mut pb = Publication::open(s, &o.topic, ty, &PublicationQos::default()).await?;
-    let r = publish_on(s, o, &mut pb, &data, sent, waiting).await;
+    let r = publish_on(s, o, &mut pb, &data, sent, waiting, ev).await;
     pb.close(s);
     r
 }
@@ -146,8 +149,8 @@ async fn publish_on(
     data: &[u8],
     sent: &Cell<u64>,
     waiting: &Cell<bool>,
+    mut ev: courier::Events,
 ) -> Result<()> {
-    let mut ev = s.events();
     // an XRCE agent tells its clients nothing of the readers matched: the
     // wait cannot be, and the samples go out at once (as ping's do)
     let xrce = s.xrce().is_ok();
