@@ -668,6 +668,10 @@ impl Session {
     /// System events: module connect/disconnect, handler counts and loss of
     /// the connection (IPC); participants, publications and subscriptions
     /// found, changed and lost, deadline misses and QoS mismatches (DDS).
+    /// A listener sees what happens after it is made: make it before the
+    /// publishers and subscribers whose events it is for (a type mismatch
+    /// with a reader discovered already is reported while the writer is
+    /// created).
     pub fn events(&self) -> Events {
         Events {
             rx: self.backend.events(),
