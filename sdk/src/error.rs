@@ -307,6 +307,25 @@ pub enum QueryError {
         /// Replies that matched nothing.
         replies: u64,
     },
+    /// No server of the query was found within the timeout, but one of
+    /// other types was: its request or reply topic carries another type
+    /// ([`SessionEvent::TypeMismatch`](crate::SessionEvent::TypeMismatch)
+    /// names it too).
+    #[error(
+        "nobody serves {msg} with these types (waited {timeout:?}): {topic} carries {remote_type} there, {local_type} here"
+    )]
+    ServerTypeMismatch {
+        /// Query message.
+        msg: String,
+        /// The timeout.
+        timeout: Duration,
+        /// The request or reply topic.
+        topic: String,
+        /// This side's type.
+        local_type: String,
+        /// The server's.
+        remote_type: String,
+    },
     /// The session ended before the reply.
     #[error("disconnected before {0} was answered")]
     Disconnected(String),

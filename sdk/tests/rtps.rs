@@ -1331,3 +1331,51 @@ async fn a_sample_that_expires_unread_is_dropped_from_the_queue() {
     a.close().await;
     b.close().await;
 }
+
+/// A query whose reply type is not the server's finds no server of its
+/// types, and says which topic carries which type (it said only "nobody
+/// serves", although the service was there).
+#[tokio::test]
+async fn a_query_of_other_types_than_the_server_s_names_them() {
+    #[derive(courier::IpcMessage, Debug, Clone, PartialEq)]
+    #[ipc(type_name = "test::Resp")]
+    struct Resp {
+        v: i32,
+    }
+    #[derive(courier::IpcMessage, Debug, Clone, PartialEq)]
+    #[ipc(type_name = "test::OtherResp")]
+    struct OtherResp {
+        v: i32,
+    }
+    let a = session(184, "a").await;
+    let b = session(184, "b").await;
+    let mut reqs = a.serve::<i32, Resp>("mm", "").await.unwrap();
+    let server = tokio::spawn(async move {
+        while let Some(Ok(r)) = reqs.next().await {
+            let v = r.value;
+            let _ = r.reply(&Resp { v }).await;
+        }
+    });
+    // the right types are answered (and discovery is done)
+    let ok = b.query::<i32, Resp>("mm", &1).timeout(T).await.unwrap();
+    assert_eq!(ok, Resp { v: 1 });
+    let c = session(184, "c").await;
+    let e = c
+        .query::<i32, OtherResp>("mm", &2)
+        .timeout(Duration::from_secs(1))
+        .await
+        .unwrap_err();
+    assert!(
+        matches!(e, courier::QueryError::ServerTypeMismatch { .. }),
+        "{e:?}"
+    );
+    assert!(
+        e.to_string()
+            .contains("carries test::Resp there, test::OtherResp here"),
+        "{e}"
+    );
+    server.abort();
+    a.close().await;
+    b.close().await;
+    c.close().await;
+}

@@ -11,8 +11,8 @@ use std::time::{Duration, Instant, SystemTime};
 use foldhash::{HashMap, HashMapExt, HashSet, HashSetExt};
 
 use courier_wire::dds::{
-    reply_topic, ConfirmFailure, Domain, Event, PatternId, QueryFailure, QueryId, ReaderId,
-    ServiceConfig, WriterId,
+    reply_topic, request_topic, ConfirmFailure, Domain, Event, PatternId, QueryFailure, QueryId,
+    ReaderId, ServiceConfig, WriterId,
 };
 use courier_wire::rtps::discovery::{
     Durability as WireDurability, Duration as RtpsDuration, EndpointQos, History as WireHistory,
@@ -139,6 +139,9 @@ pub(super) struct State {
     /// Clients, with the service each queries.
     clients: HashMap<ClientId, (String, courier_wire::dds::ClientId)>,
     queries: HashMap<QueryId, Query>,
+    /// Topics where a remote endpoint of another type was seen (ours,
+    /// theirs), to say why a query found no server; bounded.
+    mismatched: HashMap<String, (String, String)>,
     /// For responders: replies come back to the driver as commands.
     responder: crate::mailbox::WeakMailbox<Cmd>,
     /// The request/reply style of services and clients (`None`: each
@@ -182,6 +185,7 @@ impl State {
             closed_services: Vec::new(),
             clients: HashMap::new(),
             queries: HashMap::new(),
+            mismatched: HashMap::new(),
             responder,
             service_style: None,
             returns: Arc::default(),
@@ -998,10 +1002,26 @@ impl State {
                             msg: q.name,
                             timeout,
                         },
-                        QueryFailure::NoService(timeout) => QueryError::NoResponder {
-                            msg: q.name,
-                            timeout,
-                        },
+                        QueryFailure::NoService(timeout) => {
+                            let seen = [request_topic(&q.name), reply_topic(&q.name)]
+                                .into_iter()
+                                .find_map(|t| self.mismatched.get(&t).map(|m| (t, m.clone())));
+                            match seen {
+                                Some((topic, (local_type, remote_type))) => {
+                                    QueryError::ServerTypeMismatch {
+                                        msg: q.name,
+                                        timeout,
+                                        topic,
+                                        local_type,
+                                        remote_type,
+                                    }
+                                }
+                                None => QueryError::NoResponder {
+                                    msg: q.name,
+                                    timeout,
+                                },
+                            }
+                        }
                         QueryFailure::Unmatched { timeout, replies } => QueryError::Unmatched {
                             msg: q.name,
                             timeout,
@@ -1065,6 +1085,10 @@ impl State {
                     "{topic}: remote endpoint {} has type {remote_type}, ours is {local_type}",
                     guid_hex(remote)
                 );
+                if self.mismatched.len() < 1024 {
+                    self.mismatched
+                        .insert(topic.clone(), (local_type.clone(), remote_type.clone()));
+                }
                 self.emit(SessionEvent::TypeMismatch {
                     topic,
                     remote: remote.into(),
