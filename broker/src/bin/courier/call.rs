@@ -74,17 +74,13 @@ async fn ipc_call(
     let format = match &o.format {
         Some(f) => f.clone(),
         None => {
-            // look the message up: watch_handlers does, the num_handlers
-            // after it answers once that is done
-            crate::connect::look_up(&ipc, &o.query).await?;
-            let servers = s.num_handlers(&o.query).await?;
-            let info = ipc.message_info(&o.query).await?.ok_or_else(|| {
+            let info = ipc.look_up(&o.query).await?.ok_or_else(|| {
                 format!(
                     "central knows no message {:?} (is its server running?)",
                     o.query
                 )
             })?;
-            if servers == 0 {
+            if s.num_handlers(&o.query).await? == 0 {
                 crate::text::progress(format_args!(
                     "nobody serves {:?} yet; central keeps the query until somebody does",
                     o.query

@@ -104,12 +104,11 @@ fn failed(target: &str, e: ConnectError, took: Duration) -> String {
     }
 }
 
-/// Has the session's module look `msg` up in central (IPC), so that
-/// `message_info` and the handler count know it once `num_handlers`
-/// answered after this: `watch_handlers` makes the lookup, and fails on a
-/// message central does not know, which the callers report their own way
-/// (by `message_info` being `None`).
-pub async fn look_up(ipc: &courier::Ipc<'_>, msg: &str) -> Result<()> {
+/// Watches the handlers of `msg` (IPC), which also looks it up in central
+/// (`message_info` knows it once a later `num_handlers` answered); a
+/// message central does not know is not watched, and not an error here:
+/// `courier list` reports it as unknown.
+pub async fn watch_if_known(ipc: &courier::Ipc<'_>, msg: &str) -> Result<()> {
     use courier::ipc::module::Error as Central;
     match ipc.watch_handlers(msg).await {
         Err(courier::ControlError::Central {

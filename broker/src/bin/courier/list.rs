@@ -238,7 +238,7 @@ async fn ipc(s: &Session, o: &ListArgs) -> Result<()> {
         ));
     }
     for m in &messages {
-        crate::connect::look_up(&ipc, m).await?;
+        crate::connect::watch_if_known(&ipc, m).await?;
     }
     for m in &messages {
         // the num_handlers answers after the lookup watch_handlers made

@@ -83,11 +83,7 @@ async fn encoder(s: &Session, o: &PubArgs) -> Result<(Encoder, TypeInfo)> {
                 let ty = TypeInfo::dynamic(Some(leak(f.to_string())), "");
                 return Ok((Encoder::Ipc(f.clone()), ty));
             }
-            // look the message up in central: watch_handlers does, and the
-            // num_handlers after it answers once it is done
-            crate::connect::look_up(&ipc, &o.topic).await?;
-            s.num_handlers(&o.topic).await?;
-            let info = ipc.message_info(&o.topic).await?.ok_or_else(|| {
+            let info = ipc.look_up(&o.topic).await?.ok_or_else(|| {
                 format!(
                     "central knows no message {:?}: give its format with --format",
                     o.topic
