@@ -104,7 +104,7 @@ impl<'a, Resp: IpcMessage + 'a> Query<'a, Resp> {
             let fits = crate::format_check::verdict::<Resp>;
             if let Err((central, detail)) = self
                 .session
-                .replies
+                .central_formats
                 .check(self.session, &reply, ty, fits)
                 .await
             {
@@ -134,106 +134,6 @@ impl<'a, Resp: IpcMessage + 'a> std::future::IntoFuture for Query<'a, Resp> {
     fn into_future(self) -> Self::IntoFuture {
         Box::pin(self.run())
     }
-}
-
-/// IPC: does the format central holds for a message fit a type this
-/// session reads or writes it as? Looked up once per message and type (a
-/// round trip to central the first time), for replies a query reads and
-/// for messages the session defines (where C would replace another
-/// module's definition); subscriptions and servers check each sample's
-/// format ([`crate::format_check`]). The C library decodes by the
-/// sender's format, so `{int}` read as `f32` is a wrong value, not an
-/// error. Also the named formats the session defined.
-/// Fits, or central's format and where it differs.
-type Verdict = Result<(), (String, String)>;
-
-#[derive(Debug, Default)]
-pub(crate) struct ReplyChecks {
-    /// By message, then by type: a hit allocates nothing.
-    verdicts: std::sync::Mutex<
-        std::collections::HashMap<String, std::collections::HashMap<&'static str, Verdict>>,
-    >,
-    named: std::sync::Mutex<std::collections::HashMap<&'static str, &'static str>>,
-}
-
-impl ReplyChecks {
-    /// `Err((central's format, where they differ))` when data of `msg`
-    /// as central holds it does not read as the type `ty` (`fits`).
-    pub(crate) async fn check(
-        &self,
-        session: &Session,
-        msg: &str,
-        ty: &'static str,
-        fits: fn(&str) -> Result<(), String>,
-    ) -> Verdict {
-        let lock = || self.verdicts.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(v) = lock().get(msg).and_then(|m| m.get(ty)) {
-            return v.clone();
-        }
-        let Some(ipc) = session.backend.ipc() else {
-            return Ok(());
-        };
-        // central's format (looked up as a C module does; the C central
-        // dies of `x_ipc_getMessageInfo` for a name it does not know);
-        // unknown (central does not know the message, holds no format, or
-        // names other formats in it) is not held against the data, which
-        // decoding still checks
-        let theirs = match ipc.look_up(msg).await {
-            Ok(Some(info)) => info.res_format.map(|f| f.to_string()),
-            _ => None,
-        };
-        // (remembered too: a message unknown now is not asked about again
-        // on every query)
-        let verdict = match theirs.filter(|f| !names_formats(f)) {
-            Some(theirs) => fits(&theirs).map_err(|detail| (theirs, detail)),
-            None => Ok(()),
-        };
-        lock()
-            .entry(msg.to_string())
-            .or_default()
-            .insert(ty, verdict.clone());
-        verdict
-    }
-
-    /// Records the named formats a definition brings; a name this session
-    /// gave another format is refused.
-    pub(crate) fn named_formats(
-        &self,
-        formats: &[(&'static str, &'static str)],
-    ) -> Result<(), OpenError> {
-        let mut named = self.named.lock().unwrap_or_else(|e| e.into_inner());
-        for (name, fmt) in formats {
-            match named.get(name) {
-                Some(existing) if existing != fmt => {
-                    return Err(OpenError::NamedFormatConflict {
-                        name: name.to_string(),
-                        existing: existing.to_string(),
-                        given: fmt.to_string(),
-                    })
-                }
-                _ => {}
-            }
-        }
-        for (name, fmt) in formats {
-            named.insert(name, fmt);
-        }
-        Ok(())
-    }
-}
-
-/// Whether a format refers to named formats (central answers them
-/// unexpanded).
-fn names_formats(f: &str) -> bool {
-    fn named(f: &courier_wire::format::Format) -> bool {
-        use courier_wire::format::Format as F;
-        match f {
-            F::Named(_) => true,
-            F::Struct(fs) => fs.iter().any(named),
-            F::Pointer(e) | F::FixedArray { elem: e, .. } | F::VarArray { elem: e, .. } => named(e),
-            _ => false,
-        }
-    }
-    courier_wire::format::parse(f).map_or(true, |f| named(&f))
 }
 
 /// A request to a [`Session::serve`] server.

@@ -155,8 +155,9 @@ pub struct Session {
     pub(crate) caps: Capabilities,
     name: String,
     pub(crate) topics: Arc<Topics>,
-    /// IPC: whether replies of each message fit each type a query reads.
-    pub(crate) replies: Arc<crate::rpc::ReplyChecks>,
+    /// IPC: whether central's format of each message fits each type this
+    /// session reads or writes it as.
+    pub(crate) central_formats: Arc<crate::format_check::CentralFormats>,
 }
 
 impl Session {
@@ -183,7 +184,7 @@ impl Session {
             backend,
             name: name.into(),
             topics: Arc::default(),
-            replies: Arc::default(),
+            central_formats: Arc::default(),
         }
     }
 
@@ -277,11 +278,13 @@ impl Session {
         qos: &PublicationQos,
     ) -> Result<PubId, OpenError> {
         if let (true, Some(ipc)) = (self.caps.named_formats, self.backend.ipc()) {
-            self.replies.named_formats(&def.formats)?;
+            self.central_formats.named_formats(&def.formats)?;
             // what another module defined: not replaced by a misfit
             if def.ty.format.is_some() {
-                if let Err((central, detail)) =
-                    self.replies.check(self, msg, def.rust, def.fits).await
+                if let Err((central, detail)) = self
+                    .central_formats
+                    .check(self, msg, def.rust, def.fits)
+                    .await
                 {
                     return Err(OpenError::FormatMismatch {
                         msg: msg.to_string(),
