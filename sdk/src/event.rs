@@ -293,11 +293,24 @@ pub enum SessionEvent {
     SubscriptionChanged(Box<EndpointInfo>),
     /// DDS: a remote subscription is gone.
     SubscriptionLost(Guid),
-    /// DDS: a subscription with a deadline got no sample within it.
+    /// DDS: a subscription with a deadline got no sample of an instance
+    /// within it (the publication's side is
+    /// [`SessionEvent::OfferedDeadlineMissed`]).
     DeadlineMissed {
         /// Topic.
         msg: String,
         /// Misses on this subscription so far.
+        total: u64,
+    },
+    /// DDS: a publication with a
+    /// [`PublicationQos::deadline`](crate::PublicationQos::deadline) wrote
+    /// no sample of an instance it wrote before (and did not dispose or
+    /// unregister) within it; again every period until it writes one (DDS's
+    /// OFFERED_DEADLINE_MISSED).
+    OfferedDeadlineMissed {
+        /// Topic.
+        msg: String,
+        /// Misses of this publication so far.
         total: u64,
     },
     /// DDS: a sample was larger than this session takes

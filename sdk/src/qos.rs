@@ -7,6 +7,7 @@
 //! | publication `strength` | [`PublicationQos::strength`] | OWNERSHIP exclusive + OWNERSHIP_STRENGTH |
 //! | publication `persistence` | [`PublicationQos::persistence`] | LIFESPAN |
 //! | subscription `deadline` | [`SubscriptionQos::deadline`] | DEADLINE; a miss is a [`SessionEvent::DeadlineMissed`](crate::SessionEvent::DeadlineMissed) |
+//! | publication `deadline` | [`PublicationQos::deadline`] | DEADLINE offered; a miss is a [`SessionEvent::OfferedDeadlineMissed`](crate::SessionEvent::OfferedDeadlineMissed) |
 //! | subscription `minimumSeparation` | [`SubscriptionQos::minimum_separation`] | TIME_BASED_FILTER |
 //! | `BEST_EFFORTS` / `STRICT_RELIABLE` | [`Reliability`] | RELIABILITY |
 //! | — | [`Durability::TransientLocal`] | DURABILITY: late joiners get the history |
@@ -172,7 +173,10 @@ pub struct PublicationQos {
     pub strength: Option<i32>,
     /// ORTE's persistence (DDS lifespan): how long a sample stays valid.
     pub persistence: Option<Duration>,
-    /// The period within which the writer promises a new sample per instance.
+    /// The period within which the writer promises a new sample per
+    /// instance; a reader asking for a shorter one does not match. Each
+    /// period an instance goes unwritten is a
+    /// [`SessionEvent::OfferedDeadlineMissed`](crate::SessionEvent::OfferedDeadlineMissed).
     pub deadline: Option<Duration>,
     /// DDS partitions (none = the default partition).
     pub partitions: Vec<String>,

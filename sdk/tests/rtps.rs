@@ -508,6 +508,7 @@ async fn exclusive_ownership_takes_the_strongest_writer() {
 async fn deadline_misses_are_events() {
     let a = session(160, "a").await;
     let b = session(160, "b").await;
+    let mut offered = a.events();
     // the writer must promise at least as often as the reader asks
     let p = a
         .publisher::<Msg>("beat")
@@ -539,6 +540,22 @@ async fn deadline_misses_are_events() {
     .await
     .unwrap();
     assert!(total >= 2);
+    // the writer missed the deadline it offered (every 100 ms)
+    let offered = tokio::time::timeout(T, async {
+        loop {
+            if let SessionEvent::OfferedDeadlineMissed { msg, total } =
+                offered.next().await.unwrap()
+            {
+                assert_eq!(msg, "beat");
+                if total >= 2 {
+                    break total;
+                }
+            }
+        }
+    })
+    .await
+    .expect("the writer is told it missed its deadline");
+    assert!(offered >= 2);
 }
 
 #[tokio::test]

@@ -11,7 +11,9 @@ use courier_wire::dds::{
     WriterId,
 };
 use courier_wire::rtps::discovery::{Duration as RtpsDuration, EndpointQos, History, Reliability};
-use courier_wire::rtps::participant::{guid_prefix, Change, Config, EndpointConfig, WriteError};
+use courier_wire::rtps::participant::{
+    guid_prefix, Change, Config, EndpointConfig, KeyHash, WriteError,
+};
 use courier_wire::sim::{self, Faults};
 
 const LO: [u8; 4] = [127, 0, 0, 1];
@@ -376,12 +378,73 @@ fn a_missed_deadline_is_an_event_per_period_until_a_sample_comes() {
         _ => None,
     });
     assert_eq!(last, Some(misses(&net) as u64));
+    // the writer offered the same deadline and missed it as often
+    let offered = |net: &Net| {
+        net.hosts[0]
+            .events
+            .iter()
+            .filter(|e| matches!(e, Event::OfferedDeadlineMissed { writer, .. } if *writer == w))
+            .count()
+    };
+    assert!(
+        (9..=11).contains(&offered(&net)),
+        "{} offered misses",
+        offered(&net)
+    );
     // a sample stops them
     write(&mut net, 0, w, 99);
     net.run_for(ms(60));
-    let now_misses = misses(&net);
+    let (now_misses, now_offered) = (misses(&net), offered(&net));
     net.run_for(ms(60));
     assert_eq!(misses(&net), now_misses);
+    // the writer's period restarts at the write: 100 ms later
+    assert_eq!(offered(&net), now_offered + 1);
+}
+
+#[test]
+fn an_offered_deadline_holds_for_live_instances_only() {
+    let mut net = new_net(1, 12, 0);
+    let now = net.now();
+    let mut wq = writer_qos();
+    wq.deadline = RtpsDuration::from_std(ms(100));
+    let w = net
+        .node(0)
+        .create_writer(EndpointConfig::writer("Od", "T").qos(wq).keyed(true), now)
+        .unwrap();
+    let missed = |net: &Net| -> Vec<[u8; 16]> {
+        net.hosts[0]
+            .events
+            .iter()
+            .filter_map(|e| match e {
+                Event::OfferedDeadlineMissed { instance, .. } => Some(instance.0),
+                _ => None,
+            })
+            .collect()
+    };
+    // nothing written, nothing promised
+    net.run_for(ms(250));
+    assert!(missed(&net).is_empty());
+    let (a, b) = (KeyHash([1; 16]), KeyHash([2; 16]));
+    for k in [a, b] {
+        let now = net.now();
+        let c = Change::alive_owned(sample(0)).with_key_hash(k);
+        net.node(0).write(w, c, now).unwrap();
+    }
+    // b unregistered: only a misses, once per period
+    let now = net.now();
+    net.node(0)
+        .write(w, Change::unregister(&[], b), now)
+        .unwrap();
+    net.run_for(ms(350));
+    let m = missed(&net);
+    assert!((3..=4).contains(&m.len()), "{m:?}");
+    assert!(m.iter().all(|i| *i == a.0), "{m:?}");
+    // a disposed: no more
+    let now = net.now();
+    net.node(0).write(w, Change::dispose(&[], a), now).unwrap();
+    let before = missed(&net).len();
+    net.run_for(ms(300));
+    assert_eq!(missed(&net).len(), before);
 }
 
 #[test]

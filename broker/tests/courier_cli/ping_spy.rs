@@ -170,6 +170,22 @@ fn deadlines_and_incompatible_qos_are_reported() {
     sub.expect("received ");
     sub.expect("done");
     assert_eq!(sub.wait(), Some(0));
+    drop(fast);
+    // a publisher writing less often than it offers is told so
+    let mut late = Proc::start(&[
+        "ping",
+        &u,
+        "--publish",
+        "--deadline",
+        "100",
+        "--period",
+        "400",
+        "--name",
+        "late",
+    ]);
+    late.expect("sent 1");
+    late.expect("offered deadline missed 1");
+    late.expect("offered deadline missed 2");
 }
 
 /// An endpoint of another type on the topic is reported once on each side,

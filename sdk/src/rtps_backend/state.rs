@@ -1066,6 +1066,18 @@ impl State {
                     let _ = c.reply.send(Err(e));
                 }
             }
+            Event::OfferedDeadlineMissed { writer, total, .. } => {
+                let open = self
+                    .writers
+                    .values()
+                    .find(|w| w.id == writer && w.closed.is_none());
+                if let Some(w) = open {
+                    self.emit(SessionEvent::OfferedDeadlineMissed {
+                        msg: w.topic.clone(),
+                        total,
+                    });
+                }
+            }
             Event::Writable { writer } => {
                 if let Some((p, _)) = self.publication_of(writer) {
                     self.retry_pending(p, now);

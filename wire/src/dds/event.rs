@@ -95,6 +95,17 @@ pub enum Event {
         /// Misses of this reader so far.
         total: u64,
     },
+    /// A writer offering a deadline wrote no sample of a live instance
+    /// (written, not disposed or unregistered) for a period (again every
+    /// period until it writes one): DDS's OFFERED_DEADLINE_MISSED.
+    OfferedDeadlineMissed {
+        /// The writer.
+        writer: WriterId,
+        /// The instance (all zero for a topic without key).
+        instance: KeyHash,
+        /// Misses of this writer so far.
+        total: u64,
+    },
     /// A pattern subscription made a reader for a publication it matches;
     /// that reader's samples come as [`Event::Sample`].
     PatternMatched {

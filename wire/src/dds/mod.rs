@@ -24,7 +24,9 @@
 //!   timestamp are dropped ([`Event::SampleDropped`]);
 //! - **time-based filter**: samples of an instance closer than the
 //!   reader's minimum separation to the last one taken are dropped;
-//! - **deadline**: [`Event::DeadlineMissed`] per instance and missed period;
+//! - **deadline**: [`Event::DeadlineMissed`] per instance and missed period
+//!   for readers, [`Event::OfferedDeadlineMissed`] for writers that did not
+//!   write a live instance within the deadline they offer;
 //! - **request/reply** as ROS 2 does it ([`rpc`](self#request-reply));
 //! - **pattern subscriptions** ([`fnmatch`] on topic and type names);
 //! - **keep-all back-pressure** both ways: a writer whose history is full
@@ -71,6 +73,7 @@
 //! assert_eq!(sample.data(), [0, 1, 0, 0, 4, 0, 0, 0]);
 //! ```
 
+mod deadline;
 mod event;
 mod handles;
 mod pattern;
@@ -208,6 +211,7 @@ impl Domain {
             self.p.poll_timeout(),
             self.next_confirm_deadline(),
             self.next_query_deadline(),
+            self.next_offered_deadline(),
             self.any_blocked().then_some(self.next_housekeeping),
         ]
         .into_iter()
@@ -225,6 +229,7 @@ impl Domain {
         self.drain(now);
         self.expire_confirms(now);
         self.check_deadlines(now);
+        self.check_offered_deadlines(now);
         self.expire_queries(now);
         if now >= self.next_housekeeping {
             self.next_housekeeping = now + HOUSEKEEPING;

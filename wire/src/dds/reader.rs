@@ -9,6 +9,7 @@ use crate::rtps::discovery::{EndpointQos, History};
 use crate::rtps::participant::{ChangeKind, CreateError, EndpointConfig, KeyHash, ReceivedSample};
 use crate::rtps::{Guid, Time};
 
+use super::deadline::Deadline;
 use super::{Domain, DropReason, Endpoint, Event, ReaderId, Role};
 
 /// What the reader-side filters know of a writer (remote or local).
@@ -34,14 +35,11 @@ pub(super) struct LocalReader {
     keep_all: bool,
     exclusive: bool,
     minimum_separation: Option<Duration>,
-    deadline: Option<Duration>,
+    deadline: Option<Deadline>,
     /// Per instance: owner (exclusive ownership) and its strength.
     owners: HashMap<[u8; 16], (Guid, i32)>,
     /// Per instance: when the last sample was delivered.
     last: HashMap<[u8; 16], Instant>,
-    /// Per instance: when the deadline is next checked.
-    due: HashMap<[u8; 16], Instant>,
-    misses: u64,
 }
 
 /// An RTPS `Time_t` as a `SystemTime`.
@@ -54,12 +52,10 @@ fn system_time(t: Time) -> Option<SystemTime> {
 impl LocalReader {
     fn new(cfg: &EndpointConfig, role: Role, now: Instant) -> Self {
         let q = &cfg.qos;
-        let deadline = q.deadline.to_std();
-        let mut due = HashMap::new();
-        if let Some(d) = deadline {
-            if !cfg.keyed {
-                due.insert([0; 16], now + d);
-            }
+        let mut deadline = Deadline::new(q.deadline.to_std());
+        if let Some(d) = deadline.as_mut().filter(|_| !cfg.keyed) {
+            // a topic without key has its one instance from the start
+            d.arm([0; 16], now);
         }
         LocalReader {
             role,
@@ -71,8 +67,6 @@ impl LocalReader {
             deadline,
             owners: HashMap::new(),
             last: HashMap::new(),
-            due,
-            misses: 0,
         }
     }
 
@@ -88,7 +82,9 @@ impl LocalReader {
     ) -> Result<(), Option<DropReason>> {
         let instance = s.key_hash.map_or([0; 16], |k| k.0);
         if s.kind != ChangeKind::Alive {
-            self.due.remove(&instance);
+            if let Some(d) = self.deadline.as_mut() {
+                d.forget(&instance);
+            }
             self.owners.remove(&instance);
             return Ok(());
         }
@@ -124,8 +120,8 @@ impl LocalReader {
             }
             self.last.insert(instance, now);
         }
-        if let Some(d) = self.deadline {
-            self.due.insert(instance, now + d);
+        if let Some(d) = self.deadline.as_mut() {
+            d.arm(instance, now);
         }
         Ok(())
     }
@@ -136,7 +132,7 @@ impl LocalReader {
     }
 
     pub(super) fn next_due(&self) -> Option<Instant> {
-        self.due.values().min().copied()
+        self.deadline.as_ref().and_then(Deadline::next_due)
     }
 }
 
@@ -258,20 +254,18 @@ impl Domain {
     /// One [`Event::DeadlineMissed`] per instance whose deadline passed.
     pub(super) fn check_deadlines(&mut self, now: Instant) {
         for (g, r) in self.readers.iter_mut() {
-            let Some(period) = r.deadline else { continue };
-            for (instance, due) in r.due.iter_mut() {
-                if *due <= now {
-                    r.misses += 1;
-                    *due = now + period;
-                    // an owner that missed the deadline loses the instance
-                    // (DDS 2.2.3.9): the next writer's sample takes it
-                    r.owners.remove(instance);
-                    self.events.push_back(Event::DeadlineMissed {
-                        reader: ReaderId(*g),
-                        instance: KeyHash(*instance),
-                        total: r.misses,
-                    });
-                }
+            let Some(d) = r.deadline.as_mut() else {
+                continue;
+            };
+            for (instance, total) in d.expire(now) {
+                // an owner that missed the deadline loses the instance
+                // (DDS 2.2.3.9): the next writer's sample takes it
+                r.owners.remove(&instance);
+                self.events.push_back(Event::DeadlineMissed {
+                    reader: ReaderId(*g),
+                    instance: KeyHash(instance),
+                    total,
+                });
             }
         }
     }

@@ -4,9 +4,12 @@
 use std::borrow::Cow;
 use std::time::{Duration, Instant};
 
-use crate::rtps::participant::{Change, CreateError, EndpointConfig, WriteError};
+use crate::rtps::participant::{
+    Change, ChangeKind, CreateError, EndpointConfig, KeyHash, WriteError,
+};
 use crate::rtps::{Guid, SequenceNumber};
 
+use super::deadline::Deadline;
 use super::pattern::Offer;
 use super::reader::WriterInfo;
 use super::{ConfirmFailure, Domain, Event, Role, WriterId};
@@ -19,6 +22,9 @@ pub(super) struct LocalWriter {
     /// A write of this many bytes found the history full: tell the shell
     /// ([`Event::Writable`]) once it fits.
     blocked: Option<usize>,
+    /// The deadline it offers: a sample per live instance within the
+    /// period, or [`Event::OfferedDeadlineMissed`].
+    deadline: Option<Deadline>,
 }
 
 pub(super) struct Confirm {
@@ -88,6 +94,7 @@ impl Domain {
                 partitions: config.qos.partitions.clone(),
             },
             blocked: None,
+            deadline: Deadline::new(config.qos.deadline.to_std()),
         };
         let g = self.p.create_writer(config, now)?;
         let remote: Vec<(Guid, String)> = self
@@ -196,7 +203,7 @@ impl Domain {
             return Err(WriteError::UnknownWriter);
         }
         let change = pad(change);
-        let len = change.data.len();
+        let (len, kind, key_hash) = (change.data.len(), change.kind, change.key_hash);
         if confirm.is_some() {
             self.p.request_ack(g);
         }
@@ -211,6 +218,13 @@ impl Domain {
                 return Err(e);
             }
         };
+        if let Some(d) = self.writers.get_mut(&g).and_then(|w| w.deadline.as_mut()) {
+            let instance = key_hash.map_or([0; 16], |k| k.0);
+            match kind {
+                ChangeKind::Alive => d.arm(instance, now),
+                _ => d.forget(&instance),
+            }
+        }
         if let Some(after) = confirm {
             if self.p.is_acked_by_all(g, sn) {
                 self.events.push_back(Event::WriteConfirmed {
@@ -282,6 +296,28 @@ impl Domain {
                 });
             } else {
                 i += 1;
+            }
+        }
+    }
+
+    pub(super) fn next_offered_deadline(&self) -> Option<Instant> {
+        let due = self.writers.values().filter_map(|w| w.deadline.as_ref());
+        due.filter_map(Deadline::next_due).min()
+    }
+
+    /// One [`Event::OfferedDeadlineMissed`] per instance a writer did not
+    /// write within the deadline it offers.
+    pub(super) fn check_offered_deadlines(&mut self, now: Instant) {
+        for (g, w) in self.writers.iter_mut() {
+            let Some(d) = w.deadline.as_mut() else {
+                continue;
+            };
+            for (instance, total) in d.expire(now) {
+                self.events.push_back(Event::OfferedDeadlineMissed {
+                    writer: WriterId(*g),
+                    instance: KeyHash(instance),
+                    total,
+                });
             }
         }
     }

@@ -205,6 +205,7 @@ Output, one event a line:
   sent <seq>
   received <seq> from <source> <bytes> B   <source>: writer GUID (DDS), ? (IPC)
   deadline missed <total>             subscriber with --deadline (DDS)
+  offered deadline missed <total>     publisher with --deadline whose --period is longer (DDS)
   skipped <reason>                    a sample that did not decode
   done                                --count reached (exit 0)
   interrupted after <n> samples …     Ctrl-C / SIGTERM: session closed (exit 130 / 143)

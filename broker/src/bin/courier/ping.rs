@@ -145,6 +145,9 @@ async fn publish(
                 SessionEvent::TypeMismatch { topic, remote, local_type, remote_type } if topic == o.topic => {
                     out(type_mismatch_line(remote, &local_type, &remote_type))
                 }
+                SessionEvent::OfferedDeadlineMissed { msg, total } if msg == o.topic => {
+                    out(format_args!("offered deadline missed {total}"))
+                }
                 _ => {}
             },
         }
