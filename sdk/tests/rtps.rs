@@ -1396,3 +1396,38 @@ async fn a_query_of_other_types_than_the_server_s_names_them() {
     b.close().await;
     c.close().await;
 }
+
+/// Two publications of one topic in a session: a reader that comes or goes
+/// is one change of handlers, reported once (it came once per writer).
+#[tokio::test]
+async fn handlers_changed_comes_once_per_change_with_two_publications() {
+    let a = session(196, "a").await;
+    let b = session(196, "b").await;
+    let _p1 = a.publisher::<Msg>("twice").build().await.unwrap();
+    let _p2 = a.publisher::<Msg>("twice").build().await.unwrap();
+    let mut ev = a.events();
+    a.watch_handlers("twice").await.unwrap();
+    let sub = b.subscriber::<Msg>("twice").build().await.unwrap();
+    await_handlers(&a, "twice", 1).await;
+    assert_eq!(
+        handler_counts(&mut ev, "twice", Duration::from_millis(500)).await,
+        [1]
+    );
+    drop(sub);
+    let gone = handler_counts(&mut ev, "twice", Duration::from_millis(500)).await;
+    assert_eq!(gone, [0]);
+}
+
+/// The counts of the `HandlersChanged` events of `msg` within `until`.
+async fn handler_counts(ev: &mut courier::Events, msg: &str, until: Duration) -> Vec<i32> {
+    let mut seen = Vec::new();
+    let deadline = tokio::time::Instant::now() + until;
+    while let Ok(Some(e)) = tokio::time::timeout_at(deadline, ev.next()).await {
+        if let SessionEvent::HandlersChanged { msg: m, count } = e {
+            if m == msg {
+                seen.push(count);
+            }
+        }
+    }
+    seen
+}

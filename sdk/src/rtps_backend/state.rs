@@ -126,7 +126,8 @@ pub(super) struct State {
     subs: HashMap<ReaderId, Subscription>,
     patterns: HashMap<PatternId, Arc<SampleQueue>>,
     sub_handles: HashMap<SubId, SubKind>,
-    watched: HashSet<String>,
+    /// Topics whose handler count is watched, with the count last reported.
+    watched: HashMap<String, Option<i32>>,
     /// `Sample::source` of the writers that delivered samples (their GUID
     /// in hex), made once per writer.
     source_names: HashMap<Guid, Arc<str>>,
@@ -177,7 +178,7 @@ impl State {
             subs: HashMap::new(),
             patterns: HashMap::new(),
             sub_handles: HashMap::new(),
-            watched: HashSet::new(),
+            watched: HashMap::new(),
             source_names: HashMap::new(),
             confirms: HashMap::new(),
             next_housekeeping: now,
@@ -610,7 +611,7 @@ impl State {
                 let _ = reply.send(Ok(readers));
             }
             Cmd::Watch { topic } => {
-                self.watched.insert(topic);
+                self.watched.entry(topic).or_insert(None);
             }
             Cmd::Close { .. } => {}
             Cmd::Ros2Nodes { reply } => {
@@ -1161,13 +1162,19 @@ impl State {
         }
     }
 
-    fn handlers_changed(&self, writer: WriterId) {
-        if let Some((_, topic)) = self.publication_of(writer) {
-            if self.watched.contains(topic) {
-                let msg = topic.to_string();
-                let count = self.handlers(&msg);
-                self.emit(SessionEvent::HandlersChanged { msg, count });
-            }
+    /// A writer's readers changed: a watched topic's count, once per change
+    /// (each of the topic's writers sees the same reader come).
+    fn handlers_changed(&mut self, writer: WriterId) {
+        let Some((_, topic)) = self.publication_of(writer) else {
+            return;
+        };
+        let msg = topic.to_string();
+        if !self.watched.contains_key(&msg) {
+            return;
+        }
+        let count = self.handlers(&msg);
+        if self.watched.insert(msg.clone(), Some(count)) != Some(Some(count)) {
+            self.emit(SessionEvent::HandlersChanged { msg, count });
         }
     }
 
