@@ -99,6 +99,8 @@ async fn keyed_topic_dispose_reaches_the_subscriber() {
     p.publish(&k(1, 1)).await.unwrap();
     p.publish(&k(2, 1)).await.unwrap();
     p.dispose(&k(1, 0)).await.unwrap();
+    // a second dispose changes nothing: the reader sees one (DDS)
+    p.dispose(&k(1, 0)).await.unwrap();
     p.unregister(&k(2, 0)).await.unwrap();
     // unregistering one not registered, or twice: refused, nothing sent
     for id in [2, 9] {
@@ -134,10 +136,22 @@ async fn keyed_topic_dispose_reaches_the_subscriber() {
     }
     // the stream goes on after the changes
     assert_eq!(sample(next(&mut sub).await), k(3, 1));
-    for want in [k(1, 1), k(2, 1), k(3, 1)] {
+    // a sample makes the instance alive: a dispose is a change again
+    p.publish(&k(1, 2)).await.unwrap();
+    p.dispose(&k(1, 0)).await.unwrap();
+    p.publish(&k(3, 2)).await.unwrap();
+    assert_eq!(sample(next(&mut sub).await), k(1, 2));
+    match next(&mut sub).await {
+        Ok(Received::Instance(c)) => {
+            assert_eq!((c.key, c.state), (Some(1), InstanceState::Disposed))
+        }
+        other => panic!("expected instance 1 disposed again, got {other:?}"),
+    }
+    assert_eq!(sample(next(&mut sub).await), k(3, 2));
+    for want in [k(1, 1), k(2, 1), k(3, 1), k(1, 2), k(3, 2)] {
         assert_eq!(next(&mut plain).await.unwrap().value, want);
     }
-    assert_eq!(plain.instance_changes_skipped(), 2);
+    assert_eq!(plain.instance_changes_skipped(), 3);
 }
 
 /// Closing a publisher disposes the instances it leaves alive

@@ -2,7 +2,7 @@
 //! exclusive ownership, lifespan, time-based filter and deadlines; and the
 //! keep-all back-pressure the shell reports.
 
-use foldhash::{HashMap, HashMapExt};
+use foldhash::{HashMap, HashMapExt, HashSet, HashSetExt};
 use std::time::{Duration, Instant, SystemTime};
 
 use crate::rtps::discovery::{EndpointQos, History};
@@ -40,6 +40,10 @@ pub(super) struct LocalReader {
     owners: HashMap<[u8; 16], (Guid, i32)>,
     /// Per instance: when the last sample was delivered.
     last: HashMap<[u8; 16], Instant>,
+    /// The instances disposed since their last sample and not unregistered:
+    /// a dispose or unregister of one of them changes nothing (DDS signals
+    /// changes of instance state) and is not delivered.
+    disposed: HashSet<[u8; 16]>,
 }
 
 /// An RTPS `Time_t` as a `SystemTime`.
@@ -67,6 +71,7 @@ impl LocalReader {
             deadline,
             owners: HashMap::new(),
             last: HashMap::new(),
+            disposed: HashSet::new(),
         }
     }
 
@@ -86,6 +91,18 @@ impl LocalReader {
                 d.forget(&instance);
             }
             self.owners.remove(&instance);
+            // DDS: a disposed instance stays NOT_ALIVE_DISPOSED until a
+            // sample comes, whatever else its writers say
+            if self.disposed.contains(&instance) {
+                if s.kind != ChangeKind::Disposed {
+                    // unregistered: it may be gone for good
+                    self.disposed.remove(&instance);
+                }
+                return Err(None);
+            }
+            if s.kind == ChangeKind::Disposed {
+                self.disposed.insert(instance);
+            }
             return Ok(());
         }
         if let (Some(life), Some(ts)) = (
@@ -123,6 +140,7 @@ impl LocalReader {
         if let Some(d) = self.deadline.as_mut() {
             d.arm(instance, now);
         }
+        self.disposed.remove(&instance);
         Ok(())
     }
 
