@@ -173,6 +173,8 @@ impl SessionBuilder {
     /// Off by default; costs a CPU while messages flow. Effective on a
     /// current-thread tokio runtime; what it gains and costs is measured in
     /// the repository's `BENCHMARKS.md`. RTPS: also `busy_poll_us=` in the URL.
+    /// At most [`busy_poll::MAX_WINDOW`](crate::busy_poll::MAX_WINDOW) (1 s);
+    /// [`connect`](Self::connect) refuses a longer one.
     pub fn busy_poll(mut self, window: Duration) -> Self {
         self.set.push(("busy_poll", Honoured::Both));
         self.opts.busy_poll = Some(window);
@@ -320,6 +322,16 @@ impl SessionBuilder {
                 },
             })
         };
+        if let Some(why) = self
+            .opts
+            .busy_poll
+            .and_then(|w| crate::busy_poll::check_window(w).err())
+        {
+            return Err(ConnectError::BadOption {
+                option: "SessionBuilder::busy_poll",
+                why,
+            });
+        }
         if self.rtps.max_sample_size == Some(0) {
             return Err(ConnectError::BadOption {
                 option: "SessionBuilder::max_message_bytes",

@@ -33,6 +33,22 @@ use std::time::{Duration, Instant};
 
 use tokio::sync::Notify;
 
+/// The longest window: a session or central that spins longer after each
+/// message holds a CPU for nothing (windows of tens of microseconds are what
+/// busy polling is for). Longer ones are refused.
+pub const MAX_WINDOW: Duration = Duration::from_secs(1);
+
+/// Why `window` is no busy-polling window, if it is not.
+pub(crate) fn check_window(window: Duration) -> Result<(), String> {
+    if window > MAX_WINDOW {
+        return Err(format!(
+            "a window of {window:?} is longer than {MAX_WINDOW:?}: it would spin a CPU \
+             between messages for nothing (tens of microseconds is what it is for)"
+        ));
+    }
+    Ok(())
+}
+
 /// How many busy pollers of this process are spinning right now.
 static SPINNING: AtomicUsize = AtomicUsize::new(0);
 

@@ -232,6 +232,31 @@ async fn ipc_settings_on_an_rtps_session_are_refused_by_name() {
         e.to_string(),
         "bad SessionBuilder::max_message_bytes: 0 bytes is no message"
     );
+    // and a busy-polling window that would hold a CPU for nothing (10 s
+    // after each message)
+    let e = Session::builder(common::url(1))
+        .busy_poll(std::time::Duration::from_secs(10))
+        .connect()
+        .await
+        .err()
+        .unwrap();
+    assert!(
+        e.to_string()
+            .starts_with("bad SessionBuilder::busy_poll: a window of 10s is longer than 1s"),
+        "{e}"
+    );
+    let e = courier::central::CentralServer::builder()
+        .port(0)
+        .busy_poll(std::time::Duration::from_secs(10))
+        .spawn()
+        .await
+        .err()
+        .unwrap();
+    assert!(
+        e.to_string()
+            .starts_with("bad Builder::busy_poll: a window of 10s is longer than 1s"),
+        "{e}"
+    );
 }
 
 /// A URL with a scheme nobody registered names the known schemes (the old

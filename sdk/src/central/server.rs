@@ -177,6 +177,14 @@ pub enum BindError {
         #[source]
         source: io::Error,
     },
+    /// A builder option's value is wrong.
+    #[error("bad {option}: {why}")]
+    BadOption {
+        /// The builder method.
+        option: &'static str,
+        /// What is wrong.
+        why: String,
+    },
 }
 
 /// Entry point of the embedding API: [`CentralServer::builder`].
@@ -267,7 +275,9 @@ impl Builder {
     /// connections for `window` instead of sleeping until the next one
     /// ([`crate::busy_poll`]). Off by default (the C central has no such
     /// mode); effective on a current-thread runtime, which is what the
-    /// `central` binary runs (`--busy-poll <µs>`).
+    /// `central` binary runs (`--busy-poll <µs>`). At most
+    /// [`busy_poll::MAX_WINDOW`](crate::busy_poll::MAX_WINDOW) (1 s):
+    /// [`spawn`](Self::spawn) refuses a longer one.
     pub fn busy_poll(mut self, window: Duration) -> Self {
         self.busy_poll = Some(window);
         self
@@ -275,6 +285,15 @@ impl Builder {
 
     /// Binds the listeners and starts serving on the current tokio runtime.
     pub async fn spawn(self) -> Result<CentralHandle, BindError> {
+        if let Some(why) = self
+            .busy_poll
+            .and_then(|w| crate::busy_poll::check_window(w).err())
+        {
+            return Err(BindError::BadOption {
+                option: "Builder::busy_poll",
+                why,
+            });
+        }
         let addr = SocketAddr::new(self.bind, self.port);
         let tcp = bind_tcp(addr).map_err(|source| BindError::Tcp { addr, source })?;
         let local = tcp

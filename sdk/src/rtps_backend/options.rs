@@ -341,8 +341,10 @@ impl RtpsOptions {
                         })?
                 }
                 "busy_poll_us" => {
-                    o.busy_poll =
-                        Some(Duration::from_micros(parse_num(url, k, v)?)).filter(|d| !d.is_zero())
+                    let w = Duration::from_micros(parse_num(url, k, v)?);
+                    crate::busy_poll::check_window(w)
+                        .map_err(|why| bad(url, format!("{k}={v}: {why}")))?;
+                    o.busy_poll = Some(w).filter(|d| !d.is_zero())
                 }
                 _ => {
                     return Err(bad(
@@ -528,6 +530,11 @@ mod tests {
             ("rtps://0?peers=,", "names no peer"),
             ("rtps://0?lease_ms=0", "under 100 ms"),
             ("rtps://0?lease_ms=99", "under 100 ms"),
+            // a window that would hold a CPU for nothing
+            (
+                "rtps://0?busy_poll_us=1000001",
+                "busy_poll_us=1000001: a window of 1.000001s is longer than 1s",
+            ),
             ("rtps://0?index", "index"),
             ("ipc://x", "rtps://"),
         ] {
