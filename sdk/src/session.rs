@@ -504,6 +504,12 @@ impl Session {
     }
 
     /// A query; `.timeout(d)` bounds the wait (default 10 s).
+    ///
+    /// The query message is bound to `Req` as a topic is to its type. DDS
+    /// and XRCE: a session's queries of one service share one client, whose
+    /// reply reader has one type, so the replies are bound to `Resp` too;
+    /// another type for either is [`QueryError::Open`] with an
+    /// [`OpenError::TypeMismatch`].
     pub fn query<'a, Req: IpcMessage, Resp: IpcMessage>(
         &'a self,
         msg: &'a str,
@@ -511,8 +517,12 @@ impl Session {
     ) -> Query<'a, Resp> {
         // IPC: the query message must be defined in central (by anyone);
         // the reply is decoded as `Resp` whatever message the server used
-        let check = self.topics.bind::<Req>(msg).map(|known| {
-            (known.is_none() && self.enc() == Encoding::Ipc).then(Definition::of::<Req>)
+        // DDS: the session's one client of the service reads one reply type
+        let check = self.topics.bind::<Req>(msg).and_then(|known| {
+            if self.enc() == Encoding::Ipc {
+                return Ok(known.is_none().then(Definition::of::<Req>));
+            }
+            self.topics.bind_reply::<Resp>(msg).map(|()| None)
         });
         Query {
             session: self,

@@ -24,6 +24,16 @@ struct Bound {
     type_name: &'static str,
 }
 
+impl Bound {
+    fn of<T: IpcMessage>() -> Self {
+        Bound {
+            rust: std::any::type_name::<T>(),
+            format: T::FORMAT,
+            type_name: T::TYPE_NAME,
+        }
+    }
+}
+
 /// What a session keeps per topic: its type once bound, the session's
 /// own publication of it (`Session::define`, `Session::publish`) and its
 /// client (`Session::query`), opened on first use and kept open while the
@@ -31,6 +41,9 @@ struct Bound {
 #[derive(Debug, Default, Clone, Copy)]
 struct Entry {
     bound: Option<Bound>,
+    /// DDS and XRCE: the reply type of the session's client (its reply
+    /// reader has that type).
+    reply: Option<Bound>,
     /// A typed use succeeded: the binding stays.
     in_use: bool,
     publication: Option<PubId>,
@@ -49,6 +62,26 @@ impl Topics {
         self.0.lock().unwrap_or_else(|e| e.into_inner())
     }
 
+    /// DDS and XRCE: binds the replies of the service `msg` to `R`, or
+    /// checks that they are bound to a type with the same wire form (the
+    /// session's one client of the service reads replies of one type).
+    pub(crate) fn bind_reply<R: IpcMessage>(&self, msg: &str) -> Result<(), OpenError> {
+        let mut map = self.lock();
+        let e = map.entry(msg.to_string()).or_default();
+        match e.reply {
+            Some(b) if b.format == R::FORMAT && b.type_name == R::TYPE_NAME => Ok(()),
+            Some(b) => Err(OpenError::TypeMismatch {
+                msg: format!("{msg}'s reply"),
+                bound: b.rust,
+                given: std::any::type_name::<R>(),
+            }),
+            None => {
+                e.reply = Some(Bound::of::<R>());
+                Ok(())
+            }
+        }
+    }
+
     /// Binds `msg` to `T`, or checks that it is bound to a type with the
     /// same wire form. `Ok(Some(_))`: the session's publication of the
     /// topic, once it has one.
@@ -63,11 +96,7 @@ impl Topics {
                 given: std::any::type_name::<T>(),
             }),
             None => {
-                e.bound = Some(Bound {
-                    rust: std::any::type_name::<T>(),
-                    format: T::FORMAT,
-                    type_name: T::TYPE_NAME,
-                });
+                e.bound = Some(Bound::of::<T>());
                 Ok(e.publication)
             }
         }
@@ -85,6 +114,7 @@ impl Topics {
                     e.in_use = true;
                 } else if !e.in_use && e.publication.is_none() && e.client.is_none() {
                     e.bound = None;
+                    e.reply = None;
                 }
             }
         }

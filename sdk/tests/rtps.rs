@@ -1390,6 +1390,22 @@ async fn a_query_of_other_types_than_the_server_s_names_them() {
     // the right types are answered (and discovery is done)
     let ok = b.query::<i32, Resp>("mm", &1).timeout(T).await.unwrap();
     assert_eq!(ok, Resp { v: 1 });
+    // b's client of mm reads Resp: another reply type is refused by name
+    // (it was decoded from Resp's bytes, silently)
+    let e = b
+        .query::<i32, OtherResp>("mm", &3)
+        .timeout(T)
+        .await
+        .unwrap_err();
+    let cause = std::error::Error::source(&e).map(|c| c.to_string());
+    assert_eq!(e.to_string(), "query mm refused");
+    let cause = cause.unwrap_or_default();
+    assert!(
+        cause.starts_with("mm's reply carries ")
+            && cause.contains("::Resp in this session, not ")
+            && cause.ends_with("::OtherResp"),
+        "{cause}"
+    );
     let c = session(184, "c").await;
     let e = c
         .query::<i32, OtherResp>("mm", &2)
