@@ -147,6 +147,16 @@ pub(super) struct Driver {
     pub(super) reported_down: bool,
 }
 
+impl Drop for Driver {
+    /// A driver task dropped before it ended (its runtime was shut down
+    /// while the session's handles live on): their streams end and their
+    /// waiting calls fail, as when central goes, instead of waiting for
+    /// ever. After a normal end this finds nothing left to do.
+    fn drop(&mut self) {
+        self.fail_all();
+    }
+}
+
 /// Where a publish's result goes.
 pub(super) type PublishDone = Done<Result<(), PublishError>>;
 

@@ -186,6 +186,23 @@ pub(super) struct Driver {
     pub(super) receiver: Option<ReceiveThread>,
     /// Immediate subscriptions with samples for their callbacks.
     pub(super) immediate: Vec<Arc<SampleQueue>>,
+    /// [`Driver::close`] has run.
+    pub(super) finished: bool,
+}
+
+impl Drop for Driver {
+    /// The driver task dropped unfinished: its runtime was shut down while
+    /// the session's handles live on. They would wait for ever (the
+    /// mailbox lives in [`Shared`], which they hold) and writes that do not
+    /// wait would be taken and lost: end it as a close does, without
+    /// waiting (the goodbyes go if the socket has room).
+    fn drop(&mut self) {
+        if !self.finished {
+            let now = Instant::now();
+            self.say_goodbye(now);
+            self.finish(now);
+        }
+    }
 }
 
 /// A command that came while the session closes: a write fails, anything
@@ -343,21 +360,31 @@ impl Driver {
         if let Some(r) = self.receiver.take() {
             r.stop().await;
         }
-        let stalled = {
-            let mut c = self.shared.lock();
-            // the instances its publications leave, disposed (best effort:
-            // the participant leaves with them)
-            c.st.dispose_all_live(now);
-            c.st.d.close(now);
-            c.flush(now).is_err()
-        };
-        if stalled {
+        if self.say_goodbye(now) {
             // the goodbyes, once there is room (a bounded wait)
             let room = net::wait_writable(&self.send_sock);
             if let Ok(Ok(())) = tokio::time::timeout(Duration::from_millis(100), room).await {
                 let _ = self.shared.lock().flush(now);
             }
         }
+        self.finish(now);
+    }
+
+    /// Disposes what the publications leave and says goodbye; true if the
+    /// send buffer was full.
+    fn say_goodbye(&mut self, now: Instant) -> bool {
+        let mut c = self.shared.lock();
+        // the instances its publications leave, disposed (best effort:
+        // the participant leaves with them)
+        c.st.dispose_all_live(now);
+        c.st.d.close(now);
+        c.flush(now).is_err()
+    }
+
+    /// Ends everything the application holds: streams end, waiting calls
+    /// fail, later commands fail at once.
+    fn finish(&mut self, now: Instant) {
+        self.finished = true;
         let mut c = self.shared.lock();
         c.st.pump(now);
         c.st.fail_all();

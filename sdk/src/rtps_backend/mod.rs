@@ -250,6 +250,7 @@ impl RtpsBackend {
             send_sock,
             receiver,
             immediate: Vec::new(),
+            finished: false,
         };
         tokio::spawn(driver.run());
         Ok(RtpsBackend {

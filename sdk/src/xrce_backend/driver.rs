@@ -165,6 +165,17 @@ pub(super) struct Driver {
     pub(super) done: bool,
 }
 
+impl Drop for Driver {
+    /// A driver task dropped before it ended (its runtime was shut down
+    /// while the session's handles live on): their streams end and their
+    /// waiting calls fail instead of waiting for ever.
+    fn drop(&mut self) {
+        if !self.done {
+            self.finish();
+        }
+    }
+}
+
 fn entity_name(kind: ObjectKind) -> &'static str {
     match kind {
         ObjectKind::Participant => "participant",
