@@ -1,15 +1,15 @@
 //! Fuzzes `courier_wire::dds::Domain` with commands and datagrams: two
 //! domains exchange what they send (or the fuzzer's own bytes) while
 //! endpoints, services, clients and patterns come and go, writes (plain and
-//! confirmed), queries and replies are made and time passes. Nothing may
-//! panic.
+//! confirmed; samples, disposes and unregisters of a few instances),
+//! queries and replies are made and time passes. Nothing may panic.
 #![no_main]
 
 use std::time::{Duration, Instant, SystemTime};
 
 use courier_wire::dds::{Domain, Event, ReaderId, RequestId, ServiceConfig, ServiceId, WriterId};
 use courier_wire::rtps::discovery::{Duration as RtpsDuration, EndpointQos, History, Reliability};
-use courier_wire::rtps::participant::{guid_prefix, Change, Config, EndpointConfig};
+use courier_wire::rtps::participant::{guid_prefix, Change, Config, EndpointConfig, KeyHash};
 use courier_wire::rtps::Locator;
 use libfuzzer_sys::fuzz_target;
 
@@ -84,10 +84,17 @@ fuzz_target!(|data: &[u8]| {
                 let w = s.writers[pick(s.writers.len())];
                 let len = usize::from(it.next().unwrap_or(0));
                 let body: Vec<u8> = it.by_ref().take(len).collect();
+                // a few instances; alive, disposed or unregistered
+                let key = KeyHash([arg >> 4; 16]);
+                let change = match (arg >> 1) & 3 {
+                    2 => Change::dispose(&[], key),
+                    3 => Change::unregister(&[], key),
+                    _ => Change::alive_owned(body).with_key_hash(key),
+                };
                 if arg & 1 == 1 {
-                    let _ = d.write_confirmed(w, Change::alive_owned(body), Duration::from_millis(100), now);
-                } else if d.has_room(w, body.len()) {
-                    let _ = d.write(w, Change::alive_owned(body), now);
+                    let _ = d.write_confirmed(w, change, Duration::from_millis(100), now);
+                } else if d.has_room(w, change.data.len()) {
+                    let _ = d.write(w, change, now);
                 }
             }
             3 if !s.writers.is_empty() => {
