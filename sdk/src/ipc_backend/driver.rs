@@ -277,8 +277,12 @@ impl Driver {
                         self.touched.push(link);
                     }
                 } else {
+                    // its writer ended (the peer left): link anew next time
                     self.links.remove(&link);
+                    self.conn.direct_link_closed(link);
                 }
+            } else {
+                tracing::debug!(?link, "a frame for a direct link that closed meanwhile");
             }
         }
         Ok(())
@@ -590,10 +594,12 @@ impl Driver {
                 self.read_credit = credit.map(Arc::new);
                 if bytes.is_empty() {
                     self.links.remove(&link);
+                    self.conn.direct_link_closed(link);
                     self.release_parked();
                 } else if let Err(e) = self.conn.receive_direct(link, &bytes) {
                     tracing::warn!("direct link dropped: {e}");
                     self.links.remove(&link);
+                    self.conn.direct_link_closed(link);
                     self.release_parked();
                 }
             }

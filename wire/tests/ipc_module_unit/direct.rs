@@ -63,6 +63,32 @@ fn direct_publish_waits_for_receivers_and_links() {
     // second publish: receivers known, links up: immediate
     c.publish("dmsg", b"z", -1).unwrap();
     assert!(c.poll_direct_transmit().is_some());
+    while c.poll_direct_transmit().is_some() {}
+    while c.poll_event().is_some() {}
+    // the link to 8000 closes (its module left, and another may take the
+    // port): the next send links anew instead of writing to the dead link
+    c.direct_link_closed(LinkId(1));
+    let op = c.publish("dmsg", b"w", -1).unwrap();
+    assert!(
+        c.poll_direct_transmit().is_none(),
+        "held until linked again"
+    );
+    let mut relinked = Vec::new();
+    while let Some(e) = c.poll_event() {
+        if let Event::DirectConnect { link, port, .. } = e {
+            relinked.push((link, port));
+        }
+    }
+    assert_eq!(relinked, vec![(LinkId(3), 8000)]);
+    c.direct_link_up(LinkId(3));
+    let mut to = Vec::new();
+    while let Some((l, b)) = c.poll_direct_transmit() {
+        if Header::decode(&b).is_ok_and(|h| h.msg_ref != 0) {
+            to.push(l);
+        }
+    }
+    assert_eq!(to, vec![LinkId(2), LinkId(3)]);
+    assert_eq!(c.poll_event(), Some(Event::Published { op }));
 }
 
 #[test]

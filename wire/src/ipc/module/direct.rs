@@ -6,7 +6,7 @@ use super::event::Event;
 use super::ops::Op;
 use super::proto::{self, MsgInfo};
 use super::replies::Pending;
-use super::{Connection, DirectHandler, Error, LinkId, LINK_WAIT, MAX_QUEUED_DELIVERIES};
+use super::{Connection, DirectHandler, Error, Link, LinkId, LINK_WAIT, MAX_QUEUED_DELIVERIES};
 use crate::ipc::frame::{ClassId, Deframer, Frame, Header, MsgClass, NO_REF, QUERY_REPLY_INTENT};
 
 impl Connection {
@@ -80,9 +80,9 @@ impl Connection {
 
     /// The shell connected direct link `link`: queued sends proceed.
     pub fn direct_link_up(&mut self, link: LinkId) {
-        for (id, up) in self.links.values_mut() {
-            if *id == link {
-                *up = true;
+        for l in self.links.values_mut() {
+            if l.id == link {
+                l.up = true;
             }
         }
         if self.blocked == Some(LINK_WAIT) {
@@ -97,7 +97,7 @@ impl Connection {
         let dead: Vec<(String, i32)> = self
             .links
             .iter()
-            .filter(|(_, (id, _))| *id == link)
+            .filter(|(_, l)| l.id == link)
             .map(|(k, _)| k.clone())
             .collect();
         for k in &dead {
@@ -109,21 +109,56 @@ impl Connection {
         self.direct_link_up(link);
     }
 
-    pub(super) fn set_direct_handlers(&mut self, msg: &str, list: Vec<DirectHandler>) {
-        for h in &list {
+    /// A direct link the shell had (connected or accepted) closed: the peer
+    /// left, or the link failed. A receiver still listed at its address
+    /// gets a new link before the next send to it (a module that took the
+    /// port of one that left, say), instead of frames for a dead link.
+    pub fn direct_link_closed(&mut self, link: LinkId) {
+        self.links.retain(|_, l| l.id != link);
+        self.link_in.remove(&link);
+        if self.blocked == Some(LINK_WAIT) {
+            // a send waiting for its links looks again (and links anew)
+            self.blocked = None;
+            self.pump();
+        }
+    }
+
+    /// Starts a link to each receiver of `list` that has none, or whose
+    /// link was made for another module at the same address; true if each
+    /// has one that is up.
+    fn link_all(&mut self, list: &[DirectHandler]) -> bool {
+        let mut all_up = true;
+        for h in list {
             let key = (h.host.clone(), h.port);
-            if !self.links.contains_key(&key) {
-                let link = LinkId(self.next_link);
-                self.next_link += 1;
-                self.links.insert(key, (link, false));
-                self.events.push_back(Event::DirectConnect {
-                    link,
-                    host: h.host.clone(),
-                    port: h.port,
-                    module: h.module.clone(),
-                });
+            match self.links.get(&key) {
+                Some(l) if l.module == h.module => all_up &= l.up,
+                _ => {
+                    let id = LinkId(self.next_link);
+                    self.next_link += 1;
+                    let module = h.module.clone();
+                    self.links.insert(
+                        key,
+                        Link {
+                            id,
+                            up: false,
+                            module,
+                        },
+                    );
+                    self.events.push_back(Event::DirectConnect {
+                        link: id,
+                        host: h.host.clone(),
+                        port: h.port,
+                        module: h.module.clone(),
+                    });
+                    all_up = false;
+                }
             }
         }
+        all_up
+    }
+
+    pub(super) fn set_direct_handlers(&mut self, msg: &str, list: Vec<DirectHandler>) {
+        self.link_all(&list);
         if !list.is_empty() {
             // queries that waited for a first handler go first, in order
             for op in self
@@ -182,11 +217,7 @@ impl Connection {
             self.ops.push_front(Op::DirectQuery { msg });
             return;
         };
-        let links: Vec<(LinkId, bool)> = list
-            .iter()
-            .filter_map(|h| self.links.get(&(h.host.clone(), h.port)).copied())
-            .collect();
-        if links.iter().any(|(_, up)| !up) {
+        if !self.link_all(&list) {
             self.ops.push_front(rebuild(msg, data));
             self.blocked = Some(LINK_WAIT);
             return;
@@ -227,7 +258,7 @@ impl Connection {
             list.iter().rev().collect()
         };
         for h in targets {
-            let Some((link, _)) = self.links.get(&(h.host.clone(), h.port)).copied() else {
+            let Some(link) = self.links.get(&(h.host.clone(), h.port)).map(|l| l.id) else {
                 continue;
             };
             let frame = Frame {

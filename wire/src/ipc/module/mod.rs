@@ -183,6 +183,15 @@ pub enum MsgLength {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct LinkId(pub u64);
 
+/// A link to a receiver's listen address.
+#[derive(Debug, Clone)]
+struct Link {
+    id: LinkId,
+    up: bool,
+    /// The module it was made for.
+    module: String,
+}
+
 /// One receiver of a direct message (`directMsgHandler`).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct DirectHandler {
@@ -244,7 +253,11 @@ pub struct Connection {
     /// through central waits in central for its first handler), or
     /// dropped by [`Connection::cancel_query`].
     awaiting_handler: HashMap<String, Vec<Op>>,
-    links: HashMap<(String, i32), (LinkId, bool)>,
+    /// Links to receivers by listen address: the link, whether it is up,
+    /// and the module it was made for (another module at that address
+    /// later, when the first left and its port was taken again, gets a
+    /// link of its own).
+    links: HashMap<(String, i32), Link>,
     next_link: u64,
     direct_tx: VecDeque<(LinkId, Vec<u8>)>,
     unknown: HashSet<String>,
