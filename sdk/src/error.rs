@@ -240,6 +240,21 @@ pub enum PublishError {
         #[source]
         source: courier_wire::xrce::CommandError,
     },
+    /// XRCE: the agent does not have this publication's data writer: it
+    /// refused it when the session was re-created (a
+    /// [`SessionEvent::EntityError`](crate::SessionEvent::EntityError) said
+    /// so), or answered a write with an error (an agent restored from its
+    /// state that could not make the writer again). Nothing is sent until
+    /// the session is re-created and the agent takes it.
+    #[error("cannot publish {topic}: the XRCE agent refused its {entity} ({status})")]
+    AgentRefused {
+        /// The topic.
+        topic: String,
+        /// Which entity.
+        entity: &'static str,
+        /// The agent's STATUS code.
+        status: courier_wire::xrce::StatusCode,
+    },
     /// The DDS writer refused the sample.
     #[error("cannot publish {topic}")]
     Writer {

@@ -257,7 +257,10 @@ pub enum SessionEvent {
     /// with every entity and reading of the session; its `Subscriber`s
     /// stayed open throughout.
     SessionRecreated {
-        /// Entities created again.
+        /// Entities the agent took again (each it refused came before as
+        /// [`SessionEvent::EntityError`], and writes through a refused
+        /// data writer fail with
+        /// [`PublishError::AgentRefused`](crate::PublishError::AgentRefused)).
         entities: usize,
     },
     /// XRCE: the agent refused an entity (when the session was re-created,

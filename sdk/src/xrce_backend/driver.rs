@@ -150,6 +150,12 @@ pub(super) struct Driver {
     /// CREATEs of a re-created session still unanswered.
     recreating: HashSet<u16>,
     recreated: usize,
+    /// Of those, the ones the agent refused.
+    recreate_refused: usize,
+    /// Objects the agent refused (when the session was re-created, or a
+    /// write to one it does not have), with its status: writes through
+    /// them fail instead of vanishing.
+    refused: HashMap<ObjectId, StatusCode>,
     /// AgentLost was reported and neither AgentBack nor SessionRecreated yet.
     lost_reported: bool,
     /// The link broke; open it again at this time.
@@ -276,6 +282,8 @@ impl Driver {
             parked: VecDeque::new(),
             recreating: HashSet::new(),
             recreated: 0,
+            recreate_refused: 0,
+            refused: HashMap::new(),
             lost_reported: false,
             redial_at: None,
             stalled: None,
@@ -539,6 +547,14 @@ impl Driver {
                     return Ok(());
                 };
                 let (writer, stream, topic) = (p.writer, p.stream, p.topic.clone());
+                if let Some(&status) = self.refused.get(&writer) {
+                    let _ = reply.send(Err(PublishError::AgentRefused {
+                        topic: topic.to_string(),
+                        entity: "data writer",
+                        status,
+                    }));
+                    return Ok(());
+                }
                 match self.client.write(writer, stream, body(&data), now) {
                     Ok(req) => {
                         if confirm && stream.is_reliable() {
@@ -571,6 +587,17 @@ impl Driver {
                     return Ok(());
                 };
                 let (requester, name) = (r.requester, r.name.clone());
+                if let Some(&status) = self.refused.get(&requester) {
+                    let _ = reply.send(Err(QueryError::Refused {
+                        msg: name.to_string(),
+                        source: PublishError::AgentRefused {
+                            topic: name.to_string(),
+                            entity: "requester",
+                            status,
+                        },
+                    }));
+                    return Ok(());
+                }
                 match self
                     .client
                     .request(requester, StreamId::RELIABLE, body(&data), now)
@@ -1113,6 +1140,7 @@ impl Driver {
                     match self.client.recreate_objects(now) {
                         Ok(ids) => {
                             self.recreated = ids.len();
+                            self.recreate_refused = 0;
                             self.recreating = ids.into_iter().map(|r| r.0).collect();
                             if self.recreating.is_empty() {
                                 self.recreated_all();
@@ -1268,7 +1296,7 @@ impl Driver {
         self.shared.set_state(XrceState::Connected);
         self.lost_reported = false;
         self.hub.send(SessionEvent::SessionRecreated {
-            entities: self.recreated,
+            entities: self.recreated - self.recreate_refused.min(self.recreated),
         });
     }
 
@@ -1284,6 +1312,25 @@ impl Driver {
             .get(&object)
             .map(|(t, e)| (t.to_string(), *e))
             .unwrap_or_else(|| (String::new(), object.kind().map_or("object", entity_name)));
+        match result {
+            Err(e) => {
+                self.refused.insert(object, e.0);
+                if self.recreating.contains(&request.0) {
+                    self.recreate_refused += 1;
+                }
+                // a confirmed write the agent refused
+                if let Some(r) = self.acks.remove(&request.0) {
+                    let _ = r.send(Err(PublishError::AgentRefused {
+                        topic: topic.clone(),
+                        entity,
+                        status: e.0,
+                    }));
+                }
+            }
+            Ok(_) => {
+                self.refused.remove(&object);
+            }
+        }
         if let Err(e) = result {
             // a shared object that failed is made again by the next open
             if self.participant == Some(object) {

@@ -203,7 +203,8 @@ pub struct BridgeStats {
     pub writes_refused: u64,
     /// Best-effort samples dropped because the writer's history was full.
     pub writes_dropped: u64,
-    /// WRITE_DATA to an object that is not a writer, requester or replier.
+    /// WRITE_DATA to an object that is not a writer, requester or replier
+    /// (each answered with `ERR_UNKNOWN_REFERENCE`).
     pub writes_unknown: u64,
     /// Samples delivered to clients.
     pub samples_sent: u64,
@@ -1119,7 +1120,17 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
                 }
             }
             _ => {
+                // the client is told (a restored agent that could not make
+                // its writer again, say), before its message is acknowledged:
+                // it must not take the write for delivered
                 self.stats.writes_unknown += 1;
+                let _ = self.agent.reply_status(
+                    client,
+                    request,
+                    StatusCode::ERR_UNKNOWN_REFERENCE,
+                    StreamId::RELIABLE,
+                    now,
+                );
                 if let Some(t) = ticket {
                     self.agent.write_done(t, now);
                 }

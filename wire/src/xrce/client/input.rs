@@ -189,6 +189,9 @@ impl Client {
                             self.reads.remove(&k);
                         }
                     }
+                    // the agent refused a write (WRITE_DATA of an object it
+                    // does not have): reported as the object's status
+                    None if result.is_err() && self.objects.iter().any(|d| d.id == object) => {}
                     None => return Err(InputError::Unsolicited { what: "STATUS" }),
                 }
             }

@@ -194,7 +194,8 @@ pub enum Event {
     },
     /// CREATE_CLIENT failed.
     ConnectFailed(ConnectError),
-    /// The STATUS of a CREATE, DELETE or READ_DATA.
+    /// The STATUS of a CREATE, DELETE or READ_DATA, or the agent's refusal
+    /// of a WRITE_DATA (an error status naming the write's request).
     Status {
         /// The request.
         request: RequestId,
