@@ -306,7 +306,7 @@ fn messages_ahead_of_an_unsubscribe_are_dropped_by_the_module() {
     assert!(
         sim.logs
             .iter()
-            .any(|l| l.starts_with("Deleted pending tick")),
+            .any(|l| l.starts_with("Deleted pending tick (1 message): its handler ")),
         "the one still queued in central is deleted, as in C: {:#?}",
         sim.logs
     );

@@ -110,7 +110,12 @@ impl Central {
         if let Some(d) = self.dispatches.get(&did) {
             if let Some((conn, _)) = d.hnd {
                 if let Some(m) = self.modules.get_mut(&conn) {
-                    m.pending.retain(|x| *x != did);
+                    // the oldest, as a rule: no scan
+                    if m.pending.front() == Some(&did) {
+                        m.pending.pop_front();
+                    } else {
+                        m.pending.retain(|x| *x != did);
+                    }
                 }
             }
         }

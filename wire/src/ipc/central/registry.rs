@@ -2,6 +2,7 @@
 //! (un)registered, message lookups (`msgInfo`), capacities and queue
 //! limits.
 
+use std::collections::HashSet;
 use std::time::SystemTime;
 
 use super::direct::direct_class;
@@ -276,8 +277,11 @@ impl Central {
         if let Some(m) = self.msgs.get_mut(msg) {
             m.handlers.retain(|(c, n)| !(*c == conn && n == hnd));
         }
-        // Deliveries queued for the handler cannot be handled any more.
-        let stale: Vec<DispatchId> = self
+        // Deliveries queued for the handler cannot be handled any more: one
+        // pass over the module's queue, one log line (a subscriber that
+        // leaves tens of thousands behind held central for seconds, a scan
+        // of the queue and a line per message)
+        let stale: HashSet<DispatchId> = self
             .dispatches
             .iter()
             .filter(|(_, d)| {
@@ -286,14 +290,18 @@ impl Central {
             })
             .map(|(id, _)| *id)
             .collect();
-        for id in stale {
+        if !stale.is_empty() {
             if let Some(m) = self.modules.get_mut(&conn) {
-                m.pending.retain(|x| *x != id);
+                m.pending.retain(|x| !stale.contains(x));
             }
-            self.free_dispatch_id(id);
+            let n = stale.len();
+            for id in stale {
+                self.free_dispatch_id(id);
+            }
+            let what = if n == 1 { "message" } else { "messages" };
             self.log_line(
                 Kind::Status,
-                format!("Deleted pending {msg} {{{id}}}: its handler {hnd} was unsubscribed"),
+                format!("Deleted pending {msg} ({n} {what}): its handler {hnd} was unsubscribed"),
             );
         }
         self.handlers_changed(msg);
