@@ -208,6 +208,12 @@ fn command_line_errors() {
     )
     .unwrap();
     let missing = dir.join("missing.refs");
+    let missing_dir = dir.join("no-such-dir");
+    let state_in_missing = missing_dir.join("agent.redb");
+    let link_in_missing = missing_dir.join("tty");
+    // a port somebody else has
+    let busy = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let busy_port = busy.local_addr().unwrap().port();
     let cases: Vec<(Vec<String>, i32, String)> = vec![
         (
             vec!["udp4".into()],
@@ -258,10 +264,44 @@ fn command_line_errors() {
             2,
             "error: invalid value 'maybe' for '--multicast <MULTICAST>': \"maybe\": expected on or off".into(),
         ),
+        // a file, directory or device the command line names that is not
+        // there: a usage error, as a missing references file (exit 2)
         (
             vec!["serial".into(), "--dev".into(), "/nonexistent/tty".into(), "--bind".into(), "127.0.0.1".into()],
+            2,
+            "xrce-agent: cannot open serial /nonexistent/tty: No such file or directory (os error 2)".into(),
+        ),
+        (
+            vec!["udp4".into(), "-p".into(), "0".into(), "--bind".into(), "127.0.0.1".into(), "--state".into(), state_in_missing.display().to_string()],
+            2,
+            format!(
+                "xrce-agent: state file {}: directory {}: No such file or directory (os error 2)",
+                state_in_missing.display(),
+                missing_dir.display()
+            ),
+        ),
+        (
+            vec!["udp4".into(), "-p".into(), "0".into(), "--bind".into(), "127.0.0.1".into(), "--state".into(), dir.display().to_string()],
+            2,
+            format!(
+                "xrce-agent: state file {}: it is a directory (--state names the file to keep clients' sessions in)",
+                dir.display()
+            ),
+        ),
+        (
+            vec!["pseudoterminal".into(), "--dev".into(), link_in_missing.display().to_string(), "--bind".into(), "127.0.0.1".into()],
+            2,
+            format!(
+                "xrce-agent: cannot make the link {} to the pseudo-terminal: directory {}: No such file or directory (os error 2)",
+                link_in_missing.display(),
+                missing_dir.display()
+            ),
+        ),
+        // what is there but cannot be had is a failure to start (exit 1)
+        (
+            vec!["udp4".into(), "-p".into(), busy_port.to_string(), "--bind".into(), "127.0.0.1".into()],
             1,
-            "xrce-agent: cannot open serial /nonexistent/tty:".into(),
+            format!("xrce-agent: cannot bind XRCE UDP on 127.0.0.1:{busy_port}: "),
         ),
     ];
     for (args, code, want) in cases {
@@ -273,6 +313,24 @@ fn command_line_errors() {
             "{args:?}:\n got: {stderr}\nwant: {want}"
         );
     }
+    drop(busy);
+    assert!(
+        !missing_dir.exists(),
+        "nothing was made in the missing directory"
+    );
+    // --help says which is which
+    let help = Command::new(env!("CARGO_BIN_EXE_xrce-agent"))
+        .arg("--help")
+        .output()
+        .unwrap();
+    assert_eq!(help.status.code(), Some(0));
+    let help = String::from_utf8_lossy(&help.stdout);
+    assert!(
+        help.contains("Exit status: 0 stopped by Ctrl-C or SIGTERM; 2 the command line is wrong")
+            && help.contains("--state's directory; serial --dev;")
+            && help.contains("1 the agent could not start for another reason (a port in use"),
+        "{help}"
+    );
     let _ = std::fs::remove_dir_all(dir);
 }
 

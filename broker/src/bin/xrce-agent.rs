@@ -15,15 +15,31 @@
 //! `--peers`, `--multicast on|off` and `--any-domain`; and `--state <file>`,
 //! which keeps clients' sessions and objects so that a restarted agent
 //! serves them again.
+//!
+//! Exit status (`--help` says it too): 2 for a wrong command line, which
+//! includes a file, directory or device it names that is not there (the
+//! references file, `--state`'s directory, a serial device, a
+//! pseudo-terminal link's directory), checked before anything starts; 1
+//! when the agent cannot start for another reason (a port in use).
 
 use std::net::{IpAddr, Ipv4Addr, SocketAddr, SocketAddrV4};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use clap::{Args, Parser, Subcommand};
 use courier::rtps_backend::RtpsOptions;
 use courier_broker::xrce_agent::{Transport, XrceAgent};
 use courier_wire::xrce::bridge::Profiles;
+
+const AFTER_HELP: &str = "\
+Several transports may be given one after another, e.g. `xrce-agent udp4 -p 8888 tcp4 -p 8889`.
+
+Exit status: 0 stopped by Ctrl-C or SIGTERM; 2 the command line is wrong: a bad option,
+or a file, directory or device it names that is not there or cannot be used (-r's
+references file, missing or not valid; --state's directory; serial --dev; pseudoterminal
+--dev's directory); 1 the agent could not start for another reason (a port in use, the
+DDS participant, a state file in use by another agent or damaged, a serial device that
+does not open).";
 
 const TRANSPORTS: [&str; 4] = ["udp4", "tcp4", "serial", "pseudoterminal"];
 const UNSUPPORTED: [&str; 5] = ["udp6", "tcp6", "multiserial", "canfd", "termios"];
@@ -32,8 +48,7 @@ const UNSUPPORTED: [&str; 5] = ["udp6", "tcp6", "multiserial", "canfd", "termios
 #[command(
     name = "xrce-agent",
     about = "A DDS-XRCE agent: XRCE clients' entities in one DDS participant",
-    after_help = "Several transports may be given one after another, e.g. \
-                  `xrce-agent udp4 -p 8888 tcp4 -p 8889`."
+    after_help = AFTER_HELP
 )]
 struct Chunk {
     #[command(subcommand)]
@@ -225,6 +240,60 @@ fn level(v: u8) -> tracing::level_filters::LevelFilter {
     }
 }
 
+/// Whether the files, directories and devices the command line names are
+/// there: a path that is not is a mistake of the command line (exit 2), as
+/// a references file that is not, not a failure of the agent.
+fn check_paths(plan: &Plan) -> Result<(), String> {
+    /// The directory `p` is to be made in.
+    fn dir_of(p: &Path) -> &Path {
+        match p.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        }
+    }
+    /// Why `d` cannot hold a new file, if it cannot.
+    fn not_a_dir(d: &Path) -> Option<String> {
+        match std::fs::metadata(d) {
+            Ok(m) if m.is_dir() => None,
+            Ok(_) => Some(format!("{} is not a directory", d.display())),
+            Err(e) => Some(format!("directory {}: {e}", d.display())),
+        }
+    }
+    if let Some(state) = &plan.common.state {
+        if state.is_dir() {
+            return Err(format!(
+                "state file {}: it is a directory (--state names the file to keep clients' \
+                 sessions in)",
+                state.display()
+            ));
+        }
+        if let Some(why) = not_a_dir(dir_of(state)) {
+            return Err(format!("state file {}: {why}", state.display()));
+        }
+    }
+    for t in &plan.transports {
+        match t {
+            Cmd::Serial(s) => {
+                if let Err(e) = std::fs::metadata(&s.dev) {
+                    return Err(format!("cannot open serial {}: {e}", s.dev.display()));
+                }
+            }
+            Cmd::Pseudoterminal(Pty {
+                dev: Some(link), ..
+            }) => {
+                if let Some(why) = not_a_dir(dir_of(link)) {
+                    return Err(format!(
+                        "cannot make the link {} to the pseudo-terminal: {why}",
+                        link.display()
+                    ));
+                }
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
 /// The agent's settings, or what is wrong with them.
 fn build(
     plan: &Plan,
@@ -237,6 +306,7 @@ fn build(
             ));
         }
     }
+    check_paths(plan)?;
     let bind = c.bind.unwrap_or(Ipv4Addr::UNSPECIFIED);
     let transports = plan
         .transports
