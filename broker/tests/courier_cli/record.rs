@@ -451,6 +451,38 @@ fn a_damaged_recording_says_where_and_replays_what_is_intact() {
         )
     );
 
+    // a recorder killed (kill -9) while a chunk was open leaves the chunk
+    // record's header with the placeholder length (u64::MAX) the writer
+    // fills in when it closes the chunk: the same bytes here, after the
+    // second message's chunk
+    let killed = dir.file("killed.mcap");
+    let (at, len) = ch[2];
+    let mut b = bytes[..at + len].to_vec();
+    let open_at = b.len();
+    b.push(0x06);
+    b.extend_from_slice(&u64::MAX.to_le_bytes());
+    // start and end times, uncompressed size (placeholder), CRC,
+    // compression, compressed size (placeholder): as the writer left them
+    b.extend_from_slice(&[0; 16]);
+    b.extend_from_slice(&u64::MAX.to_le_bytes());
+    b.extend_from_slice(&[0; 4]);
+    b.extend_from_slice(&4u32.to_le_bytes());
+    b.extend_from_slice(b"zstd");
+    b.extend_from_slice(&u64::MAX.to_le_bytes());
+    std::fs::write(&killed, &b).unwrap();
+    let (code, err) = replay_damaged(&c, &killed, &all[..2]);
+    assert_eq!(code, 1);
+    assert_eq!(
+        err,
+        format!(
+            "courier: {killed}: the chunk at byte {open_at} was left unfinished: the recorder \
+             was stopped before it wrote it (its length is still the placeholder), so its \
+             messages are lost\n{}",
+            damaged(&killed)
+        )
+    );
+    assert!(!err.contains("18446744073709551615"), "{err}");
+
     // not MCAP at all: nothing to replay
     let junk = dir.file("junk.mcap");
     std::fs::write(&junk, b"hello, world").unwrap();
@@ -496,7 +528,19 @@ fn ctrl_c_finishes_the_recording_and_replay_loops() {
     let file = dir.file("int.mcap");
     let c = Central::start();
     let u = c.url.as_str();
-    let mut rec = Proc::start(&["--progress", "always", "record", u, "text", "-o", &file]);
+    // --count 0: no limit, as pub --count 0 (the recording goes on until
+    // Ctrl-C)
+    let mut rec = Proc::start(&[
+        "--progress",
+        "always",
+        "record",
+        u,
+        "text",
+        "-o",
+        &file,
+        "--count",
+        "0",
+    ]);
     rec.expect("ready");
     publish(u, "text", "string", "one");
     publish(u, "text", "string", "two");
@@ -565,8 +609,8 @@ fn bad_flags_are_usage_errors() {
             "the following required arguments were not provided:\n  --output <FILE.mcap>",
         ),
         (
-            &["record", u, "a", "-o", "x", "--count", "0"][..],
-            "invalid value '0' for '--count <N>'",
+            &["record", u, "a", "-o", "x", "--duration", "0"][..],
+            "invalid value '0' for '--duration <SECS>': expected 1 or more",
         ),
         (
             &["replay", "x.mcap", u, "--rate", "0"][..],
@@ -600,5 +644,11 @@ fn bad_flags_are_usage_errors() {
         let (code, out, err) = run(args);
         assert_eq!((code, out.as_str()), (2, ""), "{args:?}: {err}");
         assert!(err.contains(want), "{args:?}: {want:?} in {err:?}");
+    }
+    // --count 0 is documented as no limit, as pub's
+    for sub in ["record", "pub"] {
+        let (code, out, _) = run(&[sub, "--help"]);
+        assert_eq!(code, 0);
+        assert!(out.contains("(0: until interrupted"), "{sub}: {out}");
     }
 }

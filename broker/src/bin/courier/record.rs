@@ -326,7 +326,7 @@ async fn record(s: &Session, o: &RecordArgs, rec: &RefCell<Recorder>) -> Result<
                 };
                 let mut r = rec.borrow_mut();
                 r.write(&smp, format)?;
-                if o.count.is_some_and(|c| r.total >= c) {
+                if o.count.is_some_and(|c| c > 0 && r.total >= c) {
                     break;
                 }
             }

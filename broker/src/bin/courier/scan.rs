@@ -3,7 +3,8 @@
 //! damage is reported with what is wrong and at which byte, the damaged
 //! part skipped (a chunk whose compressed data or CRC is bad), and reading
 //! goes on where it can (it cannot past a record whose length runs beyond
-//! the end of the file: that is where the file was cut).
+//! the end of the file: that is where the file was cut, or where a
+//! recorder killed while writing a chunk left it unfinished).
 //!
 //! Channels come from the summary section too, when the file has one: a
 //! damaged chunk that held a channel's record does not lose the channel.
@@ -153,6 +154,16 @@ impl<R: Read> Records<R> {
             u64::from_le_bytes(h[1..].try_into().unwrap_or_default()),
         );
         let left = left - 9;
+        if len == u64::MAX {
+            // the length a writer puts down before it knows it (the mcap
+            // crate's chunks), never written over: the writer stopped
+            // in the middle of this record
+            return Next::Cut(format!(
+                "the {} at byte {at} was left unfinished: the recorder was stopped before it \
+                 wrote it (its length is still the placeholder), so its messages are lost",
+                op_name(o)
+            ));
+        }
         if len > left {
             return Next::Cut(format!(
                 "truncated at byte {}: the {} record at byte {at} needs {len} bytes, {left} remain",
