@@ -88,6 +88,18 @@ fn call_an_ipc_query() {
         assert_eq!((code, out.as_str()), (1, ""), "{args:?}: {err}");
         assert!(err.ends_with(want), "{args:?}: {want:?} in {err:?}");
     }
+    // a request that does not fit the format central holds: a usage
+    // error, as one that does not fit --format (exit 2)
+    let (code, out, err) = run(&["call", u, "centroid", "[1]"]);
+    assert_eq!((code, out.as_str()), (2, ""), "{err}");
+    assert!(
+        err.starts_with(
+            "error: \"[1]\" is not a value of {string, int, <{double, double}:2>}: \
+             invalid type: a number, expected a string at line 1 column 2\n\n\
+             Usage: courier call "
+        ),
+        "{err}"
+    );
     let mut waiting = Proc::start(&["call", u, "nobody", "[1, 2]"]);
     std::thread::sleep(Duration::from_millis(500));
     waiting.signal(libc::SIGINT);

@@ -93,25 +93,34 @@ fn echo_and_pub_over_ipc_through_central() {
     let (code, _, err) = run(&["pub", u, "text", "hello world", "--format", "string"]);
     assert_eq!(code, 0, "{err}");
     assert_eq!(echo.expect(""), r#""hello world""#);
-    // failures name the message and what is wrong
+    // failures name the message and what is wrong: a message central
+    // does not know is a runtime failure (exit 1), a VALUE that does not
+    // fit the format central holds a usage error (exit 2), as one that
+    // does not fit --format
+    let (code, out, err) = run(&["pub", u, "nosuch", "1"]);
+    assert_eq!((code, out.as_str()), (1, ""), "{err}");
+    assert!(
+        err.ends_with(
+            "courier: central knows no message \"nosuch\": give its format with --format\n"
+        ),
+        "{err}"
+    );
     for (args, want) in [
         (
-            &["pub", u, "nosuch", "1"][..],
-            "courier: central knows no message \"nosuch\": give its format with --format\n",
-        ),
-        (
             &["pub", u, "path", "[1]"][..],
-            "courier: \"[1]\" is not a value of {string, int, <{double, double}:2>}: \
-             invalid type: a number, expected a string at line 1 column 2\n",
+            "error: \"[1]\" is not a value of {string, int, <{double, double}:2>}: \
+             invalid type: a number, expected a string at line 1 column 2\n\n\
+             Usage: courier pub [OPTIONS] <URL> <TOPIC> <VALUE>\n",
         ),
         (
             &["pub", u, "path", r#"["b", 3, [[3, 4]]]"#][..],
-            "courier: field 3: variable array has 1 element(s), but its size fields say 3\n",
+            "error: field 3: variable array has 1 element(s), but its size fields say 3\n\n\
+             Usage: courier pub ",
         ),
     ] {
         let (code, out, err) = run(args);
-        assert_eq!((code, out.as_str()), (1, ""), "{args:?}: {err}");
-        assert!(err.ends_with(want), "{args:?}: {want:?} in {err:?}");
+        assert_eq!((code, out.as_str()), (2, ""), "{args:?}: {err}");
+        assert!(err.starts_with(want), "{args:?}: {want:?} in {err:?}");
     }
     // Ctrl-C says what was interrupted, exit 130: echo on stderr (its
     // stdout is data), pub on stdout (its stdout is events)
@@ -163,18 +172,23 @@ fn echo_and_pub_over_rtps() {
     assert_eq!(echo.expect("{"), r#"{1, 2, "hi"}"#);
     assert_eq!(echo.expect("{"), r#"{1, 2, "hi"}"#);
     assert_eq!(echo.wait(), Some(0));
-    // ROS 2's std_msgs/String, as JSON
-    let mut echo = Proc::start(&["echo", &u, "rt/chatter", "--count", "1", "--json"]);
-    let (code, _, err) = run(&[
-        "pub",
-        &u,
-        "rt/chatter",
-        r#"["hello ros"]"#,
-        "--type",
-        "std_msgs::msg::dds_::String_",
-    ]);
-    assert_eq!(code, 0, "{err}");
+    // ROS 2's std_msgs/String, as JSON, as a JSON string and as plain
+    // text (its only field is a string)
+    let mut echo = Proc::start(&["echo", &u, "rt/chatter", "--count", "3", "--json"]);
+    for value in [r#"["hello ros"]"#, r#""hello json""#, "hello plain text"] {
+        let (code, _, err) = run(&[
+            "pub",
+            &u,
+            "rt/chatter",
+            value,
+            "--type",
+            "std_msgs::msg::dds_::String_",
+        ]);
+        assert_eq!(code, 0, "{value}: {err}");
+    }
     assert_eq!(echo.expect(""), r#"["hello ros"]"#);
+    assert_eq!(echo.expect(""), r#"["hello json"]"#);
+    assert_eq!(echo.expect(""), r#"["hello plain text"]"#);
     assert_eq!(echo.wait(), Some(0));
     // any type whose layout an IPC format describes: a participant of the
     // test subscribes a derived type, pub writes it through the format,
@@ -243,12 +257,13 @@ fn echo_and_pub_over_rtps() {
         "{}",
         cyclone.stderr()
     );
+    // a type Courier does not know, without its layout: a usage error
     let (code, _, err) = run(&["pub", &u, "t", "[1]", "--type", "x::Y", "--wait", "0"]);
-    assert_eq!(code, 1, "{err}");
+    assert_eq!(code, 2, "{err}");
     assert!(
-        err.ends_with(
-            "courier: type \"x::Y\" is not one Courier knows (courier::Ping, \
-             std_msgs::msg::dds_::String_)\n"
+        err.starts_with(
+            "error: type \"x::Y\" is not one Courier knows (courier::Ping, \
+             std_msgs::msg::dds_::String_): give its layout with --format\n"
         ),
         "{err}"
     );

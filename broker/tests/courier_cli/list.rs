@@ -14,6 +14,30 @@ fn list_on_an_empty_domain_says_it_found_nobody() {
     );
 }
 
+/// A central with no module but the listing's and no message: said on
+/// stderr, as for an empty DDS domain, the list itself (stdout) empty.
+#[test]
+fn list_on_an_empty_central_says_it_found_nothing() {
+    let c = Central::start();
+    let (code, out, err) = run(&["list", &c.url]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out, "", "the list itself is empty");
+    let addr = c.url.trim_start_matches("ipc://");
+    assert_eq!(
+        err,
+        format!(
+            "courier: no module but this listing and no message found at central at {addr} \
+             (another central, or the modules not started yet?)\n"
+        )
+    );
+    // a module and no message: it is listed, and nothing more is said
+    let _m = c.session("lonely");
+    let (code, out, err) = run(&["list", &c.url]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.starts_with("module lonely host="), "{out}");
+    assert_eq!(err, "");
+}
+
 #[test]
 fn list_what_dds_discovery_finds() {
     let u = url(250);

@@ -157,3 +157,56 @@ fn pub_and_echo_over_xrce() {
     drop(publ);
     rt.block_on(a.shutdown());
 }
+
+/// `courier pub` on XRCE without --type publishes courier::Ping, as on
+/// rtps:// and as `pub --help` says: a Ping's JSON goes out as one, text
+/// that is no Ping is a usage error that says the type was the default
+/// and names --type. With the type named, a struct of one string takes
+/// plain text (ROS 2's std_msgs/String).
+#[test]
+fn pub_over_xrce_defaults_to_ping_and_takes_plain_text() {
+    let (rt, a, u) = agent(276);
+    let mut echo = Proc::start(&[
+        "echo",
+        &u,
+        "pings",
+        "--type",
+        "courier::Ping",
+        "--count",
+        "1",
+    ]);
+    let mut publ = Proc::start(&[
+        "pub",
+        &u,
+        "pings",
+        r#"[1, 2, "x"]"#,
+        "--rate",
+        "10",
+        "--count",
+        "0",
+    ]);
+    publ.expect("ready");
+    publ.expect("sent 1");
+    assert_eq!(echo.expect(""), r#"{1, 2, "x"}"#);
+    assert_eq!(echo.wait(), Some(0));
+    drop(publ);
+    let (code, out, err) = crate::run(&["pub", &u, "chatter", "hello"]);
+    assert_eq!((code, out.as_str()), (2, ""), "{err}");
+    assert!(
+        err.starts_with("error: \"hello\" is not a value of {uint, ulong, string}: ")
+            && err.contains("; without --type the type is courier::Ping")
+            && err.contains("name another with --type"),
+        "{err}"
+    );
+    let ros = "std_msgs::msg::dds_::String_";
+    let mut echo = Proc::start(&["echo", &u, "chatter", "--type", ros, "--count", "1"]);
+    let mut publ = Proc::start(&[
+        "pub", &u, "chatter", "hello", "--type", ros, "--rate", "10", "--count", "0",
+    ]);
+    publ.expect("ready");
+    publ.expect("sent 1");
+    assert_eq!(echo.expect(""), r#"{"hello"}"#);
+    assert_eq!(echo.wait(), Some(0));
+    drop(publ);
+    rt.block_on(a.shutdown());
+}

@@ -91,7 +91,7 @@ fn usage_errors_name_the_problem() {
         (&["echo", u][..], "required arguments were not provided"),
         (
             &["pub", "ipc://127.0.0.1:1", "t", "1", "--type", "x"][..],
-            "--type is for rtps:// sessions; on ipc:// give --format",
+            "--type is for DDS sessions (rtps://, xrce+…://); on ipc:// give --format",
         ),
         (
             &["pub", u, "t", "1", "--format", "int"][..],
@@ -125,7 +125,7 @@ fn usage_errors_name_the_problem() {
         ),
         (
             &["call", "ipc://127.0.0.1:1", "q", "1", "--type", "x"][..],
-            "--type and --reply-type are for rtps:// sessions",
+            "--type and --reply-type are for DDS sessions (rtps://, xrce+…://)",
         ),
         (
             &["call", u, "q", "1", "--reply-format", "int"][..],
@@ -145,6 +145,35 @@ fn usage_errors_name_the_problem() {
         assert!(err.starts_with("error: "), "{args:?}: {err}");
         assert!(err.contains(want), "{args:?}: {want:?} in {err}");
         assert!(out.is_empty(), "{args:?}: {out}");
+    }
+    // a --count, --duration, … of 0 says what it takes, not clap's open
+    // range (1..18446744073709551615)
+    for (args, want) in [
+        (
+            &["ping", u, "--subscribe", "--count", "0"][..],
+            "invalid value '0' for '--count <N>': expected 1 or more",
+        ),
+        (
+            &["echo", u, "t", "--duration", "0"][..],
+            "invalid value '0' for '--duration <SECS>': expected 1 or more",
+        ),
+        (
+            &["replay", "x.mcap", u, "--transient-local", "--depth", "0"][..],
+            "invalid value '0' for '--depth <N>': expected 1 or more",
+        ),
+        (
+            &["perf", "sub", u, "--count", "0"][..],
+            "invalid value '0' for '--count <N>': expected 1 or more",
+        ),
+        (
+            &["call", u, "q", "1", "--timeout", "x"][..],
+            "invalid value 'x' for '--timeout <MS>': expected a whole number, 1 or more",
+        ),
+    ] {
+        let (code, _, err) = run(args);
+        assert_eq!(code, 2, "{args:?}: {err}");
+        assert!(err.contains(want), "{args:?}: {want:?} in {err}");
+        assert!(!err.contains("18446744073709551615"), "{args:?}: {err}");
     }
     // no command at all: the help, as a usage error
     let (code, _, err) = run(&[]);
@@ -167,6 +196,130 @@ fn usage_errors_name_the_problem() {
         assert_eq!(code, 0, "{args:?}: {err}");
         assert!(out.contains(want), "{args:?}: {want:?} in {out}");
     }
+}
+
+/// Options that need --type name the URL's own scheme, XRCE's too.
+#[test]
+fn format_without_type_names_the_urls_scheme() {
+    let x = "xrce+udp://127.0.0.1:1?domain=3";
+    for (args, want) in [
+        (
+            &["call", x, "svc", "5", "--format", "int"][..],
+            "error: --format on xrce+udp:// needs --type: the DDS type name the service matches on",
+        ),
+        (
+            &["call", x, "svc", "5", "--reply-format", "int"][..],
+            "error: --reply-format on xrce+udp:// needs --reply-type (or --type)",
+        ),
+        (
+            &["pub", x, "t", "5", "--format", "int"][..],
+            "error: --format on xrce+udp:// needs --type: the DDS type name subscribers match on",
+        ),
+        (
+            &["pub", "XRCE+TCP://127.0.0.1:1", "t", "5", "--format", "int"][..],
+            "error: --format on xrce+tcp:// needs --type",
+        ),
+    ] {
+        let (code, out, err) = run(args);
+        assert_eq!((code, out.as_str()), (2, ""), "{args:?}: {err}");
+        assert!(err.starts_with(want), "{args:?}: {want:?} in {err}");
+    }
+}
+
+/// A VALUE (pub) or REQUEST (call) that does not fit its type is a usage
+/// error, as the README and `courier --help` say (exit 2), found before
+/// anything connects when the command line gives the type: nobody listens
+/// at these URLs. Without --type on DDS the type is courier::Ping, and
+/// the error says so, on rtps:// and xrce+…:// alike.
+#[test]
+fn values_that_do_not_fit_are_usage_errors() {
+    let u = url(204);
+    let u = u.as_str();
+    let x = "xrce+udp://127.0.0.1:1?domain=3";
+    let dead = "ipc://127.0.0.1:1";
+    let ping = "; without --type the type is courier::Ping ([seq, stamp_ns, \"text\"]): \
+                name another with --type (with --format for one Courier does not know)";
+    for (args, want) in [
+        (
+            &["pub", dead, "t", "notjson", "--format", "int"][..],
+            "error: \"notjson\" is not a value of int: ".to_string(),
+        ),
+        (
+            &["pub", u, "t", "notjson", "--format", "int", "--type", "I"][..],
+            "error: \"notjson\" is not a value of int: ".to_string(),
+        ),
+        (
+            &[
+                "pub",
+                dead,
+                "t",
+                "[1, [1, 2]]",
+                "--format",
+                "{int, <int:1>}",
+            ][..],
+            "error: field 2: variable array has 2 element(s), but its size fields say 1"
+                .to_string(),
+        ),
+        (
+            &["call", dead, "q", "notjson", "--format", "int"][..],
+            "error: \"notjson\" is not a value of int: ".to_string(),
+        ),
+        (
+            &[
+                "call",
+                x,
+                "q",
+                "[1]",
+                "--format",
+                "{int, int}",
+                "--type",
+                "P",
+                "--reply-format",
+                "int",
+            ][..],
+            "error: \"[1]\" is not a value of {int, int}: ".to_string(),
+        ),
+        (
+            &["pub", u, "t", "[1]", "--type", "x::Y"][..],
+            "error: type \"x::Y\" is not one Courier knows (courier::Ping, \
+             std_msgs::msg::dds_::String_): give its layout with --format"
+                .to_string(),
+        ),
+        (
+            &["call", u, "q", "[1]", "--reply-type", "x::Y"][..],
+            "error: type \"x::Y\" is not one Courier knows (courier::Ping, \
+             std_msgs::msg::dds_::String_): give the reply's layout with --reply-format"
+                .to_string(),
+        ),
+    ] {
+        let (code, out, err) = run(args);
+        assert_eq!((code, out.as_str()), (2, ""), "{args:?}: {err}");
+        assert!(err.starts_with(&want), "{args:?}: {want:?} in {err}");
+    }
+    // no --type: courier::Ping, said with the error
+    for args in [
+        &["pub", x, "chatter", "hello"][..],
+        &["pub", u, "chatter", "hello"][..],
+        &["call", x, "svc", "hello"][..],
+        &["call", u, "svc", "hello"][..],
+    ] {
+        let (code, out, err) = run(args);
+        assert_eq!((code, out.as_str()), (2, ""), "{args:?}: {err}");
+        let first = err.lines().next().unwrap_or_default();
+        assert!(
+            first.starts_with("error: \"hello\" is not a value of {uint, ulong, string}: ")
+                && first.ends_with(ping),
+            "{args:?}: {err}"
+        );
+    }
+    // and pub --help says it
+    let (code, out, _) = run(&["pub", "--help"]);
+    assert_eq!(code, 0);
+    assert!(
+        out.contains("or without --type\ncourier::Ping (the samples of `courier ping`)")
+            && out.contains("A VALUE that does not fit the\ntype is a usage error (exit 2)"),
+        "{out}"
+    );
 }
 
 /// The commonest slip with replay, the URL first and the recording second,

@@ -1,7 +1,12 @@
 //! `courier call <url> <query> <request>`: one query (IPC) or service call
 //! (DDS, ROS 2 style), the reply printed decoded (like `ros2 service
-//! call`, `z_get`). On DDS the types are ones Courier knows, or any laid
-//! out as an IPC format (`--format`, `--reply-format`, see `cdr_value`).
+//! call`, `z_get`). On DDS the types are ones Courier knows (default
+//! `courier::Ping`), or any laid out as an IPC format (`--format`,
+//! `--reply-format`, see `cdr_value`).
+//!
+//! A REQUEST that does not fit its type is a usage error (exit 2): checked
+//! before connecting when the command line gives the type, else once
+//! central has said the query's format ([`crate::cli::LateUsage`]).
 
 use std::cell::Cell;
 use std::time::{Duration, Instant};
@@ -9,9 +14,9 @@ use std::time::{Duration, Instant};
 use courier::format::Format;
 use courier::{Handle, QueryError, Session};
 
-use crate::cli::{kind, CallArgs, Kind};
+use crate::cli::{kind, CallArgs, Kind, LateUsage};
 use crate::connect::connect;
-use crate::dds_type::DdsType;
+use crate::dds_type::{default_type_note, DdsType};
 use crate::stop::{run_session, Ended, Stop};
 use crate::text::out;
 use crate::values::{parse_value, Decoded, Style};
@@ -64,6 +69,38 @@ fn failed(o: &CallArgs, e: QueryError, timeout: Duration) -> crate::Error {
     }
 }
 
+/// The request's bytes when the command line alone gives its type (all but
+/// IPC without `--format`, whose format central holds), or why the types
+/// or the REQUEST do not do (a usage error).
+pub fn request_offline(o: &CallArgs) -> Option<std::result::Result<Vec<u8>, String>> {
+    match kind(&o.url) {
+        Kind::Ipc => o.format.as_ref().map(|f| ipc_request(f, &o.request)),
+        Kind::Dds => Some(dds_types(o).and_then(|(req, _)| {
+            req.encode(&o.request)
+                .map_err(|e| format!("{e}{}", default_type_note(o.type_name.as_deref())))
+        })),
+    }
+}
+
+/// A REQUEST of format `f` in IPC marshalling, or why it does not fit.
+fn ipc_request(f: &Format, request: &str) -> std::result::Result<Vec<u8>, String> {
+    parse_value(f, request)?
+        .to_ipc_bytes(f)
+        .map_err(|e| e.to_string())
+}
+
+/// The request's and the reply's DDS types.
+fn dds_types(o: &CallArgs) -> std::result::Result<(DdsType, DdsType), String> {
+    let req = DdsType::new(o.format.as_ref(), o.type_name.as_deref())
+        .map_err(|e| format!("{e}: give its layout with --format"))?;
+    let resp = match (&o.reply_format, &o.reply_type) {
+        (None, None) if o.format.is_none() => DdsType::new(None, o.type_name.as_deref()),
+        (f, t) => DdsType::new(f.as_ref(), t.as_deref().or(o.type_name.as_deref())),
+    }
+    .map_err(|e| format!("{e}: give the reply's layout with --reply-format"))?;
+    Ok((req, resp))
+}
+
 async fn ipc_call(
     s: &Session,
     o: &CallArgs,
@@ -94,7 +131,8 @@ async fn ipc_call(
             })?
         }
     };
-    let data = parse_value(&format, &o.request)?.to_ipc_bytes(&format)?;
+    // checked before connecting when --format gave the format
+    let data = ipc_request(&format, &o.request).map_err(|msg| LateUsage { sub: "call", msg })?;
     asked.set(Some(Instant::now()));
     let (reply_msg, data, order) = s
         .query_raw(&o.query, &data, timeout)
@@ -118,11 +156,8 @@ async fn dds_call(
     timeout: Duration,
     asked: &Cell<Option<Instant>>,
 ) -> Result<Decoded> {
-    let req = DdsType::new(o.format.as_ref(), o.type_name.as_deref())?;
-    let resp = match (&o.reply_format, &o.reply_type) {
-        (None, None) if o.format.is_none() => DdsType::new(None, o.type_name.as_deref())?,
-        (f, t) => DdsType::new(f.as_ref(), t.as_deref().or(o.type_name.as_deref()))?,
-    };
+    // both checked before connecting
+    let (req, resp) = dds_types(o)?;
     let data = req.encode(&o.request)?;
     let b = s.backend();
     let client = b

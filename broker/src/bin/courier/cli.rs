@@ -18,10 +18,13 @@ Session URLs:
                            takes CENTRALHOST, then localhost:1381
   rtps://DOMAIN?OPTIONS    DDS over RTPS, e.g. rtps://0?interface=lo&peers=127.0.0.1
   xrce+udp://HOST:PORT     DDS through a DDS-XRCE agent (also xrce+tcp://, xrce+serial:///dev/…);
-                           the agent says nothing of readers; echo and pub take --type there
+                           the agent says nothing of readers; echo, hz, bw and spy need --type
+                           there (the agent creates typed readers); pub and call default to
+                           courier::Ping without one, as on rtps://
 
 Exit status: 0 done; 1 a runtime failure (the message says which); 2 a usage
-error; 128+N stopped by signal N before it was done (130 Ctrl-C, 143 SIGTERM).
+error (a bad option, URL or VALUE: one that does not fit its type); 128+N
+stopped by signal N before it was done (130 Ctrl-C, 143 SIGTERM).
 `courier <command> --help` describes a command and what it prints.";
 
 /// Command-line tools over any Courier session URL.
@@ -120,11 +123,13 @@ string. The reply goes to stdout on one line, decoded as `courier echo` prints
 samples (--json for JSON).
 On ipc:// an IPC query (IPC_queryResponse): the request's format is --format or
 the one central holds for QUERY, the reply's --reply-format or the one central
-holds for the reply's message. On rtps:// a ROS 2 style service call (topics
-rq/QUERYRequest and rr/QUERYReply) with types named by --type (default
-courier::Ping) and --reply-type (default: --type): ones Courier knows, or any
-laid out as --format / --reply-format (as #[derive(IpcMessage)] lays it out).
-Exit 1 when no reply comes within --timeout.";
+holds for the reply's message. On rtps:// and xrce+…:// a ROS 2 style service
+call (topics rq/QUERYRequest and rr/QUERYReply) with types named by --type
+(default courier::Ping: [seq, stamp_ns, \"text\"]) and --reply-type (default:
+--type): ones Courier knows, or any laid out as --format / --reply-format (as
+#[derive(IpcMessage)] lays it out).
+A REQUEST that does not fit its type is a usage error (exit 2); exit 1 when no
+reply comes within --timeout.";
 
 const ECHO_OUTPUT: &str = "\
 Each sample on one line of stdout: as central's data log prints data ({1, \"a\",
@@ -150,7 +155,8 @@ courier_getModules) and every message central lists (x_ipc_getMessages):
   message <name> class=publish|query|… format=<format>|- handlers=<n> module=<first handler's>|-
 (from the C central, which has no module list and whose x_ipc_getMessageInfo
 crashes on a message subscribed but never defined, each message as --message
-prints it). With names:
+prints it). Finding nothing (no participant; no other module and no message),
+it says so on stderr and lists nothing. With names:
   module <name> connected|not-connected          for each --module
   message <name> format=<format>|- handlers=<n>  for each --message (or: unknown)
   ready, then module <name> connected|disconnected and message <name> handlers=<n>
@@ -159,12 +165,15 @@ prints it). With names:
 const PUB_OUTPUT: &str = "\
 VALUE is JSON guided by the format ([1, \"a\", [0.5, 1]] for {int, string, [double:2]};
 enums by name or number; null for a NULL pointer), or plain text for a string, a
-char or an enum's name (hello world, Send).
+char or an enum's name (hello world, Send), also when it is the only field of a
+struct ({string}, as std_msgs::msg::dds_::String_). A VALUE that does not fit the
+type is a usage error (exit 2).
 The type: on ipc:// --format, else the format central holds for the message; on
-rtps:// --type with --format (any DDS type whose layout an IPC format describes,
-as #[derive(IpcMessage)] lays it out; no pointers), or --type alone naming one
-Courier knows (courier::Ping: [seq, stamp_ns, \"text\"];
-std_msgs::msg::dds_::String_: [\"text\"]).
+rtps:// and xrce+…:// --type with --format (any DDS type whose layout an IPC
+format describes, as #[derive(IpcMessage)] lays it out; no pointers), or --type
+alone naming one Courier knows (courier::Ping: [seq, stamp_ns, \"text\"];
+std_msgs::msg::dds_::String_: [\"text\"] or text), or without --type
+courier::Ping (the samples of `courier ping`).
 It waits for --wait subscribers first (a sample nobody subscribes is not sent on
 IPC and reaches nobody on DDS), then publishes --count samples at --rate.
 A DDS reader matches only a writer of its kind (keyed or not), which a format does
@@ -295,11 +304,11 @@ pub struct RecordArgs {
     /// Replace the file if it exists
     #[arg(long)]
     pub overwrite: bool,
-    /// Stop after N messages
-    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    /// Stop after N messages (0: until interrupted, as without --count)
+    #[arg(long, value_name = "N")]
     pub count: Option<u64>,
     /// Stop after this long
-    #[arg(long, value_name = "SECS", value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, value_name = "SECS", value_parser = at_least_1)]
     pub duration: Option<u64>,
     /// Write chunks uncompressed
     #[arg(long)]
@@ -339,11 +348,27 @@ pub struct ReplayArgs {
     #[arg(long)]
     pub transient_local: bool,
     /// --transient-local: samples kept per topic
-    #[arg(long, value_name = "N", default_value_t = 1000, requires = "transient_local", value_parser = clap::value_parser!(u32).range(1..))]
+    #[arg(long, value_name = "N", default_value_t = 1000, requires = "transient_local", value_parser = at_least_1_u32)]
     pub depth: u32,
     /// Participant / module name (%p: this process's id; IPC module names must be unique)
     #[arg(long, default_value = "courier-replay-%p")]
     pub name: String,
+}
+
+/// A whole number of at least 1 (clap's own range check would print the
+/// open range as `1..18446744073709551615`).
+pub fn at_least_1(s: &str) -> Result<u64, String> {
+    match s.parse::<u64>() {
+        Ok(0) => Err("expected 1 or more".into()),
+        Ok(n) => Ok(n),
+        Err(_) => Err("expected a whole number, 1 or more".into()),
+    }
+}
+
+/// [`at_least_1`], of at most `u32::MAX`.
+fn at_least_1_u32(s: &str) -> Result<u32, String> {
+    let n = at_least_1(s)?;
+    u32::try_from(n).map_err(|_| format!("expected at most {}", u32::MAX))
 }
 
 /// A replay's `--rate`: a factor above 0, at most a million.
@@ -377,14 +402,15 @@ pub struct CallArgs {
     /// layout of --reply-type)
     #[arg(long, value_name = "FORMAT", value_parser = crate::values::parse_format)]
     pub reply_format: Option<Format>,
-    /// DDS: the request type (one Courier knows, or any with --format)
+    /// DDS: the request type (one Courier knows, or any with --format;
+    /// default courier::Ping)
     #[arg(long = "type", value_name = "TYPE")]
     pub type_name: Option<String>,
     /// DDS: the reply type (default: --type)
     #[arg(long, value_name = "TYPE")]
     pub reply_type: Option<String>,
     /// How long to wait for the reply
-    #[arg(long, value_name = "MS", default_value_t = 5000, value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, value_name = "MS", default_value_t = 5000, value_parser = at_least_1)]
     pub timeout: u64,
     /// Print the reply as JSON
     #[arg(long)]
@@ -413,10 +439,10 @@ pub struct EchoArgs {
     #[arg(long = "type", value_name = "TYPE")]
     pub type_name: Option<String>,
     /// Exit after N samples
-    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, value_name = "N", value_parser = at_least_1)]
     pub count: Option<u64>,
     /// Exit after this long
-    #[arg(long, value_name = "SECS", value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, value_name = "SECS", value_parser = at_least_1)]
     pub duration: Option<u64>,
     /// Participant / module name (%p: this process's id; IPC module names must be unique)
     #[arg(long, default_value = "courier-echo-%p")]
@@ -434,7 +460,7 @@ pub struct RateArgs {
     #[arg(long, value_name = "N", default_value_t = 10_000, value_parser = clap::value_parser!(u64).range(2..=1_000_000))]
     pub window: u64,
     /// hz: count intervals longer than this as gaps (default: twice the mean)
-    #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, value_name = "MS", value_parser = at_least_1)]
     pub gap: Option<u64>,
     /// DDS: subscribe as this type (required on xrce+…://, whose agent
     /// creates a typed reader; a type Courier knows, or laid out as --format)
@@ -444,10 +470,10 @@ pub struct RateArgs {
     #[arg(long, value_name = "FORMAT", value_parser = crate::values::parse_format, requires = "type_name")]
     pub format: Option<Format>,
     /// Exit after N samples
-    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, value_name = "N", value_parser = at_least_1)]
     pub count: Option<u64>,
     /// Exit after this long
-    #[arg(long, value_name = "SECS", value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, value_name = "SECS", value_parser = at_least_1)]
     pub duration: Option<u64>,
     /// Participant / module name (%p: this process's id; IPC module names must be unique)
     #[arg(long, default_value = "courier-rate-%p")]
@@ -461,14 +487,16 @@ pub struct PubArgs {
     pub url: String,
     /// Topic (IPC: message name)
     pub topic: String,
-    /// The value: JSON, or plain text for a string, char or enum name
+    /// The value: JSON, or plain text for a string, char or enum name (or a
+    /// struct of one of them)
     #[arg(allow_hyphen_values = true)]
     pub value: String,
     /// The format (IPC: defines the message in central; DDS: the CDR layout
     /// of --type)
     #[arg(long, value_name = "FORMAT", value_parser = crate::values::parse_format)]
     pub format: Option<Format>,
-    /// DDS: the type name (one Courier knows, or any with --format)
+    /// DDS: the type name (one Courier knows, or any with --format; default
+    /// courier::Ping)
     #[arg(long = "type", value_name = "TYPE")]
     pub type_name: Option<String>,
     /// Samples to publish (0: until interrupted)
@@ -521,14 +549,14 @@ pub struct PingArgs {
     #[arg(long, value_name = "TOPIC", default_value = "pong")]
     pub reply_topic: String,
     /// Publishing period (default 1000; --rtt: none, round trips back to back)
-    #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, value_name = "MS", value_parser = at_least_1)]
     pub period: Option<u64>,
     /// --rtt: a ping not answered within this long counts as lost
-    #[arg(long, value_name = "MS", default_value_t = 1000, value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, value_name = "MS", default_value_t = 1000, value_parser = at_least_1)]
     pub timeout: u64,
     /// Stop after N samples sent or received, or N round trips (default: run
     /// until interrupted)
-    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, value_name = "N", value_parser = at_least_1)]
     pub count: Option<u64>,
     /// Text length of each sample
     #[arg(long, value_name = "BYTES", default_value_t = 0, value_parser = clap::value_parser!(u64).range(..=MAX_SIZE))]
@@ -557,7 +585,7 @@ pub struct QosArgs {
     pub exclusive: bool,
     /// Publisher: offered deadline; subscriber: requested deadline, each miss
     /// prints `deadline missed <total>`
-    #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u64).range(1..), conflicts_with = "rtt")]
+    #[arg(long, value_name = "MS", value_parser = at_least_1, conflicts_with = "rtt")]
     pub deadline: Option<u64>,
     /// Subscriber: minimum separation between samples
     #[arg(long, value_name = "MS", conflicts_with_all = ["publish", "rtt"])]
@@ -602,7 +630,7 @@ pub struct ListArgs {
     #[arg(long)]
     pub watch: bool,
     /// How long to listen (default: 2 s, or for ever with --watch)
-    #[arg(long, value_name = "SECS", value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, value_name = "SECS", value_parser = at_least_1)]
     pub duration: Option<u64>,
     /// IPC: whether this module is connected (repeat for more)
     #[arg(long, value_name = "NAME")]
@@ -627,7 +655,7 @@ pub struct PongArgs {
     #[arg(long, value_name = "TOPIC", default_value = "pong")]
     pub reply_topic: String,
     /// Exit after answering N pings (ping --rtt's warm-up pings not counted)
-    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, value_name = "N", value_parser = at_least_1)]
     pub count: Option<u64>,
     /// Participant / module name (%p: this process's id; IPC module names must be unique)
     #[arg(long, default_value = "courier-pong-%p")]
@@ -647,10 +675,10 @@ pub struct SpyArgs {
     #[arg(long = "type", value_name = "PATTERN", default_value = "*")]
     pub type_name: String,
     /// Exit after N samples
-    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, value_name = "N", value_parser = at_least_1)]
     pub count: Option<u64>,
     /// Exit after this long
-    #[arg(long, value_name = "SECS", value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, value_name = "SECS", value_parser = at_least_1)]
     pub duration: Option<u64>,
     /// Participant / module name (%p: this process's id; IPC module names must be unique)
     #[arg(long, default_value = "courier-spy-%p")]
@@ -668,6 +696,13 @@ pub enum Kind {
 pub fn is_xrce(url: &str) -> bool {
     url.get(..5)
         .is_some_and(|s| s.eq_ignore_ascii_case("xrce+"))
+}
+
+/// The scheme of a URL that [`session_url`] accepted, as messages name it:
+/// `rtps://`, `xrce+udp://`.
+pub fn scheme(url: &str) -> String {
+    let s = url.split_once("://").map_or(url, |(s, _)| s);
+    format!("{}://", s.to_ascii_lowercase())
 }
 
 /// The backend of a URL that [`session_url`] accepted.
@@ -714,6 +749,25 @@ pub fn session_url(url: &str) -> Result<String, String> {
         )),
     }
 }
+
+/// A usage error found only once connected (a VALUE that does not fit
+/// the format central holds for the message): `main` prints it as
+/// [`usage_error`] does, exit 2.
+#[derive(Debug)]
+pub struct LateUsage {
+    /// The subcommand.
+    pub sub: &'static str,
+    /// What is wrong.
+    pub msg: String,
+}
+
+impl std::fmt::Display for LateUsage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.msg)
+    }
+}
+
+impl std::error::Error for LateUsage {}
 
 /// A usage error found after parsing: printed as clap prints its own, with
 /// the subcommand's usage, exit 2.
@@ -823,55 +877,82 @@ impl Cli {
                     ));
                 }
             }
-            Command::Pub(a) => match kind(&a.url) {
-                Kind::Ipc if a.type_name.is_some() => {
-                    return Err(usage_error(
-                        "pub",
-                        "--type is for rtps:// sessions; on ipc:// give --format",
-                    ))
+            Command::Pub(a) => {
+                match kind(&a.url) {
+                    Kind::Ipc if a.type_name.is_some() => {
+                        return Err(usage_error(
+                            "pub",
+                            "--type is for DDS sessions (rtps://, xrce+…://); on ipc:// give \
+                             --format",
+                        ))
+                    }
+                    Kind::Dds => {
+                        if let Some(f) = &a.format {
+                            if a.type_name.is_none() {
+                                return Err(usage_error(
+                                    "pub",
+                                    format!(
+                                        "--format on {} needs --type: the DDS type name \
+                                         subscribers match on",
+                                        scheme(&a.url)
+                                    ),
+                                ));
+                            }
+                            crate::cdr_value::check(f).map_err(|e| usage_error("pub", e))?;
+                        }
+                    }
+                    Kind::Ipc => {}
                 }
-                Kind::Dds => {
-                    if let Some(f) = &a.format {
-                        if a.type_name.is_none() {
+                // the VALUE, whenever the command line alone gives its type
+                // (all but ipc:// without --format: central holds that one)
+                if let Some(r) = crate::publish::encoder_offline(a) {
+                    let (enc, _) = r.map_err(|e| usage_error("pub", e))?;
+                    crate::publish::sample(&enc, a).map_err(|e| usage_error("pub", e))?;
+                }
+            }
+            Command::Call(a) => {
+                match kind(&a.url) {
+                    Kind::Ipc if a.type_name.is_some() || a.reply_type.is_some() => {
+                        return Err(usage_error(
+                            "call",
+                            "--type and --reply-type are for DDS sessions (rtps://, xrce+…://); \
+                             on ipc:// give --format and --reply-format",
+                        ))
+                    }
+                    Kind::Dds => {
+                        if a.format.is_some() && a.type_name.is_none() {
                             return Err(usage_error(
-                                "pub",
-                                "--format on rtps:// needs --type: the DDS type name \
-                                 subscribers match on",
+                                "call",
+                                format!(
+                                    "--format on {} needs --type: the DDS type name the service \
+                                     matches on",
+                                    scheme(&a.url)
+                                ),
                             ));
                         }
-                        crate::cdr_value::check(f).map_err(|e| usage_error("pub", e))?;
+                        if a.reply_format.is_some()
+                            && a.reply_type.is_none()
+                            && a.type_name.is_none()
+                        {
+                            return Err(usage_error(
+                                "call",
+                                format!(
+                                    "--reply-format on {} needs --reply-type (or --type)",
+                                    scheme(&a.url)
+                                ),
+                            ));
+                        }
+                        for f in a.format.iter().chain(&a.reply_format) {
+                            crate::cdr_value::check(f).map_err(|e| usage_error("call", e))?;
+                        }
                     }
+                    Kind::Ipc => {}
                 }
-                _ => {}
-            },
-            Command::Call(a) => match kind(&a.url) {
-                Kind::Ipc if a.type_name.is_some() || a.reply_type.is_some() => {
-                    return Err(usage_error(
-                        "call",
-                        "--type and --reply-type are for rtps:// sessions; on ipc:// give \
-                         --format and --reply-format",
-                    ))
+                // the REQUEST, whenever the command line alone gives its type
+                if let Some(r) = crate::call::request_offline(a) {
+                    r.map_err(|e| usage_error("call", e))?;
                 }
-                Kind::Dds => {
-                    if a.format.is_some() && a.type_name.is_none() {
-                        return Err(usage_error(
-                            "call",
-                            "--format on rtps:// needs --type: the DDS type name the service \
-                             matches on",
-                        ));
-                    }
-                    if a.reply_format.is_some() && a.reply_type.is_none() && a.type_name.is_none() {
-                        return Err(usage_error(
-                            "call",
-                            "--reply-format on rtps:// needs --reply-type (or --type)",
-                        ));
-                    }
-                    for f in a.format.iter().chain(&a.reply_format) {
-                        crate::cdr_value::check(f).map_err(|e| usage_error("call", e))?;
-                    }
-                }
-                _ => {}
-            },
+            }
             Command::List(a) if is_xrce(&a.url) => {
                 return Err(usage_error(
                     "list",

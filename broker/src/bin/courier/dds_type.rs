@@ -9,6 +9,23 @@ use courier::TypeInfo;
 use crate::values::{known_names, known_type, parse_value, Decoded, Known};
 use crate::Result;
 
+/// The DDS type `pub` and `call` use without `--type` (the samples of
+/// `courier ping`), as their `--help` says.
+pub const DEFAULT_TYPE: &str = "courier::Ping";
+
+/// What an error about a VALUE adds when no `--type` was given: that the
+/// type was the default, so that `hello` refused as not a value of `{uint,
+/// ulong, string}` says why.
+pub fn default_type_note(type_name: Option<&str>) -> &'static str {
+    match type_name {
+        Some(_) => "",
+        None => {
+            "; without --type the type is courier::Ping ([seq, stamp_ns, \"text\"]): \
+             name another with --type (with --format for one Courier does not know)"
+        }
+    }
+}
+
 fn known(name: &str) -> Result<&'static Known> {
     Ok(known_type(name)
         .ok_or_else(|| format!("type {name:?} is not one Courier knows ({})", known_names()))?)
@@ -29,7 +46,7 @@ impl DdsType {
     /// `type_name` (default `courier::Ping`) laid out as `format`, or the
     /// known type of that name.
     pub fn new(format: Option<&Format>, type_name: Option<&str>) -> Result<DdsType> {
-        let name = type_name.unwrap_or("courier::Ping");
+        let name = type_name.unwrap_or(DEFAULT_TYPE);
         Ok(match format {
             Some(f) => DdsType::Cdr(f.clone(), Box::leak(name.to_string().into_boxed_str())),
             None => DdsType::Known(known(name)?),

@@ -144,17 +144,20 @@ async fn dds(s: &Session, o: &ListArgs, seen: &Cell<u64>) -> Result<()> {
 
 /// `list ipc://` without --module / --message: every module and every
 /// message with what central holds of it (formats, class, handlers, the
-/// first handler's module) from Courier's central; from the C central,
+/// first handler's module) from Courier's central, or on stderr that there
+/// is none (as on an empty DDS domain); from the C central,
 /// which has no module list, the message names and then each message as
 /// `--message` looks it up. (C's `x_ipc_getMessageInfo` dereferences
 /// what a message subscribed but never defined lacks, and crashes that
 /// central: it is only asked of Courier's.) Returns the messages left to
 /// look up one by one.
 async fn everything(ipc: &courier::Ipc<'_>, o: &ListArgs) -> Result<Vec<String>> {
+    let mut modules_found = 0;
     let courier_central = match ipc.modules().await {
         Ok(modules) => {
             let me = crate::connect::module_name(&o.name);
             for m in modules.iter().filter(|m| m.name != me) {
+                modules_found += 1;
                 out(format_args!(
                     "module {} host={} handlers={} waiting={}",
                     word(&m.name),
@@ -177,6 +180,18 @@ async fn everything(ipc: &courier::Ipc<'_>, o: &ListArgs) -> Result<Vec<String>>
         Err(e) => return Err(e.into()),
     };
     let names = ipc.messages().await?;
+    if names.is_empty() && modules_found == 0 {
+        // stderr: stdout stays the (empty) list, for scripts
+        let what = if courier_central {
+            "no module but this listing and no message"
+        } else {
+            "no message"
+        };
+        err(format_args!(
+            "courier: {what} found at {} (another central, or the modules not started yet?)",
+            target(&o.url)
+        ));
+    }
     if !courier_central {
         return Ok(names);
     }

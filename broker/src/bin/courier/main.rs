@@ -7,8 +7,9 @@
 //!
 //! Output is one event or sample a line, flushed, so that tests and
 //! scripts can read it. Exit codes: 0 done, 1 runtime failure, 2 usage
-//! error, 128+N stopped by signal N before the command was done (then it
-//! says what it interrupted).
+//! error (a bad option, URL or VALUE; a VALUE checked only against the
+//! format central holds is a [`cli::LateUsage`]), 128+N stopped by signal
+//! N before the command was done (then it says what it interrupted).
 #![deny(unsafe_code)]
 
 mod bar;
@@ -117,6 +118,11 @@ fn main() -> ExitCode {
             ExitCode::from(ended.exit_code())
         }
         Err(e) => {
+            if let Some(u) = e.downcast_ref::<cli::LateUsage>() {
+                // a usage error the command line alone could not show
+                let _ = cli::usage_error(u.sub, &u.msg).print();
+                return ExitCode::from(2);
+            }
             err(format_args!("courier: {}", text::with_sources(&*e)));
             ExitCode::from(1)
         }

@@ -52,7 +52,9 @@ impl PerfArgs {
 #[derive(Subcommand, Debug)]
 pub enum PerfMode {
     /// Publish samples as fast as the readers take them, or at --rate
-    /// (like ddsperf pub)
+    /// (like ddsperf pub). IPC: as fast as central takes them; central
+    /// queues what a slower subscriber has not taken yet (as C's does), so
+    /// the subscriber's latency grows instead
     Pub(PerfPubArgs),
     /// Count samples and report rate, bandwidth, losses and one-way latency
     /// every second (like ddsperf sub)
@@ -75,7 +77,7 @@ pub struct PerfCommon {
     #[arg(long, value_name = "S", value_parser = positive_secs)]
     pub secs: Option<f64>,
     /// Stop after this many samples
-    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, value_name = "N", value_parser = crate::cli::at_least_1)]
     pub count: Option<u64>,
     /// Module / participant name, %p this process's id (default:
     /// courier-perf-pub-%p or courier-perf-sub-%p)
@@ -92,6 +94,7 @@ pub struct PerfPubArgs {
     #[arg(long, value_name = "BYTES", default_value_t = 0, value_parser = clap::value_parser!(u32).range(..=MAX_SIZE as i64))]
     pub size: u32,
     /// Samples per second; 0 publishes as fast as the readers take them
+    /// (IPC: as fast as central takes them)
     #[arg(long, value_name = "HZ", default_value_t = 0.0, value_parser = rate, allow_negative_numbers = true)]
     pub rate: f64,
     /// Start once this many readers (subscribing modules on IPC) matched
@@ -330,7 +333,10 @@ async fn send<T: PerfSample>(s: &Session, o: &PerfPubArgs, total: &RefCell<Tally
         if o.rate > 0.0 {
             format!("at {} Hz", o.rate)
         } else {
-            "as fast as the readers take them".to_owned()
+            match kind(&c.url) {
+                Kind::Ipc => "as fast as central takes them".to_owned(),
+                _ => "as fast as the readers take them".to_owned(),
+            }
         }
     ));
     let baggage = vec![0u8; o.size as usize];

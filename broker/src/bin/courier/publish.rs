@@ -3,9 +3,13 @@
 //! topic pub`, `z_pub`).
 //!
 //! The type: on IPC `--format`, else the format central holds for the
-//! message; on DDS `--type` with `--format` (any type, laid out as the
-//! derive lays out that format), or a type Courier knows (`--type`,
-//! default `courier::Ping`).
+//! message; on DDS (RTPS and XRCE alike) `--type` with `--format` (any
+//! type, laid out as the derive lays out that format), or a type Courier
+//! knows (`--type`, default `courier::Ping`, documented in `pub --help`).
+//!
+//! A VALUE that does not fit the type is a usage error (exit 2): checked
+//! before connecting when the command line gives the type, else once
+//! central has said the message's format ([`crate::cli::LateUsage`]).
 
 use std::cell::Cell;
 use std::time::{Duration, Instant};
@@ -15,8 +19,9 @@ use courier::ipc::Value;
 use courier::{Incompatible, PublicationQos, Session, SessionEvent, TypeInfo, WriteOptions};
 use futures::StreamExt;
 
-use crate::cli::{kind, Kind, PubArgs};
+use crate::cli::{kind, Kind, LateUsage, PubArgs};
 use crate::connect::{connect, target, PROGRESS_EVERY};
+use crate::dds_type::{default_type_note, DEFAULT_TYPE};
 use crate::ping::{Matched, LAST_ACK_BOUND};
 use crate::reader_kind::{kind_word, Publication};
 use crate::stop::{count, run_session, Ended, Stop};
@@ -43,7 +48,7 @@ pub async fn run(o: PubArgs, mut stop: Stop) -> Result<Ended> {
 }
 
 /// What a sample's bytes are made from.
-enum Encoder {
+pub enum Encoder {
     /// IPC marshalling through the format.
     Ipc(Format),
     /// A DDS type Courier knows.
@@ -74,48 +79,75 @@ fn leak(s: String) -> &'static str {
     Box::leak(s.into_boxed_str())
 }
 
-/// The type of the topic, and the publication's type information.
-async fn encoder(s: &Session, o: &PubArgs) -> Result<(Encoder, TypeInfo)> {
+/// The type of the topic and the publication's type information when the
+/// command line alone gives them: all but IPC without `--format`, whose
+/// format central holds. `Err`: `--type` names no type Courier knows (and
+/// no `--format` lays it out).
+pub fn encoder_offline(o: &PubArgs) -> Option<std::result::Result<(Encoder, TypeInfo), String>> {
     match kind(&o.url) {
-        Kind::Ipc => {
-            let ipc = s.ipc()?;
-            if let Some(f) = &o.format {
-                let ty = TypeInfo::dynamic(Some(leak(f.to_string())), "");
-                return Ok((Encoder::Ipc(f.clone()), ty));
-            }
-            let info = ipc.look_up(&o.topic).await?.ok_or_else(|| {
-                format!(
-                    "central knows no message {:?}: give its format with --format",
-                    o.topic
-                )
-            })?;
-            let f = info.res_format.ok_or_else(|| {
-                format!(
-                    "message {:?} has no format in central (raw bytes); give one with --format",
-                    o.topic
-                )
-            })?;
-            Ok((Encoder::Ipc(f), TypeInfo::untyped()))
-        }
+        Kind::Ipc => o.format.as_ref().map(|f| {
+            let ty = TypeInfo::dynamic(Some(leak(f.to_string())), "");
+            Ok((Encoder::Ipc(f.clone()), ty))
+        }),
         Kind::Dds => {
             if let (Some(f), Some(name)) = (&o.format, &o.type_name) {
                 let ty = TypeInfo::dynamic(Some(leak(f.to_string())), leak(name.clone()));
-                return Ok((Encoder::Cdr(f.clone()), ty));
+                return Some(Ok((Encoder::Cdr(f.clone()), ty)));
             }
-            let name = o.type_name.as_deref().unwrap_or("courier::Ping");
-            let k = known_type(name).ok_or_else(|| {
-                format!("type {name:?} is not one Courier knows ({})", known_names())
-            })?;
-            let ty = TypeInfo::dynamic(Some(k.format), k.type_name);
-            Ok((Encoder::Known(k), ty))
+            let name = o.type_name.as_deref().unwrap_or(DEFAULT_TYPE);
+            Some(match known_type(name) {
+                Some(k) => Ok((
+                    Encoder::Known(k),
+                    TypeInfo::dynamic(Some(k.format), k.type_name),
+                )),
+                None => Err(format!(
+                    "type {name:?} is not one Courier knows ({}): give its layout with --format",
+                    known_names()
+                )),
+            })
         }
     }
 }
 
+/// The sample's bytes: VALUE read as the type and encoded, or why it does
+/// not fit (a usage error). Without `--type` on DDS the type is the
+/// default, and the error says so.
+pub fn sample(enc: &Encoder, o: &PubArgs) -> std::result::Result<Vec<u8>, String> {
+    let note = match kind(&o.url) {
+        Kind::Dds => default_type_note(o.type_name.as_deref()),
+        Kind::Ipc => "",
+    };
+    parse_value(&enc.format(), &o.value)
+        .map_err(|e| e.to_string())
+        .and_then(|v| enc.encode(&v).map_err(|e| e.to_string()))
+        .map_err(|e| format!("{e}{note}"))
+}
+
+/// The type of the topic, and the publication's type information.
+async fn encoder(s: &Session, o: &PubArgs) -> Result<(Encoder, TypeInfo)> {
+    if let Some(r) = encoder_offline(o) {
+        return Ok(r?);
+    }
+    // IPC without --format: the one central holds
+    let info = s.ipc()?.look_up(&o.topic).await?.ok_or_else(|| {
+        format!(
+            "central knows no message {:?}: give its format with --format",
+            o.topic
+        )
+    })?;
+    let f = info.res_format.ok_or_else(|| {
+        format!(
+            "message {:?} has no format in central (raw bytes); give one with --format",
+            o.topic
+        )
+    })?;
+    Ok((Encoder::Ipc(f), TypeInfo::untyped()))
+}
+
 async fn publish(s: &Session, o: &PubArgs, sent: &Cell<u64>, waiting: &Cell<bool>) -> Result<()> {
     let (enc, ty) = encoder(s, o).await?;
-    let value = parse_value(&enc.format(), &o.value)?;
-    let data = enc.encode(&value)?;
+    // checked before connecting unless the format came from central
+    let data = sample(&enc, o).map_err(|msg| LateUsage { sub: "pub", msg })?;
     // listening before the publication exists: a reader of another type
     // already discovered is reported as the writer is created
     let ev = s.events();

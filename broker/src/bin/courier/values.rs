@@ -181,24 +181,48 @@ impl Decoded {
 /// A value given on the command line, of format `fmt`: JSON (see
 /// `courier_wire::ipc::value::ValueSeed`), or, for a format a JSON string
 /// fits (`string`, `char`, an enum's name, `format`), the text itself when
-/// it is not JSON: `hello world`, `Send`.
+/// it is not JSON: `hello world`, `Send`. The same holds for a struct
+/// whose only field takes text (`{string}`, ROS 2's `std_msgs/String`),
+/// which also takes a JSON string (`"hello"` for `["hello"]`).
 pub fn parse_value(fmt: &Format, text: &str) -> Result<Value, String> {
     let mut de = serde_json::Deserializer::from_str(text);
     let json = ValueSeed::new(fmt)
         .deserialize(&mut de)
         .and_then(|v| de.end().map(|()| v));
-    let bare = matches!(
-        fmt,
-        Format::Primitive(
-            format::Primitive::String | format::Primitive::Char | format::Primitive::Format
-        ) | Format::Enum { .. }
-    );
-    match json {
-        Ok(v) => Ok(v),
-        Err(e) if bare && (e.is_syntax() || e.is_eof()) => ValueSeed::new(fmt)
-            .deserialize(serde_json::Value::String(text.to_string()))
+    let e = match json {
+        Ok(v) => return Ok(v),
+        Err(e) => e,
+    };
+    // the text the value stands for: all of it when it is not JSON, the
+    // string when it is a JSON string given for a struct around one
+    let bare = if e.is_syntax() || e.is_eof() {
+        Some(text.to_string())
+    } else if matches!(fmt, Format::Struct(_)) {
+        serde_json::from_str::<String>(text).ok()
+    } else {
+        None
+    };
+    match bare.and_then(|t| as_text(fmt, t)) {
+        Some(j) => ValueSeed::new(fmt)
+            .deserialize(j)
             .map_err(|e| format!("{text:?} is not a value of {fmt}: {e}")),
-        Err(e) => Err(format!("{text:?} is not a value of {fmt}: {e}")),
+        None => Err(format!("{text:?} is not a value of {fmt}: {e}")),
+    }
+}
+
+/// The JSON `text` stands for as a value of `fmt`, when `fmt` takes text:
+/// a string for a `string`, `char`, enum or `format`, inside one array for
+/// each struct of one field around one.
+fn as_text(fmt: &Format, text: String) -> Option<serde_json::Value> {
+    match fmt {
+        Format::Primitive(
+            format::Primitive::String | format::Primitive::Char | format::Primitive::Format,
+        )
+        | Format::Enum { .. } => Some(serde_json::Value::String(text)),
+        Format::Struct(fields) if fields.len() == 1 => {
+            as_text(&fields[0], text).map(|v| serde_json::Value::Array(vec![v]))
+        }
+        _ => None,
     }
 }
 
@@ -309,6 +333,27 @@ mod tests {
         assert_eq!(parse_value(&c, "x").unwrap(), Value::Char(b'x'));
         let e = parse_value(&i, "1 2").unwrap_err();
         assert!(e.contains("is not a value of {int, double}"), "{e}");
+        // a struct whose only field takes text (ROS 2's std_msgs/String):
+        // plain text, a JSON string, or JSON as the struct
+        let ros = known_type("std_msgs::msg::dds_::String_").unwrap().parsed();
+        for text in ["hello world", "\"hello world\"", "[\"hello world\"]"] {
+            assert_eq!(
+                parse_value(&ros, text).unwrap(),
+                Value::Struct(vec![Value::from("hello world")]),
+                "{text}"
+            );
+        }
+        let nested = parse_format("{{enum Wait, Send}}").unwrap();
+        assert_eq!(
+            parse_value(&nested, "Send").unwrap(),
+            Value::Struct(vec![Value::Enum(1)])
+        );
+        // a struct of more fields takes JSON only
+        let e = parse_value(&known_type("courier::Ping").unwrap().parsed(), "hello").unwrap_err();
+        assert!(
+            e.starts_with("\"hello\" is not a value of {uint, ulong, string}: "),
+            "{e}"
+        );
         let e = parse_format("{int, T1}").unwrap_err();
         assert!(e.contains("named format"), "{e}");
         let e = parse_format("{int").unwrap_err();
