@@ -976,6 +976,20 @@ fn log(e: &BridgeEvent) {
             object.0,
             u32::from(*client)
         ),
+        BridgeEvent::SampleTooLarge {
+            client,
+            object,
+            len,
+            max,
+        } => tracing::warn!(
+            "{} {:#06x} of client 0x{:08X} reads best effort, and a sample of {len} bytes does \
+             not fit its best-effort stream ({max} at most: the client's MTU): dropped, and so \
+             will be every such sample (only reliable streams fragment: read reliably, or give \
+             the client a larger MTU)",
+            kind(*object),
+            object.0,
+            u32::from(*client)
+        ),
         _ => {}
     }
 }

@@ -855,6 +855,56 @@ fn delivery_control_max_samples_and_best_effort() {
     assert_eq!(w.data(c), (0..10).map(|i| sample(i, 8)).collect::<Vec<_>>());
 }
 
+/// A best-effort reading gets only samples that fit one message of the
+/// client's MTU (only reliable streams fragment): a larger one is dropped,
+/// counted, and reported once per reader; the small ones go on.
+#[test]
+fn a_sample_too_large_for_a_best_effort_reading_is_reported_once() {
+    let mut w = world(6, 0, |_, _| {});
+    let now = w.net.now();
+    let dw = w
+        .dds()
+        .create_writer(
+            EndpointConfig::writer("Big", "HelloWorld").qos(reliable_keep_all(false)),
+            now,
+        )
+        .unwrap();
+    let c = w.add_client(10, 0xAAAA_0015);
+    w.create(c, reader_objects("Big", false), CreationMode::REPLACE);
+    assert!(w.run_until(Duration::from_secs(10), |w| {
+        match &w.net.hosts[w.dds].node {
+            N::Dds(d, _) => d.matched_readers(dw) == 1,
+            _ => false,
+        }
+    }));
+    let now = w.net.now();
+    w.client(c)
+        .read(oid(ObjectKind::DataReader), R, BE, unlimited(), now)
+        .unwrap();
+    w.run_until(Duration::from_millis(200), |_| false);
+    // small, too large (twice), small
+    for (i, len) in [(0, 8), (1, 3000), (2, 3000), (3, 8)] {
+        let now = w.net.now();
+        w.dds()
+            .write(dw, Change::alive_owned(encapsulated(&sample(i, len))), now)
+            .unwrap();
+    }
+    assert!(w.run_until(Duration::from_secs(5), |w| w.data(c).len() == 2));
+    assert_eq!(w.data(c), vec![sample(0, 8), sample(3, 8)]);
+    assert_eq!(w.bridge().stats().samples_dropped, 2);
+    let reports: Vec<(usize, usize)> = w.net.hosts[w.bridge]
+        .events
+        .iter()
+        .filter_map(|e| match e {
+            Ev::Bridge(BridgeEvent::SampleTooLarge { len, max, .. }) => Some((*len, *max)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(reports.len(), 1, "once per reader: {reports:?}");
+    let (len, max) = reports[0];
+    assert!(len > 3000 && max < len, "{len} > {max}");
+}
+
 fn xml(s: &str) -> Representation {
     Representation::Xml(s.into())
 }

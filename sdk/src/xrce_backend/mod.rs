@@ -38,7 +38,12 @@
 //!   on the stream its reliability picks. A full keep-all queue of a
 //!   reliable subscription stops the reading of the link until the
 //!   application takes a sample: the agent's reliable window then holds
-//!   the rest (back-pressure); a best-effort one drops and counts.
+//!   the rest (back-pressure); a best-effort one drops and counts. A
+//!   best-effort subscription gets only samples that fit one message of
+//!   the session's MTU (`mtu=`, 508 bytes by default): only reliable
+//!   streams fragment, so the agent drops larger ones before they reach
+//!   the session, which cannot count them (Courier's agent logs it once
+//!   per reader). Subscribe reliably for samples that may be larger.
 //! - `query` is a requester and `serve` a replier, with the request and
 //!   reply topics `rq/<name>Request` and `rr/<name>Reply` that Courier's
 //!   RTPS backend and ROS 2 use; each request carries its sample identity

@@ -183,6 +183,20 @@ pub enum BridgeEvent {
         /// What differs.
         why: String,
     },
+    /// A sample for a best-effort reading is larger than the client's
+    /// best-effort stream carries (its MTU; only reliable streams
+    /// fragment): dropped and counted (`samples_dropped`). Reported once
+    /// per reader.
+    SampleTooLarge {
+        /// The client.
+        client: ClientKey,
+        /// The reader (or requester, replier).
+        object: ObjectId,
+        /// The sample's submessage size.
+        len: usize,
+        /// The largest the stream carries.
+        max: usize,
+    },
     /// DDS refused a written sample for good (not for lack of room).
     WriteRefused {
         /// The client.
@@ -1346,6 +1360,7 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
         let agent = &mut self.agent;
         let stats = &mut self.stats;
         let objects = &mut self.objects;
+        let events = &mut self.events;
         self.ready.retain(|key| {
             let Some(o) = objects.get_mut(key) else {
                 return false;
@@ -1356,7 +1371,7 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
                 | Entity::Replier { inbox: i, .. } => i,
                 _ => return false,
             };
-            deliver(agent, stats, *key, inbox, now);
+            deliver(agent, stats, events, *key, inbox, now);
             inbox.delivery.is_some() && !inbox.queue.is_empty()
         });
     }
@@ -1398,6 +1413,7 @@ fn room_for(
 fn deliver<A: Clone + Eq + Hash>(
     agent: &mut Agent<A>,
     stats: &mut BridgeStats,
+    events: &mut VecDeque<BridgeEvent>,
     key: Key,
     inbox: &mut read::Inbox,
     now: Instant,
@@ -1435,11 +1451,26 @@ fn deliver<A: Clone + Eq + Hash>(
                 }
             }
             Err(AgentCommandError::Queue(QueueError::Stream(StreamError::Backlog { .. }))) => break, // again when the client acknowledges
-            Err(_) => {
+            Err(e) => {
                 // too large for a best-effort stream or for all a reliable
                 // one queues, or no session
                 stats.samples_dropped += 1;
                 inbox.queue.pop_front();
+                if let AgentCommandError::Queue(QueueError::Stream(StreamError::TooLarge {
+                    len,
+                    max,
+                    ..
+                })) = e
+                {
+                    if !std::mem::replace(&mut inbox.too_large_reported, true) {
+                        events.push_back(BridgeEvent::SampleTooLarge {
+                            client: key.0,
+                            object: key.1,
+                            len,
+                            max,
+                        });
+                    }
+                }
             }
         }
     }

@@ -129,6 +129,10 @@ pub(super) struct Inbox {
     /// from elsewhere (remote DDS writers) can take it beyond, up to
     /// [`HOLD_SLACK`] × `cap`, where the oldest go after all.
     pub hold: bool,
+    /// A sample too large for the best-effort stream was dropped and
+    /// reported ([`BridgeEvent::SampleTooLarge`](super::BridgeEvent::SampleTooLarge));
+    /// later ones are only counted.
+    pub too_large_reported: bool,
 }
 
 /// How far beyond its `cap` a holding inbox takes samples that nothing
@@ -144,6 +148,7 @@ impl Inbox {
             read: None,
             wake: None,
             hold: false,
+            too_large_reported: false,
         }
     }
 
