@@ -318,6 +318,38 @@ async fn no_agent_fails_the_connect_and_foreign_options_are_refused() {
     assert!(e.to_string().contains("bogus"), "{e}");
 }
 
+/// Over TCP, an agent that is not there yet refuses the connection: the
+/// session tries again as over UDP (`attempts=`, `attempt_ms=`), and says
+/// how often it tried when it gives up (it failed at the first refusal).
+#[tokio::test]
+async fn tcp_tries_an_agent_that_starts_late_as_udp_does() {
+    let port = {
+        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        l.local_addr().unwrap().port()
+    };
+    let url = format!("xrce+tcp://127.0.0.1:{port}?attempts=3&attempt_ms=50");
+    let e = tokio::time::timeout(T, Session::builder(url).connect())
+        .await
+        .unwrap()
+        .unwrap_err();
+    let text = e.to_string();
+    assert!(
+        text.contains("3 attempt(s) 50ms apart: is the agent running"),
+        "{text}"
+    );
+    let url = format!("xrce+tcp://127.0.0.1:{port}?attempts=100&attempt_ms=50");
+    let late = tokio::spawn(async move {
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        xrce_agent::tcp(port).await
+    });
+    let s = tokio::time::timeout(T, Session::builder(url).connect())
+        .await
+        .unwrap()
+        .expect("the session waits for the late agent");
+    let _agent = late.await.unwrap();
+    s.close().await;
+}
+
 /// The agent stops, then starts again on the same port, empty: the session
 /// reports both moments, creates itself again, its subscriber stays open,
 /// and reliable samples published meanwhile arrive.

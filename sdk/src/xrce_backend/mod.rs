@@ -155,6 +155,34 @@ fn disconnected<E: crate::error::Failure>() -> E {
     E::disconnected("the XRCE agent (session closed)".into())
 }
 
+/// Opens the link; a TCP agent that refuses the connection (not started
+/// yet) is tried again as a UDP one is, [`XrceOptions::connect_attempts`]
+/// times [`XrceOptions::connect_interval`] apart.
+async fn open_link(opts: &XrceOptions, mtu: usize) -> Result<transport::Link, String> {
+    use std::io::ErrorKind;
+    let mut tries = 1;
+    loop {
+        match transport::Link::open(&opts.transport, mtu).await {
+            Ok(l) => return Ok(l),
+            Err(e)
+                if matches!(opts.transport, XrceTransport::Tcp(_))
+                    && matches!(e.kind(), ErrorKind::ConnectionRefused) =>
+            {
+                if tries >= opts.connect_attempts {
+                    return Err(format!(
+                        "{e} ({tries} attempt(s) {:?} apart: is the agent running, on TCP at \
+                         that port? attempts= and attempt_ms= set how long to try)",
+                        opts.connect_interval
+                    ));
+                }
+                tries += 1;
+                tokio::time::sleep(opts.connect_interval).await;
+            }
+            Err(e) => return Err(e.to_string()),
+        }
+    }
+}
+
 impl XrceBackend {
     /// Opens the link and creates the session with the agent
     /// (CREATE_CLIENT, [`XrceOptions::connect_attempts`] times at most).
@@ -176,11 +204,11 @@ impl XrceBackend {
             XrceTransport::Serial { .. } => "xrce+serial://",
         };
         let mtu = usize::from(opts.mtu);
-        let link = transport::Link::open(&opts.transport, mtu)
+        let link = open_link(&opts, mtu)
             .await
-            .map_err(|e| ConnectError::Network {
+            .map_err(|why| ConnectError::Network {
                 url: url.clone(),
-                why: e.to_string(),
+                why,
             })?;
         let key = opts.client_key.unwrap_or_else(random_key);
         let mut cfg = ClientConfig::new(key);
