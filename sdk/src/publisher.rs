@@ -203,10 +203,10 @@ impl<T: IpcMessage> PublisherBuilder<T> {
         self
     }
 
-    /// Keep only the newest `n` samples per instance (`n` of 0 is taken
-    /// as 1).
+    /// Keep only the newest `n` samples per instance; `build` refuses 0
+    /// ([`OpenError::Qos`]).
     pub fn keep_last(mut self, n: u32) -> Self {
-        self.qos.history = History::KeepLast(n.max(1));
+        self.qos.history = History::KeepLast(n);
         self
     }
 
@@ -271,6 +271,7 @@ impl<T: IpcMessage> PublisherBuilder<T> {
     /// they share the message's definition. Dropping the last clone closes
     /// it.
     pub async fn build(self) -> Result<Publisher<T>, OpenError> {
+        crate::qos::check_history(&self.msg, self.qos.history)?;
         self.session.topics.bind::<T>(&self.msg)?;
         let r = self
             .session

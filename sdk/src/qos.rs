@@ -48,6 +48,18 @@ pub const MIN_DEADLINE: Duration = Duration::from_millis(1);
 /// years); longer is "infinite" on the wire.
 const MAX_WIRE: Duration = Duration::from_secs(i32::MAX as u64);
 
+/// A keep-last history of 0 samples keeps nothing (DDS's
+/// INCONSISTENT_POLICY); it was taken as 1, silently.
+pub(crate) fn check_history(topic: &str, h: History) -> Result<(), crate::OpenError> {
+    if h == History::KeepLast(0) {
+        return Err(crate::OpenError::Qos {
+            topic: topic.to_string(),
+            why: "keep_last(0) keeps nothing: give 1 or more (or keep_all)".into(),
+        });
+    }
+    Ok(())
+}
+
 /// Why a deadline and a minimum separation cannot work together, if so.
 pub(crate) fn check_timing(
     deadline: Option<Duration>,

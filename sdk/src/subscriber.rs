@@ -223,10 +223,11 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
     /// the newest `n` of **all** instances together: on a keyed topic with
     /// more instances than `n`, samples of other instances are dropped
     /// (counted by `dropped()`) before the application reads them. Use a
-    /// larger `n`, or keep-all, to see every instance. `n` of 0 is 1.
+    /// larger `n`, or keep-all, to see every instance. `build` refuses 0
+    /// ([`OpenError::Qos`]).
     pub fn keep_last(mut self, n: u32) -> Self {
-        self.qos.history = History::KeepLast(n.max(1));
-        self.policy = Some(QueuePolicy::KeepLast(n.max(1) as usize));
+        self.qos.history = History::KeepLast(n);
+        self.policy = Some(QueuePolicy::KeepLast(n as usize));
         self
     }
 
@@ -277,6 +278,7 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
 
     /// The backend's subscription of this type and QoS, into `queue`.
     async fn create(&self, queue: Arc<SampleQueue>) -> Result<RawSubscriber, OpenError> {
+        crate::qos::check_history(&self.msg, self.qos.history)?;
         self.session.topics.bind::<T>(&self.msg)?;
         let r = self
             .session

@@ -417,3 +417,33 @@ async fn a_dropped_requests_stream_unsubscribes() {
     server.close().await;
     c.shutdown().await;
 }
+
+/// `keep_last(0)` keeps nothing: refused when built, on every backend (it
+/// was taken as 1, silently).
+#[tokio::test]
+async fn keep_last_of_nothing_is_refused() {
+    let (c, url) = central().await;
+    let a = session(&url, "a").await;
+    let e = a
+        .publisher::<i32>("t")
+        .keep_last(0)
+        .build()
+        .await
+        .unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "QoS of t: keep_last(0) keeps nothing: give 1 or more (or keep_all)"
+    );
+    let e = a
+        .subscriber::<i32>("t")
+        .keep_last(0)
+        .build()
+        .await
+        .err()
+        .unwrap();
+    assert!(matches!(e, OpenError::Qos { .. }), "{e:?}");
+    // and the topic is not bound by the refused attempt
+    a.subscriber::<f64>("t").keep_last(1).build().await.unwrap();
+    a.close().await;
+    c.shutdown().await;
+}
