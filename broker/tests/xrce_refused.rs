@@ -154,3 +154,60 @@ fn a_writer_a_restored_agent_could_not_make_again_fails_its_publishes() {
     });
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// With `representation=reference`, a refusal names the profile the agent
+/// lacks; QoS a reference cannot carry is refused before anything goes to
+/// the agent (the topic went first, and its refusal came later as a stray
+/// `EntityError`); a refused open leaves no stray event behind.
+#[test]
+fn a_missing_reference_names_the_profile_and_leaves_no_stray_events() {
+    use courier_wire::xrce::bridge::Profiles;
+    let d = courier_tests::domains::lease(24);
+    let profiles = Profiles::parse(
+        r#"<profiles>
+          <participant profile_name="default_xrce_participant"><rtps><name>p</name></rtps></participant>
+        </profiles>"#,
+    )
+    .unwrap();
+    let rt = runtime();
+    rt.block_on(async {
+        let addr = SocketAddr::from(([127, 0, 0, 1], 0));
+        let a = XrceAgent::builder()
+            .rtps(rtps(d))
+            .transport(Transport::Udp(addr))
+            .profiles(profiles)
+            .spawn()
+            .await
+            .unwrap();
+        let url = format!(
+            "xrce+udp://{}?domain={d}&representation=reference",
+            a.udp_addrs()[0]
+        );
+        let s = Session::builder(url).name("r").connect().await.unwrap();
+        let mut ev = s.events();
+        let e = s
+            .publisher::<Count>("q1")
+            .deadline(Duration::from_millis(100))
+            .build()
+            .await
+            .unwrap_err();
+        assert!(e.to_string().contains("representation=reference"), "{e}");
+        let e = s.publisher::<Count>("count").build().await.unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "the XRCE agent refused the topic of count: STATUS_ERR_UNKNOWN_REFERENCE (0x84) \
+             (representation=reference: the agent's -r file has no topic profile named \
+             \"count_topic\", or it names something the agent refused)"
+        );
+        // nothing else was said meanwhile
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        use futures::FutureExt;
+        let mut stray = Vec::new();
+        while let Some(Some(e)) = ev.next().now_or_never() {
+            stray.push(e);
+        }
+        assert!(stray.is_empty(), "{stray:?}");
+        s.close().await;
+        a.shutdown().await;
+    });
+}

@@ -53,7 +53,7 @@ pub enum OpenError {
     },
     /// The backend cannot honour what was asked (a DDS QoS setting on an
     /// IPC session, a reply message name on a DDS one, say).
-    #[error("{what} is not available on {backend} sessions")]
+    #[error("{what}: not available on {backend} sessions")]
     Unsupported {
         /// What was asked.
         what: String,
@@ -121,8 +121,9 @@ pub enum OpenError {
         /// The agent's answer.
         status: courier_wire::xrce::StatusCode,
         /// What usually causes it, when the status says little (empty, or
-        /// ` (…)`): a status carries no text.
-        hint: &'static str,
+        /// ` (…)`; with representation=reference, the profile looked up):
+        /// a status carries no text.
+        hint: String,
     },
     /// The XRCE agent did not answer the creation in time.
     #[error("the XRCE agent did not confirm the entities of {topic} within {after:?}")]
@@ -170,7 +171,7 @@ pub enum PublishError {
     Closed(crate::backend::PubId),
     /// The backend cannot do this kind of write (a confirmed publish or an
     /// instance on IPC, a write that does not wait on IPC).
-    #[error("{what} is not available on {backend} sessions")]
+    #[error("{what}: not available on {backend} sessions")]
     Unsupported {
         /// What was asked.
         what: String,
@@ -386,7 +387,7 @@ pub enum ControlError {
     Disconnected(String),
     /// The session's backend has no such control (an IPC control on a DDS
     /// session, say).
-    #[error("{what} is not available on {backend} sessions")]
+    #[error("{what}: not available on {backend} sessions")]
     Unsupported {
         /// What was asked.
         what: String,

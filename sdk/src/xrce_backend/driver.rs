@@ -24,7 +24,7 @@ use courier_wire::xrce::{
 use tokio::sync::{mpsc, oneshot};
 
 use super::cmd::{Cmd, Reply};
-use super::options::{XrceCreation, XrceOptions};
+use super::options::{RefKind, XrceCreation, XrceOptions, XrceRepresentation};
 use super::repr;
 use super::transport::Link;
 use super::Shared;
@@ -215,16 +215,33 @@ fn xrce_error(topic: &str, e: CommandError) -> PublishError {
 
 /// What an agent's refusal usually means, where the status alone says
 /// little (an XRCE STATUS carries no text; the agent's log has it).
-fn refusal_hint(entity: &str, status: StatusCode) -> &'static str {
-    match (entity, status) {
-        ("participant", StatusCode::ERR_INCOMPATIBLE) => {
+fn refusal_hint(opts: &XrceOptions, entity: &str, topic: &str, status: StatusCode) -> String {
+    let kind = match entity {
+        "participant" => Some(RefKind::Participant),
+        "topic" => Some(RefKind::Topic),
+        "data writer" => Some(RefKind::DataWriter),
+        "data reader" => Some(RefKind::DataReader),
+        "requester" => Some(RefKind::Requester),
+        "replier" => Some(RefKind::Replier),
+        _ => None,
+    };
+    let by_reference = opts.representation == XrceRepresentation::Reference;
+    match (entity, status, kind) {
+        ("participant", StatusCode::ERR_INCOMPATIBLE, _) => {
             " (is the session's domain= the agent's --domain? An agent takes participants of \
              its own domain only, unless started with --any-domain)"
+                .into()
         }
-        (_, StatusCode::ERR_UNKNOWN_REFERENCE) => {
-            " (representation=reference names a profile the agent's -r file does not have)"
+        (_, StatusCode::ERR_UNKNOWN_REFERENCE, Some(k)) if by_reference => format!(
+            " (representation=reference: the agent's -r file has no {} profile named {:?}, \
+             or it names something the agent refused)",
+            k.name(),
+            opts.profile(k, topic)
+        ),
+        (_, StatusCode::ERR_UNKNOWN_REFERENCE, _) => {
+            " (it names an entity the agent does not have: refused or deleted)".into()
         }
-        _ => "",
+        _ => String::new(),
     }
 }
 
@@ -429,7 +446,7 @@ impl Driver {
                                 "a subscription of {topic} without its type (use \
                                  Session::subscribe::<T>)"
                             ),
-                            backend: "xrce://",
+                            backend: "xrce+…://",
                         }));
                         return Ok(());
                     }
@@ -777,7 +794,7 @@ impl Driver {
             }
             Err(e) => Err(OpenError::Unsupported {
                 what: format!("creating the {} of {} ({e})", what.1, what.0),
-                backend: "xrce://",
+                backend: "xrce+…://",
             }),
         }
     }
@@ -838,8 +855,11 @@ impl Driver {
         ty: &TypeInfo,
         publisher: bool,
         now: Instant,
-        make: impl FnOnce(&Driver, ObjectId, ObjectId) -> Result<ObjectVariant, OpenError>,
+        make: impl Fn(&Driver, ObjectId, ObjectId) -> Result<ObjectVariant, OpenError>,
     ) -> Result<(ObjectId, Vec<u16>), OpenError> {
+        // what the endpoint cannot be (its QoS, say) is refused before its
+        // topic and group go to the agent: made with stand-in ids first
+        make(self, ObjectId::INVALID, ObjectId::INVALID)?;
         if let Some(t) = self.topics.get(topic) {
             if t.type_name != ty.type_name {
                 return Err(OpenError::TypeConflict {
@@ -901,7 +921,7 @@ impl Driver {
                     "{} {name} without its types (use Session::query / Session::serve)",
                     if replier { "serving" } else { "querying" }
                 ),
-                backend: "xrce://",
+                backend: "xrce+…://",
             });
         }
         let mut requests = Vec::new();
@@ -1343,7 +1363,11 @@ impl Driver {
                 self.subscriber = None;
             }
             self.topics.retain(|_, t| t.id != object);
-            if !self.creates.contains_key(&request.0) {
+            if !self.names.contains_key(&object) {
+                // an object this session let go (the DELETE of an entity
+                // the agent never had, after a refused open): no news
+                tracing::debug!("XRCE: {entity} {object:?} gone: {}", e.0);
+            } else if !self.creates.contains_key(&request.0) {
                 self.hub.send(SessionEvent::EntityError {
                     topic: topic.clone(),
                     entity,
@@ -1371,7 +1395,7 @@ impl Driver {
                     },
                     entity,
                     status: e.0,
-                    hint: refusal_hint(entity, e.0),
+                    hint: refusal_hint(&self.opts, entity, &w.topic, e.0),
                 });
             }
         }
@@ -1412,7 +1436,7 @@ impl Driver {
 fn full() -> OpenError {
     OpenError::Unsupported {
         what: "more than 4095 XRCE entities in one session".into(),
-        backend: "xrce://",
+        backend: "xrce+…://",
     }
 }
 

@@ -259,6 +259,11 @@ impl XrceOptions {
         let (scheme, rest) = url
             .split_once("://")
             .ok_or_else(|| bad("no scheme".into()))?;
+        if let Some((_, frag)) = rest.split_once('#') {
+            return Err(bad(format!(
+                "#{frag}: an XRCE URL has no #fragment (options go after ?)"
+            )));
+        }
         let (addr, query) = rest.split_once('?').unwrap_or((rest, ""));
         let mut pairs = Vec::new();
         for pair in query.split('&').filter(|p| !p.is_empty()) {
@@ -278,14 +283,41 @@ impl XrceOptions {
             if addr.contains('/') {
                 return Err(bad(format!("{addr:?} is not host:port")));
             }
-            let has_port = match addr.rsplit_once(':') {
-                Some((h, p)) => !h.ends_with(':') && p.parse::<u16>().is_ok(),
-                None => false,
+            // [v6]:port, [v6], host:port, host
+            let (host, port) = match addr.strip_prefix('[') {
+                Some(v6) => match v6.split_once(']') {
+                    Some((h, "")) => (h, None),
+                    Some((h, p)) => match p.strip_prefix(':') {
+                        Some(p) => (h, Some(p)),
+                        None => return Err(bad(format!("{addr:?} is not [address]:port"))),
+                    },
+                    None => return Err(bad(format!("{addr:?} lacks its closing ]"))),
+                },
+                None if addr.matches(':').count() > 1 => {
+                    return Err(bad(format!(
+                        "{addr:?}: an IPv6 address goes in brackets ([::1]:8888)"
+                    )))
+                }
+                None => match addr.split_once(':') {
+                    Some((h, p)) => (h, Some(p)),
+                    None => (addr, None),
+                },
             };
-            Ok(if has_port {
-                addr.to_string()
+            if host.is_empty() {
+                return Err(bad(format!("{addr:?} names no host")));
+            }
+            let port = match port {
+                None => default_port,
+                Some(p) => match p.parse::<u32>() {
+                    Ok(n) if (1..=65535).contains(&n) => n as u16,
+                    Ok(_) => return Err(bad(format!("port {p} is out of range (1 to 65535)"))),
+                    Err(_) => return Err(bad(format!("{p:?} is not a port number"))),
+                },
+            };
+            Ok(if addr.starts_with('[') {
+                format!("[{host}]:{port}")
             } else {
-                format!("{addr}:{default_port}")
+                format!("{host}:{port}")
             })
         };
         let discover = pairs.iter().any(|(k, _)| *k == "discover");
@@ -343,6 +375,12 @@ impl XrceOptions {
                     Ok(n)
                 }
             };
+            let at_least_1 = |n: u64| -> Result<u64, ConnectError> {
+                match n {
+                    0 => Err(bad(format!("{k}=0: give 1 or more"))),
+                    n => Ok(n),
+                }
+            };
             // a period of 0 ms would mean "all the time"
             let ms = |v: &str| -> Result<Duration, ConnectError> {
                 match num(v)? {
@@ -376,17 +414,18 @@ impl XrceOptions {
                     o.mtu = n;
                 }
                 "depth" => {
-                    let n = fit(num(v)?, 0x4000)? as u16;
-                    o.depth = n.max(1);
+                    o.depth = fit(at_least_1(num(v)?)?, 0x4000)? as u16;
                 }
-                "history" => o.history = fit(num(v)?, u64::from(u16::MAX))? as u16,
+                "history" => o.history = fit(at_least_1(num(v)?)?, u64::from(u16::MAX))? as u16,
                 "domain" => {
                     let n = fit(num(v)?, 0x7FFF)?;
                     o.domain = n as i16;
                 }
                 "keepalive_ms" => o.keepalive = ms(v)?,
                 "lost_ms" => o.lost_after = ms(v)?,
-                "attempts" => o.connect_attempts = fit(num(v)?, u64::from(u32::MAX))?.max(1) as u32,
+                "attempts" => {
+                    o.connect_attempts = fit(at_least_1(num(v)?)?, u64::from(u32::MAX))? as u32
+                }
                 "attempt_ms" => o.connect_interval = ms(v)?,
                 // 0: fail at once while the agent is lost
                 "wait_ms" => o.agent_wait = Duration::from_millis(num(v)?),
@@ -475,6 +514,8 @@ mod tests {
         assert_eq!(o.transport, XrceTransport::Tcp("localhost:8888".into()));
         let o = XrceOptions::from_url("xrce+udp://[::1]:9999?session=0x01&depth=8").unwrap();
         assert_eq!(o.transport, XrceTransport::Udp("[::1]:9999".into()));
+        let v6 = XrceOptions::from_url("xrce+tcp://[::1]").unwrap();
+        assert_eq!(v6.transport, XrceTransport::Tcp("[::1]:8888".into()));
         assert_eq!((o.session_id, o.depth), (1, 8));
         let o = XrceOptions::from_url("xrce+serial:///dev/pts/3?baud=9600&mtu=256").unwrap();
         assert_eq!(
@@ -559,6 +600,23 @@ mod tests {
                 "xrce+udp://h:1?key=1&key=2",
                 "option \"key\" is given twice",
             ),
+            // the port was taken for part of the host, and :8888 added
+            (
+                "xrce+udp://127.0.0.1:99999",
+                "port 99999 is out of range (1 to 65535)",
+            ),
+            ("xrce+udp://127.0.0.1:0", "port 0 is out of range"),
+            ("xrce+udp://127.0.0.1:x", "\"x\" is not a port number"),
+            (
+                "xrce+udp://127.0.0.1:21901#frag",
+                "#frag: an XRCE URL has no #fragment",
+            ),
+            ("xrce+udp://::1:8888", "an IPv6 address goes in brackets"),
+            ("xrce+udp://[::1", "lacks its closing ]"),
+            ("xrce+udp://:8888", "names no host"),
+            ("xrce+udp://h:1?attempts=0", "attempts=0: give 1 or more"),
+            ("xrce+udp://h:1?depth=0", "depth=0: give 1 or more"),
+            ("xrce+udp://h:1?history=0", "history=0: give 1 or more"),
         ] {
             let e = XrceOptions::from_url(url).unwrap_err().to_string();
             assert!(e.contains(says), "{url}: {e}");

@@ -15,7 +15,7 @@ use super::options::{RefKind, XrceOptions, XrceRepresentation};
 use crate::error::OpenError;
 use crate::qos::{Durability, History, PublicationQos, Reliability, SubscriptionQos, TypeInfo};
 
-const SCHEME: &str = "xrce://";
+const SCHEME: &str = "xrce+…://";
 
 fn unsupported(what: impl Into<String>) -> OpenError {
     OpenError::Unsupported {
