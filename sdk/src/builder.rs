@@ -126,9 +126,22 @@ pub(crate) enum Honoured {
     Xrce,
 }
 
+/// `courier-<pid>` for the process's first session without a name, then
+/// `courier-<pid>-2`, `courier-<pid>-3`, …
+fn default_name() -> String {
+    static UNNAMED: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+    let pid = std::process::id();
+    match UNNAMED.fetch_add(1, std::sync::atomic::Ordering::Relaxed) {
+        0 => format!("courier-{pid}"),
+        n => format!("courier-{pid}-{}", n + 1),
+    }
+}
+
 impl SessionBuilder {
-    /// The module name (default: `courier-<pid>`; DDS: the participant's
-    /// entity name).
+    /// The module name (default: `courier-<pid>`, then `courier-<pid>-2`,
+    /// `-3`, … for the process's later sessions without a name, as central
+    /// refuses a second module of one name; DDS: the participant's entity
+    /// name).
     pub fn name(mut self, name: impl Into<String>) -> Self {
         self.name = Some(name.into());
         self
@@ -303,9 +316,7 @@ impl SessionBuilder {
     /// URL's backend cannot honour (say, [`interface`](Self::interface) on
     /// an `ipc://` session), and names the known schemes for an unknown one.
     pub async fn connect(self) -> Result<Session, ConnectError> {
-        let name = self
-            .name
-            .unwrap_or_else(|| format!("courier-{}", std::process::id()));
+        let name = self.name.unwrap_or_else(default_name);
         let scheme = self.url.split_once("://").map_or("", |(s, _)| s);
         let refuse = |honoured: &[Honoured]| {
             let bad = self.set.iter().find(|(_, h)| !honoured.contains(h));

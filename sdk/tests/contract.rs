@@ -447,3 +447,21 @@ async fn keep_last_of_nothing_is_refused() {
     a.close().await;
     c.shutdown().await;
 }
+
+/// Sessions without a name get names of their own within the process
+/// (`courier-<pid>`, `courier-<pid>-2`, …): central refuses a second module
+/// of one name, so the second unnamed session of a process was refused.
+#[tokio::test]
+async fn unnamed_sessions_of_one_process_each_connect() {
+    let (c, url) = central().await;
+    let connect = || Session::builder(url.as_str()).connect();
+    let a = tokio::time::timeout(T, connect()).await.unwrap().unwrap();
+    let b = tokio::time::timeout(T, connect()).await.unwrap().unwrap();
+    let mut sub = b.subscribe::<i32>("both").await.unwrap();
+    a.publish("both", &7).await.unwrap();
+    let got = tokio::time::timeout(T, sub.next()).await;
+    assert_eq!(got.unwrap().unwrap().unwrap().value, 7);
+    a.close().await;
+    b.close().await;
+    c.shutdown().await;
+}

@@ -44,6 +44,11 @@
 //!   streams fragment, so the agent drops larger ones before they reach
 //!   the session, which cannot count them (Courier's agent logs it once
 //!   per reader). Subscribe reliably for samples that may be larger.
+//! - Matching is the agent's: XRCE has no message that tells a client its
+//!   endpoint does not match another one (another type on the topic,
+//!   incompatible QoS), so a session sees no
+//!   [`SessionEvent::TypeMismatch`](crate::SessionEvent::TypeMismatch) or
+//!   `IncompatibleQos` here; Courier's agent logs each such pair.
 //! - `query` is a requester and `serve` a replier, with the request and
 //!   reply topics `rq/<name>Request` and `rr/<name>Reply` that Courier's
 //!   RTPS backend and ROS 2 use; each request carries its sample identity
