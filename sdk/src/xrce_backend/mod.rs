@@ -47,7 +47,7 @@
 //! - Matching is the agent's: XRCE has no message that tells a client its
 //!   endpoint does not match another one (another type on the topic,
 //!   incompatible QoS), so a session sees no
-//!   [`SessionEvent::TypeMismatch`](crate::SessionEvent::TypeMismatch) or
+//!   [`SessionEvent::TypeMismatch`] or
 //!   `IncompatibleQos` here; Courier's agent logs each such pair.
 //! - `query` is a requester and `serve` a replier, with the request and
 //!   reply topics `rq/<name>Request` and `rr/<name>Reply` that Courier's
