@@ -40,6 +40,31 @@ async fn agent(domain: u32, port: u16, state: Option<&std::path::Path>) -> XrceA
     b.spawn().await.unwrap()
 }
 
+/// A session publishing on `count` through an agent in domain `d`, then
+/// that agent stopped and another started on its port in domain `other`
+/// (with the same `state`, if any).
+async fn moved(
+    d: u32,
+    other: u32,
+    state: Option<&std::path::Path>,
+) -> (
+    Session,
+    courier::Events,
+    courier::Publisher<Count>,
+    XrceAgent,
+) {
+    let a = agent(d, 0, state).await;
+    let addr = a.udp_addrs()[0];
+    let url = format!("xrce+udp://{addr}?domain={d}&{FAST}");
+    let s = Session::builder(url).name("w").connect().await.unwrap();
+    let ev = s.events();
+    let p = s.publisher::<Count>("count").build().await.unwrap();
+    p.publish(&Count { n: 0 }).confirmed().await.unwrap();
+    a.shutdown().await;
+    let b = agent(other, addr.port(), state).await;
+    (s, ev, p, b)
+}
+
 /// Publishes (confirmed) until a publish fails, within `T`; the error.
 async fn publish_until_refused(p: &courier::Publisher<Count>) -> PublishError {
     let r = tokio::time::timeout(T, async {
@@ -82,16 +107,8 @@ fn a_writer_refused_when_the_session_is_re_created_fails_its_publishes() {
     );
     let rt = runtime();
     rt.block_on(async {
-        let a = agent(d, 0, None).await;
-        let addr = a.udp_addrs()[0];
-        let url = format!("xrce+udp://{addr}?domain={d}&{FAST}");
-        let s = Session::builder(url).name("w").connect().await.unwrap();
-        let mut ev = s.events();
-        let p = s.publisher::<Count>("count").build().await.unwrap();
-        p.publish(&Count { n: 0 }).confirmed().await.unwrap();
         // the agent comes back on the same port, in another domain
-        a.shutdown().await;
-        let b = agent(other, addr.port(), None).await;
+        let (s, mut ev, p, b) = moved(d, other, None).await;
         let recreated = tokio::time::timeout(T, async {
             let mut refused = Vec::new();
             while let Some(e) = ev.next().await {
@@ -127,17 +144,9 @@ fn a_writer_a_restored_agent_could_not_make_again_fails_its_publishes() {
     let state = dir.join("agent.redb");
     let rt = runtime();
     rt.block_on(async {
-        let a = agent(d, 0, Some(&state)).await;
-        let addr = a.udp_addrs()[0];
-        let url = format!("xrce+udp://{addr}?domain={d}&{FAST}");
-        let s = Session::builder(url).name("w").connect().await.unwrap();
-        let mut ev = s.events();
-        let p = s.publisher::<Count>("count").build().await.unwrap();
-        p.publish(&Count { n: 0 }).confirmed().await.unwrap();
         // restored in another domain: the session is kept, its entities
         // cannot be made again
-        a.shutdown().await;
-        let b = agent(other, addr.port(), Some(&state)).await;
+        let (s, mut ev, p, b) = moved(d, other, Some(&state)).await;
         let e = publish_until_refused(&p).await;
         assert_refused(&e);
         let told = tokio::time::timeout(T, async {
