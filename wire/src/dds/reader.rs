@@ -140,7 +140,9 @@ impl LocalReader {
         if let Some(d) = self.deadline.as_mut() {
             d.arm(instance, now);
         }
-        self.disposed.remove(&instance);
+        if !self.disposed.is_empty() {
+            self.disposed.remove(&instance);
+        }
         Ok(())
     }
 
