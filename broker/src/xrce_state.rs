@@ -1,10 +1,18 @@
-//! `xrce-agent --state <file>`: every client's session, objects and
-//! READ_DATA kept in a redb database, so that an agent killed and started
-//! again serves its clients as before
+//! `xrce-agent --state <file>`: every client's session, objects,
+//! READ_DATA and reliable input positions kept in a redb database, so that
+//! an agent killed and started again serves its clients as before
 //! ([`Bridge::restore`](courier_wire::xrce::bridge::Bridge::restore)).
 //! One record per client, written whenever what it holds changes
-//! (sessions, CREATE, DELETE, READ_DATA, never per sample) and committed
-//! durably: a record survives `kill -9` and power loss alike.
+//! (sessions, CREATE, DELETE, READ_DATA), and one small record of its
+//! input positions (table `inputs`), written after the samples DDS took
+//! and before the client's ACKNACK says so (one transaction per turn of
+//! the agent's loop, for every client that moved); both committed
+//! durably: they survive `kill -9` and power loss alike.
+//!
+//! An input positions record: `XAP1`, then per reliable input stream its
+//! id and the sequence number (u16 LE) of the last message whose samples
+//! DDS took. A file without it (an older agent's) restores the client's
+//! streams from its HEARTBEAT.
 //!
 //! A record: `XAS1`, the client key (4 bytes), session id, MTU (u16 LE),
 //! the client's address (`0` UDP: transport index, IPv4, port LE; `1`
@@ -17,14 +25,20 @@ use std::path::Path;
 
 use courier_wire::xrce::bridge::ClientState;
 use courier_wire::xrce::{
-    BaseObjectRequest, ClientKey, Create, Message, MessageHeader, Payload, StreamId, Submessage,
+    BaseObjectRequest, ClientKey, Create, Message, MessageHeader, Payload, SeqNum, StreamId,
+    Submessage,
 };
 use redb::{Database, ReadableTable, TableDefinition};
 
 use super::xrce_agent::Peer;
 
 const CLIENTS: TableDefinition<u32, &[u8]> = TableDefinition::new("clients");
+const INPUTS: TableDefinition<u32, &[u8]> = TableDefinition::new("inputs");
 const MAGIC: &[u8; 4] = b"XAS1";
+const INPUTS_MAGIC: &[u8; 4] = b"XAP1";
+
+/// A client's reliable input positions.
+pub(crate) type Positions = Vec<(StreamId, SeqNum)>;
 
 /// The state file.
 pub(crate) struct Store {
@@ -59,12 +73,26 @@ pub(crate) fn open(path: &Path) -> Result<(Store, Vec<ClientState<Peer>>), Strin
     {
         let tx = db.begin_write().map_err(|e| fail(&e))?;
         {
-            // the table exists from now on
+            // the tables exist from now on
             let t = tx.open_table(CLIENTS).map_err(|e| fail(&e))?;
+            let inputs = tx.open_table(INPUTS).map_err(|e| fail(&e))?;
             for row in t.iter().map_err(|e| fail(&e))? {
                 let (k, v) = row.map_err(|e| fail(&e))?;
                 match decode(v.value()) {
-                    Some(s) => states.push(s),
+                    Some(mut s) => {
+                        if let Some(p) = inputs.get(k.value()).map_err(|e| fail(&e))? {
+                            match decode_positions(p.value()) {
+                                Some(p) => s.inputs = p,
+                                None => tracing::warn!(
+                                    "state file {}: the input positions of client 0x{:08X} \
+                                     are damaged; its streams take the client's",
+                                    path.display(),
+                                    k.value()
+                                ),
+                            }
+                        }
+                        states.push(s)
+                    }
                     None => tracing::warn!(
                         "state file {}: the record of client 0x{:08X} is damaged; it is left out",
                         path.display(),
@@ -79,7 +107,7 @@ pub(crate) fn open(path: &Path) -> Result<(Store, Vec<ClientState<Peer>>), Strin
 }
 
 impl Store {
-    /// Saves (or replaces) a client's record.
+    /// Saves (or replaces) a client's record and input positions.
     pub(crate) fn save(&self, s: &ClientState<Peer>) -> Result<(), String> {
         let bytes = encode(s);
         let tx = self.db.begin_write().map_err(text)?;
@@ -87,6 +115,23 @@ impl Store {
             let mut t = tx.open_table(CLIENTS).map_err(text)?;
             t.insert(u32::from(s.client), bytes.as_slice())
                 .map_err(text)?;
+            let mut t = tx.open_table(INPUTS).map_err(text)?;
+            t.insert(u32::from(s.client), encode_positions(&s.inputs).as_slice())
+                .map_err(text)?;
+        }
+        tx.commit().map_err(text)
+    }
+
+    /// Saves the input positions of the clients that moved, in one
+    /// durable transaction (done when this returns Ok).
+    pub(crate) fn save_positions(&self, moved: &[(ClientKey, Positions)]) -> Result<(), String> {
+        let tx = self.db.begin_write().map_err(text)?;
+        {
+            let mut t = tx.open_table(INPUTS).map_err(text)?;
+            for (client, p) in moved {
+                t.insert(u32::from(*client), encode_positions(p).as_slice())
+                    .map_err(text)?;
+            }
         }
         tx.commit().map_err(text)
     }
@@ -96,6 +141,8 @@ impl Store {
         let tx = self.db.begin_write().map_err(text)?;
         {
             let mut t = tx.open_table(CLIENTS).map_err(text)?;
+            t.remove(u32::from(client)).map_err(text)?;
+            let mut t = tx.open_table(INPUTS).map_err(text)?;
             t.remove(u32::from(client)).map_err(text)?;
         }
         tx.commit().map_err(text)
@@ -139,6 +186,29 @@ fn encode(s: &ClientState<Peer>) -> Vec<u8> {
     // objects too large for one message are kept as far as they go
     v.extend(m.to_vec().unwrap_or_default());
     v
+}
+
+fn encode_positions(p: &[(StreamId, SeqNum)]) -> Vec<u8> {
+    let mut v = INPUTS_MAGIC.to_vec();
+    for (id, seq) in p {
+        v.push(id.0);
+        v.extend_from_slice(&seq.0.to_le_bytes());
+    }
+    v
+}
+
+fn decode_positions(b: &[u8]) -> Option<Positions> {
+    let rest = b.strip_prefix(INPUTS_MAGIC)?;
+    if rest.len() % 3 != 0 {
+        return None;
+    }
+    rest.chunks_exact(3)
+        .map(|c| {
+            let id = StreamId(c[0]);
+            id.is_reliable()
+                .then(|| (id, SeqNum(u16::from_le_bytes([c[1], c[2]]))))
+        })
+        .collect()
 }
 
 fn decode(b: &[u8]) -> Option<ClientState<Peer>> {
@@ -185,6 +255,8 @@ fn decode(b: &[u8]) -> Option<ClientState<Peer>> {
         addr,
         objects,
         reads,
+        // kept in their own table (they move with every sample)
+        inputs: Vec::new(),
     })
 }
 
@@ -219,8 +291,17 @@ mod tests {
                     ..DeliveryControl::default()
                 }),
             }],
+            inputs: Vec::new(),
         };
         assert_eq!(decode(&encode(&s)), Some(s.clone()));
+        let p = vec![
+            (StreamId::RELIABLE, SeqNum(7)),
+            (StreamId(0x81), SeqNum(u16::MAX)),
+        ];
+        assert_eq!(decode_positions(&encode_positions(&p)), Some(p));
+        assert_eq!(decode_positions(b"XAP1"), Some(Vec::new()));
+        assert_eq!(decode_positions(b"XAP1\x80\x01"), None);
+        assert_eq!(decode_positions(b"XAP1\x01\x01\x00"), None);
         let serial = ClientState {
             addr: Peer::Serial(0, 1),
             ..s.clone()
@@ -229,6 +310,43 @@ mod tests {
         let mut damaged = encode(&s);
         damaged.truncate(20);
         assert_eq!(decode(&damaged), None);
+    }
+
+    /// Input positions are saved with the record and on their own, read
+    /// back with the client's state, and forgotten with the client.
+    #[test]
+    fn input_positions_survive_reopening() {
+        let dir = std::env::temp_dir().join(format!("courier-pos-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("state.redb");
+        let _ = std::fs::remove_file(&path);
+        let st = ClientState {
+            client: ClientKey::from(0x0102_0304),
+            session_id: 0x81,
+            mtu: 512,
+            addr: Peer::Udp(0, "127.0.0.1:40001".parse().unwrap()),
+            objects: Vec::new(),
+            reads: Vec::new(),
+            inputs: vec![(StreamId::RELIABLE, SeqNum(3))],
+        };
+        {
+            let (store, states) = open(&path).unwrap();
+            assert!(states.is_empty());
+            store.save(&st).unwrap();
+        }
+        let moved = vec![(st.client, vec![(StreamId::RELIABLE, SeqNum(41))])];
+        {
+            let (store, states) = open(&path).unwrap();
+            assert_eq!(states, vec![st.clone()]);
+            store.save_positions(&moved).unwrap();
+        }
+        {
+            let (store, states) = open(&path).unwrap();
+            assert_eq!(states[0].inputs, moved[0].1);
+            store.remove(st.client).unwrap();
+        }
+        assert!(open(&path).unwrap().1.is_empty());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     /// A truncated or foreign file is an error that says what to do, not a

@@ -13,13 +13,17 @@ use courier_wire::rtps::discovery::{Duration as RtpsDuration, EndpointQos, Histo
 use courier_wire::rtps::participant::{guid_prefix, Change, Config, EndpointConfig};
 use courier_wire::rtps::Locator;
 use courier_wire::sim::{self, Faults, Node};
-use courier_wire::xrce::bridge::{Bridge, BridgeConfig, BridgeEvent, Profiles, REDISCOVERY};
+use std::collections::HashMap;
+
+use courier_wire::xrce::bridge::{
+    Bridge, BridgeConfig, BridgeEvent, ClientState, Profiles, REDISCOVERY,
+};
 use courier_wire::xrce::sim::{Peer, PeerEvent};
 use courier_wire::xrce::{
-    qos_flags, BinaryRepresentation, Client, ClientConfig, CreationMode, DataReaderBinary,
-    DataReaderQos, DataWriterBinary, DeliveryControl, EndpointQos as BinQos, Event, GroupBinary,
-    ObjectId, ObjectKind, ObjectVariant, ParticipantBinary, Representation, ServiceBinary,
-    StatusCode, StreamId, TopicBinary,
+    qos_flags, BinaryRepresentation, Client, ClientConfig, ClientKey, CreationMode,
+    DataReaderBinary, DataReaderQos, DataWriterBinary, DeliveryControl, EndpointQos as BinQos,
+    Event, GroupBinary, ObjectId, ObjectKind, ObjectVariant, ParticipantBinary, Representation,
+    SeqNum, ServiceBinary, StatusCode, StreamId, TopicBinary,
 };
 
 const LO: [u8; 4] = [127, 0, 0, 1];
@@ -1151,6 +1155,198 @@ fn restart(seed: u64, loss: u32) {
         (0..60).map(|i| sample(i, 40)).collect::<Vec<_>>(),
         "complete and in order across the restart"
     );
+}
+
+/// Newcomer audit 5: `xrce-agent --state` killed after DDS took a sample
+/// and before the client had its ACKNACK. The client, which knows nothing
+/// of the restart, sends the sample again; the restored bridge knows (from
+/// the input position kept with the client's state) that it wrote it, and
+/// acknowledges it instead of writing it a second time. Before, the
+/// restored stream took its position from the client's HEARTBEAT and the
+/// reader got that sample twice.
+#[test]
+fn a_sample_written_before_a_restart_and_sent_again_is_not_written_twice() {
+    for seed in [3, 13, 23] {
+        let (p, s, mut w) = crash_world(seed, false);
+        write_and_wait(&mut w, p, s, 0..10, None);
+        // sample 10 reaches DDS (the reader has it); the old agent's
+        // ACKNACK never reaches the writer's client (down meanwhile)
+        let now = w.net.now();
+        w.client(p)
+            .write(oid(ObjectKind::DataWriter), R, &sample(10, 40), now)
+            .unwrap();
+        w.net.pump();
+        w.net.hosts[p].up = false;
+        assert!(w.run_until(Duration::from_secs(10), |w| w.data(s).len() == 11));
+        // the crash: the state kept is what the bridge says now
+        let states: Vec<_> = [0xAAAA_0077u32, 0xBBBB_0077]
+            .into_iter()
+            .map(|k| w.bridge().client_state(k.into()).unwrap())
+            .collect();
+        assert_eq!(
+            states[0].inputs.len(),
+            1,
+            "seed {seed}: the writer's stream"
+        );
+        restart_bridge(&mut w, states, false);
+        w.net.hosts[p].up = true;
+        write_and_wait(&mut w, p, s, 11..20, None);
+        assert_eq!(
+            numbers(&w.data(s)),
+            (0..20).collect::<Vec<_>>(),
+            "seed {seed}: each sample once across the restart"
+        );
+        assert_eq!(w.data(s)[10], sample(10, 40));
+    }
+}
+
+/// The same with a host that saves input positions as they move
+/// ([`Bridge::hold_acks_until_saved`], what `xrce-agent --state` does):
+/// the client's ACKNACK waits for the save. Killed after the save and
+/// before the ACKNACK went, the restored bridge writes nothing twice;
+/// killed after DDS took the sample and before the save, it writes that
+/// sample again (at least once), and in neither case is anything lost.
+#[test]
+fn with_positions_saved_before_the_ack_a_restart_loses_nothing_and_repeats_only_the_unsaved() {
+    for (seed, saved_before_crash) in [(4, true), (14, true), (5, false), (15, false)] {
+        let (p, s, mut w) = crash_world(seed, true);
+        let mut saved = HashMap::new();
+        write_and_wait(&mut w, p, s, 0..10, Some(&mut saved));
+        assert_eq!(saved[&ClientKey::from(0xAAAA_0077)].len(), 1);
+        // sample 10 reaches DDS; nothing saves it (yet), so the client
+        // hears no ACKNACK for it
+        let now = w.net.now();
+        w.client(p)
+            .write(oid(ObjectKind::DataWriter), R, &sample(10, 40), now)
+            .unwrap();
+        assert!(w.run_until(Duration::from_secs(10), |w| w.data(s).len() == 11));
+        w.run_until(Duration::from_millis(300), |_| false);
+        if saved_before_crash {
+            // committed, and killed before the ACKNACK went
+            for (c, pos) in w.bridge().take_moved_positions() {
+                saved.insert(c, pos);
+            }
+        }
+        let states: Vec<_> = [0xAAAA_0077u32, 0xBBBB_0077]
+            .into_iter()
+            .map(|k| {
+                let mut st = w.bridge().client_state(k.into()).unwrap();
+                st.inputs = saved.get(&k.into()).cloned().unwrap_or_default();
+                st
+            })
+            .collect();
+        restart_bridge(&mut w, states, true);
+        write_and_wait(&mut w, p, s, 11..20, Some(&mut saved));
+        let mut want: Vec<u32> = (0..20).collect();
+        if !saved_before_crash {
+            // written, not saved: written again after the restart
+            want.insert(11, 10);
+        }
+        assert_eq!(
+            numbers(&w.data(s)),
+            want,
+            "seed {seed}, saved {saved_before_crash}"
+        );
+    }
+}
+
+/// The numbers of the samples ([`sample`]) in order.
+fn numbers(data: &[Vec<u8>]) -> Vec<u32> {
+    data.iter()
+        .map(|d| u32::from_le_bytes(d[..4].try_into().unwrap()))
+        .collect()
+}
+
+type Saved = HashMap<ClientKey, Vec<(StreamId, SeqNum)>>;
+
+/// A writer's client and a reader's client (topic "Crash") through the
+/// bridge; with `hold`, the bridge acknowledges only what the test saved.
+fn crash_world(seed: u64, hold: bool) -> (usize, usize, World) {
+    let mut w = world(seed, 0, |_, _| {});
+    if hold {
+        w.bridge().hold_acks_until_saved();
+    }
+    let p = w.add_client(10, 0xAAAA_0077);
+    let s = w.add_client(11, 0xBBBB_0077);
+    w.create(p, writer_objects("Crash", true), CreationMode::REPLACE);
+    w.create(s, reader_objects("Crash", true), CreationMode::REPLACE);
+    let now = w.net.now();
+    w.client(s)
+        .read(oid(ObjectKind::DataReader), R, R, unlimited(), now)
+        .unwrap();
+    (p, s, w)
+}
+
+/// Writes `range` from client `p` until client `s` has them all; with
+/// `saved`, saves the positions that move after every step, as the
+/// agent's shell does, and lets their ACKNACKs go.
+fn write_and_wait(
+    w: &mut World,
+    p: usize,
+    s: usize,
+    range: std::ops::Range<u32>,
+    mut saved: Option<&mut Saved>,
+) {
+    let mut next = range.start;
+    let end = w.net.elapsed() + Duration::from_secs(30);
+    while w.net.elapsed() < end {
+        while next < range.end {
+            let now = w.net.now();
+            match w
+                .client(p)
+                .write(oid(ObjectKind::DataWriter), R, &sample(next, 40), now)
+            {
+                Ok(_) => next += 1,
+                Err(_) => break,
+            }
+        }
+        let got = w.data(s);
+        if next == range.end && got.last() == Some(&sample(range.end - 1, 40)) {
+            // and the writer's client had every one acknowledged
+            w.run_until(Duration::from_millis(300), |_| false);
+            if let Some(saved) = saved.as_deref_mut() {
+                save(w, saved);
+                w.run_until(Duration::from_millis(300), |_| false);
+            }
+            return;
+        }
+        w.net.step();
+        if let Some(saved) = saved.as_deref_mut() {
+            save(w, saved);
+        }
+    }
+    panic!(
+        "{} of {range:?} delivered; {:?}",
+        w.data(s).len(),
+        w.bridge().stats()
+    );
+}
+
+fn save(w: &mut World, saved: &mut Saved) {
+    for (c, pos) in w.bridge().take_moved_positions() {
+        w.bridge().positions_saved(c, &pos);
+        saved.insert(c, pos);
+    }
+}
+
+/// The agent restarts: a new bridge and DDS participant restored from
+/// `states`; the clients know nothing of it.
+fn restart_bridge(w: &mut World, states: Vec<ClientState<Addr>>, hold: bool) {
+    let now = w.net.now();
+    let mut cfg = dds_config(0);
+    cfg.guid_prefix = guid_prefix([66; 10]);
+    let bc = BridgeConfig {
+        profiles: Profiles::parse(REFS).unwrap(),
+        ..BridgeConfig::default()
+    };
+    let mut fresh = Bridge::new(bc, Domain::new(cfg, now, w.net.wall()), now, w.net.wall());
+    if hold {
+        fresh.hold_acks_until_saved();
+    }
+    for st in states {
+        assert!(fresh.restore(st, now).is_empty());
+    }
+    w.net.hosts[w.bridge].node = N::Bridge(Box::new(fresh), AGENT);
 }
 
 /// Issue 28, soak stall: a reliable stream that fell far behind (the

@@ -206,6 +206,9 @@ struct Proxy<A> {
     pending: BTreeMap<u8, VecDeque<(SeqNum, u32)>>,
     /// Bumped when the streams start over: older tickets are void.
     epoch: u32,
+    /// The reliable input positions last given to the host
+    /// ([`Agent::take_moved_positions`]).
+    reported: Vec<(StreamId, SeqNum)>,
 }
 
 impl<A> Proxy<A> {
@@ -249,6 +252,12 @@ pub struct Agent<A> {
     events: VecDeque<AgentEvent>,
     now: Instant,
     wall: (Instant, SystemTime),
+    /// The host saves reliable input positions
+    /// ([`Agent::hold_acks_until_saved`]).
+    hold_acks: bool,
+    /// Sessions whose reliable input positions may have moved since
+    /// [`Agent::take_moved_positions`] last looked.
+    touched: BTreeSet<u32>,
 }
 
 fn to_time(wall: SystemTime) -> Time {
@@ -271,6 +280,89 @@ impl<A: Clone + Eq + Hash> Agent<A> {
             events: VecDeque::new(),
             now,
             wall: (now, wall),
+            hold_acks: false,
+            touched: BTreeSet::new(),
+        }
+    }
+
+    /// The host keeps every session's reliable input positions (the last
+    /// message of each stream it handled: with
+    /// [`AgentConfig::host_confirms_writes`], wrote) somewhere that
+    /// outlives it, to give them back after a restart
+    /// ([`Agent::restore_positions`]). From now on an ACKNACK acknowledges
+    /// nothing the host has not saved: take what moved with
+    /// [`take_moved_positions`](Self::take_moved_positions), save it, and
+    /// say so with [`positions_saved`](Self::positions_saved) (the
+    /// ACKNACKs then go with the next [`poll_transmit`](Self::poll_transmit)).
+    /// A client is thus never told a message is acknowledged that a
+    /// restarted agent would take as new: nothing is handed on twice,
+    /// except what the host handed on and could not save before it died.
+    pub fn hold_acks_until_saved(&mut self) {
+        self.hold_acks = true;
+        for p in self.clients.values_mut() {
+            p.streams.hold_acks_until_saved();
+        }
+    }
+
+    /// Every session's reliable input positions that moved since the last
+    /// call (a session created again gives its new, often empty, list).
+    pub fn take_moved_positions(&mut self) -> Vec<(ClientKey, Vec<(StreamId, SeqNum)>)> {
+        let mut moved = Vec::new();
+        for k in std::mem::take(&mut self.touched) {
+            let Some(p) = self.clients.get_mut(&k) else {
+                continue;
+            };
+            let now = p.streams.input_positions();
+            if now != p.reported {
+                p.reported.clone_from(&now);
+                moved.push((ClientKey::from(k), now));
+            }
+        }
+        moved
+    }
+
+    /// The host saved these positions of `client`
+    /// ([`hold_acks_until_saved`](Self::hold_acks_until_saved)): the
+    /// ACKNACKs they allow go with the next
+    /// [`poll_transmit`](Self::poll_transmit).
+    pub fn positions_saved(&mut self, client: ClientKey, positions: &[(StreamId, SeqNum)]) {
+        let k = u32::from(client);
+        let Some(p) = self.clients.get_mut(&k) else {
+            return;
+        };
+        let mut any = false;
+        for &(id, seq) in positions {
+            any |= p.streams.saved_through(id, seq);
+        }
+        if any {
+            self.dirty.insert(k);
+        }
+    }
+
+    /// A session's reliable input positions now: the last message each
+    /// stream handled and confirmed, by stream id (a restored stream still
+    /// waiting for the client's HEARTBEAT gives the position it was
+    /// restored with, if any).
+    pub fn input_positions(&self, client: ClientKey) -> Vec<(StreamId, SeqNum)> {
+        self.clients
+            .get(&u32::from(client))
+            .map(|p| p.streams.input_positions())
+            .unwrap_or_default()
+    }
+
+    /// Gives a [restored](Self::restore_client) session the reliable input
+    /// positions its host kept (as
+    /// [`take_moved_positions`](Self::take_moved_positions) or
+    /// [`input_positions`](Self::input_positions) gave them before the
+    /// restart): those streams go on from there, so that what the client
+    /// sends again because its acknowledgement never came is known as
+    /// handled already, acknowledged and not handed on a second time.
+    /// Streams without a position take the client's from its HEARTBEAT.
+    pub fn restore_positions(&mut self, client: ClientKey, positions: &[(StreamId, SeqNum)]) {
+        let k = u32::from(client);
+        if let Some(p) = self.clients.get_mut(&k) {
+            p.streams.restore_inputs(positions);
+            p.reported = p.streams.input_positions();
         }
     }
 
@@ -301,15 +393,17 @@ impl<A: Clone + Eq + Hash> Agent<A> {
 
     /// Restores a session the agent had before it restarted (its host kept
     /// `key`, `session_id`, the MTU and the address): no STATUS_AGENT, no
-    /// event. Its streams' positions are not kept: each takes the client's
-    /// from what the client sends first (a reliable stream from its
-    /// HEARTBEAT or ACKNACK), so a client that goes on with its old
-    /// session, as eProsima's does, is served again. Best-effort output
-    /// starts from sequence number 0 again: a client drops best-effort
-    /// messages until their numbers pass the last one it took. Messages
-    /// handed to the host before the restart but not acknowledged come
-    /// again (at least once); reliable output not yet acknowledged is gone
-    /// with the old process. False if the agent is full or the key is 0.
+    /// event. Its streams take the client's position from what the client
+    /// sends first (a reliable stream from its HEARTBEAT or ACKNACK), so a
+    /// client that goes on with its old session, as eProsima's does, is
+    /// served again; reliable input streams whose positions the host kept
+    /// go on from them instead ([`Agent::restore_positions`]). Without
+    /// them, messages handed to the host before the restart but not
+    /// acknowledged come again (at least once). Best-effort output starts
+    /// from sequence number 0 again: a client drops best-effort messages
+    /// until their numbers pass the last one it took. Reliable output not
+    /// yet acknowledged is gone with the old process. False if the agent
+    /// is full or the key is 0.
     pub fn restore_client(&mut self, key: ClientKey, session_id: u8, mtu: u16, addr: A) -> bool {
         let k = u32::from(key);
         if k == 0 || (!self.clients.contains_key(&k) && self.clients.len() >= self.cfg.max_clients)
@@ -329,6 +423,9 @@ impl<A: Clone + Eq + Hash> Agent<A> {
         );
         streams.set_deferred(self.cfg.host_confirms_writes);
         streams.set_resync();
+        if self.hold_acks {
+            streams.hold_acks_until_saved();
+        }
         self.dirty.insert(k);
         self.clients.insert(
             k,
@@ -338,6 +435,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
                 streams,
                 pending: BTreeMap::new(),
                 epoch: 0,
+                reported: Vec::new(),
             },
         );
         self.bind(k, addr);
@@ -431,6 +529,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
             self.bind(key, from);
         }
         self.dirty.insert(key);
+        self.touched.insert(key);
         let Some(proxy) = self.clients.get_mut(&key) else {
             return Ok(());
         };
@@ -532,6 +631,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
                 .is_some_and(|p| p.session_id == rep.session_id);
             if kept {
                 self.dirty.insert(key);
+                self.touched.insert(key);
                 if let Some(p) = self.clients.get_mut(&key) {
                     p.reset_streams();
                 }
@@ -546,7 +646,11 @@ impl<A: Clone + Eq + Hash> Agent<A> {
                     self.cfg.max_streams,
                 );
                 streams.set_deferred(self.cfg.host_confirms_writes);
+                if self.hold_acks {
+                    streams.hold_acks_until_saved();
+                }
                 self.dirty.insert(key);
+                self.touched.insert(key);
                 self.clients.insert(
                     key,
                     Proxy {
@@ -555,6 +659,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
                         streams,
                         pending: BTreeMap::new(),
                         epoch: 0,
+                        reported: Vec::new(),
                     },
                 );
             }
@@ -700,6 +805,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
     pub fn write_done(&mut self, ticket: WriteTicket, now: Instant) -> bool {
         self.tick(now);
         self.dirty.insert(u32::from(ticket.client));
+        self.touched.insert(u32::from(ticket.client));
         let Some(p) = self.clients.get_mut(&u32::from(ticket.client)) else {
             return false;
         };

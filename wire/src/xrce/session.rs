@@ -132,6 +132,12 @@ pub(crate) struct Streams {
     /// A restored session: streams take the peer's position from its first
     /// message, HEARTBEAT or ACKNACK.
     resync: bool,
+    /// ACKNACKs acknowledge no further than the host saved
+    /// ([`Streams::hold_acks_until_saved`]).
+    hold_acks: bool,
+    /// A restored session's reliable input positions the host kept: the
+    /// last message each stream handled before the restart.
+    restored_inputs: BTreeMap<u8, SeqNum>,
     /// Messages on stream 0, ready to go.
     pub control: VecDeque<Vec<u8>>,
 }
@@ -167,6 +173,8 @@ impl Streams {
             rel_in: BTreeMap::new(),
             deferred: false,
             resync: false,
+            hold_acks: false,
+            restored_inputs: BTreeMap::new(),
             control: VecDeque::new(),
         }
     }
@@ -189,6 +197,69 @@ impl Streams {
     /// message). Best-effort output starts from 0 again.
     pub fn set_resync(&mut self) {
         self.resync = true;
+    }
+
+    /// The host saves the reliable input streams' positions
+    /// ([`input_positions`](Self::input_positions)) and says so with
+    /// [`saved_through`](Self::saved_through): until then an ACKNACK
+    /// acknowledges nothing past what was saved
+    /// ([`ReliableInput::hold_acks_at`]).
+    pub fn hold_acks_until_saved(&mut self) {
+        self.hold_acks = true;
+        for s in self.rel_in.values_mut() {
+            let saved = s.confirmed();
+            s.hold_acks_at(saved);
+        }
+    }
+
+    /// The host saved `seq` as reliable input stream `id`'s position; an
+    /// ACKNACK that may now go further is queued on stream 0. Whether one
+    /// was.
+    pub fn saved_through(&mut self, id: StreamId, seq: SeqNum) -> bool {
+        let Some(s) = self.rel_in.get_mut(&id.0) else {
+            return false;
+        };
+        if !s.hold_acks_at(seq) {
+            return false;
+        }
+        match self.acknack_message(id) {
+            Some(m) => {
+                self.control.push_back(m);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Each reliable input stream's position: the last message handled and
+    /// confirmed (for a host that confirms writes: written), by stream id.
+    /// Streams still waiting for the peer's HEARTBEAT to know theirs give
+    /// the position they were restored with, if any.
+    pub fn input_positions(&self) -> Vec<(StreamId, SeqNum)> {
+        let mut v: BTreeMap<u8, SeqNum> = self.restored_inputs.clone();
+        for (id, s) in &self.rel_in {
+            if !s.is_resyncing() {
+                v.insert(*id, s.confirmed());
+            }
+        }
+        v.into_iter().map(|(id, s)| (StreamId(id), s)).collect()
+    }
+
+    /// A restored session's reliable input positions, as
+    /// [`input_positions`](Self::input_positions) gave them before the
+    /// restart: those streams go on from there (what the peer sends again
+    /// up to it is a duplicate) instead of taking the peer's position from
+    /// its HEARTBEAT.
+    pub fn restore_inputs(&mut self, positions: &[(StreamId, SeqNum)]) {
+        for &(id, seq) in positions {
+            if !id.is_reliable() {
+                continue;
+            }
+            self.restored_inputs.insert(id.0, seq);
+            if let Some(s) = self.rel_in.get_mut(&id.0) {
+                s.restore(seq);
+            }
+        }
     }
 
     /// Acknowledges reliable input stream `id` up to `seq`; whether it moved.
@@ -224,6 +295,7 @@ impl Streams {
     /// Forgets every stream (a session created again starts from 0).
     pub fn reset(&mut self) {
         self.resync = false;
+        self.restored_inputs.clear();
         self.be_out.clear();
         self.rel_out.clear();
         self.be_in.clear();
@@ -302,12 +374,18 @@ impl Streams {
         if !self.rel_in.contains_key(&id.0) && self.rel_in.len() >= self.max_streams {
             return None;
         }
-        let (c, deferred, resync) = (self.cfg, self.deferred, self.resync);
+        let (c, deferred, resync, hold) = (self.cfg, self.deferred, self.resync, self.hold_acks);
+        let restored = self.restored_inputs.get(&id.0).copied();
         Some(self.rel_in.entry(id.0).or_insert_with(|| {
             let mut s = ReliableInput::new(id, c);
             s.set_deferred(deferred);
-            if resync {
-                s.set_resync();
+            if hold {
+                s.hold_acks_at(SeqNum::INITIAL_LAST);
+            }
+            match restored {
+                Some(last) => s.restore(last),
+                None if resync => s.set_resync(),
+                None => {}
             }
             s
         }))

@@ -53,9 +53,14 @@
 //!   keep of a client (session, objects, READ_DATA; [`BridgeEvent::ClientChanged`]
 //!   says when it changed) and [`Bridge::restore`] serves it again in a new
 //!   bridge: the client, which knows nothing of the restart, goes on with
-//!   its session, and the streams take its position from its first
-//!   HEARTBEAT or ACKNACK ([`Agent::restore_client`]). eProsima's agent
-//!   forgets every session.
+//!   its session. Its reliable input streams go on from the positions
+//!   kept ([`ClientState::inputs`]), so a sample the client sends again
+//!   because the old agent died before acknowledging it is not written
+//!   twice; the other streams take its position from its first HEARTBEAT
+//!   or ACKNACK ([`Agent::restore_client`]). A host that saves positions
+//!   as they move has acknowledgements wait for the save
+//!   ([`Bridge::hold_acks_until_saved`]). eProsima's agent forgets every
+//!   session.
 //! - TYPE, QOSPROFILE and APPLICATION objects are refused with `ERR_DENIED`.
 
 mod profile;
@@ -81,7 +86,7 @@ use super::binary::BinaryRepresentation;
 use super::client::CreationMode;
 use super::object::{ObjectVariant, Representation};
 use super::session::{InputError, QueueError};
-use super::stream::StreamError;
+use super::stream::{SeqNum, StreamError};
 use super::submessage::ReadData;
 use super::types::{BaseObjectRequest, ClientKey, ObjectId, ObjectKind, StatusCode, StreamId};
 
@@ -278,8 +283,10 @@ struct Object {
 
 /// What the bridge keeps of a client so that a restarted agent serves it
 /// again ([`Bridge::client_state`], [`Bridge::restore`]): its session, its
-/// objects in creation order and the READ_DATA being served. Stream
-/// positions are not kept (see [`Agent::restore_client`]).
+/// objects in creation order, the READ_DATA being served and the positions
+/// of its reliable input streams (the last message of each whose samples
+/// DDS has taken). Output stream positions are not kept (see
+/// [`Agent::restore_client`]).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ClientState<A> {
     /// The client.
@@ -294,6 +301,11 @@ pub struct ClientState<A> {
     pub objects: Vec<(ObjectId, ObjectVariant)>,
     /// The READ_DATA being served.
     pub reads: Vec<ReadData>,
+    /// Per reliable input stream, the last message whose every sample DDS
+    /// took: what the client sends again up to it after a restart is not
+    /// written a second time ([`Agent::restore_positions`]). These move
+    /// with every sample: [`Bridge::take_moved_positions`] says when.
+    pub inputs: Vec<(StreamId, SeqNum)>,
 }
 
 type Key = (ClientKey, ObjectId);
@@ -1316,7 +1328,39 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
             addr,
             objects: objects.into_iter().map(|(_, id, v)| (id, v)).collect(),
             reads: reads.into_iter().map(|(_, r)| r).collect(),
+            inputs: self.agent.input_positions(client),
         })
+    }
+
+    /// The host keeps its clients' reliable input positions
+    /// ([`ClientState::inputs`]) somewhere that outlives it: from now on a
+    /// client's message is acknowledged only once DDS took its samples
+    /// AND the host [saved](Self::positions_saved) the position that
+    /// says so. After each input or timeout, send what
+    /// [`poll_datagram`](Self::poll_datagram) and
+    /// [`poll_transmit`](Self::poll_transmit) give, save what
+    /// [`take_moved_positions`](Self::take_moved_positions) gives, call
+    /// [`positions_saved`](Self::positions_saved), and send what
+    /// [`poll_transmit`](Self::poll_transmit) gives again (the
+    /// ACKNACKs). A host that stops gracefully, having done so, leaves
+    /// nothing written twice after its restart; one killed between a DDS
+    /// write and the save of its position writes that sample again (at
+    /// least once), and one killed later writes nothing twice. Nothing
+    /// acknowledged is ever lost.
+    pub fn hold_acks_until_saved(&mut self) {
+        self.agent.hold_acks_until_saved();
+    }
+
+    /// The clients whose reliable input positions moved since the last
+    /// call, with the positions ([`Agent::take_moved_positions`]).
+    pub fn take_moved_positions(&mut self) -> Vec<(ClientKey, Vec<(StreamId, SeqNum)>)> {
+        self.agent.take_moved_positions()
+    }
+
+    /// The host saved these positions of `client`: the ACKNACKs they allow
+    /// go with the next [`poll_transmit`](Self::poll_transmit).
+    pub fn positions_saved(&mut self, client: ClientKey, positions: &[(StreamId, SeqNum)]) {
+        self.agent.positions_saved(client, positions);
     }
 
     /// Serves a client again as [`client_state`](Self::client_state) left
@@ -1338,6 +1382,7 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
             ));
             return errors;
         }
+        self.agent.restore_positions(client, &state.inputs);
         self.drop_client(client, now);
         self.rediscovery = Some(now + REDISCOVERY);
         for (id, v) in state.objects {

@@ -79,8 +79,14 @@ pub struct ReliableInput {
     /// The last message acknowledged: `last_handled` unless deferred.
     confirmed: SeqNum,
     deferred: bool,
+    /// With [`hold_acks_at`](ReliableInput::hold_acks_at): the last message
+    /// the host has saved as handled; no ACKNACK acknowledges past it.
+    saved: Option<SeqNum>,
     /// A restored session: the sender's first HEARTBEAT sets the position.
     resync: bool,
+    /// A restored stream whose position the host kept: the first
+    /// HEARTBEAT moves it forward (never back).
+    kept: bool,
     last_announced: SeqNum,
     held: BTreeMap<u16, (usize, Message)>,
     held_bytes: usize,
@@ -102,7 +108,9 @@ impl ReliableInput {
             last_handled: SeqNum::INITIAL_LAST,
             confirmed: SeqNum::INITIAL_LAST,
             deferred: false,
+            saved: None,
             resync: false,
+            kept: false,
             last_announced: SeqNum::INITIAL_LAST,
             held: BTreeMap::new(),
             held_bytes: 0,
@@ -123,10 +131,11 @@ impl ReliableInput {
         };
         let half = (self.cfg.depth / 2).max(1);
         let gap = !self.held.is_empty() || self.last_announced.is_after(self.last_handled);
-        if self.ack_urgent || gap || self.confirmed.since(self.ack_sent) >= half {
+        let acked = self.acked();
+        if self.ack_urgent || gap || acked.since(self.ack_sent) >= half {
             return true;
         }
-        if self.confirmed != self.ack_sent {
+        if acked != self.ack_sent {
             self.ack_due.get_or_insert(now + delay);
         }
         false
@@ -134,7 +143,7 @@ impl ReliableInput {
 
     /// An ACKNACK describing the stream now went out.
     pub fn ack_sent(&mut self) {
-        self.ack_sent = self.confirmed;
+        self.ack_sent = self.acked();
         self.ack_urgent = false;
         self.ack_due = None;
     }
@@ -173,9 +182,59 @@ impl ReliableInput {
         self.resync
     }
 
-    /// The last message acknowledged.
+    /// The last message confirmed (handed on and, when deferred,
+    /// [confirmed](Self::confirm_through)): what the stream has done.
     pub fn confirmed(&self) -> SeqNum {
         self.confirmed
+    }
+
+    /// The last message an ACKNACK may acknowledge: the last
+    /// [confirmed](Self::confirmed), held back to the last
+    /// [saved](Self::hold_acks_at) when the host saves positions.
+    pub fn acked(&self) -> SeqNum {
+        match self.saved {
+            Some(s) if self.confirmed.is_after(s) => s,
+            _ => self.confirmed,
+        }
+    }
+
+    /// The host keeps the stream's position (the last message handled)
+    /// somewhere that outlives it, and has saved `saved`: from now on an
+    /// ACKNACK acknowledges nothing past the last position saved, so a
+    /// restarted host never sees the sender go on past what it knows it
+    /// handled. Called again as the host saves; whether that lets the
+    /// ACKNACK move (it is then due at once).
+    pub fn hold_acks_at(&mut self, saved: SeqNum) -> bool {
+        let before = self.acked();
+        self.saved = Some(saved);
+        let moved = self.acked() != before && self.acked() != self.ack_sent;
+        if moved {
+            self.ack_urgent = true;
+        }
+        moved
+    }
+
+    /// A restored session whose host kept this stream's position: `last`
+    /// was the last message handled (and confirmed) before the restart.
+    /// Messages up to it that the sender sends again are duplicates, not
+    /// handed on. As for a stream restored without its position, no
+    /// ACKNACK goes before the sender's first HEARTBEAT (one would name
+    /// messages missing that the sender may have had acknowledged, if the
+    /// position kept is older than its), which moves the position forward
+    /// to the sender's if that is further on, never back.
+    pub fn restore(&mut self, last: SeqNum) {
+        self.last_handled = last;
+        self.confirmed = last;
+        self.last_announced = last;
+        self.ack_sent = last;
+        if self.saved.is_some() {
+            self.saved = Some(last);
+        }
+        self.kept = true;
+        self.resync = true;
+        self.held.clear();
+        self.held_bytes = 0;
+        self.reassembly = None;
     }
 
     /// Acknowledges every message up to `seq` (no further than the last one
@@ -247,7 +306,11 @@ impl ReliableInput {
         // the sender asks: it hears back at once
         self.ack_urgent = true;
         let first = SeqNum(hb.first_unacked);
-        if std::mem::take(&mut self.resync) {
+        let resync = std::mem::take(&mut self.resync);
+        if resync && std::mem::take(&mut self.kept) {
+            // a restored stream whose position the host kept: the sender
+            // may only be further on (handled below, as any HEARTBEAT)
+        } else if resync {
             // a restored session: the sender's window starts here; what
             // came before the HEARTBEAT and is not in it is forgotten
             self.last_handled = first.wrapping_sub(1);
@@ -303,9 +366,10 @@ impl ReliableInput {
     /// message acknowledged, and which later ones are missing (those handed
     /// on but not confirmed are not).
     pub fn acknack(&self) -> AckNack {
-        let first = self.confirmed.wrapping_add(1);
-        let handed = self.last_handled.since(self.confirmed);
-        let known = self.last_announced.since(self.confirmed);
+        let acked = self.acked();
+        let first = acked.wrapping_add(1);
+        let handed = self.last_handled.since(acked);
+        let known = self.last_announced.since(acked);
         let mut bits = 0u16;
         for i in 0..16u16 {
             if i >= handed
