@@ -95,7 +95,15 @@ impl XClient {
         while let Some(m) = self.c.poll_transmit() {
             match &mut self.io {
                 Io::Udp(s) => {
-                    s.send(&m).unwrap();
+                    // a connected UDP socket reports an earlier datagram's
+                    // ICMP "port unreachable" on the next send: the agent
+                    // was down (restart tests); the machine sends again
+                    match s.send(&m) {
+                        Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => {}
+                        r => {
+                            r.unwrap();
+                        }
+                    }
                 }
                 Io::Tcp(s, _) => {
                     let mut f = Vec::new();
