@@ -338,6 +338,28 @@ impl PartialEq for KeyOf {
 
 impl Eq for KeyOf {}
 
+/// The DDS key hash of a received payload of a keyed type: a sample
+/// (`false`) or the serialized key of a dispose or unregister (`true`), or
+/// `None` if it does not decode: how a reader tells the instances of a
+/// writer that sends no key hash apart (Cyclone DDS 11 sends none).
+#[derive(Clone, Copy)]
+pub struct KeyHashOf(pub courier_wire::dds::KeyHashFn);
+
+impl std::fmt::Debug for KeyHashOf {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("KeyHashOf(..)")
+    }
+}
+
+impl PartialEq for KeyHashOf {
+    /// Always equal, as [`KeyOf`].
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+
+impl Eq for KeyHashOf {}
+
 /// The serialized key of a CDR sample of `T` (see [`KeyOf`]).
 fn key_of<T: courier_wire::IpcMessage>(sample: &[u8]) -> Option<Vec<u8>> {
     use courier_wire::cdr;
@@ -359,6 +381,9 @@ pub struct TypeInfo {
     pub extensibility: courier_wire::cdr::Extensibility,
     /// For a keyed type: the key of an encoded sample.
     pub key_of: Option<KeyOf>,
+    /// For a keyed type: the key hash of a received sample or serialized
+    /// key, for writers that send none (Cyclone DDS 11).
+    pub key_hash_of: Option<KeyHashOf>,
 }
 
 impl TypeInfo {
@@ -371,6 +396,7 @@ impl TypeInfo {
             keyed,
             extensibility: T::EXTENSIBILITY,
             key_of: keyed.then_some(KeyOf(key_of::<T>)),
+            key_hash_of: keyed.then_some(KeyHashOf(courier_wire::cdr::key_hash_of_payload::<T>)),
         }
     }
 
@@ -384,6 +410,7 @@ impl TypeInfo {
             keyed: false,
             extensibility: courier_wire::cdr::Extensibility::Final,
             key_of: None,
+            key_hash_of: None,
         }
     }
 
@@ -396,6 +423,7 @@ impl TypeInfo {
             keyed: false,
             extensibility: courier_wire::cdr::Extensibility::Final,
             key_of: None,
+            key_hash_of: None,
         }
     }
 

@@ -164,7 +164,9 @@ pub struct InstanceChange<T: IpcMessage> {
     /// with [`courier_wire::key_hash`] of the values seen), and always on a
     /// topic without key fields.
     pub key: Option<T::Key>,
-    /// The instance's key hash, when the writer sent it.
+    /// The instance's key hash: as the writer sent it, or computed from
+    /// the serialized key when it sent none (Cyclone DDS 11 sends none).
+    /// `None` when neither is there.
     pub key_hash: Option<[u8; 16]>,
     /// When it was received.
     pub received: SystemTime,

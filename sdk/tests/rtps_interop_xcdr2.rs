@@ -373,8 +373,11 @@ async fn string_keyed_dispose_seen_by_cyclone11() {
     .await;
 }
 
-/// Cyclone 11 disposes an instance of each key type; a Courier subscriber
-/// with instance events gets the change with the key decoded.
+/// Cyclone 11 writes three instances and disposes each; a Courier
+/// subscriber with instance events gets every change with its key decoded.
+/// Cyclone 11 sends no key hash: the reader computes it from the serialized
+/// key (without that, the three counted as one instance, and the second
+/// and third disposes were taken for repeats of the first and dropped).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn cyclone11_string_keyed_dispose_reaches_courier_with_its_key() {
     let s = session(16).await;
@@ -385,6 +388,7 @@ async fn cyclone11_string_keyed_dispose_reaches_courier_with_its_key() {
         .await
         .unwrap();
     let d = domain_arg(16);
+    let keys = ["robot-9", "robot-8", "robot-7"];
     let mut peer = Peer::start(
         Vendor::Cyclone11,
         &[
@@ -397,9 +401,9 @@ async fn cyclone11_string_keyed_dispose_reaches_courier_with_its_key() {
             "--pub",
             "--reliable",
             "--count",
-            "1",
+            "3",
             "--keys",
-            "robot-9",
+            &keys.join(","),
             "--dispose",
             "--wait-match",
             "1",
@@ -411,16 +415,27 @@ async fn cyclone11_string_keyed_dispose_reaches_courier_with_its_key() {
             "20",
         ],
     );
-    let mut got = None;
-    while got.is_none() {
+    let mut samples = Vec::new();
+    let mut disposed = Vec::new();
+    while disposed.len() < keys.len() {
         match next(&mut sub).await.unwrap() {
-            courier::Received::Sample(v) => assert_eq!(v.value.name, "robot-9"),
-            courier::Received::Instance(c) => got = Some(c),
+            courier::Received::Sample(v) => samples.push(v.value.name),
+            courier::Received::Instance(c) => {
+                assert_eq!(c.state, courier::InstanceState::Disposed);
+                let key = c.key.clone().expect("the key, decoded");
+                // computed by the reader: Cyclone 11 sent none
+                let want = courier::key_hash(&StrKeyed {
+                    name: key.clone(),
+                    seq: 0,
+                    text: String::new(),
+                });
+                assert_eq!(c.key_hash, Some(want), "{c:?}");
+                disposed.push(key);
+            }
         }
     }
-    let c = got.unwrap();
-    assert_eq!(c.state, courier::InstanceState::Disposed);
-    assert_eq!(c.key.as_deref(), Some("robot-9"), "{c:?}");
+    assert_eq!(samples, keys);
+    assert_eq!(disposed, keys);
     blocking(move || peer.expect("done")).await;
     // the stream goes on
     assert!(sub.next().now_or_never().is_none());

@@ -170,6 +170,28 @@ pub trait IpcMessage: Sized {
     /// (for a type without key fields: the whole value, as
     /// [`cdr_decode`](Self::cdr_decode) reads it). See [`cdr::key_from_slice`].
     fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self::Key, cdr::DecodeError>;
+
+    /// Appends what [`cdr_encode_key`](Self::cdr_encode_key) writes for a
+    /// value whose key is `key` (as [`cdr_decode_key`](Self::cdr_decode_key)
+    /// read it): the key hash of a dispose that carries only the
+    /// serialized key ([`cdr::key_hash_of_key`]). For a type that is its own
+    /// key, all of it, as a key field of another type contributes it. False
+    /// (and the writer's content undefined) if the type cannot say.
+    #[doc(hidden)]
+    fn cdr_encode_key_value(key: &Self::Key, w: &mut cdr::Writer) -> bool {
+        let _ = (key, w);
+        false
+    }
+}
+
+/// `cdr_encode_key_value` of a type that is its own key: all of it.
+macro_rules! own_key_value {
+    () => {
+        fn cdr_encode_key_value(key: &Self::Key, w: &mut cdr::Writer) -> bool {
+            IpcMessage::cdr_encode(key, w);
+            true
+        }
+    };
 }
 
 /// A value longer than its type lets it be ([`IpcMessage::check_lengths`]).
@@ -387,6 +409,7 @@ macro_rules! numeric {
                 self.cdr_encode(w);
             }
             type Key = Self;
+            own_key_value!();
             fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
                 Self::cdr_decode(r)
             }
@@ -444,6 +467,7 @@ impl IpcMessage for bool {
     }
 
     type Key = Self;
+    own_key_value!();
     fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
         Self::cdr_decode(r)
     }
@@ -477,6 +501,7 @@ impl IpcMessage for char {
     }
 
     type Key = Self;
+    own_key_value!();
     fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
         Self::cdr_decode(r)
     }
@@ -509,6 +534,7 @@ impl IpcMessage for String {
     }
 
     type Key = Self;
+    own_key_value!();
     fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
         Self::cdr_decode(r)
     }
@@ -538,6 +564,7 @@ impl IpcMessage for Option<String> {
     }
 
     type Key = Self;
+    own_key_value!();
     fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
         Self::cdr_decode(r)
     }
@@ -560,6 +587,7 @@ impl IpcMessage for () {
     }
 
     type Key = Self;
+    own_key_value!();
     fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
         Self::cdr_decode(r)
     }
@@ -658,6 +686,7 @@ impl<T: IpcMessage, const N: usize> IpcMessage for [T; N] {
     }
 
     type Key = Self;
+    own_key_value!();
     fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
         Self::cdr_decode(r)
     }
@@ -706,6 +735,7 @@ impl<T: IpcMessage> IpcMessage for Option<Box<T>> {
     }
 
     type Key = Self;
+    own_key_value!();
     fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
         Self::cdr_decode(r)
     }
@@ -749,6 +779,9 @@ impl<T: IpcMessage> IpcMessage for Box<T> {
         (**self).cdr_encode_key(w);
     }
     type Key = T::Key;
+    fn cdr_encode_key_value(key: &Self::Key, w: &mut cdr::Writer) -> bool {
+        T::cdr_encode_key_value(key, w)
+    }
     fn cdr_decode_key(r: &mut cdr::Reader<'_>) -> Result<T::Key, cdr::DecodeError> {
         T::cdr_decode_key(r)
     }

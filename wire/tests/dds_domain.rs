@@ -301,6 +301,54 @@ fn samples_older_than_their_writers_lifespan_are_dropped() {
     assert_eq!(dropped, 10, "every stale sample, counted");
 }
 
+/// The key hash of a test sample: its value is its key.
+fn instance_of(data: &[u8], _key_only: bool) -> Option<[u8; 16]> {
+    let mut h = [0; 16];
+    h[..4].copy_from_slice(data.get(4..8)?);
+    Some(h)
+}
+
+/// A keyed writer that sends no key hash (Cyclone DDS 11): a reader told
+/// how to find the instance of a sample keeps its instances apart; without
+/// it they are one, and a time-based filter drops the other instances.
+#[test]
+fn instances_of_a_writer_without_key_hashes_are_told_apart() {
+    for (keys, want) in [(true, 3), (false, 1)] {
+        let mut net = new_net(2, 13, 0);
+        let now = net.now();
+        let w = net
+            .node(0)
+            .create_writer(
+                EndpointConfig::writer("Nokh", "T")
+                    .keyed(true)
+                    .qos(writer_qos()),
+                now,
+            )
+            .unwrap();
+        let mut rq = reader_qos();
+        rq.time_based_filter = RtpsDuration::from_std(ms(1000));
+        let r = net
+            .node(1)
+            .create_reader(EndpointConfig::reader("Nokh", "T").keyed(true).qos(rq), now)
+            .unwrap();
+        if keys {
+            assert!(net.node(1).set_instance_keys(r, instance_of));
+        }
+        assert!(net.run_until(Duration::from_secs(10), |n| matched(n, 1, r, 1)));
+        // three instances, one sample each, no key hash
+        for k in 0..3 {
+            write(&mut net, 0, w, k);
+        }
+        net.run_for(ms(300));
+        let taken = net
+            .take_events(1)
+            .into_iter()
+            .filter(|e| matches!(e, Event::Sample { .. }))
+            .count();
+        assert_eq!(taken, want, "instances told apart: {keys}");
+    }
+}
+
 #[test]
 fn a_minimum_separation_takes_one_sample_per_period() {
     let mut net = new_net(2, 9, 0);

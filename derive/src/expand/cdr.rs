@@ -238,6 +238,10 @@ fn key_decode(fields: &[Field<'_>], ext: &TokenStream, mutable: bool) -> TokenSt
     if keys.is_empty() {
         return quote! {
             type Key = Self;
+            fn cdr_encode_key_value(__key: &Self, __w: &mut __wire::cdr::Writer) -> bool {
+                __wire::IpcMessage::cdr_encode(__key, __w);
+                true
+            }
             fn cdr_decode_key(__r: &mut __wire::cdr::Reader<'_>) -> ::core::result::Result<Self, __wire::cdr::DecodeError> {
                 <Self as __wire::IpcMessage>::cdr_decode(__r)
             }
@@ -318,11 +322,65 @@ fn key_decode(fields: &[Field<'_>], ext: &TokenStream, mutable: bool) -> TokenSt
     } else {
         in_order
     };
+    let encode_value = key_value_encode(&keys, &vars, ext);
     quote! {
         type Key = #key_ty;
         fn cdr_decode_key(__r: &mut __wire::cdr::Reader<'_>) -> ::core::result::Result<Self::Key, __wire::cdr::DecodeError> {
             #body
             ::core::result::Result::Ok(#value)
+        }
+        #encode_value
+    }
+}
+
+/// `cdr_encode_key_value`: what `cdr_encode_key` writes, from the key
+/// alone (its fields as `cdr_decode_key` returns them). A key member that
+/// `key_part` reads as a plain value (a counted `Vec`, an n-d array) is
+/// written from its `Key` only when it is a plain field; otherwise the
+/// type cannot say (`false`).
+fn key_value_encode(
+    keys: &[(usize, &Field<'_>)],
+    vars: &[syn::Ident],
+    ext: &TokenStream,
+) -> TokenStream {
+    let plain = keys.iter().all(|(_, f)| {
+        matches!(
+            (&f.kind, f.count_for),
+            (Kind::Plain, None) | (Kind::SelfPtr, _)
+        )
+    });
+    if !plain {
+        return quote! {
+            fn cdr_encode_key_value(__key: &Self::Key, __w: &mut __wire::cdr::Writer) -> bool {
+                let _ = (__key, __w);
+                false
+            }
+        };
+    }
+    let bind = if vars.len() == 1 {
+        let v = &vars[0];
+        quote!(let #v = __key;)
+    } else {
+        quote!(let (#(#vars),*) = __key;)
+    };
+    let writes = keys.iter().zip(vars).map(|((_, f), v)| {
+        let ty = f.ty;
+        member(
+            f,
+            quote! {
+                if !<#ty as __wire::IpcMessage>::cdr_encode_key_value(#v, __w) {
+                    return false;
+                }
+            },
+        )
+    });
+    quote! {
+        fn cdr_encode_key_value(__key: &Self::Key, __w: &mut __wire::cdr::Writer) -> bool {
+            #bind
+            let __s = __w.begin_struct(#ext);
+            #(#writes)*
+            __s.end(__w);
+            true
         }
     }
 }

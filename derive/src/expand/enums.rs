@@ -83,6 +83,10 @@ pub(super) fn expand_enum(c: &Container<'_>, e: &Enum<'_>) -> TokenStream {
             }
 
             type Key = Self;
+            fn cdr_encode_key_value(__key: &Self, __w: &mut __wire::cdr::Writer) -> bool {
+                __wire::IpcMessage::cdr_encode(__key, __w);
+                true
+            }
             fn cdr_decode_key(__r: &mut __wire::cdr::Reader<'_>) -> ::core::result::Result<Self, __wire::cdr::DecodeError> {
                 <Self as __wire::IpcMessage>::cdr_decode(__r)
             }

@@ -518,6 +518,9 @@ impl State {
                         self.d
                             .create_reader(cfg, now)
                             .map(|id| {
+                                if let Some(f) = ty.key_hash_of {
+                                    self.d.set_instance_keys(id, f.0);
+                                }
                                 self.subs.insert(
                                     id,
                                     Subscription {

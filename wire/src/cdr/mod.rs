@@ -401,6 +401,32 @@ pub fn key_from_slice<T: IpcMessage>(bytes: &[u8]) -> Result<T::Key, DecodeError
     Ok(k)
 }
 
+/// The DDS key hash of the instance whose key is `key` (what
+/// [`key_from_slice`] returns): the same as [`crate::key_hash`] of a value
+/// with that key. `None` for a type that cannot say (a key member that is a
+/// counted `Vec` or an n-d array).
+pub fn key_hash_of_key<T: IpcMessage>(key: &T::Key) -> Option<[u8; 16]> {
+    let mut w = Writer::key_hash_form();
+    T::cdr_encode_key_value(key, &mut w)
+        .then(|| crate::rtps::participant::KeyHash::from_key(w.as_bytes(), !T::CDR_KEY_BOUNDED).0)
+}
+
+/// The DDS key hash of a received payload of a keyed `T`: a sample
+/// (`key_only` false) or the serialized key a dispose or unregister
+/// carries, with its encapsulation header. What a reader computes when
+/// the writer sent no `PID_KEY_HASH` (Cyclone DDS 11 sends none). `None`
+/// for a type without key fields, or bytes that do not decode.
+pub fn key_hash_of_payload<T: IpcMessage>(data: &[u8], key_only: bool) -> Option<[u8; 16]> {
+    if T::KEYS.is_empty() {
+        return None;
+    }
+    if key_only {
+        key_hash_of_key::<T>(&key_from_slice::<T>(data).ok()?)
+    } else {
+        Some(crate::key_hash(&from_slice::<T>(data).ok()?))
+    }
+}
+
 /// The key behind a DDS key hash, when the hash holds the key itself: a
 /// type whose key serializes to at most 16 bytes ([`IpcMessage::CDR_KEY_BOUNDED`])
 /// has the key, in the key-hash form ([`Writer::key_hash_form`]), zero-padded

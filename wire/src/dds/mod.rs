@@ -95,6 +95,7 @@ pub use handles::{
     ClientId, Endpoint, PatternId, QueryId, ReaderId, RequestId, ServiceId, WriterId,
 };
 pub use pattern::fnmatch;
+pub use reader::KeyHashFn;
 pub use request_header::{RequestHeader, RpcStyle};
 pub use rpc::{reply_topic, request_topic, ServiceConfig};
 pub use writer::pad;

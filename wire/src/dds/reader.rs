@@ -44,7 +44,16 @@ pub(super) struct LocalReader {
     /// a dispose or unregister of one of them changes nothing (DDS signals
     /// changes of instance state) and is not delivered.
     disposed: HashSet<[u8; 16]>,
+    /// The key hash of a payload of the reader's type (a sample, or a
+    /// serialized key when the flag says so), for samples that come
+    /// without one ([`Domain::set_instance_keys`]).
+    key_hash_of: Option<KeyHashFn>,
 }
+
+/// The key hash of a payload of a reader's type: a sample (`false`) or
+/// the serialized key of a dispose or unregister (`true`); `None` if it
+/// does not decode. `cdr::key_hash_of_payload::<T>` is one.
+pub type KeyHashFn = fn(&[u8], bool) -> Option<[u8; 16]>;
 
 /// An RTPS `Time_t` as a `SystemTime`.
 fn system_time(t: Time) -> Option<SystemTime> {
@@ -72,6 +81,7 @@ impl LocalReader {
             owners: HashMap::new(),
             last: HashMap::new(),
             disposed: HashSet::new(),
+            key_hash_of: None,
         }
     }
 
@@ -254,13 +264,34 @@ impl Domain {
         self.full.first().copied().map(ReaderId)
     }
 
+    /// How a keyed reader finds the instance of a sample whose writer sent
+    /// no key hash (Cyclone DDS 11 sends none; it is optional in RTPS):
+    /// without it every such sample counts as one instance in the reader's
+    /// disposes, deadlines, ownership and time-based filter. False if
+    /// there is no such reader.
+    pub fn set_instance_keys(&mut self, reader: ReaderId, f: KeyHashFn) -> bool {
+        match self.readers.get_mut(&reader.0) {
+            Some(r) => {
+                r.key_hash_of = Some(f);
+                true
+            }
+            None => false,
+        }
+    }
+
     /// Filters a sample for a user or pattern reader and passes it on.
-    pub(super) fn deliver(&mut self, s: ReceivedSample, now: Instant) {
+    pub(super) fn deliver(&mut self, mut s: ReceivedSample, now: Instant) {
         let writer = self.writer_info.get(&s.writer).copied();
         let wall = self.wall(now);
         let Some(r) = self.readers.get_mut(&s.reader) else {
             return;
         };
+        if s.key_hash.is_none() {
+            if let Some(f) = r.key_hash_of {
+                let key_only = s.kind != ChangeKind::Alive;
+                s.key_hash = f(s.data(), key_only).map(KeyHash);
+            }
+        }
         let reader = ReaderId(s.reader);
         match r.admit(&s, writer, now, wall) {
             Ok(()) => self.events.push_back(Event::Sample { reader, sample: s }),
