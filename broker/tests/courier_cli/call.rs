@@ -149,6 +149,27 @@ fn call_a_dds_service() {
     ]);
     assert_eq!(code, 0, "{err}");
     assert_eq!(out, "[6,0,\"y!\"]\n");
+    // a reply that does not fit --reply-format: said to be of the body
+    // only (Courier took the request/reply header off)
+    let (code, out, err) = run(&[
+        "call",
+        &u,
+        "echo",
+        r#"[5, 0, "y"]"#,
+        "--type",
+        "courier::Ping",
+        "--reply-format",
+        "{long}",
+    ]);
+    assert_eq!((code, out.as_str()), (1, ""), "{err}");
+    assert!(
+        err.starts_with("courier: the reply does not decode as {long}: ")
+            && err.ends_with(
+                " (--reply-format describes the reply's body only: Courier took the \
+                 request/reply header off)\n"
+            ),
+        "{err}"
+    );
     let (code, out, err) = run(&["call", &u, "nobody", r#"[1, 2, "x"]"#, "--timeout", "500"]);
     assert_eq!((code, out.as_str()), (1, ""), "{err}");
     assert!(

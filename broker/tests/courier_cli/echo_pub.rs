@@ -268,3 +268,72 @@ fn echo_and_pub_over_rtps() {
         "{err}"
     );
 }
+
+/// A keyed type whose key is its first field (what `echo` decodes a
+/// dispose's key as: the leading fields the key's bytes fill).
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "demo::Robot")]
+struct Robot {
+    #[ipc(key)]
+    id: i32,
+    name: String,
+}
+
+/// A dispose or unregister is no sample: echo prints what happened to
+/// which key on a line of its own (as spy marks it), as text and as JSON,
+/// never as a sample that does not decode.
+#[test]
+fn echo_prints_instance_changes_on_lines_of_their_own() {
+    let u = url(212);
+    let f = "{int, string}";
+    let text = Proc::start(&["echo", &u, "robots", "--format", f, "--count", "4"]);
+    let json = Proc::start(&[
+        "echo", &u, "robots", "--format", f, "--count", "4", "--json",
+    ]);
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let s = rt.block_on(async {
+        courier::Session::builder(u.as_str())
+            .name("robots")
+            .connect()
+            .await
+            .unwrap()
+    });
+    let p = rt.block_on(async {
+        let p = s.publisher::<Robot>("robots").build().await.unwrap();
+        tokio::time::timeout(T, async {
+            while s.num_handlers("robots").await.unwrap() < 2 {
+                tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+            }
+        })
+        .await
+        .expect("both echoes matched within T");
+        p
+    });
+    let r = |id, name: &str| Robot {
+        id,
+        name: name.into(),
+    };
+    rt.block_on(async {
+        p.publish(&r(1, "a")).await.unwrap();
+        p.dispose(&r(1, "")).await.unwrap();
+        p.publish(&r(2, "b")).await.unwrap();
+        p.unregister(&r(2, "")).await.unwrap();
+    });
+    let (code, out, err) = text.finish();
+    assert_eq!(code, Some(0), "{err}");
+    assert_eq!(
+        out, "{1, \"a\"}\n(disposed) key={1}\n{2, \"b\"}\n(unregistered) key={2}\n",
+        "{err}"
+    );
+    assert!(!err.contains("does not decode"), "{err}");
+    let (code, out, err) = json.finish();
+    assert_eq!(code, Some(0), "{err}");
+    assert_eq!(
+        out,
+        "[1,\"a\"]\n{\"disposed\":true,\"key\":[1]}\n[2,\"b\"]\n\
+         {\"unregistered\":true,\"key\":[2]}\n",
+        "{err}"
+    );
+    assert!(!err.contains("does not decode"), "{err}");
+    rt.block_on(async { tokio::time::timeout(T, s.close()).await.unwrap() });
+}

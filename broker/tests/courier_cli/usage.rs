@@ -184,6 +184,23 @@ fn usage_errors_name_the_problem() {
         (&["help"][..], "ping"),
         (&["ping", "--help"][..], "--min-separation"),
         (&["spy", "-h"][..], "participant found|changed"),
+        // a dispose is a line of its own, never a sample that does not decode
+        (&["echo", "--help"][..], "(disposed) key=<key>"),
+        (
+            &["echo", "--help"][..],
+            "{\"unregistered\":true,\"key\":<key>}",
+        ),
+        // the formats of a DDS call are of the bodies: Courier adds and
+        // takes off the ROS 2 request/reply header
+        (
+            &["call", "--help"][..],
+            "--format and --reply-format describe the request's and the reply's bodies\nonly",
+        ),
+        (
+            &["call", "--help"][..],
+            "as the URL's services= option says",
+        ),
+        (&["call", "--help"][..], "--reply-format '{long}'"),
         (
             &["--version"][..],
             concat!("courier ", env!("CARGO_PKG_VERSION")),

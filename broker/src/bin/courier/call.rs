@@ -2,7 +2,9 @@
 //! (DDS, ROS 2 style), the reply printed decoded (like `ros2 service
 //! call`, `z_get`). On DDS the types are ones Courier knows (default
 //! `courier::Ping`), or any laid out as an IPC format (`--format`,
-//! `--reply-format`, see `cdr_value`).
+//! `--reply-format`, see `cdr_value`): of the request's and the reply's
+//! bodies only, the ROS 2 request/reply header (sample identity) being the
+//! session's to add and take off (RTPS URL option `services=`).
 //!
 //! A REQUEST that does not fit its type is a usage error (exit 2): checked
 //! before connecting when the command line gives the type, else once
@@ -167,5 +169,20 @@ async fn dds_call(
     let r = b.query(client, data, timeout).await;
     b.close_handle(Handle::Client(client));
     let (_, data, _) = r.map_err(|e| failed(o, e, timeout))?;
-    resp.decode(&data)
+    resp.decode(&data).map_err(|e| reply_body_note(e, o))
+}
+
+/// A reply that does not decode, said with what its type describes: the
+/// reply's body, Courier having taken the request/reply header off.
+fn reply_body_note(e: crate::Error, o: &CallArgs) -> crate::Error {
+    let what = if o.reply_format.is_some() {
+        "--reply-format"
+    } else {
+        "the reply type"
+    };
+    format!(
+        "the reply {e} ({what} describes the reply's body only: Courier took the \
+         request/reply header off)"
+    )
+    .into()
 }

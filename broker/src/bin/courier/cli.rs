@@ -128,6 +128,16 @@ call (topics rq/QUERYRequest and rr/QUERYReply) with types named by --type
 (default courier::Ping: [seq, stamp_ns, \"text\"]) and --reply-type (default:
 --type): ones Courier knows, or any laid out as --format / --reply-format (as
 #[derive(IpcMessage)] lays it out).
+The request/reply header (the sample identity that ties a reply to its request)
+is Courier's to add to the request and take off the reply, never part of REQUEST
+or the formats: on rtps:// as the URL's services= option says (auto: each peer's
+own style; cyclonedds: rmw_cyclonedds's 16-byte client id and sequence number
+before the body; fastrtps: inline QoS, as rmw_fastrtps), on xrce+…:// with the
+agent. --format and --reply-format describe the request's and the reply's bodies
+only, as the .srv file declares them; ROS 2's add_two_ints:
+  courier call rtps://0 add_two_ints '[2, 3]' \\
+    --type example_interfaces::srv::dds_::AddTwoInts_Request_ --format '{long, long}' \\
+    --reply-type example_interfaces::srv::dds_::AddTwoInts_Response_ --reply-format '{long}'
 A REQUEST that does not fit its type is a usage error (exit 2); exit 1 when no
 reply comes within --timeout.";
 
@@ -140,7 +150,16 @@ rtps:// --format (CDR laid out as #[derive(IpcMessage)] lays out that format;
 no pointers), else the discovered type when Courier knows it (courier::Ping,
 std_msgs::msg::dds_::String_); on xrce+…:// --type names the type the agent's
 reader takes (with --format for one Courier does not know). Samples of other types print as hex
-({\"hex\":\"…\"} with --json). Diagnostics and progress go to stderr.";
+({\"hex\":\"…\"} with --json). Diagnostics and progress go to stderr.
+A dispose or unregister of a keyed DDS instance (as `courier spy` marks (disposed)
+and (unregistered)) is no sample: it prints as a line of its own, counted by --count:
+  (disposed) key=<key>          --json: {\"disposed\":true,\"key\":<key>}
+  (unregistered) key=<key>      --json: {\"unregistered\":true,\"key\":<key>}
+<key>: the key decoded through the format, as the whole sample or as the leading
+fields its bytes fill (a format does not say which fields are keys; they usually
+come first): key={1}, [1]; else its bytes in hex, encapsulation header first
+({\"hex\":\"…\"}); key_hash=<32 hex digits> (\"key_hash\":\"…\") when the writer
+sent only the key hash; key=- (null) when it sent neither.";
 
 const LIST_OUTPUT: &str = "\
 On rtps://, what discovery finds within --duration (default 2 s), by participant:
@@ -395,11 +414,13 @@ pub struct CallArgs {
     #[arg(allow_hyphen_values = true)]
     pub request: String,
     /// The request's format (IPC default: the one central holds; DDS: the
-    /// CDR layout of --type)
+    /// CDR layout of --type, the body only: Courier adds the ROS 2
+    /// request header)
     #[arg(long, value_name = "FORMAT", value_parser = crate::values::parse_format)]
     pub format: Option<Format>,
     /// The reply's format (IPC default: the one central holds; DDS: the CDR
-    /// layout of --reply-type)
+    /// layout of --reply-type, the body only: Courier takes the ROS 2
+    /// reply header off)
     #[arg(long, value_name = "FORMAT", value_parser = crate::values::parse_format)]
     pub reply_format: Option<Format>,
     /// DDS: the request type (one Courier knows, or any with --format;

@@ -71,6 +71,14 @@ impl DdsType {
         })
     }
 
+    /// Its layout as an IPC format.
+    pub fn format(&self) -> Format {
+        match self {
+            DdsType::Known(k) => k.parsed(),
+            DdsType::Cdr(f, _) => f.clone(),
+        }
+    }
+
     /// A sample's CDR, decoded.
     pub fn decode(&self, data: &[u8]) -> Result<Decoded> {
         Ok(match self {

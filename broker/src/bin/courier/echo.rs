@@ -5,12 +5,16 @@
 //! message (looked up at its first delivery); on DDS `--format` (the CDR
 //! layout the derive gives that format), else the discovered type when
 //! Courier knows it. Anything else prints as hex.
+//!
+//! A dispose or unregister of a keyed DDS instance is no sample: it prints
+//! as a line of its own, `(disposed) key=…` ([`instance_change`]), as `spy`
+//! marks it `(disposed)`, never as data or a decode failure.
 
 use std::cell::Cell;
 use std::time::{Duration, Instant};
 
 use courier::format::Format;
-use courier::{RawSample, Session};
+use courier::{InstanceState, RawSample, Session};
 use futures::StreamExt;
 
 use crate::cli::{kind, EchoArgs, Kind};
@@ -18,7 +22,7 @@ use crate::connect::{connect, target, PROGRESS_EVERY};
 use crate::dds_type::DdsType;
 use crate::stop::{count, run_session, Ended, Stop};
 use crate::text::{err, out, progress};
-use crate::values::{Decoded, Style};
+use crate::values::{decode_key, known_type, Decoded, Style};
 use crate::wait::Discovery;
 use crate::Result;
 
@@ -49,6 +53,16 @@ impl SampleDecoder {
             kind: kind(url),
             asked: format.is_some(),
             format,
+        }
+    }
+
+    /// The layout of a DDS sample of `type_name`, when one is known: the
+    /// format given, or the known type's.
+    pub fn dds_format(&self, type_name: Option<&str>) -> Option<Format> {
+        match (&self.kind, &self.format) {
+            (Kind::Ipc, _) => None,
+            (Kind::Dds, Some(f)) => Some(f.clone()),
+            (Kind::Dds, None) => type_name.and_then(known_type).map(|k| k.parsed()),
         }
     }
 
@@ -108,6 +122,17 @@ async fn echo(s: &Session, o: &EchoArgs, n: &Cell<u64>) -> Result<()> {
                     return Err("the session ended".into());
                 };
                 n.set(n.get() + 1);
+                if smp.state != InstanceState::Alive {
+                    let f = match &ty {
+                        Some(t) => Some(t.format()),
+                        None => dec.dds_format(smp.type_name.as_deref()),
+                    };
+                    out(instance_change(&smp, f.as_ref(), style));
+                    if o.count.is_some_and(|c| n.get() >= c) {
+                        break;
+                    }
+                    continue;
+                }
                 let decoded = match &ty {
                     Some(t) => t.decode(&smp.data),
                     None => dec.decode(s, &smp).await,
@@ -143,4 +168,103 @@ async fn echo(s: &Session, o: &EchoArgs, n: &Cell<u64>) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// How `echo` prints a dispose or unregister: what happened and to which
+/// instance. Text: `(disposed) key={1}` (the key decoded through `fmt`, see
+/// [`decode_key`]), `(disposed) key=<hex>` (the key's bytes, encapsulation
+/// header first, when it does not decode), `(disposed) key_hash=<hex>`
+/// (only the 16-byte key hash came), `(disposed) key=-` (nothing came);
+/// `unregistered` alike. JSON: `{"disposed":true,"key":[1]}`,
+/// `{"disposed":true,"key":{"hex":"…"}}`, `{"disposed":true,"key_hash":"…"}`,
+/// `{"disposed":true,"key":null}`.
+pub fn instance_change(smp: &RawSample, fmt: Option<&Format>, style: Style) -> String {
+    let what = match smp.state {
+        InstanceState::Disposed => "disposed",
+        InstanceState::Unregistered => "unregistered",
+        InstanceState::Alive => "alive",
+    };
+    let key = if smp.data.is_empty() {
+        None
+    } else {
+        Some(
+            fmt.and_then(|f| decode_key(f, &smp.data))
+                .unwrap_or_else(|| Decoded::Bytes(smp.data.clone())),
+        )
+    };
+    let hash = |h: &[u8; 16]| h.iter().map(|b| format!("{b:02x}")).collect::<String>();
+    match (style, key, &smp.key_hash) {
+        (Style::Text, Some(k), _) => format!("({what}) key={}", k.print(Style::Text)),
+        (Style::Text, None, Some(h)) => format!("({what}) key_hash={}", hash(h)),
+        (Style::Text, None, None) => format!("({what}) key=-"),
+        (Style::Json, Some(k), _) => {
+            format!("{{\"{what}\":true,\"key\":{}}}", k.print(Style::Json))
+        }
+        (Style::Json, None, Some(h)) => format!("{{\"{what}\":true,\"key_hash\":\"{}\"}}", hash(h)),
+        (Style::Json, None, None) => format!("{{\"{what}\":true,\"key\":null}}"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn change(state: InstanceState, data: &[u8], key_hash: Option<[u8; 16]>) -> RawSample {
+        let mut s = RawSample::new("k", data.to_vec());
+        s.state = state;
+        s.key_hash = key_hash;
+        s
+    }
+
+    #[test]
+    fn instance_changes_say_what_happened_to_which_key() {
+        // Cyclone DDS's dispose of {int, string} keyed on the int: the key only
+        let f = crate::values::parse_format("{int, string}").unwrap();
+        let key = [0x00, 0x01, 0x00, 0x00, 0x01, 0x00, 0x00, 0x00];
+        let d = change(InstanceState::Disposed, &key, None);
+        assert_eq!(
+            instance_change(&d, Some(&f), Style::Text),
+            "(disposed) key={1}"
+        );
+        assert_eq!(
+            instance_change(&d, Some(&f), Style::Json),
+            r#"{"disposed":true,"key":[1]}"#
+        );
+        // no layout, or one the key does not fit: its bytes
+        assert_eq!(
+            instance_change(&d, None, Style::Text),
+            "(disposed) key=0001000001000000"
+        );
+        let s = crate::values::parse_format("string").unwrap();
+        assert_eq!(
+            instance_change(&d, Some(&s), Style::Json),
+            r#"{"disposed":true,"key":{"hex":"0001000001000000"}}"#
+        );
+        // a whole sample decodes as one
+        let u = change(InstanceState::Unregistered, &[0, 1, 0, 0, 7, 0, 0, 0], None);
+        let i = crate::values::parse_format("int").unwrap();
+        assert_eq!(
+            instance_change(&u, Some(&i), Style::Text),
+            "(unregistered) key=7"
+        );
+        // only a key hash, or nothing
+        let h = change(InstanceState::Disposed, &[], Some([0xab; 16]));
+        assert_eq!(
+            instance_change(&h, Some(&f), Style::Text),
+            format!("(disposed) key_hash={}", "ab".repeat(16))
+        );
+        assert_eq!(
+            instance_change(&h, None, Style::Json),
+            format!(r#"{{"disposed":true,"key_hash":"{}"}}"#, "ab".repeat(16))
+        );
+        let none = change(InstanceState::Unregistered, &[], None);
+        assert_eq!(
+            instance_change(&none, None, Style::Text),
+            "(unregistered) key=-"
+        );
+        assert_eq!(
+            instance_change(&none, None, Style::Json),
+            r#"{"unregistered":true,"key":null}"#
+        );
+    }
 }

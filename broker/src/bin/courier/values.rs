@@ -178,6 +178,22 @@ impl Decoded {
     }
 }
 
+/// The serialized key of a dispose or unregister (CDR, encapsulation
+/// header first) as a value of the sample's format `fmt`: decoded as the
+/// whole format when its bytes are a whole sample (writers that send one),
+/// else as the shortest run of `fmt`'s leading fields that its bytes fill
+/// exactly (keys are usually the first fields; a format does not say which
+/// are keys). `None` when neither fits.
+pub fn decode_key(fmt: &Format, data: &[u8]) -> Option<Decoded> {
+    if let Ok(d) = Decoded::cdr(fmt, data) {
+        return Some(d);
+    }
+    let Format::Struct(fields) = fmt else {
+        return None;
+    };
+    (1..fields.len()).find_map(|n| Decoded::cdr(&Format::Struct(fields[..n].to_vec()), data).ok())
+}
+
 /// A value given on the command line, of format `fmt`: JSON (see
 /// `courier_wire::ipc::value::ValueSeed`), or, for a format a JSON string
 /// fits (`string`, `char`, an enum's name, `format`), the text itself when
