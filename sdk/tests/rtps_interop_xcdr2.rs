@@ -84,6 +84,74 @@ struct Mutable {
     text: String,
 }
 
+/// `courier::test::Unkeyed`: the same members, no key.
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "courier::test::Unkeyed")]
+struct Unkeyed {
+    id: i32,
+    seq: u32,
+    text: String,
+}
+
+/// A topic without key has one instance; closing the publisher disposes
+/// it for a Cyclone 11 reader, as closing a Cyclone writer does (the reader
+/// saw NOT_ALIVE_NO_WRITERS instead: Courier disposed keyed instances only).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn closing_a_publisher_of_a_topic_without_key_disposes_it_for_cyclone11() {
+    let s = session(17).await;
+    let p = s.publisher::<Unkeyed>("one").build().await.unwrap();
+    let d = domain_arg(17);
+    let mut peer = Peer::start(
+        Vendor::Cyclone11,
+        &[
+            "--domain",
+            &d,
+            "--topic",
+            "one",
+            "--type",
+            "unkeyed",
+            "--sub",
+            "--reliable",
+            "--count",
+            "2",
+            "--disposed",
+            "1",
+            "--timeout-s",
+            "20",
+        ],
+    );
+    common::await_handlers(&s, "one", 1).await;
+    for seq in 1..=2 {
+        let v = Unkeyed {
+            id: 5,
+            seq,
+            text: "x".into(),
+        };
+        p.publish(&v).await.unwrap();
+    }
+    drop(p);
+    let lines = blocking(move || {
+        let mut v = Vec::new();
+        loop {
+            let l = peer.expect("");
+            if l == "done" {
+                return v;
+            }
+            if !l.starts_with("matched") && l != "ready" {
+                v.push(l);
+            }
+        }
+    })
+    .await;
+    // (the peer reports the state as samples are taken: the dispose may
+    // show on the first of a batch)
+    assert!(lines.iter().any(|l| l == "disposed 5"), "{lines:?}");
+    for seq in 1..=2 {
+        assert!(lines.contains(&format!("sample 5 {seq} x")), "{lines:?}");
+    }
+    s.close().await;
+}
+
 /// `courier::test::Keyed` (tests/peers/rtps/types.idl), final.
 #[derive(IpcMessage, Debug, Clone, PartialEq)]
 #[ipc(type_name = "courier::test::Keyed")]

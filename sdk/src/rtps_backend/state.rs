@@ -57,9 +57,10 @@ struct Publication {
     /// Closed by the application at this instant: deleted once what it
     /// wrote is written and acknowledged, or after [`LINGER`].
     closed: Option<Instant>,
-    /// Keyed topics: the instances written and not yet disposed or
-    /// unregistered (key hash → serialized key), disposed when the
-    /// publication closes if `autodispose`, else unregistered.
+    /// The instances written and not yet disposed or unregistered (key
+    /// hash → serialized key; a topic without key: its one instance, hash
+    /// zero, empty key), disposed when the publication closes if
+    /// `autodispose`, else unregistered.
     live: HashMap<[u8; 16], Vec<u8>>,
     /// Keyed topics: the instances this writer registered (wrote or
     /// disposed) and has not unregistered, to refuse an unregister of one
@@ -849,6 +850,14 @@ impl State {
                 }
             } else {
                 w.live.remove(&hash);
+            }
+        } else if pw.kind == ChangeKind::Alive && w.key_of.is_none() && w.live.is_empty() {
+            // a topic without key has one instance, alive once written:
+            // disposed at close as a keyed one's (Cyclone DDS does; its
+            // readers saw NOT_ALIVE_NO_WRITERS instead). Its serialized key
+            // is empty: the sample's encapsulation header alone.
+            if let Some(h) = pw.data.get(..2) {
+                w.live.insert([0; 16], vec![h[0], h[1], 0, 0]);
             }
         }
         // the encoded sample becomes the history's copy (the CDR writer

@@ -86,7 +86,21 @@ class Mutable(IdlStruct, typename="courier::test::Mutable"):
     text: str
 
 
-TYPES = {"keyed": Keyed, "strkeyed": StrKeyed, "appendable": Appendable, "mutable": Mutable}
+@dataclass
+@final
+class Unkeyed(IdlStruct, typename="courier::test::Unkeyed"):
+    id: int32
+    seq: uint32
+    text: str
+
+
+TYPES = {
+    "keyed": Keyed,
+    "strkeyed": StrKeyed,
+    "appendable": Appendable,
+    "mutable": Mutable,
+    "unkeyed": Unkeyed,
+}
 
 
 def fail(msg, code=1):
