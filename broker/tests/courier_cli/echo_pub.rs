@@ -286,9 +286,10 @@ struct Robot {
 fn echo_prints_instance_changes_on_lines_of_their_own() {
     let u = url(212);
     let f = "{int, string}";
-    let text = Proc::start(&["echo", &u, "robots", "--format", f, "--count", "4"]);
+    // --count counts samples, not the changes between them
+    let text = Proc::start(&["echo", &u, "robots", "--format", f, "--count", "3"]);
     let json = Proc::start(&[
-        "echo", &u, "robots", "--format", f, "--count", "4", "--json",
+        "echo", &u, "robots", "--format", f, "--count", "3", "--json",
     ]);
     let rt = tokio::runtime::Runtime::new().unwrap();
     let s = rt.block_on(async {
@@ -318,11 +319,12 @@ fn echo_prints_instance_changes_on_lines_of_their_own() {
         p.dispose(&r(1, "")).await.unwrap();
         p.publish(&r(2, "b")).await.unwrap();
         p.unregister(&r(2, "")).await.unwrap();
+        p.publish(&r(3, "c")).await.unwrap();
     });
     let (code, out, err) = text.finish();
     assert_eq!(code, Some(0), "{err}");
     assert_eq!(
-        out, "{1, \"a\"}\n(disposed) key={1}\n{2, \"b\"}\n(unregistered) key={2}\n",
+        out, "{1, \"a\"}\n(disposed) key={1}\n{2, \"b\"}\n(unregistered) key={2}\n{3, \"c\"}\n",
         "{err}"
     );
     assert!(!err.contains("does not decode"), "{err}");
@@ -331,7 +333,7 @@ fn echo_prints_instance_changes_on_lines_of_their_own() {
     assert_eq!(
         out,
         "[1,\"a\"]\n{\"disposed\":true,\"key\":[1]}\n[2,\"b\"]\n\
-         {\"unregistered\":true,\"key\":[2]}\n",
+         {\"unregistered\":true,\"key\":[2]}\n[3,\"c\"]\n",
         "{err}"
     );
     assert!(!err.contains("does not decode"), "{err}");

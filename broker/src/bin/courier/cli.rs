@@ -152,7 +152,9 @@ std_msgs::msg::dds_::String_); on xrce+…:// --type names the type the agent's
 reader takes (with --format for one Courier does not know). Samples of other types print as hex
 ({\"hex\":\"…\"} with --json). Diagnostics and progress go to stderr.
 A dispose or unregister of a keyed DDS instance (as `courier spy` marks (disposed)
-and (unregistered)) is no sample: it prints as a line of its own, counted by --count:
+and (unregistered); a writer that closes disposes what it leaves) is no sample: it
+prints as a line of its own, not counted by --count (that of a topic without key
+is not printed):
   (disposed) key=<key>          --json: {\"disposed\":true,\"key\":<key>}
   (unregistered) key=<key>      --json: {\"unregistered\":true,\"key\":<key>}
 <key>: the key decoded through the format, as the whole sample or as the leading

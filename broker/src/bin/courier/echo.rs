@@ -121,18 +121,23 @@ async fn echo(s: &Session, o: &EchoArgs, n: &Cell<u64>) -> Result<()> {
                 let Some(smp) = smp else {
                     return Err("the session ended".into());
                 };
-                n.set(n.get() + 1);
                 if smp.state != InstanceState::Alive {
+                    // the one instance of a topic without key (its writer
+                    // closed): nothing to say about a key
+                    let keyless = smp.data.len() <= 4 && smp.key_hash.is_none_or(|h| h == [0; 16]);
+                    if keyless {
+                        continue;
+                    }
+                    // printed, not counted: --count counts samples (a
+                    // writer that closes disposes what it leaves)
                     let f = match &ty {
                         Some(t) => Some(t.format()),
                         None => dec.dds_format(smp.type_name.as_deref()),
                     };
                     out(instance_change(&smp, f.as_ref(), style));
-                    if o.count.is_some_and(|c| n.get() >= c) {
-                        break;
-                    }
                     continue;
                 }
+                n.set(n.get() + 1);
                 let decoded = match &ty {
                     Some(t) => t.decode(&smp.data),
                     None => dec.decode(s, &smp).await,
