@@ -247,3 +247,16 @@ fn data_representation_parameter_golden() {
         assert_eq!(p[at..at + 12], want[..], "{reps:?}");
     }
 }
+
+#[test]
+fn a_duration_debugs_as_a_time() {
+    use courier_wire::rtps::discovery::Duration;
+    let d = Duration::from_std(std::time::Duration::from_millis(500));
+    assert_eq!(format!("{d:?}"), "Duration(500ms)");
+    assert_eq!(format!("{:?}", Duration::INFINITE), "Duration(INFINITE)");
+    let neg = Duration {
+        seconds: -1,
+        fraction: 0,
+    };
+    assert_eq!(format!("{neg:?}"), "Duration { seconds: -1, fraction: 0 }");
+}

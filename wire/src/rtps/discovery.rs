@@ -57,7 +57,9 @@ pub mod pid {
 }
 
 /// An RTPS `Duration_t`: seconds and 2^-32 fractions; [`Duration::INFINITE`] is DDS's infinity.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+/// Debug prints it as a time (`Duration(100ms)`, `Duration(INFINITE)`),
+/// its fields only when it is negative.
+#[derive(Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct Duration {
     /// Seconds.
     pub seconds: i32,
@@ -100,6 +102,20 @@ impl Duration {
             std::time::Duration::from_secs(self.seconds as u64)
                 + std::time::Duration::from_nanos(nanos),
         )
+    }
+}
+
+impl std::fmt::Debug for Duration {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.to_std() {
+            _ if *self == Self::INFINITE => f.write_str("Duration(INFINITE)"),
+            Some(d) => write!(f, "Duration({d:?})"),
+            None => f
+                .debug_struct("Duration")
+                .field("seconds", &self.seconds)
+                .field("fraction", &self.fraction)
+                .finish(),
+        }
     }
 }
 
