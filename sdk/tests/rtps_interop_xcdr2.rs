@@ -84,6 +84,24 @@ struct Mutable {
     text: String,
 }
 
+/// What the peer printed until `done`, but for its `ready` and `matched`
+/// lines.
+async fn peer_lines(mut peer: Peer) -> Vec<String> {
+    blocking(move || {
+        let mut v = Vec::new();
+        loop {
+            let l = peer.expect("");
+            if l == "done" {
+                return v;
+            }
+            if !l.starts_with("matched") && l != "ready" {
+                v.push(l);
+            }
+        }
+    })
+    .await
+}
+
 /// `courier::test::Unkeyed`: the same members, no key.
 #[derive(IpcMessage, Debug, Clone, PartialEq)]
 #[ipc(type_name = "courier::test::Unkeyed")]
@@ -130,19 +148,7 @@ async fn closing_a_publisher_of_a_topic_without_key_disposes_it_for_cyclone11() 
         p.publish(&v).await.unwrap();
     }
     drop(p);
-    let lines = blocking(move || {
-        let mut v = Vec::new();
-        loop {
-            let l = peer.expect("");
-            if l == "done" {
-                return v;
-            }
-            if !l.starts_with("matched") && l != "ready" {
-                v.push(l);
-            }
-        }
-    })
-    .await;
+    let lines = peer_lines(peer).await;
     // (the peer reports the state as samples are taken: the dispose may
     // show on the first of a batch)
     assert!(lines.iter().any(|l| l == "disposed 5"), "{lines:?}");
@@ -363,19 +369,7 @@ async fn dispose_seen_by<K: IpcMessage + Send + Sync + 'static>(
     p.publish(&make(keys[1], 2)).await.unwrap();
     p.dispose(&make(keys[0], 0)).await.unwrap();
     drop(p);
-    let mut lines = blocking(move || {
-        let mut v = Vec::new();
-        loop {
-            let l = peer.expect("");
-            if l == "done" {
-                return v;
-            }
-            if !l.starts_with("matched") && l != "ready" {
-                v.push(l);
-            }
-        }
-    })
-    .await;
+    let mut lines = peer_lines(peer).await;
     lines.sort();
     let mut want = vec![
         format!("disposed {}", keys[0]),
