@@ -119,7 +119,7 @@ async fn closing_a_publisher_of_a_topic_without_key_disposes_it_for_cyclone11() 
     let s = session(17).await;
     let p = s.publisher::<Unkeyed>("one").build().await.unwrap();
     let d = domain_arg(17);
-    let mut peer = Peer::start(
+    let peer = Peer::start(
         Vendor::Cyclone11,
         &[
             "--domain",
@@ -360,7 +360,7 @@ async fn dispose_seen_by<K: IpcMessage + Send + Sync + 'static>(
     }
     let mut peer = Peer::start(vendor, &args);
     common::await_handlers(&s, "inst", 1).await;
-    let mut peer = blocking(move || {
+    let peer = blocking(move || {
         peer.expect("matched 1");
         peer
     })
