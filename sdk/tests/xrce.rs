@@ -479,3 +479,21 @@ async fn a_sample_larger_than_the_stream_may_queue_is_refused_at_once() {
     p.publish(&msg(2, 1_000)).await.unwrap();
     s.close().await;
 }
+
+/// A session that goes through more topics than XRCE has object ids
+/// (4095) over its life: a topic nobody uses any more is deleted and its
+/// id reused (every open failed after about 4094 topics).
+#[tokio::test]
+async fn a_session_goes_through_more_topics_than_ids() {
+    let agent = xrce_agent::udp(0).await;
+    let s = session(format!("xrce+udp://{}", agent.addr), "many").await;
+    for i in 0..4200 {
+        let p = s
+            .publisher::<Msg>(&format!("t{i}"))
+            .build()
+            .await
+            .unwrap_or_else(|e| panic!("topic {i}: {e}"));
+        drop(p);
+    }
+    s.close().await;
+}

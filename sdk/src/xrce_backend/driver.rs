@@ -684,9 +684,14 @@ impl Driver {
                 Ok(())
             }
             Cmd::CloseHandle(h) => {
+                let mut topic = None;
                 let object = match h {
-                    Handle::Publication(p) => self.pubs.remove(&p).map(|p| p.writer),
+                    Handle::Publication(p) => self.pubs.remove(&p).map(|p| {
+                        topic = Some(p.topic.clone());
+                        p.writer
+                    }),
                     Handle::Subscription(s) => self.subs.remove(&s).map(|s| {
+                        topic = Some(s.topic.clone());
                         self.by_reader.remove(&s.reader);
                         if self
                             .stalled
@@ -718,12 +723,35 @@ impl Driver {
                         Err(e) => tracing::debug!("XRCE: DELETE refused: {e}"),
                     }
                 }
+                if let Some(t) = topic {
+                    self.drop_unused_topic(&t, now);
+                }
                 Ok(())
             }
             Cmd::Close { reply } => {
                 self.begin_close(now, reply);
                 Ok(())
             }
+        }
+    }
+
+    /// Deletes the topic object of `topic` once no publication or
+    /// subscription of the session uses it: its id is free again (a
+    /// session that went through thousands of topics ran out of the 4095
+    /// ids XRCE has for objects) and the agent forgets it.
+    fn drop_unused_topic(&mut self, topic: &str, now: Instant) {
+        let used = self.pubs.values().any(|p| &*p.topic == topic)
+            || self.subs.values().any(|s| &*s.topic == topic);
+        if used {
+            return;
+        }
+        let Some(t) = self.topics.get(topic) else {
+            return;
+        };
+        let id = t.id;
+        if self.client.delete(id, now).is_ok() {
+            self.topics.remove(topic);
+            self.free(id);
         }
     }
 
