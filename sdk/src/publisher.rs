@@ -29,6 +29,12 @@ pub struct WriteOptions {
 }
 
 /// A publish being built; `.await` it.
+///
+/// Cancelling it (dropping the future, as `tokio::time::timeout` does) does
+/// not take back a sample the session already took: one that waited for
+/// room (back-pressure) may still be sent and delivered after the future
+/// was dropped. Bound the wait with `.confirmed().timeout(..)` (DDS) to
+/// know; a timed-out confirmed publish may also still arrive.
 #[derive(Debug)]
 #[must_use = "a publish does nothing until awaited"]
 pub struct Publish<'a> {
