@@ -160,8 +160,6 @@ impl Drop for Driver {
 /// Where a publish's result goes.
 pub(super) type PublishDone = Done<Result<(), PublishError>>;
 
-pub(super) static HANDLER_SEQ: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
-
 impl Driver {
     pub(super) async fn run(
         mut self,
@@ -390,6 +388,21 @@ impl Driver {
         }
     }
 
+    /// The handler name of a new subscription or server of `m`: the
+    /// lowest `HND-<m>-courier<n>` none of the session's live ones has. A
+    /// name is reused once its subscription is gone (central, and the
+    /// module, keep an unsubscribed handler's record for its name, so new
+    /// names for each subscribe-and-drop grew both without bound).
+    fn free_handler_name(&self, m: &str) -> String {
+        let subs = self.subs.values().filter(|s| s.msg == m).map(|s| &s.hnd);
+        let servers = self.servers.values().filter(|s| s.msg == m).map(|s| &s.hnd);
+        let used: std::collections::HashSet<&String> = subs.chain(servers).collect();
+        (1u64..)
+            .map(|n| format!("HND-{m}-courier{n}"))
+            .find(|h| !used.contains(h))
+            .unwrap_or_default()
+    }
+
     pub(super) fn close_handle(&mut self, h: Handle) {
         let found = match h {
             Handle::Subscription(id) => self
@@ -435,10 +448,7 @@ impl Driver {
             },
             Cmd::CloseHandle(h) => self.close_handle(h),
             Cmd::Subscribe(m, queue, id, d) => {
-                let hnd = format!(
-                    "HND-{m}-courier{}",
-                    HANDLER_SEQ.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
-                );
+                let hnd = self.free_handler_name(&m);
                 match self.conn.subscribe(&m, &hnd) {
                     Ok(h) => {
                         self.registered(&m, d);
@@ -465,10 +475,7 @@ impl Driver {
                 let _ = d.send(Err(OpenError::AlreadyServed(m)));
             }
             Cmd::Serve(m, tx, id, d) => {
-                let hnd = format!(
-                    "HND-{m}-courier{}",
-                    HANDLER_SEQ.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
-                );
+                let hnd = self.free_handler_name(&m);
                 match self.conn.subscribe(&m, &hnd) {
                     Ok(h) => {
                         self.registered(&m, d);
