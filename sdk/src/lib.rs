@@ -392,7 +392,7 @@ pub use courier_wire::{
 pub use error::{ControlError, Error, OpenError, PublishError};
 pub use event::{DurabilityKind, EndpointInfo, Guid, ParticipantInfo, QosSummary};
 pub use ipc_backend::IpcStream;
-pub use qos::{DataRepresentation, Durability, History, KeyHashOf, KeyOf, Reliability};
+pub use qos::{DataRepresentation, Durability, History, KeyOf, Reliability};
 pub use rtps_backend::{Ros2Node, Ros2NodeName, RtpsOptions, ServiceStyle};
 pub use session::{
     ConnectError, Delivery, Encoding, Events, InstanceChange, InstanceState, Ipc, Listener,

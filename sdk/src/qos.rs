@@ -315,12 +315,21 @@ impl SubscriptionQos {
     }
 }
 
-/// The serialized key (with encapsulation header, in the sample's own
-/// encoding) of the instance an encoded sample belongs to, or `None` if it
-/// does not decode: what a backend needs to dispose the instances a
-/// publication leaves behind ([`PublicationQos::autodispose`]).
+/// What a backend needs to know of a keyed type's instances, from encoded
+/// bytes alone.
 #[derive(Clone, Copy)]
-pub struct KeyOf(pub fn(&[u8]) -> Option<Vec<u8>>);
+pub struct KeyOf {
+    /// The serialized key (with encapsulation header, in the sample's own
+    /// encoding) of the instance an encoded sample belongs to, or `None` if
+    /// it does not decode: what a backend needs to dispose the instances a
+    /// publication leaves behind ([`PublicationQos::autodispose`]).
+    pub key: fn(&[u8]) -> Option<Vec<u8>>,
+    /// The DDS key hash of a received payload: a sample (`false`) or the
+    /// serialized key of a dispose or unregister (`true`), or `None` if it
+    /// does not decode: how a reader tells the instances of a writer that
+    /// sends no key hash apart (Cyclone DDS 11 sends none).
+    pub hash: courier_wire::dds::KeyHashFn,
+}
 
 impl std::fmt::Debug for KeyOf {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -329,7 +338,7 @@ impl std::fmt::Debug for KeyOf {
 }
 
 impl PartialEq for KeyOf {
-    /// Always equal: the key function of a type follows from the type,
+    /// Always equal: the key functions of a type follow from the type,
     /// which [`TypeInfo`]'s other fields name.
     fn eq(&self, _: &Self) -> bool {
         true
@@ -337,28 +346,6 @@ impl PartialEq for KeyOf {
 }
 
 impl Eq for KeyOf {}
-
-/// The DDS key hash of a received payload of a keyed type: a sample
-/// (`false`) or the serialized key of a dispose or unregister (`true`), or
-/// `None` if it does not decode: how a reader tells the instances of a
-/// writer that sends no key hash apart (Cyclone DDS 11 sends none).
-#[derive(Clone, Copy)]
-pub struct KeyHashOf(pub courier_wire::dds::KeyHashFn);
-
-impl std::fmt::Debug for KeyHashOf {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("KeyHashOf(..)")
-    }
-}
-
-impl PartialEq for KeyHashOf {
-    /// Always equal, as [`KeyOf`].
-    fn eq(&self, _: &Self) -> bool {
-        true
-    }
-}
-
-impl Eq for KeyHashOf {}
 
 /// The serialized key of a CDR sample of `T` (see [`KeyOf`]).
 fn key_of<T: courier_wire::IpcMessage>(sample: &[u8]) -> Option<Vec<u8>> {
@@ -379,11 +366,8 @@ pub struct TypeInfo {
     pub keyed: bool,
     /// Its CDR extensibility (which representation it is written in by default).
     pub extensibility: courier_wire::cdr::Extensibility,
-    /// For a keyed type: the key of an encoded sample.
+    /// For a keyed type: the key and key hash of encoded samples.
     pub key_of: Option<KeyOf>,
-    /// For a keyed type: the key hash of a received sample or serialized
-    /// key, for writers that send none (Cyclone DDS 11).
-    pub key_hash_of: Option<KeyHashOf>,
 }
 
 impl TypeInfo {
@@ -395,8 +379,10 @@ impl TypeInfo {
             type_name: T::TYPE_NAME,
             keyed,
             extensibility: T::EXTENSIBILITY,
-            key_of: keyed.then_some(KeyOf(key_of::<T>)),
-            key_hash_of: keyed.then_some(KeyHashOf(courier_wire::cdr::key_hash_of_payload::<T>)),
+            key_of: keyed.then_some(KeyOf {
+                key: key_of::<T>,
+                hash: courier_wire::cdr::key_hash_of_payload::<T>,
+            }),
         }
     }
 
@@ -410,7 +396,6 @@ impl TypeInfo {
             keyed: false,
             extensibility: courier_wire::cdr::Extensibility::Final,
             key_of: None,
-            key_hash_of: None,
         }
     }
 
@@ -423,7 +408,6 @@ impl TypeInfo {
             keyed: false,
             extensibility: courier_wire::cdr::Extensibility::Final,
             key_of: None,
-            key_hash_of: None,
         }
     }
 

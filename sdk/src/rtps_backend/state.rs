@@ -519,8 +519,8 @@ impl State {
                         self.d
                             .create_reader(cfg, now)
                             .map(|id| {
-                                if let Some(f) = ty.key_hash_of {
-                                    self.d.set_instance_keys(id, f.0);
+                                if let Some(k) = ty.key_of {
+                                    self.d.set_instance_keys(id, k.hash);
                                 }
                                 self.subs.insert(
                                     id,
@@ -844,7 +844,7 @@ impl State {
             // the instances left alive, for autodispose
             if pw.kind == ChangeKind::Alive {
                 if !w.live.contains_key(&hash) && w.live.len() < MAX_TRACKED_INSTANCES {
-                    if let Some(key) = w.key_of.and_then(|k| (k.0)(&pw.data)) {
+                    if let Some(key) = w.key_of.and_then(|k| (k.key)(&pw.data)) {
                         w.live.insert(hash, key);
                     }
                 }

@@ -215,30 +215,30 @@ fn xrce_error(topic: &str, e: CommandError) -> PublishError {
 
 /// What an agent's refusal usually means, where the status alone says
 /// little (an XRCE STATUS carries no text; the agent's log has it).
-fn refusal_hint(opts: &XrceOptions, entity: &str, topic: &str, status: StatusCode) -> String {
-    let kind = match entity {
-        "participant" => Some(RefKind::Participant),
-        "topic" => Some(RefKind::Topic),
-        "data writer" => Some(RefKind::DataWriter),
-        "data reader" => Some(RefKind::DataReader),
-        "requester" => Some(RefKind::Requester),
-        "replier" => Some(RefKind::Replier),
+fn refusal_hint(opts: &XrceOptions, object: ObjectId, topic: &str, status: StatusCode) -> String {
+    let kind = object.kind().and_then(|k| match k {
+        ObjectKind::Participant => Some(RefKind::Participant),
+        ObjectKind::Topic => Some(RefKind::Topic),
+        ObjectKind::DataWriter => Some(RefKind::DataWriter),
+        ObjectKind::DataReader => Some(RefKind::DataReader),
+        ObjectKind::Requester => Some(RefKind::Requester),
+        ObjectKind::Replier => Some(RefKind::Replier),
         _ => None,
-    };
+    });
     let by_reference = opts.representation == XrceRepresentation::Reference;
-    match (entity, status, kind) {
-        ("participant", StatusCode::ERR_INCOMPATIBLE, _) => {
+    match (kind, status) {
+        (Some(RefKind::Participant), StatusCode::ERR_INCOMPATIBLE) => {
             " (is the session's domain= the agent's --domain? An agent takes participants of \
              its own domain only, unless started with --any-domain)"
                 .into()
         }
-        (_, StatusCode::ERR_UNKNOWN_REFERENCE, Some(k)) if by_reference => format!(
+        (Some(k), StatusCode::ERR_UNKNOWN_REFERENCE) if by_reference => format!(
             " (representation=reference: the agent's -r file has no {} profile named {:?}, \
              or it names something the agent refused)",
             k.name(),
             opts.profile(k, topic)
         ),
-        (_, StatusCode::ERR_UNKNOWN_REFERENCE, _) => {
+        (_, StatusCode::ERR_UNKNOWN_REFERENCE) => {
             " (it names an entity the agent does not have: refused or deleted)".into()
         }
         _ => String::new(),
@@ -1423,7 +1423,7 @@ impl Driver {
                     },
                     entity,
                     status: e.0,
-                    hint: refusal_hint(&self.opts, entity, &w.topic, e.0),
+                    hint: refusal_hint(&self.opts, object, &w.topic, e.0),
                 });
             }
         }
