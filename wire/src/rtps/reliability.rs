@@ -202,6 +202,9 @@ pub struct Writer {
     hb_count: i32,
     /// Keep acknowledged samples (transient-local keep-all writers).
     retain_acked: bool,
+    /// A keep-last history full of samples some reader still lacks
+    /// refuses a write instead of dropping the oldest of them.
+    keep_unacked: bool,
     out: VecDeque<Transmit>,
 }
 
@@ -230,6 +233,7 @@ impl Writer {
             hb_after_writes: None,
             hb_count: 0,
             retain_acked: false,
+            keep_unacked: false,
             out: VecDeque::new(),
         }
     }
@@ -238,6 +242,18 @@ impl Writer {
     /// drops them). Transient-local writers need them for late joiners.
     pub fn retain_acked(mut self, yes: bool) -> Self {
         self.retain_acked = yes;
+        self
+    }
+
+    /// Makes a reliable keep-last writer's depth a resource limit: a
+    /// history full of samples some reader has not acknowledged refuses
+    /// [`Writer::write`] (back-pressure, as keep-all) instead of dropping
+    /// the oldest; acknowledged samples still make room. For per-instance
+    /// keep-last, where the caller replaces an instance's own samples and
+    /// the depth bounds all instances together: dropping the oldest would
+    /// lose another instance's last change.
+    pub fn keep_unacked(mut self, yes: bool) -> Self {
+        self.keep_unacked = yes;
         self
     }
 
@@ -620,10 +636,10 @@ impl Writer {
         }
     }
 
-    /// A keep-all reliable writer keeps what is unacknowledged, bounded in
-    /// samples and in bytes.
+    /// A keep-all reliable writer (or one told to [`Writer::keep_unacked`])
+    /// keeps what is unacknowledged, bounded in samples and in bytes.
     fn keep_all_reliable(&self) -> bool {
-        self.depth.is_none() && self.reliable
+        (self.depth.is_none() || self.keep_unacked) && self.reliable
     }
 
     /// True when [`Writer::write`] would take a sample of `len` bytes now
@@ -640,8 +656,14 @@ impl Writer {
             return Some(0);
         }
         self.release_acked();
-        if self.history.len() >= self.max_samples {
-            return None;
+        let limit = self.depth.unwrap_or(self.max_samples).min(self.max_samples);
+        if self.history.len() >= limit {
+            // a history that keeps acknowledged samples (for late joiners)
+            // drops its oldest to make room, once every reader has it
+            let below = self.min_acked_below();
+            if self.history.first().is_none_or(|(sn, _)| sn >= below) {
+                return None;
+            }
         }
         let unacked = self.unacked_bytes();
         if unacked > 0 && unacked + len > self.max_unacked_bytes {
@@ -1435,6 +1457,79 @@ mod tests {
             rel.write(Arc::from(vec![i]), t0).expect("room");
         }
         assert_eq!(rel.samples().count(), 10, "unacknowledged: kept for repair");
+    }
+
+    fn ack_up_to(w: &mut Writer, reader: Guid, next: i64, count: i32) {
+        w.handle_acknack(
+            reader,
+            &AckNack {
+                reader_id: reader.entity,
+                writer_id: w.guid().entity,
+                reader_sn_state: SequenceNumberSet::empty(SequenceNumber(next)),
+                count,
+                final_flag: true,
+            },
+        );
+    }
+
+    /// Per-instance keep-last (`keep_unacked`): a full history refuses
+    /// while its oldest sample is unacknowledged (dropping it would lose
+    /// another instance's last change), and makes room once it is.
+    #[test]
+    fn keep_unacked_refuses_instead_of_dropping_what_a_reader_lacks() {
+        let (wg, rg) = (guid(1), guid(2));
+        let t0 = Instant::now();
+        let mut w = Writer::new(wg, true, Some(4), 4, Duration::from_millis(10)).keep_unacked(true);
+        w.add_reader(rg, false, t0);
+        for i in 1..=4u8 {
+            assert!(w.has_room(1));
+            w.write(Arc::from(vec![i]), t0).expect("room");
+        }
+        assert!(!w.has_room(1));
+        assert_eq!(w.write(Arc::from(vec![5u8]), t0), None);
+        assert_eq!(w.samples().count(), 4, "nothing unacknowledged dropped");
+        ack_up_to(&mut w, rg, 3, 1);
+        let sn = w
+            .write(Arc::from(vec![5u8]), t0)
+            .expect("room once acknowledged");
+        assert_eq!(sn, SequenceNumber(5));
+        // a plain keep-last writer drops its oldest, acknowledged or not
+        let mut plain = Writer::new(wg, true, Some(4), 4, Duration::from_millis(10));
+        plain.add_reader(rg, false, t0);
+        for i in 1..=5u8 {
+            plain.write(Arc::from(vec![i]), t0).expect("room");
+        }
+        assert_eq!(
+            plain.samples().next().map(|(sn, _)| sn),
+            Some(SequenceNumber(2))
+        );
+    }
+
+    /// A transient-local keep-all history at its sample limit drops its
+    /// oldest acknowledged sample for a new one (it stalled for good: the
+    /// acknowledged samples it keeps for late joiners filled it).
+    #[test]
+    fn a_full_durable_keep_all_history_makes_room_from_acknowledged_samples() {
+        let (wg, rg) = (guid(1), guid(2));
+        let t0 = Instant::now();
+        let mut w = Writer::new(wg, true, None, 4, Duration::from_millis(10)).retain_acked(true);
+        w.add_reader(rg, false, t0);
+        for i in 1..=4u8 {
+            w.write(Arc::from(vec![i]), t0).expect("room");
+        }
+        assert_eq!(
+            w.write(Arc::from(vec![5u8]), t0),
+            None,
+            "all unacknowledged"
+        );
+        ack_up_to(&mut w, rg, 5, 1);
+        for i in 5..=12u8 {
+            assert!(w.has_room(1));
+            let sn = w.write(Arc::from(vec![i]), t0).expect("room");
+            ack_up_to(&mut w, rg, sn.0 + 1, i32::from(i));
+        }
+        let kept: Vec<i64> = w.samples().map(|(sn, _)| sn.0).collect();
+        assert_eq!(kept, [9, 10, 11, 12], "the newest, for late joiners");
     }
 
     /// `has_room` says beforehand what `write` will do, at the sample

@@ -118,7 +118,12 @@ pub struct Config {
     /// hands them back ([`Participant::recycle`](super::Participant::recycle)). Default 2 MiB: the
     /// unacknowledged bytes a Courier writer lets out plus as much again.
     pub spare_buffer_bytes: usize,
-    /// Samples a writer holds at most (keep-all history, keyed keep-last).
+    /// Samples a writer holds at most (keep-all history, keyed keep-last:
+    /// all instances together). A reliable writer full of samples some
+    /// reader has not acknowledged refuses writes
+    /// ([`WriteError::HistoryFull`](super::WriteError::HistoryFull)) rather
+    /// than drop one; a transient-local one drops its oldest acknowledged
+    /// sample for a new one, so late joiners get the newest `max_history`.
     pub max_history: usize,
     /// Unacknowledged payload bytes a reliable keep-all writer holds at
     /// most before [`Participant::write`](super::Participant::write) answers

@@ -69,6 +69,10 @@ impl Participant {
         };
         let writer = Writer::new(guid, reliable, depth, max, self.cfg.heartbeat_period)
             .retain_acked(durable)
+            // per-instance keep-last: the depth bounds all instances
+            // together, and another instance's last change (its dispose,
+            // say) must not make room for this one before readers have it
+            .keep_unacked(keep_last.is_some())
             .max_unacked_bytes(self.cfg.max_unacked_bytes);
         self.announce_endpoint(&data, true, now);
         self.writers.insert(
