@@ -1461,3 +1461,98 @@ async fn handler_counts(ev: &mut courier::Events, msg: &str, until: Duration) ->
     }
     seen
 }
+
+/// A publication that leaves more live instances than its history holds
+/// (`Config::max_history`, 4096) disposes every one of them at its close:
+/// the disposes wait for room in the history instead of pushing each other
+/// out of it before the reader has them.
+#[tokio::test]
+async fn closing_a_publisher_disposes_more_instances_than_its_history_holds() {
+    const N: i32 = 6000;
+    let a = session(197, "a").await;
+    let b = session(197, "b").await;
+    let mut sub = b
+        .subscriber::<Keyed>("many")
+        .with_instances()
+        .build()
+        .await
+        .unwrap();
+    let p = a.publisher::<Keyed>("many").build().await.unwrap();
+    await_handlers(&a, "many", 1).await;
+    for id in 0..N {
+        let v = Keyed {
+            id,
+            seq: 1,
+            text: String::new(),
+        };
+        p.publish(&v).await.unwrap();
+    }
+    drop(p);
+    let (mut samples, mut disposed) = (0, std::collections::BTreeSet::new());
+    while disposed.len() < N as usize {
+        let got = tokio::time::timeout(T, sub.next()).await;
+        let Ok(Some(got)) = got else {
+            panic!(
+                "{samples} samples, {} disposes, then nothing (dropped {}, skipped {})",
+                disposed.len(),
+                sub.dropped(),
+                sub.instance_changes_skipped()
+            );
+        };
+        match got.unwrap() {
+            Received::Sample(_) => samples += 1,
+            Received::Instance(c) => {
+                assert_eq!(c.state, InstanceState::Disposed);
+                assert!(disposed.insert(c.key.unwrap()), "{:?} twice", c.key);
+            }
+        }
+    }
+    assert_eq!(samples, N);
+    a.close().await;
+    b.close().await;
+}
+
+/// A transient-local keep-all publication goes on past its history's
+/// sample limit (`Config::max_history`, 4096): samples every reader
+/// acknowledged make room (it stalled for good once it held 4096 of
+/// them), and a late joiner gets the newest 4096.
+#[tokio::test]
+async fn transient_local_keep_all_goes_on_past_the_history_limit() {
+    const N: u32 = 5000;
+    let a = session(198, "a").await;
+    let b = session(198, "b").await;
+    let p = a
+        .publisher::<Msg>("log")
+        .transient_local()
+        .keep_all()
+        .build()
+        .await
+        .unwrap();
+    let mut sub = b
+        .subscriber::<Msg>("log")
+        .transient_local()
+        .build()
+        .await
+        .unwrap();
+    await_handlers(&a, "log", 1).await;
+    for i in 0..N {
+        tokio::time::timeout(T, p.publish(&msg(i)))
+            .await
+            .unwrap_or_else(|_| panic!("publish {i} stalled"))
+            .unwrap();
+    }
+    for i in 0..N {
+        assert_eq!(next(&mut sub).await.unwrap().value.seq, i);
+    }
+    let late = session(198, "late").await;
+    let mut late_sub = late
+        .subscriber::<Msg>("log")
+        .transient_local()
+        .build()
+        .await
+        .unwrap();
+    assert_eq!(next(&mut late_sub).await.unwrap().value.seq, N - 4096);
+    for s in [a, b, late] {
+        s.close().await;
+    }
+}

@@ -71,6 +71,32 @@ struct Publication {
     autodispose: bool,
 }
 
+/// What a write does to the instances a publication leaves alive
+/// ([`Publication::live`]).
+fn track_live(live: &mut HashMap<[u8; 16], Vec<u8>>, key_of: Option<KeyOf>, pw: &PendingWrite) {
+    match pw.key_hash {
+        Some(hash) if pw.kind == ChangeKind::Alive => {
+            let new = !live.contains_key(&hash) && live.len() < MAX_TRACKED_INSTANCES;
+            if let Some(key) = key_of.filter(|_| new).and_then(|k| (k.key)(&pw.data)) {
+                live.insert(hash, key);
+            }
+        }
+        Some(hash) => {
+            live.remove(&hash);
+        }
+        None if pw.kind == ChangeKind::Alive && key_of.is_none() && live.is_empty() => {
+            // a topic without key has one instance, alive once written:
+            // disposed at close as a keyed one's (Cyclone DDS does; its
+            // readers saw NOT_ALIVE_NO_WRITERS instead). Its serialized key
+            // is empty: the sample's encapsulation header alone.
+            if let Some(h) = pw.data.get(..2) {
+                live.insert([0; 16], vec![h[0], h[1], 0, 0]);
+            }
+        }
+        None => {}
+    }
+}
+
 /// Instances one publication keeps track of at most for disposing them when
 /// it closes; past it, new instances are left to their readers' lease.
 const MAX_TRACKED_INSTANCES: usize = 100_000;
@@ -302,7 +328,12 @@ impl State {
         } else {
             ChangeKind::Unregistered
         };
-        let live: Vec<([u8; 16], Vec<u8>)> = w.live.drain().collect();
+        // what is still waiting for room in the history counts too: its
+        // disposes go after it
+        let mut live = std::mem::take(&mut w.live);
+        for pw in &w.pending {
+            track_live(&mut live, w.key_of, pw);
+        }
         for (hash, key) in live {
             let pw = PendingWrite {
                 kind,
@@ -841,25 +872,9 @@ impl State {
                     w.registered = None;
                 }
             }
-            // the instances left alive, for autodispose
-            if pw.kind == ChangeKind::Alive {
-                if !w.live.contains_key(&hash) && w.live.len() < MAX_TRACKED_INSTANCES {
-                    if let Some(key) = w.key_of.and_then(|k| (k.key)(&pw.data)) {
-                        w.live.insert(hash, key);
-                    }
-                }
-            } else {
-                w.live.remove(&hash);
-            }
-        } else if pw.kind == ChangeKind::Alive && w.key_of.is_none() && w.live.is_empty() {
-            // a topic without key has one instance, alive once written:
-            // disposed at close as a keyed one's (Cyclone DDS does; its
-            // readers saw NOT_ALIVE_NO_WRITERS instead). Its serialized key
-            // is empty: the sample's encapsulation header alone.
-            if let Some(h) = pw.data.get(..2) {
-                w.live.insert([0; 16], vec![h[0], h[1], 0, 0]);
-            }
         }
+        // the instances left alive, for autodispose
+        track_live(&mut w.live, w.key_of, &pw);
         // the encoded sample becomes the history's copy (the CDR writer
         // left room for its envelope)
         let mut change = Change::alive_owned(std::mem::take(&mut pw.data));
