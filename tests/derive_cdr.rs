@@ -155,6 +155,14 @@ struct KmShort {
     id: i32,
 }
 
+/// Only member 1, not the key.
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(extensibility = "mutable")]
+struct KmNoKey {
+    #[ipc(id = 1)]
+    v: u8,
+}
+
 /// Member 0 plus an unknown must-understand key member 9.
 #[derive(IpcMessage, Debug, Clone, PartialEq)]
 #[ipc(extensibility = "mutable")]
@@ -185,11 +193,16 @@ fn mutable_members_by_id() {
             "{enc:?}"
         );
 
+        // a writer without member 1 (an older version of the type): its
+        // default (XTypes)
         let short = cdr::to_vec(&KmShort { id: 1 }, enc);
-        match cdr::from_slice::<Km>(&short) {
+        assert_eq!(cdr::from_slice::<Km>(&short).unwrap(), Km { id: 1, v: 0 });
+        // a key has no default: it must come
+        let keyless = cdr::to_vec(&KmNoKey { v: 7 }, enc);
+        match cdr::from_slice::<Km>(&keyless) {
             Err(DecodeError::MissingMember {
-                member: "v",
-                id: 1,
+                member: "id",
+                id: 0,
                 type_name,
             }) => assert!(type_name.ends_with("::Km")),
             other => panic!("{enc:?}: {other:?}"),
@@ -242,6 +255,119 @@ fn appendable_skips_appended_members_in_xcdr2() {
                 a: 1,
                 s: "s".into()
             }
+        );
+    }
+}
+
+/// An older writer's appendable data ends before the members it lacks:
+/// they take their defaults (XTypes), also inside another struct, where
+/// the DHEADER says where the older version ends. XCDR1 does not say:
+/// there it is an error, never a silently wrong value.
+#[test]
+fn appendable_fills_members_an_older_writer_lacks() {
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    #[ipc(name = "OuterV")]
+    struct Outer1 {
+        inner: V1,
+        after: u32,
+    }
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    #[ipc(name = "OuterV")]
+    struct Outer2 {
+        inner: V2,
+        after: u32,
+    }
+    let v1 = V1 {
+        a: 1,
+        s: "s".into(),
+    };
+    let v2 = V2 {
+        a: 1,
+        s: "s".into(),
+        added: 0.0,
+    };
+    for enc in [Encoding::Xcdr2Le, Encoding::Xcdr2Be] {
+        assert_eq!(cdr::from_slice::<V2>(&cdr::to_vec(&v1, enc)).unwrap(), v2);
+        let outer = Outer1 {
+            inner: v1.clone(),
+            after: 9,
+        };
+        assert_eq!(
+            cdr::from_slice::<Outer2>(&cdr::to_vec(&outer, enc)).unwrap(),
+            Outer2 {
+                inner: v2.clone(),
+                after: 9
+            },
+            "{enc:?}"
+        );
+    }
+    for enc in [Encoding::Xcdr1Le, Encoding::Xcdr1Be] {
+        assert!(cdr::from_slice::<V2>(&cdr::to_vec(&v1, enc)).is_err());
+    }
+}
+
+/// What each kind of member defaults to when a mutable writer's version of
+/// the type lacks it: zero, false, empty, the first enumerator, `None`,
+/// and a struct of its members' defaults.
+#[test]
+fn mutable_members_an_older_writer_lacks_take_their_defaults() {
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    #[ipc(name = "Evolving", extensibility = "mutable")]
+    struct Old {
+        #[ipc(key)]
+        id: i32,
+    }
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    #[ipc(name = "Evolving", extensibility = "mutable")]
+    struct New {
+        #[ipc(key)]
+        id: i32,
+        f: f64,
+        flag: bool,
+        mode: Mode,
+        name: String,
+        arr: [u16; 3],
+        seq: Vec<Inner>,
+        n: u32,
+        #[ipc(len = "n")]
+        counted: Vec<i8>,
+        inner: Inner,
+        opt: Option<Box<Inner>>,
+        app: V2,
+        #[ipc(char)]
+        c: u8,
+        rows: i32,
+        cols: i32,
+        #[ipc(len = "rows, cols")]
+        grid: courier::Matrix<f32>,
+    }
+    for enc in ENCODINGS {
+        let b = cdr::to_vec(&Old { id: 3 }, enc);
+        assert_eq!(
+            cdr::from_slice::<New>(&b).unwrap(),
+            New {
+                id: 3,
+                f: 0.0,
+                flag: false,
+                mode: Mode::Idle,
+                name: String::new(),
+                arr: [0; 3],
+                seq: vec![],
+                n: 0,
+                counted: vec![],
+                inner: Inner { a: 0, b: 0.0 },
+                opt: None,
+                app: V2 {
+                    a: 0,
+                    s: String::new(),
+                    added: 0.0
+                },
+                c: 0,
+                rows: 0,
+                cols: 0,
+                grid: courier::Matrix::new([0, 0], vec![]).unwrap(),
+            },
+            "{enc:?}"
         );
     }
 }

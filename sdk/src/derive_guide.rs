@@ -142,10 +142,16 @@
 //! - **CDR.** Members are framed by `cdr::Writer::begin_struct` /
 //!   `begin_member`; member ids count from 0. `Option<Box<T>>` members are
 //!   `@optional` (`cdr::write_optional`): an absent one is left out of a
-//!   mutable struct and decodes to `None`. Any other member missing from a
-//!   mutable struct is `cdr::DecodeError::MissingMember`; an unknown
-//!   must-understand member is `UnknownMustUnderstand`; other unknown members
-//!   are skipped. `cdr_encode_key` writes the struct's framing with only the
+//!   mutable struct and decodes to `None`.
+//! - **Type evolution** (XTypes). A member the writer's version of a type
+//!   does not have — one missing from a mutable struct, or one after the end
+//!   of an appendable struct's data (XCDR2: its `DHEADER` says where it ends)
+//!   — takes its default: 0, `false`, `""`, empty sequences and `NdVec`s, the
+//!   first enumerator, `None`, and for a struct its members' defaults. A
+//!   missing key member is `cdr::DecodeError::MissingMember`. Members the
+//!   reader's version does not have are skipped (an unknown must-understand
+//!   member is `UnknownMustUnderstand`). Final structs, and appendable ones in
+//!   XCDR1, do not evolve: the versions must match. `cdr_encode_key` writes the struct's framing with only the
 //!   key members (a key member whose type has no keys is written whole);
 //!   `type Key` is what `cdr_decode_key` reads back from it: the one key
 //!   field's type (its own `Key`), a tuple of them for several key fields,

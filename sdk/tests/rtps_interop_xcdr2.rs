@@ -1,6 +1,7 @@
 //! XCDR2 and instances against the real peers: `@appendable` and
 //! `@mutable` samples both ways with Cyclone DDS 11 (the PyPI `cyclonedds`
-//! package, its own Cyclone 11 C core inside; `tests/peers/rtps/cyclone11_peer.py`),
+//! package, its own Cyclone 11 C core inside; `tests/peers/rtps/cyclone11_peer.py`)
+//! and from an older version of each type (defaults for what it lacks),
 //! and an int-keyed and a string-keyed dispose — one explicit, one by
 //! closing the publisher (autodispose) — seen as disposed by Cyclone DDS
 //! 0.10 (C), Fast DDS 2.9 and Cyclone DDS 11. XCDR1 with Fast DDS 2.9 is
@@ -207,6 +208,18 @@ three!(Mutable);
 /// (XCDR2, its default for them); Courier's subscriber takes them, and its
 /// raw subscription sees the XCDR2 encapsulation id `want`.
 async fn xcdr2_cyclone11_to_courier<M: Three>(ty: &str, want: [u8; 2], domain: u32) {
+    xcdr2_cyclone11_version_to_courier::<M>(ty, "c11", want, domain).await
+}
+
+/// As [`xcdr2_cyclone11_to_courier`], Cyclone 11 writing `peer_ty`, whose
+/// samples Courier reads with text `text`.
+async fn xcdr2_cyclone11_version_to_courier<M: Three>(
+    peer_ty: &str,
+    text: &str,
+    want: [u8; 2],
+    domain: u32,
+) {
+    let ty = peer_ty;
     let s = session(domain).await;
     let mut sub = s.subscribe::<M>("x2").await.unwrap();
     let mut raw = s.subscribe_raw("x2").await.unwrap();
@@ -231,7 +244,7 @@ async fn xcdr2_cyclone11_to_courier<M: Three>(ty: &str, want: [u8; 2], domain: u
             "--settle-ms",
             "300",
             "--text",
-            "c11",
+            text,
             "--linger-ms",
             "300",
             "--timeout-s",
@@ -240,7 +253,12 @@ async fn xcdr2_cyclone11_to_courier<M: Three>(ty: &str, want: [u8; 2], domain: u
     );
     for seq in 1..=3u32 {
         let v = next(&mut sub).await.unwrap().value;
-        assert_eq!(v, M::make(5, seq, &format!("c11-{seq}")), "{ty}");
+        let text = if text.is_empty() {
+            String::new()
+        } else {
+            format!("{text}-{seq}")
+        };
+        assert_eq!(v, M::make(5, seq, &text), "{ty}");
     }
     let header = tokio::time::timeout(T, async {
         loop {
@@ -309,6 +327,21 @@ async fn appendable_xcdr2_cyclone11_to_courier() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn mutable_xcdr2_cyclone11_to_courier() {
     xcdr2_cyclone11_to_courier::<Mutable>("mutable", [0x00, 0x0b], 2).await;
+}
+
+/// Type evolution (XTypes): Cyclone 11 writes an older version of the
+/// type, without its last member `text`; Courier's reader of the newer
+/// version takes the samples with `text` at its default, "" (it refused
+/// mutable ones with `MissingMember`, and failed appendable ones at the
+/// end of the data).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn appendable_older_version_from_cyclone11_gets_defaults() {
+    xcdr2_cyclone11_version_to_courier::<Appendable>("appendable_v1", "", [0x00, 0x09], 18).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn mutable_older_version_from_cyclone11_gets_defaults() {
+    xcdr2_cyclone11_version_to_courier::<Mutable>("mutable_v1", "", [0x00, 0x0b], 19).await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

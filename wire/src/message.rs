@@ -107,6 +107,17 @@ pub trait IpcMessage: Sized {
     /// Reads one value from CDR data.
     fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError>;
 
+    /// The value a member of this type takes when the data leaves it out
+    /// (XTypes: a member a mutable struct's writer does not have, or one
+    /// past the end of an appendable struct's data): zero, false, empty,
+    /// the first enumerator; a struct of its members' defaults. `None`
+    /// when the type has none, and a missing member is then
+    /// [`cdr::DecodeError::MissingMember`].
+    #[doc(hidden)]
+    fn cdr_default() -> Option<Self> {
+        None
+    }
+
     /// Appends the CDR encoding of every item, without count or `DHEADER`.
     fn cdr_encode_slice(items: &[Self], w: &mut cdr::Writer) {
         for it in items {
@@ -376,6 +387,9 @@ macro_rules! numeric {
                 w.$cdr_w(*self);
             }
             #[inline]
+            fn cdr_default() -> Option<Self> {
+                Some(<$t>::default())
+            }
             fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
                 r.$cdr_r()
             }
@@ -459,6 +473,9 @@ impl IpcMessage for bool {
     fn cdr_encode(&self, w: &mut cdr::Writer) {
         w.write_bool(*self);
     }
+    fn cdr_default() -> Option<Self> {
+        Some(false)
+    }
     fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
         r.read_bool()
     }
@@ -493,6 +510,9 @@ impl IpcMessage for char {
     fn cdr_encode(&self, w: &mut cdr::Writer) {
         w.write_u8(latin1(*self));
     }
+    fn cdr_default() -> Option<Self> {
+        Some('\0')
+    }
     fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
         Ok(char::from(r.read_u8()?))
     }
@@ -526,6 +546,9 @@ impl IpcMessage for String {
     fn cdr_encode(&self, w: &mut cdr::Writer) {
         w.write_string(self);
     }
+    fn cdr_default() -> Option<Self> {
+        Some(String::new())
+    }
     fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
         r.read_str().map(str::to_owned)
     }
@@ -558,6 +581,9 @@ impl IpcMessage for Option<String> {
     fn cdr_encode(&self, w: &mut cdr::Writer) {
         w.write_string(self.as_deref().unwrap_or(""));
     }
+    fn cdr_default() -> Option<Self> {
+        Some(None)
+    }
     fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
         let s = r.read_str()?;
         Ok((!s.is_empty()).then(|| s.to_owned()))
@@ -582,6 +608,9 @@ impl IpcMessage for () {
         Ok(())
     }
     fn cdr_encode(&self, _: &mut cdr::Writer) {}
+    fn cdr_default() -> Option<Self> {
+        Some(())
+    }
     fn cdr_decode(_: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
         Ok(())
     }
@@ -640,6 +669,10 @@ impl<T: IpcMessage, const N: usize> IpcMessage for [T; N] {
         let d = w.begin_array(Self::CDR_FLAT_PRIMITIVE);
         self.cdr_encode_flat(w);
         w.end_dheader(d);
+    }
+    fn cdr_default() -> Option<Self> {
+        let all: Vec<T> = (0..N).map(|_| T::cdr_default()).collect::<Option<_>>()?;
+        all.try_into().ok()
     }
     fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
         let d = r.begin_array(Self::CDR_FLAT_PRIMITIVE)?;
@@ -730,6 +763,9 @@ impl<T: IpcMessage> IpcMessage for Option<Box<T>> {
     fn cdr_encode(&self, w: &mut cdr::Writer) {
         cdr::write_optional(w, self.as_deref(), T::cdr_encode);
     }
+    fn cdr_default() -> Option<Self> {
+        Some(None)
+    }
     fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
         Ok(cdr::read_optional(r, T::cdr_decode)?.map(Box::new))
     }
@@ -771,6 +807,9 @@ impl<T: IpcMessage> IpcMessage for Box<T> {
     }
     fn cdr_encode(&self, w: &mut cdr::Writer) {
         (**self).cdr_encode(w);
+    }
+    fn cdr_default() -> Option<Self> {
+        T::cdr_default().map(Box::new)
     }
     fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
         T::cdr_decode(r).map(Box::new)
@@ -893,6 +932,11 @@ pub mod __private {
             offset,
             error: Box::new(error),
         })
+    }
+
+    /// An empty `NdVec` field (all dimensions 0): its default in CDR.
+    pub fn nd_default<F: NdField>() -> Option<F> {
+        F::from_received(&vec![0; F::DIMS], Vec::new()).ok()
     }
 
     /// Self pointer `*!`: flag byte, then the enclosing struct.

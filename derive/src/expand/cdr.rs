@@ -60,6 +60,68 @@ fn cdr_read(f: &Field<'_>) -> TokenStream {
     }
 }
 
+/// `Option<T>` of what a member missing from the data decodes to, `T`
+/// being the field's local (an `NdVec`'s elements): its type's default
+/// (XTypes), `None` for a type without one.
+fn member_default(f: &Field<'_>) -> TokenStream {
+    let ty = f.ty;
+    match &f.kind {
+        Kind::Plain => quote!(<#ty as __wire::IpcMessage>::cdr_default()),
+        Kind::SelfPtr => quote!(::core::option::Option::Some(::core::option::Option::None)),
+        Kind::Char => quote!(::core::option::Option::Some(0u8)),
+        Kind::Vec { .. } | Kind::NdVec { .. } => {
+            quote!(::core::option::Option::Some(
+                ::core::default::Default::default()
+            ))
+        }
+    }
+}
+
+/// The value of a member the data leaves out: its default, or
+/// `MissingMember` for a key or a type without default.
+fn missing(f: &Field<'_>) -> TokenStream {
+    let id = f.id;
+    let name = &f.name;
+    let err = quote! {
+        return ::core::result::Result::Err(__wire::cdr::DecodeError::MissingMember {
+            type_name: <Self as __wire::IpcMessage>::TYPE_NAME,
+            member: #name,
+            id: #id,
+        })
+    };
+    if f.attrs.key {
+        return quote!({ #err });
+    }
+    let d = member_default(f);
+    quote! {
+        match #d {
+            ::core::option::Option::Some(__d) => __d,
+            ::core::option::Option::None => #err,
+        }
+    }
+}
+
+/// `cdr_default`: the struct of its members' defaults, if each has one.
+pub(super) fn struct_default(fields: &[Field<'_>]) -> TokenStream {
+    let lets = fields.iter().enumerate().map(|(i, f)| {
+        let v = var(i);
+        let ty = f.ty;
+        let d = match &f.kind {
+            Kind::NdVec { .. } => quote!(__wire::__private::nd_default::<#ty>()),
+            _ => member_default(f),
+        };
+        quote!(let #v: #ty = #d?;)
+    });
+    let members = fields.iter().map(|f| &f.member);
+    let vars = (0..fields.len()).map(var);
+    quote! {
+        fn cdr_default() -> ::core::option::Option<Self> {
+            #(#lets)*
+            ::core::option::Option::Some(Self { #(#members: #vars),* })
+        }
+    }
+}
+
 /// `value` written as the member of field `f`.
 fn member(f: &Field<'_>, value: TokenStream) -> TokenStream {
     let id = f.id;
@@ -83,13 +145,19 @@ pub(super) fn struct_codec(
         .map(|(i, f)| member(f, cdr_value(fields, i)))
         .collect();
     let finish = nd_finish(fields);
+    let appendable = c.extensibility() == Extensibility::Appendable;
     let dec = if mutable {
         mutable_decode(fields, ext)
     } else {
         let reads = fields.iter().enumerate().map(|(i, f)| {
             let v = var(i);
             let ty = decoded_ty(f);
-            let read = cdr_read(f);
+            let mut read = cdr_read(f);
+            if appendable {
+                // an older writer's data ends before the members it lacks
+                let m = missing(f);
+                read = quote!(if __s.ended(__r) { #m } else { #read });
+            }
             if matches!(f.kind, Kind::NdVec { .. }) {
                 let o = offset_var(i);
                 quote!(let #o = __r.position(); let #v #ty = #read;)
@@ -143,8 +211,8 @@ fn nd_finish(fields: &[Field<'_>]) -> Vec<TokenStream> {
 }
 
 /// Members of a mutable struct come in any order, unknown ones are
-/// skipped unless they must be understood, and each field must come
-/// (an optional one may not).
+/// skipped unless they must be understood, and a missing one takes its
+/// default (a key must come; an optional one is `None`).
 fn mutable_decode(fields: &[Field<'_>], ext: &TokenStream) -> TokenStream {
     let decls = fields.iter().enumerate().map(|(i, f)| {
         let v = var(i);
@@ -172,22 +240,16 @@ fn mutable_decode(fields: &[Field<'_>], ext: &TokenStream) -> TokenStream {
     });
     let unwraps = fields.iter().enumerate().map(|(i, f)| {
         let v = var(i);
-        let id = f.id;
-        let name = &f.name;
         if f.optional {
             // an absent optional member is left out of a mutable struct
             return quote!(let #v = #v.unwrap_or(::core::option::Option::None););
         }
+        // a member the writer's version of the type lacks: its default
+        let m = missing(f);
         quote! {
             let #v = match #v {
                 ::core::option::Option::Some(v) => v,
-                ::core::option::Option::None => {
-                    return ::core::result::Result::Err(__wire::cdr::DecodeError::MissingMember {
-                        type_name: <Self as __wire::IpcMessage>::TYPE_NAME,
-                        member: #name,
-                        id: #id,
-                    })
-                }
+                ::core::option::Option::None => #m,
             };
         }
     });

@@ -47,6 +47,14 @@ pub(super) fn expand_enum(c: &Container<'_>, e: &Enum<'_>) -> TokenStream {
             }
         }
     };
+    // XTypes: an enum's default is its first enumerator
+    let default = idents.first().map(|first| {
+        quote! {
+            fn cdr_default() -> ::core::option::Option<Self> {
+                ::core::option::Option::Some(Self::#first)
+            }
+        }
+    });
     let ipc_decode = decode(quote!(ipc));
     let cdr_decode = decode(quote!(cdr));
     quote! {
@@ -81,6 +89,8 @@ pub(super) fn expand_enum(c: &Container<'_>, e: &Enum<'_>) -> TokenStream {
             fn cdr_encode_key(&self, __w: &mut __wire::cdr::Writer) {
                 __wire::IpcMessage::cdr_encode(self, __w);
             }
+
+            #default
 
             type Key = Self;
             fn cdr_encode_key_value(__key: &Self, __w: &mut __wire::cdr::Writer) -> bool {

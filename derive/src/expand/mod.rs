@@ -153,6 +153,7 @@ fn expand_struct(c: &Container<'_>, fields: &[Field<'_>]) -> TokenStream {
     } = cdr::struct_codec(c, fields, &ext);
     let members: Vec<&syn::Member> = fields.iter().map(|f| &f.member).collect();
     let vars: Vec<syn::Ident> = (0..fields.len()).map(var).collect();
+    let cdr_default = cdr::struct_default(fields);
 
     quote! {
         #[automatically_derived]
@@ -214,6 +215,8 @@ fn expand_struct(c: &Container<'_>, fields: &[Field<'_>]) -> TokenStream {
                 #cdr_dec
                 ::core::result::Result::Ok(Self { #(#members: #vars),* })
             }
+
+            #cdr_default
 
             #key_fn
         }

@@ -9,6 +9,9 @@ The same command line and output lines as cyclone_peer.c / fastdds_peer.cpp
   --type strkeyed    @final struct courier::test::StrKeyed { @key string name; uint32 seq; string text; }
   --type appendable  @appendable struct courier::test::Appendable { @key int32 id; uint32 seq; string text; }
   --type mutable     @mutable struct courier::test::Mutable { @key int32 id; uint32 seq; string text; }
+  --type appendable_v1, mutable_v1
+                     an older version of each: the same type name without `text`
+                     (a reader of the newer version gets its default, "")
 
 Loopback only: the domain is created from a configuration string (interface
 lo, no multicast, unicast SPDP to 127.0.0.1); CYCLONEDDS_URI is removed from
@@ -87,6 +90,22 @@ class Mutable(IdlStruct, typename="courier::test::Mutable"):
 
 
 @dataclass
+@appendable
+class AppendableV1(IdlStruct, typename="courier::test::Appendable"):
+    id: int32
+    key("id")
+    seq: uint32
+
+
+@dataclass
+@mutable
+class MutableV1(IdlStruct, typename="courier::test::Mutable"):
+    id: int32
+    key("id")
+    seq: uint32
+
+
+@dataclass
 @final
 class Unkeyed(IdlStruct, typename="courier::test::Unkeyed"):
     id: int32
@@ -100,6 +119,8 @@ TYPES = {
     "appendable": Appendable,
     "mutable": Mutable,
     "unkeyed": Unkeyed,
+    "appendable_v1": AppendableV1,
+    "mutable_v1": MutableV1,
 }
 
 
@@ -126,6 +147,8 @@ def key_of(kind, v):
 def make(kind, k, seq, text):
     if kind == "strkeyed":
         return StrKeyed(name=k, seq=seq, text=text)
+    if kind.endswith("_v1"):
+        return TYPES[kind](id=int(k), seq=seq)
     return TYPES[kind](id=int(k), seq=seq, text=text)
 
 
@@ -232,7 +255,7 @@ def main():
             info = s.sample_info
             if info.valid_data:
                 k = key_of(o.type, s)
-                emit(f"sample {escape(k)} {s.seq} {escape(s.text)}")
+                emit(f"sample {escape(k)} {s.seq} {escape(getattr(s, 'text', ''))}")
                 ids[info.instance_handle] = k
                 received += 1
             # the instance state as seen when taken: on a valid sample too

@@ -976,6 +976,15 @@ impl StructReader {
         r.member_start = None;
     }
 
+    /// Appendable structs in XCDR2: true when the data (its `DHEADER`)
+    /// holds no more members. A writer with an older version of the type
+    /// stops there; the members it does not have take their defaults
+    /// (XTypes). Always false for final structs and in XCDR1, which do
+    /// not say where a struct ends.
+    pub fn ended(&self, r: &Reader<'_>) -> bool {
+        self.ext == Extensibility::Appendable && self.dheader.is_some() && r.remaining() == 0
+    }
+
     /// Mutable structs: the next member's header, or `None` at the end.
     /// The reader is narrowed to the member's data until the next call.
     /// Callers skip members they do not know unless
