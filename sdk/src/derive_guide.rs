@@ -151,7 +151,8 @@
 //!   missing key member is `cdr::DecodeError::MissingMember`. Members the
 //!   reader's version does not have are skipped (an unknown must-understand
 //!   member is `UnknownMustUnderstand`). Final structs, and appendable ones in
-//!   XCDR1, do not evolve: the versions must match. `cdr_encode_key` writes the struct's framing with only the
+//!   XCDR1, do not evolve: the versions must match.
+//! - **Keys.** `cdr_encode_key` writes the struct's framing with only the
 //!   key members (a key member whose type has no keys is written whole);
 //!   `type Key` is what `cdr_decode_key` reads back from it: the one key
 //!   field's type (its own `Key`), a tuple of them for several key fields,

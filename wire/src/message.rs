@@ -386,10 +386,10 @@ macro_rules! numeric {
             fn cdr_encode(&self, w: &mut cdr::Writer) {
                 w.$cdr_w(*self);
             }
-            #[inline]
             fn cdr_default() -> Option<Self> {
                 Some(<$t>::default())
             }
+            #[inline]
             fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
                 r.$cdr_r()
             }

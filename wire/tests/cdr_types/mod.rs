@@ -93,7 +93,9 @@ macro_rules! cdr_struct {
                     Ok($name { $( $f: $f.unwrap_or_default() ),* })
                 } else {
                     let s = r.begin_struct($ext)?;
-                    $( let $f = dec!($kind, r); )*
+                    // an appendable struct's data may end early (an older
+                    // writer): the rest take their defaults
+                    $( let $f = if s.ended(r) { Default::default() } else { dec!($kind, r) }; )*
                     s.end(r)?;
                     Ok($name { $($f),* })
                 }
