@@ -271,15 +271,23 @@ pub fn courier_agent_role(args: &[String]) -> Result<(), String> {
     use courier::rtps_backend::RtpsOptions;
     use courier_broker::xrce_agent::{Transport, XrceAgent};
     let (mut port, mut domain) = (0u16, 0u32);
+    let mut state: Option<std::path::PathBuf> = None;
     let mut it = args.iter();
     while let Some(a) = it.next() {
+        if a == "--state" {
+            state = it.next().map(Into::into);
+            if state.is_none() {
+                return Err("courier-agent: --state needs a directory".into());
+            }
+            continue;
+        }
         let v = it.next().and_then(|v| v.parse::<u32>().ok());
         match (a.as_str(), v) {
             ("--port", Some(p)) if p <= 65535 => port = p as u16,
             ("--domain", Some(d)) if d <= 232 => domain = d,
             _ => {
                 return Err(format!(
-                    "courier-agent: bad argument {a:?} (--port P --domain D)"
+                    "courier-agent: bad argument {a:?} (--port P --domain D [--state DIR])"
                 ))
             }
         }
@@ -294,12 +302,16 @@ pub fn courier_agent_role(args: &[String]) -> Result<(), String> {
         rtps.interface = Some("127.0.0.1".into());
         rtps.peers = vec!["127.0.0.1".into()];
         rtps.multicast = false;
-        let agent = XrceAgent::builder()
+        let mut builder = XrceAgent::builder()
             .transport(Transport::Udp(SocketAddr::from((
                 Ipv4Addr::LOCALHOST,
                 port,
             ))))
-            .rtps(rtps)
+            .rtps(rtps);
+        if let Some(dir) = state {
+            builder = builder.state(dir);
+        }
+        let agent = builder
             .spawn()
             .await
             .map_err(|e| format!("courier-agent: {e}"))?;

@@ -32,6 +32,10 @@
 //! CPU 1 — each agent gets the same one CPU, whatever its threads;
 //! `--same-core`: everything on CPU 0.
 //!
+//! `--state`: instead of the three relays, Courier's agent without and
+//! with `--state` (its state file in the temporary directory): what
+//! keeping sessions and stream positions durable costs.
+//!
 //! The roles are usable by hand:
 //! ```text
 //! xrce_bench courier-agent --port P
@@ -968,8 +972,18 @@ const CASES: [Case; 4] = [
 #[derive(Clone, Copy, PartialEq, Debug)]
 enum System {
     Courier,
+    /// Courier's agent with `--state` (a state file it commits to).
+    CourierState,
     Eprosima,
     Floor,
+}
+
+/// The state file of a `--state` agent on `port` (removed before and after).
+fn state_file(port: u16) -> std::path::PathBuf {
+    std::env::temp_dir().join(format!(
+        "xrce-bench-state-{}-{port}.redb",
+        std::process::id()
+    ))
 }
 
 /// One run's outcome.
@@ -1049,9 +1063,14 @@ impl Orch {
         let port = procs::free_udp_port()?;
         let mut procs = Vec::new();
         match sys {
-            System::Courier => {
+            System::Courier | System::CourierState => {
                 let mut c = self.cmd(self.cpus.1, &self.exe);
                 c.args(["courier-agent", "--port", &port.to_string()]);
+                if sys == System::CourierState {
+                    let f = state_file(port);
+                    let _ = std::fs::remove_file(&f);
+                    c.arg("--state").arg(f);
+                }
                 let mut p = Proc::spawn("courier-agent", c)?;
                 p.wait_line("ready", Duration::from_secs(20))?;
                 procs.push(p);
@@ -1128,6 +1147,9 @@ impl Orch {
         let out_b = b.finish(limit)?;
         let out_a = a.finish(Duration::from_secs(30))?;
         drop(agents);
+        if sys == System::CourierState {
+            let _ = std::fs::remove_file(state_file(port));
+        }
         let (Some(rb), ra) = (result_line(&out_b), result_line(&out_a)) else {
             return Err(format!(
                 "no RESULT: {second}: {out_b:?}, {first}: {out_a:?}"
@@ -1215,14 +1237,15 @@ fn cpu_cell(o: &Outcome) -> String {
 
 fn usage() -> ExitCode {
     println!(
-        "usage:\n  xrce_bench [--quick] [--reps R] [--filter TEXT] [--eprosima PATH] [--no-eprosima] [--no-pin] [--same-core]\n\
+        "usage:\n  xrce_bench [--quick] [--reps R] [--filter TEXT] [--eprosima PATH] [--no-eprosima] [--no-pin] [--same-core] [--state]\n\
          \x20   the whole table: Courier's agent, eProsima's MicroXRCEAgent and a UDP relay floor, \
          the same Courier clients (runs itself inside `unshare -rn`, a namespace with only lo)\n\
          \x20   --eprosima: MicroXRCEAgent v2.3.0 (default {DEFAULT_EPROSIMA}); needs \
          {DISCOVERY_SERVER} (fastdds-tools) on PATH\n\
          \x20   --no-pin: no taskset (default: clients on CPU 0, the agent on CPU 1); \
-         --same-core: all on CPU 0\n\
-         \x20 xrce_bench courier-agent|relay --port P\n\
+         --same-core: all on CPU 0; --state: Courier's agent without and with --state \
+         (a state file) instead\n\
+         \x20 xrce_bench courier-agent [--state FILE]|relay --port P\n\
          \x20 xrce_bench ping|pong|pub|sub --url xrce+udp://127.0.0.1:P [--best-effort] [--size B] \
          [--secs S] [--warmup S] [--watch PEER_PID,AGENT_PID]\n\
          \x20 xrce_bench udp-ping|udp-pong|udp-pub|udp-sub --port P --datagram BYTES [same options]"
@@ -1286,12 +1309,14 @@ fn orchestrate(args: &[String]) -> ExitCode {
     let mut no_eprosima = false;
     let mut pin = true;
     let mut same_core = false;
+    let mut state = false;
     let mut it = args.iter();
     while let Some(a) = it.next() {
         match a.as_str() {
             "--quick" => quick = true,
             "--no-pin" => pin = false,
             "--same-core" => same_core = true,
+            "--state" => state = true,
             "--no-eprosima" => no_eprosima = true,
             "--reps" => match it.next().and_then(|s| s.parse().ok()).filter(|&r| r >= 1) {
                 Some(r) => reps = r,
@@ -1360,13 +1385,17 @@ fn orchestrate(args: &[String]) -> ExitCode {
     };
     let started = Instant::now();
     let mut rows = Vec::new();
-    let systems = [System::Courier, System::Eprosima, System::Floor];
+    let systems: &[System] = if state {
+        &[System::Courier, System::CourierState]
+    } else {
+        &[System::Courier, System::Eprosima, System::Floor]
+    };
     for case in CASES {
         let name = case.name();
         if filter.as_ref().is_some_and(|f| !name.contains(f.as_str())) {
             continue;
         }
-        let mut runs: Vec<Vec<Outcome>> = vec![Vec::new(); 3];
+        let mut runs: Vec<Vec<Outcome>> = vec![Vec::new(); systems.len()];
         let mut foreign: Option<f64> = None;
         for _ in 0..reps {
             for (i, &sys) in systems.iter().enumerate() {
@@ -1400,7 +1429,11 @@ fn orchestrate(args: &[String]) -> ExitCode {
         let outs: Vec<Outcome> = runs.into_iter().map(median).collect();
         rows.push((name, case, outs, foreign));
     }
-    print_table(&orch, rows, reps, started.elapsed().as_secs_f64());
+    if state {
+        print_state_table(&orch, rows, reps, started.elapsed().as_secs_f64());
+    } else {
+        print_table(&orch, rows, reps, started.elapsed().as_secs_f64());
+    }
     ExitCode::SUCCESS
 }
 
@@ -1432,12 +1465,11 @@ fn goal(case: Case, vs_eprosima: Option<f64>, vs_floor: Option<f64>) -> String {
 
 type Row = (String, Case, Vec<Outcome>, Option<f64>);
 
-fn print_table(orch: &Orch, rows: Vec<Row>, reps: usize, secs: f64) {
+/// How the run was made, for a table's heading.
+fn conditions(orch: &Orch, reps: usize, secs: f64) -> String {
     let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
-    println!(
-        "\nXRCE over UDP on lo, the same Courier clients through Courier's agent, eProsima's \
-         MicroXRCEAgent v2.3.0, and a UDP relay floor ({}; {}; {}; floor datagrams {} B; \
-         {} CPUs; loadavg {}; {secs:.0} s)\n",
+    format!(
+        "{}; {}; {}; {} CPUs; loadavg {}; {secs:.0} s",
         if orch.quick {
             "--quick: short smoke run, not for comparison"
         } else {
@@ -1453,12 +1485,60 @@ fn print_table(orch: &Orch, rows: Vec<Row>, reps: usize, secs: f64) {
             (true, "0") => "clients and agent on CPU 0",
             (true, _) => "clients on CPU 0, agent on CPU 1",
         },
-        orch.datagram,
         std::thread::available_parallelism().map_or(0, |n| n.get()),
         load.split_whitespace()
             .take(3)
             .collect::<Vec<_>>()
             .join(" "),
+    )
+}
+
+/// `--state`: what keeping clients' sessions and stream positions in a
+/// state file costs, Courier's agent without and with it.
+fn print_state_table(orch: &Orch, rows: Vec<Row>, reps: usize, secs: f64) {
+    println!(
+        "\nXRCE over UDP on lo, the same Courier clients through Courier's agent without and \
+         with --state ({})\n",
+        conditions(orch, reps, secs)
+    );
+    println!(
+        "| measurement | Courier agent | Courier agent --state | --state / without | \
+         CPU µs without (clients / agent) | CPU µs --state | lost without | lost --state |"
+    );
+    println!("|---|---|---|---|---|---|---|---|");
+    for (name, case, o, foreign) in &rows {
+        let r = ratio(&o[1], &o[0]).map_or("–".into(), |x| format!("{x:.2}×"));
+        let mark = if foreign.is_some_and(|f| f > BUSY) {
+            " ⚠"
+        } else {
+            ""
+        };
+        let l = |o: &Outcome| o.lost.clone().unwrap_or_else(|| "–".into());
+        println!(
+            "| {name}{mark} | {} | {} | {r} | {} | {} | {} | {} |",
+            cell(case.kind, &o[0]),
+            cell(case.kind, &o[1]),
+            cpu_cell(&o[0]),
+            cpu_cell(&o[1]),
+            l(&o[0]),
+            l(&o[1])
+        );
+    }
+    println!(
+        "\nrtt: median round trip (p99) of a 16-byte payload, one in flight; thr: samples/s \
+         received in steady state (reliable: lost and out of order must be 0). --state / \
+         without: above 1.0× is slower for rtt, below 1.0× is slower for thr. --state commits \
+         each reliable stream's position before its ACKNACK (one commit per turn of the \
+         agent's loop)."
+    );
+}
+
+fn print_table(orch: &Orch, rows: Vec<Row>, reps: usize, secs: f64) {
+    println!(
+        "\nXRCE over UDP on lo, the same Courier clients through Courier's agent, eProsima's \
+         MicroXRCEAgent v2.3.0, and a UDP relay floor (floor datagrams {} B; {})\n",
+        orch.datagram,
+        conditions(orch, reps, secs)
     );
     println!(
         "| measurement | Courier agent | eProsima agent | relay floor | Courier / eProsima | \
