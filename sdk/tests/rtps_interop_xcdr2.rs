@@ -415,6 +415,58 @@ async fn dispose_seen_by<K: IpcMessage + Send + Sync + 'static>(
     s.close().await;
 }
 
+/// A publisher of more live instances than its history holds
+/// (`max_history`, 4096) closes right after writing them: a Cyclone 11
+/// reader in another process, slower than Courier, must still see every
+/// instance disposed. The disposes wait for room in the history; a full
+/// keyed keep-last history dropped its oldest unacknowledged changes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_instance_of_a_closing_publisher_is_disposed_for_a_slow_cyclone11_reader() {
+    const N: u32 = 6000;
+    let domain = 20;
+    let s = session(domain).await;
+    let p = s.publisher::<Keyed>("many").build().await.unwrap();
+    let d = domain_arg(domain);
+    let n = N.to_string();
+    let peer = Peer::start(
+        Vendor::Cyclone11,
+        &[
+            "--domain",
+            &d,
+            "--topic",
+            "many",
+            "--type",
+            "keyed",
+            "--sub",
+            "--reliable",
+            "--count",
+            &n,
+            "--disposed",
+            &n,
+            "--timeout-s",
+            "60",
+        ],
+    );
+    common::await_handlers(&s, "many", 1).await;
+    for id in 0..N {
+        p.publish(&keyed(&id.to_string(), 1)).await.unwrap();
+    }
+    drop(p);
+    let lines = peer_lines(peer).await;
+    let count = |prefix: &str| lines.iter().filter(|l| l.starts_with(prefix)).count();
+    assert_eq!(
+        (count("sample "), count("disposed ")),
+        (N as usize, N as usize),
+        "{:?}",
+        lines
+            .iter()
+            .filter(|l| !l.starts_with("sample "))
+            .take(5)
+            .collect::<Vec<_>>()
+    );
+    s.close().await;
+}
+
 fn keyed(k: &str, seq: u32) -> Keyed {
     Keyed {
         id: k.parse().expect("an int key"),
