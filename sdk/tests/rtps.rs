@@ -1556,3 +1556,37 @@ async fn transient_local_keep_all_goes_on_past_the_history_limit() {
         s.close().await;
     }
 }
+
+/// A server that stops serving (drops its `Requests`, its session stays)
+/// takes no more requests: the next query waits for the server that
+/// replaces it and gets its answer. The old request reader stayed matched
+/// for the 10 s the closed service lingers, took the query and dropped it.
+#[tokio::test]
+async fn a_query_after_its_server_stopped_reaches_the_next_server() {
+    async fn doubler(s: &Session) -> tokio::task::JoinHandle<()> {
+        let mut reqs = s.serve::<i32, i32>("double", "").await.unwrap();
+        tokio::spawn(async move {
+            while let Some(Ok(r)) = reqs.next().await {
+                let v = r.value * 2;
+                let _ = r.reply(&v).await;
+            }
+        })
+    }
+    let client = session(199, "client").await;
+    let first = session(199, "first").await;
+    let serving = doubler(&first).await;
+    let ask = |v: i32| client.query::<i32, i32>("double", &v).timeout(T);
+    assert_eq!(ask(1).await.unwrap(), 2);
+    serving.abort();
+    let _ = serving.await;
+    let second = session(199, "second").await;
+    let _serving = doubler(&second).await;
+    assert_eq!(
+        ask(2).await.unwrap(),
+        4,
+        "the query went to the stopped server"
+    );
+    for s in [client, first, second] {
+        s.close().await;
+    }
+}

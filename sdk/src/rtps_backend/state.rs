@@ -301,6 +301,10 @@ impl State {
                 // no more requests; replies already given still go out
                 // (and are repaired) before the service is deleted
                 if let Some(srv) = self.servers.remove(&id) {
+                    // its request reader goes now: a request sent to it
+                    // meanwhile would be taken and dropped, and a server
+                    // that replaces it would never get it
+                    self.d.stop_service(srv.id, now);
                     self.closed_services.push((srv.id, now + LINGER));
                 }
             }

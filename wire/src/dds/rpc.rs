@@ -111,7 +111,8 @@ impl ServiceConfig {
 
 pub(super) struct Service {
     writer: Guid,
-    reader: Guid,
+    /// `None` once the service stopped taking requests ([`Domain::stop_service`]).
+    reader: Option<Guid>,
     style: Option<RpcStyle>,
 }
 
@@ -172,12 +173,30 @@ impl Domain {
             id,
             Service {
                 writer,
-                reader,
+                reader: Some(reader),
                 style: config.style,
             },
         );
         self.drain(now);
         Ok(id)
+    }
+
+    /// Stops taking requests: the request reader is deleted at once, so
+    /// that clients see no server (and wait for another, which gets their
+    /// next request) while the reply writer still delivers the replies
+    /// already given, until [`Domain::delete_service`]. False if there is
+    /// no such service or it was stopped already.
+    pub fn stop_service(&mut self, service: ServiceId, now: Instant) -> bool {
+        let Some(reader) = self
+            .services
+            .get_mut(&service)
+            .and_then(|s| s.reader.take())
+        else {
+            return false;
+        };
+        self.remove_reader(reader, now);
+        self.drain(now);
+        true
     }
 
     /// Stops serving; false if there is no such service.
@@ -186,17 +205,20 @@ impl Domain {
             return false;
         };
         self.remove_writer(s.writer, now);
-        self.remove_reader(s.reader, now);
+        if let Some(reader) = s.reader {
+            self.remove_reader(reader, now);
+        }
         self.drain(now);
         true
     }
 
     /// A service's reply writer and request reader (what a ROS 2 node
-    /// lists for it in its graph entry).
+    /// lists for it in its graph entry); `None` once it stopped taking
+    /// requests.
     pub fn service_endpoints(&self, service: ServiceId) -> Option<(WriterId, ReaderId)> {
         self.services
             .get(&service)
-            .map(|s| (WriterId(s.writer), ReaderId(s.reader)))
+            .and_then(|s| Some((WriterId(s.writer), ReaderId(s.reader?))))
     }
 
     /// A client's request writer and reply reader.
