@@ -129,6 +129,32 @@ impl CentralFormats {
         verdict
     }
 
+    /// Whether `msg` was looked up for `ty` already.
+    pub(crate) fn known(&self, msg: &str, ty: &'static str) -> bool {
+        let lock = self.verdicts.lock().unwrap_or_else(|e| e.into_inner());
+        lock.get(msg).is_some_and(|m| m.contains_key(ty))
+    }
+
+    /// [`CentralFormats::check`] with a fresh lookup (after a definition:
+    /// what central holds now).
+    pub(crate) async fn recheck(
+        &self,
+        session: &Session,
+        msg: &str,
+        ty: &'static str,
+        fits: fn(&str) -> Result<(), String>,
+    ) -> Verdict {
+        if let Some(m) = self
+            .verdicts
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .get_mut(msg)
+        {
+            m.remove(ty);
+        }
+        self.check(session, msg, ty, fits).await
+    }
+
     /// Records the named formats a definition brings; a name this session
     /// gave another format is refused.
     pub(crate) fn named_formats(

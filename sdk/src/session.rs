@@ -253,6 +253,12 @@ impl Session {
     /// Typed [`publish`](Session::publish), [`query`](Session::query) and
     /// [`serve`](Session::serve) define what they need themselves; call
     /// `define` to choose the moment (IPC_defineMsg ahead of time).
+    ///
+    /// On IPC it returns once central has the definition. A message central
+    /// already defines with a format that does not fit `T` is refused
+    /// ([`OpenError::FormatMismatch`]) rather than replaced, as C would
+    /// replace another module's definition; so is one whose definition
+    /// another module replaced at the same moment (central keeps the last).
     pub async fn define<T: IpcMessage>(&self, msg: &str) -> Result<(), OpenError> {
         if self.topics.bind::<T>(msg)?.is_none() {
             let r = self.define_shared(msg, Definition::of::<T>()).await;
@@ -277,10 +283,14 @@ impl Session {
         def: &Definition,
         qos: &PublicationQos,
     ) -> Result<PubId, OpenError> {
+        // the first definition of `msg` as this type: checked again once
+        // central has it (below)
+        let mut first = false;
         if let (true, Some(ipc)) = (self.caps.named_formats, self.backend.ipc()) {
             self.central_formats.named_formats(&def.formats)?;
             // what another module defined: not replaced by a misfit
             if def.ty.format.is_some() {
+                first = !self.central_formats.known(msg, def.rust);
                 if let Err((central, detail)) = self
                     .central_formats
                     .check(self, msg, def.rust, def.fits)
@@ -298,7 +308,31 @@ impl Session {
                 ipc.define_format(name, fmt).await?;
             }
         }
-        self.backend.open_publication(msg, &def.ty, qos).await
+        let id = self.backend.open_publication(msg, &def.ty, qos).await?;
+        if first {
+            // The definition went out after the check: central has it once
+            // it answers this lookup (it reads a module's frames in order),
+            // and `define().await` means central knows the message. A
+            // misfit now is another module's definition that came in
+            // between, which replaced this one (C semantics).
+            if let Err((central, detail)) = self
+                .central_formats
+                .recheck(self, msg, def.rust, def.fits)
+                .await
+            {
+                self.backend.close_handle(Handle::Publication(id));
+                return Err(OpenError::FormatMismatch {
+                    msg: msg.to_string(),
+                    ty: def.rust,
+                    central,
+                    detail: format!(
+                        "{detail} (another module defined {msg} at the same time, and central \
+                         keeps the last definition)"
+                    ),
+                });
+            }
+        }
+        Ok(id)
     }
 
     /// The session's own publication of `msg` (default QoS), opened now.

@@ -1427,3 +1427,38 @@ async fn a_reconnecting_session_whose_central_stops_reports_disconnected_once() 
         .count();
     assert_eq!(downs, 1, "{seen:?}");
 }
+
+/// `define().await` returns once central has the definition: a module that
+/// defines a message right after another defined it with a format that
+/// does not fit is refused, as when it comes later (both were `Ok`, and the
+/// first module's data then failed everywhere: define returned when the
+/// definition was only queued, before the second module's check).
+#[tokio::test]
+async fn a_definition_that_follows_another_at_once_is_checked_against_it() {
+    #[derive(IpcMessage, Debug)]
+    struct PoseA {
+        x: f64,
+        y: f64,
+    }
+    #[derive(IpcMessage, Debug)]
+    struct PoseB {
+        x: f64,
+        y: f64,
+        theta: f64,
+    }
+    let (c, url) = central().await;
+    for round in 0..5 {
+        let msg = format!("pose{round}");
+        let a = session(&url, "old").await;
+        let b = session(&url, "new").await;
+        a.define::<PoseA>(&msg).await.unwrap();
+        let e = b.define::<PoseB>(&msg).await.unwrap_err();
+        assert!(
+            matches!(e, courier::OpenError::FormatMismatch { .. }),
+            "round {round}: {e:?}"
+        );
+        a.close().await;
+        b.close().await;
+    }
+    c.shutdown().await;
+}
