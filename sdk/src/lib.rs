@@ -282,7 +282,7 @@
 //! | `IPC_setVerbosity`, `IPC_perror` | `tracing`; every error is a typed `Result` |
 //! | `IPC_marshall`, `IPC_unmarshall`, `IPC_freeData*`, `IPC_msgFormatter`, `IPC_parseFormat` | `courier::ipc::to_vec` / `from_slice`, `#[derive(IpcMessage)]`; Rust frees memory |
 //! | `IPC_getContext`, `IPC_setContext` | several `Session`s (each its own connection) |
-//! | `IPC_addTimer`, `IPC_addOneShotTimer`, `IPC_addPeriodicTimer`, `IPC_removeTimer` | `Session::every`, `after`, `times`: `Stream`s of `Tick { scheduled, fired }`; drop to remove |
+//! | `IPC_addTimer`, `IPC_addOneShotTimer`, `IPC_addPeriodicTimer`, `IPC_removeTimer` | `Session::every`, `after`, `times`: `Stream`s of `Tick { scheduled, fired }`; drop to remove; they end when the session is closed |
 //! | `IPC_printData`, `IPC_readData` | `courier::ipc::print_value` / `decode_value` (dynamic values) |
 //! | `IPC_msgInstanceName`, `IPC_dataLength` | `Sample::msg`, `RawSample::data.len()`; `Sample::source` (the sender) stays `None` on IPC: no IPC frame carries it |
 //!

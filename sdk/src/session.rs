@@ -158,6 +158,8 @@ pub struct Session {
     /// IPC: whether central's format of each message fits each type this
     /// session reads or writes it as.
     pub(crate) central_formats: Arc<crate::format_check::CentralFormats>,
+    /// Ends the session's timers at its close.
+    timers: Arc<crate::timer::TimersEnd>,
 }
 
 impl Session {
@@ -185,6 +187,7 @@ impl Session {
             name: name.into(),
             topics: Arc::default(),
             central_formats: Arc::default(),
+            timers: Arc::default(),
         }
     }
 
@@ -697,19 +700,31 @@ impl Session {
         })
     }
 
-    /// Timer ticks every `period`, the first one `period` from now.
+    /// Timer ticks every `period`, the first one `period` from now. The
+    /// stream ends when the session is closed. A zero period ticks at
+    /// every poll, as fast as the stream is read.
     pub fn every(&self, period: Duration) -> Timer {
-        Timer::new(period, None)
+        self.timer(period, None)
     }
 
-    /// One tick after `delay`.
+    /// One tick after `delay` (none if the session is closed first).
     pub fn after(&self, delay: Duration) -> Timer {
-        Timer::new(delay, Some(1))
+        self.timer(delay, Some(1))
     }
 
-    /// `n` ticks, `period` apart.
+    /// `n` ticks, `period` apart (fewer if the session is closed first).
     pub fn times(&self, n: u64, period: Duration) -> Timer {
-        Timer::new(period, Some(n))
+        self.timer(period, Some(n))
+    }
+
+    fn timer(&self, period: Duration, count: Option<u64>) -> Timer {
+        if period.is_zero() && count != Some(1) {
+            tracing::warn!(
+                "a timer of {} with a zero period ticks at every poll (as fast as it is read)",
+                self.name
+            );
+        }
+        Timer::of_session(&self.timers, period, count)
     }
 
     /// System events: module connect/disconnect, handler counts and loss of
@@ -780,6 +795,7 @@ impl Session {
     /// right before it is not lost. A `.confirmed()` publish is the way to
     /// know that one sample arrived.
     pub async fn close(&self) {
+        self.timers.end();
         self.backend.close().await
     }
 }

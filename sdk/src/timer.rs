@@ -1,9 +1,11 @@
 //! Timers: [`Timer`] and its [`Tick`]s.
 
 use futures::Stream;
-use std::collections::VecDeque;
+use std::collections::{HashMap, VecDeque};
 use std::pin::Pin;
-use std::task::{Context, Poll};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::task::{Context, Poll, Waker};
 use std::time::Duration;
 
 /// The longest period: longer ones are this (they never fire in practice).
@@ -18,15 +20,50 @@ pub struct Tick {
     pub fired: tokio::time::Instant,
 }
 
+/// The end of a session's timers: [`Session::close`](crate::Session::close)
+/// ends every timer made from the session, waking those that wait.
+#[derive(Debug, Default)]
+pub(crate) struct TimersEnd {
+    ended: AtomicBool,
+    next_id: AtomicU64,
+    /// The wakers of the timers waiting for their next tick, by timer.
+    waiting: Mutex<HashMap<u64, Waker>>,
+}
+
+impl TimersEnd {
+    /// Ends every timer of the session (and those made later).
+    pub(crate) fn end(&self) {
+        self.ended.store(true, Ordering::Release);
+        let waiting = std::mem::take(&mut *self.waiting.lock().unwrap_or_else(|e| e.into_inner()));
+        for w in waiting.into_values() {
+            w.wake();
+        }
+    }
+
+    fn ended(&self) -> bool {
+        self.ended.load(Ordering::Acquire)
+    }
+}
+
 /// A timer `Stream` (IPC_addTimer): ticks at fixed instants, skipping none.
+/// It ends when its session is closed.
 #[derive(Debug)]
 pub struct Timer {
     interval: tokio::time::Interval,
     remaining: Option<u64>,
     queued: VecDeque<Tick>,
+    end: Option<(Arc<TimersEnd>, u64)>,
 }
 
 impl Timer {
+    /// A timer of the session whose timers `end` ends.
+    pub(crate) fn of_session(end: &Arc<TimersEnd>, period: Duration, count: Option<u64>) -> Timer {
+        let mut t = Timer::new(period, count);
+        let id = end.next_id.fetch_add(1, Ordering::Relaxed);
+        t.end = Some((end.clone(), id));
+        t
+    }
+
     pub(crate) fn new(period: Duration, count: Option<u64>) -> Timer {
         // at most ~30 years (tokio's own "far future"): `Duration::MAX`
         // means "never" and must not overflow the clock
@@ -37,6 +74,18 @@ impl Timer {
             interval,
             remaining: count,
             queued: VecDeque::new(),
+            end: None,
+        }
+    }
+}
+
+impl Drop for Timer {
+    fn drop(&mut self) {
+        if let Some((end, id)) = &self.end {
+            end.waiting
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .remove(id);
         }
     }
 }
@@ -44,7 +93,7 @@ impl Timer {
 impl Stream for Timer {
     type Item = Tick;
     fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Tick>> {
-        if self.remaining == Some(0) {
+        if self.remaining == Some(0) || self.end.as_ref().is_some_and(|(e, _)| e.ended()) {
             return Poll::Ready(None);
         }
         if let Some(t) = self.queued.pop_front() {
@@ -60,7 +109,23 @@ impl Stream for Timer {
                     fired: tokio::time::Instant::now(),
                 }))
             }
-            Poll::Pending => Poll::Pending,
+            Poll::Pending => {
+                if let Some((end, id)) = &self.end {
+                    let mut waiting = end.waiting.lock().unwrap_or_else(|e| e.into_inner());
+                    // (checked again under the lock: `end` takes the wakers
+                    // after setting the flag)
+                    if end.ended() {
+                        return Poll::Ready(None);
+                    }
+                    match waiting.get_mut(id) {
+                        Some(w) if w.will_wake(cx.waker()) => {}
+                        _ => {
+                            waiting.insert(*id, cx.waker().clone());
+                        }
+                    }
+                }
+                Poll::Pending
+            }
         }
     }
 }
@@ -79,5 +144,24 @@ mod tests {
         assert!(tokio::time::timeout(Duration::from_millis(20), once.next())
             .await
             .is_err());
+    }
+
+    /// A session's close ends its timers at once, also one waiting for a
+    /// tick far away, and those made after it.
+    #[tokio::test]
+    async fn ending_the_session_ends_its_timers_and_wakes_the_waiting() {
+        let end = Arc::new(TimersEnd::default());
+        let mut far = Timer::of_session(&end, Duration::from_secs(3600), None);
+        let mut fast = Timer::of_session(&end, Duration::from_millis(1), None);
+        assert!(fast.next().await.is_some());
+        let waiting = tokio::spawn(async move { far.next().await });
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        end.end();
+        let got = tokio::time::timeout(Duration::from_secs(5), waiting).await;
+        assert!(matches!(got, Ok(Ok(None))), "{got:?}");
+        assert_eq!(fast.next().await, None);
+        let mut later = Timer::of_session(&end, Duration::from_millis(1), None);
+        assert_eq!(later.next().await, None);
+        assert!(end.waiting.lock().unwrap().is_empty());
     }
 }

@@ -271,6 +271,12 @@ async fn timers_tick_on_schedule() {
     for _ in 0..5 {
         every.next().await.unwrap();
     }
+    // closing the session ends its timers, also one waiting for a tick
+    let mut hourly = a.every(Duration::from_secs(3600));
+    let waiting = tokio::spawn(async move { hourly.next().await });
+    a.close().await;
+    assert_eq!(waiting.await.unwrap(), None);
+    assert_eq!(every.next().await, None);
     c.shutdown().await;
 }
 
