@@ -193,7 +193,8 @@ impl RtpsOptions {
         self.ros2_graph || self.ros2_node.is_some()
     }
 
-    /// Parses `rtps://<domain>?key=value&…`. Keys: `interface`, `peers`
+    /// Parses `rtps://<domain>?key=value&…` (or `rtps://?domain=N&…`, as
+    /// `xrce+udp://` URLs name theirs; not both). Keys: `interface`, `peers`
     /// (comma-separated `ip` or `ip:port`), `multicast` (true/false),
     /// `index` (participant index), `max_index`, `recv_buffer`,
     /// `send_buffer` (bytes), `lease_ms`, `busy_poll_us`, `max_message_size`,
@@ -218,19 +219,11 @@ impl RtpsOptions {
         let (domain, query) = rest.split_once('?').unwrap_or((rest, ""));
         let domain = domain.trim_end_matches('/');
         let mut o = RtpsOptions::default();
-        if !domain.is_empty() {
+        let in_path = !domain.is_empty();
+        if in_path {
             o.domain = domain
                 .parse()
                 .map_err(|_| bad(url, format!("domain {domain:?} is not a number")))?;
-        }
-        if o.domain > 232 {
-            return Err(bad(
-                url,
-                format!(
-                    "domain {} is above 232, the highest the standard port mapping allows",
-                    o.domain
-                ),
-            ));
         }
         let mut multicast_set = false;
         let mut seen: Vec<&str> = Vec::new();
@@ -247,6 +240,18 @@ impl RtpsOptions {
             }
             seen.push(k);
             match k {
+                // `rtps://?domain=N`, as xrce+udp:// URLs name theirs
+                "domain" if in_path => {
+                    return Err(bad(
+                        url,
+                        format!("the domain is given twice: rtps://{domain} and domain={v}"),
+                    ));
+                }
+                "domain" => {
+                    o.domain = v
+                        .parse()
+                        .map_err(|_| bad(url, format!("domain {v:?} is not a number")))?;
+                }
                 "interface" => o.interface = Some(v.to_string()),
                 "peers" => {
                     o.peers = v
@@ -346,18 +351,25 @@ impl RtpsOptions {
                         .map_err(|why| bad(url, format!("{k}={v}: {why}")))?;
                     o.busy_poll = Some(w).filter(|d| !d.is_zero())
                 }
-                _ => {
-                    return Err(bad(
-                        url,
-                        format!(
-                            "unknown option {k:?} (known: interface, peers, multicast, index, \
+                _ => return Err(bad(
+                    url,
+                    format!(
+                        "unknown option {k:?} (known: domain, interface, peers, multicast, index, \
                              max_index, recv_buffer, send_buffer, lease_ms, busy_poll_us, \
                              max_message_size, fragment_size, max_sample_size, receive_thread, \
                              services, ros2_node, ros2_graph, ros2_gid)"
-                        ),
-                    ))
-                }
+                    ),
+                )),
             }
+        }
+        if o.domain > 232 {
+            return Err(bad(
+                url,
+                format!(
+                    "domain {} is above 232, the highest the standard port mapping allows",
+                    o.domain
+                ),
+            ));
         }
         if !o.peers.is_empty() && !multicast_set {
             o.multicast = false;
@@ -471,6 +483,8 @@ mod tests {
         let o = RtpsOptions::from_url("rtps://3").unwrap();
         assert_eq!(o.domain, 3);
         assert!(o.multicast, "the standard default");
+        let o = RtpsOptions::from_url("rtps://?domain=192&interface=lo&peers=127.0.0.1").unwrap();
+        assert_eq!((o.domain, o.multicast), (192, false));
         let o = RtpsOptions::from_url("rtps://1?peers=127.0.0.1:7410,127.0.0.2&multicast=true")
             .unwrap();
         assert!(o.multicast);
@@ -537,6 +551,12 @@ mod tests {
             ),
             ("rtps://0?index", "index"),
             ("ipc://x", "rtps://"),
+            (
+                "rtps://3?domain=4",
+                "the domain is given twice: rtps://3 and domain=4",
+            ),
+            ("rtps://?domain=233", "232"),
+            ("rtps://?domain=x", "domain \"x\" is not a number"),
         ] {
             let e = RtpsOptions::from_url(u).unwrap_err().to_string();
             assert!(e.contains(needle), "{u}: {e}");
