@@ -161,6 +161,14 @@ impl<Req, Resp: IpcMessage> Request<Req, Resp> {
     /// A `Request` dropped without a reply is declined: the server keeps
     /// receiving (on IPC, central frees the module's capacity slot), and
     /// the asker gets no reply and runs into its timeout.
+    ///
+    /// IPC: a request counts against the session's capacity until it is
+    /// answered (C's central), and the capacity is 1 by default: while one
+    /// reply is delayed, central delivers the session nothing else — no
+    /// other request, no subscribed message. A server that answers later
+    /// or from other tasks raises it with
+    /// `session.ipc()?.set_capacity(n)` to have up to `n` requests (and
+    /// messages) in hand at once.
     pub async fn reply(mut self, resp: &Resp) -> Result<(), PublishError> {
         let r = self.respond.take().ok_or(PublishError::AlreadyAnswered)?;
         // refused: the responder, dropped, declines the request

@@ -628,6 +628,11 @@ impl Session {
     /// `<msg>Reply` on IPC; on DDS replies always travel on the service's
     /// reply topic (`rr/<msg>Reply`), so there any other name is refused
     /// with [`OpenError::Unsupported`] rather than ignored.
+    ///
+    /// IPC: central hands the session one message at a time until it
+    /// raises its capacity, and an unanswered request holds that slot (see
+    /// [`Request::reply`](crate::Request::reply)): a server that answers
+    /// from spawned tasks calls `set_capacity` first.
     pub async fn serve<Req: IpcMessage, Resp: IpcMessage>(
         &self,
         msg: &str,
