@@ -138,6 +138,35 @@ pub const fn array_format(elem: &str, n: usize) -> ConstStr {
         .push_str("]")
 }
 
+/// The DDS type name of an array of `n` elements of type `elem`, IDL's
+/// declarator order: `int32[4]`; an element that is itself an array,
+/// `double[3]`, gets the new outer dimension first: `double[2][3]`.
+pub const fn array_type_name(elem: &str, n: usize) -> ConstStr {
+    let b = elem.as_bytes();
+    // where the element's own dimensions start (none: the end)
+    let mut at = b.len();
+    if !b.is_empty() && b[b.len() - 1] == b']' {
+        let mut i = 0;
+        while i < b.len() {
+            if b[i] == b'[' {
+                at = i;
+                break;
+            }
+            i += 1;
+        }
+    }
+    let (base, dims) = b.split_at(at);
+    let (Ok(base), Ok(dims)) = (core::str::from_utf8(base), core::str::from_utf8(dims)) else {
+        panic!("invalid UTF-8 in a type name");
+    };
+    ConstStr::new()
+        .push_str(base)
+        .push_str("[")
+        .push_usize(n)
+        .push_str("]")
+        .push_str(dims)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -154,6 +183,14 @@ mod tests {
         assert_eq!(A_STR, "{int, 42}");
         assert_eq!(ConstStr::new().push_i64(-7).as_str(), "-7");
         assert_eq!(ConstStr::new().push_usize(0).as_str(), "0");
+    }
+
+    #[test]
+    fn array_type_names_put_the_outer_dimension_first() {
+        assert_eq!(array_type_name("int32", 4).as_str(), "int32[4]");
+        assert_eq!(array_type_name("double[3]", 2).as_str(), "double[2][3]");
+        assert_eq!(array_type_name("a::B[1][2]", 7).as_str(), "a::B[7][1][2]");
+        assert_eq!(array_type_name("Foo<int32>", 2).as_str(), "Foo<int32>[2]");
     }
 
     #[test]

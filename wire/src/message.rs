@@ -2,7 +2,7 @@
 //! fixed arrays and pointers.
 
 use crate::cdr::{self, Extensibility};
-use crate::const_str::{array_format, ConstStr};
+use crate::const_str::{array_format, array_type_name, ConstStr};
 use crate::ipc;
 
 /// A Rust type with an IPC format and IPC and CDR encodings.
@@ -629,6 +629,9 @@ impl<T: IpcMessage, const N: usize> GenericFormat<T, N> {
     const ARRAY: ConstStr = array_format(T::FIELD_FORMAT, N);
     const ARRAY_REF: &'static ConstStr = &Self::ARRAY;
     const ARRAY_STR: &'static str = Self::ARRAY_REF.as_str();
+    const ARRAY_TYPE: ConstStr = array_type_name(T::TYPE_NAME, N);
+    const ARRAY_TYPE_REF: &'static ConstStr = &Self::ARRAY_TYPE;
+    const ARRAY_TYPE_STR: &'static str = Self::ARRAY_TYPE_REF.as_str();
     const POINTER: ConstStr = ConstStr::new().push_str("*").push_str(T::FIELD_FORMAT);
     const POINTER_REF: &'static ConstStr = &Self::POINTER;
     const POINTER_STR: &'static str = Self::POINTER_REF.as_str();
@@ -637,7 +640,9 @@ impl<T: IpcMessage, const N: usize> GenericFormat<T, N> {
 /// Fixed arrays `[T:n]`; nested arrays merge into `[T:n,m]`.
 impl<T: IpcMessage, const N: usize> IpcMessage for [T; N] {
     const FORMAT: &'static str = GenericFormat::<T, N>::ARRAY_STR;
-    const TYPE_NAME: &'static str = T::TYPE_NAME;
+    /// `int32[4]`: not its element's name, which a reader of one element
+    /// would match.
+    const TYPE_NAME: &'static str = GenericFormat::<T, N>::ARRAY_TYPE_STR;
     const IPC_MIN_SIZE: usize = T::IPC_MIN_SIZE * N;
     const CDR_MIN_SIZE: usize = T::CDR_MIN_SIZE * N;
     const CHECKS_LENGTHS: bool = T::CHECKS_LENGTHS;
@@ -1018,5 +1023,20 @@ mod bulk_tests {
             assert_eq!(v[14].to_ne_bytes(), b[28..30]);
         }
         assert!(copy_pod_vec::<u32>(&[]).is_empty());
+    }
+}
+
+#[cfg(test)]
+mod type_name_tests {
+    use super::*;
+
+    /// An array is named as IDL declares it, never as its element: a
+    /// writer of `[i32; 4]` matched readers of `i32` (same name "int32"),
+    /// which then failed on 12 trailing bytes.
+    #[test]
+    fn arrays_are_not_named_as_their_element() {
+        assert_eq!(<[i32; 4]>::TYPE_NAME, "int32[4]");
+        assert_eq!(<[[f64; 3]; 2]>::TYPE_NAME, "double[2][3]");
+        assert_ne!(<[i32; 4]>::TYPE_NAME, i32::TYPE_NAME);
     }
 }
