@@ -351,15 +351,17 @@ impl RtpsOptions {
                         .map_err(|why| bad(url, format!("{k}={v}: {why}")))?;
                     o.busy_poll = Some(w).filter(|d| !d.is_zero())
                 }
-                _ => return Err(bad(
-                    url,
-                    format!(
+                _ => {
+                    return Err(bad(
+                        url,
+                        format!(
                         "unknown option {k:?} (known: domain, interface, peers, multicast, index, \
                              max_index, recv_buffer, send_buffer, lease_ms, busy_poll_us, \
                              max_message_size, fragment_size, max_sample_size, receive_thread, \
                              services, ros2_node, ros2_graph, ros2_gid)"
                     ),
-                )),
+                    ))
+                }
             }
         }
         if o.domain > 232 {
