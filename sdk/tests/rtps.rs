@@ -1590,3 +1590,30 @@ async fn a_query_after_its_server_stopped_reaches_the_next_server() {
         s.close().await;
     }
 }
+
+/// A pattern subscription made after a transient-local publication wrote
+/// gets its history, as a transient-local subscriber does: `courier
+/// record` recorded nothing of latched topics (maps, robot descriptions)
+/// published before it started.
+#[tokio::test]
+async fn a_pattern_subscription_gets_a_latched_history() {
+    let a = session(200, "a").await;
+    let p = a
+        .publisher::<Msg>("latched/map")
+        .transient_local()
+        .build()
+        .await
+        .unwrap();
+    for i in 0..3 {
+        p.publish(&msg(i)).await.unwrap();
+    }
+    let b = session(200, "b").await;
+    let mut pat = b.subscribe_pattern("latched/*", "*").await.unwrap();
+    for i in 0..3 {
+        let s = tokio::time::timeout(T, pat.recv()).await.unwrap().unwrap();
+        let v: Msg = courier::cdr::from_slice(&s.data).unwrap();
+        assert_eq!(v, msg(i));
+    }
+    a.close().await;
+    b.close().await;
+}

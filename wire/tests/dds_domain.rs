@@ -10,7 +10,9 @@ use courier_wire::dds::{
     ConfirmFailure, Domain, DropReason, Endpoint, Event, QueryFailure, ReaderId, ServiceConfig,
     WriterId,
 };
-use courier_wire::rtps::discovery::{Duration as RtpsDuration, EndpointQos, History, Reliability};
+use courier_wire::rtps::discovery::{
+    Durability, Duration as RtpsDuration, EndpointQos, History, Reliability,
+};
 use courier_wire::rtps::participant::{
     guid_prefix, Change, Config, EndpointConfig, KeyHash, WriteError,
 };
@@ -669,6 +671,82 @@ fn a_pattern_subscription_reads_every_matching_topic_and_type() {
             .len(),
         0
     );
+}
+
+/// A pattern reader asks what its publication offers: a transient-local
+/// publication's history reaches a pattern made after it was written (a
+/// recorder missed latched data). A best-effort publication of the same
+/// topic found later gets the reader replaced by a best-effort volatile
+/// one, which takes both publications' new samples.
+#[test]
+fn a_pattern_reader_takes_a_latched_history_and_gives_way_to_a_weaker_publication() {
+    // no loss: the reader that replaces it is best effort
+    let mut net = new_net(2, 21, 0);
+    let now = net.now();
+    let mut q = writer_qos();
+    q.durability = Durability::TransientLocal;
+    let latched = net
+        .node(0)
+        .create_writer(EndpointConfig::writer("map", "Map").qos(q), now)
+        .unwrap();
+    for v in 1..=3 {
+        write(&mut net, 0, latched, v);
+    }
+    net.run_for(ms(300));
+    let now = net.now();
+    let p = net.node(1).create_pattern("*", "*", reader_qos(), now);
+    let first_reader = |net: &Net| {
+        net.hosts[1].events.iter().find_map(|e| match e {
+            Event::PatternMatched {
+                pattern, reader, ..
+            } if *pattern == p => Some(*reader),
+            _ => None,
+        })
+    };
+    assert!(net.run_until(Duration::from_secs(10), |n| first_reader(n)
+        .is_some_and(|r| received(n, 1, r).len() == 3)));
+    let r1 = first_reader(&net).unwrap();
+    assert_eq!(received(&net, 1, r1), [1, 2, 3], "the history");
+    // a best-effort publication of the same topic
+    let now = net.now();
+    let mut be = writer_qos();
+    be.reliability = Reliability::BestEffort;
+    let weak = net
+        .node(0)
+        .create_writer(EndpointConfig::writer("map", "Map").qos(be), now)
+        .unwrap();
+    let replaced = |net: &Net| {
+        net.hosts[1].events.iter().find_map(|e| match e {
+            Event::PatternMatched {
+                reader,
+                replaces: Some(old),
+                ..
+            } if *old == r1 => Some(*reader),
+            _ => None,
+        })
+    };
+    assert!(net.run_until(Duration::from_secs(10), |n| replaced(n)
+        .is_some_and(|r| matched(n, 1, r, 2))));
+    let r2 = replaced(&net).unwrap();
+    // and both writers know it
+    let knows = |n: &Net, w: WriterId| {
+        n.has(0, |e| {
+            matches!(e, Event::WriterMatched { writer, reader } if *writer == w && *reader == r2.guid())
+        })
+    };
+    assert!(net.run_until(Duration::from_secs(10), |n| knows(n, latched)
+        && knows(n, weak)));
+    write(&mut net, 0, latched, 4);
+    write(&mut net, 0, weak, 5);
+    assert!(net.run_until(Duration::from_secs(10), |n| {
+        let mut got = received(n, 1, r2);
+        got.sort();
+        got == [4, 5]
+    }));
+    assert!(!net.hosts[1]
+        .events
+        .iter()
+        .any(|e| matches!(e, Event::IncompatibleQos { .. })));
 }
 
 #[test]

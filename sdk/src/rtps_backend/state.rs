@@ -997,7 +997,11 @@ impl State {
                 reader,
                 topic,
                 type_name,
+                replaces,
             } => {
+                if let Some(old) = replaces {
+                    self.subs.remove(&old);
+                }
                 if let Some(q) = self.patterns.get(&pattern) {
                     self.subs.insert(
                         reader,

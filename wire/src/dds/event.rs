@@ -117,6 +117,10 @@ pub enum Event {
         topic: String,
         /// The publication's type name.
         type_name: String,
+        /// The reader of the same topic and type it replaces (deleted):
+        /// one that asked more reliability or durability than a
+        /// publication found since offers.
+        replaces: Option<ReaderId>,
     },
     /// A request for a service.
     Request {

@@ -1,10 +1,10 @@
 //! Pattern subscriptions: a reader per publication whose topic and type
 //! names match fnmatch patterns, made as publications are discovered.
 
-use foldhash::{HashSet, HashSetExt};
+use foldhash::{HashMap, HashMapExt};
 use std::time::Instant;
 
-use crate::rtps::discovery::{EndpointData, EndpointQos};
+use crate::rtps::discovery::{Durability, EndpointData, EndpointQos, Reliability};
 use crate::rtps::participant::EndpointConfig;
 use crate::rtps::Guid;
 
@@ -16,6 +16,8 @@ pub(super) struct Offer {
     pub(super) keyed: bool,
     pub(super) exclusive: bool,
     pub(super) partitions: Vec<String>,
+    /// What the pattern reader may ask of it (see [`Grade`]).
+    pub(super) grade: Grade,
 }
 
 impl Offer {
@@ -24,6 +26,37 @@ impl Offer {
             keyed: e.guid.entity.is_keyed(),
             exclusive: e.qos.exclusive_ownership,
             partitions: e.qos.partitions.clone(),
+            grade: Grade::of(&e.qos),
+        }
+    }
+}
+
+/// How much a pattern reader asks of the publications of its topic: as
+/// much as each offers, as `ros2 bag record` does, so that a recorder gets
+/// what a reliable publication repairs and the history a transient-local
+/// one keeps for late joiners; never more than one of them offers, or it
+/// would not match that one.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct Grade {
+    reliable: bool,
+    /// Transient-local (or more) and reliable: its history comes.
+    durable: bool,
+}
+
+impl Grade {
+    pub(super) fn of(q: &EndpointQos) -> Grade {
+        let reliable = matches!(q.reliability, Reliability::Reliable(_));
+        Grade {
+            reliable,
+            durable: reliable && q.durability >= Durability::TransientLocal,
+        }
+    }
+
+    /// What both `self` and `other` offer.
+    fn meet(self, other: Grade) -> Grade {
+        Grade {
+            reliable: self.reliable && other.reliable,
+            durable: self.durable && other.durable,
         }
     }
 }
@@ -32,8 +65,8 @@ pub(super) struct Pattern {
     topic: String,
     type_name: String,
     qos: EndpointQos,
-    /// (topic, type) pairs that have a reader already.
-    have: HashSet<(String, String)>,
+    /// The reader of each (topic, type) pair that has one, and its grade.
+    have: HashMap<(String, String), (Guid, Grade)>,
     pub(super) readers: Vec<Guid>,
 }
 
@@ -43,7 +76,11 @@ impl Domain {
     /// [`fnmatch`]): a reader with `qos` is made for each matching
     /// publication, remote or local, now and as they are discovered
     /// ([`Event::PatternMatched`]). Each reader takes its publication's
-    /// ownership kind and partitions, which DDS needs equal to match.
+    /// ownership kind and partitions, which DDS needs equal to match, and
+    /// its reliability and durability ([`Grade`]; `qos`'s own are not
+    /// used): a later publication of the same topic that offers less gets
+    /// the reader replaced by one that asks less
+    /// (`PatternMatched::replaces`).
     pub fn create_pattern(
         &mut self,
         topic: &str,
@@ -58,7 +95,7 @@ impl Domain {
                 topic: topic.to_string(),
                 type_name: type_name.to_string(),
                 qos,
-                have: HashSet::new(),
+                have: HashMap::new(),
                 readers: Vec::new(),
             },
         );
@@ -121,18 +158,41 @@ impl Domain {
             return;
         }
         let key = (topic.to_string(), type_name.to_string());
-        if pat.have.contains(&key) {
-            return;
-        }
+        let (grade, replaces) = match pat.have.get(&key) {
+            None => (offer.grade, None),
+            // it asks no more than this one offers: it matches it too
+            Some(&(_, g)) if g.meet(offer.grade) == g => return,
+            // a weaker publication: a reader that asks less replaces it
+            // (what it took stays taken; the new one takes what comes)
+            Some(&(old, g)) => (g.meet(offer.grade), Some(old)),
+        };
         let mut qos = pat.qos.clone();
         qos.exclusive_ownership = offer.exclusive;
         qos.partitions = offer.partitions.clone();
+        qos.reliability = if grade.reliable {
+            // (a reader's max blocking time means nothing; DDS's default)
+            EndpointQos::writer_default().reliability
+        } else {
+            Reliability::BestEffort
+        };
+        qos.durability = if grade.durable {
+            Durability::TransientLocal
+        } else {
+            Durability::Volatile
+        };
         let cfg = EndpointConfig::reader(topic, type_name)
             .keyed(offer.keyed)
             .qos(qos);
+        if let Some(old) = replaces {
+            self.remove_reader(old, now);
+            if let Some(pat) = self.patterns.get_mut(&id) {
+                pat.readers.retain(|r| *r != old);
+                pat.have.remove(&key);
+            }
+        }
         if let Ok(g) = self.add_reader(cfg, Role::Pattern(id), now) {
             if let Some(pat) = self.patterns.get_mut(&id) {
-                pat.have.insert(key);
+                pat.have.insert(key, (g, grade));
                 pat.readers.push(g);
             }
             self.events.push_back(Event::PatternMatched {
@@ -140,6 +200,7 @@ impl Domain {
                 reader: ReaderId(g),
                 topic: topic.to_string(),
                 type_name: type_name.to_string(),
+                replaces: replaces.map(ReaderId),
             });
         }
     }

@@ -92,6 +92,7 @@ impl Domain {
                 keyed: config.keyed,
                 exclusive: config.qos.exclusive_ownership,
                 partitions: config.qos.partitions.clone(),
+                grade: super::pattern::Grade::of(&config.qos),
             },
             blocked: None,
             deadline: Deadline::new(config.qos.deadline.to_std()),
