@@ -182,18 +182,9 @@ impl CentralFormats {
 }
 
 /// Whether a format refers to named formats (central answers them
-/// unexpanded).
+/// unexpanded); one that does not parse counts as one.
 fn names_formats(f: &str) -> bool {
-    fn named(f: &courier_wire::format::Format) -> bool {
-        use courier_wire::format::Format as F;
-        match f {
-            F::Named(_) => true,
-            F::Struct(fs) => fs.iter().any(named),
-            F::Pointer(e) | F::FixedArray { elem: e, .. } | F::VarArray { elem: e, .. } => named(e),
-            _ => false,
-        }
-    }
-    courier_wire::format::parse(f).map_or(true, |f| named(&f))
+    courier_wire::format::parse(f).map_or(true, |f| f.names_formats())
 }
 
 #[cfg(test)]

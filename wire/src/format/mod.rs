@@ -133,6 +133,21 @@ pub enum Format {
     Named(String),
 }
 
+impl Format {
+    /// Whether it refers to named formats anywhere (central answers a
+    /// message's format with its names unexpanded).
+    pub fn names_formats(&self) -> bool {
+        match self {
+            Format::Named(_) => true,
+            Format::Struct(fs) => fs.iter().any(Format::names_formats),
+            Format::Pointer(e)
+            | Format::FixedArray { elem: e, .. }
+            | Format::VarArray { elem: e, .. } => e.names_formats(),
+            _ => false,
+        }
+    }
+}
+
 impl Primitive {
     /// Every primitive, in formatter-code order.
     pub const ALL: [Primitive; 15] = [
