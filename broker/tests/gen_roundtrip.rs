@@ -27,6 +27,19 @@ mod manual_xdr {
     include!("gen/expected/manual_xdr.rs");
 }
 
+/// The same generated files included again elsewhere, as a second program
+/// would: their types must keep their DDS type names.
+#[allow(dead_code)]
+mod again {
+    pub mod ipc {
+        include!("gen/expected/manual_ipc.rs");
+    }
+    pub mod xdr {
+        pub use crate::manual_xdr::ExternalStruct1;
+        include!("gen/expected/manual_xdr.rs");
+    }
+}
+
 #[allow(dead_code)]
 mod ros2_idl {
     include!("gen/expected/ros2_idl.rs");
@@ -502,4 +515,21 @@ fn idl_cyclone_types_round_trip() {
         big: 0,
         history: vec![],
     });
+}
+
+/// Two modules that include the same `gen ipc` / `gen xdr` output give its
+/// types the same DDS type name (the input's names, not the module path),
+/// so that two programs including one file match on DDS.
+#[test]
+fn the_same_generated_types_have_one_dds_name_in_every_module() {
+    fn same<A: IpcMessage, B: IpcMessage>(want: &str) {
+        assert_eq!((A::TYPE_NAME, B::TYPE_NAME), (want, want));
+    }
+    same::<manual_ipc::Data1, again::ipc::Data1>("DATA1");
+    same::<manual_ipc::T2, again::ipc::T2>("T2");
+    same::<manual_ipc::T2Field4, again::ipc::T2Field4>("T2Field4");
+    same::<manual_ipc::EnumType, again::ipc::EnumType>("ENUM_TYPE");
+    same::<manual_xdr::Zoo, again::xdr::Zoo>("Zoo");
+    same::<manual_xdr::MyNestedStructRoo, again::xdr::MyNestedStructRoo>("MyNestedStructRoo");
+    same::<manual_xdr::Color, again::xdr::Color>("Color");
 }

@@ -249,16 +249,18 @@ impl Cx<'_> {
                     self.source
                 )],
                 format_name: None,
-                type_name: None,
+                type_name: Some(name.to_string()),
                 extensibility: None,
                 tuple: true,
                 fields: Vec::new(),
             }),
             Format::Struct(fields) => {
                 let format_name = (rust != name).then(|| name.to_string());
-                Item::Struct(self.structure(rust, format_name, doc, fields)?)
+                Item::Struct(self.structure(rust, format_name, name, doc, fields)?)
             }
-            Format::Enum { names, max } => Item::Enum(self.enumeration(rust, doc, names, *max)?),
+            Format::Enum { names, max } => {
+                Item::Enum(self.enumeration(rust, name, doc, names, *max)?)
+            }
             other => {
                 let ty = self.ty(other, &format!("{rust}Item"), &rust)?;
                 Item::Alias(AliasDef {
@@ -271,10 +273,14 @@ impl Cx<'_> {
         })
     }
 
+    /// A struct `name` whose DDS type name is `type_name` (the format's
+    /// name, or for an inline part its Rust name: the same in every module
+    /// that includes the generated file).
     fn structure(
         &mut self,
         name: String,
         format_name: Option<String>,
+        type_name: &str,
         doc: Vec<String>,
         fields: &[Format],
     ) -> Result<StructDef, GenError> {
@@ -327,16 +333,19 @@ impl Cx<'_> {
             pos: self.pos(),
             doc,
             format_name,
-            type_name: None,
+            type_name: Some(type_name.to_string()),
             extensibility: None,
             tuple: true,
             fields: out,
         })
     }
 
+    /// An enum `name` whose DDS type name is `type_name` (as for
+    /// [`Cx::structure`]).
     fn enumeration(
         &self,
         name: String,
+        type_name: &str,
         doc: Vec<String>,
         variants: &[String],
         max: i32,
@@ -366,7 +375,7 @@ impl Cx<'_> {
             name,
             pos: self.pos(),
             doc,
-            type_name: None,
+            type_name: Some(type_name.to_string()),
             numeric,
             variants,
         })
@@ -386,13 +395,13 @@ impl Cx<'_> {
             }
             Format::Struct(fields) => {
                 let doc = vec![format!("Part of `{this}`: `{f}`.")];
-                let s = self.structure(inner.to_string(), None, doc, fields)?;
+                let s = self.structure(inner.to_string(), None, inner, doc, fields)?;
                 self.extra.push(Item::Struct(s));
                 Ty::Named(local(inner))
             }
             Format::Enum { names, max } => {
                 let doc = vec![format!("Part of `{this}`: `{f}`.")];
-                let e = self.enumeration(inner.to_string(), doc, names, *max)?;
+                let e = self.enumeration(inner.to_string(), inner, doc, names, *max)?;
                 self.extra.push(Item::Enum(e));
                 Ty::Named(local(inner))
             }

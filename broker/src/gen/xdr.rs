@@ -400,7 +400,14 @@ impl Cx<'_> {
             }
             Def::Enum(name, pos, entries) => {
                 let doc = vec![format!("XDR enum `{name}` ({}).", self.source(pos))];
-                self.enumeration(&self.rust_names[name.as_str()], pos, doc, entries, out);
+                self.enumeration(
+                    &self.rust_names[name.as_str()],
+                    name,
+                    pos,
+                    doc,
+                    entries,
+                    out,
+                );
                 Ok(())
             }
             Def::Typedef(decl) => {
@@ -416,6 +423,7 @@ impl Cx<'_> {
                     (XType::Enum(entries), Dims::None) => {
                         self.enumeration(
                             &self.rust_names[name.as_str()],
+                            name,
                             &decl.pos,
                             doc,
                             entries,
@@ -549,10 +557,11 @@ impl Cx<'_> {
         }
         out.push(Item::Struct(StructDef {
             format_name: (rust != name).then(|| name.to_string()),
+            // the same in every module that includes the generated file
+            type_name: Some(name.to_string()),
             name: rust,
             pos: pos.clone(),
             doc,
-            type_name: None,
             extensibility: None,
             tuple: false,
             fields: fds,
@@ -563,9 +572,11 @@ impl Cx<'_> {
 
     /// An enum: a Rust enum if no entry has a value, else an `i32` alias
     /// and a constant for each entry (IPC format `int`, as xdrgen).
+    /// `type_name` is the enum's DDS type name: its name in the XDR file.
     fn enumeration(
         &self,
         rust: &str,
+        type_name: &str,
         pos: &Pos,
         mut doc: Vec<String>,
         entries: &[Entry],
@@ -576,7 +587,7 @@ impl Cx<'_> {
                 name: rust.to_string(),
                 pos: pos.clone(),
                 doc,
-                type_name: None,
+                type_name: Some(type_name.to_string()),
                 numeric: false,
                 variants: entries
                     .iter()
@@ -640,7 +651,7 @@ impl Cx<'_> {
             }
             XType::Enum(entries) => {
                 let doc = vec![format!("Field `{}` ({}).", d.name, self.source(&d.pos))];
-                self.enumeration(inner, &d.pos, doc, entries, extra);
+                self.enumeration(inner, inner, &d.pos, doc, entries, extra);
                 Ty::Named(TypeRef {
                     module: Vec::new(),
                     name: inner.to_string(),

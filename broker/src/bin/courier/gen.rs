@@ -27,7 +27,10 @@ Input languages:
         directories, then in -I directories), @key, @id, @optional,
         @final/@appendable/@mutable, @verbatim comments.
 Every type derives courier::IpcMessage (IPC marshalling and CDR); the output
-needs the `courier` crate. Errors name FILE:LINE:COLUMN; exit 1 on any error.";
+needs the `courier` crate. DDS type names (#[ipc(type_name)]): ipc and xdr give
+each type the name the input gives it (NAME, the XDR struct or enum name; an
+inline part its Rust name), idl its scoped name (pkg::msg::Name); so the types
+match on DDS whichever module includes the output. Errors name FILE:LINE:COLUMN; exit 1 on any error.";
 
 /// `courier gen` arguments.
 #[derive(Args, Debug)]
