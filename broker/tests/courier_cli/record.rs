@@ -5,6 +5,7 @@
 //! `mcap` package; damaged files; usage errors.
 
 use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
 use courier_tests::peers::fnv1a32;
 
@@ -155,6 +156,16 @@ fn a_recording_made_on_ipc_replays_onto_ipc_and_onto_cyclone_dds() {
         err,
         "courier: channel \"text\" (2): it was recorded on IPC, and DDS readers match on a type \
          name: give one with --type text=TYPE\n"
+    );
+    // all channels: the one that cannot be replayed stops the replay, and
+    // the error says how to replay the others
+    let (code, _, err) = run(&["replay", &file, &rtps, "--type", "msg=courier::test::Msg"]);
+    assert_eq!(code, 1);
+    assert_eq!(
+        err,
+        "courier: channel \"text\" (2): it was recorded on IPC, and DDS readers match on a type \
+         name: give one with --type text=TYPE; or leave it out: --topic msg replays the others \
+         only\n"
     );
     let (code, _, err) = run(&["replay", &file, u, "--topic", "nosuch"]);
     assert_eq!(code, 1);
@@ -651,4 +662,209 @@ fn bad_flags_are_usage_errors() {
         assert_eq!(code, 0);
         assert!(out.contains("(0: until interrupted"), "{sub}: {out}");
     }
+}
+
+/// Records `values` of `topic` of `format` into `file`, on a central of
+/// its own.
+fn record_one(file: &str, topic: &str, format: &str, values: &[&str]) {
+    let c = Central::start();
+    let u = c.url.as_str();
+    let mut rec = Proc::start(&[
+        "record",
+        u,
+        topic,
+        "-o",
+        file,
+        "--count",
+        &values.len().to_string(),
+    ]);
+    rec.expect("ready");
+    for v in values {
+        publish(u, topic, format, v);
+    }
+    let (code, out, err) = rec.finish();
+    assert_eq!(code, Some(0), "{out}{err}");
+}
+
+/// Central's format of `msg`, as a module that just connected sees it.
+fn central_format(c: &Central, msg: &str) -> Option<String> {
+    let s = c.session("check");
+    let info = c.rt.block_on(s.ipc().unwrap().look_up(msg)).unwrap();
+    info.and_then(|i| i.res_format).map(|f| f.to_string())
+}
+
+/// Replay and pub refuse to define a message anew with a format that
+/// central's does not fit (as `Session::define` refuses), since its
+/// subscribers would fail to decode; `--redefine` does it anyway.
+#[test]
+fn replay_and_pub_do_not_redefine_a_message_central_holds() {
+    let dir = Dir::new("redefine");
+    let file = dir.file("int.mcap");
+    record_one(&file, "counter", "int", &["1", "2"]);
+    let c = Central::start();
+    let u = c.url.as_str();
+    let holder = c.session("holder");
+    c.rt.block_on(holder.define::<String>("counter")).unwrap();
+
+    let (code, out, err) = run(&["pub", u, "counter", "5", "--format", "int", "--wait", "0"]);
+    assert_eq!((code, out.as_str()), (2, ""), "{err}");
+    assert!(
+        err.contains(
+            "central defines counter as string, which does not fit --format int: at the top, \
+             the data has string where the reader has int; defining it anew would make its \
+             subscribers fail to decode (--redefine replaces central's format anyway)"
+        ),
+        "{err}"
+    );
+    // the same format, or one it fits, is no redefinition
+    let (code, _, err) = run(&[
+        "pub", u, "counter", "x", "--format", "string", "--wait", "0",
+    ]);
+    assert_eq!(code, 0, "{err}");
+
+    let (code, out, err) = run(&["replay", &file, u, "--topic", "counter"]);
+    assert_eq!((code, out.as_str()), (1, ""), "{err}");
+    assert_eq!(
+        err,
+        "courier: channel \"counter\" (1): central defines counter as string, which does not \
+         fit the recorded format int: at the top, the data has string where the reader has \
+         int; defining it anew would make its subscribers fail to decode (--redefine replaces \
+         central's format anyway)\n"
+    );
+    assert_eq!(central_format(&c, "counter").as_deref(), Some("string"));
+
+    let (code, out, err) = run(&["replay", &file, u, "--redefine", "--rate", "100"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.ends_with("replayed 2 messages\ndone\n"), "{out}");
+    assert_eq!(central_format(&c, "counter").as_deref(), Some("int"));
+    let (code, _, err) = run(&["replay", &file, &url(283), "--redefine"]);
+    assert_eq!(code, 2);
+    assert!(
+        err.contains("--redefine replaces the format central holds; rtps:// has no central"),
+        "{err}"
+    );
+}
+
+/// `--topic B` plays B at its own pace from its first message: the time
+/// before it (other channels' messages) is not waited out.
+#[test]
+fn a_replay_of_one_topic_starts_at_its_first_message() {
+    let dir = Dir::new("gap");
+    let file = dir.file("gap.mcap");
+    let c = Central::start();
+    let u = c.url.as_str();
+    let mut rec = Proc::start(&["record", u, "a", "b", "-o", &file, "--count", "3"]);
+    rec.expect("ready");
+    publish(u, "a", "int", "1");
+    std::thread::sleep(Duration::from_millis(2500));
+    publish(u, "b", "int", "2");
+    publish(u, "b", "int", "3");
+    let (code, out, err) = rec.finish();
+    assert_eq!(code, Some(0), "{out}{err}");
+    let started = Instant::now();
+    let (code, out, err) = run(&["replay", &file, u, "--topic", "b"]);
+    let took = started.elapsed();
+    assert_eq!(code, 0, "{err}");
+    assert!(out.ends_with("replayed 2 messages\ndone\n"), "{out}");
+    assert!(took < Duration::from_millis(1500), "took {took:?}");
+}
+
+/// A file cut in its summary or footer has every message, but is damaged
+/// all the same: said, with where, and exit 1, as other damage is.
+#[test]
+fn a_recording_cut_in_its_summary_says_so() {
+    let dir = Dir::new("summary");
+    let file = dir.file("ok.mcap");
+    let c = Central::start();
+    record_ipc(&c, &file, &[]);
+    let bytes = std::fs::read(&file).unwrap();
+    let all = [
+        r#"[1,"ipc-1",[7]]"#,
+        r#"[2,"ipc-2",[14,15]]"#,
+        r#"[3,"ipc-3",[21,22,23]]"#,
+    ];
+    for cut in [100, 10] {
+        let f = dir.file(&format!("cut{cut}.mcap"));
+        let len = bytes.len() - cut;
+        std::fs::write(&f, &bytes[..len]).unwrap();
+        let (code, err) = replay_damaged(&c, &f, &all);
+        assert_eq!(code, 1, "{err}");
+        let prefix = format!("courier: {f}: truncated at byte {len}: ");
+        let suffix = format!(
+            " is lost (the messages before it are intact)\ncourier: {f} is damaged (1 problem, \
+             said above): what is intact was replayed\n"
+        );
+        assert!(
+            err.starts_with(&prefix)
+                && err.ends_with(&suffix)
+                && err.contains(": the summary after the data end record at byte "),
+            "{err}"
+        );
+    }
+}
+
+/// `--type` naming another DDS type than the recorded one: refused when
+/// Courier knows both layouts and they differ, else written unchanged with
+/// a warning; a reader of another type is reported while `--wait`ing.
+#[test]
+fn a_dds_channel_replayed_as_another_type_is_refused_or_warned_of() {
+    let dir = Dir::new("retype");
+    let file = dir.file("dds.mcap");
+    let u = url(282);
+    let mut rec = Proc::start(&["record", &u, "chatter", "-o", &file, "--count", "1"]);
+    rec.expect("ready");
+    let (code, _, err) = run(&["pub", &u, "chatter", r#"[1, 2, "hi"]"#]);
+    assert_eq!(code, 0, "{err}");
+    let (code, out, err) = rec.finish();
+    assert_eq!(code, Some(0), "{out}{err}");
+
+    let (code, out, err) = run(&[
+        "replay",
+        &file,
+        &u,
+        "--type",
+        "chatter=std_msgs::msg::dds_::String_",
+    ]);
+    assert_eq!((code, out.as_str()), (1, ""), "{err}");
+    assert_eq!(
+        err,
+        "courier: channel \"chatter\" (1): it was recorded as DDS type courier::Ping ({uint, \
+         ulong, string}), whose samples do not read as std_msgs::msg::dds_::String_ ({string}) of \
+         --type chatter=std_msgs::msg::dds_::String_: at the top, the data has {uint, ulong, \
+         string} where the reader has {string}; replay writes a channel's CDR unchanged, it does \
+         not convert between DDS types\n"
+    );
+
+    // a reader of the recorded type sees a writer of another
+    let mut sub = Proc::start(&[
+        "ping",
+        &u,
+        "--subscribe",
+        "--topic",
+        "chatter",
+        "--count",
+        "1",
+    ]);
+    sub.expect("ready");
+    let mut rep = Proc::start(&[
+        "replay",
+        &file,
+        &u,
+        "--type",
+        "chatter=my::Renamed",
+        "--wait",
+        "1",
+    ]);
+    assert_eq!(
+        rep.expect_err("courier: channel"),
+        "courier: channel \"chatter\": recorded as DDS type courier::Ping, written unchanged as \
+         my::Renamed (--type): readers of my::Renamed decode its samples only if my::Renamed is \
+         laid out as courier::Ping ({uint, ulong, string})"
+    );
+    rep.expect("channel chatter cdr my::Renamed (recorded as courier::Ping)");
+    let line = rep.expect("channel chatter incompatible ");
+    assert!(
+        line.ends_with("type \"courier::Ping\" where this side has \"my::Renamed\""),
+        "{line}"
+    );
 }

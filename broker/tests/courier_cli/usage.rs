@@ -77,8 +77,8 @@ fn usage_errors_name_the_problem() {
         ),
         (&["completions", "tcsh"][..], "invalid value 'tcsh'"),
         (
-            &["echo", u, "t", "--format", "{int, *int}"][..],
-            "a pointer has no CDR layout for --format on rtps://",
+            &["echo", u, "t", "--format", "{int, format}"][..],
+            "a format field has no CDR layout for --format on rtps://",
         ),
         (
             &["echo", "ipc://127.0.0.1:1", "t", "--format", "{int"][..],

@@ -5,9 +5,11 @@
 //!
 //! Written as XCDR1 little-endian (what Courier's sessions send); read in
 //! either version and byte order. A variable array is a `sequence<T>`
-//! beside its size fields (flat, row-major, for `<T:k1,k2>`). Pointers
-//! (`*T`, `*!`) and `format` fields have no CDR layout here and are
-//! refused up front.
+//! beside its size fields (flat, row-major, for `<T:k1,k2>`). A pointer
+//! (`*T`, `*!`) is an `@optional` member, as the derive lays out
+//! `Option<Box<T>>` (`cdr::write_optional`: in XCDR1 a parameter header
+//! with the member's id, its index in the struct). `format` fields have no
+//! CDR layout here and are refused up front.
 
 use courier::cdr::{Encoding, Extensibility, Reader, Writer};
 use courier::format::{Format, Primitive};
@@ -18,16 +20,16 @@ use courier::ShapeError;
 pub fn check(fmt: &Format) -> Result<(), String> {
     let refuse = |what: &str| {
         Err(format!(
-            "{what} has no CDR layout for --format on rtps:// (pointers and format fields \
-             are IPC only)"
+            "{what} has no CDR layout for --format on rtps:// (format fields are IPC only)"
         ))
     };
     match fmt {
-        Format::Pointer(_) | Format::SelfPointer => refuse("a pointer"),
         Format::Primitive(Primitive::Format) => refuse("a format field"),
         Format::Named(n) => refuse(&format!("named format `{n}`")),
         Format::Struct(fs) => fs.iter().try_for_each(check),
-        Format::FixedArray { elem, .. } | Format::VarArray { elem, .. } => check(elem),
+        Format::FixedArray { elem, .. } | Format::VarArray { elem, .. } | Format::Pointer(elem) => {
+            check(elem)
+        }
         _ => Ok(()),
     }
 }
@@ -51,7 +53,7 @@ fn primitive(f: &Format) -> Option<usize> {
 pub fn encode(fmt: &Format, value: &Value) -> Result<Vec<u8>, String> {
     check(fmt)?;
     let mut w = Writer::with_header(Encoding::Xcdr1Le, Extensibility::Final);
-    enc(fmt, value, &mut w)?;
+    enc(fmt, value, &mut w, None)?;
     Ok(w.into_vec())
 }
 
@@ -59,7 +61,9 @@ fn mismatch(f: &Format, v: &Value) -> String {
     format!("expected a value of {f}, found {}", v.kind())
 }
 
-fn enc(f: &Format, v: &Value, w: &mut Writer) -> Result<(), String> {
+/// Writes `v` of format `f`; `this` is the innermost struct around it
+/// (what a `*!` points at).
+fn enc(f: &Format, v: &Value, w: &mut Writer, this: Option<&Format>) -> Result<(), String> {
     match (f, v) {
         (Format::Empty, Value::Empty) => {}
         (Format::Primitive(p), v) => match (p, v) {
@@ -93,25 +97,37 @@ fn enc(f: &Format, v: &Value, w: &mut Writer) -> Result<(), String> {
             if fs.len() != vs.len() {
                 return Err(format!("expected {} fields, found {}", fs.len(), vs.len()));
             }
-            for (i, (f, v)) in fs.iter().zip(vs).enumerate() {
+            // members as the derive writes them: an optional one (a
+            // pointer) says its id, the field's index, in XCDR1
+            let st = w.begin_struct(Extensibility::Final);
+            for (i, (fi, vi)) in fs.iter().zip(vs).enumerate() {
                 // a variable array's size fields must say its length, as
                 // the derive writes them
-                if let (Format::VarArray { dims, .. }, Value::VarArray(items)) = (f, v) {
+                if let (Format::VarArray { dims, .. }, Value::VarArray(items)) = (fi, vi) {
                     check_sizes(dims, vs, items.len())
                         .map_err(|e| format!("field {}: {e}", i + 1))?;
                 }
-                enc(f, v, w).map_err(|e| format!("field {}: {e}", i + 1))?;
+                let m = st.begin_member(w, i as u32, false);
+                let r = enc(fi, vi, w, Some(f));
+                st.end_member(w, m);
+                r.map_err(|e| format!("field {}: {e}", i + 1))?;
             }
+            st.end(w);
+        }
+        (Format::Pointer(target), Value::Pointer(p)) => enc_pointer(target, p, w, this)?,
+        (Format::SelfPointer, Value::Pointer(p)) => {
+            let target = this.ok_or("a self pointer `*!` outside a struct points at nothing")?;
+            enc_pointer(target, p, w, this)?
         }
         (Format::FixedArray { elem, dims }, Value::Array(_)) => {
             let d = w.begin_array(primitive(elem).is_some());
-            enc_flat(elem, dims, v, w)?;
+            enc_flat(elem, dims, v, w, this)?;
             w.end_dheader(d);
         }
         (Format::VarArray { elem, .. }, Value::VarArray(items)) => {
             let d = w.begin_sequence(items.len(), primitive(elem));
             for x in items {
-                enc(elem, x, w)?;
+                enc(elem, x, w, this)?;
             }
             w.end_dheader(d);
         }
@@ -119,6 +135,19 @@ fn enc(f: &Format, v: &Value, w: &mut Writer) -> Result<(), String> {
         _ => return Err(mismatch(f, v)),
     }
     Ok(())
+}
+
+/// A pointer's target `p` of format `target`, as the derive writes an
+/// `Option<Box<T>>`.
+fn enc_pointer(
+    target: &Format,
+    p: &Option<Box<Value>>,
+    w: &mut Writer,
+    this: Option<&Format>,
+) -> Result<(), String> {
+    let mut r = Ok(());
+    courier::cdr::write_optional(w, p.as_deref(), |v, w| r = enc(target, v, w, this));
+    r.map_err(|e| format!("pointee: {e}"))
 }
 
 /// That the size fields `dims` (1-based) of a struct's values `vs` say
@@ -182,21 +211,27 @@ fn shape_error(dims: &[u32], vs: &[Value], len: usize) -> Option<ShapeError> {
 }
 
 /// The elements of a (multi-dimensional) fixed array, flat.
-fn enc_flat(elem: &Format, dims: &[u32], v: &Value, w: &mut Writer) -> Result<(), String> {
+fn enc_flat(
+    elem: &Format,
+    dims: &[u32],
+    v: &Value,
+    w: &mut Writer,
+    this: Option<&Format>,
+) -> Result<(), String> {
     let Value::Array(items) = v else {
         return Err(format!("expected an array, found {}", v.kind()));
     };
     let Some((&n, rest)) = dims.split_first() else {
-        return enc(elem, v, w);
+        return enc(elem, v, w, this);
     };
     if items.len() != n as usize {
         return Err(format!("expected {n} elements, found {}", items.len()));
     }
     for x in items {
         if rest.is_empty() {
-            enc(elem, x, w)?;
+            enc(elem, x, w, this)?;
         } else {
-            enc_flat(elem, rest, x, w)?;
+            enc_flat(elem, rest, x, w, this)?;
         }
     }
     Ok(())
@@ -206,14 +241,16 @@ fn enc_flat(elem: &Format, dims: &[u32], v: &Value, w: &mut Writer) -> Result<()
 pub fn decode(fmt: &Format, data: &[u8]) -> Result<Value, String> {
     check(fmt)?;
     let mut r = Reader::with_header(data).map_err(|e| e.to_string())?;
-    let v = dec(fmt, &mut r).map_err(|e| e.to_string())?;
+    let v = dec(fmt, &mut r, None).map_err(|e| e.to_string())?;
     r.finish_padding().map_err(|e| e.to_string())?;
     Ok(v)
 }
 
 type DecodeResult = Result<Value, courier::cdr::DecodeError>;
 
-fn dec(f: &Format, r: &mut Reader<'_>) -> DecodeResult {
+/// Reads a value of format `f`; `this` is the innermost struct around it
+/// (what a `*!` points at).
+fn dec(f: &Format, r: &mut Reader<'_>, this: Option<&Format>) -> DecodeResult {
     Ok(match f {
         Format::Empty => Value::Empty,
         Format::Primitive(p) => match p {
@@ -244,16 +281,16 @@ fn dec(f: &Format, r: &mut Reader<'_>) -> DecodeResult {
             Value::Bytes(b)
         }
         Format::Struct(fs) => {
-            r.enter()?;
+            let st = r.begin_struct(Extensibility::Final)?;
             let mut vs = Vec::with_capacity(fs.len());
             let mut arrays = Vec::new();
-            for f in fs {
-                if let Format::VarArray { dims, .. } = f {
+            for fi in fs {
+                if let Format::VarArray { dims, .. } = fi {
                     arrays.push((vs.len(), dims, r.position()));
                 }
-                vs.push(dec(f, r)?);
+                vs.push(dec(fi, r, Some(f))?);
             }
-            r.leave();
+            st.end(r)?;
             // the elements of `<T:k1,k2>` must fit its shape, as the derive
             // requires; a one-dimensional count is just a field in DDS
             for (i, dims, offset) in arrays {
@@ -270,7 +307,7 @@ fn dec(f: &Format, r: &mut Reader<'_>) -> DecodeResult {
         }
         Format::FixedArray { elem, dims } => {
             let d = r.begin_array(primitive(elem).is_some())?;
-            let v = dec_flat(elem, dims, r)?;
+            let v = dec_flat(elem, dims, r, this)?;
             r.end_dheader(d);
             v
         }
@@ -284,20 +321,38 @@ fn dec(f: &Format, r: &mut Reader<'_>) -> DecodeResult {
             let n = r.read_len(prim.unwrap_or(1))?;
             let mut items = Vec::with_capacity(n.min(4096));
             for _ in 0..n {
-                items.push(dec(elem, r)?);
+                items.push(dec(elem, r, this)?);
             }
             r.end_dheader(d);
             Value::VarArray(items)
         }
         Format::Enum { .. } => Value::Enum(r.read_i32()?),
+        Format::Pointer(target) => dec_pointer(target, r, this)?,
+        Format::SelfPointer => match this {
+            Some(target) => dec_pointer(target, r, this)?,
+            // the format parser takes `*!` only inside a struct
+            None => Value::Pointer(None),
+        },
         // refused by check()
-        Format::Pointer(_) | Format::SelfPointer | Format::Named(_) => Value::Pointer(None),
+        Format::Named(_) => Value::Pointer(None),
     })
 }
 
-fn dec_flat(elem: &Format, dims: &[u32], r: &mut Reader<'_>) -> DecodeResult {
+/// A pointer to a value of format `target`, read as the derive reads an
+/// `Option<Box<T>>`.
+fn dec_pointer(target: &Format, r: &mut Reader<'_>, this: Option<&Format>) -> DecodeResult {
+    let p = courier::cdr::read_optional(r, |r| dec(target, r, this))?;
+    Ok(Value::Pointer(p.map(Box::new)))
+}
+
+fn dec_flat(
+    elem: &Format,
+    dims: &[u32],
+    r: &mut Reader<'_>,
+    this: Option<&Format>,
+) -> DecodeResult {
     let Some((&n, rest)) = dims.split_first() else {
-        return dec(elem, r);
+        return dec(elem, r, this);
     };
     let min = primitive(elem).unwrap_or(1);
     if (n as usize).saturating_mul(min) > r.remaining() {
@@ -309,7 +364,7 @@ fn dec_flat(elem: &Format, dims: &[u32], r: &mut Reader<'_>) -> DecodeResult {
     }
     let mut items = Vec::with_capacity(n as usize);
     for _ in 0..n {
-        items.push(dec_flat(elem, rest, r)?);
+        items.push(dec_flat(elem, rest, r, this)?);
     }
     Ok(Value::Array(items))
 }
@@ -398,7 +453,7 @@ mod tests {
 
     #[test]
     fn what_has_no_layout_is_refused() {
-        for f in ["*int", "{int, *!}", "format"] {
+        for f in ["format", "{int, *format}"] {
             let e = check(&courier::format::parse(f).unwrap()).unwrap_err();
             assert!(e.contains("has no CDR layout"), "{f}: {e}");
         }
@@ -407,6 +462,102 @@ mod tests {
         let e = encode(&f, &bad).unwrap_err();
         assert!(e.contains("size field 1 says 2"), "{e}");
         assert!(decode(&f, &[0, 1, 0, 0, 1]).is_err());
+    }
+
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct Scan {
+        seq: i32,
+        origin: Point,
+        opt: Option<Box<Point>>,
+        ok: bool,
+        more: Option<Box<i32>>,
+    }
+
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct List {
+        v: u8,
+        next: Option<Box<List>>,
+    }
+
+    /// The bytes of `value` (IPC format `fmt`) encoded dynamically are the
+    /// derive's (XCDR1), and the derive's bytes in every encoding decode to
+    /// the same value.
+    fn same_as_the_derive<T: IpcMessage>(fmt: &str, value: &T) {
+        let fmt = courier::format::parse(fmt).unwrap();
+        let v = Value::from_ipc_bytes(
+            &fmt,
+            &courier::ipc::to_vec(value),
+            courier::ipc::ByteOrder::NATIVE,
+        )
+        .unwrap();
+        assert_eq!(
+            encode(&fmt, &v).unwrap(),
+            courier::cdr::to_vec(value, courier::cdr::Encoding::Xcdr1Le),
+            "{fmt}"
+        );
+        for enc in [
+            courier::cdr::Encoding::Xcdr1Le,
+            courier::cdr::Encoding::Xcdr1Be,
+            courier::cdr::Encoding::Xcdr2Le,
+            courier::cdr::Encoding::Xcdr2Be,
+        ] {
+            let bytes = courier::cdr::to_vec(value, enc);
+            assert_eq!(decode(&fmt, &bytes).unwrap(), v, "{fmt} {enc:?}");
+        }
+    }
+
+    /// A pointer `*T` is an `@optional` member, as the derive lays out
+    /// `Option<Box<T>>`: in XCDR1 a parameter header with the member id
+    /// (the field's index) and the length (0: absent), golden bytes here.
+    #[test]
+    fn pointers_are_optional_members_as_the_derive_lays_them_out() {
+        let point = Some(Box::new(Point { x: 9.0, y: 8.0 }));
+        let scan = |opt, more| Scan {
+            seq: 7,
+            origin: Point { x: 1.5, y: -2.5 },
+            opt,
+            ok: true,
+            more,
+        };
+        let fmt = "{int, {double, double}, *{double, double}, boolean, *int}";
+        assert_eq!(Scan::FORMAT, "{int, Point, *Point, boolean, *int}");
+        same_as_the_derive(fmt, &scan(point.clone(), Some(Box::new(-1))));
+        same_as_the_derive(fmt, &scan(None, None));
+        // golden: member 2 present (16 bytes), member 4 absent
+        let v = Value::Struct(vec![
+            Value::Int(7),
+            Value::Struct(vec![Value::Double(1.5), Value::Double(-2.5)]),
+            Value::Pointer(Some(Box::new(Value::Struct(vec![
+                Value::Double(9.0),
+                Value::Double(8.0),
+            ])))),
+            Value::Boolean(true),
+            Value::Pointer(None),
+        ]);
+        let mut want = vec![0, 1, 0, 0, 7, 0, 0, 0, 0, 0, 0, 0];
+        want.extend_from_slice(&1.5f64.to_le_bytes());
+        want.extend_from_slice(&(-2.5f64).to_le_bytes());
+        want.extend_from_slice(&[0x01, 0x7f, 8, 0, 2, 0, 0, 0, 16, 0, 0, 0]);
+        want.extend_from_slice(&9.0f64.to_le_bytes());
+        want.extend_from_slice(&8.0f64.to_le_bytes());
+        want.extend_from_slice(&[1, 0, 0, 0]);
+        want.extend_from_slice(&[0x01, 0x7f, 8, 0, 4, 0, 0, 0, 0, 0, 0, 0]);
+        let fmt = courier::format::parse(fmt).unwrap();
+        assert_eq!(encode(&fmt, &v).unwrap(), want);
+        assert_eq!(
+            want,
+            courier::cdr::to_vec(&scan(point, None), courier::cdr::Encoding::Xcdr1Le)
+        );
+        // `*!` points at the struct around it
+        let list = List {
+            v: 1,
+            next: Some(Box::new(List {
+                v: 2,
+                next: Some(Box::new(List { v: 3, next: None })),
+            })),
+        };
+        same_as_the_derive("{ubyte, *!}", &list);
+        same_as_the_derive("*{ubyte, *!}", &Some(Box::new(list)));
     }
 
     #[derive(IpcMessage, Debug, Clone, PartialEq)]

@@ -371,6 +371,12 @@ pub struct ReplayArgs {
     /// --transient-local: samples kept per topic
     #[arg(long, value_name = "N", default_value_t = 1000, requires = "transient_local", value_parser = at_least_1_u32)]
     pub depth: u32,
+    /// IPC: define each message with its recorded format even when central
+    /// holds a format for it that the recorded one does not fit (as C's
+    /// IPC_defineMsg does; its subscribers of the old format then fail to
+    /// decode). Without it that is refused
+    #[arg(long)]
+    pub redefine: bool,
     /// Participant / module name (%p: this process's id; IPC module names must be unique)
     #[arg(long, default_value = "courier-replay-%p")]
     pub name: String,
@@ -531,6 +537,12 @@ pub struct PubArgs {
     /// Wait for this many subscribers before the first sample
     #[arg(long, value_name = "N", default_value_t = 1)]
     pub wait: u32,
+    /// IPC: define the message with --format even when central holds a
+    /// format for it that --format does not fit (as C's IPC_defineMsg
+    /// does; its subscribers of the old format then fail to decode).
+    /// Without it that is refused
+    #[arg(long, requires = "format")]
+    pub redefine: bool,
     /// Participant / module name (%p: this process's id; IPC module names must be unique)
     #[arg(long, default_value = "courier-pub-%p")]
     pub name: String,
@@ -792,6 +804,21 @@ impl std::fmt::Display for LateUsage {
 
 impl std::error::Error for LateUsage {}
 
+/// `--redefine` replaces the format central holds: other backends have
+/// none.
+fn redefine_on_ipc(sub: &str, url: &str, redefine: bool) -> Result<(), clap::Error> {
+    if redefine && kind(url) != Kind::Ipc {
+        return Err(usage_error(
+            sub,
+            format!(
+                "--redefine replaces the format central holds; {} has no central",
+                scheme(url)
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// A usage error found after parsing: printed as clap prints its own, with
 /// the subcommand's usage, exit 2.
 pub fn usage_error(sub: &str, msg: impl std::fmt::Display) -> clap::Error {
@@ -926,6 +953,7 @@ impl Cli {
                     }
                     Kind::Ipc => {}
                 }
+                redefine_on_ipc("pub", &a.url, a.redefine)?;
                 // the VALUE, whenever the command line alone gives its type
                 // (all but ipc:// without --format: central holds that one)
                 if let Some(r) = crate::publish::encoder_offline(a) {
@@ -1027,6 +1055,7 @@ impl Cli {
                         "--transient-local is DDS durability; ipc:// has none",
                     ));
                 }
+                redefine_on_ipc("replay", &a.url, a.redefine)?;
             }
             Command::Hz(a) | Command::Bw(a) => {
                 let sub = if matches!(self.command, Command::Hz(_)) {

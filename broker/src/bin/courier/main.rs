@@ -15,6 +15,7 @@
 mod bar;
 mod call;
 mod cdr_value;
+mod central_format;
 mod cli;
 mod connect;
 mod dds_type;

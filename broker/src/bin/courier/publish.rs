@@ -9,7 +9,9 @@
 //!
 //! A VALUE that does not fit the type is a usage error (exit 2): checked
 //! before connecting when the command line gives the type, else once
-//! central has said the message's format ([`crate::cli::LateUsage`]).
+//! central has said the message's format ([`crate::cli::LateUsage`]). So is
+//! a `--format` that central's format of the message does not fit (see
+//! [`crate::central_format`]; `--redefine` replaces central's).
 
 use std::cell::Cell;
 use std::time::{Duration, Instant};
@@ -146,6 +148,7 @@ async fn encoder(s: &Session, o: &PubArgs) -> Result<(Encoder, TypeInfo)> {
 
 async fn publish(s: &Session, o: &PubArgs, sent: &Cell<u64>, waiting: &Cell<bool>) -> Result<()> {
     let (enc, ty) = encoder(s, o).await?;
+    redefines(s, o).await?;
     // checked before connecting unless the format came from central
     let data = sample(&enc, o).map_err(|msg| LateUsage { sub: "pub", msg })?;
     // listening before the publication exists: a reader of another type
@@ -155,6 +158,19 @@ async fn publish(s: &Session, o: &PubArgs, sent: &Cell<u64>, waiting: &Cell<bool
     let r = publish_on(s, o, &mut pb, &data, sent, waiting, ev).await;
     pb.close(s);
     r
+}
+
+/// IPC: refuses to define the message with a `--format` that central's
+/// format of it does not fit (its subscribers would fail to decode), unless
+/// `--redefine`: a usage error, as a VALUE that does not fit central's
+/// format is.
+async fn redefines(s: &Session, o: &PubArgs) -> Result<()> {
+    let (Kind::Ipc, Some(f), false) = (kind(&o.url), &o.format, o.redefine) else {
+        return Ok(());
+    };
+    crate::central_format::check(s, &o.topic, f, &format!("--format {f}"))
+        .await?
+        .map_err(|msg| LateUsage { sub: "pub", msg }.into())
 }
 
 /// Opens `pb` again if the topic's readers all want the other kind

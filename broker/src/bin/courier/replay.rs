@@ -11,6 +11,13 @@
 //! topic is written keyed when the readers of it that discovery finds
 //! (before playing, and while `--wait`ing) all are, and says so.
 //!
+//! On IPC a channel's format is not defined over one central holds that
+//! it does not fit (its subscribers would fail to decode) unless
+//! `--redefine`. On DDS, `--type` naming another type than the recorded
+//! one writes the CDR unchanged: refused when both layouts are known and
+//! differ, else with a warning. Offsets count from the first message of
+//! the channels replayed.
+//!
 //! The file is read twice, in a thread of its own: once to count what is
 //! intact (and report what is damaged, with where), once to play it.
 //! A damaged file replays what is intact and exits 1 at the end.
@@ -36,7 +43,7 @@ use crate::recording::{
 };
 use crate::scan::{self, Chan, Event, Msg, Survey};
 use crate::stop::{count, run_session, Ended, Stop};
-use crate::text::{err, out, progress, word};
+use crate::text::{err, out, progress, type_mismatch_line, word};
 use crate::values::known_type;
 use crate::Result;
 
@@ -52,18 +59,23 @@ pub async fn run(o: ReplayArgs, progress_mode: ProgressMode, mut stop: Stop) -> 
         err(format_args!("courier: {}: {d}", o.file.display()));
     }
     // every channel's way onto the target, before anything connects
-    let plans = choose(&o, &survey)?
-        .into_iter()
-        .map(|c| {
+    let chosen = choose(&o, &survey)?;
+    let plans = chosen
+        .iter()
+        .map(|&c| {
             plan(&o, c)
                 .map(|p| (c, p))
-                .map_err(|e| format!("channel {:?} ({}): {e}", c.topic, c.id))
+                .map_err(|e| channel_error(c, &chosen, &e))
         })
         .collect::<std::result::Result<Vec<_>, _>>()?;
     let s = match connect(&o.url, &o.name, &mut stop).await? {
         Ok(s) => s,
         Err(ended) => return Ok(ended),
     };
+    if let Err(e) = central_fits(&s, &o, &plans).await {
+        s.close().await;
+        return Err(e);
+    }
     let sent = Cell::new(0u64);
     let what = || format!("after {} replayed", count(sent.get(), "message"));
     let body = replay(&s, &o, progress_mode, &survey, plans, &sent);
@@ -77,6 +89,49 @@ pub async fn run(o: ReplayArgs, progress_mode: ProgressMode, mut stop: Stop) -> 
         .into());
     }
     Ok(ended)
+}
+
+/// Why channel `c` cannot be replayed (`why`), and, when other channels
+/// were chosen with it, that `--topic` can replay those without it: one
+/// channel that cannot be replayed stops the whole replay before it
+/// begins.
+fn channel_error(c: &Chan, chosen: &[&Chan], why: &str) -> String {
+    let mut others: Vec<&str> = chosen
+        .iter()
+        .filter(|o| o.topic != c.topic)
+        .map(|o| o.topic.as_str())
+        .collect();
+    others.sort_unstable();
+    others.dedup();
+    let hint = if others.is_empty() {
+        String::new()
+    } else {
+        format!(
+            "; or leave it out: --topic {} replays the others only",
+            others.join(" --topic ")
+        )
+    };
+    format!("channel {:?} ({}): {why}{hint}", c.topic, c.id)
+}
+
+/// IPC: that central's format of each channel's message fits the format
+/// the replay defines it with (see [`crate::central_format`]), unless
+/// `--redefine`.
+async fn central_fits(s: &Session, o: &ReplayArgs, plans: &[(&Chan, Plan)]) -> Result<()> {
+    if kind(&o.url) != Kind::Ipc || o.redefine {
+        return Ok(());
+    }
+    let chosen: Vec<&Chan> = plans.iter().map(|(c, _)| *c).collect();
+    for (c, (_, ty, _)) in plans {
+        let Some(f) = ty.format.and_then(|f| courier::format::parse(f).ok()) else {
+            continue;
+        };
+        let ours = format!("the recorded format {f}");
+        if let Err(e) = crate::central_format::check(s, &c.topic, &f, &ours).await? {
+            return Err(channel_error(c, &chosen, &e).into());
+        }
+    }
+    Ok(())
 }
 
 /// The channels to replay: all, or those `--topic` names (each must name
@@ -267,16 +322,55 @@ fn plan(o: &ReplayArgs, c: &Chan) -> std::result::Result<Plan, String> {
             Ok((Convert::IpcToCdr(f, order), ty, shown))
         }
         (Kind::Dds, Source::Cdr { format, type_name }) => {
+            let recorded = type_name.clone();
             let ty_name = wanted.or(type_name).ok_or_else(|| {
                 format!(
                     "it names no DDS type: give one with --type {}=TYPE",
                     c.topic
                 )
             })?;
+            let mut shown = format!("cdr {}", word(&ty_name));
+            if let Some(rec) = recorded.filter(|r| *r != ty_name) {
+                relabel(c, &rec, format.as_ref(), &ty_name)?;
+                shown.push_str(&format!(" (recorded as {})", word(&rec)));
+            }
             let ty = dynamic(format.as_ref(), &ty_name);
-            Ok((Convert::Pass, ty, format!("cdr {}", word(&ty_name))))
+            Ok((Convert::Pass, ty, shown))
         }
     }
+}
+
+/// `--type` naming another DDS type than the one channel `c` was recorded
+/// as (`recorded`, laid out as `format` when known): its CDR is written
+/// unchanged, since DDS types carry no field names to convert by. Refused
+/// when both layouts are known and the recorded one does not read as the
+/// other; else a warning, since readers of `wanted` decode the samples
+/// only if it is laid out as `recorded` (a type renamed, say).
+fn relabel(
+    c: &Chan,
+    recorded: &str,
+    format: Option<&Format>,
+    wanted: &str,
+) -> std::result::Result<(), String> {
+    let target = known_type(wanted).map(|k| k.parsed());
+    if let (Some(f), Some(t)) = (format, &target) {
+        return courier::format::fits(f, t).map_err(|m| {
+            format!(
+                "it was recorded as DDS type {recorded} ({f}), whose samples do not read as \
+                 {wanted} ({t}) of --type {}={wanted}: {m}; replay writes a channel's CDR \
+                 unchanged, it does not convert between DDS types",
+                c.topic
+            )
+        });
+    }
+    let layout = format.map_or(String::new(), |f| format!(" ({f})"));
+    err(format_args!(
+        "courier: channel {:?}: recorded as DDS type {recorded}, written unchanged as {wanted} \
+         (--type): readers of {wanted} decode its samples only if {wanted} is laid out as \
+         {recorded}{layout}",
+        c.topic
+    ));
+    Ok(())
 }
 
 /// A channel being replayed.
@@ -334,6 +428,9 @@ async fn replay(
     }
     let mut playing: HashMap<u16, Playing> = HashMap::new();
     let mut topics = BTreeMap::new();
+    // listening before the publications exist: a reader of another type
+    // already discovered is reported as its writer is created
+    let ev = s.events();
     let r: Result<()> = async {
         for (c, (conv, ty, shown)) in plans {
             let pb = Publication::open(s, &c.topic, ty, &qos).await?;
@@ -351,7 +448,7 @@ async fn replay(
         }
         out("ready");
         key_as_readers(s, &mut playing).await?;
-        wait_for(s, o, topics.keys(), &mut playing).await?;
+        wait_for(s, o, topics.keys(), &mut playing, ev).await?;
         play(s, o, mode, survey, &mut playing, sent).await
     }
     .await;
@@ -387,11 +484,11 @@ async fn wait_for<'a>(
     o: &ReplayArgs,
     topics: impl Iterator<Item = &'a String>,
     playing: &mut HashMap<u16, Playing>,
+    mut ev: courier::Events,
 ) -> Result<()> {
     if o.wait == 0 {
         return Ok(());
     }
-    let mut ev = s.events();
     let mut have = BTreeMap::new();
     for t in topics {
         s.watch_handlers(t).await?;
@@ -412,6 +509,17 @@ async fn wait_for<'a>(
                     if have.contains_key(&r.topic) =>
                 {
                     key_as_readers(s, playing).await?;
+                }
+                // a reader of another type never matches: say so, as
+                // `pub` does, rather than only waiting
+                SessionEvent::TypeMismatch { topic, remote, local_type, remote_type }
+                    if have.contains_key(&topic) =>
+                {
+                    out(format_args!(
+                        "channel {} {}",
+                        word(&topic),
+                        type_mismatch_line(remote, &local_type, &remote_type)
+                    ));
                 }
                 _ => {}
             },
@@ -447,8 +555,10 @@ async fn play(
     let dds = kind(&o.url) == Kind::Dds;
     let b = s.backend();
     let per_pass: u64 = playing.values().map(|p| p.total).sum();
-    let first = survey.first.unwrap_or(0);
-    let span = survey.last.unwrap_or(first).saturating_sub(first) as f64 / 1e9 / o.rate;
+    // offsets count from the first message replayed, not from the file's
+    // first on any channel: a channel left out leaves no idle gap
+    let (first, last) = survey.span(playing.keys()).unwrap_or((0, 0));
+    let span = last.saturating_sub(first) as f64 / 1e9 / o.rate;
     let mut bar = Bar::new(mode, per_pass, "messages");
     let mut rx = reader(o.file.clone(), playing.keys().copied().collect(), o.r#loop);
     let mut start = tokio::time::Instant::now();

@@ -65,11 +65,22 @@ pub struct Survey {
     pub channels: BTreeMap<u16, Chan>,
     /// Intact messages, by channel id.
     pub counts: BTreeMap<u16, u64>,
-    /// The earliest and latest log times of the intact messages.
-    pub first: Option<u64>,
-    pub last: Option<u64>,
+    /// The earliest and latest log times of the intact messages, by
+    /// channel id.
+    pub spans: BTreeMap<u16, (u64, u64)>,
     /// Each damage found: what is wrong, and at which byte.
     pub damage: Vec<String>,
+}
+
+impl Survey {
+    /// The earliest and latest log times of the intact messages of the
+    /// channels `ids` (what a replay of those channels spans).
+    pub fn span<'a>(&self, ids: impl IntoIterator<Item = &'a u16>) -> Option<(u64, u64)> {
+        ids.into_iter()
+            .filter_map(|id| self.spans.get(id))
+            .copied()
+            .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1)))
+    }
 }
 
 /// Walks the file once, counting (first pass of a replay). `Err`: the file
@@ -83,8 +94,9 @@ pub fn survey(path: &Path) -> Result<Survey, String> {
             }
             Event::Message(m) => {
                 *s.counts.entry(m.channel).or_default() += 1;
-                s.first = Some(s.first.map_or(m.log_time, |f| f.min(m.log_time)));
-                s.last = Some(s.last.map_or(m.log_time, |l| l.max(m.log_time)));
+                let t = m.log_time;
+                let span = s.spans.entry(m.channel).or_insert((t, t));
+                *span = (span.0.min(t), span.1.max(t));
             }
         }
         true
@@ -305,6 +317,42 @@ fn summary_start(f: &mut File, len: u64) -> Option<(u64, u64)> {
     (start >= 8 && start < footer_at).then_some((start, footer_at))
 }
 
+/// What is wrong with what follows the data end record at byte
+/// `data_end` (the summary, the footer and the closing magic of a finished
+/// recording), if anything. A file cut there has every message, but tools
+/// that read it through its summary and footer cannot open it: the
+/// damage is reported as any other.
+fn tail_damage<R: Read>(recs: &mut Records<R>, data_end: u64) -> Option<String> {
+    let lost = format!(
+        "the summary after the data end record at byte {data_end} is lost (the messages \
+         before it are intact)"
+    );
+    loop {
+        match recs.next() {
+            Next::Record(at, op::FOOTER, _) => {
+                let left = recs.end - recs.pos;
+                let mut magic = [0u8; 8];
+                let whole = left == 8 && recs.r.read_exact(&mut magic).is_ok();
+                if whole && magic == mcap::MAGIC {
+                    return None;
+                }
+                return Some(format!(
+                    "the footer at byte {at} is followed by {left} bytes, not the 8 of the MCAP \
+                     magic that end a finished recording: the file was cut or written over"
+                ));
+            }
+            Next::Record(..) => {}
+            Next::End => {
+                return Some(format!(
+                    "truncated at byte {}: the file ends before its footer: {lost}",
+                    recs.end
+                ))
+            }
+            Next::Cut(why) => return Some(format!("{why}: {lost}")),
+        }
+    }
+}
+
 /// Walks the file: the summary's channels first (when it has one), then
 /// the data section in order, calling `visit` for each channel (once) and
 /// intact message until it returns `false`. Returns the damage found, or
@@ -388,7 +436,10 @@ pub fn walk(path: &Path, visit: &mut dyn FnMut(Event) -> bool) -> Result<Vec<Str
             }
         };
         match o {
-            op::DATA_END => break,
+            op::DATA_END => {
+                damage.extend(tail_damage(&mut recs, at));
+                break;
+            }
             op::FOOTER => {
                 damage.push(format!(
                     "the footer at byte {at} comes before any data end record"
