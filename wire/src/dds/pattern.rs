@@ -77,7 +77,7 @@ impl Domain {
     /// publication, remote or local, now and as they are discovered
     /// ([`Event::PatternMatched`]). Each reader takes its publication's
     /// ownership kind and partitions, which DDS needs equal to match, and
-    /// its reliability and durability ([`Grade`]; `qos`'s own are not
+    /// its reliability and durability (`qos`'s own are not
     /// used): a later publication of the same topic that offers less gets
     /// the reader replaced by one that asks less
     /// (`PatternMatched::replaces`).
