@@ -86,12 +86,11 @@ impl std::fmt::Debug for RawSample {
 pub enum QueuePolicy {
     /// Keep every sample; when `n` wait, stop acknowledging so central
     /// holds the rest (back-pressure, where `set_queue_length` applies).
-    /// `n` of 0 is taken as 1 (a queue holds at least the sample being
-    /// handed over).
+    /// A subscription refuses `n` of 0 (`OpenError::Qos`).
     KeepAll(usize),
     /// Keep the newest `n`; the oldest is dropped and counted
     /// ([`Subscriber::dropped`]), as `IPC_setMsgQueueLength` does in central.
-    /// `n` of 0 is taken as 1.
+    /// A subscription refuses `n` of 0 (`OpenError::Qos`).
     ///
     /// [`Subscriber::dropped`]: crate::Subscriber::dropped
     KeepLast(usize),

@@ -229,7 +229,6 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
     /// ([`OpenError::Qos`]).
     pub fn keep_last(mut self, n: u32) -> Self {
         self.qos.history = History::KeepLast(n);
-        self.policy = Some(QueuePolicy::KeepLast(n as usize));
         self
     }
 
@@ -266,16 +265,36 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
         self
     }
 
-    /// The local queue policy.
+    /// The local queue policy, whatever the history: without it the
+    /// queue follows the history (keep-last `n`: the newest `n`;
+    /// keep-all: [`QueuePolicy::default`]). `build` refuses a queue of 0.
     pub fn queue(mut self, policy: QueuePolicy) -> Self {
         self.policy = Some(policy);
         self
     }
 
-    /// Replaces the whole QoS.
+    /// Replaces the whole QoS (its history sets the local queue too, as
+    /// [`keep_last`](Self::keep_last) does, unless [`queue`](Self::queue)
+    /// gives one).
     pub fn qos(mut self, qos: SubscriptionQos) -> Self {
         self.qos = qos;
         self
+    }
+
+    /// The local queue: as [`queue`](Self::queue) set it, else as the
+    /// history says.
+    fn queue_policy(&self) -> Result<QueuePolicy, OpenError> {
+        let p = self.policy.unwrap_or(match self.qos.history {
+            History::KeepLast(n) => QueuePolicy::KeepLast(n as usize),
+            History::KeepAll => QueuePolicy::default(),
+        });
+        if matches!(p, QueuePolicy::KeepAll(0) | QueuePolicy::KeepLast(0)) {
+            return Err(OpenError::Qos {
+                topic: self.msg.clone(),
+                why: format!("a queue of {p:?} holds nothing: give 1 or more"),
+            });
+        }
+        Ok(p)
     }
 
     /// The backend's subscription of this type and QoS, into `queue`.
@@ -334,7 +353,7 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
     where
         F: FnMut(Result<D::Item, RecvError>) + Send + 'static,
     {
-        let queue = SampleQueue::new(self.policy.unwrap_or_default());
+        let queue = SampleQueue::new(self.queue_policy()?);
         let enc = self.session.enc();
         let skipped = Arc::new(std::sync::atomic::AtomicU64::new(0));
         let count = skipped.clone();
@@ -367,7 +386,7 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
 
     /// Creates the subscription.
     pub async fn build(self) -> Result<Subscriber<T, D>, OpenError> {
-        let queue = SampleQueue::new(self.policy.unwrap_or_default());
+        let queue = SampleQueue::new(self.queue_policy()?);
         let raw = self.create(queue).await?;
         Ok(Subscriber {
             raw,

@@ -1468,3 +1468,42 @@ async fn a_definition_that_follows_another_at_once_is_checked_against_it() {
     }
     c.shutdown().await;
 }
+
+/// A subscriber's local queue follows its history however the history is
+/// given: `qos()` with keep-last 2 keeps the newest 2, as `keep_last(2)`
+/// does (it kept 1000, and on IPC the history was silently ignored). A
+/// queue of 0 is refused, as `keep_last(0)` is.
+#[tokio::test]
+async fn a_keep_last_history_given_through_qos_is_the_local_queue() {
+    let (c, url) = central().await;
+    let s = session(&url, "q").await;
+    let mut qos = courier::SubscriptionQos::default();
+    qos.history = courier::History::KeepLast(2);
+    let mut sub = s.subscriber::<i32>("q").qos(qos).build().await.unwrap();
+    s.num_handlers("q").await.unwrap();
+    for i in 0..5 {
+        s.publish("q", &i).await.unwrap();
+    }
+    // the five are in (a publish to oneself comes back through central)
+    let deadline = tokio::time::Instant::now() + T;
+    while sub.dropped() < 3 && tokio::time::Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    assert_eq!(sub.dropped(), 3);
+    assert_eq!(sub.next().await.unwrap().unwrap().value, 3);
+    assert_eq!(sub.next().await.unwrap().unwrap().value, 4);
+    for p in [
+        courier::QueuePolicy::KeepLast(0),
+        courier::QueuePolicy::KeepAll(0),
+    ] {
+        let e = s
+            .subscriber::<i32>("q0")
+            .queue(p)
+            .build()
+            .await
+            .unwrap_err();
+        assert!(e.to_string().contains("holds nothing"), "{e}");
+    }
+    s.close().await;
+    c.shutdown().await;
+}
