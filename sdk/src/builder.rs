@@ -106,6 +106,7 @@ fn unknown_scheme(url: &str, scheme: Option<&str>, known: &[String]) -> String {
 
 /// Builds a [`Session`].
 #[derive(Debug, Clone)]
+#[must_use = "a builder does nothing until `.connect().await`"]
 pub struct SessionBuilder {
     pub(crate) url: String,
     pub(crate) name: Option<String>,

@@ -183,6 +183,7 @@ impl Future for PublishFuture<'_> {
 
 /// Builds a [`Publisher`]: ORTE's publication parameters as DDS QoS.
 #[derive(Debug)]
+#[must_use = "a builder does nothing until `.build().await`"]
 pub struct PublisherBuilder<T> {
     pub(crate) session: Session,
     pub(crate) msg: String,
@@ -426,6 +427,7 @@ impl<T: IpcMessage> Publisher<T> {
 
 /// A publication driven by a timer ([`Publisher::send_every`]); dropping it stops it.
 #[derive(Debug)]
+#[must_use = "dropping it stops the periodic publication"]
 pub struct PeriodicPublication {
     task: tokio::task::JoinHandle<Result<(), PublishError>>,
     msg: String,

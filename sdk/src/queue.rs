@@ -483,6 +483,7 @@ fn pop_live(st: &mut QueueState) -> (Option<RawSample>, Vec<RawSample>) {
 /// Raw samples of one subscription (`Session::subscribe_raw`); dropping it
 /// unsubscribes.
 #[derive(Debug)]
+#[must_use = "dropping it unsubscribes"]
 pub struct RawSubscriber {
     pub(crate) queue: Arc<SampleQueue>,
     /// Unsubscribes when dropped (after the queue is marked abandoned).

@@ -57,6 +57,7 @@ pub(crate) fn open_failed(msg: &str, e: OpenError) -> QueryError {
 
 /// A query being built; `.await` it.
 #[derive(Debug)]
+#[must_use = "a query does nothing until awaited"]
 pub struct Query<'a, Resp> {
     pub(crate) session: &'a Session,
     pub(crate) msg: &'a str,
@@ -179,6 +180,7 @@ impl<Req, Resp: IpcMessage> Request<Req, Resp> {
 
 /// Raw requests of [`Session::serve_raw`]; dropping it stops serving.
 #[derive(Debug)]
+#[must_use = "dropping it stops serving"]
 pub struct RawRequests {
     pub(crate) rx: mpsc::Receiver<RawRequest>,
     pub(crate) _handle: Owned,
@@ -200,6 +202,7 @@ impl Stream for RawRequests {
 
 /// The stream of requests of [`Session::serve`].
 #[derive(Debug)]
+#[must_use = "dropping it stops serving"]
 pub struct Requests<Req, Resp> {
     pub(crate) rx: mpsc::Receiver<RawRequest>,
     /// Stops serving when dropped.

@@ -888,6 +888,7 @@ fn unexpected_answer(asked: &str, got: &Answer) -> ControlError {
 /// [`SessionEvent::Disconnected`] when the session closes (one opened
 /// after that ends at once).
 #[derive(Debug)]
+#[must_use = "dropping it stops listening"]
 pub struct Events {
     rx: crate::hub::Listener<SessionEvent>,
 }

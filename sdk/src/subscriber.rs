@@ -178,6 +178,7 @@ pub struct InstanceChange<T: IpcMessage> {
 
 /// Builds a [`Subscriber`]: ORTE's subscription parameters as DDS QoS.
 #[derive(Debug)]
+#[must_use = "a builder does nothing until `.build().await` or `.listen(f).await`"]
 pub struct SubscriberBuilder<T, D = Samples> {
     pub(crate) session: Session,
     pub(crate) msg: String,
@@ -404,6 +405,7 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
 /// ([`SubscriberBuilder::listen`]); dropping it unsubscribes (a callback
 /// already running finishes).
 #[derive(Debug)]
+#[must_use = "dropping it unsubscribes"]
 pub struct Listener {
     raw: RawSubscriber,
     msg: String,
@@ -491,6 +493,7 @@ pub enum RecvError {
 /// [`with_instances`](SubscriberBuilder::with_instances), instance state
 /// changes). Dropping it unsubscribes.
 #[derive(Debug)]
+#[must_use = "dropping it unsubscribes"]
 pub struct Subscriber<T, D = Samples> {
     raw: RawSubscriber,
     msg: String,

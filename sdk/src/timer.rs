@@ -48,6 +48,7 @@ impl TimersEnd {
 /// A timer `Stream` (IPC_addTimer): ticks at fixed instants, skipping none.
 /// It ends when its session is closed.
 #[derive(Debug)]
+#[must_use = "a timer ticks only for whoever reads it; dropping it removes it"]
 pub struct Timer {
     interval: tokio::time::Interval,
     remaining: Option<u64>,

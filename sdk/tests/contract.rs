@@ -162,7 +162,8 @@ async fn dds_settings_on_an_ipc_session_are_refused_by_name() {
     unsupported(e.err().unwrap(), "deadline");
     let e = a.publisher::<i32>("m6").transient_local().build().await;
     unsupported(e.err().unwrap(), "transient-local");
-    a.subscriber::<i32>("m7")
+    let _m7 = a
+        .subscriber::<i32>("m7")
         .keep_last(4)
         .best_effort()
         .build()
@@ -443,7 +444,7 @@ async fn keep_last_of_nothing_is_refused() {
         .unwrap();
     assert!(matches!(e, OpenError::Qos { .. }), "{e:?}");
     // and the topic is not bound by the refused attempt
-    a.subscriber::<f64>("t").keep_last(1).build().await.unwrap();
+    let _t = a.subscriber::<f64>("t").keep_last(1).build().await.unwrap();
     a.close().await;
     c.shutdown().await;
 }

@@ -241,7 +241,7 @@ async fn central_stopping_disconnects_in_process_modules() {
     let a = in_process(&c, "a").await;
     // Longer than the test allows: a stopped central must not be retried.
     let late = c.session("late").connect_timeout(Duration::from_secs(60));
-    stop_under_a_subscriber_and_a_query(c, &a).await;
+    let _sub = stop_under_a_subscriber_and_a_query(c, &a).await;
     match tokio::time::timeout(T, late.connect()).await.unwrap() {
         Err(e @ ConnectError::Unreachable { attempts, .. }) => {
             assert_eq!(attempts, 1, "a stopped central is not retried: {e}");

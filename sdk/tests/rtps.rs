@@ -1325,7 +1325,8 @@ async fn qos_that_cannot_work_is_refused() {
         .unwrap_err();
     assert!(e.to_string().contains("under 1ms"), "{e}");
     // what can work still does
-    a.subscriber::<Msg>("q")
+    let _q = a
+        .subscriber::<Msg>("q")
         .deadline(Duration::from_millis(100))
         .minimum_separation(Duration::from_millis(50))
         .build()

@@ -387,7 +387,7 @@ async fn direct_mode_publish_and_query() {
     assert_eq!(got.value, 7);
     let r: i32 = a.query("d_ask", &41).timeout(T).await.unwrap();
     assert_eq!(r, 42);
-    tokio::time::timeout(T, srv).await.unwrap().unwrap();
+    let _served = tokio::time::timeout(T, srv).await.unwrap().unwrap();
     // the link a -> b is a UNIX socket: /proc/net/unix lists the accepted
     // end under the listener's path besides the two listeners
     let unix_ends = unix_sockets_at(&ours);
@@ -509,7 +509,7 @@ async fn raw_query_and_serve() {
         .unwrap();
     assert_eq!(reply, "raw_r");
     assert_eq!(courier::ipc::from_slice::<i32>(&data).unwrap(), 10);
-    srv.await.unwrap();
+    let _served = srv.await.unwrap();
     c.shutdown().await;
 }
 
