@@ -1295,6 +1295,12 @@ impl State {
             self.d.set_reader_full(reader, true);
             if !was_full {
                 // every subscription of the session waits now: say so
+                // (a warning too: nobody may be reading the events)
+                tracing::warn!(
+                    "the queue of a subscription of {} is full: this session reads nothing \
+                     more until it is read",
+                    r.topic
+                );
                 self.listeners.send(SessionEvent::SubscriberFull {
                     msg: r.topic.to_string(),
                     queued: r.queue.len(),

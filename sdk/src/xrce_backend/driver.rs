@@ -1447,6 +1447,11 @@ impl Driver {
                 // keep it, and read no more until the subscriber makes room
                 // (every subscription of the session waits: say so)
                 s.queue.push_over(back);
+                tracing::warn!(
+                    "the queue of a subscription of {} is full: this session reads nothing \
+                     more until it is read",
+                    s.topic
+                );
                 self.hub.send(SessionEvent::SubscriberFull {
                     msg: s.topic.to_string(),
                     queued: s.queue.len(),
