@@ -25,12 +25,22 @@ pub trait Reply: Send {
 }
 
 /// Answers one request, now or later, from any task (IPC_delayResponse);
-/// dropped unanswered, it declines the request.
-pub struct Responder(Option<Box<dyn Reply>>);
+/// dropped unanswered, it declines the request. `Send` and `Sync`: a
+/// request can be held across an `.await` in a spawned task (the lock is
+/// only for `Sync`; answering takes the responder by value).
+pub struct Responder(std::sync::Mutex<Option<Box<dyn Reply>>>);
+
+impl Responder {
+    /// The reply machinery, taken out (by value or in `drop`: no contention).
+    fn take(&mut self) -> Option<Box<dyn Reply>> {
+        self.0.get_mut().unwrap_or_else(|e| e.into_inner()).take()
+    }
+}
 
 impl std::fmt::Debug for Responder {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(if self.0.is_some() {
+        let unanswered = self.0.lock().map_or(true, |g| g.is_some());
+        f.write_str(if unanswered {
             "Responder(unanswered)"
         } else {
             "Responder(answered)"
@@ -55,7 +65,7 @@ where
 impl Responder {
     /// A responder backed by `reply`.
     pub fn new(reply: impl Reply + 'static) -> Self {
-        Responder(Some(Box::new(reply)))
+        Responder(std::sync::Mutex::new(Some(Box::new(reply))))
     }
 
     /// A responder that answers by calling `f` at once and has nothing to
@@ -68,7 +78,7 @@ impl Responder {
 
     /// Sends the reply; the future resolves once it is sent or failed.
     pub fn reply(mut self, reply_msg: &str, data: Vec<u8>) -> ReplyFuture {
-        match self.0.take() {
+        match self.take() {
             Some(r) => r.reply(reply_msg, data),
             // `reply` takes `self`, and only it and drop empty it
             None => Box::pin(std::future::ready(Err(PublishError::AlreadyAnswered))),
@@ -78,8 +88,22 @@ impl Responder {
 
 impl Drop for Responder {
     fn drop(&mut self) {
-        if let Some(r) = self.0.take() {
+        if let Some(r) = self.take() {
             r.decline();
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    /// A request held across an `.await` keeps a spawned task's future
+    /// `Send`: `Request` is `Sync` (it was not: a `&Request` in an async
+    /// handler made the future `!Send`).
+    #[test]
+    fn requests_are_send_and_sync() {
+        fn send_sync<T: Send + Sync>() {}
+        send_sync::<super::Responder>();
+        send_sync::<crate::Request<i32, i32>>();
+        send_sync::<crate::RawRequest>();
     }
 }
