@@ -216,7 +216,7 @@ impl SessionBuilder {
     /// RTPS: read user data on a receive thread of its own, which also runs
     /// the callbacks of [`SubscriberBuilder::listen`] (see
     /// [`RtpsOptions::receive_thread`]). Also `receive_thread=true` in the
-    /// URL. Other backends ignore it.
+    /// URL. `connect` refuses it on other backends.
     ///
     /// [`SubscriberBuilder::listen`]: crate::SubscriberBuilder::listen
     pub fn receive_thread(mut self, on: bool) -> Self {

@@ -346,7 +346,7 @@ pub enum QueryError {
     #[error("disconnected before {0} was answered")]
     Disconnected(String),
     /// The query could not be sent.
-    #[error("query {msg} refused")]
+    #[error("query {msg} could not be sent")]
     Refused {
         /// Query message.
         msg: String,
@@ -355,7 +355,7 @@ pub enum QueryError {
         source: PublishError,
     },
     /// The query's client (or its message definition) could not be opened.
-    #[error("query {msg} refused")]
+    #[error("query {msg} could not be opened")]
     Open {
         /// Query message.
         msg: String,

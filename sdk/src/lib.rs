@@ -30,6 +30,11 @@
 //! query. The `sensor` module connects over TCP exactly as a C module
 //! would; `logger` uses an in-process link to the central it hosts.
 //!
+//! Courier runs on the application's tokio runtime (either flavour):
+//! sessions, timers and callbacks are made and used inside one. Streams
+//! (`Subscriber`, `Requests`, `Timer`, `Events`) are `futures::Stream`s:
+//! add `futures` for `StreamExt::next`.
+//!
 //! ```
 //! # #[tokio::main(flavor = "current_thread")]
 //! # async fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -58,7 +63,9 @@
 //! // query / response: a server task answers, the query waits at most 5 s
 //! let mut requests = logger.serve::<String, u32>("length", "").await?;
 //! tokio::spawn(async move {
-//!     while let Some(Ok(req)) = requests.next().await {
+//!     while let Some(req) = requests.next().await {
+//!         // a request that does not decode is an error item: skip it
+//!         let Ok(req) = req else { continue };
 //!         let n = req.value.len() as u32;
 //!         if let Err(e) = req.reply(&n).await {
 //!             eprintln!("reply failed: {e}");
@@ -171,6 +178,7 @@
 //! struct Msg { #[ipc(key)] user_id: i32, message: String }
 //!
 //! # let domain = courier_tests::domains::lease(1);
+//! // `domain`: the DDS domain id (0..=232), here one leased for the test
 //! let url = format!("rtps://{domain}?interface=lo&peers=127.0.0.1&multicast=false");
 //! let a = Session::builder(&url).name("a").connect().await?;
 //! let b = Session::builder(&url).name("b").connect().await?;

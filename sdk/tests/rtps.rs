@@ -1399,7 +1399,7 @@ async fn a_query_of_other_types_than_the_server_s_names_them() {
         .await
         .unwrap_err();
     let cause = std::error::Error::source(&e).map(|c| c.to_string());
-    assert_eq!(e.to_string(), "query mm refused");
+    assert_eq!(e.to_string(), "query mm could not be opened");
     let cause = cause.unwrap_or_default();
     assert!(
         cause.starts_with("mm's reply carries ")

@@ -867,7 +867,7 @@ async fn a_type_ipc_cannot_carry_is_refused_naming_the_fix() {
         .timeout(Duration::from_secs(1))
         .await
         .unwrap_err();
-    assert_eq!(e.to_string(), "query plan refused");
+    assert_eq!(e.to_string(), "query plan could not be opened");
     let cause = std::error::Error::source(&e)
         .expect("the cause")
         .to_string();
