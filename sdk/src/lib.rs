@@ -210,11 +210,7 @@
 //! use futures::StreamExt;
 //!
 //! # let domain = courier_tests::domains::lease(1);
-//! let mut rtps = RtpsOptions::default();
-//! rtps.domain = domain;
-//! rtps.interface = Some("lo".into());
-//! rtps.peers = vec!["127.0.0.1".into()];
-//! rtps.multicast = false;
+//! let rtps = RtpsOptions::loopback(domain); // lo, unicast to 127.0.0.1, no multicast
 //! let agent = XrceAgent::builder()
 //!     .transport(Transport::Udp("127.0.0.1:0".parse()?))
 //!     .rtps(rtps)

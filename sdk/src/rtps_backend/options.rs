@@ -31,8 +31,10 @@ pub struct RtpsOptions {
     /// Unicast discovery peers: `ip` (every participant index
     /// 0..=[`RtpsOptions::max_participant_index`] there) or `ip:port`.
     pub peers: Vec<String>,
-    /// Standard SPDP multicast discovery (239.255.0.1). Default on, unless
-    /// peers are given.
+    /// Standard SPDP multicast discovery (239.255.0.1). Default on. The URL
+    /// parser and [`SessionBuilder::peers`](crate::SessionBuilder::peers)
+    /// turn it off when peers are given; a program that fills this struct
+    /// itself sets it too (or starts from [`RtpsOptions::loopback`]).
     pub multicast: bool,
     /// A fixed participant index; `None` probes 0, 1, 2, … for free ports.
     pub participant_index: Option<u32>,
@@ -112,6 +114,25 @@ impl ServiceStyle {
             ServiceStyle::Auto => None,
             ServiceStyle::FastRtps => Some(courier_wire::dds::RpcStyle::SampleIdentity),
             ServiceStyle::CycloneDds => Some(courier_wire::dds::RpcStyle::RequestHeader),
+        }
+    }
+}
+
+impl RtpsOptions {
+    /// Loopback only on `domain`: interface `lo`, unicast discovery of
+    /// 127.0.0.1, no multicast. Nothing leaves the machine.
+    ///
+    /// ```
+    /// let o = courier::rtps_backend::RtpsOptions::loopback(7);
+    /// assert_eq!((o.domain, o.multicast, o.peers.len()), (7, false, 1));
+    /// ```
+    pub fn loopback(domain: u32) -> Self {
+        RtpsOptions {
+            domain,
+            interface: Some("lo".into()),
+            peers: vec!["127.0.0.1".into()],
+            multicast: false,
+            ..RtpsOptions::default()
         }
     }
 }
