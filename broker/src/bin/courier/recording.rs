@@ -243,10 +243,15 @@ fn idl_type(f: &Format, name: &str, defs: &mut Vec<String>) -> (String, String) 
         }
         // `{enum : max}`: a 32-bit value
         Format::Enum { .. } => ("int32".into(), String::new()),
-        // no CDR layout (refused before a schema is made)
-        Format::Empty | Format::Pointer(_) | Format::SelfPointer | Format::Named(_) => {
-            ("octet".into(), "[0]".into())
+        // `*T`: an optional member, as the derive lays out `Option<Box<T>>`
+        Format::Pointer(elem) => {
+            let (t, s) = idl_type(elem, name, defs);
+            (format!("@optional {t}"), s)
         }
+        // no CDR layout (refused before a schema is made); a pointer to
+        // the enclosing struct would need a forward declaration the
+        // schema does not write
+        Format::Empty | Format::SelfPointer | Format::Named(_) => ("octet".into(), "[0]".into()),
     }
 }
 
@@ -306,6 +311,18 @@ mod tests {
              typedef int32 Path_f6_elem[2];\n\
              @final struct Path {\n  int32 f1;\n  sequence<Path_f2> f2;\n  uint16 f3[2][3];\n  \
              Path_f4 f4;\n  octet f5[4];\n  sequence<Path_f6_elem> f6;\n};\n"
+        );
+    }
+
+    /// A pointer is an optional member, as the derive writes
+    /// `Option<Box<T>>` (it was a placeholder `octet f[0]`).
+    #[test]
+    fn pointers_are_optional_members() {
+        let f = fmt("{int, *{double, double}, *int}");
+        assert_eq!(
+            omgidl("Scan", &f, &[]),
+            "@final struct Scan_f2 {\n  double f1;\n  double f2;\n};\n\
+             @final struct Scan {\n  int32 f1;\n  @optional Scan_f2 f2;\n  @optional int32 f3;\n};\n"
         );
     }
 
