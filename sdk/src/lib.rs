@@ -103,7 +103,8 @@
 //! - **IPC sends no message nobody subscribes to** (as C): a publish before
 //!   central told the module about a subscriber returns `Ok` and sends
 //!   nothing. `Session::num_handlers` asks central and makes the answer
-//!   count at once.
+//!   count at once; `Session::wait_for_handlers(msg, n, timeout)` waits
+//!   for `n` subscribers (DDS: matched readers) first.
 //! - **Full queues.** A subscription queues 1000 unread samples by default
 //!   ([`QueuePolicy::KeepAll`]); then it stops taking more: on IPC central
 //!   holds the rest (back-pressure up to the publisher; central hands a

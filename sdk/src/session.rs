@@ -791,6 +791,39 @@ impl Session {
         }
     }
 
+    /// Waits until `msg` has at least `n` handlers ([`num_handlers`](Self::num_handlers)),
+    /// at most `timeout`; the count reached, or
+    /// [`ControlError::Timeout`] naming the count it stayed at.
+    ///
+    /// IPC sends no message nobody subscribes to (as C) and DDS writers
+    /// send nothing to readers they have not matched yet: a publisher that
+    /// must not lose its first samples waits for its subscribers first.
+    /// (On IPC, define the message first to count more than one; see
+    /// `num_handlers`.)
+    pub async fn wait_for_handlers(
+        &self,
+        msg: &str,
+        n: i32,
+        timeout: Duration,
+    ) -> Result<i32, ControlError> {
+        let deadline = tokio::time::Instant::now() + timeout;
+        let mut pause = Duration::from_millis(2);
+        loop {
+            let now = self.num_handlers(msg).await?;
+            if now >= n {
+                return Ok(now);
+            }
+            if tokio::time::Instant::now() + pause > deadline {
+                return Err(ControlError::Timeout {
+                    what: format!("{n} handler(s) of {msg} (there are {now})"),
+                    after: timeout,
+                });
+            }
+            tokio::time::sleep(pause).await;
+            pause = (pause * 2).min(Duration::from_millis(50));
+        }
+    }
+
     /// Disconnects cleanly (also done when the last clone and handle is
     /// dropped). The session's streams end and its calls fail at once. On
     /// DDS the instances its publications leave are disposed (or

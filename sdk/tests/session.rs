@@ -1507,3 +1507,30 @@ async fn a_keep_last_history_given_through_qos_is_the_local_queue() {
     s.close().await;
     c.shutdown().await;
 }
+
+/// `wait_for_handlers` returns once central lists enough subscribers, and
+/// says how many there were when it gives up.
+#[tokio::test]
+async fn wait_for_handlers_counts_subscribers_and_gives_up_naming_the_count() {
+    let (c, url) = central().await;
+    let a = session(&url, "a").await;
+    let b = session(&url, "b").await;
+    a.define::<i32>("w").await.unwrap();
+    let waiting = {
+        let a = a.clone();
+        tokio::spawn(async move { a.wait_for_handlers("w", 1, T).await })
+    };
+    let _sub = b.subscribe::<i32>("w").await.unwrap();
+    assert_eq!(waiting.await.unwrap().unwrap(), 1);
+    let e = a
+        .wait_for_handlers("w", 3, Duration::from_millis(100))
+        .await
+        .unwrap_err();
+    assert!(
+        e.to_string().contains("3 handler(s) of w (there are 1)"),
+        "{e}"
+    );
+    a.close().await;
+    b.close().await;
+    c.shutdown().await;
+}
