@@ -182,7 +182,6 @@ impl Future for PublishFuture<'_> {
 }
 
 /// Builds a [`Publisher`]: ORTE's publication parameters as DDS QoS.
-#[derive(Debug)]
 #[must_use = "a builder does nothing until `.build().await`"]
 pub struct PublisherBuilder<T> {
     pub(crate) session: Session,
@@ -298,7 +297,6 @@ impl<T: IpcMessage> PublisherBuilder<T> {
 }
 
 /// A typed publication handle (DDS: a DataWriter).
-#[derive(Debug)]
 pub struct Publisher<T> {
     session: Session,
     id: PubId,
@@ -460,5 +458,25 @@ impl PeriodicPublication {
 impl Drop for PeriodicPublication {
     fn drop(&mut self) {
         self.task.abort();
+    }
+}
+
+// (by hand: a derive would want `T: Debug`)
+impl<T> std::fmt::Debug for Publisher<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Publisher")
+            .field("msg", &self.msg)
+            .field("type", &std::any::type_name::<T>())
+            .finish_non_exhaustive()
+    }
+}
+
+impl<T> std::fmt::Debug for PublisherBuilder<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PublisherBuilder")
+            .field("msg", &self.msg)
+            .field("type", &std::any::type_name::<T>())
+            .field("qos", &self.qos)
+            .finish_non_exhaustive()
     }
 }

@@ -201,7 +201,6 @@ impl Stream for RawRequests {
 }
 
 /// The stream of requests of [`Session::serve`].
-#[derive(Debug)]
 #[must_use = "dropping it stops serving"]
 pub struct Requests<Req, Resp> {
     pub(crate) rx: mpsc::Receiver<RawRequest>,
@@ -253,5 +252,16 @@ impl<Req: IpcMessage, Resp: IpcMessage> Stream for Requests<Req, Resp> {
             Poll::Ready(None) => Poll::Ready(None),
             Poll::Pending => Poll::Pending,
         }
+    }
+}
+
+// (by hand: a derive would want `Req: Debug, Resp: Debug`)
+impl<Req, Resp> std::fmt::Debug for Requests<Req, Resp> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Requests")
+            .field("reply_msg", &self.reply_msg)
+            .field("request", &std::any::type_name::<Req>())
+            .field("reply", &std::any::type_name::<Resp>())
+            .finish_non_exhaustive()
     }
 }

@@ -177,7 +177,6 @@ pub struct InstanceChange<T: IpcMessage> {
 }
 
 /// Builds a [`Subscriber`]: ORTE's subscription parameters as DDS QoS.
-#[derive(Debug)]
 #[must_use = "a builder does nothing until `.build().await` or `.listen(f).await`"]
 pub struct SubscriberBuilder<T, D = Samples> {
     pub(crate) session: Session,
@@ -492,7 +491,6 @@ pub enum RecvError {
 /// A typed subscription: a `Stream` of samples (and, built
 /// [`with_instances`](SubscriberBuilder::with_instances), instance state
 /// changes). Dropping it unsubscribes.
-#[derive(Debug)]
 #[must_use = "dropping it unsubscribes"]
 pub struct Subscriber<T, D = Samples> {
     raw: RawSubscriber,
@@ -647,6 +645,28 @@ impl<T, D> Subscriber<T, D> {
     /// [`RecvError::Decode`]).
     pub fn decode_errors(&self) -> u64 {
         self.decode_errors
+    }
+}
+
+// (by hand: a derive would want `T: Debug`)
+impl<T, D> std::fmt::Debug for Subscriber<T, D> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Subscriber")
+            .field("msg", &self.msg)
+            .field("type", &std::any::type_name::<T>())
+            .field("decode_errors", &self.decode_errors)
+            .finish_non_exhaustive()
+    }
+}
+
+impl<T, D> std::fmt::Debug for SubscriberBuilder<T, D> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SubscriberBuilder")
+            .field("msg", &self.msg)
+            .field("type", &std::any::type_name::<T>())
+            .field("qos", &self.qos)
+            .field("queue", &self.policy)
+            .finish_non_exhaustive()
     }
 }
 

@@ -466,3 +466,20 @@ async fn unnamed_sessions_of_one_process_each_connect() {
     b.close().await;
     c.shutdown().await;
 }
+
+/// The handles are `Debug` whatever their message type: a program that
+/// keeps a `Publisher<T>` in a `#[derive(Debug)]` struct needs no `T:
+/// Debug` (the derived impls asked for it).
+#[test]
+fn handles_are_debug_whatever_their_type() {
+    #[derive(courier::IpcMessage)]
+    struct NotDebug {
+        _x: i32,
+    }
+    fn debug<T: std::fmt::Debug>() {}
+    debug::<courier::Publisher<NotDebug>>();
+    debug::<courier::PublisherBuilder<NotDebug>>();
+    debug::<courier::Subscriber<NotDebug>>();
+    debug::<courier::SubscriberBuilder<NotDebug>>();
+    debug::<courier::Requests<NotDebug, NotDebug>>();
+}
