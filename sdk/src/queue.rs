@@ -35,9 +35,6 @@ pub struct RawSample {
     pub key_hash: Option<[u8; 16]>,
     /// The writer's source timestamp, when sent (DDS `INFO_TS`).
     pub source_time: Option<SystemTime>,
-    /// Called once the user has taken the sample (IPC: the Success ack that
-    /// frees central's capacity slot).
-    pub done: Option<Box<dyn FnOnce() + Send>>,
     /// When the sample expires (DDS LIFESPAN: its source time plus its
     /// writer's lifespan): a sample still unread then is dropped from the
     /// queue, counted by `dropped()`, never handed out.
@@ -57,7 +54,6 @@ impl RawSample {
             state: InstanceState::Alive,
             key_hash: None,
             source_time: None,
-            done: None,
             expires: None,
         }
     }
@@ -423,13 +419,10 @@ impl SampleQueue {
         Some(Popped::Sample(s))
     }
 
-    /// Samples taken out unread (expired): their acknowledgements and
-    /// buffers go back; waiters for room are woken if there was none.
+    /// Samples taken out unread (expired): their buffers go back; waiters
+    /// for room are woken if there was none.
     fn discard(&self, expired: Vec<RawSample>, was_full: bool) {
         for e in expired {
-            if let Some(d) = e.done {
-                d();
-            }
             self.give_back(e.data);
         }
         if was_full {

@@ -105,5 +105,6 @@ mod tests {
         send_sync::<super::Responder>();
         send_sync::<crate::Request<i32, i32>>();
         send_sync::<crate::RawRequest>();
+        send_sync::<crate::RawSample>();
     }
 }

@@ -526,11 +526,8 @@ fn convert<T: IpcMessage, D: Delivery<T>>(
     enc: Encoding,
     queue: &SampleQueue,
     check: &mut FormatCheck,
-    mut s: RawSample,
+    s: RawSample,
 ) -> Option<Result<D::Item, RecvError>> {
-    if let Some(done) = s.done.take() {
-        done();
-    }
     // IPC: the backend tags a sample with central's format of the message
     if let (Encoding::Ipc, Some(theirs)) = (enc, &s.type_name) {
         if let Err(e) = check.check::<T>(&s.msg, theirs) {

@@ -1278,7 +1278,6 @@ impl State {
             },
             key_hash: s.key_hash.map(|k| k.0),
             source_time,
-            done: None,
             expires,
             // last: the received buffer itself, not a copy
             data: s.into_data(),
