@@ -89,7 +89,9 @@
 //!
 //! - **Keep the [`Session`] alive.** It stays connected while any clone of
 //!   it, or any handle made from it ([`Subscriber`], [`Requests`],
-//!   [`Publisher`], …), lives, and disconnects when the last is dropped;
+//!   [`Publisher`], …), lives, and disconnects when the last is dropped
+//!   (an [`Events`] stream or a [`Timer`] does not keep it: keep the
+//!   session beside them);
 //!   `close().await` disconnects at once (the handles' streams end, their
 //!   calls fail) and waits for the goodbye (DDS: and, for up to a second,
 //!   for its readers to acknowledge what its writers still hold). Dropping a handle closes that
