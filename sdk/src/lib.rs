@@ -96,6 +96,12 @@
 //!   calls fail) and waits for the goodbye (DDS: and, for up to a second,
 //!   for its readers to acknowledge what its writers still hold). Dropping a handle closes that
 //!   handle only.
+//! - **How streams end.** A [`Subscriber`] or [`Requests`] stream ends
+//!   with one `Err(RecvError::Disconnected)` item, then `None`, whether the
+//!   session was closed here or lost; other `Err` items (a sample that
+//!   does not decode) are not the end. Loop on `next()`, skip or log the
+//!   errors you expect, and stop at `Disconnected` or `None`: `s?` in the
+//!   loop turns a clean `close()` into an error.
 //! - **Bound your awaits.** `connect` gives up by itself (IPC: after
 //!   [`SessionBuilder::connect_timeout`], 5 s by default; RTPS at once;
 //!   XRCE after its attempts), a query after its `.timeout(d)` (10 s by
