@@ -298,9 +298,10 @@ impl SessionBuilder {
         self
     }
 
-    /// XRCE: every option of the session at once, typed (instead of the
-    /// URL's query string, which is then not read; the URL's scheme must
-    /// still be an `xrce+…` one, and `opts.transport` says where the agent is).
+    /// XRCE: every option of the session at once, typed, instead of the
+    /// URL's: the URL is then the scheme alone (`xrce+udp://`; `connect`
+    /// refuses one that names an address or options, which would not be
+    /// read), and `opts.transport` says where the agent is.
     pub fn xrce(mut self, opts: crate::xrce_backend::XrceOptions) -> Self {
         self.set.push(("xrce", Honoured::Xrce));
         self.xrce = Some(Box::new(opts));
@@ -369,6 +370,23 @@ impl SessionBuilder {
                     return Err(e);
                 }
                 let o = match self.xrce {
+                    // the options say where the agent is: a URL that says
+                    // more would be silently ignored
+                    Some(_)
+                        if !self
+                            .url
+                            .split_once("://")
+                            .is_some_and(|(_, r)| r.is_empty()) =>
+                    {
+                        return Err(ConnectError::BadUrl {
+                            url: self.url.clone(),
+                            why: "with .xrce(options), which say where the agent is and how, \
+                                  give the scheme alone (xrce+udp://, xrce+tcp://, \
+                                  xrce+serial://): the URL's address and options would not be \
+                                  read"
+                                .into(),
+                        });
+                    }
                     Some(o) => *o,
                     None => crate::xrce_backend::XrceOptions::from_url(&self.url)?,
                 };
@@ -392,5 +410,41 @@ impl SessionBuilder {
             }
         };
         Ok(Session::with_backend(backend, name))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `.xrce(options)` with a URL that names an agent or options is
+    /// refused: they would not be read (the options say where the agent
+    /// is). The scheme alone goes on to connect with the options.
+    #[tokio::test]
+    async fn xrce_options_take_a_bare_scheme_only() {
+        let opts = crate::xrce_backend::XrceOptions::from_url("xrce+udp://127.0.0.1:9").unwrap();
+        for url in ["xrce+udp://127.0.0.1:8888", "xrce+udp://?domain=3"] {
+            let e = crate::Session::builder(url)
+                .xrce(opts.clone())
+                .connect()
+                .await
+                .unwrap_err();
+            assert!(
+                matches!(&e, ConnectError::BadUrl { why, .. } if why.contains("scheme alone")),
+                "{url}: {e}"
+            );
+        }
+        // the scheme alone: the options are used (no agent there: it
+        // gives up after its one attempt, not on the URL)
+        let opts = crate::xrce_backend::XrceOptions::from_url(
+            "xrce+udp://127.0.0.1:9?attempts=1&attempt_ms=50",
+        )
+        .unwrap();
+        let e = crate::Session::builder("xrce+udp://")
+            .xrce(opts)
+            .connect()
+            .await
+            .unwrap_err();
+        assert!(!matches!(e, ConnectError::BadUrl { .. }), "{e}");
     }
 }
