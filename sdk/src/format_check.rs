@@ -135,15 +135,10 @@ impl CentralFormats {
         lock.get(msg).is_some_and(|m| m.contains_key(ty))
     }
 
-    /// [`CentralFormats::check`] with a fresh lookup (after a definition:
-    /// what central holds now).
-    pub(crate) async fn recheck(
-        &self,
-        session: &Session,
-        msg: &str,
-        ty: &'static str,
-        fits: fn(&str) -> Result<(), String>,
-    ) -> Verdict {
+    /// Forgets the verdict on `msg` as `ty`: the next
+    /// [`CentralFormats::check`] looks central's format up again (after a
+    /// definition: what central holds now).
+    pub(crate) fn forget(&self, msg: &str, ty: &'static str) {
         if let Some(m) = self
             .verdicts
             .lock()
@@ -152,7 +147,6 @@ impl CentralFormats {
         {
             m.remove(ty);
         }
-        self.check(session, msg, ty, fits).await
     }
 
     /// Records the named formats a definition brings; a name this session

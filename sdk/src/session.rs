@@ -318,9 +318,10 @@ impl Session {
             // and `define().await` means central knows the message. A
             // misfit now is another module's definition that came in
             // between, which replaced this one (C semantics).
+            self.central_formats.forget(msg, def.rust);
             if let Err((central, detail)) = self
                 .central_formats
-                .recheck(self, msg, def.rust, def.fits)
+                .check(self, msg, def.rust, def.fits)
                 .await
             {
                 self.backend.close_handle(Handle::Publication(id));
