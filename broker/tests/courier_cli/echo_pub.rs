@@ -190,6 +190,13 @@ fn echo_and_pub_over_rtps() {
     assert_eq!(echo.expect(""), r#"["hello json"]"#);
     assert_eq!(echo.expect(""), r#"["hello plain text"]"#);
     assert_eq!(echo.wait(), Some(0));
+    // a primitive by its DDS name, as a Courier session publishes an i32
+    // (the CLI knew only its own types and ROS 2's string)
+    let mut echo = Proc::start(&["echo", &u, "n", "--count", "1", "--type", "int32"]);
+    let (code, _, err) = run(&["pub", &u, "n", "42", "--type", "int32"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(echo.expect(""), "42");
+    assert_eq!(echo.wait(), Some(0));
     // any type whose layout an IPC format describes: a participant of the
     // test subscribes a derived type, pub writes it through the format,
     // echo reads it through the format
@@ -263,7 +270,8 @@ fn echo_and_pub_over_rtps() {
     assert!(
         err.starts_with(
             "error: type \"x::Y\" is not one Courier knows (courier::Ping, \
-             std_msgs::msg::dds_::String_): give its layout with --format\n"
+             std_msgs::msg::dds_::String_, int8, uint8, int16, uint16, int32, uint32, int64, \
+             uint64, float, double, boolean, string): give its layout with --format\n"
         ),
         "{err}"
     );

@@ -299,13 +299,15 @@ fn values_that_do_not_fit_are_usage_errors() {
         (
             &["pub", u, "t", "[1]", "--type", "x::Y"][..],
             "error: type \"x::Y\" is not one Courier knows (courier::Ping, \
-             std_msgs::msg::dds_::String_): give its layout with --format"
+             std_msgs::msg::dds_::String_, int8, uint8, int16, uint16, int32, uint32, int64, \
+             uint64, float, double, boolean, string): give its layout with --format"
                 .to_string(),
         ),
         (
             &["call", u, "q", "[1]", "--reply-type", "x::Y"][..],
             "error: type \"x::Y\" is not one Courier knows (courier::Ping, \
-             std_msgs::msg::dds_::String_): give the reply's layout with --reply-format"
+             std_msgs::msg::dds_::String_, int8, uint8, int16, uint16, int32, uint32, int64, \
+             uint64, float, double, boolean, string): give the reply's layout with --reply-format"
                 .to_string(),
         ),
     ] {

@@ -59,8 +59,25 @@ const fn known<T: IpcMessage>() -> Known {
     }
 }
 
-/// The DDS types the CLI knows.
-pub const KNOWN: &[Known] = &[known::<Ping>(), known::<RosString>()];
+/// The DDS types the CLI knows: its own, ROS 2's string, and the
+/// primitives by their DDS names (`int32`, `double`, `string`, … : what a
+/// Courier session publishes an `i32` or a `String` as).
+pub const KNOWN: &[Known] = &[
+    known::<Ping>(),
+    known::<RosString>(),
+    known::<i8>(),
+    known::<u8>(),
+    known::<i16>(),
+    known::<u16>(),
+    known::<i32>(),
+    known::<u32>(),
+    known::<i64>(),
+    known::<u64>(),
+    known::<f32>(),
+    known::<f64>(),
+    known::<bool>(),
+    known::<String>(),
+];
 
 /// The known type of that DDS name.
 pub fn known_type(type_name: &str) -> Option<&'static Known> {
