@@ -345,6 +345,10 @@ pub enum QueryError {
     /// The session ended before the reply.
     #[error("disconnected before {0} was answered")]
     Disconnected(String),
+    /// DDS: every server the query went to left (closed its session or
+    /// stopped serving) before it answered; no reply will come.
+    #[error("the server of {0} left before it answered")]
+    ServerLost(String),
     /// The query could not be sent.
     #[error("query {msg} could not be sent")]
     Refused {

@@ -1618,3 +1618,39 @@ async fn a_pattern_subscription_gets_a_latched_history() {
     a.close().await;
     b.close().await;
 }
+
+/// A query whose server's session closes while it holds the request ends
+/// then, with `ServerLost`, instead of at its timeout (20 s here): no
+/// reply can come once no server is left.
+#[tokio::test]
+async fn a_query_fails_at_once_when_its_server_leaves_without_answering() {
+    let client = session(201, "client").await;
+    let server = session(201, "server").await;
+    let mut reqs = server.serve::<i32, i32>("hold", "").await.unwrap();
+    let (took, taken) = tokio::sync::oneshot::channel();
+    let holder = tokio::spawn(async move {
+        let r = reqs.next().await;
+        let _ = took.send(());
+        // held, never answered, until the session is gone
+        std::future::pending::<()>().await;
+        drop((r, reqs));
+    });
+    let asked = tokio::spawn({
+        let client = client.clone();
+        async move {
+            let t = tokio::time::Instant::now();
+            let r = client.query::<i32, i32>("hold", &1).timeout(T).await;
+            (r, t.elapsed())
+        }
+    });
+    tokio::time::timeout(T, taken).await.unwrap().unwrap();
+    server.close().await;
+    let (r, took) = tokio::time::timeout(T, asked).await.unwrap().unwrap();
+    assert!(
+        matches!(&r, Err(courier::QueryError::ServerLost(m)) if m == "hold"),
+        "{r:?}"
+    );
+    assert!(took < Duration::from_secs(5), "{took:?}");
+    holder.abort();
+    client.close().await;
+}

@@ -1070,6 +1070,7 @@ impl State {
                             },
                             msg: q.name,
                         },
+                        QueryFailure::ServiceLost => QueryError::ServerLost(q.name),
                         _ => QueryError::Disconnected(q.name),
                     };
                     let _ = q.reply.send(Err(e));

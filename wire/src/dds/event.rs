@@ -48,6 +48,9 @@ pub enum QueryFailure {
         /// Replies that matched nothing.
         replies: u64,
     },
+    /// Every service the request went to left (its request reader and its
+    /// reply writer unmatched) before a reply came: none will.
+    ServiceLost,
     /// The request could not be written.
     Refused(WriteError),
     /// The client was deleted first.

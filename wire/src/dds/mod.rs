@@ -320,11 +320,13 @@ impl Domain {
                     }
                 }
                 P::WriterUnmatched { writer, reader } => {
-                    if self.writers.get(&writer).map(|w| w.role) == Some(Role::User) {
-                        self.events.push_back(Event::WriterUnmatched {
+                    match self.writers.get(&writer).map(|w| w.role) {
+                        Some(Role::User) => self.events.push_back(Event::WriterUnmatched {
                             writer: WriterId(writer),
                             reader,
-                        });
+                        }),
+                        Some(Role::Client(c)) => self.client_unmatched(c),
+                        _ => {}
                     }
                     // a reader that left may have been what held the history
                     self.acks_changed(writer);
@@ -349,6 +351,9 @@ impl Domain {
                                 reader: ReaderId(reader),
                                 writer,
                             });
+                        }
+                        if let Role::Client(c) = r.role {
+                            self.client_unmatched(c);
                         }
                     }
                 }

@@ -438,6 +438,38 @@ impl Domain {
         }
     }
 
+    /// A client's request writer or reply reader lost a match: when no
+    /// service is left on either side, its queries that went out get no
+    /// reply, and fail now rather than at their timeout. (A service that
+    /// stops deletes its request reader at once but keeps its reply writer
+    /// until its replies are acknowledged: a reply on its way still comes.)
+    pub(super) fn client_unmatched(&mut self, client: ClientId) {
+        let Some(c) = self.clients.get(&client) else {
+            return;
+        };
+        if !self.p.matched_readers(c.writer).is_empty()
+            || !self.p.matched_writers(c.reader).is_empty()
+        {
+            return;
+        }
+        let mut lost: Vec<QueryId> = Vec::new();
+        self.inflight.retain(|_, q| {
+            let gone = q.client == client;
+            if gone {
+                lost.push(q.query);
+            }
+            !gone
+        });
+        lost.sort();
+        for query in lost {
+            self.events.push_back(Event::QueryFailed {
+                client,
+                query,
+                reason: QueryFailure::ServiceLost,
+            });
+        }
+    }
+
     /// Queries whose time ran out, waiting or sent.
     pub(super) fn expire_queries(&mut self, now: Instant) {
         let mut late: Vec<(ClientId, QueryId, QueryFailure)> = Vec::new();
