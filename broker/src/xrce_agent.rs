@@ -253,9 +253,8 @@ impl XrceAgentBuilder {
     ///
     /// The file also keeps, per reliable stream of each client, the last
     /// message whose samples DDS took, committed durably before the
-    /// ACKNACK that acknowledges that message goes (one commit at a time,
-    /// on a blocking thread, for every client that moved meanwhile; the
-    /// agent goes on forwarding during it). A sample the
+    /// ACKNACK that acknowledges that message goes (one commit per turn
+    /// of the agent's loop for every client that moved). A sample the
     /// client sends again after the restart because its acknowledgement
     /// never came is then recognised and not written twice. The
     /// guarantees, for reliable streams:
@@ -406,8 +405,7 @@ impl XrceAgentBuilder {
             serial: serial_out,
             rtps_send: domain.send,
             readers,
-            store: store.map(Arc::new),
-            committing: None,
+            store,
         };
         let task = tokio::spawn(driver.run(rx, stop_rx));
         Ok(XrceAgent {
@@ -775,17 +773,6 @@ async fn discovery_reader(s: Arc<UdpSocket>, udp: Vec<SocketAddr>, iface: Ipv4Ad
     }
 }
 
-/// The end of the commit under way (pending for ever when there is none);
-/// taken out of `c` once it ends.
-async fn committed(c: &mut Option<Commit>) -> Result<Saved, tokio::task::JoinError> {
-    let Some(h) = c.as_mut() else {
-        return std::future::pending().await;
-    };
-    let r = h.await;
-    *c = None;
-    r
-}
-
 /// Datagrams [`Driver::poll_udp`] takes in before the bridge's output is
 /// sent.
 const UDP_BATCH: usize = 64;
@@ -805,21 +792,8 @@ struct Driver {
     serial: Vec<std::sync::mpsc::Sender<(u8, Vec<u8>)>>,
     rtps_send: Arc<UdpSocket>,
     readers: JoinSet<()>,
-    store: Option<Arc<crate::xrce_state::Store>>,
-    /// The commit of input positions under way, off the agent's loop (see
-    /// [`Driver::save_positions`]).
-    committing: Option<Commit>,
+    store: Option<crate::xrce_state::Store>,
 }
-
-/// Input positions being committed on a blocking thread: those it saves,
-/// and its result.
-type Commit = tokio::task::JoinHandle<Saved>;
-
-/// The positions a commit saved, and whether it succeeded.
-type Saved = (
-    Vec<(courier_wire::xrce::ClientKey, crate::xrce_state::Positions)>,
-    Result<(), String>,
-);
 
 impl Driver {
     async fn run(mut self, mut rx: mpsc::Receiver<Input>, mut stop: oneshot::Receiver<()>) {
@@ -829,18 +803,15 @@ impl Driver {
         let mut buf = vec![0u8; 65_536];
         loop {
             timer.set_next(self.bridge.poll_timeout());
-            // (out of `self`, which the UDP branch borrows)
-            let mut committing = self.committing.take();
-            let go_on = tokio::select! {
+            tokio::select! {
                 biased;
-                _ = &mut stop => false,
+                _ = &mut stop => break,
                 _ = std::future::poll_fn(|cx| self.poll_udp(cx, &mut buf)) => {
                     // the other inputs get their turn however busy UDP is
                     for _ in 0..UDP_BATCH {
                         let Ok(m) = rx.try_recv() else { break };
                         self.input(m);
                     }
-                    true
                 }
                 m = rx.recv() => match m {
                     Some(m) => {
@@ -849,37 +820,18 @@ impl Driver {
                         while let Ok(m) = rx.try_recv() {
                             self.input(m);
                         }
-                        true
                     }
-                    None => false,
+                    None => break,
                 },
                 () = std::future::poll_fn(|cx| timer.poll_fired(cx)) => {
                     self.bridge.handle_timeout(Instant::now());
-                    true
                 }
-                done = committed(&mut committing) => {
-                    self.positions_committed(done);
-                    true
-                }
-            };
-            if committing.is_some() {
-                self.committing = committing;
-            }
-            if !go_on {
-                break;
             }
             self.flush().await;
         }
         self.readers.abort_all();
         self.bridge.close(Instant::now());
         self.flush().await;
-        // what DDS took is committed before the agent stops: after a
-        // graceful stop nothing is written twice
-        while self.committing.is_some() {
-            let done = committed(&mut self.committing).await;
-            self.positions_committed(done);
-            self.flush().await;
-        }
     }
 
     /// Takes what the XRCE UDP sockets hold (up to [`UDP_BATCH`]
@@ -933,11 +885,9 @@ impl Driver {
     /// this agent's own readers), then the positions are committed, then
     /// the ACKNACKs go. Killed in between, the agent writes those samples
     /// again after its restart (at least once); killed later or stopped,
-    /// it writes nothing twice. The commit runs on a blocking thread: the
-    /// loop goes on forwarding meanwhile (an fsync took 300 µs of every
-    /// reliable round trip through the agent when it ran in the loop).
+    /// it writes nothing twice.
     async fn flush(&mut self) {
-        {
+        loop {
             while let Some(d) = self.bridge.poll_datagram() {
                 if let Some(a) = d.destination.socket_addr() {
                     let _ = self.rtps_send.send_to(&d.payload, a).await;
@@ -962,51 +912,32 @@ impl Driver {
                     }
                 }
             }
-            self.save_positions();
+            if !self.save_positions() {
+                break;
+            }
         }
     }
 
-    /// Starts committing the input positions that moved, unless a commit
-    /// is under way (the next one takes what moved meanwhile): one durable
-    /// transaction at a time, off the loop.
-    fn save_positions(&mut self) {
+    /// Commits the input positions that moved and lets the ACKNACKs they
+    /// allow go; whether there were any.
+    fn save_positions(&mut self) -> bool {
         let Some(store) = &self.store else {
-            return;
+            return false;
         };
-        if self.committing.is_some() {
-            return;
-        }
         let moved = self.bridge.take_moved_positions();
         if moved.is_empty() {
-            return;
+            return false;
         }
-        let store = store.clone();
-        self.committing = Some(tokio::task::spawn_blocking(move || {
-            let r = store.save_positions(&moved);
-            (moved, r)
-        }));
-    }
-
-    /// A commit of input positions ended: the ACKNACKs they allow go with
-    /// the next flush, which starts the next commit.
-    fn positions_committed(&mut self, done: Result<Saved, tokio::task::JoinError>) {
-        let moved = match done {
-            Ok((moved, Ok(()))) => moved,
-            Ok((moved, Err(e))) => {
-                // holding the acknowledgements would stall the clients
-                // for good; a restart after this may write their last
-                // samples again (never lose one)
-                tracing::error!("state file: input positions: {e}");
-                moved
-            }
-            Err(e) => {
-                tracing::error!("state file: the commit of input positions failed: {e}");
-                return;
-            }
-        };
+        if let Err(e) = store.save_positions(&moved) {
+            // holding the acknowledgements would stall the clients for
+            // good; a restart after this may write their last samples
+            // again (never lose one)
+            tracing::error!("state file: input positions: {e}");
+        }
         for (client, p) in &moved {
             self.bridge.positions_saved(*client, p);
         }
+        true
     }
 
     async fn send_xrce(&mut self) {

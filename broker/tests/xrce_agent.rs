@@ -335,6 +335,21 @@ fn command_line_errors() {
 }
 
 /// `xrce-agent` with `--state`, on 127.0.0.1 at `port` (0: any); its UDP address.
+/// Waits for an agent process to exit, at most `T`; one that does not is
+/// killed and the test fails (an unbounded wait hung a test run for good).
+fn wait_exit(agent: &mut std::process::Child, what: &str) {
+    let end = Instant::now() + T;
+    while Instant::now() < end {
+        if agent.try_wait().unwrap().is_some() {
+            return;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    let _ = agent.kill();
+    let _ = agent.wait();
+    panic!("{what}: the agent did not exit within {T:?}");
+}
+
 fn agent_with_state(
     domain: u32,
     state: &std::path::Path,
@@ -410,7 +425,7 @@ fn a_restart_with_state_after_kill_9_is_invisible_to_clients() {
     assert_eq!(r.data().len(), 10);
     // kill -9, and the same agent again on the same port with the same state
     agent.kill().unwrap();
-    agent.wait().unwrap();
+    wait_exit(&mut agent, "stopped");
     let (mut again, addr2) = agent_with_state(d, &state, addr.port());
     assert_eq!(addr2, addr);
     // the clients know nothing of it and go on with their sessions
@@ -427,7 +442,7 @@ fn a_restart_with_state_after_kill_9_is_invisible_to_clients() {
         .count()
         == 20));
     again.kill().unwrap();
-    again.wait().unwrap();
+    wait_exit(&mut again, "killed");
     let _ = std::fs::remove_dir_all(dir);
 }
 
@@ -501,7 +516,7 @@ fn a_restart_with_state_after_sigterm_loses_nothing_for_a_remote_reader() {
     // SIGTERM: the agent stops cleanly (its participant says goodbye)
     let pid = i32::try_from(agent.id()).unwrap();
     assert_eq!(unsafe { libc::kill(pid, libc::SIGTERM) }, 0);
-    agent.wait().unwrap();
+    wait_exit(&mut agent, "stopped");
     // the client goes on writing while the agent is down
     let down_until = next + 8;
     for _ in 0..20 {
@@ -523,7 +538,7 @@ fn a_restart_with_state_after_sigterm_loses_nothing_for_a_remote_reader() {
         "complete and in order across the restart"
     );
     again.kill().unwrap();
-    again.wait().unwrap();
+    wait_exit(&mut again, "killed");
     rt.block_on(s.close());
     let _ = std::fs::remove_dir_all(dir);
 }

@@ -1528,8 +1528,8 @@ fn print_state_table(orch: &Orch, rows: Vec<Row>, reps: usize, secs: f64) {
         "\nrtt: median round trip (p99) of a 16-byte payload, one in flight; thr: samples/s \
          received in steady state (reliable: lost and out of order must be 0). --state / \
          without: above 1.0× is slower for rtt, below 1.0× is slower for thr. --state commits \
-         each reliable stream's position before its ACKNACK (one commit at a time, on a \
-         thread of its own, for every client that moved meanwhile)."
+         each reliable stream's position before its ACKNACK (one commit per turn of the \
+         agent's loop)."
     );
 }
 
