@@ -350,27 +350,49 @@ fn wait_exit(agent: &mut std::process::Child, what: &str) {
     panic!("{what}: the agent did not exit within {T:?}");
 }
 
-fn agent_with_state(
-    domain: u32,
-    state: &std::path::Path,
-    port: u16,
-) -> (std::process::Child, SocketAddr) {
+/// An agent process, killed and reaped when dropped: a test that fails
+/// half-way leaves no agent running (two did, after an assertion).
+struct AgentProc(std::process::Child);
+
+impl Drop for AgentProc {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+impl std::ops::Deref for AgentProc {
+    type Target = std::process::Child;
+    fn deref(&self) -> &Self::Target {
+        &self.0
+    }
+}
+
+impl std::ops::DerefMut for AgentProc {
+    fn deref_mut(&mut self) -> &mut Self::Target {
+        &mut self.0
+    }
+}
+
+fn agent_with_state(domain: u32, state: &std::path::Path, port: u16) -> (AgentProc, SocketAddr) {
     use std::io::BufRead;
-    let mut child = Command::new(env!("CARGO_BIN_EXE_xrce-agent"))
-        .args(["udp4", "-p", &port.to_string(), "--bind", "127.0.0.1"])
-        .args([
-            "--interface",
-            "lo",
-            "--peers",
-            "127.0.0.1",
-            "--multicast",
-            "off",
-        ])
-        .args(["--domain", &domain.to_string(), "-v", "2", "--state"])
-        .arg(state)
-        .stdout(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child = AgentProc(
+        Command::new(env!("CARGO_BIN_EXE_xrce-agent"))
+            .args(["udp4", "-p", &port.to_string(), "--bind", "127.0.0.1"])
+            .args([
+                "--interface",
+                "lo",
+                "--peers",
+                "127.0.0.1",
+                "--multicast",
+                "off",
+            ])
+            .args(["--domain", &domain.to_string(), "-v", "2", "--state"])
+            .arg(state)
+            .stdout(std::process::Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
     let out = child.stdout.take().unwrap();
     let mut addr = None;
     for line in std::io::BufReader::new(out).lines() {
