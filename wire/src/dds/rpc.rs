@@ -299,21 +299,7 @@ impl Domain {
             }
             !mine
         });
-        self.inflight.retain(|_, q| {
-            let mine = q.client == client;
-            if mine {
-                failed.push(q.query);
-            }
-            !mine
-        });
-        failed.sort();
-        for query in failed {
-            self.events.push_back(Event::QueryFailed {
-                client,
-                query,
-                reason: QueryFailure::ClientDeleted,
-            });
-        }
+        self.fail_sent(client, failed, QueryFailure::ClientDeleted);
         self.remove_writer(c.writer, now);
         self.remove_reader(c.reader, now);
         self.drain(now);
@@ -452,20 +438,25 @@ impl Domain {
         {
             return;
         }
-        let mut lost: Vec<QueryId> = Vec::new();
+        self.fail_sent(client, Vec::new(), QueryFailure::ServiceLost);
+    }
+
+    /// Fails `failed` and the queries of `client` that went out, in the
+    /// order they were made, for `reason`.
+    fn fail_sent(&mut self, client: ClientId, mut failed: Vec<QueryId>, reason: QueryFailure) {
         self.inflight.retain(|_, q| {
-            let gone = q.client == client;
-            if gone {
-                lost.push(q.query);
+            let mine = q.client == client;
+            if mine {
+                failed.push(q.query);
             }
-            !gone
+            !mine
         });
-        lost.sort();
-        for query in lost {
+        failed.sort();
+        for query in failed {
             self.events.push_back(Event::QueryFailed {
                 client,
                 query,
-                reason: QueryFailure::ServiceLost,
+                reason: reason.clone(),
             });
         }
     }
