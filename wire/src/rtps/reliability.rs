@@ -410,7 +410,7 @@ impl Writer {
     pub fn write(&mut self, payload: Payload, now: Instant) -> Option<SequenceNumber> {
         // unacknowledged bytes once this sample is in (keep-all reliable only;
         // a sum over the history when acknowledged samples are retained)
-        let keep_all_reliable = self.keep_all_reliable();
+        let holds_unacked = self.holds_unacked();
         let unacked_after = self.unacked_after(payload.len())?;
         let len = payload.len();
         let sn = self.next_sn;
@@ -443,7 +443,7 @@ impl Writer {
             // everything is acked
             let want_ack = std::mem::take(&mut self.ack_next)
                 || sn % ACK_EVERY == 0
-                || (keep_all_reliable
+                || (holds_unacked
                     && (self.history.len() * 2 >= self.max_samples
                         || unacked_after.saturating_mul(2) >= self.max_unacked_bytes));
             let final_flag = self.hb_after_writes.unwrap_or(true) && !want_ack;
@@ -636,9 +636,10 @@ impl Writer {
         }
     }
 
-    /// A keep-all reliable writer (or one told to [`Writer::keep_unacked`])
-    /// keeps what is unacknowledged, bounded in samples and in bytes.
-    fn keep_all_reliable(&self) -> bool {
+    /// A reliable writer that keeps what is unacknowledged, bounded in
+    /// samples and in bytes, and refuses writes when full: keep-all, or
+    /// keep-last told to [`Writer::keep_unacked`].
+    fn holds_unacked(&self) -> bool {
         (self.depth.is_none() || self.keep_unacked) && self.reliable
     }
 
@@ -652,7 +653,7 @@ impl Writer {
     /// The unacknowledged bytes once a sample of `len` bytes is in (0 when
     /// the writer does not count them), or `None` when it does not fit.
     fn unacked_after(&mut self, len: usize) -> Option<usize> {
-        if !self.keep_all_reliable() {
+        if !self.holds_unacked() {
             return Some(0);
         }
         self.release_acked();
