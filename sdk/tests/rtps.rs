@@ -1620,8 +1620,8 @@ async fn a_pattern_subscription_gets_a_latched_history() {
 }
 
 /// A query whose server's session closes while it holds the request ends
-/// then, with `ServerLost`, instead of at its timeout (20 s here): no
-/// reply can come once no server is left.
+/// then, with `ServerLost`, instead of at its timeout (which would be
+/// `Timeout`): no reply can come once no server is left.
 #[tokio::test]
 async fn a_query_fails_at_once_when_its_server_leaves_without_answering() {
     let client = session(201, "client").await;
@@ -1637,20 +1637,15 @@ async fn a_query_fails_at_once_when_its_server_leaves_without_answering() {
     });
     let asked = tokio::spawn({
         let client = client.clone();
-        async move {
-            let t = tokio::time::Instant::now();
-            let r = client.query::<i32, i32>("hold", &1).timeout(T).await;
-            (r, t.elapsed())
-        }
+        async move { client.query::<i32, i32>("hold", &1).timeout(T).await }
     });
     tokio::time::timeout(T, taken).await.unwrap().unwrap();
     server.close().await;
-    let (r, took) = tokio::time::timeout(T, asked).await.unwrap().unwrap();
+    let r = tokio::time::timeout(T * 2, asked).await.unwrap().unwrap();
     assert!(
         matches!(&r, Err(courier::QueryError::ServerLost(m)) if m == "hold"),
         "{r:?}"
     );
-    assert!(took < Duration::from_secs(5), "{took:?}");
     holder.abort();
     client.close().await;
 }

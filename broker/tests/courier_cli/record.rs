@@ -5,7 +5,7 @@
 //! `mcap` package; damaged files; usage errors.
 
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use courier_tests::peers::fnv1a32;
 
@@ -745,8 +745,8 @@ fn replay_and_pub_do_not_redefine_a_message_central_holds() {
     );
 }
 
-/// `--topic B` plays B at its own pace from its first message: the time
-/// before it (other channels' messages) is not waited out.
+/// `--topic B` plays B alone (that it starts at B's first message, not
+/// after the other channels' gap, is `scan::tests`: no timing here).
 #[test]
 fn a_replay_of_one_topic_starts_at_its_first_message() {
     let dir = Dir::new("gap");
@@ -761,12 +761,9 @@ fn a_replay_of_one_topic_starts_at_its_first_message() {
     publish(u, "b", "int", "3");
     let (code, out, err) = rec.finish();
     assert_eq!(code, Some(0), "{out}{err}");
-    let started = Instant::now();
     let (code, out, err) = run(&["replay", &file, u, "--topic", "b"]);
-    let took = started.elapsed();
     assert_eq!(code, 0, "{err}");
     assert!(out.ends_with("replayed 2 messages\ndone\n"), "{out}");
-    assert!(took < Duration::from_millis(1500), "took {took:?}");
 }
 
 /// A file cut in its summary or footer has every message, but is damaged

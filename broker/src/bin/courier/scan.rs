@@ -485,3 +485,21 @@ pub fn walk(path: &Path, visit: &mut dyn FnMut(Event) -> bool) -> Result<Vec<Str
     }
     Ok(damage)
 }
+
+#[cfg(test)]
+mod span_tests {
+    use super::*;
+
+    /// A replay of some channels spans their messages only: offsets count
+    /// from the first message replayed, so `--topic b` does not idle
+    /// through the time before b's first message.
+    #[test]
+    fn the_span_of_chosen_channels_leaves_the_others_out() {
+        let mut s = Survey::default();
+        s.spans.insert(1, (1_000, 2_000));
+        s.spans.insert(2, (3_500_000_000, 3_600_000_000));
+        assert_eq!(s.span(&[2]), Some((3_500_000_000, 3_600_000_000)));
+        assert_eq!(s.span(&[1, 2]), Some((1_000, 3_600_000_000)));
+        assert_eq!(s.span(&[9]), None);
+    }
+}
