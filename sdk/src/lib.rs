@@ -97,11 +97,13 @@
 //!   for its readers to acknowledge what its writers still hold). Dropping a handle closes that
 //!   handle only.
 //! - **How streams end.** A [`Subscriber`] or [`Requests`] stream ends
-//!   with one `Err(RecvError::Disconnected)` item, then `None`, whether the
-//!   session was closed here or lost; other `Err` items (a sample that
-//!   does not decode) are not the end. Loop on `next()`, skip or log the
-//!   errors you expect, and stop at `Disconnected` or `None`: `s?` in the
-//!   loop turns a clean `close()` into an error.
+//!   with `None` after [`Session::close`] (on any clone of the session); a
+//!   session that loses its connection (central gone, the XRCE agent
+//!   silent) ends them with one `Err(RecvError::Disconnected)` item, then
+//!   `None`. Other `Err` items (a sample that does not decode) are not the
+//!   end: loop on `next()` and skip or log the errors you expect, or let
+//!   `s?` in the loop turn every error, a lost connection included, into
+//!   the task's.
 //! - **Bound your awaits.** `connect` gives up by itself (IPC: after
 //!   [`SessionBuilder::connect_timeout`], 5 s by default; RTPS at once;
 //!   XRCE after its attempts), a query after its `.timeout(d)` (10 s by
@@ -385,6 +387,7 @@ mod rpc;
 pub mod rtps_backend;
 pub mod scheme;
 pub mod session;
+mod session_end;
 mod subscriber;
 mod sys;
 mod timer;

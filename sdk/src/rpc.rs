@@ -208,6 +208,9 @@ pub struct Requests<Req, Resp> {
     pub(crate) _handle: Owned,
     /// The end (`Err(Disconnected)`) was yielded.
     pub(crate) ended: bool,
+    /// Whether the session was closed by its user (the stream then ends
+    /// without `Err(Disconnected)`).
+    pub(crate) end: std::sync::Arc<crate::session_end::SessionEnd>,
     pub(crate) reply_msg: String,
     pub(crate) enc: Encoding,
     /// IPC: central's format of the query message against `Req`.
@@ -244,8 +247,9 @@ impl<Req: IpcMessage, Resp: IpcMessage> Stream for Requests<Req, Resp> {
                     }),
                 }))
             }
-            // the backend closed the channel: the session is gone
-            Poll::Ready(None) if !self.ended => {
+            // the backend closed the channel: the session is gone (lost,
+            // unless its user closed it)
+            Poll::Ready(None) if !self.ended && !self.end.ended() => {
                 self.ended = true;
                 Poll::Ready(Some(Err(RecvError::Disconnected)))
             }

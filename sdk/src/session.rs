@@ -158,8 +158,8 @@ pub struct Session {
     /// IPC: whether central's format of each message fits each type this
     /// session reads or writes it as.
     pub(crate) central_formats: Arc<crate::format_check::CentralFormats>,
-    /// Ends the session's timers at its close.
-    timers: Arc<crate::timer::TimersEnd>,
+    /// Whether its user closed it; ends its timers at the close.
+    pub(crate) end: Arc<crate::session_end::SessionEnd>,
 }
 
 impl Session {
@@ -187,7 +187,7 @@ impl Session {
             name: name.into(),
             topics: Arc::default(),
             central_formats: Arc::default(),
-            timers: Arc::default(),
+            end: Arc::default(),
         }
     }
 
@@ -699,6 +699,7 @@ impl Session {
             rx,
             _handle: self.owned(Handle::Service(id)),
             ended: false,
+            end: self.end.clone(),
             reply_msg: reply_msg.to_string(),
             enc: self.enc(),
             check: Default::default(),
@@ -730,7 +731,7 @@ impl Session {
                 self.name
             );
         }
-        Timer::of_session(&self.timers, period, count)
+        Timer::of_session(&self.end, period, count)
     }
 
     /// System events: module connect/disconnect, handler counts and loss of
@@ -826,7 +827,8 @@ impl Session {
     }
 
     /// Disconnects cleanly (also done when the last clone and handle is
-    /// dropped). The session's streams end and its calls fail at once. On
+    /// dropped). The session's streams end (with `None`, no
+    /// `Err(RecvError::Disconnected)`) and its calls fail at once. On
     /// DDS the instances its publications leave are disposed (or
     /// unregistered, per `autodispose`), and the close waits, up to one
     /// second as Cyclone DDS's writer linger, until the readers
@@ -834,7 +836,7 @@ impl Session {
     /// right before it is not lost. A `.confirmed()` publish is the way to
     /// know that one sample arrived.
     pub async fn close(&self) {
-        self.timers.end();
+        self.end.end();
         self.backend.close().await
     }
 }

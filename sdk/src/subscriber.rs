@@ -36,6 +36,7 @@ use crate::qos::{
 };
 use crate::queue::{Popped, QueuePolicy, RawSample, RawSubscriber, SampleQueue};
 use crate::session::{decode, Encoding, Session};
+use crate::session_end::SessionEnd;
 use courier_wire::{cdr, IpcMessage};
 use futures::Stream;
 use std::marker::PhantomData;
@@ -320,8 +321,8 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
 
     /// Creates the subscription with immediate delivery (ORTE's IMMEDIATE
     /// mode, a DDS listener): `f` gets every sample, in order, as soon as
-    /// the backend has it, and `Err(RecvError::Disconnected)` once at the
-    /// end. On RTPS it runs where the datagram was read: the participant's
+    /// the backend has it, and `Err(RecvError::Disconnected)` once if the
+    /// session loses its connection (not after [`Session::close`]). On RTPS it runs where the datagram was read: the participant's
     /// receive thread (`receive_thread`), or else its driver task; keep it
     /// short and never block in it (it holds up reception). It can answer
     /// at once with [`Publisher::try_publish`]. Other backends call it from
@@ -358,9 +359,14 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
         let skipped = Arc::new(std::sync::atomic::AtomicU64::new(0));
         let count = skipped.clone();
         let mut check = FormatCheck::default();
+        let end = self.session.end.clone();
         queue.set_handler(move |q, s| {
             let Some(s) = s else {
-                return f(Err(RecvError::Disconnected));
+                // a `close()` asked for is no error to report
+                if !end.ended() {
+                    f(Err(RecvError::Disconnected));
+                }
+                return;
             };
             match convert::<T, D>(enc, q, &mut check, s) {
                 Some(r) => f(r),
@@ -395,6 +401,7 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
             check: FormatCheck::default(),
             decode_errors: 0,
             skipped: 0,
+            end: self.session.end.clone(),
             _t: PhantomData,
         })
     }
@@ -467,7 +474,8 @@ pub enum RecvError {
         /// The decoder's message.
         detail: String,
     },
-    /// The session lost its connection; the stream ends after this.
+    /// The session lost its connection; the stream ends after this. (A
+    /// session closed by [`Session::close`] ends its streams without it.)
     #[error("disconnected")]
     Disconnected,
     /// IPC: the message's format, as central holds it (its definer's),
@@ -500,6 +508,9 @@ pub struct Subscriber<T, D = Samples> {
     check: FormatCheck,
     decode_errors: u64,
     skipped: u64,
+    /// Whether the session was closed by its user (the stream then ends
+    /// without `Err(Disconnected)`).
+    end: Arc<SessionEnd>,
     _t: PhantomData<fn() -> (T, D)>,
 }
 
@@ -568,10 +579,7 @@ fn convert<T: IpcMessage, D: Delivery<T>>(
 
 impl<T: IpcMessage, D: Delivery<T>> Subscriber<T, D> {
     /// The item of a popped sample; `None` for a skipped instance change.
-    fn convert(&mut self, p: Popped) -> Option<Result<D::Item, RecvError>> {
-        let Popped::Sample(s) = p else {
-            return Some(Err(RecvError::Disconnected));
-        };
+    fn convert(&mut self, s: RawSample) -> Option<Result<D::Item, RecvError>> {
         let r = convert::<T, D>(self.enc, &self.raw.queue, &mut self.check, s);
         match &r {
             Some(Err(RecvError::Decode { .. } | RecvError::FormatMismatch { .. })) => {
@@ -592,11 +600,20 @@ impl<T: IpcMessage, D: Delivery<T>> Subscriber<T, D> {
     /// waits.
     pub fn try_recv(&mut self) -> Option<Result<D::Item, RecvError>> {
         loop {
-            let s = self.raw.queue.try_pop()?;
+            let s = match self.raw.queue.try_pop()? {
+                Popped::Sample(s) => s,
+                Popped::End => return self.lost().then_some(Err(RecvError::Disconnected)),
+            };
             if let Some(r) = self.convert(s) {
                 return Some(r);
             }
         }
+    }
+
+    /// At the end: whether the connection was lost (the stream yields
+    /// `Err(Disconnected)`), not closed by the session's user (it just ends).
+    fn lost(&self) -> bool {
+        !self.end.ended()
     }
 }
 
@@ -606,11 +623,15 @@ impl<T: IpcMessage, D: Delivery<T>> Stream for Subscriber<T, D> {
     fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Self::Item>> {
         loop {
             match self.raw.queue.poll_pop(cx) {
-                Poll::Ready(Some(s)) => {
+                Poll::Ready(Some(Popped::Sample(s))) => {
                     if let Some(r) = self.convert(s) {
                         return Poll::Ready(Some(r));
                     }
                 }
+                Poll::Ready(Some(Popped::End)) if self.lost() => {
+                    return Poll::Ready(Some(Err(RecvError::Disconnected)))
+                }
+                Poll::Ready(Some(Popped::End)) => return Poll::Ready(None),
                 Poll::Ready(None) => return Poll::Ready(None),
                 Poll::Pending => return Poll::Pending,
             }
@@ -688,6 +709,7 @@ mod tests {
             check: FormatCheck::default(),
             decode_errors: 0,
             skipped: 0,
+            end: Arc::default(),
             _t: PhantomData,
         }
     }

@@ -1,11 +1,11 @@
 //! Timers: [`Timer`] and its [`Tick`]s.
 
+use crate::session_end::SessionEnd;
 use futures::Stream;
-use std::collections::{HashMap, VecDeque};
+use std::collections::VecDeque;
 use std::pin::Pin;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
-use std::task::{Context, Poll, Waker};
+use std::sync::Arc;
+use std::task::{Context, Poll};
 use std::time::Duration;
 
 /// The longest period: longer ones are this (they never fire in practice).
@@ -20,31 +20,6 @@ pub struct Tick {
     pub fired: tokio::time::Instant,
 }
 
-/// The end of a session's timers: [`Session::close`](crate::Session::close)
-/// ends every timer made from the session, waking those that wait.
-#[derive(Debug, Default)]
-pub(crate) struct TimersEnd {
-    ended: AtomicBool,
-    next_id: AtomicU64,
-    /// The wakers of the timers waiting for their next tick, by timer.
-    waiting: Mutex<HashMap<u64, Waker>>,
-}
-
-impl TimersEnd {
-    /// Ends every timer of the session (and those made later).
-    pub(crate) fn end(&self) {
-        self.ended.store(true, Ordering::Release);
-        let waiting = std::mem::take(&mut *self.waiting.lock().unwrap_or_else(|e| e.into_inner()));
-        for w in waiting.into_values() {
-            w.wake();
-        }
-    }
-
-    fn ended(&self) -> bool {
-        self.ended.load(Ordering::Acquire)
-    }
-}
-
 /// A timer `Stream` (IPC_addTimer): ticks at fixed instants, skipping none.
 /// It ends when its session is closed.
 #[derive(Debug)]
@@ -53,14 +28,14 @@ pub struct Timer {
     interval: tokio::time::Interval,
     remaining: Option<u64>,
     queued: VecDeque<Tick>,
-    end: Option<(Arc<TimersEnd>, u64)>,
+    end: Option<(Arc<SessionEnd>, u64)>,
 }
 
 impl Timer {
     /// A timer of the session whose timers `end` ends.
-    pub(crate) fn of_session(end: &Arc<TimersEnd>, period: Duration, count: Option<u64>) -> Timer {
+    pub(crate) fn of_session(end: &Arc<SessionEnd>, period: Duration, count: Option<u64>) -> Timer {
         let mut t = Timer::new(period, count);
-        let id = end.next_id.fetch_add(1, Ordering::Relaxed);
+        let id = end.next_id();
         t.end = Some((end.clone(), id));
         t
     }
@@ -83,10 +58,7 @@ impl Timer {
 impl Drop for Timer {
     fn drop(&mut self) {
         if let Some((end, id)) = &self.end {
-            end.waiting
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .remove(id);
+            end.forget(*id);
         }
     }
 }
@@ -112,17 +84,8 @@ impl Stream for Timer {
             }
             Poll::Pending => {
                 if let Some((end, id)) = &self.end {
-                    let mut waiting = end.waiting.lock().unwrap_or_else(|e| e.into_inner());
-                    // (checked again under the lock: `end` takes the wakers
-                    // after setting the flag)
-                    if end.ended() {
+                    if !end.wait(*id, cx) {
                         return Poll::Ready(None);
-                    }
-                    match waiting.get_mut(id) {
-                        Some(w) if w.will_wake(cx.waker()) => {}
-                        _ => {
-                            waiting.insert(*id, cx.waker().clone());
-                        }
                     }
                 }
                 Poll::Pending
@@ -151,7 +114,7 @@ mod tests {
     /// tick far away, and those made after it.
     #[tokio::test]
     async fn ending_the_session_ends_its_timers_and_wakes_the_waiting() {
-        let end = Arc::new(TimersEnd::default());
+        let end = Arc::new(SessionEnd::default());
         let mut far = Timer::of_session(&end, Duration::from_secs(3600), None);
         let mut fast = Timer::of_session(&end, Duration::from_millis(1), None);
         assert!(fast.next().await.is_some());
@@ -163,6 +126,6 @@ mod tests {
         assert_eq!(fast.next().await, None);
         let mut later = Timer::of_session(&end, Duration::from_millis(1), None);
         assert_eq!(later.next().await, None);
-        assert!(end.waiting.lock().unwrap().is_empty());
+        assert!(end.nobody_waits());
     }
 }

@@ -483,3 +483,65 @@ fn handles_are_debug_whatever_their_type() {
     debug::<courier::SubscriberBuilder<NotDebug>>();
     debug::<courier::Requests<NotDebug, NotDebug>>();
 }
+
+/// A `close()` asked for ends the session's streams with `None`, without
+/// an error (`s?` in a loop over them ends cleanly), whichever clone of the
+/// session closed it; on IPC and DDS.
+#[tokio::test]
+async fn a_close_ends_streams_without_an_error() {
+    let (c, url) = central().await;
+    for url in [url, common::url(2)] {
+        let s = session(&url, "closing").await;
+        let mut sub = s.subscribe::<i32>("t").await.unwrap();
+        let mut reqs = s.serve::<Ask, Sum>("add", "").await.unwrap();
+        let run = tokio::spawn(async move {
+            let mut n = 0;
+            while let Some(s) = sub.next().await {
+                s?;
+                n += 1;
+            }
+            while let Some(r) = reqs.next().await {
+                r?;
+                n += 1;
+            }
+            Ok::<_, courier::RecvError>(n)
+        });
+        let clone = s.clone();
+        tokio::time::timeout(T, clone.close()).await.unwrap();
+        let n = tokio::time::timeout(T, run).await.unwrap().unwrap();
+        assert_eq!(n, Ok(0), "{url}");
+    }
+    c.shutdown().await;
+}
+
+/// A callback that holds its own session (to answer with a publisher of
+/// it, as `listen`'s example does) is dropped at `close()`: the session,
+/// its sockets and its tasks do not keep each other alive for ever.
+#[tokio::test]
+async fn a_closed_session_lets_go_of_its_callbacks() {
+    let (c, url) = central().await;
+    for url in [url, common::url(3)] {
+        let s = session(&url, "callbacks").await;
+        let answer = s.publisher::<i32>("answer").build().await.unwrap();
+        let (tx, rx) = std::sync::mpsc::channel::<()>();
+        let l = s
+            .subscriber::<i32>("ask")
+            .listen(move |_| {
+                let _ = (&answer, &tx);
+            })
+            .await
+            .unwrap();
+        s.close().await;
+        drop((l, s));
+        // `tx` goes when the callback does
+        let end = tokio::task::spawn_blocking(move || rx.recv_timeout(T))
+            .await
+            .unwrap();
+        assert_eq!(
+            end,
+            Err(std::sync::mpsc::RecvTimeoutError::Disconnected),
+            "{url}: the callback outlived its session"
+        );
+    }
+    c.shutdown().await;
+}

@@ -122,14 +122,32 @@ async fn listen_callbacks_on_ipc_and_try_publish_refused() {
     assert_eq!(got.0, (0..100).collect::<Vec<_>>());
     let e = p.try_publish(&Point { x: 0.0, y: 0.0 }).unwrap_err();
     assert!(e.to_string().contains("publish().await"), "{e}");
-    b.close().await;
+    // a close asked for is no error: the callback is dropped uncalled
+    let d = session(&url, "d").await;
+    let (tx, rx) = std::sync::mpsc::channel();
+    let l2 = d
+        .subscriber::<Point>("point")
+        .listen(move |s| drop(tx.send(s)))
+        .await
+        .unwrap();
+    d.close().await;
+    drop(l2);
+    let end = tokio::task::spawn_blocking(move || rx.recv_timeout(T))
+        .await
+        .unwrap();
+    assert_eq!(
+        end.unwrap_err(),
+        std::sync::mpsc::RecvTimeoutError::Disconnected
+    );
+    // a lost connection is
+    c.shutdown().await;
     let end = tokio::task::spawn_blocking(move || got.1.recv_timeout(T))
         .await
         .unwrap()
         .expect("the end of the connection reaches the callback");
     assert_eq!(end.unwrap_err(), RecvError::Disconnected);
     a.close().await;
-    c.shutdown().await;
+    b.close().await;
 }
 
 #[tokio::test]

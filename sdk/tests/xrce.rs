@@ -497,3 +497,33 @@ async fn a_session_goes_through_more_topics_than_ids() {
     }
     s.close().await;
 }
+
+/// A callback holding a publisher of its own session is dropped at
+/// `close()`; and the close ends the session's streams without an error.
+#[tokio::test]
+async fn a_closed_session_lets_go_of_its_callbacks_and_ends_its_streams() {
+    let agent = xrce_agent::udp(0).await;
+    let s = session(format!("xrce+udp://{}", agent.addr), "closing").await;
+    let answer = s.publisher::<Msg>("answer").build().await.unwrap();
+    let (tx, rx) = std::sync::mpsc::channel::<()>();
+    let l = s
+        .subscriber::<Msg>("ask")
+        .listen(move |_| {
+            let _ = (&answer, &tx);
+        })
+        .await
+        .unwrap();
+    let mut sub = s.subscribe::<Msg>("chatter").await.unwrap();
+    s.close().await;
+    let end = tokio::time::timeout(T, sub.next()).await.unwrap();
+    assert!(end.is_none(), "{end:?}");
+    drop((l, s));
+    let end = tokio::task::spawn_blocking(move || rx.recv_timeout(T))
+        .await
+        .unwrap();
+    assert_eq!(
+        end,
+        Err(std::sync::mpsc::RecvTimeoutError::Disconnected),
+        "the callback outlived its session"
+    );
+}

@@ -397,7 +397,7 @@ impl Driver {
             }
         }
         c.close = Some(None);
-        let queues = c.st.handler_queues();
+        let queues = c.st.take_handler_queues();
         drop(c);
         for q in queues {
             q.run_handler();

@@ -456,14 +456,17 @@ impl State {
         self.listeners.close();
     }
 
-    /// The queues with callbacks, for their end markers (at close).
-    pub(super) fn handler_queues(&mut self) -> Vec<Arc<SampleQueue>> {
+    /// At the end: lets go of every subscription's queue, and returns
+    /// those with callbacks, for their end markers. A callback often holds
+    /// a publisher of its own session: kept here, it would keep the
+    /// session alive for ever.
+    pub(super) fn take_handler_queues(&mut self) -> Vec<Arc<SampleQueue>> {
         let immediate = std::mem::take(&mut self.immediate);
-        self.subs
-            .values()
+        std::mem::take(&mut self.subs)
+            .into_values()
             .filter(|s| s.pattern.is_none())
-            .map(|s| s.queue.clone())
-            .chain(self.patterns.values().cloned())
+            .map(|s| s.queue)
+            .chain(std::mem::take(&mut self.patterns).into_values())
             .filter(|q| q.has_handler())
             .chain(immediate)
             .collect()
