@@ -369,6 +369,7 @@ pub mod busy_poll;
 #[cfg(feature = "central")]
 #[cfg_attr(docsrs, doc(cfg(feature = "central")))]
 pub mod central;
+mod deadline;
 pub mod derive_guide;
 mod direct_link;
 #[doc(hidden)]

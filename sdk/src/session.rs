@@ -808,7 +808,10 @@ impl Session {
         n: i32,
         timeout: Duration,
     ) -> Result<i32, ControlError> {
-        let deadline = tokio::time::Instant::now() + timeout;
+        if self.backend.ipc().is_none() && self.backend.dds().is_none() {
+            return Err(self.no_controls("wait_for_handlers"));
+        }
+        let deadline = crate::deadline::after(timeout);
         let mut pause = Duration::from_millis(2);
         loop {
             let now = self.num_handlers(msg).await?;

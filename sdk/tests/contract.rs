@@ -545,3 +545,58 @@ async fn a_closed_session_lets_go_of_its_callbacks() {
     }
     c.shutdown().await;
 }
+
+/// `Duration::MAX` as a bound means "as long as it takes": a query, a
+/// confirmed publish, `wait_for_handlers` and IPC's `connect_timeout`
+/// given it work (they panicked adding it to the clock; on DDS inside the
+/// session's driver, which killed the session).
+#[tokio::test]
+async fn duration_max_as_a_bound_waits_as_long_as_it_takes() {
+    let (c, url) = central().await;
+    let forever = Duration::MAX;
+    for url in [url, common::url(4)] {
+        let builder = Session::builder(url.as_str()).name("forever");
+        let builder = if url.starts_with("ipc") {
+            builder.connect_timeout(forever)
+        } else {
+            builder
+        };
+        let s = tokio::time::timeout(T, builder.connect())
+            .await
+            .unwrap()
+            .unwrap();
+        let mut reqs = s.serve::<Ask, Sum>("add", "").await.unwrap();
+        let srv = tokio::spawn(async move {
+            while let Some(Ok(r)) = reqs.next().await {
+                let total = r.value.a + r.value.b;
+                let _ = r
+                    .reply(&Sum {
+                        total,
+                        note: String::new(),
+                    })
+                    .await;
+            }
+        });
+        let mut sub = s.subscribe::<i32>("t").await.unwrap();
+        let p = s.publisher::<i32>("t").build().await.unwrap();
+        let n = tokio::time::timeout(T, s.wait_for_handlers("t", 1, forever)).await;
+        assert_eq!(n.unwrap(), Ok(1), "{url}");
+        let sum: Sum =
+            tokio::time::timeout(T, s.query("add", &Ask { a: 1, b: 2 }).timeout(forever))
+                .await
+                .unwrap()
+                .unwrap();
+        assert_eq!(sum.total, 3, "{url}");
+        if !url.starts_with("ipc") {
+            tokio::time::timeout(T, p.publish(&5).timeout(forever))
+                .await
+                .unwrap()
+                .unwrap();
+            let got = tokio::time::timeout(T, sub.next()).await.unwrap();
+            assert_eq!(got.unwrap().unwrap().value, 5);
+        }
+        s.close().await;
+        tokio::time::timeout(T, srv).await.unwrap().unwrap();
+    }
+    c.shutdown().await;
+}

@@ -527,3 +527,41 @@ async fn a_closed_session_lets_go_of_its_callbacks_and_ends_its_streams() {
         "the callback outlived its session"
     );
 }
+
+/// `Duration::MAX` as a query's bound means "as long as it takes" (it
+/// panicked adding it to the clock).
+#[tokio::test]
+async fn a_query_bounded_by_duration_max_is_answered() {
+    let agent = xrce_agent::udp(0).await;
+    let url = format!("xrce+udp://{}", agent.addr);
+    let server = session(url.clone(), "server").await;
+    let client = session(url, "client").await;
+    let mut reqs = server
+        .serve::<AddRequest, AddReply>("add", "")
+        .await
+        .unwrap();
+    let serving = tokio::spawn(async move {
+        while let Some(Ok(r)) = reqs.next().await {
+            let sum = r.value.a + r.value.b;
+            let _ = r.reply(&AddReply { sum }).await;
+        }
+    });
+    let got: AddReply = tokio::time::timeout(
+        T,
+        client
+            .query("add", &AddRequest { a: 2, b: 3 })
+            .timeout(Duration::MAX),
+    )
+    .await
+    .unwrap()
+    .unwrap();
+    assert_eq!(got.sum, 5);
+    let e = client
+        .wait_for_handlers("add", 1, Duration::MAX)
+        .await
+        .unwrap_err();
+    assert!(e.to_string().starts_with("wait_for_handlers: "), "{e}");
+    client.close().await;
+    server.close().await;
+    tokio::time::timeout(T, serving).await.unwrap().unwrap();
+}

@@ -154,6 +154,9 @@ fn echo_and_pub_over_rtps() {
         "chatter",
         "--count",
         "2",
+        // the longest bound there is (it panicked adding it to the clock)
+        "--duration",
+        "18446744073709551615",
     ]);
     let p = echo.expect_err("courier: no sample of \"chatter\" for 1 s: ");
     assert!(p.ends_with(", 0 publications of \"chatter\""), "{p}");

@@ -176,9 +176,14 @@ fn perf_usage_errors() {
     let (code, _, err) = run(&["perf", "pub", &c.url, "--rate", "-3"]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("is not a rate"), "{err}");
-    let (code, _, err) = run(&["perf", "sub", &c.url, "--secs", "0"]);
-    assert_eq!(code, 2, "{err}");
-    assert!(err.contains("not a positive number of seconds"), "{err}");
+    for secs in ["0", "1e300"] {
+        let (code, _, err) = run(&["perf", "sub", &c.url, "--secs", secs]);
+        assert_eq!(code, 2, "{err}");
+        assert!(
+            err.contains("is not a number of seconds above 0 and at most 1e9"),
+            "{err}"
+        );
+    }
     let (code, _, err) = run(&["perf", "pub", &c.url, "--size", "100000000"]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("--size"), "{err}");

@@ -21,7 +21,7 @@ pub(super) async fn handshake(
     {
         let host = host.to_string();
         let addr = super::host_port(&host, port);
-        let deadline = tokio::time::Instant::now() + opts.connect_timeout;
+        let deadline = crate::deadline::after(opts.connect_timeout);
         let mut attempts = 0;
         let mut io = loop {
             attempts += 1;

@@ -252,7 +252,27 @@ impl RtpsBackend {
             immediate: Vec::new(),
             finished: false,
         };
-        tokio::spawn(driver.run());
+        let session = name.to_string();
+        tokio::spawn(async move {
+            use futures::FutureExt;
+            // a bug in the driver ends the session as a close would (the
+            // driver's drop ends its streams and fails its calls): say so,
+            // or the session looks closed by its user
+            let Err(panic) = std::panic::AssertUnwindSafe(driver.run())
+                .catch_unwind()
+                .await
+            else {
+                return;
+            };
+            let what = panic
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_default();
+            tracing::error!(
+                "the RTPS driver of session {session:?} panicked ({what}): the session is closed"
+            );
+        });
         Ok(RtpsBackend {
             shared,
             cmd: tx,

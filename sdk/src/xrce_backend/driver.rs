@@ -365,11 +365,11 @@ impl Driver {
             return;
         }
         if cmd.needs_session() && (!self.parked.is_empty() || !self.in_session()) {
-            self.park(now + self.opts.agent_wait, cmd);
+            self.park(courier_wire::time::later(now, self.opts.agent_wait), cmd);
             return;
         }
         if let Err(cmd) = self.run(cmd, now) {
-            self.park(now + self.opts.agent_wait, cmd);
+            self.park(courier_wire::time::later(now, self.opts.agent_wait), cmd);
         }
     }
 
@@ -993,7 +993,7 @@ impl Driver {
             self.creates.insert(*r, key);
         }
         let wait = OpenWait {
-            deadline: Instant::now() + self.opts.agent_wait,
+            deadline: courier_wire::time::later(Instant::now(), self.opts.agent_wait),
             topic,
             remaining: requests.len(),
             error: None,
@@ -1154,7 +1154,7 @@ impl Driver {
     /// The link broke (TCP closed, tty gone).
     pub(super) fn link_down(&mut self, now: Instant, why: &std::io::Error) {
         tracing::info!("XRCE link to {} lost: {why}", self.url);
-        self.redial_at = Some(now + self.opts.connect_interval);
+        self.redial_at = Some(courier_wire::time::later(now, self.opts.connect_interval));
         if !self.lost_reported && self.connected.is_none() {
             self.lost_reported = true;
             self.shared.set_state(XrceState::Lost);
@@ -1561,7 +1561,7 @@ pub(super) async fn run(mut d: Driver, mut inbox: Inbox<Cmd>, mut link: Option<L
                             link = Some(l);
                             d.link_up(Instant::now());
                         }
-                        _ => d.redial_at = Some(Instant::now() + d.opts.connect_interval),
+                        _ => d.redial_at = Some(courier_wire::time::later(Instant::now(), d.opts.connect_interval)),
                     }
                 }
                 d.on_timer(Instant::now());

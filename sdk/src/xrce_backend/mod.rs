@@ -418,7 +418,7 @@ impl Backend for XrceBackend {
             .get(&client)
             .map_or_else(|| format!("{client:?}"), |n| n.to_string());
         let gone = || QueryError::Disconnected(name.clone());
-        let deadline = Instant::now() + timeout;
+        let deadline = courier_wire::time::later(Instant::now(), timeout);
         let sent = tokio::time::timeout_at(
             deadline.into(),
             self.cmd.send(Cmd::Query {

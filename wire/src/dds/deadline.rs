@@ -26,7 +26,8 @@ impl Deadline {
 
     /// A sample of `instance` came (reader) or was written (writer) at `now`.
     pub(super) fn arm(&mut self, instance: [u8; 16], now: Instant) {
-        self.due.insert(instance, now + self.period);
+        self.due
+            .insert(instance, crate::time::later(now, self.period));
     }
 
     /// The instance was disposed or unregistered: no deadline until it
@@ -46,7 +47,7 @@ impl Deadline {
         for (instance, due) in self.due.iter_mut() {
             if *due <= now {
                 self.misses += 1;
-                *due = now + self.period;
+                *due = crate::time::later(now, self.period);
                 missed.push((*instance, self.misses));
             }
         }

@@ -325,7 +325,7 @@ impl Domain {
             client,
             query,
             data,
-            deadline: now + timeout,
+            deadline: crate::time::later(now, timeout),
             timeout,
         });
         self.send_waiting(now);

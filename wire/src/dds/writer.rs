@@ -236,7 +236,7 @@ impl Domain {
                 self.confirms.push(Confirm {
                     writer: g,
                     sn,
-                    deadline: now + after,
+                    deadline: crate::time::later(now, after),
                     after,
                 });
             }

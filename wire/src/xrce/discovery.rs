@@ -267,7 +267,7 @@ impl Discovery {
     pub fn handle_timeout(&mut self, now: Instant) {
         if now >= self.next && self.rounds < self.cfg.attempts {
             self.rounds += 1;
-            self.next = now + self.cfg.period;
+            self.next = crate::time::later(now, self.cfg.period);
             self.queue.extend(self.targets.iter().rev().copied());
         }
     }

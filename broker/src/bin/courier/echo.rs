@@ -104,7 +104,9 @@ async fn echo(s: &Session, o: &EchoArgs, n: &Cell<u64>) -> Result<()> {
     let style = if o.json { Style::Json } else { Style::Text };
     let mut dec = SampleDecoder::new(&o.url, &o.topic, o.format.clone());
     let started = Instant::now();
-    let until = o.duration.map(|d| started + Duration::from_secs(d));
+    let until = o
+        .duration
+        .map(|d| courier_wire::time::later(started, Duration::from_secs(d)));
     let mut found = Discovery::default();
     let mut tick =
         tokio::time::interval_at(tokio::time::Instant::now() + PROGRESS_EVERY, PROGRESS_EVERY);

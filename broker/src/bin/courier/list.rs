@@ -271,7 +271,9 @@ async fn ipc(s: &Session, o: &ListArgs) -> Result<()> {
         return Ok(());
     }
     out("ready");
-    let until = o.duration.map(|d| Instant::now() + Duration::from_secs(d));
+    let until = o
+        .duration
+        .map(|d| courier_wire::time::later(Instant::now(), Duration::from_secs(d)));
     loop {
         tokio::select! {
             _ = sleep_until(until) => return Ok(()),

@@ -115,8 +115,11 @@ const MAX_SIZE: u32 = 64 * 1024 * 1024;
 
 fn positive_secs(s: &str) -> std::result::Result<f64, String> {
     match s.parse::<f64>() {
-        Ok(v) if v > 0.0 && v.is_finite() => Ok(v),
-        _ => Err(format!("{s:?} is not a positive number of seconds")),
+        // (a billion seconds is 31 years: longer would overflow the clock)
+        Ok(v) if v > 0.0 && v <= 1e9 => Ok(v),
+        _ => Err(format!(
+            "{s:?} is not a number of seconds above 0 and at most 1e9"
+        )),
     }
 }
 

@@ -141,7 +141,9 @@ async fn measure(s: &Session, o: &RateArgs, mode: Mode, n: &Cell<u64>) -> Result
         None => s.subscribe_raw(&o.topic).await?,
     };
     let started = Instant::now();
-    let until = o.duration.map(|d| started + Duration::from_secs(d));
+    let until = o
+        .duration
+        .map(|d| courier_wire::time::later(started, Duration::from_secs(d)));
     let mut window = Window::new(o.window as usize);
     let gap = o.gap.map(Duration::from_millis);
     let mut found = Discovery::default();

@@ -292,7 +292,9 @@ async fn record(s: &Session, o: &RecordArgs, rec: &RefCell<Recorder>) -> Result<
     let mut formats: HashMap<String, Option<Format>> = HashMap::new();
     out("ready");
     let started = Instant::now();
-    let until = o.duration.map(|d| started + Duration::from_secs(d));
+    let until = o
+        .duration
+        .map(|d| courier_wire::time::later(started, Duration::from_secs(d)));
     let mut flush = tokio::time::interval(FLUSH_EVERY);
     loop {
         tokio::select! {

@@ -580,7 +580,9 @@ async fn play(
         let Some(p) = playing.get_mut(&m.channel) else {
             continue;
         };
-        let offset = m.log_time.saturating_sub(first) as f64 / 1e9 / o.rate;
+        // (a file's times can be anything: at most 31 years, which the
+        // clock holds)
+        let offset = (m.log_time.saturating_sub(first) as f64 / 1e9 / o.rate).min(1e9);
         tokio::time::sleep_until(start + Duration::from_secs_f64(offset)).await;
         p.played += 1;
         in_pass += 1;

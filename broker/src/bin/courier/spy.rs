@@ -65,7 +65,9 @@ async fn spy_named(s: &Session, o: &SpyArgs, n: &Cell<u64>) -> Result<()> {
     }
     let mut samples = futures::stream::select_all(subs);
     out("ready");
-    let until = o.duration.map(|d| Instant::now() + Duration::from_secs(d));
+    let until = o
+        .duration
+        .map(|d| courier_wire::time::later(Instant::now(), Duration::from_secs(d)));
     loop {
         let sleep = async {
             match until {
@@ -114,7 +116,9 @@ async fn spy(s: &Session, o: &SpyArgs, n: &Cell<u64>) -> Result<()> {
         .await
         .map_err(|e| format!("spy needs pattern subscriptions: {e}"))?;
     out("ready");
-    let until = o.duration.map(|d| Instant::now() + Duration::from_secs(d));
+    let until = o
+        .duration
+        .map(|d| courier_wire::time::later(Instant::now(), Duration::from_secs(d)));
     loop {
         let sleep = async {
             match until {

@@ -257,7 +257,7 @@ impl Client {
         self.streams.reset();
         self.state = State::Connecting {
             attempt: 1,
-            next: now + self.cfg.create_interval,
+            next: crate::time::later(now, self.cfg.create_interval),
         };
         self.send_create_client();
     }
@@ -269,7 +269,7 @@ impl Client {
         self.require_session()?;
         self.state = State::Deleting {
             attempt: 1,
-            next: now + self.cfg.create_interval,
+            next: crate::time::later(now, self.cfg.create_interval),
         };
         self.send_delete_session();
         Ok(())
@@ -618,7 +618,7 @@ impl Client {
                 if attempt < self.cfg.create_attempts {
                     self.state = State::Connecting {
                         attempt: attempt + 1,
-                        next: now + self.cfg.create_interval,
+                        next: crate::time::later(now, self.cfg.create_interval),
                     };
                     self.send_create_client();
                 } else {
@@ -633,7 +633,7 @@ impl Client {
                 if attempt < self.cfg.delete_attempts {
                     self.state = State::Deleting {
                         attempt: attempt + 1,
-                        next: now + self.cfg.create_interval,
+                        next: crate::time::later(now, self.cfg.create_interval),
                     };
                     self.send_delete_session();
                 } else {

@@ -136,7 +136,7 @@ impl ReliableInput {
             return true;
         }
         if acked != self.ack_sent {
-            self.ack_due.get_or_insert(now + delay);
+            self.ack_due.get_or_insert(crate::time::later(now, delay));
         }
         false
     }

@@ -328,7 +328,7 @@ impl ReliableOutput {
 
     fn arm_heartbeat(&mut self, now: Instant) {
         self.hb_base = Some(now);
-        self.hb_deadline = Some(now + self.cfg.heartbeat_period);
+        self.hb_deadline = Some(crate::time::later(now, self.cfg.heartbeat_period));
     }
 
     /// Something arrived from the peer (or was sent): with
@@ -341,7 +341,11 @@ impl ReliableOutput {
         if let (Some(d), Some(base)) = (self.hb_deadline, self.hb_base) {
             if d > now {
                 let p = self.cfg.heartbeat_period;
-                self.hb_deadline = Some((now + p).min(base + 2 * p).max(d));
+                self.hb_deadline = Some(
+                    crate::time::later(now, p)
+                        .min(crate::time::later(base, p.saturating_mul(2)))
+                        .max(d),
+                );
             }
         }
     }
