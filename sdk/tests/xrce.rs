@@ -13,7 +13,7 @@ use courier::{
     IpcMessage, OpenError, PublicationQos, Reliability, Session, SessionEvent, SubscriptionQos,
     XrceState,
 };
-use futures::StreamExt;
+use futures::{FutureExt, StreamExt};
 
 /// The bound on every wait.
 const T: Duration = Duration::from_secs(20);
@@ -183,13 +183,15 @@ async fn tcp_publish_subscribe_confirmed_and_fragmented() {
 
 /// A reliable subscription whose queue is full stops the session reading
 /// the link (the agent's window holds the rest): the session says so,
-/// and reading again delivers everything in order.
+/// and reading again delivers everything in order. The agent is not
+/// reported lost meanwhile: the silence is the session's own.
 #[tokio::test]
 async fn a_full_subscription_is_reported_and_loses_nothing() {
     let agent = xrce_agent::udp(0).await;
     let url = format!("xrce+udp://{}", agent.addr);
     let a = session(url.clone(), "pub").await;
-    let b = session(url, "sub").await;
+    // lost after 200 ms of silence
+    let b = session(format!("{url}?keepalive_ms=50&lost_ms=200"), "sub").await;
     let mut ev = b.events();
     let mut sub = b
         .subscriber::<Msg>("full")
@@ -205,6 +207,11 @@ async fn a_full_subscription_is_reported_and_loses_nothing() {
         matches!(e, SessionEvent::SubscriberFull { msg, queued } if msg == "full" && *queued >= 4)
     })
     .await;
+    // five times the silence that loses an agent, not reading
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    while let Some(Some(e)) = ev.next().now_or_never() {
+        assert!(!matches!(e, SessionEvent::AgentLost { .. }), "{e:?}");
+    }
     for i in 0..20 {
         assert_eq!(next(&mut sub).await, msg(i, 10));
     }

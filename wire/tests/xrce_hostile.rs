@@ -637,6 +637,31 @@ fn keepalive_pings_then_reports_the_agent_lost_and_back() {
     assert_eq!(c.state(), State::Lost);
 }
 
+/// A session whose application stopped reading (a full subscription) is
+/// not reported lost for the silence: it is its own, not the agent's; from
+/// when it reads again, silence counts afresh.
+#[test]
+fn a_deaf_session_is_not_reported_lost_for_its_own_silence() {
+    let (mut c, t0) = connected(ClientConfig::new(1));
+    c.set_deaf(true, t0);
+    let mut t = t0;
+    while t - t0 < Duration::from_secs(60) {
+        t = c.poll_timeout().unwrap();
+        c.handle_timeout(t);
+        assert!(drain(&mut c).1.is_empty(), "at {:?}", t - t0);
+    }
+    assert_eq!(c.state(), State::Connected);
+    c.set_deaf(false, t);
+    // the agent still silent: lost 3 s after listening again
+    let resumed = t;
+    while c.state() == State::Connected {
+        t = c.poll_timeout().unwrap();
+        c.handle_timeout(t);
+        drain(&mut c);
+    }
+    assert_eq!(t - resumed, Duration::from_secs(3));
+}
+
 fn create_client(key: u32, session_id: u8) -> Vec<u8> {
     let rep = ClientRepresentation::new(ClientKey::from(key), session_id, 508);
     msg(

@@ -699,6 +699,7 @@ impl Driver {
                             .is_some_and(|q| Arc::ptr_eq(q, &s.queue))
                         {
                             self.stalled = None;
+                            self.client.set_deaf(false, Instant::now());
                         }
                         s.reader
                     }),
@@ -1457,6 +1458,8 @@ impl Driver {
                     queued: s.queue.len(),
                 });
                 self.stalled = Some(s.queue.clone());
+                // the link is not read meanwhile: its silence is not the agent's
+                self.client.set_deaf(true, Instant::now());
             }
             Err(_) => s.queue.count_dropped(),
         }
@@ -1550,6 +1553,7 @@ pub(super) async fn run(mut d: Driver, mut inbox: Inbox<Cmd>, mut link: Option<L
             }, if stalled.is_some() => {
                 if stalled.as_ref().is_some_and(|q| !q.is_full() || q.is_receiver_gone()) {
                     d.stalled = None;
+                    d.client.set_deaf(false, Instant::now());
                 }
             },
             () = std::future::poll_fn(|cx| timer.poll_fired(cx)) => {

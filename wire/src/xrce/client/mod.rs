@@ -115,6 +115,9 @@ pub struct Client {
     last_heard: Option<Instant>,
     last_ping: Option<Instant>,
     offset_ns: Option<i64>,
+    /// The application reads nothing from the agent for now (see
+    /// [`Client::set_deaf`]).
+    deaf: bool,
 }
 
 fn wall_ns(wall: SystemTime) -> i64 {
@@ -162,6 +165,7 @@ impl Client {
             ping_sent: None,
             sync: None,
             last_heard: None,
+            deaf: false,
             last_ping: None,
             offset_ns: None,
         }
@@ -648,11 +652,27 @@ impl Client {
         }
     }
 
+    /// The application stops reading the agent's messages (`true`: a full
+    /// subscription holds the session back, the agent's reliable window
+    /// holding the rest) or reads them again. Silence while deaf is not
+    /// the agent's: the session is not reported lost then, and silence is
+    /// counted afresh from when it listens again.
+    pub fn set_deaf(&mut self, deaf: bool, now: Instant) {
+        if self.deaf && !deaf {
+            if let Some(h) = &mut self.last_heard {
+                *h = (*h).max(now);
+            }
+        }
+        self.deaf = deaf;
+    }
+
     fn keepalive_times(&self) -> Option<(Option<Instant>, Instant)> {
         let k = self.cfg.keepalive?;
         let heard = self.last_heard.filter(|_| self.in_session())?;
-        let lost_at = (self.state == State::Connected).then(|| heard + k.timeout);
-        let ping_at = self.last_ping.map_or(heard, |p| p.max(heard)) + k.interval;
+        let lost_at = (self.state == State::Connected && !self.deaf)
+            .then(|| crate::time::later(heard, k.timeout));
+        let ping_at =
+            crate::time::later(self.last_ping.map_or(heard, |p| p.max(heard)), k.interval);
         Some((lost_at, ping_at))
     }
 
