@@ -71,7 +71,16 @@ pub struct Query<'a, Resp> {
 }
 
 impl<'a, Resp: IpcMessage + 'a> Query<'a, Resp> {
-    /// Bounds the wait for the reply.
+    /// Bounds the wait for the reply (10 s unless given; `Duration::MAX`
+    /// waits as long as it takes).
+    ///
+    /// A query that times out, or whose future is dropped, is not taken
+    /// back: the request was sent, and a server may still get it and act
+    /// on it later (on IPC central holds it for a server that is slow,
+    /// stopped or not there yet, as C's central does; on DDS a reliable
+    /// request reader still receives it). A late reply is dropped. Where
+    /// acting late is wrong (a command to move), put a deadline or a
+    /// sequence number in the request and have the server check it.
     pub fn timeout(mut self, d: Duration) -> Self {
         self.timeout = d;
         self

@@ -443,31 +443,39 @@ impl Backend for IpcBackend {
         {
             return Err(QueryError::Disconnected(msg.to_string()));
         }
-        match tokio::time::timeout(timeout, rx).await {
-            Ok(Ok(r)) => r,
-            Ok(Err(_)) => Err(QueryError::Disconnected(msg.to_string())),
-            Err(_) => {
-                // one per query
-                let _ = self.cmd.post(Cmd::CancelQuery(key));
-                // central holds a query nobody serves until a server
-                // comes: say so rather than "no reply" (one more question
-                // to central, on this path only)
-                let asked = tokio::time::timeout(
-                    Duration::from_secs(1),
-                    IpcControl::num_handlers(self, &msg),
-                );
-                if let Ok(Ok(0)) = asked.await {
-                    return Err(QueryError::NoResponder {
-                        msg: msg.to_string(),
-                        timeout,
-                    });
-                }
-                Err(QueryError::Timeout {
-                    msg: msg.to_string(),
-                    timeout,
-                })
-            }
+        let answered = |r: Result<Result<RawReply, QueryError>, _>| {
+            r.unwrap_or_else(|_| Err(QueryError::Disconnected(msg.to_string())))
+        };
+        let mut rx = rx;
+        let deadline = crate::deadline::after(timeout);
+        // central holds a query nobody serves until a server comes: to say
+        // so rather than "no reply", ask central who serves it shortly
+        // before the deadline (one more question, on this path only; asked
+        // after it, a slow central made the query overshoot its timeout)
+        let ask_at = deadline - (timeout / 10).min(Duration::from_secs(1));
+        if let Ok(r) = tokio::time::timeout_at(ask_at, &mut rx).await {
+            return answered(r);
         }
+        let handlers = tokio::select! {
+            r = &mut rx => return answered(r),
+            n = IpcControl::num_handlers(self, &msg) => n.ok(),
+            () = tokio::time::sleep_until(deadline) => None,
+        };
+        if let Ok(r) = tokio::time::timeout_at(deadline, &mut rx).await {
+            return answered(r);
+        }
+        // one per query
+        let _ = self.cmd.post(Cmd::CancelQuery(key));
+        if handlers == Some(0) {
+            return Err(QueryError::NoResponder {
+                msg: msg.to_string(),
+                timeout,
+            });
+        }
+        Err(QueryError::Timeout {
+            msg: msg.to_string(),
+            timeout,
+        })
     }
 
     fn close_handle(&self, handle: Handle) {
