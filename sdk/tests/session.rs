@@ -1552,3 +1552,60 @@ async fn wait_for_handlers_counts_subscribers_and_gives_up_naming_the_count() {
     b.close().await;
     c.shutdown().await;
 }
+
+/// The log lines of this thread (the test's runtime is current-thread, so
+/// the sessions' tasks log here too) while the guard lives.
+fn capture_logs() -> (
+    std::sync::Arc<std::sync::Mutex<Vec<u8>>>,
+    tracing::subscriber::DefaultGuard,
+) {
+    let buf = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    let sink = buf.clone();
+    let sub = tracing_subscriber::fmt()
+        .with_ansi(false)
+        .with_writer(move || LogSink(sink.clone()))
+        .finish();
+    (buf, tracing::subscriber::set_default(sub))
+}
+
+struct LogSink(std::sync::Arc<std::sync::Mutex<Vec<u8>>>);
+
+impl std::io::Write for LogSink {
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        self.0.lock().unwrap().extend_from_slice(b);
+        Ok(b.len())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+/// A message published to a module that serves it (takes queries) and
+/// does not subscribe to it is dropped there, as before, but no longer
+/// silently: one warning per message says what was wrong.
+#[tokio::test]
+async fn a_publish_to_a_server_is_warned_of_once() {
+    let (logs, _guard) = capture_logs();
+    let (c, url) = central().await;
+    let server = session(&url, "server").await;
+    let publisher = session(&url, "publisher").await;
+    let _reqs = server.serve::<i32, i32>("svc", "").await.unwrap();
+    let mut sync = server.subscribe::<i32>("sync").await.unwrap();
+    common::await_handlers(&publisher, "svc", 1).await;
+    common::await_handlers(&publisher, "sync", 1).await;
+    publisher.publish("svc", &1).await.unwrap();
+    publisher.publish("svc", &2).await.unwrap();
+    // central hands the server its messages in order: after these two
+    publisher.publish("sync", &3).await.unwrap();
+    let got = tokio::time::timeout(T, sync.next()).await.unwrap();
+    assert_eq!(got.unwrap().unwrap().value, 3);
+    let text = String::from_utf8(logs.lock().unwrap().clone()).unwrap();
+    let warned = text
+        .lines()
+        .filter(|l| l.contains("svc was published to this session, which serves it"))
+        .count();
+    assert_eq!(warned, 1, "{text}");
+    server.close().await;
+    publisher.close().await;
+    c.shutdown().await;
+}

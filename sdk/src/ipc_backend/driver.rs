@@ -105,6 +105,9 @@ pub(super) struct Driver {
     pub(super) events: Hub<SessionEvent>,
     pub(super) subs: HashMap<i32, Sub>,
     pub(super) servers: HashMap<i32, Server>,
+    /// Messages published to this session's servers, which take queries
+    /// only (each warned of once).
+    pub(super) published_to_servers: std::collections::HashSet<String>,
     pub(super) publishes: HashMap<OpId, Done<Result<(), PublishError>>>,
     /// Queries waiting for their reply, with their message name.
     pub(super) queries: HashMap<OpId, (String, Done<Result<RawReply, QueryError>>)>,

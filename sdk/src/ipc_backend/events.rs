@@ -176,6 +176,16 @@ impl Driver {
             DeliveryKind::Broadcast => {
                 let Some(sub) = self.subs.get_mut(&handler) else {
                     let _ = self.conn.ack(delivery);
+                    // (else an unsubscribe crossed it)
+                    let served = self.servers.values().any(|s| s.msg == msg);
+                    if served && self.published_to_servers.insert(msg.clone()) {
+                        tracing::warn!(
+                            "{msg} was published to this session, which serves it (takes \
+                             queries) and does not subscribe to it: dropped, and every later \
+                             publish of it (its publisher wants query(), or this session \
+                             subscribe())"
+                        );
+                    }
                     return;
                 };
                 // Acknowledged once queued for the subscriber: central's

@@ -237,6 +237,7 @@ impl IpcBackend {
             events: events.clone(),
             subs: HashMap::new(),
             servers: HashMap::new(),
+            published_to_servers: Default::default(),
             publishes: HashMap::new(),
             queries: HashMap::new(),
             replies: HashMap::new(),
