@@ -142,6 +142,15 @@ pub enum OpenError {
         /// What is wrong.
         why: String,
     },
+    /// The topic (IPC message, service) name cannot be used: it is empty,
+    /// or (DDS-XRCE) holds a NUL or is longer than DDS allows.
+    #[error("bad name {}: {why}", shown_name(name))]
+    BadName {
+        /// The name.
+        name: String,
+        /// What is wrong with it.
+        why: &'static str,
+    },
     /// The DDS participant could not create the endpoint.
     #[error("cannot create a DDS endpoint of {topic}")]
     Endpoint {
@@ -151,6 +160,34 @@ pub enum OpenError {
         #[source]
         source: CreateError,
     },
+}
+
+/// A name as an error shows it: quoted, and cut after 64 characters (a
+/// name of 70 000 would fill a screen).
+fn shown_name(name: &str) -> String {
+    match name.char_indices().nth(64) {
+        Some((cut, _)) => format!("{:?}… ({} bytes)", &name[..cut], name.len()),
+        None => format!("{name:?}"),
+    }
+}
+
+/// DDS's rule for topic and type names (Courier's participant enforces it
+/// too): 1 to 256 bytes, no NUL. For XRCE sessions, whose agent would
+/// answer a bare `STATUS_ERR_DDS_ERROR`.
+pub(crate) fn dds_name(name: &str) -> Result<(), OpenError> {
+    let why = if name.is_empty() {
+        "a topic needs a name"
+    } else if name.contains('\0') {
+        "DDS names cannot hold a NUL"
+    } else if name.len() > 256 {
+        "DDS names are at most 256 bytes"
+    } else {
+        return Ok(());
+    };
+    Err(OpenError::BadName {
+        name: name.to_string(),
+        why,
+    })
 }
 
 /// Why a write (publish, reply, dispose) failed.

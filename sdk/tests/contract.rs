@@ -600,3 +600,27 @@ async fn duration_max_as_a_bound_waits_as_long_as_it_takes() {
     }
     c.shutdown().await;
 }
+
+/// Names DDS cannot carry are refused by the session, naming what is
+/// wrong, and a long one is not repeated whole.
+#[tokio::test]
+async fn names_dds_cannot_carry_are_refused_clearly() {
+    let s = session(&common::url(5), "names").await;
+    let e = s.subscribe::<i32>("a\0b").await.err().unwrap();
+    assert_eq!(
+        e.to_string(),
+        "bad name \"a\\0b\": DDS names cannot hold a NUL"
+    );
+    let e = s.publisher::<i32>("").build().await.unwrap_err();
+    assert_eq!(e.to_string(), "bad name \"\": a topic needs a name");
+    let long = "x".repeat(70_000);
+    let e = s.serve::<i32, i32>(&long, "").await.err().unwrap();
+    assert_eq!(
+        e.to_string(),
+        format!(
+            "bad name \"{}\"… (70000 bytes): DDS names are at most 256 bytes",
+            "x".repeat(64)
+        )
+    );
+    s.close().await;
+}

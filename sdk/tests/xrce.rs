@@ -568,6 +568,10 @@ async fn a_query_bounded_by_duration_max_is_answered() {
         .await
         .unwrap_err();
     assert!(e.to_string().starts_with("wait_for_handlers: "), "{e}");
+    // a name DDS cannot carry is refused here, not by the agent with a
+    // bare STATUS_ERR_DDS_ERROR
+    let e = client.subscribe::<i32>("").await.err().unwrap();
+    assert_eq!(e.to_string(), "bad name \"\": a topic needs a name");
     client.close().await;
     server.close().await;
     tokio::time::timeout(T, serving).await.unwrap().unwrap();

@@ -596,7 +596,10 @@ pub(crate) fn host_port(host: &str, port: u16) -> String {
 /// A message needs a name (C's `IPC_Null_Argument` for an empty one).
 fn named(msg: &str) -> Result<(), OpenError> {
     if msg.is_empty() {
-        return Err(unsupported("an empty message name".to_string()));
+        return Err(OpenError::BadName {
+            name: String::new(),
+            why: "a message needs a name (C: IPC_Null_Argument)",
+        });
     }
     Ok(())
 }

@@ -473,6 +473,7 @@ impl Backend for RtpsBackend {
         ty: &TypeInfo,
         qos: &PublicationQos,
     ) -> Result<PubId, OpenError> {
+        crate::error::dds_name(msg)?;
         if ty.is_untyped() {
             return Err(untyped(format!(
                 "a publication of {msg} without its type (use Session::define::<T>() or \
@@ -503,6 +504,7 @@ impl Backend for RtpsBackend {
         qos: &SubscriptionQos,
         queue: Arc<SampleQueue>,
     ) -> Result<SubId, OpenError> {
+        crate::error::dds_name(msg)?;
         crate::qos::check_timing(qos.deadline, qos.minimum_separation).map_err(|why| {
             OpenError::Qos {
                 topic: msg.to_string(),
@@ -531,6 +533,7 @@ impl Backend for RtpsBackend {
         resp: &TypeInfo,
         queue: usize,
     ) -> Result<(ServiceId, mpsc::Receiver<RawRequest>), OpenError> {
+        crate::error::dds_name(msg)?;
         if req.is_untyped() || resp.is_untyped() {
             return Err(untyped(format!(
                 "serving {msg} without its types (use Session::serve)"
@@ -560,6 +563,7 @@ impl Backend for RtpsBackend {
         req: &TypeInfo,
         resp: &TypeInfo,
     ) -> Result<ClientId, OpenError> {
+        crate::error::dds_name(msg)?;
         if req.is_untyped() || resp.is_untyped() {
             return Err(untyped(
                 "a query without its types (use Session::query)".into(),

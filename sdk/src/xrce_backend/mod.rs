@@ -290,6 +290,7 @@ impl Backend for XrceBackend {
         ty: &TypeInfo,
         qos: &PublicationQos,
     ) -> Result<PubId, OpenError> {
+        crate::error::dds_name(topic)?;
         if ty.is_untyped() {
             return Err(OpenError::Unsupported {
                 what: format!(
@@ -316,6 +317,7 @@ impl Backend for XrceBackend {
         qos: &SubscriptionQos,
         queue: Arc<SampleQueue>,
     ) -> Result<SubId, OpenError> {
+        crate::error::dds_name(topic)?;
         let (topic, ty, qos) = (
             topic.to_string(),
             ty.filter(|t| !t.is_untyped()).cloned(),
@@ -338,6 +340,7 @@ impl Backend for XrceBackend {
         resp: &TypeInfo,
         queue: usize,
     ) -> Result<(ServiceId, mpsc::Receiver<RawRequest>), OpenError> {
+        crate::error::dds_name(name)?;
         let (tx, rx) = mpsc::channel(queue.max(1));
         let (name, req, resp) = (name.to_string(), req.clone(), resp.clone());
         let id = self
@@ -358,6 +361,7 @@ impl Backend for XrceBackend {
         req: &TypeInfo,
         resp: &TypeInfo,
     ) -> Result<ClientId, OpenError> {
+        crate::error::dds_name(name)?;
         let (name, req, resp) = (name.to_string(), req.clone(), resp.clone());
         let n: Arc<str> = Arc::from(name.as_str());
         let id = self
