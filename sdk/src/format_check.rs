@@ -70,6 +70,15 @@ pub(crate) fn verdict<T: IpcMessage>(theirs: &str) -> Result<(), String> {
     format::fits(&theirs, &ours).map_err(|m| m.to_string())
 }
 
+/// Whether data of `T` reads as `theirs` (a format central holds, which
+/// the message's readers read by): what a definition must not break.
+pub(crate) fn written_verdict<T: IpcMessage>(theirs: &str) -> Result<(), String> {
+    let (Ok(theirs), Some(ours)) = (format::parse(theirs), expanded::<T>()) else {
+        return Ok(());
+    };
+    format::fits(&ours, &theirs).map_err(|m| m.to_string())
+}
+
 /// IPC: does the format central holds for a message fit a type this
 /// session reads or writes it as? Looked up once per message and type (a
 /// round trip to central the first time), for replies a query reads and

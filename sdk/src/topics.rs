@@ -160,7 +160,7 @@ pub(crate) struct Definition {
     pub(crate) formats: Vec<(&'static str, &'static str)>,
     /// The Rust type, for errors.
     pub(crate) rust: &'static str,
-    /// Whether data of a format central holds reads as the type.
+    /// Whether the type's data reads as a format central holds.
     pub(crate) fits: fn(&str) -> Result<(), String>,
 }
 
@@ -170,7 +170,7 @@ impl Definition {
             ty: TypeInfo::of::<T>(),
             formats: courier_wire::NamedFormats::of::<T>().iter().collect(),
             rust: std::any::type_name::<T>(),
-            fits: crate::format_check::verdict::<T>,
+            fits: crate::format_check::written_verdict::<T>,
         }
     }
 }

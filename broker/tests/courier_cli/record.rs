@@ -711,7 +711,7 @@ fn replay_and_pub_do_not_redefine_a_message_central_holds() {
     assert!(
         err.contains(
             "central defines counter as string, which does not fit --format int: at the top, \
-             the data has string where the reader has int; defining it anew would make its \
+             the data has int where the reader has string; defining it anew would make its \
              subscribers fail to decode (--redefine replaces central's format anyway)"
         ),
         "{err}"
@@ -727,8 +727,8 @@ fn replay_and_pub_do_not_redefine_a_message_central_holds() {
     assert_eq!(
         err,
         "courier: channel \"counter\" (1): central defines counter as string, which does not \
-         fit the recorded format int: at the top, the data has string where the reader has \
-         int; defining it anew would make its subscribers fail to decode (--redefine replaces \
+         fit the recorded format int: at the top, the data has int where the reader has \
+         string; defining it anew would make its subscribers fail to decode (--redefine replaces \
          central's format anyway)\n"
     );
     assert_eq!(central_format(&c, "counter").as_deref(), Some("string"));

@@ -27,7 +27,8 @@ pub async fn check(
     let Some(theirs) = theirs.filter(|f| !f.names_formats()) else {
         return Ok(Ok(()));
     };
-    Ok(match format::fits(&theirs, ours) {
+    // the data is ours, its readers read by central's format
+    Ok(match format::fits(ours, &theirs) {
         Ok(()) => Ok(()),
         Err(misfit) => Err(format!(
             "central defines {msg} as {theirs}, which does not fit {ours_is}: {misfit}; \
