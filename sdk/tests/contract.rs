@@ -521,27 +521,7 @@ async fn a_close_ends_streams_without_an_error() {
 async fn a_closed_session_lets_go_of_its_callbacks() {
     let (c, url) = central().await;
     for url in [url, common::url(3)] {
-        let s = session(&url, "callbacks").await;
-        let answer = s.publisher::<i32>("answer").build().await.unwrap();
-        let (tx, rx) = std::sync::mpsc::channel::<()>();
-        let l = s
-            .subscriber::<i32>("ask")
-            .listen(move |_| {
-                let _ = (&answer, &tx);
-            })
-            .await
-            .unwrap();
-        s.close().await;
-        drop((l, s));
-        // `tx` goes when the callback does
-        let end = tokio::task::spawn_blocking(move || rx.recv_timeout(T))
-            .await
-            .unwrap();
-        assert_eq!(
-            end,
-            Err(std::sync::mpsc::RecvTimeoutError::Disconnected),
-            "{url}: the callback outlived its session"
-        );
+        common::close_lets_go_of_a_callback(session(&url, "callbacks").await).await;
     }
     c.shutdown().await;
 }

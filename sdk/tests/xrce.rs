@@ -5,6 +5,7 @@
 //! agent is stopped and started again on the same port. Every wait is
 //! bounded; every port is chosen by the system.
 
+mod common;
 mod xrce_agent;
 
 use std::time::Duration;
@@ -129,20 +130,25 @@ async fn pub_sub(url: String) {
     b.close().await;
 }
 
-async fn query_serve(url: String) {
-    let server = session(url.clone(), "server").await;
-    let client = session(url, "client").await;
+/// Serves `add` on `server` until its session closes.
+async fn adder(server: &Session) -> tokio::task::JoinHandle<()> {
     let mut reqs = server
         .serve::<AddRequest, AddReply>("add", "")
         .await
         .unwrap();
-    let serving = tokio::spawn(async move {
+    tokio::spawn(async move {
         while let Some(r) = reqs.next().await {
             let r = r.unwrap();
             let sum = r.value.a + r.value.b;
             r.reply(&AddReply { sum }).await.unwrap();
         }
-    });
+    })
+}
+
+async fn query_serve(url: String) {
+    let server = session(url.clone(), "server").await;
+    let client = session(url, "client").await;
+    let serving = adder(&server).await;
     for i in 0..10 {
         let reply: AddReply = client
             .query("add", &AddRequest { a: i, b: 100 })
@@ -511,28 +517,10 @@ async fn a_session_goes_through_more_topics_than_ids() {
 async fn a_closed_session_lets_go_of_its_callbacks_and_ends_its_streams() {
     let agent = xrce_agent::udp(0).await;
     let s = session(format!("xrce+udp://{}", agent.addr), "closing").await;
-    let answer = s.publisher::<Msg>("answer").build().await.unwrap();
-    let (tx, rx) = std::sync::mpsc::channel::<()>();
-    let l = s
-        .subscriber::<Msg>("ask")
-        .listen(move |_| {
-            let _ = (&answer, &tx);
-        })
-        .await
-        .unwrap();
     let mut sub = s.subscribe::<Msg>("chatter").await.unwrap();
-    s.close().await;
+    common::close_lets_go_of_a_callback(s).await;
     let end = tokio::time::timeout(T, sub.next()).await.unwrap();
     assert!(end.is_none(), "{end:?}");
-    drop((l, s));
-    let end = tokio::task::spawn_blocking(move || rx.recv_timeout(T))
-        .await
-        .unwrap();
-    assert_eq!(
-        end,
-        Err(std::sync::mpsc::RecvTimeoutError::Disconnected),
-        "the callback outlived its session"
-    );
 }
 
 /// `Duration::MAX` as a query's bound means "as long as it takes" (it
@@ -543,16 +531,7 @@ async fn a_query_bounded_by_duration_max_is_answered() {
     let url = format!("xrce+udp://{}", agent.addr);
     let server = session(url.clone(), "server").await;
     let client = session(url, "client").await;
-    let mut reqs = server
-        .serve::<AddRequest, AddReply>("add", "")
-        .await
-        .unwrap();
-    let serving = tokio::spawn(async move {
-        while let Some(Ok(r)) = reqs.next().await {
-            let sum = r.value.a + r.value.b;
-            let _ = r.reply(&AddReply { sum }).await;
-        }
-    });
+    let serving = adder(&server).await;
     let got: AddReply = tokio::time::timeout(
         T,
         client

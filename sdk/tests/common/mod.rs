@@ -180,3 +180,30 @@ pub async fn connect(url: &str, name: &str) -> Session {
         .expect("connect in time")
         .expect("connect")
 }
+
+/// Closes `s`, which holds a `listen` callback that holds a publisher of
+/// `s` itself (as `listen`'s example answers), and checks that the
+/// callback is dropped: the session, its sockets and its tasks must not
+/// keep each other alive for ever.
+pub async fn close_lets_go_of_a_callback(s: Session) {
+    let answer = s.publisher::<i32>("answer").build().await.unwrap();
+    let (tx, rx) = std::sync::mpsc::channel::<()>();
+    let l = s
+        .subscriber::<i32>("ask")
+        .listen(move |_| {
+            let _ = (&answer, &tx);
+        })
+        .await
+        .unwrap();
+    s.close().await;
+    drop((l, s));
+    // `tx` goes when the callback does
+    let end = tokio::task::spawn_blocking(move || rx.recv_timeout(T))
+        .await
+        .unwrap();
+    assert_eq!(
+        end,
+        Err(std::sync::mpsc::RecvTimeoutError::Disconnected),
+        "the callback outlived its session"
+    );
+}
