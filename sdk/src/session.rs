@@ -840,6 +840,18 @@ impl Session {
     /// know that one sample arrived.
     pub async fn close(&self) {
         self.end.end();
+        if self.end.in_own_callback() {
+            // the callback's task (on a current-thread runtime, the whole
+            // runtime) waits for the callback, which would wait for the
+            // close: the close goes on by itself
+            tracing::error!(
+                "close() called inside a listen callback of its own session: it goes on once \
+                 the callback returns (spawn the close to wait for it)"
+            );
+            let backend = self.backend.clone();
+            tokio::spawn(async move { backend.close().await });
+            return;
+        }
         self.backend.close().await
     }
 }

@@ -326,7 +326,10 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
     /// receive thread (`receive_thread`), or else its driver task; keep it
     /// short and never block in it (it holds up reception). It can answer
     /// at once with [`Publisher::try_publish`]. Other backends call it from
-    /// a task of its own. A callback that panics loses that sample only:
+    /// a task of its own. A `close()` of the callback's own session inside
+    /// it cannot be waited for there: it returns at once (logging an error)
+    /// and the close goes on when the callback returns; spawn it to wait.
+    /// A callback that panics loses that sample only:
     /// the panic is caught (and logged), and the next sample calls it
     /// again. Dropping the [`Listener`] unsubscribes.
     ///
@@ -377,9 +380,10 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
         });
         let raw = self.create(queue.clone()).await?;
         if !self.session.caps.immediate_delivery {
+            let session = self.session.end.clone();
             tokio::spawn(async move {
                 while std::future::poll_fn(|cx| queue.poll_waiting(cx)).await {
-                    queue.run_handler();
+                    session.in_callback(|| queue.run_handler());
                 }
             });
         }

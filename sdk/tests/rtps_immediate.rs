@@ -8,6 +8,8 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{mpsc, Arc};
 use std::time::Duration;
 
+use futures::StreamExt;
+
 use courier::{
     Handle, PublicationQos, PublishError, RecvError, Sample, Session, TypeInfo, WriteOptions,
 };
@@ -347,4 +349,52 @@ async fn a_receive_thread_held_by_a_full_queue_ends_with_the_session() {
     .await
     .unwrap_or_else(|_| panic!("the receive thread is still there: {:?}", thread_names()));
     a.close().await;
+}
+
+/// A callback that closes its own session, blocking on the close (the
+/// docs say never to block there), does not hang the session for ever:
+/// the close goes on once the callback returns, with the receive thread
+/// and with the driver task reading (on the test's own runtime: a hang
+/// there fails the test rather than hanging it).
+#[test]
+fn a_callback_closing_its_own_session_does_not_hang() {
+    common::on_own_runtime(4 * T, closing_inside_a_callback);
+}
+
+async fn closing_inside_a_callback() {
+    for (domain, on_thread) in [(150, true), (151, false)] {
+        let a = session(domain, "a").await;
+        let b = if on_thread {
+            threaded(domain, "b").await
+        } else {
+            session(domain, "b").await
+        };
+        let p = a.publisher::<Msg>("chatter").build().await.unwrap();
+        let (tx, rx) = mpsc::channel();
+        let mut own = Some(b.clone());
+        let _l = b
+            .subscriber::<Msg>("chatter")
+            .listen(move |_| {
+                if let Some(s) = own.take() {
+                    futures::executor::block_on(s.close());
+                    let _ = tx.send(());
+                }
+            })
+            .await
+            .unwrap();
+        await_handlers(&a, "chatter", 1).await;
+        p.publish(&msg(0)).await.unwrap();
+        let returned = tokio::task::spawn_blocking(move || rx.recv_timeout(T))
+            .await
+            .unwrap();
+        assert_eq!(returned, Ok(()), "receive thread: {on_thread}");
+        // and the session is closed
+        let mut events = b.events();
+        let e = tokio::time::timeout(T, events.next()).await.unwrap();
+        assert!(
+            matches!(e, None | Some(courier::SessionEvent::Disconnected)),
+            "{e:?}"
+        );
+        a.close().await;
+    }
 }

@@ -1618,3 +1618,46 @@ async fn a_publish_to_a_server_is_warned_of_once() {
     publisher.close().await;
     c.shutdown().await;
 }
+
+/// A callback that closes its own session, blocking on the close (the
+/// docs say never to block there), does not hang: the close goes on once
+/// the callback returns. On a current-thread runtime, of a thread of its
+/// own: a hang there must fail this test, not hang it.
+#[test]
+fn a_callback_closing_its_own_session_does_not_hang() {
+    common::on_own_runtime(2 * T, closing_inside_a_callback);
+}
+
+async fn closing_inside_a_callback() {
+    let (c, url) = central().await;
+    let a = session(&url, "a").await;
+    let b = session(&url, "b").await;
+    let (tx, rx) = std::sync::mpsc::channel();
+    let mut own = Some(b.clone());
+    let _l = b
+        .subscriber::<i32>("closer")
+        .listen(move |_| {
+            if let Some(s) = own.take() {
+                futures::executor::block_on(s.close());
+                let _ = tx.send(());
+            }
+        })
+        .await
+        .unwrap();
+    common::await_handlers(&a, "closer", 1).await;
+    a.publish("closer", &1).await.unwrap();
+    let returned = tokio::task::spawn_blocking(move || rx.recv_timeout(T))
+        .await
+        .unwrap();
+    assert_eq!(returned, Ok(()));
+    // and b is gone from central
+    tokio::time::timeout(T, async {
+        while a.is_module_connected("b").await.unwrap() {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    })
+    .await
+    .expect("b disconnected");
+    a.close().await;
+    c.shutdown().await;
+}

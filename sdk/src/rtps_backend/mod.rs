@@ -675,6 +675,17 @@ impl Backend for RtpsBackend {
 
     async fn close(&self) {
         let (tx, rx) = oneshot::channel();
+        if IN_CALLBACK.with(|t| t.get()) == self.shared.id() {
+            // a `listen` callback holds up this session's reception (and,
+            // on its driver task, the driver): waiting here for the close,
+            // blocked in the callback, would wait for ever
+            tracing::error!(
+                "close() called inside a listen callback of its own session: it goes on once \
+                 the callback returns (spawn the close to wait for it)"
+            );
+            let _ = self.cmd.post(Cmd::Close { reply: tx });
+            return;
+        }
         if self.cmd.send(Cmd::Close { reply: tx }).await.is_ok() {
             let _ = rx.await;
         }

@@ -207,3 +207,25 @@ pub async fn close_lets_go_of_a_callback(s: Session) {
         "the callback outlived its session"
     );
 }
+
+/// Runs `scenario` on a current-thread runtime of a thread of its own and
+/// fails if it has not finished within `bound`: for scenarios whose bug is
+/// a hang of the runtime itself, which must fail a test, not hang it.
+pub fn on_own_runtime<F, Fut>(bound: Duration, scenario: F)
+where
+    F: FnOnce() -> Fut + Send + 'static,
+    Fut: std::future::Future<Output = ()>,
+{
+    let (done, finished) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        rt.block_on(scenario());
+        let _ = done.send(());
+    });
+    finished
+        .recv_timeout(bound)
+        .expect("the scenario finished (it hung, or failed above)");
+}
