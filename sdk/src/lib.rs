@@ -33,7 +33,9 @@
 //! Courier runs on the application's tokio runtime (either flavour):
 //! sessions, timers and callbacks are made and used inside one. Streams
 //! (`Subscriber`, `Requests`, `Timer`, `Events`) are `futures::Stream`s:
-//! add `futures` for `StreamExt::next`.
+//! add `futures` for `StreamExt::next` and the other combinators
+//! (`Subscriber::recv` and `Requests::recv` wait for the next item
+//! without it).
 //!
 //! ```
 //! # #[tokio::main(flavor = "current_thread")]

@@ -227,6 +227,15 @@ pub struct Requests<Req, Resp> {
     pub(crate) _t: PhantomData<fn() -> (Req, Resp)>,
 }
 
+impl<Req: IpcMessage, Resp: IpcMessage> Requests<Req, Resp> {
+    /// The next request, waiting for it; `None` at the end of the stream
+    /// (see [How streams end](crate#rules)). The `Stream`'s `next()`
+    /// without importing `futures::StreamExt`.
+    pub async fn recv(&mut self) -> Option<Result<Request<Req, Resp>, RecvError>> {
+        futures::StreamExt::next(self).await
+    }
+}
+
 impl<Req: IpcMessage, Resp: IpcMessage> Stream for Requests<Req, Resp> {
     type Item = Result<Request<Req, Resp>, RecvError>;
 

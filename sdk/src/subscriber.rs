@@ -595,6 +595,13 @@ impl<T: IpcMessage, D: Delivery<T>> Subscriber<T, D> {
         r
     }
 
+    /// The next sample, waiting for it; `None` at the end of the stream
+    /// (see [How streams end](crate#rules)). The `Stream`'s `next()`
+    /// without importing `futures::StreamExt`, named like tokio's receivers.
+    pub async fn recv(&mut self) -> Option<Result<D::Item, RecvError>> {
+        futures::StreamExt::next(self).await
+    }
+
     /// Pulled delivery (ORTE's `ORTEAppSubscriptionPull`): the next sample
     /// if one is waiting, without waiting; `None` when none is waiting
     /// (not the end of the stream: for that, poll the `Stream`).

@@ -496,11 +496,12 @@ async fn a_close_ends_streams_without_an_error() {
         let mut reqs = s.serve::<Ask, Sum>("add", "").await.unwrap();
         let run = tokio::spawn(async move {
             let mut n = 0;
-            while let Some(s) = sub.next().await {
+            // (recv: next() without StreamExt)
+            while let Some(s) = sub.recv().await {
                 s?;
                 n += 1;
             }
-            while let Some(r) = reqs.next().await {
+            while let Some(r) = reqs.recv().await {
                 r?;
                 n += 1;
             }
