@@ -360,6 +360,15 @@ pub enum QueryError {
         /// Replies that matched nothing.
         replies: u64,
     },
+    /// XRCE: no reply within the timeout, and the agent was not answering
+    /// when it ended ([`SessionEvent::AgentLost`](crate::SessionEvent::AgentLost)).
+    #[error("no reply to {msg} within {timeout:?}: the XRCE agent is not answering")]
+    AgentLost {
+        /// Query message.
+        msg: String,
+        /// The timeout.
+        timeout: Duration,
+    },
     /// No server of the query was found within the timeout, but one of
     /// other types was: its request or reply topic carries another type
     /// ([`SessionEvent::TypeMismatch`](crate::SessionEvent::TypeMismatch)

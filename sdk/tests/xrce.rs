@@ -447,11 +447,20 @@ async fn an_agent_that_goes_silent_and_comes_back_keeps_the_session() {
     let a = session(url, "a").await;
     let mut ev = a.events();
     let mut sub = a.subscribe::<Msg>("loop").await.unwrap();
+    let _serving = adder(&a).await;
+    let ask = || a.query::<_, AddReply>("add", &AddRequest { a: 1, b: 2 });
+    assert_eq!(ask().timeout(T).await.unwrap().sum, 3);
     agent.mute(true);
     wait_event(&mut ev, "AgentLost", |e| {
         *e == SessionEvent::AgentLost { silent: true }
     })
     .await;
+    // a query meanwhile says why it got no reply
+    let e = ask().timeout(Duration::from_millis(300)).await.unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "no reply to add within 300ms: the XRCE agent is not answering"
+    );
     agent.mute(false);
     wait_event(&mut ev, "AgentBack", |e| *e == SessionEvent::AgentBack).await;
     a.publish("loop", &msg(9, 1)).await.unwrap();

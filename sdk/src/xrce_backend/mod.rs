@@ -432,9 +432,13 @@ impl Backend for XrceBackend {
             }),
         )
         .await;
-        let timed_out = || QueryError::Timeout {
-            msg: name.clone(),
-            timeout,
+        let timed_out = || {
+            let msg = name.clone();
+            if self.state() == XrceState::Lost {
+                QueryError::AgentLost { msg, timeout }
+            } else {
+                QueryError::Timeout { msg, timeout }
+            }
         };
         match sent {
             Ok(Ok(())) => {}
