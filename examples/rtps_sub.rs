@@ -51,7 +51,7 @@ pub async fn run(args: Args) -> Result<(), Error> {
         tokio::select! {
             s = reader.next() => match s {
                 Some(Ok(s)) => {
-                    println!(">> {:?} from writer {}", s.value, s.source.as_deref().unwrap_or("?"));
+                    println!(">> {:?} from writer {}", s.value, s.source.map_or("?".into(), |g| g.to_string()));
                     n += 1;
                 }
                 Some(Err(e)) => eprintln!("rtps_sub: {e}"),

@@ -21,9 +21,9 @@ pub struct RawSample {
     pub order: ipc::ByteOrder,
     /// When this process received it.
     pub received: SystemTime,
-    /// Who sent it, when the backend knows (DDS: the writer's GUID in hex;
-    /// shared by every sample of that writer).
-    pub source: Option<Arc<str>>,
+    /// Who sent it, when the backend knows (DDS: the writer's GUID, as
+    /// `SessionEvent`s name it).
+    pub source: Option<crate::event::Guid>,
     /// The sender's type name, when the backend knows (DDS; shared by every
     /// sample of the subscription); IPC: the message's format as central
     /// holds it (expanded), which a typed subscription checks its type

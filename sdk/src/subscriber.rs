@@ -171,8 +171,8 @@ pub struct InstanceChange<T: IpcMessage> {
     pub key_hash: Option<[u8; 16]>,
     /// When it was received.
     pub received: SystemTime,
-    /// The writer (its GUID in hex), when known.
-    pub source: Option<Arc<str>>,
+    /// The writer (its GUID, as `SessionEvent`s name it), when known.
+    pub source: Option<crate::event::Guid>,
     /// The writer's timestamp, when sent.
     pub source_time: Option<SystemTime>,
 }
@@ -451,7 +451,9 @@ pub struct Sample<T> {
     pub msg: String,
     /// When it was received.
     pub received: SystemTime,
-    /// Who sent it, when the backend knows (DDS: the writer's GUID in hex).
+    /// Who sent it, when the backend knows (DDS: the writer's GUID, as
+    /// [`SessionEvent`](crate::SessionEvent)s name it; its `Display` is the
+    /// 32 hex digits DDS tools print).
     ///
     /// Always `None` on IPC: a delivery frame's header (`classTotal`,
     /// `msgTotal`, `parentRef`, `intent`, `classId`, `dispatchRef`,
@@ -459,7 +461,7 @@ pub struct Sample<T> {
     /// starts without a handshake, so its receiving end does not learn who
     /// opened it either (CMU IPC has no such call for the same reason). Put
     /// the sender in the message if the receiver needs it.
-    pub source: Option<Arc<str>>,
+    pub source: Option<crate::event::Guid>,
     /// The writer's timestamp, when sent (DDS).
     pub source_time: Option<SystemTime>,
 }

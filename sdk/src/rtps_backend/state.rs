@@ -155,9 +155,6 @@ pub(super) struct State {
     sub_handles: HashMap<SubId, SubKind>,
     /// Topics whose handler count is watched, with the count last reported.
     watched: HashMap<String, Option<i32>>,
-    /// `Sample::source` of the writers that delivered samples (their GUID
-    /// in hex), made once per writer.
-    source_names: HashMap<Guid, Arc<str>>,
     confirms: HashMap<(WriterId, SequenceNumber), Confirm>,
     next_housekeeping: Instant,
     servers: HashMap<ServiceId, Server>,
@@ -206,7 +203,6 @@ impl State {
             patterns: HashMap::new(),
             sub_handles: HashMap::new(),
             watched: HashMap::new(),
-            source_names: HashMap::new(),
             confirms: HashMap::new(),
             next_housekeeping: now,
             servers: HashMap::new(),
@@ -1185,7 +1181,6 @@ impl State {
                     self.emit(SessionEvent::PublicationChanged(Box::new((&d).into())))
                 }
                 P::PublicationLost(g) => {
-                    self.source_names.remove(&g);
                     self.emit(SessionEvent::PublicationLost(g.into()));
                 }
                 P::SubscriptionFound(d) => {
@@ -1259,10 +1254,6 @@ impl State {
             }
             return;
         };
-        let source = self
-            .source_names
-            .entry(s.writer)
-            .or_insert_with(|| Arc::from(guid_hex(s.writer)));
         let source_time = s.source_timestamp.and_then(system_time);
         let expires = self
             .d
@@ -1273,7 +1264,7 @@ impl State {
             msg: r.topic.clone(),
             order: courier_wire::ipc::ByteOrder::NATIVE,
             received,
-            source: Some(source.clone()),
+            source: Some(s.writer.into()),
             type_name: Some(r.type_name.clone()),
             state: match s.kind {
                 ChangeKind::Alive => InstanceState::Alive,

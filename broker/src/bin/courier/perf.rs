@@ -16,7 +16,6 @@
 
 use std::cell::RefCell;
 use std::collections::HashMap;
-use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime};
 
 use clap::{Args, Subcommand};
@@ -409,12 +408,12 @@ async fn subscribe<T: PerfSample>(o: PerfSubArgs, mut stop: Stop) -> Result<Ende
 
 /// The next sequence number expected of each publisher and key.
 #[derive(Default)]
-struct Expected(HashMap<(Option<Arc<str>>, u32), u32>);
+struct Expected(HashMap<(Option<courier::Guid>, u32), u32>);
 
 impl Expected {
     /// How many samples went missing before `seq` (a publisher that
     /// starts over, or a sample older than expected, counts none).
-    fn lost_before(&mut self, source: Option<Arc<str>>, key: u32, seq: u32) -> u64 {
+    fn lost_before(&mut self, source: Option<courier::Guid>, key: u32, seq: u32) -> u64 {
         let next = self.0.entry((source, key)).or_insert(seq);
         let lost = seq.saturating_sub(*next);
         *next = seq.wrapping_add(1);
@@ -453,7 +452,7 @@ async fn receive<T: PerfSample>(s: &Session, c: &PerfCommon, total: &RefCell<Tal
                 None | Some(Err(RecvError::Disconnected)) => return Err("the session ended".into()),
                 Some(Ok(smp)) => {
                     let v = &smp.value;
-                    let lost = expected.lost_before(smp.source.clone(), v.keyval(), v.seq());
+                    let lost = expected.lost_before(smp.source, v.keyval(), v.seq());
                     period.lost += lost;
                     total.borrow_mut().lost += lost;
                     size = v.size();
@@ -529,17 +528,13 @@ mod tests {
     #[test]
     fn losses_are_gaps_per_publisher_and_key() {
         let mut e = Expected::default();
-        let a: Option<Arc<str>> = Some("a".into());
-        assert_eq!(
-            e.lost_before(a.clone(), 0, 5),
-            0,
-            "the first sample sets the start"
-        );
-        assert_eq!(e.lost_before(a.clone(), 0, 6), 0);
-        assert_eq!(e.lost_before(a.clone(), 0, 9), 2);
-        assert_eq!(e.lost_before(a.clone(), 1, 1), 0, "each key its own count");
+        let a = Some(courier::Guid([1; 16]));
+        assert_eq!(e.lost_before(a, 0, 5), 0, "the first sample sets the start");
+        assert_eq!(e.lost_before(a, 0, 6), 0);
+        assert_eq!(e.lost_before(a, 0, 9), 2);
+        assert_eq!(e.lost_before(a, 1, 1), 0, "each key its own count");
         assert_eq!(e.lost_before(None, 0, 3), 0, "each publisher its own count");
-        assert_eq!(e.lost_before(a.clone(), 0, 4), 0, "a restart is no loss");
+        assert_eq!(e.lost_before(a, 0, 4), 0, "a restart is no loss");
         assert_eq!(e.lost_before(a, 0, 5), 0);
     }
 

@@ -204,7 +204,7 @@ async fn subscribe(
                     out(format_args!(
                         "received {} from {} {} B",
                         smp.value.seq,
-                        smp.source.as_deref().unwrap_or("?"),
+                        smp.source.map_or("?".into(), |g| g.to_string()),
                         smp.value.text.len()
                     ));
                     if o.count.is_some_and(|c| received.get() >= c) {

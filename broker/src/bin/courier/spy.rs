@@ -139,7 +139,7 @@ async fn spy(s: &Session, o: &SpyArgs, n: &Cell<u64>) -> Result<()> {
                 out(format_args!(
                     "sample {} {ty} from {} {} B {}{state}: {}",
                     smp.msg,
-                    smp.source.as_deref().unwrap_or("?"),
+                    smp.source.map_or("?".into(), |g| g.to_string()),
                     smp.data.len(),
                     encapsulation_text(&smp.data),
                     sample_text(ty, &smp.data)
