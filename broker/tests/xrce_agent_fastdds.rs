@@ -74,7 +74,7 @@ fn an_xrce_session_writes_to_fast_dds() {
             text: "xrce".into(),
             payload: payload(seq, *size),
         };
-        rt.block_on(async { p.publish(&m).confirmed().timeout(T).await })
+        rt.block_on(async { p.publish(&m).confirmed_within(T).await })
             .unwrap();
     }
     for (i, size) in sizes.iter().enumerate() {

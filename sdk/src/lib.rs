@@ -109,7 +109,7 @@
 //! - **Bound your awaits.** `connect` gives up by itself (IPC: after
 //!   [`SessionBuilder::connect_timeout`], 5 s by default; RTPS at once;
 //!   XRCE after its attempts), a query after its `.timeout(d)` (10 s by
-//!   default) and a confirmed publish after its `.timeout(d)`; a
+//!   default) and a confirmed publish after its `.confirmed_within(d)`; a
 //!   subscription's `next()` waits for the next sample however long that
 //!   takes, so wrap it in `tokio::time::timeout` where silence is an error.
 //! - **IPC sends no message nobody subscribes to** (as C): a publish before
@@ -329,7 +329,7 @@
 //! | `uxr_buffer_delete_entity` | dropping the `Publisher`, `Subscriber`, `Requests` |
 //! | `uxr_set_status_callback`, `uxr_run_session_until_all_status`, `uxr_run_session_until_one_status` | the `build().await` of each entity resolves once the agent's STATUS came; a refusal is [`OpenError::Refused`] naming the XRCE status code; later ones are [`SessionEvent::EntityError`] |
 //! | `uxr_prepare_output_stream`, `uxr_prepare_output_stream_fragmented`, `uxr_buffer_topic` | `Publisher::publish(&value).await` (typed; samples larger than the MTU are fragmented on reliable streams), `Session::publish_raw` (bytes) |
-//! | `uxr_run_session_until_confirm_delivery` | `publish(&value).confirmed().await` (bounded by `.timeout(d)`) |
+//! | `uxr_run_session_until_confirm_delivery` | `publish(&value).confirmed().await` (bounded: `.confirmed_within(d)`) |
 //! | `uxr_buffer_request_data`, `uxr_set_topic_callback`, `uxr_run_session_until_data` | the `Subscriber` stream (a READ_DATA of unlimited samples for as long as it lives), or `subscriber::<T>(topic).listen(f)` for a callback |
 //! | `uxr_buffer_cancel_data` | dropping the `Subscriber` |
 //! | `uxr_buffer_request`, `uxr_set_reply_callback` | `Session::query(name, &req).timeout(d).await` |

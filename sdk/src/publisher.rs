@@ -33,7 +33,7 @@ pub struct WriteOptions {
 /// Cancelling it (dropping the future, as `tokio::time::timeout` does) does
 /// not take back a sample the session already took: one that waited for
 /// room (back-pressure) may still be sent and delivered after the future
-/// was dropped. Bound the wait with `.confirmed().timeout(..)` (DDS) to
+/// was dropped. Bound the wait with `.confirmed_within(..)` (DDS) to
 /// know; a timed-out confirmed publish may also still arrive.
 #[derive(Debug)]
 #[must_use = "a publish does nothing until awaited"]
@@ -57,7 +57,8 @@ pub(crate) enum Target {
 
 impl<'a> Publish<'a> {
     /// Resolve only once every matched reader has acknowledged the sample
-    /// (reliable DDS writers), waiting at most 10 s unless `.timeout(d)`.
+    /// (reliable DDS writers), waiting at most 10 s
+    /// ([`confirmed_within`](Self::confirmed_within) gives the bound).
     ///
     /// As DDS's `wait_for_acknowledgments`: the readers waited for are
     /// those matched while it waits. A reader that leaves (or whose lease
@@ -74,10 +75,21 @@ impl<'a> Publish<'a> {
         self
     }
 
-    /// Bounds the wait of a confirmed publish (implies `.confirmed()`).
-    pub fn timeout(mut self, d: Duration) -> Self {
+    /// [`confirmed`](Self::confirmed), waiting at most `d` for the
+    /// acknowledgements (`Duration::MAX`: as long as it takes).
+    pub fn confirmed_within(mut self, d: Duration) -> Self {
         self.confirm = Some(d);
         self
+    }
+
+    /// The old name of [`confirmed_within`](Self::confirmed_within): it
+    /// makes the publish a confirmed one, which its name did not say (an
+    /// IPC session refuses confirmed publishes), and it does not bound the
+    /// wait for room of an unconfirmed publish (wrap that in
+    /// `tokio::time::timeout`).
+    #[deprecated(note = "it makes the publish confirmed: use .confirmed_within(d)")]
+    pub fn timeout(self, d: Duration) -> Self {
+        self.confirmed_within(d)
     }
 }
 

@@ -569,7 +569,7 @@ async fn duration_max_as_a_bound_waits_as_long_as_it_takes() {
                 .unwrap();
         assert_eq!(sum.total, 3, "{url}");
         if !url.starts_with("ipc") {
-            tokio::time::timeout(T, p.publish(&5).timeout(forever))
+            tokio::time::timeout(T, p.publish(&5).confirmed_within(forever))
                 .await
                 .unwrap()
                 .unwrap();

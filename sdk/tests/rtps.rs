@@ -259,7 +259,7 @@ async fn confirmed_publish_waits_for_acknowledgement() {
     await_handlers(&a, "acked", 1).await;
     a.publish("acked", &msg(1))
         .confirmed()
-        .timeout(T)
+        .confirmed_within(T)
         .await
         .unwrap();
     // acknowledged means received: it is in the subscriber's queue already
@@ -284,10 +284,13 @@ async fn confirmed_publish_waits_for_acknowledgement() {
     })
     .await
     .unwrap();
-    a.publish("acked", &msg(2)).timeout(T).await.unwrap();
+    a.publish("acked", &msg(2))
+        .confirmed_within(T)
+        .await
+        .unwrap();
     let r = a
         .publish("acked", &msg(3))
-        .timeout(Duration::from_millis(300))
+        .confirmed_within(Duration::from_millis(300))
         .await;
     match r {
         Err(PublishError::Timeout { what, after }) => {
@@ -298,7 +301,10 @@ async fn confirmed_publish_waits_for_acknowledgement() {
     }
     assert_eq!(next(&mut slow).await.unwrap().value, msg(2));
     assert_eq!(next(&mut slow).await.unwrap().value, msg(3));
-    a.publish("acked", &msg(4)).timeout(T).await.unwrap();
+    a.publish("acked", &msg(4))
+        .confirmed_within(T)
+        .await
+        .unwrap();
     assert_eq!(next(&mut slow).await.unwrap().value, msg(4));
 }
 
@@ -1178,7 +1184,7 @@ async fn given_up(key: u32, topic: &str, limit: usize, len: usize) {
     // reliable and acknowledged: the writer is not stuck on it
     p.publish(&msg(3))
         .confirmed()
-        .timeout(T)
+        .confirmed_within(T)
         .await
         .expect("acknowledged by the reader");
     assert_eq!(next(&mut sub).await.unwrap().value, msg(3));
@@ -1214,7 +1220,7 @@ async fn the_readme_qos_example_matches_and_delivers() {
     await_handlers(&a, "pose", 1).await;
     p.publish(&msg(1))
         .confirmed()
-        .timeout(Duration::from_secs(1))
+        .confirmed_within(Duration::from_secs(1))
         .await
         .unwrap();
     assert_eq!(next(&mut s).await.unwrap().value, msg(1));
@@ -1366,12 +1372,12 @@ async fn a_sample_that_expires_unread_is_dropped_from_the_queue() {
         .unwrap();
     let mut sub = b.subscribe::<Msg>("short").await.unwrap();
     await_handlers(&a, "short", 1).await;
-    p.publish(&msg(1)).confirmed().timeout(T).await.unwrap();
+    p.publish(&msg(1)).confirmed_within(T).await.unwrap();
     // read in time
     assert_eq!(next(&mut sub).await.unwrap().value, msg(1));
-    p.publish(&msg(2)).confirmed().timeout(T).await.unwrap();
+    p.publish(&msg(2)).confirmed_within(T).await.unwrap();
     tokio::time::sleep(Duration::from_millis(900)).await;
-    p.publish(&msg(3)).confirmed().timeout(T).await.unwrap();
+    p.publish(&msg(3)).confirmed_within(T).await.unwrap();
     // 2 expired unread; 3 is fresh
     assert_eq!(next(&mut sub).await.unwrap().value, msg(3));
     assert_eq!(sub.dropped(), 1);

@@ -59,7 +59,7 @@ async fn child(domain: u32) {
             payload: Vec::new(),
         })
         .confirmed()
-        .timeout(Duration::from_secs(120))
+        .confirmed_within(Duration::from_secs(120))
         .await
         .unwrap();
     });

@@ -687,7 +687,7 @@ async fn publish(o: &Opts) -> Res {
         p.publish(&v).await.map_err(|e| e.to_string())?;
     } else {
         p.publish(&v)
-            .timeout(Duration::from_secs(30))
+            .confirmed_within(Duration::from_secs(30))
             .await
             .map_err(|e| format!("final confirmed publish: {e}"))?;
     }
@@ -699,7 +699,7 @@ async fn publish(o: &Opts) -> Res {
         payload: Vec::new(),
     };
     ctl.publish(&total)
-        .timeout(Duration::from_secs(10))
+        .confirmed_within(Duration::from_secs(10))
         .await
         .map_err(|e| format!("count on {CTL}: {e}"))?;
     println!(

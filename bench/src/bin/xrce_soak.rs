@@ -167,7 +167,7 @@ async fn clients(o: Opts) -> Result<(), String> {
             // the last one confirmed: every earlier one reached the agent
             let _ = p
                 .publish(&v)
-                .timeout(Duration::from_secs(10))
+                .confirmed_within(Duration::from_secs(10))
                 .await
                 .map(|()| sent += 1)
                 .map_err(|_| failed += 1);

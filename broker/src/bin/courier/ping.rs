@@ -57,7 +57,7 @@ pub async fn publish_acked<T: courier::IpcMessage>(
         p.publish(v).await?;
         return Ok(());
     }
-    match p.publish(v).timeout(LAST_ACK_BOUND).await {
+    match p.publish(v).confirmed_within(LAST_ACK_BOUND).await {
         Err(courier::PublishError::Timeout { after, .. }) => {
             err(format_args!(
                 "courier: {what} not acknowledged by every reader within {after:?}"
