@@ -322,7 +322,8 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
     /// Creates the subscription with immediate delivery (ORTE's IMMEDIATE
     /// mode, a DDS listener): `f` gets every sample, in order, as soon as
     /// the backend has it, and `Err(RecvError::Disconnected)` once if the
-    /// session loses its connection (not after [`Session::close`]). On RTPS it runs where the datagram was read: the participant's
+    /// session loses its connection (not after [`Session::close`]). On
+    /// RTPS it runs where the datagram was read: the participant's
     /// receive thread (`receive_thread`), or else its driver task; keep it
     /// short and never block in it (it holds up reception). It can answer
     /// at once with [`Publisher::try_publish`]. Other backends call it from

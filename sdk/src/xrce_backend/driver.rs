@@ -1565,7 +1565,10 @@ pub(super) async fn run(mut d: Driver, mut inbox: Inbox<Cmd>, mut link: Option<L
                             link = Some(l);
                             d.link_up(Instant::now());
                         }
-                        _ => d.redial_at = Some(courier_wire::time::later(Instant::now(), d.opts.connect_interval)),
+                        _ => {
+                            let next = courier_wire::time::later(Instant::now(), d.opts.connect_interval);
+                            d.redial_at = Some(next);
+                        }
                     }
                 }
                 d.on_timer(Instant::now());
