@@ -212,6 +212,16 @@ impl Drop for XrceAgent {
 }
 
 impl XrceAgentBuilder {
+    /// Deletes a session whose client has said nothing for `after`, as
+    /// DELETE_CLIENT would (default: never; see
+    /// [`AgentConfig::client_timeout`](courier_wire::xrce::AgentConfig::client_timeout)).
+    /// At the most sessions a new client always takes the place of one
+    /// silent for a minute.
+    pub fn client_timeout(mut self, after: Option<std::time::Duration>) -> Self {
+        self.bridge.agent.client_timeout = after;
+        self
+    }
+
     /// Serves one more transport.
     pub fn transport(mut self, t: Transport) -> Self {
         self.transports.push(t);
@@ -986,6 +996,35 @@ fn log(e: &BridgeEvent) {
         BridgeEvent::ClientDeleted { client } => {
             tracing::info!("session deleted: client 0x{:08X}", u32::from(*client))
         }
+        BridgeEvent::ClientExpired {
+            client,
+            silent,
+            for_client,
+        } => match for_client {
+            Some(new) => tracing::warn!(
+                "session of client 0x{:08X} deleted to make room for client 0x{:08X}: it had \
+                 said nothing for {} s (the agent holds its most sessions)",
+                u32::from(*client),
+                u32::from(*new),
+                silent.as_secs()
+            ),
+            None => tracing::warn!(
+                "session of client 0x{:08X} deleted: it said nothing for {} s (--client-timeout)",
+                u32::from(*client),
+                silent.as_secs()
+            ),
+        },
+        BridgeEvent::ClientRefused { client, status } => tracing::warn!(
+            "refused client 0x{:08X}: {}{}",
+            u32::from(*client),
+            status.name(),
+            if *status == courier_wire::xrce::StatusCode::ERR_RESOURCES {
+                " (the agent holds its most sessions, and none has been silent long enough to \
+                 make room)"
+            } else {
+                ""
+            }
+        ),
         BridgeEvent::Created {
             client,
             object,

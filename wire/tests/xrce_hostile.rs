@@ -662,6 +662,76 @@ fn a_deaf_session_is_not_reported_lost_for_its_own_silence() {
     assert_eq!(t - resumed, Duration::from_secs(3));
 }
 
+/// At its most sessions the agent makes room for a new client by deleting
+/// the session silent the longest, if silent for `evict_after` (a client
+/// that died without DELETE); until then it refuses, and says so. With a
+/// `client_timeout`, silent sessions go by themselves.
+#[test]
+fn dead_clients_make_room_and_time_out() {
+    let now = Instant::now();
+    let cfg = AgentConfig {
+        max_clients: 2,
+        evict_after: Duration::from_secs(60),
+        client_timeout: Some(Duration::from_secs(300)),
+        ..AgentConfig::default()
+    };
+    let mut a: Agent<u32> = Agent::new(cfg, now, UNIX_EPOCH + Duration::from_secs(1_700_000_000));
+    let events = |a: &mut Agent<u32>| std::iter::from_fn(|| a.poll_event()).collect::<Vec<_>>();
+    let at = |s: u64| now + Duration::from_secs(s);
+    a.handle_input(1, &create_client(1, 0x81), at(0)).unwrap();
+    a.handle_input(2, &create_client(2, 0x81), at(0)).unwrap();
+    while a.poll_transmit().is_some() {}
+    events(&mut a);
+    // full, and nobody silent for a minute yet
+    a.handle_input(3, &create_client(3, 0x81), at(10)).unwrap();
+    assert_eq!(status_agent_code(&mut a), StatusCode::ERR_RESOURCES);
+    assert_eq!(
+        events(&mut a),
+        [AgentEvent::ClientRefused {
+            client: ClientKey::from(3),
+            status: StatusCode::ERR_RESOURCES
+        }]
+    );
+    // client 1 speaks again (its session created anew, objects kept)
+    a.handle_input(1, &create_client(1, 0x81), at(30)).unwrap();
+    while a.poll_transmit().is_some() {}
+    events(&mut a);
+    // client 3 again: client 2 has been silent longest, 70 s
+    a.handle_input(3, &create_client(3, 0x81), at(70)).unwrap();
+    assert_eq!(status_agent_code(&mut a), StatusCode::OK);
+    let ev = events(&mut a);
+    assert_eq!(
+        ev[..2],
+        [
+            AgentEvent::ClientExpired {
+                client: ClientKey::from(2),
+                silent: Duration::from_secs(70),
+                for_client: Some(ClientKey::from(3)),
+            },
+            AgentEvent::ClientDeleted {
+                client: ClientKey::from(2)
+            },
+        ]
+    );
+    let mut keys: Vec<u32> = a.clients().map(u32::from).collect();
+    keys.sort();
+    assert_eq!(keys, [1, 3]);
+    // past the timeout, silent sessions go by themselves
+    assert_eq!(a.poll_timeout(), Some(at(330)));
+    a.handle_timeout(at(330));
+    let ev = events(&mut a);
+    assert!(
+        ev.contains(&AgentEvent::ClientExpired {
+            client: ClientKey::from(1),
+            silent: Duration::from_secs(300),
+            for_client: None,
+        }),
+        "{ev:?}"
+    );
+    let keys: Vec<u32> = a.clients().map(u32::from).collect();
+    assert_eq!(keys, [3]);
+}
+
 fn create_client(key: u32, session_id: u8) -> Vec<u8> {
     let rep = ClientRepresentation::new(ClientKey::from(key), session_id, 508);
     msg(

@@ -137,6 +137,13 @@ struct Common {
     /// after a restart (give the transports in the same order).
     #[arg(long)]
     state: Option<PathBuf>,
+    /// Delete the session of a client that said nothing for this long, as
+    /// its DELETE would (default: never, as eProsima's agent: a client that
+    /// only subscribes best effort may be silent for hours). Whatever this
+    /// is, at the most sessions (1024) a new client takes the place of the
+    /// one silent the longest, if silent for a minute.
+    #[arg(long, value_name = "SECS", value_parser = clap::value_parser!(u64).range(1..=31_536_000))]
+    client_timeout: Option<u64>,
 }
 
 fn on_off(s: &str) -> Result<bool, String> {
@@ -373,7 +380,12 @@ fn main() -> ExitCode {
         let mut b = XrceAgent::builder()
             .rtps(rtps)
             .profiles(profiles)
-            .any_domain(plan.common.any_domain);
+            .any_domain(plan.common.any_domain)
+            .client_timeout(
+                plan.common
+                    .client_timeout
+                    .map(std::time::Duration::from_secs),
+            );
         for t in transports {
             b = b.transport(t);
         }

@@ -41,7 +41,7 @@ use std::collections::{BTreeMap, BTreeSet, VecDeque};
 // per process and costs a fraction of SipHash.
 use foldhash::{HashMap, HashMapExt};
 use std::hash::Hash;
-use std::time::{Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use super::client::CreationMode;
 use super::message::{Message, MessageHeader};
@@ -65,8 +65,19 @@ pub struct AgentConfig {
     /// Stream settings; each client's `mtu` is the one it advertises,
     /// capped by this one.
     pub streams: StreamConfig,
-    /// Sessions at most; CREATE_CLIENT beyond gets `ERR_RESOURCES`.
+    /// Sessions at most. A CREATE_CLIENT beyond takes the place of the
+    /// session silent the longest if that one has been silent for
+    /// [`evict_after`](Self::evict_after) (a client that died without
+    /// DELETE: crashed, powered off, rebooted with a new key); else it
+    /// gets `ERR_RESOURCES`.
     pub max_clients: usize,
+    /// See [`max_clients`](Self::max_clients).
+    pub evict_after: Duration,
+    /// A session silent this long is deleted, as by DELETE (`None`: never,
+    /// the default: a client that only subscribes best effort may say
+    /// nothing for hours, and eProsima's library does not come back from
+    /// a deleted session by itself).
+    pub client_timeout: Option<Duration>,
     /// Streams of each kind and direction per session.
     pub max_streams: usize,
     /// The smallest MTU a client may advertise (`ERR_INVALID_DATA` below).
@@ -91,6 +102,8 @@ impl Default for AgentConfig {
                 ..StreamConfig::agent()
             },
             max_clients: 1024,
+            evict_after: Duration::from_secs(60),
+            client_timeout: None,
             max_streams: 4,
             min_mtu: 64,
             representation: AgentRepresentation::default(),
@@ -131,10 +144,30 @@ pub enum AgentEvent {
         kept: bool,
     },
     /// A session ended (DELETE of the client, replaced by another session
-    /// id, or its address taken by another client): drop its objects.
+    /// id, or its address taken by another client, evicted or timed out):
+    /// drop its objects.
     ClientDeleted {
         /// The client.
         client: ClientKey,
+    },
+    /// A session is deleted because its client has said nothing for
+    /// `silent`: evicted for a new client at [`AgentConfig::max_clients`],
+    /// or past [`AgentConfig::client_timeout`]. [`AgentEvent::ClientDeleted`]
+    /// follows.
+    ClientExpired {
+        /// The client.
+        client: ClientKey,
+        /// How long it had been silent.
+        silent: Duration,
+        /// The client it made room for (`None`: timed out).
+        for_client: Option<ClientKey>,
+    },
+    /// A CREATE_CLIENT was refused (the STATUS_AGENT says why).
+    ClientRefused {
+        /// The client.
+        client: ClientKey,
+        /// The answer.
+        status: StatusCode,
     },
     /// CREATE: answer with [`Agent::reply_status`] on `reply_stream`.
     Create {
@@ -209,6 +242,9 @@ struct Proxy<A> {
     /// The reliable input positions last given to the host
     /// ([`Agent::take_moved_positions`]).
     reported: Vec<(StreamId, SeqNum)>,
+    /// When the client last sent something (or the session was made or
+    /// restored).
+    last_heard: Instant,
 }
 
 impl<A> Proxy<A> {
@@ -406,8 +442,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
     /// is full or the key is 0.
     pub fn restore_client(&mut self, key: ClientKey, session_id: u8, mtu: u16, addr: A) -> bool {
         let k = u32::from(key);
-        if k == 0 || (!self.clients.contains_key(&k) && self.clients.len() >= self.cfg.max_clients)
-        {
+        if k == 0 || (!self.clients.contains_key(&k) && !self.room_for(key)) {
             return false;
         }
         self.remove_client(k);
@@ -436,6 +471,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
                 pending: BTreeMap::new(),
                 epoch: 0,
                 reported: Vec::new(),
+                last_heard: self.now,
             },
         );
         self.bind(k, addr);
@@ -533,6 +569,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
         let Some(proxy) = self.clients.get_mut(&key) else {
             return Ok(());
         };
+        proxy.last_heard = now;
         let arrival = proxy.streams.receive(msg, bytes.len(), now);
         if self.cfg.host_confirms_writes {
             for (stream, seq) in &arrival.handed {
@@ -598,6 +635,36 @@ impl<A: Clone + Eq + Hash> Agent<A> {
         self.by_addr.insert(addr, key);
     }
 
+    /// Whether a new session fits: below `max_clients`, or by evicting
+    /// the session silent the longest if it has been for `evict_after`.
+    fn room_for(&mut self, newcomer: ClientKey) -> bool {
+        if self.clients.len() < self.cfg.max_clients {
+            return true;
+        }
+        let now = self.now;
+        let oldest = self
+            .clients
+            .iter()
+            .min_by_key(|(_, p)| p.last_heard)
+            .map(|(k, p)| (*k, now.saturating_duration_since(p.last_heard)));
+        match oldest {
+            Some((k, silent)) if silent >= self.cfg.evict_after => {
+                self.expire(k, silent, Some(newcomer));
+                true
+            }
+            _ => false,
+        }
+    }
+
+    fn expire(&mut self, key: u32, silent: Duration, for_client: Option<ClientKey>) {
+        self.events.push_back(AgentEvent::ClientExpired {
+            client: ClientKey::from(key),
+            silent,
+            for_client,
+        });
+        self.remove_client(key);
+    }
+
     fn remove_client(&mut self, key: u32) {
         if let Some(p) = self.clients.remove(&key) {
             if self.by_addr.get(&p.addr) == Some(&key) {
@@ -616,11 +683,17 @@ impl<A: Clone + Eq + Hash> Agent<A> {
             StatusCode::ERR_INVALID_DATA
         } else if rep.version.first() != Some(&1) {
             StatusCode::ERR_INCOMPATIBLE
-        } else if !self.clients.contains_key(&key) && self.clients.len() >= self.cfg.max_clients {
+        } else if !self.clients.contains_key(&key) && !self.room_for(rep.client_key) {
             StatusCode::ERR_RESOURCES
         } else {
             StatusCode::OK
         };
+        if status != StatusCode::OK {
+            self.events.push_back(AgentEvent::ClientRefused {
+                client: rep.client_key,
+                status,
+            });
+        }
         if status == StatusCode::OK {
             if let Some(&old) = self.by_addr.get(&from).filter(|&&k| k != key) {
                 self.remove_client(old);
@@ -632,8 +705,10 @@ impl<A: Clone + Eq + Hash> Agent<A> {
             if kept {
                 self.dirty.insert(key);
                 self.touched.insert(key);
+                let now = self.now;
                 if let Some(p) = self.clients.get_mut(&key) {
                     p.reset_streams();
+                    p.last_heard = now;
                 }
             } else {
                 self.remove_client(key);
@@ -660,6 +735,7 @@ impl<A: Clone + Eq + Hash> Agent<A> {
                         pending: BTreeMap::new(),
                         epoch: 0,
                         reported: Vec::new(),
+                        last_heard: self.now,
                     },
                 );
             }
@@ -910,13 +986,31 @@ impl<A: Clone + Eq + Hash> Agent<A> {
                 self.dirty.insert(*k);
             }
         }
+        if let Some(limit) = self.cfg.client_timeout {
+            let silent: Vec<(u32, Duration)> = self
+                .clients
+                .iter()
+                .map(|(k, p)| (*k, now.saturating_duration_since(p.last_heard)))
+                .filter(|(_, d)| *d >= limit)
+                .collect();
+            for (k, d) in silent {
+                self.expire(k, d, None);
+            }
+        }
     }
 
     /// When [`handle_timeout`](Self::handle_timeout) is next needed.
     pub fn poll_timeout(&self) -> Option<Instant> {
+        let expiry = self.cfg.client_timeout.and_then(|limit| {
+            self.clients
+                .values()
+                .map(|p| crate::time::later(p.last_heard, limit))
+                .min()
+        });
         self.clients
             .values()
             .filter_map(|p| p.streams.poll_timeout())
+            .chain(expiry)
             .min()
     }
 

@@ -118,6 +118,11 @@ pub struct BridgeConfig {
     /// take it to four times this, beyond which the oldest are dropped and
     /// counted.
     pub reader_queue: usize,
+    /// Bytes a reader keeps for its client at most (the newest sample
+    /// always): a reader whose client died without DELETE would otherwise
+    /// hold `reader_queue` samples of any size. A reliable keep-all reader
+    /// holds the bridge's writers back at a quarter of it.
+    pub reader_bytes: usize,
 }
 
 impl Default for BridgeConfig {
@@ -128,6 +133,7 @@ impl Default for BridgeConfig {
             any_domain: false,
             profiles: Profiles::new(),
             reader_queue: 1024,
+            reader_bytes: 16 << 20,
         }
     }
 }
@@ -149,6 +155,23 @@ pub enum BridgeEvent {
     ClientDeleted {
         /// The client.
         client: ClientKey,
+    },
+    /// A session is deleted for its client's silence (see
+    /// [`AgentEvent::ClientExpired`]); [`BridgeEvent::ClientDeleted`] follows.
+    ClientExpired {
+        /// The client.
+        client: ClientKey,
+        /// How long it had been silent.
+        silent: std::time::Duration,
+        /// The client it made room for (`None`: timed out).
+        for_client: Option<ClientKey>,
+    },
+    /// A CREATE_CLIENT was refused.
+    ClientRefused {
+        /// The client.
+        client: ClientKey,
+        /// The answer.
+        status: StatusCode,
     },
     /// A CREATE was answered.
     Created {
@@ -612,6 +635,18 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
                 self.drop_client(client, now);
                 self.events.push_back(BridgeEvent::ClientDeleted { client });
             }
+            AgentEvent::ClientExpired {
+                client,
+                silent,
+                for_client,
+            } => self.events.push_back(BridgeEvent::ClientExpired {
+                client,
+                silent,
+                for_client,
+            }),
+            AgentEvent::ClientRefused { client, status } => self
+                .events
+                .push_back(BridgeEvent::ClientRefused { client, status }),
             AgentEvent::Create {
                 client,
                 request,
@@ -1028,9 +1063,9 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
                     let keep_all_reliable = ep.qos.history == History::KeepAll
                         && matches!(ep.qos.reliability, Reliability::Reliable(_));
                     let inbox = if keep_all_reliable {
-                        read::Inbox::holding(cap)
+                        read::Inbox::holding(cap, self.cfg.reader_bytes)
                     } else {
-                        read::Inbox::new(cap)
+                        read::Inbox::new(cap, self.cfg.reader_bytes)
                     };
                     Ok(obj(Some(*publisher_id), Entity::Reader(r, inbox)))
                 }
@@ -1085,7 +1120,7 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
                     writer: w,
                     held: VecDeque::new(),
                 };
-                let inbox = read::Inbox::new(self.cfg.reader_queue);
+                let inbox = read::Inbox::new(self.cfg.reader_queue, self.cfg.reader_bytes);
                 let entity = if requester {
                     Entity::Requester {
                         out,
@@ -1489,9 +1524,9 @@ fn deliver<A: Clone + Eq + Hash>(
         match agent.send_data(key.0, d.request, d.stream, sample, now) {
             Ok(()) => {
                 stats.samples_sent += 1;
-                let len = sample.len();
-                inbox.queue.pop_front();
-                if d.sent(len, now) {
+                let finished = d.sent(sample.len(), now);
+                inbox.pop();
+                if finished {
                     inbox.delivery = None;
                 }
             }
@@ -1500,7 +1535,7 @@ fn deliver<A: Clone + Eq + Hash>(
                 // too large for a best-effort stream or for all a reliable
                 // one queues, or no session
                 stats.samples_dropped += 1;
-                inbox.queue.pop_front();
+                inbox.pop();
                 if let AgentCommandError::Queue(QueueError::Stream(StreamError::TooLarge {
                     len,
                     max,

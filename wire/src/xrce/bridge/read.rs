@@ -118,6 +118,11 @@ pub(super) struct Inbox {
     pub queue: VecDeque<Vec<u8>>,
     /// Samples kept at most; the oldest goes first.
     pub cap: usize,
+    /// The bytes of `queue`.
+    bytes: usize,
+    /// Bytes kept at most (the newest sample always is): a reader whose
+    /// client never reads (it died without DELETE) holds no more.
+    byte_cap: usize,
     /// The READ_DATA being served.
     pub delivery: Option<Delivery>,
     /// The READ_DATA that started it (kept for restoring).
@@ -140,10 +145,12 @@ pub(super) struct Inbox {
 pub const HOLD_SLACK: usize = 4;
 
 impl Inbox {
-    pub fn new(cap: usize) -> Self {
+    pub fn new(cap: usize, byte_cap: usize) -> Self {
         Inbox {
             queue: VecDeque::new(),
             cap: cap.max(1),
+            bytes: 0,
+            byte_cap,
             delivery: None,
             read: None,
             wake: None,
@@ -153,37 +160,52 @@ impl Inbox {
     }
 
     /// A reliable keep-all reader's inbox (see [`Inbox::hold`]).
-    pub fn holding(cap: usize) -> Self {
+    pub fn holding(cap: usize, byte_cap: usize) -> Self {
         Inbox {
             hold: true,
-            ..Inbox::new(cap)
+            ..Inbox::new(cap, byte_cap)
         }
     }
 
-    /// A holding inbox at its cap: the bridge's writers matched with it wait.
+    /// A holding inbox at its cap (of samples, or a [`HOLD_SLACK`]th of
+    /// its bytes): the bridge's writers matched with it wait.
     pub fn is_full(&self) -> bool {
-        self.hold && self.queue.len() >= self.cap
+        self.hold && (self.queue.len() >= self.cap || self.bytes >= self.byte_cap / HOLD_SLACK)
     }
 
-    /// A holding inbox that drained to half its cap: the writers it held go on.
+    /// A holding inbox that drained to half of that: the writers it held go on.
     pub fn has_room(&self) -> bool {
-        self.queue.len() <= self.cap / 2
+        self.queue.len() <= self.cap / 2 && self.bytes <= self.byte_cap / HOLD_SLACK / 2
     }
 
     /// Keeps a sample; whether an older one was dropped for it.
     pub fn push(&mut self, sample: Vec<u8>) -> bool {
+        self.bytes += sample.len();
         self.queue.push_back(sample);
         let limit = if self.hold {
             self.cap.saturating_mul(HOLD_SLACK)
         } else {
             self.cap
         };
-        if self.queue.len() > limit {
-            self.queue.pop_front();
-            true
-        } else {
-            false
+        let mut dropped = false;
+        while self.queue.len() > 1 && (self.queue.len() > limit || self.bytes > self.byte_cap) {
+            self.pop();
+            dropped = true;
         }
+        dropped
+    }
+
+    /// Takes the oldest sample out.
+    pub fn pop(&mut self) -> Option<Vec<u8>> {
+        let s = self.queue.pop_front()?;
+        self.bytes -= s.len();
+        Some(s)
+    }
+
+    /// The bytes of the samples kept.
+    #[cfg(test)]
+    pub fn bytes(&self) -> usize {
+        self.bytes
     }
 
     /// When this inbox needs the clock.
@@ -201,6 +223,31 @@ impl Inbox {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A reader whose client never reads keeps at most its bytes (the
+    /// newest sample always), however many samples its cap allows.
+    #[test]
+    fn an_inbox_keeps_at_most_its_bytes() {
+        let mut i = Inbox::new(1024, 1000);
+        for n in 0..50u8 {
+            i.push(vec![n; 100]);
+        }
+        assert_eq!((i.queue.len(), i.bytes()), (10, 1000));
+        assert_eq!(i.queue.front().map(|s| s[0]), Some(40));
+        // one sample above the bound is kept alone
+        assert!(i.push(vec![0; 5000]));
+        assert_eq!((i.queue.len(), i.bytes()), (1, 5000));
+        assert_eq!(i.pop().map(|s| s.len()), Some(5000));
+        assert_eq!(i.bytes(), 0);
+        // a holding one holds its writers back at a quarter of its bytes
+        let mut h = Inbox::holding(1024, 1000);
+        h.push(vec![0; 200]);
+        assert!(!h.is_full());
+        h.push(vec![0; 100]);
+        assert!(h.is_full() && !h.has_room());
+        h.pop();
+        assert!(h.has_room());
+    }
     use crate::xrce::{ObjectId, ObjectKind, RequestId};
 
     fn read(dc: Option<DeliveryControl>) -> ReadData {
