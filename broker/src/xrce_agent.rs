@@ -449,13 +449,32 @@ enum Input {
 
 async fn tcp_acceptor(l: TcpListener, tx: mpsc::Sender<Input>) {
     let mut next = 1u64;
+    let mut warned: Option<std::time::Instant> = None;
     loop {
-        let Ok((stream, from)) = l.accept().await else {
-            continue;
+        let (stream, from) = match l.accept().await {
+            Ok(c) => c,
+            Err(e) => {
+                // out of descriptors (EMFILE), say: the connection waits in
+                // the backlog and accept fails again at once; a pause, not
+                // a spin, and one line a minute
+                if warned.is_none_or(|t| t.elapsed() >= Duration::from_secs(60)) {
+                    tracing::warn!("XRCE TCP accept failed: {e} (retrying every 50 ms)");
+                    warned = Some(std::time::Instant::now());
+                }
+                tokio::time::sleep(Duration::from_millis(50)).await;
+                continue;
+            }
         };
         let id = next;
         next += 1;
         let _ = stream.set_nodelay(true);
+        // a board that lost power leaves its connection half open: probed
+        // after 30 s of silence, closed about 30 s later
+        let probe = socket2::TcpKeepalive::new()
+            .with_time(Duration::from_secs(30))
+            .with_interval(Duration::from_secs(10))
+            .with_retries(3);
+        let _ = socket2::SockRef::from(&stream).set_tcp_keepalive(&probe);
         tracing::info!("XRCE TCP connection {id} from {from}");
         let (mut rd, mut wr) = stream.into_split();
         let (out_tx, mut out_rx) = mpsc::channel::<Vec<u8>>(256);

@@ -29,6 +29,16 @@ use std::process::ExitCode;
 use clap::{Args, Parser, Subcommand};
 use courier::rtps_backend::RtpsOptions;
 use courier_broker::xrce_agent::{Transport, XrceAgent};
+
+/// `println!` that does not panic when stdout is gone (a supervisor's log
+/// pipe closed before the start-up lines): what the agent prints is for
+/// people and scripts, and a closed pipe must not stop it.
+macro_rules! say {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stdout(), $($t)*);
+    }};
+}
 use courier_wire::xrce::bridge::Profiles;
 
 const AFTER_HELP: &str = "\
@@ -403,19 +413,19 @@ fn main() -> ExitCode {
             }
         };
         for a in agent.udp_addrs() {
-            println!("udp4 {a}");
+            say!("udp4 {a}");
         }
         for a in agent.tcp_addrs() {
-            println!("tcp4 {a}");
+            say!("tcp4 {a}");
         }
         for p in agent.serial_paths() {
-            println!("serial {}", p.display());
+            say!("serial {}", p.display());
         }
         if let Some(a) = agent.discovery_addr() {
-            println!("discovery {a}");
+            say!("discovery {a}");
         }
-        println!("rtps {} domain {domain}", agent.rtps_addr());
-        println!("ready");
+        say!("rtps {} domain {domain}", agent.rtps_addr());
+        say!("ready");
         wait_for_signal().await;
         agent.shutdown().await;
         ExitCode::SUCCESS
