@@ -923,10 +923,13 @@ impl Driver {
                 }
             }
             self.send_xrce().await;
+            self.resave_if_reopened();
             while let Some(e) = self.bridge.poll_event() {
                 log(&e);
-                if let Some(store) = &self.store {
-                    let r = match &e {
+                if let Some(store) = &mut self.store {
+                    // (a failure is said once by the store, which then
+                    // saves nothing until it can write again)
+                    let _ = match &e {
                         BridgeEvent::ClientChanged { client } => {
                             match self.bridge.client_state(*client) {
                                 Some(st) => store.save(&st),
@@ -936,9 +939,6 @@ impl Driver {
                         BridgeEvent::ClientDeleted { client } => store.remove(*client),
                         _ => Ok(()),
                     };
-                    if let Err(e) = r {
-                        tracing::error!("state file: {e}");
-                    }
                 }
             }
             if !self.save_positions() {
@@ -947,22 +947,44 @@ impl Driver {
         }
     }
 
+    /// A state file that could not be written and now can: every session
+    /// is saved anew, and those it holds that ended meanwhile forgotten.
+    fn resave_if_reopened(&mut self) {
+        let Some(store) = &mut self.store else {
+            return;
+        };
+        if !store.reopened(Instant::now()) {
+            return;
+        }
+        let live: Vec<courier_wire::xrce::ClientKey> = self.bridge.agent().clients().collect();
+        for k in store.saved_clients() {
+            if !live.contains(&k) && store.remove(k).is_err() {
+                return;
+            }
+        }
+        for k in live {
+            if let Some(st) = self.bridge.client_state(k) {
+                if store.save(&st).is_err() {
+                    return;
+                }
+            }
+        }
+    }
+
     /// Commits the input positions that moved and lets the ACKNACKs they
     /// allow go; whether there were any.
     fn save_positions(&mut self) -> bool {
-        let Some(store) = &self.store else {
+        let Some(store) = &mut self.store else {
             return false;
         };
         let moved = self.bridge.take_moved_positions();
         if moved.is_empty() {
             return false;
         }
-        if let Err(e) = store.save_positions(&moved) {
-            // holding the acknowledgements would stall the clients for
-            // good; a restart after this may write their last samples
-            // again (never lose one)
-            tracing::error!("state file: input positions: {e}");
-        }
+        // A failure (said once by the store): holding the acknowledgements
+        // would stall the clients for good; a restart after this may write
+        // their last samples again (never lose one)
+        let _ = store.save_positions(&moved);
         for (client, p) in &moved {
             self.bridge.positions_saved(*client, p);
         }

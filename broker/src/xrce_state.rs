@@ -21,7 +21,8 @@
 //! objects in creation order and its READ_DATAs.
 
 use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4};
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
 use courier_wire::xrce::bridge::ClientState;
 use courier_wire::xrce::{
@@ -40,10 +41,21 @@ const INPUTS_MAGIC: &[u8; 4] = b"XAP1";
 /// A client's reliable input positions.
 pub(crate) type Positions = Vec<(StreamId, SeqNum)>;
 
-/// The state file.
+/// The state file. A write that fails (a full disk, a file system gone
+/// read-only) leaves the database unusable: the store then closes it,
+/// stops saving (one error line), and opens it again at most once a
+/// second; once it is open again the agent saves every session anew
+/// ([`Store::reopened`]).
 pub(crate) struct Store {
-    db: Database,
+    path: PathBuf,
+    db: Option<Database>,
+    /// When to try opening it again, while it is closed.
+    retry_at: Instant,
 }
+
+/// Writes are off until the file can be opened again (said once).
+#[derive(Debug)]
+pub(crate) struct Closed;
 
 /// Opens (or creates) the state file; the clients it holds.
 pub(crate) fn open(path: &Path) -> Result<(Store, Vec<ClientState<Peer>>), String> {
@@ -55,14 +67,30 @@ pub(crate) fn open(path: &Path) -> Result<(Store, Vec<ClientState<Peer>>), Strin
             path.display()
         )
     };
-    // redb asserts (panics) on some truncated files instead of failing
-    let db = match std::panic::catch_unwind(|| Database::create(path)) {
+    // redb asserts (panics) on some truncated files instead of failing:
+    // caught, without the panic's message and backtrace on stderr before
+    // the error that says what to do
+    // (one opener at a time swaps the process's hook, or two could leave
+    // the quiet one in place)
+    static HOOK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let opened = {
+        let _one = HOOK.lock().unwrap_or_else(|e| e.into_inner());
+        let hook = std::panic::take_hook();
+        std::panic::set_hook(Box::new(|_| {}));
+        let opened = std::panic::catch_unwind(|| Database::create(path));
+        std::panic::set_hook(hook);
+        opened
+    };
+    let db = match opened {
         Ok(Ok(db)) => db,
         Ok(Err(redb::DatabaseError::Storage(redb::StorageError::Corrupted(e)))) => {
             return Err(damaged(&e))
         }
         Ok(Err(redb::DatabaseError::Storage(redb::StorageError::Io(e))))
-            if e.kind() == std::io::ErrorKind::InvalidData =>
+            if matches!(
+                e.kind(),
+                std::io::ErrorKind::InvalidData | std::io::ErrorKind::UnexpectedEof
+            ) =>
         {
             return Err(damaged(&e))
         }
@@ -103,50 +131,132 @@ pub(crate) fn open(path: &Path) -> Result<(Store, Vec<ClientState<Peer>>), Strin
         }
         tx.commit().map_err(|e| fail(&e))?;
     }
-    Ok((Store { db }, states))
+    let store = Store {
+        path: path.to_path_buf(),
+        db: Some(db),
+        retry_at: Instant::now(),
+    };
+    Ok((store, states))
 }
 
 impl Store {
-    /// Saves (or replaces) a client's record and input positions.
-    pub(crate) fn save(&self, s: &ClientState<Peer>) -> Result<(), String> {
-        let bytes = encode(s);
-        let tx = self.db.begin_write().map_err(text)?;
-        {
-            let mut t = tx.open_table(CLIENTS).map_err(text)?;
-            t.insert(u32::from(s.client), bytes.as_slice())
-                .map_err(text)?;
-            let mut t = tx.open_table(INPUTS).map_err(text)?;
-            t.insert(u32::from(s.client), encode_positions(&s.inputs).as_slice())
-                .map_err(text)?;
+    /// Runs a write transaction; a failure closes the database (said
+    /// once, with what it means), and nothing is written until
+    /// [`Store::reopened`].
+    fn write(
+        &mut self,
+        what: &str,
+        f: impl FnOnce(&Database) -> Result<(), String>,
+    ) -> Result<(), Closed> {
+        let db = self.db.as_ref().ok_or(Closed)?;
+        if let Err(e) = f(db) {
+            tracing::error!(
+                "state file {}: {what}: {e}; sessions are not saved until it can be written \
+                 again (retried every second): a restart meanwhile would not restore them as \
+                 they are",
+                self.path.display()
+            );
+            self.db = None;
+            self.retry_at = Instant::now() + Duration::from_secs(1);
+            return Err(Closed);
         }
-        tx.commit().map_err(text)
+        Ok(())
+    }
+
+    /// While writes are off: opens the file again if it is time to try;
+    /// whether it is open again (the caller then saves every session, and
+    /// forgets those [`Store::saved_clients`] has that it does not).
+    pub(crate) fn reopened(&mut self, now: Instant) -> bool {
+        if self.db.is_some() || now < self.retry_at {
+            return false;
+        }
+        self.retry_at = now + Duration::from_secs(1);
+        match Database::create(&self.path) {
+            Ok(db) => {
+                tracing::warn!(
+                    "state file {}: writable again; every session is saved anew",
+                    self.path.display()
+                );
+                self.db = Some(db);
+                true
+            }
+            Err(_) => false,
+        }
+    }
+
+    /// The clients the file holds.
+    pub(crate) fn saved_clients(&self) -> Vec<ClientKey> {
+        let Some(db) = &self.db else {
+            return Vec::new();
+        };
+        let read = || -> Result<Vec<ClientKey>, String> {
+            let tx = db.begin_read().map_err(text)?;
+            let t = tx.open_table(CLIENTS).map_err(text)?;
+            let mut keys = Vec::new();
+            for row in t.iter().map_err(text)? {
+                keys.push(ClientKey::from(row.map_err(text)?.0.value()));
+            }
+            Ok(keys)
+        };
+        read().unwrap_or_default()
+    }
+
+    /// Saves (or replaces) a client's record and input positions.
+    pub(crate) fn save(&mut self, s: &ClientState<Peer>) -> Result<(), Closed> {
+        self.write("saving a session", |db| save(db, s))
     }
 
     /// Saves the input positions of the clients that moved, in one
     /// durable transaction (done when this returns Ok).
-    pub(crate) fn save_positions(&self, moved: &[(ClientKey, Positions)]) -> Result<(), String> {
-        let tx = self.db.begin_write().map_err(text)?;
-        {
-            let mut t = tx.open_table(INPUTS).map_err(text)?;
-            for (client, p) in moved {
-                t.insert(u32::from(*client), encode_positions(p).as_slice())
-                    .map_err(text)?;
-            }
-        }
-        tx.commit().map_err(text)
+    pub(crate) fn save_positions(
+        &mut self,
+        moved: &[(ClientKey, Positions)],
+    ) -> Result<(), Closed> {
+        self.write("input positions", |db| save_positions(db, moved))
     }
 
     /// Forgets a client.
-    pub(crate) fn remove(&self, client: ClientKey) -> Result<(), String> {
-        let tx = self.db.begin_write().map_err(text)?;
-        {
-            let mut t = tx.open_table(CLIENTS).map_err(text)?;
-            t.remove(u32::from(client)).map_err(text)?;
-            let mut t = tx.open_table(INPUTS).map_err(text)?;
-            t.remove(u32::from(client)).map_err(text)?;
-        }
-        tx.commit().map_err(text)
+    pub(crate) fn remove(&mut self, client: ClientKey) -> Result<(), Closed> {
+        self.write("forgetting a session", |db| remove(db, client))
     }
+}
+
+/// Saves (or replaces) a client's record and input positions.
+fn save(db: &Database, s: &ClientState<Peer>) -> Result<(), String> {
+    let bytes = encode(s);
+    let tx = db.begin_write().map_err(text)?;
+    {
+        let mut t = tx.open_table(CLIENTS).map_err(text)?;
+        t.insert(u32::from(s.client), bytes.as_slice())
+            .map_err(text)?;
+        let mut t = tx.open_table(INPUTS).map_err(text)?;
+        t.insert(u32::from(s.client), encode_positions(&s.inputs).as_slice())
+            .map_err(text)?;
+    }
+    tx.commit().map_err(text)
+}
+
+fn save_positions(db: &Database, moved: &[(ClientKey, Positions)]) -> Result<(), String> {
+    let tx = db.begin_write().map_err(text)?;
+    {
+        let mut t = tx.open_table(INPUTS).map_err(text)?;
+        for (client, p) in moved {
+            t.insert(u32::from(*client), encode_positions(p).as_slice())
+                .map_err(text)?;
+        }
+    }
+    tx.commit().map_err(text)
+}
+
+fn remove(db: &Database, client: ClientKey) -> Result<(), String> {
+    let tx = db.begin_write().map_err(text)?;
+    {
+        let mut t = tx.open_table(CLIENTS).map_err(text)?;
+        t.remove(u32::from(client)).map_err(text)?;
+        let mut t = tx.open_table(INPUTS).map_err(text)?;
+        t.remove(u32::from(client)).map_err(text)?;
+    }
+    tx.commit().map_err(text)
 }
 
 fn text(e: impl std::fmt::Display) -> String {
@@ -330,22 +440,56 @@ mod tests {
             inputs: vec![(StreamId::RELIABLE, SeqNum(3))],
         };
         {
-            let (store, states) = open(&path).unwrap();
+            let (mut store, states) = open(&path).unwrap();
             assert!(states.is_empty());
             store.save(&st).unwrap();
         }
         let moved = vec![(st.client, vec![(StreamId::RELIABLE, SeqNum(41))])];
         {
-            let (store, states) = open(&path).unwrap();
+            let (mut store, states) = open(&path).unwrap();
             assert_eq!(states, vec![st.clone()]);
             store.save_positions(&moved).unwrap();
         }
         {
-            let (store, states) = open(&path).unwrap();
+            let (mut store, states) = open(&path).unwrap();
             assert_eq!(states[0].inputs, moved[0].1);
             store.remove(st.client).unwrap();
         }
         assert!(open(&path).unwrap().1.is_empty());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A write that fails closes the file, which writes nothing more until
+    /// it opens again (at most once a second); the agent then saves every
+    /// session anew. (What a full disk does: redb refuses every write after
+    /// one I/O error until the database is opened again.)
+    #[test]
+    fn a_failed_write_closes_the_file_until_it_opens_again() {
+        let dir = std::env::temp_dir().join(format!("courier-reopen-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("state.redb");
+        let _ = std::fs::remove_file(&path);
+        let st = ClientState {
+            client: ClientKey::from(0x0A0B_0C0D),
+            session_id: 0x81,
+            mtu: 512,
+            addr: Peer::Udp(0, "127.0.0.1:40002".parse().unwrap()),
+            objects: Vec::new(),
+            reads: Vec::new(),
+            inputs: Vec::new(),
+        };
+        let (mut store, _) = open(&path).unwrap();
+        assert!(store
+            .write("a test", |_| Err("No space left on device".into()))
+            .is_err());
+        assert!(store.save(&st).is_err(), "closed: nothing is written");
+        assert!(store.saved_clients().is_empty());
+        let now = Instant::now();
+        assert!(store.reopened(now + Duration::from_secs(2)));
+        store.save(&st).unwrap();
+        assert_eq!(store.saved_clients(), [st.client]);
+        drop(store);
+        assert_eq!(open(&path).unwrap().1, [st]);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
@@ -358,7 +502,7 @@ mod tests {
         let path = dir.join("state.redb");
         drop(open(&path).unwrap());
         let whole = std::fs::read(&path).unwrap();
-        for len in [512, 4096, whole.len() / 2] {
+        for len in [100, 512, 4096, whole.len() / 2] {
             std::fs::write(&path, &whole[..len.min(whole.len())]).unwrap();
             let e = open(&path).err().expect("a damaged file");
             assert!(e.contains("move it away"), "{len} bytes: {e}");
