@@ -333,7 +333,12 @@ impl XrceAgentBuilder {
                             why: e.to_string(),
                         })?;
                     let idx = serial_out.len() as u8;
-                    serial_out.push(serial_threads(port, None, idx, tx.clone(), &threads_stop)?);
+                    let line = SerialLine {
+                        port,
+                        keep: None,
+                        reopen: Some((device.clone(), *baud)),
+                    };
+                    serial_out.push(serial_threads(line, idx, tx.clone(), &threads_stop)?);
                     serial_paths.push(device.clone());
                 }
                 Transport::Pseudoterminal { link } => {
@@ -358,13 +363,12 @@ impl XrceAgentBuilder {
                         links.push(l.clone());
                     }
                     let idx = serial_out.len() as u8;
-                    serial_out.push(serial_threads(
-                        master,
-                        Some(slave),
-                        idx,
-                        tx.clone(),
-                        &threads_stop,
-                    )?);
+                    let line = SerialLine {
+                        port: master,
+                        keep: Some(slave),
+                        reopen: None,
+                    };
+                    serial_out.push(serial_threads(line, idx, tx.clone(), &threads_stop)?);
                     serial_paths.push(path);
                 }
             }
@@ -518,18 +522,52 @@ async fn tcp_acceptor(l: TcpListener, tx: mpsc::Sender<Input>) {
 /// The agent's own serial address (MicroXRCEAgent's is fixed at 0).
 const SERIAL_ADDRESS: u8 = 0;
 
+/// A serial line the agent serves.
+struct SerialLine {
+    port: serialport::TTYPort,
+    /// The other end of the agent's own pseudo-terminal, held open.
+    keep: Option<serialport::TTYPort>,
+    /// A device (path, baud) to open again when the line goes away (a
+    /// USB adapter unplugged, the other end of a pty pair gone).
+    reopen: Option<(PathBuf, u32)>,
+}
+
+/// Opens `device` again once it is back (every half second until `stop`).
+fn reopen_serial(
+    device: &std::path::Path,
+    baud: u32,
+    stop: &AtomicBool,
+) -> Option<serialport::TTYPort> {
+    while !stop.load(Ordering::Relaxed) {
+        std::thread::sleep(Duration::from_millis(500));
+        let opened = serialport::new(device.to_string_lossy(), baud)
+            .timeout(Duration::from_millis(100))
+            .open_native();
+        if let Ok(p) = opened {
+            tracing::info!("serial line {} is back", device.display());
+            return Some(p);
+        }
+    }
+    None
+}
+
 /// Reader and writer threads of a serial line; the sender feeds the writer.
 fn serial_threads(
-    port: serialport::TTYPort,
-    keep: Option<serialport::TTYPort>,
+    line: SerialLine,
     idx: u8,
     tx: mpsc::Sender<Input>,
     stop: &Arc<AtomicBool>,
 ) -> Result<std::sync::mpsc::Sender<(u8, Vec<u8>)>, StartError> {
-    let mut wport = port.try_clone_native().map_err(|e| StartError::Serial {
-        device: "serial".into(),
-        why: e.to_string(),
-    })?;
+    let SerialLine { port, keep, reopen } = line;
+    let clone = |p: &serialport::TTYPort| {
+        p.try_clone_native().map_err(|e| StartError::Serial {
+            device: "serial".into(),
+            why: e.to_string(),
+        })
+    };
+    // the writer's port, replaced when the line is opened again
+    let wport = Arc::new(std::sync::Mutex::new(Some(clone(&port)?)));
+    let wport_r = wport.clone();
     let (out_tx, out_rx) = std::sync::mpsc::channel::<(u8, Vec<u8>)>();
     let stop_r = stop.clone();
     let mut rport = port;
@@ -540,8 +578,8 @@ fn serial_threads(
             let mut d = SerialDecoder::new();
             let mut buf = [0u8; 4096];
             while !stop_r.load(Ordering::Relaxed) {
-                match rport.read(&mut buf) {
-                    Ok(0) => std::thread::sleep(Duration::from_millis(20)),
+                let gone = match rport.read(&mut buf) {
+                    Ok(0) => Some("hung up".to_string()),
                     Ok(n) => {
                         d.push(&buf[..n]);
                         while let Some(f) = d.next_frame() {
@@ -556,12 +594,34 @@ fn serial_threads(
                                 Err(e) => tracing::debug!("XRCE serial frame: {e}"),
                             }
                         }
+                        None
                     }
-                    Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {}
-                    Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-                    // a pseudo-terminal whose other end nobody holds
-                    Err(_) => std::thread::sleep(Duration::from_millis(50)),
-                }
+                    Err(e) if e.kind() == std::io::ErrorKind::TimedOut => None,
+                    Err(e) if e.kind() == std::io::ErrorKind::Interrupted => None,
+                    Err(e) => Some(e.to_string()),
+                };
+                let Some(why) = gone else { continue };
+                let Some((device, baud)) = &reopen else {
+                    // the agent's own pseudo-terminal, whose other end
+                    // nobody holds now: someone may open it again
+                    std::thread::sleep(Duration::from_millis(50));
+                    continue;
+                };
+                tracing::warn!(
+                    "serial line {} went away ({why}): opening it again when it is back",
+                    device.display()
+                );
+                *wport_r.lock().unwrap_or_else(|e| e.into_inner()) = None;
+                let Some(p) = reopen_serial(device, *baud, &stop_r) else {
+                    return;
+                };
+                let Ok(w) = p.try_clone_native() else {
+                    continue;
+                };
+                *wport_r.lock().unwrap_or_else(|e| e.into_inner()) = Some(w);
+                rport = p;
+                // a frame cut by the break is garbage
+                d = SerialDecoder::new();
             }
         })
         .map_err(|e| StartError::Serial {
@@ -575,8 +635,12 @@ fn serial_threads(
             while let Ok((dst, m)) = out_rx.recv() {
                 framed.clear();
                 if serial::encode(SERIAL_ADDRESS, dst, &m, &mut framed).is_ok() {
-                    let _ = wport.write_all(&framed);
-                    let _ = wport.flush();
+                    // (while the line is away, dropped: reliable streams
+                    // repeat what matters)
+                    if let Some(w) = wport.lock().unwrap_or_else(|e| e.into_inner()).as_mut() {
+                        let _ = w.write_all(&framed);
+                        let _ = w.flush();
+                    }
                 }
             }
         })
