@@ -114,10 +114,14 @@ pub(super) async fn handshake(
 }
 
 /// Why central may have closed a connection before the handshake ended.
+/// The module cannot tell which of the two it was: central closes the
+/// connection without a word in both cases.
 fn closed_during_handshake(name: &str) -> String {
     format!(
-        "central closed the connection (Courier's central and the C central refuse a module \
-         named {name:?} while one of that name is connected: module names must be unique)"
+        "central closed the connection before the handshake ended: either its access rules \
+         (--hosts-allow/--hosts-deny; central logs which rule) refuse this host, or a module \
+         named {name:?} is already connected (Courier's central refuses a second module of \
+         the same name)"
     )
 }
 
@@ -156,6 +160,38 @@ mod tests {
             "{:?}",
             started.elapsed()
         );
+    }
+
+    /// Central closing the connection without a word is told with both
+    /// reasons it has for doing so.
+    #[tokio::test]
+    async fn a_connection_closed_before_the_handshake_names_both_causes() {
+        let l = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let port = l.local_addr().unwrap().port();
+        // Accepts and closes at once, as central does for a refused host.
+        let closer = tokio::spawn(async move {
+            let (s, _) = l.accept().await.unwrap();
+            drop(s);
+        });
+        let opts = IpcOptions {
+            connect_timeout: Duration::from_secs(20),
+            ..IpcOptions::default()
+        };
+        let Err(e) = handshake("127.0.0.1", port, "robot-7", &opts).await else {
+            panic!("a handshake with a closed connection succeeded")
+        };
+        closer.await.unwrap();
+        let ConnectError::Handshake { why, .. } = &e else {
+            panic!("{e:?}")
+        };
+        assert_eq!(*why, closed_during_handshake("robot-7"));
+        for part in [
+            "access rules",
+            "--hosts-allow/--hosts-deny",
+            "a module named \"robot-7\" is already connected",
+        ] {
+            assert!(e.to_string().contains(part), "{part}: {e}");
+        }
     }
 
     #[tokio::test]
