@@ -31,6 +31,15 @@ macro_rules! say {
     }};
 }
 
+/// `eprintln!` that does not panic when stderr is gone: once central runs,
+/// its stderr may be a terminal that hung up (SIGHUP), and the way out
+/// must still flush the file log.
+macro_rules! esay {
+    ($($t:tt)*) => {{
+        let _ = writeln!(std::io::stderr(), $($t)*);
+    }};
+}
+
 /// `X_IPC_VERSION_MAJOR.MINOR.MICRO` of the C central we stand in for.
 const IPC_VERSION: &str = "3.9.1";
 /// `--send-ahead <module>` without a depth.
@@ -70,7 +79,9 @@ const USAGE: &str = "central command line options:
  --hosts-allow <file>, --hosts-deny <file>: access rules
      (default /etc/hosts.allow and /etc/hosts.deny, daemon name 'central').
      A file named here must exist and be readable; a missing default file
-     holds no rules (with a warning).
+     holds no rules (with a warning). A file that changes is read again at
+     the next connection (one that became unreadable or invalid: its
+     previous rules stay, with a warning).
  --no-unix-socket: do not listen on /tmp/x_ipc/<port>.
  --busy-poll <us>: after each frame keep polling for <us> microseconds
      (1..=1000000) instead of sleeping: lower latency for CPU (default off).
@@ -392,7 +403,7 @@ impl FileLog {
         }
         if self.file.is_none() {
             if let Err(e) = self.open(SystemTime::now(), silent) {
-                eprintln!("ERROR: Can not open file {}: {e}", self.path.display());
+                esay!("ERROR: Can not open file {}: {e}", self.path.display());
                 self.failed = true;
                 return;
             }
@@ -487,7 +498,7 @@ fn main() -> ExitCode {
 /// Why the console loop ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Stop {
-    /// SIGINT (2) or SIGTERM (15).
+    /// SIGHUP (1), SIGINT (2) or SIGTERM (15).
     Signal(i32),
     /// `quit` on the console.
     Quit,
@@ -495,16 +506,47 @@ enum Stop {
     Gone,
 }
 
+/// True if SIGHUP is ignored (`nohup central`, or a supervisor that set
+/// it so): then central leaves it ignored, as the C central (which never
+/// touches SIGHUP) does.
+#[allow(unsafe_code)]
+fn hangup_ignored() -> bool {
+    // SAFETY: sigaction(2) with a null new action only reads the current
+    // disposition into `old`, a zeroed sigaction owned by this frame.
+    unsafe {
+        let mut old: libc::sigaction = std::mem::zeroed();
+        libc::sigaction(libc::SIGHUP, std::ptr::null(), &mut old) == 0
+            && old.sa_sigaction == libc::SIG_IGN
+    }
+}
+
+/// The next SIGHUP, or never if SIGHUP is not watched.
+async fn hangup(hup: &mut Option<tokio::signal::unix::Signal>) {
+    match hup {
+        Some(s) => {
+            s.recv().await;
+        }
+        None => std::future::pending().await,
+    }
+}
+
 async fn run(opts: Options) -> ExitCode {
-    // Signals first: from the moment central listens, SIGTERM and SIGINT
-    // mean a clean stop.
+    // Signals first: from the moment central listens, SIGTERM, SIGINT and
+    // SIGHUP (the terminal of an ssh session closing) mean a clean stop,
+    // the file log flushed. A SIGHUP ignored at start (`nohup`) stays so.
     use tokio::signal::unix::{signal, SignalKind};
-    let (mut term, mut int) = match (
+    let hup = if hangup_ignored() {
+        Ok(None)
+    } else {
+        signal(SignalKind::hangup()).map(Some)
+    };
+    let (mut term, mut int, mut hup) = match (
         signal(SignalKind::terminate()),
         signal(SignalKind::interrupt()),
+        hup,
     ) {
-        (Ok(t), Ok(i)) => (t, i),
-        (Err(e), _) | (_, Err(e)) => {
+        (Ok(t), Ok(i), Ok(h)) => (t, i, h),
+        (Err(e), _, _) | (_, Err(e), _) | (_, _, Err(e)) => {
             eprintln!("central: cannot watch signals: {e}");
             return ExitCode::FAILURE;
         }
@@ -616,16 +658,9 @@ async fn run(opts: Options) -> ExitCode {
     if opts.console {
         let spawned = std::thread::Builder::new()
             .name("central-console".into())
-            .spawn(move || {
-                for line in std::io::stdin().lock().lines() {
-                    let Ok(line) = line else { break };
-                    if tx.send(line).is_err() {
-                        break;
-                    }
-                }
-            });
+            .spawn(move || console_lines(&mut std::io::stdin().lock(), |l| tx.send(l).is_ok()));
         if let Err(e) = spawned {
-            eprintln!("central: no console: {e}");
+            esay!("central: no console: {e}");
         }
     } else {
         drop(tx);
@@ -634,6 +669,7 @@ async fn run(opts: Options) -> ExitCode {
     // What stopped central: a signal's number, or the console's `quit`.
     let stop = loop {
         tokio::select! {
+            _ = hangup(&mut hup) => break Stop::Signal(1),
             _ = int.recv() => break Stop::Signal(2),
             _ = term.recv() => break Stop::Signal(15),
             line = rx.recv(), if console_open => match line {
@@ -673,10 +709,10 @@ async fn run(opts: Options) -> ExitCode {
                         .line(&line, silent);
                 }
             } else {
-                eprintln!("{line}");
+                esay!("{line}");
             }
         }
-        Stop::Quit => eprintln!("Central Quit"),
+        Stop::Quit => esay!("Central Quit"),
         Stop::Gone => {}
     }
     server.shutdown().await;
@@ -685,6 +721,34 @@ async fn run(opts: Options) -> ExitCode {
         let _ = w.flush();
     }
     ExitCode::SUCCESS
+}
+
+/// Reads console lines from `input` and hands each to `send` until it
+/// returns false or the input ends. A line is bytes: one that is not UTF-8
+/// (a stray byte from a serial console, a terminal in another encoding) is
+/// decoded with U+FFFD in place of what does not decode, and so answered
+/// as an unknown command rather than ending the console. A read error ends
+/// the console with one line saying so.
+fn console_lines(input: &mut dyn BufRead, mut send: impl FnMut(String) -> bool) {
+    let mut buf = Vec::new();
+    loop {
+        buf.clear();
+        match input.read_until(b'\n', &mut buf) {
+            Ok(0) => return,
+            Ok(_) => {}
+            Err(e) => {
+                esay!("central: console closed: {e}");
+                return;
+            }
+        }
+        let mut line = &buf[..];
+        if let Some(l) = line.strip_suffix(b"\n") {
+            line = l.strip_suffix(b"\r").unwrap_or(l);
+        }
+        if !send(String::from_utf8_lossy(line).into_owned()) {
+            return;
+        }
+    }
 }
 
 /// Diagnostics on stderr: `RUST_LOG` (`warn`, `debug`,
@@ -891,6 +955,33 @@ mod tests {
             assert!(e.starts_with(want), "{args:?}: {e}");
             assert!(!e.contains('\n'), "one line: {e}");
         }
+    }
+
+    #[test]
+    fn console_lines_that_are_not_utf8_do_not_end_the_console() {
+        let mut got = Vec::new();
+        let input = b"status\nst\xffx\r\n\x01\xfe\nquit\nlast without newline";
+        console_lines(&mut &input[..], |l| {
+            got.push(l);
+            true
+        });
+        assert_eq!(
+            got,
+            [
+                "status",
+                "st\u{fffd}x",
+                "\u{1}\u{fffd}",
+                "quit",
+                "last without newline"
+            ]
+        );
+        // A receiver that is gone stops the reading.
+        let mut n = 0;
+        console_lines(&mut &b"a\nb\nc\n"[..], |_| {
+            n += 1;
+            false
+        });
+        assert_eq!(n, 1);
     }
 
     #[test]

@@ -21,14 +21,15 @@
 //! | `10.0.0.` | addresses starting so (trailing dot: a prefix) |
 //! | `10.0.0.0/255.255.255.0`, `10.0.0.0/24`, `[fe80::]/10` | a network |
 //! | `.cs.cmu.edu` | peers whose verified host name ends so |
-//! | `host.example.org` | the addresses the name resolves to **when the rules are loaded** |
+//! | `host.example.org` | the addresses the name resolves to **when the file is read** |
 //! | `KNOWN`, `UNKNOWN`, `PARANOID` | peers with a verified name, without one, and whose name does not map back to their address |
 //! | `10.0.*.1`, `*.example.org` | `*`/`?` wildcards over the address text or the verified name |
 //!
-//! **Host names.** A host name in a rule is resolved forward once, when the
-//! rules are loaded ([`AccessControl::load`]); the rule then matches the
-//! addresses it had then. A name that does not resolve matches nothing and
-//! gives a warning ([`AccessControl::warnings`]). Only domain suffixes,
+//! **Host names.** A host name in a rule is resolved forward when its file
+//! is read ([`AccessControl::load`], and again each time the file's text
+//! changes, see below); the rule then matches the addresses it had then.
+//! A name that does not resolve matches nothing and gives a warning
+//! ([`AccessControl::warnings`]). Only domain suffixes,
 //! wildcards over names, `KNOWN`, `UNKNOWN`, `PARANOID` and `LOCAL` (for
 //! non-loopback peers) need the peer's own name; for those alone central
 //! looks the peer's address up (reverse DNS, then forward again to verify
@@ -38,6 +39,26 @@
 //! **UNIX-socket peers** are local: they are checked as if they came from
 //! the loopback address (127.0.0.1 or `::1`) with the host name
 //! `localhost`.
+//!
+//! **Files are read again when they change**, as tcpd (which the C central
+//! links) reads them at every connection. An [`AccessControl`] loaded from
+//! files ([`AccessControl::load`], [`AccessControl::load_files`],
+//! [`AccessControl::load_default`]) looks at their metadata (size,
+//! modification and change times, inode) at each check; when that changed
+//! since the file was last read, it reads the file again, and if its text
+//! changed, parses it (resolving its host names) and puts the new rules in
+//! force for that same check. An edit to `hosts.deny` thus refuses the very
+//! next connection, without a restart. Failures fail closed: a file that
+//! disappeared, became unreadable, or now holds a malformed rule for
+//! `central` leaves the rules last read from it in force, with one warning
+//! (a `tracing` event at WARN) naming the file and the reason, given once
+//! per change of the file; the next valid edit is taken up as usual. A
+//! default file that did not exist at start is read once it appears. Each
+//! file read again is logged at INFO, and its own warnings (skipped rules,
+//! names that do not resolve) at WARN. The host names of a new text are
+//! resolved during the check that reads it, which waits for the resolver
+//! (as tcpd's checks do). Rules built from text ([`AccessControl::new`])
+//! are never read again.
 //!
 //! **Missing files fail closed.** A file named by the operator
 //! ([`Rules::load`], [`AccessControl::load`], [`RulesFile::Given`]) that
@@ -67,7 +88,9 @@
 
 use std::fmt;
 use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, ToSocketAddrs};
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, SystemTime};
 
 /// The daemon name rules must name (or `ALL`).
 pub const DAEMON: &str = "central";
@@ -444,23 +467,263 @@ pub enum RulesFile<'a> {
     Default(&'a Path),
 }
 
-impl RulesFile<'_> {
-    /// Loads the file; `Ok(None)`: a default file that does not exist.
-    fn load(self) -> Result<Option<Rules>, LoadError> {
+impl<'a> RulesFile<'a> {
+    fn as_path(self) -> &'a Path {
         match self {
-            RulesFile::Given(p) => Rules::load(p).map(Some),
-            RulesFile::Default(p) => Rules::load_if_exists(p),
+            RulesFile::Given(p) | RulesFile::Default(p) => p,
         }
+    }
+
+    /// Reads and parses the file; `Ok(None)`: a default file that does not
+    /// exist. Also returns what is needed to notice a change later.
+    fn load(self) -> Result<Option<(Rules, Stamp, String)>, LoadError> {
+        let path = self.as_path();
+        let name = path.display().to_string();
+        // Looked at before reading: a change made while reading is then
+        // seen at the next check.
+        let stamp = std::fs::metadata(path).map(|m| Stamp::of(&m, SystemTime::now()));
+        let text = match std::fs::read_to_string(path) {
+            Ok(text) => text,
+            Err(e)
+                if e.kind() == std::io::ErrorKind::NotFound
+                    && matches!(self, RulesFile::Default(_)) =>
+            {
+                return Ok(None)
+            }
+            Err(source) => return Err(LoadError::Io { file: name, source }),
+        };
+        let rules = Rules::from_text(&text, &name)?;
+        // Read although it could not be looked at: look again next time.
+        let stamp = stamp.unwrap_or(Stamp::UNKNOWN);
+        Ok(Some((rules, stamp, text)))
     }
 }
 
-/// Allow and deny rules together.
+/// What is looked at to notice that a rules file changed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Stamp {
+    len: u64,
+    modified: Option<SystemTime>,
+    /// Status change time (seconds, nanoseconds): a rename over the file,
+    /// a `chmod`.
+    changed: (i64, i64),
+    inode: (u64, u64),
+    /// Modified so shortly before it was looked at that a second change
+    /// within the file system's clock granularity could leave the same
+    /// stamp: the text is compared again at the next check.
+    recent: bool,
+}
+
+impl Stamp {
+    /// A file that was read but could not be looked at.
+    const UNKNOWN: Stamp = Stamp {
+        len: u64::MAX,
+        modified: None,
+        changed: (0, 0),
+        inode: (0, 0),
+        recent: true,
+    };
+
+    /// How long after its modification time a file counts as recent.
+    const RECENT: Duration = Duration::from_secs(2);
+
+    fn of(m: &std::fs::Metadata, now: SystemTime) -> Stamp {
+        #[cfg(unix)]
+        let (changed, inode) = {
+            use std::os::unix::fs::MetadataExt;
+            ((m.ctime(), m.ctime_nsec()), (m.dev(), m.ino()))
+        };
+        #[cfg(not(unix))]
+        let (changed, inode) = ((0, 0), (0, 0));
+        let modified = m.modified().ok();
+        let recent = modified.is_none_or(|t| {
+            now.duration_since(t)
+                .map_or(true, |age| age < Stamp::RECENT)
+        });
+        Stamp {
+            len: m.len(),
+            modified,
+            changed,
+            inode,
+            recent,
+        }
+    }
+
+    /// The same file, unchanged (ignoring when it was looked at).
+    fn same_as(&self, other: &Stamp) -> bool {
+        (self.len, self.modified, self.changed, self.inode)
+            == (other.len, other.modified, other.changed, other.inode)
+    }
+}
+
+/// Why a rules file could not be read again (each warned about once).
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum Trouble {
+    /// It no longer exists.
+    Gone,
+    /// It cannot be looked at (this error).
+    Stat(String),
+    /// This version of it cannot be read or parsed.
+    Version(Stamp),
+}
+
+/// A rules file read again when it changes.
+#[derive(Debug, Clone)]
+struct Watched {
+    path: PathBuf,
+    name: String,
+    /// The deny file (else the allow file).
+    deny: bool,
+    /// The file as last read successfully, and its text; `None`: a default
+    /// file that did not exist.
+    read: Option<(Stamp, String)>,
+    /// What the last warning was about.
+    warned: Option<Trouble>,
+}
+
+impl Watched {
+    /// Looks at the file; new rules if it changed and reads and parses
+    /// well. Otherwise the rules in force stay, with a warning (once) if
+    /// the file cannot be read again.
+    fn check(&mut self, now: SystemTime) -> Option<Rules> {
+        let stamp = match std::fs::metadata(&self.path) {
+            Ok(m) => Stamp::of(&m, now),
+            // A default file that never existed holds no rules still.
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound && self.read.is_none() => {
+                return None
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                self.warn(Trouble::Gone, format!("{} no longer exists", self.name));
+                return None;
+            }
+            Err(e) => {
+                let why = format!("cannot look at {}: {e}", self.name);
+                self.warn(Trouble::Stat(e.to_string()), why);
+                return None;
+            }
+        };
+        let unchanged = self
+            .read
+            .as_ref()
+            .is_some_and(|(seen, _)| seen.same_as(&stamp))
+            || matches!(&self.warned, Some(Trouble::Version(bad)) if bad.same_as(&stamp));
+        if unchanged && !stamp.recent {
+            return None;
+        }
+        let text = match std::fs::read_to_string(&self.path) {
+            Ok(t) => t,
+            Err(e) => {
+                let why = format!("cannot read {}: {e}", self.name);
+                self.warn(Trouble::Version(stamp), why);
+                return None;
+            }
+        };
+        if let Some((seen, old)) = &mut self.read {
+            if *old == text {
+                // Touched, or written back as it was: nothing to parse.
+                *seen = stamp;
+                if self.warned.take().is_some() {
+                    tracing::info!("access rules: {} is readable again, as it was", self.name);
+                }
+                return None;
+            }
+        }
+        match Rules::from_text(&text, &self.name) {
+            Ok(rules) => {
+                tracing::info!(
+                    "access rules: read {} again: {} rule(s)",
+                    self.name,
+                    rules.len()
+                );
+                for w in rules.warnings() {
+                    tracing::warn!("access rules: {w}");
+                }
+                self.read = Some((stamp, text));
+                self.warned = None;
+                Some(rules)
+            }
+            Err(e) => {
+                self.warn(Trouble::Version(stamp), e.to_string());
+                None
+            }
+        }
+    }
+
+    /// One warning per trouble: a check that meets the same one again
+    /// says nothing.
+    fn warn(&mut self, trouble: Trouble, why: String) {
+        let again = match (&self.warned, &trouble) {
+            (Some(Trouble::Version(a)), Trouble::Version(b)) => a.same_as(b),
+            (a, b) => a.as_ref() == Some(b),
+        };
+        if again {
+            return;
+        }
+        let kept = if self.read.is_some() {
+            format!("the rules last read from {} stay in force", self.name)
+        } else {
+            format!("no rules from {} are in force", self.name)
+        };
+        tracing::warn!("access rules: {why}; {kept}");
+        self.warned = Some(trouble);
+    }
+}
+
+/// The rules in force.
 #[derive(Debug, Clone, Default, PartialEq)]
-pub struct AccessControl {
+struct Current {
     allow: Rules,
     deny: Rules,
     /// Default files that did not exist: (allow, deny).
     missing: (Option<String>, Option<String>),
+}
+
+#[derive(Debug, Clone, Default)]
+struct State {
+    current: Arc<Current>,
+    /// The files to read again when they change (none for rules built
+    /// from text).
+    watched: Vec<Watched>,
+}
+
+/// Allow and deny rules together.
+///
+/// Loaded from files, it reads a file again when it changes (see the
+/// [module documentation](self)); checks may come from several threads.
+#[derive(Default)]
+pub struct AccessControl {
+    state: Mutex<State>,
+}
+
+impl fmt::Debug for AccessControl {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let s = self.lock();
+        f.debug_struct("AccessControl")
+            .field("allow", &s.current.allow)
+            .field("deny", &s.current.deny)
+            .field("missing", &s.current.missing)
+            .field(
+                "watched",
+                &s.watched.iter().map(|w| &w.path).collect::<Vec<_>>(),
+            )
+            .finish()
+    }
+}
+
+impl Clone for AccessControl {
+    /// A copy with the same rules, reading the same files again on its own.
+    fn clone(&self) -> Self {
+        AccessControl {
+            state: Mutex::new(self.lock().clone()),
+        }
+    }
+}
+
+impl PartialEq for AccessControl {
+    /// The same rules in force now (where they were read from aside).
+    fn eq(&self, other: &Self) -> bool {
+        self.rules() == other.rules()
+    }
 }
 
 impl AccessControl {
@@ -469,17 +732,22 @@ impl AccessControl {
         Self::default()
     }
 
-    /// From parsed allow and deny rules.
+    /// From parsed allow and deny rules (never read again).
     pub fn new(allow: Rules, deny: Rules) -> Self {
         AccessControl {
-            allow,
-            deny,
-            missing: (None, None),
+            state: Mutex::new(State {
+                current: Arc::new(Current {
+                    allow,
+                    deny,
+                    missing: (None, None),
+                }),
+                watched: Vec::new(),
+            }),
         }
     }
 
     /// Reads the two files ([`Rules::load`]); both must exist and be
-    /// readable.
+    /// readable. They are read again when they change.
     pub fn load(allow: &Path, deny: &Path) -> Result<Self, LoadError> {
         Self::load_files(RulesFile::Given(allow), RulesFile::Given(deny))
     }
@@ -487,21 +755,72 @@ impl AccessControl {
     /// Reads the two files, each given or a default
     /// ([`RulesFile`]): a given file must exist, a default one that does not
     /// exist holds no rules (see [`AccessControl::missing_files_warning`]).
-    /// The allow file is read first.
+    /// The allow file is read first. Both are read again when they change
+    /// (see the [module documentation](self)).
     pub fn load_files(allow: RulesFile<'_>, deny: RulesFile<'_>) -> Result<Self, LoadError> {
-        let name = |f: RulesFile<'_>| match f {
-            RulesFile::Given(p) | RulesFile::Default(p) => p.display().to_string(),
-        };
         let a = allow.load()?;
         let d = deny.load()?;
-        Ok(AccessControl {
+        let watched =
+            |f: RulesFile<'_>, deny: bool, read: &Option<(Rules, Stamp, String)>| Watched {
+                path: f.as_path().to_path_buf(),
+                name: f.as_path().display().to_string(),
+                deny,
+                read: read.as_ref().map(|(_, s, t)| (*s, t.clone())),
+                warned: None,
+            };
+        let watched = vec![watched(allow, false, &a), watched(deny, true, &d)];
+        let current = Current {
             missing: (
-                a.is_none().then(|| name(allow)),
-                d.is_none().then(|| name(deny)),
+                a.is_none().then(|| allow.as_path().display().to_string()),
+                d.is_none().then(|| deny.as_path().display().to_string()),
             ),
-            allow: a.unwrap_or_default(),
-            deny: d.unwrap_or_default(),
+            allow: a.map(|(r, _, _)| r).unwrap_or_default(),
+            deny: d.map(|(r, _, _)| r).unwrap_or_default(),
+        };
+        Ok(AccessControl {
+            state: Mutex::new(State {
+                current: Arc::new(current),
+                watched,
+            }),
         })
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, State> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// The rules in force, after reading again the files that changed.
+    fn rules(&self) -> Arc<Current> {
+        let mut s = self.lock();
+        if s.watched.is_empty() {
+            return s.current.clone();
+        }
+        let now = SystemTime::now();
+        let mut next: Option<Current> = None;
+        for i in 0..s.watched.len() {
+            let Some(rules) = s.watched[i].check(now) else {
+                continue;
+            };
+            let deny = s.watched[i].deny;
+            let c = next.get_or_insert_with(|| (*s.current).clone());
+            if deny {
+                c.deny = rules;
+                c.missing.1 = None;
+            } else {
+                c.allow = rules;
+                c.missing.0 = None;
+            }
+        }
+        if let Some(c) = next {
+            s.current = Arc::new(c);
+        }
+        s.current.clone()
+    }
+
+    /// Reads again, now, the files that changed since they were last read
+    /// (every check does this by itself).
+    pub fn reload_changed(&self) {
+        self.rules();
     }
 
     /// Reads `/etc/hosts.allow` and `/etc/hosts.deny`, either of which may
@@ -516,7 +835,8 @@ impl AccessControl {
     /// One line saying which rules are not in force because a default file
     /// ([`RulesFile::Default`]) does not exist; `None` if both were read.
     pub fn missing_files_warning(&self) -> Option<String> {
-        match &self.missing {
+        let c = self.rules();
+        match &c.missing {
             (None, None) => None,
             (Some(a), Some(d)) => Some(format!(
                 "no access rules in force: neither {a} nor {d} exists; every host may connect"
@@ -526,7 +846,7 @@ impl AccessControl {
             )),
             (Some(a), None) => Some(format!(
                 "no allow rules in force: {a} does not exist; only {} decides",
-                self.deny.file
+                c.deny.file
             )),
         }
     }
@@ -538,35 +858,44 @@ impl AccessControl {
     }
 
     /// Decides for a client with `lookup` as the reverse resolver (called at
-    /// most once, and only if a rule needs the host name).
+    /// most once, and only if a rule needs the host name). A rules file
+    /// that changed is read again first.
     pub fn check_with(
         &self,
         client: Client,
         lookup: &mut dyn FnMut(IpAddr) -> HostName,
     ) -> Decision {
+        // The lookup runs without the lock held: a slow one does not hold
+        // other checks up.
+        let c = self.rules();
         let mut name = Lazy { lookup, got: None };
-        if let Some(r) = self.allow.matching(client, &mut name) {
+        if let Some(r) = c.allow.matching(client, &mut name) {
             return Decision::Allowed(Some(r));
         }
-        if let Some(r) = self.deny.matching(client, &mut name) {
+        if let Some(r) = c.deny.matching(client, &mut name) {
             return Decision::Denied(r);
         }
         Decision::Allowed(None)
     }
 
     /// True if some rule for central needs the peer's host name (so a check
-    /// may do DNS lookups and should not run on the accept path).
+    /// may do DNS lookups and should not run on the accept path). A rules
+    /// file that changed is read again first.
     pub fn needs_host_name(&self) -> bool {
-        self.allow.needs_host_name() || self.deny.needs_host_name()
+        let c = self.rules();
+        c.allow.needs_host_name() || c.deny.needs_host_name()
     }
 
-    /// Warnings from both files (skipped rules, names that did not resolve).
-    pub fn warnings(&self) -> impl Iterator<Item = &str> {
-        self.allow
+    /// Warnings from both files as last read (skipped rules, names that
+    /// did not resolve).
+    pub fn warnings(&self) -> Vec<String> {
+        let c = self.rules();
+        c.allow
             .warnings
             .iter()
-            .chain(self.deny.warnings.iter())
-            .map(String::as_str)
+            .chain(c.deny.warnings.iter())
+            .cloned()
+            .collect()
     }
 }
 
@@ -1091,7 +1420,7 @@ mod tests {
         assert!(a.check(ip("192.0.2.21")).is_allowed());
         assert!(a.check(ip("192.0.2.22")).is_allowed());
         assert!(!a.check(ip("192.0.2.23")).is_allowed());
-        let w: Vec<&str> = a.warnings().collect();
+        let w = a.warnings();
         assert_eq!(
             w,
             ["hosts.allow:1: host name 'ghost.lab' does not resolve; the rule never matches it"]
@@ -1272,6 +1601,176 @@ mod tests {
                 deny.display()
             )
         );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// The log lines of this thread while the guard lives.
+    fn capture_logs() -> (Arc<Mutex<Vec<u8>>>, tracing::subscriber::DefaultGuard) {
+        struct Sink(Arc<Mutex<Vec<u8>>>);
+        impl std::io::Write for Sink {
+            fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+                self.0.lock().unwrap().extend_from_slice(b);
+                Ok(b.len())
+            }
+            fn flush(&mut self) -> std::io::Result<()> {
+                Ok(())
+            }
+        }
+        let buf = Arc::new(Mutex::new(Vec::new()));
+        let sink = buf.clone();
+        let sub = tracing_subscriber::fmt()
+            .with_ansi(false)
+            .with_max_level(tracing::Level::INFO)
+            .with_writer(move || Sink(sink.clone()))
+            .finish();
+        (buf, tracing::subscriber::set_default(sub))
+    }
+
+    fn log_lines(buf: &Arc<Mutex<Vec<u8>>>, with: &str) -> Vec<String> {
+        String::from_utf8_lossy(&buf.lock().unwrap())
+            .lines()
+            .filter(|l| l.contains(with))
+            .map(str::to_string)
+            .collect()
+    }
+
+    /// A directory of its own for one test.
+    fn scratch(test: &str) -> PathBuf {
+        let dir =
+            std::env::temp_dir().join(format!("courier-access-{test}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    #[test]
+    fn changed_files_are_read_again_at_the_next_check() {
+        let dir = scratch("reload");
+        let (allow, deny) = (dir.join("hosts.allow"), dir.join("hosts.deny"));
+        std::fs::write(&allow, "# none\n").unwrap();
+        std::fs::write(&deny, "# none\n").unwrap();
+        let (logs, _guard) = capture_logs();
+        let a = AccessControl::load(&allow, &deny).unwrap();
+        assert!(a.check(ip("192.0.2.1")).is_allowed());
+        std::fs::write(&deny, "central : 192.0.2.1\n").unwrap();
+        assert_eq!(
+            a.check(ip("192.0.2.1")).to_string(),
+            format!("denied by {}:1", deny.display())
+        );
+        // The same size at once (possibly the same modification time): the
+        // text is compared while the file is that recent.
+        std::fs::write(&deny, "central : 192.0.2.2\n").unwrap();
+        assert!(a.check(ip("192.0.2.1")).is_allowed());
+        assert!(!a.check(ip("192.0.2.2")).is_allowed());
+        // The allow file comes first, as at start.
+        std::fs::write(&allow, "central : 192.0.2.2\n").unwrap();
+        assert_eq!(
+            a.check(ip("192.0.2.2")).to_string(),
+            format!("allowed by {}:1", allow.display())
+        );
+        // A file replaced by a rename is read too.
+        let new = dir.join("hosts.deny.new");
+        std::fs::write(&new, "central : ALL EXCEPT 192.0.2.2\n").unwrap();
+        std::fs::rename(&new, &deny).unwrap();
+        assert!(!a.check(ip("192.0.2.3")).is_allowed());
+        assert!(!a.needs_host_name());
+        // The name rule of a new text is resolved when it is read, and
+        // `needs_host_name` sees the new rules.
+        std::fs::write(&deny, "central : .example.org\n").unwrap();
+        assert!(a.needs_host_name());
+        // Written back as it was: not parsed again.
+        let before = log_lines(&logs, "again").len();
+        std::fs::write(&deny, "central : .example.org\n").unwrap();
+        assert!(a.needs_host_name());
+        assert_eq!(log_lines(&logs, "again").len(), before);
+        let read = log_lines(&logs, &format!("read {} again", deny.display()));
+        assert_eq!(read.len(), 4, "{read:#?}");
+        assert!(read[0].contains("INFO"), "{read:#?}");
+        assert!(log_lines(&logs, "WARN").is_empty());
+        // Rules built from text are not files.
+        assert!(!ac("", "").needs_host_name());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_file_that_breaks_keeps_its_rules_and_warns_once() {
+        let dir = scratch("broken");
+        let (allow, deny) = (dir.join("hosts.allow"), dir.join("hosts.deny"));
+        std::fs::write(&allow, "").unwrap();
+        std::fs::write(&deny, "central : ALL\n").unwrap();
+        let (logs, _guard) = capture_logs();
+        let a = AccessControl::load(&allow, &deny).unwrap();
+        let denied = |a: &AccessControl| !a.check(ip("192.0.2.1")).is_allowed();
+        assert!(denied(&a));
+        // Malformed: the old rules stay, and it is said once.
+        std::fs::write(&deny, "central : 1.2.3.4/99\n").unwrap();
+        assert!(denied(&a) && denied(&a) && denied(&a));
+        let warned = log_lines(&logs, "WARN");
+        assert_eq!(warned.len(), 1, "{warned:#?}");
+        assert!(
+            warned[0].ends_with(&format!(
+                "access rules: {0}:1: prefix length 99 too long in '1.2.3.4/99'; \
+                 the rules last read from {0} stay in force",
+                deny.display()
+            )),
+            "{warned:#?}"
+        );
+        // Gone: the same.
+        std::fs::remove_file(&deny).unwrap();
+        assert!(denied(&a) && denied(&a));
+        let warned = log_lines(&logs, "WARN");
+        assert_eq!(warned.len(), 2, "{warned:#?}");
+        assert!(
+            warned[1].contains(&format!("{} no longer exists;", deny.display())),
+            "{warned:#?}"
+        );
+        // Unreadable (a directory in its place: root reads any file): the
+        // same.
+        std::fs::create_dir(&deny).unwrap();
+        assert!(denied(&a) && denied(&a));
+        let warned = log_lines(&logs, "WARN");
+        assert_eq!(warned.len(), 3, "{warned:#?}");
+        assert!(
+            warned[2].contains(&format!("cannot read {}: ", deny.display())),
+            "{warned:#?}"
+        );
+        // A valid file again: in force.
+        std::fs::remove_dir(&deny).unwrap();
+        std::fs::write(&deny, "central : 10.0.0.1\n").unwrap();
+        assert!(!denied(&a));
+        assert!(!a.check(ip("10.0.0.1")).is_allowed());
+        assert_eq!(log_lines(&logs, "WARN").len(), 3);
+        // The allow file breaking does not open anything either.
+        std::fs::write(&allow, "central : ALL EXCEPT\n").unwrap();
+        assert!(!a.check(ip("10.0.0.1")).is_allowed());
+        assert_eq!(log_lines(&logs, "WARN").len(), 4);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_default_file_that_appears_is_read() {
+        let dir = scratch("appears");
+        let (allow, deny) = (dir.join("hosts.allow"), dir.join("hosts.deny"));
+        let a = AccessControl::load_files(RulesFile::Default(&allow), RulesFile::Default(&deny))
+            .unwrap();
+        assert!(a.check(ip("192.0.2.1")).is_allowed());
+        assert!(a
+            .missing_files_warning()
+            .unwrap()
+            .starts_with("no access rules in force"));
+        std::fs::write(&deny, "ALL : ALL\n").unwrap();
+        assert!(!a.check(ip("192.0.2.1")).is_allowed());
+        assert_eq!(
+            a.missing_files_warning().unwrap(),
+            format!(
+                "no allow rules in force: {} does not exist; only {} decides",
+                allow.display(),
+                deny.display()
+            )
+        );
+        std::fs::write(&allow, "central : 192.0.2.1\n").unwrap();
+        assert!(a.check(ip("192.0.2.1")).is_allowed());
+        assert_eq!(a.missing_files_warning(), None);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

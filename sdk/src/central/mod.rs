@@ -89,10 +89,18 @@
 //!   prompt of file logging (`-L` without `n`) is shown only when standard
 //!   input is a terminal, and only at start; `-s` also silences the
 //!   `Logging File Name:` / `Logging to` lines.
-//! - SIGINT and SIGTERM stop central cleanly with exit status 0 (C aborts
-//!   with status 1). The lines are C's: the memory report on stderr (unless
-//!   `-s`), then `Central Abort : Signal <n>` in the log when messages are
-//!   logged, else on stderr; `quit` ends with `Central Quit`, as in C.
+//! - SIGINT, SIGTERM and SIGHUP stop central cleanly with exit status 0,
+//!   the file log flushed (C aborts with status 1 on SIGINT and SIGTERM,
+//!   and has no SIGHUP handler: a hangup, such as the terminal of an ssh
+//!   session closing, kills it outright, without these lines, losing what
+//!   `-LF` had not flushed). A SIGHUP ignored when central starts (`nohup
+//!   central`) stays ignored, as in C. The lines are C's: the memory report
+//!   on stderr (unless `-s`), then `Central Abort : Signal <n>` in the log
+//!   when messages are logged, else on stderr; `quit` ends with `Central
+//!   Quit`, as in C.
+//! - A console line that is not UTF-8 is read with U+FFFD in place of
+//!   the bytes that do not decode (so it is answered as an unknown
+//!   command); C takes the bytes as they are.
 //! - The console's `memory` (and that report) has C's heading,
 //!   `Cumulative Memory Usage:`, then Courier's own counters: C counts its
 //!   `malloc` calls and data-message buffers, which Courier does not have.
@@ -119,6 +127,15 @@
 //!   `/etc/hosts.allow` or `/etc/hosts.deny` gives one warning line saying
 //!   which rules are not in force. tcpd, which C links, silently takes a
 //!   missing file as no rules.
+//! - tcpd reads both rules files at every connection (and resolves their
+//!   host names then); central reads a file again at the first connection
+//!   after its size, times or inode changed, and resolves its host names
+//!   when its text changed. A file that disappears, becomes unreadable or now
+//!   holds a malformed rule for `central` leaves the rules last read from
+//!   it in force, with one warning naming the file (a `tracing` event,
+//!   which the `central` program prints on stderr); tcpd would take a
+//!   missing file as no rules. A default file that did not exist
+//!   at start is read once it appears.
 //!
 //! **Modules and routing** (the machine in `courier_wire::ipc::central`):
 //! - A module connecting with the name of a live module is refused: one
