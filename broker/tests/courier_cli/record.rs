@@ -865,3 +865,25 @@ fn a_dds_channel_replayed_as_another_type_is_refused_or_warned_of() {
         "{line}"
     );
 }
+
+/// A disk that fills up (/dev/full answers every write with ENOSPC) stops
+/// the recording with what that means for the file, not a bare I/O error.
+#[test]
+fn a_full_disk_says_what_the_file_holds() {
+    let c = Central::start();
+    let u = c.url.as_str();
+    let mut rec = Proc::start(&["record", u, "text", "-o", "/dev/full", "--overwrite"]);
+    rec.expect("ready");
+    publish(u, "text", "string", "hello");
+    let (code, _, err) = rec.finish();
+    assert_eq!(code, Some(1), "{err}");
+    assert!(
+        err.contains(
+            "cannot write /dev/full: I/O error from writing, or reading a compression stream: \
+             No space left on device (os error 28), after 0 messages recorded; the file ends \
+             without its summary: courier replay reads what it holds (other MCAP tools after \
+             `mcap recover`)"
+        ),
+        "{err}"
+    );
+}

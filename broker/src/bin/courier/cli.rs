@@ -291,7 +291,10 @@ Output, one event a line:
   recorded <n> messages on <k> channels in <file> (<bytes> B)    the file is finished
   done                                    --count or --duration reached (exit 0)
   interrupted after <n> messages recorded Ctrl-C / SIGTERM: the file is finished
-                                          all the same (exit 130 / 143)";
+                                          all the same (exit 130 / 143)
+Killed outright (or out of disk), the file ends without its summary and loses
+at most its last second: courier replay reads what it holds; other MCAP tools
+want `mcap recover` first.";
 
 const REPLAY_OUTPUT: &str = "\
 Samples are re-encoded for the session: a channel recorded on IPC goes onto DDS

@@ -4,7 +4,9 @@
 //! publish time = the writer's source timestamp when it sent one.
 //!
 //! Chunks are zstd-compressed and closed at least once a second, so a
-//! recorder killed outright loses at most the last second; stopped by
+//! recorder killed outright loses at most the last second (`courier
+//! replay` reads such a file; other MCAP tools want `mcap recover` first,
+//! since it ends without a summary); stopped by
 //! Ctrl-C, `--count` or `--duration` it writes the summary (statistics,
 //! chunk and message indexes) and says how many messages it recorded.
 
@@ -93,6 +95,7 @@ struct Recorder {
     /// Samples not recorded, and why (said at the end).
     skipped: HashMap<&'static str, u64>,
     unflushed: bool,
+    path: std::path::PathBuf,
 }
 
 struct Channel {
@@ -122,17 +125,34 @@ impl Recorder {
             total: 0,
             skipped: HashMap::new(),
             unflushed: false,
+            path: o.output.clone(),
         }
+    }
+
+    /// A write to the file that failed (a full disk, say): what it means
+    /// for the file.
+    fn write_failed(&self, e: mcap::McapError) -> String {
+        format!(
+            "cannot write {}: {}, after {} recorded; the file ends without its summary: \
+             courier replay reads what it holds (other MCAP tools after `mcap recover`)",
+            self.path.display(),
+            crate::text::with_sources(&e),
+            count(self.total, "message")
+        )
     }
 
     fn add_channel(&mut self, d: &ChannelDesc, format: Option<Format>) -> Result<Channel> {
         let schema = match &d.schema {
-            Some(s) => self.w.add_schema(&s.name, &s.encoding, &s.data)?,
+            Some(s) => self
+                .w
+                .add_schema(&s.name, &s.encoding, &s.data)
+                .map_err(|e| self.write_failed(e))?,
             None => 0,
         };
         let id = self
             .w
-            .add_channel(schema, &d.topic, d.encoding, &d.metadata)?;
+            .add_channel(schema, &d.topic, d.encoding, &d.metadata)
+            .map_err(|e| self.write_failed(e))?;
         let schema_text = d.schema.as_ref().map_or("-".to_string(), |s| {
             let enc = if s.encoding.is_empty() {
                 "name-only"
@@ -219,7 +239,9 @@ impl Recorder {
             log_time,
             publish_time: smp.source_time.map_or(log_time, nanos),
         };
-        self.w.write_to_known_channel(&header, data)?;
+        if let Err(e) = self.w.write_to_known_channel(&header, data) {
+            return Err(self.write_failed(e).into());
+        }
         self.total += 1;
         self.unflushed = true;
         Ok(())
@@ -228,7 +250,9 @@ impl Recorder {
     /// Closes the chunk being written, if it has anything new.
     fn flush(&mut self) -> Result<()> {
         if self.unflushed {
-            self.w.flush()?;
+            if let Err(e) = self.w.flush() {
+                return Err(self.write_failed(e).into());
+            }
             self.unflushed = false;
         }
         Ok(())
