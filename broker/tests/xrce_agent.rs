@@ -221,6 +221,14 @@ fn command_line_errors() {
             "error: the following required arguments were not provided:\n  --port <PORT>".into(),
         ),
         (
+            // the transport forgotten (it comes first)
+            vec!["-p".into(), "8888".into()],
+            2,
+            "error: -p comes after a transport: name the transport first (one of udp4, tcp4, \
+             serial, pseudoterminal), e.g. xrce-agent udp4 -p 8888"
+                .into(),
+        ),
+        (
             vec!["udp6".into(), "-p".into(), "8888".into()],
             2,
             "error: the udp6 transport is not supported (these are: udp4, tcp4, serial, pseudoterminal)".into(),

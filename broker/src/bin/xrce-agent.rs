@@ -212,6 +212,22 @@ fn parse(args: Vec<String>) -> Result<Plan, clap::Error> {
             ),
         ));
     }
+    // options and no transport (`xrce-agent -p 8888`): a transport comes
+    // first, as in MicroXRCEAgent's command line
+    if let Some(o) = pre
+        .iter()
+        .find(|a| a.starts_with('-') && !matches!(a.as_str(), "-h" | "--help" | "-V" | "--version"))
+        .filter(|_| chunks.is_empty())
+    {
+        return Err(clap::Error::raw(
+            clap::error::ErrorKind::MissingSubcommand,
+            format!(
+                "{o} comes after a transport: name the transport first (one of {}), e.g. \
+                 xrce-agent udp4 -p 8888\n",
+                TRANSPORTS.join(", ")
+            ),
+        ));
+    }
     if chunks.is_empty() {
         // let clap say what is missing (or print help/version)
         let mut v = vec!["xrce-agent".to_string()];
