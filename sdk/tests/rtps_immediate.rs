@@ -369,25 +369,7 @@ async fn closing_inside_a_callback() {
         } else {
             session(domain, "b").await
         };
-        let p = a.publisher::<Msg>("chatter").build().await.unwrap();
-        let (tx, rx) = mpsc::channel();
-        let mut own = Some(b.clone());
-        let _l = b
-            .subscriber::<Msg>("chatter")
-            .listen(move |_| {
-                if let Some(s) = own.take() {
-                    futures::executor::block_on(s.close());
-                    let _ = tx.send(());
-                }
-            })
-            .await
-            .unwrap();
-        await_handlers(&a, "chatter", 1).await;
-        p.publish(&msg(0)).await.unwrap();
-        let returned = tokio::task::spawn_blocking(move || rx.recv_timeout(T))
-            .await
-            .unwrap();
-        assert_eq!(returned, Ok(()), "receive thread: {on_thread}");
+        common::close_inside_own_callback(&a, &b, "closer").await;
         // and the session is closed
         let mut events = b.events();
         let e = tokio::time::timeout(T, events.next()).await.unwrap();

@@ -1632,24 +1632,7 @@ async fn closing_inside_a_callback() {
     let (c, url) = central().await;
     let a = session(&url, "a").await;
     let b = session(&url, "b").await;
-    let (tx, rx) = std::sync::mpsc::channel();
-    let mut own = Some(b.clone());
-    let _l = b
-        .subscriber::<i32>("closer")
-        .listen(move |_| {
-            if let Some(s) = own.take() {
-                futures::executor::block_on(s.close());
-                let _ = tx.send(());
-            }
-        })
-        .await
-        .unwrap();
-    common::await_handlers(&a, "closer", 1).await;
-    a.publish("closer", &1).await.unwrap();
-    let returned = tokio::task::spawn_blocking(move || rx.recv_timeout(T))
-        .await
-        .unwrap();
-    assert_eq!(returned, Ok(()));
+    common::close_inside_own_callback(&a, &b, "closer").await;
     // and b is gone from central
     tokio::time::timeout(T, async {
         while a.is_module_connected("b").await.unwrap() {

@@ -229,3 +229,28 @@ where
         .recv_timeout(bound)
         .expect("the scenario finished (it hung, or failed above)");
 }
+
+/// `b`'s `listen` callback closes `b` itself, blocking on the close; the
+/// callback must get out of it (the close goes on once it returns). A
+/// sample published by `a` on `topic` calls it.
+pub async fn close_inside_own_callback(a: &Session, b: &Session, topic: &str) {
+    let p = a.publisher::<i32>(topic).build().await.unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    let mut own = Some(b.clone());
+    let _l = b
+        .subscriber::<i32>(topic)
+        .listen(move |_| {
+            if let Some(s) = own.take() {
+                futures::executor::block_on(s.close());
+                let _ = tx.send(());
+            }
+        })
+        .await
+        .unwrap();
+    await_handlers(a, topic, 1).await;
+    p.publish(&1).await.unwrap();
+    let returned = tokio::task::spawn_blocking(move || rx.recv_timeout(T))
+        .await
+        .unwrap();
+    assert_eq!(returned, Ok(()), "the callback got out of close()");
+}
