@@ -623,7 +623,19 @@ fn keep_all_back_pressure_holds_the_client_and_loses_nothing_acknowledged() {
 fn a_full_keep_all_reader_of_another_client_holds_the_writer_and_loses_nothing() {
     // two clients of the bridge: a reliable keep-all reader whose client
     // does not read yet, with room for 8 samples, and a reliable writer
-    let mut w = world(6, 0, |_, b| b.reader_queue = 8);
+    holds_the_writer_and_loses_nothing(|b| b.reader_queue = 8, 16);
+}
+
+/// The same when the reader's bytes fill first: it holds the writer at a
+/// quarter of `reader_bytes` (here about 3 samples of 300 B) and never
+/// drops one of the bridge's own writers' samples for its byte bound.
+#[test]
+fn a_keep_all_reader_full_of_bytes_holds_the_writer_and_loses_nothing() {
+    holds_the_writer_and_loses_nothing(|b| b.reader_bytes = 4 * 1000, 300);
+}
+
+fn holds_the_writer_and_loses_nothing(cfg: impl Fn(&mut BridgeConfig), len: usize) {
+    let mut w = world(6, 0, |_, b| cfg(b));
     let rd = w.add_client(10, 0xAAAA_0006);
     w.create(rd, reader_objects("Pair", true), CreationMode::REPLACE);
     let wr = w.add_client(11, 0xAAAA_0007);
@@ -635,7 +647,7 @@ fn a_full_keep_all_reader_of_another_client_holds_the_writer_and_loses_nothing()
             let now = w.net.now();
             match w
                 .client(wr)
-                .write(oid(ObjectKind::DataWriter), R, &sample(*next, 16), now)
+                .write(oid(ObjectKind::DataWriter), R, &sample(*next, len), now)
             {
                 Ok(_) => *next += 1,
                 Err(_) => break,
@@ -672,7 +684,7 @@ fn a_full_keep_all_reader_of_another_client_holds_the_writer_and_loses_nothing()
     }
     assert_eq!(
         w.data(rd),
-        (0..n).map(|i| sample(i, 16)).collect::<Vec<_>>()
+        (0..n).map(|i| sample(i, len)).collect::<Vec<_>>()
     );
     assert_eq!(w.bridge().stats().samples_dropped, 0);
     assert!(w.run_until(Duration::from_secs(10), |w| acked(w) == n as usize));

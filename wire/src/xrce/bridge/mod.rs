@@ -1254,16 +1254,15 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
             }
             let best_effort = h.ticket.is_none();
             if !best_effort {
-                match room.as_mut() {
-                    Some((0, inbox)) => {
+                if let Some(r) = room.as_mut() {
+                    if let Some(inbox) = r.blocking() {
                         // again when that inbox drains (`release_full`)
-                        if !self.full.contains(inbox) {
-                            self.full.push(*inbox);
+                        if !self.full.contains(&inbox) {
+                            self.full.push(inbox);
                         }
                         return;
                     }
-                    Some((r, _)) => *r -= 1,
-                    None => {}
+                    r.take(h.data.len());
                 }
             }
             let result = self.domain.write(writer, change, now);
@@ -1457,18 +1456,45 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
     }
 }
 
-/// Room left in the fullest holding inbox (reliable keep-all reader of
-/// this agent) that `writer` is matched with, and that inbox; `None`: no
-/// such reader.
+/// What the holding inboxes a writer is matched with take before one is
+/// full: the fewest samples, and the fewest bytes, each with its inbox.
+#[derive(Debug, Clone, Copy)]
+struct Room {
+    samples: (usize, Key),
+    bytes: (usize, Key),
+}
+
+impl Room {
+    /// The inbox that takes nothing more, if one is there.
+    fn blocking(&self) -> Option<Key> {
+        if self.samples.0 == 0 {
+            Some(self.samples.1)
+        } else if self.bytes.0 == 0 {
+            Some(self.bytes.1)
+        } else {
+            None
+        }
+    }
+
+    /// One sample of `len` bytes written.
+    fn take(&mut self, len: usize) {
+        self.samples.0 -= 1;
+        self.bytes.0 = self.bytes.0.saturating_sub(len);
+    }
+}
+
+/// Room left in the holding inboxes (reliable keep-all readers of this
+/// agent) that `writer` is matched with; `None`: no such reader.
 /// Samples written reach the inboxes as DDS events a little later, so the
-/// writer takes at most this many at a time.
+/// writer takes at most this much at a time (bytes: overshot by its last
+/// sample at most; an inbox drops samples only at four times that).
 fn room_for(
     objects: &HashMap<Key, Object>,
     by_reader: &HashMap<ReaderId, Key>,
     domain: &Domain,
     writer: WriterId,
-) -> Option<(usize, Key)> {
-    let mut room: Option<(usize, Key)> = None;
+) -> Option<Room> {
+    let mut room: Option<Room> = None;
     for g in domain.participant().matched_readers(writer.guid()) {
         let Some(key) = by_reader.get(&ReaderId(g)) else {
             continue;
@@ -1479,9 +1505,16 @@ fn room_for(
         }) = objects.get(key)
         {
             if i.hold {
-                let r = i.cap.saturating_sub(i.queue.len());
-                if room.is_none_or(|(m, _)| r < m) {
-                    room = Some((r, *key));
+                let (n, bytes) = i.room();
+                let r = room.get_or_insert(Room {
+                    samples: (n, *key),
+                    bytes: (bytes, *key),
+                });
+                if n < r.samples.0 {
+                    r.samples = (n, *key);
+                }
+                if bytes < r.bytes.0 {
+                    r.bytes = (bytes, *key);
                 }
             }
         }

@@ -173,6 +173,15 @@ impl Inbox {
         self.hold && (self.queue.len() >= self.cap || self.bytes >= self.byte_cap / HOLD_SLACK)
     }
 
+    /// What a holding inbox takes before [`is_full`](Self::is_full):
+    /// samples, and bytes (a writer may overshoot by its last sample).
+    pub fn room(&self) -> (usize, usize) {
+        (
+            self.cap.saturating_sub(self.queue.len()),
+            (self.byte_cap / HOLD_SLACK).saturating_sub(self.bytes),
+        )
+    }
+
     /// A holding inbox that drained to half of that: the writers it held go on.
     pub fn has_room(&self) -> bool {
         self.queue.len() <= self.cap / 2 && self.bytes <= self.byte_cap / HOLD_SLACK / 2
