@@ -166,17 +166,34 @@ fn on_off(s: &str) -> Result<bool, String> {
 
 impl Common {
     fn merge(&mut self, o: Common) {
-        self.verbose = o.verbose.or(self.verbose);
-        self.refs = o.refs.or(self.refs.take());
-        self.discovery = o.discovery.or(self.discovery);
-        self.middleware = o.middleware.or(self.middleware.take());
-        self.bind = o.bind.or(self.bind);
-        self.domain = o.domain.or(self.domain);
-        self.interface = o.interface.or(self.interface.take());
-        self.peers.extend(o.peers);
-        self.multicast = o.multicast.or(self.multicast);
-        self.any_domain |= o.any_domain;
-        self.state = o.state.or(self.state.take());
+        // every field named: an option left out of the merge is a compile
+        // error, not an option silently ignored
+        let Common {
+            verbose,
+            refs,
+            discovery,
+            middleware,
+            bind,
+            domain,
+            interface,
+            peers,
+            multicast,
+            any_domain,
+            state,
+            client_timeout,
+        } = o;
+        self.verbose = verbose.or(self.verbose);
+        self.refs = refs.or(self.refs.take());
+        self.discovery = discovery.or(self.discovery);
+        self.middleware = middleware.or(self.middleware.take());
+        self.bind = bind.or(self.bind);
+        self.domain = domain.or(self.domain);
+        self.interface = interface.or(self.interface.take());
+        self.peers.extend(peers);
+        self.multicast = multicast.or(self.multicast);
+        self.any_domain |= any_domain;
+        self.state = state.or(self.state.take());
+        self.client_timeout = client_timeout.or(self.client_timeout);
     }
 }
 
@@ -457,5 +474,42 @@ async fn wait_for_signal() {
     tokio::select! {
         _ = tokio::signal::ctrl_c() => {}
         _ = term.recv() => {}
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn plan(args: &[&str]) -> Plan {
+        let mut v = vec!["xrce-agent".to_string()];
+        v.extend(args.iter().map(|a| a.to_string()));
+        parse(v).unwrap_or_else(|e| panic!("{args:?}: {e}"))
+    }
+
+    /// Every option reaches the plan, on whichever transport it is given
+    /// (--client-timeout was parsed and then dropped by the merge).
+    #[test]
+    fn options_of_any_transport_reach_the_plan() {
+        let p = plan(&[
+            "udp4",
+            "-p",
+            "0",
+            "--client-timeout",
+            "5",
+            "tcp4",
+            "-p",
+            "0",
+        ]);
+        assert_eq!(p.common.client_timeout, Some(5));
+        let p = plan(&[
+            "udp4", "-p", "0", "tcp4", "-p", "0", "--state", "s.db", "-v", "2",
+        ]);
+        assert_eq!(
+            p.common.state.as_deref(),
+            Some(std::path::Path::new("s.db"))
+        );
+        assert_eq!(p.common.verbose, Some(2));
+        assert_eq!(p.transports.len(), 2);
     }
 }
