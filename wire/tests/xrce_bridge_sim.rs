@@ -42,6 +42,8 @@ enum N {
     /// A DDS participant; `true` while it reads nothing (what is sent to it
     /// waits): a peer slow to discover.
     Dds(Box<Domain>, bool),
+    /// A client that died (powered off): reads and sends nothing.
+    Dead(Addr),
 }
 
 #[derive(Debug)]
@@ -69,6 +71,7 @@ impl Node for N {
             (N::Bridge(_, a), Addr::X(x)) => a == x,
             (N::Bridge(b, _), Addr::R(l)) => owns(b.domain(), l),
             (N::Dds(d, _), Addr::R(l)) => owns(d, l),
+            (N::Dead(a), to) => a == to,
             _ => false,
         }
     }
@@ -83,6 +86,7 @@ impl Node for N {
             N::Client(p) => p.address(),
             N::Bridge(_, a) => Addr::X(*a),
             N::Dds(d, _) => Addr::R(Node::address(&**d)),
+            N::Dead(a) => a.clone(),
         }
     }
     fn handle_datagram(&mut self, from: Addr, bytes: &[u8], now: Instant) {
@@ -93,6 +97,7 @@ impl Node for N {
             }
             (N::Bridge(b, _), l) => b.handle_datagram(l, bytes, now),
             (N::Dds(d, _), l) => d.handle_datagram(l, bytes, now),
+            (N::Dead(_), _) => {}
         }
     }
     fn handle_timeout(&mut self, now: Instant) {
@@ -100,6 +105,7 @@ impl Node for N {
             N::Client(p) => p.handle_timeout(now),
             N::Bridge(b, _) => b.handle_timeout(now),
             N::Dds(d, _) => d.handle_timeout(now),
+            N::Dead(_) => {}
         }
     }
     fn poll_timeout(&self) -> Option<Instant> {
@@ -107,6 +113,7 @@ impl Node for N {
             N::Client(p) => p.poll_timeout(),
             N::Bridge(b, _) => b.poll_timeout(),
             N::Dds(d, _) => d.poll_timeout(),
+            N::Dead(_) => None,
         }
     }
     fn poll_transmit(&mut self) -> Option<(Addr, Vec<u8>)> {
@@ -119,6 +126,7 @@ impl Node for N {
             N::Dds(d, _) => d
                 .poll_transmit()
                 .map(|d| (Addr::R(d.destination), d.payload)),
+            N::Dead(_) => None,
         }
     }
     fn poll_event(&mut self) -> Option<Ev> {
@@ -129,6 +137,7 @@ impl Node for N {
             }),
             N::Bridge(b, _) => b.poll_event().map(Ev::Bridge),
             N::Dds(d, _) => d.poll_event().map(|e| Ev::Dds(Box::new(e))),
+            N::Dead(_) => None,
         }
     }
 }
@@ -193,6 +202,12 @@ impl World {
         if let N::Dds(_, d) = &mut self.net.hosts[self.dds].node {
             *d = deaf;
         }
+    }
+
+    /// Client `i` dies without a word (DELETE_CLIENT never comes).
+    fn kill(&mut self, i: usize) {
+        let a = self.net.hosts[i].node.address();
+        self.net.hosts[i].node = N::Dead(a);
     }
 
     fn add_client(&mut self, addr: u16, key: u32) -> usize {
@@ -1505,5 +1520,49 @@ fn graceful_restart_with_a_remote_reader(deaf: Duration) {
         bodies(&w),
         want,
         "every sample from the first the reader got"
+    );
+}
+
+/// A reliable keep-all reader whose client died without DELETE holds the
+/// writers of its topic back only until the client has been silent for
+/// `evict_after`: then they go on (its own inbox drops the oldest), and a
+/// live reader of the topic gets everything.
+#[test]
+fn a_dead_readers_client_holds_the_writers_back_only_until_it_seems_dead() {
+    let mut w = world(7, 0, |_, b| {
+        b.reader_queue = 8;
+        b.agent.evict_after = Duration::from_secs(5);
+    });
+    let dead = w.add_client(10, 0xAAAA_0008);
+    w.create(dead, reader_objects("Pair", true), CreationMode::REPLACE);
+    let live = w.add_client(12, 0xAAAA_000A);
+    w.create(live, reader_objects("Pair", true), CreationMode::REPLACE);
+    let now = w.net.now();
+    w.client(live)
+        .read(oid(ObjectKind::DataReader), R, R, unlimited(), now)
+        .unwrap();
+    let wr = w.add_client(11, 0xAAAA_0009);
+    w.create(wr, writer_objects("Pair", true), CreationMode::REPLACE);
+    w.kill(dead);
+    let n = 60u32;
+    let mut next = 0;
+    let t0 = w.net.elapsed();
+    while w.data(live).len() < n as usize && w.net.elapsed() < t0 + Duration::from_secs(60) {
+        while next < n {
+            let now = w.net.now();
+            match w
+                .client(wr)
+                .write(oid(ObjectKind::DataWriter), R, &sample(next, 16), now)
+            {
+                Ok(_) => next += 1,
+                Err(_) => break,
+            }
+        }
+        w.net.step();
+    }
+    assert_eq!(
+        w.data(live),
+        (0..n).map(|i| sample(i, 16)).collect::<Vec<_>>(),
+        "the live reader got everything"
     );
 }

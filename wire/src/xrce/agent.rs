@@ -489,6 +489,20 @@ impl<A: Clone + Eq + Hash> Agent<A> {
         })
     }
 
+    /// How long `client` has said nothing (`None`: no such session).
+    pub fn silent_for(&self, client: ClientKey, now: Instant) -> Option<Duration> {
+        let p = self.clients.get(&u32::from(client))?;
+        Some(now.saturating_duration_since(p.last_heard))
+    }
+
+    /// Whether `client` has said nothing for [`AgentConfig::evict_after`]
+    /// (it died without DELETE, most likely): a reader of its holds no
+    /// writer back any longer.
+    pub fn seems_dead(&self, client: ClientKey, now: Instant) -> bool {
+        self.silent_for(client, now)
+            .is_some_and(|d| d >= self.cfg.evict_after)
+    }
+
     /// The address a client's messages go to.
     pub fn client_address(&self, client: ClientKey) -> Option<&A> {
         self.clients.get(&u32::from(client)).map(|p| &p.addr)

@@ -501,6 +501,8 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
             self.rediscovery = None;
             self.flush_held(now);
         }
+        // writers held by a full reader: go on if its client now seems dead
+        self.release_full(now);
         self.process(now);
     }
 
@@ -515,10 +517,13 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
                 | Entity::Replier { inbox: i, .. } => i.poll_timeout(),
                 _ => None,
             });
+        // while writers are held, a look each second (see `release_full`)
+        let held = (!self.full.is_empty()).then(|| self.now + Duration::from_secs(1));
         [
             self.agent.poll_timeout(),
             self.domain.poll_timeout(),
             self.rediscovery,
+            held,
         ]
         .into_iter()
         .flatten()
@@ -582,10 +587,13 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
             return false;
         }
         let objects = &self.objects;
+        let agent = &self.agent;
         let before = self.full.len();
+        // (a reader whose client seems dead holds no writer back: one dead
+        // subscriber would stop its topic's writers for good)
         self.full
             .retain(|key| match objects.get(key).map(|o| &o.entity) {
-                Some(Entity::Reader(_, i)) => !i.has_room(),
+                Some(Entity::Reader(_, i)) => !i.has_room() && !agent.seems_dead(key.0, now),
                 _ => false,
             });
         if self.full.len() == before {
@@ -1239,7 +1247,8 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
             return;
         }
         let writer = out.writer;
-        let mut room = room_for(&self.objects, &self.by_reader, &self.domain, writer);
+        let dead = |k: &Key| self.agent.seems_dead(k.0, now);
+        let mut room = room_for(&self.objects, &self.by_reader, &self.domain, writer, dead);
         loop {
             let Some(out) = output_of(&mut self.objects, key) else {
                 return;
@@ -1493,6 +1502,7 @@ fn room_for(
     by_reader: &HashMap<ReaderId, Key>,
     domain: &Domain,
     writer: WriterId,
+    dead: impl Fn(&Key) -> bool,
 ) -> Option<Room> {
     let mut room: Option<Room> = None;
     for g in domain.participant().matched_readers(writer.guid()) {
@@ -1504,7 +1514,7 @@ fn room_for(
             ..
         }) = objects.get(key)
         {
-            if i.hold {
+            if i.hold && !dead(key) {
                 let (n, bytes) = i.room();
                 let r = room.get_or_insert(Room {
                     samples: (n, *key),
