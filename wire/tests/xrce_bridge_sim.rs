@@ -86,7 +86,7 @@ impl Node for N {
             N::Client(p) => p.address(),
             N::Bridge(_, a) => Addr::X(*a),
             N::Dds(d, _) => Addr::R(Node::address(&**d)),
-            N::Dead(a) => a.clone(),
+            N::Dead(a) => *a,
         }
     }
     fn handle_datagram(&mut self, from: Addr, bytes: &[u8], now: Instant) {
