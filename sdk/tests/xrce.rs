@@ -564,3 +564,18 @@ async fn a_query_bounded_by_duration_max_is_answered() {
     server.close().await;
     tokio::time::timeout(T, serving).await.unwrap().unwrap();
 }
+
+/// A callback that closes its own session, blocking on the close, does not
+/// hang it (XRCE runs callbacks inside the session's driver, which the
+/// close waits for); on a runtime of its own thread, so that a hang fails.
+#[test]
+fn a_callback_closing_its_own_session_does_not_hang() {
+    common::on_own_runtime(2 * T, || async {
+        let agent = xrce_agent::udp(0).await;
+        let url = format!("xrce+udp://{}", agent.addr);
+        let a = session(url.clone(), "a").await;
+        let b = session(url, "b").await;
+        common::close_inside_own_callback(&a, &b, "closer").await;
+        a.close().await;
+    });
+}

@@ -469,6 +469,16 @@ impl Backend for XrceBackend {
 
     async fn close(&self) {
         let (tx, rx) = oneshot::channel();
+        if driver::IN_CALLBACK.with(|c| c.get()) == Arc::as_ptr(&self.shared) as usize {
+            // a `listen` callback runs inside the driver, which the close
+            // waits for: waiting here would wait for ever
+            tracing::error!(
+                "close() called inside a listen callback of its own session: it goes on once \
+                 the callback returns (spawn the close to wait for it)"
+            );
+            let _ = self.cmd.post(Cmd::Close { reply: tx });
+            return;
+        }
         if self.cmd.send(Cmd::Close { reply: tx }).await.is_ok() {
             let _ = rx.await;
         }
