@@ -51,6 +51,10 @@ pub(crate) struct Store {
     db: Option<Database>,
     /// When to try opening it again, while it is closed.
     retry_at: Instant,
+    /// Opened again after a failure, and no write has worked since: a
+    /// failure then is the same trouble (not said again), a success is
+    /// said once.
+    retrying: bool,
 }
 
 /// Writes are off until the file can be opened again (said once).
@@ -135,6 +139,7 @@ pub(crate) fn open(path: &Path) -> Result<(Store, Vec<ClientState<Peer>>), Strin
         path: path.to_path_buf(),
         db: Some(db),
         retry_at: Instant::now(),
+        retrying: false,
     };
     Ok((store, states))
 }
@@ -150,15 +155,24 @@ impl Store {
     ) -> Result<(), Closed> {
         let db = self.db.as_ref().ok_or(Closed)?;
         if let Err(e) = f(db) {
-            tracing::error!(
-                "state file {}: {what}: {e}; sessions are not saved until it can be written \
-                 again (retried every second): a restart meanwhile would not restore them as \
-                 they are",
-                self.path.display()
-            );
+            if !self.retrying {
+                tracing::error!(
+                    "state file {}: {what}: {e}; sessions are not saved until it can be \
+                     written again (retried every second): a restart meanwhile would not \
+                     restore them as they are",
+                    self.path.display()
+                );
+            }
+            self.retrying = true;
             self.db = None;
             self.retry_at = Instant::now() + Duration::from_secs(1);
             return Err(Closed);
+        }
+        if std::mem::take(&mut self.retrying) {
+            tracing::warn!(
+                "state file {}: writable again; every session is saved anew",
+                self.path.display()
+            );
         }
         Ok(())
     }
@@ -173,10 +187,7 @@ impl Store {
         self.retry_at = now + Duration::from_secs(1);
         match Database::create(&self.path) {
             Ok(db) => {
-                tracing::warn!(
-                    "state file {}: writable again; every session is saved anew",
-                    self.path.display()
-                );
+                // (said once a write works: opening works on a full disk)
                 self.db = Some(db);
                 true
             }
