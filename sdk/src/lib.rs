@@ -380,6 +380,7 @@ mod error;
 pub mod event;
 mod format_check;
 pub mod hub;
+mod in_callback;
 pub mod ipc_backend;
 mod mailbox;
 mod publisher;

@@ -8,12 +8,6 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Mutex;
 use std::task::{Context, Waker};
 
-thread_local! {
-    /// The session (its [`SessionEnd`]'s address) whose `listen` callback
-    /// this thread runs; 0: none.
-    static IN_CALLBACK: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
-}
-
 /// Shared by every clone of a session and the handles made from it.
 #[derive(Debug, Default)]
 pub(crate) struct SessionEnd {
@@ -69,16 +63,13 @@ impl SessionEnd {
     /// Runs `f`, a `listen` callback of this session, marked as such on
     /// this thread (see [`in_own_callback`](Self::in_own_callback)).
     pub(crate) fn in_callback<R>(&self, f: impl FnOnce() -> R) -> R {
-        let outer = IN_CALLBACK.with(|c| c.replace(self as *const Self as usize));
-        let r = f();
-        IN_CALLBACK.with(|c| c.set(outer));
-        r
+        crate::in_callback::running(self as *const Self as usize, f)
     }
 
     /// Whether this thread is running a `listen` callback of this session
     /// (where waiting for the session's close could wait for ever).
     pub(crate) fn in_own_callback(&self) -> bool {
-        IN_CALLBACK.with(|c| c.get()) == self as *const Self as usize
+        crate::in_callback::inside(self as *const Self as usize)
     }
 
     /// Waiter `id` is gone.

@@ -78,11 +78,12 @@ impl Shared {
     pub(super) fn run_callbacks(&self, queues: &mut Vec<Arc<SampleQueue>>) -> Result<(), Full> {
         let mut full = false;
         while !queues.is_empty() {
-            IN_CALLBACK.with(|c| c.set(self.id()));
-            for q in queues.iter() {
-                q.run_handler();
-            }
-            IN_CALLBACK.with(|c| c.set(0));
+            // (their writes are sent when they are done: see try_publish)
+            crate::in_callback::running(self.id(), || {
+                for q in queues.iter() {
+                    q.run_handler();
+                }
+            });
             queues.clear();
             let now = Instant::now();
             let mut c = self.lock();
@@ -98,12 +99,6 @@ impl Shared {
             Ok(())
         }
     }
-}
-
-thread_local! {
-    /// The [`Shared`] whose subscription callback this thread is running
-    /// (0: none): its writes are sent when the callbacks are done.
-    pub(super) static IN_CALLBACK: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
 }
 
 pub(super) struct Core {

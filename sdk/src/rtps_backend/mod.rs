@@ -83,7 +83,7 @@ use crate::session::{
     WriteOptions,
 };
 use cmd::{disconnected, queued_units, Cmd, Done, Reply, QUEUED_WRITE_UNIT, QUEUED_WRITE_UNITS};
-use driver::{Core, Driver, Shared, IN_CALLBACK};
+use driver::{Core, Driver, Shared};
 use out::Out;
 use receive::ReceiveThread;
 use state::State;
@@ -626,7 +626,7 @@ impl Backend for RtpsBackend {
             Cmd::queued_write(publication, data, opts.key_hash, permit),
             now,
         );
-        if IN_CALLBACK.with(|t| t.get()) == self.shared.id() {
+        if crate::in_callback::inside(self.shared.id()) {
             // sent, packed with the callbacks' other writes, when they return
             return Ok(());
         }
@@ -675,7 +675,7 @@ impl Backend for RtpsBackend {
 
     async fn close(&self) {
         let (tx, rx) = oneshot::channel();
-        if IN_CALLBACK.with(|t| t.get()) == self.shared.id() {
+        if crate::in_callback::inside(self.shared.id()) {
             // a `listen` callback holds up this session's reception (and,
             // on its driver task, the driver): waiting here for the close,
             // blocked in the callback, would wait for ever

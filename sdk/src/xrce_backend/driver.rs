@@ -1464,17 +1464,12 @@ impl Driver {
             Err(_) => s.queue.count_dropped(),
         }
         if s.queue.has_handler() {
-            let outer = IN_CALLBACK.with(|c| c.replace(Arc::as_ptr(&self.shared) as usize));
-            s.queue.run_handler();
-            IN_CALLBACK.with(|c| c.set(outer));
+            // (a `close()` there cannot wait: see XrceBackend::close)
+            crate::in_callback::running(Arc::as_ptr(&self.shared) as usize, || {
+                s.queue.run_handler();
+            });
         }
     }
-}
-
-thread_local! {
-    /// The session (its [`Shared`]'s address) whose `listen` callback this
-    /// thread runs inside the driver; 0: none. A `close()` there cannot wait.
-    pub(super) static IN_CALLBACK: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
 }
 
 fn full() -> OpenError {

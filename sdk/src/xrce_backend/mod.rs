@@ -469,7 +469,7 @@ impl Backend for XrceBackend {
 
     async fn close(&self) {
         let (tx, rx) = oneshot::channel();
-        if driver::IN_CALLBACK.with(|c| c.get()) == Arc::as_ptr(&self.shared) as usize {
+        if crate::in_callback::inside(Arc::as_ptr(&self.shared) as usize) {
             // a `listen` callback runs inside the driver, which the close
             // waits for: waiting here would wait for ever
             tracing::error!(
