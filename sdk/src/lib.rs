@@ -105,7 +105,9 @@
 //!   `None`. Other `Err` items (a sample that does not decode) are not the
 //!   end: loop on `next()` and skip or log the errors you expect, or let
 //!   `s?` in the loop turn every error, a lost connection included, into
-//!   the task's.
+//!   the task's. An [`Events`] stream ends the same way: after
+//!   `SessionEvent::Disconnected` when the connection is lost, without it
+//!   after `close()`.
 //! - **Bound your awaits.** `connect` gives up by itself (IPC: after
 //!   [`SessionBuilder::connect_timeout`], 5 s by default; RTPS at once;
 //!   XRCE after its attempts), a query after its `.timeout(d)` (10 s by

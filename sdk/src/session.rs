@@ -744,6 +744,7 @@ impl Session {
     pub fn events(&self) -> Events {
         Events {
             rx: self.backend.events(),
+            end: self.end.clone(),
         }
     }
 
@@ -935,13 +936,16 @@ fn unexpected_answer(asked: &str, got: &Answer) -> ControlError {
 ///
 /// Each stream has a bounded queue of its own: one that is not read often
 /// enough loses its oldest events, never holding up the session or the
-/// other streams; [`Events::lost`] counts them. The stream ends after
-/// [`SessionEvent::Disconnected`] when the session closes (one opened
-/// after that ends at once).
+/// other streams; [`Events::lost`] counts them. The stream ends (`None`)
+/// when the session ends: after [`SessionEvent::Disconnected`] when the
+/// connection is lost for good, and without it when the session's user
+/// calls [`Session::close`] (on any clone). One made after that ends at
+/// once.
 #[derive(Debug)]
 #[must_use = "dropping it stops listening"]
 pub struct Events {
     rx: crate::hub::Listener<SessionEvent>,
+    end: Arc<crate::session_end::SessionEnd>,
 }
 
 impl Events {
@@ -955,6 +959,10 @@ impl Events {
 impl Stream for Events {
     type Item = SessionEvent;
     fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<SessionEvent>> {
-        Pin::new(&mut self.rx).poll_next(cx)
+        match Pin::new(&mut self.rx).poll_next(cx) {
+            // a `close()` asked for is no loss to report
+            Poll::Ready(Some(SessionEvent::Disconnected)) if self.end.ended() => Poll::Ready(None),
+            other => other,
+        }
     }
 }

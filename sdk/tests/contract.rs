@@ -486,7 +486,8 @@ fn handles_are_debug_whatever_their_type() {
 
 /// A `close()` asked for ends the session's streams with `None`, without
 /// an error (`s?` in a loop over them ends cleanly), whichever clone of the
-/// session closed it; on IPC and DDS.
+/// session closed it; on IPC and DDS. Its events end too, without a
+/// `Disconnected` (which says the connection was lost).
 #[tokio::test]
 async fn a_close_ends_streams_without_an_error() {
     let (c, url) = central().await;
@@ -494,6 +495,8 @@ async fn a_close_ends_streams_without_an_error() {
         let s = session(&url, "closing").await;
         let mut sub = s.subscribe::<i32>("t").await.unwrap();
         let mut reqs = s.serve::<Ask, Sum>("add", "").await.unwrap();
+        let events = s.events();
+        let seen = tokio::spawn(events.collect::<Vec<_>>());
         let run = tokio::spawn(async move {
             let mut n = 0;
             // (recv: next() without StreamExt)
@@ -511,6 +514,11 @@ async fn a_close_ends_streams_without_an_error() {
         tokio::time::timeout(T, clone.close()).await.unwrap();
         let n = tokio::time::timeout(T, run).await.unwrap().unwrap();
         assert_eq!(n, Ok(0), "{url}");
+        let seen = tokio::time::timeout(T, seen).await.unwrap().unwrap();
+        assert!(
+            !seen.contains(&courier::SessionEvent::Disconnected),
+            "{url}: {seen:?}"
+        );
     }
     c.shutdown().await;
 }

@@ -527,9 +527,13 @@ async fn a_closed_session_lets_go_of_its_callbacks_and_ends_its_streams() {
     let agent = xrce_agent::udp(0).await;
     let s = session(format!("xrce+udp://{}", agent.addr), "closing").await;
     let mut sub = s.subscribe::<Msg>("chatter").await.unwrap();
+    let events = s.events();
     common::close_lets_go_of_a_callback(s).await;
     let end = tokio::time::timeout(T, sub.next()).await.unwrap();
     assert!(end.is_none(), "{end:?}");
+    // no `Disconnected`: that says a connection was lost
+    let seen: Vec<_> = tokio::time::timeout(T, events.collect()).await.unwrap();
+    assert!(!seen.contains(&SessionEvent::Disconnected), "{seen:?}");
 }
 
 /// `Duration::MAX` as a query's bound means "as long as it takes" (it
