@@ -318,7 +318,7 @@
 //! | `uxr_init_can_transport` | none: no CAN link (CAN FD needs SocketCAN and a frame mapping of its own) |
 //! | `uxr_init_custom_transport`, `uxr_set_custom_transport_callbacks` | a backend of your own under a URL scheme of your own ([`scheme::register_scheme`]), driving [`xrce::Client`] over your link |
 //! | `uxr_init_session`, `uxr_create_session`, `uxr_create_session_retries` | `Session::builder(url).connect().await` (client key `key=`, session id `session=`, attempts `attempts=`/`attempt_ms=`; [`XrceOptions`]) |
-//! | `uxr_delete_session`, `uxr_delete_session_retries` | `Session::close` (the session's DELETE is sent, its STATUS awaited briefly) |
+//! | `uxr_delete_session`, `uxr_delete_session_retries` | `Session::close` (what the reliable streams hold is acknowledged first, up to `linger_ms`, as `uxr_run_session_until_confirm_delivery`; then the DELETE is sent, its STATUS awaited briefly) |
 //! | `uxr_create_output_best_effort_stream`, `uxr_create_output_reliable_stream`, `uxr_create_input_best_effort_stream`, `uxr_create_input_reliable_stream` | not needed: every session has the built-in best-effort (0x01) and reliable (0x80) streams; a publication's or subscription's [`Reliability`] picks one; window and history: `depth=`, `history=`, `mtu=` |
 //! | `uxr_stream_id`, `uxr_stream_id_from_raw`, `uxr_object_id` | not needed: the session allocates object ids and streams; `courier::xrce::{StreamId, ObjectId}` for code that drives the machine itself |
 //! | `uxr_buffer_create_participant_{bin,xml,ref}` | automatic: one participant per session, in `domain=`, made with the first entity, by the representation of `representation=binary\|xml\|reference` (`ref.participant=` names its profile) |

@@ -837,8 +837,11 @@ impl Session {
     /// unregistered, per `autodispose`), and the close waits, up to one
     /// second as Cyclone DDS's writer linger, until the readers
     /// acknowledged what its writers hold: a burst of `publish().await`s
-    /// right before it is not lost. A `.confirmed()` publish is the way to
-    /// know that one sample arrived.
+    /// right before it is not lost. On XRCE the close likewise waits, up to
+    /// [`XrceOptions::linger`](crate::xrce_backend::XrceOptions::linger)
+    /// (3 s), for the agent to acknowledge what the reliable streams hold
+    /// before it deletes the session. A `.confirmed()` publish is the way
+    /// to know that one sample arrived.
     pub async fn close(&self) {
         self.end.end();
         if self.end.in_own_callback() {

@@ -166,8 +166,12 @@ pub(super) struct Driver {
     /// The link reports that nothing listens at the agent's address
     /// (UDP: an ICMP "port unreachable" since the agent last spoke).
     pub(super) unreachable: bool,
-    /// Closing: the session's DELETE is out, stop at this time at the latest.
+    /// Closing: the session's DELETE is out (or waits for `draining`),
+    /// stop at this time at the latest.
     pub(super) closing: Option<(Instant, oneshot::Sender<()>)>,
+    /// Closing: the DELETE waits until the agent acknowledged what the
+    /// reliable streams hold, or this time.
+    pub(super) draining: Option<Instant>,
     pub(super) done: bool,
 }
 
@@ -306,6 +310,7 @@ impl Driver {
             stalled: None,
             unreachable: false,
             closing: None,
+            draining: None,
             done: false,
         }
     }
@@ -342,6 +347,7 @@ impl Driver {
     pub(super) fn next_wakeup(&self) -> Option<Instant> {
         let parked = self.parked.iter().map(|(t, _)| *t).min();
         let closing = self.closing.as_ref().map(|c| c.0);
+        let closing = closing.into_iter().chain(self.draining).min();
         let opens = self.opens.values().map(|w| w.deadline).min();
         [
             self.client.poll_timeout(),
@@ -1063,15 +1069,50 @@ impl Driver {
             let _ = reply.send(());
             return;
         }
+        if self.client.state() == State::Connected && !self.client.is_idle() {
+            // what the reliable streams hold goes out first: deleted with
+            // the session, a write whose publish returned would be lost
+            let until = courier_wire::time::later(now, self.opts.linger);
+            self.draining = Some(until);
+            self.closing = Some((until, reply));
+            return;
+        }
+        let end = self.delete_session(now);
+        self.closing = Some((end, reply));
+    }
+
+    /// A draining close goes on once the reliable streams are acknowledged
+    /// or its linger is over (called every turn of the loop).
+    pub(super) fn drained(&mut self, now: Instant) {
+        let Some(until) = self.draining else { return };
+        // (a lost agent acknowledges nothing: no use waiting)
+        if self.client.state() == State::Connected && !self.client.is_idle() && now < until {
+            return;
+        }
+        self.draining = None;
+        let end = self.delete_session(now);
+        if let Some(c) = &mut self.closing {
+            c.0 = end;
+        }
+    }
+
+    /// The close's DELETE goes out (if there is a session); what the agent
+    /// has not acknowledged is reported. Returns when the close stops
+    /// waiting for the agent's answer.
+    fn delete_session(&mut self, now: Instant) -> Instant {
         let unacked = self.acks.len();
         if unacked > 0 {
             tracing::warn!("XRCE session closes with {unacked} confirmed write(s) unacknowledged");
+        } else if self.in_session() && !self.client.is_idle() {
+            tracing::warn!(
+                "XRCE session closes with writes the agent has not acknowledged (linger_ms={})",
+                self.opts.linger.as_millis()
+            );
         }
         if self.in_session() && self.client.disconnect(now).is_ok() {
-            let wait = self.opts.connect_interval.min(Duration::from_millis(500));
-            self.closing = Some((now + wait, reply));
+            now + self.opts.connect_interval.min(Duration::from_millis(500))
         } else {
-            self.closing = Some((now, reply));
+            now
         }
     }
 
@@ -1147,6 +1188,7 @@ impl Driver {
                 self.complete(w, now);
             }
         }
+        self.drained(now);
         if self.closing.as_ref().is_some_and(|c| c.0 <= now) {
             self.finish();
         }
@@ -1493,6 +1535,7 @@ pub(super) async fn run(mut d: Driver, mut inbox: Inbox<Cmd>, mut link: Option<L
         let now = Instant::now();
         d.unreachable = link.as_ref().is_some_and(Link::unreachable);
         d.events(now);
+        d.drained(now);
         // transmit what the machine has
         while let Some(m) = d.client.poll_transmit() {
             let Some(l) = link.as_mut() else {

@@ -172,6 +172,12 @@ pub struct XrceOptions {
     /// How long a publish or open waits for a lost agent to come back
     /// before it fails (`wait_ms=`, 10 000).
     pub agent_wait: Duration,
+    /// How long [`Session::close`](crate::Session::close) waits for the
+    /// agent to acknowledge what the reliable streams still hold before it
+    /// deletes the session (`linger_ms=`, 3000; less if the agent is lost
+    /// meanwhile). Writes it gives up on are logged as a warning; 0 deletes
+    /// at once, as eProsima's `uxr_delete_session` does.
+    pub linger: Duration,
     /// Reference profile names (`ref.<kind>.<name>=<profile>`, kind one of
     /// [`RefKind::name`]; `ref.participant=<profile>` for the participant).
     /// Without one, an entity's profile is `<name>_<kind>`
@@ -206,6 +212,7 @@ impl XrceOptions {
             connect_attempts: 10,
             connect_interval: Duration::from_secs(1),
             agent_wait: Duration::from_secs(10),
+            linger: Duration::from_secs(3),
             references: BTreeMap::new(),
             discovery: None,
         }
@@ -429,6 +436,8 @@ impl XrceOptions {
                 "attempt_ms" => o.connect_interval = ms(v)?,
                 // 0: fail at once while the agent is lost
                 "wait_ms" => o.agent_wait = Duration::from_millis(num(v)?),
+                // 0: delete the session at once
+                "linger_ms" => o.linger = Duration::from_millis(num(v)?),
                 "creation" => {
                     o.creation = match v {
                         "replace" => XrceCreation::Replace,
@@ -526,6 +535,9 @@ mod tests {
             }
         );
         assert_eq!(o.mtu, 256);
+        assert_eq!(o.linger, Duration::from_secs(3));
+        let z = XrceOptions::from_url("xrce+udp://h:1?linger_ms=0").unwrap();
+        assert_eq!(z.linger, Duration::ZERO);
         assert_eq!(
             o.to_owned().transport.to_string(),
             "xrce+serial:///dev/pts/3?baud=9600"

@@ -330,6 +330,12 @@ impl Drop for TestAgent {
 
 /// An agent on UDP 127.0.0.1:`port` (0: any free port).
 pub async fn udp(port: u16) -> TestAgent {
+    udp_dropping(port, None).await
+}
+
+/// An agent on UDP that loses every `every`-th datagram it receives (a
+/// lossy link; the kernel has no netem), or none.
+pub async fn udp_dropping(port: u16, every: Option<u32>) -> TestAgent {
     let sock = UdpSocket::bind(("127.0.0.1", port)).await.unwrap();
     let addr = sock.local_addr().unwrap();
     let muted = Arc::new(AtomicBool::new(false));
@@ -338,12 +344,15 @@ pub async fn udp(port: u16) -> TestAgent {
         let mut agent: Agent<SocketAddr> = Agent::new(config(), Instant::now(), SystemTime::now());
         let mut host = Host::default();
         let mut buf = vec![0u8; 65_536];
+        let mut received = 0u32;
         loop {
             let wake = agent.poll_timeout();
             tokio::select! {
                 r = sock.recv_from(&mut buf) => {
                     let Ok((n, from)) = r else { continue };
                     if m.load(Ordering::SeqCst) { continue; }
+                    received = received.wrapping_add(1);
+                    if every.is_some_and(|k| received % k == 0) { continue; }
                     let _ = agent.handle_input(from, &buf[..n], Instant::now());
                 }
                 _ = async {
