@@ -613,3 +613,47 @@ async fn names_dds_cannot_carry_are_refused_clearly() {
     );
     s.close().await;
 }
+
+/// A burst of `publish().await`s right before `close()` is not lost: the
+/// close sends what the session still holds before it goes (IPC: what
+/// waits to be written to central; DDS: the writer's linger, while the
+/// reader reads). Each of the 2000 samples returned `Ok`, so each must
+/// arrive.
+#[tokio::test]
+async fn a_burst_published_right_before_close_arrives() {
+    let (c, url) = central().await;
+    for url in [url, common::url(6)] {
+        let a = session(&url, "burst").await;
+        let b = session(&url, "count").await;
+        let mut sub = b.subscribe::<Sum>("burst").await.unwrap();
+        let p = a.publisher::<Sum>("burst").build().await.unwrap();
+        tokio::time::timeout(T, a.wait_for_handlers("burst", 1, T))
+            .await
+            .unwrap()
+            .unwrap();
+        let reader = tokio::spawn(async move {
+            let mut got = Vec::new();
+            while got.len() < 2000 {
+                match tokio::time::timeout(T, sub.next()).await {
+                    Ok(Some(Ok(s))) => got.push(s.value.total),
+                    _ => break,
+                }
+            }
+            got
+        });
+        let note = "x".repeat(500);
+        for total in 0..2000 {
+            let s = Sum {
+                total,
+                note: note.clone(),
+            };
+            p.publish(&s).await.unwrap();
+        }
+        drop(p);
+        tokio::time::timeout(T, a.close()).await.unwrap();
+        let got = reader.await.unwrap();
+        assert_eq!(got, (0..2000).collect::<Vec<_>>(), "{url}");
+        b.close().await;
+    }
+    c.shutdown().await;
+}
