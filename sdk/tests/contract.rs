@@ -616,13 +616,17 @@ async fn names_dds_cannot_carry_are_refused_clearly() {
 
 /// A burst of `publish().await`s right before `close()` is not lost: the
 /// close sends what the session still holds before it goes (IPC: what
-/// waits to be written to central; DDS: the writer's linger, while the
+/// waits to be written to central or, direct, to the other module; DDS:
+/// the writer's linger, while the
 /// reader reads). Each of the 2000 samples returned `Ok`, so each must
 /// arrive.
 #[tokio::test]
 async fn a_burst_published_right_before_close_arrives() {
     let (c, url) = central().await;
-    for url in [url, common::url(6)] {
+    let mut direct = courier_broker::Config::default();
+    direct.direct = true;
+    let (d, direct_url) = common::central_with(direct, |b| b).await;
+    for url in [url, direct_url, common::url(6)] {
         let a = session(&url, "burst").await;
         let b = session(&url, "count").await;
         let mut sub = b.subscribe::<Sum>("burst").await.unwrap();
@@ -656,4 +660,5 @@ async fn a_burst_published_right_before_close_arrives() {
         b.close().await;
     }
     c.shutdown().await;
+    d.shutdown().await;
 }
