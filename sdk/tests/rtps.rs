@@ -1670,3 +1670,31 @@ async fn a_query_fails_at_once_when_its_server_leaves_without_answering() {
     holder.abort();
     client.close().await;
 }
+
+/// A close whose linger ends with samples a reader has not acknowledged
+/// (it stopped reading) says so: they may be lost, and `publish` had
+/// returned `Ok` for them.
+#[tokio::test]
+async fn a_close_that_gives_up_on_unacknowledged_samples_warns() {
+    let a = session(202, "a").await;
+    let b = session(202, "b").await;
+    let p = a.publisher::<Msg>("linger").build().await.unwrap();
+    let _sub = b
+        .subscriber::<Msg>("linger")
+        .queue(courier::QueuePolicy::KeepAll(1))
+        .build()
+        .await
+        .unwrap();
+    await_handlers(&a, "linger", 1).await;
+    for i in 0..50 {
+        p.publish(&msg(i)).await.unwrap();
+    }
+    let (logs, _guard) = common::capture_logs();
+    tokio::time::timeout(T, a.close()).await.unwrap();
+    let logs = String::from_utf8(logs.lock().unwrap().clone()).unwrap();
+    assert!(
+        logs.contains("closes with samples its readers have not acknowledged"),
+        "{logs}"
+    );
+    b.close().await;
+}

@@ -1562,39 +1562,12 @@ async fn wait_for_handlers_counts_subscribers_and_gives_up_naming_the_count() {
     c.shutdown().await;
 }
 
-/// The log lines of this thread (the test's runtime is current-thread, so
-/// the sessions' tasks log here too) while the guard lives.
-fn capture_logs() -> (
-    std::sync::Arc<std::sync::Mutex<Vec<u8>>>,
-    tracing::subscriber::DefaultGuard,
-) {
-    let buf = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
-    let sink = buf.clone();
-    let sub = tracing_subscriber::fmt()
-        .with_ansi(false)
-        .with_writer(move || LogSink(sink.clone()))
-        .finish();
-    (buf, tracing::subscriber::set_default(sub))
-}
-
-struct LogSink(std::sync::Arc<std::sync::Mutex<Vec<u8>>>);
-
-impl std::io::Write for LogSink {
-    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
-        self.0.lock().unwrap().extend_from_slice(b);
-        Ok(b.len())
-    }
-    fn flush(&mut self) -> std::io::Result<()> {
-        Ok(())
-    }
-}
-
 /// A message published to a module that serves it (takes queries) and
 /// does not subscribe to it is dropped there, as before, but no longer
 /// silently: one warning per message says what was wrong.
 #[tokio::test]
 async fn a_publish_to_a_server_is_warned_of_once() {
-    let (logs, _guard) = capture_logs();
+    let (logs, _guard) = common::capture_logs();
     let (c, url) = central().await;
     let server = session(&url, "server").await;
     let publisher = session(&url, "publisher").await;

@@ -245,6 +245,13 @@ impl Driver {
                 continue;
             }
             if let Some(l) = linger.take_if(|l| quiet || now >= l.until) {
+                if !quiet {
+                    tracing::warn!(
+                        "DDS session closes with samples its readers have not acknowledged \
+                         (after a linger of {} ms); they may be lost",
+                        CLOSE_LINGER.as_millis()
+                    );
+                }
                 self.close(Instant::now()).await;
                 for r in l.replies {
                     let _ = r.send(());

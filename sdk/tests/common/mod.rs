@@ -258,3 +258,30 @@ pub async fn close_inside_own_callback(a: &Session, b: &Session, topic: &str) {
         .unwrap();
     assert_eq!(returned, Ok(()), "the callback got out of close()");
 }
+
+/// The log lines of this thread (the test's runtime is current-thread, so
+/// the sessions' tasks log here too) while the guard lives.
+pub fn capture_logs() -> (
+    std::sync::Arc<std::sync::Mutex<Vec<u8>>>,
+    tracing::subscriber::DefaultGuard,
+) {
+    let buf = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    let sink = buf.clone();
+    let sub = tracing_subscriber::fmt()
+        .with_ansi(false)
+        .with_writer(move || LogSink(sink.clone()))
+        .finish();
+    (buf, tracing::subscriber::set_default(sub))
+}
+
+struct LogSink(std::sync::Arc<std::sync::Mutex<Vec<u8>>>);
+
+impl std::io::Write for LogSink {
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        self.0.lock().unwrap().extend_from_slice(b);
+        Ok(b.len())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
