@@ -114,6 +114,17 @@
 //!   default) and a confirmed publish after its `.confirmed_within(d)`; a
 //!   subscription's `next()` waits for the next sample however long that
 //!   takes, so wrap it in `tokio::time::timeout` where silence is an error.
+//! - **Cancelling is safe.** Any of these futures may be dropped by a
+//!   `timeout`, a `select!` or an aborted task:
+//!   - `next()` / `recv()` of a [`Subscriber`], [`Requests`] or [`Events`]
+//!     lose nothing: the item stays for the next call;
+//!   - an open (`subscribe`, `serve`, `publisher(..).build()`, `listen`,
+//!     the first query of a service) leaves nothing open;
+//!   - a dropped query is given up (a server may still get it: queries are
+//!     not taken back);
+//!   - a dropped `publish` is sent if the session had queued it, and not
+//!     otherwise, never in part;
+//!   - a dropped `close()` still closes the session.
 //! - **IPC sends no message nobody subscribes to** (as C): a publish before
 //!   central told the module about a subscriber returns `Ok` and sends
 //!   nothing. `Session::num_handlers` asks central and makes the answer
@@ -385,6 +396,7 @@ pub mod hub;
 mod in_callback;
 pub mod ipc_backend;
 mod mailbox;
+mod open_answer;
 mod publisher;
 pub mod qos;
 mod queue;

@@ -598,6 +598,13 @@ impl Session {
         if let Some(c) = self.topics.client(msg) {
             return Ok(c);
         }
+        // one opens it; the others wait for it (and try themselves if
+        // that open fails or is dropped)
+        let opening = self.topics.client_opening(msg);
+        let _turn = opening.lock().await;
+        if let Some(c) = self.topics.client(msg) {
+            return Ok(c);
+        }
         let id = self.backend.open_client(msg, req, resp).await?;
         let kept = self.topics.set_client(msg, id);
         if kept != id {

@@ -7,7 +7,7 @@
 //! on first use and refuses another type afterwards, naming both.
 
 use std::collections::HashMap;
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 
 use courier_wire::IpcMessage;
 
@@ -53,13 +53,35 @@ struct Entry {
 /// A session's topic → type bindings and shared handles, shared by the
 /// session's clones.
 #[derive(Debug, Default)]
-pub(crate) struct Topics(Mutex<HashMap<String, Entry>>);
+pub(crate) struct Topics {
+    map: Mutex<HashMap<String, Entry>>,
+    /// A lock per service whose client is being opened: tasks that make
+    /// the first query of a service at once open one client, not one each
+    /// (on XRCE, a thousand requesters created and deleted on the agent).
+    opening: Mutex<HashMap<String, Arc<tokio::sync::Mutex<()>>>>,
+}
 
 impl Topics {
     fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<String, Entry>> {
         // a panic elsewhere cannot leave the map half-updated: every update
         // is one insert or one field store
-        self.0.lock().unwrap_or_else(|e| e.into_inner())
+        self.map.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// The lock to hold while opening the client of `msg` (see
+    /// [`Topics::client_opened`]).
+    pub(crate) fn client_opening(&self, msg: &str) -> Arc<tokio::sync::Mutex<()>> {
+        let mut opening = self.opening.lock().unwrap_or_else(|e| e.into_inner());
+        opening.entry(msg.to_string()).or_default().clone()
+    }
+
+    /// The client of `msg` is open: its opening lock goes (those who wait
+    /// for it find the client when they get it).
+    fn client_opened(&self, msg: &str) {
+        self.opening
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .remove(msg);
     }
 
     /// DDS and XRCE: binds the replies of the service `msg` to `R`, or
@@ -143,12 +165,14 @@ impl Topics {
 
     /// As [`Topics::set_publication`], for clients.
     pub(crate) fn set_client(&self, msg: &str, id: ClientId) -> ClientId {
-        *self
+        let kept = *self
             .lock()
             .entry(msg.to_string())
             .or_default()
             .client
-            .get_or_insert(id)
+            .get_or_insert(id);
+        self.client_opened(msg);
+        kept
     }
 }
 

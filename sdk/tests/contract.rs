@@ -662,3 +662,72 @@ async fn a_burst_published_right_before_close_arrives() {
     c.shutdown().await;
     d.shutdown().await;
 }
+
+/// Polls `f` once, lets the session's tasks run `turns` times, and drops
+/// it: an open cancelled at every stage (a `timeout` or `select!` would
+/// drop it anywhere).
+async fn cancel_after<F: std::future::Future>(f: F, turns: usize) {
+    let mut f = std::pin::pin!(f);
+    let _ = futures::poll!(&mut f);
+    for _ in 0..turns {
+        tokio::task::yield_now().await;
+    }
+}
+
+/// Cancelled `subscribe` and `serve` calls leave nothing behind: no
+/// subscription nobody reads (its full queue held every other delivery to
+/// the session, and its publishers still counted it), no service that
+/// keeps its name (a second `serve` was refused for ever). IPC, IPC direct
+/// and RTPS.
+#[tokio::test]
+async fn cancelled_opens_leave_nothing_behind() {
+    let (c, url) = central().await;
+    let mut direct = courier_broker::Config::default();
+    direct.direct = true;
+    let (d, direct_url) = common::central_with(direct, |b| b).await;
+    for url in [url, direct_url, common::url(7)] {
+        let a = session(&url, "cancelling").await;
+        let b = session(&url, "publishing").await;
+        b.define::<i32>("leak").await.unwrap();
+        for turns in 0..40 {
+            cancel_after(a.subscribe::<i32>("leak"), turns % 8).await;
+            cancel_after(a.serve::<Ask, Sum>("svc", ""), turns % 8).await;
+        }
+        // every subscription of `leak` is gone (central or matching says)
+        let gone = tokio::time::timeout(T, async {
+            while b.num_handlers("leak").await.unwrap() != 0 {
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
+        })
+        .await;
+        assert!(
+            gone.is_ok(),
+            "{url}: cancelled subscriptions still count: {:?}",
+            b.num_handlers("leak").await
+        );
+        // the service can be served again
+        let served = tokio::time::timeout(T, a.serve::<Ask, Sum>("svc", "")).await;
+        assert!(matches!(served, Ok(Ok(_))), "{url}: {served:?}");
+        // and a subscription of the session still gets what is published,
+        // after a flood of the topic the cancelled ones named
+        let mut other = a.subscribe::<i32>("other").await.unwrap();
+        let p = b.publisher::<i32>("other").build().await.unwrap();
+        tokio::time::timeout(T, b.wait_for_handlers("other", 1, T))
+            .await
+            .unwrap()
+            .unwrap();
+        for i in 0..2000 {
+            b.publish("leak", &i).await.unwrap();
+        }
+        p.publish(&7).await.unwrap();
+        let got = tokio::time::timeout(T, other.next()).await;
+        assert!(
+            matches!(got, Ok(Some(Ok(ref s))) if s.value == 7),
+            "{url}: {got:?}"
+        );
+        a.close().await;
+        b.close().await;
+    }
+    c.shutdown().await;
+    d.shutdown().await;
+}

@@ -612,3 +612,84 @@ async fn a_burst_published_right_before_close_is_not_lost() {
     assert_eq!(got, (0..200).collect::<Vec<_>>());
     b.close().await;
 }
+
+/// Many tasks making the first query of a service at once open one client
+/// (requester) between them, not one each (1000 tasks created 1000
+/// requesters on the agent, then deleted 999); and queries dropped half-way
+/// leave the session able to query.
+#[tokio::test]
+async fn concurrent_first_queries_open_one_client() {
+    let agent = xrce_agent::udp(0).await;
+    let url = format!("xrce+udp://{}", agent.addr);
+    let server = session(url.clone(), "server").await;
+    let client = session(url, "client").await;
+    let serving = adder(&server).await;
+    let asks: Vec<_> = (0..50)
+        .map(|a| {
+            let c = client.clone();
+            tokio::spawn(async move {
+                let r: AddReply = c
+                    .query("add", &AddRequest { a, b: 1 })
+                    .timeout(T)
+                    .await
+                    .unwrap();
+                assert_eq!(r.sum, a + 1);
+            })
+        })
+        .collect();
+    for a in asks {
+        tokio::time::timeout(T, a).await.unwrap().unwrap();
+    }
+    assert_eq!(agent.requesters_created(), 1);
+    client.close().await;
+    server.close().await;
+    serving.abort();
+}
+
+/// Polls `f` once, lets the session's tasks run `turns` times, and drops
+/// it: an open cancelled at every stage.
+async fn cancel_after<F: std::future::Future>(f: F, turns: usize) {
+    let mut f = std::pin::pin!(f);
+    let _ = futures::poll!(&mut f);
+    for _ in 0..turns {
+        tokio::task::yield_now().await;
+    }
+}
+
+/// Cancelled `subscribe` and `serve` calls leave nothing open: the service
+/// can be served again and the session's other subscriptions get what is
+/// published after a flood of the cancelled ones' topic.
+#[tokio::test]
+async fn cancelled_opens_leave_nothing_behind() {
+    let agent = xrce_agent::udp(0).await;
+    let url = format!("xrce+udp://{}", agent.addr);
+    let a = session(url.clone(), "cancelling").await;
+    let b = session(url, "publishing").await;
+    for turns in 0..40 {
+        cancel_after(a.subscribe::<Msg>("leak"), turns % 8).await;
+        cancel_after(a.serve::<AddRequest, AddReply>("svc", ""), turns % 8).await;
+    }
+    // the agent's answer to a cancelled serve may still be on its way
+    let served = tokio::time::timeout(T, async {
+        loop {
+            match a.serve::<AddRequest, AddReply>("svc", "").await {
+                Err(OpenError::AlreadyServed(_)) => {
+                    tokio::time::sleep(Duration::from_millis(20)).await
+                }
+                other => return other,
+            }
+        }
+    })
+    .await;
+    assert!(matches!(served, Ok(Ok(_))), "{served:?}");
+    let mut other = a.subscribe::<Msg>("other").await.unwrap();
+    let leak = b.publisher::<Msg>("leak").build().await.unwrap();
+    let p = b.publisher::<Msg>("other").build().await.unwrap();
+    for i in 0..2000 {
+        leak.publish(&msg(i, 4)).await.unwrap();
+    }
+    p.publish(&msg(7, 4)).await.unwrap();
+    assert_eq!(next(&mut other).await, msg(7, 4));
+    a.close().await;
+    b.close().await;
+}

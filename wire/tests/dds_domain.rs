@@ -607,6 +607,43 @@ fn a_query_a_matched_service_leaves_unanswered_times_out() {
     assert!(net.has(0, |e| matches!(e, Event::QueryFailed { client, query, reason: QueryFailure::Timeout(t) } if *client == c && *query == q && *t == ms(3000))));
 }
 
+/// A cancelled query is forgotten: neither a failure nor its reply is
+/// reported, whether it waited for a service (unsent) or was sent.
+#[test]
+fn a_cancelled_query_is_neither_answered_nor_failed() {
+    let mut net = new_net(2, 4, 0);
+    let now = net.now();
+    let cfg = ServiceConfig::new("cancel", "Req", "Rep");
+    let c = net.node(0).create_client(&cfg, now).unwrap();
+    // unsent: no service yet
+    let waiting = net.node(0).query(c, sample(1), ms(300), now).unwrap();
+    assert!(net.node(0).cancel_query(waiting));
+    assert!(!net.node(0).cancel_query(waiting), "once");
+    net.run_for(ms(400));
+    assert!(!net.has(0, |e| matches!(e, Event::QueryFailed { .. })));
+    // sent, and answered after the cancel
+    let now = net.now();
+    let s = net.node(1).create_service(&cfg, now).unwrap();
+    let sent = net.node(0).query(c, sample(2), ms(3000), now).unwrap();
+    net.run_until(ms(3000), |n| {
+        n.has(1, |e| matches!(e, Event::Request { .. }))
+    });
+    assert!(net.node(0).cancel_query(sent));
+    let request = net.hosts[1].events.iter().find_map(|e| match e {
+        Event::Request { request, .. } => Some(*request),
+        _ => None,
+    });
+    let now = net.now();
+    net.node(1)
+        .reply(s, request.unwrap(), sample(3), now)
+        .unwrap();
+    net.run_for(ms(3100));
+    assert!(!net.has(0, |e| matches!(
+        e,
+        Event::Reply { .. } | Event::QueryFailed { .. }
+    )));
+}
+
 #[test]
 fn a_pattern_subscription_reads_every_matching_topic_and_type() {
     let mut net = new_net(2, 13, 10);

@@ -137,6 +137,40 @@ pub struct IpcBackend {
     stop: Arc<tokio::sync::Notify>,
 }
 
+/// What undoes an operation whose future is dropped half-way (a `timeout`
+/// or `select!` cancelled it): posted to the driver on drop, unless
+/// [`done`](Undo::done). Without it a cancelled `subscribe` left a
+/// subscription nobody reads, whose full queue then held every delivery to
+/// the module; a cancelled `serve` kept the message served for ever; a
+/// dropped query stayed pending in the driver and the module.
+struct Undo<'a> {
+    cmd: &'a Mailbox<Cmd>,
+    undo: Option<Cmd>,
+}
+
+impl<'a> Undo<'a> {
+    fn new(cmd: &'a Mailbox<Cmd>, undo: Cmd) -> Self {
+        Undo {
+            cmd,
+            undo: Some(undo),
+        }
+    }
+
+    /// The operation ended (either way): nothing to undo.
+    fn done(mut self) {
+        self.undo = None;
+    }
+}
+
+impl Drop for Undo<'_> {
+    fn drop(&mut self) {
+        if let Some(c) = self.undo.take() {
+            // (commands are taken in order: after the operation's own)
+            let _ = self.cmd.post(c);
+        }
+    }
+}
+
 impl std::fmt::Debug for IpcBackend {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("IpcBackend")
@@ -367,9 +401,12 @@ impl Backend for IpcBackend {
         }
         let id = SubId(self.next_handle());
         let g = Err(self.gone());
-        self.call(|d| Cmd::Subscribe(msg.into(), queue, id, d), g)
-            .await?;
-        Ok(id)
+        let undo = Undo::new(&self.cmd, Cmd::CloseHandle(Handle::Subscription(id)));
+        let r = self
+            .call(|d| Cmd::Subscribe(msg.into(), queue, id, d), g)
+            .await;
+        undo.done();
+        r.map(|()| id)
     }
 
     async fn open_service(
@@ -385,8 +422,10 @@ impl Backend for IpcBackend {
         let (tx, rx) = mpsc::channel(queue.max(1));
         let id = ServiceId(self.next_handle());
         let g = Err(self.gone());
-        self.call(|d| Cmd::Serve(msg.into(), tx, id, d), g).await?;
-        Ok((id, rx))
+        let undo = Undo::new(&self.cmd, Cmd::CloseHandle(Handle::Service(id)));
+        let r = self.call(|d| Cmd::Serve(msg.into(), tx, id, d), g).await;
+        undo.done();
+        r.map(|()| (id, rx))
     }
 
     async fn open_client(
@@ -436,12 +475,16 @@ impl Backend for IpcBackend {
             .next_query
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let (tx, rx) = oneshot::channel();
+        // a query dropped before its answer is given up: the driver and the
+        // module forget it (else 300 000 dropped queries held 140 MB)
+        let undo = Undo::new(&self.cmd, Cmd::CancelQuery(key));
         if self
             .cmd
             .send(Cmd::Query(key, msg.to_string(), data, tx))
             .await
             .is_err()
         {
+            undo.done();
             return Err(QueryError::Disconnected(msg.to_string()));
         }
         let answered = |r: Result<Result<RawReply, QueryError>, _>| {
@@ -455,18 +498,23 @@ impl Backend for IpcBackend {
         // after it, a slow central made the query overshoot its timeout)
         let ask_at = deadline - (timeout / 10).min(Duration::from_secs(1));
         if let Ok(r) = tokio::time::timeout_at(ask_at, &mut rx).await {
+            undo.done();
             return answered(r);
         }
         let handlers = tokio::select! {
-            r = &mut rx => return answered(r),
+            r = &mut rx => {
+                undo.done();
+                return answered(r);
+            }
             n = IpcControl::num_handlers(self, &msg) => n.ok(),
             () = tokio::time::sleep_until(deadline) => None,
         };
         if let Ok(r) = tokio::time::timeout_at(deadline, &mut rx).await {
+            undo.done();
             return answered(r);
         }
-        // one per query
-        let _ = self.cmd.post(Cmd::CancelQuery(key));
+        // given up: central and the module forget it
+        drop(undo);
         if handlers == Some(0) {
             return Err(QueryError::NoResponder {
                 msg: msg.to_string(),

@@ -420,6 +420,23 @@ impl RtpsBackend {
         self.cmd.send(make(tx)).await.map_err(|_| disconnected())?;
         rx.await.map_err(|_| disconnected())?
     }
+
+    /// As `ask`, for a command that opens what `handle` names: if the
+    /// caller stops waiting (a `timeout` or `select!` drops the future),
+    /// what the driver opened is closed (see [`OpenAnswer`]).
+    ///
+    /// [`OpenAnswer`]: crate::open_answer::OpenAnswer
+    async fn ask_open<T: Copy, E: Failure>(
+        &self,
+        handle: fn(T) -> Handle,
+        make: impl FnOnce(Reply<T, E>) -> Cmd,
+    ) -> Result<T, E> {
+        let (tx, rx) = oneshot::channel();
+        self.cmd.send(make(tx)).await.map_err(|_| disconnected())?;
+        let close = |h: Handle| Backend::close_handle(self, h);
+        let answer = crate::open_answer::OpenAnswer::new(rx, handle, &close);
+        answer.get().await.ok_or_else(disconnected)?
+    }
 }
 
 fn too_large(msg: &str, len: usize) -> PublishError {
@@ -486,7 +503,7 @@ impl Backend for RtpsBackend {
         })?;
         let (topic, ty, qos) = (msg.to_string(), Box::new(ty.clone()), Box::new(qos.clone()));
         let id = self
-            .ask(|reply| Cmd::Publication {
+            .ask_open(Handle::Publication, |reply| Cmd::Publication {
                 topic,
                 ty,
                 qos,
@@ -516,7 +533,7 @@ impl Backend for RtpsBackend {
             ty.filter(|t| !t.is_untyped()).cloned().map(Box::new),
             Box::new(qos.clone()),
         );
-        self.ask(|reply| Cmd::Subscription {
+        self.ask_open(Handle::Subscription, |reply| Cmd::Subscription {
             topic,
             ty,
             qos,
@@ -546,7 +563,7 @@ impl Backend for RtpsBackend {
             Box::new(resp.clone()),
         );
         let id = self
-            .ask(|reply| Cmd::Serve {
+            .ask_open(Handle::Service, |reply| Cmd::Serve {
                 name,
                 req,
                 resp,
@@ -574,7 +591,7 @@ impl Backend for RtpsBackend {
             Box::new(req.clone()),
             Box::new(resp.clone()),
         );
-        self.ask(|reply| Cmd::Client {
+        self.ask_open(Handle::Client, |reply| Cmd::Client {
             name,
             req,
             resp,
@@ -764,7 +781,7 @@ impl DdsControl for RtpsBackend {
         queue: Arc<SampleQueue>,
     ) -> Result<SubId, OpenError> {
         let (topic, type_name) = (topic.to_string(), type_name.to_string());
-        self.ask(|reply| Cmd::Pattern {
+        self.ask_open(Handle::Subscription, |reply| Cmd::Pattern {
             topic,
             type_name,
             queue,

@@ -266,7 +266,35 @@ impl State {
                 self.retry_pending(p, now);
             }
             self.delete_lingering(now);
+            self.forget_dropped_queries();
         }
+    }
+
+    /// Queries whose caller stopped waiting (the future was dropped) are
+    /// forgotten rather than kept, and scanned at every turn, until their
+    /// own timeout: 100 000 dropped queries of an hour made every other
+    /// query ten times slower.
+    fn forget_dropped_queries(&mut self) {
+        let gone: std::collections::HashSet<QueryId> = self
+            .queries
+            .iter()
+            .filter(|(_, q)| q.reply.is_closed())
+            .map(|(id, _)| *id)
+            .collect();
+        if !gone.is_empty() {
+            self.queries.retain(|id, _| !gone.contains(id));
+            self.d.cancel_queries(&gone);
+        }
+    }
+
+    /// An open whose caller stopped waiting (its future was dropped: a
+    /// `timeout` or `select!` cancelled it): nobody will hold the handle,
+    /// so what it stands for goes at once. Left, a subscription's queue
+    /// would fill and hold the whole session, and a service would keep its
+    /// name for ever.
+    fn abandoned(&mut self, h: Handle, now: Instant) {
+        tracing::debug!("an open was cancelled: closing {h:?}");
+        self.close_handle(h, now);
     }
 
     /// Deletes what a handle the application closed stands for.
@@ -535,7 +563,10 @@ impl State {
                 qos,
                 reply,
             } => {
-                let _ = reply.send(self.create_writer(topic, &ty, &qos, now));
+                let r = self.create_writer(topic, &ty, &qos, now);
+                if let Err(Ok(id)) = reply.send(r) {
+                    self.abandoned(Handle::Publication(id), now);
+                }
             }
             Cmd::Subscription {
                 topic,
@@ -581,7 +612,10 @@ impl State {
                         Ok(SubKind::Pattern(p))
                     }
                 };
-                let _ = reply.send(kind.map(|k| self.sub_handle(k)));
+                let r = kind.map(|k| self.sub_handle(k));
+                if let Err(Ok(id)) = reply.send(r) {
+                    self.abandoned(Handle::Subscription(id), now);
+                }
             }
             Cmd::Pattern {
                 topic,
@@ -595,7 +629,10 @@ impl State {
                 q.history = WireHistory::KeepAll;
                 let p = self.d.create_pattern(&topic, &type_name, q, now);
                 self.patterns.insert(p, queue);
-                let _ = reply.send(Ok(self.sub_handle(SubKind::Pattern(p))));
+                let r = Ok(self.sub_handle(SubKind::Pattern(p)));
+                if let Err(Ok(id)) = reply.send(r) {
+                    self.abandoned(Handle::Subscription(id), now);
+                }
             }
             Cmd::Write {
                 publication,
@@ -686,7 +723,9 @@ impl State {
                         topic: name.clone(),
                         source,
                     });
-                let _ = reply.send(r);
+                if let Err(Ok(id)) = reply.send(r) {
+                    self.abandoned(Handle::Client(id), now);
+                }
             }
             Cmd::Serve {
                 name,
@@ -695,7 +734,10 @@ impl State {
                 tx,
                 reply,
             } => {
-                let _ = reply.send(self.serve(name, &req, &resp, tx, now));
+                let r = self.serve(name, &req, &resp, tx, now);
+                if let Err(Ok(id)) = reply.send(r) {
+                    self.abandoned(Handle::Service(id), now);
+                }
             }
             Cmd::Respond {
                 service,

@@ -274,6 +274,23 @@ impl XrceBackend {
         self.cmd.send(make(tx)).await.map_err(|_| disconnected())?;
         rx.await.map_err(|_| disconnected())?
     }
+
+    /// As `ask`, for a command that opens what `handle` names: if the
+    /// caller stops waiting (a `timeout` or `select!` drops the future),
+    /// what the driver opened is closed (see [`OpenAnswer`]).
+    ///
+    /// [`OpenAnswer`]: crate::open_answer::OpenAnswer
+    async fn ask_open<T: Copy, E: crate::error::Failure>(
+        &self,
+        handle: fn(T) -> Handle,
+        make: impl FnOnce(cmd::Reply<T, E>) -> Cmd,
+    ) -> Result<T, E> {
+        let (tx, rx) = oneshot::channel();
+        self.cmd.send(make(tx)).await.map_err(|_| disconnected())?;
+        let close = |h: Handle| Backend::close_handle(self, h);
+        let answer = crate::open_answer::OpenAnswer::new(rx, handle, &close);
+        answer.get().await.ok_or_else(disconnected)?
+    }
 }
 
 #[async_trait::async_trait]
@@ -301,7 +318,7 @@ impl Backend for XrceBackend {
             });
         }
         let (topic, ty, qos) = (topic.to_string(), ty.clone(), Box::new(qos.clone()));
-        self.ask(|reply| Cmd::Publication {
+        self.ask_open(Handle::Publication, |reply| Cmd::Publication {
             topic,
             ty,
             qos,
@@ -323,7 +340,7 @@ impl Backend for XrceBackend {
             ty.filter(|t| !t.is_untyped()).cloned(),
             Box::new(qos.clone()),
         );
-        self.ask(|reply| Cmd::Subscription {
+        self.ask_open(Handle::Subscription, |reply| Cmd::Subscription {
             topic,
             ty,
             qos,
@@ -344,7 +361,7 @@ impl Backend for XrceBackend {
         let (tx, rx) = mpsc::channel(queue.max(1));
         let (name, req, resp) = (name.to_string(), req.clone(), resp.clone());
         let id = self
-            .ask(|reply| Cmd::Service {
+            .ask_open(Handle::Service, |reply| Cmd::Service {
                 name,
                 req,
                 resp,
@@ -365,7 +382,7 @@ impl Backend for XrceBackend {
         let (name, req, resp) = (name.to_string(), req.clone(), resp.clone());
         let n: Arc<str> = Arc::from(name.as_str());
         let id = self
-            .ask(|reply| Cmd::Client {
+            .ask_open(Handle::Client, |reply| Cmd::Client {
                 name,
                 req,
                 resp,

@@ -91,6 +91,8 @@ struct Host {
     reads: Vec<(ClientKey, ReadData)>,
     held: HashMap<String, Vec<Vec<u8>>>,
     out: VecDeque<(ClientKey, BaseObjectRequest, StreamId, Vec<u8>)>,
+    /// Requesters created so far (shared with the [`TestAgent`]).
+    requesters: Arc<std::sync::atomic::AtomicUsize>,
 }
 
 impl Host {
@@ -146,6 +148,7 @@ impl Host {
                             }
                         }
                         ObjectVariant::Requester { representation, .. } => {
+                            self.requesters.fetch_add(1, Ordering::SeqCst);
                             Obj::Requester(named(representation, ObjectKind::Requester))
                         }
                         ObjectVariant::Replier { representation, .. } => {
@@ -306,6 +309,7 @@ pub struct TestAgent {
     pub addr: SocketAddr,
     task: JoinHandle<()>,
     muted: Arc<AtomicBool>,
+    requesters: Arc<std::sync::atomic::AtomicUsize>,
 }
 
 impl TestAgent {
@@ -313,6 +317,11 @@ impl TestAgent {
     /// again.
     pub fn mute(&self, on: bool) {
         self.muted.store(on, Ordering::SeqCst);
+    }
+
+    /// How many requesters (query clients) its clients created so far.
+    pub fn requesters_created(&self) -> usize {
+        self.requesters.load(Ordering::SeqCst)
     }
 
     /// Stops it and waits until it has let its port go.
@@ -339,10 +348,15 @@ pub async fn udp_dropping(port: u16, every: Option<u32>) -> TestAgent {
     let sock = UdpSocket::bind(("127.0.0.1", port)).await.unwrap();
     let addr = sock.local_addr().unwrap();
     let muted = Arc::new(AtomicBool::new(false));
+    let requesters = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let r = requesters.clone();
     let m = muted.clone();
     let task = tokio::spawn(async move {
         let mut agent: Agent<SocketAddr> = Agent::new(config(), Instant::now(), SystemTime::now());
-        let mut host = Host::default();
+        let mut host = Host {
+            requesters: r.clone(),
+            ..Host::default()
+        };
         let mut buf = vec![0u8; 65_536];
         let mut received = 0u32;
         loop {
@@ -372,7 +386,12 @@ pub async fn udp_dropping(port: u16, every: Option<u32>) -> TestAgent {
             }
         }
     });
-    TestAgent { addr, task, muted }
+    TestAgent {
+        addr,
+        task,
+        muted,
+        requesters,
+    }
 }
 
 /// An agent on TCP 127.0.0.1:`port` (0: any free port); each connection
@@ -384,10 +403,15 @@ pub async fn tcp(port: u16) -> TestAgent {
     let listener = s.listen(16).unwrap();
     let addr = listener.local_addr().unwrap();
     let muted = Arc::new(AtomicBool::new(false));
+    let requesters = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let r = requesters.clone();
     let m = muted.clone();
     let task = tokio::spawn(async move {
         let mut agent: Agent<u64> = Agent::new(config(), Instant::now(), SystemTime::now());
-        let mut host = Host::default();
+        let mut host = Host {
+            requesters: r.clone(),
+            ..Host::default()
+        };
         let (in_tx, mut in_rx) = mpsc::channel::<(u64, Vec<u8>)>(1024);
         let mut writers = HashMap::new();
         let mut readers = Vec::new();
@@ -448,7 +472,12 @@ pub async fn tcp(port: u16) -> TestAgent {
             }
         }
     });
-    TestAgent { addr, task, muted }
+    TestAgent {
+        addr,
+        task,
+        muted,
+        requesters,
+    }
 }
 
 struct AbortOnDrop(JoinHandle<()>);

@@ -333,6 +333,24 @@ impl Domain {
         Ok(query)
     }
 
+    /// Forgets a query nobody waits for any longer (the application gave
+    /// it up before its timeout): no [`Event::Reply`] or
+    /// [`Event::QueryFailed`] names it, a reply that still comes is
+    /// dropped, and it no longer counts among the deadlines. A request
+    /// already sent is not taken back. False if it is not pending.
+    pub fn cancel_query(&mut self, query: QueryId) -> bool {
+        self.cancel_queries(&std::collections::HashSet::from([query])) == 1
+    }
+
+    /// [`cancel_query`](Self::cancel_query) for many at once (one pass);
+    /// returns how many were pending.
+    pub fn cancel_queries(&mut self, queries: &std::collections::HashSet<QueryId>) -> usize {
+        let before = self.waiting.len() + self.inflight.len();
+        self.waiting.retain(|q| !queries.contains(&q.query));
+        self.inflight.retain(|_, q| !queries.contains(&q.query));
+        before - (self.waiting.len() + self.inflight.len())
+    }
+
     /// A writer and a reader for one side of a service (neither if
     /// either cannot be made).
     fn add_pair(
