@@ -553,3 +553,38 @@ fn agent_restart_is_detected_and_the_session_recreated_without_losing_writes() {
     assert_eq!(w.count(p, is_ok_status), 4);
     assert_eq!(w.count(s, is_ok_status), 4);
 }
+
+/// A client that gives up while connecting (its application dropped the
+/// connect) deletes the session the agent may have made already: the agent
+/// does not keep it for a client that is gone.
+#[test]
+fn a_client_that_gives_up_connecting_leaves_no_session_at_the_agent() {
+    let mut made_before_the_delete = 0;
+    for seed in 0..12 {
+        let mut w = world(seed, Faults::lossy(20), 0x81);
+        let (p, a) = (w.publisher, w.agent);
+        let now = w.net.now();
+        w.client(p).connect(now);
+        // even seeds: give up at once; odd ones: once the agent made the
+        // session, before its answer arrives
+        if seed % 2 == 1 {
+            w.run_until(Duration::from_secs(2), |w| match &w.net.hosts[a].node {
+                Peer::Agent { agent, .. } => agent.clients().count() > 0,
+                _ => false,
+            });
+        }
+        if !matches!(w.client(p).state(), State::Connecting { .. }) {
+            continue; // connected already: the ordinary delete
+        }
+        made_before_the_delete += w.net.node(a).as_agent().unwrap().clients().count();
+        let now = w.net.now();
+        w.client(p).disconnect(now).unwrap();
+        w.run_until(Duration::from_secs(30), |_| false);
+        let left = w.net.node(a).as_agent().unwrap().clients().count();
+        assert_eq!(left, 0, "seed {seed}: the agent kept the session");
+    }
+    assert!(
+        made_before_the_delete > 0,
+        "no seed tested a session the agent had made"
+    );
+}

@@ -1109,7 +1109,10 @@ impl Driver {
                 self.opts.linger.as_millis()
             );
         }
-        if self.in_session() && self.client.disconnect(now).is_ok() {
+        // (while connecting too: the agent may have made the session)
+        let may_have_session =
+            self.in_session() || matches!(self.client.state(), State::Connecting { .. });
+        if may_have_session && self.client.disconnect(now).is_ok() {
             now + self.opts.connect_interval.min(Duration::from_millis(500))
         } else {
             now

@@ -267,10 +267,14 @@ impl Client {
     }
 
     /// Deletes the session (DELETE of the client object, repeated as
-    /// CREATE_CLIENT is); [`Event::SessionDeleted`] follows.
+    /// CREATE_CLIENT is); [`Event::SessionDeleted`] follows. Also while
+    /// connecting: the agent may have created the session already, and
+    /// would keep it for a client that is gone.
     pub fn disconnect(&mut self, now: Instant) -> Result<(), CommandError> {
         let now = self.tick(now);
-        self.require_session()?;
+        if !matches!(self.state, State::Connecting { .. }) {
+            self.require_session()?;
+        }
         self.state = State::Deleting {
             attempt: 1,
             next: crate::time::later(now, self.cfg.create_interval),
