@@ -2,10 +2,12 @@
 //! does not need type information. Code generation works from this AST only.
 
 use proc_macro2::Span;
+use syn::ext::IdentExt;
 use syn::{DeriveInput, GenericArgument, Ident, PathArguments, Type};
 
 use crate::attr::{self, ContainerAttrs, Extensibility, FieldAttrs};
 use crate::ctxt::Ctxt;
+use crate::names;
 
 /// A struct or enum deriving `IpcMessage`.
 pub struct Container<'a> {
@@ -110,6 +112,22 @@ pub fn parse<'a>(cx: &Ctxt, input: &'a DeriveInput) -> Option<Container<'a>> {
         }
     }
 
+    // A named struct's format name is its identifier unless `name` gives another.
+    if let (None, syn::Data::Struct(s)) = (&attrs.name, &input.data) {
+        let generic = input.generics.type_params().next().is_some()
+            || input.generics.const_params().next().is_some();
+        if !generic && !s.fields.is_empty() {
+            if let Some(problem) = names::format_name_problem(&input.ident.unraw().to_string()) {
+                cx.error_spanned_by(
+                    &input.ident,
+                    format!(
+                        "{problem}; a struct's format name is its identifier: give it another with `#[ipc(name = \"...\")]`"
+                    ),
+                );
+            }
+        }
+    }
+
     let data = match &input.data {
         syn::Data::Struct(s) => Data::Struct(struct_fields(cx, input, &s.fields)),
         syn::Data::Enum(e) => Data::Enum(enum_variants(cx, input, e, attrs.numeric.is_some())?),
@@ -152,11 +170,22 @@ fn enum_variants<'a>(
                 &v.fields,
                 format!(
                     "variant `{}` carries data, but `IpcMessage` enums must be fieldless: an IPC `{{enum ...}}` is a bare int32; use a struct with a fieldless enum tag and the data as fields instead",
-                    v.ident
+                    v.ident.unraw()
                 ),
             );
         }
         let value = match &v.discriminant {
+            None if next > i64::from(i32::MAX) => {
+                cx.error_spanned_by(
+                    &v.ident,
+                    format!(
+                        "variant `{}` comes after a variant of value {}, so its implicit value {next} does not fit in an int32 (IPC sends enums as C ints); give it an explicit value below 2147483648, or reorder the variants",
+                        v.ident.unraw(),
+                        next - 1
+                    ),
+                );
+                next
+            }
             None => next,
             Some((_, expr)) => {
                 explicit = true;
@@ -223,7 +252,8 @@ fn struct_fields<'a>(cx: &Ctxt, input: &'a DeriveInput, fields: &'a syn::Fields)
     for (i, f) in fields.iter().enumerate() {
         let attrs = attr::field(cx, &f.attrs);
         let (member, name) = match &f.ident {
-            Some(id) => (syn::Member::Named(id.clone()), id.to_string()),
+            // `r#type` is the member `type` on the wire and in `len`
+            Some(id) => (syn::Member::Named(id.clone()), id.unraw().to_string()),
             None => (syn::Member::Unnamed(syn::Index::from(i)), i.to_string()),
         };
         let kind = field_kind(cx, input, f, &attrs);
@@ -232,6 +262,15 @@ fn struct_fields<'a>(cx: &Ctxt, input: &'a DeriveInput, fields: &'a syn::Fields)
             None => next_id,
         };
         next_id = id.saturating_add(1);
+        let optional = matches!(generic_arg(&f.ty, "Option"), Some(Some(inner)) if generic_arg(inner, "Box").is_some());
+        if optional && attrs.key {
+            cx.error_spanned_by(
+                &f.ty,
+                format!(
+                    "`{name}` cannot be a key field: `Option<Box<T>>` is an optional member (IDL `@optional`), and XTypes forbids optional keys; make the key a plain `T` field"
+                ),
+            );
+        }
         out.push(Field {
             member,
             name,
@@ -241,7 +280,7 @@ fn struct_fields<'a>(cx: &Ctxt, input: &'a DeriveInput, fields: &'a syn::Fields)
             count_for: None,
             count_dim: 0,
             id,
-            optional: matches!(generic_arg(&f.ty, "Option"), Some(Some(inner)) if generic_arg(inner, "Box").is_some()),
+            optional,
             span: syn::spanned::Spanned::span(f),
         });
     }
@@ -258,7 +297,7 @@ fn struct_fields<'a>(cx: &Ctxt, input: &'a DeriveInput, fields: &'a syn::Fields)
         if !matches!(out[i].kind, Kind::Vec { .. }) {
             continue; // reported in field_kind
         }
-        let want = lit.value();
+        let want = unraw_name(&lit.value());
         if want.contains(',') {
             continue; // several names on a `Vec`: reported in field_kind
         }
@@ -277,7 +316,7 @@ fn struct_fields<'a>(cx: &Ctxt, input: &'a DeriveInput, fields: &'a syn::Fields)
                 &lit,
                 format!(
                     "`len` names `{want}`, but `{}` has no such field; {hint}",
-                    input.ident
+                    input.ident.unraw()
                 ),
             );
             continue;
@@ -287,8 +326,9 @@ fn struct_fields<'a>(cx: &Ctxt, input: &'a DeriveInput, fields: &'a syn::Fields)
             cx.error_spanned_by(
                 &lit,
                 format!(
-                    "length field `{want}` has type `{}`; the length of a variable array must live in an integer field (i8, i16, i32, i64, u8, u16, u32 or u64)",
-                    quote::quote!(#ty).to_string().replace(' ', "")
+                    "length field `{want}` has type `{}`; the length of a variable array must live in an integer field (i8, i16, i32, i64, u8, u16, u32 or u64){}",
+                    type_string(ty),
+                    unresolved_hint(ty)
                 ),
             );
             continue;
@@ -342,7 +382,7 @@ fn resolve_dims(
     let names: Vec<String> = lit
         .value()
         .split(',')
-        .map(|n| n.trim().to_string())
+        .map(|n| unraw_name(n.trim()))
         .collect();
     if names.iter().any(String::is_empty) {
         cx.error_spanned_by(
@@ -370,25 +410,21 @@ fn resolve_dims(
                 lit,
                 format!(
                     "`len` names `{want}`, but `{}` has no such field",
-                    input.ident
+                    input.ident.unraw()
                 ),
             );
             continue;
         };
-        let is_dim_integer = match out[j].ty {
-            Type::Path(p) if p.qself.is_none() => p
-                .path
-                .get_ident()
-                .is_some_and(|id| DIM_INTEGERS.iter().any(|n| id == n)),
-            _ => false,
-        };
+        let is_dim_integer =
+            integer_name(out[j].ty).is_some_and(|n| DIM_INTEGERS.contains(&n.as_str()));
         if j == i || !is_dim_integer {
             let ty = out[j].ty;
             cx.error_spanned_by(
                 lit,
                 format!(
-                    "size field `{want}` has type `{}`; the dimensions of a multi-dimensional array live in i32, u32, i64 or u64 fields (C's IPC reads them as `int`)",
-                    quote::quote!(#ty).to_string().replace(' ', "")
+                    "size field `{want}` has type `{}`; the dimensions of a multi-dimensional array live in i32, u32, i64 or u64 fields (C's IPC reads them as `int`){}",
+                    type_string(ty),
+                    unresolved_hint(ty)
                 ),
             );
             continue;
@@ -426,14 +462,74 @@ fn resolve_dims(
 }
 
 fn is_integer(ty: &Type) -> bool {
+    integer_name(ty).is_some_and(|n| INTEGERS.contains(&n.as_str()))
+}
+
+/// `len = "r#n"` names the field `r#n`, which is `n` everywhere else.
+fn unraw_name(name: &str) -> String {
+    name.strip_prefix("r#").unwrap_or(name).to_string()
+}
+
+fn type_string(ty: &Type) -> String {
+    quote::quote!(#ty).to_string().replace(' ', "")
+}
+
+/// The primitive type a length field is written as: `u32`, or the same
+/// through `std::primitive::u32` / `core::primitive::u32`. Other paths and
+/// aliases are not resolved: the derive sees tokens, not types.
+fn integer_name(ty: &Type) -> Option<String> {
     match ty {
-        Type::Path(p) if p.qself.is_none() => p
-            .path
-            .get_ident()
-            .is_some_and(|id| INTEGERS.iter().any(|n| id == n)),
-        Type::Group(g) => is_integer(&g.elem),
-        Type::Paren(p) => is_integer(&p.elem),
-        _ => false,
+        Type::Path(p) if p.qself.is_none() => {
+            let segs = &p.path.segments;
+            if segs.iter().any(|s| !s.arguments.is_none()) {
+                return None;
+            }
+            let names: Vec<String> = segs.iter().map(|s| s.ident.to_string()).collect();
+            let name = match names.as_slice() {
+                [n] if p.path.leading_colon.is_none() => n,
+                [krate, prim, n] if (krate == "std" || krate == "core") && prim == "primitive" => n,
+                _ => return None,
+            };
+            INTEGERS.contains(&name.as_str()).then(|| name.clone())
+        }
+        Type::Group(g) => integer_name(&g.elem),
+        Type::Paren(p) => integer_name(&p.elem),
+        _ => None,
+    }
+}
+
+/// For a length field refused because of how its type is written (an
+/// alias, or a path other than `std::primitive::X`): how to write it.
+fn unresolved_hint(ty: &Type) -> String {
+    const NOT_INTEGERS: &[&str] = &[
+        "String", "f32", "f64", "bool", "char", "Vec", "Option", "Box", "NdVec", "Matrix", "usize",
+        "isize", "i128", "u128",
+    ];
+    let Type::Path(p) = ty else {
+        return String::new();
+    };
+    if integer_name(ty).is_some() {
+        return String::new(); // understood, but not an integer type that fits
+    }
+    let Some(last) = p.path.segments.last() else {
+        return String::new();
+    };
+    let last = last.ident.to_string();
+    if p.path.segments.len() > 1 || p.path.leading_colon.is_some() {
+        let example = if INTEGERS.contains(&last.as_str()) {
+            last
+        } else {
+            "i32".to_string()
+        };
+        format!(
+            "; the derive sees tokens, not types, and does not resolve paths or type aliases: write the integer type by its name (`{example}`, or `std::primitive::{example}`)"
+        )
+    } else if NOT_INTEGERS.contains(&last.as_str()) {
+        String::new()
+    } else {
+        format!(
+            "; if `{last}` is a type alias, write the integer type by its name instead (e.g. `i32`): the derive sees tokens, not types, and does not resolve type aliases"
+        )
     }
 }
 

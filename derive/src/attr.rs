@@ -5,6 +5,7 @@ use syn::meta::ParseNestedMeta;
 use syn::{Attribute, LitInt, LitStr, Token};
 
 use crate::ctxt::Ctxt;
+use crate::names;
 
 /// `#[ipc(extensibility = "...")]`.
 #[derive(Clone, Copy, PartialEq, Eq, Debug)]
@@ -59,6 +60,20 @@ fn skip_value(meta: &ParseNestedMeta<'_>) -> syn::Result<()> {
     Ok(())
 }
 
+/// Reports a value given to a flag (`#[ipc(key = true)]`), which would
+/// otherwise be a bare "expected `,`", and skips it.
+fn no_value(cx: &Ctxt, meta: &ParseNestedMeta<'_>) -> syn::Result<()> {
+    if meta.input.peek(Token![=]) || meta.input.peek(syn::token::Paren) {
+        let name = key_name(meta);
+        cx.error_spanned_by(
+            &meta.path,
+            format!("`{name}` takes no value; write `#[ipc({name})]`"),
+        );
+        skip_value(meta)?;
+    }
+    Ok(())
+}
+
 fn key_name(meta: &ParseNestedMeta<'_>) -> String {
     let p = &meta.path;
     quote::quote!(#p).to_string().replace(' ', "")
@@ -104,13 +119,8 @@ pub fn container(cx: &Ctxt, attrs: &[Attribute], is_enum: bool) -> ContainerAttr
             } else if meta.path.is_ident("name") {
                 let s: LitStr = meta.value()?.parse()?;
                 let v = s.value();
-                if v.is_empty()
-                    || v.chars().any(|c| c.is_whitespace() || "{}[]<>:,*!\"".contains(c))
-                {
-                    cx.error_spanned_by(
-                        &s,
-                        "an IPC format name must be non-empty and contain no spaces or format punctuation ({}[]<>:,*!)",
-                    );
+                if let Some(problem) = names::format_name_problem(&v) {
+                    cx.error_spanned_by(&s, problem);
                 } else if is_enum {
                     cx.error_spanned_by(
                         &meta.path,
@@ -127,6 +137,7 @@ pub fn container(cx: &Ctxt, attrs: &[Attribute], is_enum: bool) -> ContainerAttr
                     out.type_name = Some(s.value());
                 }
             } else if meta.path.is_ident("numeric") {
+                no_value(cx, &meta)?;
                 if !is_enum {
                     cx.error_spanned_by(
                         &meta.path,
@@ -200,10 +211,13 @@ pub fn field(cx: &Ctxt, attrs: &[Attribute]) -> FieldAttrs {
             if meta.path.is_ident("len") {
                 out.len = Some(meta.value()?.parse()?);
             } else if meta.path.is_ident("char") {
+                no_value(cx, &meta)?;
                 out.char_ = Some(meta.path.require_ident()?.span());
             } else if meta.path.is_ident("key") {
+                no_value(cx, &meta)?;
                 out.key = true;
             } else if meta.path.is_ident("must_understand") {
+                no_value(cx, &meta)?;
                 out.must_understand = true;
             } else if meta.path.is_ident("id") {
                 let n: LitInt = meta.value()?.parse()?;

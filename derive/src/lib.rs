@@ -47,6 +47,7 @@ mod ast;
 mod attr;
 mod ctxt;
 mod expand;
+mod names;
 
 /// Derives `IpcMessage`: the type mapping and the `#[ipc(...)]`
 /// attributes are in the `courier` crate's `derive_guide` module.

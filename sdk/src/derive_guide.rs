@@ -81,10 +81,22 @@
 //!
 //! # Choices
 //!
-//! - **Crate path.** Generated code names the wire crate as
-//!   `::courier::__wire`, which works for every user of `courier`. Crates that
-//!   depend on `courier-wire` alone (its own tests, this crate's tests) say
-//!   `#[ipc(crate = "::courier_wire")]`. No manifest lookup is done.
+//! - **Crate path.** Generated code finds the wire crate through the user's
+//!   `Cargo.toml` (`proc-macro-crate`): `courier` under the name it is given
+//!   there (`courier2 = { package = "courier" }` gives `::courier2::__wire`),
+//!   else `courier-wire` under its name, else `::courier::__wire`.
+//!   `#[ipc(crate = "::path::to::wire")]` overrides it (a crate that
+//!   re-exports `courier` under another path).
+//! - **What the derive refuses at compile time** besides unsupported types:
+//!   a format `name` (or, for a named struct, its identifier) IPC cannot
+//!   read as a format name (a primitive such as `int`, `enum`, a leading
+//!   digit, format punctuation); an enum value past `i32::MAX`, implicit
+//!   ones included; an empty message (`()`, a unit struct) as a `Vec`,
+//!   array or pointer element; `#[ipc(key)]` on an `Option<Box<T>>` (XTypes
+//!   keys are never optional); a value given to a flag (`key = true`).
+//!   A length field must be written as an integer type by its name
+//!   (`u32`, `std::primitive::u32`): the derive sees tokens, not types, and
+//!   does not resolve aliases. `r#type` is the member `type`.
 //! - **Variable arrays.** On encode the length field is written as the `Vec`'s
 //!   length (the field's own value is ignored), in IPC and in CDR, so the data
 //!   never disagrees with its count. A `Vec` longer than the length field's type

@@ -32,7 +32,7 @@ impl ConstStr {
     pub const fn push_str(mut self, s: &str) -> Self {
         let bytes = s.as_bytes();
         if self.len + bytes.len() > FORMAT_CAPACITY {
-            panic!("IPC format string longer than courier_wire::const_str::FORMAT_CAPACITY (1024 bytes): give nested structs a format name so they are referenced by name");
+            panic!("IPC format string longer than courier_wire::const_str::FORMAT_CAPACITY (1024 bytes): split a struct with many fields into named nested structs (a non-generic struct with fields is referenced by its name); write an enum with many variants as `{{enum : max}}` with `#[ipc(numeric)]`; a generic struct is always written inline, so move its fields into named non-generic structs");
         }
         let mut i = 0;
         while i < bytes.len() {
@@ -56,7 +56,7 @@ impl ConstStr {
             }
         }
         if self.len + k > FORMAT_CAPACITY {
-            panic!("IPC format string longer than courier_wire::const_str::FORMAT_CAPACITY (1024 bytes)");
+            panic!("IPC format string longer than courier_wire::const_str::FORMAT_CAPACITY (1024 bytes): split a struct with many fields into named nested structs (a non-generic struct with fields is referenced by its name); write an enum with many variants as `{{enum : max}}` with `#[ipc(numeric)]`; a generic struct is always written inline, so move its fields into named non-generic structs");
         }
         while k > 0 {
             k -= 1;
@@ -143,14 +143,22 @@ pub const fn array_format(elem: &str, n: usize) -> ConstStr {
 /// `double[3]`, gets the new outer dimension first: `double[2][3]`.
 pub const fn array_type_name(elem: &str, n: usize) -> ConstStr {
     let b = elem.as_bytes();
-    // where the element's own dimensions start (none: the end)
+    // where the element's own dimensions start (none: the end): the first
+    // `[` outside `<...>`, so that the dimensions of a generic argument
+    // (`Stamped<int32[2]>[5]`) stay with it
     let mut at = b.len();
     if !b.is_empty() && b[b.len() - 1] == b']' {
+        let mut depth = 0usize;
         let mut i = 0;
         while i < b.len() {
-            if b[i] == b'[' {
-                at = i;
-                break;
+            match b[i] {
+                b'<' => depth += 1,
+                b'>' => depth = depth.saturating_sub(1),
+                b'[' if depth == 0 => {
+                    at = i;
+                    break;
+                }
+                _ => {}
             }
             i += 1;
         }
@@ -191,6 +199,34 @@ mod tests {
         assert_eq!(array_type_name("double[3]", 2).as_str(), "double[2][3]");
         assert_eq!(array_type_name("a::B[1][2]", 7).as_str(), "a::B[7][1][2]");
         assert_eq!(array_type_name("Foo<int32>", 2).as_str(), "Foo<int32>[2]");
+        // the dimensions of a generic argument are not the element's
+        assert_eq!(
+            array_type_name("Stamped<int32[2]>", 5).as_str(),
+            "Stamped<int32[2]>[5]"
+        );
+        assert_eq!(
+            array_type_name("Stamped<int32[2]>[5]", 3).as_str(),
+            "Stamped<int32[2]>[3][5]"
+        );
+        assert_eq!(
+            array_type_name("a::P<b::Q<double[4]>[2], int32>[7]", 1).as_str(),
+            "a::P<b::Q<double[4]>[2], int32>[1][7]"
+        );
+    }
+
+    #[test]
+    fn the_capacity_panic_names_the_ways_out() {
+        let r =
+            std::panic::catch_unwind(|| ConstStr::new().push_str(&"x".repeat(FORMAT_CAPACITY + 1)));
+        let e = r.err().expect("over capacity must panic");
+        let msg = e
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| e.downcast_ref::<String>().cloned())
+            .unwrap_or_default();
+        assert!(msg.contains("named nested structs"), "{msg}");
+        assert!(msg.contains("#[ipc(numeric)]"), "{msg}");
+        assert!(!msg.contains("give nested structs a format name"), "{msg}");
     }
 
     #[test]

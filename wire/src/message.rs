@@ -622,17 +622,44 @@ impl IpcMessage for () {
     }
 }
 
+/// A type name for a compile-time error message, `…` if too long to fit.
+const fn short_type_name(name: &str) -> &str {
+    if name.len() > 512 {
+        "…"
+    } else {
+        name
+    }
+}
+
 /// Compile-time format strings of generic types.
 struct GenericFormat<T, const N: usize>(core::marker::PhantomData<T>);
 
 impl<T: IpcMessage, const N: usize> GenericFormat<T, N> {
-    const ARRAY: ConstStr = array_format(T::FIELD_FORMAT, N);
+    const ARRAY: ConstStr = {
+        if T::FIELD_FORMAT.is_empty() {
+            let msg = ConstStr::new()
+                .push_str("an array `[T; N]` of `")
+                .push_str(short_type_name(T::TYPE_NAME))
+                .push_str("`, a type with an empty IPC format (an empty message such as `()` or a unit struct): IPC arrays cannot hold it");
+            panic!("{}", msg.as_str());
+        }
+        array_format(T::FIELD_FORMAT, N)
+    };
     const ARRAY_REF: &'static ConstStr = &Self::ARRAY;
     const ARRAY_STR: &'static str = Self::ARRAY_REF.as_str();
     const ARRAY_TYPE: ConstStr = array_type_name(T::TYPE_NAME, N);
     const ARRAY_TYPE_REF: &'static ConstStr = &Self::ARRAY_TYPE;
     const ARRAY_TYPE_STR: &'static str = Self::ARRAY_TYPE_REF.as_str();
-    const POINTER: ConstStr = ConstStr::new().push_str("*").push_str(T::FIELD_FORMAT);
+    const POINTER: ConstStr = {
+        if T::FIELD_FORMAT.is_empty() {
+            let msg = ConstStr::new()
+                .push_str("a pointer `Option<Box<T>>` to `")
+                .push_str(short_type_name(T::TYPE_NAME))
+                .push_str("`, a type with an empty IPC format (an empty message such as `()` or a unit struct): IPC pointers cannot point to it");
+            panic!("{}", msg.as_str());
+        }
+        ConstStr::new().push_str("*").push_str(T::FIELD_FORMAT)
+    };
     const POINTER_REF: &'static ConstStr = &Self::POINTER;
     const POINTER_STR: &'static str = Self::POINTER_REF.as_str();
 }

@@ -3,6 +3,7 @@
 
 use proc_macro2::{Literal, TokenStream};
 use quote::quote;
+use syn::ext::IdentExt;
 
 use super::{generics, info};
 use crate::ast::{Container, Enum};
@@ -15,7 +16,11 @@ pub(super) fn expand_enum(c: &Container<'_>, e: &Enum<'_>) -> TokenStream {
         let max = e.variants.iter().map(|v| v.value).max().unwrap_or(0);
         format!("{{enum : {max}}}")
     } else {
-        let names: Vec<String> = e.variants.iter().map(|v| v.ident.to_string()).collect();
+        let names: Vec<String> = e
+            .variants
+            .iter()
+            .map(|v| v.ident.unraw().to_string())
+            .collect();
         format!("{{enum {}}}", names.join(", "))
     };
     let (type_name, type_name_consts) = info::type_name(c);

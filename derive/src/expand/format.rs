@@ -4,6 +4,7 @@
 
 use proc_macro2::TokenStream;
 use quote::{quote, quote_spanned};
+use syn::ext::IdentExt;
 use syn::spanned::Spanned;
 
 use crate::ast::{Container, Field, Kind};
@@ -34,11 +35,28 @@ pub(super) fn struct_format(c: &Container<'_>, fields: &[Field<'_>]) -> StructFo
             build = quote!(#build.push_str(", "));
         }
         let ty = f.ty;
+        // a `Vec`'s element: an empty format would leave `<:1>` in the
+        // format (arrays `[T; N]` and pointers `Option<Box<T>>` of such a
+        // type are refused by their own formats, in courier-wire)
+        if let Kind::Vec { elem, .. } = &f.kind {
+            let msg = format!(
+                "field `{}` of `{}` is a `Vec` of `{}`, whose IPC format is empty (an empty message such as `()` or a unit struct): IPC variable arrays cannot hold it",
+                f.name,
+                ident.unraw(),
+                quote!(#elem).to_string().replace(' ', "")
+            );
+            checks.push(quote_spanned! {elem.span()=>
+                if <#elem as __wire::IpcMessage>::FIELD_FORMAT.is_empty() {
+                    ::core::panic!(#msg);
+                }
+            });
+        }
         build = match &f.kind {
             Kind::Plain => {
                 let msg = format!(
                     "field `{}` of `{}` has a type with an empty IPC format (an empty message such as `()` or a unit struct), which cannot be a field",
-                    f.name, ident
+                    f.name,
+                    ident.unraw()
                 );
                 checks.push(quote_spanned! {ty.span()=>
                     if <#ty as __wire::IpcMessage>::FIELD_FORMAT.is_empty() {
@@ -57,7 +75,8 @@ pub(super) fn struct_format(c: &Container<'_>, fields: &[Field<'_>]) -> StructFo
                 let n = dims.len();
                 let msg = format!(
                     "field `{}` of `{}` names {n} size fields in `len`, but its type has a different number of dimensions",
-                    f.name, ident
+                    f.name,
+                    ident.unraw()
                 );
                 checks.push(quote_spanned! {ty.span()=>
                     if <#ty as __wire::__private::NdField>::DIMS != #n {
@@ -80,7 +99,7 @@ pub(super) fn struct_format(c: &Container<'_>, fields: &[Field<'_>]) -> StructFo
         .attrs
         .name
         .as_ref()
-        .map_or_else(|| ident.to_string(), |(n, _)| n.clone());
+        .map_or_else(|| ident.unraw().to_string(), |(n, _)| n.clone());
 
     let name_consts = if named {
         quote! {

@@ -4,6 +4,7 @@
 
 use proc_macro2::TokenStream;
 use quote::quote;
+use syn::ext::IdentExt;
 
 use crate::ast::{Container, Field, Kind};
 use crate::attr::Extensibility;
@@ -11,7 +12,8 @@ use crate::attr::Extensibility;
 /// `TYPE_NAME`: the attribute, or the Rust path (plus `<params>` for generics),
 /// as hidden inherent constants when it must be built at compile time.
 pub(super) fn type_name(c: &Container<'_>) -> (TokenStream, TokenStream) {
-    let ident = c.ident.to_string();
+    // `r#type` is the type `type`
+    let ident = c.ident.unraw().to_string();
     if let Some(t) = &c.attrs.type_name {
         return (quote!(#t), quote!());
     }

@@ -20,7 +20,7 @@ use crate::ast::{Container, Data, Field, Kind};
 pub fn expand(c: &Container<'_>) -> TokenStream {
     let krate = match &c.attrs.krate {
         Some(p) => quote!(#p),
-        None => quote!(::courier::__wire),
+        None => wire_path(),
     };
     let body = match &c.data {
         Data::Struct(fields) => expand_struct(c, fields),
@@ -43,6 +43,30 @@ pub fn expand(c: &Container<'_>) -> TokenStream {
             use #krate as __wire;
             #body
         };
+    }
+}
+
+/// Where the wire crate is, without `#[ipc(crate = "...")]`: through the
+/// `courier` crate under the name the user's `Cargo.toml` gives it
+/// (`courier2 = { package = "courier", ... }` gives `::courier2::__wire`),
+/// else `courier-wire` under its name, else `::courier::__wire`.
+///
+/// Inside the `courier` package (its examples and doctests, where
+/// `proc-macro-crate` answers "itself") the crate is `::courier`, as
+/// before; the same for `courier-wire`.
+fn wire_path() -> TokenStream {
+    use proc_macro_crate::{crate_name, FoundCrate};
+    let found = |name: &str| match crate_name(name) {
+        Ok(FoundCrate::Name(n)) => Some(format_ident!("{}", n)),
+        Ok(FoundCrate::Itself) => Some(format_ident!("{}", name.replace('-', "_"))),
+        Err(_) => None,
+    };
+    if let Some(courier) = found("courier") {
+        quote!(::#courier::__wire)
+    } else if let Some(wire) = found("courier-wire") {
+        quote!(::#wire)
+    } else {
+        quote!(::courier::__wire)
     }
 }
 

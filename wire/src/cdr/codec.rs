@@ -39,7 +39,10 @@ const MEMBER_ID_MASK: u32 = 0x0fff_ffff;
 const EM_MUST_UNDERSTAND: u32 = 0x8000_0000;
 /// EMHEADER length code 4: an explicit `NEXTINT` holds the length.
 const LC_NEXTINT: u32 = 4;
-/// Deepest struct / optional nesting the reader follows (recursive types).
+/// Deepest nesting the CDR reader follows (recursive types), counting each
+/// struct and each optional member as one level: a linked-list node takes
+/// two. Deeper data is refused instead of overflowing the stack; the writer
+/// does not check it.
 pub const MAX_DEPTH: usize = 500;
 
 /// Kind of member framing being written.

@@ -137,8 +137,11 @@ pub enum DecodeError {
     Format(String),
 }
 
-/// Deepest nesting of pointers (linked lists, trees) the decoders follow.
-/// Deeper data is rejected instead of overflowing the stack.
+/// Deepest nesting the IPC decoders follow, counting each struct and each
+/// pointer as one level: a linked-list node (`struct Node { next:
+/// Option<Box<Node>> }`) takes two, so about 500 nodes. Deeper data is
+/// rejected (`DecodeError::TooDeep`) instead of overflowing the stack; the
+/// encoder does not check it.
 pub const MAX_DEPTH: usize = 1_000;
 
 /// Marshals `value` as the C library's `IPC_marshall` does: native byte
