@@ -164,6 +164,16 @@ impl CentralFormats {
         &self,
         formats: &[(&'static str, &'static str)],
     ) -> Result<(), OpenError> {
+        // two types of one name inside the definition itself
+        for (i, (name, fmt)) in formats.iter().enumerate() {
+            if let Some((_, first)) = formats[..i].iter().find(|(n, f)| n == name && f != fmt) {
+                return Err(OpenError::NamedFormatConflict {
+                    name: name.to_string(),
+                    existing: first.to_string(),
+                    given: fmt.to_string(),
+                });
+            }
+        }
         let mut named = self.named.lock().unwrap_or_else(|e| e.into_inner());
         for (name, fmt) in formats {
             match named.get(name) {

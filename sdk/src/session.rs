@@ -891,7 +891,15 @@ impl Ipc<'_> {
     /// Registers `T`'s named formats (`IPC_defineFormat`; also done by
     /// every definition of a message carrying `T`).
     pub async fn define_formats<T: IpcMessage>(&self) -> Result<(), OpenError> {
-        for (name, fmt) in NamedFormats::of::<T>().iter() {
+        let formats = NamedFormats::of::<T>();
+        if let Some((name, existing, given)) = formats.conflict() {
+            return Err(OpenError::NamedFormatConflict {
+                name: name.to_string(),
+                existing: existing.to_string(),
+                given: given.to_string(),
+            });
+        }
+        for (name, fmt) in formats.iter() {
             self.ctl.define_format(name, fmt).await?;
         }
         Ok(())

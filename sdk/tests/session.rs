@@ -1310,6 +1310,31 @@ async fn queries_servers_and_publishers_that_do_not_fit_central_s_format_are_ref
             .starts_with("the named format Pos is {int, int} in this session, not {double}"),
         "{e}"
     );
+    // one type carrying both: IPC would send one `Pos` format for the two
+    // (it was defined with `{Pos, Pos}` and `Pos = {int, int}`)
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct Both {
+        a: one::Pos,
+        b: two::Pos,
+    }
+    let fresh = session(&url, "fresh").await;
+    let e = fresh.define::<Both>("msg_both").await.unwrap_err();
+    assert!(
+        e.to_string()
+            .starts_with("the named format Pos is {int, int} in this session, not {double}"),
+        "{e}"
+    );
+    let e = fresh
+        .ipc()
+        .unwrap()
+        .define_formats::<Both>()
+        .await
+        .unwrap_err();
+    assert!(
+        matches!(e, courier::OpenError::NamedFormatConflict { .. }),
+        "{e:?}"
+    );
+    fresh.close().await;
     server.abort();
     c.shutdown().await;
 }

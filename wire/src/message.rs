@@ -277,15 +277,39 @@ impl NamedFormats {
         n
     }
 
-    /// Adds `name` ↦ `format`; returns false (and changes nothing) if the
-    /// name is already present, which also stops recursion through
-    /// mutually recursive types.
+    /// Adds `name` ↦ `format`; returns false if the name is already
+    /// present, which also stops recursion through mutually recursive
+    /// types. A name already present with another format (two types of one
+    /// name, in different modules) is kept as well, for
+    /// [`conflict`](Self::conflict) to report: one format would be sent
+    /// for both.
     pub fn insert(&mut self, name: &'static str, format: &'static str) -> bool {
-        if self.contains(name) {
-            return false;
+        match self.get(name) {
+            Some(f) if f == format => false,
+            Some(_) => {
+                if !self.entries.contains(&(name, format)) {
+                    self.entries.push((name, format));
+                }
+                false
+            }
+            None => {
+                self.entries.push((name, format));
+                true
+            }
         }
-        self.entries.push((name, format));
-        true
+    }
+
+    /// The first name collected with two formats: `(name, first, second)`.
+    /// IPC knows formats by name only, so a message carrying both types
+    /// would be read with one of the formats for both; give one of them
+    /// its own name (`#[ipc(name = "...")]`).
+    pub fn conflict(&self) -> Option<(&'static str, &'static str, &'static str)> {
+        self.entries.iter().enumerate().find_map(|(i, (n, f))| {
+            self.entries[..i]
+                .iter()
+                .find(|(m, g)| m == n && g != f)
+                .map(|(_, g)| (*n, *g, *f))
+        })
     }
 
     /// True if `name` was collected.
