@@ -134,3 +134,41 @@ fn implicit_discriminant_up_to_int32_max() {
     round_trip(&Last::B);
     assert_eq!(ipc::to_vec(&Last::B), i32::MAX.to_ne_bytes());
 }
+
+/// A megabyte array behind a `Box` (or an optional pointer).
+#[derive(IpcMessage, Debug, PartialEq)]
+struct Scan {
+    id: u32,
+    ranges: Box<[u8; 1_000_000]>,
+    extra: Option<Box<[u16; 300_000]>>,
+}
+
+/// A large fixed array behind a `Box` is decoded on the heap: a thread with
+/// a 256 KiB stack decodes a megabyte of it, IPC and CDR (built on the
+/// stack, it overflowed a 2 MiB tokio worker stack in debug builds).
+#[test]
+fn boxed_large_arrays_decode_on_the_heap() {
+    let mut ranges = Box::new([0u8; 1_000_000]);
+    ranges[999_999] = 7;
+    let mut extra = Box::new([0u16; 300_000]);
+    extra[1] = 9;
+    let scan = Scan {
+        id: 3,
+        ranges,
+        extra: Some(extra),
+    };
+    let ipc_bytes = ipc::to_vec(&scan);
+    let cdr_bytes = cdr::to_vec(&scan, cdr::Encoding::Xcdr2Le);
+    let (a, b) = std::thread::Builder::new()
+        .stack_size(256 * 1024)
+        .spawn(move || {
+            let a = ipc::from_slice::<Scan>(&ipc_bytes).unwrap();
+            let b = cdr::from_slice::<Scan>(&cdr_bytes).unwrap();
+            (a, b)
+        })
+        .unwrap()
+        .join()
+        .unwrap();
+    assert_eq!(a, scan);
+    assert_eq!(b, scan);
+}

@@ -97,6 +97,12 @@
 //!   A length field must be written as an integer type by its name
 //!   (`u32`, `std::primitive::u32`): the derive sees tokens, not types, and
 //!   does not resolve aliases. `r#type` is the member `type`.
+//! - **Large fixed arrays.** A `[T; N]` field is a value: decoding builds
+//!   it on the stack (several times over in a debug build), and a struct
+//!   holding 100 KB of array overflowed tokio's 2 MiB worker stacks. Put a
+//!   large one behind a box, `Box<[u8; 1_000_000]>` (or
+//!   `Option<Box<[T; N]>>`): the same format and wire bytes, decoded
+//!   straight into the heap.
 //! - **Variable arrays.** On encode the length field is written as the `Vec`'s
 //!   length (the field's own value is ignored), in IPC and in CDR, so the data
 //!   never disagrees with its count. A `Vec` longer than the length field's type

@@ -118,6 +118,22 @@ pub trait IpcMessage: Sized {
         None
     }
 
+    /// [`ipc_decode`](Self::ipc_decode) into a box (what a `Box<Self>`
+    /// field decodes with): a fixed array builds its elements on the heap,
+    /// not on the stack, where a large one (`Box<[u8; 1_000_000]>`)
+    /// overflowed a 2 MiB tokio worker stack in debug builds.
+    #[doc(hidden)]
+    fn ipc_decode_boxed(r: &mut ipc::Reader<'_>) -> Result<Box<Self>, ipc::DecodeError> {
+        Self::ipc_decode(r).map(Box::new)
+    }
+
+    /// [`cdr_decode`](Self::cdr_decode) into a box (see
+    /// [`ipc_decode_boxed`](Self::ipc_decode_boxed)).
+    #[doc(hidden)]
+    fn cdr_decode_boxed(r: &mut cdr::Reader<'_>) -> Result<Box<Self>, cdr::DecodeError> {
+        Self::cdr_decode(r).map(Box::new)
+    }
+
     /// Appends the CDR encoding of every item, without count or `DHEADER`.
     fn cdr_encode_slice(items: &[Self], w: &mut cdr::Writer) {
         for it in items {
@@ -689,6 +705,28 @@ impl<T: IpcMessage, const N: usize> GenericFormat<T, N> {
 }
 
 /// Fixed arrays `[T:n]`; nested arrays merge into `[T:n,m]`.
+/// The `N` elements of a fixed array of `T`, without `DHEADER`, read into
+/// a `Vec` (on the heap).
+fn array_elements<T: IpcMessage, const N: usize>(
+    r: &mut cdr::Reader<'_>,
+) -> Result<Vec<T>, cdr::DecodeError> {
+    if !T::CDR_IS_ARRAY {
+        return T::cdr_decode_vec(r, N);
+    }
+    if N.saturating_mul(T::CDR_MIN_SIZE.max(1)) > r.remaining() {
+        return Err(cdr::DecodeError::CountTooLarge {
+            offset: r.position(),
+            count: N as u64,
+            remaining: r.remaining(),
+        });
+    }
+    let mut v = Vec::with_capacity(N);
+    for _ in 0..N {
+        v.push(T::cdr_decode_flat(r)?);
+    }
+    Ok(v)
+}
+
 impl<T: IpcMessage, const N: usize> IpcMessage for [T; N] {
     const FORMAT: &'static str = GenericFormat::<T, N>::ARRAY_STR;
     /// `int32[4]`: not its element's name, which a reader of one element
@@ -716,6 +754,12 @@ impl<T: IpcMessage, const N: usize> IpcMessage for [T; N] {
         v.try_into()
             .map_err(|_| ipc::DecodeError::Format("array length".into()))
     }
+    fn ipc_decode_boxed(r: &mut ipc::Reader<'_>) -> Result<Box<Self>, ipc::DecodeError> {
+        let v = T::ipc_decode_vec(r, N)?;
+        v.into_boxed_slice()
+            .try_into()
+            .map_err(|_| ipc::DecodeError::Format("array length".into()))
+    }
     const CDR_IS_ARRAY: bool = true;
     const CDR_BOUNDED: bool = T::CDR_BOUNDED;
     const CDR_KEY_BOUNDED: bool = T::CDR_KEY_BOUNDED;
@@ -736,6 +780,20 @@ impl<T: IpcMessage, const N: usize> IpcMessage for [T; N] {
         r.end_dheader(d);
         Ok(v)
     }
+    fn cdr_decode_boxed(r: &mut cdr::Reader<'_>) -> Result<Box<Self>, cdr::DecodeError> {
+        let d = r.begin_array(Self::CDR_FLAT_PRIMITIVE)?;
+        let offset = r.position();
+        let v = array_elements::<T, N>(r)?;
+        r.end_dheader(d);
+        let found = v.len();
+        v.into_boxed_slice()
+            .try_into()
+            .map_err(|_| cdr::DecodeError::ArrayLength {
+                offset,
+                expected: N,
+                found,
+            })
+    }
     fn cdr_encode_flat(&self, w: &mut cdr::Writer) {
         if T::CDR_IS_ARRAY {
             for x in self {
@@ -747,22 +805,7 @@ impl<T: IpcMessage, const N: usize> IpcMessage for [T; N] {
     }
     fn cdr_decode_flat(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
         let offset = r.position();
-        let v = if T::CDR_IS_ARRAY {
-            if N.saturating_mul(T::CDR_MIN_SIZE.max(1)) > r.remaining() {
-                return Err(cdr::DecodeError::CountTooLarge {
-                    offset,
-                    count: N as u64,
-                    remaining: r.remaining(),
-                });
-            }
-            let mut v = Vec::with_capacity(N);
-            for _ in 0..N {
-                v.push(T::cdr_decode_flat(r)?);
-            }
-            v
-        } else {
-            T::cdr_decode_vec(r, N)?
-        };
+        let v = array_elements::<T, N>(r)?;
         let found = v.len();
         v.try_into().map_err(|_| cdr::DecodeError::ArrayLength {
             offset,
@@ -812,9 +855,9 @@ impl<T: IpcMessage> IpcMessage for Option<Box<T>> {
             return Ok(None);
         }
         r.enter()?;
-        let v = T::ipc_decode(r);
+        let v = T::ipc_decode_boxed(r);
         r.leave();
-        Ok(Some(Box::new(v?)))
+        Ok(Some(v?))
     }
     fn cdr_encode(&self, w: &mut cdr::Writer) {
         cdr::write_optional(w, self.as_deref(), T::cdr_encode);
@@ -823,7 +866,7 @@ impl<T: IpcMessage> IpcMessage for Option<Box<T>> {
         Some(None)
     }
     fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
-        Ok(cdr::read_optional(r, T::cdr_decode)?.map(Box::new))
+        cdr::read_optional(r, T::cdr_decode_boxed)
     }
 
     type Key = Self;
@@ -859,7 +902,7 @@ impl<T: IpcMessage> IpcMessage for Box<T> {
         (**self).ipc_encode(w);
     }
     fn ipc_decode(r: &mut ipc::Reader<'_>) -> Result<Self, ipc::DecodeError> {
-        T::ipc_decode(r).map(Box::new)
+        T::ipc_decode_boxed(r)
     }
     fn cdr_encode(&self, w: &mut cdr::Writer) {
         (**self).cdr_encode(w);
@@ -868,7 +911,7 @@ impl<T: IpcMessage> IpcMessage for Box<T> {
         T::cdr_default().map(Box::new)
     }
     fn cdr_decode(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
-        T::cdr_decode(r).map(Box::new)
+        T::cdr_decode_boxed(r)
     }
     fn cdr_encode_key(&self, w: &mut cdr::Writer) {
         (**self).cdr_encode_key(w);
