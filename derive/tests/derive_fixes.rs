@@ -172,3 +172,47 @@ fn boxed_large_arrays_decode_on_the_heap() {
     assert_eq!(a, scan);
     assert_eq!(b, scan);
 }
+
+/// Keys whose member ids are out of definition order.
+#[derive(IpcMessage, Debug, PartialEq)]
+#[ipc(extensibility = "mutable")]
+struct Reordered {
+    #[ipc(key, id = 5)]
+    a: i32,
+    #[ipc(key, id = 1)]
+    b: i32,
+    #[ipc(id = 9)]
+    note: u32,
+}
+
+/// The key hash serializes key members in member-id order (DDS-XTypes 1.3
+/// §7.6.8; Cyclone DDS's `dds_stream_key_size_keyhash` / idlc sort keys
+/// by member id), while the serialized key keeps definition order: `b`
+/// (id 1) comes first in the hash. It hashed `a` first.
+#[test]
+fn the_key_hash_takes_key_members_in_member_id_order() {
+    let v = Reordered {
+        a: 1,
+        b: 2,
+        note: 3,
+    };
+    let mut want = [0u8; 16];
+    want[..8].copy_from_slice(&[0, 0, 0, 2, 0, 0, 0, 1]);
+    assert_eq!(courier_wire::key_hash(&v), want);
+    assert_eq!(cdr::key_hash_of_key::<Reordered>(&(1, 2)), Some(want));
+    assert_eq!(cdr::key_from_key_hash::<Reordered>(&want), Some((1, 2)));
+    // the serialized key (a dispose's payload) is unchanged: definition
+    // order, with member headers, and reads back
+    for enc in [cdr::Encoding::Xcdr2Le, cdr::Encoding::Xcdr1Le] {
+        let key = cdr::key_to_vec(&v, enc);
+        assert_eq!(
+            cdr::key_from_slice::<Reordered>(&key),
+            Ok((1, 2)),
+            "{enc:?}"
+        );
+        assert_eq!(
+            cdr::key_hash_of_payload::<Reordered>(&key, true),
+            Some(want)
+        );
+    }
+}

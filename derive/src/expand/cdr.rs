@@ -322,15 +322,29 @@ fn key_decode(fields: &[Field<'_>], ext: &TokenStream, mutable: bool) -> TokenSt
     } else {
         quote!((#(#vars),*))
     };
+    // the key members in order: definition order, or member-id order in
+    // the key-hash form
     let in_order = {
-        let reads = keys.iter().zip(&tys).map(|((i, f), t)| {
-            let v = var(*i);
+        let read = |k: usize| {
+            let (i, f) = keys[k];
+            let (v, t) = (var(i), &tys[k]);
             let read = key_part(f).1;
             quote!(let #v: #t = #read;)
-        });
+        };
+        let positions: Vec<usize> = (0..keys.len()).collect();
+        let mut by_id: Vec<usize> = positions.clone();
+        by_id.sort_by_key(|k| keys[*k].1.id);
+        let all: Vec<syn::Ident> = keys.iter().map(|(i, _)| var(*i)).collect();
+        // (read into a block each way, then out as a tuple)
+        let reads = in_either_order(
+            positions.into_iter().map(read).collect(),
+            by_id.into_iter().map(read).collect(),
+            quote!(__r),
+            quote!((#(#all,)*)),
+        );
         quote! {
             let __s = __r.begin_struct(#ext)?;
-            #(#reads)*
+            let (#(#all,)*) = #reads;
             __s.end(__r)?;
         }
     };
@@ -425,7 +439,8 @@ fn key_value_encode(
     } else {
         quote!(let (#(#vars),*) = __key;)
     };
-    let writes = keys.iter().zip(vars).map(|((_, f), v)| {
+    let write = |k: usize| {
+        let (f, v) = (keys[k].1, &vars[k]);
         let ty = f.ty;
         member(
             f,
@@ -435,12 +450,21 @@ fn key_value_encode(
                 }
             },
         )
-    });
+    };
+    let positions: Vec<usize> = (0..keys.len()).collect();
+    let mut by_id = positions.clone();
+    by_id.sort_by_key(|k| keys[*k].1.id);
+    let writes = in_either_order(
+        positions.into_iter().map(write).collect(),
+        by_id.into_iter().map(write).collect(),
+        quote!(__w),
+        quote!(),
+    );
     quote! {
         fn cdr_encode_key_value(__key: &Self::Key, __w: &mut __wire::cdr::Writer) -> bool {
             #bind
             let __s = __w.begin_struct(#ext);
-            #(#writes)*
+            #writes
             __s.end(__w);
             true
         }
@@ -457,34 +481,78 @@ fn key_fn(fields: &[Field<'_>], ext: &TokenStream, mutable: bool) -> TokenStream
     let key_lens = len_lets(fields, &|i| {
         fields[i].attrs.key || fields.iter().any(|f| f.attrs.key && f.count_for == Some(i))
     });
-    let writes = fields
-        .iter()
-        .enumerate()
-        .filter(|(_, f)| f.attrs.key)
-        .map(|(i, f)| {
-            let m = &f.member;
-            let ty = f.ty;
-            let value = match (&f.kind, f.count_for) {
-                // a key member whose type has keys contributes its key; one without, all of it
-                (Kind::Plain, None) | (Kind::SelfPtr, _) => quote! {
-                    if <#ty as __wire::IpcMessage>::KEYS.is_empty() {
-                        __wire::IpcMessage::cdr_encode(&self.#m, __w);
-                    } else {
-                        __wire::IpcMessage::cdr_encode_key(&self.#m, __w);
-                    }
-                },
-                _ => cdr_value(fields, i),
-            };
-            member(f, value)
-        });
+    let write = |i: usize| {
+        let f = &fields[i];
+        let m = &f.member;
+        let ty = f.ty;
+        let value = match (&f.kind, f.count_for) {
+            // a key member whose type has keys contributes its key; one without, all of it
+            (Kind::Plain, None) | (Kind::SelfPtr, _) => quote! {
+                if <#ty as __wire::IpcMessage>::KEYS.is_empty() {
+                    __wire::IpcMessage::cdr_encode(&self.#m, __w);
+                } else {
+                    __wire::IpcMessage::cdr_encode_key(&self.#m, __w);
+                }
+            },
+            _ => cdr_value(fields, i),
+        };
+        member(f, value)
+    };
+    let keys: Vec<usize> = (0..fields.len()).filter(|i| fields[*i].attrs.key).collect();
+    let writes = in_either_order(
+        keys.iter().map(|i| write(*i)).collect(),
+        by_id(&keys, fields).into_iter().map(write).collect(),
+        quote!(__w),
+        quote!(),
+    );
     quote! {
         fn cdr_encode_key(&self, __w: &mut __wire::cdr::Writer) {
             #(#key_lens)*
             let __s = __w.begin_struct(#ext);
-            #(#writes)*
+            #writes
             __s.end(__w);
         }
 
         #decode
+    }
+}
+
+/// The key fields `keys` (indices into `fields`) in member-id order: the
+/// order of the key-hash form (DDS-XTypes 1.3 §7.6.8; Cyclone DDS sorts
+/// the keys by member id, scoped to their struct), where the serialized
+/// key keeps definition order. The same unless ids are given out of order.
+fn by_id(keys: &[usize], fields: &[Field<'_>]) -> Vec<usize> {
+    let mut v = keys.to_vec();
+    v.sort_by_key(|i| fields[*i].id);
+    v
+}
+
+/// `decl` (the key members in definition order), or, when the ids put
+/// them in another order, `decl` for the serialized key and `by_id` for
+/// the key-hash form (`io` is the writer or reader that says which).
+/// Each way is a block ending in `tail` (reads bind their variables
+/// inside it and give them out through `tail`; writes have none).
+fn in_either_order(
+    decl: Vec<TokenStream>,
+    by_id: Vec<TokenStream>,
+    io: TokenStream,
+    tail: TokenStream,
+) -> TokenStream {
+    let same = decl
+        .iter()
+        .map(ToString::to_string)
+        .eq(by_id.iter().map(ToString::to_string));
+    if same {
+        quote!({ #(#decl)* #tail })
+    } else {
+        quote! {
+            if #io.is_key_hash_form() {
+                #(#by_id)*
+                #tail
+            } else {
+                #(#decl)*
+                #tail
+            }
+        }
     }
 }

@@ -167,6 +167,13 @@ impl Writer {
         matches!(self.encoding.endianness(), Endianness::Little)
     }
 
+    /// Whether this writes the key-hash form ([`Writer::key_hash_form`]),
+    /// where key members go in member-id order (Cyclone DDS sorts them so;
+    /// the serialized key keeps definition order).
+    pub fn is_key_hash_form(&self) -> bool {
+        self.flat
+    }
+
     /// Bytes written, including any header.
     pub fn as_bytes(&self) -> &[u8] {
         &self.buf
