@@ -676,6 +676,9 @@ struct GenericFormat<T, const N: usize>(core::marker::PhantomData<T>);
 
 impl<T: IpcMessage, const N: usize> GenericFormat<T, N> {
     const ARRAY: ConstStr = {
+        if N > i32::MAX as usize {
+            panic!("an IPC array holds at most 2147483647 elements (C's int): use a Vec with a length field");
+        }
         if T::FIELD_FORMAT.is_empty() {
             let msg = ConstStr::new()
                 .push_str("an array `[T; N]` of `")
