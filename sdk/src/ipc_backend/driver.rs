@@ -92,6 +92,9 @@ pub(super) enum Def {
     Msg(String, Option<String>),
 }
 
+/// Where a query's answer goes.
+pub(super) type QueryDone = Done<Result<RawReply, QueryError>>;
+
 pub(super) struct Driver {
     pub(super) conn: Connection,
     pub(super) io: Box<dyn IpcStream>,
@@ -109,8 +112,9 @@ pub(super) struct Driver {
     /// only (each warned of once).
     pub(super) published_to_servers: std::collections::HashSet<String>,
     pub(super) publishes: HashMap<OpId, Done<Result<(), PublishError>>>,
-    /// Queries waiting for their reply, with their message name.
-    pub(super) queries: HashMap<OpId, (String, Done<Result<RawReply, QueryError>>)>,
+    /// Queries waiting for their reply, with their key in `query_ops` and
+    /// their message name.
+    pub(super) queries: HashMap<OpId, (u64, String, QueryDone)>,
     /// Replies handed to the module, by query delivery, with their reply
     /// message name.
     pub(super) replies: HashMap<DeliveryId, (String, Done<Result<(), PublishError>>)>,
@@ -500,7 +504,7 @@ impl Driver {
             }
             Cmd::Query(key, m, data, d) => match self.conn.query(&m, data, -1) {
                 Ok(op) => {
-                    self.queries.insert(op, (m, d));
+                    self.queries.insert(op, (key, m, d));
                     self.query_ops.insert(key, op);
                 }
                 Err(e) => {

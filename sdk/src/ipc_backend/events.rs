@@ -26,8 +26,8 @@ impl Driver {
                     order,
                     data,
                 } => {
-                    self.query_ops.retain(|_, op| *op != query);
-                    if let Some((_, d)) = self.queries.remove(&query) {
+                    if let Some((key, _, d)) = self.queries.remove(&query) {
+                        self.query_ops.remove(&key);
                         let _ = d.send(Ok((reply_msg, data, order)));
                     }
                 }
@@ -62,7 +62,8 @@ impl Driver {
                     if let Some(d) = self.publishes.remove(&op) {
                         let _ = d.send(Err(refused("a publish")(error.clone())));
                     }
-                    if let Some((msg, d)) = self.queries.remove(&op) {
+                    if let Some((key, msg, d)) = self.queries.remove(&op) {
+                        self.query_ops.remove(&key);
                         let source = refused(&msg)(error.clone());
                         let _ = d.send(Err(query_refused(msg, source)));
                     }

@@ -142,7 +142,7 @@ impl Driver {
         for d in waiting.chain(sent).chain(parked) {
             let _ = d.send(Err(PublishError::Disconnected(addr.clone())));
         }
-        for (_, (msg, d)) in self.queries.drain() {
+        for (_, (_, msg, d)) in self.queries.drain() {
             let _ = d.send(Err(QueryError::Disconnected(msg)));
         }
         for (_, (_, d)) in self.replies.drain() {
