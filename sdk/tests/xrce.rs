@@ -693,3 +693,94 @@ async fn cancelled_opens_leave_nothing_behind() {
     a.close().await;
     b.close().await;
 }
+
+/// A session dropped without `close()` (every clone gone) deletes itself
+/// at the agent, with `linger_ms=0` too (a zero linger must not skip the
+/// DELETE: with writes unacknowledged it once ended the close before the
+/// DELETE went out; this test rarely catches that window, the writes are
+/// acknowledged fast on loopback).
+#[tokio::test]
+async fn a_dropped_session_without_linger_still_deletes_itself() {
+    let agent = xrce_agent::udp(0).await;
+    let a = session(format!("xrce+udp://{}?linger_ms=0", agent.addr), "dropped").await;
+    let p = a.publisher::<Msg>("out").build().await.unwrap();
+    for i in 0..20 {
+        p.publish(&msg(i, 1_000)).await.unwrap();
+    }
+    drop((p, a));
+    let gone = tokio::time::timeout(T, async {
+        while agent.sessions() != 0 {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    })
+    .await;
+    assert!(gone.is_ok(), "the agent kept the session");
+}
+
+/// A close while a reliable subscription is full (the session stopped
+/// reading the link) still reads the agent's acknowledgements: what the
+/// session wrote is acknowledged, not given up after the linger.
+#[tokio::test]
+async fn a_close_with_a_full_subscription_still_hears_the_agent() {
+    let agent = xrce_agent::udp(0).await;
+    let url = format!("xrce+udp://{}", agent.addr);
+    let a = session(url.clone(), "full").await;
+    let b = session(url, "filler").await;
+    let _full = a
+        .subscriber::<Msg>("fill")
+        .queue(courier::QueuePolicy::KeepAll(1))
+        .build()
+        .await
+        .unwrap();
+    let mut events = a.events();
+    let p = a.publisher::<Msg>("out").build().await.unwrap();
+    let fill = b.publisher::<Msg>("fill").build().await.unwrap();
+    for i in 0..10 {
+        fill.publish(&msg(i, 10)).await.unwrap();
+    }
+    wait_event(&mut events, "SubscriberFull", |e| {
+        matches!(e, SessionEvent::SubscriberFull { .. })
+    })
+    .await;
+    for i in 0..20 {
+        p.publish(&msg(i, 1_000)).await.unwrap();
+    }
+    let (logs, _guard) = common::capture_logs();
+    tokio::time::timeout(T, a.close()).await.unwrap();
+    let logs = String::from_utf8(logs.lock().unwrap().clone()).unwrap();
+    assert!(!logs.contains("has not acknowledged"), "{logs}");
+    b.close().await;
+}
+
+/// Tasks that make the first query of a service at once share the fate of
+/// the one client open: when the agent refuses it, they all fail with that
+/// error, rather than each trying again in turn (each waiting out an open
+/// of its own).
+#[tokio::test]
+async fn concurrent_first_queries_share_a_refused_open() {
+    let agent = xrce_agent::udp(0).await;
+    let client = session(format!("xrce+udp://{}", agent.addr), "client").await;
+    let asks: Vec<_> = (0..20)
+        .map(|a| {
+            let c = client.clone();
+            tokio::spawn(async move {
+                c.query::<AddRequest, AddReply>("refused_add", &AddRequest { a, b: 1 })
+                    .timeout(T)
+                    .await
+            })
+        })
+        .collect();
+    for a in asks {
+        let r = tokio::time::timeout(T, a).await.unwrap().unwrap();
+        assert!(r.is_err(), "{r:?}");
+    }
+    assert_eq!(agent.requesters_created(), 1);
+    // a later query opens anew
+    let r = client
+        .query::<AddRequest, AddReply>("refused_add", &AddRequest { a: 1, b: 1 })
+        .timeout(T)
+        .await;
+    assert!(r.is_err());
+    assert_eq!(agent.requesters_created(), 2);
+    client.close().await;
+}

@@ -703,7 +703,9 @@ impl Backend for RtpsBackend {
             let _ = self.cmd.post(Cmd::Close { reply: tx });
             return;
         }
-        if self.cmd.send(Cmd::Close { reply: tx }).await.is_ok() {
+        // posted, not sent: a close whose future is dropped while the
+        // mailbox is full still closes (one command per close call)
+        if self.cmd.post(Cmd::Close { reply: tx }).is_ok() {
             let _ = rx.await;
         }
     }

@@ -1069,7 +1069,15 @@ impl Driver {
             let _ = reply.send(());
             return;
         }
-        if self.client.state() == State::Connected && !self.client.is_idle() {
+        // a full subscription no longer holds the link: the agent's
+        // acknowledgements (and the DELETE's STATUS) must be read
+        if self.stalled.take().is_some() {
+            self.client.set_deaf(false, now);
+        }
+        if self.client.state() == State::Connected
+            && !self.client.is_idle()
+            && !self.opts.linger.is_zero()
+        {
             // what the reliable streams hold goes out first: deleted with
             // the session, a write whose publish returned would be lost
             let until = courier_wire::time::later(now, self.opts.linger);
@@ -1489,7 +1497,8 @@ impl Driver {
         sample.type_name = Some(s.type_name.clone());
         match s.queue.push(sample) {
             Ok(()) => {}
-            Err(back) if s.reliable => {
+            // (closing: nobody will read it; the link must stay read)
+            Err(back) if s.reliable && self.closing.is_none() => {
                 // keep it, and read no more until the subscriber makes room
                 // (every subscription of the session waits: say so)
                 s.queue.push_over(back);

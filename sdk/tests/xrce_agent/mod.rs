@@ -7,7 +7,8 @@
 //! Entities are understood in all three representations: binary (decoded),
 //! XML (the `<name>` element, or `service_name`), reference (the profile
 //! name is the topic). A topic whose name starts with `refused` is refused
-//! with `STATUS_ERR_DDS_ERROR`, to test how errors reach the session.
+//! with `STATUS_ERR_DDS_ERROR`, to test how errors reach the session (so
+//! is a requester of a service whose name does).
 //! Samples written while a topic has no reader are held (up to 1000 per
 //! topic) for the first reader that comes, as a transient-local writer
 //! would keep them: after a restart the writers' and readers' sessions
@@ -93,6 +94,8 @@ struct Host {
     out: VecDeque<(ClientKey, BaseObjectRequest, StreamId, Vec<u8>)>,
     /// Requesters created so far (shared with the [`TestAgent`]).
     requesters: Arc<std::sync::atomic::AtomicUsize>,
+    /// Client sessions the agent has now (shared with the [`TestAgent`]).
+    sessions: Arc<std::sync::atomic::AtomicUsize>,
 }
 
 impl Host {
@@ -149,7 +152,11 @@ impl Host {
                         }
                         ObjectVariant::Requester { representation, .. } => {
                             self.requesters.fetch_add(1, Ordering::SeqCst);
-                            Obj::Requester(named(representation, ObjectKind::Requester))
+                            let n = named(representation, ObjectKind::Requester);
+                            if n.starts_with("refused") {
+                                status = StatusCode::ERR_DDS_ERROR;
+                            }
+                            Obj::Requester(n)
                         }
                         ObjectVariant::Replier { representation, .. } => {
                             Obj::Replier(named(representation, ObjectKind::Replier))
@@ -310,6 +317,7 @@ pub struct TestAgent {
     task: JoinHandle<()>,
     muted: Arc<AtomicBool>,
     requesters: Arc<std::sync::atomic::AtomicUsize>,
+    sessions: Arc<std::sync::atomic::AtomicUsize>,
 }
 
 impl TestAgent {
@@ -317,6 +325,11 @@ impl TestAgent {
     /// again.
     pub fn mute(&self, on: bool) {
         self.muted.store(on, Ordering::SeqCst);
+    }
+
+    /// How many client sessions it has now.
+    pub fn sessions(&self) -> usize {
+        self.sessions.load(Ordering::SeqCst)
     }
 
     /// How many requesters (query clients) its clients created so far.
@@ -350,11 +363,14 @@ pub async fn udp_dropping(port: u16, every: Option<u32>) -> TestAgent {
     let muted = Arc::new(AtomicBool::new(false));
     let requesters = Arc::new(std::sync::atomic::AtomicUsize::new(0));
     let r = requesters.clone();
+    let sessions = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let n = sessions.clone();
     let m = muted.clone();
     let task = tokio::spawn(async move {
         let mut agent: Agent<SocketAddr> = Agent::new(config(), Instant::now(), SystemTime::now());
         let mut host = Host {
             requesters: r.clone(),
+            sessions: n.clone(),
             ..Host::default()
         };
         let mut buf = vec![0u8; 65_536];
@@ -381,6 +397,8 @@ pub async fn udp_dropping(port: u16, every: Option<u32>) -> TestAgent {
                 continue;
             }
             host.serve(&mut agent, Instant::now());
+            host.sessions
+                .store(agent.clients().count(), Ordering::SeqCst);
             while let Some((to, msg)) = agent.poll_transmit() {
                 let _ = sock.send_to(&msg, to).await;
             }
@@ -391,6 +409,7 @@ pub async fn udp_dropping(port: u16, every: Option<u32>) -> TestAgent {
         task,
         muted,
         requesters,
+        sessions,
     }
 }
 
@@ -405,11 +424,14 @@ pub async fn tcp(port: u16) -> TestAgent {
     let muted = Arc::new(AtomicBool::new(false));
     let requesters = Arc::new(std::sync::atomic::AtomicUsize::new(0));
     let r = requesters.clone();
+    let sessions = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let n = sessions.clone();
     let m = muted.clone();
     let task = tokio::spawn(async move {
         let mut agent: Agent<u64> = Agent::new(config(), Instant::now(), SystemTime::now());
         let mut host = Host {
             requesters: r.clone(),
+            sessions: n.clone(),
             ..Host::default()
         };
         let (in_tx, mut in_rx) = mpsc::channel::<(u64, Vec<u8>)>(1024);
@@ -461,6 +483,8 @@ pub async fn tcp(port: u16) -> TestAgent {
                 continue;
             }
             host.serve(&mut agent, Instant::now());
+            host.sessions
+                .store(agent.clients().count(), Ordering::SeqCst);
             while let Some((to, msg)) = agent.poll_transmit() {
                 if let Some(w) = writers.get_mut(&to) {
                     let mut frame = Vec::with_capacity(msg.len() + 2);
@@ -477,6 +501,7 @@ pub async fn tcp(port: u16) -> TestAgent {
         task,
         muted,
         requesters,
+        sessions,
     }
 }
 
