@@ -598,14 +598,25 @@ impl Session {
         if let Some(c) = self.topics.client(msg) {
             return Ok(c);
         }
-        // one opens it; the others wait for it (and try themselves if
-        // that open fails or is dropped)
+        // one opens it; the others wait for it, and fail with its error
+        // (one after another, each would wait out its own open), or try
+        // themselves if it was dropped
         let opening = self.topics.client_opening(msg);
-        let _turn = opening.lock().await;
+        let mut turn = opening.lock().await;
         if let Some(c) = self.topics.client(msg) {
             return Ok(c);
         }
-        let id = self.backend.open_client(msg, req, resp).await?;
+        if let Some(e) = &*turn {
+            return Err(e.clone());
+        }
+        let id = match self.backend.open_client(msg, req, resp).await {
+            Ok(id) => id,
+            Err(e) => {
+                *turn = Some(e.clone());
+                self.topics.client_open_done(msg);
+                return Err(e);
+            }
+        };
         let kept = self.topics.set_client(msg, id);
         if kept != id {
             self.backend.close_handle(Handle::Client(id));

@@ -50,6 +50,10 @@ struct Entry {
     client: Option<ClientId>,
 }
 
+/// The lock of a client being opened, with the error of an open that
+/// failed (see `Topics::opening`).
+pub(crate) type ClientOpening = Arc<tokio::sync::Mutex<Option<OpenError>>>;
+
 /// A session's topic → type bindings and shared handles, shared by the
 /// session's clones.
 #[derive(Debug, Default)]
@@ -58,7 +62,8 @@ pub(crate) struct Topics {
     /// A lock per service whose client is being opened: tasks that make
     /// the first query of a service at once open one client, not one each
     /// (on XRCE, a thousand requesters created and deleted on the agent).
-    opening: Mutex<HashMap<String, Arc<tokio::sync::Mutex<()>>>>,
+    /// It holds the error of an open that failed, for those who waited.
+    opening: Mutex<HashMap<String, ClientOpening>>,
 }
 
 impl Topics {
@@ -69,15 +74,16 @@ impl Topics {
     }
 
     /// The lock to hold while opening the client of `msg` (see
-    /// [`Topics::client_opened`]).
-    pub(crate) fn client_opening(&self, msg: &str) -> Arc<tokio::sync::Mutex<()>> {
+    /// [`Topics::client_open_done`]).
+    pub(crate) fn client_opening(&self, msg: &str) -> ClientOpening {
         let mut opening = self.opening.lock().unwrap_or_else(|e| e.into_inner());
         opening.entry(msg.to_string()).or_default().clone()
     }
 
-    /// The client of `msg` is open: its opening lock goes (those who wait
-    /// for it find the client when they get it).
-    fn client_opened(&self, msg: &str) {
+    /// The open of `msg`'s client ended (either way): its lock goes, and
+    /// the next first query opens anew; those already waiting find the
+    /// client, or the error left in the lock.
+    pub(crate) fn client_open_done(&self, msg: &str) {
         self.opening
             .lock()
             .unwrap_or_else(|e| e.into_inner())
@@ -171,7 +177,7 @@ impl Topics {
             .or_default()
             .client
             .get_or_insert(id);
-        self.client_opened(msg);
+        self.client_open_done(msg);
         kept
     }
 }
