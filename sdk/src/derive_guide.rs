@@ -65,7 +65,7 @@
 //! | `#[ipc(type_name = "HelloWorldData::Msg")]` | DDS type name (default: `module_path!()::Ident`, plus `<params>` for generic types) |
 //! | `#[ipc(numeric)]` | enum: `{enum : max}` instead of `{enum A, B, C}`; implied by any explicit discriminant |
 //! | `#[ipc(extensibility = "final" \| "appendable" \| "mutable")]` | struct: XTypes extensibility of the CDR encoding (default final) |
-//! | `#[ipc(crate = "::courier_wire")]` | path of the wire crate in generated code (default `::courier::__wire`) |
+//! | `#[ipc(crate = "::courier_wire")]` | path of the wire crate in generated code (default: found in the crate's `Cargo.toml`, see *Crate path* below) |
 //!
 //! On a field:
 //!
@@ -86,7 +86,10 @@
 //!   there (`courier2 = { package = "courier" }` gives `::courier2::__wire`),
 //!   else `courier-wire` under its name, else `::courier::__wire`.
 //!   `#[ipc(crate = "::path::to::wire")]` overrides it (a crate that
-//!   re-exports `courier` under another path).
+//!   re-exports `courier` under another path). The lookup reads
+//!   `[dev-dependencies]` too: a crate whose library depends on
+//!   `courier-wire` and whose tests alone on `courier` says
+//!   `#[ipc(crate = "::courier_wire")]`.
 //! - **What the derive refuses at compile time** besides unsupported types:
 //!   a format `name` (or, for a named struct, its identifier) IPC cannot
 //!   read as a format name (a primitive such as `int`, `enum`, a leading
@@ -101,8 +104,10 @@
 //!   it on the stack (several times over in a debug build), and a struct
 //!   holding 100 KB of array overflowed tokio's 2 MiB worker stacks. Put a
 //!   large one behind a box, `Box<[u8; 1_000_000]>` (or
-//!   `Option<Box<[T; N]>>`): the same format and wire bytes, decoded
-//!   straight into the heap.
+//!   `Option<Box<[T; N]>>`): the same format and wire bytes, the array's
+//!   elements decoded straight into the heap. Only the boxed array is:
+//!   in `Box<[[u8; 1 << 20]; 4]>` each inner array is still built on the
+//!   stack; box those (`[Box<[u8; 1 << 20]>; 4]`) or use a `Vec`.
 //! - **Variable arrays.** On encode the length field is written as the `Vec`'s
 //!   length (the field's own value is ignored), in IPC and in CDR, so the data
 //!   never disagrees with its count. A `Vec` longer than the length field's type

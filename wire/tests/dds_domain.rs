@@ -633,15 +633,23 @@ fn a_cancelled_query_is_neither_answered_nor_failed() {
         Event::Request { request, .. } => Some(*request),
         _ => None,
     });
+    // another query, which the service leaves unanswered, is in flight
+    // when the cancelled one's reply comes
     let now = net.now();
+    let silent = net.node(0).query(c, sample(4), ms(1000), now).unwrap();
     net.node(1)
         .reply(s, request.unwrap(), sample(3), now)
         .unwrap();
-    net.run_for(ms(3100));
-    assert!(!net.has(0, |e| matches!(
-        e,
-        Event::Reply { .. } | Event::QueryFailed { .. }
-    )));
+    net.run_for(ms(1100));
+    assert!(!net.has(0, |e| matches!(e, Event::Reply { .. })));
+    assert!(!net.has(
+        0,
+        |e| matches!(e, Event::QueryFailed { query, .. } if *query == sent)
+    ));
+    // the late reply answered a query given up, not no query: the other
+    // times out as such, not as one whose replies did not match (which
+    // says "the other RPC style?")
+    assert!(net.has(0, |e| matches!(e, Event::QueryFailed { query, reason: QueryFailure::Timeout(_), .. } if *query == silent)));
 }
 
 #[test]

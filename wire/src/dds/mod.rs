@@ -130,6 +130,9 @@ pub struct Domain {
     clients: BTreeMap<ClientId, rpc::Client>,
     waiting: Vec<rpc::Waiting>,
     inflight: HashMap<handles::RequestKey, rpc::Inflight>,
+    /// Sent queries cancelled lately ([`Domain::cancel_queries`]): their
+    /// replies are dropped, not counted as answering no query.
+    cancelled: VecDeque<handles::RequestKey>,
     next_id: u64,
     next_housekeeping: Instant,
     events: VecDeque<Event>,
@@ -166,6 +169,7 @@ impl Domain {
             clients: BTreeMap::new(),
             waiting: Vec::new(),
             inflight: HashMap::new(),
+            cancelled: VecDeque::new(),
             next_id: 1,
             next_housekeeping: now + HOUSEKEEPING,
             events: VecDeque::new(),

@@ -154,6 +154,9 @@ pub(super) struct Inflight {
     unmatched_before: u64,
 }
 
+/// How many cancelled queries' keys are kept, to drop their replies.
+const CANCELLED_KEPT: usize = 4096;
+
 impl Domain {
     /// Serves a service: a reader of its request topic and a writer of its
     /// reply topic. Requests come as [`Event::Request`].
@@ -347,7 +350,17 @@ impl Domain {
     pub fn cancel_queries(&mut self, queries: &std::collections::HashSet<QueryId>) -> usize {
         let before = self.waiting.len() + self.inflight.len();
         self.waiting.retain(|q| !queries.contains(&q.query));
-        self.inflight.retain(|_, q| !queries.contains(&q.query));
+        let cancelled = &mut self.cancelled;
+        self.inflight.retain(|key, q| {
+            let keep = !queries.contains(&q.query);
+            if !keep {
+                cancelled.push_back(*key);
+            }
+            keep
+        });
+        while self.cancelled.len() > CANCELLED_KEPT {
+            self.cancelled.pop_front();
+        }
         before - (self.waiting.len() + self.inflight.len())
     }
 
@@ -615,6 +628,11 @@ impl Domain {
             },
         };
         let Some(q) = self.inflight.remove(&key) else {
+            if let Some(i) = self.cancelled.iter().position(|k| *k == key) {
+                // the answer to a query given up: nobody waits for it
+                self.cancelled.remove(i);
+                return;
+            }
             // late, or for a query this client never made
             c.unmatched += 1;
             return;
