@@ -46,6 +46,8 @@ pub struct Publish<'a> {
     /// Where it goes: an open publication, or the definition of the
     /// session's publication to make first; or the type mismatch.
     pub(crate) target: Result<Target, PublishError>,
+    /// A first use's binding, let go if it is dropped unsettled.
+    pub(crate) first: Option<crate::topics::Unsettled<'a>>,
 }
 
 /// Where a [`Publish`] goes.
@@ -111,6 +113,7 @@ impl<'a> std::future::IntoFuture for Publish<'a> {
                 opts,
             },
             Ok(Target::Define(def)) => Step::Wait(Box::pin(async move {
+                let _first = self.first;
                 let r = self.session.define_shared(self.msg, def).await;
                 let id = self.session.settled(&[self.msg], r)?;
                 self.session.backend.write(id, self.data, opts).await
@@ -291,11 +294,14 @@ impl<T: IpcMessage> PublisherBuilder<T> {
     pub async fn build(self) -> Result<Publisher<T>, OpenError> {
         crate::qos::check_history(&self.msg, self.qos.history)?;
         self.session.topics.bind::<T>(&self.msg)?;
-        let r = self
-            .session
-            .open_as(&self.msg, &Definition::of::<T>(), &self.qos)
-            .await;
-        let id = self.session.settled(&[&self.msg], r)?;
+        let id = {
+            let _first = self.session.topics.unsettled(&[&self.msg]);
+            let r = self
+                .session
+                .open_as(&self.msg, &Definition::of::<T>(), &self.qos)
+                .await;
+            self.session.settled(&[&self.msg], r)?
+        };
         Ok(Publisher {
             handle: Arc::new(self.session.owned(Handle::Publication(id))),
             id,

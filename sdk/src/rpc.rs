@@ -67,6 +67,8 @@ pub struct Query<'a, Resp> {
     pub(crate) timeout: Duration,
     /// The query message's type check, as [`Publish`]'s.
     pub(crate) check: Result<Option<Definition>, OpenError>,
+    /// Its first use's bindings, let go if it is dropped unsettled.
+    pub(crate) _first: Option<crate::topics::Unsettled<'a>>,
     pub(crate) _t: PhantomData<fn() -> Resp>,
 }
 

@@ -264,6 +264,7 @@ impl Session {
     /// another module replaced at the same moment (central keeps the last).
     pub async fn define<T: IpcMessage>(&self, msg: &str) -> Result<(), OpenError> {
         if self.topics.bind::<T>(msg)?.is_none() {
+            let _first = self.topics.unsettled(&[msg]);
             let r = self.define_shared(msg, Definition::of::<T>()).await;
             self.settled(&[msg], r)?;
         }
@@ -312,6 +313,8 @@ impl Session {
             }
         }
         let id = self.backend.open_publication(msg, &def.ty, qos).await?;
+        // closed if this future is dropped before it hands the id over
+        let opened = Opened::new(&*self.backend, Handle::Publication(id));
         if first {
             // The definition went out after the check: central has it once
             // it answers this lookup (it reads a module's frames in order),
@@ -324,7 +327,7 @@ impl Session {
                 .check(self, msg, def.rust, def.fits)
                 .await
             {
-                self.backend.close_handle(Handle::Publication(id));
+                // (`opened` closes the publication)
                 return Err(OpenError::FormatMismatch {
                     msg: msg.to_string(),
                     ty: def.rust,
@@ -336,6 +339,7 @@ impl Session {
                 });
             }
         }
+        opened.keep();
         Ok(id)
     }
 
@@ -406,6 +410,7 @@ impl Session {
         };
         let key_hash = (self.enc() == Encoding::Cdr && !T::KEYS.is_empty() && target.is_ok())
             .then(|| crate::rtps_backend::key_hash_of(value));
+        let first = matches!(target, Ok(Target::Define(_))).then(|| self.topics.unsettled(&[msg]));
         let data = match (self.enc(), &target) {
             (_, Err(_)) => Vec::new(),
             (Encoding::Cdr, _) => cdr::to_vec_with_capacity(value, cdr, size_hint),
@@ -418,6 +423,7 @@ impl Session {
             confirm: None,
             key_hash,
             target,
+            first,
         }
     }
 
@@ -562,6 +568,7 @@ impl Session {
             }
             self.topics.bind_reply::<Resp>(msg).map(|()| None)
         });
+        let first = check.is_ok().then(|| self.topics.unsettled(&[msg]));
         Query {
             session: self,
             msg,
@@ -569,6 +576,7 @@ impl Session {
             data: encode_rpc(self.enc(), msg, req),
             timeout: Duration::from_secs(10),
             check,
+            _first: first,
             _t: PhantomData,
         }
     }
@@ -684,6 +692,7 @@ impl Session {
                 }
             }
         };
+        let _first = self.topics.unsettled(&[msg, reply_msg]);
         let r = self
             .open_service::<Req, Resp>(msg, reply_msg, define_req, define_resp)
             .await;
@@ -875,6 +884,35 @@ impl Session {
             return;
         }
         self.backend.close().await
+    }
+}
+
+/// A handle an open has made but not yet handed over: closed if the open
+/// ends otherwise (an error, or its future dropped across an await).
+struct Opened<'a> {
+    backend: &'a dyn Backend,
+    handle: Option<Handle>,
+}
+
+impl<'a> Opened<'a> {
+    fn new(backend: &'a dyn Backend, handle: Handle) -> Self {
+        Opened {
+            backend,
+            handle: Some(handle),
+        }
+    }
+
+    /// Handed over: its owner closes it.
+    fn keep(mut self) {
+        self.handle = None;
+    }
+}
+
+impl Drop for Opened<'_> {
+    fn drop(&mut self) {
+        if let Some(h) = self.handle.take() {
+            self.backend.close_handle(h);
+        }
     }
 }
 

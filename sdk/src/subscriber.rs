@@ -302,6 +302,7 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
     async fn create(&self, queue: Arc<SampleQueue>) -> Result<RawSubscriber, OpenError> {
         crate::qos::check_history(&self.msg, self.qos.history)?;
         self.session.topics.bind::<T>(&self.msg)?;
+        let _first = self.session.topics.unsettled(&[&self.msg]);
         let r = self
             .session
             .backend

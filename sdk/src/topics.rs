@@ -182,6 +182,46 @@ impl Topics {
     }
 }
 
+/// A typed first use under way: its topics are bound, its outcome not yet
+/// settled. Dropped, as when its future is cancelled (or a `Publish` is
+/// never awaited), it settles as a failure, letting go of the bindings no
+/// use has confirmed; left bound, a cancelled first use held the topic to
+/// its type for the session's life. After a success has settled them,
+/// dropping it changes nothing (a confirmed binding stays).
+pub(crate) struct Unsettled<'a> {
+    topics: &'a Topics,
+    msgs: [&'a str; 2],
+    n: usize,
+}
+
+impl Topics {
+    /// The guard of a first use of `msgs` (one or two topics).
+    pub(crate) fn unsettled<'a>(&'a self, msgs: &[&'a str]) -> Unsettled<'a> {
+        let mut m = [""; 2];
+        let n = msgs.len().min(2);
+        m[..n].copy_from_slice(&msgs[..n]);
+        Unsettled {
+            topics: self,
+            msgs: m,
+            n,
+        }
+    }
+}
+
+impl Drop for Unsettled<'_> {
+    fn drop(&mut self) {
+        self.topics.settle(&self.msgs[..self.n], false);
+    }
+}
+
+impl std::fmt::Debug for Unsettled<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_tuple("Unsettled")
+            .field(&&self.msgs[..self.n])
+            .finish()
+    }
+}
+
 /// What publishing a topic the session has not defined yet needs first:
 /// its named formats (IPC) and its type.
 #[derive(Debug)]

@@ -4,6 +4,7 @@
 //! list the known ones. Against Courier's own central, embedded on a free
 //! port of 127.0.0.1; every wait is bounded.
 
+use std::future::IntoFuture;
 use std::time::Duration;
 
 use courier::{ConnectError, IpcMessage, OpenError, PublishError, QueryError, Session};
@@ -730,4 +731,35 @@ async fn cancelled_opens_leave_nothing_behind() {
     }
     c.shutdown().await;
     d.shutdown().await;
+}
+
+/// A first typed use that is cancelled (or a publish never awaited) does
+/// not hold its topic to its type: another type may use the topic after
+/// (it got `TypeMismatch` for the session's life). IPC and RTPS.
+#[tokio::test]
+async fn a_cancelled_first_use_does_not_bind_the_topic() {
+    let (c, url) = central().await;
+    for url in [url, common::url(8)] {
+        let s = session(&url, "binder").await;
+        cancel_after(s.subscribe::<Ask>("sub_topic"), 0).await;
+        let sub = tokio::time::timeout(T, s.subscribe::<Sum>("sub_topic")).await;
+        assert!(matches!(sub, Ok(Ok(_))), "{url}: {sub:?}");
+        drop(s.publish("pub_topic", &Ask { a: 1, b: 2 }));
+        let sum = Sum {
+            total: 3,
+            note: String::new(),
+        };
+        let p = tokio::time::timeout(T, s.publish("pub_topic", &sum)).await;
+        assert!(matches!(p, Ok(Ok(()))), "{url}: {p:?}");
+        cancel_after(
+            s.query::<Ask, Sum>("q_topic", &Ask { a: 1, b: 2 })
+                .into_future(),
+            0,
+        )
+        .await;
+        let d = tokio::time::timeout(T, s.define::<Sum>("q_topic")).await;
+        assert!(matches!(d, Ok(Ok(()))), "{url}: {d:?}");
+        s.close().await;
+    }
+    c.shutdown().await;
 }
