@@ -11,7 +11,27 @@
 
 use tokio::sync::oneshot;
 
-use crate::backend::Handle;
+use crate::backend::{Backend, Handle};
+use crate::mailbox::Mailbox;
+
+/// Sends the open `make` builds to a driver and waits for its answer; what
+/// the driver opened for a caller that stopped waiting is closed (through
+/// `backend`); `gone` is the error when the driver is gone.
+pub(crate) async fn ask_open<C, T: Copy, E>(
+    cmd: &Mailbox<C>,
+    backend: &dyn Backend,
+    handle: fn(T) -> Handle,
+    make: impl FnOnce(oneshot::Sender<Result<T, E>>) -> C,
+    gone: fn() -> E,
+) -> Result<T, E> {
+    let (tx, rx) = oneshot::channel();
+    cmd.send(make(tx)).await.map_err(|_| gone())?;
+    let close = |h: Handle| backend.close_handle(h);
+    OpenAnswer::new(rx, handle, &close)
+        .get()
+        .await
+        .ok_or_else(gone)?
+}
 
 pub(crate) struct OpenAnswer<'a, T: Copy, E> {
     rx: Option<oneshot::Receiver<Result<T, E>>>,

@@ -664,17 +664,6 @@ async fn a_burst_published_right_before_close_arrives() {
     d.shutdown().await;
 }
 
-/// Polls `f` once, lets the session's tasks run `turns` times, and drops
-/// it: an open cancelled at every stage (a `timeout` or `select!` would
-/// drop it anywhere).
-async fn cancel_after<F: std::future::Future>(f: F, turns: usize) {
-    let mut f = std::pin::pin!(f);
-    let _ = futures::poll!(&mut f);
-    for _ in 0..turns {
-        tokio::task::yield_now().await;
-    }
-}
-
 /// Cancelled `subscribe` and `serve` calls leave nothing behind: no
 /// subscription nobody reads (its full queue held every other delivery to
 /// the session, and its publishers still counted it), no service that
@@ -691,8 +680,8 @@ async fn cancelled_opens_leave_nothing_behind() {
         let b = session(&url, "publishing").await;
         b.define::<i32>("leak").await.unwrap();
         for turns in 0..40 {
-            cancel_after(a.subscribe::<i32>("leak"), turns % 8).await;
-            cancel_after(a.serve::<Ask, Sum>("svc", ""), turns % 8).await;
+            common::cancel_after(a.subscribe::<i32>("leak"), turns % 8).await;
+            common::cancel_after(a.serve::<Ask, Sum>("svc", ""), turns % 8).await;
         }
         // every subscription of `leak` is gone (central or matching says)
         let gone = tokio::time::timeout(T, async {
@@ -741,7 +730,7 @@ async fn a_cancelled_first_use_does_not_bind_the_topic() {
     let (c, url) = central().await;
     for url in [url, common::url(8)] {
         let s = session(&url, "binder").await;
-        cancel_after(s.subscribe::<Ask>("sub_topic"), 0).await;
+        common::cancel_after(s.subscribe::<Ask>("sub_topic"), 0).await;
         let sub = tokio::time::timeout(T, s.subscribe::<Sum>("sub_topic")).await;
         assert!(matches!(sub, Ok(Ok(_))), "{url}: {sub:?}");
         drop(s.publish("pub_topic", &Ask { a: 1, b: 2 }));
@@ -751,7 +740,7 @@ async fn a_cancelled_first_use_does_not_bind_the_topic() {
         };
         let p = tokio::time::timeout(T, s.publish("pub_topic", &sum)).await;
         assert!(matches!(p, Ok(Ok(()))), "{url}: {p:?}");
-        cancel_after(
+        common::cancel_after(
             s.query::<Ask, Sum>("q_topic", &Ask { a: 1, b: 2 })
                 .into_future(),
             0,

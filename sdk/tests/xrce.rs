@@ -646,16 +646,6 @@ async fn concurrent_first_queries_open_one_client() {
     serving.abort();
 }
 
-/// Polls `f` once, lets the session's tasks run `turns` times, and drops
-/// it: an open cancelled at every stage.
-async fn cancel_after<F: std::future::Future>(f: F, turns: usize) {
-    let mut f = std::pin::pin!(f);
-    let _ = futures::poll!(&mut f);
-    for _ in 0..turns {
-        tokio::task::yield_now().await;
-    }
-}
-
 /// Cancelled `subscribe` and `serve` calls leave nothing open: the service
 /// can be served again and the session's other subscriptions get what is
 /// published after a flood of the cancelled ones' topic.
@@ -666,8 +656,8 @@ async fn cancelled_opens_leave_nothing_behind() {
     let a = session(url.clone(), "cancelling").await;
     let b = session(url, "publishing").await;
     for turns in 0..40 {
-        cancel_after(a.subscribe::<Msg>("leak"), turns % 8).await;
-        cancel_after(a.serve::<AddRequest, AddReply>("svc", ""), turns % 8).await;
+        common::cancel_after(a.subscribe::<Msg>("leak"), turns % 8).await;
+        common::cancel_after(a.serve::<AddRequest, AddReply>("svc", ""), turns % 8).await;
     }
     // the agent's answer to a cancelled serve may still be on its way
     let served = tokio::time::timeout(T, async {

@@ -431,11 +431,7 @@ impl RtpsBackend {
         handle: fn(T) -> Handle,
         make: impl FnOnce(Reply<T, E>) -> Cmd,
     ) -> Result<T, E> {
-        let (tx, rx) = oneshot::channel();
-        self.cmd.send(make(tx)).await.map_err(|_| disconnected())?;
-        let close = |h: Handle| Backend::close_handle(self, h);
-        let answer = crate::open_answer::OpenAnswer::new(rx, handle, &close);
-        answer.get().await.ok_or_else(disconnected)?
+        crate::open_answer::ask_open(&self.cmd, self, handle, make, disconnected).await
     }
 }
 

@@ -285,3 +285,14 @@ impl std::io::Write for LogSink {
         Ok(())
     }
 }
+
+/// Polls `f` once, lets the session's tasks run `turns` times, and drops
+/// it: an operation cancelled at every stage (a `timeout` or `select!`
+/// would drop it anywhere).
+pub async fn cancel_after<F: std::future::Future>(f: F, turns: usize) {
+    let mut f = std::pin::pin!(f);
+    let _ = futures::poll!(&mut f);
+    for _ in 0..turns {
+        tokio::task::yield_now().await;
+    }
+}
