@@ -561,6 +561,26 @@ impl Writer {
         let Some(p) = self.readers.get_mut(&reader) else {
             return;
         };
+        // a pre-emptive ACKNACK (base 1 or less, nothing missing, count 0:
+        // Cyclone DDS's and ours; RTI sends base 0): a reader that matched
+        // us anew and has nothing. Taken whatever the count (a reader that
+        // lost and found us again counts from 0 again); one that had
+        // acknowledged more is sent everything again.
+        let base = a.reader_sn_state.base.0;
+        let preemptive =
+            a.reader_sn_state.num_bits == 0 && (base < 1 || (base == 1 && a.count == 0));
+        if preemptive {
+            p.last_acknack_count = Some(a.count);
+            let forgot = !p.fresh && p.acked_below > p.start;
+            if forgot {
+                p.acked_below = p.start;
+                p.requested.clear();
+            }
+            if (!a.final_flag && base < self.next_sn) || (forgot && p.start < self.next_sn) {
+                self.push_heartbeat(Some(reader), false);
+            }
+            return;
+        }
         if p.last_acknack_count
             .is_some_and(|c| a.count.wrapping_sub(c) <= 0)
         {
@@ -571,7 +591,6 @@ impl Writer {
         // at once if something is unacknowledged
         let answered = p.fresh && a.count != 0;
         p.fresh &= !answered;
-        let base = a.reader_sn_state.base.0;
         if base > p.acked_below {
             p.acked_below = base.min(self.next_sn);
         }
@@ -1215,6 +1234,62 @@ mod tests {
             Some(Transmit::Gap { start: SequenceNumber(1), list, .. }) if list.base == SequenceNumber(7)
         ));
         assert_eq!(w.acked_by_all(), SequenceNumber(0));
+    }
+
+    /// A reader that acknowledged everything, then lost and found our
+    /// participant again (an asymmetric lease expiry: only its side lost
+    /// the match), announces itself with Cyclone DDS's pre-emptive ACKNACK
+    /// (base 1, nothing missing, count 0). The writer takes it although
+    /// the count went back, heartbeats, and resends all it keeps; it
+    /// dropped it as stale before, so the reader never got the writer's
+    /// history (its discovery data) again.
+    #[test]
+    fn a_reader_that_forgot_everything_is_sent_it_again() {
+        let (wg, rg) = (guid(1), guid(2));
+        let t0 = Instant::now();
+        let mut w = Writer::new(wg, true, None, 64, Duration::from_millis(10)).retain_acked(true);
+        w.add_reader(rg, true, t0);
+        for i in 1..=3u8 {
+            w.write(Arc::from(vec![i]), t0).unwrap();
+        }
+        let ack = |base: i64, missing: &[i64], count: i32| AckNack {
+            reader_id: rg.entity,
+            writer_id: wg.entity,
+            reader_sn_state: SequenceNumberSet::from_members(
+                SequenceNumber(base),
+                missing.len() as u32,
+                missing.iter().map(|s| SequenceNumber(*s)),
+            ),
+            count,
+            final_flag: missing.is_empty(),
+        };
+        // everything acknowledged, at count 57
+        w.handle_acknack(rg, &ack(4, &[], 57));
+        assert_eq!(w.acked_by_all(), SequenceNumber(3));
+        while w.poll_transmit().is_some() {}
+        // the pre-emptive ACKNACK of a reader that has nothing
+        let mut pre = ack(1, &[], 0);
+        pre.final_flag = false;
+        w.handle_acknack(rg, &pre);
+        assert!(
+            matches!(w.poll_transmit(), Some(Transmit::Heartbeat { .. })),
+            "a heartbeat for the reader"
+        );
+        assert_eq!(
+            w.acked_by_all(),
+            SequenceNumber(0),
+            "not acknowledged any more"
+        );
+        // its answer (count 1, lower than 57) is taken: all three resent
+        while w.poll_transmit().is_some() {}
+        w.handle_acknack(rg, &ack(1, &[1, 2, 3], 1));
+        let mut data = vec![];
+        while let Some(t) = w.poll_transmit() {
+            if let Transmit::Data { sn, .. } = t {
+                data.push(sn.0);
+            }
+        }
+        assert_eq!(data, [1, 2, 3]);
     }
 
     /// Cyclone DDS's reader, as far as its start point goes: DATA that
