@@ -83,6 +83,23 @@ fn slow_subscriber_bounded_memory_nothing_lost() {
         "peak {}",
         st.peak_queued_bytes
     );
+    // the operator is told when central holds modules back, and for whom
+    // the queue is (every module that sends more waits meanwhile)
+    let held: Vec<&String> = sim
+        .logs
+        .iter()
+        .filter(|l| l.contains("it stops reading the modules that send more"))
+        .collect();
+    // once: central held and released it over and over, a line at most
+    // every 10 s (the whole run is shorter)
+    assert_eq!(held.len(), 1, "{held:#?}");
+    assert!(held.iter().all(|l| l.contains("slow from")), "{held:#?}");
+    assert!(
+        sim.logs
+            .iter()
+            .any(|l| l.contains("reading every module again")),
+        "no line said it read again"
+    );
 }
 
 /// Empty messages carry no data but do cost central their bookkeeping:

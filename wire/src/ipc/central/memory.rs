@@ -6,6 +6,9 @@ use super::log;
 use super::tables::{cost, DispatchId, Linked};
 use super::{Bad, Central, ConnId, Output};
 
+/// At most one "holds modules back" line this often.
+const MEMORY_LINE_EVERY: std::time::Duration = std::time::Duration::from_secs(10);
+
 impl Central {
     /// Central reads `conn` again before the queues have drained: what it
     /// sends is now waited for.
@@ -65,12 +68,61 @@ impl Central {
                         .all(|x| x.asking == 0 || (x.pending.is_empty() && x.ahead.is_empty()))));
         if let (true, Some(m)) = (may_pause, self.modules.get_mut(&conn)) {
             m.paused = true;
+            let first = self.memory_paused.is_empty();
             self.memory_paused.insert(conn);
+            if first {
+                self.say_paused();
+            }
             if answering {
                 self.answer_paused.insert(conn);
             }
             self.outputs.push_back(Output::PauseRead { conn });
         }
+    }
+
+    /// The first module held back for memory: one line that says so and
+    /// names the module with the longest queue (often one that stopped
+    /// reading): every module that sends more waits now, its traffic and
+    /// queries with it, until the queues drain to half.
+    fn say_paused(&mut self) {
+        let now = self.clock;
+        let again = match &mut self.memory_said {
+            Some((at, unsaid))
+                if now.duration_since(*at).unwrap_or_default() < MEMORY_LINE_EVERY =>
+            {
+                *unsaid += 1;
+                return;
+            }
+            Some((_, unsaid)) => std::mem::take(unsaid),
+            None => 0,
+        };
+        self.memory_said = Some((now, 0));
+        let since = if again > 0 {
+            format!(" (and {again} time(s) since the last such line)")
+        } else {
+            String::new()
+        };
+        let longest = self
+            .modules
+            .iter()
+            .map(|(c, m)| (m.pending.len() + m.ahead.len(), *c))
+            .max();
+        let whom = match longest {
+            Some((n, c)) if n > 0 => format!(
+                "; the longest queue ({n} message(s)) is for {}, which may have stopped reading",
+                self.describe(c)
+            ),
+            _ => String::new(),
+        };
+        self.log_line(
+            log::Kind::Problem,
+            format!(
+                "WARNING: central holds {} bytes for modules, more than {} (max_queued_bytes): \
+                 it stops reading the modules that send more until its queues drain to \
+                 half{whom}{since}",
+                self.stats.queued_bytes, self.config.max_queued_bytes
+            ),
+        );
     }
 
     pub(super) fn check_memory_resume(&mut self) {
@@ -81,6 +133,18 @@ impl Central {
         }
         let paused: Vec<ConnId> = self.memory_paused.drain().collect();
         self.answer_paused.clear();
+        // (said for the hold that was said: once in a while)
+        if self.memory_said.is_some_and(|(_, unsaid)| unsaid == 0) {
+            self.log_line(
+                log::Kind::Problem,
+                format!(
+                    "WARNING: central's queues are down to {} bytes: reading every module \
+                     again ({} were held back)",
+                    self.stats.queued_bytes,
+                    paused.len()
+                ),
+            );
+        }
         for conn in paused {
             if let Some(m) = self.modules.get_mut(&conn) {
                 if m.paused {

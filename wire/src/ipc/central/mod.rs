@@ -249,6 +249,10 @@ pub struct Central {
     memory_paused: HashSet<ConnId>,
     /// Of those, modules held back while they answer a query.
     answer_paused: HashSet<ConnId>,
+    /// When central last said it holds modules back for memory, and how
+    /// many times it did so since without saying (a slow subscriber makes
+    /// it hold and release over and over).
+    memory_said: Option<(SystemTime, u64)>,
     handler_seq: u64,
     msg_info_query: Format,
     msg_info_reply: Format,
@@ -296,6 +300,7 @@ impl Central {
             stats: Stats::default(),
             memory_paused: HashSet::new(),
             answer_paused: HashSet::new(),
+            memory_said: None,
             handler_seq: 0,
             msg_info_query: internal::fixed(internal::MSG_INFO_QUERY_FORMAT),
             msg_info_reply: internal::fixed(internal::MSG_INFO_REPLY_FORMAT),
