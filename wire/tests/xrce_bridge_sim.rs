@@ -1568,12 +1568,14 @@ fn a_dead_readers_client_holds_the_writers_back_only_until_it_seems_dead() {
 }
 
 /// Writes the bridge acknowledged to a client reach the DDS reader even
-/// when the client deletes its session right after, while the reader is
-/// not reading (30 % loss, four seeds): what the bridge acknowledged is
-/// in the DDS writer's hands, not only in the agent's.
+/// when the client deletes its session right after (30 % loss, 40 seeds):
+/// the bridge's DDS writer lingers until its readers acknowledged what it
+/// holds (or `WRITER_LINGER`), as a DDS application's deleted writer
+/// does. Deleted at once, it took the samples still to be repaired with
+/// it: 20 of 40 seeds lost some, down to 1 sample of 40 delivered.
 #[test]
 fn writes_acknowledged_before_the_client_leaves_reach_the_reader() {
-    for seed in 1..=4 {
+    for seed in 1..=40 {
         let mut w = world(seed, 30, |_, _| {});
         let now = w.net.now();
         let r = w
@@ -1628,17 +1630,14 @@ fn writes_acknowledged_before_the_client_leaves_reach_the_reader() {
             }
         }
         assert!(w.run_until(Duration::from_secs(60), |w| acked(w) == n as usize));
-        // the reader is slow to read (its datagrams wait): the client
-        // leaves before it acknowledged, with samples lost on the way
-        // still to be repaired
-        w.deafen(true);
+        // the client leaves at once: samples lost on the way to the
+        // reader are still to be repaired
         let now = w.net.now();
         w.client(c).disconnect(now).unwrap();
         assert!(w.run_until(Duration::from_secs(30), |w| w
             .client_events(c)
             .iter()
             .any(|e| matches!(e, Event::SessionDeleted { confirmed: true }))));
-        w.deafen(false);
         w.run_until(Duration::from_secs(30), |w| {
             w.dds_samples(r).len() == n as usize
         });

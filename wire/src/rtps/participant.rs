@@ -354,6 +354,15 @@ impl Participant {
             .is_some_and(|w| w.writer.acked_by_all() >= sn)
     }
 
+    /// True when every reader matched with local writer `writer` has
+    /// acknowledged all it wrote (false for an unknown writer).
+    pub fn is_all_acked(&self, writer: Guid) -> bool {
+        self.writers
+            .get(&writer.entity)
+            .filter(|_| self.is_local(writer))
+            .is_some_and(|w| w.writer.acked_by_all() >= w.writer.last_sn())
+    }
+
     fn is_local(&self, g: Guid) -> bool {
         g.prefix == self.cfg.guid_prefix
     }

@@ -362,11 +362,20 @@ pub struct Bridge<A> {
     /// After a restore: until then writes wait, so that the new
     /// participant rediscovers the remote readers first ([`REDISCOVERY`]).
     rediscovery: Option<Instant>,
+    /// Writers whose XRCE entity is gone, kept until their readers
+    /// acknowledged what DDS took (or [`WRITER_LINGER`] passed), as a DDS
+    /// application's deleted writer lingers: what the agent acknowledged
+    /// to its client must still reach them.
+    lingering: Vec<(WriterId, Instant)>,
     order: u64,
     events: VecDeque<BridgeEvent>,
     stats: BridgeStats,
     now: Instant,
 }
+
+/// How long a writer whose XRCE entity is gone waits for its readers'
+/// acknowledgements (Cyclone DDS's writer linger).
+pub const WRITER_LINGER: Duration = Duration::from_secs(1);
 
 impl<A> std::fmt::Debug for Bridge<A> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -436,6 +445,7 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
             ready: HashSet::new(),
             full: Vec::new(),
             rediscovery: None,
+            lingering: Vec::new(),
             order: 0,
             events: VecDeque::new(),
             stats: BridgeStats::default(),
@@ -485,6 +495,7 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
     pub fn handle_datagram(&mut self, source: Locator, bytes: &[u8], now: Instant) {
         let now = self.tick(now);
         self.domain.handle_datagram(source, bytes, now);
+        self.delete_lingering(now);
         self.process(now);
     }
 
@@ -503,6 +514,7 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
         }
         // writers held by a full reader: go on if its client now seems dead
         self.release_full(now);
+        self.delete_lingering(now);
         self.process(now);
     }
 
@@ -524,6 +536,7 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
             self.domain.poll_timeout(),
             self.rediscovery,
             held,
+            self.lingering.iter().map(|(_, until)| *until).min(),
         ]
         .into_iter()
         .flatten()
@@ -549,6 +562,7 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
     /// Leaves the DDS domain (every entity disposed, the participant says
     /// goodbye: send what [`poll_datagram`](Self::poll_datagram) gives).
     pub fn close(&mut self, now: Instant) {
+        self.lingering.clear();
         self.domain.close(now);
         self.objects.clear();
         self.by_reader.clear();
@@ -855,11 +869,32 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
         }
     }
 
+    /// Deletes the lingering writers that are done: acknowledged by all
+    /// their readers, or out of time.
+    fn delete_lingering(&mut self, now: Instant) {
+        if self.lingering.is_empty() {
+            return;
+        }
+        let domain = &mut self.domain;
+        self.lingering.retain(|(w, until)| {
+            let done = now >= *until || domain.participant().is_all_acked(w.guid());
+            if done {
+                domain.delete_writer(*w, now);
+            }
+            !done
+        });
+    }
+
     /// Deletes a writer; writes it still held are given up (the client
     /// deleted where they were going).
     fn drop_output(&mut self, out: Output, now: Instant) {
         self.by_writer.remove(&out.writer);
-        self.domain.delete_writer(out.writer, now);
+        if self.domain.participant().is_all_acked(out.writer.guid()) {
+            self.domain.delete_writer(out.writer, now);
+        } else {
+            self.lingering
+                .push((out.writer, crate::time::later(now, WRITER_LINGER)));
+        }
         for h in out.held {
             if let Some(t) = h.ticket {
                 self.agent.write_done(t, now);
