@@ -154,8 +154,15 @@ fn exclusive_ownership_goes_to_the_strongest_writer_then_to_the_next_when_it_is_
         .create_reader(EndpointConfig::reader("Own", "T").qos(rq), now)
         .unwrap();
     assert!(net.run_until(Duration::from_secs(10), |n| matched(n, 2, r, 2)));
+    // the strong one writes first, and owns the instance once its sample
+    // is in (a weak sample that comes while the strong one's first is
+    // being repaired is taken: the weak writer owns it until then)
+    write(&mut net, 0, s, 0);
+    assert!(net.run_until(Duration::from_secs(10), |n| received(n, 2, r) == [0]));
     // both write (strong: even values, weak: odd ones); only the strong is taken
-    for k in 0..20 {
+    write(&mut net, 1, w, 1);
+    net.run_for(ms(20));
+    for k in 1..20 {
         write(&mut net, 0, s, 2 * k);
         write(&mut net, 1, w, 2 * k + 1);
         net.run_for(ms(20));
@@ -441,13 +448,16 @@ fn a_missed_deadline_is_an_event_per_period_until_a_sample_comes() {
         "{} offered misses",
         offered(&net)
     );
-    // a sample stops them
+    // a sample stops them: the reader's period restarts when it arrives
+    // (up to 20 ms of delay, and a repair if it was lost), so nothing is
+    // missed until 100 ms after the write at the earliest
     write(&mut net, 0, w, 99);
     net.run_for(ms(60));
     let (now_misses, now_offered) = (misses(&net), offered(&net));
-    net.run_for(ms(60));
+    net.run_for(ms(30));
     assert_eq!(misses(&net), now_misses);
     // the writer's period restarts at the write: 100 ms later
+    net.run_for(ms(30));
     assert_eq!(offered(&net), now_offered + 1);
 }
 

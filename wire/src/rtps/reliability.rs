@@ -95,6 +95,8 @@ struct ReaderProxy {
     /// a heartbeat (an ACKNACK with a non-zero count: Cyclone's pre-emptive
     /// ACKNACKs, sent before any heartbeat, count 0).
     fresh: bool,
+    /// A transient-local (durable) reader: it gets the history.
+    replay: bool,
 }
 
 /// A writer's history: samples by sequence number. Sequence numbers are
@@ -282,6 +284,7 @@ impl Writer {
                 acked_below,
                 start: acked_below,
                 fresh: !replay,
+                replay,
                 ..ReaderProxy::default()
             },
         );
@@ -573,8 +576,26 @@ impl Writer {
             p.last_acknack_count = Some(a.count);
             let forgot = !p.fresh && p.acked_below > p.start;
             if forgot {
-                p.acked_below = p.start;
+                // a new match for it: a durable reader gets the history
+                // again; a volatile one starts now (what it had before
+                // was delivered: again would be twice), told so by a GAP
                 p.requested.clear();
+                let first = self.history.first().map_or(self.next_sn, |(sn, _)| sn);
+                if p.replay {
+                    p.start = first;
+                    p.acked_below = first;
+                } else {
+                    p.start = self.next_sn;
+                    p.acked_below = self.next_sn;
+                    p.fresh = true;
+                    if first < self.next_sn {
+                        self.out.push_back(Transmit::Gap {
+                            to: reader,
+                            start: SequenceNumber(first),
+                            list: SequenceNumberSet::empty(SequenceNumber(self.next_sn)),
+                        });
+                    }
+                }
             }
             if (!a.final_flag && base < self.next_sn) || (forgot && p.start < self.next_sn) {
                 self.push_heartbeat(Some(reader), false);
