@@ -1313,6 +1313,56 @@ mod tests {
         assert_eq!(data, [1, 2, 3]);
     }
 
+    /// The same for a volatile reader: it matched anew, so it starts at
+    /// the next sample (a GAP says so), and what its old match delivered is
+    /// not sent again.
+    #[test]
+    fn a_volatile_reader_that_matched_anew_starts_at_the_match() {
+        let (wg, rg) = (guid(1), guid(2));
+        let t0 = Instant::now();
+        let mut w = Writer::new(wg, true, None, 64, Duration::from_millis(10)).retain_acked(true);
+        w.add_reader(rg, false, t0);
+        for i in 1..=3u8 {
+            w.write(Arc::from(vec![i]), t0).unwrap();
+        }
+        let ack = |base: i64, missing: &[i64], count: i32| AckNack {
+            reader_id: rg.entity,
+            writer_id: wg.entity,
+            reader_sn_state: SequenceNumberSet::from_members(
+                SequenceNumber(base),
+                missing.len() as u32,
+                missing.iter().map(|s| SequenceNumber(*s)),
+            ),
+            count,
+            final_flag: missing.is_empty(),
+        };
+        w.handle_acknack(rg, &ack(4, &[], 5));
+        while w.poll_transmit().is_some() {}
+        let mut pre = ack(1, &[], 0);
+        pre.final_flag = false;
+        w.handle_acknack(rg, &pre);
+        let mut gap = None;
+        while let Some(t) = w.poll_transmit() {
+            if let Transmit::Gap { start, list, .. } = t {
+                gap = Some((start.0, list.base.0));
+            }
+        }
+        assert_eq!(
+            gap,
+            Some((1, 4)),
+            "what predates the new match is irrelevant to it"
+        );
+        // it asks for 1..3 all the same: GAPs, no data
+        w.handle_acknack(rg, &ack(1, &[1, 2, 3], 1));
+        let mut data = vec![];
+        while let Some(t) = w.poll_transmit() {
+            if let Transmit::Data { sn, .. } = t {
+                data.push(sn.0);
+            }
+        }
+        assert!(data.is_empty(), "{data:?}");
+    }
+
     /// Cyclone DDS's reader, as far as its start point goes: DATA that
     /// arrives while its own matching is in progress is dropped, and the
     /// first heartbeat it processes moves its start past that heartbeat's
