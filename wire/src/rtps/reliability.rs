@@ -1257,6 +1257,34 @@ mod tests {
         assert_eq!(w.acked_by_all(), SequenceNumber(0));
     }
 
+    /// A reliable writer that wrote samples 1..=3, with a matched reader
+    /// (`replay`: durable).
+    fn wrote_three(replay: bool) -> (Writer, Guid) {
+        let (wg, rg) = (guid(1), guid(2));
+        let t0 = Instant::now();
+        let mut w = Writer::new(wg, true, None, 64, Duration::from_millis(10)).retain_acked(true);
+        w.add_reader(rg, replay, t0);
+        for i in 1..=3u8 {
+            w.write(Arc::from(vec![i]), t0).unwrap();
+        }
+        (w, rg)
+    }
+
+    /// An ACKNACK of reader `rg` to `guid(1)`.
+    fn ack_of(rg: Guid, base: i64, missing: &[i64], count: i32) -> AckNack {
+        AckNack {
+            reader_id: rg.entity,
+            writer_id: guid(1).entity,
+            reader_sn_state: SequenceNumberSet::from_members(
+                SequenceNumber(base),
+                missing.len() as u32,
+                missing.iter().map(|s| SequenceNumber(*s)),
+            ),
+            count,
+            final_flag: missing.is_empty(),
+        }
+    }
+
     /// A reader that acknowledged everything, then lost and found our
     /// participant again (an asymmetric lease expiry: only its side lost
     /// the match), announces itself with Cyclone DDS's pre-emptive ACKNACK
@@ -1266,30 +1294,13 @@ mod tests {
     /// history (its discovery data) again.
     #[test]
     fn a_reader_that_forgot_everything_is_sent_it_again() {
-        let (wg, rg) = (guid(1), guid(2));
-        let t0 = Instant::now();
-        let mut w = Writer::new(wg, true, None, 64, Duration::from_millis(10)).retain_acked(true);
-        w.add_reader(rg, true, t0);
-        for i in 1..=3u8 {
-            w.write(Arc::from(vec![i]), t0).unwrap();
-        }
-        let ack = |base: i64, missing: &[i64], count: i32| AckNack {
-            reader_id: rg.entity,
-            writer_id: wg.entity,
-            reader_sn_state: SequenceNumberSet::from_members(
-                SequenceNumber(base),
-                missing.len() as u32,
-                missing.iter().map(|s| SequenceNumber(*s)),
-            ),
-            count,
-            final_flag: missing.is_empty(),
-        };
+        let (mut w, rg) = wrote_three(true);
         // everything acknowledged, at count 57
-        w.handle_acknack(rg, &ack(4, &[], 57));
+        w.handle_acknack(rg, &ack_of(rg, 4, &[], 57));
         assert_eq!(w.acked_by_all(), SequenceNumber(3));
         while w.poll_transmit().is_some() {}
         // the pre-emptive ACKNACK of a reader that has nothing
-        let mut pre = ack(1, &[], 0);
+        let mut pre = ack_of(rg, 1, &[], 0);
         pre.final_flag = false;
         w.handle_acknack(rg, &pre);
         assert!(
@@ -1303,7 +1314,7 @@ mod tests {
         );
         // its answer (count 1, lower than 57) is taken: all three resent
         while w.poll_transmit().is_some() {}
-        w.handle_acknack(rg, &ack(1, &[1, 2, 3], 1));
+        w.handle_acknack(rg, &ack_of(rg, 1, &[1, 2, 3], 1));
         let mut data = vec![];
         while let Some(t) = w.poll_transmit() {
             if let Transmit::Data { sn, .. } = t {
@@ -1318,27 +1329,10 @@ mod tests {
     /// not sent again.
     #[test]
     fn a_volatile_reader_that_matched_anew_starts_at_the_match() {
-        let (wg, rg) = (guid(1), guid(2));
-        let t0 = Instant::now();
-        let mut w = Writer::new(wg, true, None, 64, Duration::from_millis(10)).retain_acked(true);
-        w.add_reader(rg, false, t0);
-        for i in 1..=3u8 {
-            w.write(Arc::from(vec![i]), t0).unwrap();
-        }
-        let ack = |base: i64, missing: &[i64], count: i32| AckNack {
-            reader_id: rg.entity,
-            writer_id: wg.entity,
-            reader_sn_state: SequenceNumberSet::from_members(
-                SequenceNumber(base),
-                missing.len() as u32,
-                missing.iter().map(|s| SequenceNumber(*s)),
-            ),
-            count,
-            final_flag: missing.is_empty(),
-        };
-        w.handle_acknack(rg, &ack(4, &[], 5));
+        let (mut w, rg) = wrote_three(false);
+        w.handle_acknack(rg, &ack_of(rg, 4, &[], 5));
         while w.poll_transmit().is_some() {}
-        let mut pre = ack(1, &[], 0);
+        let mut pre = ack_of(rg, 1, &[], 0);
         pre.final_flag = false;
         w.handle_acknack(rg, &pre);
         let mut gap = None;
@@ -1353,7 +1347,7 @@ mod tests {
             "what predates the new match is irrelevant to it"
         );
         // it asks for 1..3 all the same: GAPs, no data
-        w.handle_acknack(rg, &ack(1, &[1, 2, 3], 1));
+        w.handle_acknack(rg, &ack_of(rg, 1, &[1, 2, 3], 1));
         let mut data = vec![];
         while let Some(t) = w.poll_transmit() {
             if let Transmit::Data { sn, .. } = t {
