@@ -101,6 +101,31 @@ pub(crate) fn mailbox<C>(capacity: usize) -> (Mailbox<C>, Inbox<C>) {
 }
 
 impl<C> Mailbox<C> {
+    /// Closes the driver's session: posts the close `make` builds and
+    /// waits for its end. Posted, not sent: a close whose future is
+    /// dropped while the mailbox is full still closes (one command per
+    /// close call). Inside a `listen` callback of the driver (`callback`:
+    /// its owner in [`in_callback`](crate::in_callback)) it does not wait:
+    /// the driver waits for the callback, which would wait for ever.
+    pub(crate) async fn close_session(
+        &self,
+        callback: usize,
+        make: impl FnOnce(tokio::sync::oneshot::Sender<()>) -> C,
+    ) {
+        let (tx, rx) = tokio::sync::oneshot::channel();
+        let posted = self.post(make(tx)).is_ok();
+        if crate::in_callback::inside(callback) {
+            tracing::error!(
+                "close() called inside a listen callback of its own session: it goes on once \
+                 the callback returns (spawn the close to wait for it)"
+            );
+            return;
+        }
+        if posted {
+            let _ = rx.await;
+        }
+    }
+
     /// Queues `cmd`, waiting for a free slot first.
     pub(crate) async fn send(&self, cmd: C) -> Result<(), Closed> {
         let slot = self

@@ -224,6 +224,21 @@ impl World {
         i
     }
 
+    /// Client `c` writes samples `*next..n` of `len` bytes reliably, as
+    /// many as its stream takes now.
+    fn write_what_fits(&mut self, c: usize, next: &mut u32, n: u32, len: usize) {
+        while *next < n {
+            let now = self.net.now();
+            match self
+                .client(c)
+                .write(oid(ObjectKind::DataWriter), R, &sample(*next, len), now)
+            {
+                Ok(_) => *next += 1,
+                Err(_) => break,
+            }
+        }
+    }
+
     fn client(&mut self, i: usize) -> &mut Client {
         match self.net.node(i) {
             N::Client(p) => p.as_client().unwrap(),
@@ -570,16 +585,7 @@ fn keep_all_back_pressure_holds_the_client_and_loses_nothing_acknowledged() {
     w.run_until(Duration::from_secs(5), |_| false);
     let t0 = w.net.elapsed();
     while w.net.elapsed() < t0 + Duration::from_secs(5) {
-        while next < n {
-            let now = w.net.now();
-            match w
-                .client(c)
-                .write(oid(ObjectKind::DataWriter), R, &sample(next, 100), now)
-            {
-                Ok(_) => next += 1,
-                Err(_) => break,
-            }
-        }
+        w.write_what_fits(c, &mut next, n, 100);
         w.net.step();
     }
     acked = acked.max(
@@ -658,16 +664,7 @@ fn holds_the_writer_and_loses_nothing(cfg: impl Fn(&mut BridgeConfig), len: usiz
     let n = 100u32;
     let mut next = 0;
     let write_more = |w: &mut World, next: &mut u32| {
-        while *next < n {
-            let now = w.net.now();
-            match w
-                .client(wr)
-                .write(oid(ObjectKind::DataWriter), R, &sample(*next, len), now)
-            {
-                Ok(_) => *next += 1,
-                Err(_) => break,
-            }
-        }
+        w.write_what_fits(wr, next, n, len);
     };
     let t0 = w.net.elapsed();
     while w.net.elapsed() < t0 + Duration::from_secs(3) {
@@ -1134,16 +1131,7 @@ fn restart(seed: u64, loss: u32) {
     let write_until = |w: &mut World, n: u32, next: &mut u32| {
         let end = w.net.elapsed() + Duration::from_secs(60);
         while w.net.elapsed() < end {
-            while *next < n {
-                let now = w.net.now();
-                match w
-                    .client(p)
-                    .write(oid(ObjectKind::DataWriter), R, &sample(*next, 40), now)
-                {
-                    Ok(_) => *next += 1,
-                    Err(_) => break,
-                }
-            }
+            w.write_what_fits(p, next, n, 40);
             if w.data(s).len() >= n as usize {
                 return true;
             }
@@ -1548,16 +1536,7 @@ fn a_dead_readers_client_holds_the_writers_back_only_until_it_seems_dead() {
     let mut next = 0;
     let t0 = w.net.elapsed();
     while w.data(live).len() < n as usize && w.net.elapsed() < t0 + Duration::from_secs(60) {
-        while next < n {
-            let now = w.net.now();
-            match w
-                .client(wr)
-                .write(oid(ObjectKind::DataWriter), R, &sample(next, 16), now)
-            {
-                Ok(_) => next += 1,
-                Err(_) => break,
-            }
-        }
+        w.write_what_fits(wr, &mut next, n, 16);
         w.net.step();
     }
     assert_eq!(
@@ -1620,14 +1599,8 @@ fn writes_acknowledged_before_the_client_leaves_reach_the_reader() {
         };
         // written as the client's window lets it
         while next < n {
-            let now = w.net.now();
-            match w
-                .client(c)
-                .write(oid(ObjectKind::DataWriter), R, &sample(next, 100), now)
-            {
-                Ok(_) => next += 1,
-                Err(_) => w.net.step(),
-            }
+            w.write_what_fits(c, &mut next, n, 100);
+            w.net.step();
         }
         assert!(w.run_until(Duration::from_secs(60), |w| acked(w) == n as usize));
         // the client leaves at once: samples lost on the way to the

@@ -687,23 +687,9 @@ impl Backend for RtpsBackend {
     }
 
     async fn close(&self) {
-        let (tx, rx) = oneshot::channel();
-        if crate::in_callback::inside(self.shared.id()) {
-            // a `listen` callback holds up this session's reception (and,
-            // on its driver task, the driver): waiting here for the close,
-            // blocked in the callback, would wait for ever
-            tracing::error!(
-                "close() called inside a listen callback of its own session: it goes on once \
-                 the callback returns (spawn the close to wait for it)"
-            );
-            let _ = self.cmd.post(Cmd::Close { reply: tx });
-            return;
-        }
-        // posted, not sent: a close whose future is dropped while the
-        // mailbox is full still closes (one command per close call)
-        if self.cmd.post(Cmd::Close { reply: tx }).is_ok() {
-            let _ = rx.await;
-        }
+        self.cmd
+            .close_session(self.shared.id(), |reply| Cmd::Close { reply })
+            .await
     }
 
     fn dds(&self) -> Option<&dyn DdsControl> {

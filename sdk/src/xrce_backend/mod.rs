@@ -481,22 +481,11 @@ impl Backend for XrceBackend {
     }
 
     async fn close(&self) {
-        let (tx, rx) = oneshot::channel();
-        if crate::in_callback::inside(Arc::as_ptr(&self.shared) as usize) {
-            // a `listen` callback runs inside the driver, which the close
-            // waits for: waiting here would wait for ever
-            tracing::error!(
-                "close() called inside a listen callback of its own session: it goes on once \
-                 the callback returns (spawn the close to wait for it)"
-            );
-            let _ = self.cmd.post(Cmd::Close { reply: tx });
-            return;
-        }
-        // posted, not sent: a close whose future is dropped while the
-        // mailbox is full still closes (one command per close call)
-        if self.cmd.post(Cmd::Close { reply: tx }).is_ok() {
-            let _ = rx.await;
-        }
+        self.cmd
+            .close_session(Arc::as_ptr(&self.shared) as usize, |reply| Cmd::Close {
+                reply,
+            })
+            .await
     }
 
     fn xrce(&self) -> Option<&dyn XrceControl> {

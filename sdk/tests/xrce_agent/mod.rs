@@ -92,10 +92,17 @@ struct Host {
     reads: Vec<(ClientKey, ReadData)>,
     held: HashMap<String, Vec<Vec<u8>>>,
     out: VecDeque<(ClientKey, BaseObjectRequest, StreamId, Vec<u8>)>,
-    /// Requesters created so far (shared with the [`TestAgent`]).
-    requesters: Arc<std::sync::atomic::AtomicUsize>,
-    /// Client sessions the agent has now (shared with the [`TestAgent`]).
-    sessions: Arc<std::sync::atomic::AtomicUsize>,
+    /// What the [`TestAgent`] reads of it.
+    counts: Arc<Counts>,
+}
+
+/// What a test reads of a running agent.
+#[derive(Default)]
+struct Counts {
+    /// Requesters created so far.
+    requesters: std::sync::atomic::AtomicUsize,
+    /// Client sessions the agent has now.
+    sessions: std::sync::atomic::AtomicUsize,
 }
 
 impl Host {
@@ -114,6 +121,9 @@ impl Host {
     }
 
     fn serve<A: Clone + Eq + Hash>(&mut self, a: &mut Agent<A>, now: Instant) {
+        self.counts
+            .sessions
+            .store(a.clients().count(), Ordering::SeqCst);
         while let Some(e) = a.poll_event() {
             match e {
                 AgentEvent::Create {
@@ -151,7 +161,7 @@ impl Host {
                             }
                         }
                         ObjectVariant::Requester { representation, .. } => {
-                            self.requesters.fetch_add(1, Ordering::SeqCst);
+                            self.counts.requesters.fetch_add(1, Ordering::SeqCst);
                             let n = named(representation, ObjectKind::Requester);
                             if n.starts_with("refused") {
                                 status = StatusCode::ERR_DDS_ERROR;
@@ -316,8 +326,7 @@ pub struct TestAgent {
     pub addr: SocketAddr,
     task: JoinHandle<()>,
     muted: Arc<AtomicBool>,
-    requesters: Arc<std::sync::atomic::AtomicUsize>,
-    sessions: Arc<std::sync::atomic::AtomicUsize>,
+    counts: Arc<Counts>,
 }
 
 impl TestAgent {
@@ -329,12 +338,12 @@ impl TestAgent {
 
     /// How many client sessions it has now.
     pub fn sessions(&self) -> usize {
-        self.sessions.load(Ordering::SeqCst)
+        self.counts.sessions.load(Ordering::SeqCst)
     }
 
     /// How many requesters (query clients) its clients created so far.
     pub fn requesters_created(&self) -> usize {
-        self.requesters.load(Ordering::SeqCst)
+        self.counts.requesters.load(Ordering::SeqCst)
     }
 
     /// Stops it and waits until it has let its port go.
@@ -361,16 +370,13 @@ pub async fn udp_dropping(port: u16, every: Option<u32>) -> TestAgent {
     let sock = UdpSocket::bind(("127.0.0.1", port)).await.unwrap();
     let addr = sock.local_addr().unwrap();
     let muted = Arc::new(AtomicBool::new(false));
-    let requesters = Arc::new(std::sync::atomic::AtomicUsize::new(0));
-    let r = requesters.clone();
-    let sessions = Arc::new(std::sync::atomic::AtomicUsize::new(0));
-    let n = sessions.clone();
+    let counts = Arc::new(Counts::default());
+    let c = counts.clone();
     let m = muted.clone();
     let task = tokio::spawn(async move {
         let mut agent: Agent<SocketAddr> = Agent::new(config(), Instant::now(), SystemTime::now());
         let mut host = Host {
-            requesters: r.clone(),
-            sessions: n.clone(),
+            counts: c.clone(),
             ..Host::default()
         };
         let mut buf = vec![0u8; 65_536];
@@ -397,8 +403,6 @@ pub async fn udp_dropping(port: u16, every: Option<u32>) -> TestAgent {
                 continue;
             }
             host.serve(&mut agent, Instant::now());
-            host.sessions
-                .store(agent.clients().count(), Ordering::SeqCst);
             while let Some((to, msg)) = agent.poll_transmit() {
                 let _ = sock.send_to(&msg, to).await;
             }
@@ -408,8 +412,7 @@ pub async fn udp_dropping(port: u16, every: Option<u32>) -> TestAgent {
         addr,
         task,
         muted,
-        requesters,
-        sessions,
+        counts,
     }
 }
 
@@ -422,16 +425,13 @@ pub async fn tcp(port: u16) -> TestAgent {
     let listener = s.listen(16).unwrap();
     let addr = listener.local_addr().unwrap();
     let muted = Arc::new(AtomicBool::new(false));
-    let requesters = Arc::new(std::sync::atomic::AtomicUsize::new(0));
-    let r = requesters.clone();
-    let sessions = Arc::new(std::sync::atomic::AtomicUsize::new(0));
-    let n = sessions.clone();
+    let counts = Arc::new(Counts::default());
+    let c = counts.clone();
     let m = muted.clone();
     let task = tokio::spawn(async move {
         let mut agent: Agent<u64> = Agent::new(config(), Instant::now(), SystemTime::now());
         let mut host = Host {
-            requesters: r.clone(),
-            sessions: n.clone(),
+            counts: c.clone(),
             ..Host::default()
         };
         let (in_tx, mut in_rx) = mpsc::channel::<(u64, Vec<u8>)>(1024);
@@ -483,8 +483,6 @@ pub async fn tcp(port: u16) -> TestAgent {
                 continue;
             }
             host.serve(&mut agent, Instant::now());
-            host.sessions
-                .store(agent.clients().count(), Ordering::SeqCst);
             while let Some((to, msg)) = agent.poll_transmit() {
                 if let Some(w) = writers.get_mut(&to) {
                     let mut frame = Vec::with_capacity(msg.len() + 2);
@@ -500,8 +498,7 @@ pub async fn tcp(port: u16) -> TestAgent {
         addr,
         task,
         muted,
-        requesters,
-        sessions,
+        counts,
     }
 }
 
