@@ -100,11 +100,11 @@ impl<N: Node> Net<N> {
     }
 
     /// Whether a datagram to `to` would be read now: no up host that owns
-    /// the address holds it back.
+    /// the address holds it back (or is frozen).
     fn readable(&self, to: &N::Addr) -> bool {
         self.hosts
             .iter()
-            .all(|h| !h.up || !h.node.owns(to) || h.node.reads(to))
+            .all(|h| !h.up || !h.node.owns(to) || (!h.frozen && h.node.reads(to)))
     }
 
     /// Hands the datagrams that are due to their hosts; whether any was due.

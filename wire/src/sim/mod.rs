@@ -165,6 +165,18 @@ pub struct Host<N: Node> {
     /// A host that is down neither sends nor receives (a crashed process;
     /// [`Net::crash`] also resets its connections).
     pub up: bool,
+    /// A frozen host runs nothing (a stopped process, `SIGSTOP`): no
+    /// timer fires, and what is sent to it waits in the network, as in
+    /// its sockets' buffers, to be read first when it is thawed
+    /// ([`Net::freeze`], [`Net::thaw`]).
+    pub frozen: bool,
+}
+
+impl<N: Node> Host<N> {
+    /// Up and not frozen: it reads and its timers fire.
+    pub fn runs(&self) -> bool {
+        self.up && !self.frozen
+    }
 }
 
 /// The simulated network: nodes, datagrams and stream bytes in flight,
@@ -228,9 +240,22 @@ impl<N: Node> Net<N> {
             node,
             events: Vec::new(),
             up: true,
+            frozen: false,
         });
         self.pump();
         self.hosts.len() - 1
+    }
+
+    /// Stops host `i`'s process (`SIGSTOP`): see [`Host::frozen`].
+    pub fn freeze(&mut self, i: usize) {
+        self.hosts[i].frozen = true;
+    }
+
+    /// Resumes host `i`'s process (`SIGCONT`): at the next step it reads
+    /// what waited for it before its overdue timers fire, as a resumed
+    /// process finds its sockets readable and its timers late.
+    pub fn thaw(&mut self, i: usize) {
+        self.hosts[i].frozen = false;
     }
 
     /// Node `i`.
@@ -324,7 +349,7 @@ impl<N: Node> Net<N> {
     fn fire_timers(&mut self) -> bool {
         let now = self.now;
         let mut any = false;
-        for h in self.hosts.iter_mut().filter(|h| h.up) {
+        for h in self.hosts.iter_mut().filter(|h| h.runs()) {
             if h.node.poll_timeout().is_some_and(|t| t <= now) {
                 h.node.handle_timeout(now);
                 any = true;
@@ -402,7 +427,7 @@ impl<N: Node> Net<N> {
         let timers = self
             .hosts
             .iter()
-            .filter(|h| h.up)
+            .filter(|h| h.runs())
             .filter_map(|h| h.node.poll_timeout());
         [self.next_datagram(), self.next_stream()]
             .into_iter()

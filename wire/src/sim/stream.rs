@@ -477,7 +477,7 @@ impl<N: Node> Net<N> {
         }
         if let Some(h) = end.owner {
             let host = &self.hosts[h];
-            if !host.up || !host.node.reads_stream(to) {
+            if !host.runs() || !host.node.reads_stream(to) {
                 return None;
             }
         }
@@ -552,7 +552,7 @@ impl<N: Node> Net<N> {
         }
         let owner = self.streams.end(to).and_then(|e| e.owner);
         if let Some(h) = owner {
-            if !self.hosts[h].up || !self.hosts[h].node.reads_stream(to) {
+            if !self.hosts[h].runs() || !self.hosts[h].node.reads_stream(to) {
                 return false;
             }
         }
@@ -615,7 +615,7 @@ impl<N: Node> Net<N> {
             }
             if let Some(h) = end.owner {
                 let host = &self.hosts[h];
-                if !host.up || !host.node.reads_stream(to) {
+                if !host.runs() || !host.node.reads_stream(to) {
                     return None;
                 }
             }
