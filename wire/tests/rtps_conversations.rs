@@ -24,8 +24,8 @@ use courier_wire::rtps::participant::{
     PROTOCOL_VERSION, VENDOR_ID,
 };
 use courier_wire::rtps::{
-    EntityId, Guid, GuidPrefix, Locator, Message, ProtocolVersion, SequenceNumber, Submessage,
-    Time, VendorId,
+    AckNack, EntityId, Guid, GuidPrefix, Locator, Message, ProtocolVersion, SequenceNumber,
+    Submessage, Time, VendorId,
 };
 
 const LO: [u8; 4] = [127, 0, 0, 1];
@@ -985,7 +985,7 @@ fn check_conversation(peer: &Peer) {
                         .iter()
                         .filter(|o| {
                             o.cause == Cause::Input(i)
-                                && matches!(&o.sm, Submessage::AckNack(a) if a.writer_id == *w)
+                                && matches!(&o.sm, Submessage::AckNack(a) if a.writer_id == *w && !preemptive(a))
                         })
                         .collect();
                     assert_eq!(acks.len(), 1, "{name}: datagram {i}: one ACKNACK for {w:?}");
@@ -1012,12 +1012,45 @@ fn check_conversation(peer: &Peer) {
     }
     let acknacks = out
         .iter()
-        .filter(|o| matches!(o.sm, Submessage::AckNack(_)))
+        .filter(|o| matches!(&o.sm, Submessage::AckNack(a) if !preemptive(a)))
         .count();
     assert_eq!(
         acknacks, heartbeats,
-        "{name}: ACKNACKs answer heartbeats only"
+        "{name}: ACKNACKs answer heartbeats, besides the pre-emptive ones"
     );
+    // and pre-emptive ACKNACKs to each writer from when it matched (the
+    // SEDP writers when the participant was found, the user writer when
+    // its publication was) until it heartbeats: one, or one a second
+    // while the writer says nothing (Fast DDS's SEDP writers take seconds)
+    let pre: Vec<(usize, EntityId)> = out
+        .iter()
+        .filter_map(|o| match &o.sm {
+            Submessage::AckNack(a) if preemptive(a) => Some((o.idx, a.writer_id)),
+            _ => None,
+        })
+        .collect();
+    let mut to: Vec<EntityId> = pre.iter().map(|(_, w)| *w).collect();
+    to.sort();
+    to.dedup();
+    let mut expected = vec![
+        EntityId::SEDP_PUBLICATIONS_WRITER,
+        EntityId::SEDP_SUBSCRIPTIONS_WRITER,
+        writer.entity,
+    ];
+    expected.sort();
+    assert_eq!(to, expected, "{name}: pre-emptive ACKNACKs to every writer");
+    for (idx, w) in &pre {
+        let first_answer = out
+            .iter()
+            .find(
+                |o| matches!(&o.sm, Submessage::AckNack(a) if a.writer_id == *w && !preemptive(a)),
+            )
+            .map(|o| o.idx);
+        assert!(
+            first_answer.is_none_or(|a| a > *idx),
+            "{name}: the pre-emptive ACKNACK to {w:?} comes first"
+        );
+    }
     assert!(user_acks >= 2, "{name}");
     // the last ACKNACK to the user writer acknowledges all six samples
     let last_user_ack = out
@@ -1094,13 +1127,19 @@ fn info_dst_naming_another_participant_is_skipped() {
         assert_eq!(unaddressed, answered, "{name}");
         let acks = outputs(&r.sent, other)
             .iter()
-            .filter(|o| matches!(&o.sm, Submessage::AckNack(a) if a.writer_id == writer))
+            .filter(|o| matches!(&o.sm, Submessage::AckNack(a) if a.writer_id == writer && !preemptive(a)))
             .count();
         assert_eq!(
             acks, answered,
             "{name}: only unaddressed heartbeats answered"
         );
     }
+}
+
+/// A reader's pre-emptive ACKNACK, sent when a writer matches and until
+/// it heartbeats (base 1, nothing missing, count 0).
+fn preemptive(a: &AckNack) -> bool {
+    a.reader_sn_state.base.0 == 1 && a.reader_sn_state.num_bits == 0 && a.count == 0
 }
 
 // ---- mutated conversations ----

@@ -15,6 +15,7 @@ mod ping_xrce;
 mod rates;
 mod record;
 mod rtt;
+mod stopped;
 mod usage;
 
 use std::io::{BufRead, BufReader, Read};

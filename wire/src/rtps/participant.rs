@@ -434,15 +434,18 @@ impl Participant {
             self.participants.poll_timeout(),
             self.pub_writer.poll_timeout(),
             self.sub_writer.poll_timeout(),
+            self.pub_reader.poll_timeout(),
+            self.sub_reader.poll_timeout(),
         ]
         .into_iter()
         .chain(self.writers.values().map(|w| w.writer.poll_timeout()))
+        .chain(self.readers.values().map(|r| r.reader.poll_timeout()))
         .flatten()
         .min()
     }
 
     /// Fires what is due at `now`: SPDP announcements, lease expiry,
-    /// heartbeats.
+    /// heartbeats, pre-emptive ACKNACKs.
     pub fn handle_timeout(&mut self, now: Instant) {
         self.touch();
         if self.closed {
@@ -460,6 +463,11 @@ impl Participant {
         self.sub_writer.handle_timeout(now);
         for w in self.writers.values_mut() {
             w.writer.handle_timeout(now);
+        }
+        self.pub_reader.handle_timeout(now);
+        self.sub_reader.handle_timeout(now);
+        for r in self.readers.values_mut() {
+            r.reader.handle_timeout(now);
         }
         self.flush(now);
     }

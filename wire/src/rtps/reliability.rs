@@ -97,7 +97,18 @@ struct ReaderProxy {
     fresh: bool,
     /// A transient-local (durable) reader: it gets the history.
     replay: bool,
+    /// When its last ACKNACK (not a pre-emptive one) was taken.
+    last_ack_at: Option<Instant>,
 }
+
+/// A pre-emptive ACKNACK from a reader that had acknowledged data makes a
+/// new match of it only when the reader has said nothing else for this
+/// long: a reader that lost our participant and found it again was silent
+/// for at least its lease, while a pre-emptive ACKNACK that the network
+/// delayed past the reader's first answers is stale (taken as new, it
+/// would make a volatile reader skip samples still on their way). Cyclone
+/// DDS accepts any ACKNACK count after the same 500 ms.
+const REMATCH_AFTER_SILENCE: Duration = Duration::from_millis(500);
 
 /// A writer's history: samples by sequence number. Sequence numbers are
 /// written in order, so the history is a window `[base, base + len)` of
@@ -558,56 +569,74 @@ impl Writer {
         }
     }
 
-    /// An ACKNACK from a matched reader: record the acknowledgement and
-    /// resend (or GAP) what it is missing.
-    pub fn handle_acknack(&mut self, reader: Guid, a: &AckNack) {
+    /// An ACKNACK from a matched reader, received at `now`: record the
+    /// acknowledgement and resend (or GAP) what it is missing.
+    pub fn handle_acknack(&mut self, reader: Guid, a: &AckNack, now: Instant) {
         let Some(p) = self.readers.get_mut(&reader) else {
             return;
         };
         // a pre-emptive ACKNACK (base 1 or less, nothing missing, count 0:
         // Cyclone DDS's and ours; RTI sends base 0): a reader that matched
-        // us anew and has nothing. Taken whatever the count (a reader that
-        // lost and found us again counts from 0 again); one that had
-        // acknowledged more is sent everything again.
+        // us anew and has nothing. Taken whatever the count and answered
+        // with a heartbeat, even an empty one, which ends its repeats.
         let base = a.reader_sn_state.base.0;
         let preemptive =
             a.reader_sn_state.num_bits == 0 && (base < 1 || (base == 1 && a.count == 0));
-        if preemptive {
-            p.last_acknack_count = Some(a.count);
-            let forgot = !p.fresh && p.acked_below > p.start;
-            if forgot {
-                // a new match for it: a durable reader gets the history
-                // again; a volatile one starts now (what it had before
-                // was delivered: again would be twice), told so by a GAP
-                p.requested.clear();
-                let first = self.history.first().map_or(self.next_sn, |(sn, _)| sn);
-                if p.replay {
-                    p.start = first;
-                    p.acked_below = first;
-                } else {
-                    p.start = self.next_sn;
-                    p.acked_below = self.next_sn;
-                    p.fresh = true;
-                    if first < self.next_sn {
-                        self.out.push_back(Transmit::Gap {
-                            to: reader,
-                            start: SequenceNumber(first),
-                            list: SequenceNumberSet::empty(SequenceNumber(self.next_sn)),
-                        });
-                    }
+        let silent = p
+            .last_ack_at
+            .is_none_or(|t| now.saturating_duration_since(t) >= REMATCH_AFTER_SILENCE);
+        // A reader that lost our participant and found it again (an
+        // asymmetric lease expiry: our side never lost it) matched us anew
+        // and counts from 0 again: after a silence, its pre-emptive
+        // ACKNACK, or one below what it had acknowledged (our heartbeat
+        // overtook its pre-emptive one), makes a new match of it.
+        let rematch =
+            silent && !p.fresh && p.acked_below > p.start && (preemptive || base < p.acked_below);
+        if rematch {
+            // a durable reader gets the history again; a volatile one
+            // starts now (what it had before was delivered: again would
+            // be twice), told so by a GAP
+            p.requested.clear();
+            let first = self.history.first().map_or(self.next_sn, |(sn, _)| sn);
+            if p.replay {
+                p.start = first;
+                p.acked_below = first;
+            } else {
+                p.start = self.next_sn;
+                p.acked_below = self.next_sn;
+                p.fresh = true;
+                if first < self.next_sn {
+                    self.out.push_back(Transmit::Gap {
+                        to: reader,
+                        start: SequenceNumber(first),
+                        list: SequenceNumberSet::empty(SequenceNumber(self.next_sn)),
+                    });
                 }
             }
-            if (!a.final_flag && base < self.next_sn) || (forgot && p.start < self.next_sn) {
+        }
+        if preemptive || rematch {
+            p.last_acknack_count = Some(a.count);
+            if rematch {
+                p.last_ack_at = Some(now);
+                // it lacks what it is to get: heartbeat until it has it
+                self.next_heartbeat
+                    .get_or_insert(now + self.heartbeat_period);
+            }
+            if !a.final_flag || rematch {
                 self.push_heartbeat(Some(reader), false);
             }
             return;
         }
-        if p.last_acknack_count
-            .is_some_and(|c| a.count.wrapping_sub(c) <= 0)
+        // duplicate or stale, unless after a silence (its counter may have
+        // started again: Cyclone DDS takes any count after 500 ms too)
+        if !silent
+            && p.last_acknack_count
+                .is_some_and(|c| a.count.wrapping_sub(c) <= 0)
         {
-            return; // duplicate or stale
+            return;
         }
         p.last_acknack_count = Some(a.count);
+        p.last_ack_at = Some(now);
         // an answer to a heartbeat: from now on it hears the real range,
         // at once if something is unacknowledged
         let answered = p.fresh && a.count != 0;
@@ -749,6 +778,24 @@ struct WriterProxy {
     last_hb_count: Option<i32>,
     acknack_count: i32,
     ack_due: bool,
+    /// When it matched (the pre-emptive ACKNACKs slow down with age).
+    matched_at: Instant,
+    /// When the next pre-emptive ACKNACK goes out; `None` once the writer
+    /// has sent a heartbeat (or for a best-effort reader).
+    preemptive_at: Option<Instant>,
+}
+
+/// How long after the match a pre-emptive ACKNACK is sent again while the
+/// writer has sent no heartbeat: as Cyclone DDS does, every second for
+/// the first 10 s, then every 2 s up to a minute, 5 s up to two, 10 s on.
+fn preemptive_interval(age: Duration) -> Duration {
+    let secs = match age.as_secs() {
+        0..=9 => 1,
+        10..=59 => 2,
+        60..=119 => 5,
+        _ => 10,
+    };
+    Duration::from_secs(secs)
 }
 
 /// A reader's view of its matched writers: in-order delivery for reliable
@@ -761,6 +808,9 @@ pub struct Reader {
     writers: HashMap<Guid, WriterProxy>,
     samples: VecDeque<(Guid, SequenceNumber, Payload)>,
     out: VecDeque<Transmit>,
+    /// No pre-emptive ACKNACK is due before this (it may be early: a
+    /// heartbeat that ends one does not move it).
+    next_preemptive: Option<Instant>,
 }
 
 impl Reader {
@@ -772,19 +822,79 @@ impl Reader {
             writers: HashMap::new(),
             samples: VecDeque::new(),
             out: VecDeque::new(),
+            next_preemptive: None,
         }
     }
 
-    /// A writer matched.
-    pub fn add_writer(&mut self, writer: Guid) {
-        self.writers.entry(writer).or_insert(WriterProxy {
+    /// A writer matched. A reliable reader tells it at once with a
+    /// pre-emptive ACKNACK (DDSI-RTPS §8.4.2.3.4: base 1, nothing
+    /// missing, count 0), and again with growing intervals
+    /// ([`Reader::poll_timeout`]) until the writer sends a heartbeat.
+    ///
+    /// The writer may well know the reader already: after an asymmetric
+    /// lease expiry (this side lost the writer's participant and found it
+    /// again, the writer's side never lost ours) the writer believes the
+    /// reader has everything, heartbeats no more, and, without this, the
+    /// reader would wait for it forever.
+    pub fn add_writer(&mut self, writer: Guid, now: Instant) {
+        if self.writers.contains_key(&writer) {
+            return;
+        }
+        let mut proxy = WriterProxy {
             next: 1,
             pending: BTreeMap::new(),
             last_available: 0,
             last_hb_count: None,
             acknack_count: 0,
             ack_due: false,
-        });
+            matched_at: now,
+            preemptive_at: None,
+        };
+        if self.reliable {
+            self.out.push_back(Self::preemptive(writer));
+            let at = now + preemptive_interval(Duration::ZERO);
+            proxy.preemptive_at = Some(at);
+            self.next_preemptive = Some(self.next_preemptive.map_or(at, |t| t.min(at)));
+        }
+        self.writers.insert(writer, proxy);
+    }
+
+    fn preemptive(writer: Guid) -> Transmit {
+        Transmit::AckNack {
+            to: writer,
+            state: SequenceNumberSet::empty(SequenceNumber(1)),
+            count: 0,
+            final_flag: false,
+        }
+    }
+
+    /// When [`Reader::handle_timeout`] must be called next: a pre-emptive
+    /// ACKNACK to a writer that has not sent a heartbeat yet.
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        self.next_preemptive
+    }
+
+    /// Sends the pre-emptive ACKNACKs that are due.
+    pub fn handle_timeout(&mut self, now: Instant) {
+        if self.next_preemptive.is_none_or(|t| t > now) {
+            return;
+        }
+        let mut next: Option<Instant> = None;
+        for (g, w) in &mut self.writers {
+            let Some(at) = w.preemptive_at else {
+                continue;
+            };
+            let at = if at <= now {
+                self.out.push_back(Self::preemptive(*g));
+                let later = now + preemptive_interval(now.saturating_duration_since(w.matched_at));
+                w.preemptive_at = Some(later);
+                later
+            } else {
+                at
+            };
+            next = Some(next.map_or(at, |t| t.min(at)));
+        }
+        self.next_preemptive = next;
     }
 
     /// A writer went away.
@@ -920,6 +1030,8 @@ impl Reader {
         let Some(w) = self.writers.get_mut(&writer) else {
             return;
         };
+        // the writer knows us: no more pre-emptive ACKNACKs
+        w.preemptive_at = None;
         if w.last_hb_count
             .is_some_and(|c| h.count.wrapping_sub(c) <= 0)
         {
@@ -1025,7 +1137,7 @@ mod tests {
         let mut w = Writer::new(wg, true, depth, 64, Duration::from_millis(10));
         let mut r = Reader::new(true, 256);
         w.add_reader(rg, false, t0);
-        r.add_writer(wg);
+        r.add_writer(wg, t0);
         let mut to_reader = Net {
             seed,
             loss,
@@ -1047,6 +1159,7 @@ mod tests {
                 written += 1;
             }
             w.handle_timeout(now);
+            r.handle_timeout(now);
             while let Some(t) = w.poll_transmit() {
                 to_reader.send(t);
             }
@@ -1112,6 +1225,7 @@ mod tests {
                             count,
                             final_flag,
                         },
+                        now,
                     );
                 }
             }
@@ -1134,7 +1248,7 @@ mod tests {
     fn a_sample_given_up_is_skipped_in_order_and_once() {
         let wg = guid(1);
         let mut r = Reader::new(true, 256);
-        r.add_writer(wg);
+        r.add_writer(wg, Instant::now());
         let p = |b: u8| -> Payload { Arc::from(vec![b; 4]) };
         // 2 is given up before 1 arrives: held as a gap, 3 waits behind 1
         assert!(r.give_up(wg, SequenceNumber(2)));
@@ -1189,7 +1303,7 @@ mod tests {
     fn hostile_heartbeats_and_gaps_stay_bounded() {
         let wg = guid(1);
         let mut r = Reader::new(true, 16);
-        r.add_writer(wg);
+        r.add_writer(wg, Instant::now());
         r.handle_data(wg, SequenceNumber(3), Arc::from(vec![3u8]));
         // a heartbeat far ahead skips at once (no per-number work), and what
         // was buffered before that point is still delivered
@@ -1236,6 +1350,7 @@ mod tests {
                 count: 1,
                 final_flag: false,
             },
+            t0,
         );
         let mut data = vec![];
         let mut gaps = vec![];
@@ -1296,13 +1411,16 @@ mod tests {
     fn a_reader_that_forgot_everything_is_sent_it_again() {
         let (mut w, rg) = wrote_three(true);
         // everything acknowledged, at count 57
-        w.handle_acknack(rg, &ack_of(rg, 4, &[], 57));
+        let t0 = Instant::now();
+        w.handle_acknack(rg, &ack_of(rg, 4, &[], 57), t0);
         assert_eq!(w.acked_by_all(), SequenceNumber(3));
         while w.poll_transmit().is_some() {}
         // the pre-emptive ACKNACK of a reader that has nothing
+        // (a lease later)
+        let t1 = t0 + Duration::from_secs(1);
         let mut pre = ack_of(rg, 1, &[], 0);
         pre.final_flag = false;
-        w.handle_acknack(rg, &pre);
+        w.handle_acknack(rg, &pre, t1);
         assert!(
             matches!(w.poll_transmit(), Some(Transmit::Heartbeat { .. })),
             "a heartbeat for the reader"
@@ -1314,7 +1432,7 @@ mod tests {
         );
         // its answer (count 1, lower than 57) is taken: all three resent
         while w.poll_transmit().is_some() {}
-        w.handle_acknack(rg, &ack_of(rg, 1, &[1, 2, 3], 1));
+        w.handle_acknack(rg, &ack_of(rg, 1, &[1, 2, 3], 1), t1);
         let mut data = vec![];
         while let Some(t) = w.poll_transmit() {
             if let Transmit::Data { sn, .. } = t {
@@ -1330,11 +1448,13 @@ mod tests {
     #[test]
     fn a_volatile_reader_that_matched_anew_starts_at_the_match() {
         let (mut w, rg) = wrote_three(false);
-        w.handle_acknack(rg, &ack_of(rg, 4, &[], 5));
+        let t0 = Instant::now();
+        w.handle_acknack(rg, &ack_of(rg, 4, &[], 5), t0);
         while w.poll_transmit().is_some() {}
+        let t1 = t0 + Duration::from_secs(1);
         let mut pre = ack_of(rg, 1, &[], 0);
         pre.final_flag = false;
-        w.handle_acknack(rg, &pre);
+        w.handle_acknack(rg, &pre, t1);
         let mut gap = None;
         while let Some(t) = w.poll_transmit() {
             if let Transmit::Gap { start, list, .. } = t {
@@ -1347,7 +1467,7 @@ mod tests {
             "what predates the new match is irrelevant to it"
         );
         // it asks for 1..3 all the same: GAPs, no data
-        w.handle_acknack(rg, &ack_of(rg, 1, &[1, 2, 3], 1));
+        w.handle_acknack(rg, &ack_of(rg, 1, &[1, 2, 3], 1), t1);
         let mut data = vec![];
         while let Some(t) = w.poll_transmit() {
             if let Transmit::Data { sn, .. } = t {
@@ -1355,6 +1475,97 @@ mod tests {
             }
         }
         assert!(data.is_empty(), "{data:?}");
+    }
+
+    /// A pre-emptive ACKNACK that comes soon after the reader's answers
+    /// (delayed or duplicated by the network) is stale: it is answered
+    /// with a heartbeat, but the reader's match goes on; taken as a new
+    /// match, a volatile reader would be told to skip samples on their way.
+    #[test]
+    fn a_pre_emptive_acknack_overtaken_by_the_readers_answers_changes_nothing() {
+        for replay in [false, true] {
+            let (mut w, rg) = wrote_three(replay);
+            let t0 = Instant::now();
+            w.handle_acknack(rg, &ack_of(rg, 3, &[], 1), t0);
+            while w.poll_transmit().is_some() {}
+            let mut pre = ack_of(rg, 1, &[], 0);
+            pre.final_flag = false;
+            w.handle_acknack(rg, &pre, t0 + Duration::from_millis(30));
+            let out: Vec<Transmit> = std::iter::from_fn(|| w.poll_transmit()).collect();
+            assert!(
+                out.iter().all(|t| matches!(t, Transmit::Heartbeat { .. })) && !out.is_empty(),
+                "replay {replay}: a heartbeat only: {out:?}"
+            );
+            assert_eq!(w.acked_by_all(), SequenceNumber(2), "replay {replay}");
+            // its next answer goes on from where it was
+            w.handle_acknack(rg, &ack_of(rg, 3, &[3], 2), t0 + Duration::from_millis(40));
+            let data: Vec<i64> = std::iter::from_fn(|| w.poll_transmit())
+                .filter_map(|t| match t {
+                    Transmit::Data { sn, .. } => Some(sn.0),
+                    _ => None,
+                })
+                .collect();
+            assert_eq!(data, [3], "replay {replay}");
+        }
+    }
+
+    /// A reliable reader sends a pre-emptive ACKNACK when a writer
+    /// matches, again after 1 s, 2 s... while the writer says nothing, and
+    /// stops at the writer's first heartbeat.
+    #[test]
+    fn a_reader_repeats_its_pre_emptive_acknack_until_the_writer_heartbeats() {
+        let (wg, t0) = (guid(1), Instant::now());
+        let mut r = Reader::new(true, 16);
+        r.add_writer(wg, t0);
+        let pre = |r: &mut Reader| {
+            std::iter::from_fn(|| r.poll_transmit())
+                .filter(|t| {
+                    matches!(t, Transmit::AckNack { to, state, count: 0, final_flag: false }
+                        if *to == wg && state.base == SequenceNumber(1) && state.num_bits == 0)
+                })
+                .count()
+        };
+        assert_eq!(pre(&mut r), 1, "at once");
+        assert_eq!(r.poll_timeout(), Some(t0 + Duration::from_secs(1)));
+        r.handle_timeout(t0 + Duration::from_millis(999));
+        assert_eq!(pre(&mut r), 0);
+        for s in 1..=12u64 {
+            let now = t0 + Duration::from_secs(s);
+            if r.poll_timeout().is_some_and(|t| t <= now) {
+                r.handle_timeout(now);
+            }
+        }
+        // every second for 10 s, then every 2 s: 1 s .. 10 s and 12 s
+        assert_eq!(pre(&mut r), 11);
+        let hb = Heartbeat {
+            reader_id: EntityId([0, 0, 2, 7]),
+            writer_id: wg.entity,
+            first_sn: SequenceNumber(1),
+            last_sn: SequenceNumber(0),
+            count: 1,
+            final_flag: false,
+            liveliness: false,
+        };
+        r.handle_heartbeat(wg, &hb);
+        r.handle_timeout(t0 + Duration::from_secs(60));
+        let out: Vec<Transmit> = std::iter::from_fn(|| r.poll_transmit()).collect();
+        assert!(
+            matches!(
+                &out[..],
+                [Transmit::AckNack {
+                    count: 1,
+                    final_flag: true,
+                    ..
+                }]
+            ),
+            "the heartbeat's answer, and no more pre-emptive ones: {out:?}"
+        );
+        assert_eq!(r.poll_timeout(), None);
+        // a best-effort reader sends none
+        let mut be = Reader::new(false, 16);
+        be.add_writer(wg, t0);
+        assert_eq!(be.poll_transmit(), None);
+        assert_eq!(be.poll_timeout(), None);
     }
 
     /// Cyclone DDS's reader, as far as its start point goes: DATA that
@@ -1492,10 +1703,11 @@ mod tests {
         // from now on the network works; later writes go out as usual
         w.write(Arc::from(vec![3u8]), t0).unwrap();
         for i in 1..=10 {
+            let now = t0 + Duration::from_millis(100 * i);
             for a in acks.drain(..) {
-                w.handle_acknack(rg, &a);
+                w.handle_acknack(rg, &a, now);
             }
-            w.handle_timeout(t0 + Duration::from_millis(100 * i));
+            w.handle_timeout(now);
             while let Some(t) = w.poll_transmit() {
                 acks.extend(r.take(rg, wg, t, false));
             }
@@ -1610,6 +1822,7 @@ mod tests {
                 count,
                 final_flag: true,
             },
+            Instant::now(),
         );
     }
 
@@ -1704,7 +1917,7 @@ mod tests {
     fn best_effort_reader_drops_old_and_duplicates() {
         let wg = guid(1);
         let mut r = Reader::new(false, 8);
-        r.add_writer(wg);
+        r.add_writer(wg, Instant::now());
         for sn in [1, 3, 2, 3, 5] {
             r.handle_data(wg, SequenceNumber(sn), Arc::from(vec![0u8]));
         }

@@ -99,7 +99,7 @@ impl Participant {
                 Submessage::DataFrag(f) => self.on_data_frag(&rx, f, little, source, now),
                 Submessage::Heartbeat(h) => self.on_heartbeat(&rx, h),
                 Submessage::Gap(g) => self.on_gap(&rx, g),
-                Submessage::AckNack(a) => self.on_acknack(&rx, a),
+                Submessage::AckNack(a) => self.on_acknack(&rx, a, now),
                 Submessage::NackFrag(n) => self.on_nack_frag(&rx, n),
                 _ => {}
             }
@@ -333,18 +333,18 @@ impl Participant {
         }
     }
 
-    fn on_acknack(&mut self, rx: &Rx, a: &AckNack) {
+    fn on_acknack(&mut self, rx: &Rx, a: &AckNack, now: Instant) {
         let reader = Guid {
             prefix: rx.src,
             entity: a.reader_id,
         };
         match a.writer_id {
-            EntityId::SEDP_PUBLICATIONS_WRITER => self.pub_writer.handle_acknack(reader, a),
-            EntityId::SEDP_SUBSCRIPTIONS_WRITER => self.sub_writer.handle_acknack(reader, a),
+            EntityId::SEDP_PUBLICATIONS_WRITER => self.pub_writer.handle_acknack(reader, a, now),
+            EntityId::SEDP_SUBSCRIPTIONS_WRITER => self.sub_writer.handle_acknack(reader, a, now),
             e if e.is_builtin() => {}
             e => {
                 if let Some(w) = self.writers.get_mut(&e) {
-                    w.writer.handle_acknack(reader, a);
+                    w.writer.handle_acknack(reader, a, now);
                 }
             }
         }

@@ -138,7 +138,7 @@ impl Participant {
         if publications {
             let rs: Vec<EntityId> = self.readers.keys().copied().collect();
             for r in rs {
-                self.match_remote_writer(r, g);
+                self.match_remote_writer(r, g, now);
             }
         } else {
             let ws: Vec<EntityId> = self.writers.keys().copied().collect();
@@ -182,7 +182,7 @@ impl Participant {
     }
 
     /// (Re)evaluates a remote writer against a local reader.
-    pub(super) fn match_remote_writer(&mut self, reader: EntityId, g: Guid) {
+    pub(super) fn match_remote_writer(&mut self, reader: EntityId, g: Guid, now: Instant) {
         let prefix = self.cfg.guid_prefix;
         let (Some(lr), Some(rw)) = (self.readers.get_mut(&reader), self.remote_writers.get(&g))
         else {
@@ -205,7 +205,7 @@ impl Participant {
         match res {
             Some(Ok(())) if !was => {
                 lr.matched.insert(g);
-                lr.reader.add_writer(g);
+                lr.reader.add_writer(g, now);
                 self.events.push_back(Event::ReaderMatched {
                     reader: local,
                     writer: g,

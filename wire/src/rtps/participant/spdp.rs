@@ -157,11 +157,11 @@ impl Participant {
         }
         if bes & b::PUBLICATIONS_ANNOUNCER != 0 {
             self.pub_reader
-                .add_writer(g(EntityId::SEDP_PUBLICATIONS_WRITER));
+                .add_writer(g(EntityId::SEDP_PUBLICATIONS_WRITER), now);
         }
         if bes & b::SUBSCRIPTIONS_ANNOUNCER != 0 {
             self.sub_reader
-                .add_writer(g(EntityId::SEDP_SUBSCRIPTIONS_WRITER));
+                .add_writer(g(EntityId::SEDP_SUBSCRIPTIONS_WRITER), now);
         }
     }
 

@@ -123,7 +123,7 @@ impl Participant {
         );
         let remote: Vec<Guid> = self.remote_writers.keys().copied().collect();
         for w in remote {
-            self.match_remote_writer(guid.entity, w);
+            self.match_remote_writer(guid.entity, w, now);
         }
         let local: Vec<EntityId> = self.writers.keys().copied().collect();
         for w in local {
