@@ -225,6 +225,21 @@ fn run_step(cmd: &mut Command, package: &str) -> Result<std::process::Output, St
     }
 }
 
+/// Runs Cyclone DDS's IDL compiler, `idlc <args> <idl>`, in `out_dir`
+/// (where it writes its `.c` and `.h`). The error names the Debian package
+/// `cyclonedds-tools` when `idlc` is not on `PATH`, and carries idlc's
+/// output when it refuses the IDL.
+pub fn run_idlc(args: &[&str], idl: &Path, out_dir: &Path) -> Result<(), String> {
+    run_step(
+        Command::new("idlc")
+            .args(args)
+            .arg(idl)
+            .current_dir(out_dir),
+        "cyclonedds-tools",
+    )
+    .map(drop)
+}
+
 /// `pkg-config --cflags --libs CycloneDDS`, split into arguments.
 fn cyclone_flags() -> Result<Vec<String>, String> {
     let out = run_step(
@@ -323,13 +338,7 @@ fn compile(
     let exe = out.join(program.exe_name());
     match program {
         Program::Cyclone => {
-            run_step(
-                Command::new("idlc")
-                    .args(["-x", "final"])
-                    .arg(src.join("types.idl"))
-                    .current_dir(out),
-                "cyclonedds-tools",
-            )?;
+            run_idlc(&["-x", "final"], &src.join("types.idl"), out)?;
             run_step(
                 Command::new("cc")
                     .args(C_FLAGS)

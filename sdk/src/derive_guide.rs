@@ -77,7 +77,7 @@
 //! | `#[ipc(key)]` | DDS key field (`KEYS`, `cdr_encode_key`); key members carry the XTypes must-understand flag, as idlc gives `@key` members |
 //! | `#[ipc(must_understand)]` | sets the must-understand flag of a non-key member |
 //! | `#[ipc(id = 7)]` | CDR member id (mutable structs); ids continue sequentially after it |
-//! | `#[ipc(bound = 10)]` | this `String` holds at most 10 bytes, this `Vec` at most 10 elements (IDL `string<10>`, `sequence<T, 10>`; what `courier gen` emits for them): a session refuses to send a longer one ([`PublishError::Length`](crate::PublishError::Length)), and a typed subscriber refuses to take one ([`RecvError::Decode`](crate::RecvError::Decode)), as DDS implementations refuse a bounded value over its bound. The IPC format is unchanged (IPC has no bounds) |
+//! | `#[ipc(bound = 10)]` | this `String` holds at most 10 bytes, this `Vec` at most 10 elements (IDL `string<10>`, `sequence<T, 10>`; what `courier gen` emits for them): a session refuses to send a longer one ([`PublishError::Length`](crate::PublishError::Length)), and a typed subscriber refuses to take one ([`RecvError::Decode`](crate::RecvError::Decode)), as DDS implementations refuse a bounded value over its bound. In a key it also decides whether the key hash is the key or its MD5 (see *Key hashes* below). The IPC format is unchanged (IPC has no bounds) |
 //!
 //! # Choices
 //!
@@ -180,3 +180,40 @@
 //!   `type Key` is what `cdr_decode_key` reads back from it: the one key
 //!   field's type (its own `Key`), a tuple of them for several key fields,
 //!   and `Self` for a struct without key fields.
+//! - **Key hashes.** The key hash of an instance ([`key_hash`](crate::key_hash),
+//!   the `PID_KEY_HASH` of DDSI-RTPS 2.5 §9.6.4.8) is its key in the
+//!   key-hash form (big-endian XCDR2, every struct final, key members in
+//!   member-id order), zero-padded to 16 bytes when the *type's* largest
+//!   key fits in 16 bytes, else the MD5 digest of it, however short the
+//!   actual key. The derive works the largest key out at compile time
+//!   (`IpcMessage::CDR_KEY_MAX_SIZE`, a `cdr::MaxSize`): an unbounded
+//!   `String` or `Vec` has no largest, a `#[ipc(bound = N)]` `String`
+//!   (IDL `string<N>`) counts as 4 + N + 1 bytes aligned to 4, a bounded
+//!   `Vec` at its bound, every member aligned to its size but at most 4.
+//!   So `#[ipc(key, bound = 11)] name: String` alone is padded and
+//!   `bound = 12` hashed, as idlc and Cyclone DDS 11's C library decide
+//!   (`DDS_TOPIC_FIXED_KEY_XCDR2`) and Fast DDS's generated code does.
+//!   Cyclone DDS 0.10's runtime pads by the actual length instead, and
+//!   the Python `cyclonedds` 11 binding counts a bounded string as 4 + N
+//!   bytes (no NUL); Courier follows the specification, Cyclone DDS 11's C
+//!   library and Fast DDS. A struct that holds itself through a bounded
+//!   `Vec` counts as unbounded; types that hold each other through
+//!   bounded `Vec`s (`A` a `Vec<B>`, `B` a `Vec<A>`) compile, but a key
+//!   holding them fails to compile when its key hash is taken (the size
+//!   would depend on itself).
+//!
+//!   ```
+//!   use courier::IpcMessage;
+//!
+//!   #[derive(IpcMessage)]
+//!   struct Robot {
+//!       #[ipc(key, bound = 8)]
+//!       name: String,
+//!       x: f64,
+//!   }
+//!
+//!   assert_eq!(Robot::CDR_KEY_MAX_SIZE.max_len(), Some(13));
+//!   let r = Robot { name: "ab".into(), x: 0.0 };
+//!   // length 3 ("ab" and the NUL), "ab", NUL, then zeros
+//!   assert_eq!(courier::key_hash(&r), [0, 0, 0, 3, b'a', b'b', 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]);
+//!   ```

@@ -151,3 +151,483 @@ fn a_key_hash_from_a_payload_is_the_key_hash_of_the_value() {
         None
     );
 }
+
+// Key hashes of bounded keys, byte for byte (DDSI-RTPS 2.5 §9.6.4.8): the
+// type's largest key in the key-hash form decides, a bounded string
+// `string<N>` counting 4 + N + 1 bytes. The MD5 digests were computed
+// independently (Python's hashlib) of the key bytes shown.
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct Name8 {
+    #[ipc(key, bound = 8)]
+    name: String,
+    v: i32,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct Name11 {
+    #[ipc(key, bound = 11)]
+    name: String,
+    v: i32,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct Name12 {
+    #[ipc(key, bound = 12)]
+    name: String,
+    v: i32,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct LongLongLong {
+    #[ipc(key)]
+    a: i32,
+    #[ipc(key)]
+    b: i64,
+    v: i32,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct Seq3 {
+    #[ipc(key, bound = 3)]
+    ids: Vec<u32>,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct Seq4 {
+    #[ipc(key, bound = 4)]
+    ids: Vec<u32>,
+}
+
+fn hex(b: &[u8]) -> String {
+    b.iter().map(|x| format!("{x:02x}")).collect()
+}
+
+fn padded(key: &[u8]) -> [u8; 16] {
+    let mut h = [0; 16];
+    h[..key.len()].copy_from_slice(key);
+    h
+}
+
+#[test]
+fn bounded_string_keys_pad_up_to_string_11() {
+    // string<8>: at most 4 + 8 + 1 = 13 bytes, so "ab" is padded
+    let v = Name8 {
+        name: "ab".into(),
+        v: 1,
+    };
+    assert_eq!(Name8::CDR_KEY_MAX_SIZE.max_len(), Some(13));
+    assert_eq!(
+        key_hash(&v),
+        [0, 0, 0, 3, 0x61, 0x62, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]
+    );
+    assert_eq!(
+        cdr::key_hash_of_key::<Name8>(&"ab".into()),
+        Some(key_hash(&v))
+    );
+    assert_eq!(
+        cdr::key_from_key_hash::<Name8>(&key_hash(&v)).as_deref(),
+        Some("ab")
+    );
+    check(&v);
+
+    // string<11> at its bound: exactly 16 bytes, the key itself
+    let v = Name11 {
+        name: "abcdefghijk".into(),
+        v: 1,
+    };
+    assert_eq!(Name11::CDR_KEY_MAX_SIZE.max_len(), Some(16));
+    let mut want = vec![0, 0, 0, 12];
+    want.extend_from_slice(b"abcdefghijk\0");
+    assert_eq!(key_hash(&v), padded(&want));
+    assert_eq!(
+        cdr::key_from_key_hash::<Name11>(&key_hash(&v)).as_deref(),
+        Some("abcdefghijk")
+    );
+    // and the empty string: 00 00 00 01 00, padded
+    let e = Name11 {
+        name: String::new(),
+        v: 1,
+    };
+    assert_eq!(key_hash(&e), padded(&[0, 0, 0, 1, 0]));
+    assert_eq!(
+        cdr::key_from_key_hash::<Name11>(&key_hash(&e)).as_deref(),
+        Some("")
+    );
+    check(&v);
+
+    // string<12>: up to 17 bytes, so even "ab" is an MD5 digest
+    assert_eq!(Name12::CDR_KEY_MAX_SIZE.max_len(), None);
+    let v = Name12 {
+        name: "ab".into(),
+        v: 1,
+    };
+    // md5(00 00 00 03 61 62 00)
+    assert_eq!(hex(&key_hash(&v)), "186594b7205d08ac2ff8e1ac47fb4b2a");
+    assert_eq!(cdr::key_from_key_hash::<Name12>(&key_hash(&v)), None);
+    let v = Name12 {
+        name: "abcdefghijkl".into(),
+        v: 1,
+    };
+    // md5(00 00 00 0d "abcdefghijkl" 00)
+    assert_eq!(hex(&key_hash(&v)), "e07ff2750c92eef9415df8da25dabdd7");
+    check(&v);
+}
+
+#[test]
+fn a_long_long_after_a_long_is_aligned_to_4() {
+    // XCDR2 aligns 8-byte members to 4: 4 + 8 = 12 bytes
+    let v = LongLongLong {
+        a: 1,
+        b: 0x0102_0304_0506_0708,
+        v: 9,
+    };
+    assert_eq!(LongLongLong::CDR_KEY_MAX_SIZE.max_len(), Some(12));
+    assert_eq!(
+        key_hash(&v),
+        [0, 0, 0, 1, 1, 2, 3, 4, 5, 6, 7, 8, 0, 0, 0, 0]
+    );
+    assert_eq!(
+        cdr::key_from_key_hash::<LongLongLong>(&key_hash(&v)),
+        Some((1, 0x0102_0304_0506_0708))
+    );
+    check(&v);
+}
+
+#[test]
+fn bounded_sequence_keys() {
+    // sequence<uint32, 3>: count and 3 × 4 = 16 bytes at most, padded
+    let v = Seq3 { ids: vec![1, 2] };
+    assert_eq!(Seq3::CDR_KEY_MAX_SIZE.max_len(), Some(16));
+    assert_eq!(
+        key_hash(&v),
+        [0, 0, 0, 2, 0, 0, 0, 1, 0, 0, 0, 2, 0, 0, 0, 0]
+    );
+    assert_eq!(
+        cdr::key_from_key_hash::<Seq3>(&key_hash(&v)),
+        Some(vec![1, 2])
+    );
+    let full = Seq3 { ids: vec![1, 2, 3] };
+    assert_eq!(
+        key_hash(&full),
+        [0, 0, 0, 3, 0, 0, 0, 1, 0, 0, 0, 2, 0, 0, 0, 3]
+    );
+    check(&full);
+    // sequence<uint32, 4>: up to 20 bytes, so an MD5 digest even for two
+    assert_eq!(Seq4::CDR_KEY_MAX_SIZE.max_len(), None);
+    let v = Seq4 { ids: vec![1, 2] };
+    // md5(00 00 00 02 00 00 00 01 00 00 00 02)
+    assert_eq!(hex(&key_hash(&v)), "bdf2d93c1c6ade7f71e2fa7348135b1a");
+    assert_eq!(cdr::key_from_key_hash::<Seq4>(&key_hash(&v)), None);
+    let v = Seq4 {
+        ids: vec![1, 2, 3, 4],
+    };
+    assert_eq!(hex(&key_hash(&v)), "f83ea1eddd3b25f7e1a55d81bd076a42");
+    check(&v);
+}
+
+// `CDR_KEY_MAX_SIZE` (and `CDR_MAX_SIZE`) against the bytes the key-hash
+// form actually holds, for keys of every shape: never shorter than any
+// value's, and exactly a value's at the bounds.
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct OctShort {
+    a: u8,
+    b: i16,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct OctLong {
+    a: u8,
+    b: i32,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct Short {
+    x: i16,
+}
+
+#[derive(IpcMessage, Debug, Clone, Copy, PartialEq)]
+enum Tri {
+    A,
+    B,
+    C,
+}
+
+/// Unaligned starts: `p` begins at 1, its `i16` at 2, the string at 4.
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct Unaligned {
+    #[ipc(key)]
+    o: u8,
+    #[ipc(key)]
+    p: OctShort,
+    #[ipc(key, bound = 2)]
+    s: String,
+}
+
+/// A nested struct laid out from offset 1 takes 8 bytes (1, 2, pad, 4),
+/// not 4 + its 8 from offset 0.
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct NestedFrom1 {
+    #[ipc(key)]
+    o: u8,
+    #[ipc(key)]
+    n: OctLong,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct SeqOfStructs {
+    #[ipc(key, bound = 2)]
+    pts: Vec<Short>,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct SeqOfEnums {
+    #[ipc(key, bound = 3)]
+    v: Vec<Tri>,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct SeqOfArrays {
+    #[ipc(key, bound = 2)]
+    v: Vec<[u8; 3]>,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct SeqOfStrings {
+    #[ipc(key, bound = 1)]
+    v: Vec<String>,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct Arrays {
+    #[ipc(key)]
+    a: [[i16; 2]; 3],
+    #[ipc(key)]
+    b: [[Short; 2]; 1],
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct Chars {
+    #[ipc(key, char)]
+    c: u8,
+    #[ipc(key)]
+    d: char,
+    #[ipc(key, bound = 9)]
+    s: String,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(extensibility = "mutable")]
+struct MutBounded {
+    v: i8,
+    #[ipc(key, bound = 7)]
+    s: String,
+    #[ipc(key)]
+    c: u32,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(extensibility = "appendable")]
+struct InnerBounded {
+    #[ipc(key, bound = 3)]
+    n: String,
+    x: f64,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct Outer {
+    #[ipc(key)]
+    inner: InnerBounded,
+    #[ipc(key)]
+    b: Box<i64>,
+    #[ipc(key)]
+    k: u8,
+}
+
+/// The key-hash form of `v`'s key, and of all of `v`.
+fn forms<T: IpcMessage>(v: &T) -> (Vec<u8>, Vec<u8>) {
+    let mut k = cdr::Writer::key_hash_form();
+    v.cdr_encode_key(&mut k);
+    let mut w = cdr::Writer::key_hash_form();
+    v.cdr_encode(&mut w);
+    (k.into_vec(), w.into_vec())
+}
+
+/// `max` against byte counts: none above it, `worst` exactly it (or past
+/// 16 when it says "more than 16").
+fn check_max(what: &str, max: cdr::MaxSize, lens: &[usize], worst: usize) {
+    match max.max_len() {
+        Some(m) => {
+            assert_eq!(worst, m, "{what}: the longest value's form");
+            assert!(lens.iter().all(|l| *l <= m), "{what}: {lens:?} over {m}");
+        }
+        None => assert!(
+            worst > 16,
+            "{what}: over 16 bytes, the longest value takes {worst}"
+        ),
+    }
+}
+
+/// `values` of `T`, the last one at every bound: its key and whole value
+/// reach the maxima, and the key hash is padded exactly when the type's
+/// key fits 16 bytes.
+fn measure<T: IpcMessage + std::fmt::Debug>(values: &[T], want_key_max: Option<usize>) {
+    let name = T::TYPE_NAME;
+    assert_eq!(T::CDR_KEY_MAX_SIZE.max_len(), want_key_max, "{name}");
+    let (keys, wholes): (Vec<usize>, Vec<usize>) = values
+        .iter()
+        .map(|v| {
+            let (k, w) = forms(v);
+            (k.len(), w.len())
+        })
+        .unzip();
+    let last = values.len() - 1;
+    check_max(
+        &format!("{name} key"),
+        T::CDR_KEY_MAX_SIZE,
+        &keys,
+        keys[last],
+    );
+    check_max(
+        &format!("{name} value"),
+        T::CDR_MAX_SIZE,
+        &wholes,
+        wholes[last],
+    );
+    for v in values {
+        let (k, _) = forms(v);
+        let padded = k.len() <= 16 && key_hash(v) == self::padded(&k);
+        assert_eq!(padded, want_key_max.is_some(), "{name}: {v:?}");
+        check(v);
+    }
+}
+
+fn strings(bound: usize) -> impl Iterator<Item = String> {
+    (0..=bound).map(|n| "xyzw".chars().cycle().take(n).collect())
+}
+
+#[test]
+fn key_max_sizes_are_the_exact_worst_case() {
+    let v: Vec<Unaligned> = strings(2)
+        .map(|s| Unaligned {
+            o: 1,
+            p: OctShort { a: 2, b: 3 },
+            s,
+        })
+        .collect();
+    // 1 + 1 + 2 = 4, then 4 + 2 + 1
+    measure(&v, Some(11));
+    measure(
+        &[NestedFrom1 {
+            o: 1,
+            n: OctLong { a: 2, b: 3 },
+        }],
+        Some(8),
+    );
+    let v: Vec<SeqOfStructs> = (0..=2)
+        .map(|n| SeqOfStructs {
+            pts: vec![Short { x: 7 }; n],
+        })
+        .collect();
+    // DHEADER, count, 2 × 2
+    measure(&v, Some(12));
+    let v: Vec<SeqOfEnums> = (0..=3).map(|n| SeqOfEnums { v: vec![Tri::C; n] }).collect();
+    // Courier writes a derived enum as a primitive (no DHEADER): count, 3 × 4
+    measure(&v, Some(16));
+    let v: Vec<SeqOfArrays> = (0..=2)
+        .map(|n| SeqOfArrays {
+            v: vec![[1, 2, 3]; n],
+        })
+        .collect();
+    // DHEADER (an array is no primitive element), count, 2 × 3
+    measure(&v, Some(14));
+    let v: Vec<SeqOfStrings> = [vec![], vec!["a string of some length".to_string()]]
+        .into_iter()
+        .map(|v| SeqOfStrings { v })
+        .collect();
+    measure(&v, None);
+    // 12 bytes of i16 (no DHEADER), then DHEADER and 2 × 2
+    measure(
+        &[Arrays {
+            a: [[1, 2], [3, 4], [5, 6]],
+            b: [[Short { x: 1 }, Short { x: 2 }]],
+        }],
+        None,
+    );
+    assert_eq!(<[[i16; 2]; 3]>::CDR_MAX_SIZE.max_len(), Some(12));
+    assert_eq!(<[[Short; 2]; 1]>::CDR_MAX_SIZE.max_len(), Some(8));
+    let v: Vec<Chars> = strings(9).map(|s| Chars { c: b'c', d: 'd', s }).collect();
+    // 2, then 4 + 4 + 9 + 1 = 18
+    measure(&v, None);
+    let v: Vec<MutBounded> = strings(7).map(|s| MutBounded { v: 1, s, c: 2 }).collect();
+    // no EMHEADER or DHEADER in the key-hash form: 12 + 4
+    measure(&v, Some(16));
+    let v: Vec<Outer> = strings(3)
+        .map(|n| Outer {
+            inner: InnerBounded { n, x: 1.5 },
+            b: Box::new(-1),
+            k: 9,
+        })
+        .collect();
+    // the inner key (8), the i64 (8) aligned to 4: 16, then the octet: 17
+    measure(&v, None);
+}
+
+/// A struct that holds itself through a bounded `Vec` nests without end:
+/// unbounded, and its constant does not depend on itself.
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct Tree {
+    x: i32,
+    #[ipc(bound = 3)]
+    kids: Vec<Tree>,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct KeyedTree {
+    #[ipc(key)]
+    t: Tree,
+}
+
+/// Types that hold each other through bounded `Vec`s compile, and so does
+/// a keyed type holding them outside its key.
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct Ping {
+    #[ipc(bound = 2)]
+    pongs: Vec<Pong>,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct Pong {
+    #[ipc(bound = 2)]
+    pings: Vec<Ping>,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct KeyedPing {
+    #[ipc(key)]
+    id: u8,
+    ping: Ping,
+}
+
+#[test]
+fn recursive_types_with_bounded_vecs() {
+    assert_eq!(Tree::CDR_MAX_SIZE.max_len(), None);
+    assert_eq!(KeyedTree::CDR_KEY_MAX_SIZE.max_len(), None);
+    let t = KeyedTree {
+        t: Tree { x: 1, kids: vec![] },
+    };
+    // 12 bytes now (x, DHEADER, count), but a tree can be any size: MD5
+    assert_eq!(forms(&t).0.len(), 12);
+    assert_ne!(key_hash(&t), padded(&forms(&t).0));
+    check(&t);
+    let p = KeyedPing {
+        id: 7,
+        ping: Ping {
+            pongs: vec![Pong { pings: vec![] }],
+        },
+    };
+    assert_eq!(KeyedPing::CDR_KEY_MAX_SIZE.max_len(), Some(1));
+    assert_eq!(key_hash(&p), padded(&[7]));
+    check(&p);
+}

@@ -48,12 +48,37 @@ pub trait IpcMessage: Sized {
     const CDR_MIN_SIZE: usize;
     /// A CDR primitive (XCDR2 writes no `DHEADER` before sequences and arrays of it).
     const CDR_PRIMITIVE: bool = false;
-    /// The CDR serialization has a fixed upper size (no string, sequence or
-    /// pointer inside).
-    const CDR_BOUNDED: bool = false;
-    /// The key fields serialize to a bounded size (decides whether a DDS key
-    /// hash is the key itself or its MD5, DDSI-RTPS §9.6.4.8).
-    const CDR_KEY_BOUNDED: bool = Self::CDR_BOUNDED;
+    /// The most bytes a whole value takes in the key-hash form
+    /// ([`cdr::Writer::key_hash_form`]: big-endian XCDR2, every struct
+    /// final), exact up to 16 bytes: what a key member of this type
+    /// contributes to the key of a struct when the type has no key fields
+    /// of its own. [`cdr::MaxSize::UNBOUNDED`] unless the type says (an
+    /// unbounded `String` or `Vec`, a pointer); `#[derive(IpcMessage)]`
+    /// adds up its fields, a bounded `String` or `Vec` (`#[ipc(bound =
+    /// N)]`) counting at its bound.
+    ///
+    /// ```
+    /// use courier_wire::IpcMessage;
+    /// assert_eq!(i64::CDR_MAX_SIZE.max_len(), Some(8));
+    /// assert_eq!(<[u16; 3]>::CDR_MAX_SIZE.max_len(), Some(6));
+    /// assert_eq!(String::CDR_MAX_SIZE.max_len(), None);
+    /// ```
+    const CDR_MAX_SIZE: cdr::MaxSize = cdr::MaxSize::UNBOUNDED;
+    /// The most bytes the key ([`cdr_encode_key`](Self::cdr_encode_key))
+    /// takes in the key-hash form, key members in member-id order. It
+    /// decides what the DDS key hash of an instance is (DDSI-RTPS 2.5
+    /// §9.6.4.8): the key zero-padded to 16 bytes when this is at most 16
+    /// ([`cdr::MaxSize::fits_key_hash`]), else the key's MD5 digest,
+    /// whatever the length of the actual value. A bounded string
+    /// (`#[ipc(key, bound = 11)] name: String`, IDL `@key string<11>`)
+    /// counts as 4 + 11 + 1 bytes, as Cyclone DDS and Fast DDS count it.
+    ///
+    /// ```
+    /// use courier_wire::IpcMessage;
+    /// assert!(u64::CDR_KEY_MAX_SIZE.fits_key_hash());
+    /// assert!(!<[u32; 5]>::CDR_KEY_MAX_SIZE.fits_key_hash());
+    /// ```
+    const CDR_KEY_MAX_SIZE: cdr::MaxSize = Self::CDR_MAX_SIZE;
     /// Names of the key fields (`#[ipc(key)]`), for keyed DDS topics.
     const KEYS: &'static [&'static str] = &[];
     /// [`check_lengths`](Self::check_lengths) has something to check: the
@@ -165,6 +190,12 @@ pub trait IpcMessage: Sized {
     /// XCDR2 writes no `DHEADER` before the array.
     #[doc(hidden)]
     const CDR_FLAT_PRIMITIVE: bool = Self::CDR_PRIMITIVE;
+
+    /// [`CDR_MAX_SIZE`](Self::CDR_MAX_SIZE) of what
+    /// [`cdr_encode_flat`](Self::cdr_encode_flat) writes: for an array,
+    /// its elements without `DHEADER`.
+    #[doc(hidden)]
+    const CDR_FLAT_MAX_SIZE: cdr::MaxSize = Self::CDR_MAX_SIZE;
 
     /// Appends the elements of a (multi-dimensional) array without any
     /// `DHEADER`; other types write themselves.
@@ -403,7 +434,7 @@ macro_rules! numeric {
             const IPC_MIN_SIZE: usize = core::mem::size_of::<$t>();
             const CDR_MIN_SIZE: usize = core::mem::size_of::<$t>();
             const CDR_PRIMITIVE: bool = true;
-            const CDR_BOUNDED: bool = true;
+            const CDR_MAX_SIZE: cdr::MaxSize = cdr::MaxSize::primitive(core::mem::size_of::<$t>());
 
             #[inline]
             fn ipc_encode(&self, w: &mut ipc::Writer) {
@@ -502,7 +533,7 @@ impl IpcMessage for bool {
     const IPC_MIN_SIZE: usize = 4;
     const CDR_MIN_SIZE: usize = 1;
     const CDR_PRIMITIVE: bool = true;
-    const CDR_BOUNDED: bool = true;
+    const CDR_MAX_SIZE: cdr::MaxSize = cdr::MaxSize::primitive(1);
 
     fn ipc_encode(&self, w: &mut ipc::Writer) {
         w.write_bool(*self);
@@ -539,7 +570,7 @@ impl IpcMessage for char {
     const IPC_MIN_SIZE: usize = 1;
     const CDR_MIN_SIZE: usize = 1;
     const CDR_PRIMITIVE: bool = true;
-    const CDR_BOUNDED: bool = true;
+    const CDR_MAX_SIZE: cdr::MaxSize = cdr::MaxSize::primitive(1);
 
     fn ipc_encode(&self, w: &mut ipc::Writer) {
         w.write_u8(latin1(*self));
@@ -642,6 +673,7 @@ impl IpcMessage for () {
     const TYPE_NAME: &'static str = "Empty";
     const IPC_MIN_SIZE: usize = 0;
     const CDR_MIN_SIZE: usize = 0;
+    const CDR_MAX_SIZE: cdr::MaxSize = cdr::MaxSize::EMPTY;
 
     fn ipc_encode(&self, _: &mut ipc::Writer) {}
     fn ipc_decode(_: &mut ipc::Reader<'_>) -> Result<Self, ipc::DecodeError> {
@@ -764,9 +796,12 @@ impl<T: IpcMessage, const N: usize> IpcMessage for [T; N] {
             .map_err(|_| ipc::DecodeError::Format("array length".into()))
     }
     const CDR_IS_ARRAY: bool = true;
-    const CDR_BOUNDED: bool = T::CDR_BOUNDED;
-    const CDR_KEY_BOUNDED: bool = T::CDR_KEY_BOUNDED;
     const CDR_FLAT_PRIMITIVE: bool = T::CDR_FLAT_PRIMITIVE;
+    /// A `DHEADER` unless the innermost elements are primitive, then the
+    /// elements (of a nested array: the inner arrays' elements).
+    const CDR_MAX_SIZE: cdr::MaxSize =
+        cdr::MaxSize::array(T::CDR_FLAT_MAX_SIZE, N, !T::CDR_FLAT_PRIMITIVE);
+    const CDR_FLAT_MAX_SIZE: cdr::MaxSize = cdr::MaxSize::array(T::CDR_FLAT_MAX_SIZE, N, false);
 
     fn cdr_encode(&self, w: &mut cdr::Writer) {
         let d = w.begin_array(Self::CDR_FLAT_PRIMITIVE);
@@ -891,8 +926,8 @@ impl<T: IpcMessage> IpcMessage for Box<T> {
     const CDR_PRIMITIVE: bool = T::CDR_PRIMITIVE;
     const CDR_FLAT_PRIMITIVE: bool = T::CDR_FLAT_PRIMITIVE;
     const KEYS: &'static [&'static str] = T::KEYS;
-    const CDR_BOUNDED: bool = T::CDR_BOUNDED;
-    const CDR_KEY_BOUNDED: bool = T::CDR_KEY_BOUNDED;
+    const CDR_MAX_SIZE: cdr::MaxSize = T::CDR_MAX_SIZE;
+    const CDR_KEY_MAX_SIZE: cdr::MaxSize = T::CDR_KEY_MAX_SIZE;
     const CHECKS_LENGTHS: bool = T::CHECKS_LENGTHS;
 
     fn check_lengths(&self) -> Result<(), LengthError> {
@@ -947,6 +982,35 @@ pub mod __private {
     ) -> Result<Vec<T>, ipc::DecodeError> {
         let n = r.read_count(T::IPC_MIN_SIZE)?;
         T::ipc_decode_vec(r, n)
+    }
+
+    // The derived `CDR_MAX_SIZE` and `CDR_KEY_MAX_SIZE` read their
+    // fields' constants through these functions rather than directly: a
+    // constant that names another is evaluated as soon as its crate is
+    // checked, and types that hold each other through bounded `Vec`s (`A`
+    // a `Vec<B>`, `B` a `Vec<A>`) would then fail to compile, their
+    // constants depending on themselves. Through a generic function a
+    // constant is evaluated only when used: a key hash of such a type.
+
+    /// `T::CDR_MAX_SIZE`, for a field of type `T`.
+    pub const fn max_size<T: IpcMessage>() -> cdr::MaxSize {
+        T::CDR_MAX_SIZE
+    }
+
+    /// What a key field of type `T` contributes to the key: its key if
+    /// `T` has key fields, else all of it.
+    pub const fn key_member_max_size<T: IpcMessage>() -> cdr::MaxSize {
+        if T::KEYS.is_empty() {
+            T::CDR_MAX_SIZE
+        } else {
+            T::CDR_KEY_MAX_SIZE
+        }
+    }
+
+    /// A bounded sequence field of `T` (`#[ipc(bound = N)] Vec<T>`): a
+    /// `DHEADER` unless `T` is primitive, the count, `bound` elements.
+    pub const fn bounded_seq_max_size<T: IpcMessage>(bound: usize) -> cdr::MaxSize {
+        cdr::MaxSize::bounded_sequence(T::CDR_MAX_SIZE, bound, !T::CDR_PRIMITIVE)
     }
 
     /// CDR sequence: (XCDR2 `DHEADER` for non-primitive elements), `u32` count, elements.

@@ -410,10 +410,11 @@ fn key_decode(fields: &[Field<'_>], ext: &TokenStream, mutable: bool) -> TokenSt
 }
 
 /// `cdr_encode_key_value`: what `cdr_encode_key` writes, from the key
-/// alone (its fields as `cdr_decode_key` returns them). A key member that
-/// `key_part` reads as a plain value (a counted `Vec`, an n-d array) is
-/// written from its `Key` only when it is a plain field; otherwise the
-/// type cannot say (`false`).
+/// alone (its fields as `cdr_decode_key` returns them): a plain field
+/// through its type's `cdr_encode_key_value`, a `Vec` without length
+/// field as its sequence, a `char` byte as itself. For a key with a
+/// counted `Vec`, its length field or an n-d array the type cannot say
+/// (`false`): the length written is the `Vec`'s, not the field's.
 fn key_value_encode(
     keys: &[(usize, &Field<'_>)],
     vars: &[syn::Ident],
@@ -422,7 +423,7 @@ fn key_value_encode(
     let plain = keys.iter().all(|(_, f)| {
         matches!(
             (&f.kind, f.count_for),
-            (Kind::Plain, None) | (Kind::SelfPtr, _)
+            (Kind::Plain | Kind::Char | Kind::Vec { len: None, .. }, None) | (Kind::SelfPtr, _)
         )
     });
     if !plain {
@@ -442,14 +443,18 @@ fn key_value_encode(
     let write = |k: usize| {
         let (f, v) = (keys[k].1, &vars[k]);
         let ty = f.ty;
-        member(
-            f,
-            quote! {
+        let value = match &f.kind {
+            Kind::Vec { elem, .. } => {
+                quote!(__wire::__private::cdr_encode_seq::<#elem>(&#v[..], __w);)
+            }
+            Kind::Char => quote!(__w.write_u8(*#v);),
+            _ => quote! {
                 if !<#ty as __wire::IpcMessage>::cdr_encode_key_value(#v, __w) {
                     return false;
                 }
             },
-        )
+        };
+        member(f, value)
     };
     let positions: Vec<usize> = (0..keys.len()).collect();
     let mut by_id = positions.clone();

@@ -71,7 +71,7 @@ pub(super) fn expand_enum(c: &Container<'_>, e: &Enum<'_>) -> TokenStream {
             const TYPE_NAME: &'static str = #type_name;
             const IPC_MIN_SIZE: usize = 4;
             const CDR_MIN_SIZE: usize = 4;
-            const CDR_BOUNDED: bool = true;
+            const CDR_MAX_SIZE: __wire::cdr::MaxSize = __wire::cdr::MaxSize::primitive(4);
             const CDR_PRIMITIVE: bool = true;
 
             fn ipc_encode(&self, __w: &mut __wire::ipc::Writer) {

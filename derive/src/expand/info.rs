@@ -1,8 +1,8 @@
 //! Type information besides the format: the DDS type name, the CDR
-//! extensibility, the smallest encoded sizes, whether the CDR form (and
-//! the key's) is bounded, and the key fields.
+//! extensibility, the smallest encoded sizes, the largest key-hash form of
+//! a value and of its key, and the key fields.
 
-use proc_macro2::TokenStream;
+use proc_macro2::{TokenStream, TokenTree};
 use quote::quote;
 use syn::ext::IdentExt;
 
@@ -47,63 +47,99 @@ pub(super) fn ext_tokens(e: Extensibility) -> TokenStream {
 }
 
 /// The terms of a struct's size constants, one per field (after a first
-/// neutral one): `IPC_MIN_SIZE` and `CDR_MIN_SIZE` add them up,
-/// `CDR_BOUNDED` and `CDR_KEY_BOUNDED` require them all.
+/// neutral one): `IPC_MIN_SIZE` and `CDR_MIN_SIZE` add them up;
+/// `CDR_MAX_SIZE` lays out every field, `CDR_KEY_MAX_SIZE` the key fields
+/// in member-id order (the order of the key-hash form), one
+/// `MaxSize::then` the next.
 pub(super) struct Sizes {
     pub(super) ipc_min: Vec<TokenStream>,
     pub(super) cdr_min: Vec<TokenStream>,
-    pub(super) bounded: Vec<TokenStream>,
-    pub(super) key_bounded: Vec<TokenStream>,
+    pub(super) max_size: TokenStream,
+    pub(super) key_max_size: TokenStream,
 }
 
-pub(super) fn sizes(fields: &[Field<'_>]) -> Sizes {
+/// Whether `tokens` name `Self` or the struct `ident` (`Vec<Self>`,
+/// `Vec<Box<Tree>>` in `struct Tree`).
+fn mentions(tokens: TokenStream, ident: &syn::Ident) -> bool {
+    tokens.into_iter().any(|t| match t {
+        TokenTree::Ident(i) => i == "Self" || i == *ident,
+        TokenTree::Group(g) => mentions(g.stream(), ident),
+        _ => false,
+    })
+}
+
+/// The `MaxSize` of field `f` written whole in the key-hash form, as
+/// `cdr_encode` writes it (a length field as its integer type), in struct
+/// `ident`.
+fn field_max_size(f: &Field<'_>, ident: &syn::Ident) -> TokenStream {
+    let ty = f.ty;
+    let max = quote!(__wire::cdr::MaxSize);
+    let bound = f.attrs.bound.map(|(n, _)| n as usize);
+    match (&f.kind, bound) {
+        // `bound` is on a `String` (the parser refuses it elsewhere)
+        (Kind::Plain, Some(n)) if f.count_for.is_none() => quote!(#max::bounded_string(#n)),
+        (Kind::Plain, _) => quote!(__wire::__private::max_size::<#ty>()),
+        (Kind::Char, _) => quote!(#max::primitive(1)),
+        // a sequence at its bound: DHEADER unless the elements are
+        // primitive, count, elements; one of the struct itself nests
+        // without end (and its constant would depend on itself)
+        (Kind::Vec { elem, .. }, Some(n)) if !mentions(quote!(#elem), ident) => {
+            quote!(__wire::__private::bounded_seq_max_size::<#elem>(#n))
+        }
+        // unbounded sequences and pointers (`Option<Box<Self>>` must not
+        // make the constant depend on itself either)
+        (Kind::Vec { .. } | Kind::NdVec { .. } | Kind::SelfPtr, _) => quote!(#max::UNBOUNDED),
+    }
+}
+
+/// What key field `f` contributes to the key-hash form, as `cdr_encode_key`
+/// writes it: a plain field whose type has key fields its key, any other
+/// field all of it.
+fn key_field_max_size(f: &Field<'_>, ident: &syn::Ident) -> TokenStream {
+    let ty = f.ty;
+    match (&f.kind, f.count_for, f.attrs.bound) {
+        (Kind::Plain, None, None) => quote!(__wire::__private::key_member_max_size::<#ty>()),
+        _ => field_max_size(f, ident),
+    }
+}
+
+/// `a.then(b).then(c)…` of `terms`, `MaxSize::EMPTY` for none.
+fn layout(terms: impl IntoIterator<Item = TokenStream>) -> TokenStream {
+    let mut out = quote!(__wire::cdr::MaxSize::EMPTY);
+    for t in terms {
+        out = quote!(#out.then(#t));
+    }
+    out
+}
+
+pub(super) fn sizes(fields: &[Field<'_>], ident: &syn::Ident) -> Sizes {
     let mut ipc_min = vec![quote!(0usize)];
     let mut cdr_min = vec![quote!(0usize)];
-    let mut bounded = vec![quote!(true)];
-    let mut key_bounded = vec![quote!(true)];
     for f in fields {
         let ty = f.ty;
-        let b = match &f.kind {
+        match &f.kind {
             Kind::Plain => {
                 ipc_min.push(quote!(<#ty as __wire::IpcMessage>::IPC_MIN_SIZE));
                 cdr_min.push(quote!(<#ty as __wire::IpcMessage>::CDR_MIN_SIZE));
-                quote!(<#ty as __wire::IpcMessage>::CDR_BOUNDED)
             }
-            Kind::Char => {
+            Kind::Char | Kind::SelfPtr => {
                 ipc_min.push(quote!(1usize));
                 cdr_min.push(quote!(1usize));
-                quote!(true)
-            }
-            Kind::SelfPtr => {
-                ipc_min.push(quote!(1usize));
-                cdr_min.push(quote!(1usize));
-                quote!(false)
             }
             Kind::Vec { .. } | Kind::NdVec { .. } => {
                 ipc_min.push(quote!(4usize));
                 cdr_min.push(quote!(4usize));
-                quote!(false)
             }
-        };
-        if f.attrs.key {
-            key_bounded.push(match (&f.kind, f.count_for) {
-                (Kind::Plain, None) => quote! {
-                    (if <#ty as __wire::IpcMessage>::KEYS.is_empty() {
-                        <#ty as __wire::IpcMessage>::CDR_BOUNDED
-                    } else {
-                        <#ty as __wire::IpcMessage>::CDR_KEY_BOUNDED
-                    })
-                },
-                _ => b.clone(),
-            });
         }
-        bounded.push(b);
     }
+    let mut keys: Vec<&Field<'_>> = fields.iter().filter(|f| f.attrs.key).collect();
+    // the key-hash form writes the key members in member-id order
+    keys.sort_by_key(|f| f.id);
     Sizes {
         ipc_min,
         cdr_min,
-        bounded,
-        key_bounded,
+        max_size: layout(fields.iter().map(|f| field_max_size(f, ident))),
+        key_max_size: layout(keys.into_iter().map(|f| key_field_max_size(f, ident))),
     }
 }
 

@@ -157,9 +157,9 @@ fn expand_struct(c: &Container<'_>, fields: &[Field<'_>]) -> TokenStream {
     let info::Sizes {
         ipc_min,
         cdr_min,
-        bounded,
-        key_bounded,
-    } = info::sizes(fields);
+        max_size,
+        key_max_size,
+    } = info::sizes(fields, ident);
     let keys = info::keys(fields);
     let lengths::Lengths {
         checks: checks_lengths,
@@ -199,8 +199,8 @@ fn expand_struct(c: &Container<'_>, fields: &[Field<'_>]) -> TokenStream {
             const EXTENSIBILITY: __wire::cdr::Extensibility = #ext;
             const IPC_MIN_SIZE: usize = #(#ipc_min)+*;
             const CDR_MIN_SIZE: usize = #(#cdr_min)+*;
-            const CDR_BOUNDED: bool = #(#bounded)&&*;
-            const CDR_KEY_BOUNDED: bool = #(#key_bounded)&&*;
+            const CDR_MAX_SIZE: __wire::cdr::MaxSize = #max_size;
+            const CDR_KEY_MAX_SIZE: __wire::cdr::MaxSize = #key_max_size;
             const KEYS: &'static [&'static str] = &[#(#keys),*];
             const CHECKS_LENGTHS: bool = #checks_lengths;
 

@@ -23,8 +23,10 @@
 //! ```
 
 mod codec;
+mod max_size;
 
 pub use codec::{MemberHeader, Reader, StructReader, StructWriter, Writer, MAX_DEPTH, TAIL_ROOM};
+pub use max_size::MaxSize;
 
 use crate::IpcMessage;
 
@@ -404,11 +406,13 @@ pub fn key_from_slice<T: IpcMessage>(bytes: &[u8]) -> Result<T::Key, DecodeError
 /// The DDS key hash of the instance whose key is `key` (what
 /// [`key_from_slice`] returns): the same as [`crate::key_hash`] of a value
 /// with that key. `None` for a type that cannot say (a key member that is a
-/// counted `Vec` or an n-d array).
+/// `Vec` with a length field, that length field, or an n-d array).
 pub fn key_hash_of_key<T: IpcMessage>(key: &T::Key) -> Option<[u8; 16]> {
     let mut w = Writer::key_hash_form();
-    T::cdr_encode_key_value(key, &mut w)
-        .then(|| crate::rtps::participant::KeyHash::from_key(w.as_bytes(), !T::CDR_KEY_BOUNDED).0)
+    T::cdr_encode_key_value(key, &mut w).then(|| {
+        let may_exceed_16 = !T::CDR_KEY_MAX_SIZE.fits_key_hash();
+        crate::rtps::participant::KeyHash::from_key(w.as_bytes(), may_exceed_16).0
+    })
 }
 
 /// The DDS key hash of a received payload of a keyed `T`: a sample
@@ -428,12 +432,15 @@ pub fn key_hash_of_payload<T: IpcMessage>(data: &[u8], key_only: bool) -> Option
 }
 
 /// The key behind a DDS key hash, when the hash holds the key itself: a
-/// type whose key serializes to at most 16 bytes ([`IpcMessage::CDR_KEY_BOUNDED`])
-/// has the key, in the key-hash form ([`Writer::key_hash_form`]), zero-padded
-/// as its hash. `None` for a longer key (its hash is an MD5 digest) or
-/// bytes that do not decode.
+/// type whose key can never take more than 16 bytes in the key-hash form
+/// ([`IpcMessage::CDR_KEY_MAX_SIZE`], [`MaxSize::fits_key_hash`]) has the
+/// key, in that form ([`Writer::key_hash_form`]), zero-padded as its hash;
+/// a bounded string (`string<11>` at most) comes back too, its bytes up to
+/// its NUL, then zeros. `None` for a type whose key can be longer (its
+/// hash is an MD5 digest, even of a short key), a type without key
+/// fields, or bytes that do not decode.
 pub fn key_from_key_hash<T: IpcMessage>(hash: &[u8; 16]) -> Option<T::Key> {
-    if T::KEYS.is_empty() || !T::CDR_KEY_BOUNDED {
+    if T::KEYS.is_empty() || !T::CDR_KEY_MAX_SIZE.fits_key_hash() {
         return None;
     }
     let mut r = Reader::key_hash_form(hash);

@@ -1,11 +1,16 @@
 //! Key hashes (DDSI-RTPS 2.5 §9.6.4.8) and the MD5 they need (RFC 1321).
 //!
 //! The key hash of an instance is computed from its key fields serialized
-//! as big-endian XCDR2 (`PLAIN_CDR2` BE, no encapsulation header): when the
-//! largest possible serialization of the key fits in 16 bytes, the hash is
-//! those bytes zero-padded to 16; otherwise it is their MD5 digest. Strings
-//! and sequences have no upper bound unless declared bounded, so any key
-//! holding one always takes the MD5 path, even when the actual value is short.
+//! as big-endian XCDR2 (`PLAIN_CDR2` BE, no encapsulation header, every
+//! struct final, key members in member-id order: DDS-XTypes 1.3 §7.6.8):
+//! when the *type's* largest possible key fits in 16 bytes, the hash is
+//! those bytes zero-padded to 16; otherwise it is their MD5 digest, even
+//! for a value whose key is short. The type decides
+//! ([`IpcMessage::CDR_KEY_MAX_SIZE`], a [`MaxSize`]), never the value: an
+//! unbounded string or sequence always takes the MD5 path, while a bounded
+//! string `string<N>` (`#[ipc(key, bound = N)] name: String`) counts as
+//! 4 + N + 1 bytes aligned to 4, so `string<11>` is padded and `string<12>`
+//! hashed.
 //!
 //! ```
 //! use courier_wire::rtps::participant::KeyHash;
@@ -18,9 +23,17 @@
 //! assert_ne!(k.0[4..], [0; 12]);
 //! ```
 //!
-//! Cyclone DDS 11 computes key hashes this way (XCDR2 BE); Fast DDS 2.9
-//! serializes the key as XCDR1 BE, which gives the same bytes unless a key
-//! holds an 8-byte member that XCDR1 would align to 8 instead of 4.
+//! Cyclone DDS 11's C library (idlc's `DDS_TOPIC_FIXED_KEY_XCDR2`) and Fast
+//! DDS's generated code decide the same way. Two peers do not: Cyclone DDS
+//! 0.10's runtime pads by the actual length of the key, and the Python
+//! `cyclonedds` 11 binding counts a bounded string as 4 + N bytes (no NUL);
+//! Courier follows the specification, Cyclone DDS 11's C library and Fast
+//! DDS. Fast DDS 2.9 serializes the key as XCDR1 BE, which gives the same
+//! bytes unless a key holds an 8-byte member that XCDR1 would align to 8
+//! instead of 4.
+//!
+//! [`IpcMessage::CDR_KEY_MAX_SIZE`]: crate::IpcMessage::CDR_KEY_MAX_SIZE
+//! [`MaxSize`]: crate::cdr::MaxSize
 
 /// A 16-byte instance key hash (`PID_KEY_HASH`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Default)]
@@ -31,30 +44,36 @@ impl KeyHash {
     /// fields ([`IpcMessage::cdr_encode_key`]) as big-endian XCDR2 with every
     /// struct written as final ([`Writer::key_hash_form`]), zero-padded to
     /// 16 bytes when the type's key can never serialize to more
-    /// ([`IpcMessage::CDR_KEY_BOUNDED`]), else their MD5 digest. This is the
-    /// `PID_KEY_HASH` Courier sends, and what Fast DDS computes for
-    /// `@final` types.
+    /// ([`IpcMessage::CDR_KEY_MAX_SIZE`]), else their MD5 digest. This is the
+    /// `PID_KEY_HASH` Courier sends, and what Cyclone DDS 11 and Fast DDS
+    /// compute for `@final` types.
     ///
     /// ```
     /// use courier_wire::rtps::participant::KeyHash;
     /// // an `int32` key: its 4 big-endian bytes, zero-padded
     /// assert_eq!(KeyHash::of(&7i32).0, [0, 0, 0, 7, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]);
+    /// // an unbounded string: MD5, however short
+    /// assert_ne!(KeyHash::of(&String::from("ab")).0[7..], [0; 9]);
     /// ```
     ///
     /// [`IpcMessage::cdr_encode_key`]: crate::IpcMessage::cdr_encode_key
-    /// [`IpcMessage::CDR_KEY_BOUNDED`]: crate::IpcMessage::CDR_KEY_BOUNDED
+    /// [`IpcMessage::CDR_KEY_MAX_SIZE`]: crate::IpcMessage::CDR_KEY_MAX_SIZE
     /// [`Writer::key_hash_form`]: crate::cdr::Writer::key_hash_form
     pub fn of<T: crate::IpcMessage>(value: &T) -> Self {
         let mut w = crate::cdr::Writer::key_hash_form();
         value.cdr_encode_key(&mut w);
-        KeyHash::from_key(w.as_bytes(), !T::CDR_KEY_BOUNDED)
+        KeyHash::from_key(w.as_bytes(), !T::CDR_KEY_MAX_SIZE.fits_key_hash())
     }
 
     /// The key hash of a key serialized as big-endian XCDR2 (without
     /// encapsulation header). `may_exceed_16` says whether the type's key
-    /// *can* serialize to more than 16 bytes (any unbounded string or
-    /// sequence in the key); a key that actually is longer than 16 bytes is
-    /// always hashed.
+    /// *can* serialize to more than 16 bytes (`!`[`MaxSize::fits_key_hash`]
+    /// of [`IpcMessage::CDR_KEY_MAX_SIZE`]: an unbounded string or sequence
+    /// in the key, or bounded ones too long); a key that actually is longer
+    /// than 16 bytes is always hashed.
+    ///
+    /// [`MaxSize::fits_key_hash`]: crate::cdr::MaxSize::fits_key_hash
+    /// [`IpcMessage::CDR_KEY_MAX_SIZE`]: crate::IpcMessage::CDR_KEY_MAX_SIZE
     pub fn from_key(key_be: &[u8], may_exceed_16: bool) -> Self {
         if may_exceed_16 || key_be.len() > 16 {
             KeyHash(md5(key_be))
@@ -163,6 +182,25 @@ mod tests {
             let d = md5(&vec![b'x'; n]);
             assert_ne!(d, [0; 16], "{n}");
         }
+    }
+
+    /// The type decides, not the value: a fixed 16-byte key is the key, a
+    /// 17-byte one an MD5, and an unbounded string an MD5 however short.
+    #[test]
+    fn the_type_decides_between_padding_and_md5() {
+        let k = [7u8; 16];
+        assert_eq!(KeyHash::of(&k).0, k);
+        assert_eq!(KeyHash::of(&[7u8; 17]).0, md5(&[7; 17]));
+        // md5(00 00 00 03 61 62 00), computed with Python's hashlib
+        assert_eq!(
+            hex(&KeyHash::of(&String::from("ab")).0),
+            "186594b7205d08ac2ff8e1ac47fb4b2a"
+        );
+        // a nested array of int16: 8 bytes, no DHEADER, padded
+        assert_eq!(
+            KeyHash::of(&[[1i16, 2], [3, 4]]).0,
+            [0, 1, 0, 2, 0, 3, 0, 4, 0, 0, 0, 0, 0, 0, 0, 0]
+        );
     }
 
     #[test]
