@@ -389,3 +389,55 @@ async fn a_module_refused_by_the_rules_is_told_both_causes() {
     assert_eq!(code, Some(0), "{err:#?}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A query made while central is stopped (`SIGSTOP`) says that central
+/// did not answer either, where one that a server leaves unanswered says
+/// only that no reply came: the session asks central who serves the
+/// message shortly before the end, and tells the two apart by its answer.
+#[tokio::test]
+async fn a_query_while_central_is_stopped_says_central_was_silent() {
+    let dir = scratch("silent");
+    let (allow, deny) = empty_rules(&dir);
+    let c = Central::start(&dir, &allow, &deny, &[], false);
+    let url = format!("ipc://127.0.0.1:{}", c.port);
+    let connect = |name: &'static str| {
+        courier::Session::builder(url.clone())
+            .name(name)
+            .connect_timeout(T)
+            .connect()
+    };
+    let server = connect("mute-server").await.unwrap();
+    let client = connect("client").await.unwrap();
+    // served, never answered
+    let reqs = server.serve::<i32, i32>("q", "").await.unwrap();
+    let ms = Duration::from_millis;
+    let e = client
+        .query::<i32, i32>("q", &1)
+        .timeout(ms(500))
+        .await
+        .unwrap_err();
+    assert!(matches!(e, courier::QueryError::Timeout { .. }), "{e}");
+    c.signal(libc::SIGSTOP);
+    let e = client
+        .query::<i32, i32>("q", &2)
+        .timeout(ms(500))
+        .await
+        .unwrap_err();
+    c.signal(libc::SIGCONT);
+    assert!(
+        matches!(e, courier::QueryError::CentralSilent { asked, .. } if asked == ms(50)),
+        "{e}"
+    );
+    assert!(
+        e.to_string()
+            .contains("central did not answer either (asked who serves it 50ms before the end)"),
+        "{e}"
+    );
+    drop(reqs);
+    client.close().await;
+    server.close().await;
+    c.signal(libc::SIGTERM);
+    let (code, _, err) = c.wait_exit();
+    assert_eq!(code, Some(0), "{err:#?}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -325,7 +325,8 @@ pub enum PublishError {
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[non_exhaustive]
 pub enum QueryError {
-    /// No reply within the timeout.
+    /// No reply within the timeout (IPC: central was answering; see
+    /// [`QueryError::CentralSilent`]).
     #[error("no reply to {msg} within {timeout:?}")]
     Timeout {
         /// Query message.
@@ -359,6 +360,23 @@ pub enum QueryError {
         timeout: Duration,
         /// Replies that matched nothing.
         replies: u64,
+    },
+    /// IPC: no reply within the timeout, and central did not answer a
+    /// question of the session's own either: asked who serves the message
+    /// `asked` before the end (a tenth of the timeout, at most 1 s), it
+    /// said nothing. Central is stopped, overloaded or cut off, not (only)
+    /// the server slow; [`QueryError::Timeout`] says central answered.
+    #[error(
+        "no reply to {msg} within {timeout:?}, and central did not answer either \
+         (asked who serves it {asked:?} before the end): central is stopped, overloaded or cut off"
+    )]
+    CentralSilent {
+        /// Query message.
+        msg: String,
+        /// The timeout.
+        timeout: Duration,
+        /// How long before the end central was asked.
+        asked: Duration,
     },
     /// XRCE: no reply within the timeout, and the agent was not answering
     /// when it ended ([`SessionEvent::AgentLost`](crate::SessionEvent::AgentLost)).

@@ -496,17 +496,19 @@ impl Backend for IpcBackend {
         // so rather than "no reply", ask central who serves it shortly
         // before the deadline (one more question, on this path only; asked
         // after it, a slow central made the query overshoot its timeout)
-        let ask_at = deadline - (timeout / 10).min(Duration::from_secs(1));
+        let asked = (timeout / 10).min(Duration::from_secs(1));
+        let ask_at = deadline - asked;
         if let Ok(r) = tokio::time::timeout_at(ask_at, &mut rx).await {
             undo.done();
             return answered(r);
         }
+        // `None`: central said nothing until the deadline
         let handlers = tokio::select! {
             r = &mut rx => {
                 undo.done();
                 return answered(r);
             }
-            n = IpcControl::num_handlers(self, &msg) => n.ok(),
+            n = IpcControl::num_handlers(self, &msg) => Some(n.ok()),
             () = tokio::time::sleep_until(deadline) => None,
         };
         if let Ok(r) = tokio::time::timeout_at(deadline, &mut rx).await {
@@ -515,15 +517,15 @@ impl Backend for IpcBackend {
         }
         // given up: central and the module forget it
         drop(undo);
-        if handlers == Some(0) {
-            return Err(QueryError::NoResponder {
-                msg: msg.to_string(),
+        let msg = msg.to_string();
+        Err(match handlers {
+            Some(Some(0)) => QueryError::NoResponder { msg, timeout },
+            None if !asked.is_zero() => QueryError::CentralSilent {
+                msg,
                 timeout,
-            });
-        }
-        Err(QueryError::Timeout {
-            msg: msg.to_string(),
-            timeout,
+                asked,
+            },
+            _ => QueryError::Timeout { msg, timeout },
         })
     }
 

@@ -58,6 +58,12 @@ fn failed(o: &CallArgs, e: QueryError, timeout: Duration) -> crate::Error {
         QueryError::Timeout { .. } => {
             format!("no reply to {:?} within {timeout:?} (--timeout)", o.query).into()
         }
+        QueryError::CentralSilent { asked, .. } => format!(
+            "no reply to {:?} within {timeout:?} (--timeout), and central did not answer \
+             either (asked who serves it {asked:?} before the end): is it stopped or overloaded?",
+            o.query
+        )
+        .into(),
         QueryError::NoResponder { .. } => format!(
             "nobody serves {:?} (waited {timeout:?} for a server{})",
             o.query,
