@@ -707,6 +707,38 @@ async fn a_dropped_session_without_linger_still_deletes_itself() {
     assert!(gone.is_ok(), "the agent kept the session");
 }
 
+/// On a link that loses every third datagram to the agent, closed
+/// sessions and connects given up halfway leave no session behind at the
+/// agent: the DELETE is sent again until the agent answers (one DELETE, as
+/// before, left about every other session there).
+#[tokio::test]
+async fn closes_and_abandoned_connects_on_a_lossy_link_leave_no_session() {
+    let agent = xrce_agent::udp_dropping(0, Some(3)).await;
+    let url = format!("xrce+udp://{}?linger_ms=0", agent.addr);
+    for i in 0..8 {
+        let a = session(url.clone(), &format!("closing-{i}")).await;
+        tokio::time::timeout(T, a.close()).await.unwrap();
+    }
+    for i in 0..8 {
+        // given up once CREATE_CLIENT is out, before the STATUS is read
+        let connect = Session::builder(url.clone())
+            .name(format!("abandoned-{i}"))
+            .connect();
+        let _ = tokio::time::timeout(Duration::from_millis(1 + i % 3), connect).await;
+    }
+    let gone = tokio::time::timeout(T, async {
+        while agent.sessions() != 0 {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    })
+    .await;
+    assert!(
+        gone.is_ok(),
+        "the agent kept {} session(s) of clients that are gone",
+        agent.sessions()
+    );
+}
+
 /// A close while a reliable subscription is full (the session stopped
 /// reading the link) still reads the agent's acknowledgements: what the
 /// session wrote is acknowledged, not given up after the linger.

@@ -227,7 +227,11 @@ impl XrceBackend {
         };
         cfg.create_attempts = opts.connect_attempts;
         cfg.create_interval = opts.connect_interval;
-        cfg.delete_attempts = 1;
+        // a close (or a cancelled connect) waits for the DELETE's STATUS,
+        // so briefly: one DELETE, lost on a lossy link, left the session
+        // on the agent until it evicted it
+        cfg.delete_attempts = driver::DELETE_ATTEMPTS;
+        cfg.delete_interval = driver::DELETE_INTERVAL;
         cfg.keepalive = Some(Keepalive {
             interval: opts.keepalive,
             timeout: opts.lost_after,

@@ -266,8 +266,10 @@ impl Client {
         self.send_create_client();
     }
 
-    /// Deletes the session (DELETE of the client object, repeated as
-    /// CREATE_CLIENT is); [`Event::SessionDeleted`] follows. Also while
+    /// Deletes the session (DELETE of the client object, repeated
+    /// [`ClientConfig::delete_attempts`] times,
+    /// [`ClientConfig::delete_interval`] apart, until the agent's STATUS);
+    /// [`Event::SessionDeleted`] follows. Also while
     /// connecting: the agent may have created the session already, and
     /// would keep it for a client that is gone.
     pub fn disconnect(&mut self, now: Instant) -> Result<(), CommandError> {
@@ -277,7 +279,7 @@ impl Client {
         }
         self.state = State::Deleting {
             attempt: 1,
-            next: crate::time::later(now, self.cfg.create_interval),
+            next: crate::time::later(now, self.cfg.delete_interval),
         };
         self.send_delete_session();
         Ok(())
@@ -641,7 +643,7 @@ impl Client {
                 if attempt < self.cfg.delete_attempts {
                     self.state = State::Deleting {
                         attempt: attempt + 1,
-                        next: crate::time::later(now, self.cfg.create_interval),
+                        next: crate::time::later(now, self.cfg.delete_interval),
                     };
                     self.send_delete_session();
                 } else {

@@ -36,8 +36,10 @@ pub struct ClientConfig {
     pub create_attempts: u32,
     /// Time between them (1 s).
     pub create_interval: Duration,
-    /// Attempts at DELETE of the session (10, 1 s apart).
+    /// Attempts at DELETE of the session (10 in the eProsima library).
     pub delete_attempts: u32,
+    /// Time between them (1 s, as between CREATE_CLIENTs).
+    pub delete_interval: Duration,
     /// Silence detection; `None` sends no pings of its own.
     pub keepalive: Option<Keepalive>,
     /// The stream CREATE and DELETE go on (the built-in reliable 0x80).
@@ -60,6 +62,7 @@ impl ClientConfig {
             create_attempts: 10,
             create_interval: Duration::from_secs(1),
             delete_attempts: 10,
+            delete_interval: Duration::from_secs(1),
             keepalive: Some(Keepalive {
                 interval: Duration::from_secs(1),
                 timeout: Duration::from_secs(3),
