@@ -186,6 +186,14 @@ async fn key_as_readers(s: &Session, o: &PubArgs, pb: &mut Publication) -> Resul
     Ok(())
 }
 
+/// A topic-kind incompatibility with a reader of the kind `pb` has now:
+/// it concerned the writer that `pb` replaced to match that reader (see
+/// [`key_as_readers`]), not the user's (its event can come after the
+/// replacement, even once samples go out).
+fn replaced_kind(pb: &Publication, remote: &courier::Guid, reason: &Incompatible) -> bool {
+    matches!(reason, Incompatible::TopicKind { .. }) && remote.is_keyed() == pb.ty.keyed
+}
+
 async fn publish_on(
     s: &Session,
     o: &PubArgs,
@@ -237,10 +245,7 @@ async fn publish_on(
                     }
                     SessionEvent::IncompatibleQos { msg, remote, reason } if msg == o.topic => {
                         key_as_readers(s, o, pb).await?;
-                        // a reader of the other kind is matched by opening the
-                        // publication again, not by the user
-                        let kind = matches!(reason, Incompatible::TopicKind { .. });
-                        if !(kind && remote.is_keyed() == pb.ty.keyed) {
+                        if !replaced_kind(pb, &remote, &reason) {
                             out(incompatible_line(remote, &reason))
                         }
                     }
@@ -303,7 +308,9 @@ async fn publish_on(
                 SessionEvent::HandlersChanged { msg, count } if msg == o.topic => {
                     matched.set(count.unsigned_abs() as usize)
                 }
-                SessionEvent::IncompatibleQos { msg, remote, reason } if msg == o.topic => {
+                SessionEvent::IncompatibleQos { msg, remote, reason } if msg == o.topic
+                    && !replaced_kind(pb, &remote, &reason) =>
+                {
                     out(incompatible_line(remote, &reason))
                 }
                 SessionEvent::TypeMismatch { topic, remote, local_type, remote_type } if topic == o.topic => {
