@@ -949,3 +949,100 @@ fn nd_var_array_cdr_shape_errors() {
     assert_ne!(cdr::to_vec(&wrong, Encoding::Xcdr2Le), b);
     assert_eq!(cdr::from_slice::<CdrGridM>(&b).unwrap(), m);
 }
+
+/// IDL `enum Color { RED, GREEN, BLUE }`, derived: an int32 on the wire,
+/// but not a CDR primitive.
+#[derive(IpcMessage, Debug, Clone, Copy, PartialEq)]
+#[ipc(type_name = "Color")]
+enum Color {
+    Red,
+    Green,
+    Blue,
+}
+
+/// `struct S { sequence<Color> a; Color b[2]; int32 c; }`
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "S")]
+struct EnumCollections {
+    a: Vec<Color>,
+    b: [Color; 2],
+    c: i32,
+}
+
+/// The same members, `@mutable`.
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "SM", extensibility = "mutable")]
+struct EnumCollectionsM {
+    a: Vec<Color>,
+    b: [Color; 2],
+    c: i32,
+}
+
+/// XCDR2 writes a `DHEADER` before a sequence or an array of enums:
+/// Cyclone DDS counts only integers, booleans and (w)chars as primitive
+/// (`is_primitive_type` in `dds_cdrstream.c`; `is_dheader_needed` is
+/// `!is_primitive_type(type) && xcdrv == 2`). XCDR1 has no `DHEADER`.
+/// The bytes are Cyclone DDS 11's (PyPI cyclonedds 11.0.1, `Color(IdlEnum)`,
+/// `S(IdlStruct)` with `a: sequence[Color]`, `b: array[Color, 2]`, `c:
+/// int32`, value `S([GREEN, BLUE], [BLUE, RED], 7)`: `serialize()` with
+/// `use_version_2` True and False, both endiannesses; `@mutable SM` the
+/// same members). Courier wrote no `DHEADER` there (a derived enum was a
+/// CDR primitive), so Cyclone and Courier misread each other's samples.
+#[test]
+fn enum_sequences_and_arrays_golden_as_cyclone() {
+    let v = EnumCollections {
+        a: vec![Color::Green, Color::Blue],
+        b: [Color::Blue, Color::Red],
+        c: 7,
+    };
+    #[rustfmt::skip]
+    let golden = [
+        // XCDR2: DHEADER 12, count 2, GREEN, BLUE; DHEADER 8, BLUE, RED; c
+        (Encoding::Xcdr2Le, "00070000 0c000000 02000000 01000000 02000000 08000000 02000000 00000000 07000000"),
+        (Encoding::Xcdr2Be, "00060000 0000000c 00000002 00000001 00000002 00000008 00000002 00000000 00000007"),
+        // XCDR1: no DHEADER
+        (Encoding::Xcdr1Le, "00010000 02000000 01000000 02000000 02000000 00000000 07000000"),
+        (Encoding::Xcdr1Be, "00000000 00000002 00000001 00000002 00000002 00000000 00000007"),
+    ];
+    for (enc, hex) in golden {
+        let want = unhex(&hex.replace(' ', ""));
+        assert_eq!(cdr::to_vec(&v, enc), want, "{enc:?}");
+        assert_eq!(
+            cdr::from_slice::<EnumCollections>(&want).unwrap(),
+            v,
+            "{enc:?}"
+        );
+    }
+    // an empty sequence still has its DHEADER (4: the count)
+    let e = EnumCollections {
+        a: vec![],
+        b: [Color::Red; 2],
+        c: -1,
+    };
+    let want = unhex("000700000400000000000000080000000000000000000000ffffffff");
+    assert_eq!(cdr::to_vec(&e, Encoding::Xcdr2Le), want);
+    assert_eq!(cdr::from_slice::<EnumCollections>(&want).unwrap(), e);
+    // mutable: the sequence and the array are EMHEADER LC 5 (the DHEADER
+    // is the member's length), the int32 LC 2
+    let m = EnumCollectionsM {
+        a: v.a.clone(),
+        b: v.b,
+        c: v.c,
+    };
+    let want = unhex(
+        "000b00002c000000000000500c00000002000000010000000200000001000050\
+         0800000002000000000000000200002007000000",
+    );
+    assert_eq!(cdr::to_vec(&m, Encoding::Xcdr2Le), want);
+    assert_eq!(cdr::from_slice::<EnumCollectionsM>(&want).unwrap(), m);
+    for enc in ENCODINGS {
+        assert_eq!(
+            cdr::from_slice::<EnumCollections>(&cdr::to_vec(&v, enc)).unwrap(),
+            v
+        );
+        assert_eq!(
+            cdr::from_slice::<EnumCollectionsM>(&cdr::to_vec(&m, enc)).unwrap(),
+            m
+        );
+    }
+}

@@ -2,7 +2,9 @@
 //! hash is its key zero-padded or the key's MD5 (DDSI-RTPS 2.5 §9.6.4.8)
 //! is decided by the type's largest possible key-hash form, as idlc decides
 //! `DDS_TOPIC_FIXED_KEY_XCDR2` (bounded strings as 4 + N + 1 bytes, every
-//! member aligned to at most 4, key members in member-id order).
+//! member aligned to at most 4, key members in member-id order, and so the
+//! members of a key member whose struct type has no key fields; a
+//! `DHEADER` before an array of enums).
 //!
 //! The test writes the IDL of [`IDL`] into a fresh temporary directory,
 //! runs `idlc -x final` (Debian package `cyclonedds-tools`; a missing
@@ -64,6 +66,21 @@ module KeyOracle {
   struct Ord { @key @id(1) string<9> s; @key @id(0) short h; @id(2) long v; };
   // member-id order: s (14) + h (2) = 16; definition order 18
   struct OrdFits { @key @id(1) short h; @key @id(0) string<9> s; @id(2) long v; };
+  // an array of enums has a DHEADER (enums are not primitive): 4 + 12 = 16
+  struct EnumArr3 { @key Color a[3]; };
+  struct EnumArr4 { @key Color a[4]; };                  // 4 + 16 = 20
+  // a key member whose struct type has no keys: all its members are keys,
+  // in member-id order: s (14) + h (2) = 16; definition order 18
+  @final struct OrdInF { @id(1) short h; @id(0) string<9> s; };
+  struct NestOrdF { @key OrdInF i; long v; };
+  // the same, mutable and appendable: no EMHEADER or DHEADER in the key hash
+  @mutable struct OrdInM { @id(1) short h; @id(0) string<9> s; };
+  struct NestOrdM { @key OrdInM i; long v; };
+  @appendable struct OrdInA { @id(1) short h; @id(0) string<9> s; };
+  struct NestOrdA { @key OrdInA i; long v; };
+  // ids in definition order: h (2), aligned 4, + s (14) = 18
+  @mutable struct InOrdM { @id(0) short h; @id(1) string<9> s; };
+  struct NestInOrdM { @key InOrdM i; long v; };
 };
 "#;
 
@@ -320,6 +337,51 @@ struct OrdFits {
     s: String,
     #[ipc(id = 2)]
     v: i32,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "KeyOracle::EnumArr3")]
+struct EnumArr3 {
+    #[ipc(key)]
+    a: [Color; 3],
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "KeyOracle::EnumArr4")]
+struct EnumArr4 {
+    #[ipc(key)]
+    a: [Color; 4],
+}
+
+/// A struct without key fields whose member ids are out of definition
+/// order, and a keyed struct with it as its key member.
+macro_rules! nested_ord {
+    ($($inner:ident = $inner_name:literal, $ext:literal, $hid:literal, $sid:literal;
+        $outer:ident = $outer_name:literal;)*) => {$(
+        #[derive(IpcMessage, Debug, Clone, PartialEq)]
+        #[ipc(type_name = $inner_name, extensibility = $ext)]
+        struct $inner {
+            #[ipc(id = $hid)]
+            h: i16,
+            #[ipc(id = $sid, bound = 9)]
+            s: String,
+        }
+
+        #[derive(IpcMessage, Debug, Clone, PartialEq)]
+        #[ipc(type_name = $outer_name)]
+        struct $outer {
+            #[ipc(key)]
+            i: $inner,
+            v: i32,
+        }
+    )*};
+}
+
+nested_ord! {
+    OrdInF = "KeyOracle::OrdInF", "final", 1, 0; NestOrdF = "KeyOracle::NestOrdF";
+    OrdInM = "KeyOracle::OrdInM", "mutable", 1, 0; NestOrdM = "KeyOracle::NestOrdM";
+    OrdInA = "KeyOracle::OrdInA", "appendable", 1, 0; NestOrdA = "KeyOracle::NestOrdA";
+    InOrdM = "KeyOracle::InOrdM", "mutable", 0, 1; NestInOrdM = "KeyOracle::NestInOrdM";
 }
 
 /// `n` bytes of text: a string at its bound.
@@ -601,7 +663,39 @@ fn cases() -> Vec<Case> {
                 v: 2,
             },
         ),
+        case(
+            EnumArr3 {
+                a: [Color::Blue, Color::Green, Color::Red],
+            },
+            EnumArr3 { a: [Color::Red; 3] },
+        ),
+        case(
+            EnumArr4 {
+                a: [Color::Blue; 4],
+            },
+            EnumArr4 { a: [Color::Red; 4] },
+        ),
     ]);
+    macro_rules! nested {
+        ($($outer:ident($inner:ident)),*) => {
+            v.extend([$(case(
+                $outer {
+                    i: $inner { h: -2, s: text(9) },
+                    v: 1,
+                },
+                $outer {
+                    i: $inner { h: 3, s: String::new() },
+                    v: 1,
+                },
+            )),*])
+        };
+    }
+    nested!(
+        NestOrdF(OrdInF),
+        NestOrdM(OrdInM),
+        NestOrdA(OrdInA),
+        NestInOrdM(InOrdM)
+    );
     v
 }
 
@@ -704,7 +798,7 @@ fn fixed_keys_agree_with_idlc() {
         }
         checked += 1;
     }
-    assert!(checked >= 30, "only {checked} types checked");
+    assert!(checked >= 41, "only {checked} types checked");
     assert!(
         failures.is_empty(),
         "{} disagreements with idlc -x final:\n{}",

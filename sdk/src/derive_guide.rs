@@ -183,14 +183,18 @@
 //! - **Key hashes.** The key hash of an instance ([`key_hash`](crate::key_hash),
 //!   the `PID_KEY_HASH` of DDSI-RTPS 2.5 §9.6.4.8) is its key in the
 //!   key-hash form (big-endian XCDR2, every struct final, key members in
-//!   member-id order), zero-padded to 16 bytes when the *type's* largest
-//!   key fits in 16 bytes, else the MD5 digest of it, however short the
-//!   actual key. The derive works the largest key out at compile time
+//!   member-id order; so are the members of a key member whose struct type
+//!   has no key fields, all of them keys, as Cyclone DDS orders them),
+//!   zero-padded to 16 bytes when the *type's* largest key fits in 16
+//!   bytes, else the MD5 digest of it, however short the actual key. The
+//!   derive works the largest key out at compile time
 //!   (`IpcMessage::CDR_KEY_MAX_SIZE`, a `cdr::MaxSize`): an unbounded
 //!   `String` or `Vec` has no largest, a `#[ipc(bound = N)]` `String`
 //!   (IDL `string<N>`) counts as 4 + N + 1 bytes aligned to 4, a bounded
-//!   `Vec` at its bound, every member aligned to its size but at most 4.
-//!   So `#[ipc(key, bound = 11)] name: String` alone is padded and
+//!   `Vec` at its bound, every member aligned to its size but at most 4,
+//!   and a sequence or an array of enums, as of structs or strings, has a
+//!   `DHEADER` (Cyclone DDS counts only integers, floats, booleans and
+//!   chars as primitive elements). So `#[ipc(key, bound = 11)] name: String` alone is padded and
 //!   `bound = 12` hashed, as idlc and Cyclone DDS 11's C library decide
 //!   (`DDS_TOPIC_FIXED_KEY_XCDR2`) and Fast DDS's generated code does.
 //!   Cyclone DDS 0.10's runtime pads by the actual length instead, and

@@ -383,7 +383,7 @@ struct SeqOfStructs {
 
 #[derive(IpcMessage, Debug, Clone, PartialEq)]
 struct SeqOfEnums {
-    #[ipc(key, bound = 3)]
+    #[ipc(key, bound = 2)]
     v: Vec<Tri>,
 }
 
@@ -532,8 +532,8 @@ fn key_max_sizes_are_the_exact_worst_case() {
         .collect();
     // DHEADER, count, 2 × 2
     measure(&v, Some(12));
-    let v: Vec<SeqOfEnums> = (0..=3).map(|n| SeqOfEnums { v: vec![Tri::C; n] }).collect();
-    // Courier writes a derived enum as a primitive (no DHEADER): count, 3 × 4
+    let v: Vec<SeqOfEnums> = (0..=2).map(|n| SeqOfEnums { v: vec![Tri::C; n] }).collect();
+    // an enum is no primitive element (Cyclone DDS): DHEADER, count, 2 × 4
     measure(&v, Some(16));
     let v: Vec<SeqOfArrays> = (0..=2)
         .map(|n| SeqOfArrays {
@@ -630,4 +630,138 @@ fn recursive_types_with_bounded_vecs() {
     assert_eq!(KeyedPing::CDR_KEY_MAX_SIZE.max_len(), Some(1));
     assert_eq!(key_hash(&p), padded(&[7]));
     check(&p);
+}
+
+// A key member whose struct type has no key fields of its own: all its
+// members are keys (implicit keys), and the key-hash form holds them in
+// member-id order, scoped to their struct, as Cyclone DDS orders them
+// (idlc sorts the key descriptors by their member-id path; the key-hash
+// writer, `DDS_CDR_KEY_SERIALIZATION_KEYHASH`, follows that list). The
+// expected bytes are built by hand and the MD5 digests computed with
+// Python's hashlib, e.g. for `HoldsNote`:
+// `hashlib.md5(bytes([7,0,0,0]) + struct.pack(">I", 3) + b"hi\0" + b"\0" + struct.pack(">H", 9))`.
+
+/// `@mutable struct IdPair { @id(2) long a; @id(1) short b; }`
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(extensibility = "mutable")]
+struct IdPair {
+    #[ipc(id = 2)]
+    a: i32,
+    #[ipc(id = 1)]
+    b: i16,
+}
+
+/// `struct HoldsPair { @key IdPair p; long v; }`
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct HoldsPair {
+    #[ipc(key)]
+    p: IdPair,
+    v: i32,
+}
+
+/// `@appendable struct IdNote { @id(3) string note; @id(1) octet n; }`
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(extensibility = "appendable")]
+struct IdNote {
+    #[ipc(id = 3)]
+    note: String,
+    #[ipc(id = 1)]
+    n: u8,
+}
+
+/// `struct HoldsNote { @key IdNote k; @key unsigned short id; }`
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct HoldsNote {
+    #[ipc(key)]
+    k: IdNote,
+    #[ipc(key)]
+    id: u16,
+}
+
+/// `@mutable struct Deep { @id(5) IdPair pair; @id(4) string note; }`:
+/// a struct without keys inside one.
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(extensibility = "mutable")]
+struct Deep {
+    #[ipc(id = 5)]
+    pair: IdPair,
+    #[ipc(id = 4)]
+    note: String,
+}
+
+/// `struct HoldsDeep { @key Deep d; }`
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct HoldsDeep {
+    #[ipc(key)]
+    d: Deep,
+}
+
+#[test]
+fn members_of_a_keyless_key_member_go_in_member_id_order() {
+    // b (id 1), padded to 4, then a (id 2): 8 bytes, the hash is the key
+    // (definition order gave 01 02 03 04 05 06)
+    let v = HoldsPair {
+        p: IdPair {
+            a: 0x0102_0304,
+            b: 0x0506,
+        },
+        v: 9,
+    };
+    assert_eq!(hex(&key_hash(&v)), "05060000010203040000000000000000");
+    assert_eq!(HoldsPair::CDR_KEY_MAX_SIZE.max_len(), Some(8));
+    assert_eq!(
+        cdr::key_from_key_hash::<HoldsPair>(&key_hash(&v)),
+        Some(v.p.clone())
+    );
+    assert_eq!(cdr::key_hash_of_key::<HoldsPair>(&v.p), Some(key_hash(&v)));
+    check(&v);
+
+    // k (id 0): n (id 1) 07, padded, then note (id 3) "hi"; then id (id
+    // 1): 07000000 00000003 686900 00 0009, an unbounded string: MD5
+    // (definition order, 00000003 686900 07 0009, gave d9d03ba5…)
+    let v = HoldsNote {
+        k: IdNote {
+            note: "hi".into(),
+            n: 7,
+        },
+        id: 9,
+    };
+    assert_eq!(HoldsNote::CDR_KEY_MAX_SIZE.max_len(), None);
+    assert_eq!(hex(&key_hash(&v)), "d4a0774d351f411a3668568023d0406d");
+    assert_eq!(
+        cdr::key_hash_of_key::<HoldsNote>(&(v.k.clone(), v.id)),
+        Some(key_hash(&v))
+    );
+    check(&v);
+
+    // note (id 4) "x", then pair (id 5) in its own member-id order, b then
+    // a: 00000002 7800 fffe 7fffffff
+    let v = HoldsDeep {
+        d: Deep {
+            pair: IdPair { a: i32::MAX, b: -2 },
+            note: "x".into(),
+        },
+    };
+    assert_eq!(hex(&key_hash(&v)), "7dc5933f95e26817e093098fc67a3c47");
+    check(&v);
+}
+
+/// `struct TriArr { @key Tri a[3]; }`
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct TriArr {
+    #[ipc(key)]
+    a: [Tri; 3],
+}
+
+#[test]
+fn an_array_of_enums_has_a_dheader_in_the_key_hash() {
+    // DHEADER 12, then C, B, A: 16 bytes, the hash is the key (Cyclone's
+    // idlc gives `@key Color a[3]` DDS_TOPIC_FIXED_KEY_XCDR2, `a[4]` not)
+    let v = TriArr {
+        a: [Tri::C, Tri::B, Tri::A],
+    };
+    assert_eq!(hex(&key_hash(&v)), "0000000c000000020000000100000000");
+    assert_eq!(TriArr::CDR_KEY_MAX_SIZE.max_len(), Some(16));
+    assert_eq!(cdr::key_from_key_hash::<TriArr>(&key_hash(&v)), Some(v.a));
+    check(&v);
 }

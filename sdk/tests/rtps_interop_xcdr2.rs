@@ -355,6 +355,213 @@ async fn mutable_xcdr2_courier_to_cyclone11() {
 }
 
 // ---------------------------------------------------------------------------
+// Sequences and arrays of enums (XCDR2 DHEADER) with Cyclone DDS 11
+
+/// `enum courier::test::Color { RED, GREEN, BLUE }`
+#[derive(IpcMessage, Debug, Clone, Copy, PartialEq)]
+#[ipc(type_name = "courier::test::Color")]
+enum Color {
+    Red,
+    Green,
+    Blue,
+}
+
+impl Color {
+    fn of(n: u32) -> Color {
+        [Color::Red, Color::Green, Color::Blue][(n % 3) as usize]
+    }
+
+    /// The enumerator's IDL name, as the peer prints it.
+    fn name(self) -> &'static str {
+        match self {
+            Color::Red => "RED",
+            Color::Green => "GREEN",
+            Color::Blue => "BLUE",
+        }
+    }
+}
+
+/// `@final struct courier::test::Colors { @key int32 id; uint32 seq;
+/// sequence<Color> colors; Color pair[2]; string text; }`: XCDR2 puts a
+/// `DHEADER` before `colors` and before `pair` (an enum is no CDR
+/// primitive), and `text` comes after them.
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "courier::test::Colors")]
+struct Colors {
+    #[ipc(key)]
+    id: i32,
+    seq: u32,
+    colors: Vec<Color>,
+    pair: [Color; 2],
+    text: String,
+}
+
+impl Colors {
+    /// Sample `seq` as `cyclone11_peer.py --type colors` makes it: `seq %
+    /// 4` colors (0 to 3, so one is empty) and a pair, both from `seq`.
+    fn make(id: i32, seq: u32, text: &str) -> Colors {
+        Colors {
+            id,
+            seq,
+            colors: (0..seq % 4).map(|i| Color::of(seq + i)).collect(),
+            pair: [Color::of(seq), Color::of(2 * seq + 1)],
+            text: text.into(),
+        }
+    }
+}
+
+/// The peer's colors or pair: enumerator names joined by commas, `""`
+/// for none.
+fn color_names(v: &[Color]) -> String {
+    if v.is_empty() {
+        return "\"\"".into();
+    }
+    v.iter().map(|c| c.name()).collect::<Vec<_>>().join(",")
+}
+
+/// Samples of `Colors` for seq 1 to 4: one with an empty sequence, and
+/// sequences of one to three enums.
+const COLORS_COUNT: u32 = 4;
+
+/// Courier writes `Colors` in XCDR2; Cyclone 11's reader (XCDR2 only)
+/// takes every sample and prints each member, checked one by one. Courier
+/// wrote no DHEADER before the sequence and the array of enums, and the
+/// reader took no sample.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn enum_sequence_and_array_xcdr2_courier_to_cyclone11() {
+    let domain = 21;
+    let s = session(domain).await;
+    let p = s
+        .publisher::<Colors>("colors")
+        .data_representation(courier::DataRepresentation::Xcdr2)
+        .build()
+        .await
+        .unwrap();
+    let d = domain_arg(domain);
+    let n = COLORS_COUNT.to_string();
+    let mut peer = Peer::start(
+        Vendor::Cyclone11,
+        &[
+            "--domain",
+            &d,
+            "--topic",
+            "colors",
+            "--type",
+            "colors",
+            "--sub",
+            "--reliable",
+            "--representation",
+            "xcdr2",
+            "--count",
+            &n,
+            "--timeout-s",
+            "20",
+        ],
+    );
+    common::await_handlers(&s, "colors", 1).await;
+    let mut peer = blocking(move || {
+        peer.expect("matched 1");
+        peer
+    })
+    .await;
+    let sent: Vec<Colors> = (1..=COLORS_COUNT)
+        .map(|seq| Colors::make(9, seq, &format!("c-{seq}")))
+        .collect();
+    for v in &sent {
+        p.publish(v).await.unwrap();
+    }
+    let got = blocking(move || {
+        (0..COLORS_COUNT)
+            .map(|_| peer.expect("sample "))
+            .collect::<Vec<_>>()
+    })
+    .await;
+    for (line, v) in got.iter().zip(&sent) {
+        let f: Vec<&str> = line.split(' ').collect();
+        assert_eq!(
+            f.len(),
+            6,
+            "{line}: sample <id> <seq> <text> <colors> <pair>"
+        );
+        assert_eq!(f[1], v.id.to_string(), "id: {line}");
+        assert_eq!(f[2], v.seq.to_string(), "seq: {line}");
+        assert_eq!(f[3], v.text, "text: {line}");
+        assert_eq!(f[4], color_names(&v.colors), "colors: {line}");
+        assert_eq!(f[5], color_names(&v.pair), "pair: {line}");
+    }
+    s.close().await;
+}
+
+/// Cyclone 11 writes `Colors` in XCDR2 (`CDR2_LE`); Courier's subscriber,
+/// accepting XCDR2 only, reads every member as written. Courier read the
+/// DHEADER before the sequence as its count, and took no sample.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn enum_sequence_and_array_xcdr2_cyclone11_to_courier() {
+    let domain = 22;
+    let s = session(domain).await;
+    let mut sub = s
+        .subscriber::<Colors>("colors")
+        .data_representation(&[courier::DataRepresentation::Xcdr2])
+        .build()
+        .await
+        .unwrap();
+    let mut raw = s.subscribe_raw("colors").await.unwrap();
+    let d = domain_arg(domain);
+    let n = COLORS_COUNT.to_string();
+    let mut peer = Peer::start(
+        Vendor::Cyclone11,
+        &[
+            "--domain",
+            &d,
+            "--topic",
+            "colors",
+            "--type",
+            "colors",
+            "--pub",
+            "--reliable",
+            "--representation",
+            "xcdr2",
+            "--count",
+            &n,
+            "--keys",
+            "5",
+            "--wait-match",
+            "1",
+            "--settle-ms",
+            "300",
+            "--text",
+            "c11",
+            "--linger-ms",
+            "300",
+            "--timeout-s",
+            "20",
+        ],
+    );
+    for seq in 1..=COLORS_COUNT {
+        let v = next(&mut sub).await.unwrap().value;
+        let want = Colors::make(5, seq, &format!("c11-{seq}"));
+        assert_eq!(v.id, want.id, "id of sample {seq}");
+        assert_eq!(v.seq, want.seq, "seq of sample {seq}");
+        assert_eq!(v.colors, want.colors, "colors of sample {seq}");
+        assert_eq!(v.pair, want.pair, "pair of sample {seq}");
+        assert_eq!(v.text, want.text, "text of sample {seq}");
+    }
+    let header = tokio::time::timeout(T, async {
+        loop {
+            if let Some(s) = raw.try_recv() {
+                return [s.data[0], s.data[1]];
+            }
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+    })
+    .await
+    .expect("a raw sample in time");
+    assert_eq!(header, [0x00, 0x07], "CDR2_LE: Cyclone 11 wrote XCDR2");
+    blocking(move || peer.expect("done")).await;
+    s.close().await;
+}
+
+// ---------------------------------------------------------------------------
 // Disposes every peer reads
 
 /// Courier writes instances `a` and `b`, disposes `a`, then closes the

@@ -46,13 +46,19 @@ pub trait IpcMessage: Sized {
     const IPC_MIN_SIZE: usize;
     /// Fewest bytes one value takes in CDR encoding, ignoring alignment.
     const CDR_MIN_SIZE: usize;
-    /// A CDR primitive (XCDR2 writes no `DHEADER` before sequences and arrays of it).
+    /// A CDR primitive: XCDR2 writes no `DHEADER` before sequences and
+    /// arrays of it, and a mutable struct's member that is a sequence of
+    /// it gets the `EMHEADER` length code of its element size. True for
+    /// the integers, floats, `bool` and `char` only, as Cyclone DDS
+    /// decides (`is_primitive_type` in `dds_cdrstream.c`): not for enums,
+    /// though one is an int32 on the wire, nor for strings, structs or
+    /// arrays.
     const CDR_PRIMITIVE: bool = false;
     /// The most bytes a whole value takes in the key-hash form
     /// ([`cdr::Writer::key_hash_form`]: big-endian XCDR2, every struct
-    /// final), exact up to 16 bytes: what a key member of this type
-    /// contributes to the key of a struct when the type has no key fields
-    /// of its own. [`cdr::MaxSize::UNBOUNDED`] unless the type says (an
+    /// final, its members in member-id order), exact up to 16 bytes: what
+    /// a key member of this type contributes to the key of a struct when
+    /// the type has no key fields of its own. [`cdr::MaxSize::UNBOUNDED`] unless the type says (an
     /// unbounded `String` or `Vec`, a pointer); `#[derive(IpcMessage)]`
     /// adds up its fields, a bounded `String` or `Vec` (`#[ipc(bound =
     /// N)]`) counting at its bound.
@@ -186,8 +192,9 @@ pub trait IpcMessage: Sized {
     /// multi-dimensional array to DDS: written flat, with one `DHEADER`.
     #[doc(hidden)]
     const CDR_IS_ARRAY: bool = false;
-    /// CDR: the innermost element of a (nested) array is a primitive, so
-    /// XCDR2 writes no `DHEADER` before the array.
+    /// CDR: the innermost element of a (nested) array is a primitive
+    /// ([`CDR_PRIMITIVE`](Self::CDR_PRIMITIVE)), so XCDR2 writes no
+    /// `DHEADER` before the array.
     #[doc(hidden)]
     const CDR_FLAT_PRIMITIVE: bool = Self::CDR_PRIMITIVE;
 

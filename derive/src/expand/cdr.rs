@@ -12,8 +12,10 @@ use crate::attr::Extensibility;
 
 /// The CDR parts of a struct's `IpcMessage` impl.
 pub(super) struct StructCodec {
-    /// The statements of `cdr_encode`, one member per field.
-    pub(super) enc: Vec<TokenStream>,
+    /// The statements of `cdr_encode` that write the members: one per
+    /// field, in definition order, or in member-id order in the key-hash
+    /// form (see [`struct_codec`]).
+    pub(super) enc: TokenStream,
     /// The body of `cdr_decode` up to building `Self`.
     pub(super) dec: TokenStream,
     /// `cdr_encode_key`, for a struct with key fields.
@@ -133,31 +135,48 @@ fn member(f: &Field<'_>, value: TokenStream) -> TokenStream {
     }
 }
 
+/// The CDR codec of a struct. In the key-hash form the struct is written
+/// whole only as (part of) a key member whose type has no key fields of
+/// its own: all its members are then keys, and Cyclone DDS puts them in
+/// member-id order, scoped to their struct, as it does the key members of
+/// the outer struct (idlc sorts the key descriptors by their member-id
+/// path, and `DDS_CDR_KEY_SERIALIZATION_KEYHASH` follows that order). So
+/// there the members go in member-id order, and are read back so.
 pub(super) fn struct_codec(
     c: &Container<'_>,
     fields: &[Field<'_>],
     ext: &TokenStream,
 ) -> StructCodec {
     let mutable = c.extensibility() == Extensibility::Mutable;
-    let enc: Vec<TokenStream> = fields
+    let each: Vec<TokenStream> = fields
         .iter()
         .enumerate()
         .map(|(i, f)| member(f, cdr_value(fields, i)))
         .collect();
+    let all: Vec<usize> = (0..fields.len()).collect();
+    let ids = by_id(&all, fields);
+    let enc = in_either_order(
+        each.clone(),
+        ids.iter().map(|i| each[*i].clone()).collect(),
+        quote!(__w),
+        quote!(),
+    );
     let finish = nd_finish(fields);
     let appendable = c.extensibility() == Extensibility::Appendable;
+    let in_order = ids.iter().copied().eq(all.iter().copied());
     let dec = if mutable {
         mutable_decode(fields, ext)
     } else {
         let reads = fields.iter().enumerate().map(|(i, f)| {
+            if !appendable {
+                return plain_read(fields, i);
+            }
+            // an older writer's data ends before the members it lacks
             let v = var(i);
             let ty = decoded_ty(f);
-            let mut read = cdr_read(f);
-            if appendable {
-                // an older writer's data ends before the members it lacks
-                let m = missing(f);
-                read = quote!(if __s.ended(__r) { #m } else { #read });
-            }
+            let m = missing(f);
+            let read = cdr_read(f);
+            let read = quote!(if __s.ended(__r) { #m } else { #read });
             if matches!(f.kind, Kind::NdVec { .. }) {
                 let o = offset_var(i);
                 quote!(let #o = __r.position(); let #v #ty = #read;)
@@ -171,11 +190,52 @@ pub(super) fn struct_codec(
             __s.end(__r)?;
         }
     };
+    // the key-hash form: no member headers (a mutable struct's members
+    // cannot be found by id) and the members in member-id order
+    let dec = if mutable || !in_order {
+        let reads = ids.iter().map(|i| plain_read(fields, *i));
+        let mut out: Vec<syn::Ident> = (0..fields.len()).map(var).collect();
+        out.extend(
+            fields
+                .iter()
+                .enumerate()
+                .filter(|(_, f)| matches!(f.kind, Kind::NdVec { .. }))
+                .map(|(i, _)| offset_var(i)),
+        );
+        quote! {
+            let (#(#out,)*) = if __r.is_key_hash_form() {
+                let __s = __r.begin_struct(#ext)?;
+                #(#reads)*
+                __s.end(__r)?;
+                (#(#out,)*)
+            } else {
+                #dec
+                (#(#out,)*)
+            };
+        }
+    } else {
+        dec
+    };
     let dec = quote!(#dec #(#finish)*);
     StructCodec {
         enc,
         dec,
         key_fn: key_fn(fields, ext, mutable),
+    }
+}
+
+/// Reads field `i` into its local (an `NdVec` also notes where its
+/// elements begin), as a member of a final struct.
+fn plain_read(fields: &[Field<'_>], i: usize) -> TokenStream {
+    let f = &fields[i];
+    let v = var(i);
+    let ty = decoded_ty(f);
+    let read = cdr_read(f);
+    if matches!(f.kind, Kind::NdVec { .. }) {
+        let o = offset_var(i);
+        quote!(let #o = __r.position(); let #v #ty = #read;)
+    } else {
+        quote!(let #v #ty = #read;)
     }
 }
 
@@ -522,7 +582,7 @@ fn key_fn(fields: &[Field<'_>], ext: &TokenStream, mutable: bool) -> TokenStream
     }
 }
 
-/// The key fields `keys` (indices into `fields`) in member-id order: the
+/// The fields `keys` (indices into `fields`) in member-id order: the
 /// order of the key-hash form (DDS-XTypes 1.3 §7.6.8; Cyclone DDS sorts
 /// the keys by member id, scoped to their struct), where the serialized
 /// key keeps definition order. The same unless ids are given out of order.

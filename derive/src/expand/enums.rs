@@ -1,5 +1,6 @@
 //! A fieldless enum: its `{enum A, B}` or `{enum : max}` format, and its
-//! value as an int32 in IPC, in CDR and as its own key.
+//! value as an int32 in IPC, in CDR and as its own key. Not a CDR
+//! primitive: XCDR2 writes a `DHEADER` before a sequence or an array of it.
 
 use proc_macro2::{Literal, TokenStream};
 use quote::quote;
@@ -72,7 +73,11 @@ pub(super) fn expand_enum(c: &Container<'_>, e: &Enum<'_>) -> TokenStream {
             const IPC_MIN_SIZE: usize = 4;
             const CDR_MIN_SIZE: usize = 4;
             const CDR_MAX_SIZE: __wire::cdr::MaxSize = __wire::cdr::MaxSize::primitive(4);
-            const CDR_PRIMITIVE: bool = true;
+            // not a CDR primitive (the default): XCDR2 puts a DHEADER
+            // before sequences and arrays of an enum, as Cyclone DDS does
+            // (its `is_primitive_type` covers the 1- to 16-byte integers
+            // and floats, booleans and wchars, not enums)
+            const CDR_PRIMITIVE: bool = false;
 
             fn ipc_encode(&self, __w: &mut __wire::ipc::Writer) {
                 __w.write_i32(match self { #(Self::#idents => #values,)* });

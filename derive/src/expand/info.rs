@@ -48,9 +48,10 @@ pub(super) fn ext_tokens(e: Extensibility) -> TokenStream {
 
 /// The terms of a struct's size constants, one per field (after a first
 /// neutral one): `IPC_MIN_SIZE` and `CDR_MIN_SIZE` add them up;
-/// `CDR_MAX_SIZE` lays out every field, `CDR_KEY_MAX_SIZE` the key fields
-/// in member-id order (the order of the key-hash form), one
-/// `MaxSize::then` the next.
+/// `CDR_MAX_SIZE` lays out every field, `CDR_KEY_MAX_SIZE` the key fields,
+/// both in member-id order (the order of the key-hash form: a key member
+/// whose type has no key fields makes all its members keys, which Cyclone
+/// DDS orders by member id too), one `MaxSize::then` the next.
 pub(super) struct Sizes {
     pub(super) ipc_min: Vec<TokenStream>,
     pub(super) cdr_min: Vec<TokenStream>,
@@ -132,13 +133,14 @@ pub(super) fn sizes(fields: &[Field<'_>], ident: &syn::Ident) -> Sizes {
             }
         }
     }
-    let mut keys: Vec<&Field<'_>> = fields.iter().filter(|f| f.attrs.key).collect();
-    // the key-hash form writes the key members in member-id order
-    keys.sort_by_key(|f| f.id);
+    // the key-hash form writes the members in member-id order
+    let mut all: Vec<&Field<'_>> = fields.iter().collect();
+    all.sort_by_key(|f| f.id);
+    let keys: Vec<&Field<'_>> = all.iter().copied().filter(|f| f.attrs.key).collect();
     Sizes {
         ipc_min,
         cdr_min,
-        max_size: layout(fields.iter().map(|f| field_max_size(f, ident))),
+        max_size: layout(all.into_iter().map(|f| field_max_size(f, ident))),
         key_max_size: layout(keys.into_iter().map(|f| key_field_max_size(f, ident))),
     }
 }

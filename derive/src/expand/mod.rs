@@ -231,7 +231,7 @@ fn expand_struct(c: &Container<'_>, fields: &[Field<'_>]) -> TokenStream {
             fn cdr_encode(&self, __w: &mut __wire::cdr::Writer) {
                 #(#all_lens)*
                 let __s = __w.begin_struct(#ext);
-                #(#cdr_enc)*
+                #cdr_enc
                 __s.end(__w);
             }
 

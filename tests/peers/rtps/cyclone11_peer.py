@@ -12,13 +12,23 @@ The same command line and output lines as cyclone_peer.c / fastdds_peer.cpp
   --type appendable_v1, mutable_v1
                      an older version of each: the same type name without `text`
                      (a reader of the newer version gets its default, "")
+  --type colors      @final struct courier::test::Colors { @key int32 id; uint32 seq;
+                     sequence<Color> colors; Color pair[2]; string text; }
+                     with enum courier::test::Color { RED, GREEN, BLUE }: XCDR2
+                     puts a DHEADER before the sequence and the array (an enum is
+                     not a CDR primitive). Sample seq has colors
+                     [Color((seq + i) % 3) for i in range(seq % 4)] and pair
+                     [Color(seq % 3), Color((2 * seq + 1) % 3)].
 
 Loopback only: the domain is created from a configuration string (interface
 lo, no multicast, unicast SPDP to 127.0.0.1); CYCLONEDDS_URI is removed from
 the environment before the library loads.
 
 Output: ready | matched <n> | sent <key> <seq> | dispose <key> | acked |
-sample <key> <seq> <text> | disposed <key> | unregistered <key> | done | timeout.
+sample <key> <seq> <text> | disposed <key> | unregistered <key> | done | timeout;
+for --type colors the sample line goes on with the colors and the pair,
+each as enumerator names joined by commas (`""` when empty):
+sample <key> <seq> <text> <colors> <pair>.
 A reader given --representation accepts that representation only, so a sample
 it takes proves what the writer wrote. A dispose or unregister of an instance this
 reader never saw alive is `disposed-unknown` / `unregistered-unknown`: the
@@ -39,9 +49,9 @@ from peer_common import Clock, emit, loopback_domain
 try:
     from cyclonedds.core import InstanceState, Policy, Qos  # noqa: E402
     from cyclonedds.domain import DomainParticipant  # noqa: E402
-    from cyclonedds.idl import IdlStruct  # noqa: E402
+    from cyclonedds.idl import IdlEnum, IdlStruct  # noqa: E402
     from cyclonedds.idl.annotations import appendable, final, key, mutable  # noqa: E402
-    from cyclonedds.idl.types import int32, uint32  # noqa: E402
+    from cyclonedds.idl.types import array, int32, sequence, uint32  # noqa: E402
     from cyclonedds.pub import DataWriter  # noqa: E402
     from cyclonedds.sub import DataReader  # noqa: E402
     from cyclonedds.topic import Topic  # noqa: E402
@@ -113,6 +123,35 @@ class Unkeyed(IdlStruct, typename="courier::test::Unkeyed"):
     text: str
 
 
+class Color(IdlEnum, typename="courier::test::Color"):
+    RED = 0
+    GREEN = 1
+    BLUE = 2
+
+
+@dataclass
+@final
+class Colors(IdlStruct, typename="courier::test::Colors"):
+    id: int32
+    key("id")
+    seq: uint32
+    colors: sequence[Color]
+    pair: array[Color, 2]
+    text: str
+
+
+def colors_of(seq):
+    return [Color((seq + i) % 3) for i in range(seq % 4)]
+
+
+def pair_of(seq):
+    return [Color(seq % 3), Color((2 * seq + 1) % 3)]
+
+
+def names(colors):
+    return ",".join(c.name for c in colors) or '""'
+
+
 TYPES = {
     "keyed": Keyed,
     "strkeyed": StrKeyed,
@@ -121,6 +160,7 @@ TYPES = {
     "unkeyed": Unkeyed,
     "appendable_v1": AppendableV1,
     "mutable_v1": MutableV1,
+    "colors": Colors,
 }
 
 
@@ -149,8 +189,16 @@ def make(kind, k, seq, text):
         return StrKeyed(name=k, seq=seq, text=text)
     if kind.endswith("_v1"):
         return TYPES[kind](id=int(k), seq=seq)
+    if kind == "colors":
+        return Colors(id=int(k), seq=seq, colors=colors_of(seq), pair=pair_of(seq), text=text)
     return TYPES[kind](id=int(k), seq=seq, text=text)
 
+
+def sample_line(kind, k, v):
+    line = f"sample {escape(k)} {v.seq} {escape(getattr(v, 'text', ''))}"
+    if kind == "colors":
+        line += f" {names(v.colors)} {names(v.pair)}"
+    return line
 
 
 
@@ -255,7 +303,7 @@ def main():
             info = s.sample_info
             if info.valid_data:
                 k = key_of(o.type, s)
-                emit(f"sample {escape(k)} {s.seq} {escape(getattr(s, 'text', ''))}")
+                emit(sample_line(o.type, k, s))
                 ids[info.instance_handle] = k
                 received += 1
             # the instance state as seen when taken: on a valid sample too

@@ -169,7 +169,9 @@ impl Writer {
 
     /// Whether this writes the key-hash form ([`Writer::key_hash_form`]),
     /// where key members go in member-id order (Cyclone DDS sorts them so;
-    /// the serialized key keeps definition order).
+    /// the serialized key keeps definition order), and so do the members
+    /// of a struct written whole (a key member whose type has no key
+    /// fields: all its members are keys).
     pub fn is_key_hash_form(&self) -> bool {
         self.flat
     }

@@ -23,11 +23,19 @@
 /// | type | `MaxSize` |
 /// |---|---|
 /// | `octet`, `short`, `long`, `long long`, … | [`primitive(size)`](Self::primitive) |
-/// | enum | `primitive(4)` |
+/// | enum | `primitive(4)` (but no primitive element: see below) |
 /// | `string<N>` (`#[ipc(bound = N)] String`) | [`bounded_string(N)`](Self::bounded_string): 4 + N + 1 bytes, aligned to 4 |
 /// | `sequence<T, N>` (`#[ipc(bound = N)] Vec<T>`) | [`bounded_sequence(T, N, dheader)`](Self::bounded_sequence): `DHEADER` (if `T` is not primitive), count, N elements |
 /// | `T[N]` (`[T; N]`) | [`array(T, N, dheader)`](Self::array): `DHEADER` (if `T` is not primitive), N elements |
-/// | struct | its members, one [`then`](Self::then) the next |
+/// | struct | its members, one [`then`](Self::then) the next, in member-id order |
+///
+/// "Primitive" is what Cyclone DDS counts as one: integers, floats,
+/// booleans and chars ([`IpcMessage::CDR_PRIMITIVE`]). An enum is not,
+/// so `@key Color a[3]` takes a `DHEADER` and 12 bytes, 16 in all, and
+/// `Color a[4]` 20. A struct's members go in member-id order because a
+/// key member whose struct type has no key fields of its own makes all
+/// its members keys, and Cyclone DDS puts those in member-id order in
+/// the key-hash form, as it does the key members of the outer struct.
 /// | `string`, `sequence<T>` | [`UNBOUNDED`](Self::UNBOUNDED) |
 ///
 /// This is how Cyclone DDS (idlc and Cyclone DDS 11's type builder decide
@@ -57,6 +65,7 @@
 /// [`Writer::key_hash_form`]: super::Writer::key_hash_form
 /// [`IpcMessage::CDR_KEY_MAX_SIZE`]: crate::IpcMessage::CDR_KEY_MAX_SIZE
 /// [`IpcMessage::CDR_MAX_SIZE`]: crate::IpcMessage::CDR_MAX_SIZE
+/// [`IpcMessage::CDR_PRIMITIVE`]: crate::IpcMessage::CDR_PRIMITIVE
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct MaxSize {
     /// `end[i]`: the largest offset just past a value that starts at
@@ -166,7 +175,8 @@ impl MaxSize {
     /// use courier_wire::cdr::MaxSize;
     /// // long a[4]
     /// assert_eq!(MaxSize::array(MaxSize::primitive(4), 4, false).max_len(), Some(16));
-    /// // an array of 3 structs of one long (not primitive): DHEADER and 12
+    /// // an array of 3 structs of one long, or of 3 enums (not
+    /// // primitive): DHEADER and 12
     /// assert_eq!(MaxSize::array(MaxSize::primitive(4), 3, true).max_len(), Some(16));
     /// ```
     pub const fn array(elem: MaxSize, len: usize, dheader: bool) -> MaxSize {

@@ -2,7 +2,8 @@
 //!
 //! The key hash of an instance is computed from its key fields serialized
 //! as big-endian XCDR2 (`PLAIN_CDR2` BE, no encapsulation header, every
-//! struct final, key members in member-id order: DDS-XTypes 1.3 §7.6.8):
+//! struct final, key members in member-id order, and so the members of a
+//! key member whose struct type has no key fields: DDS-XTypes 1.3 §7.6.8):
 //! when the *type's* largest possible key fits in 16 bytes, the hash is
 //! those bytes zero-padded to 16; otherwise it is their MD5 digest, even
 //! for a value whose key is short. The type decides
