@@ -116,6 +116,13 @@ pub fn payload(seq: u32, size: usize) -> Vec<u8> {
         .collect()
 }
 
+/// The `stamp` key `cyclone_peer` gives instance `id` of a `stamped`
+/// sample (`courier::test::Stamped`): `0x0102030405060708 + id`, so that
+/// every byte of it shows where it lands in a key hash.
+pub fn stamp(id: i32) -> i64 {
+    0x0102_0304_0506_0708 + i64::from(id)
+}
+
 /// FNV-1a (32 bit), the checksum the peers print for a payload.
 pub fn fnv1a32(bytes: &[u8]) -> u32 {
     bytes.iter().fold(0x811c_9dc5, |h, &b| {

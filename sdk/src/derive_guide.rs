@@ -180,33 +180,52 @@
 //!   `type Key` is what `cdr_decode_key` reads back from it: the one key
 //!   field's type (its own `Key`), a tuple of them for several key fields,
 //!   and `Self` for a struct without key fields.
-//! - **Key hashes.** The key hash of an instance ([`key_hash`](crate::key_hash),
-//!   the `PID_KEY_HASH` of DDSI-RTPS 2.5 §9.6.4.8) is its key in the
-//!   key-hash form (big-endian XCDR2, every struct final, key members in
-//!   member-id order; so are the members of a key member whose struct type
-//!   has no key fields, all of them keys, as Cyclone DDS orders them),
-//!   zero-padded to 16 bytes when the *type's* largest key fits in 16
-//!   bytes, else the MD5 digest of it, however short the actual key. The
-//!   derive works the largest key out at compile time
-//!   (`IpcMessage::CDR_KEY_MAX_SIZE`, a `cdr::MaxSize`): an unbounded
-//!   `String` or `Vec` has no largest, a `#[ipc(bound = N)]` `String`
-//!   (IDL `string<N>`) counts as 4 + N + 1 bytes aligned to 4, a bounded
-//!   `Vec` at its bound, every member aligned to its size but at most 4,
-//!   and a sequence or an array of enums, as of structs or strings, has a
-//!   `DHEADER` (Cyclone DDS counts only integers, floats, booleans and
-//!   chars as primitive elements). So `#[ipc(key, bound = 11)] name: String` alone is padded and
-//!   `bound = 12` hashed, as idlc and Cyclone DDS 11's C library decide
-//!   (`DDS_TOPIC_FIXED_KEY_XCDR2`) and Fast DDS's generated code does.
-//!   Cyclone DDS 0.10's runtime pads by the actual length instead, and
-//!   the Python `cyclonedds` 11 binding counts a bounded string as 4 + N
-//!   bytes (no NUL); Courier follows the specification, Cyclone DDS 11's C
-//!   library and Fast DDS. A struct that holds itself through a bounded
-//!   `Vec` counts as unbounded; types that hold each other through
-//!   bounded `Vec`s (`A` a `Vec<B>`, `B` a `Vec<A>`) compile, but a key
-//!   holding them fails to compile when its key hash is taken (the size
-//!   would depend on itself).
+//! - **Key hashes.** The key hash of an instance (the `PID_KEY_HASH` of
+//!   DDSI-RTPS 2.5 §9.6.4.8) is its key in the key-hash form (big-endian,
+//!   every struct final, key members in member-id order; so are the
+//!   members of a key member whose struct type has no key fields, all of
+//!   them keys, as Cyclone DDS orders them), zero-padded to 16 bytes when
+//!   the *type's* largest key fits in 16 bytes, else the MD5 digest of
+//!   it, however short the actual key. The derive works the largest key
+//!   out at compile time (`IpcMessage::CDR_KEY_MAX_SIZE`, a `cdr::MaxSize`):
+//!   an unbounded `String` or `Vec` has no largest, a `#[ipc(bound = N)]`
+//!   `String` (IDL `string<N>`) counts as 4 + N + 1 bytes aligned to 4, a
+//!   bounded `Vec` at its bound. So `#[ipc(key, bound = 11)] name: String`
+//!   alone is padded and `bound = 12` hashed, as idlc and Cyclone DDS 11's
+//!   C library decide and Fast DDS's generated code does.
+//!
+//!   The form exists in both XCDR versions, and the hash of one instance
+//!   can differ between them. XCDR2 aligns every member to its size but at
+//!   most 4, and puts a `DHEADER` before a sequence or an array of enums,
+//!   structs or strings (Cyclone DDS counts only integers, floats,
+//!   booleans and chars as primitive elements); XCDR1 aligns to the size up
+//!   to 8 and has no `DHEADER`. `#[ipc(key)] a: i32, #[ipc(key)] b: i64`
+//!   is 12 bytes in XCDR2 and 16 in XCDR1 (4 of padding before `b`); add
+//!   `#[ipc(key)] c: i32` and the XCDR1 key (20 bytes) is hashed with MD5
+//!   while the XCDR2 one (16) is padded. `CDR_KEY_MAX_SIZE` measures both
+//!   (`max_len_in(Version::Xcdr1)`, idlc's `DDS_TOPIC_FIXED_KEY`, and
+//!   `max_len_in(Version::Xcdr2)`, its `DDS_TOPIC_FIXED_KEY_XCDR2`).
+//!   Which one applies is the XCDR version of the data: Cyclone DDS and
+//!   Fast DDS compute the hash in it, and Courier sends it so, in the
+//!   publication's data representation (XCDR1 for a final type unless
+//!   [`PublicationQos::data_representation`](crate::PublicationQos::data_representation)
+//!   says otherwise, XCDR2 for appendable and mutable types). Take it with
+//!   [`key_hash_in`](crate::key_hash_in)`(&v, version)`;
+//!   [`key_hash`](crate::key_hash) is the XCDR2 form, the one DDS-XTypes
+//!   1.3 §7.6.8 specifies. An appendable or mutable struct has no
+//!   `DHEADER` or member headers in either version's form.
+//!
+//!   Cyclone DDS 0.10's runtime pads by the actual length instead of the
+//!   type's largest, and the Python `cyclonedds` 11 binding counts a
+//!   bounded string as 4 + N bytes (no NUL); Courier follows the
+//!   specification, Cyclone DDS 11's C library and Fast DDS. A struct that
+//!   holds itself through a bounded `Vec` counts as unbounded; types that
+//!   hold each other through bounded `Vec`s (`A` a `Vec<B>`, `B` a
+//!   `Vec<A>`) compile, but a key holding them fails to compile when its
+//!   key hash is taken (the size would depend on itself).
 //!
 //!   ```
+//!   use courier::cdr::Version;
 //!   use courier::IpcMessage;
 //!
 //!   #[derive(IpcMessage)]
@@ -220,4 +239,23 @@
 //!   let r = Robot { name: "ab".into(), x: 0.0 };
 //!   // length 3 ("ab" and the NUL), "ab", NUL, then zeros
 //!   assert_eq!(courier::key_hash(&r), [0, 0, 0, 3, b'a', b'b', 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]);
+//!
+//!   #[derive(IpcMessage)]
+//!   struct Stamped {
+//!       #[ipc(key)]
+//!       id: i32,
+//!       #[ipc(key)]
+//!       stamp: i64,
+//!   }
+//!
+//!   let s = Stamped { id: 1, stamp: 2 };
+//!   // XCDR1: the long long aligned to 8; XCDR2: to 4
+//!   assert_eq!(
+//!       courier::key_hash_in(&s, Version::Xcdr1),
+//!       [0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 2]
+//!   );
+//!   assert_eq!(
+//!       courier::key_hash_in(&s, Version::Xcdr2),
+//!       [0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 0, 2, 0, 0, 0, 0]
+//!   );
 //!   ```

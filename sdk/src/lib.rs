@@ -420,8 +420,8 @@ pub use backend::{
 /// attribute are in [`derive_guide`].
 pub use courier_derive::IpcMessage;
 pub use courier_wire::{
-    cdr, format, ipc, key_hash, rtps, rtps::matching::Incompatible, xrce, IpcMessage, LengthError,
-    Matrix, NamedFormats, NdVec, ShapeError,
+    cdr, format, ipc, key_hash, key_hash_in, rtps, rtps::matching::Incompatible, xrce, IpcMessage,
+    LengthError, Matrix, NamedFormats, NdVec, ShapeError,
 };
 pub use error::{ControlError, Error, OpenError, PublishError};
 pub use event::{DurabilityKind, EndpointInfo, Guid, ParticipantInfo, QosSummary};

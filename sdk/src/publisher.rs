@@ -400,7 +400,8 @@ impl<T: IpcMessage> Publisher<T> {
         // finds the instance only by the key, Fast DDS 2.9 only by the hash
         // (the participant sends it the hash alone).
         let key = cdr::key_to_vec(value, self.cdr);
-        let hash = crate::rtps_backend::key_hash_of(value);
+        // in the version of the publication's data, as its samples' hashes
+        let hash = crate::rtps_backend::key_hash_of(value, self.cdr.version());
         match self
             .session
             .backend

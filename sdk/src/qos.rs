@@ -327,7 +327,9 @@ pub struct KeyOf {
     /// The DDS key hash of a received payload: a sample (`false`) or the
     /// serialized key of a dispose or unregister (`true`), or `None` if it
     /// does not decode: how a reader tells the instances of a writer that
-    /// sends no key hash apart (Cyclone DDS 11 sends none).
+    /// sends no key hash apart (Cyclone DDS 11 sends none). In the XCDR
+    /// version of the payload, as its writer would send it
+    /// ([`courier_wire::cdr::key_hash_of_payload`]).
     pub hash: courier_wire::dds::KeyHashFn,
 }
 

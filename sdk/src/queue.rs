@@ -33,6 +33,13 @@ pub struct RawSample {
     pub state: InstanceState,
     /// The instance's key hash (keyed DDS topics), when sent.
     pub key_hash: Option<[u8; 16]>,
+    /// The XCDR version `key_hash` is in, when the backend knows: the data
+    /// representation the writer announced (DDS writers compute the key
+    /// hash in the version of their data, and the two versions lay out
+    /// some keys differently). Set on instance changes (disposes and
+    /// unregisters), where a key may have to be read back from the hash
+    /// ([`courier_wire::cdr::key_from_key_hash_in`]); `None` otherwise.
+    pub key_hash_version: Option<courier_wire::cdr::Version>,
     /// The writer's source timestamp, when sent (DDS `INFO_TS`).
     pub source_time: Option<SystemTime>,
     /// When the sample expires (DDS LIFESPAN: its source time plus its
@@ -53,6 +60,7 @@ impl RawSample {
             type_name: None,
             state: InstanceState::Alive,
             key_hash: None,
+            key_hash_version: None,
             source_time: None,
             expires: None,
         }

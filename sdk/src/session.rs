@@ -408,8 +408,9 @@ impl Session {
                 Err(e)
             }
         };
+        // the key hash in the XCDR version of the data it goes with
         let key_hash = (self.enc() == Encoding::Cdr && !T::KEYS.is_empty() && target.is_ok())
-            .then(|| crate::rtps_backend::key_hash_of(value));
+            .then(|| crate::rtps_backend::key_hash_of(value, cdr.version()));
         let first = matches!(target, Ok(Target::Define(_))).then(|| self.topics.unsettled(&[msg]));
         let data = match (self.enc(), &target) {
             (_, Err(_)) => Vec::new(),

@@ -160,15 +160,25 @@ pub struct InstanceChange<T: IpcMessage> {
     /// `struct S { #[ipc(key)] id: i32, .. }` an `i32`): from the serialized
     /// key when the writer sent it (Cyclone DDS and Courier do), else from
     /// the key hash when that holds the key itself (a key of at most 16
-    /// bytes; Fast DDS sends only the hash). `None` when neither gives it
-    /// (Fast DDS's dispose of a string key: compare [`key_hash`](Self::key_hash)
-    /// with [`courier_wire::key_hash`] of the values seen), and always on a
+    /// bytes, read in the XCDR version of the writer's data,
+    /// [`key_hash_version`](Self::key_hash_version); Fast DDS sends only
+    /// the hash). `None` when neither gives it (Fast DDS's dispose of a
+    /// string key: compare [`key_hash`](Self::key_hash) with
+    /// [`courier_wire::key_hash_in`] of the values seen), and always on a
     /// topic without key fields.
     pub key: Option<T::Key>,
     /// The instance's key hash: as the writer sent it, or computed from
     /// the serialized key when it sent none (Cyclone DDS 11 sends none).
-    /// `None` when neither is there.
+    /// `None` when neither is there. Writers compute it in the XCDR
+    /// version of their data, [`key_hash_version`](Self::key_hash_version):
+    /// for some keys (an 8-byte member after a 4-byte one, an array of
+    /// enums) the XCDR1 and XCDR2 hashes of one instance differ.
     pub key_hash: Option<[u8; 16]>,
+    /// The XCDR version [`key_hash`](Self::key_hash) is in, when the
+    /// backend knows (DDS: the data representation the writer announced):
+    /// `courier_wire::key_hash_in(&value, version)` of a value of this
+    /// instance equals it.
+    pub key_hash_version: Option<cdr::Version>,
     /// When it was received.
     pub received: SystemTime,
     /// The writer (its GUID, as `SessionEvent`s name it), when known.
@@ -523,11 +533,14 @@ pub struct Subscriber<T, D = Samples> {
 }
 
 /// The key of an instance change, decoded to `T::Key` (see
-/// [`InstanceChange::key`]).
+/// [`InstanceChange::key`]): from the serialized key, else from the key
+/// hash read in `version`, the XCDR version of the writer's data (XCDR2,
+/// the specification's form, when the backend does not say).
 fn change_key<T: IpcMessage>(
     enc: Encoding,
     data: &[u8],
     key_hash: Option<[u8; 16]>,
+    version: Option<cdr::Version>,
 ) -> Option<T::Key> {
     if T::KEYS.is_empty() || enc != Encoding::Cdr {
         return None;
@@ -535,7 +548,8 @@ fn change_key<T: IpcMessage>(
     let from_key = (!data.is_empty())
         .then(|| cdr::key_from_slice::<T>(data).ok())
         .flatten();
-    from_key.or_else(|| key_hash.and_then(|h| cdr::key_from_key_hash::<T>(&h)))
+    let version = version.unwrap_or(cdr::Version::Xcdr2);
+    from_key.or_else(|| key_hash.and_then(|h| cdr::key_from_key_hash_in::<T>(&h, version)))
 }
 
 /// A raw sample as the typed item (or why not): what both a
@@ -555,12 +569,13 @@ fn convert<T: IpcMessage, D: Delivery<T>>(
         }
     }
     if s.state != InstanceState::Alive {
-        let key = change_key::<T>(enc, &s.data, s.key_hash);
+        let key = change_key::<T>(enc, &s.data, s.key_hash, s.key_hash_version);
         return D::change(InstanceChange {
             msg: s.msg,
             state: s.state,
             key,
             key_hash: s.key_hash,
+            key_hash_version: s.key_hash_version,
             received: s.received,
             source: s.source,
             source_time: s.source_time,
@@ -711,6 +726,10 @@ mod tests {
     use crate::session::Owned;
 
     fn subscriber<T>(queue: &Arc<SampleQueue>) -> Subscriber<T> {
+        subscriber_of(queue)
+    }
+
+    fn subscriber_of<T, D>(queue: &Arc<SampleQueue>) -> Subscriber<T, D> {
         Subscriber {
             raw: RawSubscriber::new(
                 queue.clone(),
@@ -807,5 +826,55 @@ mod tests {
         queue.push(RawSample::new("m", big)).unwrap();
         assert_eq!(sub.try_recv().unwrap().unwrap().value.len(), 10_000);
         assert!(queue.returns.get().is_none());
+    }
+
+    /// `struct Stamped { @key long id; @key long long stamp; }`: its key
+    /// hash differs between XCDR1 (`id`, 4 bytes of padding, `stamp`) and
+    /// XCDR2 (`id`, `stamp`, the hash's padding).
+    #[derive(courier_derive::IpcMessage, Debug, Clone, PartialEq)]
+    #[ipc(type_name = "Stamped", crate = "::courier_wire")]
+    struct Stamped {
+        #[ipc(key)]
+        id: i32,
+        #[ipc(key)]
+        stamp: i64,
+        v: u8,
+    }
+
+    /// A dispose that carries only the key hash (Fast DDS sends no
+    /// serialized key): the key is read from the hash in the XCDR version
+    /// of the writer's data, which the backend says.
+    #[test]
+    fn a_key_is_read_from_a_hash_in_the_writers_version() {
+        let queue = SampleQueue::new(QueuePolicy::default());
+        let mut sub = subscriber_of::<Stamped, WithInstances>(&queue);
+        let v = Stamped {
+            id: 7,
+            stamp: 0x0102_0304_0506_0708,
+            v: 0,
+        };
+        let dispose = |version: Option<cdr::Version>, hash: [u8; 16]| {
+            let mut s = RawSample::new("m", Vec::new());
+            s.state = InstanceState::Disposed;
+            s.key_hash = Some(hash);
+            s.key_hash_version = version;
+            s
+        };
+        let x1 = courier_wire::key_hash_in(&v, cdr::Version::Xcdr1);
+        let x2 = courier_wire::key_hash_in(&v, cdr::Version::Xcdr2);
+        assert_ne!(x1, x2);
+        queue.push(dispose(Some(cdr::Version::Xcdr1), x1)).unwrap();
+        queue.push(dispose(Some(cdr::Version::Xcdr2), x2)).unwrap();
+        // a backend that does not say: the specification's form, XCDR2
+        queue.push(dispose(None, x2)).unwrap();
+        for want in [Some(cdr::Version::Xcdr1), Some(cdr::Version::Xcdr2), None] {
+            match sub.try_recv() {
+                Some(Ok(crate::Received::Instance(c))) => {
+                    assert_eq!(c.key, Some((7, 0x0102_0304_0506_0708)), "{want:?}");
+                    assert_eq!(c.key_hash_version, want);
+                }
+                other => panic!("{want:?}: expected a dispose, got {other:?}"),
+            }
+        }
     }
 }

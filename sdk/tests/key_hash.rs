@@ -1,10 +1,12 @@
 //! The key hash a reader computes when the writer sends none (Cyclone DDS
 //! 11 sends no `PID_KEY_HASH`): from a sample, or from the serialized key
-//! a dispose carries, it equals `key_hash` of the value, for every
-//! encoding and for keys of every shape the derive takes.
+//! a dispose carries, it equals `key_hash_in` of the value in the XCDR
+//! version of the payload (what its writer sends), for every encoding and
+//! for keys of every shape the derive takes; and the key hashes of both
+//! versions byte for byte.
 
-use courier::cdr::{self, Encoding};
-use courier::{key_hash, IpcMessage};
+use courier::cdr::{self, Encoding, Version};
+use courier::{key_hash, key_hash_in, IpcMessage};
 
 #[derive(IpcMessage, Debug, Clone, PartialEq)]
 struct OneKey {
@@ -82,8 +84,9 @@ const ALL: [Encoding; 4] = [
 ];
 
 fn check<T: IpcMessage>(v: &T) {
-    let want = key_hash(v);
     for enc in ALL {
+        // what a writer of this encoding sends: the hash in its version
+        let want = key_hash_in(v, enc.version());
         // a type some encodings cannot carry (mutable in XCDR1 is PL_CDR:
         // still written) is checked where it round-trips
         let sample = cdr::to_vec(v, enc);
@@ -445,19 +448,19 @@ struct Outer {
     k: u8,
 }
 
-/// The key-hash form of `v`'s key, and of all of `v`.
-fn forms<T: IpcMessage>(v: &T) -> (Vec<u8>, Vec<u8>) {
-    let mut k = cdr::Writer::key_hash_form();
+/// The key-hash form of `v`'s key, and of all of `v`, in `version`.
+fn forms<T: IpcMessage>(v: &T, version: Version) -> (Vec<u8>, Vec<u8>) {
+    let mut k = cdr::Writer::key_hash_form_in(version);
     v.cdr_encode_key(&mut k);
-    let mut w = cdr::Writer::key_hash_form();
+    let mut w = cdr::Writer::key_hash_form_in(version);
     v.cdr_encode(&mut w);
     (k.into_vec(), w.into_vec())
 }
 
 /// `max` against byte counts: none above it, `worst` exactly it (or past
 /// 16 when it says "more than 16").
-fn check_max(what: &str, max: cdr::MaxSize, lens: &[usize], worst: usize) {
-    match max.max_len() {
+fn check_max(what: &str, max: Option<usize>, lens: &[usize], worst: usize) {
+    match max {
         Some(m) => {
             assert_eq!(worst, m, "{what}: the longest value's form");
             assert!(lens.iter().all(|l| *l <= m), "{what}: {lens:?} over {m}");
@@ -471,34 +474,39 @@ fn check_max(what: &str, max: cdr::MaxSize, lens: &[usize], worst: usize) {
 
 /// `values` of `T`, the last one at every bound: its key and whole value
 /// reach the maxima, and the key hash is padded exactly when the type's
-/// key fits 16 bytes.
+/// key fits 16 bytes, in both XCDR versions (`want_key_max` is XCDR2's).
 fn measure<T: IpcMessage + std::fmt::Debug>(values: &[T], want_key_max: Option<usize>) {
     let name = T::TYPE_NAME;
     assert_eq!(T::CDR_KEY_MAX_SIZE.max_len(), want_key_max, "{name}");
-    let (keys, wholes): (Vec<usize>, Vec<usize>) = values
-        .iter()
-        .map(|v| {
-            let (k, w) = forms(v);
-            (k.len(), w.len())
-        })
-        .unzip();
-    let last = values.len() - 1;
-    check_max(
-        &format!("{name} key"),
-        T::CDR_KEY_MAX_SIZE,
-        &keys,
-        keys[last],
-    );
-    check_max(
-        &format!("{name} value"),
-        T::CDR_MAX_SIZE,
-        &wholes,
-        wholes[last],
-    );
+    for version in [Version::Xcdr1, Version::Xcdr2] {
+        let (keys, wholes): (Vec<usize>, Vec<usize>) = values
+            .iter()
+            .map(|v| {
+                let (k, w) = forms(v, version);
+                (k.len(), w.len())
+            })
+            .unzip();
+        let last = values.len() - 1;
+        check_max(
+            &format!("{name} key {version:?}"),
+            T::CDR_KEY_MAX_SIZE.max_len_in(version),
+            &keys,
+            keys[last],
+        );
+        check_max(
+            &format!("{name} value {version:?}"),
+            T::CDR_MAX_SIZE.max_len_in(version),
+            &wholes,
+            wholes[last],
+        );
+        let fits = T::CDR_KEY_MAX_SIZE.fits_key_hash_in(version);
+        for v in values {
+            let (k, _) = forms(v, version);
+            let padded = k.len() <= 16 && key_hash_in(v, version) == self::padded(&k);
+            assert_eq!(padded, fits, "{name} {version:?}: {v:?}");
+        }
+    }
     for v in values {
-        let (k, _) = forms(v);
-        let padded = k.len() <= 16 && key_hash(v) == self::padded(&k);
-        assert_eq!(padded, want_key_max.is_some(), "{name}: {v:?}");
         check(v);
     }
 }
@@ -618,8 +626,8 @@ fn recursive_types_with_bounded_vecs() {
         t: Tree { x: 1, kids: vec![] },
     };
     // 12 bytes now (x, DHEADER, count), but a tree can be any size: MD5
-    assert_eq!(forms(&t).0.len(), 12);
-    assert_ne!(key_hash(&t), padded(&forms(&t).0));
+    assert_eq!(forms(&t, Version::Xcdr2).0.len(), 12);
+    assert_ne!(key_hash(&t), padded(&forms(&t, Version::Xcdr2).0));
     check(&t);
     let p = KeyedPing {
         id: 7,
@@ -764,4 +772,284 @@ fn an_array_of_enums_has_a_dheader_in_the_key_hash() {
     assert_eq!(TriArr::CDR_KEY_MAX_SIZE.max_len(), Some(16));
     assert_eq!(cdr::key_from_key_hash::<TriArr>(&key_hash(&v)), Some(v.a));
     check(&v);
+}
+
+// The XCDR1 and XCDR2 key hashes of keys with 8-byte members, byte for
+// byte (DDSI-RTPS 2.5 §9.6.4.8 in the data's XCDR version, as Cyclone DDS
+// and Fast DDS compute it): XCDR1 aligns a long long or double to 8, XCDR2
+// to 4, and has no DHEADER. The MD5 digests were computed independently
+// (Python's hashlib) of the key bytes shown.
+
+/// `struct L3 { @key long a; @key long long b; @key long c; }`
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct L3 {
+    #[ipc(key)]
+    a: i32,
+    #[ipc(key)]
+    b: i64,
+    #[ipc(key)]
+    c: i32,
+}
+
+/// `struct OctDbl { @key octet o; @key double d; }`
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct OctDbl {
+    #[ipc(key)]
+    o: u8,
+    #[ipc(key)]
+    d: f64,
+}
+
+/// `struct PtLL { long x; long long y; }`
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct PtLL {
+    x: i32,
+    y: i64,
+}
+
+/// `struct NestLL { @key PtLL p; @key long c; }`
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct NestLL {
+    #[ipc(key)]
+    p: PtLL,
+    #[ipc(key)]
+    c: i32,
+}
+
+fn unhex(s: &str) -> Vec<u8> {
+    (0..s.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(&s[i..i + 2], 16).unwrap())
+        .collect()
+}
+
+#[test]
+fn a_long_long_after_a_long_is_aligned_to_8_in_xcdr1() {
+    // @key long a; @key long long b;  XCDR1: a, 4 bytes of padding, b
+    // (16 bytes, the key itself); XCDR2: a, b, then the hash's padding
+    let v = LongLongLong {
+        a: 1,
+        b: 0x0102_0304_0506_0708,
+        v: 9,
+    };
+    let x1 = "00000001000000000102030405060708";
+    let x2 = "00000001010203040506070800000000";
+    assert_eq!(
+        LongLongLong::CDR_KEY_MAX_SIZE.max_len_in(Version::Xcdr1),
+        Some(16)
+    );
+    assert_eq!(
+        LongLongLong::CDR_KEY_MAX_SIZE.max_len_in(Version::Xcdr2),
+        Some(12)
+    );
+    assert_eq!(hex(&key_hash_in(&v, Version::Xcdr1)), x1);
+    assert_eq!(hex(&key_hash_in(&v, Version::Xcdr2)), x2);
+    assert_eq!(hex(&key_hash(&v)), x2, "key_hash is the XCDR2 form");
+    let key = (1, 0x0102_0304_0506_0708);
+    assert_eq!(
+        cdr::key_hash_of_key_in::<LongLongLong>(&key, Version::Xcdr1),
+        Some(key_hash_in(&v, Version::Xcdr1))
+    );
+    // the round trip, in each version; the other version's reading is wrong
+    let h1: [u8; 16] = unhex(x1).try_into().unwrap();
+    let h2: [u8; 16] = unhex(x2).try_into().unwrap();
+    assert_eq!(
+        cdr::key_from_key_hash_in::<LongLongLong>(&h1, Version::Xcdr1),
+        Some(key)
+    );
+    assert_eq!(
+        cdr::key_from_key_hash_in::<LongLongLong>(&h2, Version::Xcdr2),
+        Some(key)
+    );
+    assert_eq!(cdr::key_from_key_hash::<LongLongLong>(&h2), Some(key));
+    assert_ne!(
+        cdr::key_from_key_hash_in::<LongLongLong>(&h1, Version::Xcdr2),
+        Some(key)
+    );
+    // the payload's version decides what a reader computes
+    assert_eq!(
+        cdr::key_hash_of_payload::<LongLongLong>(&cdr::to_vec(&v, Encoding::Xcdr1Le), false),
+        Some(h1)
+    );
+    assert_eq!(
+        cdr::key_hash_of_payload::<LongLongLong>(&cdr::key_to_vec(&v, Encoding::Xcdr2Be), true),
+        Some(h2)
+    );
+    check(&v);
+}
+
+#[test]
+fn a_key_that_fits_16_bytes_in_xcdr2_but_not_in_xcdr1() {
+    // @key long a; @key long long b; @key long c;
+    // XCDR2: 00000001 0102030405060708 ffffffff, 16 bytes: the key itself
+    // XCDR1: 00000001 00000000 0102030405060708 ffffffff, up to 20: MD5
+    let v = L3 {
+        a: 1,
+        b: 0x0102_0304_0506_0708,
+        c: -1,
+    };
+    assert_eq!(L3::CDR_KEY_MAX_SIZE.max_len_in(Version::Xcdr2), Some(16));
+    assert_eq!(L3::CDR_KEY_MAX_SIZE.max_len_in(Version::Xcdr1), None);
+    assert_eq!(
+        hex(&key_hash_in(&v, Version::Xcdr2)),
+        "000000010102030405060708ffffffff"
+    );
+    assert_eq!(
+        hex(&key_hash_in(&v, Version::Xcdr1)),
+        "67a7014dd1221bb8c6e39ea21a08406d"
+    );
+    let key = (1, 0x0102_0304_0506_0708, -1);
+    assert_eq!(
+        cdr::key_from_key_hash_in::<L3>(&key_hash_in(&v, Version::Xcdr2), Version::Xcdr2),
+        Some(key)
+    );
+    // an MD5 digest gives no key back
+    assert_eq!(
+        cdr::key_from_key_hash_in::<L3>(&key_hash_in(&v, Version::Xcdr1), Version::Xcdr1),
+        None
+    );
+    // even a key of zeros is an MD5 digest in XCDR1: the type decides
+    let zero = L3 { a: 0, b: 0, c: 0 };
+    assert_eq!(
+        hex(&key_hash_in(&zero, Version::Xcdr1)),
+        hex(&courier::rtps::participant::md5(&[0; 20]))
+    );
+    check(&v);
+}
+
+#[test]
+fn an_octet_then_a_double() {
+    // @key octet o; @key double d;  (1.5 is 3ff8000000000000)
+    // XCDR1: ab, 7 bytes of padding, d: 16; XCDR2: ab, 3 of padding, d: 12
+    let v = OctDbl { o: 0xab, d: 1.5 };
+    let x1 = "ab000000000000003ff8000000000000";
+    let x2 = "ab0000003ff800000000000000000000";
+    assert_eq!(
+        OctDbl::CDR_KEY_MAX_SIZE.max_len_in(Version::Xcdr1),
+        Some(16)
+    );
+    assert_eq!(
+        OctDbl::CDR_KEY_MAX_SIZE.max_len_in(Version::Xcdr2),
+        Some(12)
+    );
+    assert_eq!(hex(&key_hash_in(&v, Version::Xcdr1)), x1);
+    assert_eq!(hex(&key_hash_in(&v, Version::Xcdr2)), x2);
+    let h1: [u8; 16] = unhex(x1).try_into().unwrap();
+    assert_eq!(
+        cdr::key_from_key_hash_in::<OctDbl>(&h1, Version::Xcdr1),
+        Some((0xab, 1.5))
+    );
+    check(&v);
+}
+
+#[test]
+fn a_nested_struct_with_a_long_long_after_a_long() {
+    // @key PtLL p; @key long c; with PtLL { long x; long long y; } (no
+    // keys: all of it is key)
+    // XCDR2: 00000002 0000000000000003 00000004: 16 bytes, the key itself
+    // XCDR1: 00000002 00000000 0000000000000003 00000004: 20, MD5
+    let v = NestLL {
+        p: PtLL { x: 2, y: 3 },
+        c: 4,
+    };
+    assert_eq!(
+        NestLL::CDR_KEY_MAX_SIZE.max_len_in(Version::Xcdr2),
+        Some(16)
+    );
+    assert_eq!(NestLL::CDR_KEY_MAX_SIZE.max_len_in(Version::Xcdr1), None);
+    assert_eq!(
+        hex(&key_hash_in(&v, Version::Xcdr2)),
+        "00000002000000000000000300000004"
+    );
+    assert_eq!(
+        hex(&key_hash_in(&v, Version::Xcdr1)),
+        "307f1f0839e289af8d833354322469d5"
+    );
+    assert_eq!(
+        cdr::key_from_key_hash_in::<NestLL>(&key_hash_in(&v, Version::Xcdr2), Version::Xcdr2),
+        Some((v.p.clone(), 4))
+    );
+    assert_eq!(
+        cdr::key_from_key_hash_in::<NestLL>(&key_hash_in(&v, Version::Xcdr1), Version::Xcdr1),
+        None
+    );
+    check(&v);
+}
+
+#[test]
+fn an_array_of_enums_has_no_dheader_in_xcdr1() {
+    // C, B, A: 12 bytes, padded (XCDR2 puts a DHEADER of 12 first)
+    let v = TriArr {
+        a: [Tri::C, Tri::B, Tri::A],
+    };
+    let x1 = "00000002000000010000000000000000";
+    assert_eq!(
+        TriArr::CDR_KEY_MAX_SIZE.max_len_in(Version::Xcdr1),
+        Some(12)
+    );
+    assert_eq!(hex(&key_hash_in(&v, Version::Xcdr1)), x1);
+    let h1: [u8; 16] = unhex(x1).try_into().unwrap();
+    assert_eq!(
+        cdr::key_from_key_hash_in::<TriArr>(&h1, Version::Xcdr1),
+        Some(v.a)
+    );
+}
+
+/// `@mutable struct MutLL { @key long a; @key long long b; long v; }`
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(extensibility = "mutable")]
+struct MutLL {
+    #[ipc(key)]
+    a: i32,
+    #[ipc(key)]
+    b: i64,
+    v: i32,
+}
+
+/// `@appendable struct AppLL { @key long a; @key long long b; long v; }`
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(extensibility = "appendable")]
+struct AppLL {
+    #[ipc(key)]
+    a: i32,
+    #[ipc(key)]
+    b: i64,
+    v: i32,
+}
+
+#[test]
+fn mutable_and_appendable_keys_have_no_headers_in_either_form() {
+    // no parameter list (XCDR1), EMHEADERs or DHEADER (XCDR2): the key
+    // members one after the other, as Cyclone DDS writes them for the hash
+    let x1 = "0000000a000000000000000000000014";
+    let x2 = "0000000a000000000000001400000000";
+    let m = MutLL { a: 10, b: 20, v: 1 };
+    let a = AppLL { a: 10, b: 20, v: 1 };
+    assert_eq!(hex(&key_hash_in(&m, Version::Xcdr1)), x1);
+    assert_eq!(hex(&key_hash_in(&a, Version::Xcdr1)), x1);
+    assert_eq!(hex(&key_hash_in(&m, Version::Xcdr2)), x2);
+    assert_eq!(hex(&key_hash_in(&a, Version::Xcdr2)), x2);
+    let h1: [u8; 16] = unhex(x1).try_into().unwrap();
+    let h2: [u8; 16] = unhex(x2).try_into().unwrap();
+    for (h, version) in [(h1, Version::Xcdr1), (h2, Version::Xcdr2)] {
+        assert_eq!(
+            cdr::key_from_key_hash_in::<MutLL>(&h, version),
+            Some((10, 20))
+        );
+        assert_eq!(
+            cdr::key_from_key_hash_in::<AppLL>(&h, version),
+            Some((10, 20))
+        );
+    }
+    // from a PL_CDR (XCDR1 mutable) sample or key: the XCDR1 hash
+    assert_eq!(
+        cdr::key_hash_of_payload::<MutLL>(&cdr::to_vec(&m, Encoding::Xcdr1Le), false),
+        Some(h1)
+    );
+    assert_eq!(
+        cdr::key_hash_of_payload::<MutLL>(&cdr::key_to_vec(&m, Encoding::Xcdr1Be), true),
+        Some(h1)
+    );
+    check(&m);
+    check(&a);
 }

@@ -14,7 +14,7 @@ use courier::{
 use futures::StreamExt;
 
 mod common;
-use common::{await_handlers, next, session, Keyed, Msg, T};
+use common::{await_handlers, next, session, Keyed, Msg, Stamped, T};
 
 fn msg(seq: u32) -> Msg {
     Msg {
@@ -1697,4 +1697,88 @@ async fn a_close_that_gives_up_on_unacknowledged_samples_warns() {
         "{logs}"
     );
     b.close().await;
+}
+
+/// The key hash a publication sends is in the XCDR version of its data:
+/// XCDR1 for a final type by default (as Cyclone DDS and Fast DDS compute
+/// it; a Fast DDS reader tells instances apart by it), XCDR2 when the
+/// publication writes XCDR2. `Stamped`'s differ: `id`, 4 bytes of padding,
+/// `stamp` in XCDR1; `id`, `stamp`, the hash's padding in XCDR2.
+#[tokio::test]
+async fn a_key_hash_is_sent_in_the_version_of_the_data() {
+    use courier::cdr::Version;
+    let a = session(203, "a").await;
+    let b = session(203, "b").await;
+    let x1 = a.publisher::<Stamped>("stamped1").build().await.unwrap();
+    let x2 = a
+        .publisher::<Stamped>("stamped2")
+        .data_representation(DataRepresentation::Xcdr2)
+        .build()
+        .await
+        .unwrap();
+    let mut subs = Vec::new();
+    for topic in ["stamped1", "stamped2", "stamped3"] {
+        let sub = b
+            .subscriber::<Stamped>(topic)
+            .with_instances()
+            .build()
+            .await
+            .unwrap();
+        subs.push(sub);
+    }
+    // the session's own publication of a final type (`Session::publish`)
+    a.define::<Stamped>("stamped3").await.unwrap();
+    for topic in ["stamped1", "stamped2", "stamped3"] {
+        await_handlers(&a, topic, 1).await;
+    }
+    let v = Stamped {
+        id: 7,
+        stamp: 0x0102_0304_0506_0708,
+        seq: 1,
+        text: "s".into(),
+    };
+    let hash = |version| courier::key_hash_in(&v, version);
+    assert_eq!(
+        hash(Version::Xcdr1),
+        [0, 0, 0, 7, 0, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8]
+    );
+    assert_eq!(
+        hash(Version::Xcdr2),
+        [0, 0, 0, 7, 1, 2, 3, 4, 5, 6, 7, 8, 0, 0, 0, 0]
+    );
+    x1.publish(&v).await.unwrap();
+    x1.dispose(&v).await.unwrap();
+    x2.publish(&v).await.unwrap();
+    x2.dispose(&v).await.unwrap();
+    a.publish("stamped3", &v).await.unwrap();
+    for (sub, version) in subs.iter_mut().zip([Version::Xcdr1, Version::Xcdr2]) {
+        match next(sub).await {
+            Ok(Received::Sample(s)) => assert_eq!(s.value, v),
+            other => panic!("{version:?}: expected the sample, got {other:?}"),
+        }
+        match next(sub).await {
+            Ok(Received::Instance(c)) => {
+                assert_eq!(c.state, InstanceState::Disposed);
+                assert_eq!(c.key_hash, Some(hash(version)), "{version:?}");
+                assert_eq!(c.key_hash_version, Some(version));
+                assert_eq!(c.key, Some((7, 0x0102_0304_0506_0708)));
+            }
+            other => panic!("{version:?}: expected the dispose, got {other:?}"),
+        }
+    }
+    // the session's publication sent its sample's hash in XCDR1 too: its
+    // instance, left alive, is disposed with it when the session closes
+    match next(&mut subs[2]).await {
+        Ok(Received::Sample(s)) => assert_eq!(s.value, v),
+        other => panic!("expected the sample, got {other:?}"),
+    }
+    a.close().await;
+    match next(&mut subs[2]).await {
+        Ok(Received::Instance(c)) => {
+            assert_eq!(c.state, InstanceState::Disposed);
+            assert_eq!(c.key_hash, Some(hash(Version::Xcdr1)));
+            assert_eq!(c.key, Some((7, 0x0102_0304_0506_0708)));
+        }
+        other => panic!("expected the session's dispose at close, got {other:?}"),
+    }
 }

@@ -15,9 +15,9 @@ use courier::{InstanceState, Received, Session, SessionEvent};
 use futures::StreamExt;
 
 mod common;
-use common::{next, Keyed, Msg, T};
+use common::{next, Keyed, Msg, Stamped, T};
 
-use courier_tests::peers::{cyclone_peer, fastdds_peer, fnv1a32, payload, PeerProcess};
+use courier_tests::peers::{cyclone_peer, fastdds_peer, fnv1a32, payload, stamp, PeerProcess};
 
 #[derive(Clone, Copy, Debug)]
 enum Vendor {
@@ -484,6 +484,177 @@ async fn keyed_dispose_courier_to_cyclone() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn keyed_dispose_courier_to_fastdds() {
     keyed_courier_to_peer(Vendor::FastDds, 181).await;
+}
+
+// ---------------------------------------------------------------------------
+// Key hashes in the XCDR version of the data: Cyclone DDS 0.10 as the oracle
+
+/// Cyclone DDS 0.10 (`--keyhash`: Internal/GenerateKeyhash) sends
+/// `PID_KEY_HASH` computed in the XCDR version of its data, XCDR1 here:
+/// for `Stamped` (`@key long id; @key long long stamp;`) that is `id`, 4
+/// bytes of padding, `stamp`, where the XCDR2 form is `id`, `stamp`, 4
+/// bytes of the hash's padding. A raw subscription (no type, so Courier
+/// computes no hash of its own) shows the hash exactly as Cyclone sent it,
+/// with each sample and with the dispose; a typed one reports the dispose
+/// with that hash, says it is XCDR1, and decodes the key.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cyclone_sends_the_key_hash_in_xcdr1() {
+    use courier::cdr::Version;
+    let domain = 194;
+    let s = session(domain).await;
+    let mut sub = s
+        .subscriber::<Stamped>("stamped")
+        .with_instances()
+        .build()
+        .await
+        .unwrap();
+    let mut raw = s.subscribe_raw("stamped").await.unwrap();
+    let d = domain_arg(domain);
+    let mut peer = Peer::start(
+        Vendor::Cyclone,
+        &[
+            "--domain",
+            &d,
+            "--topic",
+            "stamped",
+            "--type",
+            "stamped",
+            "--pub",
+            "--reliable",
+            "--keyhash",
+            "--count",
+            "2",
+            "--keys",
+            "5",
+            "--dispose-every",
+            "2",
+            "--wait-match",
+            "2",
+            "--settle-ms",
+            "300",
+            "--text",
+            "k",
+            "--linger-ms",
+            "300",
+            "--timeout-s",
+            "20",
+        ],
+    );
+    let v = |id: i32, seq: u32| Stamped {
+        id,
+        stamp: stamp(id),
+        seq,
+        text: format!("k-{seq}"),
+    };
+    let xcdr1 = |id| courier::key_hash_in(&v(id, 0), Version::Xcdr1);
+    // written out: id 2, padding, 0x0102030405060708 + 2
+    assert_eq!(xcdr1(2), [0, 0, 0, 2, 0, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 10]);
+    assert_ne!(xcdr1(2), courier::key_hash(&v(2, 0)), "XCDR2 differs");
+    // ids n % 5: 1, 2; then instance 2 is disposed
+    for seq in 1..=2u32 {
+        match next(&mut sub).await {
+            Ok(Received::Sample(smp)) => assert_eq!(smp.value, v(seq as i32, seq)),
+            other => panic!("expected sample {seq}, got {other:?}"),
+        }
+    }
+    match next(&mut sub).await {
+        Ok(Received::Instance(c)) => {
+            assert_eq!(c.state, InstanceState::Disposed, "{c:?}");
+            assert_eq!(c.key_hash, Some(xcdr1(2)), "Cyclone's hash: {c:?}");
+            assert_eq!(c.key_hash_version, Some(Version::Xcdr1), "{c:?}");
+            assert_eq!(c.key, Some((2, stamp(2))), "{c:?}");
+        }
+        other => panic!("expected the dispose of instance 2, got {other:?}"),
+    }
+    // what Cyclone put on the wire, untouched
+    let mut got = Vec::new();
+    for _ in 0..3 {
+        let r = tokio::time::timeout(T, raw.recv())
+            .await
+            .expect("a raw sample in time")
+            .expect("open");
+        got.push((r.state, r.key_hash));
+    }
+    assert_eq!(
+        got,
+        [
+            (InstanceState::Alive, Some(xcdr1(1))),
+            (InstanceState::Alive, Some(xcdr1(2))),
+            (InstanceState::Disposed, Some(xcdr1(2))),
+        ],
+        "the PID_KEY_HASH Cyclone sent"
+    );
+    blocking(move || peer.expect("done")).await;
+    s.close().await;
+}
+
+/// Courier's writer sends the XCDR1 key hash with its XCDR1 samples and
+/// dispose; a Cyclone DDS 0.10 reader takes them, and the dispose lands on
+/// the instance written.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn courier_to_cyclone_with_a_long_long_key() {
+    let domain = 195;
+    let s = session(domain).await;
+    let p = s.publisher::<Stamped>("stamped").build().await.unwrap();
+    let d = domain_arg(domain);
+    let mut peer = Peer::start(
+        Vendor::Cyclone,
+        &[
+            "--domain",
+            &d,
+            "--topic",
+            "stamped",
+            "--type",
+            "stamped",
+            "--sub",
+            "--reliable",
+            "--count",
+            "2",
+            "--disposed",
+            "1",
+            "--timeout-s",
+            "20",
+        ],
+    );
+    await_handlers(&s, "stamped").await;
+    let mut peer = blocking(move || {
+        peer.expect("matched 1");
+        peer
+    })
+    .await;
+    let k = |id, seq| Stamped {
+        id,
+        stamp: stamp(id),
+        seq,
+        text: format!("c-{seq}"),
+    };
+    p.publish(&k(7, 1)).await.unwrap();
+    p.dispose(&k(7, 0)).await.unwrap();
+    p.publish(&k(8, 2)).await.unwrap();
+    let mut lines = blocking(move || {
+        let mut v = Vec::new();
+        loop {
+            let l = peer.expect("");
+            if l == "done" {
+                return v;
+            }
+            if !l.starts_with("matched") {
+                v.push(l);
+            }
+        }
+    })
+    .await;
+    lines.sort();
+    let (s7, s8) = (stamp(7), stamp(8));
+    assert_eq!(
+        lines,
+        [
+            format!("disposed 7:{s7}"),
+            format!("sample 7:{s7} 1 c-1"),
+            format!("sample 8:{s8} 2 c-2"),
+        ]
+    );
+    s.close().await;
 }
 
 // ---------------------------------------------------------------------------

@@ -48,13 +48,33 @@ pub use message::{IpcMessage, LengthError, NamedFormats};
 pub use ndvec::{Matrix, NdVec, ShapeError};
 
 /// The DDS key hash of `value`'s instance (`PID_KEY_HASH`, DDSI-RTPS 2.5
-/// §9.6.4.8): [`rtps::participant::KeyHash::of`] as bytes. A subscriber can
-/// compare it with the key hash of an instance change; for the key itself
-/// see [`cdr::key_from_slice`] and [`cdr::key_from_key_hash`].
+/// §9.6.4.8) in XCDR2 form, the form DDS-XTypes 1.3 §7.6.8 specifies:
+/// [`rtps::participant::KeyHash::of`] as bytes, [`key_hash_in`] `(value,`
+/// [`cdr::Version::Xcdr2`]`)`.
+///
+/// A writer sends the hash in the XCDR version of its data (Courier,
+/// Cyclone DDS and Fast DDS do), and for keys with an 8-byte member or an
+/// array of enums, strings or structs the two versions differ: to compare
+/// with the key hash of an instance change from a writer of XCDR1 data
+/// (Fast DDS; Courier and Cyclone DDS for final types unless told
+/// otherwise), use [`key_hash_in`] with [`cdr::Version::Xcdr1`]. For the
+/// key itself see [`cdr::key_from_slice`] and [`cdr::key_from_key_hash_in`].
 ///
 /// ```
 /// assert_eq!(courier_wire::key_hash(&7i32)[..4], [0, 0, 0, 7]);
 /// ```
 pub fn key_hash<T: IpcMessage>(value: &T) -> [u8; 16] {
     rtps::participant::KeyHash::of(value).0
+}
+
+/// The DDS key hash of `value`'s instance in XCDR version `version`
+/// ([`rtps::participant::KeyHash::of_in`] as bytes): what a writer of data
+/// in that version sends as `PID_KEY_HASH`.
+///
+/// ```
+/// use courier_wire::cdr::Version;
+/// assert_eq!(courier_wire::key_hash_in(&7i32, Version::Xcdr1)[..4], [0, 0, 0, 7]);
+/// ```
+pub fn key_hash_in<T: IpcMessage>(value: &T, version: cdr::Version) -> [u8; 16] {
+    rtps::participant::KeyHash::of_in(value, version).0
 }

@@ -55,33 +55,45 @@ pub trait IpcMessage: Sized {
     /// arrays.
     const CDR_PRIMITIVE: bool = false;
     /// The most bytes a whole value takes in the key-hash form
-    /// ([`cdr::Writer::key_hash_form`]: big-endian XCDR2, every struct
-    /// final, its members in member-id order), exact up to 16 bytes: what
-    /// a key member of this type contributes to the key of a struct when
-    /// the type has no key fields of its own. [`cdr::MaxSize::UNBOUNDED`] unless the type says (an
-    /// unbounded `String` or `Vec`, a pointer); `#[derive(IpcMessage)]`
-    /// adds up its fields, a bounded `String` or `Vec` (`#[ipc(bound =
-    /// N)]`) counting at its bound.
+    /// ([`cdr::Writer::key_hash_form_in`]: big-endian, every struct final,
+    /// its members in member-id order) of each XCDR version, exact up to
+    /// 16 bytes: what a key member of this type contributes to the key of
+    /// a struct when the type has no key fields of its own.
+    /// [`cdr::MaxSize::UNBOUNDED`] unless the type says (an unbounded
+    /// `String` or `Vec`, a pointer); `#[derive(IpcMessage)]` adds up its
+    /// fields, a bounded `String` or `Vec` (`#[ipc(bound = N)]`) counting
+    /// at its bound.
     ///
     /// ```
     /// use courier_wire::IpcMessage;
+    /// use courier_wire::cdr::Version;
     /// assert_eq!(i64::CDR_MAX_SIZE.max_len(), Some(8));
     /// assert_eq!(<[u16; 3]>::CDR_MAX_SIZE.max_len(), Some(6));
     /// assert_eq!(String::CDR_MAX_SIZE.max_len(), None);
+    /// // where it starts matters: a long long after 4 bytes ends at 12
+    /// // in XCDR2 (aligned to 4), at 16 in XCDR1 (aligned to 8)
+    /// assert_eq!(i64::CDR_MAX_SIZE.end_in(Version::Xcdr2, 4), Some(12));
+    /// assert_eq!(i64::CDR_MAX_SIZE.end_in(Version::Xcdr1, 4), Some(16));
     /// ```
     const CDR_MAX_SIZE: cdr::MaxSize = cdr::MaxSize::UNBOUNDED;
     /// The most bytes the key ([`cdr_encode_key`](Self::cdr_encode_key))
-    /// takes in the key-hash form, key members in member-id order. It
-    /// decides what the DDS key hash of an instance is (DDSI-RTPS 2.5
-    /// §9.6.4.8): the key zero-padded to 16 bytes when this is at most 16
-    /// ([`cdr::MaxSize::fits_key_hash`]), else the key's MD5 digest,
+    /// takes in the key-hash form of each XCDR version, key members in
+    /// member-id order. It decides what the DDS key hash of an instance is
+    /// (DDSI-RTPS 2.5 §9.6.4.8) in that version: the key zero-padded to 16
+    /// bytes when this is at most 16
+    /// ([`cdr::MaxSize::fits_key_hash_in`]), else the key's MD5 digest,
     /// whatever the length of the actual value. A bounded string
     /// (`#[ipc(key, bound = 11)] name: String`, IDL `@key string<11>`)
     /// counts as 4 + 11 + 1 bytes, as Cyclone DDS and Fast DDS count it.
+    /// The XCDR1 maximum is Cyclone DDS's `DDS_TOPIC_FIXED_KEY` (and Fast
+    /// DDS's `getKeyMaxCdrSerializedSize`), the XCDR2 one its
+    /// `DDS_TOPIC_FIXED_KEY_XCDR2`.
     ///
     /// ```
     /// use courier_wire::IpcMessage;
+    /// use courier_wire::cdr::Version;
     /// assert!(u64::CDR_KEY_MAX_SIZE.fits_key_hash());
+    /// assert!(u64::CDR_KEY_MAX_SIZE.fits_key_hash_in(Version::Xcdr1));
     /// assert!(!<[u32; 5]>::CDR_KEY_MAX_SIZE.fits_key_hash());
     /// ```
     const CDR_KEY_MAX_SIZE: cdr::MaxSize = Self::CDR_MAX_SIZE;

@@ -1,6 +1,8 @@
 //! Type information besides the format: the DDS type name, the CDR
 //! extensibility, the smallest encoded sizes, the largest key-hash form of
-//! a value and of its key, and the key fields.
+//! a value and of its key (one `cdr::MaxSize` measures it in XCDR1 and in
+//! XCDR2: the derive composes its fields' and the constructors lay each
+//! version out), and the key fields.
 
 use proc_macro2::{TokenStream, TokenTree};
 use quote::quote;
@@ -49,9 +51,15 @@ pub(super) fn ext_tokens(e: Extensibility) -> TokenStream {
 /// The terms of a struct's size constants, one per field (after a first
 /// neutral one): `IPC_MIN_SIZE` and `CDR_MIN_SIZE` add them up;
 /// `CDR_MAX_SIZE` lays out every field, `CDR_KEY_MAX_SIZE` the key fields,
-/// both in member-id order (the order of the key-hash form: a key member
-/// whose type has no key fields makes all its members keys, which Cyclone
-/// DDS orders by member id too), one `MaxSize::then` the next.
+/// one `MaxSize::then` the next. For XCDR2 in member-id order (the order
+/// of the key-hash form: a key member whose type has no key fields makes
+/// all its members keys, which Cyclone DDS orders by member id too); for
+/// XCDR1 in definition order, as Cyclone DDS measures the XCDR1 key
+/// (idlc's `DDS_TOPIC_FIXED_KEY`, Cyclone DDS 11's
+/// `dds_stream_key_size`), though it writes the XCDR1 key-hash form in
+/// member-id order as well. The two differ only when `#[ipc(id = ..)]`
+/// puts the fields out of order (`MaxSize::per_version` then combines
+/// the two layouts).
 pub(super) struct Sizes {
     pub(super) ipc_min: Vec<TokenStream>,
     pub(super) cdr_min: Vec<TokenStream>,
@@ -113,6 +121,28 @@ fn layout(terms: impl IntoIterator<Item = TokenStream>) -> TokenStream {
     out
 }
 
+/// The `MaxSize` of `fields` laid out in definition order for XCDR1 and
+/// in member-id order for XCDR2 (see [`Sizes`]), each field measured by
+/// `size`.
+fn layout_per_version(
+    fields: &[&Field<'_>],
+    size: impl Fn(&Field<'_>) -> TokenStream,
+) -> TokenStream {
+    let by_id = {
+        let mut v = fields.to_vec();
+        v.sort_by_key(|f| f.id);
+        v
+    };
+    let in_order = by_id.iter().map(|f| f.id).eq(fields.iter().map(|f| f.id));
+    let xcdr2 = layout(by_id.iter().map(|f| size(f)));
+    if in_order {
+        xcdr2
+    } else {
+        let xcdr1 = layout(fields.iter().map(|f| size(f)));
+        quote!(__wire::cdr::MaxSize::per_version(#xcdr1, #xcdr2))
+    }
+}
+
 pub(super) fn sizes(fields: &[Field<'_>], ident: &syn::Ident) -> Sizes {
     let mut ipc_min = vec![quote!(0usize)];
     let mut cdr_min = vec![quote!(0usize)];
@@ -133,15 +163,15 @@ pub(super) fn sizes(fields: &[Field<'_>], ident: &syn::Ident) -> Sizes {
             }
         }
     }
-    // the key-hash form writes the members in member-id order
-    let mut all: Vec<&Field<'_>> = fields.iter().collect();
-    all.sort_by_key(|f| f.id);
+    // the key-hash form writes the members in member-id order; XCDR1's
+    // maximum is measured in definition order (see `Sizes`)
+    let all: Vec<&Field<'_>> = fields.iter().collect();
     let keys: Vec<&Field<'_>> = all.iter().copied().filter(|f| f.attrs.key).collect();
     Sizes {
         ipc_min,
         cdr_min,
-        max_size: layout(all.into_iter().map(|f| field_max_size(f, ident))),
-        key_max_size: layout(keys.into_iter().map(|f| key_field_max_size(f, ident))),
+        max_size: layout_per_version(&all, |f| field_max_size(f, ident)),
+        key_max_size: layout_per_version(&keys, |f| key_field_max_size(f, ident)),
     }
 }
 

@@ -94,11 +94,17 @@ pub(crate) use options::RtpsOverrides;
 pub use options::{parse_peer, RtpsOptions, ServiceStyle, LOOPBACK_MAX_MESSAGE_SIZE};
 pub use ros2::{Ros2Endpoint, Ros2Kind, Ros2Node, Ros2NodeName};
 
-/// The DDS key hash of `value` (DDSI-RTPS §9.6.4.8): its key fields as
-/// big-endian XCDR2, zero-padded when the key can never exceed 16 bytes,
-/// else their MD5.
-pub(crate) fn key_hash_of<T: IpcMessage>(value: &T) -> [u8; 16] {
-    KeyHash::of(value).0
+/// The DDS key hash of `value` (DDSI-RTPS §9.6.4.8) that a writer of data
+/// in XCDR version `version` sends: its key fields big-endian in that
+/// version, zero-padded when the key can never exceed 16 bytes in it,
+/// else their MD5. The version of the data, as Cyclone DDS and Fast DDS
+/// compute it (a Fast DDS reader tells instances apart by it): XCDR1 for
+/// a final type unless the publication asks otherwise.
+pub(crate) fn key_hash_of<T: IpcMessage>(
+    value: &T,
+    version: courier_wire::cdr::Version,
+) -> [u8; 16] {
+    KeyHash::of_in(value, version).0
 }
 
 /// A GUID as 32 hex digits (prefix, then entity id).

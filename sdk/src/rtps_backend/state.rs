@@ -183,6 +183,24 @@ pub(super) struct State {
     pub(super) wakes: Option<Vec<std::task::Waker>>,
     /// The ROS 2 graph topic, when the session reads it.
     pub(super) ros2: Option<super::ros2::Ros2Graph>,
+    /// The XCDR version of each remote writer's data (the first data
+    /// representation it announced; XCDR1 when it named none), which the
+    /// key hashes it sends are in: an instance change says so
+    /// ([`RawSample::key_hash_version`]), so that a key can be read back
+    /// from a hash in either version.
+    writer_versions: HashMap<Guid, courier_wire::cdr::Version>,
+}
+
+/// The XCDR version of a writer's data: the first data representation it
+/// announced (DDS-XTypes 1.3 §7.6.3.1.1: a writer offers the one it
+/// writes), XCDR1 when it announced none; `None` for XML.
+fn data_version(representations: &[i16]) -> Option<courier_wire::cdr::Version> {
+    use courier_wire::cdr::Version;
+    match representations.first() {
+        None | Some(0) => Some(Version::Xcdr1),
+        Some(2) => Some(Version::Xcdr2),
+        Some(_) => None,
+    }
 }
 
 impl State {
@@ -216,6 +234,7 @@ impl State {
             immediate: Vec::new(),
             wakes: None,
             ros2: None,
+            writer_versions: HashMap::new(),
         }
     }
 
@@ -1217,12 +1236,15 @@ impl State {
                     }
                 }
                 P::PublicationFound(d) => {
+                    self.note_writer_version(d.guid, &d.qos.data_representation);
                     self.emit(SessionEvent::PublicationFound(Box::new((&d).into())))
                 }
                 P::PublicationChanged(d) => {
+                    self.note_writer_version(d.guid, &d.qos.data_representation);
                     self.emit(SessionEvent::PublicationChanged(Box::new((&d).into())))
                 }
                 P::PublicationLost(g) => {
+                    self.writer_versions.remove(&g);
                     self.emit(SessionEvent::PublicationLost(g.into()));
                 }
                 P::SubscriptionFound(d) => {
@@ -1289,6 +1311,15 @@ impl State {
         }
     }
 
+    /// Remembers the XCDR version of remote writer `g`'s data (see
+    /// [`State::writer_versions`]).
+    fn note_writer_version(&mut self, g: Guid, representations: &[i16]) {
+        match data_version(representations) {
+            Some(v) => self.writer_versions.insert(g, v),
+            None => self.writer_versions.remove(&g),
+        };
+    }
+
     fn sample(&mut self, reader: ReaderId, s: participant::ReceivedSample, received: SystemTime) {
         let Some(r) = self.subs.get(&reader) else {
             if let Some(g) = self.ros2.as_mut().filter(|g| g.is_reader(reader)) {
@@ -1314,6 +1345,12 @@ impl State {
                 ChangeKind::Disposed | ChangeKind::DisposedUnregistered => InstanceState::Disposed,
             },
             key_hash: s.key_hash.map(|k| k.0),
+            // the hash of an instance change may be all there is of its key
+            key_hash_version: if s.kind == ChangeKind::Alive {
+                None
+            } else {
+                self.writer_versions.get(&s.writer).copied()
+            },
             source_time,
             expires,
             // last: the received buffer itself, not a copy

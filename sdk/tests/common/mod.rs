@@ -1,5 +1,5 @@
 //! What the test files share: the RTPS interop peers' types (IDL
-//! `courier::test::Msg` and `Keyed` in tests/peers/rtps/types.idl), loopback
+//! `courier::test::Msg`, `Keyed` and `Stamped` in tests/peers/rtps/types.idl), loopback
 //! sessions, bounded waits, and what losing central must do.
 
 #![allow(dead_code)] // each test file uses its own part
@@ -25,6 +25,20 @@ pub struct Msg {
 pub struct Keyed {
     #[ipc(key)]
     pub id: i32,
+    pub seq: u32,
+    pub text: String,
+}
+
+/// `courier::test::Stamped` (`@key long id; @key long long stamp;
+/// unsigned long seq; string text;`): a key whose XCDR1 and XCDR2 key
+/// hashes differ (XCDR1 aligns `stamp` to 8, XCDR2 to 4).
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "courier::test::Stamped")]
+pub struct Stamped {
+    #[ipc(key)]
+    pub id: i32,
+    #[ipc(key)]
+    pub stamp: i64,
     pub seq: u32,
     pub text: String,
 }

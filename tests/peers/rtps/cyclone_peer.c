@@ -41,8 +41,9 @@
 #define MAX_DOMAIN 232 /* 7400 + 250 * d + 61 must stay below 65536 */
 
 /* Loopback-only, unicast-only discovery; valid for any domain id. Same
- * settings as tests/peers/rtps/cyclone-unicast-lo.xml. The %s is an optional
- * <Tracing> element (--trace FILE). */
+ * settings as tests/peers/rtps/cyclone-unicast-lo.xml. The first %s is an
+ * optional <Internal> element (--keyhash), the second an optional <Tracing>
+ * element (--trace FILE). */
 static const char LOOPBACK_CONFIG[] =
     "<CycloneDDS><Domain id=\"any\">"
     "<General><Interfaces><NetworkInterface name=\"lo\"/></Interfaces>"
@@ -51,9 +52,17 @@ static const char LOOPBACK_CONFIG[] =
     "<MaxAutoParticipantIndex>20</MaxAutoParticipantIndex>"
     "<Peers><Peer address=\"127.0.0.1\"/></Peers></Discovery>"
     "%s"
+    "%s"
     "</Domain></CycloneDDS>";
 
-enum type_kind { TYPE_NONE, TYPE_MSG, TYPE_KEYED, TYPE_STRKEYED };
+/* --keyhash: writers of keyed topics send PID_KEY_HASH with every sample and
+ * dispose (Cyclone DDS 0.10 computes it in the XCDR version of the data). */
+static const char KEYHASH_CONFIG[] = "<Internal><GenerateKeyhash>true</GenerateKeyhash></Internal>";
+
+/* The `stamp` key of instance `id` of a `stamped` sample. */
+#define STAMP_BASE INT64_C(0x0102030405060708)
+
+enum type_kind { TYPE_NONE, TYPE_MSG, TYPE_KEYED, TYPE_STRKEYED, TYPE_STAMPED };
 
 struct options {
   long domain;
@@ -83,6 +92,7 @@ struct options {
   bool disposed_set;
   const char *text;
   const char *trace;
+  bool keyhash;
 };
 
 static const char *prog = "cyclone_peer";
@@ -92,13 +102,17 @@ static pid_t initial_ppid;
 static void usage(FILE *out)
 {
   fprintf(out,
-      "usage: %s --domain N --topic NAME --type msg|keyed|strkeyed --pub|--sub\n"
+      "usage: %s --domain N --topic NAME --type msg|keyed|strkeyed|stamped --pub|--sub\n"
       "          --reliable|--best-effort [--transient-local]\n"
       "          [--depth N (keep last, default 10) | --keep-all] [--count N]\n"
       "          [--size BYTES[,BYTES...]] [--period-ms N] [--dispose-every N]\n"
       "          [--wait-match N] [--wait-stdin] [--settle-ms N] [--timeout-s N] [--linger-ms N]\n"
       "          [--keys N] [--disposed N] [--no-autodispose] [--text PREFIX] [--trace FILE]\n"
+      "          [--keyhash]\n"
       "Loopback only (interface lo, unicast discovery to 127.0.0.1).\n"
+      "--keyhash: writers send PID_KEY_HASH (Internal/GenerateKeyhash).\n"
+      "--type stamped: @key long id; @key long long stamp (0x0102030405060708 + id);\n"
+      "  its instances are named <id>:<stamp> in sample, disposed and unregistered lines.\n"
       "A subscriber is done after --count samples and --disposed disposals (both when\n"
       "given, otherwise it runs until --timeout-s); either role then stays --linger-ms.\n"
       "Output lines: ready | matched <n> | sent <seq> | sent <id> <seq> | dispose <id>\n"
@@ -204,8 +218,10 @@ static void parse_args(int argc, char **argv, struct options *o)
         o->type = TYPE_KEYED;
       else if (strcmp(t, "strkeyed") == 0)
         o->type = TYPE_STRKEYED;
+      else if (strcmp(t, "stamped") == 0)
+        o->type = TYPE_STAMPED;
       else
-        usage_error("--type must be msg, keyed or strkeyed, not '%s'", t);
+        usage_error("--type must be msg, keyed, strkeyed or stamped, not '%s'", t);
     } else if (strcmp(a, "--pub") == 0 || strcmp(a, "--sub") == 0) {
       int r = (a[2] == 'p') ? 1 : 2;
       if (o->role != 0 && o->role != r)
@@ -254,6 +270,8 @@ static void parse_args(int argc, char **argv, struct options *o)
       o->text = TAKES_VALUE();
       if (o->text == NULL)
         usage_error("--text needs a value");
+    } else if (strcmp(a, "--keyhash") == 0) {
+      o->keyhash = true;
     } else if (strcmp(a, "--trace") == 0) {
       o->trace = TAKES_VALUE();
       if (o->trace == NULL || o->trace[0] == '\0' || strpbrk(o->trace, "<>&\"'"))
@@ -281,7 +299,7 @@ static void parse_args(int argc, char **argv, struct options *o)
       usage_error("--size, --period-ms, --dispose-every, --wait-match, --wait-stdin, "
                   "--settle-ms, --keys, --no-autodispose and --text are publisher options");
     if (o->disposed_set && o->type == TYPE_MSG)
-      usage_error("--disposed is for --type keyed or strkeyed");
+      usage_error("--disposed is for --type keyed, strkeyed or stamped");
   } else {
     if (o->type == TYPE_STRKEYED)
       usage_error("--type strkeyed is for subscribers");
@@ -293,7 +311,7 @@ static void parse_args(int argc, char **argv, struct options *o)
   if (o->type != TYPE_MSG && o->nsizes)
     usage_error("--size is for --type msg");
   if (o->type == TYPE_MSG && (o->dispose_every || o->keys || o->no_autodispose))
-    usage_error("--dispose-every, --keys and --no-autodispose are for --type keyed");
+    usage_error("--dispose-every, --keys and --no-autodispose are for --type keyed or stamped");
   if (o->nsizes == 0) {
     o->nsizes = 1;
     o->sizes[0] = 0;
@@ -407,6 +425,21 @@ static void print_sample_keyed(const courier_test_Keyed *k)
 {
   char *t = escape_text(k->text ? k->text : "");
   emit("sample %" PRId32 " %" PRIu32 " %s", k->id, k->seq, t);
+  free(t);
+}
+
+/* An instance of `stamped`: "<id>:<stamp>", at most 11 + 1 + 20 + 1 bytes. */
+static void stamped_label(const courier_test_Stamped *k, char *buf, size_t cap)
+{
+  snprintf(buf, cap, "%" PRId32 ":%" PRId64, k->id, k->stamp);
+}
+
+static void print_sample_stamped(const courier_test_Stamped *k)
+{
+  char label[40];
+  char *t = escape_text(k->text ? k->text : "");
+  stamped_label(k, label, sizeof label);
+  emit("sample %s %" PRIu32 " %s", label, k->seq, t);
   free(t);
 }
 
@@ -549,6 +582,22 @@ static void run_pub(const struct options *o, dds_entity_t wr, dds_entity_t ws)
       fill_msg(&m, seq, size, o->text, text, textcap);
       write_retrying(wr, &m, "write");
       emit("sent %" PRIu32, seq);
+    } else if (o->type == TYPE_STAMPED) {
+      courier_test_Stamped k;
+      int32_t id = o->keys ? (int32_t)(n % o->keys) : (int32_t)n;
+      snprintf(text, textcap, "%s-%" PRIu32, o->text, seq);
+      k.id = id;
+      k.stamp = STAMP_BASE + id;
+      k.seq = seq;
+      k.text = text;
+      write_retrying(wr, &k, "write");
+      emit("sent %" PRId32 " %" PRIu32, id, seq);
+      if (o->dispose_every && n % o->dispose_every == 0) {
+        dds_return_t rc = dds_dispose(wr, &k);
+        if (rc != DDS_RETCODE_OK)
+          fail("dispose", rc);
+        emit("dispose %" PRId32, id);
+      }
     } else {
       courier_test_Keyed k;
       int32_t id = o->keys ? (int32_t)(n % o->keys) : (int32_t)n;
@@ -688,6 +737,17 @@ static void run_sub(const struct options *o, dds_entity_t rd, dds_entity_t ws)
         }
         if (track_instance(k->id, NULL, infos[i].instance_state))
           disposed++;
+      } else if (o->type == TYPE_STAMPED) {
+        /* an invalid sample (a dispose) holds the key fields only */
+        const courier_test_Stamped *k = samples[i];
+        char label[40];
+        stamped_label(k, label, sizeof label);
+        if (infos[i].valid_data) {
+          print_sample_stamped(k);
+          received++;
+        }
+        if (track_instance(name_id(label), label, infos[i].instance_state))
+          disposed++;
       } else {
         /* an invalid sample (a dispose) holds the key fields only */
         const courier_test_StrKeyed *k = samples[i];
@@ -754,11 +814,11 @@ int main(int argc, char **argv)
       abort();
     sprintf(tracing, fmt, o.trace);
   }
-  cfglen = sizeof LOOPBACK_CONFIG + (tracing ? strlen(tracing) : 0);
+  cfglen = sizeof LOOPBACK_CONFIG + (tracing ? strlen(tracing) : 0) + sizeof KEYHASH_CONFIG;
   config = malloc(cfglen);
   if (config == NULL)
     abort();
-  snprintf(config, cfglen, LOOPBACK_CONFIG, tracing ? tracing : "");
+  snprintf(config, cfglen, LOOPBACK_CONFIG, o.keyhash ? KEYHASH_CONFIG : "", tracing ? tracing : "");
   free(tracing);
 
   domain = dds_create_domain((dds_domainid_t)o.domain, config);
@@ -771,9 +831,10 @@ int main(int argc, char **argv)
 
   qos = make_qos(&o);
   tp = dds_create_topic(pp,
-      o.type == TYPE_MSG     ? &courier_test_Msg_desc
-      : o.type == TYPE_KEYED ? &courier_test_Keyed_desc
-                             : &courier_test_StrKeyed_desc,
+      o.type == TYPE_MSG       ? &courier_test_Msg_desc
+      : o.type == TYPE_KEYED   ? &courier_test_Keyed_desc
+      : o.type == TYPE_STAMPED ? &courier_test_Stamped_desc
+                               : &courier_test_StrKeyed_desc,
       o.topic, qos, NULL);
   if (tp < 0)
     fail("create topic", tp);

@@ -83,7 +83,8 @@ pub struct Writer {
     /// An absent optional value asked for the open mutable member to be dropped.
     absent: bool,
     /// Key-hash form: every struct is written as a final one (no `DHEADER`,
-    /// no member headers), as DDSI-RTPS §9.6.4.8 serializes a key for its hash.
+    /// no member headers or parameter list), as DDSI-RTPS §9.6.4.8
+    /// serializes a key for its hash.
     flat: bool,
 }
 
@@ -116,17 +117,43 @@ impl Writer {
         }
     }
 
-    /// A writer of the key-hash form (DDSI-RTPS 2.5 §9.6.4.8, DDS-XTypes
-    /// 1.3 §7.6.8): big-endian XCDR2 without encapsulation header, every
-    /// struct written as a final one (no `DHEADER`, no member headers),
-    /// whatever its extensibility. Feed it [`IpcMessage::cdr_encode_key`]
-    /// (see [`crate::rtps::participant::KeyHash::of`]).
+    /// A writer of the key-hash form in XCDR2 (DDSI-RTPS 2.5 §9.6.4.8,
+    /// DDS-XTypes 1.3 §7.6.8): [`Writer::key_hash_form_in`]
+    /// `(`[`Version::Xcdr2`]`)`, the form the specification names.
+    pub fn key_hash_form() -> Self {
+        Self::key_hash_form_in(Version::Xcdr2)
+    }
+
+    /// A writer of the key-hash form in XCDR version `version`: big-endian
+    /// without encapsulation header, alignment from the first byte, every
+    /// struct written as a final one (no `DHEADER`, no member headers or
+    /// parameter list), whatever its extensibility. Feed it
+    /// [`IpcMessage::cdr_encode_key`] (see
+    /// [`crate::rtps::participant::KeyHash::of_in`]).
+    ///
+    /// DDS-XTypes 1.3 §7.6.8 specifies XCDR2; Cyclone DDS and Fast DDS
+    /// serialize the key in the XCDR version of the data instead (XCDR1
+    /// for most final types: 8-byte members aligned to 8), as Cyclone's
+    /// `DDS_CDR_KEY_SERIALIZATION_KEYHASH` does with the data's version,
+    /// with no member headers for a mutable struct in either version.
+    ///
+    /// ```
+    /// use courier_wire::cdr::{Version, Writer};
+    /// let mut w = Writer::key_hash_form_in(Version::Xcdr1);
+    /// w.write_i32(1);
+    /// w.write_i64(2);
+    /// assert_eq!(w.as_bytes(), [0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 2]);
+    /// let mut w = Writer::key_hash_form_in(Version::Xcdr2);
+    /// w.write_i32(1);
+    /// w.write_i64(2);
+    /// assert_eq!(w.as_bytes(), [0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 0, 2]);
+    /// ```
     ///
     /// [`IpcMessage::cdr_encode_key`]: crate::IpcMessage::cdr_encode_key
-    pub fn key_hash_form() -> Self {
+    pub fn key_hash_form_in(version: Version) -> Self {
         Writer {
             flat: true,
-            ..Writer::new(Encoding::Xcdr2Be)
+            ..Writer::new(Encoding::new(version, Endianness::Big))
         }
     }
 
@@ -167,7 +194,7 @@ impl Writer {
         matches!(self.encoding.endianness(), Endianness::Little)
     }
 
-    /// Whether this writes the key-hash form ([`Writer::key_hash_form`]),
+    /// Whether this writes the key-hash form ([`Writer::key_hash_form_in`], either version),
     /// where key members go in member-id order (Cyclone DDS sorts them so;
     /// the serialized key keeps definition order), and so do the members
     /// of a struct written whole (a key member whose type has no key
@@ -652,9 +679,16 @@ impl<'a> Reader<'a> {
     /// A reader of the key-hash form that [`Writer::key_hash_form`] writes:
     /// big-endian XCDR2, every struct read as a final one.
     pub fn key_hash_form(buf: &'a [u8]) -> Self {
+        Self::key_hash_form_in(buf, Version::Xcdr2)
+    }
+
+    /// A reader of the key-hash form that [`Writer::key_hash_form_in`]
+    /// writes: big-endian XCDR version `version`, every struct read as a
+    /// final one.
+    pub fn key_hash_form_in(buf: &'a [u8], version: Version) -> Self {
         Reader {
             flat: true,
-            ..Reader::new(buf, Encoding::Xcdr2Be)
+            ..Reader::new(buf, Encoding::new(version, Endianness::Big))
         }
     }
 
@@ -672,7 +706,7 @@ impl<'a> Reader<'a> {
         })
     }
 
-    /// Whether this reads the key-hash form ([`Reader::key_hash_form`]):
+    /// Whether this reads the key-hash form ([`Reader::key_hash_form_in`], either version):
     /// structs without `DHEADER` or member headers, whatever their
     /// extensibility.
     pub fn is_key_hash_form(&self) -> bool {

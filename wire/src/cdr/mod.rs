@@ -16,6 +16,18 @@
 //! Payloads are not padded to a multiple of 4: DDS writers add that padding
 //! on the wire, and [`from_slice`] accepts up to 3 padding bytes.
 //!
+//! Keys have a form of their own for DDS key hashes (`PID_KEY_HASH`): the
+//! *key-hash form* ([`Writer::key_hash_form_in`]), big-endian without
+//! encapsulation header, every struct final, key members in member-id
+//! order, in either XCDR version. A writer's key hash is in the version of
+//! its data ([`key_hash_of_payload`] reads it from the encapsulation
+//! header; [`key_hash_of_key_in`] and [`key_from_key_hash_in`] take it);
+//! the functions without a version ([`key_hash_of_key`],
+//! [`key_from_key_hash`], [`crate::key_hash`]) use XCDR2, the form
+//! DDS-XTypes 1.3 §7.6.8 specifies. [`MaxSize`] measures the largest key
+//! in each version. See [`crate::rtps::participant::KeyHash`] for why the
+//! versions differ and what Cyclone DDS and Fast DDS do.
+//!
 //! ```
 //! use courier_wire::cdr::{self, Encoding};
 //! let b = cdr::to_vec(&String::from("hi"), Encoding::Xcdr1Le);
@@ -403,14 +415,23 @@ pub fn key_from_slice<T: IpcMessage>(bytes: &[u8]) -> Result<T::Key, DecodeError
     Ok(k)
 }
 
-/// The DDS key hash of the instance whose key is `key` (what
-/// [`key_from_slice`] returns): the same as [`crate::key_hash`] of a value
-/// with that key. `None` for a type that cannot say (a key member that is a
-/// `Vec` with a length field, that length field, or an n-d array).
+/// The DDS key hash in XCDR2 form of the instance whose key is `key` (what
+/// [`key_from_slice`] returns): [`key_hash_of_key_in`] `(key,`
+/// [`Version::Xcdr2`]`)`, the same as [`crate::key_hash`] of a value with
+/// that key.
 pub fn key_hash_of_key<T: IpcMessage>(key: &T::Key) -> Option<[u8; 16]> {
-    let mut w = Writer::key_hash_form();
+    key_hash_of_key_in::<T>(key, Version::Xcdr2)
+}
+
+/// The DDS key hash in XCDR version `version` of the instance whose key is
+/// `key` (what [`key_from_slice`] returns): the same as
+/// [`crate::key_hash_in`] of a value with that key. `None` for a type that
+/// cannot say (a key member that is a `Vec` with a length field, that
+/// length field, or an n-d array).
+pub fn key_hash_of_key_in<T: IpcMessage>(key: &T::Key, version: Version) -> Option<[u8; 16]> {
+    let mut w = Writer::key_hash_form_in(version);
     T::cdr_encode_key_value(key, &mut w).then(|| {
-        let may_exceed_16 = !T::CDR_KEY_MAX_SIZE.fits_key_hash();
+        let may_exceed_16 = !T::CDR_KEY_MAX_SIZE.fits_key_hash_in(version);
         crate::rtps::participant::KeyHash::from_key(w.as_bytes(), may_exceed_16).0
     })
 }
@@ -418,32 +439,52 @@ pub fn key_hash_of_key<T: IpcMessage>(key: &T::Key) -> Option<[u8; 16]> {
 /// The DDS key hash of a received payload of a keyed `T`: a sample
 /// (`key_only` false) or the serialized key a dispose or unregister
 /// carries, with its encapsulation header. What a reader computes when
-/// the writer sent no `PID_KEY_HASH` (Cyclone DDS 11 sends none). `None`
-/// for a type without key fields, or bytes that do not decode.
+/// the writer sent no `PID_KEY_HASH` (Cyclone DDS 11 sends none).
+///
+/// The hash is in the XCDR version of the payload (its encapsulation
+/// header): what the writer of that payload sends when it sends a key
+/// hash (Cyclone DDS and Fast DDS compute it in the data's version, as
+/// Courier does), so that its samples with and without one name the same
+/// instance. `None` for a type without key fields, or bytes that do not
+/// decode.
 pub fn key_hash_of_payload<T: IpcMessage>(data: &[u8], key_only: bool) -> Option<[u8; 16]> {
     if T::KEYS.is_empty() {
         return None;
     }
+    let version = Reader::with_header(data).ok()?.version();
     if key_only {
-        key_hash_of_key::<T>(&key_from_slice::<T>(data).ok()?)
+        key_hash_of_key_in::<T>(&key_from_slice::<T>(data).ok()?, version)
     } else {
-        Some(crate::key_hash(&from_slice::<T>(data).ok()?))
+        Some(crate::key_hash_in(&from_slice::<T>(data).ok()?, version))
     }
 }
 
-/// The key behind a DDS key hash, when the hash holds the key itself: a
-/// type whose key can never take more than 16 bytes in the key-hash form
-/// ([`IpcMessage::CDR_KEY_MAX_SIZE`], [`MaxSize::fits_key_hash`]) has the
-/// key, in that form ([`Writer::key_hash_form`]), zero-padded as its hash;
-/// a bounded string (`string<11>` at most) comes back too, its bytes up to
-/// its NUL, then zeros. `None` for a type whose key can be longer (its
-/// hash is an MD5 digest, even of a short key), a type without key
-/// fields, or bytes that do not decode.
+/// The key behind a DDS key hash in XCDR2 form: [`key_from_key_hash_in`]
+/// `(hash,` [`Version::Xcdr2`]`)`. A hash sent by a writer of XCDR1 data
+/// (Fast DDS, Cyclone DDS and Courier for final types by default) needs
+/// [`key_from_key_hash_in`] with [`Version::Xcdr1`].
 pub fn key_from_key_hash<T: IpcMessage>(hash: &[u8; 16]) -> Option<T::Key> {
-    if T::KEYS.is_empty() || !T::CDR_KEY_MAX_SIZE.fits_key_hash() {
+    key_from_key_hash_in::<T>(hash, Version::Xcdr2)
+}
+
+/// The key behind a DDS key hash in XCDR version `version`, when the hash
+/// holds the key itself: a type whose key can never take more than 16
+/// bytes in that version's key-hash form ([`IpcMessage::CDR_KEY_MAX_SIZE`],
+/// [`MaxSize::fits_key_hash_in`]) has the key, in that form
+/// ([`Writer::key_hash_form_in`]), zero-padded as its hash; a bounded
+/// string (`string<11>` at most) comes back too, its bytes up to its NUL,
+/// then zeros. `None` for a type whose key can be longer (its hash is an
+/// MD5 digest, even of a short key), a type without key fields, or bytes
+/// that do not decode.
+///
+/// The two versions lay out some keys differently (XCDR1 aligns an 8-byte
+/// member to 8, XCDR2 to 4): the version must be the one the hash was
+/// computed in, the writer's data representation.
+pub fn key_from_key_hash_in<T: IpcMessage>(hash: &[u8; 16], version: Version) -> Option<T::Key> {
+    if T::KEYS.is_empty() || !T::CDR_KEY_MAX_SIZE.fits_key_hash_in(version) {
         return None;
     }
-    let mut r = Reader::key_hash_form(hash);
+    let mut r = Reader::key_hash_form_in(hash, version);
     let k = T::cdr_decode_key(&mut r).ok()?;
     let rest = hash.get(r.position()..)?;
     rest.iter().all(|b| *b == 0).then_some(k)

@@ -1,53 +1,113 @@
-//! Key hashes (DDSI-RTPS 2.5 §9.6.4.8) and the MD5 they need (RFC 1321).
-//!
-//! The key hash of an instance is computed from its key fields serialized
-//! as big-endian XCDR2 (`PLAIN_CDR2` BE, no encapsulation header, every
-//! struct final, key members in member-id order, and so the members of a
-//! key member whose struct type has no key fields: DDS-XTypes 1.3 §7.6.8):
-//! when the *type's* largest possible key fits in 16 bytes, the hash is
-//! those bytes zero-padded to 16; otherwise it is their MD5 digest, even
-//! for a value whose key is short. The type decides
-//! ([`IpcMessage::CDR_KEY_MAX_SIZE`], a [`MaxSize`]), never the value: an
-//! unbounded string or sequence always takes the MD5 path, while a bounded
-//! string `string<N>` (`#[ipc(key, bound = N)] name: String`) counts as
-//! 4 + N + 1 bytes aligned to 4, so `string<11>` is padded and `string<12>`
-//! hashed.
-//!
-//! ```
-//! use courier_wire::rtps::participant::KeyHash;
-//! // `long id` as key: 4 bytes, zero-padded
-//! let k = KeyHash::from_key(&7i32.to_be_bytes(), false);
-//! assert_eq!(k.0[..4], [0, 0, 0, 7]);
-//! assert_eq!(k.0[4..], [0; 12]);
-//! // `string name` as key: unbounded, so MD5 of "\0\0\0\x03ab\0"
-//! let k = KeyHash::from_key(b"\0\0\0\x03ab\0", true);
-//! assert_ne!(k.0[4..], [0; 12]);
-//! ```
-//!
-//! Cyclone DDS 11's C library (idlc's `DDS_TOPIC_FIXED_KEY_XCDR2`) and Fast
-//! DDS's generated code decide the same way. Two peers do not: Cyclone DDS
-//! 0.10's runtime pads by the actual length of the key, and the Python
-//! `cyclonedds` 11 binding counts a bounded string as 4 + N bytes (no NUL);
-//! Courier follows the specification, Cyclone DDS 11's C library and Fast
-//! DDS. Fast DDS 2.9 serializes the key as XCDR1 BE, which gives the same
-//! bytes unless a key holds an 8-byte member that XCDR1 would align to 8
-//! instead of 4.
-//!
-//! [`IpcMessage::CDR_KEY_MAX_SIZE`]: crate::IpcMessage::CDR_KEY_MAX_SIZE
-//! [`MaxSize`]: crate::cdr::MaxSize
+//! Key hashes (DDSI-RTPS 2.5 §9.6.4.8) and the MD5 they need (RFC 1321):
+//! see [`KeyHash`] for the key-hash form, which XCDR version it is in,
+//! and what Cyclone DDS and Fast DDS do.
 
-/// A 16-byte instance key hash (`PID_KEY_HASH`).
+use crate::cdr::Version;
+
+/// A 16-byte instance key hash (`PID_KEY_HASH`, DDSI-RTPS 2.5 §9.6.4.8).
+///
+/// The key hash of an instance is computed from its key fields serialized
+/// big-endian in the *key-hash form* ([`Writer::key_hash_form_in`]: no
+/// encapsulation header, every struct final, key members in member-id
+/// order, and so the members of a key member whose struct type has no key
+/// fields): when the *type's* largest possible key in that form fits in 16
+/// bytes, the hash is those bytes zero-padded to 16; otherwise it is their
+/// MD5 digest, even for a value whose key is short. The type decides
+/// ([`IpcMessage::CDR_KEY_MAX_SIZE`], a [`MaxSize`]), never the value: an
+/// unbounded string or sequence always takes the MD5 path, while a bounded
+/// string `string<N>` (`#[ipc(key, bound = N)] name: String`) counts as
+/// 4 + N + 1 bytes aligned to 4, so `string<11>` is padded and `string<12>`
+/// hashed.
+///
+/// # Which XCDR version
+///
+/// The form exists in both XCDR versions, and they differ: XCDR1 aligns an
+/// 8-byte member to 8, XCDR2 to 4, and XCDR2 puts a `DHEADER` before an
+/// array or sequence of non-primitive elements (enums, strings, structs).
+/// `@key long a; @key long long b;` is `a`, 4 zero bytes, `b` in XCDR1 and
+/// `a`, `b`, 4 zero bytes (padding of the hash) in XCDR2; with `@key long
+/// c;` after them the XCDR1 key can reach 20 bytes, so its hash is an MD5
+/// digest, while the XCDR2 key (16 bytes) is padded.
+///
+/// DDS-XTypes 1.3 §7.6.8 specifies XCDR2. The implementations Courier
+/// talks to compute the hash in the XCDR version of the data instead:
+/// Cyclone DDS (`serdata_default_get_keyhash` serializes the key with the
+/// data's version and decides padding with `DDS_TOPIC_FIXED_KEY` for
+/// XCDR1, `DDS_TOPIC_FIXED_KEY_XCDR2` for XCDR2), and Fast DDS 2.9, which
+/// only writes XCDR1 (its generated `getKey`). Fast DDS readers tell
+/// instances apart by the `PID_KEY_HASH` they receive, so:
+///
+/// - what Courier **sends** is the hash in the version of the data it goes
+///   with: [`KeyHash::of_in`] with the publication's data representation
+///   (XCDR1 for a final type unless asked otherwise, XCDR2 for appendable
+///   and mutable ones);
+/// - what a reader **computes** for a writer that sends none
+///   ([`cdr::key_hash_of_payload`]) is in the version of the payload's
+///   encapsulation header, what that writer would have sent;
+/// - the functions that take no version ([`KeyHash::of`],
+///   [`crate::key_hash`], [`cdr::key_hash_of_key`],
+///   [`cdr::key_from_key_hash`]) use XCDR2, the specification's form.
+///
+/// A mutable struct has no member headers or parameter list in either
+/// version's form (Cyclone DDS writes its key members one after the other
+/// for the hash, `DDS_CDR_KEY_SERIALIZATION_KEYHASH`), and an appendable
+/// one no `DHEADER`; both count as final in the maximum as well, as
+/// Cyclone DDS 0.10's idlc counts them (Cyclone DDS 11 counts an XCDR1
+/// mutable key's parameter headers, so its XCDR1 hash of a mutable type
+/// is always an MD5 digest; Courier writes mutable types in XCDR2 unless
+/// asked otherwise).
+///
+/// Key members go in member-id order in both versions' form, as Cyclone
+/// DDS writes them, but Cyclone DDS measures the XCDR1 maximum in
+/// definition order (idlc's `DDS_TOPIC_FIXED_KEY`), and so does
+/// [`MaxSize`]: for a type whose `#[ipc(id = ..)]` reorders its keys, an
+/// XCDR1 key the maximum says fits can be longer than 16 bytes in the
+/// form, and is then hashed, as any key longer than 16 bytes is.
+///
+/// ```
+/// use courier_wire::cdr::{Version, Writer};
+/// use courier_wire::rtps::participant::KeyHash;
+/// // `long id` as key: 4 bytes, zero-padded
+/// let k = KeyHash::from_key(&7i32.to_be_bytes(), false);
+/// assert_eq!(k.0[..4], [0, 0, 0, 7]);
+/// assert_eq!(k.0[4..], [0; 12]);
+/// // `string name` as key: unbounded, so MD5 of "\0\0\0\x03ab\0"
+/// let k = KeyHash::from_key(b"\0\0\0\x03ab\0", true);
+/// assert_ne!(k.0[4..], [0; 12]);
+/// // `@key long a; @key long long b;`: the two forms differ
+/// let form = |version| {
+///     let mut w = Writer::key_hash_form_in(version);
+///     w.write_i32(1);
+///     w.write_i64(2);
+///     w.into_vec()
+/// };
+/// assert_eq!(form(Version::Xcdr1), [0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 2]);
+/// assert_eq!(form(Version::Xcdr2), [0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 0, 2]);
+/// // both fit 16 bytes: the hashes are the forms, padded
+/// assert_eq!(KeyHash::from_key(&form(Version::Xcdr2), false).0[12..], [0; 4]);
+/// ```
+///
+/// Two peers decide padding differently: Cyclone DDS 0.10's runtime pads
+/// by the actual length of the key, and the Python `cyclonedds` 11 binding
+/// counts a bounded string as 4 + N bytes (no NUL); Courier follows the
+/// specification, Cyclone DDS 11's C library and Fast DDS (the type's
+/// largest key).
+///
+/// [`IpcMessage::CDR_KEY_MAX_SIZE`]: crate::IpcMessage::CDR_KEY_MAX_SIZE
+/// [`MaxSize`]: crate::cdr::MaxSize
+/// [`Writer::key_hash_form_in`]: crate::cdr::Writer::key_hash_form_in
+/// [`cdr::key_hash_of_payload`]: crate::cdr::key_hash_of_payload
+/// [`cdr::key_hash_of_key`]: crate::cdr::key_hash_of_key
+/// [`cdr::key_from_key_hash`]: crate::cdr::key_from_key_hash
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Default)]
 pub struct KeyHash(pub [u8; 16]);
 
 impl KeyHash {
-    /// The key hash of `value`'s instance (DDSI-RTPS 2.5 §9.6.4.8): its key
-    /// fields ([`IpcMessage::cdr_encode_key`]) as big-endian XCDR2 with every
-    /// struct written as final ([`Writer::key_hash_form`]), zero-padded to
-    /// 16 bytes when the type's key can never serialize to more
-    /// ([`IpcMessage::CDR_KEY_MAX_SIZE`]), else their MD5 digest. This is the
-    /// `PID_KEY_HASH` Courier sends, and what Cyclone DDS 11 and Fast DDS
-    /// compute for `@final` types.
+    /// The key hash of `value`'s instance in XCDR2 form: [`KeyHash::of_in`]
+    /// `(value, `[`Version::Xcdr2`]`)`, the form DDS-XTypes 1.3 §7.6.8
+    /// specifies and what a writer of XCDR2 data sends. A writer of XCDR1
+    /// data (Fast DDS, Courier and Cyclone DDS for final types by default)
+    /// sends [`KeyHash::of_in`] `(value, Version::Xcdr1)`.
     ///
     /// ```
     /// use courier_wire::rtps::participant::KeyHash;
@@ -56,24 +116,49 @@ impl KeyHash {
     /// // an unbounded string: MD5, however short
     /// assert_ne!(KeyHash::of(&String::from("ab")).0[7..], [0; 9]);
     /// ```
+    pub fn of<T: crate::IpcMessage>(value: &T) -> Self {
+        Self::of_in(value, Version::Xcdr2)
+    }
+
+    /// The key hash of `value`'s instance (DDSI-RTPS 2.5 §9.6.4.8) in XCDR
+    /// version `version`: its key fields ([`IpcMessage::cdr_encode_key`])
+    /// big-endian in that version with every struct written as final
+    /// ([`Writer::key_hash_form_in`]), zero-padded to 16 bytes when the
+    /// type's key can never serialize to more in that version
+    /// ([`IpcMessage::CDR_KEY_MAX_SIZE`]`.`[`fits_key_hash_in`]`(version)`),
+    /// else their MD5 digest. This is the `PID_KEY_HASH` Courier sends with
+    /// data of that version, and what Cyclone DDS and Fast DDS compute for
+    /// `@final` types.
+    ///
+    /// ```
+    /// use courier_wire::cdr::Version;
+    /// use courier_wire::rtps::participant::KeyHash;
+    /// // a `uint64` key: 8 bytes in either version
+    /// let want = [1, 2, 3, 4, 5, 6, 7, 8, 0, 0, 0, 0, 0, 0, 0, 0];
+    /// assert_eq!(KeyHash::of_in(&0x0102_0304_0506_0708u64, Version::Xcdr1).0, want);
+    /// assert_eq!(KeyHash::of_in(&0x0102_0304_0506_0708u64, Version::Xcdr2).0, want);
+    /// ```
     ///
     /// [`IpcMessage::cdr_encode_key`]: crate::IpcMessage::cdr_encode_key
     /// [`IpcMessage::CDR_KEY_MAX_SIZE`]: crate::IpcMessage::CDR_KEY_MAX_SIZE
-    /// [`Writer::key_hash_form`]: crate::cdr::Writer::key_hash_form
-    pub fn of<T: crate::IpcMessage>(value: &T) -> Self {
-        let mut w = crate::cdr::Writer::key_hash_form();
+    /// [`fits_key_hash_in`]: crate::cdr::MaxSize::fits_key_hash_in
+    /// [`Writer::key_hash_form_in`]: crate::cdr::Writer::key_hash_form_in
+    pub fn of_in<T: crate::IpcMessage>(value: &T, version: Version) -> Self {
+        let mut w = crate::cdr::Writer::key_hash_form_in(version);
         value.cdr_encode_key(&mut w);
-        KeyHash::from_key(w.as_bytes(), !T::CDR_KEY_MAX_SIZE.fits_key_hash())
+        KeyHash::from_key(w.as_bytes(), !T::CDR_KEY_MAX_SIZE.fits_key_hash_in(version))
     }
 
-    /// The key hash of a key serialized as big-endian XCDR2 (without
-    /// encapsulation header). `may_exceed_16` says whether the type's key
-    /// *can* serialize to more than 16 bytes (`!`[`MaxSize::fits_key_hash`]
-    /// of [`IpcMessage::CDR_KEY_MAX_SIZE`]: an unbounded string or sequence
-    /// in the key, or bounded ones too long); a key that actually is longer
-    /// than 16 bytes is always hashed.
+    /// The key hash of a key serialized in the key-hash form of either
+    /// XCDR version (big-endian, without encapsulation header).
+    /// `may_exceed_16` says whether the type's key *can* serialize to more
+    /// than 16 bytes in that version (`!`[`MaxSize::fits_key_hash_in`] of
+    /// [`IpcMessage::CDR_KEY_MAX_SIZE`]: an unbounded string or sequence
+    /// in the key, bounded ones too long, or 8-byte members that XCDR1
+    /// pads to 8); a key that actually is longer than 16 bytes is always
+    /// hashed.
     ///
-    /// [`MaxSize::fits_key_hash`]: crate::cdr::MaxSize::fits_key_hash
+    /// [`MaxSize::fits_key_hash_in`]: crate::cdr::MaxSize::fits_key_hash_in
     /// [`IpcMessage::CDR_KEY_MAX_SIZE`]: crate::IpcMessage::CDR_KEY_MAX_SIZE
     pub fn from_key(key_be: &[u8], may_exceed_16: bool) -> Self {
         if may_exceed_16 || key_be.len() > 16 {
@@ -201,6 +286,29 @@ mod tests {
         assert_eq!(
             KeyHash::of(&[[1i16, 2], [3, 4]]).0,
             [0, 1, 0, 2, 0, 3, 0, 4, 0, 0, 0, 0, 0, 0, 0, 0]
+        );
+    }
+
+    /// XCDR1 has no `DHEADER`: an array of 16 octets as an element of an
+    /// array of strings would differ, but primitives are the same bytes in
+    /// both versions, and so is the decision for them.
+    #[test]
+    fn both_versions_agree_on_primitive_keys() {
+        for v in [Version::Xcdr1, Version::Xcdr2] {
+            assert_eq!(KeyHash::of_in(&[7u8; 16], v).0, [7; 16]);
+            assert_eq!(KeyHash::of_in(&[7u8; 17], v).0, md5(&[7; 17]));
+            assert_eq!(
+                hex(&KeyHash::of_in(&String::from("ab"), v).0),
+                "186594b7205d08ac2ff8e1ac47fb4b2a"
+            );
+            assert_eq!(
+                KeyHash::of_in(&[1u64, 2], v).0,
+                [0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 0, 2]
+            );
+        }
+        assert_eq!(
+            KeyHash::of(&[1u64, 2]),
+            KeyHash::of_in(&[1u64, 2], Version::Xcdr2)
         );
     }
 
