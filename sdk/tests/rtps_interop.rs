@@ -56,6 +56,23 @@ async fn blocking<R: Send + 'static>(f: impl FnOnce() -> R + Send + 'static) -> 
     tokio::task::spawn_blocking(f).await.expect("blocking task")
 }
 
+/// What the peer printed until `done`, but for its `matched` lines.
+async fn peer_lines(mut peer: Peer) -> Vec<String> {
+    blocking(move || {
+        let mut v = Vec::new();
+        loop {
+            let l = peer.expect("");
+            if l == "done" {
+                return v;
+            }
+            if !l.starts_with("matched") {
+                v.push(l);
+            }
+        }
+    })
+    .await
+}
+
 async fn session(domain: u32) -> Session {
     common::session(domain, "courier").await
 }
@@ -429,7 +446,7 @@ async fn keyed_courier_to_peer(vendor: Vendor, domain: u32) {
         ],
     );
     await_handlers(&s, "keyed").await;
-    let mut peer = blocking(move || {
+    let peer = blocking(move || {
         peer.expect("matched 1");
         peer
     })
@@ -444,19 +461,7 @@ async fn keyed_courier_to_peer(vendor: Vendor, domain: u32) {
     p.publish(&k(7, 1)).await.unwrap();
     p.dispose(&k(7, 0)).await.unwrap();
     p.publish(&k(8, 2)).await.unwrap();
-    let mut lines = blocking(move || {
-        let mut v = Vec::new();
-        loop {
-            let l = peer.expect("");
-            if l == "done" {
-                return v;
-            }
-            if !l.starts_with("matched") {
-                v.push(l);
-            }
-        }
-    })
-    .await;
+    let mut lines = peer_lines(peer).await;
     lines.sort();
     assert_eq!(
         lines,
@@ -617,7 +622,7 @@ async fn courier_to_cyclone_with_a_long_long_key() {
         ],
     );
     await_handlers(&s, "stamped").await;
-    let mut peer = blocking(move || {
+    let peer = blocking(move || {
         peer.expect("matched 1");
         peer
     })
@@ -631,19 +636,7 @@ async fn courier_to_cyclone_with_a_long_long_key() {
     p.publish(&k(7, 1)).await.unwrap();
     p.dispose(&k(7, 0)).await.unwrap();
     p.publish(&k(8, 2)).await.unwrap();
-    let mut lines = blocking(move || {
-        let mut v = Vec::new();
-        loop {
-            let l = peer.expect("");
-            if l == "done" {
-                return v;
-            }
-            if !l.starts_with("matched") {
-                v.push(l);
-            }
-        }
-    })
-    .await;
+    let mut lines = peer_lines(peer).await;
     lines.sort();
     let (s7, s8) = (stamp(7), stamp(8));
     assert_eq!(
