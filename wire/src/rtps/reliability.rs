@@ -110,14 +110,24 @@ struct ReaderProxy {
 /// DDS accepts any ACKNACK count after the same 500 ms.
 const REMATCH_AFTER_SILENCE: Duration = Duration::from_millis(500);
 
-/// A writer's history: samples by sequence number. Sequence numbers are
-/// written in order, so the history is a window `[base, base + len)` of
-/// slots, some emptied by [`History::remove`] (per-instance keep-last); a
-/// `BTreeMap` here cost ~5 % of a 16 B publisher's CPU.
+/// Empty slots a [`History`] tolerates beyond as many as it holds samples
+/// before it compacts itself.
+const HISTORY_SLACK: usize = 64;
+
+/// A writer's history: samples by sequence number, ascending. Sequence
+/// numbers are written in order, so a sample is looked up by its distance
+/// from the oldest one (a `BTreeMap` here cost ~5 % of a 16 B publisher's
+/// CPU). A sample removed from the middle ([`History::remove`]:
+/// per-instance keep-last) leaves an empty slot behind, which keeps that
+/// lookup right; once the empty slots outnumber the samples (plus
+/// [`HISTORY_SLACK`]) they are dropped, and a lookup that the distance no
+/// longer finds searches. Without that, a transient-local keyed writer
+/// that keeps one instance's sample while rewriting another's kept an
+/// empty slot per write, for ever.
 #[derive(Debug, Default)]
 struct History {
-    base: i64,
-    slots: VecDeque<Option<Payload>>,
+    /// Sequence number and sample; the front slot is never empty.
+    slots: VecDeque<(i64, Option<Payload>)>,
     count: usize,
 }
 
@@ -128,41 +138,47 @@ impl History {
 
     /// Appends `sn`, which must follow every sequence number held.
     fn push(&mut self, sn: i64, payload: Payload) {
-        if self.slots.is_empty() {
-            self.base = sn;
-        }
-        // (a gap, never made by `Writer::write`, is kept as empty slots)
-        while self.base + (self.slots.len() as i64) < sn {
-            self.slots.push_back(None);
-        }
-        self.slots.push_back(Some(payload));
+        debug_assert!(self.slots.back().is_none_or(|(last, _)| *last < sn));
+        self.slots.push_back((sn, Some(payload)));
         self.count += 1;
     }
 
+    /// Where `sn`'s slot is: at its distance from the front while no
+    /// empty slot before it was dropped, else found by a search.
+    fn index(&self, sn: i64) -> Option<usize> {
+        let (first, _) = self.slots.front()?;
+        let i = usize::try_from(sn.checked_sub(*first)?).ok()?;
+        if self.slots.get(i).is_some_and(|(s, _)| *s == sn) {
+            return Some(i);
+        }
+        self.slots.binary_search_by_key(&sn, |(s, _)| *s).ok()
+    }
+
     fn get(&self, sn: i64) -> Option<&Payload> {
-        let i = usize::try_from(sn.checked_sub(self.base)?).ok()?;
-        self.slots.get(i)?.as_ref()
+        self.slots.get(self.index(sn)?)?.1.as_ref()
     }
 
     fn remove(&mut self, sn: i64) -> Option<Payload> {
-        let i = usize::try_from(sn.checked_sub(self.base)?).ok()?;
-        let p = self.slots.get_mut(i)?.take()?;
+        let i = self.index(sn)?;
+        let p = self.slots.get_mut(i)?.1.take()?;
         self.count -= 1;
         self.trim();
+        if self.slots.len() > 2 * self.count + HISTORY_SLACK {
+            self.slots.retain(|(_, p)| p.is_some());
+        }
         Some(p)
     }
 
     /// The oldest sample.
     fn first(&self) -> Option<(i64, &Payload)> {
         // `trim` keeps the front slot full
-        self.slots.front()?.as_ref().map(|p| (self.base, p))
+        let (sn, p) = self.slots.front()?;
+        p.as_ref().map(|p| (*sn, p))
     }
 
     fn pop_first(&mut self) -> Option<(i64, Payload)> {
         self.trim();
-        let sn = self.base;
-        let p = self.slots.pop_front()?;
-        self.base += 1;
+        let (sn, p) = self.slots.pop_front()?;
         self.trim();
         let p = p?; // never empty: `trim` ran
         self.count -= 1;
@@ -171,20 +187,18 @@ impl History {
 
     /// Drops empty slots at the front.
     fn trim(&mut self) {
-        while let Some(None) = self.slots.front() {
+        while let Some((_, None)) = self.slots.front() {
             self.slots.pop_front();
-            self.base += 1;
         }
     }
 
     /// The samples from `from` on, ascending.
     fn iter_from(&self, from: i64) -> impl Iterator<Item = (i64, &Payload)> + '_ {
-        let skip = usize::try_from(from.saturating_sub(self.base)).unwrap_or(0);
+        let skip = self.slots.partition_point(|(sn, _)| *sn < from);
         self.slots
             .iter()
-            .enumerate()
             .skip(skip)
-            .filter_map(move |(i, p)| p.as_ref().map(|p| (self.base + i as i64, p)))
+            .filter_map(|(sn, p)| p.as_ref().map(|p| (*sn, p)))
     }
 }
 
@@ -1857,6 +1871,38 @@ mod tests {
             plain.samples().next().map(|(sn, _)| sn),
             Some(SequenceNumber(2))
         );
+    }
+
+    /// Per-instance keep-last of a transient-local keyed writer (what
+    /// `Participant::create_writer` makes of one): one instance written
+    /// once and kept for late joiners, another rewritten over and over,
+    /// each write replacing its previous sample. The history holds two
+    /// samples; what it takes in memory must not grow with the number of
+    /// writes (it kept an empty slot per replaced sample behind the
+    /// oldest one, for ever: 8 bytes a write, 31 MB after 4 million).
+    #[test]
+    fn replaced_samples_behind_a_kept_one_leave_no_trace() {
+        let t0 = Instant::now();
+        let mut w = Writer::new(guid(1), true, Some(4096), 4096, Duration::from_millis(10))
+            .retain_acked(true)
+            .keep_unacked(true);
+        w.write(Arc::from(vec![1u8]), t0).expect("room");
+        let mut last = w.write(Arc::from(vec![2u8]), t0).expect("room");
+        for i in 0..100_000u32 {
+            assert!(w.remove(last));
+            last = w.write(Arc::from(vec![i as u8]), t0).expect("room");
+        }
+        assert_eq!(w.history.len(), 2);
+        let kept: Vec<i64> = w.samples().map(|(sn, _)| sn.0).collect();
+        assert_eq!(kept, [1, last.0]);
+        assert!(
+            w.history.slots.len() <= 2 * w.history.len() + HISTORY_SLACK,
+            "{} slots for {} samples",
+            w.history.slots.len(),
+            w.history.len()
+        );
+        assert!(w.get(SequenceNumber(1)).is_some() && w.get(last).is_some());
+        assert!(w.get(SequenceNumber(2)).is_none());
     }
 
     /// A transient-local keep-all history at its sample limit drops its
