@@ -37,6 +37,9 @@ pub(super) struct LocalReader {
     pub(super) local_writers: BTreeSet<EntityId>,
 }
 
+/// The largest entity key (24 bits).
+const MAX_KEY: u32 = 0x00ff_ffff;
+
 fn valid_name(s: &str) -> bool {
     !s.is_empty() && s.len() <= 256 && !s.contains('\0')
 }
@@ -144,9 +147,9 @@ impl Participant {
         if !valid_name(&config.topic_name) || !valid_name(&config.type_name) {
             return Err(CreateError::InvalidName);
         }
-        let entity =
-            entity_id(self.next_key, kind, config.keyed).ok_or(CreateError::TooManyEndpoints)?;
-        self.next_key += 1;
+        let entity = self
+            .free_entity(kind, config.keyed)
+            .ok_or(CreateError::TooManyEndpoints)?;
         let mut qos = config.qos;
         if qos.data_representation.is_empty() {
             qos.data_representation = vec![0];
@@ -163,6 +166,23 @@ impl Participant {
             type_information: None,
         };
         Ok((guid, data))
+    }
+
+    /// The next entity id not in use. Keys count up to 2^24 - 1 and then
+    /// start again from 1 (a long-lived participant creates and deletes
+    /// endpoints without end), skipping the ones in use; a key comes back
+    /// only after every other one was given out since, long after any
+    /// peer forgot the endpoint that had it.
+    fn free_entity(&mut self, kind: EndpointKind, keyed: bool) -> Option<EntityId> {
+        for _ in 0..MAX_KEY {
+            let key = self.next_key;
+            self.next_key = if key >= MAX_KEY { 1 } else { key + 1 };
+            let e = entity_id(key, kind, keyed)?;
+            if !self.writers.contains_key(&e) && !self.readers.contains_key(&e) {
+                return Some(e);
+            }
+        }
+        None
     }
 
     /// Deletes a local writer: its readers are unmatched and a dispose is
@@ -326,5 +346,49 @@ impl Participant {
         if let Some(w) = self.writers.get_mut(&writer.entity) {
             w.writer.request_ack_with_next_write();
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rtps::participant::{guid_prefix, Config};
+    use std::time::SystemTime;
+
+    /// Entity keys are 24 bits. A participant that creates and deletes
+    /// endpoints for a long time (a session opening and closing
+    /// subscriptions, an XRCE agent whose clients come and go) goes on
+    /// past the 2^24 - 1st: keys start again from 1, skipping those in
+    /// use. It refused every endpoint for ever once the counter got there
+    /// (at 1000 endpoints a second, after 4.7 hours).
+    #[test]
+    fn entity_keys_are_used_again_once_all_were_given_out() {
+        let now = Instant::now();
+        let cfg = Config::udpv4(0, 0, guid_prefix([3; 10]), [127, 0, 0, 1]).unwrap();
+        let mut p = Participant::new(cfg, now, SystemTime::UNIX_EPOCH);
+        let kept = p
+            .create_writer(EndpointConfig::writer("kept", "T"), now)
+            .unwrap();
+        assert_eq!(
+            kept.entity,
+            entity_id(1, EndpointKind::Writer, false).unwrap()
+        );
+        // as if 2^24 - 4 more had been created and deleted since
+        p.next_key = 0x00ff_fffd;
+        let mut made = Vec::new();
+        for i in 0..6 {
+            let cfg = EndpointConfig::writer(&format!("t{i}"), "T");
+            let w = p.create_writer(cfg, now).expect("a key is free");
+            made.push(w.entity);
+            assert!(p.delete_writer(w, now));
+        }
+        let key = |e: EntityId| u32::from_be_bytes([0, e.0[0], e.0[1], e.0[2]]);
+        let keys: Vec<u32> = made.into_iter().map(key).collect();
+        assert_eq!(
+            keys,
+            [0x00ff_fffd, 0x00ff_fffe, 0x00ff_ffff, 2, 3, 4],
+            "from 1 again, past the one in use"
+        );
+        assert!(p.writers.contains_key(&kept.entity));
     }
 }
