@@ -1076,6 +1076,11 @@ impl State {
                     self.publish_ros2_node(now);
                 }
             }
+            Event::PatternUnmatched { reader, .. } => {
+                // its publications are gone: the domain deleted it
+                self.subs.remove(&reader);
+                self.publish_ros2_node(now);
+            }
             Event::Request {
                 service,
                 request,

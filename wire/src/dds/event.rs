@@ -125,6 +125,20 @@ pub enum Event {
         /// publication found since offers.
         replaces: Option<ReaderId>,
     },
+    /// A pattern subscription's reader was deleted: every publication it
+    /// was made for is gone (deleted, or lost with its participant). One
+    /// is made again ([`Event::PatternMatched`]) if another publication of
+    /// its topic and type comes.
+    PatternUnmatched {
+        /// The pattern subscription.
+        pattern: PatternId,
+        /// The deleted reader.
+        reader: ReaderId,
+        /// Its topic.
+        topic: String,
+        /// Its type name.
+        type_name: String,
+    },
     /// A request for a service.
     Request {
         /// The service.

@@ -402,7 +402,7 @@ impl Domain {
                         self.type_mismatch(g, d.guid, d.type_name.clone());
                     }
                     let offer = pattern::Offer::of(&d);
-                    self.offer_to_patterns(&d.topic_name, &d.type_name, &offer, now);
+                    self.offer_to_patterns(&d.topic_name, &d.type_name, &offer, d.guid, now);
                     self.events
                         .push_back(Event::Discovery(P::PublicationFound(d)));
                 }
@@ -414,6 +414,7 @@ impl Domain {
                 }
                 P::PublicationLost(g) => {
                     self.writer_info.remove(&g);
+                    self.withdraw_from_patterns(g, now);
                     self.events
                         .push_back(Event::Discovery(P::PublicationLost(g)));
                 }

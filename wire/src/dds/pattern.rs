@@ -1,7 +1,7 @@
 //! Pattern subscriptions: a reader per publication whose topic and type
 //! names match fnmatch patterns, made as publications are discovered.
 
-use foldhash::{HashMap, HashMapExt};
+use foldhash::{HashMap, HashMapExt, HashSet, HashSetExt};
 use std::time::Instant;
 
 use crate::rtps::discovery::{Durability, EndpointData, EndpointQos, Reliability};
@@ -65,9 +65,20 @@ pub(super) struct Pattern {
     topic: String,
     type_name: String,
     qos: EndpointQos,
-    /// The reader of each (topic, type) pair that has one, and its grade.
-    have: HashMap<(String, String), (Guid, Grade)>,
-    pub(super) readers: Vec<Guid>,
+    /// The reader of each (topic, type) pair that has one.
+    have: HashMap<(String, String), Matched>,
+}
+
+/// A pattern's reader of one (topic, type) pair.
+struct Matched {
+    reader: Guid,
+    grade: Grade,
+    /// The publications (remote and local writers) of the pair it was
+    /// made or kept for: when the last of them is gone, so is the reader
+    /// ([`Event::PatternUnmatched`]). Kept, a recorder on a domain where
+    /// processes come and go with topics of their own held a reader per
+    /// topic ever seen, announced to every participant that joined.
+    publications: HashSet<Guid>,
 }
 
 impl Domain {
@@ -80,7 +91,9 @@ impl Domain {
     /// its reliability and durability (`qos`'s own are not
     /// used): a later publication of the same topic that offers less gets
     /// the reader replaced by one that asks less
-    /// (`PatternMatched::replaces`).
+    /// (`PatternMatched::replaces`). A reader whose publications are all
+    /// gone (deleted, or lost with their participant) is deleted
+    /// ([`Event::PatternUnmatched`]); one is made again if another comes.
     pub fn create_pattern(
         &mut self,
         topic: &str,
@@ -96,19 +109,21 @@ impl Domain {
                 type_name: type_name.to_string(),
                 qos,
                 have: HashMap::new(),
-                readers: Vec::new(),
             },
         );
-        let mut known: Vec<(String, String, Offer)> = self
+        let mut known: Vec<(String, String, Offer, Guid)> = self
             .p
             .publications()
-            .map(|e| (e.topic_name.clone(), e.type_name.clone(), Offer::of(e)))
+            .map(|e| {
+                let offer = Offer::of(e);
+                (e.topic_name.clone(), e.type_name.clone(), offer, e.guid)
+            })
             .collect();
-        for w in self.writers.values() {
-            known.push((w.topic.clone(), w.type_name.clone(), w.offer.clone()));
+        for (g, w) in &self.writers {
+            known.push((w.topic.clone(), w.type_name.clone(), w.offer.clone(), *g));
         }
-        for (t, ty, offer) in known {
-            self.pattern_match(id, &t, &ty, &offer, now);
+        for (t, ty, offer, g) in known {
+            self.pattern_match(id, &t, &ty, &offer, g, now);
         }
         self.drain(now);
         id
@@ -120,51 +135,82 @@ impl Domain {
         let Some(pat) = self.patterns.remove(&pattern) else {
             return false;
         };
-        for g in pat.readers {
-            self.remove_reader(g, now);
+        for m in pat.have.into_values() {
+            self.remove_reader(m.reader, now);
         }
         self.drain(now);
         true
     }
 
-    /// Offers a publication to every pattern.
+    /// Offers publication `publication` (a remote or local writer) to
+    /// every pattern.
     pub(super) fn offer_to_patterns(
         &mut self,
         topic: &str,
         type_name: &str,
         offer: &Offer,
+        publication: Guid,
         now: Instant,
     ) {
         let ids: Vec<PatternId> = self.patterns.keys().copied().collect();
         for id in ids {
-            self.pattern_match(id, topic, type_name, offer, now);
+            self.pattern_match(id, topic, type_name, offer, publication, now);
         }
     }
 
-    /// Creates the reader of pattern `id` for a publication of `topic` if
-    /// it matches.
+    /// A publication is gone (its writer deleted, or lost with its
+    /// participant): the pattern readers left with no publication are
+    /// deleted.
+    pub(super) fn withdraw_from_patterns(&mut self, publication: Guid, now: Instant) {
+        let mut unmatched = Vec::new();
+        for (id, pat) in self.patterns.iter_mut() {
+            pat.have.retain(|(topic, type_name), m| {
+                let last = m.publications.remove(&publication) && m.publications.is_empty();
+                if last {
+                    unmatched.push((*id, m.reader, topic.clone(), type_name.clone()));
+                }
+                !last
+            });
+        }
+        for (pattern, reader, topic, type_name) in unmatched {
+            self.remove_reader(reader, now);
+            self.events.push_back(Event::PatternUnmatched {
+                pattern,
+                reader: ReaderId(reader),
+                topic,
+                type_name,
+            });
+        }
+    }
+
+    /// Creates the reader of pattern `id` for publication `publication`
+    /// of `topic` if it matches.
     fn pattern_match(
         &mut self,
         id: PatternId,
         topic: &str,
         type_name: &str,
         offer: &Offer,
+        publication: Guid,
         now: Instant,
     ) {
-        let Some(pat) = self.patterns.get(&id) else {
+        let Some(pat) = self.patterns.get_mut(&id) else {
             return;
         };
         if !fnmatch(&pat.topic, topic) || !fnmatch(&pat.type_name, type_name) {
             return;
         }
         let key = (topic.to_string(), type_name.to_string());
-        let (grade, replaces) = match pat.have.get(&key) {
+        let (grade, replaces) = match pat.have.get_mut(&key) {
             None => (offer.grade, None),
             // it asks no more than this one offers: it matches it too
-            Some(&(_, g)) if g.meet(offer.grade) == g => return,
+            Some(m) if m.grade.meet(offer.grade) == m.grade => {
+                m.publications.insert(publication);
+                return;
+            }
             // a weaker publication: a reader that asks less replaces it
             // (what it took stays taken; the new one takes what comes)
-            Some(&(old, g)) => (g.meet(offer.grade), Some(old)),
+            Some(m) => (m.grade.meet(offer.grade), Some(m.reader)),
         };
         let mut qos = pat.qos.clone();
         qos.exclusive_ownership = offer.exclusive;
@@ -183,17 +229,26 @@ impl Domain {
         let cfg = EndpointConfig::reader(topic, type_name)
             .keyed(offer.keyed)
             .qos(qos);
+        let mut publications = HashSet::new();
         if let Some(old) = replaces {
             self.remove_reader(old, now);
-            if let Some(pat) = self.patterns.get_mut(&id) {
-                pat.readers.retain(|r| *r != old);
-                pat.have.remove(&key);
+            if let Some(m) = self
+                .patterns
+                .get_mut(&id)
+                .and_then(|pat| pat.have.remove(&key))
+            {
+                publications = m.publications;
             }
         }
+        publications.insert(publication);
         if let Ok(g) = self.add_reader(cfg, Role::Pattern(id), now) {
             if let Some(pat) = self.patterns.get_mut(&id) {
-                pat.have.insert(key, (g, grade));
-                pat.readers.push(g);
+                let m = Matched {
+                    reader: g,
+                    grade,
+                    publications,
+                };
+                pat.have.insert(key, m);
             }
             self.events.push_back(Event::PatternMatched {
                 pattern: id,

@@ -126,7 +126,7 @@ impl Domain {
             self.type_mismatch(g, reader, reader_type);
             self.type_mismatch(reader, g, type_name.clone());
         }
-        self.offer_to_patterns(&topic, &type_name, &offer, now);
+        self.offer_to_patterns(&topic, &type_name, &offer, g, now);
         Ok(g)
     }
 
@@ -147,6 +147,7 @@ impl Domain {
             }
         }
         self.p.delete_writer(g, now);
+        self.withdraw_from_patterns(g, now);
     }
 
     /// Whether a write of `len` bytes fits the writer's history now. When
