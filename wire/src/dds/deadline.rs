@@ -36,6 +36,12 @@ impl Deadline {
         self.due.remove(instance);
     }
 
+    /// The instances it watches (tests).
+    #[cfg(test)]
+    pub(super) fn instances(&self) -> impl Iterator<Item = &[u8; 16]> + '_ {
+        self.due.keys()
+    }
+
     pub(super) fn next_due(&self) -> Option<Instant> {
         self.due.values().min().copied()
     }

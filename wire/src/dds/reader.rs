@@ -3,6 +3,7 @@
 //! keep-all back-pressure the shell reports.
 
 use foldhash::{HashMap, HashMapExt, HashSet, HashSetExt};
+use smallvec::SmallVec;
 use std::time::{Duration, Instant, SystemTime};
 
 use crate::rtps::discovery::{EndpointQos, History};
@@ -48,6 +49,16 @@ pub(super) struct LocalReader {
     /// serialized key when the flag says so), for samples that come
     /// without one ([`Domain::set_instance_keys`]).
     key_hash_of: Option<KeyHashFn>,
+    /// Keyed readers: per instance, the writers that wrote (or disposed)
+    /// it and have not unregistered it. An instance none of them is left
+    /// for — they unregistered it, or were deleted or lost — is forgotten
+    /// (its deadline, owner, last sample time and disposed mark), as DDS
+    /// readers drop an instance with no writers and no samples. Kept, a
+    /// reader of a topic whose writers come and go with keys of their own
+    /// held every key ever seen, and its deadline fired for every one of
+    /// them every period, for ever. `None` for a topic without key (one
+    /// instance).
+    writers: Option<HashMap<[u8; 16], SmallVec<[Guid; 1]>>>,
 }
 
 /// The key hash of a payload of a reader's type: a sample (`false`) or
@@ -82,7 +93,61 @@ impl LocalReader {
             last: HashMap::new(),
             disposed: HashSet::new(),
             key_hash_of: None,
+            writers: cfg.keyed.then(HashMap::new),
         }
+    }
+
+    /// `writer` wrote (or disposed) `instance`.
+    fn register(&mut self, instance: [u8; 16], writer: Guid) {
+        if let Some(ws) = self.writers.as_mut() {
+            let w = ws.entry(instance).or_default();
+            if !w.contains(&writer) {
+                w.push(writer);
+            }
+        }
+    }
+
+    /// `writer` unregistered `instance`: forgotten if no writer is left.
+    fn unregister(&mut self, instance: [u8; 16], writer: Guid) {
+        let Some(ws) = self.writers.as_mut() else {
+            return;
+        };
+        let Some(w) = ws.get_mut(&instance) else {
+            return;
+        };
+        w.retain(|g| *g != writer);
+        if w.is_empty() {
+            self.forget(&instance);
+        }
+    }
+
+    /// Forgets everything of `instance` (keyed readers).
+    fn forget(&mut self, instance: &[u8; 16]) {
+        if let Some(ws) = self.writers.as_mut() {
+            ws.remove(instance);
+        }
+        if let Some(d) = self.deadline.as_mut() {
+            d.forget(instance);
+        }
+        self.owners.remove(instance);
+        self.last.remove(instance);
+        self.disposed.remove(instance);
+    }
+
+    /// Instances the reader keeps anything for (tests).
+    #[cfg(test)]
+    fn instances(&self) -> usize {
+        let mut all: HashSet<[u8; 16]> = HashSet::new();
+        all.extend(self.owners.keys());
+        all.extend(self.last.keys());
+        all.extend(self.disposed.iter());
+        if let Some(d) = &self.deadline {
+            all.extend(d.instances());
+        }
+        if let Some(ws) = &self.writers {
+            all.extend(ws.keys());
+        }
+        all.len()
     }
 
     /// The filters, in DDS's order: lifespan, ownership, time-based filter;
@@ -103,18 +168,26 @@ impl LocalReader {
             self.owners.remove(&instance);
             // DDS: a disposed instance stays NOT_ALIVE_DISPOSED until a
             // sample comes, whatever else its writers say
-            if self.disposed.contains(&instance) {
+            let r = if self.disposed.contains(&instance) {
                 if s.kind != ChangeKind::Disposed {
                     // unregistered: it may be gone for good
                     self.disposed.remove(&instance);
                 }
-                return Err(None);
-            }
+                Err(None)
+            } else {
+                if s.kind == ChangeKind::Disposed {
+                    self.disposed.insert(instance);
+                }
+                Ok(())
+            };
             if s.kind == ChangeKind::Disposed {
-                self.disposed.insert(instance);
+                self.register(instance, s.writer);
+            } else {
+                self.unregister(instance, s.writer);
             }
-            return Ok(());
+            return r;
         }
+        self.register(instance, s.writer);
         if let (Some(life), Some(ts)) = (
             writer.and_then(|i| i.lifespan),
             s.source_timestamp.and_then(system_time),
@@ -156,9 +229,24 @@ impl LocalReader {
         Ok(())
     }
 
-    /// A writer left: it owns nothing any more.
+    /// A writer left: it owns nothing any more, and the instances only
+    /// it had are forgotten.
     pub(super) fn writer_gone(&mut self, writer: Guid) {
         self.owners.retain(|_, (w, _)| *w != writer);
+        let Some(ws) = self.writers.as_mut() else {
+            return;
+        };
+        let mut orphans = Vec::new();
+        ws.retain(|instance, w| {
+            w.retain(|g| *g != writer);
+            if w.is_empty() {
+                orphans.push(*instance);
+            }
+            !w.is_empty()
+        });
+        for instance in orphans {
+            self.forget(&instance);
+        }
     }
 
     pub(super) fn next_due(&self) -> Option<Instant> {
@@ -353,5 +441,90 @@ impl Domain {
             Role::User | Role::Pattern(_) if writer => Endpoint::Writer(super::WriterId(g)),
             Role::User | Role::Pattern(_) => Endpoint::Reader(ReaderId(g)),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rtps::discovery::{Duration as RtpsDuration, Reliability};
+    use crate::rtps::participant::{guid_prefix, Change, Config};
+    use std::time::SystemTime;
+
+    fn qos(reader: bool) -> EndpointQos {
+        let mut q = if reader {
+            EndpointQos::reader_default()
+        } else {
+            EndpointQos::writer_default()
+        };
+        q.reliability = Reliability::Reliable(RtpsDuration::ZERO);
+        q.deadline = RtpsDuration::from_std(Duration::from_secs(1));
+        q.exclusive_ownership = true;
+        if reader {
+            q.time_based_filter = RtpsDuration::from_std(Duration::from_millis(10));
+        }
+        q
+    }
+
+    fn key(n: u32) -> KeyHash {
+        let mut k = [0; 16];
+        k[..4].copy_from_slice(&n.to_be_bytes());
+        KeyHash(k)
+    }
+
+    /// A keyed reader keeps per-instance state (deadline, owner, last
+    /// sample time, disposed mark) only for instances some writer still
+    /// has: writers that come and go, each with instances of its own, and
+    /// leave (deleted, after disposing some and unregistering others)
+    /// leave nothing behind but the instance a remaining writer holds.
+    #[test]
+    fn a_keyed_reader_forgets_the_instances_its_writers_took_with_them() {
+        let mut now = Instant::now();
+        let cfg = Config::udpv4(0, 0, guid_prefix([7; 10]), [127, 0, 0, 1]).unwrap();
+        let mut d = Domain::new(cfg, now, SystemTime::UNIX_EPOCH);
+        let cfg = |r| {
+            let c = if r {
+                EndpointConfig::reader("K", "T")
+            } else {
+                EndpointConfig::writer("K", "T")
+            };
+            c.keyed(true).qos(qos(r))
+        };
+        let r = d.create_reader(cfg(true), now).unwrap();
+        let stays = d.create_writer(cfg(false), now).unwrap();
+        let data = vec![0, 1, 0, 0, 1, 0, 0, 0];
+        d.write(
+            stays,
+            Change::alive_owned(data.clone()).with_key_hash(key(0)),
+            now,
+        )
+        .unwrap();
+        for round in 0..50u32 {
+            let w = d.create_writer(cfg(false), now).unwrap();
+            for i in 0..4 {
+                let k = key(1 + round * 4 + i);
+                d.write(w, Change::alive_owned(data.clone()).with_key_hash(k), now)
+                    .unwrap();
+            }
+            let k = key(1 + round * 4);
+            d.write(w, Change::dispose(&data[..4], k), now).unwrap();
+            let k = key(2 + round * 4);
+            d.write(w, Change::unregister(&data[..4], k), now).unwrap();
+            now += Duration::from_millis(20);
+            assert!(d.delete_writer(w, now));
+        }
+        while d.poll_event().is_some() {}
+        let reader = &d.readers[&r.0];
+        assert_eq!(reader.instances(), 1, "only the remaining writer's");
+        // and no deadline fires for the ones gone: one instance, one miss
+        now += Duration::from_millis(1500);
+        d.handle_timeout(now);
+        let missed: Vec<KeyHash> = std::iter::from_fn(|| d.poll_event())
+            .filter_map(|e| match e {
+                Event::DeadlineMissed { instance, .. } => Some(instance),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(missed, [key(0)]);
     }
 }
