@@ -546,6 +546,21 @@ static void write_retrying(dds_entity_t wr, const void *sample, const char *what
   }
 }
 
+/* Writes keyed sample `k` (instance `id`), and disposes its instance every
+ * --dispose-every writes. */
+static void write_keyed(dds_entity_t wr, const void *k, int32_t id, uint32_t seq, long n,
+                        const struct options *o)
+{
+  write_retrying(wr, k, "write");
+  emit("sent %" PRId32 " %" PRIu32, id, seq);
+  if (o->dispose_every && n % o->dispose_every == 0) {
+    dds_return_t rc = dds_dispose(wr, k);
+    if (rc != DDS_RETCODE_OK)
+      fail("dispose", rc);
+    emit("dispose %" PRId32, id);
+  }
+}
+
 static void run_pub(const struct options *o, dds_entity_t wr, dds_entity_t ws)
 {
   size_t maxsize = 0;
@@ -590,14 +605,7 @@ static void run_pub(const struct options *o, dds_entity_t wr, dds_entity_t ws)
       k.stamp = STAMP_BASE + id;
       k.seq = seq;
       k.text = text;
-      write_retrying(wr, &k, "write");
-      emit("sent %" PRId32 " %" PRIu32, id, seq);
-      if (o->dispose_every && n % o->dispose_every == 0) {
-        dds_return_t rc = dds_dispose(wr, &k);
-        if (rc != DDS_RETCODE_OK)
-          fail("dispose", rc);
-        emit("dispose %" PRId32, id);
-      }
+      write_keyed(wr, &k, id, seq, n, o);
     } else {
       courier_test_Keyed k;
       int32_t id = o->keys ? (int32_t)(n % o->keys) : (int32_t)n;
@@ -605,14 +613,7 @@ static void run_pub(const struct options *o, dds_entity_t wr, dds_entity_t ws)
       k.id = id;
       k.seq = seq;
       k.text = text;
-      write_retrying(wr, &k, "write");
-      emit("sent %" PRId32 " %" PRIu32, id, seq);
-      if (o->dispose_every && n % o->dispose_every == 0) {
-        dds_return_t rc = dds_dispose(wr, &k);
-        if (rc != DDS_RETCODE_OK)
-          fail("dispose", rc);
-        emit("dispose %" PRId32, id);
-      }
+      write_keyed(wr, &k, id, seq, n, o);
     }
     if (o->period_ms && n < o->count)
       sleep_ms(o->period_ms);
