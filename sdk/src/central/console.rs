@@ -171,8 +171,9 @@ fn module_line(m: &ModuleInfo) -> Option<String> {
 /// What `memory` prints, and what central prints on standard error when a
 /// signal stops it (C's `x_ipcStats`): C's heading, then Courier's own
 /// counters (C counts its `malloc` calls, which Courier does not have).
-pub fn memory_report(s: &Stats) -> [String; 4] {
-    [
+/// The line on what `-r` keeps comes only once something was kept.
+pub fn memory_report(s: &Stats) -> Vec<String> {
+    let mut lines = vec![
         "Cumulative Memory Usage:".into(),
         format!(
             "  Messages queued: {} dispatch(es), {} byte(s) pending (peak {})",
@@ -182,11 +183,18 @@ pub fn memory_report(s: &Stats) -> [String; 4] {
             "  Waiting for a handler: {} message(s), {} byte(s), {} dropped",
             s.waiting_for_handler, s.waiting_bytes, s.dropped_waiting
         ),
-        format!(
-            "  Modules: {}, messages defined: {}, frames received: {}, dropped by limits: {}",
-            s.modules, s.messages, s.frames_in, s.dropped
-        ),
-    ]
+    ];
+    if s.kept_for_resend > 0 || s.dropped_kept > 0 {
+        lines.push(format!(
+            "  Kept to resend (-r): {} message(s), {} byte(s), {} dropped",
+            s.kept_for_resend, s.kept_bytes, s.dropped_kept
+        ));
+    }
+    lines.push(format!(
+        "  Modules: {}, messages defined: {}, frames received: {}, dropped by limits: {}",
+        s.modules, s.messages, s.frames_in, s.dropped
+    ));
+    lines
 }
 
 #[cfg(test)]

@@ -153,7 +153,10 @@
 //!   not be the same numbers: modules only learn them from replies.
 //! - `-r` resends a crashed module's unfinished messages automatically when
 //!   a module of the same name subscribes the same handler again (C asks
-//!   `Resend <msg> message?` on the terminal for each).
+//!   `Resend <msg> message?` on the terminal for each). What it keeps is
+//!   bounded apart by [`Config::max_queued_bytes`]: past it, the oldest
+//!   kept messages are dropped with a warning (C keeps them all, for
+//!   module names that may never come back).
 //! - Back-pressure: when more than [`Config::max_queued_bytes`] of message
 //!   data wait in pending queues, central stops reading from the modules
 //!   that add to them (never from one whose acknowledgements it awaits)

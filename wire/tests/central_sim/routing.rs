@@ -4,7 +4,7 @@
 
 use std::time::Duration;
 
-use courier_wire::ipc::central::Config;
+use courier_wire::ipc::central::{Config, DISPATCH_COST};
 use courier_wire::ipc::frame::{ClassId, Header, MsgClass};
 use courier_wire::ipc::module::{DeliveryKind, Event};
 use courier_wire::sim::{IpcNode, Net};
@@ -275,6 +275,67 @@ fn resend_on_reconnect_redelivers_unfinished_messages() {
     }
     assert_eq!(vals, vec![1, 2]);
     assert!(sim.logs.iter().any(|l| l.starts_with("Resending job")));
+}
+
+/// Workers named after their process id die one after another with work
+/// unfinished; none comes back under its name. What `-r` keeps for them
+/// stays within `max_queued_bytes`, the oldest dropped first, and a worker
+/// that does come back gets what is still kept for it.
+#[test]
+fn resend_keeps_within_max_queued_bytes_when_names_never_return() {
+    const BODY: usize = 1000;
+    const WORKERS: usize = 40;
+    let mut config = Config::default();
+    config.resend_on_reconnect = true;
+    // room for about ten kept messages
+    config.max_queued_bytes = 10 * (BODY + DISPATCH_COST);
+    let (mut sim, a, first) = pub_sub(config, ("pub", "worker-0"), "job", "string");
+    let mut worker = first;
+    for i in 0..WORKERS {
+        sim.m(a).publish("job", vec![b'x'; BODY], -1).unwrap();
+        sim.pump();
+        assert_eq!(sim.deliveries(worker).len(), 1, "worker-{i} got its job");
+        sim.close(worker);
+        worker = sim.connect(&format!("worker-{}", i + 1));
+        // subscribing under a new name resends nothing
+        sim.m(worker).subscribe("job", "HND-job").unwrap();
+        sim.pump();
+    }
+    let st = sim.central().stats();
+    assert!(
+        st.kept_bytes <= 10 * (BODY + DISPATCH_COST) && st.kept_for_resend >= 9,
+        "{st:?}"
+    );
+    assert_eq!(
+        st.dropped_kept as usize,
+        WORKERS - st.kept_for_resend,
+        "{st:?}"
+    );
+    let warned: Vec<&String> = sim
+        .logs
+        .iter()
+        .filter(|l| l.contains("kept to resend to worker-"))
+        .collect();
+    assert_eq!(warned.len(), WORKERS - st.kept_for_resend, "{warned:#?}");
+    assert!(
+        warned[0].contains("WARNING: 1 message(s) kept to resend to worker-0 dropped"),
+        "{}",
+        warned[0]
+    );
+    // The last worker to die comes back: its job is resent; the first
+    // one's was dropped.
+    let back = sim.connect(&format!("worker-{}", WORKERS - 1));
+    sim.m(back).subscribe("job", "HND-job").unwrap();
+    sim.pump();
+    assert_eq!(sim.deliveries(back).len(), 1);
+    let old = sim.connect("worker-0");
+    sim.m(old).subscribe("job", "HND-job").unwrap();
+    sim.pump();
+    assert!(sim.deliveries(old).is_empty());
+    assert_eq!(
+        sim.central().stats().kept_for_resend,
+        st.kept_for_resend - 1
+    );
 }
 
 #[test]

@@ -113,7 +113,12 @@ pub enum OptionError {
 pub struct Config {
     /// `-c`: messages go module-to-module; central is only the registry.
     pub direct: bool,
-    /// `-r`: resend non-completed messages to a module that crashed and reconnects.
+    /// `-r`: resend non-completed messages to a module that crashed and
+    /// reconnects. They are kept under the crashed module's name until a
+    /// module of that name subscribes their message again; past
+    /// [`max_queued_bytes`](Self::max_queued_bytes) of them (counted as
+    /// [`Stats::kept_bytes`](super::Stats::kept_bytes)) the oldest are
+    /// dropped with a warning.
     pub resend_on_reconnect: bool,
     /// `-l`: terminal logging (default `-lmsi`).
     pub terminal_log: LogOptions,

@@ -399,6 +399,7 @@ impl Central {
         let keep_for = name
             .as_ref()
             .filter(|_| self.config.resend_on_reconnect && eof);
+        let mut kept = Vec::new();
         for id in mine {
             let d = match self.dispatches.linked_mut(&id) {
                 Ok(d) => d,
@@ -412,7 +413,7 @@ impl Central {
                 unqueue(&mut self.stats, d);
                 d.status = Status::NoHandler;
                 let msg = d.msg.clone();
-                self.orphans.entry(n.clone()).or_default().push(id);
+                kept.push(id);
                 self.log_line(
                     Kind::Status,
                     format!("Keeping {msg} {{{id}}} to resend when {n} reconnects"),
@@ -429,6 +430,9 @@ impl Central {
                     );
                 }
             }
+        }
+        if let Some(n) = keep_for {
+            self.keep_for_resend(n, &kept);
         }
         for msg in changed {
             self.update_direct_handlers(&msg);

@@ -242,10 +242,16 @@ impl Central {
                 visit(Some(&m.name), *id, out);
             }
         }
-        for ids in self.orphans.values() {
-            for id in ids {
-                visit(None, *id, out);
-            }
+        let mut kept_bytes = 0;
+        for (_, id) in self.kept.iter() {
+            visit(None, id, out);
+            kept_bytes += dense.get(id).map_or(0, cost);
+        }
+        if self.stats.kept_bytes != kept_bytes {
+            out.push(format!(
+                "kept_bytes is {}, the dispatches kept for -r hold {kept_bytes}",
+                self.stats.kept_bytes
+            ));
         }
         for (id, d) in dense.iter() {
             let listed = dense.index(id).is_some_and(|i| seen[i]);

@@ -64,6 +64,7 @@ mod process;
 mod queue;
 mod registry;
 mod relay;
+mod resend;
 mod routing;
 mod small_map;
 mod tables;
@@ -209,6 +210,16 @@ pub struct Stats {
     pub waiting_bytes: usize,
     /// Queries and informs dropped because too many waited for a handler.
     pub dropped_waiting: u64,
+    /// Deliveries kept for `-r`
+    /// ([`Config::resend_on_reconnect`]) until a module of the name of
+    /// the one that died with them unfinished handles their message again.
+    pub kept_for_resend: usize,
+    /// What those hold, counted as [`waiting_bytes`](Self::waiting_bytes)
+    /// is. Bounded apart by the same [`Config::max_queued_bytes`]: past
+    /// it, the oldest are dropped.
+    pub kept_bytes: usize,
+    /// Kept deliveries dropped because too many were kept.
+    pub dropped_kept: u64,
     /// What pending queues hold: message data plus [`DISPATCH_COST`] per
     /// message, so that a flood of empty messages is bounded too.
     pub queued_bytes: usize,
@@ -244,7 +255,7 @@ pub struct Central {
     next_dispatch: i32,
     ignore: HashSet<String>,
     /// Dispatches kept for `-r`, by module name.
-    orphans: HashMap<String, Vec<DispatchId>>,
+    kept: resend::Kept,
     stats: Stats,
     memory_paused: HashSet<ConnId>,
     /// Of those, modules held back while they answer a query.
@@ -296,7 +307,7 @@ impl Central {
             dispatches: HashMap::new(),
             free_dispatch: Vec::new(),
             next_dispatch: 0,
-            orphans: HashMap::new(),
+            kept: resend::Kept::default(),
             stats: Stats::default(),
             memory_paused: HashSet::new(),
             answer_paused: HashSet::new(),
@@ -350,6 +361,7 @@ impl Central {
         s.modules = self.modules.len();
         s.dispatches = self.dispatches.len();
         s.waiting_for_handler = self.msgs.values().map(|m| m.waiting.len()).sum();
+        s.kept_for_resend = self.kept.len();
         s.messages = self.msgs.len();
         s
     }

@@ -232,17 +232,11 @@ impl Central {
         }
         // -r: deliveries this module had not finished before it crashed.
         if let Some(n) = mod_name {
-            if let Some(list) = self.orphans.get_mut(&n) {
-                let (mine, rest): (Vec<DispatchId>, Vec<DispatchId>) = list
-                    .drain(..)
-                    .partition(|id| self.dispatches.get(id).is_some_and(|d| d.msg == msg));
-                *list = rest;
-                for did in mine {
-                    self.log_line(Kind::Always, format!("Resending {msg} {{{did}}} to {n}"));
-                    if let Some(d) = self.dispatches.get_mut(&did) {
-                        d.hnd = Some((conn, hnd.clone()));
-                        self.deliver_or_pend(did, now);
-                    }
+            for did in self.take_kept(&n, &msg) {
+                self.log_line(Kind::Always, format!("Resending {msg} {{{did}}} to {n}"));
+                if let Some(d) = self.dispatches.get_mut(&did) {
+                    d.hnd = Some((conn, hnd.clone()));
+                    self.deliver_or_pend(did, now);
                 }
             }
         }
