@@ -151,6 +151,27 @@ fn delivery_lookup_then_event_then_ack() {
     }
 }
 
+/// A query cancelled while its message is still being looked up is never
+/// sent: no server answers a query nobody waits for, and no reply is kept
+/// waited for (before, it went out when the lookup came back).
+#[test]
+fn a_query_cancelled_before_its_lookup_returns_is_not_sent() {
+    for seed in SEEDS {
+        let mut s = Scripted::connected(seed, false);
+        let q1 = s.c().query("query1", b"a", -1).unwrap();
+        let q2 = s.c().query("query1", b"b", -1).unwrap();
+        s.c().cancel_query(q1);
+        s.answer_lookup("query1", 111, 15, "{int, <byte:1>}", "int");
+        let sent = s.frames();
+        assert_eq!(sent.len(), 1, "only the query still wanted goes: {sent:?}");
+        s.c().cancel_query(q2);
+        let reply = frame(-4, MsgClass::Reply, 5, sent[0].header.msg_ref, &[], b"x");
+        s.send(&reply);
+        assert_eq!(s.event(), None, "a cancelled query's reply is ignored");
+        assert!(s.frames().is_empty());
+    }
+}
+
 #[test]
 fn queries_replies_out_of_order_and_cancel() {
     for seed in SEEDS {

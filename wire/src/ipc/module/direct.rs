@@ -278,6 +278,7 @@ impl Connection {
         }
         if query {
             self.pending.insert(msg_ref, Pending::UserQuery(op_id));
+            self.query_refs.insert(op_id, msg_ref);
         } else {
             self.events.push_back(Event::Published { op: op_id });
         }

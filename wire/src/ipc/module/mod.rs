@@ -237,6 +237,10 @@ pub struct Connection {
     ops: VecDeque<Op>,
     blocked: Option<i32>,
     pending: HashMap<i32, Pending>,
+    /// The `pending` key of each user query sent and not yet answered, so
+    /// that a cancel finds it at once (a timed-out or dropped query each
+    /// cancels one).
+    query_refs: HashMap<OpId, i32>,
     handlers: HashMap<i32, Handler>,
     by_name: HashMap<(String, String), i32>,
     /// Ids of unsubscribed handlers, kept for the same (message, handler
@@ -298,6 +302,7 @@ impl Connection {
             ops: VecDeque::new(),
             blocked: None,
             pending: HashMap::new(),
+            query_refs: HashMap::new(),
             handlers: HashMap::new(),
             by_name: HashMap::new(),
             retired: HashMap::new(),
@@ -392,14 +397,22 @@ impl Connection {
         None
     }
 
-    /// Forgets a user query; a late reply is ignored.
+    /// Forgets a user query; a late reply is ignored. One not sent yet
+    /// (waiting for its message's lookup, or in direct mode for a first
+    /// handler) is never sent.
     pub fn cancel_query(&mut self, query: OpId) {
-        self.pending
-            .retain(|_, p| !matches!(p, Pending::UserQuery(q) | Pending::ReplyLookup { query: q, .. } if *q == query));
-        for ops in self.awaiting_handler.values_mut() {
-            ops.retain(|o| !matches!(o, Op::Query { op, .. } if *op == query));
+        if let Some(r) = self.query_refs.remove(&query) {
+            self.pending.remove(&r);
+            return;
         }
-        self.awaiting_handler.retain(|_, ops| !ops.is_empty());
+        let is_it = |o: &Op| matches!(o, Op::Query { op, .. } if *op == query);
+        self.ops.retain(|o| !is_it(o));
+        if !self.awaiting_handler.is_empty() {
+            for ops in self.awaiting_handler.values_mut() {
+                ops.retain(|o| !is_it(o));
+            }
+            self.awaiting_handler.retain(|_, ops| !ops.is_empty());
+        }
     }
 
     /// Feeds bytes read from central, in any split.

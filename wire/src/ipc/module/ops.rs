@@ -374,6 +374,7 @@ impl Connection {
                     Ok(body) => {
                         let r = self.send(intent, MsgClass::Query, parent, Vec::new(), body);
                         self.pending.insert(r, Pending::UserQuery(op));
+                        self.query_refs.insert(op, r);
                     }
                     Err((error, _)) => self.events.push_back(Event::OpFailed { op, error }),
                 }

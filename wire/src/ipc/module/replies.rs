@@ -34,6 +34,9 @@ impl Connection {
         if self.blocked == Some(r) {
             self.blocked = None;
         }
+        if let Pending::UserQuery(q) | Pending::ReplyLookup { query: q, .. } = &p {
+            self.query_refs.remove(q);
+        }
         let order = data_order(&f.header)?;
         match p {
             Pending::Lookup(name) => {
@@ -73,6 +76,7 @@ impl Connection {
                     // Like C's msgFind: look the reply message up, then
                     // unmarshall with its format.
                     let r = self.send_lookup(&reply_msg, None, NO_REF);
+                    self.query_refs.insert(query, r);
                     self.pending.insert(
                         r,
                         Pending::ReplyLookup {
