@@ -704,6 +704,12 @@ struct Fixed<const N: usize> {
     data: [u8; N],
 }
 
+/// Type and const parameters of every kind, for the type name.
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+struct Mixed<T, const S: i128, const B: bool, const C: char> {
+    v: T,
+}
+
 /// A generic element type inside a variable array.
 #[derive(IpcMessage, Debug, Clone, PartialEq)]
 struct Batch<T> {
@@ -718,6 +724,23 @@ fn generics() {
     assert_eq!(<Fixed<2>>::FORMAT, "{[ubyte:2]}");
     assert_eq!(<Batch<Inner>>::FORMAT, "{int, <Inner:1>}");
     assert_eq!(<Batch<Inner>>::FORMAT_NAME, None);
+    // Fixed<4> and Fixed<2> lay out differently: their DDS type names differ
+    // (they were both `Fixed`, so their DDS endpoints matched)
+    assert!(
+        <Fixed<4>>::TYPE_NAME.ends_with("::Fixed<4>"),
+        "{}",
+        <Fixed<4>>::TYPE_NAME
+    );
+    assert!(<Mixed<i32, -3, true, 'x'>>::TYPE_NAME.ends_with("::Mixed<int32, -3, true, 'x'>"));
+    assert_eq!(
+        <Mixed<Inner, { i128::MAX }, false, 'é'>>::TYPE_NAME,
+        format!(
+            "{}::Mixed<{}, {}, false, 'é'>",
+            module_path!(),
+            Inner::TYPE_NAME,
+            i128::MAX
+        )
+    );
     round_trip(&Fixed { data: [1, 2, 3] });
     round_trip(&Batch {
         n: 1,

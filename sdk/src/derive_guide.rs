@@ -155,7 +155,8 @@
 //! - **Generics.** Type parameters get an `IpcMessage` bound. A generic struct
 //!   has one format per instantiation, so it is written inline (no format
 //!   name, and `#[ipc(name)]` on it is an error); its default `TYPE_NAME`
-//!   lists the type arguments' type names (const parameters are not listed).
+//!   lists the type arguments' type names and the const arguments' values
+//!   in declaration order (`Buf<4>` and `Buf<8>` are different DDS types).
 //!   Lifetime parameters are a compile error.
 //! - **Format names** default to the Rust identifier, so two types with the
 //!   same identifier in different modules need `#[ipc(name = "...")]` to

@@ -44,8 +44,13 @@ impl ConstStr {
     }
 
     /// Appends the decimal form of `n`.
-    pub const fn push_usize(mut self, mut n: usize) -> Self {
-        let mut digits = [0u8; 20];
+    pub const fn push_usize(self, n: usize) -> Self {
+        self.push_u128(n as u128)
+    }
+
+    /// Appends the decimal form of `n`.
+    pub const fn push_u128(mut self, mut n: u128) -> Self {
+        let mut digits = [0u8; 39];
         let mut k = 0;
         loop {
             digits[k] = b'0' + (n % 10) as u8;
@@ -68,11 +73,28 @@ impl ConstStr {
 
     /// Appends the decimal form of `n` (may be negative).
     pub const fn push_i64(self, n: i64) -> Self {
+        self.push_i128(n as i128)
+    }
+
+    /// Appends the decimal form of `n` (may be negative).
+    pub const fn push_i128(self, n: i128) -> Self {
         if n < 0 {
-            self.push_str("-").push_usize(n.unsigned_abs() as usize)
+            self.push_str("-").push_u128(n.unsigned_abs())
         } else {
-            self.push_usize(n as usize)
+            self.push_u128(n as u128)
         }
+    }
+
+    /// Appends `true` or `false`.
+    pub const fn push_bool(self, b: bool) -> Self {
+        self.push_str(if b { "true" } else { "false" })
+    }
+
+    /// Appends `c` as a Rust character literal (`'a'`).
+    pub const fn push_char(self, c: char) -> Self {
+        let mut utf8 = [0u8; 4];
+        let s: &str = c.encode_utf8(&mut utf8);
+        self.push_str("'").push_str(s).push_str("'")
     }
 
     /// The string built so far.

@@ -19,7 +19,22 @@ pub(super) fn type_name(c: &Container<'_>) -> (TokenStream, TokenStream) {
     if let Some(t) = &c.attrs.type_name {
         return (quote!(#t), quote!());
     }
-    let params: Vec<&syn::Ident> = c.generics.type_params().map(|t| &t.ident).collect();
+    // Type and const parameters in declaration order: `Buf<4>` and `Buf<8>`
+    // lay their data out differently, so they must not share a name (DDS
+    // would match their endpoints).
+    let params: Vec<TokenStream> = c
+        .generics
+        .params
+        .iter()
+        .filter_map(|p| match p {
+            syn::GenericParam::Type(t) => {
+                let p = &t.ident;
+                Some(quote!(push_str(<#p as __wire::IpcMessage>::TYPE_NAME)))
+            }
+            syn::GenericParam::Const(k) => Some(const_param_name(k)),
+            syn::GenericParam::Lifetime(_) => None,
+        })
+        .collect();
     let base = quote!(::core::concat!(::core::module_path!(), "::", #ident));
     if params.is_empty() {
         return (base, quote!());
@@ -29,7 +44,7 @@ pub(super) fn type_name(c: &Container<'_>) -> (TokenStream, TokenStream) {
         if i > 0 {
             build = quote!(#build.push_str(", "));
         }
-        build = quote!(#build.push_str(<#p as __wire::IpcMessage>::TYPE_NAME));
+        build = quote!(#build.#p);
     }
     build = quote!(#build.push_str(">"));
     let consts = quote! {
@@ -38,6 +53,24 @@ pub(super) fn type_name(c: &Container<'_>) -> (TokenStream, TokenStream) {
         const __COURIER_TYPE_NAME_STR: &'static str = Self::__COURIER_TYPE_NAME_REF.as_str();
     };
     (quote!(Self::__COURIER_TYPE_NAME_STR), consts)
+}
+
+/// The `ConstStr` call that appends a const parameter's value: Rust's
+/// const parameters are integers, `bool` or `char`.
+fn const_param_name(k: &syn::ConstParam) -> TokenStream {
+    let n = &k.ident;
+    let prim = match &k.ty {
+        syn::Type::Path(p) if p.qself.is_none() => {
+            p.path.segments.last().map(|s| s.ident.to_string())
+        }
+        _ => None,
+    };
+    match prim.as_deref() {
+        Some("bool") => quote!(push_bool(#n)),
+        Some("char") => quote!(push_char(#n)),
+        Some("i8" | "i16" | "i32" | "i64" | "i128" | "isize") => quote!(push_i128(#n as i128)),
+        _ => quote!(push_u128(#n as u128)),
+    }
 }
 
 pub(super) fn ext_tokens(e: Extensibility) -> TokenStream {
