@@ -157,6 +157,11 @@
 //!   name, and `#[ipc(name)]` on it is an error); its default `TYPE_NAME`
 //!   lists the type arguments' type names and the const arguments' values
 //!   in declaration order (`Buf<4>` and `Buf<8>` are different DDS types).
+//!   A generic struct may point to itself (`Option<Box<Self>>` is `*!`),
+//!   but two generic structs that point to each other have no finite
+//!   format: rustc stops with "cycle detected when simplifying constant …
+//!   `FORMAT`". Make one of them non-generic: its format name then ends
+//!   the recursion, as between two plain structs.
 //!   Lifetime parameters are a compile error.
 //! - **Format names** default to the Rust identifier, so two types with the
 //!   same identifier in different modules need `#[ipc(name = "...")]` to
