@@ -324,13 +324,13 @@ pub struct KeyOf {
     /// it does not decode: what a backend needs to dispose the instances a
     /// publication leaves behind ([`PublicationQos::autodispose`]).
     pub key: fn(&[u8]) -> Option<Vec<u8>>,
-    /// The DDS key hash of a received payload: a sample (`false`) or the
-    /// serialized key of a dispose or unregister (`true`), or `None` if it
-    /// does not decode: how a reader tells the instances of a writer that
-    /// sends no key hash apart (Cyclone DDS 11 sends none). In the XCDR
-    /// version of the payload, as its writer would send it
-    /// ([`courier_wire::cdr::key_hash_of_payload`]).
-    pub hash: courier_wire::dds::KeyHashFn,
+    /// The DDS key hashes of received payloads, in either XCDR version
+    /// ([`courier_wire::dds::InstanceKeys`]): how a reader tells the
+    /// instances of a writer that sends no key hash apart (Cyclone DDS 11
+    /// sends none), and names one instance alike when writers of
+    /// different XCDR versions name it apart (their key hashes differ for
+    /// some keys).
+    pub instances: courier_wire::dds::InstanceKeys,
 }
 
 impl std::fmt::Debug for KeyOf {
@@ -383,7 +383,7 @@ impl TypeInfo {
             extensibility: T::EXTENSIBILITY,
             key_of: keyed.then_some(KeyOf {
                 key: key_of::<T>,
-                hash: courier_wire::cdr::key_hash_of_payload::<T>,
+                instances: courier_wire::dds::InstanceKeys::of::<T>(),
             }),
         }
     }

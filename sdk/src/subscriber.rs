@@ -150,6 +150,13 @@ impl<T: IpcMessage> Received<T> {
 }
 
 /// An instance of a keyed topic that a writer disposed or unregistered.
+///
+/// DDS: the subscription tells instances apart by key, whatever XCDR
+/// version each writer's key hash is in (writers of both versions on one
+/// topic name some keys by different hashes, see
+/// [`key_hash`](Self::key_hash)): a dispose from one writer disposes what
+/// another wrote, and a dispose or unregister of an instance that is
+/// disposed already changes nothing and does not come.
 #[derive(Debug, Clone, PartialEq)]
 pub struct InstanceChange<T: IpcMessage> {
     /// Topic.

@@ -6,9 +6,10 @@
 
 use std::time::Duration;
 
+use courier_wire::cdr::Version;
 use courier_wire::dds::{
-    ConfirmFailure, Domain, DropReason, Endpoint, Event, QueryFailure, ReaderId, ServiceConfig,
-    WriterId,
+    ConfirmFailure, Domain, DropReason, Endpoint, Event, InstanceKeys, QueryFailure, ReaderId,
+    ServiceConfig, WriterId,
 };
 use courier_wire::rtps::discovery::{
     Durability, Duration as RtpsDuration, EndpointQos, History, Reliability,
@@ -310,11 +311,19 @@ fn samples_older_than_their_writers_lifespan_are_dropped() {
     assert_eq!(dropped, 10, "every stale sample, counted");
 }
 
-/// The key hash of a test sample: its value is its key.
-fn instance_of(data: &[u8], _key_only: bool) -> Option<[u8; 16]> {
+/// The key hash of a test sample: its value is its key (in either version).
+fn instance_of(data: &[u8], _key_only: bool, _: Version) -> Option<[u8; 16]> {
     let mut h = [0; 16];
     h[..4].copy_from_slice(data.get(4..8)?);
     Some(h)
+}
+
+/// The test samples' instance keys: the hash is the key, in either version.
+fn instance_keys() -> InstanceKeys {
+    InstanceKeys {
+        hash_in: instance_of,
+        translate: |h, _, _| Some(*h),
+    }
 }
 
 /// A keyed writer that sends no key hash (Cyclone DDS 11): a reader told
@@ -341,7 +350,7 @@ fn instances_of_a_writer_without_key_hashes_are_told_apart() {
             .create_reader(EndpointConfig::reader("Nokh", "T").keyed(true).qos(rq), now)
             .unwrap();
         if keys {
-            assert!(net.node(1).set_instance_keys(r, instance_of));
+            assert!(net.node(1).set_instance_keys(r, instance_keys()));
         }
         assert!(net.run_until(Duration::from_secs(10), |n| matched(n, 1, r, 1)));
         // three instances, one sample each, no key hash

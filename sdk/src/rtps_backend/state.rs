@@ -604,7 +604,7 @@ impl State {
                             .create_reader(cfg, now)
                             .map(|id| {
                                 if let Some(k) = ty.key_of {
-                                    self.d.set_instance_keys(id, k.hash);
+                                    self.d.set_instance_keys(id, k.instances);
                                 }
                                 self.subs.insert(
                                     id,

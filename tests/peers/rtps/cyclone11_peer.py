@@ -19,6 +19,12 @@ The same command line and output lines as cyclone_peer.c / fastdds_peer.cpp
                      not a CDR primitive). Sample seq has colors
                      [Color((seq + i) % 3) for i in range(seq % 4)] and pair
                      [Color(seq % 3), Color((2 * seq + 1) % 3)].
+  --type stamped     @final struct courier::test::Stamped { @key int32 id;
+                     @key int64 stamp; uint32 seq; string text; }
+                     instance `id` has stamp 0x0102030405060708 + id and is
+                     named <id>:<stamp> (decimal), as cyclone_peer names it;
+                     its key hash differs between XCDR1 (id, 4 bytes of
+                     padding, stamp) and XCDR2 (id, stamp)
 
 Loopback only: the domain is created from a configuration string (interface
 lo, no multicast, unicast SPDP to 127.0.0.1); CYCLONEDDS_URI is removed from
@@ -51,7 +57,7 @@ try:
     from cyclonedds.domain import DomainParticipant  # noqa: E402
     from cyclonedds.idl import IdlEnum, IdlStruct  # noqa: E402
     from cyclonedds.idl.annotations import appendable, final, key, mutable  # noqa: E402
-    from cyclonedds.idl.types import array, int32, sequence, uint32  # noqa: E402
+    from cyclonedds.idl.types import array, int32, int64, sequence, uint32  # noqa: E402
     from cyclonedds.pub import DataWriter  # noqa: E402
     from cyclonedds.sub import DataReader  # noqa: E402
     from cyclonedds.topic import Topic  # noqa: E402
@@ -140,6 +146,20 @@ class Colors(IdlStruct, typename="courier::test::Colors"):
     text: str
 
 
+STAMP = 0x0102030405060708
+
+
+@dataclass
+@final
+class Stamped(IdlStruct, typename="courier::test::Stamped"):
+    id: int32
+    key("id")
+    stamp: int64
+    key("stamp")
+    seq: uint32
+    text: str
+
+
 def colors_of(seq):
     return [Color((seq + i) % 3) for i in range(seq % 4)]
 
@@ -161,6 +181,7 @@ TYPES = {
     "appendable_v1": AppendableV1,
     "mutable_v1": MutableV1,
     "colors": Colors,
+    "stamped": Stamped,
 }
 
 
@@ -181,6 +202,8 @@ def escape(text):
 
 
 def key_of(kind, v):
+    if kind == "stamped":
+        return f"{v.id}:{v.stamp}"
     return v.name if kind == "strkeyed" else str(v.id)
 
 
@@ -189,6 +212,8 @@ def make(kind, k, seq, text):
         return StrKeyed(name=k, seq=seq, text=text)
     if kind.endswith("_v1"):
         return TYPES[kind](id=int(k), seq=seq)
+    if kind == "stamped":
+        return Stamped(id=int(k), stamp=STAMP + int(k), seq=seq, text=text)
     if kind == "colors":
         return Colors(id=int(k), seq=seq, colors=colors_of(seq), pair=pair_of(seq), text=text)
     return TYPES[kind](id=int(k), seq=seq, text=text)

@@ -24,9 +24,13 @@
 //! header; [`key_hash_of_key_in`] and [`key_from_key_hash_in`] take it);
 //! the functions without a version ([`key_hash_of_key`],
 //! [`key_from_key_hash`], [`crate::key_hash`]) use XCDR2, the form
-//! DDS-XTypes 1.3 §7.6.8 specifies. [`MaxSize`] measures the largest key
-//! in each version. See [`crate::rtps::participant::KeyHash`] for why the
-//! versions differ and what Cyclone DDS and Fast DDS do.
+//! DDS-XTypes 1.3 §7.6.8 specifies. A reader whose writers write both
+//! versions names each instance in one of them
+//! ([`crate::dds::InstanceKeys`]): [`key_hash_of_payload_in`] and
+//! [`translate_key_hash`] give a hash in the other. [`MaxSize`] measures
+//! the largest key in each version. See
+//! [`crate::rtps::participant::KeyHash`] for why the versions differ and
+//! what Cyclone DDS and Fast DDS do.
 //!
 //! ```
 //! use courier_wire::cdr::{self, Encoding};
@@ -452,11 +456,53 @@ pub fn key_hash_of_payload<T: IpcMessage>(data: &[u8], key_only: bool) -> Option
         return None;
     }
     let version = Reader::with_header(data).ok()?.version();
+    key_hash_of_payload_in::<T>(data, key_only, version)
+}
+
+/// The DDS key hash in XCDR version `version` of a received payload of a
+/// keyed `T` (a sample, or with `key_only` the serialized key of a dispose
+/// or unregister, with its encapsulation header), whatever version the
+/// payload itself is in: how a reader names the instance of a writer of
+/// the other version as its other writers do (see
+/// [`crate::dds::InstanceKeys`]). `None` for a type without key fields, or
+/// bytes that do not decode.
+///
+/// ```
+/// use courier_wire::cdr::{self, Encoding, Version};
+/// let key = cdr::key_to_vec(&7i32, Encoding::Xcdr1Le);
+/// // an `i32` has no key fields
+/// assert_eq!(cdr::key_hash_of_payload_in::<i32>(&key, true, Version::Xcdr2), None);
+/// ```
+pub fn key_hash_of_payload_in<T: IpcMessage>(
+    data: &[u8],
+    key_only: bool,
+    version: Version,
+) -> Option<[u8; 16]> {
+    if T::KEYS.is_empty() {
+        return None;
+    }
     if key_only {
         key_hash_of_key_in::<T>(&key_from_slice::<T>(data).ok()?, version)
     } else {
         Some(crate::key_hash_in(&from_slice::<T>(data).ok()?, version))
     }
+}
+
+/// The key hash in XCDR version `to` of the instance whose key hash in
+/// version `from` is `hash`, when that hash holds the key itself
+/// ([`key_from_key_hash_in`]): the key is read back from it and hashed
+/// again. `hash` itself when the versions are the same. `None` when
+/// `hash` is an MD5 digest (the type's key can be longer than 16 bytes in
+/// `from`), is no key, or the type cannot say ([`key_hash_of_key_in`]).
+pub fn translate_key_hash<T: IpcMessage>(
+    hash: &[u8; 16],
+    from: Version,
+    to: Version,
+) -> Option<[u8; 16]> {
+    if from == to {
+        return Some(*hash);
+    }
+    key_hash_of_key_in::<T>(&key_from_key_hash_in::<T>(hash, from)?, to)
 }
 
 /// The key behind a DDS key hash in XCDR2 form: [`key_from_key_hash_in`]

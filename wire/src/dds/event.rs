@@ -93,7 +93,10 @@ pub enum Event {
     DeadlineMissed {
         /// The reader.
         reader: ReaderId,
-        /// The instance (all zero for a topic without key).
+        /// The instance (all zero for a topic without key), by its key
+        /// hash as the reader names it: in the XCDR version of its
+        /// writers' data; when they write both versions, in the one the
+        /// reader chose ([`InstanceKeys`](super::InstanceKeys)).
         instance: KeyHash,
         /// Misses of this reader so far.
         total: u64,

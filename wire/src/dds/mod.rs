@@ -34,6 +34,10 @@
 //!   reader whose queue (in the shell) is full pauses the reading of user
 //!   data ([`Domain::set_reader_full`], [`Domain::paused_reader`]);
 //! - **confirmed writes** ([`Domain::write_confirmed`]);
+//! - **instances** of keyed topics, for all of the above: by the key hash
+//!   a writer sends, or computed from the payload when it sends none, and
+//!   named alike when writers of one topic write different XCDR versions
+//!   ([`InstanceKeys`], [`Domain::set_instance_keys`]);
 //! - the **4-byte payload padding** Cyclone DDS needs ([`pad`]);
 //! - remote endpoints of another type on our topics ([`Event::TypeMismatch`]).
 //!
@@ -76,6 +80,7 @@
 mod deadline;
 mod event;
 mod handles;
+mod instances;
 mod pattern;
 mod reader;
 mod request_header;
@@ -94,8 +99,8 @@ pub use event::{ConfirmFailure, DropReason, Event, QueryFailure};
 pub use handles::{
     ClientId, Endpoint, PatternId, QueryId, ReaderId, RequestId, ServiceId, WriterId,
 };
+pub use instances::{InstanceKeys, MAX_KEY_HASH_ALIASES};
 pub use pattern::fnmatch;
-pub use reader::KeyHashFn;
 pub use request_header::{RequestHeader, RpcStyle};
 pub use rpc::{reply_topic, request_topic, ServiceConfig};
 pub use writer::pad;

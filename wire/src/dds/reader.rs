@@ -6,11 +6,13 @@ use foldhash::{HashMap, HashMapExt, HashSet, HashSetExt};
 use smallvec::SmallVec;
 use std::time::{Duration, Instant, SystemTime};
 
+use crate::cdr::Version;
 use crate::rtps::discovery::{EndpointQos, History};
 use crate::rtps::participant::{ChangeKind, CreateError, EndpointConfig, KeyHash, ReceivedSample};
 use crate::rtps::{Guid, Time};
 
 use super::deadline::Deadline;
+use super::instances::{InstanceKeys, Instances};
 use super::{Domain, DropReason, Endpoint, Event, ReaderId, Role};
 
 /// What the reader-side filters know of a writer (remote or local).
@@ -18,6 +20,9 @@ use super::{Domain, DropReason, Endpoint, Event, ReaderId, Role};
 pub(super) struct WriterInfo {
     pub(super) strength: i32,
     pub(super) lifespan: Option<Duration>,
+    /// The XCDR version of its data: the first representation it
+    /// announced (XCDR1 when none); `None` for another (XML).
+    pub(super) version: Option<Version>,
 }
 
 impl WriterInfo {
@@ -25,6 +30,11 @@ impl WriterInfo {
         WriterInfo {
             strength: q.ownership_strength,
             lifespan: q.lifespan.to_std(),
+            version: match q.data_representation.first() {
+                None | Some(0) => Some(Version::Xcdr1),
+                Some(2) => Some(Version::Xcdr2),
+                Some(_) => None,
+            },
         }
     }
 }
@@ -45,10 +55,10 @@ pub(super) struct LocalReader {
     /// a dispose or unregister of one of them changes nothing (DDS signals
     /// changes of instance state) and is not delivered.
     disposed: HashSet<[u8; 16]>,
-    /// The key hash of a payload of the reader's type (a sample, or a
-    /// serialized key when the flag says so), for samples that come
-    /// without one ([`Domain::set_instance_keys`]).
-    key_hash_of: Option<KeyHashFn>,
+    /// How instances are named: by the key hash as sent, or computed
+    /// from the payload, in one XCDR version whichever version each
+    /// writer writes ([`Domain::set_instance_keys`]).
+    instances: Instances,
     /// Keyed readers: per instance, the writers that wrote (or disposed)
     /// it and have not unregistered it. An instance none of them is left
     /// for — they unregistered it, or were deleted or lost — is forgotten
@@ -60,11 +70,6 @@ pub(super) struct LocalReader {
     /// instance).
     writers: Option<HashMap<[u8; 16], SmallVec<[Guid; 1]>>>,
 }
-
-/// The key hash of a payload of a reader's type: a sample (`false`) or
-/// the serialized key of a dispose or unregister (`true`); `None` if it
-/// does not decode. `cdr::key_hash_of_payload::<T>` is one.
-pub type KeyHashFn = fn(&[u8], bool) -> Option<[u8; 16]>;
 
 /// An RTPS `Time_t` as a `SystemTime`.
 fn system_time(t: Time) -> Option<SystemTime> {
@@ -92,7 +97,7 @@ impl LocalReader {
             owners: HashMap::new(),
             last: HashMap::new(),
             disposed: HashSet::new(),
-            key_hash_of: None,
+            instances: Instances::new(),
             writers: cfg.keyed.then(HashMap::new),
         }
     }
@@ -132,6 +137,15 @@ impl LocalReader {
         self.owners.remove(instance);
         self.last.remove(instance);
         self.disposed.remove(instance);
+        self.instances.forget(instance);
+    }
+
+    /// The instance `s` is of, as this reader names it (see
+    /// [`Instances::identify`]).
+    fn identify(&mut self, s: &mut ReceivedSample, writer: Option<WriterInfo>) -> [u8; 16] {
+        let empty = self.writers.as_ref().is_some_and(|w| w.is_empty());
+        self.instances
+            .identify(s, writer.and_then(|w| w.version), empty)
     }
 
     /// Instances the reader keeps anything for (tests).
@@ -151,16 +165,17 @@ impl LocalReader {
     }
 
     /// The filters, in DDS's order: lifespan, ownership, time-based filter;
-    /// then the deadline is moved. `Err(None)`: dropped silently (another
-    /// writer owns the instance).
+    /// then the deadline is moved. `instance`: what [`LocalReader::identify`]
+    /// named. `Err(None)`: dropped silently (another writer owns the
+    /// instance).
     pub(super) fn admit(
         &mut self,
         s: &ReceivedSample,
+        instance: [u8; 16],
         writer: Option<WriterInfo>,
         now: Instant,
         wall: SystemTime,
     ) -> Result<(), Option<DropReason>> {
-        let instance = s.key_hash.map_or([0; 16], |k| k.0);
         if s.kind != ChangeKind::Alive {
             if let Some(d) = self.deadline.as_mut() {
                 d.forget(&instance);
@@ -352,15 +367,31 @@ impl Domain {
         self.full.first().copied().map(ReaderId)
     }
 
-    /// How a keyed reader finds the instance of a sample whose writer sent
-    /// no key hash (Cyclone DDS 11 sends none; it is optional in RTPS):
-    /// without it every such sample counts as one instance in the reader's
-    /// disposes, deadlines, ownership and time-based filter. False if
-    /// there is no such reader.
-    pub fn set_instance_keys(&mut self, reader: ReaderId, f: KeyHashFn) -> bool {
+    /// Tells a keyed reader its type's keys ([`InstanceKeys::of`]), for
+    /// its disposes, deadlines, ownership and time-based filter, which go
+    /// by instance. False if there is no such reader. Without them:
+    ///
+    /// - the instance of a sample whose writer sent no key hash (Cyclone
+    ///   DDS 11 sends none; it is optional in RTPS) is unknown: every
+    ///   such sample counts as one instance. With them it is the hash
+    ///   computed from the payload, in the payload's version (what its
+    ///   writer would have sent), and the sample is delivered with it;
+    /// - writers of different XCDR versions whose hashes of one instance
+    ///   differ name it apart (see [`KeyHash`] for which keys): a dispose
+    ///   from one does not dispose what the other wrote, and so on. With
+    ///   them the reader names each instance in one version, whatever its
+    ///   writers send ([`InstanceKeys`] says how, and what it costs:
+    ///   nothing while they all write one version).
+    ///
+    /// Either way the changes delivered ([`Event::Sample`]) carry the key
+    /// hash in their writer's version, as it sent it: a key read back
+    /// from it must be read in that version
+    /// ([`cdr::key_from_key_hash_in`](crate::cdr::key_from_key_hash_in)).
+    /// [`Event::DeadlineMissed`] names an instance as the reader does.
+    pub fn set_instance_keys(&mut self, reader: ReaderId, keys: InstanceKeys) -> bool {
         match self.readers.get_mut(&reader.0) {
             Some(r) => {
-                r.key_hash_of = Some(f);
+                r.instances.set_keys(keys);
                 true
             }
             None => false,
@@ -374,14 +405,9 @@ impl Domain {
         let Some(r) = self.readers.get_mut(&s.reader) else {
             return;
         };
-        if s.key_hash.is_none() {
-            if let Some(f) = r.key_hash_of {
-                let key_only = s.kind != ChangeKind::Alive;
-                s.key_hash = f(s.data(), key_only).map(KeyHash);
-            }
-        }
+        let instance = r.identify(&mut s, writer);
         let reader = ReaderId(s.reader);
-        match r.admit(&s, writer, now, wall) {
+        match r.admit(&s, instance, writer, now, wall) {
             Ok(()) => self.events.push_back(Event::Sample { reader, sample: s }),
             Err(Some(reason)) => self
                 .events
