@@ -182,15 +182,16 @@ impl LocalReader {
             }
             self.owners.remove(&instance);
             // DDS: a disposed instance stays NOT_ALIVE_DISPOSED until a
-            // sample comes, whatever else its writers say
+            // sample comes, whatever else its writers say (a dispose that
+            // also unregisters, as a deleted writer autodisposes, too);
+            // once no writer has it, it is forgotten (`unregister`)
             let r = if self.disposed.contains(&instance) {
-                if s.kind != ChangeKind::Disposed {
-                    // unregistered: it may be gone for good
-                    self.disposed.remove(&instance);
-                }
                 Err(None)
             } else {
-                if s.kind == ChangeKind::Disposed {
+                if matches!(
+                    s.kind,
+                    ChangeKind::Disposed | ChangeKind::DisposedUnregistered
+                ) {
                     self.disposed.insert(instance);
                 }
                 Ok(())
@@ -552,5 +553,56 @@ mod tests {
             })
             .collect();
         assert_eq!(missed, [key(0)]);
+    }
+
+    /// Two writers of one instance: once one disposed it — with a plain
+    /// dispose, or unregistering it too as a deleted writer does — neither
+    /// the other's dispose nor an unregister and a dispose again say
+    /// anything new, until a sample makes it alive.
+    #[test]
+    fn a_disposed_instance_is_reported_once_whoever_disposes_it_again() {
+        let now = Instant::now();
+        let cfg = Config::udpv4(0, 0, guid_prefix([7; 10]), [127, 0, 0, 1]).unwrap();
+        let mut d = Domain::new(cfg, now, SystemTime::UNIX_EPOCH);
+        let cfg = |r| {
+            let c = if r {
+                EndpointConfig::reader("K", "T")
+            } else {
+                EndpointConfig::writer("K", "T")
+            };
+            c.keyed(true)
+        };
+        let r = d.create_reader(cfg(true), now).unwrap();
+        let w1 = d.create_writer(cfg(false), now).unwrap();
+        let w2 = d.create_writer(cfg(false), now).unwrap();
+        let w3 = d.create_writer(cfg(false), now).unwrap();
+        let data = vec![0, 1, 0, 0, 1, 0, 0, 0];
+        let k = key(1);
+        let kinds = |d: &mut Domain| -> Vec<ChangeKind> {
+            std::iter::from_fn(|| d.poll_event())
+                .filter_map(|e| match e {
+                    Event::Sample { reader, sample } if reader == r => Some(sample.kind),
+                    _ => None,
+                })
+                .collect()
+        };
+        for w in [w1, w2, w3] {
+            d.write(w, Change::alive_owned(data.clone()).with_key_hash(k), now)
+                .unwrap();
+        }
+        assert_eq!(kinds(&mut d).len(), 3);
+        let gone = Change {
+            kind: ChangeKind::DisposedUnregistered,
+            ..Change::dispose(&data[..4], k)
+        };
+        d.write(w1, gone, now).unwrap();
+        d.write(w2, Change::dispose(&data[..4], k), now).unwrap();
+        d.write(w2, Change::unregister(&data[..4], k), now).unwrap();
+        d.write(w3, Change::dispose(&data[..4], k), now).unwrap();
+        assert_eq!(kinds(&mut d), [ChangeKind::DisposedUnregistered]);
+        d.write(w3, Change::alive_owned(data.clone()).with_key_hash(k), now)
+            .unwrap();
+        d.write(w3, Change::dispose(&data[..4], k), now).unwrap();
+        assert_eq!(kinds(&mut d), [ChangeKind::Alive, ChangeKind::Disposed]);
     }
 }
