@@ -493,6 +493,21 @@ mod tests {
         q
     }
 
+    fn domain(now: Instant) -> Domain {
+        let cfg = Config::udpv4(0, 0, guid_prefix([7; 10]), [127, 0, 0, 1]).unwrap();
+        Domain::new(cfg, now, SystemTime::UNIX_EPOCH)
+    }
+
+    /// A reader (`true`) or a writer of keyed topic `K`.
+    fn keyed(reader: bool) -> EndpointConfig {
+        let c = if reader {
+            EndpointConfig::reader("K", "T")
+        } else {
+            EndpointConfig::writer("K", "T")
+        };
+        c.keyed(true)
+    }
+
     fn key(n: u32) -> KeyHash {
         let mut k = [0; 16];
         k[..4].copy_from_slice(&n.to_be_bytes());
@@ -507,16 +522,8 @@ mod tests {
     #[test]
     fn a_keyed_reader_forgets_the_instances_its_writers_took_with_them() {
         let mut now = Instant::now();
-        let cfg = Config::udpv4(0, 0, guid_prefix([7; 10]), [127, 0, 0, 1]).unwrap();
-        let mut d = Domain::new(cfg, now, SystemTime::UNIX_EPOCH);
-        let cfg = |r| {
-            let c = if r {
-                EndpointConfig::reader("K", "T")
-            } else {
-                EndpointConfig::writer("K", "T")
-            };
-            c.keyed(true).qos(qos(r))
-        };
+        let mut d = domain(now);
+        let cfg = |r| keyed(r).qos(qos(r));
         let r = d.create_reader(cfg(true), now).unwrap();
         let stays = d.create_writer(cfg(false), now).unwrap();
         let data = vec![0, 1, 0, 0, 1, 0, 0, 0];
@@ -562,16 +569,8 @@ mod tests {
     #[test]
     fn a_disposed_instance_is_reported_once_whoever_disposes_it_again() {
         let now = Instant::now();
-        let cfg = Config::udpv4(0, 0, guid_prefix([7; 10]), [127, 0, 0, 1]).unwrap();
-        let mut d = Domain::new(cfg, now, SystemTime::UNIX_EPOCH);
-        let cfg = |r| {
-            let c = if r {
-                EndpointConfig::reader("K", "T")
-            } else {
-                EndpointConfig::writer("K", "T")
-            };
-            c.keyed(true)
-        };
+        let mut d = domain(now);
+        let cfg = keyed;
         let r = d.create_reader(cfg(true), now).unwrap();
         let w1 = d.create_writer(cfg(false), now).unwrap();
         let w2 = d.create_writer(cfg(false), now).unwrap();
