@@ -380,3 +380,32 @@ async fn closing_inside_a_callback() {
         a.close().await;
     }
 }
+
+/// A callback on a topic its own session publishes gets each sample as
+/// it is written, with the driver task reading and with the receive
+/// thread (audit 15: each sample waited for the next write, or for ever).
+#[tokio::test]
+async fn a_callback_gets_what_its_own_session_publishes_at_once() {
+    for (domain, on_thread) in [(152, false), (153, true)] {
+        let a = if on_thread {
+            threaded(domain, "own").await
+        } else {
+            session(domain, "own").await
+        };
+        let p = a.publisher::<Msg>("own").build().await.unwrap();
+        let (f, rx) = forward();
+        let l = a.subscriber::<Msg>("own").listen(f).await.unwrap();
+        await_handlers(&a, "own", 1).await;
+        for i in 0..5 {
+            p.publish(&msg(i)).await.unwrap();
+            // nothing else is written until it came
+            let s = recv(&rx).await.unwrap();
+            assert_eq!(s.value, msg(i), "receive thread: {on_thread}");
+        }
+        // and so does a write that does not wait
+        p.try_publish(&msg(5)).unwrap();
+        assert_eq!(recv(&rx).await.unwrap().value, msg(5));
+        drop(l);
+        a.close().await;
+    }
+}

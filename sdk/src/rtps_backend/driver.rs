@@ -237,9 +237,19 @@ impl Driver {
                     flushed = c.flush(now);
                 }
                 c.rearm();
+                // samples the flush delivered, from this session's own
+                // writers: their callbacks run now, not at the next wake
+                if self.immediate.is_empty() {
+                    std::mem::swap(&mut self.immediate, &mut c.st.immediate);
+                }
                 let quiet = linger.is_some() && flushed.is_ok() && c.st.quiet();
                 (c.st.full_queue(), flushed, c.close.take(), quiet)
             };
+            if !self.immediate.is_empty() {
+                // (it flushes what they write; a full send buffer is seen
+                // by the next turn's flush)
+                let _ = shared.run_callbacks(&mut self.immediate);
+            }
             if let Some(reply) = close {
                 self.begin_close(&mut linger, reply, now);
                 continue;

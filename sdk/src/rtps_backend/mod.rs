@@ -652,8 +652,11 @@ impl Backend for RtpsBackend {
         let full = c.flush(now).is_err();
         c.rearm();
         let close = c.close.is_some();
+        // the write reached a subscription of this session with a
+        // callback: the driver runs it
+        let callbacks = !c.st.immediate.is_empty();
         drop(c);
-        if full || close {
+        if full || close || callbacks {
             self.shared.attention.notify_one();
         }
         Ok(())
