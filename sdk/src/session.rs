@@ -870,6 +870,13 @@ impl Session {
     /// (3 s), for the agent to acknowledge what the reliable streams hold
     /// before it deletes the session. A `.confirmed()` publish is the way
     /// to know that one sample arrived.
+    ///
+    /// Dropping the last clone and handle closes in the background. On
+    /// DDS, a runtime that shuts down meanwhile (the program returns from
+    /// `main` right after the drop) ends that close by running its linger
+    /// in the runtime's shutdown, blocking it for up to that second; on
+    /// IPC and XRCE the close may be cut short. `close().await` is the way
+    /// to be sure.
     pub async fn close(&self) {
         self.end.end();
         if self.end.in_own_callback() {

@@ -5,7 +5,7 @@ use std::time::{Duration, Instant};
 
 use tokio::sync::{mpsc, oneshot};
 
-use super::cmd::{disconnected, Cmd};
+use super::cmd::{disconnected, Cmd, Done};
 use super::net::{self, UdpSocket};
 use super::out::{locator_of, Full, Out};
 use super::receive::ReceiveThread;
@@ -186,13 +186,19 @@ pub(super) struct Driver {
 }
 
 impl Drop for Driver {
-    /// The driver task dropped unfinished: its runtime was shut down while
-    /// the session's handles live on. They would wait for ever (the
-    /// mailbox lives in [`Shared`], which they hold) and writes that do not
-    /// wait would be taken and lost: end it as a close does, without
-    /// waiting (the goodbyes go if the socket has room).
+    /// The driver task dropped unfinished: its runtime was shut down
+    /// before the session closed (the application returned from `main`
+    /// right after dropping its last handle, or without closing). The
+    /// writes it was told are queued are written and acknowledged, within
+    /// the linger a close has, blocking ([`linger`](super::linger)); then
+    /// it ends as a close does, so that handles that live on fail instead
+    /// of waiting for ever (the mailbox lives in [`Shared`], which they
+    /// hold).
     fn drop(&mut self) {
         if !self.finished {
+            if !self.linger_blocking() {
+                warn_unacknowledged();
+            }
             let now = Instant::now();
             self.say_goodbye(now);
             self.finish(now);
@@ -210,7 +216,15 @@ fn refuse(c: Cmd) {
 
 /// How long a closing session waits for its readers to acknowledge what
 /// its writers hold (Cyclone DDS's `WriterLingerDuration` is 1 s).
-const CLOSE_LINGER: Duration = Duration::from_secs(1);
+pub(super) const CLOSE_LINGER: Duration = Duration::from_secs(1);
+
+fn warn_unacknowledged() {
+    tracing::warn!(
+        "DDS session closes with samples its readers have not acknowledged \
+         (after a linger of {} ms); they may be lost",
+        CLOSE_LINGER.as_millis()
+    );
+}
 
 /// A close under way: until when it waits, and who waits for it.
 struct Linger {
@@ -256,11 +270,7 @@ impl Driver {
             }
             if let Some(l) = linger.take_if(|l| quiet || now >= l.until) {
                 if !quiet {
-                    tracing::warn!(
-                        "DDS session closes with samples its readers have not acknowledged \
-                         (after a linger of {} ms); they may be lost",
-                        CLOSE_LINGER.as_millis()
-                    );
+                    warn_unacknowledged();
                 }
                 self.close(Instant::now()).await;
                 for r in l.replies {
@@ -401,12 +411,25 @@ impl Driver {
         c.st.pump(now);
         c.st.fail_all();
         // later commands fail at once (an `ask` gets its reply dropped),
-        // and so do writes that do not wait
+        // and so do writes that do not wait; those whose publishers went
+        // on are counted in one line
         c.cmd.close();
+        let mut lost = 0u64;
         while let Ok(cmd) = c.cmd.try_recv() {
-            if let Cmd::Write { done, .. } = cmd {
-                done.send(Err(disconnected()));
+            match cmd {
+                Cmd::Write {
+                    done: Done::Queued(_),
+                    ..
+                } => lost += 1,
+                Cmd::Write { done, .. } => done.send(Err(disconnected())),
+                _ => {}
             }
+        }
+        if lost > 0 {
+            tracing::warn!(
+                "{lost} queued write(s) were not sent: the DDS session closed before they \
+                 were taken"
+            );
         }
         c.close = Some(None);
         let queues = c.st.take_handler_queues();

@@ -51,6 +51,7 @@
 
 mod cmd;
 mod driver;
+mod linger;
 mod net;
 mod options;
 mod out;

@@ -239,6 +239,18 @@ pub(crate) fn recv_batch(sock: &UdpSocket, b: &mut RecvBatch) -> io::Result<usiz
     }
 }
 
+/// Takes the datagrams waiting on `sock`, up to [`RECV_SLOTS`], without
+/// blocking and without tokio (whose readiness it leaves alone): for a
+/// session closing after its runtime shut down.
+#[cfg(target_os = "linux")]
+pub(crate) fn recv_batch_now(sock: &std::net::UdpSocket, b: &mut RecvBatch) -> io::Result<usize> {
+    b.n = 0;
+    match recvmmsg(sock, b, libc::MSG_DONTWAIT) {
+        Err(e) if e.kind() == io::ErrorKind::WouldBlock => Ok(0),
+        r => r,
+    }
+}
+
 /// Waits for at least one datagram on a blocking socket, then takes what
 /// else is waiting, up to [`RECV_SLOTS`] (one `recvmmsg` with
 /// `MSG_WAITFORONE`).
@@ -275,6 +287,26 @@ pub(crate) fn recv_batch(sock: &UdpSocket, b: &mut RecvBatch) -> io::Result<usiz
     b.n = 0;
     while b.n < RECV_SLOTS {
         match sock.try_io(Interest::READABLE, |s| s.recv_from(&mut b.bufs[b.n])) {
+            Ok((len, from)) => {
+                b.lens[b.n] = len;
+                b.from[b.n] = from;
+                b.n += 1;
+            }
+            Err(e) if e.kind() == io::ErrorKind::WouldBlock => break,
+            Err(e) if b.n == 0 => return Err(e),
+            Err(_) => break,
+        }
+    }
+    Ok(b.n)
+}
+
+/// Takes the datagrams waiting on `sock` (non-blocking, as the
+/// participant's sockets are), up to [`RECV_SLOTS`], without tokio.
+#[cfg(not(target_os = "linux"))]
+pub(crate) fn recv_batch_now(sock: &std::net::UdpSocket, b: &mut RecvBatch) -> io::Result<usize> {
+    b.n = 0;
+    while b.n < RECV_SLOTS {
+        match sock.recv_from(&mut b.bufs[b.n]) {
             Ok((len, from)) => {
                 b.lens[b.n] = len;
                 b.from[b.n] = from;

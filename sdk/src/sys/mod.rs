@@ -220,6 +220,47 @@ pub(crate) mod net {
         Ok(msgs.len().min(SEND_SLOTS))
     }
 
+    /// Waits up to `timeout` with `poll(2)` until one of `fds` is ready
+    /// for what it is asked (read, write); returns, for each, whether it
+    /// is readable and whether writable (all false when the time ran out).
+    /// For waiting without a tokio reactor (a session closing after its
+    /// runtime shut down).
+    pub(crate) fn poll(
+        fds: &[(std::os::fd::BorrowedFd<'_>, bool, bool)],
+        timeout: std::time::Duration,
+    ) -> io::Result<Vec<(bool, bool)>> {
+        let mut p: Vec<libc::pollfd> = fds
+            .iter()
+            .map(|(fd, read, write)| libc::pollfd {
+                fd: fd.as_raw_fd(),
+                events: if *read { libc::POLLIN } else { 0 }
+                    | if *write { libc::POLLOUT } else { 0 },
+                revents: 0,
+            })
+            .collect();
+        let ms = libc::c_int::try_from(timeout.as_millis()).unwrap_or(libc::c_int::MAX);
+        let n = libc::nfds_t::try_from(p.len()).unwrap_or(libc::nfds_t::MAX);
+        // SAFETY: `p` holds `n` initialised pollfd records that poll only
+        // writes `revents` of; the descriptors are borrowed, so open
+        let r = unsafe { libc::poll(p.as_mut_ptr(), n, ms) };
+        if r < 0 {
+            let e = io::Error::last_os_error();
+            if e.kind() != io::ErrorKind::Interrupted {
+                return Err(e);
+            }
+            p.iter_mut().for_each(|x| x.revents = 0);
+        }
+        Ok(p.iter()
+            .map(|x| {
+                let err = x.revents & (libc::POLLERR | libc::POLLHUP) != 0;
+                (
+                    x.revents & libc::POLLIN != 0 || err,
+                    x.revents & libc::POLLOUT != 0 || err,
+                )
+            })
+            .collect())
+    }
+
     /// The IPv4 sender in a `sockaddr_storage` (0.0.0.0:0 for anything else:
     /// these sockets are IPv4).
     #[cfg(target_os = "linux")]
