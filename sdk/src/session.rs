@@ -737,7 +737,8 @@ impl Session {
 
     /// Timer ticks every `period`, the first one `period` from now. The
     /// stream ends when the session is closed. A zero period ticks at
-    /// every poll, as fast as the stream is read.
+    /// every poll, as fast as the stream is read. Ticks missed while the
+    /// reader was held up are skipped, not sent in a burst ([`Timer`]).
     pub fn every(&self, period: Duration) -> Timer {
         self.timer(period, None)
     }
