@@ -85,6 +85,14 @@ pub enum ConnectError {
         /// Why.
         why: String,
     },
+    /// `connect` was called outside a tokio runtime: a session's driver
+    /// runs on the runtime it is made in, and is used from there.
+    #[error(
+        "connect() was called outside a tokio runtime: a Courier session runs on the tokio \
+         runtime it is made in (with its I/O and time drivers: #[tokio::main], or a Runtime \
+         built with enable_all() and its block_on), and is used from tasks of that runtime"
+    )]
+    NoRuntime,
 }
 
 fn unknown_scheme(url: &str, scheme: Option<&str>, known: &[String]) -> String {
@@ -318,6 +326,9 @@ impl SessionBuilder {
     /// URL's backend cannot honour (say, [`interface`](Self::interface) on
     /// an `ipc://` session), and names the known schemes for an unknown one.
     pub async fn connect(self) -> Result<Session, ConnectError> {
+        if tokio::runtime::Handle::try_current().is_err() {
+            return Err(ConnectError::NoRuntime);
+        }
         let name = self.name.unwrap_or_else(default_name);
         let scheme = self.url.split_once("://").map_or("", |(s, _)| s);
         let refuse = |honoured: &[Honoured]| {
@@ -416,6 +427,25 @@ impl SessionBuilder {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// From a thread without a tokio runtime, `connect` says so, on every
+    /// backend, instead of panicking in tokio (audit 15).
+    #[test]
+    fn connecting_outside_a_runtime_is_an_error_that_says_so() {
+        for url in [
+            "ipc://127.0.0.1:1",
+            "rtps://7?interface=lo&peers=127.0.0.1",
+            "xrce+udp://127.0.0.1:1",
+        ] {
+            let r = futures::executor::block_on(Session::builder(url).connect());
+            match r {
+                Err(e @ ConnectError::NoRuntime) => {
+                    assert!(e.to_string().contains("outside a tokio runtime"), "{e}")
+                }
+                other => panic!("{url}: {other:?}"),
+            }
+        }
+    }
 
     /// `.xrce(options)` with a URL that names an agent or options is
     /// refused: they would not be read (the options say where the agent

@@ -739,6 +739,11 @@ impl Session {
     /// stream ends when the session is closed. A zero period ticks at
     /// every poll, as fast as the stream is read. Ticks missed while the
     /// reader was held up are skipped, not sent in a burst ([`Timer`]).
+    ///
+    /// # Panics
+    /// Outside a tokio runtime (as every tokio timer does), with a message
+    /// that says so; so do [`after`](Self::after) and
+    /// [`times`](Self::times).
     pub fn every(&self, period: Duration) -> Timer {
         self.timer(period, None)
     }
@@ -754,6 +759,11 @@ impl Session {
     }
 
     fn timer(&self, period: Duration, count: Option<u64>) -> Timer {
+        assert!(
+            tokio::runtime::Handle::try_current().is_ok(),
+            "Session::every, after and times make tokio timers: call them within a tokio \
+             runtime (the session's), not from a thread outside it"
+        );
         if period.is_zero() && count != Some(1) {
             tracing::warn!(
                 "a timer of {} with a zero period ticks at every poll (as fast as it is read)",
