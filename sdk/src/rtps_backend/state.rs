@@ -189,7 +189,14 @@ pub(super) struct State {
     /// ([`RawSample::key_hash_version`]), so that a key can be read back
     /// from a hash in either version.
     writer_versions: HashMap<Guid, courier_wire::cdr::Version>,
+    /// When a full subscription queue was last warned of, and how many
+    /// times it filled since without a line (a slow subscriber fills it
+    /// again at every refill).
+    full_said: Option<(SystemTime, u64)>,
 }
+
+/// At most one "queue is full" warning this often.
+const FULL_LINE_EVERY: Duration = Duration::from_secs(10);
 
 /// The XCDR version of a writer's data: the first data representation it
 /// announced (DDS-XTypes 1.3 §7.6.3.1.1: a writer offers the one it
@@ -235,6 +242,7 @@ impl State {
             wakes: None,
             ros2: None,
             writer_versions: HashMap::new(),
+            full_said: None,
         }
     }
 
@@ -1373,12 +1381,31 @@ impl State {
             self.d.set_reader_full(reader, true);
             if !was_full {
                 // every subscription of the session waits now: say so
-                // (a warning too: nobody may be reading the events)
-                tracing::warn!(
-                    "the queue of a subscription of {} is full: this session reads nothing \
-                     more until it is read",
-                    r.topic
-                );
+                // (a warning too, once in a while: nobody may be reading
+                // the events)
+                let again = match &mut self.full_said {
+                    Some((at, unsaid))
+                        if received.duration_since(*at).unwrap_or_default() < FULL_LINE_EVERY =>
+                    {
+                        *unsaid += 1;
+                        None
+                    }
+                    Some((_, unsaid)) => Some(std::mem::take(unsaid)),
+                    None => Some(0),
+                };
+                if let Some(again) = again {
+                    self.full_said = Some((received, 0));
+                    let since = if again > 0 {
+                        format!(" (queues filled {again} time(s) since the last such line)")
+                    } else {
+                        String::new()
+                    };
+                    tracing::warn!(
+                        "the queue of a subscription of {} is full: this session reads nothing \
+                         more until it is read{since}",
+                        r.topic
+                    );
+                }
                 self.listeners.send(SessionEvent::SubscriberFull {
                     msg: r.topic.to_string(),
                     queued: r.queue.len(),
