@@ -137,6 +137,12 @@
 //!   and servers wait too, reported as `SessionEvent::SubscriberFull`). With
 //!   [`QueuePolicy::KeepLast`] (`subscribe_with`) the oldest are dropped
 //!   instead, counted by `Subscriber::dropped`. Nothing is dropped silently.
+//! - **IPC serves one delivery at a time.** Central hands a module its
+//!   next message once the last is done, and a request is done when it is
+//!   answered (a capacity of 1, as C): a server that takes 200 ms to reply
+//!   delays the session's other subscriptions by as much. Give a slow
+//!   server a session of its own, or raise the capacity
+//!   ([`IpcControl::set_capacity`], through `session.ipc()?`).
 //! - **Errors chain.** An error caused by a lower layer (central's
 //!   refusal, a socket error, a type IPC cannot carry) says what failed and
 //!   keeps the cause as its [`source()`](std::error::Error::source): print
