@@ -13,7 +13,7 @@ mod unix_stream;
 
 pub use transport::IpcStream;
 
-use connect::{gone_for_good, handshake};
+use connect::{dial, gone_for_good, greet, handshake};
 use direct::{connect_direct, spawn_accept, DirectListener};
 use driver::{Cmd, Done, Driver, InformOp};
 use transport::{write_all_vectored, Tcp};

@@ -20,17 +20,39 @@ impl Driver {
             loop {
                 tokio::select! {
                     _ = &mut sleep => break,
-                    cmd = rx.recv() => match cmd {
-                        None => return false,
-                        Some(Cmd::Close(d)) => {
-                            self.closing = Some(d);
-                            return false;
-                        }
-                        Some(other) => self.reject(other),
+                    cmd = rx.recv() => if !self.take_while_down(cmd) {
+                        return false;
                     },
                 }
             }
-            match handshake(&self.host, self.port, &self.name, &self.opts).await {
+            // No connection while the dial runs (it retries a refused
+            // connection for up to the connect timeout): what comes fails
+            // at once, as during the wait above, instead of queueing
+            // behind the attempt (a control loop's publishes waited ~5 s).
+            let dialled = {
+                let (host, port, opts) = (self.host.clone(), self.port, self.opts.clone());
+                let deadline = crate::deadline::after(opts.connect_timeout);
+                let attempt = async move { dial(&host, port, &opts, deadline).await };
+                tokio::pin!(attempt);
+                loop {
+                    tokio::select! {
+                        r = &mut attempt => break r,
+                        cmd = rx.recv() => if !self.take_while_down(cmd) {
+                            return false;
+                        },
+                    }
+                }
+            };
+            // Connected: what comes now waits for the handshake (within
+            // the connect timeout), then goes to the new connection.
+            let connected = match dialled {
+                Ok(io) => {
+                    let deadline = crate::deadline::after(self.opts.connect_timeout);
+                    greet(io, &self.host, self.port, &self.name, &self.opts, deadline).await
+                }
+                Err(e) => Err(e),
+            };
+            match connected {
                 Ok((conn, io, listener)) => {
                     self.conn = conn;
                     self.io = io;
@@ -81,6 +103,22 @@ impl Driver {
                     tracing::debug!("reconnect to {} failed: {e}", self.addr);
                     wait = (wait * 2).min(Duration::from_secs(5));
                 }
+            }
+        }
+    }
+
+    /// A command (`None`: the last handle is gone) while there is no
+    /// connection: `false` when the session ends.
+    fn take_while_down(&mut self, cmd: Option<Cmd>) -> bool {
+        match cmd {
+            None => false,
+            Some(Cmd::Close(d)) => {
+                self.closing = Some(d);
+                false
+            }
+            Some(other) => {
+                self.reject(other);
+                true
             }
         }
     }
