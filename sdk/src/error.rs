@@ -74,10 +74,16 @@ pub enum OpenError {
     #[error("{0} is already served by this session")]
     AlreadyServed(String),
     /// IPC: central already holds the message with a format the type does
-    /// not fit (another module defined it), so the type's data would be
-    /// read as wrong values there; C would replace the definition under
-    /// that module's feet. Use the type it was defined with.
-    #[error("central defines {msg} as {central}, which does not fit {ty}: {detail}")]
+    /// not fit (another module defined it): defined or published as this
+    /// type, its data would be read as wrong values there (C would replace
+    /// the definition under that module's feet); subscribed as this type,
+    /// every message would read as wrong values. Use the type it was
+    /// defined with. `detail` gives the type's format and where the two
+    /// differ.
+    #[error(
+        "central holds the format {central} for {msg} (defined by another module, or an \
+         earlier run of this one), which {ty} does not fit: {detail}"
+    )]
     FormatMismatch {
         /// The message.
         msg: String,
@@ -346,12 +352,15 @@ pub enum QueryError {
         timeout: Duration,
     },
     /// No reply within the timeout, but replies came meanwhile that
-    /// answered no open query: a service that ties replies to requests
-    /// another way (see [`ServiceStyle`](crate::ServiceStyle)), or late
-    /// replies.
+    /// answered no open query: late replies to earlier queries that had
+    /// timed out (a server that stalled and answered its backlog once it
+    /// resumed), or a service that ties replies to requests another way
+    /// (see [`ServiceStyle`](crate::ServiceStyle)).
     #[error(
         "no reply to {msg} within {timeout:?}; {replies} reply(ies) came that answered no open \
-         query (a ROS 2 service of the other request/reply style? see the `services` option)"
+         query: late replies to earlier queries that had timed out (a server that stalled \
+         answers them once it resumes), or a ROS 2 service of the other request/reply style \
+         (see the `services` option)"
     )]
     Unmatched {
         /// Query message.

@@ -4,9 +4,10 @@
 //! error. The IPC backend tags each sample with central's format; a typed
 //! subscription checks it against its type once per format
 //! ([`courier_wire::format::fits`]) and turns a misfit into
-//! [`RecvError::FormatMismatch`] instead of decoding. Queries, servers and
-//! first definitions check central's format once per message and type
-//! ([`CentralFormats`]).
+//! [`RecvError::FormatMismatch`] instead of decoding; a typed subscription
+//! of a message whose format central holds already is refused at once
+//! ([`subscribable`]). Queries, servers and first definitions check
+//! central's format once per message and type ([`CentralFormats`]).
 
 use std::sync::Arc;
 
@@ -60,23 +61,86 @@ fn expanded<T: IpcMessage>() -> Option<Format> {
     names.resolve(&format::parse(T::FORMAT).ok()?).ok()
 }
 
-/// Whether data of `theirs` (a format central holds, expanded) reads as `T`.
+/// Whether data of `theirs` (a format central holds, expanded) reads as `T`:
+/// what a reader (a subscriber, a server, a query's reply) needs. The
+/// detail names `T` and its format, and where the data differs from it.
 pub(crate) fn verdict<T: IpcMessage>(theirs: &str) -> Result<(), String> {
     // what cannot be compared is not held against the data: decoding
     // still checks every byte
     let (Ok(theirs), Some(ours)) = (format::parse(theirs), expanded::<T>()) else {
         return Ok(());
     };
-    format::fits(&theirs, &ours).map_err(|m| m.to_string())
+    format::fits(&theirs, &ours).map_err(|m| {
+        let ty = std::any::type_name::<T>();
+        misfit(ty, &ours, &m, |data, t| {
+            format!("the data has {data} where {ty} has {t}")
+        })
+    })
 }
 
 /// Whether data of `T` reads as `theirs` (a format central holds, which
-/// the message's readers read by): what a definition must not break.
+/// the message's readers read by): what a definition (a publish, a query's
+/// request, a server's definitions) must not break. The detail names `T`
+/// and its format, and where it differs from central's.
 pub(crate) fn written_verdict<T: IpcMessage>(theirs: &str) -> Result<(), String> {
     let (Ok(theirs), Some(ours)) = (format::parse(theirs), expanded::<T>()) else {
         return Ok(());
     };
-    format::fits(&ours, &theirs).map_err(|m| m.to_string())
+    // (the data is `T`'s here: `m.theirs` is `T`'s part, `m.ours` central's)
+    format::fits(&ours, &theirs).map_err(|m| {
+        let ty = std::any::type_name::<T>();
+        misfit(ty, &ours, &m, |t, held| {
+            format!("{ty} has {t} where central's format has {held}")
+        })
+    })
+}
+
+/// `ty`'s format, and where it differs (`here` says the misfit's two
+/// parts) unless that is at the top: the two whole formats, which the
+/// message names already.
+fn misfit(
+    ty: &str,
+    ours: &Format,
+    m: &format::Misfit,
+    here: impl FnOnce(&str, &str) -> String,
+) -> String {
+    if m.at.is_empty() {
+        return format!("{ty}'s format is {ours}");
+    }
+    let shown = |s: &str| if s.is_empty() { "no data" } else { s }.to_string();
+    let here = here(&shown(&m.theirs), &shown(&m.ours));
+    format!("{ty}'s format is {ours}; at {}, {here}", m.at)
+}
+
+/// IPC: refuses a subscription of `msg` as `T` at once when central already
+/// holds a format for it that `T` does not read (as a definition or a
+/// publish is refused), instead of an `Ok` whose every message is then a
+/// [`RecvError::FormatMismatch`]. A message central does not know yet (its
+/// definer comes later), or whose format cannot be compared here, is
+/// checked message by message ([`FormatCheck`]) as before.
+pub(crate) async fn subscribable<T: IpcMessage>(
+    session: &Session,
+    msg: &str,
+) -> Result<(), OpenError> {
+    // (no name: the backend refuses it, before asking central anything)
+    let (Some(ipc), false) = (session.backend.ipc(), msg.is_empty()) else {
+        return Ok(());
+    };
+    // (a lookup that fails leaves it to the subscription, which fails the
+    // same way when the connection is gone)
+    let theirs = match ipc.look_up(msg).await {
+        Ok(Some(info)) => info.res_format.map(|f| f.to_string()),
+        _ => None,
+    };
+    let Some(theirs) = theirs.filter(|f| !names_formats(f)) else {
+        return Ok(());
+    };
+    verdict::<T>(&theirs).map_err(|detail| OpenError::FormatMismatch {
+        msg: msg.to_string(),
+        ty: std::any::type_name::<T>(),
+        central: theirs,
+        detail,
+    })
 }
 
 /// IPC: does the format central holds for a message fit a type this
@@ -229,8 +293,9 @@ mod tests {
             e.to_string(),
             format!(
                 "m is sent as {{string, {{int, float}}}} (central's format), which does not \
-                 fit {}: at field 2, field 2, the data has float where the reader has double",
-                std::any::type_name::<Outer>()
+                 fit {ty}: {ty}'s format is {{string, {{int, double}}}}; at field 2, field 2, \
+                 the data has float where {ty} has double",
+                ty = std::any::type_name::<Outer>()
             )
         );
         // the same format again: the same verdict

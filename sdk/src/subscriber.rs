@@ -320,16 +320,23 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
         crate::qos::check_history(&self.msg, self.qos.history)?;
         self.session.topics.bind::<T>(&self.msg)?;
         let _first = self.session.topics.unsettled(&[&self.msg]);
-        let r = self
-            .session
-            .backend
-            .open_subscription(
-                &self.msg,
-                Some(&TypeInfo::of::<T>()),
-                &self.qos,
-                queue.clone(),
-            )
-            .await;
+        // IPC: a type that does not fit the format central holds already
+        // is refused now, not message by message
+        let fits = crate::format_check::subscribable::<T>(&self.session, &self.msg).await;
+        let r = match fits {
+            Ok(()) => {
+                self.session
+                    .backend
+                    .open_subscription(
+                        &self.msg,
+                        Some(&TypeInfo::of::<T>()),
+                        &self.qos,
+                        queue.clone(),
+                    )
+                    .await
+            }
+            Err(e) => Err(e),
+        };
         let id = self.session.settled(&[&self.msg], r)?;
         Ok(RawSubscriber::new(
             queue,

@@ -813,13 +813,15 @@ async fn messages_above_the_limit_are_refused_and_end_a_receiver_visibly() {
 /// instead of wrong values: the C library decodes by the sender's format,
 /// so an `int` read as `f32` used to come out as a plausible number. A
 /// type that reads the same bytes as the same kind (`u32` for `int`) fits.
+/// (The subscription comes before the definition: one after it is refused
+/// at once, see tests/ipc_formats.rs.)
 #[tokio::test]
 async fn a_subscriber_whose_type_does_not_fit_central_s_format_is_told() {
     let (c, url) = central().await;
     let a = session(&url, "a").await;
     let b = session(&url, "b").await;
-    a.define::<i32>("speed").await.unwrap();
     let mut wrong = b.subscribe::<f32>("speed").await.unwrap();
+    a.define::<i32>("speed").await.unwrap();
     // one type per topic and session: another session reads it as u32
     let b2 = session(&url, "b2").await;
     let mut right = b2.subscribe::<u32>("speed").await.unwrap();
@@ -836,10 +838,7 @@ async fn a_subscriber_whose_type_does_not_fit_central_s_format_is_told() {
                 ..
             })) => {
                 assert_eq!((msg.as_str(), central.as_str()), ("speed", "int"));
-                assert_eq!(
-                    detail,
-                    "at the top, the data has int where the reader has float"
-                );
+                assert_eq!(detail, "f32's format is float");
             }
             other => panic!("{other:?}"),
         }
@@ -1260,15 +1259,18 @@ async fn queries_servers_and_publishers_that_do_not_fit_central_s_format_are_ref
             .unwrap_or_default()
     );
     assert!(
-        chain.contains("central defines work as int, which does not fit f32"),
+        chain.contains(
+            "central holds the format int for work (defined by another module, or an earlier \
+             run of this one), which f32 does not fit"
+        ),
         "{chain}"
     );
     // a publish of a misfit, and a server of one
     let e = b.publish("workReply", &2.5f64).await.unwrap_err();
     assert!(
         e.to_string().ends_with(
-            "central defines workReply as int, which does not fit f64: at the top, the data \
-             has double where the reader has int"
+            "central holds the format int for workReply (defined by another module, or an \
+             earlier run of this one), which f64 does not fit: f64's format is double"
         ),
         "{e}"
     );
