@@ -41,7 +41,8 @@ pub enum QueryFailure {
     NoService(Duration),
     /// The request went out, no reply to it came within its timeout, but
     /// `replies` replies came meanwhile that answered no open query of this
-    /// client (a service of another request/reply style, or late replies).
+    /// client (late replies to queries that had timed out, or a service of
+    /// another request/reply style).
     Unmatched {
         /// The timeout.
         timeout: Duration,
