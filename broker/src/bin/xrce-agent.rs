@@ -43,8 +43,11 @@ use courier_wire::xrce::bridge::Profiles;
 
 const AFTER_HELP: &str = "\
 Several transports may be given one after another, e.g. `xrce-agent udp4 -p 8888 tcp4 -p 8889`.
+The options other than a transport's own (-p, --dev, --baudrate) are the whole agent's: they
+apply to every transport and to its one DDS participant, whichever transport they follow; one
+given twice with different values is an error.
 
-Exit status: 0 stopped by Ctrl-C or SIGTERM; 2 the command line is wrong: a bad option,
+Exit status: 0 stopped by Ctrl-C, SIGTERM or SIGHUP; 2 the command line is wrong: a bad option,
 or a file, directory or device it names that is not there or cannot be used (-r's
 references file, missing or not valid; --state's directory; serial --dev; pseudoterminal
 --dev's directory); 1 the agent could not start for another reason (a port in use, the
@@ -164,8 +167,29 @@ fn on_off(s: &str) -> Result<bool, String> {
     }
 }
 
+/// `a` and `b`, the same option from two transports' parts: one value for
+/// the agent, or an error naming both.
+fn one<T: PartialEq + std::fmt::Debug>(
+    name: &str,
+    a: Option<T>,
+    b: Option<T>,
+) -> Result<Option<T>, String> {
+    match (a, b) {
+        (Some(a), Some(b)) if a != b => Err(format!(
+            "{name} is given twice, as {a:?} and {b:?}: it applies to the whole agent (every \
+             transport and its one DDS participant), whichever transport it follows; give it \
+             once"
+        )),
+        (a, b) => Ok(b.or(a)),
+    }
+}
+
 impl Common {
-    fn merge(&mut self, o: Common) {
+    /// Takes in the options of another transport's part: they are the
+    /// agent's, so one given twice must agree (the last used to win,
+    /// silently: `udp4 --bind 127.0.0.1 … tcp4 --bind 127.0.0.2` bound
+    /// both to 127.0.0.2).
+    fn merge(&mut self, o: Common) -> Result<(), String> {
         // every field named: an option left out of the merge is a compile
         // error, not an option silently ignored
         let Common {
@@ -182,18 +206,19 @@ impl Common {
             state,
             client_timeout,
         } = o;
-        self.verbose = verbose.or(self.verbose);
-        self.refs = refs.or(self.refs.take());
-        self.discovery = discovery.or(self.discovery);
-        self.middleware = middleware.or(self.middleware.take());
-        self.bind = bind.or(self.bind);
-        self.domain = domain.or(self.domain);
-        self.interface = interface.or(self.interface.take());
+        self.verbose = one("-v/--verbose", self.verbose, verbose)?;
+        self.refs = one("-r/--refs", self.refs.take(), refs)?;
+        self.discovery = one("-d/--discovery", self.discovery, discovery)?;
+        self.middleware = one("-m/--middleware", self.middleware.take(), middleware)?;
+        self.bind = one("--bind", self.bind, bind)?;
+        self.domain = one("--domain", self.domain, domain)?;
+        self.interface = one("--interface", self.interface.take(), interface)?;
         self.peers.extend(peers);
-        self.multicast = multicast.or(self.multicast);
+        self.multicast = one("--multicast", self.multicast, multicast)?;
         self.any_domain |= any_domain;
-        self.state = state.or(self.state.take());
-        self.client_timeout = client_timeout.or(self.client_timeout);
+        self.state = one("--state", self.state.take(), state)?;
+        self.client_timeout = one("--client-timeout", self.client_timeout, client_timeout)?;
+        Ok(())
     }
 }
 
@@ -272,7 +297,9 @@ fn parse(args: Vec<String>) -> Result<Plan, clap::Error> {
             Cmd::Serial(s) => s.common.clone(),
             Cmd::Pseudoterminal(p) => p.common.clone(),
         };
-        plan.common.merge(common);
+        plan.common
+            .merge(common)
+            .map_err(|e| clap::Error::raw(clap::error::ErrorKind::ArgumentConflict, e + "\n"))?;
         plan.transports.push(chunk.transport);
     }
     Ok(plan)
@@ -465,15 +492,22 @@ fn main() -> ExitCode {
     })
 }
 
+/// Ctrl-C, SIGTERM or SIGHUP (a closed terminal, a dropped ssh session):
+/// each stops the agent cleanly, so that `--state` holds what a graceful
+/// stop leaves.
 async fn wait_for_signal() {
     use tokio::signal::unix::{signal, SignalKind};
-    let Ok(mut term) = signal(SignalKind::terminate()) else {
+    let (Ok(mut term), Ok(mut hup)) = (
+        signal(SignalKind::terminate()),
+        signal(SignalKind::hangup()),
+    ) else {
         let _ = tokio::signal::ctrl_c().await;
         return;
     };
     tokio::select! {
         _ = tokio::signal::ctrl_c() => {}
         _ = term.recv() => {}
+        _ = hup.recv() => {}
     }
 }
 
@@ -510,6 +544,43 @@ mod tests {
             Some(std::path::Path::new("s.db"))
         );
         assert_eq!(p.common.verbose, Some(2));
+        assert_eq!(p.transports.len(), 2);
+    }
+
+    /// An agent option given after two transports with different values
+    /// is refused, naming both (audit 16: the last won silently, and UDP
+    /// listened on the address and joined the domain given for TCP); the
+    /// same value twice is fine.
+    #[test]
+    fn an_agent_option_given_twice_differently_is_refused() {
+        let args = |bind2: &str, domain2: &str| {
+            let mut v: Vec<String> = ["xrce-agent", "udp4", "-p", "0", "--bind", "127.0.0.1"]
+                .iter()
+                .map(|s| s.to_string())
+                .collect();
+            v.extend(
+                [
+                    "--domain", "197", "tcp4", "-p", "0", "--bind", bind2, "--domain", domain2,
+                ]
+                .map(String::from),
+            );
+            v
+        };
+        let e = parse(args("127.0.0.2", "197")).err().expect("refused");
+        assert_eq!(e.kind(), clap::error::ErrorKind::ArgumentConflict);
+        let text = e.to_string();
+        assert!(
+            text.contains("--bind is given twice, as 127.0.0.1 and 127.0.0.2"),
+            "{text}"
+        );
+        let e = parse(args("127.0.0.1", "198")).err().expect("refused");
+        assert!(
+            e.to_string()
+                .contains("--domain is given twice, as 197 and 198"),
+            "{e}"
+        );
+        let p = parse(args("127.0.0.1", "197")).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(p.common.bind, Some(std::net::Ipv4Addr::LOCALHOST));
         assert_eq!(p.transports.len(), 2);
     }
 }
