@@ -63,6 +63,33 @@ pub(crate) struct Closed;
 
 /// Opens (or creates) the state file; the clients it holds.
 pub(crate) fn open(path: &Path) -> Result<(Store, Vec<ClientState<Peer>>), String> {
+    open_with(path, |p: &Path| Database::create(p))
+}
+
+/// [`open`], with what makes the database. A file this call created and
+/// could not make a database of (a full disk) is removed again: left, it
+/// would be refused as damaged at every later start, and an agent
+/// restarted by a supervisor would stay down until someone deletes it.
+/// One another agent holds is left alone.
+fn open_with(
+    path: &Path,
+    create: impl Fn(&Path) -> Result<Database, redb::DatabaseError> + std::panic::RefUnwindSafe,
+) -> Result<(Store, Vec<ClientState<Peer>>), String> {
+    let existed = std::fs::symlink_metadata(path).is_ok();
+    let mut in_use = false;
+    let opened = open_made(path, create, &mut in_use);
+    if opened.is_err() && !existed && !in_use {
+        let _ = std::fs::remove_file(path);
+    }
+    opened
+}
+
+/// `in_use`: set when another agent holds the file.
+fn open_made(
+    path: &Path,
+    create: impl Fn(&Path) -> Result<Database, redb::DatabaseError> + std::panic::RefUnwindSafe,
+    in_use: &mut bool,
+) -> Result<(Store, Vec<ClientState<Peer>>), String> {
     let fail = |e: &dyn std::fmt::Display| format!("state file {}: {e}", path.display());
     let damaged = |e: &dyn std::fmt::Display| {
         format!(
@@ -81,7 +108,7 @@ pub(crate) fn open(path: &Path) -> Result<(Store, Vec<ClientState<Peer>>), Strin
         let _one = HOOK.lock().unwrap_or_else(|e| e.into_inner());
         let hook = std::panic::take_hook();
         std::panic::set_hook(Box::new(|_| {}));
-        let opened = std::panic::catch_unwind(|| Database::create(path));
+        let opened = std::panic::catch_unwind(|| create(path));
         std::panic::set_hook(hook);
         opened
     };
@@ -97,6 +124,10 @@ pub(crate) fn open(path: &Path) -> Result<(Store, Vec<ClientState<Peer>>), Strin
             ) =>
         {
             return Err(damaged(&e))
+        }
+        Ok(Err(e @ redb::DatabaseError::DatabaseAlreadyOpen)) => {
+            *in_use = true;
+            return Err(fail(&e));
         }
         Ok(Err(e)) => return Err(fail(&e)),
         Err(_) => return Err(damaged(&"the database library gave up reading it")),
@@ -387,6 +418,41 @@ mod tests {
     use courier_wire::xrce::{
         DeliveryControl, ObjectId, ObjectKind, ObjectVariant, ReadData, Representation,
     };
+
+    /// A state file this start created and could not make a database of
+    /// (the disk filled up) is removed, so that the next start, once
+    /// there is room, begins afresh (audit 16: a 1.5 MB file was left and
+    /// every later start refused it as damaged). One that was there
+    /// before, or that another agent holds, stays.
+    #[test]
+    fn a_state_file_left_half_made_by_a_failed_start_is_removed() {
+        let dir = std::env::temp_dir().join(format!("xrce-state-half-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("agent.redb");
+        let _ = std::fs::remove_file(&path);
+        fn full(p: &Path) -> Result<Database, redb::DatabaseError> {
+            std::fs::write(p, [0u8; 4096]).unwrap();
+            Err(redb::DatabaseError::Storage(redb::StorageError::Io(
+                std::io::Error::from_raw_os_error(libc::ENOSPC),
+            )))
+        }
+        fn held(p: &Path) -> Result<Database, redb::DatabaseError> {
+            std::fs::write(p, [0u8; 16]).unwrap();
+            Err(redb::DatabaseError::DatabaseAlreadyOpen)
+        }
+        let e = open_with(&path, full).err().expect("a full disk fails");
+        assert!(e.contains("No space left"), "{e}");
+        assert!(!path.exists(), "the half-made file is gone");
+        // one that was there before stays
+        std::fs::write(&path, b"old").unwrap();
+        assert!(open_with(&path, full).is_err());
+        assert!(path.exists());
+        std::fs::remove_file(&path).unwrap();
+        // and so does one another agent holds
+        assert!(open_with(&path, held).is_err());
+        assert!(path.exists());
+        let _ = std::fs::remove_dir_all(dir);
+    }
 
     #[test]
     fn records_round_trip() {

@@ -334,8 +334,9 @@ fn command_line_errors() {
     assert_eq!(help.status.code(), Some(0));
     let help = String::from_utf8_lossy(&help.stdout);
     assert!(
-        help.contains("Exit status: 0 stopped by Ctrl-C or SIGTERM; 2 the command line is wrong")
-            && help.contains("--state's directory; serial --dev;")
+        help.contains(
+            "Exit status: 0 stopped by Ctrl-C, SIGTERM or SIGHUP; 2 the command line is wrong"
+        ) && help.contains("--state's directory; serial --dev;")
             && help.contains("1 the agent could not start for another reason (a port in use"),
         "{help}"
     );
@@ -570,6 +571,26 @@ fn a_restart_with_state_after_sigterm_loses_nothing_for_a_remote_reader() {
     again.kill().unwrap();
     wait_exit(&mut again, "killed");
     rt.block_on(s.close());
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// SIGHUP (a closed terminal, a dropped ssh session) stops the agent as
+/// SIGTERM does: exit status 0, its state saved as a graceful stop saves
+/// it (audit 16: it died of the signal, status 129, a crash for --state).
+#[test]
+fn sighup_stops_the_agent_cleanly() {
+    let d = courier_tests::domains::lease(7);
+    let dir = std::env::temp_dir().join(format!("xrce-agent-hup-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let state = dir.join("agent.redb");
+    let _ = std::fs::remove_file(&state);
+    let (mut agent, _addr) = agent_with_state(d, &state, 0);
+    let pid = i32::try_from(agent.id()).unwrap();
+    // SAFETY: a signal to the child this test started and still holds
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGHUP) }, 0);
+    wait_exit(&mut agent, "hung up");
+    let status = agent.0.wait().unwrap();
+    assert_eq!(status.code(), Some(0), "{status:?}");
     let _ = std::fs::remove_dir_all(dir);
 }
 
