@@ -76,10 +76,19 @@ fn open_with(
     create: impl Fn(&Path) -> Result<Database, redb::DatabaseError> + std::panic::RefUnwindSafe,
 ) -> Result<(Store, Vec<ClientState<Peer>>), String> {
     let existed = std::fs::symlink_metadata(path).is_ok();
+    let was_empty = std::fs::metadata(path).is_ok_and(|m| m.len() == 0);
     let mut in_use = false;
     let opened = open_made(path, create, &mut in_use);
     if opened.is_err() && !existed && !in_use {
         let _ = std::fs::remove_file(path);
+    }
+    if opened.is_ok() && was_empty {
+        // (truncated by hand or by a disk that filled before anything was
+        // written): not silently a fresh start
+        tracing::warn!(
+            "state file {} was empty: the agent starts without saved sessions",
+            path.display()
+        );
     }
     opened
 }
