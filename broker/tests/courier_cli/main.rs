@@ -9,6 +9,7 @@
 mod call;
 mod echo_pub;
 mod list;
+mod output;
 mod perf;
 mod ping_spy;
 mod ping_xrce;
@@ -109,8 +110,20 @@ fn expect_in(lines: &mpsc::Receiver<String>, seen: &mut Vec<String>, prefix: &st
 
 impl Proc {
     pub fn start(args: &[&str]) -> Proc {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_courier"))
-            .args(args)
+        let mut c = Command::new(env!("CARGO_BIN_EXE_courier"));
+        c.args(args);
+        Proc::spawn(c)
+    }
+
+    /// `courier args` under `nohup`: with SIGHUP ignored.
+    pub fn start_nohup(args: &[&str]) -> Proc {
+        let mut c = Command::new("nohup");
+        c.arg(env!("CARGO_BIN_EXE_courier")).args(args);
+        Proc::spawn(c)
+    }
+
+    fn spawn(mut c: Command) -> Proc {
+        let mut child = c
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())

@@ -887,3 +887,94 @@ fn a_full_disk_says_what_the_file_holds() {
         "{err}"
     );
 }
+
+/// SIGHUP (a dropped ssh session) finishes the recording as SIGTERM and
+/// Ctrl-C do: every message recorded is in the file, which has its summary
+/// (exit 129). It used to kill the recorder, losing its last chunk.
+#[test]
+fn a_hang_up_finishes_the_recording() {
+    let dir = Dir::new("sighup");
+    let file = dir.file("hup.mcap");
+    let c = Central::start();
+    let u = c.url.as_str();
+    let mut rec = Proc::start(&[
+        "--progress",
+        "always",
+        "record",
+        u,
+        "text",
+        "-o",
+        &file,
+        "--count",
+        "0",
+    ]);
+    rec.expect("ready");
+    publish(u, "text", "string", "one");
+    publish(u, "text", "string", "two");
+    rec.expect("channel text");
+    while !rec
+        .expect_err("courier: recording for ")
+        .contains(": 2 messages on 1 channel")
+    {}
+    rec.signal(libc::SIGHUP);
+    let (code, out, err) = rec.finish();
+    assert_eq!(code, Some(129), "{out}{err}");
+    let size = std::fs::metadata(&file).unwrap().len();
+    assert_eq!(
+        out,
+        format!("recorded 2 messages on 1 channel in {file} ({size} B)\ninterrupted after 2 messages recorded\n")
+    );
+    // the file is whole and replays both
+    let mut echo = Proc::start(&["echo", u, "text", "--count", "2"]);
+    let (code, out, err) = run(&["replay", &file, u, "--wait", "1", "--rate", "20"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("replayed 2 messages"), "{out}");
+    assert!(
+        !err.contains("unfinished") && !err.contains("damaged"),
+        "{err}"
+    );
+    assert_eq!(echo.expect(""), "\"one\"");
+    assert_eq!(echo.expect(""), "\"two\"");
+    assert_eq!(echo.wait(), Some(0));
+}
+
+/// Under `nohup` (SIGHUP ignored) a hang-up stays ignored: the recording
+/// goes on.
+#[test]
+fn under_nohup_a_hang_up_is_ignored() {
+    let dir = Dir::new("nohup");
+    let file = dir.file("nohup.mcap");
+    let c = Central::start();
+    let u = c.url.as_str();
+    let mut rec = Proc::start_nohup(&[
+        "--progress",
+        "always",
+        "record",
+        u,
+        "text",
+        "-o",
+        &file,
+        "--count",
+        "0",
+    ]);
+    rec.expect("ready");
+    publish(u, "text", "string", "one");
+    while !rec
+        .expect_err("courier: recording for ")
+        .contains(": 1 message on 1 channel")
+    {}
+    rec.signal(libc::SIGHUP);
+    std::thread::sleep(Duration::from_millis(300));
+    publish(u, "text", "string", "two");
+    while !rec
+        .expect_err("courier: recording for ")
+        .contains(": 2 messages on 1 channel")
+    {}
+    rec.signal(libc::SIGTERM);
+    let (code, out, err) = rec.finish();
+    assert_eq!(code, Some(143), "{out}{err}");
+    assert!(
+        out.ends_with("\ninterrupted after 2 messages recorded\n"),
+        "{out}"
+    );
+}

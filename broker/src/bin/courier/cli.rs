@@ -22,9 +22,12 @@ Session URLs:
                            there (the agent creates typed readers); pub and call default to
                            courier::Ping without one, as on rtps://
 
-Exit status: 0 done; 1 a runtime failure (the message says which); 2 a usage
-error (a bad option, URL or VALUE: one that does not fit its type); 128+N
-stopped by signal N before it was done (130 Ctrl-C, 143 SIGTERM).
+Exit status: 0 done (also when its reader closes the pipe, `| head`); 1 a runtime
+failure (the message says which), or stdout could not be written (`courier <command>:
+cannot write to stdout: <error>`); 2 a usage error (a bad option, URL or VALUE: one
+that does not fit its type); 128+N stopped by signal N before it was done (130
+Ctrl-C, 143 SIGTERM, 129 SIGHUP: each ends the command as cleanly, a recording
+is finished).
 `courier <command> --help` describes a command and what it prints.";
 
 /// Command-line tools over any Courier session URL.
@@ -54,6 +57,28 @@ pub enum ProgressMode {
     Always,
     /// Never.
     Never,
+}
+
+impl Command {
+    /// The subcommand's name, as typed (`courier <name>`).
+    pub fn name(&self) -> &'static str {
+        match self {
+            Command::Call(_) => "call",
+            Command::Echo(_) => "echo",
+            Command::Hz(_) => "hz",
+            Command::Bw(_) => "bw",
+            Command::Pub(_) => "pub",
+            Command::List(_) => "list",
+            Command::Perf(_) => "perf",
+            Command::Ping(_) => "ping",
+            Command::Spy(_) => "spy",
+            Command::Pong(_) => "pong",
+            Command::Gen(_) => "gen",
+            Command::Record(_) => "record",
+            Command::Replay(_) => "replay",
+            Command::Completions { .. } => "completions",
+        }
+    }
 }
 
 #[derive(Subcommand, Debug)]
@@ -208,7 +233,7 @@ Output, one event a line:
   sent <n>
   done                     --count reached (exit 0)
   interrupted while waiting for subscribers of … | after <n> samples sent
-                           Ctrl-C / SIGTERM (exit 130 / 143)";
+                           Ctrl-C / SIGTERM / SIGHUP (exit 130 / 143 / 129)";
 
 const HZ_OUTPUT: &str = "\
 Every second, over the last --window samples (one line, stdout):
@@ -238,7 +263,7 @@ Output, one event a line:
   offered deadline missed <total>     publisher with --deadline whose --period is longer (DDS)
   skipped <reason>                    a sample that did not decode
   done                                --count reached (exit 0)
-  interrupted after <n> samples …     Ctrl-C / SIGTERM: session closed (exit 130 / 143)
+  interrupted after <n> samples …     Ctrl-C / SIGTERM / SIGHUP: session closed (exit 130 / 143 / 129)
 --rtt (with `courier pong` answering; latencies in microseconds):
   ready
   matched <n>                         pongs subscribing the topic
@@ -273,7 +298,7 @@ Output, one event a line (a name with blanks is quoted; an empty list is -):
       64 bytes in hex (… when more), or - when none. On IPC <type> is the
       message's format (? when unknown), <writer guid> is ?, and <value> is printed
       as central's data log prints it
-  interrupted after <n> samples       Ctrl-C / SIGTERM: session closed (exit 130 / 143)";
+  interrupted after <n> samples       Ctrl-C / SIGTERM / SIGHUP: session closed (exit 130 / 143 / 129)";
 
 const RECORD_OUTPUT: &str = "\
 The file: MCAP (zstd chunks, closed at least once a second; a summary with
@@ -290,8 +315,8 @@ Output, one event a line:
   channel <topic> <encoding> <schema encoding>:<schema name>|-   a new channel
   recorded <n> messages on <k> channels in <file> (<bytes> B)    the file is finished
   done                                    --count or --duration reached (exit 0)
-  interrupted after <n> messages recorded Ctrl-C / SIGTERM: the file is finished
-                                          all the same (exit 130 / 143)
+  interrupted after <n> messages recorded Ctrl-C / SIGTERM / SIGHUP: the file is
+                                          finished all the same (exit 130 / 143 / 129)
 Killed outright (or out of disk), the file ends without its summary and loses
 at most its last second: courier replay reads what it holds; other MCAP tools
 want `mcap recover` first.";

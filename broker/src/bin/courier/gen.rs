@@ -1,7 +1,6 @@
 //! `courier gen`: Rust types from IPC formats, XDR or IDL files
 //! (the library's `courier_broker::gen`), written to a file or stdout.
 
-use std::io::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -9,7 +8,7 @@ use clap::{Args, ValueEnum};
 
 use courier_broker::gen::{self, FsLoader, Input, Lang};
 
-use crate::text::err;
+use crate::text::{err, write_stdout};
 
 /// What `courier gen --help` says after the options.
 pub const GEN_HELP: &str = "\
@@ -76,7 +75,8 @@ impl From<LangArg> for Lang {
 /// Runs `courier gen`: 0 when the code is written, 1 on any error.
 pub fn run(args: GenArgs) -> ExitCode {
     match generate(&args) {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(None) => ExitCode::SUCCESS,
+        Ok(Some(code)) => write_stdout("gen", code.as_bytes()),
         Err(e) => {
             err(format_args!("courier gen: {e}"));
             ExitCode::from(1)
@@ -84,7 +84,8 @@ pub fn run(args: GenArgs) -> ExitCode {
     }
 }
 
-fn generate(args: &GenArgs) -> Result<(), String> {
+/// Writes the code to the file named, or gives it back for stdout.
+fn generate(args: &GenArgs) -> Result<Option<String>, String> {
     let mut inputs = Vec::new();
     for p in &args.inputs {
         inputs.push(Input::read(p).map_err(|e| e.to_string())?);
@@ -97,11 +98,10 @@ fn generate(args: &GenArgs) -> Result<(), String> {
     let code = gen::generate_with(args.lang.into(), &inputs, &loader, &options)
         .map_err(|e| e.to_string())?;
     if args.output == "-" {
-        let mut out = std::io::stdout().lock();
-        out.write_all(code.as_bytes())
-            .and_then(|()| out.flush())
-            .map_err(|e| format!("cannot write to stdout: {e}"))
+        Ok(Some(code))
     } else {
-        std::fs::write(&args.output, code).map_err(|e| format!("cannot write {}: {e}", args.output))
+        std::fs::write(&args.output, code)
+            .map(|()| None)
+            .map_err(|e| format!("cannot write {}: {e}", args.output))
     }
 }

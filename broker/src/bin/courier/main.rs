@@ -8,8 +8,11 @@
 //! Output is one event or sample a line, flushed, so that tests and
 //! scripts can read it. Exit codes: 0 done, 1 runtime failure, 2 usage
 //! error (a bad option, URL or VALUE; a VALUE checked only against the
-//! format central holds is a [`cli::LateUsage`]), 128+N stopped by signal
-//! N before the command was done (then it says what it interrupted).
+//! format central holds is a [`cli::LateUsage`]; 1 too when stdout cannot
+//! be written, said in one line, `courier <cmd>: cannot write to stdout:
+//! <error>`; a closed pipe, `| head`, ends a command quietly with 0), 128+N
+//! stopped by signal N before the command was done (then it says what it
+//! interrupted): SIGINT, SIGTERM and SIGHUP alike.
 #![deny(unsafe_code)]
 
 mod bar;
@@ -44,7 +47,7 @@ use clap::{CommandFactory, Parser};
 
 use cli::{Cli, Command};
 use stop::{Ended, Stop, Why};
-use text::{err, out};
+use text::{err, out, stdout_error_exit};
 
 type Error = Box<dyn std::error::Error>;
 type Result<T> = std::result::Result<T, Error>;
@@ -69,11 +72,13 @@ fn main() -> ExitCode {
             | Command::Replay(_)
             | Command::Spy(_)
     );
+    let name = cli.command.name();
     let cmd = match cli.command {
         Command::Completions { shell } => {
-            let mut out = std::io::stdout();
-            clap_complete::generate(shell, &mut Cli::command(), "courier", &mut out);
-            return ExitCode::SUCCESS;
+            // into memory first: clap_complete panics on a failed write
+            let mut script = Vec::new();
+            clap_complete::generate(shell, &mut Cli::command(), "courier", &mut script);
+            return text::write_stdout(name, &script);
         }
         Command::Gen(o) => return gen::run(o),
         c => c,
@@ -116,7 +121,23 @@ fn main() -> ExitCode {
                     err(format_args!("courier: interrupted {what}"));
                 }
             }
-            ExitCode::from(ended.exit_code())
+            // output lost (a full disk): said, and no success, even when
+            // the command went on to its end (`list` prints and is done);
+            // a signal that stopped it first keeps its 128+N
+            match (text::stdout_error(), &ended) {
+                (None, _) => ExitCode::from(ended.exit_code()),
+                (
+                    Some(e),
+                    Ended::Stopped {
+                        why: Why::Signal(_),
+                        ..
+                    },
+                ) => {
+                    stdout_error_exit(name, e);
+                    ExitCode::from(ended.exit_code())
+                }
+                (Some(e), _) => stdout_error_exit(name, e),
+            }
         }
         Err(e) => {
             if let Some(u) = e.downcast_ref::<cli::LateUsage>() {

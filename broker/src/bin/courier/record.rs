@@ -6,8 +6,8 @@
 //! Chunks are zstd-compressed and closed at least once a second, so a
 //! recorder killed outright loses at most the last second (`courier
 //! replay` reads such a file; other MCAP tools want `mcap recover` first,
-//! since it ends without a summary); stopped by
-//! Ctrl-C, `--count` or `--duration` it writes the summary (statistics,
+//! since it ends without a summary); stopped by Ctrl-C, SIGTERM, SIGHUP
+//! (a dropped ssh session), `--count` or `--duration` it writes the summary (statistics,
 //! chunk and message indexes) and says how many messages it recorded.
 
 use std::cell::RefCell;

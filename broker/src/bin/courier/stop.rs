@@ -1,5 +1,6 @@
-//! How a command stops early: SIGINT (Ctrl-C), SIGTERM, or its stdout
-//! gone (`courier echo … | head`), and what it then says it interrupted.
+//! How a command stops early: SIGINT (Ctrl-C), SIGTERM, SIGHUP (its
+//! terminal or ssh session gone), its stdout gone (`courier echo … | head`)
+//! or failing (a full disk), and what it then says it interrupted.
 
 use std::sync::OnceLock;
 use std::time::Duration;
@@ -12,10 +13,13 @@ use crate::Result;
 /// Why a command was stopped.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Why {
-    /// A signal (its number: `SIGINT`, `SIGTERM`).
+    /// A signal (its number: `SIGINT`, `SIGTERM`, `SIGHUP`).
     Signal(i32),
-    /// Writing to stdout failed: nobody reads it any more.
+    /// Writing to stdout failed: nobody reads it any more (EPIPE).
     StdoutGone,
+    /// Writing to stdout failed otherwise (ENOSPC, EIO, …): the output is
+    /// lost; [`crate::text::stdout_error`] says why.
+    StdoutFailed,
 }
 
 /// How a command ended.
@@ -30,8 +34,9 @@ pub enum Ended {
 
 impl Ended {
     /// The exit code: 0 when done (or nobody reads the output any more),
-    /// 128 + the signal's number when a signal stopped it (130 for Ctrl-C,
-    /// 143 for SIGTERM), as shells report a command a signal killed.
+    /// 1 when its output could not be written, 128 + the signal's number
+    /// when a signal stopped it (130 for Ctrl-C, 143 for SIGTERM, 129 for
+    /// SIGHUP), as shells report a command a signal killed.
     pub fn exit_code(&self) -> u8 {
         match self {
             Ended::Done
@@ -39,6 +44,10 @@ impl Ended {
                 why: Why::StdoutGone,
                 ..
             } => 0,
+            Ended::Stopped {
+                why: Why::StdoutFailed,
+                ..
+            } => 1,
             Ended::Stopped {
                 why: Why::Signal(s),
                 ..
@@ -69,18 +78,32 @@ pub fn stop(why: Why) {
 pub struct Stop(watch::Receiver<Option<Why>>);
 
 impl Stop {
-    /// Installs the handlers (inside the runtime).
+    /// Installs the handlers (inside the runtime). SIGHUP stops a command
+    /// as SIGTERM does (a recording is finished), unless it is ignored
+    /// (`nohup`): then it stays ignored.
     pub fn watch() -> std::io::Result<Stop> {
         use tokio::signal::unix::{signal, SignalKind};
         let (mut int, mut term) = (
             signal(SignalKind::interrupt())?,
             signal(SignalKind::terminate())?,
         );
+        let mut hup = if hangup_ignored() {
+            None
+        } else {
+            Some(signal(SignalKind::hangup())?)
+        };
         let rx = sender().subscribe();
         tokio::spawn(async move {
+            let hangup = async {
+                match &mut hup {
+                    Some(h) => h.recv().await,
+                    None => std::future::pending().await,
+                }
+            };
             let s = tokio::select! {
                 _ = int.recv() => libc::SIGINT,
                 _ = term.recv() => libc::SIGTERM,
+                _ = hangup => libc::SIGHUP,
             };
             stop(Why::Signal(s));
         });
@@ -94,6 +117,19 @@ impl Stop {
             // the sender is a static: never dropped
             Err(_) => std::future::pending().await,
         }
+    }
+}
+
+/// Whether SIGHUP is ignored, as `nohup` leaves it: then a hang-up is to
+/// go on ignoring it, not to stop the command.
+#[allow(unsafe_code)]
+fn hangup_ignored() -> bool {
+    // SAFETY: sigaction(2) with no new action only reads the disposition
+    // into `old`, a plain C struct for which all zeroes are valid.
+    unsafe {
+        let mut old: libc::sigaction = std::mem::zeroed();
+        libc::sigaction(libc::SIGHUP, std::ptr::null(), &mut old) == 0
+            && old.sa_sigaction == libc::SIG_IGN
     }
 }
 
@@ -155,7 +191,9 @@ mod tests {
         assert_eq!(Ended::Done.exit_code(), 0);
         assert_eq!(stopped(Why::Signal(libc::SIGINT)).exit_code(), 130);
         assert_eq!(stopped(Why::Signal(libc::SIGTERM)).exit_code(), 143);
+        assert_eq!(stopped(Why::Signal(libc::SIGHUP)).exit_code(), 129);
         assert_eq!(stopped(Why::StdoutGone).exit_code(), 0);
+        assert_eq!(stopped(Why::StdoutFailed).exit_code(), 1);
         assert_eq!(count(1, "sample"), "1 sample");
         assert_eq!(count(0, "sample"), "0 samples");
     }

@@ -2,19 +2,63 @@
 //! the text of the things lines name (GUIDs, QoS, locators, bytes).
 
 use std::io::{IsTerminal, Write};
+use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::OnceLock;
 
 use courier::{DurabilityKind, EndpointInfo, History, ParticipantInfo, Reliability};
 
 use crate::cli::ProgressMode;
 use crate::stop::{stop, Why};
 
+/// The first write to stdout that failed otherwise than by a closed pipe.
+static STDOUT_ERROR: OnceLock<String> = OnceLock::new();
+
 /// Prints one line on stdout, flushed. When stdout is gone (`| head`), the
-/// command stops as on a signal: it closes its session and exits.
+/// command stops as on a signal: it closes its session and exits 0. When
+/// it cannot be written (a full disk), the command stops too, and
+/// [`stdout_error`] says why (it then exits 1).
 pub fn out(line: impl std::fmt::Display) {
     let mut o = std::io::stdout().lock();
-    if writeln!(o, "{line}").and_then(|()| o.flush()).is_err() {
+    if let Err(e) = writeln!(o, "{line}").and_then(|()| o.flush()) {
+        stdout_failed(&e);
+    }
+}
+
+/// Notes a failed write to stdout and stops the command: quietly when
+/// nobody reads stdout any more (EPIPE), else as a failure.
+fn stdout_failed(e: &std::io::Error) {
+    if e.kind() == std::io::ErrorKind::BrokenPipe {
         stop(Why::StdoutGone);
+    } else {
+        let _ = STDOUT_ERROR.set(e.to_string());
+        stop(Why::StdoutFailed);
+    }
+}
+
+/// Why stdout could not be written, when a write to it failed otherwise
+/// than by a closed pipe.
+pub fn stdout_error() -> Option<&'static str> {
+    STDOUT_ERROR.get().map(String::as_str)
+}
+
+/// Says that `courier <cmd>` could not write its output: the one line
+/// `courier <cmd>: cannot write to stdout: <error>`; exit code 1.
+pub fn stdout_error_exit(cmd: &str, e: impl std::fmt::Display) -> ExitCode {
+    err(format_args!("courier {cmd}: cannot write to stdout: {e}"));
+    ExitCode::from(1)
+}
+
+/// Writes all of `bytes` to stdout, flushed, for `courier <cmd>`, which
+/// prints its output in one piece (`gen`, `completions`): 0 when written
+/// or when nobody reads stdout any more (EPIPE: `| head`), else the line
+/// of [`stdout_error_exit`] and 1.
+pub fn write_stdout(cmd: &str, bytes: &[u8]) -> ExitCode {
+    let mut o = std::io::stdout().lock();
+    match o.write_all(bytes).and_then(|()| o.flush()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => ExitCode::SUCCESS,
+        Err(e) => stdout_error_exit(cmd, e),
     }
 }
 
