@@ -25,5 +25,7 @@
 pub use courier::central::*;
 
 pub mod gen;
+#[doc(hidden)]
+pub mod signals;
 pub mod xrce_agent;
 mod xrce_state;

@@ -384,10 +384,25 @@ impl std::ops::DerefMut for AgentProc {
 }
 
 fn agent_with_state(domain: u32, state: &std::path::Path, port: u16) -> (AgentProc, SocketAddr) {
+    start_agent(
+        Command::new(env!("CARGO_BIN_EXE_xrce-agent")),
+        domain,
+        state,
+        port,
+    )
+}
+
+/// [`agent_with_state`] run by `cmd` (the agent's binary, or `nohup` to
+/// run it).
+fn start_agent(
+    mut cmd: Command,
+    domain: u32,
+    state: &std::path::Path,
+    port: u16,
+) -> (AgentProc, SocketAddr) {
     use std::io::BufRead;
     let mut child = AgentProc(
-        Command::new(env!("CARGO_BIN_EXE_xrce-agent"))
-            .args(["udp4", "-p", &port.to_string(), "--bind", "127.0.0.1"])
+        cmd.args(["udp4", "-p", &port.to_string(), "--bind", "127.0.0.1"])
             .args([
                 "--interface",
                 "lo",
@@ -591,6 +606,32 @@ fn sighup_stops_the_agent_cleanly() {
     wait_exit(&mut agent, "hung up");
     let status = agent.0.wait().unwrap();
     assert_eq!(status.code(), Some(0), "{status:?}");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// Under `nohup` a hang-up goes on being ignored (the agent must not undo
+/// what `nohup` asked for); SIGTERM still stops it.
+#[test]
+fn under_nohup_sighup_is_ignored() {
+    let d = courier_tests::domains::lease(8);
+    let dir = std::env::temp_dir().join(format!("xrce-agent-nohup-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let state = dir.join("agent.redb");
+    let _ = std::fs::remove_file(&state);
+    let mut nohup = Command::new("nohup");
+    nohup.arg(env!("CARGO_BIN_EXE_xrce-agent"));
+    let (mut agent, _addr) = start_agent(nohup, d, &state, 0);
+    let pid = i32::try_from(agent.id()).unwrap();
+    // SAFETY: signals to the child this test started and still holds
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGHUP) }, 0);
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    assert!(
+        agent.0.try_wait().unwrap().is_none(),
+        "a hang-up stopped it"
+    );
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGTERM) }, 0);
+    wait_exit(&mut agent, "terminated");
+    assert_eq!(agent.0.wait().unwrap().code(), Some(0));
     let _ = std::fs::remove_dir_all(dir);
 }
 

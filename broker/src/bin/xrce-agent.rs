@@ -494,20 +494,28 @@ fn main() -> ExitCode {
 
 /// Ctrl-C, SIGTERM or SIGHUP (a closed terminal, a dropped ssh session):
 /// each stops the agent cleanly, so that `--state` holds what a graceful
-/// stop leaves.
+/// stop leaves. Under `nohup` SIGHUP stays ignored.
 async fn wait_for_signal() {
     use tokio::signal::unix::{signal, SignalKind};
-    let (Ok(mut term), Ok(mut hup)) = (
-        signal(SignalKind::terminate()),
-        signal(SignalKind::hangup()),
-    ) else {
+    let Ok(mut term) = signal(SignalKind::terminate()) else {
         let _ = tokio::signal::ctrl_c().await;
         return;
+    };
+    let mut hup = if courier_broker::signals::sighup_ignored() {
+        None
+    } else {
+        signal(SignalKind::hangup()).ok()
+    };
+    let hangup = async {
+        match &mut hup {
+            Some(h) => h.recv().await,
+            None => std::future::pending().await,
+        }
     };
     tokio::select! {
         _ = tokio::signal::ctrl_c() => {}
         _ = term.recv() => {}
-        _ = hup.recv() => {}
+        _ = hangup => {}
     }
 }
 

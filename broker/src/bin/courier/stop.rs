@@ -87,7 +87,7 @@ impl Stop {
             signal(SignalKind::interrupt())?,
             signal(SignalKind::terminate())?,
         );
-        let mut hup = if hangup_ignored() {
+        let mut hup = if courier_broker::signals::sighup_ignored() {
             None
         } else {
             Some(signal(SignalKind::hangup())?)
@@ -117,19 +117,6 @@ impl Stop {
             // the sender is a static: never dropped
             Err(_) => std::future::pending().await,
         }
-    }
-}
-
-/// Whether SIGHUP is ignored, as `nohup` leaves it: then a hang-up is to
-/// go on ignoring it, not to stop the command.
-#[allow(unsafe_code)]
-fn hangup_ignored() -> bool {
-    // SAFETY: sigaction(2) with no new action only reads the disposition
-    // into `old`, a plain C struct for which all zeroes are valid.
-    unsafe {
-        let mut old: libc::sigaction = std::mem::zeroed();
-        libc::sigaction(libc::SIGHUP, std::ptr::null(), &mut old) == 0
-            && old.sa_sigaction == libc::SIG_IGN
     }
 }
 
