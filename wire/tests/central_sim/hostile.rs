@@ -260,3 +260,91 @@ fn random_bytes_never_panic() {
         assert_eq!(sim.central().stats().modules, 0, "round {round}");
     }
 }
+
+/// A peer that connects, sends a bad frame (or nothing) and closes, in a
+/// loop, with a new connection each time: each connection has a budget of
+/// its own, so only a central-wide bound keeps the log from getting two
+/// lines per attempt. The first connections are logged as before; the
+/// rest are counted and the count is said once the interval is over.
+#[test]
+fn connection_flood_from_nameless_peers_is_bounded_and_counted() {
+    use std::time::Duration;
+    let t0 = SystemTime::UNIX_EPOCH + Duration::from_secs(1_000_000);
+    let mut central = Central::new_at(Config::default(), t0);
+    while central.poll_output().is_some() {}
+    let mut lines = Vec::new();
+    let drain = |c: &mut Central, lines: &mut Vec<String>| {
+        while let Some(o) = c.poll_output() {
+            if let Output::Log { line, .. } = o {
+                lines.push(line);
+            }
+        }
+    };
+    let mut bad = raw_frame(MsgClass::Query, 5, &[0; 40]);
+    bad[4..8].copy_from_slice(&(-8i32).to_be_bytes());
+    // 1000 connections in 5 s, every other one sending a bad frame.
+    for i in 0..1000u64 {
+        let now = t0 + Duration::from_millis(5 * i);
+        let conn = ConnId(100 + i);
+        central.connect(conn, Peer::Other("prober".into()), now);
+        if i % 2 == 0 {
+            central.receive(conn, &bad, now);
+        }
+        central.disconnect(conn, now);
+        drain(&mut central, &mut lines);
+    }
+    central.check_invariants();
+    // The first connections are logged as before.
+    assert!(
+        lines[0].starts_with("ERROR: closing connection 5 (from prober): ")
+            && lines[0].contains("negative length"),
+        "{lines:?}"
+    );
+    assert_eq!(
+        lines[1],
+        "x_ipcClose: Closed Connection Detected from: sd: 5:"
+    );
+    assert!(
+        lines.len() <= 30,
+        "{} lines for 1000 connections: {:?}",
+        lines.len(),
+        &lines[..lines.len().min(40)]
+    );
+    // Once the interval is over, the next connection (a module) says how
+    // many were left out.
+    let later = t0 + Duration::from_secs(11);
+    central.connect(ConnId(5000), Peer::Other("module".into()), later);
+    drain(&mut central, &mut lines);
+    let summary: Vec<&String> = lines
+        .iter()
+        .filter(|l| l.contains(" more connection"))
+        .collect();
+    assert_eq!(summary.len(), 1, "{lines:?}");
+    let shown = lines
+        .iter()
+        .filter(|l| l.contains("Closed Connection Detected"))
+        .count() as u64;
+    let counted: u64 = summary[0]
+        .split(' ')
+        .filter_map(|w| w.parse::<u64>().ok())
+        .take(2)
+        .sum();
+    assert!(
+        summary[0].contains("closed for bad frames"),
+        "{}",
+        summary[0]
+    );
+    assert_eq!(shown + counted, 1000, "{}", summary[0]);
+    // A new interval: strangers are logged again.
+    let conn = ConnId(6000);
+    central.connect(conn, Peer::Other("late".into()), later);
+    central.receive(conn, &bad, later);
+    drain(&mut central, &mut lines);
+    assert!(
+        lines
+            .last()
+            .unwrap()
+            .starts_with("x_ipcClose: Closed Connection Detected"),
+        "{lines:?}"
+    );
+}

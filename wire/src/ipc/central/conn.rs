@@ -113,6 +113,7 @@ impl Central {
     /// formatter frames central speaks first (ipc.md §4).
     pub fn connect(&mut self, conn: ConnId, peer: Peer, now: SystemTime) {
         self.clock = now;
+        self.stranger_summary(now);
         let sd = self.free_sd();
         self.modules.insert(
             conn,
@@ -139,6 +140,7 @@ impl Central {
                 paused: false,
                 closed: false,
                 problems: log::ProblemBudget::default(),
+                quiet: None,
                 relay: None,
                 relay_from: None,
                 held: Vec::new(),
@@ -293,11 +295,13 @@ impl Central {
     }
 
     fn protocol_error(&mut self, conn: ConnId, why: String, now: SystemTime) {
-        let who = self.describe(conn);
-        self.log_line(
-            Kind::Problem,
-            format!("ERROR: closing connection {who}: {why}"),
-        );
+        if !self.stranger_quiet(conn) {
+            let who = self.describe(conn);
+            self.log_line(
+                Kind::Problem,
+                format!("ERROR: closing connection {who}: {why}"),
+            );
+        }
         self.outputs.push_back(Output::Close { conn, reason: why });
         self.close_module(conn, false, now);
     }
@@ -309,7 +313,7 @@ impl Central {
             return;
         }
         let partial = self.modules.get(&conn).map_or(0, |m| m.rx.len() - m.rx_pos);
-        if partial > 0 {
+        if partial > 0 && !self.stranger_quiet(conn) {
             let who = self.describe(conn);
             self.log_line(
                 Kind::Problem,
@@ -336,26 +340,35 @@ impl Central {
         let name = m.name.clone();
         let host = m.host.clone();
         let sd = m.sd;
-        self.report_left_out(conn, left_out);
+        // A connection that never named itself, beyond what the log
+        // takes of those: counted, not logged.
+        let quiet = self.stranger_quiet(conn);
+        if quiet {
+            self.strangers.count(!eof);
+        } else {
+            self.report_left_out(conn, left_out);
+        }
         // A frame it was sending through: its receiver needs the rest.
         self.abandon_relay(conn);
-        if eof {
-            // handleDataMsgRecv
-            self.log_line(
-                Kind::Status,
-                format!("Closed Connection Detected from: sd: {sd}: "),
-            );
-            if let Some(n) = &name {
-                self.log_line(Kind::Always, format!(" Closing {n} on {host}"));
-            }
-        } else {
-            // x_ipcCloseHnd
-            self.log_line(
-                Kind::Always,
-                format!("x_ipcClose: Closed Connection Detected from: sd: {sd}:"),
-            );
-            if let Some(n) = &name {
-                self.log_line(Kind::Always, format!("x_ipcClose: Closing {n} on {host}"));
+        if !quiet {
+            if eof {
+                // handleDataMsgRecv
+                self.log_line(
+                    Kind::Status,
+                    format!("Closed Connection Detected from: sd: {sd}: "),
+                );
+                if let Some(n) = &name {
+                    self.log_line(Kind::Always, format!(" Closing {n} on {host}"));
+                }
+            } else {
+                // x_ipcCloseHnd
+                self.log_line(
+                    Kind::Always,
+                    format!("x_ipcClose: Closed Connection Detected from: sd: {sd}:"),
+                );
+                if let Some(n) = &name {
+                    self.log_line(Kind::Always, format!("x_ipcClose: Closing {n} on {host}"));
+                }
             }
         }
         if let Some(n) = &name {

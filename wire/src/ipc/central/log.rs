@@ -146,7 +146,114 @@ impl ProblemBudget {
     }
 }
 
+/// Connections that never named themselves whose lines are shown in each
+/// [`STRANGER_WINDOW`] ([`StrangerBudget`]).
+pub(super) const STRANGER_BURST: u32 = 10;
+
+/// The interval of [`StrangerBudget`].
+pub(super) const STRANGER_WINDOW: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// A central-wide bound on lines about connections that closed before
+/// naming themselves (probes, port scanners, peers sending garbage):
+/// each such connection has its own [`ProblemBudget`], so a peer that
+/// connects, sends a few bad bytes and closes in a loop would otherwise
+/// get its two lines every time. The first [`STRANGER_BURST`] such
+/// connections of a [`STRANGER_WINDOW`] are logged as before; the others
+/// are counted, and the count is said in one line when the window is over
+/// (at the next connection, or the next stranger's line, after it).
+#[derive(Debug, Clone, Default)]
+pub(super) struct StrangerBudget {
+    /// When the current window started (its first stranger).
+    since: Option<SystemTime>,
+    shown: u32,
+    /// Left out: closed for a bad frame, or closed by the peer.
+    bad: u64,
+    closed: u64,
+}
+
+impl StrangerBudget {
+    /// Whether a new stranger's lines are shown.
+    pub(super) fn admit(&mut self, now: SystemTime) -> bool {
+        self.since.get_or_insert(now);
+        if self.shown < STRANGER_BURST {
+            self.shown += 1;
+            true
+        } else {
+            false
+        }
+    }
+
+    /// A stranger whose lines were left out closed.
+    pub(super) fn count(&mut self, bad: bool) {
+        if bad {
+            self.bad += 1;
+        } else {
+            self.closed += 1;
+        }
+    }
+
+    /// At `now`, if the window is over: starts a new one, and returns the
+    /// line that says what was left out in it, if anything was.
+    pub(super) fn roll(&mut self, now: SystemTime) -> Option<String> {
+        let since = self.since?;
+        let elapsed = now.duration_since(since).ok();
+        if elapsed.is_some_and(|d| d < STRANGER_WINDOW) {
+            return None;
+        }
+        let (bad, closed) = (self.bad, self.closed);
+        *self = StrangerBudget::default();
+        if bad == 0 && closed == 0 {
+            return None;
+        }
+        let secs = elapsed.map_or(0, |d| d.as_secs());
+        let mut what = Vec::new();
+        if bad > 0 {
+            what.push(format!("{bad} more connection(s) closed for bad frames"));
+        }
+        if closed > 0 {
+            what.push(format!(
+                "{closed} more connection(s) closed before naming themselves"
+            ));
+        }
+        Some(format!(
+            "WARNING: … and {} in the last {secs} s (their lines left out: at most {STRANGER_BURST} such connections are logged every {} s)",
+            what.join(", "),
+            STRANGER_WINDOW.as_secs()
+        ))
+    }
+}
+
 impl Central {
+    /// Whether lines about `conn` are left out: it has no name yet and
+    /// the central-wide [`StrangerBudget`] is spent (decided at its first
+    /// line, for all its lines). Says what was left out before, once a
+    /// window is over.
+    pub(super) fn stranger_quiet(&mut self, conn: ConnId) -> bool {
+        let now = self.clock;
+        let Some(m) = self.modules.get(&conn) else {
+            return false;
+        };
+        if m.name.is_some() {
+            return false;
+        }
+        if let Some(q) = m.quiet {
+            return q;
+        }
+        self.stranger_summary(now);
+        let quiet = !self.strangers.admit(now);
+        if let Some(m) = self.modules.get_mut(&conn) {
+            m.quiet = Some(quiet);
+        }
+        quiet
+    }
+
+    /// The line about strangers left out in a window that is over.
+    pub(super) fn stranger_summary(&mut self, now: SystemTime) {
+        if let Some(line) = self.strangers.roll(now) {
+            self.log_line(Kind::Problem, line);
+        }
+    }
+
     pub(super) fn log_line(&mut self, kind: Kind, line: String) {
         let target = LogTarget {
             terminal: matches!(kind, Kind::Problem | Kind::Always)
@@ -286,6 +393,9 @@ impl Central {
     /// a burst of lines, then one a second, and a count of the rest.
     pub(super) fn complain(&mut self, conn: ConnId, line: String) {
         let now = self.clock;
+        if self.stranger_quiet(conn) {
+            return;
+        }
         let allowed = match self.modules.get_mut(&conn) {
             Some(m) => m.problems.allow(now),
             None => Some(0),

@@ -264,6 +264,9 @@ pub struct Central {
     /// many times it did so since without saying (a slow subscriber makes
     /// it hold and release over and over).
     memory_said: Option<(SystemTime, u64)>,
+    /// Lines about connections that never named themselves (probes,
+    /// hostile peers), bounded central-wide.
+    strangers: log::StrangerBudget,
     handler_seq: u64,
     msg_info_query: Format,
     msg_info_reply: Format,
@@ -312,6 +315,7 @@ impl Central {
             memory_paused: HashSet::new(),
             answer_paused: HashSet::new(),
             memory_said: None,
+            strangers: log::StrangerBudget::default(),
             handler_seq: 0,
             msg_info_query: internal::fixed(internal::MSG_INFO_QUERY_FORMAT),
             msg_info_reply: internal::fixed(internal::MSG_INFO_REPLY_FORMAT),

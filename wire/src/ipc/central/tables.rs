@@ -257,6 +257,10 @@ pub(super) struct Module {
     /// Its problem lines (unknown ids, foreign acknowledgements …), so
     /// that a misbehaving module cannot flood the log.
     pub(super) problems: log::ProblemBudget,
+    /// Before it has a name: whether central-wide budget for lines about
+    /// such connections ([`log::StrangerBudget`]) left its lines out
+    /// (`Some(true)`), let them through, or has not been asked yet.
+    pub(super) quiet: Option<bool>,
     /// A frame from this module being forwarded while it arrives.
     pub(super) relay: Option<Relay>,
     /// The module whose frame is being forwarded to this one: every other
