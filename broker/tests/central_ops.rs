@@ -441,3 +441,85 @@ async fn a_query_while_central_is_stopped_says_central_was_silent() {
     assert_eq!(code, Some(0), "{err:#?}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A log file that stops taking lines while central runs (a full file
+/// system; here a pipe whose reader went, which fails the same way and
+/// needs no mount) is said once on stderr, and central goes on.
+#[test]
+fn a_log_file_that_cannot_be_written_is_said_once_on_stderr() {
+    use std::os::unix::ffi::OsStrExt;
+    let dir = scratch("logfail");
+    let (allow, deny) = empty_rules(&dir);
+    let fifo = dir.join("central.log");
+    let c_path = std::ffi::CString::new(fifo.as_os_str().as_bytes()).unwrap();
+    // SAFETY: mkfifo(3) on a path of our own scratch directory.
+    assert_eq!(unsafe { libc::mkfifo(c_path.as_ptr(), 0o600) }, 0);
+    let reader_path = fifo.clone();
+    let reader = std::thread::spawn(move || {
+        let mut r = BufReader::new(std::fs::File::open(reader_path).unwrap());
+        let mut first = String::new();
+        r.read_line(&mut first).unwrap();
+        // Dropping it closes the only read end.
+        first
+    });
+    let f = format!("-f{}", fifo.display());
+    let mut c = Central::start(&dir, &allow, &deny, &["-u", "-Lmsd", &f], false);
+    let first = reader.join().unwrap();
+    assert!(
+        first.starts_with("Logging Task Control Server 3.9.1"),
+        "{first}"
+    );
+    let m1 = c.module("logfail-1");
+    c.wait_err(|l| l.starts_with("central: cannot write the log file "));
+    // Central goes on, and does not say it again.
+    let m2 = c.module("logfail-2");
+    c.wait_out(|l| l == "   modName : logfail-2");
+    drop((m1, m2));
+    c.signal(libc::SIGTERM);
+    let (code, out, err) = c.wait_exit();
+    assert_eq!(code, Some(0), "stdout {out:#?}\nstderr {err:#?}");
+    let said: Vec<&String> = err
+        .iter()
+        .filter(|l| l.contains("cannot write the log file"))
+        .collect();
+    assert_eq!(said.len(), 1, "{err:#?}");
+    assert_eq!(
+        *said[0],
+        format!(
+            "central: cannot write the log file {}: Broken pipe (os error 32); logging to it stops",
+            fifo.display()
+        )
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// An address that is not on this machine: central says so, not that
+/// another central may be running (C's line, kept for a port in use).
+/// The bind fails, so nothing leaves the machine.
+#[test]
+fn a_bind_address_not_on_this_machine_is_said_plainly() {
+    let dir = scratch("badbind");
+    let (allow, deny) = empty_rules(&dir);
+    let out = Command::new(BIN)
+        .env_remove("RUST_LOG")
+        .current_dir(&dir)
+        .args(["-p0", "--bind", "10.255.255.1", "--no-unix-socket", "-u"])
+        .arg("--hosts-allow")
+        .arg(&allow)
+        .arg("--hosts-deny")
+        .arg(&deny)
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.lines().any(
+            |l| l.starts_with("central: cannot listen on 10.255.255.1:0: ")
+                && l.ends_with("(is the address on this machine?)")
+        ),
+        "{err}"
+    );
+    assert!(!err.contains("Is one already running"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -20,7 +20,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use courier_broker::access::{AccessControl, RulesFile, DEFAULT_ALLOW, DEFAULT_DENY};
-use courier_broker::{CentralServer, Config, LogOptions, LogSink, LogTarget};
+use courier_broker::{BindError, CentralServer, Config, LogOptions, LogSink, LogTarget};
 
 /// `println!` that does not panic when stdout is gone (`central --help |
 /// head -1`, a console whose reader closed): what central prints is for
@@ -409,10 +409,34 @@ impl FileLog {
             }
         }
         if let Some(f) = self.file.as_mut() {
-            let _ = writeln!(f, "{line}");
-            if self.flush {
-                let _ = f.flush();
+            let flush = self.flush;
+            let r = writeln!(f, "{line}").and_then(|()| if flush { f.flush() } else { Ok(()) });
+            if let Err(e) = r {
+                self.write_failed(&e);
             }
+        }
+    }
+
+    /// Writes what is buffered (at exit, with `-LF`).
+    fn flush(&mut self) {
+        if let Some(Err(e)) = self.file.as_mut().map(|f| f.flush()) {
+            self.write_failed(&e);
+        }
+    }
+
+    /// A write to the log file failed (a full file system, a file too
+    /// large, a pipe whose reader went): said once on stderr, and the
+    /// file is given up (a line cut in the middle is not followed by more
+    /// lines with holes before them).
+    fn write_failed(&mut self, e: &std::io::Error) {
+        esay!(
+            "central: cannot write the log file {}: {e}; logging to it stops",
+            self.path.display()
+        );
+        self.failed = true;
+        if let Some(f) = self.file.take() {
+            // What is still buffered cannot be written either.
+            let _ = f.into_parts();
         }
     }
 
@@ -628,7 +652,7 @@ async fn run(opts: Options) -> ExitCode {
     let server = match server {
         Ok(s) => s,
         Err(e) => {
-            eprintln!("ERROR: Unable to start server, Is one already running? ({e})");
+            eprintln!("{}", bind_error_line(&e));
             return ExitCode::FAILURE;
         }
     };
@@ -716,11 +740,32 @@ async fn run(opts: Options) -> ExitCode {
         Stop::Gone => {}
     }
     server.shutdown().await;
-    let mut f = file.lock().unwrap_or_else(|e| e.into_inner());
-    if let Some(w) = f.file.as_mut() {
-        let _ = w.flush();
-    }
+    file.lock().unwrap_or_else(|e| e.into_inner()).flush();
     ExitCode::SUCCESS
+}
+
+/// What central says when it cannot listen: C's line when the address is
+/// taken (another central is likely running), what is wrong otherwise.
+fn bind_error_line(e: &BindError) -> String {
+    let source = match e {
+        BindError::Tcp { source, .. } | BindError::Unix { source, .. } => Some(source),
+        _ => None,
+    };
+    match source.map(std::io::Error::kind) {
+        Some(std::io::ErrorKind::AddrInUse) => {
+            format!("ERROR: Unable to start server, Is one already running? ({e})")
+        }
+        Some(std::io::ErrorKind::AddrNotAvailable) => {
+            // Without the errno's "(os error 99)" before the hint.
+            let text = e.to_string();
+            let text = match text.rfind(" (os error ") {
+                Some(i) if text.ends_with(')') => &text[..i],
+                _ => &text,
+            };
+            format!("central: {text} (is the address on this machine?)")
+        }
+        _ => format!("central: {e}"),
+    }
 }
 
 /// Reads console lines from `input` and hands each to `send` until it
@@ -990,6 +1035,33 @@ mod tests {
         assert_eq!(default_log_name(t), PathBuf::from("x_ipc.log.1795367424"));
         assert_eq!(ctime_utc(t), "Sun Nov 22 17:10:24 2026");
         assert_eq!(ctime_utc(UNIX_EPOCH), "Thu Jan  1 00:00:00 1970");
+    }
+
+    #[test]
+    fn bind_errors_say_what_is_wrong() {
+        use std::io::{Error, ErrorKind};
+        let addr = "10.255.255.1:1381".parse().unwrap();
+        let tcp = |kind: ErrorKind, text: &str| BindError::Tcp {
+            addr,
+            source: Error::new(kind, text),
+        };
+        assert_eq!(
+            bind_error_line(&tcp(
+                ErrorKind::AddrNotAvailable,
+                "Cannot assign requested address"
+            )),
+            "central: cannot listen on 10.255.255.1:1381: Cannot assign requested address \
+             (is the address on this machine?)"
+        );
+        assert_eq!(
+            bind_error_line(&tcp(ErrorKind::AddrInUse, "Address in use")),
+            "ERROR: Unable to start server, Is one already running? \
+             (cannot listen on 10.255.255.1:1381: Address in use)"
+        );
+        assert_eq!(
+            bind_error_line(&tcp(ErrorKind::PermissionDenied, "Permission denied")),
+            "central: cannot listen on 10.255.255.1:1381: Permission denied"
+        );
     }
 
     #[test]

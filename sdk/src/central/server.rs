@@ -603,6 +603,96 @@ enum Listener {
     Unix(UnixListener),
 }
 
+/// How long the accept loop waits after a failed `accept` (out of file
+/// descriptors and the like) before it tries again.
+const ACCEPT_RETRY: Duration = Duration::from_millis(50);
+
+/// How often the accept loop says that `accept` still fails.
+const ACCEPT_REPORT_EVERY: Duration = Duration::from_secs(10);
+
+/// What the accept loop says about `accept` failing: once when it starts,
+/// once every [`ACCEPT_REPORT_EVERY`] with a count while it lasts, and
+/// once when a connection is accepted again (a central at its descriptor
+/// limit otherwise logged a line every [`ACCEPT_RETRY`]). A central
+/// hovering at the limit (a descriptor freed, taken by the next
+/// connection, `accept` failing again) would start and end a bout of
+/// failures many times a second: a bout that starts less than
+/// [`ACCEPT_REPORT_EVERY`] after the last line is counted silently, and
+/// its end is said only if its start or count was.
+#[derive(Debug, Default)]
+struct AcceptTrouble {
+    failing: Option<AcceptBout>,
+    /// When the last line was said.
+    last_line: Option<std::time::Instant>,
+}
+
+#[derive(Debug)]
+struct AcceptBout {
+    since: std::time::Instant,
+    /// Failures since the last line, and in all.
+    unsaid: u64,
+    total: u64,
+    /// Whether a line said this bout.
+    said: bool,
+}
+
+impl AcceptTrouble {
+    fn quiet_at(&self, now: std::time::Instant) -> bool {
+        self.last_line
+            .is_some_and(|t| now.duration_since(t) < ACCEPT_REPORT_EVERY)
+    }
+
+    /// `accept` failed with `e` at `now`: the line to log, if any.
+    fn failed(&mut self, e: &io::Error, now: std::time::Instant) -> Option<String> {
+        let quiet = self.quiet_at(now);
+        let bout = self.failing.get_or_insert(AcceptBout {
+            since: now,
+            unsaid: 0,
+            total: 0,
+            said: false,
+        });
+        bout.total += 1;
+        bout.unsaid += 1;
+        if quiet {
+            return None;
+        }
+        let line = if bout.said || bout.total > 1 {
+            format!(
+                "accept still failing: {e}; {} more failure(s) in the last {} s ({} s in all)",
+                bout.unsaid,
+                self.last_line
+                    .map_or(0, |t| now.duration_since(t).as_secs()),
+                now.duration_since(bout.since).as_secs()
+            )
+        } else {
+            format!(
+                "accept failed: {e}; retrying every {} ms (said again every {} s while it lasts)",
+                ACCEPT_RETRY.as_millis(),
+                ACCEPT_REPORT_EVERY.as_secs()
+            )
+        };
+        bout.unsaid = 0;
+        bout.said = true;
+        self.last_line = Some(now);
+        Some(line)
+    }
+
+    /// A connection was accepted at `now`: the line to log, if `accept`
+    /// was failing and that was said.
+    fn succeeded(&mut self, now: std::time::Instant) -> Option<String> {
+        let bout = self.failing.take()?;
+        if !bout.said {
+            return None;
+        }
+        self.last_line = Some(now);
+        Some(format!(
+            "accepting connections again, after {} failed accept(s) over {} s",
+            bout.total,
+            now.duration_since(bout.since).as_secs()
+        ))
+    }
+}
+
 async fn accept_loop(
     l: Listener,
     access: Arc<AccessControl>,
@@ -611,6 +701,7 @@ async fn accept_loop(
 ) {
     // Access checks that need a host name run here, off the accept path.
     let mut lookups = JoinSet::new();
+    let mut trouble = AcceptTrouble::default();
     loop {
         let accepted = tokio::select! {
             biased;
@@ -619,11 +710,19 @@ async fn accept_loop(
             r = accept(&l) => r,
         };
         let (stream, client, peer) = match accepted {
-            Ok(a) => a,
+            Ok(a) => {
+                if let Some(line) = trouble.succeeded(std::time::Instant::now()) {
+                    tracing::warn!("{line}");
+                }
+                a
+            }
             Err(e) => {
-                // Out of descriptors and the like: do not spin.
-                tracing::warn!("accept failed: {e}");
-                tokio::time::sleep(Duration::from_millis(50)).await;
+                // Out of descriptors and the like: do not spin, and do
+                // not say it every time.
+                if let Some(line) = trouble.failed(&e, std::time::Instant::now()) {
+                    tracing::warn!("{line}");
+                }
+                tokio::time::sleep(ACCEPT_RETRY).await;
                 continue;
             }
         };
@@ -1458,6 +1557,59 @@ impl Core {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn accept_failures_are_said_once_then_every_ten_seconds_then_recovery() {
+        use std::time::Instant;
+        let t0 = Instant::now();
+        let e = io::Error::from_raw_os_error(24);
+        let mut t = AcceptTrouble::default();
+        assert!(t.succeeded(t0).is_none(), "nothing to say when all is well");
+        // 10 s of EMFILE, one failure every 50 ms: 201 failures.
+        let mut lines = Vec::new();
+        for i in 0..=200u32 {
+            if let Some(l) = t.failed(&e, t0 + ACCEPT_RETRY * i) {
+                lines.push(l);
+            }
+        }
+        assert_eq!(lines.len(), 2, "{lines:?}");
+        assert!(
+            lines[0].starts_with("accept failed: Too many open files")
+                && lines[0].contains("retrying every 50 ms"),
+            "{lines:?}"
+        );
+        assert!(
+            lines[1].starts_with("accept still failing: Too many open files")
+                && lines[1].ends_with("; 200 more failure(s) in the last 10 s (10 s in all)"),
+            "{lines:?}"
+        );
+        let back = t.succeeded(t0 + Duration::from_secs(12)).unwrap();
+        assert_eq!(
+            back,
+            "accepting connections again, after 201 failed accept(s) over 12 s"
+        );
+        assert!(t.succeeded(t0 + Duration::from_secs(13)).is_none());
+        // Hovering at the limit: bouts that start and end every 50 ms
+        // are counted, with a line every 10 s at most.
+        let mut lines = Vec::new();
+        for i in 0..400u32 {
+            let now = t0 + Duration::from_secs(12) + ACCEPT_RETRY * i;
+            lines.extend(if i % 2 == 0 {
+                t.failed(&e, now)
+            } else {
+                t.succeeded(now)
+            });
+        }
+        assert_eq!(lines.len(), 2, "{lines:?}");
+        assert!(lines[0].starts_with("accept failed: "), "{lines:?}");
+        assert!(
+            lines[1].starts_with("accepting connections again, after 1 "),
+            "{lines:?}"
+        );
+        // Long after, a new bout is said at once.
+        let e2 = t.failed(&e, t0 + Duration::from_secs(60)).unwrap();
+        assert!(e2.starts_with("accept failed: "), "{e2}");
+    }
 
     #[test]
     fn chunks_advance_across_frames() {
