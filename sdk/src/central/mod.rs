@@ -167,7 +167,14 @@
 //!   naming the reason; C may abort or stall.
 //! - A module repeating a mistake (foreign acknowledgements, unknown ids)
 //!   gets ten warning lines at once, then one a second, and a count of
-//!   the rest: it cannot flood the terminal or the log file.
+//!   the rest: it cannot flood the terminal or the log file. Connections
+//!   that close before naming themselves (probes, peers sending garbage
+//!   in a loop) are logged as C logs them for the first ten of every
+//!   10 s; the rest are counted in one line when the 10 s are over.
+//! - A failed `accept` (too many open files) is said when it starts,
+//!   every 10 s while it lasts, and when it ends; a log file (`-f`) that
+//!   cannot be written any more is said once on stderr and logging to it
+//!   stops. C says nothing of either.
 //! - `x_ipc_getMessages` (`IPC_printMessages`-style listings) answers the
 //!   messages modules defined, sorted by name. C answers every entry of
 //!   its message table not ignored for logging, in hash-table order: also
