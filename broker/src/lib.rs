@@ -25,6 +25,9 @@
 pub use courier::central::*;
 
 pub mod gen;
+#[cfg(feature = "cli")]
+#[doc(hidden)]
+pub mod logging;
 #[doc(hidden)]
 pub mod signals;
 pub mod xrce_agent;

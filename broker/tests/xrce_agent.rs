@@ -635,6 +635,42 @@ fn under_nohup_sighup_is_ignored() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
+/// The agent reads `RUST_LOG` as central does (audit 16: it ignored it):
+/// one that does not parse is said on stderr.
+#[test]
+fn the_agent_reads_rust_log() {
+    use std::io::BufRead;
+    let d = courier_tests::domains::lease(9);
+    let mut agent = AgentProc(
+        Command::new(env!("CARGO_BIN_EXE_xrce-agent"))
+            .args(["udp4", "-p", "0", "--bind", "127.0.0.1"])
+            .args([
+                "--interface",
+                "lo",
+                "--peers",
+                "127.0.0.1",
+                "--multicast",
+                "off",
+            ])
+            .args(["--domain", &d.to_string()])
+            .env("RUST_LOG", "=bad=")
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let err = agent.0.stderr.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for l in std::io::BufReader::new(err).lines().map_while(Result::ok) {
+            let _ = tx.send(l);
+        }
+    });
+    let line = rx.recv_timeout(T).expect("a line on stderr");
+    assert!(line.contains("RUST_LOG=\"=bad=\" ignored"), "{line}");
+    // (the reader thread ends when the agent, killed on drop, is gone)
+}
+
 /// A client participant of another domain than the agent's is refused
 /// with `STATUS_ERR_INCOMPATIBLE`, which says nothing by itself; the error
 /// names the likely cause and the option that changes it.

@@ -500,7 +500,7 @@ fn main() -> ExitCode {
     } else {
         tracing::Level::WARN
     };
-    init_logging(level);
+    courier_broker::logging::init(level.into(), true);
     // One thread, like the C central's select loop: the state machine runs
     // on one task anyway, and a single thread avoids cross-thread wake-ups.
     let rt = match tokio::runtime::Builder::new_current_thread()
@@ -793,31 +793,6 @@ fn console_lines(input: &mut dyn BufRead, mut send: impl FnMut(String) -> bool) 
         if !send(String::from_utf8_lossy(line).into_owned()) {
             return;
         }
-    }
-}
-
-/// Diagnostics on stderr: `RUST_LOG` (`warn`, `debug`,
-/// `courier_broker=trace,info`, …) when set, else `level`. A `RUST_LOG`
-/// that does not parse is reported and the default used.
-fn init_logging(level: tracing::Level) {
-    use tracing_subscriber::filter::Targets;
-    use tracing_subscriber::layer::SubscriberExt;
-    use tracing_subscriber::util::SubscriberInitExt;
-    let default = Targets::new().with_default(level);
-    let (filter, bad) = match std::env::var("RUST_LOG") {
-        Ok(spec) if !spec.trim().is_empty() => match spec.parse::<Targets>() {
-            Ok(t) => (t, None),
-            Err(e) => (default, Some(format!("RUST_LOG={spec:?} ignored: {e}"))),
-        },
-        _ => (default, None),
-    };
-    let fmt = tracing_subscriber::fmt::layer().with_writer(std::io::stderr);
-    let _ = tracing_subscriber::registry()
-        .with(fmt)
-        .with(filter)
-        .try_init();
-    if let Some(bad) = bad {
-        tracing::warn!("{bad}");
     }
 }
 

@@ -115,7 +115,7 @@ struct Pty {
 
 #[derive(Args, Debug, Default, Clone)]
 struct Common {
-    /// Verbosity 0 (nothing) to 6 (everything), as MicroXRCEAgent's; default 4.
+    /// Verbosity 0 (nothing) to 6 (everything), as MicroXRCEAgent's; default 4. RUST_LOG, when set, is used instead.
     #[arg(short = 'v', long = "verbose", value_parser = clap::value_parser!(u8).range(0..=6))]
     verbose: Option<u8>,
     /// References file (Fast DDS profiles XML) for CREATE by reference.
@@ -423,11 +423,8 @@ fn main() -> ExitCode {
         Ok(p) => p,
         Err(e) => e.exit(),
     };
-    tracing_subscriber::fmt()
-        .with_max_level(level(plan.common.verbose.unwrap_or(4)))
-        .with_writer(std::io::stderr)
-        .with_target(false)
-        .init();
+    // RUST_LOG, when set, says more precisely what -v says
+    courier_broker::logging::init(level(plan.common.verbose.unwrap_or(4)), false);
     let (transports, rtps, profiles, discovery) = match build(&plan) {
         Ok(b) => b,
         Err(e) => {
