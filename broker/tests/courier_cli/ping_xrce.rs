@@ -11,6 +11,11 @@ use crate::Proc;
 
 /// The agent, its runtime, and the session URL of its clients.
 fn agent(key: u32) -> (tokio::runtime::Runtime, XrceAgent, String) {
+    agent_at(key, "127.0.0.1:0")
+}
+
+/// [`agent`] on UDP `addr`.
+fn agent_at(key: u32, addr: &str) -> (tokio::runtime::Runtime, XrceAgent, String) {
     let domain = courier_tests::domains::lease(key);
     let mut o = RtpsOptions::default();
     o.domain = domain;
@@ -21,7 +26,7 @@ fn agent(key: u32) -> (tokio::runtime::Runtime, XrceAgent, String) {
     let a = rt
         .block_on(
             XrceAgent::builder()
-                .transport(Transport::Udp("127.0.0.1:0".parse().unwrap()))
+                .transport(Transport::Udp(addr.parse().unwrap()))
                 .rtps(o)
                 .spawn(),
         )
@@ -209,4 +214,29 @@ fn pub_over_xrce_defaults_to_ping_and_takes_plain_text() {
     assert_eq!(echo.wait(), Some(0));
     drop(publ);
     rt.block_on(a.shutdown());
+}
+
+/// An agent that goes away and comes back is said on stderr, one line
+/// each way, while the command goes on (audit 16: a 2.5 min outage showed
+/// nothing).
+#[test]
+fn an_agent_outage_is_said_on_stderr() {
+    let (rt, a, u) = agent(277);
+    let addr = a.udp_addrs()[0];
+    let mut publ = Proc::start(&["ping", &u, "--publish", "--period", "50", "--name", "tx"]);
+    publ.expect("ready");
+    rt.block_on(a.shutdown());
+    let lost = publ.expect_err("courier: the agent at ");
+    assert!(lost.contains("stopped answering"), "{lost}");
+    // the same address again: the session comes back (made anew: this
+    // agent has no --state)
+    let (rt2, a2, _) = agent_at(277, &addr.to_string());
+    let back = publ.expect_err("courier: the ");
+    assert!(
+        back.contains("answers again") || back.contains("made again"),
+        "{back}"
+    );
+    drop(publ);
+    rt2.block_on(a2.shutdown());
+    drop(rt);
 }

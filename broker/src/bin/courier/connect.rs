@@ -54,7 +54,12 @@ pub async fn connect(
         tokio::select! {
             r = &mut connecting => {
                 return match r {
-                    Ok(s) => Ok(Ok(s)),
+                    Ok(s) => {
+                        if s.xrce().is_ok() {
+                            say_agent_outages(&s, url.to_string());
+                        }
+                        Ok(Ok(s))
+                    }
                     Err(e) => Err(failed(&target, e, started.elapsed()).into()),
                 }
             }
@@ -79,6 +84,35 @@ pub async fn connect(
             }
         }
     }
+}
+
+/// An XRCE session reconnects by itself, and what it publishes meanwhile
+/// waits: an agent that stops answering, and its return, are said on
+/// stderr, one line each, so that an outage shows in the journal (nothing
+/// was said for minutes).
+fn say_agent_outages(s: &Session, url: String) {
+    use courier::SessionEvent;
+    use futures::StreamExt;
+    let mut ev = s.events();
+    tokio::spawn(async move {
+        while let Some(e) = ev.next().await {
+            match e {
+                SessionEvent::AgentLost { silent: true } => eprintln!(
+                    "courier: the agent at {url} stopped answering; waiting for it (what is \
+                     published meanwhile waits too)"
+                ),
+                SessionEvent::AgentLost { silent: false } => {
+                    eprintln!("courier: the agent at {url} lost the session; making it again")
+                }
+                SessionEvent::AgentBack => eprintln!("courier: the agent at {url} answers again"),
+                SessionEvent::SessionRecreated { entities } => eprintln!(
+                    "courier: the session was made again on the agent at {url} ({entities} \
+                     entities)"
+                ),
+                _ => {}
+            }
+        }
+    });
 }
 
 /// The message of a failed connect: where it tried, how long, the last
