@@ -635,40 +635,58 @@ fn under_nohup_sighup_is_ignored() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
-/// The agent reads `RUST_LOG` as central does (audit 16: it ignored it):
-/// one that does not parse is said on stderr.
-#[test]
-fn the_agent_reads_rust_log() {
+/// An agent on UDP 127.0.0.1 port 0, its DDS participant on `lo` in
+/// domain `d`, with `extra` arguments and `env`: the first line it writes
+/// on stderr (within `T`; the agent is killed after).
+fn first_stderr_line(d: u32, extra: &[&str], env: &[(&str, &str)]) -> String {
     use std::io::BufRead;
-    let d = courier_tests::domains::lease(9);
-    let mut agent = AgentProc(
-        Command::new(env!("CARGO_BIN_EXE_xrce-agent"))
-            .args(["udp4", "-p", "0", "--bind", "127.0.0.1"])
-            .args([
-                "--interface",
-                "lo",
-                "--peers",
-                "127.0.0.1",
-                "--multicast",
-                "off",
-            ])
-            .args(["--domain", &d.to_string()])
-            .env("RUST_LOG", "=bad=")
-            .stdout(std::process::Stdio::null())
-            .stderr(std::process::Stdio::piped())
-            .spawn()
-            .unwrap(),
-    );
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_xrce-agent"));
+    cmd.args(["udp4", "-p", "0", "--bind", "127.0.0.1"])
+        .args([
+            "--interface",
+            "lo",
+            "--peers",
+            "127.0.0.1",
+            "--multicast",
+            "off",
+        ])
+        .args(["--domain", &d.to_string()])
+        .args(extra)
+        .envs(env.iter().copied())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped());
+    let mut agent = AgentProc(cmd.spawn().unwrap());
     let err = agent.0.stderr.take().unwrap();
     let (tx, rx) = std::sync::mpsc::channel();
+    // (the reader thread ends when the agent, killed on drop, is gone)
     std::thread::spawn(move || {
         for l in std::io::BufReader::new(err).lines().map_while(Result::ok) {
             let _ = tx.send(l);
         }
     });
-    let line = rx.recv_timeout(T).expect("a line on stderr");
+    rx.recv_timeout(T).expect("a line on stderr")
+}
+
+/// The agent reads `RUST_LOG` as central does (audit 16: it ignored it):
+/// one that does not parse is said on stderr.
+#[test]
+fn the_agent_reads_rust_log() {
+    let d = courier_tests::domains::lease(9);
+    let line = first_stderr_line(d, &[], &[("RUST_LOG", "=bad=")]);
     assert!(line.contains("RUST_LOG=\"=bad=\" ignored"), "{line}");
-    // (the reader thread ends when the agent, killed on drop, is gone)
+}
+
+/// A references file that parses but defines no profile (other XML, or
+/// every element name mistyped) is said at start: every CREATE by
+/// reference would be refused (audit 16: it started silently).
+#[test]
+fn a_references_file_without_profiles_is_said_at_start() {
+    let d = courier_tests::domains::lease(10);
+    let refs = std::env::temp_dir().join(format!("xrce-agent-noprof-{}.xml", std::process::id()));
+    std::fs::write(&refs, "<foo><bar/></foo>").unwrap();
+    let line = first_stderr_line(d, &["-r", refs.to_str().unwrap()], &[]);
+    let _ = std::fs::remove_file(&refs);
+    assert!(line.contains("defines no profiles"), "{line}");
 }
 
 /// A client participant of another domain than the agent's is refused

@@ -410,8 +410,20 @@ fn build(
         Some(path) => {
             let text = std::fs::read_to_string(path)
                 .map_err(|e| format!("references file {}: {e}", path.display()))?;
-            Profiles::parse(&text)
-                .map_err(|e| format!("references file {}: {e}", path.display()))?
+            let p = Profiles::parse(&text)
+                .map_err(|e| format!("references file {}: {e}", path.display()))?;
+            // a file of other XML (or a typo in every element name) is no
+            // error of the XML, but no reference will be found in it
+            match p.len() {
+                0 => tracing::warn!(
+                    "references file {} defines no profiles (participant, topic, data_writer, \
+                     data_reader, requester or replier elements with a profile_name): every \
+                     CREATE by reference will be refused",
+                    path.display()
+                ),
+                n => tracing::info!("references file {}: {n} profile(s)", path.display()),
+            }
+            p
         }
     };
     let discovery = c.discovery.map(|p| SocketAddrV4::new(bind, p));
