@@ -284,29 +284,28 @@ fn recvmmsg(
 /// blocking (one `recvfrom` each); `Ok(0)` when none was waiting.
 #[cfg(not(target_os = "linux"))]
 pub(crate) fn recv_batch(sock: &UdpSocket, b: &mut RecvBatch) -> io::Result<usize> {
-    b.n = 0;
-    while b.n < RECV_SLOTS {
-        match sock.try_io(Interest::READABLE, |s| s.recv_from(&mut b.bufs[b.n])) {
-            Ok((len, from)) => {
-                b.lens[b.n] = len;
-                b.from[b.n] = from;
-                b.n += 1;
-            }
-            Err(e) if e.kind() == io::ErrorKind::WouldBlock => break,
-            Err(e) if b.n == 0 => return Err(e),
-            Err(_) => break,
-        }
-    }
-    Ok(b.n)
+    fill(b, |buf| {
+        sock.try_io(Interest::READABLE, |s| s.recv_from(buf))
+    })
 }
 
 /// Takes the datagrams waiting on `sock` (non-blocking, as the
 /// participant's sockets are), up to [`RECV_SLOTS`], without tokio.
 #[cfg(not(target_os = "linux"))]
 pub(crate) fn recv_batch_now(sock: &std::net::UdpSocket, b: &mut RecvBatch) -> io::Result<usize> {
+    fill(b, |buf| sock.recv_from(buf))
+}
+
+/// Fills `b` with what `recv` takes, one datagram a call, until it would
+/// block or the batch is full.
+#[cfg(not(target_os = "linux"))]
+fn fill(
+    b: &mut RecvBatch,
+    mut recv: impl FnMut(&mut [u8]) -> io::Result<(usize, SocketAddr)>,
+) -> io::Result<usize> {
     b.n = 0;
     while b.n < RECV_SLOTS {
-        match sock.recv_from(&mut b.bufs[b.n]) {
+        match recv(&mut b.bufs[b.n]) {
             Ok((len, from)) => {
                 b.lens[b.n] = len;
                 b.from[b.n] = from;
