@@ -541,27 +541,14 @@ fn ctrl_c_finishes_the_recording_and_replay_loops() {
     let u = c.url.as_str();
     // --count 0: no limit, as pub --count 0 (the recording goes on until
     // Ctrl-C)
-    let mut rec = Proc::start(&[
-        "--progress",
-        "always",
-        "record",
-        u,
-        "text",
-        "-o",
-        &file,
-        "--count",
-        "0",
-    ]);
+    let mut rec = recorder(u, &file, false);
     rec.expect("ready");
     publish(u, "text", "string", "one");
     publish(u, "text", "string", "two");
     rec.expect("channel text");
     // once the recorder says it has both, Ctrl-C
     rec.expect_err("courier: recording for ");
-    while !rec
-        .expect_err("courier: recording for ")
-        .contains(": 2 messages on 1 channel")
-    {}
+    await_recorded(&mut rec, "2 messages");
     rec.signal(libc::SIGINT);
     let (code, out, err) = rec.finish();
     assert_eq!(code, Some(130), "{err}");
@@ -897,25 +884,12 @@ fn a_hang_up_finishes_the_recording() {
     let file = dir.file("hup.mcap");
     let c = Central::start();
     let u = c.url.as_str();
-    let mut rec = Proc::start(&[
-        "--progress",
-        "always",
-        "record",
-        u,
-        "text",
-        "-o",
-        &file,
-        "--count",
-        "0",
-    ]);
+    let mut rec = recorder(u, &file, false);
     rec.expect("ready");
     publish(u, "text", "string", "one");
     publish(u, "text", "string", "two");
     rec.expect("channel text");
-    while !rec
-        .expect_err("courier: recording for ")
-        .contains(": 2 messages on 1 channel")
-    {}
+    await_recorded(&mut rec, "2 messages");
     rec.signal(libc::SIGHUP);
     let (code, out, err) = rec.finish();
     assert_eq!(code, Some(129), "{out}{err}");
@@ -946,30 +920,14 @@ fn under_nohup_a_hang_up_is_ignored() {
     let file = dir.file("nohup.mcap");
     let c = Central::start();
     let u = c.url.as_str();
-    let mut rec = Proc::start_nohup(&[
-        "--progress",
-        "always",
-        "record",
-        u,
-        "text",
-        "-o",
-        &file,
-        "--count",
-        "0",
-    ]);
+    let mut rec = recorder(u, &file, true);
     rec.expect("ready");
     publish(u, "text", "string", "one");
-    while !rec
-        .expect_err("courier: recording for ")
-        .contains(": 1 message on 1 channel")
-    {}
+    await_recorded(&mut rec, "1 message");
     rec.signal(libc::SIGHUP);
     std::thread::sleep(Duration::from_millis(300));
     publish(u, "text", "string", "two");
-    while !rec
-        .expect_err("courier: recording for ")
-        .contains(": 2 messages on 1 channel")
-    {}
+    await_recorded(&mut rec, "2 messages");
     rec.signal(libc::SIGTERM);
     let (code, out, err) = rec.finish();
     assert_eq!(code, Some(143), "{out}{err}");
@@ -977,4 +935,31 @@ fn under_nohup_a_hang_up_is_ignored() {
         out.ends_with("\ninterrupted after 2 messages recorded\n"),
         "{out}"
     );
+}
+
+/// `courier record` of topic `text` of `u` into `file`, with no count
+/// limit and progress lines on stderr; under `nohup` if `nohup`.
+fn recorder(u: &str, file: &str, nohup: bool) -> Proc {
+    let args = [
+        "--progress",
+        "always",
+        "record",
+        u,
+        "text",
+        "-o",
+        file,
+        "--count",
+        "0",
+    ];
+    if nohup {
+        Proc::start_nohup(&args)
+    } else {
+        Proc::start(&args)
+    }
+}
+
+/// Waits until the recorder's progress says it has `what` ("2 messages").
+fn await_recorded(rec: &mut Proc, what: &str) {
+    let want = format!(": {what} on 1 channel");
+    while !rec.expect_err("courier: recording for ").contains(&want) {}
 }
