@@ -541,22 +541,8 @@ fn ctrl_c_finishes_the_recording_and_replay_loops() {
     let u = c.url.as_str();
     // --count 0: no limit, as pub --count 0 (the recording goes on until
     // Ctrl-C)
-    let mut rec = recorder(u, &file, false);
-    rec.expect("ready");
-    publish(u, "text", "string", "one");
-    publish(u, "text", "string", "two");
-    rec.expect("channel text");
     // once the recorder says it has both, Ctrl-C
-    rec.expect_err("courier: recording for ");
-    await_recorded(&mut rec, "2 messages");
-    rec.signal(libc::SIGINT);
-    let (code, out, err) = rec.finish();
-    assert_eq!(code, Some(130), "{err}");
-    let size = std::fs::metadata(&file).unwrap().len();
-    assert_eq!(
-        out,
-        format!("recorded 2 messages on 1 channel in {file} ({size} B)\ninterrupted after 2 messages recorded\n")
-    );
+    record_two_then(u, &file, libc::SIGINT);
     // the file is whole: summary and all
     let mut echo = Proc::start(&["echo", u, "text", "--count", "5"]);
     let mut rep = Proc::start(&["replay", &file, u, "--loop", "--rate", "20", "--wait", "1"]);
@@ -884,20 +870,7 @@ fn a_hang_up_finishes_the_recording() {
     let file = dir.file("hup.mcap");
     let c = Central::start();
     let u = c.url.as_str();
-    let mut rec = recorder(u, &file, false);
-    rec.expect("ready");
-    publish(u, "text", "string", "one");
-    publish(u, "text", "string", "two");
-    rec.expect("channel text");
-    await_recorded(&mut rec, "2 messages");
-    rec.signal(libc::SIGHUP);
-    let (code, out, err) = rec.finish();
-    assert_eq!(code, Some(129), "{out}{err}");
-    let size = std::fs::metadata(&file).unwrap().len();
-    assert_eq!(
-        out,
-        format!("recorded 2 messages on 1 channel in {file} ({size} B)\ninterrupted after 2 messages recorded\n")
-    );
+    record_two_then(u, &file, libc::SIGHUP);
     // the file is whole and replays both
     let mut echo = Proc::start(&["echo", u, "text", "--count", "2"]);
     let (code, out, err) = run(&["replay", &file, u, "--wait", "1", "--rate", "20"]);
@@ -962,4 +935,27 @@ fn recorder(u: &str, file: &str, nohup: bool) -> Proc {
 fn await_recorded(rec: &mut Proc, what: &str) {
     let want = format!(": {what} on 1 channel");
     while !rec.expect_err("courier: recording for ").contains(&want) {}
+}
+
+/// Records two messages published on `u`'s topic `text` into `file`, then
+/// stops the recorder with `sig`: it exits 128 + `sig` and says it
+/// recorded both and was interrupted.
+fn record_two_then(u: &str, file: &str, sig: i32) {
+    let mut rec = recorder(u, file, false);
+    rec.expect("ready");
+    publish(u, "text", "string", "one");
+    publish(u, "text", "string", "two");
+    rec.expect("channel text");
+    await_recorded(&mut rec, "2 messages");
+    rec.signal(sig);
+    let (code, out, err) = rec.finish();
+    assert_eq!(code, Some(128 + sig), "{out}{err}");
+    let size = std::fs::metadata(file).unwrap().len();
+    assert_eq!(
+        out,
+        format!(
+            "recorded 2 messages on 1 channel in {file} ({size} B)\ninterrupted after 2 \
+             messages recorded\n"
+        )
+    );
 }
