@@ -383,6 +383,16 @@ impl std::ops::DerefMut for AgentProc {
     }
 }
 
+/// A directory of this test process named `name`, and a state file path
+/// in it that holds nothing yet.
+fn fresh_state(name: &str) -> (std::path::PathBuf, std::path::PathBuf) {
+    let dir = std::env::temp_dir().join(format!("{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let state = dir.join("agent.redb");
+    let _ = std::fs::remove_file(&state);
+    (dir, state)
+}
+
 fn agent_with_state(domain: u32, state: &std::path::Path, port: u16) -> (AgentProc, SocketAddr) {
     start_agent(
         Command::new(env!("CARGO_BIN_EXE_xrce-agent")),
@@ -434,10 +444,7 @@ fn start_agent(
 #[test]
 fn a_restart_with_state_after_kill_9_is_invisible_to_clients() {
     let d = courier_tests::domains::lease(4);
-    let dir = std::env::temp_dir().join(format!("xrce-agent-state-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let state = dir.join("agent.redb");
-    let _ = std::fs::remove_file(&state);
+    let (dir, state) = fresh_state("xrce-agent-state");
     let (mut agent, addr) = agent_with_state(d, &state, 0);
     let mut w = XClient::udp(0x4444_0001, addr);
     let mut r = XClient::udp(0x4444_0002, addr);
@@ -505,10 +512,7 @@ fn a_restart_with_state_after_sigterm_loses_nothing_for_a_remote_reader() {
     use futures::StreamExt;
     use xrce_client::Msg;
     let d = courier_tests::domains::lease(5);
-    let dir = std::env::temp_dir().join(format!("xrce-agent-term-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let state = dir.join("agent.redb");
-    let _ = std::fs::remove_file(&state);
+    let (dir, state) = fresh_state("xrce-agent-term");
     let rt = runtime();
     let s = rt
         .block_on(
@@ -595,10 +599,7 @@ fn a_restart_with_state_after_sigterm_loses_nothing_for_a_remote_reader() {
 #[test]
 fn sighup_stops_the_agent_cleanly() {
     let d = courier_tests::domains::lease(7);
-    let dir = std::env::temp_dir().join(format!("xrce-agent-hup-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let state = dir.join("agent.redb");
-    let _ = std::fs::remove_file(&state);
+    let (dir, state) = fresh_state("xrce-agent-hup");
     let (mut agent, _addr) = agent_with_state(d, &state, 0);
     let pid = i32::try_from(agent.id()).unwrap();
     // SAFETY: a signal to the child this test started and still holds
@@ -614,10 +615,7 @@ fn sighup_stops_the_agent_cleanly() {
 #[test]
 fn under_nohup_sighup_is_ignored() {
     let d = courier_tests::domains::lease(8);
-    let dir = std::env::temp_dir().join(format!("xrce-agent-nohup-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let state = dir.join("agent.redb");
-    let _ = std::fs::remove_file(&state);
+    let (dir, state) = fresh_state("xrce-agent-nohup");
     let mut nohup = Command::new("nohup");
     nohup.arg(env!("CARGO_BIN_EXE_xrce-agent"));
     let (mut agent, _addr) = start_agent(nohup, d, &state, 0);
