@@ -194,9 +194,13 @@ async fn reliable_delivery_through_loss_and_reordering_in_a_network_namespace() 
         child(61).await;
         let stats = reorder.stop();
         eprintln!("REORDER {stats:?}");
-        // (~270 datagrams get through the loss; a quarter are held back)
+        // 70-270 datagrams get through the loss (fewer the more a driver
+        // turn packs into each); a quarter are held back, and one is
+        // overtaken when another comes within the hold. At least 5 shows
+        // the reordering was real without depending on how many the
+        // writers packed (a fixed 20 failed at 71 seen, 14 overtaken)
         assert!(
-            stats.overtaken >= 20,
+            stats.overtaken >= 5,
             "too few datagrams were overtaken to call it reordering: {stats:?}"
         );
         return;
