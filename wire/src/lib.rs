@@ -38,6 +38,7 @@ pub mod ros2;
 pub mod rtps;
 #[cfg(feature = "sim")]
 pub mod sim;
+pub mod throttle;
 pub mod time;
 pub mod xrce;
 

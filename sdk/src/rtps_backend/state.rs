@@ -192,7 +192,7 @@ pub(super) struct State {
     /// When a full subscription queue was last warned of, and how many
     /// times it filled since without a line (a slow subscriber fills it
     /// again at every refill).
-    full_said: Option<(SystemTime, u64)>,
+    full_said: courier_wire::throttle::Throttle,
 }
 
 /// At most one "queue is full" warning this often.
@@ -242,7 +242,7 @@ impl State {
             wakes: None,
             ros2: None,
             writer_versions: HashMap::new(),
-            full_said: None,
+            full_said: courier_wire::throttle::Throttle::new(FULL_LINE_EVERY),
         }
     }
 
@@ -1383,18 +1383,7 @@ impl State {
                 // every subscription of the session waits now: say so
                 // (a warning too, once in a while: nobody may be reading
                 // the events)
-                let again = match &mut self.full_said {
-                    Some((at, unsaid))
-                        if received.duration_since(*at).unwrap_or_default() < FULL_LINE_EVERY =>
-                    {
-                        *unsaid += 1;
-                        None
-                    }
-                    Some((_, unsaid)) => Some(std::mem::take(unsaid)),
-                    None => Some(0),
-                };
-                if let Some(again) = again {
-                    self.full_said = Some((received, 0));
+                if let Some(again) = self.full_said.admit(received) {
                     let since = if again > 0 {
                         format!(" (queues filled {again} time(s) since the last such line)")
                     } else {

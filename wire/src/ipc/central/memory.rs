@@ -7,7 +7,7 @@ use super::tables::{cost, DispatchId, Linked};
 use super::{Bad, Central, ConnId, Output};
 
 /// At most one "holds modules back" line this often.
-const MEMORY_LINE_EVERY: std::time::Duration = std::time::Duration::from_secs(10);
+pub(super) const MEMORY_LINE_EVERY: std::time::Duration = std::time::Duration::from_secs(10);
 
 impl Central {
     /// Central reads `conn` again before the queues have drained: what it
@@ -85,18 +85,9 @@ impl Central {
     /// reading): every module that sends more waits now, its traffic and
     /// queries with it, until the queues drain to half.
     fn say_paused(&mut self) {
-        let now = self.clock;
-        let again = match &mut self.memory_said {
-            Some((at, unsaid))
-                if now.duration_since(*at).unwrap_or_default() < MEMORY_LINE_EVERY =>
-            {
-                *unsaid += 1;
-                return;
-            }
-            Some((_, unsaid)) => std::mem::take(unsaid),
-            None => 0,
+        let Some(again) = self.memory_said.admit(self.clock) else {
+            return;
         };
-        self.memory_said = Some((now, 0));
         let since = if again > 0 {
             format!(" (and {again} time(s) since the last such line)")
         } else {
@@ -134,7 +125,7 @@ impl Central {
         let paused: Vec<ConnId> = self.memory_paused.drain().collect();
         self.answer_paused.clear();
         // (said for the hold that was said: once in a while)
-        if self.memory_said.is_some_and(|(_, unsaid)| unsaid == 0) {
+        if self.memory_said.all_said() {
             self.log_line(
                 log::Kind::Problem,
                 format!(

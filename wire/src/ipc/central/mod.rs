@@ -263,7 +263,7 @@ pub struct Central {
     /// When central last said it holds modules back for memory, and how
     /// many times it did so since without saying (a slow subscriber makes
     /// it hold and release over and over).
-    memory_said: Option<(SystemTime, u64)>,
+    memory_said: crate::throttle::Throttle,
     /// Lines about connections that never named themselves (probes,
     /// hostile peers), bounded central-wide.
     strangers: log::StrangerBudget,
@@ -314,7 +314,7 @@ impl Central {
             stats: Stats::default(),
             memory_paused: HashSet::new(),
             answer_paused: HashSet::new(),
-            memory_said: None,
+            memory_said: crate::throttle::Throttle::new(memory::MEMORY_LINE_EVERY),
             strangers: log::StrangerBudget::default(),
             handler_seq: 0,
             msg_info_query: internal::fixed(internal::MSG_INFO_QUERY_FORMAT),
