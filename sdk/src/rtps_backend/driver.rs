@@ -133,6 +133,17 @@ impl Core {
         }
     }
 
+    /// What the last turn produced goes out, then what is due at `now`
+    /// (timers) if there was room for the first.
+    pub(super) fn turn(&mut self, now: Instant) -> Result<(), Full> {
+        self.flush(now)?;
+        if self.st.next_wakeup() <= now {
+            self.st.tick(now);
+            return self.flush(now);
+        }
+        Ok(())
+    }
+
     /// Arms the timer for the next deadline, if that moved earlier.
     pub(super) fn rearm(&mut self) {
         self.timer.set(self.st.next_wakeup());
@@ -244,12 +255,7 @@ impl Driver {
             // what the last turn produced goes out first; then what is due
             let (paused, flushed, close, quiet) = {
                 let mut c = shared.lock();
-                let mut flushed = c.flush(now);
-                let next = c.st.next_wakeup();
-                if next <= now && flushed.is_ok() {
-                    c.st.tick(now);
-                    flushed = c.flush(now);
-                }
+                let flushed = c.turn(now);
                 c.rearm();
                 // samples the flush delivered, from this session's own
                 // writers: their callbacks run now, not at the next wake

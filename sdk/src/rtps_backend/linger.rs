@@ -33,11 +33,7 @@ impl Driver {
             let now = Instant::now();
             let (quiet, full, next) = {
                 let mut c = self.shared.lock();
-                let mut flushed = c.flush(now);
-                if c.st.next_wakeup() <= now && flushed.is_ok() {
-                    c.st.tick(now);
-                    flushed = c.flush(now);
-                }
+                let flushed = c.turn(now);
                 (
                     flushed.is_ok() && c.st.quiet(),
                     flushed.is_err(),
