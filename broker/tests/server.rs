@@ -343,6 +343,39 @@ fn hostile_input_closes_only_the_offender() {
     block(&rt, central.shutdown());
 }
 
+/// Connections that never say their module name are closed after the
+/// handshake timeout (C's central kept them for ever: enough of them used
+/// up its file descriptors and locked modules out); a module that named
+/// itself is left alone however quiet it is.
+#[test]
+fn silent_connections_are_closed_after_the_handshake_timeout() {
+    let rt = rt();
+    let (sink, logs) = capture_logs();
+    let mut config = Config::default();
+    config.handshake_timeout = Some(Duration::from_secs(1));
+    let central = start(&rt, local().config(config).log_sink(sink));
+    let addr = central.local_addr();
+    let mut good = Client::new(tcp(addr), "good");
+    good.sync();
+    let started = Instant::now();
+    let mut silent: Vec<TcpStream> = (0..3).map(|_| tcp(addr)).collect();
+    for s in &mut silent {
+        // Central's greeting, then EOF: central closed it.
+        assert!(!read_to_eof(s).is_empty());
+    }
+    assert!(started.elapsed() >= Duration::from_secs(1));
+    let line = wait_log(&logs, |l| l.contains("did not say its module name"));
+    assert!(
+        line.starts_with("WARNING: closing connection ") && line.ends_with("within 1 s"),
+        "{line}"
+    );
+    // Quiet for longer than the timeout, the named module is still served.
+    std::thread::sleep(Duration::from_millis(1200));
+    good.sync();
+    assert_eq!(block(&rt, central.stats()).unwrap().modules, 1);
+    block(&rt, central.shutdown());
+}
+
 /// Many modules connecting at once all get central's greeting.
 #[test]
 fn two_hundred_connections_at_once() {

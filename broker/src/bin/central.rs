@@ -83,6 +83,10 @@ const USAGE: &str = "central command line options:
      the next connection (one that became unreadable or invalid: its
      previous rules stay, with a warning).
  --no-unix-socket: do not listen on /tmp/x_ipc/<port>.
+ --handshake-timeout <s>: close a connection that has not said its module
+     name (IPC_connect) within <s> seconds, with a log line (default 10;
+     0: never, as in C), so that silent connections cannot hold central's
+     file descriptors.
  --busy-poll <us>: after each frame keep polling for <us> microseconds
      (1..=1000000) instead of sleeping: lower latency for CPU (default off).
  --cut-through <bytes>: forward a message or reply of at least <bytes>
@@ -229,6 +233,18 @@ fn parse_args(args: Vec<String>) -> Result<Options, String> {
                         Some(n) => number(name, n, 1024, "messages")? as usize,
                     };
                     o.config.send_ahead.insert(module.to_string(), n);
+                }
+                "handshake-timeout" => {
+                    let v = value(true)?;
+                    let secs = v.parse::<u64>().ok().filter(|s| *s <= 86_400);
+                    let Some(secs) = secs else {
+                        return Err(format!(
+                            "option --handshake-timeout: '{v}' is not a number of seconds \
+                             from 0 (never) to 86400"
+                        ));
+                    };
+                    o.config.handshake_timeout =
+                        (secs > 0).then(|| std::time::Duration::from_secs(secs));
                 }
                 "hosts-allow" => o.allow = Some(value(true)?.into()),
                 "hosts-deny" => o.deny = Some(value(true)?.into()),
@@ -884,6 +900,29 @@ mod tests {
         assert!(parse(&["-h"]).unwrap().help);
         assert!(parse(&["-v"]).unwrap().version);
         assert_eq!(parse(&["-p0"]).unwrap().port, 0);
+    }
+
+    #[test]
+    fn handshake_timeout_option() {
+        let secs = |a: &[&str]| parse(a).map(|o| o.config.handshake_timeout);
+        assert_eq!(secs(&[]), Ok(Some(std::time::Duration::from_secs(10))));
+        assert_eq!(
+            secs(&["--handshake-timeout", "3"]),
+            Ok(Some(std::time::Duration::from_secs(3)))
+        );
+        assert_eq!(secs(&["--handshake-timeout=0"]), Ok(None));
+        for bad in ["x", "-1", "86401", ""] {
+            assert_eq!(
+                secs(&["--handshake-timeout", bad]),
+                Err(format!(
+                    "option --handshake-timeout: '{bad}' is not a number of seconds from 0 (never) to 86400"
+                ))
+            );
+        }
+        assert_eq!(
+            secs(&["--handshake-timeout"]),
+            Err("option --handshake-timeout needs a value".into())
+        );
     }
 
     #[test]

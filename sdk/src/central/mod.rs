@@ -170,7 +170,15 @@
 //!   the rest: it cannot flood the terminal or the log file. Connections
 //!   that close before naming themselves (probes, peers sending garbage
 //!   in a loop) are logged as C logs them for the first ten of every
-//!   10 s; the rest are counted in one line when the 10 s are over.
+//!   10 s; the rest are counted in one line when the 10 s are over (said
+//!   then, not at the next connection).
+//! - A connection that has not said its module name (`IPC_connect`)
+//!   within [`Config::handshake_timeout`] (10 s; `central
+//!   --handshake-timeout`) is closed with a `WARNING: closing connection
+//!   … did not say its module name` line and C's close line. C keeps such
+//!   connections for ever, so silent ones (a probe that never closes, a
+//!   peer that is no IPC module) could hold every file descriptor and
+//!   lock modules out. `--handshake-timeout 0` keeps C's way.
 //! - A failed `accept` (too many open files) is said when it starts,
 //!   every 10 s while it lasts, and when it ends; a log file (`-f`) that
 //!   cannot be written any more is said once on stderr and logging to it

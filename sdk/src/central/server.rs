@@ -1167,6 +1167,12 @@ struct Core {
     spin: Option<BusyPoll>,
 }
 
+/// The monotonic time of `at` on the wall clock (now if it has passed).
+fn instant_of(at: SystemTime) -> std::time::Instant {
+    let left = at.duration_since(SystemTime::now()).unwrap_or_default();
+    std::time::Instant::now() + left
+}
+
 impl Core {
     async fn run(
         mut self,
@@ -1183,6 +1189,10 @@ impl Core {
         let mut trim_armed = false;
         let mut mark = 0u64;
         let mut quiet = 0u32;
+        // Central's own deadlines (connections that must name themselves,
+        // the strangers' log window): `due` is what the timer is set to.
+        let mut timer = crate::driver_timer::DriverTimer::quiet();
+        let mut due: Option<SystemTime> = None;
         // One wait for the stop signal for the whole loop: a `changed()`
         // made anew each turn registered and removed a waiter per message.
         let stopped = stop.changed();
@@ -1230,6 +1240,12 @@ impl Core {
                         self.give_memory_back();
                     }
                 }
+                () = std::future::poll_fn(|cx| timer.poll_fired(cx)), if due.is_some() => {
+                    due = None;
+                    self.central.handle_timeout(SystemTime::now());
+                    self.drain();
+                    self.flush_all();
+                }
                 Some(r) = self.tasks.join_next(), if !self.tasks.is_empty() => {
                     if let Err(e) = r {
                         if e.is_panic() {
@@ -1237,6 +1253,11 @@ impl Core {
                         }
                     }
                 }
+            }
+            let next = self.central.next_timeout();
+            if next != due {
+                due = next;
+                timer.set_next(next.map(instant_of));
             }
             let since_trim = self.read_total.wrapping_sub(self.read_at_trim);
             if !trim_armed && since_trim >= TRIM_AFTER {

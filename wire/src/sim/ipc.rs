@@ -146,6 +146,16 @@ impl Node for CentralNode {
     fn poll_event(&mut self) -> Option<IpcEvent> {
         self.events.pop_front()
     }
+    fn handle_timeout(&mut self, now: Instant) {
+        let wall = self.wall(now);
+        self.central.handle_timeout(wall);
+        self.drain(now, true);
+    }
+    fn poll_timeout(&self) -> Option<Instant> {
+        let at = self.central.next_timeout()?;
+        let after = at.duration_since(self.wall0).unwrap_or_default();
+        Some(self.t0 + after)
+    }
     fn listens(&self, at: &String) -> bool {
         *at == self.addr
     }
@@ -374,6 +384,12 @@ impl Node for IpcNode {
     }
     fn poll_event(&mut self) -> Option<IpcEvent> {
         each!(self, n => n.poll_event())
+    }
+    fn handle_timeout(&mut self, now: Instant) {
+        each!(self, n => n.handle_timeout(now))
+    }
+    fn poll_timeout(&self) -> Option<Instant> {
+        each!(self, n => n.poll_timeout())
     }
     fn listens(&self, at: &String) -> bool {
         each!(self, n => n.listens(at))

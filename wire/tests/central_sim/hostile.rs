@@ -15,12 +15,12 @@ use courier_wire::ipc::frame::{ClassId, MsgClass};
 use courier_wire::ipc::module::Event;
 
 use crate::routing::raw_frame;
-use crate::support::{define, Sim};
+use crate::support::{define, untimed, Sim};
 
 /// Sends `bytes` on a connection of its own while a module is connected:
 /// the reasons central closed connections for, and its log lines.
 fn hostile(bytes: &[u8]) -> (Vec<String>, Vec<String>) {
-    let mut sim = Sim::new(Config::default());
+    let mut sim = Sim::new(untimed());
     let ok = sim.connect("bystander");
     let attacker = sim.raw("attacker");
     let (logs, closes) = (sim.logs.len(), sim.closes.len());
@@ -110,7 +110,7 @@ fn hostile_frames_close_only_the_offender_with_a_log_line() {
 #[test]
 fn truncated_internal_data_closes_with_the_reason() {
     // x_ipc_msgInfoMsg with a string length running off the end.
-    let mut sim = Sim::new(Config::default());
+    let mut sim = Sim::new(untimed());
     let t = sim.raw("t");
     sim.pump();
     let greeting = sim.net.read(t);

@@ -16,3 +16,4 @@ mod logging;
 mod routing;
 mod send_ahead;
 mod support;
+mod timeouts;

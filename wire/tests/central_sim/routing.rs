@@ -564,7 +564,8 @@ fn direct_handler_lists_keep_the_first_id_and_are_announced_again() {
 #[test]
 fn a_subscription_between_a_modules_var_read_and_its_watch_is_not_missed() {
     use courier_wire::ipc::frame::HEADER_SIZE;
-    let mut sim = Sim::new(Config::default());
+    // b is held unnamed while the clock jumps ahead.
+    let mut sim = Sim::new(crate::support::untimed());
     let a = sim.connect("a");
     define(&mut sim, a, "pong", "int");
     sim.pump();

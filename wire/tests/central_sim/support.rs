@@ -256,6 +256,16 @@ impl Sim {
     }
 }
 
+/// The default configuration without the handshake timeout, as C's
+/// central runs: for tests that keep a connection unnamed (raw bytes of
+/// their own, a module held back) while the network's clock jumps ahead
+/// to whatever is due next.
+pub fn untimed() -> Config {
+    let mut c = Config::default();
+    c.handshake_timeout = None;
+    c
+}
+
 pub fn define(sim: &mut Sim, id: Mod, msg: &str, fmt: &str) {
     sim.m(id)
         .define_msg(

@@ -195,6 +195,13 @@ pub struct Config {
     /// discards and acknowledges it (the C library warns), where central
     /// would have deleted it.
     pub send_ahead: BTreeMap<String, usize>,
+    /// How long a new connection may take to say its module name (the
+    /// `IPC_connect` query a module sends right after connecting). One
+    /// that has not by then is closed with a log line, so that silent
+    /// connections (a probe that never closes, a peer that is not an IPC
+    /// module) cannot hold central's file descriptors for ever. `None`:
+    /// never, as in C. Default 10 s.
+    pub handshake_timeout: Option<std::time::Duration>,
 }
 
 impl Default for Config {
@@ -215,6 +222,7 @@ impl Default for Config {
             max_queued_bytes: 64 << 20,
             cut_through: None,
             send_ahead: BTreeMap::new(),
+            handshake_timeout: Some(std::time::Duration::from_secs(10)),
         }
     }
 }

@@ -114,6 +114,7 @@ impl Central {
     pub fn connect(&mut self, conn: ConnId, peer: Peer, now: SystemTime) {
         self.clock = now;
         self.stranger_summary(now);
+        self.expect_name(conn, now);
         let sd = self.free_sd();
         self.modules.insert(
             conn,
@@ -141,6 +142,7 @@ impl Central {
                 closed: false,
                 problems: log::ProblemBudget::default(),
                 quiet: None,
+                timed_out: false,
                 relay: None,
                 relay_from: None,
                 held: Vec::new(),
@@ -337,6 +339,13 @@ impl Central {
         }
         m.closed = true;
         let left_out = m.problems.take_suppressed();
+        let left = if m.timed_out {
+            log::Left::Silent
+        } else if eof {
+            log::Left::Closed
+        } else {
+            log::Left::Bad
+        };
         let name = m.name.clone();
         let host = m.host.clone();
         let sd = m.sd;
@@ -344,7 +353,7 @@ impl Central {
         // takes of those: counted, not logged.
         let quiet = self.stranger_quiet(conn);
         if quiet {
-            self.strangers.count(!eof);
+            self.strangers.count(left);
         } else {
             self.report_left_out(conn, left_out);
         }
@@ -463,6 +472,7 @@ impl Central {
         self.memory_paused.remove(&conn);
         self.answer_paused.remove(&conn);
         self.modules.remove(&conn);
+        self.prune_handshakes();
         if let Some(n) = name {
             self.central_broadcast(internal::DISCONNECT_NOTIFY, |w| w.write_str(&n));
         }

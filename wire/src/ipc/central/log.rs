@@ -166,9 +166,22 @@ pub(super) struct StrangerBudget {
     /// When the current window started (its first stranger).
     since: Option<SystemTime>,
     shown: u32,
-    /// Left out: closed for a bad frame, or closed by the peer.
+    /// Left out: closed for a bad frame, closed by the peer, or closed
+    /// for saying nothing ([`Config::handshake_timeout`](super::Config::handshake_timeout)).
     bad: u64,
     closed: u64,
+    silent: u64,
+}
+
+/// How a stranger's connection ended ([`StrangerBudget::count`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Left {
+    /// Central closed it for a frame it could not take.
+    Bad,
+    /// The peer closed it.
+    Closed,
+    /// Central closed it: no module name in time.
+    Silent,
 }
 
 impl StrangerBudget {
@@ -184,12 +197,18 @@ impl StrangerBudget {
     }
 
     /// A stranger whose lines were left out closed.
-    pub(super) fn count(&mut self, bad: bool) {
-        if bad {
-            self.bad += 1;
-        } else {
-            self.closed += 1;
+    pub(super) fn count(&mut self, left: Left) {
+        match left {
+            Left::Bad => self.bad += 1,
+            Left::Closed => self.closed += 1,
+            Left::Silent => self.silent += 1,
         }
+    }
+
+    /// When [`roll`](Self::roll) will have a line to say, if it will.
+    pub(super) fn due(&self) -> Option<SystemTime> {
+        let since = self.since?;
+        (self.bad + self.closed + self.silent > 0).then(|| since + STRANGER_WINDOW)
     }
 
     /// At `now`, if the window is over: starts a new one, and returns the
@@ -200,9 +219,9 @@ impl StrangerBudget {
         if elapsed.is_some_and(|d| d < STRANGER_WINDOW) {
             return None;
         }
-        let (bad, closed) = (self.bad, self.closed);
+        let (bad, closed, silent) = (self.bad, self.closed, self.silent);
         *self = StrangerBudget::default();
-        if bad == 0 && closed == 0 {
+        if bad == 0 && closed == 0 && silent == 0 {
             return None;
         }
         let secs = elapsed.map_or(0, |d| d.as_secs());
@@ -213,6 +232,11 @@ impl StrangerBudget {
         if closed > 0 {
             what.push(format!(
                 "{closed} more connection(s) closed before naming themselves"
+            ));
+        }
+        if silent > 0 {
+            what.push(format!(
+                "{silent} more connection(s) closed for not naming themselves in time"
             ));
         }
         Some(format!(

@@ -68,6 +68,7 @@ mod resend;
 mod routing;
 mod small_map;
 mod tables;
+mod timeouts;
 mod vars;
 
 pub use self::body::Body;
@@ -267,6 +268,9 @@ pub struct Central {
     /// Lines about connections that never named themselves (probes,
     /// hostile peers), bounded central-wide.
     strangers: log::StrangerBudget,
+    /// Connections that must name themselves by then, in connect order
+    /// (entries of those that did are dropped as they reach the front).
+    handshakes: VecDeque<(SystemTime, ConnId)>,
     handler_seq: u64,
     msg_info_query: Format,
     msg_info_reply: Format,
@@ -316,6 +320,7 @@ impl Central {
             answer_paused: HashSet::new(),
             memory_said: crate::throttle::Throttle::new(memory::MEMORY_LINE_EVERY),
             strangers: log::StrangerBudget::default(),
+            handshakes: VecDeque::new(),
             handler_seq: 0,
             msg_info_query: internal::fixed(internal::MSG_INFO_QUERY_FORMAT),
             msg_info_reply: internal::fixed(internal::MSG_INFO_REPLY_FORMAT),

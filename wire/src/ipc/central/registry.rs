@@ -97,6 +97,7 @@ impl Central {
             m.name = Some(module);
             m.host = host;
         }
+        self.prune_handshakes();
         true
     }
 

@@ -261,6 +261,9 @@ pub(super) struct Module {
     /// such connections ([`log::StrangerBudget`]) left its lines out
     /// (`Some(true)`), let them through, or has not been asked yet.
     pub(super) quiet: Option<bool>,
+    /// Closed by central for not naming itself in time
+    /// ([`Config::handshake_timeout`](super::Config::handshake_timeout)).
+    pub(super) timed_out: bool,
     /// A frame from this module being forwarded while it arrives.
     pub(super) relay: Option<Relay>,
     /// The module whose frame is being forwarded to this one: every other
