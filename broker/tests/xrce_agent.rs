@@ -207,6 +207,13 @@ fn command_line_errors() {
         "<profiles>\n  <topic profile_name=\"ok\"><name>y</name><dataType>T</dataType></topic>\n  <topic profile_name=\"t\"><name>x</name></topic>\n</profiles>",
     )
     .unwrap();
+    // cut short, as a full disk or an unfinished copy leaves it
+    let cut = dir.join("cut.refs");
+    std::fs::write(
+        &cut,
+        "<profiles>\n  <topic profile_name=\"ok\"><name>y</name><dataType>T</dataType></topic>\n  <topic profile_",
+    )
+    .unwrap();
     let missing = dir.join("missing.refs");
     let missing_dir = dir.join("no-such-dir");
     let state_in_missing = missing_dir.join("agent.redb");
@@ -260,6 +267,14 @@ fn command_line_errors() {
             ),
         ),
         (
+            vec!["udp4".into(), "-p".into(), "0".into(), "-r".into(), cut.display().to_string()],
+            2,
+            format!(
+                "xrce-agent: references file {}: XML at line 3, column 18: the text ends before the root element is closed (is it cut short?)",
+                cut.display()
+            ),
+        ),
+        (
             vec!["udp4".into(), "-p".into(), "0".into(), "-r".into(), missing.display().to_string()],
             2,
             format!(
@@ -295,6 +310,14 @@ fn command_line_errors() {
                 "xrce-agent: state file {}: it is a directory (--state names the file to keep clients' sessions in)",
                 dir.display()
             ),
+        ),
+        // a directory that cannot be written (procfs: not even root may
+        // make a file there): said before anything starts, not as the
+        // database's failure (audit 16: exit 1, where --help says 2)
+        (
+            vec!["udp4".into(), "-p".into(), "0".into(), "--bind".into(), "127.0.0.1".into(), "--state".into(), "/proc/self/agent.db".into()],
+            2,
+            "xrce-agent: state file /proc/self/agent.db: its directory cannot be written (".into(),
         ),
         (
             vec!["pseudoterminal".into(), "--dev".into(), link_in_missing.display().to_string(), "--bind".into(), "127.0.0.1".into()],
@@ -332,6 +355,15 @@ fn command_line_errors() {
         .output()
         .unwrap();
     assert_eq!(help.status.code(), Some(0));
+    let version = Command::new(env!("CARGO_BIN_EXE_xrce-agent"))
+        .arg("--version")
+        .output()
+        .unwrap();
+    assert_eq!(version.status.code(), Some(0));
+    assert_eq!(
+        String::from_utf8_lossy(&version.stdout),
+        format!("xrce-agent {}\n", env!("CARGO_PKG_VERSION"))
+    );
     let help = String::from_utf8_lossy(&help.stdout);
     assert!(
         help.contains(

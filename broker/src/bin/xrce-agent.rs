@@ -60,6 +60,7 @@ const UNSUPPORTED: [&str; 5] = ["udp6", "tcp6", "multiserial", "canfd", "termios
 #[derive(Parser, Debug)]
 #[command(
     name = "xrce-agent",
+    version,
     about = "A DDS-XRCE agent: XRCE clients' entities in one DDS participant",
     after_help = AFTER_HELP
 )]
@@ -328,6 +329,28 @@ fn check_paths(plan: &Plan) -> Result<(), String> {
             _ => Path::new("."),
         }
     }
+    /// Why the agent could not write the state file `f` (there already,
+    /// or to be made in its directory), if it could not: a read-only file
+    /// or directory is the command line's mistake, said before anything
+    /// starts, not a failure of the database later.
+    fn not_writable(f: &Path) -> Option<String> {
+        use std::os::unix::ffi::OsStrExt as _;
+        let (target, what) = if f.exists() {
+            (f, "the file")
+        } else {
+            (dir_of(f), "its directory")
+        };
+        let c = std::ffi::CString::new(target.as_os_str().as_bytes()).ok()?;
+        // SAFETY: access(2) reads the NUL-terminated path and nothing else.
+        #[allow(unsafe_code)]
+        let r = unsafe { libc::access(c.as_ptr(), libc::W_OK) };
+        (r != 0).then(|| {
+            format!(
+                "{what} cannot be written ({})",
+                std::io::Error::last_os_error()
+            )
+        })
+    }
     /// Why `d` cannot hold a new file, if it cannot.
     fn not_a_dir(d: &Path) -> Option<String> {
         match std::fs::metadata(d) {
@@ -345,6 +368,9 @@ fn check_paths(plan: &Plan) -> Result<(), String> {
             ));
         }
         if let Some(why) = not_a_dir(dir_of(state)) {
+            return Err(format!("state file {}: {why}", state.display()));
+        }
+        if let Some(why) = not_writable(state) {
             return Err(format!("state file {}: {why}", state.display()));
         }
     }

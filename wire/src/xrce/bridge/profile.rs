@@ -201,6 +201,21 @@ fn loosen(xml: &str) -> std::borrow::Cow<'_, str> {
 
 fn parse(xml: &str) -> Result<roxmltree::Document<'_>, ProfileError> {
     roxmltree::Document::parse(xml).map_err(|e| {
+        if matches!(
+            e,
+            roxmltree::Error::UnclosedRootNode | roxmltree::Error::UnexpectedEndOfStream
+        ) {
+            // roxmltree puts these at 1:1; they are at the end of the text
+            // (a file cut short, as a full disk or an unfinished copy leaves)
+            let line = xml.split('\n').count();
+            let column = xml.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
+            return ProfileError::Xml {
+                line: u32::try_from(line).unwrap_or(u32::MAX),
+                column: u32::try_from(column).unwrap_or(u32::MAX),
+                message: "the text ends before the root element is closed (is it cut short?)"
+                    .into(),
+            };
+        }
         let p = e.pos();
         let mut message = e.to_string();
         // roxmltree ends its message with the position, which comes first here
@@ -757,6 +772,19 @@ mod tests {
         );
         let e = Profiles::parse("<profiles>\n<topic profile_name=\"t\">\n</profile>").unwrap_err();
         assert!(e.to_string().starts_with("XML at line 3"), "{e}");
+        // A file cut short is said where it ends (the parser puts it at 1:1).
+        let e = Profiles::parse("<profiles>\n  <topic profile_name=\"t\">\n    <na").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "XML at line 3, column 8: the text ends before the root element is closed \
+             (is it cut short?)"
+        );
+        let e = Profiles::parse("<profiles>\n<topic/>\n").unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("XML at line 3, column 1: the text ends"),
+            "{e}"
+        );
         let e = from_xml(
             ObjectKind::DataReader,
             "<dds><data_reader><topic><kind>MAYBE</kind><name>a</name><dataType>b</dataType></topic></data_reader></dds>",
