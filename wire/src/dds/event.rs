@@ -113,6 +113,32 @@ pub enum Event {
         /// Misses of this writer so far.
         total: u64,
     },
+    /// A writer matched with a reader that requests a finite liveliness
+    /// lease changed liveliness (DDS's LIVELINESS_CHANGED): `alive` when it
+    /// matched or asserted itself again after a lapse; not alive when its
+    /// lease lapsed, or when it left (deleted, unmatched, its participant
+    /// lost: then it is in neither count any more).
+    LivelinessChanged {
+        /// The reader.
+        reader: ReaderId,
+        /// The writer.
+        writer: Guid,
+        /// Whether it is alive now.
+        alive: bool,
+        /// The reader's matched writers that are alive.
+        alive_count: u32,
+        /// The reader's matched writers whose lease lapsed.
+        not_alive_count: u32,
+    },
+    /// A writer with a MANUAL liveliness kind and a finite lease asserted
+    /// nothing (no write, no [`Domain::assert_liveliness`](super::Domain::assert_liveliness))
+    /// within its lease: DDS's LIVELINESS_LOST, once per lapse.
+    LivelinessLost {
+        /// The writer.
+        writer: WriterId,
+        /// Lapses of this writer so far.
+        total: u64,
+    },
     /// A pattern subscription made a reader for a publication it matches;
     /// that reader's samples come as [`Event::Sample`].
     PatternMatched {

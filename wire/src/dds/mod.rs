@@ -27,6 +27,8 @@
 //! - **deadline**: [`Event::DeadlineMissed`] per instance and missed period
 //!   for readers, [`Event::OfferedDeadlineMissed`] for writers that did not
 //!   write a live instance within the deadline they offer;
+//! - **liveliness**: [`Event::LivelinessChanged`] for readers that request a finite lease,
+//!   [`Event::LivelinessLost`] for manual writers that did not assert;
 //! - **request/reply** as ROS 2 does it ([`rpc`](self#request-reply));
 //! - **pattern subscriptions** ([`fnmatch`] on topic and type names);
 //! - **keep-all back-pressure** both ways: a writer whose history is full
@@ -81,6 +83,7 @@ mod deadline;
 mod event;
 mod handles;
 mod instances;
+mod liveliness;
 mod pattern;
 mod reader;
 mod request_header;
@@ -141,6 +144,7 @@ pub struct Domain {
     next_id: u64,
     next_housekeeping: Instant,
     events: VecDeque<Event>,
+    liveliness: liveliness::Liveliness,
 }
 
 impl std::fmt::Debug for Domain {
@@ -178,6 +182,7 @@ impl Domain {
             next_id: 1,
             next_housekeeping: now + HOUSEKEEPING,
             events: VecDeque::new(),
+            liveliness: liveliness::Liveliness::default(),
         }
     }
 
@@ -222,6 +227,7 @@ impl Domain {
             self.next_confirm_deadline(),
             self.next_query_deadline(),
             self.next_offered_deadline(),
+            self.next_liveliness_due(),
             self.any_blocked().then_some(self.next_housekeeping),
         ]
         .into_iter()
@@ -240,6 +246,7 @@ impl Domain {
         self.expire_confirms(now);
         self.check_deadlines(now);
         self.check_offered_deadlines(now);
+        self.check_liveliness(now);
         self.expire_queries(now);
         if now >= self.next_housekeeping {
             self.next_housekeeping = now + HOUSEKEEPING;
@@ -255,6 +262,7 @@ impl Domain {
     pub fn handle_datagram(&mut self, source: Locator, datagram: &[u8], now: Instant) {
         self.p.handle_datagram(source, datagram, now);
         self.drain(now);
+        self.check_liveliness(now);
     }
 
     /// Hands back a received sample's buffer for reuse ([`Participant::recycle`]).
@@ -341,6 +349,7 @@ impl Domain {
                     self.acks_changed(writer);
                 }
                 P::ReaderMatched { reader, writer } => {
+                    self.lively_matched(reader, writer, now);
                     match self.readers.get(&reader).map(|r| r.role) {
                         Some(Role::User | Role::Pattern(_)) => {
                             self.events.push_back(Event::ReaderMatched {
@@ -353,6 +362,7 @@ impl Domain {
                     }
                 }
                 P::ReaderUnmatched { reader, writer } => {
+                    self.lively_unmatched(reader, writer);
                     if let Some(r) = self.readers.get_mut(&reader) {
                         r.writer_gone(writer);
                         if matches!(r.role, Role::User | Role::Pattern(_)) {

@@ -7,7 +7,7 @@ use smallvec::SmallVec;
 use std::time::{Duration, Instant, SystemTime};
 
 use crate::cdr::Version;
-use crate::rtps::discovery::{EndpointQos, History};
+use crate::rtps::discovery::{Duration as RtpsDuration, EndpointQos, History};
 use crate::rtps::participant::{ChangeKind, CreateError, EndpointConfig, KeyHash, ReceivedSample};
 use crate::rtps::{Guid, Time};
 
@@ -23,11 +23,14 @@ pub(super) struct WriterInfo {
     /// The XCDR version of its data: the first representation it
     /// announced (XCDR1 when none); `None` for another (XML).
     pub(super) version: Option<Version>,
+    /// The liveliness it offers.
+    pub(super) liveliness: (crate::rtps::discovery::LivelinessKind, RtpsDuration),
 }
 
 impl WriterInfo {
     pub(super) fn of(q: &EndpointQos) -> Self {
         WriterInfo {
+            liveliness: q.liveliness,
             strength: q.ownership_strength,
             lifespan: q.lifespan.to_std(),
             version: match q.data_representation.first() {
@@ -304,7 +307,9 @@ impl Domain {
         now: Instant,
     ) -> Result<Guid, CreateError> {
         let r = LocalReader::new(&config, role, now);
+        let lease = config.qos.liveliness.1;
         let g = self.p.create_reader(config, now)?;
+        self.lively_reader_created(g, lease);
         let remote: Vec<(Guid, String)> = self
             .p
             .publications()
@@ -337,6 +342,7 @@ impl Domain {
 
     pub(super) fn remove_reader(&mut self, g: Guid, now: Instant) {
         self.readers.remove(&g);
+        self.lively_reader_deleted(g);
         self.full.retain(|r| *r != g);
         self.p.delete_reader(g, now);
     }

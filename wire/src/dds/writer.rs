@@ -97,7 +97,9 @@ impl Domain {
             blocked: None,
             deadline: Deadline::new(config.qos.deadline.to_std()),
         };
+        let liveliness = config.qos.liveliness;
         let g = self.p.create_writer(config, now)?;
+        self.lively_writer_created(g, liveliness, now);
         let remote: Vec<(Guid, String)> = self
             .p
             .subscriptions()
@@ -132,6 +134,7 @@ impl Domain {
 
     pub(super) fn remove_writer(&mut self, g: Guid, now: Instant) {
         self.writers.remove(&g);
+        self.lively_writer_deleted(g);
         self.writer_info.remove(&g);
         let mut i = 0;
         while i < self.confirms.len() {
@@ -220,6 +223,9 @@ impl Domain {
                 return Err(e);
             }
         };
+        self.lively_written(g, now);
+        // a local reader that saw this writer lapse sees it alive again
+        self.check_liveliness(now);
         if let Some(d) = self.writers.get_mut(&g).and_then(|w| w.deadline.as_mut()) {
             let instance = key_hash.map_or([0; 16], |k| k.0);
             match kind {

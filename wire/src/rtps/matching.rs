@@ -356,6 +356,9 @@ pub enum ParticipantEvent {
 #[derive(Debug, Default)]
 pub struct Participants {
     table: HashMap<GuidPrefix, (ParticipantData, Instant)>,
+    /// When each participant was last heard from (any message, SPDP
+    /// included): what asserts the liveliness of its AUTOMATIC writers.
+    heard: HashMap<GuidPrefix, Instant>,
 }
 
 impl Participants {
@@ -376,6 +379,7 @@ impl Participants {
             .checked_add(lease)
             .or_else(|| now.checked_add(std::time::Duration::from_secs(86_400 * 365)))
             .unwrap_or(now);
+        self.heard.insert(prefix, now);
         match self.table.insert(prefix, (data.clone(), expiry)) {
             None => Some(ParticipantEvent::Found(prefix)),
             Some((old, _)) if old != data => Some(ParticipantEvent::Changed(prefix)),
@@ -396,7 +400,15 @@ impl Participants {
         if let Some(t) = now.checked_add(lease) {
             *expiry = (*expiry).max(t);
         }
+        if let Some(h) = self.heard.get_mut(&prefix) {
+            *h = (*h).max(now);
+        }
         true
+    }
+
+    /// When anything last came from the participant (`None`: unknown).
+    pub fn heard(&self, prefix: &GuidPrefix) -> Option<Instant> {
+        self.heard.get(prefix).copied()
     }
 
     /// The participants known, in no particular order.
@@ -406,6 +418,7 @@ impl Participants {
 
     /// The participant said goodbye (SPDP dispose).
     pub fn remove(&mut self, prefix: GuidPrefix) -> Option<ParticipantEvent> {
+        self.heard.remove(&prefix);
         self.table
             .remove(&prefix)
             .map(|_| ParticipantEvent::Lost(prefix))

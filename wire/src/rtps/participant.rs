@@ -26,6 +26,12 @@
 //!   [`EndpointData`] with every QoS (defaults included, as Fast DDS does)
 //!   and `DATA_REPRESENTATION` = XCDR1 unless configured otherwise, so
 //!   Fast DDS 2.9 matches them; deleting one sends a dispose.
+//! - The writer liveliness protocol: the built-in participant-message
+//!   pair (reliable, keyed [`ParticipantMessage`]s), an automatic message
+//!   every third of the shortest finite AUTOMATIC lease of the local
+//!   writers, manual ones on [`Participant::assert_liveliness`], liveliness
+//!   HEARTBEATs on [`Participant::assert_writer_liveliness`], and what
+//!   asserted each remote writer ([`Participant::liveliness_asserted`]).
 //! - Matching with [`check_match`](super::matching::check_match): topic, type name and requested/offered
 //!   QoS (partitions included), in both directions and also between local
 //!   endpoints (delivered in process, no datagram). A same-topic pair that
@@ -51,7 +57,7 @@
 //! | lease | 10 s | 20 s | 10 s, announced every 3 s |
 //! | user DATA addressing | INFO_TS, DATA to ENTITYID_UNKNOWN, HEARTBEAT piggybacked | INFO_DST + INFO_TS + DATA to the reader's entity id | INFO_DST per participant; the reader's entity id when one reader there is matched, else UNKNOWN; HEARTBEAT piggybacked |
 //! | fragments | 1344 B, 10 per DATA_FRAG, only above 14720 B messages | one ~64 KB fragment per datagram | 1344 B fragments as Cyclone ([`Config::fragment_size`]); datagrams up to [`Config::max_message_size`], 14720 as Cyclone, which the sdk raises to Fast DDS's 65500 on the loopback interface |
-//! | builtin endpoint set | 0xfc3f | 0x0c3f0c3f | 0x3f (SPDP + SEDP only); unknown bits of peers are ignored |
+//! | builtin endpoint set | 0xfc3f | 0x0c3f0c3f | 0xc3f (SPDP, SEDP and the participant-message pair: [`ParticipantMessage`]); unknown bits of peers are ignored |
 //!
 //! # Vendor id
 //!
@@ -121,6 +127,7 @@ mod emit;
 mod event;
 mod keyhash;
 mod outbox;
+mod pmd;
 mod ports;
 mod receive;
 mod sedp;
@@ -139,6 +146,7 @@ pub use config::{
 pub use event::{CreateError, Event, LostReason, Stats, WriteError, MAX_WRITE_SIZE};
 pub use keyhash::{md5, KeyHash};
 pub use outbox::{Datagram, Transmission};
+pub use pmd::{ParticipantMessage, PmdError, PMD_KIND_AUTOMATIC, PMD_KIND_MANUAL};
 pub use ports::{PortMapping, SPDP_MULTICAST_ADDRESS};
 
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
@@ -174,6 +182,8 @@ pub struct Participant {
     sub_reader: Reader,
     pub_writer_readers: BTreeSet<Guid>,
     sub_writer_readers: BTreeSet<Guid>,
+    /// The writer liveliness protocol's built-in pair and what it heard.
+    wlp: pmd::Wlp,
     announcements: HashMap<Guid, SequenceNumber>,
     builtin_disposals: Vec<(bool, SequenceNumber)>,
     writers: BTreeMap<EntityId, LocalWriter>,
@@ -260,6 +270,7 @@ impl Participant {
             sub_reader: Reader::new(true, cfg.max_out_of_order),
             pub_writer_readers: BTreeSet::new(),
             sub_writer_readers: BTreeSet::new(),
+            wlp: pmd::Wlp::new(prefix, hb, cfg.max_out_of_order),
             announcements: HashMap::new(),
             builtin_disposals: Vec::new(),
             writers: BTreeMap::new(),
@@ -438,6 +449,7 @@ impl Participant {
             self.sub_reader.poll_timeout(),
         ]
         .into_iter()
+        .chain(self.wlp.poll_timeout())
         .chain(self.writers.values().map(|w| w.writer.poll_timeout()))
         .chain(self.readers.values().map(|r| r.reader.poll_timeout()))
         .flatten()
@@ -466,6 +478,7 @@ impl Participant {
         }
         self.pub_reader.handle_timeout(now);
         self.sub_reader.handle_timeout(now);
+        self.wlp_timeout(now);
         for r in self.readers.values_mut() {
             r.reader.handle_timeout(now);
         }
@@ -568,6 +581,7 @@ impl Participant {
                 }
             }
         }
+        self.wlp_drain();
         for (e, lr) in self.readers.iter_mut() {
             while let Some((w, sn, env)) = lr.reader.poll_sample() {
                 let s = ReceivedSample::new(Guid { prefix, entity: *e }, w, sn, env);

@@ -531,6 +531,18 @@ impl Writer {
         }
     }
 
+    /// A liveliness-only heartbeat (DDS `assert_liveliness` on a
+    /// manual-by-topic writer): the range it has and a fresh count, for a
+    /// HEARTBEAT with the L flag to every matched reader (sent by the caller).
+    pub fn liveliness_heartbeat(&mut self) -> (SequenceNumber, SequenceNumber, i32) {
+        self.hb_count = self.hb_count.wrapping_add(1);
+        (
+            SequenceNumber(self.first_sn()),
+            SequenceNumber(self.next_sn - 1),
+            self.hb_count,
+        )
+    }
+
     /// Queues a heartbeat for one reader, or for all of them. A fresh
     /// reader (see [`ReaderProxy::fresh`]) gets its own, announcing nothing
     /// from its start on and asking for an answer.

@@ -33,8 +33,11 @@ pub mod builtin_endpoints {
     pub const PARTICIPANT_MESSAGE_WRITER: u32 = 1 << 10;
     /// Participant-message (liveliness) reader.
     pub const PARTICIPANT_MESSAGE_READER: u32 = 1 << 11;
-    /// What Courier implements and announces: SPDP and SEDP (0x3f).
-    pub const COURIER: u32 = 0x3f;
+    /// SPDP and SEDP, the standard four discovery endpoints and SPDP's pair (0x3f).
+    pub const DISCOVERY: u32 = 0x3f;
+    /// What Courier implements and announces: SPDP, SEDP and the
+    /// participant-message (writer liveliness) pair (0xc3f).
+    pub const COURIER: u32 = DISCOVERY | PARTICIPANT_MESSAGE_WRITER | PARTICIPANT_MESSAGE_READER;
 }
 
 /// A GUID prefix for a Courier participant: the vendor id, then 10 bytes

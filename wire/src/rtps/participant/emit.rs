@@ -66,13 +66,17 @@ impl Route<'_> {
         self.locate(r, self.remote_readers.get(&r))
     }
 
-    fn writer(&self, w: Guid) -> Option<Locator> {
+    pub(super) fn writer(&self, w: Guid) -> Option<Locator> {
         self.locate(w, self.remote_writers.get(&w))
     }
 
     /// Destinations for "every matched reader": one per (locator,
     /// participant); the reader's entity id when it is alone there.
-    fn group(&self, readers: &BTreeSet<Guid>, groups: &mut Vec<(Locator, GuidPrefix, EntityId)>) {
+    pub(super) fn group(
+        &self,
+        readers: &BTreeSet<Guid>,
+        groups: &mut Vec<(Locator, GuidPrefix, EntityId)>,
+    ) {
         groups.clear();
         for r in readers {
             let Some(l) = self.reader(*r) else { continue };
@@ -369,6 +373,26 @@ impl Participant {
                 &self.reassembler,
                 &mut self.nackfrag_count,
                 EntityId::SEDP_SUBSCRIPTIONS_READER,
+                t,
+            );
+        }
+        while let Some(t) = self.wlp.writer.poll_transmit() {
+            emit_writer(
+                &route,
+                shape,
+                outbox,
+                EntityId::P2P_MESSAGE_WRITER,
+                &self.wlp.readers,
+                t,
+            );
+        }
+        while let Some(t) = self.wlp.reader.poll_transmit() {
+            emit_reader(
+                &route,
+                outbox,
+                &self.reassembler,
+                &mut self.nackfrag_count,
+                EntityId::P2P_MESSAGE_READER,
                 t,
             );
         }

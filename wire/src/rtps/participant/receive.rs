@@ -97,7 +97,7 @@ impl Participant {
                     now,
                 ),
                 Submessage::DataFrag(f) => self.on_data_frag(&rx, f, little, source, now),
-                Submessage::Heartbeat(h) => self.on_heartbeat(&rx, h),
+                Submessage::Heartbeat(h) => self.on_heartbeat(&rx, h, now),
                 Submessage::Gap(g) => self.on_gap(&rx, g),
                 Submessage::AckNack(a) => self.on_acknack(&rx, a, now),
                 Submessage::NackFrag(n) => self.on_nack_frag(&rx, n),
@@ -152,6 +152,12 @@ impl Participant {
                 };
                 r.handle_data(writer, sn, env);
             }
+            EntityId::P2P_MESSAGE_WRITER => match payload.as_deref() {
+                Some(p) if !key => self.on_pmd(writer, sn, p, now),
+                // a dispose of the participant's messages: its SPDP
+                // dispose or lease says when it leaves
+                _ => {}
+            },
             e if e.is_builtin() => {}
             _ => {
                 // the reader's limit holds for a sample in one DATA as for
@@ -182,6 +188,7 @@ impl Participant {
                     (ChangeKind::Alive, None) => return,
                     (_, p) => envelope_with(kind, key_hash, rx.ts, related, p.unwrap_or_default()),
                 };
+                self.writer_asserted(writer, now);
                 let mut delivered = false;
                 for (e, lr) in self.readers.iter_mut() {
                     if (reader_id == EntityId::UNKNOWN || reader_id == *e)
@@ -208,6 +215,11 @@ impl Participant {
                 .is_some_and(|n| sn >= n),
             EntityId::SEDP_SUBSCRIPTIONS_WRITER => self
                 .sub_reader
+                .next_expected(writer)
+                .is_some_and(|n| sn >= n),
+            EntityId::P2P_MESSAGE_WRITER => self
+                .wlp
+                .reader
                 .next_expected(writer)
                 .is_some_and(|n| sn >= n),
             e if e.is_builtin() => false,
@@ -289,7 +301,7 @@ impl Participant {
         }
     }
 
-    fn on_heartbeat(&mut self, rx: &Rx, h: &Heartbeat) {
+    fn on_heartbeat(&mut self, rx: &Rx, h: &Heartbeat, now: Instant) {
         let writer = Guid {
             prefix: rx.src,
             entity: h.writer_id,
@@ -297,8 +309,12 @@ impl Participant {
         match h.writer_id {
             EntityId::SEDP_PUBLICATIONS_WRITER => self.pub_reader.handle_heartbeat(writer, h),
             EntityId::SEDP_SUBSCRIPTIONS_WRITER => self.sub_reader.handle_heartbeat(writer, h),
+            EntityId::P2P_MESSAGE_WRITER => self.wlp.reader.handle_heartbeat(writer, h),
             e if e.is_builtin() => return,
             _ => {
+                if h.liveliness {
+                    self.writer_asserted(writer, now);
+                }
                 for (e, lr) in self.readers.iter_mut() {
                     if (h.reader_id == EntityId::UNKNOWN || h.reader_id == *e)
                         && lr.matched.contains(&writer)
@@ -320,6 +336,7 @@ impl Participant {
         match g.writer_id {
             EntityId::SEDP_PUBLICATIONS_WRITER => self.pub_reader.handle_gap(writer, g),
             EntityId::SEDP_SUBSCRIPTIONS_WRITER => self.sub_reader.handle_gap(writer, g),
+            EntityId::P2P_MESSAGE_WRITER => self.wlp.reader.handle_gap(writer, g),
             e if e.is_builtin() => {}
             _ => {
                 for (e, lr) in self.readers.iter_mut() {
@@ -341,6 +358,7 @@ impl Participant {
         match a.writer_id {
             EntityId::SEDP_PUBLICATIONS_WRITER => self.pub_writer.handle_acknack(reader, a, now),
             EntityId::SEDP_SUBSCRIPTIONS_WRITER => self.sub_writer.handle_acknack(reader, a, now),
+            EntityId::P2P_MESSAGE_WRITER => self.wlp.writer.handle_acknack(reader, a, now),
             e if e.is_builtin() => {}
             e => {
                 if let Some(w) = self.writers.get_mut(&e) {

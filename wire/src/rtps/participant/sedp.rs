@@ -106,6 +106,7 @@ impl Participant {
             return;
         }
         let g = data.guid;
+        let liveliness = data.qos.liveliness;
         let (map, other) = if publications {
             (&mut self.remote_writers, self.remote_readers.len())
         } else {
@@ -134,6 +135,9 @@ impl Participant {
                 }
             }
         };
+        if publications {
+            self.wlp_writer_known(liveliness.0, liveliness.1);
+        }
         self.events.push_back(event);
         if publications {
             let rs: Vec<EntityId> = self.readers.keys().copied().collect();
@@ -162,6 +166,7 @@ impl Participant {
             }
         }
         self.reassembler.forget_below(g, SequenceNumber(i64::MAX));
+        self.wlp.forget_writer(g);
         self.events.push_back(Event::PublicationLost(g));
     }
 

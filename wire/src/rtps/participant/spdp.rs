@@ -137,7 +137,7 @@ impl Participant {
         // to what we implement; a peer announcing nothing gets the standard four
         let mut bes = data.builtin_endpoints & b::COURIER;
         if bes & !(b::PARTICIPANT_ANNOUNCER | b::PARTICIPANT_DETECTOR) == 0 {
-            bes |= b::COURIER;
+            bes |= b::DISCOVERY;
         }
         let g = |entity| Guid { prefix, entity };
         // our SPDP first, directly, so that it arrives before our SEDP heartbeats
@@ -163,6 +163,16 @@ impl Participant {
             self.sub_reader
                 .add_writer(g(EntityId::SEDP_SUBSCRIPTIONS_WRITER), now);
         }
+        if bes & b::PARTICIPANT_MESSAGE_READER != 0 {
+            let r = g(EntityId::P2P_MESSAGE_READER);
+            self.wlp.writer.add_reader(r, true, now);
+            self.wlp.readers.insert(r);
+        }
+        if bes & b::PARTICIPANT_MESSAGE_WRITER != 0 {
+            self.wlp
+                .reader
+                .add_writer(g(EntityId::P2P_MESSAGE_WRITER), now);
+        }
     }
 
     /// Cleans up after a participant that left (already out of the table).
@@ -183,6 +193,13 @@ impl Participant {
             w.remove_reader(g(e));
             set.remove(&g(e));
         }
+        let r = g(EntityId::P2P_MESSAGE_READER);
+        self.wlp.writer.remove_reader(r);
+        self.wlp.readers.remove(&r);
+        self.wlp
+            .reader
+            .remove_writer(g(EntityId::P2P_MESSAGE_WRITER));
+        self.wlp.forget_participant(prefix);
         for (r, e) in [
             (&mut self.pub_reader, EntityId::SEDP_PUBLICATIONS_WRITER),
             (&mut self.sub_reader, EntityId::SEDP_SUBSCRIPTIONS_WRITER),

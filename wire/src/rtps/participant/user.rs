@@ -100,6 +100,7 @@ impl Participant {
         for r in local {
             self.match_local(guid.entity, r);
         }
+        self.wlp_reschedule(now);
         self.flush(now);
         Ok(guid)
     }
@@ -210,6 +211,7 @@ impl Participant {
                 .push_back(Event::ReaderUnmatched { reader, writer });
         }
         self.unannounce_endpoint(writer, true, now);
+        self.wlp_reschedule(now);
         self.flush(now);
         true
     }
