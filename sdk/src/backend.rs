@@ -92,6 +92,9 @@ pub struct Capabilities {
     pub reply_names: bool,
     /// IPC named formats (`IPC_defineFormat`) come before a definition.
     pub named_formats: bool,
+    /// DDS LIVELINESS on publications and subscriptions
+    /// ([`DdsControl::assert_liveliness`]).
+    pub liveliness: bool,
 }
 
 impl Capabilities {
@@ -108,6 +111,7 @@ impl Capabilities {
             try_write: false,
             untyped_publications: false,
             reply_names: false,
+            liveliness: false,
             named_formats: false,
         }
     }
@@ -382,6 +386,15 @@ pub trait DdsControl: Send + Sync {
     async fn readers_of(&self, topic: &str) -> Result<Vec<crate::EndpointInfo>, ControlError> {
         Err(ControlError::Unsupported {
             what: format!("readers_of({topic})"),
+            backend: "this backend",
+        })
+    }
+    /// Asserts the liveliness of `publication` without writing (see
+    /// [`Publisher::assert_liveliness`](crate::Publisher::assert_liveliness)).
+    async fn assert_liveliness(&self, publication: PubId) -> Result<(), PublishError> {
+        let _ = publication;
+        Err(PublishError::Unsupported {
+            what: "assert_liveliness".into(),
             backend: "this backend",
         })
     }

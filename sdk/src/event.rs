@@ -10,7 +10,7 @@ use courier_wire::rtps::discovery::{self as wire, EndpointData, ParticipantData}
 use courier_wire::rtps::matching::Incompatible;
 use courier_wire::rtps::Locator;
 
-use crate::qos::{History, Reliability};
+use crate::qos::{History, LivelinessKind, Reliability};
 
 /// A DDS GUID: a participant's 12-byte prefix and a 4-byte entity id.
 /// Prints as 32 lower-case hex digits, as [`Sample::source`] names writers.
@@ -109,6 +109,8 @@ pub struct QosSummary {
     pub exclusive: Option<i32>,
     /// Lifespan (`None`: infinite).
     pub lifespan: Option<Duration>,
+    /// Liveliness (`None`: automatic with an infinite lease, DDS's default).
+    pub liveliness: Option<crate::qos::Liveliness>,
     /// Partitions.
     pub partitions: Vec<String>,
     /// Data representations (`DataRepresentationId_t`: 0 XCDR1, 1 XML, 2
@@ -196,6 +198,20 @@ impl From<&EndpointData> for EndpointInfo {
                 deadline: q.deadline.to_std(),
                 exclusive: q.exclusive_ownership.then_some(q.ownership_strength),
                 lifespan: q.lifespan.to_std(),
+                liveliness: match (q.liveliness.0, q.liveliness.1.to_std()) {
+                    (wire::LivelinessKind::Automatic, None) => None,
+                    (kind, lease) => Some(crate::qos::Liveliness::new(
+                        match kind {
+                            wire::LivelinessKind::Automatic => LivelinessKind::Automatic,
+                            wire::LivelinessKind::ManualByParticipant => {
+                                LivelinessKind::ManualByParticipant
+                            }
+                            wire::LivelinessKind::ManualByTopic => LivelinessKind::ManualByTopic,
+                        },
+                        // a manual kind with an infinite lease: the longest
+                        lease.unwrap_or(Duration::MAX),
+                    )),
+                },
                 partitions: q.partitions.clone(),
                 data_representation: q.data_representation.clone(),
             },
@@ -314,6 +330,34 @@ pub enum SessionEvent {
         /// Topic.
         msg: String,
         /// Misses of this publication so far.
+        total: u64,
+    },
+    /// DDS: a writer matched with a subscription that requests a
+    /// [liveliness](crate::qos#liveliness) changed liveliness (DDS's
+    /// LIVELINESS_CHANGED): alive when it matched or asserted itself
+    /// again after a lapse; not alive when its lease lapsed (its
+    /// participant may well still be known) or when it left (then it is
+    /// in neither count any more).
+    LivelinessChanged {
+        /// Topic.
+        msg: String,
+        /// The writer.
+        writer: Guid,
+        /// Whether it is alive now.
+        alive: bool,
+        /// The subscription's matched writers that are alive.
+        alive_count: u32,
+        /// The subscription's matched writers whose lease lapsed.
+        not_alive_count: u32,
+    },
+    /// DDS: a publication with a manual
+    /// [`PublicationQos::liveliness`](crate::PublicationQos::liveliness)
+    /// neither published nor asserted its liveliness within its lease
+    /// (DDS's LIVELINESS_LOST): its readers see it not alive. Once per lapse.
+    LivelinessLost {
+        /// Topic.
+        msg: String,
+        /// Lapses of this publication so far.
         total: u64,
     },
     /// DDS: a sample was larger than this session takes

@@ -255,6 +255,18 @@ impl<T: IpcMessage> PublisherBuilder<T> {
         self
     }
 
+    /// The offered liveliness: `kind` within `lease` (see
+    /// [`qos`](crate::qos#liveliness)). With a manual kind, publish or
+    /// [`Publisher::assert_liveliness`] within every `lease`, or the
+    /// session reports [`SessionEvent::LivelinessLost`](crate::SessionEvent::LivelinessLost)
+    /// and readers see the publication not alive. `build` refuses a lease
+    /// under [`MIN_LEASE`](crate::qos::MIN_LEASE) ([`OpenError::Qos`]) and
+    /// liveliness on a backend other than RTPS ([`OpenError::Unsupported`]).
+    pub fn liveliness(mut self, kind: crate::qos::LivelinessKind, lease: Duration) -> Self {
+        self.qos.liveliness = Some(crate::qos::Liveliness::new(kind, lease));
+        self
+    }
+
     /// Adds a DDS partition.
     pub fn partition(mut self, p: impl Into<String>) -> Self {
         self.qos.partitions.push(p.into());
@@ -293,6 +305,13 @@ impl<T: IpcMessage> PublisherBuilder<T> {
     /// it.
     pub async fn build(self) -> Result<Publisher<T>, OpenError> {
         crate::qos::check_history(&self.msg, self.qos.history)?;
+        crate::qos::check_liveliness(&self.msg, self.qos.liveliness)?;
+        if self.qos.liveliness.is_some() && !self.session.caps.liveliness {
+            return Err(OpenError::Unsupported {
+                what: format!("liveliness on the publication of {}", self.msg),
+                backend: self.session.caps.scheme,
+            });
+        }
         self.session.topics.bind::<T>(&self.msg)?;
         let id = {
             let _first = self.session.topics.unsettled(&[&self.msg]);
@@ -390,6 +409,24 @@ impl<T: IpcMessage> Publisher<T> {
     /// Unregisters the instance that `value`'s key fields name (keyed topics).
     pub async fn unregister(&self, value: &T) -> Result<(), PublishError> {
         self.end(value, InstanceState::Unregistered).await
+    }
+
+    /// Asserts the publication's liveliness without publishing (DDS's
+    /// `DataWriter::assert_liveliness`), for a manual
+    /// [`liveliness`](PublisherBuilder::liveliness): manual by topic, a
+    /// HEARTBEAT with the liveliness flag to its readers; manual by
+    /// participant, also a participant message that asserts every such
+    /// publication of the session. Each publish asserts too. Harmless for
+    /// an automatic one. [`PublishError::Unsupported`] on a backend other
+    /// than RTPS.
+    pub async fn assert_liveliness(&self) -> Result<(), PublishError> {
+        match self.session.backend.dds() {
+            Some(dds) if self.session.caps.liveliness => dds.assert_liveliness(self.id).await,
+            _ => Err(PublishError::Unsupported {
+                what: format!("asserting the liveliness of {}", self.msg),
+                backend: self.session.caps.scheme,
+            }),
+        }
     }
 
     async fn end(&self, value: &T, state: InstanceState) -> Result<(), PublishError> {

@@ -8,6 +8,8 @@
 //! | publication `persistence` | [`PublicationQos::persistence`] | LIFESPAN |
 //! | subscription `deadline` | [`SubscriptionQos::deadline`] | DEADLINE; a miss is a [`SessionEvent::DeadlineMissed`](crate::SessionEvent::DeadlineMissed) |
 //! | publication `deadline` | [`PublicationQos::deadline`] | DEADLINE offered; a miss is a [`SessionEvent::OfferedDeadlineMissed`](crate::SessionEvent::OfferedDeadlineMissed) |
+//! | — | [`SubscriptionQos::liveliness`] | LIVELINESS requested; each matched writer that offers a lease is tracked: [`SessionEvent::LivelinessChanged`](crate::SessionEvent::LivelinessChanged) when it matches, when its lease lapses, when it asserts itself again and when it leaves |
+//! | — | [`PublicationQos::liveliness`] | LIVELINESS offered, kept by [participant messages](courier_wire::rtps::participant::ParticipantMessage) (automatic), writes and [`Publisher::assert_liveliness`](crate::Publisher::assert_liveliness) (manual); a manual lease that lapses is a [`SessionEvent::LivelinessLost`](crate::SessionEvent::LivelinessLost) |
 //! | subscription `minimumSeparation` | [`SubscriptionQos::minimum_separation`] | TIME_BASED_FILTER |
 //! | `BEST_EFFORTS` / `STRICT_RELIABLE` | [`Reliability`] | RELIABILITY |
 //! | — | [`Durability::TransientLocal`] | DURABILITY: late joiners get the history |
@@ -28,6 +30,28 @@
 //! [`SessionEvent::IncompatibleQos`](crate::SessionEvent::IncompatibleQos)
 //! names both sides' representations.
 //!
+//! # Liveliness
+//!
+//! A publication offers a [`Liveliness`]: a kind and a lease within which
+//! it promises to show it is alive. [`LivelinessKind::Automatic`]: the
+//! session does it (Courier sends a participant message every third of
+//! the shortest automatic lease of its publications); a stopped or
+//! disconnected process lapses. [`LivelinessKind::ManualByParticipant`]:
+//! any write or [`Publisher::assert_liveliness`](crate::Publisher::assert_liveliness)
+//! of any such publication of the session asserts them all.
+//! [`LivelinessKind::ManualByTopic`]: only the publication's own writes and
+//! assertions count. A subscription that requests a liveliness (a kind at
+//! least as strict as the writer's, a lease at least as long) matches
+//! only writers that offer as much, and reports each one's liveliness
+//! (DDS's LIVELINESS_CHANGED) with the writer's GUID: a robot can tell
+//! that the lidar driver's writer stopped while its participant is still
+//! known. Without a liveliness (the default) a publication offers
+//! automatic with an infinite lease, and a subscription tracks nothing.
+//! A lease under [`MIN_LEASE`] or longer than RTPS can say is refused
+//! ([`OpenError::Qos`](crate::OpenError::Qos)). Only the RTPS backend has
+//! liveliness: on the others, opening a publication or subscription with
+//! one fails with [`OpenError::Unsupported`](crate::OpenError::Unsupported).
+//!
 //! On the IPC backends only the parts with an IPC meaning apply: IPC over
 //! TCP is reliable, volatile and keeps everything, which also satisfies a
 //! best-effort request, and a subscription's keep-last history is its local
@@ -43,6 +67,64 @@ use std::time::Duration;
 /// The shortest deadline: below it `DeadlineMissed` would fire without
 /// pause (a zero deadline did, thousands of events a second and a core).
 pub const MIN_DEADLINE: Duration = Duration::from_millis(1);
+
+/// The shortest liveliness lease: below it a writer would lapse without
+/// pause.
+pub const MIN_LEASE: Duration = Duration::from_millis(1);
+
+/// LIVELINESS kind: what shows that a writer is alive (DDS 1.4 §2.2.3.11).
+/// A reader requesting a kind matches writers offering it or a stricter
+/// one (automatic < manual by participant < manual by topic).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum LivelinessKind {
+    /// The session asserts it while it runs (participant messages).
+    #[default]
+    Automatic,
+    /// Any write or assertion of any such publication of the session.
+    ManualByParticipant,
+    /// The publication's own writes and assertions.
+    ManualByTopic,
+}
+
+/// LIVELINESS: a kind and a lease (see the [module docs](self#liveliness)).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Liveliness {
+    /// What asserts it.
+    pub kind: LivelinessKind,
+    /// How long an assertion lasts (writers: offered; readers: the longest
+    /// lease a writer may offer).
+    pub lease: Duration,
+}
+
+impl Liveliness {
+    /// `kind` with `lease`.
+    pub fn new(kind: LivelinessKind, lease: Duration) -> Self {
+        Liveliness { kind, lease }
+    }
+}
+
+/// Why a liveliness cannot work, if so.
+pub(crate) fn check_liveliness(topic: &str, l: Option<Liveliness>) -> Result<(), crate::OpenError> {
+    let Some(l) = l else { return Ok(()) };
+    let why = if l.lease < MIN_LEASE {
+        format!(
+            "a liveliness lease of {:?} is under {MIN_LEASE:?}: the writer would lapse without pause",
+            l.lease
+        )
+    } else if l.lease > MAX_WIRE {
+        format!(
+            "a liveliness lease of {:?} is longer than RTPS can say (about 68 years): leave \
+             liveliness unset for an infinite lease",
+            l.lease
+        )
+    } else {
+        return Ok(());
+    };
+    Err(crate::OpenError::Qos {
+        topic: topic.to_string(),
+        why,
+    })
+}
 
 /// The longest finite duration RTPS carries (`i32::MAX` seconds, about 68
 /// years); longer is "infinite" on the wire.
@@ -190,6 +272,9 @@ pub struct PublicationQos {
     /// period an instance goes unwritten is a
     /// [`SessionEvent::OfferedDeadlineMissed`](crate::SessionEvent::OfferedDeadlineMissed).
     pub deadline: Option<Duration>,
+    /// The liveliness offered (`None`, the default: automatic, infinite
+    /// lease); see the [module docs](self#liveliness).
+    pub liveliness: Option<Liveliness>,
     /// DDS partitions (none = the default partition).
     pub partitions: Vec<String>,
     /// What the publication writes; `None` (the default): what the type
@@ -211,6 +296,7 @@ impl Default for PublicationQos {
             strength: None,
             persistence: None,
             deadline: None,
+            liveliness: None,
             partitions: Vec::new(),
             data_representation: None,
             autodispose: true,
@@ -243,6 +329,8 @@ impl PublicationQos {
             Some("persistence (lifespan)")
         } else if self.deadline.is_some() {
             Some("a deadline")
+        } else if self.liveliness.is_some() {
+            Some("liveliness")
         } else if !self.partitions.is_empty() {
             Some("partitions")
         } else if self.data_representation.is_some() {
@@ -266,6 +354,11 @@ pub struct SubscriptionQos {
     /// Expect a sample at least this often; each miss gives
     /// [`SessionEvent::DeadlineMissed`](crate::SessionEvent::DeadlineMissed).
     pub deadline: Option<Duration>,
+    /// The liveliness requested (`None`, the default: any, and nothing
+    /// tracked); each matched writer offering a finite lease is tracked
+    /// ([`SessionEvent::LivelinessChanged`](crate::SessionEvent::LivelinessChanged));
+    /// see the [module docs](self#liveliness).
+    pub liveliness: Option<Liveliness>,
     /// Deliver at most one sample per instance within this time (ORTE's
     /// minimum separation; DDS time-based filter). Others are dropped and counted.
     pub minimum_separation: Option<Duration>,
@@ -291,6 +384,8 @@ impl SubscriptionQos {
             Some("transient-local durability")
         } else if self.deadline.is_some() {
             Some("a deadline")
+        } else if self.liveliness.is_some() {
+            Some("liveliness")
         } else if self.minimum_separation.is_some() {
             Some("minimum separation (time-based filter)")
         } else if self.exclusive {

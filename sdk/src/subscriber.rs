@@ -258,6 +258,21 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
         self
     }
 
+    /// Requests liveliness `kind` within `lease`: matches only writers
+    /// offering as much, and reports each one's liveliness as
+    /// [`SessionEvent::LivelinessChanged`] (alive when it matches, not
+    /// alive when its lease lapses, alive again when it asserts itself,
+    /// not alive when it leaves); see [`qos`](crate::qos#liveliness).
+    /// `build` refuses a lease under [`MIN_LEASE`](crate::qos::MIN_LEASE)
+    /// ([`OpenError::Qos`]) and liveliness on a backend other than RTPS
+    /// ([`OpenError::Unsupported`]).
+    ///
+    /// [`SessionEvent::LivelinessChanged`]: crate::SessionEvent::LivelinessChanged
+    pub fn liveliness(mut self, kind: crate::qos::LivelinessKind, lease: Duration) -> Self {
+        self.qos.liveliness = Some(crate::qos::Liveliness::new(kind, lease));
+        self
+    }
+
     /// ORTE's minimum separation: at most one sample per instance per `d`.
     pub fn minimum_separation(mut self, d: Duration) -> Self {
         self.qos.minimum_separation = Some(d);
@@ -318,6 +333,13 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
     /// The backend's subscription of this type and QoS, into `queue`.
     async fn create(&self, queue: Arc<SampleQueue>) -> Result<RawSubscriber, OpenError> {
         crate::qos::check_history(&self.msg, self.qos.history)?;
+        crate::qos::check_liveliness(&self.msg, self.qos.liveliness)?;
+        if self.qos.liveliness.is_some() && !self.session.caps.liveliness {
+            return Err(OpenError::Unsupported {
+                what: format!("liveliness on the subscription of {}", self.msg),
+                backend: self.session.caps.scheme,
+            });
+        }
         self.session.topics.bind::<T>(&self.msg)?;
         let _first = self.session.topics.unsettled(&[&self.msg]);
         // IPC: a type that does not fit the format central holds already

@@ -98,6 +98,10 @@ pub(super) enum Cmd {
         name: String,
         reply: Reply<bool, ControlError>,
     },
+    AssertLiveliness {
+        publication: PubId,
+        reply: Reply<(), PublishError>,
+    },
     NumHandlers {
         topic: String,
         reply: Reply<i32, ControlError>,

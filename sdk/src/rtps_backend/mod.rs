@@ -33,6 +33,20 @@
 //!   lifespan (by source timestamp) are dropped and counted;
 //! - **deadline**: an instance without a sample for the period gives
 //!   [`SessionEvent::DeadlineMissed`], again every period until one comes;
+//! - **liveliness** ([`crate::qos#liveliness`]): a subscription that
+//!   requests one tracks each matched writer offering a finite lease, and
+//!   reports [`SessionEvent::LivelinessChanged`] (with the writer's GUID)
+//!   when it matches, when its lease lapses — by the writer's kind:
+//!   anything from its participant for automatic, its participant's manual
+//!   messages or writes for manual by participant, its own data or
+//!   liveliness heartbeats for manual by topic — when it asserts itself
+//!   again, and when it leaves. The driver's timer includes the lease
+//!   expiries. A publication with a finite automatic lease makes the
+//!   participant send a participant message (DDSI-RTPS's
+//!   `ParticipantMessageData`, the writer liveliness protocol) every third
+//!   of the shortest such lease; a manual one that neither publishes nor
+//!   [asserts](crate::Publisher::assert_liveliness) within its lease gives
+//!   [`SessionEvent::LivelinessLost`];
 //! - **back-pressure**: a reliable keep-all subscription whose queue is full
 //!   stops the reading of user data until the application takes a sample;
 //!   what the kernel drops meanwhile the writers repair. A best-effort one
@@ -484,6 +498,7 @@ impl Backend for RtpsBackend {
         c.pattern_subscriptions = true;
         c.immediate_delivery = true;
         c.try_write = true;
+        c.liveliness = true;
         c
     }
 
@@ -504,6 +519,7 @@ impl Backend for RtpsBackend {
             topic: msg.to_string(),
             why,
         })?;
+        crate::qos::check_liveliness(msg, qos.liveliness)?;
         let (topic, ty, qos) = (msg.to_string(), Box::new(ty.clone()), Box::new(qos.clone()));
         let id = self
             .ask_open(Handle::Publication, |reply| Cmd::Publication {
@@ -531,6 +547,7 @@ impl Backend for RtpsBackend {
                 why,
             }
         })?;
+        crate::qos::check_liveliness(msg, qos.liveliness)?;
         let (topic, ty, qos) = (
             msg.to_string(),
             ty.filter(|t| !t.is_untyped()).cloned().map(Box::new),
@@ -731,6 +748,12 @@ impl DdsControl for RtpsBackend {
     async fn readers_of(&self, topic: &str) -> Result<Vec<crate::EndpointInfo>, ControlError> {
         let topic = topic.to_string();
         self.ask(|reply| Cmd::ReadersOf { topic, reply }).await
+    }
+
+    async fn assert_liveliness(&self, publication: PubId) -> Result<(), PublishError> {
+        self.topic_of(publication)?;
+        self.ask(|reply| Cmd::AssertLiveliness { publication, reply })
+            .await
     }
 
     async fn end_instance(

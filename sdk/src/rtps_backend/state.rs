@@ -16,7 +16,7 @@ use courier_wire::dds::{
 };
 use courier_wire::rtps::discovery::{
     Durability as WireDurability, Duration as RtpsDuration, EndpointQos, History as WireHistory,
-    Reliability as WireReliability,
+    LivelinessKind as WireLivelinessKind, Reliability as WireReliability,
 };
 use courier_wire::rtps::participant::{
     self, Change, ChangeKind, EndpointConfig, KeyHash, LostReason,
@@ -29,8 +29,8 @@ use super::{guid_hex, system_time, Listeners};
 use crate::backend::{ClientId, Handle, PubId, ServiceId, SubId};
 use crate::error::{OpenError, PublishError};
 use crate::qos::{
-    Durability, History, InstanceState, KeyOf, PublicationQos, Reliability, SubscriptionQos,
-    TypeInfo,
+    Durability, History, InstanceState, KeyOf, Liveliness, LivelinessKind, PublicationQos,
+    Reliability, SubscriptionQos, TypeInfo,
 };
 use crate::session::{
     QueryError, RawReply, RawRequest, RawSample, ReturnedBuffers, SampleQueue, SessionEvent,
@@ -699,6 +699,16 @@ impl State {
                         .any(|d| d.entity_name.as_deref() == Some(name.as_str()));
                 let _ = reply.send(Ok(known));
             }
+            Cmd::AssertLiveliness { publication, reply } => {
+                let r = match self.writers.get(&publication) {
+                    Some(w) if w.closed.is_none() => {
+                        self.d.assert_liveliness(w.id, now);
+                        Ok(())
+                    }
+                    _ => Err(PublishError::Closed(publication)),
+                };
+                let _ = reply.send(r);
+            }
             Cmd::NumHandlers { topic, reply } => {
                 let _ = reply.send(Ok(self.handlers(&topic)));
             }
@@ -1060,6 +1070,23 @@ impl State {
                     });
                 }
             }
+            Event::LivelinessChanged {
+                reader,
+                writer,
+                alive,
+                alive_count,
+                not_alive_count,
+            } => {
+                if let Some(s) = self.subs.get(&reader) {
+                    self.emit(SessionEvent::LivelinessChanged {
+                        msg: s.topic.clone(),
+                        writer: writer.into(),
+                        alive,
+                        alive_count,
+                        not_alive_count,
+                    });
+                }
+            }
             Event::PatternMatched {
                 pattern,
                 reader,
@@ -1183,6 +1210,18 @@ impl State {
                     .find(|w| w.id == writer && w.closed.is_none());
                 if let Some(w) = open {
                     self.emit(SessionEvent::OfferedDeadlineMissed {
+                        msg: w.topic.clone(),
+                        total,
+                    });
+                }
+            }
+            Event::LivelinessLost { writer, total } => {
+                let open = self
+                    .writers
+                    .values()
+                    .find(|w| w.id == writer && w.closed.is_none());
+                if let Some(w) = open {
+                    self.emit(SessionEvent::LivelinessLost {
                         msg: w.topic.clone(),
                         total,
                     });
@@ -1450,6 +1489,21 @@ fn wire_durability(d: Durability) -> WireDurability {
     }
 }
 
+/// Unset: automatic with an infinite lease (DDS's default).
+fn wire_liveliness(l: Option<Liveliness>) -> (WireLivelinessKind, RtpsDuration) {
+    match l {
+        None => (WireLivelinessKind::Automatic, RtpsDuration::INFINITE),
+        Some(l) => (
+            match l.kind {
+                LivelinessKind::Automatic => WireLivelinessKind::Automatic,
+                LivelinessKind::ManualByParticipant => WireLivelinessKind::ManualByParticipant,
+                LivelinessKind::ManualByTopic => WireLivelinessKind::ManualByTopic,
+            },
+            RtpsDuration::from_std(l.lease),
+        ),
+    }
+}
+
 fn publication_qos(q: &PublicationQos, ty: &TypeInfo) -> EndpointQos {
     let mut e = EndpointQos::writer_default();
     e.data_representation = vec![q.representation_for(ty.extensibility).id()];
@@ -1457,6 +1511,7 @@ fn publication_qos(q: &PublicationQos, ty: &TypeInfo) -> EndpointQos {
     e.durability = wire_durability(q.durability);
     e.history = wire_history(q.history);
     e.deadline = wire_duration(q.deadline);
+    e.liveliness = wire_liveliness(q.liveliness);
     e.lifespan = wire_duration(q.persistence);
     if let Some(s) = q.strength {
         e.exclusive_ownership = true;
@@ -1477,6 +1532,7 @@ fn subscription_qos(q: &SubscriptionQos) -> EndpointQos {
     e.durability = wire_durability(q.durability);
     e.history = wire_history(q.history);
     e.deadline = wire_duration(q.deadline);
+    e.liveliness = wire_liveliness(q.liveliness);
     e.time_based_filter = q
         .minimum_separation
         .map_or(RtpsDuration::ZERO, RtpsDuration::from_std);

@@ -30,8 +30,17 @@ Loopback only: the domain is created from a configuration string (interface
 lo, no multicast, unicast SPDP to 127.0.0.1); CYCLONEDDS_URI is removed from
 the environment before the library loads.
 
+Liveliness: --liveliness KIND:SECONDS (KIND automatic, participant or
+topic) offers (writer) or requests (reader) that LIVELINESS; a reader then
+prints `liveliness <alive_count> <not_alive_count>` each time its
+liveliness_changed status changes, a writer `liveliness-lost <total>`.
+--run-s makes a reader without --count stop (`done`) after that long.
+Cyclone's participant lease stays its default (10 s): a stop shorter than
+that loses a writer's liveliness, not its participant.
+
 Output: ready | matched <n> | sent <key> <seq> | dispose <key> | acked |
-sample <key> <seq> <text> | disposed <key> | unregistered <key> | done | timeout;
+sample <key> <seq> <text> | disposed <key> | unregistered <key> |
+liveliness <alive> <not_alive> | liveliness-lost <total> | done | timeout;
 for --type colors the sample line goes on with the colors and the pair,
 each as enumerator names joined by commas (`""` when empty):
 sample <key> <seq> <text> <colors> <pair>.
@@ -227,6 +236,43 @@ def sample_line(kind, k, v):
 
 
 
+def liveliness_policy(spec):
+    kind, _, secs = spec.partition(":")
+    lease = duration(seconds=float(secs or "1"))
+    kinds = {
+        "automatic": Policy.Liveliness.Automatic,
+        "participant": Policy.Liveliness.ManualByParticipant,
+        "topic": Policy.Liveliness.ManualByTopic,
+    }
+    if kind not in kinds:
+        raise argparse.ArgumentTypeError(f"liveliness kind {kind!r}: automatic, participant or topic")
+    return kinds[kind](lease)
+
+
+class LivelinessWatch:
+    """Prints a reader's liveliness_changed counts, or a writer's
+    liveliness_lost total, when they change."""
+
+    def __init__(self, entity, reader):
+        self.entity = entity
+        self.reader = reader
+        self.last = None
+
+    def poll(self):
+        if self.reader:
+            st = self.entity.get_liveliness_changed_status()
+            now = (st.alive_count, st.not_alive_count)
+            if now != self.last:
+                self.last = now
+                emit(f"liveliness {now[0]} {now[1]}")
+        else:
+            st = self.entity.get_liveliness_lost_status()
+            if st.total_count != self.last:
+                if self.last is not None or st.total_count:
+                    emit(f"liveliness-lost {st.total_count}")
+                self.last = st.total_count
+
+
 def main():
     ap = argparse.ArgumentParser(prog=PROG, description="Cyclone DDS 11 interop peer (loopback only)")
     ap.add_argument("--domain", type=int, required=True)
@@ -250,6 +296,9 @@ def main():
     ap.add_argument("--timeout-s", type=float, default=60)
     ap.add_argument("--text", default="cyclone11")
     ap.add_argument("--trace", help="Cyclone's finest trace into this file")
+    ap.add_argument("--liveliness", type=liveliness_policy,
+                    help="KIND:SECONDS, KIND automatic | participant | topic")
+    ap.add_argument("--run-s", type=float, help="sub without --count: stop after this long")
     o = ap.parse_args()
     if not 0 <= o.domain <= 232:
         ap.error("--domain must be 0..232")
@@ -264,6 +313,8 @@ def main():
         Policy.Reliability.Reliable(duration(seconds=1)) if o.reliable else Policy.Reliability.BestEffort,
         Policy.History.KeepLast(100),
     ]
+    if o.liveliness is not None:
+        policies.append(o.liveliness)
     if o.representation == "xcdr1":
         policies.append(Policy.DataRepresentation(use_cdrv0_representation=True))
     elif o.representation == "xcdr2":
@@ -300,7 +351,14 @@ def main():
                 emit("timeout")
                 sys.exit(2)
             emit("acked")
-        time.sleep(o.linger_ms / 1000)
+        if o.liveliness is None:
+            time.sleep(o.linger_ms / 1000)
+        else:
+            watch = LivelinessWatch(w, reader=False)
+            end = time.monotonic() + o.linger_ms / 1000
+            while time.monotonic() < end:
+                watch.poll()
+                time.sleep(min(0.02, max(0.0, end - time.monotonic())))
         emit("done")
         del w, dom
         return 0
@@ -312,9 +370,12 @@ def main():
     ids = {}  # instance handle -> key, for instances seen alive
     states = {}
 
+    watch = LivelinessWatch(r, reader=True) if o.liveliness is not None else None
+    started = time.monotonic()
+
     def finished():
         if o.count is None and o.disposed is None:
-            return False
+            return o.run_s is not None and time.monotonic() - started >= o.run_s
         return (o.count is None or received >= o.count) and (o.disposed is None or disposed >= o.disposed)
 
     while not finished():
@@ -323,6 +384,8 @@ def main():
         if n != matched:
             matched = n
             emit(f"matched {n}")
+        if watch:
+            watch.poll()
         got = r.take(N=100)
         for s in got:
             info = s.sample_info
@@ -353,7 +416,14 @@ def main():
                     disposed += 1
         if not got:
             time.sleep(0.02)
-    time.sleep(o.linger_ms / 1000)
+    if watch is None:
+        time.sleep(o.linger_ms / 1000)
+    else:
+        # liveliness goes on changing while the reader lingers
+        end = time.monotonic() + o.linger_ms / 1000
+        while time.monotonic() < end:
+            watch.poll()
+            time.sleep(min(0.02, max(0.0, end - time.monotonic())))
     emit("done")
     return 0
 

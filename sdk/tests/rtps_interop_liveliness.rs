@@ -1,0 +1,427 @@
+//! DDS LIVELINESS against Cyclone DDS 11 (the PyPI `cyclonedds` package,
+//! `tests/peers/rtps/cyclone11_peer.py --liveliness`), and between Courier
+//! sessions:
+//!
+//! - a Cyclone reader requesting AUTOMATIC with a 1 s lease matches a
+//!   Courier publication offering it, and sees it alive — never lost —
+//!   for seconds without a sample: Courier's participant messages keep
+//!   the lease;
+//! - a Courier subscription requesting liveliness sees a Cyclone writer
+//!   (AUTOMATIC, 1 s) go not alive when the Cyclone process is stopped
+//!   (`SIGSTOP`; its participant lease, 10 s, outlives the stop, so the
+//!   participant is not lost), and alive again when it continues;
+//! - a Cyclone reader follows a Courier manual-by-topic or
+//!   manual-by-participant publication kept alive by `assert_liveliness`
+//!   alone (liveliness HEARTBEATs, manual participant messages), and sees
+//!   it lapse when the assertions stop;
+//! - between Courier sessions: a manual-by-topic publication lapses
+//!   without writes (both sides say so) and `assert_liveliness` revives it;
+//!   nonsense leases are refused.
+//!
+//! Loopback only: the peer runs its built-in loopback-only unicast
+//! configuration, Courier `interface=lo&peers=127.0.0.1`; domains leased
+//! machine-wide (`courier_tests::domains`). A missing peer fails the test
+//! with what is missing. Every wait is bounded.
+
+use std::time::Duration;
+
+use courier::qos::LivelinessKind;
+use courier::{Events, Guid, OpenError, Session, SessionEvent};
+use futures::StreamExt;
+
+mod common;
+use common::{next, Keyed, T};
+
+use courier_tests::peers::{cyclone11_peer_args, cyclone11_python, PeerProcess};
+
+/// A running Cyclone 11 peer, continued (if stopped), killed and reaped
+/// when dropped.
+struct Peer(PeerProcess);
+
+impl Peer {
+    fn start(args: &[&str]) -> Peer {
+        let p = cyclone11_python()
+            .and_then(|py| PeerProcess::spawn(py, &cyclone11_peer_args(args)))
+            .unwrap_or_else(|e| panic!("cannot start the Cyclone DDS 11 interop peer: {e}"));
+        Peer(p)
+    }
+
+    fn expect(&mut self, prefix: &str) -> String {
+        self.0
+            .expect_line(prefix, T)
+            .unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    fn signal(&self, sig: &str) {
+        let ok = std::process::Command::new("kill")
+            .args([sig, &self.0.id().to_string()])
+            .status()
+            .is_ok_and(|s| s.success());
+        assert!(ok, "kill {sig} {}", self.0.id());
+    }
+}
+
+impl Drop for Peer {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("kill")
+            .args(["-CONT", &self.0.id().to_string()])
+            .status();
+    }
+}
+
+async fn blocking<R: Send + 'static>(f: impl FnOnce() -> R + Send + 'static) -> R {
+    tokio::task::spawn_blocking(f).await.expect("blocking task")
+}
+
+/// The next liveliness change of `topic`, as `(writer, alive, alive_count,
+/// not_alive_count)`; every other event goes to `seen`.
+async fn next_liveliness(
+    ev: &mut Events,
+    topic: &str,
+    seen: &mut Vec<SessionEvent>,
+) -> (Guid, bool, u32, u32) {
+    tokio::time::timeout(T, async {
+        loop {
+            match ev.next().await.expect("session events") {
+                SessionEvent::LivelinessChanged {
+                    msg,
+                    writer,
+                    alive,
+                    alive_count,
+                    not_alive_count,
+                } if msg == topic => return (writer, alive, alive_count, not_alive_count),
+                e => seen.push(e),
+            }
+        }
+    })
+    .await
+    .unwrap_or_else(|_| panic!("no liveliness change of {topic} in time; saw {seen:?}"))
+}
+
+/// Every event of `ev` for `d`.
+async fn events_for(ev: &mut Events, d: Duration) -> Vec<SessionEvent> {
+    let mut out = Vec::new();
+    let _ = tokio::time::timeout(d, async {
+        while let Some(e) = ev.next().await {
+            out.push(e);
+        }
+    })
+    .await;
+    out
+}
+
+fn lost_participant(events: &[SessionEvent]) -> bool {
+    events
+        .iter()
+        .any(|e| matches!(e, SessionEvent::ParticipantLost { .. }))
+}
+
+/// (a) Cyclone's reader requests AUTOMATIC within 1 s; the Courier
+/// publication offers exactly that and writes nothing. Cyclone matches it
+/// (before, Courier offered an infinite lease only: incompatible) and its
+/// liveliness_changed status says alive, and never not alive, for about
+/// five seconds.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cyclone_reader_sees_a_courier_automatic_writer_alive_without_data() {
+    let s: Session = common::session(1, "courier").await;
+    let _publ = s
+        .publisher::<Keyed>("lv_auto")
+        .liveliness(LivelinessKind::Automatic, Duration::from_secs(1))
+        .build()
+        .await
+        .unwrap();
+    let d = courier_tests::domains::lease(1).to_string();
+    let mut peer = Peer::start(&[
+        "--domain",
+        &d,
+        "--topic",
+        "lv_auto",
+        "--type",
+        "keyed",
+        "--sub",
+        "--reliable",
+        "--liveliness",
+        "automatic:1",
+        "--run-s",
+        "6",
+        "--timeout-s",
+        "60",
+    ]);
+    let lines = blocking(move || {
+        peer.expect("ready");
+        let lines = peer
+            .0
+            .lines_until("done", T)
+            .unwrap_or_else(|e| panic!("{e}"));
+        (peer, lines)
+    })
+    .await
+    .1;
+    assert!(
+        lines.iter().any(|l| l == "matched 1"),
+        "Cyclone's reader never matched the writer: {lines:?}"
+    );
+    let liveliness: Vec<&String> = lines
+        .iter()
+        .filter(|l| l.starts_with("liveliness "))
+        .collect();
+    assert!(
+        liveliness.iter().any(|l| *l == "liveliness 1 0"),
+        "never alive: {lines:?}"
+    );
+    assert_eq!(
+        liveliness.last().map(|l| l.as_str()),
+        Some("liveliness 1 0"),
+        "alive to the end: {lines:?}"
+    );
+    assert!(
+        !liveliness.iter().any(|l| !l.ends_with(" 0")),
+        "Cyclone saw the writer not alive: {lines:?}"
+    );
+    s.close().await;
+}
+
+/// A Courier publication with a manual liveliness (`kind`, 1 s) writes
+/// nothing but asserts its liveliness four times a lease for three
+/// seconds, then writes one sample and stops: Cyclone's reader (requesting
+/// `peer_kind`, 1 s) sees it alive until the sample — the assertions reach
+/// it: a HEARTBEAT with the liveliness flag for manual by topic, a
+/// participant message of the manual kind for manual by participant — and
+/// not alive a lease after it.
+async fn a_cyclone_reader_follows_courier_manual_assertions(
+    key: u32,
+    topic: &'static str,
+    kind: LivelinessKind,
+    peer_kind: &str,
+) {
+    let s: Session = common::session(key, "courier").await;
+    let publ = s
+        .publisher::<Keyed>(topic)
+        .liveliness(kind, Duration::from_secs(1))
+        .build()
+        .await
+        .unwrap();
+    let d = courier_tests::domains::lease(key).to_string();
+    let mut peer = Peer::start(&[
+        "--domain",
+        &d,
+        "--topic",
+        topic,
+        "--type",
+        "keyed",
+        "--sub",
+        "--reliable",
+        "--liveliness",
+        peer_kind,
+        "--count",
+        "1",
+        "--linger-ms",
+        "2500",
+        "--timeout-s",
+        "60",
+    ]);
+    let mut peer = blocking(move || {
+        peer.expect("matched 1");
+        peer
+    })
+    .await;
+    for _ in 0..12 {
+        publ.assert_liveliness().await.unwrap();
+        tokio::time::sleep(Duration::from_millis(250)).await;
+    }
+    let v = Keyed {
+        id: 1,
+        seq: 1,
+        text: "last".into(),
+    };
+    publ.publish(&v).await.unwrap();
+    let lines = blocking(move || {
+        peer.0
+            .lines_until("done", T)
+            .unwrap_or_else(|e| panic!("{e}"))
+    })
+    .await;
+    let at = lines
+        .iter()
+        .position(|l| l.starts_with("sample "))
+        .unwrap_or_else(|| panic!("no sample: {lines:?}"));
+    let (before, after) = lines.split_at(at);
+    let liveliness = |ls: &[String]| -> Vec<String> {
+        ls.iter()
+            .filter(|l| l.starts_with("liveliness "))
+            .cloned()
+            .collect()
+    };
+    assert!(
+        liveliness(before).iter().all(|l| l.ends_with(" 0")),
+        "{kind:?}: Cyclone saw the writer not alive while it asserted: {lines:?}"
+    );
+    assert_eq!(
+        liveliness(after),
+        ["liveliness 0 1"],
+        "{kind:?}: not alive a lease after the last sample: {lines:?}"
+    );
+    drop(publ);
+    s.close().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cyclone_reader_follows_courier_manual_by_topic_assertions() {
+    a_cyclone_reader_follows_courier_manual_assertions(
+        5,
+        "lv_m_topic",
+        LivelinessKind::ManualByTopic,
+        "topic:1",
+    )
+    .await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cyclone_reader_follows_courier_manual_by_participant_assertions() {
+    a_cyclone_reader_follows_courier_manual_assertions(
+        6,
+        "lv_m_pp",
+        LivelinessKind::ManualByParticipant,
+        "participant:1",
+    )
+    .await;
+}
+
+/// (b) A Courier subscription requesting AUTOMATIC within 2 s matches a
+/// Cyclone writer offering AUTOMATIC within 1 s: alive (Cyclone's
+/// participant messages keep it while it writes nothing), not alive once
+/// the Cyclone process is stopped — its participant still known — and
+/// alive again when it continues.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stopped_cyclone_writer_goes_not_alive_and_comes_back() {
+    let s: Session = common::session(2, "courier").await;
+    let mut ev = s.events();
+    let mut sub = s
+        .subscriber::<Keyed>("lv_stop")
+        .liveliness(LivelinessKind::Automatic, Duration::from_secs(2))
+        .build()
+        .await
+        .unwrap();
+    let d = courier_tests::domains::lease(2).to_string();
+    let mut peer = Peer::start(&[
+        "--domain",
+        &d,
+        "--topic",
+        "lv_stop",
+        "--type",
+        "keyed",
+        "--pub",
+        "--reliable",
+        "--liveliness",
+        "automatic:1",
+        "--count",
+        "1",
+        "--wait-match",
+        "1",
+        "--linger-ms",
+        "60000",
+        "--timeout-s",
+        "90",
+    ]);
+    let mut seen = Vec::new();
+    let (writer, alive, a, n) = next_liveliness(&mut ev, "lv_stop", &mut seen).await;
+    assert_eq!((alive, a, n), (true, 1, 0), "alive from the match");
+    let sample = next(&mut sub).await.unwrap();
+    assert_eq!(sample.value.seq, 1);
+    let peer_ = blocking(move || {
+        peer.expect("acked");
+        peer
+    })
+    .await;
+    peer = peer_;
+
+    // kept alive while it writes nothing, for several leases
+    let quiet = events_for(&mut ev, Duration::from_millis(2500)).await;
+    assert!(
+        !quiet
+            .iter()
+            .any(|e| matches!(e, SessionEvent::LivelinessChanged { alive: false, .. })),
+        "the idle writer lapsed: {quiet:?}"
+    );
+
+    peer.signal("-STOP");
+    let mut seen = Vec::new();
+    let stopped = next_liveliness(&mut ev, "lv_stop", &mut seen).await;
+    assert_eq!(stopped, (writer, false, 0, 1), "not alive once stopped");
+    assert!(
+        !lost_participant(&seen),
+        "its participant is still known: {seen:?}"
+    );
+
+    peer.signal("-CONT");
+    let back = next_liveliness(&mut ev, "lv_stop", &mut seen).await;
+    assert_eq!(back, (writer, true, 1, 0), "alive again");
+    assert!(!lost_participant(&seen), "{seen:?}");
+    drop(peer);
+    s.close().await;
+}
+
+/// Between Courier sessions: a manual-by-topic publication that writes
+/// nothing lapses (the publisher gets `LivelinessLost`, the subscriber
+/// `LivelinessChanged` not alive), and `assert_liveliness` — no sample —
+/// makes it alive again.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_manual_by_topic_publication_lapses_and_assert_liveliness_revives_it() {
+    let a: Session = common::session(3, "pub").await;
+    let b: Session = common::session(3, "sub").await;
+    let mut pub_ev = a.events();
+    let mut sub_ev = b.events();
+    let _sub = b
+        .subscriber::<Keyed>("lv_manual")
+        .liveliness(LivelinessKind::ManualByTopic, Duration::from_secs(2))
+        .build()
+        .await
+        .unwrap();
+    let publ = a
+        .publisher::<Keyed>("lv_manual")
+        .liveliness(LivelinessKind::ManualByTopic, Duration::from_millis(500))
+        .build()
+        .await
+        .unwrap();
+    let mut seen = Vec::new();
+    let (writer, alive, ..) = next_liveliness(&mut sub_ev, "lv_manual", &mut seen).await;
+    assert!(alive, "alive from the match");
+    let lapsed = next_liveliness(&mut sub_ev, "lv_manual", &mut seen).await;
+    assert_eq!(lapsed, (writer, false, 0, 1), "lapsed without writes");
+    tokio::time::timeout(T, async {
+        loop {
+            if let SessionEvent::LivelinessLost { msg, total } = pub_ev.next().await.unwrap() {
+                assert_eq!((msg.as_str(), total), ("lv_manual", 1));
+                return;
+            }
+        }
+    })
+    .await
+    .expect("the publisher is told");
+    publ.assert_liveliness().await.unwrap();
+    let back = next_liveliness(&mut sub_ev, "lv_manual", &mut seen).await;
+    assert_eq!(back, (writer, true, 1, 0), "asserted: alive again");
+    drop(publ);
+    a.close().await;
+    b.close().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn nonsense_leases_are_refused() {
+    let s: Session = common::session(4, "courier").await;
+    let e = s
+        .publisher::<Keyed>("lv_bad")
+        .liveliness(LivelinessKind::ManualByTopic, Duration::ZERO)
+        .build()
+        .await
+        .unwrap_err();
+    assert!(matches!(e, OpenError::Qos { .. }), "{e:?}");
+    let e = s
+        .subscriber::<Keyed>("lv_bad")
+        .liveliness(LivelinessKind::Automatic, Duration::from_secs(u64::MAX / 4))
+        .build()
+        .await
+        .unwrap_err();
+    assert!(matches!(e, OpenError::Qos { .. }), "{e:?}");
+    s.close().await;
+}
