@@ -31,7 +31,14 @@
 //! would; `logger` uses an in-process link to the central it hosts.
 //!
 //! Courier runs on the application's tokio runtime (either flavour):
-//! sessions, timers and callbacks are made and used inside one. Streams
+//! sessions are made inside one, and their calls are best awaited there.
+//! A thread outside any runtime may still await them with another
+//! executor (`futures::executor::block_on`, a GUI's): the calls that make
+//! tokio timers or tasks (queries, timers, `send_every`, `listen`,
+//! `wait_for_handlers`) make them on the session's runtime, which must be
+//! running then — a multi-threaded runtime always is, a current-thread
+//! runtime only while its `block_on` runs (tokio's rule for
+//! `Handle::block_on`). Streams
 //! (`Subscriber`, `Requests`, `Timer`, `Events`) are `futures::Stream`s:
 //! add `futures` for `StreamExt::next` and the other combinators
 //! (`Subscriber::recv` and `Requests::recv` wait for the next item
@@ -398,6 +405,7 @@ pub mod driver_timer;
 mod error;
 pub mod event;
 mod format_check;
+mod home;
 pub mod hub;
 mod in_callback;
 pub mod ipc_backend;

@@ -112,12 +112,15 @@ impl<'a> std::future::IntoFuture for Publish<'a> {
                 data: self.data,
                 opts,
             },
-            Ok(Target::Define(def)) => Step::Wait(Box::pin(async move {
-                let _first = self.first;
-                let r = self.session.define_shared(self.msg, def).await;
-                let id = self.session.settled(&[self.msg], r)?;
-                self.session.backend.write(id, self.data, opts).await
-            })),
+            Ok(Target::Define(def)) => Step::Wait(
+                Box::pin(async move {
+                    let _first = self.first;
+                    let r = self.session.define_shared(self.msg, def).await;
+                    let id = self.session.settled(&[self.msg], r)?;
+                    self.session.backend.write(id, self.data, opts).await
+                }),
+                Some(self.session),
+            ),
         })
     }
 }
@@ -137,7 +140,12 @@ enum Step<'a> {
         data: Vec<u8>,
         opts: WriteOptions,
     },
-    Wait(Pin<Box<dyn Future<Output = Result<(), PublishError>> + Send + 'a>>),
+    /// With the session, whose runtime the poll enters from a thread
+    /// outside any (a confirmed XRCE publish makes a tokio timer).
+    Wait(
+        Pin<Box<dyn Future<Output = Result<(), PublishError>> + Send + 'a>>,
+        Option<&'a Session>,
+    ),
     Done(Option<Result<(), PublishError>>),
 }
 
@@ -145,7 +153,7 @@ impl std::fmt::Debug for PublishFuture<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let step = match &self.0 {
             Step::Now { .. } => "not polled",
-            Step::Wait(_) => "waiting",
+            Step::Wait(..) => "waiting",
             Step::Done(_) => "done",
         };
         f.debug_tuple("PublishFuture").field(&step).finish()
@@ -179,14 +187,18 @@ impl Future for PublishFuture<'_> {
                             return Poll::Ready(r);
                         }
                         WriteNow::Wait(data, opts) => {
-                            self.0 = Step::Wait(session.backend.write(id, data, opts));
+                            self.0 =
+                                Step::Wait(session.backend.write(id, data, opts), Some(session));
                         }
                     }
                 }
-                Step::Wait(mut f) => {
-                    let r = f.as_mut().poll(cx);
+                Step::Wait(mut f, session) => {
+                    let r = {
+                        let _in = session.and_then(|s| s.home.enter());
+                        f.as_mut().poll(cx)
+                    };
                     if r.is_pending() {
-                        self.0 = Step::Wait(f);
+                        self.0 = Step::Wait(f, session);
                     }
                     return r;
                 }
@@ -462,7 +474,7 @@ impl<T: IpcMessage> Publisher<T> {
         F: FnMut(Tick) -> Option<T> + Send + 'static,
     {
         let p = self.clone();
-        let task = tokio::spawn(async move {
+        let task = self.session.home.spawn(async move {
             use futures::StreamExt;
             let mut timer = p.session.every(period);
             while let Some(tick) = timer.next().await {

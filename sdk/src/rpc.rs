@@ -144,7 +144,8 @@ impl<'a, Resp: IpcMessage + 'a> std::future::IntoFuture for Query<'a, Resp> {
     type IntoFuture = Pin<Box<dyn std::future::Future<Output = Self::Output> + Send + 'a>>;
 
     fn into_future(self) -> Self::IntoFuture {
-        Box::pin(self.run())
+        let home = &self.session.home;
+        Box::pin(home.run(self.run()))
     }
 }
 

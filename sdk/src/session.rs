@@ -160,6 +160,8 @@ pub struct Session {
     pub(crate) central_formats: Arc<crate::format_check::CentralFormats>,
     /// Whether its user closed it; ends its timers at the close.
     pub(crate) end: Arc<crate::session_end::SessionEnd>,
+    /// The runtime it was made on, for calls from threads outside any.
+    pub(crate) home: crate::home::Home,
 }
 
 impl Session {
@@ -188,6 +190,7 @@ impl Session {
             topics: Arc::default(),
             central_formats: Arc::default(),
             end: Arc::default(),
+            home: crate::home::Home::here(),
         }
     }
 
@@ -594,7 +597,9 @@ impl Session {
             .client(msg, &untyped, &untyped)
             .await
             .map_err(|e| open_failed(msg, e))?;
-        self.backend.query(client, data.to_vec(), timeout).await
+        self.home
+            .run(self.backend.query(client, data.to_vec(), timeout))
+            .await
     }
 
     /// The session's client of the service `msg`, opened on first use.
@@ -760,10 +765,11 @@ impl Session {
 
     fn timer(&self, period: Duration, count: Option<u64>) -> Timer {
         assert!(
-            tokio::runtime::Handle::try_current().is_ok(),
+            self.home.reachable(),
             "Session::every, after and times make tokio timers: call them within a tokio \
-             runtime (the session's), not from a thread outside it"
+             runtime (this session was made outside any)"
         );
+        let _in = self.home.enter();
         if period.is_zero() && count != Some(1) {
             tracing::warn!(
                 "a timer of {} with a zero period ticks at every poll (as fast as it is read)",
@@ -851,22 +857,26 @@ impl Session {
         if self.backend.ipc().is_none() && self.backend.dds().is_none() {
             return Err(self.no_controls("wait_for_handlers"));
         }
-        let deadline = crate::deadline::after(timeout);
-        let mut pause = Duration::from_millis(2);
-        loop {
-            let now = self.num_handlers(msg).await?;
-            if now >= n {
-                return Ok(now);
-            }
-            if tokio::time::Instant::now() + pause > deadline {
-                return Err(ControlError::Timeout {
-                    what: format!("{n} handler(s) of {msg} (there are {now})"),
-                    after: timeout,
-                });
-            }
-            tokio::time::sleep(pause).await;
-            pause = (pause * 2).min(Duration::from_millis(50));
-        }
+        self.home
+            .run(async {
+                let deadline = crate::deadline::after(timeout);
+                let mut pause = Duration::from_millis(2);
+                loop {
+                    let now = self.num_handlers(msg).await?;
+                    if now >= n {
+                        return Ok(now);
+                    }
+                    if tokio::time::Instant::now() + pause > deadline {
+                        return Err(ControlError::Timeout {
+                            what: format!("{n} handler(s) of {msg} (there are {now})"),
+                            after: timeout,
+                        });
+                    }
+                    tokio::time::sleep(pause).await;
+                    pause = (pause * 2).min(Duration::from_millis(50));
+                }
+            })
+            .await
     }
 
     /// Disconnects cleanly (also done when the last clone and handle is

@@ -429,7 +429,7 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
         let raw = self.create(queue.clone()).await?;
         if !self.session.caps.immediate_delivery {
             let session = self.session.end.clone();
-            tokio::spawn(async move {
+            self.session.home.spawn(async move {
                 while std::future::poll_fn(|cx| queue.poll_waiting(cx)).await {
                     session.in_callback(|| queue.run_handler());
                 }
