@@ -3,7 +3,7 @@
 //! lease sees each matched writer alive, not alive when its lease lapses,
 //! and alive again on the next assertion, by the rules of the writer's
 //! kind; the participant messages (WLP) Courier sends, byte for byte, and
-//! those Cyclone DDS sends, parsed.
+//! those Cyclone DDS and Fast DDS send, parsed.
 
 use std::time::Duration;
 
@@ -402,6 +402,65 @@ fn a_captured_cyclone_participant_message_parses_and_is_accepted() {
     manual_msg[68] = 2; // writerSN low word (little-endian): 2
     d.handle_datagram(from, &manual_msg, later);
     assert_eq!(d.participant().pmd_ignored(), 1);
+    assert_eq!(
+        d.participant().liveliness_asserted(writer, manual),
+        Some(later)
+    );
+}
+
+/// A datagram Fast DDS 2.9.1 (Debian's libfastrtps2.9) sent to another
+/// Fast DDS participant on `lo`, captured with tcpdump (a writer offering
+/// MANUAL_BY_PARTICIPANT 1 s asserting its liveliness, domain 196):
+/// INFO_TS, the manual participant message (DATA, no inline QoS so no key
+/// hash, encapsulation PL_CDR_LE 00 03 though the body is plain CDR, data
+/// length 0 and four more zero octets; `WLP::send_liveliness_message` in
+/// src/cpp/rtps/builtin/liveliness/WLP.cpp, 2.9.1 lines 901-913), and a
+/// vendor-specific submessage (0x80) of Fast DDS's.
+const FASTDDS_PMD_DATAGRAM: &str = "525450530203010f010f78fd1256853400000000\
+    09010800b2760a6b52fcb6a1\
+    1505300000001000000200c7000200c200000000010000000003000\
+    0010f78fd125685340000000000000002000000000000000\
+    080013800010000005adc00000000000000000000000000007f000001b2760a6b\
+    1822b9a1130000000000000054190000000000000000000000000000";
+
+/// Fast DDS's participant messages are taken as what they say: a manual one
+/// asserts its participant's MANUAL_BY_PARTICIPANT writers (before, its
+/// PL_CDR_LE label made Courier count it as malformed, and a Fast DDS
+/// manual-by-participant writer lapsed while it asserted).
+#[test]
+fn a_captured_fast_dds_participant_message_is_accepted() {
+    use courier_wire::rtps::{Message, Submessage};
+    let datagram = unhex(FASTDDS_PMD_DATAGRAM);
+    let mut payload = None;
+    let header = Message::parse_each(&datagram, |_, sm| {
+        if let Submessage::Data(d) = sm {
+            if d.writer_id == EntityId::P2P_MESSAGE_WRITER {
+                payload = d.payload;
+            }
+        }
+    })
+    .unwrap();
+    let payload = payload.expect("a DATA of the PMD writer");
+    assert_eq!(&payload[..4], [0, 3, 0, 0], "labelled PL_CDR_LE");
+    let m = ParticipantMessage::from_payload(payload).unwrap();
+    assert_eq!(m.prefix, header.guid_prefix, "it speaks for its sender");
+    assert_eq!((m.kind, m.data.len()), (PMD_KIND_MANUAL, 0));
+
+    let mut net = net();
+    let now = net.now();
+    let d = net.node(0);
+    let from = Locator::udpv4(LO, 56650);
+    let writer = Guid {
+        prefix: header.guid_prefix,
+        entity: EntityId([0, 0, 1, 2]),
+    };
+    d.handle_datagram(from, &spdp_of(header.guid_prefix), now);
+    assert!(d.participant().participant(header.guid_prefix).is_some());
+    let manual = LivelinessKind::ManualByParticipant;
+    assert_eq!(d.participant().liveliness_asserted(writer, manual), None);
+    let later = now + Duration::from_millis(5);
+    d.handle_datagram(from, &datagram, later);
+    assert_eq!(d.participant().pmd_ignored(), 0, "not malformed");
     assert_eq!(
         d.participant().liveliness_asserted(writer, manual),
         Some(later)

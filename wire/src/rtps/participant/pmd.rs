@@ -19,6 +19,12 @@
 //!
 //! Cyclone DDS writes a data length of 1 (one zero octet) and accepts 0;
 //! Courier writes 0, so the sample is 24 octets and needs no padding.
+//! Fast DDS 2.9 labels the same layout `PL_CDR_LE` (00 03; `PL_CDR_BE`
+//! 00 02 on big-endian hosts) though it is no parameter list, and writes a
+//! data length of 0 and four more zero octets (28 octets, no key hash in
+//! inline QoS); it reads the prefix and kind at their offsets whatever the
+//! encapsulation says (its `WLP.cpp` and `WLPListener.cpp`, 2.9.1).
+//! Courier takes both labels of each byte order.
 //! Cyclone ignores a message whose prefix is not the RTPS sender's, and so
 //! does Courier.
 //!
@@ -60,7 +66,8 @@ const MAX_PMD_DATA: usize = 64 * 1024;
 /// A decoded `ParticipantMessageData` (RTPS 2.5 §9.6.2.1), the sample of
 /// the writer liveliness protocol's built-in topic, keyed by participant
 /// and kind. After the 4-byte encapsulation header (`CDR_BE` 00 00 or
-/// `CDR_LE` 00 01):
+/// `CDR_LE` 00 01; Fast DDS 2.9 labels it `PL_CDR_BE` 00 02 or `PL_CDR_LE`
+/// 00 03, with the same layout):
 ///
 /// | octets | field |
 /// |---|---|
@@ -88,7 +95,7 @@ pub enum PmdError {
     /// Shorter than header, prefix, kind and length.
     #[error("participant message shorter than its fixed part")]
     Short,
-    /// Not plain CDR (big or little endian).
+    /// Not CDR (or PL_CDR, as Fast DDS labels it), big or little endian.
     #[error("participant message with encapsulation {0:#06x}, not CDR")]
     Encapsulation(u16),
     /// The data length runs past the end, or past what is accepted.
@@ -109,16 +116,20 @@ impl ParticipantMessage {
         v
     }
 
-    /// Decodes a serialized sample (with its encapsulation header). Bounded:
-    /// the data length is checked against what is there.
+    /// Decodes a serialized sample (with its encapsulation header): `CDR_BE`
+    /// or `CDR_LE`, or the same layout labelled `PL_CDR_BE` / `PL_CDR_LE`
+    /// (Fast DDS 2.9). Bounded: the data length is checked against what is
+    /// there.
     pub fn from_payload(p: &[u8]) -> Result<Self, PmdError> {
         if p.len() < 24 {
             return Err(PmdError::Short);
         }
         let enc = u16::from_be_bytes([p[0], p[1]]);
         let little = match enc {
-            0x0000 => false,
-            0x0001 => true,
+            // CDR_BE, and PL_CDR_BE as Fast DDS 2.9 labels it
+            0x0000 | 0x0002 => false,
+            // CDR_LE, and PL_CDR_LE
+            0x0001 | 0x0003 => true,
             e => return Err(PmdError::Encapsulation(e)),
         };
         let mut prefix = [0u8; 12];
@@ -431,10 +442,10 @@ mod tests {
             ParticipantMessage::from_payload(&p),
             Err(PmdError::Length(1))
         );
-        p[1] = 3;
+        p[1] = 4;
         assert_eq!(
             ParticipantMessage::from_payload(&p),
-            Err(PmdError::Encapsulation(3))
+            Err(PmdError::Encapsulation(4))
         );
         // big-endian, as Cyclone's own test sends it
         let mut be = vec![0, 0, 0, 0];
@@ -442,5 +453,40 @@ mod tests {
         be.extend_from_slice(&[0, 0, 0, 2, 0, 0, 0, 1, 0, 0, 0, 0]);
         let m = ParticipantMessage::from_payload(&be).unwrap();
         assert_eq!((m.kind, m.data), (PMD_KIND_MANUAL, vec![0]));
+    }
+
+    /// Fast DDS 2.9.1's participant messages, as captured on lo (a manual
+    /// one and an automatic one, of two participants): labelled PL_CDR_LE
+    /// (00 03), data length 0, four more zero octets. They decode as what
+    /// they say.
+    #[test]
+    fn fast_dds_participant_messages_labelled_pl_cdr_decode() {
+        let manual = unhex("00030000010f78fd1256853400000000000000020000000000000000");
+        let automatic = unhex("00030000010f78fd1356a1f300000000000000010000000000000000");
+        for (p, kind) in [(&manual, PMD_KIND_MANUAL), (&automatic, PMD_KIND_AUTOMATIC)] {
+            let mut prefix = [0u8; 12];
+            prefix.copy_from_slice(&p[4..16]);
+            assert_eq!(
+                ParticipantMessage::from_payload(p),
+                Ok(ParticipantMessage {
+                    prefix: GuidPrefix(prefix),
+                    kind,
+                    data: Vec::new(),
+                })
+            );
+        }
+        // PL_CDR_BE (a big-endian host): the length is big-endian
+        let mut be = manual.clone();
+        be[1] = 0x02;
+        be[23] = 1; // data length 1: one of the four octets that follow
+        let m = ParticipantMessage::from_payload(&be).unwrap();
+        assert_eq!((m.kind, m.data), (PMD_KIND_MANUAL, vec![0]));
+    }
+
+    fn unhex(s: &str) -> Vec<u8> {
+        (0..s.len())
+            .step_by(2)
+            .map(|i| u8::from_str_radix(&s[i..i + 2], 16).unwrap())
+            .collect()
     }
 }
