@@ -509,6 +509,13 @@ struct Options
     std::string text;
     bool text_set = false;
     std::string trace;
+    // --liveliness KIND:SECONDS: 0 none (Fast DDS's default, AUTOMATIC and
+    // infinite), 1 automatic, 2 manual by participant, 3 manual by topic
+    int liveliness = 0;
+    double liveliness_s = 0;
+    long assert_ms = 0;    // --assert-ms (writers): assert_liveliness period
+    long assert_for_s = 0; // --assert-for-s: stop asserting after this long
+    long run_s = 0;        // --run-s (readers without --count/--disposed)
 };
 
 void usage(FILE* out)
@@ -521,16 +528,32 @@ void usage(FILE* out)
             "          [--wait-match N] [--wait-stdin] [--settle-ms N] [--timeout-s N] [--linger-ms N]\n"
             "          [--keys N] [--disposed N] [--no-autodispose] [--no-hb-piggyback]\n"
             "          [--text PREFIX] [--trace FILE] [--strict-instances]\n"
+            "          [--liveliness automatic|participant|topic[:SECONDS]] [--run-s N]\n"
+            "          [--assert-ms N [--assert-for-s N]]\n"
             "--type strkeyed (subscribers): courier::test::StrKeyed, a string key.\n"
             "--strict-instances: a dispose or unregister of an instance never seen alive\n"
             "  is reported as disposed-unknown/unregistered-unknown <instance handle>,\n"
             "  not decoded from the handle.\n"
+            "--liveliness KIND:SECONDS (default 1 s): the writer offers, the reader requests\n"
+            "  LIVELINESS of KIND (automatic, participant = manual by participant, topic =\n"
+            "  manual by topic) with that lease. A reader then prints\n"
+            "  liveliness <alive_count> <not_alive_count> whenever its liveliness-changed\n"
+            "  counts change, a writer liveliness-lost <total> on each loss.\n"
+            "--assert-ms N (writers, manual kinds): while it lingers (--linger-ms), the\n"
+            "  writer calls assert_liveliness every N ms without writing; --assert-for-s S\n"
+            "  stops that S seconds after it began (it lingers on without asserting).\n"
+            "--run-s N (subscribers without --count/--disposed): done after N seconds.\n"
+            "The participant lease (SPDP) is 20 s, Fast DDS's default: a writer stopped\n"
+            "  (SIGSTOP) for less loses its liveliness, not its participant.\n"
             "Loopback only (UDPv4 on 127.0.0.1, unicast discovery, no shared memory).\n"
             "A subscriber is done after --count samples and --disposed disposals (both when\n"
-            "given, otherwise it runs until --timeout-s); either role then stays --linger-ms.\n"
+            "given, otherwise after --run-s or at --timeout-s); either role then stays\n"
+            "--linger-ms.\n"
             "Output lines: ready | matched <n> | sent <seq> | sent <id> <seq> | dispose <id>\n"
             "  | acked | sample <seq> <text> <len> <fnv1a32> | sample <id> <seq> <text>\n"
             "  | disposed <id> | unregistered <id> | done | timeout\n"
+            "  | liveliness <alive> <not_alive> | liveliness-lost <total> (--liveliness)\n"
+            "  | asserted (--assert-for-s: the writer stopped asserting)\n"
             "  | request <seq> <text> (--serve) | reply <seq> <text> related|unrelated (--request)\n"
             "--serve/--request: a ROS 2-style service on rq/NAMERequest and rr/NAMEReply\n"
             "  (type msg); --serve answers --count requests, --request sends --count.\n"
@@ -767,6 +790,60 @@ Options parse_args(int argc, char** argv)
             o.text = t;
             o.text_set = true;
         }
+        else if (a == "--liveliness")
+        {
+            const char* t = value();
+            if (t == nullptr)
+            {
+                usage_error("--liveliness needs a value");
+            }
+            std::string spec(t);
+            size_t colon = spec.find(':');
+            std::string kind = spec.substr(0, colon);
+            if (kind == "automatic")
+            {
+                o.liveliness = 1;
+            }
+            else if (kind == "participant")
+            {
+                o.liveliness = 2;
+            }
+            else if (kind == "topic")
+            {
+                o.liveliness = 3;
+            }
+            else
+            {
+                usage_error("--liveliness kind must be automatic, participant or topic, not '%s'",
+                        kind.c_str());
+            }
+            o.liveliness_s = 1;
+            if (colon != std::string::npos)
+            {
+                std::string secs = spec.substr(colon + 1);
+                char* end = nullptr;
+                errno = 0;
+                double d = std::strtod(secs.c_str(), &end);
+                if (secs.empty() || errno != 0 || *end != '\0' || !(d >= 0.001) || d > 86400)
+                {
+                    usage_error("--liveliness: lease '%s' is not a number of seconds in 0.001..86400",
+                            secs.c_str());
+                }
+                o.liveliness_s = d;
+            }
+        }
+        else if (a == "--assert-ms")
+        {
+            o.assert_ms = parse_num("--assert-ms", value(), 1, 3600000);
+        }
+        else if (a == "--assert-for-s")
+        {
+            o.assert_for_s = parse_num("--assert-for-s", value(), 1, 86400);
+        }
+        else if (a == "--run-s")
+        {
+            o.run_s = parse_num("--run-s", value(), 1, 86400);
+        }
         else if (a == "--trace")
         {
             const char* t = value();
@@ -822,6 +899,14 @@ Options parse_args(int argc, char** argv)
         {
             usage_error("--disposed is for --type keyed or strkeyed");
         }
+        if (o.assert_ms || o.assert_for_s)
+        {
+            usage_error("--assert-ms and --assert-for-s are publisher options");
+        }
+        if (o.run_s && (o.count_set || o.disposed_set))
+        {
+            usage_error("--run-s is for a subscriber without --count and --disposed");
+        }
     }
     else
     {
@@ -836,6 +921,22 @@ Options parse_args(int argc, char** argv)
         if (o.disposed_set)
         {
             usage_error("--disposed is a subscriber option");
+        }
+        if (o.run_s)
+        {
+            usage_error("--run-s is a subscriber option");
+        }
+        if (o.role != 1 && (o.liveliness || o.assert_ms || o.assert_for_s))
+        {
+            usage_error("--liveliness, --assert-ms and --assert-for-s are for --pub or --sub");
+        }
+        if (o.assert_ms && o.liveliness != 2 && o.liveliness != 3)
+        {
+            usage_error("--assert-ms needs --liveliness participant or topic");
+        }
+        if (o.assert_for_s && !o.assert_ms)
+        {
+            usage_error("--assert-for-s needs --assert-ms");
         }
         if (!o.count_set)
         {
@@ -940,6 +1041,13 @@ public:
         wakeup.notify();
     }
 
+    // Only with --liveliness (the status mask): a manual writer that asserted
+    // nothing within its lease.
+    void on_liveliness_lost(fdds::DataWriter*, const fdds::LivelinessLostStatus& st) override
+    {
+        emit("liveliness-lost %d", st.total_count);
+    }
+
 };
 
 class ReaderListener : public fdds::DataReaderListener
@@ -956,6 +1064,24 @@ public:
         wakeup.notify();
     }
 
+    // Only with --liveliness (the status mask): the counts, when they change.
+    void on_liveliness_changed(fdds::DataReader*, const fdds::LivelinessChangedStatus& st) override
+    {
+        std::lock_guard<std::mutex> lock(m);
+        if (st.alive_count != alive || st.not_alive_count != not_alive)
+        {
+            alive = st.alive_count;
+            not_alive = st.not_alive_count;
+            emit("liveliness %d %d", alive, not_alive);
+        }
+        wakeup.notify();
+    }
+
+private:
+
+    std::mutex m;
+    int32_t alive = 0;
+    int32_t not_alive = 0;
 };
 
 void sleep_ms(int64_t ms)
@@ -1072,6 +1198,9 @@ fdds::DomainParticipantQos loopback_participant_qos()
 
     auto& wire = qos.wire_protocol();
     wire.builtin.discovery_config.discoveryProtocol = frtps::DiscoveryProtocol_t::SIMPLE;
+    // Fast DDS's default participant lease, said here: the liveliness tests
+    // stop this process for a few seconds and expect its participant to stay
+    wire.builtin.discovery_config.leaseDuration = eprosima::fastrtps::Duration_t(20, 0);
     wire.builtin.metatrafficUnicastLocatorList.clear();
     wire.builtin.metatrafficUnicastLocatorList.push_back(lo);
     wire.builtin.metatrafficMulticastLocatorList.clear();
@@ -1100,6 +1229,14 @@ void apply_endpoint_qos(Q& q, const Options& o)
     rl.max_samples_per_instance = std::max<int32_t>(1000, static_cast<int32_t>(o.depth));
     rl.max_samples = rl.max_instances * rl.max_samples_per_instance;
     rl.allocated_samples = 100;
+    if (o.liveliness)
+    {
+        q.liveliness().kind = o.liveliness == 1 ? fdds::AUTOMATIC_LIVELINESS_QOS :
+                o.liveliness == 2 ? fdds::MANUAL_BY_PARTICIPANT_LIVELINESS_QOS :
+                fdds::MANUAL_BY_TOPIC_LIVELINESS_QOS;
+        q.liveliness().lease_duration = eprosima::fastrtps::Duration_t(
+            static_cast<long double>(o.liveliness_s));
+    }
 }
 
 // Reliable writers announce their history every 100 ms instead of Fast DDS's
@@ -1118,6 +1255,14 @@ void apply_writer_qos(fdds::DataWriterQos& q, const Options& o)
     // may be a piggybacked one in the middle of sample 1's fragments, and
     // sample 1 is lost.
     q.reliable_writer_qos().disable_heartbeat_piggyback = !o.hb_piggyback;
+    // Fast DDS's participant messages for AUTOMATIC (and MANUAL_BY_PARTICIPANT)
+    // writers go out every announcement_period, infinite by default: none at
+    // all. A third of the lease, as Courier and Cyclone DDS do.
+    if (o.liveliness)
+    {
+        q.liveliness().announcement_period = eprosima::fastrtps::Duration_t(
+            static_cast<long double>(o.liveliness_s / 3));
+    }
 }
 
 int32_t last_matched = 0;
@@ -1293,10 +1438,32 @@ void run_pub(const Options& o, fdds::DataWriter* w)
     }
     if (o.linger_ms)
     {
-        int64_t until = elapsed_ms() + o.linger_ms;
+        // --assert-ms: assert_liveliness (no data) every assert_ms, for
+        // --assert-for-s when given
+        int64_t now = elapsed_ms();
+        int64_t until = now + o.linger_ms;
+        int64_t assert_until = o.assert_for_s ? now + o.assert_for_s * 1000 : until;
+        int64_t next_assert = now;
+        bool asserting = o.assert_ms > 0;
         while (elapsed_ms() < until)
         {
-            wakeup.wait(until - elapsed_ms());
+            now = elapsed_ms();
+            if (asserting && now >= assert_until)
+            {
+                asserting = false;
+                emit("asserted");
+            }
+            if (asserting && now >= next_assert)
+            {
+                ReturnCode_t rc = w->assert_liveliness();
+                if (rc != ReturnCode_t::RETCODE_OK)
+                {
+                    fail("assert_liveliness: " + rc_name(rc));
+                }
+                next_assert = now + o.assert_ms;
+            }
+            int64_t wake = asserting ? std::min(until, std::min(next_assert, assert_until)) : until;
+            wakeup.wait(std::max<int64_t>(1, wake - elapsed_ms()));
             check_matched(w);
         }
     }
@@ -1441,7 +1608,11 @@ void run_sub(const Options& o, fdds::DataReader* r)
     std::map<std::string, fdds::InstanceStateKind> name_states;
     auto finished = [&]()
             {
-                return (o.count_set || o.disposed_set) && (!o.count_set || received >= o.count) &&
+                if (!o.count_set && !o.disposed_set)
+                {
+                    return o.run_s > 0 && elapsed_ms() >= o.run_s * 1000;
+                }
+                return (!o.count_set || received >= o.count) &&
                        (!o.disposed_set || disposed >= o.disposed);
             };
     while (!finished())
@@ -1758,8 +1929,12 @@ int main(int argc, char** argv)
             wq.durability_service().history_depth = wq.history().depth;
         }
         wq.writer_data_lifecycle().autodispose_unregistered_instances = o.autodispose;
-        writer = publisher->create_datawriter(topic, wq, &wlistener,
-                        fdds::StatusMask::publication_matched());
+        fdds::StatusMask wmask = fdds::StatusMask::publication_matched();
+        if (o.liveliness)
+        {
+            wmask << fdds::StatusMask::liveliness_lost();
+        }
+        writer = publisher->create_datawriter(topic, wq, &wlistener, wmask);
         if (writer == nullptr)
         {
             fail("create_datawriter failed");
@@ -1774,8 +1949,13 @@ int main(int argc, char** argv)
         }
         fdds::DataReaderQos rq;
         apply_endpoint_qos(rq, o);
-        reader = subscriber->create_datareader(topic, rq, &rlistener,
-                        fdds::StatusMask::data_available() << fdds::StatusMask::subscription_matched());
+        fdds::StatusMask rmask =
+                fdds::StatusMask::data_available() << fdds::StatusMask::subscription_matched();
+        if (o.liveliness)
+        {
+            rmask << fdds::StatusMask::liveliness_changed();
+        }
+        reader = subscriber->create_datareader(topic, rq, &rlistener, rmask);
         if (reader == nullptr)
         {
             fail("create_datareader failed");
