@@ -7,7 +7,7 @@
 
 use std::time::Duration;
 
-use courier_wire::dds::{Domain, Event, ReaderId};
+use courier_wire::dds::{Domain, Event, ReaderId, WriterId};
 use courier_wire::rtps::discovery::{Duration as RtpsDuration, EndpointQos, LivelinessKind};
 use courier_wire::rtps::participant::{
     self, guid_prefix, Change, Config, EndpointConfig, ParticipantMessage, PmdError,
@@ -42,6 +42,22 @@ fn reader_cfg(topic: &str, kind: LivelinessKind, secs: u64) -> EndpointConfig {
     let mut q = EndpointQos::reader_default();
     q.liveliness = lease(kind, secs);
     EndpointConfig::reader(topic, "T").qos(q)
+}
+
+/// A writer on node `i` of `topic`, offering `kind` within `secs`.
+fn writer(net: &mut Net, i: usize, topic: &str, kind: LivelinessKind, secs: u64) -> WriterId {
+    let now = net.now();
+    net.node(i)
+        .create_writer(writer_cfg(topic, kind, secs), now)
+        .unwrap()
+}
+
+/// A reader on node `i` of `topic`, requesting `kind` within `secs`.
+fn reader(net: &mut Net, i: usize, topic: &str, kind: LivelinessKind, secs: u64) -> ReaderId {
+    let now = net.now();
+    net.node(i)
+        .create_reader(reader_cfg(topic, kind, secs), now)
+        .unwrap()
 }
 
 /// Node 0 and node 1, nothing created yet.
@@ -94,15 +110,8 @@ fn matched(net: &mut Net, r: ReaderId) {
 #[test]
 fn an_automatic_writer_stays_alive_without_data_lapses_when_its_participant_stops_and_comes_back() {
     let mut net = net();
-    let now = net.now();
-    let w = net
-        .node(0)
-        .create_writer(writer_cfg("lidar", LivelinessKind::Automatic, 1), now)
-        .unwrap();
-    let r = net
-        .node(1)
-        .create_reader(reader_cfg("lidar", LivelinessKind::Automatic, 2), now)
-        .unwrap();
+    let w = writer(&mut net, 0, "lidar", LivelinessKind::Automatic, 1);
+    let r = reader(&mut net, 1, "lidar", LivelinessKind::Automatic, 2);
     matched(&mut net, r);
     // no data, and SPDP only every 3 s: the participant messages keep
     // the 1 s lease
@@ -142,20 +151,11 @@ fn an_automatic_writer_stays_alive_without_data_lapses_when_its_participant_stop
 #[test]
 fn a_manual_by_topic_writer_lapses_without_writes_while_its_participant_talks() {
     let mut net = net();
-    let now = net.now();
     // another writer of node 0 with an automatic lease: its participant
     // messages go out every 333 ms, so node 0 is heard all the time
-    net.node(0)
-        .create_writer(writer_cfg("chatter", LivelinessKind::Automatic, 1), now)
-        .unwrap();
-    let w = net
-        .node(0)
-        .create_writer(writer_cfg("lidar", LivelinessKind::ManualByTopic, 1), now)
-        .unwrap();
-    let r = net
-        .node(1)
-        .create_reader(reader_cfg("lidar", LivelinessKind::ManualByTopic, 2), now)
-        .unwrap();
+    writer(&mut net, 0, "chatter", LivelinessKind::Automatic, 1);
+    let w = writer(&mut net, 0, "lidar", LivelinessKind::ManualByTopic, 1);
+    let r = reader(&mut net, 1, "lidar", LivelinessKind::ManualByTopic, 2);
     matched(&mut net, r);
     assert!(
         net.run_until(Duration::from_millis(1500), |n| changes(n, 1, r).len() == 2),
@@ -198,30 +198,11 @@ fn a_manual_by_topic_writer_lapses_without_writes_while_its_participant_talks() 
 #[test]
 fn a_manual_by_participant_writer_is_kept_alive_by_manual_participant_messages() {
     let mut net = net();
-    let now = net.now();
-    let w = net
-        .node(0)
-        .create_writer(
-            writer_cfg("lidar", LivelinessKind::ManualByParticipant, 1),
-            now,
-        )
-        .unwrap();
+    let w = writer(&mut net, 0, "lidar", LivelinessKind::ManualByParticipant, 1);
     // a second manual-by-participant writer, never written: asserting
     // the first asserts it too
-    let w2 = net
-        .node(0)
-        .create_writer(
-            writer_cfg("imu", LivelinessKind::ManualByParticipant, 1),
-            now,
-        )
-        .unwrap();
-    let r = net
-        .node(1)
-        .create_reader(
-            reader_cfg("imu", LivelinessKind::ManualByParticipant, 2),
-            now,
-        )
-        .unwrap();
+    let w2 = writer(&mut net, 0, "imu", LivelinessKind::ManualByParticipant, 1);
+    let r = reader(&mut net, 1, "imu", LivelinessKind::ManualByParticipant, 2);
     matched(&mut net, r);
     for _ in 0..6 {
         net.run_for(Duration::from_millis(500));
@@ -249,10 +230,7 @@ fn a_manual_by_participant_writer_is_kept_alive_by_manual_participant_messages()
 fn participant_messages_are_sent_byte_for_byte_as_the_spec_lays_them_out() {
     let mut net = net();
     net.tapping = true;
-    let now = net.now();
-    net.node(0)
-        .create_writer(writer_cfg("lidar", LivelinessKind::Automatic, 1), now)
-        .unwrap();
+    writer(&mut net, 0, "lidar", LivelinessKind::Automatic, 1);
     net.run_for(Duration::from_secs(2));
     let prefix = net.node(0).participant().guid_prefix().0;
     let mut key = prefix.to_vec();
