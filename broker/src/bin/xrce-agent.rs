@@ -500,6 +500,10 @@ fn main() -> ExitCode {
         if let Some(s) = &plan.common.state {
             b = b.state(s);
         }
+        // the handlers are in place before anything says the agent is
+        // ready: a signal sent right after "ready" stops it cleanly (a
+        // SIGHUP before them killed it: status 129)
+        let stop = stop_signals();
         let agent = match b.spawn().await {
             Ok(a) => a,
             Err(e) => {
@@ -521,7 +525,7 @@ fn main() -> ExitCode {
         }
         say!("rtps {} domain {domain}", agent.rtps_addr());
         say!("ready");
-        wait_for_signal().await;
+        stop.await;
         agent.shutdown().await;
         ExitCode::SUCCESS
     })
@@ -529,28 +533,31 @@ fn main() -> ExitCode {
 
 /// Ctrl-C, SIGTERM or SIGHUP (a closed terminal, a dropped ssh session):
 /// each stops the agent cleanly, so that `--state` holds what a graceful
-/// stop leaves. Under `nohup` SIGHUP stays ignored.
-async fn wait_for_signal() {
+/// stop leaves. Under `nohup` SIGHUP stays ignored. The handlers are
+/// installed when this is called; the future is ready at the first signal.
+fn stop_signals() -> impl std::future::Future<Output = ()> {
     use tokio::signal::unix::{signal, SignalKind};
-    let Ok(mut term) = signal(SignalKind::terminate()) else {
-        let _ = tokio::signal::ctrl_c().await;
-        return;
-    };
-    let mut hup = if courier_broker::signals::sighup_ignored() {
+    let term = signal(SignalKind::terminate()).ok();
+    let hup = if courier_broker::signals::sighup_ignored() {
         None
     } else {
         signal(SignalKind::hangup()).ok()
     };
-    let hangup = async {
-        match &mut hup {
-            Some(h) => h.recv().await,
-            None => std::future::pending().await,
+    let int = signal(SignalKind::interrupt()).ok();
+    async move {
+        async fn recv(s: Option<tokio::signal::unix::Signal>) {
+            match s {
+                Some(mut s) => {
+                    s.recv().await;
+                }
+                None => std::future::pending().await,
+            }
         }
-    };
-    tokio::select! {
-        _ = tokio::signal::ctrl_c() => {}
-        _ = term.recv() => {}
-        _ = hangup => {}
+        tokio::select! {
+            () = recv(int) => {}
+            () = recv(term) => {}
+            () = recv(hup) => {}
+        }
     }
 }
 
