@@ -1619,3 +1619,80 @@ fn writes_acknowledged_before_the_client_leaves_reach_the_reader() {
         assert_eq!(w.dds_samples(r), want, "seed {seed}");
     }
 }
+
+/// A client's data writer made from Fast DDS XML with a MANUAL_BY_TOPIC
+/// liveliness of 1 s (what an eProsima client or a references file
+/// says): a DDS reader requesting as much matches it (before, the agent
+/// dropped `<liveliness>` and offered AUTOMATIC/infinite: incompatible),
+/// sees it alive while the client writes, and not alive a lease after the
+/// client stops: "is the board still publishing?" from DDS.
+#[test]
+fn a_manual_liveliness_from_xml_lapses_when_the_client_stops_writing() {
+    use courier_wire::rtps::discovery::LivelinessKind;
+    let mut w = world(11, 0, |_, _| {});
+    let now = w.net.now();
+    let mut q = reliable_keep_all(true);
+    q.liveliness = (
+        LivelinessKind::ManualByTopic,
+        RtpsDuration::from_std(Duration::from_secs(1)),
+    );
+    let r = w
+        .dds()
+        .create_reader(EndpointConfig::reader("Hello", "HelloWorld").qos(q), now)
+        .unwrap();
+    let c = w.add_client(10, 0xAAAA_0011);
+    let mut objs = writer_objects("Hello", true);
+    objs[3].1 = ObjectVariant::DataWriter {
+        representation: xml(
+            "<dds><data_writer><topic><kind>NO_KEY</kind><name>Hello</name>\
+             <dataType>HelloWorld</dataType></topic><qos><reliability><kind>RELIABLE</kind>\
+             </reliability><liveliness><kind>MANUAL_BY_TOPIC</kind><lease_duration><sec>1</sec>\
+             </lease_duration></liveliness></qos></data_writer></dds>",
+        ),
+        publisher_id: oid(ObjectKind::Publisher),
+    };
+    w.create(c, objs, CreationMode::REPLACE);
+    assert!(
+        w.statuses(c).iter().all(|s| s.1 == Ok(StatusCode::OK)),
+        "{:?}",
+        w.statuses(c)
+    );
+    let liveliness = |w: &World| -> Vec<(bool, u32, u32)> {
+        w.net.hosts[w.dds]
+            .events
+            .iter()
+            .filter_map(|e| match e {
+                Ev::Dds(e) => match **e {
+                    DdsEvent::LivelinessChanged {
+                        reader,
+                        alive,
+                        alive_count,
+                        not_alive_count,
+                        ..
+                    } if reader == r => Some((alive, alive_count, not_alive_count)),
+                    _ => None,
+                },
+                _ => None,
+            })
+            .collect()
+    };
+    assert!(
+        w.run_until(Duration::from_secs(10), |w| !liveliness(w).is_empty()),
+        "the DDS reader never matched the client's writer"
+    );
+    // three leases of writes, 300 ms apart: alive throughout
+    for i in 0..10 {
+        let now = w.net.now();
+        w.client(c)
+            .write(oid(ObjectKind::DataWriter), R, &sample(i, 8), now)
+            .unwrap();
+        w.net.run_for(Duration::from_millis(300));
+    }
+    assert_eq!(liveliness(&w), [(true, 1, 0)], "alive while it writes");
+    assert!(w.dds_samples(r).len() >= 9);
+    assert!(
+        w.run_until(Duration::from_millis(1500), |w| liveliness(w).len() == 2),
+        "no lapse after the client stopped writing"
+    );
+    assert_eq!(liveliness(&w)[1], (false, 0, 1));
+}

@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 use std::time::Duration;
 
 use crate::rtps::discovery::{
-    Durability, Duration as RtpsDuration, EndpointQos, History, Reliability,
+    Durability, Duration as RtpsDuration, EndpointQos, History, LivelinessKind, Reliability,
 };
 
 use super::super::binary::{
@@ -416,12 +416,55 @@ fn endpoint_of(
         if let Some(p) = child(q, "lifespan").and_then(|d| child(d, "duration")) {
             qos.lifespan = rtps_duration(duration(element, p)?);
         }
+        if let Some(l) = child(q, "liveliness") {
+            qos.liveliness = liveliness(element, l)?;
+        }
         if let Some(p) = child(q, "timeBasedFilter").and_then(|d| child(d, "minimum_separation")) {
             qos.time_based_filter =
                 duration(element, p)?.map_or(RtpsDuration::ZERO, RtpsDuration::from_std);
         }
     }
     Ok(EndpointProfile { topic, qos })
+}
+
+/// Fast DDS's `<liveliness>`: `<kind>` (AUTOMATIC, MANUAL_BY_PARTICIPANT,
+/// MANUAL_BY_TOPIC; default AUTOMATIC) and `<lease_duration>` (default
+/// infinite). `<announcement_period>` is Fast DDS's own pacing of its
+/// participant messages; Courier's agent paces them by the lease.
+fn liveliness(
+    element: &'static str,
+    l: Node<'_, '_>,
+) -> Result<(LivelinessKind, RtpsDuration), ProfileError> {
+    let kind = match text(l, "kind") {
+        None | Some("AUTOMATIC") | Some("AUTOMATIC_LIVELINESS_QOS") => LivelinessKind::Automatic,
+        Some("MANUAL_BY_PARTICIPANT") | Some("MANUAL_BY_PARTICIPANT_LIVELINESS_QOS") => {
+            LivelinessKind::ManualByParticipant
+        }
+        Some("MANUAL_BY_TOPIC") | Some("MANUAL_BY_TOPIC_LIVELINESS_QOS") => {
+            LivelinessKind::ManualByTopic
+        }
+        Some(v) => {
+            return Err(ProfileError::Value {
+                element,
+                field: "liveliness <kind>",
+                value: v.into(),
+            })
+        }
+    };
+    let lease = match child(l, "lease_duration") {
+        Some(d) => match duration(element, d)? {
+            Some(d) if d.is_zero() => {
+                return Err(ProfileError::Value {
+                    element,
+                    field: "liveliness <lease_duration>",
+                    value: "0".into(),
+                })
+            }
+            d => rtps_duration(d),
+        },
+        None => RtpsDuration::INFINITE,
+    };
+    Ok((kind, lease))
 }
 
 fn service_of(element: &'static str, n: Node<'_, '_>) -> Result<ServiceProfile, ProfileError> {
@@ -758,6 +801,60 @@ mod tests {
         assert_eq!(w.qos.history, History::KeepAll);
         assert_eq!(w.qos.partitions, ["a"]);
         assert_eq!(w.qos.deadline.to_std(), Some(Duration::from_millis(1500)));
+    }
+
+    /// Fast DDS's `<liveliness>` (XMLParserCommon.cpp: liveliness, kind,
+    /// lease_duration, announcement_period): it reaches the DDS endpoint,
+    /// so a client's reader that requests manual liveliness matches only
+    /// writers that offer it, and a client's manual writer lapses when the
+    /// client stops writing.
+    #[test]
+    fn liveliness_in_xml() {
+        let w = |qos: &str| {
+            from_xml(
+                ObjectKind::DataWriter,
+                &format!("<dds><data_writer><topic><name>a</name><dataType>b</dataType></topic><qos>{qos}</qos></data_writer></dds>"),
+            )
+        };
+        let ok = |qos: &str| match w(qos).unwrap() {
+            Profile::Writer(e) => e.qos.liveliness,
+            p => panic!("{p:?}"),
+        };
+        assert_eq!(
+            ok("<liveliness><kind>MANUAL_BY_TOPIC</kind><lease_duration><sec>1</sec><nanosec>500000000</nanosec></lease_duration><announcement_period><sec>0</sec><nanosec>500000000</nanosec></announcement_period></liveliness>"),
+            (
+                LivelinessKind::ManualByTopic,
+                RtpsDuration::from_std(Duration::from_millis(1500))
+            )
+        );
+        assert_eq!(
+            ok("<liveliness><kind>MANUAL_BY_PARTICIPANT_LIVELINESS_QOS</kind><lease_duration><sec>DURATION_INFINITY</sec></lease_duration></liveliness>"),
+            (LivelinessKind::ManualByParticipant, RtpsDuration::INFINITE)
+        );
+        assert_eq!(
+            ok("<liveliness><lease_duration><sec>2</sec></lease_duration></liveliness>"),
+            (
+                LivelinessKind::Automatic,
+                RtpsDuration::from_std(Duration::from_secs(2))
+            )
+        );
+        assert_eq!(
+            ok("<reliability><kind>RELIABLE</kind></reliability>"),
+            (LivelinessKind::Automatic, RtpsDuration::INFINITE),
+            "DDS's default"
+        );
+        assert_eq!(
+            w("<liveliness><kind>SOMETIMES</kind></liveliness>")
+                .unwrap_err()
+                .to_string(),
+            "<data_writer>: \"SOMETIMES\" is not a valid liveliness <kind>"
+        );
+        assert_eq!(
+            w("<liveliness><lease_duration><sec>0</sec></lease_duration></liveliness>")
+                .unwrap_err()
+                .to_string(),
+            "<data_writer>: \"0\" is not a valid liveliness <lease_duration>"
+        );
     }
 
     #[test]
