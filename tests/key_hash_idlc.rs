@@ -100,6 +100,12 @@ module KeyOracle {
   // or DHEADER either
   @mutable struct MutLL3 { @key long a; @key long long b; @key long c; };  // XCDR1 20, XCDR2 16
   @appendable struct AppLL { @key long a; @key long long b; };            // XCDR1 16, XCDR2 12
+  // a keyed struct inside a key member whose type has no keys: idlc 0.10
+  // takes all of In2 as well (its key list is w.i.x, w.i.y, w.z, s):
+  // 4 + 4 + 2, aligned 4, + 4 + 1 + 1 = 18; In2's key alone would be 14
+  struct In2 { @key long x; long y; };
+  @final struct Wrap { In2 i; short z; };
+  struct NestWrap { @key Wrap w; @key string<1> s; };
 };
 "#;
 
@@ -252,6 +258,30 @@ struct Bools16 {
 struct Pt {
     x: i32,
     y: i16,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "KeyOracle::In2")]
+struct In2 {
+    #[ipc(key)]
+    x: i32,
+    y: i32,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "KeyOracle::Wrap", extensibility = "final")]
+struct Wrap {
+    i: In2,
+    z: i16,
+}
+
+#[derive(IpcMessage, Debug, Clone, PartialEq)]
+#[ipc(type_name = "KeyOracle::NestWrap")]
+struct NestWrap {
+    #[ipc(key)]
+    w: Wrap,
+    #[ipc(key, bound = 1)]
+    s: String,
 }
 
 #[derive(IpcMessage, Debug, Clone, PartialEq)]
@@ -888,6 +918,24 @@ fn cases() -> Vec<Case> {
         case_reordered: NestOrdA(OrdInA),
         case: NestInOrdM(InOrdM)
     );
+    v.extend([
+        case(
+            NestWrap {
+                w: Wrap {
+                    i: In2 { x: 1, y: 2 },
+                    z: 3,
+                },
+                s: text(1),
+            },
+            NestWrap {
+                w: Wrap {
+                    i: In2 { x: 1, y: 2 },
+                    z: 3,
+                },
+                s: String::new(),
+            },
+        ),
+    ]);
     let pt = || PtLL { x: -3, y: 1 << 40 };
     v.extend([
         case(LL { a: 1, b: -2 }, LL { a: 0, b: 0 }),
