@@ -758,3 +758,84 @@ fn a_participant_of_another_domain_is_refused_naming_the_domains() {
     rt.block_on(s.close());
     rt.block_on(a.shutdown());
 }
+
+/// A board's publication through XRCE offering MANUAL_BY_TOPIC liveliness
+/// (Courier's XRCE client, `representation=xml`: the binary form has no
+/// field for it): the agent's DDS writer offers it, so an RTPS subscriber
+/// requesting it sees the board alive while it publishes and not alive a
+/// lease after it stops — though the agent, and its participant, live on.
+#[test]
+fn an_xrce_publication_offers_manual_liveliness_to_dds() {
+    use courier::qos::LivelinessKind;
+    use courier::{Session, SessionEvent};
+    use futures::{FutureExt, StreamExt};
+    use std::time::Duration;
+    let d = courier_tests::domains::lease(11);
+    let rt = runtime();
+    let ag = agent(&rt, d, vec![Transport::Udp(local(0))]);
+    let addr = ag.udp_addrs()[0];
+    rt.block_on(async {
+        let dds = Session::builder(format!("rtps://{d}?interface=lo&peers=127.0.0.1"))
+            .connect()
+            .await
+            .unwrap();
+        let mut ev = dds.events();
+        let _sub = dds
+            .subscriber::<i32>("board_alive")
+            .liveliness(LivelinessKind::ManualByTopic, Duration::from_secs(1))
+            .build()
+            .await
+            .unwrap();
+        let board = Session::builder(format!("xrce+udp://{addr}?representation=xml&domain={d}"))
+            .connect()
+            .await
+            .unwrap();
+        let p = board
+            .publisher::<i32>("board_alive")
+            .liveliness(LivelinessKind::ManualByTopic, Duration::from_secs(1))
+            .build()
+            .await
+            .unwrap();
+        let liveliness = |e: SessionEvent| match e {
+            SessionEvent::LivelinessChanged {
+                alive,
+                alive_count,
+                not_alive_count,
+                ..
+            } => Some((alive, alive_count, not_alive_count)),
+            _ => None,
+        };
+        let first = tokio::time::timeout(T, async {
+            loop {
+                if let Some(l) = liveliness(ev.next().await.unwrap()) {
+                    return l;
+                }
+            }
+        })
+        .await
+        .expect("the RTPS subscriber never matched the board's writer");
+        assert_eq!(first, (true, 1, 0));
+        // three leases of publishing, 300 ms apart: never not alive
+        for i in 0..10 {
+            p.publish(&i).await.unwrap();
+            tokio::time::sleep(Duration::from_millis(300)).await;
+            while let Some(Some(e)) = ev.next().now_or_never() {
+                assert_eq!(liveliness(e).map(|l| l.0), None, "lapsed while publishing");
+            }
+        }
+        let lapsed = tokio::time::timeout(T, async {
+            loop {
+                if let Some(l) = liveliness(ev.next().await.unwrap()) {
+                    return l;
+                }
+            }
+        })
+        .await
+        .expect("no lapse after the board stopped publishing");
+        assert_eq!(lapsed, (false, 0, 1));
+        drop(p);
+        board.close().await;
+        dds.close().await;
+    });
+    rt.block_on(ag.shutdown());
+}

@@ -95,6 +95,10 @@ pub struct Capabilities {
     /// DDS LIVELINESS on publications and subscriptions
     /// ([`DdsControl::assert_liveliness`]).
     pub liveliness: bool,
+    /// DDS LIVELINESS offered by publications only (XRCE: the agent's DDS
+    /// writer offers it; nothing is reported back, nothing asserted but
+    /// by writes).
+    pub offers_liveliness: bool,
 }
 
 impl Capabilities {
@@ -112,6 +116,7 @@ impl Capabilities {
             untyped_publications: false,
             reply_names: false,
             liveliness: false,
+            offers_liveliness: false,
             named_formats: false,
         }
     }

@@ -273,7 +273,9 @@ impl<T: IpcMessage> PublisherBuilder<T> {
     /// session reports [`SessionEvent::LivelinessLost`](crate::SessionEvent::LivelinessLost)
     /// and readers see the publication not alive. `build` refuses a lease
     /// under [`MIN_LEASE`](crate::qos::MIN_LEASE) ([`OpenError::Qos`]) and
-    /// liveliness on a backend other than RTPS ([`OpenError::Unsupported`]).
+    /// liveliness on IPC, or on XRCE in the binary or reference
+    /// representation ([`OpenError::Unsupported`]; XRCE with
+    /// `representation=xml` offers it, see [`qos`](crate::qos#liveliness)).
     pub fn liveliness(mut self, kind: crate::qos::LivelinessKind, lease: Duration) -> Self {
         self.qos.liveliness = Some(crate::qos::Liveliness::new(kind, lease));
         self
@@ -318,7 +320,7 @@ impl<T: IpcMessage> PublisherBuilder<T> {
     pub async fn build(self) -> Result<Publisher<T>, OpenError> {
         crate::qos::check_history(&self.msg, self.qos.history)?;
         crate::qos::check_liveliness(&self.msg, self.qos.liveliness)?;
-        if self.qos.liveliness.is_some() && !self.session.caps.liveliness {
+        if self.qos.liveliness.is_some() && !self.session.caps.offers_liveliness {
             return Err(OpenError::Unsupported {
                 what: format!("liveliness on the publication of {}", self.msg),
                 backend: self.session.caps.scheme,

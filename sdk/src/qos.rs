@@ -48,9 +48,14 @@
 //! known. Without a liveliness (the default) a publication offers
 //! automatic with an infinite lease, and a subscription tracks nothing.
 //! A lease under [`MIN_LEASE`] or longer than RTPS can say is refused
-//! ([`OpenError::Qos`](crate::OpenError::Qos)). Only the RTPS backend has
-//! liveliness: on the others, opening a publication or subscription with
-//! one fails with [`OpenError::Unsupported`](crate::OpenError::Unsupported).
+//! ([`OpenError::Qos`](crate::OpenError::Qos)). The RTPS backend has all
+//! of it. On XRCE a publication may offer a liveliness with
+//! `representation=xml` (the agent's DDS writer offers it; its writes of
+//! the session's samples assert a manual one, there is no
+//! `assert_liveliness` and no `LivelinessLost`: DDS-XRCE carries neither),
+//! and a subscription cannot request one. Elsewhere, and where these say
+//! no, opening with one fails with
+//! [`OpenError::Unsupported`](crate::OpenError::Unsupported).
 //!
 //! On the IPC backends only the parts with an IPC meaning apply: IPC over
 //! TCP is reliable, volatile and keeps everything, which also satisfies a

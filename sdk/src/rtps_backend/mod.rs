@@ -499,6 +499,7 @@ impl Backend for RtpsBackend {
         c.immediate_delivery = true;
         c.try_write = true;
         c.liveliness = true;
+        c.offers_liveliness = true;
         c
     }
 

@@ -298,6 +298,7 @@ impl Backend for XrceBackend {
     fn capabilities(&self) -> Capabilities {
         let mut c = Capabilities::new(self.scheme, Encoding::Cdr);
         c.confirmed_writes = true;
+        c.offers_liveliness = true;
         c
     }
 

@@ -194,6 +194,20 @@ fn duration_xml(tag: &str, inner: &str, d: std::time::Duration) -> String {
     )
 }
 
+/// Fast DDS's `<liveliness>` (XMLParserCommon.cpp's element names).
+fn liveliness_xml(l: crate::qos::Liveliness) -> String {
+    use crate::qos::LivelinessKind as K;
+    let kind = match l.kind {
+        K::Automatic => "AUTOMATIC",
+        K::ManualByParticipant => "MANUAL_BY_PARTICIPANT",
+        K::ManualByTopic => "MANUAL_BY_TOPIC",
+    };
+    let lease = duration_xml("x", "lease_duration", l.lease);
+    // the lease's element alone, out of duration_xml's wrapper
+    let lease = &lease["<x>".len()..lease.len() - "</x>".len()];
+    format!("<liveliness><kind>{kind}</kind>{lease}</liveliness>")
+}
+
 /// In reference mode the profile holds the QoS: only reliability (which
 /// picks the XRCE stream) may be chosen here.
 fn reference_qos_default(
@@ -244,6 +258,12 @@ pub(crate) fn writer(
             if qos.strength.is_some() {
                 flags |= qos_flags::OWNERSHIP_EXCLUSIVE;
             }
+            if qos.liveliness.is_some() {
+                return Err(unsupported(
+                    "liveliness in the binary representation, which has no field for it \
+                     (use representation=xml)",
+                ));
+            }
             let strength = match qos.strength {
                 Some(s) if s < 0 => return Err(unsupported("a negative strength")),
                 s => s.map(|s| s as u64),
@@ -274,6 +294,9 @@ pub(crate) fn writer(
             }
             if let Some(d) = qos.persistence {
                 q.push_str(&duration_xml("lifespan", "duration", d));
+            }
+            if let Some(l) = qos.liveliness {
+                q.push_str(&liveliness_xml(l));
             }
             Representation::Xml(format!(
                 "<dds><data_writer><topic>{}{}</topic><qos>{q}</qos>\
@@ -487,6 +510,56 @@ mod tests {
                 | qos_flags::OWNERSHIP_EXCLUSIVE
         );
         assert_eq!((e.history_depth, strength), (Some(5), Some(7)));
+    }
+
+    /// A liveliness goes as Fast DDS's `<liveliness>`, which the agent
+    /// reads back; the binary representation has no field for it.
+    #[test]
+    fn liveliness_goes_as_xml_only() {
+        use crate::qos::{Liveliness, LivelinessKind};
+        let q = PublicationQos {
+            liveliness: Some(Liveliness::new(
+                LivelinessKind::ManualByTopic,
+                std::time::Duration::from_millis(1500),
+            )),
+            ..Default::default()
+        };
+        let (t, p) = (
+            ObjectId::new(3, ObjectKind::Topic),
+            ObjectId::new(1, ObjectKind::Publisher),
+        );
+        let e = writer(&opts(XrceRepresentation::Binary), "a", &TY, t, &q, p).unwrap_err();
+        assert!(e.to_string().contains("use representation=xml"), "{e}");
+        let e = writer(&opts(XrceRepresentation::Reference), "a", &TY, t, &q, p).unwrap_err();
+        assert!(matches!(e, OpenError::Unsupported { .. }), "{e}");
+        let ObjectVariant::DataWriter {
+            representation: Representation::Xml(x),
+            ..
+        } = writer(&opts(XrceRepresentation::Xml), "a", &TY, t, &q, p).unwrap()
+        else {
+            panic!()
+        };
+        assert!(
+            x.contains(
+                "<liveliness><kind>MANUAL_BY_TOPIC</kind><lease_duration><sec>1</sec>\
+                 <nanosec>500000000</nanosec></lease_duration></liveliness>"
+            ),
+            "{x}"
+        );
+        let Ok(courier_wire::xrce::bridge::Profile::Writer(w)) =
+            courier_wire::xrce::bridge::from_xml(ObjectKind::DataWriter, &x)
+        else {
+            panic!("the agent cannot read {x}")
+        };
+        assert_eq!(
+            w.qos.liveliness,
+            (
+                courier_wire::rtps::discovery::LivelinessKind::ManualByTopic,
+                courier_wire::rtps::discovery::Duration::from_std(
+                    std::time::Duration::from_millis(1500)
+                )
+            )
+        );
     }
 
     #[test]
