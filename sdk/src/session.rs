@@ -557,7 +557,11 @@ impl Session {
     /// and XRCE: a session's queries of one service share one client, whose
     /// reply reader has one type, so the replies are bound to `Resp` too;
     /// another type for either is [`QueryError::Open`] with an
-    /// [`OpenError::TypeMismatch`].
+    /// [`OpenError::TypeMismatch`]. That client (a request writer and a
+    /// reply reader, which every participant of the domain learns of) is
+    /// opened by the first query and stays open while the session lives:
+    /// a program that asks very many different services (a generic tool,
+    /// say) asks them from a session of their own and closes it when done.
     pub fn query<'a, Req: IpcMessage, Resp: IpcMessage>(
         &'a self,
         msg: &'a str,
