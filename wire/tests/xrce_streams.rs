@@ -275,6 +275,54 @@ fn heartbeats_every_period_while_unacked_and_the_client_slides_them() {
     assert_eq!(out.poll_timeout(), Some(ms(330)));
 }
 
+/// A client that acknowledges nothing for 30 s while messages wait (one
+/// that died without DELETE) gets a HEARTBEAT every 5 s from the agent,
+/// not every 200 ms (audit 17: a thousand dead clients kept an agent at
+/// 10 % CPU); any ACKNACK brings the period back. The client's streams
+/// keep their period.
+#[test]
+fn a_silent_peer_gets_heartbeats_ever_less_often_until_it_answers() {
+    let t0 = Instant::now();
+    let s = |n: u64| t0 + Duration::from_secs(n);
+    let mut out = ReliableOutput::new(&session(), R, StreamConfig::agent());
+    out.push(write(0, 8), None).unwrap();
+    out.poll_transmit(t0).unwrap();
+    // every 200 ms for the first 30 s
+    let mut beats = Vec::new();
+    let mut now = t0;
+    while now < s(60) {
+        now = out.poll_timeout().unwrap();
+        assert!(out.poll_heartbeat(now).is_some());
+        beats.push(now);
+    }
+    let before = beats.iter().filter(|t| **t < s(30)).count();
+    let after = beats.iter().filter(|t| **t >= s(30)).count();
+    assert_eq!(before, 149, "every 200 ms while it may just be slow");
+    assert!(
+        (5..=7).contains(&after),
+        "{after} heartbeats in the last 30 s"
+    );
+    assert!(beats
+        .windows(2)
+        .filter(|w| w[0] >= s(31))
+        .all(|w| w[1] - w[0] == Duration::from_secs(5)));
+    // it answers (acknowledging nothing new): the period is back
+    let t = now + Duration::from_millis(10);
+    out.on_acknack(&ack(0, 0), t);
+    assert_eq!(out.poll_timeout(), Some(t + Duration::from_millis(200)));
+
+    // the client's streams always beat at their period
+    let mut out = ReliableOutput::new(&session(), R, StreamConfig::client());
+    out.push(write(0, 8), None).unwrap();
+    out.poll_transmit(t0).unwrap();
+    let mut now = t0;
+    while now < s(40) {
+        now = out.poll_timeout().unwrap();
+        out.poll_heartbeat(now).unwrap();
+    }
+    assert_eq!(out.poll_timeout(), Some(now + Duration::from_millis(100)));
+}
+
 fn fragment_sizes(m: &[u8]) -> Vec<(u8, usize)> {
     Message::decode(m)
         .unwrap()

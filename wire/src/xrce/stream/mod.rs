@@ -121,7 +121,21 @@ pub struct StreamConfig {
     /// reported as soon as it is seen). Keep `d` well below the peer's
     /// HEARTBEAT period (100 ms for eProsima's client, 200 ms its agent).
     pub ack_delay: Option<Duration>,
+    /// A peer that has acknowledged nothing for this long while messages
+    /// wait for it is taken for gone (a client that died without DELETE)
+    /// and gets a HEARTBEAT only every [`SILENT_HEARTBEAT`] until it
+    /// answers: a HEARTBEAT every period to each of a thousand dead
+    /// clients kept an agent busy for ever. `None` (the client's): the
+    /// period always. The agent's: 30 s, MicroXRCEAgent's
+    /// `CLIENT_DEAD_TIME` (which stops HEARTBEATs to such a client
+    /// altogether; a client that comes back would then never learn what
+    /// it missed).
+    pub silent_after: Option<Duration>,
 }
+
+/// How often a peer silent for [`StreamConfig::silent_after`] gets a
+/// HEARTBEAT.
+pub const SILENT_HEARTBEAT: Duration = Duration::from_secs(5);
 
 impl StreamConfig {
     /// The eProsima client's settings: MTU 508, window 16, packing and
@@ -138,6 +152,7 @@ impl StreamConfig {
             heartbeat_slides: true,
             nack_resends_all: true,
             ack_delay: None,
+            silent_after: None,
         }
     }
 
@@ -164,6 +179,7 @@ impl StreamConfig {
             heartbeat_period: Duration::from_millis(200),
             heartbeat_slides: false,
             nack_resends_all: false,
+            silent_after: Some(Duration::from_secs(30)),
             ..Self::client()
         }
     }

@@ -120,6 +120,9 @@ pub struct ReliableOutput {
     resend: VecDeque<SeqNum>,
     hb_deadline: Option<Instant>,
     hb_base: Option<Instant>,
+    /// Since when messages have waited for the peer with no ACKNACK from
+    /// it (`None`: nothing waits). See [`StreamConfig::silent_after`].
+    unanswered_since: Option<Instant>,
     acked: VecDeque<u16>,
     /// The peer's position is unknown (the session was restored): the
     /// first ACKNACK says it.
@@ -141,6 +144,7 @@ impl ReliableOutput {
             resend: VecDeque::new(),
             hb_deadline: None,
             hb_base: None,
+            unanswered_since: None,
             acked: VecDeque::new(),
             resync: false,
         }
@@ -319,6 +323,7 @@ impl ReliableOutput {
         set_seq(&mut slot.bytes, seq);
         let bytes = slot.bytes.clone();
         self.sent += 1;
+        self.unanswered_since.get_or_insert(now);
         match self.hb_deadline {
             None => self.arm_heartbeat(now),
             Some(_) => self.touch(now),
@@ -328,7 +333,21 @@ impl ReliableOutput {
 
     fn arm_heartbeat(&mut self, now: Instant) {
         self.hb_base = Some(now);
-        self.hb_deadline = Some(crate::time::later(now, self.cfg.heartbeat_period));
+        self.hb_deadline = Some(crate::time::later(now, self.heartbeat_period(now)));
+    }
+
+    /// The HEARTBEAT period, or [`SILENT_HEARTBEAT`](super::SILENT_HEARTBEAT)
+    /// for a peer silent past [`StreamConfig::silent_after`].
+    fn heartbeat_period(&self, now: Instant) -> std::time::Duration {
+        let silent = match (self.cfg.silent_after, self.unanswered_since) {
+            (Some(after), Some(since)) => now.saturating_duration_since(since) >= after,
+            _ => false,
+        };
+        if silent {
+            super::SILENT_HEARTBEAT.max(self.cfg.heartbeat_period)
+        } else {
+            self.cfg.heartbeat_period
+        }
     }
 
     /// Something arrived from the peer (or was sent): with
@@ -355,6 +374,8 @@ impl ReliableOutput {
     /// ACKNACK of messages never sent is ignored; an old one only re-arms
     /// the heartbeat.
     pub fn on_acknack(&mut self, ack: &AckNack, now: Instant) {
+        // the peer is there, whatever the ACKNACK says
+        self.unanswered_since = Some(now);
         let first = SeqNum(ack.first_unacked);
         let newly = usize::from(first.wrapping_sub(1).since(self.last_acked));
         if std::mem::take(&mut self.resync) && newly > self.sent {
@@ -402,6 +423,7 @@ impl ReliableOutput {
             self.arm_heartbeat(now);
         } else {
             self.hb_deadline = None;
+            self.unanswered_since = None;
         }
     }
 
@@ -413,6 +435,7 @@ impl ReliableOutput {
         }
         if self.sent == 0 {
             self.hb_deadline = None;
+            self.unanswered_since = None;
             return None;
         }
         self.arm_heartbeat(now);
