@@ -918,24 +918,22 @@ fn cases() -> Vec<Case> {
         case_reordered: NestOrdA(OrdInA),
         case: NestInOrdM(InOrdM)
     );
-    v.extend([
-        case(
-            NestWrap {
-                w: Wrap {
-                    i: In2 { x: 1, y: 2 },
-                    z: 3,
-                },
-                s: text(1),
+    v.extend([case(
+        NestWrap {
+            w: Wrap {
+                i: In2 { x: 1, y: 2 },
+                z: 3,
             },
-            NestWrap {
-                w: Wrap {
-                    i: In2 { x: 1, y: 2 },
-                    z: 3,
-                },
-                s: String::new(),
+            s: text(1),
+        },
+        NestWrap {
+            w: Wrap {
+                i: In2 { x: 1, y: 2 },
+                z: 3,
             },
-        ),
-    ]);
+            s: String::new(),
+        },
+    )]);
     let pt = || PtLL { x: -3, y: 1 << 40 };
     v.extend([
         case(LL { a: 1, b: -2 }, LL { a: 0, b: 0 }),
