@@ -805,15 +805,25 @@ fn an_xrce_publication_offers_manual_liveliness_to_dds() {
             } => Some((alive, alive_count, not_alive_count)),
             _ => None,
         };
-        let first = tokio::time::timeout(T, async {
-            loop {
-                if let Some(l) = liveliness(ev.next().await.unwrap()) {
-                    return l;
+        // the next liveliness change, within T
+        async fn next_change(
+            ev: &mut courier::Events,
+            liveliness: impl Fn(SessionEvent) -> Option<(bool, u32, u32)>,
+        ) -> Option<(bool, u32, u32)> {
+            tokio::time::timeout(T, async {
+                loop {
+                    if let Some(l) = liveliness(ev.next().await?) {
+                        return Some(l);
+                    }
                 }
-            }
-        })
-        .await
-        .expect("the RTPS subscriber never matched the board's writer");
+            })
+            .await
+            .ok()
+            .flatten()
+        }
+        let first = next_change(&mut ev, liveliness)
+            .await
+            .expect("the RTPS subscriber never matched the board's writer");
         assert_eq!(first, (true, 1, 0));
         // three leases of publishing, 300 ms apart: never not alive
         for i in 0..10 {
@@ -823,15 +833,9 @@ fn an_xrce_publication_offers_manual_liveliness_to_dds() {
                 assert_eq!(liveliness(e).map(|l| l.0), None, "lapsed while publishing");
             }
         }
-        let lapsed = tokio::time::timeout(T, async {
-            loop {
-                if let Some(l) = liveliness(ev.next().await.unwrap()) {
-                    return l;
-                }
-            }
-        })
-        .await
-        .expect("no lapse after the board stopped publishing");
+        let lapsed = next_change(&mut ev, liveliness)
+            .await
+            .expect("no lapse after the board stopped publishing");
         assert_eq!(lapsed, (false, 0, 1));
         drop(p);
         board.close().await;
