@@ -1696,3 +1696,60 @@ fn a_manual_liveliness_from_xml_lapses_when_the_client_stops_writing() {
     );
     assert_eq!(liveliness(&w)[1], (false, 0, 1));
 }
+
+/// A reading client that dies without DELETE (audit 17: each cost the
+/// agent 2–18 MB for ever, its reliable stream's backlog refilled as DDS
+/// samples came): once it has answered nothing for 30 s, nothing more is
+/// queued for it, what was queued and not sent is dropped (counted), and
+/// its reader keeps only the newest.
+#[test]
+fn a_dead_readers_client_stops_costing_memory_once_silent() {
+    let mut w = world(12, 0, |_, _| {});
+    let now = w.net.now();
+    let dw = w
+        .dds()
+        .create_writer(
+            EndpointConfig::writer("Feed", "HelloWorld").qos(reliable_keep_all(false)),
+            now,
+        )
+        .unwrap();
+    let c = w.add_client(10, 0xAAAA_0012);
+    w.create(c, reader_objects("Feed", true), CreationMode::REPLACE);
+    let now = w.net.now();
+    w.client(c)
+        .read(oid(ObjectKind::DataReader), R, R, unlimited(), now)
+        .unwrap();
+    assert!(w.run_until(Duration::from_secs(10), |w| {
+        match &w.net.hosts[w.dds].node {
+            N::Dds(d, _) => d.matched_readers(dw) == 1,
+            _ => false,
+        }
+    }));
+    // alive and reading first
+    let now = w.net.now();
+    w.dds()
+        .write(dw, Change::alive_owned(encapsulated(&sample(0, 8))), now)
+        .unwrap();
+    assert!(w.run_until(Duration::from_secs(10), |w| w.data(c).len() == 1));
+    w.kill(c);
+    let buffered = |w: &mut World| w.bridge().agent().buffered_bytes();
+    let mut at = Vec::new();
+    // 1 KiB samples at 50 Hz for 60 s
+    for i in 0..3000u32 {
+        let now = w.net.now();
+        let r = w
+            .dds()
+            .write(dw, Change::alive_owned(encapsulated(&sample(i, 1024))), now);
+        r.unwrap();
+        w.net.run_for(Duration::from_millis(20));
+        if i % 250 == 249 {
+            at.push(buffered(&mut w));
+        }
+    }
+    // before 30 s the stream queues up to its backlog (1 MiB), after it
+    // holds only its window of sent messages
+    eprintln!("{:?} {:?}", w.bridge().stats(), at);
+    assert!(at[4] > 512 << 10, "{at:?}");
+    assert!(at[11] < 64 << 10, "{at:?}");
+    assert!(w.bridge().stats().samples_dropped > 1000);
+}

@@ -311,6 +311,18 @@ fn a_silent_peer_gets_heartbeats_ever_less_often_until_it_answers() {
     out.on_acknack(&ack(0, 0), t);
     assert_eq!(out.poll_timeout(), Some(t + Duration::from_millis(200)));
 
+    // everything acknowledged, then a minute of quiet with nothing to
+    // send: a new message is not taken for a silent peer
+    let mut out = ReliableOutput::new(&session(), R, StreamConfig::agent());
+    out.push(write(0, 8), None).unwrap();
+    out.poll_transmit(t0).unwrap();
+    out.on_acknack(&ack(1, 0), s(1));
+    // (one acknowledging what was never sent, ignored)
+    out.on_acknack(&ack(9, 0), s(2));
+    out.push(write(1, 8), None).unwrap();
+    out.poll_transmit(s(62)).unwrap();
+    assert_eq!(out.poll_timeout(), Some(s(62) + Duration::from_millis(200)));
+
     // the client's streams always beat at their period
     let mut out = ReliableOutput::new(&session(), R, StreamConfig::client());
     out.push(write(0, 8), None).unwrap();

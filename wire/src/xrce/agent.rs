@@ -991,6 +991,24 @@ impl<A: Clone + Eq + Hash> Agent<A> {
         self.queue(client, stream, sub)
     }
 
+    /// Whether `client` has answered nothing for
+    /// [`StreamConfig::silent_after`] while reliable messages waited for it
+    /// (it died without DELETE, or its link is down): what is for it is
+    /// best not queued further ([`drop_unsent`](Self::drop_unsent)).
+    pub fn client_silent(&self, client: ClientKey, now: Instant) -> bool {
+        self.clients
+            .get(&u32::from(client))
+            .is_some_and(|p| p.streams.is_silent(now))
+    }
+
+    /// Drops what `client`'s reliable streams queue beyond their windows,
+    /// never sent: how many submessages.
+    pub fn drop_unsent(&mut self, client: ClientKey) -> usize {
+        self.clients
+            .get_mut(&u32::from(client))
+            .map_or(0, |p| p.streams.drop_unsent())
+    }
+
     /// Time passed; HEARTBEATs that are due go out with the next
     /// [`poll_transmit`](Self::poll_transmit).
     pub fn handle_timeout(&mut self, now: Instant) {

@@ -575,6 +575,21 @@ impl Streams {
                 .sum::<usize>()
     }
 
+    /// Whether a reliable output stream's peer has answered nothing for
+    /// [`StreamConfig::silent_after`] while messages waited.
+    pub fn is_silent(&self, now: Instant) -> bool {
+        self.rel_out.values().any(|s| s.is_silent(now))
+    }
+
+    /// Drops what the reliable output streams queue beyond their windows,
+    /// never sent ([`ReliableOutput::drop_unsent`]): how many submessages.
+    pub fn drop_unsent(&mut self) -> usize {
+        self.rel_out
+            .values_mut()
+            .map(ReliableOutput::drop_unsent)
+            .sum()
+    }
+
     /// Whether every output stream is empty and acknowledged.
     pub fn is_idle(&self) -> bool {
         self.control.is_empty()

@@ -1584,6 +1584,14 @@ fn deliver<A: Clone + Eq + Hash>(
         return;
     }
     inbox.wake = None;
+    if agent.client_silent(key.0, now) {
+        // the client answers nothing (dead, or cut off): nothing more is
+        // queued for it, what was queued and not sent goes, and the reader
+        // keeps only the newest; its next answer lets delivery go on
+        let dropped = agent.drop_unsent(key.0) + inbox.trim_for_silence();
+        stats.samples_dropped += dropped as u64;
+        return;
+    }
     while let Some(sample) = inbox.queue.front() {
         let Some(d) = inbox.delivery.as_mut() else {
             break;

@@ -144,6 +144,12 @@ pub(super) struct Inbox {
 /// could hold back (from remote DDS writers) before it drops the oldest.
 pub const HOLD_SLACK: usize = 4;
 
+/// The bytes a reader keeps, newest first, for a client that has answered
+/// nothing for a while ([`StreamConfig::silent_after`](crate::xrce::stream::StreamConfig::silent_after)):
+/// a dead client's readers (1024 clients, each reader up to 16 MiB) cost
+/// little, and one whose link comes back still finds the latest samples.
+pub const SILENT_BYTES: usize = 1 << 20;
+
 impl Inbox {
     pub fn new(cap: usize, byte_cap: usize) -> Self {
         Inbox {
@@ -200,6 +206,19 @@ impl Inbox {
         while self.queue.len() > 1 && (self.queue.len() > limit || self.bytes > self.byte_cap) {
             self.pop();
             dropped = true;
+        }
+        dropped
+    }
+
+    /// Drops the oldest samples down to what a reader keeps for a client
+    /// that answers nothing ([`SILENT_BYTES`], and `cap` samples): how many.
+    pub fn trim_for_silence(&mut self) -> usize {
+        let mut dropped = 0;
+        while self.queue.len() > 1
+            && (self.queue.len() > self.cap || self.bytes > SILENT_BYTES.min(self.byte_cap))
+        {
+            self.pop();
+            dropped += 1;
         }
         dropped
     }

@@ -336,14 +336,29 @@ impl ReliableOutput {
         self.hb_deadline = Some(crate::time::later(now, self.heartbeat_period(now)));
     }
 
+    /// Whether messages have waited for the peer for
+    /// [`StreamConfig::silent_after`] with no ACKNACK from it.
+    pub fn is_silent(&self, now: Instant) -> bool {
+        match (self.cfg.silent_after, self.unanswered_since) {
+            (Some(after), Some(since)) => now.saturating_duration_since(since) >= after,
+            _ => false,
+        }
+    }
+
+    /// Drops the submessages queued beyond the window, never sent (and so
+    /// no gap for the peer), except those with a tag (whose fate someone
+    /// waits for) and one partly cut into fragments already: how many.
+    pub fn drop_unsent(&mut self) -> usize {
+        let before = self.backlog.len();
+        self.backlog.retain(|p| p.tag.is_some() || p.cut > 0);
+        self.backlog_bytes = self.backlog.iter().map(|p| p.bytes.len()).sum();
+        before - self.backlog.len()
+    }
+
     /// The HEARTBEAT period, or [`SILENT_HEARTBEAT`](super::SILENT_HEARTBEAT)
     /// for a peer silent past [`StreamConfig::silent_after`].
     fn heartbeat_period(&self, now: Instant) -> std::time::Duration {
-        let silent = match (self.cfg.silent_after, self.unanswered_since) {
-            (Some(after), Some(since)) => now.saturating_duration_since(since) >= after,
-            _ => false,
-        };
-        if silent {
+        if self.is_silent(now) {
             super::SILENT_HEARTBEAT.max(self.cfg.heartbeat_period)
         } else {
             self.cfg.heartbeat_period
@@ -374,8 +389,13 @@ impl ReliableOutput {
     /// ACKNACK of messages never sent is ignored; an old one only re-arms
     /// the heartbeat.
     pub fn on_acknack(&mut self, ack: &AckNack, now: Instant) {
-        // the peer is there, whatever the ACKNACK says
-        self.unanswered_since = Some(now);
+        self.take_acknack(ack, now);
+        // the peer is there, whatever the ACKNACK said: what still waits
+        // for it waits from now
+        self.unanswered_since = (self.sent > 0).then_some(now);
+    }
+
+    fn take_acknack(&mut self, ack: &AckNack, now: Instant) {
         let first = SeqNum(ack.first_unacked);
         let newly = usize::from(first.wrapping_sub(1).since(self.last_acked));
         if std::mem::take(&mut self.resync) && newly > self.sent {
@@ -420,10 +440,10 @@ impl ReliableOutput {
             }
         }
         if self.sent > 0 {
+            self.unanswered_since = Some(now);
             self.arm_heartbeat(now);
         } else {
             self.hb_deadline = None;
-            self.unanswered_since = None;
         }
     }
 
