@@ -336,7 +336,11 @@ impl<T: IpcMessage> PublisherBuilder<T> {
             self.session.settled(&[&self.msg], r)?
         };
         Ok(Publisher {
-            handle: Arc::new(self.session.owned(Handle::Publication(id))),
+            handle: Arc::new(
+                self.session
+                    .owned(Handle::Publication(id))
+                    .binding(self.session.topics.hold::<T>(&self.msg)),
+            ),
             id,
             cdr: self.qos.representation_for(T::EXTENSIBILITY).encoding(),
             session: self.session,

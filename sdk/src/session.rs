@@ -62,6 +62,8 @@ pub use crate::backend::{
 pub(crate) struct Owned {
     pub(crate) backend: Option<Arc<dyn Backend>>,
     pub(crate) handle: Handle,
+    /// The topics it binds to their types while it lives.
+    pub(crate) uses: Vec<crate::topics::TopicUse>,
 }
 
 impl Owned {
@@ -69,7 +71,14 @@ impl Owned {
         Owned {
             backend: Some(backend.clone()),
             handle,
+            uses: Vec::new(),
         }
+    }
+
+    /// Keeps `topic` bound while the handle lives.
+    pub(crate) fn binding(mut self, topic: crate::topics::TopicUse) -> Self {
+        self.uses.push(topic);
+        self
     }
 }
 
@@ -253,9 +262,13 @@ impl Session {
     /// creates the topic's writer with the default [`PublicationQos`]
     /// (reliable, volatile, keep-all); use [`Session::publisher`] for others.
     ///
-    /// A topic carries one type per session: defining, publishing,
-    /// subscribing, querying or serving it later with a type of another
-    /// IPC format or DDS type name fails with [`OpenError::TypeMismatch`].
+    /// A topic carries one type per session while the session uses it:
+    /// defining, publishing, subscribing, querying or serving it later with
+    /// a type of another IPC format or DDS type name fails with
+    /// [`OpenError::TypeMismatch`]. A topic the session defined, published
+    /// or queried stays bound for the session's life; one it only
+    /// subscribed, served or had publishers of is free again once the last
+    /// of those handles is dropped (and the session forgets its name).
     /// Typed [`publish`](Session::publish), [`query`](Session::query) and
     /// [`serve`](Session::serve) define what they need themselves; call
     /// `define` to choose the moment (IPC_defineMsg ahead of time).
@@ -732,9 +745,15 @@ impl Session {
             .backend
             .open_service(msg, &TypeInfo::of::<Req>(), &TypeInfo::of::<Resp>(), 1000)
             .await?;
+        let mut handle = self
+            .owned(Handle::Service(id))
+            .binding(self.topics.hold::<Req>(msg));
+        if !reply_msg.is_empty() {
+            handle = handle.binding(self.topics.hold::<Resp>(reply_msg));
+        }
         Ok(Requests {
             rx,
-            _handle: self.owned(Handle::Service(id)),
+            _handle: handle,
             ended: false,
             end: self.end.clone(),
             reply_msg: reply_msg.to_string(),

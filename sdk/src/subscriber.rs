@@ -362,7 +362,9 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
         let id = self.session.settled(&[&self.msg], r)?;
         Ok(RawSubscriber::new(
             queue,
-            self.session.owned(Handle::Subscription(id)),
+            self.session
+                .owned(Handle::Subscription(id))
+                .binding(self.session.topics.hold::<T>(&self.msg)),
         ))
     }
 
@@ -772,6 +774,7 @@ mod tests {
                 Owned {
                     backend: None,
                     handle: Handle::Subscription(SubId(0)),
+                    uses: Vec::new(),
                 },
             ),
             msg: "m".into(),
