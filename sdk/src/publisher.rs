@@ -119,7 +119,7 @@ impl<'a> std::future::IntoFuture for Publish<'a> {
                     let id = self.session.settled(&[self.msg], r)?;
                     self.session.backend.write(id, self.data, opts).await
                 }),
-                Some(self.session),
+                self.session,
             ),
         })
     }
@@ -144,7 +144,7 @@ enum Step<'a> {
     /// outside any (a confirmed XRCE publish makes a tokio timer).
     Wait(
         Pin<Box<dyn Future<Output = Result<(), PublishError>> + Send + 'a>>,
-        Option<&'a Session>,
+        &'a Session,
     ),
     Done(Option<Result<(), PublishError>>),
 }
@@ -187,14 +187,13 @@ impl Future for PublishFuture<'_> {
                             return Poll::Ready(r);
                         }
                         WriteNow::Wait(data, opts) => {
-                            self.0 =
-                                Step::Wait(session.backend.write(id, data, opts), Some(session));
+                            self.0 = Step::Wait(session.backend.write(id, data, opts), session);
                         }
                     }
                 }
                 Step::Wait(mut f, session) => {
                     let r = {
-                        let _in = session.and_then(|s| s.home.enter());
+                        let _in = session.home.enter();
                         f.as_mut().poll(cx)
                     };
                     if r.is_pending() {
