@@ -32,6 +32,16 @@ fn cyclone(args: &[&str]) -> PeerProcess {
     PeerProcess::spawn(exe, args).unwrap_or_else(|e| panic!("{e}"))
 }
 
+/// The agent's DDS participant on `lo` only, unicast to 127.0.0.1.
+const LOOPBACK: [&str; 6] = [
+    "--interface",
+    "lo",
+    "--peers",
+    "127.0.0.1",
+    "--multicast",
+    "off",
+];
+
 fn local(port: u16) -> SocketAddr {
     SocketAddr::from(([127, 0, 0, 1], port))
 }
@@ -445,14 +455,7 @@ fn start_agent(
     use std::io::BufRead;
     let mut child = AgentProc(
         cmd.args(["udp4", "-p", &port.to_string(), "--bind", "127.0.0.1"])
-            .args([
-                "--interface",
-                "lo",
-                "--peers",
-                "127.0.0.1",
-                "--multicast",
-                "off",
-            ])
+            .args(LOOPBACK)
             .args(["--domain", &domain.to_string(), "-v", "2", "--state"])
             .arg(state)
             .stdout(std::process::Stdio::piped())
@@ -672,14 +675,7 @@ fn first_stderr_line(d: u32, extra: &[&str], env: &[(&str, &str)]) -> String {
     use std::io::BufRead;
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_xrce-agent"));
     cmd.args(["udp4", "-p", "0", "--bind", "127.0.0.1"])
-        .args([
-            "--interface",
-            "lo",
-            "--peers",
-            "127.0.0.1",
-            "--multicast",
-            "off",
-        ])
+        .args(LOOPBACK)
         .args(["--domain", &d.to_string()])
         .args(extra)
         .envs(env.iter().copied())
