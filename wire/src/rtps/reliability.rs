@@ -55,6 +55,9 @@ pub enum Transmit {
         count: i32,
         /// No reply needed.
         final_flag: bool,
+        /// The L flag: it asserts the writer's liveliness (DDS
+        /// `assert_liveliness` on a manual-by-topic writer).
+        liveliness: bool,
     },
     /// A reader's acknowledgement / negative acknowledgement.
     AckNack {
@@ -531,16 +534,19 @@ impl Writer {
         }
     }
 
-    /// A liveliness-only heartbeat (DDS `assert_liveliness` on a
-    /// manual-by-topic writer): the range it has and a fresh count, for a
-    /// HEARTBEAT with the L flag to every matched reader (sent by the caller).
-    pub fn liveliness_heartbeat(&mut self) -> (SequenceNumber, SequenceNumber, i32) {
+    /// Queues a liveliness-only heartbeat (DDS `assert_liveliness` on a
+    /// manual-by-topic writer): the range it has, a fresh count and the L
+    /// flag, to every matched reader, asking for no answer.
+    pub fn assert_liveliness(&mut self) {
         self.hb_count = self.hb_count.wrapping_add(1);
-        (
-            SequenceNumber(self.first_sn()),
-            SequenceNumber(self.next_sn - 1),
-            self.hb_count,
-        )
+        self.out.push_back(Transmit::Heartbeat {
+            to: None,
+            first: SequenceNumber(self.first_sn()),
+            last: SequenceNumber(self.next_sn - 1),
+            count: self.hb_count,
+            final_flag: true,
+            liveliness: true,
+        });
     }
 
     /// Queues a heartbeat for one reader, or for all of them. A fresh
@@ -566,6 +572,7 @@ impl Writer {
             last,
             count,
             final_flag,
+            liveliness: false,
         };
         match to {
             Some(r) => {
@@ -1207,6 +1214,7 @@ mod tests {
                         last,
                         count,
                         final_flag,
+                        liveliness,
                         ..
                     } => r.handle_heartbeat(
                         wg,
@@ -1217,7 +1225,7 @@ mod tests {
                             last_sn: last,
                             count,
                             final_flag,
-                            liveliness: false,
+                            liveliness,
                         },
                     ),
                     Transmit::AckNack { .. } => unreachable!(),

@@ -66,17 +66,13 @@ impl Route<'_> {
         self.locate(r, self.remote_readers.get(&r))
     }
 
-    pub(super) fn writer(&self, w: Guid) -> Option<Locator> {
+    fn writer(&self, w: Guid) -> Option<Locator> {
         self.locate(w, self.remote_writers.get(&w))
     }
 
     /// Destinations for "every matched reader": one per (locator,
     /// participant); the reader's entity id when it is alone there.
-    pub(super) fn group(
-        &self,
-        readers: &BTreeSet<Guid>,
-        groups: &mut Vec<(Locator, GuidPrefix, EntityId)>,
-    ) {
+    fn group(&self, readers: &BTreeSet<Guid>, groups: &mut Vec<(Locator, GuidPrefix, EntityId)>) {
         groups.clear();
         for r in readers {
             let Some(l) = self.reader(*r) else { continue };
@@ -230,6 +226,7 @@ fn emit_writer(
             last,
             count,
             final_flag,
+            liveliness,
         } => {
             let t = targets(to, outbox);
             for &(l, p, rid) in &t {
@@ -240,7 +237,7 @@ fn emit_writer(
                     last_sn: last,
                     count,
                     final_flag,
-                    liveliness: false,
+                    liveliness,
                 };
                 outbox.push_sm(l, p, None, &Submessage::Heartbeat(h));
             }

@@ -52,7 +52,7 @@ use super::change::{envelope, ChangeKind};
 use super::{KeyHash, Participant};
 use crate::rtps::discovery::{Duration as RtpsDuration, LivelinessKind};
 use crate::rtps::reliability::{Reader, Writer};
-use crate::rtps::{EntityId, Guid, GuidPrefix, Heartbeat, SequenceNumber, Submessage};
+use crate::rtps::{EntityId, Guid, GuidPrefix, SequenceNumber};
 
 /// `PARTICIPANT_MESSAGE_DATA_KIND_AUTOMATIC_LIVELINESS_UPDATE`.
 pub const PMD_KIND_AUTOMATIC: [u8; 4] = [0, 0, 0, 1];
@@ -275,26 +275,7 @@ impl Participant {
             return false;
         };
         let by_participant = lw.data.qos.liveliness.0 == LivelinessKind::ManualByParticipant;
-        let (first, last, count) = lw.writer.liveliness_heartbeat();
-        let route = super::emit::Route {
-            participants: &self.participants,
-            remote_writers: &self.remote_writers,
-            remote_readers: &self.remote_readers,
-        };
-        let mut groups = Vec::new();
-        route.group(&lw.matched, &mut groups);
-        for (l, p, rid) in groups {
-            let h = Heartbeat {
-                reader_id: rid,
-                writer_id: writer.entity,
-                first_sn: first,
-                last_sn: last,
-                count,
-                final_flag: true,
-                liveliness: true,
-            };
-            self.outbox.push_sm(l, p, None, &Submessage::Heartbeat(h));
-        }
+        lw.writer.assert_liveliness();
         if by_participant {
             self.write_pmd(PMD_KIND_MANUAL, now);
         }
