@@ -752,3 +752,37 @@ async fn a_cancelled_first_use_does_not_bind_the_topic() {
     }
     c.shutdown().await;
 }
+
+/// Liveliness where a backend cannot keep it is refused when the handle is
+/// built, naming what and where (IPC has no liveliness; a plain
+/// `assert_liveliness` there is refused too).
+#[tokio::test]
+async fn liveliness_on_ipc_is_refused_by_name() {
+    use courier::qos::LivelinessKind;
+    let (c, url) = central().await;
+    let a = session(&url, "lively").await;
+    let e = a
+        .publisher::<i32>("beat")
+        .liveliness(LivelinessKind::ManualByTopic, Duration::from_secs(1))
+        .build()
+        .await
+        .err()
+        .unwrap();
+    assert!(
+        matches!(&e, OpenError::Unsupported { what, .. } if what.contains("liveliness")),
+        "{e:?}"
+    );
+    let e = a
+        .subscriber::<i32>("beat")
+        .liveliness(LivelinessKind::Automatic, Duration::from_secs(1))
+        .build()
+        .await
+        .err()
+        .unwrap();
+    assert!(matches!(e, OpenError::Unsupported { .. }), "{e:?}");
+    let p = a.publisher::<i32>("beat").build().await.unwrap();
+    let e = p.assert_liveliness().await.unwrap_err();
+    assert!(matches!(e, PublishError::Unsupported { .. }), "{e:?}");
+    a.close().await;
+    c.shutdown().await;
+}

@@ -806,3 +806,48 @@ async fn concurrent_first_queries_share_a_refused_open() {
     assert_eq!(agent.requesters_created(), 2);
     client.close().await;
 }
+
+/// XRCE: a publication offers liveliness only in the XML representation
+/// (the binary one has no field for it); a subscription cannot request
+/// one, and `assert_liveliness` has no XRCE message: each is refused by
+/// name, never dropped.
+#[tokio::test]
+async fn liveliness_where_xrce_cannot_carry_it_is_refused_by_name() {
+    use courier::qos::LivelinessKind;
+    let agent = xrce_agent::udp(0).await;
+    let bin = session(format!("xrce+udp://{}", agent.addr), "bin").await;
+    let e = bin
+        .publisher::<i32>("beat")
+        .liveliness(LivelinessKind::ManualByTopic, Duration::from_secs(1))
+        .build()
+        .await
+        .err()
+        .unwrap();
+    assert!(e.to_string().contains("representation=xml"), "{e}");
+    let e = bin
+        .subscriber::<i32>("beat")
+        .liveliness(LivelinessKind::Automatic, Duration::from_secs(1))
+        .build()
+        .await
+        .err()
+        .unwrap();
+    assert!(matches!(e, OpenError::Unsupported { .. }), "{e:?}");
+    let xml = session(
+        format!("xrce+udp://{}?representation=xml", agent.addr),
+        "xml",
+    )
+    .await;
+    let p = xml
+        .publisher::<i32>("beat")
+        .liveliness(LivelinessKind::ManualByTopic, Duration::from_secs(1))
+        .build()
+        .await
+        .unwrap();
+    let e = p.assert_liveliness().await.unwrap_err();
+    assert!(
+        matches!(e, courier::PublishError::Unsupported { .. }),
+        "{e:?}"
+    );
+    bin.close().await;
+    xml.close().await;
+}
