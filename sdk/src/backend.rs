@@ -403,6 +403,15 @@ pub trait DdsControl: Send + Sync {
             backend: "this backend",
         })
     }
+    /// Asserts the liveliness of every manual-by-participant publication of
+    /// the session without writing (see
+    /// [`Session::assert_liveliness`](crate::Session::assert_liveliness)).
+    async fn assert_participant_liveliness(&self) -> Result<(), PublishError> {
+        Err(PublishError::Unsupported {
+            what: "assert_participant_liveliness".into(),
+            backend: "this backend",
+        })
+    }
     /// Disposes or unregisters an instance written by `publication`;
     /// `key` is the serialized key (CDR with its encapsulation header),
     /// empty when the key hash alone names it.

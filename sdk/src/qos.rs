@@ -37,8 +37,9 @@
 //! session does it (Courier sends a participant message every third of
 //! the shortest automatic lease of its publications); a stopped or
 //! disconnected process lapses. [`LivelinessKind::ManualByParticipant`]:
-//! any write or [`Publisher::assert_liveliness`](crate::Publisher::assert_liveliness)
-//! of any such publication of the session asserts them all.
+//! any write of the session, [`Publisher::assert_liveliness`](crate::Publisher::assert_liveliness)
+//! of any such publication, or [`Session::assert_liveliness`](crate::Session::assert_liveliness)
+//! asserts them all.
 //! [`LivelinessKind::ManualByTopic`]: only the publication's own writes and
 //! assertions count. A subscription that requests a liveliness (a kind at
 //! least as strict as the writer's, a lease at least as long) matches

@@ -902,6 +902,27 @@ impl Session {
             .await
     }
 
+    /// Asserts the liveliness of every publication of this session whose
+    /// [`liveliness`](crate::PublisherBuilder::liveliness) is manual by
+    /// participant, without publishing (DDS's
+    /// `DomainParticipant::assert_liveliness`): one participant message to
+    /// every matched participant. Publications that are manual by topic
+    /// are not asserted by it: each asserts by its own publishes or
+    /// [`Publisher::assert_liveliness`](crate::Publisher::assert_liveliness).
+    /// A publish of any publication of the session asserts too.
+    ///
+    /// [`PublishError::Unsupported`] on a backend other than RTPS (IPC
+    /// has no liveliness; DDS-XRCE carries no assertion).
+    pub async fn assert_liveliness(&self) -> Result<(), PublishError> {
+        match self.backend.dds() {
+            Some(dds) if self.caps.liveliness => dds.assert_participant_liveliness().await,
+            _ => Err(PublishError::Unsupported {
+                what: "asserting the session's liveliness (Session::assert_liveliness)".into(),
+                backend: self.caps.scheme,
+            }),
+        }
+    }
+
     /// Disconnects cleanly (also done when the last clone and handle is
     /// dropped). The session's streams end (with `None`, no
     /// `Err(RecvError::Disconnected)`) and its calls fail at once. On

@@ -783,6 +783,12 @@ async fn liveliness_on_ipc_is_refused_by_name() {
     let p = a.publisher::<i32>("beat").build().await.unwrap();
     let e = p.assert_liveliness().await.unwrap_err();
     assert!(matches!(e, PublishError::Unsupported { .. }), "{e:?}");
+    let e = a.assert_liveliness().await.unwrap_err();
+    assert!(
+        matches!(&e, PublishError::Unsupported { what, backend: "ipc://" }
+            if what.contains("Session::assert_liveliness")),
+        "{e:?}"
+    );
     a.close().await;
     c.shutdown().await;
 }

@@ -398,6 +398,15 @@ async fn a_stopped_fastdds_writer_goes_not_alive_and_comes_back() {
     a_stopped_peer_writer_goes_not_alive_and_comes_back(Vendor::FastDds, 8, "lv_fd_stop").await;
 }
 
+/// Which call asserts: `Publisher::assert_liveliness` (DDS's
+/// `DataWriter::assert_liveliness`) or `Session::assert_liveliness`
+/// (`DomainParticipant::assert_liveliness`).
+#[derive(Clone, Copy, Debug)]
+enum AssertBy {
+    Publication,
+    Session,
+}
+
 /// A Courier publication with a manual liveliness (`kind`, 1 s) writes
 /// nothing but asserts its liveliness four times a lease for three
 /// seconds, then writes one sample and stops: the peer's reader
@@ -411,6 +420,7 @@ async fn a_peer_reader_follows_courier_manual_assertions(
     topic: &'static str,
     kind: LivelinessKind,
     peer_kind: &str,
+    by: AssertBy,
 ) {
     let s: Session = common::session(key, "courier").await;
     let publ = s
@@ -433,7 +443,10 @@ async fn a_peer_reader_follows_courier_manual_assertions(
     })
     .await;
     for _ in 0..12 {
-        publ.assert_liveliness().await.unwrap();
+        match by {
+            AssertBy::Publication => publ.assert_liveliness().await.unwrap(),
+            AssertBy::Session => s.assert_liveliness().await.unwrap(),
+        }
         tokio::time::sleep(Duration::from_millis(250)).await;
     }
     // Fast DDS counts a writer alive only from its first assertion (data
@@ -493,6 +506,7 @@ async fn a_cyclone_reader_follows_courier_manual_by_topic_assertions() {
         "lv_m_topic",
         LivelinessKind::ManualByTopic,
         "topic:1",
+        AssertBy::Publication,
     )
     .await;
 }
@@ -506,6 +520,22 @@ async fn a_cyclone_reader_follows_courier_manual_by_participant_assertions() {
         "lv_m_pp",
         LivelinessKind::ManualByParticipant,
         "participant:1",
+        AssertBy::Publication,
+    )
+    .await;
+}
+
+/// Manual by participant, asserted by the session
+/// (`DomainParticipant::assert_liveliness`) rather than the publication.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cyclone_reader_follows_the_courier_sessions_assertions() {
+    a_peer_reader_follows_courier_manual_assertions(
+        Vendor::Cyclone,
+        13,
+        "lv_m_session",
+        LivelinessKind::ManualByParticipant,
+        "participant:1",
+        AssertBy::Session,
     )
     .await;
 }
@@ -518,6 +548,7 @@ async fn a_fastdds_reader_follows_courier_manual_by_topic_assertions() {
         "lv_fd_m_topic",
         LivelinessKind::ManualByTopic,
         "topic:1",
+        AssertBy::Publication,
     )
     .await;
 }
@@ -532,6 +563,7 @@ async fn a_fastdds_reader_follows_courier_manual_by_participant_assertions() {
         "lv_fd_m_pp",
         LivelinessKind::ManualByParticipant,
         "participant:1",
+        AssertBy::Publication,
     )
     .await;
 }

@@ -848,6 +848,12 @@ async fn liveliness_where_xrce_cannot_carry_it_is_refused_by_name() {
         matches!(e, courier::PublishError::Unsupported { .. }),
         "{e:?}"
     );
+    let e = xml.assert_liveliness().await.unwrap_err();
+    assert!(
+        matches!(&e, courier::PublishError::Unsupported { what, .. }
+            if what.contains("Session::assert_liveliness")),
+        "{e:?}"
+    );
     bin.close().await;
     xml.close().await;
 }

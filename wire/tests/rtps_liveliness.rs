@@ -221,6 +221,51 @@ fn a_manual_by_participant_writer_is_kept_alive_by_manual_participant_messages()
     assert_eq!(changes(&net, 1, r)[1], (false, 0, 1));
 }
 
+/// DDS's `DomainParticipant::assert_liveliness`: the domain-wide
+/// assertion keeps its manual-by-participant writers alive at a remote
+/// reader and at the writers themselves, and asserts no manual-by-topic
+/// writer.
+#[test]
+fn the_participant_assertion_keeps_manual_by_participant_writers_alive_only() {
+    let mut net = net();
+    let by_pp = writer(&mut net, 0, "imu", LivelinessKind::ManualByParticipant, 1);
+    let by_topic = writer(&mut net, 0, "lidar", LivelinessKind::ManualByTopic, 1);
+    let r_pp = reader(&mut net, 1, "imu", LivelinessKind::ManualByParticipant, 2);
+    let r_topic = reader(&mut net, 1, "lidar", LivelinessKind::ManualByTopic, 2);
+    matched(&mut net, r_pp);
+    assert!(
+        net.run_until(Duration::from_secs(1), |n| !changes(n, 1, r_topic)
+            .is_empty()),
+        "the manual-by-topic writer never matched"
+    );
+    for _ in 0..6 {
+        net.run_for(Duration::from_millis(500));
+        let now = net.now();
+        net.node(0).assert_participant_liveliness(now);
+    }
+    assert_eq!(changes(&net, 1, r_pp), [(true, 1, 0)], "kept alive");
+    assert_eq!(
+        changes(&net, 1, r_topic),
+        [(true, 1, 0), (false, 0, 1)],
+        "the participant's assertion does not assert a manual-by-topic writer"
+    );
+    let lost = |net: &Net, of: WriterId| {
+        net.has(
+            0,
+            |e| matches!(e, Event::LivelinessLost { writer, .. } if *writer == of),
+        )
+    };
+    assert!(!lost(&net, by_pp), "its own writer saw it asserted");
+    assert!(lost(&net, by_topic));
+    assert!(
+        net.run_until(Duration::from_millis(1500), |n| changes(n, 1, r_pp).len()
+            == 2),
+        "no lapse after the assertions stopped"
+    );
+    assert_eq!(changes(&net, 1, r_pp)[1], (false, 0, 1));
+    assert!(lost(&net, by_pp));
+}
+
 /// An automatic participant message, as Courier sends it (RTPS 2.5
 /// §9.6.2.1 and Cyclone DDS's `ddsi_participant_message_data_ops` = GUID
 /// prefix + kind as one big-endian GUID, then the data sequence): DATA

@@ -102,6 +102,9 @@ pub(super) enum Cmd {
         publication: PubId,
         reply: Reply<(), PublishError>,
     },
+    AssertParticipantLiveliness {
+        reply: Reply<(), PublishError>,
+    },
     NumHandlers {
         topic: String,
         reply: Reply<i32, ControlError>,

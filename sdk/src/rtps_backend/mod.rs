@@ -757,6 +757,11 @@ impl DdsControl for RtpsBackend {
             .await
     }
 
+    async fn assert_participant_liveliness(&self) -> Result<(), PublishError> {
+        self.ask(|reply| Cmd::AssertParticipantLiveliness { reply })
+            .await
+    }
+
     async fn end_instance(
         &self,
         publication: PubId,

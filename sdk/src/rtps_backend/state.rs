@@ -709,6 +709,10 @@ impl State {
                 };
                 let _ = reply.send(r);
             }
+            Cmd::AssertParticipantLiveliness { reply } => {
+                self.d.assert_participant_liveliness(now);
+                let _ = reply.send(Ok(()));
+            }
             Cmd::NumHandlers { topic, reply } => {
                 let _ = reply.send(Ok(self.handlers(&topic)));
             }

@@ -102,6 +102,26 @@ impl Domain {
         true
     }
 
+    /// Asserts the liveliness of every MANUAL_BY_PARTICIPANT writer of
+    /// this domain without writing (DDS's
+    /// `DomainParticipant::assert_liveliness`): one participant message of
+    /// the manual kind to every matched participant. MANUAL_BY_TOPIC
+    /// writers are not asserted by it (each asserts by its own writes or
+    /// [`Domain::assert_liveliness`]).
+    pub fn assert_participant_liveliness(&mut self, now: Instant) {
+        self.p.assert_liveliness(now);
+        let l = &mut self.liveliness;
+        l.local_participant = Some(now);
+        for o in l.offered.values_mut() {
+            if o.kind == LivelinessKind::ManualByParticipant {
+                o.last = now;
+                o.lost = false;
+            }
+        }
+        self.drain(now);
+        self.check_liveliness(now);
+    }
+
     /// A local writer wrote or asserted at `now`.
     pub(super) fn lively_written(&mut self, writer: Guid, now: Instant) {
         let l = &mut self.liveliness;
