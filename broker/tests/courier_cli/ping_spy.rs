@@ -188,6 +188,103 @@ fn deadlines_and_incompatible_qos_are_reported() {
     late.expect("offered deadline missed 2");
 }
 
+/// Liveliness from the command line: a manual publisher that writes less
+/// often than its lease is told it lapsed, a subscriber requesting it
+/// follows the publication alive and not alive, the spy shows what each
+/// offers, and an automatic publisher does not match a manual request.
+#[test]
+fn liveliness_is_offered_requested_and_reported() {
+    let u = url(206);
+    let mut spy = Proc::start(&["spy", &u, "--type", "courier::*", "--duration", "30"]);
+    spy.expect("ready");
+    let mut sub = Proc::start(&[
+        "ping",
+        &u,
+        "--subscribe",
+        "--liveliness",
+        "manual-by-topic",
+        "--lease",
+        "2000",
+        "--name",
+        "rx",
+    ]);
+    sub.expect("ready");
+    // one sample a second, a lease of 300 ms: alive at each sample,
+    // lapsed 300 ms later
+    let mut publ = Proc::start(&[
+        "ping",
+        &u,
+        "--publish",
+        "--liveliness",
+        "manual-by-topic",
+        "--lease",
+        "300",
+        "--period",
+        "1000",
+        "--name",
+        "tx",
+    ]);
+    publ.expect("matched 1");
+    publ.expect("liveliness lost 1");
+    let alive = sub.expect("liveliness ");
+    let f: Vec<&str> = alive.split_whitespace().collect();
+    assert_eq!(f.len(), 5, "{alive}");
+    assert_eq!(f[1].len(), 32, "a writer GUID: {alive}");
+    assert_eq!(&f[2..], ["alive", "alive=1", "not-alive=0"], "{alive}");
+    let lapsed = sub.expect("liveliness ");
+    assert_eq!(
+        lapsed,
+        format!("liveliness {} not-alive alive=0 not-alive=1", f[1])
+    );
+    // the next sample revives it (the event comes before the sample), and
+    // it lapses again
+    let back = sub.expect("liveliness ");
+    assert_eq!(
+        back,
+        format!("liveliness {} alive alive=1 not-alive=0", f[1])
+    );
+    let again = sub.expect("liveliness ");
+    assert_eq!(again, lapsed);
+    assert!(
+        sub.seen.iter().any(|l| l.starts_with("received ")),
+        "{:?}",
+        sub.seen
+    );
+    let e = spy.expect("publication found ");
+    assert!(
+        e.contains(" lifespan=infinite liveliness=manual-by-topic(300ms) "),
+        "{e}"
+    );
+    // found before or after the publication
+    let e = match spy
+        .seen
+        .iter()
+        .find(|l| l.starts_with("subscription found "))
+    {
+        Some(l) => l.clone(),
+        None => spy.expect("subscription found "),
+    };
+    assert!(e.contains(" liveliness=manual-by-topic(2000ms) "), "{e}");
+    drop(publ);
+    // an automatic publication (--lease alone) offers less than manual by
+    // topic: refused on both sides, naming liveliness
+    let mut auto = Proc::start(&[
+        "ping",
+        &u,
+        "--publish",
+        "--lease",
+        "500",
+        "--period",
+        "50",
+        "--name",
+        "auto",
+    ]);
+    let i = auto.expect("incompatible ");
+    assert!(i.contains("liveliness"), "{i}");
+    let i = sub.expect("incompatible ");
+    assert!(i.contains("liveliness"), "{i}");
+}
+
 /// An endpoint of another type on the topic is reported once on each side,
 /// naming both types (the session reports it as a type mismatch, no longer
 /// also as an incompatible QoS).
@@ -256,6 +353,8 @@ fn ping_over_ipc_through_central() {
         &["--publish", "--strength", "3"][..],
         &["--subscribe", "--deadline", "100"][..],
         &["--subscribe", "--best-effort"][..],
+        &["--publish", "--liveliness", "manual-by-topic"][..],
+        &["--subscribe", "--lease", "1000"][..],
     ] {
         let mut args = vec!["ping", u.as_str()];
         args.extend_from_slice(flag);

@@ -261,6 +261,12 @@ Output, one event a line:
   received <seq> from <source> <bytes> B   <source>: writer GUID (DDS), ? (IPC)
   deadline missed <total>             subscriber with --deadline (DDS)
   offered deadline missed <total>     publisher with --deadline whose --period is longer (DDS)
+  liveliness <guid> alive|not-alive alive=<n> not-alive=<n>
+                                      subscriber with --liveliness or --lease: a publication's
+                                      liveliness changed; <n>: the matched publications alive
+                                      and not alive (DDS)
+  liveliness lost <total>             publisher with a manual --liveliness whose --period is
+                                      longer than its --lease (DDS)
   skipped <reason>                    a sample that did not decode
   done                                --count reached (exit 0)
   interrupted after <n> samples …     Ctrl-C / SIGTERM / SIGHUP: session closed (exit 130 / 143 / 129)
@@ -284,7 +290,8 @@ Output, one event a line (a name with blanks is quoted; an empty list is -):
   participant lost <guid prefix> goodbye|lease-expired
   publication|subscription found|changed <guid> topic=<topic> type=<type>
       reliability=reliable|best-effort durability=volatile|transient-local|transient|persistent
-      history=keep-last(<n>)|keep-all deadline=<n>ms|infinite
+      history=keep-last(<n>)|keep-all deadline=<n>ms|infinite lifespan=<n>ms|infinite
+      liveliness=automatic|manual-by-participant|manual-by-topic(<lease>ms|infinite)
       ownership=shared|exclusive(<strength>) partitions=[<p>,...]
       representation=[XCDR1|XCDR2,...] (a writer writes the first)
   publication|subscription lost <guid>
@@ -653,6 +660,16 @@ pub struct QosArgs {
     /// Subscriber: minimum separation between samples
     #[arg(long, value_name = "MS", conflicts_with_all = ["publish", "rtt"])]
     pub min_separation: Option<u64>,
+    /// Publisher: offered liveliness (a manual kind is asserted by each
+    /// sample, so a --period longer than the lease prints `liveliness lost
+    /// <total>`); subscriber: requested, each publication's change prints
+    /// `liveliness <guid> alive|not-alive ...`
+    #[arg(long, value_enum, value_name = "KIND", conflicts_with = "rtt")]
+    pub liveliness: Option<LivelinessArg>,
+    /// The liveliness lease (default 1000 with --liveliness; alone: an
+    /// automatic liveliness with this lease)
+    #[arg(long, value_name = "MS", value_parser = at_least_1, conflicts_with = "rtt")]
+    pub lease: Option<u64>,
     /// Best-effort reliability
     #[arg(long, overrides_with = "reliable", conflicts_with = "rtt")]
     pub best_effort: bool,
@@ -661,7 +678,33 @@ pub struct QosArgs {
     pub reliable: bool,
 }
 
+/// A LIVELINESS kind, as `--liveliness` takes it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum LivelinessArg {
+    /// The session keeps it while the process runs.
+    Automatic,
+    /// Any sample of the session asserts it.
+    ManualByParticipant,
+    /// Only the publication's own samples assert it.
+    ManualByTopic,
+}
+
 impl QosArgs {
+    /// `--liveliness` and `--lease`: the kind and lease, if either is given.
+    pub fn liveliness(&self) -> Option<courier::qos::Liveliness> {
+        use courier::qos::LivelinessKind as K;
+        if self.liveliness.is_none() && self.lease.is_none() {
+            return None;
+        }
+        let kind = match self.liveliness.unwrap_or(LivelinessArg::Automatic) {
+            LivelinessArg::Automatic => K::Automatic,
+            LivelinessArg::ManualByParticipant => K::ManualByParticipant,
+            LivelinessArg::ManualByTopic => K::ManualByTopic,
+        };
+        let lease = std::time::Duration::from_millis(self.lease.unwrap_or(1000));
+        Some(courier::qos::Liveliness::new(kind, lease))
+    }
+
     /// The QoS options given, by flag.
     fn given(&self) -> Vec<&'static str> {
         let mut v = Vec::new();
@@ -676,6 +719,12 @@ impl QosArgs {
         }
         if self.min_separation.is_some() {
             v.push("--min-separation");
+        }
+        if self.liveliness.is_some() {
+            v.push("--liveliness");
+        }
+        if self.lease.is_some() {
+            v.push("--lease");
         }
         if self.best_effort {
             v.push("--best-effort");

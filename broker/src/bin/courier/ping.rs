@@ -100,6 +100,9 @@ async fn publish(
     if let Some(d) = o.qos.deadline {
         b = b.deadline(Duration::from_millis(d));
     }
+    if let Some(l) = o.qos.liveliness() {
+        b = b.liveliness(l.kind, l.lease);
+    }
     let p = b.build().await?;
     // an XRCE agent tells its clients nothing of the readers matched
     let xrce = s.xrce().is_ok();
@@ -148,6 +151,9 @@ async fn publish(
                 SessionEvent::OfferedDeadlineMissed { msg, total } if msg == o.topic => {
                     out(format_args!("offered deadline missed {total}"))
                 }
+                SessionEvent::LivelinessLost { msg, total } if msg == o.topic => {
+                    out(format_args!("liveliness lost {total}"))
+                }
                 _ => {}
             },
         }
@@ -168,6 +174,9 @@ async fn subscribe(
     }
     if let Some(d) = o.qos.deadline {
         b = b.deadline(Duration::from_millis(d));
+    }
+    if let Some(l) = o.qos.liveliness() {
+        b = b.liveliness(l.kind, l.lease);
     }
     if let Some(d) = o.qos.min_separation {
         b = b.minimum_separation(Duration::from_millis(d));
@@ -243,6 +252,19 @@ fn pub_event(
     match e {
         SessionEvent::DeadlineMissed { msg, total } if msg == o.topic => {
             out(format_args!("deadline missed {total}"));
+            false
+        }
+        SessionEvent::LivelinessChanged {
+            msg,
+            writer,
+            alive,
+            alive_count,
+            not_alive_count,
+        } if msg == o.topic => {
+            let now = if alive { "alive" } else { "not-alive" };
+            out(format_args!(
+                "liveliness {writer} {now} alive={alive_count} not-alive={not_alive_count}"
+            ));
             false
         }
         SessionEvent::IncompatibleQos {

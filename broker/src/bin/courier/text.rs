@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::OnceLock;
 
+use courier::qos::LivelinessKind;
 use courier::{DurabilityKind, EndpointInfo, History, ParticipantInfo, Reliability};
 
 use crate::cli::ProgressMode;
@@ -146,9 +147,23 @@ pub fn qos_text(e: &EndpointInfo) -> String {
         History::KeepLast(n) => format!("keep-last({n})"),
         History::KeepAll => "keep-all".into(),
     };
-    let dl = q
-        .deadline
-        .map_or("infinite".into(), |d| format!("{}ms", d.as_millis()));
+    let ms = |d: Option<std::time::Duration>| match d {
+        Some(d) if d != std::time::Duration::MAX => format!("{}ms", d.as_millis()),
+        _ => "infinite".into(),
+    };
+    let dl = ms(q.deadline);
+    let life = ms(q.lifespan);
+    let lively = match q.liveliness {
+        None => "automatic(infinite)".into(),
+        Some(l) => {
+            let kind = match l.kind {
+                LivelinessKind::Automatic => "automatic",
+                LivelinessKind::ManualByParticipant => "manual-by-participant",
+                LivelinessKind::ManualByTopic => "manual-by-topic",
+            };
+            format!("{kind}({})", ms(Some(l.lease)))
+        }
+    };
     let own = q
         .exclusive
         .map_or("shared".into(), |s| format!("exclusive({s})"));
@@ -158,8 +173,8 @@ pub fn qos_text(e: &EndpointInfo) -> String {
         .map(|r| courier::rtps::matching::RepresentationName(*r).to_string())
         .collect();
     format!(
-        "reliability={rel} durability={dur} history={hist} deadline={dl} ownership={own} \
-         partitions=[{}] representation=[{}]",
+        "reliability={rel} durability={dur} history={hist} deadline={dl} lifespan={life} \
+         liveliness={lively} ownership={own} partitions=[{}] representation=[{}]",
         q.partitions.join(","),
         reps.join(",")
     )
