@@ -285,11 +285,20 @@ fn run(args: &[&str]) -> (Option<i32>, String, String) {
     (status.code(), out, err)
 }
 
-/// A path in this test process's scratch directory.
+thread_local! {
+    /// This test's scratch directory: the harness runs each test on a
+    /// thread of its own, and the directory goes with it, also when the
+    /// test fails (one per process was left in the temporary directory by
+    /// every run).
+    static SCRATCH: tempfile::TempDir = tempfile::Builder::new()
+        .prefix("central-cli-")
+        .tempdir()
+        .unwrap();
+}
+
+/// A path in this test's scratch directory.
 fn temp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("central-cli-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
+    SCRATCH.with(|d| d.path().join(name))
 }
 
 #[test]
