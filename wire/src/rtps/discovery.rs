@@ -79,15 +79,35 @@ impl Duration {
         fraction: 0xffff_ffff,
     };
 
-    /// From a `std::time::Duration` (saturating at infinity).
+    /// From a `std::time::Duration` (saturating at infinity). The fraction
+    /// is rounded up, as Cyclone DDS rounds it (`ddsi_time.c`), so that a
+    /// duration both sides were given goes out as the same bytes: 300 ms is
+    /// 1288490189/2^32 s, not 1288490188.
     pub fn from_std(d: std::time::Duration) -> Self {
         match i32::try_from(d.as_secs()) {
             Ok(s) if s < i32::MAX => Duration {
                 seconds: s,
-                fraction: ((u64::from(d.subsec_nanos()) << 32) / 1_000_000_000) as u32,
+                // < 2^32: a subsecond is under 10^9 ns
+                fraction: (u64::from(d.subsec_nanos()) << 32).div_ceil(1_000_000_000) as u32,
             },
             _ => Self::INFINITE,
         }
+    }
+
+    /// Whether this duration is longer than `other` as times, to the
+    /// nanosecond (infinity longest): what the QoS rules compare. Peers
+    /// round a fraction each their own way (Cyclone DDS up, Courier before
+    /// down), so two encodings of 300 ms differ by one 2^-32 s; compared
+    /// by their bits, one was "longer" and a deadline or lease given alike
+    /// on both sides did not match.
+    pub fn longer_than(self, other: Duration) -> bool {
+        // negative durations (never valid) order by their bits, below zero
+        let key = |d: Duration| match d.to_std() {
+            _ if d == Self::INFINITE => (2, 0, d),
+            Some(t) => (1, t.as_nanos(), Duration::ZERO),
+            None => (0, 0, d),
+        };
+        key(self) > key(other)
     }
 
     /// As a `std::time::Duration`; `None` for infinity or negative values.
@@ -95,8 +115,9 @@ impl Duration {
         if self == Self::INFINITE || self.seconds < 0 {
             return None;
         }
-        // to the nearest nanosecond: 100 ms goes out as 429496729/2^32 s
-        // and must come back as 100 ms, not 99.999999 ms
+        // to the nearest nanosecond: 100 ms goes out as 429496730/2^32 s
+        // (Courier, Cyclone DDS) or 429496729/2^32 s (rounded down) and
+        // must come back as 100 ms either way
         let nanos = (u64::from(self.fraction) * 1_000_000_000 + (1 << 31)) >> 32;
         Some(
             std::time::Duration::from_secs(self.seconds as u64)

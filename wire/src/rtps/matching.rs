@@ -90,7 +90,9 @@ pub enum Incompatible {
         /// The writer is the exclusive one (else the reader is).
         writer_exclusive: bool,
     },
-    /// No common partition.
+    /// No common partition. Not an incompatibility DDS reports (DDS 1.4
+    /// §2.2.3.13: partitions separate endpoints on purpose): see
+    /// [`Incompatible::is_reported`].
     #[error(
         "no common partition: the writer is in {}, the reader in {}",
         partition_list(writer),
@@ -247,6 +249,27 @@ fn wildcard(pattern: &str, name: &str) -> bool {
     p[pi..].iter().all(|c| *c == b'*')
 }
 
+impl Incompatible {
+    /// Whether the mismatch is reported (an
+    /// [`Event::IncompatibleQos`](crate::rtps::participant::Event::IncompatibleQos)):
+    /// every reason but [`Incompatible::Partition`]. Endpoints in different
+    /// partitions are kept apart on purpose; DDS raises no status for them
+    /// (DDS 1.4 §2.2.3.13), nor do Cyclone DDS and Fast DDS, so a system of
+    /// robots each in its own partition does not flood every reader with
+    /// mismatches.
+    pub fn is_reported(&self) -> bool {
+        !matches!(self, Incompatible::Partition { .. })
+    }
+}
+
+/// A partition name with wildcards (fnmatch's `*` and `?`).
+fn has_wildcard(p: &str) -> bool {
+    p.contains(['*', '?'])
+}
+
+/// Whether the partitions of a writer and a reader have a name in common:
+/// equal names, or a name matching the other side's wildcard pattern; two
+/// patterns never match each other (DDS 1.4 §2.2.3.13), as in Cyclone DDS.
 fn partitions_match(w: &[String], r: &[String]) -> bool {
     let norm = |v: &[String]| -> Vec<String> {
         if v.is_empty() {
@@ -256,8 +279,13 @@ fn partitions_match(w: &[String], r: &[String]) -> bool {
         }
     };
     let (w, r) = (norm(w), norm(r));
-    w.iter()
-        .any(|a| r.iter().any(|b| a == b || wildcard(a, b) || wildcard(b, a)))
+    let pair = |a: &String, b: &String| match (has_wildcard(a), has_wildcard(b)) {
+        (false, false) => a == b,
+        (true, false) => wildcard(a, b),
+        (false, true) => wildcard(b, a),
+        (true, true) => false,
+    };
+    w.iter().any(|a| r.iter().any(|b| pair(a, b)))
 }
 
 /// Checks the requested/offered QoS rules for a writer and a reader.
@@ -273,14 +301,14 @@ pub fn check_qos(offered: &EndpointQos, requested: &EndpointQos) -> Result<(), I
             requested: requested.durability,
         });
     }
-    if offered.deadline > requested.deadline {
+    if offered.deadline.longer_than(requested.deadline) {
         return Err(Incompatible::Deadline {
             offered: offered.deadline,
             requested: requested.deadline,
         });
     }
     if liveliness_rank(offered.liveliness.0) < liveliness_rank(requested.liveliness.0)
-        || offered.liveliness.1 > requested.liveliness.1
+        || offered.liveliness.1.longer_than(requested.liveliness.1)
     {
         return Err(Incompatible::Liveliness);
     }
@@ -562,6 +590,63 @@ mod tests {
         assert_eq!(check_qos(&x2, &both), Ok(()));
     }
 
+    /// 300 ms as Cyclone DDS 11 writes it (fraction rounded up,
+    /// 1288490189) and as Courier wrote it before (rounded down,
+    /// 1288490188): a deadline or lease given alike on both sides matches
+    /// whichever way each rounded (Courier refused a Cyclone writer's
+    /// 300 ms deadline and 700 ms lease as longer than its own).
+    #[test]
+    fn durations_given_alike_match_however_the_peer_rounded_them() {
+        let ms = |n| Duration::from_std(std::time::Duration::from_millis(n));
+        assert_eq!(
+            ms(300),
+            Duration {
+                seconds: 0,
+                fraction: 1288490189
+            },
+            "rounded up, as Cyclone DDS"
+        );
+        assert_eq!(ms(100).fraction, 429496730);
+        assert_eq!(ms(250).fraction, 1 << 30, "exact stays exact");
+        assert_eq!(
+            ms(1000),
+            Duration {
+                seconds: 1,
+                fraction: 0
+            }
+        );
+        for n in [1, 100, 300, 700, 999, 1300] {
+            let d = ms(n);
+            assert_eq!(d.to_std(), Some(std::time::Duration::from_millis(n)));
+            let down = Duration {
+                fraction: d.fraction.saturating_sub(1),
+                ..d
+            };
+            assert_eq!(down.to_std(), d.to_std(), "{n} ms rounded down");
+            // as a deadline and as a lease, offered rounded one way and
+            // requested the other: they match both ways round
+            for (o, r) in [(d, down), (down, d)] {
+                let mut w = EndpointQos::writer_default();
+                let mut rd = EndpointQos::reader_default();
+                w.deadline = o;
+                rd.deadline = r;
+                w.liveliness.1 = o;
+                rd.liveliness.1 = r;
+                assert_eq!(check_qos(&w, &rd), Ok(()), "{n} ms");
+            }
+        }
+        // a nanosecond longer is longer; infinity is longest
+        let a = Duration::from_std(std::time::Duration::from_nanos(300_000_001));
+        assert!(a.longer_than(ms(300)) && !ms(300).longer_than(a));
+        assert!(Duration::INFINITE.longer_than(ms(1_000_000)));
+        assert!(!Duration::INFINITE.longer_than(Duration::INFINITE));
+        let negative = Duration {
+            seconds: -1,
+            fraction: 0,
+        };
+        assert!(Duration::ZERO.longer_than(negative));
+    }
+
     #[test]
     fn partitions_use_wildcards() {
         let s = |v: &[&str]| v.iter().map(|x| x.to_string()).collect::<Vec<_>>();
@@ -570,6 +655,13 @@ mod tests {
         assert!(partitions_match(&s(&["robot*"]), &s(&["robot1"])));
         assert!(partitions_match(&s(&["x", "r?"]), &s(&["r2"])));
         assert!(!partitions_match(&s(&["a"]), &s(&["b"])));
+        // two patterns never match, not even equal ones (§2.2.3.13; Cyclone
+        // DDS 11 matched neither pair, Courier matched both)
+        assert!(!partitions_match(&s(&["sens*"]), &s(&["sens*"])));
+        assert!(!partitions_match(&s(&["sens*"]), &s(&["se*"])));
+        assert!(!partitions_match(&s(&["r?"]), &s(&["r*"])));
+        assert!(partitions_match(&s(&["sens*", "x"]), &s(&["se*", "x"])));
+        assert!(partitions_match(&s(&["a"]), &s(&["*"])));
         // hostile: many stars against a long name stays fast
         let p = "*a".repeat(200) + "b";
         assert!(!wildcard(&p, &"a".repeat(5000)));

@@ -216,11 +216,13 @@ impl Participant {
                     writer: g,
                 });
             }
-            Some(Err(reason)) => self.events.push_back(Event::IncompatibleQos {
-                local,
-                remote: g,
-                reason,
-            }),
+            Some(Err(reason)) if reason.is_reported() => {
+                self.events.push_back(Event::IncompatibleQos {
+                    local,
+                    remote: g,
+                    reason,
+                })
+            }
             _ => {}
         }
     }
@@ -268,11 +270,13 @@ impl Participant {
                     reader: g,
                 });
             }
-            Some(Err(reason)) => self.events.push_back(Event::IncompatibleQos {
-                local,
-                remote: g,
-                reason,
-            }),
+            Some(Err(reason)) if reason.is_reported() => {
+                self.events.push_back(Event::IncompatibleQos {
+                    local,
+                    remote: g,
+                    reason,
+                })
+            }
             _ => {}
         }
     }
@@ -308,7 +312,7 @@ impl Participant {
                     }
                 }
             }
-            Err(reason) => {
+            Err(reason) if reason.is_reported() => {
                 self.events.push_back(Event::IncompatibleQos {
                     local: w,
                     remote: r,
@@ -320,6 +324,7 @@ impl Participant {
                     reason,
                 });
             }
+            Err(_) => {}
         }
     }
 }
