@@ -679,3 +679,42 @@ async fn a_courier_reader_follows_fastdds_manual_by_participant_assertions() {
     )
     .await;
 }
+
+/// A lease given alike on both sides matches, however each side rounds it
+/// into RTPS's 2^-32 s fractions: Cyclone DDS 11 sends 700 ms rounded up
+/// (3006477108/2^32 s); Courier, which rounded down and compared the bits,
+/// refused the Cyclone writer as offering a longer lease than it requested
+/// (audit 18), and the Cyclone writer, matched on its side, waited for
+/// acknowledgements that never came.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_lease_given_alike_matches_however_cyclone_rounds_it() {
+    let s: Session = common::session(14, "courier").await;
+    let mut ev = s.events();
+    let mut sub = s
+        .subscriber::<Keyed>("lv_round")
+        .liveliness(LivelinessKind::Automatic, Duration::from_millis(700))
+        .build()
+        .await
+        .unwrap();
+    let peer = Peer::start(
+        Vendor::Cyclone,
+        14,
+        "lv_round",
+        "--pub",
+        "automatic:0.7",
+        &["--count", "1", "--wait-match", "1", "--timeout-s", "60"],
+    );
+    let mut seen = Vec::new();
+    let (_, alive, a, n) = next_liveliness(&mut ev, "lv_round", &mut seen).await;
+    assert_eq!((alive, a, n), (true, 1, 0), "matched and alive: {seen:?}");
+    assert!(
+        !seen
+            .iter()
+            .any(|e| matches!(e, SessionEvent::IncompatibleQos { .. })),
+        "{seen:?}"
+    );
+    let sample = next(&mut sub).await.unwrap();
+    assert_eq!(sample.value.seq, 1);
+    drop(peer);
+    s.close().await;
+}
