@@ -735,6 +735,9 @@ async fn late_courier_reader(vendor: Vendor, domain: u32) {
     })
     .await;
     let s = session(domain).await;
+    // a volatile reliable reader beside it takes none of the history
+    // (audit 18: it asked a Cyclone writer for all of it and got it)
+    let mut volatile = s.subscriber::<Msg>("history").build().await.unwrap();
     let mut sub = s
         .subscriber::<Msg>("history")
         .transient_local()
@@ -746,6 +749,14 @@ async fn late_courier_reader(vendor: Vendor, domain: u32) {
         assert_eq!((v.seq, v.text), (seq, format!("old-{seq}")), "{vendor:?}");
         assert_eq!(v.payload, payload(seq, 8));
     }
+    // what the transient-local reader got by repair, the volatile one
+    // would have got by now too
+    let leak = tokio::time::timeout(Duration::from_millis(500), volatile.next()).await;
+    assert!(
+        leak.is_err(),
+        "{vendor:?}: a volatile reader got history: {leak:?}"
+    );
+    drop(volatile);
     drop(sub);
     s.close().await;
     peer.0.kill();

@@ -816,6 +816,8 @@ struct WriterProxy {
     /// When the next pre-emptive ACKNACK goes out; `None` once the writer
     /// has sent a heartbeat (or for a best-effort reader).
     preemptive_at: Option<Instant>,
+    /// It keeps a history for late joiners (transient-local or more).
+    durable: bool,
 }
 
 /// How long after the match a pre-emptive ACKNACK is sent again while the
@@ -836,6 +838,9 @@ fn preemptive_interval(age: Duration) -> Duration {
 #[derive(Debug)]
 pub struct Reader {
     reliable: bool,
+    /// A volatile reader: it takes nothing a writer wrote before the
+    /// match (see [`Reader::volatile`]).
+    volatile: bool,
     /// Most out-of-order samples buffered per writer.
     max_pending: usize,
     writers: HashMap<Guid, WriterProxy>,
@@ -851,11 +856,40 @@ impl Reader {
     pub fn new(reliable: bool, max_pending: usize) -> Self {
         Reader {
             reliable,
+            volatile: false,
             max_pending: max_pending.max(1),
             writers: HashMap::new(),
             samples: VecDeque::new(),
             out: VecDeque::new(),
             next_preemptive: None,
+        }
+    }
+
+    /// Makes this reader volatile (DURABILITY VOLATILE): the first
+    /// HEARTBEAT of a writer that keeps a history for late joiners (see
+    /// [`Reader::add_durable_writer`]) is where it starts, so that what the
+    /// writer kept from before the match is not asked for (DDS 1.4
+    /// §2.2.3.4). Samples it received before that HEARTBEAT were written
+    /// after the match and are kept, and so is everything after the first
+    /// of them. Cyclone DDS starts a volatile reader the same way (its
+    /// first heartbeat's GAP up to `lastSN`); without it a reliable volatile
+    /// reader asked a Cyclone transient-local writer for its whole history
+    /// and delivered it. A volatile writer's samples from just before the
+    /// match are still taken: what it holds is what its readers have not
+    /// acknowledged yet, often samples written while this reader's
+    /// discovery of it lagged behind its discovery of this reader.
+    pub fn volatile(mut self) -> Self {
+        self.volatile = true;
+        self
+    }
+
+    /// A writer with a history for late joiners (transient-local or more)
+    /// matched: as [`Reader::add_writer`], and a volatile reader starts at
+    /// its first HEARTBEAT (see [`Reader::volatile`]).
+    pub fn add_durable_writer(&mut self, writer: Guid, now: Instant) {
+        self.add_writer(writer, now);
+        if let Some(w) = self.writers.get_mut(&writer) {
+            w.durable = true;
         }
     }
 
@@ -882,6 +916,7 @@ impl Reader {
             ack_due: false,
             matched_at: now,
             preemptive_at: None,
+            durable: false,
         };
         if self.reliable {
             self.out.push_back(Self::preemptive(writer));
@@ -1070,8 +1105,17 @@ impl Reader {
         {
             return;
         }
+        let first = w.last_hb_count.is_none();
         w.last_hb_count = Some(h.count);
         w.last_available = w.last_available.max(h.last_sn.0);
+        if first && self.volatile && w.durable {
+            // start after what the writer had, or at the first sample
+            // received since the match, whichever comes first
+            let live = w.pending.keys().next().copied();
+            let start = live.map_or(h.last_sn.0 + 1, |sn| sn.min(h.last_sn.0 + 1));
+            Self::skip_to(w, writer, start, &mut self.samples);
+            Self::drain(w, writer, &mut self.samples);
+        }
         if h.first_sn.0 > w.next {
             // the writer dropped those: they are lost for us, deliver on
             Self::skip_to(w, writer, h.first_sn.0, &mut self.samples);
@@ -1357,6 +1401,86 @@ mod tests {
         // a huge gap at the front jumps
         r.handle_gap(wg, &gap(1 << 62, i64::MAX - 1));
         assert_eq!(r.next_expected(wg), Some(SequenceNumber(i64::MAX - 1)));
+    }
+
+    /// A volatile reader starts where a transient-local writer's first
+    /// HEARTBEAT says the writer is, keeping what it received since the
+    /// match; it takes a volatile writer's unacknowledged samples, and a
+    /// transient-local reader asks for the history (audit 18: a Cyclone
+    /// DDS transient-local writer's history reached Courier's volatile
+    /// readers).
+    #[test]
+    fn a_volatile_reader_starts_at_the_first_heartbeat() {
+        let wg = guid(1);
+        let t0 = Instant::now();
+        let acknack = |r: &mut Reader| loop {
+            match r.poll_transmit() {
+                Some(Transmit::AckNack { state, .. }) if state.base.0 > 1 => break state,
+                Some(_) => continue,
+                None => panic!("no ACKNACK"),
+            }
+        };
+        // the writer holds 1..=5 from before the match
+        let mut v = Reader::new(true, 16).volatile();
+        v.add_durable_writer(wg, t0);
+        v.handle_heartbeat(wg, &hb(1, 5, 1));
+        let state = acknack(&mut v);
+        assert_eq!(
+            (state.base.0, state.iter().count()),
+            (6, 0),
+            "asks for nothing old"
+        );
+        assert!(v.poll_sample().is_none());
+        v.handle_data(wg, SequenceNumber(6), Arc::from(vec![6u8]));
+        assert_eq!(v.poll_sample().map(|s| s.1 .0), Some(6));
+
+        // sample 7, written after the match, came before the first
+        // heartbeat (which says 7): it is kept, 1..=6 are not asked for
+        let mut v = Reader::new(true, 16).volatile();
+        v.add_durable_writer(wg, t0);
+        v.handle_data(wg, SequenceNumber(7), Arc::from(vec![7u8]));
+        assert!(v.poll_sample().is_none(), "held: 1..=6 unknown yet");
+        v.handle_heartbeat(wg, &hb(1, 7, 1));
+        assert_eq!(v.poll_sample().map(|s| s.1 .0), Some(7));
+        assert_eq!(v.next_expected(wg), Some(SequenceNumber(8)));
+        // later heartbeats move nothing back
+        while v.poll_transmit().is_some() {}
+        v.handle_heartbeat(wg, &hb(1, 9, 2));
+        let state = acknack(&mut v);
+        assert_eq!(
+            (state.base.0, state.iter().map(|s| s.0).collect::<Vec<_>>()),
+            (8, vec![8, 9])
+        );
+
+        // a volatile writer's samples from before the match are taken
+        // (what its readers have not acknowledged yet)
+        let mut v = Reader::new(true, 16).volatile();
+        v.add_writer(wg, t0);
+        v.handle_heartbeat(wg, &hb(1, 3, 1));
+        let state = loop {
+            match v.poll_transmit() {
+                Some(Transmit::AckNack { state, count, .. }) if count > 0 => break state,
+                Some(_) => continue,
+                None => panic!("no ACKNACK"),
+            }
+        };
+        assert_eq!(state.iter().map(|s| s.0).collect::<Vec<_>>(), [1, 2, 3]);
+
+        // a transient-local reader asks for the history
+        let mut tl = Reader::new(true, 16);
+        tl.add_writer(wg, t0);
+        tl.handle_heartbeat(wg, &hb(1, 5, 1));
+        let state = loop {
+            match tl.poll_transmit() {
+                Some(Transmit::AckNack { state, count, .. }) if count > 0 => break state,
+                Some(_) => continue,
+                None => panic!("no ACKNACK"),
+            }
+        };
+        assert_eq!(
+            state.iter().map(|s| s.0).collect::<Vec<_>>(),
+            [1, 2, 3, 4, 5]
+        );
     }
 
     #[test]

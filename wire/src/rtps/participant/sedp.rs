@@ -210,7 +210,11 @@ impl Participant {
         match res {
             Some(Ok(())) if !was => {
                 lr.matched.insert(g);
-                lr.reader.add_writer(g, now);
+                if rw.qos.durability >= Durability::TransientLocal {
+                    lr.reader.add_durable_writer(g, now);
+                } else {
+                    lr.reader.add_writer(g, now);
+                }
                 self.events.push_back(Event::ReaderMatched {
                     reader: local,
                     writer: g,

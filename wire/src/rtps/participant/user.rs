@@ -115,12 +115,16 @@ impl Participant {
         self.touch();
         let (guid, data) = self.new_endpoint(config, EndpointKind::Reader)?;
         let reliable = matches!(data.qos.reliability, Reliability::Reliable(_));
+        let mut reader = Reader::new(reliable, self.cfg.max_out_of_order);
+        if data.qos.durability == Durability::Volatile {
+            reader = reader.volatile();
+        }
         self.announce_endpoint(&data, false, now);
         self.readers.insert(
             guid.entity,
             LocalReader {
                 data,
-                reader: Reader::new(reliable, self.cfg.max_out_of_order),
+                reader,
                 matched: BTreeSet::new(),
                 local_writers: BTreeSet::new(),
             },
