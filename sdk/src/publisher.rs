@@ -295,10 +295,11 @@ impl<T: IpcMessage> PublisherBuilder<T> {
     }
 
     /// Whether closing the publication disposes the instances it leaves
-    /// alive (DDS's `autodispose_unregistered_instances`; the default).
-    /// `false` unregisters them instead: their readers see them
-    /// not-alive-no-writers. Closing is dropping the last clone of the
-    /// [`Publisher`] (or the session).
+    /// alive, and [`Publisher::unregister`] disposes what it unregisters
+    /// (DDS's `autodispose_unregistered_instances`; the default). `false`
+    /// unregisters them only: their readers see them not-alive-no-writers.
+    /// Closing is dropping the last clone of the [`Publisher`] (or the
+    /// session).
     pub fn autodispose(mut self, on: bool) -> Self {
         self.qos.autodispose = on;
         self
@@ -423,7 +424,12 @@ impl<T: IpcMessage> Publisher<T> {
         self.end(value, InstanceState::Disposed).await
     }
 
-    /// Unregisters the instance that `value`'s key fields name (keyed topics).
+    /// Unregisters the instance that `value`'s key fields name (keyed
+    /// topics). With [`autodispose`](PublisherBuilder::autodispose) on (the
+    /// default) it is disposed as well, as DDS's
+    /// `autodispose_unregistered_instances` says: readers see it disposed;
+    /// with it off, they see it without writers once no other writer has
+    /// it.
     pub async fn unregister(&self, value: &T) -> Result<(), PublishError> {
         self.end(value, InstanceState::Unregistered).await
     }

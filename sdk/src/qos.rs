@@ -287,9 +287,10 @@ pub struct PublicationQos {
     /// calls for ([`DataRepresentation::default_for`]).
     pub data_representation: Option<DataRepresentation>,
     /// Closing the publication disposes the instances it wrote and did
-    /// not dispose or unregister (DDS's `autodispose_unregistered_instances`,
-    /// true by default); false unregisters them instead (its readers see
-    /// them not-alive-no-writers).
+    /// not dispose or unregister, and an unregister disposes too (DDS's
+    /// `autodispose_unregistered_instances`, true by default); false
+    /// unregisters only (its readers see the instances
+    /// not-alive-no-writers).
     pub autodispose: bool,
 }
 

@@ -132,10 +132,8 @@ async fn keyed_topic_dispose_reaches_the_subscriber() {
     };
     assert_eq!(sample(next(&mut sub).await), k(1, 1));
     assert_eq!(sample(next(&mut sub).await), k(2, 1));
-    for (id, want) in [
-        (1, InstanceState::Disposed),
-        (2, InstanceState::Unregistered),
-    ] {
+    // an unregister disposes too (autodispose, the default)
+    for (id, want) in [(1, InstanceState::Disposed), (2, InstanceState::Disposed)] {
         match next(&mut sub).await {
             Ok(Received::Instance(c)) => {
                 assert_eq!(c.msg, "robots");
@@ -167,6 +165,52 @@ async fn keyed_topic_dispose_reaches_the_subscriber() {
         assert_eq!(next(&mut plain).await.unwrap().value, want);
     }
     assert_eq!(plain.instance_changes_skipped(), 3);
+}
+
+/// DDS's `autodispose_unregistered_instances`: an unregister disposes the
+/// instance too, as Cyclone DDS's does, unless the publication says
+/// `autodispose(false)` (audit 18: Courier's readers saw Cyclone's
+/// unregister disposed and Courier's not).
+#[tokio::test]
+async fn an_unregister_disposes_unless_autodispose_is_off() {
+    let a = session(185, "a").await;
+    let b = session(185, "b").await;
+    let auto = a.publisher::<Keyed>("auto").build().await.unwrap();
+    let off = a
+        .publisher::<Keyed>("off")
+        .autodispose(false)
+        .build()
+        .await
+        .unwrap();
+    let mut subs = Vec::new();
+    for topic in ["auto", "off"] {
+        let s = b
+            .subscriber::<Keyed>(topic)
+            .with_instances()
+            .build()
+            .await
+            .unwrap();
+        await_handlers(&a, topic, 1).await;
+        subs.push(s);
+    }
+    let k = Keyed {
+        id: 4,
+        seq: 1,
+        text: "x".into(),
+    };
+    for ((p, sub), want) in [&auto, &off]
+        .into_iter()
+        .zip(subs.iter_mut())
+        .zip([InstanceState::Disposed, InstanceState::Unregistered])
+    {
+        p.publish(&k).await.unwrap();
+        p.unregister(&k).await.unwrap();
+        assert!(matches!(next(sub).await, Ok(Received::Sample(_))));
+        match next(sub).await {
+            Ok(Received::Instance(c)) => assert_eq!((c.key, c.state), (Some(4), want)),
+            other => panic!("expected {want:?}, got {other:?}"),
+        }
+    }
 }
 
 /// Closing a publisher disposes the instances it leaves alive

@@ -311,7 +311,13 @@ fn echo_prints_instance_changes_on_lines_of_their_own() {
             .unwrap()
     });
     let p = rt.block_on(async {
-        let p = s.publisher::<Robot>("robots").build().await.unwrap();
+        // autodispose off: an unregister is not a dispose too
+        let p = s
+            .publisher::<Robot>("robots")
+            .autodispose(false)
+            .build()
+            .await
+            .unwrap();
         tokio::time::timeout(T, async {
             while s.num_handlers("robots").await.unwrap() < 2 {
                 tokio::time::sleep(std::time::Duration::from_millis(10)).await;

@@ -964,7 +964,13 @@ impl State {
         // the encoded sample becomes the history's copy (the CDR writer
         // left room for its envelope)
         let mut change = Change::alive_owned(std::mem::take(&mut pw.data));
-        change.kind = pw.kind;
+        change.kind = match pw.kind {
+            // DDS's autodispose_unregistered_instances: an unregister
+            // disposes too, as Cyclone DDS's does (its readers saw the
+            // instance disposed, Courier's no writers; audit 18)
+            ChangeKind::Unregistered if w.autodispose => ChangeKind::DisposedUnregistered,
+            kind => kind,
+        };
         change.key_hash = pw.key_hash.map(KeyHash);
         let topic = w.topic.as_str();
         let refused = |source: participant::WriteError| PublishError::Writer {
