@@ -615,6 +615,64 @@ fn transient_local_late_joiner_gets_the_history_per_instance_and_volatile_does_n
     assert_eq!(net.samples(2)[0].sequence_number, SequenceNumber(13));
 }
 
+/// LIFESPAN on the writer side: a transient-local writer's history holds
+/// a sample for its lifespan only, so a late joiner gets what is still
+/// valid and nothing older (audit 18: a Courier writer with a 2 s lifespan
+/// handed samples 3.5 s old to a late-joining Cyclone reader). A source
+/// timestamp given with the change counts from then.
+#[test]
+fn a_transient_local_writer_keeps_samples_for_their_lifespan_only() {
+    let mut net = new_net(3, 22, 0);
+    let now = net.now();
+    let mut cfg = tl_writer(10);
+    cfg.qos.lifespan = RtpsDuration::from_std(Duration::from_secs(2));
+    let w = net.hosts[0].node.create_writer(cfg, now).unwrap();
+    let write = |net: &mut Net, n: i32, stamp: Option<courier_wire::rtps::Time>| {
+        let (b, k) = sample(n, n);
+        let now = net.now();
+        let mut c = Change::alive(&b).with_key_hash(k);
+        c.source_timestamp = stamp;
+        net.hosts[0].node.write(w, c, now).unwrap();
+    };
+    write(&mut net, 1, None);
+    write(&mut net, 2, None);
+    net.run_for(Duration::from_millis(1500));
+    write(&mut net, 3, None);
+    // stamped 1.2 s ago: it expires at 2.3 s, 1.2 s before 3
+    let d = (net.wall() - Duration::from_millis(1200))
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap();
+    let stamp = courier_wire::rtps::Time {
+        seconds: d.as_secs() as i32,
+        fraction: ((u64::from(d.subsec_nanos()) << 32) / 1_000_000_000) as u32,
+    };
+    write(&mut net, 4, Some(stamp));
+    net.run_for(Duration::from_millis(1000));
+    // at 2.5 s: 1, 2 and 4 expired, 3 has a second left
+    let now = net.now();
+    let late = net.hosts[1]
+        .node
+        .create_reader(tl_reader(Durability::TransientLocal), now)
+        .unwrap();
+    assert!(
+        net.run_until(Duration::from_secs(10), |n| matched(n, 0, w, 1, late)
+            && !n.samples(1).is_empty())
+    );
+    net.run_for(Duration::from_millis(200));
+    let got: Vec<i64> = net.samples(1).iter().map(|s| s.sequence_number.0).collect();
+    assert_eq!(got, [3], "only what is still within its lifespan");
+    // and once 3 expired, the next late joiner gets nothing
+    net.run_for(Duration::from_secs(2));
+    let now = net.now();
+    let later = net.hosts[2]
+        .node
+        .create_reader(tl_reader(Durability::TransientLocal), now)
+        .unwrap();
+    assert!(net.run_until(Duration::from_secs(10), |n| matched(n, 0, w, 2, later)));
+    net.run_for(Duration::from_secs(1));
+    assert!(net.samples(2).is_empty(), "{:?}", net.samples(2));
+}
+
 /// A participant with a short lease (600 ms) that sends nothing else
 /// announces itself often enough: its peer keeps it for 10 s of idleness
 /// (with 3 s announcements it was lost and found again every few seconds).

@@ -451,6 +451,7 @@ impl Participant {
         .into_iter()
         .chain(self.wlp.poll_timeout())
         .chain(self.writers.values().map(|w| w.writer.poll_timeout()))
+        .chain(self.writers.values().map(|w| w.next_expiry()))
         .chain(self.readers.values().map(|r| r.reader.poll_timeout()))
         .flatten()
         .min()
@@ -474,6 +475,7 @@ impl Participant {
         self.pub_writer.handle_timeout(now);
         self.sub_writer.handle_timeout(now);
         for w in self.writers.values_mut() {
+            w.expire(now);
             w.writer.handle_timeout(now);
         }
         self.pub_reader.handle_timeout(now);

@@ -4,7 +4,7 @@
 //! buffer recycling, room in the history, acknowledgement requests.
 
 use std::collections::{BTreeSet, VecDeque};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use foldhash::{HashMap, HashMapExt};
 
@@ -15,7 +15,7 @@ use super::{
 };
 use crate::rtps::discovery::{Durability, EndpointData, History, Reliability};
 use crate::rtps::reliability::{Reader, Writer};
-use crate::rtps::{EntityId, Guid, SequenceNumber};
+use crate::rtps::{EntityId, Guid, SequenceNumber, Time};
 
 pub(super) struct LocalWriter {
     pub(super) data: EndpointData,
@@ -28,6 +28,37 @@ pub(super) struct LocalWriter {
     pub(super) matched: BTreeSet<Guid>,
     pub(super) local_readers: BTreeSet<EntityId>,
     pub(super) acked_reported: i64,
+    /// LIFESPAN, if finite: a sample leaves the history this long after
+    /// its source timestamp (DDS 1.4 §2.2.3.16), so that neither a late
+    /// joiner nor a repair gets it.
+    pub(super) lifespan: Option<Duration>,
+    /// When each sample in the history expires, by sequence number.
+    pub(super) expiries: BTreeSet<(Instant, i64)>,
+}
+
+impl LocalWriter {
+    /// When the next sample expires.
+    pub(super) fn next_expiry(&self) -> Option<Instant> {
+        self.expiries.first().map(|e| e.0)
+    }
+
+    /// Drops the samples whose lifespan ended by `now` from the history
+    /// (a reader that still asks for one gets a GAP).
+    pub(super) fn expire(&mut self, now: Instant) {
+        while let Some(&(at, sn)) = self.expiries.first() {
+            if at > now {
+                break;
+            }
+            self.expiries.pop_first();
+            self.writer.remove(SequenceNumber(sn));
+        }
+    }
+}
+
+/// Time since the UNIX epoch of an RTPS time.
+fn since_epoch(t: Time) -> Duration {
+    let nanos = (u64::from(t.fraction) * 1_000_000_000) >> 32;
+    Duration::from_secs(u64::try_from(t.seconds).unwrap_or(0)) + Duration::from_nanos(nanos)
 }
 
 pub(super) struct LocalReader {
@@ -70,6 +101,7 @@ impl Participant {
             }
             History::KeepAll => (None, None),
         };
+        let lifespan = q.lifespan.to_std();
         let writer = Writer::new(guid, reliable, depth, max, self.cfg.heartbeat_period)
             .retain_acked(durable)
             // per-instance keep-last: the depth bounds all instances
@@ -90,6 +122,8 @@ impl Participant {
                 matched: BTreeSet::new(),
                 local_readers: BTreeSet::new(),
                 acked_reported: 0,
+                lifespan,
+                expiries: BTreeSet::new(),
             },
         );
         let remote: Vec<Guid> = self.remote_readers.keys().copied().collect();
@@ -267,7 +301,8 @@ impl Participant {
         if change.data.len() > MAX_WRITE_SIZE {
             return Err(WriteError::TooLarge(change.data.len()));
         }
-        let ts = change.source_timestamp.unwrap_or_else(|| self.wall(now));
+        let wall = self.wall(now);
+        let ts = change.source_timestamp.unwrap_or(wall);
         let max = self.cfg.max_history;
         let lw = self
             .writers
@@ -295,6 +330,20 @@ impl Participant {
             .writer
             .write(env.clone(), now)
             .ok_or(WriteError::HistoryFull(max))?;
+        if let Some(lifespan) = lw.lifespan {
+            // from the source timestamp: an older one given with the
+            // change expires sooner
+            let age = since_epoch(wall).saturating_sub(since_epoch(ts));
+            lw.expiries
+                .insert((now + lifespan.saturating_sub(age), sn.0));
+            if lw.expiries.len() > max {
+                // forget what left the history by other ways (acknowledged,
+                // replaced by a newer sample of its instance)
+                let w = &lw.writer;
+                lw.expiries
+                    .retain(|(_, s)| w.get(SequenceNumber(*s)).is_some());
+            }
+        }
         if lw.keep_last.is_some() {
             lw.instances.entry(key).or_default().push_back(sn.0);
             if lw.instances.len() > max {
