@@ -142,8 +142,9 @@
 //!   holds the rest (back-pressure up to the publisher; central hands a
 //!   module its messages one by one, so the session's other subscriptions
 //!   and servers wait too, reported as `SessionEvent::SubscriberFull`). With
-//!   [`QueuePolicy::KeepLast`] (`subscribe_with`) the oldest are dropped
-//!   instead, counted by `Subscriber::dropped`. Nothing is dropped silently.
+//!   [`QueuePolicy::KeepLast`] (`subscribe_with`, or `keep_last(n)`) the
+//!   oldest of each instance are dropped instead, counted by
+//!   `Subscriber::dropped`. Nothing is dropped silently.
 //! - **IPC serves one delivery at a time.** Central hands a module its
 //!   next message once the last is done, and a request is done when it is
 //!   answered (a capacity of 1, as C): a server that takes 200 ms to reply

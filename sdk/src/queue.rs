@@ -4,7 +4,7 @@
 use crate::qos::InstanceState;
 use crate::session::Owned;
 use courier_wire::ipc;
-use std::collections::VecDeque;
+use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
 use std::task::{Context, Poll};
 use std::time::SystemTime;
@@ -92,9 +92,15 @@ pub enum QueuePolicy {
     /// holds the rest (back-pressure, where `set_queue_length` applies).
     /// A subscription refuses `n` of 0 (`OpenError::Qos`).
     KeepAll(usize),
-    /// Keep the newest `n`; the oldest is dropped and counted
-    /// ([`Subscriber::dropped`]), as `IPC_setMsgQueueLength` does in central.
-    /// A subscription refuses `n` of 0 (`OpenError::Qos`).
+    /// Keep the newest `n` of each instance, as a DDS reader's KEEP_LAST
+    /// history does: samples of a keyed DDS topic are told apart by their
+    /// key hash, every other sample (IPC, a topic without key, XRCE) is
+    /// of one instance, so there it is the newest `n`, as
+    /// `IPC_setMsgQueueLength` does in central. Instance changes (disposes,
+    /// unregisters) are kept beside them. At most `n` × 1024 samples wait
+    /// in all; past that the oldest go too. What is dropped is counted
+    /// ([`Subscriber::dropped`]). A subscription refuses `n` of 0
+    /// (`OpenError::Qos`).
     ///
     /// [`Subscriber::dropped`]: crate::Subscriber::dropped
     KeepLast(usize),
@@ -180,11 +186,19 @@ impl std::fmt::Debug for Handler {
     }
 }
 
+/// A keep-last queue holds at most this many times its depth in all
+/// (instances × depth beyond it are not kept).
+const KEEP_LAST_INSTANCES: usize = 1024;
+
 #[derive(Debug)]
 struct QueueState {
     items: VecDeque<RawSample>,
+    /// Keep-all: the capacity; keep-last: the depth per instance.
     cap: usize,
     keep_last: bool,
+    /// Keep-last: the live samples waiting, per instance (key hash; `None`
+    /// for samples without one).
+    per_instance: HashMap<Option<[u8; 16]>, usize>,
     dropped: u64,
     closed: bool,
     reported_close: bool,
@@ -204,6 +218,7 @@ impl SampleQueue {
                 items: VecDeque::new(),
                 cap,
                 keep_last,
+                per_instance: HashMap::new(),
                 dropped: 0,
                 closed: false,
                 reported_close: false,
@@ -307,15 +322,14 @@ impl SampleQueue {
         if st.receiver_gone {
             return Ok(None);
         }
-        if st.items.len() >= st.cap {
-            if st.keep_last {
-                st.items.pop_front();
-                st.dropped += 1;
-            } else if !over {
+        if st.keep_last {
+            st.keep_last_insert(s);
+        } else {
+            if st.items.len() >= st.cap && !over {
                 return Err(s);
             }
+            st.items.push_back(s);
         }
-        st.items.push_back(s);
         Ok(st.waker.take())
     }
 
@@ -401,6 +415,7 @@ impl SampleQueue {
         let mut st = self.state.lock().unwrap();
         st.receiver_gone = true;
         st.items.clear();
+        st.per_instance.clear();
         let waker = st.waker.take();
         drop(st);
         self.space.notify_waiters();
@@ -466,11 +481,53 @@ impl SampleQueue {
     }
 }
 
+impl QueueState {
+    /// Keep-last: adds `s`, dropping the oldest live sample of its
+    /// instance when the instance has `cap` waiting, and the oldest of all
+    /// past `cap` × [`KEEP_LAST_INSTANCES`].
+    fn keep_last_insert(&mut self, s: RawSample) {
+        if s.state == InstanceState::Alive {
+            let n = self.per_instance.entry(s.key_hash).or_default();
+            if *n >= self.cap {
+                let same =
+                    |x: &RawSample| x.state == InstanceState::Alive && x.key_hash == s.key_hash;
+                if let Some(i) = self.items.iter().position(same) {
+                    self.items.remove(i);
+                    self.dropped += 1;
+                }
+            } else {
+                *n += 1;
+            }
+        }
+        self.items.push_back(s);
+        if self.items.len() > self.cap.saturating_mul(KEEP_LAST_INSTANCES) {
+            if let Some(old) = self.pop_front() {
+                self.dropped += 1;
+                drop(old);
+            }
+        }
+    }
+
+    /// Takes the oldest item, keeping the per-instance counts.
+    fn pop_front(&mut self) -> Option<RawSample> {
+        let s = self.items.pop_front()?;
+        if self.keep_last && s.state == InstanceState::Alive {
+            if let Some(n) = self.per_instance.get_mut(&s.key_hash) {
+                *n -= 1;
+                if *n == 0 {
+                    self.per_instance.remove(&s.key_hash);
+                }
+            }
+        }
+        Some(s)
+    }
+}
+
 /// The first sample whose lifespan has not ended, and the expired ones
 /// before it (counted as dropped).
 fn pop_live(st: &mut QueueState) -> (Option<RawSample>, Vec<RawSample>) {
     let mut expired = Vec::new();
-    while let Some(s) = st.items.pop_front() {
+    while let Some(s) = st.pop_front() {
         if s.expired() {
             st.dropped += 1;
             expired.push(s);
@@ -562,5 +619,91 @@ mod tests {
         }
         returns.take(|_| n += 1);
         assert_eq!(n, 4 + ReturnedBuffers::MAX);
+    }
+
+    fn sample(key: Option<u8>, n: u8, state: InstanceState) -> RawSample {
+        let mut s = RawSample::new("t", vec![n]);
+        s.key_hash = key.map(|k| [k; 16]);
+        s.state = state;
+        s
+    }
+
+    fn drain(q: &SampleQueue) -> Vec<(Option<u8>, u8)> {
+        std::iter::from_fn(|| match q.try_pop() {
+            Some(Popped::Sample(s)) => Some((s.key_hash.map(|k| k[0]), s.data[0])),
+            _ => None,
+        })
+        .collect()
+    }
+
+    /// Keep-last is per instance, as a DDS reader's history: a slow reader
+    /// of keep-last 1 over three instances finds the newest of each (it
+    /// found only the newest of all; audit 18, against Cyclone DDS), and
+    /// instance changes stay beside the samples.
+    #[test]
+    fn keep_last_keeps_the_newest_of_each_instance() {
+        use InstanceState::*;
+        let q = SampleQueue::new(QueuePolicy::KeepLast(1));
+        for n in 0..9u8 {
+            q.push(sample(Some(n % 3), n, Alive)).unwrap();
+        }
+        q.push(sample(Some(1), 100, Disposed)).unwrap();
+        assert_eq!(q.dropped(), 6);
+        assert_eq!(
+            drain(&q),
+            [(Some(0), 6), (Some(1), 7), (Some(2), 8), (Some(1), 100)]
+        );
+        // samples without a key hash are one instance: the newest n of all
+        let q = SampleQueue::new(QueuePolicy::KeepLast(2));
+        for n in 0..5u8 {
+            q.push(sample(None, n, Alive)).unwrap();
+        }
+        assert_eq!(drain(&q), [(None, 3), (None, 4)]);
+        assert_eq!(q.dropped(), 3);
+        // after a pop, an instance has room again
+        q.push(sample(Some(9), 1, Alive)).unwrap();
+        assert_eq!(drain(&q), [(Some(9), 1)]);
+        q.push(sample(Some(9), 2, Alive)).unwrap();
+        q.push(sample(Some(9), 3, Alive)).unwrap();
+        assert_eq!(drain(&q), [(Some(9), 2), (Some(9), 3)]);
+        assert_eq!(q.dropped(), 3);
+    }
+
+    /// However many instances, a keep-last queue holds at most depth ×
+    /// 1024 samples.
+    #[test]
+    fn keep_last_is_bounded_over_all_instances() {
+        let q = SampleQueue::new(QueuePolicy::KeepLast(1));
+        for n in 0..3000u32 {
+            let mut s = RawSample::new("t", vec![]);
+            s.key_hash = Some([
+                n as u8,
+                (n >> 8) as u8,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+            ]);
+            q.push(s).unwrap();
+        }
+        assert_eq!(q.len(), KEEP_LAST_INSTANCES);
+        assert_eq!(q.dropped(), 3000 - KEEP_LAST_INSTANCES as u64);
+        let first = match q.try_pop() {
+            Some(Popped::Sample(s)) => s.key_hash.unwrap(),
+            _ => panic!("empty"),
+        };
+        // the oldest kept is the 1977th written
+        let n = 3000 - KEEP_LAST_INSTANCES as u32;
+        assert_eq!(first[..2], [n as u8, (n >> 8) as u8]);
     }
 }

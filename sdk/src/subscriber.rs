@@ -238,13 +238,12 @@ impl<T: IpcMessage, D: Delivery<T>> SubscriberBuilder<T, D> {
         self
     }
 
-    /// Keep the newest `n` samples: DDS's history (per instance, what
-    /// writers send a late joiner) and also the local queue, which holds
-    /// the newest `n` of **all** instances together: on a keyed topic with
-    /// more instances than `n`, samples of other instances are dropped
-    /// (counted by `dropped()`) before the application reads them. Use a
-    /// larger `n`, or keep-all, to see every instance. `build` refuses 0
-    /// ([`OpenError::Qos`]).
+    /// Keep the newest `n` samples of each instance: DDS's history (what
+    /// writers send a late joiner) and also the local queue
+    /// ([`QueuePolicy::KeepLast`]): a reader slower than its writers finds
+    /// the newest `n` of every instance of a keyed topic (of all samples on
+    /// a topic without key), the older ones dropped and counted by
+    /// `dropped()`. `build` refuses 0 ([`OpenError::Qos`]).
     pub fn keep_last(mut self, n: u32) -> Self {
         self.qos.history = History::KeepLast(n);
         self

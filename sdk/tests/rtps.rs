@@ -167,6 +167,40 @@ async fn keyed_topic_dispose_reaches_the_subscriber() {
     assert_eq!(plain.instance_changes_skipped(), 3);
 }
 
+/// A keep-last subscriber of a keyed topic that reads late finds the newest
+/// of each instance, as a DDS reader's history keeps them (it found only
+/// the newest of all: audit 18, against Cyclone DDS).
+#[tokio::test]
+async fn keep_last_is_per_instance() {
+    let a = session(186, "a").await;
+    let b = session(186, "b").await;
+    let p = a.publisher::<Keyed>("poses").build().await.unwrap();
+    let mut sub = b
+        .subscriber::<Keyed>("poses")
+        .keep_last(1)
+        .build()
+        .await
+        .unwrap();
+    await_handlers(&a, "poses", 1).await;
+    for seq in 1..=3 {
+        for id in [7, 8, 9] {
+            let v = Keyed {
+                id,
+                seq,
+                text: String::new(),
+            };
+            p.publish(&v).confirmed().await.unwrap();
+        }
+    }
+    let mut got = Vec::new();
+    for _ in 0..3 {
+        let v = next(&mut sub).await.unwrap().value;
+        got.push((v.id, v.seq));
+    }
+    assert_eq!(got, [(7, 3), (8, 3), (9, 3)]);
+    assert_eq!(sub.dropped(), 6);
+}
+
 /// DDS's `autodispose_unregistered_instances`: an unregister disposes the
 /// instance too, as Cyclone DDS's does, unless the publication says
 /// `autodispose(false)` (audit 18: Courier's readers saw Cyclone's
