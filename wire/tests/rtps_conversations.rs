@@ -213,6 +213,9 @@ fn cyclone() -> Peer {
                 "002efa000000000000000000040000000000000002100040280000002400000014",
                 "000000f2608c64d849e9f45dc8ed4ec261cc0000000000000000000400000000000000",
             ))),
+            // Cyclone leaves a deleted writer's autodispose to its readers;
+            // no PID_ADLINK_WRITER_DATA_LIFECYCLE: DDS's default, true
+            disposes_when_deleted: true,
         },
         hello: "Hello from Cyclone #",
         big: "BIG from Cyclone ",
@@ -263,6 +266,7 @@ fn fastdds() -> Peer {
             multicast: vec![],
             expects_inline_qos: false,
             type_information: None,
+            disposes_when_deleted: false,
         },
         hello: "Hello from Fast DDS #",
         big: "BIG from Fast DDS ",

@@ -38,7 +38,12 @@ liveliness_changed status changes, a writer `liveliness-lost <total>`.
 Cyclone's participant lease stays its default (10 s): a stop shorter than
 that loses a writer's liveliness, not its participant.
 
-Output: ready | matched <n> | sent <key> <seq> | dispose <key> | acked |
+--no-autodispose gives a writer WRITER_DATA_LIFECYCLE autodispose false
+(Cyclone's readers then take its instances as NOT_ALIVE_NO_WRITERS, not
+disposed, when it goes); --close-writer deletes the writer once its
+samples are acknowledged (`closed`) while the participant stays.
+
+Output: ready | matched <n> | sent <key> <seq> | dispose <key> | acked | closed |
 sample <key> <seq> <text> | disposed <key> | unregistered <key> |
 liveliness <alive> <not_alive> | liveliness-lost <total> | done | timeout;
 for --type colors the sample line goes on with the colors and the pair,
@@ -290,6 +295,10 @@ def main():
     ap.add_argument("--disposed", type=int)
     ap.add_argument("--keys", help="pub: comma-separated keys, sample n goes to keys[n %% len]")
     ap.add_argument("--dispose", action="store_true", help="pub: dispose every key after writing")
+    ap.add_argument("--no-autodispose", action="store_true",
+                    help="pub: WRITER_DATA_LIFECYCLE autodispose_unregistered_instances false")
+    ap.add_argument("--close-writer", action="store_true",
+                    help="pub: delete the writer once acked (`closed`), the participant stays for --linger-ms")
     ap.add_argument("--wait-match", type=int, default=0)
     ap.add_argument("--settle-ms", type=int, default=250)
     ap.add_argument("--linger-ms", type=int, default=0)
@@ -304,6 +313,8 @@ def main():
         ap.error("--domain must be 0..232")
     if o.pub and o.disposed is not None:
         ap.error("--disposed is a subscriber option")
+    if o.sub and (o.no_autodispose or o.close_writer):
+        ap.error("--no-autodispose and --close-writer are publisher options")
 
     clock = Clock(PROG, o.timeout_s)
     ty = TYPES[o.type]
@@ -324,7 +335,10 @@ def main():
     emit("ready")
 
     if o.pub:
-        w = DataWriter(dp, topic, qos=qos)
+        wqos = qos
+        if o.no_autodispose:
+            wqos = Qos(*policies, Policy.WriterDataLifecycle(autodispose=False))
+        w = DataWriter(dp, topic, qos=wqos)
         matched = -1
         while True:
             clock.check()
@@ -351,7 +365,13 @@ def main():
                 emit("timeout")
                 sys.exit(2)
             emit("acked")
-        if o.liveliness is None:
+        if o.close_writer:
+            # Cyclone sends no unregister per instance when a writer goes:
+            # only its SEDP dispose says so
+            w.__del__()
+            w = None
+            emit("closed")
+        if o.liveliness is None or w is None:
             time.sleep(o.linger_ms / 1000)
         else:
             watch = LivelinessWatch(w, reader=False)

@@ -63,6 +63,14 @@ pub enum QueryFailure {
 #[non_exhaustive]
 pub enum Event {
     /// A sample (or dispose/unregister) for a reader, past its filters.
+    ///
+    /// An [`Unregistered`](participant::ChangeKind::Unregistered) change
+    /// of a keyed reader says that its instance has no live writer left
+    /// (DDS's NOT_ALIVE_NO_WRITERS): sent by its last writer, or made by
+    /// the reader when that writer left without a word for the instance
+    /// (deleted, its participant lost, its liveliness lapsed) — then with
+    /// no data, no source timestamp, [`SequenceNumber::UNKNOWN`], and its
+    /// key hash as the instance's last change carried it.
     Sample {
         /// The reader.
         reader: ReaderId,

@@ -203,6 +203,32 @@ impl Instances {
         }
     }
 
+    /// Whether dispose `s` carries its writer's whole sample rather than
+    /// the serialized key (Cyclone DDS's `write_dispose` sends the sample
+    /// with the dispose flag and no key hash): its payload decodes as a
+    /// sample and not as a key. Known only with the reader's keys, and
+    /// looked at only when no key hash came (a dispose named by its hash
+    /// costs nothing more); a payload that decodes as both (a type all
+    /// key) is taken as the key.
+    pub(super) fn carries_sample(&self, s: &ReceivedSample) -> bool {
+        let Some(keys) = self.keys else {
+            return false;
+        };
+        if s.key_hash.is_some()
+            || !matches!(
+                s.kind,
+                ChangeKind::Disposed | ChangeKind::DisposedUnregistered
+            )
+        {
+            return false;
+        }
+        let data = s.data();
+        let Some(v) = payload_version(data) else {
+            return false;
+        };
+        (keys.hash_in)(data, true, v).is_none() && (keys.hash_in)(data, false, v).is_some()
+    }
+
     /// Remembers that `sent` (a hash of the other version that does not
     /// hold the key) names instance `canonical`.
     fn alias(&mut self, sent: [u8; 16], canonical: [u8; 16]) {

@@ -7,9 +7,13 @@
 //! a writer of this domain asserts by its writes and
 //! [`Domain::assert_liveliness`]). When a lease lapses the reader gets
 //! [`Event::LivelinessChanged`] with `alive: false`; the next assertion
-//! makes the writer alive again (another event). A writer that unmatches
-//! (deleted, or its participant lost) leaves the counts, with an event.
-//! Counts are DDS's LIVELINESS_CHANGED `alive_count` and
+//! makes the writer alive again (another event). A writer that is not
+//! alive owns no instance under exclusive ownership and writes none: the
+//! instances it was the last live writer of are NOT_ALIVE_NO_WRITERS
+//! until it (or another) writes them again ([`Event::Sample`] with an
+//! unregister, after the [`Event::LivelinessChanged`]). A writer that
+//! unmatches (deleted, or its participant lost) leaves the counts, with an
+//! event. Counts are DDS's LIVELINESS_CHANGED `alive_count` and
 //! `not_alive_count`.
 //!
 //! A writer of this domain with a MANUAL kind and a finite lease that
@@ -282,6 +286,7 @@ impl Domain {
                 }
             }
         }
+        let mut lapsed = Vec::new();
         for (reader, w, alive) in changes {
             let Some(r) = l.readers.get_mut(&reader) else {
                 continue;
@@ -298,6 +303,7 @@ impl Domain {
                 t.since = now;
                 r.alive -= 1;
                 r.not_alive += 1;
+                lapsed.push((reader, w));
             }
             self.events.push_back(Event::LivelinessChanged {
                 reader: ReaderId(reader),
@@ -307,6 +313,12 @@ impl Domain {
                 not_alive_count: r.not_alive,
             });
         }
+        // a writer that is not alive writes no instance and owns none
+        // (DDS 1.4 §2.2.3.9.2, §2.2.3.11) until it writes again
+        for (reader, w) in lapsed {
+            self.writer_left_reader(reader, w, false);
+        }
+        let l = &mut self.liveliness;
         for (g, o) in l.offered.iter_mut() {
             if !o.lost && crate::time::later(o.last, o.lease) <= now {
                 o.lost = true;

@@ -18,8 +18,20 @@
 //! What it decides:
 //! - **exclusive ownership**: a reader with `exclusive_ownership` takes
 //!   each instance only from the strongest live writer (ties: the lower
-//!   GUID); when the owner is deleted or lost (its participant's lease
-//!   ends) the next writer's samples are taken;
+//!   GUID), its disposes only from it too; when the owner is deleted or
+//!   lost (its participant's lease ends), unregisters the instance, misses
+//!   the deadline or, for a reader that tracks liveliness, is not alive
+//!   any more, the next writer's samples are taken;
+//! - **instance states** of keyed readers (DDS 1.4 §2.2.2.5.1): an
+//!   instance is NOT_ALIVE_NO_WRITERS (an
+//!   [`Unregistered`](participant::ChangeKind::Unregistered) change) when its last live writer unregisters it, or leaves without a
+//!   word for it — deleted (Cyclone DDS unregisters nothing when a writer
+//!   closes), its participant lost, or, for a reader that tracks
+//!   liveliness, not alive any more: then the reader makes the change
+//!   itself, with no data. An unregister from a writer that is not the
+//!   last, or of an instance the reader never saw, says nothing; a
+//!   disposed instance stays disposed. A dispose that carries the whole
+//!   sample (Cyclone's `write_dispose`) is the sample, then the dispose;
 //! - **lifespan**: samples older than their writer's lifespan by source
 //!   timestamp are dropped ([`Event::SampleDropped`]);
 //! - **time-based filter**: samples of an instance closer than the
@@ -363,8 +375,18 @@ impl Domain {
                 }
                 P::ReaderUnmatched { reader, writer } => {
                     self.lively_unmatched(reader, writer);
+                    // deleted (its participant still here, it not):
+                    // disposed, if its readers are to dispose it; lost or
+                    // unmatched by a QoS change: without writers
+                    let deleted = self.p.participant(writer.prefix).is_some()
+                        && !self.p.publications().any(|d| d.guid == writer);
+                    let dispose = deleted
+                        && self
+                            .writer_info
+                            .get(&writer)
+                            .is_some_and(|i| i.disposes_when_deleted);
+                    self.writer_left_reader(reader, writer, dispose);
                     if let Some(r) = self.readers.get_mut(&reader) {
-                        r.writer_gone(writer);
                         if matches!(r.role, Role::User | Role::Pattern(_)) {
                             self.events.push_back(Event::ReaderUnmatched {
                                 reader: ReaderId(reader),
@@ -402,7 +424,7 @@ impl Domain {
                 }
                 P::PublicationFound(d) => {
                     self.writer_info
-                        .insert(d.guid, reader::WriterInfo::of(&d.qos));
+                        .insert(d.guid, reader::WriterInfo::of_remote(&d));
                     let ours: Vec<Guid> = self
                         .readers
                         .iter()
@@ -423,7 +445,7 @@ impl Domain {
                 }
                 P::PublicationChanged(d) => {
                     self.writer_info
-                        .insert(d.guid, reader::WriterInfo::of(&d.qos));
+                        .insert(d.guid, reader::WriterInfo::of_remote(&d));
                     self.events
                         .push_back(Event::Discovery(P::PublicationChanged(d)));
                 }

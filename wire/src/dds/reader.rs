@@ -9,7 +9,7 @@ use std::time::{Duration, Instant, SystemTime};
 use crate::cdr::Version;
 use crate::rtps::discovery::{Duration as RtpsDuration, EndpointQos, History};
 use crate::rtps::participant::{ChangeKind, CreateError, EndpointConfig, KeyHash, ReceivedSample};
-use crate::rtps::{Guid, Time};
+use crate::rtps::{Guid, SequenceNumber, Time};
 
 use super::deadline::Deadline;
 use super::instances::{InstanceKeys, Instances};
@@ -25,11 +25,23 @@ pub(super) struct WriterInfo {
     pub(super) version: Option<Version>,
     /// The liveliness it offers.
     pub(super) liveliness: (crate::rtps::discovery::LivelinessKind, RtpsDuration),
+    /// Its readers dispose its instances when it is deleted
+    /// ([`EndpointData::disposes_when_deleted`](crate::rtps::discovery::EndpointData::disposes_when_deleted)).
+    pub(super) disposes_when_deleted: bool,
 }
 
 impl WriterInfo {
+    /// A remote writer's, from its discovery data.
+    pub(super) fn of_remote(d: &crate::rtps::discovery::EndpointData) -> Self {
+        WriterInfo {
+            disposes_when_deleted: d.disposes_when_deleted,
+            ..Self::of(&d.qos)
+        }
+    }
+
     pub(super) fn of(q: &EndpointQos) -> Self {
         WriterInfo {
+            disposes_when_deleted: false,
             liveliness: q.liveliness,
             strength: q.ownership_strength,
             lifespan: q.lifespan.to_std(),
@@ -62,16 +74,31 @@ pub(super) struct LocalReader {
     /// from the payload, in one XCDR version whichever version each
     /// writer writes ([`Domain::set_instance_keys`]).
     instances: Instances,
-    /// Keyed readers: per instance, the writers that wrote (or disposed)
-    /// it and have not unregistered it. An instance none of them is left
-    /// for — they unregistered it, or were deleted or lost — is forgotten
-    /// (its deadline, owner, last sample time and disposed mark), as DDS
-    /// readers drop an instance with no writers and no samples. Kept, a
-    /// reader of a topic whose writers come and go with keys of their own
-    /// held every key ever seen, and its deadline fired for every one of
-    /// them every period, for ever. `None` for a topic without key (one
-    /// instance).
-    writers: Option<HashMap<[u8; 16], SmallVec<[Guid; 1]>>>,
+    /// Keyed readers: per instance, the live writers that wrote (or
+    /// disposed) it and have not unregistered it, and its key hash. An
+    /// instance none of them is left for — they unregistered it, or were
+    /// deleted or lost, or their liveliness lapsed — is NOT_ALIVE_NO_WRITERS
+    /// (DDS 1.4 §2.2.2.5.1; said with an [`ChangeKind::Unregistered`]
+    /// change unless it is disposed) and forgotten (its deadline, owner,
+    /// last sample time and disposed mark), as DDS readers drop an
+    /// instance with no writers and no samples: a later sample makes it
+    /// alive again. Kept, a reader of a topic whose writers come and go
+    /// with keys of their own held every key ever seen, and its deadline
+    /// fired for every one of them every period, for ever. `None` for a
+    /// topic without key (one instance).
+    writers: Option<HashMap<[u8; 16], Instance>>,
+    /// A change this reader took, without its data: what the changes it
+    /// makes itself (an instance left without writers) are made from.
+    template: Option<ReceivedSample>,
+}
+
+/// One instance of a keyed reader (see [`LocalReader::writers`]).
+#[derive(Default)]
+struct Instance {
+    /// Its live writers that have not unregistered it.
+    writers: SmallVec<[Guid; 1]>,
+    /// Its key hash, as the last change taken of it carried it.
+    key: Option<KeyHash>,
 }
 
 /// An RTPS `Time_t` as a `SystemTime`.
@@ -102,30 +129,55 @@ impl LocalReader {
             disposed: HashSet::new(),
             instances: Instances::new(),
             writers: cfg.keyed.then(HashMap::new),
+            template: None,
         }
     }
 
-    /// `writer` wrote (or disposed) `instance`.
-    fn register(&mut self, instance: [u8; 16], writer: Guid) {
+    /// `writer` wrote (or disposed) `instance`, a change with key hash `key`.
+    fn register(&mut self, instance: [u8; 16], writer: Guid, key: Option<KeyHash>) {
         if let Some(ws) = self.writers.as_mut() {
-            let w = ws.entry(instance).or_default();
-            if !w.contains(&writer) {
-                w.push(writer);
+            let i = ws.entry(instance).or_default();
+            if !i.writers.contains(&writer) {
+                i.writers.push(writer);
+            }
+            if key.is_some() {
+                i.key = key;
             }
         }
     }
 
-    /// `writer` unregistered `instance`: forgotten if no writer is left.
+    /// Whether `writer` has `instance` registered (keyed readers).
+    fn registered(&self, instance: &[u8; 16], writer: Guid) -> bool {
+        self.writers
+            .as_ref()
+            .and_then(|ws| ws.get(instance))
+            .is_some_and(|i| i.writers.contains(&writer))
+    }
+
+    /// Whether any writer has `instance` registered (keyed readers).
+    fn has_writers(&self, instance: &[u8; 16]) -> bool {
+        self.writers
+            .as_ref()
+            .and_then(|ws| ws.get(instance))
+            .is_some_and(|i| !i.writers.is_empty())
+    }
+
+    /// `writer` unregistered `instance` (keyed readers).
     fn unregister(&mut self, instance: [u8; 16], writer: Guid) {
-        let Some(ws) = self.writers.as_mut() else {
-            return;
-        };
-        let Some(w) = ws.get_mut(&instance) else {
-            return;
-        };
-        w.retain(|g| *g != writer);
-        if w.is_empty() {
-            self.forget(&instance);
+        if let Some(i) = self.writers.as_mut().and_then(|ws| ws.get_mut(&instance)) {
+            i.writers.retain(|g| *g != writer);
+        }
+    }
+
+    /// Whether `writer` of `strength` may change `instance` under exclusive
+    /// ownership: it owns it, no writer does, or it is stronger than the
+    /// owner (ties: the lower GUID).
+    fn may_own(&self, instance: &[u8; 16], writer: Guid, strength: i32) -> bool {
+        match self.owners.get(instance) {
+            Some(&(owner, os)) => {
+                owner == writer || !(os > strength || (os == strength && owner < writer))
+            }
+            None => true,
         }
     }
 
@@ -173,40 +225,16 @@ impl LocalReader {
     /// instance).
     pub(super) fn admit(
         &mut self,
-        s: &ReceivedSample,
+        s: &mut ReceivedSample,
         instance: [u8; 16],
         writer: Option<WriterInfo>,
         now: Instant,
         wall: SystemTime,
     ) -> Result<(), Option<DropReason>> {
         if s.kind != ChangeKind::Alive {
-            if let Some(d) = self.deadline.as_mut() {
-                d.forget(&instance);
-            }
-            self.owners.remove(&instance);
-            // DDS: a disposed instance stays NOT_ALIVE_DISPOSED until a
-            // sample comes, whatever else its writers say (a dispose that
-            // also unregisters, as a deleted writer autodisposes, too);
-            // once no writer has it, it is forgotten (`unregister`)
-            let r = if self.disposed.contains(&instance) {
-                Err(None)
-            } else {
-                if matches!(
-                    s.kind,
-                    ChangeKind::Disposed | ChangeKind::DisposedUnregistered
-                ) {
-                    self.disposed.insert(instance);
-                }
-                Ok(())
-            };
-            if s.kind == ChangeKind::Disposed {
-                self.register(instance, s.writer);
-            } else {
-                self.unregister(instance, s.writer);
-            }
-            return r;
+            return self.instance_change(s, instance, writer);
         }
-        self.register(instance, s.writer);
+        self.register(instance, s.writer, s.key_hash);
         if let (Some(life), Some(ts)) = (
             writer.and_then(|i| i.lifespan),
             s.source_timestamp.and_then(system_time),
@@ -217,17 +245,10 @@ impl LocalReader {
         }
         if self.exclusive {
             let strength = writer.map_or(0, |i| i.strength);
-            match self.owners.get(&instance) {
-                Some(&(owner, os))
-                    if owner != s.writer
-                        && (os > strength || (os == strength && owner < s.writer)) =>
-                {
-                    return Err(None);
-                }
-                _ => {
-                    self.owners.insert(instance, (s.writer, strength));
-                }
+            if !self.may_own(&instance, s.writer, strength) {
+                return Err(None);
             }
+            self.owners.insert(instance, (s.writer, strength));
         }
         if let Some(sep) = self.minimum_separation {
             if self
@@ -248,24 +269,125 @@ impl LocalReader {
         Ok(())
     }
 
-    /// A writer left: it owns nothing any more, and the instances only
-    /// it had are forgotten.
-    pub(super) fn writer_gone(&mut self, writer: Guid) {
+    /// A dispose or unregister (`s`, of `instance`), by DDS's rules
+    /// (§2.2.2.5.1, §2.2.3.9.2): a dispose counts only from the owner
+    /// under exclusive ownership (or a writer strong enough to take the
+    /// instance); a disposed instance stays NOT_ALIVE_DISPOSED until a
+    /// sample comes, whatever else its writers say (a dispose that also
+    /// unregisters, as a deleted writer autodisposes, too); an unregister
+    /// says something only from the instance's last writer, as
+    /// NOT_ALIVE_NO_WRITERS (`s` becomes [`ChangeKind::Unregistered`] when
+    /// only its unregister counts). `Err(None)`: nothing to say.
+    fn instance_change(
+        &mut self,
+        s: &mut ReceivedSample,
+        instance: [u8; 16],
+        writer: Option<WriterInfo>,
+    ) -> Result<(), Option<DropReason>> {
+        let disposes = matches!(
+            s.kind,
+            ChangeKind::Disposed | ChangeKind::DisposedUnregistered
+        );
+        let unregisters = matches!(
+            s.kind,
+            ChangeKind::Unregistered | ChangeKind::DisposedUnregistered
+        );
+        let strength = writer.map_or(0, |i| i.strength);
+        let mut said = false;
+        if disposes && (!self.exclusive || self.may_own(&instance, s.writer, strength)) {
+            if self.exclusive {
+                self.owners.insert(instance, (s.writer, strength));
+            }
+            if let Some(d) = self.deadline.as_mut() {
+                d.forget(&instance);
+            }
+            said = self.disposed.insert(instance);
+        }
+        if !unregisters {
+            self.register(instance, s.writer, s.key_hash);
+            return if said { Ok(()) } else { Err(None) };
+        }
+        if self
+            .owners
+            .get(&instance)
+            .is_some_and(|(o, _)| *o == s.writer)
+        {
+            self.owners.remove(&instance);
+        }
+        if self.writers.is_none() {
+            // a topic without key: its one instance, writers not counted
+            if let Some(d) = self.deadline.as_mut() {
+                d.forget(&instance);
+            }
+            return if said || (!disposes && !self.disposed.contains(&instance)) {
+                Ok(())
+            } else {
+                Err(None)
+            };
+        }
+        let was_registered = self.registered(&instance, s.writer);
+        self.unregister(instance, s.writer);
+        if self.has_writers(&instance) {
+            // another writer still has it: it stays as it is
+            return if said { Ok(()) } else { Err(None) };
+        }
+        // no writer left (or none had it: an instance this reader never
+        // saw, or another writer's)
+        let disposed = self.disposed.contains(&instance);
+        self.forget(&instance);
+        if said {
+            Ok(())
+        } else if was_registered && !disposed {
+            s.kind = ChangeKind::Unregistered;
+            Ok(())
+        } else {
+            Err(None)
+        }
+    }
+
+    /// `writer` left this reader (deleted, lost, or its liveliness
+    /// lapsed): it owns nothing any more and has no instance registered;
+    /// an instance it was the last writer of is NOT_ALIVE_NO_WRITERS unless
+    /// disposed (or, with `dispose`, disposed now), and forgotten. The
+    /// changes that say so, one per such instance (no data, no timestamp,
+    /// its key hash as its last change carried it, `writer` as their
+    /// writer), in the order of their key hashes.
+    pub(super) fn writer_gone(&mut self, writer: Guid, dispose: bool) -> Vec<ReceivedSample> {
         self.owners.retain(|_, (w, _)| *w != writer);
         let Some(ws) = self.writers.as_mut() else {
-            return;
+            return Vec::new();
         };
         let mut orphans = Vec::new();
-        ws.retain(|instance, w| {
-            w.retain(|g| *g != writer);
-            if w.is_empty() {
-                orphans.push(*instance);
+        for (instance, i) in ws.iter_mut() {
+            let before = i.writers.len();
+            i.writers.retain(|g| *g != writer);
+            if i.writers.is_empty() && before > 0 {
+                orphans.push((*instance, i.key));
             }
-            !w.is_empty()
-        });
-        for instance in orphans {
-            self.forget(&instance);
         }
+        orphans.sort_unstable_by_key(|(instance, _)| *instance);
+        let mut changes = Vec::new();
+        for (instance, key) in orphans {
+            let disposed = self.disposed.contains(&instance);
+            self.forget(&instance);
+            if disposed {
+                continue;
+            }
+            if let Some(mut s) = self.template.clone() {
+                s.writer = writer;
+                s.sequence_number = SequenceNumber::UNKNOWN;
+                s.source_timestamp = None;
+                s.key_hash = key;
+                s.kind = if dispose {
+                    ChangeKind::DisposedUnregistered
+                } else {
+                    ChangeKind::Unregistered
+                };
+                s.related_sample_identity = None;
+                changes.push(s);
+            }
+        }
+        changes
     }
 
     pub(super) fn next_due(&self) -> Option<Instant> {
@@ -406,20 +528,69 @@ impl Domain {
     }
 
     /// Filters a sample for a user or pattern reader and passes it on.
+    /// A dispose that carries its writer's whole sample (Cyclone DDS's
+    /// `write_dispose`: the data, not the key, with the dispose flag) is
+    /// taken as the sample, then the dispose of its instance.
     pub(super) fn deliver(&mut self, mut s: ReceivedSample, now: Instant) {
-        let writer = self.writer_info.get(&s.writer).copied();
-        let wall = self.wall(now);
         let Some(r) = self.readers.get_mut(&s.reader) else {
             return;
         };
+        if r.writers.is_some() && r.template.is_none() {
+            let mut t = s.clone();
+            let n = t.data().len();
+            t.remove_data(0, n);
+            r.template = Some(t);
+        }
+        if r.instances.carries_sample(&s) {
+            let mut sample = s.clone();
+            sample.kind = ChangeKind::Alive;
+            let key = self.deliver_one(sample, now);
+            // the dispose names the instance the sample did
+            s.key_hash = s.key_hash.or(key);
+            let n = s.data().len();
+            s.remove_data(0, n);
+        }
+        self.deliver_one(s, now);
+    }
+
+    /// [`Domain::deliver`] of one change; its key hash, once known.
+    fn deliver_one(&mut self, mut s: ReceivedSample, now: Instant) -> Option<KeyHash> {
+        let writer = self.writer_info.get(&s.writer).copied();
+        let wall = self.wall(now);
+        let r = self.readers.get_mut(&s.reader)?;
         let instance = r.identify(&mut s, writer);
+        let key = s.key_hash;
         let reader = ReaderId(s.reader);
-        match r.admit(&s, instance, writer, now, wall) {
+        match r.admit(&mut s, instance, writer, now, wall) {
             Ok(()) => self.events.push_back(Event::Sample { reader, sample: s }),
             Err(Some(reason)) => self
                 .events
                 .push_back(Event::SampleDropped { reader, reason }),
             Err(None) => {}
+        }
+        key
+    }
+
+    /// `writer` no longer writes for `reader`: it left (deleted,
+    /// unmatched, its participant lost) or its liveliness lapsed. The
+    /// instances it was the last live writer of become NOT_ALIVE_NO_WRITERS
+    /// ([`Event::Sample`] with a [`ChangeKind::Unregistered`] change of
+    /// `writer`, no data, for a user or pattern reader), or NOT_ALIVE_DISPOSED
+    /// with `dispose` ([`ChangeKind::DisposedUnregistered`]: a deleted
+    /// writer whose vendor leaves its autodispose to the readers, see
+    /// [`EndpointData::disposes_when_deleted`](crate::rtps::discovery::EndpointData::disposes_when_deleted)),
+    /// and it owns none.
+    pub(super) fn writer_left_reader(&mut self, reader: Guid, writer: Guid, dispose: bool) {
+        let Some(r) = self.readers.get_mut(&reader) else {
+            return;
+        };
+        let changes = r.writer_gone(writer, dispose);
+        if matches!(r.role, Role::User | Role::Pattern(_)) {
+            self.events
+                .extend(changes.into_iter().map(|sample| Event::Sample {
+                    reader: ReaderId(reader),
+                    sample,
+                }));
         }
     }
 

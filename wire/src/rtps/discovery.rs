@@ -7,7 +7,7 @@
 //! skipped, vendor PIDs are read only together with the sender's vendor id.
 //! Encoding writes what Courier announces, little-endian (`PL_CDR_LE`).
 
-use super::parameter::{ParameterList, PID_VENDOR_SPECIFIC};
+use super::parameter::{ParameterId, ParameterList, PID_VENDOR_SPECIFIC};
 use super::types::{Cursor, Guid, GuidPrefix, Locator, ProtocolVersion, VendorId};
 use super::Error;
 
@@ -285,6 +285,15 @@ pub struct EndpointData {
     pub expects_inline_qos: bool,
     /// XTypes TypeInformation bytes, if sent (kept opaque).
     pub type_information: Option<Vec<u8>>,
+    /// A writer whose instances its readers dispose when it is deleted
+    /// (WRITER_DATA_LIFECYCLE `autodispose_unregistered_instances`), where
+    /// its vendor leaves that to the readers: Cyclone DDS sends no
+    /// dispose for the instances of a writer it deletes, and says the
+    /// policy in its `PID_ADLINK_WRITER_DATA_LIFECYCLE` (0x8003; absent:
+    /// DDS's default, true). False for every other writer (they dispose
+    /// what they mean to dispose, as Courier and Fast DDS do). See
+    /// [`EndpointData::read_vendor_params`].
+    pub disposes_when_deleted: bool,
 }
 
 /// `PID_STATUS_INFO` bits.
@@ -616,7 +625,22 @@ impl EndpointData {
             multicast: d_multicast,
             expects_inline_qos,
             type_information,
+            disposes_when_deleted: false,
         })
+    }
+
+    /// Reads what `vendor`'s own parameters in `list` say (see
+    /// [`EndpointData::disposes_when_deleted`]).
+    pub fn read_vendor_params(&mut self, list: &ParameterList<'_>, vendor: VendorId) {
+        const ADLINK_WRITER_DATA_LIFECYCLE: u16 = PID_VENDOR_SPECIFIC | 0x0003;
+        if vendor == VendorId::CYCLONE && self.guid.entity.is_writer() {
+            self.disposes_when_deleted = list
+                .get(
+                    ParameterId::Vendor(vendor, ADLINK_WRITER_DATA_LIFECYCLE),
+                    vendor,
+                )
+                .is_none_or(|p| p.value.first().is_some_and(|b| *b != 0));
+        }
     }
 
     /// The SEDP payload (PL_CDR_LE). Every QoS is written, defaults included,
@@ -799,5 +823,60 @@ impl PlWriter {
     fn finish(mut self) -> Vec<u8> {
         self.out.extend_from_slice(&[0x01, 0x00, 0x00, 0x00]);
         self.out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rtps::parameter::Parameter;
+    use crate::rtps::{EntityId, Guid, GuidPrefix};
+
+    /// Cyclone DDS's writer autodispose, from its vendor PID 0x8003 (a
+    /// boolean; absent: DDS's default, true), read only from Cyclone and
+    /// only for writers.
+    #[test]
+    fn cyclone_writer_autodispose_is_read_from_its_vendor_pid() {
+        let endpoint = |entity: [u8; 4]| EndpointData {
+            guid: Guid {
+                prefix: GuidPrefix([1; 12]),
+                entity: EntityId(entity),
+            },
+            topic_name: "t".into(),
+            type_name: "T".into(),
+            qos: EndpointQos::writer_default(),
+            unicast: vec![],
+            multicast: vec![],
+            expects_inline_qos: false,
+            type_information: None,
+            disposes_when_deleted: false,
+        };
+        let list = |params: Vec<Parameter<'static>>| ParameterList {
+            params,
+            little: true,
+        };
+        let off = Parameter {
+            pid: 0x8003,
+            value: &[0, 0, 0, 0],
+        };
+        let on = Parameter {
+            pid: 0x8003,
+            value: &[1, 0, 0, 0],
+        };
+        let writer = [0, 0, 1, 0x02];
+        for (vendor, params, entity, want) in [
+            (VendorId::CYCLONE, vec![], writer, true),
+            (VendorId::CYCLONE, vec![on], writer, true),
+            (VendorId::CYCLONE, vec![off], writer, false),
+            // another vendor's 0x8003 is something else
+            (VendorId::EPROSIMA, vec![on], writer, false),
+            (VendorId::EPROSIMA, vec![], writer, false),
+            // a reader has no such policy
+            (VendorId::CYCLONE, vec![], [0, 0, 1, 0x07], false),
+        ] {
+            let mut d = endpoint(entity);
+            d.read_vendor_params(&list(params.clone()), vendor);
+            assert_eq!(d.disposes_when_deleted, want, "{vendor:?} {params:?}");
+        }
     }
 }

@@ -87,9 +87,14 @@ impl Participant {
             }
             return;
         }
-        let data = match payload_params(e.data)
-            .and_then(|l| EndpointData::from_params(&l, publications))
-        {
+        let vendor = self.participants.get(&from.prefix).map(|p| p.vendor);
+        let data = match payload_params(e.data).and_then(|l| {
+            let mut d = EndpointData::from_params(&l, publications)?;
+            if let Some(v) = vendor {
+                d.read_vendor_params(&l, v);
+            }
+            Ok(d)
+        }) {
             Ok(d) => d,
             Err(_) => {
                 self.stats.discovery_errors += 1;

@@ -203,6 +203,7 @@ impl Participant {
             multicast: Vec::new(),
             expects_inline_qos: false,
             type_information: None,
+            disposes_when_deleted: false,
         };
         Ok((guid, data))
     }
