@@ -527,8 +527,14 @@ pub enum InstanceState {
     /// A sample with data.
     #[default]
     Alive,
-    /// The instance was disposed (its data carries only the key, if anything).
+    /// The instance was disposed (its data carries only the key, if
+    /// anything): by a writer, or, for a deleted writer that leaves its
+    /// autodispose to the readers (Cyclone DDS), by the subscription.
     Disposed,
-    /// The writer unregistered the instance.
+    /// No live writer has the instance any more (DDS's
+    /// NOT_ALIVE_NO_WRITERS): its last writer unregistered it, or went
+    /// without a word for it (deleted, its participant lost, or, for a
+    /// subscription that tracks liveliness, its lease lapsed). A later
+    /// sample makes it alive again.
     Unregistered,
 }
