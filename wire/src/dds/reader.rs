@@ -536,19 +536,15 @@ impl Domain {
             return;
         };
         if r.writers.is_some() && r.template.is_none() {
-            let mut t = s.clone();
-            let n = t.data().len();
-            t.remove_data(0, n);
-            r.template = Some(t);
+            r.template = Some(s.without_data());
         }
         if r.instances.carries_sample(&s) {
-            let mut sample = s.clone();
-            sample.kind = ChangeKind::Alive;
-            let key = self.deliver_one(sample, now);
+            let mut dispose = s.without_data();
+            s.kind = ChangeKind::Alive;
+            let key = self.deliver_one(s, now);
             // the dispose names the instance the sample did
-            s.key_hash = s.key_hash.or(key);
-            let n = s.data().len();
-            s.remove_data(0, n);
+            dispose.key_hash = dispose.key_hash.or(key);
+            s = dispose;
         }
         self.deliver_one(s, now);
     }

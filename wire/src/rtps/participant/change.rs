@@ -369,6 +369,21 @@ impl ReceivedSample {
         &self.envelope[..data_len(&self.envelope)]
     }
 
+    /// This change without its data: the same reader, writer, sequence
+    /// number and inline QoS, and no data; made without copying the data
+    /// (a clone emptied with [`ReceivedSample::remove_data`] copies it and
+    /// keeps its allocation).
+    pub fn without_data(&self) -> ReceivedSample {
+        let env = envelope_with(
+            self.kind,
+            self.key_hash,
+            self.source_timestamp,
+            self.related_sample_identity,
+            Cow::Borrowed(&[]),
+        );
+        ReceivedSample::new(self.reader, self.writer, self.sequence_number, env)
+    }
+
     /// Removes `len` bytes of the data starting at `at` (rmw_cyclonedds's
     /// request header, after the encapsulation); false, and nothing
     /// removed, if the data is shorter. Copies only a shared sample.
