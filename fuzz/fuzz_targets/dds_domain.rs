@@ -2,15 +2,24 @@
 //! domains exchange what they send (or the fuzzer's own bytes) while
 //! endpoints, services, clients and patterns come and go, writes (plain and
 //! confirmed; samples, disposes and unregisters of a few instances),
-//! queries and replies are made and time passes. Nothing may panic.
+//! queries and replies are made and time passes. Writers and readers offer
+//! and request every liveliness kind with finite and infinite leases;
+//! writers and the participant assert their liveliness, participant
+//! messages (PMD) of the fuzzer's own are injected from the other domain,
+//! and time jumps far enough to lapse leases and participants. Nothing may
+//! panic, and each writer's LIVELINESS_LOST total counts up by one.
 #![no_main]
 
 use std::time::{Duration, Instant, SystemTime};
 
 use courier_wire::dds::{Domain, Event, ReaderId, RequestId, ServiceConfig, ServiceId, WriterId};
-use courier_wire::rtps::discovery::{Duration as RtpsDuration, EndpointQos, History, Reliability};
+use std::collections::HashMap;
+
+use courier_wire::rtps::discovery::{
+    Duration as RtpsDuration, EndpointQos, History, LivelinessKind, Reliability,
+};
 use courier_wire::rtps::participant::{guid_prefix, Change, Config, EndpointConfig, KeyHash};
-use courier_wire::rtps::Locator;
+use courier_wire::rtps::{Data, EntityId, Locator, SequenceNumber, Submessage};
 use libfuzzer_sys::fuzz_target;
 
 const TOPICS: [&str; 3] = ["a", "b", "rq/sRequest"];
@@ -40,6 +49,24 @@ fn qos(b: u8, writer: bool) -> EndpointQos {
     q
 }
 
+/// Liveliness by a byte of its own: the kind (`l % 4`, 3 = automatic) and a
+/// lease (`l >> 2 & 7`): infinite, zero (taken as infinite), or 10 ms to
+/// 60 s.
+fn liveliness(l: u8) -> (LivelinessKind, RtpsDuration) {
+    let kind = match l % 4 {
+        1 => LivelinessKind::ManualByParticipant,
+        2 => LivelinessKind::ManualByTopic,
+        _ => LivelinessKind::Automatic,
+    };
+    let ms = [0, 0, 10, 50, 200, 1000, 5000, 60_000][usize::from(l >> 2 & 7)];
+    let lease = match l >> 2 & 7 {
+        0 => RtpsDuration::INFINITE,
+        1 => RtpsDuration::ZERO,
+        _ => RtpsDuration::from_std(Duration::from_millis(ms)),
+    };
+    (kind, lease)
+}
+
 #[derive(Default)]
 struct Side {
     writers: Vec<WriterId>,
@@ -48,6 +75,10 @@ struct Side {
     requests: Vec<(ServiceId, RequestId)>,
     clients: Vec<courier_wire::dds::ClientId>,
     patterns: Vec<courier_wire::dds::PatternId>,
+    /// Sequence numbers of the injected participant messages.
+    pmd_sn: i64,
+    /// LIVELINESS_LOST totals so far, by writer.
+    lost: HashMap<WriterId, u64>,
 }
 
 fuzz_target!(|data: &[u8]| {
@@ -69,15 +100,19 @@ fuzz_target!(|data: &[u8]| {
         let pick = |n: usize| usize::from(arg) % n.max(1);
         match op & 0x0f {
             0 => {
+                let mut q = qos(arg, true);
+                q.liveliness = liveliness(it.next().unwrap_or(0));
                 let cfg = EndpointConfig::writer(TOPICS[pick(3)], TYPES[usize::from(arg >> 7)])
                     .keyed(arg & 8 == 8)
-                    .qos(qos(arg, true));
+                    .qos(q);
                 s.writers.extend(d.create_writer(cfg, now).ok());
             }
             1 => {
+                let mut q = qos(arg, false);
+                q.liveliness = liveliness(it.next().unwrap_or(0));
                 let cfg = EndpointConfig::reader(TOPICS[pick(3)], TYPES[usize::from(arg >> 7)])
                     .keyed(arg & 8 == 8)
-                    .qos(qos(arg, false));
+                    .qos(q);
                 s.readers.extend(d.create_reader(cfg, now).ok());
             }
             2 if !s.writers.is_empty() => {
@@ -139,7 +174,47 @@ fuzz_target!(|data: &[u8]| {
                 let body: Vec<u8> = it.by_ref().take(len).collect();
                 d.handle_datagram(Locator::udpv4([127, 0, 0, 1], 7411), &body, now);
             }
-            _ => now += Duration::from_millis(u64::from(arg)),
+            // 15, and the ops above that found nothing to act on: by
+            // `op >> 4 & 7`, liveliness or time
+            _ => match op >> 4 & 7 {
+                3 => {
+                    // a participant message (PMD) from the other domain's
+                    // participant (known to this one once SPDP went across)
+                    // or one of the fuzzer's, with a payload of the fuzzer's
+                    // encapsulation, prefix, kind and tail
+                    let other = ds[1 - i].participant().guid_prefix();
+                    let (d, s) = (&mut ds[i], &mut sides[i]);
+                    let sender = if arg & 1 == 0 { other.0 } else { [arg; 12] };
+                    let mut payload = vec![0, [1, 0, 3, 2][usize::from(arg >> 1 & 3)], 0, 0];
+                    payload.extend_from_slice(if arg & 8 == 0 { &sender } else { &[9; 12] });
+                    payload.extend_from_slice(&[0, 0, 0, [2, 1, 0, arg][usize::from(arg >> 4 & 3)]]);
+                    let len = usize::from(it.next().unwrap_or(0) % 32);
+                    payload.extend(it.by_ref().take(len));
+                    s.pmd_sn += 1;
+                    let sn = if arg & 0x40 == 0 { s.pmd_sn } else { i64::from(arg >> 7) + 1 };
+                    let mut b = b"RTPS\x02\x05\x01\x10".to_vec();
+                    b.extend_from_slice(&sender);
+                    Submessage::Data(Data {
+                        reader_id: if arg & 0x80 == 0 { EntityId::P2P_MESSAGE_READER } else { EntityId::UNKNOWN },
+                        writer_id: EntityId::P2P_MESSAGE_WRITER,
+                        writer_sn: SequenceNumber(sn),
+                        inline_qos: None,
+                        payload: Some(&payload),
+                        key: false,
+                        non_standard: false,
+                    })
+                    .write(&mut b, true);
+                    d.handle_datagram(Locator::udpv4([127, 0, 0, 1], 7410), &b, now);
+                }
+                4 if !s.writers.is_empty() => {
+                    let _ = d.assert_liveliness(s.writers[pick(s.writers.len())], now);
+                }
+                5 => d.assert_participant_liveliness(now),
+                // long silences: leases of up to 60 s lapse, and SPDP's
+                6 => now += Duration::from_millis(100 * u64::from(arg)),
+                7 => now += Duration::from_secs(u64::from(arg)),
+                _ => now += Duration::from_millis(u64::from(arg)),
+            },
         }
         // the network: what each sends reaches the other; timers fire
         for k in 0..2 {
@@ -150,8 +225,18 @@ fuzz_target!(|data: &[u8]| {
                 ds[1 - k].handle_datagram(Locator::udpv4([127, 0, 0, 1], 7411), &out.payload, now);
             }
             while let Some(e) = ds[k].poll_event() {
-                if let Event::Request { service, request, .. } = e {
-                    sides[k].requests.push((service, request));
+                match e {
+                    Event::Request { service, request, .. } => {
+                        sides[k].requests.push((service, request));
+                    }
+                    Event::LivelinessLost { writer, total } => {
+                        let prev = sides[k].lost.insert(writer, total).unwrap_or(0);
+                        assert_eq!(total, prev + 1, "LIVELINESS_LOST totals of {writer:?}");
+                    }
+                    Event::LivelinessChanged { alive, alive_count, .. } => {
+                        assert!(!alive || alive_count > 0, "alive with an alive count of 0");
+                    }
+                    _ => {}
                 }
             }
         }

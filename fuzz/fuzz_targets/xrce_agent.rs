@@ -1,8 +1,11 @@
 //! Fuzzes `courier_wire::xrce::Agent`: up to four addresses send it the
 //! fuzzer's own messages, CREATE_CLIENTs in both header forms, and the
 //! messages of a real client machine (some dropped or corrupted), while
-//! its host answers, sends samples large and small, and time passes.
-//! Nothing may panic and the agent's memory stays bounded.
+//! its host answers, sends samples large and small, and time passes (in
+//! steps of up to 4 minutes: a client that answers nothing for 30 s is
+//! taken for silent, its HEARTBEATs slowed, and the host then drops what
+//! waits unsent for it, as the bridge does). Nothing may panic and the
+//! agent's memory stays bounded.
 #![no_main]
 
 use std::time::{Duration, Instant, SystemTime};
@@ -91,14 +94,25 @@ fuzz_target!(|data: &[u8]| {
                 let _ = client.read(ObjectId::new(1, ObjectKind::DataReader), StreamId::RELIABLE, s, Some(dc), now);
             }
             7 => {
-                now += Duration::from_millis(u64::from(arg) * 10);
+                now += if op & 0x80 == 0 {
+                    Duration::from_millis(u64::from(arg) * 10)
+                } else {
+                    Duration::from_secs(u64::from(arg))
+                };
                 agent.handle_timeout(now);
                 client.handle_timeout(now);
             }
             8 => {
                 // the host sends a sample to every reader, up to 20 kB
+                // (from a silent client's reader, what waits unsent goes
+                // instead, once)
                 let len = usize::from(arg) * 80;
                 for (c, r, s) in &reads {
+                    if op & 0x80 != 0 && agent.client_silent(*c, now) {
+                        agent.drop_unsent(*c);
+                        assert_eq!(agent.drop_unsent(*c), 0, "unsent messages left after drop_unsent");
+                        continue;
+                    }
                     let _ = agent.send_data(*c, *r, *s, &vec![op; len], now);
                 }
             }

@@ -1,9 +1,13 @@
 //! Fuzzes `courier_wire::xrce::bridge::Bridge`, the agent's host over a
 //! DDS Domain: clients create objects with the fuzzer's representations
 //! (XML, references, binary blobs, kinds and parents of its choosing),
-//! write, read with any delivery control, delete, while RTPS datagrams of
-//! the fuzzer's own arrive and time passes. Nothing may panic and the
-//! agent machine's memory stays bounded.
+//! write, read with any delivery control, delete, acknowledge (or not),
+//! while RTPS datagrams of the fuzzer's own arrive and time passes (in
+//! steps of up to 4 minutes: a client that answers nothing for 30 s gets
+//! slow HEARTBEATs, its unsent backlog dropped and its readers trimmed).
+//! Writers and readers made from XML offer or request a liveliness of the
+//! fuzzer's kind and lease. Nothing may panic and the agent machine's
+//! memory stays bounded.
 #![no_main]
 
 use std::time::{Duration, Instant, SystemTime};
@@ -13,7 +17,7 @@ use courier_wire::rtps::participant::{guid_prefix, Config};
 use courier_wire::rtps::Locator;
 use courier_wire::xrce::bridge::{Bridge, BridgeConfig, Profiles};
 use courier_wire::xrce::{
-    BaseObjectRequest, ClientKey, ClientRepresentation, Create, DeliveryControl, Message,
+    AckNack, BaseObjectRequest, ClientKey, ClientRepresentation, Create, DeliveryControl, Message,
     MessageHeader, ObjectId, ObjectKind, ObjectVariant, Payload, ReadData, Representation,
     RequestId, StreamId, Submessage,
 };
@@ -70,6 +74,22 @@ fuzz_target!(|data: &[u8]| {
                 let _ = b.handle_input(from, &m, now);
                 None
             }
+            1 if op & 0x80 != 0 => {
+                // an ACKNACK of the reliable output stream: the client answers
+                let ack = AckNack {
+                    first_unacked: u16::from(next()) | u16::from(next()) << 8,
+                    nack_bitmap: [next() & (arg >> 2), 0],
+                    stream_id: StreamId::RELIABLE,
+                };
+                let m = Message::new(
+                    MessageHeader::new(0x81, StreamId::NONE, 0),
+                    vec![Submessage::new(Payload::AckNack(ack))],
+                );
+                if let Ok(m) = m.to_vec() {
+                    let _ = b.handle_input(from, &m, now);
+                }
+                None
+            }
             1 => {
                 seq[usize::from(from)] = 0;
                 let key = ClientKey::from(u32::from(from) + 1);
@@ -93,10 +113,26 @@ fuzz_target!(|data: &[u8]| {
                     0 => Representation::Binary(text),
                     1 => Representation::Xml(String::from_utf8_lossy(&text).into_owned()),
                     2 => Representation::Reference(["p", "t", "w", "r", "q", "y", "x"][usize::from(arg % 7)].into()),
-                    _ => Representation::Xml(format!(
-                        "<dds><{0}><topic><name>T</name><dataType>D</dataType></topic></{0}></dds>",
-                        ["data_writer", "data_reader", "topic"][usize::from(arg % 3)]
-                    )),
+                    _ => {
+                        // a liveliness by the first byte: kind, lease
+                        let l = text.first().copied().unwrap_or(0xff);
+                        let kind = ["AUTOMATIC", "MANUAL_BY_PARTICIPANT", "MANUAL_BY_TOPIC_LIVELINESS_QOS", "SOMETIMES"][usize::from(l & 3)];
+                        let lease = [
+                            "<sec>0</sec><nanosec>200000000</nanosec>",
+                            "<sec>1</sec>",
+                            "<sec>DURATION_INFINITY</sec>",
+                            "<sec>0</sec>",
+                        ][usize::from(l >> 2 & 3)];
+                        let qos = match l >> 4 {
+                            0..=11 => format!("<qos><liveliness><kind>{kind}</kind><lease_duration>{lease}</lease_duration></liveliness></qos>"),
+                            12 | 13 => format!("<qos><liveliness><kind>{kind}</kind></liveliness></qos>"),
+                            _ => String::new(),
+                        };
+                        Representation::Xml(format!(
+                            "<dds><{0}><topic><name>T</name><dataType>D</dataType></topic>{qos}</{0}></dds>",
+                            ["data_writer", "data_reader", "topic"][usize::from(arg % 3)]
+                        ))
+                    }
                 };
                 let object = match kind {
                     ObjectKind::Participant => ObjectVariant::Participant { representation: rep, domain_id: i16::from(arg % 2) },
@@ -127,7 +163,9 @@ fuzz_target!(|data: &[u8]| {
             }
             4 => {
                 let id = ObjectId::new(u16::from(next() % 3), KINDS[usize::from(arg >> 2) % 8]);
-                let dc = (arg & 1 == 1).then(|| DeliveryControl {
+                // (with delivery control by `op`'s bit 7 too: clients 0
+                // and 2, the ones that can have a participant, read with it)
+                let dc = (arg & 1 == 1 || op & 0x80 != 0).then(|| DeliveryControl {
                     max_samples: u16::from(next()) * 257,
                     max_elapsed_time: u16::from(next() % 4),
                     max_bytes_per_second: u16::from(next()) * 16,
@@ -155,7 +193,11 @@ fuzz_target!(|data: &[u8]| {
                 None
             }
             _ => {
-                now += Duration::from_millis(u64::from(arg) * 10);
+                now += if op % 9 == 8 && op & 0x80 != 0 {
+                    Duration::from_secs(u64::from(arg))
+                } else {
+                    Duration::from_millis(u64::from(arg) * 10)
+                };
                 b.handle_timeout(now);
                 None
             }

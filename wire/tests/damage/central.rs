@@ -44,6 +44,11 @@ pub fn config(pick: u8, direct: bool) -> Config {
 /// line among the log `lines` central wrote with it: bad input names the
 /// connection and the fault, whatever the log options; a module's own
 /// goodbye and a close from the console are logged when logging is on.
+/// Callers that make more than ten connections that never name
+/// themselves within 10 s must leave those past the tenth out: central
+/// logs ten such strangers a window and then one line with the count of
+/// the rest (`STRANGER_BURST` in `wire/src/ipc/central/log.rs`; the
+/// `central_input` fuzz target does so).
 pub fn check_closes_logged(central: &Central, lines: &[String], closes: &[(u64, String)]) {
     let logging = central.config().terminal_log.any() || central.config().file_log.any();
     for (conn, reason) in closes {
