@@ -201,6 +201,59 @@ async fn keep_last_is_per_instance() {
     assert_eq!(sub.dropped(), 6);
 }
 
+/// A publish that waits for room in a full history is stamped when it was
+/// called, not when it got in (DDS 1.4 §2.2.2.4.2.11; audit 19: 4 MiB
+/// samples were stamped up to 1.3 s late, which moves lifespans and
+/// deadlines): each publish that waited has a source timestamp nearer its
+/// call than its return.
+#[tokio::test]
+async fn a_publish_that_waited_is_stamped_when_it_was_called() {
+    let a = session(187, "a").await;
+    let b = session(187, "b").await;
+    let (p, mut sub) = common::keep_all_pair(&a, &b, "stamped_late", 2).await;
+    let writer = tokio::spawn(async move {
+        let mut calls = Vec::new();
+        for seq in 0..80 {
+            let called = std::time::SystemTime::now();
+            let m = Msg {
+                seq,
+                text: String::new(),
+                payload: vec![0; 64 << 10],
+            };
+            p.publish(&m).await.unwrap();
+            calls.push((called, std::time::SystemTime::now()));
+        }
+        calls
+    });
+    // nothing is read for a while: the writer's history fills and its
+    // publishes wait
+    tokio::time::sleep(Duration::from_millis(800)).await;
+    let mut stamps = Vec::new();
+    for seq in 0..80 {
+        let s = next(&mut sub).await.unwrap();
+        assert_eq!(s.value.seq, seq);
+        stamps.push(s.source_time.expect("a source timestamp"));
+    }
+    let calls = tokio::time::timeout(T, writer).await.unwrap().unwrap();
+    let waited: Vec<usize> = (0..80)
+        .filter(|i| {
+            let (called, returned) = calls[*i];
+            returned.duration_since(called).unwrap_or_default() >= Duration::from_millis(400)
+        })
+        .collect();
+    assert!(!waited.is_empty(), "no publish waited: {calls:?}");
+    for i in waited {
+        let (called, returned) = calls[i];
+        let half = returned.duration_since(called).unwrap() / 2;
+        let late = stamps[i].duration_since(called).unwrap_or_default();
+        assert!(
+            late < half,
+            "sample {i}: stamped {late:?} after its publish was called, which took {:?}",
+            half * 2
+        );
+    }
+}
+
 /// DDS's `autodispose_unregistered_instances`: an unregister disposes the
 /// instance too, as Cyclone DDS's does, unless the publication says
 /// `autodispose(false)` (audit 18: Courier's readers saw Cyclone's

@@ -1,7 +1,7 @@
 //! What the backend's handles ask of the driver.
 
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use courier_wire::dds::{RequestId, ServiceId};
 
@@ -93,6 +93,9 @@ pub(super) enum Cmd {
         key_hash: Option<[u8; 16]>,
         confirm: Option<Duration>,
         done: Done,
+        /// When the application wrote it, if it waited before it was
+        /// sent here (its source timestamp); `None`: when it arrives.
+        written: Option<Instant>,
     },
     ModuleConnected {
         name: String,
@@ -167,6 +170,7 @@ impl Cmd {
             key_hash,
             confirm: None,
             done: Done::Queued(permit),
+            written: None,
         }
     }
 }

@@ -400,6 +400,8 @@ impl RtpsBackend {
         data: Vec<u8>,
         opts: WriteOptions,
     ) -> Result<(), PublishError> {
+        // its source timestamp, whatever it waits for
+        let written = Some(Instant::now());
         let topic = self.topic_of(publication)?;
         if opts.confirm.is_none() {
             if data.len() > MAX_WRITE_SIZE {
@@ -422,6 +424,7 @@ impl RtpsBackend {
                     key_hash: opts.key_hash,
                     confirm: None,
                     done: Done::Queued(permit),
+                    written,
                 })
                 .map_err(|_| disconnected());
         }
@@ -432,6 +435,7 @@ impl RtpsBackend {
             key_hash: opts.key_hash,
             confirm: opts.confirm,
             done: Done::Reply(reply),
+            written,
         })
         .await
     }
@@ -789,6 +793,7 @@ impl DdsControl for RtpsBackend {
             key_hash: Some(key_hash),
             confirm: None,
             done: Done::Reply(reply),
+            written: None,
         })
         .await
     }

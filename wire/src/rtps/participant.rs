@@ -392,6 +392,14 @@ impl Participant {
         }
     }
 
+    /// The source timestamp this participant gives a change written at
+    /// `at` (its wall clock then): for a write that waited for room in a
+    /// full history before it reached [`Participant::write`], stamped as
+    /// when the application wrote it (DDS 1.4 §2.2.2.4.2.11).
+    pub fn time_at(&self, at: Instant) -> Time {
+        self.wall(at)
+    }
+
     /// Wall-clock time at `now`, as an RTPS `Time_t`.
     fn wall(&self, now: Instant) -> Time {
         let d = self.wall_start + now.saturating_duration_since(self.start);
