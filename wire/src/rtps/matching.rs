@@ -224,16 +224,57 @@ fn liveliness_rank(k: LivelinessKind) -> u8 {
     }
 }
 
-/// fnmatch-style match used for partitions (`*`, `?`): linear-time greedy
-/// matching with backtracking to the last `*`, so names from the network
-/// cannot make it explode.
+/// A bracket expression at the start of `p` (`[abc]`, `[a-z]`, `[!x]` or
+/// `[^x]`, POSIX fnmatch): whether it takes byte `c`, and its length;
+/// `None` when `p` does not start with a complete one (an unclosed `[` is
+/// an ordinary character).
+fn bracket(p: &[u8], c: u8) -> Option<(bool, usize)> {
+    if p.first() != Some(&b'[') {
+        return None;
+    }
+    let mut i = 1;
+    let negate = matches!(p.get(i), Some(b'!' | b'^'));
+    if negate {
+        i += 1;
+    }
+    let mut hit = false;
+    let mut first = true;
+    loop {
+        let &x = p.get(i)?;
+        if x == b']' && !first {
+            return Some((hit != negate, i + 1));
+        }
+        first = false;
+        if p.get(i + 1) == Some(&b'-') && p.get(i + 2).is_some_and(|e| *e != b']') {
+            hit |= (x..=p[i + 2]).contains(&c);
+            i += 3;
+        } else {
+            hit |= x == c;
+            i += 1;
+        }
+    }
+}
+
+/// fnmatch-style match used for partitions (`*`, `?`, `[...]`):
+/// linear-time greedy matching with backtracking to the last `*`, so
+/// names from the network cannot make it explode.
 fn wildcard(pattern: &str, name: &str) -> bool {
     let (p, n) = (pattern.as_bytes(), name.as_bytes());
     let (mut pi, mut ni) = (0, 0);
     let mut star: Option<(usize, usize)> = None;
     while ni < n.len() {
-        if pi < p.len() && (p[pi] == b'?' || p[pi] == n[ni]) {
-            pi += 1;
+        let one = match p.get(pi) {
+            Some(b'?') => Some(1),
+            Some(b'[') => match bracket(&p[pi..], n[ni]) {
+                Some((true, len)) => Some(len),
+                Some((false, _)) => None,
+                None => (n[ni] == b'[').then_some(1),
+            },
+            Some(b'*') | None => None,
+            Some(c) => (*c == n[ni]).then_some(1),
+        };
+        if let Some(len) = one {
+            pi += len;
             ni += 1;
         } else if pi < p.len() && p[pi] == b'*' {
             star = Some((pi, ni));
@@ -262,9 +303,14 @@ impl Incompatible {
     }
 }
 
-/// A partition name with wildcards (fnmatch's `*` and `?`).
+/// A partition name with wildcards (fnmatch's `*`, `?` and bracket
+/// expressions).
 fn has_wildcard(p: &str) -> bool {
     p.contains(['*', '?'])
+        || p.as_bytes()
+            .iter()
+            .enumerate()
+            .any(|(i, c)| *c == b'[' && bracket(&p.as_bytes()[i..], 0).is_some())
 }
 
 /// Whether the partitions of a writer and a reader have a name in common:
@@ -668,6 +714,27 @@ mod tests {
         assert!(wildcard("*", ""));
         assert!(wildcard("a*b*c", "aXXbYYc"));
         assert!(!wildcard("a*b*c", "aXXbYY"));
+        // POSIX fnmatch's bracket expressions (Fast DDS matches `[ab]c`
+        // with `ac`; Courier took `[` literally, audit 19)
+        assert!(wildcard("[ab]c", "ac") && wildcard("[ab]c", "bc"));
+        assert!(!wildcard("[ab]c", "cc"));
+        assert!(wildcard("robot[0-9]", "robot7") && !wildcard("robot[0-9]", "robotx"));
+        assert!(wildcard("[!a]x", "bx") && !wildcard("[!a]x", "ax"));
+        assert!(wildcard("[^a]x", "bx"));
+        assert!(wildcard("[]]", "]"), "a ] first is a member");
+        assert!(wildcard("[a-]", "-"), "a - last is a member");
+        assert!(wildcard("*[xy]", "aaay") && !wildcard("*[xy]", "aaaz"));
+        // an unclosed [ is an ordinary character
+        assert!(wildcard("a[b", "a[b") && !wildcard("a[b", "ab"));
+        assert!(partitions_match(&s(&["[ab]c"]), &s(&["ac"])));
+        assert!(
+            !partitions_match(&s(&["[ab]c"]), &s(&["a*"])),
+            "two patterns"
+        );
+        assert!(
+            partitions_match(&s(&["a[b"]), &s(&["a[b"])),
+            "no pattern: equal names"
+        );
     }
 
     #[test]
