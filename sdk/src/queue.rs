@@ -94,9 +94,10 @@ pub enum QueuePolicy {
     KeepAll(usize),
     /// Keep the newest `n` of each instance, as a DDS reader's KEEP_LAST
     /// history does: samples of a keyed DDS topic are told apart by their
-    /// key hash, every other sample (IPC, a topic without key, XRCE) is
-    /// of one instance, so there it is the newest `n`, as
-    /// `IPC_setMsgQueueLength` does in central. Instance changes (disposes,
+    /// key hash (on XRCE, which carries none, a typed subscription
+    /// computes it), every other sample (IPC, a topic without key, a raw
+    /// XRCE subscription) is of one instance, so there it is the newest
+    /// `n`, as `IPC_setMsgQueueLength` does in central. Instance changes (disposes,
     /// unregisters) are kept beside them. At most `n` × 1024 samples wait
     /// in all; past that the oldest go too. What is dropped is counted
     /// ([`Subscriber::dropped`]). A subscription refuses `n` of 0

@@ -187,6 +187,48 @@ async fn tcp_publish_subscribe_confirmed_and_fragmented() {
     pub_sub(format!("xrce+tcp://{}", agent.addr)).await;
 }
 
+/// A keep-last subscription keeps the newest of each instance on XRCE too
+/// (which carries no key hash: the session computes it from the sample),
+/// as on `rtps://`.
+#[tokio::test]
+async fn keep_last_is_per_instance() {
+    let agent = xrce_agent::udp(0).await;
+    let url = format!("xrce+udp://{}", agent.addr);
+    let a = session(url.clone(), "pub").await;
+    let b = session(url, "sub").await;
+    let mut sub = b
+        .subscriber::<Keyed>("poses")
+        .keep_last(1)
+        .build()
+        .await
+        .unwrap();
+    let p = a.publisher::<Keyed>("poses").build().await.unwrap();
+    for seq in 1..=3 {
+        for id in [7, 8, 9] {
+            p.publish(&Keyed { id, seq }).confirmed().await.unwrap();
+        }
+    }
+    // all nine reached the subscription: six were replaced
+    tokio::time::timeout(T, async {
+        while sub.dropped() < 6 {
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+    })
+    .await
+    .unwrap_or_else(|_| panic!("dropped {} of 6 in time", sub.dropped()));
+    let got: Vec<(i32, u32)> = [
+        next(&mut sub).await,
+        next(&mut sub).await,
+        next(&mut sub).await,
+    ]
+    .iter()
+    .map(|k| (k.id, k.seq))
+    .collect();
+    assert_eq!(got, [(7, 3), (8, 3), (9, 3)]);
+    a.close().await;
+    b.close().await;
+}
+
 /// A reliable subscription whose queue is full stops the session reading
 /// the link (the agent's window holds the rest): the session says so,
 /// and reading again delivers everything in order. The agent is not

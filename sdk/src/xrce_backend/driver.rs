@@ -79,6 +79,10 @@ struct Subscription {
     type_name: Arc<str>,
     queue: Arc<SampleQueue>,
     reliable: bool,
+    /// A keyed type's key hashes: each sample is told to the queue by its
+    /// instance (XRCE carries no key hash), so that a keep-last queue
+    /// keeps the newest of each instance as on `rtps://`.
+    instances: Option<courier_wire::dds::InstanceKeys>,
 }
 
 struct Service {
@@ -499,6 +503,7 @@ impl Driver {
                                 type_name: Arc::from(ty.type_name),
                                 queue,
                                 reliable,
+                                instances: ty.key_of.map(|k| k.instances),
                             },
                         );
                         self.by_reader.insert(reader, id);
@@ -795,6 +800,7 @@ impl Driver {
                         type_name: topic,
                         queue: SampleQueue::new(crate::queue::QueuePolicy::KeepLast(1)),
                         reliable: false,
+                        instances: None,
                     },
                 );
             }
@@ -1505,6 +1511,9 @@ impl Driver {
         let mut sample = RawSample::new(&*s.topic, with_header(&data));
         sample.order = ByteOrder::Little;
         sample.type_name = Some(s.type_name.clone());
+        if let Some(k) = s.instances {
+            sample.key_hash = (k.hash_in)(&sample.data, false, courier_wire::cdr::Version::Xcdr1);
+        }
         match s.queue.push(sample) {
             Ok(()) => {}
             // (closing: nobody will read it; the link must stay read)
