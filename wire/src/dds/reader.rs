@@ -103,9 +103,7 @@ struct Instance {
 
 /// An RTPS `Time_t` as a `SystemTime`.
 fn system_time(t: Time) -> Option<SystemTime> {
-    let secs = u64::try_from(t.seconds).ok()?;
-    let nanos = (u64::from(t.fraction) * 1_000_000_000) >> 32;
-    SystemTime::UNIX_EPOCH.checked_add(Duration::new(secs, nanos as u32))
+    t.to_system_time()
 }
 
 impl LocalReader {

@@ -176,6 +176,21 @@ pub struct Time {
     pub fraction: u32,
 }
 
+impl Time {
+    /// The time since the UNIX epoch (the fraction to the nearest
+    /// nanosecond below); `None` before it.
+    pub fn since_epoch(self) -> Option<std::time::Duration> {
+        let secs = u64::try_from(self.seconds).ok()?;
+        let nanos = (u64::from(self.fraction) * 1_000_000_000) >> 32;
+        Some(std::time::Duration::new(secs, nanos as u32))
+    }
+
+    /// As a `SystemTime`; `None` before the UNIX epoch.
+    pub fn to_system_time(self) -> Option<std::time::SystemTime> {
+        std::time::SystemTime::UNIX_EPOCH.checked_add(self.since_epoch()?)
+    }
+}
+
 /// A UDPv4/UDPv6 (or other) locator (§9.3.2): 24 bytes on the wire.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Locator {
@@ -488,8 +503,30 @@ impl Out<'_> {
 }
 
 #[cfg(test)]
-mod entity_kind_tests {
-    use super::EntityId;
+mod tests {
+    use super::{EntityId, Time};
+
+    #[test]
+    fn times_read_as_durations_since_the_epoch() {
+        let t = Time {
+            seconds: 1,
+            fraction: 1 << 31,
+        };
+        assert_eq!(
+            t.since_epoch(),
+            Some(std::time::Duration::from_millis(1500))
+        );
+        assert_eq!(
+            t.to_system_time(),
+            Some(std::time::UNIX_EPOCH + std::time::Duration::from_millis(1500))
+        );
+        let before = Time {
+            seconds: -1,
+            fraction: 0,
+        };
+        assert_eq!(before.since_epoch(), None);
+        assert_eq!(before.to_system_time(), None);
+    }
 
     #[test]
     fn keyed_kinds_of_every_category() {

@@ -55,12 +55,6 @@ impl LocalWriter {
     }
 }
 
-/// Time since the UNIX epoch of an RTPS time.
-fn since_epoch(t: Time) -> Duration {
-    let nanos = (u64::from(t.fraction) * 1_000_000_000) >> 32;
-    Duration::from_secs(u64::try_from(t.seconds).unwrap_or(0)) + Duration::from_nanos(nanos)
-}
-
 pub(super) struct LocalReader {
     pub(super) data: EndpointData,
     pub(super) reader: Reader,
@@ -334,7 +328,8 @@ impl Participant {
         if let Some(lifespan) = lw.lifespan {
             // from the source timestamp: an older one given with the
             // change expires sooner
-            let age = since_epoch(wall).saturating_sub(since_epoch(ts));
+            let since = |t: Time| t.since_epoch().unwrap_or_default();
+            let age = since(wall).saturating_sub(since(ts));
             lw.expiries
                 .insert((now + lifespan.saturating_sub(age), sn.0));
             if lw.expiries.len() > max {
