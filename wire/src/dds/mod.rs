@@ -379,7 +379,7 @@ impl Domain {
                     // disposed, if its readers are to dispose it; lost or
                     // unmatched by a QoS change: without writers
                     let deleted = self.p.participant(writer.prefix).is_some()
-                        && !self.p.publications().any(|d| d.guid == writer);
+                        && self.p.publication(writer).is_none();
                     let dispose = deleted
                         && self
                             .writer_info

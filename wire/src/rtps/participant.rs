@@ -320,6 +320,11 @@ impl Participant {
         self.participants.iter()
     }
 
+    /// A known remote writer.
+    pub fn publication(&self, writer: Guid) -> Option<&EndpointData> {
+        self.remote_writers.get(&writer)
+    }
+
     /// The known remote writers.
     pub fn publications(&self) -> impl Iterator<Item = &EndpointData> + '_ {
         self.remote_writers.values()
