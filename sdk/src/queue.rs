@@ -197,9 +197,11 @@ struct QueueState {
     /// Keep-all: the capacity; keep-last: the depth per instance.
     cap: usize,
     keep_last: bool,
-    /// Keep-last: the live samples waiting, per instance (key hash; `None`
-    /// for samples without one).
-    per_instance: HashMap<Option<[u8; 16]>, usize>,
+    /// Keep-last: the live samples waiting, per instance (key hash)...
+    per_instance: HashMap<[u8; 16], usize>,
+    /// ... and those without a key hash (one instance; no hashing on the
+    /// way of IPC's keep-last queues).
+    unkeyed: usize,
     dropped: u64,
     closed: bool,
     reported_close: bool,
@@ -220,6 +222,7 @@ impl SampleQueue {
                 cap,
                 keep_last,
                 per_instance: HashMap::new(),
+                unkeyed: 0,
                 dropped: 0,
                 closed: false,
                 reported_close: false,
@@ -417,6 +420,7 @@ impl SampleQueue {
         st.receiver_gone = true;
         st.items.clear();
         st.per_instance.clear();
+        st.unkeyed = 0;
         let waker = st.waker.take();
         drop(st);
         self.space.notify_waiters();
@@ -488,7 +492,10 @@ impl QueueState {
     /// past `cap` × [`KEEP_LAST_INSTANCES`].
     fn keep_last_insert(&mut self, s: RawSample) {
         if s.state == InstanceState::Alive {
-            let n = self.per_instance.entry(s.key_hash).or_default();
+            let n = match s.key_hash {
+                Some(k) => self.per_instance.entry(k).or_default(),
+                None => &mut self.unkeyed,
+            };
             if *n >= self.cap {
                 let same =
                     |x: &RawSample| x.state == InstanceState::Alive && x.key_hash == s.key_hash;
@@ -513,10 +520,15 @@ impl QueueState {
     fn pop_front(&mut self) -> Option<RawSample> {
         let s = self.items.pop_front()?;
         if self.keep_last && s.state == InstanceState::Alive {
-            if let Some(n) = self.per_instance.get_mut(&s.key_hash) {
-                *n -= 1;
-                if *n == 0 {
-                    self.per_instance.remove(&s.key_hash);
+            match s.key_hash {
+                None => self.unkeyed = self.unkeyed.saturating_sub(1),
+                Some(k) => {
+                    if let Some(n) = self.per_instance.get_mut(&k) {
+                        *n -= 1;
+                        if *n == 0 {
+                            self.per_instance.remove(&k);
+                        }
+                    }
                 }
             }
         }
