@@ -114,35 +114,34 @@ impl Domain {
     /// [`Domain::assert_liveliness`]).
     pub fn assert_participant_liveliness(&mut self, now: Instant) {
         self.p.assert_liveliness(now);
-        let l = &mut self.liveliness;
-        l.local_participant = Some(now);
-        for o in l.offered.values_mut() {
-            if o.kind == LivelinessKind::ManualByParticipant {
-                o.last = now;
-                o.lost = false;
-            }
-        }
+        self.lively_asserted(None, now);
         self.drain(now);
         self.check_liveliness(now);
     }
 
     /// A local writer wrote or asserted at `now`.
     pub(super) fn lively_written(&mut self, writer: Guid, now: Instant) {
+        self.lively_asserted(Some(writer), now);
+    }
+
+    /// `writer` (a local writer) wrote or asserted at `now`, or, without
+    /// one, the participant asserted itself: its manual-by-participant
+    /// writers are asserted either way (DDS 1.4 §2.2.3.11; Cyclone renews
+    /// their lease on data of any writer of the participant), and the
+    /// writer itself.
+    fn lively_asserted(&mut self, writer: Option<Guid>, now: Instant) {
         let l = &mut self.liveliness;
         // only manual writers with a finite lease are asked about their
         // writes (`last`); a domain without any pays nothing per write
         if l.offered.is_empty() {
             return;
         }
-        if l.offered.contains_key(&writer) {
-            l.local_topic.insert(writer, now);
+        if let Some(w) = writer.filter(|w| l.offered.contains_key(w)) {
+            l.local_topic.insert(w, now);
         }
         l.local_participant = Some(now);
-        // any write of the participant asserts its manual-by-participant
-        // writers (DDS 1.4 §2.2.3.11; Cyclone renews their lease on data
-        // of any writer of the participant)
         for (g, o) in l.offered.iter_mut() {
-            if *g == writer || o.kind == LivelinessKind::ManualByParticipant {
+            if Some(*g) == writer || o.kind == LivelinessKind::ManualByParticipant {
                 o.last = now;
                 o.lost = false;
             }
