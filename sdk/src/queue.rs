@@ -376,6 +376,11 @@ impl SampleQueue {
         self.len() == 0
     }
 
+    /// Whether this is a keep-last queue (one that tells instances apart).
+    pub(crate) fn is_keep_last(&self) -> bool {
+        self.state.lock().unwrap().keep_last
+    }
+
     /// Whether a keep-all queue holds its capacity or more.
     pub fn is_full(&self) -> bool {
         let st = self.state.lock().unwrap();

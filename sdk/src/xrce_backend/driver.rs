@@ -79,8 +79,8 @@ struct Subscription {
     type_name: Arc<str>,
     queue: Arc<SampleQueue>,
     reliable: bool,
-    /// A keyed type's key hashes: each sample is told to the queue by its
-    /// instance (XRCE carries no key hash), so that a keep-last queue
+    /// A keyed type's key hashes, for a keep-last queue: each sample is
+    /// told to it by its instance (XRCE carries no key hash), so that it
     /// keeps the newest of each instance as on `rtps://`.
     instances: Option<courier_wire::dds::InstanceKeys>,
 }
@@ -495,6 +495,10 @@ impl Driver {
                         ) {
                             tracing::warn!("XRCE: READ_DATA of {topic} refused: {e}");
                         }
+                        let instances = ty
+                            .key_of
+                            .filter(|_| queue.is_keep_last())
+                            .map(|k| k.instances);
                         self.subs.insert(
                             id,
                             Subscription {
@@ -503,7 +507,7 @@ impl Driver {
                                 type_name: Arc::from(ty.type_name),
                                 queue,
                                 reliable,
-                                instances: ty.key_of.map(|k| k.instances),
+                                instances,
                             },
                         );
                         self.by_reader.insert(reader, id);
