@@ -699,6 +699,52 @@ async fn late_peer_reader(vendor: Vendor, domain: u32) {
     s.close().await;
 }
 
+/// A late joiner of a Courier transient-local writer gets no instance the
+/// writer unregistered, as it would get none from a Cyclone or Fast DDS
+/// writer (audit 19: Courier's history kept the instance's samples and
+/// its unregister for late joiners).
+async fn late_peer_reader_of_unregistered(vendor: Vendor, domain: u32) {
+    let s = session(domain).await;
+    let p = s
+        .publisher::<Keyed>("gone")
+        .transient_local()
+        .keep_last(10)
+        .build()
+        .await
+        .unwrap();
+    let k = |id, seq| Keyed {
+        id,
+        seq,
+        text: format!("c-{seq}"),
+    };
+    p.publish(&k(1, 1)).await.unwrap();
+    p.publish(&k(2, 2)).await.unwrap();
+    p.unregister(&k(1, 0)).await.unwrap();
+    let d = domain_arg(domain);
+    let peer = Peer::start(
+        vendor,
+        &[
+            "--domain",
+            &d,
+            "--topic",
+            "gone",
+            "--type",
+            "keyed",
+            "--sub",
+            "--reliable",
+            "--transient-local",
+            "--count",
+            "1",
+            "--timeout-s",
+            "20",
+        ],
+    );
+    let mut lines = peer_lines(peer).await;
+    lines.retain(|l| l != "ready");
+    assert_eq!(lines, ["sample 2 2 c-2"], "{vendor:?} late joiner");
+    s.close().await;
+}
+
 async fn late_courier_reader(vendor: Vendor, domain: u32) {
     let d = domain_arg(domain);
     let mut peer = Peer::start(
@@ -770,6 +816,16 @@ async fn transient_local_cyclone_late_joiner() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn transient_local_fastdds_late_joiner() {
     late_peer_reader(Vendor::FastDds, 183).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn transient_local_cyclone_late_joiner_gets_no_unregistered_instance() {
+    late_peer_reader_of_unregistered(Vendor::Cyclone, 196).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn transient_local_fastdds_late_joiner_gets_no_unregistered_instance() {
+    late_peer_reader_of_unregistered(Vendor::FastDds, 197).await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -615,6 +615,67 @@ fn transient_local_late_joiner_gets_the_history_per_instance_and_volatile_does_n
     assert_eq!(net.samples(2)[0].sequence_number, SequenceNumber(13));
 }
 
+/// A transient-local writer forgets an instance it unregistered, as
+/// Cyclone DDS and Fast DDS do (audit 19): a late joiner gets neither its
+/// samples nor the unregister, while a reader matched before gets both.
+/// And its history, bounded in samples, keeps every live instance's last
+/// value however many instances came and went: before, the samples of
+/// unregistered instances filled it and pushed the oldest live instance's
+/// value out.
+#[test]
+fn a_transient_local_writer_forgets_unregistered_instances() {
+    let mut net = Net::new(23, Faults::none());
+    for i in 0..3u8 {
+        let mut cfg = Config::udpv4(0, u32::from(i), guid_prefix([i + 1; 10]), LO)
+            .unwrap()
+            .with_unicast_peers(&[LO], 9);
+        cfg.max_history = 16;
+        let p = Participant::new(cfg, net.now(), net.wall());
+        net.add(p);
+    }
+    let now = net.now();
+    let w = net.hosts[0].node.create_writer(tl_writer(1), now).unwrap();
+    let early = net.hosts[1]
+        .node
+        .create_reader(tl_reader(Durability::TransientLocal), now)
+        .unwrap();
+    assert!(net.run_until(Duration::from_secs(10), |n| matched(n, 0, w, 1, early)));
+    let write = |net: &mut Net, change: Change<'_>| {
+        let now = net.now();
+        net.hosts[0].node.write(w, change, now).unwrap().0
+    };
+    // instance 0 lives throughout; 40 others come and go, more than the
+    // history holds
+    let (b, k) = sample(0, 0);
+    let kept = write(&mut net, Change::alive(&b).with_key_hash(k));
+    let mut gone = Vec::new();
+    for id in 1..=40 {
+        let (b, k) = sample(id, id);
+        gone.push(write(&mut net, Change::alive(&b).with_key_hash(k)));
+        let key = [0, 1, 0, 0, id as u8, 0, 0, 0];
+        gone.push(write(&mut net, Change::unregister(&key, k)));
+        net.run_for(Duration::from_millis(50));
+    }
+    assert!(net.run_until(Duration::from_secs(10), |n| n.samples(1).len() == 81));
+    let got: Vec<i64> = net.samples(1).iter().map(|s| s.sequence_number.0).collect();
+    let mut all = vec![kept];
+    all.extend(&gone);
+    assert_eq!(got, all, "the early reader gets every change");
+    net.run_for(Duration::from_secs(1)); // its acknowledgements arrive
+    let now = net.now();
+    let late = net.hosts[2]
+        .node
+        .create_reader(tl_reader(Durability::TransientLocal), now)
+        .unwrap();
+    assert!(
+        net.run_until(Duration::from_secs(10), |n| matched(n, 0, w, 2, late)
+            && !n.samples(2).is_empty())
+    );
+    net.run_for(Duration::from_secs(1));
+    let got: Vec<i64> = net.samples(2).iter().map(|s| s.sequence_number.0).collect();
+    assert_eq!(got, [kept], "the live instance only");
+}
+
 /// LIFESPAN on the writer side: a transient-local writer's history holds
 /// a sample for its lifespan only, so a late joiner gets what is still
 /// valid and nothing older (audit 18: a Courier writer with a 2 s lifespan

@@ -85,9 +85,10 @@
 //! - **Volatile readers** start at a transient-local writer's first
 //!   heartbeat (as Cyclone's), and take what a volatile writer has not
 //!   had acknowledged yet when they match.
-//! - **Transient-local history** keeps an unregistered instance's samples
-//!   for late joiners, with the unregister after them; Cyclone and Fast
-//!   DDS drop them (§2.2.2.4.2.7 allows both).
+//! - **Transient-local history** forgets an instance its writer
+//!   unregistered (as Cyclone and Fast DDS): once every matched reader has
+//!   acknowledged them, its samples and the unregister leave the history,
+//!   so late joiners get only live instances.
 //! - **Lifespan** is applied by the writer (its history) and by the reader
 //!   (by source timestamp); a Fast DDS 2.9 reader delivers expired samples.
 //!   A publish that waited is stamped when it was called.

@@ -235,6 +235,9 @@ pub struct Writer {
     /// A keep-last history full of samples some reader still lacks
     /// refuses a write instead of dropping the oldest of them.
     keep_unacked: bool,
+    /// Samples that leave the history once every reliable reader has
+    /// them, retained or not ([`Writer::drop_once_acked`]).
+    drop_once_acked: BTreeSet<i64>,
     out: VecDeque<Transmit>,
 }
 
@@ -264,6 +267,7 @@ impl Writer {
             hb_count: 0,
             retain_acked: false,
             keep_unacked: false,
+            drop_once_acked: BTreeSet::new(),
             out: VecDeque::new(),
         }
     }
@@ -351,6 +355,7 @@ impl Writer {
     /// A reader went away.
     pub fn remove_reader(&mut self, reader: Guid) {
         self.readers.remove(&reader);
+        self.drop_acked_marked();
     }
 
     fn first_sn(&self) -> i64 {
@@ -379,6 +384,43 @@ impl Writer {
                 true
             }
             None => false,
+        }
+    }
+
+    /// Takes samples out of the history once every matched reliable reader
+    /// has acknowledged them (at once when none is matched), even when
+    /// acknowledged samples are retained for late joiners: the samples of
+    /// an instance its writer unregistered, which a late joiner is not to
+    /// get (as Cyclone DDS and Fast DDS do) while a reader still missing
+    /// one gets it repaired.
+    pub fn drop_once_acked(&mut self, sns: impl IntoIterator<Item = SequenceNumber>) {
+        for sn in sns {
+            if self.history.get(sn.0).is_some() {
+                self.drop_once_acked.insert(sn.0);
+            }
+        }
+        self.drop_acked_marked();
+    }
+
+    /// Drops the samples [`Writer::drop_once_acked`] marked that every
+    /// reliable reader has acknowledged.
+    fn drop_acked_marked(&mut self) {
+        if self.drop_once_acked.is_empty() {
+            return;
+        }
+        let below = self.min_acked_below();
+        while let Some(&sn) = self.drop_once_acked.first() {
+            if sn >= below {
+                break;
+            }
+            self.drop_once_acked.pop_first();
+            self.remove(SequenceNumber(sn));
+        }
+        if self.drop_once_acked.len() > self.history.len() {
+            // marks of samples that left the history by other ways
+            // (replaced, expired, the oldest dropped for room)
+            let h = &self.history;
+            self.drop_once_acked.retain(|sn| h.get(*sn).is_some());
         }
     }
 
@@ -674,7 +716,8 @@ impl Writer {
         // at once if something is unacknowledged
         let answered = p.fresh && a.count != 0;
         p.fresh &= !answered;
-        if base > p.acked_below {
+        let acked_more = base > p.acked_below;
+        if acked_more {
             p.acked_below = base.min(self.next_sn);
         }
         for sn in a.reader_sn_state.iter() {
@@ -712,6 +755,9 @@ impl Writer {
         }
         if (answered || (!a.final_flag && a.reader_sn_state.num_bits == 0)) && base < self.next_sn {
             self.push_heartbeat(Some(reader), false);
+        }
+        if acked_more {
+            self.drop_acked_marked();
         }
     }
 
@@ -1982,6 +2028,40 @@ mod tests {
             },
             Instant::now(),
         );
+    }
+
+    /// Samples marked to drop once acknowledged (an unregistered
+    /// instance's, in a transient-local history) stay while a reader still
+    /// lacks them, so that a repair finds them, and leave as acknowledged;
+    /// with no reliable reader they leave at once. Unmarked samples stay.
+    #[test]
+    fn marked_samples_leave_a_retaining_history_once_acknowledged() {
+        let (wg, rg) = (guid(1), guid(2));
+        let t0 = Instant::now();
+        let mut w = Writer::new(wg, true, None, 16, Duration::from_millis(10)).retain_acked(true);
+        w.add_reader(rg, false, t0);
+        for i in 1..=4u8 {
+            w.write(Arc::from(vec![i]), t0).expect("room");
+        }
+        w.drop_once_acked([SequenceNumber(1), SequenceNumber(3)]);
+        let held = |w: &Writer| -> Vec<i64> { w.samples().map(|(sn, _)| sn.0).collect() };
+        assert_eq!(held(&w), [1, 2, 3, 4], "unacknowledged: kept for repairs");
+        ack_up_to(&mut w, rg, 3, 1);
+        assert_eq!(held(&w), [2, 3, 4]);
+        ack_up_to(&mut w, rg, 5, 2);
+        assert_eq!(held(&w), [2, 4], "acknowledged and unmarked: retained");
+        // no reliable reader left: marked samples go at once
+        w.remove_reader(rg);
+        w.drop_once_acked([SequenceNumber(4), SequenceNumber(9)]);
+        assert_eq!(held(&w), [2]);
+        // a reader that unmatches was the last one holding a mark back
+        let mut w = Writer::new(wg, true, None, 16, Duration::from_millis(10)).retain_acked(true);
+        w.add_reader(rg, false, t0);
+        w.write(Arc::from(vec![1u8]), t0).expect("room");
+        w.drop_once_acked([SequenceNumber(1)]);
+        assert_eq!(held(&w), [1]);
+        w.remove_reader(rg);
+        assert!(held(&w).is_empty());
     }
 
     /// Per-instance keep-last (`keep_unacked`): a full history refuses

@@ -24,6 +24,8 @@ pub(super) struct LocalWriter {
     pub(super) durable: bool,
     /// Per-instance keep-last depth (keyed topics only).
     pub(super) keep_last: Option<usize>,
+    /// The sequence numbers in the history of each instance, by key hash
+    /// (per-instance keep-last, and transient-local keyed writers).
     pub(super) instances: HashMap<[u8; 16], VecDeque<i64>>,
     pub(super) matched: BTreeSet<Guid>,
     pub(super) local_readers: BTreeSet<EntityId>,
@@ -340,8 +342,27 @@ impl Participant {
                     .retain(|(_, s)| w.get(SequenceNumber(*s)).is_some());
             }
         }
-        if lw.keep_last.is_some() {
-            lw.instances.entry(key).or_default().push_back(sn.0);
+        // a transient-local keyed writer knows its instances' samples too,
+        // to forget an unregistered one's
+        let unregistered = change.kind.status_info().unregistered;
+        if lw.keep_last.is_some() || (lw.durable && change.key_hash.is_some()) {
+            let q = lw.instances.entry(key).or_default();
+            while q
+                .front()
+                .is_some_and(|s| lw.writer.get(SequenceNumber(*s)).is_none())
+            {
+                q.pop_front(); // left the history (keep-all: oldest first)
+            }
+            q.push_back(sn.0);
+            if lw.durable && unregistered {
+                // late joiners are not to get an instance its writer
+                // unregistered (as Cyclone DDS and Fast DDS keep it): its
+                // samples, the unregister too, leave the history once
+                // every reader has them
+                if let Some(q) = lw.instances.remove(&key) {
+                    lw.writer.drop_once_acked(q.into_iter().map(SequenceNumber));
+                }
+            }
             if lw.instances.len() > max {
                 // forget instances whose samples all left the history
                 let (inst, w) = (&mut lw.instances, &lw.writer);
