@@ -198,6 +198,39 @@ async fn a_subscriber_before_the_definer_is_taken_and_told_message_by_message() 
     c.shutdown().await;
 }
 
+/// Two subscriptions made before anyone defines the message both get its
+/// values (the README's Appendix A: module2 and module3 subscribe to
+/// `message1` before module1 defines it). The second subscriber's format
+/// lookup found central's placeholder for the first one's handler and
+/// kept it as the message's definition, so it took C's `{int, <byte:1>}`
+/// wrapper for the data: "8 unexpected trailing byte(s)" (audit 21).
+#[tokio::test]
+async fn subscribers_before_the_definer_all_get_its_values() {
+    let (c, url) = central().await;
+    let a = session(&url, "module1").await;
+    let b = session(&url, "module2").await;
+    let d = session(&url, "module3").await;
+    let mut subs = Vec::new();
+    for s in [&d, &b] {
+        let sub = tokio::time::timeout(T, s.subscribe::<i32>("message1"))
+            .await
+            .expect("subscribe in time")
+            .expect("subscribe");
+        subs.push(sub);
+    }
+    a.define::<i32>("message1").await.unwrap();
+    a.wait_for_handlers("message1", 2, T).await.unwrap();
+    a.publish("message1", &42i32).await.unwrap();
+    for (i, sub) in subs.iter_mut().enumerate() {
+        let got = tokio::time::timeout(T, sub.next())
+            .await
+            .expect("a message in time")
+            .expect("open");
+        assert_eq!(got.map(|s| s.value), Ok(42), "subscriber {i}");
+    }
+    c.shutdown().await;
+}
+
 /// Replies that answered no open query are named for both causes, the
 /// late replies of a stalled server first.
 #[test]

@@ -6,8 +6,15 @@ use super::event::{Event, OpId};
 use super::ops::Op;
 use super::proto;
 use super::{class_order, data_order, proto_err, Connection, Error, Stage};
-use crate::ipc::frame::{Frame, NO_REF};
+use crate::ipc::frame::{Frame, MsgClass, NO_REF};
 use crate::ipc::{ByteOrder, Reader};
+
+/// Whether central's answer to a lookup is a definition, not the
+/// placeholder (class `HandlerReg`) it keeps for a message that so far
+/// only has handlers.
+fn defines(info: &proto::MsgInfo) -> bool {
+    info.class != MsgClass::HandlerReg as i32
+}
 
 #[derive(Debug)]
 pub(super) enum Pending {
@@ -40,10 +47,12 @@ impl Connection {
         let order = data_order(&f.header)?;
         match p {
             Pending::Lookup(name) => {
-                let info = proto::decode_msg_info(&f.data, order)?;
                 // Unknown names are not cached (C asks again next time:
-                // another module may define the message meanwhile).
-                match info {
+                // another module may define the message meanwhile), nor
+                // is central's placeholder for a message that only has
+                // handlers so far: it is no definition (C's
+                // `x_ipc_msgHndFind` asks again while it holds one).
+                match proto::decode_msg_info(&f.data, order)?.filter(defines) {
                     Some(info) => {
                         self.cache.insert(name, info);
                     }
@@ -53,10 +62,12 @@ impl Connection {
                 }
             }
             Pending::HandlerLookup(did) => {
-                let info = proto::decode_msg_info(&f.data, order)?;
+                let info = proto::decode_msg_info(&f.data, order)?.filter(defines);
                 if let Some(d) = self.deliveries.iter_mut().find(|d| d.id == did) {
                     if let Some(info) = info {
-                        self.cache.entry(d.msg.clone()).or_insert(info);
+                        // what central says now: a definition made since
+                        // an earlier lookup
+                        self.cache.insert(d.msg.clone(), info);
                     }
                     d.ready = true;
                 }
