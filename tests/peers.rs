@@ -53,12 +53,14 @@ pub fn fastdds_peer() -> Result<PathBuf, String> {
 }
 
 /// Where `.ci/run` installs the `cyclonedds` Python package (11.x, with its
-/// own Cyclone DDS 11 C library): a virtual environment under `target/`.
+/// own Cyclone DDS 11 C library): a virtual environment in the target
+/// directory (`target/` unless `CARGO_TARGET_DIR` says otherwise).
 pub const CYCLONE11_VENV: &str = "cyclonedds-py";
 
 /// The Python interpreter that has the `cyclonedds` package 11.x, for
 /// [`cyclone11_peer_args`]: `COURIER_CYCLONEDDS_PYTHON` when set, else
-/// `target/cyclonedds-py/bin/python` (what `.ci/run` makes). Checked once
+/// `cyclonedds-py/bin/python` in the target directory (what `.ci/run`
+/// makes). Checked once
 /// per process; the error names what is missing and how to install it.
 pub fn cyclone11_python() -> Result<PathBuf, String> {
     static FOUND: OnceLock<Result<PathBuf, String>> = OnceLock::new();
@@ -68,10 +70,12 @@ pub fn cyclone11_python() -> Result<PathBuf, String> {
                 Some(p) => PathBuf::from(p),
                 None => target_dir().join(CYCLONE11_VENV).join("bin/python"),
             };
+            let venv = target_dir().join(CYCLONE11_VENV);
             let install = format!(
-                "install it with `python3 -m venv target/{CYCLONE11_VENV} && \
-                 target/{CYCLONE11_VENV}/bin/pip install 'cyclonedds==11.*'` (what .ci/run \
-                 does), or point COURIER_CYCLONEDDS_PYTHON at a Python that has it"
+                "install it with `python3 -m venv {v} && {v}/bin/pip install \
+                 'cyclonedds==11.*'` (what .ci/run does), or point COURIER_CYCLONEDDS_PYTHON at \
+                 a Python that has it",
+                v = venv.display()
             );
             if !python.exists() {
                 return Err(format!(

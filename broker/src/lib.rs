@@ -1,7 +1,10 @@
 //! Courier's servers and tools: the `central` binary (CMU IPC's central
-//! server), the `courier` CLI, and, as a library, the embedded central they
-//! are built on, which lives in [`courier::central`] (cargo feature
-//! `central` of `courier`) and is re-exported here unchanged.
+//! server), the `xrce-agent` binary (a DDS-XRCE agent, MicroXRCEAgent's
+//! command line), the `courier` CLI, and, as a library, what they are
+//! built on: the embedded central, which lives in [`courier::central`]
+//! (cargo feature `central` of `courier`) and is re-exported here
+//! unchanged; the embeddable XRCE agent, [`xrce_agent::XrceAgent`]; and
+//! code generation from IPC formats, XDR and IDL ([`gen`]).
 //!
 //! ```
 //! # #[tokio::main(flavor = "current_thread")]

@@ -8,8 +8,12 @@
 //! asked, and the agent reports what it bound. [`XrceAgent::shutdown`]
 //! stops every reader, says goodbye in DDS and waits for the task.
 //!
-//! The builder binds 127.0.0.1 unless told otherwise (the `xrce-agent`
-//! binary binds every interface, as MicroXRCEAgent does).
+//! Each [`Transport`] binds the address it names (the `xrce-agent`
+//! binary binds every interface, as MicroXRCEAgent does). The DDS
+//! participant takes [`RtpsOptions::default`] unless given
+//! [`XrceAgentBuilder::rtps`]: DDS's standard multicast discovery on the
+//! default interface; pin it as below, or with
+//! [`RtpsOptions::loopback`], to keep it on 127.0.0.1.
 //!
 //! ```
 //! # #[tokio::main(flavor = "current_thread")]

@@ -108,9 +108,12 @@ pub fn seconds(s: &str) -> Result<f64, String> {
 }
 
 impl Common {
-    /// Connects as module / participant `name`, within the connect timeout;
-    /// the error says where it tried and what to check.
+    /// Connects as module / participant `name-<pid>` (two `sub`s on one
+    /// central are two modules: central refuses a second module of a name
+    /// that is connected), within the connect timeout; the error says
+    /// where it tried and what to check.
     pub async fn connect(&self, name: &str) -> Result<Session, Error> {
+        let name = format!("{name}-{}", std::process::id());
         let builder = Session::builder(&self.endpoint).name(name);
         connect(builder, &self.endpoint, self.connect_timeout).await
     }

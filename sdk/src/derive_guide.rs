@@ -43,7 +43,7 @@
 //! | `String`, `Option<String>` | `string`: `None` goes out as C's NULL string, and `Some("")` arrives as `None` (NULL and `""` are the same bytes in IPC; CDR does the same, so both backends agree) |
 //! | `[[T; m]; n]` | `[T:n,m]` |
 //! | `#[ipc(len = "count")] Vec<T>` | `<T:k>`, k = 1-based index of field `count` |
-//! | `Vec<T>` without `len` | a DDS `sequence<T>` (CDR only): its IPC format `<T:0>` names no count field, so an IPC session refuses the type when it is first used (`OpenError`, naming the field to add); fine on `rtps://` and XRCE |
+//! | `Vec<T>` without `len` | a DDS `sequence<T>` (CDR only): its IPC format `<T:0>` names no count field, so an IPC session refuses the type when it is first used (`OpenError`, naming the type, its format and the `len` attribute to add); fine on `rtps://` and XRCE |
 //! | `#[ipc(len = "rows, cols")] Matrix<T>`, `#[ipc(len = "a, b, c")] NdVec<T, 3>` | `<T:k1,k2>`, `<T:k1,k2,k3>`: flat, row-major, sized by those fields |
 //! | `Option<Box<T>>` | `*T` |
 //! | `Option<Box<Self>>` (or the type's own name) | `*!` |

@@ -253,18 +253,20 @@ fn a_recording_made_on_rtps_replays_onto_ipc() {
     assert_eq!(echo.expect(""), r#"{1, 2, "hi"}"#);
 }
 
-/// The Python that has the `mcap` package: `COURIER_MCAP_PYTHON`, else the
-/// venv `.ci/run` makes (`target/cyclonedds-py`).
+/// The Python that has the `mcap` package: `COURIER_MCAP_PYTHON`, else
+/// `COURIER_CYCLONEDDS_PYTHON` (the README's one Python for both), else
+/// the venv `.ci/run` makes in the target directory (`cyclonedds-py`).
 fn mcap_python() -> PathBuf {
-    let python = match std::env::var_os("COURIER_MCAP_PYTHON") {
-        Some(p) => PathBuf::from(p),
-        // target/debug/courier -> target
-        None => Path::new(env!("CARGO_BIN_EXE_courier"))
-            .ancestors()
-            .nth(2)
-            .unwrap()
-            .join("cyclonedds-py/bin/python"),
-    };
+    // target/debug/courier -> target
+    let target = Path::new(env!("CARGO_BIN_EXE_courier"))
+        .ancestors()
+        .nth(2)
+        .unwrap()
+        .to_path_buf();
+    let venv = target.join("cyclonedds-py");
+    let python = std::env::var_os("COURIER_MCAP_PYTHON")
+        .or_else(|| std::env::var_os("COURIER_CYCLONEDDS_PYTHON"))
+        .map_or_else(|| venv.join("bin/python"), PathBuf::from);
     let ok = std::process::Command::new(&python)
         .args(["-c", "import mcap"])
         .output()
@@ -272,9 +274,10 @@ fn mcap_python() -> PathBuf {
     assert!(
         ok,
         "reading recordings with another tool needs Python's mcap package in {}: install it \
-         with `target/cyclonedds-py/bin/pip install 'mcap==1.*'` (what .ci/run does), or \
-         point COURIER_MCAP_PYTHON at a Python that has it",
-        python.display()
+         with `{}/bin/pip install 'mcap==1.*'` (what .ci/run does), or point \
+         COURIER_MCAP_PYTHON at a Python that has it",
+        python.display(),
+        venv.display()
     );
     python
 }

@@ -124,6 +124,10 @@ fn usage_errors_name_the_problem() {
             "invalid value '0' for '--count <N>'",
         ),
         (
+            &["bw", "ipc://127.0.0.1:1", "t", "--gap", "100"][..],
+            "--gap is for `courier hz`",
+        ),
+        (
             &["call", "ipc://127.0.0.1:1", "q", "1", "--type", "x"][..],
             "--type and --reply-type are for DDS sessions (rtps://, xrce+…://)",
         ),

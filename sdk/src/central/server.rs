@@ -428,7 +428,8 @@ fn bind_unix(path: &Path) -> io::Result<UnixListener> {
         if std::os::unix::net::UnixStream::connect(path).is_ok() {
             return Err(io::Error::new(
                 io::ErrorKind::AddrInUse,
-                "another server is listening there (use --no-unix-socket to run without it)",
+                "another server is listening there (run without it: central's \
+                 --no-unix-socket, or `courier::central::Builder::unix_socket(false)` embedded)",
             ));
         }
         std::fs::remove_file(path)?;

@@ -1147,6 +1147,13 @@ impl Cli {
                          type names",
                     ));
                 }
+                if sub == "bw" && a.gap.is_some() {
+                    return Err(usage_error(
+                        "bw",
+                        "--gap is for `courier hz` (it counts gaps between samples); bw reports \
+                         bandwidth and sizes",
+                    ));
+                }
                 if a.type_name.is_none() && is_xrce(&a.url) {
                     return Err(usage_error(
                         sub,

@@ -89,7 +89,8 @@ pub struct PerfCommon {
 pub struct PerfPubArgs {
     #[command(flatten)]
     pub common: PerfCommon,
-    /// Payload bytes per sample (the `baggage`; ddsperf's -z less its 12-byte header)
+    /// Payload bytes per sample (the `baggage`; ddsperf's -z less its 12-byte header).
+    /// On ipc:// the send time travels in its first 8 bytes: latency needs 8 or more
     #[arg(long, value_name = "BYTES", default_value_t = 0, value_parser = clap::value_parser!(u32).range(..=MAX_SIZE as i64))]
     pub size: u32,
     /// Samples per second; 0 publishes as fast as the readers take them
@@ -341,6 +342,13 @@ async fn send<T: PerfSample>(s: &Session, o: &PerfPubArgs, total: &RefCell<Tally
             }
         }
     ));
+    if kind(&c.url) == Kind::Ipc && o.size < 8 {
+        eprintln!(
+            "courier perf: no latency with --size {} on ipc://: the send time travels in the \
+             first 8 bytes of the payload (--size 8 or more)",
+            o.size
+        );
+    }
     let baggage = vec![0u8; o.size as usize];
     let started = Instant::now();
     let end = c.secs.map(|x| started + Duration::from_secs_f64(x));
