@@ -764,6 +764,66 @@ fn check_lengths_names_a_vec_its_length_field_cannot_say() {
     assert_eq!(deep.check_lengths(), Ok(()));
 }
 
+/// A `char` is one byte in IPC and in the IDL the derive declares: one
+/// above U+00FF is named by `check_lengths` (a session refuses to send it)
+/// with the field that holds it, in arrays and `Vec`s and nested structs
+/// too; Latin-1 passes. `ipc::to_vec`, which does not check, still sends
+/// `'?'`. Before, every session sent `'?'` without a word.
+#[test]
+fn check_lengths_names_a_char_one_byte_cannot_carry() {
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct Key {
+        c: char,
+        n: i32,
+        #[ipc(len = "n")]
+        more: Vec<char>,
+        grid: [[char; 2]; 2],
+    }
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct Outer {
+        inner: Key,
+    }
+    const { assert!(Key::CHECKS_LENGTHS && Outer::CHECKS_LENGTHS) };
+    let key = |c: char, m: char, g: char| Key {
+        c,
+        n: 1,
+        more: vec![m],
+        grid: [['a', 'b'], ['c', g]],
+    };
+    assert_eq!(key('é', 'ÿ', '\0').check_lengths(), Ok(()));
+    let e = key('€', 'a', 'a').check_lengths().unwrap_err();
+    assert_eq!(
+        e,
+        courier::LengthError::NotLatin1 {
+            field: "c",
+            value: '€'
+        }
+    );
+    assert_eq!(
+        e.to_string(),
+        "field `c` holds '€' (U+20AC), which a one-byte char (IPC and DDS `char`, Latin-1) \
+         cannot carry: use a String, or #[ipc(char)] u8 for raw bytes"
+    );
+    assert_eq!(
+        key('a', 'Ā', 'a').check_lengths().unwrap_err().field(),
+        "more"
+    );
+    assert_eq!(
+        key('a', 'a', '😀').check_lengths().unwrap_err().field(),
+        "grid"
+    );
+    let outer = Outer {
+        inner: key('a', 'a', '😀'),
+    };
+    assert_eq!(outer.check_lengths().unwrap_err().field(), "grid");
+    // a message that is one char
+    let e = '€'.check_lengths().unwrap_err();
+    assert!(e.to_string().starts_with("the value holds '€'"), "{e}");
+    assert_eq!('ÿ'.check_lengths(), Ok(()));
+    // unchecked encoders send '?'
+    assert_eq!(courier::ipc::to_vec(&'€'), b"?");
+}
+
 /// `#[ipc(bound = N)]` (IDL `string<N>`, `sequence<T, N>`): a `String` of
 /// more than N bytes or a `Vec` of more than N elements is named by
 /// `check_lengths`, through nesting too; the formats and encodings do not

@@ -39,7 +39,7 @@
 //! | Rust field | IPC format |
 //! |---|---|
 //! | `i8` `u8` `i16` `u16` `i32` `u32` `i64` `u64` `f32` `f64` `bool` | `byte` `ubyte` `short` `ushort` `int` `uint` `long` `ulong` `float` `double` `boolean` |
-//! | `#[ipc(char)] u8`, `char` (Latin-1) | `char`: one byte; a `char` above U+00FF goes out as `'?'` (use `#[ipc(char)] u8` for exact bytes) |
+//! | `#[ipc(char)] u8`, `char` (Latin-1) | `char`: one byte; a `char` above U+00FF is refused by publish, query and reply (`PublishError::Length`, naming the field; `ipc::to_vec` and `cdr::to_vec`, which do not check, send `'?'`); use `#[ipc(char)] u8` for exact bytes |
 //! | `String`, `Option<String>` | `string`: `None` goes out as C's NULL string, and `Some("")` arrives as `None` (NULL and `""` are the same bytes in IPC; CDR does the same, so both backends agree) |
 //! | `[[T; m]; n]` | `[T:n,m]` |
 //! | `#[ipc(len = "count")] Vec<T>` | `<T:k>`, k = 1-based index of field `count` |

@@ -892,6 +892,46 @@ async fn a_type_ipc_cannot_carry_is_refused_naming_the_fix() {
     c.shutdown().await;
 }
 
+/// A `char` a byte cannot carry is refused by publish, naming the field,
+/// instead of arriving as `'?'`; a Latin-1 one arrives.
+#[tokio::test]
+async fn a_char_above_latin1_is_refused_not_sent_as_a_question_mark() {
+    #[derive(IpcMessage, Debug, Clone, PartialEq)]
+    struct Grade {
+        student: i32,
+        grade: char,
+    }
+    let (c, url) = central().await;
+    let a = session(&url, "a").await;
+    let b = session(&url, "b").await;
+    let mut sub = b.subscribe::<Grade>("grade").await.unwrap();
+    assert_eq!(a.num_handlers("grade").await.unwrap(), 1);
+    let e = a
+        .publish(
+            "grade",
+            &Grade {
+                student: 1,
+                grade: '€',
+            },
+        )
+        .await
+        .unwrap_err();
+    assert!(matches!(e, courier::PublishError::Length { .. }), "{e:?}");
+    assert!(
+        e.to_string()
+            .starts_with("cannot publish grade: field `grade` holds '€' (U+20AC)"),
+        "{e}"
+    );
+    let ok = Grade {
+        student: 2,
+        grade: 'é',
+    };
+    a.publish("grade", &ok).await.unwrap();
+    let got = tokio::time::timeout(T, sub.next()).await.unwrap();
+    assert_eq!(got.unwrap().unwrap().value, ok, "nothing before it");
+    c.shutdown().await;
+}
+
 /// A value with a `Vec` longer than its length field can say is refused
 /// by publish, query and reply, naming the field, instead of going out
 /// cut short.

@@ -101,16 +101,17 @@ pub trait IpcMessage: Sized {
     const KEYS: &'static [&'static str] = &[];
     /// [`check_lengths`](Self::check_lengths) has something to check: the
     /// type (or a type inside it) has a `Vec` whose length lives in a field,
-    /// or a bounded `String` or `Vec` (`#[ipc(bound = N)]`).
+    /// a bounded `String` or `Vec` (`#[ipc(bound = N)]`), or a `char`.
     const CHECKS_LENGTHS: bool = false;
 
     /// `Err` if a `Vec` is longer than its length field's type can say (300
     /// elements with `#[ipc(len = "n")]` on `n: u8`): both encoders would
-    /// send only as many as the field holds; or if a `String` or `Vec` is
+    /// send only as many as the field holds; if a `String` or `Vec` is
     /// longer than its `#[ipc(bound = N)]`, which a DDS reader of the
-    /// bounded IDL type would refuse. A session checks before it
+    /// bounded IDL type would refuse; or if a `char` is above U+00FF,
+    /// which its one byte cannot carry. A session checks before it
     /// encodes what it publishes, queries or replies; [`ipc::to_vec`] and
-    /// [`cdr::to_vec`] do not check (they send that many).
+    /// [`cdr::to_vec`] do not check (they send that many, and `'?'`).
     fn check_lengths(&self) -> Result<(), LengthError> {
         Ok(())
     }
@@ -305,21 +306,58 @@ pub enum LengthError {
         /// The bound.
         bound: u64,
     },
+    /// A `char` above U+00FF, which a one-byte `char` (IPC's, and the IDL
+    /// `char` the derive declares) cannot carry.
+    #[error(
+        "{} holds {value:?} (U+{:04X}), which a one-byte char (IPC and DDS `char`, Latin-1) cannot carry: use a String, or #[ipc(char)] u8 for raw bytes",
+        what(field),
+        u32::from(*value)
+    )]
+    NotLatin1 {
+        /// The field (empty for a message that is one `char`).
+        field: &'static str,
+        /// The char.
+        value: char,
+    },
+}
+
+/// "field `x`", or "the value" for a message that is one `char`.
+fn what(field: &str) -> String {
+    if field.is_empty() {
+        "the value".to_owned()
+    } else {
+        format!("field `{field}`")
+    }
 }
 
 impl LengthError {
-    /// The field that is too long.
+    /// The field that is too long (or holds the char).
     pub fn field(&self) -> &'static str {
         match self {
-            LengthError::Count { field, .. } | LengthError::Bound { field, .. } => field,
+            LengthError::Count { field, .. }
+            | LengthError::Bound { field, .. }
+            | LengthError::NotLatin1 { field, .. } => field,
         }
     }
 
-    /// Its length.
+    /// Its length (1 for a char).
     pub fn length(&self) -> usize {
         match self {
             LengthError::Count { len, .. } | LengthError::Bound { len, .. } => *len,
+            LengthError::NotLatin1 { .. } => 1,
         }
+    }
+
+    /// Names `field` as where a char is that said no field (a `char`, an
+    /// array or `Vec` of them, checked by the struct that holds it).
+    #[doc(hidden)]
+    pub fn in_field(mut self, name: &'static str) -> Self {
+        if let LengthError::NotLatin1 { field, .. } = &mut self {
+            if field.is_empty() {
+                *field = name;
+            }
+        }
+        self
     }
 }
 
@@ -581,8 +619,11 @@ impl IpcMessage for bool {
 }
 
 /// IPC `char` is one byte. Rust `char`s map to Latin-1: U+0000–U+00FF
-/// travel as that byte; any other char is sent as `'?'` (the C side could
-/// not hold it). Use `u8` with `#[ipc(char)]` for exact bytes.
+/// travel as that byte. Any other char is refused by a session's publish,
+/// query and reply ([`IpcMessage::check_lengths`],
+/// [`LengthError::NotLatin1`]); [`ipc::to_vec`] and [`cdr::to_vec`], which
+/// do not check, send `'?'` for it. Use `u8` with `#[ipc(char)]` for exact
+/// bytes.
 impl IpcMessage for char {
     const FORMAT: &'static str = "char";
     const TYPE_NAME: &'static str = "char";
@@ -590,6 +631,17 @@ impl IpcMessage for char {
     const CDR_MIN_SIZE: usize = 1;
     const CDR_PRIMITIVE: bool = true;
     const CDR_MAX_SIZE: cdr::MaxSize = cdr::MaxSize::primitive(1);
+    const CHECKS_LENGTHS: bool = true;
+
+    fn check_lengths(&self) -> Result<(), LengthError> {
+        if u32::from(*self) > 0xff {
+            return Err(LengthError::NotLatin1 {
+                field: "",
+                value: *self,
+            });
+        }
+        Ok(())
+    }
 
     fn ipc_encode(&self, w: &mut ipc::Writer) {
         w.write_u8(latin1(*self));

@@ -1,7 +1,7 @@
 //! `check_lengths`: each `Vec` with a length field against what that
 //! field's type can say (the encoders send no more than that), each
 //! bounded `String` or `Vec` against its bound, and the fields whose types
-//! check lengths of their own.
+//! check lengths (or chars) of their own.
 
 use proc_macro2::TokenStream;
 use quote::quote;
@@ -49,10 +49,12 @@ pub(super) fn lengths(fields: &[Field<'_>]) -> Lengths {
         }
         match &f.kind {
             Kind::Plain => {
+                let field = &f.name;
                 flags.push(quote!(<#ty as __wire::IpcMessage>::CHECKS_LENGTHS));
                 body.push(quote! {
                     if <#ty as __wire::IpcMessage>::CHECKS_LENGTHS {
-                        __wire::IpcMessage::check_lengths(&self.#m)?;
+                        __wire::IpcMessage::check_lengths(&self.#m)
+                            .map_err(|__e| __e.in_field(#field))?;
                     }
                 });
             }
@@ -80,10 +82,12 @@ pub(super) fn lengths(fields: &[Field<'_>]) -> Lengths {
                 // of a type holding a `Vec` of this one) would make the
                 // constant depend on itself
                 flags.push(quote!(true));
+                let field = &f.name;
                 body.push(quote! {
                     if <#elem as __wire::IpcMessage>::CHECKS_LENGTHS {
                         for __e in self.#m.iter() {
-                            __wire::IpcMessage::check_lengths(__e)?;
+                            __wire::IpcMessage::check_lengths(__e)
+                                .map_err(|__e| __e.in_field(#field))?;
                         }
                     }
                 });
@@ -91,10 +95,12 @@ pub(super) fn lengths(fields: &[Field<'_>]) -> Lengths {
             Kind::NdVec { .. } => {
                 let elem = quote!(<#ty as __wire::__private::NdField>::Elem);
                 flags.push(quote!(true));
+                let field = &f.name;
                 body.push(quote! {
                     if <#elem as __wire::IpcMessage>::CHECKS_LENGTHS {
                         for __e in ::core::convert::AsRef::<[#elem]>::as_ref(&self.#m) {
-                            __wire::IpcMessage::check_lengths(__e)?;
+                            __wire::IpcMessage::check_lengths(__e)
+                                .map_err(|__e| __e.in_field(#field))?;
                         }
                     }
                 });
