@@ -66,8 +66,16 @@ struct Partial {
     sample_size: u32,
     fragment_size: u16,
     data: Vec<u8>,
-    have: Vec<bool>,
+    /// Which fragments arrived, a bit each (a 16 MiB sample in 1-byte
+    /// fragments is 2 MiB of them, counted in [`Partial::held`]).
+    have: Vec<u64>,
+    /// Fragments in the sample.
+    total: usize,
+    /// How many have not arrived.
     missing: usize,
+    /// The lowest fragment index (0-based) not arrived yet, where
+    /// [`Reassembler::missing`] starts.
+    first_missing: usize,
     /// The first source timestamp (INFO_TS) seen with any fragment: vendors
     /// send INFO_TS once before the first fragment, not before every one.
     ts: Option<Time>,
@@ -80,9 +88,19 @@ struct Partial {
 impl Partial {
     /// Bytes this partial sample holds (counted against the limit).
     fn held(&self) -> usize {
-        self.sample_size as usize + self.qos.as_ref().map_or(0, |q| q.0.len())
+        self.sample_size as usize + self.have.len() * 8 + self.qos.as_ref().map_or(0, |q| q.0.len())
+    }
+
+    fn has(&self, i: usize) -> bool {
+        self.have
+            .get(i / 64)
+            .is_some_and(|w| w & (1 << (i % 64)) != 0)
     }
 }
+
+/// The most fragment numbers [`Reassembler::missing`] gives: what one
+/// NACK_FRAG can ask for.
+pub const MAX_MISSING: usize = 256;
 
 /// Smallest buffer worth keeping for reuse: below this the allocator's
 /// own free lists are as fast.
@@ -212,19 +230,21 @@ impl Reassembler {
         self.bytes
     }
 
-    /// Fragment numbers (1-based) still missing for a sample being reassembled.
+    /// Fragment numbers (1-based) still missing for a sample being
+    /// reassembled: those among the [`MAX_MISSING`] from the first missing
+    /// one on (what one NACK_FRAG asks for). The work is that of those
+    /// 256, however many fragments the sample has: a peer announcing 16 MiB
+    /// samples in 1-byte fragments made every ACKNACK walk 16 million
+    /// flags per sample, and a reader spin.
     pub fn missing(&self, writer: Guid, sn: SequenceNumber) -> Vec<u32> {
-        self.partial
-            .get(&(writer, sn))
-            .map(|p| {
-                p.have
-                    .iter()
-                    .enumerate()
-                    .filter(|(_, h)| !**h)
-                    .map(|(i, _)| i as u32 + 1)
-                    .collect()
-            })
-            .unwrap_or_default()
+        let Some(p) = self.partial.get(&(writer, sn)) else {
+            return Vec::new();
+        };
+        let end = p.first_missing.saturating_add(MAX_MISSING).min(p.total);
+        (p.first_missing..end)
+            .filter(|i| !p.has(*i))
+            .map(|i| i as u32 + 1)
+            .collect()
     }
 
     /// Drops every incomplete sample of `writer` below `sn` (the writer
@@ -303,7 +323,8 @@ impl Reassembler {
         let qlen = f.inline_qos.map_or(0, <[u8]>::len);
         if !self.partial.contains_key(&key) {
             // make room: drop the oldest incomplete samples
-            while self.bytes + size + qlen > self.max_bytes {
+            let need = size + total.div_ceil(64) * 8;
+            while self.bytes + need + qlen > self.max_bytes {
                 let Some((&oldest, _)) = self.partial.iter().next() else {
                     break;
                 };
@@ -312,13 +333,13 @@ impl Reassembler {
                     self.spares.give(p.data);
                 }
             }
-            if self.bytes + size > self.max_bytes {
+            if self.bytes + need > self.max_bytes {
                 return Err(FragError::TooLarge {
                     size: f.sample_size,
                     limit: self.max_bytes,
                 });
             }
-            self.bytes += size;
+            self.bytes += need;
             self.partial.insert(
                 key,
                 Partial {
@@ -327,8 +348,10 @@ impl Reassembler {
                     // room for the envelope's trailer (see
                     // Participant::on_data), so the sample is never moved
                     data: self.spares.take(size + super::participant::ENVELOPE_ROOM),
-                    have: vec![false; total],
+                    have: vec![0; total.div_ceil(64)],
+                    total,
                     missing: total,
+                    first_missing: 0,
                     ts: None,
                     qos: None,
                 },
@@ -359,11 +382,15 @@ impl Reassembler {
                 p.qos = Some((q.to_vec(), little));
             }
         }
-        for h in &mut p.have[first - 1..first - 1 + n] {
-            if !*h {
-                *h = true;
+        for i in first - 1..first - 1 + n {
+            let (w, bit) = (i / 64, 1u64 << (i % 64));
+            if p.have[w] & bit == 0 {
+                p.have[w] |= bit;
                 p.missing -= 1;
             }
+        }
+        while p.first_missing < p.total && p.has(p.first_missing) {
+            p.first_missing += 1;
         }
         if p.missing > 0 {
             return Ok(None);
@@ -480,7 +507,9 @@ mod tests {
             if let Some(c) = r.insert_with_qos(w(), f, None, little).unwrap() {
                 out = Some(c);
             } else {
-                assert!(r.buffered_bytes() <= s.len() + qos.len());
+                // the sample, its QoS and a bit per fragment
+                let flags = s.len().div_ceil(1000).div_ceil(64) * 8;
+                assert!(r.buffered_bytes() <= s.len() + qos.len() + flags);
             }
         }
         let c = out.unwrap();
@@ -509,7 +538,8 @@ mod tests {
         f.writer_sn = SequenceNumber(6);
         f.inline_qos = Some(&qos);
         assert!(r.insert_with_qos(w(), &f, None, true).unwrap().is_none());
-        assert_eq!(r.buffered_bytes(), s.len() + qos.len());
+        let flags = s.len().div_ceil(1000).div_ceil(64) * 8;
+        assert_eq!(r.buffered_bytes(), s.len() + qos.len() + flags);
         r.forget_below(w(), SequenceNumber(7));
         assert_eq!(r.buffered_bytes(), 0);
     }
@@ -547,6 +577,45 @@ mod tests {
         assert_eq!(r.missing(w(), SequenceNumber(99)).len(), 8);
         r.forget_below(w(), SequenceNumber(100));
         assert_eq!(r.buffered_bytes(), 0);
+    }
+
+    /// A peer announcing a 16 MiB sample in 1-byte fragments (audit 20):
+    /// `missing`, asked for each sequence number of every ACKNACK, gives
+    /// at most what one NACK_FRAG asks for, from the first missing
+    /// fragment on (it listed all 16 million, and a few such samples
+    /// under a stream of HEARTBEATs kept a reader's core busy), and the
+    /// flags that track 16 million fragments are counted as held.
+    #[test]
+    fn a_sample_in_one_byte_fragments_costs_what_a_nack_frag_holds() {
+        const SIZE: u32 = 16 << 20;
+        let mut r = Reassembler::new(SIZE as usize, 64 << 20);
+        let frag = |first: u32, payload: &'static [u8]| DataFrag {
+            reader_id: EntityId::UNKNOWN,
+            writer_id: w().entity,
+            writer_sn: SequenceNumber(1),
+            fragment_starting_num: first,
+            fragments_in_submessage: payload.len() as u16,
+            fragment_size: 1,
+            sample_size: SIZE,
+            inline_qos: None,
+            payload,
+            key: false,
+            non_standard: false,
+        };
+        assert!(r.insert(w(), &frag(1, &[1, 2, 3, 4])).unwrap().is_none());
+        assert!(r.insert(w(), &frag(10, &[10])).unwrap().is_none());
+        let missing = r.missing(w(), SequenceNumber(1));
+        let want: Vec<u32> = (5..=9).chain(11..=260).collect();
+        assert_eq!(missing, want);
+        assert_eq!(
+            missing.len(),
+            MAX_MISSING - 1,
+            "256 from fragment 5 on, less 10"
+        );
+        assert_eq!(r.buffered_bytes(), SIZE as usize + (SIZE as usize / 64) * 8);
+        // as the front fills, the window moves on
+        assert!(r.insert(w(), &frag(5, &[5, 6, 7, 8, 9])).unwrap().is_none());
+        assert_eq!(r.missing(w(), SequenceNumber(1))[0], 11);
     }
 
     fn reassemble(r: &mut Reassembler, sn: i64, s: &[u8]) -> Vec<u8> {
