@@ -138,6 +138,12 @@ pub struct Config {
     pub max_unacked_bytes: usize,
     /// Out-of-order samples a reliable reader buffers per writer.
     pub max_out_of_order: usize,
+    /// Payload bytes a reliable reader buffers out of order, all its
+    /// writers together (default 64 MiB): beyond it a sample that does not
+    /// come next is dropped and asked for again later. Without it writers
+    /// that never send their first sample held 1024 samples each of up to
+    /// `max_sample_size`.
+    pub max_out_of_order_bytes: usize,
     /// Remote participants tracked at most.
     pub max_participants: usize,
     /// Remote writers plus readers tracked at most.
@@ -173,6 +179,7 @@ impl Config {
             max_history: 4096,
             max_unacked_bytes: 1 << 20,
             max_out_of_order: 1024,
+            max_out_of_order_bytes: 64 << 20,
             max_participants: 1024,
             max_remote_endpoints: 65_536,
             entity_name: None,

@@ -145,7 +145,8 @@ impl Participant {
         self.touch();
         let (guid, data) = self.new_endpoint(config, EndpointKind::Reader)?;
         let reliable = matches!(data.qos.reliability, Reliability::Reliable(_));
-        let mut reader = Reader::new(reliable, self.cfg.max_out_of_order);
+        let mut reader = Reader::new(reliable, self.cfg.max_out_of_order)
+            .max_pending_bytes(self.cfg.max_out_of_order_bytes);
         if data.qos.durability == Durability::Volatile {
             reader = reader.volatile();
         }
