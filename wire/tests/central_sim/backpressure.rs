@@ -421,3 +421,50 @@ fn a_held_back_answer_is_read_when_its_askers_queue_grows() {
     let st = sim.central().stats();
     assert_eq!((st.queued_bytes, st.dispatches), (0, 0));
 }
+
+/// A subscriber that stops reading keeps central's queues over the limit;
+/// a module that connects meanwhile, subscribes and publishes elsewhere is
+/// read all the same, since what it sends adds nothing to the queues
+/// (audit 20: central stopped reading it after its first frame, and its
+/// handshake timed out after 10 s for as long as the queues stayed full).
+/// The publisher whose messages fill the queue is the one held back.
+#[test]
+fn a_stuck_subscriber_holds_back_its_publisher_not_modules_that_connect() {
+    let mut config = Config::default();
+    config.max_queued_bytes = 16 << 10;
+    let (mut sim, p, stuck) = pub_sub(config, ("flood", "stuck"), "data", "[int:16]");
+    // `stuck` takes nothing from now on
+    let mut sent = 0;
+    while !sim.paused(p) {
+        assert!(sent < 10_000, "the publisher was never held back");
+        sim.m(p).publish("data", numbered(sent), -1).unwrap();
+        sent += 1;
+        sim.pump();
+    }
+    assert!(sim.central().stats().queued_bytes > 16 << 10);
+    // a newcomer connects (the handshake is several frames), defines,
+    // subscribes and is served
+    let late = sim.connect("late");
+    define(&mut sim, late, "other", "int");
+    sim.m(late).subscribe("other", "HND-other").unwrap();
+    sim.pump();
+    sim.m(late)
+        .publish("other", 7i32.to_le_bytes().to_vec(), -1)
+        .unwrap();
+    sim.pump();
+
+    let got = sim.deliveries(late);
+    assert_eq!(got.len(), 1, "the newcomer's own message came back to it");
+    assert!(!sim.paused(late));
+    // (the newcomer's subscription sent central's notice to every module,
+    // the publisher too, whose acknowledgement must be read: it was read
+    // again) and the publisher is held back again at its next message
+    sim.m(p).publish("data", numbered(sent), -1).unwrap();
+    sim.pump();
+    let q = sim.central().stats().queued_bytes;
+    assert!(
+        sim.paused(p),
+        "the flood's publisher is held back ({q} bytes queued)"
+    );
+    let _ = stuck;
+}

@@ -177,6 +177,8 @@ impl Central {
         if m.closed {
             return;
         }
+        // (what this adds to the queues: see `check_memory` below)
+        let queued_before = self.queued_by_modules;
         let mut bytes = self.relay_bytes(conn, bytes);
         loop {
             let Some(m) = self.modules.get_mut(&conn) else {
@@ -216,7 +218,16 @@ impl Central {
                 m.rx_pos = 0;
             }
         }
-        self.check_memory(conn);
+        // Over the memory bound, a module whose frames queued messages is
+        // read no more for now. One whose frames queued none (its
+        // handshake, definitions, subscriptions, lookups; central's own
+        // notices they cause do not count) is read on: stopping it held a
+        // module that was only connecting until its 10 s handshake ran
+        // out, for as long as a subscriber that stopped reading kept the
+        // queues full.
+        if self.queued_by_modules > queued_before {
+            self.check_memory(conn);
+        }
     }
 
     /// Processes the whole frames at the front of `conn`'s receive buffer.

@@ -259,6 +259,9 @@ pub struct Central {
     kept: resend::Kept,
     stats: Stats,
     memory_paused: HashSet<ConnId>,
+    /// Bytes ever queued for messages a module sent (not central's own
+    /// broadcasts): whether a read added any (see `receive`).
+    queued_by_modules: u64,
     /// Of those, modules held back while they answer a query.
     answer_paused: HashSet<ConnId>,
     /// When central last said it holds modules back for memory, and how
@@ -317,6 +320,7 @@ impl Central {
             kept: resend::Kept::default(),
             stats: Stats::default(),
             memory_paused: HashSet::new(),
+            queued_by_modules: 0,
             answer_paused: HashSet::new(),
             memory_said: crate::throttle::Throttle::new(memory::MEMORY_LINE_EVERY),
             strangers: log::StrangerBudget::default(),

@@ -58,6 +58,9 @@ impl Central {
             return;
         };
         d.status = Status::Pending;
+        if matches!(d.org, Org::Module(_)) {
+            self.queued_by_modules += queued as u64;
+        }
         self.stats.queued_bytes += queued;
         self.stats.peak_queued_bytes = self.stats.peak_queued_bytes.max(self.stats.queued_bytes);
         let org = d.org;
