@@ -125,6 +125,7 @@ pub struct XrceAgentBuilder {
     bridge: BridgeConfig,
     discovery: Option<SocketAddrV4>,
     state: Option<PathBuf>,
+    tcp_hello: Duration,
 }
 
 /// A running agent. Dropping it without [`shutdown`](Self::shutdown)
@@ -155,6 +156,7 @@ impl XrceAgent {
             },
             discovery: None,
             state: None,
+            tcp_hello: TCP_HELLO_TIMEOUT,
         }
     }
 
@@ -223,6 +225,13 @@ impl XrceAgentBuilder {
     /// silent for a minute.
     pub fn client_timeout(mut self, after: Option<std::time::Duration>) -> Self {
         self.bridge.agent.client_timeout = after;
+        self
+    }
+
+    /// Closes a TCP connection that brings no whole XRCE message within
+    /// `after` of its opening (default [`TCP_HELLO_TIMEOUT`], 10 s).
+    pub fn tcp_hello_timeout(mut self, after: Duration) -> Self {
+        self.tcp_hello = after;
         self
     }
 
@@ -326,7 +335,7 @@ impl XrceAgentBuilder {
                             source,
                         })?;
                     tcp_addrs.push(l.local_addr().unwrap_or(*a));
-                    readers.spawn(tcp_acceptor(l, tx.clone()));
+                    readers.spawn(tcp_acceptor(l, tx.clone(), self.tcp_hello));
                 }
                 Transport::Serial { device, baud } => {
                     let port = serialport::new(device.to_string_lossy(), *baud)
@@ -455,7 +464,13 @@ enum Input {
     TcpClosed(u64),
 }
 
-async fn tcp_acceptor(l: TcpListener, tx: mpsc::Sender<Input>) {
+/// A TCP connection that brings no whole XRCE message in this long is
+/// closed (a client's first, CREATE_CLIENT or GET_INFO, comes at once):
+/// connections that never said anything were held for ever, 1100 of them
+/// taking every descriptor the agent had.
+pub const TCP_HELLO_TIMEOUT: Duration = Duration::from_secs(10);
+
+async fn tcp_acceptor(l: TcpListener, tx: mpsc::Sender<Input>, hello: Duration) {
     let mut next = 1u64;
     let mut warned: Option<std::time::Instant> = None;
     loop {
@@ -500,9 +515,28 @@ async fn tcp_acceptor(l: TcpListener, tx: mpsc::Sender<Input>) {
         let tx = tx.clone();
         tokio::spawn(async move {
             let mut d = TcpDeframer::new();
-            let mut buf = vec![0u8; 65_536];
+            // XRCE messages are small (a client's MTU): reads of larger
+            // frames take a few turns, and 1024 idle connections hold 8 MiB
+            let mut buf = vec![0u8; 8192];
+            let hello_by = tokio::time::Instant::now() + hello;
+            let mut said_hello = false;
             loop {
-                let n = match rd.read(&mut buf).await {
+                let read = rd.read(&mut buf);
+                let n = if said_hello {
+                    read.await
+                } else {
+                    match tokio::time::timeout_at(hello_by, read).await {
+                        Ok(r) => r,
+                        Err(_) => {
+                            tracing::warn!(
+                                "XRCE TCP connection {id} from {from}: closed, no XRCE message \
+                                 within {hello:?}"
+                            );
+                            break;
+                        }
+                    }
+                };
+                let n = match n {
                     Ok(0) | Err(_) => break,
                     Ok(n) => n,
                 };
@@ -510,6 +544,7 @@ async fn tcp_acceptor(l: TcpListener, tx: mpsc::Sender<Input>) {
                 while let Some(f) = d.next_frame() {
                     match f {
                         Ok(m) => {
+                            said_hello = true;
                             if tx.send(Input::Xrce(Peer::Tcp(id), m)).await.is_err() {
                                 return;
                             }

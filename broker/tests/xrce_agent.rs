@@ -148,6 +148,57 @@ fn cyclone_writes_to_an_xrce_client_over_tcp() {
     rt.block_on(a.shutdown());
 }
 
+/// A TCP connection that says nothing is closed after the hello timeout
+/// (audit 20: 1100 silent connections were held for ever and took every
+/// descriptor); one whose first XRCE message comes in time stays.
+#[test]
+fn a_silent_tcp_connection_is_closed_and_a_client_is_not() {
+    use std::io::{Read, Write};
+    let rt = runtime();
+    let d = courier_tests::domains::lease(12);
+    let a = rt
+        .block_on(
+            XrceAgent::builder()
+                .rtps(rtps(d))
+                .transport(Transport::Tcp(local(0)))
+                .tcp_hello_timeout(std::time::Duration::from_millis(300))
+                .spawn(),
+        )
+        .unwrap();
+    let addr = a.tcp_addrs()[0];
+    let mut silent = std::net::TcpStream::connect(addr).unwrap();
+    silent.set_read_timeout(Some(T)).unwrap();
+    // a client: a GET_INFO of the agent (eProsima's ping) in a TCP frame
+    let mut talker = std::net::TcpStream::connect(addr).unwrap();
+    talker.set_read_timeout(Some(T)).unwrap();
+    let ping = courier_wire::xrce::discovery::request_bytes();
+    let mut framed = (ping.len() as u16).to_le_bytes().to_vec();
+    framed.extend_from_slice(&ping);
+    talker.write_all(&framed).unwrap();
+    let started = Instant::now();
+    let mut b = [0u8; 64];
+    assert_eq!(silent.read(&mut b).unwrap(), 0, "the silent one was closed");
+    assert!(started.elapsed() < T);
+    // the talker is still served: another ping after the silent one went
+    std::thread::sleep(std::time::Duration::from_millis(400));
+    talker.write_all(&framed).unwrap();
+    talker
+        .set_read_timeout(Some(std::time::Duration::from_millis(200)))
+        .unwrap();
+    let mut open = true;
+    let mut got = 0;
+    while let Ok(n) = talker.read(&mut b) {
+        if n == 0 {
+            open = false;
+            break;
+        }
+        got += n;
+    }
+    assert!(open, "the client's connection stays open");
+    assert!(got > 0, "the client's pings were answered");
+    rt.block_on(a.shutdown());
+}
+
 #[test]
 fn two_xrce_clients_through_a_pseudoterminal_and_udp() {
     let d = courier_tests::domains::lease(3);
