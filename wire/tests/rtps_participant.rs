@@ -734,6 +734,60 @@ fn a_transient_local_writer_keeps_samples_for_their_lifespan_only() {
     assert!(net.samples(2).is_empty(), "{:?}", net.samples(2));
 }
 
+/// A participant whose table of peers is full of participants that
+/// announced no endpoint (audit 20: 1100 forged SPDP announcements with
+/// long leases) still finds a newcomer with a writer for its reader: the
+/// newcomer takes the place of the one heard from least recently, which
+/// is reported lost (`Evicted`). Before, the newcomer was refused for as
+/// long as the others' leases ran.
+#[test]
+fn a_full_table_of_idle_participants_makes_room_for_a_newcomer() {
+    let mut net = Net::new(38, Faults::none());
+    for i in 0..4u8 {
+        let mut cfg = Config::udpv4(0, u32::from(i), guid_prefix([i + 1; 10]), LO)
+            .unwrap()
+            .with_unicast_peers(&[LO], 9);
+        if i == 0 {
+            cfg.max_participants = 2;
+        }
+        let p = Participant::new(cfg, net.now(), net.wall());
+        net.add(p);
+    }
+    let now = net.now();
+    let r = net.hosts[0]
+        .node
+        .create_reader(reliable_reader("T", "t"), now)
+        .unwrap();
+    // hosts 1 and 2 (no endpoints) fill host 0's table first
+    net.run_for(Duration::from_secs(2));
+    assert_eq!(net.hosts[0].node.participants().count(), 2);
+    let now = net.now();
+    let mut q = EndpointQos::writer_default();
+    q.reliability = rel();
+    let w = net.hosts[3]
+        .node
+        .create_writer(EndpointConfig::writer("T", "t").qos(q), now)
+        .unwrap();
+    assert!(
+        net.run_until(Duration::from_secs(10), |n| matched(n, 3, w, 0, r)),
+        "the newcomer with a writer was never matched"
+    );
+    assert!(net.has(0, |e| matches!(
+        e,
+        Event::ParticipantLost {
+            reason: LostReason::Evicted,
+            ..
+        }
+    )));
+    // and it keeps its place: it has an endpoint now
+    net.run_for(Duration::from_secs(5));
+    assert!(matched(&net, 3, w, 0, r));
+    assert!(net.hosts[0]
+        .node
+        .participants()
+        .any(|p| p.guid_prefix == net.hosts[3].node.guid_prefix()));
+}
+
 /// A participant with a short lease (600 ms) that sends nothing else
 /// announces itself often enough: its peer keeps it for 10 s of idleness
 /// (with 3 s announcements it was lost and found again every few seconds).

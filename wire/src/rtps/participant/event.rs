@@ -14,6 +14,12 @@ pub enum LostReason {
     Disposed,
     /// Its lease expired.
     LeaseExpired,
+    /// The table of participants was full
+    /// ([`Config::max_participants`](super::Config::max_participants)) when
+    /// another announced itself, and this one, heard from least recently,
+    /// had announced no endpoint: the newcomer took its place (it comes
+    /// back with its next announcement if there is room then).
+    Evicted,
 }
 
 /// Something the application may want to know.

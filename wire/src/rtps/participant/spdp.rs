@@ -115,8 +115,17 @@ impl Participant {
         }
         let known = self.participants.get(&data.guid_prefix).is_some();
         if !known && self.participants.len() >= self.cfg.max_participants {
+            // Full: a participant that announced itself and no endpoint
+            // makes room, the one heard from least recently. Without it
+            // 1100 forged announcements with long leases locked every new
+            // peer out for as long as the leases ran.
+            let Some(idle) = self.idlest_participant() else {
+                self.stats.discovery_limited += 1;
+                return;
+            };
+            self.participants.remove(idle);
+            self.participant_gone(idle, LostReason::Evicted);
             self.stats.discovery_limited += 1;
-            return;
         }
         match self.participants.announce(data.clone(), now) {
             Some(ParticipantEvent::Found(_)) => {
@@ -128,6 +137,28 @@ impl Participant {
             }
             _ => {}
         }
+    }
+
+    /// The participant without any known endpoint that was heard from
+    /// least recently.
+    fn idlest_participant(&self) -> Option<GuidPrefix> {
+        let has_endpoints = |prefix: GuidPrefix| {
+            let lo = Guid {
+                prefix,
+                entity: EntityId([0; 4]),
+            };
+            let hi = Guid {
+                prefix,
+                entity: EntityId([0xff; 4]),
+            };
+            self.remote_writers.range(lo..=hi).next().is_some()
+                || self.remote_readers.range(lo..=hi).next().is_some()
+        };
+        self.participants
+            .iter()
+            .map(|d| d.guid_prefix)
+            .filter(|p| !has_endpoints(*p))
+            .min_by_key(|p| self.participants.heard(p))
     }
 
     fn participant_found(&mut self, data: &ParticipantData, now: Instant) {
