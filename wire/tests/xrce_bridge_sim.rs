@@ -1058,6 +1058,52 @@ fn creation_modes_xml_and_references() {
     }
 }
 
+/// A client's objects hold at most `max_object_bytes` of representations
+/// (audit 20: 3 clients × 4000 topics with 60 KB names took an agent to
+/// 1.4 GB): the CREATE past it is refused with ERR_RESOURCES, and deleting
+/// an object makes room again. Other clients have their own budget.
+#[test]
+fn a_clients_objects_are_bounded_in_bytes() {
+    let mut w = world(39, 0, |_, b| b.max_object_bytes = 8 * 1024);
+    let c = w.add_client(10, 0xAAAA_0039);
+    let other = w.add_client(11, 0xAAAA_0040);
+    w.create(c, vec![participant()], CreationMode::CREATE);
+    w.create(other, vec![participant()], CreationMode::CREATE);
+    let long = "t".repeat(2000);
+    let topic_n = |n: u16, name: &str| {
+        let (_, v) = topic(name);
+        (ObjectId::new(n, ObjectKind::Topic), v)
+    };
+    // 2 KB names: three fit in 8 KB with the participant, the fourth not
+    let many: Vec<_> = (1..=4).map(|n| topic_n(n, &format!("{long}{n}"))).collect();
+    w.create(c, many, CreationMode::CREATE);
+    let got: Vec<_> = w.statuses(c).into_iter().skip(1).map(|s| s.1).collect();
+    assert_eq!(
+        got,
+        [
+            Ok(StatusCode::OK),
+            Ok(StatusCode::OK),
+            Ok(StatusCode::OK),
+            Err(StatusCode::ERR_RESOURCES)
+        ]
+    );
+    // the other client is not held to this one's objects
+    w.create(other, vec![topic_n(1, &long)], CreationMode::CREATE);
+    assert_eq!(w.statuses(other).last().unwrap().1, Ok(StatusCode::OK));
+    // a deleted object gives its bytes back
+    let now = w.net.now();
+    w.client(c)
+        .delete(ObjectId::new(1, ObjectKind::Topic), now)
+        .unwrap();
+    assert!(w.run_until(Duration::from_secs(5), |w| w.statuses(c).len() == 6));
+    w.create(
+        c,
+        vec![topic_n(4, &format!("{long}4"))],
+        CreationMode::CREATE,
+    );
+    assert_eq!(w.statuses(c).last().unwrap().1, Ok(StatusCode::OK));
+}
+
 #[test]
 fn an_entity_that_cannot_match_is_reported() {
     let mut w = world(7, 0, |_, _| {});

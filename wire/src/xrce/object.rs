@@ -251,6 +251,30 @@ pub enum ObjectVariant {
 }
 
 impl ObjectVariant {
+    /// Bytes of its representation (the XML, binary blob or reference
+    /// name a client sent), what keeping it costs beyond a fixed part.
+    pub fn representation_len(&self) -> usize {
+        use ObjectVariant as V;
+        let r = match self {
+            V::Participant { representation, .. }
+            | V::Topic { representation, .. }
+            | V::Publisher { representation, .. }
+            | V::Subscriber { representation, .. }
+            | V::DataWriter { representation, .. }
+            | V::DataReader { representation, .. }
+            | V::Requester { representation, .. }
+            | V::Replier { representation, .. }
+            | V::Type(representation)
+            | V::QosProfile(representation)
+            | V::Application(representation) => representation,
+            V::Agent(_) | V::Client(_) => return 0,
+        };
+        match r {
+            Representation::Reference(s) | Representation::Xml(s) => s.len(),
+            Representation::Binary(b) => b.len(),
+        }
+    }
+
     /// The kind byte this variant is sent with.
     pub fn kind(&self) -> ObjectKind {
         use ObjectVariant as V;

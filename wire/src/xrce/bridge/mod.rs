@@ -123,7 +123,18 @@ pub struct BridgeConfig {
     /// hold `reader_queue` samples of any size. A reliable keep-all reader
     /// holds the bridge's writers back at a quarter of it.
     pub reader_bytes: usize,
+    /// Bytes of object representations (XML, binary, reference names) a
+    /// client's objects may hold in all, each counted with
+    /// [`OBJECT_OVERHEAD`] (default 1 MiB: 500 entities of 2 KB of XML).
+    /// A CREATE beyond it is refused with `ERR_RESOURCES`. Without it a
+    /// client held whatever it created: 4000 topics with 60 KB names took
+    /// an agent past 1 GB.
+    pub max_object_bytes: usize,
 }
+
+/// What an object costs beyond its representation, for
+/// [`BridgeConfig::max_object_bytes`].
+pub const OBJECT_OVERHEAD: usize = 256;
 
 impl Default for BridgeConfig {
     fn default() -> Self {
@@ -134,6 +145,7 @@ impl Default for BridgeConfig {
             profiles: Profiles::new(),
             reader_queue: 1024,
             reader_bytes: 16 << 20,
+            max_object_bytes: 1 << 20,
         }
     }
 }
@@ -347,6 +359,8 @@ pub struct Bridge<A> {
     domain: Domain,
     cfg: BridgeConfig,
     objects: HashMap<Key, Object>,
+    /// Bytes each client's objects hold ([`BridgeConfig::max_object_bytes`]).
+    object_bytes: HashMap<ClientKey, usize>,
     by_reader: HashMap<ReaderId, Key>,
     by_writer: HashMap<WriterId, Key>,
     /// Inboxes that may have something to deliver (samples and a
@@ -440,6 +454,7 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
             domain,
             cfg,
             objects: HashMap::new(),
+            object_bytes: HashMap::new(),
             by_reader: HashMap::new(),
             by_writer: HashMap::new(),
             ready: HashSet::new(),
@@ -565,6 +580,7 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
         self.lingering.clear();
         self.domain.close(now);
         self.objects.clear();
+        self.object_bytes.clear();
         self.by_reader.clear();
         self.by_writer.clear();
     }
@@ -845,6 +861,12 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
         let Some(o) = self.objects.remove(&(client, id)) else {
             return;
         };
+        if let Some(b) = self.object_bytes.get_mut(&client) {
+            *b = b.saturating_sub(o.variant.representation_len() + OBJECT_OVERHEAD);
+            if *b == 0 {
+                self.object_bytes.remove(&client);
+            }
+        }
         let children: Vec<ObjectId> = self
             .objects
             .iter()
@@ -965,7 +987,20 @@ impl<A: Clone + Eq + Hash> Bridge<A> {
                 _ => self.remove(client, id, now),
             }
         }
+        let cost = variant.representation_len() + OBJECT_OVERHEAD;
+        let held = self.object_bytes.get(&client).copied().unwrap_or(0);
+        if held + cost > self.cfg.max_object_bytes {
+            return Err((
+                StatusCode::ERR_RESOURCES,
+                format!(
+                    "the client's objects hold {held} bytes, and this one ({cost}) would pass \
+                     the agent's limit of {}",
+                    self.cfg.max_object_bytes
+                ),
+            ));
+        }
         let object = self.build(client, &variant, now)?;
+        *self.object_bytes.entry(client).or_insert(0) += cost;
         match &object.entity {
             Entity::Writer(out) => {
                 self.by_writer.insert(out.writer, (client, id));
