@@ -348,3 +348,40 @@ fn connection_flood_from_nameless_peers_is_bounded_and_counted() {
         "{lines:?}"
     );
 }
+
+/// Large frames half sent on many connections hold central's memory only
+/// up to `max_frames_in_progress` (audit 20: 8 connections each holding
+/// 200 MiB of a 255 MiB frame took central to 1.6 GB): a connection that
+/// starts one past it is read no more until a frame in progress completes,
+/// then goes on; the first frame always proceeds.
+#[test]
+fn large_frames_in_progress_are_bounded_all_connections_together() {
+    // (untimed: the network's clock must not run out the strangers' 10 s)
+    let mut config = untimed();
+    config.max_frames_in_progress = 100_000;
+    let mut sim = Sim::new(config);
+    let frame = raw_frame(MsgClass::Query, 5, &vec![7u8; 60_000]);
+    let (a, b, c) = (sim.raw("a"), sim.raw("b"), sim.raw("c"));
+    let paused = |sim: &mut Sim, s: courier_wire::sim::StreamId| sim.node().is_paused(s.peer());
+    for s in [a, b, c] {
+        sim.net.write(s, &frame[..30_000]);
+        sim.pump();
+    }
+    assert!(!paused(&mut sim, a), "the first frame proceeds");
+    assert!(
+        paused(&mut sim, b) && paused(&mut sim, c),
+        "no room for more"
+    );
+    assert_eq!(sim.central().stats().frames_waited, 2);
+    // b and c go on writing: nothing of it is read
+    sim.net.write(b, &frame[30_000..]);
+    sim.pump();
+    assert!(paused(&mut sim, b));
+    // a's frame completes (a stranger's query: refused, and a goes): room
+    sim.net.write(a, &frame[30_000..]);
+    sim.pump();
+    assert!(
+        !paused(&mut sim, b),
+        "b is read again and its frame goes on"
+    );
+}

@@ -132,6 +132,14 @@ pub struct Config {
     /// Largest frame body (`classTotal + msgTotal`) accepted from a module;
     /// a larger header closes the connection with a log line.
     pub max_frame: u64,
+    /// Bytes of large frames being received, all connections together
+    /// (default 512 MiB, two of `max_frame`): a connection that starts a
+    /// large frame past it is read no more
+    /// ([`Output::PauseRead`](super::Output::PauseRead)) until the frames
+    /// in progress complete or go; one frame is always taken, whatever its
+    /// size. Without it every connection could hold a frame of up to
+    /// `max_frame` half sent (8 of them held 1.6 GB).
+    pub max_frames_in_progress: u64,
     /// When the messages queued inside central for delivery exceed this many
     /// bytes (their data plus [`DISPATCH_COST`](super::DISPATCH_COST) each,
     /// so that empty messages count too), the shell is asked to stop reading
@@ -219,6 +227,7 @@ impl Default for Config {
             ignore: Vec::new(),
             quiet: false,
             max_frame: 256 << 20,
+            max_frames_in_progress: 512 << 20,
             max_queued_bytes: 64 << 20,
             cut_through: None,
             send_ahead: BTreeMap::new(),

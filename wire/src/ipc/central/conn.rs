@@ -139,6 +139,7 @@ impl Central {
                 retired: SmallMap::new(),
                 vars_read: SmallMap::new(),
                 paused: false,
+                frame_wait: false,
                 closed: false,
                 problems: log::ProblemBudget::default(),
                 quiet: None,
@@ -228,6 +229,7 @@ impl Central {
         if self.queued_by_modules > queued_before {
             self.check_memory(conn);
         }
+        self.wake_frame_waiters();
     }
 
     /// Processes the whole frames at the front of `conn`'s receive buffer.
@@ -272,6 +274,12 @@ impl Central {
                         self.protocol_error(conn, e, now);
                         return false;
                     }
+                }
+                let starts_big =
+                    n >= SPLIT_AT && self.modules.get(&conn).is_some_and(|m| m.big_end.is_none());
+                if starts_big && !self.room_for_frame(HEADER_SIZE + n) {
+                    self.wait_for_frame_room(conn, HEADER_SIZE + n);
+                    return true;
                 }
                 let Some(m) = self.modules.get_mut(&conn) else {
                     return false;
@@ -483,6 +491,7 @@ impl Central {
         self.memory_paused.remove(&conn);
         self.answer_paused.remove(&conn);
         self.modules.remove(&conn);
+        self.wake_frame_waiters();
         self.prune_handshakes();
         if let Some(n) = name {
             self.central_broadcast(internal::DISCONNECT_NOTIFY, |w| w.write_str(&n));

@@ -18,9 +18,63 @@ impl Central {
                 m.paused = false;
                 self.memory_paused.remove(&conn);
                 self.answer_paused.remove(&conn);
+                if !m.frame_wait {
+                    self.outputs.push_back(Output::ResumeRead { conn });
+                }
+            }
+        }
+    }
+
+    /// Whether a large frame of `len` bytes may start now: the frames in
+    /// progress leave room for it, or there are none.
+    pub(super) fn room_for_frame(&self, len: usize) -> bool {
+        let held: usize = self.modules.values().filter_map(|m| m.big_end).sum();
+        held == 0 || (held + len) as u64 <= self.config.max_frames_in_progress
+    }
+
+    /// `conn` starts a large frame without room for it: it is read no more
+    /// until a frame in progress completes or its connection goes.
+    pub(super) fn wait_for_frame_room(&mut self, conn: ConnId, len: usize) {
+        let Some(m) = self.modules.get_mut(&conn) else {
+            return;
+        };
+        if m.frame_wait {
+            return;
+        }
+        m.frame_wait = true;
+        let paused = m.paused;
+        self.frame_waiters.push((conn, len));
+        self.stats.frames_waited += 1;
+        if !paused {
+            self.outputs.push_back(Output::PauseRead { conn });
+        }
+    }
+
+    /// Reads again, in the order they came, the connections waiting for
+    /// room for a large frame that there is room for now (each checks
+    /// again when its frame goes on).
+    pub(super) fn wake_frame_waiters(&mut self) {
+        if self.frame_waiters.is_empty() {
+            return;
+        }
+        let mut held: usize = self.modules.values().filter_map(|m| m.big_end).sum();
+        let max = self.config.max_frames_in_progress;
+        let mut still = Vec::new();
+        for (conn, len) in std::mem::take(&mut self.frame_waiters) {
+            let Some(m) = self.modules.get_mut(&conn) else {
+                continue;
+            };
+            if held > 0 && (held + len) as u64 > max {
+                still.push((conn, len));
+                continue;
+            }
+            held += len;
+            m.frame_wait = false;
+            if !m.paused {
                 self.outputs.push_back(Output::ResumeRead { conn });
             }
         }
+        self.frame_waiters = still;
     }
 
     /// A message was queued for `conn`. If a handler of `conn` may be
@@ -140,7 +194,9 @@ impl Central {
             if let Some(m) = self.modules.get_mut(&conn) {
                 if m.paused {
                     m.paused = false;
-                    self.outputs.push_back(Output::ResumeRead { conn });
+                    if !m.frame_wait {
+                        self.outputs.push_back(Output::ResumeRead { conn });
+                    }
                 }
             }
         }

@@ -211,6 +211,9 @@ pub struct Stats {
     pub waiting_bytes: usize,
     /// Queries and informs dropped because too many waited for a handler.
     pub dropped_waiting: u64,
+    /// Times a connection waited for room for a large frame
+    /// ([`Config::max_frames_in_progress`]).
+    pub frames_waited: u64,
     /// Deliveries kept for `-r`
     /// ([`Config::resend_on_reconnect`]) until a module of the name of
     /// the one that died with them unfinished handles their message again.
@@ -259,6 +262,9 @@ pub struct Central {
     kept: resend::Kept,
     stats: Stats,
     memory_paused: HashSet<ConnId>,
+    /// Connections waiting for room for a large frame
+    /// ([`Config::max_frames_in_progress`]).
+    frame_waiters: Vec<(ConnId, usize)>,
     /// Bytes ever queued for messages a module sent (not central's own
     /// broadcasts): whether a read added any (see `receive`).
     queued_by_modules: u64,
@@ -321,6 +327,7 @@ impl Central {
             stats: Stats::default(),
             memory_paused: HashSet::new(),
             queued_by_modules: 0,
+            frame_waiters: Vec::new(),
             answer_paused: HashSet::new(),
             memory_said: crate::throttle::Throttle::new(memory::MEMORY_LINE_EVERY),
             strangers: log::StrangerBudget::default(),

@@ -253,6 +253,9 @@ pub(super) struct Module {
     /// was sent (`V_watch_…`).
     pub(super) vars_read: SmallMap<String, u64>,
     pub(super) paused: bool,
+    /// Not read while it waits for room for a large frame
+    /// ([`Config::max_frames_in_progress`](super::Config::max_frames_in_progress)).
+    pub(super) frame_wait: bool,
     pub(super) closed: bool,
     /// Its problem lines (unknown ids, foreign acknowledgements …), so
     /// that a misbehaving module cannot flood the log.
