@@ -416,6 +416,15 @@ impl Deframer {
         }
     }
 
+    /// Bytes held for the frame being received (its buffers' capacity).
+    pub fn buffered(&self) -> usize {
+        self.head.capacity()
+            + self
+                .cur
+                .as_ref()
+                .map_or(0, |p| p.class_data.capacity() + p.data.capacity())
+    }
+
     /// Whether a frame is partly received.
     pub fn is_mid_frame(&self) -> bool {
         !self.head.is_empty() || self.cur.is_some()

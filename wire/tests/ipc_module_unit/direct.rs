@@ -137,3 +137,51 @@ fn incoming_direct_query_is_answered_on_its_link_without_success() {
     assert!(c.receive_direct(link, &[0xff; 28]).is_err());
     assert!(c.is_connected());
 }
+
+/// Frames half received on the direct links a module accepted hold at most
+/// about two of its largest frame, all links together (audit 20: six raw
+/// connections to a module's direct listener, each holding 200 MiB of a
+/// 255 MiB frame, took it to 1.2 GB): the link that goes over is refused
+/// (the shell closes it), and its memory goes with it; a frame that fits
+/// still arrives on another link.
+#[test]
+fn frames_in_progress_on_direct_links_are_bounded_all_together() {
+    let mut cfg = courier_wire::ipc::module::ModuleConfig::new("module2", "127.1");
+    cfg.max_frame = 100_000;
+    let mut c = crate::script::by_hand_with(cfg);
+    let head = |len: i32| {
+        Header {
+            class_total: 0,
+            msg_total: len,
+            parent_ref: -1,
+            intent: 7,
+            class_id: courier_wire::ipc::frame::ClassId::native(MsgClass::Broadcast),
+            dispatch_ref: 1,
+            msg_ref: 1,
+        }
+        .encode()
+        .to_vec()
+    };
+    let big = head(90_000);
+    let most = vec![1u8; 80_000];
+    let (a, b, d) = (c.accept_direct(), c.accept_direct(), c.accept_direct());
+    for l in [a, b] {
+        c.receive_direct(l, &big).unwrap();
+        c.receive_direct(l, &most).unwrap();
+    }
+    // a and b hold 160 000 of the 206 250 allowed: d's 80 000 go over
+    c.receive_direct(d, &big).unwrap();
+    let e = c.receive_direct(d, &most).unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("frames being received on direct links"),
+        "{e}"
+    );
+    c.direct_link_closed(d);
+    // a whole frame on another link is taken, and a's frame completes
+    let e2 = c.accept_direct();
+    let mut small = head(100);
+    small.extend_from_slice(&[2u8; 100]);
+    c.receive_direct(e2, &small).unwrap();
+    c.receive_direct(a, &[1u8; 10_000]).unwrap();
+}

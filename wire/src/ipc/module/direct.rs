@@ -74,6 +74,25 @@ impl Connection {
                 self.inbox.push_back((frame, Some(link)));
             }
         }
+        // Frames half received on all direct links together hold at most
+        // two of the largest frame (and a sixteenth of one for their
+        // headers): past it the link that went over is
+        // closed. A direct listener takes connections from anyone, and six
+        // holding 200 MiB of a 255 MiB frame each took a module to 1.2 GB.
+        let max = self.cfg.max_frame;
+        let limit =
+            usize::try_from(max.saturating_mul(2).saturating_add(max / 16)).unwrap_or(usize::MAX);
+        let held: usize =
+            self.link_in.values().map(Deframer::buffered).sum::<usize>() + d.buffered();
+        if held > limit {
+            return Err(Error::Protocol {
+                what: "direct link",
+                detail: format!(
+                    "frames being received on direct links would hold {held} bytes, more than \
+                     {limit} (twice the largest frame)"
+                ),
+            });
+        }
         self.link_in.insert(link, d);
         Ok(())
     }
