@@ -12,7 +12,8 @@
 //! be written, said in one line, `courier <cmd>: cannot write to stdout:
 //! <error>`; a closed pipe, `| head`, ends a command quietly with 0), 128+N
 //! stopped by signal N before the command was done (then it says what it
-//! interrupted): SIGINT, SIGTERM and SIGHUP alike.
+//! interrupted): SIGINT, SIGTERM and SIGHUP alike. The SDK's warnings go
+//! to stderr (`RUST_LOG` chooses another level).
 #![deny(unsafe_code)]
 
 mod bar;
@@ -57,6 +58,10 @@ fn main() -> ExitCode {
     if let Err(e) = cli.check() {
         e.exit();
     }
+    // the SDK's warnings (a direct link dropped, a close that gave up on
+    // unacknowledged samples, a peer's malformed data) reach stderr, as
+    // central's and xrce-agent's do; `RUST_LOG` tunes them
+    courier_broker::logging::init(tracing::level_filters::LevelFilter::WARN, false);
     text::set_progress(cli.progress);
     let progress_mode = cli.progress;
     // commands whose stdout is a log of events say there what stopped

@@ -61,15 +61,14 @@ impl Connection {
             let frame = match d.next(&mut bytes) {
                 Ok(Some(f)) => f,
                 Ok(None) => break,
-                Err(e) => return Err(Error::Frame(e)),
+                Err(e) => return Err(Error::DirectLink(format!("bad frame: {e}"))),
             };
             if frame.header.intent == QUERY_REPLY_INTENT {
                 self.handle_reply(frame)?;
             } else if self.inbox.len() >= MAX_QUEUED_DELIVERIES {
-                return Err(Error::Protocol {
-                    what: "direct delivery",
-                    detail: format!("more than {MAX_QUEUED_DELIVERIES} unprocessed deliveries"),
-                });
+                return Err(Error::DirectLink(format!(
+                    "more than {MAX_QUEUED_DELIVERIES} unprocessed deliveries"
+                )));
             } else {
                 self.inbox.push_back((frame, Some(link)));
             }
@@ -85,13 +84,10 @@ impl Connection {
         let held: usize =
             self.link_in.values().map(Deframer::buffered).sum::<usize>() + d.buffered();
         if held > limit {
-            return Err(Error::Protocol {
-                what: "direct link",
-                detail: format!(
-                    "frames being received on direct links would hold {held} bytes, more than \
-                     {limit} (twice the largest frame)"
-                ),
-            });
+            return Err(Error::DirectLink(format!(
+                "frames being received on direct links would hold {held} bytes, more than \
+                 {limit} (twice the largest frame)"
+            )));
         }
         self.link_in.insert(link, d);
         Ok(())

@@ -130,6 +130,11 @@ pub enum Error {
         /// The decoder's message.
         detail: String,
     },
+    /// A direct link sent what this module cannot take (a bad frame, more
+    /// deliveries than it holds, frames past its bound): the link is
+    /// closed, nothing else.
+    #[error("direct link: {0}")]
+    DirectLink(String),
     /// Central does not know a message name.
     #[error("message {0:?} is not defined in central")]
     UnknownMessage(String),
