@@ -96,6 +96,14 @@ impl Partial {
             .get(i / 64)
             .is_some_and(|w| w & (1 << (i % 64)) != 0)
     }
+
+    /// Marks fragment `i` (0-based) as arrived; true if it had not.
+    fn set(&mut self, i: usize) -> bool {
+        let (w, bit) = (i / 64, 1u64 << (i % 64));
+        let new = self.have[w] & bit == 0;
+        self.have[w] |= bit;
+        new
+    }
 }
 
 /// The most fragment numbers [`Reassembler::missing`] gives: what one
@@ -383,9 +391,7 @@ impl Reassembler {
             }
         }
         for i in first - 1..first - 1 + n {
-            let (w, bit) = (i / 64, 1u64 << (i % 64));
-            if p.have[w] & bit == 0 {
-                p.have[w] |= bit;
+            if p.set(i) {
                 p.missing -= 1;
             }
         }

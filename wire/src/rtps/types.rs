@@ -55,6 +55,18 @@ impl std::hash::Hash for GuidPrefix {
 impl GuidPrefix {
     /// The all-zero prefix ("unknown", or "any participant" in INFO_DST).
     pub const UNKNOWN: Self = GuidPrefix([0; 12]);
+
+    /// Every GUID of this participant, in order: a range of a map keyed
+    /// by [`Guid`] holds its entities.
+    pub fn guids(self) -> std::ops::RangeInclusive<Guid> {
+        Guid {
+            prefix: self,
+            entity: EntityId([0; 4]),
+        }..=Guid {
+            prefix: self,
+            entity: EntityId([0xff; 4]),
+        }
+    }
 }
 
 /// An entity id: 3-byte key and 1-byte kind (§9.3.1.2).

@@ -28,8 +28,13 @@ impl Central {
     /// Whether a large frame of `len` bytes may start now: the frames in
     /// progress leave room for it, or there are none.
     pub(super) fn room_for_frame(&self, len: usize) -> bool {
-        let held: usize = self.modules.values().filter_map(|m| m.big_end).sum();
+        let held = self.frames_in_progress();
         held == 0 || (held + len) as u64 <= self.config.max_frames_in_progress
+    }
+
+    /// Bytes of the large frames being received, all connections together.
+    fn frames_in_progress(&self) -> usize {
+        self.modules.values().filter_map(|m| m.big_end).sum()
     }
 
     /// `conn` starts a large frame without room for it: it is read no more
@@ -57,7 +62,7 @@ impl Central {
         if self.frame_waiters.is_empty() {
             return;
         }
-        let mut held: usize = self.modules.values().filter_map(|m| m.big_end).sum();
+        let mut held = self.frames_in_progress();
         let max = self.config.max_frames_in_progress;
         let mut still = Vec::new();
         for (conn, len) in std::mem::take(&mut self.frame_waiters) {

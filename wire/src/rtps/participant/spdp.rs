@@ -143,16 +143,8 @@ impl Participant {
     /// least recently.
     fn idlest_participant(&self) -> Option<GuidPrefix> {
         let has_endpoints = |prefix: GuidPrefix| {
-            let lo = Guid {
-                prefix,
-                entity: EntityId([0; 4]),
-            };
-            let hi = Guid {
-                prefix,
-                entity: EntityId([0xff; 4]),
-            };
-            self.remote_writers.range(lo..=hi).next().is_some()
-                || self.remote_readers.range(lo..=hi).next().is_some()
+            self.remote_writers.range(prefix.guids()).next().is_some()
+                || self.remote_readers.range(prefix.guids()).next().is_some()
         };
         self.participants
             .iter()
@@ -241,18 +233,16 @@ impl Participant {
         }
         let ws: Vec<Guid> = self
             .remote_writers
-            .keys()
-            .filter(|w| w.prefix == prefix)
-            .copied()
+            .range(prefix.guids())
+            .map(|(g, _)| *g)
             .collect();
         for w in ws {
             self.remote_writer_gone(w);
         }
         let rs: Vec<Guid> = self
             .remote_readers
-            .keys()
-            .filter(|r| r.prefix == prefix)
-            .copied()
+            .range(prefix.guids())
+            .map(|(g, _)| *g)
             .collect();
         for r in rs {
             self.remote_reader_gone(r);
