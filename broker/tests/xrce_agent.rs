@@ -175,10 +175,9 @@ fn a_silent_tcp_connection_is_closed_and_a_client_is_not() {
     let mut framed = (ping.len() as u16).to_le_bytes().to_vec();
     framed.extend_from_slice(&ping);
     talker.write_all(&framed).unwrap();
-    let started = Instant::now();
     let mut b = [0u8; 64];
+    // bounded by the read timeout: a connection kept open fails the unwrap
     assert_eq!(silent.read(&mut b).unwrap(), 0, "the silent one was closed");
-    assert!(started.elapsed() < T);
     // the talker is still served: another ping after the silent one went
     std::thread::sleep(std::time::Duration::from_millis(400));
     talker.write_all(&framed).unwrap();
