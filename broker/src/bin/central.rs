@@ -87,6 +87,11 @@ const USAGE: &str = "central command line options:
      name (IPC_connect) within <s> seconds, with a log line (default 10;
      0: never, as in C), so that silent connections cannot hold central's
      file descriptors.
+ --frame-stall-timeout <s>: close a connection whose large frame (16 KiB or
+     more, or one forwarded with --cut-through) has had no byte for <s>
+     seconds, with a log line (default 30; 0: never, as in C), so that a
+     peer stopped half way through a frame cannot hold the room other
+     large frames wait for. Time central does not read it does not count.
  --busy-poll <us>: after each frame keep polling for <us> microseconds
      (1..=1000000) instead of sleeping: lower latency for CPU (default off).
  --cut-through <bytes>: forward a message or reply of at least <bytes>
@@ -244,6 +249,18 @@ fn parse_args(args: Vec<String>) -> Result<Options, String> {
                         ));
                     };
                     o.config.handshake_timeout =
+                        (secs > 0).then(|| std::time::Duration::from_secs(secs));
+                }
+                "frame-stall-timeout" => {
+                    let v = value(true)?;
+                    let secs = v.parse::<u64>().ok().filter(|s| *s <= 86_400);
+                    let Some(secs) = secs else {
+                        return Err(format!(
+                            "option --frame-stall-timeout: '{v}' is not a number of seconds \
+                             from 0 (never) to 86400"
+                        ));
+                    };
+                    o.config.frame_stall_timeout =
                         (secs > 0).then(|| std::time::Duration::from_secs(secs));
                 }
                 "hosts-allow" => o.allow = Some(value(true)?.into()),
@@ -923,6 +940,25 @@ mod tests {
             secs(&["--handshake-timeout"]),
             Err("option --handshake-timeout needs a value".into())
         );
+    }
+
+    #[test]
+    fn frame_stall_timeout_option() {
+        let secs = |a: &[&str]| parse(a).map(|o| o.config.frame_stall_timeout);
+        assert_eq!(secs(&[]), Ok(Some(std::time::Duration::from_secs(30))));
+        assert_eq!(
+            secs(&["--frame-stall-timeout", "5"]),
+            Ok(Some(std::time::Duration::from_secs(5)))
+        );
+        assert_eq!(secs(&["--frame-stall-timeout=0"]), Ok(None));
+        for bad in ["x", "-1", "86401", "1.5"] {
+            assert_eq!(
+                secs(&["--frame-stall-timeout", bad]),
+                Err(format!(
+                    "option --frame-stall-timeout: '{bad}' is not a number of seconds from 0 (never) to 86400"
+                ))
+            );
+        }
     }
 
     #[test]

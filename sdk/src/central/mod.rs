@@ -179,6 +179,14 @@
 //!   connections for ever, so silent ones (a probe that never closes, a
 //!   peer that is no IPC module) could hold every file descriptor and
 //!   lock modules out. `--handshake-timeout 0` keeps C's way.
+//! - A connection whose large frame (16 KiB or more, or one forwarded as it
+//!   arrives) has had no byte for [`Config::frame_stall_timeout`] (30 s;
+//!   `central --frame-stall-timeout`) is closed with a `WARNING: closing
+//!   connection … stopped arriving` line: it held room other large frames
+//!   wait for ([`Config::max_frames_in_progress`]), or, cut through, its
+//!   receiver's other deliveries. Time central does not read it does not
+//!   count. C waits for the rest for ever; `--frame-stall-timeout 0` keeps
+//!   that.
 //! - A failed `accept` (too many open files) is said when it starts,
 //!   every 10 s while it lasts, and when it ends; a log file (`-f`) that
 //!   cannot be written any more is said once on stderr and logging to it

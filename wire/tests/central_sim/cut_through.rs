@@ -19,10 +19,20 @@ fn reads_of_4k() -> StreamFaults {
 }
 
 /// A module that asks a large query and one that answers it, with central
-/// reading 4 KiB at a time: returns the sim and both modules.
+/// reading 4 KiB at a time: returns the sim and both modules. (No frame
+/// stall timeout: the tests hold frames half sent while the network's clock
+/// jumps ahead; `a_stalled_cut_through_sender_is_closed` has it.)
 fn large_query_pair(cut_through: Option<usize>) -> (Sim, Mod, Mod) {
+    large_query_pair_with(cut_through, None)
+}
+
+fn large_query_pair_with(
+    cut_through: Option<usize>,
+    stall: Option<std::time::Duration>,
+) -> (Sim, Mod, Mod) {
     let mut config = Config::default();
     config.cut_through = cut_through;
+    config.frame_stall_timeout = stall;
     let mut sim = Sim::with(config, 1, reads_of_4k(), None);
     let a = sim.connect("asker");
     let b = sim.connect("answerer");
@@ -227,6 +237,60 @@ fn cut_through_sender_dying_midway_completes_the_frame_with_zeros() {
     sim.m(e).query("ask", blob(70_000, 4), -1).unwrap();
     sim.pump();
     assert_eq!(only_delivery(&mut sim, b).1, blob(70_000, 4));
+}
+
+/// A sender that stops in the middle of a relayed frame held its
+/// receiver's other deliveries for as long as it kept the connection: it is
+/// closed after `frame_stall_timeout` without a byte, and the receiver gets
+/// the frame completed with zeros, then what waited for it.
+#[test]
+fn a_stalled_cut_through_sender_is_closed() {
+    let stall = std::time::Duration::from_secs(30);
+    let (mut sim, a, b) = large_query_pair_with(Some(64 << 10), Some(stall));
+    let other = sim.connect("other");
+    define(&mut sim, other, "ask", "{int, <ubyte:1>}");
+    sim.pump();
+    let start = sim.net.now();
+    half_sent_query(&mut sim, a, 3, 30_000);
+    // still within the timeout: a few more bytes keep it alive
+    sim.net.run_for(stall / 2);
+    let s = sim.stream(a);
+    assert_eq!(sim.net.push(s, 10_000), 10_000);
+    sim.net
+        .run_for(stall / 2 + std::time::Duration::from_secs(5));
+    sim.collect();
+    assert!(sim.closes.is_empty(), "{:?}", sim.closes);
+    // another module's query for b waits behind the relayed frame
+    sim.m(other).query("ask", blob(10, 9), -1).unwrap();
+    sim.pump();
+    assert!(
+        sim.net.now() - start >= stall + stall / 2,
+        "closed too early"
+    );
+    let reasons: Vec<&str> = sim.closes.iter().map(|(_, why)| why.as_str()).collect();
+    assert_eq!(
+        reasons,
+        ["its message (forwarded as it came) of 100012 bytes stopped arriving (39972 received, none in 30 s)"],
+        "{:#?}",
+        sim.logs
+    );
+    assert!(
+        sim.logs
+            .iter()
+            .any(|l| l.starts_with("WARNING: closing connection")
+                && l.contains("(asker")
+                && l.contains("stopped arriving")),
+        "{:#?}",
+        sim.logs
+    );
+    // b: the stalled frame completed with zeros, then the other query
+    let (delivery, body) = only_delivery(&mut sim, b);
+    assert_eq!(body.len(), 100_004);
+    assert!(body[body.len() - 1000..].iter().all(|&x| x == 0));
+    sim.m(b).respond(delivery, "answer", blob(10, 0)).unwrap();
+    sim.pump();
+    assert_eq!(only_delivery(&mut sim, b).1, blob(10, 9));
+    sim.central().check_invariants();
 }
 
 #[test]

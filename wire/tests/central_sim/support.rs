@@ -124,8 +124,9 @@ impl Sim {
         self.collect();
     }
 
-    /// Moves central's log lines and closes to `logs` and `closes`.
-    fn collect(&mut self) {
+    /// Moves central's log lines and closes to `logs` and `closes` (done
+    /// by [`pump`](Self::pump); after `net.run_for`, call it).
+    pub fn collect(&mut self) {
         for e in self.net.take_events(0) {
             match e {
                 IpcEvent::Log(line) => self.logs.push(line),
@@ -256,13 +257,14 @@ impl Sim {
     }
 }
 
-/// The default configuration without the handshake timeout, as C's
-/// central runs: for tests that keep a connection unnamed (raw bytes of
-/// their own, a module held back) while the network's clock jumps ahead
-/// to whatever is due next.
+/// The default configuration without the handshake and frame stall
+/// timeouts, as C's central runs: for tests that keep a connection unnamed
+/// or a frame half sent (raw bytes of their own, a module held back) while
+/// the network's clock jumps ahead to whatever is due next.
 pub fn untimed() -> Config {
     let mut c = Config::default();
     c.handshake_timeout = None;
+    c.frame_stall_timeout = None;
     c
 }
 

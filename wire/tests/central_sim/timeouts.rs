@@ -1,14 +1,17 @@
 //! What central does as time passes with nothing arriving: a connection
 //! that never says its module name is closed after
 //! `Config::handshake_timeout` (C's central keeps it for ever, so silent
-//! connections could hold every file descriptor), and the count of
-//! strangers left out of the log is said when its window is over, not
-//! only when the next connection comes.
+//! connections could hold every file descriptor), so is one whose large
+//! frame stops arriving half way (`Config::frame_stall_timeout`), and the
+//! count of strangers left out of the log is said when its window is
+//! over, not only when the next connection comes.
 
 use std::time::{Duration, SystemTime};
 
 use courier_wire::ipc::central::{Central, Config, ConnId, Output, Peer};
+use courier_wire::ipc::frame::MsgClass;
 
+use crate::routing::raw_frame;
 use crate::support::{define, Sim};
 
 fn config(timeout: Option<Duration>) -> Config {
@@ -165,4 +168,82 @@ fn the_strangers_summary_comes_when_its_window_ends() {
         lines[0]
     );
     assert_eq!(central.next_timeout(), None);
+}
+
+/// A large frame half sent and then nothing (audit 20): its connection
+/// held its share of `max_frames_in_progress`, and larger frames from
+/// others waited, for as long as it stayed open. It is closed after
+/// `frame_stall_timeout` without a byte; one that keeps sending is not,
+/// however slowly.
+#[test]
+fn a_large_frame_that_stops_arriving_is_closed_and_frees_its_room() {
+    assert_eq!(
+        Config::default().frame_stall_timeout,
+        Some(Duration::from_secs(30))
+    );
+    let mut c = config(None);
+    c.max_frames_in_progress = 130_000; // two of the frames below
+    let mut sim = Sim::with(c, 1, courier_wire::sim::StreamFaults::none(), None);
+    let bystander = sim.connect("bystander");
+    let frame = raw_frame(MsgClass::Query, 5, &vec![7u8; 60_000]);
+    let (slow, stalled, waiter) = (sim.raw("slow"), sim.raw("stalled"), sim.raw("waiter"));
+    let start = sim.net.now();
+    sim.net.write(slow, &frame[..20_000]);
+    sim.net.write(stalled, &frame[..30_000]);
+    sim.net.run_for(Duration::from_secs(1));
+    sim.net.write(waiter, &frame[..20_000]);
+    sim.net.run_for(Duration::from_secs(1));
+    let paused = |sim: &mut Sim, s: courier_wire::sim::StreamId| sim.node().is_paused(s.peer());
+    assert!(paused(&mut sim, waiter), "no room for a third frame");
+    // `slow` sends a little every 20 s: never 30 s without a byte
+    for k in 1..3 {
+        sim.net.run_for(Duration::from_secs(20));
+        sim.net
+            .write(slow, &frame[20_000 + 10 * (k - 1)..20_000 + 10 * k]);
+    }
+    sim.net.run_for(Duration::from_secs(5));
+    sim.collect();
+    let reasons: Vec<&str> = sim.closes.iter().map(|(_, why)| why.as_str()).collect();
+    assert_eq!(
+        reasons,
+        ["its frame of 60028 bytes stopped arriving (30000 received, none in 30 s)"],
+        "{:#?}",
+        sim.logs
+    );
+    assert!(sim.net.now() - start >= Duration::from_secs(30));
+    let warned: Vec<&String> = sim
+        .logs
+        .iter()
+        .filter(|l| l.contains("stopped arriving"))
+        .collect();
+    assert_eq!(warned.len(), 1, "{:#?}", sim.logs);
+    assert!(
+        warned[0].starts_with("WARNING: closing connection")
+            && warned[0].contains("(from stalled)"),
+        "{}",
+        warned[0]
+    );
+    // its room went to the waiter, which is read again
+    assert!(!paused(&mut sim, waiter), "the waiter is read again");
+    // the slow one is still open (40 s since its frame started), and
+    // named modules are served
+    assert!(sim.closes.iter().all(|(c, _)| *c != slow.peer()));
+    define(&mut sim, bystander, "after", "int");
+    sim.pump();
+    assert!(sim.central().message_id("after").is_some());
+    sim.central().check_invariants();
+}
+
+#[test]
+fn frames_never_stall_out_with_the_c_setting() {
+    let mut c = config(None);
+    c.frame_stall_timeout = None;
+    let mut sim = Sim::new(c);
+    let s = sim.raw("stalled");
+    let frame = raw_frame(MsgClass::Query, 5, &vec![7u8; 60_000]);
+    sim.net.write(s, &frame[..30_000]);
+    sim.pump();
+    sim.net.run_for(Duration::from_secs(3600));
+    assert!(sim.closes.is_empty(), "{:?}", sim.closes);
+    assert_eq!(sim.central().next_timeout(), None);
 }

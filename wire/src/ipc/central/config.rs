@@ -210,6 +210,16 @@ pub struct Config {
     /// module) cannot hold central's file descriptors for ever. `None`:
     /// never, as in C. Default 10 s.
     pub handshake_timeout: Option<std::time::Duration>,
+    /// How long a large frame being received (16 KiB or more, or one
+    /// forwarded as it arrives under [`cut_through`](Self::cut_through))
+    /// may go without a byte arriving. Its connection is then closed with
+    /// a log line: a peer that stops in the middle of a frame would
+    /// otherwise hold its share of
+    /// [`max_frames_in_progress`](Self::max_frames_in_progress) (and, cut
+    /// through, its receiver's other deliveries) for as long as it keeps
+    /// the connection. Time while central itself does not read the
+    /// connection does not count. `None`: never, as in C. Default 30 s.
+    pub frame_stall_timeout: Option<std::time::Duration>,
 }
 
 impl Default for Config {
@@ -232,6 +242,7 @@ impl Default for Config {
             cut_through: None,
             send_ahead: BTreeMap::new(),
             handshake_timeout: Some(std::time::Duration::from_secs(10)),
+            frame_stall_timeout: Some(std::time::Duration::from_secs(30)),
         }
     }
 }

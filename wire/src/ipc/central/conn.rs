@@ -148,6 +148,7 @@ impl Central {
                 relay_from: None,
                 held: Vec::new(),
                 big_end: None,
+                frame_progress: now,
             }),
         );
         let id = self.msgs.get(internal::MSG_INFO).and_then(|m| m.id);
@@ -177,6 +178,9 @@ impl Central {
         };
         if m.closed {
             return;
+        }
+        if m.big_end.is_some() || m.relay.is_some() {
+            m.frame_progress = now;
         }
         // (what this adds to the queues: see `check_memory` below)
         let queued_before = self.queued_by_modules;
@@ -293,6 +297,7 @@ impl Central {
                     m.rx = frame;
                     m.rx_pos = 0;
                     m.big_end = Some(HEADER_SIZE + n);
+                    self.watch_frame(conn, now);
                 }
                 return true;
             }

@@ -16,6 +16,7 @@ impl Central {
         if let Some(m) = self.modules.get_mut(&conn) {
             if m.paused {
                 m.paused = false;
+                m.frame_progress = self.clock;
                 self.memory_paused.remove(&conn);
                 self.answer_paused.remove(&conn);
                 if !m.frame_wait {
@@ -199,6 +200,7 @@ impl Central {
             if let Some(m) = self.modules.get_mut(&conn) {
                 if m.paused {
                     m.paused = false;
+                    m.frame_progress = self.clock;
                     if !m.frame_wait {
                         self.outputs.push_back(Output::ResumeRead { conn });
                     }

@@ -280,6 +280,11 @@ pub struct Central {
     /// Connections that must name themselves by then, in connect order
     /// (entries of those that did are dropped as they reach the front).
     handshakes: VecDeque<(SystemTime, ConnId)>,
+    /// Connections receiving a large or relayed frame, and when the next
+    /// of them may have stalled
+    /// ([`Config::frame_stall_timeout`](Config::frame_stall_timeout)).
+    stall_watch: Vec<ConnId>,
+    stall_check: Option<SystemTime>,
     handler_seq: u64,
     msg_info_query: Format,
     msg_info_reply: Format,
@@ -332,6 +337,8 @@ impl Central {
             memory_said: crate::throttle::Throttle::new(memory::MEMORY_LINE_EVERY),
             strangers: log::StrangerBudget::default(),
             handshakes: VecDeque::new(),
+            stall_watch: Vec::new(),
+            stall_check: None,
             handler_seq: 0,
             msg_info_query: internal::fixed(internal::MSG_INFO_QUERY_FORMAT),
             msg_info_reply: internal::fixed(internal::MSG_INFO_REPLY_FORMAT),

@@ -74,6 +74,7 @@ impl Central {
             let m = self.modules.linked_mut(&conn)?;
             m.rx_pos = m.rx.len();
             self.stats.frames_in += 1;
+            self.watch_frame(conn, now);
         }
         Ok(started)
     }

@@ -277,6 +277,10 @@ pub(super) struct Module {
     /// `rx_pos` 0) and ends at this length: `rx` takes no bytes beyond it,
     /// so that the frame's buffer becomes its [`Body`] without a copy.
     pub(super) big_end: Option<usize>,
+    /// When bytes of the large or relayed frame in progress last arrived
+    /// (or central last resumed reading it): see
+    /// [`Config::frame_stall_timeout`](super::Config::frame_stall_timeout).
+    pub(super) frame_progress: std::time::SystemTime,
 }
 
 /// A frame body passing through central as it arrives (cut-through).

@@ -1,8 +1,10 @@
 //! What central does when time passes with nothing arriving: a connection
 //! that never said its module name is closed
-//! ([`Config::handshake_timeout`](super::Config::handshake_timeout)), and
-//! the count of strangers' connections whose lines were left out is said
-//! when its window is over, not only at the next connection.
+//! ([`Config::handshake_timeout`](super::Config::handshake_timeout)), so is
+//! one whose large frame stopped arriving half way
+//! ([`Config::frame_stall_timeout`](super::Config::frame_stall_timeout)),
+//! and the count of strangers' connections whose lines were left out is
+//! said when its window is over, not only at the next connection.
 //!
 //! The shell asks [`Central::next_timeout`] after each turn and calls
 //! [`Central::handle_timeout`] when that time comes (early calls are
@@ -20,10 +22,10 @@ impl Central {
     pub fn next_timeout(&self) -> Option<SystemTime> {
         let handshake = self.handshakes.front().map(|&(at, _)| at);
         let summary = self.strangers.due();
-        match (handshake, summary) {
-            (Some(a), Some(b)) => Some(a.min(b)),
-            (a, b) => a.or(b),
-        }
+        [handshake, summary, self.stall_check]
+            .into_iter()
+            .flatten()
+            .min()
     }
 
     /// Time has come to `now`: closes the connections that have not named
@@ -40,7 +42,93 @@ impl Central {
                 self.close_silent(conn, now);
             }
         }
+        if self.stall_check.is_some_and(|at| at <= now) {
+            self.check_stalls(now);
+        }
         self.stranger_summary(now);
+    }
+
+    /// `conn` started receiving a large frame, or forwarding one as it
+    /// arrives: it is watched for stalling
+    /// ([`Config::frame_stall_timeout`](super::Config::frame_stall_timeout)).
+    pub(super) fn watch_frame(&mut self, conn: ConnId, now: SystemTime) {
+        let Some(limit) = self.config.frame_stall_timeout else {
+            return;
+        };
+        let Some(m) = self.modules.get_mut(&conn) else {
+            return;
+        };
+        m.frame_progress = now;
+        if !self.stall_watch.contains(&conn) {
+            self.stall_watch.push(conn);
+        }
+        if self.stall_check.is_none() {
+            self.stall_check = Some(now.checked_add(limit).unwrap_or(now));
+        }
+    }
+
+    /// Closes the watched connections whose frame has had no byte for
+    /// the stall timeout, forgets those whose frame is over, and says
+    /// when to look again.
+    fn check_stalls(&mut self, now: SystemTime) {
+        self.stall_check = None;
+        let Some(limit) = self.config.frame_stall_timeout else {
+            self.stall_watch.clear();
+            return;
+        };
+        let mut stalled = Vec::new();
+        let mut next: Option<SystemTime> = None;
+        self.stall_watch.retain(|&conn| {
+            let Some(m) = self.modules.get_mut(&conn) else {
+                return false;
+            };
+            if m.closed || (m.big_end.is_none() && m.relay.is_none()) {
+                return false;
+            }
+            if m.paused {
+                // central does not read it: its peer is not late
+                m.frame_progress = now;
+            }
+            let due = m.frame_progress.checked_add(limit).unwrap_or(now);
+            if due <= now {
+                stalled.push(conn);
+                return false;
+            }
+            next = Some(next.map_or(due, |n| n.min(due)));
+            true
+        });
+        self.stall_check = next;
+        for conn in stalled {
+            self.close_stalled(conn, limit, now);
+        }
+    }
+
+    fn close_stalled(&mut self, conn: ConnId, limit: std::time::Duration, now: SystemTime) {
+        let Some(m) = self.modules.get(&conn) else {
+            return;
+        };
+        let (what, got, total) = match (&m.relay, m.big_end) {
+            (Some(r), _) => (
+                "message (forwarded as it came)",
+                r.total - r.remaining,
+                r.total,
+            ),
+            (None, Some(end)) => ("frame", m.rx.len(), end),
+            (None, None) => return,
+        };
+        let secs = limit.as_secs_f64();
+        let why = format!(
+            "its {what} of {total} bytes stopped arriving ({got} received, none in {secs} s)"
+        );
+        if !self.stranger_quiet(conn) {
+            let who = self.describe(conn);
+            self.log_line(
+                Kind::Problem,
+                format!("WARNING: closing connection {who}: {why}"),
+            );
+        }
+        self.outputs.push_back(Output::Close { conn, reason: why });
+        self.close_module(conn, false, now);
     }
 
     /// A new connection has [`Config::handshake_timeout`] to name itself.
