@@ -788,6 +788,65 @@ fn a_full_table_of_idle_participants_makes_room_for_a_newcomer() {
         .any(|p| p.guid_prefix == net.hosts[3].node.guid_prefix()));
 }
 
+/// Remote endpoints are bounded in bytes as well as in number (audit 20:
+/// endpoints announcing 60 KB of type information each could take about
+/// 4 GiB within the 65 536-endpoint bound): past
+/// `max_remote_endpoint_bytes` a new one is not tracked and counted in
+/// `discovery_limited`; one that goes gives its bytes back.
+#[test]
+fn remote_endpoints_are_bounded_in_bytes() {
+    let mut net = Net::new(39, Faults::none());
+    // 2000 bytes of partition names per endpoint
+    let big = |topic: String| {
+        let mut q = EndpointQos::writer_default();
+        q.partitions = (0..10).map(|k| format!("{k}{}", "p".repeat(199))).collect();
+        EndpointConfig::writer(&topic, "t").qos(q)
+    };
+    for i in 0..2u8 {
+        let mut cfg = Config::udpv4(0, u32::from(i), guid_prefix([i + 1; 10]), LO)
+            .unwrap()
+            .with_unicast_peers(&[LO], 9);
+        if i == 0 {
+            // room for three of those endpoints, not four
+            cfg.max_remote_endpoint_bytes =
+                3 * (std::mem::size_of::<courier_wire::rtps::discovery::EndpointData>() + 2400);
+        }
+        let p = Participant::new(cfg, net.now(), net.wall());
+        net.add(p);
+    }
+    let now = net.now();
+    let ws: Vec<Guid> = (0..5)
+        .map(|k| {
+            net.hosts[1]
+                .node
+                .create_writer(big(format!("t{k}")), now)
+                .unwrap()
+        })
+        .collect();
+    net.run_for(Duration::from_secs(3));
+    assert_eq!(net.hosts[0].node.publications().count(), 3);
+    assert_eq!(net.hosts[0].node.stats().discovery_limited, 2);
+    // two of those tracked go: their room takes a new one
+    let tracked: Vec<Guid> = net.hosts[0].node.publications().map(|d| d.guid).collect();
+    let now = net.now();
+    for g in &tracked[..2] {
+        assert!(net.hosts[1].node.delete_writer(*g, now));
+    }
+    net.run_for(Duration::from_secs(2));
+    assert_eq!(net.hosts[0].node.publications().count(), 1);
+    let now = net.now();
+    let late = net.hosts[1]
+        .node
+        .create_writer(big("late".into()), now)
+        .unwrap();
+    net.run_for(Duration::from_secs(2));
+    assert!(
+        net.hosts[0].node.publications().any(|d| d.guid == late),
+        "room given back is used"
+    );
+    assert!(ws.contains(&tracked[2]));
+}
+
 /// A participant with a short lease (600 ms) that sends nothing else
 /// announces itself often enough: its peer keeps it for 10 s of idleness
 /// (with 3 s announcements it was lost and found again every few seconds).

@@ -190,6 +190,9 @@ pub struct Participant {
     readers: BTreeMap<EntityId, LocalReader>,
     remote_writers: BTreeMap<Guid, EndpointData>,
     remote_readers: BTreeMap<Guid, EndpointData>,
+    /// What the remote endpoints take ([`sedp::footprint`]), all together
+    /// ([`Config::max_remote_endpoint_bytes`]).
+    remote_endpoint_bytes: usize,
     replays: Vec<(EntityId, Guid, SequenceNumber, Envelope)>,
     reassembler: Reassembler,
     next_key: u32,
@@ -277,6 +280,7 @@ impl Participant {
             readers: BTreeMap::new(),
             remote_writers: BTreeMap::new(),
             remote_readers: BTreeMap::new(),
+            remote_endpoint_bytes: 0,
             replays: Vec::new(),
             reassembler: Reassembler::new(cfg.max_sample_size, cfg.reassembly_limit)
                 .with_spare_limit(cfg.spare_buffer_bytes),

@@ -148,6 +148,14 @@ pub struct Config {
     pub max_participants: usize,
     /// Remote writers plus readers tracked at most.
     pub max_remote_endpoints: usize,
+    /// Bytes the remote writers and readers tracked may hold, all
+    /// together (default 128 MiB; what each takes: its names, locators,
+    /// partitions and type information). A peer announcing endpoints with
+    /// 60 KB of type information each would otherwise take about 4 GiB
+    /// within [`max_remote_endpoints`](Self::max_remote_endpoints).
+    /// Beyond it a new endpoint is not tracked
+    /// ([`Stats::discovery_limited`](super::Stats::discovery_limited)).
+    pub max_remote_endpoint_bytes: usize,
     /// `PID_ENTITY_NAME` to announce, if any.
     pub entity_name: Option<String>,
 }
@@ -182,6 +190,7 @@ impl Config {
             max_out_of_order_bytes: 64 << 20,
             max_participants: 1024,
             max_remote_endpoints: 65_536,
+            max_remote_endpoint_bytes: 128 << 20,
             entity_name: None,
         }
     }

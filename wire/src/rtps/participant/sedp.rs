@@ -117,9 +117,19 @@ impl Participant {
         } else {
             (&mut self.remote_readers, self.remote_writers.len())
         };
+        let bytes = footprint(&data);
+        let held = self.remote_endpoint_bytes;
         let event = match map.get(&g) {
             Some(old) if *old == data => return,
-            Some(_) => {
+            Some(old) => {
+                let held = held - footprint(old);
+                if held + bytes > self.cfg.max_remote_endpoint_bytes {
+                    // (the endpoint as it was stays: what it announces now
+                    // is not taken)
+                    self.stats.discovery_limited += 1;
+                    return;
+                }
+                self.remote_endpoint_bytes = held + bytes;
                 map.insert(g, data.clone());
                 if publications {
                     Event::PublicationChanged(data)
@@ -128,10 +138,13 @@ impl Participant {
                 }
             }
             None => {
-                if map.len() + other >= self.cfg.max_remote_endpoints {
+                if map.len() + other >= self.cfg.max_remote_endpoints
+                    || held + bytes > self.cfg.max_remote_endpoint_bytes
+                {
                     self.stats.discovery_limited += 1;
                     return;
                 }
+                self.remote_endpoint_bytes = held + bytes;
                 map.insert(g, data.clone());
                 if publications {
                     Event::PublicationFound(data)
@@ -158,9 +171,10 @@ impl Participant {
     }
 
     pub(super) fn remote_writer_gone(&mut self, g: Guid) {
-        if self.remote_writers.remove(&g).is_none() {
+        let Some(old) = self.remote_writers.remove(&g) else {
             return;
-        }
+        };
+        self.remote_endpoint_bytes -= footprint(&old);
         let prefix = self.cfg.guid_prefix;
         for (e, lr) in self.readers.iter_mut() {
             if lr.matched.remove(&g) {
@@ -176,9 +190,10 @@ impl Participant {
     }
 
     pub(super) fn remote_reader_gone(&mut self, g: Guid) {
-        if self.remote_readers.remove(&g).is_none() {
+        let Some(old) = self.remote_readers.remove(&g) else {
             return;
-        }
+        };
+        self.remote_endpoint_bytes -= footprint(&old);
         let prefix = self.cfg.guid_prefix;
         for (e, lw) in self.writers.iter_mut() {
             if lw.matched.remove(&g) {
@@ -336,4 +351,23 @@ impl Participant {
             Err(_) => {}
         }
     }
+}
+
+/// What a remote endpoint's record takes: the record and what its names,
+/// locators, partitions and type information hold
+/// ([`Config::max_remote_endpoint_bytes`](super::Config::max_remote_endpoint_bytes)).
+/// A function of the record alone, so that what was added is what is
+/// taken off.
+pub(super) fn footprint(d: &EndpointData) -> usize {
+    std::mem::size_of::<EndpointData>()
+        + d.topic_name.len()
+        + d.type_name.len()
+        + (d.unicast.len() + d.multicast.len()) * std::mem::size_of::<crate::rtps::Locator>()
+        + d.type_information.as_ref().map_or(0, Vec::len)
+        + d.qos
+            .partitions
+            .iter()
+            .map(|p| p.len() + std::mem::size_of::<String>())
+            .sum::<usize>()
+        + d.qos.data_representation.len() * 2
 }
