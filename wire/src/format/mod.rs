@@ -52,7 +52,9 @@ mod wire;
 
 pub use fit::{fits, Misfit};
 pub use parse::{parse, parse_with, ParseError, MAX_NESTING};
-pub use registry::{equivalent, FormatRegistry, ResolveError, MAX_EXPANDED_NODES};
+pub use registry::{
+    equivalent, FormatRegistry, ResolveError, ENUM_BYTES_PER_NODE, MAX_EXPANDED_NODES,
+};
 pub use wire::{decode_formatter, encode_formatter};
 
 /// A primitive IPC type (ipc.md §9.3), with its formatter code (§9.7).

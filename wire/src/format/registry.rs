@@ -8,8 +8,13 @@ use super::Format;
 
 /// Most format nodes one expansion of named formats may produce, so that
 /// definitions that double at every level (`A = {B, B}`, `B = {C, C}`, …)
-/// cannot exhaust memory.
+/// cannot exhaust memory. An enum counts one node more per
+/// [`ENUM_BYTES_PER_NODE`] bytes of its names (each copy of a named enum
+/// holds its names again: 10 KB of names doubled 19 times were 5 GB).
 pub const MAX_EXPANDED_NODES: usize = 1 << 20;
+
+/// Bytes of enum names that count as one node of [`MAX_EXPANDED_NODES`].
+pub const ENUM_BYTES_PER_NODE: usize = 64;
 
 /// Why a format's named references could not be expanded, or why the
 /// expanded format is not a valid IPC format.
@@ -276,7 +281,20 @@ impl<'r> Expander<'r> {
         }
         Ok(match f {
             Format::Empty => return Err(ResolveError::EmptyInComposite),
-            Format::Primitive(_) | Format::Length(_) | Format::Enum { .. } => f.clone(),
+            Format::Enum { names, .. } => {
+                let bytes: usize = names
+                    .iter()
+                    .map(|n| n.len() + std::mem::size_of::<String>())
+                    .sum();
+                self.nodes += bytes / ENUM_BYTES_PER_NODE;
+                if self.nodes > MAX_EXPANDED_NODES {
+                    return Err(ResolveError::TooLarge {
+                        max: MAX_EXPANDED_NODES,
+                    });
+                }
+                f.clone()
+            }
+            Format::Primitive(_) | Format::Length(_) => f.clone(),
             Format::SelfPointer => {
                 if !in_struct {
                     return Err(ResolveError::SelfPointerOutsideStruct);
@@ -341,5 +359,57 @@ impl<'r> Expander<'r> {
                 }
             }
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `L0 = base`, `Lk = {L(k-1), L(k-1)}`: `Ln` expands to 2^n copies.
+    fn doubling(base: &str, levels: usize) -> FormatRegistry {
+        let mut reg = FormatRegistry::new();
+        reg.define("L0", base).unwrap();
+        for k in 1..=levels {
+            reg.define(&format!("L{k}"), &format!("{{L{0}, L{0}}}", k - 1))
+                .unwrap();
+        }
+        reg
+    }
+
+    #[test]
+    fn definitions_that_double_are_refused_past_the_node_bound() {
+        let reg = doubling("{int, int}", 30);
+        assert_eq!(
+            reg.resolve(&Format::Named("L30".into())),
+            Err(ResolveError::TooLarge {
+                max: MAX_EXPANDED_NODES
+            })
+        );
+        // well within it: expanded
+        assert!(reg.resolve(&Format::Named("L10".into())).is_ok());
+    }
+
+    /// Each copy of a named enum holds its names again: 12 KB of names
+    /// doubled 13 times was 100 MB from one lookup, within the node bound
+    /// (16 384 nodes). The names count now.
+    #[test]
+    fn enum_names_count_toward_the_bound() {
+        let names: Vec<String> = (0..100)
+            .map(|i| format!("N{i}_{}", "x".repeat(96)))
+            .collect();
+        let reg = doubling(&format!("{{enum {}}}", names.join(", ")), 13);
+        assert_eq!(
+            reg.resolve(&Format::Named("L13".into())),
+            Err(ResolveError::TooLarge {
+                max: MAX_EXPANDED_NODES
+            })
+        );
+        // a few copies are fine
+        let f = reg.resolve(&Format::Named("L3".into())).unwrap();
+        let Format::Struct(fields) = f else {
+            panic!("{f:?}")
+        };
+        assert_eq!(fields.len(), 2);
     }
 }
