@@ -191,8 +191,9 @@ pub fn memory_report(s: &Stats) -> Vec<String> {
         ));
     }
     lines.push(format!(
-        "  Modules: {}, messages defined: {}, frames received: {}, dropped by limits: {}",
-        s.modules, s.messages, s.frames_in, s.dropped
+        "  Modules: {}, messages defined: {} ({} bytes of definitions), frames received: {}, \
+         dropped by limits: {}",
+        s.modules, s.messages, s.definition_bytes, s.frames_in, s.dropped
     ));
     lines
 }

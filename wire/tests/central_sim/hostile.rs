@@ -385,3 +385,69 @@ fn large_frames_in_progress_are_bounded_all_connections_together() {
         "b is read again and its frame goes on"
     );
 }
+
+/// Definitions outlive their module (as in C), so modules defining ever
+/// new messages grew central without end (audit 20: 20 × 10 000
+/// definitions with 4 KB formats made 979 MB). Past
+/// `max_definition_bytes` a new definition, subscription to an unknown
+/// message or named format is refused with a warning; what is defined
+/// stays usable, and redefining it with no more bytes is taken.
+#[test]
+fn definitions_are_bounded_in_bytes() {
+    let mut config = untimed();
+    let base = Central::new(config.clone()).stats().definition_bytes;
+    config.max_definition_bytes = base + 20_000;
+    let mut sim = Sim::new(config);
+    let m = sim.connect("definer");
+    let format = format!("{{{}int}}", "int, ".repeat(200)); // 1006 bytes
+    for i in 0..40 {
+        define(&mut sim, m, &format!("m{i}"), &format);
+    }
+    sim.pump();
+    let held = sim.central().stats().definition_bytes;
+    assert!(held <= base + 20_000, "{held}");
+    assert!(held > base + 15_000, "{held}");
+    assert!(sim.central().message_id("m0").is_some());
+    assert!(sim.central().message_id("m39").is_none());
+    let refused: Vec<&String> = sim
+        .logs
+        .iter()
+        .filter(|l| l.contains("refused: definitions hold"))
+        .collect();
+    assert!(
+        refused
+            .first()
+            .is_some_and(|l| l.starts_with("WARNING: message m")
+                && l.ends_with("central keeps (max_definition_bytes)")),
+        "{:#?}",
+        sim.logs
+    );
+    // subscriptions to messages nobody defined are refused too, once
+    // they fill what is left (from another module: the definer's warnings
+    // are past their budget)
+    let other = sim.connect("other");
+    for i in 0..10 {
+        sim.m(other)
+            .subscribe(&format!("unknown{i}"), &format!("HND-{i}"))
+            .unwrap();
+    }
+    sim.pump();
+    assert!(sim.central().stats().definition_bytes <= base + 20_000);
+    assert!(
+        sim.logs
+            .iter()
+            .any(|l| l.contains("handler HND-9 of message unknown9 (not defined yet) refused")),
+        "{:#?}",
+        sim.logs
+    );
+    // what is defined is served: redefined alike, subscribed, published
+    define(&mut sim, m, "m0", &format);
+    let reader = sim.connect("reader");
+    sim.m(reader).subscribe("m0", "HND-m0").unwrap();
+    sim.pump();
+    sim.m(m).publish("m0", vec![0u8; 201 * 4], -1).unwrap();
+    sim.pump();
+    assert_eq!(sim.deliveries(reader).len(), 1);
+    assert!(sim.central().stats().definition_bytes <= base + 20_000);
+    sim.central().check_invariants();
+}

@@ -220,6 +220,15 @@ pub struct Config {
     /// the connection. Time while central itself does not read the
     /// connection does not count. `None`: never, as in C. Default 30 s.
     pub frame_stall_timeout: Option<std::time::Duration>,
+    /// Bytes central keeps for what modules define, all together: message
+    /// names and formats (also those only subscribed to so far) and named
+    /// formats, each with its bookkeeping (default 64 MiB, a hundred times
+    /// a large system's). Definitions outlive their module, as in C, so
+    /// modules defining ever new messages (20 × 10 000 with 4 KB formats
+    /// made 979 MB) would grow central without end. Past it a new
+    /// definition, subscription to an unknown message or named format is
+    /// refused with a warning line; redefining with no more bytes is not.
+    pub max_definition_bytes: usize,
 }
 
 impl Default for Config {
@@ -243,6 +252,7 @@ impl Default for Config {
             send_ahead: BTreeMap::new(),
             handshake_timeout: Some(std::time::Duration::from_secs(10)),
             frame_stall_timeout: Some(std::time::Duration::from_secs(30)),
+            max_definition_bytes: 64 << 20,
         }
     }
 }

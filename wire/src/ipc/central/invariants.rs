@@ -55,7 +55,30 @@ impl Central {
         self.check_waiting(&dense, &mut out);
         self.check_handlers(&mut out);
         self.check_modules(&mut out);
+        self.check_definition_bytes(&mut out);
         out
+    }
+
+    /// What definitions hold is what the tables hold.
+    fn check_definition_bytes(&self, out: &mut Vec<String>) {
+        use super::tables::{msg_bytes, named_format_bytes, MSG_BYTES};
+        let msgs: usize = self
+            .msgs
+            .values()
+            .map(|m| MSG_BYTES + m.name.len() + msg_bytes(&m.msg_format, &m.res_format))
+            .sum();
+        let named: usize = self
+            .formats
+            .iter()
+            .map(|(n, f)| named_format_bytes(n, f))
+            .sum();
+        if msgs + named != self.definition_bytes {
+            out.push(format!(
+                "definitions hold {} bytes by the tables, {} by the count",
+                msgs + named,
+                self.definition_bytes
+            ));
+        }
     }
 
     fn check_msg_ids(&self, out: &mut Vec<String>) {

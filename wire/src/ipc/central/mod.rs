@@ -236,6 +236,9 @@ pub struct Stats {
     /// Message names central knows: its own, those defined by modules, and
     /// those only subscribed so far.
     pub messages: usize,
+    /// Bytes the definitions hold
+    /// ([`Config::max_definition_bytes`]).
+    pub definition_bytes: usize,
 }
 
 /// The IPC central server's state.
@@ -268,6 +271,8 @@ pub struct Central {
     /// Bytes ever queued for messages a module sent (not central's own
     /// broadcasts): whether a read added any (see `receive`).
     queued_by_modules: u64,
+    /// What definitions hold ([`Config::max_definition_bytes`]).
+    definition_bytes: usize,
     /// Of those, modules held back while they answer a query.
     answer_paused: HashSet<ConnId>,
     /// When central last said it holds modules back for memory, and how
@@ -332,6 +337,7 @@ impl Central {
             stats: Stats::default(),
             memory_paused: HashSet::new(),
             queued_by_modules: 0,
+            definition_bytes: 0,
             frame_waiters: Vec::new(),
             answer_paused: HashSet::new(),
             memory_said: crate::throttle::Throttle::new(memory::MEMORY_LINE_EVERY),
@@ -347,6 +353,11 @@ impl Central {
         let _ = c
             .formats
             .define("directMsgHandler", "{int, int, int, int, string, string}");
+        c.definition_bytes = c
+            .formats
+            .iter()
+            .map(|(n, f)| tables::named_format_bytes(n, f))
+            .sum();
         for d in internal::table() {
             c.register_internal(d);
         }
@@ -390,6 +401,7 @@ impl Central {
         s.waiting_for_handler = self.msgs.values().map(|m| m.waiting.len()).sum();
         s.kept_for_resend = self.kept.len();
         s.messages = self.msgs.len();
+        s.definition_bytes = self.definition_bytes;
         s
     }
 

@@ -6,7 +6,7 @@ use std::time::SystemTime;
 use super::direct::{write_direct_entry, write_direct_list};
 use super::internal::{self, Internal};
 use super::log::Kind;
-use super::tables::{DispatchId, Linked, MsgId, Org};
+use super::tables::{named_format_bytes, DispatchId, Linked, MsgId, Org, MSG_BYTES};
 use super::{Bad, Body, Central, ConnId, Output, SERVER_NAME, VERSION};
 use crate::ipc::frame::{Header, MsgClass};
 use crate::ipc::{introspect, ByteOrder, Reader, Writer};
@@ -147,11 +147,20 @@ impl Central {
             RegisterNamedForm => {
                 let n = read_opt_str(&mut r)?.unwrap_or_default();
                 let f = read_opt_str(&mut r)?.unwrap_or_default();
-                if let Err(e) = self.formats.define(&n, &f) {
-                    self.complain(
+                let before = self
+                    .formats
+                    .get(&n)
+                    .map_or(0, |f| named_format_bytes(&n, f));
+                let after = crate::format::parse(&f).map_or(0, |f| named_format_bytes(&n, &f));
+                let room = after <= before
+                    || self.room_for_definition(conn, after - before, &format!("named format {n}"));
+                match room.then(|| self.formats.define(&n, &f)) {
+                    None => {}
+                    Some(Ok(())) => self.definition_bytes = self.definition_bytes + after - before,
+                    Some(Err(e)) => self.complain(
                         conn,
                         format!("WARNING: bad named format {n} = \"{f}\" from {org_name}: {e}"),
-                    );
+                    ),
                 }
                 for m in self.msgs.values_mut() {
                     m.parsed = None;
@@ -244,7 +253,15 @@ impl Central {
             SetMsgPriority => {
                 let n = read_opt_str(&mut r)?.unwrap_or_default();
                 let p = r.read_i32()?;
-                self.placeholder(&n).priority = p;
+                if self.msgs.contains_key(&n)
+                    || self.room_for_definition(
+                        conn,
+                        MSG_BYTES + n.len(),
+                        &format!("priority of message {n} (not defined yet)"),
+                    )
+                {
+                    self.placeholder(&n).priority = p;
+                }
             }
             RegisterResource => {
                 let cap = r.read_i32()?;

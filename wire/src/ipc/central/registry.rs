@@ -8,7 +8,7 @@ use std::time::SystemTime;
 use super::direct::direct_class;
 use super::internal;
 use super::log::Kind;
-use super::tables::{cost, DispatchId, Handler, Linked, Status};
+use super::tables::{cost, msg_bytes, DispatchId, Handler, Linked, Status, MSG_BYTES};
 use super::{Bad, Central, ConnId, Output};
 use crate::ipc::frame::MsgClass;
 use crate::ipc::Writer;
@@ -116,6 +116,15 @@ impl Central {
             );
             return Ok(());
         };
+        let before = self.msgs.get(&name).map_or(0, |m| {
+            MSG_BYTES + name.len() + msg_bytes(&m.msg_format, &m.res_format)
+        });
+        let after = MSG_BYTES + name.len() + msg_bytes(&mf, &rf);
+        if after > before
+            && !self.room_for_definition(conn, after - before, &format!("message {name}"))
+        {
+            return Ok(());
+        }
         if let Some(m) = self.msgs.get(&name) {
             if m.internal.is_some() {
                 self.complain(
@@ -160,6 +169,15 @@ impl Central {
         // The broadcast list before this registration changes it.
         let list_before = self.var_version(internal::BROADCAST_MSG_VAR);
         let class = self.msgs.get(&msg).map(|m| m.class);
+        if class.is_none()
+            && !self.room_for_definition(
+                conn,
+                MSG_BYTES + msg.len(),
+                &format!("handler {hnd} of message {msg} (not defined yet)"),
+            )
+        {
+            return Ok(());
+        }
         let existed = class.is_some_and(|c| c != MsgClass::HandlerReg);
         if class == Some(MsgClass::Broadcast) {
             self.record_broadcast(&msg, true);
@@ -399,5 +417,26 @@ impl Central {
             }
         }
         Ok(())
+    }
+}
+
+impl Central {
+    /// Whether definitions may take `more` bytes
+    /// ([`Config::max_definition_bytes`](super::Config::max_definition_bytes));
+    /// if not, says so on behalf of `conn` (`what`: what is refused).
+    pub(super) fn room_for_definition(&mut self, conn: ConnId, more: usize, what: &str) -> bool {
+        if self.definition_bytes + more <= self.config.max_definition_bytes {
+            return true;
+        }
+        let held = self.definition_bytes;
+        let max = self.config.max_definition_bytes;
+        self.complain(
+            conn,
+            format!(
+                "WARNING: {what} refused: definitions hold {held} bytes, and {more} more \
+                 would pass the {max} central keeps (max_definition_bytes)"
+            ),
+        );
+        false
     }
 }

@@ -426,6 +426,11 @@ impl Central {
         internal: Option<Internal>,
     ) -> MsgId {
         let existed = self.msgs.contains_key(&name);
+        self.definition_bytes = self.definition_bytes + msg_bytes(&msg_format, &res_format)
+            - self
+                .msgs
+                .get(&name)
+                .map_or(0, |m| msg_bytes(&m.msg_format, &m.res_format));
         let m = self.placeholder(&name);
         let was_placeholder = existed && m.class == MsgClass::HandlerReg;
         let known = m.id;
@@ -457,6 +462,9 @@ impl Central {
     /// is not known: a subscription or a priority may come before the
     /// message is defined.
     pub(super) fn placeholder(&mut self, name: &str) -> &mut Msg {
+        if !self.msgs.contains_key(name) {
+            self.definition_bytes += MSG_BYTES + name.len();
+        }
         self.msgs.entry(name.to_string()).or_insert_with(|| Msg {
             id: None,
             name: name.to_string(),
@@ -475,21 +483,116 @@ impl Central {
 
     /// Parsed formats of a message (named formats expanded as C does when
     /// it parses at lookup time; an unknown name stays `Named`).
+    ///
+    /// Kept for the next lookup unless named formats made it much larger
+    /// than its strings ([`CACHED_NODES`]): three bytes naming a format
+    /// that doubles at every level expand to a million nodes, which every
+    /// message defined so would have kept.
     pub(super) fn parsed(&mut self, name: &str) -> (Option<Format>, Option<Format>) {
         let reg = &self.formats;
         let Some(m) = self.msgs.get_mut(name) else {
             return (None, None);
         };
-        if m.parsed.is_none() {
-            let p = |s: &Option<String>| -> Option<Format> {
-                let s = s.as_deref()?;
-                if s.is_empty() {
-                    return None;
-                }
-                parse_with(s, reg).or_else(|_| parse(s)).ok()
-            };
-            m.parsed = Some((p(&m.msg_format), p(&m.res_format)));
+        if let Some(p) = &m.parsed {
+            return p.clone();
         }
-        m.parsed.clone().unwrap_or((None, None))
+        let p = |s: &Option<String>| -> Option<Format> {
+            let s = s.as_deref()?;
+            if s.is_empty() {
+                return None;
+            }
+            parse_with(s, reg).or_else(|_| parse(s)).ok()
+        };
+        let parsed = (p(&m.msg_format), p(&m.res_format));
+        let nodes =
+            parsed.0.as_ref().map_or(0, node_count) + parsed.1.as_ref().map_or(0, node_count);
+        let source = m.msg_format.as_ref().map_or(0, String::len)
+            + m.res_format.as_ref().map_or(0, String::len);
+        if nodes <= CACHED_NODES.max(source) {
+            m.parsed = Some(parsed.clone());
+        }
+        parsed
+    }
+}
+
+/// What a message's entry takes besides its name and formats
+/// ([`Config::max_definition_bytes`](super::Config::max_definition_bytes)).
+pub(super) const MSG_BYTES: usize = 256;
+
+/// What a message's formats take.
+pub(super) fn msg_bytes(mf: &Option<String>, rf: &Option<String>) -> usize {
+    mf.as_ref().map_or(0, String::len) + rf.as_ref().map_or(0, String::len)
+}
+
+/// What a named format takes: its name, nodes and bookkeeping.
+pub(super) fn named_format_bytes(name: &str, f: &Format) -> usize {
+    MSG_BYTES / 2 + name.len() + node_count(f) * std::mem::size_of::<Format>()
+}
+
+/// Nodes of a parsed format central keeps for the next lookup, at least:
+/// more if its strings are longer than that (see [`Central::parsed`]).
+const CACHED_NODES: usize = 4096;
+
+/// The nodes of a format, an enum's names counting as
+/// [`MAX_EXPANDED_NODES`](crate::format::MAX_EXPANDED_NODES) counts them.
+fn node_count(f: &Format) -> usize {
+    1 + match f {
+        Format::Enum { names, .. } => {
+            names
+                .iter()
+                .map(|n| n.len() + std::mem::size_of::<String>())
+                .sum::<usize>()
+                / crate::format::ENUM_BYTES_PER_NODE
+        }
+        Format::Struct(fields) => fields.iter().map(node_count).sum(),
+        Format::Pointer(inner) => node_count(inner),
+        Format::FixedArray { elem, .. } | Format::VarArray { elem, .. } => node_count(elem),
+        Format::Empty
+        | Format::Primitive(_)
+        | Format::Length(_)
+        | Format::SelfPointer
+        | Format::Named(_) => 0,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::Config;
+    use super::*;
+
+    /// A message whose three-byte format names a definition that doubles
+    /// at every level is answered, but its 262 143-node expansion is not
+    /// kept (each such message kept one); an ordinary one is.
+    #[test]
+    fn expansions_much_larger_than_their_strings_are_not_kept() {
+        let mut c = Central::new(Config::default());
+        c.formats.define("L0", "{int, int}").unwrap();
+        for k in 1..=16 {
+            c.formats
+                .define(&format!("L{k}"), &format!("{{L{0}, L{0}}}", k - 1))
+                .unwrap();
+        }
+        c.insert_msg(
+            "big".into(),
+            MsgClass::Inform,
+            Some("L16".into()),
+            None,
+            None,
+        );
+        c.insert_msg(
+            "small".into(),
+            MsgClass::Inform,
+            Some("{int, L2}".into()),
+            None,
+            None,
+        );
+        let (big, _) = c.parsed("big");
+        assert_eq!(big.as_ref().map(node_count), Some(262_143));
+        assert!(c.msgs["big"].parsed.is_none());
+        let (small, _) = c.parsed("small");
+        assert_eq!(small.as_ref().map(node_count), Some(17));
+        assert!(c.msgs["small"].parsed.is_some());
+        // and a kept one is what a new lookup gives
+        assert_eq!(c.parsed("small").0, small);
     }
 }
