@@ -185,3 +185,107 @@ fn frames_in_progress_on_direct_links_are_bounded_all_together() {
     c.receive_direct(e2, &small).unwrap();
     c.receive_direct(a, &[1u8; 10_000]).unwrap();
 }
+
+/// A query to a direct message with one receiver at port 8000: the op,
+/// the link it went out on, and its msgRef.
+fn direct_query(
+    c: &mut courier_wire::ipc::module::Connection,
+) -> (courier_wire::ipc::module::OpId, LinkId, i32) {
+    let op = c.query("dq2", b"xy".to_vec(), -1).unwrap();
+    c.answer_lookup("dq2", -116, 3, "{int, <byte:1>}", "string");
+    let f = c.answer_direct_msg_query_lookup();
+    let mut w = Writer::new();
+    w.write_i32(1);
+    w.write_i32(1);
+    w.write_i32(198);
+    w.write_i32(0);
+    w.write_i32(0);
+    w.write_i32(8000);
+    w.write_str("a");
+    w.write_str("mod");
+    c.send(&reply_frame(f[0].header.msg_ref, &w.into_vec()));
+    c.frames();
+    let mut link = None;
+    while let Some(e) = c.poll_event() {
+        if let Event::DirectConnect { link: l, .. } = e {
+            link = Some(l);
+        }
+    }
+    let link = link.expect("a link to the receiver");
+    c.direct_link_up(link);
+    let (l, bytes) = c.poll_direct_transmit().unwrap();
+    assert_eq!(l, link);
+    (op, link, Header::decode(&bytes).unwrap().msg_ref)
+}
+
+/// A module's direct listener takes connections from anyone (audit 22: a
+/// stranger sent replies for msgRefs 1..400 and `courier call` printed
+/// its forged answer; the real one was dropped). Only the link a query
+/// went out on answers it; a reply on another link, or from central, is
+/// ignored.
+#[test]
+fn a_direct_query_is_answered_only_on_its_link() {
+    let mut c = by_hand(true);
+    let (op, link, r) = direct_query(&mut c);
+    let stranger = c.accept_direct();
+    c.receive_direct(stranger, &reply_frame(r, &str_data("forged")))
+        .unwrap();
+    c.send(&reply_frame(r, &str_data("from central")));
+    assert_eq!(c.poll_event(), None, "neither is taken");
+    c.receive_direct(link, &reply_frame(r, &str_data("real")))
+        .unwrap();
+    match c.poll_event() {
+        Some(Event::Reply { query, data, .. }) => {
+            assert_eq!(query, op);
+            assert_eq!(data, str_data("real"));
+        }
+        other => panic!("{other:?}"),
+    }
+    // a second answer on the right link is a late one: ignored
+    c.receive_direct(link, &reply_frame(r, &str_data("again")))
+        .unwrap();
+    assert_eq!(c.poll_event(), None);
+    assert!(c.is_connected());
+}
+
+/// A frame for one of central's handlers that came on a direct link ended
+/// the whole session when it did not decode (audit 22: 32 bytes for the
+/// broadcast-list handler, "undecodable string list from central"); a
+/// frame naming another message was delivered as the handler's. Both
+/// close the link only, and say why.
+#[test]
+fn link_frames_for_central_handlers_or_other_messages_close_the_link_only() {
+    let mut c = by_hand(true);
+    c.subscribe("dq", "HND-dq").unwrap();
+    c.take_registration();
+    // handler ids central's own handlers took at connect
+    let mut refused = 0;
+    for internal in (1..1000).filter(|i| *i != 198) {
+        let link = c.accept_direct();
+        let f = frame(internal, MsgClass::Broadcast, -1, 5, &[], &[0; 4]);
+        match c.receive_direct(link, &f) {
+            Ok(()) => {} // an id nobody has: dropped
+            Err(e) => {
+                refused += 1;
+                let e = e.to_string();
+                assert!(
+                    e.starts_with("direct link: a frame for central's handler"),
+                    "{e}"
+                );
+            }
+        }
+        c.direct_link_closed(link);
+    }
+    assert!(refused >= 1, "{refused}");
+    assert!(c.is_connected());
+    let mut cd = Writer::new();
+    cd.write_str("other");
+    let link = c.accept_direct();
+    let f = frame(198, MsgClass::Broadcast, -1, 6, &cd.into_vec(), &[0; 8]);
+    assert_eq!(
+        c.receive_direct(link, &f).unwrap_err().to_string(),
+        "direct link: a frame of message other for handler HND-dq of message dq"
+    );
+    assert!(c.is_connected());
+    assert_eq!(c.poll_event(), None, "nothing delivered");
+}

@@ -126,9 +126,17 @@ impl Connection {
             (Ok(data), _) => data,
             (Err(error), Some(HandlerKind::User) | None) => {
                 // No Success on direct links (§8).
-                if d.link.is_none() {
-                    self.send_success(h.msg_ref);
-                }
+                let error = match (d.link, error) {
+                    (None, e) => {
+                        self.send_success(h.msg_ref);
+                        e
+                    }
+                    // (the data came from a direct link, not from central)
+                    (Some(_), Error::Protocol { what, detail }) => {
+                        Error::DirectLink(format!("undecodable {what}: {detail}"))
+                    }
+                    (Some(_), e) => e,
+                };
                 self.events.push_back(Event::Undeliverable {
                     handler: h.intent,
                     msg: d.msg,

@@ -2,12 +2,16 @@
 //! modules, the handler lists that name them, and sends that wait for
 //! their links.
 
+use super::delivery::HandlerKind;
 use super::event::Event;
 use super::ops::Op;
 use super::proto::{self, MsgInfo};
 use super::replies::Pending;
-use super::{Connection, DirectHandler, Error, Link, LinkId, LINK_WAIT, MAX_QUEUED_DELIVERIES};
+use super::{
+    class_order, Connection, DirectHandler, Error, Link, LinkId, LINK_WAIT, MAX_QUEUED_DELIVERIES,
+};
 use crate::ipc::frame::{ClassId, Deframer, Frame, Header, MsgClass, NO_REF, QUERY_REPLY_INTENT};
+use crate::ipc::Reader;
 
 impl Connection {
     /// Reports the direct listener's port (after [`Event::DirectListenRequested`]):
@@ -64,7 +68,17 @@ impl Connection {
                 Err(e) => return Err(Error::DirectLink(format!("bad frame: {e}"))),
             };
             if frame.header.intent == QUERY_REPLY_INTENT {
-                self.handle_reply(frame)?;
+                // Only the link a query went out on answers it (a listener
+                // takes connections from anyone: a stranger answered other
+                // modules' queries, and central's lookups). Others, and late
+                // answers to cancelled queries, are ignored.
+                let r = frame.header.msg_ref;
+                if self.reply_links.get(&r) == Some(&link) {
+                    self.reply_links.remove(&r);
+                    self.handle_reply(frame)?;
+                }
+            } else if let Err(why) = self.check_link_delivery(&frame) {
+                return Err(Error::DirectLink(why));
             } else if self.inbox.len() >= MAX_QUEUED_DELIVERIES {
                 return Err(Error::DirectLink(format!(
                     "more than {MAX_QUEUED_DELIVERIES} unprocessed deliveries"
@@ -130,6 +144,8 @@ impl Connection {
     /// port of one that left, say), instead of frames for a dead link.
     pub fn direct_link_closed(&mut self, link: LinkId) {
         self.links.retain(|_, l| l.id != link);
+        // (its queries stay pending: their timeouts are the shell's)
+        self.reply_links.retain(|_, l| *l != link);
         self.link_in.remove(&link);
         if self.blocked == Some(LINK_WAIT) {
             // a send waiting for its links looks again (and links anew)
@@ -272,10 +288,12 @@ impl Connection {
         } else {
             list.iter().rev().collect()
         };
+        let mut sent_on = None;
         for h in targets {
             let Some(link) = self.links.get(&(h.host.clone(), h.port)).map(|l| l.id) else {
                 continue;
             };
+            sent_on = Some(link);
             let frame = Frame {
                 header: Header {
                     class_total: 0,
@@ -294,8 +312,47 @@ impl Connection {
         if query {
             self.pending.insert(msg_ref, Pending::UserQuery(op_id));
             self.query_refs.insert(op_id, msg_ref);
+            if let Some(link) = sent_on {
+                self.reply_links.insert(msg_ref, link);
+            }
         } else {
             self.events.push_back(Event::Published { op: op_id });
+        }
+    }
+
+    /// Whether a frame that came on a direct link may be delivered: a
+    /// peer sends only to our user handlers, for the message each handles.
+    /// A frame for one of central's handlers (the broadcast list, connect
+    /// notices, variables) ended the whole session when it did not decode,
+    /// and one naming another message was delivered as the handler's.
+    /// A handler we do not have is let through (and dropped): a peer's
+    /// list may lag an unsubscribe.
+    fn check_link_delivery(&self, frame: &Frame) -> Result<(), String> {
+        let Some(h) = self.handlers.get(&frame.header.intent) else {
+            return Ok(());
+        };
+        if h.kind != HandlerKind::User {
+            return Err(format!(
+                "a frame for central's handler {} ({}), which direct links do not carry",
+                frame.header.intent, h.msg
+            ));
+        }
+        if frame.class_data.is_empty() {
+            return Ok(());
+        }
+        let named = class_order(&frame.header).ok().and_then(|o| {
+            Reader::new(&frame.class_data, o)
+                .read_str()
+                .ok()
+                .map(str::to_string)
+        });
+        match named {
+            Some(m) if m == h.msg => Ok(()),
+            Some(m) => Err(format!(
+                "a frame of message {m} for handler {} of message {}",
+                h.name, h.msg
+            )),
+            None => Err("a frame whose class data does not decode".into()),
         }
     }
 }

@@ -246,6 +246,9 @@ pub struct Connection {
     /// that a cancel finds it at once (a timed-out or dropped query each
     /// cancels one).
     query_refs: HashMap<OpId, i32>,
+    /// The direct link each query sent on one went out on (by `pending`
+    /// key): only that link may answer it, and central may not.
+    reply_links: HashMap<i32, LinkId>,
     handlers: HashMap<i32, Handler>,
     by_name: HashMap<(String, String), i32>,
     /// Ids of unsubscribed handlers, kept for the same (message, handler
@@ -308,6 +311,7 @@ impl Connection {
             blocked: None,
             pending: HashMap::new(),
             query_refs: HashMap::new(),
+            reply_links: HashMap::new(),
             handlers: HashMap::new(),
             by_name: HashMap::new(),
             retired: HashMap::new(),
@@ -408,6 +412,7 @@ impl Connection {
     pub fn cancel_query(&mut self, query: OpId) {
         if let Some(r) = self.query_refs.remove(&query) {
             self.pending.remove(&r);
+            self.reply_links.remove(&r);
             return;
         }
         let is_it = |o: &Op| matches!(o, Op::Query { op, .. } if *op == query);
@@ -482,6 +487,11 @@ impl Connection {
             _ => {
                 let h = f.header;
                 if h.intent == QUERY_REPLY_INTENT {
+                    if self.reply_links.contains_key(&h.msg_ref) {
+                        // a query sent on a direct link: its answer comes
+                        // on that link, not from central
+                        return Ok(());
+                    }
                     self.handle_reply(f)
                 } else if h.intent >= 0 {
                     self.handle_delivery(f)
