@@ -131,6 +131,16 @@ pub enum OpenError {
         /// a status carries no text.
         hint: String,
     },
+    /// IPC: central did not answer within
+    /// [`CENTRAL_ANSWER_TIMEOUT`](crate::CENTRAL_ANSWER_TIMEOUT) (a central that
+    /// stopped answering, or held this module back that long).
+    #[error("no answer to {what} within {after:?}")]
+    Timeout {
+        /// What was asked.
+        what: String,
+        /// The bound.
+        after: Duration,
+    },
     /// The XRCE agent did not answer the creation in time.
     #[error("the XRCE agent did not confirm the entities of {topic} within {after:?}")]
     NoAnswer {
@@ -542,6 +552,24 @@ macro_rules! failure {
     };
 }
 failure!(OpenError, PublishError, ControlError);
+
+/// The errors of operations that wait for an answer, and give up.
+pub(crate) trait TimedOut {
+    /// No answer to `what` within `after`.
+    fn timed_out(what: String, after: Duration) -> Self;
+}
+
+impl TimedOut for OpenError {
+    fn timed_out(what: String, after: Duration) -> Self {
+        OpenError::Timeout { what, after }
+    }
+}
+
+impl TimedOut for ControlError {
+    fn timed_out(what: String, after: Duration) -> Self {
+        ControlError::Timeout { what, after }
+    }
+}
 
 /// Any Courier error: each per-operation error converts into it, so that
 /// `?` works across them in code returning `Result<_, courier::Error>`.

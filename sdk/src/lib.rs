@@ -440,7 +440,7 @@ pub use courier_wire::{
 };
 pub use error::{ControlError, Error, OpenError, PublishError};
 pub use event::{DurabilityKind, EndpointInfo, Guid, ParticipantInfo, QosSummary};
-pub use ipc_backend::IpcStream;
+pub use ipc_backend::{IpcStream, CENTRAL_ANSWER_TIMEOUT};
 pub use qos::{DataRepresentation, Durability, History, KeyOf, Reliability};
 pub use rtps_backend::{Ros2Node, Ros2NodeName, RtpsOptions, ServiceStyle};
 pub use session::{

@@ -152,7 +152,17 @@ pub(super) struct Driver {
     pub(super) stop: Arc<tokio::sync::Notify>,
     /// `Disconnected` was reported and `Reconnected` not since.
     pub(super) reported_down: bool,
+    /// A close waits for central's answers to what is outstanding until
+    /// then ([`CLOSE_WAIT`]).
+    pub(super) close_by: Option<tokio::time::Instant>,
+    /// Cleared when central sends anything (see `IpcBackend::silent`).
+    pub(super) central_silent: Arc<std::sync::atomic::AtomicBool>,
 }
+
+/// How long a close waits for central to answer what is outstanding (a
+/// lookup, a question): a central that stopped answering held
+/// `Session::close` for ever (audit 22).
+const CLOSE_WAIT: std::time::Duration = std::time::Duration::from_secs(5);
 
 impl Drop for Driver {
     /// A driver task dropped before it ended (its runtime was shut down
@@ -207,6 +217,10 @@ impl Driver {
             if self.closing.is_some() && !self.conn.is_waiting() {
                 break;
             }
+            if (closed || self.closing.is_some()) && self.close_by.is_none() {
+                self.close_by = Some(tokio::time::Instant::now() + CLOSE_WAIT);
+            }
+            let close_by = self.close_by;
             tokio::select! {
                 cmd = rx.recv() => match cmd {
                     Some(c) => self.command(c),
@@ -215,6 +229,17 @@ impl Driver {
                         closed = true;
                     }
                 },
+                () = tokio::time::sleep_until(close_by.unwrap_or_else(tokio::time::Instant::now)),
+                    if close_by.is_some() =>
+                {
+                    tracing::warn!(
+                        "closing without central's answer to what was outstanding: it did not \
+                         answer within {CLOSE_WAIT:?}"
+                    );
+                    let wait = std::time::Duration::from_millis(100);
+                    let _ = tokio::time::timeout(wait, self.flush()).await;
+                    break;
+                }
                 n = self.io.read(&mut buf) => match n {
                     Ok(0) | Err(_) => {
                         if self.lost(closed, &mut rx).await {
@@ -222,7 +247,11 @@ impl Driver {
                         }
                         break;
                     }
-                    Ok(n) => self.conn.receive(&buf[..n], Instant::now()),
+                    Ok(n) => {
+                        self.central_silent
+                            .store(false, std::sync::atomic::Ordering::Relaxed);
+                        self.conn.receive(&buf[..n], Instant::now());
+                    }
                 },
             }
             if closed && !self.conn.is_waiting() {

@@ -32,7 +32,7 @@ use crate::backend::{
 };
 use crate::busy_poll::BusyPoll;
 use crate::direct_link::LinkWriter;
-use crate::error::{ControlError, Failure, OpenError, PublishError};
+use crate::error::{ControlError, Failure, OpenError, PublishError, TimedOut};
 use crate::hub::{Hub, Listener};
 use crate::mailbox::{mailbox, Inbox, Mailbox};
 use crate::qos::{PublicationQos, SubscriptionQos, TypeInfo};
@@ -49,6 +49,12 @@ use courier_wire::ipc::ByteOrder;
 
 /// The C library's default central port.
 pub const DEFAULT_PORT: u16 = 1381;
+
+/// How long an IPC session waits for central to answer a definition,
+/// subscription, lookup or other question before the call fails with a
+/// `Timeout` error naming it. Publishing is not bounded by it: a publish
+/// waits while central holds this module back for memory.
+pub const CENTRAL_ANSWER_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// Options of the IPC backend.
 #[derive(Debug, Clone)]
@@ -135,6 +141,11 @@ pub struct IpcBackend {
     defined: std::sync::Mutex<HashMap<String, Option<String>>>,
     /// Tells the driver to give up a write central does not take (close).
     stop: Arc<tokio::sync::Notify>,
+    /// A question to central went unanswered for [`CENTRAL_ANSWER_TIMEOUT`]
+    /// and central has sent nothing since (the driver clears it when bytes
+    /// come): later questions fail at once rather than each waiting the
+    /// bound again behind the first (the connection answers them in order).
+    silent: Arc<std::sync::atomic::AtomicBool>,
 }
 
 /// What undoes an operation whose future is dropped half-way (a `timeout`
@@ -258,6 +269,7 @@ impl IpcBackend {
         let (tx, rx) = mailbox(crate::mailbox::CAPACITY);
         let events = Hub::new(crate::hub::DEFAULT_CAPACITY);
         let stop = Arc::new(tokio::sync::Notify::new());
+        let silent = Arc::new(std::sync::atomic::AtomicBool::new(false));
         let driver = Driver {
             conn,
             io,
@@ -292,6 +304,8 @@ impl IpcBackend {
             failed: false,
             stop: stop.clone(),
             reported_down: false,
+            close_by: None,
+            central_silent: silent.clone(),
         };
         if let Some(l) = listener {
             spawn_accept(l, tx.clone());
@@ -307,6 +321,7 @@ impl IpcBackend {
             names: Default::default(),
             defined: Default::default(),
             stop,
+            silent,
         })
     }
 
@@ -348,6 +363,41 @@ impl IpcBackend {
             return gone;
         }
         rx.await.unwrap_or(gone)
+    }
+
+    /// [`call`](Self::call) for an operation central answers: an error
+    /// naming `what` after [`CENTRAL_ANSWER_TIMEOUT`] without one (audit 22:
+    /// a central that stopped answering left `subscriber().build()`,
+    /// `courier echo` and `courier list` waiting for ever, printing nothing).
+    /// The operation stays queued in the connection, which waits for
+    /// central's answer before anything else; the caller undoes it.
+    async fn ask<T, E: Failure + TimedOut>(
+        &self,
+        what: impl FnOnce() -> String,
+        f: impl FnOnce(Done<Result<T, E>>) -> Cmd,
+    ) -> Result<T, E> {
+        use std::sync::atomic::Ordering::Relaxed;
+        let gone = Err(self.gone());
+        let silent = self.silent.load(Relaxed);
+        let bound = if silent {
+            Duration::ZERO
+        } else {
+            CENTRAL_ANSWER_TIMEOUT
+        };
+        match tokio::time::timeout(bound, self.call(f, gone)).await {
+            Ok(r) => r,
+            Err(_) if silent => Err(E::timed_out(
+                format!(
+                    "{} (central has sent nothing since an earlier question went unanswered)",
+                    what()
+                ),
+                CENTRAL_ANSWER_TIMEOUT,
+            )),
+            Err(_) => {
+                self.silent.store(true, Relaxed);
+                Err(E::timed_out(what(), CENTRAL_ANSWER_TIMEOUT))
+            }
+        }
     }
 
     fn gone<E: Failure>(&self) -> E {
@@ -400,12 +450,17 @@ impl Backend for IpcBackend {
             ipc_format(msg, ty)?;
         }
         let id = SubId(self.next_handle());
-        let g = Err(self.gone());
         let undo = Undo::new(&self.cmd, Cmd::CloseHandle(Handle::Subscription(id)));
         let r = self
-            .call(|d| Cmd::Subscribe(msg.into(), queue, id, d), g)
+            .ask(
+                || format!("the subscription to {msg} (central)"),
+                |d| Cmd::Subscribe(msg.into(), queue, id, d),
+            )
             .await;
-        undo.done();
+        // (one that timed out is closed: the undo goes after it)
+        if !matches!(r, Err(OpenError::Timeout { .. })) {
+            undo.done();
+        }
         r.map(|()| id)
     }
 
@@ -421,10 +476,16 @@ impl Backend for IpcBackend {
         ipc_format(msg, resp)?;
         let (tx, rx) = mpsc::channel(queue.max(1));
         let id = ServiceId(self.next_handle());
-        let g = Err(self.gone());
         let undo = Undo::new(&self.cmd, Cmd::CloseHandle(Handle::Service(id)));
-        let r = self.call(|d| Cmd::Serve(msg.into(), tx, id, d), g).await;
-        undo.done();
+        let r = self
+            .ask(
+                || format!("the service {msg} (central)"),
+                |d| Cmd::Serve(msg.into(), tx, id, d),
+            )
+            .await;
+        if !matches!(r, Err(OpenError::Timeout { .. })) {
+            undo.done();
+        }
         r.map(|()| (id, rx))
     }
 
@@ -563,73 +624,91 @@ impl Backend for IpcBackend {
 #[async_trait::async_trait]
 impl IpcControl for IpcBackend {
     async fn define_format(&self, name: &str, format: &str) -> Result<(), OpenError> {
-        let g = Err(self.gone());
-        self.call(|d| Cmd::DefineFormat(name.into(), format.into(), d), g)
-            .await
+        self.ask(
+            || format!("the named format {name} (central)"),
+            |d| Cmd::DefineFormat(name.into(), format.into(), d),
+        )
+        .await
     }
 
     async fn define(&self, msg: &str, format: Option<&str>) -> Result<(), OpenError> {
-        let g = Err(self.gone());
-        self.call(
+        self.ask(
+            || format!("the definition of {msg} (central)"),
             |d| Cmd::Define(msg.into(), format.map(str::to_string), d),
-            g,
         )
         .await
     }
 
     async fn is_module_connected(&self, module: &str) -> Result<bool, ControlError> {
-        let g = Err(self.gone());
-        self.call(|d| Cmd::ModuleConnected(module.into(), d), g)
-            .await
+        self.ask(
+            || format!("whether module {module} is connected (central)"),
+            |d| Cmd::ModuleConnected(module.into(), d),
+        )
+        .await
     }
 
     async fn num_handlers(&self, msg: &str) -> Result<i32, ControlError> {
-        let g = Err(self.gone());
-        self.call(|d| Cmd::NumHandlers(msg.into(), d), g).await
+        self.ask(
+            || format!("the handler count of {msg} (central)"),
+            |d| Cmd::NumHandlers(msg.into(), d),
+        )
+        .await
     }
 
     async fn watch_handlers(&self, msg: &str) -> Result<(), ControlError> {
-        let g = Err(self.gone());
-        self.call(|d| Cmd::WatchHandlers(msg.into(), d), g).await
+        self.ask(
+            || format!("watching the handlers of {msg} (central)"),
+            |d| Cmd::WatchHandlers(msg.into(), d),
+        )
+        .await
     }
 
     async fn set_capacity(&self, n: i32) -> Result<(), ControlError> {
         at_least("set_capacity", n, 1)?;
-        let g = Err(self.gone());
-        self.call(|d| Cmd::Inform(InformOp::Capacity(n), d), g)
-            .await
+        self.ask(
+            || format!("set_capacity({n}) (central)"),
+            |d| Cmd::Inform(InformOp::Capacity(n), d),
+        )
+        .await
     }
 
     async fn set_priority(&self, msg: &str, priority: i32) -> Result<(), ControlError> {
         at_least(&format!("set_priority({msg})"), priority, 0)?;
-        let g = Err(self.gone());
-        self.call(
+        self.ask(
+            || format!("set_priority({msg}) (central)"),
             |d| Cmd::Inform(InformOp::Priority(msg.into(), priority), d),
-            g,
         )
         .await
     }
 
     async fn set_queue_length(&self, msg: &str, n: i32) -> Result<(), ControlError> {
         at_least(&format!("set_queue_length({msg})"), n, 1)?;
-        let g = Err(self.gone());
-        self.call(|d| Cmd::Inform(InformOp::QueueLength(msg.into(), n), d), g)
-            .await
+        self.ask(
+            || format!("set_queue_length({msg}) (central)"),
+            |d| Cmd::Inform(InformOp::QueueLength(msg.into(), n), d),
+        )
+        .await
     }
 
     async fn ask_central(&self, ask: Ask) -> Result<Answer, ControlError> {
-        let g = Err(self.gone());
-        self.call(|d| Cmd::Ask(ask, d), g).await
+        let what = format!("{ask:?} (central)");
+        self.ask(|| what, |d| Cmd::Ask(ask, d)).await
     }
 
     async fn message_info(&self, msg: &str) -> Result<Option<MsgInfo>, ControlError> {
-        let g = Err(self.gone());
-        self.call(|d| Cmd::MsgInfo(msg.into(), d), g).await
+        self.ask(
+            || format!("the definition of {msg} (central)"),
+            |d| Cmd::MsgInfo(msg.into(), d),
+        )
+        .await
     }
 
     async fn look_up(&self, msg: &str) -> Result<Option<MsgInfo>, ControlError> {
-        let g = Err(self.gone());
-        self.call(|d| Cmd::LookUp(msg.into(), d), g).await
+        self.ask(
+            || format!("the lookup of {msg} (central)"),
+            |d| Cmd::LookUp(msg.into(), d),
+        )
+        .await
     }
 }
 
