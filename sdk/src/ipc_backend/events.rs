@@ -210,6 +210,18 @@ impl Driver {
                     .push(&sub.queue, s, delivery, credit, &self.cmd_tx)
                 {
                     let _ = self.conn.ack(delivery);
+                } else if sub.overflow.waiting_bytes() > super::overflow::MAX_WAITING_BYTES {
+                    // central does not wait for acknowledgements: a protocol
+                    // breach, not data to keep without end
+                    tracing::error!(
+                        central = %self.addr,
+                        "closing the connection to central: it sent more than {} bytes for a \
+                         full subscription of {} without waiting for their acknowledgements \
+                         (this module's capacity)",
+                        super::overflow::MAX_WAITING_BYTES,
+                        sub.msg
+                    );
+                    self.failed = true;
                 } else if !was_waiting {
                     // the first held back: everything of the session waits
                     let full = SessionEvent::SubscriberFull {

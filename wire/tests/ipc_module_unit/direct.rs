@@ -289,3 +289,36 @@ fn link_frames_for_central_handlers_or_other_messages_close_the_link_only() {
     assert!(c.is_connected());
     assert_eq!(c.poll_event(), None, "nothing delivered");
 }
+
+/// Deliveries waiting to be processed are bounded in bytes, not only in
+/// number (audit 22: a central that did not wait for acknowledgements
+/// while a handler lookup went unanswered took a module to 4 GB in 6 s
+/// within the 65 536-frame bound): past the largest frame and a quarter
+/// the connection is given up, saying why.
+#[test]
+fn deliveries_waiting_are_bounded_in_bytes() {
+    let mut cfg = courier_wire::ipc::module::ModuleConfig::new("module2", "127.1");
+    cfg.max_frame = 64 << 10;
+    let mut c = crate::script::by_hand_with(cfg);
+    c.subscribe("m", "HND-m").unwrap();
+    c.take_registration();
+    let body = vec![0u8; 10_000];
+    let mut sent = 0;
+    while c.is_connected() && sent < 100 {
+        // central's lookup answer for the first never comes
+        c.send(&frame(198, MsgClass::Broadcast, -1, sent + 1, &[], &body));
+        sent += 1;
+    }
+    assert_eq!(sent, 9, "8 fit in 80 KiB, the ninth is refused");
+    let mut closed = None;
+    while let Some(e) = c.poll_event() {
+        if let Event::Closed(e) = e {
+            closed = e;
+        }
+    }
+    let e = closed.expect("closed with an error").to_string();
+    assert!(
+        e.contains("unprocessed deliveries would hold 90000 bytes, more than 81920"),
+        "{e}"
+    );
+}

@@ -7,9 +7,7 @@ use super::event::Event;
 use super::ops::Op;
 use super::proto::{self, MsgInfo};
 use super::replies::Pending;
-use super::{
-    class_order, Connection, DirectHandler, Error, Link, LinkId, LINK_WAIT, MAX_QUEUED_DELIVERIES,
-};
+use super::{class_order, Connection, DirectHandler, Error, Link, LinkId, LINK_WAIT};
 use crate::ipc::frame::{ClassId, Deframer, Frame, Header, MsgClass, NO_REF, QUERY_REPLY_INTENT};
 use crate::ipc::Reader;
 
@@ -79,11 +77,10 @@ impl Connection {
                 }
             } else if let Err(why) = self.check_link_delivery(&frame) {
                 return Err(Error::DirectLink(why));
-            } else if self.inbox.len() >= MAX_QUEUED_DELIVERIES {
-                return Err(Error::DirectLink(format!(
-                    "more than {MAX_QUEUED_DELIVERIES} unprocessed deliveries"
-                )));
+            } else if let Err(why) = self.inbox_room(&frame) {
+                return Err(Error::DirectLink(why));
             } else {
+                self.inbox_bytes += super::frame_bytes(&frame);
                 self.inbox.push_back((frame, Some(link)));
             }
         }

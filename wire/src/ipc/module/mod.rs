@@ -76,6 +76,11 @@ pub const FRAME_ROOM: u64 = 4096;
 /// deliveries plus notifications, so more means a misbehaving peer.
 pub const MAX_QUEUED_DELIVERIES: usize = 65_536;
 
+/// What a buffered frame holds, for the bound on buffered deliveries.
+fn frame_bytes(f: &Frame) -> u64 {
+    (f.class_data.len() + f.data.len()) as u64
+}
+
 /// `blocked` marker: a direct send waits for its links.
 const LINK_WAIT: i32 = i32::MIN + 1;
 
@@ -258,6 +263,8 @@ pub struct Connection {
     retired: HashMap<(String, String), i32>,
     deliveries: VecDeque<PendingDelivery>,
     inbox: VecDeque<(Frame, Option<LinkId>)>,
+    /// What the frames in `inbox` hold ([`Connection::inbox_room`]).
+    inbox_bytes: u64,
     link_in: HashMap<LinkId, Deframer>,
     direct_handlers: HashMap<String, Vec<DirectHandler>>,
     /// Direct queries of messages that have no handler yet, by message, in
@@ -317,6 +324,7 @@ impl Connection {
             retired: HashMap::new(),
             deliveries: VecDeque::new(),
             inbox: VecDeque::new(),
+            inbox_bytes: 0,
             link_in: HashMap::new(),
             direct_handlers: HashMap::new(),
             awaiting_handler: HashMap::new(),
@@ -394,6 +402,7 @@ impl Connection {
                 return None;
             }
             let (f, link) = self.inbox.pop_front()?;
+            self.inbox_bytes -= frame_bytes(&f);
             if let Err(e) = self.start_delivery(f, link) {
                 self.fail(e);
             }
