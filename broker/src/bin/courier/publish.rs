@@ -293,8 +293,10 @@ async fn publish_on(
                     opts.confirm = Some(LAST_ACK_BOUND);
                 }
                 match b.write(pb.id, data.to_vec(), opts).await {
+                    // (on XRCE the agent acknowledges, not the readers)
                     Err(courier::PublishError::Timeout { after, .. }) if confirm => err(format_args!(
-                        "courier: the last sample was not acknowledged by every reader within {after:?}"
+                        "courier: the last sample was not acknowledged by {} within {after:?}",
+                        if crate::cli::is_xrce(&o.url) { "the XRCE agent" } else { "every reader" }
                     )),
                     r => r?,
                 }
