@@ -8,10 +8,10 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use courier_wire::xrce::{
     flags, Agent, AgentCommandError, AgentConfig, AgentEvent, AgentRepresentation,
     BaseObjectRequest, Client, ClientConfig, ClientKey, ClientRepresentation, CommandError,
-    ConnectError, CreationMode, Data, Event, FragmentError, InputError, LostReason, Message,
-    MessageHeader, ObjectId, ObjectKind, ObjectVariant, Payload, QueueError, Representation,
-    RequestId, ResultStatus, State, Status, StatusAgent, StatusCode, StreamError, StreamId,
-    Submessage,
+    ConnectError, CreationMode, Data, Event, FragmentError, Heartbeat, InputError, LostReason,
+    Message, MessageHeader, ObjectId, ObjectKind, ObjectVariant, Payload, QueueError,
+    Representation, RequestId, ResultStatus, State, Status, StatusAgent, StatusCode, StreamError,
+    StreamId, Submessage,
 };
 use proptest::prelude::*;
 
@@ -1009,4 +1009,79 @@ fn replaced_objects_keep_their_place_and_writes_in_flight_are_capped() {
     };
     assert_eq!(n, 100);
     assert_eq!(err, CommandError::TooManyRequests(100));
+}
+
+fn heartbeat(first: u16, last: u16) -> Submessage {
+    sub(Payload::Heartbeat(Heartbeat {
+        first_unacked: first,
+        last_unacked: last,
+        stream_id: StreamId::RELIABLE,
+    }))
+}
+
+/// A HEARTBEAT whose first is after last + 1 (audit 22 F7: first 500, last
+/// 3) is an error and changes nothing; taken as "500 is the first the
+/// sender holds", it skipped every DATA below 500 without a word.
+#[test]
+fn a_heartbeat_with_first_after_last_is_refused_and_skips_nothing() {
+    let (mut c, now) = connected(no_keepalive(1));
+    c.handle_input(&msg(h(0x80, 0), vec![data(10, reader(), b"hello")]), now)
+        .unwrap();
+    assert_eq!(drain(&mut c).1.len(), 1);
+    assert_eq!(
+        c.handle_input(&msg(h(0x00, 0), vec![heartbeat(500, 3)]), now),
+        Err(InputError::BadHeartbeat {
+            stream: 0x80,
+            first: 500,
+            last: 3
+        })
+    );
+    assert_eq!(
+        InputError::BadHeartbeat {
+            stream: 0x80,
+            first: 500,
+            last: 3
+        }
+        .to_string(),
+        "malformed XRCE HEARTBEAT on stream 0x80: first 500 is after last 3 + 1 (ignored)"
+    );
+    for seq in 1u16..=5 {
+        c.handle_input(&msg(h(0x80, seq), vec![data(10, reader(), b"late")]), now)
+            .unwrap();
+    }
+    let (_, ev) = drain(&mut c);
+    assert_eq!(ev.len(), 5, "{ev:?}");
+    // a well-formed one across the wrap-around still moves the window
+    c.handle_input(&msg(h(0x00, 0), vec![heartbeat(9, 0xFFF0)]), now)
+        .unwrap_err();
+    c.handle_input(&msg(h(0x00, 0), vec![heartbeat(0xFFF0, 9)]), now)
+        .unwrap();
+    c.handle_input(&msg(h(0x00, 0), vec![heartbeat(8, 9)]), now)
+        .unwrap();
+    c.handle_input(&msg(h(0x80, 8), vec![data(10, reader(), b"after")]), now)
+        .unwrap();
+    let (_, ev) = drain(&mut c);
+    assert_eq!(ev.len(), 1, "{ev:?}");
+
+    // the agent's input streams are the same: no ACKNACK from 500 on
+    let (mut a, now) = agent();
+    a.handle_input(1, &create_client(1, 0x81), now).unwrap();
+    while a.poll_transmit().is_some() {}
+    assert_eq!(
+        a.handle_input(1, &msg(h(0x00, 0), vec![heartbeat(500, 3)]), now),
+        Err(InputError::BadHeartbeat {
+            stream: 0x80,
+            first: 500,
+            last: 3
+        })
+    );
+    assert_eq!(a.poll_transmit(), None);
+    a.handle_input(1, &msg(h(0x00, 0), vec![heartbeat(0, 3)]), now)
+        .unwrap();
+    let (_, m) = a.poll_transmit().expect("an ACKNACK");
+    let m = Message::decode(&m).unwrap();
+    let Payload::AckNack(ack) = &m.submessages[0].payload else {
+        panic!("{m:?}")
+    };
+    assert_eq!(ack.first_unacked, 0);
 }

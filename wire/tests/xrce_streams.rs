@@ -457,3 +457,29 @@ fn a_submessage_larger_than_the_stream_may_queue_is_refused_at_once() {
     let e = out.push(vec![0; 3000], None).unwrap_err();
     assert!(matches!(e, StreamError::Backlog { .. }), "{e:?}");
 }
+
+/// A HEARTBEAT is used only if its first is at most last + 1 in serial
+/// order: across the wrap-around is fine, "first 500, last 3" is not.
+#[test]
+fn heartbeats_whose_first_is_after_last_plus_one_are_ignored() {
+    let hb = |first, last| Heartbeat {
+        first_unacked: first,
+        last_unacked: last,
+        stream_id: R,
+    };
+    let mut input = ReliableInput::new(R, StreamConfig::client());
+    assert!(!input.on_heartbeat(&hb(500, 3)));
+    assert!(!input.on_heartbeat(&hb(5, 0xFFF0)));
+    assert_eq!(input.acknack().first_unacked, 0, "nothing skipped");
+    assert_eq!(input.last_handled(), SeqNum::INITIAL_LAST);
+    // first = last + 1: the sender holds nothing, all before first is gone
+    assert!(input.on_heartbeat(&hb(4, 3)));
+    assert_eq!(input.last_handled(), SeqNum(3));
+    // a range across the wrap-around
+    let mut input = ReliableInput::new(R, StreamConfig::client());
+    input.restore(SeqNum(0xFFF0));
+    assert!(input.on_heartbeat(&hb(0xFFFA, 2)));
+    assert_eq!(input.last_handled(), SeqNum(0xFFF9));
+    assert!(input.on_heartbeat(&hb(0, 0xFFFF)));
+    assert_eq!(input.last_handled(), SeqNum(0xFFFF));
+}

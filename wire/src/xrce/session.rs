@@ -74,6 +74,20 @@ pub enum InputError {
         /// Bytes the prefix needs.
         needed: usize,
     },
+    /// A HEARTBEAT whose first sequence number is after its last + 1: it
+    /// names no range of messages, and was ignored.
+    #[error(
+        "malformed XRCE HEARTBEAT on stream {stream:#04x}: first {first} is after last {last} + 1 \
+         (ignored)"
+    )]
+    BadHeartbeat {
+        /// The reliable stream it is for.
+        stream: u8,
+        /// Its first unacknowledged sequence number.
+        first: u16,
+        /// Its last unacknowledged sequence number.
+        last: u16,
+    },
     /// A reply to nothing this side asked.
     #[error("XRCE {what} answers nothing this session asked")]
     Unsolicited {
@@ -466,7 +480,14 @@ impl Streams {
                 Payload::Heartbeat(hb) if hb.stream_id.is_reliable() => {
                     match self.reliable_input(hb.stream_id) {
                         Some(input) => {
-                            input.on_heartbeat(hb);
+                            if !input.on_heartbeat(hb) {
+                                a.errors.push(InputError::BadHeartbeat {
+                                    stream: hb.stream_id.0,
+                                    first: hb.first_unacked,
+                                    last: hb.last_unacked,
+                                });
+                                continue;
+                            }
                             // messages held behind one the sender gave up on
                             // (or, restored, before its window) go on now
                             let mut errors = Vec::new();

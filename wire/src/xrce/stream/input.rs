@@ -302,10 +302,18 @@ impl ReliableInput {
     /// A HEARTBEAT from the sender: it holds `first..=last`. Messages the
     /// sender no longer holds are skipped (as the agent does); `last` tells
     /// how far to NACK (at most one window ahead).
-    pub fn on_heartbeat(&mut self, hb: &Heartbeat) {
+    ///
+    /// Whether it was used: one whose `first` is after `last + 1` (serial
+    /// order, so a range across the wrap-around is fine) names no range of
+    /// messages, and is ignored; taken, it would skip every message before
+    /// `first` that is still to come.
+    pub fn on_heartbeat(&mut self, hb: &Heartbeat) -> bool {
+        let first = SeqNum(hb.first_unacked);
+        if first.is_after(SeqNum(hb.last_unacked).wrapping_add(1)) {
+            return false;
+        }
         // the sender asks: it hears back at once
         self.ack_urgent = true;
-        let first = SeqNum(hb.first_unacked);
         let resync = std::mem::take(&mut self.resync);
         if resync && std::mem::take(&mut self.kept) {
             // a restored stream whose position the host kept: the sender
@@ -360,6 +368,7 @@ impl ReliableInput {
         if last.is_after(self.last_announced) {
             self.last_announced = last;
         }
+        true
     }
 
     /// The ACKNACK describing this stream now: everything up to the last
