@@ -509,6 +509,106 @@ async fn an_agent_that_goes_silent_and_comes_back_keeps_the_session() {
     assert_eq!(next(&mut sub).await, msg(9, 1));
 }
 
+/// A TCP relay on 127.0.0.1 in front of `agent`; after `bad_prefix` is
+/// set, the next bytes from the agent on the first connection are preceded
+/// by a bogus length prefix 0xffff, which puts that connection out of
+/// step for good. Counts the connections it took.
+async fn tcp_relay(
+    agent: std::net::SocketAddr,
+) -> (
+    std::net::SocketAddr,
+    std::sync::Arc<std::sync::atomic::AtomicBool>,
+    std::sync::Arc<std::sync::atomic::AtomicUsize>,
+    tokio::task::JoinHandle<()>,
+) {
+    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+    use std::sync::Arc;
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    let bad_prefix = Arc::new(AtomicBool::new(false));
+    let accepted = Arc::new(AtomicUsize::new(0));
+    let (bad, n) = (bad_prefix.clone(), accepted.clone());
+    let task = tokio::spawn(async move {
+        let mut conns = tokio::task::JoinSet::new();
+        loop {
+            let Ok((client, _)) = listener.accept().await else {
+                return;
+            };
+            let first = n.fetch_add(1, Ordering::SeqCst) == 0;
+            let Ok(upstream) = tokio::net::TcpStream::connect(agent).await else {
+                return;
+            };
+            let (mut cr, mut cw) = client.into_split();
+            let (mut ar, mut aw) = upstream.into_split();
+            conns.spawn(async move {
+                let _ = tokio::io::copy(&mut cr, &mut aw).await;
+            });
+            let bad = bad.clone();
+            conns.spawn(async move {
+                let mut buf = vec![0u8; 65_536];
+                let mut broken = false;
+                loop {
+                    let n = match ar.read(&mut buf).await {
+                        Ok(0) | Err(_) => return,
+                        Ok(n) => n,
+                    };
+                    if first && !broken && bad.load(Ordering::SeqCst) {
+                        broken = true;
+                        if cw.write_all(&[0xff, 0xff]).await.is_err() {
+                            return;
+                        }
+                    }
+                    if cw.write_all(&buf[..n]).await.is_err() {
+                        return;
+                    }
+                }
+            });
+        }
+    });
+    (addr, bad_prefix, accepted, task)
+}
+
+/// Audit 22 F6: a bogus length prefix (0xffff) from the agent mid-session
+/// put the TCP stream out of step; the session said the agent stopped
+/// answering and waited for ever on that connection. It now drops the
+/// connection, dials again, creates itself again and goes on.
+#[tokio::test]
+async fn tcp_dials_again_when_the_agent_goes_out_of_step() {
+    let agent = xrce_agent::tcp(0).await;
+    let (relay, bad_prefix, accepted, _relay) = tcp_relay(agent.addr).await;
+    let url = format!("xrce+tcp://{relay}?{FAST}&wait_ms=20000");
+    let a = session(url, "a").await;
+    let mut ev = a.events();
+    let mut sub = a.subscribe::<Msg>("loop").await.unwrap();
+    let p = a.publisher::<Msg>("loop").build().await.unwrap();
+    p.publish(&msg(1, 4)).confirmed().await.unwrap();
+    assert_eq!(next(&mut sub).await, msg(1, 4));
+    bad_prefix.store(true, std::sync::atomic::Ordering::SeqCst);
+    wait_event(&mut ev, "AgentLost", |e| {
+        *e == SessionEvent::AgentLost { silent: true }
+    })
+    .await;
+    wait_event(&mut ev, "SessionRecreated", |e| {
+        matches!(e, SessionEvent::SessionRecreated { .. })
+    })
+    .await;
+    assert!(
+        accepted.load(std::sync::atomic::Ordering::SeqCst) >= 2,
+        "dialled again"
+    );
+    tokio::time::timeout(T, p.publish(&msg(2, 4)).confirmed())
+        .await
+        .expect("bounded")
+        .unwrap();
+    loop {
+        if next(&mut sub).await.seq == 2 {
+            break;
+        }
+    }
+    assert_eq!(a.xrce().unwrap().state(), XrceState::Connected);
+}
+
 #[tokio::test]
 async fn an_open_the_agent_never_answers_fails_within_its_bound() {
     let agent = xrce_agent::udp(0).await;

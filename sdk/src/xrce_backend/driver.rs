@@ -5,7 +5,10 @@
 //! [`XrceOptions::lost_after`] of silence (or when a ping is answered by an
 //! agent that no longer knows the session) and goes on pinging; a TCP or
 //! serial link that breaks is opened again every
-//! [`XrceOptions::connect_interval`]. As soon as the agent answers without
+//! [`XrceOptions::connect_interval`]. A TCP link whose agent went silent
+//! (or did not answer a new session) is dropped and opened again too: the
+//! agent may be talking on it still, but a bad length prefix has put its
+//! messages out of step for good. As soon as the agent answers without
 //! the session (or the link is back), the driver creates the session again
 //! ([`Client::connect`], repeated until it succeeds) and then every entity
 //! and reading ([`Client::recreate_objects`], which also sends again the
@@ -173,6 +176,9 @@ pub(super) struct Driver {
     lost_reported: bool,
     /// The link broke; open it again at this time.
     pub(super) redial_at: Option<Instant>,
+    /// Nothing came back on the link for a while: a stream link (TCP) is
+    /// to be dropped and opened again, as its framing may be lost.
+    pub(super) relink: bool,
     /// A full keep-all reliable subscription: the link is not read until
     /// it has room (back-pressure through the agent's reliable window).
     pub(super) stalled: Option<Arc<SampleQueue>>,
@@ -320,6 +326,7 @@ impl Driver {
             refused: HashMap::new(),
             lost_reported: false,
             redial_at: None,
+            relink: false,
             stalled: None,
             unreachable: false,
             closing: None,
@@ -1288,8 +1295,10 @@ impl Driver {
                     }));
                     self.done = true;
                 } else {
-                    // keep trying until the agent is back
+                    // keep trying until the agent is back (on a new link,
+                    // if it is a stream)
                     tracing::debug!("XRCE: {e}; trying again");
+                    self.relink = true;
                     self.client.connect(now);
                 }
             }
@@ -1397,8 +1406,11 @@ impl Driver {
                         silent: reason == LostReason::Silent,
                     });
                 }
-                if reason == LostReason::SessionUnknown {
-                    self.client.connect(now);
+                match reason {
+                    LostReason::SessionUnknown => self.client.connect(now),
+                    // silent: a TCP link is dialled again (a session that
+                    // does not read its link is never reported silent)
+                    _ => self.relink = true,
                 }
             }
             Event::AgentBack => {
@@ -1570,6 +1582,18 @@ pub(super) async fn run(mut d: Driver, mut inbox: Inbox<Cmd>, mut link: Option<L
         let now = Instant::now();
         d.unreachable = link.as_ref().is_some_and(Link::unreachable);
         d.events(now);
+        if std::mem::take(&mut d.relink) && link.as_ref().is_some_and(Link::is_stream) {
+            // a TCP agent that says nothing may be saying it out of step
+            // (one bad length prefix): only a new connection recovers
+            link = None;
+            d.link_down(
+                now,
+                &std::io::Error::new(
+                    std::io::ErrorKind::TimedOut,
+                    "nothing usable came back on it; connecting again",
+                ),
+            );
+        }
         d.drained(now);
         // transmit what the machine has
         while let Some(m) = d.client.poll_transmit() {
