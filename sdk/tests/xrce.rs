@@ -373,6 +373,67 @@ async fn no_agent_fails_the_connect_and_foreign_options_are_refused() {
     assert!(e.to_string().contains("bogus"), "{e}");
 }
 
+/// Audit 22 F8: an agent that answers CREATE_CLIENT for another session
+/// (session id, or client key when the session id carries one): the
+/// connect error says so, not only "no XRCE agent answered".
+#[tokio::test]
+async fn an_answer_for_another_session_is_named_in_the_connect_error() {
+    use courier::xrce::{
+        AgentRepresentation, ClientKey, Message, MessageHeader, Payload, ResultStatus, StatusAgent,
+        StreamId, Submessage,
+    };
+    let status_agent = |header| {
+        Message::new(
+            header,
+            vec![Submessage::new(Payload::StatusAgent(StatusAgent {
+                result: ResultStatus::default(),
+                agent: AgentRepresentation::default(),
+            }))],
+        )
+        .to_vec()
+        .unwrap()
+    };
+    let cases = [
+        (
+            "",
+            status_agent(MessageHeader::new(0x82, StreamId::NONE, 0)),
+            "XRCE message for session 0x82, this one is 0x81",
+        ),
+        (
+            "&session=1&key=0x11223344",
+            status_agent(MessageHeader::with_key(
+                0x01,
+                ClientKey::from(0x5555_6666),
+                StreamId::NONE,
+                0,
+            )),
+            "XRCE message with client key 55556666, this session's is 11223344",
+        ),
+    ];
+    for (options, answer, why) in cases {
+        let agent = tokio::net::UdpSocket::bind("127.0.0.1:0").await.unwrap();
+        let addr = agent.local_addr().unwrap();
+        let answering = tokio::spawn(async move {
+            let mut buf = vec![0u8; 2048];
+            while let Ok((_, from)) = agent.recv_from(&mut buf).await {
+                let _ = agent.send_to(&answer, from).await;
+            }
+        });
+        let url = format!("xrce+udp://{addr}?attempts=3&attempt_ms=50{options}");
+        let e = tokio::time::timeout(T, Session::builder(url).connect())
+            .await
+            .expect("bounded")
+            .unwrap_err()
+            .to_string();
+        answering.abort();
+        assert!(e.contains("no XRCE agent answered 3 CREATE_CLIENT"), "{e}");
+        assert!(
+            e.contains(&format!("what came back was for another session: {why}")),
+            "{e}"
+        );
+    }
+}
+
 /// Over TCP, an agent that is not there yet refuses the connection: the
 /// session tries again as over UDP (`attempts=`, `attempt_ms=`), and says
 /// how often it tried when it gives up (it failed at the first refusal).

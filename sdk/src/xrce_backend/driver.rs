@@ -21,8 +21,8 @@ use std::time::{Duration, Instant, SystemTime};
 
 use courier_wire::ipc::ByteOrder;
 use courier_wire::xrce::{
-    Client, CommandError, CreationMode, DeliveryControl, Event, LostReason, ObjectId, ObjectKind,
-    ObjectVariant, QueueError, RequestId, State, StatusCode, StreamError, StreamId,
+    Client, CommandError, CreationMode, DeliveryControl, Event, InputError, LostReason, ObjectId,
+    ObjectKind, ObjectVariant, QueueError, RequestId, State, StatusCode, StreamError, StreamId,
 };
 use tokio::sync::{mpsc, oneshot};
 
@@ -174,6 +174,10 @@ pub(super) struct Driver {
     refused: HashMap<ObjectId, StatusCode>,
     /// AgentLost was reported and neither AgentBack nor SessionRecreated yet.
     lost_reported: bool,
+    /// While connecting the first time: the last message that came back
+    /// for another session (session id or client key), which the connect
+    /// error names.
+    mismatch: Option<InputError>,
     /// The link broke; open it again at this time.
     pub(super) redial_at: Option<Instant>,
     /// Nothing came back on the link for a while: a stream link (TCP) is
@@ -325,6 +329,7 @@ impl Driver {
             recreate_refused: 0,
             refused: HashMap::new(),
             lost_reported: false,
+            mismatch: None,
             redial_at: None,
             relink: false,
             stalled: None,
@@ -1249,6 +1254,19 @@ impl Driver {
         self.client.connect(now);
     }
 
+    /// A message from the agent the machine could not use.
+    pub(super) fn input_error(&mut self, e: InputError) {
+        tracing::debug!("XRCE input: {e}");
+        if self.connected.is_some()
+            && matches!(
+                e,
+                InputError::WrongSession { .. } | InputError::WrongClientKey { .. }
+            )
+        {
+            self.mismatch = Some(e);
+        }
+    }
+
     // -----------------------------------------------------------------
     // the machine's events
 
@@ -1283,6 +1301,12 @@ impl Driver {
             Event::ConnectFailed(e) => {
                 if let Some(c) = self.connected.take() {
                     let mut why = e.to_string();
+                    if let Some(m) = self.mismatch.take() {
+                        why.push_str(&format!(
+                            "; what came back was for another session: {m} (is it this \
+                             session's agent, and are `session=` and `key=` right?)"
+                        ));
+                    }
                     if self.unreachable {
                         why.push_str(
                             "; nothing listens on that UDP port (the host answered \"port \
@@ -1642,7 +1666,7 @@ pub(super) async fn run(mut d: Driver, mut inbox: Inbox<Cmd>, mut link: Option<L
                 Ok(m) => {
                     let now = Instant::now();
                     if let Err(e) = d.client.handle_input(&m, now) {
-                        tracing::debug!("XRCE input: {e}");
+                        d.input_error(e);
                     }
                 }
                 Err(e) => {
