@@ -478,8 +478,10 @@ impl Listener {
     }
 
     /// Samples dropped by a keep-last policy or a backend filter so far,
-    /// (IPC) messages whose body did not hold together, and (DDS) samples
-    /// larger than the session takes ([`SessionEvent::SampleLost`](crate::SessionEvent::SampleLost)).
+    /// (IPC) messages whose body did not hold together, (DDS) samples
+    /// larger than the session takes ([`SessionEvent::SampleLost`](crate::SessionEvent::SampleLost)),
+    /// and (XRCE) samples whose fragments passed the 1 MiB a session
+    /// rebuilds (each logged as a warning).
     pub fn dropped(&self) -> u64 {
         self.raw.dropped()
     }
@@ -720,8 +722,10 @@ impl<T, D> Subscriber<T, D> {
     }
 
     /// Samples dropped by a keep-last policy or a backend filter so far,
-    /// (IPC) messages whose body did not hold together, and (DDS) samples
-    /// larger than the session takes ([`SessionEvent::SampleLost`](crate::SessionEvent::SampleLost)).
+    /// (IPC) messages whose body did not hold together, (DDS) samples
+    /// larger than the session takes ([`SessionEvent::SampleLost`](crate::SessionEvent::SampleLost)),
+    /// and (XRCE) samples whose fragments passed the 1 MiB a session
+    /// rebuilds (each logged as a warning).
     pub fn dropped(&self) -> u64 {
         self.raw.dropped()
     }

@@ -708,6 +708,29 @@ async fn a_sample_larger_than_the_stream_may_queue_is_refused_at_once() {
 /// A session that goes through more topics than XRCE has object ids
 /// (4095) over its life: a topic nobody uses any more is deleted and its
 /// id reused (every open failed after about 4094 topics).
+/// Audit 22 F9: a sample whose fragments pass the 1 MiB a session
+/// rebuilds was dropped with only a DEBUG line. It is now counted in the
+/// subscription's `dropped()` (and logged as a warning), and the samples
+/// after it arrive.
+#[tokio::test]
+async fn a_sample_past_the_reassembly_limit_is_counted_as_dropped() {
+    let agent = xrce_agent::udp(0).await;
+    let a = session(format!("xrce+udp://{}?history=4096", agent.addr), "a").await;
+    let b = session(format!("xrce+udp://{}", agent.addr), "b").await;
+    let mut sub = b.subscribe::<Msg>("huge").await.unwrap();
+    let p = a.publisher::<Msg>("huge").build().await.unwrap();
+    tokio::time::timeout(T, p.publish(&msg(1, 1_200_000)).confirmed())
+        .await
+        .expect("bounded")
+        .unwrap();
+    tokio::time::timeout(T, p.publish(&msg(2, 10)).confirmed())
+        .await
+        .expect("bounded")
+        .unwrap();
+    assert_eq!(next(&mut sub).await, msg(2, 10));
+    assert_eq!(sub.dropped(), 1);
+}
+
 #[tokio::test]
 async fn a_session_goes_through_more_topics_than_ids() {
     let agent = xrce_agent::udp(0).await;

@@ -216,13 +216,38 @@ fn reassembly_is_bounded_and_the_stream_goes_on() {
     }
     assert_eq!(
         errors,
-        [InputError::Fragment(FragmentError::TooLarge { max: 4096 })]
+        [InputError::Fragment(FragmentError::TooLarge {
+            max: 4096,
+            object: None
+        })]
     );
     // the last fragment ends the oversized submessage, which is dropped
     c.handle_input(&msg(h(0x80, 30), vec![fragment(vec![1; 10], true)]), now)
         .unwrap();
     c.handle_input(&msg(h(0x80, 31), vec![data(10, reader(), b"ok")]), now)
         .unwrap();
+    // an oversized DATA names its reader (its first fragment may be short)
+    let mut big = Vec::new();
+    data(10, reader(), &[9; 6000]).encode(&mut big, 0).unwrap();
+    let mut errors = Vec::new();
+    for (i, part) in std::iter::once(&big[..3])
+        .chain(big[3..].chunks(400))
+        .enumerate()
+    {
+        let last = 3 + i * 400 >= big.len();
+        let seq = 32 + i as u16;
+        let m = msg(h(0x80, seq), vec![fragment(part.to_vec(), last)]);
+        if let Err(e) = c.handle_input(&m, now) {
+            errors.push(e);
+        }
+    }
+    assert_eq!(
+        errors,
+        [InputError::Fragment(FragmentError::TooLarge {
+            max: 4096,
+            object: Some(reader())
+        })]
+    );
     let (_, ev) = drain(&mut c);
     assert_eq!(
         ev,

@@ -21,8 +21,9 @@ use std::time::{Duration, Instant, SystemTime};
 
 use courier_wire::ipc::ByteOrder;
 use courier_wire::xrce::{
-    Client, CommandError, CreationMode, DeliveryControl, Event, InputError, LostReason, ObjectId,
-    ObjectKind, ObjectVariant, QueueError, RequestId, State, StatusCode, StreamError, StreamId,
+    Client, CommandError, CreationMode, DeliveryControl, Event, FragmentError, InputError,
+    LostReason, ObjectId, ObjectKind, ObjectVariant, QueueError, RequestId, State, StatusCode,
+    StreamError, StreamId,
 };
 use tokio::sync::{mpsc, oneshot};
 
@@ -1256,6 +1257,28 @@ impl Driver {
 
     /// A message from the agent the machine could not use.
     pub(super) fn input_error(&mut self, e: InputError) {
+        if let InputError::Fragment(FragmentError::TooLarge { max, object }) = e {
+            // a sample lost: counted in its subscription's `dropped()`
+            // and said (at most once per `max` bytes from the agent)
+            let sub = object
+                .and_then(|o| self.by_reader.get(&o))
+                .and_then(|id| self.subs.get(id));
+            match sub {
+                Some(s) => {
+                    s.queue.count_dropped();
+                    tracing::warn!(
+                        topic = %s.topic,
+                        "gave up a sample from the XRCE agent: its fragments add up to more \
+                         than the {max} bytes this session takes"
+                    );
+                }
+                None => tracing::warn!(
+                    "gave up a submessage from the XRCE agent: its fragments add up to more \
+                     than the {max} bytes this session takes"
+                ),
+            }
+            return;
+        }
         tracing::debug!("XRCE input: {e}");
         if self.connected.is_some()
             && matches!(

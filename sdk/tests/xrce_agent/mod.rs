@@ -317,6 +317,8 @@ impl Host {
 fn config() -> AgentConfig {
     let mut c = AgentConfig::default();
     c.streams.max_backlog = 4 << 20;
+    // takes samples larger than a client session rebuilds (1 MiB)
+    c.streams.max_reassembly = 4 << 20;
     c
 }
 

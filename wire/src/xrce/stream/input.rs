@@ -6,8 +6,22 @@ use std::time::Instant;
 
 use super::super::message::{Message, MessageHeader};
 use super::super::submessage::{AckNack, Heartbeat, Payload, Submessage, SubmessageId};
-use super::super::types::StreamId;
+use super::super::types::{ObjectId, StreamId};
 use super::{FragmentError, SeqNum, StreamConfig};
+
+/// The object a rebuilt submessage starting with `head` is for, if it is a
+/// DATA or WRITE_DATA: after the submessage header come its request id
+/// and object id.
+fn data_object(head: &[u8]) -> Option<ObjectId> {
+    match *head {
+        [id, _, _, _, _, _, a, b, ..]
+            if id == SubmessageId::Data as u8 || id == SubmessageId::WriteData as u8 =>
+        {
+            Some(ObjectId(u16::from_be_bytes([a, b])))
+        }
+        _ => None,
+    }
+}
 
 /// A best-effort input stream.
 #[derive(Debug, Clone)]
@@ -428,8 +442,13 @@ impl ReliableInput {
             if !r.overflow {
                 if r.buf.len() + body.len() > max {
                     r.overflow = true;
-                    r.buf = Vec::new();
-                    errors.push(FragmentError::TooLarge { max });
+                    let mut head = std::mem::take(&mut r.buf);
+                    head.truncate(8);
+                    head.extend(body.iter().take(8 - head.len()));
+                    errors.push(FragmentError::TooLarge {
+                        max,
+                        object: data_object(&head),
+                    });
                 } else {
                     r.buf.extend_from_slice(&body);
                 }

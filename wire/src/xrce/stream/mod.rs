@@ -29,7 +29,7 @@ use std::cmp::Ordering;
 use std::time::Duration;
 
 use super::message::MessageHeader;
-use super::types::StreamId;
+use super::types::{ObjectId, StreamId};
 use super::DecodeError;
 
 mod input;
@@ -243,6 +243,10 @@ pub enum FragmentError {
     TooLarge {
         /// [`StreamConfig::max_reassembly`].
         max: usize,
+        /// The object the submessage was for when it is a DATA (the
+        /// reader: the sample is lost to it) or a WRITE_DATA (the writer),
+        /// as its first fragment says.
+        object: Option<ObjectId>,
     },
     /// The rebuilt bytes are not a submessage.
     #[error("XRCE reassembled submessage: {0}")]
