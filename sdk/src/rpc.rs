@@ -55,21 +55,6 @@ pub(crate) fn open_failed(msg: &str, e: OpenError) -> QueryError {
     }
 }
 
-/// A query error as the caller's timeout names it (the backend was given
-/// what the definition and client left of it).
-fn the_timeout_asked(e: QueryError, timeout: Duration) -> QueryError {
-    match e {
-        QueryError::Timeout { msg, .. } => QueryError::Timeout { msg, timeout },
-        QueryError::NoResponder { msg, .. } => QueryError::NoResponder { msg, timeout },
-        QueryError::CentralSilent { msg, asked, .. } => QueryError::CentralSilent {
-            msg,
-            timeout,
-            asked,
-        },
-        e => e,
-    }
-}
-
 /// A query being built; `.await` it.
 #[derive(Debug)]
 #[must_use = "a query does nothing until awaited"]
@@ -112,38 +97,20 @@ impl<'a, Resp: IpcMessage + 'a> Query<'a, Resp> {
                 source,
             }
         })?;
-        // The query's timeout bounds all of it: the definition and the
-        // client a first query of its message makes too (audit 22: with
-        // central silent, a 5 s query waited for ever on its definition).
-        let started = tokio::time::Instant::now();
-        let check = self.check.map_err(refused)?;
-        let setup = async {
-            if let Some(def) = check {
-                let r = self.session.define_shared(self.msg, def).await;
-                self.session.settled(&[self.msg], r)?;
-            }
-            let r = self
-                .session
-                .client(self.msg, &self.req, &TypeInfo::of::<Resp>())
-                .await;
-            self.session.settled(&[self.msg], r)
-        };
-        let client = match tokio::time::timeout(self.timeout, setup).await {
-            Ok(r) => r.map_err(refused)?,
-            Err(_) => {
-                return Err(refused(OpenError::Timeout {
-                    what: format!("the definition and client of {}", self.msg),
-                    after: self.timeout,
-                }))
-            }
-        };
-        let left = self.timeout.saturating_sub(started.elapsed());
+        if let Some(def) = self.check.map_err(refused)? {
+            let r = self.session.define_shared(self.msg, def).await;
+            self.session.settled(&[self.msg], r).map_err(refused)?;
+        }
+        let r = self
+            .session
+            .client(self.msg, &self.req, &TypeInfo::of::<Resp>())
+            .await;
+        let client = self.session.settled(&[self.msg], r).map_err(refused)?;
         let (reply, data, order) = self
             .session
             .backend
-            .query(client, data, left)
-            .await
-            .map_err(|e| the_timeout_asked(e, self.timeout))?;
+            .query(client, data, self.timeout)
+            .await?;
         if self.session.enc() == Encoding::Ipc {
             let ty = std::any::type_name::<Resp>();
             let fits = crate::format_check::verdict::<Resp>;

@@ -1,8 +1,8 @@
 //! A central that stops answering (audit 22: `subscriber().build()`,
-//! `courier echo`, `courier list` and a 5 s query's first use waited for
-//! ever, and `Session::close` never returned). Control calls fail after
-//! `CENTRAL_ANSWER_TIMEOUT` naming what went unanswered, a query within
-//! its own timeout, and a close ends. Central here is a real one behind a
+//! `courier echo`, `courier list` and a query's first use waited for ever,
+//! and `Session::close` never returned). Questions to central fail after
+//! `CENTRAL_ANSWER_TIMEOUT` naming what went unanswered, later ones at
+//! once, and a close ends. Central here is a real one behind a
 //! relay that stops passing central's bytes on. Every wait is bounded.
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -67,19 +67,18 @@ async fn a_central_that_stops_answering_fails_calls_in_time_and_close_ends() {
     s.define::<i32>("before").await.unwrap();
     mute.store(true, Ordering::Relaxed);
 
-    // a query's first use (its definition and client) within the query's
-    // own timeout, not the 10 s of a control call
+    // a query ends within its own timeout
     let r: Result<i32, QueryError> =
         tokio::time::timeout(T, s.query("ask", &1i32).timeout(Duration::from_secs(2)))
             .await
             .expect("the query returned within the test's bound");
-    match r {
-        Err(QueryError::Open {
-            source: OpenError::Timeout { after, .. },
-            ..
-        }) => assert_eq!(after, Duration::from_secs(2)),
-        other => panic!("{other:?}"),
-    }
+    assert!(
+        matches!(
+            r,
+            Err(QueryError::Timeout { .. } | QueryError::CentralSilent { .. })
+        ),
+        "{r:?}"
+    );
 
     // a subscription waits for central's answer no longer than the bound
     let r = tokio::time::timeout(T, s.subscriber::<i32>("news").build())

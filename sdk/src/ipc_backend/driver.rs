@@ -155,8 +155,8 @@ pub(super) struct Driver {
     /// A close waits for central's answers to what is outstanding until
     /// then ([`CLOSE_WAIT`]).
     pub(super) close_by: Option<tokio::time::Instant>,
-    /// Cleared when central sends anything (see `IpcBackend::silent`).
-    pub(super) central_silent: Arc<std::sync::atomic::AtomicBool>,
+    /// Reads from central, counted (see `IpcBackend::silent_since`).
+    pub(super) central_reads: Arc<std::sync::atomic::AtomicU64>,
 }
 
 /// How long a close waits for central to answer what is outstanding (a
@@ -248,8 +248,8 @@ impl Driver {
                         break;
                     }
                     Ok(n) => {
-                        self.central_silent
-                            .store(false, std::sync::atomic::Ordering::Relaxed);
+                        self.central_reads
+                            .fetch_add(1, std::sync::atomic::Ordering::AcqRel);
                         self.conn.receive(&buf[..n], Instant::now());
                     }
                 },

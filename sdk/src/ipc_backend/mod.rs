@@ -141,11 +141,18 @@ pub struct IpcBackend {
     defined: std::sync::Mutex<HashMap<String, Option<String>>>,
     /// Tells the driver to give up a write central does not take (close).
     stop: Arc<tokio::sync::Notify>,
-    /// A question to central went unanswered for [`CENTRAL_ANSWER_TIMEOUT`]
-    /// and central has sent nothing since (the driver clears it when bytes
-    /// come): later questions fail at once rather than each waiting the
-    /// bound again behind the first (the connection answers them in order).
-    silent: Arc<std::sync::atomic::AtomicBool>,
+    /// Reads from central so far (the driver counts them, and a new
+    /// connection counts as one).
+    central_reads: Arc<std::sync::atomic::AtomicU64>,
+    /// `central_reads` when a question that then went unanswered for
+    /// [`CENTRAL_ANSWER_TIMEOUT`] was asked (`u64::MAX`: none): while central
+    /// has sent nothing since, later questions fail at once rather than
+    /// each waiting the bound again behind the first (the connection
+    /// answers them in order).
+    silent_since: std::sync::atomic::AtomicU64,
+    /// The runtime the session was made on: the timer of a question is made
+    /// there when it is asked from a thread outside any runtime.
+    rt: tokio::runtime::Handle,
 }
 
 /// What undoes an operation whose future is dropped half-way (a `timeout`
@@ -269,7 +276,7 @@ impl IpcBackend {
         let (tx, rx) = mailbox(crate::mailbox::CAPACITY);
         let events = Hub::new(crate::hub::DEFAULT_CAPACITY);
         let stop = Arc::new(tokio::sync::Notify::new());
-        let silent = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let central_reads = Arc::new(std::sync::atomic::AtomicU64::new(0));
         let driver = Driver {
             conn,
             io,
@@ -305,7 +312,7 @@ impl IpcBackend {
             stop: stop.clone(),
             reported_down: false,
             close_by: None,
-            central_silent: silent.clone(),
+            central_reads: central_reads.clone(),
         };
         if let Some(l) = listener {
             spawn_accept(l, tx.clone());
@@ -321,7 +328,9 @@ impl IpcBackend {
             names: Default::default(),
             defined: Default::default(),
             stop,
-            silent,
+            central_reads,
+            silent_since: std::sync::atomic::AtomicU64::new(u64::MAX),
+            rt: tokio::runtime::Handle::current(),
         })
     }
 
@@ -376,15 +385,24 @@ impl IpcBackend {
         what: impl FnOnce() -> String,
         f: impl FnOnce(Done<Result<T, E>>) -> Cmd,
     ) -> Result<T, E> {
-        use std::sync::atomic::Ordering::Relaxed;
+        use std::sync::atomic::Ordering::{Acquire, Release};
         let gone = Err(self.gone());
-        let silent = self.silent.load(Relaxed);
+        let reads = self.central_reads.load(Acquire);
+        let silent = self.silent_since.load(Acquire) == reads;
         let bound = if silent {
             Duration::ZERO
         } else {
             CENTRAL_ANSWER_TIMEOUT
         };
-        match tokio::time::timeout(bound, self.call(f, gone)).await {
+        // (the timer is made on the session's runtime: a plain thread
+        // awaiting this has none)
+        let timed = {
+            let _in = tokio::runtime::Handle::try_current()
+                .is_err()
+                .then(|| self.rt.enter());
+            tokio::time::timeout(bound, self.call(f, gone))
+        };
+        match timed.await {
             Ok(r) => r,
             Err(_) if silent => Err(E::timed_out(
                 format!(
@@ -394,7 +412,9 @@ impl IpcBackend {
                 CENTRAL_ANSWER_TIMEOUT,
             )),
             Err(_) => {
-                self.silent.store(true, Relaxed);
+                // (an answer that came meanwhile moved `central_reads` on:
+                // the mark then says nothing)
+                self.silent_since.store(reads, Release);
                 Err(E::timed_out(what(), CENTRAL_ANSWER_TIMEOUT))
             }
         }

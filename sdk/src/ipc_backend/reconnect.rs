@@ -86,6 +86,9 @@ impl Driver {
                         let _ = self.conn.subscribe_connect();
                         let _ = self.conn.subscribe_disconnect();
                     }
+                    // a new central (or the same, back): not the silent one
+                    self.central_reads
+                        .fetch_add(1, std::sync::atomic::Ordering::AcqRel);
                     self.broadcast(SessionEvent::Reconnected);
                     self.reported_down = false;
                     return true;
