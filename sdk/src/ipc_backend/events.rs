@@ -210,16 +210,19 @@ impl Driver {
                     .push(&sub.queue, s, delivery, credit, &self.cmd_tx)
                 {
                     let _ = self.conn.ack(delivery);
-                } else if sub.overflow.waiting_bytes() > super::overflow::MAX_WAITING_BYTES {
+                } else if sub.overflow.waiting_from_central()
+                    > self.conn.capacity() + courier_wire::ipc::module::MAX_SENT_AHEAD
+                {
                     // central does not wait for acknowledgements: a protocol
                     // breach, not data to keep without end
                     tracing::error!(
                         central = %self.addr,
-                        "closing the connection to central: it sent more than {} bytes for a \
-                         full subscription of {} without waiting for their acknowledgements \
-                         (this module's capacity)",
-                        super::overflow::MAX_WAITING_BYTES,
-                        sub.msg
+                        "closing the connection to central: it sent {} deliveries for a full \
+                         subscription of {} without waiting for their acknowledgements (this \
+                         module's capacity is {})",
+                        sub.overflow.waiting_from_central(),
+                        sub.msg,
+                        self.conn.capacity()
                     );
                     self.failed = true;
                 } else if !was_waiting {

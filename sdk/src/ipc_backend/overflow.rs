@@ -17,17 +17,11 @@ use crate::session::{RawSample, SampleQueue};
 
 use super::driver::Cmd;
 
-/// Bytes of samples one subscription may hold waiting for room. Central
-/// sends no more than the module's capacity before its acknowledgements
-/// (which wait for room), so an honest central keeps far below it; one that
-/// does not wait took a session to 4 GB in 6 s (audit 22).
-pub(super) const MAX_WAITING_BYTES: usize = 256 << 20;
-
 /// A sample waiting for room, with its delivery and read credit.
 struct Parked {
     sample: RawSample,
     delivery: u64,
-    _credit: Option<Arc<OwnedSemaphorePermit>>,
+    credit: Option<Arc<OwnedSemaphorePermit>>,
 }
 
 /// One subscription's waiting samples (the driver's side).
@@ -36,8 +30,12 @@ pub(super) struct Overflow {
     tx: Option<mpsc::UnboundedSender<Parked>>,
     /// Samples handed to the task and not yet in the queue.
     waiting: Arc<AtomicUsize>,
-    /// Their bytes.
-    waiting_bytes: Arc<AtomicUsize>,
+    /// Those of them that came from central (the others hold their
+    /// direct link's read credit): central sends no more than the module's
+    /// capacity, and what it sends ahead, before their acknowledgements,
+    /// which wait for room; one that did not wait took a session to 4 GB
+    /// in 6 s (audit 22).
+    from_central: Arc<AtomicUsize>,
 }
 
 impl Overflow {
@@ -46,9 +44,9 @@ impl Overflow {
         self.waiting.load(Ordering::Acquire) > 0
     }
 
-    /// Bytes of the samples waiting ([`MAX_WAITING_BYTES`]).
-    pub(super) fn waiting_bytes(&self) -> usize {
-        self.waiting_bytes.load(Ordering::Acquire)
+    /// Samples from central waiting.
+    pub(super) fn waiting_from_central(&self) -> usize {
+        self.from_central.load(Ordering::Acquire)
     }
 
     /// Queues `s` for `queue` behind any sample already waiting: `true`
@@ -78,25 +76,28 @@ impl Overflow {
             spawn(
                 queue.clone(),
                 self.waiting.clone(),
-                self.waiting_bytes.clone(),
+                self.from_central.clone(),
                 cmd.clone(),
             )
         });
         self.waiting.fetch_add(1, Ordering::AcqRel);
-        let len = s.data.len();
-        self.waiting_bytes.fetch_add(len, Ordering::AcqRel);
-        // bounded by central's capacity and the links' read credits (and,
-        // for a central that does not wait, by MAX_WAITING_BYTES: see
-        // `deliver`)
+        let central = credit.is_none();
+        if central {
+            self.from_central.fetch_add(1, Ordering::AcqRel);
+        }
+        // bounded by central's capacity and the links' read credits (a
+        // central that does not wait is given up: see `deliver`)
         let parked = Parked {
             sample: s,
             delivery,
-            _credit: credit,
+            credit,
         };
         if tx.send(parked).is_err() {
             // the task is gone only with the driver's mailbox: nothing to ack
             self.waiting.fetch_sub(1, Ordering::AcqRel);
-            self.waiting_bytes.fetch_sub(len, Ordering::AcqRel);
+            if central {
+                self.from_central.fetch_sub(1, Ordering::AcqRel);
+            }
         }
         false
     }
@@ -105,17 +106,19 @@ impl Overflow {
 fn spawn(
     queue: Arc<SampleQueue>,
     waiting: Arc<AtomicUsize>,
-    waiting_bytes: Arc<AtomicUsize>,
+    from_central: Arc<AtomicUsize>,
     cmd: Mailbox<Cmd>,
 ) -> mpsc::UnboundedSender<Parked> {
     let (tx, mut rx) = mpsc::unbounded_channel::<Parked>();
     tokio::spawn(async move {
         // ends when the subscription is gone (its sender dropped)
         while let Some(p) = rx.recv().await {
-            let len = p.sample.data.len();
+            let central = p.credit.is_none();
             queue.push_wait(p.sample).await;
             waiting.fetch_sub(1, Ordering::AcqRel);
-            waiting_bytes.fetch_sub(len, Ordering::AcqRel);
+            if central {
+                from_central.fetch_sub(1, Ordering::AcqRel);
+            }
             // one per delivery
             if cmd.post(Cmd::Ack(p.delivery)).is_err() {
                 break;

@@ -198,12 +198,19 @@ impl Connection {
         }
     }
 
+    /// The deliveries central may have outstanding with this module
+    /// ([`set_capacity`](Self::set_capacity); 1 until set).
+    pub fn capacity(&self) -> usize {
+        self.capacity
+    }
+
     /// `IPC_setCapacity`: `x_ipc_registerResourceMsg {n, name}`.
     pub fn set_capacity(&mut self, n: i32) -> Result<(), Error> {
         self.check_open()?;
         let mut w = Writer::new();
         w.write_i32(n);
         w.write_str(&self.cfg.name);
+        self.capacity = n.max(1) as usize;
         self.push_op(Op::Inform {
             msg: "x_ipc_registerResourceMsg",
             data: w.into_vec(),

@@ -47,29 +47,44 @@ impl Connection {
                 detail,
             });
         }
-        self.inbox_bytes += super::frame_bytes(&f);
+        if self.is_user_frame(&f) {
+            // Central sends no more than the module's capacity (and what
+            // it sends ahead) before the module's acknowledgements. One
+            // that did not wait, while a handler lookup went unanswered,
+            // took a module to 4 GB in 6 s (audit 22).
+            let allowed = self.capacity + super::MAX_SENT_AHEAD;
+            if self.central_in_inbox >= allowed {
+                return Err(Error::Protocol {
+                    what: "delivery",
+                    detail: format!(
+                        "central sent more than {allowed} deliveries this module has not \
+                         taken yet (its capacity {} and {} sent ahead): it does not wait for \
+                         acknowledgements",
+                        self.capacity,
+                        super::MAX_SENT_AHEAD
+                    ),
+                });
+            }
+            self.central_in_inbox += 1;
+        }
         self.inbox.push_back((f, None));
         Ok(())
     }
 
+    /// Whether `f` is for one of the user's handlers (or one it no longer
+    /// has), not one of central's notices.
+    pub(super) fn is_user_frame(&self, f: &Frame) -> bool {
+        self.handlers
+            .get(&f.header.intent)
+            .is_none_or(|h| h.kind == HandlerKind::User)
+    }
+
     /// Whether `f` may join the deliveries waiting to be processed: at
-    /// most [`MAX_QUEUED_DELIVERIES`] of them, holding at most
-    /// [`ModuleConfig::max_frame`](super::ModuleConfig::max_frame) and a
-    /// quarter more. Central sends no more than the module's capacity before
-    /// its acknowledgements; one that did not wait (while a handler lookup
-    /// went unanswered) took a module to 4 GB in 6 s (audit 22).
-    pub(super) fn inbox_room(&self, f: &Frame) -> Result<(), String> {
+    /// most [`MAX_QUEUED_DELIVERIES`] of them.
+    pub(super) fn inbox_room(&self, _f: &Frame) -> Result<(), String> {
         if self.inbox.len() >= MAX_QUEUED_DELIVERIES {
             return Err(format!(
                 "more than {MAX_QUEUED_DELIVERIES} unprocessed deliveries"
-            ));
-        }
-        let max = self.cfg.max_frame.saturating_add(self.cfg.max_frame / 4);
-        let bytes = self.inbox_bytes + super::frame_bytes(f);
-        if bytes > max {
-            return Err(format!(
-                "unprocessed deliveries would hold {bytes} bytes, more than {max} (the \
-                 largest frame and a quarter): the sender does not wait for acknowledgements"
             ));
         }
         Ok(())

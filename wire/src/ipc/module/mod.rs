@@ -76,10 +76,11 @@ pub const FRAME_ROOM: u64 = 4096;
 /// deliveries plus notifications, so more means a misbehaving peer.
 pub const MAX_QUEUED_DELIVERIES: usize = 65_536;
 
-/// What a buffered frame holds, for the bound on buffered deliveries.
-fn frame_bytes(f: &Frame) -> u64 {
-    (f.class_data.len() + f.data.len()) as u64
-}
+/// Deliveries central may send a module beyond its capacity before the
+/// module's acknowledgements: Courier's central sends up to 1024 ahead
+/// (`--send-ahead`), C's none. (Its notices to central's own handlers come
+/// on top, bounded by [`MAX_QUEUED_DELIVERIES`].)
+pub const MAX_SENT_AHEAD: usize = 1024;
 
 /// `blocked` marker: a direct send waits for its links.
 const LINK_WAIT: i32 = i32::MIN + 1;
@@ -263,8 +264,6 @@ pub struct Connection {
     retired: HashMap<(String, String), i32>,
     deliveries: VecDeque<PendingDelivery>,
     inbox: VecDeque<(Frame, Option<LinkId>)>,
-    /// What the frames in `inbox` hold ([`Connection::inbox_room`]).
-    inbox_bytes: u64,
     link_in: HashMap<LinkId, Deframer>,
     direct_handlers: HashMap<String, Vec<DirectHandler>>,
     /// Direct queries of messages that have no handler yet, by message, in
@@ -281,6 +280,10 @@ pub struct Connection {
     direct_tx: VecDeque<(LinkId, Vec<u8>)>,
     unknown: HashSet<String>,
     unacked: HashMap<DeliveryId, (DeliveryKind, i32, Option<LinkId>)>,
+    /// [`Connection::capacity`].
+    capacity: usize,
+    /// Frames from central for user handlers in `inbox`.
+    central_in_inbox: usize,
     broadcast_var: Option<HashSet<String>>,
     /// Messages central counted handlers for that no list from it has
     /// named yet (see [`Connection::set_broadcast_list`]).
@@ -324,7 +327,6 @@ impl Connection {
             retired: HashMap::new(),
             deliveries: VecDeque::new(),
             inbox: VecDeque::new(),
-            inbox_bytes: 0,
             link_in: HashMap::new(),
             direct_handlers: HashMap::new(),
             awaiting_handler: HashMap::new(),
@@ -333,6 +335,8 @@ impl Connection {
             direct_tx: VecDeque::new(),
             unknown: HashSet::new(),
             unacked: HashMap::new(),
+            capacity: 1,
+            central_in_inbox: 0,
             broadcast_var: None,
             counted: HashSet::new(),
             class_formats: Vec::new(),
@@ -402,7 +406,11 @@ impl Connection {
                 return None;
             }
             let (f, link) = self.inbox.pop_front()?;
-            self.inbox_bytes -= frame_bytes(&f);
+            if link.is_none() && self.is_user_frame(&f) {
+                // (saturating: a handler made or dropped meanwhile may
+                // change what the frame counted as)
+                self.central_in_inbox = self.central_in_inbox.saturating_sub(1);
+            }
             if let Err(e) = self.start_delivery(f, link) {
                 self.fail(e);
             }
