@@ -80,7 +80,6 @@ impl Connection {
             } else if let Err(why) = self.inbox_room(&frame) {
                 return Err(Error::DirectLink(why));
             } else {
-                self.inbox_bytes += super::frame_bytes(&frame);
                 self.inbox.push_back((frame, Some(link)));
             }
         }
@@ -141,8 +140,8 @@ impl Connection {
     /// port of one that left, say), instead of frames for a dead link.
     pub fn direct_link_closed(&mut self, link: LinkId) {
         self.links.retain(|_, l| l.id != link);
-        // (its queries stay pending: their timeouts are the shell's)
-        self.reply_links.retain(|_, l| *l != link);
+        // (its queries stay pending, answerable by none, until the shell's
+        // timeout cancels them; link ids are not reused)
         self.link_in.remove(&link);
         if self.blocked == Some(LINK_WAIT) {
             // a send waiting for its links looks again (and links anew)
