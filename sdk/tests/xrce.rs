@@ -545,8 +545,26 @@ async fn tcp_reconnects_after_the_agent_restarts() {
 
 #[tokio::test]
 async fn an_agent_that_goes_silent_and_comes_back_keeps_the_session() {
-    let agent = xrce_agent::udp(0).await;
-    let url = format!("xrce+udp://{}?{FAST}", agent.addr);
+    silent_and_back(false).await;
+}
+
+/// Over TCP too: a quiet agent with nothing part way on the connection
+/// keeps it and the session (only one out of step is dialled again).
+#[tokio::test]
+async fn a_tcp_agent_that_goes_silent_and_comes_back_keeps_the_session() {
+    silent_and_back(true).await;
+}
+
+async fn silent_and_back(tcp: bool) {
+    let (agent, url) = if tcp {
+        let agent = xrce_agent::tcp(0).await;
+        let url = format!("xrce+tcp://{}?{FAST}", agent.addr);
+        (agent, url)
+    } else {
+        let agent = xrce_agent::udp(0).await;
+        let url = format!("xrce+udp://{}?{FAST}", agent.addr);
+        (agent, url)
+    };
     let a = session(url, "a").await;
     let mut ev = a.events();
     let mut sub = a.subscribe::<Msg>("loop").await.unwrap();

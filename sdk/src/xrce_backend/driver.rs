@@ -6,9 +6,10 @@
 //! agent that no longer knows the session) and goes on pinging; a TCP or
 //! serial link that breaks is opened again every
 //! [`XrceOptions::connect_interval`]. A TCP link whose agent went silent
-//! (or did not answer a new session) is dropped and opened again too: the
-//! agent may be talking on it still, but a bad length prefix has put its
-//! messages out of step for good. As soon as the agent answers without
+//! (or did not answer a new session) while part of a record waits for the
+//! rest is dropped and opened again too: the agent may be talking on it
+//! still, but a bad length prefix has put its messages out of step for
+//! good. A link with nothing part way is kept: the agent is only quiet. As soon as the agent answers without
 //! the session (or the link is back), the driver creates the session again
 //! ([`Client::connect`], repeated until it succeeds) and then every entity
 //! and reading ([`Client::recreate_objects`], which also sends again the
@@ -1455,8 +1456,9 @@ impl Driver {
                 }
                 match reason {
                     LostReason::SessionUnknown => self.client.connect(now),
-                    // silent: a TCP link is dialled again (a session that
-                    // does not read its link is never reported silent)
+                    // silent: a TCP link out of step is dialled again (a
+                    // session that does not read its link is never
+                    // reported silent)
                     _ => self.relink = true,
                 }
             }
@@ -1629,9 +1631,12 @@ pub(super) async fn run(mut d: Driver, mut inbox: Inbox<Cmd>, mut link: Option<L
         let now = Instant::now();
         d.unreachable = link.as_ref().is_some_and(Link::unreachable);
         d.events(now);
-        if std::mem::take(&mut d.relink) && link.as_ref().is_some_and(Link::is_stream) {
-            // a TCP agent that says nothing may be saying it out of step
-            // (one bad length prefix): only a new connection recovers
+        if std::mem::take(&mut d.relink) && link.as_ref().is_some_and(Link::mid_record) {
+            // a TCP agent that said nothing usable while bytes wait for the
+            // rest of a record is talking out of step (one bad length
+            // prefix swallows what follows): only a new connection
+            // recovers. One merely quiet (nothing part way) keeps its link
+            // and session, and what the agent still has for it.
             link = None;
             d.link_down(
                 now,

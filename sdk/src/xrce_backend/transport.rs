@@ -108,6 +108,12 @@ impl Link {
         matches!(self, Link::Tcp { .. })
     }
 
+    /// A stream link part way through a record (see
+    /// [`TcpDeframer::mid_record`]).
+    pub(crate) fn mid_record(&self) -> bool {
+        matches!(self, Link::Tcp { deframer, .. } if deframer.mid_record())
+    }
+
     /// Whether the agent's address reported that nothing listens there
     /// (UDP's ICMP "port unreachable") since it last sent anything.
     pub(crate) fn unreachable(&self) -> bool {

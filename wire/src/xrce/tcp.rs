@@ -100,6 +100,13 @@ impl TcpDeframer {
         self.buf.len() - self.start
     }
 
+    /// Whether a record is part way: bytes wait for the rest of theirs, or
+    /// an oversize one is being skipped. A peer that then goes quiet may
+    /// be talking out of step (one bad length prefix swallows what follows).
+    pub fn mid_record(&self) -> bool {
+        self.skip > 0 || self.buffered() > 0
+    }
+
     fn advance(&mut self, n: usize) {
         self.start += n;
         self.offset += n as u64;
