@@ -156,6 +156,18 @@ fn number(name: &str, v: &str, max: u64, what: &str) -> Result<u64, String> {
         .ok_or_else(|| format!("option --{name}: '{v}' is not a number of {what} from 1 to {max}"))
 }
 
+/// A timeout option: whole seconds up to a day, 0 for none (C's way).
+fn timeout(name: &str, v: &str) -> Result<Option<std::time::Duration>, String> {
+    let secs = v
+        .parse::<u64>()
+        .ok()
+        .filter(|s| *s <= 86_400)
+        .ok_or_else(|| {
+            format!("option --{name}: '{v}' is not a number of seconds from 0 (never) to 86400")
+        })?;
+    Ok((secs > 0).then(|| std::time::Duration::from_secs(secs)))
+}
+
 /// Logging letters as C reads them: case does not matter (except `F`/`f`
 /// and `n`/`N` being file-only), and any `x` means no logging at all.
 fn log_options(letters: &str, file: bool) -> Result<LogOptions, String> {
@@ -240,28 +252,10 @@ fn parse_args(args: Vec<String>) -> Result<Options, String> {
                     o.config.send_ahead.insert(module.to_string(), n);
                 }
                 "handshake-timeout" => {
-                    let v = value(true)?;
-                    let secs = v.parse::<u64>().ok().filter(|s| *s <= 86_400);
-                    let Some(secs) = secs else {
-                        return Err(format!(
-                            "option --handshake-timeout: '{v}' is not a number of seconds \
-                             from 0 (never) to 86400"
-                        ));
-                    };
-                    o.config.handshake_timeout =
-                        (secs > 0).then(|| std::time::Duration::from_secs(secs));
+                    o.config.handshake_timeout = timeout(name, &value(true)?)?;
                 }
                 "frame-stall-timeout" => {
-                    let v = value(true)?;
-                    let secs = v.parse::<u64>().ok().filter(|s| *s <= 86_400);
-                    let Some(secs) = secs else {
-                        return Err(format!(
-                            "option --frame-stall-timeout: '{v}' is not a number of seconds \
-                             from 0 (never) to 86400"
-                        ));
-                    };
-                    o.config.frame_stall_timeout =
-                        (secs > 0).then(|| std::time::Duration::from_secs(secs));
+                    o.config.frame_stall_timeout = timeout(name, &value(true)?)?;
                 }
                 "hosts-allow" => o.allow = Some(value(true)?.into()),
                 "hosts-deny" => o.deny = Some(value(true)?.into()),
@@ -920,44 +914,28 @@ mod tests {
     }
 
     #[test]
-    fn handshake_timeout_option() {
-        let secs = |a: &[&str]| parse(a).map(|o| o.config.handshake_timeout);
-        assert_eq!(secs(&[]), Ok(Some(std::time::Duration::from_secs(10))));
-        assert_eq!(
-            secs(&["--handshake-timeout", "3"]),
-            Ok(Some(std::time::Duration::from_secs(3)))
-        );
-        assert_eq!(secs(&["--handshake-timeout=0"]), Ok(None));
-        for bad in ["x", "-1", "86401", ""] {
-            assert_eq!(
-                secs(&["--handshake-timeout", bad]),
-                Err(format!(
-                    "option --handshake-timeout: '{bad}' is not a number of seconds from 0 (never) to 86400"
-                ))
-            );
-        }
-        assert_eq!(
-            secs(&["--handshake-timeout"]),
-            Err("option --handshake-timeout needs a value".into())
-        );
-    }
-
-    #[test]
-    fn frame_stall_timeout_option() {
-        let secs = |a: &[&str]| parse(a).map(|o| o.config.frame_stall_timeout);
-        assert_eq!(secs(&[]), Ok(Some(std::time::Duration::from_secs(30))));
-        assert_eq!(
-            secs(&["--frame-stall-timeout", "5"]),
-            Ok(Some(std::time::Duration::from_secs(5)))
-        );
-        assert_eq!(secs(&["--frame-stall-timeout=0"]), Ok(None));
-        for bad in ["x", "-1", "86401", "1.5"] {
-            assert_eq!(
-                secs(&["--frame-stall-timeout", bad]),
-                Err(format!(
-                    "option --frame-stall-timeout: '{bad}' is not a number of seconds from 0 (never) to 86400"
-                ))
-            );
+    fn timeout_options() {
+        use std::time::Duration;
+        let handshake = |a: &[&str]| parse(a).map(|o| o.config.handshake_timeout);
+        let stall = |a: &[&str]| parse(a).map(|o| o.config.frame_stall_timeout);
+        assert_eq!(handshake(&[]), Ok(Some(Duration::from_secs(10))));
+        assert_eq!(stall(&[]), Ok(Some(Duration::from_secs(30))));
+        for (name, get) in [
+            ("handshake-timeout", &handshake as &dyn Fn(&[&str]) -> _),
+            ("frame-stall-timeout", &stall),
+        ] {
+            let opt = format!("--{name}");
+            assert_eq!(get(&[&opt, "3"]), Ok(Some(Duration::from_secs(3))));
+            assert_eq!(get(&[&format!("{opt}=0")]), Ok(None));
+            for bad in ["x", "-1", "86401", "", "1.5"] {
+                assert_eq!(
+                    get(&[&opt, bad]),
+                    Err(format!(
+                        "option {opt}: '{bad}' is not a number of seconds from 0 (never) to 86400"
+                    ))
+                );
+            }
+            assert_eq!(get(&[&opt]), Err(format!("option {opt} needs a value")));
         }
     }
 
