@@ -22,9 +22,8 @@ use std::time::{Duration, Instant, SystemTime};
 
 use courier_wire::ipc::ByteOrder;
 use courier_wire::xrce::{
-    Client, CommandError, CreationMode, DeliveryControl, Event, FragmentError, InputError,
-    LostReason, ObjectId, ObjectKind, ObjectVariant, QueueError, RequestId, State, StatusCode,
-    StreamError, StreamId,
+    Client, CommandError, CreationMode, DeliveryControl, Event, InputError, LostReason, ObjectId,
+    ObjectKind, ObjectVariant, QueueError, RequestId, State, StatusCode, StreamError, StreamId,
 };
 use tokio::sync::{mpsc, oneshot};
 
@@ -1256,30 +1255,9 @@ impl Driver {
         self.client.connect(now);
     }
 
-    /// A message from the agent the machine could not use.
+    /// A message from the agent the machine could not use. (A sample too
+    /// large is an event of its own: [`Event::TooLarge`].)
     pub(super) fn input_error(&mut self, e: InputError) {
-        if let InputError::Fragment(FragmentError::TooLarge { max, object }) = e {
-            // a sample lost: counted in its subscription's `dropped()`
-            // and said (at most once per `max` bytes from the agent)
-            let sub = object
-                .and_then(|o| self.by_reader.get(&o))
-                .and_then(|id| self.subs.get(id));
-            match sub {
-                Some(s) => {
-                    s.queue.count_dropped();
-                    tracing::warn!(
-                        topic = %s.topic,
-                        "gave up a sample from the XRCE agent: its fragments add up to more \
-                         than the {max} bytes this session takes"
-                    );
-                }
-                None => tracing::warn!(
-                    "gave up a submessage from the XRCE agent: its fragments add up to more \
-                     than the {max} bytes this session takes"
-                ),
-            }
-            return;
-        }
         tracing::debug!("XRCE input: {e}");
         if self.connected.is_some()
             && matches!(
@@ -1302,6 +1280,27 @@ impl Driver {
 
     fn event(&mut self, e: Event, now: Instant) {
         match e {
+            Event::TooLarge { object, max } => {
+                // a sample lost: counted in its subscription's `dropped()`
+                // and said (at most once per `max` bytes from the agent)
+                let sub = object
+                    .and_then(|o| self.by_reader.get(&o))
+                    .and_then(|id| self.subs.get(id));
+                match sub {
+                    Some(s) => {
+                        s.queue.count_dropped();
+                        tracing::warn!(
+                            topic = %s.topic,
+                            "gave up a sample from the XRCE agent: its fragments add up to \
+                             more than the {max} bytes this session takes"
+                        );
+                    }
+                    None => tracing::warn!(
+                        "gave up a submessage from the XRCE agent: its fragments add up to \
+                         more than the {max} bytes this session takes"
+                    ),
+                }
+            }
             Event::Connected { .. } => {
                 self.shared.set_state(XrceState::Connected);
                 if let Some(c) = self.connected.take() {

@@ -4,6 +4,7 @@ use std::time::Instant;
 
 use super::super::object::{ActivityInfo, ObjectInfo};
 use super::super::session::InputError;
+use super::super::stream::FragmentError;
 use super::super::submessage::{
     flags, Data, Info, Payload, Status, StatusAgent, Submessage, TimestampReply,
 };
@@ -72,6 +73,16 @@ impl Client {
             self.heard(now);
         }
         let arrival = self.streams.receive(msg, bytes.len(), now);
+        for e in &arrival.errors {
+            // (each one: a sample lost to its reader, which only the first
+            // error returned would leave unsaid when it is not first)
+            if let InputError::Fragment(FragmentError::TooLarge { max, object }) = e {
+                self.events.push_back(Event::TooLarge {
+                    object: *object,
+                    max: *max,
+                });
+            }
+        }
         let mut first = arrival.errors.into_iter().next().map_or(Ok(()), Err);
         for (stream, sub) in arrival.subs {
             let r = self.on_submessage(stream, sub, now);

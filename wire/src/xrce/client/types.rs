@@ -263,6 +263,17 @@ pub enum Event {
         /// Whether the agent's STATUS came.
         confirmed: bool,
     },
+    /// A submessage from the agent (a DATA: a sample) came in fragments
+    /// adding up to more than [`StreamConfig::max_reassembly`] and was
+    /// given up (also returned by `handle_input` as its error, when it is
+    /// the first; reported here whatever else the input held).
+    TooLarge {
+        /// What it was for, as its first fragment says (the reader, for a
+        /// sample).
+        object: Option<ObjectId>,
+        /// The bound.
+        max: usize,
+    },
 }
 
 /// Why a command was refused.
