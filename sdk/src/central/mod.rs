@@ -163,6 +163,11 @@
 //!   until the queues drain to half; C grows without bound. Past the same
 //!   bound, the oldest queries waiting for a first handler of their
 //!   message are dropped (C keeps them all).
+//! - Definitions (messages, also those only subscribed so far, and named
+//!   formats) outlive their module as in C, but hold at most
+//!   [`Config::max_definition_bytes`] (64 MiB) all together: past it a new
+//!   one is refused with a `WARNING: … refused: definitions hold …` line,
+//!   where C grows without end.
 //! - Malformed frames close only the offending connection, with a log line
 //!   naming the reason; C may abort or stall.
 //! - A module repeating a mistake (foreign acknowledgements, unknown ids)
