@@ -1121,3 +1121,29 @@ fn a_heartbeat_with_first_after_last_is_refused_and_skips_nothing() {
     };
     assert_eq!(ack.first_unacked, 0);
 }
+
+/// An agent whose host does not keep input positions notes no client for
+/// them (audit 23: every client key ever seen stayed in that set, about 10
+/// bytes each, since nothing took the notes without `--state`); one whose
+/// host keeps them reports what moved.
+#[test]
+fn positions_are_noted_only_for_a_host_that_keeps_them() {
+    for keeps in [false, true] {
+        let (mut a, now) = agent();
+        if keeps {
+            a.hold_acks_until_saved();
+        }
+        for key in 1..=50u32 {
+            a.handle_input(key, &create_client(key, 0x81), now).unwrap();
+            // a reliable message moves its input position
+            let m = msg(h(0x80, 0), vec![data(10, reader(), b"x")]);
+            let _ = a.handle_input(key, &m, now);
+        }
+        let moved = a.take_moved_positions();
+        if keeps {
+            assert_eq!(moved.len(), 50, "{moved:?}");
+        } else {
+            assert!(moved.is_empty(), "{moved:?}");
+        }
+    }
+}
