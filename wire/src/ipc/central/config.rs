@@ -222,8 +222,8 @@ pub struct Config {
     pub frame_stall_timeout: Option<std::time::Duration>,
     /// Bytes central keeps for what modules define, all together: message
     /// names and formats (also those only subscribed to so far) and named
-    /// formats, each with its bookkeeping (default 64 MiB, a hundred times
-    /// a large system's). Definitions outlive their module, as in C, so
+    /// formats, each with its bookkeeping, about 1 KB a message (default
+    /// 64 MiB: some 60 000 messages, tens of times a large system's). Definitions outlive their module, as in C, so
     /// modules defining ever new messages (20 × 10 000 with 4 KB formats
     /// made 979 MB) would grow central without end. Past it a new
     /// definition, subscription to an unknown message or named format is
