@@ -21,6 +21,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use courier_broker::access::{AccessControl, RulesFile, DEFAULT_ALLOW, DEFAULT_DENY};
 use courier_broker::{BindError, CentralServer, Config, LogOptions, LogSink, LogTarget};
+use courier_wire::ipc::central::MAX_SEND_AHEAD;
 
 /// `println!` that does not panic when stdout is gone (`central --help |
 /// head -1`, a console whose reader closed): what central prints is for
@@ -247,7 +248,7 @@ fn parse_args(args: Vec<String>) -> Result<Options, String> {
                     }
                     let n = match n {
                         None => DEFAULT_SEND_AHEAD,
-                        Some(n) => number(name, n, 1024, "messages")? as usize,
+                        Some(n) => number(name, n, MAX_SEND_AHEAD as u64, "messages")? as usize,
                     };
                     o.config.send_ahead.insert(module.to_string(), n);
                 }

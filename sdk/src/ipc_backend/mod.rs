@@ -420,6 +420,22 @@ impl IpcBackend {
         }
     }
 
+    /// [`ask`](Self::ask) opening `handle`: closed again if the call is
+    /// dropped before its answer, or times out (the close goes after it).
+    async fn open(
+        &self,
+        handle: Handle,
+        what: impl FnOnce() -> String,
+        f: impl FnOnce(Done<Result<(), OpenError>>) -> Cmd,
+    ) -> Result<(), OpenError> {
+        let undo = Undo::new(&self.cmd, Cmd::CloseHandle(handle));
+        let r = self.ask(what, f).await;
+        if !matches!(r, Err(OpenError::Timeout { .. })) {
+            undo.done();
+        }
+        r
+    }
+
     fn gone<E: Failure>(&self) -> E {
         E::disconnected(self.addr.clone())
     }
@@ -470,18 +486,13 @@ impl Backend for IpcBackend {
             ipc_format(msg, ty)?;
         }
         let id = SubId(self.next_handle());
-        let undo = Undo::new(&self.cmd, Cmd::CloseHandle(Handle::Subscription(id)));
-        let r = self
-            .ask(
-                || format!("the subscription to {msg} (central)"),
-                |d| Cmd::Subscribe(msg.into(), queue, id, d),
-            )
-            .await;
-        // (one that timed out is closed: the undo goes after it)
-        if !matches!(r, Err(OpenError::Timeout { .. })) {
-            undo.done();
-        }
-        r.map(|()| id)
+        self.open(
+            Handle::Subscription(id),
+            || format!("the subscription to {msg} (central)"),
+            |d| Cmd::Subscribe(msg.into(), queue, id, d),
+        )
+        .await
+        .map(|()| id)
     }
 
     async fn open_service(
@@ -496,17 +507,13 @@ impl Backend for IpcBackend {
         ipc_format(msg, resp)?;
         let (tx, rx) = mpsc::channel(queue.max(1));
         let id = ServiceId(self.next_handle());
-        let undo = Undo::new(&self.cmd, Cmd::CloseHandle(Handle::Service(id)));
-        let r = self
-            .ask(
-                || format!("the service {msg} (central)"),
-                |d| Cmd::Serve(msg.into(), tx, id, d),
-            )
-            .await;
-        if !matches!(r, Err(OpenError::Timeout { .. })) {
-            undo.done();
-        }
-        r.map(|()| (id, rx))
+        self.open(
+            Handle::Service(id),
+            || format!("the service {msg} (central)"),
+            |d| Cmd::Serve(msg.into(), tx, id, d),
+        )
+        .await
+        .map(|()| (id, rx))
     }
 
     async fn open_client(

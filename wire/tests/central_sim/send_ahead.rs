@@ -311,3 +311,19 @@ fn messages_ahead_of_an_unsubscribe_are_dropped_by_the_module() {
         sim.logs
     );
 }
+
+/// A send-ahead configured past `MAX_SEND_AHEAD` is taken as that: a
+/// module gives up a central that sends more than its capacity and that
+/// many before its acknowledgements (`ipc::module::MAX_SENT_AHEAD`).
+#[test]
+fn send_ahead_is_at_most_its_maximum() {
+    use courier_wire::ipc::central::MAX_SEND_AHEAD;
+    let n = MAX_SEND_AHEAD as i32 + 10;
+    let (mut sim, _, b) = ticks(ahead_config(MAX_SEND_AHEAD + 500), n);
+    assert_eq!(
+        sim.deliveries(b).len(),
+        1 + MAX_SEND_AHEAD,
+        "one handled, the most ahead"
+    );
+    assert!(sim.m(b).is_connected());
+}

@@ -107,6 +107,9 @@ pub enum OptionError {
     },
 }
 
+/// Most broadcasts [`Config::send_ahead`] writes ahead to one module.
+pub const MAX_SEND_AHEAD: usize = 1024;
+
 /// Configuration of a [`Central`](super::Central).
 #[derive(Debug, Clone, PartialEq, Eq)]
 #[non_exhaustive]
@@ -201,7 +204,9 @@ pub struct Config {
     /// delivery), so the frames are byte for byte C's. A message for a
     /// handler unsubscribed in the meantime reaches the module, which
     /// discards and acknowledges it (the C library warns), where central
-    /// would have deleted it.
+    /// would have deleted it. At most [`MAX_SEND_AHEAD`] (more is taken as
+    /// that): a module gives up a central that sends more than its
+    /// capacity and that before its acknowledgements.
     pub send_ahead: BTreeMap<String, usize>,
     /// How long a new connection may take to say its module name (the
     /// `IPC_connect` query a module sends right after connecting). One

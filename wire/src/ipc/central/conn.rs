@@ -321,11 +321,17 @@ impl Central {
     }
 
     fn protocol_error(&mut self, conn: ConnId, why: String, now: SystemTime) {
+        self.close_saying(conn, "ERROR", why, now);
+    }
+
+    /// Closes `conn` for `why`, with a `<level>: closing connection …` line
+    /// (unless the strangers' budget leaves it out).
+    pub(super) fn close_saying(&mut self, conn: ConnId, level: &str, why: String, now: SystemTime) {
         if !self.stranger_quiet(conn) {
             let who = self.describe(conn);
             self.log_line(
                 Kind::Problem,
-                format!("ERROR: closing connection {who}: {why}"),
+                format!("{level}: closing connection {who}: {why}"),
             );
         }
         self.outputs.push_back(Output::Close { conn, reason: why });

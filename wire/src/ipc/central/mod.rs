@@ -72,7 +72,7 @@ mod timeouts;
 mod vars;
 
 pub use self::body::Body;
-pub use self::config::{Config, LogOptions, OptionError};
+pub use self::config::{Config, LogOptions, OptionError, MAX_SEND_AHEAD};
 pub use self::console::{DispatchInfo, DispatchState, ModuleInfo};
 pub use self::tables::DISPATCH_COST;
 

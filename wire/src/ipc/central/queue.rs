@@ -163,8 +163,7 @@ impl Central {
             .name
             .as_ref()
             .and_then(|n| self.config.send_ahead.get(n))
-            .copied()
-            .unwrap_or(0);
+            .map_or(0, |&d| d.min(super::MAX_SEND_AHEAD));
         m.ahead.len() < depth
             && m.ready
             && !m.closed

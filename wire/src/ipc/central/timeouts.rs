@@ -120,15 +120,7 @@ impl Central {
         let why = format!(
             "its {what} of {total} bytes stopped arriving ({got} received, none in {secs} s)"
         );
-        if !self.stranger_quiet(conn) {
-            let who = self.describe(conn);
-            self.log_line(
-                Kind::Problem,
-                format!("WARNING: closing connection {who}: {why}"),
-            );
-        }
-        self.outputs.push_back(Output::Close { conn, reason: why });
-        self.close_module(conn, false, now);
+        self.close_saying(conn, "WARNING", why, now);
     }
 
     /// A new connection has [`Config::handshake_timeout`] to name itself.

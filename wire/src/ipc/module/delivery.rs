@@ -41,7 +41,7 @@ pub(super) struct PendingDelivery {
 
 impl Connection {
     pub(super) fn handle_delivery(&mut self, f: Frame) -> Result<(), Error> {
-        if let Err(detail) = self.inbox_room(&f) {
+        if let Err(detail) = self.inbox_room() {
             return Err(Error::Protocol {
                 what: "delivery",
                 detail,
@@ -81,7 +81,7 @@ impl Connection {
 
     /// Whether `f` may join the deliveries waiting to be processed: at
     /// most [`MAX_QUEUED_DELIVERIES`] of them.
-    pub(super) fn inbox_room(&self, _f: &Frame) -> Result<(), String> {
+    pub(super) fn inbox_room(&self) -> Result<(), String> {
         if self.inbox.len() >= MAX_QUEUED_DELIVERIES {
             return Err(format!(
                 "more than {MAX_QUEUED_DELIVERIES} unprocessed deliveries"

@@ -77,7 +77,7 @@ impl Connection {
                 }
             } else if let Err(why) = self.check_link_delivery(&frame) {
                 return Err(Error::DirectLink(why));
-            } else if let Err(why) = self.inbox_room(&frame) {
+            } else if let Err(why) = self.inbox_room() {
                 return Err(Error::DirectLink(why));
             } else {
                 self.inbox.push_back((frame, Some(link)));

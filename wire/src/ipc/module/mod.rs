@@ -77,10 +77,11 @@ pub const FRAME_ROOM: u64 = 4096;
 pub const MAX_QUEUED_DELIVERIES: usize = 65_536;
 
 /// Deliveries central may send a module beyond its capacity before the
-/// module's acknowledgements: Courier's central sends up to 1024 ahead
-/// (`--send-ahead`), C's none. (Its notices to central's own handlers come
-/// on top, bounded by [`MAX_QUEUED_DELIVERIES`].)
-pub const MAX_SENT_AHEAD: usize = 1024;
+/// module's acknowledgements: what Courier's central sends ahead
+/// ([`central::MAX_SEND_AHEAD`](crate::ipc::central::MAX_SEND_AHEAD)), C's
+/// none. (Its notices to central's own handlers come on top, bounded by
+/// [`MAX_QUEUED_DELIVERIES`].)
+pub const MAX_SENT_AHEAD: usize = crate::ipc::central::MAX_SEND_AHEAD;
 
 /// `blocked` marker: a direct send waits for its links.
 const LINK_WAIT: i32 = i32::MIN + 1;
